@@ -1,0 +1,101 @@
+# voxd — build, test, bench, demo.
+#
+#   make            release build: build/release/{vox,libvoxd.a}
+#   make test       unit (Criterion), integration and fuzz-corpus suites under
+#                   AddressSanitizer + UndefinedBehaviorSanitizer; ends in "N passed, N failed"
+#   make demo       installs missing Debian packages, builds, voxelizes Scene 1,
+#                   writes scene1.vod and scene1.png
+#   make bench      benchmarks (release build), tables in bench/results/
+#   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
+#   make deps       installs the Debian packages the build needs, if missing
+
+CC      ?= cc
+V       ?= release
+BUILD   := build/$(V)
+PKGS    := zlib libpng libxxhash
+PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
+PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
+
+WARN    := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wvla
+CSTD    := -std=c11 -D_GNU_SOURCE
+INC     := -Icommon -Iworker -Iserver -Iclient -Iclient/include -I$(BUILD)/proto
+ifeq ($(V),release)
+  OPT   := -O2 -g
+else ifeq ($(V),asan)
+  OPT   := -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
+else ifeq ($(V),debug)
+  OPT   := -O0 -g
+endif
+CFLAGS  += $(CSTD) $(WARN) $(OPT) $(INC) $(PKG_CFLAGS) -MMD -MP
+LDFLAGS += $(filter -fsanitize=%,$(OPT))
+LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
+
+LIB_SRC := $(wildcard common/*.c worker/*.c server/*.c client/*.c)
+LIB_SRC := $(filter-out client/vox.c server/voxd.c,$(LIB_SRC))
+LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o)
+LIB     := $(BUILD)/libvoxd.a
+BINS    := $(BUILD)/vox
+
+UNIT_SRC := $(wildcard tests/unit/test_*.c)
+UNIT_BIN := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
+FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
+
+.PHONY: all deps test test-build demo bench fuzz clean
+all: $(BINS)
+
+$(BUILD)/%.o: %.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -c $< -o $@
+
+$(LIB): $(LIB_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+
+$(BUILD)/vox: $(BUILD)/client/vox.o $(LIB)
+	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
+
+$(BUILD)/tests/%: tests/unit/%.c $(LIB)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Itests/unit $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS) -lcriterion
+
+deps:
+	@scripts/deps.sh
+
+# The test build: sanitizers on; the runner prints the one summary line.
+test: deps
+	@$(MAKE) --no-print-directory V=asan test-build
+	@$(MAKE) --no-print-directory V=release all
+	@scripts/run-tests.sh build/asan
+
+test-build: all $(UNIT_BIN) fuzz-build-corpus
+
+# Fuzz harnesses: libFuzzer binaries (clang), and plain drivers that replay the
+# seed corpus under the sanitizers for `make test`.
+FUZZ_CC := clang
+FUZZ_LIB_OBJ := $(LIB_SRC:%.c=build/fuzz/%.o)
+build/fuzz/%.o: %.c
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) $(CSTD) -O1 -g $(INC) $(PKG_CFLAGS) -fsanitize=fuzzer-no-link,address,undefined -c $< -o $@
+build/fuzz/%: tests/fuzz/%.c $(FUZZ_LIB_OBJ)
+	$(FUZZ_CC) $(CSTD) -O1 -g $(INC) $(PKG_CFLAGS) -fsanitize=fuzzer,address,undefined $^ -o $@ $(PKG_LIBS) -lm -lpthread -lrt
+$(BUILD)/fuzz-replay/%: tests/fuzz/%.c tests/fuzz/replay_main.c $(LIB)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) $^ -o $@ $(LDFLAGS) $(LDLIBS)
+.PHONY: fuzz-build-corpus
+fuzz-build-corpus: $(FUZZ_SRC:tests/fuzz/%.c=$(BUILD)/fuzz-replay/%)
+FUZZ_SECONDS ?= 60
+fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
+	@for f in $^; do n=$$(basename $$f); mkdir -p build/fuzz/corpus/$$n; \
+	  echo "== $$n ($(FUZZ_SECONDS) s)"; \
+	  $$f -max_total_time=$(FUZZ_SECONDS) -max_len=65536 build/fuzz/corpus/$$n tests/fuzz/corpus/$$n || exit 1; done
+
+demo: deps all
+	@scripts/demo.sh $(BUILD)
+
+bench: deps all
+	@scripts/bench.sh $(BUILD)
+
+clean:
+	rm -rf build
+
+-include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d

@@ -1,0 +1,85 @@
+/* expr — the expression language for F(x,y,z) and its compiled tape.
+ *
+ * Source language (see README "Expressions"):
+ *   numbers, x y z, r theta phi (spherical: theta = atan2(y,x), phi = angle from +z),
+ *   + - * / ^, unary minus, parentheses, pi,
+ *   sin cos tan asin acos atan atan2 exp log sqrt abs min max pow blend(d,R),
+ *   named values "a = <expr>;" before the final expression; '#' starts a comment.
+ *   min and max take two or more arguments.
+ *
+ * expr_compile() parses once and emits a flat register tape (constant folding,
+ * common subexpressions shared).  The tape is one position-independent block of
+ * bytes (no pointers inside), so it can be copied into shared memory with memcpy
+ * and used from another process.
+ *
+ * Evaluation goes through an expr_vm: per-thread scratch registers plus one
+ * tape per subdivision depth.  Interval evaluation at depth d records, for every
+ * min/max, which side won on that box; expr_vm_prune(d) then builds the tape for
+ * depth d+1 with the branches that cannot matter inside that box removed, so
+ * deep octants run a much shorter tape.  A pruned tape equals F everywhere in
+ * the box it was pruned for, so point and gradient evaluation inside that box
+ * may use it too.
+ */
+#ifndef VOXD_EXPR_H
+#define VOXD_EXPR_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "ival.h"
+
+typedef struct expr_tape expr_tape;
+typedef struct expr_vm expr_vm;
+
+/* Limits on the untrusted source; each violation is its own error message. */
+typedef struct {
+    uint32_t max_source_bytes; /* default 65536 */
+    uint32_t max_depth;        /* nesting depth of the syntax tree, default 256 */
+    uint32_t max_nodes;        /* syntax tree nodes, default 100000 */
+} expr_limits;
+
+#define EXPR_DEFAULT_MAX_SOURCE 65536u
+#define EXPR_DEFAULT_MAX_DEPTH 256u
+#define EXPR_DEFAULT_MAX_NODES 100000u
+
+typedef struct {
+    int line, col;  /* 1-based position of the problem in the source (0 if none) */
+    char msg[200];  /* e.g. "unknown function 'sinn'" */
+} expr_error;
+
+void expr_limits_default(expr_limits *lim);
+
+/* Compile src (NUL-terminated, len bytes).  lim may be NULL for the defaults.
+ * Returns 0 and *out, or -EINVAL (syntax/semantic error) or -E2BIG (a limit)
+ * with *err filled in, or -ENOMEM. */
+int expr_compile(const char *src, size_t len, const expr_limits *lim,
+                 expr_tape **out, expr_error *err);
+void expr_tape_free(expr_tape *t);
+
+/* The tape as bytes: copy expr_tape_bytes(t) bytes from t to move it. */
+size_t expr_tape_bytes(const expr_tape *t);
+/* Number of instructions (for tests and the bench's statistics). */
+uint32_t expr_tape_length(const expr_tape *t);
+
+/* A vm for tape t (which must outlive it); max_depth is the deepest
+ * subdivision depth that will be evaluated (<= 32). */
+int expr_vm_new(const expr_tape *t, int max_depth, expr_vm **out);
+void expr_vm_free(expr_vm *vm);
+
+/* Evaluate with the tape of depth d (depth 0 is the full tape). */
+ival expr_vm_ival(expr_vm *vm, int d, ival x, ival y, ival z);
+double expr_vm_point(expr_vm *vm, int d, double x, double y, double z);
+/* Value and gradient (forward-mode derivatives) at a point. */
+double expr_vm_grad(expr_vm *vm, int d, double x, double y, double z,
+                    double grad[3]);
+/* Build the tape of depth d+1 from the choices of the last expr_vm_ival at
+ * depth d.  Call it right after that evaluation.  Cheap when nothing prunes. */
+void expr_vm_prune(expr_vm *vm, int d);
+/* Instructions in the tape of depth d (for statistics). */
+uint32_t expr_vm_length(const expr_vm *vm, int d);
+
+/* Convenience wrappers with the full tape (tests, oracles, tools). */
+double expr_eval_point(const expr_tape *t, double x, double y, double z);
+ival expr_eval_ival(const expr_tape *t, ival x, ival y, ival z);
+
+#endif

@@ -1,0 +1,158 @@
+/* The Stolte–Kaufman octree: Figure 2 (insertion from the last written cell)
+ * and Figure 6 (iteration with an explicit stack), over an index arena. */
+#include "octree.h"
+
+#include <assert.h>
+#include <errno.h>
+#include <string.h>
+
+/* Hand out the next cell, clearing a whole block when a new one starts
+ * (Figure 2's alloc_block).  The caller checked that one is left. */
+static uint32_t alloc_cell(octree *t)
+{
+    assert(t->used < t->capacity);
+    if (t->used == t->block_end) {
+        uint32_t end = t->used + OCTREE_BLOCK_CELLS;
+        if (end > t->capacity || end < t->used) end = t->capacity;
+        memset(&t->cells[t->used], 0, octree_arena_bytes(end - t->used));
+        t->block_end = end;
+    }
+    return t->used++;
+}
+
+void octree_init(octree *t, octree_cell *arena, uint32_t capacity, int depth)
+{
+    assert(capacity >= 2 && depth >= 1 && depth <= OCTREE_MAX_DEPTH);
+    memset(t, 0, sizeof *t);
+    t->cells = arena;
+    t->capacity = capacity;
+    t->depth = depth;
+    t->used = 1; /* cell 0 means "empty" and is never handed out */
+    t->block_end = 1;
+    uint32_t root = alloc_cell(t);
+    memset(&t->cells[0], 0, sizeof t->cells[0]);
+    t->path[0] = root;
+    t->path_len = 1;
+}
+
+void octree_view(octree *t, octree_cell *arena, uint32_t used, int depth)
+{
+    memset(t, 0, sizeof *t);
+    t->cells = arena;
+    t->capacity = used;
+    t->used = used;
+    t->block_end = used;
+    t->depth = depth;
+}
+
+static inline unsigned child_index(uint32_t x, uint32_t y, uint32_t z, int h)
+{
+    return ((x >> h) & 1u) | ((y >> h) & 1u) << 1 | ((z >> h) & 1u) << 2;
+}
+
+/* Cells a store below the path's end at height h would have to create. */
+static uint32_t cells_missing(const octree *t, uint32_t x, uint32_t y,
+                              uint32_t z, int h)
+{
+    uint32_t cell = t->path[t->path_len - 1];
+    for (; h > 0; h--) {
+        cell = t->cells[cell].child[child_index(x, y, z, h)];
+        if (cell == 0) return (uint32_t)h;
+    }
+    return 0;
+}
+
+int octree_store(octree *t, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
+{
+    assert(v != 0 && (x | y | z) >> t->depth == 0);
+    /* Ascend to the common parent: mask2 keeps the coordinate bits that name
+     * the current cell; pop while the new voxel differs in any of them. */
+    int h = t->depth - t->path_len; /* height of the deepest cell on the path */
+    uint32_t mask2 = ~0u << (h + 1);
+    while (((x ^ t->last[0]) | (y ^ t->last[1]) | (z ^ t->last[2])) & mask2) {
+        t->path_len--;
+        h++;
+        mask2 <<= 1;
+    }
+    if ((uint64_t)t->used + (uint64_t)h > t->capacity &&
+        cells_missing(t, x, y, z, h) > t->capacity - t->used)
+        return -ENOMEM;
+    /* Descend, creating the cells that do not exist yet. */
+    uint32_t cell = t->path[t->path_len - 1];
+    for (; h > 0; h--) {
+        uint32_t *slot = &t->cells[cell].child[child_index(x, y, z, h)];
+        if (*slot == 0) *slot = alloc_cell(t);
+        cell = *slot;
+        t->path[t->path_len++] = cell;
+    }
+    uint32_t *leaf = &t->cells[cell].child[child_index(x, y, z, 0)];
+    t->voxels += (*leaf == 0);
+    *leaf = v;
+    t->last[0] = x;
+    t->last[1] = y;
+    t->last[2] = z;
+    return 0;
+}
+
+uint32_t octree_find(const octree *t, int h, uint32_t x, uint32_t y,
+                     uint32_t z)
+{
+    assert(h >= 0 && h < t->depth);
+    uint32_t cell = 1;
+    for (int l = t->depth - 1; l > h && cell; l--)
+        cell = t->cells[cell].child[child_index(x, y, z, l)];
+    return cell;
+}
+
+uint32_t octree_get(const octree *t, uint32_t x, uint32_t y, uint32_t z)
+{
+    if ((x | y | z) >> t->depth) return 0;
+    uint32_t cell = octree_find(t, 0, x, y, z);
+    return cell ? t->cells[cell].child[child_index(x, y, z, 0)] : 0;
+}
+
+void octree_iter_init(octree_iter *it, const octree *t)
+{
+    memset(it, 0, sizeof *it);
+    it->t = t;
+    it->cell[0] = 1;
+    it->top = t->used > 1 ? 0 : -1;
+}
+
+/* Figure 6: X, Y, Z hold the coordinate bits of the path to the current
+ * cell; descending shifts a child's bit in, ascending shifts it out. */
+bool octree_iter_next(octree_iter *it, uint32_t *x, uint32_t *y, uint32_t *z,
+                      uint32_t *v)
+{
+    const octree_cell *cells = it->t->cells;
+    const int leaf_top = it->t->depth - 1;
+    while (it->top >= 0) {
+        unsigned i = it->next[it->top];
+        if (i > 7) { /* this cell is done: ascend one level */
+            it->top--;
+            it->x >>= 1;
+            it->y >>= 1;
+            it->z >>= 1;
+            continue;
+        }
+        it->next[it->top] = (uint8_t)(i + 1);
+        uint32_t e = cells[it->cell[it->top]].child[i];
+        if (e == 0) continue;
+        uint32_t cx = it->x << 1 | (i & 1u), cy = it->y << 1 | ((i >> 1) & 1u),
+                 cz = it->z << 1 | ((i >> 2) & 1u);
+        if (it->top == leaf_top) {
+            *x = cx;
+            *y = cy;
+            *z = cz;
+            *v = e;
+            return true;
+        }
+        it->top++;
+        it->cell[it->top] = e;
+        it->next[it->top] = 0;
+        it->x = cx;
+        it->y = cy;
+        it->z = cz;
+    }
+    return false;
+}

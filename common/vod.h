@@ -1,0 +1,175 @@
+/* vod — brick-octree VOD files (../shared/spec/VOD.md), written and read.
+ *
+ * Writing happens in three phases so that the middle one can run in
+ * parallel in the worker processes:
+ *   1. master:  vod_layout(), vod_aggregate(), vod_collect()  — plan
+ *   2. workers: vod_encode() for each collected brick node     — fill, hash, compress
+ *   3. master:  vod_assemble()                                 — dedup, lay out, write
+ * vod_write_octree() runs all three in-process.
+ *
+ * Reading (vod_read/vod_open) validates the whole file up front — every case of
+ * section 8 of the spec is refused with a message naming what is wrong — so a
+ * vod_file, once open, is trusted by every accessor.
+ */
+#ifndef VOXD_VOD_H
+#define VOXD_VOD_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "octree.h"
+
+#define VOD_FOURCC(a, b, c, d)                                                \
+    ((uint32_t)(a) | (uint32_t)(b) << 8 | (uint32_t)(c) << 16 |               \
+     (uint32_t)(d) << 24)
+#define VOD_HASH_SFHS VOD_FOURCC('S', 'F', 'H', 'S')
+#define VOD_HASH_XX32 VOD_FOURCC('X', 'X', '3', '2')
+#define VOD_COMP_NONE VOD_FOURCC('N', 'O', 'N', 'E')
+#define VOD_COMP_ZLIB VOD_FOURCC('Z', 'L', 'I', 'B')
+#define VOD_COMP_RUNL VOD_FOURCC('R', 'U', 'N', 'L')
+
+#define VOD_FLAG_COMPRESSED (1u << 0)
+#define VOD_FLAG_PADDED (1u << 1)
+#define VOD_FLAG_FLOAT (1u << 2)
+#define VOD_FLAG_TRAILER (1u << 16)
+
+#define VOD_HEADER_BYTES 64u
+#define VOD_DEFAULT_BRICK 16u
+#define VOD_MAX_METADATA 65536u
+
+/* What the writer is asked to produce. */
+typedef struct {
+    uint32_t volume[3];     /* volumeSize: the voxels asked for, each >= 1 */
+    uint32_t brick;         /* 2^k, 1 <= k <= 8; default 16 */
+    int channel;            /* VOXEL_CH_SURFACE (32 bit) or VOXEL_CH_OCCUPANCY (1 bit) */
+    uint32_t comp;          /* VOD_COMP_* ; default ZLIB */
+    uint32_t hash;          /* VOD_HASH_* ; default SFHS */
+    int zlib_level;         /* 1..9, default 6 */
+    float voxel_scale[3];   /* world size of a voxel */
+    float origin[3];        /* world position of voxel (0,0,0)'s low corner */
+    const char *metadata;   /* "key=value\n" lines, or NULL */
+} vod_params;
+
+void vod_params_default(vod_params *p);
+
+/* The shape of the file for params p over an octree of octree_depth. */
+typedef struct {
+    uint32_t brick, brick_log2; /* brick size and k */
+    uint32_t height;            /* treeHeight */
+    uint32_t padded;            /* N = brick * 2^(height-1) */
+    uint32_t voxel_bits;        /* 1 or 32 */
+    size_t raw_bytes;           /* bytes of one raw brick */
+    uint64_t nodes;             /* (8^height - 1) / 7 */
+    int octree_depth;
+} vod_layout;
+
+/* Validate p against the spec and compute the layout.  -EINVAL with a
+ * message in err for bad params, -EFBIG when the octree table alone would
+ * pass 4 GiB. */
+int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
+                    char *err, size_t errlen);
+
+/* One non-empty brick node of the complete tree. */
+typedef struct {
+    uint64_t preorder; /* index in the file's octree table */
+    uint32_t level;    /* 0 = full-resolution leaf bricks */
+    uint32_t bx, by, bz; /* brick coordinates within its level */
+} vod_node;
+
+/* Phase 1.  Fill t->agg (capacity t->used) with each cell's downsampled
+ * value (spec section 3) so any level's brick can be read off the tree. */
+void vod_aggregate(octree *t, int channel);
+/* Phase 1.  Write the non-empty brick nodes in preorder to out (up to cap);
+ * returns how many there are (call with out = NULL to count). */
+size_t vod_collect(const octree *t, const vod_layout *L, vod_node *out,
+                   size_t cap);
+
+/* Phase 2: one brick. */
+typedef struct {
+    uint32_t hash;      /* hash of the raw brick */
+    uint32_t size;      /* bytes written to out */
+} vod_encoded;
+/* Largest encoded size of one brick (bytes out must hold). */
+size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
+/* Fill node n's raw brick from the tree (scratch holds L->raw_bytes), hash
+ * it and compress it into out.  Returns 0 or a negative errno. */
+int vod_encode(const octree *t, const vod_layout *L, const vod_params *p,
+               const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
+               vod_encoded *rec);
+
+/* Where the file goes: write must write all n bytes or fail (negative errno). */
+typedef struct {
+    int (*write)(void *ud, const void *buf, size_t n);
+    void *ud;
+} vod_sink;
+
+typedef struct {
+    uint64_t file_bytes;
+    uint64_t raw_bytes;       /* volume size uncompressed: padded^3 * bits / 8 */
+    uint64_t nodes, nonempty_nodes;
+    uint64_t bricks;          /* unique bricks stored */
+    uint64_t brick_raw_bytes; /* raw bytes of the unique bricks */
+    uint64_t brick_data_bytes; /* stored (compressed) bytes of the unique bricks */
+    uint32_t crc32;           /* the trailer's fileCRC32 */
+} vod_stats;
+
+/* Phase 3.  data[i] holds recs[i].size encoded bytes of nodes[i] (nodes in
+ * preorder, as vod_collect gave them).  Duplicates (same hash, same bytes)
+ * are stored once.  -EFBIG when the file would pass 4 GiB. */
+int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
+                 const vod_node *nodes, const vod_encoded *recs,
+                 const uint8_t *const *data, vod_sink *sink, vod_stats *st);
+
+/* All three phases in this process. */
+int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
+                     vod_stats *st, char *err, size_t errlen);
+/* A sink writing to a file descriptor. */
+int vod_fd_write(void *fd_as_ptr, const void *buf, size_t n);
+
+/* ---- reading ---- */
+
+typedef struct vod_file vod_file;
+
+typedef struct {
+    uint32_t version;
+    uint32_t volume[3];
+    uint32_t brick;
+    float voxel_scale[3];
+    uint32_t height, voxel_bits, hash, comp, flags;
+    uint64_t nodes;
+    uint32_t bricks;
+    int has_trailer;
+    float origin[3];
+    uint32_t channel;
+    const char *metadata; /* NUL-terminated copy, "" if none */
+    uint32_t crc32;
+    uint64_t file_bytes;
+    uint64_t brick_data_bytes; /* sum of dataSize */
+} vod_info;
+
+/* Parse and fully validate a file image (copied).  Returns 0, or -EINVAL /
+ * -EBADMSG with a message in err naming what is wrong, or -ENOMEM. */
+int vod_read(const void *buf, size_t len, vod_file **out, char *err,
+             size_t errlen);
+int vod_open(const char *path, vod_file **out, char *err, size_t errlen);
+void vod_close(vod_file *f);
+const vod_info *vod_get_info(const vod_file *f);
+
+/* Voxels per axis at level l (volume rounded up, downsampled by 2^l). */
+uint32_t vod_level_size(const vod_file *f, int level);
+/* The voxel value at level l (0 = full resolution): 1-bit voxels read 0/1,
+ * 32-bit voxels their u32. */
+uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y,
+                   uint32_t z);
+/* Call fn for every non-zero voxel of level l inside the (downsampled)
+ * volume; stops early and returns fn's value if it returns non-zero. */
+int vod_foreach(const vod_file *f, int level,
+                int (*fn)(void *ud, uint32_t x, uint32_t y, uint32_t z,
+                          uint32_t v),
+                void *ud);
+
+/* Hashes of the spec (exposed for tests). */
+uint32_t vod_hash_sfhs(const void *data, size_t len);
+uint32_t vod_hash_xx32(const void *data, size_t len);
+
+#endif

@@ -1,0 +1,15 @@
+#!/bin/sh
+# Install the Debian packages voxd needs to build, test and fuzz, when missing.
+set -e
+PKGS="build-essential pkg-config zlib1g-dev libpng-dev libxxhash-dev libuv1-dev \
+libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev"
+missing=""
+for p in $PKGS; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+done
+[ -z "$missing" ] && exit 0
+echo "deps: installing$missing"
+SUDO=""
+[ "$(id -u)" -ne 0 ] && SUDO=sudo
+$SUDO apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing

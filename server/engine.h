@@ -1,0 +1,85 @@
+/* engine — the master–worker voxelization engine (Stolte–Kaufman, Figure 3).
+ *
+ * engine_create() maps one POSIX shared-memory segment and forks N worker
+ * processes, each pinned to a CPU.  The segment holds a header, one slot per
+ * worker (its 8-entry queue with two indices, the worker's and the master's,
+ * C11 atomics with acquire/release ordering), the job input (the compiled
+ * tape), the work stack and the octree.  The master (the caller's thread)
+ * runs the scheduler: drain every busy worker's queue (octants onto the
+ * stack, voxels into the octree), hand stack octants to idle workers, sleep
+ * on a futex when there is nothing to do.  Workers sleep on their own futex
+ * when idle.  The same workers then encode the VOD's bricks in parallel.
+ *
+ * One job at a time per engine; the engine outlives many jobs (the daemon
+ * keeps one for its whole life, `vox` makes one per command).
+ */
+#ifndef VOXD_ENGINE_H
+#define VOXD_ENGINE_H
+
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "expr.h"
+#include "octree.h"
+#include "subdiv.h"
+#include "vod.h"
+
+#define ENGINE_MAX_WORKERS 256
+
+typedef struct engine engine;
+
+typedef struct {
+    int workers;          /* >= 1 */
+    const int *cpus;      /* worker i is pinned to cpus[i % ncpus]; NULL: CPU i % cores */
+    int ncpus;
+    size_t shm_bytes;     /* segment size; 0 = default (sparse, touched as used) */
+    const char *shm_name; /* "/name" to keep (daemon); NULL = private, unlinked at once */
+} engine_opts;
+
+typedef enum {
+    ENGINE_SCHED_SUBTREE = 0, /* default: subtrees out, voxel batches back */
+    ENGINE_SCHED_PAPER = 1,   /* the paper: one octant out, its kept children back */
+} engine_schedule;
+
+typedef struct {
+    double fraction;      /* estimated, 0..1 */
+    int level;            /* deepest level finished */
+    uint64_t voxels;      /* stored so far */
+    double seconds;
+} engine_progress;
+
+typedef struct {
+    const expr_tape *tape;
+    subdiv_grid grid;
+    engine_schedule schedule;
+    /* Called by the master now and then (at most ~10 times a second). */
+    void (*progress)(void *ud, const engine_progress *p);
+    void *ud;
+    /* Set to non-zero by anyone to stop the job: engine_voxelize returns
+     * -ECANCELED.  Read with relaxed loads; nothing pairs with it. */
+    const atomic_int *cancel;
+} engine_job;
+
+typedef struct {
+    uint64_t voxels;
+    uint64_t octants;        /* octants tested */
+    uint32_t cells;          /* octree cells used */
+    double seconds;          /* wall time of the subdivision */
+    double master_cpu;       /* master thread CPU seconds */
+    double worker_cpu;       /* sum of the workers' CPU seconds for the job */
+} engine_result;
+
+int engine_create(const engine_opts *o, engine **out, char *err, size_t errlen);
+void engine_destroy(engine *e);
+int engine_workers(const engine *e);
+
+/* Voxelize job; the octree stays in shared memory until the next job. */
+int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
+/* The last job's octree (a view into shared memory). */
+octree *engine_octree(engine *e);
+/* Write the last job's octree as VOD, bricks encoded by the workers. */
+int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
+                     vod_stats *st, char *err, size_t errlen);
+
+#endif
