@@ -11,7 +11,7 @@
 
 CC      ?= cc
 V       ?= release
-BUILD   := build/$(V)
+BUILD   ?= build/$(V)
 PKGS    := zlib libpng libxxhash
 PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
 PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
@@ -30,7 +30,7 @@ CFLAGS  += $(CSTD) $(WARN) $(OPT) $(INC) $(PKG_CFLAGS) -MMD -MP
 LDFLAGS += $(filter -fsanitize=%,$(OPT))
 LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 
-LIB_SRC := $(wildcard common/*.c worker/*.c server/*.c client/*.c)
+LIB_SRC ?= $(wildcard common/*.c worker/*.c server/*.c client/*.c)
 LIB_SRC := $(filter-out client/vox.c server/voxd.c,$(LIB_SRC))
 LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o)
 LIB     := $(BUILD)/libvoxd.a
