@@ -1,0 +1,108 @@
+/* Parsers and helpers shared by the vox subcommands. */
+#include "cli.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+void cli_error(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("vox: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputc('\n', stderr);
+    va_end(ap);
+}
+
+int cli_parse_domain(const char *s, double lo[3], double hi[3])
+{
+    double v[6];
+    int n = 0;
+    const char *p = s;
+    while (n < 6) {
+        char *end;
+        errno = 0;
+        v[n] = strtod(p, &end);
+        if (end == p || errno || !isfinite(v[n])) return -1;
+        n++;
+        if (*end == '\0') break;
+        if (*end != ',') return -1;
+        p = end + 1;
+    }
+    if (n == 2)
+        for (int a = 0; a < 3; a++) lo[a] = v[0], hi[a] = v[1];
+    else if (n == 6)
+        for (int a = 0; a < 3; a++) lo[a] = v[2 * a], hi[a] = v[2 * a + 1];
+    else
+        return -1;
+    for (int a = 0; a < 3; a++)
+        if (!(lo[a] < hi[a])) return -1;
+    return 0;
+}
+
+int cli_parse_uint(const char *s, uint32_t min, uint32_t max, uint32_t *out)
+{
+    char *end;
+    errno = 0;
+    if (*s < '0' || *s > '9') return -1;
+    unsigned long v = strtoul(s, &end, 10);
+    if (errno || *end || v < min || v > max) return -1;
+    *out = (uint32_t)v;
+    return 0;
+}
+
+int cli_parse_cpus(const char *s, int *cpus, int cap)
+{
+    int n = 0;
+    const char *p = s;
+    for (;;) {
+        char *end;
+        long a = strtol(p, &end, 10), b;
+        if (end == p || a < 0 || a > 4095) return -1;
+        b = a;
+        if (*end == '-') {
+            p = end + 1;
+            b = strtol(p, &end, 10);
+            if (end == p || b < a || b > 4095) return -1;
+        }
+        for (long c = a; c <= b; c++) {
+            if (n == cap) return -1;
+            cpus[n++] = (int)c;
+        }
+        if (*end == '\0') return n;
+        if (*end != ',') return -1;
+        p = end + 1;
+    }
+}
+
+int cli_read_file(const char *path, size_t max, char **out, size_t *len)
+{
+    FILE *f = fopen(path, "rb");
+    if (!f) return -errno;
+    struct stat st;
+    if (fstat(fileno(f), &st) != 0 || (size_t)st.st_size > max) {
+        fclose(f);
+        return -EFBIG;
+    }
+    char *buf = malloc((size_t)st.st_size + 1);
+    if (!buf) {
+        fclose(f);
+        return -ENOMEM;
+    }
+    size_t n = fread(buf, 1, (size_t)st.st_size, f);
+    int bad = ferror(f);
+    fclose(f);
+    if (bad) {
+        free(buf);
+        return -EIO;
+    }
+    buf[n] = '\0';
+    *out = buf;
+    *len = n;
+    return 0;
+}
