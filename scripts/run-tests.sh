@@ -27,6 +27,7 @@ for t in "$build"/tests/test_*; do
     passed=$((passed + p)); failed=$((failed + f + c))
     printf 'unit  %-28s %4d passed, %d failed\n' "$name" "$p" $((f + c))
     [ $((f + c)) -gt 0 ] && grep -a -v '^\[----\]' "$log/$name" | tail -40
+    grep -a '^NOTE:' "$log/$name" | sort
 done
 
 for d in "$build"/fuzz-replay/fuzz_*; do
