@@ -54,6 +54,9 @@ $(LIB): $(LIB_OBJ)
 $(BUILD)/vox: $(BUILD)/client/vox.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
 
+$(BUILD)/voxbench: bench/voxbench.c $(LIB)
+	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+
 $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Itests/unit $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS) -lcriterion
@@ -92,7 +95,7 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all
+bench: deps all $(BUILD)/voxbench
 	@scripts/bench.sh $(BUILD)
 
 clean:

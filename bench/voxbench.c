@@ -1,0 +1,478 @@
+/* voxbench — the benchmarks behind `make bench`.
+ *
+ *   voxbench shapes  [-r RES]           standard shapes: serial and 1-worker times vs targets
+ *   voxbench table1  [-r RES] [-n MAX]  the paper's Table 1 for Scenes 1-3, both schedules
+ *   voxbench brute   [-r RES,...]       brute-force corner evaluation vs interval pruning
+ *   voxbench vod     [-r RES] [-n MAX]  VOD write throughput, size, dedup, compression, read
+ *   voxbench memory  [-r RES]           octree bytes per voxel, peak resident memory
+ *
+ * Every table is Markdown on stdout and starts with the machine's core count.
+ * Each time is the median of REPEATS runs measured in this process. */
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/resource.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "engine.h"
+#include "expr.h"
+#include "octree.h"
+#include "subdiv.h"
+#include "vod.h"
+#include "voxel.h"
+
+#define REPEATS 3
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static double median(double *v, int n)
+{
+    qsort(v, (size_t)n, sizeof *v, cmp_double);
+    return v[n / 2];
+}
+
+static void die(const char *what, const char *why)
+{
+    fprintf(stderr, "voxbench: %s: %s\n", what, why);
+    exit(1);
+}
+
+/* ---- shapes ---- */
+
+typedef struct {
+    const char *name, *file;
+    double target; /* seconds for one worker at 512^3, 0 = none */
+    double lo, hi;
+} shape;
+
+static const shape shapes[] = {
+    {"sphere", "examples/sphere.vx", 0.15, -1, 1},
+    {"union64", "examples/union64.vx", 0.6, -1, 1},
+    {"blend2", "examples/blend2.vx", 0.3, -1, 1},
+    {"scene1", "examples/scene1.vx", 0, -1, 1},
+    {"scene2", "examples/scene2.vx", 0, -1.05, 1.05},
+    {"scene3", "examples/scene3.vx", 0, -1.05, 1.05},
+};
+#define NSHAPES (sizeof shapes / sizeof shapes[0])
+
+static expr_tape *load_shape(const shape *s)
+{
+    FILE *f = fopen(s->file, "rb");
+    if (!f) die(s->file, strerror(errno));
+    static char buf[1 << 16];
+    size_t n = fread(buf, 1, sizeof buf - 1, f);
+    fclose(f);
+    buf[n] = '\0';
+    expr_tape *t;
+    expr_error err;
+    if (expr_compile(buf, n, NULL, &t, &err)) die(s->file, err.msg);
+    return t;
+}
+
+static subdiv_grid shape_grid(const shape *s, uint32_t res)
+{
+    double lo[3] = {s->lo, s->lo, s->lo}, hi[3] = {s->hi, s->hi, s->hi};
+    subdiv_grid g;
+    char err[200];
+    if (subdiv_grid_make(lo, hi, res, &g, err, sizeof err)) die("grid", err);
+    return g;
+}
+
+static engine *make_engine(int workers)
+{
+    engine_opts o = {.workers = workers};
+    engine *e;
+    char err[256] = "";
+    if (engine_create(&o, &e, err, sizeof err)) die("engine", err);
+    return e;
+}
+
+typedef struct {
+    double seconds, master_cpu, worker_cpu;
+    uint64_t voxels;
+} job_time;
+
+/* Median wall time of REPEATS jobs (CPU figures from the median run). */
+static job_time time_engine(engine *e, const expr_tape *t, const subdiv_grid *g,
+                            engine_schedule sched)
+{
+    job_time runs[REPEATS];
+    double secs[REPEATS];
+    for (int i = 0; i < REPEATS; i++) {
+        engine_job job = {.tape = t, .grid = *g, .schedule = sched};
+        engine_result r;
+        int rc = engine_voxelize(e, &job, &r);
+        if (rc) die("engine_voxelize", strerror(-rc));
+        runs[i] = (job_time){r.seconds, r.master_cpu, r.worker_cpu, r.voxels};
+        secs[i] = r.seconds;
+    }
+    double m = median(secs, REPEATS);
+    for (int i = 0; i < REPEATS; i++)
+        if (runs[i].seconds == m) return runs[i];
+    return runs[0];
+}
+
+typedef struct {
+    void *arena;
+    size_t bytes;
+    octree t;
+} serial_tree;
+
+static void serial_alloc(serial_tree *s, int depth)
+{
+    uint32_t cells = 1u << 27;
+    s->bytes = octree_arena_bytes(cells);
+    s->arena = mmap(NULL, s->bytes, PROT_READ | PROT_WRITE,
+                    MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    if (s->arena == MAP_FAILED) die("mmap", strerror(errno));
+    octree_init(&s->t, s->arena, cells, depth);
+}
+
+static double time_serial(const expr_tape *t, const subdiv_grid *g, uint64_t *voxels)
+{
+    double secs[REPEATS];
+    for (int i = 0; i < REPEATS; i++) {
+        serial_tree s;
+        serial_alloc(&s, g->depth);
+        double t0 = now();
+        if (subdiv_serial(t, g, &s.t)) die("subdiv_serial", "failed");
+        secs[i] = now() - t0;
+        *voxels = s.t.voxels;
+        munmap(s.arena, s.bytes);
+    }
+    return median(secs, REPEATS);
+}
+
+static void header(const char *title, uint32_t res)
+{
+    printf("\n### %s (%u^3, %ld cores, median of %d runs)\n\n", title, res,
+           sysconf(_SC_NPROCESSORS_ONLN), REPEATS);
+}
+
+static int null_write(void *ud, const void *buf, size_t n)
+{
+    (void)buf;
+    *(uint64_t *)ud += n;
+    return 0;
+}
+
+static void bench_shapes(uint32_t res)
+{
+    header("Standard shapes, one worker", res);
+    printf("| shape | voxels | serial (s) | 1 worker (s) | target (s) | vs target | VOD write (s) | VOD bytes |\n");
+    printf("|---|---:|---:|---:|---:|---:|---:|---:|\n");
+    engine *e = make_engine(1);
+    for (size_t i = 0; i < NSHAPES; i++) {
+        const shape *s = &shapes[i];
+        expr_tape *t = load_shape(s);
+        subdiv_grid g = shape_grid(s, res);
+        uint64_t vox;
+        double ser = time_serial(t, &g, &vox);
+        job_time w = time_engine(e, t, &g, ENGINE_SCHED_SUBTREE);
+        vod_params p;
+        vod_params_default(&p);
+        for (int a = 0; a < 3; a++) p.volume[a] = g.res[a], p.voxel_scale[a] = (float)g.vs;
+        uint64_t bytes = 0;
+        vod_sink sink = {null_write, &bytes};
+        vod_stats st;
+        char err[256];
+        double t0 = now();
+        if (engine_write_vod(e, &p, &sink, &st, err, sizeof err)) die("write", err);
+        double wt = now() - t0;
+        char tgt[32] = "-", ratio[32] = "-";
+        if (s->target > 0 && res == 512) {
+            snprintf(tgt, sizeof tgt, "%.2f", s->target);
+            snprintf(ratio, sizeof ratio, "%.2fx", w.seconds / s->target);
+        }
+        printf("| %s | %llu | %.3f | %.3f | %s | %s | %.3f | %llu |\n", s->name,
+               (unsigned long long)w.voxels, ser, w.seconds, tgt, ratio, wt,
+               (unsigned long long)bytes);
+        if (vox != w.voxels) printf("\n**serial and engine disagree: %llu vs %llu voxels**\n",
+                                    (unsigned long long)vox, (unsigned long long)w.voxels);
+        expr_tape_free(t);
+    }
+    engine_destroy(e);
+}
+
+/* ---- Table 1 ---- */
+
+static void table1_row(int n, job_time r[3][2], double t1[3][2], int sched)
+{
+    printf("| %d |", n);
+    for (int s = 0; s < 3; s++) {
+        double y = t1[s][sched] / (n * r[s][sched].seconds);
+        if (n == 1) printf(" %.3f s | - |", r[s][sched].seconds);
+        else printf(" %.3f s | %.0f%% |", r[s][sched].seconds, 100 * y);
+    }
+    printf("\n");
+}
+
+static void bench_table1(uint32_t res, int max_workers)
+{
+    const char *names[2] = {"subtree (default)", "paper"};
+    expr_tape *tapes[3];
+    subdiv_grid grids[3];
+    for (int s = 0; s < 3; s++) {
+        tapes[s] = load_shape(&shapes[3 + s]);
+        grids[s] = shape_grid(&shapes[3 + s], res);
+    }
+    job_time (*all)[3][2] = calloc((size_t)max_workers + 1, sizeof *all);
+    for (int n = 1; n <= max_workers; n++) {
+        engine *e = make_engine(n);
+        for (int s = 0; s < 3; s++)
+            for (int k = 0; k < 2; k++)
+                all[n][s][k] = time_engine(e, tapes[s], &grids[s], (engine_schedule)k);
+        engine_destroy(e);
+    }
+    double t1[3][2];
+    for (int s = 0; s < 3; s++)
+        for (int k = 0; k < 2; k++) t1[s][k] = all[1][s][k].seconds;
+    for (int k = 0; k < 2; k++) {
+        header(k == 0 ? "Table 1, subtree schedule (default)" : "Table 1, paper schedule", res);
+        printf("| workers | Scene 1 time | yield | Scene 2 time | yield | Scene 3 time | yield |\n");
+        printf("|---:|---:|---:|---:|---:|---:|---:|\n");
+        for (int n = 1; n <= max_workers; n++) table1_row(n, all[n], t1, k);
+    }
+    header("Table 1, voxels, rate and master CPU", res);
+    printf("| schedule | workers | scene | voxels | Mvoxels/s | master CPU / workers' CPU |\n");
+    printf("|---|---:|---|---:|---:|---:|\n");
+    for (int k = 0; k < 2; k++)
+        for (int n = 1; n <= max_workers; n++)
+            for (int s = 0; s < 3; s++) {
+                job_time *j = &all[n][s][k];
+                printf("| %s | %d | %s | %llu | %.2f | %.1f%% |\n", names[k], n,
+                       shapes[3 + s].name, (unsigned long long)j->voxels,
+                       j->voxels / j->seconds / 1e6,
+                       j->worker_cpu > 0 ? 100 * j->master_cpu / j->worker_cpu : 0.0);
+            }
+    free(all);
+    for (int s = 0; s < 3; s++) expr_tape_free(tapes[s]);
+}
+
+/* ---- brute force ---- */
+
+/* F at every voxel corner, (res+1)^3 point evaluations, on slices z in
+ * [0, nz) of the corner lattice; returns seconds and the sign changes seen. */
+static double brute_slices(const expr_tape *t, const subdiv_grid *g, uint32_t nz)
+{
+    expr_vm *vm;
+    if (expr_vm_new(t, 1, &vm)) die("vm", "no memory");
+    double t0 = now(), sink = 0;
+    for (uint32_t k = 0; k < nz; k++) {
+        double z = g->lo[2] + k * g->vs;
+        for (uint32_t j = 0; j <= g->res[1]; j++) {
+            double y = g->lo[1] + j * g->vs;
+            for (uint32_t i = 0; i <= g->res[0]; i++)
+                sink += expr_vm_point(vm, 0, g->lo[0] + i * g->vs, y, z) > 0;
+        }
+    }
+    double s = now() - t0;
+    expr_vm_free(vm);
+    if (sink < 0) printf("impossible\n");
+    return s;
+}
+
+static void bench_brute(const uint32_t *res, int nres)
+{
+    header("Brute force (F at every voxel corner) vs interval subdivision, serial", res[nres - 1]);
+    printf("| shape | res | corners | brute force (s) | how | subdivision (s) | speed-up |\n");
+    printf("|---|---:|---:|---:|---|---:|---:|\n");
+    const int which[] = {0, 3};
+    for (int w = 0; w < 2; w++) {
+        const shape *s = &shapes[which[w]];
+        expr_tape *t = load_shape(s);
+        for (int r = 0; r < nres; r++) {
+            subdiv_grid g = shape_grid(s, res[r]);
+            uint32_t nz = g.res[2] + 1, measured = nz;
+            /* Big grids: time a spread of slices and scale by the count. */
+            if ((uint64_t)nz * nz * nz > 200000000ull) measured = 32;
+            double b = brute_slices(t, &g, measured) * nz / measured;
+            uint64_t vox;
+            double sub = time_serial(t, &g, &vox);
+            char how[64];
+            if (measured == nz) snprintf(how, sizeof how, "measured");
+            else snprintf(how, sizeof how, "%u of %u slices, scaled", measured, nz);
+            printf("| %s | %u | %llu | %.2f | %s | %.3f | %.0fx |\n", s->name, res[r],
+                   (unsigned long long)nz * nz * nz, b, how, sub, b / sub);
+        }
+        expr_tape_free(t);
+    }
+}
+
+/* ---- VOD ---- */
+
+static int count_voxel(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
+{
+    (void)x, (void)y, (void)z, (void)v;
+    ++*(uint64_t *)ud;
+    return 0;
+}
+
+static double time_vod_read(const char *path, uint64_t *voxels)
+{
+    double t0 = now();
+    vod_file *f;
+    char err[256];
+    if (vod_open(path, &f, err, sizeof err)) die(path, err);
+    *voxels = 0;
+    vod_foreach(f, 0, count_voxel, voxels);
+    vod_close(f);
+    return now() - t0;
+}
+
+/* The same volume as a flat RAW file (4 bytes a voxel): write, then time a
+ * read that touches every voxel. */
+static double time_raw_read(const octree *t, uint32_t n, const char *path, uint64_t *bytes)
+{
+    size_t total = (size_t)n * n * n * 4;
+    uint32_t *vol = calloc((size_t)n * n * n, 4);
+    if (!vol) die("raw", "no memory");
+    octree_iter it;
+    octree_iter_init(&it, t);
+    uint32_t x, y, z, v;
+    while (octree_iter_next(&it, &x, &y, &z, &v))
+        if (x < n && y < n && z < n) vol[((size_t)z * n + y) * n + x] = v;
+    int fd = open(path, O_CREAT | O_TRUNC | O_WRONLY, 0600);
+    if (fd < 0 || write(fd, vol, total) != (ssize_t)total) die(path, "cannot write");
+    close(fd);
+    memset(vol, 0, total);
+    double t0 = now();
+    fd = open(path, O_RDONLY);
+    size_t got = 0;
+    while (got < total) {
+        ssize_t r = read(fd, (char *)vol + got, total - got);
+        if (r <= 0) die(path, "cannot read");
+        got += (size_t)r;
+    }
+    close(fd);
+    uint64_t nz = 0;
+    for (size_t i = 0; i < (size_t)n * n * n; i++) nz += vol[i] != 0;
+    double s = now() - t0;
+    free(vol);
+    unlink(path);
+    *bytes = total;
+    return s + (nz == 0 ? 0 : 0);
+}
+
+static void bench_vod(uint32_t res, int max_workers)
+{
+    header("VOD files (zlib level 6, SFHS, 16^3 bricks, channel 3)", res);
+    printf("| shape | workers | write (s) | raw MB/s | file bytes | unique bricks | dedup | compression | read+validate (s) | RAW bytes | RAW read (s) |\n");
+    printf("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    const int which[] = {0, 3, 5};
+    for (int w = 0; w < 3; w++) {
+        const shape *s = &shapes[which[w]];
+        expr_tape *t = load_shape(s);
+        subdiv_grid g = shape_grid(s, res);
+        for (int n = 1; n <= max_workers; n = n == 1 ? max_workers : n + 1) {
+            engine *e = make_engine(n);
+            time_engine(e, t, &g, ENGINE_SCHED_SUBTREE);
+            vod_params p;
+            vod_params_default(&p);
+            for (int a = 0; a < 3; a++) p.volume[a] = g.res[a], p.voxel_scale[a] = (float)g.vs;
+            char path[] = "/tmp/voxbench-XXXXXX";
+            int fd = mkstemp(path);
+            vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
+            vod_stats st;
+            char err[256];
+            double t0 = now();
+            if (engine_write_vod(e, &p, &sink, &st, err, sizeof err)) die("write", err);
+            double wt = now() - t0;
+            close(fd);
+            uint64_t vox, raw_bytes;
+            double rt = time_vod_read(path, &vox);
+            double raw = time_raw_read(engine_octree(e), g.res[0], path, &raw_bytes);
+            printf("| %s | %d | %.3f | %.0f | %llu | %llu | %.2fx | %.1fx | %.3f | %llu | %.3f |\n",
+                   s->name, n, wt, st.raw_bytes / wt / 1e6, (unsigned long long)st.file_bytes,
+                   (unsigned long long)st.bricks, (double)st.nonempty_nodes / (double)st.bricks,
+                   (double)st.brick_raw_bytes / (double)st.brick_data_bytes, rt,
+                   (unsigned long long)raw_bytes, raw);
+            unlink(path);
+            engine_destroy(e);
+            if (max_workers == 1) break;
+        }
+        expr_tape_free(t);
+    }
+}
+
+/* ---- memory ---- */
+
+static void bench_memory(uint32_t res)
+{
+    header("Memory", res);
+    printf("| shape | voxels | octree cells | octree bytes/voxel | peak RSS (MiB) |\n");
+    printf("|---|---:|---:|---:|---:|\n");
+    for (size_t i = 0; i < NSHAPES; i++) {
+        const shape *s = &shapes[i];
+        expr_tape *t = load_shape(s);
+        subdiv_grid g = shape_grid(s, res);
+        serial_tree st;
+        serial_alloc(&st, g.depth);
+        if (subdiv_serial(t, &g, &st.t)) die("subdiv_serial", "failed");
+        struct rusage ru;
+        getrusage(RUSAGE_SELF, &ru);
+        printf("| %s | %llu | %u | %.2f | %.1f |\n", s->name,
+               (unsigned long long)st.t.voxels, st.t.used,
+               (double)octree_arena_bytes(st.t.used) / (double)st.t.voxels,
+               ru.ru_maxrss / 1024.0);
+        munmap(st.arena, st.bytes);
+        expr_tape_free(t);
+    }
+    printf("\n(peak RSS is this process's high-water mark so far, serial engine)\n");
+}
+
+static int parse_res_list(const char *s, uint32_t *out, int cap)
+{
+    int n = 0;
+    while (*s && n < cap) {
+        char *end;
+        unsigned long v = strtoul(s, &end, 10);
+        if (end == s || v < 1 || v > 4096) return -1;
+        out[n++] = (uint32_t)v;
+        s = *end == ',' ? end + 1 : end;
+    }
+    return n;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc < 2) {
+        fprintf(stderr, "usage: voxbench shapes|table1|brute|vod|memory [-r RES[,RES..]] [-n MAXWORKERS]\n");
+        return 2;
+    }
+    uint32_t res[8] = {512};
+    int nres = 1;
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    int maxw = cores > 0 ? (int)cores : 1;
+    for (int i = 2; i + 1 < argc; i += 2) {
+        if (!strcmp(argv[i], "-r") && (nres = parse_res_list(argv[i + 1], res, 8)) < 1)
+            die("-r", "want RES[,RES...] in 1..4096");
+        if (!strcmp(argv[i], "-n")) maxw = atoi(argv[i + 1]);
+    }
+    if (maxw < 1 || maxw > ENGINE_MAX_WORKERS) die("-n", "out of range");
+    const char *cmd = argv[1];
+    if (!strcmp(cmd, "shapes")) bench_shapes(res[0]);
+    else if (!strcmp(cmd, "table1")) bench_table1(res[0], maxw);
+    else if (!strcmp(cmd, "brute")) bench_brute(res, nres);
+    else if (!strcmp(cmd, "vod")) bench_vod(res[0], maxw);
+    else if (!strcmp(cmd, "memory")) bench_memory(res[0]);
+    else die(cmd, "unknown benchmark");
+    return 0;
+}

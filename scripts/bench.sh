@@ -1,0 +1,18 @@
+#!/bin/bash
+# make bench: every benchmark table, printed and saved in bench/results/.
+# BENCH_RES (default 512) and BENCH_WORKERS (default: cores) adjust the runs.
+set -euo pipefail
+build=${1:-build/release}
+res=${BENCH_RES:-512}
+workers=${BENCH_WORKERS:-$(nproc)}
+mkdir -p bench/results
+out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
+{
+    echo "# voxbench on $(nproc) cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')"
+    "$build/voxbench" shapes -r "$res"
+    "$build/voxbench" table1 -r "$res" -n "$workers"
+    "$build/voxbench" brute -r 256,512,1024
+    "$build/voxbench" vod -r "$res" -n "$workers"
+    "$build/voxbench" memory -r "$res"
+} | tee "$out"
+echo "bench: tables saved in $out"
