@@ -1,0 +1,110 @@
+/* vox render: a VOD file drawn as shaded points into a PNG. */
+#include <getopt.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cli.h"
+#include "render.h"
+#include "vod.h"
+
+static const char usage[] =
+    "usage: vox render FILE.vod -o OUT.png [options]\n"
+    "  -o, --output OUT.png   the picture to write\n"
+    "  -a, --azimuth DEG      camera angle about +z, from +x (default 30)\n"
+    "  -e, --elevation DEG    camera angle above the xy-plane, -90..90 (default 20)\n"
+    "  -s, --size N           image width and height in pixels, 1..8192 (default 1024)\n"
+    "  -l, --level L          level of detail: 0 full resolution, L reads the parent\n"
+    "                         bricks, 2^L voxels per splat (default 0)\n"
+    "  -p, --perspective      perspective projection (default orthographic)\n"
+    "      --fov DEG          perspective field of view (default 35)\n"
+    "      --ambient A        ambient light 0..1 (default 0.2)\n"
+    "      --whole            frame the whole volume, not just the voxels\n";
+
+static int parse_double(const char *s, double lo, double hi, double *out)
+{
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || *end || !(v >= lo && v <= hi)) return -1;
+    *out = v;
+    return 0;
+}
+
+static int parse_render_args(int argc, char **argv, render_opts *o,
+                             const char **out, int *level)
+{
+    static const struct option longs[] = {
+        {"output", 1, 0, 'o'}, {"azimuth", 1, 0, 'a'}, {"elevation", 1, 0, 'e'},
+        {"size", 1, 0, 's'}, {"level", 1, 0, 'l'}, {"perspective", 0, 0, 'p'},
+        {"fov", 1, 0, 'F'}, {"ambient", 1, 0, 'A'}, {"whole", 0, 0, 'W'},
+        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    int c;
+    uint32_t u;
+    optind = 1;
+    while ((c = getopt_long(argc, argv, "o:a:e:s:l:ph", longs, NULL)) != -1) {
+        int bad = 0;
+        switch (c) {
+        case 'o': *out = optarg; break;
+        case 'a': bad = parse_double(optarg, -1e6, 1e6, &o->azimuth); break;
+        case 'e': bad = parse_double(optarg, -90, 90, &o->elevation); break;
+        case 's':
+            bad = cli_parse_uint(optarg, 1, RENDER_MAX_SIZE, &u);
+            o->width = o->height = (int)u;
+            break;
+        case 'l':
+            bad = cli_parse_uint(optarg, 0, 31, &u);
+            *level = (int)u;
+            break;
+        case 'p': o->perspective = 1; break;
+        case 'F': bad = parse_double(optarg, 1, 169, &o->fov); break;
+        case 'A': bad = parse_double(optarg, 0, 1, &o->ambient); break;
+        case 'W': o->fit_volume = 1; break;
+        case 'h': fputs(usage, stdout); exit(0);
+        default: fputs(usage, stderr); return -1;
+        }
+        if (bad) {
+            cli_error("bad value '%s' for option -%c (see vox render --help)", optarg, c);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+int cli_render(int argc, char **argv)
+{
+    render_opts o;
+    render_opts_default(&o);
+    const char *out = NULL;
+    int level = 0;
+    if (parse_render_args(argc, argv, &o, &out, &level)) return 2;
+    if (optind + 1 != argc || !out) {
+        cli_error("want one FILE.vod and -o OUT.png");
+        return 2;
+    }
+    const char *path = argv[optind];
+    vod_file *f;
+    char err[512] = "";
+    if (vod_open(path, &f, err, sizeof err)) {
+        cli_error("%s: %s", path, err);
+        return 1;
+    }
+    const vod_info *in = vod_get_info(f);
+    if ((uint32_t)level >= in->height) {
+        cli_error("%s has levels 0..%u; --level %d does not exist", path, in->height - 1, level);
+        vod_close(f);
+        return 2;
+    }
+    render_image img;
+    int rc = render_vod(f, level, &o, &img, err, sizeof err);
+    vod_close(f);
+    if (rc) {
+        cli_error("cannot render %s: %s", path, err);
+        return 1;
+    }
+    rc = render_write_png(&img, out);
+    if (rc) cli_error("cannot write %s: %s", out, strerror(-rc));
+    else printf("%s: %llu voxels drawn at level %d, %dx%d\n", out,
+                (unsigned long long)img.splats, level, img.width, img.height);
+    render_image_free(&img);
+    return rc ? 1 : 0;
+}
