@@ -10,14 +10,31 @@
  * voxels per axis; level 0 is one voxel, level `depth` the whole grid.
  * A box is kept when F's interval on it contains 0; a kept voxel is emitted
  * with the normalized gradient at its centre packed as a channel-3 value.
+ * The root (level `depth`) is never tested; an octant whose low corner lies
+ * outside res is never tested either (it holds no voxel).
+ *
+ * Tapes and reproducibility.  An octant at level L is always tested with
+ * tape t = depth-1-L, and tape t+1 is always the one pruned (expr_vm_prune)
+ * by the chain of its ancestors: the octant at level depth-1-s that contains
+ * it, tested with tape s and pruned, for s = 0..t-1.  So whether a box is
+ * kept, and a voxel's normal (taken with the tape its test used), depend on
+ * the box alone, never on the order or the process that got there: the
+ * serial algorithm, both engine schedules and any number of workers produce
+ * the same voxels bit for bit.  A kernel remembers which chain its vm's tapes
+ * were built for and rebuilds only the part that differs when it is handed
+ * an octant elsewhere (a handful of evaluations, usually none or one).
  */
 #ifndef VOXD_SUBDIV_H
 #define VOXD_SUBDIV_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "expr.h"
 #include "octree.h"
+
+#define SUBDIV_MAX_RES 4096u
+#define SUBDIV_MAX_DEPTH 12 /* 2^12 = SUBDIV_MAX_RES */
 
 typedef struct {
     double lo[3];     /* domain low corner */
@@ -37,37 +54,73 @@ typedef struct {
 } subdiv_voxel;
 
 /* Grid for res voxels along the longest axis of [lo, hi] (a box domain;
- * the other axes get ceil(extent / vs) voxels, at least 1).  -EINVAL with
- * a message for an empty or non-finite box or res outside 1..4096. */
+ * the other axes get ceil(extent / vs) voxels, at least 1).  The grid covers
+ * the domain: lo + res[a]*vs >= hi[a].  -EINVAL with a message for an empty
+ * or non-finite box or res outside 1..4096. */
 int subdiv_grid_make(const double lo[3], const double hi[3], uint32_t res,
                      subdiv_grid *g, char *err, size_t errlen);
+/* 0 when g is a grid subdiv_grid_make could have made (res, depth, finite
+ * lo and vs > 0), else -EINVAL: for grids that come from elsewhere. */
+int subdiv_grid_check(const subdiv_grid *g);
+
+/* World coordinate lo[a] + X*vs: the one formula for every bound (X may be
+ * fractional for centres: X + 0.5). */
+static inline double subdiv_coord(const subdiv_grid *g, int a, double X)
+{
+    return g->lo[a] + X * g->vs;
+}
 
 /* The world box of an octant (the one formula above). */
 void subdiv_box(const subdiv_grid *g, subdiv_octant o, ival *x, ival *y,
                 ival *z);
 
+/* The grid's root octant (level depth at the origin). */
+static inline subdiv_octant subdiv_root(const subdiv_grid *g)
+{
+    return (subdiv_octant){0, 0, 0, (uint16_t)g->depth};
+}
+
 /* What the kernels produce.  A callback returning non-zero stops the
- * kernel, which returns that value. */
+ * kernel, which returns that value.  poll (may be NULL) is called every
+ * SUBDIV_POLL_TESTS box tests so a long subtree can be abandoned. */
+#define SUBDIV_POLL_TESTS 4096u
 typedef struct {
     int (*voxel)(void *ud, const subdiv_voxel *v);
     int (*octant)(void *ud, const subdiv_octant *o);
+    int (*poll)(void *ud);
     void *ud;
 } subdiv_sink;
 
-/* Paper schedule: test the 8 children of o (o.level >= 1) with the vm's
- * full tape; emit kept children as octants, or as voxels when o.level == 1. */
-int subdiv_children(expr_vm *vm, const subdiv_grid *g, subdiv_octant o,
-                    const subdiv_sink *s);
+/* A kernel: a vm over the job's tape plus the record of which ancestor
+ * chain each of its pruned tapes was built for (see above). */
+typedef struct {
+    expr_vm *vm;
+    const subdiv_grid *g;
+    subdiv_octant chain[SUBDIV_MAX_DEPTH]; /* chain[t]: built tape t+1 */
+    int valid;          /* tapes 1..valid are built for chain[0..valid-1] */
+    uint64_t tested;    /* boxes tested for the kernels' output */
+    uint64_t rebuilt;   /* extra evaluations to rebuild chains */
+    uint32_t poll_left;
+} subdiv_kernel;
+
+/* vm must have been made with max_depth >= g->depth; both must outlive k. */
+void subdiv_kernel_init(subdiv_kernel *k, expr_vm *vm, const subdiv_grid *g);
+
+/* Paper schedule: test the children of o (o.level >= 1, o kept by its own
+ * test or the root) and emit the kept ones as octants, or as voxels when
+ * o.level == 1, in child order. */
+int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s);
 
 /* Subtree schedule: every voxel of o's subtree, depth first in child order
  * (so voxels arrive in octree preorder), pruning the tape on the way down.
- * o itself is assumed to have been kept by its parent's test. */
-int subdiv_subtree(expr_vm *vm, const subdiv_grid *g, subdiv_octant o,
-                   const subdiv_sink *s);
+ * o itself is assumed to have been kept by its parent's test (or to be the
+ * root); o.level == 0 emits o as a voxel. */
+int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s);
 
-/* The serial algorithm (Figure 1 with an explicit stack): the whole grid
- * straight into the octree t (depth g->depth).  Returns 0, or -ENOMEM when
- * t's arena is full, or what a progress callback returned. */
+/* The serial algorithm (Figure 1 with an explicit stack, the subtree kernel
+ * on the root): the whole grid straight into the octree t (depth g->depth).
+ * Returns 0, or -ENOMEM when t's arena is full or the vm cannot be made,
+ * -EINVAL for a bad grid or a tree of another depth. */
 int subdiv_serial(const expr_tape *tape, const subdiv_grid *g, octree *t);
 
 #endif
