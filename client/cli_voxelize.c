@@ -193,6 +193,8 @@ static int out_commit(out_file *f, const char *path, int ok)
     return rc;
 }
 
+/* The metadata names the job, not how it ran (no worker count), so the
+ * same job gives the same bytes whatever the parallelism. */
 static void make_metadata(char *buf, size_t cap, const source *src,
                           const subdiv_grid *g, const voxelize_opts *o)
 {
@@ -204,9 +206,9 @@ static void make_metadata(char *buf, size_t cap, const source *src,
         snprintf(line, sizeof line, "%s", src->text);
     snprintf(buf, cap,
              "generator=vox voxelize\nsource=%s\nresolution=%u\n"
-             "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\nworkers=%u\n",
+             "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\n",
              line, o->res, g->res[0], g->res[1], g->res[2], o->lo[0], o->hi[0],
-             o->lo[1], o->hi[1], o->lo[2], o->hi[2], o->workers);
+             o->lo[1], o->hi[1], o->lo[2], o->hi[2]);
 }
 
 static void set_vod_geometry(vod_params *v, const subdiv_grid *g)

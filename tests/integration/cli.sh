@@ -1,0 +1,54 @@
+#!/bin/bash
+# vox end to end: real processes, real files.
+. "$(dirname "$0")/lib.sh"
+
+check "vox --help" "$VOX" --help
+refuse "unknown command" 2 "unknown command 'frobnicate'" "$VOX" frobnicate
+check "voxelize --help" "$VOX" voxelize --help
+
+# The same job, serial and with 1 and 2 workers, both schedules: same bytes.
+S='sqrt(x^2+y^2+z^2) - 0.8'
+check "serial sphere" "$VOX" voxelize -e "$S" -r 64 -w 0 -o "$TMP/s0.vod"
+check "1 worker" "$VOX" voxelize -e "$S" -r 64 -w 1 -o "$TMP/s1.vod"
+check "2 workers" "$VOX" voxelize -e "$S" -r 64 -w 2 --cpus 0,1 -o "$TMP/s2.vod"
+check "2 workers, paper schedule" "$VOX" voxelize -e "$S" -r 64 -w 2 --schedule paper -o "$TMP/sp.vod"
+check "serial = 1 worker (bytes)" cmp "$TMP/s0.vod" "$TMP/s1.vod"
+check "serial = 2 workers (bytes)" cmp "$TMP/s0.vod" "$TMP/s2.vod"
+check "serial = paper schedule (bytes)" cmp "$TMP/s0.vod" "$TMP/sp.vod"
+
+refuse "info validates" 0 "valid VOD.*CRC-32 checked" "$VOX" info "$TMP/s1.vod"
+refuse "info shows the volume" 0 "volume +64 x 64 x 64" "$VOX" info "$TMP/s1.vod"
+
+# Any resolution and a box domain: the longest axis gets res voxels.
+check "box domain, res 100" "$VOX" voxelize -e "$S" -d -1,1,-0.5,0.5,-0.25,0.25 -r 100 -o "$TMP/box.vod"
+refuse "box volume" 0 "volume +100 x 50 x 25" "$VOX" info "$TMP/box.vod"
+check "res 1" "$VOX" voxelize -e "x" -r 1 -o "$TMP/one.vod"
+refuse "res 1 volume" 0 "volume +1 x 1 x 1" "$VOX" info "$TMP/one.vod"
+
+check "scene file with directives" "$VOX" voxelize -f examples/scene2.vx -r 48 -o "$TMP/scene2.vod"
+refuse "directive domain used" 0 "domain=-1.05,1.05" "$VOX" info "$TMP/scene2.vod"
+check "occupancy channel" "$VOX" voxelize -e "$S" -r 32 --channel occupancy --compress runl --hash xx32 --brick 8 -o "$TMP/occ.vod"
+refuse "occupancy is 1 bit" 0 "1 bits" "$VOX" info "$TMP/occ.vod"
+refuse "progress line" 0 "level" "$VOX" voxelize -e "$S" -r 64 --progress -o "$TMP/p.vod"
+
+# Errors: clear message, exit 2, no output file left behind.
+refuse "parse error has line:col" 2 "<expr>:1:9: " "$VOX" voxelize -e "x + y * (z" -r 8 -o "$TMP/bad.vod"
+refuse "unknown function" 2 "sinn" "$VOX" voxelize -e "sinn(x)" -r 8 -o "$TMP/bad.vod"
+refuse "res 0" 2 "bad --res" "$VOX" voxelize -e x -r 0 -o "$TMP/bad.vod"
+refuse "res 4097" 2 "bad --res" "$VOX" voxelize -e x -r 4097 -o "$TMP/bad.vod"
+refuse "empty domain" 2 "bad --domain" "$VOX" voxelize -e x -d 1,0 -o "$TMP/bad.vod"
+refuse "no output" 2 "missing -o" "$VOX" voxelize -e x
+refuse "unwritable output" 1 "cannot create" "$VOX" voxelize -e x -r 8 -o /nonexistent/dir/x.vod
+[ -e "$TMP/bad.vod" ] && fail "no partial file" || pass "no partial file"
+[ -z "$(ls "$TMP" | grep tmp)" ] && pass "no temporary file left" || fail "no temporary file left" "$(ls "$TMP")"
+
+# A damaged file is refused by name.
+head -c 200 "$TMP/s1.vod" >"$TMP/trunc.vod"
+refuse "truncated file refused" 1 "trunc" "$VOX" info "$TMP/trunc.vod"
+
+# Pictures.
+check "render" "$VOX" render "$TMP/s1.vod" -o "$TMP/s.png" --size 128
+[ "$(head -c 8 "$TMP/s.png" | od -An -tx1 | tr -d ' ')" = "89504e470d0a1a0a" ] && pass "render writes a PNG" || fail "render writes a PNG"
+check "render level 1, perspective" "$VOX" render "$TMP/s1.vod" -o "$TMP/s1.png" --size 64 --level 1 -p
+refuse "render bad level" 2 "levels 0" "$VOX" render "$TMP/s1.vod" -o "$TMP/x.png" --level 9
+check "render occupancy" "$VOX" render "$TMP/occ.vod" -o "$TMP/occ.png" --size 64
