@@ -12,7 +12,7 @@
 CC      ?= cc
 V       ?= release
 BUILD   ?= build/$(V)
-PKGS    := zlib libpng libxxhash
+PKGS    := zlib libpng libxxhash libuv libprotobuf-c
 PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
 PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
 
@@ -32,9 +32,11 @@ LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 
 LIB_SRC ?= $(wildcard common/*.c worker/*.c server/*.c client/*.c)
 LIB_SRC := $(filter-out client/vox.c server/voxd.c,$(LIB_SRC))
-LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o)
+PROTO   := $(wildcard proto/*.proto)
+PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
+LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIB     := $(BUILD)/libvoxd.a
-BINS    := $(BUILD)/vox
+BINS    := $(BUILD)/vox $(if $(wildcard server/voxd.c),$(BUILD)/voxd)
 
 UNIT_SRC := $(wildcard tests/unit/test_*.c)
 UNIT_BIN := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
@@ -43,15 +45,25 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 .PHONY: all deps test test-build demo bench fuzz clean
 all: $(BINS)
 
-$(BUILD)/%.o: %.c
+$(BUILD)/%.o: %.c | $(PROTO_C)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -c $< -o $@
+
+# Generated protobuf-c code is built, never committed.
+$(BUILD)/proto/%.pb-c.c $(BUILD)/proto/%.pb-c.h: proto/%.proto
+	@mkdir -p $(BUILD)/proto
+	protoc-c --c_out=$(BUILD)/proto --proto_path=proto $<
+$(BUILD)/proto/%.pb-c.o: $(BUILD)/proto/%.pb-c.c
+	$(CC) $(CSTD) $(OPT) $(INC) -c $< -o $@
 
 $(LIB): $(LIB_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
 
 $(BUILD)/vox: $(BUILD)/client/vox.o $(LIB)
+	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
+
+$(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
 
 $(BUILD)/voxbench: bench/voxbench.c $(LIB)
@@ -75,12 +87,17 @@ test-build: all $(UNIT_BIN) fuzz-build-corpus
 # Fuzz harnesses: libFuzzer binaries (clang), and plain drivers that replay the
 # seed corpus under the sanitizers for `make test`.
 FUZZ_CC := clang
-FUZZ_LIB_OBJ := $(LIB_SRC:%.c=build/fuzz/%.o)
-build/fuzz/%.o: %.c
+FUZZ_LIB_OBJ := $(LIB_SRC:%.c=build/fuzz/%.o) $(PROTO:proto/%.proto=build/fuzz/proto/%.pb-c.o)
+build/fuzz/proto/%.pb-c.c: proto/%.proto
+	@mkdir -p build/fuzz/proto
+	protoc-c --c_out=build/fuzz/proto --proto_path=proto $<
+build/fuzz/proto/%.pb-c.o: build/fuzz/proto/%.pb-c.c
+	$(FUZZ_CC) $(CSTD) -O1 -g -Ibuild/fuzz/proto -fsanitize=fuzzer-no-link,address,undefined -c $< -o $@
+build/fuzz/%.o: %.c | $(PROTO:proto/%.proto=build/fuzz/proto/%.pb-c.c)
 	@mkdir -p $(dir $@)
-	$(FUZZ_CC) $(CSTD) -O1 -g $(INC) $(PKG_CFLAGS) -fsanitize=fuzzer-no-link,address,undefined -c $< -o $@
+	$(FUZZ_CC) $(CSTD) -O1 -g $(INC:$(BUILD)/proto=build/fuzz/proto) $(PKG_CFLAGS) -fsanitize=fuzzer-no-link,address,undefined -c $< -o $@
 build/fuzz/%: tests/fuzz/%.c $(FUZZ_LIB_OBJ)
-	$(FUZZ_CC) $(CSTD) -O1 -g $(INC) $(PKG_CFLAGS) -fsanitize=fuzzer,address,undefined $^ -o $@ $(PKG_LIBS) -lm -lpthread -lrt
+	$(FUZZ_CC) $(CSTD) -O1 -g $(INC:$(BUILD)/proto=build/fuzz/proto) $(PKG_CFLAGS) -fsanitize=fuzzer,address,undefined $^ -o $@ $(PKG_LIBS) -lm -lpthread -lrt
 $(BUILD)/fuzz-replay/%: tests/fuzz/%.c tests/fuzz/replay_main.c $(LIB)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $^ -o $@ $(LDFLAGS) $(LDLIBS)
@@ -101,4 +118,4 @@ bench: deps all $(BUILD)/voxbench
 clean:
 	rm -rf build
 
--include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d
+-include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d
