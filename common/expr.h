@@ -56,8 +56,13 @@ int expr_compile(const char *src, size_t len, const expr_limits *lim,
                  expr_tape **out, expr_error *err);
 void expr_tape_free(expr_tape *t);
 
-/* The tape as bytes: copy expr_tape_bytes(t) bytes from t to move it. */
+/* The tape as bytes: copy expr_tape_bytes(t) bytes from t to move it (to
+ * any 8-byte aligned address, e.g. into shared memory); the copy is a tape. */
 size_t expr_tape_bytes(const expr_tape *t);
+/* Check that size bytes at buf hold a well-formed tape (magic, sizes, every
+ * register index in range and written before it is read): 0 or -EINVAL.
+ * expr_vm_new() runs it too. */
+int expr_tape_validate(const void *buf, size_t size);
 /* Number of instructions (for tests and the bench's statistics). */
 uint32_t expr_tape_length(const expr_tape *t);
 
