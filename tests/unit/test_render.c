@@ -131,6 +131,17 @@ Test(render, centre_is_brighter_than_the_rim_and_ambient_one_is_flat)
     cr_assert_gt(centre, 200);
     cr_assert_lt(darkest, centre * 0.6, "diffuse term barely varies");
     cr_assert_geq(darkest, (int)(0.2 * 255), "ambient floor");
+    /* The light sits up and to the left of the camera: so does the
+     * highlight. */
+    int best = 0;
+    double hx = 0, hy = 0, hn = 0;
+    for (int j = 0; j < 400; j++)
+        for (int i = 0; i < 400; i++) best = grey(&img, i, j) > best ? grey(&img, i, j) : best;
+    for (int j = 0; j < 400; j++)
+        for (int i = 0; i < 400; i++)
+            if (grey(&img, i, j) == best) hx += i, hy += j, hn++;
+    cr_assert(hx / hn < 200 - 0.2 * r_px && hy / hn < 200 - 0.2 * r_px,
+              "highlight at %g %g", hx / hn, hy / hn);
     render_image_free(&img);
 
     o.ambient = 1.0;
@@ -443,4 +454,56 @@ Test(render, png_reads_back_with_libpng)
     cr_assert_eq(render_write_png(&img, path), -ENOENT);
     rmdir(dir);
     render_image_free(&img);
+}
+
+Test(render, normals_facing_away_are_flipped_two_sided)
+{
+    static octree out_t, in_t;
+    static octree_cell arena2[CAP];
+    make_shell(&out_t, CENTRE, 20);
+    /* The same shell with every normal negated (seen from inside). */
+    octree_init(&in_t, arena2, CAP, 6);
+    octree_iter it;
+    uint32_t x, y, z, v;
+    octree_iter_init(&it, &out_t);
+    while (octree_iter_next(&it, &x, &y, &z, &v)) {
+        double n[3];
+        voxel_unpack_normal(v, n);
+        for (int k = 0; k < 3; k++) n[k] = -n[k];
+        cr_assert_eq(octree_store(&in_t, x, y, z, voxel_surface(n)), 0);
+    }
+    for (int persp = 0; persp < 2; persp++) {
+        render_opts o = opts(160, 160, 250, 35);
+        o.perspective = persp;
+        render_image a, b;
+        cr_assert_eq(render_octree(&out_t, ORIGIN0, UNIT, NULL, &o, &a), 0);
+        cr_assert_eq(render_octree(&in_t, ORIGIN0, UNIT, NULL, &o, &b), 0);
+        long differ = 0;
+        for (int k = 0; k < 160 * 160 * 3; k++)
+            differ += abs(a.rgb[k] - b.rgb[k]) > 2; /* normal quantization */
+        cr_assert_lt(differ, 20, "%ld channels differ", differ);
+        cr_assert_gt(grey(&b, 80, 80), 200, "inward normals shade dark");
+        render_image_free(&a);
+        render_image_free(&b);
+    }
+}
+
+Test(render, equal_depth_ties_go_to_the_brighter_splat)
+{
+    render_opts o = opts(32, 32, 0, 0);
+    const double p[3] = {32, 32, 32}, lit_n[3] = {1, 0, 0}, dark_n[3] = {0, 1, 0};
+    uint8_t got[2];
+    for (int order = 0; order < 2; order++) {
+        render_ctx *ctx;
+        render_image img;
+        cr_assert_eq(render_begin(&ctx, &o, BOX_LO, BOX_HI, UNIT), 0);
+        render_splat(ctx, p, order ? lit_n : dark_n);
+        render_splat(ctx, p, order ? dark_n : lit_n);
+        render_finish(ctx, &img);
+        cr_assert_eq(img.splats, 2);
+        got[order] = (uint8_t)grey(&img, 16, 16);
+        render_image_free(&img);
+    }
+    cr_assert_eq(got[0], got[1]);
+    cr_assert_gt(got[0], 200);
 }
