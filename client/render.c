@@ -131,7 +131,7 @@ static void fit_ortho(render_ctx *ctx, const double lo[3], const double hi[3])
         sub3(p, c->centre, d);
         amax = fmax(amax, fabs(dot3(d, c->right)));
         bmax = fmax(bmax, fabs(dot3(d, c->up)));
-        r2 = dot3(d, d);
+        r2 = fmax(r2, dot3(d, d));
     }
     double fill = 1.0 - 2.0 * RENDER_MARGIN;
     c->scale = fmin(0.5 * ctx->o.width * fill / amax,
