@@ -558,7 +558,13 @@ int render_vod(const vod_file *f, int level, const render_opts *o,
         snprintf(err, errlen, "render: %s", strerror(-rc));
         return rc;
     }
-    vod_foreach(f, level, splat_cb, &w);
+    rc = vod_foreach(f, level, splat_cb, &w);
+    if (rc) { /* splat_cb never stops the walk: the reader failed */
+        render_abort(w.ctx);
+        snprintf(err, errlen, "render: reading level %d: %s", level,
+                 strerror(rc < 0 ? -rc : EIO));
+        return rc < 0 ? rc : -EIO;
+    }
     render_finish(w.ctx, out);
     return 0;
 }
