@@ -59,6 +59,10 @@ typedef struct {
     /* Set to non-zero by anyone to stop the job: engine_voxelize returns
      * -ECANCELED.  Read with relaxed loads; nothing pairs with it. */
     const atomic_int *cancel;
+    /* Subtree schedule: octants of this level and below go out whole (a
+     * subtree of 2^split_level voxels per axis); 0 = automatic (depth-3,
+     * within 1..6: many more tasks than workers). */
+    int split_level;
 } engine_job;
 
 typedef struct {
@@ -68,13 +72,27 @@ typedef struct {
     double seconds;          /* wall time of the subdivision */
     double master_cpu;       /* master thread CPU seconds */
     double worker_cpu;       /* sum of the workers' CPU seconds for the job */
+    uint32_t restarts;       /* workers that died and were forked again */
+    char error[256];         /* why engine_voxelize failed ("" if it did not) */
 } engine_result;
 
+/* Must be called from a thread that outlives the engine: the workers get
+ * SIGKILL when the thread that forked them exits (PR_SET_PDEATHSIG). */
 int engine_create(const engine_opts *o, engine **out, char *err, size_t errlen);
+/* Tells the workers to exit, reaps them (SIGKILL after 2 s), unmaps and
+ * removes the segment. */
 void engine_destroy(engine *e);
 int engine_workers(const engine *e);
+/* Worker i's pid and the CPU it is pinned to (tests, status pages). */
+int engine_worker_pid(const engine *e, int i);
+int engine_worker_cpu(const engine *e, int i);
 
-/* Voxelize job; the octree stays in shared memory until the next job. */
+/* Voxelize job; the octree stays in shared memory until the next job.
+ * Returns 0, or -ECANCELED, -EINVAL (bad job), -ENOMEM (octree or work
+ * stack full: r->error says what to raise), -EIO (a worker kept dying), or
+ * a worker's error; the engine is then ready for the next job.  A worker
+ * that dies during a job is forked again and its octant handed out again
+ * (its output is deterministic, so the entries already taken are skipped). */
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
 /* The last job's octree (a view into shared memory). */
 octree *engine_octree(engine *e);

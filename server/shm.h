@@ -1,0 +1,223 @@
+/* shm — the engine's shared-memory segment: layout and creation.
+ *
+ *   header | slot 0 .. slot N-1 | work stack | data
+ *
+ * Offsets from the segment's base, never pointers (a process may map the
+ * segment anywhere).  The data area holds, per job: the tape (job input),
+ * then the octree arena; after a job, the VOD phase lays out behind the
+ * used cells: the aggregate (u32 per cell), the brick nodes, their encoded
+ * records and offsets, then the brick bytes.
+ *
+ * Who writes what: the master writes the header and, in each slot, the
+ * task fields and the queue's consumer index; a worker writes only its own
+ * slot's worker fields, its queue entries and producer index, and (during
+ * the VOD phase) the per-node records and bricks it claimed through the
+ * shared counters.  The master treats what a worker wrote as untrusted.
+ *
+ * Sleeping: every futex word here is 32 bits and used without
+ * FUTEX_PRIVATE_FLAG (the segment is shared between processes).  A side
+ * that sleeps sets its `sleeping` flag, issues a seq_cst fence, reads the
+ * futex word, re-checks its condition and only then waits on the value it
+ * read; the side that changes the condition stores it, issues a seq_cst
+ * fence and, if the flag is set, bumps the word and wakes.  The two fences
+ * (Dekker) guarantee that either the sleeper sees the new condition or the
+ * waker sees the flag: no lost wakeup, and no syscall when nobody sleeps.
+ */
+#ifndef VOXD_SHM_H
+#define VOXD_SHM_H
+
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/types.h>
+
+#include "queue.h"
+#include "subdiv.h"
+#include "vod.h"
+
+#define SHM_MAGIC 0x44584f56u /* "VOXD" */
+#define SHM_VERSION 1u
+#define SHM_BATCH 1024u                       /* voxels per queue entry */
+#define SHM_DEFAULT_BYTES ((size_t)2 << 30)   /* 2 GiB, sparse */
+#define SHM_MIN_DATA ((size_t)1 << 20)        /* data area at least 1 MiB */
+
+_Static_assert(ATOMIC_INT_LOCK_FREE == 2, "lock-free int atomics needed");
+_Static_assert(ATOMIC_LLONG_LOCK_FREE == 2, "lock-free 64-bit atomics needed");
+
+enum shm_task_kind {
+    SHM_TASK_NONE = 0,
+    SHM_TASK_CHILDREN = 1, /* test the octant's children, return the kept */
+    SHM_TASK_SUBTREE = 2,  /* every voxel of the octant's subtree */
+    SHM_TASK_ENCODE = 3,   /* encode VOD bricks until none is left */
+    SHM_TASK_EXIT = 4,
+};
+
+enum shm_entry_kind {
+    SHM_ENT_OCTANT = 1, /* one kept child octant */
+    SHM_ENT_VOXELS = 2, /* count voxels, in preorder */
+};
+
+typedef struct {
+    uint32_t kind;
+    uint32_t count;
+    subdiv_octant octant;
+    subdiv_voxel vox[SHM_BATCH];
+} shm_entry;
+
+/* Derived state of a slot (shm_slot_state()). */
+enum shm_slot_state { SHM_IDLE = 0, SHM_BUSY = 1, SHM_DONE = 2 };
+
+typedef struct {
+    /* ---- written by the master ---- */
+    /* Bumped (release) after the task fields below are written; the worker
+     * loads it with acquire.  A worker is busy while task_seq != done_seq. */
+    _Alignas(64) atomic_uint task_seq;
+    /* The futex word the worker sleeps on (idle, or queue full).  Bumped by
+     * the master when it sees `sleeping` set (Dekker, see above). */
+    atomic_uint wake;
+    uint32_t task_kind;   /* shm_task_kind */
+    uint32_t task_gen;    /* job generation the task belongs to */
+    uint32_t task_skip;   /* entries of this task already consumed (a
+                             re-run after a worker died skips them) */
+    subdiv_octant task;   /* the octant assigned: handed out again if the
+                             worker dies */
+    int32_t pid;          /* the worker's pid */
+    int32_t cpu;          /* the CPU it is pinned to */
+
+    /* ---- written by the worker ---- */
+    /* Stored (release) when the task is finished, after its last entry is
+     * published and the counters below are written; the master loads it
+     * with acquire. */
+    _Alignas(64) atomic_uint done_seq;
+    /* 1 while the worker is about to wait or waits on `wake`.  seq_cst (the
+     * Dekker pair with the master's fence after it changes task_seq, the
+     * queue's cons or the header's abort_gen). */
+    atomic_int sleeping;
+    int32_t error;        /* negative errno of the last task, 0 if none */
+    uint32_t job_gen;     /* job the counters below are for */
+    uint64_t job_tested;  /* boxes tested in this job */
+    uint64_t job_cpu_ns;  /* CPU time spent on this job's tasks */
+
+    queue_idx q;          /* prod: worker; cons: master */
+    shm_entry ent[QUEUE_ENTRIES];
+} shm_slot;
+
+/* The VOD phase (engine_write_vod). */
+typedef struct {
+    vod_layout L;
+    vod_params p;          /* metadata is NULL here: encoding does not use it */
+    uint32_t cells_used;
+    int32_t depth;
+    uint64_t cells_off, agg_off, nodes_off, recs_off, offs_off;
+    uint64_t n;            /* brick nodes */
+    uint64_t brick_off, brick_cap;
+    /* Next node index to encode: workers fetch_add chunks (relaxed: the
+     * node array was published by the task_seq release). */
+    _Alignas(64) atomic_ullong next;
+    /* Bump allocator in the brick area: workers fetch_add their encoded
+     * size (relaxed: the bytes and record are published by done_seq). */
+    _Alignas(64) atomic_ullong bump;
+    /* First error a worker met (negative errno), 0 if none; relaxed,
+     * read by the master after every done_seq acquire. */
+    atomic_int error;
+} shm_vod;
+
+typedef struct {
+    uint32_t magic, version;
+    int32_t master_pid;
+    uint32_t workers;
+    uint64_t bytes;
+    uint64_t slots_off, slot_bytes;
+    uint64_t stack_off, stack_cap;   /* work stack: stack_cap octants */
+    uint64_t data_off, data_bytes;
+
+    /* The job input, written by the master before a job's first task (the
+     * task_seq release publishes it). */
+    uint32_t gen;                    /* current job generation (master) */
+    subdiv_grid grid;
+    uint64_t tape_off, tape_bytes;
+    uint64_t tree_off;               /* octree arena */
+    uint32_t tree_cap;               /* cells */
+
+    /* == gen when the master abandons the job.  Workers load it relaxed
+     * between octants; the master's fence + wake makes sleepers see it. */
+    _Alignas(64) atomic_uint abort_gen;
+
+    /* The master's futex word, bumped by workers that see master_sleeping
+     * set after they published something (Dekker, see above). */
+    _Alignas(64) atomic_uint doorbell;
+    atomic_int master_sleeping;      /* seq_cst, the Dekker flag */
+
+    _Alignas(64) shm_vod vod;
+} shm_header;
+
+typedef struct {
+    uint8_t *base;
+    size_t bytes;
+    int fd;
+    int named;          /* unlink at destroy */
+    char name[64];
+} shm_seg;
+
+/* Bytes the fixed part needs for n workers, plus the minimum data area. */
+size_t shm_min_bytes(uint32_t workers);
+/* Create (O_EXCL, 0600), size and map the segment and write its header.
+ * name NULL: a private unique name, unlinked right after mapping.
+ * bytes 0: the default (2 GiB, less when /dev/shm has less free).  Returns
+ * 0 or a negative errno with a message in err. */
+int shm_create(shm_seg *s, const char *name, size_t bytes, uint32_t workers,
+               char *err, size_t errlen);
+void shm_destroy(shm_seg *s);
+
+static inline shm_header *shm_hdr(uint8_t *base)
+{
+    return (shm_header *)base;
+}
+static inline shm_slot *shm_slot_at(uint8_t *base, uint32_t i)
+{
+    shm_header *h = shm_hdr(base);
+    return (shm_slot *)(base + h->slots_off + (uint64_t)i * h->slot_bytes);
+}
+static inline void *shm_at(uint8_t *base, uint64_t off)
+{
+    return base + off;
+}
+
+/* For observers (status pages): idle, busy (task running), or done (task
+ * finished, queue not drained yet).  A snapshot, not a synchronization. */
+static inline int shm_slot_state(shm_slot *s)
+{
+    /* acquire: pairs with the releases of task_seq and done_seq */
+    unsigned t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
+    unsigned d = atomic_load_explicit(&s->done_seq, memory_order_acquire);
+    if (t != d) return SHM_BUSY;
+    return queue_ready(&s->q) ? SHM_DONE : SHM_IDLE;
+}
+
+/* Futex wrappers (non-private: shared between processes).  wait returns
+ * when *w != val, on a wake, a signal, or after timeout_ns (0 = none). */
+void shm_futex_wait(atomic_uint *w, unsigned val, long timeout_ns);
+void shm_futex_wake(atomic_uint *w, int n);
+/* The waker's half of the Dekker pair: after changing the condition. */
+void shm_wake_if_sleeping(atomic_uint *w, atomic_int *sleeping);
+
+/* The sleeper's half: set the flag, fence, and return the value of w to
+ * wait on; the caller then re-checks its condition and, if still unmet,
+ * calls shm_futex_wait(w, value, ...); then shm_sleep_end(). */
+static inline unsigned shm_sleep_begin(atomic_uint *w, atomic_int *sleeping)
+{
+    /* relaxed store + seq_cst fence: the Dekker pair of the fence in
+     * shm_wake_if_sleeping(). */
+    atomic_store_explicit(sleeping, 1, memory_order_relaxed);
+    atomic_thread_fence(memory_order_seq_cst);
+    /* acquire: pairs with the waker's fetch_add, so a bumped value comes
+     * with the condition it announced. */
+    return atomic_load_explicit(w, memory_order_acquire);
+}
+static inline void shm_sleep_end(atomic_int *sleeping)
+{
+    /* relaxed: a stale 1 only costs the other side one spare wake. */
+    atomic_store_explicit(sleeping, 0, memory_order_relaxed);
+}
+
+#endif
