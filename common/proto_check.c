@@ -1,0 +1,548 @@
+/* proto_check — validation of every message at the socket.  See proto_check.h. */
+#include "proto_check.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "frame.h"
+
+#define INVALID VOXD__ERROR_CODE__INVALID_INPUT
+#define LIMIT VOXD__ERROR_CODE__LIMIT_EXCEEDED
+
+void proto_limits_default(proto_limits *lim)
+{
+    lim->max_frame = FRAME_DEFAULT_MAX;
+    lim->max_expr_bytes = 65536;
+    lim->max_res = 4096;
+    lim->max_csg_nodes = 1024;
+    lim->chunk_size = 256u << 10;
+    lim->max_result_bytes = (uint64_t)4 << 30;
+}
+
+void proto_limits_from_hello(const Voxd__Limits *l, proto_limits *lim)
+{
+    lim->max_frame = l->max_frame;
+    lim->max_expr_bytes = l->max_expr_bytes;
+    lim->max_res = l->max_res;
+    lim->max_csg_nodes = l->max_csg_nodes;
+    lim->chunk_size = l->chunk_size;
+    lim->max_result_bytes = l->max_result_bytes;
+}
+
+const char *proto_error_code_name(int code)
+{
+    const ProtobufCEnumValue *v =
+        protobuf_c_enum_descriptor_get_value(&voxd__error_code__descriptor, code);
+    return v ? v->name : "UNKNOWN";
+}
+
+__attribute__((format(printf, 3, 4)))
+static int bad(proto_error *e, Voxd__ErrorCode code, const char *fmt, ...)
+{
+    if (e) {
+        va_list ap;
+        va_start(ap, fmt);
+        e->code = code;
+        vsnprintf(e->msg, sizeof e->msg, fmt, ap);
+        va_end(ap);
+    }
+    return code == LIMIT ? -E2BIG : -EINVAL;
+}
+
+static int ok(proto_error *e)
+{
+    if (e) {
+        e->code = VOXD__ERROR_CODE__ERROR_CODE_UNSPECIFIED;
+        e->msg[0] = '\0';
+    }
+    return 0;
+}
+
+/* ---------------------------------------------------------------- pieces */
+
+/* Length of one UTF-8 sequence at s (n bytes left), 0 if malformed. */
+static size_t utf8_len(const unsigned char *s, size_t n)
+{
+    unsigned c = s[0];
+    size_t len;
+    unsigned min;
+    if (c < 0x80) return 1;
+    if (c >= 0xc2 && c <= 0xdf) len = 2, min = 0x80;
+    else if (c >= 0xe0 && c <= 0xef) len = 3, min = 0x800;
+    else if (c >= 0xf0 && c <= 0xf4) len = 4, min = 0x10000;
+    else return 0;
+    if (len > n) return 0;
+    unsigned cp = c & (0x7fu >> len);
+    for (size_t i = 1; i < len; i++) {
+        if ((s[i] & 0xc0) != 0x80) return 0;
+        cp = cp << 6 | (s[i] & 0x3f);
+    }
+    if (cp < min || cp > 0x10ffff || (cp >= 0xd800 && cp <= 0xdfff)) return 0;
+    return len;
+}
+
+/* Text for logs and terminals: bounded, UTF-8, no control characters
+ * (newline and tab allowed where multiline is set). */
+static int check_text(const char *s, size_t max, int multiline,
+                      const char *what, proto_error *e)
+{
+    if (!s) return 0;
+    size_t n = strlen(s);
+    if (n > max) return bad(e, INVALID, "%s is %zu bytes, limit %zu", what, n, max);
+    for (size_t i = 0; i < n;) {
+        unsigned char c = (unsigned char)s[i];
+        if (c < 0x20 || c == 0x7f) {
+            if (!(multiline && (c == '\n' || c == '\t')))
+                return bad(e, INVALID, "%s contains control character 0x%02x at offset %zu",
+                           what, c, i);
+        }
+        size_t k = utf8_len((const unsigned char *)s + i, n - i);
+        if (!k) return bad(e, INVALID, "%s is not valid UTF-8 at offset %zu", what, i);
+        i += k;
+    }
+    return 0;
+}
+
+/* An expression: non-empty, within the limit, no NUL (the compiler takes a
+ * C string). */
+static int check_source(const ProtobufCBinaryData *s, uint32_t max,
+                        const char *what, proto_error *e)
+{
+    if (s->len == 0) return bad(e, INVALID, "%s is empty", what);
+    if (s->len > max)
+        return bad(e, LIMIT, "%s is %zu bytes, limit %u", what, s->len, max);
+    const uint8_t *nul = memchr(s->data, 0, s->len);
+    if (nul)
+        return bad(e, INVALID, "%s contains a NUL byte at offset %zu", what,
+                   (size_t)(nul - s->data));
+    return 0;
+}
+
+/* A box: 6 values X0 X1 Y0 Y1 Z0 Z1 (or 2, A B, for a cube when cube_ok);
+ * finite, each low < high, each extent finite. */
+static int check_box(const double *v, size_t n, int cube_ok, const char *what,
+                     proto_error *e)
+{
+    if (cube_ok ? (n != 2 && n != 6) : n != 6)
+        return bad(e, INVALID, "%s needs %s values, got %zu", what,
+                   cube_ok ? "2 or 6" : "6", n);
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(v[i]))
+            return bad(e, INVALID, "%s value %zu is not finite (%g)", what, i + 1, v[i]);
+    for (size_t a = 0; a < n / 2; a++) {
+        double lo = v[2 * a], hi = v[2 * a + 1];
+        const char *axis = n == 2 ? "" : a == 0 ? " x" : a == 1 ? " y" : " z";
+        if (!(lo < hi))
+            return bad(e, INVALID, "%s%s: low %g is not below high %g", what, axis, lo, hi);
+        if (!isfinite(hi - lo))
+            return bad(e, INVALID, "%s%s is too wide (%g to %g)", what, axis, lo, hi);
+    }
+    return 0;
+}
+
+static int check_res(uint32_t res, const proto_limits *lim, proto_error *e)
+{
+    if (res == 0)
+        return bad(e, INVALID, "res is missing (give 1 to %u)", lim->max_res);
+    if (res > lim->max_res)
+        return bad(e, LIMIT, "res %u is over this server's limit of %u", res,
+                   lim->max_res);
+    return 0;
+}
+
+static const char *const channel_names[] = {"unspecified", "occupancy", "density",
+                                            "surface", "distance"};
+
+/* The output options shared by every kind of job. */
+static int check_output(const Voxd__Submit *s, proto_error *e)
+{
+    if ((unsigned)s->channel > VOXD__CHANNEL__CHANNEL_DISTANCE)
+        return bad(e, INVALID, "unknown channel %d", (int)s->channel);
+    uint32_t b = s->brick;
+    if (b != 0 && (b < PROTO_MIN_BRICK || b > PROTO_MAX_BRICK || (b & (b - 1))))
+        return bad(e, INVALID, "brick %u is not a power of two from %u to %u", b,
+                   PROTO_MIN_BRICK, PROTO_MAX_BRICK);
+    if ((unsigned)s->comp > VOXD__COMPRESSION__COMPRESSION_RUNL)
+        return bad(e, INVALID, "unknown compression %d", (int)s->comp);
+    if ((unsigned)s->hash > VOXD__HASH__HASH_XX32)
+        return bad(e, INVALID, "unknown hash %d", (int)s->hash);
+    return 0;
+}
+
+/* ---------------------------------------------------------------- jobs */
+
+static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
+                          const proto_limits *lim, proto_error *e)
+{
+    int rc;
+    if ((rc = check_source(&im->source, lim->max_expr_bytes, "expression", e))) return rc;
+    if ((rc = check_box(im->domain, im->n_domain, 1, "domain", e))) return rc;
+    if ((rc = check_res(im->res, lim, e))) return rc;
+    if ((unsigned)im->schedule > VOXD__SCHEDULE__SCHEDULE_PAPER)
+        return bad(e, INVALID, "unknown schedule %d", (int)im->schedule);
+    if (s->channel == VOXD__CHANNEL__CHANNEL_DENSITY ||
+        s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
+        return bad(e, INVALID,
+                   "channel %s is not available for implicit jobs (use surface or occupancy)",
+                   channel_names[s->channel]);
+    return 0;
+}
+
+static int check_mesh(const Voxd__Mesh *m, const proto_limits *lim, proto_error *e)
+{
+    int rc;
+    if (m->format == VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED)
+        return bad(e, INVALID, "mesh format is missing");
+    if ((unsigned)m->format > VOXD__MESH_FORMAT__MESH_FORMAT_OFF)
+        return bad(e, INVALID, "unknown mesh format %d", (int)m->format);
+    if ((unsigned)m->mode > VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE)
+        return bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);
+    if (m->data.len == 0) return bad(e, INVALID, "mesh data is empty");
+    if (m->n_domain && (rc = check_box(m->domain, m->n_domain, 1, "domain", e))) return rc;
+    if ((rc = check_res(m->res, lim, e))) return rc;
+    return bad(e, INVALID, "mesh jobs are not supported yet");
+}
+
+typedef struct {
+    const char *name;
+    int arity; /* children */
+} csg_op_info;
+
+static const csg_op_info csg_ops[] = {
+    [VOXD__CSG_OP__CSG_PRIMITIVE] = {"primitive", 0},
+    [VOXD__CSG_OP__CSG_IMPLICIT] = {"implicit", 0},
+    [VOXD__CSG_OP__CSG_MESH] = {"mesh", 0},
+    [VOXD__CSG_OP__CSG_UNION] = {"union", 2},
+    [VOXD__CSG_OP__CSG_INTERSECTION] = {"intersection", 2},
+    [VOXD__CSG_OP__CSG_DIFFERENCE] = {"difference", 2},
+    [VOXD__CSG_OP__CSG_TRIM] = {"trim", 2},
+    [VOXD__CSG_OP__CSG_CAP] = {"cap", 2},
+    [VOXD__CSG_OP__CSG_ADD] = {"add", 2},
+    [VOXD__CSG_OP__CSG_MODULATE] = {"modulate", 2},
+    [VOXD__CSG_OP__CSG_DIVIDE] = {"divide", 2},
+    [VOXD__CSG_OP__CSG_INVERSE] = {"inverse", 1},
+};
+
+static const csg_op_info *csg_op(Voxd__CsgOp op)
+{
+    unsigned v = (unsigned)op;
+    if (v >= sizeof csg_ops / sizeof *csg_ops || !csg_ops[v].name) return NULL;
+    return &csg_ops[v];
+}
+
+/* The fields a node of this op must not carry. */
+static int check_csg_stray(const Voxd__CsgNode *n, size_t i, const char *name,
+                           proto_error *e)
+{
+    const char *field = NULL;
+    if (n->op != VOXD__CSG_OP__CSG_PRIMITIVE && (n->primitive || n->n_params))
+        field = "a primitive";
+    else if (n->op != VOXD__CSG_OP__CSG_IMPLICIT && n->op != VOXD__CSG_OP__CSG_MESH &&
+             n->source.len)
+        field = "a source";
+    else if (n->op != VOXD__CSG_OP__CSG_MESH && n->mesh_format)
+        field = "a mesh format";
+    else if (n->op != VOXD__CSG_OP__CSG_DIVIDE && n->scalar != 0)
+        field = "a scalar";
+    if (field)
+        return bad(e, INVALID, "CSG node %zu (%s) does not take %s", i, name, field);
+    return 0;
+}
+
+static int check_csg_leaf(const Voxd__CsgNode *n, size_t i, const proto_limits *lim,
+                          proto_error *e)
+{
+    char what[64];
+    switch (n->op) {
+    case VOXD__CSG_OP__CSG_PRIMITIVE:
+        if (n->primitive == VOXD__PRIMITIVE__PRIMITIVE_UNSPECIFIED ||
+            (unsigned)n->primitive > VOXD__PRIMITIVE__PRIMITIVE_CONE)
+            return bad(e, INVALID, "CSG node %zu has unknown primitive %d", i,
+                       (int)n->primitive);
+        snprintf(what, sizeof what, "CSG node %zu box", i);
+        return check_box(n->params, n->n_params, 0, what, e);
+    case VOXD__CSG_OP__CSG_IMPLICIT:
+        snprintf(what, sizeof what, "CSG node %zu expression", i);
+        return check_source(&n->source, lim->max_expr_bytes, what, e);
+    case VOXD__CSG_OP__CSG_MESH:
+        if (n->mesh_format == VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED ||
+            (unsigned)n->mesh_format > VOXD__MESH_FORMAT__MESH_FORMAT_OFF)
+            return bad(e, INVALID, "CSG node %zu has unknown mesh format %d", i,
+                       (int)n->mesh_format);
+        if (n->source.len == 0) return bad(e, INVALID, "CSG node %zu mesh is empty", i);
+        return 0;
+    case VOXD__CSG_OP__CSG_DIVIDE:
+        if (!(n->scalar > 0 && n->scalar <= 1))
+            return bad(e, INVALID, "CSG node %zu (divide) needs a scalar in (0, 1], got %g",
+                       i, n->scalar);
+        return 0;
+    default: return 0;
+    }
+}
+
+static int check_csg_node(const Voxd__CsgNode *n, size_t i, const proto_limits *lim,
+                          proto_error *e)
+{
+    if (!n) return bad(e, INVALID, "CSG node %zu is missing", i);
+    if (n->op == VOXD__CSG_OP__CSG_OP_UNSPECIFIED)
+        return bad(e, INVALID, "CSG node %zu has no op", i);
+    const csg_op_info *op = csg_op(n->op);
+    if (!op) return bad(e, INVALID, "CSG node %zu has unknown op %d", i, (int)n->op);
+    if (n->n_children != (size_t)op->arity)
+        return bad(e, INVALID, "CSG node %zu (%s) needs %d %s, got %zu", i, op->name,
+                   op->arity, op->arity == 1 ? "child" : "children", n->n_children);
+    for (size_t k = 0; k < n->n_children; k++)
+        if (n->children[k] >= i)
+            return bad(e, INVALID, "CSG node %zu refers to node %u, which is not earlier",
+                       i, n->children[k]);
+    int rc = check_csg_stray(n, i, op->name, e);
+    return rc ? rc : check_csg_leaf(n, i, lim, e);
+}
+
+static int check_csg(const Voxd__Csg *c, const proto_limits *lim, proto_error *e)
+{
+    int rc;
+    if (c->n_nodes == 0) return bad(e, INVALID, "CSG job has no nodes");
+    if (c->n_nodes > lim->max_csg_nodes)
+        return bad(e, LIMIT, "CSG job has %zu nodes, limit %u", c->n_nodes,
+                   lim->max_csg_nodes);
+    for (size_t i = 0; i < c->n_nodes; i++)
+        if ((rc = check_csg_node(c->nodes[i], i, lim, e))) return rc;
+    if ((rc = check_box(c->domain, c->n_domain, 1, "domain", e))) return rc;
+    if ((rc = check_res(c->res, lim, e))) return rc;
+    return bad(e, INVALID, "CSG jobs are not supported yet");
+}
+
+static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_error *e)
+{
+    int rc = check_output(s, e);
+    if (rc) return rc;
+    switch (s->job_case) {
+    case VOXD__SUBMIT__JOB__NOT_SET:
+        return bad(e, INVALID, "submit has no job (implicit, mesh or csg)");
+    case VOXD__SUBMIT__JOB_IMPLICIT:
+        if (!s->implicit) break;
+        return check_implicit(s->implicit, s, lim, e);
+    case VOXD__SUBMIT__JOB_MESH:
+        if (!s->mesh) break;
+        return check_mesh(s->mesh, lim, e);
+    case VOXD__SUBMIT__JOB_CSG:
+        if (!s->csg) break;
+        return check_csg(s->csg, lim, e);
+    default:
+        return bad(e, INVALID, "unknown job kind %d", (int)s->job_case);
+    }
+    return bad(e, INVALID, "submit job is missing");
+}
+
+/* ---------------------------------------------------------------- requests */
+
+static int check_hello(const Voxd__Hello *h, proto_error *e)
+{
+    if (h->version != PROTO_VERSION)
+        return bad(e, INVALID, "protocol version %u is not supported (this server speaks %u)",
+                   h->version, PROTO_VERSION);
+    return check_text(h->client, PROTO_MAX_NAME, 0, "client name", e);
+}
+
+/* The message of a set oneof case, NULL if a local caller set the case but
+ * not the pointer. */
+static const void *request_body(const Voxd__Request *r)
+{
+    switch (r->msg_case) {
+    case VOXD__REQUEST__MSG_HELLO: return r->hello;
+    case VOXD__REQUEST__MSG_SUBMIT: return r->submit;
+    case VOXD__REQUEST__MSG_CANCEL: return r->cancel;
+    case VOXD__REQUEST__MSG_STATUS: return r->status;
+    case VOXD__REQUEST__MSG_PING: return r->ping;
+    default: return NULL;
+    }
+}
+
+int proto_check_request(const Voxd__Request *r, const proto_limits *lim,
+                        proto_error *err)
+{
+    int rc;
+    if (!r) return bad(err, INVALID, "malformed request");
+    if (r->msg_case == VOXD__REQUEST__MSG__NOT_SET)
+        return bad(err, INVALID, "request of no type this server knows (protocol version %u)",
+                   PROTO_VERSION);
+    if (!request_body(r))
+        return bad(err, INVALID, "request of unknown type %d", (int)r->msg_case);
+    switch (r->msg_case) {
+    case VOXD__REQUEST__MSG_HELLO: rc = check_hello(r->hello, err); break;
+    case VOXD__REQUEST__MSG_SUBMIT: rc = check_submit(r->submit, lim, err); break;
+    case VOXD__REQUEST__MSG_CANCEL:
+        rc = r->cancel->job_id ? 0 : bad(err, INVALID, "cancel needs a job id");
+        break;
+    default: rc = 0; break; /* Status, Ping: nothing to check */
+    }
+    return rc ? rc : ok(err);
+}
+
+/* ---------------------------------------------------------------- replies */
+
+static int check_seconds(double s, const char *what, proto_error *e)
+{
+    if (!isfinite(s) || s < 0)
+        return bad(e, INVALID, "%s %g is not a finite number of seconds >= 0", what, s);
+    return 0;
+}
+
+static int check_fraction(double f, proto_error *e)
+{
+    if (!(f >= 0 && f <= 1)) return bad(e, INVALID, "fraction %g is not in [0, 1]", f);
+    return 0;
+}
+
+static int check_job_id(uint64_t id, const char *what, proto_error *e)
+{
+    return id ? 0 : bad(e, INVALID, "%s has no job id", what);
+}
+
+static int check_limits(const Voxd__Limits *l, proto_error *e)
+{
+    if (!l) return bad(e, INVALID, "hello_ok has no limits");
+    if (l->max_frame < FRAME_MIN_MAX || l->max_frame > FRAME_LIMIT_MAX)
+        return bad(e, INVALID, "server max_frame %u is outside %u to %u", l->max_frame,
+                   FRAME_MIN_MAX, FRAME_LIMIT_MAX);
+    if (l->chunk_size == 0 || l->chunk_size > l->max_frame - FRAME_CHUNK_OVERHEAD)
+        return bad(e, INVALID, "server chunk_size %u does not fit its max_frame %u",
+                   l->chunk_size, l->max_frame);
+    if (!l->max_expr_bytes || !l->max_res || !l->max_result_bytes)
+        return bad(e, INVALID, "server limits has a zero limit");
+    return 0;
+}
+
+static int check_hello_ok(const Voxd__HelloOk *h, proto_error *e)
+{
+    int rc;
+    if (h->version != PROTO_VERSION)
+        return bad(e, INVALID, "server speaks protocol version %u, this client %u",
+                   h->version, PROTO_VERSION);
+    if ((rc = check_text(h->server, PROTO_MAX_NAME, 0, "server name", e))) return rc;
+    if (h->workers > PROTO_MAX_WORKERS)
+        return bad(e, INVALID, "server reports %u workers, limit %u", h->workers,
+                   PROTO_MAX_WORKERS);
+    return check_limits(h->limits, e);
+}
+
+static int check_progress(const Voxd__Progress *p, proto_error *e)
+{
+    int rc = check_job_id(p->job_id, "progress", e);
+    if (rc || (rc = check_fraction(p->fraction, e))) return rc;
+    if (p->level > PROTO_MAX_LEVEL)
+        return bad(e, INVALID, "progress level %u is over %u", p->level, PROTO_MAX_LEVEL);
+    return 0;
+}
+
+static int check_chunk(const Voxd__ResultChunk *c, const proto_limits *lim,
+                       proto_error *e)
+{
+    int rc = check_job_id(c->job_id, "chunk", e);
+    if (rc) return rc;
+    if (c->data.len == 0) return bad(e, INVALID, "chunk at offset %llu is empty",
+                                     (unsigned long long)c->offset);
+    if (c->data.len > lim->chunk_size)
+        return bad(e, INVALID, "chunk of %zu bytes is over chunk_size %u", c->data.len,
+                   lim->chunk_size);
+    if (c->offset > lim->max_result_bytes || c->data.len > lim->max_result_bytes - c->offset)
+        return bad(e, LIMIT, "chunk at offset %llu passes max_result_bytes %llu",
+                   (unsigned long long)c->offset,
+                   (unsigned long long)lim->max_result_bytes);
+    return 0;
+}
+
+static int check_summary(const Voxd__Summary *s, const proto_limits *lim, proto_error *e)
+{
+    int rc = check_job_id(s->job_id, "summary", e);
+    if (rc) return rc;
+    if (s->file_bytes == 0 || s->file_bytes > lim->max_result_bytes)
+        return bad(e, INVALID, "summary file_bytes %llu is outside 1 to %llu",
+                   (unsigned long long)s->file_bytes,
+                   (unsigned long long)lim->max_result_bytes);
+    if ((rc = check_seconds(s->seconds_queued, "seconds_queued", e)) ||
+        (rc = check_seconds(s->seconds_voxelize, "seconds_voxelize", e)))
+        return rc;
+    return check_seconds(s->seconds_write, "seconds_write", e);
+}
+
+static int check_error(const Voxd__Error *x, proto_error *e)
+{
+    if (x->code == VOXD__ERROR_CODE__ERROR_CODE_UNSPECIFIED ||
+        (unsigned)x->code > VOXD__ERROR_CODE__INTERNAL)
+        return bad(e, INVALID, "unknown error code %d", (int)x->code);
+    return check_text(x->message, PROTO_MAX_MESSAGE, 1, "error message", e);
+}
+
+static int check_worker(const Voxd__WorkerStatus *w, size_t i, proto_error *e)
+{
+    if (!w) return bad(e, INVALID, "worker %zu is missing", i);
+    if (w->pid == 0 || w->pid > INT32_MAX)
+        return bad(e, INVALID, "worker %zu has pid %u", i, w->pid);
+    if (w->cpu < -1 || w->cpu >= PROTO_MAX_CPUS)
+        return bad(e, INVALID, "worker %zu has cpu %d", i, w->cpu);
+    if (w->state == VOXD__WORKER_STATE__WORKER_STATE_UNSPECIFIED ||
+        (unsigned)w->state > VOXD__WORKER_STATE__WORKER_STATE_STARTING)
+        return bad(e, INVALID, "worker %zu has unknown state %d", i, (int)w->state);
+    if (!isfinite(w->voxels_per_second) || w->voxels_per_second < 0)
+        return bad(e, INVALID, "worker %zu has voxels_per_second %g", i,
+                   w->voxels_per_second);
+    return 0;
+}
+
+static int check_status(const Voxd__StatusReply *s, proto_error *e)
+{
+    int rc = check_seconds(s->uptime, "uptime", e);
+    if (rc) return rc;
+    if (s->n_workers > PROTO_MAX_WORKERS)
+        return bad(e, INVALID, "status lists %zu workers, limit %u", s->n_workers,
+                   PROTO_MAX_WORKERS);
+    for (size_t i = 0; i < s->n_workers; i++)
+        if ((rc = check_worker(s->workers[i], i, e))) return rc;
+    if (!s->running) return 0;
+    if ((rc = check_job_id(s->running->job_id, "running job", e)) ||
+        (rc = check_fraction(s->running->fraction, e)))
+        return rc;
+    return check_seconds(s->running->seconds, "running seconds", e);
+}
+
+static const void *reply_body(const Voxd__Reply *r)
+{
+    switch (r->msg_case) {
+    case VOXD__REPLY__MSG_HELLO_OK: return r->hello_ok;
+    case VOXD__REPLY__MSG_ACCEPTED: return r->accepted;
+    case VOXD__REPLY__MSG_PROGRESS: return r->progress;
+    case VOXD__REPLY__MSG_CHUNK: return r->chunk;
+    case VOXD__REPLY__MSG_SUMMARY: return r->summary;
+    case VOXD__REPLY__MSG_ERROR: return r->error;
+    case VOXD__REPLY__MSG_STATUS: return r->status;
+    case VOXD__REPLY__MSG_PONG: return r->pong;
+    default: return NULL;
+    }
+}
+
+int proto_check_reply(const Voxd__Reply *r, const proto_limits *lim, proto_error *err)
+{
+    int rc;
+    if (!r) return bad(err, INVALID, "malformed reply");
+    if (r->msg_case == VOXD__REPLY__MSG__NOT_SET)
+        return bad(err, INVALID, "reply of no type this client knows (protocol version %u)",
+                   PROTO_VERSION);
+    if (!reply_body(r))
+        return bad(err, INVALID, "reply of unknown type %d", (int)r->msg_case);
+    switch (r->msg_case) {
+    case VOXD__REPLY__MSG_HELLO_OK: rc = check_hello_ok(r->hello_ok, err); break;
+    case VOXD__REPLY__MSG_ACCEPTED: rc = check_job_id(r->accepted->job_id, "accepted", err); break;
+    case VOXD__REPLY__MSG_PROGRESS: rc = check_progress(r->progress, err); break;
+    case VOXD__REPLY__MSG_CHUNK: rc = check_chunk(r->chunk, lim, err); break;
+    case VOXD__REPLY__MSG_SUMMARY: rc = check_summary(r->summary, lim, err); break;
+    case VOXD__REPLY__MSG_ERROR: rc = check_error(r->error, err); break;
+    case VOXD__REPLY__MSG_STATUS: rc = check_status(r->status, err); break;
+    default: rc = 0; break; /* Pong */
+    }
+    return rc ? rc : ok(err);
+}

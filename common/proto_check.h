@@ -1,0 +1,68 @@
+/* proto_check — the one boundary check of everything that crosses the socket.
+ *
+ * protobuf-c accepts any well-formed bytes: unknown enum numbers are stored
+ * as they are, NaNs and empty or huge fields pass, a oneof may be unset.
+ * proto_check_request() (in the daemon) and proto_check_reply() (in the
+ * client) check every field of an unpacked message once — oneof case known,
+ * enum values in range, numbers finite and in range, lengths and repeated
+ * counts against the limits, no NUL in a source, text printable UTF-8 — and
+ * say what is wrong in words a person can act on.  Past the check the rest
+ * of the code trusts the message.
+ *
+ * The checks are per message; what depends on the conversation (Hello must
+ * come first, a Cancel names one of this client's jobs, chunks arrive in
+ * order for a job this client submitted) is the caller's.
+ */
+#ifndef VOXD_PROTO_CHECK_H
+#define VOXD_PROTO_CHECK_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "voxd.pb-c.h"
+
+#define PROTO_VERSION 1u
+/* Fixed bounds of the protocol itself (not configurable). */
+#define PROTO_MAX_NAME 128u      /* Hello.client, HelloOk.server, in bytes */
+#define PROTO_MAX_MESSAGE 1024u  /* Error.message, in bytes */
+#define PROTO_MAX_WORKERS 256u   /* StatusReply.workers (= ENGINE_MAX_WORKERS) */
+#define PROTO_MAX_CPUS 1024      /* a worker's cpu is -1 or below this (CPU_SETSIZE) */
+#define PROTO_MAX_LEVEL 64u      /* Progress.level */
+#define PROTO_MIN_BRICK 2u
+#define PROTO_MAX_BRICK 256u     /* Submit.brick: 0 or a power of two in 2..256 */
+
+/* The configurable limits the checks apply (config_proto_limits() fills
+ * them from the daemon's config; a client takes them from HelloOk).
+ * max_expr_depth is not here: only the expression compiler can see depth. */
+typedef struct {
+    uint32_t max_frame;        /* bytes of one message */
+    uint32_t max_expr_bytes;   /* an implicit source, also a CSG leaf's */
+    uint32_t max_res;
+    uint32_t max_csg_nodes;
+    uint32_t chunk_size;       /* ResultChunk.data */
+    uint64_t max_result_bytes; /* a result file */
+} proto_limits;
+
+typedef struct {
+    Voxd__ErrorCode code; /* INVALID_INPUT or LIMIT_EXCEEDED */
+    char msg[256];        /* "res 5000 is over this server's limit of 4096" */
+} proto_error;
+
+/* The defaults of config/voxd.conf. */
+void proto_limits_default(proto_limits *lim);
+/* A client's limits from the server's HelloOk (checked by proto_check_reply). */
+void proto_limits_from_hello(const Voxd__Limits *l, proto_limits *lim);
+
+/* 0 if r may be trusted; else -EINVAL (code INVALID_INPUT: malformed, or
+ * a mesh or CSG job, "not supported yet") or -E2BIG (code LIMIT_EXCEEDED:
+ * over a configured limit), with err filled in.  err may be NULL. */
+int proto_check_request(const Voxd__Request *r, const proto_limits *lim,
+                        proto_error *err);
+/* The same for what a server says (client side). */
+int proto_check_reply(const Voxd__Reply *r, const proto_limits *lim,
+                      proto_error *err);
+
+/* "INVALID_INPUT", ..., or "UNKNOWN" for a number outside the enum. */
+const char *proto_error_code_name(int code);
+
+#endif
