@@ -41,12 +41,14 @@ static int check_domain(const double lo[3], const double hi[3], char *err,
     return 0;
 }
 
-/* Voxels along axis a: enough to cover hi, never more than res. */
+/* Voxels along axis a: the fewest that cover hi (ceil(extent / vs) up to
+ * rounding), at least 1, never more than res. */
 static uint32_t axis_voxels(const subdiv_grid *g, const double hi[3], int a,
                             uint32_t res)
 {
     double n = ceil((hi[a] - g->lo[a]) / g->vs);
     uint32_t v = n < 1.0 ? 1u : n > (double)res ? res : (uint32_t)n;
+    while (v > 1 && subdiv_coord(g, a, v - 1) >= hi[a]) v--;
     while (v < res && subdiv_coord(g, a, v) < hi[a]) v++;
     return v;
 }
