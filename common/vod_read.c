@@ -1,0 +1,581 @@
+/* VOD reader: validates a whole file up front (spec section 8), then serves
+ * voxels of any level from the octree table and the decoded bricks. */
+#include "vod.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#define TRAILER_FIXED 40u
+#define MAX_HEIGHT 21 /* (8^h - 1) / 7 * 4 still fits a u64 */
+
+struct vod_file {
+    vod_info info;
+    char *metadata;
+    uint32_t *tree;   /* numberOfNodes brickIDs, preorder */
+    uint8_t **brick;  /* raw bricks by ID; [0] unused */
+    uint64_t sub[MAX_HEIGHT + 1]; /* nodes in a subtree rooted at level l */
+    uint32_t k, padded;
+    size_t raw_bytes;
+};
+
+/* Parsing state: the image and where its parts are. */
+typedef struct {
+    const uint8_t *b;
+    size_t len;
+    size_t end;        /* end of the brick records: len, or trailerOffset */
+    uint64_t bricks_at; /* numberOfBricks field */
+    uint64_t records_at; /* first byte after the brick table */
+    char *err;
+    size_t errlen;
+} parse;
+
+__attribute__((format(printf, 3, 4))) static int
+fail(parse *ps, int rc, const char *fmt, ...)
+{
+    if (ps->err && ps->errlen) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(ps->err, ps->errlen, fmt, ap);
+        va_end(ap);
+    }
+    return rc;
+}
+
+static const char *fourcc_str(uint32_t v, char buf[5])
+{
+    for (int i = 0; i < 4; i++) {
+        char c = (char)(v >> (8 * i));
+        buf[i] = (c >= 32 && c < 127) ? c : '?';
+    }
+    buf[4] = '\0';
+    return buf;
+}
+
+static float f32_at(const uint8_t *p)
+{
+    uint32_t u = vod_get32(p);
+    float f;
+    memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+/* ---- trailer (section 7) ---- */
+
+static int read_trailer_body(parse *ps, vod_file *f, uint32_t at)
+{
+    const uint8_t *t = ps->b + at;
+    uint32_t size = vod_get32(t + 4), meta = vod_get32(t + 24);
+    if (size != ps->len - at)
+        return fail(ps, -EBADMSG, "trailerSize %u at offset %u does not reach the "
+                    "end of the file (%zu bytes)", size, at + 4, ps->len);
+    if (meta != size - TRAILER_FIXED)
+        return fail(ps, -EBADMSG, "trailer metadataSize %u does not match "
+                    "trailerSize %u", meta, size);
+    for (int a = 0; a < 3; a++) f->info.origin[a] = f32_at(t + 8 + 4 * a);
+    f->info.channel = vod_get32(t + 20);
+    if (f->info.channel > 4)
+        return fail(ps, -EBADMSG, "trailer channel %u unknown (0..4)", f->info.channel);
+    f->metadata = malloc((size_t)meta + 1);
+    if (!f->metadata) return fail(ps, -ENOMEM, "out of memory");
+    memcpy(f->metadata, t + 28, meta);
+    f->metadata[meta] = '\0';
+    ps->end = at;
+    return 0;
+}
+
+/* Found from the last 12 bytes; the CRC is checked before anything else is
+ * believed, so truncation and corruption are reported as such. */
+static int read_trailer(parse *ps, vod_file *f)
+{
+    const uint8_t *b = ps->b;
+    size_t len = ps->len;
+    if (len < VOD_HEADER_BYTES + 4 + TRAILER_FIXED)
+        return fail(ps, -EBADMSG, "file is truncated: flags bit 16 promises a "
+                    "trailer, but the file has only %zu bytes", len);
+    if (memcmp(b + len - 8, "XDOV", 4) != 0)
+        return fail(ps, -EBADMSG, "file is truncated or corrupted: flags bit 16 "
+                    "promises a trailer, but 'XDOV' is not at offset %zu", len - 8);
+    uint32_t stored = vod_get32(b + len - 4);
+    uint32_t crc = (uint32_t)crc32_z(0, b, len - 4);
+    if (crc != stored)
+        return fail(ps, -EBADMSG, "trailer CRC mismatch (file corrupted): stored "
+                    "%08x, computed %08x", stored, crc);
+    uint32_t at = vod_get32(b + len - 12);
+    if (at < VOD_HEADER_BYTES + 4 || at > len - TRAILER_FIXED ||
+        memcmp(b + at, "VODX", 4) != 0)
+        return fail(ps, -EBADMSG, "trailerOffset %u does not point at 'VODX'", at);
+    f->info.crc32 = stored;
+    f->info.has_trailer = 1;
+    return read_trailer_body(ps, f, at);
+}
+
+/* ---- header (section 2) ---- */
+
+static int check_brick_and_volume(parse *ps, vod_info *in)
+{
+    const uint8_t *h = ps->b;
+    uint32_t bs[3];
+    for (int a = 0; a < 3; a++) {
+        in->volume[a] = vod_get32(h + 8 + 4 * a);
+        bs[a] = vod_get32(h + 20 + 4 * a);
+        in->voxel_scale[a] = f32_at(h + 32 + 4 * a);
+    }
+    if (!in->volume[0] || !in->volume[1] || !in->volume[2])
+        return fail(ps, -EINVAL, "volumeSize %ux%ux%u: each side must be at least 1",
+                    in->volume[0], in->volume[1], in->volume[2]);
+    if (bs[0] != bs[1] || bs[1] != bs[2])
+        return fail(ps, -EINVAL, "brickSize %ux%ux%u is not cubic", bs[0], bs[1], bs[2]);
+    if (bs[0] < 2 || bs[0] > 256 || (bs[0] & (bs[0] - 1)))
+        return fail(ps, -EINVAL, "brickSize %u is not a power of two in 2..256", bs[0]);
+    in->brick = bs[0];
+    for (int a = 0; a < 3; a++)
+        if (!isfinite(in->voxel_scale[a]) || !(in->voxel_scale[a] > 0.0f))
+            return fail(ps, -EINVAL, "voxelScale %g on axis %d is not finite and > 0",
+                        (double)in->voxel_scale[a], a);
+    return 0;
+}
+
+static int check_height(parse *ps, vod_file *f)
+{
+    vod_info *in = &f->info;
+    in->height = vod_get32(ps->b + 44);
+    uint32_t maxv = in->volume[0];
+    if (in->volume[1] > maxv) maxv = in->volume[1];
+    if (in->volume[2] > maxv) maxv = in->volume[2];
+    uint64_t per_axis = ((uint64_t)maxv + in->brick - 1) / in->brick;
+    uint32_t m = 0;
+    while ((1ull << m) < per_axis) m++;
+    if (in->height != m + 1)
+        return fail(ps, -EINVAL, "treeHeight %u does not fit volumeSize %ux%ux%u "
+                    "and brickSize %u (the spec's formula gives %u)", in->height,
+                    in->volume[0], in->volume[1], in->volume[2], in->brick, m + 1);
+    if (in->height > MAX_HEIGHT)
+        return fail(ps, -EBADMSG, "file is truncated: treeHeight %u needs an "
+                    "octree table larger than any file", in->height);
+    while (1u << f->k < in->brick) f->k++;
+    f->padded = in->height - 1 + f->k < 32 ? in->brick << (in->height - 1) : 0;
+    in->nodes = ((1ull << (3 * in->height)) - 1) / 7;
+    for (uint32_t l = 0; l < in->height; l++)
+        f->sub[l] = ((1ull << (3 * (l + 1))) - 1) / 7;
+    return 0;
+}
+
+static int check_encoding(parse *ps, vod_info *in)
+{
+    char s[5];
+    const uint8_t *h = ps->b;
+    in->voxel_bits = vod_get32(h + 48);
+    in->hash = vod_get32(h + 52);
+    in->comp = vod_get32(h + 56);
+    uint32_t vb = in->voxel_bits;
+    if (vb != 1 && vb != 8 && vb != 16 && vb != 32)
+        return fail(ps, -EINVAL, "voxelSize %u is not 1, 8, 16 or 32 bits", vb);
+    if (in->hash != VOD_HASH_SFHS && in->hash != VOD_HASH_XX32)
+        return fail(ps, -EINVAL, "unsupported hashAlgorithm '%s'", fourcc_str(in->hash, s));
+    if (in->comp != VOD_COMP_NONE && in->comp != VOD_COMP_ZLIB &&
+        in->comp != VOD_COMP_RUNL)
+        return fail(ps, -EINVAL, "unsupported compAlgorithm '%s'", fourcc_str(in->comp, s));
+    return 0;
+}
+
+static int check_flags(parse *ps, const vod_file *f)
+{
+    const vod_info *in = &f->info;
+    uint32_t fl = in->flags;
+    bool comp = in->comp != VOD_COMP_NONE, pad = false;
+    for (int a = 0; a < 3; a++) pad |= f->padded > in->volume[a];
+    if (fl & ~(VOD_FLAG_COMPRESSED | VOD_FLAG_PADDED | VOD_FLAG_FLOAT | VOD_FLAG_TRAILER))
+        return fail(ps, -EINVAL, "flags %08x: reserved or unknown bits are set", fl);
+    if (!(fl & VOD_FLAG_COMPRESSED) != !comp)
+        return fail(ps, -EINVAL, "flags bit 0 (compression) is %s but compAlgorithm "
+                    "is %s", comp ? "clear" : "set", comp ? "not NONE" : "NONE");
+    if (!(fl & VOD_FLAG_PADDED) != !pad)
+        return fail(ps, -EINVAL, "flags bit 1 (padding) is %s but the padded side %u "
+                    "%s volumeSize", pad ? "clear" : "set", f->padded,
+                    pad ? "exceeds" : "equals");
+    if ((fl & VOD_FLAG_FLOAT) && in->voxel_bits != 32)
+        return fail(ps, -EINVAL, "flags bit 2 (float) needs voxelSize 32, not %u",
+                    in->voxel_bits);
+    return 0;
+}
+
+/* Channel (trailer) and voxelSize must agree. */
+static int check_channel(parse *ps, const vod_info *in)
+{
+    static const uint32_t bits[5] = {0, 1, 8, 32, 32};
+    if (in->channel == 0 || bits[in->channel] == in->voxel_bits) return 0;
+    return fail(ps, -EINVAL, "trailer channel %u needs voxelSize %u, the header "
+                "says %u", in->channel, bits[in->channel], in->voxel_bits);
+}
+
+static int read_header(parse *ps, vod_file *f)
+{
+    vod_info *in = &f->info;
+    if (ps->len < VOD_HEADER_BYTES)
+        return fail(ps, -EBADMSG, "file is truncated: the header needs %u bytes, "
+                    "file has %zu", VOD_HEADER_BYTES, ps->len);
+    if (memcmp(ps->b, ".VOD", 4) != 0)
+        return fail(ps, -EINVAL, "bad signature %02x %02x %02x %02x (want 2e 56 4f 44, "
+                    "\".VOD\")", ps->b[0], ps->b[1], ps->b[2], ps->b[3]);
+    in->flags = vod_get32(ps->b + 60);
+    int rc = (in->flags & VOD_FLAG_TRAILER) ? read_trailer(ps, f) : 0;
+    if (rc) return rc;
+    in->version = vod_get32(ps->b + 4);
+    if (in->version != 1)
+        return fail(ps, -EINVAL, "unsupported fileVersion %u", in->version);
+    if ((rc = check_brick_and_volume(ps, in)) || (rc = check_height(ps, f)) ||
+        (rc = check_encoding(ps, in)) || (rc = check_flags(ps, f)) ||
+        (rc = check_channel(ps, in)))
+        return rc;
+    f->raw_bytes = (size_t)in->brick * in->brick * in->brick * in->voxel_bits / 8;
+    return 0;
+}
+
+/* ---- octree table (section 3) ---- */
+
+static int read_tree(parse *ps, vod_file *f)
+{
+    uint64_t need = f->info.nodes * 4;
+    if (need + 4 > ps->end - VOD_HEADER_BYTES)
+        return fail(ps, -EBADMSG, "file is truncated: octree table and numberOfBricks "
+                    "need %llu bytes at offset %u, file has %zu%s",
+                    (unsigned long long)need + 4, VOD_HEADER_BYTES, ps->end,
+                    ps->end < ps->len ? " before its trailer" : "");
+    f->tree = malloc((size_t)need);
+    if (!f->tree) return fail(ps, -ENOMEM, "out of memory for %llu nodes",
+                              (unsigned long long)f->info.nodes);
+    const uint8_t *p = ps->b + VOD_HEADER_BYTES;
+    for (uint64_t i = 0; i < f->info.nodes; i++) f->tree[i] = vod_get32(p + 4 * i);
+    ps->bricks_at = VOD_HEADER_BYTES + need;
+    return 0;
+}
+
+/* A node whose region is empty (ID 0) cannot have a non-empty descendant. */
+static int check_subtree(parse *ps, const vod_file *f, uint64_t p, uint32_t l)
+{
+    if (f->tree[p] == 0) {
+        for (uint64_t q = p + 1; q < p + f->sub[l]; q++)
+            if (f->tree[q])
+                return fail(ps, -EBADMSG, "node %llu has brickID 0 (empty region) but "
+                            "its descendant node %llu has brickID %u",
+                            (unsigned long long)p, (unsigned long long)q, f->tree[q]);
+        return 0;
+    }
+    if (f->tree[p] > f->info.bricks)
+        return fail(ps, -EBADMSG, "brickID %u at node %llu is not in the brick table "
+                    "(numberOfBricks %u)", f->tree[p], (unsigned long long)p,
+                    f->info.bricks);
+    for (uint64_t i = 0; l > 0 && i < 8; i++) {
+        int rc = check_subtree(ps, f, p + 1 + i * f->sub[l - 1], l - 1);
+        if (rc) return rc;
+    }
+    return 0;
+}
+
+/* ---- brick table and records (section 4) ---- */
+
+typedef struct {
+    uint32_t id, off, hash, size;
+} brick_ent;
+
+static int read_count(parse *ps, vod_file *f)
+{
+    uint32_t n = vod_get32(ps->b + ps->bricks_at);
+    uint64_t room = ps->end - ps->bricks_at - 4;
+    if ((uint64_t)n * 16 > room) /* a 12-byte entry and a 4-byte dataSize each */
+        return fail(ps, -EBADMSG, "numberOfBricks %u at offset %llu cannot fit: "
+                    "the file has %llu bytes after it", n,
+                    (unsigned long long)ps->bricks_at, (unsigned long long)room);
+    f->info.bricks = n;
+    ps->records_at = ps->bricks_at + 4 + 12ull * n;
+    return 0;
+}
+
+static int read_table(parse *ps, const vod_file *f, brick_ent *e)
+{
+    uint32_t n = f->info.bricks;
+    uint8_t *seen = calloc((size_t)n + 1, 1);
+    if (!seen) return fail(ps, -ENOMEM, "out of memory");
+    const uint8_t *p = ps->b + ps->bricks_at + 4;
+    int rc = 0;
+    for (uint32_t i = 0; i < n && !rc; i++, p += 12) {
+        e[i] = (brick_ent){vod_get32(p), vod_get32(p + 4), vod_get32(p + 8), 0};
+        if (e[i].id == 0 || e[i].id > n)
+            rc = fail(ps, -EBADMSG, "brick table entry %u has brickID %u, outside "
+                      "1..%u", i, e[i].id, n);
+        else if (seen[e[i].id]++)
+            rc = fail(ps, -EBADMSG, "duplicate brick ID %u in table", e[i].id);
+    }
+    free(seen);
+    return rc;
+}
+
+static int check_record(parse *ps, brick_ent *e)
+{
+    if (e->off < ps->records_at || e->off > ps->end || ps->end - e->off < 4)
+        return fail(ps, -EBADMSG, "brick %u: offset %u outside the file (brick "
+                    "records lie in %llu..%zu)", e->id, e->off,
+                    (unsigned long long)ps->records_at, ps->end);
+    e->size = vod_get32(ps->b + e->off);
+    if (e->size > ps->end - e->off - 4)
+        return fail(ps, -EBADMSG, "brick %u: dataSize %u at offset %u passes the "
+                    "end of the brick data (offset %zu)", e->id, e->size, e->off, ps->end);
+    return 0;
+}
+
+static int by_offset(const void *a, const void *b)
+{
+    const brick_ent *x = a, *y = b;
+    return (x->off > y->off) - (x->off < y->off);
+}
+
+/* Records may come in any order but must not overlap (so no two IDs can
+ * share one small record that inflates to a huge brick) and must fill the
+ * file up to its end or its trailer. */
+static int check_extents(parse *ps, brick_ent *e, uint32_t n)
+{
+    qsort(e, n, sizeof *e, by_offset);
+    uint64_t at = ps->records_at;
+    for (uint32_t i = 0; i < n; i++) {
+        if (e[i].off < at)
+            return fail(ps, -EBADMSG, "brick %u: record at offset %u overlaps brick "
+                        "%u's record", e[i].id, e[i].off, e[i - 1].id);
+        at = (uint64_t)e[i].off + 4 + e[i].size;
+    }
+    if (at != ps->end)
+        return fail(ps, -EBADMSG, "%llu unexpected bytes after the last brick record "
+                    "(offset %llu)%s", (unsigned long long)(ps->end - at),
+                    (unsigned long long)at,
+                    ps->end == ps->len ? "; flags bit 16 (trailer) is clear" : "");
+    return 0;
+}
+
+static int decode_brick(parse *ps, vod_file *f, const brick_ent *e, uint8_t *raw)
+{
+    const uint8_t *d = ps->b + e->off + 4;
+    size_t n = f->raw_bytes;
+    const char *why = NULL;
+    if (f->info.comp == VOD_COMP_NONE) {
+        if (e->size != n) why = "dataSize differs";
+        else memcpy(raw, d, n);
+    } else if (f->info.comp == VOD_COMP_RUNL) {
+        if (vod_runl_decode(f->info.voxel_bits, d, e->size, raw, n)) why = "bad RUNL runs";
+    } else {
+        uLongf out = (uLongf)n;
+        uLong in = e->size;
+        int zr = uncompress2(raw, &out, d, &in);
+        if (zr != Z_OK) why = zr == Z_BUF_ERROR && out == n ? "zlib: too much data" : "zlib error";
+        else if (out != n) why = "zlib: too little data";
+        else if (in != e->size) why = "bytes left after the zlib stream";
+    }
+    if (why)
+        return fail(ps, -EBADMSG, "brick %u does not decompress to %zu bytes (%s)",
+                    e->id, n, why);
+    uint32_t h = vod_hash(f->info.hash, raw, n);
+    if (h != e->hash)
+        return fail(ps, -EBADMSG, "brick %u: hash mismatch (table %08x, data %08x)",
+                    e->id, e->hash, h);
+    return 0;
+}
+
+static int read_bricks(parse *ps, vod_file *f)
+{
+    uint32_t n = f->info.bricks;
+    brick_ent *e = malloc(((size_t)n + 1) * sizeof *e);
+    f->brick = calloc((size_t)n + 1, sizeof *f->brick);
+    int rc = e && f->brick ? read_table(ps, f, e) : fail(ps, -ENOMEM, "out of memory");
+    for (uint32_t i = 0; i < n && !rc; i++) rc = check_record(ps, &e[i]);
+    if (!rc) rc = check_extents(ps, e, n);
+    for (uint32_t i = 0; i < n && !rc; i++) {
+        f->info.brick_data_bytes += e[i].size;
+        uint8_t *raw = malloc(f->raw_bytes);
+        if (!raw) rc = fail(ps, -ENOMEM, "out of memory for brick %u", e[i].id);
+        else f->brick[e[i].id] = raw;
+        if (!rc) rc = decode_brick(ps, f, &e[i], raw);
+    }
+    free(e);
+    return rc;
+}
+
+/* ---- open and close ---- */
+
+static int parse_all(parse *ps, vod_file *f)
+{
+    int rc = read_header(ps, f);
+    if (!rc) rc = read_tree(ps, f);
+    if (!rc) rc = read_count(ps, f);
+    if (!rc) rc = read_bricks(ps, f);
+    if (!rc) rc = check_subtree(ps, f, 0, f->info.height - 1);
+    return rc;
+}
+
+int vod_read(const void *buf, size_t len, vod_file **out, char *err, size_t errlen)
+{
+    *out = NULL;
+    if (err && errlen) err[0] = '\0';
+    vod_file *f = calloc(1, sizeof *f);
+    parse ps = {.b = buf, .len = len, .end = len, .err = err, .errlen = errlen};
+    if (!f) return fail(&ps, -ENOMEM, "out of memory");
+    int rc = parse_all(&ps, f);
+    if (rc) {
+        vod_close(f);
+        return rc;
+    }
+    f->info.metadata = f->metadata ? f->metadata : "";
+    f->info.file_bytes = len;
+    *out = f;
+    return 0;
+}
+
+static int read_all(int fd, uint8_t *p, size_t n)
+{
+    while (n) {
+        ssize_t k = read(fd, p, n);
+        if (k < 0 && errno == EINTR) continue;
+        if (k <= 0) return k < 0 ? -errno : -EIO;
+        p += k;
+        n -= (size_t)k;
+    }
+    return 0;
+}
+
+int vod_open(const char *path, vod_file **out, char *err, size_t errlen)
+{
+    *out = NULL;
+    parse ps = {.err = err, .errlen = errlen};
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0) return fail(&ps, -errno, "cannot open: %s", strerror(errno));
+    struct stat sb;
+    int rc = fstat(fd, &sb) ? fail(&ps, -errno, "cannot stat: %s", strerror(errno)) : 0;
+    if (!rc && !S_ISREG(sb.st_mode)) rc = fail(&ps, -EINVAL, "not a regular file");
+    else if (!rc && (uint64_t)sb.st_size > UINT32_MAX + 65536ull)
+        rc = fail(&ps, -EFBIG, "%lld bytes: larger than any VOD file", (long long)sb.st_size);
+    uint8_t *buf = rc ? NULL : malloc((size_t)sb.st_size + 1);
+    if (!rc && !buf) rc = fail(&ps, -ENOMEM, "out of memory");
+    if (!rc && (rc = read_all(fd, buf, (size_t)sb.st_size)))
+        fail(&ps, rc, "cannot read: %s", strerror(-rc));
+    close(fd);
+    if (!rc) rc = vod_read(buf, (size_t)sb.st_size, out, err, errlen);
+    free(buf);
+    return rc;
+}
+
+void vod_close(vod_file *f)
+{
+    if (!f) return;
+    if (f->brick)
+        for (uint32_t i = 0; i <= f->info.bricks; i++) free(f->brick[i]);
+    free(f->brick);
+    free(f->tree);
+    free(f->metadata);
+    free(f);
+}
+
+const vod_info *vod_get_info(const vod_file *f) { return &f->info; }
+
+/* ---- voxel access ---- */
+
+uint32_t vod_level_size(const vod_file *f, int level)
+{
+    if (level < 0 || (uint32_t)level >= f->info.height) return 0;
+    return f->padded >> level;
+}
+
+int vod_level_dims(const vod_file *f, int level, uint32_t dims[3])
+{
+    if (level < 0 || (uint32_t)level >= f->info.height) return -EINVAL;
+    for (int a = 0; a < 3; a++)
+        dims[a] = (uint32_t)(((uint64_t)f->info.volume[a] + (1ull << level) - 1) >> level);
+    return 0;
+}
+
+static inline uint32_t raw_voxel(const uint8_t *raw, uint32_t bits, size_t i)
+{
+    switch (bits) {
+    case 1: return raw[i >> 3] >> (i & 7) & 1u;
+    case 8: return raw[i];
+    case 16: return (uint32_t)raw[2 * i] | (uint32_t)raw[2 * i + 1] << 8;
+    default: return vod_get32(raw + 4 * i);
+    }
+}
+
+/* Child c of the node at preorder index p (level l) is at
+ * p + 1 + c * sub[l-1]; the child's bit of a level-`level` coordinate is
+ * bit k + l - level - 1 (a level-l node spans 2^(k + l - level) of them). */
+uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_t z)
+{
+    uint32_t side = vod_level_size(f, level);
+    if (x >= side || y >= side || z >= side) return 0;
+    uint64_t p = 0;
+    for (int l = (int)f->info.height - 1; l > level; l--) {
+        if (!f->tree[p]) return 0;
+        int s = (int)f->k + l - level - 1;
+        unsigned c = (x >> s & 1u) | (y >> s & 1u) << 1 | (z >> s & 1u) << 2;
+        p += 1 + c * f->sub[l - 1];
+    }
+    uint32_t id = f->tree[p], m = f->info.brick - 1;
+    if (!id) return 0;
+    size_t i = ((size_t)(z & m) * f->info.brick + (y & m)) * f->info.brick + (x & m);
+    return raw_voxel(f->brick[id], f->info.voxel_bits, i);
+}
+
+typedef struct {
+    const vod_file *f;
+    int level;
+    uint32_t dims[3];
+    int (*fn)(void *, uint32_t, uint32_t, uint32_t, uint32_t);
+    void *ud;
+} walk_ctx;
+
+static int visit_brick(const walk_ctx *w, const uint8_t *raw, const uint32_t b[3])
+{
+    uint32_t B = w->f->info.brick, o[3], lim[3];
+    for (int a = 0; a < 3; a++) {
+        o[a] = b[a] * B;
+        if (o[a] >= w->dims[a]) return 0;
+        lim[a] = w->dims[a] - o[a] < B ? w->dims[a] - o[a] : B;
+    }
+    for (uint32_t z = 0; z < lim[2]; z++)
+        for (uint32_t y = 0; y < lim[1]; y++) {
+            size_t row = ((size_t)z * B + y) * B;
+            for (uint32_t x = 0; x < lim[0]; x++) {
+                uint32_t v = raw_voxel(raw, w->f->info.voxel_bits, row + x);
+                int rc = v ? w->fn(w->ud, o[0] + x, o[1] + y, o[2] + z, v) : 0;
+                if (rc) return rc;
+            }
+        }
+    return 0;
+}
+
+static int walk(const walk_ctx *w, uint64_t p, int l, const uint32_t b[3])
+{
+    uint32_t id = w->f->tree[p];
+    if (!id) return 0;
+    if (l == w->level) return visit_brick(w, w->f->brick[id], b);
+    for (unsigned i = 0; i < 8; i++) {
+        uint32_t cb[3];
+        for (int a = 0; a < 3; a++) cb[a] = b[a] << 1 | ((i >> a) & 1u);
+        int rc = walk(w, p + 1 + i * w->f->sub[l - 1], l - 1, cb);
+        if (rc) return rc;
+    }
+    return 0;
+}
+
+int vod_foreach(const vod_file *f, int level,
+                int (*fn)(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v),
+                void *ud)
+{
+    walk_ctx w = {f, level, {0, 0, 0}, fn, ud};
+    if (vod_level_dims(f, level, w.dims)) return -EINVAL;
+    uint32_t b[3] = {0, 0, 0};
+    return walk(&w, 0, (int)f->info.height - 1, b);
+}
