@@ -1,0 +1,577 @@
+/* config — the daemon's configuration file.  See config.h. */
+#include "config.h"
+
+#include <ctype.h>
+#include <errno.h>
+#include <grp.h>
+#include <pwd.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "frame.h"
+#include "log.h"
+
+#define KIB ((uint64_t)1 << 10)
+#define MIB ((uint64_t)1 << 20)
+#define GIB ((uint64_t)1 << 30)
+#define TIB ((uint64_t)1 << 40)
+
+enum kind {
+    K_PATH,    /* absolute path, bounded by its field */
+    K_MODE,    /* octal permission bits */
+    K_GROUP,   /* none | name | gid */
+    K_UIDS,    /* any | list of names or uids */
+    K_WORKERS, /* auto | count */
+    K_CPUS,    /* auto | list of CPUs and ranges */
+    K_SIZE,    /* bytes with K/M/G/T */
+    K_COUNT,   /* plain number */
+    K_SECONDS, /* with s/m/h/d */
+    K_LEVEL,   /* log level name */
+};
+
+typedef struct {
+    const char *key;
+    enum kind kind;
+    size_t off, size; /* the field in voxd_config */
+    uint64_t min, max;
+} option;
+
+#define F(m) offsetof(voxd_config, m), sizeof(((voxd_config *)0)->m)
+static const option options[] = {
+    {"socket", K_PATH, F(socket), 0, 0},
+    {"socket_mode", K_MODE, F(socket_mode), 0, 0777},
+    {"socket_group", K_GROUP, F(socket_group), 0, 0},
+    {"allow_uids", K_UIDS, F(allow_uids), 0, 0},
+    {"workers", K_WORKERS, F(workers), 1, CONFIG_MAX_WORKERS},
+    {"cpus", K_CPUS, F(cpus), 0, CONFIG_MAX_CPUS - 1},
+    {"shm_size", K_SIZE, F(shm_size), 16 * MIB, TIB},
+    {"log_file", K_PATH, F(log_file), 0, 0},
+    {"log_level", K_LEVEL, F(log_level), 0, 0},
+    {"pidfile", K_PATH, F(pidfile), 0, 0},
+    {"max_frame", K_SIZE, F(max_frame), FRAME_MIN_MAX, FRAME_LIMIT_MAX},
+    {"max_expr_bytes", K_SIZE, F(max_expr_bytes), 16, 16 * MIB},
+    {"max_expr_depth", K_COUNT, F(max_expr_depth), 1, 4096},
+    {"max_res", K_COUNT, F(max_res), 1, 65536},
+    {"max_csg_nodes", K_COUNT, F(max_csg_nodes), 1, 65536},
+    {"max_queued_jobs", K_COUNT, F(max_queued_jobs), 1, 65536},
+    {"max_jobs_per_uid", K_COUNT, F(max_jobs_per_uid), 1, 65536},
+    {"max_clients", K_COUNT, F(max_clients), 1, 65536},
+    {"job_timeout", K_SECONDS, F(job_timeout), 0, 7 * 86400},
+    {"max_result_bytes", K_SIZE, F(max_result_bytes), 64 * KIB, 4 * GIB},
+    {"chunk_size", K_SIZE, F(chunk_size), KIB, FRAME_LIMIT_MAX},
+};
+#define N_OPTIONS (sizeof options / sizeof *options)
+
+void config_defaults(voxd_config *c)
+{
+    memset(c, 0, sizeof *c);
+    snprintf(c->socket, sizeof c->socket, "/run/voxd/voxd.sock");
+    c->socket_mode = 0660;
+    c->shm_size = 2 * GIB;
+    c->log_level = LOG_LEVEL_INFO;
+    c->max_frame = FRAME_DEFAULT_MAX;
+    c->max_expr_bytes = 65536;
+    c->max_expr_depth = 256;
+    c->max_res = 4096;
+    c->max_csg_nodes = 1024;
+    c->max_queued_jobs = 64;
+    c->max_jobs_per_uid = 16;
+    c->max_clients = 128;
+    c->job_timeout = 600;
+    c->max_result_bytes = 4 * GIB;
+    c->chunk_size = 256 * KIB;
+}
+
+/* ---------------------------------------------------------------- values */
+
+/* Why a value was refused, filled by the parsers below. */
+typedef struct {
+    char why[256];
+} reason;
+
+__attribute__((format(printf, 2, 3)))
+static int refuse(reason *r, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(r->why, sizeof r->why, fmt, ap);
+    va_end(ap);
+    return -EINVAL;
+}
+
+/* Decimal digits at *s (no sign, no blanks); -ERANGE on overflow. */
+static int parse_digits(const char **s, uint64_t *v)
+{
+    const char *p = *s;
+    uint64_t n = 0;
+    if (!isdigit((unsigned char)*p)) return -EINVAL;
+    for (; isdigit((unsigned char)*p); p++) {
+        unsigned d = (unsigned)(*p - '0');
+        if (n > (UINT64_MAX - d) / 10) return -ERANGE;
+        n = n * 10 + d;
+    }
+    *s = p;
+    *v = n;
+    return 0;
+}
+
+static void fmt_size(uint64_t v, char *buf, size_t len)
+{
+    static const struct { uint64_t unit; char c; } units[] = {
+        {TIB, 'T'}, {GIB, 'G'}, {MIB, 'M'}, {KIB, 'K'}};
+    for (size_t i = 0; i < 4; i++)
+        if (v && v % units[i].unit == 0) {
+            snprintf(buf, len, "%llu%c", (unsigned long long)(v / units[i].unit), units[i].c);
+            return;
+        }
+    snprintf(buf, len, "%llu", (unsigned long long)v);
+}
+
+/* The multiplier of a unit letter; 0 if the letter is not a unit here. */
+static uint64_t unit_of(const option *o, char c)
+{
+    if (o->kind == K_SECONDS) {
+        switch (c) {
+        case 's': return 1;
+        case 'm': return 60;
+        case 'h': return 3600;
+        case 'd': return 86400;
+        }
+    } else if (o->kind == K_SIZE) {
+        switch (toupper((unsigned char)c)) {
+        case 'K': return KIB;
+        case 'M': return MIB;
+        case 'G': return GIB;
+        case 'T': return TIB;
+        }
+    }
+    return 0;
+}
+
+static int out_of_range(const option *o, const char *val, reason *r)
+{
+    char lo[32], hi[32];
+    if (o->kind == K_SIZE) {
+        fmt_size(o->min, lo, sizeof lo);
+        fmt_size(o->max, hi, sizeof hi);
+    } else {
+        snprintf(lo, sizeof lo, "%llu", (unsigned long long)o->min);
+        snprintf(hi, sizeof hi, "%llu", (unsigned long long)o->max);
+    }
+    return refuse(r, "%s %s is out of range (%s to %s%s)", o->key, val, lo, hi,
+                  o->kind == K_SECONDS ? " seconds" : "");
+}
+
+/* A number with an optional unit letter, checked against [o->min, o->max]. */
+static int parse_number(const option *o, const char *val, uint64_t *out, reason *r)
+{
+    const char *p = val;
+    uint64_t v, unit = 1;
+    int rc = parse_digits(&p, &v);
+    if (rc == -ERANGE) return out_of_range(o, val, r);
+    if (rc == 0 && *p && !p[1] && (unit = unit_of(o, *p))) p++;
+    if (rc || *p)
+        return refuse(r, "bad value '%s' for %s: want %s", val, o->key,
+                      o->kind == K_SIZE      ? "a size like 65536, 256K, 2G"
+                      : o->kind == K_SECONDS ? "a duration like 600, 10m, 2h"
+                                             : "a whole number");
+    if (v > UINT64_MAX / unit || v * unit < o->min || v * unit > o->max)
+        return out_of_range(o, val, r);
+    *out = v * unit;
+    return 0;
+}
+
+static void store_uint(void *field, size_t size, uint64_t v)
+{
+    if (size == sizeof(uint64_t)) *(uint64_t *)field = v;
+    else *(uint32_t *)field = (uint32_t)v;
+}
+
+static int parse_path(const option *o, const char *val, char *field, reason *r)
+{
+    if (val[0] != '/')
+        return refuse(r, "%s must be an absolute path, got '%s'", o->key, val);
+    if (strlen(val) >= o->size)
+        return refuse(r, "%s is longer than %zu bytes", o->key, o->size - 1);
+    memcpy(field, val, strlen(val) + 1);
+    return 0;
+}
+
+static int parse_mode(const option *o, const char *val, unsigned *mode, reason *r)
+{
+    size_t n = strlen(val);
+    if (n == 0 || n > 4 || strspn(val, "01234567") != n)
+        return refuse(r, "bad value '%s' for %s: want octal permissions like 0660", val,
+                      o->key);
+    unsigned long m = strtoul(val, NULL, 8);
+    if (m > o->max)
+        return refuse(r, "%s %s is out of range (0 to 0777)", o->key, val);
+    *mode = (unsigned)m;
+    return 0;
+}
+
+static int parse_group(const char *val, voxd_config *c, reason *r)
+{
+    if (strcmp(val, "none") == 0) {
+        c->has_socket_group = 0;
+        c->socket_group[0] = '\0';
+        return 0;
+    }
+    if (strlen(val) >= sizeof c->socket_group)
+        return refuse(r, "socket_group '%s' is too long", val);
+    const char *p = val;
+    uint64_t gid;
+    if (parse_digits(&p, &gid) == 0 && !*p) {
+        if (gid >= (gid_t)-1) return refuse(r, "socket_group %s is out of range", val);
+        c->socket_gid = (gid_t)gid;
+    } else {
+        struct group gr, *res = NULL;
+        char buf[4096];
+        if (getgrnam_r(val, &gr, buf, sizeof buf, &res) != 0 || !res)
+            return refuse(r, "unknown group '%s' for socket_group", val);
+        c->socket_gid = gr.gr_gid;
+    }
+    c->has_socket_group = 1;
+    snprintf(c->socket_group, sizeof c->socket_group, "%s", val);
+    return 0;
+}
+
+/* Split a list at commas and blanks; fn is called for each item (NUL-ended
+ * in a copy). */
+static int for_each_item(const char *val, reason *r, voxd_config *c,
+                         int (*fn)(const char *item, voxd_config *c, reason *r))
+{
+    char item[256];
+    const char *p = val;
+    while (*p) {
+        size_t n = strcspn(p, ", \t");
+        if (n >= sizeof item) return refuse(r, "list item '%.32s...' is too long", p);
+        if (n) {
+            memcpy(item, p, n);
+            item[n] = '\0';
+            int rc = fn(item, c, r);
+            if (rc) return rc;
+        }
+        p += n;
+        p += strspn(p, ", \t");
+    }
+    return 0;
+}
+
+static int add_uid(const char *item, voxd_config *c, reason *r)
+{
+    const char *p = item;
+    uint64_t uid;
+    if (c->n_allow_uids == CONFIG_MAX_UIDS)
+        return refuse(r, "allow_uids lists more than %d users", CONFIG_MAX_UIDS);
+    if (parse_digits(&p, &uid) == 0 && !*p) {
+        if (uid >= (uid_t)-1) return refuse(r, "allow_uids: uid %s is out of range", item);
+    } else {
+        struct passwd pw, *res = NULL;
+        char buf[4096];
+        if (getpwnam_r(item, &pw, buf, sizeof buf, &res) != 0 || !res)
+            return refuse(r, "allow_uids: unknown user '%s'", item);
+        uid = pw.pw_uid;
+    }
+    c->allow_uids[c->n_allow_uids++] = (uid_t)uid;
+    return 0;
+}
+
+static int parse_uids(const char *val, voxd_config *c, reason *r)
+{
+    c->allow_any = strcmp(val, "any") == 0;
+    c->n_allow_uids = 0;
+    if (c->allow_any) return 0;
+    return for_each_item(val, r, c, add_uid);
+}
+
+static int add_cpus(const char *item, voxd_config *c, reason *r)
+{
+    const char *p = item;
+    uint64_t lo, hi;
+    if (parse_digits(&p, &lo)) goto bad;
+    hi = lo;
+    if (*p == '-') {
+        p++;
+        if (parse_digits(&p, &hi)) goto bad;
+    }
+    if (*p || lo > hi) goto bad;
+    if (hi >= CONFIG_MAX_CPUS)
+        return refuse(r, "cpus: CPU %llu is out of range (0 to %d)",
+                      (unsigned long long)hi, CONFIG_MAX_CPUS - 1);
+    for (uint64_t cpu = lo; cpu <= hi; cpu++) {
+        if (c->n_cpus == CONFIG_MAX_CPUS)
+            return refuse(r, "cpus lists more than %d CPUs", CONFIG_MAX_CPUS);
+        c->cpus[c->n_cpus++] = (int)cpu;
+    }
+    return 0;
+bad:
+    return refuse(r, "bad value '%s' in cpus: want a CPU like 3 or a range like 0-3", item);
+}
+
+static int parse_cpus(const char *val, voxd_config *c, reason *r)
+{
+    c->n_cpus = 0;
+    if (strcmp(val, "auto") == 0) return 0;
+    return for_each_item(val, r, c, add_cpus);
+}
+
+static int parse_value(const option *o, const char *val, voxd_config *c, reason *r)
+{
+    char *field = (char *)c + o->off;
+    uint64_t v;
+    int rc;
+    switch (o->kind) {
+    case K_PATH: return parse_path(o, val, field, r);
+    case K_MODE: return parse_mode(o, val, &c->socket_mode, r);
+    case K_GROUP: return parse_group(val, c, r);
+    case K_UIDS: return parse_uids(val, c, r);
+    case K_CPUS: return parse_cpus(val, c, r);
+    case K_LEVEL:
+        if ((rc = log_level_parse(val)) < 0)
+            return refuse(r, "bad value '%s' for log_level: want error, warn, info or debug",
+                          val);
+        c->log_level = rc;
+        return 0;
+    case K_WORKERS:
+        if (strcmp(val, "auto") == 0) {
+            c->workers = 0;
+            return 0;
+        }
+        if (!isdigit((unsigned char)val[0]))
+            return refuse(r, "bad value '%s' for workers: want auto or 1 to %d", val,
+                          CONFIG_MAX_WORKERS);
+        if ((rc = parse_number(o, val, &v, r))) return rc;
+        c->workers = (int)v;
+        return 0;
+    default:
+        if ((rc = parse_number(o, val, &v, r))) return rc;
+        store_uint(field, o->size, v);
+        return 0;
+    }
+}
+
+/* ---------------------------------------------------------------- lines */
+
+typedef struct {
+    const char *name;
+    int line;
+    int set[N_OPTIONS]; /* line where each option was set, 0 = not */
+    char *err;
+    size_t errlen;
+} parser;
+
+__attribute__((format(printf, 3, 4)))
+static int fail_at(parser *p, int line, const char *fmt, ...)
+{
+    char why[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(why, sizeof why, fmt, ap);
+    va_end(ap);
+    if (line > 0) snprintf(p->err, p->errlen, "%s:%d: %s", p->name, line, why);
+    else snprintf(p->err, p->errlen, "%s: %s", p->name, why);
+    return -EINVAL;
+}
+
+static const option *find_option(const char *key, size_t len)
+{
+    for (size_t i = 0; i < N_OPTIONS; i++)
+        if (strlen(options[i].key) == len && memcmp(options[i].key, key, len) == 0)
+            return &options[i];
+    return NULL;
+}
+
+static int parse_line(parser *p, char *s, voxd_config *c)
+{
+    size_t n = strlen(s);
+    while (n && isspace((unsigned char)s[n - 1])) s[--n] = '\0';
+    s += strspn(s, " \t");
+    if (!*s || *s == '#') return 0;
+
+    size_t klen = strcspn(s, " \t");
+    char *val = s + klen;
+    val += strspn(val, " \t");
+    const option *o = find_option(s, klen);
+    if (!o) return fail_at(p, p->line, "unknown key '%.*s'", (int)klen, s);
+    size_t i = (size_t)(o - options);
+    if (p->set[i])
+        return fail_at(p, p->line, "duplicate key '%s' (first set on line %d)", o->key,
+                       p->set[i]);
+    if (!*val) return fail_at(p, p->line, "'%s' needs a value", o->key);
+    reason r;
+    if (parse_value(o, val, c, &r)) return fail_at(p, p->line, "%s", r.why);
+    p->set[i] = p->line;
+    return 0;
+}
+
+/* The line of the later of two options (for errors about both), 0 if
+ * neither came from the file. */
+static int later_line(const parser *p, const char *a, const char *b)
+{
+    int la = p->set[find_option(a, strlen(a)) - options];
+    int lb = p->set[find_option(b, strlen(b)) - options];
+    return la > lb ? la : lb;
+}
+
+static int check_together(parser *p, const voxd_config *c)
+{
+    char f[32], x[32];
+    fmt_size(c->max_frame, f, sizeof f);
+    if (c->chunk_size > c->max_frame - FRAME_CHUNK_OVERHEAD) {
+        fmt_size(c->chunk_size, x, sizeof x);
+        return fail_at(p, later_line(p, "chunk_size", "max_frame"),
+                       "chunk_size %s does not fit in max_frame %s (a chunk needs %u bytes more)",
+                       x, f, FRAME_CHUNK_OVERHEAD);
+    }
+    if (c->max_expr_bytes > c->max_frame - CONFIG_REQUEST_OVERHEAD) {
+        fmt_size(c->max_expr_bytes, x, sizeof x);
+        return fail_at(p, later_line(p, "max_expr_bytes", "max_frame"),
+                       "max_expr_bytes %s does not fit in max_frame %s (a request needs %u bytes more)",
+                       x, f, CONFIG_REQUEST_OVERHEAD);
+    }
+    return 0;
+}
+
+int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
+                       size_t errlen)
+{
+    parser p = {.name = name, .err = err, .errlen = errlen};
+    voxd_config *tmp = malloc(sizeof *tmp);
+    char line[CONFIG_MAX_LINE + 2];
+    int rc = 0;
+    if (!tmp) return -ENOMEM;
+    config_defaults(tmp);
+    while (rc == 0 && fgets(line, sizeof line, f)) {
+        p.line++;
+        size_t n = strlen(line);
+        if (n - (n && line[n - 1] == '\n') > CONFIG_MAX_LINE)
+            rc = fail_at(&p, p.line, "line is longer than %d bytes", CONFIG_MAX_LINE);
+        else
+            rc = parse_line(&p, line, tmp);
+    }
+    if (rc == 0 && ferror(f)) {
+        rc = errno ? -errno : -EIO;
+        snprintf(err, errlen, "%s: %s", name, strerror(-rc));
+    }
+    if (rc == 0) rc = check_together(&p, tmp);
+    if (rc == 0) *c = *tmp;
+    free(tmp);
+    return rc;
+}
+
+int config_load(const char *path, voxd_config *c, char *err, size_t errlen)
+{
+    FILE *f = fopen(path, "re");
+    if (!f) {
+        int rc = -errno;
+        snprintf(err, errlen, "%s: %s", path, strerror(errno));
+        return rc;
+    }
+    errno = 0;
+    int rc = config_load_stream(f, path, c, err, errlen);
+    fclose(f);
+    return rc;
+}
+
+/* ---------------------------------------------------------------- output */
+
+static void print_cpus(FILE *out, const voxd_config *c)
+{
+    fputs("cpus ", out);
+    if (c->n_cpus == 0) fputs("auto", out);
+    for (int i = 0; i < c->n_cpus;) {
+        int j = i;
+        while (j + 1 < c->n_cpus && c->cpus[j + 1] == c->cpus[j] + 1) j++;
+        fprintf(out, i ? ",%d" : "%d", c->cpus[i]);
+        if (j > i) fprintf(out, "-%d", c->cpus[j]);
+        i = j + 1;
+    }
+    fputc('\n', out);
+}
+
+static void print_uids(FILE *out, const voxd_config *c)
+{
+    if (c->allow_any) {
+        fputs("allow_uids any\n", out);
+        return;
+    }
+    if (c->n_allow_uids == 0) {
+        fprintf(out, "# allow_uids: not set, so uid %u (this daemon's) and root\n",
+                (unsigned)getuid());
+        return;
+    }
+    fputs("allow_uids ", out);
+    for (int i = 0; i < c->n_allow_uids; i++)
+        fprintf(out, i ? ",%u" : "%u", (unsigned)c->allow_uids[i]);
+    fputc('\n', out);
+}
+
+static void print_option(FILE *out, const option *o, const voxd_config *c)
+{
+    const char *field = (const char *)c + o->off;
+    char buf[32];
+    uint64_t v = o->size == sizeof(uint64_t) ? *(const uint64_t *)field
+                                             : *(const uint32_t *)field;
+    switch (o->kind) {
+    case K_PATH:
+        if (*field) fprintf(out, "%s %s\n", o->key, field);
+        else fprintf(out, "# %s: not set, so %s\n", o->key,
+                     strcmp(o->key, "log_file") == 0 ? "stderr" : "none");
+        break;
+    case K_MODE: fprintf(out, "%s 0%03o\n", o->key, c->socket_mode); break;
+    case K_GROUP:
+        fprintf(out, "%s %s\n", o->key, c->has_socket_group ? c->socket_group : "none");
+        break;
+    case K_UIDS: print_uids(out, c); break;
+    case K_CPUS: print_cpus(out, c); break;
+    case K_LEVEL: fprintf(out, "%s %s\n", o->key, log_level_name(c->log_level)); break;
+    case K_WORKERS:
+        if (c->workers) fprintf(out, "workers %d\n", c->workers);
+        else fprintf(out, "# auto: %d on this machine\nworkers auto\n", config_workers(c));
+        break;
+    case K_SIZE:
+        fmt_size(v, buf, sizeof buf);
+        fprintf(out, "%s %s\n", o->key, buf);
+        break;
+    default: fprintf(out, "%s %llu\n", o->key, (unsigned long long)v); break;
+    }
+}
+
+void config_print(FILE *out, const voxd_config *c)
+{
+    fputs("# voxd: effective configuration\n", out);
+    for (size_t i = 0; i < N_OPTIONS; i++) print_option(out, &options[i], c);
+}
+
+/* ---------------------------------------------------------------- effective */
+
+int config_workers(const voxd_config *c)
+{
+    if (c->workers > 0) return c->workers;
+    long n = sysconf(_SC_NPROCESSORS_ONLN);
+    if (n < 1) n = 1;
+    return n > CONFIG_MAX_WORKERS ? CONFIG_MAX_WORKERS : (int)n;
+}
+
+int config_uid_allowed(const voxd_config *c, uid_t uid)
+{
+    if (c->allow_any) return 1;
+    if (c->n_allow_uids == 0) return uid == 0 || uid == getuid();
+    for (int i = 0; i < c->n_allow_uids; i++)
+        if (c->allow_uids[i] == uid) return 1;
+    return 0;
+}
+
+void config_proto_limits(const voxd_config *c, proto_limits *lim)
+{
+    lim->max_frame = c->max_frame;
+    lim->max_expr_bytes = c->max_expr_bytes;
+    lim->max_res = c->max_res;
+    lim->max_csg_nodes = c->max_csg_nodes;
+    lim->chunk_size = c->chunk_size;
+    lim->max_result_bytes = c->max_result_bytes;
+}

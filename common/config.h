@@ -1,0 +1,86 @@
+/* config — the daemon's configuration file (config/voxd.conf documents it).
+ *
+ * One option per line: a key, white space, the value (the rest of the line,
+ * trailing white space removed).  A line whose first non-blank character is
+ * '#' is a comment; blank lines are ignored.  There are no trailing comments
+ * (a path may contain '#').  Each key at most once; an option not given
+ * keeps its default.  Sizes take a unit: K, M, G, T (powers of 1024, either
+ * case); durations s, m, h, d.  Lists are separated by commas or blanks.
+ *
+ * config_load() reports the first problem as "FILE:LINE: reason" (unknown
+ * key, missing or bad value, duplicate key, value out of range, or two
+ * options that do not fit together) and leaves *c untouched on failure.
+ * config_print() writes the effective settings as a file that loads back to
+ * the same configuration (voxd --check-config).
+ */
+#ifndef VOXD_CONFIG_H
+#define VOXD_CONFIG_H
+
+#include <limits.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <sys/types.h>
+
+#include "proto_check.h"
+
+#define CONFIG_DEFAULT_PATH "/etc/voxd/voxd.conf"
+#define CONFIG_MAX_LINE 4096     /* bytes of one line */
+#define CONFIG_MAX_UIDS 64       /* entries of allow_uids */
+#define CONFIG_MAX_CPUS 1024     /* entries of cpus; each CPU number below this */
+#define CONFIG_MAX_WORKERS 256   /* = ENGINE_MAX_WORKERS */
+#define CONFIG_SOCKET_MAX 108    /* sizeof sun_path, NUL included */
+/* A request carries up to this much besides its expression: the config
+ * keeps max_expr_bytes <= max_frame - CONFIG_REQUEST_OVERHEAD so that a
+ * too-long expression gets a typed error, not a closed connection. */
+#define CONFIG_REQUEST_OVERHEAD 256u
+
+typedef struct {
+    /* socket */
+    char socket[CONFIG_SOCKET_MAX];  /* /run/voxd/voxd.sock */
+    unsigned socket_mode;            /* 0660 */
+    int has_socket_group;            /* 0: none (the daemon's group) */
+    gid_t socket_gid;
+    char socket_group[64];           /* as written: a name or a number */
+    /* who may connect (SO_PEERCRED), besides what the mode allows */
+    int allow_any;                   /* allow_uids any */
+    int n_allow_uids;                /* 0: the daemon's own uid and root */
+    uid_t allow_uids[CONFIG_MAX_UIDS];
+    /* workers */
+    int workers;                     /* 0 = auto: online cores */
+    int n_cpus;                      /* 0 = automatic pinning */
+    int cpus[CONFIG_MAX_CPUS];       /* worker i on cpus[i % n_cpus] */
+    uint64_t shm_size;               /* 2G */
+    /* logging, process */
+    char log_file[PATH_MAX];         /* "" = stderr */
+    int log_level;                   /* LOG_LEVEL_INFO */
+    char pidfile[PATH_MAX];          /* "" = none */
+    /* limits */
+    uint32_t max_frame;              /* 1M */
+    uint32_t max_expr_bytes;         /* 65536 */
+    uint32_t max_expr_depth;         /* 256 */
+    uint32_t max_res;                /* 4096 */
+    uint32_t max_csg_nodes;          /* 1024 */
+    uint32_t max_queued_jobs;        /* 64 */
+    uint32_t max_jobs_per_uid;       /* 16 */
+    uint32_t max_clients;            /* 128 */
+    uint32_t job_timeout;            /* seconds, 600; 0 = none */
+    uint64_t max_result_bytes;       /* 4G */
+    uint32_t chunk_size;             /* 256K */
+} voxd_config;
+
+void config_defaults(voxd_config *c);
+/* Defaults, then the file.  0, or -EINVAL with "FILE:LINE: reason" in err,
+ * or -errno with "FILE: <strerror>" when the file cannot be read. */
+int config_load(const char *path, voxd_config *c, char *err, size_t errlen);
+/* The same from an open stream; name is what messages call it. */
+int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
+                       size_t errlen);
+/* Every option, as a loadable file. */
+void config_print(FILE *out, const voxd_config *c);
+
+/* Effective values for the daemon. */
+int config_workers(const voxd_config *c);          /* auto resolved, 1..256 */
+int config_uid_allowed(const voxd_config *c, uid_t uid);
+void config_proto_limits(const voxd_config *c, proto_limits *lim);
+
+#endif
