@@ -10,6 +10,7 @@
 
 #include "octree.h"
 #include "render.h"
+#include "vod.h"
 #include "voxel.h"
 
 #define CAP 65536u
@@ -506,4 +507,156 @@ Test(render, equal_depth_ties_go_to_the_brighter_splat)
     }
     cr_assert_eq(got[0], got[1]);
     cr_assert_gt(got[0], 200);
+}
+
+/* ---- VOD input ---- */
+
+typedef struct {
+    uint8_t *buf;
+    size_t len, cap;
+} membuf;
+
+static int mem_write(void *ud, const void *buf, size_t n)
+{
+    membuf *m = ud;
+    if (m->len + n > m->cap) {
+        size_t cap = (m->len + n) * 2;
+        uint8_t *b = realloc(m->buf, cap);
+        if (!b) return -ENOMEM;
+        m->buf = b;
+        m->cap = cap;
+    }
+    memcpy(m->buf + m->len, buf, n);
+    m->len += n;
+    return 0;
+}
+
+/* t written as a 64^3 VOD of the given channel, read back; scale and
+ * origin as given, or unit voxels at the origin when NULL. */
+static vod_file *to_vod_placed(octree *t, int channel, const float *scale,
+                               const float *origin)
+{
+    vod_params p;
+    vod_params_default(&p);
+    p.volume[0] = p.volume[1] = p.volume[2] = 64;
+    p.channel = channel;
+    for (int k = 0; k < 3 && scale; k++) {
+        p.voxel_scale[k] = scale[k];
+        p.origin[k] = origin[k];
+    }
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    vod_stats st;
+    char err[256];
+    cr_assert_eq(vod_write_octree(t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
+    vod_file *f;
+    cr_assert_eq(vod_read(m.buf, m.len, &f, err, sizeof err), 0, "%s", err);
+    free(m.buf);
+    return f;
+}
+
+static vod_file *to_vod(octree *t, int channel)
+{
+    return to_vod_placed(t, channel, NULL, NULL);
+}
+
+Test(render, vod_level_zero_matches_the_octree_and_level_one_is_coarser)
+{
+    static octree t;
+    make_shell(&t, CENTRE, SHELL_R);
+    vod_file *f = to_vod(&t, VOXEL_CH_SURFACE);
+    render_opts o = opts(300, 300, 30, 20);
+    render_image direct, l0, l1;
+    char err[256];
+    cr_assert_eq(render_octree(&t, ORIGIN0, UNIT, NULL, &o, &direct), 0);
+    cr_assert_eq(render_vod(f, 0, &o, &l0, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(render_vod(f, 1, &o, &l1, err, sizeof err), 0, "%s", err);
+    /* Same voxels, other order: the z-buffer makes the bytes equal. */
+    cr_assert_eq(l0.splats, t.voxels);
+    cr_assert_eq(memcmp(direct.rgb, l0.rgb, 300 * 300 * 3), 0);
+    cover c0 = coverage(&l0), c1 = coverage(&l1);
+    cr_assert(fabs((double)c1.n / c0.n - 1) < 0.10, "%ld vs %ld", c1.n, c0.n);
+    cr_assert_lt(l1.splats * 3, l0.splats, "%llu vs %llu splats",
+                 (unsigned long long)l1.splats, (unsigned long long)l0.splats);
+    cr_assert(fabs(c1.mx - c0.mx) < 3 && fabs(c1.my - c0.my) < 3);
+    /* Level 1 is shaded from the merged normals: still bright in the middle. */
+    cr_assert_gt(grey(&l1, 150, 150), 200);
+    render_image_free(&direct);
+    render_image_free(&l0);
+    render_image_free(&l1);
+
+    cr_assert_eq(render_vod(f, 3, &o, &l0, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "level"), "%s", err);
+    o.width = 0;
+    cr_assert_eq(render_vod(f, 0, &o, &l0, err, sizeof err), -EINVAL);
+    vod_close(f);
+}
+
+Test(render, occupancy_vod_is_shaded_from_neighbour_gradients)
+{
+    static octree t;
+    octree_init(&t, arena, CAP, 6);
+    const double up[3] = {0, 0, 1}; /* ignored by a 1-bit file */
+    for (uint32_t z = 0; z < 64; z++)
+        for (uint32_t y = 0; y < 64; y++)
+            for (uint32_t x = 0; x < 64; x++) {
+                double d[3] = {x + 0.5 - 32, y + 0.5 - 32, z + 0.5 - 32};
+                if (d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= 24.0 * 24.0)
+                    cr_assert_eq(octree_store(&t, x, y, z, voxel_surface(up)), 0);
+            }
+    vod_file *f = to_vod(&t, VOXEL_CH_OCCUPANCY);
+    render_opts o = opts(300, 300, 30, 20);
+    render_image img;
+    char err[256];
+    cr_assert_eq(render_vod(f, 0, &o, &img, err, sizeof err), 0, "%s", err);
+    /* Hidden inner voxels are skipped. */
+    cr_assert_lt(img.splats * 4, t.voxels);
+    cover c = coverage(&img);
+    double r_px = 24.5 * img.cam.scale;
+    cr_assert(fabs(c.n - M_PI * r_px * r_px) < 0.05 * M_PI * r_px * r_px);
+    int centre = grey(&img, 150, 150), darkest = 255;
+    for (int k = 0; k < 8; k++) {
+        int i = (int)(150 + 0.9 * r_px * cos(k * M_PI / 4));
+        int j = (int)(150 + 0.9 * r_px * sin(k * M_PI / 4));
+        cr_assert_gt(centre, grey(&img, i, j), "direction %d", k);
+        darkest = grey(&img, i, j) < darkest ? grey(&img, i, j) : darkest;
+    }
+    cr_assert_lt(darkest, centre * 0.6);
+    render_image_free(&img);
+    /* Level 1 of the ball: coarser, same disc. */
+    cr_assert_eq(render_vod(f, 1, &o, &img, err, sizeof err), 0, "%s", err);
+    cover c1 = coverage(&img);
+    /* OR-downsampling dilates by up to one coarse voxel. */
+    cr_assert(fabs((double)c1.n / c.n - 1) < 0.15, "%ld vs %ld", c1.n, c.n);
+    cr_assert_gt(grey(&img, 150, 150), darkest);
+    render_image_free(&img);
+    vod_close(f);
+}
+
+Test(render, vod_voxel_scale_and_origin_place_the_splats)
+{
+    static octree t;
+    make_shell(&t, CENTRE, 20);
+    const float scale[3] = {2, 1, 0.5f}, origin[3] = {-5, 3, 7};
+    vod_file *f = to_vod_placed(&t, VOXEL_CH_SURFACE, scale, origin);
+    char err[256];
+    for (int view = 0; view < 2; view++) {
+        /* Looking down -y: x across, z up; then down -x: y across. */
+        render_opts o = opts(240, 240, view ? 0 : 90, 0);
+        o.fit_volume = 1;
+        render_image img;
+        cr_assert_eq(render_vod(f, 0, &o, &img, err, sizeof err), 0, "%s", err);
+        cover c = coverage(&img);
+        double w = c.i1 - c.i0 + 1, h = c.j1 - c.j0 + 1;
+        double want = view ? 1.0 / 0.5 : 2.0 / 0.5;
+        cr_assert(fabs(w / h / want - 1) < 0.06, "view %d: %g x %g", view, w, h);
+        /* The ellipsoid's centre, in world units, is the image centre. */
+        double centre[3], qx, qy, d;
+        for (int k = 0; k < 3; k++) centre[k] = origin[k] + 32.0 * scale[k];
+        cr_assert_eq(render_project(&img.cam, centre, &qx, &qy, &d), 0);
+        cr_assert(fabs(qx - c.mx) < 1 && fabs(qy - c.my) < 1);
+        cr_assert(fabs(qx - 120) < 1e-9 && fabs(qy - 120) < 1e-9);
+        render_image_free(&img);
+    }
+    vod_close(f);
 }
