@@ -701,6 +701,7 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
     }
     vod_layout L;
     int rc = vod_layout_make(p, e->tree.depth, &L, err, errlen);
+    if (!rc) rc = vod_check_volume(&e->tree, p->volume, err, errlen);
     if (!rc) rc = vod_plan(e, p, &L, err, errlen);
     if (rc) return rc;
     /* A worker's failure leaves its bricks unrecorded: vod_gather() encodes

@@ -1,0 +1,536 @@
+/* The master–worker engine against the serial algorithm: the same voxels,
+ * bit for bit, for every shape, schedule, split level and worker count;
+ * cancel, worker deaths, small segments, VOD bytes, process and segment
+ * hygiene, CPU pinning. */
+#include <criterion/criterion.h>
+#include <dirent.h>
+#include <errno.h>
+#include <math.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "engine.h"
+#include "expr.h"
+#include "octree.h"
+#include "shm.h"
+#include "subdiv.h"
+#include "vod.h"
+#include "voxel.h"
+
+#define SPHERE "sqrt(x^2 + y^2 + z^2) - 0.8"
+#define TORUS "sqrt((sqrt(x^2 + y^2) - 0.6)^2 + z^2) - 0.25"
+#define SPHERES                                                               \
+    "min(sqrt((x-0.3)^2+y^2+z^2)-0.35, sqrt((x+0.3)^2+y^2+z^2)-0.3,"          \
+    " sqrt(x^2+(y-0.4)^2+z^2)-0.25, sqrt(x^2+(y+0.45)^2+(z-0.1)^2)-0.3,"       \
+    " sqrt((x-0.5)^2+(y-0.5)^2+(z-0.5)^2)-0.2, sqrt(x^2+y^2+(z+0.6)^2)-0.3)"
+#define SCENE2 "sin(4*theta)*sin(8*phi) - r"
+
+static expr_tape *compile(const char *src)
+{
+    expr_tape *t = NULL;
+    expr_error ee;
+    cr_assert_eq(expr_compile(src, strlen(src), NULL, &t, &ee), 0, "%s", ee.msg);
+    return t;
+}
+
+static subdiv_grid grid(uint32_t res)
+{
+    double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
+    subdiv_grid g;
+    char err[200];
+    cr_assert_eq(subdiv_grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    return g;
+}
+
+typedef struct {
+    octree t;
+    octree_cell *arena;
+    uint64_t tested;
+} ref_tree;
+
+static int ref_store(void *ud, const subdiv_voxel *v)
+{
+    return octree_store(ud, v->x, v->y, v->z, v->value);
+}
+
+/* The serial reference, through subdiv_serial, and its test count through
+ * the same kernel (which must give the same voxels). */
+static void reference(const expr_tape *tape, const subdiv_grid *g, ref_tree *r)
+{
+    uint32_t cap = 1u << 20;
+    r->arena = malloc(octree_arena_bytes(cap));
+    cr_assert(r->arena);
+    octree_init(&r->t, r->arena, cap, g->depth);
+    cr_assert_eq(subdiv_serial(tape, g, &r->t), 0);
+    expr_vm *vm;
+    cr_assert_eq(expr_vm_new(tape, g->depth, &vm), 0);
+    subdiv_kernel k;
+    subdiv_kernel_init(&k, vm, g);
+    octree t2;
+    octree_cell *a2 = malloc(octree_arena_bytes(cap));
+    octree_init(&t2, a2, cap, g->depth);
+    subdiv_sink s = {.voxel = ref_store, .ud = &t2};
+    cr_assert_eq(subdiv_subtree(&k, subdiv_root(g), &s), 0);
+    cr_assert_eq(t2.voxels, r->t.voxels);
+    r->tested = k.tested;
+    expr_vm_free(vm);
+    free(a2);
+}
+
+static void assert_same(const octree *a, const octree *b, const char *what)
+{
+    octree_iter ia, ib;
+    octree_iter_init(&ia, a);
+    octree_iter_init(&ib, b);
+    uint32_t x, y, z, v, x2, y2, z2, v2;
+    uint64_t n = 0;
+    for (;;) {
+        bool ma = octree_iter_next(&ia, &x, &y, &z, &v);
+        bool mb = octree_iter_next(&ib, &x2, &y2, &z2, &v2);
+        cr_assert_eq(ma, mb, "%s: voxel counts differ after %llu", what,
+                     (unsigned long long)n);
+        if (!ma) break;
+        cr_assert(x == x2 && y == y2 && z == z2 && v == v2,
+                  "%s: voxel %llu: (%u %u %u %08x) vs (%u %u %u %08x)", what,
+                  (unsigned long long)n, x, y, z, v, x2, y2, z2, v2);
+        n++;
+    }
+    cr_assert(n > 0 && n == a->voxels && n == b->voxels, "%s", what);
+}
+
+static engine *make_engine(int workers, size_t shm_bytes)
+{
+    engine_opts o = {.workers = workers, .shm_bytes = shm_bytes};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    return e;
+}
+
+static void run(engine *e, const expr_tape *tape, const subdiv_grid *g,
+                engine_schedule s, int split, engine_result *r)
+{
+    engine_job job = {.tape = tape, .grid = *g, .schedule = s, .split_level = split};
+    int rc = engine_voxelize(e, &job, r);
+    cr_assert_eq(rc, 0, "engine_voxelize: %d %s", rc, r->error);
+}
+
+/* Every worker count and schedule against the serial algorithm. */
+static void identity(const char *src, uint32_t res, int max_workers)
+{
+    expr_tape *tape = compile(src);
+    subdiv_grid g = grid(res);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    for (int w = 1; w <= max_workers; w++) {
+        engine *e = make_engine(w, 0);
+        for (int s = 0; s < 2; s++) {
+            engine_result r;
+            run(e, tape, &g, (engine_schedule)s, 0, &r);
+            char what[128];
+            snprintf(what, sizeof what, "%s %u^3, %d workers, schedule %d", src, res, w, s);
+            assert_same(&ref.t, engine_octree(e), what);
+            cr_assert_eq(r.voxels, ref.t.voxels, "%s", what);
+            cr_assert_eq(r.octants, ref.tested, "%s: tested %llu vs %llu", what,
+                         (unsigned long long)r.octants, (unsigned long long)ref.tested);
+            cr_assert_eq(r.cells, engine_octree(e)->used);
+            cr_assert_eq(r.restarts, 0);
+            cr_assert(r.worker_cpu > 0 && r.master_cpu > 0 && r.seconds > 0);
+        }
+        engine_destroy(e);
+    }
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+Test(engine, sphere_identical_to_serial) { identity(SPHERE, 64, 3); }
+Test(engine, torus_identical_to_serial) { identity(TORUS, 64, 3); }
+Test(engine, min_of_spheres_identical_to_serial) { identity(SPHERES, 64, 3); }
+Test(engine, scene2_identical_to_serial) { identity(SCENE2, 64, 3); }
+
+Test(engine, scene2_128_and_split_levels)
+{
+    expr_tape *tape = compile(SCENE2);
+    subdiv_grid g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(2, 0);
+    const int splits[] = {0, 1, 3, 7, 9};
+    for (int i = 0; i < 5; i++) {
+        engine_result r;
+        run(e, tape, &g, ENGINE_SCHED_SUBTREE, splits[i], &r);
+        assert_same(&ref.t, engine_octree(e), "split");
+        cr_assert_eq(r.octants, ref.tested);
+    }
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_PAPER, 0, &r);
+    assert_same(&ref.t, engine_octree(e), "paper 128");
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+/* Different grids and shapes one after the other on one engine, including a
+ * non-power-of-two box domain. */
+Test(engine, jobs_in_a_row_reuse_the_workers)
+{
+    engine *e = make_engine(2, 0);
+    int pid0 = engine_worker_pid(e, 0);
+    const char *src[] = {SPHERE, TORUS, SPHERES};
+    const uint32_t res[] = {32, 100, 16};
+    for (int k = 0; k < 3; k++) {
+        expr_tape *tape = compile(src[k]);
+        double lo[3] = {-1, -1, -0.4}, hi[3] = {1, 0.9, 0.4};
+        subdiv_grid g;
+        char err[200];
+        cr_assert_eq(subdiv_grid_make(lo, hi, res[k], &g, err, sizeof err), 0);
+        ref_tree ref;
+        reference(tape, &g, &ref);
+        engine_result r;
+        run(e, tape, &g, (engine_schedule)(k & 1), 0, &r);
+        assert_same(&ref.t, engine_octree(e), src[k]);
+        free(ref.arena);
+        expr_tape_free(tape);
+    }
+    cr_assert_eq(engine_worker_pid(e, 0), pid0, "workers live across jobs");
+    engine_destroy(e);
+}
+
+/* ---- progress and cancel ---- */
+
+typedef struct {
+    int calls;
+    double last_fraction;
+    int last_level;
+    uint64_t last_voxels;
+    int monotonic;
+    atomic_int *cancel;
+    engine *kill_in;      /* kill worker 0 of this engine at the first call */
+    int killed;
+} watch;
+
+static void on_progress(void *ud, const engine_progress *p)
+{
+    watch *w = ud;
+    if (p->fraction < w->last_fraction || p->fraction > 1.0) w->monotonic = 0;
+    w->calls++;
+    w->last_fraction = p->fraction;
+    w->last_level = p->level;
+    w->last_voxels = p->voxels;
+    if (w->cancel) atomic_store(w->cancel, 1);
+    if (w->kill_in && !w->killed) {
+        cr_assert_eq(kill(engine_worker_pid(w->kill_in, 0), SIGKILL), 0);
+        w->killed = 1;
+    }
+}
+
+Test(engine, progress_ends_complete)
+{
+    expr_tape *tape = compile(SPHERE);
+    subdiv_grid g = grid(64);
+    engine *e = make_engine(2, 0);
+    watch w = {.monotonic = 1};
+    engine_job job = {.tape = tape, .grid = g, .progress = on_progress, .ud = &w};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), 0);
+    cr_assert(w.calls >= 2 && w.monotonic);
+    cr_assert_float_eq(w.last_fraction, 1.0, 1e-12);
+    cr_assert_eq(w.last_level, 0);
+    cr_assert_eq(w.last_voxels, r.voxels);
+    engine_destroy(e);
+    expr_tape_free(tape);
+}
+
+Test(engine, cancel_then_next_job_is_correct)
+{
+    expr_tape *tape = compile(SCENE2);
+    subdiv_grid g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(2, 0);
+    for (int s = 0; s < 2; s++) {
+        atomic_int cancel = 0;
+        watch w = {.monotonic = 1, .cancel = &cancel};
+        engine_job job = {.tape = tape, .grid = g, .schedule = (engine_schedule)s,
+                          .progress = on_progress, .ud = &w, .cancel = &cancel};
+        engine_result r;
+        cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED);
+        cr_assert(strstr(r.error, "cancel"), "%s", r.error);
+        cr_assert_null(engine_octree(e));
+        /* cancelled before it starts */
+        cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED);
+        run(e, tape, &g, (engine_schedule)s, 0, &r);
+        assert_same(&ref.t, engine_octree(e), "after cancel");
+    }
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+/* ---- worker deaths ---- */
+
+Test(engine, a_dead_worker_is_replaced_and_its_octant_redone)
+{
+    expr_tape *tape = compile(SPHERES);
+    subdiv_grid g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(2, 0);
+    /* dead between jobs */
+    int old = engine_worker_pid(e, 1);
+    cr_assert_eq(kill(old, SIGKILL), 0);
+    usleep(20000);
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    assert_same(&ref.t, engine_octree(e), "after an idle death");
+    cr_assert_eq(r.restarts, 1);
+    cr_assert_neq(engine_worker_pid(e, 1), old);
+    /* dead during a job, in both schedules */
+    for (int s = 0; s < 2; s++) {
+        watch w = {.monotonic = 1, .kill_in = e};
+        engine_job job = {.tape = tape, .grid = g, .schedule = (engine_schedule)s,
+                          .progress = on_progress, .ud = &w};
+        cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+        cr_assert(w.killed);
+        cr_assert_geq(r.restarts, 1);
+        assert_same(&ref.t, engine_octree(e), "after a death in a job");
+        cr_assert_eq(r.voxels, ref.t.voxels);
+    }
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+/* ---- errors ---- */
+
+Test(engine, small_segments_give_clear_errors)
+{
+    engine_opts o = {.workers = 2, .shm_bytes = 1 << 20};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), -ENOSPC);
+    cr_assert(strstr(err, "too small"), "%s", err);
+    /* big enough to start, too small for a 256^3 sphere's octree */
+    e = make_engine(2, shm_min_bytes(2));
+    expr_tape *tape = compile(SPHERE);
+    subdiv_grid g = grid(256);
+    engine_job job = {.tape = tape, .grid = g};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM);
+    cr_assert(strstr(r.error, "octree needs more than") &&
+              strstr(r.error, "raise the shared memory size"), "%s", r.error);
+    cr_assert_null(engine_octree(e));
+    /* and a small job still runs on it */
+    g = grid(32);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    assert_same(&ref.t, engine_octree(e), "small job after ENOMEM");
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+Test(engine, bad_arguments)
+{
+    engine_opts o = {.workers = 0};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "workers"), "%s", err);
+    int cpus[1] = {-3};
+    engine_opts o2 = {.workers = 1, .cpus = cpus, .ncpus = 1};
+    cr_assert_eq(engine_create(&o2, &e, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "CPU -3"), "%s", err);
+    engine_opts o3 = {.workers = 1, .shm_name = "no-slash"};
+    cr_assert_eq(engine_create(&o3, &e, err, sizeof err), -EINVAL);
+    e = make_engine(1, 0);
+    expr_tape *tape = compile(SPHERE);
+    subdiv_grid g = grid(32);
+    g.depth = 9;
+    engine_job job = {.tape = tape, .grid = g};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -EINVAL);
+    cr_assert(strstr(r.error, "grid"), "%s", r.error);
+    vod_params p;
+    vod_params_default(&p);
+    vod_sink sink = {NULL, NULL};
+    cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    engine_destroy(e);
+    expr_tape_free(tape);
+}
+
+/* ---- processes, segments, pinning ---- */
+
+static int shm_entries_of(pid_t pid, const char *prefix)
+{
+    char want[64];
+    snprintf(want, sizeof want, "%s%d.", prefix, (int)pid);
+    DIR *d = opendir("/dev/shm");
+    if (!d) return 0;
+    int n = 0;
+    struct dirent *de;
+    while ((de = readdir(d)))
+        n += strncmp(de->d_name, want, strlen(want)) == 0;
+    closedir(d);
+    return n;
+}
+
+Test(engine, create_destroy_leaves_nothing)
+{
+    pid_t pids[3 * 25];
+    int np = 0;
+    for (int k = 0; k < 25; k++) {
+        engine *e = make_engine(3, (size_t)64 << 20);
+        for (int i = 0; i < 3; i++) {
+            pids[np] = engine_worker_pid(e, i);
+            cr_assert_gt(pids[np], 0);
+            cr_assert_eq(kill(pids[np], 0), 0, "worker alive");
+            np++;
+        }
+        /* private segments are unlinked as soon as they are mapped */
+        cr_assert_eq(shm_entries_of(getpid(), "voxd."), 0);
+        engine_destroy(e);
+    }
+    for (int i = 0; i < np; i++) {
+        errno = 0;
+        cr_assert_eq(waitpid(pids[i], NULL, WNOHANG), -1, "worker %d not reaped", pids[i]);
+        cr_assert_eq(errno, ECHILD);
+    }
+    /* a named segment exists while the engine lives, and is removed */
+    char name[64], path[80];
+    snprintf(name, sizeof name, "/voxd-test.%d.", (int)getpid());
+    snprintf(path, sizeof path, "/dev/shm%s", name);
+    engine_opts o = {.workers = 1, .shm_name = name, .shm_bytes = 32 << 20};
+    engine *e, *e2;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(access(path, F_OK), 0);
+    cr_assert_eq(engine_create(&o, &e2, err, sizeof err), -EEXIST);
+    cr_assert(strstr(err, "exists") || strstr(err, "File exists"), "%s", err);
+    engine_destroy(e);
+    cr_assert_neq(access(path, F_OK), 0);
+}
+
+static int pinned_cpu(pid_t pid)
+{
+    cpu_set_t set;
+    cr_assert_eq(sched_getaffinity(pid, sizeof set, &set), 0);
+    cr_assert_eq(CPU_COUNT(&set), 1, "worker %d not pinned", (int)pid);
+    for (int c = 0; c < CPU_SETSIZE; c++)
+        if (CPU_ISSET(c, &set)) return c;
+    return -1;
+}
+
+Test(engine, workers_are_pinned)
+{
+    cpu_set_t mine;
+    cr_assert_eq(sched_getaffinity(0, sizeof mine, &mine), 0);
+    int allowed[CPU_SETSIZE], k = 0;
+    for (int c = 0; c < CPU_SETSIZE; c++)
+        if (CPU_ISSET(c, &mine)) allowed[k++] = c;
+    engine *e = make_engine(3, (size_t)64 << 20);
+    for (int i = 0; i < 3; i++) {
+        cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[i % k]);
+        cr_assert_eq(engine_worker_cpu(e, i), allowed[i % k]);
+    }
+    engine_destroy(e);
+    int cpus[1] = {allowed[k - 1]};
+    engine_opts o = {.workers = 2, .cpus = cpus, .ncpus = 1, .shm_bytes = 64 << 20};
+    char err[256];
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    for (int i = 0; i < 2; i++)
+        cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[k - 1]);
+    engine_destroy(e);
+}
+
+/* ---- VOD ---- */
+
+typedef struct {
+    uint8_t *b;
+    size_t n, cap;
+} membuf;
+
+static int mem_write(void *ud, const void *buf, size_t n)
+{
+    membuf *m = ud;
+    if (m->n + n > m->cap) {
+        m->cap = (m->n + n) * 2;
+        m->b = realloc(m->b, m->cap);
+        if (!m->b) return -ENOMEM;
+    }
+    memcpy(m->b + m->n, buf, n);
+    m->n += n;
+    return 0;
+}
+
+static void vod_same(engine *e, octree *ref, const subdiv_grid *g, uint32_t brick,
+                     uint32_t comp, int channel)
+{
+    vod_params p;
+    vod_params_default(&p);
+    for (int a = 0; a < 3; a++) {
+        p.volume[a] = g->res[a];
+        p.voxel_scale[a] = (float)g->vs;
+        p.origin[a] = (float)g->lo[a];
+    }
+    p.brick = brick;
+    p.comp = comp;
+    p.channel = channel;
+    p.metadata = "generator=test_engine\n";
+    membuf a = {0}, b = {0};
+    vod_sink sa = {mem_write, &a}, sb = {mem_write, &b};
+    vod_stats st_a, st_b;
+    char err[256] = "";
+    cr_assert_eq(vod_write_octree(ref, &p, &sa, &st_a, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(a.n, b.n, "sizes %zu vs %zu", a.n, b.n);
+    cr_assert_eq(memcmp(a.b, b.b, a.n), 0, "VOD bytes differ");
+    cr_assert_eq(st_a.crc32, st_b.crc32);
+    cr_assert_gt(st_b.bricks, 1);
+    free(a.b);
+    free(b.b);
+}
+
+Test(engine, vod_bytes_identical_to_serial_writer)
+{
+    expr_tape *tape = compile(SPHERES);
+    double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 0.6};
+    subdiv_grid g;
+    char err[200];
+    cr_assert_eq(subdiv_grid_make(lo, hi, 120, &g, err, sizeof err), 0);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(3, 0);
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    vod_same(e, &ref.t, &g, 16, VOD_COMP_ZLIB, VOXEL_CH_SURFACE);
+    vod_same(e, &ref.t, &g, 8, VOD_COMP_RUNL, VOXEL_CH_SURFACE);
+    vod_same(e, &ref.t, &g, 4, VOD_COMP_NONE, VOXEL_CH_OCCUPANCY);
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+/* The brick area overflows: the master encodes what did not fit, and the
+ * bytes are still the serial writer's. */
+Test(engine, vod_with_a_full_brick_area)
+{
+    expr_tape *tape = compile(SCENE2);
+    subdiv_grid g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    size_t need = (size_t)ref.t.used * 36 + 2 * 1024 * 1024;
+    engine *e = make_engine(2, shm_min_bytes(2) + need - (1u << 20));
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    vod_same(e, &ref.t, &g, 16, VOD_COMP_NONE, VOXEL_CH_SURFACE);
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
