@@ -49,7 +49,22 @@ static inline double ival_fmax_(double x, double y) { return x > y ? x : y; }
 
 static const ival ival_whole = {-INFINITY, INFINITY};
 
-/* ------------------------------------------------------------ division */
+/* ------------------------------------------- multiplication, division */
+
+ival ival_mul_special_(ival a, ival b)
+{
+    double p[4] = {a.lo * b.lo, a.lo * b.hi, a.hi * b.lo, a.hi * b.hi};
+    double lo = INFINITY, hi = -INFINITY;
+
+    if (ival_is_nan(a) || ival_is_nan(b))
+        return ival_nan();
+    for (int i = 0; i < 4; i++) {
+        double v = isnan(p[i]) ? 0 : p[i]; /* 0 * inf: the limit 0 * y */
+        lo = ival_fmin_(lo, v);
+        hi = ival_fmax_(hi, v);
+    }
+    return ival_widen((ival){lo, hi});
+}
 
 /* Min and max of a/b over the four corners, for b not containing 0.  A corner
  * inf/inf is a limit point whose neighbours along the edges give 0 and inf,
@@ -97,12 +112,12 @@ static ival ival_div_half(ival a, ival b)
     return ival_whole;
 }
 
-ival ival_div(ival a, ival b)
+ival ival_div_special_(ival a, ival b)
 {
     if (ival_is_nan(a) || ival_is_nan(b))
         return ival_nan();
     if (b.lo > 0 || b.hi < 0)
-        return ival_div_corners(a, b);
+        return ival_div_corners(a, b); /* an inf/inf corner */
     if (b.lo == 0 && b.hi == 0)
         return ival_whole;
     if (a.lo == 0 && a.hi == 0)

@@ -20,8 +20,8 @@
  * voxd changes it).
  *
  * The hot operations (those the expression tape runs per instruction) are
- * static inline below: widen, neg, add, sub, mul, sqr, abs, min, max and the
- * predicates.  The rest live in ival.c.
+ * static inline below: widen, neg, add, sub, mul, sqr, abs, min, max, the
+ * predicates and the common case of div.  The rest live in ival.c.
  */
 #ifndef VOXD_IVAL_H
 #define VOXD_IVAL_H
@@ -103,24 +103,21 @@ static inline ival ival_sub(ival a, ival b)
     return ival_widen((ival){a.lo - b.hi, a.hi - b.lo});
 }
 
-/* A product of bounds that is 0 * inf stands for the limit of 0 * y = 0. */
-static inline double ival_mul_bound_(double x, double y)
-{
-    double p = x * y;
-    return p == p ? p : 0.0;
-}
+/* Out of line, for ival_mul: NaN inputs, and products of bounds 0 * inf
+ * (which stand for the limit of 0 * y = 0). */
+ival ival_mul_special_(ival a, ival b);
 
 static inline ival ival_mul(ival a, ival b)
 {
-    double p0 = ival_mul_bound_(a.lo, b.lo);
-    double p1 = ival_mul_bound_(a.lo, b.hi);
-    double p2 = ival_mul_bound_(a.hi, b.lo);
-    double p3 = ival_mul_bound_(a.hi, b.hi);
+    double p0 = a.lo * b.lo, p1 = a.lo * b.hi;
+    double p2 = a.hi * b.lo, p3 = a.hi * b.hi;
     double l01 = p0 < p1 ? p0 : p1, l23 = p2 < p3 ? p2 : p3;
     double h01 = p0 > p1 ? p0 : p1, h23 = p2 > p3 ? p2 : p3;
 
-    if (__builtin_expect(isnan(a.lo) || isnan(b.lo), 0))
-        return ival_nan();
+    /* One test for all four: the sum is NaN when a product is (and, rarely,
+     * for inf - inf, which the slow path handles as well). */
+    if (__builtin_expect(isnan(p0 + p1 + p2 + p3), 0))
+        return ival_mul_special_(a, b);
     return ival_widen((ival){l01 < l23 ? l01 : l23, h01 > h23 ? h01 : h23});
 }
 
@@ -162,8 +159,28 @@ static inline ival ival_max(ival a, ival b)
  * (usually [-inf, +inf]); a one-sided zero divisor gives a half-line when the
  * numerator has one sign; 0/0-type cases and division by [0,0] give the
  * whole line.  The value at a divisor of exactly 0 is a pole: the result
- * encloses a/y for the nonzero y of b. */
-ival ival_div(ival a, ival b);
+ * encloses a/y for the nonzero y of b.  Inline: the usual case of a divisor
+ * of one sign, two divisions (the extreme corners picked by signs). */
+ival ival_div_special_(ival a, ival b); /* out of line: 0 in b, NaN, inf/inf */
+
+static inline ival ival_div(ival a, ival b)
+{
+    double lo, hi;
+
+    if (b.lo > 0) {
+        lo = a.lo / (a.lo >= 0 ? b.hi : b.lo);
+        hi = a.hi / (a.hi >= 0 ? b.lo : b.hi);
+    } else if (b.hi < 0) {
+        lo = a.hi / (a.hi >= 0 ? b.hi : b.lo);
+        hi = a.lo / (a.lo >= 0 ? b.lo : b.hi);
+    } else {
+        return ival_div_special_(a, b);
+    }
+    if (__builtin_expect(isnan(lo) || isnan(hi), 0))
+        return ival_div_special_(a, b);
+    return ival_widen((ival){lo, hi});
+}
+
 ival ival_sqrt(ival a);
 ival ival_exp(ival a);
 ival ival_log(ival a);

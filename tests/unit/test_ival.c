@@ -111,7 +111,7 @@ static ival rand_ival(void)
     }
 }
 
-#define MAX_SAMPLES 24
+#define MAX_SAMPLES 32
 
 /* Points of a: both ends, their inward neighbours, interior points, 0 and
  * multiples of pi/2 when inside. */
@@ -137,6 +137,10 @@ static int samples(ival a, double *s)
     }
     if (lo <= 0 && hi >= 0)
         s[n++] = 0;
+    /* integers (pow of negative bases is defined only there) */
+    if (isfinite(lo) && isfinite(hi) && fabs(lo) < 1e15)
+        for (double k = ceil(lo); k <= hi && k < ceil(lo) + 3; k++)
+            s[n++] = k;
     /* critical points of sin/cos/tan near the interval */
     if (isfinite(lo) && isfinite(hi) && hi - lo < 100 && fabs(lo) < 1e6) {
         double k0 = ceil(lo / M_PI_2) - 1;
@@ -258,7 +262,7 @@ static void check_unary_on(const char *name, un_iv fi, un_ld fl, ival a)
 static void check_unary(const char *name, un_iv fi, un_ld fl, uint64_t seed)
 {
     rng_seed(seed);
-    for (int k = 0; k < 3000; k++)
+    for (int k = 0; k < 8000; k++)
         check_unary_on(name, fi, fl, rand_ival());
 }
 
@@ -286,7 +290,7 @@ static void check_binary(const char *name, bin_iv fi, bin_ld fl,
                          uint64_t seed)
 {
     rng_seed(seed);
-    for (int k = 0; k < 1500; k++)
+    for (int k = 0; k < 3000; k++)
         check_binary_on(name, fi, fl, rand_ival(), rand_ival());
 }
 
@@ -324,6 +328,73 @@ Test(ival_props, binary_functions_enclose_every_point)
     check_binary("max", iv_max, ld_max, 32);
     check_binary("atan2", ival_atan2, ld_atan2, 33);
     check_binary("theta", ival_theta, ld_theta, 34);
+}
+
+/* Tightness on random finite intervals inside the domain: a monotone f has
+ * its range at the ends, and the result must be within ~1e-14 of it (a few
+ * ulps), so that a lazy enclosure fails. */
+static void check_tight_unary(const char *name, un_iv fi, un_ld fl, double dlo,
+                              double dhi, uint64_t seed)
+{
+    rng_seed(seed);
+    for (int k = 0; k < 4000; k++) {
+        ival a = rand_ival(), r;
+        ld f0, f1, lo, hi;
+
+        if (!(a.lo >= dlo && a.hi <= dhi && isfinite(a.lo) && isfinite(a.hi)))
+            continue;
+        f0 = fl(a.lo), f1 = fl(a.hi);
+        lo = fminl(f0, f1), hi = fmaxl(f0, f1);
+        if (!(fabsl(lo) <= DBL_MAX / 4 && fabsl(hi) <= DBL_MAX / 4))
+            continue;
+        r = fi(a);
+        if (!near(r.lo, lo, 1e-14, 1e-300) || !near(r.hi, hi, 1e-14, 1e-300))
+            cr_assert_fail("%s([%a, %a]) = [%a, %a], true [%La, %La]", name,
+                           a.lo, a.hi, r.lo, r.hi, lo, hi);
+    }
+}
+
+static void check_tight_binary(const char *name, bin_iv fi, bin_ld fl,
+                               bool nonzero_b, uint64_t seed)
+{
+    rng_seed(seed);
+    for (int k = 0; k < 4000; k++) {
+        ival a = rand_ival(), b = rand_ival(), r;
+        ld c[4], lo, hi;
+
+        if (!isfinite(a.lo) || !isfinite(a.hi) || !isfinite(b.lo) ||
+            !isfinite(b.hi) || (nonzero_b && ival_contains_zero(b)))
+            continue;
+        c[0] = fl(a.lo, b.lo), c[1] = fl(a.lo, b.hi);
+        c[2] = fl(a.hi, b.lo), c[3] = fl(a.hi, b.hi);
+        lo = fminl(fminl(c[0], c[1]), fminl(c[2], c[3]));
+        hi = fmaxl(fmaxl(c[0], c[1]), fmaxl(c[2], c[3]));
+        /* near DBL_MAX one ulp outward is infinity */
+        if (!(fabsl(lo) <= DBL_MAX / 4 && fabsl(hi) <= DBL_MAX / 4))
+            continue;
+        r = fi(a, b);
+        if (!near(r.lo, lo, 1e-15, 1e-300) || !near(r.hi, hi, 1e-15, 1e-300))
+            cr_assert_fail("%s([%a, %a], [%a, %a]) = [%a, %a], true [%La, %La]",
+                           name, a.lo, a.hi, b.lo, b.hi, r.lo, r.hi, lo, hi);
+    }
+}
+
+Test(ival_props, results_are_tight)
+{
+    check_tight_unary("exp", ival_exp, ld_exp, -INFINITY, INFINITY, 101);
+    check_tight_unary("log", ival_log, ld_log, DBL_MIN, INFINITY, 102);
+    check_tight_unary("sqrt", ival_sqrt, ld_sqrt, 0, INFINITY, 103);
+    check_tight_unary("atan", ival_atan, ld_atan, -INFINITY, INFINITY, 104);
+    check_tight_unary("asin", ival_asin, ld_asin, -1, 1, 105);
+    check_tight_unary("acos", ival_acos, ld_acos, -1, 1, 106);
+    check_tight_unary("sin", ival_sin, ld_sin, 0.01, 1.5, 107);
+    check_tight_unary("cos", ival_cos, ld_cos, 0.01, 3.1, 108);
+    check_tight_unary("tan", ival_tan, ld_tan, -1.5, 1.5, 109);
+    check_tight_unary("sqr", iv_sqr, ld_sqr, 0, INFINITY, 110);
+    check_tight_binary("add", iv_add, ld_add, false, 111);
+    check_tight_binary("sub", iv_sub, ld_sub, false, 112);
+    check_tight_binary("mul", iv_mul, ld_mul, false, 113);
+    check_tight_binary("div", ival_div, ld_div, true, 114);
 }
 
 /* Exponent intervals for pow: point integers, point non-integers, intervals
@@ -602,7 +673,7 @@ Test(ival_props, random_expression_trees_enclose_every_point)
     int checked = 0;
 
     rng_seed(71);
-    for (int k = 0; k < 400; k++) {
+    for (int k = 0; k < 2000; k++) {
         t.count = 0;
         tree_gen(&t, 1 + rng_int(5));
         for (int b = 0; b < 6; b++) {
@@ -620,16 +691,16 @@ Test(ival_props, random_expression_trees_enclose_every_point)
                 if (isnan(v))
                     continue;
                 checked++;
-                if (!in_iv(r, v))
-                    tree_dump(&t, 0, box, p, 0);
-                if (!in_iv(r, v))
-                    cr_assert_fail("tree %d box %d: [%a, %a] misses %La at "
-                                   "(%La, %La, %La)", k, b, r.lo, r.hi, v,
-                                   p[0], p[1], p[2]);
+                if (in_iv(r, v))
+                    continue;
+                tree_dump(&t, 0, box, p, 0);
+                cr_assert_fail("tree %d box %d: [%a, %a] misses %La at "
+                               "(%La, %La, %La)", k, b, r.lo, r.hi, v, p[0],
+                               p[1], p[2]);
             }
         }
     }
-    cr_assert_gt(checked, 10000, "too few defined points: %d", checked);
+    cr_assert_gt(checked, 50000, "too few defined points: %d", checked);
 }
 
 /* ------------------------------------------------------ rounding guard */
