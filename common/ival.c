@@ -302,9 +302,9 @@ ival ival_theta(ival x, ival y) { return ival_atan2(y, x); }
 
 /* ------------------------------------------------------------- powers */
 
-/* Exponents up to this use exact multiplication chains; the rounding guard
- * compounds along a chain (relative error ~ n ulps), so larger ones use libm's
- * pow (error of a few ulps whatever n) and the libm widening. */
+/* Exponents up to this use a chain of products, each widened outward; the
+ * guard compounds along the chain (relative error ~ n ulps), so larger ones
+ * use libm's pow (a few ulps whatever n) and the libm widening. */
 #define IVAL_POW_CHAIN_MAX 8u
 
 /* x^n for x >= 0, n >= 1, rounded outward in direction dir (-1 down, +1 up).
