@@ -112,7 +112,11 @@ int render_octree(const octree *t, const double origin[3],
  * 1-bit unspecified): normals estimated from the occupancy of the 26
  * neighbours at that level (the negated gradient), and voxels whose six
  * face neighbours are all occupied are hidden and skipped.  Other channels:
- * -ENOTSUP.  Errors come with a message in err. */
+ * -ENOTSUP.  The framed box is the one the voxels occupy at that level (a
+ * coarse level's box may be up to 2^L - 1 voxels larger), so levels frame
+ * alike but not exactly; fit_volume frames every level the same.  Errors
+ * (-EINVAL for a level outside 0..treeHeight-1 or bad options, -ENOTSUP,
+ * -ENOMEM) come with a message in err. */
 int render_vod(const vod_file *f, int level, const render_opts *o,
                render_image *out, char *err, size_t errlen);
 
