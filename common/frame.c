@@ -193,7 +193,10 @@ typedef struct {
 static void *budget_alloc(void *ud, size_t size)
 {
     unpack_budget *b = ud;
-    size_t cost = (size + 31) & ~(size_t)15; /* roughly malloc's real cost */
+    /* What glibc's malloc really uses: 8 bytes of header, 16-byte steps,
+     * 32 at least. */
+    size_t cost = (size + 8 + 15) & ~(size_t)15;
+    if (cost < 32) cost = 32;
     if (cost < size || cost > b->left) return NULL;
     b->left -= cost;
     return malloc(size ? size : 1);

@@ -42,11 +42,13 @@
  * (a larger buffer is freed once its frame has been handed back). */
 #define FRAME_INITIAL_ALLOC 4096u
 #define FRAME_KEEP_ALLOC 65536u
-/* Unpacking may allocate at most this many bytes for a message of len bytes;
- * more means a message made of thousands of empty sub-messages (2 wire bytes,
- * ~100 bytes unpacked each), which no valid message needs: it is refused as
- * garbage instead of amplifying a 1 MiB frame into 60 MiB of heap. */
-#define FRAME_UNPACK_BUDGET(len) (65536u + 32u * (size_t)(len))
+/* Unpacking may allocate at most this many bytes for a message of len bytes.
+ * The densest valid message, a CSG of minimal nodes (7 wire bytes, ~180
+ * bytes of heap with protobuf-c's scratch), needs ~27x; more means a message
+ * of thousands of empty sub-messages (2 wire bytes, ~150 bytes unpacked
+ * each), which no valid message has: it is refused as garbage instead of
+ * amplifying a 1 MiB frame into 75 MiB of heap. */
+#define FRAME_UNPACK_BUDGET(len) (65536u + 40u * (size_t)(len))
 
 typedef struct {
     uint32_t max;        /* largest message length accepted */
