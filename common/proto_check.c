@@ -116,7 +116,7 @@ static int check_source(const ProtobufCBinaryData *s, uint32_t max,
         return bad(e, LIMIT, "%s is %zu bytes, limit %u", what, s->len, max);
     const uint8_t *nul = memchr(s->data, 0, s->len);
     if (nul)
-        return bad(e, INVALID, "%s contains a NUL byte at offset %zu", what,
+        return bad(e, INVALID, "%s source contains a NUL byte at offset %zu", what,
                    (size_t)(nul - s->data));
     return 0;
 }

@@ -1,0 +1,851 @@
+/* The boundary validator: valid messages pass; each rule refuses with its
+ * typed code and the message a person reads.  Messages are built as structs
+ * (so out-of-range enums and NaNs are easy to inject), and some also go
+ * through pack/unpack to show protobuf-c really delivers such values. */
+#include <criterion/criterion.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "frame.h"
+#include "proto_check.h"
+
+#define INVALID VOXD__ERROR_CODE__INVALID_INPUT
+#define LIMIT VOXD__ERROR_CODE__LIMIT_EXCEEDED
+
+static proto_limits lim;
+
+static void setup(void)
+{
+    proto_limits_default(&lim);
+}
+
+TestSuite(proto, .init = setup);
+
+/* A valid implicit job, ready to be spoiled one field at a time. */
+typedef struct {
+    Voxd__Request req;
+    Voxd__Submit sub;
+    Voxd__Implicit im;
+    double dom[6];
+    char src[64];
+} job;
+
+static void job_init(job *j)
+{
+    static const Voxd__Request r0 = VOXD__REQUEST__INIT;
+    static const Voxd__Submit s0 = VOXD__SUBMIT__INIT;
+    static const Voxd__Implicit i0 = VOXD__IMPLICIT__INIT;
+    j->req = r0, j->sub = s0, j->im = i0;
+    snprintf(j->src, sizeof j->src, "x^2 + y^2 + z^2 - 1");
+    j->im.source.data = (uint8_t *)j->src;
+    j->im.source.len = strlen(j->src);
+    j->dom[0] = -1.5, j->dom[1] = 1.5;
+    j->im.domain = j->dom, j->im.n_domain = 2;
+    j->im.res = 64;
+    j->sub.job_case = VOXD__SUBMIT__JOB_IMPLICIT, j->sub.implicit = &j->im;
+    j->req.msg_case = VOXD__REQUEST__MSG_SUBMIT, j->req.submit = &j->sub;
+}
+
+/* Check r is refused with code and a message containing want. */
+static void refused(const Voxd__Request *r, Voxd__ErrorCode code, const char *want)
+{
+    proto_error e;
+    int rc = proto_check_request(r, &lim, &e);
+    cr_assert_eq(rc, code == LIMIT ? -E2BIG : -EINVAL, "rc %d for '%s'", rc, e.msg);
+    cr_assert_eq(e.code, code, "code %s for '%s'", proto_error_code_name(e.code), e.msg);
+    cr_assert(strstr(e.msg, want), "message '%s' lacks '%s'", e.msg, want);
+}
+
+static void accepted(const Voxd__Request *r)
+{
+    proto_error e;
+    int rc = proto_check_request(r, &lim, &e);
+    cr_assert_eq(rc, 0, "refused: %s", e.msg);
+    cr_assert_eq(e.msg[0], '\0');
+}
+
+/* ---------------------------------------------------------------- valid */
+
+Test(proto, valid_requests_pass)
+{
+    job j;
+    job_init(&j);
+    accepted(&j.req);
+    /* Six-value domain, every option given. */
+    double d6[6] = {-1, 1, -2, 2, -0.5, 0.5};
+    j.im.domain = d6, j.im.n_domain = 6;
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_OCCUPANCY;
+    j.sub.brick = 256, j.sub.comp = VOXD__COMPRESSION__COMPRESSION_NONE;
+    j.sub.hash = VOXD__HASH__HASH_XX32, j.im.schedule = VOXD__SCHEDULE__SCHEDULE_PAPER;
+    j.im.res = lim.max_res;
+    accepted(&j.req);
+    /* Source exactly at the limit. */
+    char *big = malloc(lim.max_expr_bytes);
+    memset(big, 'x', lim.max_expr_bytes);
+    j.im.source.data = (uint8_t *)big, j.im.source.len = lim.max_expr_bytes;
+    accepted(&j.req);
+    free(big);
+
+    Voxd__Request r = VOXD__REQUEST__INIT;
+    Voxd__Hello h = VOXD__HELLO__INIT;
+    h.version = PROTO_VERSION, h.client = "vox 0.1 \xc3\xa9t\xc3\xa9"; /* UTF-8 is fine */
+    r.msg_case = VOXD__REQUEST__MSG_HELLO, r.hello = &h;
+    accepted(&r);
+    Voxd__Cancel c = VOXD__CANCEL__INIT;
+    c.job_id = 1;
+    r.msg_case = VOXD__REQUEST__MSG_CANCEL, r.cancel = &c;
+    accepted(&r);
+    Voxd__Status st = VOXD__STATUS__INIT;
+    r.msg_case = VOXD__REQUEST__MSG_STATUS, r.status = &st;
+    accepted(&r);
+    Voxd__Ping p = VOXD__PING__INIT;
+    r.msg_case = VOXD__REQUEST__MSG_PING, r.ping = &p;
+    accepted(&r);
+}
+
+Test(proto, valid_request_survives_the_wire)
+{
+    job j;
+    job_init(&j);
+    uint8_t *buf;
+    size_t len;
+    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_not_null(r);
+    accepted(r);
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
+}
+
+/* ---------------------------------------------------------------- request shape */
+
+Test(proto, request_without_type)
+{
+    Voxd__Request r = VOXD__REQUEST__INIT;
+    refused(&r, INVALID, "request of no type this server knows");
+    refused(NULL, INVALID, "malformed request");
+    r.msg_case = (Voxd__Request__MsgCase)42;
+    refused(&r, INVALID, "request of unknown type 42");
+    r.msg_case = VOXD__REQUEST__MSG_SUBMIT; /* case set, body missing */
+    refused(&r, INVALID, "request of unknown type 2");
+}
+
+Test(proto, unknown_request_field_from_a_newer_client)
+{
+    /* Field 9, varint: a type this server does not know.  protobuf-c keeps it
+     * as an unknown field and leaves the oneof unset. */
+    static const uint8_t wire[] = {0x48, 0x01};
+    Voxd__Request *r = frame_unpack_request(wire, sizeof wire);
+    cr_assert_not_null(r);
+    refused(r, INVALID, "no type this server knows (protocol version 1)");
+    voxd__request__free_unpacked(r, NULL);
+}
+
+Test(proto, hello_version_and_name)
+{
+    Voxd__Request r = VOXD__REQUEST__INIT;
+    Voxd__Hello h = VOXD__HELLO__INIT;
+    r.msg_case = VOXD__REQUEST__MSG_HELLO, r.hello = &h;
+    refused(&r, INVALID, "protocol version 0 is not supported (this server speaks 1)");
+    h.version = 2;
+    refused(&r, INVALID, "protocol version 2 is not supported");
+    h.version = 1;
+    h.client = "bad\x1b[2Jname";
+    refused(&r, INVALID, "client name contains control character 0x1b at offset 3");
+    h.client = "caf\xe9"; /* Latin-1, not UTF-8 */
+    refused(&r, INVALID, "client name is not valid UTF-8 at offset 3");
+    h.client = "\xc0\xaf"; /* overlong '/' */
+    refused(&r, INVALID, "not valid UTF-8 at offset 0");
+    char name[200];
+    memset(name, 'a', sizeof name - 1);
+    name[sizeof name - 1] = '\0';
+    h.client = name;
+    refused(&r, INVALID, "client name is 199 bytes, limit 128");
+}
+
+Test(proto, cancel_needs_a_job_id)
+{
+    Voxd__Request r = VOXD__REQUEST__INIT;
+    Voxd__Cancel c = VOXD__CANCEL__INIT;
+    r.msg_case = VOXD__REQUEST__MSG_CANCEL, r.cancel = &c;
+    refused(&r, INVALID, "cancel needs a job id");
+}
+
+Test(proto, submit_without_job)
+{
+    job j;
+    job_init(&j);
+    j.sub.job_case = VOXD__SUBMIT__JOB__NOT_SET;
+    refused(&j.req, INVALID, "submit has no job (implicit, mesh or csg)");
+    j.sub.job_case = (Voxd__Submit__JobCase)9;
+    refused(&j.req, INVALID, "unknown job kind 9");
+    j.sub.job_case = VOXD__SUBMIT__JOB_IMPLICIT, j.sub.implicit = NULL;
+    refused(&j.req, INVALID, "submit job is missing");
+}
+
+/* ---------------------------------------------------------------- implicit */
+
+Test(proto, res_missing_or_over_the_limit)
+{
+    job j;
+    job_init(&j);
+    j.im.res = 0;
+    refused(&j.req, INVALID, "res is missing (give 1 to 4096)");
+    j.im.res = 5000;
+    refused(&j.req, LIMIT, "res 5000 is over this server's limit of 4096");
+    lim.max_res = 8192;
+    accepted(&j.req);
+}
+
+Test(proto, domain_needs_2_or_6_values)
+{
+    job j;
+    job_init(&j);
+    j.im.n_domain = 3;
+    refused(&j.req, INVALID, "domain needs 2 or 6 values, got 3");
+    j.im.n_domain = 0;
+    refused(&j.req, INVALID, "domain needs 2 or 6 values, got 0");
+}
+
+Test(proto, domain_huge_repeated_field)
+{
+    job j;
+    job_init(&j);
+    size_t n = 100000;
+    double *d = calloc(n, sizeof *d);
+    j.im.domain = d, j.im.n_domain = n;
+    refused(&j.req, INVALID, "domain needs 2 or 6 values, got 100000");
+    free(d);
+}
+
+Test(proto, domain_low_below_high)
+{
+    job j;
+    job_init(&j);
+    j.dom[0] = 2, j.dom[1] = 2;
+    refused(&j.req, INVALID, "domain: low 2 is not below high 2");
+    double d6[6] = {0, 1, 0, 1, 3, -3};
+    j.im.domain = d6, j.im.n_domain = 6;
+    refused(&j.req, INVALID, "domain z: low 3 is not below high -3");
+}
+
+Test(proto, domain_not_finite)
+{
+    job j;
+    job_init(&j);
+    j.dom[1] = NAN;
+    refused(&j.req, INVALID, "domain value 2 is not finite (nan)");
+    j.dom[1] = 1, j.dom[0] = -INFINITY;
+    refused(&j.req, INVALID, "domain value 1 is not finite (-inf)");
+    j.dom[0] = -1.5e308, j.dom[1] = 1.5e308; /* finite ends, infinite width */
+    refused(&j.req, INVALID, "domain is too wide");
+}
+
+Test(proto, non_finite_domain_through_the_wire)
+{
+    job j;
+    job_init(&j);
+    j.dom[0] = NAN;
+    uint8_t *buf;
+    size_t len;
+    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_not_null(r);
+    cr_assert(isnan(r->submit->implicit->domain[0]));
+    refused(r, INVALID, "domain value 1 is not finite");
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
+}
+
+Test(proto, source_empty_too_long_or_with_nul)
+{
+    job j;
+    job_init(&j);
+    j.im.source.len = 0;
+    refused(&j.req, INVALID, "expression is empty");
+    char *big = malloc(70000);
+    memset(big, 'x', 70000);
+    j.im.source.data = (uint8_t *)big, j.im.source.len = 70000;
+    refused(&j.req, LIMIT, "expression is 70000 bytes, limit 65536");
+    free(big);
+    job_init(&j);
+    j.src[12] = '\0';
+    refused(&j.req, INVALID, "source contains a NUL byte at offset 12");
+}
+
+Test(proto, nul_in_source_survives_the_wire_and_is_refused)
+{
+    job j;
+    job_init(&j);
+    j.src[0] = '\0'; /* a C string would look empty; bytes keep the length */
+    uint8_t *buf;
+    size_t len;
+    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_eq(r->submit->implicit->source.len, strlen("x^2 + y^2 + z^2 - 1"));
+    refused(r, INVALID, "source contains a NUL byte at offset 0");
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
+}
+
+Test(proto, unknown_enum_numbers)
+{
+    job j;
+    job_init(&j);
+    j.sub.channel = (Voxd__Channel)7;
+    refused(&j.req, INVALID, "unknown channel 7");
+    job_init(&j);
+    j.sub.channel = (Voxd__Channel)-1;
+    refused(&j.req, INVALID, "unknown channel -1");
+    job_init(&j);
+    j.sub.comp = (Voxd__Compression)4;
+    refused(&j.req, INVALID, "unknown compression 4");
+    job_init(&j);
+    j.sub.hash = (Voxd__Hash)3;
+    refused(&j.req, INVALID, "unknown hash 3");
+    job_init(&j);
+    j.im.schedule = (Voxd__Schedule)3;
+    refused(&j.req, INVALID, "unknown schedule 3");
+}
+
+Test(proto, unknown_enum_number_through_the_wire)
+{
+    job j;
+    job_init(&j);
+    j.sub.channel = (Voxd__Channel)1000;
+    uint8_t *buf;
+    size_t len;
+    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_not_null(r);
+    cr_assert_eq((int)r->submit->channel, 1000, "protobuf-c keeps unknown enum numbers");
+    refused(r, INVALID, "unknown channel 1000");
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
+}
+
+Test(proto, channel_not_available_for_implicit)
+{
+    job j;
+    job_init(&j);
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_DENSITY;
+    refused(&j.req, INVALID, "channel density is not available for implicit jobs");
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE;
+    refused(&j.req, INVALID, "channel distance is not available");
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
+    accepted(&j.req);
+}
+
+Test(proto, brick_power_of_two)
+{
+    job j;
+    job_init(&j);
+    const uint32_t bad_bricks[] = {1, 3, 12, 512, 0x80000000u};
+    for (size_t i = 0; i < 5; i++) {
+        j.sub.brick = bad_bricks[i];
+        char want[80];
+        snprintf(want, sizeof want, "brick %u is not a power of two from 2 to 256",
+                 bad_bricks[i]);
+        refused(&j.req, INVALID, want);
+    }
+    for (uint32_t b = 2; b <= 256; b *= 2) {
+        j.sub.brick = b;
+        accepted(&j.req);
+    }
+}
+
+/* ---------------------------------------------------------------- mesh */
+
+Test(proto, mesh_refused_as_not_supported_yet)
+{
+    job j;
+    job_init(&j);
+    Voxd__Mesh m = VOXD__MESH__INIT;
+    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_STL;
+    m.data.data = (uint8_t *)"solid x\nendsolid x\n", m.data.len = 19;
+    m.res = 64;
+    j.sub.job_case = VOXD__SUBMIT__JOB_MESH, j.sub.mesh = &m;
+    refused(&j.req, INVALID, "mesh jobs are not supported yet");
+    /* The fields are checked before that. */
+    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED;
+    refused(&j.req, INVALID, "mesh format is missing");
+    m.format = (Voxd__MeshFormat)5;
+    refused(&j.req, INVALID, "unknown mesh format 5");
+    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_OBJ, m.mode = (Voxd__MeshMode)4;
+    refused(&j.req, INVALID, "unknown mesh mode 4");
+    m.mode = VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE, m.data.len = 0;
+    refused(&j.req, INVALID, "mesh data is empty");
+    m.data.len = 19, m.n_domain = 4, m.domain = j.dom;
+    refused(&j.req, INVALID, "domain needs 2 or 6 values, got 4");
+    m.n_domain = 0, m.res = 0;
+    refused(&j.req, INVALID, "res is missing");
+}
+
+/* ---------------------------------------------------------------- CSG */
+
+typedef struct {
+    Voxd__Csg csg;
+    Voxd__CsgNode node[4];
+    Voxd__CsgNode *ptr[4];
+    uint32_t kids[4][2];
+    double box[6];
+    double dom[2];
+} csg;
+
+/* cuboid, ellipsoid, difference(0, 1), inverse(2): valid. */
+static void csg_init(csg *c, job *j)
+{
+    static const Voxd__Csg c0 = VOXD__CSG__INIT;
+    static const Voxd__CsgNode n0 = VOXD__CSG_NODE__INIT;
+    c->csg = c0;
+    for (int i = 0; i < 4; i++) c->node[i] = n0, c->ptr[i] = &c->node[i];
+    const double box[6] = {0, 1, 0, 1, 0, 1};
+    memcpy(c->box, box, sizeof box);
+    for (int i = 0; i < 2; i++) {
+        c->node[i].op = VOXD__CSG_OP__CSG_PRIMITIVE;
+        c->node[i].primitive = i ? VOXD__PRIMITIVE__PRIMITIVE_ELLIPSOID
+                                 : VOXD__PRIMITIVE__PRIMITIVE_CUBOID;
+        c->node[i].params = c->box, c->node[i].n_params = 6;
+    }
+    c->node[2].op = VOXD__CSG_OP__CSG_DIFFERENCE;
+    c->kids[2][0] = 0, c->kids[2][1] = 1;
+    c->node[2].children = c->kids[2], c->node[2].n_children = 2;
+    c->node[3].op = VOXD__CSG_OP__CSG_INVERSE;
+    c->kids[3][0] = 2;
+    c->node[3].children = c->kids[3], c->node[3].n_children = 1;
+    c->csg.nodes = c->ptr, c->csg.n_nodes = 4;
+    c->dom[0] = -1, c->dom[1] = 2;
+    c->csg.domain = c->dom, c->csg.n_domain = 2;
+    c->csg.res = 128;
+    job_init(j);
+    j->sub.job_case = VOXD__SUBMIT__JOB_CSG, j->sub.csg = &c->csg;
+}
+
+Test(proto, csg_refused_as_not_supported_yet)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+}
+
+Test(proto, csg_child_must_be_earlier)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    c.kids[3][0] = 3; /* itself */
+    refused(&j.req, INVALID, "CSG node 3 refers to node 3, which is not earlier");
+    c.kids[3][0] = 5;
+    refused(&j.req, INVALID, "CSG node 3 refers to node 5, which is not earlier");
+    c.kids[3][0] = 0xFFFFFFFFu;
+    refused(&j.req, INVALID, "refers to node 4294967295");
+}
+
+Test(proto, csg_arity_ops_and_counts)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    c.node[2].n_children = 1;
+    refused(&j.req, INVALID, "CSG node 2 (difference) needs 2 children, got 1");
+    csg_init(&c, &j);
+    c.node[0].n_children = 1, c.node[0].children = c.kids[2];
+    refused(&j.req, INVALID, "CSG node 0 (primitive) needs 0 children, got 1");
+    csg_init(&c, &j);
+    c.node[1].op = VOXD__CSG_OP__CSG_OP_UNSPECIFIED;
+    refused(&j.req, INVALID, "CSG node 1 has no op");
+    c.node[1].op = (Voxd__CsgOp)5; /* a hole in the numbering */
+    refused(&j.req, INVALID, "CSG node 1 has unknown op 5");
+    c.node[1].op = (Voxd__CsgOp)99;
+    refused(&j.req, INVALID, "CSG node 1 has unknown op 99");
+    csg_init(&c, &j);
+    c.csg.n_nodes = 0;
+    refused(&j.req, INVALID, "CSG job has no nodes");
+    c.csg.n_nodes = 4, lim.max_csg_nodes = 3;
+    refused(&j.req, LIMIT, "CSG job has 4 nodes, limit 3");
+}
+
+Test(proto, csg_huge_node_list)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    size_t n = 200000;
+    Voxd__CsgNode **many = calloc(n, sizeof *many);
+    for (size_t i = 0; i < n; i++) many[i] = &c.node[0];
+    c.csg.nodes = many, c.csg.n_nodes = n;
+    refused(&j.req, LIMIT, "CSG job has 200000 nodes, limit 1024");
+    free(many);
+}
+
+Test(proto, csg_leaves)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    c.node[1].primitive = (Voxd__Primitive)9;
+    refused(&j.req, INVALID, "CSG node 1 has unknown primitive 9");
+    csg_init(&c, &j);
+    c.node[0].n_params = 5;
+    refused(&j.req, INVALID, "CSG node 0 box needs 6 values, got 5");
+    csg_init(&c, &j);
+    c.box[4] = INFINITY;
+    refused(&j.req, INVALID, "CSG node 0 box value 5 is not finite");
+    csg_init(&c, &j);
+    c.box[1] = -1;
+    refused(&j.req, INVALID, "CSG node 0 box x: low 0 is not below high -1");
+
+    /* An implicit leaf: the same source rules as an implicit job. */
+    csg_init(&c, &j);
+    c.node[1] = (Voxd__CsgNode)VOXD__CSG_NODE__INIT;
+    c.node[1].op = VOXD__CSG_OP__CSG_IMPLICIT;
+    refused(&j.req, INVALID, "CSG node 1 expression is empty");
+    c.node[1].source.data = (uint8_t *)"x\0y", c.node[1].source.len = 3;
+    refused(&j.req, INVALID, "CSG node 1 expression source contains a NUL byte at offset 1");
+    c.node[1].source.len = 1;
+    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+    lim.max_expr_bytes = 0;
+    refused(&j.req, LIMIT, "CSG node 1 expression is 1 bytes, limit 0");
+
+    /* A mesh leaf. */
+    setup();
+    c.node[1].op = VOXD__CSG_OP__CSG_MESH;
+    refused(&j.req, INVALID, "CSG node 1 has unknown mesh format 0");
+    c.node[1].mesh_format = VOXD__MESH_FORMAT__MESH_FORMAT_PLY;
+    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+    c.node[1].source.len = 0;
+    refused(&j.req, INVALID, "CSG node 1 mesh is empty");
+}
+
+Test(proto, csg_stray_fields_and_divide)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    c.node[2].source.data = (uint8_t *)"x", c.node[2].source.len = 1;
+    refused(&j.req, INVALID, "CSG node 2 (difference) does not take a source");
+    csg_init(&c, &j);
+    c.node[3].n_params = 6, c.node[3].params = c.box;
+    refused(&j.req, INVALID, "CSG node 3 (inverse) does not take a primitive");
+    csg_init(&c, &j);
+    c.node[0].mesh_format = VOXD__MESH_FORMAT__MESH_FORMAT_OBJ;
+    refused(&j.req, INVALID, "CSG node 0 (primitive) does not take a mesh format");
+    csg_init(&c, &j);
+    c.node[0].scalar = NAN;
+    refused(&j.req, INVALID, "CSG node 0 (primitive) does not take a scalar");
+
+    csg_init(&c, &j);
+    c.node[2].op = VOXD__CSG_OP__CSG_DIVIDE;
+    refused(&j.req, INVALID, "CSG node 2 (divide) needs a scalar in (0, 1], got 0");
+    c.node[2].scalar = 1.5;
+    refused(&j.req, INVALID, "got 1.5");
+    c.node[2].scalar = NAN;
+    refused(&j.req, INVALID, "got nan");
+    c.node[2].scalar = 0.5;
+    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+}
+
+Test(proto, csg_domain_and_res)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    c.csg.n_domain = 0;
+    refused(&j.req, INVALID, "domain needs 2 or 6 values, got 0");
+    csg_init(&c, &j);
+    c.csg.res = 100000;
+    refused(&j.req, LIMIT, "res 100000 is over this server's limit of 4096");
+}
+
+/* ---------------------------------------------------------------- replies */
+
+typedef struct {
+    Voxd__Reply r;
+    union {
+        Voxd__HelloOk hello_ok;
+        Voxd__Accepted accepted;
+        Voxd__Progress progress;
+        Voxd__ResultChunk chunk;
+        Voxd__Summary summary;
+        Voxd__Error error;
+        Voxd__StatusReply status;
+        Voxd__Pong pong;
+    } m;
+    Voxd__Limits limits;
+    Voxd__WorkerStatus w[2];
+    Voxd__WorkerStatus *wp[2];
+    Voxd__RunningJob running;
+    uint8_t data[16];
+} reply;
+
+static void reply_init(reply *x, Voxd__Reply__MsgCase which)
+{
+    memset(x, 0, sizeof *x);
+    x->r = (Voxd__Reply)VOXD__REPLY__INIT;
+    x->r.msg_case = which;
+    switch (which) {
+    case VOXD__REPLY__MSG_HELLO_OK:
+        x->m.hello_ok = (Voxd__HelloOk)VOXD__HELLO_OK__INIT;
+        x->limits = (Voxd__Limits)VOXD__LIMITS__INIT;
+        x->limits.max_frame = 1 << 20, x->limits.chunk_size = 256 << 10;
+        x->limits.max_expr_bytes = 65536, x->limits.max_res = 4096;
+        x->limits.max_result_bytes = 1ull << 32, x->limits.max_csg_nodes = 1024;
+        x->m.hello_ok.version = 1, x->m.hello_ok.server = "voxd 0.1";
+        x->m.hello_ok.limits = &x->limits, x->m.hello_ok.workers = 8;
+        x->r.hello_ok = &x->m.hello_ok;
+        break;
+    case VOXD__REPLY__MSG_ACCEPTED:
+        x->m.accepted = (Voxd__Accepted)VOXD__ACCEPTED__INIT;
+        x->m.accepted.job_id = 1;
+        x->r.accepted = &x->m.accepted;
+        break;
+    case VOXD__REPLY__MSG_PROGRESS:
+        x->m.progress = (Voxd__Progress)VOXD__PROGRESS__INIT;
+        x->m.progress.job_id = 1, x->m.progress.fraction = 1, x->m.progress.level = 12;
+        x->r.progress = &x->m.progress;
+        break;
+    case VOXD__REPLY__MSG_CHUNK:
+        x->m.chunk = (Voxd__ResultChunk)VOXD__RESULT_CHUNK__INIT;
+        x->m.chunk.job_id = 1, x->m.chunk.offset = 0;
+        x->m.chunk.data.data = x->data, x->m.chunk.data.len = sizeof x->data;
+        x->r.chunk = &x->m.chunk;
+        break;
+    case VOXD__REPLY__MSG_SUMMARY:
+        x->m.summary = (Voxd__Summary)VOXD__SUMMARY__INIT;
+        x->m.summary.job_id = 1, x->m.summary.file_bytes = 64;
+        x->r.summary = &x->m.summary;
+        break;
+    case VOXD__REPLY__MSG_ERROR:
+        x->m.error = (Voxd__Error)VOXD__ERROR__INIT;
+        x->m.error.code = VOXD__ERROR_CODE__BUSY;
+        x->m.error.message = "queue full (64 jobs)\n\ttry later";
+        x->r.error = &x->m.error;
+        break;
+    case VOXD__REPLY__MSG_STATUS:
+        x->m.status = (Voxd__StatusReply)VOXD__STATUS_REPLY__INIT;
+        for (int i = 0; i < 2; i++) {
+            x->w[i] = (Voxd__WorkerStatus)VOXD__WORKER_STATUS__INIT;
+            x->w[i].pid = 100 + (uint32_t)i, x->w[i].cpu = i - 1;
+            x->w[i].state = VOXD__WORKER_STATE__WORKER_STATE_IDLE;
+            x->wp[i] = &x->w[i];
+        }
+        x->running = (Voxd__RunningJob)VOXD__RUNNING_JOB__INIT;
+        x->running.job_id = 3, x->running.fraction = 0.5;
+        x->m.status.workers = x->wp, x->m.status.n_workers = 2;
+        x->m.status.running = &x->running;
+        x->r.status = &x->m.status;
+        break;
+    default:
+        x->m.pong = (Voxd__Pong)VOXD__PONG__INIT;
+        x->r.pong = &x->m.pong;
+        break;
+    }
+}
+
+static void reply_refused(const reply *x, Voxd__ErrorCode code, const char *want)
+{
+    proto_error e;
+    int rc = proto_check_reply(&x->r, &lim, &e);
+    cr_assert_eq(rc, code == LIMIT ? -E2BIG : -EINVAL, "rc %d for '%s'", rc, e.msg);
+    cr_assert_eq(e.code, code, "code %s for '%s'", proto_error_code_name(e.code), e.msg);
+    cr_assert(strstr(e.msg, want), "message '%s' lacks '%s'", e.msg, want);
+}
+
+static void reply_ok(const reply *x)
+{
+    proto_error e;
+    cr_assert_eq(proto_check_reply(&x->r, &lim, &e), 0, "refused: %s", e.msg);
+}
+
+Test(proto, valid_replies_pass)
+{
+    for (int c = VOXD__REPLY__MSG_HELLO_OK; c <= VOXD__REPLY__MSG_PONG; c++) {
+        reply x;
+        reply_init(&x, (Voxd__Reply__MsgCase)c);
+        reply_ok(&x);
+    }
+}
+
+Test(proto, reply_shape)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG__NOT_SET);
+    x.r.pong = NULL;
+    reply_refused(&x, INVALID, "reply of no type this client knows");
+    x.r.msg_case = (Voxd__Reply__MsgCase)77;
+    reply_refused(&x, INVALID, "reply of unknown type 77");
+    proto_error e;
+    cr_assert_eq(proto_check_reply(NULL, &lim, &e), -EINVAL);
+}
+
+Test(proto, hello_ok_rules)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.m.hello_ok.version = 2;
+    reply_refused(&x, INVALID, "server speaks protocol version 2, this client 1");
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.m.hello_ok.limits = NULL;
+    reply_refused(&x, INVALID, "hello_ok has no limits");
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.limits.max_frame = 100;
+    reply_refused(&x, INVALID, "server max_frame 100 is outside 4096 to 67108864");
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.limits.chunk_size = 1 << 20;
+    reply_refused(&x, INVALID, "server chunk_size 1048576 does not fit its max_frame 1048576");
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.limits.max_res = 0;
+    reply_refused(&x, INVALID, "server limits has a zero limit");
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.m.hello_ok.workers = 1000;
+    reply_refused(&x, INVALID, "server reports 1000 workers, limit 256");
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.m.hello_ok.server = "voxd\n";
+    reply_refused(&x, INVALID, "server name contains control character 0x0a at offset 4");
+
+    /* A client takes its limits from a good HelloOk. */
+    reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+    x.limits.chunk_size = 4096;
+    proto_limits l;
+    proto_limits_from_hello(&x.limits, &l);
+    cr_assert_eq(l.chunk_size, 4096);
+    cr_assert_eq(l.max_result_bytes, 1ull << 32);
+    cr_assert_eq(l.max_csg_nodes, 1024);
+}
+
+Test(proto, job_replies_need_a_job_id)
+{
+    const Voxd__Reply__MsgCase cases[] = {VOXD__REPLY__MSG_ACCEPTED,
+                                          VOXD__REPLY__MSG_PROGRESS,
+                                          VOXD__REPLY__MSG_CHUNK, VOXD__REPLY__MSG_SUMMARY};
+    const char *names[] = {"accepted has no job id", "progress has no job id",
+                           "chunk has no job id", "summary has no job id"};
+    for (int i = 0; i < 4; i++) {
+        reply x;
+        reply_init(&x, cases[i]);
+        switch (cases[i]) {
+        case VOXD__REPLY__MSG_ACCEPTED: x.m.accepted.job_id = 0; break;
+        case VOXD__REPLY__MSG_PROGRESS: x.m.progress.job_id = 0; break;
+        case VOXD__REPLY__MSG_CHUNK: x.m.chunk.job_id = 0; break;
+        default: x.m.summary.job_id = 0; break;
+        }
+        reply_refused(&x, INVALID, names[i]);
+    }
+    /* An error about no job in particular is fine. */
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_ERROR);
+    x.m.error.job_id = 0;
+    reply_ok(&x);
+}
+
+Test(proto, progress_rules)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_PROGRESS);
+    x.m.progress.fraction = 1.01;
+    reply_refused(&x, INVALID, "fraction 1.01 is not in [0, 1]");
+    x.m.progress.fraction = NAN;
+    reply_refused(&x, INVALID, "fraction nan is not in [0, 1]");
+    x.m.progress.fraction = 0, x.m.progress.level = 65;
+    reply_refused(&x, INVALID, "progress level 65 is over 64");
+}
+
+Test(proto, chunk_bounds)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_CHUNK);
+    x.m.chunk.data.len = 0;
+    reply_refused(&x, INVALID, "chunk at offset 0 is empty");
+    lim.chunk_size = 8;
+    x.m.chunk.data.len = 16;
+    reply_refused(&x, INVALID, "chunk of 16 bytes is over chunk_size 8");
+    setup();
+    x.m.chunk.offset = lim.max_result_bytes - 16; /* ends exactly at the limit */
+    reply_ok(&x);
+    x.m.chunk.offset = lim.max_result_bytes - 15;
+    reply_refused(&x, LIMIT, "passes max_result_bytes 4294967296");
+    x.m.chunk.offset = UINT64_MAX - 4; /* offset + len overflows */
+    reply_refused(&x, LIMIT, "passes max_result_bytes");
+}
+
+Test(proto, summary_rules)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.m.summary.file_bytes = 0;
+    reply_refused(&x, INVALID, "summary file_bytes 0 is outside 1 to 4294967296");
+    x.m.summary.file_bytes = lim.max_result_bytes + 1;
+    reply_refused(&x, INVALID, "summary file_bytes 4294967297");
+    x.m.summary.file_bytes = 100;
+    x.m.summary.seconds_voxelize = -1;
+    reply_refused(&x, INVALID, "seconds_voxelize -1 is not a finite number of seconds");
+    x.m.summary.seconds_voxelize = 0, x.m.summary.seconds_write = INFINITY;
+    reply_refused(&x, INVALID, "seconds_write inf");
+}
+
+Test(proto, error_rules)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_ERROR);
+    x.m.error.code = VOXD__ERROR_CODE__ERROR_CODE_UNSPECIFIED;
+    reply_refused(&x, INVALID, "unknown error code 0");
+    x.m.error.code = (Voxd__ErrorCode)9;
+    reply_refused(&x, INVALID, "unknown error code 9");
+    x.m.error.code = VOXD__ERROR_CODE__INTERNAL;
+    x.m.error.message = "bell\a";
+    reply_refused(&x, INVALID, "error message contains control character 0x07 at offset 4");
+    char big[1100];
+    memset(big, 'e', sizeof big - 1);
+    big[sizeof big - 1] = '\0';
+    x.m.error.message = big;
+    reply_refused(&x, INVALID, "error message is 1099 bytes, limit 1024");
+    cr_assert_str_eq(proto_error_code_name(VOXD__ERROR_CODE__WORKER_CRASHED), "WORKER_CRASHED");
+    cr_assert_str_eq(proto_error_code_name(1234), "UNKNOWN");
+}
+
+Test(proto, status_rules)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.w[1].state = (Voxd__WorkerState)4;
+    reply_refused(&x, INVALID, "worker 1 has unknown state 4");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.w[0].pid = 0;
+    reply_refused(&x, INVALID, "worker 0 has pid 0");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.w[0].cpu = -2;
+    reply_refused(&x, INVALID, "worker 0 has cpu -2");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.w[1].voxels_per_second = NAN;
+    reply_refused(&x, INVALID, "worker 1 has voxels_per_second nan");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.m.status.uptime = -INFINITY;
+    reply_refused(&x, INVALID, "uptime -inf");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.running.job_id = 0;
+    reply_refused(&x, INVALID, "running job has no job id");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.running.fraction = 2;
+    reply_refused(&x, INVALID, "fraction 2 is not in [0, 1]");
+
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    size_t n = 5000;
+    Voxd__WorkerStatus **many = calloc(n, sizeof *many);
+    for (size_t i = 0; i < n; i++) many[i] = &x.w[0];
+    x.m.status.workers = many, x.m.status.n_workers = n;
+    reply_refused(&x, INVALID, "status lists 5000 workers, limit 256");
+    free(many);
+}
+
+Test(proto, err_may_be_null)
+{
+    job j;
+    job_init(&j);
+    cr_assert_eq(proto_check_request(&j.req, &lim, NULL), 0);
+    j.im.res = 0;
+    cr_assert_eq(proto_check_request(&j.req, &lim, NULL), -EINVAL);
+}
