@@ -54,6 +54,7 @@ struct engine {
     int error;
     char msg[256];
     uint32_t restarts;
+    uint64_t stored;    /* voxels taken from the queues */
     double t0, last_progress, last_check;
 };
 
@@ -299,6 +300,7 @@ static int take_voxels(engine *e, int i, const shm_entry *en)
             v.value == 0)
             return fail(e, -EPROTO, "worker %d sent voxel (%u,%u,%u) outside "
                         "its task", i, v.x, v.y, v.z);
+        e->stored++;
         if (octree_store(&e->tree, v.x, v.y, v.z, v.value))
             return fail(e, -ENOMEM,
                         "the octree needs more than %u cells; raise the "
@@ -550,6 +552,7 @@ static void job_reset(engine *e, const engine_job *job)
     e->error = 0;
     e->msg[0] = '\0';
     e->restarts = 0;
+    e->stored = 0;
     e->have_tree = 0;
     e->sp = 0;
     e->done_vol = 0;
@@ -590,6 +593,7 @@ int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
         e->have_tree = 1;
         r->voxels = e->tree.voxels;
         r->cells = e->tree.used;
+        r->duplicates = e->stored - e->tree.voxels;
         progress(e, 1);
     }
     r->master_cpu = now_s(CLOCK_THREAD_CPUTIME_ID) - c0;

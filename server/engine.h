@@ -73,6 +73,8 @@ typedef struct {
     double master_cpu;       /* master thread CPU seconds */
     double worker_cpu;       /* sum of the workers' CPU seconds for the job */
     uint32_t restarts;       /* workers that died and were forked again */
+    uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
+                                after a death skips what was delivered) */
     char error[256];         /* why engine_voxelize failed ("" if it did not) */
 } engine_result;
 

@@ -175,26 +175,60 @@ static void ensure_chain(subdiv_kernel *k, subdiv_octant o)
     }
 }
 
-/* The normalized gradient at the voxel's centre with tape t (the tape its
- * test used), scaled first so that huge components do not overflow. */
+/* The gradient at the voxel's centre with tape t (the tape its test used).
+ * Packing keeps only the direction (it divides by the L1 norm), so the
+ * gradient is not normalized first; it is only scaled by a power of two
+ * (exact) when its size is extreme, so that the packing's norm neither
+ * overflows nor underflows. */
 static int emit_voxel(subdiv_kernel *k, int t, subdiv_octant c,
                       const subdiv_sink *s)
 {
     const subdiv_grid *g = k->g;
-    double gr[3], n[3] = {0.0, 0.0, 0.0};
+    double gr[3];
     expr_vm_grad(k->vm, t, subdiv_coord(g, 0, c.x + 0.5),
                  subdiv_coord(g, 1, c.y + 0.5), subdiv_coord(g, 2, c.z + 0.5),
                  gr);
-    double m = fmax(fabs(gr[0]), fmax(fabs(gr[1]), fabs(gr[2])));
-    if (m > 0.0 && isfinite(m)) {
-        double a = gr[0] / m, b = gr[1] / m, c3 = gr[2] / m;
-        double len = sqrt(a * a + b * b + c3 * c3);
-        n[0] = a / len;
-        n[1] = b / len;
-        n[2] = c3 / len;
+    double m = fabs(gr[0]);
+    if (fabs(gr[1]) > m) m = fabs(gr[1]);
+    if (fabs(gr[2]) > m) m = fabs(gr[2]);
+    if (!(m > 0.0) || !isfinite(m)) {
+        gr[0] = gr[1] = gr[2] = 0.0; /* no direction: packs as +z */
+    } else if (m > 0x1p500 || m < 0x1p-500) {
+        int e;
+        frexp(m, &e);
+        double f = ldexp(1.0, -e);
+        for (int a = 0; a < 3; a++) gr[a] *= f;
     }
-    subdiv_voxel v = {c.x, c.y, c.z, 0, voxel_surface(n)};
+    subdiv_voxel v = {c.x, c.y, c.z, 0, voxel_surface(gr)};
     return s->voxel(s->ud, &v);
+}
+
+/* The 3 distinct bounds per axis of o's 8 children (the one formula):
+ * child i spans b[a][bit] .. b[a][bit + 1] on axis a. */
+typedef struct {
+    double b[3][3];
+} child_bounds;
+
+static inline void bounds_of(const subdiv_grid *g, subdiv_octant o,
+                             child_bounds *cb)
+{
+    double h = (double)(1u << o.level) * 0.5;
+    const uint16_t lo[3] = {o.x, o.y, o.z};
+    for (int a = 0; a < 3; a++) {
+        cb->b[a][0] = subdiv_coord(g, a, lo[a]);
+        cb->b[a][1] = subdiv_coord(g, a, lo[a] + h);
+        cb->b[a][2] = subdiv_coord(g, a, lo[a] + 2.0 * h);
+    }
+}
+
+static inline bool test_child(subdiv_kernel *k, int t, const child_bounds *cb,
+                              unsigned i)
+{
+    unsigned bx = i & 1u, by = (i >> 1) & 1u, bz = (i >> 2) & 1u;
+    ival x = ival_make(cb->b[0][bx], cb->b[0][bx + 1]);
+    ival y = ival_make(cb->b[1][by], cb->b[1][by + 1]);
+    ival z = ival_make(cb->b[2][bz], cb->b[2][bz + 1]);
+    return ival_contains_zero(expr_vm_ival(k->vm, t, x, y, z));
 }
 
 int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
@@ -202,11 +236,13 @@ int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     if (o.level < 1 || o.level > k->g->depth) return -EINVAL;
     ensure_chain(k, o);
     int t = k->g->depth - o.level;
+    child_bounds cb;
+    bounds_of(k->g, o, &cb);
     for (unsigned i = 0; i < 8; i++) {
         subdiv_octant c = child_of(o, i);
         if (outside(k->g, c)) continue;
         k->tested++;
-        if (!test_box(k, t, c)) continue;
+        if (!test_child(k, t, &cb, i)) continue;
         int rc = o.level == 1 ? emit_voxel(k, t, c, s) : s->octant(s->ud, &c);
         if (rc) return rc;
     }
@@ -232,21 +268,24 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     struct {
         subdiv_octant o;
         unsigned next;
+        child_bounds cb;
     } st[SUBDIV_MAX_DEPTH + 1];
     int top = 0, rc;
     st[0].o = o;
     st[0].next = 0;
+    bounds_of(k->g, o, &st[0].cb);
     while (top >= 0) {
         if (st[top].next == 8) {
             top--;
             continue;
         }
-        subdiv_octant c = child_of(st[top].o, st[top].next++);
+        unsigned i = st[top].next++;
+        subdiv_octant c = child_of(st[top].o, i);
         if (outside(k->g, c)) continue;
         int t = depth - 1 - c.level;
         k->tested++;
         if ((rc = poll_sink(k, s))) return rc;
-        if (!test_box(k, t, c)) continue;
+        if (!test_child(k, t, &st[top].cb, i)) continue;
         if (c.level == 0) {
             if ((rc = emit_voxel(k, t, c, s))) return rc;
             continue;
@@ -255,6 +294,7 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
         top++;
         st[top].o = c;
         st[top].next = 0;
+        bounds_of(k->g, c, &st[top].cb);
     }
     return 0;
 }

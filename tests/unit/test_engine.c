@@ -140,6 +140,7 @@ static void identity(const char *src, uint32_t res, int max_workers)
                          (unsigned long long)r.octants, (unsigned long long)ref.tested);
             cr_assert_eq(r.cells, engine_octree(e)->used);
             cr_assert_eq(r.restarts, 0);
+            cr_assert_eq(r.duplicates, 0);
             cr_assert(r.worker_cpu > 0 && r.master_cpu > 0 && r.seconds > 0);
         }
         engine_destroy(e);
@@ -301,6 +302,49 @@ Test(engine, a_dead_worker_is_replaced_and_its_octant_redone)
         assert_same(&ref.t, engine_octree(e), "after a death in a job");
         cr_assert_eq(r.voxels, ref.t.voxels);
     }
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+/* One worker, the whole grid as one subtree: stop the worker once its
+ * queue is full, let the master take those entries, then kill it.  The new
+ * worker redoes the subtree and must skip exactly what was taken. */
+typedef struct {
+    engine *e;
+    int calls;
+} stopper;
+
+static void stop_then_kill(void *ud, const engine_progress *p)
+{
+    stopper *s = ud;
+    (void)p;
+    pid_t pid = engine_worker_pid(s->e, 0);
+    if (s->calls == 0) {
+        usleep(50000); /* the worker fills its 8 entries and waits */
+        cr_assert_eq(kill(pid, SIGSTOP), 0);
+    } else if (s->calls == 1) {
+        cr_assert_eq(kill(pid, SIGKILL), 0);
+    }
+    s->calls++;
+}
+
+Test(engine, a_worker_killed_mid_subtree_resumes_without_duplicates)
+{
+    expr_tape *tape = compile(SPHERE);
+    subdiv_grid g = grid(256);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(1, 0);
+    stopper st = {.e = e};
+    engine_job job = {.tape = tape, .grid = g, .split_level = g.depth,
+                      .progress = stop_then_kill, .ud = &st};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+    cr_assert_geq(st.calls, 2);
+    cr_assert_eq(r.restarts, 1);
+    cr_assert_eq(r.duplicates, 0);
+    assert_same(&ref.t, engine_octree(e), "after a death mid-subtree");
     engine_destroy(e);
     free(ref.arena);
     expr_tape_free(tape);
