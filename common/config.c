@@ -203,7 +203,7 @@ static int parse_path(const option *o, const char *val, char *field, reason *r)
 static int parse_mode(const option *o, const char *val, unsigned *mode, reason *r)
 {
     size_t n = strlen(val);
-    if (n == 0 || n > 4 || strspn(val, "01234567") != n)
+    if (n == 0 || n > 6 || strspn(val, "01234567") != n)
         return refuse(r, "bad value '%s' for %s: want octal permissions like 0660", val,
                       o->key);
     unsigned long m = strtoul(val, NULL, 8);
