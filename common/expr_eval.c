@@ -39,7 +39,7 @@ double expr_pt_op(int op, int imm, double a, double b)
     case EXPR_OP_MIN: return expr_min_left(a, b) ? a : b;
     case EXPR_OP_MAX: return expr_max_left(a, b) ? a : b;
     case EXPR_OP_ATAN2: return atan2(a, b);
-    case EXPR_OP_POW: return pow(a, b);
+    case EXPR_OP_POW: return expr_pt_pow(a, b);
     case EXPR_OP_BLEND: return expr_pt_blend(a, b);
     default: return NAN;
     }
@@ -254,7 +254,7 @@ double expr_vm_point(expr_vm *vm, int d, double x, double y, double z)
         PT1(EXPR_OP_EXP, exp(a));
         PT1(EXPR_OP_LOG, log(a));
         PT2(EXPR_OP_ATAN2, atan2(a, b));
-        PT2(EXPR_OP_POW, pow(a, b));
+        PT2(EXPR_OP_POW, expr_pt_pow(a, b));
         PT2(EXPR_OP_BLEND, expr_pt_blend(a, b));
         PT1(EXPR_OP_POWI, pow(a, (double)(int16_t)in.b));
         case EXPR_OP_R: R[in.out] = expr_pt_r(x, y, z); break;

@@ -8,13 +8,16 @@
 
 typedef expr_grad_reg G;
 
-/* out = f(a) with f'(a) = k: partials scale by k (0 when a's are all 0, so
- * that an infinite k on a constant gives 0, not NaN). */
+/* k * d where a zero factor wins: an infinite k on a constant operand, or an
+ * inf/NaN partial under a function that is flat there (atan2 of an infinite
+ * argument), give 0 rather than NaN. */
+static inline double scale(double k, double d) { return k != 0 && d != 0 ? k * d : 0; }
+
+/* out = f(a) with f'(a) = k. */
 static G chain1(double v, double k, const G *a)
 {
     G r = {v, {0, 0, 0}};
-    for (int j = 0; j < 3; j++)
-        r.d[j] = a->d[j] != 0 ? k * a->d[j] : 0;
+    for (int j = 0; j < 3; j++) r.d[j] = scale(k, a->d[j]);
     return r;
 }
 
@@ -22,8 +25,7 @@ static G chain1(double v, double k, const G *a)
 static G chain2(double v, double ka, const G *a, double kb, const G *b)
 {
     G r = {v, {0, 0, 0}};
-    for (int j = 0; j < 3; j++)
-        r.d[j] = (a->d[j] != 0 ? ka * a->d[j] : 0) + (b->d[j] != 0 ? kb * b->d[j] : 0);
+    for (int j = 0; j < 3; j++) r.d[j] = scale(ka, a->d[j]) + scale(kb, b->d[j]);
     return r;
 }
 
@@ -35,7 +37,7 @@ static G g_sqrt(const G *a)
 
 static G g_pow(const G *a, const G *b)
 {
-    double v = pow(a->v, b->v);
+    double v = expr_pt_pow(a->v, b->v);
     double ka = b->v == 0 ? 0 : b->v * pow(a->v, b->v - 1);
     double kb = a->v > 0 ? v * log(a->v) : 0;
     return chain2(v, ka, a, kb, b);
@@ -107,7 +109,8 @@ static G g_binary(int op, const G *a, const G *b)
     case EXPR_OP_MAX: return expr_max_left(x, y) ? *a : *b;
     case EXPR_OP_ATAN2: {
         double q = x * x + y * y;
-        if (!(q > 0)) return (G){atan2(x, y), {0, 0, 0}};
+        /* flat at the origin (no derivative) and at infinity */
+        if (!(q > 0) || isinf(q)) return (G){atan2(x, y), {0, 0, 0}};
         return chain2(atan2(x, y), y / q, a, -x / q, b);
     }
     case EXPR_OP_POW: return g_pow(a, b);

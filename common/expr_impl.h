@@ -111,17 +111,30 @@ static inline const expr_insn *expr_tape_code(const expr_tape *t)
 
 /* ---- point semantics, shared by the evaluators and constant folding ---- */
 
-/* min/max that ignore a NaN operand (like fmin), with a fixed tie rule:
- * the right operand wins ties, and the gradient follows the same choice. */
-static inline int expr_min_left(double a, double b) { return a < b || b != b; }
-static inline int expr_max_left(double a, double b) { return a > b || b != b; }
+/* min/max propagate NaN (unlike fmin): F is undefined where an operand is.
+ * That is what the interval evaluator assumes (ival evaluates a function on
+ * the part of a box where it is defined), so a min that ignored a NaN
+ * operand could take a value outside the enclosure.  Ties go to the right
+ * operand; the gradient follows the same choice. */
+static inline int expr_min_left(double a, double b) { return a < b || a != a; }
+static inline int expr_max_left(double a, double b) { return a > b || a != a; }
 
+/* NaN in, NaN out (see min/max). */
 static inline double expr_pt_blend(double d, double R)
 {
-    if (!(fabs(d) <= R)) return 0.0;
+    if (fabs(d) > R) return 0.0;
     double t = d * d - R * R, t2 = t * t;
     double r2 = R * R, r4 = r2 * r2;
     return (t2 * t2) / (r4 * r4);
+}
+
+/* pow as the interval evaluator sees it: NaN in, NaN out (C's pow(1, NaN)
+ * and pow(NaN, 0) are 1), and a negative base only with an integer
+ * exponent (C's pow(-inf, 0.5) is +inf). */
+static inline double expr_pt_pow(double a, double b)
+{
+    if (a != a || b != b || (a < 0 && b != floor(b))) return NAN;
+    return pow(a, b);
 }
 
 static inline double expr_pt_r(double x, double y, double z)
