@@ -1,0 +1,109 @@
+/* Fuzz unpacking and validation: the input is one message.  It is unpacked
+ * as a Request and as a Reply and validated with the default limits and with
+ * tight ones.  What the validator accepts must really hold what the daemon
+ * then trusts (abort otherwise): a known oneof case, enums in range, a
+ * source within the limit and without NUL, a finite domain with low < high,
+ * res within the limit, CSG children earlier. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "frame.h"
+#include "proto_check.h"
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+static void must(int cond)
+{
+    if (!cond) abort();
+}
+
+static void trusted_domain(const double *d, size_t n)
+{
+    must(n == 2 || n == 6);
+    for (size_t i = 0; i < n; i += 2)
+        must(isfinite(d[i]) && isfinite(d[i + 1]) && d[i] < d[i + 1]);
+}
+
+static void trusted_submit(const Voxd__Submit *s, const proto_limits *lim)
+{
+    must((unsigned)s->channel <= 3 && s->channel != VOXD__CHANNEL__CHANNEL_DENSITY);
+    must((unsigned)s->comp <= 3 && (unsigned)s->hash <= 2);
+    must(s->brick == 0 || (s->brick >= 2 && s->brick <= 256 && !(s->brick & (s->brick - 1))));
+    /* Mesh and CSG are refused for now. */
+    must(s->job_case == VOXD__SUBMIT__JOB_IMPLICIT && s->implicit);
+    const Voxd__Implicit *im = s->implicit;
+    must(im->source.len >= 1 && im->source.len <= lim->max_expr_bytes);
+    must(!memchr(im->source.data, 0, im->source.len));
+    trusted_domain(im->domain, im->n_domain);
+    must(im->res >= 1 && im->res <= lim->max_res);
+    must((unsigned)im->schedule <= 2);
+}
+
+static void trusted_request(const Voxd__Request *r, const proto_limits *lim)
+{
+    switch (r->msg_case) {
+    case VOXD__REQUEST__MSG_HELLO: must(r->hello && r->hello->version == PROTO_VERSION); break;
+    case VOXD__REQUEST__MSG_SUBMIT: must(r->submit != NULL); trusted_submit(r->submit, lim); break;
+    case VOXD__REQUEST__MSG_CANCEL: must(r->cancel && r->cancel->job_id); break;
+    case VOXD__REQUEST__MSG_STATUS: must(r->status != NULL); break;
+    case VOXD__REQUEST__MSG_PING: must(r->ping != NULL); break;
+    default: abort();
+    }
+}
+
+static void trusted_reply(const Voxd__Reply *r, const proto_limits *lim)
+{
+    switch (r->msg_case) {
+    case VOXD__REPLY__MSG_CHUNK:
+        must(r->chunk->job_id && r->chunk->data.len >= 1 &&
+             r->chunk->data.len <= lim->chunk_size &&
+             r->chunk->offset + r->chunk->data.len <= lim->max_result_bytes);
+        break;
+    case VOXD__REPLY__MSG_ERROR:
+        must(r->error->code >= 1 && r->error->code <= 8);
+        break;
+    case VOXD__REPLY__MSG_STATUS:
+        must(r->status->n_workers <= PROTO_MAX_WORKERS);
+        break;
+    case VOXD__REPLY__MSG_PROGRESS:
+        must(r->progress->fraction >= 0 && r->progress->fraction <= 1);
+        break;
+    case VOXD__REPLY__MSG_HELLO_OK: must(r->hello_ok->limits != NULL); break;
+    case VOXD__REPLY__MSG_ACCEPTED:
+    case VOXD__REPLY__MSG_SUMMARY:
+    case VOXD__REPLY__MSG_PONG: break;
+    default: abort();
+    }
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
+{
+    proto_limits lims[2];
+    proto_limits_default(&lims[0]);
+    lims[1] = (proto_limits){.max_frame = 4096, .max_expr_bytes = 8, .max_res = 16,
+                             .max_csg_nodes = 2, .chunk_size = 16,
+                             .max_result_bytes = 1024};
+    Voxd__Request *rq = frame_unpack_request(data, size);
+    if (rq) {
+        for (int i = 0; i < 2; i++) {
+            proto_error e;
+            int rc = proto_check_request(rq, &lims[i], &e);
+            if (rc == 0) trusted_request(rq, &lims[i]);
+            else must(e.msg[0] && (e.code == VOXD__ERROR_CODE__INVALID_INPUT ||
+                                   e.code == VOXD__ERROR_CODE__LIMIT_EXCEEDED));
+        }
+        voxd__request__free_unpacked(rq, NULL);
+    }
+    Voxd__Reply *rp = frame_unpack_reply(data, size);
+    if (rp) {
+        for (int i = 0; i < 2; i++) {
+            proto_error e;
+            if (proto_check_reply(rp, &lims[i], &e) == 0) trusted_reply(rp, &lims[i]);
+            else must(e.msg[0] != '\0');
+        }
+        voxd__reply__free_unpacked(rp, NULL);
+    }
+    return 0;
+}
