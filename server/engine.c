@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -22,6 +23,7 @@
 #define LIVENESS_EVERY 0.05       /* seconds between checks for dead workers */
 #define MAX_DEATHS 3              /* deaths of one slot in one job */
 #define EXIT_WAIT_S 2.0           /* engine_destroy's patience */
+#define KEEP_BYTES ((size_t)64 << 20) /* default engine_opts.keep_bytes */
 
 typedef struct {
     pid_t pid;          /* 0: no worker */
@@ -55,6 +57,8 @@ struct engine {
     char msg[256];
     uint32_t restarts;
     uint64_t stored;    /* voxels taken from the queues */
+    uint64_t touched;   /* end of the data pages the last job touched */
+    uint64_t keep;      /* bytes of the data area kept between jobs */
     double t0, last_progress, last_check;
 };
 
@@ -212,6 +216,7 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     engine *e = calloc(1, sizeof *e);
     if (!e) return -ENOMEM;
     e->n = o->workers;
+    e->keep = o->keep_bytes ? o->keep_bytes : KEEP_BYTES;
     int rc = pick_cpus(e, o, err, errlen);
     if (!rc)
         rc = shm_create(&e->seg, o->shm_name, o->shm_bytes, (uint32_t)e->n,
@@ -514,6 +519,22 @@ static void abort_job(engine *e)
     e->aborting = 0;
 }
 
+/* A daemon's engine lives long: give back to tmpfs what the last big job
+ * touched beyond the first keep bytes of the data area (kept warm for the
+ * usual jobs).  The caller is about to overwrite all of it anyway. */
+static void release_pages(engine *e)
+{
+    uint64_t keep = (e->h->data_off + e->keep + 4095) / 4096 * 4096;
+    if (e->touched <= keep) return;
+    madvise(e->seg.base + keep, e->touched - keep, MADV_REMOVE);
+    e->touched = keep;
+}
+
+static void note_touched(engine *e, uint64_t end)
+{
+    if (end > e->touched) e->touched = end;
+}
+
 static int job_setup(engine *e, const engine_job *job)
 {
     if (!job->tape) return fail(e, -EINVAL, "the job has no tape");
@@ -529,6 +550,7 @@ static int job_setup(engine *e, const engine_job *job)
                     "the octree; raise the shared memory size",
                     tb);
     uint64_t cap = (end - tree_off) / sizeof(octree_cell);
+    release_pages(e);
     memcpy(shm_at(e->seg.base, h->data_off), job->tape, tb);
     h->gen = h->gen + 1 ? h->gen + 1 : 1;
     h->grid = job->grid;
@@ -586,6 +608,9 @@ int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
     if (!rc) rc = run_job(e);
     if (e->nbusy) abort_job(e);
     job_stats(e, r);
+    if (e->tree.cells) /* octree_store clears whole blocks ahead */
+        note_touched(e, e->h->tree_off +
+                            (uint64_t)e->tree.block_end * sizeof(octree_cell));
     r->seconds = now_s(CLOCK_MONOTONIC) - e->t0;
     if (rc) {
         snprintf(r->error, sizeof r->error, "%s", e->msg);
@@ -712,6 +737,9 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
      * them here, so errors need no other handling. */
     vod_encode_all(e);
     shm_vod *v = &e->h->vod;
+    /* relaxed: read after every worker's done_seq acquire */
+    uint64_t used = atomic_load_explicit(&v->bump, memory_order_relaxed);
+    note_touched(e, v->brick_off + (used < v->brick_cap ? used : v->brick_cap));
     const uint8_t **data = calloc(v->n ? v->n : 1, sizeof *data);
     uint8_t **own = calloc(v->n ? v->n : 1, sizeof *own);
     rc = data && own ? vod_gather(e, p, data, own) : -ENOMEM;

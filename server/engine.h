@@ -35,6 +35,9 @@ typedef struct {
     int ncpus;
     size_t shm_bytes;     /* segment size; 0 = default (sparse, touched as used) */
     const char *shm_name; /* "/name" to keep (daemon); NULL = private, unlinked at once */
+    size_t keep_bytes;    /* data pages kept between jobs; a job that touched
+                             more gives the rest back to tmpfs when the next
+                             job starts; 0 = default (64 MiB) */
 } engine_opts;
 
 typedef enum {
@@ -44,7 +47,8 @@ typedef enum {
 
 typedef struct {
     double fraction;      /* estimated, 0..1 */
-    int level;            /* deepest level finished */
+    int level;            /* every octant of this level and above has been
+                             tested: the grid's depth at the start, 0 at the end */
     uint64_t voxels;      /* stored so far */
     double seconds;
 } engine_progress;

@@ -11,6 +11,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -459,6 +460,43 @@ Test(engine, create_destroy_leaves_nothing)
     cr_assert(strstr(err, "exists") || strstr(err, "File exists"), "%s", err);
     engine_destroy(e);
     cr_assert_neq(access(path, F_OK), 0);
+}
+
+static long long shm_blocks(const char *path)
+{
+    struct stat st;
+    cr_assert_eq(stat(path, &st), 0);
+    return (long long)st.st_blocks;
+}
+
+/* Pages a big job touched go back to tmpfs when the next job starts. */
+Test(engine, pages_beyond_keep_are_given_back)
+{
+    char name[64], path[80];
+    snprintf(name, sizeof name, "/voxd-keep.%d.", (int)getpid());
+    snprintf(path, sizeof path, "/dev/shm%s", name);
+    engine_opts o = {.workers = 1, .shm_name = name, .keep_bytes = 4096};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    expr_tape *big = compile(SPHERES), *small = compile(SPHERE);
+    subdiv_grid gb = grid(192), gs = grid(16);
+    engine_result r;
+    run(e, big, &gb, ENGINE_SCHED_SUBTREE, 0, &r);
+    long long after_big = shm_blocks(path);
+    run(e, small, &gs, ENGINE_SCHED_SUBTREE, 0, &r);
+    long long after_small = shm_blocks(path);
+    cr_assert_lt(after_small * 4, after_big, "%lld blocks, then %lld", after_big,
+                 after_small);
+    /* and the big job still comes out right on the released pages */
+    ref_tree ref;
+    reference(big, &gb, &ref);
+    run(e, big, &gb, ENGINE_SCHED_SUBTREE, 0, &r);
+    assert_same(&ref.t, engine_octree(e), "after release");
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(big);
+    expr_tape_free(small);
 }
 
 static int pinned_cpu(pid_t pid)
