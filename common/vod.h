@@ -109,11 +109,16 @@ typedef struct {
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
 /* Fill node n's raw brick from the tree (scratch holds L->raw_bytes), hash
- * it and compress it into out.  Returns 0, -ENOBUFS when cap is too small,
+ * it and compress it into out.  ZLIB reuses one deflate stream per thread
+ * (see vod_encode_cleanup); the bytes depend only on the raw brick and p.  Returns 0, -ENOBUFS when cap is too small,
  * -EINVAL for a node outside the layout or a level >= 1 without t->agg. */
 int vod_encode(const octree *t, const vod_layout *L, const vod_params *p,
                const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
                vod_encoded *rec);
+
+/* Frees the calling thread's cached deflate stream (a thread that used
+ * vod_encode should call it before it exits; a process need not). */
+void vod_encode_cleanup(void);
 
 /* Where the file goes: write must write all n bytes or fail (negative errno). */
 typedef struct {
