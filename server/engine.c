@@ -621,6 +621,7 @@ int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
         r->duplicates = e->stored - e->tree.voxels;
         progress(e, 1);
     }
+    e->job = NULL; /* the caller's; nothing may use it after the return */
     r->master_cpu = now_s(CLOCK_THREAD_CPUTIME_ID) - c0;
     return rc;
 }

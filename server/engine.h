@@ -11,7 +11,24 @@
  * when idle.  The same workers then encode the VOD's bricks in parallel.
  *
  * One job at a time per engine; the engine outlives many jobs (the daemon
- * keeps one for its whole life, `vox` makes one per command).
+ * keeps one for its whole life, `vox` makes one per command).  Use it from
+ * one thread, the one that created it.
+ *
+ * Schedules.  ENGINE_SCHED_PAPER is Figure 3: an idle worker gets one octant,
+ * tests its 8 children and sends back the kept ones (or, at the last level,
+ * the voxels with their normals), one per queue entry.  ENGINE_SCHED_SUBTREE
+ * (the default) does the same down to a split level, then hands out whole
+ * subtrees whose voxels come back in batches of up to 1024 in preorder, so
+ * the master's work is mostly octree_store and it sleeps the rest of the
+ * time.  Both give the serial algorithm's voxels bit for bit (subdiv.h says
+ * why), whatever the number of workers.
+ *
+ * Robustness.  Whatever a worker wrote is checked before use (entries inside
+ * the task's octant and the grid, counts bounded).  A worker that dies is
+ * forked again; its octant is handed out again and the entries already
+ * taken are skipped (the kernel is deterministic), so the job still
+ * succeeds.  The default segment is 2 GiB of address space, at most half of
+ * /dev/shm's free space; tmpfs gives pages only as they are touched.
  */
 #ifndef VOXD_ENGINE_H
 #define VOXD_ENGINE_H
@@ -31,7 +48,8 @@ typedef struct engine engine;
 
 typedef struct {
     int workers;          /* >= 1 */
-    const int *cpus;      /* worker i is pinned to cpus[i % ncpus]; NULL: CPU i % cores */
+    const int *cpus;      /* worker i is pinned to cpus[i % ncpus]; NULL: the
+                             i-th (mod count) CPU of this process's affinity */
     int ncpus;
     size_t shm_bytes;     /* segment size; 0 = default (sparse, touched as used) */
     const char *shm_name; /* "/name" to keep (daemon); NULL = private, unlinked at once */
@@ -71,7 +89,8 @@ typedef struct {
 
 typedef struct {
     uint64_t voxels;
-    uint64_t octants;        /* octants tested */
+    uint64_t octants;        /* boxes tested (the same for every schedule and
+                                worker count; chain rebuilds not counted) */
     uint32_t cells;          /* octree cells used */
     double seconds;          /* wall time of the subdivision */
     double master_cpu;       /* master thread CPU seconds */
@@ -100,9 +119,12 @@ int engine_worker_cpu(const engine *e, int i);
  * that dies during a job is forked again and its octant handed out again
  * (its output is deterministic, so the entries already taken are skipped). */
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
-/* The last job's octree (a view into shared memory). */
+/* The last job's octree (a view into shared memory), NULL when the last
+ * job failed or there was none. */
 octree *engine_octree(engine *e);
-/* Write the last job's octree as VOD, bricks encoded by the workers. */
+/* Write the last job's octree as VOD, bricks encoded by the workers into
+ * shared memory (what does not fit, or what a dying worker left undone, is
+ * encoded by the caller's thread); the bytes are vod_write_octree()'s. */
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, char *err, size_t errlen);
 
