@@ -110,8 +110,9 @@ typedef struct {
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
 /* Fill node n's raw brick from the tree (scratch holds L->raw_bytes), hash
  * it and compress it into out.  ZLIB reuses one deflate stream per thread
- * (see vod_encode_cleanup); the bytes depend only on the raw brick and p.  Returns 0, -ENOBUFS when cap is too small,
- * -EINVAL for a node outside the layout or a level >= 1 without t->agg. */
+ * (see vod_encode_cleanup); the bytes depend only on the raw brick and p.
+ * Returns 0, -ENOBUFS when cap is too small, -EINVAL for a node outside the
+ * layout or a level >= 1 without t->agg. */
 int vod_encode(const octree *t, const vod_layout *L, const vod_params *p,
                const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
                vod_encoded *rec);

@@ -180,10 +180,12 @@ static int check_encoding(parse *ps, vod_info *in)
     if (vb != 1 && vb != 8 && vb != 16 && vb != 32)
         return fail(ps, -EINVAL, "voxelSize %u is not 1, 8, 16 or 32 bits", vb);
     if (in->hash != VOD_HASH_SFHS && in->hash != VOD_HASH_XX32)
-        return fail(ps, -EINVAL, "unsupported hashAlgorithm '%s'", fourcc_str(in->hash, s));
+        return fail(ps, -EINVAL, "unsupported hashAlgorithm '%s'",
+                    fourcc_str(in->hash, s));
     if (in->comp != VOD_COMP_NONE && in->comp != VOD_COMP_ZLIB &&
         in->comp != VOD_COMP_RUNL)
-        return fail(ps, -EINVAL, "unsupported compAlgorithm '%s'", fourcc_str(in->comp, s));
+        return fail(ps, -EINVAL, "unsupported compAlgorithm '%s'",
+                    fourcc_str(in->comp, s));
     return 0;
 }
 
@@ -373,7 +375,8 @@ static int decode_brick(parse *ps, vod_file *f, const brick_ent *e, uint8_t *raw
         uLongf out = (uLongf)n;
         uLong in = e->size;
         int zr = uncompress2(raw, &out, d, &in);
-        if (zr != Z_OK) why = zr == Z_BUF_ERROR && out == n ? "zlib: too much data" : "zlib error";
+        if (zr != Z_OK)
+            why = zr == Z_BUF_ERROR && out == n ? "zlib: too much data" : "zlib error";
         else if (out != n) why = "zlib: too little data";
         else if (in != e->size) why = "bytes left after the zlib stream";
     }
@@ -458,7 +461,8 @@ int vod_open(const char *path, vod_file **out, char *err, size_t errlen)
     int rc = fstat(fd, &sb) ? fail(&ps, -errno, "cannot stat: %s", strerror(errno)) : 0;
     if (!rc && !S_ISREG(sb.st_mode)) rc = fail(&ps, -EINVAL, "not a regular file");
     else if (!rc && (uint64_t)sb.st_size > UINT32_MAX + 65536ull)
-        rc = fail(&ps, -EFBIG, "%lld bytes: larger than any VOD file", (long long)sb.st_size);
+        rc = fail(&ps, -EFBIG, "%lld bytes: larger than any VOD file",
+                  (long long)sb.st_size);
     uint8_t *buf = rc ? NULL : malloc((size_t)sb.st_size + 1);
     if (!rc && !buf) rc = fail(&ps, -ENOMEM, "out of memory");
     if (!rc && (rc = read_all(fd, buf, (size_t)sb.st_size)))

@@ -340,7 +340,8 @@ static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
 {
     size_t n = L->raw_bytes;
-    if (p->comp == VOD_COMP_ZLIB) return n + ((n + 7) >> 3) + ((n + 63) >> 6) + 5 + 6 + 16;
+    if (p->comp == VOD_COMP_ZLIB)
+        return n + ((n + 7) >> 3) + ((n + 63) >> 6) + 5 + 6 + 16;
     if (p->comp == VOD_COMP_RUNL) return vod_runl_bound(L->voxel_bits, n);
     return n;
 }
@@ -728,7 +729,8 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
     uint32_t *own = NULL;
     if (!t->agg) {
         own = t->agg = malloc((size_t)t->used * sizeof *t->agg);
-        if (!own) return fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
+        if (!own)
+            return fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
     }
     vod_aggregate(t, p->channel);
     rc = write_planned(t, &L, p, sink, st);
