@@ -203,6 +203,69 @@ Test(engine, jobs_in_a_row_reuse_the_workers)
     engine_destroy(e);
 }
 
+/* ---- the queue and the sleeping protocol, between two threads ---- */
+
+#include <pthread.h>
+
+#define QN 200000u
+
+typedef struct {
+    queue_idx q;
+    uint32_t ent[QUEUE_ENTRIES];
+    atomic_uint wake_p, wake_c; /* futex words: producer's, consumer's */
+    atomic_int sleep_p, sleep_c;
+    uint64_t sum;
+    int order_ok;
+} qtest;
+
+/* Both sides wait without a timeout: a lost wakeup hangs the test, which
+ * the timeout then fails. */
+static void *producer(void *ud)
+{
+    qtest *t = ud;
+    for (uint32_t i = 1; i <= QN; i++) {
+        while (queue_space(&t->q) == 0) {
+            unsigned v = shm_sleep_begin(&t->wake_p, &t->sleep_p);
+            if (queue_space(&t->q) == 0) shm_futex_wait(&t->wake_p, v, 0);
+            shm_sleep_end(&t->sleep_p);
+        }
+        t->ent[queue_head(&t->q)] = i;
+        queue_publish(&t->q);
+        shm_wake_if_sleeping(&t->wake_c, &t->sleep_c);
+    }
+    return NULL;
+}
+
+Test(engine, queue_and_futexes_lose_nothing, .timeout = 60)
+{
+    qtest *t = calloc(1, sizeof *t);
+    t->order_ok = 1;
+    pthread_t th;
+    cr_assert_eq(pthread_create(&th, NULL, producer, t), 0);
+    uint32_t expect = 1;
+    while (expect <= QN) {
+        unsigned n = queue_ready(&t->q);
+        if (n == 0) {
+            unsigned v = shm_sleep_begin(&t->wake_c, &t->sleep_c);
+            if (queue_ready(&t->q) == 0) shm_futex_wait(&t->wake_c, v, 0);
+            shm_sleep_end(&t->sleep_c);
+            continue;
+        }
+        cr_assert_leq(n, QUEUE_ENTRIES);
+        for (unsigned k = 0; k < n; k++) {
+            uint32_t v = t->ent[(queue_tail(&t->q) + k) % QUEUE_ENTRIES];
+            t->order_ok &= v == expect++;
+            t->sum += v;
+        }
+        queue_consumed(&t->q, n);
+        shm_wake_if_sleeping(&t->wake_p, &t->sleep_p);
+    }
+    pthread_join(th, NULL);
+    cr_assert(t->order_ok);
+    cr_assert_eq(t->sum, (uint64_t)QN * (QN + 1) / 2);
+    free(t);
+}
+
 /* ---- progress and cancel ---- */
 
 typedef struct {
