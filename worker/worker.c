@@ -174,6 +174,7 @@ static int job_begin(worker *w)
 static int run_subdiv(worker *w, uint32_t kind)
 {
     shm_slot *s = w->s;
+    if (aborted(w)) return -ECANCELED; /* handed out just before a cancel */
     if (w->gen != s->task_gen) {
         int rc = job_begin(w);
         if (rc) return rc;
