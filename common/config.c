@@ -531,7 +531,7 @@ static void print_option(FILE *out, const option *o, const voxd_config *c)
     case K_LEVEL: fprintf(out, "%s %s\n", o->key, log_level_name(c->log_level)); break;
     case K_WORKERS:
         if (c->workers) fprintf(out, "workers %d\n", c->workers);
-        else fprintf(out, "# auto: %d on this machine\nworkers auto\n", config_workers(c));
+        else fprintf(out, "# workers auto: %d on this machine\nworkers auto\n", config_workers(c));
         break;
     case K_SIZE:
         fmt_size(v, buf, sizeof buf);
