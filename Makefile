@@ -42,6 +42,9 @@ UNIT_SRC := $(wildcard tests/unit/test_*.c)
 UNIT_BIN := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 
+# Keep generated protobuf-c sources: make would delete them as intermediates.
+.SECONDARY:
+
 .PHONY: all deps test test-build demo bench fuzz clean
 all: $(BINS)
 
