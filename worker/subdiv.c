@@ -256,6 +256,24 @@ static inline int poll_sink(subdiv_kernel *k, const subdiv_sink *s)
     return s->poll(s->ud);
 }
 
+/* The last level of the depth-first walk: o.level == 1, its children are
+ * voxels, tested with tape t; no frame is pushed for them. */
+static int leaf_children(subdiv_kernel *k, subdiv_octant o, int t,
+                         const subdiv_sink *s)
+{
+    child_bounds cb;
+    bounds_of(k->g, o, &cb);
+    for (unsigned i = 0; i < 8; i++) {
+        subdiv_octant c = child_of(o, i);
+        if (outside(k->g, c)) continue;
+        k->tested++;
+        int rc = poll_sink(k, s);
+        if (!rc && test_child(k, t, &cb, i)) rc = emit_voxel(k, t, c, s);
+        if (rc) return rc;
+    }
+    return 0;
+}
+
 int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
 {
     const int depth = k->g->depth;
@@ -291,6 +309,10 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
             continue;
         }
         prune_for(k, t, c);
+        if (c.level == 1) {
+            if ((rc = leaf_children(k, c, t + 1, s))) return rc;
+            continue;
+        }
         top++;
         st[top].o = c;
         st[top].next = 0;
