@@ -494,7 +494,7 @@ Test(engine, create_destroy_leaves_nothing)
     pid_t pids[3 * 25];
     int np = 0;
     for (int k = 0; k < 25; k++) {
-        engine *e = make_engine(3, (size_t)64 << 20);
+        engine *e = make_engine(3, (size_t)16 << 20);
         for (int i = 0; i < 3; i++) {
             pids[np] = engine_worker_pid(e, i);
             cr_assert_gt(pids[np], 0);
@@ -514,7 +514,7 @@ Test(engine, create_destroy_leaves_nothing)
     char name[64], path[80];
     snprintf(name, sizeof name, "/voxd-test.%d.", (int)getpid());
     snprintf(path, sizeof path, "/dev/shm%s", name);
-    engine_opts o = {.workers = 1, .shm_name = name, .shm_bytes = 32 << 20};
+    engine_opts o = {.workers = 1, .shm_name = name, .shm_bytes = 16 << 20};
     engine *e, *e2;
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
@@ -579,14 +579,14 @@ Test(engine, workers_are_pinned)
     int allowed[CPU_SETSIZE], k = 0;
     for (int c = 0; c < CPU_SETSIZE; c++)
         if (CPU_ISSET(c, &mine)) allowed[k++] = c;
-    engine *e = make_engine(3, (size_t)64 << 20);
+    engine *e = make_engine(3, (size_t)16 << 20);
     for (int i = 0; i < 3; i++) {
         cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[i % k]);
         cr_assert_eq(engine_worker_cpu(e, i), allowed[i % k]);
     }
     engine_destroy(e);
     int cpus[1] = {allowed[k - 1]};
-    engine_opts o = {.workers = 2, .cpus = cpus, .ncpus = 1, .shm_bytes = 64 << 20};
+    engine_opts o = {.workers = 2, .cpus = cpus, .ncpus = 1, .shm_bytes = 16 << 20};
     char err[256];
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
     for (int i = 0; i < 2; i++)
