@@ -65,6 +65,7 @@ static unsigned wait_task(worker *w, unsigned last)
         unsigned t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
         if (t != last) return t;
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
+        /* acquire: as above; after the fence, the Dekker re-check */
         t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
         if (t == last) shm_futex_wait(&s->wake, v, WORKER_TIMEOUT_NS);
         shm_sleep_end(&s->sleeping);
