@@ -32,7 +32,7 @@ refuse "occupancy is 1 bit" 0 "1 bits" "$VOX" info "$TMP/occ.vod"
 refuse "progress line" 0 "level" "$VOX" voxelize -e "$S" -r 64 --progress -o "$TMP/p.vod"
 
 # Errors: clear message, exit 2, no output file left behind.
-refuse "parse error has line:col" 2 "<expr>:1:9: " "$VOX" voxelize -e "x + y * (z" -r 8 -o "$TMP/bad.vod"
+refuse "parse error has line:col" 2 "<expr>:1:11: expected .\).* at 1:9" "$VOX" voxelize -e "x + y * (z" -r 8 -o "$TMP/bad.vod"
 refuse "unknown function" 2 "sinn" "$VOX" voxelize -e "sinn(x)" -r 8 -o "$TMP/bad.vod"
 refuse "res 0" 2 "bad --res" "$VOX" voxelize -e x -r 0 -o "$TMP/bad.vod"
 refuse "res 4097" 2 "bad --res" "$VOX" voxelize -e x -r 4097 -o "$TMP/bad.vod"
