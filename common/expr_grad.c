@@ -80,8 +80,6 @@ static G g_unary(int op, int imm, const G *a)
 {
     double v = a->v;
     switch (op) {
-    case EXPR_OP_NEG: return chain1(-v, -1, a);
-    case EXPR_OP_SQR: return chain1(v * v, 2 * v, a);
     case EXPR_OP_SQRT: return g_sqrt(a);
     case EXPR_OP_ABS: return chain1(fabs(v), v < 0 ? -1 : 1, a);
     case EXPR_OP_SIN: return chain1(sin(v), cos(v), a);
@@ -101,12 +99,7 @@ static G g_binary(int op, const G *a, const G *b)
 {
     double x = a->v, y = b->v;
     switch (op) {
-    case EXPR_OP_ADD: return chain2(x + y, 1, a, 1, b);
-    case EXPR_OP_SUB: return chain2(x - y, 1, a, -1, b);
-    case EXPR_OP_MUL: return chain2(x * y, y, a, x, b);
     case EXPR_OP_DIV: return chain2(x / y, 1 / y, a, -x / (y * y), b);
-    case EXPR_OP_MIN: return expr_min_left(x, y) ? *a : *b;
-    case EXPR_OP_MAX: return expr_max_left(x, y) ? *a : *b;
     case EXPR_OP_ATAN2: {
         double q = x * x + y * y;
         /* flat at the origin (no derivative) and at infinity */
@@ -119,6 +112,11 @@ static G g_binary(int op, const G *a, const G *b)
     }
 }
 
+/* The arithmetic ops inline (plain products: a zero-times-infinite partial
+ * only arises where the value is infinite too); the rest through g_unary,
+ * g_binary with the guarded chain rule. */
+#define GD(E) for (int j = 0; j < 3; j++) o->d[j] = (E)
+
 double expr_vm_grad(expr_vm *vm, int d, double x, double y, double z, double grad[3])
 {
     const expr_vm_depth *dp = &vm->dep[expr_vm_clamp(vm, d)];
@@ -129,15 +127,33 @@ double expr_vm_grad(expr_vm *vm, int d, double x, double y, double z, double gra
     R[2] = (G){z, {0, 0, 1}};
     for (uint32_t i = 0, n = dp->len; i < n; i++) {
         const expr_insn in = c[i];
-        G r;
-        switch (expr_op_arity(in.op)) {
-        case 2: r = g_binary(in.op, &R[in.a], &R[in.b]); break;
-        case 1: r = g_unary(in.op, (int16_t)in.b, &R[in.a]); break;
-        default:
-            r = in.op == EXPR_OP_R ? g_r(x, y, z)
-              : in.op == EXPR_OP_THETA ? g_theta(x, y) : g_phi(x, y, z);
+        const G a = R[in.a]; /* copies: out may be an input's register */
+        G b, *o = &R[in.out];
+        switch (in.op) {
+        case EXPR_OP_ADD: b = R[in.b]; o->v = a.v + b.v; GD(a.d[j] + b.d[j]); break;
+        case EXPR_OP_SUB: b = R[in.b]; o->v = a.v - b.v; GD(a.d[j] - b.d[j]); break;
+        case EXPR_OP_MUL: b = R[in.b]; o->v = a.v * b.v; GD(b.v * a.d[j] + a.v * b.d[j]); break;
+        case EXPR_OP_NEG: o->v = -a.v; GD(-a.d[j]); break;
+        case EXPR_OP_SQR: o->v = a.v * a.v; GD(2 * a.v * a.d[j]); break;
+        case EXPR_OP_SQRT: {
+            double s = sqrt(a.v), k = s > 0 ? 0.5 / s : 0; /* 0 at 0: finite */
+            o->v = s;
+            GD(k * a.d[j]);
+            break;
         }
-        R[in.out] = r;
+        case EXPR_OP_MIN: b = R[in.b]; *o = expr_min_left(a.v, b.v) ? a : b; break;
+        case EXPR_OP_MAX: b = R[in.b]; *o = expr_max_left(a.v, b.v) ? a : b; break;
+        case EXPR_OP_R: *o = g_r(x, y, z); break;
+        case EXPR_OP_THETA: *o = g_theta(x, y); break;
+        case EXPR_OP_PHI: *o = g_phi(x, y, z); break;
+        default:
+            if (expr_op_arity(in.op) == 2) {
+                b = R[in.b];
+                *o = g_binary(in.op, &a, &b);
+            } else {
+                *o = g_unary(in.op, (int16_t)in.b, &a);
+            }
+        }
     }
     const G *res = &R[dp->result];
     for (int j = 0; j < 3; j++) grad[j] = res->d[j];

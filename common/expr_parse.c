@@ -446,7 +446,7 @@ static expr_ast *parse_unary(parser *p);
 /* '(' already current.  Arguments go to a growing scratch array. */
 static expr_ast *parse_call(parser *p, const func_def *f, token name)
 {
-    expr_ast *small[4], **args = small;
+    expr_ast *small[4] = {0}, **args = small;
     uint32_t n = 0, cap = 4;
     advance(p);
     if (p->tok.kind != TK_RPAREN) {
