@@ -31,16 +31,22 @@
 typedef struct expr_tape expr_tape;
 typedef struct expr_vm expr_vm;
 
-/* Limits on the untrusted source; each violation is its own error message. */
+/* Limits on the untrusted source; each violation is its own error message
+ * and -E2BIG.  A field left 0 takes its default.  max_depth bounds the
+ * parser's and the compiler's recursion (about 0.5 KB of stack per level),
+ * counting parentheses, unary minus and '^' nesting, and the height of the
+ * tree itself: a chain a+b+c+... of n terms is n-1 levels deep, while
+ * min(a, b, c, ...) is one level whatever its argument count. */
 typedef struct {
     uint32_t max_source_bytes; /* default 65536 */
-    uint32_t max_depth;        /* nesting depth of the syntax tree, default 256 */
+    uint32_t max_depth;        /* nesting depth, default 256, at most 1024 */
     uint32_t max_nodes;        /* syntax tree nodes, default 100000 */
 } expr_limits;
 
 #define EXPR_DEFAULT_MAX_SOURCE 65536u
 #define EXPR_DEFAULT_MAX_DEPTH 256u
 #define EXPR_DEFAULT_MAX_NODES 100000u
+#define EXPR_MAX_DEPTH_CAP 1024u /* larger max_depth values are lowered to it */
 
 typedef struct {
     int line, col;  /* 1-based position of the problem in the source (0 if none) */

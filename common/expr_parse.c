@@ -703,7 +703,8 @@ int expr_parse(const char *src, size_t len, const expr_limits *lim,
     expr_limits_default(&l);
     if (lim) {
         if (lim->max_source_bytes) l.max_source_bytes = lim->max_source_bytes;
-        if (lim->max_depth) l.max_depth = lim->max_depth < 65535 ? lim->max_depth : 65535;
+        if (lim->max_depth)
+            l.max_depth = lim->max_depth < EXPR_MAX_DEPTH_CAP ? lim->max_depth : EXPR_MAX_DEPTH_CAP;
         if (lim->max_nodes) l.max_nodes = lim->max_nodes;
     }
     memset(prog, 0, sizeof *prog);
