@@ -1,0 +1,227 @@
+/* daemon — voxd's server: a libuv loop for clients, signals and timers, and
+ * one engine thread that runs the jobs (the nginx model: the master
+ * supervises, the forked workers compute).
+ *
+ *   loop thread (libuv)                       engine thread (pthread)
+ *     listener, clients, frame decoders          creates the engine (it must
+ *     signals: TERM/INT QUIT HUP USR1            outlive it: PR_SET_PDEATHSIG
+ *     housekeeping timer: timeouts               is per thread), pops jobs,
+ *     job queue (push), cancels  --- mu/cv -->   compiles, voxelizes, writes
+ *     results to the clients     <-- async ---   the VOD into a memfd
+ *
+ * Everything a client sends goes through frame_decode and
+ * proto_check_request once, in daemon_client.c; past that it is trusted.
+ *
+ * Threads.  d->mu guards what both threads touch: the queue, the running
+ * job, the done list, each job's progress, the worker snapshot, the
+ * engine thread's log lines and its flags.  A job is owned by the loop
+ * while it is nowhere or delivering, by the queue while queued (the loop
+ * may take it out), and by the engine thread while running (the loop may
+ * only set its cancel code and flag).  Only the loop logs: the engine
+ * thread posts lines (d->elog) that the loop writes.
+ */
+#ifndef VOXD_DAEMON_H
+#define VOXD_DAEMON_H
+
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdint.h>
+#include <sys/types.h>
+#include <uv.h>
+
+#include "config.h"
+#include "engine.h"
+#include "frame.h"
+#include "voxd.pb-c.h"
+
+#define VD_SERVER_NAME "voxd 0.1"
+#define VD_DEFAULT_CLIENT_TIMEOUT 30u /* seconds: hello, one frame, a stalled write */
+#define VD_TICK_MS 100                /* housekeeping period */
+#define VD_READ_BUF (64u << 10)       /* one read's buffer, shared by all clients */
+#define VD_ELOG_LINES 32              /* engine thread log lines awaiting the loop */
+#define VD_STOP_GRACE_MS 2000         /* fast stop: how long clients get to read their errors */
+
+typedef struct vd_daemon vd_daemon;
+typedef struct vd_client vd_client;
+typedef struct vd_job vd_job;
+
+/* Settings from the command line that the config file does not hold. */
+typedef struct {
+    const char *config_path;   /* NULL: /etc/voxd/voxd.conf if it exists */
+    const char *socket;        /* --socket: absolute, overrides the file's */
+    int workers;               /* --workers: overrides the file's; 0 = not given */
+    unsigned client_timeout;   /* seconds; 0 = VD_DEFAULT_CLIENT_TIMEOUT */
+    int ready_fd;              /* --daemon: write 1 byte here once serving; -1 none */
+} vd_options;
+
+enum vd_job_state { VD_QUEUED, VD_RUNNING, VD_DONE, VD_DELIVERING };
+
+struct vd_job {
+    uint64_t id;
+    uid_t uid;
+    vd_client *client;         /* NULL once the client is gone (loop only) */
+    vd_job *next;              /* queue / done list (under mu) */
+    vd_job *cnext;             /* the client's jobs (loop only) */
+    int state;                 /* enum vd_job_state (under mu) */
+
+    /* the request, copied and checked */
+    char *source;              /* NUL-terminated */
+    size_t source_len;
+    double lo[3], hi[3];
+    uint32_t res;
+    int schedule;              /* engine_schedule */
+    int channel;               /* VOXEL_CH_* */
+    uint32_t brick, comp, hash;
+    /* limits at submit time (a HUP does not change a job's) */
+    uint32_t max_expr_bytes, max_expr_depth, job_timeout;
+    uint64_t max_result_bytes;
+
+    /* stopping it: the loop sets cancel_code under mu, then cancel */
+    atomic_int cancel;
+    int cancel_code;           /* Voxd__ErrorCode, 0 = none asked */
+
+    double t_submit, t_start;  /* monotonic seconds */
+    engine_progress progress;  /* under mu */
+    unsigned progress_seq, progress_sent;
+
+    /* the outcome (engine thread, then the loop) */
+    int code;                  /* 0 = success, else Voxd__ErrorCode */
+    char message[512];
+    int fd;                    /* memfd holding the VOD, -1 none */
+    uint8_t *map;              /* the memfd mapped for delivery, NULL none */
+    uint64_t size, sent;       /* bytes of the VOD, bytes sent as chunks */
+    uint64_t voxels;
+    vod_stats st;
+    double t_voxelize, t_write;
+};
+
+struct vd_client {
+    uv_pipe_t pipe;            /* first: handle->data is not needed */
+    vd_daemon *d;
+    vd_client *prev, *next;    /* d->clients */
+    frame_decoder dec;
+    uid_t uid;
+    pid_t pid;
+    int hello;                 /* Hello received */
+    int closing;               /* uv_close called */
+    int flush_close;           /* close once the write queue is empty */
+    int reading;               /* uv_read_start in effect */
+    unsigned writes;           /* uv_write requests in flight */
+    double t_connect;          /* monotonic seconds */
+    double t_frame;            /* when the partial frame began, 0 = none */
+    double t_write;            /* last write progress while writes pend */
+    vd_job *jobs;              /* its jobs in every state (cnext) */
+    vd_job *deliver, *deliver_tail; /* finished jobs to stream, in order (next) */
+};
+
+typedef struct {
+    pid_t pid;
+    int cpu;
+    uint64_t jobs;
+    double vps;
+} vd_worker_snap;
+
+struct vd_daemon {
+    uv_loop_t *loop;
+    voxd_config cfg;           /* loop's copy: limits of new requests */
+    vd_options opt;
+    char shm_name[64];
+    double t_start;
+
+    uv_pipe_t listener;
+    int listening;
+    uv_signal_t sig_term, sig_int, sig_quit, sig_hup, sig_usr1;
+    uv_timer_t tick, stop_timer;
+    uv_async_t wake;
+    int stopping;              /* 0, VD_STOP_GRACEFUL, VD_STOP_FAST */
+    int exiting;               /* handles are being closed */
+    int exit_code;
+
+    vd_client *clients;
+    unsigned nclients;
+    uint64_t next_job_id;
+    uint8_t readbuf[VD_READ_BUF];
+
+    /* ---- shared with the engine thread, under mu ---- */
+    pthread_mutex_t mu;
+    pthread_cond_t cv;         /* engine thread: work, reload or quit */
+    pthread_cond_t started_cv; /* loop: the engine was created (or not) */
+    pthread_t thread;
+    int thread_started;
+    vd_job *queue, *queue_tail;
+    unsigned nqueued;
+    vd_job *running;
+    vd_job *done, *done_tail;
+    int quit, reload;
+    int engine_state;          /* 0 starting, 1 ready, -errno failed */
+    char engine_err[256];
+    engine_opts eopts;         /* the next engine's (reload copies in) */
+    int cpus[CONFIG_MAX_CPUS];
+    int nworkers;
+    vd_worker_snap workers[ENGINE_MAX_WORKERS];
+    struct { int level; char text[300]; } elog[VD_ELOG_LINES];
+    unsigned elog_n, elog_dropped;
+};
+
+enum { VD_STOP_GRACEFUL = 1, VD_STOP_FAST = 2 };
+
+/* voxd.c: the whole server, from a loaded config to the end.  The caller
+ * has opened the log, holds the lock and removed stale files.  Returns the
+ * process exit code. */
+int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name);
+
+/* daemon.c */
+double vd_now(void);
+/* The configuration the options name: the file (or the defaults when no
+ * file was named and /etc/voxd/voxd.conf does not exist), then the
+ * command line's overrides.  0 or -errno with a message in err. */
+int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen);
+void vd_maybe_exit(vd_daemon *d);
+void vd_engine_opts(vd_daemon *d, const voxd_config *c); /* under mu */
+
+/* daemon_engine.c */
+int vd_engine_start(vd_daemon *d);
+void vd_engine_stop(vd_daemon *d);
+void vd_on_wake(uv_async_t *a);
+void vd_job_free(vd_job *j);
+/* Set j's terminal error from its cancel_code (a person's words for it). */
+void vd_job_stopped(vd_job *j);
+/* Push a checked job onto the queue; the caller counted the limits. */
+void vd_queue_push(vd_daemon *d, vd_job *j);
+/* Admit j if the queue and j's uid have room: 0 (queued, *pos = jobs
+ * ahead of it), or VOXD__ERROR_CODE__BUSY / __LIMIT_EXCEEDED. */
+int vd_queue_admit(vd_daemon *d, vd_job *j, uint32_t *pos);
+/* Stop a job wherever it is: queued ones are taken out and get their
+ * terminal error now (1 is returned), a running one is told to stop with
+ * code and gets it when the engine returns (0). */
+int vd_job_stop(vd_daemon *d, vd_job *j, int code);
+int vd_busy(vd_daemon *d); /* jobs queued, running or delivering */
+
+/* daemon_client.c */
+void vd_on_connection(uv_stream_t *server, int status);
+void vd_client_close(vd_client *c);
+void vd_client_close_after_flush(vd_client *c);
+void vd_client_tick(vd_client *c, double now);
+int vd_client_send(vd_client *c, const Voxd__Reply *r);
+int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+void vd_client_pump(vd_client *c);
+/* The job's terminal error to its client (if any), the job out of the
+ * client's list and freed. */
+void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg);
+/* A finished job from the engine: its terminal error, or on to delivery. */
+void vd_job_finished(vd_daemon *d, vd_job *j);
+void vd_client_unlink_job(vd_client *c, vd_job *j);
+
+/* daemon_reply.c */
+int vd_send_hello_ok(vd_client *c);
+int vd_send_accepted(vd_client *c, uint64_t id, uint32_t pos);
+int vd_send_progress(vd_client *c, const vd_job *j, const engine_progress *p);
+int vd_send_chunk(vd_client *c, const vd_job *j, const uint8_t *data, size_t n);
+int vd_send_summary(vd_client *c, const vd_job *j);
+int vd_send_status(vd_client *c);
+int vd_send_pong(vd_client *c, uint64_t token);
+/* Text for an Error message: printable ASCII, newline and tab; the rest '?'. */
+void vd_clean_text(char *s);
+
+#endif

@@ -1,0 +1,530 @@
+/* Connections: accept (max_clients, SO_PEERCRED against allow_uids), read
+ * and decode frames (the one boundary check), answer requests, stream
+ * results under a bounded write queue, and time out clients that stall. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/socket.h>
+
+#include "daemon.h"
+#include "log.h"
+#include "proto_check.h"
+#include "vod.h"
+#include "voxel.h"
+
+typedef struct {
+    uv_write_t req;
+    uint8_t *buf;
+    size_t len;
+} vd_write;
+
+static void start_reading(vd_client *c);
+
+static size_t queued_bytes(vd_client *c)
+{
+    return uv_stream_get_write_queue_size((uv_stream_t *)&c->pipe);
+}
+
+/* Chunks are produced while fewer bytes than this wait in user space. */
+static size_t pump_mark(const vd_client *c)
+{
+    return c->d->cfg.chunk_size;
+}
+
+/* Reading stops while more than this waits: a client that sends requests
+ * and never reads the replies cannot grow the queue without bound. */
+static size_t read_mark(const vd_client *c)
+{
+    return 2 * (size_t)c->d->cfg.max_frame + c->d->cfg.chunk_size;
+}
+
+static double client_timeout(const vd_client *c)
+{
+    return c->d->opt.client_timeout;
+}
+
+/* ---------------------------------------------------------------- closing */
+
+static void on_closed(uv_handle_t *h)
+{
+    vd_client *c = (vd_client *)h;
+    vd_daemon *d = c->d;
+    frame_decoder_free(&c->dec);
+    free(c);
+    vd_maybe_exit(d);
+}
+
+void vd_client_unlink_job(vd_client *c, vd_job *j)
+{
+    for (vd_job **pp = &c->jobs; *pp; pp = &(*pp)->cnext)
+        if (*pp == j) {
+            *pp = j->cnext;
+            break;
+        }
+    j->cnext = NULL;
+    j->client = NULL;
+}
+
+static void unlink_delivery(vd_client *c, vd_job *j)
+{
+    vd_job *prev = NULL;
+    for (vd_job *q = c->deliver; q; prev = q, q = q->next)
+        if (q == j) {
+            if (prev) prev->next = j->next;
+            else c->deliver = j->next;
+            if (c->deliver_tail == j) c->deliver_tail = prev;
+            j->next = NULL;
+            return;
+        }
+}
+
+/* The client is gone: its queued jobs are freed now, a running one is
+ * cancelled and freed when the engine gives it back. */
+static void drop_jobs(vd_client *c)
+{
+    vd_daemon *d = c->d;
+    while (c->jobs) {
+        vd_job *j = c->jobs;
+        vd_client_unlink_job(c, j);
+        if (j->state == VD_DELIVERING) {
+            vd_job_free(j);
+        } else if (vd_job_stop(d, j, VOXD__ERROR_CODE__CANCELLED)) {
+            log_info("job %llu: cancelled, its client left", (unsigned long long)j->id);
+            vd_job_free(j);
+        } else {
+            log_info("job %llu: stopping, its client left", (unsigned long long)j->id);
+        }
+    }
+    c->deliver = c->deliver_tail = NULL;
+}
+
+void vd_client_close(vd_client *c)
+{
+    if (c->closing) return;
+    vd_daemon *d = c->d;
+    c->closing = 1;
+    drop_jobs(c);
+    if (c->prev) c->prev->next = c->next;
+    else d->clients = c->next;
+    if (c->next) c->next->prev = c->prev;
+    d->nclients--;
+    /* A worker forked while this connection was open holds a copy of its
+     * descriptor: shutdown() ends the connection for the peer whoever
+     * holds one; close alone would not. */
+    uv_os_fd_t fd;
+    if (uv_fileno((uv_handle_t *)&c->pipe, &fd) == 0) shutdown(fd, SHUT_RDWR);
+    uv_close((uv_handle_t *)&c->pipe, on_closed);
+}
+
+void vd_client_close_after_flush(vd_client *c)
+{
+    if (c->closing) return;
+    c->flush_close = 1;
+    if (c->reading) uv_read_stop((uv_stream_t *)&c->pipe);
+    c->reading = 0;
+    if (c->writes == 0) vd_client_close(c);
+}
+
+/* ---------------------------------------------------------------- writing */
+
+static void on_write(uv_write_t *req, int status)
+{
+    vd_write *w = (vd_write *)req;
+    vd_client *c = req->data;
+    free(w->buf);
+    free(w);
+    c->writes--;
+    if (c->closing) return;
+    if (status < 0) {
+        log_debug("client pid %d: write failed: %s", (int)c->pid, uv_strerror(status));
+        vd_client_close(c);
+        return;
+    }
+    c->t_write = vd_now();
+    if (c->flush_close) {
+        if (c->writes == 0) vd_client_close(c);
+        return;
+    }
+    if (!c->reading && queued_bytes(c) <= read_mark(c)) start_reading(c);
+    vd_client_pump(c);
+}
+
+int vd_client_send(vd_client *c, const Voxd__Reply *r)
+{
+    if (c->closing) return -EPIPE;
+    vd_write *w = malloc(sizeof *w);
+    int rc = w ? frame_encode_reply(r, &w->buf, &w->len) : -ENOMEM;
+    if (rc) {
+        free(w);
+        log_error("client pid %d: cannot encode a reply: %s", (int)c->pid, strerror(-rc));
+        vd_client_close(c);
+        return rc;
+    }
+    if (c->writes == 0) c->t_write = vd_now();
+    uv_buf_t b = uv_buf_init((char *)w->buf, (unsigned)w->len);
+    w->req.data = c;
+    rc = uv_write(&w->req, (uv_stream_t *)&c->pipe, &b, 1, on_write);
+    if (rc) {
+        free(w->buf);
+        free(w);
+        vd_client_close(c);
+        return -EPIPE;
+    }
+    c->writes++;
+    return 0;
+}
+
+/* ---------------------------------------------------------------- results */
+
+void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg)
+{
+    (void)d;
+    vd_client *c = j->client;
+    log_info("job %llu: %s: %s", (unsigned long long)j->id, proto_error_code_name(code), msg);
+    /* Out of the client's list first: a failed send closes the client,
+     * which frees the jobs still listed. */
+    if (c) vd_client_unlink_job(c, j);
+    if (c) vd_client_error(c, j->id, code, "%s", msg);
+    vd_job_free(j);
+}
+
+void vd_job_finished(vd_daemon *d, vd_job *j)
+{
+    vd_client *c = j->client;
+    if (!c) {
+        vd_job_free(j);
+        return;
+    }
+    if (j->cancel_code && j->code == 0) vd_job_stopped(j);
+    if (j->code) {
+        vd_job_fail(d, j, j->code, j->message);
+        return;
+    }
+    void *map = mmap(NULL, j->size, PROT_READ, MAP_SHARED, j->fd, 0);
+    if (map == MAP_FAILED) {
+        vd_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, "cannot read the result back");
+        return;
+    }
+    j->map = map;
+    log_info("job %llu: %llu voxels, %llu bytes in %.3f s", (unsigned long long)j->id,
+             (unsigned long long)j->voxels, (unsigned long long)j->size,
+             j->t_voxelize + j->t_write);
+    j->state = VD_DELIVERING;
+    j->next = NULL;
+    if (c->deliver_tail) c->deliver_tail->next = j;
+    else c->deliver = j;
+    c->deliver_tail = j;
+    vd_client_pump(c);
+}
+
+/* Stream the finished results: one chunk at a time while the write queue
+ * is short, then the summary. */
+void vd_client_pump(vd_client *c)
+{
+    while (!c->closing && c->deliver && queued_bytes(c) < pump_mark(c)) {
+        vd_job *j = c->deliver;
+        if (j->sent < j->size) {
+            uint64_t n = j->size - j->sent;
+            if (n > c->d->cfg.chunk_size) n = c->d->cfg.chunk_size;
+            if (vd_send_chunk(c, j, j->map + j->sent, (size_t)n)) return;
+            j->sent += n;
+            continue;
+        }
+        if (vd_send_summary(c, j)) return;
+        unlink_delivery(c, j);
+        vd_client_unlink_job(c, j);
+        vd_job_free(j);
+    }
+    if (!c->closing) vd_maybe_exit(c->d);
+}
+
+/* ---------------------------------------------------------------- requests */
+
+static int on_hello(vd_client *c, const Voxd__Hello *h)
+{
+    if (c->hello)
+        return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                               "hello was already received on this connection");
+    c->hello = 1;
+    log_debug("client pid %d uid %u: hello from \"%s\"", (int)c->pid, (unsigned)c->uid,
+              h->client ? h->client : "");
+    return vd_send_hello_ok(c);
+}
+
+static void job_from_request(vd_job *j, const Voxd__Submit *s)
+{
+    const Voxd__Implicit *im = s->implicit;
+    for (int a = 0; a < 3; a++) {
+        size_t k = im->n_domain == 2 ? 0 : 2 * (size_t)a;
+        j->lo[a] = im->domain[k];
+        j->hi[a] = im->domain[k + 1];
+    }
+    j->res = im->res;
+    j->schedule = im->schedule == VOXD__SCHEDULE__SCHEDULE_PAPER ? ENGINE_SCHED_PAPER
+                                                                 : ENGINE_SCHED_SUBTREE;
+    j->channel = s->channel == VOXD__CHANNEL__CHANNEL_OCCUPANCY ? VOXEL_CH_OCCUPANCY
+                                                               : VOXEL_CH_SURFACE;
+    j->brick = s->brick ? s->brick : VOD_DEFAULT_BRICK;
+    j->comp = s->comp == VOXD__COMPRESSION__COMPRESSION_NONE   ? VOD_COMP_NONE
+              : s->comp == VOXD__COMPRESSION__COMPRESSION_RUNL ? VOD_COMP_RUNL
+                                                               : VOD_COMP_ZLIB;
+    j->hash = s->hash == VOXD__HASH__HASH_XX32 ? VOD_HASH_XX32 : VOD_HASH_SFHS;
+}
+
+static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
+{
+    const voxd_config *cfg = &c->d->cfg;
+    const ProtobufCBinaryData *src = &s->implicit->source;
+    vd_job *j = calloc(1, sizeof *j);
+    if (!j || !(j->source = malloc(src->len + 1))) {
+        free(j);
+        return NULL;
+    }
+    memcpy(j->source, src->data, src->len);
+    j->source[src->len] = '\0';
+    j->source_len = src->len;
+    job_from_request(j, s);
+    j->uid = c->uid;
+    j->fd = -1;
+    j->max_expr_bytes = cfg->max_expr_bytes;
+    j->max_expr_depth = cfg->max_expr_depth;
+    j->max_result_bytes = cfg->max_result_bytes;
+    j->job_timeout = cfg->job_timeout;
+    j->t_submit = vd_now();
+    return j;
+}
+
+static int on_submit(vd_client *c, const Voxd__Submit *s)
+{
+    vd_daemon *d = c->d;
+    if (d->stopping)
+        return vd_client_error(c, 0, VOXD__ERROR_CODE__SHUTTING_DOWN,
+                               "the daemon is stopping and takes no new jobs");
+    vd_job *j = job_new(c, s);
+    if (!j) return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
+    j->id = d->next_job_id + 1;
+    uint32_t pos;
+    int code = vd_queue_admit(d, j, &pos);
+    if (code == VOXD__ERROR_CODE__BUSY) {
+        vd_job_free(j);
+        return vd_client_error(c, 0, code,
+                               "the job queue is full (max_queued_jobs %u); try again later",
+                               d->cfg.max_queued_jobs);
+    }
+    if (code) {
+        vd_job_free(j);
+        return vd_client_error(c, 0, code,
+                               "uid %u already has %u jobs queued or running "
+                               "(max_jobs_per_uid); wait for one to finish",
+                               (unsigned)c->uid, d->cfg.max_jobs_per_uid);
+    }
+    /* Queued: the engine thread may have it already, but nothing about it
+     * reaches the client before this Accepted (only the loop writes). */
+    d->next_job_id++;
+    j->client = c;
+    j->cnext = c->jobs;
+    c->jobs = j;
+    log_info("job %llu: accepted from uid %u, res %u, %zu bytes of expression",
+             (unsigned long long)j->id, (unsigned)c->uid, j->res, j->source_len);
+    return vd_send_accepted(c, j->id, pos);
+}
+
+static int on_cancel(vd_client *c, uint64_t id)
+{
+    vd_job *j = c->jobs;
+    while (j && j->id != id) j = j->cnext;
+    if (!j)
+        return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                               "no job %llu on this connection (finished, or not yours)",
+                               (unsigned long long)id);
+    if (j->state == VD_DELIVERING) {
+        unlink_delivery(c, j);
+        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by the client");
+    } else if (vd_job_stop(c->d, j, VOXD__ERROR_CODE__CANCELLED)) {
+        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by the client");
+    }
+    /* else running: its terminal error comes when the engine stops it */
+    return 0;
+}
+
+static void dispatch(vd_client *c, const Voxd__Request *r)
+{
+    if (!c->hello && r->msg_case != VOXD__REQUEST__MSG_HELLO) {
+        vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                        "the first message must be hello (protocol version %u)",
+                        PROTO_VERSION);
+        vd_client_close_after_flush(c);
+        return;
+    }
+    switch (r->msg_case) {
+    case VOXD__REQUEST__MSG_HELLO: on_hello(c, r->hello); break;
+    case VOXD__REQUEST__MSG_SUBMIT: on_submit(c, r->submit); break;
+    case VOXD__REQUEST__MSG_CANCEL: on_cancel(c, r->cancel->job_id); break;
+    case VOXD__REQUEST__MSG_STATUS: vd_send_status(c); break;
+    case VOXD__REQUEST__MSG_PING: vd_send_pong(c, r->ping->token); break;
+    default: break; /* proto_check_request refused it */
+    }
+}
+
+static void on_frame(vd_client *c, const uint8_t *data, size_t len)
+{
+    Voxd__Request *r = frame_unpack_request(data, len);
+    if (!r) {
+        log_info("client pid %d: garbage frame of %zu bytes; closing", (int)c->pid, len);
+        vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                        "malformed request: not a voxd protocol message");
+        vd_client_close_after_flush(c);
+        return;
+    }
+    proto_limits lim;
+    proto_error pe;
+    config_proto_limits(&c->d->cfg, &lim);
+    if (proto_check_request(r, &lim, &pe) == 0) {
+        dispatch(c, r);
+    } else {
+        log_debug("client pid %d: refused request: %s", (int)c->pid, pe.msg);
+        vd_client_error(c, 0, pe.code, "%s", pe.msg);
+        /* A bad hello ends the conversation; a bad job only the job. */
+        if (!c->hello) vd_client_close_after_flush(c);
+    }
+    voxd__request__free_unpacked(r, NULL);
+}
+
+/* ---------------------------------------------------------------- reading */
+
+static void on_alloc(uv_handle_t *h, size_t hint, uv_buf_t *buf)
+{
+    (void)hint;
+    vd_client *c = (vd_client *)h;
+    /* One buffer for every client: a read is consumed before the next. */
+    *buf = uv_buf_init((char *)c->d->readbuf, sizeof c->d->readbuf);
+}
+
+static void on_bytes(vd_client *c, const uint8_t *p, size_t n)
+{
+    frame_view f;
+    int rc = 0;
+    while (!c->closing && !c->flush_close && (rc = frame_decode(&c->dec, &p, &n, &f)) == 1)
+        on_frame(c, f.data, f.len);
+    if (rc < 0 && !c->closing) {
+        char why[128];
+        frame_decoder_strerror(&c->dec, rc, why, sizeof why);
+        log_info("client pid %d: %s; closing", (int)c->pid, why);
+        vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                        "%s (max_frame %u); closing the connection", why, c->d->cfg.max_frame);
+        vd_client_close_after_flush(c);
+        return;
+    }
+    if (frame_decoder_pending(&c->dec) == 0) c->t_frame = 0;
+    else if (c->t_frame == 0) c->t_frame = vd_now();
+}
+
+static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+{
+    vd_client *c = (vd_client *)s;
+    if (c->closing) return;
+    if (nread > 0) {
+        on_bytes(c, (const uint8_t *)buf->base, (size_t)nread);
+        if (!c->closing && c->reading && queued_bytes(c) > read_mark(c)) {
+            uv_read_stop(s); /* on_write starts it again */
+            c->reading = 0;
+        }
+        return;
+    }
+    if (nread == 0) return;
+    if (frame_decoder_finish(&c->dec) == -EPIPE)
+        log_info("client pid %d: connection ended inside a frame", (int)c->pid);
+    else if (nread != UV_EOF)
+        log_debug("client pid %d: read failed: %s", (int)c->pid, uv_strerror((int)nread));
+    vd_client_close(c);
+}
+
+static void start_reading(vd_client *c)
+{
+    if (uv_read_start((uv_stream_t *)&c->pipe, on_alloc, on_read) == 0) c->reading = 1;
+}
+
+/* ---------------------------------------------------------------- accepting */
+
+static int peer_uid(vd_client *c)
+{
+    struct ucred cred;
+    socklen_t len = sizeof cred;
+    uv_os_fd_t fd;
+    if (uv_fileno((uv_handle_t *)&c->pipe, &fd) ||
+        getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &cred, &len) != 0)
+        return -errno;
+    c->uid = cred.uid;
+    c->pid = cred.pid;
+    return 0;
+}
+
+/* Refuse with a typed error, then close once it is written. */
+static void refuse(vd_client *c, int code, const char *why)
+{
+    vd_client_error(c, 0, code, "%s", why);
+    vd_client_close_after_flush(c);
+}
+
+void vd_on_connection(uv_stream_t *server, int status)
+{
+    vd_daemon *d = server->data;
+    if (status < 0) {
+        log_warn("accept: %s", uv_strerror(status));
+        return;
+    }
+    vd_client *c = calloc(1, sizeof *c);
+    if (!c) return;
+    c->d = d;
+    if (uv_pipe_init(d->loop, &c->pipe, 0) || uv_accept(server, (uv_stream_t *)&c->pipe)) {
+        uv_close((uv_handle_t *)&c->pipe, (uv_close_cb)free);
+        return;
+    }
+    frame_decoder_init(&c->dec, d->cfg.max_frame);
+    c->t_connect = vd_now();
+    c->next = d->clients;
+    if (d->clients) d->clients->prev = c;
+    d->clients = c;
+    unsigned before = d->nclients++;
+    if (peer_uid(c)) {
+        vd_client_close(c);
+    } else if (!config_uid_allowed(&d->cfg, c->uid)) {
+        log_warn("refused a connection from uid %u (pid %d): not in allow_uids",
+                 (unsigned)c->uid, (int)c->pid);
+        refuse(c, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
+               "this uid may not use this server (allow_uids in its config)");
+    } else if (before >= d->cfg.max_clients) {
+        log_warn("refused a connection from uid %u: %u clients (max_clients)",
+                 (unsigned)c->uid, before);
+        refuse(c, VOXD__ERROR_CODE__BUSY,
+               "too many connections (max_clients); try again later");
+    } else {
+        log_debug("client pid %d uid %u connected", (int)c->pid, (unsigned)c->uid);
+        start_reading(c);
+    }
+}
+
+/* ---------------------------------------------------------------- timeouts */
+
+void vd_client_tick(vd_client *c, double now)
+{
+    double t = client_timeout(c);
+    if (c->closing) return;
+    if (c->writes && now - c->t_write > t) {
+        log_info("client pid %d: has not read its replies for %.0f s; dropping it",
+                 (int)c->pid, t);
+        vd_client_close(c);
+        return;
+    }
+    if (c->flush_close) return;
+    const char *what = !c->hello && now - c->t_connect > t ? "no hello"
+                       : c->t_frame && now - c->t_frame > t ? "a frame did not complete"
+                                                             : NULL;
+    if (!what) return;
+    log_info("client pid %d: %s within %.0f s; closing", (int)c->pid, what, t);
+    vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                    "%s within %.0f s; closing the connection", what, t);
+    vd_client_close_after_flush(c);
+}

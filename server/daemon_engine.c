@@ -1,0 +1,556 @@
+/* The engine thread: it creates the engine, runs the queued jobs one at a
+ * time (every worker on each), writes each VOD into a memfd bounded by
+ * max_result_bytes and hands the job back to the loop (d->done + async). */
+#include <errno.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "daemon.h"
+#include "expr.h"
+#include "log.h"
+#include "subdiv.h"
+#include "vod.h"
+#include "voxel.h"
+
+#define IDLE_CHECK_S 1 /* how often an idle engine thread looks for dead workers */
+
+/* ---------------------------------------------------------------- helpers */
+
+/* A line for the loop to log (the log is the loop's).  Under mu. */
+__attribute__((format(printf, 3, 4))) static void elog(vd_daemon *d, int level,
+                                                       const char *fmt, ...)
+{
+    if (d->elog_n == VD_ELOG_LINES) {
+        d->elog_dropped++;
+        return;
+    }
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(d->elog[d->elog_n].text, sizeof d->elog[0].text, fmt, ap);
+    va_end(ap);
+    d->elog[d->elog_n++].level = level;
+}
+
+void vd_job_free(vd_job *j)
+{
+    if (!j) return;
+    if (j->map) munmap(j->map, j->size);
+    if (j->fd >= 0) close(j->fd);
+    free(j->source);
+    free(j);
+}
+
+/* Worker pids as the engine sees them now; a changed pid is a worker that
+ * died and was forked again.  Engine thread, under mu. */
+static void snapshot(vd_daemon *d, engine *e)
+{
+    int n = engine_workers(e);
+    for (int i = 0; i < n; i++) {
+        vd_worker_snap *w = &d->workers[i];
+        pid_t pid = engine_worker_pid(e, i);
+        if (w->pid > 0 && pid > 0 && pid != w->pid)
+            elog(d, LOG_LEVEL_WARN,
+                 "worker %d (pid %d) died; forked again as pid %d on CPU %d", i,
+                 (int)w->pid, (int)pid, engine_worker_cpu(e, i));
+        if (pid > 0) w->pid = pid;
+        w->cpu = engine_worker_cpu(e, i);
+    }
+    d->nworkers = n;
+}
+
+static void wake_loop(vd_daemon *d)
+{
+    uv_async_send(&d->wake);
+}
+
+/* ---------------------------------------------------------------- engine life */
+
+static engine *engine_make(vd_daemon *d)
+{
+    engine *e = NULL;
+    char err[256] = "";
+    engine_opts o = d->eopts;
+    pthread_mutex_unlock(&d->mu);
+    int rc = engine_create(&o, &e, err, sizeof err);
+    pthread_mutex_lock(&d->mu);
+    if (rc) {
+        snprintf(d->engine_err, sizeof d->engine_err, "%s",
+                 err[0] ? err : strerror(-rc));
+        d->engine_state = rc;
+        return NULL;
+    }
+    memset(d->workers, 0, sizeof d->workers);
+    snapshot(d, e);
+    d->engine_state = 1;
+    return e;
+}
+
+/* A worker that died between jobs is still a zombie: the engine reaps and
+ * forks it again when a job starts.  Look with WNOWAIT (the engine's
+ * waitpid must still see it) and, if one died, let engine_voxelize do it
+ * now with an empty job: it checks every worker first, then refuses the
+ * job (-EINVAL, "the job has no tape") without touching anything else. */
+static void reap_idle(vd_daemon *d, engine *e)
+{
+    int dead = 0;
+    for (int i = 0; i < engine_workers(e) && !dead; i++) {
+        siginfo_t si = {0};
+        pid_t pid = engine_worker_pid(e, i);
+        if (pid > 0 && waitid(P_PID, (id_t)pid, &si, WEXITED | WNOHANG | WNOWAIT) == 0 &&
+            si.si_pid == pid)
+            dead = 1;
+    }
+    if (!dead) return;
+    engine_job none = {0};
+    engine_result r;
+    pthread_mutex_unlock(&d->mu);
+    engine_voxelize(e, &none, &r);
+    pthread_mutex_lock(&d->mu);
+    snapshot(d, e);
+    wake_loop(d);
+}
+
+/* ---------------------------------------------------------------- one job */
+
+typedef struct {
+    vd_daemon *d;
+    vd_job *j;
+    engine *e;
+} progress_ctx;
+
+static void on_progress(void *ud, const engine_progress *p)
+{
+    progress_ctx *x = ud;
+    pthread_mutex_lock(&x->d->mu);
+    x->j->progress = *p;
+    x->j->progress_seq++;
+    snapshot(x->d, x->e);
+    pthread_mutex_unlock(&x->d->mu);
+    wake_loop(x->d);
+}
+
+/* The VOD goes into a memfd: bounded by the job's max_result_bytes and
+ * stopped by its cancel flag. */
+typedef struct {
+    vd_job *j;
+} result_sink;
+
+static int sink_write(void *ud, const void *buf, size_t n)
+{
+    vd_job *j = ((result_sink *)ud)->j;
+    /* relaxed: a flag, see engine_job.cancel */
+    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) return -ECANCELED;
+    if (n > j->max_result_bytes - j->size) return -EFBIG;
+    const uint8_t *p = buf;
+    while (n) {
+        ssize_t w = write(j->fd, p, n);
+        if (w < 0 && errno == EINTR) continue;
+        if (w <= 0) return w < 0 ? -errno : -EIO;
+        p += w;
+        n -= (size_t)w;
+        j->size += (uint64_t)w;
+    }
+    return 0;
+}
+
+__attribute__((format(printf, 3, 4))) static int job_error(vd_job *j, int code,
+                                                           const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(j->message, sizeof j->message, fmt, ap);
+    va_end(ap);
+    j->code = code;
+    return -1;
+}
+
+void vd_job_stopped(vd_job *j)
+{
+    switch (j->cancel_code) {
+    case VOXD__ERROR_CODE__TIMEOUT:
+        job_error(j, j->cancel_code,
+                  "the job ran past this server's job_timeout of %u s; ask for a lower "
+                  "res or a simpler expression",
+                  j->job_timeout);
+        break;
+    case VOXD__ERROR_CODE__SHUTTING_DOWN:
+        job_error(j, j->cancel_code, "the daemon is stopping");
+        break;
+    default: job_error(j, VOXD__ERROR_CODE__CANCELLED, "cancelled by the client"); break;
+    }
+}
+
+static int compile(vd_job *j, expr_tape **tape)
+{
+    expr_limits lim;
+    expr_limits_default(&lim);
+    lim.max_source_bytes = j->max_expr_bytes;
+    lim.max_depth = j->max_expr_depth;
+    expr_error xe = {0};
+    int rc = expr_compile(j->source, j->source_len, &lim, tape, &xe);
+    if (rc == 0) return 0;
+    int code = rc == -E2BIG ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
+               : rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
+                               : VOXD__ERROR_CODE__INTERNAL;
+    if (xe.line > 0)
+        return job_error(j, code, "expression:%d:%d: %s", xe.line, xe.col, xe.msg);
+    return job_error(j, code, "expression: %s", xe.msg[0] ? xe.msg : strerror(-rc));
+}
+
+/* The metadata of `vox voxelize` (client/cli_voxelize.c make_metadata), so
+ * the same job gives the same bytes embedded or through the daemon.  A
+ * source that `vox voxelize` names by its file is named by its size. */
+static void make_metadata(char *buf, size_t cap, const vd_job *j, const subdiv_grid *g)
+{
+    char line[512];
+    size_t n = strcspn(j->source, "\n");
+    if (j->source_len > 200 || n < j->source_len)
+        snprintf(line, sizeof line, "submitted:%zu bytes", j->source_len);
+    else
+        snprintf(line, sizeof line, "%s", j->source);
+    snprintf(buf, cap,
+             "generator=vox voxelize\nsource=%s\nresolution=%u\n"
+             "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\n",
+             line, j->res, g->res[0], g->res[1], g->res[2], j->lo[0], j->hi[0],
+             j->lo[1], j->hi[1], j->lo[2], j->hi[2]);
+}
+
+static void vod_setup(vod_params *v, const vd_job *j, const subdiv_grid *g, const char *meta)
+{
+    vod_params_default(v);
+    v->channel = j->channel;
+    v->brick = j->brick;
+    v->comp = j->comp;
+    v->hash = j->hash;
+    v->metadata = meta;
+    for (int a = 0; a < 3; a++) {
+        v->volume[a] = g->res[a];
+        v->voxel_scale[a] = (float)g->vs;
+        v->origin[a] = (float)g->lo[a];
+    }
+}
+
+static int engine_code(vd_job *j, int rc)
+{
+    if (rc == -ECANCELED && j->cancel_code) return j->cancel_code;
+    switch (rc) {
+    case -EIO: return VOXD__ERROR_CODE__WORKER_CRASHED;
+    case -ENOMEM: case -ENOSPC: case -EFBIG: return VOXD__ERROR_CODE__LIMIT_EXCEEDED;
+    case -EINVAL: return VOXD__ERROR_CODE__INVALID_INPUT;
+    default: return VOXD__ERROR_CODE__INTERNAL;
+    }
+}
+
+static int voxelize(vd_daemon *d, engine *e, vd_job *j, const expr_tape *tape,
+                    const subdiv_grid *g)
+{
+    progress_ctx px = {d, j, e};
+    engine_job job = {.tape = tape, .grid = *g, .schedule = (engine_schedule)j->schedule,
+                      .progress = on_progress, .ud = &px, .cancel = &j->cancel};
+    engine_result r;
+    int rc = engine_voxelize(e, &job, &r);
+    j->t_voxelize = r.seconds;
+    j->voxels = r.voxels;
+    if (rc == 0) return 0;
+    int code = engine_code(j, rc);
+    if (code == VOXD__ERROR_CODE__WORKER_CRASHED)
+        return job_error(j, code, "workers kept dying on this job (%s); the daemon goes on",
+                         r.error);
+    if (rc == -ECANCELED) return vd_job_stopped(j), -1;
+    return job_error(j, code, "voxelization failed: %s", r.error[0] ? r.error : strerror(-rc));
+}
+
+static int write_result(engine *e, vd_job *j, const subdiv_grid *g)
+{
+    char meta[1024], err[256] = "";
+    vod_params v;
+    make_metadata(meta, sizeof meta, j, g);
+    vod_setup(&v, j, g, meta);
+    j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
+    if (j->fd < 0)
+        return job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
+                         strerror(errno));
+    result_sink rs = {j};
+    vod_sink sink = {sink_write, &rs};
+    double t0 = vd_now();
+    int rc = engine_write_vod(e, &v, &sink, &j->st, err, sizeof err);
+    j->t_write = vd_now() - t0;
+    if (rc == 0) return 0;
+    int code = engine_code(j, rc);
+    if (rc == -EFBIG)
+        return job_error(j, code,
+                         "the result is over this server's max_result_bytes (%llu bytes); "
+                         "ask for a lower res or a coarser output",
+                         (unsigned long long)j->max_result_bytes);
+    if (rc == -ECANCELED) return vd_job_stopped(j), -1;
+    return job_error(j, code, "cannot write the VOD: %s", err[0] ? err : strerror(-rc));
+}
+
+static void run_job(vd_daemon *d, engine *e, vd_job *j)
+{
+    expr_tape *tape = NULL;
+    subdiv_grid g;
+    char err[256];
+    if (compile(j, &tape)) return;
+    if (subdiv_grid_make(j->lo, j->hi, j->res, &g, err, sizeof err)) {
+        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", err);
+    } else if (voxelize(d, e, j, tape, &g) == 0 && write_result(e, j, &g) == 0) {
+        j->code = 0;
+    }
+    expr_tape_free(tape);
+}
+
+/* ---------------------------------------------------------------- the thread */
+
+static void job_done(vd_daemon *d, engine *e, vd_job *j)
+{
+    /* A stop asked for wins over an outcome that raced it. */
+    if (j->cancel_code && j->code == 0) vd_job_stopped(j);
+    if (j->code && j->fd >= 0) {
+        close(j->fd);
+        j->fd = -1;
+    }
+    if (j->code == VOXD__ERROR_CODE__WORKER_CRASHED)
+        elog(d, LOG_LEVEL_ERROR, "job %llu: %s", (unsigned long long)j->id, j->message);
+    int n = engine_workers(e);
+    for (int i = 0; i < n; i++) {
+        d->workers[i].jobs++;
+        if (j->code == 0 && j->t_voxelize > 0)
+            d->workers[i].vps = (double)j->voxels / j->t_voxelize / n;
+    }
+    snapshot(d, e);
+    d->running = NULL;
+    j->state = VD_DONE;
+    j->next = NULL;
+    if (d->done_tail) d->done_tail->next = j;
+    else d->done = j;
+    d->done_tail = j;
+}
+
+static void run_next(vd_daemon *d, engine *e)
+{
+    vd_job *j = d->queue;
+    d->queue = j->next;
+    if (!d->queue) d->queue_tail = NULL;
+    d->nqueued--;
+    j->next = NULL;
+    j->state = VD_RUNNING;
+    j->t_start = vd_now();
+    d->running = j;
+    pthread_mutex_unlock(&d->mu);
+    wake_loop(d);
+    /* relaxed: a flag, see engine_job.cancel */
+    if (!atomic_load_explicit(&j->cancel, memory_order_relaxed)) run_job(d, e, j);
+    else vd_job_stopped(j);
+    pthread_mutex_lock(&d->mu);
+    job_done(d, e, j);
+}
+
+/* Between jobs: the loop asked for new workers (SIGHUP). */
+static engine *reload(vd_daemon *d, engine *e)
+{
+    d->reload = 0;
+    pthread_mutex_unlock(&d->mu);
+    engine_destroy(e);
+    pthread_mutex_lock(&d->mu);
+    e = engine_make(d);
+    if (e) elog(d, LOG_LEVEL_INFO, "workers replaced: %d worker(s)", engine_workers(e));
+    else elog(d, LOG_LEVEL_ERROR, "cannot start new workers: %s", d->engine_err);
+    return e;
+}
+
+/* Jobs while there is no engine (a reload failed): each gets INTERNAL, and
+ * the next job tries to create the engine again. */
+static void run_without_engine(vd_daemon *d)
+{
+    vd_job *j = d->queue;
+    d->queue = j->next;
+    if (!d->queue) d->queue_tail = NULL;
+    d->nqueued--;
+    job_error(j, VOXD__ERROR_CODE__INTERNAL, "the daemon has no workers: %s",
+              d->engine_err);
+    j->state = VD_DONE;
+    j->next = NULL;
+    if (d->done_tail) d->done_tail->next = j;
+    else d->done = j;
+    d->done_tail = j;
+}
+
+static void wait_work(vd_daemon *d)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    ts.tv_sec += IDLE_CHECK_S;
+    pthread_cond_timedwait(&d->cv, &d->mu, &ts);
+}
+
+static void *engine_main(void *arg)
+{
+    vd_daemon *d = arg;
+    pthread_mutex_lock(&d->mu);
+    engine *e = engine_make(d);
+    pthread_cond_broadcast(&d->started_cv);
+    /* A failure at start ends the thread (vd_engine_start reports it); a
+     * failed reload later leaves e NULL and the next job tries again. */
+    int started = e != NULL;
+    while (started && !d->quit) {
+        if (d->reload) {
+            e = reload(d, e);
+        } else if (!d->queue) {
+            wait_work(d);
+            if (e && !d->queue && !d->quit && !d->reload) reap_idle(d, e);
+            continue;
+        } else {
+            if (!e) e = engine_make(d); /* a reload failed: try again */
+            if (e) run_next(d, e);
+            else run_without_engine(d);
+        }
+        wake_loop(d);
+    }
+    pthread_mutex_unlock(&d->mu);
+    engine_destroy(e);
+    vod_encode_cleanup();
+    return NULL;
+}
+
+int vd_engine_start(vd_daemon *d)
+{
+    /* The engine thread and the workers it forks take no signal: the loop's
+     * uv_signal handlers get them all (a worker resets its own). */
+    sigset_t all, old;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &old);
+    int rc = pthread_create(&d->thread, NULL, engine_main, d);
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+    if (rc) return -rc;
+    d->thread_started = 1;
+    pthread_mutex_lock(&d->mu);
+    while (d->engine_state == 0) pthread_cond_wait(&d->started_cv, &d->mu);
+    rc = d->engine_state < 0 ? d->engine_state : 0;
+    pthread_mutex_unlock(&d->mu);
+    return rc;
+}
+
+void vd_engine_stop(vd_daemon *d)
+{
+    if (!d->thread_started) return;
+    pthread_mutex_lock(&d->mu);
+    d->quit = 1;
+    if (d->running) {
+        if (!d->running->cancel_code) d->running->cancel_code = VOXD__ERROR_CODE__SHUTTING_DOWN;
+        atomic_store_explicit(&d->running->cancel, 1, memory_order_relaxed);
+    }
+    pthread_cond_signal(&d->cv);
+    pthread_mutex_unlock(&d->mu);
+    pthread_join(d->thread, NULL);
+    d->thread_started = 0;
+}
+
+/* ---------------------------------------------------------------- loop side */
+
+void vd_queue_push(vd_daemon *d, vd_job *j)
+{
+    pthread_mutex_lock(&d->mu);
+    j->state = VD_QUEUED;
+    j->next = NULL;
+    if (d->queue_tail) d->queue_tail->next = j;
+    else d->queue = j;
+    d->queue_tail = j;
+    d->nqueued++;
+    pthread_cond_signal(&d->cv);
+    pthread_mutex_unlock(&d->mu);
+}
+
+/* Under mu: take j out of the queue; 1 if it was there. */
+static int unqueue(vd_daemon *d, vd_job *j)
+{
+    vd_job **pp = &d->queue, *prev = NULL;
+    while (*pp && *pp != j) prev = *pp, pp = &(*pp)->next;
+    if (!*pp) return 0;
+    *pp = j->next;
+    if (d->queue_tail == j) d->queue_tail = prev;
+    d->nqueued--;
+    j->next = NULL;
+    return 1;
+}
+
+int vd_job_stop(vd_daemon *d, vd_job *j, int code)
+{
+    pthread_mutex_lock(&d->mu);
+    int state = j->state, out = state == VD_QUEUED && unqueue(d, j);
+    if (state == VD_RUNNING || state == VD_DONE) {
+        /* DONE: still on d->done; vd_job_finished sees the code */
+        if (!j->cancel_code) j->cancel_code = code;
+        atomic_store_explicit(&j->cancel, 1, memory_order_relaxed);
+    }
+    pthread_mutex_unlock(&d->mu);
+    return out;
+}
+
+int vd_queue_admit(vd_daemon *d, vd_job *j, uint32_t *pos)
+{
+    const voxd_config *c = &d->cfg;
+    pthread_mutex_lock(&d->mu);
+    unsigned mine = d->running && d->running->uid == j->uid;
+    for (vd_job *q = d->queue; q; q = q->next) mine += q->uid == j->uid;
+    int code = d->nqueued >= c->max_queued_jobs ? VOXD__ERROR_CODE__BUSY
+               : mine >= c->max_jobs_per_uid    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
+                                                : 0;
+    *pos = d->nqueued + (d->running != NULL);
+    pthread_mutex_unlock(&d->mu);
+    if (!code) vd_queue_push(d, j);
+    return code;
+}
+
+int vd_busy(vd_daemon *d)
+{
+    pthread_mutex_lock(&d->mu);
+    int busy = d->queue || d->running || d->done;
+    pthread_mutex_unlock(&d->mu);
+    for (vd_client *c = d->clients; c && !busy; c = c->next)
+        busy = c->deliver != NULL;
+    return busy;
+}
+
+static void flush_elog(vd_daemon *d)
+{
+    for (unsigned i = 0; i < d->elog_n; i++)
+        log_msg(d->elog[i].level, "%s", d->elog[i].text);
+    if (d->elog_dropped)
+        log_warn("%u engine log line(s) dropped", d->elog_dropped);
+    d->elog_n = 0;
+    d->elog_dropped = 0;
+}
+
+/* The engine thread said something: log lines, progress, finished jobs. */
+void vd_on_wake(uv_async_t *a)
+{
+    vd_daemon *d = a->data;
+    pthread_mutex_lock(&d->mu);
+    flush_elog(d);
+    vd_job *done = d->done;
+    d->done = d->done_tail = NULL;
+    vd_job *r = d->running;
+    engine_progress p;
+    int send = r && r->client && r->progress_seq != r->progress_sent;
+    if (send) {
+        p = r->progress;
+        r->progress_sent = r->progress_seq;
+    }
+    pthread_mutex_unlock(&d->mu);
+    if (send) vd_send_progress(r->client, r, &p);
+    while (done) {
+        vd_job *j = done;
+        done = j->next;
+        j->next = NULL;
+        vd_job_finished(d, j);
+    }
+    vd_maybe_exit(d);
+}

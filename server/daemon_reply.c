@@ -1,0 +1,183 @@
+/* The replies the daemon sends, built on the stack and framed by
+ * vd_client_send. */
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "daemon.h"
+#include "proto_check.h"
+
+void vd_clean_text(char *s)
+{
+    for (unsigned char *p = (unsigned char *)s; *p; p++)
+        if ((*p < 0x20 && *p != '\n' && *p != '\t') || *p >= 0x7f) *p = '?';
+}
+
+int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ...)
+{
+    char msg[PROTO_MAX_MESSAGE];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    vd_clean_text(msg);
+    Voxd__Error e = VOXD__ERROR__INIT;
+    e.job_id = job_id;
+    e.code = (Voxd__ErrorCode)code;
+    e.message = msg;
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_ERROR;
+    r.error = &e;
+    return vd_client_send(c, &r);
+}
+
+int vd_send_hello_ok(vd_client *c)
+{
+    const voxd_config *cfg = &c->d->cfg;
+    Voxd__Limits l = VOXD__LIMITS__INIT;
+    l.max_frame = cfg->max_frame;
+    l.max_expr_bytes = cfg->max_expr_bytes;
+    l.max_expr_depth = cfg->max_expr_depth;
+    l.max_res = cfg->max_res;
+    l.max_queued_jobs = cfg->max_queued_jobs;
+    l.max_jobs_per_uid = cfg->max_jobs_per_uid;
+    l.job_timeout = cfg->job_timeout;
+    l.max_result_bytes = cfg->max_result_bytes;
+    l.chunk_size = cfg->chunk_size;
+    l.max_csg_nodes = cfg->max_csg_nodes;
+    Voxd__HelloOk h = VOXD__HELLO_OK__INIT;
+    h.version = PROTO_VERSION;
+    h.server = (char *)VD_SERVER_NAME;
+    h.limits = &l;
+    pthread_mutex_lock(&c->d->mu);
+    h.workers = (uint32_t)c->d->nworkers;
+    pthread_mutex_unlock(&c->d->mu);
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_HELLO_OK;
+    r.hello_ok = &h;
+    return vd_client_send(c, &r);
+}
+
+int vd_send_accepted(vd_client *c, uint64_t id, uint32_t pos)
+{
+    Voxd__Accepted a = VOXD__ACCEPTED__INIT;
+    a.job_id = id;
+    a.queue_position = pos;
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_ACCEPTED;
+    r.accepted = &a;
+    return vd_client_send(c, &r);
+}
+
+int vd_send_progress(vd_client *c, const vd_job *j, const engine_progress *p)
+{
+    Voxd__Progress m = VOXD__PROGRESS__INIT;
+    m.job_id = j->id;
+    m.fraction = p->fraction >= 0 && p->fraction <= 1 ? p->fraction : 0;
+    m.level = p->level > 0 ? (uint32_t)p->level : 0;
+    m.voxels = p->voxels;
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_PROGRESS;
+    r.progress = &m;
+    return vd_client_send(c, &r);
+}
+
+int vd_send_chunk(vd_client *c, const vd_job *j, const uint8_t *data, size_t n)
+{
+    Voxd__ResultChunk m = VOXD__RESULT_CHUNK__INIT;
+    m.job_id = j->id;
+    m.offset = j->sent;
+    m.data.data = (uint8_t *)data;
+    m.data.len = n;
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_CHUNK;
+    r.chunk = &m;
+    return vd_client_send(c, &r);
+}
+
+static double nonneg(double s)
+{
+    return s > 0 ? s : 0;
+}
+
+int vd_send_summary(vd_client *c, const vd_job *j)
+{
+    Voxd__Summary m = VOXD__SUMMARY__INIT;
+    m.job_id = j->id;
+    m.voxels = j->voxels;
+    m.bricks = j->st.bricks;
+    m.file_bytes = j->size;
+    m.crc32 = j->st.crc32;
+    m.seconds_queued = nonneg(j->t_start - j->t_submit);
+    m.seconds_voxelize = nonneg(j->t_voxelize);
+    m.seconds_write = nonneg(j->t_write);
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_SUMMARY;
+    r.summary = &m;
+    return vd_client_send(c, &r);
+}
+
+static Voxd__WorkerState worker_state(pid_t pid, int running)
+{
+    if (pid <= 0) return VOXD__WORKER_STATE__WORKER_STATE_STARTING;
+    return running ? VOXD__WORKER_STATE__WORKER_STATE_BUSY
+                   : VOXD__WORKER_STATE__WORKER_STATE_IDLE;
+}
+
+/* Under mu: the workers as the engine thread last saw them. */
+static size_t fill_workers(vd_daemon *d, Voxd__WorkerStatus *ws, Voxd__WorkerStatus **wp)
+{
+    size_t n = 0;
+    for (int i = 0; i < d->nworkers; i++) {
+        const vd_worker_snap *s = &d->workers[i];
+        if (s->pid <= 0) continue; /* never started: nothing to show */
+        voxd__worker_status__init(&ws[n]);
+        ws[n].pid = (uint32_t)s->pid;
+        ws[n].cpu = s->cpu;
+        ws[n].state = worker_state(s->pid, d->running != NULL);
+        ws[n].jobs = s->jobs;
+        ws[n].voxels_per_second = s->vps;
+        wp[n] = &ws[n];
+        n++;
+    }
+    return n;
+}
+
+int vd_send_status(vd_client *c)
+{
+    vd_daemon *d = c->d;
+    static Voxd__WorkerStatus ws[ENGINE_MAX_WORKERS]; /* loop thread only */
+    Voxd__WorkerStatus *wp[ENGINE_MAX_WORKERS];
+    Voxd__StatusReply s = VOXD__STATUS_REPLY__INIT;
+    Voxd__RunningJob rj = VOXD__RUNNING_JOB__INIT;
+    double now = vd_now();
+    s.uptime = nonneg(now - d->t_start);
+    s.clients = d->nclients;
+    pthread_mutex_lock(&d->mu);
+    s.n_workers = fill_workers(d, ws, wp);
+    s.workers = wp;
+    s.queued = d->nqueued;
+    if (d->running) {
+        rj.job_id = d->running->id;
+        rj.uid = (uint32_t)d->running->uid;
+        double f = d->running->progress.fraction;
+        rj.fraction = f >= 0 && f <= 1 ? f : 0;
+        rj.seconds = nonneg(now - d->running->t_start);
+        s.running = &rj;
+    }
+    pthread_mutex_unlock(&d->mu);
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_STATUS;
+    r.status = &s;
+    return vd_client_send(c, &r);
+}
+
+int vd_send_pong(vd_client *c, uint64_t token)
+{
+    Voxd__Pong p = VOXD__PONG__INIT;
+    p.token = token;
+    Voxd__Reply r = VOXD__REPLY__INIT;
+    r.msg_case = VOXD__REPLY__MSG_PONG;
+    r.pong = &p;
+    return vd_client_send(c, &r);
+}
