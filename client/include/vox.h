@@ -1,0 +1,212 @@
+/* vox.h — libvox, the client library of the voxd daemon.
+ *
+ * One connection to a daemon is a vox_client: vox_connect() opens the Unix
+ * socket and says hello; then submit jobs, receive their results (a VOD
+ * file, written whole or not at all, or a buffer), cancel jobs, ask for the
+ * daemon's status, ping it.  Every call blocks until it is done, fails, or
+ * the daemon has been silent for the client's timeout.  A client is used
+ * from one thread at a time.
+ *
+ * Errors.  Every function that can fail returns 0 or a negative code:
+ *   - a negative errno for what happened on this side or on the socket:
+ *       -ENOENT / -ECONNREFUSED  no daemon listening at the path
+ *       -ETIMEDOUT   the daemon said nothing for the timeout (it is pinged
+ *                    after half of it, so a daemon that is alive but busy
+ *                    with other jobs never times out)
+ *       -ECONNRESET  the daemon closed the connection
+ *       -EPROTO      the daemon broke the protocol (a reply that does not
+ *                    validate, a chunk at the wrong offset or for a job this
+ *                    client does not have, ...); the connection is unusable
+ *       -EBADMSG     a result whose length or CRC-32 does not check
+ *       -EINVAL, -ENOMEM, I/O errors of the output file, ...
+ *   - a VOX_E* code for a typed error of the daemon (the job's terminal
+ *     error, or a refused request), with the daemon's message.
+ * Functions taking a vox_error fill it on failure (it may be NULL): the
+ * code, the job it concerns and a message for a person, which for a daemon
+ * error is the daemon's own ("res 5000 is over this server's limit of 4096").
+ * Once the connection has failed (timeout, closed, protocol), every later
+ * call fails with the same error: close the client.
+ */
+#ifndef VOX_H
+#define VOX_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Typed errors of the daemon: -(VOX_ESERVER_BASE + the protocol's ErrorCode). */
+#define VOX_ESERVER_BASE 1000
+#define VOX_EINVALID_INPUT (-1001)  /* the job is malformed or unsupported */
+#define VOX_ELIMIT_EXCEEDED (-1002) /* over one of the daemon's limits */
+#define VOX_EBUSY (-1003)           /* queue full, too many jobs or clients */
+#define VOX_ECANCELLED (-1004)      /* the job was cancelled */
+#define VOX_EWORKER_CRASHED (-1005) /* a worker died during the job */
+#define VOX_ETIMEOUT (-1006)        /* the job ran past the daemon's job_timeout */
+#define VOX_ESHUTTING_DOWN (-1007)  /* the daemon is stopping */
+#define VOX_EINTERNAL (-1008)       /* a bug or a resource failure in the daemon */
+#define VOX_IS_SERVER_ERROR(rc) ((rc) <= VOX_EINVALID_INPUT && (rc) >= VOX_EINTERNAL)
+
+/* The daemon's default socket; vox uses $VOXD_SOCKET first. */
+#define VOX_DEFAULT_SOCKET "/run/voxd/voxd.sock"
+#define VOX_DEFAULT_TIMEOUT_MS 30000
+
+/* A short description: "no such file or directory", "over a limit of the daemon". */
+const char *vox_strerror(int code);
+/* The name of a daemon error ("LIMIT_EXCEEDED"), NULL for any other code. */
+const char *vox_error_name(int code);
+
+typedef struct {
+    int code;           /* the failing call's return value */
+    uint64_t job_id;    /* the job it concerns, 0 if none */
+    char message[1100]; /* the daemon's message (up to 1024 bytes), or ours */
+} vox_error;
+
+/* ---------------------------------------------------------------- connecting */
+
+typedef struct vox_client vox_client;
+
+typedef struct {
+    int timeout_ms;          /* give up after this much silence; 0 = VOX_DEFAULT_TIMEOUT_MS */
+    const char *client_name; /* for the daemon's log; NULL = "libvox" */
+} vox_options;
+
+/* Connect to the daemon at socket_path and say hello.  opts may be NULL.
+ * -ENOENT / -ECONNREFUSED when no daemon listens there, a VOX_E* code when
+ * it refuses this client (VOX_EBUSY: too many clients), -ETIMEDOUT when it
+ * does not answer.  On success *out is a client to close with vox_close. */
+int vox_connect(const char *socket_path, const vox_options *opts, vox_client **out,
+                vox_error *err);
+/* The same over a stream socket already connected to a daemon; fd becomes
+ * the client's (closed by vox_close, or here on failure). */
+int vox_connect_fd(int fd, const vox_options *opts, vox_client **out, vox_error *err);
+/* Close the connection; the daemon cancels the jobs still running for it.
+ * Results not received are dropped.  NULL is allowed. */
+void vox_close(vox_client *c);
+/* Change the silence timeout (ms > 0). */
+void vox_set_timeout(vox_client *c, int ms);
+
+typedef struct {
+    char name[130];            /* "voxd 0.1" */
+    uint32_t version;          /* protocol version: 1 */
+    uint32_t workers;
+    uint32_t max_frame, max_expr_bytes, max_expr_depth, max_res;
+    uint32_t max_queued_jobs, max_jobs_per_uid, job_timeout, chunk_size;
+    uint64_t max_result_bytes;
+} vox_server_info;
+
+/* What the daemon said about itself in its hello. */
+void vox_server(const vox_client *c, vox_server_info *out);
+
+/* ---------------------------------------------------------------- jobs */
+
+/* Enum values are the protocol's; 0 everywhere means the daemon's default. */
+enum { VOX_CHANNEL_DEFAULT = 0, VOX_CHANNEL_OCCUPANCY = 1, VOX_CHANNEL_SURFACE = 3 };
+enum { VOX_COMP_DEFAULT = 0, VOX_COMP_NONE = 1, VOX_COMP_ZLIB = 2, VOX_COMP_RUNL = 3 };
+enum { VOX_HASH_DEFAULT = 0, VOX_HASH_SFHS = 1, VOX_HASH_XX32 = 2 };
+enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 2 };
+
+/* F(x,y,z) = 0 over a box: the job of `vox voxelize`. */
+typedef struct {
+    const char *source;   /* the expression (common/expr.h syntax) */
+    size_t source_len;    /* its bytes; 0 = strlen(source) */
+    double domain[6];     /* x0, x1, y0, y1, z0, z1, each low < high */
+    uint32_t res;         /* voxels along the longest axis */
+    int channel;          /* VOX_CHANNEL_* */
+    uint32_t brick;       /* brick side, a power of two 2..256; 0 = 16 */
+    int comp;             /* VOX_COMP_* */
+    int hash;             /* VOX_HASH_* */
+    int schedule;         /* VOX_SCHEDULE_* */
+} vox_implicit_job;
+
+/* Send a job.  On acceptance *job_id (never 0) names it and *queue_position
+ * (may be NULL) is the number of jobs before it (0: running now).  A refusal
+ * is a VOX_E* code with the daemon's reason (VOX_EBUSY, VOX_ELIMIT_EXCEEDED,
+ * VOX_EINVALID_INPUT, VOX_ESHUTTING_DOWN).  A request too large for the
+ * daemon's max_frame is refused here with VOX_ELIMIT_EXCEEDED, unsent. */
+int vox_submit(vox_client *c, const vox_implicit_job *job, uint64_t *job_id,
+               uint32_t *queue_position, vox_error *err);
+
+/* Progress of a job being received: the estimated fraction done (0..1), the
+ * deepest octree level finished and the voxels found so far.  Also called,
+ * with the last values (all 0 before the first progress), when a signal
+ * interrupts the wait, so that a flag set by a signal handler can be acted
+ * on.  Return non-zero to cancel the job: the call then still waits for the
+ * job's end, which is VOX_ECANCELLED unless it had already finished. */
+typedef int (*vox_progress_cb)(void *ud, double fraction, int level, uint64_t voxels);
+
+typedef struct {
+    uint64_t job_id;
+    uint64_t voxels;
+    uint64_t bricks;          /* unique bricks stored */
+    uint64_t file_bytes;
+    uint32_t crc32;           /* the VOD trailer's fileCRC32, checked */
+    double seconds_queued, seconds_voxelize, seconds_write;
+} vox_summary;
+
+/* Wait for a job's end and write its VOD to path.  The file is written under
+ * a temporary name beside path and renamed into place only when the job
+ * succeeded and the result checks: as many bytes as the summary says, their
+ * CRC-32 (zlib's, over every byte but the last 4) equal to the summary's and
+ * to the file's own last 4 bytes (little-endian).  Otherwise nothing is left
+ * at path or beside it.  cb (may be NULL) sees the job's progress; sum (may
+ * be NULL) gets the summary.  The job is forgotten on return, whatever the
+ * outcome.  Results of other jobs of this client that arrive meanwhile are
+ * kept (in an unlinked temporary file) until they are received. */
+int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
+                     void *ud, vox_summary *sum, vox_error *err);
+/* The same into a malloc'ed buffer (*buf, *len; free() it), checked the
+ * same way; nothing is returned on failure. */
+int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
+                       vox_progress_cb cb, void *ud, vox_summary *sum, vox_error *err);
+
+/* Ask the daemon to cancel a job, then wait for its answer to a ping sent
+ * behind the cancel, so a refusal ("no such job") comes back here as a
+ * VOX_E* code.  The job may be one of this connection's, which then ends
+ * with VOX_ECANCELLED (seen by vox_receive_*), or one another connection
+ * submitted, if the daemon allows it. */
+int vox_cancel(vox_client *c, uint64_t job_id, vox_error *err);
+
+/* ---------------------------------------------------------------- daemon */
+
+enum {
+    VOX_WORKER_UNKNOWN = 0,
+    VOX_WORKER_IDLE = 1,
+    VOX_WORKER_BUSY = 2,
+    VOX_WORKER_STARTING = 3, /* being forked, again after a death */
+};
+
+typedef struct {
+    uint32_t pid;
+    int cpu;                  /* pinned to, -1 = not pinned */
+    int state;                /* VOX_WORKER_* */
+    uint64_t jobs;            /* jobs it took part in */
+    double voxels_per_second; /* over its last job */
+} vox_worker_status;
+
+typedef struct {
+    double uptime;              /* seconds */
+    size_t n_workers;
+    vox_worker_status *workers; /* n_workers entries */
+    uint32_t queued;            /* jobs waiting */
+    uint32_t clients;           /* connections */
+    int has_running;            /* a job is running: */
+    uint64_t running_job_id;
+    uint32_t running_uid;
+    double running_fraction, running_seconds;
+} vox_status_info;
+
+/* The daemon's state.  Free with vox_status_free. */
+int vox_status(vox_client *c, vox_status_info *out, vox_error *err);
+void vox_status_free(vox_status_info *s);
+
+/* A round trip; *rtt_seconds (may be NULL) is how long it took. */
+int vox_ping(vox_client *c, double *rtt_seconds, vox_error *err);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif

@@ -1,0 +1,1101 @@
+/* libvox — the voxd client library.  See include/vox.h.
+ *
+ * One non-blocking Unix stream socket, poll() with the client's silence
+ * timeout, and the framing of common/frame.h.  Every reply is unpacked with a
+ * bounded budget and validated by proto_check_reply() before anything here
+ * looks at it; what depends on the conversation (a reply nobody asked for, a
+ * chunk at the wrong offset or for a job this client does not have) is
+ * checked in dispatch() and ends the connection as -EPROTO.
+ *
+ * dispatch() only updates state: the answer to the one request a blocked
+ * call waits for, and each job's result (chunks go to the job's sink: the
+ * output file or buffer of the job being received, else a spool file), its
+ * CRC, its latest progress and its terminal.  Callbacks run in the receiving
+ * loop, never inside dispatch(), so a callback cannot re-enter it.
+ */
+#include "vox.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <math.h>
+#include <poll.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <time.h>
+#include <unistd.h>
+#include <zlib.h>
+
+#include "frame.h"
+#include "proto_check.h"
+
+#define READ_BUF (64u << 10)
+#define IGNORE_SLOTS 16
+
+/* ---------------------------------------------------------------- errors */
+
+static const char *const server_names[] = {
+    "INVALID_INPUT", "LIMIT_EXCEEDED", "BUSY",          "CANCELLED",
+    "WORKER_CRASHED", "TIMEOUT",       "SHUTTING_DOWN", "INTERNAL",
+};
+static const char *const server_texts[] = {
+    "the daemon refused the job as invalid",
+    "over a limit of the daemon",
+    "the daemon is busy",
+    "the job was cancelled",
+    "a worker of the daemon died during the job",
+    "the job ran past the daemon's time limit",
+    "the daemon is shutting down",
+    "internal error in the daemon",
+};
+
+const char *vox_error_name(int code)
+{
+    if (!VOX_IS_SERVER_ERROR(code)) return NULL;
+    return server_names[-code - VOX_ESERVER_BASE - 1];
+}
+
+const char *vox_strerror(int code)
+{
+    if (code == 0) return "success";
+    if (VOX_IS_SERVER_ERROR(code)) return server_texts[-code - VOX_ESERVER_BASE - 1];
+    switch (code) {
+    case -ETIMEDOUT: return "the daemon did not answer in time";
+    case -ECONNRESET: return "the daemon closed the connection";
+    case -EPROTO: return "the daemon broke the protocol";
+    case -EBADMSG: return "the result does not check (length or CRC-32)";
+    }
+    if (code < 0 && code > -4096) return strerror(-code);
+    return "unknown error";
+}
+
+/* ---------------------------------------------------------------- state */
+
+enum { SINK_SPOOL, SINK_FD, SINK_BUF };
+
+typedef struct vjob {
+    struct vjob *next;
+    uint64_t id;
+    /* the result so far */
+    uint64_t received;     /* bytes = the next chunk's offset */
+    uint32_t crc;          /* zlib crc32 of every byte but the last tail_n */
+    uint8_t tail[4];
+    unsigned tail_n;
+    int sink;              /* SINK_* */
+    int fd;                /* SINK_SPOOL (-1 until the first chunk), SINK_FD */
+    uint8_t *buf;          /* SINK_BUF */
+    size_t cap;
+    int local_err;         /* the sink failed: the job fails with this */
+    /* progress, terminal */
+    double fraction;
+    int level;
+    uint64_t voxels;
+    int progress_new;
+    int cancel_sent;
+    int done;
+    vox_error result;      /* code 0: the summary, checked */
+    vox_summary sum;
+} vjob;
+
+enum { P_NONE, P_HELLO, P_SUBMIT, P_STATUS, P_PING, P_CANCEL };
+
+struct vox_client {
+    int fd;
+    int timeout_ms;
+    frame_decoder dec;
+    proto_limits lim;
+    vox_server_info info;
+    int ready;              /* HelloOk received */
+    /* the connection's failure, sticky */
+    int err;
+    vox_error fail;
+    /* an Error about no job and no request: why the daemon is about to close */
+    int note_code;
+    char note[PROTO_MAX_MESSAGE + 1];
+    /* the request a call waits for */
+    int pending, answered;
+    vox_error ans;          /* code 0: success */
+    uint64_t ans_job;
+    uint32_t ans_qpos;
+    vox_status_info ans_status;
+    uint64_t ping_token, next_token;
+    uint64_t cancel_job;
+    /* silence */
+    double last_rx, ka_sent;
+    vjob *jobs;
+    /* jobs that ended (or were never ours) and were cancelled: a late
+     * Error about them is the daemon's answer to the cancel, not news */
+    uint64_t ignore[IGNORE_SLOTS];
+    unsigned n_ignore;
+    uint8_t *rbuf;
+};
+
+static double mono(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+__attribute__((format(printf, 4, 5)))
+static void set_error(vox_error *e, int code, uint64_t job, const char *fmt, ...)
+{
+    e->code = code;
+    e->job_id = job;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(e->message, sizeof e->message, fmt, ap);
+    va_end(ap);
+}
+
+static void copy_error(vox_error *dst, const vox_error *src)
+{
+    if (dst) *dst = *src;
+}
+
+/* Fail the connection (once: the first failure is the one reported). */
+__attribute__((format(printf, 3, 4)))
+static int fail(vox_client *c, int code, const char *fmt, ...)
+{
+    if (c->err) return c->err;
+    c->err = code;
+    c->fail.code = code;
+    c->fail.job_id = 0;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(c->fail.message, sizeof c->fail.message, fmt, ap);
+    va_end(ap);
+    return code;
+}
+
+/* The daemon closed the connection: say why if it said so first. */
+static int fail_closed(vox_client *c, const char *how)
+{
+    if (c->note_code) {
+        int code = -(VOX_ESERVER_BASE + c->note_code);
+        return fail(c, code, "%s", c->note);
+    }
+    return fail(c, -ECONNRESET, "voxd closed the connection%s", how);
+}
+
+static vjob *find_job(vox_client *c, uint64_t id)
+{
+    for (vjob *j = c->jobs; j; j = j->next)
+        if (j->id == id) return j;
+    return NULL;
+}
+
+static void free_job(vjob *j)
+{
+    if (j->sink == SINK_SPOOL && j->fd >= 0) close(j->fd);
+    free(j->buf);
+    free(j);
+}
+
+static void forget_job(vox_client *c, vjob *j)
+{
+    for (vjob **p = &c->jobs; *p; p = &(*p)->next)
+        if (*p == j) {
+            *p = j->next;
+            break;
+        }
+    free_job(j);
+}
+
+static int ignored(const vox_client *c, uint64_t id)
+{
+    unsigned n = c->n_ignore < IGNORE_SLOTS ? c->n_ignore : IGNORE_SLOTS;
+    for (unsigned i = 0; i < n; i++)
+        if (c->ignore[i] == id) return 1;
+    return 0;
+}
+
+static void add_ignored(vox_client *c, uint64_t id)
+{
+    if (!ignored(c, id)) c->ignore[c->n_ignore++ % IGNORE_SLOTS] = id;
+}
+
+/* ---------------------------------------------------------------- results */
+
+static int write_all(int fd, const uint8_t *p, size_t n)
+{
+    while (n) {
+        ssize_t w = write(fd, p, n);
+        if (w < 0) {
+            if (errno == EINTR) continue;
+            return -errno;
+        }
+        p += w;
+        n -= (size_t)w;
+    }
+    return 0;
+}
+
+/* An unlinked temporary file for results nobody is receiving yet. */
+static int spool_open(void)
+{
+    const char *dir = getenv("TMPDIR");
+    if (!dir || !*dir) dir = "/tmp";
+    int fd = open(dir, O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+    if (fd >= 0) return fd;
+    char path[PATH_MAX];
+    if (snprintf(path, sizeof path, "%s/libvox.XXXXXX", dir) >= (int)sizeof path)
+        return -ENAMETOOLONG;
+    fd = mkostemp(path, O_CLOEXEC);
+    if (fd < 0) return -errno;
+    unlink(path);
+    return fd;
+}
+
+static int buf_append(vjob *j, const uint8_t *p, size_t n)
+{
+    size_t need = (size_t)j->received + n;
+    if (need > j->cap) {
+        size_t cap = j->cap ? j->cap : 65536;
+        while (cap < need) cap = cap > SIZE_MAX / 2 ? need : cap * 2;
+        uint8_t *b = realloc(j->buf, cap);
+        if (!b) return -ENOMEM;
+        j->buf = b;
+        j->cap = cap;
+    }
+    memcpy(j->buf + j->received, p, n);
+    return 0;
+}
+
+static int sink_write(vjob *j, const uint8_t *p, size_t n)
+{
+    switch (j->sink) {
+    case SINK_BUF: return buf_append(j, p, n);
+    case SINK_SPOOL:
+        if (j->fd < 0 && (j->fd = spool_open()) < 0) {
+            int rc = j->fd;
+            j->fd = -1;
+            return rc;
+        }
+        return write_all(j->fd, p, n);
+    default: return write_all(j->fd, p, n);
+    }
+}
+
+/* The CRC of everything but the last 4 bytes seen so far, which wait in
+ * tail until more bytes come or the summary checks them. */
+static void crc_feed(vjob *j, const uint8_t *p, size_t n)
+{
+    if (n >= 4) {
+        if (j->tail_n) j->crc = (uint32_t)crc32(j->crc, j->tail, j->tail_n);
+        j->crc = (uint32_t)crc32(j->crc, p, (uInt)(n - 4));
+        memcpy(j->tail, p + n - 4, 4);
+        j->tail_n = 4;
+        return;
+    }
+    uint8_t t[8];
+    size_t total = j->tail_n + n;
+    memcpy(t, j->tail, j->tail_n);
+    memcpy(t + j->tail_n, p, n);
+    if (total > 4) {
+        j->crc = (uint32_t)crc32(j->crc, t, (uInt)(total - 4));
+        memcpy(j->tail, t + total - 4, 4);
+        j->tail_n = 4;
+    } else {
+        memcpy(j->tail, t, total);
+        j->tail_n = (unsigned)total;
+    }
+}
+
+static int on_chunk(vox_client *c, const Voxd__ResultChunk *m)
+{
+    vjob *j = find_job(c, m->job_id);
+    if (!j)
+        return fail(c, -EPROTO, "voxd sent a result chunk for job %llu, which is not a job of this connection",
+                    (unsigned long long)m->job_id);
+    if (j->done)
+        return fail(c, -EPROTO, "voxd sent a result chunk for job %llu after its end",
+                    (unsigned long long)m->job_id);
+    if (m->offset != j->received)
+        return fail(c, -EPROTO, "voxd sent job %llu's chunk at offset %llu where %llu was due",
+                    (unsigned long long)m->job_id, (unsigned long long)m->offset,
+                    (unsigned long long)j->received);
+    /* proto_check_reply bounded offset + len by max_result_bytes. */
+    if (!j->local_err) {
+        int rc = sink_write(j, m->data.data, m->data.len);
+        if (rc) {
+            j->local_err = rc;
+            set_error(&j->result, rc, j->id, "cannot store job %llu's result: %s",
+                      (unsigned long long)j->id, strerror(-rc));
+        }
+    }
+    crc_feed(j, m->data.data, m->data.len);
+    j->received += m->data.len;
+    return 0;
+}
+
+static void on_summary(vjob *j, const Voxd__Summary *m)
+{
+    j->done = 1;
+    if (j->local_err) return;
+    unsigned long long id = (unsigned long long)j->id;
+    if (m->file_bytes != j->received) {
+        set_error(&j->result, -EBADMSG, j->id,
+                  "job %llu's result is %llu bytes, the daemon's summary says %llu", id,
+                  (unsigned long long)j->received, (unsigned long long)m->file_bytes);
+        return;
+    }
+    uint32_t own = (uint32_t)j->tail[0] | (uint32_t)j->tail[1] << 8 |
+                   (uint32_t)j->tail[2] << 16 | (uint32_t)j->tail[3] << 24;
+    if (j->tail_n < 4 || j->crc != m->crc32 || own != m->crc32) {
+        set_error(&j->result, -EBADMSG, j->id,
+                  "job %llu's result fails its CRC-32 check: computed %08x, the file says %08x, "
+                  "the daemon's summary %08x",
+                  id, j->crc, own, m->crc32);
+        return;
+    }
+    j->result.code = 0;
+    j->sum = (vox_summary){
+        .job_id = j->id, .voxels = m->voxels, .bricks = m->bricks,
+        .file_bytes = m->file_bytes, .crc32 = m->crc32,
+        .seconds_queued = m->seconds_queued, .seconds_voxelize = m->seconds_voxelize,
+        .seconds_write = m->seconds_write};
+}
+
+/* ---------------------------------------------------------------- dispatch */
+
+static void answer(vox_client *c, int code, uint64_t job, const char *msg)
+{
+    c->answered = 1;
+    c->ans.code = code;
+    c->ans.job_id = job;
+    snprintf(c->ans.message, sizeof c->ans.message, "%s", msg ? msg : "");
+}
+
+static int on_error(vox_client *c, const Voxd__Error *m)
+{
+    int code = -(VOX_ESERVER_BASE + (int)m->code);
+    const char *msg = m->message && *m->message ? m->message : vox_strerror(code);
+    vjob *j = m->job_id ? find_job(c, m->job_id) : NULL;
+    if (j && !j->done) {
+        j->done = 1;
+        if (!j->local_err) set_error(&j->result, code, j->id, "%s", msg);
+        return 0;
+    }
+    /* A job of ours that has ended: a late answer to a cancel of it is no
+     * news; anything else is a second end. */
+    if (j) {
+        if (ignored(c, m->job_id)) return 0;
+        return fail(c, -EPROTO, "voxd sent a second end for job %llu",
+                    (unsigned long long)m->job_id);
+    }
+    /* What the daemon says about a cancel this client waits on. */
+    if (c->pending == P_CANCEL && !c->answered &&
+        (m->job_id == 0 || m->job_id == c->cancel_job)) {
+        answer(c, code, m->job_id, msg);
+        return 0;
+    }
+    if (m->job_id && ignored(c, m->job_id)) return 0;
+    /* A refused request; only a Submit's refusal may name a job id (the
+     * one the job would have had). */
+    if (c->pending != P_NONE && !c->answered &&
+        (m->job_id == 0 || c->pending == P_SUBMIT)) {
+        answer(c, code, m->job_id, msg);
+        return 0;
+    }
+    if (m->job_id)
+        return fail(c, -EPROTO, "voxd sent an error for job %llu, which is not a job of this connection: %s",
+                    (unsigned long long)m->job_id, msg);
+    /* About the connection: kept to say why, should the daemon close it. */
+    c->note_code = (int)m->code;
+    snprintf(c->note, sizeof c->note, "%s", msg);
+    return 0;
+}
+
+static int on_hello_ok(vox_client *c, const Voxd__HelloOk *m)
+{
+    if (c->ready || c->pending != P_HELLO)
+        return fail(c, -EPROTO, "voxd sent a second hello");
+    const Voxd__Limits *l = m->limits;
+    proto_limits_from_hello(l, &c->lim);
+    frame_decoder_set_max(&c->dec, l->max_frame);
+    vox_server_info *i = &c->info;
+    snprintf(i->name, sizeof i->name, "%s", m->server ? m->server : "");
+    i->version = m->version;
+    i->workers = m->workers;
+    i->max_frame = l->max_frame;
+    i->max_expr_bytes = l->max_expr_bytes;
+    i->max_expr_depth = l->max_expr_depth;
+    i->max_res = l->max_res;
+    i->max_queued_jobs = l->max_queued_jobs;
+    i->max_jobs_per_uid = l->max_jobs_per_uid;
+    i->job_timeout = l->job_timeout;
+    i->chunk_size = l->chunk_size;
+    i->max_result_bytes = l->max_result_bytes;
+    c->ready = 1;
+    answer(c, 0, 0, NULL);
+    return 0;
+}
+
+static int on_accepted(vox_client *c, const Voxd__Accepted *m)
+{
+    if (c->pending != P_SUBMIT || c->answered)
+        return fail(c, -EPROTO, "voxd accepted job %llu, which was never submitted",
+                    (unsigned long long)m->job_id);
+    if (find_job(c, m->job_id))
+        return fail(c, -EPROTO, "voxd accepted job %llu a second time",
+                    (unsigned long long)m->job_id);
+    vjob *j = calloc(1, sizeof *j);
+    if (!j) return fail(c, -ENOMEM, "out of memory");
+    j->id = m->job_id;
+    j->fd = -1;
+    j->sink = SINK_SPOOL;
+    j->next = c->jobs;
+    c->jobs = j;
+    c->ans_job = m->job_id;
+    c->ans_qpos = m->queue_position;
+    answer(c, 0, m->job_id, NULL);
+    return 0;
+}
+
+static int on_progress(vox_client *c, const Voxd__Progress *m)
+{
+    vjob *j = find_job(c, m->job_id);
+    if (!j || j->done)
+        return fail(c, -EPROTO, "voxd sent progress for job %llu, which %s",
+                    (unsigned long long)m->job_id,
+                    j ? "has ended" : "is not a job of this connection");
+    j->fraction = m->fraction;
+    j->level = (int)m->level;
+    j->voxels = m->voxels;
+    j->progress_new = 1;
+    return 0;
+}
+
+static int on_status(vox_client *c, const Voxd__StatusReply *m)
+{
+    if (c->pending != P_STATUS || c->answered)
+        return fail(c, -EPROTO, "voxd sent a status nobody asked for");
+    vox_status_info *s = &c->ans_status;
+    memset(s, 0, sizeof *s);
+    s->uptime = m->uptime;
+    s->queued = m->queued;
+    s->clients = m->clients;
+    if (m->n_workers) {
+        s->workers = calloc(m->n_workers, sizeof *s->workers);
+        if (!s->workers) return fail(c, -ENOMEM, "out of memory");
+        s->n_workers = m->n_workers;
+        for (size_t i = 0; i < m->n_workers; i++) {
+            const Voxd__WorkerStatus *w = m->workers[i];
+            s->workers[i] = (vox_worker_status){w->pid, w->cpu, (int)w->state, w->jobs,
+                                                w->voxels_per_second};
+        }
+    }
+    if (m->running) {
+        s->has_running = 1;
+        s->running_job_id = m->running->job_id;
+        s->running_uid = m->running->uid;
+        s->running_fraction = m->running->fraction;
+        s->running_seconds = m->running->seconds;
+    }
+    answer(c, 0, 0, NULL);
+    return 0;
+}
+
+static int on_pong(vox_client *c, const Voxd__Pong *m)
+{
+    if (m->token == 0 || m->token >= c->next_token)
+        return fail(c, -EPROTO, "voxd answered a ping that was never sent (token %llu)",
+                    (unsigned long long)m->token);
+    if ((c->pending == P_PING || c->pending == P_CANCEL) && !c->answered &&
+        m->token == c->ping_token)
+        answer(c, 0, 0, NULL);
+    return 0;
+}
+
+static int dispatch(vox_client *c, const uint8_t *data, size_t len)
+{
+    Voxd__Reply *r = frame_unpack_reply(data, len);
+    if (!r) return fail(c, -EPROTO, "voxd sent a reply that does not unpack (%zu bytes)", len);
+    proto_error pe;
+    int rc = proto_check_reply(r, &c->lim, &pe);
+    if (rc) {
+        rc = fail(c, -EPROTO, "voxd sent an invalid reply: %s", pe.msg);
+    } else if (!c->ready && r->msg_case != VOXD__REPLY__MSG_HELLO_OK &&
+               r->msg_case != VOXD__REPLY__MSG_ERROR) {
+        rc = fail(c, -EPROTO, "voxd sent a reply of type %d before its hello", (int)r->msg_case);
+    } else {
+        switch (r->msg_case) {
+        case VOXD__REPLY__MSG_HELLO_OK: rc = on_hello_ok(c, r->hello_ok); break;
+        case VOXD__REPLY__MSG_ACCEPTED: rc = on_accepted(c, r->accepted); break;
+        case VOXD__REPLY__MSG_PROGRESS: rc = on_progress(c, r->progress); break;
+        case VOXD__REPLY__MSG_CHUNK: rc = on_chunk(c, r->chunk); break;
+        case VOXD__REPLY__MSG_SUMMARY: {
+            vjob *j = find_job(c, r->summary->job_id);
+            if (!j || j->done)
+                rc = fail(c, -EPROTO, "voxd sent a summary for job %llu, which %s",
+                          (unsigned long long)r->summary->job_id,
+                          j ? "has ended" : "is not a job of this connection");
+            else
+                on_summary(j, r->summary);
+            break;
+        }
+        case VOXD__REPLY__MSG_ERROR: rc = on_error(c, r->error); break;
+        case VOXD__REPLY__MSG_STATUS: rc = on_status(c, r->status); break;
+        case VOXD__REPLY__MSG_PONG: rc = on_pong(c, r->pong); break;
+        default: rc = fail(c, -EPROTO, "voxd sent a reply of unknown type"); break;
+        }
+    }
+    voxd__reply__free_unpacked(r, NULL);
+    return rc;
+}
+
+/* ---------------------------------------------------------------- socket */
+
+/* Read what is there and dispatch every complete frame.  0, or the
+ * connection's failure. */
+static int read_some(vox_client *c)
+{
+    ssize_t n = read(c->fd, c->rbuf, READ_BUF);
+    if (n < 0) {
+        if (errno == EINTR || errno == EAGAIN || errno == EWOULDBLOCK) return 0;
+        if (errno == ECONNRESET) return fail_closed(c, "");
+        return fail(c, -errno, "reading from voxd: %s", strerror(errno));
+    }
+    if (n == 0) {
+        int rc = frame_decoder_finish(&c->dec);
+        return fail_closed(c, rc ? " in the middle of a reply" : "");
+    }
+    c->last_rx = mono();
+    const uint8_t *p = c->rbuf;
+    size_t left = (size_t)n;
+    frame_view f;
+    int rc;
+    while ((rc = frame_decode(&c->dec, &p, &left, &f)) == 1)
+        if ((rc = dispatch(c, f.data, f.len))) return rc;
+    if (rc < 0) {
+        char why[160];
+        return fail(c, -EPROTO, "voxd sent a bad frame: %s",
+                    frame_decoder_strerror(&c->dec, rc, why, sizeof why));
+    }
+    return 0;
+}
+
+static int timeout_left_ms(const vox_client *c, double since, double now)
+{
+    double left = c->timeout_ms / 1000.0 - (now - since);
+    if (left <= 0) return 0;
+    return (int)ceil(left * 1000.0);
+}
+
+/* Send a whole frame, reading (and dispatching) whatever comes meanwhile. */
+static int send_frame(vox_client *c, const uint8_t *buf, size_t len)
+{
+    if (c->err) return c->err;
+    size_t off = 0;
+    double moved = mono();
+    while (off < len) {
+        ssize_t n = send(c->fd, buf + off, len - off, MSG_NOSIGNAL);
+        if (n > 0) {
+            off += (size_t)n;
+            moved = mono();
+            continue;
+        }
+        if (n < 0 && errno == EINTR) continue;
+        if (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK) {
+            int e = errno;
+            if (e == EPIPE || e == ECONNRESET) {
+                /* Read what the daemon said before it closed. */
+                while (!c->err && read_some(c) == 0) {
+                    struct pollfd q = {c->fd, POLLIN, 0};
+                    if (poll(&q, 1, 0) <= 0) break;
+                }
+                return fail_closed(c, "");
+            }
+            return fail(c, -e, "writing to voxd: %s", strerror(e));
+        }
+        struct pollfd p = {c->fd, POLLOUT | POLLIN, 0};
+        int ms = timeout_left_ms(c, moved, mono());
+        if (ms == 0)
+            return fail(c, -ETIMEDOUT, "voxd took nothing from the socket for %.1f s",
+                        c->timeout_ms / 1000.0);
+        int r = poll(&p, 1, ms);
+        if (r < 0 && errno != EINTR) return fail(c, -errno, "poll: %s", strerror(errno));
+        if (r > 0 && (p.revents & (POLLIN | POLLHUP | POLLERR))) {
+            int rc = read_some(c);
+            if (rc) return rc;
+        }
+    }
+    return 0;
+}
+
+static int send_request(vox_client *c, const Voxd__Request *req)
+{
+    uint8_t *buf;
+    size_t len;
+    int rc = frame_encode_request(req, &buf, &len);
+    if (rc) return rc;
+    rc = send_frame(c, buf, len);
+    free(buf);
+    return rc;
+}
+
+static int send_ping(vox_client *c, uint64_t token)
+{
+    Voxd__Ping ping = VOXD__PING__INIT;
+    ping.token = token;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_PING;
+    req.ping = &ping;
+    return send_request(c, &req);
+}
+
+static int send_cancel(vox_client *c, uint64_t job_id)
+{
+    Voxd__Cancel cancel = VOXD__CANCEL__INIT;
+    cancel.job_id = job_id;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_CANCEL;
+    req.cancel = &cancel;
+    return send_request(c, &req);
+}
+
+/* Wait for input once (or for the timeout, or a signal) and dispatch it.
+ * After half the timeout of silence a ping goes out: a daemon that is busy
+ * with other jobs answers it, a hung one does not.  *interrupted is set when
+ * a signal cut the wait short.  0, or the connection's failure. */
+static int step(vox_client *c, int *interrupted)
+{
+    if (c->err) return c->err;
+    double now = mono(), half = c->timeout_ms / 2000.0;
+    double idle = now - c->last_rx;
+    if (idle >= c->timeout_ms / 1000.0)
+        return fail(c, -ETIMEDOUT, "voxd said nothing for %.1f s", c->timeout_ms / 1000.0);
+    int ka_due = c->ready && c->ka_sent <= c->last_rx;
+    if (ka_due && idle >= half) {
+        int rc = send_ping(c, c->next_token++);
+        if (rc) return rc;
+        c->ka_sent = now;
+        ka_due = 0;
+    }
+    int ms = timeout_left_ms(c, c->last_rx, now);
+    if (ka_due) {
+        int to_ka = (int)ceil((half - idle) * 1000.0);
+        if (to_ka < ms) ms = to_ka < 1 ? 1 : to_ka;
+    }
+    struct pollfd p = {c->fd, POLLIN, 0};
+    int r = poll(&p, 1, ms);
+    if (r < 0) {
+        if (errno == EINTR) {
+            if (interrupted) *interrupted = 1;
+            return 0;
+        }
+        return fail(c, -errno, "poll: %s", strerror(errno));
+    }
+    if (r == 0) return 0;
+    return read_some(c);
+}
+
+/* Send a request and wait for its answer. */
+static int request(vox_client *c, int kind, const Voxd__Request *req, vox_error *err)
+{
+    if (c->err) {
+        copy_error(err, &c->fail);
+        return c->err;
+    }
+    c->pending = kind;
+    c->answered = 0;
+    memset(&c->ans, 0, sizeof c->ans);
+    int rc = send_request(c, req);
+    if (rc && !c->err) {
+        set_error(&c->ans, rc, 0, "cannot send the request: %s", vox_strerror(rc));
+        c->pending = P_NONE;
+        copy_error(err, &c->ans);
+        return rc;
+    }
+    while (!rc && !c->answered) rc = step(c, NULL);
+    c->pending = P_NONE;
+    if (!c->answered) {
+        copy_error(err, &c->fail);
+        return c->err;
+    }
+    if (c->ans.code) copy_error(err, &c->ans);
+    return c->ans.code;
+}
+
+/* ---------------------------------------------------------------- connect */
+
+int vox_connect_fd(int fd, const vox_options *opts, vox_client **out, vox_error *err)
+{
+    vox_error tmp;
+    if (!err) err = &tmp;
+    *out = NULL;
+    int fl = fcntl(fd, F_GETFL);
+    if (fl < 0 || fcntl(fd, F_SETFL, fl | O_NONBLOCK) < 0) {
+        int rc = -errno;
+        close(fd);
+        set_error(err, rc, 0, "%s", strerror(-rc));
+        return rc;
+    }
+    vox_client *c = calloc(1, sizeof *c);
+    uint8_t *rbuf = malloc(READ_BUF);
+    if (!c || !rbuf) {
+        free(c);
+        free(rbuf);
+        close(fd);
+        set_error(err, -ENOMEM, 0, "out of memory");
+        return -ENOMEM;
+    }
+    c->fd = fd;
+    c->rbuf = rbuf;
+    c->timeout_ms = opts && opts->timeout_ms > 0 ? opts->timeout_ms : VOX_DEFAULT_TIMEOUT_MS;
+    c->next_token = 1;
+    proto_limits_default(&c->lim);
+    frame_decoder_init(&c->dec, FRAME_DEFAULT_MAX);
+    c->last_rx = mono();
+
+    Voxd__Hello hello = VOXD__HELLO__INIT;
+    hello.version = PROTO_VERSION;
+    hello.client = (char *)(opts && opts->client_name ? opts->client_name : "libvox");
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_HELLO;
+    req.hello = &hello;
+    int rc = request(c, P_HELLO, &req, err);
+    if (rc) {
+        if (VOX_IS_SERVER_ERROR(rc)) {
+            char msg[sizeof err->message];
+            snprintf(msg, sizeof msg, "%s", err->message);
+            set_error(err, rc, 0, "voxd refused this client: %s", msg);
+        }
+        vox_close(c);
+        return rc;
+    }
+    *out = c;
+    return 0;
+}
+
+int vox_connect(const char *socket_path, const vox_options *opts, vox_client **out,
+                vox_error *err)
+{
+    vox_error tmp;
+    if (!err) err = &tmp;
+    *out = NULL;
+    struct sockaddr_un sa = {.sun_family = AF_UNIX};
+    if (!socket_path || strlen(socket_path) >= sizeof sa.sun_path) {
+        set_error(err, -ENAMETOOLONG, 0, "socket path %s is too long (at most %zu bytes)",
+                  socket_path ? socket_path : "(null)", sizeof sa.sun_path - 1);
+        return -ENAMETOOLONG;
+    }
+    strcpy(sa.sun_path, socket_path);
+    int fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    if (fd < 0) {
+        int rc = -errno;
+        set_error(err, rc, 0, "socket: %s", strerror(-rc));
+        return rc;
+    }
+    if (connect(fd, (struct sockaddr *)&sa, sizeof sa) != 0) {
+        int rc = -errno;
+        close(fd);
+        set_error(err, rc, 0, "no voxd answering on %s (%s)", socket_path,
+                  rc == -ECONNREFUSED ? "connection refused" : strerror(-rc));
+        return rc;
+    }
+    return vox_connect_fd(fd, opts, out, err);
+}
+
+void vox_close(vox_client *c)
+{
+    if (!c) return;
+    while (c->jobs) {
+        vjob *j = c->jobs;
+        c->jobs = j->next;
+        free_job(j);
+    }
+    close(c->fd);
+    frame_decoder_free(&c->dec);
+    free(c->rbuf);
+    free(c);
+}
+
+void vox_set_timeout(vox_client *c, int ms)
+{
+    if (ms > 0) c->timeout_ms = ms;
+}
+
+void vox_server(const vox_client *c, vox_server_info *out)
+{
+    *out = c->info;
+}
+
+/* ---------------------------------------------------------------- requests */
+
+int vox_submit(vox_client *c, const vox_implicit_job *job, uint64_t *job_id,
+               uint32_t *queue_position, vox_error *err)
+{
+    vox_error tmp;
+    if (!err) err = &tmp;
+    if (!job || !job->source) {
+        set_error(err, -EINVAL, 0, "the job has no expression");
+        return -EINVAL;
+    }
+    Voxd__Implicit im = VOXD__IMPLICIT__INIT;
+    im.source.data = (uint8_t *)job->source;
+    im.source.len = job->source_len ? job->source_len : strlen(job->source);
+    im.domain = (double *)job->domain;
+    im.n_domain = 6;
+    im.res = job->res;
+    im.schedule = (Voxd__Schedule)job->schedule;
+    Voxd__Submit sub = VOXD__SUBMIT__INIT;
+    sub.job_case = VOXD__SUBMIT__JOB_IMPLICIT;
+    sub.implicit = &im;
+    sub.channel = (Voxd__Channel)job->channel;
+    sub.brick = job->brick;
+    sub.comp = (Voxd__Compression)job->comp;
+    sub.hash = (Voxd__Hash)job->hash;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_SUBMIT;
+    req.submit = &sub;
+    /* The daemon closes the connection on a frame over its max_frame:
+     * refuse such a job here, with a reason. */
+    size_t n = protobuf_c_message_get_packed_size(&req.base);
+    if (n > c->lim.max_frame) {
+        set_error(err, VOX_ELIMIT_EXCEEDED, 0,
+                  "the job's request is %zu bytes, over this server's max_frame of %u "
+                  "(the expression is %zu bytes, limit %u)",
+                  n, c->lim.max_frame, im.source.len, c->lim.max_expr_bytes);
+        return VOX_ELIMIT_EXCEEDED;
+    }
+    int rc = request(c, P_SUBMIT, &req, err);
+    if (rc) return rc;
+    *job_id = c->ans_job;
+    if (queue_position) *queue_position = c->ans_qpos;
+    return 0;
+}
+
+int vox_cancel(vox_client *c, uint64_t job_id, vox_error *err)
+{
+    vox_error tmp;
+    if (!err) err = &tmp;
+    if (job_id == 0) {
+        set_error(err, -EINVAL, 0, "job id 0 names no job");
+        return -EINVAL;
+    }
+    if (c->err) {
+        copy_error(err, &c->fail);
+        return c->err;
+    }
+    vjob *j = find_job(c, job_id);
+    if (j && j->done) return 0; /* nothing left to cancel */
+    if (j) j->cancel_sent = 1;
+    /* Should the job end before the cancel reaches the daemon, its answer
+     * to the cancel is no news. */
+    add_ignored(c, job_id);
+    int rc = send_cancel(c, job_id);
+    if (rc) {
+        copy_error(err, &c->fail);
+        return rc;
+    }
+    /* A ping behind the cancel: whatever the daemon says about the cancel
+     * comes before the pong. */
+    c->ping_token = c->next_token++;
+    c->cancel_job = job_id;
+    Voxd__Ping ping = VOXD__PING__INIT;
+    ping.token = c->ping_token;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_PING;
+    req.ping = &ping;
+    rc = request(c, P_CANCEL, &req, err);
+    if (rc && err->job_id == 0) err->job_id = job_id;
+    return rc;
+}
+
+int vox_status(vox_client *c, vox_status_info *out, vox_error *err)
+{
+    memset(out, 0, sizeof *out);
+    Voxd__Status st = VOXD__STATUS__INIT;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_STATUS;
+    req.status = &st;
+    memset(&c->ans_status, 0, sizeof c->ans_status);
+    int rc = request(c, P_STATUS, &req, err);
+    if (rc) {
+        vox_status_free(&c->ans_status);
+        return rc;
+    }
+    *out = c->ans_status;
+    memset(&c->ans_status, 0, sizeof c->ans_status);
+    return 0;
+}
+
+void vox_status_free(vox_status_info *s)
+{
+    if (!s) return;
+    free(s->workers);
+    s->workers = NULL;
+    s->n_workers = 0;
+}
+
+int vox_ping(vox_client *c, double *rtt_seconds, vox_error *err)
+{
+    c->ping_token = c->next_token++;
+    Voxd__Ping ping = VOXD__PING__INIT;
+    ping.token = c->ping_token;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_PING;
+    req.ping = &ping;
+    double t0 = mono();
+    int rc = request(c, P_PING, &req, err);
+    if (rc == 0 && rtt_seconds) *rtt_seconds = mono() - t0;
+    return rc;
+}
+
+/* ---------------------------------------------------------------- receiving */
+
+/* Move what the spool holds to the job's new sink. */
+static int unspool(vjob *j, int sink, int fd)
+{
+    int spool = j->fd;
+    j->sink = sink;
+    j->fd = fd;
+    if (spool < 0) return 0;
+    int rc = 0;
+    if (j->local_err) goto out;
+    if (sink == SINK_BUF) {
+        size_t n = (size_t)j->received;
+        j->buf = malloc(n ? n : 1);
+        if (!j->buf) {
+            rc = -ENOMEM;
+            goto out;
+        }
+        j->cap = n;
+    }
+    uint8_t block[65536];
+    off_t off = 0;
+    while ((uint64_t)off < j->received) {
+        size_t want = sizeof block;
+        if (j->received - (uint64_t)off < want) want = (size_t)(j->received - (uint64_t)off);
+        ssize_t r = pread(spool, block, want, off);
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) {
+            rc = r < 0 ? -errno : -EIO;
+            break;
+        }
+        if (sink == SINK_BUF) memcpy(j->buf + off, block, (size_t)r);
+        else if ((rc = write_all(fd, block, (size_t)r))) break;
+        off += r;
+    }
+out:
+    close(spool);
+    if (rc) {
+        j->local_err = rc;
+        set_error(&j->result, rc, j->id, "cannot store job %llu's result: %s",
+                  (unsigned long long)j->id, strerror(-rc));
+    }
+    return rc;
+}
+
+/* Wait for the job's end, showing its progress; the job's result code. */
+static int wait_job(vox_client *c, vjob *j, vox_progress_cb cb, void *ud)
+{
+    while (!j->done) {
+        int intr = 0;
+        /* Progress that came before this call is shown first. */
+        int rc = j->progress_new ? 0 : step(c, &intr);
+        if (rc) {
+            if (j->done) break; /* its end came before the failure */
+            j->done = 1;
+            if (!j->local_err) j->result = c->fail, j->result.job_id = j->id;
+            break;
+        }
+        if (!cb) j->progress_new = 0;
+        if (cb && (j->progress_new || intr)) {
+            j->progress_new = 0;
+            if (cb(ud, j->fraction, j->level, j->voxels) && !j->cancel_sent && !j->done) {
+                j->cancel_sent = 1;
+                add_ignored(c, j->id);
+                send_cancel(c, j->id); /* a failure shows in the next step */
+            }
+        }
+    }
+    if (cb && j->progress_new && !j->result.code) {
+        j->progress_new = 0;
+        cb(ud, j->fraction, j->level, j->voxels);
+    }
+    return j->result.code;
+}
+
+static vjob *receivable(vox_client *c, uint64_t job_id, vox_error *err)
+{
+    vjob *j = find_job(c, job_id);
+    if (!j) set_error(err, -EINVAL, job_id, "job %llu is not a job of this connection",
+                      (unsigned long long)job_id);
+    return j;
+}
+
+/* A new file beside path, created exclusively (mode 0666 less the umask). */
+static int tmp_create(const char *path, char *tmp, size_t cap)
+{
+    static unsigned counter;
+    for (int tries = 0; tries < 100; tries++) {
+        struct timespec ts;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        unsigned salt = (unsigned)ts.tv_nsec ^ (unsigned)getpid() << 8 ^ counter++ * 2654435761u;
+        if (snprintf(tmp, cap, "%s.tmp.%06x", path, salt & 0xffffff) >= (int)cap)
+            return -ENAMETOOLONG;
+        int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+        if (fd >= 0 || errno != EEXIST) return fd >= 0 ? fd : -errno;
+    }
+    return -EEXIST;
+}
+
+int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
+                     void *ud, vox_summary *sum, vox_error *err)
+{
+    vox_error tmp_err;
+    if (!err) err = &tmp_err;
+    vjob *j = receivable(c, job_id, err);
+    if (!j) return -EINVAL;
+    char tmp[PATH_MAX + 32];
+    int fd = tmp_create(path, tmp, sizeof tmp);
+    if (fd < 0) {
+        set_error(err, fd, job_id, "cannot create %s: %s", path, strerror(-fd));
+        forget_job(c, j);
+        return fd;
+    }
+    unspool(j, SINK_FD, fd);
+    int rc = wait_job(c, j, cb, ud);
+    if (rc == 0 && fsync(fd) != 0) rc = -errno;
+    if (close(fd) != 0 && rc == 0) rc = -errno;
+    if (rc == 0 && rename(tmp, path) != 0) rc = -errno;
+    if (rc) {
+        unlink(tmp);
+        if (j->result.code) copy_error(err, &j->result);
+        else set_error(err, rc, job_id, "cannot write %s: %s", path, strerror(-rc));
+    } else if (sum) {
+        *sum = j->sum;
+    }
+    forget_job(c, j);
+    return rc;
+}
+
+int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
+                       vox_progress_cb cb, void *ud, vox_summary *sum, vox_error *err)
+{
+    vox_error tmp_err;
+    if (!err) err = &tmp_err;
+    *buf = NULL;
+    *len = 0;
+    vjob *j = receivable(c, job_id, err);
+    if (!j) return -EINVAL;
+    unspool(j, SINK_BUF, -1);
+    int rc = wait_job(c, j, cb, ud);
+    if (rc) {
+        copy_error(err, &j->result);
+    } else {
+        *buf = j->buf;
+        *len = (size_t)j->received;
+        j->buf = NULL;
+        if (sum) *sum = j->sum;
+    }
+    forget_job(c, j);
+    return rc;
+}
