@@ -5,7 +5,17 @@
  *   + - * / ^, unary minus, parentheses, pi,
  *   sin cos tan asin acos atan atan2 exp log sqrt abs min max pow blend(d,R),
  *   named values "a = <expr>;" before the final expression; '#' starts a comment.
- *   min and max take two or more arguments.
+ *   min and max take two or more arguments.  Grammar and messages: expr_parse.c.
+ *
+ * Point semantics (what the point and gradient evaluators compute, and what
+ * the interval evaluator encloses): IEEE doubles and libm, except that
+ * F is undefined (NaN) wherever an operand is: min, max, blend and pow
+ * propagate NaN (C's fmin, pow(1, NaN) would not), and pow(a, b) with a < 0
+ * needs an integer b.  phi at the origin is 0, theta there is atan2(0, 0) = 0.
+ * x^n for a constant integer n is an integer power (x^2: x*x); blend's R must
+ * be a positive finite constant.  At an exact pole (1/0, log(0)) the sign of
+ * the infinity comes from the sign of a zero, which intervals do not carry:
+ * such points, like NaN ones, are outside F's domain and never on F = 0.
  *
  * expr_compile() parses once and emits a flat register tape (constant folding,
  * common subexpressions shared).  The tape is one position-independent block of
@@ -16,9 +26,11 @@
  * tape per subdivision depth.  Interval evaluation at depth d records, for every
  * min/max, which side won on that box; expr_vm_prune(d) then builds the tape for
  * depth d+1 with the branches that cannot matter inside that box removed, so
- * deep octants run a much shorter tape.  A pruned tape equals F everywhere in
- * the box it was pruned for, so point and gradient evaluation inside that box
- * may use it too.
+ * deep octants run a much shorter tape.  A pruned tape equals F bit for bit
+ * in the box it was pruned for (wherever F is defined: a dropped branch may
+ * have been NaN there), so point and gradient evaluation inside that box may
+ * use it too.  Pruning is deterministic: the tape of depth d+1 depends only
+ * on tape d and the box, never on what the vm evaluated before.
  */
 #ifndef VOXD_EXPR_H
 #define VOXD_EXPR_H
@@ -84,7 +96,11 @@ double expr_vm_point(expr_vm *vm, int d, double x, double y, double z);
 double expr_vm_grad(expr_vm *vm, int d, double x, double y, double z,
                     double grad[3]);
 /* Build the tape of depth d+1 from the choices of the last expr_vm_ival at
- * depth d.  Call it right after that evaluation.  Cheap when nothing prunes. */
+ * depth d.  Call it right after that evaluation.  Cheap when nothing prunes
+ * (tape d+1 then shares tape d).  Tapes deeper than d+1 are stale until
+ * pruned again.  Depths beyond max_depth use tape max_depth (valid in every
+ * box inside the one it was pruned for), and prune(max_depth) does nothing;
+ * a negative d means 0. */
 void expr_vm_prune(expr_vm *vm, int d);
 /* Instructions in the tape of depth d (for statistics). */
 uint32_t expr_vm_length(const expr_vm *vm, int d);
