@@ -71,6 +71,8 @@ $(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 
 $(BUILD)/voxbench: bench/voxbench.c $(LIB)
 	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+$(BUILD)/bench_expr: bench/bench_expr.c $(LIB)
+	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 
 $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 	@mkdir -p $(dir $@)
@@ -115,7 +117,7 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench
+bench: deps all $(BUILD)/voxbench $(BUILD)/bench_expr
 	@scripts/bench.sh $(BUILD)
 
 clean:

@@ -1,9 +1,5 @@
-/* bench_expr — ns per evaluation of the expression vm (release build):
- *
- *   make V=release BUILD=build/exprrel \
- *     LIB_SRC="common/ival.c $(ls common/expr_*.c | tr '\n' ' ')" build/exprrel/libvoxd.a
- *   cc -std=c11 -D_GNU_SOURCE -O2 -Icommon bench/bench_expr.c build/exprrel/libvoxd.a \
- *     -lm -o build/exprrel/bench_expr && build/exprrel/bench_expr
+/* bench_expr — ns per evaluation of the expression vm (built and run by
+ * `make bench`; alone: make build/release/bench_expr).
  *
  * Prints, per expression: tape length, then ns per interval evaluation
  * (random boxes of one octree level), per point and per gradient

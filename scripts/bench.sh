@@ -9,6 +9,9 @@ mkdir -p bench/results
 out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
 {
     echo "# voxbench on $(nproc) cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')"
+    echo; echo "### Expression evaluator (ns per evaluation)"; echo; echo '```'
+    "$build/bench_expr"
+    echo '```'
     "$build/voxbench" shapes -r "$res"
     "$build/voxbench" table1 -r "$res" -n "$workers"
     "$build/voxbench" brute -r 256,512,1024
