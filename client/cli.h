@@ -4,10 +4,77 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
-int cli_voxelize(int argc, char **argv);
+#include "engine.h"
+#include "source.h"
+#include "vod.h"
+#include "vox.h"
+
+/* Exit codes of every command. */
+#define CLI_EXIT_OK 0
+#define CLI_EXIT_FAILED 1    /* the job (or the request) failed */
+#define CLI_EXIT_USAGE 2     /* bad usage, a bad expression */
+#define CLI_EXIT_NO_DAEMON 3 /* no voxd answering on the socket */
+
+/* sock: the daemon's socket (vox --socket, $VOXD_SOCKET, the default). */
+int cli_voxelize(int argc, char **argv, const char *sock);
+int cli_submit(int argc, char **argv, const char *sock);
+int cli_status(int argc, char **argv, const char *sock);
+int cli_cancel(int argc, char **argv, const char *sock);
+int cli_ping(int argc, char **argv, const char *sock);
 int cli_info(int argc, char **argv);
 int cli_render(int argc, char **argv);
+
+/* ---- a voxelization job's options (vox voxelize, vox submit) ---- */
+
+typedef enum { CLI_MODE_AUTO, CLI_MODE_EMBEDDED, CLI_MODE_DAEMON } cli_mode;
+
+typedef struct {
+    const char *expr, *file, *out, *cpus;
+    double lo[3], hi[3];
+    int has_domain;
+    uint32_t res;
+    const char *res_arg;       /* --res as written, for messages */
+    uint32_t workers, shm_mib;
+    int engine_opts;           /* -w, --cpus or --shm-size was given */
+    engine_schedule schedule;
+    vod_params vod;            /* channel, brick, comp, hash */
+    int progress, quiet;
+    cli_mode mode;             /* --embedded / --daemon */
+} cli_job_opts;
+
+enum { CLI_CMD_VOXELIZE, CLI_CMD_SUBMIT };
+
+/* The defaults of both commands. */
+void cli_job_defaults(cli_job_opts *o);
+/* Parse the options of cmd (CLI_CMD_*): voxelize also takes the embedded
+ * engine's and --embedded/--daemon.  0, or CLI_EXIT_USAGE after a message;
+ * --help prints the usage and exits 0. */
+int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o);
+void cli_job_usage(int cmd, FILE *f);
+/* Load and compile the job's source (messages with file:line:col), apply
+ * its "#@ domain".  0 or CLI_EXIT_USAGE.  *tape (when tape is not NULL)
+ * is the compiled expression, to free with expr_tape_free. */
+int cli_job_source(cli_job_opts *o, source *src, expr_tape **tape);
+
+/* ---- the daemon (cli_submit.c) ---- */
+
+/* Connect to voxd at sock.  On failure *err says why and the return is
+ * the connect error (-ENOENT / -ECONNREFUSED: no daemon there). */
+int cli_connect(const char *sock, int timeout_ms, vox_client **c, vox_error *err);
+/* Print "no voxd answering on SOCK (why); start one ..." for a failed
+ * connect; returns CLI_EXIT_NO_DAEMON. */
+int cli_no_daemon(const char *sock, int rc, const vox_error *err);
+/* Run the job on the daemon: submit, receive into o->out with the progress
+ * line, print the summary.  Returns an exit code.  *refused (may be NULL)
+ * is set to the VOX_E* code when the daemon refused the job before
+ * accepting it (nothing printed for BUSY and SHUTTING_DOWN when
+ * quiet_refusal is set, so that the caller may fall back). */
+int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
+                   int quiet_refusal, int *refused);
+
+/* ---- parsers ---- */
 
 /* Parse "a,b" (a cube [a,b]^3) or "x0,x1,y0,y1,z0,z1" into lo/hi. */
 int cli_parse_domain(const char *s, double lo[3], double hi[3]);

@@ -1,34 +1,74 @@
 /* vox — the voxd command line. */
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "cli.h"
 
 static const char usage[] =
-    "usage: vox COMMAND [options]\n"
+    "usage: vox [--socket PATH] COMMAND [options]\n"
     "\n"
     "commands:\n"
-    "  voxelize   voxelize an implicit surface F(x,y,z) = 0 into a VOD file\n"
+    "  voxelize   voxelize an implicit surface F(x,y,z) = 0 into a VOD file, on voxd\n"
+    "             when one answers, else with the embedded engine\n"
+    "  submit     the same job, on voxd only\n"
+    "  status     voxd's workers, queue, running job, uptime and clients\n"
+    "  cancel     cancel a job on voxd\n"
+    "  ping       check that voxd answers, and how fast\n"
     "  info       validate a VOD file and print its header, tree and bricks\n"
     "  render     draw a VOD file as shaded points into a PNG\n"
+    "\n"
+    "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else " VOX_DEFAULT_SOCKET ")\n"
     "\n"
     "`vox COMMAND --help` tells a command's options.\n";
 
 int main(int argc, char **argv)
 {
-    if (argc < 2) {
-        fputs(usage, stderr);
-        return 2;
+    const char *sock = getenv("VOXD_SOCKET");
+    if (!sock || !*sock) sock = VOX_DEFAULT_SOCKET;
+    int i = 1;
+    /* Options before the command: vox's own. */
+    while (i < argc && argv[i][0] == '-') {
+        const char *a = argv[i];
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            fputs(usage, stdout);
+            return 0;
+        }
+        if (!strcmp(a, "--socket")) {
+            if (i + 1 >= argc || !argv[i + 1][0]) {
+                cli_error("--socket needs a PATH");
+                return CLI_EXIT_USAGE;
+            }
+            sock = argv[i + 1];
+            i += 2;
+        } else if (!strncmp(a, "--socket=", 9) && a[9]) {
+            sock = a + 9;
+            i++;
+        } else {
+            cli_error("unknown option '%s' (vox's options come before the command)", a);
+            fputs(usage, stderr);
+            return CLI_EXIT_USAGE;
+        }
     }
-    const char *cmd = argv[1];
-    if (!strcmp(cmd, "-h") || !strcmp(cmd, "--help") || !strcmp(cmd, "help")) {
+    if (i >= argc) {
+        fputs(usage, stderr);
+        return CLI_EXIT_USAGE;
+    }
+    const char *cmd = argv[i];
+    int n = argc - i;
+    char **v = argv + i;
+    if (!strcmp(cmd, "help")) {
         fputs(usage, stdout);
         return 0;
     }
-    if (!strcmp(cmd, "voxelize")) return cli_voxelize(argc - 1, argv + 1);
-    if (!strcmp(cmd, "info")) return cli_info(argc - 1, argv + 1);
-    if (!strcmp(cmd, "render")) return cli_render(argc - 1, argv + 1);
+    if (!strcmp(cmd, "voxelize")) return cli_voxelize(n, v, sock);
+    if (!strcmp(cmd, "submit")) return cli_submit(n, v, sock);
+    if (!strcmp(cmd, "status")) return cli_status(n, v, sock);
+    if (!strcmp(cmd, "cancel")) return cli_cancel(n, v, sock);
+    if (!strcmp(cmd, "ping")) return cli_ping(n, v, sock);
+    if (!strcmp(cmd, "info")) return cli_info(n, v);
+    if (!strcmp(cmd, "render")) return cli_render(n, v);
     cli_error("unknown command '%s'", cmd);
     fputs(usage, stderr);
-    return 2;
+    return CLI_EXIT_USAGE;
 }

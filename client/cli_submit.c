@@ -1,0 +1,352 @@
+/* vox submit / status / cancel / ping: the voxd daemon through libvox; and
+ * the daemon half of vox voxelize. */
+#include <errno.h>
+#include <getopt.h>
+#include <inttypes.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cli.h"
+#include "progress.h"
+#include "subdiv.h"
+#include "voxel.h"
+
+#define CONNECT_TIMEOUT_MS 10000 /* a daemon that answers at all says hello at once */
+#define TIMEOUT_MS 30000         /* silence (pinged after half) before giving up */
+
+/* ---------------------------------------------------------------- connecting */
+
+int cli_connect(const char *sock, int timeout_ms, vox_client **c, vox_error *err)
+{
+    vox_options opts = {.timeout_ms = timeout_ms, .client_name = "vox"};
+    int rc = vox_connect(sock, &opts, c, err);
+    if (rc == 0) vox_set_timeout(*c, TIMEOUT_MS);
+    return rc;
+}
+
+static int no_daemon(const char *sock, int rc, const vox_error *err, const char *instead)
+{
+    if (rc == -ENOENT || rc == -ECONNREFUSED)
+        cli_error("no voxd answering on %s (%s); start one with `voxd --config ...` or %s",
+                  sock, rc == -ENOENT ? "no such socket" : "connection refused", instead);
+    else
+        cli_error("cannot use voxd on %s: %s", sock, err->message);
+    return CLI_EXIT_NO_DAEMON;
+}
+
+int cli_no_daemon(const char *sock, int rc, const vox_error *err)
+{
+    return no_daemon(sock, rc, err, "leave out --daemon");
+}
+
+static int connect_or_say(const char *sock, vox_client **c)
+{
+    vox_error err;
+    int rc = cli_connect(sock, CONNECT_TIMEOUT_MS, c, &err);
+    return rc ? no_daemon(sock, rc, &err, "use vox voxelize") : 0;
+}
+
+/* "LIMIT_EXCEEDED: res 5000 is over ..." for a daemon's error, else ours. */
+static void print_failure(const char *what, int rc, const vox_error *err)
+{
+    if (VOX_IS_SERVER_ERROR(rc))
+        cli_error("%s: %s: %s", what, vox_error_name(rc), err->message);
+    else
+        cli_error("%s: %s", what, err->message[0] ? err->message : vox_strerror(rc));
+}
+
+/* ---------------------------------------------------------------- a job */
+
+static volatile sig_atomic_t interrupted;
+
+static void on_interrupt(int sig)
+{
+    interrupted = 1;
+    /* A second one ends vox at once. */
+    struct sigaction dfl = {.sa_handler = SIG_DFL};
+    sigaction(sig, &dfl, NULL);
+}
+
+static int on_job_progress(void *ud, double fraction, int level, uint64_t voxels)
+{
+    progress_update(ud, fraction, level, voxels);
+    return interrupted;
+}
+
+static int vox_channel(int ch)
+{
+    return ch == VOXEL_CH_OCCUPANCY ? VOX_CHANNEL_OCCUPANCY : VOX_CHANNEL_SURFACE;
+}
+
+static int vox_comp(uint32_t comp)
+{
+    return comp == VOD_COMP_NONE ? VOX_COMP_NONE
+           : comp == VOD_COMP_RUNL ? VOX_COMP_RUNL
+                                   : VOX_COMP_ZLIB;
+}
+
+static void print_summary(const cli_job_opts *o, const vox_summary *s)
+{
+    subdiv_grid g;
+    char err[256];
+    double t = s->seconds_voxelize;
+    printf("%s: %llu voxels", o->out, (unsigned long long)s->voxels);
+    if (subdiv_grid_make(o->lo, o->hi, o->res, &g, err, sizeof err) == 0)
+        printf(" on a %ux%ux%u grid", g.res[0], g.res[1], g.res[2]);
+    printf(" in %.3f s (%.2f Mvoxels/s), VOD written in %.3f s\n", t,
+           t > 0 ? s->voxels / t / 1e6 : 0.0, s->seconds_write);
+    printf("  %llu bytes, %llu bricks, CRC %08x\n", (unsigned long long)s->file_bytes,
+           (unsigned long long)s->bricks, s->crc32);
+    printf("  voxd job %llu, %.3f s in the queue\n", (unsigned long long)s->job_id,
+           s->seconds_queued);
+}
+
+int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
+                   int quiet_refusal, int *refused)
+{
+    vox_implicit_job job = {
+        .source = src->text,
+        .source_len = src->len,
+        .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
+        .res = o->res,
+        .channel = vox_channel(o->vod.channel),
+        .brick = o->vod.brick,
+        .comp = vox_comp(o->vod.comp),
+        .hash = o->vod.hash == VOD_HASH_XX32 ? VOX_HASH_XX32 : VOX_HASH_SFHS,
+        .schedule = o->schedule == ENGINE_SCHED_PAPER ? VOX_SCHEDULE_PAPER : VOX_SCHEDULE_SUBTREE,
+    };
+    if (refused) *refused = 0;
+    if (src->len == 0) {
+        cli_error("%s: the expression is empty", src->name);
+        return CLI_EXIT_USAGE;
+    }
+    uint64_t id;
+    uint32_t qpos;
+    vox_error err;
+    int rc = vox_submit(c, &job, &id, &qpos, &err);
+    if (rc) {
+        if (VOX_IS_SERVER_ERROR(rc) && refused) *refused = rc;
+        if (!(quiet_refusal && (rc == VOX_EBUSY || rc == VOX_ESHUTTING_DOWN)))
+            print_failure("job failed", rc, &err);
+        return CLI_EXIT_FAILED;
+    }
+
+    progress pr;
+    progress_init(&pr, o->progress);
+    if (pr.enabled) {
+        if (qpos)
+            fprintf(stderr, "vox: voxd job %" PRIu64 ", %u ahead of it in the queue\n", id, qpos);
+        else
+            fprintf(stderr, "vox: voxd job %" PRIu64 "\n", id);
+    }
+    /* An interrupt cancels the job on the daemon, then vox ends as the
+     * job does (without SA_RESTART: it cuts the wait short). */
+    struct sigaction sa = {.sa_handler = on_interrupt}, old_int, old_term;
+    sigemptyset(&sa.sa_mask);
+    interrupted = 0;
+    sigaction(SIGINT, &sa, &old_int);
+    sigaction(SIGTERM, &sa, &old_term);
+    vox_summary sum;
+    rc = vox_receive_file(c, id, o->out, on_job_progress, &pr, &sum, &err);
+    sigaction(SIGINT, &old_int, NULL);
+    sigaction(SIGTERM, &old_term, NULL);
+    progress_done(&pr);
+
+    if (rc) {
+        char what[64];
+        if (rc == VOX_ECANCELLED && interrupted)
+            snprintf(what, sizeof what, "job %" PRIu64 " cancelled (interrupted)", id);
+        else
+            snprintf(what, sizeof what, "job %" PRIu64 " failed", id);
+        if (rc == VOX_ECANCELLED && interrupted) cli_error("%s", what);
+        else print_failure(what, rc, &err);
+        return CLI_EXIT_FAILED;
+    }
+    if (!o->quiet) print_summary(o, &sum);
+    return CLI_EXIT_OK;
+}
+
+int cli_submit(int argc, char **argv, const char *sock)
+{
+    cli_job_opts o;
+    cli_job_defaults(&o);
+    int rc = cli_job_parse(CLI_CMD_SUBMIT, argc, argv, &o);
+    if (rc) return rc;
+    source src;
+    if ((rc = cli_job_source(&o, &src, NULL))) return rc;
+    vox_client *c;
+    rc = connect_or_say(sock, &c);
+    if (rc == 0) {
+        rc = cli_daemon_job(c, &o, &src, 0, NULL);
+        vox_close(c);
+    }
+    source_free(&src);
+    return rc;
+}
+
+/* ---------------------------------------------------------------- status, cancel, ping */
+
+/* Only --help: 0 to go on, else the exit code. */
+static int no_options(int argc, char **argv, const char *usage)
+{
+    static const struct option longs[] = {{"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    int c;
+    optind = 1;
+    while ((c = getopt_long(argc, argv, "h", longs, NULL)) != -1) {
+        if (c == 'h') {
+            fputs(usage, stdout);
+            exit(0);
+        }
+        fputs(usage, stderr);
+        return CLI_EXIT_USAGE;
+    }
+    return -1;
+}
+
+static void format_duration(double s, char *buf, size_t cap)
+{
+    unsigned long long t = (unsigned long long)s;
+    if (s < 60) snprintf(buf, cap, "%.1f s", s);
+    else if (t < 3600) snprintf(buf, cap, "%llu min %02llu s", t / 60, t % 60);
+    else if (t < 86400) snprintf(buf, cap, "%llu h %02llu min", t / 3600, t / 60 % 60);
+    else snprintf(buf, cap, "%llu d %02llu h", t / 86400, t / 3600 % 24);
+}
+
+static const char *state_name(int s)
+{
+    switch (s) {
+    case VOX_WORKER_IDLE: return "idle";
+    case VOX_WORKER_BUSY: return "busy";
+    case VOX_WORKER_STARTING: return "starting";
+    default: return "unknown";
+    }
+}
+
+static const char usage_status[] =
+    "usage: vox [--socket PATH] status\n"
+    "The daemon's state: uptime and clients, the queue, the running job, and each\n"
+    "worker's pid, CPU, state, jobs and voxels per second over its last job.\n"
+    "Exit status: 0, 1 the request failed, 3 no voxd answering on the socket.\n";
+
+int cli_status(int argc, char **argv, const char *sock)
+{
+    int rc = no_options(argc, argv, usage_status);
+    if (rc >= 0) return rc;
+    if (optind < argc) {
+        cli_error("unexpected argument '%s'", argv[optind]);
+        return CLI_EXIT_USAGE;
+    }
+    vox_client *c;
+    if ((rc = connect_or_say(sock, &c))) return rc;
+    vox_status_info st;
+    vox_error err;
+    rc = vox_status(c, &st, &err);
+    if (rc) {
+        print_failure("status", rc, &err);
+        vox_close(c);
+        return CLI_EXIT_FAILED;
+    }
+    vox_server_info info;
+    vox_server(c, &info);
+    char up[64];
+    format_duration(st.uptime, up, sizeof up);
+    printf("%s on %s: up %s, %u client%s\n", info.name, sock, up, st.clients,
+           st.clients == 1 ? "" : "s");
+    printf("queue: %u job%s waiting (limit %u)\n", st.queued, st.queued == 1 ? "" : "s",
+           info.max_queued_jobs);
+    if (st.has_running) {
+        char t[64];
+        format_duration(st.running_seconds, t, sizeof t);
+        printf("running: job %llu of uid %u, %.1f%% done, for %s\n",
+               (unsigned long long)st.running_job_id, st.running_uid,
+               st.running_fraction * 100.0, t);
+    } else {
+        printf("running: nothing\n");
+    }
+    printf("workers: %zu\n", st.n_workers);
+    if (st.n_workers) printf("  %8s %4s %-9s %6s %14s\n", "PID", "CPU", "STATE", "JOBS", "VOXELS/S");
+    for (size_t i = 0; i < st.n_workers; i++) {
+        const vox_worker_status *w = &st.workers[i];
+        char cpu[16];
+        if (w->cpu < 0) snprintf(cpu, sizeof cpu, "-");
+        else snprintf(cpu, sizeof cpu, "%d", w->cpu);
+        printf("  %8u %4s %-9s %6llu %14.0f\n", w->pid, cpu, state_name(w->state),
+               (unsigned long long)w->jobs, w->voxels_per_second);
+    }
+    vox_status_free(&st);
+    vox_close(c);
+    return CLI_EXIT_OK;
+}
+
+static const char usage_cancel[] =
+    "usage: vox [--socket PATH] cancel JOB_ID\n"
+    "Asks voxd to cancel a job (its id is shown by vox submit on a terminal and by\n"
+    "vox status); the job ends with CANCELLED for the client that submitted it.\n"
+    "The daemon decides whose jobs a connection may cancel and says why it refuses.\n"
+    "Exit status: 0 the daemon took the cancel, 1 it refused (with its reason), 2 bad\n"
+    "usage, 3 no voxd answering on the socket.\n";
+
+int cli_cancel(int argc, char **argv, const char *sock)
+{
+    int rc = no_options(argc, argv, usage_cancel);
+    if (rc >= 0) return rc;
+    if (argc - optind != 1) {
+        cli_error(argc - optind ? "cancel takes one JOB_ID" : "missing JOB_ID");
+        fputs(usage_cancel, stderr);
+        return CLI_EXIT_USAGE;
+    }
+    const char *arg = argv[optind];
+    char *end;
+    errno = 0;
+    unsigned long long id = strtoull(arg, &end, 10);
+    if (arg[0] < '0' || arg[0] > '9' || *end || errno || id == 0) {
+        cli_error("bad JOB_ID '%s': want a job number (from 1)", arg);
+        return CLI_EXIT_USAGE;
+    }
+    vox_client *c;
+    if ((rc = connect_or_say(sock, &c))) return rc;
+    vox_error err;
+    rc = vox_cancel(c, id, &err);
+    vox_close(c);
+    if (rc == 0 || rc == VOX_ECANCELLED) {
+        printf("job %llu: cancel taken by voxd\n", id);
+        return CLI_EXIT_OK;
+    }
+    char what[64];
+    snprintf(what, sizeof what, "cannot cancel job %llu", id);
+    print_failure(what, rc, &err);
+    return CLI_EXIT_FAILED;
+}
+
+static const char usage_ping[] =
+    "usage: vox [--socket PATH] ping\n"
+    "Says hello to voxd and times one round trip; prints the daemon's name, protocol\n"
+    "version and workers.  Exit status: 0 it answered, 1 it failed to, 3 no voxd\n"
+    "answering on the socket.\n";
+
+int cli_ping(int argc, char **argv, const char *sock)
+{
+    int rc = no_options(argc, argv, usage_ping);
+    if (rc >= 0) return rc;
+    if (optind < argc) {
+        cli_error("unexpected argument '%s'", argv[optind]);
+        return CLI_EXIT_USAGE;
+    }
+    vox_client *c;
+    if ((rc = connect_or_say(sock, &c))) return rc;
+    vox_error err;
+    double rtt;
+    rc = vox_ping(c, &rtt, &err);
+    if (rc == 0) {
+        vox_server_info info;
+        vox_server(c, &info);
+        printf("%s on %s: protocol %u, %u worker%s, round trip %.3f ms\n", info.name, sock,
+               info.version, info.workers, info.workers == 1 ? "" : "s", rtt * 1e3);
+    } else {
+        print_failure("ping", rc, &err);
+    }
+    vox_close(c);
+    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
+}
