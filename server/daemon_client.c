@@ -331,21 +331,35 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     return vd_send_accepted(c, j->id, pos);
 }
 
+/* A job of this connection, or of another connection of the same uid
+ * (`vox cancel ID` runs in a process of its own); root may cancel any. */
+static vd_job *find_job(vd_client *c, uint64_t id)
+{
+    for (vd_client *o = c->d->clients; o; o = o->next) {
+        if (o != c && c->uid != 0 && o->uid != c->uid) continue;
+        for (vd_job *j = o->jobs; j; j = j->cnext)
+            if (j->id == id) return j;
+    }
+    return NULL;
+}
+
+/* The job's terminal Error CANCELLED goes to the connection that submitted
+ * it: now for a queued or delivering job, when the engine has stopped for
+ * a running one. */
 static int on_cancel(vd_client *c, uint64_t id)
 {
-    vd_job *j = c->jobs;
-    while (j && j->id != id) j = j->cnext;
+    vd_job *j = find_job(c, id);
     if (!j)
         return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
-                               "no job %llu on this connection (finished, or not yours)",
+                               "no job %llu of this uid is queued or running",
                                (unsigned long long)id);
+    log_info("job %llu: cancel asked by client pid %d", (unsigned long long)id, (int)c->pid);
     if (j->state == VD_DELIVERING) {
-        unlink_delivery(c, j);
-        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by the client");
+        unlink_delivery(j->client, j);
+        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
     } else if (vd_job_stop(c->d, j, VOXD__ERROR_CODE__CANCELLED)) {
-        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by the client");
+        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
     }
-    /* else running: its terminal error comes when the engine stops it */
     return 0;
 }
 

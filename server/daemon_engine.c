@@ -183,7 +183,7 @@ void vd_job_stopped(vd_job *j)
     case VOXD__ERROR_CODE__SHUTTING_DOWN:
         job_error(j, j->cancel_code, "the daemon is stopping");
         break;
-    default: job_error(j, VOXD__ERROR_CODE__CANCELLED, "cancelled by the client"); break;
+    default: job_error(j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client"); break;
     }
 }
 

@@ -1,0 +1,377 @@
+#!/usr/bin/env python3
+"""A tiny voxd protocol client for the daemon's integration tests.
+
+Speaks proto/voxd.proto by hand (no protobuf module needed): frames are a
+u32 big-endian length and one message.  Also sends the malformed frames the
+abuse tests need.  Every socket operation has a timeout, so a test never
+hangs on it.
+
+  daemon_client.py SOCK submit EXPR RES DOMAIN OUT [--cancel] [--no-read] [--channel N]
+  daemon_client.py SOCK status            (prints pid=..,cpu=.. per worker, queued, running)
+  daemon_client.py SOCK ping
+  daemon_client.py SOCK abuse KIND        (see ABUSE)
+
+Exit status: 0 success, 3 the server answered with an Error (printed as
+"ERROR CODE_NAME: message"), 4 the connection closed, 5 a timeout.
+"""
+import os
+import socket
+import struct
+import sys
+import time
+
+CODES = {1: "INVALID_INPUT", 2: "LIMIT_EXCEEDED", 3: "BUSY", 4: "CANCELLED",
+         5: "WORKER_CRASHED", 6: "TIMEOUT", 7: "SHUTTING_DOWN", 8: "INTERNAL"}
+TIMEOUT = float(os.environ.get("VOXD_TEST_TIMEOUT", "60"))
+
+
+# ---------------------------------------------------------------- encoding
+
+def varint(v):
+    if v < 0:
+        v += 1 << 64
+    out = bytearray()
+    while True:
+        b = v & 0x7F
+        v >>= 7
+        if v:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def field_varint(n, v):
+    return varint(n << 3) + varint(v) if v else b""
+
+
+def field_bytes(n, b):
+    return varint(n << 3 | 2) + varint(len(b)) + b
+
+
+def field_packed_doubles(n, vals):
+    return field_bytes(n, b"".join(struct.pack("<d", v) for v in vals))
+
+
+def request(case, body):
+    return field_bytes(case, body)
+
+
+def frame(msg):
+    return struct.pack(">I", len(msg)) + msg
+
+
+def hello(version=1):
+    return frame(request(1, field_varint(1, version) + field_bytes(2, b"daemon_client.py")))
+
+
+def submit(expr, res, domain, channel=0, schedule=0, brick=0):
+    if isinstance(expr, str):
+        expr = expr.encode()
+    imp = field_bytes(1, expr) + field_packed_doubles(2, domain) + field_varint(3, res) \
+        + field_varint(4, schedule)
+    body = field_bytes(1, imp) + field_varint(10, channel) + field_varint(11, brick)
+    return frame(request(2, body))
+
+
+def cancel(job_id):
+    return frame(request(3, field_varint(1, job_id)))
+
+
+def status():
+    return frame(request(4, b""))
+
+
+def ping(token=7):
+    return frame(request(5, field_varint(1, token)))
+
+
+# ---------------------------------------------------------------- decoding
+
+def read_varint(b, i):
+    v = shift = 0
+    while True:
+        c = b[i]
+        i += 1
+        v |= (c & 0x7F) << shift
+        shift += 7
+        if not c & 0x80:
+            return v, i
+
+
+def fields(b):
+    """{field number: [values]}: ints for varints, bytes for the rest."""
+    out, i = {}, 0
+    while i < len(b):
+        key, i = read_varint(b, i)
+        n, wt = key >> 3, key & 7
+        if wt == 0:
+            v, i = read_varint(b, i)
+        elif wt == 1:
+            v, i = b[i:i + 8], i + 8
+        elif wt == 2:
+            ln, i = read_varint(b, i)
+            v, i = b[i:i + ln], i + ln
+        elif wt == 5:
+            v, i = b[i:i + 4], i + 4
+        else:
+            raise ValueError("wire type %d" % wt)
+        out.setdefault(n, []).append(v)
+    return out
+
+
+def one(f, n, default=0):
+    return f.get(n, [default])[0]
+
+
+def dbl(f, n):
+    v = f.get(n)
+    return struct.unpack("<d", v[0])[0] if v else 0.0
+
+
+def s64(v):
+    return v - (1 << 64) if v >= 1 << 63 else v
+
+
+class Conn:
+    def __init__(self, path, timeout=TIMEOUT):
+        self.s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.s.settimeout(timeout)
+        self.s.connect(path)
+        self.buf = b""
+
+    def send(self, data):
+        self.s.sendall(data)
+
+    def recv_frame(self):
+        """(case, fields) of the next reply; None at EOF."""
+        while True:
+            if len(self.buf) >= 4:
+                n = struct.unpack(">I", self.buf[:4])[0]
+                if len(self.buf) >= 4 + n:
+                    msg, self.buf = self.buf[4:4 + n], self.buf[4 + n:]
+                    f = fields(msg)
+                    (case, body), = f.items()
+                    return case, fields(body[0])
+            try:
+                d = self.s.recv(1 << 20)
+            except ConnectionResetError:
+                d = b""
+            if not d:
+                return None
+            self.buf += d
+
+    def hello(self):
+        self.send(hello())
+        return self.expect(1)
+
+    def expect(self, case):
+        r = self.recv_frame()
+        if r is None:
+            die(4, "CLOSED: the server closed the connection")
+        if r[0] == 6:
+            err(r[1])
+        if r[0] != case:
+            die(1, "unexpected reply %d (wanted %d)" % (r[0], case))
+        return r[1]
+
+
+def die(code, msg):
+    print(msg, flush=True)
+    sys.exit(code)
+
+
+def err(f):
+    die(3, "ERROR %s: %s (job %d)" % (CODES.get(one(f, 2), "?"),
+                                       one(f, 3, b"").decode(errors="replace"),
+                                       one(f, 1)))
+
+
+# ---------------------------------------------------------------- commands
+
+def cmd_submit(path, args):
+    expr, res, dom, out = args[0], int(args[1]), args[2], args[3]
+    opts = args[4:]
+    domain = [float(x) for x in dom.split(",")]
+    channel = int(opts[opts.index("--channel") + 1]) if "--channel" in opts else 0
+    c = Conn(path)
+    c.hello()
+    c.send(submit(expr, res, domain, channel=channel))
+    acc = c.expect(2)
+    job = one(acc, 1)
+    print("accepted job %d position %d" % (job, one(acc, 2)), flush=True)
+    if "--cancel" in opts:
+        c.send(cancel(job))
+    if "--no-read" in opts:
+        time.sleep(3600)
+    data, progress = bytearray(), 0
+    while True:
+        r = c.recv_frame()
+        if r is None:
+            die(4, "CLOSED: the server closed the connection")
+        case, f = r
+        if case == 3:
+            progress += 1
+        elif case == 4:
+            if one(f, 1) != job or one(f, 2) != len(data):
+                die(1, "chunk of job %d at %d, expected job %d at %d"
+                    % (one(f, 1), one(f, 2), job, len(data)))
+            data += one(f, 3, b"")
+        elif case == 5:
+            if one(f, 1) != job or one(f, 4) != len(data):
+                die(1, "summary of job %d says %d bytes, got %d" % (one(f, 1), one(f, 4), len(data)))
+            with open(out, "wb") as fh:
+                fh.write(data)
+            print("done job %d: %d voxels, %d bytes, crc %08x, %d progress"
+                  % (job, one(f, 2), len(data), one(f, 5), progress), flush=True)
+            return 0
+        elif case == 6:
+            err(f)
+        else:
+            die(1, "unexpected reply %d" % case)
+
+
+def cmd_status(path):
+    c = Conn(path)
+    c.hello()
+    c.send(status())
+    f = c.expect(7)
+    for w in f.get(2, []):
+        wf = fields(w)
+        print("worker pid=%d cpu=%d state=%d jobs=%d" % (one(wf, 1), s64(one(wf, 2)),
+                                                          one(wf, 3), one(wf, 4)))
+    run = f.get(4)
+    print("queued=%d clients=%d running=%s" % (one(f, 3), one(f, 5),
+                                               one(fields(run[0]), 1) if run else "none"))
+    return 0
+
+
+def cmd_ping(path):
+    c = Conn(path)
+    c.hello()
+    c.send(ping(42))
+    f = c.expect(8)
+    print("pong %d" % one(f, 1))
+    return 0
+
+
+# ---------------------------------------------------------------- abuse
+
+def expect_close(c, want_error=None):
+    """Read until EOF: the connection must close (after an Error of the
+    wanted code, when given)."""
+    got = []
+    while True:
+        try:
+            r = c.recv_frame()
+        except socket.timeout:
+            die(5, "TIMEOUT: the connection stayed open")
+        if r is None:
+            break
+        got.append(r)
+    codes = [CODES.get(one(f, 2)) for case, f in got if case == 6]
+    if want_error and want_error not in codes:
+        die(1, "closed, but without an Error %s (got %s)" % (want_error, codes))
+    print("closed after %s" % (codes or "nothing"))
+    return 0
+
+
+def expect_error(c, code):
+    r = c.recv_frame()
+    if r is None or r[0] != 6:
+        die(1, "no Error reply (%s)" % (r and r[0]))
+    got = CODES.get(one(r[1], 2))
+    msg = one(r[1], 3, b"").decode()
+    if got != code:
+        die(1, "Error %s (wanted %s): %s" % (got, code, msg))
+    print("ERROR %s: %s" % (got, msg))
+    return 0
+
+
+def abuse(path, kind):
+    c = Conn(path)
+    if kind == "len0":
+        c.send(struct.pack(">I", 0))
+        return expect_close(c, "INVALID_INPUT")
+    if kind == "lenmax":  # one over the default 1 MiB limit
+        c.send(struct.pack(">I", (1 << 20) + 1))
+        return expect_close(c, "INVALID_INPUT")
+    if kind == "len4g":
+        c.send(b"\xff\xff\xff\xff")
+        return expect_close(c, "INVALID_INPUT")
+    if kind == "truncated":
+        c.send(struct.pack(">I", 100) + b"\x0a\x02")
+        c.s.shutdown(socket.SHUT_WR)
+        return expect_close(c)
+    if kind == "slow":  # one byte a second: the client timeout closes it
+        msg = hello()
+        t0 = time.time()
+        try:
+            for b in msg:
+                c.send(bytes([b]))
+                time.sleep(1)
+        except (BrokenPipeError, ConnectionResetError):
+            print("closed after %.0f s" % (time.time() - t0))
+            return 0
+        return expect_close(c)
+    if kind == "garbage":
+        c.send(frame(b"\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff"))
+        return expect_close(c, "INVALID_INPUT")
+    if kind == "nohello":
+        c.send(status())
+        return expect_close(c, "INVALID_INPUT")
+    if kind == "badversion":
+        c.send(hello(2))
+        return expect_close(c, "INVALID_INPUT")
+    c.hello()
+    if kind == "unknown-enum":
+        c.send(submit("x", 8, [-1, 1], channel=99))
+        return expect_error(c, "INVALID_INPUT")
+    if kind == "nul":
+        c.send(submit(b"x\x00+y", 8, [-1, 1]))
+        return expect_error(c, "INVALID_INPUT")
+    if kind == "huge-expr":  # over the default max_expr_bytes, under max_frame
+        c.send(submit("x" + "+x" * 40000, 8, [-1, 1]))
+        return expect_error(c, "LIMIT_EXCEEDED")
+    if kind == "deep-expr":  # within max_expr_bytes, deeper than max_expr_depth
+        c.send(submit("(" * 300 + "x" + ")" * 300, 8, [-1, 1]))
+        c.expect(2)
+        return expect_error(c, "LIMIT_EXCEEDED")
+    if kind == "res":
+        c.send(submit("x", 5000, [-1, 1]))
+        return expect_error(c, "LIMIT_EXCEEDED")
+    if kind == "bad-expr":
+        c.send(submit("sinn(x)", 8, [-1, 1]))
+        c.expect(2)
+        return expect_error(c, "INVALID_INPUT")
+    if kind == "bad-cancel":
+        c.send(cancel(999999))
+        return expect_error(c, "INVALID_INPUT")
+    if kind == "unknown-request":
+        c.send(frame(request(15, b"")))
+        return expect_error(c, "INVALID_INPUT")
+    die(2, "unknown abuse kind " + kind)
+
+
+def main():
+    if len(sys.argv) < 3:
+        die(2, __doc__)
+    path, cmd, args = sys.argv[1], sys.argv[2], sys.argv[3:]
+    try:
+        if cmd == "submit":
+            return cmd_submit(path, args)
+        if cmd == "status":
+            return cmd_status(path)
+        if cmd == "ping":
+            return cmd_ping(path)
+        if cmd == "abuse":
+            return abuse(path, args[0])
+    except socket.timeout:
+        die(5, "TIMEOUT")
+    except (ConnectionRefusedError, FileNotFoundError) as e:
+        die(4, "CLOSED: cannot connect: %s" % e)
+    die(2, "unknown command " + cmd)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
