@@ -17,6 +17,7 @@
 
 #include <errno.h>
 #include <fcntl.h>
+#include <stdatomic.h>
 #include <limits.h>
 #include <math.h>
 #include <poll.h>
@@ -75,7 +76,7 @@ const char *vox_strerror(int code)
 
 /* ---------------------------------------------------------------- state */
 
-enum { SINK_SPOOL, SINK_FD, SINK_BUF };
+enum { SINK_SPOOL, SINK_FD, SINK_BUF, SINK_NONE };
 
 typedef struct vjob {
     struct vjob *next;
@@ -85,7 +86,7 @@ typedef struct vjob {
     uint32_t crc;          /* zlib crc32 of every byte but the last tail_n */
     uint8_t tail[4];
     unsigned tail_n;
-    int sink;              /* SINK_* */
+    int sink;              /* SINK_*; SINK_NONE: dropped, its end awaited */
     int fd;                /* SINK_SPOOL (-1 until the first chunk), SINK_FD */
     uint8_t *buf;          /* SINK_BUF */
     size_t cap;
@@ -96,6 +97,7 @@ typedef struct vjob {
     uint64_t voxels;
     int progress_new;
     int cancel_sent;
+    int discard;           /* nobody wants it: freed when it ends */
     int done;
     vox_error result;      /* code 0: the summary, checked */
     vox_summary sum;
@@ -206,6 +208,12 @@ static void forget_job(vox_client *c, vjob *j)
     free_job(j);
 }
 
+/* A job's end has been dispatched. */
+static void job_ended(vox_client *c, vjob *j)
+{
+    if (j->discard) forget_job(c, j);
+}
+
 static int ignored(const vox_client *c, uint64_t id)
 {
     unsigned n = c->n_ignore < IGNORE_SLOTS ? c->n_ignore : IGNORE_SLOTS;
@@ -269,6 +277,7 @@ static int buf_append(vjob *j, const uint8_t *p, size_t n)
 static int sink_write(vjob *j, const uint8_t *p, size_t n)
 {
     switch (j->sink) {
+    case SINK_NONE: return 0;
     case SINK_BUF: return buf_append(j, p, n);
     case SINK_SPOOL:
         if (j->fd < 0 && (j->fd = spool_open()) < 0) {
@@ -379,6 +388,7 @@ static int on_error(vox_client *c, const Voxd__Error *m)
     if (j && !j->done) {
         j->done = 1;
         if (!j->local_err) set_error(&j->result, code, j->id, "%s", msg);
+        job_ended(c, j);
         return 0;
     }
     /* A job of ours that has ended: a late answer to a cancel of it is no
@@ -535,8 +545,10 @@ static int dispatch(vox_client *c, const uint8_t *data, size_t len)
                 rc = fail(c, -EPROTO, "voxd sent a summary for job %llu, which %s",
                           (unsigned long long)r->summary->job_id,
                           j ? "has ended" : "is not a job of this connection");
-            else
+            else {
                 on_summary(j, r->summary);
+                job_ended(c, j);
+            }
             break;
         }
         case VOXD__REPLY__MSG_ERROR: rc = on_error(c, r->error); break;
@@ -657,6 +669,28 @@ static int send_cancel(vox_client *c, uint64_t job_id)
     req.msg_case = VOXD__REQUEST__MSG_CANCEL;
     req.cancel = &cancel;
     return send_request(c, &req);
+}
+
+/* Nobody will receive the job: cancel it, drop what comes of it until its
+ * end, then free it (its replies must still check, and a cancel's late
+ * answer is no news).  j may be freed on return. */
+static void drop_job(vox_client *c, vjob *j)
+{
+    if (j->done) {
+        forget_job(c, j);
+        return;
+    }
+    if (j->sink == SINK_SPOOL && j->fd >= 0) close(j->fd);
+    free(j->buf);
+    j->buf = NULL;
+    j->fd = -1;
+    j->sink = SINK_NONE;
+    j->discard = 1;
+    add_ignored(c, j->id);
+    if (!j->cancel_sent) {
+        j->cancel_sent = 1;
+        send_cancel(c, j->id); /* may end and free j; a failure is the connection's */
+    }
 }
 
 /* Wait for input once (or for the timeout, or a signal) and dispatch it.
@@ -1034,7 +1068,7 @@ static vjob *receivable(vox_client *c, uint64_t job_id, vox_error *err)
 /* A new file beside path, created exclusively (mode 0666 less the umask). */
 static int tmp_create(const char *path, char *tmp, size_t cap)
 {
-    static unsigned counter;
+    static atomic_uint counter;
     for (int tries = 0; tries < 100; tries++) {
         struct timespec ts;
         clock_gettime(CLOCK_REALTIME, &ts);
@@ -1058,7 +1092,7 @@ int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progr
     int fd = tmp_create(path, tmp, sizeof tmp);
     if (fd < 0) {
         set_error(err, fd, job_id, "cannot create %s: %s", path, strerror(-fd));
-        forget_job(c, j);
+        drop_job(c, j);
         return fd;
     }
     unspool(j, SINK_FD, fd);

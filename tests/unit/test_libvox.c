@@ -537,6 +537,7 @@ Test(libvox, silent_daemon_at_hello_times_out)
 /* ---------------------------------------------------------------- happy path */
 
 #define RESULT_BYTES 100003
+static int s_happy_saw_cancel;
 
 static void s_happy(srv *s)
 {
@@ -564,7 +565,11 @@ static void s_happy(srv *s)
         send_chunk(s, 7, off, b + off, RESULT_BYTES - off < 7001 ? RESULT_BYTES - off : 7001);
     send_summary(s, 7, RESULT_BYTES, crc);
     free(b);
-    srv_drain(s);
+    while ((r = srv_read(s))) {
+        if (r->msg_case == VOXD__REQUEST__MSG_CANCEL && r->cancel->job_id == 7)
+            __atomic_store_n(&s_happy_saw_cancel, 1, __ATOMIC_RELEASE);
+        voxd__request__free_unpacked(r, NULL);
+    }
 }
 
 Test(libvox, happy_path_to_file)
@@ -1365,6 +1370,54 @@ Test(libvox, unwritable_output_fails_at_once)
     vox_error e;
     cr_expect_eq(vox_receive_file(c, id, "/nonexistent/dir/x.vod", NULL, NULL, NULL, &e), -ENOENT);
     cr_expect(strstr(e.message, "cannot create /nonexistent/dir/x.vod"), "%s", e.message);
+    /* The job was cancelled; what still comes of it is dropped, and the
+     * connection goes on. */
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(vox_receive_file(c, id, out_path("x.vod"), NULL, NULL, NULL, &e), -EINVAL);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect(s_happy_saw_cancel, "the job was not cancelled");
+}
+
+/* A job dropped while its result streams: the rest is discarded, checked,
+ * and the job freed at its end; the next job is received whole. */
+static void s_drop_then_next(srv *s)
+{
+    srv_hello(s);
+    Voxd__Request *r = srv_accept_job(s, 30, 0);
+    if (r) voxd__request__free_unpacked(r, NULL);
+    r = srv_accept_job(s, 31, 0);
+    if (r) voxd__request__free_unpacked(r, NULL);
+    uint32_t crc;
+    uint8_t *b = make_result(9000, 30, &crc);
+    send_result(s, 30, b, 4000, 1000);
+    r = srv_expect(s, VOXD__REQUEST__MSG_CANCEL); /* the drop */
+    if (r) voxd__request__free_unpacked(r, NULL);
+    for (size_t off = 4000; off < 9000; off += 1000) send_chunk(s, 30, off, b + off, 1000);
+    send_summary(s, 30, 9000, crc); /* it finished before the cancel */
+    send_error(s, 30, VOXD__ERROR_CODE__INVALID_INPUT, "no job 30"); /* the cancel's answer */
+    free(b);
+    b = make_result(5000, 31, &crc);
+    send_result(s, 31, b, 5000, 999);
+    send_summary(s, 31, 5000, crc);
+    free(b);
+    srv_drain(s);
+}
+
+Test(libvox, dropped_job_is_drained)
+{
+    srv *s = srv_new(s_drop_then_next, NULL);
+    vox_client *c = start(s, 5000);
+    uint64_t a = submit(c, 30), b = submit(c, 31);
+    vox_error e;
+    cr_expect_eq(vox_receive_file(c, a, "/nonexistent/dir/x.vod", NULL, NULL, NULL, &e), -ENOENT);
+    uint8_t *buf;
+    size_t len;
+    cr_assert_eq(vox_receive_buffer(c, b, &buf, &len, NULL, NULL, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(len, 5000);
+    free(buf);
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
     vox_close(c);
     srv_finish(s);
 }
