@@ -1424,6 +1424,12 @@ Test(libvox, dropped_job_is_drained)
 
 /* ---------------------------------------------------------------- the socket */
 
+static void set_sun_path(struct sockaddr_un *sa, const char *path)
+{
+    cr_assert_lt(strlen(path), sizeof sa->sun_path);
+    memcpy(sa->sun_path, path, strlen(path) + 1);
+}
+
 Test(libvox, no_daemon)
 {
     vox_client *c = (vox_client *)1;
@@ -1434,7 +1440,7 @@ Test(libvox, no_daemon)
     /* A socket file nobody listens on (a daemon that died). */
     int fd = socket(AF_UNIX, SOCK_STREAM, 0);
     struct sockaddr_un sa = {.sun_family = AF_UNIX};
-    snprintf(sa.sun_path, sizeof sa.sun_path, "%s", out_path("dead.sock"));
+    set_sun_path(&sa, out_path("dead.sock"));
     cr_assert_eq(bind(fd, (struct sockaddr *)&sa, sizeof sa), 0);
     close(fd);
     cr_expect_eq(vox_connect(out_path("dead.sock"), NULL, &c, &e), -ECONNREFUSED);
@@ -1450,7 +1456,7 @@ Test(libvox, over_a_unix_socket_path)
     srv *s = srv_new(s_happy, NULL);
     int lfd = socket(AF_UNIX, SOCK_STREAM, 0);
     struct sockaddr_un sa = {.sun_family = AF_UNIX};
-    snprintf(sa.sun_path, sizeof sa.sun_path, "%s", out_path("voxd.sock"));
+    set_sun_path(&sa, out_path("voxd.sock"));
     cr_assert_eq(bind(lfd, (struct sockaddr *)&sa, sizeof sa), 0);
     cr_assert_eq(listen(lfd, 4), 0);
     s->listen_fd = lfd;
