@@ -1,0 +1,112 @@
+#!/bin/bash
+# voxd's life: --check-config, QUIT and TERM with jobs running, a crashed
+# daemon's leftovers, a second daemon, --daemon with its pidfile, USR1.
+. "$(dirname "$0")/daemon_lib.bash"
+
+# --check-config: the effective settings, or FILE:LINE and exit 1.
+printf 'workers 2\nmax_res 512\njob_timeout 5m\n' >"$TMP/good.conf"
+refuse "check-config: good file" 0 "^max_res 512" "$VOXD" --check-config "$TMP/good.conf"
+refuse "check-config: prints every option" 0 "^job_timeout 300" "$VOXD" --check-config "$TMP/good.conf"
+printf 'workers 2\n\nmax_res lots\n' >"$TMP/bad.conf"
+refuse "check-config: bad value, FILE:LINE" 1 "bad.conf:3: " "$VOXD" --check-config "$TMP/bad.conf"
+printf 'frobnicate 1\n' >"$TMP/bad2.conf"
+refuse "check-config: unknown key" 1 "bad2.conf:1: .*frobnicate" "$VOXD" --check-config "$TMP/bad2.conf"
+refuse "check-config: missing file" 1 "nothere.conf" "$VOXD" --check-config "$TMP/nothere.conf"
+refuse "start with a bad config" 1 "bad.conf:3: " "$VOXD" --config "$TMP/bad.conf" --socket "$S"
+
+cat >"$TMP/voxd.conf" <<CONF
+workers 2
+socket_mode 0600
+pidfile $TMP/voxd.pid
+log_file $TMP/voxd.log
+CONF
+
+# QUIT: no new connections; the running and the queued job finish; then
+# the daemon exits and removes its socket, shared memory and pidfile.
+start_voxd "$TMP/out1" --config "$TMP/voxd.conf" || { fail "voxd starts" "$(cat "$TMP/out1")"; exit 1; }
+SHM=$(shm_of "$TMP/voxd.log")
+[ "$(cat "$TMP/voxd.pid")" = "$VOXD_PID" ] && pass "pidfile holds the pid" || fail "pidfile holds the pid"
+[ "$(stat -c %a "$S")" = 600 ] && pass "socket_mode 0600" || fail "socket_mode 0600" "$(stat -c %a "$S")"
+bgsubmit "$TMP/a.out" "$MEDIUM" 384 -1,1 "$TMP/a.vod"
+A=$BG_PID
+until_true 20 running
+bgsubmit "$TMP/b.out" "$SPHERE" 64 -1,1 "$TMP/b.vod"
+B=$BG_PID
+until_true 10 grep -q "accepted job" "$TMP/b.out"
+kill -QUIT "$VOXD_PID"
+until_true 5 grep -q "stopping when the running and queued jobs are done" "$TMP/voxd.log"
+refuse "QUIT: no new connections" 4 "CLOSED" vc ping
+wait_gone "$A" 30
+wait_gone "$B" 30
+grep -q "rc=0" "$TMP/a.out" && pass "QUIT: the running job finishes" || fail "QUIT: the running job finishes" "$(cat "$TMP/a.out")"
+grep -q "rc=0" "$TMP/b.out" && pass "QUIT: the queued job finishes" || fail "QUIT: the queued job finishes" "$(cat "$TMP/b.out")"
+check "QUIT: the results are whole" "$VOX" info "$TMP/a.vod"
+wait_gone "$VOXD_PID" 20 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0" || fail "QUIT: exit 0" "rc $WAIT_RC"
+[ ! -e "$S" ] && [ ! -e "/dev/shm$SHM" ] && [ ! -e "$TMP/voxd.pid" ] &&
+    pass "QUIT: socket, shared memory and pidfile removed" ||
+    fail "QUIT: socket, shared memory and pidfile removed" "$(ls "$S" "/dev/shm$SHM" "$TMP/voxd.pid" 2>&1)"
+
+# TERM: the running and the queued job end with SHUTTING_DOWN, at once.
+start_voxd "$TMP/out2" --config "$TMP/voxd.conf" || fail "voxd starts again"
+bgsubmit "$TMP/a.out" "$SLOW" 512 -1,1 "$TMP/a.vod"
+A=$BG_PID
+until_true 20 running
+bgsubmit "$TMP/b.out" "$SPHERE" 64 -1,1 "$TMP/b.vod"
+B=$BG_PID
+until_true 10 grep -q "accepted job" "$TMP/b.out"
+kill -TERM "$VOXD_PID"
+wait_gone "$VOXD_PID" 10 && [ "$WAIT_RC" = 0 ] && pass "TERM: exit 0 within seconds" ||
+    fail "TERM: exit 0 within seconds" "rc $WAIT_RC"
+wait_gone "$A" 10
+wait_gone "$B" 10
+grep -q "ERROR SHUTTING_DOWN" "$TMP/a.out" && pass "TERM: the running job: SHUTTING_DOWN" ||
+    fail "TERM: the running job: SHUTTING_DOWN" "$(cat "$TMP/a.out")"
+grep -q "ERROR SHUTTING_DOWN" "$TMP/b.out" && pass "TERM: the queued job: SHUTTING_DOWN" ||
+    fail "TERM: the queued job: SHUTTING_DOWN" "$(cat "$TMP/b.out")"
+
+# kill -9 of the master: the workers die with it; the socket and shared
+# memory are left, and the next daemon removes them and serves.
+start_voxd "$TMP/out3" --config "$TMP/voxd.conf" || fail "voxd starts a third time"
+SHM=$(shm_of "$TMP/voxd.log")
+workers=$(worker_pids)
+kill -9 "$VOXD_PID"
+wait_gone "$VOXD_PID" 10
+gone() { local p; for p in $workers; do kill -0 "$p" 2>/dev/null && return 1; done; return 0; }
+until_true 5 gone && pass "kill -9 master: the workers die with it" || fail "kill -9 master: the workers die with it"
+[ -S "$S" ] && [ -e "/dev/shm$SHM" ] && pass "kill -9 master: socket and shared memory left" ||
+    fail "kill -9 master: socket and shared memory left"
+start_voxd "$TMP/out4" --config "$TMP/voxd.conf" && pass "restart after a crash" ||
+    fail "restart after a crash" "$(cat "$TMP/out4")"
+grep -q "removed the stale socket" "$TMP/voxd.log" && grep -q "removed the stale shared memory" "$TMP/voxd.log" &&
+    pass "stale socket and shared memory removed" || fail "stale socket and shared memory removed"
+check "serving after the restart" vc submit "$SPHERE" 32 -1,1 "$TMP/c.vod"
+
+# A second daemon on the same socket refuses to start and leaves the
+# first one alone.
+refuse "a second daemon refuses" 1 "another voxd is running on $S" \
+    timeout 20 "$VOXD" --config "$TMP/voxd.conf" --socket "$S"
+check "the first one still serves" vc ping
+
+# USR1 reopens the log (after logrotate moved it).
+mv "$TMP/voxd.log" "$TMP/voxd.log.1"
+kill -USR1 "$VOXD_PID"
+until_true 5 grep -q "log reopened" "$TMP/voxd.log" && pass "USR1 reopens the log" || fail "USR1 reopens the log"
+kill -TERM "$VOXD_PID"
+wait_gone "$VOXD_PID" 10 && [ "$WAIT_RC" = 0 ] && pass "TERM: exit 0" || fail "TERM: exit 0" "rc $WAIT_RC"
+
+# --daemon: the command returns once the daemon serves; pidfile; TERM.
+check "--daemon returns when serving" timeout 30 "$VOXD" --daemon --config "$TMP/voxd.conf" --socket "$S"
+DPID=$(cat "$TMP/voxd.pid" 2>/dev/null)
+[ -n "$DPID" ] && PIDS+=("$DPID")
+check "--daemon: serving" vc ping
+[ -n "$DPID" ] && [ "$(ps -o ppid= -p "$DPID" | tr -d ' ')" != "$$" ] && pass "--daemon: detached" ||
+    fail "--daemon: detached"
+kill -TERM "$DPID"
+wait_gone "$DPID" 10 && pass "--daemon: TERM stops it" || fail "--daemon: TERM stops it"
+[ ! -e "$TMP/voxd.pid" ] && [ ! -e "$S" ] && pass "--daemon: pidfile and socket removed" ||
+    fail "--daemon: pidfile and socket removed"
+
+# Something that is not a socket at the path is never removed.
+touch "$S"
+refuse "a file at the socket path is left alone" 1 "is not a socket" timeout 20 "$VOXD" --config "$TMP/voxd.conf" --socket "$S"
+[ -f "$S" ] && pass "the file is still there" || fail "the file is still there"
