@@ -91,6 +91,10 @@ typedef struct vjob {
     uint8_t *buf;          /* SINK_BUF */
     size_t cap;
     int local_err;         /* the sink failed: the job fails with this */
+    /* timing: a job must end, whatever the daemon keeps saying */
+    double t_accepted;     /* monotonic seconds */
+    double t_data;         /* the last chunk's arrival */
+    uint32_t queue_position;
     /* progress, terminal */
     double fraction;
     int level;
@@ -125,6 +129,8 @@ struct vox_client {
     uint32_t ans_qpos;
     vox_status_info ans_status;
     uint64_t ping_token, next_token;
+    uint64_t last_pong;     /* pongs come back in order, each once */
+    double t_any_data;      /* the last chunk of any job */
     uint64_t cancel_job;
     /* silence */
     double last_rx, ka_sent;
@@ -339,6 +345,7 @@ static int on_chunk(vox_client *c, const Voxd__ResultChunk *m)
     }
     crc_feed(j, m->data.data, m->data.len);
     j->received += m->data.len;
+    j->t_data = c->t_any_data = mono();
     return 0;
 }
 
@@ -459,6 +466,8 @@ static int on_accepted(vox_client *c, const Voxd__Accepted *m)
     j->id = m->job_id;
     j->fd = -1;
     j->sink = SINK_SPOOL;
+    j->t_accepted = mono();
+    j->queue_position = m->queue_position;
     j->next = c->jobs;
     c->jobs = j;
     c->ans_job = m->job_id;
@@ -474,6 +483,9 @@ static int on_progress(vox_client *c, const Voxd__Progress *m)
         return fail(c, -EPROTO, "voxd sent progress for job %llu, which %s",
                     (unsigned long long)m->job_id,
                     j ? "has ended" : "is not a job of this connection");
+    if (j->received)
+        return fail(c, -EPROTO, "voxd sent progress for job %llu after its result began",
+                    (unsigned long long)m->job_id);
     j->fraction = m->fraction;
     j->level = (int)m->level;
     j->voxels = m->voxels;
@@ -513,9 +525,11 @@ static int on_status(vox_client *c, const Voxd__StatusReply *m)
 
 static int on_pong(vox_client *c, const Voxd__Pong *m)
 {
-    if (m->token == 0 || m->token >= c->next_token)
-        return fail(c, -EPROTO, "voxd answered a ping that was never sent (token %llu)",
+    if (m->token <= c->last_pong || m->token >= c->next_token)
+        return fail(c, -EPROTO, "voxd answered a ping that %s (token %llu)",
+                    m->token >= c->next_token ? "was never sent" : "it had answered",
                     (unsigned long long)m->token);
+    c->last_pong = m->token;
     if ((c->pending == P_PING || c->pending == P_CANCEL) && !c->answered &&
         m->token == c->ping_token)
         answer(c, 0, 0, NULL);
@@ -697,7 +711,7 @@ static void drop_job(vox_client *c, vjob *j)
  * After half the timeout of silence a ping goes out: a daemon that is busy
  * with other jobs answers it, a hung one does not.  *interrupted is set when
  * a signal cut the wait short.  0, or the connection's failure. */
-static int step(vox_client *c, int *interrupted)
+static int step(vox_client *c, int max_ms, int *interrupted)
 {
     if (c->err) return c->err;
     double now = mono(), half = c->timeout_ms / 2000.0;
@@ -716,6 +730,7 @@ static int step(vox_client *c, int *interrupted)
         int to_ka = (int)ceil((half - idle) * 1000.0);
         if (to_ka < ms) ms = to_ka < 1 ? 1 : to_ka;
     }
+    if (max_ms >= 0 && max_ms < ms) ms = max_ms;
     struct pollfd p = {c->fd, POLLIN, 0};
     int r = poll(&p, 1, ms);
     if (r < 0) {
@@ -746,7 +761,7 @@ static int request(vox_client *c, int kind, const Voxd__Request *req, vox_error 
         copy_error(err, &c->ans);
         return rc;
     }
-    while (!rc && !c->answered) rc = step(c, NULL);
+    while (!rc && !c->answered) rc = step(c, -1, NULL);
     c->pending = P_NONE;
     if (!c->answered) {
         copy_error(err, &c->fail);
@@ -1027,13 +1042,67 @@ out:
     return rc;
 }
 
-/* Wait for the job's end, showing its progress; the job's result code. */
+/* How long a job may take from its acceptance to its first result byte: the
+ * daemon's job_timeout for it and each job that was ahead of it, plus a
+ * silence timeout each for starting and stopping.  0: no limit (a daemon
+ * without job_timeout). */
+static double job_deadline(const vox_client *c, const vjob *j)
+{
+    if (!c->info.job_timeout) return 0;
+    double ahead = j->queue_position;
+    double cap = c->info.max_queued_jobs ? c->info.max_queued_jobs : 1;
+    if (ahead > cap) ahead = cap;
+    double t = c->timeout_ms / 1000.0;
+    return (ahead + 1) * (c->info.job_timeout + t) + t;
+}
+
+/* 0 while the job may still end in time, with *ms how long the next wait
+ * may be (-1: no limit); else -ETIMEDOUT with the job's result set. */
+static int job_late(vox_client *c, vjob *j, int *ms)
+{
+    double now = mono(), t = c->timeout_ms / 1000.0, left;
+    unsigned long long id = (unsigned long long)j->id;
+    if (j->received) {
+        /* Streaming: only result bytes count, not pongs. */
+        left = j->t_data + t - now;
+        if (left <= 0) {
+            set_error(&j->result, -ETIMEDOUT, j->id,
+                      "job %llu's result stalled: no data for %.1f s", id, t);
+            return -ETIMEDOUT;
+        }
+    } else {
+        double d = job_deadline(c, j);
+        if (d == 0) {
+            *ms = -1;
+            return 0;
+        }
+        left = j->t_accepted + d - now;
+        /* Results of this connection's earlier jobs streaming in may
+         * hold this one's back. */
+        double busy = c->t_any_data + t - now;
+        if (busy > left) left = busy;
+        if (left <= 0) {
+            set_error(&j->result, -ETIMEDOUT, j->id,
+                      "job %llu did not finish in %.1f s (the daemon's job_timeout is %u s, "
+                      "%u job%s ahead of it)",
+                      id, d, c->info.job_timeout, j->queue_position,
+                      j->queue_position == 1 ? " was" : "s were");
+            return -ETIMEDOUT;
+        }
+    }
+    *ms = left > 86400 ? 86400000 : (int)ceil(left * 1000.0);
+    return 0;
+}
+
+/* Wait for a job's end, showing its progress; the job's result code.  The
+ * job may not have ended (it took too long): the caller drops it. */
 static int wait_job(vox_client *c, vjob *j, vox_progress_cb cb, void *ud)
 {
     while (!j->done) {
-        int intr = 0;
+        int intr = 0, ms;
+        if (job_late(c, j, &ms)) return j->result.code;
         /* Progress that came before this call is shown first. */
-        int rc = j->progress_new ? 0 : step(c, &intr);
+        int rc = j->progress_new ? 0 : step(c, ms, &intr);
         if (rc) {
             if (j->done) break; /* its end came before the failure */
             j->done = 1;
@@ -1107,7 +1176,7 @@ int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progr
     } else if (sum) {
         *sum = j->sum;
     }
-    forget_job(c, j);
+    drop_job(c, j);
     return rc;
 }
 
@@ -1130,6 +1199,6 @@ int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *le
         j->buf = NULL;
         if (sum) *sum = j->sum;
     }
-    forget_job(c, j);
+    drop_job(c, j);
     return rc;
 }

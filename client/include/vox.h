@@ -12,11 +12,16 @@
  *       -ENOENT / -ECONNREFUSED  no daemon listening at the path
  *       -ETIMEDOUT   the daemon said nothing for the timeout (it is pinged
  *                    after half of it, so a daemon that is alive but busy
- *                    with other jobs never times out)
+ *                    with other jobs never times out); or, for one job, its
+ *                    result stopped for the timeout, or it did not end
+ *                    within the daemon's own job_timeout (per job ahead of
+ *                    it, plus a timeout each): the job is then cancelled
+ *                    and the connection goes on
  *       -ECONNRESET  the daemon closed the connection
  *       -EPROTO      the daemon broke the protocol (a reply that does not
  *                    validate, a chunk at the wrong offset or for a job this
- *                    client does not have, ...); the connection is unusable
+ *                    client does not have, progress after the result began,
+ *                    a reply nobody asked for, ...); the connection is unusable
  *       -EBADMSG     a result whose length or CRC-32 does not check
  *       -EINVAL, -ENOMEM, I/O errors of the output file, ...
  *   - a VOX_E* code for a typed error of the daemon (the job's terminal

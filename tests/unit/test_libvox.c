@@ -39,6 +39,7 @@ struct srv {
     int hello_max_frame;   /* 0: default */
     int hello_chunk;       /* 0: default */
     uint64_t max_result;   /* 0: default */
+    int job_timeout;       /* 0: 600; -1: none */
     frame_decoder dec;
     uint8_t in[65536];
     const uint8_t *p;
@@ -50,6 +51,7 @@ struct srv {
     pthread_t th;
     int listen_fd;         /* accept first when >= 0 */
     int pings_seen;
+    int raw;               /* srv_read returns pings too */
 };
 
 static double now_s(void)
@@ -116,7 +118,7 @@ static Voxd__Request *srv_read(srv *s)
             proto_limits_default(&lim);
             lim.max_res = 1u << 20;
             if (proto_check_request(r, &lim, NULL)) srv_bad(s, "a request that does not check");
-            if (r->msg_case == VOXD__REQUEST__MSG_PING) {
+            if (r->msg_case == VOXD__REQUEST__MSG_PING && !s->raw) {
                 s->pings_seen++;
                 if (s->pong) send_pong(s, r->ping->token);
                 voxd__request__free_unpacked(r, NULL);
@@ -135,6 +137,18 @@ static Voxd__Request *srv_read(srv *s)
         s->p = s->in;
         s->n = (size_t)n;
     }
+}
+
+/* The next request, pings included. */
+static Voxd__Request *srv_read_any(srv *s)
+{
+    int pong = s->pong;
+    s->pong = 0;
+    s->raw = 1;
+    Voxd__Request *r = srv_read(s);
+    s->raw = 0;
+    s->pong = pong;
+    return r;
 }
 
 /* The next request, which must be of this kind. */
@@ -177,7 +191,7 @@ static void send_hello_ok(srv *s)
     l.max_res = 4096;
     l.max_queued_jobs = 64;
     l.max_jobs_per_uid = 16;
-    l.job_timeout = 600;
+    l.job_timeout = s->job_timeout < 0 ? 0 : s->job_timeout ? (uint32_t)s->job_timeout : 600;
     l.max_result_bytes = s->max_result ? s->max_result : (uint64_t)4 << 30;
     l.chunk_size = s->hello_chunk ? (uint32_t)s->hello_chunk : 256u << 10;
     l.max_csg_nodes = 1024;
@@ -559,8 +573,8 @@ static void s_happy(srv *s)
     uint8_t *b = make_result(RESULT_BYTES, 1, &crc);
     send_progress(s, 7, 0.25, 6, 100);
     send_progress(s, 7, 0.5, 5, 200);
-    send_result(s, 7, b, 30000, 10000);
     send_progress(s, 7, 0.75, 4, 300);
+    send_result(s, 7, b, 30000, 10000);
     for (size_t off = 30000; off < RESULT_BYTES; off += 7001)
         send_chunk(s, 7, off, b + off, RESULT_BYTES - off < 7001 ? RESULT_BYTES - off : 7001);
     send_summary(s, 7, RESULT_BYTES, crc);
@@ -696,9 +710,12 @@ static void s_two_jobs(srv *s)
     if (r) voxd__request__free_unpacked(r, NULL);
     uint32_t ca, cb;
     uint8_t *a = make_result(50000, 10, &ca), *b = make_result(30001, 11, &cb);
+    for (int i = 0; i < 5; i++) {
+        send_progress(s, 10, i / 10.0, 3, (uint64_t)i);
+        send_progress(s, 11, i / 10.0, 3, (uint64_t)i);
+    }
     for (size_t off = 0; off < 50000; off += 5000) {
         send_chunk(s, 10, off, a + off, 5000);
-        send_progress(s, 10, off / 50000.0, 3, off);
         if (off < 30001) send_chunk(s, 11, off, b + off, 30001 - off < 5000 ? 30001 - off : 5000);
     }
     send_summary(s, 11, 30001, cb);
@@ -914,7 +931,7 @@ Test(libvox, crc_mismatch_to_buffer_returns_nothing)
 enum {
     V_GAP, V_OVERLAP, V_UNKNOWN_JOB, V_OVER_CHUNK, V_OVER_RESULT, V_OVER_FRAME, V_ZERO_FRAME,
     V_GARBAGE, V_NAN_PROGRESS, V_AFTER_END, V_SECOND_END, V_UNSOLICITED_ACCEPT, V_EMPTY_CHUNK,
-    V_BAD_CODE, V_COUNT
+    V_BAD_CODE, V_PROGRESS_AFTER_CHUNK, V_PONG_NEVER_ASKED, V_COUNT
 };
 
 static void s_violation(srv *s)
@@ -964,6 +981,8 @@ static void s_violation(srv *s)
     case V_UNSOLICITED_ACCEPT: send_accepted(s, 5, 0); break;
     case V_EMPTY_CHUNK: send_chunk(s, 1, 1000, b, 0); break;
     case V_BAD_CODE: send_error(s, 1, 99, "what"); break;
+    case V_PROGRESS_AFTER_CHUNK: send_progress(s, 1, 0.5, 3, 1); break;
+    case V_PONG_NEVER_ASKED: send_pong(s, 1000); break;
     }
     free(b);
     srv_drain(s);
@@ -1054,9 +1073,31 @@ static void s_silent_job(srv *s)
     srv_drain(s); /* swallows pings, until the client gives up and closes */
 }
 
-Test(libvox, silent_daemon_times_out)
+Test(libvox, silent_daemon_mid_result_times_out)
 {
     srv *s = srv_new(s_silent_job, NULL);
+    vox_client *c = start(s, 300);
+    uint64_t id = submit(c, 8);
+    double t0 = now_s();
+    expect_fail(c, id, -ETIMEDOUT, "stalled");
+    double t = now_s() - t0;
+    cr_expect(t >= 0.25 && t < 3, "gave up after %.3f s", t);
+    vox_close(c);
+    srv_finish(s);
+}
+
+static void s_silent_before_result(srv *s)
+{
+    srv_hello(s);
+    s->pong = 0;
+    Voxd__Request *r = srv_accept_job(s, 8, 0);
+    if (r) voxd__request__free_unpacked(r, NULL);
+    srv_drain(s); /* swallows pings, until the client gives up and closes */
+}
+
+Test(libvox, silent_daemon_times_out)
+{
+    srv *s = srv_new(s_silent_before_result, NULL);
     vox_client *c = start(s, 300);
     uint64_t id = submit(c, 8);
     double t0 = now_s();
@@ -1064,6 +1105,97 @@ Test(libvox, silent_daemon_times_out)
     double t = now_s() - t0;
     cr_expect(t >= 0.25 && t < 3, "gave up after %.3f s", t);
     cr_expect(s->pings_seen >= 1, "no keepalive ping was sent");
+    /* The connection is dead: every later call says so at once. */
+    vox_error e;
+    cr_expect_eq(vox_ping(c, NULL, &e), -ETIMEDOUT);
+    vox_close(c);
+    srv_finish(s);
+}
+
+/* Alive (pongs) but the job never ends, or its result stops halfway: the
+ * job times out by the daemon's own job_timeout, or by the silence of its
+ * result, is cancelled, and the connection goes on. */
+static int s_saw_cancel;
+
+static void s_alive_job_stuck(srv *s)
+{
+    int stall = *(int *)s->arg;
+    s->job_timeout = 1;
+    srv_hello(s);
+    Voxd__Request *r = srv_accept_job(s, 9, 0);
+    if (r) voxd__request__free_unpacked(r, NULL);
+    if (stall) {
+        uint8_t b[100] = {0};
+        send_chunk(s, 9, 0, b, sizeof b);
+    }
+    while ((r = srv_read(s))) { /* answers pings */
+        if (r->msg_case == VOXD__REQUEST__MSG_CANCEL && r->cancel->job_id == 9) {
+            __atomic_store_n(&s_saw_cancel, 1, __ATOMIC_RELEASE);
+            send_error(s, 9, VOXD__ERROR_CODE__CANCELLED, "cancelled");
+        }
+        voxd__request__free_unpacked(r, NULL);
+    }
+}
+
+Test(libvox, job_past_the_daemons_job_timeout)
+{
+    int stall = 0;
+    srv *s = srv_new(s_alive_job_stuck, &stall);
+    vox_client *c = start(s, 200);
+    uint64_t id = submit(c, 9);
+    double t0 = now_s();
+    /* (0 ahead + 1) * (job_timeout 1 s + 0.2 s) + 0.2 s */
+    expect_fail(c, id, -ETIMEDOUT, "did not finish in 1.4 s (the daemon's job_timeout is 1 s");
+    double t = now_s() - t0;
+    cr_expect(t >= 1.3 && t < 5, "gave up after %.3f s", t);
+    vox_error e;
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect(s_saw_cancel, "the late job was not cancelled");
+}
+
+Test(libvox, result_stalled_while_pongs_come)
+{
+    int stall = 1;
+    srv *s = srv_new(s_alive_job_stuck, &stall);
+    vox_client *c = start(s, 300);
+    uint64_t id = submit(c, 9);
+    double t0 = now_s();
+    expect_fail(c, id, -ETIMEDOUT, "stalled");
+    double t = now_s() - t0;
+    cr_expect(t >= 0.25 && t < 3, "gave up after %.3f s", t);
+    vox_error e;
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect(s_saw_cancel, "the stalled job was not cancelled");
+}
+
+static void s_pong_twice(srv *s)
+{
+    srv_hello(s);
+    s->pong = 0;
+    Voxd__Request *r;
+    uint64_t last = 0;
+    while ((r = srv_read_any(s))) {
+        if (r->msg_case == VOXD__REQUEST__MSG_PING) {
+            if (last) send_pong(s, last); /* the previous one again */
+            send_pong(s, r->ping->token);
+            last = r->ping->token;
+        }
+        voxd__request__free_unpacked(r, NULL);
+    }
+}
+
+Test(libvox, replayed_pong_is_a_protocol_error)
+{
+    srv *s = srv_new(s_pong_twice, NULL);
+    vox_client *c = start(s, 5000);
+    vox_error e;
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(vox_ping(c, NULL, &e), -EPROTO);
+    cr_expect(strstr(e.message, "it had answered"), "%s", e.message);
     vox_close(c);
     srv_finish(s);
 }
