@@ -206,6 +206,7 @@ int vd_client_send(vd_client *c, const Voxd__Reply *r);
 int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 void vd_client_pump(vd_client *c);
+int vd_client_backed_up(vd_client *c);
 /* The job's terminal error to its client (if any), the job out of the
  * client's list and freed. */
 void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg);

@@ -40,6 +40,13 @@ static size_t read_mark(const vd_client *c)
     return 2 * (size_t)c->d->cfg.max_frame + c->d->cfg.chunk_size;
 }
 
+/* Progress is dropped for a client whose replies pile up: only the
+ * latest matters, and the stall timeout deals with the client. */
+int vd_client_backed_up(vd_client *c)
+{
+    return c->closing || c->flush_close || queued_bytes(c) >= pump_mark(c);
+}
+
 static double client_timeout(const vd_client *c)
 {
     return c->d->opt.client_timeout;

@@ -545,7 +545,7 @@ void vd_on_wake(uv_async_t *a)
         r->progress_sent = r->progress_seq;
     }
     pthread_mutex_unlock(&d->mu);
-    if (send) vd_send_progress(r->client, r, &p);
+    if (send && !vd_client_backed_up(r->client)) vd_send_progress(r->client, r, &p);
     while (done) {
         vd_job *j = done;
         done = j->next;
