@@ -95,6 +95,41 @@ double expr_vm_point(expr_vm *vm, int d, double x, double y, double z);
 /* Value and gradient (forward-mode derivatives) at a point. */
 double expr_vm_grad(expr_vm *vm, int d, double x, double y, double z,
                     double grad[3]);
+/* Eight boxes (or points) at once: lane l of every argument is one box.
+ * The batched evaluators run the tape once for all eight lanes, with
+ * registers laid out as arrays of eight (the compiler vectorizes the
+ * arithmetic), and compute every lane exactly as the one-box evaluators do
+ * with the same arguments: same operations in the same order, so the
+ * results, the min/max choices and the pruned tapes are bit for bit those
+ * of expr_vm_ival / expr_vm_grad.  Unused lanes may hold anything finite
+ * (copies of a used lane are cheapest). */
+#define EXPR_LANES 8
+typedef struct {
+    _Alignas(64) double lo[EXPR_LANES];
+    _Alignas(64) double hi[EXPR_LANES];
+} ival8;
+
+typedef struct {
+    _Alignas(64) double v[EXPR_LANES];     /* F */
+    _Alignas(64) double d[3][EXPR_LANES];  /* dF/dx, dF/dy, dF/dz */
+} expr_grad8;
+
+/* Interval of F on the eight boxes (x, y, z) lane by lane, with the tape of
+ * depth d; records each lane's min/max choices for expr_vm_prune8(). */
+void expr_vm_ival8(expr_vm *vm, int d, const ival8 *x, const ival8 *y,
+                   const ival8 *z, ival8 *out);
+/* Value and gradient at eight points, with the tape of depth d. */
+void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
+                   const double y[EXPR_LANES], const double z[EXPR_LANES],
+                   expr_grad8 *out);
+/* expr_vm_prune for the box of lane `lane` of the last expr_vm_ival8 at
+ * depth d: tape d+1 becomes exactly what expr_vm_ival on that box followed
+ * by expr_vm_prune(d) would build.  The lane choices of depth d stay valid
+ * until the next evaluation at depth d, so the kept boxes of one batch can
+ * be pruned for one after the other (each one's subtree evaluated in
+ * between, with deeper tapes). */
+void expr_vm_prune8(expr_vm *vm, int d, int lane);
+
 /* Build the tape of depth d+1 from the choices of the last expr_vm_ival at
  * depth d.  Call it right after that evaluation.  Cheap when nothing prunes
  * (tape d+1 then shares tape d).  Tapes deeper than d+1 are stale until

@@ -222,6 +222,9 @@ typedef struct {
     uint32_t decided; /* min/max decided by the last interval evaluation */
     uint8_t *choice;  /* per instruction of code */
     expr_insn *buf;   /* this depth's own storage (depth >= 1) */
+    /* The same for the last expr_vm_ival8: choice8[i * EXPR_LANES + lane]. */
+    uint32_t decided8[EXPR_LANES];
+    uint8_t *choice8;
 } expr_vm_depth;
 
 struct expr_vm {
@@ -231,6 +234,8 @@ struct expr_vm {
     ival *ir;
     double *pr;
     expr_grad_reg *gr;
+    ival8 *ir8;       /* the batched evaluators' registers (64-byte aligned) */
+    expr_grad8 *gr8;
     expr_ssa *ssa;
     uint32_t *cur;
     expr_ra_scratch ra;

@@ -145,90 +145,143 @@ static inline bool outside(const subdiv_grid *g, subdiv_octant o)
     return o.x >= g->res[0] || o.y >= g->res[1] || o.z >= g->res[2];
 }
 
-static inline bool test_box(subdiv_kernel *k, int t, subdiv_octant o)
+/* Boxes are tested eight at a time (expr_vm_ival8: one pass over the tape
+ * for eight boxes).  Each lane computes exactly what expr_vm_ival computes
+ * for its box, so a box's keep decision, its min/max choices and the tape
+ * pruned for it do not depend on which lane or which batch it was in. */
+
+/* The boxes of o's 8 children in lanes 0..7 (the one formula: the 3
+ * distinct bounds per axis, child i taking bit a of i on axis a). */
+static inline void child_boxes(const subdiv_grid *g, subdiv_octant o, ival8 box[3])
 {
-    ival x, y, z;
-    subdiv_box(k->g, o, &x, &y, &z);
-    return ival_contains_zero(expr_vm_ival(k->vm, t, x, y, z));
+    double h = (double)(1u << o.level) * 0.5;
+    const uint16_t lo[3] = {o.x, o.y, o.z};
+    for (int a = 0; a < 3; a++) {
+        double b0 = subdiv_coord(g, a, lo[a]);
+        double b1 = subdiv_coord(g, a, lo[a] + h);
+        double b2 = subdiv_coord(g, a, lo[a] + 2.0 * h);
+        for (unsigned i = 0; i < 8; i++) {
+            unsigned bit = (i >> a) & 1u;
+            box[a].lo[i] = bit ? b1 : b0;
+            box[a].hi[i] = bit ? b2 : b1;
+        }
+    }
 }
 
-/* Record that tape t+1 is now pruned for o (just tested with tape t). */
-static inline void prune_for(subdiv_kernel *k, int t, subdiv_octant o)
+/* Bit i set when child i of o has its low corner inside res (an octant
+ * outside holds no voxel and is never tested). */
+static inline unsigned inside_children(const subdiv_grid *g, subdiv_octant o)
 {
-    expr_vm_prune(k->vm, t);
+    uint32_t h = 1u << (o.level - 1);
+    const uint32_t lo[3] = {o.x, o.y, o.z};
+    unsigned m = 0xffu;
+    static const unsigned upper[3] = {0xaau, 0xccu, 0xf0u}; /* children with bit a set */
+    for (int a = 0; a < 3; a++) {
+        if (lo[a] >= g->res[a]) return 0;
+        if (lo[a] + h >= g->res[a]) m &= ~upper[a];
+    }
+    return m;
+}
+
+/* Test o's children with tape t: bit i of the result is set when child i
+ * is kept.  The lanes of children outside res are evaluated too (the lanes
+ * come for free) but never counted or kept. */
+static inline unsigned test_children(subdiv_kernel *k, int t, subdiv_octant o,
+                                     unsigned inside)
+{
+    ival8 box[3], r;
+    child_boxes(k->g, o, box);
+    expr_vm_ival8(k->vm, t, &box[0], &box[1], &box[2], &r);
+    unsigned keep = 0;
+    for (unsigned i = 0; i < 8; i++)
+        keep |= (unsigned)ival_contains_zero(ival_make(r.lo[i], r.hi[i])) << i;
+    k->tested += (unsigned)__builtin_popcount(inside);
+    return keep & inside;
+}
+
+/* Record that tape t+1 is now pruned for o, which was lane `lane` of the
+ * last batch tested with tape t. */
+static inline void prune_for(subdiv_kernel *k, int t, subdiv_octant o, unsigned lane)
+{
+    expr_vm_prune8(k->vm, t, (int)lane);
     k->chain[t] = o;
     k->valid = t + 1;
 }
 
 /* Make tapes 1..depth-o.level the ones pruned by o's ancestors and o, so
  * that o's children can be tested with tape depth-o.level.  Re-tests only
- * the part of the chain the vm does not hold already. */
+ * the part of the chain the vm does not hold already (the box in every
+ * lane: the same evaluation as in a batch of its siblings). */
 static void ensure_chain(subdiv_kernel *k, subdiv_octant o)
 {
     int depth = k->g->depth;
     for (int t = 0; t < depth - o.level; t++) {
         subdiv_octant a = ancestor(o, depth - 1 - t);
         if (t < k->valid && same_octant(k->chain[t], a)) continue;
-        (void)test_box(k, t, a); /* its keep decision was made before */
+        ival x, y, z;
+        ival8 box[3], r;
+        subdiv_box(k->g, a, &x, &y, &z);
+        const ival b[3] = {x, y, z};
+        for (int j = 0; j < 3; j++)
+            for (int l = 0; l < EXPR_LANES; l++) {
+                box[j].lo[l] = b[j].lo;
+                box[j].hi[l] = b[j].hi;
+            }
+        /* its keep decision was made before */
+        expr_vm_ival8(k->vm, t, &box[0], &box[1], &box[2], &r);
         k->rebuilt++;
-        prune_for(k, t, a);
+        prune_for(k, t, a, 0);
     }
 }
 
-/* The gradient at the voxel's centre with tape t (the tape its test used).
+/* Emit the voxels c[0..n) (1 <= n <= 8, in this order), all tested with
+ * tape t, each with the gradient at its centre, taken for all of them in
+ * one pass (expr_vm_grad8; lane for lane the same as expr_vm_grad).
  * Packing keeps only the direction (it divides by the L1 norm), so the
  * gradient is not normalized first; it is only scaled by a power of two
  * (exact) when its size is extreme, so that the packing's norm neither
  * overflows nor underflows. */
-static int emit_voxel(subdiv_kernel *k, int t, subdiv_octant c,
-                      const subdiv_sink *s)
+static int emit_voxels(subdiv_kernel *k, int t, const subdiv_octant *c,
+                       unsigned n, const subdiv_sink *s)
 {
     const subdiv_grid *g = k->g;
-    double gr[3];
-    expr_vm_grad(k->vm, t, subdiv_coord(g, 0, c.x + 0.5),
-                 subdiv_coord(g, 1, c.y + 0.5), subdiv_coord(g, 2, c.z + 0.5),
-                 gr);
-    double m = fabs(gr[0]);
-    if (fabs(gr[1]) > m) m = fabs(gr[1]);
-    if (fabs(gr[2]) > m) m = fabs(gr[2]);
-    if (!(m > 0.0) || !isfinite(m)) {
-        gr[0] = gr[1] = gr[2] = 0.0; /* no direction: packs as +z */
-    } else if (m > 0x1p500 || m < 0x1p-500) {
-        int e;
-        frexp(m, &e);
-        double f = ldexp(1.0, -e);
-        for (int a = 0; a < 3; a++) gr[a] *= f;
+    _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
+    for (unsigned l = 0; l < EXPR_LANES; l++) {
+        const subdiv_octant *v = &c[l < n ? l : 0]; /* spare lanes: copies */
+        px[l] = subdiv_coord(g, 0, v->x + 0.5);
+        py[l] = subdiv_coord(g, 1, v->y + 0.5);
+        pz[l] = subdiv_coord(g, 2, v->z + 0.5);
     }
-    subdiv_voxel v = {c.x, c.y, c.z, 0, voxel_surface(gr)};
-    return s->voxel(s->ud, &v);
+    expr_grad8 gr8;
+    expr_vm_grad8(k->vm, t, px, py, pz, &gr8);
+    for (unsigned l = 0; l < n; l++) {
+        double gr[3] = {gr8.d[0][l], gr8.d[1][l], gr8.d[2][l]};
+        double m = fabs(gr[0]);
+        if (fabs(gr[1]) > m) m = fabs(gr[1]);
+        if (fabs(gr[2]) > m) m = fabs(gr[2]);
+        if (!(m > 0.0) || !isfinite(m)) {
+            gr[0] = gr[1] = gr[2] = 0.0; /* no direction: packs as +z */
+        } else if (m > 0x1p500 || m < 0x1p-500) {
+            int e;
+            frexp(m, &e);
+            double f = ldexp(1.0, -e);
+            for (int a = 0; a < 3; a++) gr[a] *= f;
+        }
+        subdiv_voxel v = {c[l].x, c[l].y, c[l].z, 0, voxel_surface(gr)};
+        int rc = s->voxel(s->ud, &v);
+        if (rc) return rc;
+    }
+    return 0;
 }
 
-/* The 3 distinct bounds per axis of o's 8 children (the one formula):
- * child i spans b[a][bit] .. b[a][bit + 1] on axis a. */
-typedef struct {
-    double b[3][3];
-} child_bounds;
-
-static inline void bounds_of(const subdiv_grid *g, subdiv_octant o,
-                             child_bounds *cb)
+/* The kept children of a level-1 octant o (tested with tape t) as voxels. */
+static inline int emit_children(subdiv_kernel *k, int t, subdiv_octant o,
+                                unsigned keep, const subdiv_sink *s)
 {
-    double h = (double)(1u << o.level) * 0.5;
-    const uint16_t lo[3] = {o.x, o.y, o.z};
-    for (int a = 0; a < 3; a++) {
-        cb->b[a][0] = subdiv_coord(g, a, lo[a]);
-        cb->b[a][1] = subdiv_coord(g, a, lo[a] + h);
-        cb->b[a][2] = subdiv_coord(g, a, lo[a] + 2.0 * h);
-    }
-}
-
-static inline bool test_child(subdiv_kernel *k, int t, const child_bounds *cb,
-                              unsigned i)
-{
-    unsigned bx = i & 1u, by = (i >> 1) & 1u, bz = (i >> 2) & 1u;
-    ival x = ival_make(cb->b[0][bx], cb->b[0][bx + 1]);
-    ival y = ival_make(cb->b[1][by], cb->b[1][by + 1]);
-    ival z = ival_make(cb->b[2][bz], cb->b[2][bz + 1]);
-    return ival_contains_zero(expr_vm_ival(k->vm, t, x, y, z));
+    subdiv_octant c[8];
+    unsigned n = 0;
+    for (; keep; keep &= keep - 1) c[n++] = child_of(o, (unsigned)__builtin_ctz(keep));
+    return n ? emit_voxels(k, t, c, n, s) : 0;
 }
 
 int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
@@ -236,41 +289,43 @@ int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     if (o.level < 1 || o.level > k->g->depth) return -EINVAL;
     ensure_chain(k, o);
     int t = k->g->depth - o.level;
-    child_bounds cb;
-    bounds_of(k->g, o, &cb);
-    for (unsigned i = 0; i < 8; i++) {
-        subdiv_octant c = child_of(o, i);
-        if (outside(k->g, c)) continue;
-        k->tested++;
-        if (!test_child(k, t, &cb, i)) continue;
-        int rc = o.level == 1 ? emit_voxel(k, t, c, s) : s->octant(s->ud, &c);
+    unsigned inside = inside_children(k->g, o);
+    if (!inside) return 0;
+    unsigned keep = test_children(k, t, o, inside);
+    if (o.level == 1) return emit_children(k, t, o, keep, s);
+    for (; keep; keep &= keep - 1) {
+        subdiv_octant c = child_of(o, (unsigned)__builtin_ctz(keep));
+        int rc = s->octant(s->ud, &c);
         if (rc) return rc;
     }
     return 0;
 }
 
-static inline int poll_sink(subdiv_kernel *k, const subdiv_sink *s)
+/* Counts n box tests towards the next poll. */
+static inline int poll_sink(subdiv_kernel *k, const subdiv_sink *s, unsigned n)
 {
-    if (!s->poll || --k->poll_left) return 0;
+    if (!s->poll) return 0;
+    if (k->poll_left > n) {
+        k->poll_left -= n;
+        return 0;
+    }
     k->poll_left = SUBDIV_POLL_TESTS;
     return s->poll(s->ud);
 }
 
-/* The last level of the depth-first walk: o.level == 1, its children are
- * voxels, tested with tape t; no frame is pushed for them. */
-static int leaf_children(subdiv_kernel *k, subdiv_octant o, int t,
-                         const subdiv_sink *s)
+/* Test o's children with tape t (after a poll); a level-1 o emits its kept
+ * children as voxels right away and keeps nothing to descend into. */
+static inline int expand(subdiv_kernel *k, int t, subdiv_octant o,
+                         const subdiv_sink *s, unsigned *keep)
 {
-    child_bounds cb;
-    bounds_of(k->g, o, &cb);
-    for (unsigned i = 0; i < 8; i++) {
-        subdiv_octant c = child_of(o, i);
-        if (outside(k->g, c)) continue;
-        k->tested++;
-        int rc = poll_sink(k, s);
-        if (!rc && test_child(k, t, &cb, i)) rc = emit_voxel(k, t, c, s);
-        if (rc) return rc;
-    }
+    *keep = 0;
+    unsigned inside = inside_children(k->g, o);
+    if (!inside) return 0;
+    int rc = poll_sink(k, s, (unsigned)__builtin_popcount(inside));
+    if (rc) return rc;
+    unsigned m = test_children(k, t, o, inside);
+    if (o.level == 1) return emit_children(k, t, o, m, s);
+    *keep = m;
     return 0;
 }
 
@@ -280,43 +335,36 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     if (o.level > depth) return -EINVAL;
     if (o.level == 0) {
         ensure_chain(k, ancestor(o, 1));
-        return emit_voxel(k, depth - 1, o, s);
+        return emit_voxels(k, depth - 1, &o, 1, s);
     }
     ensure_chain(k, o);
+    /* A frame per octant being walked: its kept children not visited yet
+     * (tested in one batch with tape depth - level, whose lane choices stay
+     * valid while the subtrees below use deeper tapes). */
     struct {
         subdiv_octant o;
-        unsigned next;
-        child_bounds cb;
+        unsigned keep;
     } st[SUBDIV_MAX_DEPTH + 1];
     int top = 0, rc;
     st[0].o = o;
-    st[0].next = 0;
-    bounds_of(k->g, o, &st[0].cb);
+    if ((rc = expand(k, depth - o.level, o, s, &st[0].keep))) return rc;
     while (top >= 0) {
-        if (st[top].next == 8) {
+        if (!st[top].keep) {
             top--;
             continue;
         }
-        unsigned i = st[top].next++;
+        unsigned i = (unsigned)__builtin_ctz(st[top].keep);
+        st[top].keep &= st[top].keep - 1;
         subdiv_octant c = child_of(st[top].o, i);
-        if (outside(k->g, c)) continue;
-        int t = depth - 1 - c.level;
-        k->tested++;
-        if ((rc = poll_sink(k, s))) return rc;
-        if (!test_child(k, t, &st[top].cb, i)) continue;
-        if (c.level == 0) {
-            if ((rc = emit_voxel(k, t, c, s))) return rc;
-            continue;
+        int t = depth - 1 - c.level; /* the tape c was tested with */
+        prune_for(k, t, c, i);
+        unsigned keep;
+        if ((rc = expand(k, t + 1, c, s, &keep))) return rc;
+        if (keep) {
+            top++;
+            st[top].o = c;
+            st[top].keep = keep;
         }
-        prune_for(k, t, c);
-        if (c.level == 1) {
-            if ((rc = leaf_children(k, c, t + 1, s))) return rc;
-            continue;
-        }
-        top++;
-        st[top].o = c;
-        st[top].next = 0;
-        bounds_of(k->g, c, &st[top].cb);
     }
     return 0;
 }

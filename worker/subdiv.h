@@ -23,6 +23,13 @@
  * the same voxels bit for bit.  A kernel remembers which chain its vm's tapes
  * were built for and rebuilds only the part that differs when it is handed
  * an octant elsewhere (a handful of evaluations, usually none or one).
+ *
+ * Batches.  The 8 children of an octant are tested in one pass over the
+ * tape (expr_vm_ival8, a lane per child), and the kept voxels of a level-1
+ * octant get their gradients in one pass (expr_vm_grad8).  Each lane is
+ * computed exactly as the one-box evaluators compute it, and the chain
+ * rebuild evaluates its boxes with the same batched evaluator, so batching
+ * changes nothing in what is kept, pruned or emitted.
  */
 #ifndef VOXD_SUBDIV_H
 #define VOXD_SUBDIV_H

@@ -1030,6 +1030,108 @@ Test(expr_prune, nothing_decided_and_depth_clamping)
     expr_tape_free(t);
 }
 
+/* ---- batched evaluators: every lane is the one-box evaluation ---- */
+
+static int same_ival(ival a, ival b) { return same_double(a.lo, b.lo) && same_double(a.hi, b.hi); }
+
+/* Random boxes with the awkward cases mixed in: huge and infinite bounds
+ * (overflow, 0 * inf products), zero-width boxes, exact zeros (divisors
+ * touching 0). */
+static void batch_box(ival box[3])
+{
+    random_box(box, 1.0);
+    for (int j = 0; j < 3; j++) {
+        switch (irand(24)) {
+        case 0: box[j] = ival_make(-INFINITY, box[j].hi); break;
+        case 1: box[j] = ival_make(box[j].lo, INFINITY); break;
+        case 2: box[j] = ival_make(1e300, 1e308); break;
+        case 3: box[j] = ival_make(-DBL_MAX, -1e200); break;
+        case 4: box[j] = ival_point(box[j].lo); break;
+        case 5: box[j] = ival_point(0); break;
+        case 6: box[j] = ival_make(-0.0, 0.0); break;
+        default: break;
+        }
+    }
+}
+
+static int same_tape(const expr_vm *a, const expr_vm *b, int d)
+{
+    const expr_vm_depth *x = &a->dep[d], *y = &b->dep[d];
+    return x->len == y->len && x->result == y->result &&
+           !memcmp(x->code, y->code, x->len * sizeof *x->code);
+}
+
+static void check_batch(const char *src, int nbatches)
+{
+    expr_tape *t = compile_ok(src);
+    expr_vm *v8, *v1;
+    cr_assert_eq(expr_vm_new(t, 2, &v8), 0);
+    cr_assert_eq(expr_vm_new(t, 2, &v1), 0);
+    for (int b = 0; b < nbatches; b++) {
+        ival box[EXPR_LANES][3];
+        ival8 X, Y, Z, I8;
+        for (int l = 0; l < EXPR_LANES; l++) {
+            if (l && irand(4) == 0) memcpy(box[l], box[irand(l)], sizeof box[l]);
+            else batch_box(box[l]);
+            X.lo[l] = box[l][0].lo, X.hi[l] = box[l][0].hi;
+            Y.lo[l] = box[l][1].lo, Y.hi[l] = box[l][1].hi;
+            Z.lo[l] = box[l][2].lo, Z.hi[l] = box[l][2].hi;
+        }
+        expr_vm_ival8(v8, 0, &X, &Y, &Z, &I8);
+        for (int l = 0; l < EXPR_LANES; l++) {
+            ival I = expr_vm_ival(v1, 0, box[l][0], box[l][1], box[l][2]);
+            cr_assert(same_ival(I, ival_make(I8.lo[l], I8.hi[l])),
+                      "%s\n lane %d: [%.17g, %.17g] vs one box [%.17g, %.17g]", src, l,
+                      I8.lo[l], I8.hi[l], I.lo, I.hi);
+            /* pruning for the lane builds the one-box tape; lanes in any order */
+            expr_vm_prune(v1, 0);
+            expr_vm_prune8(v8, 0, l);
+            cr_assert(same_tape(v8, v1, 1), "%s: lane %d prunes differently", src, l);
+        }
+        /* gradients at a point of each box */
+        _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
+        for (int l = 0; l < EXPR_LANES; l++) {
+            double p[3];
+            sample(box[l], 8 + irand(2) * 8, p);
+            if (irand(8) == 0) p[irand(3)] = 0;
+            px[l] = p[0], py[l] = p[1], pz[l] = p[2];
+        }
+        int d = irand(2);
+        expr_grad8 g8;
+        expr_vm_grad8(v8, d, px, py, pz, &g8);
+        for (int l = 0; l < EXPR_LANES; l++) {
+            double g[3], v = expr_vm_grad(v8, d, px[l], py[l], pz[l], g);
+            cr_assert(same_double(v, g8.v[l]) && same_double(g[0], g8.d[0][l]) &&
+                          same_double(g[1], g8.d[1][l]) && same_double(g[2], g8.d[2][l]),
+                      "%s: gradient lane %d at (%.17g, %.17g, %.17g)", src, l, px[l], py[l],
+                      pz[l]);
+        }
+    }
+    expr_vm_free(v8);
+    expr_vm_free(v1);
+    expr_tape_free(t);
+}
+
+Test(expr_batch, lanes_are_the_one_box_evaluation)
+{
+    rng_seed(11);
+    for (int e = 0; e < 300; e++) {
+        char *src = random_source(2 + e % 4, e % 2);
+        check_batch(src, 6);
+        free(src);
+    }
+    for (int e = 0; e < 40; e++) {
+        gen g = {malloc(1 << 16), 0, 1 << 16, 0};
+        gen_csg(&g, 4);
+        check_batch(g.buf, 6);
+        free(g.buf);
+    }
+    const char *fixed[] = {"sqrt(x^2 + y^2 + z^2) - 0.8", "x*y - z", "x/y + z/(x+1)",
+                           "min(x, y, z) - max(x*y, -z)", "abs(x) - sqrt(y) + -z",
+                           "-log(exp(-44*x) + exp(-44*y)) / 44"};
+    for (size_t i = 0; i < sizeof fixed / sizeof *fixed; i++) check_batch(fixed[i], 50);
+}
+
 /* ---- the paper's scenes ---- */
 
 static double scene(double x, double y, double z, int a, int b)
