@@ -36,31 +36,28 @@ abuse slow "closed after"
 grep -q "within 2 s; closing" "$TMP/voxd.log" && pass "slow sender closed by the client timeout" ||
     fail "slow sender closed by the client timeout"
 
-# Limits, reloaded with SIGHUP: job_timeout, the queue, jobs per uid,
-# max_result_bytes.
+# Limits, reloaded with SIGHUP: the queue, max_result_bytes, jobs per uid,
+# job_timeout.  reload N: HUP and wait for the N-th "configuration reloaded".
+reload() {
+    kill -HUP "$VOXD_PID"
+    until_true 10 eval "[ \$(grep -c 'configuration reloaded' '$TMP/voxd.log') -ge $1 ]"
+}
 pids_before=$(worker_pids | sort)
 cat >>"$TMP/voxd.conf" <<CONF
-job_timeout 1
 max_queued_jobs 1
 max_jobs_per_uid 2
 max_result_bytes 64K
 CONF
-kill -HUP "$VOXD_PID"
-until_true 10 grep -q "configuration reloaded" "$TMP/voxd.log" && pass "HUP rereads the config" ||
-    fail "HUP rereads the config"
-bgsubmit "$TMP/a.out" "$SLOW" 512 -1,1 "$TMP/a.vod"
+reload 1 && pass "HUP rereads the config" || fail "HUP rereads the config"
+bgclient "$TMP/a.out" submit "$SLOW" 512 -1,1 "$TMP/a.vod"
 A=$BG_PID
 until_true 20 running
-bgsubmit "$TMP/b.out" "$SLOW" 512 -1,1 "$TMP/b.vod"
+bgclient "$TMP/b.out" submit "$SLOW" 512 -1,1 "$TMP/b.vod"
 B=$BG_PID
 until_true 10 grep -q "accepted job" "$TMP/b.out"
 refuse "queue full: BUSY" 3 "ERROR BUSY: .*max_queued_jobs 1" vc submit "$SPHERE" 16 -1,1 "$TMP/c.vod"
-wait_gone "$A" 20
-wait_gone "$B" 20
-grep -q "ERROR TIMEOUT: .*job_timeout of 1 s" "$TMP/a.out" && pass "job_timeout: TIMEOUT" ||
-    fail "job_timeout: TIMEOUT" "$(cat "$TMP/a.out")"
-grep -q "ERROR TIMEOUT" "$TMP/b.out" && pass "the queued job ran, and timed out too" ||
-    fail "the queued job ran, and timed out too" "$(cat "$TMP/b.out")"
+kill "$A" "$B"
+until_true 10 idle && pass "idle once their clients are gone" || fail "idle once their clients are gone" "$(vc status)"
 refuse "max_result_bytes: LIMIT_EXCEEDED" 3 "ERROR LIMIT_EXCEEDED: the result is over .*max_result_bytes" \
     vc submit "$SPHERE" 128 -1,1 "$TMP/r.vod"
 check "a small job fits" vc submit "$SPHERE" 16 -1,1 "$TMP/s.vod"
@@ -69,13 +66,17 @@ pids_after=$(worker_pids | sort)
     fail "HUP replaced the workers" "$pids_before / $pids_after"
 
 sed -i 's/^max_queued_jobs 1$/max_queued_jobs 8/; s/^max_jobs_per_uid 2$/max_jobs_per_uid 1/' "$TMP/voxd.conf"
-kill -HUP "$VOXD_PID"
-until_true 10 eval '[ "$(grep -c "configuration reloaded" "$TMP/voxd.log")" -ge 2 ]'
-bgsubmit "$TMP/a.out" "$SLOW" 512 -1,1 "$TMP/a.vod"
+reload 2
+bgclient "$TMP/a.out" submit "$SLOW" 512 -1,1 "$TMP/a.vod"
 until_true 20 running
 refuse "jobs per uid: LIMIT_EXCEEDED" 3 "ERROR LIMIT_EXCEEDED: uid [0-9]+ already has 1 jobs" \
     vc submit "$SPHERE" 16 -1,1 "$TMP/c.vod"
-wait_gone "$BG_PID" 20
+kill "$BG_PID"
+until_true 10 idle
+
+echo "job_timeout 1" >>"$TMP/voxd.conf"
+reload 3
+refuse "job_timeout: TIMEOUT" 3 "ERROR TIMEOUT: .*job_timeout of 1 s" vc submit "$SLOW" 512 -1,1 "$TMP/a.vod"
 
 # A bad config on HUP keeps the running one.
 echo "max_res lots" >>"$TMP/voxd.conf"
@@ -87,12 +88,10 @@ check "still serving after a bad reload" vc submit "$SPHERE" 16 -1,1 "$TMP/s2.vo
 # Who may connect, and how many.
 sed -i '$d' "$TMP/voxd.conf"
 printf 'allow_uids 12345\n' >>"$TMP/voxd.conf"
-kill -HUP "$VOXD_PID"
-until_true 10 eval '[ "$(grep -c "configuration reloaded" "$TMP/voxd.log")" -ge 3 ]'
+reload 4
 refuse "uid not in allow_uids: refused" 3 "ERROR LIMIT_EXCEEDED: this uid may not use this server" vc ping
 sed -i 's/^allow_uids 12345$/max_clients 2/' "$TMP/voxd.conf"
-kill -HUP "$VOXD_PID"
-until_true 10 vc ping
+reload 5
 (exec "${CLIENT[@]}" "$S" abuse slow >/dev/null 2>&1) &
 S1=$!
 PIDS+=($S1)

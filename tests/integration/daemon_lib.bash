@@ -30,6 +30,16 @@ bgsubmit() {
     PIDS+=($BG_PID)
 }
 
+# bgclient OUT ARGS...: the client in the background as one process
+# (BG_PID: killing it closes the connection), its output in OUT
+bgclient() {
+    local out=$1
+    shift
+    (exec timeout 60 "${CLIENT[@]}" "$S" "$@" >"$out" 2>&1) &
+    BG_PID=$!
+    PIDS+=($BG_PID)
+}
+
 # start_voxd LOG ARGS...: voxd in the background on $S (VOXD_PID), ready
 # when it answers a ping (20 s at most)
 start_voxd() {
