@@ -116,7 +116,7 @@ grep -q "stopping, its client left" "$TMP/voxd.log" && pass "client gone: logged
 
 # A client that never reads its result is dropped after the client timeout;
 # others are served meanwhile.
-bgsubmit "$TMP/n.out" 'sin(20*x)*sin(20*y)*sin(20*z) - 0.1' 256 -1,1 "$TMP/n.vod" --no-read
+bgclient "$TMP/n.out" submit 'sin(20*x)*sin(20*y)*sin(20*z) - 0.1' 256 -1,1 "$TMP/n.vod" --no-read
 until_true 30 grep -q "has not read its replies" "$TMP/voxd.log" &&
     pass "a client that does not read is dropped" ||
     fail "a client that does not read is dropped" "$(tail -3 "$TMP/voxd.log")"

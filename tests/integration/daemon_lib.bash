@@ -8,7 +8,8 @@ S=$TMP/voxd.sock
 PIDS=()
 cleanup() {
     local p
-    for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
+    # a background subshell's `timeout` passes the TERM on to its client
+    for p in "${PIDS[@]}"; do pkill -TERM -P "$p" 2>/dev/null; kill -9 "$p" 2>/dev/null; done
     for p in "${PIDS[@]}"; do wait "$p" 2>/dev/null; done
     rm -rf "$TMP"
 }
