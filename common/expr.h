@@ -122,6 +122,12 @@ void expr_vm_ival8(expr_vm *vm, int d, const ival8 *x, const ival8 *y,
 void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
                    const double y[EXPR_LANES], const double z[EXPR_LANES],
                    expr_grad8 *out);
+/* The same for lanes 0 .. n-1 only (1 <= n <= 8; x, y, z are read and out
+ * written up to lane n rounded up to even): a partial batch costs about
+ * n/8 of a full one.  Lane for lane the same results. */
+void expr_vm_grad8n(expr_vm *vm, int d, int n, const double x[EXPR_LANES],
+                    const double y[EXPR_LANES], const double z[EXPR_LANES],
+                    expr_grad8 *out);
 /* expr_vm_prune for the box of lane `lane` of the last expr_vm_ival8 at
  * depth d: tape d+1 becomes exactly what expr_vm_ival on that box followed
  * by expr_vm_prune(d) would build.  The lane choices of depth d stay valid

@@ -95,6 +95,10 @@ static void preload(expr_vm *vm)
             for (int a = 0; a < 3; a++) vm->gr8[r].d[a][l] = 0;
         }
     }
+    /* x, y, z: their derivatives are the unit vectors, set once */
+    for (int a = 0; a < 3; a++)
+        for (int j = 0; j < 3; j++)
+            for (int l = 0; l < EXPR_LANES; l++) vm->gr8[a].d[j][l] = j == a;
 }
 
 /* Zeroed memory aligned for the lane registers' vector loads. */

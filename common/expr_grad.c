@@ -191,7 +191,7 @@ static inline void lane_set(G8 *r, int l, G g)
 typedef __m128d v2;
 #define LD(p) _mm_load_pd(p)
 #define ST(p, v) _mm_store_pd((p), (v))
-#define FOR_PAIRS for (int l = 0; l < LANES; l += 2)
+#define FOR_PAIRS for (int l = 0; l < nl; l += 2)
 
 static inline v2 v_sel(v2 m, v2 a, v2 b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
 
@@ -249,7 +249,7 @@ static inline __attribute__((always_inline)) void arith2(int op, G8 *o, const G8
 
 /* One loop per op, so that the op's switch folds away. */
 #define ARITH8(NAME, OP)                                                      \
-    static void NAME(G8 *o, const G8 *a, const G8 *b)                         \
+    static void NAME(G8 *o, const G8 *a, const G8 *b, int nl)                 \
     {                                                                         \
         FOR_PAIRS arith2(OP, o, a, b, l);                                     \
     }
@@ -262,23 +262,23 @@ ARITH8(sqrt8, EXPR_OP_SQRT)
 ARITH8(min8, EXPR_OP_MIN)
 ARITH8(max8, EXPR_OP_MAX)
 
-static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b)
+static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
 {
     switch (op) {
-    case EXPR_OP_ADD: add8(o, a, b); break;
-    case EXPR_OP_SUB: sub8(o, a, b); break;
-    case EXPR_OP_MUL: mul8(o, a, b); break;
-    case EXPR_OP_NEG: neg8(o, a, b); break;
-    case EXPR_OP_SQR: sqr8(o, a, b); break;
-    case EXPR_OP_SQRT: sqrt8(o, a, b); break;
-    case EXPR_OP_MIN: min8(o, a, b); break;
-    default: max8(o, a, b); break;
+    case EXPR_OP_ADD: add8(o, a, b, nl); break;
+    case EXPR_OP_SUB: sub8(o, a, b, nl); break;
+    case EXPR_OP_MUL: mul8(o, a, b, nl); break;
+    case EXPR_OP_NEG: neg8(o, a, b, nl); break;
+    case EXPR_OP_SQR: sqr8(o, a, b, nl); break;
+    case EXPR_OP_SQRT: sqrt8(o, a, b, nl); break;
+    case EXPR_OP_MIN: min8(o, a, b, nl); break;
+    default: max8(o, a, b, nl); break;
     }
 }
 #else
-static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b)
+static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
 {
-    for (int l = 0; l < LANES; l++) {
+    for (int l = 0; l < nl; l++) {
         G x = lane_get(a, l), y = lane_get(b, l), r;
         switch (op) {
         case EXPR_OP_ADD: r.v = x.v + y.v; for (int j = 0; j < 3; j++) r.d[j] = x.d[j] + y.d[j]; break;
@@ -300,19 +300,20 @@ static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b)
 }
 #endif
 
-void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
-                   const double y[EXPR_LANES], const double z[EXPR_LANES],
-                   expr_grad8 *out)
+/* Lanes 0 .. nl-1 (nl even); registers 0..2 keep their unit derivatives
+ * from expr_vm_new (no instruction writes them), only their values are set. */
+static void grad_lanes(expr_vm *vm, int d, const double x[EXPR_LANES],
+                       const double y[EXPR_LANES], const double z[EXPR_LANES],
+                       expr_grad8 *out, int nl)
 {
     const expr_vm_depth *dp = &vm->dep[expr_vm_clamp(vm, d)];
     const expr_insn *c = dp->code;
     G8 *R = vm->gr8;
-    const double *xyz[3] = {x, y, z};
-    for (int a = 0; a < 3; a++)
-        for (int l = 0; l < LANES; l++) {
-            R[a].v[l] = xyz[a][l];
-            for (int j = 0; j < 3; j++) R[a].d[j][l] = j == a;
-        }
+    for (int l = 0; l < nl; l++) {
+        R[0].v[l] = x[l];
+        R[1].v[l] = y[l];
+        R[2].v[l] = z[l];
+    }
     for (uint32_t i = 0, n = dp->len; i < n; i++) {
         const expr_insn in = c[i];
         G8 *o = &R[in.out];
@@ -323,35 +324,54 @@ void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
         case EXPR_OP_MUL:
         case EXPR_OP_MIN:
         case EXPR_OP_MAX:
-            arith8(in.op, o, a, b);
+            arith8(in.op, o, a, b, nl);
             break;
         case EXPR_OP_NEG:
         case EXPR_OP_SQR:
         case EXPR_OP_SQRT:
-            arith8(in.op, o, a, b); /* b is a: not read */
+            arith8(in.op, o, a, b, nl); /* b is a: not read */
             break;
         case EXPR_OP_R:
-            for (int l = 0; l < LANES; l++) lane_set(o, l, g_r(x[l], y[l], z[l]));
+            for (int l = 0; l < nl; l++) lane_set(o, l, g_r(x[l], y[l], z[l]));
             break;
         case EXPR_OP_THETA:
-            for (int l = 0; l < LANES; l++) lane_set(o, l, g_theta(x[l], y[l]));
+            for (int l = 0; l < nl; l++) lane_set(o, l, g_theta(x[l], y[l]));
             break;
         case EXPR_OP_PHI:
-            for (int l = 0; l < LANES; l++) lane_set(o, l, g_phi(x[l], y[l], z[l]));
+            for (int l = 0; l < nl; l++) lane_set(o, l, g_phi(x[l], y[l], z[l]));
             break;
         default:
             if (expr_op_arity(in.op) == 2) {
-                for (int l = 0; l < LANES; l++) {
+                for (int l = 0; l < nl; l++) {
                     G ga = lane_get(a, l), gb = lane_get(b, l);
                     lane_set(o, l, g_binary(in.op, &ga, &gb));
                 }
             } else {
-                for (int l = 0; l < LANES; l++) {
+                for (int l = 0; l < nl; l++) {
                     G ga = lane_get(a, l);
                     lane_set(o, l, g_unary(in.op, (int16_t)in.b, &ga));
                 }
             }
         }
     }
-    *out = R[dp->result];
+    const G8 *res = &R[dp->result];
+    for (int l = 0; l < nl; l++) {
+        out->v[l] = res->v[l];
+        for (int j = 0; j < 3; j++) out->d[j][l] = res->d[j][l];
+    }
+}
+
+void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
+                   const double y[EXPR_LANES], const double z[EXPR_LANES],
+                   expr_grad8 *out)
+{
+    grad_lanes(vm, d, x, y, z, out, EXPR_LANES);
+}
+
+void expr_vm_grad8n(expr_vm *vm, int d, int n, const double x[EXPR_LANES],
+                    const double y[EXPR_LANES], const double z[EXPR_LANES],
+                    expr_grad8 *out)
+{
+    n = n < 1 ? 1 : n > EXPR_LANES ? EXPR_LANES : n;
+    grad_lanes(vm, d, x, y, z, out, (n + 1) & ~1);
 }

@@ -253,7 +253,7 @@ static int emit_voxels(subdiv_kernel *k, int t, const subdiv_octant *c,
         pz[l] = subdiv_coord(g, 2, v->z + 0.5);
     }
     expr_grad8 gr8;
-    expr_vm_grad8(k->vm, t, px, py, pz, &gr8);
+    expr_vm_grad8n(k->vm, t, (int)n, px, py, pz, &gr8);
     for (unsigned l = 0; l < n; l++) {
         double gr[3] = {gr8.d[0][l], gr8.d[1][l], gr8.d[2][l]};
         double m = fabs(gr[0]);

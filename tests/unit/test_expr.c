@@ -1106,6 +1106,15 @@ static void check_batch(const char *src, int nbatches)
                       "%s: gradient lane %d at (%.17g, %.17g, %.17g)", src, l, px[l], py[l],
                       pz[l]);
         }
+        /* a partial batch: the same lanes */
+        int n = 1 + irand(EXPR_LANES);
+        expr_grad8 gn;
+        expr_vm_grad8n(v8, d, n, px, py, pz, &gn);
+        for (int l = 0; l < n; l++)
+            cr_assert(same_double(gn.v[l], g8.v[l]) && same_double(gn.d[0][l], g8.d[0][l]) &&
+                          same_double(gn.d[1][l], g8.d[1][l]) &&
+                          same_double(gn.d[2][l], g8.d[2][l]),
+                      "%s: partial batch of %d, lane %d", src, n, l);
     }
     expr_vm_free(v8);
     expr_vm_free(v1);
