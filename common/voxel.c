@@ -8,12 +8,17 @@
 
 static double sign_not_zero(double v) { return v < 0.0 ? -1.0 : 1.0; }
 
-static uint32_t quantize(double u)
+/* floor(w) clamped to 0..OCT_MAX, with w = (u/2 + 1/2) OCT_MAX + 1/2 (NaN
+ * gives 0).  Without the floor() call (a libm call unless SSE4.1): for
+ * 0 <= w < OCT_MAX the conversion truncates, which is floor; below 0 and
+ * from OCT_MAX on, the clamp gives what it gave after floor (OCT_MAX is an
+ * integer). */
+static inline uint32_t quantize(double u)
 {
-    double q = floor((u * 0.5 + 0.5) * OCT_MAX + 0.5);
-    if (!(q >= 0.0)) q = 0.0; /* also catches NaN */
-    if (q > OCT_MAX) q = OCT_MAX;
-    return (uint32_t)q;
+    double w = (u * 0.5 + 0.5) * OCT_MAX + 0.5;
+    if (!(w >= 0.0)) return 0; /* also catches NaN */
+    if (w >= OCT_MAX) return (uint32_t)OCT_MAX;
+    return (uint32_t)w;
 }
 
 uint32_t voxel_pack_normal(const double n[3])
