@@ -188,9 +188,11 @@ void vd_job_free(vd_job *j);
 void vd_job_stopped(vd_job *j);
 /* Push a checked job onto the queue; the caller counted the limits. */
 void vd_queue_push(vd_daemon *d, vd_job *j);
-/* Admit j if the queue and j's uid have room: 0 (queued, *pos = jobs
- * ahead of it), or VOXD__ERROR_CODE__BUSY / __LIMIT_EXCEEDED. */
-int vd_queue_admit(vd_daemon *d, vd_job *j, uint32_t *pos);
+/* Admit j if the queue and j's uid have room (its jobs queued, running,
+ * or finished and not yet delivered: `delivering` of them are on the
+ * loop's lists): 0 (queued, *pos = jobs ahead of it), or
+ * VOXD__ERROR_CODE__BUSY / __LIMIT_EXCEEDED. */
+int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos);
 /* Stop a job wherever it is: queued ones are taken out and get their
  * terminal error now (1 is returned), a running one is told to stop with
  * code and gets it when the engine returns (0). */

@@ -303,6 +303,17 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
     return j;
 }
 
+/* Results of uid waiting to be streamed: they hold memory as a running
+ * job does, so they count against max_jobs_per_uid. */
+static unsigned delivering_of(vd_daemon *d, uid_t uid)
+{
+    unsigned n = 0;
+    for (vd_client *o = d->clients; o; o = o->next)
+        if (o->uid == uid)
+            for (vd_job *j = o->deliver; j; j = j->next) n++;
+    return n;
+}
+
 static int on_submit(vd_client *c, const Voxd__Submit *s)
 {
     vd_daemon *d = c->d;
@@ -313,7 +324,7 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     if (!j) return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
     j->id = d->next_job_id + 1;
     uint32_t pos;
-    int code = vd_queue_admit(d, j, &pos);
+    int code = vd_queue_admit(d, j, delivering_of(d, c->uid), &pos);
     if (code == VOXD__ERROR_CODE__BUSY) {
         vd_job_free(j);
         return vd_client_error(c, 0, code,
@@ -323,8 +334,8 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     if (code) {
         vd_job_free(j);
         return vd_client_error(c, 0, code,
-                               "uid %u already has %u jobs queued or running "
-                               "(max_jobs_per_uid); wait for one to finish",
+                               "uid %u already has %u jobs queued, running or being "
+                               "delivered (max_jobs_per_uid); wait for one to finish",
                                (unsigned)c->uid, d->cfg.max_jobs_per_uid);
     }
     /* Queued: the engine thread may have it already, but nothing about it

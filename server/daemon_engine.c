@@ -494,11 +494,12 @@ int vd_job_stop(vd_daemon *d, vd_job *j, int code)
     return out;
 }
 
-int vd_queue_admit(vd_daemon *d, vd_job *j, uint32_t *pos)
+int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos)
 {
     const voxd_config *c = &d->cfg;
     pthread_mutex_lock(&d->mu);
-    unsigned mine = d->running && d->running->uid == j->uid;
+    unsigned mine = delivering + (d->running && d->running->uid == j->uid);
+    for (vd_job *q = d->done; q; q = q->next) mine += q->uid == j->uid;
     for (vd_job *q = d->queue; q; q = q->next) mine += q->uid == j->uid;
     int code = d->nqueued >= c->max_queued_jobs ? VOXD__ERROR_CODE__BUSY
                : mine >= c->max_jobs_per_uid    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
