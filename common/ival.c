@@ -19,6 +19,9 @@
 
 #include <limits.h>
 #include <math.h>
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
 
 _Static_assert(FLT_EVAL_METHOD == 0, "ival needs double evaluated in double");
 
@@ -28,12 +31,33 @@ _Static_assert(FLT_EVAL_METHOD == 0, "ival needs double evaluated in double");
 #define IVAL_PI_UP 0x1.921fb54442d19p+1
 #define IVAL_PI_2_UP 0x1.921fb54442d19p+0
 
+#ifdef __SSE2__
+/* The same IVAL_LIBM_ULPS ival_widen steps, both bounds in one SSE2 register
+ * as (-lo, hi): ival_widen's lower bound is lo > DBL_MAX ? DBL_MAX : lo,
+ * then lo - e(lo); negated that is max(-DBL_MAX, -lo) + e(-lo), the upper
+ * bound's own formula (e depends on |.| only, negation is exact and
+ * rounding to nearest is symmetric), so the bits are ival_widen's. */
+static ival ival_widen_libm(ival a)
+{
+    const __m128d sign = _mm_set_pd(0.0, -0.0); /* flips lo only */
+    __m128d v = _mm_xor_pd(_mm_set_pd(a.hi, a.lo), sign);
+    for (int i = 0; i < IVAL_LIBM_ULPS; i++) {
+        v = _mm_max_pd(_mm_set1_pd(-DBL_MAX), v); /* x < -DBL_MAX ? -DBL_MAX : x */
+        __m128d e = _mm_mul_pd(_mm_set1_pd(IVAL_PHI_), _mm_andnot_pd(_mm_set1_pd(-0.0), v));
+        e = _mm_add_pd(e, _mm_set1_pd(DBL_TRUE_MIN));
+        v = _mm_add_pd(v, e);
+    }
+    v = _mm_xor_pd(v, sign);
+    return (ival){_mm_cvtsd_f64(v), _mm_cvtsd_f64(_mm_unpackhi_pd(v, v))};
+}
+#else
 static ival ival_widen_libm(ival a)
 {
     for (int i = 0; i < IVAL_LIBM_ULPS; i++)
         a = ival_widen(a);
     return a;
 }
+#endif
 
 static ival ival_clamp(ival a, double lo, double hi)
 {
