@@ -160,12 +160,25 @@ static inline void child_boxes(const subdiv_grid *g, subdiv_octant o, ival8 box[
         double b0 = subdiv_coord(g, a, lo[a]);
         double b1 = subdiv_coord(g, a, lo[a] + h);
         double b2 = subdiv_coord(g, a, lo[a] + 2.0 * h);
-        for (unsigned i = 0; i < 8; i++) {
-            unsigned bit = (i >> a) & 1u;
-            box[a].lo[i] = bit ? b1 : b0;
-            box[a].hi[i] = bit ? b2 : b1;
-        }
+        /* lane i takes the upper half on axis a when bit a of i is set:
+         * runs of 1, 2, 4 lanes */
+        unsigned run = 1u << a;
+        for (unsigned i = 0; i < 8; i += 2 * run)
+            for (unsigned j = 0; j < run; j++) {
+                box[a].lo[i + j] = b0;
+                box[a].hi[i + j] = b1;
+                box[a].lo[i + run + j] = b1;
+                box[a].hi[i + run + j] = b2;
+            }
     }
+}
+
+/* Bits set in an 8-bit mask (no popcnt instruction in the baseline ISA). */
+static inline unsigned count8(unsigned m)
+{
+    m = m - ((m >> 1) & 0x55u);
+    m = (m & 0x33u) + ((m >> 2) & 0x33u);
+    return (m + (m >> 4)) & 0x0fu;
 }
 
 /* Bit i set when child i of o has its low corner inside res (an octant
@@ -193,9 +206,9 @@ static inline unsigned test_children(subdiv_kernel *k, int t, subdiv_octant o,
     child_boxes(k->g, o, box);
     expr_vm_ival8(k->vm, t, &box[0], &box[1], &box[2], &r);
     unsigned keep = 0;
-    for (unsigned i = 0; i < 8; i++)
-        keep |= (unsigned)ival_contains_zero(ival_make(r.lo[i], r.hi[i])) << i;
-    k->tested += (unsigned)__builtin_popcount(inside);
+    for (unsigned i = 0; i < 8; i++) /* ival_contains_zero, branch-free */
+        keep |= (unsigned)!(r.lo[i] > 0 || r.hi[i] < 0) << i;
+    k->tested += count8(inside);
     return keep & inside;
 }
 
@@ -321,7 +334,7 @@ static inline int expand(subdiv_kernel *k, int t, subdiv_octant o,
     *keep = 0;
     unsigned inside = inside_children(k->g, o);
     if (!inside) return 0;
-    int rc = poll_sink(k, s, (unsigned)__builtin_popcount(inside));
+    int rc = poll_sink(k, s, count8(inside));
     if (rc) return rc;
     unsigned m = test_children(k, t, o, inside);
     if (o.level == 1) return emit_children(k, t, o, m, s);
