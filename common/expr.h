@@ -136,6 +136,14 @@ void expr_vm_grad8n(expr_vm *vm, int d, int n, const double x[EXPR_LANES],
  * between, with deeper tapes). */
 void expr_vm_prune8(expr_vm *vm, int d, int lane);
 
+/* Whether expr_vm_prune8(vm, d, lane) would write a new tape d+1 (some
+ * min/max decided in that lane) rather than make tape d+1 share tape d.
+ * A written tape overwrites tape d+1's buffer, which tapes deeper than d+1
+ * may share. */
+int expr_vm_prune8_writes(const expr_vm *vm, int d, int lane);
+/* Whether tapes d1 and d2 are the same code (shared, not just equal). */
+int expr_vm_same_tape(const expr_vm *vm, int d1, int d2);
+
 /* Build the tape of depth d+1 from the choices of the last expr_vm_ival at
  * depth d.  Call it right after that evaluation.  Cheap when nothing prunes
  * (tape d+1 then shares tape d).  Tapes deeper than d+1 are stale until

@@ -667,6 +667,19 @@ void expr_vm_prune(expr_vm *vm, int d)
     }
 }
 
+int expr_vm_prune8_writes(const expr_vm *vm, int d, int lane)
+{
+    if (d < 0 || d >= vm->max_depth || lane < 0 || lane >= LANES) return 0;
+    return vm->dep[d].decided8[lane] != 0;
+}
+
+int expr_vm_same_tape(const expr_vm *vm, int d1, int d2)
+{
+    const expr_vm_depth *a = &vm->dep[expr_vm_clamp(vm, d1)];
+    const expr_vm_depth *b = &vm->dep[expr_vm_clamp(vm, d2)];
+    return a->code == b->code && a->len == b->len && a->result == b->result;
+}
+
 void expr_vm_prune8(expr_vm *vm, int d, int lane)
 {
     if (d < 0 || d >= vm->max_depth || lane < 0 || lane >= LANES) return;

@@ -314,6 +314,53 @@ int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     return 0;
 }
 
+/* Voxels waiting for their gradients, so that one gradient pass serves up
+ * to 8 of them across level-1 octants (4 per octant on average).  All were
+ * tested with tape depth-1, which stays what it was when they were queued:
+ * the walk flushes them before any prune that would change that tape or
+ * overwrite the memory it lives in (pending_prune).  They are emitted in
+ * the order queued, so the output order is unchanged. */
+typedef struct {
+    subdiv_octant v[EXPR_LANES];
+    unsigned n;
+} pending;
+
+static inline int flush(subdiv_kernel *k, pending *p, const subdiv_sink *s)
+{
+    unsigned n = p->n;
+    p->n = 0;
+    return n ? emit_voxels(k, k->g->depth - 1, p->v, n, s) : 0;
+}
+
+/* Before prune_for(k, t, c, lane): flush when the prune overwrites a
+ * tape buffer (tape depth-1 may live in it), or when it makes tape depth-1
+ * a different tape (t == depth-2: it becomes tape depth-2). */
+static inline int pending_prune(subdiv_kernel *k, pending *p, int t, unsigned lane,
+                                const subdiv_sink *s)
+{
+    int depth = k->g->depth;
+    if (!p->n) return 0;
+    if (expr_vm_prune8_writes(k->vm, t, (int)lane) ||
+        (t == depth - 2 && !expr_vm_same_tape(k->vm, depth - 2, depth - 1)))
+        return flush(k, p, s);
+    return 0;
+}
+
+/* The kept children of a level-1 octant o (tested with tape depth-1) onto
+ * the pending voxels. */
+static inline int queue_children(subdiv_kernel *k, subdiv_octant o, unsigned keep,
+                                 pending *p, const subdiv_sink *s)
+{
+    for (; keep; keep &= keep - 1) {
+        p->v[p->n++] = child_of(o, (unsigned)__builtin_ctz(keep));
+        if (p->n == EXPR_LANES) {
+            int rc = flush(k, p, s);
+            if (rc) return rc;
+        }
+    }
+    return 0;
+}
+
 /* Counts n box tests towards the next poll. */
 static inline int poll_sink(subdiv_kernel *k, const subdiv_sink *s, unsigned n)
 {
@@ -329,7 +376,7 @@ static inline int poll_sink(subdiv_kernel *k, const subdiv_sink *s, unsigned n)
 /* Test o's children with tape t (after a poll); a level-1 o emits its kept
  * children as voxels right away and keeps nothing to descend into. */
 static inline int expand(subdiv_kernel *k, int t, subdiv_octant o,
-                         const subdiv_sink *s, unsigned *keep)
+                         const subdiv_sink *s, unsigned *keep, pending *p)
 {
     *keep = 0;
     unsigned inside = inside_children(k->g, o);
@@ -337,7 +384,7 @@ static inline int expand(subdiv_kernel *k, int t, subdiv_octant o,
     int rc = poll_sink(k, s, count8(inside));
     if (rc) return rc;
     unsigned m = test_children(k, t, o, inside);
-    if (o.level == 1) return emit_children(k, t, o, m, s);
+    if (o.level == 1) return queue_children(k, o, m, p, s);
     *keep = m;
     return 0;
 }
@@ -359,8 +406,9 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
         unsigned keep;
     } st[SUBDIV_MAX_DEPTH + 1];
     int top = 0, rc;
+    pending p = {.n = 0};
     st[0].o = o;
-    if ((rc = expand(k, depth - o.level, o, s, &st[0].keep))) return rc;
+    if ((rc = expand(k, depth - o.level, o, s, &st[0].keep, &p))) return rc;
     while (top >= 0) {
         if (!st[top].keep) {
             top--;
@@ -370,16 +418,17 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
         st[top].keep &= st[top].keep - 1;
         subdiv_octant c = child_of(st[top].o, i);
         int t = depth - 1 - c.level; /* the tape c was tested with */
+        if ((rc = pending_prune(k, &p, t, i, s))) return rc;
         prune_for(k, t, c, i);
         unsigned keep;
-        if ((rc = expand(k, t + 1, c, s, &keep))) return rc;
+        if ((rc = expand(k, t + 1, c, s, &keep, &p))) return rc;
         if (keep) {
             top++;
             st[top].o = c;
             st[top].keep = keep;
         }
     }
-    return 0;
+    return flush(k, &p, s);
 }
 
 static int store_voxel(void *ud, const subdiv_voxel *v)
