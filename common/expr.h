@@ -118,6 +118,13 @@ typedef struct {
  * depth d; records each lane's min/max choices for expr_vm_prune8(). */
 void expr_vm_ival8(expr_vm *vm, int d, const ival8 *x, const ival8 *y,
                    const ival8 *z, ival8 *out);
+/* The same without copies: fill the three argument registers (x, y, z)
+ * that expr_vm_ival8_args returns, then expr_vm_ival8_in evaluates them in
+ * place and returns the result register (valid until the vm's next
+ * batched interval evaluation; the arguments must be filled again before
+ * it, the evaluation may not keep them). */
+ival8 *expr_vm_ival8_args(expr_vm *vm);
+const ival8 *expr_vm_ival8_in(expr_vm *vm, int d);
 /* Value and gradient at eight points, with the tape of depth d. */
 void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
                    const double y[EXPR_LANES], const double z[EXPR_LANES],

@@ -515,17 +515,25 @@ static inline void minmax8(ival8 *o, const ival8 *a, const ival8 *b, int is_min,
             set_lane(o, l, F(lane(&R[in.a], l), lane(&R[in.b], l)));          \
         break
 
+ival8 *expr_vm_ival8_args(expr_vm *vm) { return vm->ir8; }
+
 void expr_vm_ival8(expr_vm *vm, int d, const ival8 *x, const ival8 *y,
                    const ival8 *z, ival8 *out)
+{
+    ival8 *R = vm->ir8;
+    R[0] = *x;
+    R[1] = *y;
+    R[2] = *z;
+    *out = *expr_vm_ival8_in(vm, d);
+}
+
+const ival8 *expr_vm_ival8_in(expr_vm *vm, int d)
 {
     expr_vm_depth *dp = &vm->dep[expr_vm_clamp(vm, d)];
     const expr_insn *c = dp->code;
     uint8_t *ch = dp->choice8;
     uint32_t n = dp->len;
     ival8 *R = vm->ir8;
-    R[0] = *x;
-    R[1] = *y;
-    R[2] = *z;
     for (int l = 0; l < LANES; l++) dp->decided8[l] = 0;
     for (uint32_t i = 0; i < n; i++) {
         const expr_insn in = c[i];
@@ -571,7 +579,7 @@ void expr_vm_ival8(expr_vm *vm, int d, const ival8 *x, const ival8 *y,
         default: break;
         }
     }
-    *out = R[dp->result];
+    return &R[dp->result];
 }
 
 /* ---- point evaluation ---- */

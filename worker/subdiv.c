@@ -10,6 +10,10 @@
 
 #include "voxel.h"
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 static const char axis_name[3] = {'x', 'y', 'z'};
 
 static int depth_for(uint32_t res)
@@ -151,26 +155,41 @@ static inline bool outside(const subdiv_grid *g, subdiv_octant o)
  * pruned for it do not depend on which lane or which batch it was in. */
 
 /* The boxes of o's 8 children in lanes 0..7 (the one formula: the 3
- * distinct bounds per axis, child i taking bit a of i on axis a). */
+ * distinct bounds per axis, child i taking the upper half on axis a when
+ * bit a of i is set). */
 static inline void child_boxes(const subdiv_grid *g, subdiv_octant o, ival8 box[3])
 {
     double h = (double)(1u << o.level) * 0.5;
     const uint16_t lo[3] = {o.x, o.y, o.z};
+    double b[3][3];
     for (int a = 0; a < 3; a++) {
-        double b0 = subdiv_coord(g, a, lo[a]);
-        double b1 = subdiv_coord(g, a, lo[a] + h);
-        double b2 = subdiv_coord(g, a, lo[a] + 2.0 * h);
-        /* lane i takes the upper half on axis a when bit a of i is set:
-         * runs of 1, 2, 4 lanes */
-        unsigned run = 1u << a;
-        for (unsigned i = 0; i < 8; i += 2 * run)
-            for (unsigned j = 0; j < run; j++) {
-                box[a].lo[i + j] = b0;
-                box[a].hi[i + j] = b1;
-                box[a].lo[i + run + j] = b1;
-                box[a].hi[i + run + j] = b2;
-            }
+        b[a][0] = subdiv_coord(g, a, lo[a]);
+        b[a][1] = subdiv_coord(g, a, lo[a] + h);
+        b[a][2] = subdiv_coord(g, a, lo[a] + 2.0 * h);
     }
+#ifdef __SSE2__
+    /* x alternates every lane, y every 2 lanes, z every 4 */
+    __m128d xl = _mm_set_pd(b[0][1], b[0][0]), xh = _mm_set_pd(b[0][2], b[0][1]);
+    __m128d y0 = _mm_set1_pd(b[1][0]), y1 = _mm_set1_pd(b[1][1]), y2 = _mm_set1_pd(b[1][2]);
+    __m128d z0 = _mm_set1_pd(b[2][0]), z1 = _mm_set1_pd(b[2][1]), z2 = _mm_set1_pd(b[2][2]);
+    for (int l = 0; l < 8; l += 2) {
+        _mm_store_pd(&box[0].lo[l], xl);
+        _mm_store_pd(&box[0].hi[l], xh);
+        _mm_store_pd(&box[1].lo[l], l & 2 ? y1 : y0);
+        _mm_store_pd(&box[1].hi[l], l & 2 ? y2 : y1);
+        _mm_store_pd(&box[2].lo[l], l & 4 ? z1 : z0);
+        _mm_store_pd(&box[2].hi[l], l & 4 ? z2 : z1);
+    }
+#else
+    for (unsigned i = 0; i < 8; i++) {
+        box[0].lo[i] = b[0][i & 1u];
+        box[0].hi[i] = b[0][(i & 1u) + 1];
+        box[1].lo[i] = b[1][(i >> 1) & 1u];
+        box[1].hi[i] = b[1][((i >> 1) & 1u) + 1];
+        box[2].lo[i] = b[2][i >> 2];
+        box[2].hi[i] = b[2][(i >> 2) + 1];
+    }
+#endif
 }
 
 /* Bits set in an 8-bit mask (no popcnt instruction in the baseline ISA). */
@@ -202,12 +221,20 @@ static inline unsigned inside_children(const subdiv_grid *g, subdiv_octant o)
 static inline unsigned test_children(subdiv_kernel *k, int t, subdiv_octant o,
                                      unsigned inside)
 {
-    ival8 box[3], r;
-    child_boxes(k->g, o, box);
-    expr_vm_ival8(k->vm, t, &box[0], &box[1], &box[2], &r);
-    unsigned keep = 0;
-    for (unsigned i = 0; i < 8; i++) /* ival_contains_zero, branch-free */
-        keep |= (unsigned)!(r.lo[i] > 0 || r.hi[i] < 0) << i;
+    child_boxes(k->g, o, expr_vm_ival8_args(k->vm));
+    const ival8 *r = expr_vm_ival8_in(k->vm, t);
+    unsigned out = 0; /* lanes where 0 is outside (ival_contains_zero false) */
+#ifdef __SSE2__
+    for (int l = 0; l < 8; l += 2) {
+        __m128d m = _mm_or_pd(_mm_cmpgt_pd(_mm_load_pd(&r->lo[l]), _mm_setzero_pd()),
+                              _mm_cmplt_pd(_mm_load_pd(&r->hi[l]), _mm_setzero_pd()));
+        out |= (unsigned)_mm_movemask_pd(m) << l;
+    }
+#else
+    for (unsigned i = 0; i < 8; i++)
+        out |= (unsigned)((r->lo[i] > 0) | (r->hi[i] < 0)) << i;
+#endif
+    unsigned keep = ~out & 0xffu;
     k->tested += count8(inside);
     return keep & inside;
 }
