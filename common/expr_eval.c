@@ -278,7 +278,7 @@ typedef __m128d v2;
 #define LD(p) _mm_load_pd(p)
 #define ST(p, v) _mm_store_pd((p), (v))
 #define V2(c) _mm_set1_pd(c)
-#define FOR_PAIRS for (int l = 0; l < LANES; l += 2)
+#define FOR_PAIRS _Pragma("GCC unroll 4") for (int l = 0; l < LANES; l += 2)
 
 static inline v2 v_sel(v2 m, v2 a, v2 b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
 static inline v2 v_abs(v2 a) { return _mm_andnot_pd(V2(-0.0), a); }
