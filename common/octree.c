@@ -65,6 +65,19 @@ static uint32_t cells_missing(const octree *t, uint32_t x, uint32_t y,
 int octree_store(octree *t, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 {
     assert(v != 0 && (x | y | z) >> t->depth == 0);
+    /* The common case in preorder: a sibling of the last voxel, in the
+     * leaf cell the path already ends at (what the general code below does
+     * when it neither climbs nor descends). */
+    if (t->path_len == t->depth &&
+        (((x ^ t->last[0]) | (y ^ t->last[1]) | (z ^ t->last[2])) >> 1) == 0) {
+        uint32_t *leaf = &t->cells[t->path[t->depth - 1]].child[child_index(x, y, z, 0)];
+        t->voxels += (*leaf == 0);
+        *leaf = v;
+        t->last[0] = x;
+        t->last[1] = y;
+        t->last[2] = z;
+        return 0;
+    }
     /* Ascend to the common parent: mask2 keeps the coordinate bits that name
      * the current cell; pop while the new voxel differs in any of them. */
     int h = t->depth - t->path_len; /* height of the deepest cell on the path */
