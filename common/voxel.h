@@ -24,6 +24,10 @@ enum voxel_channel {
  * channel-3 voxel; returned already shifted).  A zero vector encodes +z. */
 uint32_t voxel_pack_normal(const double n[3]);
 void voxel_unpack_normal(uint32_t v, double n[3]);
+/* voxel_surface() of the vectors (nx[i], ny[i], nz[i]) for i < n (n <= 8),
+ * bit for bit, two at a time where SSE2 is there. */
+void voxel_surfaces(const double *nx, const double *ny, const double *nz,
+                    unsigned n, uint32_t *out);
 static inline uint32_t voxel_surface(const double n[3])
 {
     return VOXEL_FULL | voxel_pack_normal(n);

@@ -299,15 +299,21 @@ static int emit_voxels(subdiv_kernel *k, int t, const subdiv_octant *c,
         double m = fabs(gr[0]);
         if (fabs(gr[1]) > m) m = fabs(gr[1]);
         if (fabs(gr[2]) > m) m = fabs(gr[2]);
+        if (m >= 0x1p-500 && m <= 0x1p500) continue; /* the usual case */
         if (!(m > 0.0) || !isfinite(m)) {
             gr[0] = gr[1] = gr[2] = 0.0; /* no direction: packs as +z */
-        } else if (m > 0x1p500 || m < 0x1p-500) {
+        } else {
             int e;
             frexp(m, &e);
             double f = ldexp(1.0, -e);
             for (int a = 0; a < 3; a++) gr[a] *= f;
         }
-        subdiv_voxel v = {c[l].x, c[l].y, c[l].z, 0, voxel_surface(gr)};
+        for (int a = 0; a < 3; a++) gr8.d[a][l] = gr[a];
+    }
+    uint32_t value[EXPR_LANES];
+    voxel_surfaces(gr8.d[0], gr8.d[1], gr8.d[2], n, value);
+    for (unsigned l = 0; l < n; l++) {
+        subdiv_voxel v = {c[l].x, c[l].y, c[l].z, 0, value[l]};
         int rc = s->voxel(s->ud, &v);
         if (rc) return rc;
     }

@@ -180,3 +180,28 @@ Test(voxel, packing_matches_the_floor_reference)
             cr_assert_eq(voxel_pack_normal(n), ref_pack(n), "u = %a", u);
         }
 }
+
+Test(voxel, batched_packing_is_the_one_vector_packing)
+{
+    srand(7);
+    for (int i = 0; i < 200000; i++) {
+        double x[8], y[8], z[8];
+        uint32_t out[8];
+        for (int l = 0; l < 8; l++) {
+            double *p[3] = {&x[l], &y[l], &z[l]};
+            for (int k = 0; k < 3; k++) {
+                int c = rand() % 12;
+                *p[k] = c == 0 ? 0.0 : c == 1 ? -0.0 : c == 2 ? (double)(rand() % 3 - 1)
+                      : c == 3 ? ldexp(rand() % 2 ? 1 : -1, rand() % 2100 - 1070)
+                      : c == 4 ? (rand() % 2 ? INFINITY : NAN)
+                      : rand() / (double)RAND_MAX * 2 - 1;
+            }
+        }
+        unsigned n = 1 + (unsigned)rand() % 8;
+        voxel_surfaces(x, y, z, n, out);
+        for (unsigned l = 0; l < n; l++) {
+            double v[3] = {x[l], y[l], z[l]};
+            cr_assert_eq(out[l], voxel_surface(v), "%a %a %a", x[l], y[l], z[l]);
+        }
+    }
+}
