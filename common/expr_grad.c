@@ -262,6 +262,55 @@ ARITH8(sqrt8, EXPR_OP_SQRT)
 ARITH8(min8, EXPR_OP_MIN)
 ARITH8(max8, EXPR_OP_MAX)
 
+/* scale(k, d) for two lanes: k * d, or 0 where k or d is 0 (k != 0 holds
+ * for NaN, as in scale). */
+static inline v2 v_scale(v2 k, v2 d)
+{
+    v2 z = _mm_setzero_pd();
+    return _mm_and_pd(_mm_and_pd(_mm_cmpneq_pd(k, z), _mm_cmpneq_pd(d, z)), _mm_mul_pd(k, d));
+}
+
+/* chain1 (o = f(a), f'(a) = k) with value and factor already in lanes. */
+static void chain1_8(G8 *o, const G8 *a, const double *v, const double *k, int nl)
+{
+    FOR_PAIRS {
+        v2 kk = LD(&k[l]);
+        for (int j = 0; j < 3; j++) ST(&o->d[j][l], v_scale(kk, LD(&a->d[j][l])));
+        ST(&o->v[l], LD(&v[l]));
+    }
+}
+
+/* g_binary's division: chain2(x / y, 1 / y, a, -x / (y * y), b). */
+static void div8(G8 *o, const G8 *a, const G8 *b, int nl)
+{
+    FOR_PAIRS {
+        v2 x = LD(&a->v[l]), y = LD(&b->v[l]);
+        v2 ka = _mm_div_pd(_mm_set1_pd(1), y);
+        v2 kb = _mm_div_pd(_mm_xor_pd(_mm_set1_pd(-0.0), x), _mm_mul_pd(y, y));
+        v2 v = _mm_div_pd(x, y);
+        for (int j = 0; j < 3; j++)
+            ST(&o->d[j][l], _mm_add_pd(v_scale(ka, LD(&a->d[j][l])), v_scale(kb, LD(&b->d[j][l]))));
+        ST(&o->v[l], v);
+    }
+}
+
+/* exp and log: libm lane by lane, the chain rule two lanes at a time
+ * (g_unary: chain1(e, e, a) and chain1(log(v), 1 / v, a)). */
+static int explog8(int op, G8 *o, const G8 *a, int nl)
+{
+    _Alignas(16) double v[LANES], k[LANES];
+    if (op == EXPR_OP_EXP) {
+        for (int l = 0; l < nl; l++) v[l] = k[l] = exp(a->v[l]);
+    } else if (op == EXPR_OP_LOG) {
+        for (int l = 0; l < nl; l++) v[l] = log(a->v[l]);
+        FOR_PAIRS ST(&k[l], _mm_div_pd(_mm_set1_pd(1), LD(&a->v[l])));
+    } else {
+        return 0;
+    }
+    chain1_8(o, a, v, k, nl);
+    return 1;
+}
+
 static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
 {
     switch (op) {
@@ -275,6 +324,7 @@ static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
     default: max8(o, a, b, nl); break;
     }
 }
+#define GRAD8_SPECIAL 1
 #else
 static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
 {
@@ -331,6 +381,11 @@ static void grad_lanes(expr_vm *vm, int d, const double x[EXPR_LANES],
         case EXPR_OP_SQRT:
             arith8(in.op, o, a, b, nl); /* b is a: not read */
             break;
+#ifdef GRAD8_SPECIAL
+        case EXPR_OP_DIV: div8(o, a, b, nl); break;
+        case EXPR_OP_EXP:
+        case EXPR_OP_LOG: explog8(in.op, o, a, nl); break;
+#endif
         case EXPR_OP_R:
             for (int l = 0; l < nl; l++) lane_set(o, l, g_r(x[l], y[l], z[l]));
             break;
