@@ -25,11 +25,13 @@
  * an octant elsewhere (a handful of evaluations, usually none or one).
  *
  * Batches.  The 8 children of an octant are tested in one pass over the
- * tape (expr_vm_ival8, a lane per child), and the kept voxels of a level-1
- * octant get their gradients in one pass (expr_vm_grad8).  Each lane is
- * computed exactly as the one-box evaluators compute it, and the chain
- * rebuild evaluates its boxes with the same batched evaluator, so batching
- * changes nothing in what is kept, pruned or emitted.
+ * tape (expr_vm_ival8, a lane per child), and kept voxels get their
+ * gradients up to 8 in one pass (expr_vm_grad8n): those of one level-1
+ * octant, and in the subtree kernel those of consecutive level-1 octants
+ * as long as tape depth-1 stays the same tape.  Each lane is computed
+ * exactly as the one-box evaluators compute it, and the chain rebuild
+ * evaluates its boxes with the same batched evaluator, so batching changes
+ * nothing in what is kept, pruned or emitted, nor in the emission order.
  */
 #ifndef VOXD_SUBDIV_H
 #define VOXD_SUBDIV_H
