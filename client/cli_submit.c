@@ -103,6 +103,47 @@ static void print_summary(const cli_job_opts *o, const vox_summary *s)
            s->seconds_queued);
 }
 
+static int submit_and_receive(vox_client *c, const vox_implicit_job *job,
+                              const cli_job_opts *o, int quiet_refusal, int *refused)
+{
+    uint64_t id;
+    uint32_t qpos;
+    vox_error err;
+    int rc = vox_submit(c, job, &id, &qpos, &err);
+    if (rc) {
+        if (VOX_IS_SERVER_ERROR(rc) && refused) *refused = rc;
+        if (!(quiet_refusal && (rc == VOX_EBUSY || rc == VOX_ESHUTTING_DOWN)))
+            print_failure("job failed", rc, &err);
+        return CLI_EXIT_FAILED;
+    }
+
+    progress pr;
+    progress_init(&pr, o->progress);
+    if (pr.enabled) {
+        if (qpos)
+            fprintf(stderr, "vox: voxd job %" PRIu64 ", %u ahead of it in the queue\n", id, qpos);
+        else
+            fprintf(stderr, "vox: voxd job %" PRIu64 "\n", id);
+    }
+    if (interrupted) vox_cancel(c, id, &err); /* its outcome shows below */
+    vox_summary sum;
+    rc = vox_receive_file(c, id, o->out, on_job_progress, &pr, &sum, &err);
+    progress_done(&pr);
+
+    if (rc) {
+        char what[64];
+        if (rc == VOX_ECANCELLED && interrupted)
+            snprintf(what, sizeof what, "job %" PRIu64 " cancelled (interrupted)", id);
+        else
+            snprintf(what, sizeof what, "job %" PRIu64 " failed", id);
+        if (rc == VOX_ECANCELLED && interrupted) cli_error("%s", what);
+        else print_failure(what, rc, &err);
+        return CLI_EXIT_FAILED;
+    }
+    if (!o->quiet) print_summary(o, &sum);
+    return CLI_EXIT_OK;
+}
+
 int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
                    int quiet_refusal, int *refused)
 {
@@ -122,50 +163,19 @@ int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
         cli_error("%s: the expression is empty", src->name);
         return CLI_EXIT_USAGE;
     }
-    uint64_t id;
-    uint32_t qpos;
-    vox_error err;
-    int rc = vox_submit(c, &job, &id, &qpos, &err);
-    if (rc) {
-        if (VOX_IS_SERVER_ERROR(rc) && refused) *refused = rc;
-        if (!(quiet_refusal && (rc == VOX_EBUSY || rc == VOX_ESHUTTING_DOWN)))
-            print_failure("job failed", rc, &err);
-        return CLI_EXIT_FAILED;
-    }
-
-    progress pr;
-    progress_init(&pr, o->progress);
-    if (pr.enabled) {
-        if (qpos)
-            fprintf(stderr, "vox: voxd job %" PRIu64 ", %u ahead of it in the queue\n", id, qpos);
-        else
-            fprintf(stderr, "vox: voxd job %" PRIu64 "\n", id);
-    }
     /* An interrupt cancels the job on the daemon, then vox ends as the
-     * job does (without SA_RESTART: it cuts the wait short). */
+     * job does (without SA_RESTART: it cuts the wait short).  The handler
+     * is in place before the job exists, so no interrupt is lost between
+     * the daemon's accepting it and our waiting for it. */
     struct sigaction sa = {.sa_handler = on_interrupt}, old_int, old_term;
     sigemptyset(&sa.sa_mask);
     interrupted = 0;
     sigaction(SIGINT, &sa, &old_int);
     sigaction(SIGTERM, &sa, &old_term);
-    vox_summary sum;
-    rc = vox_receive_file(c, id, o->out, on_job_progress, &pr, &sum, &err);
+    int rc = submit_and_receive(c, &job, o, quiet_refusal, refused);
     sigaction(SIGINT, &old_int, NULL);
     sigaction(SIGTERM, &old_term, NULL);
-    progress_done(&pr);
-
-    if (rc) {
-        char what[64];
-        if (rc == VOX_ECANCELLED && interrupted)
-            snprintf(what, sizeof what, "job %" PRIu64 " cancelled (interrupted)", id);
-        else
-            snprintf(what, sizeof what, "job %" PRIu64 " failed", id);
-        if (rc == VOX_ECANCELLED && interrupted) cli_error("%s", what);
-        else print_failure(what, rc, &err);
-        return CLI_EXIT_FAILED;
-    }
-    if (!o->quiet) print_summary(o, &sum);
-    return CLI_EXIT_OK;
+    return rc;
 }
 
 int cli_submit(int argc, char **argv, const char *sock)

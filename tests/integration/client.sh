@@ -145,8 +145,10 @@ else
     fail "a slow job runs" "$(cat "$TMP/sub.out")"
 fi
 
-# An interrupt cancels the job on the daemon.
-timeout 120 "$VOX" --socket "$SOCK" submit -e "$SLOW" -r 1024 -o "$TMP/i.vod" >"$TMP/int.out" 2>&1 &
+# An interrupt cancels the job on the daemon.  --foreground: timeout would
+# otherwise pass the INT on to its process group as well, a second interrupt
+# that ends vox at once (as a second Ctrl-C should).
+timeout --foreground 120 "$VOX" --socket "$SOCK" submit -e "$SLOW" -r 1024 -o "$TMP/i.vod" >"$TMP/int.out" 2>&1 &
 SUB=$!
 PIDS+=($SUB)
 if until_true 60 has_running; then
