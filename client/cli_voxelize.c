@@ -53,8 +53,8 @@ static const char usage_voxelize[] =
     "      --embedded         run the embedded engine even when voxd answers\n"
     "      --daemon           run the job on voxd; exit 3 when none answers\n"
     "\n"
-    "The job runs on the voxd daemon when one answers on the socket (vox --socket PATH,\n"
-    "else $VOXD_SOCKET, else " VOX_DEFAULT_SOCKET "), else on the engine embedded\n"
+    "The job runs on the voxd daemon when one answers on the socket (see vox --help),\n"
+    "else on the engine embedded\n"
     "in vox; one that is busy or stopping also leaves the job to the embedded engine.\n"
     "-w, --cpus and --shm-size belong to the embedded engine and select it.  The file\n"
     "is the same either way.  Exit status: 0 done, 1 the job failed, 2 bad usage or a\n"
@@ -68,8 +68,8 @@ static const char usage_submit[] =
     OUTPUT_OPTIONS
     SHOW_OPTIONS
     "\n"
-    "Runs the job on the voxd daemon at the socket (vox --socket PATH, else $VOXD_SOCKET,\n"
-    "else " VOX_DEFAULT_SOCKET ") and writes the result it streams back, checked\n"
+    "Runs the job on the voxd daemon at the socket (see vox --help) and writes the\n"
+    "result it streams back, checked\n"
     "(length and CRC-32) before it is renamed into place.  On a terminal the job's id is\n"
     "shown; an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job\n"
     "failed or was refused (with the daemon's reason), 2 bad usage or a bad expression,\n"

@@ -1,9 +1,11 @@
 /* vox — the voxd command line. */
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "cli.h"
+#include "config.h"
 
 static const char usage[] =
     "usage: vox [--socket PATH] COMMAND [options]\n"
@@ -18,14 +20,35 @@ static const char usage[] =
     "  info       validate a VOD file and print its header, tree and bricks\n"
     "  render     draw a VOD file as shaded points into a PNG\n"
     "\n"
-    "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else " VOX_DEFAULT_SOCKET ")\n"
+    "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else the socket of voxd's\n"
+    "                  config file $VOXD_CONFIG or " CONFIG_DEFAULT_PATH ", else\n"
+    "                  " VOX_DEFAULT_SOCKET ")\n"
     "\n"
     "`vox COMMAND --help` tells a command's options.\n";
 
+/* The socket when --socket is not given: $VOXD_SOCKET, else the `socket` of
+ * the daemon's configuration (/etc/voxd/voxd.conf, or $VOXD_CONFIG) when it
+ * can be read, else the built-in default.  A configuration that does not
+ * load is said, not skipped silently. */
+static const char *default_socket(voxd_config *cfg)
+{
+    const char *env = getenv("VOXD_SOCKET");
+    if (env && *env) return env;
+    const char *path = getenv("VOXD_CONFIG");
+    int explicit_path = path && *path;
+    if (!explicit_path) path = CONFIG_DEFAULT_PATH;
+    char err[512];
+    int rc = config_load(path, cfg, err, sizeof err);
+    if (rc == 0) return cfg->socket;
+    if (explicit_path || (rc != -ENOENT && rc != -EACCES))
+        cli_error("%s; using the socket " VOX_DEFAULT_SOCKET, err);
+    return VOX_DEFAULT_SOCKET;
+}
+
 int main(int argc, char **argv)
 {
-    const char *sock = getenv("VOXD_SOCKET");
-    if (!sock || !*sock) sock = VOX_DEFAULT_SOCKET;
+    static voxd_config cfg;
+    const char *sock = NULL;
     int i = 1;
     /* Options before the command: vox's own. */
     while (i < argc && argv[i][0] == '-') {
@@ -61,6 +84,7 @@ int main(int argc, char **argv)
         fputs(usage, stdout);
         return 0;
     }
+    if (strcmp(cmd, "info") && strcmp(cmd, "render") && !sock) sock = default_socket(&cfg);
     if (!strcmp(cmd, "voxelize")) return cli_voxelize(n, v, sock);
     if (!strcmp(cmd, "submit")) return cli_submit(n, v, sock);
     if (!strcmp(cmd, "status")) return cli_status(n, v, sock);

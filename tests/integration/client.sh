@@ -74,6 +74,11 @@ fi
 refuse "ping" 0 "voxd .* on $SOCK: protocol 1, 2 workers, round trip" v ping
 refuse "VOXD_SOCKET" 0 "2 workers" env VOXD_SOCKET="$SOCK" timeout 60 "$VOX" ping
 refuse "--socket=PATH" 0 "2 workers" timeout 60 "$VOX" --socket="$SOCK" ping
+printf 'socket %s\n' "$SOCK" >"$TMP/vox.conf"
+printf 'sockt %s\n' "$SOCK" >"$TMP/bad.conf"
+refuse "the socket of \$VOXD_CONFIG" 0 "on $SOCK: protocol 1" env -u VOXD_SOCKET VOXD_CONFIG="$TMP/vox.conf" timeout 60 "$VOX" ping
+refuse "\$VOXD_SOCKET before the config" 3 "no voxd answering on $TMP/none.sock" env VOXD_SOCKET="$TMP/none.sock" VOXD_CONFIG="$TMP/vox.conf" timeout 60 "$VOX" ping
+refuse "a config that does not load is said" 3 "bad.conf:1: unknown key 'sockt'; using the socket " env -u VOXD_SOCKET VOXD_CONFIG="$TMP/bad.conf" timeout 60 "$VOX" ping
 v status >"$TMP/st" 2>&1
 grep -q '^workers: 2$' "$TMP/st" && [ "$(grep -cE '^ +[0-9]+ +[0-9-]+ +(idle|busy|starting) ' "$TMP/st")" -eq 2 ] &&
     pass "status shows 2 workers" || fail "status shows 2 workers" "$(cat "$TMP/st")"
