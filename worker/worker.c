@@ -1,6 +1,7 @@
 /* The worker process: Figure 3's slave over the shared-memory slot. */
 #include "worker.h"
 
+#include <dirent.h>
 #include <errno.h>
 #include <signal.h>
 #include <stdlib.h>
@@ -314,6 +315,34 @@ static void reset_signals(void)
     sigprocmask(SIG_SETMASK, &none, NULL);
 }
 
+/* Every descriptor the master had open is inherited: clients' sockets,
+ * the listening socket, result memfds, its log and its lock (vox: the
+ * output file).  A worker needs none of them, and must not keep them: a
+ * client's socket held by a worker does not close when the master closes
+ * it, and a result's memory is not freed.  It keeps 0-2 (stderr carries
+ * sanitizer reports); the segment is a mapping, its descriptor closed
+ * after mmap (shm.c). */
+static void close_inherited(void)
+{
+    if (close_range(3, ~0U, 0) == 0) return;
+    /* a kernel before 5.9: the directory of our descriptors */
+    DIR *dir = opendir("/proc/self/fd");
+    if (dir) {
+        struct dirent *de;
+        while ((de = readdir(dir))) {
+            char *end;
+            long fd = strtol(de->d_name, &end, 10);
+            if (*end || end == de->d_name || fd < 3 || fd == dirfd(dir)) continue;
+            close((int)fd);
+        }
+        closedir(dir);
+        return;
+    }
+    long max = sysconf(_SC_OPEN_MAX);
+    if (max < 0 || max > 65536) max = 65536;
+    for (long fd = 3; fd < max; fd++) close((int)fd);
+}
+
 _Noreturn void worker_main(uint8_t *base, uint32_t index)
 {
     worker w;
@@ -326,6 +355,7 @@ _Noreturn void worker_main(uint8_t *base, uint32_t index)
     prctl(PR_SET_PDEATHSIG, SIGKILL);
     check_parent(&w);
     reset_signals();
+    close_inherited();
     /* relaxed: a fresh worker starts from the slot as its predecessor (or
      * the master, at creation) left it; the fork orders everything. */
     unsigned last = atomic_load_explicit(&w.s->done_seq, memory_order_relaxed);

@@ -14,8 +14,9 @@
 #include <stdint.h>
 
 /* The child's side of fork(): sets PR_SET_PDEATHSIG (SIGKILL), checks the
- * master is still its parent, then serves slot `index` of the segment at
- * base until told to exit.  Never returns (_exit). */
+ * master is still its parent, resets the signals, closes every inherited
+ * descriptor but 0-2, then serves slot `index` of the segment at base until
+ * told to exit.  Never returns (_exit). */
 _Noreturn void worker_main(uint8_t *base, uint32_t index);
 
 #endif

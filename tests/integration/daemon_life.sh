@@ -87,6 +87,37 @@ refuse "a second daemon refuses" 1 "another voxd is running on $S" \
     timeout 20 "$VOXD" --config "$TMP/voxd.conf" --socket "$S"
 check "the first one still serves" vc ping
 
+# Workers hold none of the daemon's descriptors (its log and lock, the
+# listening socket, clients' sockets, results waiting in memfds): neither
+# those forked at start nor one forked again, between jobs, while a client
+# that does not read holds a result.
+only_stdio() { [ -d "/proc/$1/fd" ] && [ -z "$(ls "/proc/$1/fd" | grep -vx '[012]')" ]; }
+bad=""
+for p in $(worker_pids); do until_true 5 only_stdio "$p" || bad="$bad $p: $(ls "/proc/$p/fd" | tr '\n' ' ')"; done
+[ -z "$bad" ] && pass "workers forked at start hold only fds 0-2" ||
+    fail "workers forked at start hold only fds 0-2" "$bad"
+holds_result() { ls -l "/proc/$VOXD_PID/fd" | grep -q 'memfd:voxd-result'; }
+bgclient "$TMP/n.out" submit "$SPHERE" 256 -1,1 "$TMP/n.vod" --no-read
+until_true 60 holds_result && until_true 30 idle
+before=$(worker_pids)
+victim=$(head -1 <<<"$before")
+kill -9 "$victim"
+new_worker() { local p; for p in $(worker_pids); do grep -qx "$p" <<<"$before" || { echo "$p"; return 0; }; done; return 1; }
+until_true 10 new_worker && fresh=$(new_worker)
+if [ -n "$fresh" ] && holds_result; then
+    pass "a worker killed between jobs is forked again (a result waiting)"
+else
+    fail "a worker killed between jobs is forked again (a result waiting)" "$(vc status; ls -l "/proc/$VOXD_PID/fd")"
+fi
+grep -q "(pid $victim) died; forked again as pid $fresh" "$TMP/voxd.log" && pass "idle death logged" ||
+    fail "idle death logged" "$(tail -3 "$TMP/voxd.log")"
+until_true 5 only_stdio "$fresh" && pass "a worker forked again holds only fds 0-2" ||
+    fail "a worker forked again holds only fds 0-2" "$(ls -l "/proc/$fresh/fd" 2>&1)"
+kill "$BG_PID" 2>/dev/null
+wait_gone "$BG_PID" 10
+until_true 10 eval '! holds_result' && pass "the result is freed when its client leaves" ||
+    fail "the result is freed when its client leaves"
+
 # USR1 reopens the log (after logrotate moved it).
 mv "$TMP/voxd.log" "$TMP/voxd.log.1"
 kill -USR1 "$VOXD_PID"

@@ -5,12 +5,14 @@
 #include <criterion/criterion.h>
 #include <dirent.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -523,6 +525,61 @@ Test(engine, create_destroy_leaves_nothing)
     cr_assert(strstr(err, "exists") || strstr(err, "File exists"), "%s", err);
     engine_destroy(e);
     cr_assert_neq(access(path, F_OK), 0);
+}
+
+/* Descriptors of process pid above 2 (-1: it is gone). */
+static int fds_above_stdio(pid_t pid)
+{
+    char path[64];
+    snprintf(path, sizeof path, "/proc/%d/fd", (int)pid);
+    DIR *d = opendir(path);
+    if (!d) return -1;
+    int n = 0;
+    struct dirent *de;
+    while ((de = readdir(d)))
+        n += de->d_name[0] != '.' && atoi(de->d_name) > 2;
+    closedir(d);
+    return n;
+}
+
+/* A worker closes what it inherited right after the fork: give it a moment. */
+static void assert_only_stdio(pid_t pid, const char *what)
+{
+    int n = fds_above_stdio(pid);
+    for (int k = 0; k < 500 && n > 0; k++) {
+        usleep(10000);
+        n = fds_above_stdio(pid);
+    }
+    cr_assert_eq(n, 0, "%s: worker %d holds %d descriptor(s) above 2", what, (int)pid, n);
+}
+
+/* Workers keep none of the master's descriptors (a daemon's client sockets
+ * and result memfds), whether forked at creation or again after a death:
+ * the master's close of a pipe end is the last one. */
+Test(engine, workers_hold_no_inherited_descriptors)
+{
+    int p[2];
+    cr_assert_eq(pipe2(p, O_NONBLOCK), 0);
+    int mfd = memfd_create("test-result", 0);
+    cr_assert_geq(mfd, 0);
+    engine *e = make_engine(2, (size_t)16 << 20);
+    for (int i = 0; i < 2; i++) assert_only_stdio(engine_worker_pid(e, i), "at creation");
+    pid_t old = engine_worker_pid(e, 1);
+    cr_assert_eq(kill(old, SIGKILL), 0);
+    usleep(20000);
+    expr_tape *tape = compile(SPHERE);
+    subdiv_grid g = grid(32);
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r); /* forks worker 1 again */
+    cr_assert_neq(engine_worker_pid(e, 1), old);
+    assert_only_stdio(engine_worker_pid(e, 1), "forked again");
+    close(p[1]);
+    char c;
+    cr_assert_eq(read(p[0], &c, 1), 0, "the pipe's write end is still open somewhere");
+    close(p[0]);
+    close(mfd);
+    engine_destroy(e);
+    expr_tape_free(tape);
 }
 
 static long long shm_blocks(const char *path)
