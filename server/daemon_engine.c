@@ -8,7 +8,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
-#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -92,28 +91,19 @@ static engine *engine_make(vd_daemon *d)
     return e;
 }
 
-/* A worker that died between jobs is still a zombie: the engine reaps and
- * forks it again when a job starts.  Look with WNOWAIT (the engine's
- * waitpid must still see it) and, if one died, let engine_voxelize do it
- * now with an empty job: it checks every worker first, then refuses the
- * job (-EINVAL, "the job has no tape") without touching anything else. */
+/* Between jobs: a worker that died is reaped and forked again now, not
+ * when the next job starts; snapshot() logs each one forked again. */
 static void reap_idle(vd_daemon *d, engine *e)
 {
-    int dead = 0;
-    for (int i = 0; i < engine_workers(e) && !dead; i++) {
-        siginfo_t si = {0};
-        pid_t pid = engine_worker_pid(e, i);
-        if (pid > 0 && waitid(P_PID, (id_t)pid, &si, WEXITED | WNOHANG | WNOWAIT) == 0 &&
-            si.si_pid == pid)
-            dead = 1;
-    }
-    if (!dead) return;
-    engine_job none = {0};
-    engine_result r;
     pthread_mutex_unlock(&d->mu);
-    engine_voxelize(e, &none, &r);
+    int rc = engine_check_workers(e);
     pthread_mutex_lock(&d->mu);
+    if (rc == 0) return;
     snapshot(d, e);
+    if (rc < 0)
+        elog(d, LOG_LEVEL_ERROR,
+             "a worker died between jobs and cannot be forked again: %s; "
+             "the next job tries again", strerror(-rc));
     wake_loop(d);
 }
 

@@ -452,6 +452,20 @@ static void check_workers(engine *e, int force)
     }
 }
 
+int engine_check_workers(engine *e)
+{
+    if (e->job) return -EBUSY; /* a job checks its own workers */
+    uint32_t restarts = e->restarts;
+    e->error = 0;
+    e->msg[0] = '\0';
+    check_workers(e, 1);
+    int rc = e->error ? e->error : (int)(e->restarts - restarts);
+    /* Between jobs nothing else reads these: the next job starts afresh. */
+    e->error = 0;
+    e->restarts = restarts;
+    return rc;
+}
+
 static int top_pending(const engine *e)
 {
     for (int l = SUBDIV_MAX_DEPTH; l > 0; l--)

@@ -112,6 +112,15 @@ int engine_workers(const engine *e);
 int engine_worker_pid(const engine *e, int i);
 int engine_worker_cpu(const engine *e, int i);
 
+/* Between jobs: reap the workers that died since the last job (or since
+ * the last call) and fork each again on its CPU.  Returns how many were
+ * forked again (engine_worker_pid then gives the new pids), or -errno when
+ * one could not be (its slot stays empty, and the next call or job tries
+ * again), or -EBUSY from inside a job.  engine_voxelize does the same when
+ * a job starts; a long-lived caller (the daemon) calls this while idle so
+ * that a dead worker is replaced before the next job comes. */
+int engine_check_workers(engine *e);
+
 /* Voxelize job; the octree stays in shared memory until the next job.
  * Returns 0, or -ECANCELED, -EINVAL (bad job), -ENOMEM (octree or work
  * stack full: r->error says what to raise), -EIO (a worker kept dying), or

@@ -106,6 +106,8 @@ static void assert_same(const octree *a, const octree *b, const char *what)
     cr_assert(n > 0 && n == a->voxels && n == b->voxels, "%s", what);
 }
 
+static int pinned_cpu(pid_t pid);
+
 static engine *make_engine(int workers, size_t shm_bytes)
 {
     engine_opts o = {.workers = workers, .shm_bytes = shm_bytes};
@@ -368,6 +370,49 @@ Test(engine, a_dead_worker_is_replaced_and_its_octant_redone)
         assert_same(&ref.t, engine_octree(e), "after a death in a job");
         cr_assert_eq(r.voxels, ref.t.voxels);
     }
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+static void check_inside_a_job(void *ud, const engine_progress *p)
+{
+    (void)p;
+    cr_assert_eq(engine_check_workers(ud), -EBUSY);
+}
+
+/* Between jobs, engine_check_workers reaps a dead worker and forks it again
+ * on its CPU at once; nothing to do is 0; inside a job it refuses. */
+Test(engine, check_workers_between_jobs)
+{
+    expr_tape *tape = compile(SPHERES);
+    subdiv_grid g = grid(64);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(2, (size_t)64 << 20);
+    cr_assert_eq(engine_check_workers(e), 0);
+    int old = engine_worker_pid(e, 1), cpu = engine_worker_cpu(e, 1);
+    cr_assert_eq(kill(old, SIGKILL), 0);
+    int rc = 0;
+    for (int k = 0; k < 500 && rc == 0; k++) {
+        rc = engine_check_workers(e);
+        if (!rc) usleep(10000);
+    }
+    cr_assert_eq(rc, 1);
+    int fresh = engine_worker_pid(e, 1);
+    cr_assert(fresh > 0 && fresh != old);
+    cr_assert_eq(kill(fresh, 0), 0, "the new worker lives");
+    cr_assert_eq(pinned_cpu(fresh), cpu);
+    errno = 0;
+    cr_assert_eq(waitpid(old, NULL, WNOHANG), -1, "the dead one was reaped");
+    cr_assert_eq(errno, ECHILD);
+    cr_assert_eq(engine_check_workers(e), 0);
+    engine_result r;
+    engine_job job = {.tape = tape, .grid = g, .progress = check_inside_a_job, .ud = e};
+    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+    cr_assert_eq(r.restarts, 0, "nothing left to restart when the job started");
+    assert_same(&ref.t, engine_octree(e), "after a worker forked again between jobs");
+    cr_assert_eq(engine_worker_pid(e, 1), fresh);
     engine_destroy(e);
     free(ref.arena);
     expr_tape_free(tape);
