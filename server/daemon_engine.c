@@ -251,7 +251,7 @@ static int voxelize(vd_daemon *d, engine *e, vd_job *j, const expr_tape *tape,
     if (rc == 0) return 0;
     int code = engine_code(j, rc);
     if (code == VOXD__ERROR_CODE__WORKER_CRASHED)
-        return job_error(j, code, "workers kept dying on this job (%s); the daemon goes on",
+        return job_error(j, code, "this job kills its workers: %s; the daemon goes on",
                          r.error);
     if (rc == -ECANCELED) return vd_job_stopped(j), -1;
     return job_error(j, code, "voxelization failed: %s", r.error[0] ? r.error : strerror(-rc));

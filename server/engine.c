@@ -21,7 +21,7 @@
 #define MASTER_SLEEP_NS 20000000L /* 20 ms: cancel and progress stay live */
 #define PROGRESS_EVERY 0.1        /* seconds between progress callbacks */
 #define LIVENESS_EVERY 0.05       /* seconds between checks for dead workers */
-#define MAX_DEATHS 3              /* deaths of one slot in one job */
+#define OCTANT_DEATHS 2           /* deaths on one octant that fail the job */
 #define EXIT_WAIT_S 2.0           /* engine_destroy's patience */
 #define KEEP_BYTES ((size_t)64 << 20) /* default engine_opts.keep_bytes */
 
@@ -34,7 +34,7 @@ typedef struct {
     subdiv_octant task;
     uint32_t consumed;  /* entries of the current task taken */
     uint32_t kept;      /* octants the current task sent back */
-    int deaths;         /* in this job */
+    int deaths;         /* workers that died on the current task */
 } mslot;
 
 struct engine {
@@ -156,6 +156,7 @@ static void give(engine *e, int i, subdiv_octant o, uint32_t kind,
     m->task = o;
     m->consumed = skip;
     m->kept = 0;
+    m->deaths = 0;
     m->seq++;
     e->nbusy++;
     /* release: publishes the task fields and the job input to the worker's
@@ -415,9 +416,12 @@ static void handle_death(engine *e, int i)
     e->restarts++;
     if (m->busy) drain(e, i, e->aborting);
     int rerun = m->busy && !e->aborting && m->kind != SHM_TASK_ENCODE;
-    if (rerun && ++m->deaths > MAX_DEATHS) {
-        fail(e, -EIO, "worker %d died %d times on octant (%u,%u,%u) level %u",
-             i, m->deaths, m->task.x, m->task.y, m->task.z, m->task.level);
+    /* The first death may be anybody's doing (a kill, the OOM killer):
+     * the octant is handed out again.  A second one on the same octant
+     * says the octant kills its workers: the job fails. */
+    if (rerun && ++m->deaths >= OCTANT_DEATHS) {
+        fail(e, -EIO, "octant (%u,%u,%u) level %u killed its worker twice "
+             "(worker %d)", m->task.x, m->task.y, m->task.z, m->task.level, i);
         rerun = 0;
     }
     if (m->busy && !rerun) finish(e, i);
@@ -593,7 +597,6 @@ static void job_reset(engine *e, const engine_job *job)
     e->sp = 0;
     e->done_vol = 0;
     memset(e->pending, 0, sizeof e->pending);
-    for (int i = 0; i < e->n; i++) e->ms[i].deaths = 0;
     e->t0 = now_s(CLOCK_MONOTONIC);
     e->last_progress = e->t0 - 1.0; /* the first call comes at once */
 }
@@ -691,7 +694,6 @@ full:
 static void vod_encode_all(engine *e)
 {
     e->error = 0;
-    for (int i = 0; i < e->n; i++) e->ms[i].deaths = 0;
     for (int i = 0; i < e->n; i++)
         if (e->ms[i].pid > 0)
             give(e, i, (subdiv_octant){0, 0, 0, 0}, SHM_TASK_ENCODE, 0);

@@ -27,7 +27,12 @@
  * the task's octant and the grid, counts bounded).  A worker that dies is
  * forked again; its octant is handed out again and the entries already
  * taken are skipped (the kernel is deterministic), so the job still
- * succeeds.  The default segment is 2 GiB of address space, at most half of
+ * succeeds.  The count is per octant, not per job: a second death while
+ * the same octant is being handled (the first worker's and the re-run's:
+ * the octant kills its workers) fails the job with -EIO, whereas deaths on
+ * different octants of one job, however many, each only re-run their
+ * octant.  A worker that dies while idle, or in the VOD phase (its bricks
+ * are encoded by the caller instead), counts for nothing.  The default segment is 2 GiB of address space, at most half of
  * /dev/shm's free space; tmpfs gives pages only as they are touched.
  */
 #ifndef VOXD_ENGINE_H
@@ -123,10 +128,11 @@ int engine_check_workers(engine *e);
 
 /* Voxelize job; the octree stays in shared memory until the next job.
  * Returns 0, or -ECANCELED, -EINVAL (bad job), -ENOMEM (octree or work
- * stack full: r->error says what to raise), -EIO (a worker kept dying), or
- * a worker's error; the engine is then ready for the next job.  A worker
- * that dies during a job is forked again and its octant handed out again
- * (its output is deterministic, so the entries already taken are skipped). */
+ * stack full: r->error says what to raise), -EIO (an octant killed its
+ * worker twice: r->error names it), or a worker's error; the engine is then
+ * ready for the next job.  A worker that dies during a job is forked again
+ * and its octant handed out again (its output is deterministic, so the
+ * entries already taken are skipped); see Robustness above. */
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
 /* The last job's octree (a view into shared memory), NULL when the last
  * job failed or there was none. */

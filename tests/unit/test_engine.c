@@ -461,6 +461,94 @@ Test(engine, a_worker_killed_mid_subtree_resumes_without_duplicates)
     expr_tape_free(tape);
 }
 
+/* A slow job (a sphere with many wobbles: a long tape nothing prunes), so
+ * that a task outlives the progress callbacks that kill its workers. */
+static expr_tape *compile_slow(void)
+{
+    char src[4096];
+    int n = snprintf(src, sizeof src, "sqrt(x^2+y^2+z^2)-0.8");
+    for (int i = 1; i < 40; i++)
+        n += snprintf(src + n, sizeof src - (size_t)n, "+0.001*sin(%d*x+%d*y+%d*z)", i,
+                      i + 1, i + 2);
+    return compile(src);
+}
+
+/* Kill worker 0 at some progress calls: `every` calls apart, each time a
+ * worker forked since the last kill, until `kills`; then cancel, if asked. */
+typedef struct {
+    engine *e;
+    int every, kills, calls, n;
+    pid_t last;
+    atomic_int *cancel;
+} killer;
+
+static void kill_worker0(void *ud, const engine_progress *p)
+{
+    killer *k = ud;
+    (void)p;
+    pid_t pid = engine_worker_pid(k->e, 0);
+    if (k->n == k->kills) {
+        if (k->cancel && pid > 0 && pid != k->last) atomic_store(k->cancel, 1);
+    } else if (k->calls % k->every == 0 && pid > 0 && pid != k->last) {
+        usleep(50000); /* well inside its task (the queue may fill: it waits) */
+        cr_assert_eq(kill(pid, SIGKILL), 0);
+        k->last = pid;
+        k->n++;
+    }
+    k->calls++;
+}
+
+/* The octant itself is the suspect when the worker re-running it dies too:
+ * the second death on one octant fails the job (-EIO, the octant named),
+ * and the engine goes on with the next job. */
+Test(engine, an_octant_that_kills_its_worker_twice_fails_the_job)
+{
+    expr_tape *slow = compile_slow(), *tape = compile(SPHERE);
+    subdiv_grid gs = grid(128), g = grid(64);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(1, 0);
+    /* one task: the whole grid as one subtree, so both deaths are on it */
+    killer k = {.e = e, .every = 1, .kills = 2};
+    engine_job job = {.tape = slow, .grid = gs, .split_level = gs.depth,
+                      .progress = kill_worker0, .ud = &k};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.error);
+    cr_assert_eq(k.n, 2);
+    cr_assert_eq(r.restarts, 2);
+    cr_assert(strstr(r.error, "octant (0,0,0) level 7 killed its worker twice"), "%s",
+              r.error);
+    cr_assert_null(engine_octree(e));
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    cr_assert_eq(r.restarts, 0);
+    assert_same(&ref.t, engine_octree(e), "the job after a failed one");
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+    expr_tape_free(slow);
+}
+
+/* Deaths on different octants of one job each re-run their octant only,
+ * however many: four deaths of the one worker, 0.2 s apart on octants of
+ * microseconds (the paper schedule), and the job is still running when it
+ * is cancelled. */
+Test(engine, deaths_on_different_octants_do_not_fail_the_job)
+{
+    expr_tape *slow = compile_slow();
+    subdiv_grid g = grid(128);
+    engine *e = make_engine(1, 0);
+    atomic_int cancel = 0;
+    killer k = {.e = e, .every = 2, .kills = 4, .cancel = &cancel};
+    engine_job job = {.tape = slow, .grid = g, .schedule = ENGINE_SCHED_PAPER,
+                      .progress = kill_worker0, .ud = &k, .cancel = &cancel};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED, "%s", r.error);
+    cr_assert_eq(k.n, 4);
+    cr_assert_eq(r.restarts, 4);
+    engine_destroy(e);
+    expr_tape_free(slow);
+}
+
 /* ---- errors ---- */
 
 Test(engine, small_segments_give_clear_errors)
