@@ -14,6 +14,7 @@
 
 #include "cli.h"
 #include "engine.h"
+#include "job_meta.h"
 #include "progress.h"
 #include "source.h"
 #include "subdiv.h"
@@ -289,24 +290,6 @@ static int out_commit(out_file *f, const char *path, int ok)
     return rc;
 }
 
-/* The metadata names the job, not how it ran (no worker count), so the
- * same job gives the same bytes whatever the parallelism. */
-static void make_metadata(char *buf, size_t cap, const source *src,
-                          const subdiv_grid *g, const voxelize_opts *o)
-{
-    char line[512];
-    size_t n = strcspn(src->text, "\n");
-    if (src->len > 200 || n < src->len)
-        snprintf(line, sizeof line, "file:%s", src->name);
-    else
-        snprintf(line, sizeof line, "%s", src->text);
-    snprintf(buf, cap,
-             "generator=vox voxelize\nsource=%s\nresolution=%u\n"
-             "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\n",
-             line, o->res, g->res[0], g->res[1], g->res[2], o->lo[0], o->hi[0],
-             o->lo[1], o->hi[1], o->lo[2], o->hi[2]);
-}
-
 static void set_vod_geometry(vod_params *v, const subdiv_grid *g)
 {
     for (int a = 0; a < 3; a++) {
@@ -433,8 +416,13 @@ static int voxelize(voxelize_opts *o, const source *src, const expr_tape *tape)
         cli_error("%s", err);
         return 2;
     }
-    char meta[1024];
-    make_metadata(meta, sizeof meta, src, &g, o);
+    char meta[JOB_META_MAX];
+    job_meta m = {
+        .source = src->text, .source_len = src->len, .source_name = src->path,
+        .res = o->res, .grid = {g.res[0], g.res[1], g.res[2]},
+        .lo = {o->lo[0], o->lo[1], o->lo[2]}, .hi = {o->hi[0], o->hi[1], o->hi[2]},
+    };
+    job_meta_format(meta, sizeof meta, &m);
     o->vod.metadata = meta;
     set_vod_geometry(&o->vod, &g);
     out_file f;

@@ -38,7 +38,7 @@ int source_load(source *s, const char *path, const char *expr)
         if (!s->text) return -ENOMEM;
         return 0;
     }
-    s->name = path;
+    s->name = s->path = path;
     int rc = cli_read_file(path, EXPR_DEFAULT_MAX_SOURCE, &s->text, &s->len);
     if (rc == -EFBIG) {
         cli_error("%s: larger than the %u-byte expression limit", path,

@@ -11,6 +11,7 @@ typedef struct {
     char *text;        /* the expression source, NUL-terminated */
     size_t len;
     const char *name;  /* file path, or "<expr>" */
+    const char *path;  /* file path, or NULL for --expr */
     int has_domain;    /* a "#@ domain" directive was found */
     double lo[3], hi[3];
 } source;

@@ -13,6 +13,7 @@
 
 #include "daemon.h"
 #include "expr.h"
+#include "job_meta.h"
 #include "log.h"
 #include "subdiv.h"
 #include "vod.h"
@@ -194,24 +195,6 @@ static int compile(vd_job *j, expr_tape **tape)
     return job_error(j, code, "expression: %s", xe.msg[0] ? xe.msg : strerror(-rc));
 }
 
-/* The metadata of `vox voxelize` (client/cli_voxelize.c make_metadata), so
- * the same job gives the same bytes embedded or through the daemon.  A
- * source that `vox voxelize` names by its file is named by its size. */
-static void make_metadata(char *buf, size_t cap, const vd_job *j, const subdiv_grid *g)
-{
-    char line[512];
-    size_t n = strcspn(j->source, "\n");
-    if (j->source_len > 200 || n < j->source_len)
-        snprintf(line, sizeof line, "submitted:%zu bytes", j->source_len);
-    else
-        snprintf(line, sizeof line, "%s", j->source);
-    snprintf(buf, cap,
-             "generator=vox voxelize\nsource=%s\nresolution=%u\n"
-             "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\n",
-             line, j->res, g->res[0], g->res[1], g->res[2], j->lo[0], j->hi[0],
-             j->lo[1], j->hi[1], j->lo[2], j->hi[2]);
-}
-
 static void vod_setup(vod_params *v, const vd_job *j, const subdiv_grid *g, const char *meta)
 {
     vod_params_default(v);
@@ -259,9 +242,14 @@ static int voxelize(vd_daemon *d, engine *e, vd_job *j, const expr_tape *tape,
 
 static int write_result(engine *e, vd_job *j, const subdiv_grid *g)
 {
-    char meta[1024], err[256] = "";
+    char meta[JOB_META_MAX], err[256] = "";
     vod_params v;
-    make_metadata(meta, sizeof meta, j, g);
+    job_meta m = {
+        .source = j->source, .source_len = j->source_len, .source_name = NULL,
+        .res = j->res, .grid = {g->res[0], g->res[1], g->res[2]},
+        .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
+    };
+    job_meta_format(meta, sizeof meta, &m);
     vod_setup(&v, j, g, meta);
     j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
     if (j->fd < 0)
