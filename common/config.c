@@ -11,6 +11,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "expr.h"
 #include "frame.h"
 #include "log.h"
 
@@ -53,12 +54,14 @@ static const option options[] = {
     {"pidfile", K_PATH, F(pidfile), 0, 0},
     {"max_frame", K_SIZE, F(max_frame), FRAME_MIN_MAX, FRAME_LIMIT_MAX},
     {"max_expr_bytes", K_SIZE, F(max_expr_bytes), 16, 16 * MIB},
-    {"max_expr_depth", K_COUNT, F(max_expr_depth), 1, 4096},
+    /* the parser's own cap: a larger limit would be lowered to it */
+    {"max_expr_depth", K_COUNT, F(max_expr_depth), 1, EXPR_MAX_DEPTH_CAP},
     {"max_res", K_COUNT, F(max_res), 1, 65536},
     {"max_csg_nodes", K_COUNT, F(max_csg_nodes), 1, 65536},
     {"max_queued_jobs", K_COUNT, F(max_queued_jobs), 1, 65536},
     {"max_jobs_per_uid", K_COUNT, F(max_jobs_per_uid), 1, 65536},
     {"max_clients", K_COUNT, F(max_clients), 1, 65536},
+    {"client_timeout", K_SECONDS, F(client_timeout), 1, 86400},
     {"job_timeout", K_SECONDS, F(job_timeout), 0, 7 * 86400},
     {"max_result_bytes", K_SIZE, F(max_result_bytes), 64 * KIB, 4 * GIB},
     {"chunk_size", K_SIZE, F(chunk_size), KIB, FRAME_LIMIT_MAX},
@@ -80,6 +83,7 @@ void config_defaults(voxd_config *c)
     c->max_queued_jobs = 64;
     c->max_jobs_per_uid = 16;
     c->max_clients = 128;
+    c->client_timeout = 30;
     c->job_timeout = 600;
     c->max_result_bytes = 4 * GIB;
     c->chunk_size = 256 * KIB;

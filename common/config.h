@@ -63,6 +63,7 @@ typedef struct {
     uint32_t max_queued_jobs;        /* 64 */
     uint32_t max_jobs_per_uid;       /* 16 */
     uint32_t max_clients;            /* 128 */
+    uint32_t client_timeout;         /* seconds, 30: hello, one frame, a stalled reply */
     uint32_t job_timeout;            /* seconds, 600; 0 = none */
     uint64_t max_result_bytes;       /* 4G */
     uint32_t chunk_size;             /* 256K */

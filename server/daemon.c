@@ -31,6 +31,7 @@ int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen
     if (rc) return rc;
     if (o->socket) snprintf(c->socket, sizeof c->socket, "%s", o->socket);
     if (o->workers) c->workers = o->workers;
+    if (o->client_timeout) c->client_timeout = o->client_timeout;
     return 0;
 }
 
@@ -293,7 +294,7 @@ static int start(vd_daemon *d)
     if ((rc = listen_on(d))) return rc;
     uv_timer_start(&d->tick, on_tick, VD_TICK_MS, VD_TICK_MS);
     log_info("listening on %s: %d worker(s), shared memory %s, client timeout %u s",
-             d->cfg.socket, d->nworkers, d->shm_name, d->opt.client_timeout);
+             d->cfg.socket, d->nworkers, d->shm_name, d->cfg.client_timeout);
     return 0;
 }
 
@@ -315,7 +316,6 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
     d->loop = &loop;
     d->cfg = *cfg;
     d->opt = *opt;
-    if (!d->opt.client_timeout) d->opt.client_timeout = VD_DEFAULT_CLIENT_TIMEOUT;
     snprintf(d->shm_name, sizeof d->shm_name, "%s", shm_name);
     d->t_start = vd_now();
     pthread_mutex_init(&d->mu, NULL);

@@ -35,7 +35,6 @@
 #include "voxd.pb-c.h"
 
 #define VD_SERVER_NAME "voxd 0.1"
-#define VD_DEFAULT_CLIENT_TIMEOUT 30u /* seconds: hello, one frame, a stalled write */
 #define VD_TICK_MS 100                /* housekeeping period */
 #define VD_READ_BUF (64u << 10)       /* one read's buffer, shared by all clients */
 #define VD_ELOG_LINES 32              /* engine thread log lines awaiting the loop */
@@ -50,7 +49,7 @@ typedef struct {
     const char *config_path;   /* NULL: /etc/voxd/voxd.conf if it exists */
     const char *socket;        /* --socket: absolute, overrides the file's */
     int workers;               /* --workers: overrides the file's; 0 = not given */
-    unsigned client_timeout;   /* seconds; 0 = VD_DEFAULT_CLIENT_TIMEOUT */
+    unsigned client_timeout;   /* --client-timeout: overrides the file's; 0 = not given */
     int ready_fd;              /* --daemon: write 1 byte here once serving; -1 none */
 } vd_options;
 
@@ -174,7 +173,8 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name);
 double vd_now(void);
 /* The configuration the options name: the file (or the defaults when no
  * file was named and /etc/voxd/voxd.conf does not exist), then the
- * command line's overrides.  0 or -errno with a message in err. */
+ * command line's overrides (--socket, --workers, --client-timeout).
+ * 0 or -errno with a message in err. */
 int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen);
 void vd_maybe_exit(vd_daemon *d);
 void vd_engine_opts(vd_daemon *d, const voxd_config *c); /* under mu */

@@ -49,7 +49,7 @@ int vd_client_backed_up(vd_client *c)
 
 static double client_timeout(const vd_client *c)
 {
-    return c->d->opt.client_timeout;
+    return c->d->cfg.client_timeout; /* --client-timeout applied (vd_load_config) */
 }
 
 /* ---------------------------------------------------------------- closing */

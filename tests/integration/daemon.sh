@@ -11,6 +11,7 @@ refuse "voxd bad --workers" 2 "bad --workers" "$VOXD" --workers 0
 cat >"$TMP/voxd.conf" <<CONF
 workers 2
 log_level debug
+client_timeout 9
 CONF
 if start_voxd "$TMP/voxd.log" --config "$TMP/voxd.conf" --client-timeout 2; then
     pass "voxd starts"
@@ -19,6 +20,8 @@ else
     exit 1
 fi
 refuse "ping" 0 "pong 42" vc ping
+grep -q "client timeout 2 s" "$TMP/voxd.log" && pass "--client-timeout overrides client_timeout" ||
+    fail "--client-timeout overrides client_timeout" "$(grep listening "$TMP/voxd.log")"
 refuse "status lists 2 workers" 0 "queued=0 clients=1 running=none" vc status
 [ "$(worker_pids | wc -l)" -eq 2 ] && pass "2 worker pids" || fail "2 worker pids" "$(vc status)"
 SHM=$(shm_of "$TMP/voxd.log")

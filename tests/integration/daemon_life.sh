@@ -4,9 +4,13 @@
 . "$(dirname "$0")/daemon_lib.bash"
 
 # --check-config: the effective settings, or FILE:LINE and exit 1.
-printf 'workers 2\nmax_res 512\njob_timeout 5m\n' >"$TMP/good.conf"
+printf 'workers 2\nmax_res 512\njob_timeout 5m\nclient_timeout 1m\n' >"$TMP/good.conf"
 refuse "check-config: good file" 0 "^max_res 512" "$VOXD" --check-config "$TMP/good.conf"
 refuse "check-config: prints every option" 0 "^job_timeout 300" "$VOXD" --check-config "$TMP/good.conf"
+refuse "check-config: client_timeout" 0 "^client_timeout 60$" "$VOXD" --check-config "$TMP/good.conf"
+printf 'max_expr_depth 1025\n' >"$TMP/deep.conf"
+refuse "check-config: max_expr_depth over the parser's 1024" 1 \
+    "deep.conf:1: max_expr_depth 1025 is out of range \(1 to 1024\)" "$VOXD" --check-config "$TMP/deep.conf"
 printf 'workers 2\n\nmax_res lots\n' >"$TMP/bad.conf"
 refuse "check-config: bad value, FILE:LINE" 1 "bad.conf:3: " "$VOXD" --check-config "$TMP/bad.conf"
 printf 'frobnicate 1\n' >"$TMP/bad2.conf"
@@ -17,6 +21,7 @@ refuse "start with a bad config" 1 "bad.conf:3: " "$VOXD" --config "$TMP/bad.con
 cat >"$TMP/voxd.conf" <<CONF
 workers 2
 socket_mode 0600
+client_timeout 45
 pidfile $TMP/voxd.pid
 log_file $TMP/voxd.log
 CONF
@@ -27,6 +32,8 @@ start_voxd "$TMP/out1" --config "$TMP/voxd.conf" || { fail "voxd starts" "$(cat 
 SHM=$(shm_of "$TMP/voxd.log")
 [ "$(cat "$TMP/voxd.pid")" = "$VOXD_PID" ] && pass "pidfile holds the pid" || fail "pidfile holds the pid"
 [ "$(stat -c %a "$S")" = 600 ] && pass "socket_mode 0600" || fail "socket_mode 0600" "$(stat -c %a "$S")"
+grep -q "client timeout 45 s" "$TMP/voxd.log" && pass "client_timeout from the file" ||
+    fail "client_timeout from the file" "$(grep listening "$TMP/voxd.log")"
 bgsubmit "$TMP/a.out" "$MEDIUM" 384 -1,1 "$TMP/a.vod"
 A=$BG_PID
 until_true 20 running

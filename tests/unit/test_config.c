@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "expr.h"
 #include "log.h"
 
 static int load_text(const char *text, voxd_config *c, char *err, size_t errlen)
@@ -91,6 +92,7 @@ Test(config, defaults)
     cr_assert_eq(c.max_queued_jobs, 64);
     cr_assert_eq(c.max_jobs_per_uid, 16);
     cr_assert_eq(c.max_clients, 128);
+    cr_assert_eq(c.client_timeout, 30);
     cr_assert_eq(c.job_timeout, 600);
     cr_assert_eq(c.max_result_bytes, 4ull << 30);
     cr_assert_eq(c.chunk_size, 256u << 10);
@@ -134,6 +136,7 @@ static const char full[] =
     "max_queued_jobs 10\n"
     "max_jobs_per_uid 2\n"
     "max_clients 7\n"
+    "client_timeout 2m\n"
     "job_timeout 90s\n"
     "max_result_bytes 1G\n"
     "chunk_size 64K\n";
@@ -167,6 +170,7 @@ Test(config, full_valid_file)
     cr_assert_eq(c.max_queued_jobs, 10);
     cr_assert_eq(c.max_jobs_per_uid, 2);
     cr_assert_eq(c.max_clients, 7);
+    cr_assert_eq(c.client_timeout, 120);
     cr_assert_eq(c.job_timeout, 90);
     cr_assert_eq(c.max_result_bytes, 1ull << 30);
     cr_assert_eq(c.chunk_size, 64u << 10);
@@ -193,11 +197,13 @@ Test(config, print_loads_back_to_the_same_config)
     cr_assert(strstr(text, "chunk_size 64K\n"));
     cr_assert(strstr(text, "max_expr_bytes 100000\n"));
     cr_assert(strstr(text, "socket_mode 0600\n"));
+    cr_assert(strstr(text, "client_timeout 120\n"), "%s", text);
     free(text);
 
     config_defaults(&c);
     text = printed(&c);
     cr_assert(strstr(text, "workers auto\n"));
+    cr_assert(strstr(text, "client_timeout 30\n"), "voxd --check-config shows it: %s", text);
     cr_assert(strstr(text, "# log_file: not set, so stderr\n"));
     load_ok(text, &d);
     assert_same(&c, &d);
@@ -231,6 +237,44 @@ Test(config, duration_units)
         voxd_config c;
         load_ok(text, &c);
         cr_assert_eq(c.job_timeout, cases[i].s, "%s", cases[i].v);
+    }
+    voxd_config c;
+    load_ok("client_timeout 1\n", &c);
+    cr_assert_eq(c.client_timeout, 1);
+    load_ok("client_timeout 1d\n", &c);
+    cr_assert_eq(c.client_timeout, 86400);
+    load_fails("client_timeout 5M\n",
+               "t.conf:1: bad value '5M' for client_timeout: want a duration like 600, 10m, 2h");
+}
+
+/* max_expr_depth reaches exactly as far as the expression parser does. */
+Test(config, max_expr_depth_is_the_parsers_range)
+{
+    voxd_config c;
+    cr_assert_eq(EXPR_MAX_DEPTH_CAP, 1024);
+    load_ok("max_expr_depth 1\n", &c);
+    cr_assert_eq(c.max_expr_depth, 1);
+    load_ok("max_expr_depth 1024\n", &c);
+    cr_assert_eq(c.max_expr_depth, EXPR_MAX_DEPTH_CAP);
+    load_fails("max_expr_depth 0\n", "t.conf:1: max_expr_depth 0 is out of range (1 to 1024)");
+    load_fails("max_expr_depth 1025\n",
+               "t.conf:1: max_expr_depth 1025 is out of range (1 to 1024)");
+    /* and the parser honours the largest: 1024 levels pass, 1025 do not */
+    char src[2 * 1100 + 2];
+    for (int depth = 1024; depth <= 1025; depth++) {
+        int n = 0;
+        for (int i = 0; i < depth - 1; i++) src[n++] = '(';
+        src[n++] = 'x';
+        for (int i = 0; i < depth - 1; i++) src[n++] = ')';
+        src[n] = '\0';
+        expr_limits lim;
+        expr_limits_default(&lim);
+        lim.max_depth = c.max_expr_depth;
+        expr_tape *t = NULL;
+        expr_error ee = {0};
+        int rc = expr_compile(src, (size_t)n, &lim, &t, &ee);
+        cr_assert_eq(rc, depth <= 1024 ? 0 : -E2BIG, "depth %d: %d %s", depth, rc, ee.msg);
+        expr_tape_free(t);
     }
 }
 
@@ -349,6 +393,10 @@ Test(config, out_of_range)
                "t.conf:1: shm_size 17179869184T is out of range (16M to 1T)");
     load_fails("job_timeout 8d\n",
                "t.conf:1: job_timeout 8d is out of range (0 to 604800 seconds)");
+    load_fails("client_timeout 0\n",
+               "t.conf:1: client_timeout 0 is out of range (1 to 86400 seconds)");
+    load_fails("client_timeout 2d\n",
+               "t.conf:1: client_timeout 2d is out of range (1 to 86400 seconds)");
     load_fails("socket_mode 01777\n", "t.conf:1: socket_mode 01777 is out of range (0 to 0777)");
     load_fails("cpus 0,1024\n", "t.conf:1: cpus: CPU 1024 is out of range (0 to 1023)");
     load_fails("cpus 0-1023,5\n", "t.conf:1: cpus lists more than 1024 CPUs");
@@ -435,8 +483,8 @@ Test(config, shipped_file_documents_the_true_defaults)
         "socket", "socket_mode", "socket_group", "allow_uids", "workers", "cpus",
         "shm_size", "log_file", "log_level", "pidfile", "max_frame", "max_expr_bytes",
         "max_expr_depth", "max_res", "max_csg_nodes", "max_queued_jobs",
-        "max_jobs_per_uid", "max_clients", "job_timeout", "max_result_bytes",
-        "chunk_size"};
+        "max_jobs_per_uid", "max_clients", "client_timeout", "job_timeout",
+        "max_result_bytes", "chunk_size"};
     char path[4096];
     FILE *f = fopen(root_path("config/voxd.conf", path, sizeof path), "r");
     cr_assert_not_null(f);
