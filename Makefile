@@ -5,7 +5,8 @@
 #                   AddressSanitizer + UndefinedBehaviorSanitizer; ends in "N passed, N failed"
 #   make demo       installs missing Debian packages, builds, voxelizes Scene 1,
 #                   writes scene1.vod and scene1.png
-#   make bench      benchmarks (release build), tables in bench/results/
+#   make bench      benchmarks (release build): voxbench (embedded engine) and
+#                   voxdbench (through a voxd it starts), tables in bench/results/
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -71,6 +72,9 @@ $(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 
 $(BUILD)/voxbench: bench/voxbench.c $(LIB)
 	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+# voxdbench starts the voxd beside it: build both.
+$(BUILD)/voxdbench: bench/voxdbench.c $(LIB) | $(BUILD)/voxd
+	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 $(BUILD)/bench_expr: bench/bench_expr.c $(LIB)
 	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 
@@ -117,7 +121,7 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench $(BUILD)/bench_expr
+bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr
 	@scripts/bench.sh $(BUILD)
 
 clean:

@@ -17,5 +17,6 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$build/voxbench" brute -r 256,512,1024
     "$build/voxbench" vod -r "$res" -n "$workers"
     "$build/voxbench" memory -r "$res"
+    "$build/voxdbench" all -r "$res" -n "$workers"
 } | tee "$out"
 echo "bench: tables saved in $out"
