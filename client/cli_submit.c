@@ -150,6 +150,7 @@ int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
     vox_implicit_job job = {
         .source = src->text,
         .source_len = src->len,
+        .source_name = src->path,
         .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
         .res = o->res,
         .channel = vox_channel(o->vod.channel),

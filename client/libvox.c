@@ -889,6 +889,10 @@ int vox_submit(vox_client *c, const vox_implicit_job *job, uint64_t *job_id,
     Voxd__Implicit im = VOXD__IMPLICIT__INIT;
     im.source.data = (uint8_t *)job->source;
     im.source.len = job->source_len ? job->source_len : strlen(job->source);
+    if (job->source_name) {
+        im.source_name.data = (uint8_t *)job->source_name;
+        im.source_name.len = strlen(job->source_name);
+    }
     im.domain = (double *)job->domain;
     im.n_domain = 6;
     im.res = job->res;

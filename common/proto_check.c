@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "frame.h"
+#include "job_meta.h"
 
 #define INVALID VOXD__ERROR_CODE__INVALID_INPUT
 #define LIMIT VOXD__ERROR_CODE__LIMIT_EXCEEDED
@@ -121,6 +122,18 @@ static int check_source(const ProtobufCBinaryData *s, uint32_t max,
     return 0;
 }
 
+/* A file name for the metadata: bounded, one line, no NUL (optional). */
+static int check_source_name(const ProtobufCBinaryData *s, proto_error *e)
+{
+    if (s->len > JOB_META_NAME_MAX)
+        return bad(e, LIMIT, "source_name is %zu bytes, limit %u", s->len, JOB_META_NAME_MAX);
+    for (size_t i = 0; i < s->len; i++)
+        if (s->data[i] == 0 || s->data[i] == '\n' || s->data[i] == '\r')
+            return bad(e, INVALID, "source_name contains a %s at offset %zu",
+                       s->data[i] ? "line break" : "NUL byte", i);
+    return 0;
+}
+
 /* A box: 6 values X0 X1 Y0 Y1 Z0 Z1 (or 2, A B, for a cube when cube_ok);
  * finite, each low < high, each extent finite. */
 static int check_box(const double *v, size_t n, int cube_ok, const char *what,
@@ -179,6 +192,7 @@ static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
 {
     int rc;
     if ((rc = check_source(&im->source, lim->max_expr_bytes, "expression", e))) return rc;
+    if ((rc = check_source_name(&im->source_name, e))) return rc;
     if ((rc = check_box(im->domain, im->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(im->res, lim, e))) return rc;
     if ((unsigned)im->schedule > VOXD__SCHEDULE__SCHEDULE_PAPER)

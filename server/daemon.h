@@ -66,6 +66,7 @@ struct vd_job {
     /* the request, copied and checked */
     char *source;              /* NUL-terminated */
     size_t source_len;
+    char *source_name;         /* its file's name, NUL-terminated, or NULL */
     double lo[3], hi[3];
     uint32_t res;
     int schedule;              /* engine_schedule */

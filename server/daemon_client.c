@@ -292,6 +292,12 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
     memcpy(j->source, src->data, src->len);
     j->source[src->len] = '\0';
     j->source_len = src->len;
+    const ProtobufCBinaryData *name = &s->implicit->source_name;
+    if (name->len && !(j->source_name = strndup((const char *)name->data, name->len))) {
+        free(j->source);
+        free(j);
+        return NULL;
+    }
     job_from_request(j, s);
     j->uid = c->uid;
     j->fd = -1;

@@ -44,6 +44,7 @@ void vd_job_free(vd_job *j)
     if (j->map) munmap(j->map, j->size);
     if (j->fd >= 0) close(j->fd);
     free(j->source);
+    free(j->source_name);
     free(j);
 }
 
@@ -245,7 +246,7 @@ static int write_result(engine *e, vd_job *j, const subdiv_grid *g)
     char meta[JOB_META_MAX], err[256] = "";
     vod_params v;
     job_meta m = {
-        .source = j->source, .source_len = j->source_len, .source_name = NULL,
+        .source = j->source, .source_len = j->source_len, .source_name = j->source_name,
         .res = j->res, .grid = {g->res[0], g->res[1], g->res[2]},
         .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
     };

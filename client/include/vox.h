@@ -117,6 +117,8 @@ enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 
 typedef struct {
     const char *source;   /* the expression (common/expr.h syntax) */
     size_t source_len;    /* its bytes; 0 = strlen(source) */
+    const char *source_name; /* the file it came from, for the VOD's metadata
+                                (at most 512 bytes, one line); may be NULL */
     double domain[6];     /* x0, x1, y0, y1, z0, z1, each low < high */
     uint32_t res;         /* voxels along the longest axis */
     int channel;          /* VOX_CHANNEL_* */

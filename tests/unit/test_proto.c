@@ -10,6 +10,7 @@
 #include <string.h>
 
 #include "frame.h"
+#include "job_meta.h"
 #include "proto_check.h"
 
 #define INVALID VOXD__ERROR_CODE__INVALID_INPUT
@@ -274,6 +275,23 @@ Test(proto, source_empty_too_long_or_with_nul)
     job_init(&j);
     j.src[12] = '\0';
     refused(&j.req, INVALID, "source contains a NUL byte at offset 12");
+}
+
+Test(proto, source_name_bounded_one_line_no_nul)
+{
+    job j;
+    job_init(&j);
+    char name[JOB_META_NAME_MAX + 1];
+    memset(name, 'n', sizeof name);
+    j.im.source_name.data = (uint8_t *)name, j.im.source_name.len = JOB_META_NAME_MAX;
+    accepted(&j.req);
+    j.im.source_name.len = JOB_META_NAME_MAX + 1;
+    refused(&j.req, LIMIT, "source_name is 513 bytes, limit 512");
+    j.im.source_name.len = 8;
+    name[3] = '\n';
+    refused(&j.req, INVALID, "source_name contains a line break at offset 3");
+    name[3] = '\0';
+    refused(&j.req, INVALID, "source_name contains a NUL byte at offset 3");
 }
 
 Test(proto, nul_in_source_survives_the_wire_and_is_refused)
