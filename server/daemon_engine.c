@@ -132,14 +132,19 @@ static void on_progress(void *ud, const engine_progress *p)
  * stopped by its cancel flag. */
 typedef struct {
     vd_job *j;
+    int over;      /* max_result_bytes was reached (not VOD's own 4 GiB limit) */
 } result_sink;
 
 static int sink_write(void *ud, const void *buf, size_t n)
 {
-    vd_job *j = ((result_sink *)ud)->j;
+    result_sink *rs = ud;
+    vd_job *j = rs->j;
     /* relaxed: a flag, see engine_job.cancel */
     if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) return -ECANCELED;
-    if (n > j->max_result_bytes - j->size) return -EFBIG;
+    if (n > j->max_result_bytes - j->size) {
+        rs->over = 1;
+        return -EFBIG;
+    }
     const uint8_t *p = buf;
     while (n) {
         ssize_t w = write(j->fd, p, n);
@@ -256,14 +261,16 @@ static int write_result(engine *e, vd_job *j, const subdiv_grid *g)
     if (j->fd < 0)
         return job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
                          strerror(errno));
-    result_sink rs = {j};
+    result_sink rs = {j, 0};
     vod_sink sink = {sink_write, &rs};
     double t0 = vd_now();
     int rc = engine_write_vod(e, &v, &sink, &j->st, err, sizeof err);
     j->t_write = vd_now() - t0;
     if (rc == 0) return 0;
     int code = engine_code(j, rc);
-    if (rc == -EFBIG)
+    /* -EFBIG is also the engine's for a file over VOD's 4 GiB (err says
+     * what to change): only the sink's is max_result_bytes. */
+    if (rs.over)
         return job_error(j, code,
                          "the result is over this server's max_result_bytes (%llu bytes); "
                          "ask for a lower res or a coarser output",

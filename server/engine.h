@@ -139,7 +139,12 @@ int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
 octree *engine_octree(engine *e);
 /* Write the last job's octree as VOD, bricks encoded by the workers into
  * shared memory (what does not fit, or what a dying worker left undone, is
- * encoded by the caller's thread); the bytes are vod_write_octree()'s. */
+ * encoded by the caller's thread, which frees its encoder before
+ * returning); the bytes are vod_write_octree()'s.  Returns 0, or -errno
+ * with err saying why: -EFBIG with "...would pass 4 GiB..." when the file
+ * is over the format's limit (err names what to change), -ENOSPC when
+ * shared memory is too small, or the sink's own error as it returned it
+ * (err then holds its strerror). */
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, char *err, size_t errlen);
 

@@ -852,6 +852,70 @@ Test(engine, vod_bytes_identical_to_serial_writer)
     expr_tape_free(tape);
 }
 
+/* The brick area overflows with zlib bricks: the master encodes what did
+ * not fit with its own deflate stream, freed at the end of each write (and
+ * made again for the next one), and the bytes are the serial writer's. */
+Test(engine, vod_zlib_bricks_encoded_by_the_master)
+{
+    expr_tape *tape = compile(SCENE2);
+    subdiv_grid g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    char name[64];
+    snprintf(name, sizeof name, "/voxd-zlib.%d.", (int)getpid());
+    /* room for the tables and about half of the compressed bricks */
+    engine_opts o = {.workers = 2, .shm_name = name,
+                     .shm_bytes = shm_min_bytes(2) + (size_t)ref.t.used * 36 - (768u << 10)};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    for (int k = 0; k < 2; k++) vod_same(e, &ref.t, &g, 16, VOD_COMP_ZLIB, VOXEL_CH_SURFACE);
+    int fd = shm_open(name, O_RDONLY, 0);
+    cr_assert_geq(fd, 0);
+    void *map = mmap(NULL, sizeof(shm_header), PROT_READ, MAP_SHARED, fd, 0);
+    close(fd);
+    cr_assert_neq(map, MAP_FAILED);
+    const shm_header *h = map;
+    cr_assert_gt(atomic_load(&h->vod.bump), h->vod.brick_cap,
+                 "the workers' bricks all fitted: the master encoded none");
+    munmap(map, sizeof(shm_header));
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+static int failing_write(void *ud, const void *buf, size_t n)
+{
+    (void)buf;
+    (void)n;
+    ++*(int *)ud;
+    return -EFBIG;
+}
+
+/* A sink's own -EFBIG (a caller's result limit) is told as the sink's, not
+ * as the format's 4 GiB limit. */
+Test(engine, vod_sink_errors_are_the_sinks)
+{
+    expr_tape *tape = compile(SPHERE);
+    subdiv_grid g = grid(64);
+    engine *e = make_engine(2, (size_t)64 << 20);
+    engine_result r;
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    vod_params p;
+    vod_params_default(&p);
+    for (int a = 0; a < 3; a++) p.volume[a] = g.res[a];
+    int calls = 0;
+    vod_sink sink = {failing_write, &calls};
+    char err[256] = "";
+    cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, err, sizeof err), -EFBIG);
+    cr_assert_eq(calls, 1);
+    cr_assert_str_eq(err, strerror(EFBIG));
+    engine_destroy(e);
+    expr_tape_free(tape);
+}
+
 /* The brick area overflows: the master encodes what did not fit, and the
  * bytes are still the serial writer's. */
 Test(engine, vod_with_a_full_brick_area)
