@@ -81,7 +81,8 @@ static void stop_listening(vd_daemon *d)
 {
     if (!d->listening) return;
     d->listening = 0;
-    /* Workers forked since the socket was opened hold it too: shutdown
+    /* A worker closes what it inherits as it starts (worker.c), but one
+     * being forked this instant may hold a copy for a moment: shutdown
      * makes connects fail now, whoever still has a descriptor. */
     uv_os_fd_t fd;
     if (uv_fileno((uv_handle_t *)&d->listener, &fd) == 0) shutdown(fd, SHUT_RDWR);

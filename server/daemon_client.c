@@ -117,9 +117,10 @@ void vd_client_close(vd_client *c)
     else d->clients = c->next;
     if (c->next) c->next->prev = c->prev;
     d->nclients--;
-    /* A worker forked while this connection was open holds a copy of its
-     * descriptor: shutdown() ends the connection for the peer whoever
-     * holds one; close alone would not. */
+    /* A worker closes what it inherits as it starts (worker.c), but one
+     * being forked this instant may hold a copy for a moment: shutdown()
+     * ends the connection for the peer whoever holds one; close alone
+     * would not. */
     uv_os_fd_t fd;
     if (uv_fileno((uv_handle_t *)&c->pipe, &fd) == 0) shutdown(fd, SHUT_RDWR);
     uv_close((uv_handle_t *)&c->pipe, on_closed);

@@ -137,8 +137,10 @@ static int check_config(const char *path)
 /* ---------------------------------------------------------------- the lock */
 
 /* flock on SOCKET.lock, held for the daemon's life: held by someone else
- * means a live daemon.  A crashed daemon's workers may hold it for a few
- * milliseconds more (they die with it), hence the patience. */
+ * means a live daemon.  A worker closes its inherited copy as it starts,
+ * but a crashed daemon's worker caught between its fork and that may hold
+ * it for a few milliseconds more (it dies with its master), hence the
+ * patience. */
 static int take_lock(const char *socket, int *fd)
 {
     char path[CONFIG_SOCKET_MAX + 8];
