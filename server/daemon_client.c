@@ -376,7 +376,7 @@ static int on_cancel(vd_client *c, uint64_t id)
     vd_job *j = find_job(c, id);
     if (!j)
         return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
-                               "no job %llu of this uid is queued or running",
+                               "no job %llu of this uid is queued, running or being delivered",
                                (unsigned long long)id);
     log_info("job %llu: cancel asked by client pid %d", (unsigned long long)id, (int)c->pid);
     if (j->state == VD_DELIVERING) {
