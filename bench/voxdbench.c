@@ -33,6 +33,7 @@
 
 #include "engine.h"
 #include "expr.h"
+#include "job_meta.h"
 #include "subdiv.h"
 #include "vod.h"
 #include "vox.h"
@@ -433,11 +434,11 @@ static int mem_write(void *ud, const void *buf, size_t n)
  * embedded file is byte for byte the daemon's. */
 static void small_vod(vod_params *v, const subdiv_grid *g, char *meta, size_t cap)
 {
-    snprintf(meta, cap,
-             "generator=vox voxelize\nsource=%s\nresolution=%u\n"
-             "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\n",
-             SMALL_EXPR, SMALL_RES, g->res[0], g->res[1], g->res[2], -1.0, 1.0, -1.0, 1.0,
-             -1.0, 1.0);
+    job_meta m = {
+        .source = SMALL_EXPR, .source_len = strlen(SMALL_EXPR), .res = SMALL_RES,
+        .grid = {g->res[0], g->res[1], g->res[2]}, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
+    };
+    job_meta_format(meta, cap, &m);
     vod_params_default(v);
     v->channel = VOXEL_CH_SURFACE;
     v->metadata = meta;
@@ -450,7 +451,7 @@ static void small_vod(vod_params *v, const subdiv_grid *g, char *meta, size_t ca
 
 static void embedded_write(engine *e, const subdiv_grid *g, job_out *o)
 {
-    char meta[512], err[256] = "";
+    char meta[JOB_META_MAX], err[256] = "";
     vod_params v;
     small_vod(&v, g, meta, sizeof meta);
     membuf m = {0};
