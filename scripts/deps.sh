@@ -1,8 +1,10 @@
 #!/bin/sh
-# Install the Debian packages voxd needs to build, test and fuzz, when missing.
+# Install the Debian packages voxd needs to build, test and fuzz, when missing
+# (valgrind: tests/integration/valgrind.sh).
 set -e
 PKGS="build-essential pkg-config zlib1g-dev libpng-dev libxxhash-dev libuv1-dev \
-libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev"
+libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev \
+valgrind"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
