@@ -55,8 +55,8 @@ static const char usage_voxelize[] =
     "      --daemon           run the job on voxd; exit 3 when none answers\n"
     "\n"
     "The job runs on the voxd daemon when one answers on the socket (see vox --help),\n"
-    "else on the engine embedded\n"
-    "in vox; one that is busy or stopping also leaves the job to the embedded engine.\n"
+    "else on the engine embedded in vox; a daemon that is busy or stopping also leaves\n"
+    "the job to the embedded engine.\n"
     "-w, --cpus and --shm-size belong to the embedded engine and select it.  The file\n"
     "is the same either way.  Exit status: 0 done, 1 the job failed, 2 bad usage or a\n"
     "bad expression, 3 --daemon and no voxd answering.\n";
@@ -70,11 +70,10 @@ static const char usage_submit[] =
     SHOW_OPTIONS
     "\n"
     "Runs the job on the voxd daemon at the socket (see vox --help) and writes the\n"
-    "result it streams back, checked\n"
-    "(length and CRC-32) before it is renamed into place.  On a terminal the job's id is\n"
-    "shown; an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job\n"
-    "failed or was refused (with the daemon's reason), 2 bad usage or a bad expression,\n"
-    "3 no voxd answering on the socket.\n";
+    "result it streams back, checked (length and CRC-32) before it is renamed into\n"
+    "place.  On a terminal the job's id is shown; an interrupt (Ctrl-C) cancels the\n"
+    "job.  Exit status: 0 done, 1 the job failed or was refused (with the daemon's\n"
+    "reason), 2 bad usage or a bad expression, 3 no voxd answering on the socket.\n";
 
 void cli_job_usage(int cmd, FILE *f)
 {
