@@ -17,6 +17,7 @@
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -166,6 +167,12 @@ static void header(const char *title, uint32_t res)
            sysconf(_SC_NPROCESSORS_ONLN), REPEATS);
 }
 
+static void header_range(const char *title, uint32_t lo, uint32_t hi)
+{
+    printf("\n### %s (%u^3 to %u^3, %ld cores, median of %d runs)\n\n", title, lo, hi,
+           sysconf(_SC_NPROCESSORS_ONLN), REPEATS);
+}
+
 static int null_write(void *ud, const void *buf, size_t n)
 {
     (void)buf;
@@ -291,7 +298,8 @@ static double brute_slices(const expr_tape *t, const subdiv_grid *g, uint32_t nz
 
 static void bench_brute(const uint32_t *res, int nres)
 {
-    header("Brute force (F at every voxel corner) vs interval subdivision, serial", res[nres - 1]);
+    header_range("Brute force (F at every voxel corner) vs interval subdivision, serial",
+                 res[0], res[nres - 1]);
     printf("| shape | res | corners | brute force (s) | how | subdivision (s) | speed-up |\n");
     printf("|---|---:|---:|---:|---|---:|---:|\n");
     const int which[] = {0, 3};
@@ -376,8 +384,8 @@ static void bench_vod(uint32_t res, int max_workers)
     header("VOD files (zlib level 6, SFHS, 16^3 bricks, channel 3)", res);
     printf("| shape | workers | write (s) | raw MB/s | file bytes | unique bricks | dedup | compression | read+validate (s) | RAW bytes | RAW read (s) |\n");
     printf("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
-    const int which[] = {0, 3, 5};
-    for (int w = 0; w < 3; w++) {
+    const int which[] = {0, 1, 3, 5}; /* union64: 64 equal spheres, duplicate bricks */
+    for (int w = 0; w < 4; w++) {
         const shape *s = &shapes[which[w]];
         expr_tape *t = load_shape(s);
         subdiv_grid g = shape_grid(s, res);
@@ -414,28 +422,47 @@ static void bench_vod(uint32_t res, int max_workers)
 
 /* ---- memory ---- */
 
+/* One shape, serial, in this (forked) process: its row of the table. */
+static void memory_row(const shape *s, uint32_t res)
+{
+    expr_tape *t = load_shape(s);
+    subdiv_grid g = shape_grid(s, res);
+    serial_tree st;
+    serial_alloc(&st, g.depth);
+    if (subdiv_serial(t, &g, &st.t)) die("subdiv_serial", "failed");
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    printf("| %s | %llu | %u | %.2f | %.1f |\n", s->name, (unsigned long long)st.t.voxels,
+           st.t.used, (double)octree_arena_bytes(st.t.used) / (double)st.t.voxels,
+           ru.ru_maxrss / 1024.0);
+    munmap(st.arena, st.bytes);
+    expr_tape_free(t);
+}
+
+/* Each shape in a process of its own, so that each peak is its own job's. */
 static void bench_memory(uint32_t res)
 {
-    header("Memory", res);
+    printf("\n### Memory (%u^3, %ld cores, one run each)\n\n", res, sysconf(_SC_NPROCESSORS_ONLN));
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    double base = ru.ru_maxrss / 1024.0;
     printf("| shape | voxels | octree cells | octree bytes/voxel | peak RSS (MiB) |\n");
     printf("|---|---:|---:|---:|---:|\n");
     for (size_t i = 0; i < NSHAPES; i++) {
-        const shape *s = &shapes[i];
-        expr_tape *t = load_shape(s);
-        subdiv_grid g = shape_grid(s, res);
-        serial_tree st;
-        serial_alloc(&st, g.depth);
-        if (subdiv_serial(t, &g, &st.t)) die("subdiv_serial", "failed");
-        struct rusage ru;
-        getrusage(RUSAGE_SELF, &ru);
-        printf("| %s | %llu | %u | %.2f | %.1f |\n", s->name,
-               (unsigned long long)st.t.voxels, st.t.used,
-               (double)octree_arena_bytes(st.t.used) / (double)st.t.voxels,
-               ru.ru_maxrss / 1024.0);
-        munmap(st.arena, st.bytes);
-        expr_tape_free(t);
+        fflush(stdout);
+        pid_t pid = fork();
+        if (pid < 0) die("fork", strerror(errno));
+        if (pid == 0) {
+            memory_row(&shapes[i], res);
+            fflush(stdout);
+            _exit(0);
+        }
+        int st;
+        if (waitpid(pid, &st, 0) < 0 || !WIFEXITED(st) || WEXITSTATUS(st))
+            die("memory", "a measuring process failed");
     }
-    printf("\n(peak RSS is this process's high-water mark so far, serial engine)\n");
+    printf("\n(peak RSS of a process that ran only that job with the serial engine, "
+           "%.1f MiB of it the program before the job)\n", base);
 }
 
 static int parse_res_list(const char *s, uint32_t *out, int cap)
