@@ -11,16 +11,10 @@
 #include <string.h>
 #include <time.h>
 
+#include "bench_util.h"
 #include "expr.h"
 
 #define NBOX 1024
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static double urand(void) { return rand() / (RAND_MAX + 1.0); }
 

@@ -31,6 +31,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench_util.h"
 #include "engine.h"
 #include "expr.h"
 #include "job_meta.h"
@@ -46,27 +47,6 @@
 #define CLIENT_MIN_JOBS 4  /* ... and at least this many jobs */
 #define SMALL_EXPR "sqrt(x^2+y^2+z^2) - 0.8"
 #define SMALL_RES 64u
-
-static double now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return (x > y) - (x < y);
-}
-
-/* Nearest rank: the smallest value with at least p of the values <= it. */
-static double percentile(double *v, int n, double p)
-{
-    qsort(v, (size_t)n, sizeof *v, cmp_double);
-    int i = (int)ceil(p * n) - 1;
-    return v[i < 0 ? 0 : i >= n ? n - 1 : i];
-}
 
 /* ---------------------------------------------------------------- the daemon */
 
