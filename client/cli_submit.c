@@ -216,6 +216,20 @@ static int no_options(int argc, char **argv, const char *usage)
     return -1;
 }
 
+/* A command without options or arguments (status, ping): its usage
+ * errors, else connected.  0 with *c, or the exit status. */
+static int plain_command(int argc, char **argv, const char *usage, const char *sock,
+                         vox_client **c)
+{
+    int rc = no_options(argc, argv, usage);
+    if (rc >= 0) return rc;
+    if (optind < argc) {
+        cli_error("unexpected argument '%s'", argv[optind]);
+        return CLI_EXIT_USAGE;
+    }
+    return connect_or_say(sock, c);
+}
+
 static void format_duration(double s, char *buf, size_t cap)
 {
     unsigned long long t = (unsigned long long)s;
@@ -243,14 +257,9 @@ static const char usage_status[] =
 
 int cli_status(int argc, char **argv, const char *sock)
 {
-    int rc = no_options(argc, argv, usage_status);
-    if (rc >= 0) return rc;
-    if (optind < argc) {
-        cli_error("unexpected argument '%s'", argv[optind]);
-        return CLI_EXIT_USAGE;
-    }
     vox_client *c;
-    if ((rc = connect_or_say(sock, &c))) return rc;
+    int rc = plain_command(argc, argv, usage_status, sock, &c);
+    if (rc) return rc;
     vox_status_info st;
     vox_error err;
     rc = vox_status(c, &st, &err);
@@ -339,14 +348,9 @@ static const char usage_ping[] =
 
 int cli_ping(int argc, char **argv, const char *sock)
 {
-    int rc = no_options(argc, argv, usage_ping);
-    if (rc >= 0) return rc;
-    if (optind < argc) {
-        cli_error("unexpected argument '%s'", argv[optind]);
-        return CLI_EXIT_USAGE;
-    }
     vox_client *c;
-    if ((rc = connect_or_say(sock, &c))) return rc;
+    int rc = plain_command(argc, argv, usage_ping, sock, &c);
+    if (rc) return rc;
     vox_error err;
     double rtt;
     rc = vox_ping(c, &rtt, &err);
