@@ -15,6 +15,7 @@
 #include "cli.h"
 #include "engine.h"
 #include "job_meta.h"
+#include "outfile.h"
 #include "progress.h"
 #include "source.h"
 #include "subdiv.h"
@@ -273,10 +274,8 @@ typedef struct {
 
 static int out_open(out_file *f, const char *path)
 {
-    int n = snprintf(f->tmp, sizeof f->tmp, "%s.tmp.XXXXXX", path);
-    if (n < 0 || (size_t)n >= sizeof f->tmp) return -ENAMETOOLONG;
-    f->fd = mkstemp(f->tmp);
-    return f->fd < 0 ? -errno : 0;
+    f->fd = outfile_create(path, f->tmp, sizeof f->tmp);
+    return f->fd < 0 ? f->fd : 0;
 }
 
 static int out_commit(out_file *f, const char *path, int ok)

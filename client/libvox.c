@@ -32,6 +32,7 @@
 #include <zlib.h>
 
 #include "frame.h"
+#include "outfile.h"
 #include "proto_check.h"
 
 #define READ_BUF (64u << 10)
@@ -1138,22 +1139,6 @@ static vjob *receivable(vox_client *c, uint64_t job_id, vox_error *err)
     return j;
 }
 
-/* A new file beside path, created exclusively (mode 0666 less the umask). */
-static int tmp_create(const char *path, char *tmp, size_t cap)
-{
-    static atomic_uint counter;
-    for (int tries = 0; tries < 100; tries++) {
-        struct timespec ts;
-        clock_gettime(CLOCK_REALTIME, &ts);
-        unsigned salt = (unsigned)ts.tv_nsec ^ (unsigned)getpid() << 8 ^ counter++ * 2654435761u;
-        if (snprintf(tmp, cap, "%s.tmp.%06x", path, salt & 0xffffff) >= (int)cap)
-            return -ENAMETOOLONG;
-        int fd = open(tmp, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-        if (fd >= 0 || errno != EEXIST) return fd >= 0 ? fd : -errno;
-    }
-    return -EEXIST;
-}
-
 int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
                      void *ud, vox_summary *sum, vox_error *err)
 {
@@ -1162,7 +1147,7 @@ int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progr
     vjob *j = receivable(c, job_id, err);
     if (!j) return -EINVAL;
     char tmp[PATH_MAX + 32];
-    int fd = tmp_create(path, tmp, sizeof tmp);
+    int fd = outfile_create(path, tmp, sizeof tmp);
     if (fd < 0) {
         set_error(err, fd, job_id, "cannot create %s: %s", path, strerror(-fd));
         drop_job(c, j);

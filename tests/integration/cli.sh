@@ -45,6 +45,13 @@ refuse "unwritable output" 1 "cannot create" "$VOX" voxelize -e x -r 8 -o /nonex
 [ -e "$TMP/bad.vod" ] && fail "no partial file" || pass "no partial file"
 [ -z "$(ls "$TMP" | grep tmp)" ] && pass "no temporary file left" || fail "no temporary file left" "$(ls "$TMP")"
 
+# The file gets the mode of any file the user writes: 0666 less the umask.
+(umask 022 && "$VOX" voxelize -q -e "$S" -r 8 -o "$TMP/m022.vod")
+(umask 077 && "$VOX" voxelize -q -e "$S" -r 8 -o "$TMP/m077.vod")
+modes="$(stat -c %a "$TMP/m022.vod" "$TMP/m077.vod" 2>&1 | tr '\n' ' ')"
+[ "$modes" = "644 600 " ] && pass "output mode follows the umask" ||
+    fail "output mode follows the umask" "modes $modes (want 644 600)"
+
 # A damaged file is refused by name.
 head -c 200 "$TMP/s1.vod" >"$TMP/trunc.vod"
 refuse "truncated file refused" 1 "trunc" "$VOX" info "$TMP/trunc.vod"
