@@ -1,7 +1,6 @@
 /* The worker process: Figure 3's slave over the shared-memory slot. */
 #include "worker.h"
 
-#include <dirent.h>
 #include <errno.h>
 #include <signal.h>
 #include <stdlib.h>
@@ -325,19 +324,7 @@ static void reset_signals(void)
 static void close_inherited(void)
 {
     if (close_range(3, ~0U, 0) == 0) return;
-    /* a kernel before 5.9: the directory of our descriptors */
-    DIR *dir = opendir("/proc/self/fd");
-    if (dir) {
-        struct dirent *de;
-        while ((de = readdir(dir))) {
-            char *end;
-            long fd = strtol(de->d_name, &end, 10);
-            if (*end || end == de->d_name || fd < 3 || fd == dirfd(dir)) continue;
-            close((int)fd);
-        }
-        closedir(dir);
-        return;
-    }
+    /* a kernel before 5.9 (Debian 12 has 6.1): one by one */
     long max = sysconf(_SC_OPEN_MAX);
     if (max < 0 || max > 65536) max = 65536;
     for (long fd = 3; fd < max; fd++) close((int)fd);
