@@ -389,27 +389,6 @@ static void header(const char *title, uint32_t res, const char *how)
 
 /* ---------------------------------------------------------------- latency */
 
-/* In memory, as voxd holds a result before it streams it. */
-typedef struct {
-    uint8_t *p;
-    size_t n, cap;
-} membuf;
-
-static int mem_write(void *ud, const void *buf, size_t n)
-{
-    membuf *m = ud;
-    if (m->n + n > m->cap) {
-        size_t cap = m->cap ? m->cap : 1 << 16;
-        while (cap < m->n + n) cap *= 2;
-        uint8_t *p = realloc(m->p, cap);
-        if (!p) return -ENOMEM;
-        m->p = p, m->cap = cap;
-    }
-    memcpy(m->p + m->n, buf, n);
-    m->n += n;
-    return 0;
-}
-
 /* vox voxelize's VOD parameters and metadata (cli_voxelize.c), so the
  * embedded file is byte for byte the daemon's. */
 static void small_vod(vod_params *v, const subdiv_grid *g, char *meta, size_t cap)
@@ -434,8 +413,8 @@ static void embedded_write(engine *e, const subdiv_grid *g, job_out *o)
     char meta[JOB_META_MAX], err[256] = "";
     vod_params v;
     small_vod(&v, g, meta, sizeof meta);
-    membuf m = {0};
-    vod_sink sink = {mem_write, &m};
+    vod_membuf m = {0}; /* in memory, as voxd holds a result */
+    vod_sink sink = {vod_mem_write, &m};
     vod_stats st;
     int rc = engine_write_vod(e, &v, &sink, &st, err, sizeof err);
     free(m.p);

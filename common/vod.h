@@ -141,10 +141,12 @@ typedef struct {
  * preorder, as vod_collect gave them).  Duplicates (same hash, same bytes)
  * are stored once, IDs 1..n in order of first use.  -EINVAL for nodes not
  * strictly increasing in preorder or a size above vod_encode_bound, -EFBIG
- * when the file would pass 4 GiB, -ENOMEM, or the sink's error. */
+ * when the file would pass 4 GiB, -ENOMEM, each with its message in err;
+ * or the sink's error, with err left empty (the sink's owner knows why). */
 int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
                  const vod_node *nodes, const vod_encoded *recs,
-                 const uint8_t *const *data, vod_sink *sink, vod_stats *st);
+                 const uint8_t *const *data, vod_sink *sink, vod_stats *st,
+                 char *err, size_t errlen);
 
 /* All three phases in this process: the byte-for-byte reference for a
  * parallel writer.  Uses t->agg if set (capacity t->used), else allocates
@@ -153,6 +155,13 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
                      vod_stats *st, char *err, size_t errlen);
 /* A sink writing to a file descriptor. */
 int vod_fd_write(void *fd_as_ptr, const void *buf, size_t n);
+/* A sink into memory: ud is a vod_membuf, zeroed at first, that grows as
+ * needed (-ENOMEM when it cannot); free(p) when done. */
+typedef struct {
+    uint8_t *p;
+    size_t n, cap;
+} vod_membuf;
+int vod_mem_write(void *membuf, const void *buf, size_t n);
 
 /* ---- reading ---- */
 

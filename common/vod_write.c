@@ -625,12 +625,28 @@ static void fill_stats(vod_stats *st, const vod_layout *L, size_t n,
     st->crc32 = w->file_crc;
 }
 
+/* The 4 GiB limit, with what to ask for instead. */
+static int too_big(char *err, size_t errlen, const vod_layout *L, const vod_params *p,
+                   uint32_t unique)
+{
+    return fail(err, errlen, -EFBIG,
+                "the VOD file would pass 4 GiB, the limit of the format's 32-bit "
+                "offsets (%u unique bricks of %u^3 voxels); ask for %s",
+                unique, L->brick,
+                p->comp == VOD_COMP_NONE ? "compression (zlib or runl), a larger brick "
+                                           "or a lower res"
+                                         : "a larger brick or a lower res");
+}
+
 int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
                  const vod_node *nodes, const vod_encoded *recs,
-                 const uint8_t *const *data, vod_sink *sink, vod_stats *st)
+                 const uint8_t *const *data, vod_sink *sink, vod_stats *st,
+                 char *err, size_t errlen)
 {
+    if (errlen) err[0] = '\0';
     int rc = check_inputs(L, p, n, nodes, recs, data);
-    if (rc) return rc;
+    if (rc)
+        return fail(err, errlen, rc, "bricks out of preorder or over their bound");
     uint32_t *ids = malloc((n + 1) * sizeof *ids);
     uint32_t *first = malloc((n + 1) * sizeof *first), u = 0;
     wbuf w = {.sink = sink, .buf = malloc(WBUF_BYTES)};
@@ -639,7 +655,8 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     uint64_t size = VOD_HEADER_BYTES + 4 * L->nodes + 4 + 12ull * u +
                     TRAILER_FIXED + meta;
     for (uint32_t j = 0; j < u && !rc; j++) size += 4 + (uint64_t)recs[first[j]].size;
-    if (!rc && size > UINT32_MAX) rc = -EFBIG;
+    if (rc) fail(err, errlen, rc, "out of memory for %zu bricks", n);
+    else if (size > UINT32_MAX) rc = too_big(err, errlen, L, p, u);
     if (!rc) {
         write_body(&w, L, p, n, nodes, recs, data, ids, first, u);
         put_trailer(&w, p, meta);
@@ -654,38 +671,18 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
 
 /* ---- all three phases ---- */
 
-typedef struct {
-    uint8_t *bytes;
-    size_t len, cap;
-} blob;
-
-static int blob_add(blob *b, const uint8_t *p, size_t n)
-{
-    if (b->cap - b->len < n) {
-        size_t cap = b->cap ? b->cap : 1u << 16;
-        while (cap - b->len < n) cap *= 2;
-        uint8_t *q = realloc(b->bytes, cap);
-        if (!q) return -ENOMEM;
-        b->bytes = q;
-        b->cap = cap;
-    }
-    memcpy(b->bytes + b->len, p, n);
-    b->len += n;
-    return 0;
-}
-
-/* Phase 2 for every node, serially, into one blob (offsets in off). */
+/* Phase 2 for every node, serially, into one buffer (offsets in off). */
 static int encode_all(const octree *t, const vod_layout *L, const vod_params *p,
                       size_t n, const vod_node *nodes, vod_encoded *recs,
-                      size_t *off, blob *b)
+                      size_t *off, vod_membuf *b)
 {
     size_t bound = vod_encode_bound(L, p);
     uint8_t *scratch = malloc(L->raw_bytes), *tmp = malloc(bound);
     int rc = scratch && tmp ? 0 : -ENOMEM;
     for (size_t i = 0; i < n && !rc; i++) {
         rc = vod_encode(t, L, p, &nodes[i], scratch, tmp, bound, &recs[i]);
-        off[i] = b->len;
-        if (!rc) rc = blob_add(b, tmp, recs[i].size);
+        off[i] = b->n;
+        if (!rc) rc = vod_mem_write(b, tmp, recs[i].size);
     }
     free(scratch);
     free(tmp);
@@ -694,28 +691,28 @@ static int encode_all(const octree *t, const vod_layout *L, const vod_params *p,
 }
 
 static int write_planned(octree *t, const vod_layout *L, const vod_params *p,
-                         vod_sink *sink, vod_stats *st)
+                         vod_sink *sink, vod_stats *st, char *err, size_t errlen)
 {
     size_t n = vod_collect(t, L, NULL, 0);
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);
     vod_encoded *recs = malloc((n + 1) * sizeof *recs);
     size_t *off = malloc((n + 1) * sizeof *off);
     const uint8_t **data = malloc((n + 1) * sizeof *data);
-    blob b = {0};
+    vod_membuf b = {0};
     int rc = nodes && recs && off && data ? 0 : -ENOMEM;
     if (!rc) {
         vod_collect(t, L, nodes, n);
         rc = encode_all(t, L, p, n, nodes, recs, off, &b);
     }
     if (!rc) {
-        for (size_t i = 0; i < n; i++) data[i] = b.bytes + off[i];
-        rc = vod_assemble(L, p, n, nodes, recs, data, sink, st);
+        for (size_t i = 0; i < n; i++) data[i] = b.p + off[i];
+        rc = vod_assemble(L, p, n, nodes, recs, data, sink, st, err, errlen);
     }
     free(nodes);
     free(recs);
     free(off);
     free(data);
-    free(b.bytes);
+    free(b.p);
     return rc;
 }
 
@@ -733,16 +730,34 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
             return fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
     }
     vod_aggregate(t, p->channel);
-    rc = write_planned(t, &L, p, sink, st);
+    if (errlen) err[0] = '\0';
+    rc = write_planned(t, &L, p, sink, st, err, errlen);
     if (own) {
         free(own);
         t->agg = NULL;
     }
-    if (rc == -EFBIG)
-        return fail(err, errlen, rc, "the file would pass 4 GiB, the limit of "
-                    "VOD's u32 offsets; use a larger brick or compression");
-    if (rc)
+    /* vod_assemble's own failures are said; the sink's and the encoder's
+     * are not yet */
+    if (rc && (!errlen || !err[0]))
         return fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
+    return 0;
+}
+
+int vod_mem_write(void *membuf, const void *buf, size_t n)
+{
+    vod_membuf *m = membuf;
+    if (m->cap - m->n < n) {
+        size_t cap = m->cap ? m->cap : 1 << 16;
+        while (cap - m->n < n) {
+            if (cap > SIZE_MAX / 2) return -ENOMEM;
+            cap *= 2;
+        }
+        uint8_t *p = realloc(m->p, cap);
+        if (!p) return -ENOMEM;
+        m->p = p, m->cap = cap;
+    }
+    memcpy(m->p + m->n, buf, n);
+    m->n += n;
     return 0;
 }
 

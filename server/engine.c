@@ -741,22 +741,6 @@ static int vod_gather(engine *e, const vod_params *p, const uint8_t **data,
     return rc;
 }
 
-/* The caller's sink, watched: vod_assemble's own -EFBIG (the file would
- * pass 4 GiB) is told apart from the sink's errors (a caller's result
- * limit may be -EFBIG too). */
-typedef struct {
-    vod_sink *sink;
-    int rc;
-} watched_sink;
-
-static int watched_write(void *ud, const void *buf, size_t n)
-{
-    watched_sink *w = ud;
-    int rc = w->sink->write(w->sink->ud, buf, n);
-    if (rc && !w->rc) w->rc = rc;
-    return rc;
-}
-
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, char *err, size_t errlen)
 {
@@ -780,21 +764,13 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
     const uint8_t **data = calloc(v->n ? v->n : 1, sizeof *data);
     uint8_t **own = calloc(v->n ? v->n : 1, sizeof *own);
     rc = data && own ? vod_gather(e, p, data, own) : -ENOMEM;
-    watched_sink ws = {sink, 0};
-    vod_sink watched = {watched_write, &ws};
-    if (!rc)
-        rc = vod_assemble(&v->L, p, v->n, shm_at(e->seg.base, v->nodes_off),
-                          shm_at(e->seg.base, v->recs_off), data, &watched, st);
-    if (rc == -EFBIG && !ws.rc)
-        snprintf(err, errlen,
-                 "the VOD file would pass 4 GiB, the limit of the format's 32-bit "
-                 "offsets (%llu bricks of %u^3 voxels); ask for %s",
-                 (unsigned long long)v->n, v->L.brick,
-                 p->comp == VOD_COMP_NONE ? "compression (zlib or runl), a larger brick "
-                                            "or a lower res"
-                                          : "a larger brick or a lower res");
-    else if (rc && !err[0])
+    if (rc)
         snprintf(err, errlen, "%s", strerror(-rc));
+    else
+        rc = vod_assemble(&v->L, p, v->n, shm_at(e->seg.base, v->nodes_off),
+                          shm_at(e->seg.base, v->recs_off), data, sink, st, err, errlen);
+    /* vod_assemble says its own failures; a sink's is told as its code */
+    if (rc && !err[0]) snprintf(err, errlen, "%s", strerror(-rc));
     for (uint64_t i = 0; own && i < v->n; i++) free(own[i]);
     free(own);
     free(data);

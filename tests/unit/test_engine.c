@@ -786,24 +786,6 @@ Test(engine, workers_are_pinned)
 
 /* ---- VOD ---- */
 
-typedef struct {
-    uint8_t *b;
-    size_t n, cap;
-} membuf;
-
-static int mem_write(void *ud, const void *buf, size_t n)
-{
-    membuf *m = ud;
-    if (m->n + n > m->cap) {
-        m->cap = (m->n + n) * 2;
-        m->b = realloc(m->b, m->cap);
-        if (!m->b) return -ENOMEM;
-    }
-    memcpy(m->b + m->n, buf, n);
-    m->n += n;
-    return 0;
-}
-
 static void vod_same(engine *e, octree *ref, const subdiv_grid *g, uint32_t brick,
                      uint32_t comp, int channel)
 {
@@ -818,18 +800,18 @@ static void vod_same(engine *e, octree *ref, const subdiv_grid *g, uint32_t bric
     p.comp = comp;
     p.channel = channel;
     p.metadata = "generator=test_engine\n";
-    membuf a = {0}, b = {0};
-    vod_sink sa = {mem_write, &a}, sb = {mem_write, &b};
+    vod_membuf a = {0}, b = {0};
+    vod_sink sa = {vod_mem_write, &a}, sb = {vod_mem_write, &b};
     vod_stats st_a, st_b;
     char err[256] = "";
     cr_assert_eq(vod_write_octree(ref, &p, &sa, &st_a, err, sizeof err), 0, "%s", err);
     cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, err, sizeof err), 0, "%s", err);
     cr_assert_eq(a.n, b.n, "sizes %zu vs %zu", a.n, b.n);
-    cr_assert_eq(memcmp(a.b, b.b, a.n), 0, "VOD bytes differ");
+    cr_assert_eq(memcmp(a.p, b.p, a.n), 0, "VOD bytes differ");
     cr_assert_eq(st_a.crc32, st_b.crc32);
     cr_assert_gt(st_b.bricks, 1);
-    free(a.b);
-    free(b.b);
+    free(a.p);
+    free(b.p);
 }
 
 Test(engine, vod_bytes_identical_to_serial_writer)

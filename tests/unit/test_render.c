@@ -511,26 +511,6 @@ Test(render, equal_depth_ties_go_to_the_brighter_splat)
 
 /* ---- VOD input ---- */
 
-typedef struct {
-    uint8_t *buf;
-    size_t len, cap;
-} membuf;
-
-static int mem_write(void *ud, const void *buf, size_t n)
-{
-    membuf *m = ud;
-    if (m->len + n > m->cap) {
-        size_t cap = (m->len + n) * 2;
-        uint8_t *b = realloc(m->buf, cap);
-        if (!b) return -ENOMEM;
-        m->buf = b;
-        m->cap = cap;
-    }
-    memcpy(m->buf + m->len, buf, n);
-    m->len += n;
-    return 0;
-}
-
 /* t written as a 64^3 VOD of the given channel, read back; scale and
  * origin as given, or unit voxels at the origin when NULL. */
 static vod_file *to_vod_placed(octree *t, int channel, const float *scale,
@@ -544,14 +524,14 @@ static vod_file *to_vod_placed(octree *t, int channel, const float *scale,
         p.voxel_scale[k] = scale[k];
         p.origin[k] = origin[k];
     }
-    membuf m = {0};
-    vod_sink sink = {mem_write, &m};
+    vod_membuf m = {0};
+    vod_sink sink = {vod_mem_write, &m};
     vod_stats st;
     char err[256];
     cr_assert_eq(vod_write_octree(t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
     vod_file *f;
-    cr_assert_eq(vod_read(m.buf, m.len, &f, err, sizeof err), 0, "%s", err);
-    free(m.buf);
+    cr_assert_eq(vod_read(m.p, m.n, &f, err, sizeof err), 0, "%s", err);
+    free(m.p);
     return f;
 }
 

@@ -886,7 +886,7 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
-    cr_assert_eq(vod_assemble(&L, &p, 4, nodes, recs, data, &sink, &st), 0);
+    cr_assert_eq(vod_assemble(&L, &p, 4, nodes, recs, data, &sink, &st, err, sizeof err), 0);
     cr_assert_eq(st.bricks, 3, "d1 == d3 merged, d2 (same hash) and d1 (other hash) not");
     cr_assert_eq(vod_get32(m.p + 64), 1);
     cr_assert_eq(vod_get32(m.p + 68), 2);
@@ -896,9 +896,9 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     /* nodes out of preorder or oversize records are refused */
     vod_node bad[2] = {{2, 0, 1, 0, 0}, {1, 0, 0, 0, 0}};
     m = (membuf){0};
-    cr_assert_eq(vod_assemble(&L, &p, 2, bad, recs, data, &sink, &st), -EINVAL);
+    cr_assert_eq(vod_assemble(&L, &p, 2, bad, recs, data, &sink, &st, err, sizeof err), -EINVAL);
     vod_encoded big[1] = {{7, 257}};
-    cr_assert_eq(vod_assemble(&L, &p, 1, nodes + 1, big, data, &sink, &st), -EINVAL);
+    cr_assert_eq(vod_assemble(&L, &p, 1, nodes + 1, big, data, &sink, &st, err, sizeof err), -EINVAL);
     cr_assert_eq(m.calls, 0);
 }
 
@@ -937,7 +937,7 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
-    cr_assert_eq(vod_assemble(&L, &p, n, nodes, recs, (const uint8_t *const *)data, &sink, &st), 0);
+    cr_assert_eq(vod_assemble(&L, &p, n, nodes, recs, (const uint8_t *const *)data, &sink, &st, err, sizeof err), 0);
     cr_assert_eq(m.n, ref.n);
     cr_assert_arr_eq(m.p, ref.p, m.n);
     cr_assert_eq(st.nonempty_nodes, n);
@@ -993,8 +993,9 @@ Test(vod_write, file_past_4_gib_is_refused_before_writing)
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
-    cr_assert_eq(vod_assemble(&L, &p, N, nodes, recs, data, &sink, &st), -EFBIG);
+    cr_assert_eq(vod_assemble(&L, &p, N, nodes, recs, data, &sink, &st, err, sizeof err), -EFBIG);
     cr_assert_eq(m.calls, 0);
+    cr_assert(strstr(err, "would pass 4 GiB") && strstr(err, "65 unique bricks"), "%s", err);
     free(raw);
 }
 
@@ -1278,3 +1279,48 @@ Test(vod_corrupt, tiny_and_empty_inputs)
     cr_assert_neq(try_read(hdr, sizeof hdr, err, sizeof err), 0);
     cr_assert(strstr(err, "truncated"), "%s", err);
 }
+
+/* The library's memory sink keeps every byte in order across its growth. */
+Test(vod, mem_sink_grows_and_keeps_order)
+{
+    vod_membuf m = {0};
+    uint8_t chunk[1000];
+    for (int i = 0; i < 300; i++) {
+        memset(chunk, i & 0xff, sizeof chunk);
+        cr_assert_eq(vod_mem_write(&m, chunk, (size_t)(i % 7) * 100 + 1), 0);
+    }
+    size_t at = 0;
+    for (int i = 0; i < 300; i++) {
+        size_t len = (size_t)(i % 7) * 100 + 1;
+        for (size_t k = 0; k < len; k++)
+            cr_assert_eq(m.p[at + k], (uint8_t)i, "byte %zu", at + k);
+        at += len;
+    }
+    cr_assert_eq(m.n, at);
+    cr_assert_geq(m.cap, m.n);
+    free(m.p);
+}
+
+static int efbig_write(void *ud, const void *buf, size_t n)
+{
+    (void)ud, (void)buf, (void)n;
+    return -EFBIG;
+}
+
+/* A sink's own -EFBIG (a caller's size limit) is the sink's failure, not
+ * the format's 4 GiB limit. */
+Test(vod, sink_errors_are_not_the_4_GiB_limit)
+{
+    fixture f;
+    fx_init(&f, 4, 16, 16, 16);
+    fx_random(&f, 50);
+    vod_params p;
+    vod_params_default(&p);
+    for (int a = 0; a < 3; a++) p.volume[a] = 16;
+    vod_sink sink = {efbig_write, NULL};
+    char err[256];
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EFBIG);
+    cr_assert_str_eq(err, "cannot write the VOD file: File too large");
+    fx_free(&f);
+}
+
