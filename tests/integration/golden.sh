@@ -1,0 +1,31 @@
+#!/bin/bash
+# Reference outputs: the files of tests/golden/jobs.txt must keep the bytes
+# the code before the job-kind engine wrote (tests/golden/hashes.txt).
+# `tests/integration/golden.sh --write` rewrites hashes.txt: only for a
+# change that is meant to change the bytes, said so in its commit.
+. "$(dirname "$0")/lib.sh"
+export VOXD_SOCKET=/nonexistent/voxd.sock
+VOXR=${VOX:-build/release/vox}  # release build: the sanitizers add nothing here
+jobs=tests/golden/jobs.txt hashes=tests/golden/hashes.txt
+
+run_jobs() {  # prints "name sha256" per job
+    while IFS='|' read -r name args; do
+        name=$(echo $name)
+        case $name in ''|'#'*) continue ;; esac
+        # shellcheck disable=SC2086  # the arguments are words
+        if ! "$VOXR" voxelize $args --embedded -q -o "$TMP/$name.vod" >"$TMP/$name.log" 2>&1; then
+            echo "$name failed: $(head -2 "$TMP/$name.log")"; continue
+        fi
+        echo "$name $(sha256sum <"$TMP/$name.vod" | cut -d' ' -f1)"
+    done <"$jobs"
+}
+
+if [ "${1:-}" = --write ]; then run_jobs >"$hashes"; cat "$hashes"; exit 0; fi
+run_jobs >"$TMP/now"
+while read -r name want; do
+    got=$(awk -v n="$name" '$1 == n { print $2 }' "$TMP/now")
+    if [ "$got" = "$want" ]; then pass "golden $name"
+    else fail "golden $name" "$(grep "^$name " "$TMP/now" || echo "no output")"; fi
+done <"$hashes"
+n=$(grep -c . "$hashes")
+[ "$n" -ge 30 ] && pass "golden: $n reference files" || fail "golden: only $n reference hashes"
