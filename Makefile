@@ -11,6 +11,7 @@
 #   make deps       installs the Debian packages the build needs, if missing
 
 CC      ?= cc
+PREFIX  ?= /usr/local
 V       ?= release
 BUILD   ?= build/$(V)
 PKGS    := zlib libpng libxxhash libuv libprotobuf-c
@@ -19,7 +20,27 @@ PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
 
 WARN    := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wvla
 CSTD    := -std=c11 -D_GNU_SOURCE
-INC     := -Icommon -Iworker -Iserver -Iclient -Iclient/include -I$(BUILD)/proto
+# One folder per module.  LAYER_x lists the folders module x may include
+# from: each module compiles with those include paths only, so an include
+# against the layering does not compile (tests/integration/layering.sh
+# checks the same over the sources, and that no two files include each
+# other).  The data flows down this list; nothing includes upwards.
+MODULES := client server config libvox master worker engine proto vod expr common
+LAYER_client := config libvox master worker engine proto expr vod common
+LAYER_server := config master engine proto libvox expr vod common
+LAYER_config := proto expr common
+LAYER_libvox := proto common
+LAYER_master := worker engine expr vod common
+LAYER_worker := engine expr vod common
+LAYER_engine := vod common
+LAYER_proto  := common
+LAYER_vod    := common
+LAYER_expr   := common
+LAYER_common :=
+# -I flags of module $(1): itself, its layers, and the generated protocol
+# headers for those that may include proto/.
+modinc = $(patsubst %,-I%,$(1) $(LAYER_$(1))) $(if $(filter proto,$(1) $(LAYER_$(1))),-I$(BUILD)/proto)
+INC     := $(patsubst %,-I%,$(MODULES)) -I$(BUILD)/proto
 ifeq ($(V),release)
   OPT   := -O2 -g
 else ifeq ($(V),asan)
@@ -27,17 +48,22 @@ else ifeq ($(V),asan)
 else ifeq ($(V),debug)
   OPT   := -O0 -g
 endif
-CFLAGS  += $(CSTD) $(WARN) $(OPT) $(INC) $(PKG_CFLAGS) -MMD -MP
+CFLAGS  += $(CSTD) $(WARN) $(OPT) $(PKG_CFLAGS) -MMD -MP
 LDFLAGS += $(filter -fsanitize=%,$(OPT))
 LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 
-LIB_SRC ?= $(wildcard common/*.c worker/*.c server/*.c client/*.c)
+LIB_SRC ?= $(wildcard $(MODULES:%=%/*.c))
 LIB_SRC := $(filter-out client/vox.c server/voxd.c,$(LIB_SRC))
+# libvox, the client library: only what a client needs (vox.h, framing,
+# the protocol), an archive of its own with a pkg-config file.
+LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c common/*.c)
+LIBVOX_OBJ := $(LIBVOX_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
+LIBVOX     := $(BUILD)/libvox.a
 PROTO   := $(wildcard proto/*.proto)
 PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
 LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIB     := $(BUILD)/libvoxd.a
-BINS    := $(BUILD)/vox $(if $(wildcard server/voxd.c),$(BUILD)/voxd)
+BINS    := $(BUILD)/vox $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(BUILD)/libvox.pc
 
 UNIT_SRC := $(wildcard tests/unit/test_*.c)
 UNIT_BIN := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
@@ -51,7 +77,7 @@ all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -c $< -o $@
+	$(CC) $(CFLAGS) $(call modinc,$(firstword $(subst /, ,$*))) -c $< -o $@
 
 # Generated protobuf-c code is built, never committed.
 $(BUILD)/proto/%.pb-c.c $(BUILD)/proto/%.pb-c.h: proto/%.proto
@@ -64,6 +90,12 @@ $(LIB): $(LIB_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
 
+$(LIBVOX): $(LIBVOX_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+$(BUILD)/libvox.pc: libvox/libvox.pc.in
+	sed -e 's|@PREFIX@|$(PREFIX)|' $< >$@
+
 $(BUILD)/vox: $(BUILD)/client/vox.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
 
@@ -71,16 +103,16 @@ $(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
 
 $(BUILD)/voxbench: bench/voxbench.c $(LIB)
-	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 # voxdbench starts the voxd beside it: build both.
 $(BUILD)/voxdbench: bench/voxdbench.c $(LIB) | $(BUILD)/voxd
-	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 $(BUILD)/bench_expr: bench/bench_expr.c $(LIB)
-	$(CC) $(CFLAGS) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 
 $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -Itests/unit $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS) -lcriterion
+	$(CC) $(CFLAGS) $(INC) -Itests/unit $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS) -lcriterion
 
 deps:
 	@scripts/deps.sh
@@ -109,7 +141,7 @@ build/fuzz/%: tests/fuzz/%.c $(FUZZ_LIB_OBJ)
 	$(FUZZ_CC) $(CSTD) -O1 -g $(INC:$(BUILD)/proto=build/fuzz/proto) $(PKG_CFLAGS) -fsanitize=fuzzer,address,undefined $^ -o $@ $(PKG_LIBS) -lm -lpthread -lrt
 $(BUILD)/fuzz-replay/%: tests/fuzz/%.c tests/fuzz/replay_main.c $(LIB)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) $^ -o $@ $(LDFLAGS) $(LDLIBS)
+	$(CC) $(CFLAGS) $(INC) $^ -o $@ $(LDFLAGS) $(LDLIBS)
 .PHONY: fuzz-build-corpus
 fuzz-build-corpus: $(FUZZ_SRC:tests/fuzz/%.c=$(BUILD)/fuzz-replay/%)
 FUZZ_SECONDS ?= 60

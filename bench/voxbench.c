@@ -69,12 +69,12 @@ static expr_tape *load_shape(const shape *s)
     return t;
 }
 
-static subdiv_grid shape_grid(const shape *s, uint32_t res)
+static grid_spec shape_grid(const shape *s, uint32_t res)
 {
     double lo[3] = {s->lo, s->lo, s->lo}, hi[3] = {s->hi, s->hi, s->hi};
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    if (subdiv_grid_make(lo, hi, res, &g, err, sizeof err)) die("grid", err);
+    if (grid_make(lo, hi, res, &g, err, sizeof err)) die("grid", err);
     return g;
 }
 
@@ -93,7 +93,7 @@ typedef struct {
 } job_time;
 
 /* Median wall time of REPEATS jobs (CPU figures from the median run). */
-static job_time time_engine(engine *e, const expr_tape *t, const subdiv_grid *g,
+static job_time time_engine(engine *e, const expr_tape *t, const grid_spec *g,
                             engine_schedule sched)
 {
     job_time runs[REPEATS];
@@ -128,7 +128,7 @@ static void serial_alloc(serial_tree *s, int depth)
     octree_init(&s->t, s->arena, cells, depth);
 }
 
-static double time_serial(const expr_tape *t, const subdiv_grid *g, uint64_t *voxels)
+static double time_serial(const expr_tape *t, const grid_spec *g, uint64_t *voxels)
 {
     double secs[REPEATS];
     for (int i = 0; i < REPEATS; i++) {
@@ -171,7 +171,7 @@ static void bench_shapes(uint32_t res)
     for (size_t i = 0; i < NSHAPES; i++) {
         const shape *s = &shapes[i];
         expr_tape *t = load_shape(s);
-        subdiv_grid g = shape_grid(s, res);
+        grid_spec g = shape_grid(s, res);
         uint64_t vox;
         double ser = time_serial(t, &g, &vox);
         job_time w = time_engine(e, t, &g, ENGINE_SCHED_SUBTREE);
@@ -217,7 +217,7 @@ static void bench_table1(uint32_t res, int max_workers)
 {
     const char *names[2] = {"subtree (default)", "paper"};
     expr_tape *tapes[3];
-    subdiv_grid grids[3];
+    grid_spec grids[3];
     for (int s = 0; s < 3; s++) {
         tapes[s] = load_shape(&shapes[3 + s]);
         grids[s] = shape_grid(&shapes[3 + s], res);
@@ -259,7 +259,7 @@ static void bench_table1(uint32_t res, int max_workers)
 
 /* F at every voxel corner, (res+1)^3 point evaluations, on slices z in
  * [0, nz) of the corner lattice; returns seconds and the sign changes seen. */
-static double brute_slices(const expr_tape *t, const subdiv_grid *g, uint32_t nz)
+static double brute_slices(const expr_tape *t, const grid_spec *g, uint32_t nz)
 {
     expr_vm *vm;
     if (expr_vm_new(t, 1, &vm)) die("vm", "no memory");
@@ -289,7 +289,7 @@ static void bench_brute(const uint32_t *res, int nres)
         const shape *s = &shapes[which[w]];
         expr_tape *t = load_shape(s);
         for (int r = 0; r < nres; r++) {
-            subdiv_grid g = shape_grid(s, res[r]);
+            grid_spec g = shape_grid(s, res[r]);
             uint32_t nz = g.res[2] + 1, measured = nz;
             /* Big grids: time a spread of slices and scale by the count. */
             if ((uint64_t)nz * nz * nz > 200000000ull) measured = 32;
@@ -370,7 +370,7 @@ static void bench_vod(uint32_t res, int max_workers)
     for (int w = 0; w < 4; w++) {
         const shape *s = &shapes[which[w]];
         expr_tape *t = load_shape(s);
-        subdiv_grid g = shape_grid(s, res);
+        grid_spec g = shape_grid(s, res);
         for (int n = 1; n <= max_workers; n = n == 1 ? max_workers : n + 1) {
             engine *e = make_engine(n);
             time_engine(e, t, &g, ENGINE_SCHED_SUBTREE);
@@ -408,7 +408,7 @@ static void bench_vod(uint32_t res, int max_workers)
 static void memory_row(const shape *s, uint32_t res)
 {
     expr_tape *t = load_shape(s);
-    subdiv_grid g = shape_grid(s, res);
+    grid_spec g = shape_grid(s, res);
     serial_tree st;
     serial_alloc(&st, g.depth);
     if (subdiv_serial(t, &g, &st.t)) die("subdiv_serial", "failed");

@@ -35,7 +35,7 @@
 #include "engine.h"
 #include "expr.h"
 #include "job_meta.h"
-#include "subdiv.h"
+#include "grid.h"
 #include "vod.h"
 #include "vox.h"
 #include "voxel.h"
@@ -391,7 +391,7 @@ static void header(const char *title, uint32_t res, const char *how)
 
 /* vox voxelize's VOD parameters and metadata (cli_voxelize.c), so the
  * embedded file is byte for byte the daemon's. */
-static void small_vod(vod_params *v, const subdiv_grid *g, char *meta, size_t cap)
+static void small_vod(vod_params *v, const grid_spec *g, char *meta, size_t cap)
 {
     job_meta m = {
         .source = SMALL_EXPR, .source_len = strlen(SMALL_EXPR), .res = SMALL_RES,
@@ -408,7 +408,7 @@ static void small_vod(vod_params *v, const subdiv_grid *g, char *meta, size_t ca
     }
 }
 
-static void embedded_write(engine *e, const subdiv_grid *g, job_out *o)
+static void embedded_write(engine *e, const grid_spec *g, job_out *o)
 {
     char meta[JOB_META_MAX], err[256] = "";
     vod_params v;
@@ -429,11 +429,11 @@ static void embedded_job(engine *e, job_out *o)
     static const double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     expr_tape *t;
     expr_error xe;
-    subdiv_grid g;
+    grid_spec g;
     char err[256];
     if (expr_compile(SMALL_EXPR, strlen(SMALL_EXPR), NULL, &t, &xe))
         die("%s: %s", SMALL_EXPR, xe.msg);
-    if (subdiv_grid_make(lo, hi, SMALL_RES, &g, err, sizeof err)) die("grid: %s", err);
+    if (grid_make(lo, hi, SMALL_RES, &g, err, sizeof err)) die("grid: %s", err);
     engine_job job = {.tape = t, .grid = g, .schedule = ENGINE_SCHED_SUBTREE};
     engine_result r;
     int rc = engine_voxelize(e, &job, &r);

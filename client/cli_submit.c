@@ -10,7 +10,7 @@
 
 #include "cli.h"
 #include "progress.h"
-#include "subdiv.h"
+#include "grid.h"
 #include "voxel.h"
 
 #define CONNECT_TIMEOUT_MS 10000 /* a daemon that answers at all says hello at once */
@@ -89,11 +89,11 @@ static int vox_comp(uint32_t comp)
 
 static void print_summary(const cli_job_opts *o, const vox_summary *s)
 {
-    subdiv_grid g;
+    grid_spec g;
     char err[256];
     double t = s->seconds_voxelize;
     printf("%s: %llu voxels", o->out, (unsigned long long)s->voxels);
-    if (subdiv_grid_make(o->lo, o->hi, o->res, &g, err, sizeof err) == 0)
+    if (grid_make(o->lo, o->hi, o->res, &g, err, sizeof err) == 0)
         printf(" on a %ux%ux%u grid", g.res[0], g.res[1], g.res[2]);
     printf(" in %.3f s (%.2f Mvoxels/s), VOD written in %.3f s\n", t,
            t > 0 ? s->voxels / t / 1e6 : 0.0, s->seconds_write);

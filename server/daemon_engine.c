@@ -15,7 +15,7 @@
 #include "expr.h"
 #include "job_meta.h"
 #include "log.h"
-#include "subdiv.h"
+#include "grid.h"
 #include "vod.h"
 #include "voxel.h"
 
@@ -201,7 +201,7 @@ static int compile(vd_job *j, expr_tape **tape)
     return job_error(j, code, "expression: %s", xe.msg[0] ? xe.msg : strerror(-rc));
 }
 
-static void vod_setup(vod_params *v, const vd_job *j, const subdiv_grid *g, const char *meta)
+static void vod_setup(vod_params *v, const vd_job *j, const grid_spec *g, const char *meta)
 {
     vod_params_default(v);
     v->channel = j->channel;
@@ -228,7 +228,7 @@ static int engine_code(vd_job *j, int rc)
 }
 
 static int voxelize(vd_daemon *d, engine *e, vd_job *j, const expr_tape *tape,
-                    const subdiv_grid *g)
+                    const grid_spec *g)
 {
     progress_ctx px = {d, j, e};
     engine_job job = {.tape = tape, .grid = *g, .schedule = (engine_schedule)j->schedule,
@@ -246,7 +246,7 @@ static int voxelize(vd_daemon *d, engine *e, vd_job *j, const expr_tape *tape,
     return job_error(j, code, "voxelization failed: %s", r.error[0] ? r.error : strerror(-rc));
 }
 
-static int write_result(engine *e, vd_job *j, const subdiv_grid *g)
+static int write_result(engine *e, vd_job *j, const grid_spec *g)
 {
     char meta[JOB_META_MAX], err[256] = "";
     vod_params v;
@@ -282,10 +282,10 @@ static int write_result(engine *e, vd_job *j, const subdiv_grid *g)
 static void run_job(vd_daemon *d, engine *e, vd_job *j)
 {
     expr_tape *tape = NULL;
-    subdiv_grid g;
+    grid_spec g;
     char err[256];
     if (compile(j, &tape)) return;
-    if (subdiv_grid_make(j->lo, j->hi, j->res, &g, err, sizeof err)) {
+    if (grid_make(j->lo, j->hi, j->res, &g, err, sizeof err)) {
         job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", err);
     } else if (voxelize(d, e, j, tape, &g) == 0 && write_result(e, j, &g) == 0) {
         j->code = 0;

@@ -14,105 +14,17 @@
 #include <emmintrin.h>
 #endif
 
-static const char axis_name[3] = {'x', 'y', 'z'};
 
-static int depth_for(uint32_t res)
-{
-    int d = 1;
-    while ((1u << d) < res) d++;
-    return d;
-}
-
-static int check_domain(const double lo[3], const double hi[3], char *err,
-                        size_t errlen)
-{
-    for (int a = 0; a < 3; a++) {
-        if (!isfinite(lo[a]) || !isfinite(hi[a])) {
-            snprintf(err, errlen, "domain bound on %c is not finite",
-                     axis_name[a]);
-            return -EINVAL;
-        }
-        if (!(hi[a] > lo[a])) {
-            snprintf(err, errlen, "domain is empty on %c: low %g >= high %g",
-                     axis_name[a], lo[a], hi[a]);
-            return -EINVAL;
-        }
-        if (!isfinite(hi[a] - lo[a])) {
-            snprintf(err, errlen, "domain is too large on %c", axis_name[a]);
-            return -EINVAL;
-        }
-    }
-    return 0;
-}
-
-/* Voxels along axis a: the fewest that cover hi (ceil(extent / vs) up to
- * rounding), at least 1, never more than res. */
-static uint32_t axis_voxels(const subdiv_grid *g, const double hi[3], int a,
-                            uint32_t res)
-{
-    double n = ceil((hi[a] - g->lo[a]) / g->vs);
-    uint32_t v = n < 1.0 ? 1u : n > (double)res ? res : (uint32_t)n;
-    while (v > 1 && subdiv_coord(g, a, v - 1) >= hi[a]) v--;
-    while (v < res && subdiv_coord(g, a, v) < hi[a]) v++;
-    return v;
-}
-
-int subdiv_grid_make(const double lo[3], const double hi[3], uint32_t res,
-                     subdiv_grid *g, char *err, size_t errlen)
-{
-    if (res < 1 || res > SUBDIV_MAX_RES) {
-        snprintf(err, errlen, "resolution %u is outside 1..%u", res,
-                 SUBDIV_MAX_RES);
-        return -EINVAL;
-    }
-    int rc = check_domain(lo, hi, err, errlen);
-    if (rc) return rc;
-    int longest = 0;
-    for (int a = 1; a < 3; a++)
-        if (hi[a] - lo[a] > hi[longest] - lo[longest]) longest = a;
-    for (int a = 0; a < 3; a++) g->lo[a] = lo[a];
-    g->vs = (hi[longest] - lo[longest]) / res;
-    /* Round vs up until the grid reaches hi: the voxels cover the domain. */
-    while (subdiv_coord(g, longest, res) < hi[longest])
-        g->vs = nextafter(g->vs, INFINITY);
-    for (int a = 0; a < 3; a++) {
-        if (!(g->vs > 0.0) || subdiv_coord(g, a, 1) == lo[a]) {
-            snprintf(err, errlen,
-                     "domain is too small for its position on %c: a voxel "
-                     "would be narrower than the floating-point spacing",
-                     axis_name[a]);
-            return -EINVAL;
-        }
-        g->res[a] = a == longest ? res : axis_voxels(g, hi, a, res);
-    }
-    g->depth = depth_for(res);
-    return 0;
-}
-
-int subdiv_grid_check(const subdiv_grid *g)
-{
-    uint32_t m = 0;
-    for (int a = 0; a < 3; a++) {
-        if (g->res[a] < 1 || g->res[a] > SUBDIV_MAX_RES) return -EINVAL;
-        if (!isfinite(g->lo[a])) return -EINVAL;
-        if (!isfinite(subdiv_coord(g, a, g->res[a]))) return -EINVAL;
-        if (g->res[a] > m) m = g->res[a];
-    }
-    if (!(g->vs > 0.0) || !isfinite(g->vs)) return -EINVAL;
-    if (g->depth != depth_for(m)) return -EINVAL;
-    return 0;
-}
-
-void subdiv_box(const subdiv_grid *g, subdiv_octant o, ival *x, ival *y,
+void subdiv_box(const grid_spec *g, grid_octant o, ival *x, ival *y,
                 ival *z)
 {
     double n = (double)(1u << o.level);
-    *x = ival_make(subdiv_coord(g, 0, o.x), subdiv_coord(g, 0, o.x + n));
-    *y = ival_make(subdiv_coord(g, 1, o.y), subdiv_coord(g, 1, o.y + n));
-    *z = ival_make(subdiv_coord(g, 2, o.z), subdiv_coord(g, 2, o.z + n));
+    *x = ival_make(grid_coord(g, 0, o.x), grid_coord(g, 0, o.x + n));
+    *y = ival_make(grid_coord(g, 1, o.y), grid_coord(g, 1, o.y + n));
+    *z = ival_make(grid_coord(g, 2, o.z), grid_coord(g, 2, o.z + n));
 }
 
-void subdiv_kernel_init(subdiv_kernel *k, expr_vm *vm, const subdiv_grid *g)
+void subdiv_kernel_init(subdiv_kernel *k, expr_vm *vm, const grid_spec *g)
 {
     k->vm = vm;
     k->g = g;
@@ -122,29 +34,29 @@ void subdiv_kernel_init(subdiv_kernel *k, expr_vm *vm, const subdiv_grid *g)
     k->poll_left = SUBDIV_POLL_TESTS;
 }
 
-static inline subdiv_octant child_of(subdiv_octant o, unsigned i)
+static inline grid_octant child_of(grid_octant o, unsigned i)
 {
     uint16_t h = (uint16_t)(1u << (o.level - 1));
-    return (subdiv_octant){(uint16_t)(o.x + (i & 1u) * h),
+    return (grid_octant){(uint16_t)(o.x + (i & 1u) * h),
                            (uint16_t)(o.y + ((i >> 1) & 1u) * h),
                            (uint16_t)(o.z + ((i >> 2) & 1u) * h),
                            (uint16_t)(o.level - 1)};
 }
 
-static inline subdiv_octant ancestor(subdiv_octant o, int level)
+static inline grid_octant ancestor(grid_octant o, int level)
 {
     uint16_t m = (uint16_t)~((1u << level) - 1u);
-    return (subdiv_octant){(uint16_t)(o.x & m), (uint16_t)(o.y & m),
+    return (grid_octant){(uint16_t)(o.x & m), (uint16_t)(o.y & m),
                            (uint16_t)(o.z & m), (uint16_t)level};
 }
 
-static inline bool same_octant(subdiv_octant a, subdiv_octant b)
+static inline bool same_octant(grid_octant a, grid_octant b)
 {
     return a.x == b.x && a.y == b.y && a.z == b.z && a.level == b.level;
 }
 
 /* An octant whose low corner is outside res holds no voxel. */
-static inline bool outside(const subdiv_grid *g, subdiv_octant o)
+static inline bool outside(const grid_spec *g, grid_octant o)
 {
     return o.x >= g->res[0] || o.y >= g->res[1] || o.z >= g->res[2];
 }
@@ -157,15 +69,15 @@ static inline bool outside(const subdiv_grid *g, subdiv_octant o)
 /* The boxes of o's 8 children in lanes 0..7 (the one formula: the 3
  * distinct bounds per axis, child i taking the upper half on axis a when
  * bit a of i is set). */
-static inline void child_boxes(const subdiv_grid *g, subdiv_octant o, ival8 box[3])
+static inline void child_boxes(const grid_spec *g, grid_octant o, ival8 box[3])
 {
     double h = (double)(1u << o.level) * 0.5;
     const uint16_t lo[3] = {o.x, o.y, o.z};
     double b[3][3];
     for (int a = 0; a < 3; a++) {
-        b[a][0] = subdiv_coord(g, a, lo[a]);
-        b[a][1] = subdiv_coord(g, a, lo[a] + h);
-        b[a][2] = subdiv_coord(g, a, lo[a] + 2.0 * h);
+        b[a][0] = grid_coord(g, a, lo[a]);
+        b[a][1] = grid_coord(g, a, lo[a] + h);
+        b[a][2] = grid_coord(g, a, lo[a] + 2.0 * h);
     }
 #ifdef __SSE2__
     /* x alternates every lane, y every 2 lanes, z every 4 */
@@ -202,7 +114,7 @@ static inline unsigned count8(unsigned m)
 
 /* Bit i set when child i of o has its low corner inside res (an octant
  * outside holds no voxel and is never tested). */
-static inline unsigned inside_children(const subdiv_grid *g, subdiv_octant o)
+static inline unsigned inside_children(const grid_spec *g, grid_octant o)
 {
     uint32_t h = 1u << (o.level - 1);
     const uint32_t lo[3] = {o.x, o.y, o.z};
@@ -218,7 +130,7 @@ static inline unsigned inside_children(const subdiv_grid *g, subdiv_octant o)
 /* Test o's children with tape t: bit i of the result is set when child i
  * is kept.  The lanes of children outside res are evaluated too (the lanes
  * come for free) but never counted or kept. */
-static inline unsigned test_children(subdiv_kernel *k, int t, subdiv_octant o,
+static inline unsigned test_children(subdiv_kernel *k, int t, grid_octant o,
                                      unsigned inside)
 {
     child_boxes(k->g, o, expr_vm_ival8_args(k->vm));
@@ -241,7 +153,7 @@ static inline unsigned test_children(subdiv_kernel *k, int t, subdiv_octant o,
 
 /* Record that tape t+1 is now pruned for o, which was lane `lane` of the
  * last batch tested with tape t. */
-static inline void prune_for(subdiv_kernel *k, int t, subdiv_octant o, unsigned lane)
+static inline void prune_for(subdiv_kernel *k, int t, grid_octant o, unsigned lane)
 {
     expr_vm_prune8(k->vm, t, (int)lane);
     k->chain[t] = o;
@@ -252,11 +164,11 @@ static inline void prune_for(subdiv_kernel *k, int t, subdiv_octant o, unsigned 
  * that o's children can be tested with tape depth-o.level.  Re-tests only
  * the part of the chain the vm does not hold already (the box in every
  * lane: the same evaluation as in a batch of its siblings). */
-static void ensure_chain(subdiv_kernel *k, subdiv_octant o)
+static void ensure_chain(subdiv_kernel *k, grid_octant o)
 {
     int depth = k->g->depth;
     for (int t = 0; t < depth - o.level; t++) {
-        subdiv_octant a = ancestor(o, depth - 1 - t);
+        grid_octant a = ancestor(o, depth - 1 - t);
         if (t < k->valid && same_octant(k->chain[t], a)) continue;
         ival x, y, z;
         ival8 box[3], r;
@@ -281,16 +193,16 @@ static void ensure_chain(subdiv_kernel *k, subdiv_octant o)
  * gradient is not normalized first; it is only scaled by a power of two
  * (exact) when its size is extreme, so that the packing's norm neither
  * overflows nor underflows. */
-static int emit_voxels(subdiv_kernel *k, int t, const subdiv_octant *c,
+static int emit_voxels(subdiv_kernel *k, int t, const grid_octant *c,
                        unsigned n, const subdiv_sink *s)
 {
-    const subdiv_grid *g = k->g;
+    const grid_spec *g = k->g;
     _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
     for (unsigned l = 0; l < EXPR_LANES; l++) {
-        const subdiv_octant *v = &c[l < n ? l : 0]; /* spare lanes: copies */
-        px[l] = subdiv_coord(g, 0, v->x + 0.5);
-        py[l] = subdiv_coord(g, 1, v->y + 0.5);
-        pz[l] = subdiv_coord(g, 2, v->z + 0.5);
+        const grid_octant *v = &c[l < n ? l : 0]; /* spare lanes: copies */
+        px[l] = grid_coord(g, 0, v->x + 0.5);
+        py[l] = grid_coord(g, 1, v->y + 0.5);
+        pz[l] = grid_coord(g, 2, v->z + 0.5);
     }
     expr_grad8 gr8;
     expr_vm_grad8n(k->vm, t, (int)n, px, py, pz, &gr8);
@@ -313,7 +225,7 @@ static int emit_voxels(subdiv_kernel *k, int t, const subdiv_octant *c,
     uint32_t value[EXPR_LANES];
     voxel_surfaces(gr8.d[0], gr8.d[1], gr8.d[2], n, value);
     for (unsigned l = 0; l < n; l++) {
-        subdiv_voxel v = {c[l].x, c[l].y, c[l].z, 0, value[l]};
+        grid_voxel v = {c[l].x, c[l].y, c[l].z, 0, value[l]};
         int rc = s->voxel(s->ud, &v);
         if (rc) return rc;
     }
@@ -321,16 +233,16 @@ static int emit_voxels(subdiv_kernel *k, int t, const subdiv_octant *c,
 }
 
 /* The kept children of a level-1 octant o (tested with tape t) as voxels. */
-static inline int emit_children(subdiv_kernel *k, int t, subdiv_octant o,
+static inline int emit_children(subdiv_kernel *k, int t, grid_octant o,
                                 unsigned keep, const subdiv_sink *s)
 {
-    subdiv_octant c[8];
+    grid_octant c[8];
     unsigned n = 0;
     for (; keep; keep &= keep - 1) c[n++] = child_of(o, (unsigned)__builtin_ctz(keep));
     return n ? emit_voxels(k, t, c, n, s) : 0;
 }
 
-int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
+int subdiv_children(subdiv_kernel *k, grid_octant o, const subdiv_sink *s)
 {
     if (o.level < 1 || o.level > k->g->depth) return -EINVAL;
     ensure_chain(k, o);
@@ -340,7 +252,7 @@ int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     unsigned keep = test_children(k, t, o, inside);
     if (o.level == 1) return emit_children(k, t, o, keep, s);
     for (; keep; keep &= keep - 1) {
-        subdiv_octant c = child_of(o, (unsigned)__builtin_ctz(keep));
+        grid_octant c = child_of(o, (unsigned)__builtin_ctz(keep));
         int rc = s->octant(s->ud, &c);
         if (rc) return rc;
     }
@@ -354,7 +266,7 @@ int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
  * overwrite the memory it lives in (pending_prune).  They are emitted in
  * the order queued, so the output order is unchanged. */
 typedef struct {
-    subdiv_octant v[EXPR_LANES];
+    grid_octant v[EXPR_LANES];
     unsigned n;
 } pending;
 
@@ -381,7 +293,7 @@ static inline int pending_prune(subdiv_kernel *k, pending *p, int t, unsigned la
 
 /* The kept children of a level-1 octant o (tested with tape depth-1) onto
  * the pending voxels. */
-static inline int queue_children(subdiv_kernel *k, subdiv_octant o, unsigned keep,
+static inline int queue_children(subdiv_kernel *k, grid_octant o, unsigned keep,
                                  pending *p, const subdiv_sink *s)
 {
     for (; keep; keep &= keep - 1) {
@@ -408,7 +320,7 @@ static inline int poll_sink(subdiv_kernel *k, const subdiv_sink *s, unsigned n)
 
 /* Test o's children with tape t (after a poll); a level-1 o emits its kept
  * children as voxels right away and keeps nothing to descend into. */
-static inline int expand(subdiv_kernel *k, int t, subdiv_octant o,
+static inline int expand(subdiv_kernel *k, int t, grid_octant o,
                          const subdiv_sink *s, unsigned *keep, pending *p)
 {
     *keep = 0;
@@ -422,7 +334,7 @@ static inline int expand(subdiv_kernel *k, int t, subdiv_octant o,
     return 0;
 }
 
-int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
+int subdiv_subtree(subdiv_kernel *k, grid_octant o, const subdiv_sink *s)
 {
     const int depth = k->g->depth;
     if (o.level > depth) return -EINVAL;
@@ -435,9 +347,9 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
      * (tested in one batch with tape depth - level, whose lane choices stay
      * valid while the subtrees below use deeper tapes). */
     struct {
-        subdiv_octant o;
+        grid_octant o;
         unsigned keep;
-    } st[SUBDIV_MAX_DEPTH + 1];
+    } st[GRID_MAX_DEPTH + 1];
     int top = 0, rc;
     pending p = {.n = 0};
     st[0].o = o;
@@ -449,7 +361,7 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
         }
         unsigned i = (unsigned)__builtin_ctz(st[top].keep);
         st[top].keep &= st[top].keep - 1;
-        subdiv_octant c = child_of(st[top].o, i);
+        grid_octant c = child_of(st[top].o, i);
         int t = depth - 1 - c.level; /* the tape c was tested with */
         if ((rc = pending_prune(k, &p, t, i, s))) return rc;
         prune_for(k, t, c, i);
@@ -464,21 +376,21 @@ int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s)
     return flush(k, &p, s);
 }
 
-static int store_voxel(void *ud, const subdiv_voxel *v)
+static int store_voxel(void *ud, const grid_voxel *v)
 {
     return octree_store(ud, v->x, v->y, v->z, v->value);
 }
 
-int subdiv_serial(const expr_tape *tape, const subdiv_grid *g, octree *t)
+int subdiv_serial(const expr_tape *tape, const grid_spec *g, octree *t)
 {
-    if (subdiv_grid_check(g) || t->depth != g->depth) return -EINVAL;
+    if (grid_check(g) || t->depth != g->depth) return -EINVAL;
     expr_vm *vm;
     int rc = expr_vm_new(tape, g->depth, &vm);
     if (rc) return rc;
     subdiv_kernel k;
     subdiv_kernel_init(&k, vm, g);
     subdiv_sink sink = {.voxel = store_voxel, .ud = t};
-    rc = subdiv_subtree(&k, subdiv_root(g), &sink);
+    rc = subdiv_subtree(&k, grid_root(g), &sink);
     expr_vm_free(vm);
     return rc;
 }

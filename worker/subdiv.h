@@ -40,62 +40,20 @@
 #include <stdint.h>
 
 #include "expr.h"
+#include "grid.h"
 #include "octree.h"
 
-#define SUBDIV_MAX_RES 4096u
-#define SUBDIV_MAX_DEPTH 12 /* 2^12 = SUBDIV_MAX_RES */
-
-typedef struct {
-    double lo[3];     /* domain low corner */
-    double vs;        /* voxel size (cubic voxels) */
-    uint32_t res[3];  /* voxels per axis, 1..4096 */
-    int depth;        /* smallest d >= 1 with 2^d >= max(res) */
-} subdiv_grid;
-
-typedef struct {
-    uint16_t x, y, z; /* low voxel corner */
-    uint16_t level;   /* size 2^level voxels */
-} subdiv_octant;
-
-typedef struct {
-    uint16_t x, y, z, pad;
-    uint32_t value;   /* channel-3 voxel value (voxel.h) */
-} subdiv_voxel;
-
-/* Grid for res voxels along the longest axis of [lo, hi] (a box domain;
- * the other axes get ceil(extent / vs) voxels, at least 1).  The grid covers
- * the domain: lo + res[a]*vs >= hi[a].  -EINVAL with a message for an empty
- * or non-finite box or res outside 1..4096. */
-int subdiv_grid_make(const double lo[3], const double hi[3], uint32_t res,
-                     subdiv_grid *g, char *err, size_t errlen);
-/* 0 when g is a grid subdiv_grid_make could have made (res, depth, finite
- * lo and vs > 0), else -EINVAL: for grids that come from elsewhere. */
-int subdiv_grid_check(const subdiv_grid *g);
-
-/* World coordinate lo[a] + X*vs: the one formula for every bound (X may be
- * fractional for centres: X + 0.5). */
-static inline double subdiv_coord(const subdiv_grid *g, int a, double X)
-{
-    return g->lo[a] + X * g->vs;
-}
-
 /* The world box of an octant (the one formula above). */
-void subdiv_box(const subdiv_grid *g, subdiv_octant o, ival *x, ival *y,
+void subdiv_box(const grid_spec *g, grid_octant o, ival *x, ival *y,
                 ival *z);
-
-/* The grid's root octant (level depth at the origin). */
-static inline subdiv_octant subdiv_root(const subdiv_grid *g)
-{
-    return (subdiv_octant){0, 0, 0, (uint16_t)g->depth};
-}
 
 /* What the kernels produce.  A callback returning non-zero stops the
  * kernel, which returns that value.  poll (may be NULL) is called every
  * SUBDIV_POLL_TESTS box tests so a long subtree can be abandoned. */
 #define SUBDIV_POLL_TESTS 4096u
 typedef struct {
-    int (*voxel)(void *ud, const subdiv_voxel *v);
-    int (*octant)(void *ud, const subdiv_octant *o);
+    int (*voxel)(void *ud, const grid_voxel *v);
+    int (*octant)(void *ud, const grid_octant *o);
     int (*poll)(void *ud);
     void *ud;
 } subdiv_sink;
@@ -104,8 +62,8 @@ typedef struct {
  * chain each of its pruned tapes was built for (see above). */
 typedef struct {
     expr_vm *vm;
-    const subdiv_grid *g;
-    subdiv_octant chain[SUBDIV_MAX_DEPTH]; /* chain[t]: built tape t+1 */
+    const grid_spec *g;
+    grid_octant chain[GRID_MAX_DEPTH]; /* chain[t]: built tape t+1 */
     int valid;          /* tapes 1..valid are built for chain[0..valid-1] */
     uint64_t tested;    /* boxes tested for the kernels' output */
     uint64_t rebuilt;   /* extra evaluations to rebuild chains */
@@ -113,23 +71,23 @@ typedef struct {
 } subdiv_kernel;
 
 /* vm must have been made with max_depth >= g->depth; both must outlive k. */
-void subdiv_kernel_init(subdiv_kernel *k, expr_vm *vm, const subdiv_grid *g);
+void subdiv_kernel_init(subdiv_kernel *k, expr_vm *vm, const grid_spec *g);
 
 /* Paper schedule: test the children of o (o.level >= 1, o kept by its own
  * test or the root) and emit the kept ones as octants, or as voxels when
  * o.level == 1, in child order. */
-int subdiv_children(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s);
+int subdiv_children(subdiv_kernel *k, grid_octant o, const subdiv_sink *s);
 
 /* Subtree schedule: every voxel of o's subtree, depth first in child order
  * (so voxels arrive in octree preorder), pruning the tape on the way down.
  * o itself is assumed to have been kept by its parent's test (or to be the
  * root); o.level == 0 emits o as a voxel. */
-int subdiv_subtree(subdiv_kernel *k, subdiv_octant o, const subdiv_sink *s);
+int subdiv_subtree(subdiv_kernel *k, grid_octant o, const subdiv_sink *s);
 
 /* The serial algorithm (Figure 1 with an explicit stack, the subtree kernel
  * on the root): the whole grid straight into the octree t (depth g->depth).
  * Returns 0, or -ENOMEM when t's arena is full or the vm cannot be made,
  * -EINVAL for a bad grid or a tree of another depth. */
-int subdiv_serial(const expr_tape *tape, const subdiv_grid *g, octree *t);
+int subdiv_serial(const expr_tape *tape, const grid_spec *g, octree *t);
 
 #endif

@@ -22,7 +22,7 @@ typedef struct {
     shm_slot *s;
     /* the job the vm is for */
     uint32_t gen;
-    subdiv_grid grid;
+    grid_spec grid;
     expr_vm *vm;
     subdiv_kernel k;
     uint64_t cpu0;
@@ -112,7 +112,7 @@ static int entry_end(worker *w)
     return aborted(w) ? -ECANCELED : 0;
 }
 
-static int sink_octant(void *ud, const subdiv_octant *o)
+static int sink_octant(void *ud, const grid_octant *o)
 {
     worker *w = ud;
     int rc = entry_begin(w, SHM_ENT_OCTANT);
@@ -122,7 +122,7 @@ static int sink_octant(void *ud, const subdiv_octant *o)
 }
 
 /* Paper schedule: one voxel per entry, as in Figure 3. */
-static int sink_voxel_one(void *ud, const subdiv_voxel *v)
+static int sink_voxel_one(void *ud, const grid_voxel *v)
 {
     worker *w = ud;
     int rc = entry_begin(w, SHM_ENT_VOXELS);
@@ -133,7 +133,7 @@ static int sink_voxel_one(void *ud, const subdiv_voxel *v)
 }
 
 /* Subtree schedule: batches of SHM_BATCH voxels in preorder. */
-static int sink_voxel_batch(void *ud, const subdiv_voxel *v)
+static int sink_voxel_batch(void *ud, const grid_voxel *v)
 {
     worker *w = ud;
     if (!w->cur) {
@@ -163,7 +163,7 @@ static int job_begin(worker *w)
     w->s->job_tested = 0;
     w->s->job_cpu_ns = 0;
     w->cpu0 = cpu_ns();
-    if (subdiv_grid_check(&w->grid)) return -EINVAL;
+    if (grid_check(&w->grid)) return -EINVAL;
     const expr_tape *tape = shm_at(w->base, h->tape_off);
     int rc = expr_vm_new(tape, w->grid.depth, &w->vm);
     if (rc) return rc;

@@ -6,7 +6,7 @@
  * task done (done_seq) and rings the master's doorbell.  It only reads the
  * job input (tape, grid, octree for the VOD phase) and writes its own slot,
  * its queue and, in the VOD phase, the records of the bricks it claimed.
- * See server/shm.h for the layout and the sleeping protocol.
+ * See engine/shm.h for the layout and the sleeping protocol.
  */
 #ifndef VOXD_WORKER_H
 #define VOXD_WORKER_H

@@ -41,12 +41,12 @@ static expr_tape *compile(const char *src)
     return t;
 }
 
-static subdiv_grid grid(uint32_t res)
+static grid_spec grid(uint32_t res)
 {
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
     return g;
 }
 
@@ -56,14 +56,14 @@ typedef struct {
     uint64_t tested;
 } ref_tree;
 
-static int ref_store(void *ud, const subdiv_voxel *v)
+static int ref_store(void *ud, const grid_voxel *v)
 {
     return octree_store(ud, v->x, v->y, v->z, v->value);
 }
 
 /* The serial reference, through subdiv_serial, and its test count through
  * the same kernel (which must give the same voxels). */
-static void reference(const expr_tape *tape, const subdiv_grid *g, ref_tree *r)
+static void reference(const expr_tape *tape, const grid_spec *g, ref_tree *r)
 {
     uint32_t cap = 1u << 20;
     r->arena = malloc(octree_arena_bytes(cap));
@@ -78,7 +78,7 @@ static void reference(const expr_tape *tape, const subdiv_grid *g, ref_tree *r)
     octree_cell *a2 = malloc(octree_arena_bytes(cap));
     octree_init(&t2, a2, cap, g->depth);
     subdiv_sink s = {.voxel = ref_store, .ud = &t2};
-    cr_assert_eq(subdiv_subtree(&k, subdiv_root(g), &s), 0);
+    cr_assert_eq(subdiv_subtree(&k, grid_root(g), &s), 0);
     cr_assert_eq(t2.voxels, r->t.voxels);
     r->tested = k.tested;
     expr_vm_free(vm);
@@ -117,7 +117,7 @@ static engine *make_engine(int workers, size_t shm_bytes)
     return e;
 }
 
-static void run(engine *e, const expr_tape *tape, const subdiv_grid *g,
+static void run(engine *e, const expr_tape *tape, const grid_spec *g,
                 engine_schedule s, int split, engine_result *r)
 {
     engine_job job = {.tape = tape, .grid = *g, .schedule = s, .split_level = split};
@@ -129,7 +129,7 @@ static void run(engine *e, const expr_tape *tape, const subdiv_grid *g,
 static void identity(const char *src, uint32_t res, int max_workers)
 {
     expr_tape *tape = compile(src);
-    subdiv_grid g = grid(res);
+    grid_spec g = grid(res);
     ref_tree ref;
     reference(tape, &g, &ref);
     for (int w = 1; w <= max_workers; w++) {
@@ -162,7 +162,7 @@ Test(engine, scene2_identical_to_serial) { identity(SCENE2, 64, 3); }
 Test(engine, scene2_128_and_split_levels)
 {
     expr_tape *tape = compile(SCENE2);
-    subdiv_grid g = grid(128);
+    grid_spec g = grid(128);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(2, 0);
@@ -192,9 +192,9 @@ Test(engine, jobs_in_a_row_reuse_the_workers)
     for (int k = 0; k < 3; k++) {
         expr_tape *tape = compile(src[k]);
         double lo[3] = {-1, -1, -0.4}, hi[3] = {1, 0.9, 0.4};
-        subdiv_grid g;
+        grid_spec g;
         char err[200];
-        cr_assert_eq(subdiv_grid_make(lo, hi, res[k], &g, err, sizeof err), 0);
+        cr_assert_eq(grid_make(lo, hi, res[k], &g, err, sizeof err), 0);
         ref_tree ref;
         reference(tape, &g, &ref);
         engine_result r;
@@ -301,7 +301,7 @@ static void on_progress(void *ud, const engine_progress *p)
 Test(engine, progress_ends_complete)
 {
     expr_tape *tape = compile(SPHERE);
-    subdiv_grid g = grid(64);
+    grid_spec g = grid(64);
     engine *e = make_engine(2, 0);
     watch w = {.monotonic = 1};
     engine_job job = {.tape = tape, .grid = g, .progress = on_progress, .ud = &w};
@@ -318,7 +318,7 @@ Test(engine, progress_ends_complete)
 Test(engine, cancel_then_next_job_is_correct)
 {
     expr_tape *tape = compile(SCENE2);
-    subdiv_grid g = grid(128);
+    grid_spec g = grid(128);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(2, 0);
@@ -346,7 +346,7 @@ Test(engine, cancel_then_next_job_is_correct)
 Test(engine, a_dead_worker_is_replaced_and_its_octant_redone)
 {
     expr_tape *tape = compile(SPHERES);
-    subdiv_grid g = grid(128);
+    grid_spec g = grid(128);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(2, 0);
@@ -386,7 +386,7 @@ static void check_inside_a_job(void *ud, const engine_progress *p)
 Test(engine, check_workers_between_jobs)
 {
     expr_tape *tape = compile(SPHERES);
-    subdiv_grid g = grid(64);
+    grid_spec g = grid(64);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(2, (size_t)64 << 20);
@@ -443,7 +443,7 @@ static void stop_then_kill(void *ud, const engine_progress *p)
 Test(engine, a_worker_killed_mid_subtree_resumes_without_duplicates)
 {
     expr_tape *tape = compile(SPHERE);
-    subdiv_grid g = grid(256);
+    grid_spec g = grid(256);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(1, 0);
@@ -504,7 +504,7 @@ static void kill_worker0(void *ud, const engine_progress *p)
 Test(engine, an_octant_that_kills_its_worker_twice_fails_the_job)
 {
     expr_tape *slow = compile_slow(), *tape = compile(SPHERE);
-    subdiv_grid gs = grid(128), g = grid(64);
+    grid_spec gs = grid(128), g = grid(64);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(1, 0);
@@ -535,7 +535,7 @@ Test(engine, an_octant_that_kills_its_worker_twice_fails_the_job)
 Test(engine, deaths_on_different_octants_do_not_fail_the_job)
 {
     expr_tape *slow = compile_slow();
-    subdiv_grid g = grid(128);
+    grid_spec g = grid(128);
     engine *e = make_engine(1, 0);
     atomic_int cancel = 0;
     killer k = {.e = e, .every = 2, .kills = 4, .cancel = &cancel};
@@ -561,7 +561,7 @@ Test(engine, small_segments_give_clear_errors)
     /* big enough to start, too small for a 256^3 sphere's octree */
     e = make_engine(2, shm_min_bytes(2));
     expr_tape *tape = compile(SPHERE);
-    subdiv_grid g = grid(256);
+    grid_spec g = grid(256);
     engine_job job = {.tape = tape, .grid = g};
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM);
@@ -594,7 +594,7 @@ Test(engine, bad_arguments)
     cr_assert_eq(engine_create(&o3, &e, err, sizeof err), -EINVAL);
     e = make_engine(1, 0);
     expr_tape *tape = compile(SPHERE);
-    subdiv_grid g = grid(32);
+    grid_spec g = grid(32);
     g.depth = 9;
     engine_job job = {.tape = tape, .grid = g};
     engine_result r;
@@ -701,7 +701,7 @@ Test(engine, workers_hold_no_inherited_descriptors)
     cr_assert_eq(kill(old, SIGKILL), 0);
     usleep(20000);
     expr_tape *tape = compile(SPHERE);
-    subdiv_grid g = grid(32);
+    grid_spec g = grid(32);
     engine_result r;
     run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r); /* forks worker 1 again */
     cr_assert_neq(engine_worker_pid(e, 1), old);
@@ -733,7 +733,7 @@ Test(engine, pages_beyond_keep_are_given_back)
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
     expr_tape *big = compile(SPHERES), *small = compile(SPHERE);
-    subdiv_grid gb = grid(192), gs = grid(16);
+    grid_spec gb = grid(192), gs = grid(16);
     engine_result r;
     run(e, big, &gb, ENGINE_SCHED_SUBTREE, 0, &r);
     long long after_big = shm_blocks(path);
@@ -786,7 +786,7 @@ Test(engine, workers_are_pinned)
 
 /* ---- VOD ---- */
 
-static void vod_same(engine *e, octree *ref, const subdiv_grid *g, uint32_t brick,
+static void vod_same(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
                      uint32_t comp, int channel)
 {
     vod_params p;
@@ -818,9 +818,9 @@ Test(engine, vod_bytes_identical_to_serial_writer)
 {
     expr_tape *tape = compile(SPHERES);
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 0.6};
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, 120, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo, hi, 120, &g, err, sizeof err), 0);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(3, 0);
@@ -840,7 +840,7 @@ Test(engine, vod_bytes_identical_to_serial_writer)
 Test(engine, vod_zlib_bricks_encoded_by_the_master)
 {
     expr_tape *tape = compile(SCENE2);
-    subdiv_grid g = grid(128);
+    grid_spec g = grid(128);
     ref_tree ref;
     reference(tape, &g, &ref);
     char name[64];
@@ -881,7 +881,7 @@ static int failing_write(void *ud, const void *buf, size_t n)
 Test(engine, vod_sink_errors_are_the_sinks)
 {
     expr_tape *tape = compile(SPHERE);
-    subdiv_grid g = grid(64);
+    grid_spec g = grid(64);
     engine *e = make_engine(2, (size_t)64 << 20);
     engine_result r;
     run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
@@ -903,7 +903,7 @@ Test(engine, vod_sink_errors_are_the_sinks)
 Test(engine, vod_with_a_full_brick_area)
 {
     expr_tape *tape = compile(SCENE2);
-    subdiv_grid g = grid(128);
+    grid_spec g = grid(128);
     ref_tree ref;
     reference(tape, &g, &ref);
     size_t need = (size_t)ref.t.used * 36 + 2 * 1024 * 1024;

@@ -84,7 +84,7 @@ static int sign_of(double v) { return isnan(v) ? 2 : (v > 0) - (v < 0); }
 /* Lattice of (sub*N+1)^3 points; voxel (X,Y,Z) owns the (sub+1)^3 points of
  * its sub-lattice.  Even lattice indices on a voxel boundary use exactly the
  * engine's formula lo + X*vs. */
-static double coord(const subdiv_grid *g, int a, uint32_t j, int sub)
+static double coord(const grid_spec *g, int a, uint32_t j, int sub)
 {
     if (j % sub == 0) return g->lo[a] + (double)(j / sub) * g->vs;
     return g->lo[a] + ((double)j / sub) * g->vs;
@@ -99,9 +99,9 @@ static void check_envelope(const char *name, const char *src, shape_fn f, uint32
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     if (f == scene2 || f == scene3)
         for (int a = 0; a < 3; a++) lo[a] = -1.05, hi[a] = 1.05;
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
     expr_tape *tape;
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &tape, &ee), 0, "%s: %s", name, ee.msg);

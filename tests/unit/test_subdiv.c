@@ -26,12 +26,12 @@ static expr_tape *compile(const char *src)
     return t;
 }
 
-static subdiv_grid cube_grid(double h, uint32_t res)
+static grid_spec cube_grid(double h, uint32_t res)
 {
     double lo[3] = {-h, -h, -h}, hi[3] = {h, h, h};
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
     return g;
 }
 
@@ -39,7 +39,7 @@ static subdiv_grid cube_grid(double h, uint32_t res)
 
 Test(subdiv, grid_res_one_and_powers)
 {
-    subdiv_grid g = cube_grid(1, 1);
+    grid_spec g = cube_grid(1, 1);
     cr_assert_eq(g.depth, 1);
     cr_assert(g.res[0] == 1 && g.res[1] == 1 && g.res[2] == 1);
     cr_assert_float_eq(g.vs, 2.0, 1e-15);
@@ -49,62 +49,62 @@ Test(subdiv, grid_res_one_and_powers)
     cr_assert_eq(g.depth, 7);
     g = cube_grid(1, 4096);
     cr_assert_eq(g.depth, 12);
-    cr_assert_eq(subdiv_grid_check(&g), 0);
+    cr_assert_eq(grid_check(&g), 0);
 }
 
 Test(subdiv, grid_non_power_of_two_and_box_domains)
 {
-    subdiv_grid g = cube_grid(1, 100);
+    grid_spec g = cube_grid(1, 100);
     cr_assert_eq(g.depth, 7);
     cr_assert(g.res[0] == 100 && g.res[1] == 100 && g.res[2] == 100);
     cr_assert_float_eq(g.vs, 0.02, 1e-15);
     double lo[3] = {0, 0, 0}, hi[3] = {2, 1, 0.5};
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, 64, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo, hi, 64, &g, err, sizeof err), 0);
     cr_assert(g.res[0] == 64 && g.res[1] == 32 && g.res[2] == 16,
               "%u %u %u", g.res[0], g.res[1], g.res[2]);
     /* 0.3 / 0.1 is 2.9999999999999996 in doubles: still 3 voxels */
     double lo2[3] = {0, 0, 0}, hi2[3] = {1, 0.3, 1};
-    cr_assert_eq(subdiv_grid_make(lo2, hi2, 10, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo2, hi2, 10, &g, err, sizeof err), 0);
     cr_assert(g.res[0] == 10 && g.res[1] == 3 && g.res[2] == 10);
     /* a thin slab still gets one voxel; the longest axis may be y or z */
     double lo3[3] = {5, -3, 10}, hi3[3] = {5.001, 3, 11};
-    cr_assert_eq(subdiv_grid_make(lo3, hi3, 300, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo3, hi3, 300, &g, err, sizeof err), 0);
     cr_assert(g.res[0] == 1 && g.res[1] == 300 && g.res[2] == 50,
               "%u %u %u", g.res[0], g.res[1], g.res[2]);
     cr_assert_eq(g.depth, 9);
     /* the grid covers the domain on every axis */
     for (int a = 0; a < 3; a++)
-        cr_assert(subdiv_coord(&g, a, g.res[a]) >= hi3[a]);
+        cr_assert(grid_coord(&g, a, g.res[a]) >= hi3[a]);
 }
 
 Test(subdiv, grid_errors_have_messages)
 {
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     err[0] = 0;
-    cr_assert_eq(subdiv_grid_make(lo, hi, 0, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo, hi, 0, &g, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "resolution"), "%s", err);
-    cr_assert_eq(subdiv_grid_make(lo, hi, 4097, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo, hi, 4097, &g, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "4096"), "%s", err);
     double hi_flat[3] = {1, -1, 1};
-    cr_assert_eq(subdiv_grid_make(lo, hi_flat, 64, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo, hi_flat, 64, &g, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "empty on y"), "%s", err);
     double hi_inv[3] = {1, 1, -2};
-    cr_assert_eq(subdiv_grid_make(lo, hi_inv, 64, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo, hi_inv, 64, &g, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "on z"), "%s", err);
     double hi_nan[3] = {NAN, 1, 1};
-    cr_assert_eq(subdiv_grid_make(lo, hi_nan, 64, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo, hi_nan, 64, &g, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "not finite"), "%s", err);
     double lo_inf[3] = {-INFINITY, -1, -1};
-    cr_assert_eq(subdiv_grid_make(lo_inf, hi, 64, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo_inf, hi, 64, &g, err, sizeof err), -EINVAL);
     double lo_far[3] = {1e17, 0, 0}, hi_far[3] = {1e17 + 64, 100, 1};
-    cr_assert_eq(subdiv_grid_make(lo_far, hi_far, 64, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo_far, hi_far, 64, &g, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "too small"), "%s", err);
     g = cube_grid(1, 64);
     g.depth = 7; /* not the smallest depth */
-    cr_assert_eq(subdiv_grid_check(&g), -EINVAL);
+    cr_assert_eq(grid_check(&g), -EINVAL);
 }
 
 /* ---- the one formula ---- */
@@ -112,16 +112,16 @@ Test(subdiv, grid_errors_have_messages)
 Test(subdiv, neighbours_share_bounds_bit_for_bit)
 {
     double lo[3] = {-0.37, 0.1, -3.3}, hi[3] = {0.91, 0.7, -2.0};
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, 333, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo, hi, 333, &g, err, sizeof err), 0);
     srand(5);
     for (int k = 0; k < 20000; k++) {
         uint16_t l = (uint16_t)(rand() % g.depth), n = (uint16_t)(1u << l);
         uint16_t m = (uint16_t)((1u << g.depth) / n - 1);
-        subdiv_octant o = {(uint16_t)(rand() % m * n), (uint16_t)(rand() % m * n),
+        grid_octant o = {(uint16_t)(rand() % m * n), (uint16_t)(rand() % m * n),
                            (uint16_t)(rand() % m * n), l};
-        subdiv_octant nx = o, ny = o, nz = o;
+        grid_octant nx = o, ny = o, nz = o;
         nx.x += n;
         ny.y += n;
         nz.z += n;
@@ -134,8 +134,8 @@ Test(subdiv, neighbours_share_bounds_bit_for_bit)
         cr_assert(a[0].lo < a[0].hi && a[1].lo < a[1].hi && a[2].lo < a[2].hi);
         if (l == 0) continue;
         /* the children tile the parent exactly */
-        subdiv_octant c0 = {o.x, o.y, o.z, (uint16_t)(l - 1)};
-        subdiv_octant c7 = {(uint16_t)(o.x + n / 2), (uint16_t)(o.y + n / 2),
+        grid_octant c0 = {o.x, o.y, o.z, (uint16_t)(l - 1)};
+        grid_octant c7 = {(uint16_t)(o.x + n / 2), (uint16_t)(o.y + n / 2),
                             (uint16_t)(o.z + n / 2), (uint16_t)(l - 1)};
         ival p0[3], p7[3];
         subdiv_box(&g, c0, &p0[0], &p0[1], &p0[2]);
@@ -162,7 +162,7 @@ static void tree_init(tree *t, int depth)
     octree_init(&t->t, t->arena, cap, depth);
 }
 
-static void serial(const char *src, const subdiv_grid *g, tree *t)
+static void serial(const char *src, const grid_spec *g, tree *t)
 {
     expr_tape *tape = compile(src);
     tree_init(t, g->depth);
@@ -171,13 +171,13 @@ static void serial(const char *src, const subdiv_grid *g, tree *t)
 }
 
 /* Distance range from the origin over voxel (X, Y, Z)'s box. */
-static void box_dist(const subdiv_grid *g, uint32_t X, uint32_t Y, uint32_t Z,
+static void box_dist(const grid_spec *g, uint32_t X, uint32_t Y, uint32_t Z,
                      double *dmin, double *dmax)
 {
     uint32_t v[3] = {X, Y, Z};
     double sn = 0, sx = 0;
     for (int a = 0; a < 3; a++) {
-        double lo = subdiv_coord(g, a, v[a]), hi = subdiv_coord(g, a, v[a] + 1);
+        double lo = grid_coord(g, a, v[a]), hi = grid_coord(g, a, v[a] + 1);
         double near = lo > 0 ? lo : hi < 0 ? -hi : 0;
         double far = fmax(fabs(lo), fabs(hi));
         sn += near * near;
@@ -189,7 +189,7 @@ static void box_dist(const subdiv_grid *g, uint32_t X, uint32_t Y, uint32_t Z,
 
 /* Exact oracle: a box surely cut by the sphere must be there; a box surely
  * clear of it (beyond rounding) must not; the normal points outwards. */
-static void check_sphere(const subdiv_grid *g, const tree *t, double R)
+static void check_sphere(const grid_spec *g, const tree *t, double R)
 {
     const double eps = 1e-9;
     uint64_t must = 0;
@@ -214,8 +214,8 @@ static void check_sphere(const subdiv_grid *g, const tree *t, double R)
         n++;
         cr_assert(x < g->res[0] && y < g->res[1] && z < g->res[2]);
         cr_assert_eq(voxel_occupancy(v), VOXEL_FULL);
-        double c[3] = {subdiv_coord(g, 0, x + 0.5), subdiv_coord(g, 1, y + 0.5),
-                       subdiv_coord(g, 2, z + 0.5)};
+        double c[3] = {grid_coord(g, 0, x + 0.5), grid_coord(g, 1, y + 0.5),
+                       grid_coord(g, 2, z + 0.5)};
         double r = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
         cr_assert(fabs(r - R) <= sqrt(3.0) * g->vs, "voxel %u %u %u far", x, y, z);
         double nn[3];
@@ -230,7 +230,7 @@ static void check_sphere(const subdiv_grid *g, const tree *t, double R)
 Test(subdiv, serial_sphere_32_and_64_matches_exact_oracle)
 {
     for (uint32_t res = 32; res <= 64; res *= 2) {
-        subdiv_grid g = cube_grid(1, res);
+        grid_spec g = cube_grid(1, res);
         tree t;
         serial(SPHERE, &g, &t);
         check_sphere(&g, &t, SPHERE_R);
@@ -240,7 +240,7 @@ Test(subdiv, serial_sphere_32_and_64_matches_exact_oracle)
 
 Test(subdiv, envelope_corners_with_sign_change_are_present)
 {
-    subdiv_grid g = cube_grid(1, 48);
+    grid_spec g = cube_grid(1, 48);
     tree t;
     serial(SPHERE, &g, &t);
     for (uint32_t z = 0; z < 48; z++)
@@ -248,9 +248,9 @@ Test(subdiv, envelope_corners_with_sign_change_are_present)
             for (uint32_t x = 0; x < 48; x++) {
                 int neg = 0, pos = 0;
                 for (int i = 0; i < 8; i++) {
-                    double px = subdiv_coord(&g, 0, x + (i & 1));
-                    double py = subdiv_coord(&g, 1, y + ((i >> 1) & 1));
-                    double pz = subdiv_coord(&g, 2, z + ((i >> 2) & 1));
+                    double px = grid_coord(&g, 0, x + (i & 1));
+                    double py = grid_coord(&g, 1, y + ((i >> 1) & 1));
+                    double pz = grid_coord(&g, 2, z + ((i >> 2) & 1));
                     double f = sqrt(px * px + py * py + pz * pz) - SPHERE_R;
                     neg |= f < 0;
                     pos |= f > 0;
@@ -264,9 +264,9 @@ Test(subdiv, padding_is_never_emitted)
 {
     /* 100 voxels in a 128 tree, and a domain that cuts the sphere */
     double lo[3] = {-1, -1, -0.5}, hi[3] = {1, 1, 0.5};
-    subdiv_grid g;
+    grid_spec g;
     char err[200];
-    cr_assert_eq(subdiv_grid_make(lo, hi, 100, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo, hi, 100, &g, err, sizeof err), 0);
     cr_assert(g.res[2] == 50 && g.depth == 7);
     tree t;
     serial("sqrt(x^2 + y^2 + z^2) - 1.2", &g, &t);
@@ -288,13 +288,13 @@ Test(subdiv, padding_is_never_emitted)
 /* ---- the same voxels whatever the order ---- */
 
 typedef struct {
-    subdiv_octant *o;
+    grid_octant *o;
     size_t n, cap;
-    subdiv_voxel *v;
+    grid_voxel *v;
     size_t nv, capv;
 } bag;
 
-static int bag_octant(void *ud, const subdiv_octant *o)
+static int bag_octant(void *ud, const grid_octant *o)
 {
     bag *b = ud;
     if (b->n == b->cap) {
@@ -305,7 +305,7 @@ static int bag_octant(void *ud, const subdiv_octant *o)
     return 0;
 }
 
-static int bag_voxel(void *ud, const subdiv_voxel *v)
+static int bag_voxel(void *ud, const grid_voxel *v)
 {
     bag *b = ud;
     if (b->nv == b->capv) {
@@ -320,7 +320,7 @@ static int bag_voxel(void *ud, const subdiv_voxel *v)
  * subdiv_children until level `stop`, then (if stop > 0) each remaining
  * octant as a subtree, again in random order: the Figure 3 schedules
  * emulated in one process with one kernel that jumps around the tree. */
-static void shuffled(const char *src, const subdiv_grid *g, int stop,
+static void shuffled(const char *src, const grid_spec *g, int stop,
                      unsigned seed, tree *out, uint64_t *tested)
 {
     expr_tape *tape = compile(src);
@@ -330,11 +330,11 @@ static void shuffled(const char *src, const subdiv_grid *g, int stop,
     subdiv_kernel_init(&k, vm, g);
     bag work = {0}, leaves = {0};
     subdiv_sink s = {.voxel = bag_voxel, .octant = bag_octant, .ud = &work};
-    bag_octant(&work, &(subdiv_octant){0, 0, 0, (uint16_t)g->depth});
+    bag_octant(&work, &(grid_octant){0, 0, 0, (uint16_t)g->depth});
     srand(seed);
     while (work.n) {
         size_t i = (size_t)rand() % work.n;
-        subdiv_octant o = work.o[i];
+        grid_octant o = work.o[i];
         work.o[i] = work.o[--work.n];
         if (o.level <= stop) {
             bag_octant(&leaves, &o);
@@ -345,13 +345,13 @@ static void shuffled(const char *src, const subdiv_grid *g, int stop,
     subdiv_sink s2 = {.voxel = bag_voxel, .ud = &work};
     while (leaves.n) {
         size_t i = (size_t)rand() % leaves.n;
-        subdiv_octant o = leaves.o[i];
+        grid_octant o = leaves.o[i];
         leaves.o[i] = leaves.o[--leaves.n];
         cr_assert_eq(subdiv_subtree(&k, o, &s2), 0);
     }
     tree_init(out, g->depth);
     for (size_t i = 0; i < work.nv; i++) {
-        subdiv_voxel v = work.v[i];
+        grid_voxel v = work.v[i];
         cr_assert_eq(octree_get(&out->t, v.x, v.y, v.z), 0, "voxel twice");
         cr_assert_eq(octree_store(&out->t, v.x, v.y, v.z, v.value), 0);
     }
@@ -402,7 +402,7 @@ Test(subdiv, any_order_and_kernel_gives_the_serial_voxels)
     const char *src[] = {SPHERES, SCENE2, SPHERE, csg};
     const uint32_t res[] = {64, 64, 50, 64};
     for (int s = 0; s < 4; s++) {
-        subdiv_grid g = cube_grid(1, res[s]);
+        grid_spec g = cube_grid(1, res[s]);
         tree ref, got;
         serial(src[s], &g, &ref);
         for (int stop = 0; stop <= 3; stop += 3) {
@@ -419,7 +419,7 @@ Test(subdiv, any_order_and_kernel_gives_the_serial_voxels)
  * it does, and the boxes tested stay the same. */
 Test(subdiv, chain_rebuilds_are_cheap_in_dfs_order)
 {
-    subdiv_grid g = cube_grid(1, 64);
+    grid_spec g = cube_grid(1, 64);
     expr_tape *tape = compile(SPHERES);
     expr_vm *vm;
     cr_assert_eq(expr_vm_new(tape, g.depth, &vm), 0);
@@ -427,7 +427,7 @@ Test(subdiv, chain_rebuilds_are_cheap_in_dfs_order)
     subdiv_kernel_init(&k, vm, &g);
     bag b = {0};
     subdiv_sink s = {.voxel = bag_voxel, .ud = &b};
-    cr_assert_eq(subdiv_subtree(&k, subdiv_root(&g), &s), 0);
+    cr_assert_eq(subdiv_subtree(&k, grid_root(&g), &s), 0);
     cr_assert_eq(k.rebuilt, 0);
     uint64_t serial_tested = k.tested;
     tree got;
@@ -441,7 +441,7 @@ Test(subdiv, chain_rebuilds_are_cheap_in_dfs_order)
     expr_tape_free(tape);
 }
 
-static int stop_after_10(void *ud, const subdiv_voxel *v)
+static int stop_after_10(void *ud, const grid_voxel *v)
 {
     (void)v;
     return ++*(int *)ud == 10 ? -ECANCELED : 0;
@@ -449,7 +449,7 @@ static int stop_after_10(void *ud, const subdiv_voxel *v)
 
 Test(subdiv, a_sink_can_stop_the_kernel)
 {
-    subdiv_grid g = cube_grid(1, 32);
+    grid_spec g = cube_grid(1, 32);
     expr_tape *tape = compile(SPHERE);
     expr_vm *vm;
     cr_assert_eq(expr_vm_new(tape, g.depth, &vm), 0);
@@ -457,7 +457,7 @@ Test(subdiv, a_sink_can_stop_the_kernel)
     subdiv_kernel_init(&k, vm, &g);
     int n = 0;
     subdiv_sink s = {.voxel = stop_after_10, .ud = &n};
-    cr_assert_eq(subdiv_subtree(&k, subdiv_root(&g), &s), -ECANCELED);
+    cr_assert_eq(subdiv_subtree(&k, grid_root(&g), &s), -ECANCELED);
     cr_assert_eq(n, 10);
     expr_vm_free(vm);
     expr_tape_free(tape);

@@ -43,8 +43,8 @@
 #include <stdint.h>
 
 #include "expr.h"
+#include "grid.h"
 #include "octree.h"
-#include "subdiv.h"
 #include "vod.h"
 
 #define ENGINE_MAX_WORKERS 256
@@ -78,7 +78,7 @@ typedef struct {
 
 typedef struct {
     const expr_tape *tape;
-    subdiv_grid grid;
+    grid_spec grid;
     engine_schedule schedule;
     /* Called by the master now and then (at most ~10 times a second). */
     void (*progress)(void *ud, const engine_progress *p);

@@ -1,4 +1,4 @@
-/* expr_impl — private declarations shared by common/expr*.c.
+/* expr_impl — private declarations shared by expr/expr*.c.
  *
  * Register model.  Registers 0, 1, 2 hold x, y, z; registers 3 .. nfixed-1
  * hold the tape's constants (preloaded once per vm, never written); the

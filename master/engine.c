@@ -31,7 +31,7 @@ typedef struct {
     unsigned seq;       /* the last task_seq given */
     int busy;           /* a task given and not finished and drained */
     uint32_t kind;
-    subdiv_octant task;
+    grid_octant task;
     uint32_t consumed;  /* entries of the current task taken */
     uint32_t kept;      /* octants the current task sent back */
     int deaths;         /* workers that died on the current task */
@@ -44,7 +44,7 @@ struct engine {
     mslot ms[ENGINE_MAX_WORKERS];
     octree tree;
     int have_tree;
-    subdiv_octant *stack; /* the work stack, in the segment */
+    grid_octant *stack; /* the work stack, in the segment */
     uint32_t sp, cap;
     /* the running job */
     const engine_job *job;
@@ -52,7 +52,7 @@ struct engine {
     int aborting;
     int nbusy;
     uint64_t done_vol, total_vol;
-    uint32_t pending[SUBDIV_MAX_DEPTH + 1]; /* octants pushed, unfinished */
+    uint32_t pending[GRID_MAX_DEPTH + 1]; /* octants pushed, unfinished */
     int error;
     char msg[256];
     uint32_t restarts;
@@ -142,7 +142,7 @@ static int spawn(engine *e, int i, char *err, size_t errlen)
 }
 
 /* Hand task kind on octant o to worker i. */
-static void give(engine *e, int i, subdiv_octant o, uint32_t kind,
+static void give(engine *e, int i, grid_octant o, uint32_t kind,
                  uint32_t skip)
 {
     shm_slot *s = slot(e, i);
@@ -197,7 +197,7 @@ void engine_destroy(engine *e)
         for (int i = 0; i < e->n; i++) {
             if (e->ms[i].pid <= 0) continue;
             if (e->ms[i].busy) kill(e->ms[i].pid, SIGKILL);
-            else give(e, i, (subdiv_octant){0, 0, 0, 0}, SHM_TASK_EXIT, 0);
+            else give(e, i, (grid_octant){0, 0, 0, 0}, SHM_TASK_EXIT, 0);
         }
         reap_all(e);
         shm_destroy(&e->seg);
@@ -256,7 +256,7 @@ octree *engine_octree(engine *e) { return e->have_tree ? &e->tree : NULL; }
 
 static uint64_t volume(int level) { return 1ull << (3 * level); }
 
-static int push(engine *e, subdiv_octant o)
+static int push(engine *e, grid_octant o)
 {
     if (e->sp == e->cap)
         return fail(e, -ENOMEM, "the work stack overflowed (%u octants)",
@@ -273,13 +273,13 @@ static int outside_res(const engine *e, unsigned x, unsigned y, unsigned z)
 }
 
 /* Is (x, y, z) inside octant o? */
-static int inside(subdiv_octant o, unsigned x, unsigned y, unsigned z)
+static int inside(grid_octant o, unsigned x, unsigned y, unsigned z)
 {
     unsigned n = 1u << o.level;
     return x - o.x < n && y - o.y < n && z - o.z < n;
 }
 
-static int take_octant(engine *e, int i, subdiv_octant o)
+static int take_octant(engine *e, int i, grid_octant o)
 {
     const mslot *m = &e->ms[i];
     if (m->kind != SHM_TASK_CHILDREN || o.level + 1 != m->task.level ||
@@ -301,7 +301,7 @@ static int take_voxels(engine *e, int i, const shm_entry *en)
         (m->kind == SHM_TASK_CHILDREN && (n != 1 || m->task.level != 1)))
         return fail(e, -EPROTO, "worker %d sent a batch of %u voxels", i, n);
     for (uint32_t j = 0; j < n; j++) {
-        subdiv_voxel v = en->vox[j];
+        grid_voxel v = en->vox[j];
         if (!inside(m->task, v.x, v.y, v.z) || outside_res(e, v.x, v.y, v.z) ||
             v.value == 0)
             return fail(e, -EPROTO, "worker %d sent voxel (%u,%u,%u) outside "
@@ -373,7 +373,7 @@ static int assign(engine *e)
     int did = 0;
     for (int i = 0; i < e->n && e->sp; i++) {
         if (e->ms[i].busy || e->ms[i].pid <= 0) continue;
-        subdiv_octant o = e->stack[--e->sp];
+        grid_octant o = e->stack[--e->sp];
         uint32_t kind = e->job->schedule == ENGINE_SCHED_PAPER ||
                                 o.level > e->split
                             ? SHM_TASK_CHILDREN
@@ -472,7 +472,7 @@ int engine_check_workers(engine *e)
 
 static int top_pending(const engine *e)
 {
-    for (int l = SUBDIV_MAX_DEPTH; l > 0; l--)
+    for (int l = GRID_MAX_DEPTH; l > 0; l--)
         if (e->pending[l]) return l;
     return 0;
 }
@@ -556,7 +556,7 @@ static void note_touched(engine *e, uint64_t end)
 static int job_setup(engine *e, const engine_job *job)
 {
     if (!job->tape) return fail(e, -EINVAL, "the job has no tape");
-    if (subdiv_grid_check(&job->grid))
+    if (grid_check(&job->grid))
         return fail(e, -EINVAL, "the job's grid is invalid");
     shm_header *h = e->h;
     size_t tb = expr_tape_bytes(job->tape);
@@ -583,7 +583,7 @@ static int job_setup(engine *e, const engine_job *job)
                : depth - 3 < 1      ? 1
                : depth - 3 > 6      ? 6
                                     : depth - 3;
-    return push(e, subdiv_root(&job->grid));
+    return push(e, grid_root(&job->grid));
 }
 
 static void job_reset(engine *e, const engine_job *job)
@@ -696,7 +696,7 @@ static void vod_encode_all(engine *e)
     e->error = 0;
     for (int i = 0; i < e->n; i++)
         if (e->ms[i].pid > 0)
-            give(e, i, (subdiv_octant){0, 0, 0, 0}, SHM_TASK_ENCODE, 0);
+            give(e, i, (grid_octant){0, 0, 0, 0}, SHM_TASK_ENCODE, 0);
     while (e->nbusy) {
         int did = 0;
         for (int i = 0; i < e->n; i++)

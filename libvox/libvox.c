@@ -1,7 +1,7 @@
-/* libvox — the voxd client library.  See include/vox.h.
+/* libvox — the voxd client library.  See vox.h.
  *
  * One non-blocking Unix stream socket, poll() with the client's silence
- * timeout, and the framing of common/frame.h.  Every reply is unpacked with a
+ * timeout, and the framing of proto/frame.h.  Every reply is unpacked with a
  * bounded budget and validated by proto_check_reply() before anything here
  * looks at it; what depends on the conversation (a reply nobody asked for, a
  * chunk at the wrong offset or for a job this client does not have) is

@@ -35,13 +35,6 @@ typedef struct {
     expr_error *err;
 } builder;
 
-void expr_limits_default(expr_limits *lim)
-{
-    lim->max_source_bytes = EXPR_DEFAULT_MAX_SOURCE;
-    lim->max_depth = EXPR_DEFAULT_MAX_DEPTH;
-    lim->max_nodes = EXPR_DEFAULT_MAX_NODES;
-}
-
 static uint64_t mix(uint64_t h, uint64_t v)
 {
     h ^= v + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);

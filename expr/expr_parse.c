@@ -696,6 +696,13 @@ static void nul_position(const char *src, size_t at, int *line, int *col)
     *col = (int)(at - start) + 1;
 }
 
+void expr_limits_default(expr_limits *lim)
+{
+    lim->max_source_bytes = EXPR_DEFAULT_MAX_SOURCE;
+    lim->max_depth = EXPR_DEFAULT_MAX_DEPTH;
+    lim->max_nodes = EXPR_DEFAULT_MAX_NODES;
+}
+
 int expr_parse(const char *src, size_t len, const expr_limits *lim,
                expr_program *prog, expr_error *err)
 {

@@ -31,8 +31,8 @@
 #include <stdint.h>
 #include <sys/types.h>
 
+#include "grid.h"
 #include "queue.h"
-#include "subdiv.h"
 #include "vod.h"
 
 #define SHM_MAGIC 0x44584f56u /* "VOXD" */
@@ -60,8 +60,8 @@ enum shm_entry_kind {
 typedef struct {
     uint32_t kind;
     uint32_t count;
-    subdiv_octant octant;
-    subdiv_voxel vox[SHM_BATCH];
+    grid_octant octant;
+    grid_voxel vox[SHM_BATCH];
 } shm_entry;
 
 /* Derived state of a slot (shm_slot_state()). */
@@ -79,7 +79,7 @@ typedef struct {
     uint32_t task_gen;    /* job generation the task belongs to */
     uint32_t task_skip;   /* entries of this task already consumed (a
                              re-run after a worker died skips them) */
-    subdiv_octant task;   /* the octant assigned: handed out again if the
+    grid_octant task;   /* the octant assigned: handed out again if the
                              worker dies */
     int32_t pid;          /* the worker's pid */
     int32_t cpu;          /* the CPU it is pinned to */
@@ -134,7 +134,7 @@ typedef struct {
     /* The job input, written by the master before a job's first task (the
      * task_seq release publishes it). */
     uint32_t gen;                    /* current job generation (master) */
-    subdiv_grid grid;
+    grid_spec grid;
     uint64_t tape_off, tape_bytes;
     uint64_t tree_off;               /* octree arena */
     uint32_t tree_cap;               /* cells */

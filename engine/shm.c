@@ -40,7 +40,7 @@ static size_t layout(shm_header *h, uint32_t workers)
         h->stack_off = off;
         h->stack_cap = cap;
     }
-    off += round_up(cap * sizeof(subdiv_octant), PAGE);
+    off += round_up(cap * sizeof(grid_octant), PAGE);
     if (h) h->data_off = off;
     return off;
 }

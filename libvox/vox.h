@@ -115,7 +115,7 @@ enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 
 
 /* F(x,y,z) = 0 over a box: the job of `vox voxelize`. */
 typedef struct {
-    const char *source;   /* the expression (common/expr.h syntax) */
+    const char *source;   /* the expression (expr/expr.h syntax) */
     size_t source_len;    /* its bytes; 0 = strlen(source) */
     const char *source_name; /* the file it came from, for the VOD's metadata
                                 (at most 512 bytes, one line); may be NULL */
