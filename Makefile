@@ -26,7 +26,7 @@ CSTD    := -std=c11 -D_GNU_SOURCE
 # checks the same over the sources, and that no two files include each
 # other).  The data flows down this list; nothing includes upwards.
 MODULES := client server config libvox master worker engine proto vod expr common
-LAYER_client := config libvox master worker engine proto expr vod common
+LAYER_client := config libvox master proto expr vod common
 LAYER_server := config master engine proto libvox expr vod common
 LAYER_config := proto expr common
 LAYER_libvox := proto common

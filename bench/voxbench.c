@@ -181,9 +181,9 @@ static void bench_shapes(uint32_t res)
         uint64_t bytes = 0;
         vod_sink sink = {null_write, &bytes};
         vod_stats st;
-        char err[256];
+        engine_error err;
         double t0 = now();
-        if (engine_write_vod(e, &p, &sink, &st, err, sizeof err)) die("write", err);
+        if (engine_write_vod(e, &p, &sink, &st, &err)) die("write", err.message);
         double wt = now() - t0;
         char tgt[32] = "-", ratio[32] = "-";
         if (s->target > 0 && res == 512) {
@@ -381,9 +381,9 @@ static void bench_vod(uint32_t res, int max_workers)
             int fd = mkstemp(path);
             vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
             vod_stats st;
-            char err[256];
+            engine_error err;
             double t0 = now();
-            if (engine_write_vod(e, &p, &sink, &st, err, sizeof err)) die("write", err);
+            if (engine_write_vod(e, &p, &sink, &st, &err)) die("write", err.message);
             double wt = now() - t0;
             close(fd);
             uint64_t vox, raw_bytes;

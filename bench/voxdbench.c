@@ -34,8 +34,7 @@
 #include "bench_util.h"
 #include "engine.h"
 #include "expr.h"
-#include "job_meta.h"
-#include "grid.h"
+#include "pipeline.h"
 #include "vod.h"
 #include "vox.h"
 #include "voxel.h"
@@ -391,56 +390,32 @@ static void header(const char *title, uint32_t res, const char *how)
 
 /* vox voxelize's VOD parameters and metadata (cli_voxelize.c), so the
  * embedded file is byte for byte the daemon's. */
-static void small_vod(vod_params *v, const grid_spec *g, char *meta, size_t cap)
-{
-    job_meta m = {
-        .source = SMALL_EXPR, .source_len = strlen(SMALL_EXPR), .res = SMALL_RES,
-        .grid = {g->res[0], g->res[1], g->res[2]}, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
-    };
-    job_meta_format(meta, cap, &m);
-    vod_params_default(v);
-    v->channel = VOXEL_CH_SURFACE;
-    v->metadata = meta;
-    for (int a = 0; a < 3; a++) {
-        v->volume[a] = g->res[a];
-        v->voxel_scale[a] = (float)g->vs;
-        v->origin[a] = (float)g->lo[a];
-    }
-}
-
-static void embedded_write(engine *e, const grid_spec *g, job_out *o)
-{
-    char meta[JOB_META_MAX], err[256] = "";
-    vod_params v;
-    small_vod(&v, g, meta, sizeof meta);
-    vod_membuf m = {0}; /* in memory, as voxd holds a result */
-    vod_sink sink = {vod_mem_write, &m};
-    vod_stats st;
-    int rc = engine_write_vod(e, &v, &sink, &st, err, sizeof err);
-    free(m.p);
-    if (rc) die("embedded VOD write failed: %s", err[0] ? err : strerror(-rc));
-    o->bytes = st.file_bytes;
-    o->crc = st.crc32;
-}
-
-/* The job as `vox voxelize --embedded` runs it: compile, voxelize, write. */
+/* The job as `vox voxelize --embedded` runs it: compile, then the one job
+ * pipeline (voxelize, write the VOD in memory, as voxd holds a result). */
 static void embedded_job(engine *e, job_out *o)
 {
-    static const double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     expr_tape *t;
     expr_error xe;
-    grid_spec g;
-    char err[256];
     if (expr_compile(SMALL_EXPR, strlen(SMALL_EXPR), NULL, &t, &xe))
         die("%s: %s", SMALL_EXPR, xe.msg);
-    if (grid_make(lo, hi, SMALL_RES, &g, err, sizeof err)) die("grid: %s", err);
-    engine_job job = {.tape = t, .grid = g, .schedule = ENGINE_SCHED_SUBTREE};
-    engine_result r;
-    int rc = engine_voxelize(e, &job, &r);
-    if (rc) die("embedded engine failed: %s", r.error[0] ? r.error : strerror(-rc));
+    pipeline_job job = {
+        .kind = PIPELINE_IMPLICIT,
+        .implicit = {.tape = t, .source = SMALL_EXPR, .source_len = strlen(SMALL_EXPR)},
+        .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = SMALL_RES,
+        .schedule = ENGINE_SCHED_SUBTREE,
+    };
+    vod_params_default(&job.vod);
+    job.vod.channel = VOXEL_CH_SURFACE;
+    vod_membuf m = {0};
+    vod_sink sink = {vod_mem_write, &m};
+    pipeline_report r;
+    int rc = pipeline_run(e, &job, &sink, &r);
+    free(m.p);
+    if (rc) die("embedded job failed: %s", r.err.message);
     o->voxels = r.voxels;
-    o->t_voxelize = r.seconds;
-    embedded_write(e, &g, o);
+    o->t_voxelize = r.t_voxelize;
+    o->bytes = r.st.file_bytes;
+    o->crc = r.st.crc32;
     expr_tape_free(t);
 }
 

@@ -18,8 +18,9 @@
 
 static size_t round_up(size_t v, size_t a) { return (v + a - 1) / a * a; }
 
-/* Room for the LIFO work stack: at most 7 octants left behind per level
- * per octant in flight; this is several times that for any worker count. */
+/* Room for the LIFO work stack: the implicit kind leaves at most 7
+ * octants behind per level per octant in flight; this is several times
+ * that for any worker count. */
 static uint64_t stack_cap_for(uint32_t workers)
 {
     return 4096u + 256u * ((uint64_t)workers + 1u);
@@ -40,7 +41,7 @@ static size_t layout(shm_header *h, uint32_t workers)
         h->stack_off = off;
         h->stack_cap = cap;
     }
-    off += round_up(cap * sizeof(grid_octant), PAGE);
+    off += round_up(cap * sizeof(shm_task), PAGE);
     if (h) h->data_off = off;
     return off;
 }

@@ -3,16 +3,16 @@
  *   header | slot 0 .. slot N-1 | work stack | data
  *
  * Offsets from the segment's base, never pointers (a process may map the
- * segment anywhere).  The data area holds, per job: the tape (job input),
- * then the octree arena; after a job, the VOD phase lays out behind the
- * used cells: the aggregate (u32 per cell), the brick nodes, their encoded
- * records and offsets, then the brick bytes.
+ * segment anywhere).  This file is the core's contract, the same for every
+ * kind of job: slots with their task and 8-entry queue, the work stack of
+ * tasks, the job's generation.  The data area belongs to the job's kind:
+ * engine/kinds.h says what each kind keeps there.
  *
  * Who writes what: the master writes the header and, in each slot, the
  * task fields and the queue's consumer index; a worker writes only its own
- * slot's worker fields, its queue entries and producer index, and (during
- * the VOD phase) the per-node records and bricks it claimed through the
- * shared counters.  The master treats what a worker wrote as untrusted.
+ * slot's worker fields, its queue entries and producer index, and what its
+ * kind's block says it may (the encode kind: the records and bricks it
+ * claimed through the block's shared counters).  The master treats what a worker wrote as untrusted.
  *
  * Sleeping: every futex word here is 32 bits and used without
  * FUTEX_PRIVATE_FLAG (the segment is shared between processes).  A side
@@ -31,37 +31,35 @@
 #include <stdint.h>
 #include <sys/types.h>
 
-#include "grid.h"
 #include "queue.h"
-#include "vod.h"
 
 #define SHM_MAGIC 0x44584f56u /* "VOXD" */
-#define SHM_VERSION 1u
-#define SHM_BATCH 1024u                       /* voxels per queue entry */
+#define SHM_VERSION 2u
 #define SHM_DEFAULT_BYTES ((size_t)2 << 30)   /* 2 GiB, sparse */
 #define SHM_MIN_DATA ((size_t)1 << 20)        /* data area at least 1 MiB */
 
 _Static_assert(ATOMIC_INT_LOCK_FREE == 2, "lock-free int atomics needed");
 _Static_assert(ATOMIC_LLONG_LOCK_FREE == 2, "lock-free 64-bit atomics needed");
 
-enum shm_task_kind {
-    SHM_TASK_NONE = 0,
-    SHM_TASK_CHILDREN = 1, /* test the octant's children, return the kept */
-    SHM_TASK_SUBTREE = 2,  /* every voxel of the octant's subtree */
-    SHM_TASK_ENCODE = 3,   /* encode VOD bricks until none is left */
-    SHM_TASK_EXIT = 4,
-};
-
-enum shm_entry_kind {
-    SHM_ENT_OCTANT = 1, /* one kept child octant */
-    SHM_ENT_VOXELS = 2, /* count voxels, in preorder */
-};
-
+/* What the master hands a worker: a task of a job kind (engine/kinds.h).
+ * The core's own kind, SHM_KIND_CORE, has one operation: exit. */
 typedef struct {
-    uint32_t kind;
-    uint32_t count;
-    grid_octant octant;
-    grid_voxel vox[SHM_BATCH];
+    uint32_t kind;        /* shm_kind */
+    uint32_t op;          /* the kind's operation */
+    uint8_t arg[16];      /* the kind's argument (implicit: an octant) */
+} shm_task;
+
+#define SHM_OP_EXIT 1u    /* SHM_KIND_CORE: leave the loop */
+
+/* What a worker hands back: one queue entry of its task's kind, `count`
+ * records of the kind's record `type` in the payload.  The master checks
+ * kind, type and count before it reads a record. */
+#define SHM_PAYLOAD_BYTES 8192u
+typedef struct {
+    uint16_t kind;        /* the kind of the task that wrote it */
+    uint16_t type;        /* the kind's record type */
+    uint32_t count;       /* records in the payload */
+    _Alignas(16) uint8_t payload[SHM_PAYLOAD_BYTES];
 } shm_entry;
 
 /* Derived state of a slot (shm_slot_state()). */
@@ -75,11 +73,10 @@ typedef struct {
     /* The futex word the worker sleeps on (idle, or queue full).  Bumped by
      * the master when it sees `sleeping` set (Dekker, see above). */
     atomic_uint wake;
-    uint32_t task_kind;   /* shm_task_kind */
     uint32_t task_gen;    /* job generation the task belongs to */
     uint32_t task_skip;   /* entries of this task already consumed (a
                              re-run after a worker died skips them) */
-    grid_octant task;   /* the octant assigned: handed out again if the
+    shm_task task;        /* the task assigned: handed out again if the
                              worker dies */
     int32_t pid;          /* the worker's pid */
     int32_t cpu;          /* the CPU it is pinned to */
@@ -102,42 +99,21 @@ typedef struct {
     shm_entry ent[QUEUE_ENTRIES];
 } shm_slot;
 
-/* The VOD phase (engine_write_vod). */
-typedef struct {
-    vod_layout L;
-    vod_params p;          /* metadata is NULL here: encoding does not use it */
-    uint32_t cells_used;
-    int32_t depth;
-    uint64_t cells_off, agg_off, nodes_off, recs_off, offs_off;
-    uint64_t n;            /* brick nodes */
-    uint64_t brick_off, brick_cap;
-    /* Next node index to encode: workers fetch_add chunks (relaxed: the
-     * node array was published by the task_seq release). */
-    _Alignas(64) atomic_ullong next;
-    /* Bump allocator in the brick area: workers fetch_add their encoded
-     * size (relaxed: the bytes and record are published by done_seq). */
-    _Alignas(64) atomic_ullong bump;
-    /* First error a worker met (negative errno), 0 if none; relaxed,
-     * read by the master after every done_seq acquire. */
-    atomic_int error;
-} shm_vod;
-
 typedef struct {
     uint32_t magic, version;
     int32_t master_pid;
     uint32_t workers;
     uint64_t bytes;
     uint64_t slots_off, slot_bytes;
-    uint64_t stack_off, stack_cap;   /* work stack: stack_cap octants */
+    uint64_t stack_off, stack_cap;   /* work stack: stack_cap tasks */
     uint64_t data_off, data_bytes;
 
-    /* The job input, written by the master before a job's first task (the
-     * task_seq release publishes it). */
+    /* The job, written by the master before a job's first task (the
+     * task_seq release publishes it): its kind's block in the data area
+     * (engine/kinds.h), where the kind keeps its input and shared state. */
     uint32_t gen;                    /* current job generation (master) */
-    grid_spec grid;
-    uint64_t tape_off, tape_bytes;
-    uint64_t tree_off;               /* octree arena */
-    uint32_t tree_cap;               /* cells */
+    uint32_t job_kind;               /* shm_kind */
+    uint64_t job_off, job_bytes;
 
     /* == gen when the master abandons the job.  Workers load it relaxed
      * between octants; the master's fence + wake makes sleepers see it. */
@@ -147,8 +123,6 @@ typedef struct {
      * set after they published something (Dekker, see above). */
     _Alignas(64) atomic_uint doorbell;
     atomic_int master_sleeping;      /* seq_cst, the Dekker flag */
-
-    _Alignas(64) shm_vod vod;
 } shm_header;
 
 typedef struct {

@@ -10,6 +10,13 @@
  * on a futex when there is nothing to do.  Workers sleep on their own futex
  * when idle.  The same workers then encode the VOD's bricks in parallel.
  *
+ * Inside, the engine is a core and job kinds (engine/kinds.h): the worker
+ * pool (pool.c: fork, pin, reap, re-fork), the scheduler of Figure 3
+ * (sched.c: queues, work stack, sleeping, deaths), and one file per kind
+ * (kind_implicit.c: this header's voxelization; kind_encode.c: its VOD
+ * bricks) that the core runs through master.h's interface without knowing
+ * which one it is.
+ *
  * One job at a time per engine; the engine outlives many jobs (the daemon
  * keeps one for its whole life, `vox` makes one per command).  Use it from
  * one thread, the one that created it.
@@ -29,11 +36,12 @@
  * taken are skipped (the kernel is deterministic), so the job still
  * succeeds.  The count is per octant, not per job: a second death while
  * the same octant is being handled (the first worker's and the re-run's:
- * the octant kills its workers) fails the job with -EIO, whereas deaths on
- * different octants of one job, however many, each only re-run their
- * octant.  A worker that dies while idle, or in the VOD phase (its bricks
- * are encoded by the caller instead), counts for nothing.  The default segment is 2 GiB of address space, at most half of
- * /dev/shm's free space; tmpfs gives pages only as they are touched.
+ * the octant kills its workers) fails the job (ENGINE_CRASHED), whereas
+ * deaths on different octants of one job, however many, each only re-run
+ * their octant.  A worker that dies while idle, or in the VOD phase (its
+ * bricks are encoded by the caller instead), counts for nothing.  The
+ * default segment is 2 GiB of address space, at most half of /dev/shm's
+ * free space; tmpfs gives pages only as they are touched.
  */
 #ifndef VOXD_ENGINE_H
 #define VOXD_ENGINE_H
@@ -92,6 +100,30 @@ typedef struct {
     int split_level;
 } engine_job;
 
+/* Why a job failed: the engine's reason, for a caller to act on (the
+ * daemon maps it to its error code) without decoding errno values. */
+typedef enum {
+    ENGINE_OK = 0,
+    ENGINE_CANCELLED,   /* the job's cancel flag was set */
+    ENGINE_BAD_JOB,     /* the job's description is invalid */
+    ENGINE_LIMIT,       /* over a size: shared memory (octree, work stack,
+                           bricks) or the VOD format's 4 GiB; the message
+                           says what to change */
+    ENGINE_CRASHED,     /* a task killed its worker twice */
+    ENGINE_SINK,        /* the sink refused the bytes (code: its error) */
+    ENGINE_FAULT,       /* the server's own: fork, memory, a worker that
+                           broke the protocol or failed */
+} engine_failure;
+
+typedef struct {
+    engine_failure failure;
+    int code;           /* the negative errno returned with it, 0 if none */
+    char message[256];  /* what happened and what to change; "" if none */
+} engine_error;
+
+/* "cancelled", "bad job", ...: for logs. */
+const char *engine_failure_name(engine_failure f);
+
 typedef struct {
     uint64_t voxels;
     uint64_t octants;        /* boxes tested (the same for every schedule and
@@ -103,7 +135,8 @@ typedef struct {
     uint32_t restarts;       /* workers that died and were forked again */
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
-    char error[256];         /* why engine_voxelize failed ("" if it did not) */
+    engine_failure failure;  /* why engine_voxelize failed (ENGINE_OK if not) */
+    char error[256];         /* ... in words ("" if it did not fail) */
 } engine_result;
 
 /* Must be called from a thread that outlives the engine: the workers get
@@ -127,9 +160,10 @@ int engine_worker_cpu(const engine *e, int i);
 int engine_check_workers(engine *e);
 
 /* Voxelize job; the octree stays in shared memory until the next job.
- * Returns 0, or -ECANCELED, -EINVAL (bad job), -ENOMEM (octree or work
- * stack full: r->error says what to raise), -EIO (an octant killed its
- * worker twice: r->error names it), or a worker's error; the engine is then
+ * Returns 0, or a negative errno with r->failure and r->error saying why:
+ * ENGINE_CANCELLED, ENGINE_BAD_JOB, ENGINE_LIMIT (octree or work stack
+ * full: the message says what to raise), ENGINE_CRASHED (an octant killed
+ * its worker twice: the message names it), ENGINE_FAULT; the engine is then
  * ready for the next job.  A worker that dies during a job is forked again
  * and its octant handed out again (its output is deterministic, so the
  * entries already taken are skipped); see Robustness above. */
@@ -140,12 +174,12 @@ octree *engine_octree(engine *e);
 /* Write the last job's octree as VOD, bricks encoded by the workers into
  * shared memory (what does not fit, or what a dying worker left undone, is
  * encoded by the caller's thread, which frees its encoder before
- * returning); the bytes are vod_write_octree()'s.  Returns 0, or -errno
- * with err saying why: -EFBIG with "...would pass 4 GiB..." when the file
- * is over the format's limit (err names what to change), -ENOSPC when
- * shared memory is too small, or the sink's own error as it returned it
- * (err then holds its strerror). */
+ * returning); the bytes are vod_write_octree()'s.  Returns 0, or a
+ * negative errno with err saying why: ENGINE_LIMIT when the file would
+ * pass the format's 4 GiB or shared memory is too small (the message names
+ * what to change), ENGINE_SINK with the sink's own error as the code,
+ * ENGINE_BAD_JOB (no octree, bad parameters), ENGINE_FAULT. */
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
-                     vod_stats *st, char *err, size_t errlen);
+                     vod_stats *st, engine_error *err);
 
 #endif

@@ -13,11 +13,9 @@
 
 #include "daemon.h"
 #include "expr.h"
-#include "job_meta.h"
 #include "log.h"
-#include "grid.h"
+#include "pipeline.h"
 #include "vod.h"
-#include "voxel.h"
 
 #define IDLE_CHECK_S 1 /* how often an idle engine thread looks for dead workers */
 
@@ -201,95 +199,74 @@ static int compile(vd_job *j, expr_tape **tape)
     return job_error(j, code, "expression: %s", xe.msg[0] ? xe.msg : strerror(-rc));
 }
 
-static void vod_setup(vod_params *v, const vd_job *j, const grid_spec *g, const char *meta)
+/* The daemon's error code for the engine's reason. */
+static int failure_code(const vd_job *j, const result_sink *rs, engine_failure f)
 {
-    vod_params_default(v);
-    v->channel = j->channel;
-    v->brick = j->brick;
-    v->comp = j->comp;
-    v->hash = j->hash;
-    v->metadata = meta;
-    for (int a = 0; a < 3; a++) {
-        v->volume[a] = g->res[a];
-        v->voxel_scale[a] = (float)g->vs;
-        v->origin[a] = (float)g->lo[a];
-    }
-}
-
-static int engine_code(vd_job *j, int rc)
-{
-    if (rc == -ECANCELED && j->cancel_code) return j->cancel_code;
-    switch (rc) {
-    case -EIO: return VOXD__ERROR_CODE__WORKER_CRASHED;
-    case -ENOMEM: case -ENOSPC: case -EFBIG: return VOXD__ERROR_CODE__LIMIT_EXCEEDED;
-    case -EINVAL: return VOXD__ERROR_CODE__INVALID_INPUT;
+    switch (f) {
+    case ENGINE_CANCELLED: return j->cancel_code ? j->cancel_code : VOXD__ERROR_CODE__CANCELLED;
+    case ENGINE_BAD_JOB: return VOXD__ERROR_CODE__INVALID_INPUT;
+    case ENGINE_LIMIT: return VOXD__ERROR_CODE__LIMIT_EXCEEDED;
+    case ENGINE_CRASHED: return VOXD__ERROR_CODE__WORKER_CRASHED;
+    case ENGINE_SINK: return rs->over ? VOXD__ERROR_CODE__LIMIT_EXCEEDED : VOXD__ERROR_CODE__INTERNAL;
     default: return VOXD__ERROR_CODE__INTERNAL;
     }
 }
 
-static int voxelize(vd_daemon *d, engine *e, vd_job *j, const expr_tape *tape,
-                    const grid_spec *g)
+static int job_failed(vd_job *j, const result_sink *rs, const pipeline_report *r)
 {
-    progress_ctx px = {d, j, e};
-    engine_job job = {.tape = tape, .grid = *g, .schedule = (engine_schedule)j->schedule,
-                      .progress = on_progress, .ud = &px, .cancel = &j->cancel};
-    engine_result r;
-    int rc = engine_voxelize(e, &job, &r);
-    j->t_voxelize = r.seconds;
-    j->voxels = r.voxels;
-    if (rc == 0) return 0;
-    int code = engine_code(j, rc);
-    if (code == VOXD__ERROR_CODE__WORKER_CRASHED)
+    const engine_error *err = &r->err;
+    int code = failure_code(j, rs, err->failure);
+    /* a cancel shows as the engine's, or as the sink's refusal */
+    if (err->failure == ENGINE_CANCELLED || (err->failure == ENGINE_SINK && j->cancel_code))
+        return vd_job_stopped(j), -1;
+    if (r->stage == PIPELINE_GRID) return job_error(j, code, "%s", err->message);
+    if (err->failure == ENGINE_CRASHED)
         return job_error(j, code, "this job kills its workers: %s; the daemon goes on",
-                         r.error);
-    if (rc == -ECANCELED) return vd_job_stopped(j), -1;
-    return job_error(j, code, "voxelization failed: %s", r.error[0] ? r.error : strerror(-rc));
-}
-
-static int write_result(engine *e, vd_job *j, const grid_spec *g)
-{
-    char meta[JOB_META_MAX], err[256] = "";
-    vod_params v;
-    job_meta m = {
-        .source = j->source, .source_len = j->source_len, .source_name = j->source_name,
-        .res = j->res, .grid = {g->res[0], g->res[1], g->res[2]},
-        .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
-    };
-    job_meta_format(meta, sizeof meta, &m);
-    vod_setup(&v, j, g, meta);
-    j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
-    if (j->fd < 0)
-        return job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
-                         strerror(errno));
-    result_sink rs = {j, 0};
-    vod_sink sink = {sink_write, &rs};
-    double t0 = vd_now();
-    int rc = engine_write_vod(e, &v, &sink, &j->st, err, sizeof err);
-    j->t_write = vd_now() - t0;
-    if (rc == 0) return 0;
-    int code = engine_code(j, rc);
-    /* -EFBIG is also the engine's for a file over VOD's 4 GiB (err says
-     * what to change): only the sink's is max_result_bytes. */
-    if (rs.over)
+                         err->message);
+    if (rs->over)
         return job_error(j, code,
                          "the result is over this server's max_result_bytes (%llu bytes); "
                          "ask for a lower res or a coarser output",
                          (unsigned long long)j->max_result_bytes);
-    if (rc == -ECANCELED) return vd_job_stopped(j), -1;
-    return job_error(j, code, "cannot write the VOD: %s", err[0] ? err : strerror(-rc));
+    if (r->stage == PIPELINE_VOXELIZE)
+        return job_error(j, code, "voxelization failed: %s", err->message);
+    return job_error(j, code, "cannot write the VOD: %s", err->message);
 }
 
 static void run_job(vd_daemon *d, engine *e, vd_job *j)
 {
     expr_tape *tape = NULL;
-    grid_spec g;
-    char err[256];
     if (compile(j, &tape)) return;
-    if (grid_make(j->lo, j->hi, j->res, &g, err, sizeof err)) {
-        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", err);
-    } else if (voxelize(d, e, j, tape, &g) == 0 && write_result(e, j, &g) == 0) {
-        j->code = 0;
+    j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
+    if (j->fd < 0) {
+        job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
+                  strerror(errno));
+        expr_tape_free(tape);
+        return;
     }
+    progress_ctx px = {d, j, e};
+    pipeline_job job = {
+        .kind = PIPELINE_IMPLICIT,
+        .implicit = {.tape = tape, .source = j->source, .source_len = j->source_len,
+                     .source_name = j->source_name},
+        .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
+        .res = j->res, .schedule = (engine_schedule)j->schedule,
+        .progress = on_progress, .ud = &px, .cancel = &j->cancel,
+    };
+    vod_params_default(&job.vod);
+    job.vod.channel = j->channel;
+    job.vod.brick = j->brick;
+    job.vod.comp = j->comp;
+    job.vod.hash = j->hash;
+    result_sink rs = {j, 0};
+    vod_sink sink = {sink_write, &rs};
+    pipeline_report r;
+    if (pipeline_run(e, &job, &sink, &r) == 0) j->code = 0;
+    else job_failed(j, &rs, &r);
+    j->t_voxelize = r.t_voxelize;
+    j->t_write = r.t_write;
+    j->voxels = r.voxels;
+    j->st = r.st;
     expr_tape_free(tape);
 }
 

@@ -3,10 +3,10 @@
  * A worker is forked by the engine before any job and lives across jobs.
  * It waits on its slot's futex until the master hands it a task (task_seq
  * moves), runs it, publishes the results in its 8-entry queue, marks the
- * task done (done_seq) and rings the master's doorbell.  It only reads the
- * job input (tape, grid, octree for the VOD phase) and writes its own slot,
- * its queue and, in the VOD phase, the records of the bricks it claimed.
- * See engine/shm.h for the layout and the sleeping protocol.
+ * task done (done_seq) and rings the master's doorbell.  The task's kind
+ * picks the kernel (work.h, engine/kinds.h); a worker reads the job's block
+ * and writes only its own slot, its queue and what its kind's block lets
+ * it.  See engine/shm.h for the layout and the sleeping protocol.
  */
 #ifndef VOXD_WORKER_H
 #define VOXD_WORKER_H

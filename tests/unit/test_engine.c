@@ -19,6 +19,7 @@
 
 #include "engine.h"
 #include "expr.h"
+#include "kinds.h"
 #include "octree.h"
 #include "shm.h"
 #include "subdiv.h"
@@ -329,6 +330,7 @@ Test(engine, cancel_then_next_job_is_correct)
                           .progress = on_progress, .ud = &w, .cancel = &cancel};
         engine_result r;
         cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED);
+        cr_assert_eq(r.failure, ENGINE_CANCELLED);
         cr_assert(strstr(r.error, "cancel"), "%s", r.error);
         cr_assert_null(engine_octree(e));
         /* cancelled before it starts */
@@ -499,7 +501,8 @@ static void kill_worker0(void *ud, const engine_progress *p)
 }
 
 /* The octant itself is the suspect when the worker re-running it dies too:
- * the second death on one octant fails the job (-EIO, the octant named),
+ * the second death on one octant fails the job (ENGINE_CRASHED, the
+ * octant named),
  * and the engine goes on with the next job. */
 Test(engine, an_octant_that_kills_its_worker_twice_fails_the_job)
 {
@@ -514,6 +517,7 @@ Test(engine, an_octant_that_kills_its_worker_twice_fails_the_job)
                       .progress = kill_worker0, .ud = &k};
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.error);
+    cr_assert_eq(r.failure, ENGINE_CRASHED);
     cr_assert_eq(k.n, 2);
     cr_assert_eq(r.restarts, 2);
     cr_assert(strstr(r.error, "octant (0,0,0) level 7 killed its worker twice"), "%s",
@@ -565,6 +569,7 @@ Test(engine, small_segments_give_clear_errors)
     engine_job job = {.tape = tape, .grid = g};
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM);
+    cr_assert_eq(r.failure, ENGINE_LIMIT);
     cr_assert(strstr(r.error, "octree needs more than") &&
               strstr(r.error, "raise the shared memory size"), "%s", r.error);
     cr_assert_null(engine_octree(e));
@@ -599,11 +604,15 @@ Test(engine, bad_arguments)
     engine_job job = {.tape = tape, .grid = g};
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -EINVAL);
+    cr_assert_eq(r.failure, ENGINE_BAD_JOB);
     cr_assert(strstr(r.error, "grid"), "%s", r.error);
     vod_params p;
     vod_params_default(&p);
     vod_sink sink = {NULL, NULL};
-    cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    engine_error ee;
+    cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, &ee), -EINVAL);
+    cr_assert_eq(ee.failure, ENGINE_BAD_JOB);
+    cr_assert(strstr(ee.message, "no octree"), "%s", ee.message);
     engine_destroy(e);
     expr_tape_free(tape);
 }
@@ -805,7 +814,8 @@ static void vod_same(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
     vod_stats st_a, st_b;
     char err[256] = "";
     cr_assert_eq(vod_write_octree(ref, &p, &sa, &st_a, err, sizeof err), 0, "%s", err);
-    cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, err, sizeof err), 0, "%s", err);
+    engine_error ee;
+    cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, &ee), 0, "%s", ee.message);
     cr_assert_eq(a.n, b.n, "sizes %zu vs %zu", a.n, b.n);
     cr_assert_eq(memcmp(a.p, b.p, a.n), 0, "VOD bytes differ");
     cr_assert_eq(st_a.crc32, st_b.crc32);
@@ -856,13 +866,15 @@ Test(engine, vod_zlib_bricks_encoded_by_the_master)
     for (int k = 0; k < 2; k++) vod_same(e, &ref.t, &g, 16, VOD_COMP_ZLIB, VOXEL_CH_SURFACE);
     int fd = shm_open(name, O_RDONLY, 0);
     cr_assert_geq(fd, 0);
-    void *map = mmap(NULL, sizeof(shm_header), PROT_READ, MAP_SHARED, fd, 0);
+    void *map = mmap(NULL, o.shm_bytes, PROT_READ, MAP_SHARED, fd, 0);
     close(fd);
     cr_assert_neq(map, MAP_FAILED);
     const shm_header *h = map;
-    cr_assert_gt(atomic_load(&h->vod.bump), h->vod.brick_cap,
+    cr_assert_eq(h->job_kind, SHM_KIND_ENCODE);
+    const encode_block *b = (const encode_block *)((const uint8_t *)map + h->job_off);
+    cr_assert_gt(atomic_load(&b->bump), b->brick_cap,
                  "the workers' bricks all fitted: the master encoded none");
-    munmap(map, sizeof(shm_header));
+    munmap(map, o.shm_bytes);
     engine_destroy(e);
     free(ref.arena);
     expr_tape_free(tape);
@@ -890,10 +902,12 @@ Test(engine, vod_sink_errors_are_the_sinks)
     for (int a = 0; a < 3; a++) p.volume[a] = g.res[a];
     int calls = 0;
     vod_sink sink = {failing_write, &calls};
-    char err[256] = "";
-    cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, err, sizeof err), -EFBIG);
+    engine_error ee;
+    cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, &ee), -EFBIG);
     cr_assert_eq(calls, 1);
-    cr_assert_str_eq(err, strerror(EFBIG));
+    cr_assert_eq(ee.failure, ENGINE_SINK);
+    cr_assert_eq(ee.code, -EFBIG);
+    cr_assert_str_eq(ee.message, strerror(EFBIG));
     engine_destroy(e);
     expr_tape_free(tape);
 }

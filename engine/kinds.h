@@ -1,0 +1,87 @@
+/* kinds — the kinds of job the engine runs, and what each keeps in the
+ * shared segment's data area.
+ *
+ * A kind is a pair: its master side (master/kind_<name>.c: set the job up
+ * here, seed the work stack, take what the workers return, progress,
+ * what a worker's death means, the result) and its worker side
+ * (worker/work_<name>.c: begin a job, run one task).  The core (the pool,
+ * the scheduler of Figure 3, the queues, the futexes, re-forking) serves
+ * every kind alike.  This header is their contract: the kind's number,
+ * its operations and record types, and its block in the data area, which
+ * the master writes before the job's first task (published by the
+ * task_seq release) and the workers read.
+ *
+ * Adding a kind: a number and a block here, one master file, one worker
+ * file, one entry in each side's table (master/kinds.c, worker/worker.c).
+ */
+#ifndef VOXD_KINDS_H
+#define VOXD_KINDS_H
+
+#include <stdatomic.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "grid.h"
+#include "shm.h"
+#include "vod.h"
+
+enum shm_kind {
+    SHM_KIND_CORE = 0,     /* the pool's own tasks (SHM_OP_EXIT) */
+    SHM_KIND_IMPLICIT = 1, /* F(x,y,z) = 0 by interval subdivision */
+    SHM_KIND_ENCODE = 2,   /* the VOD's bricks of the last job, in parallel */
+    SHM_KINDS
+};
+
+/* ---- implicit: Stolte–Kaufman subdivision of an expression ---- */
+
+enum implicit_op {
+    IMPLICIT_CHILDREN = 1, /* test the octant's children, return the kept */
+    IMPLICIT_SUBTREE = 2,  /* every voxel of the octant's subtree */
+};
+enum implicit_record {
+    IMPLICIT_OCTANTS = 1,  /* grid_octant: kept child octants */
+    IMPLICIT_VOXELS = 2,   /* grid_voxel: voxels, in preorder */
+};
+/* voxels per queue entry */
+#define IMPLICIT_BATCH (SHM_PAYLOAD_BYTES / sizeof(grid_voxel))
+
+typedef struct {
+    grid_spec grid;
+    uint64_t tape_off, tape_bytes;   /* the compiled expression */
+} implicit_block;
+
+/* The task argument of both operations: the octant. */
+static inline grid_octant implicit_octant(const shm_task *t)
+{
+    grid_octant o;
+    _Static_assert(sizeof o <= sizeof t->arg, "an octant fits a task");
+    memcpy(&o, t->arg, sizeof o);
+    return o;
+}
+
+/* ---- encode: the VOD bricks of the last implicit job's octree ---- */
+
+enum encode_op {
+    ENCODE_BRICKS = 1,     /* encode brick nodes until none is left */
+};
+
+typedef struct {
+    vod_layout L;
+    vod_params p;          /* metadata is NULL here: encoding does not use it */
+    uint32_t cells_used;
+    int32_t depth;
+    uint64_t cells_off, agg_off, nodes_off, recs_off, offs_off;
+    uint64_t n;            /* brick nodes */
+    uint64_t brick_off, brick_cap;
+    /* Next node index to encode: workers fetch_add chunks (relaxed: the
+     * node array was published by the task_seq release). */
+    _Alignas(64) atomic_ullong next;
+    /* Bump allocator in the brick area: workers fetch_add their encoded
+     * size (relaxed: the bytes and record are published by done_seq). */
+    _Alignas(64) atomic_ullong bump;
+    /* First error a worker met (negative errno), 0 if none; relaxed,
+     * read by the master after every done_seq acquire. */
+    atomic_int error;
+} encode_block;
+
+#endif

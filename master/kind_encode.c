@@ -1,0 +1,205 @@
+/* The encode kind's master side: the last implicit job's octree written as
+ * VOD, its bricks encoded by every worker in parallel into the segment.
+ * The block and its arrays are laid out behind the octree's used cells:
+ * the aggregate (u32 per cell), the brick nodes, their encoded records and
+ * offsets, then the brick bytes.  A worker's death or failure costs
+ * nothing but time: the bricks it left unrecorded are encoded here. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "master.h"
+
+typedef struct {
+    const vod_params *p;
+    vod_layout L;
+    vod_sink *sink;
+    vod_stats *st;
+    engine_error *err;
+} encode_job;
+
+static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
+
+static encode_block *block(engine *e)
+{
+    return shm_at(e->seg.base, e->h->job_off);
+}
+
+/* Lay the block and its arrays out behind the used cells and push one
+ * task per worker. */
+static int encode_setup(engine *e, void *job)
+{
+    encode_job *ej = job;
+    shm_header *h = e->h;
+    uint64_t end = h->data_off + h->data_bytes;
+    uint64_t cells_off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
+    uint64_t boff = align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
+    uint64_t agg = align64(boff + sizeof(encode_block));
+    uint64_t nodes = align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
+    if (nodes > end) goto full;
+    encode_block *b = shm_at(e->seg.base, boff);
+    e->tree.agg = shm_at(e->seg.base, agg);
+    vod_aggregate(&e->tree, ej->p->channel);
+    uint64_t n = vod_collect(&e->tree, &ej->L, NULL, 0);
+    b->recs_off = align64(nodes + n * sizeof(vod_node));
+    b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
+    b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
+    if (b->brick_off > end) goto full;
+    vod_collect(&e->tree, &ej->L, shm_at(e->seg.base, nodes), n);
+    memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
+    b->L = ej->L;
+    b->p = *ej->p;
+    b->p.metadata = NULL;
+    b->cells_used = e->tree.used;
+    b->depth = e->tree.depth;
+    b->cells_off = cells_off;
+    b->agg_off = agg;
+    b->nodes_off = nodes;
+    b->n = n;
+    b->brick_cap = end - b->brick_off;
+    /* relaxed: published to the workers by the task_seq release */
+    atomic_store_explicit(&b->next, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->error, 0, memory_order_relaxed);
+    h->job_off = boff;
+    h->job_bytes = sizeof *b;
+    shm_task t = {.kind = SHM_KIND_ENCODE, .op = ENCODE_BRICKS};
+    int rc = 0;
+    for (int i = 0; i < e->n && !rc; i++)
+        if (e->ms[i].pid > 0) rc = sched_push(e, &t);
+    return rc;
+full:
+    return sched_fail(e, ENGINE_LIMIT, -ENOSPC,
+                      "no room left in shared memory for the VOD bricks; "
+                      "raise its size (now %zu MiB)", e->seg.bytes >> 20);
+}
+
+static int encode_take(engine *e, int i, const shm_entry *en)
+{
+    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                      "worker %d sent an entry of type %u while encoding", i,
+                      en->type);
+}
+
+/* A worker's failure leaves its bricks unrecorded: encode_gather()
+ * encodes them here, so it needs no other handling. */
+static void encode_done(engine *e, int i, const shm_task *t, int error)
+{
+    (void)e, (void)i, (void)t, (void)error;
+}
+
+static int encode_rerun(engine *e, int i, const shm_task *t)
+{
+    (void)e, (void)i, (void)t;
+    return 0;
+}
+
+static void encode_describe(const shm_task *t, char *buf, size_t len)
+{
+    (void)t;
+    snprintf(buf, len, "brick encoding");
+}
+
+/* The records come from other processes: a missing (a worker died) or
+ * malformed one is encoded again here, into memory of our own. */
+static int encode_gather(engine *e, const vod_params *p, const uint8_t **data,
+                         uint8_t **own)
+{
+    encode_block *b = block(e);
+    const vod_node *nodes = shm_at(e->seg.base, b->nodes_off);
+    vod_encoded *recs = shm_at(e->seg.base, b->recs_off);
+    const uint64_t *offs = shm_at(e->seg.base, b->offs_off);
+    const uint8_t *bricks = shm_at(e->seg.base, b->brick_off);
+    size_t bound = vod_encode_bound(&b->L, p);
+    uint8_t *scratch = NULL;
+    int rc = 0;
+    for (uint64_t i = 0; i < b->n && !rc; i++) {
+        uint64_t off = offs[i];
+        uint32_t size = recs[i].size;
+        if (off < b->brick_cap && size <= bound && size <= b->brick_cap - off) {
+            data[i] = bricks + off;
+            continue;
+        }
+        if (!scratch && !(scratch = malloc(b->L.raw_bytes))) rc = -ENOMEM;
+        if (!rc && !(own[i] = malloc(bound))) rc = -ENOMEM;
+        if (!rc)
+            rc = vod_encode(&e->tree, &b->L, p, &nodes[i], scratch, own[i],
+                            bound, &recs[i]);
+        data[i] = own[i];
+    }
+    /* This thread encoded bricks: its cached deflate stream is this job's,
+     * freed now as vod_write_octree frees its own (a daemon's engine thread
+     * lives long, and an engine's caller need not know about the cache). */
+    if (scratch) vod_encode_cleanup();
+    free(scratch);
+    return rc;
+}
+
+/* vod_assemble says its own failures; a sink's has no message of its own. */
+static int assemble(engine *e, encode_job *ej, const uint8_t **data)
+{
+    encode_block *b = block(e);
+    char msg[sizeof ej->err->message] = "";
+    int rc = vod_assemble(&b->L, ej->p, b->n, shm_at(e->seg.base, b->nodes_off),
+                          shm_at(e->seg.base, b->recs_off), data, ej->sink,
+                          ej->st, msg, sizeof msg);
+    if (!rc) return 0;
+    return sched_fail(e, engine_vod_failure(rc, msg[0]), rc, "%s",
+                      msg[0] ? msg : strerror(-rc));
+}
+
+static int encode_finish(engine *e, void *job, int rc)
+{
+    encode_job *ej = job;
+    encode_block *b = block(e);
+    if (rc) goto out; /* set up failed: nothing was handed out */
+    /* relaxed: read after every worker's done_seq acquire */
+    uint64_t used = atomic_load_explicit(&b->bump, memory_order_relaxed);
+    sched_touched(e, b->brick_off + (used < b->brick_cap ? used : b->brick_cap));
+    const uint8_t **data = calloc(b->n ? b->n : 1, sizeof *data);
+    uint8_t **own = calloc(b->n ? b->n : 1, sizeof *own);
+    rc = data && own ? encode_gather(e, ej->p, data, own) : -ENOMEM;
+    if (rc) sched_fail(e, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    else rc = assemble(e, ej, data);
+    for (uint64_t i = 0; own && i < b->n; i++) free(own[i]);
+    free(own);
+    free(data);
+out:
+    *ej->err = e->err;
+    return rc;
+}
+
+const master_kind kind_encode = {
+    .name = "encode",
+    .id = SHM_KIND_ENCODE,
+    .setup = encode_setup,
+    .take = encode_take,
+    .done = encode_done,
+    .rerun = encode_rerun,
+    .describe = encode_describe,
+    .progress = NULL,
+    .finish = encode_finish,
+};
+
+/* A job of the encode kind; the checks that need no workers first. */
+int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
+                     vod_stats *st, engine_error *err)
+{
+    memset(err, 0, sizeof *err);
+    encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
+    int rc = -EINVAL;
+    if (!e->have_tree)
+        snprintf(err->message, sizeof err->message,
+                 "no octree to write: the last job failed or there was none");
+    else if (!(rc = vod_layout_make(p, e->tree.depth, &ej.L, err->message,
+                                    sizeof err->message)))
+        rc = vod_check_volume(&e->tree, p->volume, err->message,
+                              sizeof err->message);
+    if (rc) {
+        err->failure = ENGINE_BAD_JOB;
+        err->code = rc;
+        return rc;
+    }
+    return engine_run(e, &kind_encode, &ej, NULL);
+}

@@ -1,0 +1,257 @@
+/* The implicit kind's master side: an expression's surface voxelized by
+ * Figure 3's subdivision.  The job's block holds the grid and the tape;
+ * the octree grows in the data area behind it.  Tasks are octants: whole
+ * subtrees below the split level (or never, with the paper's schedule),
+ * else one octant whose kept children come back onto the work stack. */
+#include <errno.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <time.h>
+
+#include "master.h"
+
+typedef struct {
+    const engine_job *job;
+    engine_result *r;
+    int split;             /* subtrees at and below this level */
+    uint64_t done_vol, total_vol;
+    uint32_t pending[GRID_MAX_DEPTH + 1]; /* octants pushed, unfinished */
+    uint32_t kept[ENGINE_MAX_WORKERS];    /* octants the task sent back */
+    uint64_t stored;       /* voxels taken from the queues */
+} implicit_job;
+
+static uint64_t volume(int level) { return 1ull << (3 * level); }
+
+static const implicit_block *block(engine *e)
+{
+    return shm_at(e->seg.base, e->h->job_off);
+}
+
+static int push_octant(engine *e, implicit_job *ij, grid_octant o)
+{
+    shm_task t = {.kind = SHM_KIND_IMPLICIT,
+                  .op = ij->job->schedule == ENGINE_SCHED_PAPER || o.level > ij->split
+                            ? IMPLICIT_CHILDREN
+                            : IMPLICIT_SUBTREE};
+    memcpy(t.arg, &o, sizeof o);
+    int rc = sched_push(e, &t);
+    if (!rc) ij->pending[o.level]++;
+    return rc;
+}
+
+static int outside_res(engine *e, unsigned x, unsigned y, unsigned z)
+{
+    const uint32_t *res = block(e)->grid.res;
+    return x >= res[0] || y >= res[1] || z >= res[2];
+}
+
+/* Is (x, y, z) inside octant o? */
+static int inside(grid_octant o, unsigned x, unsigned y, unsigned z)
+{
+    unsigned n = 1u << o.level;
+    return x - o.x < n && y - o.y < n && z - o.z < n;
+}
+
+static int take_octants(engine *e, int i, const shm_entry *en)
+{
+    implicit_job *ij = e->job;
+    const shm_task *t = &e->ms[i].task;
+    grid_octant task = implicit_octant(t), o = ((const grid_octant *)en->payload)[0];
+    if (en->count != 1 || t->op != IMPLICIT_CHILDREN || o.level + 1 != task.level ||
+        !inside(task, o.x, o.y, o.z) || (o.x | o.y | o.z) & ((1u << o.level) - 1) ||
+        outside_res(e, o.x, o.y, o.z))
+        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                          "worker %d sent octant (%u,%u,%u) level %u, not a "
+                          "child of its task",
+                          i, o.x, o.y, o.z, o.level);
+    ij->kept[i]++;
+    return push_octant(e, ij, o);
+}
+
+static int take_voxels(engine *e, int i, const shm_entry *en)
+{
+    implicit_job *ij = e->job;
+    const shm_task *t = &e->ms[i].task;
+    grid_octant task = implicit_octant(t);
+    uint32_t n = en->count; /* read once: the worker's memory */
+    if (n == 0 || n > IMPLICIT_BATCH ||
+        (t->op == IMPLICIT_CHILDREN && (n != 1 || task.level != 1)))
+        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                          "worker %d sent a batch of %u voxels", i, n);
+    const grid_voxel *vox = (const grid_voxel *)en->payload;
+    for (uint32_t j = 0; j < n; j++) {
+        grid_voxel v = vox[j];
+        if (!inside(task, v.x, v.y, v.z) || outside_res(e, v.x, v.y, v.z) ||
+            v.value == 0)
+            return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                              "worker %d sent voxel (%u,%u,%u) outside its "
+                              "task", i, v.x, v.y, v.z);
+        ij->stored++;
+        if (octree_store(&e->tree, v.x, v.y, v.z, v.value))
+            return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+                              "the octree needs more than %u cells; raise the "
+                              "shared memory size (now %zu MiB)",
+                              e->tree.capacity, e->seg.bytes >> 20);
+    }
+    return 0;
+}
+
+static int implicit_take(engine *e, int i, const shm_entry *en)
+{
+    uint32_t type = en->type; /* read once: the worker's memory */
+    if (type == IMPLICIT_OCTANTS) return take_octants(e, i, en);
+    if (type == IMPLICIT_VOXELS) return take_voxels(e, i, en);
+    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                      "worker %d sent an entry of type %u", i, type);
+}
+
+static void implicit_done(engine *e, int i, const shm_task *t, int error)
+{
+    implicit_job *ij = e->job;
+    if (error)
+        sched_fail(e, ENGINE_FAULT, error, "worker %d failed: %s", i,
+                   strerror(-error));
+    int l = implicit_octant(t).level;
+    ij->pending[l]--;
+    if (t->op == IMPLICIT_SUBTREE || l == 1)
+        ij->done_vol += volume(l);
+    else
+        ij->done_vol += volume(l) - (uint64_t)ij->kept[i] * volume(l - 1);
+    ij->kept[i] = 0;
+}
+
+/* The kernel is deterministic: a re-run gives the same entries. */
+static int implicit_rerun(engine *e, int i, const shm_task *t)
+{
+    (void)e, (void)i, (void)t;
+    return 1;
+}
+
+static void implicit_describe(const shm_task *t, char *buf, size_t len)
+{
+    grid_octant o = implicit_octant(t);
+    snprintf(buf, len, "octant (%u,%u,%u) level %u", o.x, o.y, o.z, o.level);
+}
+
+static int top_pending(const implicit_job *ij)
+{
+    for (int l = GRID_MAX_DEPTH; l > 0; l--)
+        if (ij->pending[l]) return l;
+    return 0;
+}
+
+static void implicit_progress(engine *e, engine_progress *p)
+{
+    const implicit_job *ij = e->job;
+    double f = (double)ij->done_vol / (double)ij->total_vol;
+    p->fraction = f > 1.0 ? 1.0 : f;
+    p->level = top_pending(ij);
+    p->voxels = e->tree.voxels;
+}
+
+/* A daemon's engine lives long: give back to tmpfs what the last big job
+ * touched beyond the first keep bytes of the data area (kept warm for the
+ * usual jobs).  The job is about to overwrite all of it anyway. */
+static void release_pages(engine *e)
+{
+    uint64_t keep = (e->h->data_off + e->keep + 4095) / 4096 * 4096;
+    if (e->touched <= keep) return;
+    madvise(e->seg.base + keep, e->touched - keep, MADV_REMOVE);
+    e->touched = keep;
+}
+
+static int implicit_setup(engine *e, void *job)
+{
+    implicit_job *ij = job;
+    const engine_job *j = ij->job;
+    e->have_tree = 0;
+    if (!j->tape) return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
+    if (grid_check(&j->grid))
+        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's grid is invalid");
+    shm_header *h = e->h;
+    size_t tb = expr_tape_bytes(j->tape);
+    uint64_t end = h->data_off + h->data_bytes;
+    uint64_t tape_off = (h->data_off + sizeof(implicit_block) + 63) / 64 * 64;
+    uint64_t tree_off = (tape_off + tb + 63) / 64 * 64;
+    if (tree_off + 2 * sizeof(octree_cell) > end)
+        return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+                          "the expression (%zu bytes compiled) leaves no room "
+                          "for the octree; raise the shared memory size", tb);
+    uint64_t cap = (end - tree_off) / sizeof(octree_cell);
+    release_pages(e);
+    implicit_block *b = shm_at(e->seg.base, h->data_off);
+    b->grid = j->grid;
+    b->tape_off = tape_off;
+    b->tape_bytes = tb;
+    memcpy(shm_at(e->seg.base, tape_off), j->tape, tb);
+    h->job_off = h->data_off;
+    h->job_bytes = tree_off - h->data_off;
+    int depth = j->grid.depth;
+    octree_init(&e->tree, shm_at(e->seg.base, tree_off),
+                cap > UINT32_MAX ? UINT32_MAX : (uint32_t)cap, depth);
+    ij->total_vol = volume(depth);
+    ij->split = j->split_level > 0 ? j->split_level
+                : depth - 3 < 1    ? 1
+                : depth - 3 > 6    ? 6
+                                   : depth - 3;
+    return push_octant(e, ij, grid_root(&j->grid));
+}
+
+static void job_stats(engine *e, engine_result *r)
+{
+    uint64_t tested = 0, cpu = 0;
+    for (int i = 0; i < e->n; i++) {
+        shm_slot *s = pool_slot(e, i);
+        if (s->job_gen != e->h->gen) continue;
+        tested += s->job_tested;
+        cpu += s->job_cpu_ns;
+    }
+    r->octants = tested;
+    r->worker_cpu = (double)cpu * 1e-9;
+    r->restarts = e->restarts;
+}
+
+static int implicit_finish(engine *e, void *job, int rc)
+{
+    implicit_job *ij = job;
+    engine_result *r = ij->r;
+    job_stats(e, r);
+    if (e->tree.cells) /* octree_store clears whole blocks ahead */
+        sched_touched(e, (uint64_t)((uint8_t *)e->tree.cells - e->seg.base) +
+                             (uint64_t)e->tree.block_end * sizeof(octree_cell));
+    r->seconds = pool_now(CLOCK_MONOTONIC) - e->t0;
+    if (rc) {
+        r->failure = e->err.failure;
+        snprintf(r->error, sizeof r->error, "%s", e->err.message);
+        return rc;
+    }
+    e->have_tree = 1;
+    r->voxels = e->tree.voxels;
+    r->cells = e->tree.used;
+    r->duplicates = ij->stored - e->tree.voxels;
+    return 0;
+}
+
+const master_kind kind_implicit = {
+    .name = "implicit",
+    .id = SHM_KIND_IMPLICIT,
+    .setup = implicit_setup,
+    .take = implicit_take,
+    .done = implicit_done,
+    .rerun = implicit_rerun,
+    .describe = implicit_describe,
+    .progress = implicit_progress,
+    .finish = implicit_finish,
+};
+
+int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
+{
+    double c0 = pool_now(CLOCK_THREAD_CPUTIME_ID);
+    memset(r, 0, sizeof *r);
+    implicit_job ij = {.job = job, .r = r};
+    sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
+    int rc = engine_run(e, &kind_implicit, &ij, &w);
+    r->master_cpu = pool_now(CLOCK_THREAD_CPUTIME_ID) - c0;
+    return rc;
+}

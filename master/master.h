@@ -1,0 +1,124 @@
+/* master — the engine's inside: the state the pool, the scheduler and the
+ * kinds share, and the interface a kind's master side implements.
+ *
+ * A job runs as engine_run(e, kind, job, watch): the core resets its state,
+ * replaces dead workers, calls kind->setup (write the kind's block in the
+ * data area, push the first tasks), then runs Figure 3's loop: drain every
+ * busy worker's queue through kind->take, hand stack tasks to idle
+ * workers, sleep on the doorbell, replace workers that died (their task is
+ * handed out again if kind->rerun says so, skipping the entries taken; a
+ * second death on one task fails the job).  When the stack is empty and no
+ * worker is busy, or on a failure or a cancel (the workers are then told to
+ * drop the job and waited for), kind->finish produces the result.
+ */
+#ifndef VOXD_MASTER_H
+#define VOXD_MASTER_H
+
+#include <stdatomic.h>
+#include <sys/types.h>
+#include <time.h>
+
+#include "engine.h"
+#include "kinds.h"
+#include "shm.h"
+
+typedef struct {
+    pid_t pid;          /* 0: no worker */
+    int cpu;
+    unsigned seq;       /* the last task_seq given */
+    int busy;           /* a task given and not finished and drained */
+    shm_task task;      /* the current task */
+    uint32_t consumed;  /* entries of the current task taken */
+    int deaths;         /* workers that died on the current task */
+} mslot;
+
+typedef struct master_kind master_kind;
+
+/* What the caller of a job watches it with (all optional). */
+typedef struct {
+    void (*progress)(void *ud, const engine_progress *p);
+    void *ud;
+    /* Set to non-zero by anyone to stop the job.  Read with relaxed loads;
+     * nothing pairs with it. */
+    const atomic_int *cancel;
+} sched_watch;
+
+struct engine {
+    shm_seg seg;
+    shm_header *h;
+    int n;
+    mslot ms[ENGINE_MAX_WORKERS];
+    shm_task *stack;    /* the work stack, in the segment */
+    uint32_t sp, cap;
+    /* the running job */
+    const master_kind *kind;
+    void *job;          /* the kind's */
+    sched_watch watch;
+    int aborting;
+    int nbusy;
+    engine_error err;   /* the job's first failure */
+    uint32_t restarts;
+    double t0, last_progress, last_check;
+    /* the segment's pages */
+    uint64_t touched;   /* end of the data pages the last job touched */
+    uint64_t keep;      /* bytes of the data area kept between jobs */
+    /* the last implicit job's octree, for engine_octree and the encoder */
+    octree tree;
+    int have_tree;
+};
+
+struct master_kind {
+    const char *name;
+    uint32_t id;        /* shm_kind: the workers' side of the same kind */
+    /* Set the job up in the segment and push its first tasks; 0, or
+     * sched_fail's return. */
+    int (*setup)(engine *e, void *job);
+    /* Check and take one entry worker i published (untrusted); 0, or
+     * sched_fail's return. */
+    int (*take)(engine *e, int i, const shm_entry *en);
+    /* Worker i's task is over (finished and drained, or dropped after a
+     * death); error: the worker's negative errno, 0 if none. */
+    void (*done)(engine *e, int i, const shm_task *t, int error);
+    /* Worker i died holding task t: 1 to hand t out again, 0 to drop it. */
+    int (*rerun)(engine *e, int i, const shm_task *t);
+    /* Name task t for a message ("octant (1,2,3) level 4"). */
+    void (*describe)(const shm_task *t, char *buf, size_t len);
+    /* Fill the progress report (NULL: the kind reports none). */
+    void (*progress)(engine *e, engine_progress *p);
+    /* The job is over with rc (0 or a failure): produce the result. */
+    int (*finish)(engine *e, void *job, int rc);
+};
+
+extern const master_kind kind_implicit, kind_encode;
+
+/* ---- pool.c: the workers' lives ---- */
+
+double pool_now(clockid_t c);
+/* Fork worker i on its CPU; 0 or -errno with a message in err. */
+int pool_spawn(engine *e, int i, char *err, size_t errlen);
+/* Write task t into worker i's slot and wake it (the slot's mechanics;
+ * the scheduler's books are the caller's). */
+void pool_give(engine *e, int i, const shm_task *t, uint32_t skip);
+
+static inline shm_slot *pool_slot(engine *e, int i)
+{
+    return shm_slot_at(e->seg.base, (uint32_t)i);
+}
+
+/* ---- sched.c: Figure 3's loop, for any kind ---- */
+
+/* Run a job of kind k; returns kind->finish's result. */
+int engine_run(engine *e, const master_kind *k, void *job,
+               const sched_watch *watch);
+/* Record the job's failure (the first one is the one told) and return rc. */
+int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+/* The failure of a VOD writer's rc: its own when it said something
+ * (said), else the sink's. */
+engine_failure engine_vod_failure(int rc, int said);
+/* Push task t onto the work stack; 0 or sched_fail (stack full). */
+int sched_push(engine *e, const shm_task *t);
+/* Remember that the job touched the data area up to offset end. */
+void sched_touched(engine *e, uint64_t end);
+
+#endif

@@ -1,0 +1,135 @@
+/* One job from its description to a VOD sink: see pipeline.h. */
+#include "pipeline.h"
+
+#include <errno.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <time.h>
+
+#include "job_meta.h"
+#include "master.h"
+#include "subdiv.h"
+
+#define SERIAL_CELLS (1u << 27) /* 4 GiB of address space, not of memory */
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+__attribute__((format(printf, 4, 5))) static int fail(pipeline_report *r,
+                                                      engine_failure f, int rc,
+                                                      const char *fmt, ...)
+{
+    r->err.failure = f;
+    r->err.code = rc;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(r->err.message, sizeof r->err.message, fmt, ap);
+    va_end(ap);
+    return rc;
+}
+
+/* The job's VOD parameters: its geometry and metadata on the caller's
+ * choice of channel, brick, compression and hash. */
+static void vod_setup(vod_params *v, const pipeline_job *job, const grid_spec *g,
+                      char meta[JOB_META_MAX])
+{
+    job_meta m = {
+        .source = job->implicit.source, .source_len = job->implicit.source_len,
+        .source_name = job->implicit.source_name, .res = job->res,
+        .grid = {g->res[0], g->res[1], g->res[2]},
+        .lo = {job->lo[0], job->lo[1], job->lo[2]},
+        .hi = {job->hi[0], job->hi[1], job->hi[2]},
+    };
+    job_meta_format(meta, JOB_META_MAX, &m);
+    *v = job->vod;
+    v->metadata = meta;
+    for (int a = 0; a < 3; a++) {
+        v->volume[a] = g->res[a];
+        v->voxel_scale[a] = (float)g->vs;
+        v->origin[a] = (float)g->lo[a];
+    }
+}
+
+static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
+                      vod_sink *sink, pipeline_report *r)
+{
+    engine_job ej = {.tape = job->implicit.tape, .grid = r->grid,
+                     .schedule = job->schedule, .progress = job->progress,
+                     .ud = job->ud, .cancel = job->cancel};
+    engine_result er;
+    r->stage = PIPELINE_VOXELIZE;
+    int rc = engine_voxelize(e, &ej, &er);
+    r->voxels = er.voxels;
+    r->octants = er.octants;
+    r->restarts = er.restarts;
+    r->t_voxelize = er.seconds;
+    r->master_cpu = er.master_cpu;
+    r->worker_cpu = er.worker_cpu;
+    if (rc) return fail(r, er.failure, rc, "%s", er.error);
+    r->stage = PIPELINE_WRITE;
+    double t0 = now_s();
+    rc = engine_write_vod(e, v, sink, &r->st, &r->err);
+    r->t_write = now_s() - t0;
+    return rc;
+}
+
+/* The serial algorithm: its octree in a sparse private mapping, touched
+ * only as cells are handed out. */
+static int run_serial(const pipeline_job *job, const vod_params *v,
+                      vod_sink *sink, pipeline_report *r)
+{
+    size_t bytes = octree_arena_bytes(SERIAL_CELLS);
+    void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                       MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    r->stage = PIPELINE_VOXELIZE;
+    if (arena == MAP_FAILED)
+        return fail(r, ENGINE_FAULT, -errno, "cannot map the octree: %s",
+                    strerror(errno));
+    octree t;
+    octree_init(&t, arena, SERIAL_CELLS, r->grid.depth);
+    double t0 = now_s();
+    int rc = subdiv_serial(job->implicit.tape, &r->grid, &t);
+    r->t_voxelize = now_s() - t0;
+    r->voxels = t.voxels;
+    if (rc == -ENOMEM)
+        fail(r, ENGINE_LIMIT, rc, "the octree outgrew its 4 GiB arena");
+    else if (rc)
+        fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    if (!rc) {
+        r->stage = PIPELINE_WRITE;
+        t0 = now_s();
+        rc = vod_write_octree(&t, v, sink, &r->st, r->err.message,
+                              sizeof r->err.message);
+        r->t_write = now_s() - t0;
+        if (rc && !r->err.message[0])
+            snprintf(r->err.message, sizeof r->err.message, "%s", strerror(-rc));
+        if (rc) {
+            r->err.failure = engine_vod_failure(rc, r->err.message[0]);
+            r->err.code = rc;
+        }
+    }
+    munmap(arena, bytes);
+    return rc;
+}
+
+int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
+                 pipeline_report *r)
+{
+    memset(r, 0, sizeof *r);
+    r->stage = PIPELINE_GRID;
+    if (job->kind != PIPELINE_IMPLICIT || !job->implicit.tape)
+        return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression");
+    int rc = grid_make(job->lo, job->hi, job->res, &r->grid, r->err.message,
+                       sizeof r->err.message);
+    if (rc) return fail(r, ENGINE_BAD_JOB, rc, "%s", r->err.message);
+    char meta[JOB_META_MAX];
+    vod_params v;
+    vod_setup(&v, job, &r->grid, meta);
+    return e ? run_engine(e, job, &v, sink, r) : run_serial(job, &v, sink, r);
+}

@@ -1,0 +1,67 @@
+/* pipeline — one job from its description to a VOD sink and a report.
+ *
+ * The daemon, `vox voxelize` and the benchmarks all run a job through
+ * pipeline_run: the grid from the domain and resolution, the metadata,
+ * the voxelization (on an engine's workers, or the serial algorithm in the
+ * caller's thread), then the VOD written to the caller's sink.  So the
+ * bytes are the same wherever a job runs, by construction.
+ *
+ * A job kind that comes with its own description (meshes, CSG) adds its
+ * member to pipeline_job and its case to pipeline_run.
+ */
+#ifndef VOXD_PIPELINE_H
+#define VOXD_PIPELINE_H
+
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "engine.h"
+#include "expr.h"
+#include "grid.h"
+#include "vod.h"
+
+typedef enum {
+    PIPELINE_IMPLICIT = 1, /* F(x,y,z) = 0 */
+} pipeline_kind;
+
+typedef struct {
+    pipeline_kind kind;
+    struct {
+        const expr_tape *tape;    /* compiled by the caller (its messages) */
+        const char *source;       /* the expression's text, for the metadata */
+        size_t source_len;
+        const char *source_name;  /* its file's name, or NULL */
+    } implicit;
+    double lo[3], hi[3];          /* the domain */
+    uint32_t res;                 /* voxels along its longest axis */
+    engine_schedule schedule;
+    /* Channel, brick, compression, hash; the geometry and the metadata
+     * are the job's and filled in here. */
+    vod_params vod;
+    /* Watching it (all optional; progress only with an engine). */
+    void (*progress)(void *ud, const engine_progress *p);
+    void *ud;
+    const atomic_int *cancel;     /* see engine_job.cancel */
+} pipeline_job;
+
+typedef enum { PIPELINE_GRID, PIPELINE_VOXELIZE, PIPELINE_WRITE } pipeline_stage;
+
+typedef struct {
+    grid_spec grid;
+    uint64_t voxels;
+    uint64_t octants;             /* boxes tested (engine only) */
+    uint32_t restarts;            /* workers forked again (engine only) */
+    double t_voxelize, t_write;   /* wall seconds of the two stages */
+    double master_cpu, worker_cpu;
+    vod_stats st;
+    pipeline_stage stage;         /* the stage reached (that failed, if so) */
+    engine_error err;             /* why it failed */
+} pipeline_report;
+
+/* Run job; e NULL runs the serial algorithm in this thread.  Returns 0, or
+ * a negative errno with r->err saying why and r->stage where. */
+int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
+                 pipeline_report *r);
+
+#endif

@@ -1,0 +1,179 @@
+/* The engine's worker pool: CPUs, fork, pinning, giving a task to a slot,
+ * reaping; the engine's creation and destruction. */
+#include <errno.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "master.h"
+#include "worker.h"
+
+#define EXIT_WAIT_S 2.0               /* engine_destroy's patience */
+#define KEEP_BYTES ((size_t)64 << 20) /* default engine_opts.keep_bytes */
+
+double pool_now(clockid_t c)
+{
+    struct timespec ts;
+    clock_gettime(c, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+static int pick_cpus(engine *e, const engine_opts *o, char *err,
+                     size_t errlen)
+{
+    if (o->cpus && o->ncpus > 0) {
+        for (int i = 0; i < e->n; i++) {
+            int c = o->cpus[i % o->ncpus];
+            if (c < 0 || c >= CPU_SETSIZE) {
+                snprintf(err, errlen, "CPU %d is out of range 0..%d", c,
+                         CPU_SETSIZE - 1);
+                return -EINVAL;
+            }
+            e->ms[i].cpu = c;
+        }
+        return 0;
+    }
+    /* Automatic: worker i on the i-th CPU this process may run on. */
+    cpu_set_t set;
+    int list[CPU_SETSIZE], k = 0;
+    if (sched_getaffinity(0, sizeof set, &set) == 0)
+        for (int c = 0; c < CPU_SETSIZE; c++)
+            if (CPU_ISSET(c, &set)) list[k++] = c;
+    if (k == 0) list[k++] = 0;
+    for (int i = 0; i < e->n; i++) e->ms[i].cpu = list[i % k];
+    return 0;
+}
+
+int pool_spawn(engine *e, int i, char *err, size_t errlen)
+{
+    pid_t pid = fork();
+    if (pid < 0) {
+        int rc = -errno;
+        snprintf(err, errlen, "cannot fork worker %d: %s", i, strerror(-rc));
+        return rc;
+    }
+    if (pid == 0) worker_main(e->seg.base, (uint32_t)i);
+    e->ms[i].pid = pid;
+    pool_slot(e, i)->pid = pid;
+    pool_slot(e, i)->cpu = e->ms[i].cpu;
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    CPU_SET(e->ms[i].cpu, &set);
+    if (sched_setaffinity(pid, sizeof set, &set) != 0) {
+        int rc = -errno;
+        kill(pid, SIGKILL);
+        waitpid(pid, NULL, 0);
+        e->ms[i].pid = 0;
+        snprintf(err, errlen, "cannot pin worker %d to CPU %d: %s", i,
+                 e->ms[i].cpu, strerror(-rc));
+        return rc;
+    }
+    return 0;
+}
+
+void pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
+{
+    shm_slot *s = pool_slot(e, i);
+    mslot *m = &e->ms[i];
+    s->task = *t;
+    s->task_gen = e->h->gen;
+    s->task_skip = skip;
+    m->seq++;
+    /* release: publishes the task fields and the job's block to the
+     * worker's acquire load of task_seq. */
+    atomic_store_explicit(&s->task_seq, m->seq, memory_order_release);
+    shm_wake_if_sleeping(&s->wake, &s->sleeping);
+}
+
+static void reap_all(engine *e)
+{
+    double deadline = pool_now(CLOCK_MONOTONIC) + EXIT_WAIT_S;
+    for (;;) {
+        int left = 0;
+        for (int i = 0; i < e->n; i++) {
+            pid_t pid = e->ms[i].pid;
+            if (pid <= 0) continue;
+            pid_t r = waitpid(pid, NULL, WNOHANG);
+            if (r == pid || (r < 0 && errno == ECHILD)) e->ms[i].pid = 0;
+            else left++;
+        }
+        if (!left) return;
+        if (pool_now(CLOCK_MONOTONIC) > deadline) break;
+        struct timespec ms = {0, 1000000};
+        nanosleep(&ms, NULL);
+    }
+    for (int i = 0; i < e->n; i++) {
+        if (e->ms[i].pid <= 0) continue;
+        kill(e->ms[i].pid, SIGKILL);
+        waitpid(e->ms[i].pid, NULL, 0);
+        e->ms[i].pid = 0;
+    }
+}
+
+void engine_destroy(engine *e)
+{
+    static const shm_task exit_task = {.kind = SHM_KIND_CORE, .op = SHM_OP_EXIT};
+    if (!e) return;
+    if (e->seg.base) {
+        for (int i = 0; i < e->n; i++) {
+            if (e->ms[i].pid <= 0) continue;
+            if (e->ms[i].busy) kill(e->ms[i].pid, SIGKILL);
+            else pool_give(e, i, &exit_task, 0);
+        }
+        reap_all(e);
+        shm_destroy(&e->seg);
+    }
+    free(e);
+}
+
+int engine_create(const engine_opts *o, engine **out, char *err,
+                  size_t errlen)
+{
+    *out = NULL;
+    if (!o || o->workers < 1 || o->workers > ENGINE_MAX_WORKERS) {
+        snprintf(err, errlen, "the number of workers must be 1..%d (got %d)",
+                 ENGINE_MAX_WORKERS, o ? o->workers : 0);
+        return -EINVAL;
+    }
+    engine *e = calloc(1, sizeof *e);
+    if (!e) return -ENOMEM;
+    e->n = o->workers;
+    e->keep = o->keep_bytes ? o->keep_bytes : KEEP_BYTES;
+    int rc = pick_cpus(e, o, err, errlen);
+    if (!rc)
+        rc = shm_create(&e->seg, o->shm_name, o->shm_bytes, (uint32_t)e->n,
+                        err, errlen);
+    if (rc) {
+        free(e);
+        return rc;
+    }
+    e->h = shm_hdr(e->seg.base);
+    e->stack = shm_at(e->seg.base, e->h->stack_off);
+    e->cap = (uint32_t)e->h->stack_cap;
+    for (int i = 0; i < e->n && !rc; i++) rc = pool_spawn(e, i, err, errlen);
+    if (rc) {
+        engine_destroy(e);
+        return rc;
+    }
+    *out = e;
+    return 0;
+}
+
+int engine_workers(const engine *e) { return e->n; }
+
+int engine_worker_pid(const engine *e, int i)
+{
+    return i >= 0 && i < e->n ? (int)e->ms[i].pid : -1;
+}
+
+int engine_worker_cpu(const engine *e, int i)
+{
+    return i >= 0 && i < e->n ? e->ms[i].cpu : -1;
+}
+
+octree *engine_octree(engine *e) { return e->have_tree ? &e->tree : NULL; }

@@ -1,0 +1,55 @@
+/* The core's services to a worker's kernels: the queue output of Figure 3
+ * (one entry at a time, sleeping while the 8 entries are full). */
+#include "work.h"
+
+#include <errno.h>
+#include <unistd.h>
+
+void work_check_parent(const work_ctx *w)
+{
+    if (getppid() != w->h->master_pid) _exit(1);
+}
+
+void work_ring_master(work_ctx *w)
+{
+    shm_wake_if_sleeping(&w->h->doorbell, &w->h->master_sleeping);
+}
+
+int work_aborted(const work_ctx *w)
+{
+    /* relaxed: a flag checked between records; the master's fence and
+     * wake (shm_wake_if_sleeping) reach a worker that sleeps. */
+    return atomic_load_explicit(&w->h->abort_gen, memory_order_relaxed) ==
+           w->task_gen;
+}
+
+shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
+{
+    shm_slot *s = w->s;
+    while (queue_space(&s->q) == 0) {
+        if (work_aborted(w)) return NULL;
+        unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
+        if (queue_space(&s->q) == 0 && !work_aborted(w))
+            shm_futex_wait(&s->wake, v, WORK_WAIT_NS);
+        shm_sleep_end(&s->sleeping);
+        work_check_parent(w);
+    }
+    shm_entry *en = &s->ent[queue_head(&s->q)];
+    en->kind = (uint16_t)s->task.kind;
+    en->type = type;
+    en->count = 0;
+    return en;
+}
+
+/* A re-run after a death skips the entries the master already has: the
+ * kernel's output is deterministic. */
+int work_entry_end(work_ctx *w)
+{
+    if (w->skip) {
+        w->skip--;
+    } else {
+        queue_publish(&w->s->q);
+        work_ring_master(w);
+    }
+    return work_aborted(w) ? -ECANCELED : 0;
+}

@@ -1,0 +1,62 @@
+/* work — what a worker's kernels see: the worker's context, the interface
+ * each job kind implements on the worker side, and the core's services
+ * for handing results back (the slot's 8-entry queue).
+ *
+ * The core (worker.c) waits for a task, finds its kind in the table, calls
+ * the kind's begin() on the kind's first task of a job generation, then
+ * run(); it publishes done_seq when run() returns.  A kernel hands results
+ * back with work_entry_begin() / work_entry_end(): the entry is the queue
+ * element the master reads once published; on a re-run after a death the
+ * core skips the entries the master already took (kernels are
+ * deterministic), so a kernel never needs to know.
+ */
+#ifndef VOXD_WORK_H
+#define VOXD_WORK_H
+
+#include <stdint.h>
+
+#include "kinds.h"
+#include "shm.h"
+
+#define WORK_WAIT_NS 1000000000L /* waits re-check the parent once a second */
+
+typedef struct work_ctx {
+    uint8_t *base;           /* the segment */
+    shm_header *h;
+    shm_slot *s;             /* this worker's slot */
+    uint32_t task_gen;       /* the running task's job generation */
+    uint32_t skip;           /* entries of the task still to skip */
+    uint32_t gen;            /* job generation the counters are for */
+    uint64_t cpu0;           /* CPU time at the job's first task */
+    uint32_t begun[SHM_KINDS]; /* job generation each kind was begun for */
+    void *state[SHM_KINDS];    /* each kind's state, across jobs */
+} work_ctx;
+
+typedef struct {
+    const char *name;
+    /* First task of a job of this kind: read the kind's block, set up
+     * *state (kept across jobs; NULL at first).  0 or a negative errno. */
+    int (*begin)(work_ctx *w, void **state);
+    /* Run task t.  0, -ECANCELED when the job was abandoned, or a
+     * negative errno (the master fails the job with it). */
+    int (*run)(work_ctx *w, void *state, const shm_task *t);
+    /* The worker exits: free *state. */
+    void (*free)(void *state);
+} work_kind;
+
+extern const work_kind work_implicit, work_encode;
+
+/* Exit at once when the master is gone (checked after every wait). */
+void work_check_parent(const work_ctx *w);
+/* Ring the master's doorbell (after publishing something). */
+void work_ring_master(work_ctx *w);
+/* The job was abandoned (the master's abort_gen). */
+int work_aborted(const work_ctx *w);
+/* The queue element to fill next, as an entry of `type` with count 0,
+ * waiting while the queue is full; NULL when the job was abandoned. */
+shm_entry *work_entry_begin(work_ctx *w, uint16_t type);
+/* Publish the entry being filled; -ECANCELED when the job was abandoned
+ * meanwhile, else 0. */
+int work_entry_end(work_ctx *w);
+
+#endif

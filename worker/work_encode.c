@@ -1,0 +1,109 @@
+/* The encode kind's worker side: VOD bricks of the last job's octree,
+ * encoded into the shared brick area.  Workers claim nodes in chunks from
+ * the block's counter, so they share the work whatever its shape. */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "work.h"
+
+#define ENCODE_CHUNK 8u /* brick nodes claimed at a time */
+
+typedef struct {
+    uint8_t *scratch, *out;
+    size_t scratch_bytes, out_bytes;
+} encode_state;
+
+static void encode_free(void *state)
+{
+    encode_state *st = state;
+    if (!st) return;
+    free(st->scratch);
+    free(st->out);
+    free(st);
+}
+
+static int grow(uint8_t **p, size_t *have, size_t want)
+{
+    if (*have >= want) return 0;
+    uint8_t *n = realloc(*p, want);
+    if (!n) return -ENOMEM;
+    *p = n;
+    *have = want;
+    return 0;
+}
+
+/* Scratch for a brick's raw data and its encoding, kept across jobs. */
+static int encode_begin(work_ctx *w, void **state)
+{
+    encode_state *st = *state;
+    if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
+    const encode_block *b = shm_at(w->base, w->h->job_off);
+    int rc = grow(&st->scratch, &st->scratch_bytes, b->L.raw_bytes);
+    if (!rc) rc = grow(&st->out, &st->out_bytes, vod_encode_bound(&b->L, &b->p));
+    return rc;
+}
+
+static void encode_fail(encode_block *b, int rc)
+{
+    int zero = 0;
+    /* relaxed: the master reads it after acquiring done_seq */
+    atomic_compare_exchange_strong_explicit(&b->error, &zero, rc,
+                                            memory_order_relaxed,
+                                            memory_order_relaxed);
+}
+
+/* Encode node i into the shared brick area. */
+static int encode_one(work_ctx *w, encode_state *st, encode_block *b,
+                      const octree *t, uint64_t i)
+{
+    const vod_node *nodes = shm_at(w->base, b->nodes_off);
+    vod_encoded *recs = shm_at(w->base, b->recs_off);
+    uint64_t *offs = shm_at(w->base, b->offs_off);
+    vod_encoded rec;
+    int rc = vod_encode(t, &b->L, &b->p, &nodes[i], st->scratch, st->out,
+                        st->out_bytes, &rec);
+    if (rc) return rc;
+    /* relaxed: only the uniqueness of the ranges matters; the bytes are
+     * published to the master by the done_seq release. */
+    uint64_t off = atomic_fetch_add_explicit(&b->bump, rec.size,
+                                             memory_order_relaxed);
+    /* Full: leave the node unrecorded, the master encodes it itself. */
+    if (off > b->brick_cap || rec.size > b->brick_cap - off) return 0;
+    memcpy((uint8_t *)shm_at(w->base, b->brick_off) + off, st->out, rec.size);
+    recs[i] = rec;
+    offs[i] = off;
+    return 0;
+}
+
+static int encode_run(work_ctx *w, void *state, const shm_task *t)
+{
+    encode_block *b = shm_at(w->base, w->h->job_off);
+    if (t->op != ENCODE_BRICKS) return -EINVAL;
+    octree tree;
+    octree_view(&tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
+    tree.agg = shm_at(w->base, b->agg_off);
+    for (;;) {
+        /* relaxed: a counter that hands out disjoint chunks */
+        uint64_t i0 = atomic_fetch_add_explicit(&b->next, ENCODE_CHUNK,
+                                                memory_order_relaxed);
+        if (i0 >= b->n) return 0;
+        uint64_t end = i0 + ENCODE_CHUNK < b->n ? i0 + ENCODE_CHUNK : b->n;
+        for (uint64_t i = i0; i < end; i++) {
+            /* relaxed: stop early once anybody failed */
+            if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
+            int rc = encode_one(w, state, b, &tree, i);
+            if (rc) {
+                encode_fail(b, rc);
+                return rc;
+            }
+        }
+    }
+}
+
+const work_kind work_encode = {
+    .name = "encode",
+    .begin = encode_begin,
+    .run = encode_run,
+    .free = encode_free,
+};
