@@ -79,6 +79,21 @@ static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
     return rc;
 }
 
+/* The sink as the serial writer sees it: what the caller's sink said is
+ * the sink's failure, whatever message the writer puts around it. */
+typedef struct {
+    vod_sink *inner;
+    int rc;
+} watched_sink;
+
+static int watched_write(void *ud, const void *buf, size_t n)
+{
+    watched_sink *w = ud;
+    int rc = w->inner->write(w->inner->ud, buf, n);
+    if (rc) w->rc = rc;
+    return rc;
+}
+
 /* The serial algorithm: its octree in a sparse private mapping, touched
  * only as cells are handed out. */
 static int run_serial(const pipeline_job *job, const vod_params *v,
@@ -103,16 +118,16 @@ static int run_serial(const pipeline_job *job, const vod_params *v,
         fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
     if (!rc) {
         r->stage = PIPELINE_WRITE;
+        watched_sink w = {sink, 0};
+        vod_sink ws = {watched_write, &w};
+        char err[sizeof r->err.message] = "";
         t0 = now_s();
-        rc = vod_write_octree(&t, v, sink, &r->st, r->err.message,
-                              sizeof r->err.message);
+        rc = vod_write_octree(&t, v, &ws, &r->st, err, sizeof err);
         r->t_write = now_s() - t0;
-        if (rc && !r->err.message[0])
-            snprintf(r->err.message, sizeof r->err.message, "%s", strerror(-rc));
-        if (rc) {
-            r->err.failure = engine_vod_failure(rc, r->err.message[0]);
-            r->err.code = rc;
-        }
+        if (rc && w.rc == rc)
+            fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
+        else if (rc)
+            fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
     }
     munmap(arena, bytes);
     return rc;
@@ -125,9 +140,9 @@ int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
     r->stage = PIPELINE_GRID;
     if (job->kind != PIPELINE_IMPLICIT || !job->implicit.tape)
         return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression");
-    int rc = grid_make(job->lo, job->hi, job->res, &r->grid, r->err.message,
-                       sizeof r->err.message);
-    if (rc) return fail(r, ENGINE_BAD_JOB, rc, "%s", r->err.message);
+    char err[sizeof r->err.message];
+    int rc = grid_make(job->lo, job->hi, job->res, &r->grid, err, sizeof err);
+    if (rc) return fail(r, ENGINE_BAD_JOB, rc, "%s", err);
     char meta[JOB_META_MAX];
     vod_params v;
     vod_setup(&v, job, &r->grid, meta);
