@@ -1,4 +1,4 @@
-/* vod — brick-octree VOD files (../shared/spec/VOD.md), written and read.
+/* vod — brick-octree VOD files (docs/vod-format.md), written and read.
  *
  * Writing happens in three phases so that the middle one can run in
  * parallel in the worker processes:

@@ -1,4 +1,4 @@
-/* VOD writer (../shared/spec/VOD.md): plan (layout, aggregate, collect),
+/* VOD writer (docs/vod-format.md): plan (layout, aggregate, collect),
  * encode bricks, assemble the file.  See vod.h for the three phases. */
 #include "vod.h"
 
