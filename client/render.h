@@ -1,5 +1,5 @@
 /* render — direct visualization of voxels as shaded splats (section 6 and
- * Figure 6 of papers/stolte-kaufman-*: every voxel is a point drawn with
+ * Figure 6 of Stolte & Kaufman: every voxel is a point drawn with
  * its normal).
  *
  * Each voxel becomes a screen-aligned rectangle: the bounding rectangle of

@@ -1,6 +1,6 @@
 /* expr — the expression language for F(x,y,z) and its compiled tape.
  *
- * Source language (see README "Expressions"):
+ * Source language (see docs/expressions.md):
  *   numbers, x y z, r theta phi (spherical: theta = atan2(y,x), phi = angle from +z),
  *   + - * / ^, unary minus, parentheses, pi,
  *   sin cos tan asin acos atan atan2 exp log sqrt abs min max pow blend(d,R),

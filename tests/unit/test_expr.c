@@ -201,7 +201,7 @@ Test(expr_parse, named_values_and_comments)
     cr_expect(close_to(eval_src("R = 0.5; c = R*2; c + x", x, y, z), 1 + x, 1e-15));
     cr_expect(close_to(eval_src("_a1 = 2; A1 = 3; _a1 * A1", x, y, z), 6, 0));
     cr_expect(close_to(eval_src("a=x; b=a; c=b; c*c", x, y, z), x * x, 0));
-    /* the README's Scene 1 style */
+    /* the Scene 1 style of docs/expressions.md */
     const char *s1 = "R = 0.5;\n"
                      "a = blend(sqrt((x-0.3)^2 + y^2 + z^2), R);\n"
                      "b = blend(sqrt((x+0.3)^2 + y^2 + z^2), R);\n"
