@@ -160,3 +160,54 @@ clean:
 	rm -rf build
 
 -include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d
+
+# ---------------------------------------------------------------- install
+# make install [PREFIX=/usr/local] [DESTDIR=]: vox in PREFIX/bin; voxd, a
+# system daemon, in PREFIX/sbin; the manual pages vox(1) and voxd(8); the
+# systemd unit in PREFIX/lib/systemd/system with its paths set to the
+# install's; the documentation in PREFIX/share/doc/voxd; and the commented
+# configuration in SYSCONFDIR/voxd/voxd.conf, never over an existing one.
+# SYSCONFDIR is /etc whatever the prefix: it is where voxd and vox look for
+# the configuration by default.  make uninstall removes all of it, the
+# configuration only while it is still the one shipped (an edited one stays).
+BINDIR     ?= $(PREFIX)/bin
+SBINDIR    ?= $(PREFIX)/sbin
+MANDIR     ?= $(PREFIX)/share/man
+DOCDIR     ?= $(PREFIX)/share/doc/voxd
+UNITDIR    ?= $(PREFIX)/lib/systemd/system
+SYSCONFDIR ?= /etc
+INSTALL    ?= install
+DOC_FILES  := $(wildcard docs/*.md docs/*.png)
+CONF_DEST   = $(DESTDIR)$(SYSCONFDIR)/voxd/voxd.conf
+
+.PHONY: install uninstall
+install: all
+	$(INSTALL) -d "$(DESTDIR)$(BINDIR)" "$(DESTDIR)$(SBINDIR)" "$(DESTDIR)$(MANDIR)/man1" \
+	  "$(DESTDIR)$(MANDIR)/man8" "$(DESTDIR)$(UNITDIR)" "$(DESTDIR)$(DOCDIR)/docs" \
+	  "$(DESTDIR)$(SYSCONFDIR)/voxd"
+	$(INSTALL) -m 755 $(BUILD)/vox "$(DESTDIR)$(BINDIR)/vox"
+	$(INSTALL) -m 755 $(BUILD)/voxd "$(DESTDIR)$(SBINDIR)/voxd"
+	$(INSTALL) -m 644 docs/man/vox.1 "$(DESTDIR)$(MANDIR)/man1/vox.1"
+	$(INSTALL) -m 644 docs/man/voxd.8 "$(DESTDIR)$(MANDIR)/man8/voxd.8"
+	sed -e 's|/usr/local/sbin/voxd|$(SBINDIR)/voxd|g' \
+	    -e 's|/etc/voxd/voxd.conf|$(SYSCONFDIR)/voxd/voxd.conf|g' \
+	    -e 's|/usr/local/share/doc/voxd|$(DOCDIR)|g' config/voxd.service >$(BUILD)/voxd.service
+	$(INSTALL) -m 644 $(BUILD)/voxd.service "$(DESTDIR)$(UNITDIR)/voxd.service"
+	$(INSTALL) -m 644 README.md "$(DESTDIR)$(DOCDIR)/README.md"
+	$(INSTALL) -m 644 $(DOC_FILES) "$(DESTDIR)$(DOCDIR)/docs/"
+	@if [ -e "$(CONF_DEST)" ]; then \
+	  echo "install: keeping the existing $(CONF_DEST) (the shipped one is config/voxd.conf)"; \
+	else echo "$(INSTALL) -m 644 config/voxd.conf $(CONF_DEST)"; \
+	  $(INSTALL) -m 644 config/voxd.conf "$(CONF_DEST)"; fi
+
+uninstall:
+	rm -f "$(DESTDIR)$(BINDIR)/vox" "$(DESTDIR)$(SBINDIR)/voxd" \
+	  "$(DESTDIR)$(MANDIR)/man1/vox.1" "$(DESTDIR)$(MANDIR)/man8/voxd.8" \
+	  "$(DESTDIR)$(UNITDIR)/voxd.service" "$(DESTDIR)$(DOCDIR)/README.md" \
+	  $(DOC_FILES:docs/%="$(DESTDIR)$(DOCDIR)/docs/%")
+	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" 2>/dev/null || true
+	@if cmp -s config/voxd.conf "$(CONF_DEST)"; then \
+	  echo "rm -f $(CONF_DEST)"; rm -f "$(CONF_DEST)"; \
+	  rmdir "$(DESTDIR)$(SYSCONFDIR)/voxd" 2>/dev/null || true; \
+	elif [ -e "$(CONF_DEST)" ]; then \
+	  echo "uninstall: keeping $(CONF_DEST): it differs from the shipped config/voxd.conf"; fi
