@@ -5,7 +5,7 @@
 set -e
 PKGS="build-essential pkg-config zlib1g-dev libpng-dev libxxhash-dev libuv1-dev \
 libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev \
-valgrind python3 procps"
+valgrind python3 procps groff-base"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
