@@ -56,8 +56,8 @@ LIB_SRC ?= $(wildcard $(MODULES:%=%/*.c))
 LIB_SRC := $(filter-out client/vox.c server/voxd.c,$(LIB_SRC))
 # libvox, the client library: only what a client needs (vox.h, framing,
 # the protocol), an archive of its own with a pkg-config file.
-LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c common/*.c)
-LIBVOX_OBJ := $(LIBVOX_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
+LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c
+LIBVOX_OBJ = $(LIBVOX_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIBVOX     := $(BUILD)/libvox.a
 PROTO   := $(wildcard proto/*.proto)
 PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
@@ -93,6 +93,8 @@ $(LIB): $(LIB_OBJ)
 $(LIBVOX): $(LIBVOX_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
+# The prefix is the one given to make install (the .pc file is rewritten
+# there); the build's copy names the default.
 $(BUILD)/libvox.pc: libvox/libvox.pc.in
 	sed -e 's|@PREFIX@|$(PREFIX)|' $< >$@
 
@@ -195,6 +197,10 @@ install: all
 	$(INSTALL) -m 644 $(BUILD)/voxd.service "$(DESTDIR)$(UNITDIR)/voxd.service"
 	$(INSTALL) -m 644 README.md "$(DESTDIR)$(DOCDIR)/README.md"
 	$(INSTALL) -m 644 $(DOC_FILES) "$(DESTDIR)$(DOCDIR)/docs/"
+	$(INSTALL) -d "$(DESTDIR)$(PREFIX)/lib/pkgconfig" "$(DESTDIR)$(PREFIX)/include"
+	$(INSTALL) -m 644 $(LIBVOX) "$(DESTDIR)$(PREFIX)/lib/libvox.a"
+	$(INSTALL) -m 644 libvox/vox.h "$(DESTDIR)$(PREFIX)/include/vox.h"
+	sed -e 's|@PREFIX@|$(PREFIX)|' libvox/libvox.pc.in >"$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc"
 	@if [ -e "$(CONF_DEST)" ]; then \
 	  echo "install: keeping the existing $(CONF_DEST) (the shipped one is config/voxd.conf)"; \
 	else echo "$(INSTALL) -m 644 config/voxd.conf $(CONF_DEST)"; \
@@ -204,6 +210,8 @@ uninstall:
 	rm -f "$(DESTDIR)$(BINDIR)/vox" "$(DESTDIR)$(SBINDIR)/voxd" \
 	  "$(DESTDIR)$(MANDIR)/man1/vox.1" "$(DESTDIR)$(MANDIR)/man8/voxd.8" \
 	  "$(DESTDIR)$(UNITDIR)/voxd.service" "$(DESTDIR)$(DOCDIR)/README.md" \
+	  "$(DESTDIR)$(PREFIX)/lib/libvox.a" "$(DESTDIR)$(PREFIX)/include/vox.h" \
+	  "$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc" \
 	  $(DOC_FILES:docs/%="$(DESTDIR)$(DOCDIR)/docs/%")
 	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" 2>/dev/null || true
 	@if cmp -s config/voxd.conf "$(CONF_DEST)"; then \

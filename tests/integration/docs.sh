@@ -200,7 +200,8 @@ mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$RO
 check "make install DESTDIR PREFIX=/usr" mk install DESTDIR="$R" PREFIX=/usr
 installed="usr/bin/vox usr/sbin/voxd usr/share/man/man1/vox.1 usr/share/man/man8/voxd.8
 usr/lib/systemd/system/voxd.service etc/voxd/voxd.conf usr/share/doc/voxd/README.md
-usr/share/doc/voxd/docs/vod-format.md"
+usr/share/doc/voxd/docs/vod-format.md usr/lib/libvox.a usr/include/vox.h
+usr/lib/pkgconfig/libvox.pc"
 missing=""
 for f in $installed; do [ -f "$R/$f" ] || missing="$missing $f"; done
 if [ -z "$missing" ]; then pass "make install installs every file"
@@ -241,6 +242,32 @@ if [ "$left" = "./etc/voxd/voxd.conf" ]; then pass "make uninstall removes all b
 else fail "make uninstall removes all but the edited voxd.conf" "left: $(echo $left)"; fi
 rm -f "$R/etc/voxd/voxd.conf"
 check "make install into an empty root" mk install DESTDIR="$R" PREFIX=/usr
+
+# libvox as a client program takes it: pkg-config finds it, the program
+# builds against the installed header and archive alone, and it talks to a
+# socket (a refused connection is a typed error, not a crash).
+cat >"$TMP/client.c" <<'C'
+#include <stdio.h>
+#include <vox.h>
+int main(int argc, char **argv)
+{
+    vox_client *c;
+    vox_error e;
+    int rc = vox_connect(argc > 1 ? argv[1] : "/nonexistent", NULL, &c, &e);
+    printf("%d %s\n", rc, e.message);
+    return rc == 0 ? 0 : 1;
+}
+C
+pc() { PKG_CONFIG_SYSROOT_DIR="$R" PKG_CONFIG_LIBDIR="$R/usr/lib/pkgconfig" pkg-config "$@"; }
+refuse "pkg-config finds the installed libvox" 0 "-I$R/usr/include" pc --cflags libvox
+if cc -o "$TMP/client" "$TMP/client.c" $(pc --cflags libvox) $(pc --libs --static libvox) \
+       >"$TMP/cc.log" 2>&1; then pass "a client builds with the installed libvox alone"
+else fail "a client builds with the installed libvox alone" "$(head -5 "$TMP/cc.log")"; fi
+refuse "that client gets a typed error from a missing socket" 1 "^-2 .*no voxd answering" \
+    "$TMP/client" "$TMP/no.sock"
+if nm "$R/usr/lib/libvox.a" 2>/dev/null | grep -Eq ' T (engine_|vd_|subdiv_|expr_)'; then
+    fail "libvox holds only the client's code" "$(nm "$R/usr/lib/libvox.a" | grep -E ' T (engine_|vd_|subdiv_|expr_)' | head -3)"
+else pass "libvox holds only the client's code"; fi
 check "make uninstall of an unedited install" mk uninstall DESTDIR="$R" PREFIX=/usr
 left=$(cd "$R" && find . -type f | wc -l)
 check "make uninstall leaves no file of an unedited install" test "$left" -eq 0
