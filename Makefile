@@ -72,7 +72,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
@@ -157,6 +157,11 @@ demo: deps all
 
 bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr
 	@scripts/bench.sh $(BUILD)
+
+# The whole vox voxelize command against commit BASE, in one run.
+BASE ?= HEAD~1
+bench-compare: deps all
+	@scripts/bench-compare.sh $(BASE) $(BUILD)
 
 clean:
 	rm -rf build
