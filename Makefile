@@ -15,8 +15,23 @@ PREFIX  ?= /usr/local
 V       ?= release
 BUILD   ?= build/$(V)
 PKGS    := zlib libpng libxxhash libuv libprotobuf-c
-PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
-PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
+
+# PKG_CFLAGS and PKG_LIBS: scripts/configure asks pkg-config for them and writes
+# $(CONFIG), which make makes, then reads by starting over. Asking while make
+# reads this file would be too early on a fresh machine, where `make demo`
+# installs pkg-config and the libraries only when its deps prerequisite runs.
+# So the goals that install (DEPS_GOALS: every goal with deps as a prerequisite)
+# run deps before configuring; the others stop with the missing package's name.
+DEPS_GOALS := deps test demo bench bench-compare
+CONFIG  := $(BUILD)/config.mk
+.DEFAULT_GOAL := all
+ifneq ($(filter-out clean deps,$(or $(MAKECMDGOALS),all)),)
+include $(CONFIG)
+endif
+$(CONFIG): scripts/configure Makefile | $(if $(filter $(DEPS_GOALS),$(MAKECMDGOALS)),deps)
+	@mkdir -p $(dir $@)
+	@scripts/configure $(PKGS) >$@.tmp || { rm -f $@.tmp; exit 1; }
+	@mv $@.tmp $@
 
 WARN    := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wvla
 CSTD    := -std=c11 -D_GNU_SOURCE

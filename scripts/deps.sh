@@ -12,6 +12,10 @@ for p in $PKGS; do
 done
 [ -z "$missing" ] && exit 0
 echo "deps: installing$missing"
+if ! command -v apt-get >/dev/null 2>&1; then
+    echo "deps: no apt-get here: install the equivalents of$missing by hand" >&2
+    exit 1
+fi
 SUDO=""
 [ "$(id -u)" -ne 0 ] && SUDO=sudo
 $SUDO apt-get update -qq
