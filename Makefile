@@ -220,6 +220,7 @@ install: all
 	$(INSTALL) -d "$(DESTDIR)$(PREFIX)/lib/pkgconfig" "$(DESTDIR)$(PREFIX)/include"
 	$(INSTALL) -m 644 $(LIBVOX) "$(DESTDIR)$(PREFIX)/lib/libvox.a"
 	$(INSTALL) -m 644 libvox/vox.h "$(DESTDIR)$(PREFIX)/include/vox.h"
+	$(INSTALL) -m 644 proto/vox_limits.h "$(DESTDIR)$(PREFIX)/include/vox_limits.h"
 	sed -e 's|@PREFIX@|$(PREFIX)|' libvox/libvox.pc.in >"$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc"
 	@if [ -e "$(CONF_DEST)" ]; then \
 	  echo "install: keeping the existing $(CONF_DEST) (the shipped one is config/voxd.conf)"; \
@@ -231,6 +232,7 @@ uninstall:
 	  "$(DESTDIR)$(MANDIR)/man1/vox.1" "$(DESTDIR)$(MANDIR)/man8/voxd.8" \
 	  "$(DESTDIR)$(UNITDIR)/voxd.service" "$(DESTDIR)$(DOCDIR)/README.md" \
 	  "$(DESTDIR)$(PREFIX)/lib/libvox.a" "$(DESTDIR)$(PREFIX)/include/vox.h" \
+	  "$(DESTDIR)$(PREFIX)/include/vox_limits.h" \
 	  "$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc" \
 	  $(DOC_FILES:docs/%="$(DESTDIR)$(DOCDIR)/docs/%")
 	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" 2>/dev/null || true

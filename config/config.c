@@ -27,7 +27,7 @@ enum kind {
     K_UIDS,    /* any | list of names or uids */
     K_WORKERS, /* auto | count */
     K_CPUS,    /* auto | list of CPUs and ranges */
-    K_SIZE,    /* bytes with K/M/G/T */
+    K_BYTES,   /* bytes with K/M/G/T */
     K_COUNT,   /* plain number */
     K_SECONDS, /* with s/m/h/d */
     K_LEVEL,   /* log level name */
@@ -38,33 +38,33 @@ typedef struct {
     enum kind kind;
     size_t off, size; /* the field in voxd_config */
     uint64_t min, max;
+    const char *doc;  /* the limits': a comment for config_print */
 } option;
+
+/* Constants of other modules the table's ranges must agree with. */
+_Static_assert(EXPR_MAX_DEPTH_CAP == 1024, "max_expr_depth's range in VOX_LIMITS");
+_Static_assert(FRAME_MIN_MAX == 4096 && FRAME_LIMIT_MAX == 64u << 20 &&
+                   FRAME_DEFAULT_MAX == 1u << 20,
+               "max_frame's default and range in VOX_LIMITS");
 
 #define F(m) offsetof(voxd_config, m), sizeof(((voxd_config *)0)->m)
 static const option options[] = {
-    {"socket", K_PATH, F(socket), 0, 0},
-    {"socket_mode", K_MODE, F(socket_mode), 0, 0777},
-    {"socket_group", K_GROUP, F(socket_group), 0, 0},
-    {"allow_uids", K_UIDS, F(allow_uids), 0, 0},
-    {"workers", K_WORKERS, F(workers), 1, CONFIG_MAX_WORKERS},
-    {"cpus", K_CPUS, F(cpus), 0, CONFIG_MAX_CPUS - 1},
-    {"shm_size", K_SIZE, F(shm_size), 16 * MIB, TIB},
-    {"log_file", K_PATH, F(log_file), 0, 0},
-    {"log_level", K_LEVEL, F(log_level), 0, 0},
-    {"pidfile", K_PATH, F(pidfile), 0, 0},
-    {"max_frame", K_SIZE, F(max_frame), FRAME_MIN_MAX, FRAME_LIMIT_MAX},
-    {"max_expr_bytes", K_SIZE, F(max_expr_bytes), 16, 16 * MIB},
-    /* the parser's own cap: a larger limit would be lowered to it */
-    {"max_expr_depth", K_COUNT, F(max_expr_depth), 1, EXPR_MAX_DEPTH_CAP},
-    {"max_res", K_COUNT, F(max_res), 1, 65536},
-    {"max_csg_nodes", K_COUNT, F(max_csg_nodes), 1, 65536},
-    {"max_queued_jobs", K_COUNT, F(max_queued_jobs), 1, 65536},
-    {"max_jobs_per_uid", K_COUNT, F(max_jobs_per_uid), 1, 65536},
-    {"max_clients", K_COUNT, F(max_clients), 1, 65536},
-    {"client_timeout", K_SECONDS, F(client_timeout), 1, 86400},
-    {"job_timeout", K_SECONDS, F(job_timeout), 0, 7 * 86400},
-    {"max_result_bytes", K_SIZE, F(max_result_bytes), 64 * KIB, 4 * GIB},
-    {"chunk_size", K_SIZE, F(chunk_size), KIB, FRAME_LIMIT_MAX},
+    {"socket", K_PATH, F(socket), 0, 0, NULL},
+    {"socket_mode", K_MODE, F(socket_mode), 0, 0777, NULL},
+    {"socket_group", K_GROUP, F(socket_group), 0, 0, NULL},
+    {"allow_uids", K_UIDS, F(allow_uids), 0, 0, NULL},
+    {"workers", K_WORKERS, F(workers), 1, CONFIG_MAX_WORKERS, NULL},
+    {"cpus", K_CPUS, F(cpus), 0, CONFIG_MAX_CPUS - 1, NULL},
+    {"shm_size", K_BYTES, F(shm_size), 16 * MIB, TIB, NULL},
+    {"log_file", K_PATH, F(log_file), 0, 0, NULL},
+    {"log_level", K_LEVEL, F(log_level), 0, 0, NULL},
+    {"pidfile", K_PATH, F(pidfile), 0, 0, NULL},
+    {"max_clients", K_COUNT, F(max_clients), 1, 65536, NULL},
+    {"client_timeout", K_SECONDS, F(client_timeout), 1, 86400, NULL},
+#define LIMIT_OPTION(name, type, def, min, max, unit, doc) \
+    {#name, K_##unit, F(name), (min), (max), doc},
+    VOX_LIMITS(LIMIT_OPTION)
+#undef LIMIT_OPTION
 };
 #define N_OPTIONS (sizeof options / sizeof *options)
 
@@ -75,18 +75,11 @@ void config_defaults(voxd_config *c)
     c->socket_mode = 0660;
     c->shm_size = 2 * GIB;
     c->log_level = LOG_LEVEL_INFO;
-    c->max_frame = FRAME_DEFAULT_MAX;
-    c->max_expr_bytes = 65536;
-    c->max_expr_depth = 256;
-    c->max_res = 4096;
-    c->max_csg_nodes = 1024;
-    c->max_queued_jobs = 64;
-    c->max_jobs_per_uid = 16;
     c->max_clients = 128;
     c->client_timeout = 30;
-    c->job_timeout = 600;
-    c->max_result_bytes = 4 * GIB;
-    c->chunk_size = 256 * KIB;
+#define LIMIT_DEFAULT(name, type, def, min, max, unit, doc) c->name = (def);
+    VOX_LIMITS(LIMIT_DEFAULT)
+#undef LIMIT_DEFAULT
 }
 
 /* ---------------------------------------------------------------- values */
@@ -144,7 +137,7 @@ static uint64_t unit_of(const option *o, char c)
         case 'h': return 3600;
         case 'd': return 86400;
         }
-    } else if (o->kind == K_SIZE) {
+    } else if (o->kind == K_BYTES) {
         switch (toupper((unsigned char)c)) {
         case 'K': return KIB;
         case 'M': return MIB;
@@ -158,7 +151,7 @@ static uint64_t unit_of(const option *o, char c)
 static int out_of_range(const option *o, const char *val, reason *r)
 {
     char lo[32], hi[32];
-    if (o->kind == K_SIZE) {
+    if (o->kind == K_BYTES) {
         fmt_size(o->min, lo, sizeof lo);
         fmt_size(o->max, hi, sizeof hi);
     } else {
@@ -179,7 +172,7 @@ static int parse_number(const option *o, const char *val, uint64_t *out, reason 
     if (rc == 0 && *p && !p[1] && (unit = unit_of(o, *p))) p++;
     if (rc || *p)
         return refuse(r, "bad value '%s' for %s: want %s", val, o->key,
-                      o->kind == K_SIZE      ? "a size like 65536, 256K, 2G"
+                      o->kind == K_BYTES      ? "a size like 65536, 256K, 2G"
                       : o->kind == K_SECONDS ? "a duration like 600, 10m, 2h"
                                              : "a whole number");
     if (v > UINT64_MAX / unit || v * unit < o->min || v * unit > o->max)
@@ -520,6 +513,7 @@ static void print_option(FILE *out, const option *o, const voxd_config *c)
     char buf[32];
     uint64_t v = o->size == sizeof(uint64_t) ? *(const uint64_t *)field
                                              : *(const uint32_t *)field;
+    if (o->doc) fprintf(out, "# %s: %s\n", o->key, o->doc);
     switch (o->kind) {
     case K_PATH:
         if (*field) fprintf(out, "%s %s\n", o->key, field);
@@ -537,7 +531,7 @@ static void print_option(FILE *out, const option *o, const voxd_config *c)
         if (c->workers) fprintf(out, "workers %d\n", c->workers);
         else fprintf(out, "# workers auto: %d on this machine\nworkers auto\n", config_workers(c));
         break;
-    case K_SIZE:
+    case K_BYTES:
         fmt_size(v, buf, sizeof buf);
         fprintf(out, "%s %s\n", o->key, buf);
         break;
@@ -572,10 +566,7 @@ int config_uid_allowed(const voxd_config *c, uid_t uid)
 
 void config_proto_limits(const voxd_config *c, proto_limits *lim)
 {
-    lim->max_frame = c->max_frame;
-    lim->max_expr_bytes = c->max_expr_bytes;
-    lim->max_res = c->max_res;
-    lim->max_csg_nodes = c->max_csg_nodes;
-    lim->chunk_size = c->chunk_size;
-    lim->max_result_bytes = c->max_result_bytes;
+#define LIMIT_COPY(name, type, def, min, max, unit, doc) lim->name = c->name;
+    VOX_LIMITS(LIMIT_COPY)
+#undef LIMIT_COPY
 }

@@ -22,6 +22,7 @@
 #include <sys/types.h>
 
 #include "proto_check.h"
+#include "vox_limits.h"
 
 #define CONFIG_DEFAULT_PATH "/etc/voxd/voxd.conf"
 #define CONFIG_MAX_LINE 4096     /* bytes of one line */
@@ -54,19 +55,14 @@ typedef struct {
     char log_file[PATH_MAX];         /* "" = stderr */
     int log_level;                   /* LOG_LEVEL_INFO */
     char pidfile[PATH_MAX];          /* "" = none */
-    /* limits */
-    uint32_t max_frame;              /* 1M */
-    uint32_t max_expr_bytes;         /* 65536 */
-    uint32_t max_expr_depth;         /* 256 */
-    uint32_t max_res;                /* 4096 */
-    uint32_t max_csg_nodes;          /* 1024 */
-    uint32_t max_queued_jobs;        /* 64 */
-    uint32_t max_jobs_per_uid;       /* 16 */
+    /* connections */
     uint32_t max_clients;            /* 128 */
     uint32_t client_timeout;         /* seconds, 30: hello, one frame, a stalled reply */
-    uint32_t job_timeout;            /* seconds, 600; 0 = none */
-    uint64_t max_result_bytes;       /* 4G */
-    uint32_t chunk_size;             /* 256K */
+    /* the limits clients are told (HelloOk): one field per row of VOX_LIMITS
+     * (vox_limits.h), with its name, type, default and range */
+#define CONFIG_LIMIT_FIELD(name, type, def, min, max, unit, doc) type name;
+    VOX_LIMITS(CONFIG_LIMIT_FIELD)
+#undef CONFIG_LIMIT_FIELD
 } voxd_config;
 
 void config_defaults(voxd_config *c);

@@ -440,15 +440,9 @@ static int on_hello_ok(vox_client *c, const Voxd__HelloOk *m)
     snprintf(i->name, sizeof i->name, "%s", m->server ? m->server : "");
     i->version = m->version;
     i->workers = m->workers;
-    i->max_frame = l->max_frame;
-    i->max_expr_bytes = l->max_expr_bytes;
-    i->max_expr_depth = l->max_expr_depth;
-    i->max_res = l->max_res;
-    i->max_queued_jobs = l->max_queued_jobs;
-    i->max_jobs_per_uid = l->max_jobs_per_uid;
-    i->job_timeout = l->job_timeout;
-    i->chunk_size = l->chunk_size;
-    i->max_result_bytes = l->max_result_bytes;
+#define INFO_LIMIT(name, type, def, min, max, unit, doc) i->name = l->name;
+    VOX_LIMITS(INFO_LIMIT)
+#undef INFO_LIMIT
     c->ready = 1;
     answer(c, 0, 0, NULL);
     return 0;

@@ -38,6 +38,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "vox_limits.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -97,9 +99,13 @@ typedef struct {
     char name[130];            /* "voxd 0.1" */
     uint32_t version;          /* protocol version: 1 */
     uint32_t workers;
-    uint32_t max_frame, max_expr_bytes, max_expr_depth, max_res;
-    uint32_t max_queued_jobs, max_jobs_per_uid, job_timeout, chunk_size;
-    uint64_t max_result_bytes;
+    /* The daemon's limits, one field per row of VOX_LIMITS (vox_limits.h):
+     * max_frame, max_expr_bytes, max_expr_depth, max_res, max_queued_jobs,
+     * max_jobs_per_uid, job_timeout, max_result_bytes, chunk_size,
+     * max_csg_nodes. */
+#define VOX_SERVER_LIMIT(name, type, def, min, max, unit, doc) type name;
+    VOX_LIMITS(VOX_SERVER_LIMIT)
+#undef VOX_SERVER_LIMIT
 } vox_server_info;
 
 /* What the daemon said about itself in its hello. */

@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -13,24 +14,58 @@
 #define INVALID VOXD__ERROR_CODE__INVALID_INPUT
 #define LIMIT VOXD__ERROR_CODE__LIMIT_EXCEEDED
 
-void proto_limits_default(proto_limits *lim)
+/* Each default within its own range, at compile time. */
+#define RANGE_OK(name, type, def, min, max, unit, doc)                                   \
+    _Static_assert((uint64_t)(min) <= (uint64_t)(def) && (uint64_t)(def) <= (uint64_t)(max), \
+                   #name ": default outside its range");                                  \
+    _Static_assert((uint64_t)(max) <= (type)-1, #name ": range wider than its type");
+VOX_LIMITS(RANGE_OK)
+#undef RANGE_OK
+
+const proto_limit_info proto_limit_table[] = {
+#define ROW(name, type, def, min, max, unit, doc)                                         \
+    {#name, offsetof(proto_limits, name), sizeof(type), (def), (min), (max), #unit, doc},
+    VOX_LIMITS(ROW)
+#undef ROW
+};
+const size_t proto_n_limits = sizeof proto_limit_table / sizeof *proto_limit_table;
+
+uint64_t proto_limit_get(const proto_limits *lim, size_t i)
 {
-    lim->max_frame = FRAME_DEFAULT_MAX;
-    lim->max_expr_bytes = 65536;
-    lim->max_res = 4096;
-    lim->max_csg_nodes = 1024;
-    lim->chunk_size = 256u << 10;
-    lim->max_result_bytes = (uint64_t)4 << 30;
+    const proto_limit_info *r = &proto_limit_table[i];
+    const char *p = (const char *)lim + r->off;
+    if (r->size == sizeof(uint64_t)) {
+        uint64_t v;
+        memcpy(&v, p, sizeof v);
+        return v;
+    }
+    uint32_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
 }
 
+void proto_limits_default(proto_limits *lim)
+{
+#define DEF(name, type, def, min, max, unit, doc) lim->name = (def);
+    VOX_LIMITS(DEF)
+#undef DEF
+}
+
+/* Both directions name every field of the table: a row without its field
+ * in the Limits message does not compile (the unit test catches the
+ * converse). */
 void proto_limits_from_hello(const Voxd__Limits *l, proto_limits *lim)
 {
-    lim->max_frame = l->max_frame;
-    lim->max_expr_bytes = l->max_expr_bytes;
-    lim->max_res = l->max_res;
-    lim->max_csg_nodes = l->max_csg_nodes;
-    lim->chunk_size = l->chunk_size;
-    lim->max_result_bytes = l->max_result_bytes;
+#define FROM(name, type, def, min, max, unit, doc) lim->name = l->name;
+    VOX_LIMITS(FROM)
+#undef FROM
+}
+
+void proto_limits_to_hello(const proto_limits *lim, Voxd__Limits *l)
+{
+#define TO(name, type, def, min, max, unit, doc) l->name = lim->name;
+    VOX_LIMITS(TO)
+#undef TO
 }
 
 const char *proto_error_code_name(int code)
@@ -417,17 +452,24 @@ static int check_job_id(uint64_t id, const char *what, proto_error *e)
     return id ? 0 : bad(e, INVALID, "%s has no job id", what);
 }
 
+/* Every limit in the range a daemon's config accepts (the table's), and
+ * a chunk within a frame. */
 static int check_limits(const Voxd__Limits *l, proto_error *e)
 {
     if (!l) return bad(e, INVALID, "hello_ok has no limits");
-    if (l->max_frame < FRAME_MIN_MAX || l->max_frame > FRAME_LIMIT_MAX)
-        return bad(e, INVALID, "server max_frame %u is outside %u to %u", l->max_frame,
-                   FRAME_MIN_MAX, FRAME_LIMIT_MAX);
-    if (l->chunk_size == 0 || l->chunk_size > l->max_frame - FRAME_CHUNK_OVERHEAD)
+    proto_limits lim;
+    proto_limits_from_hello(l, &lim);
+    for (size_t i = 0; i < proto_n_limits; i++) {
+        const proto_limit_info *r = &proto_limit_table[i];
+        uint64_t v = proto_limit_get(&lim, i);
+        if (v < r->min || v > r->max)
+            return bad(e, INVALID, "server %s %llu is outside %llu to %llu", r->name,
+                       (unsigned long long)v, (unsigned long long)r->min,
+                       (unsigned long long)r->max);
+    }
+    if (l->chunk_size > l->max_frame - FRAME_CHUNK_OVERHEAD)
         return bad(e, INVALID, "server chunk_size %u does not fit its max_frame %u",
                    l->chunk_size, l->max_frame);
-    if (!l->max_expr_bytes || !l->max_res || !l->max_result_bytes)
-        return bad(e, INVALID, "server limits has a zero limit");
     return 0;
 }
 

@@ -19,6 +19,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "vox_limits.h"
 #include "voxd.pb-c.h"
 
 #define PROTO_VERSION 1u
@@ -31,17 +32,32 @@
 #define PROTO_MIN_BRICK 2u
 #define PROTO_MAX_BRICK 256u     /* Submit.brick: 0 or a power of two in 2..256 */
 
-/* The configurable limits the checks apply (config_proto_limits() fills
- * them from the daemon's config; a client takes them from HelloOk).
- * max_expr_depth is not here: only the expression compiler can see depth. */
+/* The configurable limits (the table VOX_LIMITS): config_proto_limits()
+ * fills them from the daemon's config, a client takes them from HelloOk.
+ * The checks here use max_expr_bytes, max_res, max_csg_nodes, chunk_size
+ * and max_result_bytes; max_expr_depth only the expression compiler can
+ * see, the others are the daemon's to count. */
 typedef struct {
-    uint32_t max_frame;        /* bytes of one message */
-    uint32_t max_expr_bytes;   /* an implicit source, also a CSG leaf's */
-    uint32_t max_res;
-    uint32_t max_csg_nodes;
-    uint32_t chunk_size;       /* ResultChunk.data */
-    uint64_t max_result_bytes; /* a result file */
+#define PROTO_LIMIT_FIELD(name, type, def, min, max, unit, doc) type name;
+    VOX_LIMITS(PROTO_LIMIT_FIELD)
+#undef PROTO_LIMIT_FIELD
 } proto_limits;
+
+/* One row of VOX_LIMITS, for code that walks the table (the config's
+ * printer, the HelloOk check, the tests). */
+typedef struct {
+    const char *name;
+    size_t off, size;   /* the field in proto_limits (and its width: 4 or 8) */
+    uint64_t def, min, max;
+    const char *unit;   /* "BYTES", "COUNT" or "SECONDS" */
+    const char *doc;
+} proto_limit_info;
+
+extern const proto_limit_info proto_limit_table[];
+extern const size_t proto_n_limits;
+
+/* The value of row i of the table in lim. */
+uint64_t proto_limit_get(const proto_limits *lim, size_t i);
 
 typedef struct {
     Voxd__ErrorCode code; /* INVALID_INPUT or LIMIT_EXCEEDED */
@@ -52,6 +68,8 @@ typedef struct {
 void proto_limits_default(proto_limits *lim);
 /* A client's limits from the server's HelloOk (checked by proto_check_reply). */
 void proto_limits_from_hello(const Voxd__Limits *l, proto_limits *lim);
+/* The server's HelloOk Limits from its limits. */
+void proto_limits_to_hello(const proto_limits *lim, Voxd__Limits *l);
 
 /* 0 if r may be trusted; else -EINVAL (code INVALID_INPUT: malformed, or
  * a mesh or CSG job, "not supported yet") or -E2BIG (code LIMIT_EXCEEDED:

@@ -33,18 +33,10 @@ int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ..
 
 int vd_send_hello_ok(vd_client *c)
 {
-    const voxd_config *cfg = &c->d->cfg;
+    proto_limits lim;
+    config_proto_limits(&c->d->cfg, &lim);
     Voxd__Limits l = VOXD__LIMITS__INIT;
-    l.max_frame = cfg->max_frame;
-    l.max_expr_bytes = cfg->max_expr_bytes;
-    l.max_expr_depth = cfg->max_expr_depth;
-    l.max_res = cfg->max_res;
-    l.max_queued_jobs = cfg->max_queued_jobs;
-    l.max_jobs_per_uid = cfg->max_jobs_per_uid;
-    l.job_timeout = cfg->job_timeout;
-    l.max_result_bytes = cfg->max_result_bytes;
-    l.chunk_size = cfg->chunk_size;
-    l.max_csg_nodes = cfg->max_csg_nodes;
+    proto_limits_to_hello(&lim, &l);
     Voxd__HelloOk h = VOXD__HELLO_OK__INIT;
     h.version = PROTO_VERSION;
     h.server = (char *)VD_SERVER_NAME;

@@ -200,7 +200,7 @@ mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$RO
 check "make install DESTDIR PREFIX=/usr" mk install DESTDIR="$R" PREFIX=/usr
 installed="usr/bin/vox usr/sbin/voxd usr/share/man/man1/vox.1 usr/share/man/man8/voxd.8
 usr/lib/systemd/system/voxd.service etc/voxd/voxd.conf usr/share/doc/voxd/README.md
-usr/share/doc/voxd/docs/vod-format.md usr/lib/libvox.a usr/include/vox.h
+usr/share/doc/voxd/docs/vod-format.md usr/lib/libvox.a usr/include/vox.h usr/include/vox_limits.h
 usr/lib/pkgconfig/libvox.pc"
 missing=""
 for f in $installed; do [ -f "$R/$f" ] || missing="$missing $f"; done

@@ -184,6 +184,47 @@ Test(config, full_valid_file)
     cr_assert_eq(l.max_csg_nodes, 50);
     cr_assert_eq(l.chunk_size, 64u << 10);
     cr_assert_eq(l.max_result_bytes, 1ull << 30);
+    cr_assert_eq(l.max_queued_jobs, 10);
+    cr_assert_eq(l.job_timeout, 90);
+}
+
+/* Every limit of the table is an option: its key, its default, its range
+ * (from the table, with the config's own words at the edges). */
+Test(config, every_limit_of_the_table_is_an_option)
+{
+    voxd_config d;
+    config_defaults(&d);
+    proto_limits def, dl;
+    config_proto_limits(&d, &def);
+    for (size_t i = 0; i < proto_n_limits; i++) {
+        const proto_limit_info *row = &proto_limit_table[i];
+        cr_expect_eq(proto_limit_get(&def, i), row->def, "%s default", row->name);
+        char text[128], err[512] = "";
+        voxd_config c;
+        /* The range's edges load (alone, they may not fit with the
+         * defaults of others: max_frame's lowest needs a smaller chunk). */
+        const char *extra = !strcmp(row->name, "max_frame") ? "chunk_size 1K\nmax_expr_bytes 1K\n" : "";
+        snprintf(text, sizeof text, "%s%s %llu\n", extra, row->name, (unsigned long long)row->min);
+        load_ok(text, &c);
+        config_proto_limits(&c, &dl);
+        cr_expect_eq(proto_limit_get(&dl, i), row->min, "%s min", row->name);
+        snprintf(text, sizeof text, "%s %llu\n", row->name, (unsigned long long)row->max);
+        if (!strcmp(row->name, "chunk_size")) /* needs a frame around it */
+            snprintf(text, sizeof text, "max_frame 64M\nchunk_size %llu\n",
+                     (unsigned long long)row->max - 64);
+        if (!strcmp(row->name, "max_expr_bytes")) /* so does a long expression */
+            snprintf(text, sizeof text, "max_frame 64M\nmax_expr_bytes %llu\n",
+                     (unsigned long long)row->max);
+        cr_expect_eq(load_text(text, &c, err, sizeof err), 0, "%s: %s", text, err);
+        /* One past either edge is refused with the range. */
+        snprintf(text, sizeof text, "%s %llu\n", row->name, (unsigned long long)row->max + 1);
+        cr_expect_eq(load_text(text, &c, err, sizeof err), -EINVAL, "%s", text);
+        cr_expect(strstr(err, "is out of range"), "%s: %s", row->name, err);
+        if (row->min == 0) continue;
+        snprintf(text, sizeof text, "%s %llu\n", row->name, (unsigned long long)row->min - 1);
+        cr_expect_eq(load_text(text, &c, err, sizeof err), -EINVAL, "%s", text);
+        cr_expect(strstr(err, "is out of range"), "%s: %s", row->name, err);
+    }
 }
 
 Test(config, print_loads_back_to_the_same_config)
@@ -198,6 +239,9 @@ Test(config, print_loads_back_to_the_same_config)
     cr_assert(strstr(text, "max_expr_bytes 100000\n"));
     cr_assert(strstr(text, "socket_mode 0600\n"));
     cr_assert(strstr(text, "client_timeout 120\n"), "%s", text);
+    /* Each limit says what it bounds, from the table. */
+    cr_assert(strstr(text, "# max_res: voxels along a job's longest axis\nmax_res 2048\n"), "%s",
+              text);
     free(text);
 
     config_defaults(&c);
@@ -479,12 +523,14 @@ Test(config, shipped_file_loads_to_the_defaults)
 /* Every "#key value" line shows a default: uncommented, nothing changes. */
 Test(config, shipped_file_documents_the_true_defaults)
 {
+    /* The options outside the table of limits, then every row of it. */
     static const char *const keys[] = {
         "socket", "socket_mode", "socket_group", "allow_uids", "workers", "cpus",
-        "shm_size", "log_file", "log_level", "pidfile", "max_frame", "max_expr_bytes",
-        "max_expr_depth", "max_res", "max_csg_nodes", "max_queued_jobs",
-        "max_jobs_per_uid", "max_clients", "client_timeout", "job_timeout",
-        "max_result_bytes", "chunk_size"};
+        "shm_size", "log_file", "log_level", "pidfile", "max_clients", "client_timeout",
+#define KEY(name, type, def, min, max, unit, doc) #name,
+        VOX_LIMITS(KEY)
+#undef KEY
+    };
     char path[4096];
     FILE *f = fopen(root_path("config/voxd.conf", path, sizeof path), "r");
     cr_assert_not_null(f);

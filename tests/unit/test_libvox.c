@@ -17,9 +17,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/prctl.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 #include <zlib.h>
@@ -182,19 +186,17 @@ static void srv_drain(srv *s)
     while ((r = srv_read(s))) voxd__request__free_unpacked(r, NULL);
 }
 
+/* The table's defaults, but for what the test asks. */
 static void send_hello_ok(srv *s)
 {
+    proto_limits lim;
+    proto_limits_default(&lim);
+    if (s->hello_max_frame) lim.max_frame = (uint32_t)s->hello_max_frame;
+    if (s->job_timeout) lim.job_timeout = s->job_timeout < 0 ? 0 : (uint32_t)s->job_timeout;
+    if (s->max_result) lim.max_result_bytes = s->max_result;
+    if (s->hello_chunk) lim.chunk_size = (uint32_t)s->hello_chunk;
     Voxd__Limits l = VOXD__LIMITS__INIT;
-    l.max_frame = s->hello_max_frame ? (uint32_t)s->hello_max_frame : FRAME_DEFAULT_MAX;
-    l.max_expr_bytes = 65536;
-    l.max_expr_depth = 256;
-    l.max_res = 4096;
-    l.max_queued_jobs = 64;
-    l.max_jobs_per_uid = 16;
-    l.job_timeout = s->job_timeout < 0 ? 0 : s->job_timeout ? (uint32_t)s->job_timeout : 600;
-    l.max_result_bytes = s->max_result ? s->max_result : (uint64_t)4 << 30;
-    l.chunk_size = s->hello_chunk ? (uint32_t)s->hello_chunk : 256u << 10;
-    l.max_csg_nodes = 1024;
+    proto_limits_to_hello(&lim, &l);
     Voxd__HelloOk h = VOXD__HELLO_OK__INIT;
     h.version = 1;
     h.server = "fake voxd";
@@ -469,16 +471,17 @@ static void s_idle(srv *s)
 Test(libvox, hello_gives_server_and_limits)
 {
     srv *s = srv_new(s_idle, NULL);
-    s->hello_chunk = 1000;
+    s->hello_chunk = 2000;
     vox_client *c = start(s, 5000);
     vox_server_info i;
     vox_server(c, &i);
     cr_expect_str_eq(i.name, "fake voxd");
     cr_expect_eq(i.version, 1);
     cr_expect_eq(i.workers, 3);
-    cr_expect_eq(i.chunk_size, 1000);
+    cr_expect_eq(i.chunk_size, 2000);
     cr_expect_eq(i.max_res, 4096);
     cr_expect_eq(i.job_timeout, 600);
+    cr_expect_eq(i.max_csg_nodes, 1024);
     vox_close(c);
     srv_finish(s);
 }
@@ -1599,4 +1602,85 @@ Test(libvox, over_a_unix_socket_path)
     srv_finish(s);
     close(lfd);
     unlink(out_path("voxd.sock"));
+}
+
+/* ---------------------------------------------------------------- a real daemon */
+
+/* Each limit's test value: its default moved by one, within its range. */
+#define TEST_VALUE(def, max) ((def) < (max) ? (def) + 1 : (def) - 1)
+
+/* The voxd built beside this test: build/V/voxd for build/V/tests/test_libvox. */
+static void voxd_path(char *buf, size_t len)
+{
+    char exe[4096];
+    ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    cr_assert_gt(n, 0);
+    exe[n] = '\0';
+    for (int up = 0; up < 2; up++) *strrchr(exe, '/') = '\0';
+    snprintf(buf, len, "%s/voxd", exe);
+    cr_assert_eq(access(buf, X_OK), 0, "no voxd at %s (make builds it)", buf);
+}
+
+/* voxd on sock with conf, dying with this test; its pid. */
+static pid_t start_voxd(const char *conf, const char *sock)
+{
+    char voxd[4096 + 8];
+    voxd_path(voxd, sizeof voxd);
+    pid_t pid = fork();
+    cr_assert_geq(pid, 0);
+    if (pid == 0) {
+        prctl(PR_SET_PDEATHSIG, SIGTERM); /* TERM: it removes its socket and segment */
+        int null = open("/dev/null", O_WRONLY);
+        dup2(null, 1);
+        execl(voxd, "voxd", "--config", conf, "--socket", sock, "--workers", "1", (char *)NULL);
+        _exit(127);
+    }
+    return pid;
+}
+
+static vox_client *connect_when_up(const char *sock, const vox_options *o)
+{
+    vox_client *c = NULL;
+    vox_error e = {0};
+    for (int i = 0; i < 300; i++) {
+        if (vox_connect(sock, o, &c, &e) == 0) return c;
+        usleep(100000);
+    }
+    cr_assert_fail("no voxd answering on %s: %s", sock, e.message);
+    return NULL;
+}
+
+/* Every limit of the table reaches vox_server_info from a real daemon's
+ * config, max_csg_nodes included (vox_server_info lacked it). */
+Test(libvox, server_info_from_a_real_daemon, .timeout = 120)
+{
+    char conf[256];
+    snprintf(conf, sizeof conf, "%s", out_path("voxd.conf"));
+    FILE *f = fopen(conf, "w");
+    cr_assert_not_null(f);
+    fputs("shm_size 64M\n", f);
+#define CONF_LINE(name, type, def, min, max, unit, doc) \
+    fprintf(f, "%s %llu\n", #name, (unsigned long long)TEST_VALUE(def, max));
+    VOX_LIMITS(CONF_LINE)
+#undef CONF_LINE
+    fclose(f);
+    char sock[256];
+    snprintf(sock, sizeof sock, "%s", out_path("voxd.sock"));
+    pid_t pid = start_voxd(conf, sock);
+
+    vox_options o = {.timeout_ms = 30000};
+    vox_client *c = connect_when_up(sock, &o);
+    vox_server_info i;
+    vox_server(c, &i);
+#define EXPECT_LIMIT(name, type, def, min, max, unit, doc)                                  \
+    cr_expect_eq((uint64_t)i.name, (uint64_t)TEST_VALUE(def, max), "%s %llu", #name, \
+                 (unsigned long long)i.name);
+    VOX_LIMITS(EXPECT_LIMIT)
+#undef EXPECT_LIMIT
+    cr_expect_eq(i.max_csg_nodes, 1025);
+    vox_close(c);
+    kill(pid, SIGTERM);
+    int st;
+    cr_expect_eq(waitpid(pid, &st, 0), pid);
+    cr_expect(WIFEXITED(st) && WEXITSTATUS(st) == 0, "voxd ended with status %#x", st);
 }

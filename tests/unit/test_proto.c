@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "expr.h"
 #include "frame.h"
 #include "job_meta.h"
 #include "proto_check.h"
@@ -609,9 +610,7 @@ static void reply_init(reply *x, Voxd__Reply__MsgCase which)
     case VOXD__REPLY__MSG_HELLO_OK:
         x->m.hello_ok = (Voxd__HelloOk)VOXD__HELLO_OK__INIT;
         x->limits = (Voxd__Limits)VOXD__LIMITS__INIT;
-        x->limits.max_frame = 1 << 20, x->limits.chunk_size = 256 << 10;
-        x->limits.max_expr_bytes = 65536, x->limits.max_res = 4096;
-        x->limits.max_result_bytes = 1ull << 32, x->limits.max_csg_nodes = 1024;
+        proto_limits_to_hello(&lim, &x->limits);
         x->m.hello_ok.version = 1, x->m.hello_ok.server = "voxd 0.1";
         x->m.hello_ok.limits = &x->limits, x->m.hello_ok.workers = 8;
         x->r.hello_ok = &x->m.hello_ok;
@@ -717,7 +716,30 @@ Test(proto, hello_ok_rules)
     reply_refused(&x, INVALID, "server chunk_size 1048576 does not fit its max_frame 1048576");
     reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
     x.limits.max_res = 0;
-    reply_refused(&x, INVALID, "server limits has a zero limit");
+    reply_refused(&x, INVALID, "server max_res 0 is outside 1 to 65536");
+    /* Every limit within the range a daemon's config takes (the table's). */
+    for (size_t i = 0; i < proto_n_limits; i++) {
+        const proto_limit_info *row = &proto_limit_table[i];
+        char want[128];
+        reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+        proto_limits l = lim;
+        uint64_t bad = row->max + 1;
+        memcpy((char *)&l + row->off, &bad, row->size); /* little-endian: the low bytes */
+        if (row->size == 4 && row->max == UINT32_MAX) continue; /* no value past it */
+        proto_limits_to_hello(&l, &x.limits);
+        snprintf(want, sizeof want, "server %s %llu is outside", row->name,
+                 (unsigned long long)(row->size == 4 ? (uint32_t)bad : bad));
+        reply_refused(&x, INVALID, want);
+        if (row->min == 0) continue;
+        reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
+        l = lim;
+        uint64_t zero = 0;
+        memcpy((char *)&l + row->off, &zero, row->size);
+        proto_limits_to_hello(&l, &x.limits);
+        snprintf(want, sizeof want, "server %s 0 is outside %llu to", row->name,
+                 (unsigned long long)row->min);
+        reply_refused(&x, INVALID, want);
+    }
     reply_init(&x, VOXD__REPLY__MSG_HELLO_OK);
     x.m.hello_ok.workers = 1000;
     reply_refused(&x, INVALID, "server reports 1000 workers, limit 256");
@@ -733,6 +755,74 @@ Test(proto, hello_ok_rules)
     cr_assert_eq(l.chunk_size, 4096);
     cr_assert_eq(l.max_result_bytes, 1ull << 32);
     cr_assert_eq(l.max_csg_nodes, 1024);
+}
+
+/* ---------------------------------------------------------------- the table of limits */
+
+/* The table VOX_LIMITS and the protocol's Limits message have the same
+ * fields, by name, each as wide as the other; every field survives the
+ * wire both ways; the table's ranges are those of the modules behind. */
+Test(proto, limits_table_is_the_limits_message)
+{
+    const ProtobufCMessageDescriptor *d = &voxd__limits__descriptor;
+    cr_assert_eq(d->n_fields, proto_n_limits, "Limits has %u fields, the table %zu rows",
+                 d->n_fields, proto_n_limits);
+    for (unsigned f = 0; f < d->n_fields; f++) {
+        const ProtobufCFieldDescriptor *fd = &d->fields[f];
+        size_t i = 0;
+        while (i < proto_n_limits && strcmp(proto_limit_table[i].name, fd->name)) i++;
+        cr_assert_lt(i, proto_n_limits, "Limits.%s has no row in VOX_LIMITS", fd->name);
+        size_t want = fd->type == PROTOBUF_C_TYPE_UINT64 ? 8 : fd->type == PROTOBUF_C_TYPE_UINT32 ? 4 : 0;
+        cr_assert_eq(proto_limit_table[i].size, want, "Limits.%s is %zu bytes wide in the table",
+                     fd->name, proto_limit_table[i].size);
+        cr_assert_eq(fd->label, PROTOBUF_C_LABEL_NONE, "Limits.%s is not a plain scalar", fd->name);
+    }
+    for (size_t i = 0; i < proto_n_limits; i++) {
+        const proto_limit_info *row = &proto_limit_table[i];
+        cr_assert_not_null(protobuf_c_message_descriptor_get_field_by_name(d, row->name),
+                           "row %s is not a field of Limits", row->name);
+        cr_assert(row->min <= row->def && row->def <= row->max, "%s", row->name);
+        cr_assert(row->doc[0] && (!strcmp(row->unit, "BYTES") || !strcmp(row->unit, "COUNT") ||
+                                  !strcmp(row->unit, "SECONDS")), "%s", row->name);
+    }
+    /* Distinct values in every field, through HelloOk's Limits and back. */
+    proto_limits a, b;
+    memset(&b, 0, sizeof b);
+    for (size_t i = 0; i < proto_n_limits; i++) {
+        uint64_t v = proto_limit_table[i].min + i + 1;
+        memcpy((char *)&a + proto_limit_table[i].off, &v, proto_limit_table[i].size);
+    }
+    Voxd__Limits l = VOXD__LIMITS__INIT;
+    proto_limits_to_hello(&a, &l);
+    uint8_t buf[256];
+    size_t n = voxd__limits__pack(&l, buf);
+    Voxd__Limits *u = voxd__limits__unpack(NULL, n, buf);
+    cr_assert_not_null(u);
+    proto_limits_from_hello(u, &b);
+    voxd__limits__free_unpacked(u, NULL);
+    for (size_t i = 0; i < proto_n_limits; i++)
+        cr_expect_eq(proto_limit_get(&a, i), proto_limit_get(&b, i), "%s",
+                     proto_limit_table[i].name);
+    /* The bounds the frame decoder and the expression parser hold. */
+    for (size_t i = 0; i < proto_n_limits; i++) {
+        const proto_limit_info *row = &proto_limit_table[i];
+        if (!strcmp(row->name, "max_frame"))
+            cr_expect(row->min == FRAME_MIN_MAX && row->max == FRAME_LIMIT_MAX &&
+                      row->def == FRAME_DEFAULT_MAX);
+        if (!strcmp(row->name, "max_expr_depth")) cr_expect_eq(row->max, EXPR_MAX_DEPTH_CAP);
+        if (!strcmp(row->name, "chunk_size")) cr_expect_leq(row->max, FRAME_LIMIT_MAX);
+    }
+}
+
+Test(proto, limits_defaults_are_the_tables)
+{
+    proto_limits d;
+    memset(&d, 0xa5, sizeof d);
+    proto_limits_default(&d);
+    for (size_t i = 0; i < proto_n_limits; i++)
+        cr_expect_eq(proto_limit_get(&d, i), proto_limit_table[i].def, "%s",
+                     proto_limit_table[i].name);
+    cr_expect_eq(d.max_csg_nodes, 1024);
 }
 
 Test(proto, job_replies_need_a_job_id)
