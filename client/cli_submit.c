@@ -10,7 +10,6 @@
 
 #include "cli.h"
 #include "progress.h"
-#include "grid.h"
 #include "voxel.h"
 
 #define CONNECT_TIMEOUT_MS 10000 /* a daemon that answers at all says hello at once */
@@ -87,14 +86,12 @@ static int vox_comp(uint32_t comp)
                                    : VOX_COMP_ZLIB;
 }
 
+/* The grid is the daemon's, from its summary. */
 static void print_summary(const cli_job_opts *o, const vox_summary *s)
 {
-    grid_spec g;
-    char err[256];
     double t = s->seconds_voxelize;
-    printf("%s: %llu voxels", o->out, (unsigned long long)s->voxels);
-    if (grid_make(o->lo, o->hi, o->res, &g, err, sizeof err) == 0)
-        printf(" on a %ux%ux%u grid", g.res[0], g.res[1], g.res[2]);
+    printf("%s: %llu voxels on a %ux%ux%u grid", o->out, (unsigned long long)s->voxels,
+           s->grid[0], s->grid[1], s->grid[2]);
     printf(" in %.3f s (%.2f Mvoxels/s), VOD written in %.3f s\n", t,
            t > 0 ? s->voxels / t / 1e6 : 0.0, s->seconds_write);
     printf("  %llu bytes, %llu bricks, CRC %08x\n", (unsigned long long)s->file_bytes,
@@ -103,13 +100,13 @@ static void print_summary(const cli_job_opts *o, const vox_summary *s)
            s->seconds_queued);
 }
 
-static int submit_and_receive(vox_client *c, const vox_implicit_job *job,
+static int submit_and_receive(vox_client *c, const vox_job *job,
                               const cli_job_opts *o, int quiet_refusal, int *refused)
 {
     uint64_t id;
     uint32_t qpos;
     vox_error err;
-    int rc = vox_submit(c, job, &id, &qpos, &err);
+    int rc = vox_submit_job(c, job, &id, &qpos, &err);
     if (rc) {
         if (VOX_IS_SERVER_ERROR(rc) && refused) *refused = rc;
         if (!(quiet_refusal && (rc == VOX_EBUSY || rc == VOX_ESHUTTING_DOWN)))
@@ -147,17 +144,21 @@ static int submit_and_receive(vox_client *c, const vox_implicit_job *job,
 int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
                    int quiet_refusal, int *refused)
 {
-    vox_implicit_job job = {
-        .source = src->text,
-        .source_len = src->len,
-        .source_name = src->path,
-        .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
-        .res = o->res,
+    vox_job job = {
+        .kind = VOX_JOB_IMPLICIT,
+        .implicit = {
+            .source = src->text,
+            .source_len = src->len,
+            .source_name = src->path,
+            .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
+            .res = o->res,
+            .schedule = o->schedule == ENGINE_SCHED_PAPER ? VOX_SCHEDULE_PAPER
+                                                          : VOX_SCHEDULE_SUBTREE,
+        },
         .channel = vox_channel(o->vod.channel),
         .brick = o->vod.brick,
         .comp = vox_comp(o->vod.comp),
         .hash = o->vod.hash == VOD_HASH_XX32 ? VOX_HASH_XX32 : VOX_HASH_SFHS,
-        .schedule = o->schedule == ENGINE_SCHED_PAPER ? VOX_SCHEDULE_PAPER : VOX_SCHEDULE_SUBTREE,
     };
     if (refused) *refused = 0;
     if (src->len == 0) {

@@ -424,11 +424,19 @@ static int check_together(parser *p, const voxd_config *c)
                        "chunk_size %s does not fit in max_frame %s (a chunk needs %u bytes more)",
                        x, f, FRAME_CHUNK_OVERHEAD);
     }
-    if (c->max_expr_bytes > c->max_frame - CONFIG_REQUEST_OVERHEAD) {
+    /* An expression of max_expr_bytes must be sendable: inline in a
+     * Submit, or as the job's input. */
+    if (c->max_expr_bytes > c->max_frame - CONFIG_REQUEST_OVERHEAD &&
+        c->max_expr_bytes > c->max_input_bytes) {
+        char in[32];
         fmt_size(c->max_expr_bytes, x, sizeof x);
-        return fail_at(p, later_line(p, "max_expr_bytes", "max_frame"),
-                       "max_expr_bytes %s does not fit in max_frame %s (a request needs %u bytes more)",
-                       x, f, CONFIG_REQUEST_OVERHEAD);
+        fmt_size(c->max_input_bytes, in, sizeof in);
+        int line = later_line(p, "max_expr_bytes", "max_frame");
+        int l2 = later_line(p, "max_expr_bytes", "max_input_bytes");
+        return fail_at(p, l2 > line ? l2 : line,
+                       "max_expr_bytes %s fits neither in max_frame %s (a request needs %u "
+                       "bytes more) nor in max_input_bytes %s",
+                       x, f, CONFIG_REQUEST_OVERHEAD, in);
     }
     return 0;
 }

@@ -31,8 +31,8 @@
 #define CONFIG_MAX_WORKERS 256   /* = ENGINE_MAX_WORKERS */
 #define CONFIG_SOCKET_MAX 108    /* sizeof sun_path, NUL included */
 /* A request carries up to this much besides its expression: the config
- * keeps max_expr_bytes <= max_frame - CONFIG_REQUEST_OVERHEAD so that a
- * too-long expression gets a typed error, not a closed connection. */
+ * keeps an expression of max_expr_bytes sendable, inline within
+ * max_frame - CONFIG_REQUEST_OVERHEAD or as input within max_input_bytes. */
 #define CONFIG_REQUEST_OVERHEAD 256u
 
 typedef struct {
@@ -57,7 +57,7 @@ typedef struct {
     char pidfile[PATH_MAX];          /* "" = none */
     /* connections */
     uint32_t max_clients;            /* 128 */
-    uint32_t client_timeout;         /* seconds, 30: hello, one frame, a stalled reply */
+    uint32_t client_timeout;         /* seconds, 30: hello, one frame, a stalled reply or upload */
     /* the limits clients are told (HelloOk): one field per row of VOX_LIMITS
      * (vox_limits.h), with its name, type, default and range */
 #define CONFIG_LIMIT_FIELD(name, type, def, min, max, unit, doc) type name;

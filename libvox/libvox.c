@@ -108,11 +108,16 @@ typedef struct vjob {
     vox_summary sum;
 } vjob;
 
-enum { P_NONE, P_HELLO, P_SUBMIT, P_STATUS, P_PING, P_CANCEL };
+/* The request a call waits for.  P_DRAIN: a ping behind an upload's last
+ * chunk, so that what the daemon says about the chunks (an Error with no
+ * job for each chunk sent after its job ended) comes in before the call
+ * returns and cannot pass for the answer to a later request. */
+enum { P_NONE, P_HELLO, P_SUBMIT, P_STATUS, P_PING, P_CANCEL, P_DRAIN };
 
 struct vox_client {
     int fd;
     int timeout_ms;
+    size_t inline_max;
     frame_decoder dec;
     proto_limits lim;
     vox_server_info info;
@@ -376,6 +381,14 @@ static void on_summary(vjob *j, const Voxd__Summary *m)
         .file_bytes = m->file_bytes, .crc32 = m->crc32,
         .seconds_queued = m->seconds_queued, .seconds_voxelize = m->seconds_voxelize,
         .seconds_write = m->seconds_write};
+    /* proto_check_reply made sure of 3 values each and a consistent grid. */
+    const Voxd__Grid *g = m->grid;
+    for (int a = 0; a < 3; a++) {
+        j->sum.grid[a] = g->res[a];
+        j->sum.origin[a] = g->origin[a];
+    }
+    j->sum.depth = g->depth;
+    j->sum.voxel_size = g->voxel_size;
 }
 
 /* ---------------------------------------------------------------- dispatch */
@@ -414,7 +427,9 @@ static int on_error(vox_client *c, const Voxd__Error *m)
     }
     if (m->job_id && ignored(c, m->job_id)) return 0;
     /* A refused request; only a Submit's refusal may name a job id (the
-     * one the job would have had). */
+     * one the job would have had).  While draining an upload, an Error
+     * with no job is about a chunk sent after its job ended: no news. */
+    if (c->pending == P_DRAIN && m->job_id == 0) return 0;
     if (c->pending != P_NONE && !c->answered &&
         (m->job_id == 0 || c->pending == P_SUBMIT)) {
         answer(c, code, m->job_id, msg);
@@ -525,8 +540,8 @@ static int on_pong(vox_client *c, const Voxd__Pong *m)
                     m->token >= c->next_token ? "was never sent" : "it had answered",
                     (unsigned long long)m->token);
     c->last_pong = m->token;
-    if ((c->pending == P_PING || c->pending == P_CANCEL) && !c->answered &&
-        m->token == c->ping_token)
+    if ((c->pending == P_PING || c->pending == P_CANCEL || c->pending == P_DRAIN) &&
+        !c->answered && m->token == c->ping_token)
         answer(c, 0, 0, NULL);
     return 0;
 }
@@ -792,6 +807,7 @@ int vox_connect_fd(int fd, const vox_options *opts, vox_client **out, vox_error 
     c->fd = fd;
     c->rbuf = rbuf;
     c->timeout_ms = opts && opts->timeout_ms > 0 ? opts->timeout_ms : VOX_DEFAULT_TIMEOUT_MS;
+    c->inline_max = opts && opts->inline_max ? opts->inline_max : VOX_DEFAULT_INLINE_MAX;
     c->next_token = 1;
     proto_limits_default(&c->lim);
     frame_decoder_init(&c->dec, FRAME_DEFAULT_MAX);
@@ -872,51 +888,151 @@ void vox_server(const vox_client *c, vox_server_info *out)
 
 /* ---------------------------------------------------------------- requests */
 
-int vox_submit(vox_client *c, const vox_implicit_job *job, uint64_t *job_id,
-               uint32_t *queue_position, vox_error *err)
+/* A ping, and every reply up to its pong: see P_DRAIN. */
+static int drain(vox_client *c, vox_error *err)
+{
+    c->ping_token = c->next_token++;
+    Voxd__Ping ping = VOXD__PING__INIT;
+    ping.token = c->ping_token;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_PING;
+    req.ping = &ping;
+    return request(c, P_DRAIN, &req, err);
+}
+
+/* Send job id's input in InputChunks, in order; stop early when the daemon
+ * ends the job.  0, or the connection's failure. */
+static int upload(vox_client *c, uint64_t id, const uint8_t *data, size_t n, vox_error *err)
+{
+    size_t piece = c->info.chunk_size; /* within a frame: proto_check_reply */
+    /* What comes meanwhile is no answer to anything; an Error with no job
+     * is about a chunk (see P_DRAIN). */
+    c->pending = P_DRAIN;
+    c->answered = 1;
+    for (size_t off = 0; off < n;) {
+        vjob *j = find_job(c, id);
+        if (!j || j->done) break;
+        size_t k = n - off < piece ? n - off : piece;
+        Voxd__InputChunk in = VOXD__INPUT_CHUNK__INIT;
+        in.job_id = id;
+        in.offset = off;
+        in.data.data = (uint8_t *)data + off;
+        in.data.len = k;
+        Voxd__Request req = VOXD__REQUEST__INIT;
+        req.msg_case = VOXD__REQUEST__MSG_INPUT;
+        req.input = &in;
+        int rc = send_request(c, &req);
+        if (rc) {
+            c->pending = P_NONE;
+            copy_error(err, &c->fail);
+            return rc;
+        }
+        off += k;
+    }
+    c->pending = P_NONE;
+    int rc = drain(c, err);
+    vjob *j = find_job(c, id);
+    if (j) j->t_accepted = mono(); /* its time to finish counts from here */
+    return rc;
+}
+
+/* The Submit of an implicit job, with its source inline or declared as
+ * input (then sent by upload). */
+static void implicit_request(const vox_job *job, int chunked, Voxd__Implicit *im,
+                             Voxd__Submit *sub, Voxd__Request *req)
+{
+    const vox_implicit *ij = &job->implicit;
+    size_t len = ij->source_len ? ij->source_len : strlen(ij->source);
+    if (chunked) sub->input_bytes = len;
+    else im->source.data = (uint8_t *)ij->source, im->source.len = len;
+    if (ij->source_name) {
+        im->source_name.data = (uint8_t *)ij->source_name;
+        im->source_name.len = strlen(ij->source_name);
+    }
+    im->domain = (double *)ij->domain;
+    im->n_domain = 6;
+    im->res = ij->res;
+    im->schedule = (Voxd__Schedule)ij->schedule;
+    sub->job_case = VOXD__SUBMIT__JOB_IMPLICIT;
+    sub->implicit = im;
+    sub->channel = (Voxd__Channel)job->channel;
+    sub->brick = job->brick;
+    sub->comp = (Voxd__Compression)job->comp;
+    sub->hash = (Voxd__Hash)job->hash;
+    req->msg_case = VOXD__REQUEST__MSG_SUBMIT;
+    req->submit = sub;
+}
+
+/* What the daemon would refuse for its size, refused here unsent. */
+static int check_input_size(const vox_client *c, size_t len, int chunked, vox_error *err)
+{
+    if (len > c->lim.max_expr_bytes) {
+        set_error(err, VOX_ELIMIT_EXCEEDED, 0,
+                  "expression is %zu bytes, over this server's max_expr_bytes of %u", len,
+                  c->lim.max_expr_bytes);
+        return VOX_ELIMIT_EXCEEDED;
+    }
+    if (chunked && len > c->lim.max_input_bytes) {
+        set_error(err, VOX_ELIMIT_EXCEEDED, 0,
+                  "the job's input is %zu bytes, over this server's max_input_bytes of %llu",
+                  len, (unsigned long long)c->lim.max_input_bytes);
+        return VOX_ELIMIT_EXCEEDED;
+    }
+    return 0;
+}
+
+int vox_submit_job(vox_client *c, const vox_job *job, uint64_t *job_id,
+                   uint32_t *queue_position, vox_error *err)
 {
     vox_error tmp;
     if (!err) err = &tmp;
-    if (!job || !job->source) {
+    if (!job || job->kind != VOX_JOB_IMPLICIT) {
+        int k = job ? job->kind : 0, rc = k == VOX_JOB_MESH || k == VOX_JOB_CSG ? -ENOTSUP : -EINVAL;
+        set_error(err, rc, 0, "%s", rc == -ENOTSUP ? "this libvox cannot send mesh or CSG jobs yet"
+                                                   : "the job is of no known kind");
+        return rc;
+    }
+    const vox_implicit *ij = &job->implicit;
+    if (!ij->source) {
         set_error(err, -EINVAL, 0, "the job has no expression");
         return -EINVAL;
     }
+    size_t len = ij->source_len ? ij->source_len : strlen(ij->source);
     Voxd__Implicit im = VOXD__IMPLICIT__INIT;
-    im.source.data = (uint8_t *)job->source;
-    im.source.len = job->source_len ? job->source_len : strlen(job->source);
-    if (job->source_name) {
-        im.source_name.data = (uint8_t *)job->source_name;
-        im.source_name.len = strlen(job->source_name);
-    }
-    im.domain = (double *)job->domain;
-    im.n_domain = 6;
-    im.res = job->res;
-    im.schedule = (Voxd__Schedule)job->schedule;
     Voxd__Submit sub = VOXD__SUBMIT__INIT;
-    sub.job_case = VOXD__SUBMIT__JOB_IMPLICIT;
-    sub.implicit = &im;
-    sub.channel = (Voxd__Channel)job->channel;
-    sub.brick = job->brick;
-    sub.comp = (Voxd__Compression)job->comp;
-    sub.hash = (Voxd__Hash)job->hash;
     Voxd__Request req = VOXD__REQUEST__INIT;
-    req.msg_case = VOXD__REQUEST__MSG_SUBMIT;
-    req.submit = &sub;
-    /* The daemon closes the connection on a frame over its max_frame:
-     * refuse such a job here, with a reason. */
-    size_t n = protobuf_c_message_get_packed_size(&req.base);
-    if (n > c->lim.max_frame) {
-        set_error(err, VOX_ELIMIT_EXCEEDED, 0,
-                  "the job's request is %zu bytes, over this server's max_frame of %u "
-                  "(the expression is %zu bytes, limit %u)",
-                  n, c->lim.max_frame, im.source.len, c->lim.max_expr_bytes);
-        return VOX_ELIMIT_EXCEEDED;
-    }
-    int rc = request(c, P_SUBMIT, &req, err);
+    implicit_request(job, 0, &im, &sub, &req);
+    /* Inline when small and it fits a frame; else in InputChunks. */
+    int chunked = len > c->inline_max ||
+                  protobuf_c_message_get_packed_size(&req.base) > c->lim.max_frame;
+    int rc = check_input_size(c, len, chunked, err);
     if (rc) return rc;
-    *job_id = c->ans_job;
-    if (queue_position) *queue_position = c->ans_qpos;
+    if (chunked) {
+        im = (Voxd__Implicit)VOXD__IMPLICIT__INIT;
+        sub = (Voxd__Submit)VOXD__SUBMIT__INIT;
+        implicit_request(job, 1, &im, &sub, &req);
+    }
+    if ((rc = request(c, P_SUBMIT, &req, err))) return rc;
+    uint64_t id = c->ans_job;
+    uint32_t qpos = c->ans_qpos;
+    if (chunked && (rc = upload(c, id, (const uint8_t *)ij->source, len, err))) return rc;
+    *job_id = id;
+    if (queue_position) *queue_position = qpos;
     return 0;
+}
+
+int vox_submit(vox_client *c, const vox_implicit_job *job, uint64_t *job_id,
+               uint32_t *queue_position, vox_error *err)
+{
+    if (!job) return vox_submit_job(c, NULL, job_id, queue_position, err);
+    vox_job j = {
+        .kind = VOX_JOB_IMPLICIT,
+        .implicit = {.source = job->source, .source_len = job->source_len,
+                     .source_name = job->source_name, .res = job->res,
+                     .schedule = job->schedule},
+        .channel = job->channel, .brick = job->brick, .comp = job->comp, .hash = job->hash};
+    memcpy(j.implicit.domain, job->domain, sizeof j.implicit.domain);
+    return vox_submit_job(c, &j, job_id, queue_position, err);
 }
 
 int vox_cancel(vox_client *c, uint64_t job_id, vox_error *err)

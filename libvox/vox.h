@@ -59,6 +59,9 @@ extern "C" {
 /* The daemon's default socket; vox uses $VOXD_SOCKET first. */
 #define VOX_DEFAULT_SOCKET "/run/voxd/voxd.sock"
 #define VOX_DEFAULT_TIMEOUT_MS 30000
+/* A job's input (an implicit job's expression) larger than this is sent
+ * after the job's Submit in InputChunks rather than inside it. */
+#define VOX_DEFAULT_INLINE_MAX 65536
 
 /* A short description: "no such file or directory", "over a limit of the daemon". */
 const char *vox_strerror(int code);
@@ -78,6 +81,9 @@ typedef struct vox_client vox_client;
 typedef struct {
     int timeout_ms;          /* give up after this much silence; 0 = VOX_DEFAULT_TIMEOUT_MS */
     const char *client_name; /* for the daemon's log; NULL = "libvox" */
+    size_t inline_max;       /* an input over this many bytes goes in InputChunks (so does one
+                                whose request would not fit the daemon's max_frame);
+                                0 = VOX_DEFAULT_INLINE_MAX */
 } vox_options;
 
 /* Connect to the daemon at socket_path and say hello.  opts may be NULL.
@@ -102,7 +108,7 @@ typedef struct {
     /* The daemon's limits, one field per row of VOX_LIMITS (vox_limits.h):
      * max_frame, max_expr_bytes, max_expr_depth, max_res, max_queued_jobs,
      * max_jobs_per_uid, job_timeout, max_result_bytes, chunk_size,
-     * max_csg_nodes. */
+     * max_csg_nodes, max_input_bytes. */
 #define VOX_SERVER_LIMIT(name, type, def, min, max, unit, doc) type name;
     VOX_LIMITS(VOX_SERVER_LIMIT)
 #undef VOX_SERVER_LIMIT
@@ -119,7 +125,53 @@ enum { VOX_COMP_DEFAULT = 0, VOX_COMP_NONE = 1, VOX_COMP_ZLIB = 2, VOX_COMP_RUNL
 enum { VOX_HASH_DEFAULT = 0, VOX_HASH_SFHS = 1, VOX_HASH_XX32 = 2 };
 enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 2 };
 
+/* The kinds of job (the protocol's Submit.job numbers). */
+enum {
+    VOX_JOB_IMPLICIT = 1, /* vox_job.implicit */
+    VOX_JOB_MESH = 2,     /* a triangle mesh: not supported yet */
+    VOX_JOB_CSG = 3,      /* volume CSG: not supported yet */
+};
+
 /* F(x,y,z) = 0 over a box: the job of `vox voxelize`. */
+typedef struct {
+    const char *source;   /* the expression (expr/expr.h syntax) */
+    size_t source_len;    /* its bytes; 0 = strlen(source) */
+    const char *source_name; /* the file it came from, for the VOD's metadata
+                                (at most 512 bytes, one line); may be NULL */
+    double domain[6];     /* x0, x1, y0, y1, z0, z1, each low < high */
+    uint32_t res;         /* voxels along the longest axis */
+    int schedule;         /* VOX_SCHEDULE_* */
+} vox_implicit;
+
+/* A job of any kind: `kind` says which member of the union holds it; the
+ * VOD options are common to every kind. */
+typedef struct {
+    int kind;             /* VOX_JOB_* */
+    union {
+        vox_implicit implicit; /* VOX_JOB_IMPLICIT */
+    };
+    int channel;          /* VOX_CHANNEL_* */
+    uint32_t brick;       /* brick side, a power of two 2..256; 0 = 16 */
+    int comp;             /* VOX_COMP_* */
+    int hash;             /* VOX_HASH_* */
+} vox_job;
+
+/* Send a job.  On acceptance *job_id (never 0) names it and *queue_position
+ * (may be NULL) is the number of jobs before it (0: running now).  An input
+ * larger than the client's inline_max, or than fits the daemon's max_frame,
+ * follows the job in InputChunks; the call returns once it is all sent (a
+ * job that the daemon ends during its upload, say for a NUL byte in the
+ * expression, is still accepted: vox_receive_* gives its error).  A
+ * refusal is a VOX_E* code with the daemon's reason (VOX_EBUSY,
+ * VOX_ELIMIT_EXCEEDED, VOX_EINVALID_INPUT, VOX_ESHUTTING_DOWN).  An input
+ * over the daemon's max_expr_bytes or max_input_bytes is refused here with
+ * VOX_ELIMIT_EXCEEDED, unsent; a kind this libvox cannot send yet (mesh,
+ * CSG) with -ENOTSUP. */
+int vox_submit_job(vox_client *c, const vox_job *job, uint64_t *job_id,
+                   uint32_t *queue_position, vox_error *err);
+
+/* The implicit job of earlier versions, options and all: vox_submit sends it
+ * through vox_submit_job. */
 typedef struct {
     const char *source;   /* the expression (expr/expr.h syntax) */
     size_t source_len;    /* its bytes; 0 = strlen(source) */
@@ -134,11 +186,6 @@ typedef struct {
     int schedule;         /* VOX_SCHEDULE_* */
 } vox_implicit_job;
 
-/* Send a job.  On acceptance *job_id (never 0) names it and *queue_position
- * (may be NULL) is the number of jobs before it (0: running now).  A refusal
- * is a VOX_E* code with the daemon's reason (VOX_EBUSY, VOX_ELIMIT_EXCEEDED,
- * VOX_EINVALID_INPUT, VOX_ESHUTTING_DOWN).  A request too large for the
- * daemon's max_frame is refused here with VOX_ELIMIT_EXCEEDED, unsent. */
 int vox_submit(vox_client *c, const vox_implicit_job *job, uint64_t *job_id,
                uint32_t *queue_position, vox_error *err);
 
@@ -157,6 +204,12 @@ typedef struct {
     uint64_t file_bytes;
     uint32_t crc32;           /* the VOD trailer's fileCRC32, checked */
     double seconds_queued, seconds_voxelize, seconds_write;
+    /* The grid the daemon voxelized on: voxel (X, Y, Z) is the cube
+     * origin + [X, X+1] * voxel_size on x (likewise y, z), X < grid[0]. */
+    uint32_t grid[3];         /* voxels along x, y, z */
+    uint32_t depth;           /* octree levels: the smallest d >= 1, 2^d >= max(grid) */
+    double voxel_size;        /* edge of the cubic voxels */
+    double origin[3];         /* the grid's low corner (the domain's) */
 } vox_summary;
 
 /* Wait for a job's end and write its VOD to path.  The file is written under

@@ -222,11 +222,25 @@ static int check_output(const Voxd__Submit *s, proto_error *e)
 
 /* ---------------------------------------------------------------- jobs */
 
+/* An expression that comes as the job's input: the Submit carries its size
+ * only (its bytes are checked as they arrive). */
+static int check_source_input(const ProtobufCBinaryData *inline_src, uint64_t n,
+                              uint32_t max, proto_error *e)
+{
+    if (inline_src->len)
+        return bad(e, INVALID, "the expression comes either inline or as input_bytes, not both");
+    if (n > max)
+        return bad(e, LIMIT, "expression is %llu bytes, limit %u", (unsigned long long)n, max);
+    return 0;
+}
+
 static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
                           const proto_limits *lim, proto_error *e)
 {
-    int rc;
-    if ((rc = check_source(&im->source, lim->max_expr_bytes, "expression", e))) return rc;
+    int rc = s->input_bytes
+                 ? check_source_input(&im->source, s->input_bytes, lim->max_expr_bytes, e)
+                 : check_source(&im->source, lim->max_expr_bytes, "expression", e);
+    if (rc) return rc;
     if ((rc = check_source_name(&im->source_name, e))) return rc;
     if ((rc = check_box(im->domain, im->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(im->res, lim, e))) return rc;
@@ -240,7 +254,8 @@ static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
     return 0;
 }
 
-static int check_mesh(const Voxd__Mesh *m, const proto_limits *lim, proto_error *e)
+static int check_mesh(const Voxd__Mesh *m, const Voxd__Submit *s, const proto_limits *lim,
+                      proto_error *e)
 {
     int rc;
     if (m->format == VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED)
@@ -249,7 +264,9 @@ static int check_mesh(const Voxd__Mesh *m, const proto_limits *lim, proto_error 
         return bad(e, INVALID, "unknown mesh format %d", (int)m->format);
     if ((unsigned)m->mode > VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE)
         return bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);
-    if (m->data.len == 0) return bad(e, INVALID, "mesh data is empty");
+    if (m->data.len == 0 && !s->input_bytes) return bad(e, INVALID, "mesh data is empty");
+    if (m->data.len && s->input_bytes)
+        return bad(e, INVALID, "the mesh comes either inline or as input_bytes, not both");
     if (m->n_domain && (rc = check_box(m->domain, m->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(m->res, lim, e))) return rc;
     return bad(e, INVALID, "mesh jobs are not supported yet");
@@ -369,6 +386,10 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
 {
     int rc = check_output(s, e);
     if (rc) return rc;
+    if (s->input_bytes > lim->max_input_bytes)
+        return bad(e, LIMIT, "input is %llu bytes, over this server's max_input_bytes of %llu",
+                   (unsigned long long)s->input_bytes,
+                   (unsigned long long)lim->max_input_bytes);
     switch (s->job_case) {
     case VOXD__SUBMIT__JOB__NOT_SET:
         return bad(e, INVALID, "submit has no job (implicit, mesh or csg)");
@@ -377,7 +398,7 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
         return check_implicit(s->implicit, s, lim, e);
     case VOXD__SUBMIT__JOB_MESH:
         if (!s->mesh) break;
-        return check_mesh(s->mesh, lim, e);
+        return check_mesh(s->mesh, s, lim, e);
     case VOXD__SUBMIT__JOB_CSG:
         if (!s->csg) break;
         return check_csg(s->csg, lim, e);
@@ -385,6 +406,21 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
         return bad(e, INVALID, "unknown job kind %d", (int)s->job_case);
     }
     return bad(e, INVALID, "submit job is missing");
+}
+
+/* A piece of a job's input: whether it fits its job is the daemon's to
+ * say; here, that it is something and stays within the cap. */
+static int check_input_chunk(const Voxd__InputChunk *c, const proto_limits *lim,
+                             proto_error *e)
+{
+    if (!c->job_id) return bad(e, INVALID, "input chunk has no job id");
+    if (c->data.len == 0)
+        return bad(e, INVALID, "input chunk at offset %llu is empty",
+                   (unsigned long long)c->offset);
+    if (c->offset > lim->max_input_bytes || c->data.len > lim->max_input_bytes - c->offset)
+        return bad(e, LIMIT, "input chunk at offset %llu passes this server's max_input_bytes of %llu",
+                   (unsigned long long)c->offset, (unsigned long long)lim->max_input_bytes);
+    return 0;
 }
 
 /* ---------------------------------------------------------------- requests */
@@ -407,6 +443,7 @@ static const void *request_body(const Voxd__Request *r)
     case VOXD__REQUEST__MSG_CANCEL: return r->cancel;
     case VOXD__REQUEST__MSG_STATUS: return r->status;
     case VOXD__REQUEST__MSG_PING: return r->ping;
+    case VOXD__REQUEST__MSG_INPUT: return r->input;
     default: return NULL;
     }
 }
@@ -427,6 +464,7 @@ int proto_check_request(const Voxd__Request *r, const proto_limits *lim,
     case VOXD__REQUEST__MSG_CANCEL:
         rc = r->cancel->job_id ? 0 : bad(err, INVALID, "cancel needs a job id");
         break;
+    case VOXD__REQUEST__MSG_INPUT: rc = check_input_chunk(r->input, lim, err); break;
     default: rc = 0; break; /* Status, Ping: nothing to check */
     }
     return rc ? rc : ok(err);
@@ -512,10 +550,38 @@ static int check_chunk(const Voxd__ResultChunk *c, const proto_limits *lim,
     return 0;
 }
 
+/* The grid of a job: what grid_make (common/grid.h) makes (res within max_res, the
+ * octree's depth the smallest that holds it, a finite cubic voxel). */
+static int check_grid(const Voxd__Grid *g, const proto_limits *lim, proto_error *e)
+{
+    if (!g) return bad(e, INVALID, "summary has no grid");
+    if (g->n_res != 3 || g->n_origin != 3)
+        return bad(e, INVALID, "summary grid has %zu res and %zu origin values, not 3",
+                   g->n_res, g->n_origin);
+    uint32_t top = 0;
+    for (int a = 0; a < 3; a++) {
+        if (g->res[a] == 0 || g->res[a] > lim->max_res)
+            return bad(e, INVALID, "summary grid res %u is outside 1 to %u", g->res[a],
+                       lim->max_res);
+        if (g->res[a] > top) top = g->res[a];
+        if (!isfinite(g->origin[a]))
+            return bad(e, INVALID, "summary grid origin %g is not finite", g->origin[a]);
+    }
+    uint32_t depth = 1;
+    while (((uint64_t)1 << depth) < top) depth++;
+    if (g->depth != depth)
+        return bad(e, INVALID, "summary grid depth %u, where res %u needs %u", g->depth, top,
+                   depth);
+    if (!isfinite(g->voxel_size) || !(g->voxel_size > 0))
+        return bad(e, INVALID, "summary grid voxel_size %g is not finite and > 0",
+                   g->voxel_size);
+    return 0;
+}
+
 static int check_summary(const Voxd__Summary *s, const proto_limits *lim, proto_error *e)
 {
     int rc = check_job_id(s->job_id, "summary", e);
-    if (rc) return rc;
+    if (rc || (rc = check_grid(s->grid, lim, e))) return rc;
     if (s->file_bytes == 0 || s->file_bytes > lim->max_result_bytes)
         return bad(e, INVALID, "summary file_bytes %llu is outside 1 to %llu",
                    (unsigned long long)s->file_bytes,

@@ -11,7 +11,8 @@
  *
  * The checks are per message; what depends on the conversation (Hello must
  * come first, a Cancel names one of this client's jobs, chunks arrive in
- * order for a job this client submitted) is the caller's.
+ * order for a job this client submitted, an InputChunk belongs to a job
+ * waiting for input and stays within its declared size) is the caller's.
  */
 #ifndef VOXD_PROTO_CHECK_H
 #define VOXD_PROTO_CHECK_H
@@ -34,9 +35,9 @@
 
 /* The configurable limits (the table VOX_LIMITS): config_proto_limits()
  * fills them from the daemon's config, a client takes them from HelloOk.
- * The checks here use max_expr_bytes, max_res, max_csg_nodes, chunk_size
- * and max_result_bytes; max_expr_depth only the expression compiler can
- * see, the others are the daemon's to count. */
+ * The checks here use max_expr_bytes, max_res, max_csg_nodes, chunk_size,
+ * max_result_bytes and max_input_bytes; max_expr_depth only the expression
+ * compiler can see, the others are the daemon's to count. */
 typedef struct {
 #define PROTO_LIMIT_FIELD(name, type, def, min, max, unit, doc) type name;
     VOX_LIMITS(PROTO_LIMIT_FIELD)

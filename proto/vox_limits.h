@@ -32,20 +32,22 @@
     X(max_frame, uint32_t, 1u << 20, 4096u, 64u << 20, BYTES,                          \
       "bytes of one frame's message, both directions")                                 \
     X(max_expr_bytes, uint32_t, 65536u, 16u, 16u << 20, BYTES,                          \
-      "bytes of an expression's source (also a CSG leaf's)")                           \
+      "bytes of an expression's source, inline or as input (also a CSG leaf's)")       \
     X(max_expr_depth, uint32_t, 256u, 1u, 1024u, COUNT,                                \
       "nesting of an expression (1024 is the expression parser's own cap)")            \
     X(max_res, uint32_t, 4096u, 1u, 65536u, COUNT, "voxels along a job's longest axis") \
     X(max_queued_jobs, uint32_t, 64u, 1u, 65536u, COUNT,                               \
-      "jobs waiting, all clients together")                                            \
+      "jobs waiting or uploading their input, all clients together")                   \
     X(max_jobs_per_uid, uint32_t, 16u, 1u, 65536u, COUNT,                              \
-      "jobs of one uid queued, running, or finished and not yet delivered")            \
+      "jobs of one uid uploading, queued, running, or finished and not yet delivered") \
     X(job_timeout, uint32_t, 600u, 0u, 7u * 86400u, SECONDS,                           \
       "a job's running time (not its time in the queue); 0 = none")                    \
     X(max_result_bytes, uint64_t, (uint64_t)4 << 30, (uint64_t)64 << 10,               \
       (uint64_t)4 << 30, BYTES, "bytes of a job's VOD file")                           \
     X(chunk_size, uint32_t, 256u << 10, 1024u, 64u << 20, BYTES,                       \
       "bytes of one ResultChunk's data")                                               \
-    X(max_csg_nodes, uint32_t, 1024u, 1u, 65536u, COUNT, "nodes of a CSG job")
+    X(max_csg_nodes, uint32_t, 1024u, 1u, 65536u, COUNT, "nodes of a CSG job")          \
+    X(max_input_bytes, uint64_t, (uint64_t)64 << 20, (uint64_t)4 << 10,                \
+      (uint64_t)4 << 30, BYTES, "bytes of a job's input sent as InputChunks")
 
 #endif

@@ -108,7 +108,7 @@ static void on_stop_timer(uv_timer_t *t)
  * written (bounded by the stop timer), then the engine, then the loop. */
 void vd_maybe_exit(vd_daemon *d)
 {
-    if (!d->stopping || d->exiting || vd_busy(d)) return;
+    if (!d->stopping || d->exiting || vd_busy(d) || d->nuploading) return;
     for (vd_client *c = d->clients, *next; c; c = next) {
         next = c->next;
         vd_client_close_after_flush(c);
@@ -129,8 +129,9 @@ void vd_maybe_exit(vd_daemon *d)
     log_info("stopped");
 }
 
-/* TERM/INT: queued and delivering jobs end with SHUTTING_DOWN now, the
- * running one is cancelled and ends with it when the engine returns. */
+/* TERM/INT: uploading, queued and delivering jobs end with SHUTTING_DOWN
+ * now, the running one is cancelled and ends with it when the engine
+ * returns. */
 static void stop_fast(vd_daemon *d)
 {
     if (d->stopping == VD_STOP_FAST) return;
@@ -152,6 +153,8 @@ static void stop_fast(vd_daemon *d)
         vd_job_fail(d, j, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
     }
     for (vd_client *c = d->clients; c; c = c->next)
+        vd_client_fail_uploads(c, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
+    for (vd_client *c = d->clients; c; c = c->next)
         while (c->deliver) {
             vd_job *j = c->deliver;
             c->deliver = j->next;
@@ -162,7 +165,8 @@ static void stop_fast(vd_daemon *d)
     vd_maybe_exit(d);
 }
 
-/* QUIT: no new connections or jobs; the queued and running ones finish. */
+/* QUIT: no new connections or jobs; the uploading, queued and running ones
+ * finish (an upload that stalls ends after the client timeout). */
 static void stop_graceful(vd_daemon *d)
 {
     if (d->stopping) return;

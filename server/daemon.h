@@ -32,6 +32,7 @@
 #include "config.h"
 #include "engine.h"
 #include "frame.h"
+#include "grid.h"
 #include "voxd.pb-c.h"
 
 #define VD_SERVER_NAME "voxd 0.1"
@@ -53,7 +54,9 @@ typedef struct {
     int ready_fd;              /* --daemon: write 1 byte here once serving; -1 none */
 } vd_options;
 
-enum vd_job_state { VD_QUEUED, VD_RUNNING, VD_DONE, VD_DELIVERING };
+/* UPLOADING: accepted, its input coming in InputChunks; on the client's
+ * list only (loop only) until the last byte, then queued. */
+enum vd_job_state { VD_QUEUED, VD_RUNNING, VD_DONE, VD_DELIVERING, VD_UPLOADING };
 
 struct vd_job {
     uint64_t id;
@@ -64,8 +67,12 @@ struct vd_job {
     int state;                 /* enum vd_job_state (under mu) */
 
     /* the request, copied and checked */
-    char *source;              /* NUL-terminated */
-    size_t source_len;
+    char *source;              /* NUL-terminated: inline, or the input as it arrives */
+    size_t source_len;         /* bytes of it (received so far while uploading) */
+    /* an input sent as InputChunks (loop only) */
+    uint64_t input_total;      /* bytes the Submit declared, 0 = inline */
+    size_t input_cap;          /* bytes allocated at source */
+    double t_input;            /* monotonic seconds of the Accepted or the last chunk */
     char *source_name;         /* its file's name, NUL-terminated, or NULL */
     double lo[3], hi[3];
     uint32_t res;
@@ -93,6 +100,7 @@ struct vd_job {
     uint64_t voxels;
     vod_stats st;
     double t_voxelize, t_write;
+    grid_spec grid;            /* the job's grid, for its Summary (set when it succeeded) */
 };
 
 struct vd_client {
@@ -139,6 +147,7 @@ struct vd_daemon {
 
     vd_client *clients;
     unsigned nclients;
+    unsigned nuploading;       /* jobs waiting for their input (loop only) */
     uint64_t next_job_id;
     uint8_t readbuf[VD_READ_BUF];
 
@@ -189,9 +198,11 @@ void vd_job_free(vd_job *j);
 void vd_job_stopped(vd_job *j);
 /* Push a checked job onto the queue; the caller counted the limits. */
 void vd_queue_push(vd_daemon *d, vd_job *j);
-/* Admit j if the queue and j's uid have room (its jobs queued, running,
- * or finished and not yet delivered: `delivering` of them are on the
- * loop's lists): 0 (queued, *pos = jobs ahead of it), or
+/* Admit j if the queue and j's uid have room (its jobs uploading, queued,
+ * running, or finished and not yet delivered: `delivering` of them, the
+ * uploading and the delivering, are on the loop's lists; the queue's room
+ * counts the uploading jobs as queued): 0 (queued, or left uploading when
+ * j is VD_UPLOADING; *pos = jobs ahead of it), or
  * VOXD__ERROR_CODE__BUSY / __LIMIT_EXCEEDED. */
 int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos);
 /* Stop a job wherever it is: queued ones are taken out and get their
@@ -216,6 +227,8 @@ void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg);
 /* A finished job from the engine: its terminal error, or on to delivery. */
 void vd_job_finished(vd_daemon *d, vd_job *j);
 void vd_client_unlink_job(vd_client *c, vd_job *j);
+/* End every job of c still uploading its input with code (a stop). */
+void vd_client_fail_uploads(vd_client *c, int code, const char *msg);
 
 /* daemon_reply.c */
 int vd_send_hello_ok(vd_client *c);

@@ -1,7 +1,9 @@
 /* Connections: accept (max_clients, SO_PEERCRED against allow_uids), read
- * and decode frames (the one boundary check), answer requests, stream
- * results under a bounded write queue, and time out clients that stall. */
+ * and decode frames (the one boundary check), answer requests, take jobs'
+ * inputs in InputChunks, stream results under a bounded write queue, and
+ * time out clients that stall. */
 #include <errno.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -87,15 +89,21 @@ static void unlink_delivery(vd_client *c, vd_job *j)
         }
 }
 
-/* The client is gone: its queued jobs are freed now, a running one is
- * cancelled and freed when the engine gives it back. */
+/* The client is gone: its uploading and queued jobs are freed now, a
+ * running one is cancelled and freed when the engine gives it back. */
 static void drop_jobs(vd_client *c)
 {
     vd_daemon *d = c->d;
     while (c->jobs) {
         vd_job *j = c->jobs;
         vd_client_unlink_job(c, j);
-        if (j->state == VD_DELIVERING) {
+        if (j->state == VD_UPLOADING) {
+            d->nuploading--;
+            log_info("job %llu: dropped, its client left during its upload (%zu of %llu bytes)",
+                     (unsigned long long)j->id, j->source_len,
+                     (unsigned long long)j->input_total);
+            vd_job_free(j);
+        } else if (j->state == VD_DELIVERING) {
             vd_job_free(j);
         } else if (vd_job_stop(d, j, VOXD__ERROR_CODE__CANCELLED)) {
             log_info("job %llu: cancelled, its client left", (unsigned long long)j->id);
@@ -210,6 +218,12 @@ void vd_job_finished(vd_daemon *d, vd_job *j)
         vd_job_fail(d, j, j->code, j->message);
         return;
     }
+    /* The grid the engine made of the same request, for the Summary. */
+    char why[256];
+    if (grid_make(j->lo, j->hi, j->res, &j->grid, why, sizeof why)) {
+        vd_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, why);
+        return;
+    }
     void *map = mmap(NULL, j->size, PROT_READ, MAP_SHARED, j->fd, 0);
     if (map == MAP_FAILED) {
         vd_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, "cannot read the result back");
@@ -281,18 +295,38 @@ static void job_from_request(vd_job *j, const Voxd__Submit *s)
     j->hash = s->hash == VOXD__HASH__HASH_XX32 ? VOD_HASH_XX32 : VOD_HASH_SFHS;
 }
 
+/* The first buffer of an input sent in chunks: it grows as bytes come, so
+ * a client that declares much and sends little holds little. */
+#define INPUT_FIRST_ALLOC (64u << 10)
+
+/* The job's source: the inline expression, or an empty buffer for the
+ * input to come. */
+static int job_source(vd_job *j, const Voxd__Submit *s)
+{
+    const ProtobufCBinaryData *src = &s->implicit->source;
+    size_t cap = src->len + 1;
+    if (s->input_bytes) {
+        j->input_total = s->input_bytes;
+        j->state = VD_UPLOADING;
+        cap = s->input_bytes < INPUT_FIRST_ALLOC ? (size_t)s->input_bytes + 1
+                                                 : INPUT_FIRST_ALLOC;
+    }
+    if (!(j->source = malloc(cap))) return -ENOMEM;
+    j->input_cap = cap;
+    if (src->len) memcpy(j->source, src->data, src->len); /* data is NULL when empty */
+    j->source[src->len] = '\0';
+    j->source_len = src->len;
+    return 0;
+}
+
 static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
 {
     const voxd_config *cfg = &c->d->cfg;
-    const ProtobufCBinaryData *src = &s->implicit->source;
     vd_job *j = calloc(1, sizeof *j);
-    if (!j || !(j->source = malloc(src->len + 1))) {
+    if (!j || job_source(j, s)) {
         free(j);
         return NULL;
     }
-    memcpy(j->source, src->data, src->len);
-    j->source[src->len] = '\0';
-    j->source_len = src->len;
     const ProtobufCBinaryData *name = &s->implicit->source_name;
     if (name->len && !(j->source_name = strndup((const char *)name->data, name->len))) {
         free(j->source);
@@ -306,18 +340,21 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
     j->max_expr_depth = cfg->max_expr_depth;
     j->max_result_bytes = cfg->max_result_bytes;
     j->job_timeout = cfg->job_timeout;
-    j->t_submit = vd_now();
+    j->t_submit = j->t_input = vd_now();
     return j;
 }
 
-/* Results of uid waiting to be streamed: they hold memory as a running
- * job does, so they count against max_jobs_per_uid. */
-static unsigned delivering_of(vd_daemon *d, uid_t uid)
+/* Jobs of uid on the loop's lists: results waiting to be streamed and
+ * inputs being uploaded hold memory as a running job does, so they count
+ * against max_jobs_per_uid. */
+static unsigned loop_jobs_of(vd_daemon *d, uid_t uid)
 {
     unsigned n = 0;
-    for (vd_client *o = d->clients; o; o = o->next)
-        if (o->uid == uid)
-            for (vd_job *j = o->deliver; j; j = j->next) n++;
+    for (vd_client *o = d->clients; o; o = o->next) {
+        if (o->uid != uid) continue;
+        for (vd_job *j = o->deliver; j; j = j->next) n++;
+        for (vd_job *j = o->jobs; j; j = j->cnext) n += j->state == VD_UPLOADING;
+    }
     return n;
 }
 
@@ -331,7 +368,7 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     if (!j) return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
     j->id = d->next_job_id + 1;
     uint32_t pos;
-    int code = vd_queue_admit(d, j, delivering_of(d, c->uid), &pos);
+    int code = vd_queue_admit(d, j, loop_jobs_of(d, c->uid), &pos);
     if (code == VOXD__ERROR_CODE__BUSY) {
         vd_job_free(j);
         return vd_client_error(c, 0, code,
@@ -351,9 +388,107 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     j->client = c;
     j->cnext = c->jobs;
     c->jobs = j;
-    log_info("job %llu: accepted from uid %u, res %u, %zu bytes of expression",
-             (unsigned long long)j->id, (unsigned)c->uid, j->res, j->source_len);
+    if (j->state == VD_UPLOADING) {
+        d->nuploading++;
+        log_info("job %llu: accepted from uid %u, res %u, waiting for %llu bytes of expression",
+                 (unsigned long long)j->id, (unsigned)c->uid, j->res,
+                 (unsigned long long)j->input_total);
+    } else {
+        log_info("job %llu: accepted from uid %u, res %u, %zu bytes of expression",
+                 (unsigned long long)j->id, (unsigned)c->uid, j->res, j->source_len);
+    }
     return vd_send_accepted(c, j->id, pos);
+}
+
+/* ---------------------------------------------------------------- inputs */
+
+/* An upload that went wrong: the job's terminal error, its buffer freed. */
+__attribute__((format(printf, 4, 5)))
+static int upload_fail(vd_client *c, vd_job *j, int code, const char *fmt, ...)
+{
+    char msg[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    c->d->nuploading--;
+    vd_job_fail(c->d, j, code, msg);
+    return 0;
+}
+
+/* A failed send closes c and frees its jobs: the loops over c->jobs below
+ * stop then. */
+void vd_client_fail_uploads(vd_client *c, int code, const char *msg)
+{
+    for (vd_job *j = c->jobs, *next; j && !c->closing; j = next) {
+        next = j->cnext;
+        if (j->state == VD_UPLOADING) upload_fail(c, j, code, "%s", msg);
+    }
+}
+
+/* Append to the job's input, growing the buffer by doubling up to the
+ * declared size (and its NUL). */
+static int input_append(vd_job *j, const uint8_t *p, size_t n)
+{
+    size_t need = j->source_len + n + 1;
+    if (need > j->input_cap) {
+        size_t cap = j->input_cap * 2;
+        if (cap < need) cap = need;
+        if (cap > j->input_total + 1) cap = (size_t)j->input_total + 1;
+        char *b = realloc(j->source, cap);
+        if (!b) return -ENOMEM;
+        j->source = b;
+        j->input_cap = cap;
+    }
+    memcpy(j->source + j->source_len, p, n);
+    j->source_len += n;
+    j->source[j->source_len] = '\0';
+    return 0;
+}
+
+static vd_job *upload_of(vd_client *c, uint64_t id)
+{
+    for (vd_job *j = c->jobs; j; j = j->cnext)
+        if (j->id == id && j->state == VD_UPLOADING) return j;
+    return NULL;
+}
+
+/* A piece of a job's input: in order, within the declared size, bytes an
+ * expression may hold.  The last one queues the job (admitted at its
+ * Submit, where it was counted as queued). */
+static int on_input(vd_client *c, const Voxd__InputChunk *m)
+{
+    unsigned long long id = (unsigned long long)m->job_id;
+    vd_job *j = upload_of(c, m->job_id);
+    if (!j)
+        return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+                               "no job %llu of this connection is waiting for input", id);
+    const uint8_t *data = m->data.data;
+    size_t n = m->data.len;
+    if (m->offset != j->source_len)
+        return upload_fail(c, j, VOXD__ERROR_CODE__INVALID_INPUT,
+                           "input chunk at offset %llu where %zu was due (chunks come in order)",
+                           (unsigned long long)m->offset, j->source_len);
+    if (n > j->input_total - j->source_len)
+        return upload_fail(c, j, VOXD__ERROR_CODE__INVALID_INPUT,
+                           "input chunk of %zu bytes at offset %llu passes the %llu bytes the "
+                           "job declared (input_bytes)",
+                           n, (unsigned long long)m->offset,
+                           (unsigned long long)j->input_total);
+    const uint8_t *nul = memchr(data, 0, n);
+    if (nul)
+        return upload_fail(c, j, VOXD__ERROR_CODE__INVALID_INPUT,
+                           "expression source contains a NUL byte at offset %llu",
+                           (unsigned long long)(m->offset + (uint64_t)(nul - data)));
+    if (input_append(j, data, n))
+        return upload_fail(c, j, VOXD__ERROR_CODE__INTERNAL, "out of memory for the job's input");
+    j->t_input = vd_now();
+    if (j->source_len < j->input_total) return 0;
+    c->d->nuploading--;
+    j->t_submit = vd_now(); /* Summary.seconds_queued: from here */
+    log_info("job %llu: input complete (%zu bytes); queued", id, j->source_len);
+    vd_queue_push(c->d, j);
+    return 0;
 }
 
 /* A job of this connection, or of another connection of the same uid
@@ -376,10 +511,12 @@ static int on_cancel(vd_client *c, uint64_t id)
     vd_job *j = find_job(c, id);
     if (!j)
         return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
-                               "no job %llu of this uid is queued, running or being delivered",
+                               "no job %llu of this uid is uploading, queued, running or being delivered",
                                (unsigned long long)id);
     log_info("job %llu: cancel asked by client pid %d", (unsigned long long)id, (int)c->pid);
-    if (j->state == VD_DELIVERING) {
+    if (j->state == VD_UPLOADING) {
+        upload_fail(j->client, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
+    } else if (j->state == VD_DELIVERING) {
         unlink_delivery(j->client, j);
         vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
     } else if (vd_job_stop(c->d, j, VOXD__ERROR_CODE__CANCELLED)) {
@@ -403,8 +540,10 @@ static void dispatch(vd_client *c, const Voxd__Request *r)
     case VOXD__REQUEST__MSG_CANCEL: on_cancel(c, r->cancel->job_id); break;
     case VOXD__REQUEST__MSG_STATUS: vd_send_status(c); break;
     case VOXD__REQUEST__MSG_PING: vd_send_pong(c, r->ping->token); break;
+    case VOXD__REQUEST__MSG_INPUT: on_input(c, r->input); break;
     default: break; /* proto_check_request refused it */
     }
+    vd_maybe_exit(c->d); /* a stop may have waited for an upload that ended */
 }
 
 static void on_frame(vd_client *c, const uint8_t *data, size_t len)
@@ -547,9 +686,26 @@ void vd_on_connection(uv_stream_t *server, int status)
 
 /* ---------------------------------------------------------------- timeouts */
 
+/* An upload that stopped holds its buffer: it ends as a stalled frame
+ * would, after the client timeout. */
+static void tick_uploads(vd_client *c, double now, double t)
+{
+    for (vd_job *j = c->jobs, *next; j && !c->closing; j = next) {
+        next = j->cnext;
+        if (j->state == VD_UPLOADING && now - j->t_input > t)
+            upload_fail(c, j, VOXD__ERROR_CODE__TIMEOUT,
+                        "the job's input stopped: no chunk for %.0f s (client_timeout); "
+                        "%zu of %llu bytes came",
+                        t, j->source_len, (unsigned long long)j->input_total);
+    }
+}
+
 void vd_client_tick(vd_client *c, double now)
 {
     double t = client_timeout(c);
+    if (c->closing) return;
+    tick_uploads(c, now, t);
+    vd_maybe_exit(c->d); /* a stop may have waited for those uploads */
     if (c->closing) return;
     if (c->writes && now - c->t_write > t) {
         log_info("client pid %d: has not read its replies for %.0f s; dropping it",

@@ -464,12 +464,12 @@ int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos)
     unsigned mine = delivering + (d->running && d->running->uid == j->uid);
     for (vd_job *q = d->done; q; q = q->next) mine += q->uid == j->uid;
     for (vd_job *q = d->queue; q; q = q->next) mine += q->uid == j->uid;
-    int code = d->nqueued >= c->max_queued_jobs ? VOXD__ERROR_CODE__BUSY
+    int code = d->nqueued + d->nuploading >= c->max_queued_jobs ? VOXD__ERROR_CODE__BUSY
                : mine >= c->max_jobs_per_uid    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
                                                 : 0;
     *pos = d->nqueued + (d->running != NULL);
     pthread_mutex_unlock(&d->mu);
-    if (!code) vd_queue_push(d, j);
+    if (!code && j->state != VD_UPLOADING) vd_queue_push(d, j); /* else when its input is in */
     return code;
 }
 

@@ -94,7 +94,18 @@ static double nonneg(double s)
 
 int vd_send_summary(vd_client *c, const vd_job *j)
 {
+    const grid_spec *g = &j->grid;
+    uint32_t res[3] = {g->res[0], g->res[1], g->res[2]};
+    double origin[3] = {g->lo[0], g->lo[1], g->lo[2]};
+    Voxd__Grid grid = VOXD__GRID__INIT;
+    grid.res = res;
+    grid.n_res = 3;
+    grid.depth = (uint32_t)g->depth;
+    grid.voxel_size = g->vs;
+    grid.origin = origin;
+    grid.n_origin = 3;
     Voxd__Summary m = VOXD__SUMMARY__INIT;
+    m.grid = &grid;
     m.job_id = j->id;
     m.voxels = j->voxels;
     m.bricks = j->st.bricks;

@@ -2,8 +2,10 @@
  * as a Request and as a Reply and validated with the default limits and with
  * tight ones.  What the validator accepts must really hold what the daemon
  * then trusts (abort otherwise): a known oneof case, enums in range, a
- * source within the limit and without NUL, a finite domain with low < high,
- * res within the limit, CSG children earlier. */
+ * source within the limit and without NUL (or none, its size declared
+ * within the limits), a finite domain with low < high, res within the
+ * limit, CSG children earlier, an input chunk within the cap, a summary's
+ * grid whole. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -34,8 +36,13 @@ static void trusted_submit(const Voxd__Submit *s, const proto_limits *lim)
     /* Mesh and CSG are refused for now. */
     must(s->job_case == VOXD__SUBMIT__JOB_IMPLICIT && s->implicit);
     const Voxd__Implicit *im = s->implicit;
-    must(im->source.len >= 1 && im->source.len <= lim->max_expr_bytes);
-    must(!memchr(im->source.data, 0, im->source.len));
+    if (s->input_bytes) {
+        must(im->source.len == 0 && s->input_bytes <= lim->max_expr_bytes &&
+             s->input_bytes <= lim->max_input_bytes);
+    } else {
+        must(im->source.len >= 1 && im->source.len <= lim->max_expr_bytes);
+        must(!memchr(im->source.data, 0, im->source.len));
+    }
     trusted_domain(im->domain, im->n_domain);
     must(im->res >= 1 && im->res <= lim->max_res);
     must((unsigned)im->schedule <= 2);
@@ -49,6 +56,11 @@ static void trusted_request(const Voxd__Request *r, const proto_limits *lim)
     case VOXD__REQUEST__MSG_CANCEL: must(r->cancel && r->cancel->job_id); break;
     case VOXD__REQUEST__MSG_STATUS: must(r->status != NULL); break;
     case VOXD__REQUEST__MSG_PING: must(r->ping != NULL); break;
+    case VOXD__REQUEST__MSG_INPUT:
+        must(r->input && r->input->job_id && r->input->data.len >= 1 &&
+             r->input->offset <= lim->max_input_bytes &&
+             r->input->data.len <= lim->max_input_bytes - r->input->offset);
+        break;
     default: abort();
     }
 }
@@ -71,8 +83,15 @@ static void trusted_reply(const Voxd__Reply *r, const proto_limits *lim)
         must(r->progress->fraction >= 0 && r->progress->fraction <= 1);
         break;
     case VOXD__REPLY__MSG_HELLO_OK: must(r->hello_ok->limits != NULL); break;
+    case VOXD__REPLY__MSG_SUMMARY: {
+        const Voxd__Grid *g = r->summary->grid;
+        must(g && g->n_res == 3 && g->n_origin == 3 && g->voxel_size > 0 &&
+             isfinite(g->voxel_size) && g->depth >= 1 && g->depth <= 32);
+        for (int a = 0; a < 3; a++)
+            must(g->res[a] >= 1 && g->res[a] <= lim->max_res && isfinite(g->origin[a]));
+        break;
+    }
     case VOXD__REPLY__MSG_ACCEPTED:
-    case VOXD__REPLY__MSG_SUMMARY:
     case VOXD__REPLY__MSG_PONG: break;
     default: abort();
     }
@@ -84,7 +103,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     proto_limits_default(&lims[0]);
     lims[1] = (proto_limits){.max_frame = 4096, .max_expr_bytes = 8, .max_res = 16,
                              .max_csg_nodes = 2, .chunk_size = 16,
-                             .max_result_bytes = 1024};
+                             .max_result_bytes = 1024, .max_input_bytes = 64};
     Voxd__Request *rq = frame_unpack_request(data, size);
     if (rq) {
         for (int i = 0; i < 2; i++) {

@@ -101,6 +101,8 @@ same_job "submit = embedded: occupancy runl xx32 brick 8" -e "$S" -r 32 --channe
 same_job "submit = embedded: no compression, res 1" -e "x" -r 1 --compress none
 refuse "submit summary" 0 "voxd job [0-9]+, .* in the queue" v submit -e "$S" -r 32 -o "$TMP/sum.vod"
 refuse "submit summary names the grid" 0 "on a 32x32x32 grid" v submit -e "$S" -r 32 -o "$TMP/sum.vod"
+refuse "the summary's grid is the daemon's" 0 "on a 100x50x25 grid" \
+    v submit -e "$S" -d -1,1,-0.5,0.5,-0.25,0.25 -r 100 -o "$TMP/sum.vod"
 check "submit -q prints nothing" sh -c "[ -z \"\$(timeout 60 '$VOX' --socket '$SOCK' submit -q -e '$S' -r 16 -o '$TMP/q.vod' 2>&1)\" ]"
 refuse "the daemon's file validates" 0 "valid VOD.*CRC-32 checked" "$VOX" info "$TMP/d.vod"
 refuse "submit --progress" 0 "level .*voxels" v submit --progress -e "$S" -r 64 -o "$TMP/p.vod"
@@ -114,6 +116,38 @@ if [ -s "$TMP/fd.vod" ] && cmp "$TMP/fd.vod" "$TMP/fe.vod" >"$TMP/out" 2>&1; the
     pass "file job: the same bytes through the daemon"
 else fail "file job: the same bytes through the daemon" "$(cat "$TMP/out")"; fi
 refuse "file job: the metadata names the file" 0 "meta +source=file:examples/scene2.vx" "$VOX" info "$TMP/fd.vod"
+
+# An expression longer than a frame: libvox sends it in InputChunks after
+# the Submit (a second voxd, with 4K frames and 1K chunks), and the file is
+# the embedded engine's, byte for byte.
+SOCK2=$TMP/small.sock
+printf 'max_frame 4K\nchunk_size 1K\n' >"$TMP/small.conf"
+"$VOXD" --config "$TMP/small.conf" --socket "$SOCK2" --workers 1 >"$TMP/small.log" 2>&1 &
+SMALL=$!
+PIDS+=($SMALL)
+python3 -c "
+print('#@ domain -1,1')
+for i in range(120): print('# padding line %3d so that the source is longer than a 4K frame' % i)
+print('min(' + ','.join('sqrt((x-%.2f)^2+y^2+z^2)-0.3' % (0.05 * k - 0.5) for k in range(21)) + ')')
+" >"$TMP/long.vx"
+v2() { timeout 120 "$VOX" --socket "$SOCK2" "$@"; }
+if until_true 20 v2 ping; then
+    if v2 submit -f "$TMP/long.vx" -r 40 -o "$TMP/l1.vod" >"$TMP/out" 2>&1 &&
+        v voxelize --embedded -f "$TMP/long.vx" -r 40 -o "$TMP/l2.vod" >>"$TMP/out" 2>&1 &&
+        cmp "$TMP/l1.vod" "$TMP/l2.vod" >>"$TMP/out" 2>&1; then
+        pass "an expression over max_frame goes in chunks: same bytes"
+    else fail "an expression over max_frame goes in chunks: same bytes" "$(tail -5 "$TMP/out")"; fi
+    n=$(stat -c %s "$TMP/long.vx")
+    grep -q "waiting for $n bytes of expression" "$TMP/small.log" &&
+        grep -q "input complete ($n bytes); queued" "$TMP/small.log" &&
+        pass "the daemon took it as input" || fail "the daemon took it as input" "$(tail -5 "$TMP/small.log")"
+    refuse "a short expression still goes inline" 0 "on a 16x16x16 grid" v2 submit -e "$S" -r 16 -o "$TMP/l3.vod"
+    grep -q "23 bytes of expression" "$TMP/small.log" && pass "inline: 23 bytes in the submit" ||
+        fail "inline: 23 bytes in the submit" "$(tail -3 "$TMP/small.log")"
+else
+    fail "a voxd with 4K frames starts" "$(tail -5 "$TMP/small.log")"
+fi
+kill -TERM "$SMALL"
 
 # vox voxelize picks the daemon when it answers.
 refuse "voxelize with a daemon: the daemon" 0 "voxd job [0-9]+" v voxelize -e "$S" -r 64 -o "$TMP/auto1.vod"

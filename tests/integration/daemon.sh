@@ -34,10 +34,14 @@ check "submit a sphere" vc submit "$SPHERE" 64 -1,1 "$TMP/d.vod"
 check "embedded sphere" "$VOX" voxelize -e "$SPHERE" -r 64 -w 1 -q -o "$TMP/e.vod"
 check "daemon = embedded (bytes)" cmp "$TMP/d.vod" "$TMP/e.vod"
 refuse "vox info validates the daemon's file" 0 "valid VOD.*CRC-32 checked" "$VOX" info "$TMP/d.vod"
-check "submit a box, occupancy" vc submit "$SPHERE" 50 -1,1,-0.5,0.5,-0.25,0.25 "$TMP/d2.vod" --channel 1
+refuse "submit a box, occupancy: its grid in the summary" 0 "grid 50x25x13 depth 6" \
+    vc submit "$SPHERE" 50 -1,1,-0.5,0.5,-0.25,0.25 "$TMP/d2.vod" --channel 1
 check "embedded box, occupancy" "$VOX" voxelize -e "$SPHERE" -r 50 -d -1,1,-0.5,0.5,-0.25,0.25 \
     --channel occupancy -w 0 -q -o "$TMP/e2.vod"
 check "box daemon = embedded (bytes)" cmp "$TMP/d2.vod" "$TMP/e2.vod"
+# The expression as InputChunks of 5 bytes: the same job, the same bytes.
+check "submit the expression in chunks" vc submit "$SPHERE" 64 -1,1 "$TMP/dc.vod" --chunked 5
+check "chunked daemon = embedded (bytes)" cmp "$TMP/dc.vod" "$TMP/e.vod"
 
 # vox submit (libvox), when this build has it: the same bytes again.
 if "$VOX" submit --help >/dev/null 2>&1; then

@@ -33,6 +33,27 @@ abuse res "LIMIT_EXCEEDED: res 5000 is over this server's limit of 4096"
 abuse bad-expr "INVALID_INPUT: expression:1:1: unknown function 'sinn'"
 abuse bad-cancel "INVALID_INPUT: no job 999999"
 abuse slow "closed after"
+# Chunked input (InputChunk after a Submit with input_bytes): each mistake
+# ends its one job or request with a typed error, the connection goes on
+# (the abuse client pings after it) and so does the daemon.
+abuse input-over-cap "LIMIT_EXCEEDED: input is 67108865 bytes, over this server's max_input_bytes of 67108864"
+abuse input-over-expr "LIMIT_EXCEEDED: expression is 65537 bytes, limit 65536"
+abuse input-and-inline "INVALID_INPUT: the expression comes either inline or as input_bytes, not both"
+abuse input-chunk-over-cap "LIMIT_EXCEEDED: input chunk at offset 67108864 passes this server's max_input_bytes"
+abuse input-past-total "INVALID_INPUT: input chunk of 23 bytes at offset 0 passes the 10 bytes the job declared .*\(job [0-9]+\)"
+abuse input-order "INVALID_INPUT: input chunk at offset 10 where 5 was due .*\(job [0-9]+\)"
+grep -q "no job [0-9]* of this connection is waiting for input" "$TMP/out" &&
+    pass "a chunk after its job ended: no such job" || fail "a chunk after its job ended: no such job"
+abuse input-nul "INVALID_INPUT: expression source contains a NUL byte at offset 2 \(job [0-9]+\)"
+abuse input-unknown "INVALID_INPUT: no job 999999 of this connection is waiting for input"
+abuse input-foreign "job [0-9]+ done by its own connection"
+abuse input-cancel "CANCELLED: cancelled by a client \(job [0-9]+\)"
+abuse input-stall "TIMEOUT: the job's input stopped: no chunk for 2 s \(client_timeout\); 10 of 100 bytes came"
+abuse input-close "leaving job [0-9]+ after 1000 of 60000 bytes"
+until_true 10 grep -q "dropped, its client left during its upload (1000 of 60000 bytes)" "$TMP/voxd.log" &&
+    pass "a connection closed mid-upload drops its job" ||
+    fail "a connection closed mid-upload drops its job" "$(tail -3 "$TMP/voxd.log")"
+refuse "nothing left queued after the uploads" 0 "queued=0 .*running=none" vc status
 grep -q "within 2 s; closing" "$TMP/voxd.log" && pass "slow sender closed by the client timeout" ||
     fail "slow sender closed by the client timeout"
 
@@ -73,6 +94,8 @@ refuse "jobs per uid: LIMIT_EXCEEDED" 3 "ERROR LIMIT_EXCEEDED: uid [0-9]+ alread
     vc submit "$SPHERE" 16 -1,1 "$TMP/c.vod"
 kill "$BG_PID"
 until_true 10 idle
+refuse "an upload counts against max_jobs_per_uid" 0 "LIMIT_EXCEEDED: uid [0-9]+ already has 1 jobs" \
+    vc abuse input-hold
 
 echo "job_timeout 1" >>"$TMP/voxd.conf"
 reload 3

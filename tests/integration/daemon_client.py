@@ -7,6 +7,9 @@ abuse tests need.  Every socket operation has a timeout, so a test never
 hangs on it.
 
   daemon_client.py SOCK submit EXPR RES DOMAIN OUT [--cancel] [--no-read] [--channel N]
+                                          [--chunked N]  (the expression as InputChunks of N bytes)
+                                          [--pause S]    (S seconds after the first chunk, unless
+                                                          the server says something first)
   daemon_client.py SOCK status            (prints pid=..,cpu=.. per worker, queued, running)
   daemon_client.py SOCK ping
   daemon_client.py SOCK abuse KIND        (see ABUSE)
@@ -66,13 +69,26 @@ def hello(version=1):
     return frame(request(1, field_varint(1, version) + field_bytes(2, b"daemon_client.py")))
 
 
-def submit(expr, res, domain, channel=0, schedule=0, brick=0):
+def submit(expr, res, domain, channel=0, schedule=0, brick=0, input_bytes=0):
+    """A Submit; expr b"" with input_bytes N: the expression comes as input."""
     if isinstance(expr, str):
         expr = expr.encode()
-    imp = field_bytes(1, expr) + field_packed_doubles(2, domain) + field_varint(3, res) \
-        + field_varint(4, schedule)
-    body = field_bytes(1, imp) + field_varint(10, channel) + field_varint(11, brick)
+    imp = (field_bytes(1, expr) if expr else b"") + field_packed_doubles(2, domain) \
+        + field_varint(3, res) + field_varint(4, schedule)
+    body = field_bytes(1, imp) + field_varint(10, channel) + field_varint(11, brick) \
+        + field_varint(14, input_bytes)
     return frame(request(2, body))
+
+
+def input_chunk(job_id, offset, data):
+    body = field_varint(1, job_id) + field_varint(2, offset) + field_bytes(3, data)
+    return frame(request(6, body))
+
+
+def upload(c, job, data, piece):
+    """Send data as InputChunks of job, piece bytes each, in order."""
+    for off in range(0, len(data), piece):
+        c.send(input_chunk(job, off, data[off:off + piece]))
 
 
 def cancel(job_id):
@@ -118,6 +134,20 @@ def fields(b):
         else:
             raise ValueError("wire type %d" % wt)
         out.setdefault(n, []).append(v)
+    return out
+
+
+def repeated_uints(vals):
+    """A repeated varint field, packed (bytes) or not (ints)."""
+    out = []
+    for b in vals:
+        if isinstance(b, int):
+            out.append(b)
+            continue
+        i = 0
+        while i < len(b):
+            v, i = read_varint(b, i)
+            out.append(v)
     return out
 
 
@@ -200,12 +230,25 @@ def cmd_submit(path, args):
     opts = args[4:]
     domain = [float(x) for x in dom.split(",")]
     channel = int(opts[opts.index("--channel") + 1]) if "--channel" in opts else 0
+    piece = int(opts[opts.index("--chunked") + 1]) if "--chunked" in opts else 0
+    pause = float(opts[opts.index("--pause") + 1]) if "--pause" in opts else 0
     c = Conn(path)
     c.hello()
-    c.send(submit(expr, res, domain, channel=channel))
+    if piece:
+        c.send(submit(b"", res, domain, channel=channel, input_bytes=len(expr.encode())))
+    else:
+        c.send(submit(expr, res, domain, channel=channel))
     acc = c.expect(2)
     job = one(acc, 1)
     print("accepted job %d position %d" % (job, one(acc, 2)), flush=True)
+    if piece:
+        data = expr.encode()
+        c.send(input_chunk(job, 0, data[:piece]))
+        print("sent the first %d of %d bytes" % (min(piece, len(data)), len(data)), flush=True)
+        readable = select.select([c.s], [], [], pause)[0] if pause else []
+        if not readable:
+            for off in range(piece, len(data), piece):
+                c.send(input_chunk(job, off, data[off:off + piece]))
     if "--cancel" in opts:
         c.send(cancel(job))
     if "--no-read" in opts:
@@ -228,8 +271,11 @@ def cmd_submit(path, args):
                 die(1, "summary of job %d says %d bytes, got %d" % (one(f, 1), one(f, 4), len(data)))
             with open(out, "wb") as fh:
                 fh.write(data)
-            print("done job %d: %d voxels, %d bytes, crc %08x, %d progress"
-                  % (job, one(f, 2), len(data), one(f, 5), progress), flush=True)
+            g = fields(one(f, 9, b""))
+            print("done job %d: %d voxels, %d bytes, crc %08x, %d progress, grid %s depth %d"
+                  % (job, one(f, 2), len(data), one(f, 5), progress,
+                     "x".join(str(v) for v in repeated_uints(g.get(1, []))),
+                     one(g, 2)), flush=True)
             return 0
         elif case == 6:
             err(f)
@@ -354,7 +400,112 @@ def abuse(path, kind):
     if kind == "unknown-request":
         c.send(frame(request(15, b"")))
         return expect_error(c, "INVALID_INPUT")
+    if kind.startswith("input-"):
+        return abuse_input(path, c, kind)
     die(2, "unknown abuse kind " + kind)
+
+
+SPHERE = b"sqrt(x^2+y^2+z^2) - 0.8"
+
+
+def expect_job_error(c, job, code):
+    """The job's terminal Error, of this code, naming the job."""
+    r = c.recv_frame()
+    while r is not None and r[0] == 3:  # progress
+        r = c.recv_frame()
+    if r is None or r[0] != 6 or one(r[1], 1) != job:
+        die(1, "no terminal Error for job %d (%s)" % (job, r and (r[0], r[1])))
+    return expect_code(r, code)
+
+
+def expect_code(r, code):
+    got = CODES.get(one(r[1], 2))
+    msg = one(r[1], 3, b"").decode()
+    if got != code:
+        die(1, "Error %s (wanted %s): %s" % (got, code, msg))
+    print("ERROR %s: %s (job %d)" % (got, msg, one(r[1], 1)), flush=True)
+    return 0
+
+
+def accepted_upload(c, size):
+    c.send(submit(b"", 16, [-1, 1], input_bytes=size))
+    return one(c.expect(2), 1)
+
+
+def abuse_input(path, c, kind):
+    """Chunked input gone wrong; each ends the one job (or the one request)
+    and the connection goes on: a ping answers after it."""
+    if kind == "input-over-cap":  # the declared size over max_input_bytes (64M)
+        c.send(submit(b"", 16, [-1, 1], input_bytes=(64 << 20) + 1))
+        rc = expect_error(c, "LIMIT_EXCEEDED")
+    elif kind == "input-over-expr":  # an expression over max_expr_bytes, as input
+        c.send(submit(b"", 16, [-1, 1], input_bytes=65537))
+        rc = expect_error(c, "LIMIT_EXCEEDED")
+    elif kind == "input-and-inline":
+        c.send(submit(SPHERE, 16, [-1, 1], input_bytes=len(SPHERE)))
+        rc = expect_error(c, "INVALID_INPUT")
+    elif kind == "input-chunk-over-cap":  # a chunk reaching past max_input_bytes
+        c.send(input_chunk(1, 64 << 20, b"x"))
+        rc = expect_error(c, "LIMIT_EXCEEDED")
+    elif kind == "input-past-total":
+        job = accepted_upload(c, 10)
+        c.send(input_chunk(job, 0, SPHERE))
+        rc = expect_job_error(c, job, "INVALID_INPUT")
+    elif kind == "input-order":  # a gap, then the chunks after its end
+        job = accepted_upload(c, len(SPHERE))
+        c.send(input_chunk(job, 0, SPHERE[:5]))
+        c.send(input_chunk(job, 10, SPHERE[10:]))
+        rc = expect_job_error(c, job, "INVALID_INPUT")
+        c.send(input_chunk(job, 5, SPHERE[5:]))
+        expect_error(c, "INVALID_INPUT")  # no job waits for it any more
+    elif kind == "input-nul":
+        job = accepted_upload(c, 8)
+        c.send(input_chunk(job, 0, b"x+\x00y+z+1"))
+        rc = expect_job_error(c, job, "INVALID_INPUT")
+    elif kind == "input-unknown":
+        c.send(input_chunk(999999, 0, SPHERE))
+        rc = expect_error(c, "INVALID_INPUT")
+    elif kind == "input-foreign":  # another connection's upload is not ours
+        job = accepted_upload(c, len(SPHERE))
+        other = Conn(path)
+        other.hello()
+        other.send(input_chunk(job, 0, SPHERE))
+        rc = expect_error(other, "INVALID_INPUT")
+        upload(c, job, SPHERE, 4)  # its own connection finishes it
+        while True:
+            r = c.recv_frame()
+            if r is None or r[0] in (5, 6):
+                break
+        if r is None or r[0] != 5:
+            die(1, "job %d did not succeed: %s" % (job, r))
+        print("job %d done by its own connection" % job)
+    elif kind == "input-cancel":
+        job = accepted_upload(c, 100)
+        c.send(input_chunk(job, 0, b"x" * 10))
+        c.send(cancel(job))
+        rc = expect_job_error(c, job, "CANCELLED")
+    elif kind == "input-stall":  # half an input, then nothing: the client timeout ends it
+        job = accepted_upload(c, 100)
+        c.send(input_chunk(job, 0, b"x" * 10))
+        rc = expect_job_error(c, job, "TIMEOUT")
+    elif kind == "input-close":  # leave in the middle of an upload
+        job = accepted_upload(c, 60000)
+        c.send(input_chunk(job, 0, b"x" * 1000))
+        c.send(ping(9))
+        c.expect(8)
+        print("leaving job %d after 1000 of 60000 bytes" % job)
+        return 0
+    elif kind == "input-hold":  # an upload holds its place: another job of the uid is refused
+        accepted_upload(c, 100)
+        other = Conn(path)
+        other.hello()
+        other.send(submit(SPHERE, 16, [-1, 1]))
+        return expect_error(other, "LIMIT_EXCEEDED")
+    else:
+        die(2, "unknown abuse kind " + kind)
+    c.send(ping(5))
+    c.expect(8)
+    return rc
 
 
 def main():

@@ -53,7 +53,25 @@ wait_gone "$VOXD_PID" 20 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0" || fail "Q
     pass "QUIT: socket, shared memory and pidfile removed" ||
     fail "QUIT: socket, shared memory and pidfile removed" "$(ls "$S" "/dev/shm$SHM" "$TMP/voxd.pid" 2>&1)"
 
-# TERM: the running and the queued job end with SHUTTING_DOWN, at once.
+# QUIT during an upload (a job accepted, its input half sent): the daemon
+# waits for the rest, runs the job and delivers it, then exits.
+start_voxd "$TMP/out1b" --config "$TMP/voxd.conf" || fail "voxd starts for an upload"
+bgsubmit "$TMP/c.out" "$SPHERE" 32 -1,1 "$TMP/c.vod" --chunked 5 --pause 4
+C=$BG_PID
+until_true 10 grep -q "sent the first 5 of 23 bytes" "$TMP/c.out"
+kill -QUIT "$VOXD_PID"
+sleep 1
+kill -0 "$VOXD_PID" 2>/dev/null && pass "QUIT: the daemon waits for an upload in progress" ||
+    fail "QUIT: the daemon waits for an upload in progress" "$(tail -3 "$TMP/voxd.log")"
+wait_gone "$C" 30
+grep -q "rc=0" "$TMP/c.out" && grep -q "input complete (23 bytes)" "$TMP/voxd.log" &&
+    pass "QUIT: the upload finishes, then its job" ||
+    fail "QUIT: the upload finishes, then its job" "$(cat "$TMP/c.out")"
+wait_gone "$VOXD_PID" 20 && [ "$WAIT_RC" = 0 ] && pass "QUIT after the upload: exit 0" ||
+    fail "QUIT after the upload: exit 0" "rc $WAIT_RC"
+
+# TERM: the running and the queued job end with SHUTTING_DOWN, at once,
+# and so does an upload in progress.
 start_voxd "$TMP/out2" --config "$TMP/voxd.conf" || fail "voxd starts again"
 bgsubmit "$TMP/a.out" "$SLOW" 512 -1,1 "$TMP/a.vod"
 A=$BG_PID
@@ -61,11 +79,17 @@ until_true 20 running
 bgsubmit "$TMP/b.out" "$SPHERE" 64 -1,1 "$TMP/b.vod"
 B=$BG_PID
 until_true 10 grep -q "accepted job" "$TMP/b.out"
+bgsubmit "$TMP/c.out" "$SPHERE" 32 -1,1 "$TMP/c.vod" --chunked 5 --pause 30
+C=$BG_PID
+until_true 10 grep -q "sent the first 5 of 23 bytes" "$TMP/c.out"
 kill -TERM "$VOXD_PID"
 wait_gone "$VOXD_PID" 10 && [ "$WAIT_RC" = 0 ] && pass "TERM: exit 0 within seconds" ||
     fail "TERM: exit 0 within seconds" "rc $WAIT_RC"
 wait_gone "$A" 10
 wait_gone "$B" 10
+wait_gone "$C" 10
+grep -q "ERROR SHUTTING_DOWN" "$TMP/c.out" && pass "TERM: an upload in progress: SHUTTING_DOWN" ||
+    fail "TERM: an upload in progress: SHUTTING_DOWN" "$(cat "$TMP/c.out")"
 grep -q "ERROR SHUTTING_DOWN" "$TMP/a.out" && pass "TERM: the running job: SHUTTING_DOWN" ||
     fail "TERM: the running job: SHUTTING_DOWN" "$(cat "$TMP/a.out")"
 grep -q "ERROR SHUTTING_DOWN" "$TMP/b.out" && pass "TERM: the queued job: SHUTTING_DOWN" ||

@@ -1,7 +1,8 @@
 #!/bin/bash
 # voxd and vox under valgrind's memcheck: "no leaks in the daemon's normal
 # lifecycle", checked.  voxd serves ping, status, a job, a job it refuses
-# (bad expression), a cancelled job and a client that leaves mid-job, takes
+# (bad expression), a cancelled job, a client that leaves mid-job, inputs
+# in chunks (whole, out of order, left mid-upload), takes
 # HUP (the workers are replaced) and USR1, and stops on QUIT; then vox
 # voxelize --embedded, vox info and vox render.  Every process valgrind
 # watches must end with no error and no leak (definite, indirect or
@@ -154,6 +155,15 @@ until_true 60 idle && pass "clients gone: their jobs stop" || fail "clients gone
 grep -q "cancelled, its client left" "$TMP/voxd.log" && grep -q "stopping, its client left" "$TMP/voxd.log" &&
     pass "clients gone: the queued and the running job" ||
     fail "clients gone: the queued and the running job" "$(grep "client left" "$TMP/voxd.log")"
+
+# Inputs sent in chunks: one whole, one refused mid-upload, one whose
+# client leaves mid-upload; their buffers are freed (QUIT's leak check).
+check "a job's input in chunks" vc submit "$SPHERE" 32 -1,1 "$TMP/k.vod" --chunked 7
+check "in chunks: the same bytes" cmp "$TMP/a.vod" "$TMP/k.vod"
+refuse "an upload out of order ends its job" 0 "input chunk at offset 10 where 5 was due" vc abuse input-order
+refuse "a client leaves mid-upload" 0 "leaving job [0-9]+ after 1000" vc abuse input-close
+until_true 30 grep -q "dropped, its client left during its upload" "$TMP/voxd.log" &&
+    pass "the upload of a client gone is dropped" || fail "the upload of a client gone is dropped"
 
 # HUP: the configuration is read again, the workers are replaced
 old=$(worker_pids | sort | tr '\n' ' ')

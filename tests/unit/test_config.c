@@ -96,6 +96,7 @@ Test(config, defaults)
     cr_assert_eq(c.job_timeout, 600);
     cr_assert_eq(c.max_result_bytes, 4ull << 30);
     cr_assert_eq(c.chunk_size, 256u << 10);
+    cr_assert_eq(c.max_input_bytes, 64ull << 20);
 
     /* The validator's defaults are the config's. */
     proto_limits a, b;
@@ -139,7 +140,8 @@ static const char full[] =
     "client_timeout 2m\n"
     "job_timeout 90s\n"
     "max_result_bytes 1G\n"
-    "chunk_size 64K\n";
+    "chunk_size 64K\n"
+    "max_input_bytes 8M\n";
 
 Test(config, full_valid_file)
 {
@@ -174,6 +176,7 @@ Test(config, full_valid_file)
     cr_assert_eq(c.job_timeout, 90);
     cr_assert_eq(c.max_result_bytes, 1ull << 30);
     cr_assert_eq(c.chunk_size, 64u << 10);
+    cr_assert_eq(c.max_input_bytes, 8u << 20);
     cr_assert_eq(config_workers(&c), 3);
 
     proto_limits l;
@@ -184,6 +187,7 @@ Test(config, full_valid_file)
     cr_assert_eq(l.max_csg_nodes, 50);
     cr_assert_eq(l.chunk_size, 64u << 10);
     cr_assert_eq(l.max_result_bytes, 1ull << 30);
+    cr_assert_eq(l.max_input_bytes, 8u << 20);
     cr_assert_eq(l.max_queued_jobs, 10);
     cr_assert_eq(l.job_timeout, 90);
 }
@@ -239,6 +243,7 @@ Test(config, print_loads_back_to_the_same_config)
     cr_assert(strstr(text, "max_expr_bytes 100000\n"));
     cr_assert(strstr(text, "socket_mode 0600\n"));
     cr_assert(strstr(text, "client_timeout 120\n"), "%s", text);
+    cr_assert(strstr(text, "max_input_bytes 8M\n"), "%s", text);
     /* Each limit says what it bounds, from the table. */
     cr_assert(strstr(text, "# max_res: voxels along a job's longest axis\nmax_res 2048\n"), "%s",
               text);
@@ -463,9 +468,16 @@ Test(config, options_that_do_not_fit_together)
                "t.conf:2: chunk_size 1M does not fit in max_frame 1M (a chunk needs 64 bytes more)");
     load_fails("chunk_size 32K\nmax_frame 32K\n",
                "t.conf:2: chunk_size 32K does not fit in max_frame 32K (a chunk needs 64 bytes more)");
-    load_fails("max_frame 64K\nchunk_size 16K\n",
-               "t.conf:1: max_expr_bytes 64K does not fit in max_frame 64K (a request needs 256 bytes more)");
+    /* An expression of max_expr_bytes must go inline or as input. */
+    load_fails("max_frame 64K\nchunk_size 16K\nmax_input_bytes 4K\n",
+               "t.conf:3: max_expr_bytes 64K fits neither in max_frame 64K (a request needs 256 "
+               "bytes more) nor in max_input_bytes 4K");
+    load_fails("max_expr_bytes 2M\nmax_input_bytes 1M\n",
+               "t.conf:2: max_expr_bytes 2M fits neither in max_frame 1M (a request needs 256 "
+               "bytes more) nor in max_input_bytes 1M");
     voxd_config c;
+    load_ok("max_frame 64K\nchunk_size 16K\n", &c); /* as input: 64M */
+    load_ok("max_expr_bytes 16M\n", &c);
     load_ok("max_frame 64K\nchunk_size 16K\nmax_expr_bytes 65280\n", &c);
     load_ok("max_frame 4K\nchunk_size 4032\nmax_expr_bytes 3840\n", &c);
 }

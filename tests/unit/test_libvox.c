@@ -30,6 +30,7 @@
 
 #include "frame.h"
 #include "proto_check.h"
+#include "grid.h"
 #include "vox.h"
 
 /* ---------------------------------------------------------------- fake daemon */
@@ -43,6 +44,8 @@ struct srv {
     int hello_max_frame;   /* 0: default */
     int hello_chunk;       /* 0: default */
     uint64_t max_result;   /* 0: default */
+    uint32_t hello_max_expr;  /* 0: default */
+    uint64_t hello_max_input; /* 0: default */
     int job_timeout;       /* 0: 600; -1: none */
     frame_decoder dec;
     uint8_t in[65536];
@@ -121,6 +124,7 @@ static Voxd__Request *srv_read(srv *s)
             proto_limits lim;
             proto_limits_default(&lim);
             lim.max_res = 1u << 20;
+            if (s->hello_max_expr) lim.max_expr_bytes = s->hello_max_expr;
             if (proto_check_request(r, &lim, NULL)) srv_bad(s, "a request that does not check");
             if (r->msg_case == VOXD__REQUEST__MSG_PING && !s->raw) {
                 s->pings_seen++;
@@ -195,6 +199,8 @@ static void send_hello_ok(srv *s)
     if (s->job_timeout) lim.job_timeout = s->job_timeout < 0 ? 0 : (uint32_t)s->job_timeout;
     if (s->max_result) lim.max_result_bytes = s->max_result;
     if (s->hello_chunk) lim.chunk_size = (uint32_t)s->hello_chunk;
+    if (s->hello_max_expr) lim.max_expr_bytes = s->hello_max_expr;
+    if (s->hello_max_input) lim.max_input_bytes = s->hello_max_input;
     Voxd__Limits l = VOXD__LIMITS__INIT;
     proto_limits_to_hello(&lim, &l);
     Voxd__HelloOk h = VOXD__HELLO_OK__INIT;
@@ -245,7 +251,13 @@ static void send_chunk(srv *s, uint64_t id, uint64_t off, const uint8_t *data, s
 
 static void send_summary(srv *s, uint64_t id, uint64_t bytes, uint32_t crc)
 {
+    uint32_t res[3] = {64, 40, 9};
+    double origin[3] = {-1, -0.625, -0.140625};
+    Voxd__Grid g = VOXD__GRID__INIT;
+    g.res = res, g.n_res = 3, g.depth = 6, g.voxel_size = 0.03125;
+    g.origin = origin, g.n_origin = 3;
     Voxd__Summary m = VOXD__SUMMARY__INIT;
+    m.grid = &g;
     m.job_id = id, m.voxels = 1234, m.bricks = 56, m.file_bytes = bytes, m.crc32 = crc;
     m.seconds_queued = 0.5, m.seconds_voxelize = 1.5, m.seconds_write = 0.25;
     Voxd__Reply r = VOXD__REPLY__INIT;
@@ -336,6 +348,18 @@ static void srv_finish(srv *s)
     pthread_join(s->th, NULL);
     cr_expect_str_empty(s->bad, "fake daemon: %s", s->bad);
     free(s);
+}
+
+/* Connect a client with these options to a fake daemon running fn. */
+static vox_client *start_opts(srv *s, const vox_options *o)
+{
+    int fd;
+    srv_start(s, &fd);
+    vox_client *c = NULL;
+    vox_error e;
+    int rc = vox_connect_fd(fd, o, &c, &e);
+    cr_assert_eq(rc, 0, "connect: %d %s", rc, e.message);
+    return c;
 }
 
 /* Connect a client with a short timeout to a fake daemon running fn. */
@@ -482,6 +506,7 @@ Test(libvox, hello_gives_server_and_limits)
     cr_expect_eq(i.max_res, 4096);
     cr_expect_eq(i.job_timeout, 600);
     cr_expect_eq(i.max_csg_nodes, 1024);
+    cr_expect_eq(i.max_input_bytes, 64u << 20);
     vox_close(c);
     srv_finish(s);
 }
@@ -622,6 +647,12 @@ Test(libvox, happy_path_to_file)
     cr_expect_eq(sum.voxels, 1234);
     cr_expect_eq(sum.bricks, 56);
     cr_expect_float_eq(sum.seconds_voxelize, 1.5, 1e-12);
+    /* The grid, as the daemon said. */
+    cr_expect(sum.grid[0] == 64 && sum.grid[1] == 40 && sum.grid[2] == 9, "grid %ux%ux%u",
+              sum.grid[0], sum.grid[1], sum.grid[2]);
+    cr_expect_eq(sum.depth, 6);
+    cr_expect_float_eq(sum.voxel_size, 0.03125, 1e-15);
+    cr_expect(sum.origin[0] == -1 && sum.origin[1] == -0.625 && sum.origin[2] == -0.140625);
     /* Progress: each report seen once, in order (all may arrive in one
      * read, so the callback may see only the latest of a batch). */
     cr_expect(pl.calls >= 1 && pl.calls <= 3, "%d progress calls", pl.calls);
@@ -1466,31 +1497,215 @@ Test(libvox, unanswered_ping_times_out_and_sticks)
 
 /* ---------------------------------------------------------------- limits */
 
-static void s_small_frame(srv *s)
+static void s_small_limits(srv *s)
 {
     s->hello_max_frame = 4096;
     s->hello_chunk = 4000;
+    s->hello_max_expr = 6000;
+    s->hello_max_input = 5000;
     srv_hello(s);
-    srv_drain(s); /* the oversized submit never arrives; a ping does */
+    srv_drain(s); /* the oversized submits never arrive; a ping does */
 }
 
-Test(libvox, request_over_max_frame_is_refused_unsent)
+/* What the daemon would refuse for its size is refused here, unsent: an
+ * expression over max_expr_bytes, or one that must go as input (over a
+ * frame) and is over max_input_bytes. */
+Test(libvox, input_over_the_limits_is_refused_unsent)
 {
-    srv *s = srv_new(s_small_frame, NULL);
+    srv *s = srv_new(s_small_limits, NULL);
     vox_client *c = start(s, 5000);
-    char *big = malloc(5001);
-    memset(big, 'x', 5000);
-    big[5000] = '\0';
+    char *big = malloc(7001);
+    memset(big, 'x', 7000);
+    big[7000] = '\0';
     vox_implicit_job j = sphere;
     j.source = big;
     uint64_t id;
     vox_error e;
     cr_expect_eq(vox_submit(c, &j, &id, NULL, &e), VOX_ELIMIT_EXCEEDED);
-    cr_expect(strstr(e.message, "max_frame of 4096"), "%s", e.message);
+    cr_expect(strstr(e.message, "expression is 7000 bytes, over this server's max_expr_bytes of 6000"),
+              "%s", e.message);
+    j.source_len = 5500;
+    cr_expect_eq(vox_submit(c, &j, &id, NULL, &e), VOX_ELIMIT_EXCEEDED);
+    cr_expect(strstr(e.message, "5500 bytes, over this server's max_input_bytes of 5000"), "%s",
+              e.message);
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
     free(big);
     vox_close(c);
     srv_finish(s);
+}
+
+Test(libvox, job_kinds_not_supported_yet_are_refused_unsent)
+{
+    srv *s = srv_new(s_idle, NULL);
+    vox_client *c = start(s, 5000);
+    uint64_t id = 0;
+    vox_error e;
+    vox_job j = {.kind = VOX_JOB_MESH};
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -ENOTSUP);
+    cr_expect(strstr(e.message, "mesh or CSG"), "%s", e.message);
+    j.kind = VOX_JOB_CSG;
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -ENOTSUP);
+    j.kind = 0;
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
+    j.kind = VOX_JOB_IMPLICIT; /* no source */
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    vox_close(c);
+    srv_finish(s);
+}
+
+/* ---------------------------------------------------------------- chunked input */
+
+#define LONG_EXPR 10007
+typedef struct {
+    const char *want;   /* the input expected */
+    size_t n;
+    size_t max_piece;   /* no chunk longer */
+    int chunks;         /* chunks seen */
+    int fail_after;     /* > 0: end the job after this many chunks */
+    int stray;          /* chunks that came after the job ended */
+    uint32_t max_expr;  /* the daemon's max_expr_bytes; 0: default */
+} upload_log;
+
+/* Read the upload of job id: Submit with input_bytes and no inline source,
+ * then the chunks in order (each checked), then the drain's ping.  With
+ * fail_after, the job's terminal error after that many chunks, and for
+ * every chunk after it what voxd says: no such job. */
+static void srv_upload(srv *s, uint64_t id, upload_log *u)
+{
+    Voxd__Request *r = srv_accept_job(s, id, 0);
+    if (!r) return;
+    if (r->submit->input_bytes != u->n || r->submit->implicit->source.len)
+        srv_bad(s, "submit does not declare its input");
+    voxd__request__free_unpacked(r, NULL);
+    uint8_t *got = malloc(u->n);
+    size_t have = 0;
+    while ((r = srv_read_any(s))) {
+        if (r->msg_case == VOXD__REQUEST__MSG_PING) {
+            send_pong(s, r->ping->token); /* the drain: the upload is over */
+            voxd__request__free_unpacked(r, NULL);
+            break;
+        }
+        if (r->msg_case != VOXD__REQUEST__MSG_INPUT || r->input->job_id != id) {
+            srv_bad(s, "a request other than the job's input chunk");
+        } else if (u->fail_after && u->chunks >= u->fail_after) {
+            u->stray++;
+            send_error(s, 0, VOXD__ERROR_CODE__INVALID_INPUT, "no job of this connection is waiting for input");
+        } else {
+            const Voxd__InputChunk *in = r->input;
+            if (in->offset != have || in->data.len > u->max_piece || in->data.len > u->n - have)
+                srv_bad(s, "an input chunk out of order or too long");
+            else memcpy(got + have, in->data.data, in->data.len), have += in->data.len;
+            if (++u->chunks == u->fail_after)
+                send_error(s, id, VOXD__ERROR_CODE__INVALID_INPUT, "NUL byte in chunk 2");
+        }
+        voxd__request__free_unpacked(r, NULL);
+    }
+    if (!u->fail_after && (have != u->n || memcmp(got, u->want, u->n)))
+        srv_bad(s, "the input assembled differs from the expression");
+    free(got);
+}
+
+static void s_upload(srv *s)
+{
+    upload_log *u = s->arg;
+    s->hello_max_frame = 4096;
+    s->hello_chunk = 1024;
+    s->hello_max_expr = u->max_expr;
+    srv_hello(s);
+    srv_upload(s, 9, u);
+    if (u->fail_after) {
+        srv_drain(s);
+        return;
+    }
+    uint32_t crc;
+    uint8_t *b = make_result(5000, 9, &crc);
+    send_result(s, 9, b, 5000, 1000);
+    send_summary(s, 9, 5000, crc);
+    free(b);
+    srv_drain(s);
+}
+
+static char *long_expr(size_t n)
+{
+    char *e = malloc(n + 1);
+    for (size_t i = 0; i < n; i++) e[i] = (char)('a' + i % 26);
+    e[n] = '\0';
+    return e;
+}
+
+/* An expression over the daemon's max_frame goes as InputChunks of its
+ * chunk_size, in order, after the Accepted; the job then runs as any. */
+Test(libvox, input_over_a_frame_goes_in_chunks)
+{
+    char *expr = long_expr(LONG_EXPR);
+    upload_log u = {.want = expr, .n = LONG_EXPR, .max_piece = 1024};
+    srv *s = srv_new(s_upload, &u);
+    vox_client *c = start(s, 5000);
+    vox_job j = {.kind = VOX_JOB_IMPLICIT,
+                 .implicit = {.source = expr, .domain = {-1, 1, -1, 1, -1, 1}, .res = 64}};
+    uint64_t id = 0;
+    vox_error e;
+    cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(id, 9);
+    uint8_t *buf;
+    size_t n;
+    cr_expect_eq(vox_receive_buffer(c, id, &buf, &n, NULL, NULL, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(n, 5000);
+    free(buf);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect_eq(u.chunks, (LONG_EXPR + 1023) / 1024);
+    free(expr);
+}
+
+/* inline_max sends even a short expression as input; vox_submit goes
+ * through the same path. */
+Test(libvox, inline_max_option)
+{
+    upload_log u = {.want = sphere.source, .n = strlen(sphere.source), .max_piece = 1024};
+    srv *s = srv_new(s_upload, &u);
+    vox_options o = {.timeout_ms = 5000, .inline_max = 8};
+    vox_client *c = start_opts(s, &o);
+    uint64_t id = 0;
+    vox_error e;
+    cr_assert_eq(vox_submit(c, &sphere, &id, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(vox_receive_file(c, id, out_path("out.vod"), NULL, NULL, NULL, &e), 0, "%s",
+                 e.message);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect_eq(u.chunks, 1);
+}
+
+/* The daemon ends the job during its upload: the client stops sending
+ * (the input, 4 MB, is far more than the socket holds), the daemon's "no
+ * such job" for the chunks already sent are drained before the call
+ * returns (they are no answer to the next request), and the job's error
+ * comes from receive. */
+#define HUGE_EXPR (4u << 20)
+Test(libvox, job_ended_during_its_upload)
+{
+    char *expr = long_expr(HUGE_EXPR);
+    upload_log u = {.want = expr, .n = HUGE_EXPR, .max_piece = 1024, .fail_after = 2,
+                    .max_expr = 16u << 20};
+    srv *s = srv_new(s_upload, &u);
+    vox_client *c = start(s, 5000);
+    vox_job j = {.kind = VOX_JOB_IMPLICIT,
+                 .implicit = {.source = expr, .domain = {-1, 1, -1, 1, -1, 1}, .res = 64}};
+    uint64_t id = 0;
+    vox_error e;
+    cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "a stray error answered the ping: %s", e.message);
+    uint8_t *buf = NULL;
+    size_t n;
+    cr_expect_eq(vox_receive_buffer(c, id, &buf, &n, NULL, NULL, NULL, &e), VOX_EINVALID_INPUT);
+    cr_expect(strstr(e.message, "NUL byte in chunk 2"), "%s", e.message);
+    cr_expect_null(buf);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect_lt(u.chunks + u.stray, (HUGE_EXPR + 1023) / 1024, "the client sent all %d chunks",
+                 u.chunks + u.stray);
+    free(expr);
 }
 
 Test(libvox, unwritable_output_fails_at_once)
@@ -1651,8 +1866,10 @@ static vox_client *connect_when_up(const char *sock, const vox_options *o)
 }
 
 /* Every limit of the table reaches vox_server_info from a real daemon's
- * config, max_csg_nodes included (vox_server_info lacked it). */
-Test(libvox, server_info_from_a_real_daemon, .timeout = 120)
+ * config, max_csg_nodes and max_input_bytes included; and a job sent in
+ * chunks comes back with the daemon's grid, the one grid_make
+ * gives. */
+Test(libvox, server_info_and_grid_from_a_real_daemon, .timeout = 120)
 {
     char conf[256];
     snprintf(conf, sizeof conf, "%s", out_path("voxd.conf"));
@@ -1668,7 +1885,7 @@ Test(libvox, server_info_from_a_real_daemon, .timeout = 120)
     snprintf(sock, sizeof sock, "%s", out_path("voxd.sock"));
     pid_t pid = start_voxd(conf, sock);
 
-    vox_options o = {.timeout_ms = 30000};
+    vox_options o = {.timeout_ms = 30000, .inline_max = 4}; /* every input in chunks */
     vox_client *c = connect_when_up(sock, &o);
     vox_server_info i;
     vox_server(c, &i);
@@ -1678,6 +1895,29 @@ Test(libvox, server_info_from_a_real_daemon, .timeout = 120)
     VOX_LIMITS(EXPECT_LIMIT)
 #undef EXPECT_LIMIT
     cr_expect_eq(i.max_csg_nodes, 1025);
+    cr_expect_eq(i.max_input_bytes, (64u << 20) + 1);
+
+    vox_job j = {.kind = VOX_JOB_IMPLICIT,
+                 .implicit = {.source = sphere.source, .domain = {-1, 1, -0.3, 0.3, -0.1, 0.15},
+                              .res = 37}};
+    uint64_t id;
+    vox_error e;
+    cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
+    vox_summary sum;
+    cr_assert_eq(vox_receive_file(c, id, out_path("g.vod"), NULL, NULL, &sum, &e), 0, "%s",
+                 e.message);
+    double lo[3] = {-1, -0.3, -0.1}, hi[3] = {1, 0.3, 0.15};
+    grid_spec g;
+    char why[256];
+    cr_assert_eq(grid_make(lo, hi, 37, &g, why, sizeof why), 0, "%s", why);
+    for (int a = 0; a < 3; a++) {
+        cr_expect_eq(sum.grid[a], g.res[a], "axis %d: %u, want %u", a, sum.grid[a], g.res[a]);
+        cr_expect(sum.origin[a] == g.lo[a], "axis %d origin %g, want %g", a, sum.origin[a],
+                  g.lo[a]);
+    }
+    cr_expect_eq(sum.depth, (uint32_t)g.depth);
+    cr_expect(sum.voxel_size == g.vs, "voxel_size %g, want %g", sum.voxel_size, g.vs);
+    cr_expect_gt(sum.voxels, 0);
     vox_close(c);
     kill(pid, SIGTERM);
     int st;

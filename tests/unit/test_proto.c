@@ -595,6 +595,9 @@ typedef struct {
         Voxd__Pong pong;
     } m;
     Voxd__Limits limits;
+    Voxd__Grid grid;
+    uint32_t grid_res[3];
+    double grid_origin[3];
     Voxd__WorkerStatus w[2];
     Voxd__WorkerStatus *wp[2];
     Voxd__RunningJob running;
@@ -634,6 +637,13 @@ static void reply_init(reply *x, Voxd__Reply__MsgCase which)
     case VOXD__REPLY__MSG_SUMMARY:
         x->m.summary = (Voxd__Summary)VOXD__SUMMARY__INIT;
         x->m.summary.job_id = 1, x->m.summary.file_bytes = 64;
+        /* res 100 on [-1,1] x [-0.5,0.5] x [-0.25,0.25] */
+        x->grid = (Voxd__Grid)VOXD__GRID__INIT;
+        x->grid_res[0] = 100, x->grid_res[1] = 50, x->grid_res[2] = 25;
+        x->grid_origin[0] = -1, x->grid_origin[1] = -0.5, x->grid_origin[2] = -0.25;
+        x->grid.res = x->grid_res, x->grid.n_res = 3, x->grid.depth = 7;
+        x->grid.voxel_size = 0.02, x->grid.origin = x->grid_origin, x->grid.n_origin = 3;
+        x->m.summary.grid = &x->grid;
         x->r.summary = &x->m.summary;
         break;
     case VOXD__REPLY__MSG_ERROR:
@@ -755,6 +765,7 @@ Test(proto, hello_ok_rules)
     cr_assert_eq(l.chunk_size, 4096);
     cr_assert_eq(l.max_result_bytes, 1ull << 32);
     cr_assert_eq(l.max_csg_nodes, 1024);
+    cr_assert_eq(l.max_input_bytes, 64u << 20);
 }
 
 /* ---------------------------------------------------------------- the table of limits */
@@ -823,6 +834,7 @@ Test(proto, limits_defaults_are_the_tables)
         cr_expect_eq(proto_limit_get(&d, i), proto_limit_table[i].def, "%s",
                      proto_limit_table[i].name);
     cr_expect_eq(d.max_csg_nodes, 1024);
+    cr_expect_eq(d.max_input_bytes, 64u << 20);
 }
 
 Test(proto, job_replies_need_a_job_id)
@@ -893,6 +905,146 @@ Test(proto, summary_rules)
     reply_refused(&x, INVALID, "seconds_voxelize -1 is not a finite number of seconds");
     x.m.summary.seconds_voxelize = 0, x.m.summary.seconds_write = INFINITY;
     reply_refused(&x, INVALID, "seconds_write inf");
+}
+
+/* The grid a summary carries is one grid_make could have made. */
+Test(proto, summary_grid_rules)
+{
+    reply x;
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    reply_ok(&x);
+    x.m.summary.grid = NULL;
+    reply_refused(&x, INVALID, "summary has no grid");
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.grid.n_res = 2;
+    reply_refused(&x, INVALID, "summary grid has 2 res and 3 origin values, not 3");
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.grid.n_origin = 4;
+    reply_refused(&x, INVALID, "3 res and 4 origin values");
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.grid_res[1] = 0;
+    reply_refused(&x, INVALID, "summary grid res 0 is outside 1 to 4096");
+    x.grid_res[1] = 4097;
+    reply_refused(&x, INVALID, "summary grid res 4097 is outside 1 to 4096");
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.grid.depth = 8;
+    reply_refused(&x, INVALID, "summary grid depth 8, where res 100 needs 7");
+    x.grid.depth = 7, x.grid_res[0] = 128, x.grid_res[2] = 1;
+    reply_ok(&x);
+    x.grid_res[0] = 129;
+    reply_refused(&x, INVALID, "where res 129 needs 8");
+    x.grid_res[0] = x.grid_res[1] = x.grid_res[2] = 1, x.grid.depth = 1;
+    reply_ok(&x); /* depth is at least 1 */
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.grid.voxel_size = 0;
+    reply_refused(&x, INVALID, "voxel_size 0 is not finite and > 0");
+    x.grid.voxel_size = NAN;
+    reply_refused(&x, INVALID, "voxel_size nan");
+    reply_init(&x, VOXD__REPLY__MSG_SUMMARY);
+    x.grid_origin[2] = INFINITY;
+    reply_refused(&x, INVALID, "summary grid origin inf is not finite");
+}
+
+/* ---------------------------------------------------------------- chunked input */
+
+Test(proto, submit_with_input_bytes)
+{
+    job j;
+    job_init(&j);
+    size_t len = j.im.source.len;
+    j.sub.input_bytes = len;
+    refused(&j.req, INVALID, "the expression comes either inline or as input_bytes, not both");
+    j.im.source.len = 0, j.im.source.data = NULL;
+    accepted(&j.req);
+    j.sub.input_bytes = lim.max_expr_bytes;
+    accepted(&j.req);
+    j.sub.input_bytes = lim.max_expr_bytes + 1;
+    refused(&j.req, LIMIT, "expression is 65537 bytes, limit 65536");
+    /* The cap of every input, whatever its kind. */
+    lim.max_expr_bytes = 16u << 20, lim.max_input_bytes = 1u << 20;
+    j.sub.input_bytes = lim.max_input_bytes;
+    accepted(&j.req);
+    j.sub.input_bytes = lim.max_input_bytes + 1;
+    refused(&j.req, LIMIT, "input is 1048577 bytes, over this server's max_input_bytes of 1048576");
+    setup();
+    /* Through the wire: the field is where the proto says. */
+    j.sub.input_bytes = 1000;
+    uint8_t *buf;
+    size_t n;
+    cr_assert_eq(frame_encode_request(&j.req, &buf, &n), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, n - 4);
+    cr_assert_not_null(r);
+    cr_assert_eq(r->submit->input_bytes, 1000);
+    cr_assert_eq(r->submit->implicit->source.len, 0);
+    accepted(r);
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
+}
+
+Test(proto, mesh_with_input_is_still_not_supported)
+{
+    job j;
+    job_init(&j);
+    Voxd__Mesh m = VOXD__MESH__INIT;
+    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_STL, m.res = 64;
+    j.sub.job_case = VOXD__SUBMIT__JOB_MESH, j.sub.mesh = &m;
+    refused(&j.req, INVALID, "mesh data is empty");
+    j.sub.input_bytes = 1 << 20;
+    refused(&j.req, INVALID, "mesh jobs are not supported yet");
+    uint8_t stl[4] = "soli";
+    m.data.data = stl, m.data.len = 4;
+    refused(&j.req, INVALID, "the mesh comes either inline or as input_bytes, not both");
+}
+
+typedef struct {
+    Voxd__Request req;
+    Voxd__InputChunk in;
+    uint8_t data[8];
+} chunk_req;
+
+static void chunk_init(chunk_req *c)
+{
+    c->req = (Voxd__Request)VOXD__REQUEST__INIT;
+    c->in = (Voxd__InputChunk)VOXD__INPUT_CHUNK__INIT;
+    memcpy(c->data, "x*x+y*y", 8);
+    c->in.job_id = 3, c->in.offset = 0;
+    c->in.data.data = c->data, c->in.data.len = 7;
+    c->req.msg_case = VOXD__REQUEST__MSG_INPUT, c->req.input = &c->in;
+}
+
+Test(proto, input_chunk_rules)
+{
+    chunk_req c;
+    chunk_init(&c);
+    accepted(&c.req);
+    c.in.job_id = 0;
+    refused(&c.req, INVALID, "input chunk has no job id");
+    chunk_init(&c);
+    c.in.data.len = 0;
+    refused(&c.req, INVALID, "input chunk at offset 0 is empty");
+    chunk_init(&c);
+    c.in.offset = lim.max_input_bytes - 7; /* ends exactly at the cap */
+    accepted(&c.req);
+    c.in.offset = lim.max_input_bytes - 6;
+    refused(&c.req, LIMIT, "input chunk at offset 67108858 passes this server's max_input_bytes of 67108864");
+    c.in.offset = UINT64_MAX - 2; /* offset + len overflows */
+    refused(&c.req, LIMIT, "passes this server's max_input_bytes");
+    /* A NUL is the job's to judge (an expression cannot hold one, a mesh can). */
+    chunk_init(&c);
+    c.data[2] = 0;
+    accepted(&c.req);
+    /* Through the wire. */
+    uint8_t *buf;
+    size_t n;
+    c.in.offset = 12345;
+    cr_assert_eq(frame_encode_request(&c.req, &buf, &n), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, n - 4);
+    cr_assert_not_null(r);
+    cr_assert_eq(r->msg_case, VOXD__REQUEST__MSG_INPUT);
+    cr_assert(r->input->job_id == 3 && r->input->offset == 12345 && r->input->data.len == 7);
+    accepted(r);
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
 }
 
 Test(proto, error_rules)
