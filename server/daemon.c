@@ -10,16 +10,10 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "clock.h"
 #include "daemon.h"
 #include "log.h"
 #include "proto_check.h"
-
-double vd_now(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
 
 int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen)
 {
@@ -101,12 +95,13 @@ static void on_stop_timer(uv_timer_t *t)
     vd_daemon *d = t->data;
     log_warn("clients did not read their last replies in time; closing them");
     while (d->clients) vd_client_close(d->clients);
-    vd_maybe_exit(d);
 }
 
 /* Everything is done: close the remaining clients once their replies are
- * written (bounded by the stop timer), then the engine, then the loop. */
-void vd_maybe_exit(vd_daemon *d)
+ * written (bounded by the stop timer), then the engine, then the loop.
+ * Runs after every turn of the loop (on_loop_turn), so what ends a job, an
+ * upload or a connection need not call up here. */
+static void maybe_exit(vd_daemon *d)
 {
     if (!d->stopping || d->exiting || vd_busy(d) || d->nuploading) return;
     for (vd_client *c = d->clients, *next; c; c = next) {
@@ -124,7 +119,8 @@ void vd_maybe_exit(vd_daemon *d)
     uv_handle_t *hs[] = {(uv_handle_t *)&d->sig_term, (uv_handle_t *)&d->sig_int,
                          (uv_handle_t *)&d->sig_quit, (uv_handle_t *)&d->sig_hup,
                          (uv_handle_t *)&d->sig_usr1, (uv_handle_t *)&d->tick,
-                         (uv_handle_t *)&d->stop_timer, (uv_handle_t *)&d->wake};
+                         (uv_handle_t *)&d->stop_timer, (uv_handle_t *)&d->wake,
+                         (uv_handle_t *)&d->turn};
     for (size_t i = 0; i < sizeof hs / sizeof hs[0]; i++) close_handle(hs[i]);
     log_info("stopped");
 }
@@ -162,7 +158,6 @@ static void stop_fast(vd_daemon *d)
             vd_job_fail(d, j, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
         }
     uv_timer_start(&d->stop_timer, on_stop_timer, VD_STOP_GRACE_MS, 0);
-    vd_maybe_exit(d);
 }
 
 /* QUIT: no new connections or jobs; the uploading, queued and running ones
@@ -173,7 +168,6 @@ static void stop_graceful(vd_daemon *d)
     d->stopping = VD_STOP_GRACEFUL;
     log_info("stopping when the running and queued jobs are done");
     stop_listening(d);
-    vd_maybe_exit(d);
 }
 
 /* ---------------------------------------------------------------- reload */
@@ -255,7 +249,7 @@ static void check_job_timeout(vd_daemon *d, double now)
 static void on_tick(uv_timer_t *t)
 {
     vd_daemon *d = t->data;
-    double now = vd_now();
+    double now = clock_now();
     check_job_timeout(d, now);
     for (vd_client *c = d->clients, *next; c; c = next) {
         next = c->next;
@@ -281,11 +275,19 @@ static void ready(vd_daemon *d)
     close(fd);
 }
 
+static void on_loop_turn(uv_check_t *h)
+{
+    maybe_exit(h->data);
+}
+
 static int start(vd_daemon *d)
 {
     int rc = uv_async_init(d->loop, &d->wake, vd_on_wake);
     if (rc) return rc;
     d->wake.data = d;
+    uv_check_init(d->loop, &d->turn);
+    d->turn.data = d;
+    uv_check_start(&d->turn, on_loop_turn);
     uv_timer_init(d->loop, &d->tick);
     uv_timer_init(d->loop, &d->stop_timer);
     d->tick.data = d->stop_timer.data = d;
@@ -322,7 +324,7 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
     d->cfg = *cfg;
     d->opt = *opt;
     snprintf(d->shm_name, sizeof d->shm_name, "%s", shm_name);
-    d->t_start = vd_now();
+    d->t_start = clock_now();
     pthread_mutex_init(&d->mu, NULL);
     pthread_cond_init(&d->cv, NULL);
     pthread_cond_init(&d->started_cv, NULL);

@@ -120,6 +120,9 @@ struct vd_client {
     double t_write;            /* last write progress while writes pend */
     vd_job *jobs;              /* its jobs in every state (cnext) */
     vd_job *deliver, *deliver_tail; /* finished jobs to stream, in order (next) */
+    /* A write finished (0) or failed (a negative libuv error): set by
+     * daemon_client.c, called by daemon_conn.c. */
+    void (*written)(vd_client *c, int status);
 };
 
 typedef struct {
@@ -141,6 +144,7 @@ struct vd_daemon {
     uv_signal_t sig_term, sig_int, sig_quit, sig_hup, sig_usr1;
     uv_timer_t tick, stop_timer;
     uv_async_t wake;
+    uv_check_t turn;           /* after every turn of the loop: time to exit? */
     int stopping;              /* 0, VD_STOP_GRACEFUL, VD_STOP_FAST */
     int exiting;               /* handles are being closed */
     int exit_code;
@@ -180,19 +184,16 @@ enum { VD_STOP_GRACEFUL = 1, VD_STOP_FAST = 2 };
 int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name);
 
 /* daemon.c */
-double vd_now(void);
 /* The configuration the options name: the file (or the defaults when no
  * file was named and /etc/voxd/voxd.conf does not exist), then the
  * command line's overrides (--socket, --workers, --client-timeout).
  * 0 or -errno with a message in err. */
 int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen);
-void vd_maybe_exit(vd_daemon *d);
 void vd_engine_opts(vd_daemon *d, const voxd_config *c); /* under mu */
 
 /* daemon_engine.c */
 int vd_engine_start(vd_daemon *d);
 void vd_engine_stop(vd_daemon *d);
-void vd_on_wake(uv_async_t *a);
 void vd_job_free(vd_job *j);
 /* Set j's terminal error from its cancel_code (a person's words for it). */
 void vd_job_stopped(vd_job *j);
@@ -211,16 +212,25 @@ int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos);
 int vd_job_stop(vd_daemon *d, vd_job *j, int code);
 int vd_busy(vd_daemon *d); /* jobs queued, running or delivering */
 
+/* daemon_conn.c: a connection's output */
+/* Frame r onto c's write queue; 0, or -errno after c->written(c, error). */
+int vd_client_send(vd_client *c, const Voxd__Reply *r);
+size_t vd_conn_queued(vd_client *c);          /* bytes waiting in user space */
+size_t vd_conn_pump_mark(const vd_client *c); /* results stream below this */
+size_t vd_conn_read_mark(const vd_client *c); /* requests are read below this */
+int vd_client_backed_up(vd_client *c);        /* progress replies are dropped */
+
 /* daemon_client.c */
+/* The engine thread said something (d->wake): log lines, progress,
+ * finished jobs. */
+void vd_on_wake(uv_async_t *a);
 void vd_on_connection(uv_stream_t *server, int status);
 void vd_client_close(vd_client *c);
 void vd_client_close_after_flush(vd_client *c);
 void vd_client_tick(vd_client *c, double now);
-int vd_client_send(vd_client *c, const Voxd__Reply *r);
 int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 void vd_client_pump(vd_client *c);
-int vd_client_backed_up(vd_client *c);
 /* The job's terminal error to its client (if any), the job out of the
  * client's list and freed. */
 void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg);

@@ -10,6 +10,7 @@
 #include <sys/mman.h>
 #include <sys/socket.h>
 
+#include "clock.h"
 #include "daemon.h"
 #include "log.h"
 #include "proto_check.h"
@@ -24,31 +25,6 @@ typedef struct {
 
 static void start_reading(vd_client *c);
 
-static size_t queued_bytes(vd_client *c)
-{
-    return uv_stream_get_write_queue_size((uv_stream_t *)&c->pipe);
-}
-
-/* Chunks are produced while fewer bytes than this wait in user space. */
-static size_t pump_mark(const vd_client *c)
-{
-    return c->d->cfg.chunk_size;
-}
-
-/* Reading stops while more than this waits: a client that sends requests
- * and never reads the replies cannot grow the queue without bound. */
-static size_t read_mark(const vd_client *c)
-{
-    return 2 * (size_t)c->d->cfg.max_frame + c->d->cfg.chunk_size;
-}
-
-/* Progress is dropped for a client whose replies pile up: only the
- * latest matters, and the stall timeout deals with the client. */
-int vd_client_backed_up(vd_client *c)
-{
-    return c->closing || c->flush_close || queued_bytes(c) >= pump_mark(c);
-}
-
 static double client_timeout(const vd_client *c)
 {
     return c->d->cfg.client_timeout; /* --client-timeout applied (vd_load_config) */
@@ -59,10 +35,8 @@ static double client_timeout(const vd_client *c)
 static void on_closed(uv_handle_t *h)
 {
     vd_client *c = (vd_client *)h;
-    vd_daemon *d = c->d;
     frame_decoder_free(&c->dec);
     free(c);
-    vd_maybe_exit(d);
 }
 
 void vd_client_unlink_job(vd_client *c, vd_job *j)
@@ -143,53 +117,21 @@ void vd_client_close_after_flush(vd_client *c)
     if (c->writes == 0) vd_client_close(c);
 }
 
-/* ---------------------------------------------------------------- writing */
-
-static void on_write(uv_write_t *req, int status)
+/* A write finished (status 0) or failed (negative): the connection layer's
+ * callback (daemon_conn.c). */
+static void on_written(vd_client *c, int status)
 {
-    vd_write *w = (vd_write *)req;
-    vd_client *c = req->data;
-    free(w->buf);
-    free(w);
-    c->writes--;
-    if (c->closing) return;
     if (status < 0) {
         log_debug("client pid %d: write failed: %s", (int)c->pid, uv_strerror(status));
         vd_client_close(c);
         return;
     }
-    c->t_write = vd_now();
     if (c->flush_close) {
         if (c->writes == 0) vd_client_close(c);
         return;
     }
-    if (!c->reading && queued_bytes(c) <= read_mark(c)) start_reading(c);
+    if (!c->reading && vd_conn_queued(c) <= vd_conn_read_mark(c)) start_reading(c);
     vd_client_pump(c);
-}
-
-int vd_client_send(vd_client *c, const Voxd__Reply *r)
-{
-    if (c->closing) return -EPIPE;
-    vd_write *w = malloc(sizeof *w);
-    int rc = w ? frame_encode_reply(r, &w->buf, &w->len) : -ENOMEM;
-    if (rc) {
-        free(w);
-        log_error("client pid %d: cannot encode a reply: %s", (int)c->pid, strerror(-rc));
-        vd_client_close(c);
-        return rc;
-    }
-    if (c->writes == 0) c->t_write = vd_now();
-    uv_buf_t b = uv_buf_init((char *)w->buf, (unsigned)w->len);
-    w->req.data = c;
-    rc = uv_write(&w->req, (uv_stream_t *)&c->pipe, &b, 1, on_write);
-    if (rc) {
-        free(w->buf);
-        free(w);
-        vd_client_close(c);
-        return -EPIPE;
-    }
-    c->writes++;
-    return 0;
 }
 
 /* ---------------------------------------------------------------- results */
@@ -218,12 +160,6 @@ void vd_job_finished(vd_daemon *d, vd_job *j)
         vd_job_fail(d, j, j->code, j->message);
         return;
     }
-    /* The grid the engine made of the same request, for the Summary. */
-    char why[256];
-    if (grid_make(j->lo, j->hi, j->res, &j->grid, why, sizeof why)) {
-        vd_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, why);
-        return;
-    }
     void *map = mmap(NULL, j->size, PROT_READ, MAP_SHARED, j->fd, 0);
     if (map == MAP_FAILED) {
         vd_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, "cannot read the result back");
@@ -245,7 +181,7 @@ void vd_job_finished(vd_daemon *d, vd_job *j)
  * is short, then the summary. */
 void vd_client_pump(vd_client *c)
 {
-    while (!c->closing && c->deliver && queued_bytes(c) < pump_mark(c)) {
+    while (!c->closing && c->deliver && vd_conn_queued(c) < vd_conn_pump_mark(c)) {
         vd_job *j = c->deliver;
         if (j->sent < j->size) {
             uint64_t n = j->size - j->sent;
@@ -259,7 +195,6 @@ void vd_client_pump(vd_client *c)
         vd_client_unlink_job(c, j);
         vd_job_free(j);
     }
-    if (!c->closing) vd_maybe_exit(c->d);
 }
 
 /* ---------------------------------------------------------------- requests */
@@ -340,7 +275,7 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
     j->max_expr_depth = cfg->max_expr_depth;
     j->max_result_bytes = cfg->max_result_bytes;
     j->job_timeout = cfg->job_timeout;
-    j->t_submit = j->t_input = vd_now();
+    j->t_submit = j->t_input = clock_now();
     return j;
 }
 
@@ -482,10 +417,10 @@ static int on_input(vd_client *c, const Voxd__InputChunk *m)
                            (unsigned long long)(m->offset + (uint64_t)(nul - data)));
     if (input_append(j, data, n))
         return upload_fail(c, j, VOXD__ERROR_CODE__INTERNAL, "out of memory for the job's input");
-    j->t_input = vd_now();
+    j->t_input = clock_now();
     if (j->source_len < j->input_total) return 0;
     c->d->nuploading--;
-    j->t_submit = vd_now(); /* Summary.seconds_queued: from here */
+    j->t_submit = clock_now(); /* Summary.seconds_queued: from here */
     log_info("job %llu: input complete (%zu bytes); queued", id, j->source_len);
     vd_queue_push(c->d, j);
     return 0;
@@ -543,7 +478,6 @@ static void dispatch(vd_client *c, const Voxd__Request *r)
     case VOXD__REQUEST__MSG_INPUT: on_input(c, r->input); break;
     default: break; /* proto_check_request refused it */
     }
-    vd_maybe_exit(c->d); /* a stop may have waited for an upload that ended */
 }
 
 static void on_frame(vd_client *c, const uint8_t *data, size_t len)
@@ -596,7 +530,7 @@ static void on_bytes(vd_client *c, const uint8_t *p, size_t n)
         return;
     }
     if (frame_decoder_pending(&c->dec) == 0) c->t_frame = 0;
-    else if (c->t_frame == 0) c->t_frame = vd_now();
+    else if (c->t_frame == 0) c->t_frame = clock_now();
 }
 
 static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
@@ -605,7 +539,7 @@ static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
     if (c->closing) return;
     if (nread > 0) {
         on_bytes(c, (const uint8_t *)buf->base, (size_t)nread);
-        if (!c->closing && c->reading && queued_bytes(c) > read_mark(c)) {
+        if (!c->closing && c->reading && vd_conn_queued(c) > vd_conn_read_mark(c)) {
             uv_read_stop(s); /* on_write starts it again */
             c->reading = 0;
         }
@@ -656,12 +590,13 @@ void vd_on_connection(uv_stream_t *server, int status)
     vd_client *c = calloc(1, sizeof *c);
     if (!c) return;
     c->d = d;
+    c->written = on_written;
     if (uv_pipe_init(d->loop, &c->pipe, 0) || uv_accept(server, (uv_stream_t *)&c->pipe)) {
         uv_close((uv_handle_t *)&c->pipe, (uv_close_cb)free);
         return;
     }
     frame_decoder_init(&c->dec, d->cfg.max_frame);
-    c->t_connect = vd_now();
+    c->t_connect = clock_now();
     c->next = d->clients;
     if (d->clients) d->clients->prev = c;
     d->clients = c;
@@ -705,7 +640,6 @@ void vd_client_tick(vd_client *c, double now)
     double t = client_timeout(c);
     if (c->closing) return;
     tick_uploads(c, now, t);
-    vd_maybe_exit(c->d); /* a stop may have waited for those uploads */
     if (c->closing) return;
     if (c->writes && now - c->t_write > t) {
         log_info("client pid %d: has not read its replies for %.0f s; dropping it",
@@ -722,4 +656,41 @@ void vd_client_tick(vd_client *c, double now)
     vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                     "%s within %.0f s; closing the connection", what, t);
     vd_client_close_after_flush(c);
+}
+
+/* ---------------------------------------------------------------- engine news */
+
+static void flush_elog(vd_daemon *d)
+{
+    for (unsigned i = 0; i < d->elog_n; i++)
+        log_msg(d->elog[i].level, "%s", d->elog[i].text);
+    if (d->elog_dropped)
+        log_warn("%u engine log line(s) dropped", d->elog_dropped);
+    d->elog_n = 0;
+    d->elog_dropped = 0;
+}
+
+/* The engine thread said something: log lines, progress, finished jobs. */
+void vd_on_wake(uv_async_t *a)
+{
+    vd_daemon *d = a->data;
+    pthread_mutex_lock(&d->mu);
+    flush_elog(d);
+    vd_job *done = d->done;
+    d->done = d->done_tail = NULL;
+    vd_job *r = d->running;
+    engine_progress p;
+    int send = r && r->client && r->progress_seq != r->progress_sent;
+    if (send) {
+        p = r->progress;
+        r->progress_sent = r->progress_seq;
+    }
+    pthread_mutex_unlock(&d->mu);
+    if (send && !vd_client_backed_up(r->client)) vd_send_progress(r->client, r, &p);
+    while (done) {
+        vd_job *j = done;
+        done = j->next;
+        j->next = NULL;
+        vd_job_finished(d, j);
+    }
 }

@@ -11,6 +11,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "clock.h"
 #include "daemon.h"
 #include "expr.h"
 #include "log.h"
@@ -263,6 +264,7 @@ static void run_job(vd_daemon *d, engine *e, vd_job *j)
     pipeline_report r;
     if (pipeline_run(e, &job, &sink, &r) == 0) j->code = 0;
     else job_failed(j, &rs, &r);
+    j->grid = r.grid;
     j->t_voxelize = r.t_voxelize;
     j->t_write = r.t_write;
     j->voxels = r.voxels;
@@ -305,7 +307,7 @@ static void run_next(vd_daemon *d, engine *e)
     d->nqueued--;
     j->next = NULL;
     j->state = VD_RUNNING;
-    j->t_start = vd_now();
+    j->t_start = clock_now();
     d->running = j;
     pthread_mutex_unlock(&d->mu);
     wake_loop(d);
@@ -481,40 +483,4 @@ int vd_busy(vd_daemon *d)
     for (vd_client *c = d->clients; c && !busy; c = c->next)
         busy = c->deliver != NULL;
     return busy;
-}
-
-static void flush_elog(vd_daemon *d)
-{
-    for (unsigned i = 0; i < d->elog_n; i++)
-        log_msg(d->elog[i].level, "%s", d->elog[i].text);
-    if (d->elog_dropped)
-        log_warn("%u engine log line(s) dropped", d->elog_dropped);
-    d->elog_n = 0;
-    d->elog_dropped = 0;
-}
-
-/* The engine thread said something: log lines, progress, finished jobs. */
-void vd_on_wake(uv_async_t *a)
-{
-    vd_daemon *d = a->data;
-    pthread_mutex_lock(&d->mu);
-    flush_elog(d);
-    vd_job *done = d->done;
-    d->done = d->done_tail = NULL;
-    vd_job *r = d->running;
-    engine_progress p;
-    int send = r && r->client && r->progress_seq != r->progress_sent;
-    if (send) {
-        p = r->progress;
-        r->progress_sent = r->progress_seq;
-    }
-    pthread_mutex_unlock(&d->mu);
-    if (send && !vd_client_backed_up(r->client)) vd_send_progress(r->client, r, &p);
-    while (done) {
-        vd_job *j = done;
-        done = j->next;
-        j->next = NULL;
-        vd_job_finished(d, j);
-    }
-    vd_maybe_exit(d);
 }

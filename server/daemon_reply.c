@@ -4,6 +4,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "clock.h"
 #include "daemon.h"
 #include "proto_check.h"
 
@@ -153,7 +154,7 @@ int vd_send_status(vd_client *c)
     Voxd__WorkerStatus *wp[ENGINE_MAX_WORKERS];
     Voxd__StatusReply s = VOXD__STATUS_REPLY__INIT;
     Voxd__RunningJob rj = VOXD__RUNNING_JOB__INIT;
-    double now = vd_now();
+    double now = clock_now();
     s.uptime = nonneg(now - d->t_start);
     s.clients = d->nclients;
     pthread_mutex_lock(&d->mu);
