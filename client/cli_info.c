@@ -2,6 +2,8 @@
 #include <stdio.h>
 #include <string.h>
 
+#include <zlib.h>
+
 #include "cli.h"
 #include "vod.h"
 #include "voxel.h"
@@ -59,12 +61,41 @@ static void print_info(const char *path, const vod_info *in)
     }
 }
 
+/* What the file holds, whatever its compression or hash: the non-empty
+ * voxels of full resolution, and the sum of the CRC-32s of (level, x, y, z,
+ * value) over every non-empty voxel of every level (a sum: the order the
+ * reader visits them in does not matter). */
+typedef struct {
+    uint32_t level, crc;
+    uint64_t n;
+} voxel_sum;
+
+static int add_voxel(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
+{
+    voxel_sum *s = ud;
+    uint32_t rec[5] = {s->level, x, y, z, v};
+    s->crc += (uint32_t)crc32(0, (const Bytef *)rec, sizeof rec);
+    s->n += s->level == 0;
+    return 0;
+}
+
+static void print_voxels(const vod_file *f)
+{
+    voxel_sum s = {0, 0, 0};
+    for (s.level = 0; s.level < vod_get_info(f)->height; s.level++)
+        vod_foreach(f, (int)s.level, add_voxel, &s);
+    printf("  voxels      %llu non-empty at full resolution; content checksum %08x\n",
+           (unsigned long long)s.n, s.crc);
+}
+
 int cli_info(int argc, char **argv)
 {
     if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
         fputs("usage: vox info FILE.vod...\n"
               "  validates every part of each file (header, tree, every brick's size,\n"
-              "  decompression and hash, the CRC) and prints what it holds\n",
+              "  decompression and hash, the CRC) and prints what it holds; the content\n"
+              "  checksum covers every voxel of every level, so files of the same voxels\n"
+              "  and brick size written with any compression or hash share it\n",
               argc < 2 ? stderr : stdout);
         return argc < 2 ? 2 : 0;
     }
@@ -78,6 +109,7 @@ int cli_info(int argc, char **argv)
             continue;
         }
         print_info(argv[i], vod_get_info(f));
+        print_voxels(f);
         vod_close(f);
     }
     return bad;

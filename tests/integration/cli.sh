@@ -32,6 +32,20 @@ check "scene file with directives" "$VOX" voxelize -f examples/scene2.vx -r 48 -
 refuse "directive domain used" 0 "domain=-1.05,1.05" "$VOX" info "$TMP/scene2.vod"
 check "occupancy channel" "$VOX" voxelize -e "$S" -r 32 --channel occupancy --compress runl --hash xx32 --brick 8 -o "$TMP/occ.vod"
 refuse "occupancy is 1 bit" 0 "1 bits" "$VOX" info "$TMP/occ.vod"
+# vox info's content checksum: the voxels, whatever the compression or hash.
+for c in "zlib sfhs" "none xx32" "runl sfhs"; do
+    set -- $c
+    check "sphere, $1 $2" "$VOX" voxelize -e "$S" -r 48 --compress "$1" --hash "$2" -o "$TMP/c-$1.vod"
+done
+csum() { "$VOX" info "$1" | sed -n 's/.*content checksum \([0-9a-f]*\).*/\1/p'; }
+a=$(csum "$TMP/c-zlib.vod") b=$(csum "$TMP/c-none.vod") c=$(csum "$TMP/c-runl.vod")
+if [ -n "$a" ] && [ "$a" = "$b" ] && [ "$a" = "$c" ]; then pass "content checksum ignores compression and hash"
+else fail "content checksum ignores compression and hash" "$a $b $c"; fi
+check "sphere, other voxels" "$VOX" voxelize -e "$S" -r 47 -o "$TMP/c-47.vod"
+d=$(csum "$TMP/c-47.vod")
+if [ -n "$d" ] && [ "$d" != "$a" ]; then pass "content checksum tells other voxels apart"
+else fail "content checksum tells other voxels apart" "$a $d"; fi
+refuse "info counts the voxels" 0 "voxels +[0-9]+ non-empty at full resolution" "$VOX" info "$TMP/c-47.vod"
 refuse "progress line" 0 "level" "$VOX" voxelize -e "$S" -r 64 --progress -o "$TMP/p.vod"
 
 # Errors: clear message, exit 2, no output file left behind.
