@@ -740,7 +740,7 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
      * are not yet */
     if (rc && (!errlen || !err[0]))
         return fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
-    return 0;
+    return rc;
 }
 
 int vod_mem_write(void *membuf, const void *buf, size_t n)
