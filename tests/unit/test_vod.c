@@ -343,7 +343,16 @@ Test(vod_layout, validates_params_per_spec)
     q = p, q.volume[1] = 0;
     cr_assert_eq(layout_rc(&q, 3, "at least 1"), -EINVAL);
     q = p, q.channel = VOXEL_CH_DENSITY;
-    cr_assert_eq(layout_rc(&q, 3, "channel 2"), -EINVAL);
+    cr_assert_eq(layout_rc(&q, 3, NULL), 0, "channel 2: 8-bit voxels");
+    cr_assert_eq(vod_layout_make(&q, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(L.voxel_bits, 8);
+    cr_assert_eq(L.raw_bytes, 16 * 16 * 16);
+    q = p, q.channel = VOXEL_CH_DISTANCE;
+    cr_assert_eq(layout_rc(&q, 3, "channel 4 (f32 signed distance) is not written yet"), -EINVAL);
+    q = p, q.channel = 5;
+    cr_assert_eq(layout_rc(&q, 3, "channel 5 cannot be written"), -EINVAL);
+    q = p, q.channel = VOXEL_CH_UNSPECIFIED;
+    cr_assert_eq(layout_rc(&q, 3, "channel 0 cannot be written"), -EINVAL);
     q = p, q.comp = VOD_FOURCC('F', 'T', 'L', 'Z');
     cr_assert_eq(layout_rc(&q, 3, "'FTLZ'"), -EINVAL);
     q = p, q.hash = VOD_FOURCC('M', 'D', '5', ' ');
@@ -880,7 +889,10 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     memset(d1, 1, sizeof d1);
     memset(d2, 2, sizeof d2);
     memset(d3, 1, sizeof d3);
-    vod_node nodes[4] = {{0, 1, 0, 0, 0}, {1, 0, 0, 0, 0}, {2, 0, 1, 0, 0}, {3, 0, 0, 1, 0}};
+    vod_node nodes[4] = {{.preorder = 0, .level = 1},
+                         {.preorder = 1},
+                         {.preorder = 2, .bx = 1},
+                         {.preorder = 3, .by = 1}};
     vod_encoded recs[4] = {{7, 256}, {7, 256}, {7, 256}, {9, 256}};
     const uint8_t *data[4] = {d1, d2, d3, d1};
     membuf m = {0};
@@ -894,7 +906,7 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     cr_assert_eq(vod_get32(m.p + 76), 3);
     free(m.p);
     /* nodes out of preorder or oversize records are refused */
-    vod_node bad[2] = {{2, 0, 1, 0, 0}, {1, 0, 0, 0, 0}};
+    vod_node bad[2] = {{.preorder = 2, .bx = 1}, {.preorder = 1}};
     m = (membuf){0};
     cr_assert_eq(vod_assemble(&L, &p, 2, bad, recs, data, &sink, &st, err, sizeof err), -EINVAL);
     vod_encoded big[1] = {{7, 257}};
@@ -918,22 +930,23 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     char err[256];
     cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
     f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
-    vod_aggregate(&f.t, p.channel);
-    size_t n = vod_collect(&f.t, &L, NULL, 0);
+    vod_aggregate(&f.t, p.channel); /* as the engine does, into its own agg */
+    vod_source src = vod_octree_source(&f.t);
+    size_t n = vod_collect(&src, &L, NULL, 0);
     vod_node *nodes = malloc(n * sizeof *nodes);
-    cr_assert_eq(vod_collect(&f.t, &L, nodes, n), n);
+    cr_assert_eq(vod_collect(&src, &L, nodes, n), n);
     vod_encoded *recs = malloc(n * sizeof *recs);
     uint8_t **data = malloc(n * sizeof *data);
     size_t bound = vod_encode_bound(&L, &p);
     uint8_t *scratch = malloc(L.raw_bytes);
     for (size_t i = n; i-- > 0;) { /* any order, separate buffers, as workers would */
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&f.t, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
     }
-    cr_assert_eq(vod_encode(&f.t, &L, &p, &nodes[0], scratch, data[0], 4, &recs[0]), -ENOBUFS);
-    cr_assert_eq(vod_encode(&f.t, &L, &p, &nodes[0], scratch, data[0], bound, &recs[0]), 0);
-    vod_node outside = {0, L.height, 0, 0, 0};
-    cr_assert_eq(vod_encode(&f.t, &L, &p, &outside, scratch, data[0], bound, &recs[0]), -EINVAL);
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], 4, &recs[0]), -ENOBUFS);
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], bound, &recs[0]), 0);
+    vod_node outside = {.level = L.height};
+    cr_assert_eq(vod_encode(&src, &L, &p, &outside, scratch, data[0], bound, &recs[0]), -EINVAL);
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
@@ -986,7 +999,7 @@ Test(vod_write, file_past_4_gib_is_refused_before_writing)
     vod_encoded recs[N];
     const uint8_t *data[N];
     for (int i = 0; i < N; i++) {
-        nodes[i] = (vod_node){(uint64_t)i, 0, 0, 0, 0};
+        nodes[i] = (vod_node){.preorder = (uint64_t)i};
         recs[i] = (vod_encoded){(uint32_t)i, (uint32_t)L.raw_bytes};
         data[i] = raw;
     }
@@ -1324,3 +1337,87 @@ Test(vod, sink_errors_are_not_the_4_GiB_limit)
     fx_free(&f);
 }
 
+
+/* ---------------------------------------------------- brick sources */
+
+Test(vod_source, channel_4_is_refused_with_a_reason)
+{
+    fixture f;
+    fx_init(&f, 4, 16, 16, 16);
+    fx_random(&f, 20);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_DISTANCE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    vod_layout L;
+    char err[256] = "";
+    cr_assert_eq(vod_layout_make(&p, 4, &L, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "channel 4") && strstr(err, "not written yet"), "%s", err);
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    err[0] = '\0';
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "channel 4"), "%s", err);
+    cr_assert_eq(m.calls, 0, "nothing written");
+    fx_free(&f);
+}
+
+Test(vod_source, a_channel_the_source_lacks_is_refused)
+{
+    fixture f;
+    fx_init(&f, 4, 16, 16, 16);
+    fx_random(&f, 20);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_DENSITY, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    char err[256] = "";
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert_str_eq(err, "channel 2 cannot be written from the octree (it gives "
+                          "channels 1 and 3)");
+    cr_assert_null(f.t.agg);
+    /* and the octree's fill refuses a layout it cannot give even if asked */
+    vod_source s = vod_octree_source(&f.t);
+    vod_layout L;
+    cr_assert_eq(vod_layout_make(&p, 4, &L, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(L.voxel_bits, 8);
+    vod_node n = {.level = 0};
+    uint8_t *scratch = malloc(L.raw_bytes), *out = malloc(vod_encode_bound(&L, &p));
+    vod_encoded rec;
+    cr_assert_eq(vod_encode(&s, &L, &p, &n, scratch, out, vod_encode_bound(&L, &p), &rec),
+                 -EINVAL);
+    cr_assert_eq(m.calls, 0);
+    free(scratch), free(out);
+    fx_free(&f);
+}
+
+/* A source that breaks region()'s contract (it renumbers the nodes): the
+ * nodes reach vod_assemble out of preorder, and vod_write must return
+ * assemble's refusal with its message, not succeed with nothing written. */
+static int renumbering_region(const vod_source *s, const vod_layout *L, vod_node *n)
+{
+    vod_source o = vod_octree_source(s->ctx);
+    int r = o.ops->region(&o, L, n);
+    n->preorder = 0;
+    return r;
+}
+
+Test(vod_source, assemble_refusals_reach_the_caller)
+{
+    fixture f;
+    fx_init(&f, 5, 32, 32, 32);
+    fx_random(&f, 300);
+    vod_source s = vod_octree_source(&f.t);
+    vod_source_ops ops = *s.ops;
+    ops.region = renumbering_region;
+    s.ops = &ops;
+    f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    char err[256] = "";
+    cr_assert_eq(vod_write(&s, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert_str_eq(err, "bricks out of preorder or over their bound");
+    cr_assert_eq(m.calls, 0);
+    free(f.t.agg);
+    fx_free(&f);
+}
