@@ -1,5 +1,6 @@
-/* VOD writer (docs/vod-format.md): plan (layout, aggregate, collect),
- * encode bricks, assemble the file.  See vod.h for the three phases. */
+/* VOD writer (docs/vod-format.md): plan (layout, check, prepare, collect),
+ * encode bricks, assemble the file, over any brick source.  See vod.h for
+ * the three phases and what a source must guarantee. */
 #include "vod.h"
 
 #include <errno.h>
