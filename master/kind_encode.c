@@ -41,12 +41,13 @@ static int encode_setup(engine *e, void *job)
     encode_block *b = shm_at(e->seg.base, boff);
     e->tree.agg = shm_at(e->seg.base, agg);
     vod_aggregate(&e->tree, ej->p->channel);
-    uint64_t n = vod_collect(&e->tree, &ej->L, NULL, 0);
+    vod_source src = vod_octree_source(&e->tree);
+    uint64_t n = vod_collect(&src, &ej->L, NULL, 0);
     b->recs_off = align64(nodes + n * sizeof(vod_node));
     b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
     b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
     if (b->brick_off > end) goto full;
-    vod_collect(&e->tree, &ej->L, shm_at(e->seg.base, nodes), n);
+    vod_collect(&src, &ej->L, shm_at(e->seg.base, nodes), n);
     memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
     b->L = ej->L;
     b->p = *ej->p;
@@ -113,6 +114,7 @@ static int encode_gather(engine *e, const vod_params *p, const uint8_t **data,
     const uint8_t *bricks = shm_at(e->seg.base, b->brick_off);
     size_t bound = vod_encode_bound(&b->L, p);
     uint8_t *scratch = NULL;
+    vod_source src = vod_octree_source(&e->tree);
     int rc = 0;
     for (uint64_t i = 0; i < b->n && !rc; i++) {
         uint64_t off = offs[i];
@@ -124,7 +126,7 @@ static int encode_gather(engine *e, const vod_params *p, const uint8_t **data,
         if (!scratch && !(scratch = malloc(b->L.raw_bytes))) rc = -ENOMEM;
         if (!rc && !(own[i] = malloc(bound))) rc = -ENOMEM;
         if (!rc)
-            rc = vod_encode(&e->tree, &b->L, p, &nodes[i], scratch, own[i],
+            rc = vod_encode(&src, &b->L, p, &nodes[i], scratch, own[i],
                             bound, &recs[i]);
         data[i] = own[i];
     }
@@ -188,14 +190,14 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
 {
     memset(err, 0, sizeof *err);
     encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
+    vod_source src = vod_octree_source(&e->tree);
     int rc = -EINVAL;
     if (!e->have_tree)
         snprintf(err->message, sizeof err->message,
                  "no octree to write: the last job failed or there was none");
     else if (!(rc = vod_layout_make(p, e->tree.depth, &ej.L, err->message,
                                     sizeof err->message)))
-        rc = vod_check_volume(&e->tree, p->volume, err->message,
-                              sizeof err->message);
+        rc = vod_check_source(&src, p, err->message, sizeof err->message);
     if (rc) {
         err->failure = ENGINE_BAD_JOB;
         err->code = rc;

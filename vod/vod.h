@@ -1,11 +1,15 @@
 /* vod — brick-octree VOD files (docs/vod-format.md), written and read.
  *
- * Writing happens in three phases so that the middle one can run in
- * parallel in the worker processes:
- *   1. master:  vod_layout(), vod_aggregate(), vod_collect()  — plan
+ * The writer reads its voxels from a brick source (vod_source, below): the
+ * octree of voxels the implicit-surface engine builds, or a brick-sparse
+ * volume (vod_volume.h) for the kinds that make dense data.  Writing happens
+ * in three phases so that the middle one can run in parallel in the worker
+ * processes:
+ *   1. master:  vod_layout_make(), vod_check_source(), vod_prepare(),
+ *               vod_collect()                                  — plan
  *   2. workers: vod_encode() for each collected brick node     — fill, hash, compress
  *   3. master:  vod_assemble()                                 — dedup, lay out, write
- * vod_write_octree() runs all three in-process.
+ * vod_write() runs all three in-process; vod_write_octree() wraps an octree.
  *
  * Reading (vod_read/vod_open) validates the whole file up front — every case of
  * section 8 of the spec is refused with a message naming what is wrong — so a
@@ -41,7 +45,8 @@
 typedef struct {
     uint32_t volume[3];     /* volumeSize: the voxels asked for, each >= 1 */
     uint32_t brick;         /* 2^k, 1 <= k <= 8; default 16 */
-    int channel;            /* VOXEL_CH_SURFACE (32 bit) or VOXEL_CH_OCCUPANCY (1 bit) */
+    int channel;            /* VOXEL_CH_OCCUPANCY (1 bit), VOXEL_CH_DENSITY (8 bit)
+                               or VOXEL_CH_SURFACE (32 bit); the source must give it */
     uint32_t comp;          /* VOD_COMP_* ; default ZLIB */
     uint32_t hash;          /* VOD_HASH_* ; default SFHS */
     int zlib_level;         /* 1..9, default 6 */
@@ -52,12 +57,13 @@ typedef struct {
 
 void vod_params_default(vod_params *p);
 
-/* The shape of the file for params p over an octree of octree_depth. */
+/* The shape of the file for params p over a source of 2^octree_depth
+ * voxels per axis (vod_source.depth). */
 typedef struct {
     uint32_t brick, brick_log2; /* brick size and k */
     uint32_t height;            /* treeHeight */
     uint32_t padded;            /* N = brick * 2^(height-1) */
-    uint32_t voxel_bits;        /* 1 or 32 */
+    uint32_t voxel_bits;        /* 1, 8 or 32 */
     size_t raw_bytes;           /* bytes of one raw brick */
     uint64_t nodes;             /* (8^height - 1) / 7 */
     int octree_depth;
@@ -65,7 +71,8 @@ typedef struct {
 
 /* Validate p against the spec and compute the layout.  -EINVAL with a
  * message in err for bad params (also when the volume is larger than the
- * octree's 2^octree_depth cube), -EFBIG when the octree table alone would
+ * source's 2^octree_depth cube, and for channel 4, which the spec declares
+ * but nothing produces yet), -EFBIG when the octree table alone would
  * pass 4 GiB.  The padded side N is 2^octree_depth, smaller than it (an
  * octree deeper than the volume needs: the file's root is the cell that
  * covers [0, N)^3), or the brick itself when the brick is larger than the
@@ -78,27 +85,106 @@ typedef struct {
     uint64_t preorder; /* index in the file's octree table */
     uint32_t level;    /* 0 = full-resolution leaf bricks */
     uint32_t bx, by, bz; /* brick coordinates within its level */
+    uint32_t uniform;  /* 1: the source said every voxel of the brick is value */
+    uint32_t value;    /* (in the channel's terms: 0/1 for channel 1) */
+    uint32_t ref;      /* the source's own note on the node (the octree: its cell) */
 } vod_node;
 
-/* Phase 1 precondition: the spec wants 0 outside volumeSize, so the tree must
- * hold no voxel there.  Checks it by walking only the cells that straddle
- * the volume's high faces.  0, or -EINVAL with the first such voxel in err. */
-int vod_check_volume(const octree *t, const uint32_t volume[3], char *err,
+/* ---- brick sources ----
+ *
+ * What the writer reads voxels from.  A source holds voxel values over a
+ * cube of 2^depth voxels per axis (x, y, z from 0); a voxel it does not hold
+ * is 0, and 0 means "no voxel".  Level 0 is full resolution; a level-l voxel
+ * is made from the 8 level-(l-1) voxels below it as spec section 3 says for
+ * the channel: 1 bit: OR; 8 bit: the mean rounded half up; channel 3: the
+ * mean occupancy rounded half up with the normalized sum of the occupied
+ * children's normals, 0 where the occupancy rounds to 0.  At level 0,
+ * channel 1 is 1 where the value is non-zero.
+ *
+ * The writer's brick node (level l, brick b) of a file with bricks of B
+ * voxels covers the full-resolution cube [b * B * 2^l, (b+1) * B * 2^l) per
+ * axis; its brick holds the level-l voxels [b * B, (b+1) * B).  That cube
+ * may reach past the source's (the padded side of the file is rounded up to
+ * B * 2^(treeHeight-1)): the voxels there are 0.
+ *
+ * What each callback must guarantee:
+ *  - prepare(s, L, channel): called once per file in the master, after
+ *    vod_check_source() and before any region() or fill(); builds what
+ *    levels >= 1 need for this channel (the octree's aggregates, the
+ *    volume's mip levels) in memory that the processes calling fill() can
+ *    reach.  Returns 0 or a negative errno (-ENOMEM: no room).  Nothing may
+ *    change the voxels between prepare() and the last fill().
+ *  - outside(s, volume, at): 1 with the coordinates of some non-zero voxel
+ *    at x >= volume[0] or y >= volume[1] or z >= volume[2] in at, else 0.
+ *    (The spec wants the padding 0; the writer refuses such a source.)
+ *  - region(s, L, n): n's level and brick are set, n->ref is its parent's
+ *    ref (0 for the root).  Returns VOD_REGION_EMPTY when n's
+ *    full-resolution cube holds no non-zero voxel — exactly then: the node
+ *    gets brickID 0 and its subtree is not visited; VOD_REGION_UNIFORM with
+ *    n->value when every voxel of n's level-l brick is that value (in the
+ *    channel's terms: 0/1 for channel 1) — the writer then makes the brick
+ *    itself, no fill(); VOD_REGION_MIXED otherwise (or when the source
+ *    cannot tell cheaply).  A non-empty node whose brick downsampling made
+ *    all 0 is not EMPTY: it still gets a brick.  region() may set n->ref to
+ *    what it wants back in fill() and in the children's region() (the
+ *    octree keeps the node's cell there, so no look-up starts from the
+ *    root); it sets n->value and n->ref only.
+ *  - fill(s, L, n, raw): write the level-l brick of node n (as region()
+ *    left it, or with ref 0) into raw (L->raw_bytes, zeroed by the caller)
+ *    in spec section 5's layout at L->voxel_bits: 1-bit voxels packed, 8
+ *    and 32-bit ones little-endian; it may leave 0 voxels unwritten.
+ *    Read-only on the source and a function of the source and n alone, so
+ *    any process, in any order, gives the same bytes.  Returns 0, or
+ *    -EINVAL for a layout it cannot give.
+ *
+ * region() and fill() run in the worker processes too: ops must point to
+ * static tables of the program (the same address after fork) and ctx to a
+ * view the process made of data in the shared segment (octree_view,
+ * vod_volume_view), never to the master's private memory. */
+enum { VOD_REGION_EMPTY, VOD_REGION_MIXED, VOD_REGION_UNIFORM };
+
+typedef struct vod_source vod_source;
+typedef struct {
+    const char *name; /* what it is, for messages ("octree") */
+    int (*prepare)(vod_source *s, const vod_layout *L, int channel);
+    int (*outside)(const vod_source *s, const uint32_t volume[3], uint32_t at[3]);
+    int (*region)(const vod_source *s, const vod_layout *L, vod_node *n);
+    int (*fill)(const vod_source *s, const vod_layout *L, const vod_node *n,
+                uint8_t *raw);
+} vod_source_ops;
+
+struct vod_source {
+    const vod_source_ops *ops;
+    void *ctx;         /* the source's data (an octree, a vod_volume) */
+    int depth;         /* 2^depth voxels per axis hold every voxel, 1..16 */
+    uint32_t channels; /* bit c set: channel c can be written */
+};
+
+/* The octree t as a source (channels 1 and 3).  Its prepare() runs
+ * vod_aggregate() (a no-op without t->agg: then only level 0 can be
+ * filled). */
+vod_source vod_octree_source(octree *t);
+
+/* Phase 1 precondition: p->channel is one the source gives, and the spec
+ * wants 0 outside volumeSize, so the source must hold no voxel there.  0,
+ * or -EINVAL with what is wrong (the first such voxel) in err. */
+int vod_check_source(const vod_source *s, const vod_params *p, char *err,
                      size_t errlen);
 
-/* Phase 1.  Fill t->agg (capacity t->used) with each cell's downsampled
- * value (spec section 3) so any level's brick can be read off the tree:
- * a level-l voxel (l >= 1) is agg of the cell of height l-1 covering it.
- * Channel 3: occupancy = mean of the 8 children's occupancy bytes, rounded
- * half up; normal = the normalized sum of the normals of the children whose
- * occupancy is > 0; a parent whose occupancy rounds to 0 is 0 (no voxel).
- * Channel 1: 1 iff any child is non-zero.  O(cells), recursive to depth. */
+/* Phase 1: s->ops->prepare for p's channel; 0, or its error with a message. */
+int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
+                size_t errlen);
+
+/* Phase 1 for an octree (what its prepare() runs).  Fill t->agg (capacity
+ * t->used) with each cell's downsampled value (spec section 3) so any
+ * level's brick can be read off the tree: a level-l voxel (l >= 1) is agg of
+ * the cell of height l-1 covering it.  O(cells), recursive to depth. */
 void vod_aggregate(octree *t, int channel);
 /* Phase 1.  Write the non-empty brick nodes in preorder to out (up to cap);
- * returns how many there are (call with out = NULL to count).  A node is
- * non-empty iff its full-resolution region holds a voxel; such a node gets a
- * brick even if downsampling made all of it 0.  Visits only existing cells. */
-size_t vod_collect(const octree *t, const vod_layout *L, vod_node *out,
+ * returns how many there are (call with out = NULL to count).  Asks the
+ * source's region() about the root and the 8 children of each non-empty
+ * node, and records in each node whether its brick is uniform. */
+size_t vod_collect(const vod_source *s, const vod_layout *L, vod_node *out,
                    size_t cap);
 
 /* Phase 2: one brick. */
@@ -108,17 +194,20 @@ typedef struct {
 } vod_encoded;
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
-/* Fill node n's raw brick from the tree (scratch holds L->raw_bytes), hash
+/* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
  * it and compress it into out.  ZLIB reuses one deflate stream per thread
  * (see vod_encode_cleanup); the bytes depend only on the raw brick and p.
- * Returns 0, -ENOBUFS when cap is too small, -EINVAL for a node outside the
- * layout or a level >= 1 without t->agg. */
-int vod_encode(const octree *t, const vod_layout *L, const vod_params *p,
+ * A uniform node's brick is made here, and its encoding kept per thread for
+ * the next uniform node of the same value.  Returns 0, -ENOBUFS when cap is
+ * too small, -EINVAL for a node outside the layout, or the source's error
+ * (an octree without t->agg cannot fill levels >= 1). */
+int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
                const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
                vod_encoded *rec);
 
-/* Frees the calling thread's cached deflate stream (a thread that used
- * vod_encode should call it before it exits; a process need not). */
+/* Frees the calling thread's cached deflate stream and uniform brick (a
+ * thread that used vod_encode should call it before it exits; a process
+ * need not). */
 void vod_encode_cleanup(void);
 
 /* Where the file goes: write must write all n bytes or fail (negative errno). */
@@ -149,8 +238,11 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
                  char *err, size_t errlen);
 
 /* All three phases in this process: the byte-for-byte reference for a
- * parallel writer.  Uses t->agg if set (capacity t->used), else allocates
- * and frees one (t->agg is NULL again on return). */
+ * parallel writer.  0, or a negative errno with its message in err. */
+int vod_write(vod_source *s, const vod_params *p, vod_sink *sink,
+              vod_stats *st, char *err, size_t errlen);
+/* vod_write of an octree.  Uses t->agg if set (capacity t->used), else
+ * allocates and frees one (t->agg is NULL again on return). */
 int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
                      vod_stats *st, char *err, size_t errlen);
 /* A sink writing to a file descriptor. */
@@ -211,6 +303,7 @@ int vod_foreach(const vod_file *f, int level,
                 void *ud);
 
 /* ---- building blocks (exposed for tests and the parallel writer) ---- */
+
 
 /* Hashes of the spec: SuperFastHash (0 for len 0, as the reference code)
  * and xxHash32 with seed 0; vod_hash picks by VOD_HASH_*. */

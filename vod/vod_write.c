@@ -1,5 +1,6 @@
-/* VOD writer (docs/vod-format.md): plan (layout, aggregate, collect),
- * encode bricks, assemble the file.  See vod.h for the three phases. */
+/* VOD writer (docs/vod-format.md): plan (layout, check, prepare, collect),
+ * encode bricks, assemble the file, over any brick source.  See vod.h for
+ * the three phases and what a source must guarantee. */
 #include "vod.h"
 
 #include <errno.h>
@@ -75,9 +76,15 @@ static int check_geometry(const vod_params *p, char *err, size_t errlen)
 static int check_encoding(const vod_params *p, char *err, size_t errlen)
 {
     char b[5];
-    if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY)
+    if (p->channel == VOXEL_CH_DISTANCE)
         return fail(err, errlen, -EINVAL,
-                    "channel %d cannot be written (1 occupancy or 3 surface)",
+                    "channel 4 (f32 signed distance) is not written yet: no job "
+                    "kind produces it (1 occupancy, 2 density or 3 surface)");
+    if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY &&
+        p->channel != VOXEL_CH_DENSITY)
+        return fail(err, errlen, -EINVAL,
+                    "channel %d cannot be written (1 occupancy, 2 density or 3 "
+                    "surface)",
                     p->channel);
     if (p->comp != VOD_COMP_NONE && p->comp != VOD_COMP_ZLIB &&
         p->comp != VOD_COMP_RUNL)
@@ -121,7 +128,9 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     while (1u << m < per_axis) m++;
     L->height = 1 + m;
     L->padded = p->brick << m;
-    L->voxel_bits = p->channel == VOXEL_CH_OCCUPANCY ? 1 : 32;
+    L->voxel_bits = p->channel == VOXEL_CH_OCCUPANCY ? 1
+                    : p->channel == VOXEL_CH_DENSITY ? 8
+                                                     : 32;
     L->raw_bytes = (size_t)p->brick * p->brick * p->brick * L->voxel_bits / 8;
     L->nodes = ((1ull << (3 * L->height)) - 1) / 7;
     L->octree_depth = octree_depth;
@@ -133,207 +142,98 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     return 0;
 }
 
-/* ---- the volume precondition ---- */
+/* ---- phase 1: check, prepare, collect ---- */
 
-/* Some voxel below cell c (height h, low corner o), which holds one. */
-static void first_voxel(const octree *t, uint32_t c, int h, uint32_t o[3])
+/* "1 and 3", "1, 2 and 3": the channels of a source's mask. */
+static const char *channel_list(uint32_t mask, char *buf, size_t n)
 {
-    for (;;) {
-        unsigned i = 0;
-        while (i < 7 && !t->cells[c].child[i]) i++;
-        for (int a = 0; a < 3; a++) o[a] += ((i >> a) & 1u) << h;
-        if (h == 0) return;
-        c = t->cells[c].child[i];
-        h--;
+    size_t at = 0;
+    int k = 0, total = 0;
+    for (uint32_t m = mask; m; m &= m - 1) total++;
+    buf[0] = '\0';
+    for (int c = 0; c < 32 && at < n; c++) {
+        if (!(mask >> c & 1u)) continue;
+        const char *sep = k == 0 ? "" : k == total - 1 ? " and " : ", ";
+        int w = snprintf(buf + at, n - at, "%s%d", sep, c);
+        if (w < 0) break;
+        at += (size_t)w;
+        k++;
     }
+    return buf;
 }
 
-/* Only cells that straddle a high face are opened; a cell wholly inside the
- * volume is skipped, one wholly outside is an error if it holds anything. */
-static int check_cell(const octree *t, const uint32_t *vol, uint32_t c, int h,
-                      const uint32_t o[3], uint32_t bad[3])
+int vod_check_source(const vod_source *s, const vod_params *p, char *err,
+                     size_t errlen)
 {
-    uint64_t side = 2ull << h;
-    if (o[0] + side <= vol[0] && o[1] + side <= vol[1] && o[2] + side <= vol[2])
-        return 0;
-    for (unsigned i = 0; i < 8; i++) {
-        uint32_t e = t->cells[c].child[i], co[3];
-        if (!e) continue;
-        for (int a = 0; a < 3; a++) co[a] = o[a] + (((i >> a) & 1u) << h);
-        bool out = co[0] >= vol[0] || co[1] >= vol[1] || co[2] >= vol[2];
-        if (out) {
-            if (h > 0) first_voxel(t, e, h - 1, co);
-            memcpy(bad, co, sizeof co);
-            return -EINVAL;
-        }
-        if (h > 0 && check_cell(t, vol, e, h - 1, co, bad)) return -EINVAL;
-    }
+    const uint32_t *v = p->volume;
+    uint32_t bad[3];
+    char list[64];
+    if (p->channel < 0 || p->channel > 31 || !(s->channels >> p->channel & 1u))
+        return fail(err, errlen, -EINVAL,
+                    "channel %d cannot be written from the %s (it gives channel%s %s)",
+                    p->channel, s->ops->name,
+                    (s->channels & (s->channels - 1)) ? "s" : "",
+                    channel_list(s->channels, list, sizeof list));
+    if (!s->ops->outside(s, v, bad)) return 0;
+    return fail(err, errlen, -EINVAL,
+                "the %s holds a voxel at %u,%u,%u, outside volumeSize "
+                "%ux%ux%u (VOD padding must be 0)",
+                s->ops->name, bad[0], bad[1], bad[2], v[0], v[1], v[2]);
+}
+
+int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
+                size_t errlen)
+{
+    int rc = s->ops->prepare(s, L, channel);
+    if (rc)
+        return fail(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
+                    s->ops->name, strerror(-rc));
     return 0;
 }
 
-int vod_check_volume(const octree *t, const uint32_t volume[3], char *err,
-                     size_t errlen)
-{
-    uint32_t o[3] = {0, 0, 0}, bad[3];
-    if (t->used < 2) return 0;
-    if (check_cell(t, volume, 1, t->depth - 1, o, bad) == 0) return 0;
-    return fail(err, errlen, -EINVAL,
-                "the octree holds a voxel at %u,%u,%u, outside volumeSize "
-                "%ux%ux%u (VOD padding must be 0)",
-                bad[0], bad[1], bad[2], volume[0], volume[1], volume[2]);
-}
-
-/* ---- phase 1: aggregate ---- */
-
-/* Channel 3 (spec section 3): occupancy is the mean rounded half up, the
- * normal the normalized sum of the normals of the occupied children. */
-static uint32_t down_surface(const uint32_t v[8])
-{
-    uint32_t sum = 0;
-    double n[3] = {0, 0, 0};
-    for (int i = 0; i < 8; i++) {
-        uint32_t occ = voxel_occupancy(v[i]);
-        if (!occ) continue;
-        double m[3];
-        voxel_unpack_normal(v[i], m);
-        sum += occ;
-        for (int a = 0; a < 3; a++) n[a] += m[a];
-    }
-    uint32_t occ = (sum + 4) / 8;
-    if (occ == 0) return 0;
-    double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-    if (len > 0)
-        for (int a = 0; a < 3; a++) n[a] /= len;
-    return occ | voxel_pack_normal(n);
-}
-
-static uint32_t downsample(const uint32_t v[8], int channel)
-{
-    if (channel == VOXEL_CH_SURFACE) return down_surface(v);
-    return (v[0] | v[1] | v[2] | v[3] | v[4] | v[5] | v[6] | v[7]) != 0;
-}
-
-static void agg_cell(octree *t, uint32_t c, int h, int channel)
-{
-    uint32_t v[8];
-    for (int i = 0; i < 8; i++) {
-        uint32_t e = t->cells[c].child[i];
-        if (h > 0 && e) agg_cell(t, e, h - 1, channel);
-        v[i] = h == 0 ? e : e ? t->agg[e] : 0;
-    }
-    t->agg[c] = downsample(v, channel);
-}
-
-void vod_aggregate(octree *t, int channel)
-{
-    if (!t->agg || t->used < 2) return;
-    t->agg[0] = 0;
-    agg_cell(t, 1, t->depth - 1, channel);
-}
-
-/* ---- phase 1: collect ---- */
-
-/* The cell covering node (level, b) and its height; 0 if none.  A node's
- * region is a cell of height brick_log2 + level - 1, except a root brick
- * larger than the whole octree (treeHeight 1), which holds the root cell. */
-static uint32_t node_cell(const octree *t, const vod_layout *L, uint32_t level,
-                          const uint32_t b[3], int *h)
-{
-    int hc = (int)(L->brick_log2 + level) - 1;
-    if (hc > t->depth - 1) {
-        *h = t->depth - 1;
-        return 1;
-    }
-    *h = hc;
-    int s = (int)(L->brick_log2 + level);
-    return octree_find(t, hc, b[0] << s, b[1] << s, b[2] << s);
-}
-
-static bool cell_empty(const octree *t, uint32_t c)
-{
-    if (!c) return true;
-    for (int i = 0; i < 8; i++)
-        if (t->cells[c].child[i]) return false;
-    return true;
-}
-
 typedef struct {
-    const octree *t;
+    const vod_source *s;
+    const vod_layout *L;
     vod_node *out;
     size_t cap, n;
     uint64_t sub[32]; /* nodes in a subtree rooted at level l */
 } collect_ctx;
 
-/* A node of level >= 1 is a cell of height >= brick_log2 >= 1, whose
- * children are the cells of its 8 child nodes. */
-static void collect_node(collect_ctx *x, uint32_t c, uint32_t level,
-                         uint64_t pre, const uint32_t b[3])
+/* Node nd (preorder, level, brick and its parent's ref set), then its
+ * children's subtrees in child order; an empty node ends its subtree. */
+static void collect_node(collect_ctx *x, vod_node nd)
 {
-    if (cell_empty(x->t, c)) return;
-    if (x->n < x->cap)
-        x->out[x->n] = (vod_node){pre, level, b[0], b[1], b[2]};
+    int r = x->s->ops->region(x->s, x->L, &nd);
+    if (r == VOD_REGION_EMPTY) return;
+    nd.uniform = r == VOD_REGION_UNIFORM;
+    if (!nd.uniform) nd.value = 0;
+    if (x->n < x->cap) x->out[x->n] = nd;
     x->n++;
-    if (level == 0) return;
+    if (nd.level == 0) return;
     for (unsigned i = 0; i < 8; i++) {
-        uint32_t cb[3];
-        for (int a = 0; a < 3; a++) cb[a] = b[a] << 1 | ((i >> a) & 1u);
-        collect_node(x, x->t->cells[c].child[i], level - 1,
-                     pre + 1 + i * x->sub[level - 1], cb);
+        vod_node c = {
+            .preorder = nd.preorder + 1 + i * x->sub[nd.level - 1],
+            .level = nd.level - 1,
+            .bx = nd.bx << 1 | (i & 1u),
+            .by = nd.by << 1 | ((i >> 1) & 1u),
+            .bz = nd.bz << 1 | ((i >> 2) & 1u),
+            .ref = nd.ref,
+        };
+        collect_node(x, c);
     }
 }
 
-size_t vod_collect(const octree *t, const vod_layout *L, vod_node *out,
+size_t vod_collect(const vod_source *s, const vod_layout *L, vod_node *out,
                    size_t cap)
 {
-    collect_ctx x = {.t = t, .out = out, .cap = out ? cap : 0};
+    collect_ctx x = {.s = s, .L = L, .out = out, .cap = out ? cap : 0};
     for (uint32_t l = 0; l < L->height && l < 31; l++)
         x.sub[l] = ((1ull << (3 * (l + 1))) - 1) / 7;
-    uint32_t b[3] = {0, 0, 0};
-    int h;
-    uint32_t root = node_cell(t, L, L->height - 1, b, &h);
-    collect_node(&x, root, L->height - 1, 0, b);
+    collect_node(&x, (vod_node){.level = L->height - 1});
     return x.n;
 }
 
 /* ---- phase 2: encode ---- */
-
-typedef struct {
-    const octree *t;
-    uint8_t *raw;
-    uint32_t brick, bits, level;
-} fill_ctx;
-
-static inline void put_voxel(const fill_ctx *f, uint32_t x, uint32_t y,
-                             uint32_t z, uint32_t v)
-{
-    size_t i = ((size_t)z * f->brick + y) * f->brick + x;
-    if (f->bits == 32)
-        vod_put32(f->raw + 4 * i, v);
-    else if (v)
-        f->raw[i >> 3] |= (uint8_t)(1u << (i & 7));
-}
-
-/* Cell c of height h has its low corner at level-l voxel (x, y, z) of the
- * brick.  Its children cover 2^(h-l) level-l voxels each: at h == l every
- * child is one voxel (a voxel value at level 0, the child's agg above). */
-static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
-                 uint32_t z)
-{
-    const uint32_t *e = f->t->cells[c].child;
-    if (h == (int)f->level) {
-        for (unsigned i = 0; i < 8; i++) {
-            uint32_t v = f->level == 0 ? e[i] : e[i] ? f->t->agg[e[i]] : 0;
-            if (v) put_voxel(f, x + (i & 1u), y + ((i >> 1) & 1u),
-                             z + ((i >> 2) & 1u), v);
-        }
-        return;
-    }
-    uint32_t half = 1u << (h - (int)f->level);
-    for (unsigned i = 0; i < 8; i++)
-        if (e[i])
-            fill(f, e[i], h - 1, x + (i & 1u) * half, y + ((i >> 1) & 1u) * half,
-                 z + ((i >> 2) & 1u) * half);
-}
 
 /* zlib's bound for a deflate stream whose parameters are not the defaults
  * (deflateBound's conservative case), plus the zlib wrapper. */
@@ -356,10 +256,23 @@ static _Thread_local struct {
     int level, wbits, live;
 } zc;
 
+/* The last uniform brick this thread encoded: the bricks of a solid's
+ * inside are all alike, and hashing and compressing each again is most of
+ * their cost.  Its key is everything the encoded bytes depend on. */
+static _Thread_local struct {
+    uint8_t *data;
+    size_t cap;
+    vod_encoded rec;
+    uint32_t value, brick, bits, comp, hash;
+    int level, live;
+} uc;
+
 void vod_encode_cleanup(void)
 {
     if (zc.live) deflateEnd(&zc.z);
     zc.live = 0;
+    free(uc.data);
+    memset(&uc, 0, sizeof uc);
 }
 
 static int zlib_stream(int level, int wbits)
@@ -411,20 +324,67 @@ static int compress_brick(const vod_layout *L, const vod_params *p,
     return 0;
 }
 
-int vod_encode(const octree *t, const vod_layout *L, const vod_params *p,
+/* Every voxel of the raw brick v (channel 1: any non-zero v is 1; 8-bit
+ * voxels take v's low byte). */
+static void fill_uniform(const vod_layout *L, uint32_t v, uint8_t *raw)
+{
+    if (L->voxel_bits == 32) {
+        for (size_t i = 0; i < L->raw_bytes; i += 4) vod_put32(raw + i, v);
+        return;
+    }
+    int byte = L->voxel_bits == 1 ? (v ? 0xff : 0) : (int)(v & 0xffu);
+    memset(raw, byte, L->raw_bytes);
+}
+
+static bool uniform_cached(const vod_layout *L, const vod_params *p, uint32_t v)
+{
+    return uc.live && uc.value == v && uc.brick == L->brick &&
+           uc.bits == L->voxel_bits && uc.comp == p->comp && uc.hash == p->hash &&
+           (p->comp != VOD_COMP_ZLIB || uc.level == p->zlib_level);
+}
+
+/* A uniform brick: from the cache, or made, encoded and kept (a cache that
+ * cannot grow is only a lost shortcut, not an error). */
+static int encode_uniform(const vod_layout *L, const vod_params *p, uint32_t v,
+                          uint8_t *scratch, uint8_t *out, size_t cap,
+                          vod_encoded *rec)
+{
+    if (uniform_cached(L, p, v)) {
+        if (uc.rec.size > cap) return -ENOBUFS;
+        memcpy(out, uc.data, uc.rec.size);
+        *rec = uc.rec;
+        return 0;
+    }
+    fill_uniform(L, v, scratch);
+    rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
+    int rc = compress_brick(L, p, scratch, out, cap, &rec->size);
+    if (rc) return rc;
+    uc.live = 0;
+    if (uc.cap < rec->size) {
+        uint8_t *d = realloc(uc.data, rec->size);
+        if (!d) return 0;
+        uc.data = d;
+        uc.cap = rec->size;
+    }
+    memcpy(uc.data, out, rec->size);
+    uc.rec = *rec;
+    uc.value = v, uc.brick = L->brick, uc.bits = L->voxel_bits;
+    uc.comp = p->comp, uc.hash = p->hash, uc.level = p->zlib_level;
+    uc.live = 1;
+    return 0;
+}
+
+int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
                const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
                vod_encoded *rec)
 {
     if (n->level >= L->height) return -EINVAL;
     uint32_t per_axis = L->padded >> (L->brick_log2 + n->level);
     if (n->bx >= per_axis || n->by >= per_axis || n->bz >= per_axis) return -EINVAL;
-    if (n->level > 0 && !t->agg) return -EINVAL;
+    if (n->uniform) return encode_uniform(L, p, n->value, scratch, out, cap, rec);
     memset(scratch, 0, L->raw_bytes);
-    fill_ctx f = {t, scratch, L->brick, L->voxel_bits, n->level};
-    uint32_t b[3] = {n->bx, n->by, n->bz};
-    int h;
-    uint32_t c = node_cell(t, L, n->level, b, &h);
-    if (c) fill(&f, c, h, 0, 0, 0);
+    int rc = s->ops->fill(s, L, n, scratch);
+    if (rc) return rc;
     rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
     return compress_brick(L, p, scratch, out, cap, &rec->size);
 }
@@ -672,15 +632,15 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
 /* ---- all three phases ---- */
 
 /* Phase 2 for every node, serially, into one buffer (offsets in off). */
-static int encode_all(const octree *t, const vod_layout *L, const vod_params *p,
-                      size_t n, const vod_node *nodes, vod_encoded *recs,
-                      size_t *off, vod_membuf *b)
+static int encode_all(const vod_source *s, const vod_layout *L,
+                      const vod_params *p, size_t n, const vod_node *nodes,
+                      vod_encoded *recs, size_t *off, vod_membuf *b)
 {
     size_t bound = vod_encode_bound(L, p);
     uint8_t *scratch = malloc(L->raw_bytes), *tmp = malloc(bound);
     int rc = scratch && tmp ? 0 : -ENOMEM;
     for (size_t i = 0; i < n && !rc; i++) {
-        rc = vod_encode(t, L, p, &nodes[i], scratch, tmp, bound, &recs[i]);
+        rc = vod_encode(s, L, p, &nodes[i], scratch, tmp, bound, &recs[i]);
         off[i] = b->n;
         if (!rc) rc = vod_mem_write(b, tmp, recs[i].size);
     }
@@ -690,10 +650,11 @@ static int encode_all(const octree *t, const vod_layout *L, const vod_params *p,
     return rc;
 }
 
-static int write_planned(octree *t, const vod_layout *L, const vod_params *p,
-                         vod_sink *sink, vod_stats *st, char *err, size_t errlen)
+static int write_planned(const vod_source *s, const vod_layout *L,
+                         const vod_params *p, vod_sink *sink, vod_stats *st,
+                         char *err, size_t errlen)
 {
-    size_t n = vod_collect(t, L, NULL, 0);
+    size_t n = vod_collect(s, L, NULL, 0);
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);
     vod_encoded *recs = malloc((n + 1) * sizeof *recs);
     size_t *off = malloc((n + 1) * sizeof *off);
@@ -701,8 +662,8 @@ static int write_planned(octree *t, const vod_layout *L, const vod_params *p,
     vod_membuf b = {0};
     int rc = nodes && recs && off && data ? 0 : -ENOMEM;
     if (!rc) {
-        vod_collect(t, L, nodes, n);
-        rc = encode_all(t, L, p, n, nodes, recs, off, &b);
+        vod_collect(s, L, nodes, n);
+        rc = encode_all(s, L, p, n, nodes, recs, off, &b);
     }
     if (!rc) {
         for (size_t i = 0; i < n; i++) data[i] = b.p + off[i];
@@ -716,12 +677,37 @@ static int write_planned(octree *t, const vod_layout *L, const vod_params *p,
     return rc;
 }
 
+/* Phases 1 (after the checks) to 3. */
+static int write_checked(vod_source *s, const vod_layout *L, const vod_params *p,
+                         vod_sink *sink, vod_stats *st, char *err, size_t errlen)
+{
+    int rc = vod_prepare(s, L, p->channel, err, errlen);
+    if (rc) return rc;
+    if (errlen) err[0] = '\0';
+    rc = write_planned(s, L, p, sink, st, err, errlen);
+    /* vod_assemble's own failures are said; the sink's and the encoder's
+     * are not yet */
+    if (rc && (!errlen || !err[0]))
+        return fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
+    return rc;
+}
+
+int vod_write(vod_source *s, const vod_params *p, vod_sink *sink,
+              vod_stats *st, char *err, size_t errlen)
+{
+    vod_layout L;
+    int rc = vod_layout_make(p, s->depth, &L, err, errlen);
+    if (!rc) rc = vod_check_source(s, p, err, errlen);
+    return rc ? rc : write_checked(s, &L, p, sink, st, err, errlen);
+}
+
 int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
                      vod_stats *st, char *err, size_t errlen)
 {
+    vod_source s = vod_octree_source(t);
     vod_layout L;
     int rc = vod_layout_make(p, t->depth, &L, err, errlen);
-    if (rc == 0) rc = vod_check_volume(t, p->volume, err, errlen);
+    if (!rc) rc = vod_check_source(&s, p, err, errlen);
     if (rc) return rc;
     uint32_t *own = NULL;
     if (!t->agg) {
@@ -729,18 +715,12 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
         if (!own)
             return fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
     }
-    vod_aggregate(t, p->channel);
-    if (errlen) err[0] = '\0';
-    rc = write_planned(t, &L, p, sink, st, err, errlen);
+    rc = write_checked(&s, &L, p, sink, st, err, errlen);
     if (own) {
         free(own);
         t->agg = NULL;
     }
-    /* vod_assemble's own failures are said; the sink's and the encoder's
-     * are not yet */
-    if (rc && (!errlen || !err[0]))
-        return fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
-    return 0;
+    return rc;
 }
 
 int vod_mem_write(void *membuf, const void *buf, size_t n)

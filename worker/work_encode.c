@@ -55,7 +55,7 @@ static void encode_fail(encode_block *b, int rc)
 
 /* Encode node i into the shared brick area. */
 static int encode_one(work_ctx *w, encode_state *st, encode_block *b,
-                      const octree *t, uint64_t i)
+                      const vod_source *t, uint64_t i)
 {
     const vod_node *nodes = shm_at(w->base, b->nodes_off);
     vod_encoded *recs = shm_at(w->base, b->recs_off);
@@ -83,6 +83,7 @@ static int encode_run(work_ctx *w, void *state, const shm_task *t)
     octree tree;
     octree_view(&tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
     tree.agg = shm_at(w->base, b->agg_off);
+    vod_source src = vod_octree_source(&tree);
     for (;;) {
         /* relaxed: a counter that hands out disjoint chunks */
         uint64_t i0 = atomic_fetch_add_explicit(&b->next, ENCODE_CHUNK,
@@ -92,7 +93,7 @@ static int encode_run(work_ctx *w, void *state, const shm_task *t)
         for (uint64_t i = i0; i < end; i++) {
             /* relaxed: stop early once anybody failed */
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
-            int rc = encode_one(w, state, b, &tree, i);
+            int rc = encode_one(w, state, b, &src, i);
             if (rc) {
                 encode_fail(b, rc);
                 return rc;

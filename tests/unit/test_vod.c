@@ -2,7 +2,9 @@
  * a reference SuperFastHash, dense arrays of the voxels written, a
  * downsampling oracle per level, a second minimal reader that follows
  * Figure 24 alone, the header's bytes, and every truncation and bit flip of
- * a small file plus a hand-made bad file for each case of spec section 8. */
+ * a small file plus a hand-made bad file for each case of spec section 8.
+ * The two brick sources, octree and volume, give the same bytes for the
+ * same voxels (the volume's own tests: test_vod_volume.c). */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
@@ -13,6 +15,7 @@
 
 #include "octree.h"
 #include "vod.h"
+#include "vod_volume.h"
 #include "voxel.h"
 
 /* ---------------------------------------------------------------- helpers */
@@ -343,7 +346,16 @@ Test(vod_layout, validates_params_per_spec)
     q = p, q.volume[1] = 0;
     cr_assert_eq(layout_rc(&q, 3, "at least 1"), -EINVAL);
     q = p, q.channel = VOXEL_CH_DENSITY;
-    cr_assert_eq(layout_rc(&q, 3, "channel 2"), -EINVAL);
+    cr_assert_eq(layout_rc(&q, 3, NULL), 0, "channel 2: 8-bit voxels");
+    cr_assert_eq(vod_layout_make(&q, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(L.voxel_bits, 8);
+    cr_assert_eq(L.raw_bytes, 16 * 16 * 16);
+    q = p, q.channel = VOXEL_CH_DISTANCE;
+    cr_assert_eq(layout_rc(&q, 3, "channel 4 (f32 signed distance) is not written yet"), -EINVAL);
+    q = p, q.channel = 5;
+    cr_assert_eq(layout_rc(&q, 3, "channel 5 cannot be written"), -EINVAL);
+    q = p, q.channel = VOXEL_CH_UNSPECIFIED;
+    cr_assert_eq(layout_rc(&q, 3, "channel 0 cannot be written"), -EINVAL);
     q = p, q.comp = VOD_FOURCC('F', 'T', 'L', 'Z');
     cr_assert_eq(layout_rc(&q, 3, "'FTLZ'"), -EINVAL);
     q = p, q.hash = VOD_FOURCC('M', 'D', '5', ' ');
@@ -880,7 +892,10 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     memset(d1, 1, sizeof d1);
     memset(d2, 2, sizeof d2);
     memset(d3, 1, sizeof d3);
-    vod_node nodes[4] = {{0, 1, 0, 0, 0}, {1, 0, 0, 0, 0}, {2, 0, 1, 0, 0}, {3, 0, 0, 1, 0}};
+    vod_node nodes[4] = {{.preorder = 0, .level = 1},
+                         {.preorder = 1},
+                         {.preorder = 2, .bx = 1},
+                         {.preorder = 3, .by = 1}};
     vod_encoded recs[4] = {{7, 256}, {7, 256}, {7, 256}, {9, 256}};
     const uint8_t *data[4] = {d1, d2, d3, d1};
     membuf m = {0};
@@ -894,7 +909,7 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     cr_assert_eq(vod_get32(m.p + 76), 3);
     free(m.p);
     /* nodes out of preorder or oversize records are refused */
-    vod_node bad[2] = {{2, 0, 1, 0, 0}, {1, 0, 0, 0, 0}};
+    vod_node bad[2] = {{.preorder = 2, .bx = 1}, {.preorder = 1}};
     m = (membuf){0};
     cr_assert_eq(vod_assemble(&L, &p, 2, bad, recs, data, &sink, &st, err, sizeof err), -EINVAL);
     vod_encoded big[1] = {{7, 257}};
@@ -918,22 +933,23 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     char err[256];
     cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
     f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
-    vod_aggregate(&f.t, p.channel);
-    size_t n = vod_collect(&f.t, &L, NULL, 0);
+    vod_aggregate(&f.t, p.channel); /* as the engine does, into its own agg */
+    vod_source src = vod_octree_source(&f.t);
+    size_t n = vod_collect(&src, &L, NULL, 0);
     vod_node *nodes = malloc(n * sizeof *nodes);
-    cr_assert_eq(vod_collect(&f.t, &L, nodes, n), n);
+    cr_assert_eq(vod_collect(&src, &L, nodes, n), n);
     vod_encoded *recs = malloc(n * sizeof *recs);
     uint8_t **data = malloc(n * sizeof *data);
     size_t bound = vod_encode_bound(&L, &p);
     uint8_t *scratch = malloc(L.raw_bytes);
     for (size_t i = n; i-- > 0;) { /* any order, separate buffers, as workers would */
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&f.t, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
     }
-    cr_assert_eq(vod_encode(&f.t, &L, &p, &nodes[0], scratch, data[0], 4, &recs[0]), -ENOBUFS);
-    cr_assert_eq(vod_encode(&f.t, &L, &p, &nodes[0], scratch, data[0], bound, &recs[0]), 0);
-    vod_node outside = {0, L.height, 0, 0, 0};
-    cr_assert_eq(vod_encode(&f.t, &L, &p, &outside, scratch, data[0], bound, &recs[0]), -EINVAL);
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], 4, &recs[0]), -ENOBUFS);
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], bound, &recs[0]), 0);
+    vod_node outside = {.level = L.height};
+    cr_assert_eq(vod_encode(&src, &L, &p, &outside, scratch, data[0], bound, &recs[0]), -EINVAL);
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
@@ -986,7 +1002,7 @@ Test(vod_write, file_past_4_gib_is_refused_before_writing)
     vod_encoded recs[N];
     const uint8_t *data[N];
     for (int i = 0; i < N; i++) {
-        nodes[i] = (vod_node){(uint64_t)i, 0, 0, 0, 0};
+        nodes[i] = (vod_node){.preorder = (uint64_t)i};
         recs[i] = (vod_encoded){(uint32_t)i, (uint32_t)L.raw_bytes};
         data[i] = raw;
     }
@@ -1324,3 +1340,254 @@ Test(vod, sink_errors_are_not_the_4_GiB_limit)
     fx_free(&f);
 }
 
+
+/* ------------------------------------ brick sources: octree and volume */
+
+/* The fixture's voxels as a volume of storage bricks of side sb, the way a
+ * producer would store them: a brick whose voxels inside the volume are all
+ * one non-zero value (and that lies wholly inside) by vod_volume_fill, so
+ * that it is uniform, every other voxel by vod_volume_set. */
+static vod_volume *fx_volume(const fixture *f, uint32_t sb, void **arena)
+{
+    size_t bytes = vod_volume_bytes(f->vol, 32, sb, UINT32_MAX);
+    cr_assert_gt(bytes, 0);
+    *arena = malloc(bytes);
+    vod_volume *v;
+    cr_assert_eq(vod_volume_init(&v, *arena, bytes, f->vol, 32, sb), 0);
+    uint32_t b[3], g[3];
+    for (int a = 0; a < 3; a++) g[a] = (f->vol[a] + sb - 1) / sb;
+    for (b[2] = 0; b[2] < g[2]; b[2]++)
+        for (b[1] = 0; b[1] < g[1]; b[1]++)
+            for (b[0] = 0; b[0] < g[0]; b[0]++) {
+                uint32_t lo[3], hi[3], first = fx_get(f, b[0] * sb, b[1] * sb, b[2] * sb);
+                bool same = first != 0;
+                for (int a = 0; a < 3; a++) {
+                    lo[a] = b[a] * sb;
+                    hi[a] = lo[a] + sb;
+                    same = same && hi[a] <= f->vol[a];
+                }
+                for (uint32_t z = lo[2]; z < hi[2] && same; z++)
+                    for (uint32_t y = lo[1]; y < hi[1] && same; y++)
+                        for (uint32_t x = lo[0]; x < hi[0] && same; x++)
+                            same = fx_get(f, x, y, z) == first;
+                if (same) {
+                    cr_assert_eq(vod_volume_fill(v, lo, hi, first), 0);
+                    continue;
+                }
+                for (uint32_t z = lo[2]; z < hi[2] && z < f->vol[2]; z++)
+                    for (uint32_t y = lo[1]; y < hi[1] && y < f->vol[1]; y++)
+                        for (uint32_t x = lo[0]; x < hi[0] && x < f->vol[0]; x++)
+                            cr_assert_eq(vod_volume_set(v, x, y, z, fx_get(f, x, y, z)), 0);
+            }
+    return v;
+}
+
+static membuf write_source(vod_source *s, const vod_params *p, vod_stats *st)
+{
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    char err[256] = "";
+    cr_assert_eq(vod_write(s, p, &sink, st, err, sizeof err), 0, "%s", err);
+    return m;
+}
+
+/* Nodes the volume calls uniform, for this layout (after a write). */
+static size_t uniform_nodes(vod_source *s, const vod_params *p)
+{
+    vod_layout L;
+    char err[256];
+    cr_assert_eq(vod_layout_make(p, s->depth, &L, err, sizeof err), 0, "%s", err);
+    size_t n = vod_collect(s, &L, NULL, 0), u = 0;
+    vod_node *nodes = malloc((n + 1) * sizeof *nodes);
+    cr_assert_eq(vod_collect(s, &L, nodes, n), n);
+    for (size_t i = 0; i < n; i++) u += nodes[i].uniform;
+    free(nodes);
+    return u;
+}
+
+/* Every channel the octree gives, through the octree and through volumes
+ * of several storage brick sizes: the same file, byte for byte.  Returns
+ * how many nodes the volumes called uniform. */
+static size_t same_bytes(fixture *f, const uint32_t *bricks, int nb,
+                         const uint32_t *sbs, int ns)
+{
+    static const uint32_t comps[] = {VOD_COMP_ZLIB, VOD_COMP_RUNL, VOD_COMP_NONE};
+    size_t uniform = 0;
+    for (int si = 0; si < ns; si++) {
+        void *arena;
+        vod_volume *v = fx_volume(f, sbs[si], &arena);
+        vod_source vs = vod_volume_source(v);
+        for (int ch = 0; ch < 2; ch++)
+            for (int bi = 0; bi < nb; bi++) {
+                vod_params p;
+                params(&p, f, ch ? VOXEL_CH_OCCUPANCY : VOXEL_CH_SURFACE,
+                       comps[(bi + ch) % 3], bi % 2 ? VOD_HASH_XX32 : VOD_HASH_SFHS,
+                       bricks[bi]);
+                vod_stats so, sv;
+                membuf a = write_file(f, &p, &so), b = write_source(&vs, &p, &sv);
+                cr_assert_eq(a.n, b.n, "channel %d brick %u storage %u: %zu vs %zu bytes",
+                             p.channel, p.brick, sbs[si], a.n, b.n);
+                cr_assert_arr_eq(a.p, b.p, a.n, "channel %d brick %u storage %u",
+                                 p.channel, p.brick, sbs[si]);
+                cr_assert_eq(so.bricks, sv.bricks);
+                uniform += uniform_nodes(&vs, &p);
+                free(a.p), free(b.p);
+            }
+        free(arena);
+    }
+    return uniform;
+}
+
+Test(vod_source, random_voxels_same_bytes_from_octree_and_volume)
+{
+    static const uint32_t bricks[] = {2, 4, 8, 16, 32}, sbs[] = {2, 4, 8, 16};
+    fixture f;
+    fx_init(&f, 5, 20, 13, 7);
+    fx_random(&f, 400);
+    same_bytes(&f, bricks, 5, sbs, 4);
+    fx_free(&f);
+}
+
+Test(vod_source, octree_deeper_than_the_volume_same_bytes)
+{
+    static const uint32_t bricks[] = {4, 8, 64}, sbs[] = {8, 32};
+    fixture f;
+    fx_init(&f, 7, 20, 17, 24);
+    fx_random(&f, 500);
+    same_bytes(&f, bricks, 3, sbs, 2);
+    fx_free(&f);
+}
+
+/* A solid ball of one value inside a shell with normals, and a block of
+ * another value: whole uniform bricks at level 0 and uniform mip bricks
+ * above them, next to mixed ones; the uniform path (and its per-thread
+ * cache) must give the same bytes. */
+Test(vod_source, solid_ball_uniform_bricks_same_bytes)
+{
+    static const uint32_t bricks[] = {2, 4, 8, 16}, sbs[] = {2, 4, 8};
+    fixture f;
+    fx_init(&f, 6, 61, 64, 50);
+    fx_sphere(&f, 30.2, 31.7, 24.9, 22.3);
+    for (uint32_t z = 0; z < f.vol[2]; z++)
+        for (uint32_t y = 0; y < f.vol[1]; y++)
+            for (uint32_t x = 0; x < f.vol[0]; x++) {
+                double d = hypot(hypot(x + 0.5 - 30.2, y + 0.5 - 31.7), z + 0.5 - 24.9);
+                if (d < 21.4) fx_store(&f, x, y, z, 0x800cff);
+                /* a block of another value, so uniform bricks of two values
+                 * alternate in preorder */
+                if (x >= 48 && y >= 48 && z >= 32) fx_store(&f, x, y, z, 0x4123ff);
+            }
+    size_t uniform = same_bytes(&f, bricks, 4, sbs, 3);
+    cr_assert_gt(uniform, 100, "the ball's inside is uniform bricks (%zu)", uniform);
+    fx_free(&f);
+}
+
+/* A file brick larger than the whole volume (treeHeight 1): one node whose
+ * cube covers more than the volume's top level. */
+Test(vod_source, volume_smaller_than_the_brick_same_bytes)
+{
+    static const uint32_t bricks[] = {8, 16, 32}, sbs[] = {2, 4};
+    fixture f;
+    fx_init(&f, 3, 5, 3, 6);
+    fx_random(&f, 40);
+    same_bytes(&f, bricks, 3, sbs, 2);
+    fx_free(&f);
+}
+
+Test(vod_source, empty_sources_same_bytes)
+{
+    static const uint32_t bricks[] = {4, 16}, sbs[] = {4};
+    fixture f;
+    fx_init(&f, 4, 16, 9, 16);
+    same_bytes(&f, bricks, 2, sbs, 1);
+    fx_free(&f);
+}
+
+Test(vod_source, channel_4_is_refused_with_a_reason)
+{
+    fixture f;
+    fx_init(&f, 4, 16, 16, 16);
+    fx_random(&f, 20);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_DISTANCE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    vod_layout L;
+    char err[256] = "";
+    cr_assert_eq(vod_layout_make(&p, 4, &L, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "channel 4") && strstr(err, "not written yet"), "%s", err);
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    err[0] = '\0';
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "channel 4"), "%s", err);
+    void *arena;
+    vod_volume *v = fx_volume(&f, 4, &arena);
+    vod_source vs = vod_volume_source(v);
+    err[0] = '\0';
+    cr_assert_eq(vod_write(&vs, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "channel 4"), "%s", err);
+    cr_assert_eq(m.calls, 0, "nothing written");
+    free(arena);
+    fx_free(&f);
+}
+
+Test(vod_source, a_channel_the_source_lacks_is_refused)
+{
+    fixture f;
+    fx_init(&f, 4, 16, 16, 16);
+    fx_random(&f, 20);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_DENSITY, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    char err[256] = "";
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert_str_eq(err, "channel 2 cannot be written from the octree (it gives "
+                          "channels 1 and 3)");
+    cr_assert_null(f.t.agg);
+    /* and the octree's fill refuses a layout it cannot give even if asked */
+    vod_source s = vod_octree_source(&f.t);
+    vod_layout L;
+    cr_assert_eq(vod_layout_make(&p, 4, &L, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(L.voxel_bits, 8);
+    vod_node n = {.level = 0};
+    uint8_t *scratch = malloc(L.raw_bytes), *out = malloc(vod_encode_bound(&L, &p));
+    vod_encoded rec;
+    cr_assert_eq(vod_encode(&s, &L, &p, &n, scratch, out, vod_encode_bound(&L, &p), &rec),
+                 -EINVAL);
+    cr_assert_eq(m.calls, 0);
+    free(scratch), free(out);
+    fx_free(&f);
+}
+
+/* A source that breaks region()'s contract (it renumbers the nodes): the
+ * nodes reach vod_assemble out of preorder, and vod_write must return
+ * assemble's refusal with its message, not succeed with nothing written. */
+static int renumbering_region(const vod_source *s, const vod_layout *L, vod_node *n)
+{
+    vod_source o = vod_octree_source(s->ctx);
+    int r = o.ops->region(&o, L, n);
+    n->preorder = 0;
+    return r;
+}
+
+Test(vod_source, assemble_refusals_reach_the_caller)
+{
+    fixture f;
+    fx_init(&f, 5, 32, 32, 32);
+    fx_random(&f, 300);
+    vod_source s = vod_octree_source(&f.t);
+    vod_source_ops ops = *s.ops;
+    ops.region = renumbering_region;
+    s.ops = &ops;
+    f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    char err[256] = "";
+    cr_assert_eq(vod_write(&s, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert_str_eq(err, "bricks out of preorder or over their bound");
+    cr_assert_eq(m.calls, 0);
+    free(f.t.agg);
+    fx_free(&f);
+}

@@ -1,0 +1,620 @@
+/* A brick-sparse volume and its VOD brick source (vod_volume.h).
+ *
+ * Each level l (0 = the voxels, 1..depth = mip levels) has a table of one
+ * u32 entry per storage brick, grid[l] bricks per axis, covering the
+ * ceil(dims / 2^l) voxels of that level: 0 = empty, ENTRY_UNIFORM | v =
+ * every voxel is v (v < 2^31), anything else = pool brick entry - 1.
+ *
+ * At a mip level an entry is 0 exactly when the brick's full-resolution
+ * footprint holds no non-zero voxel (prepare() computes it from the voxels,
+ * not from the downsampled values, which may round to 0), so the writer's
+ * emptiness question is one table look-up there.  At level 0 a uniform
+ * entry is never 0 (a box filled with 0 empties its bricks), but an
+ * allocated brick may hold only zeros: it is scanned.
+ */
+#include "vod_volume.h"
+
+#include <errno.h>
+#include <stdbool.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "vod_downsample.h"
+#include "voxel.h"
+
+#define VOL_MAGIC 0x4c4f5656u /* "VVOL" */
+#define VOL_LEVELS (OCTREE_MAX_DEPTH + 1)
+#define ENTRY_UNIFORM 0x80000000u
+#define POOL_MAX (ENTRY_UNIFORM - 2u) /* entries 1..ENTRY_UNIFORM-1 */
+
+struct vod_volume {
+    uint32_t magic;
+    uint32_t dims[3];
+    uint32_t bits, sbrick, slog2;
+    int depth;
+    uint32_t grid[VOL_LEVELS][3];
+    uint64_t table_off[VOL_LEVELS]; /* from the start of the arena */
+    uint64_t pool_off, brick_bytes;
+    uint32_t pool_cap, pool_used, pool_l0;
+    int mip_channel;
+};
+
+static uint64_t align64(uint64_t v) { return (v + 63) & ~(uint64_t)63; }
+
+static bool is_uniform(uint32_t e) { return (e & ENTRY_UNIFORM) != 0; }
+static bool is_alloc(uint32_t e) { return e && !is_uniform(e); }
+
+/* ---- layout ---- */
+
+static int check_args(const uint32_t dims[3], uint32_t bits, uint32_t sbrick)
+{
+    for (int a = 0; a < 3; a++)
+        if (dims[a] < 1 || dims[a] > VOD_VOLUME_MAX_SIDE) return -EINVAL;
+    if (bits != 8 && bits != 32) return -EINVAL;
+    if (sbrick < VOD_VOLUME_MIN_BRICK || sbrick > VOD_VOLUME_MAX_BRICK ||
+        (sbrick & (sbrick - 1)))
+        return -EINVAL;
+    return 0;
+}
+
+/* Header fields from the arguments (checked): depth, grids, table offsets,
+ * the pool's offset; returns the bytes before the pool. */
+static uint64_t plan(struct vod_volume *h, const uint32_t dims[3], uint32_t bits,
+                     uint32_t sbrick)
+{
+    memset(h, 0, sizeof *h);
+    h->magic = VOL_MAGIC;
+    memcpy(h->dims, dims, sizeof h->dims);
+    h->bits = bits;
+    h->sbrick = sbrick;
+    while (1u << h->slog2 < sbrick) h->slog2++;
+    uint32_t m = dims[0] > dims[1] ? dims[0] : dims[1];
+    if (dims[2] > m) m = dims[2];
+    h->depth = 1;
+    while ((1u << h->depth) < m) h->depth++;
+    uint64_t at = align64(sizeof *h);
+    for (int l = 0; l <= h->depth; l++) {
+        uint64_t g = 1;
+        for (int a = 0; a < 3; a++) {
+            uint32_t side = (uint32_t)(((uint64_t)dims[a] + (1u << l) - 1) >> l);
+            h->grid[l][a] = (side + sbrick - 1) >> h->slog2;
+            g *= h->grid[l][a];
+        }
+        h->table_off[l] = at;
+        at = align64(at + 4 * g);
+    }
+    h->brick_bytes = (uint64_t)sbrick * sbrick * sbrick * bits / 8;
+    h->pool_off = at;
+    return at;
+}
+
+static uint64_t grid_bricks(const struct vod_volume *h, int l)
+{
+    return (uint64_t)h->grid[l][0] * h->grid[l][1] * h->grid[l][2];
+}
+
+size_t vod_volume_bytes(const uint32_t dims[3], uint32_t bits, uint32_t sbrick,
+                        uint64_t bricks)
+{
+    if (check_args(dims, bits, sbrick)) return 0;
+    struct vod_volume h;
+    uint64_t head = plan(&h, dims, bits, sbrick);
+    if (bricks > grid_bricks(&h, 0)) bricks = grid_bricks(&h, 0);
+    /* a non-empty mip brick has a non-empty child: at most as many per
+     * level as below, and never more than the level's grid */
+    uint64_t pool = bricks;
+    for (int l = 1; l <= h.depth; l++)
+        pool += bricks < grid_bricks(&h, l) ? bricks : grid_bricks(&h, l);
+    if (pool > POOL_MAX) pool = POOL_MAX;
+    if (pool > (SIZE_MAX - head) / h.brick_bytes) return 0;
+    return (size_t)(head + pool * h.brick_bytes);
+}
+
+int vod_volume_init(vod_volume **out, void *arena, size_t bytes,
+                    const uint32_t dims[3], uint32_t bits, uint32_t sbrick)
+{
+    if (check_args(dims, bits, sbrick) || ((uintptr_t)arena & 7)) return -EINVAL;
+    struct vod_volume h;
+    uint64_t head = plan(&h, dims, bits, sbrick);
+    if (head > bytes) return -ENOSPC;
+    uint64_t cap = (bytes - head) / h.brick_bytes;
+    h.pool_cap = (uint32_t)(cap > POOL_MAX ? POOL_MAX : cap);
+    memset((uint8_t *)arena + sizeof h, 0, head - sizeof h);
+    memcpy(arena, &h, sizeof h);
+    *out = arena;
+    return 0;
+}
+
+vod_volume *vod_volume_view(void *arena)
+{
+    vod_volume *v = arena;
+    return v && v->magic == VOL_MAGIC ? v : NULL;
+}
+
+void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
+{
+    memcpy(out->dims, v->dims, sizeof out->dims);
+    out->bits = v->bits;
+    out->sbrick = v->sbrick;
+    out->depth = v->depth;
+    out->pool_cap = v->pool_cap;
+    out->pool_used = v->pool_used;
+    out->level0_bricks = v->pool_l0;
+    out->mip_channel = v->mip_channel;
+}
+
+/* ---- bricks and voxels ---- */
+
+static uint32_t *table(const vod_volume *v, int l)
+{
+    return (uint32_t *)((uint8_t *)v + v->table_off[l]);
+}
+
+/* The entry of brick b of level l; 0 (empty) outside the grid. */
+static uint32_t entry_at(const vod_volume *v, int l, const uint32_t b[3])
+{
+    const uint32_t *g = v->grid[l];
+    if (b[0] >= g[0] || b[1] >= g[1] || b[2] >= g[2]) return 0;
+    return table(v, l)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
+}
+
+static uint8_t *brick_data(const vod_volume *v, uint32_t e)
+{
+    return (uint8_t *)v + v->pool_off + (uint64_t)(e - 1) * v->brick_bytes;
+}
+
+static size_t vox_index(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
+{
+    return ((size_t)z * v->sbrick + y) * v->sbrick + x;
+}
+
+static uint32_t vox_get(const vod_volume *v, const uint8_t *d, size_t i)
+{
+    return v->bits == 8 ? d[i] : ((const uint32_t *)(const void *)d)[i];
+}
+
+static void vox_put(const vod_volume *v, uint8_t *d, size_t i, uint32_t val)
+{
+    if (v->bits == 8) d[i] = (uint8_t)val;
+    else ((uint32_t *)(void *)d)[i] = val;
+}
+
+static void brick_set_all(const vod_volume *v, uint8_t *d, uint32_t val)
+{
+    if (v->bits == 8) {
+        memset(d, (int)val, v->brick_bytes);
+        return;
+    }
+    uint32_t *w = (uint32_t *)(void *)d;
+    for (uint64_t i = 0; i < v->brick_bytes / 4; i++) w[i] = val;
+}
+
+/* A new pool brick holding val everywhere; its entry, or 0 when full. */
+static uint32_t pool_take(vod_volume *v, uint32_t val)
+{
+    if (v->pool_used >= v->pool_cap) return 0;
+    uint32_t e = ++v->pool_used;
+    brick_set_all(v, brick_data(v, e), val);
+    return e;
+}
+
+/* Writing voxels makes the mip levels stale: give their bricks back. */
+static void drop_mips(vod_volume *v)
+{
+    v->mip_channel = 0;
+    v->pool_used = v->pool_l0;
+}
+
+/* The data of level-0 brick b, allocated (from empty or uniform) if need be. */
+static int level0_data(vod_volume *v, const uint32_t b[3], uint8_t **out)
+{
+    const uint32_t *g = v->grid[0];
+    uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
+    if (!is_alloc(*e)) {
+        uint32_t n = pool_take(v, *e & ~ENTRY_UNIFORM);
+        if (!n) return -ENOMEM;
+        v->pool_l0++;
+        *e = n;
+    }
+    *out = brick_data(v, *e);
+    return 0;
+}
+
+static int check_value(const vod_volume *v, uint32_t value)
+{
+    return v->bits == 8 && value > 255 ? -EINVAL : 0;
+}
+
+int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
+                   uint32_t value)
+{
+    if (x >= v->dims[0] || y >= v->dims[1] || z >= v->dims[2] ||
+        check_value(v, value))
+        return -EINVAL;
+    drop_mips(v);
+    uint32_t s = v->slog2, m = v->sbrick - 1, b[3] = {x >> s, y >> s, z >> s};
+    uint32_t e = entry_at(v, 0, b);
+    if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
+        return 0;
+    uint8_t *d;
+    int rc = level0_data(v, b, &d);
+    if (rc == 0) vox_put(v, d, vox_index(v, x & m, y & m, z & m), value);
+    return rc;
+}
+
+uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
+{
+    if (x >= v->dims[0] || y >= v->dims[1] || z >= v->dims[2]) return 0;
+    uint32_t s = v->slog2, m = v->sbrick - 1, b[3] = {x >> s, y >> s, z >> s};
+    uint32_t e = entry_at(v, 0, b);
+    if (!is_alloc(e)) return e & ~ENTRY_UNIFORM;
+    return vox_get(v, brick_data(v, e), vox_index(v, x & m, y & m, z & m));
+}
+
+/* Brick b wholly inside the box: one entry, or the brick's data when it has
+ * memory already (or the value cannot be a uniform entry). */
+static int fill_whole(vod_volume *v, const uint32_t b[3], uint32_t value)
+{
+    const uint32_t *g = v->grid[0];
+    uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
+    if (!is_alloc(*e) && value < ENTRY_UNIFORM) {
+        *e = value ? ENTRY_UNIFORM | value : 0;
+        return 0;
+    }
+    uint8_t *d;
+    int rc = level0_data(v, b, &d);
+    if (rc == 0) brick_set_all(v, d, value);
+    return rc;
+}
+
+/* The part [lo, hi) (brick-local) of brick b. */
+static int fill_part(vod_volume *v, const uint32_t b[3], const uint32_t lo[3],
+                     const uint32_t hi[3], uint32_t value)
+{
+    uint32_t e = entry_at(v, 0, b);
+    if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
+        return 0;
+    uint8_t *d;
+    int rc = level0_data(v, b, &d);
+    for (uint32_t z = lo[2]; z < hi[2] && !rc; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++)
+            for (uint32_t x = lo[0]; x < hi[0]; x++)
+                vox_put(v, d, vox_index(v, x, y, z), value);
+    return rc;
+}
+
+int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
+                    uint32_t value)
+{
+    for (int a = 0; a < 3; a++)
+        if (lo[a] >= hi[a] || hi[a] > v->dims[a]) return -EINVAL;
+    if (check_value(v, value)) return -EINVAL;
+    drop_mips(v);
+    uint32_t s = v->slog2, S = v->sbrick, b[3];
+    for (b[2] = lo[2] >> s; b[2] <= (hi[2] - 1) >> s; b[2]++)
+        for (b[1] = lo[1] >> s; b[1] <= (hi[1] - 1) >> s; b[1]++)
+            for (b[0] = lo[0] >> s; b[0] <= (hi[0] - 1) >> s; b[0]++) {
+                uint32_t l[3], h[3];
+                bool whole = true;
+                for (int a = 0; a < 3; a++) {
+                    uint32_t o = b[a] << s;
+                    l[a] = lo[a] > o ? lo[a] - o : 0;
+                    h[a] = hi[a] - o < S ? hi[a] - o : S;
+                    whole = whole && l[a] == 0 && h[a] == S;
+                }
+                int rc = whole ? fill_whole(v, b, value)
+                               : fill_part(v, b, l, h, value);
+                if (rc) return rc;
+            }
+    return 0;
+}
+
+/* ---- mip levels ---- */
+
+static uint32_t channels_of(const vod_volume *v)
+{
+    return 1u << VOXEL_CH_OCCUPANCY |
+           1u << (v->bits == 8 ? VOXEL_CH_DENSITY : VOXEL_CH_SURFACE);
+}
+
+typedef struct {
+    vod_volume *v;
+    int l, ch;          /* building level l from level l-1 */
+    uint32_t *out;      /* S^3 parent voxels */
+    bool nonempty;      /* the parent's footprint holds a voxel */
+} mip_ctx;
+
+/* The octant of the parent that child entry e (level l-1) covers, from
+ * (ox, oy, oz) in the parent. */
+static void mip_octant(mip_ctx *m, uint32_t e, uint32_t ox, uint32_t oy,
+                       uint32_t oz)
+{
+    const vod_volume *v = m->v;
+    uint32_t S = v->sbrick, half = S / 2, c[8];
+    if (!is_alloc(e)) {
+        for (int i = 0; i < 8; i++) c[i] = e & ~ENTRY_UNIFORM;
+        uint32_t d = vod_downsample(m->ch, c);
+        m->nonempty = m->nonempty || e != 0;
+        for (uint32_t z = 0; z < half; z++)
+            for (uint32_t y = 0; y < half; y++)
+                for (uint32_t x = 0; x < half; x++)
+                    m->out[vox_index(v, ox + x, oy + y, oz + z)] = d;
+        return;
+    }
+    const uint8_t *d = brick_data(v, e);
+    uint32_t any = 0;
+    for (uint32_t z = 0; z < half; z++)
+        for (uint32_t y = 0; y < half; y++)
+            for (uint32_t x = 0; x < half; x++) {
+                for (unsigned i = 0; i < 8; i++) {
+                    c[i] = vox_get(v, d, vox_index(v, 2 * x + (i & 1u),
+                                                   2 * y + (i >> 1 & 1u),
+                                                   2 * z + (i >> 2 & 1u)));
+                    any |= c[i];
+                }
+                m->out[vox_index(v, ox + x, oy + y, oz + z)] = vod_downsample(m->ch, c);
+            }
+    /* a mip child with memory has a non-empty footprint by construction;
+     * a level-0 one only if some voxel is non-zero */
+    m->nonempty = m->nonempty || m->l > 1 || any;
+}
+
+/* Brick p of level m->l from its 8 children. */
+static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
+{
+    vod_volume *v = m->v;
+    uint32_t half = v->sbrick / 2;
+    m->nonempty = false;
+    for (unsigned i = 0; i < 8; i++) {
+        uint32_t c[3] = {2 * p[0] + (i & 1u), 2 * p[1] + (i >> 1 & 1u),
+                         2 * p[2] + (i >> 2 & 1u)};
+        mip_octant(m, entry_at(v, m->l - 1, c), (i & 1u) * half,
+                   (i >> 1 & 1u) * half, (i >> 2 & 1u) * half);
+    }
+    *entry = 0;
+    if (!m->nonempty) return 0;
+    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick, i = 1;
+    while (i < n && m->out[i] == m->out[0]) i++;
+    if (i == n && m->out[0] < ENTRY_UNIFORM) {
+        *entry = ENTRY_UNIFORM | m->out[0];
+        return 0;
+    }
+    uint32_t e = pool_take(v, 0);
+    if (!e) return -ENOMEM;
+    uint8_t *d = brick_data(v, e);
+    for (i = 0; i < n; i++) vox_put(v, d, (size_t)i, m->out[i]);
+    *entry = e;
+    return 0;
+}
+
+static int build_level(mip_ctx *m)
+{
+    vod_volume *v = m->v;
+    const uint32_t *g = v->grid[m->l];
+    uint32_t *t = table(v, m->l), p[3];
+    uint64_t k = 0;
+    for (p[2] = 0; p[2] < g[2]; p[2]++)
+        for (p[1] = 0; p[1] < g[1]; p[1]++)
+            for (p[0] = 0; p[0] < g[0]; p[0]++, k++) {
+                int rc = mip_brick(m, p, &t[k]);
+                if (rc) return rc;
+            }
+    return 0;
+}
+
+static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
+{
+    (void)L; /* every level is built: the writer needs at most depth */
+    vod_volume *v = s->ctx;
+    if (channel < 0 || channel > 31 || !(channels_of(v) >> channel & 1u))
+        return -EINVAL;
+    if (v->mip_channel == channel) return 0;
+    drop_mips(v);
+    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
+    mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
+    int rc = m.out ? 0 : -ENOMEM;
+    for (m.l = 1; m.l <= v->depth && !rc; m.l++) {
+        memset(table(v, m.l), 0, 4 * grid_bricks(v, m.l));
+        rc = build_level(&m);
+    }
+    free(m.out);
+    if (rc) drop_mips(v);
+    else v->mip_channel = channel;
+    return rc;
+}
+
+/* ---- the source ---- */
+
+static int channel_of_bits(uint32_t bits)
+{
+    return bits == 1 ? VOXEL_CH_OCCUPANCY : bits == 8 ? VOXEL_CH_DENSITY
+                                                      : VOXEL_CH_SURFACE;
+}
+
+/* Some voxel of level-0 brick e in the box [lo, lo + side) is non-zero. */
+static bool any_nonzero(const vod_volume *v, uint32_t e, const uint32_t lo[3],
+                        uint32_t side)
+{
+    if (!is_alloc(e)) return e != 0;
+    const uint8_t *d = brick_data(v, e);
+    for (uint32_t z = lo[2]; z < lo[2] + side; z++)
+        for (uint32_t y = lo[1]; y < lo[1] + side; y++)
+            for (uint32_t x = lo[0]; x < lo[0] + side; x++)
+                if (vox_get(v, d, vox_index(v, x, y, z))) return true;
+    return false;
+}
+
+/* Node n's full-resolution cube (2^k voxels per axis) holds a voxel.  A
+ * cube of at least a storage brick is one brick of the level m where
+ * bricks are that size; a smaller one lies in one level-0 brick. */
+static bool footprint_nonempty(const vod_volume *v, const vod_layout *L,
+                               const vod_node *n)
+{
+    uint32_t b[3] = {n->bx, n->by, n->bz}, zero[3] = {0, 0, 0};
+    int k = (int)(L->brick_log2 + n->level), m = k - (int)v->slog2;
+    if (m >= 0) {
+        if (m > v->depth) { /* a brick larger than the whole volume */
+            if (b[0] | b[1] | b[2]) return false;
+            m = v->depth;
+        }
+        if (m >= 1 && !v->mip_channel) return true; /* not prepared: cannot tell */
+        uint32_t e = entry_at(v, m, b);
+        return m >= 1 ? e != 0 : any_nonzero(v, e, zero, v->sbrick);
+    }
+    uint32_t lo[3], sb[3], mask = v->sbrick - 1;
+    for (int a = 0; a < 3; a++) {
+        lo[a] = (b[a] << k) & mask;
+        sb[a] = (b[a] << k) >> v->slog2;
+    }
+    return any_nonzero(v, entry_at(v, 0, sb), lo, 1u << k);
+}
+
+/* Every storage brick under node n's level-l brick is uniform with one
+ * value (a brick past the grid is 0); in the channel's terms. */
+static bool brick_uniform(const vod_volume *v, const vod_layout *L,
+                          const vod_node *n, uint32_t *value)
+{
+    int l = (int)n->level, ch = channel_of_bits(L->voxel_bits);
+    if (l > v->depth || (l >= 1 && v->mip_channel != ch)) return false;
+    uint32_t B = L->brick, per = B >= v->sbrick ? B >> v->slog2 : 1, b0[3], b[3];
+    b0[0] = (n->bx * B) >> v->slog2;
+    b0[1] = (n->by * B) >> v->slog2;
+    b0[2] = (n->bz * B) >> v->slog2;
+    bool first = true;
+    for (uint32_t z = 0; z < per; z++)
+        for (uint32_t y = 0; y < per; y++)
+            for (uint32_t x = 0; x < per; x++) {
+                b[0] = b0[0] + x, b[1] = b0[1] + y, b[2] = b0[2] + z;
+                uint32_t e = entry_at(v, l, b);
+                if (is_alloc(e)) return false;
+                uint32_t u = e & ~ENTRY_UNIFORM;
+                if (l == 0 && ch == VOXEL_CH_OCCUPANCY) u = u != 0;
+                if (!first && u != *value) return false;
+                *value = u;
+                first = false;
+            }
+    return true;
+}
+
+static int vol_region(const vod_source *s, const vod_layout *L, vod_node *n)
+{
+    const vod_volume *v = s->ctx;
+    n->value = 0;
+    n->ref = 0;
+    if (!footprint_nonempty(v, L, n)) return VOD_REGION_EMPTY;
+    return brick_uniform(v, L, n, &n->value) ? VOD_REGION_UNIFORM : VOD_REGION_MIXED;
+}
+
+/* Voxel i of a raw brick (spec section 5) := val. */
+static inline void raw_put(uint8_t *raw, uint32_t bits, size_t i, uint32_t val)
+{
+    if (bits == 32) vod_put32(raw + 4 * i, val);
+    else if (bits == 8) raw[i] = (uint8_t)val;
+    else if (val) raw[i >> 3] |= (uint8_t)(1u << (i & 7));
+}
+
+/* The part of storage brick (entry e, low corner o, level-l voxels) that
+ * lies in the raw brick whose low corner is lo. */
+static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
+                      const uint32_t o[3], const uint32_t lo[3], uint8_t *raw)
+{
+    uint32_t B = L->brick, S = v->sbrick, a0[3], a1[3];
+    for (int a = 0; a < 3; a++) {
+        a0[a] = o[a] > lo[a] ? o[a] : lo[a];
+        a1[a] = o[a] + S < lo[a] + B ? o[a] + S : lo[a] + B;
+    }
+    const uint8_t *d = is_alloc(e) ? brick_data(v, e) : NULL;
+    uint32_t u = e & ~ENTRY_UNIFORM;
+    for (uint32_t z = a0[2]; z < a1[2]; z++)
+        for (uint32_t y = a0[1]; y < a1[1]; y++) {
+            size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B;
+            size_t s = vox_index(v, 0, y - o[1], z - o[2]);
+            for (uint32_t x = a0[0]; x < a1[0]; x++)
+                raw_put(raw, L->voxel_bits, r + (x - lo[0]),
+                        d ? vox_get(v, d, s + (x - o[0])) : u);
+        }
+}
+
+static int vol_fill(const vod_source *s, const vod_layout *L, const vod_node *n,
+                    uint8_t *raw)
+{
+    const vod_volume *v = s->ctx;
+    int l = (int)n->level, ch = channel_of_bits(L->voxel_bits);
+    if (!(channels_of(v) >> ch & 1u) || l > v->depth ||
+        (l >= 1 && v->mip_channel != ch))
+        return -EINVAL;
+    uint32_t B = L->brick, lo[3] = {n->bx * B, n->by * B, n->bz * B}, b[3], o[3];
+    const uint32_t *g = v->grid[l];
+    uint32_t b1[3];
+    for (int a = 0; a < 3; a++) {
+        uint32_t last = (lo[a] + B - 1) >> v->slog2;
+        b1[a] = last < g[a] ? last + 1 : g[a];
+    }
+    for (b[2] = lo[2] >> v->slog2; b[2] < b1[2]; b[2]++)
+        for (b[1] = lo[1] >> v->slog2; b[1] < b1[1]; b[1]++)
+            for (b[0] = lo[0] >> v->slog2; b[0] < b1[0]; b[0]++) {
+                uint32_t e = entry_at(v, l, b);
+                if (e == 0 || e == ENTRY_UNIFORM) continue; /* all 0 */
+                for (int a = 0; a < 3; a++) o[a] = b[a] << v->slog2;
+                copy_part(v, L, e, o, lo, raw);
+            }
+    return 0;
+}
+
+/* Some non-zero voxel of level-0 brick b (entry e) outside volume, in at. */
+static bool brick_outside(const vod_volume *v, const uint32_t b[3], uint32_t e,
+                          const uint32_t volume[3], uint32_t at[3])
+{
+    uint32_t S = v->sbrick, m = v->slog2;
+    for (uint32_t z = 0; z < S; z++)
+        for (uint32_t y = 0; y < S; y++)
+            for (uint32_t x = 0; x < S; x++) {
+                uint32_t p[3] = {(b[0] << m) + x, (b[1] << m) + y, (b[2] << m) + z};
+                if (p[0] < volume[0] && p[1] < volume[1] && p[2] < volume[2])
+                    continue;
+                if (is_alloc(e) && !vox_get(v, brick_data(v, e), vox_index(v, x, y, z)))
+                    continue;
+                memcpy(at, p, sizeof p);
+                return true;
+            }
+    return false;
+}
+
+/* Only level-0 bricks that reach past volume are scanned, voxel by voxel;
+ * a row of bricks inside on y and z starts at the first that reaches x. */
+static int vol_outside(const vod_source *s, const uint32_t volume[3],
+                       uint32_t at[3])
+{
+    const vod_volume *v = s->ctx;
+    const uint32_t *g = v->grid[0];
+    uint32_t b[3], m = v->slog2;
+    for (b[2] = 0; b[2] < g[2]; b[2]++)
+        for (b[1] = 0; b[1] < g[1]; b[1]++) {
+            bool in_yz = ((uint64_t)b[2] + 1) << m <= volume[2] &&
+                         ((uint64_t)b[1] + 1) << m <= volume[1];
+            for (b[0] = in_yz ? volume[0] >> m : 0; b[0] < g[0]; b[0]++) {
+                uint32_t e = entry_at(v, 0, b);
+                bool inside = in_yz && ((uint64_t)b[0] + 1) << m <= volume[0];
+                if (e && !inside && brick_outside(v, b, e, volume, at)) return 1;
+            }
+        }
+    return 0;
+}
+
+static const vod_source_ops volume_ops = {
+    .name = "volume",
+    .prepare = vol_prepare,
+    .outside = vol_outside,
+    .region = vol_region,
+    .fill = vol_fill,
+};
+
+vod_source vod_volume_source(vod_volume *v)
+{
+    return (vod_source){
+        .ops = &volume_ops,
+        .ctx = v,
+        .depth = v->depth,
+        .channels = channels_of(v),
+    };
+}

@@ -1,0 +1,86 @@
+/* vod_volume — a brick-sparse volume of 8- or 32-bit voxels, the VOD brick
+ * source of the job kinds that make dense data (mesh solids, volume CSG).
+ *
+ * The volume is cut into cubic storage bricks of S voxels per axis (its own
+ * S, not the file's brick size).  A storage brick is empty (all 0, no
+ * memory), uniform (every voxel one value, no memory) or allocated (S^3
+ * voxels from a pool).  vod_volume_fill() marks the bricks a box covers
+ * whole as uniform, so a solid's inside costs a table entry per brick.
+ *
+ * Everything — header, brick tables, pool — lives in one arena addressed by
+ * offsets, so the arena may sit in shared memory mapped at another address
+ * in each process: a worker takes vod_volume_view() of the same bytes.
+ *
+ * As a source (vod.h) the volume gives channel 1 (1 where a voxel is
+ * non-zero) and, from 8-bit voxels, channel 2 (density), from 32-bit
+ * voxels, channel 3 (surface voxels with normals).  Its prepare() builds the
+ * mip levels 1..depth for the channel, brick-sparse too, into the same pool
+ * (the pool must have room: see vod_volume_bytes); writing a voxel after
+ * that drops them, so the next prepare() builds them again.
+ *
+ * One writer at a time; any number of readers (region, fill, get) once the
+ * writer is done.
+ */
+#ifndef VOXD_VOD_VOLUME_H
+#define VOXD_VOD_VOLUME_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vod.h"
+
+#define VOD_VOLUME_MAX_SIDE 65536u /* 2^OCTREE_MAX_DEPTH */
+#define VOD_VOLUME_MIN_BRICK 2u
+#define VOD_VOLUME_MAX_BRICK 64u
+
+/* The arena, whose first bytes are the volume's header. */
+typedef struct vod_volume vod_volume;
+
+/* Bytes of arena for a volume of dims (each 1..VOD_VOLUME_MAX_SIDE) with
+ * voxels of bits (8 or 32) in storage bricks of side sbrick (a power of two
+ * in VOD_VOLUME_MIN_BRICK..MAX_BRICK) that can allocate `bricks` level-0
+ * bricks and, whatever their place, every mip brick above them.  0 for bad
+ * arguments or a size past SIZE_MAX. */
+size_t vod_volume_bytes(const uint32_t dims[3], uint32_t bits, uint32_t sbrick,
+                        uint64_t bricks);
+
+/* An empty volume in arena (bytes long, 8-byte aligned; it need not be
+ * cleared).  The pool gets what is left after the header and the tables.
+ * 0 and the volume in *out, -EINVAL for bad arguments, -ENOSPC when the
+ * tables alone do not fit. */
+int vod_volume_init(vod_volume **out, void *arena, size_t bytes,
+                    const uint32_t dims[3], uint32_t bits, uint32_t sbrick);
+/* The volume another process built in arena (mapped anywhere), or NULL
+ * when arena does not start with one. */
+vod_volume *vod_volume_view(void *arena);
+
+/* The voxel at (x, y, z) := value.  0, -EINVAL for a voxel outside dims or
+ * a value wider than the voxels, -ENOMEM when the pool is full (the volume
+ * is then unchanged). */
+int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
+                   uint32_t value);
+/* Every voxel of the box [lo, hi) := value; bricks the box covers whole
+ * (and that lie inside dims) become uniform without memory, unless value
+ * does not fit 31 bits.  Same errors as vod_volume_set (-EINVAL also for an
+ * empty or inverted box); on -ENOMEM part of the box may be written. */
+int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
+                    uint32_t value);
+/* The voxel at (x, y, z), 0 outside dims. */
+uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z);
+
+/* What a volume holds, for tests and the job kinds' summaries. */
+typedef struct {
+    uint32_t dims[3], bits, sbrick;
+    int depth;                 /* 2^depth >= every side, >= 1 */
+    uint32_t pool_cap;         /* bricks the pool holds */
+    uint32_t pool_used;        /* bricks allocated, mip bricks included */
+    uint32_t level0_bricks;    /* allocated level-0 bricks */
+    int mip_channel;           /* the channel the mip levels hold, 0: none */
+} vod_volume_info;
+void vod_volume_get_info(const vod_volume *v, vod_volume_info *out);
+
+/* v as a brick source (vod.h): ctx is v, valid in the process that made or
+ * viewed it. */
+vod_source vod_volume_source(vod_volume *v);
+
+#endif
