@@ -6,9 +6,11 @@
 # `tests/integration/golden.sh --write` rewrites hashes.txt: only for a
 # change that is meant to change the bytes, said so in its commit; the
 # content checksums must then stay as they were.
+# The release build (the runner's $VOX; lib.sh points VOX at the ASan one):
+# the sanitizers add nothing to a comparison of outputs.
+VOXR=${VOX:-build/release/vox}
 . "$(dirname "$0")/lib.sh"
 export VOXD_SOCKET=/nonexistent/voxd.sock
-VOXR=${VOX:-build/release/vox}  # release build: the sanitizers add nothing here
 jobs=tests/golden/jobs.txt hashes=tests/golden/hashes.txt
 
 run_jobs() {  # prints "name sha256 content-checksum" per job
