@@ -5,8 +5,9 @@
 #                   AddressSanitizer + UndefinedBehaviorSanitizer; ends in "N passed, N failed"
 #   make demo       installs missing Debian packages, builds, voxelizes Scene 1,
 #                   writes scene1.vod and scene1.png
-#   make bench      benchmarks (release build): voxbench (embedded engine) and
-#                   voxdbench (through a voxd it starts), tables in bench/results/
+#   make bench      benchmarks (release build): voxbench (embedded engine),
+#                   voxdbench (through a voxd it starts) and the whole vox
+#                   voxelize command (scripts/bench-whole.sh), tables in bench/results/
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -126,6 +127,9 @@ $(BUILD)/voxdbench: bench/voxdbench.c $(LIB) | $(BUILD)/voxd
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 $(BUILD)/bench_expr: bench/bench_expr.c $(LIB)
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+# voxwhole times a whole command (scripts/bench-whole.sh): no library.
+$(BUILD)/voxwhole: bench/voxwhole.c bench/bench_util.h
+	$(CC) $(CFLAGS) $< -o $@ $(LDFLAGS) -lm
 
 $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 	@mkdir -p $(dir $@)
@@ -170,7 +174,7 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr
+bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole
 	@scripts/bench.sh $(BUILD)
 
 # The whole vox voxelize command against commit BASE, in one run.

@@ -1,6 +1,9 @@
 #!/bin/bash
 # make bench: every benchmark table, printed and saved in bench/results/.
-# BENCH_RES (default 512) and BENCH_WORKERS (default: cores) adjust the runs.
+# BENCH_RES (default 512) and BENCH_WORKERS (default: cores) adjust the runs;
+# the whole-command tables (scripts/bench-whole.sh) take BENCH_RES,
+# BENCH_REPEATS, BENCH_BIG and BENCH_QUICK.  Exits 1 when a whole-command job
+# failed (its row says why), after saving the tables.
 set -euo pipefail
 build=${1:-build/release}
 res=${BENCH_RES:-512}
@@ -18,5 +21,8 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$build/voxbench" vod -r "$res" -n "$workers"
     "$build/voxbench" memory -r "$res"
     "$build/voxdbench" all -r "$res" -n "$workers"
-} | tee "$out"
+    echo
+    "$(dirname "$0")/bench-whole.sh" "$build"
+} | tee "$out" || rc=$?
 echo "bench: tables saved in $out"
+exit "${rc:-0}"
