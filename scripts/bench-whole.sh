@@ -9,14 +9,16 @@
 # the jobs at 0, 1 and 2 workers, and -w 1 against -w 0 for every standard
 # shape.  Markdown on stdout.
 #
-#   BENCH_QUICK=1      a quick run for tests: defaults RES=64, REPEATS=1, BIG=0
+#   BENCH_QUICK=1      a quick run for tests: defaults RES=64, REPEATS=1, BIG=0,
+#                      SAMPLE_US=1000 (the jobs last tens of milliseconds)
 #   BENCH_RES          the resolution of the standard jobs (default 512); the
 #                      issue's targets are marked only at 512
 #   BENCH_REPEATS      timed runs per job, the median is shown (default 3)
 #   BENCH_BIG          1: also sphere and Scene 1 at 2048^3 and the sphere at
 #                      4096^3 (default 1 at RES >= 512 unless quick; the 4096^3
 #                      job runs for tens of seconds)
-#   BENCH_SAMPLE_US    the memory run's sampling period (default 5000)
+#   BENCH_SAMPLE_US    the memory run's sampling period in microseconds
+#                      (default 5000)
 #
 # Each job runs REPEATS times under bench/voxwhole without sampling (timed),
 # then once more sampled every BENCH_SAMPLE_US for the memory, untimed:
@@ -27,12 +29,12 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 build=${1:-build/release}
 case $build in /*) ;; *) build=$root/$build ;; esac
 cd "$root"
-if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=64 drep=1; else dres=512 drep=3; fi
+if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=64 drep=1 dus=1000; else dres=512 drep=3 dus=5000; fi
 res=${BENCH_RES:-$dres}
 repeats=${BENCH_REPEATS:-$drep}
 if [ "${BENCH_QUICK:-0}" != 1 ] && [ "$res" -ge 512 ]; then dbig=1; else dbig=0; fi
 big=${BENCH_BIG:-$dbig}
-sample_us=${BENCH_SAMPLE_US:-5000}
+sample_us=${BENCH_SAMPLE_US:-$dus}
 shm_mib=2048 # what vox voxelize asks /dev/shm for (its --shm-size default)
 vox=$build/vox whole=$build/voxwhole
 for b in "$vox" "$whole"; do
@@ -145,11 +147,11 @@ targets() {
 row() {
     local e
     e=$(err "$@")
-    if [ -n "$e" ]; then printf '| %s | %s | %s | | | | | | |%s\n' "$(label "$1" "$2")" "$3" "$e" "${4:+ |}"; return; fi
-    printf '| %s | %s | %s | %s | %s | %s | %s | %s |' "$(label "$1" "$2")" "$3" \
+    if [ -n "$e" ]; then printf '| %s | %s | %s | | | | | | | |%s\n' "$(label "$1" "$2")" "$3" "$e" "${4:+ |}"; return; fi
+    printf '| %s | %s | %s | %s | %s | %s | %s | %s | %s |' "$(label "$1" "$2")" "$3" \
         "$(fmt "$(get engine "$@")" %.3f)" "$(fmt "$(get write "$@")" %.3f)" \
         "$(fmt "$(get wall "$@")" %.3f)" "$(ratio "$(get write "$@")" "$(get engine "$@")")" \
-        "$(mib "$(get maxrss "$@")")" "$(mib "$(get tree "$@")")"
+        "$(mib "$(get maxrss "$@")")" "$(mib "$(get tree "$@")")" "$(mib "$(get shm "$@")")"
     [ -n "${4:-}" ] && printf ' %s |' "$(targets "$@")"
     echo
 }
@@ -176,17 +178,17 @@ echo "$repeats timed run(s). engine and VOD write: vox's summary line; whole com
 echo "process's wall time. Largest process: the peak RSS of the largest single process"
 echo "(wait4's ru_maxrss; it includes the shared pages that process touched). Whole command:"
 echo "the peak, sampled every $sample_us us in one more (untimed) run, of the resident"
-echo "memory of vox and its workers together, the engine's shared segment counted once$(
+echo "memory of vox and its workers together: their private pages plus the engine's shared segment counted once$(
     [ "$(get exact sphere "$res" 2)" = 1 ] || echo " (here only as its largest mapping in one process, a lower bound: /proc/PID/map_files was not readable)")."
 echo
-echo "| job | workers | engine (s) | VOD write (s) | whole command (s) | write / engine | largest process (MiB) | whole command memory (MiB) | targets |"
-echo "|---|---:|---:|---:|---:|---:|---:|---:|---|"
+echo "| job | workers | engine (s) | VOD write (s) | whole command (s) | write / engine | largest process (MiB) | whole command memory (MiB) | of it, shared segment (MiB) | targets |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"
 while read -r s r; do row "$s" "$r" 2 t; done <<<"$main_jobs"
 while read -r s r; do
     if [ "$big" != 1 ]; then
-        printf '| %s | 2 | skipped (BENCH_BIG=0) | | | | | | | |\n' "$(label "$s" "$r")"
+        printf '| %s | 2 | skipped (BENCH_BIG=0) | | | | | | | | |\n' "$(label "$s" "$r")"
     elif [ "$shm_free" -lt "$shm_mib" ]; then
-        printf '| %s | 2 | skipped: /dev/shm has %s MiB free, vox asks for %s | | | | | | | |\n' \
+        printf '| %s | 2 | skipped: /dev/shm has %s MiB free, vox asks for %s | | | | | | | | |\n' \
             "$(label "$s" "$r")" "$shm_free" "$shm_mib"
     else row "$s" "$r" 2 t; fi
 done <<<"$big_jobs"
@@ -224,8 +226,8 @@ fi
 echo
 echo "### Workers: 0 (serial, in vox), 1 and 2 ($res^3, median of $repeats)"
 echo
-echo "| job | workers | engine (s) | VOD write (s) | whole command (s) | write / engine | largest process (MiB) | whole command memory (MiB) |"
-echo "|---|---:|---:|---:|---:|---:|---:|---:|"
+echo "| job | workers | engine (s) | VOD write (s) | whole command (s) | write / engine | largest process (MiB) | whole command memory (MiB) | of it, shared segment (MiB) |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
 for s in sphere union64 blend2; do for w in 0 1 2; do row "$s" "$res" "$w"; done; done
 
 echo

@@ -78,9 +78,9 @@ grep -q "^### Whole \`vox voxelize\` command ($(nproc) cores" "$B" \
     || fail "bench-whole: the core count in the header" "$(head -1 "$B")"
 main=$(rows 'Whole `vox voxelize` command')
 check "bench-whole: 6 measured rows, 3 big ones skipped" test "$(grep -vc skipped <<<"$main")-$(grep -c 'skipped (BENCH_BIG=0)' <<<"$main")" = 6-3
-check "bench-whole: every column of every measured row" numeric 2,3,4,5,6,7,8 < <(grep -v skipped <<<"$main")
+check "bench-whole: every column of every measured row" numeric 2,3,4,5,6,7,8,9 < <(grep -v skipped <<<"$main")
 check "bench-whole: a targets column in every row" \
-    awk -F'|' '!/skipped/ && $10 !~ /[^ ]/ { exit 1 }' <<<"$main"
+    awk -F'|' '!/skipped/ && $11 !~ /[^ ]/ { exit 1 }' <<<"$main"
 # With one run per job each median is one run's: the whole command holds
 # the engine and the writer (3 decimals each).
 check "bench-whole: whole command >= engine + write" \
@@ -88,11 +88,13 @@ check "bench-whole: whole command >= engine + write" \
 check "bench-whole: write / engine is their ratio" \
     awk -F'|' '!/skipped/ { r = $4 > 0 ? $5 / $4 : 0; if ($4 >= 0.01 && (r - $7 > 0.06 * r + 0.06 || $7 - r > 0.06 * r + 0.06)) { print; exit 1 } }' <<<"$main"
 check "bench-whole: memory measured in every row" \
-    awk -F'|' '!/skipped/ && ($8 <= 0 || $9 <= 0) { print; exit 1 }' <<<"$main"
+    awk -F'|' '!/skipped/ && ($8 <= 0 || $9 <= 0 || $10 <= 0 || $10 > $9) { print; exit 1 }' <<<"$main"
 
 wk=$(rows 'Workers:')
 check "bench-whole: workers table, 9 rows" test "$(grep -c . <<<"$wk")" = 9
-check "bench-whole: workers table, every column" numeric 2,3,4,5,6,7,8 <<<"$wk"
+check "bench-whole: workers table, every column" numeric 2,3,4,5,6,7,8,9 <<<"$wk"
+check "bench-whole: no shared segment at -w 0, one at -w 1 and 2" \
+    awk -F'|' '($3 == 0) != ($10 == 0) { print; exit 1 }' <<<"$wk"
 w1=$(rows '-w 1 against -w 0')
 check "bench-whole: -w 1 table, 6 shapes" test "$(grep -c . <<<"$w1")" = 6
 check "bench-whole: -w 1 table, every column" numeric 2,3,4,6,7 <<<"$w1"
