@@ -6,6 +6,7 @@
  *   voxbench brute   [-r RES,...]       brute-force corner evaluation vs interval pruning
  *   voxbench vod     [-r RES] [-n MAX]  VOD write throughput, size, dedup, compression, read
  *   voxbench memory  [-r RES]           octree bytes per voxel, peak resident memory
+ *   voxbench deflate [-r RES]           zlib and libdeflate levels on the real bricks
  *
  * Every table is Markdown on stdout and starts with the machine's core count.
  * Each time is the median of REPEATS runs measured in this process. */
@@ -21,6 +22,9 @@
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
+
+#include <libdeflate.h>
+#include <zlib.h>
 
 #include "bench_util.h"
 #include "engine.h"
@@ -468,6 +472,176 @@ static void bench_memory(uint32_t res)
            "%.1f MiB of it the program before the job)\n", base);
 }
 
+/* ---- deflate: the brick compressors on the real bricks ---- */
+
+/* The distinct raw bricks of one file (what the writer compresses: a
+ * duplicate is found by its hash before compression), end to end. */
+typedef struct {
+    uint8_t *raw;
+    size_t n, brick_bytes;
+} brick_set;
+
+/* Index of a brick equal to scratch among the kept ones, or -1;
+ * slots: open addressing on the hash, each the brick's index + 1. */
+static long find_brick(const brick_set *b, const uint32_t *slot, size_t cap,
+                       uint32_t h, const uint8_t *scratch, size_t *at)
+{
+    size_t j = h & (cap - 1);
+    for (; slot[j]; j = (j + 1) & (cap - 1))
+        if (!memcmp(b->raw + (slot[j] - 1) * b->brick_bytes, scratch, b->brick_bytes))
+            return (long)slot[j] - 1;
+    *at = j;
+    return -1;
+}
+
+static void collect_bricks(const shape *s, uint32_t res, brick_set *b)
+{
+    expr_tape *t = load_shape(s);
+    grid_spec g = shape_grid(s, res);
+    serial_tree st;
+    serial_alloc(&st, g.depth);
+    if (subdiv_serial(t, &g, &st.t)) die("subdiv_serial", "failed");
+    vod_params p;
+    vod_params_default(&p);
+    for (int a = 0; a < 3; a++) p.volume[a] = g.res[a];
+    vod_layout L;
+    char err[256];
+    if (vod_layout_make(&p, g.depth, &L, err, sizeof err)) die("layout", err);
+    st.t.agg = malloc((size_t)st.t.used * sizeof *st.t.agg);
+    vod_source src = vod_octree_source(&st.t);
+    if (!st.t.agg || vod_prepare(&src, &L, p.channel, err, sizeof err)) die("prepare", err);
+    size_t n = vod_collect(&src, &L, NULL, 0), cap = 16;
+    while (cap < 2 * n) cap *= 2;
+    vod_node *nodes = malloc((n + 1) * sizeof *nodes);
+    uint32_t *slot = calloc(cap, sizeof *slot);
+    uint8_t *scratch = malloc(L.raw_bytes);
+    b->brick_bytes = L.raw_bytes;
+    b->raw = malloc((n + 1) * L.raw_bytes);
+    b->n = 0;
+    if (!nodes || !slot || !scratch || !b->raw) die("deflate", "no memory");
+    vod_collect(&src, &L, nodes, n);
+    for (size_t i = 0; i < n; i++) {
+        memset(scratch, 0, L.raw_bytes);
+        if (nodes[i].uniform) die("deflate", "an octree gave a uniform node");
+        if (src.ops->fill(&src, &L, &nodes[i], scratch)) die("fill", "failed");
+        size_t at;
+        uint32_t h = vod_hash_sfhs(scratch, L.raw_bytes);
+        if (find_brick(b, slot, cap, h, scratch, &at) >= 0) continue;
+        memcpy(b->raw + b->n * L.raw_bytes, scratch, L.raw_bytes);
+        slot[at] = (uint32_t)++b->n;
+    }
+    free(nodes);
+    free(slot);
+    free(scratch);
+    free(st.t.agg);
+    munmap(st.arena, st.bytes);
+    expr_tape_free(t);
+}
+
+/* One pass over the bricks, a zlib stream each, as the writer makes them
+ * (one stream reset between bricks, the smallest window holding a brick);
+ * returns the bytes. */
+static uint64_t zlib_pass(const brick_set *b, int level, uint8_t *out, size_t cap)
+{
+    int wbits = 9;
+    while (wbits < 15 && ((size_t)1 << wbits) < b->brick_bytes) wbits++;
+    z_stream z;
+    memset(&z, 0, sizeof z);
+    if (deflateInit2(&z, level, Z_DEFLATED, wbits, 8, Z_DEFAULT_STRATEGY) != Z_OK)
+        die("zlib", "deflateInit2");
+    uint64_t total = 0;
+    for (size_t i = 0; i < b->n; i++) {
+        deflateReset(&z);
+        z.next_in = b->raw + i * b->brick_bytes;
+        z.avail_in = (uInt)b->brick_bytes;
+        z.next_out = out;
+        z.avail_out = (uInt)cap;
+        if (deflate(&z, Z_FINISH) != Z_STREAM_END) die("zlib", "deflate");
+        total += z.total_out;
+    }
+    deflateEnd(&z);
+    return total;
+}
+
+static uint64_t sparse_pass(const brick_set *b, uint8_t *out, size_t cap)
+{
+    uint32_t brick = 1;
+    while ((size_t)brick * brick * brick * 4 < b->brick_bytes) brick *= 2;
+    vod_sparse *z;
+    if (vod_sparse_new(brick, &z)) die("sparse", "no encoder");
+    uint64_t total = 0;
+    for (size_t i = 0; i < b->n; i++) {
+        size_t k = vod_sparse_compress(z, b->raw + i * b->brick_bytes, b->brick_bytes,
+                                       out, cap);
+        if (!k) die("sparse", "output too small");
+        total += k;
+    }
+    vod_sparse_free(z);
+    return total;
+}
+
+static uint64_t libdeflate_pass(const brick_set *b, int level, uint8_t *out, size_t cap)
+{
+    struct libdeflate_compressor *c = libdeflate_alloc_compressor(level);
+    if (!c) die("libdeflate", "no compressor");
+    uint64_t total = 0;
+    for (size_t i = 0; i < b->n; i++) {
+        size_t k = libdeflate_zlib_compress(c, b->raw + i * b->brick_bytes,
+                                            b->brick_bytes, out, cap);
+        if (!k) die("libdeflate", "output too small");
+        total += k;
+    }
+    libdeflate_free_compressor(c);
+    return total;
+}
+
+/* Median time of REPEATS passes. */
+static double time_pass(const brick_set *b, int lib, int level, uint64_t *bytes)
+{
+    size_t cap = 2 * b->brick_bytes + 1024;
+    uint8_t *out = malloc(cap);
+    if (!out) die("deflate", "no memory");
+    double secs[REPEATS];
+    for (int i = 0; i < REPEATS; i++) {
+        double t0 = now();
+        *bytes = lib == 2 ? sparse_pass(b, out, cap)
+                 : lib   ? libdeflate_pass(b, level, out, cap)
+                         : zlib_pass(b, level, out, cap);
+        secs[i] = now() - t0;
+    }
+    free(out);
+    return median(secs, REPEATS);
+}
+
+static void bench_deflate(uint32_t res)
+{
+    header("Brick compression: zlib and libdeflate (channel 3, 16^3 bricks, "
+           "the distinct bricks of each file, one core)", res);
+    printf("| shape | bricks | raw MB | encoder | level | time (s) | raw MB/s | bytes | vs zlib 6 |\n");
+    printf("|---|---:|---:|---|---:|---:|---:|---:|---:|\n");
+    static const struct { int lib, level; } runs[] = {
+        {0, 1}, {0, 6}, {0, 9}, {1, 1}, {1, 6}, {1, 9}, {1, 12}, {2, 0}};
+    const int which[] = {0, 1, 3}; /* sphere, union64, scene1 */
+    for (int w = 0; w < 3; w++) {
+        brick_set b;
+        collect_bricks(&shapes[which[w]], res, &b);
+        double mb = (double)(b.n * b.brick_bytes) / 1e6;
+        uint64_t ref = 0;
+        for (size_t r = 0; r < sizeof runs / sizeof runs[0]; r++) {
+            uint64_t bytes;
+            double t = time_pass(&b, runs[r].lib, runs[r].level, &bytes);
+            if (!runs[r].lib && runs[r].level == 6) ref = bytes;
+            char vs[32] = "-";
+            if (ref) snprintf(vs, sizeof vs, "%+.1f%%", 100.0 * ((double)bytes / (double)ref - 1));
+            printf("| %s | %zu | %.1f | %s | %d | %.4f | %.0f | %llu | %s |\n",
+                   shapes[which[w]].name, b.n, mb,
+                   runs[r].lib == 2 ? "voxd sparse" : runs[r].lib ? "libdeflate" : "zlib",
+                   runs[r].level, t, mb / t, (unsigned long long)bytes, vs);
+        }
+        free(b.raw);
+    }
+}
+
 static int parse_res_list(const char *s, uint32_t *out, int cap)
 {
     int n = 0;
@@ -484,7 +658,7 @@ static int parse_res_list(const char *s, uint32_t *out, int cap)
 int main(int argc, char **argv)
 {
     if (argc < 2) {
-        fprintf(stderr, "usage: voxbench shapes|table1|brute|vod|memory [-r RES[,RES..]] [-n MAXWORKERS]\n");
+        fprintf(stderr, "usage: voxbench shapes|table1|brute|vod|memory|deflate [-r RES[,RES..]] [-n MAXWORKERS]\n");
         return 2;
     }
     uint32_t res[8] = {512};
@@ -503,6 +677,7 @@ int main(int argc, char **argv)
     else if (!strcmp(cmd, "brute")) bench_brute(res, nres);
     else if (!strcmp(cmd, "vod")) bench_vod(res[0], maxw);
     else if (!strcmp(cmd, "memory")) bench_memory(res[0]);
+    else if (!strcmp(cmd, "deflate")) bench_deflate(res[0]);
     else die(cmd, "unknown benchmark");
     return 0;
 }

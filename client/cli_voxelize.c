@@ -77,6 +77,10 @@ static void print_summary(const voxelize_opts *o, const pipeline_report *r)
            (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
     if (o->workers > 0)
         printf("  CPU: master %.3f s, workers %.3f s\n", r->master_cpu, r->worker_cpu);
+    const vod_times *t = &r->st.t;
+    printf("  VOD stages: fill %.3f s, hash %.3f s, compress %.3f s, assemble %.3f s, "
+           "write %.3f s (%s)\n", t->fill, t->hash, t->compress, t->assemble, t->write,
+           o->workers > 0 ? "seconds in each, summed over the processes" : "seconds in each");
 }
 
 /* The job on the embedded engine (or the serial algorithm, -w 0). */

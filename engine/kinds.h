@@ -82,6 +82,10 @@ typedef struct {
     /* First error a worker met (negative errno), 0 if none; relaxed,
      * read by the master after every done_seq acquire. */
     atomic_int error;
+    /* Nanoseconds the workers spent filling, hashing and compressing
+     * (vod_times), each adding its own at the end of its task (relaxed:
+     * read by the master after every done_seq acquire). */
+    atomic_ullong ns_fill, ns_hash, ns_compress;
 } encode_block;
 
 #endif

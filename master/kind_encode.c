@@ -3,11 +3,14 @@
  * The block and its arrays are laid out behind the octree's used cells:
  * the aggregate (u32 per cell), the brick nodes, their encoded records and
  * offsets, then the brick bytes.  A worker's death or failure costs
- * nothing but time: the bricks it left unrecorded are encoded here. */
+ * nothing but time: the bricks it left unrecorded are encoded here.
+ * The stage times (vod_times) are the sum of the master's (planning,
+ * what it encodes, assembling) and the workers'. */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "master.h"
 
@@ -17,9 +20,17 @@ typedef struct {
     vod_sink *sink;
     vod_stats *st;
     engine_error *err;
+    vod_times t;   /* the master's fill, hash and compress */
 } encode_job;
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
 
 static encode_block *block(engine *e)
 {
@@ -39,6 +50,7 @@ static int encode_setup(engine *e, void *job)
     uint64_t nodes = align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
     if (nodes > end) goto full;
     encode_block *b = shm_at(e->seg.base, boff);
+    double t0 = now_s();
     e->tree.agg = shm_at(e->seg.base, agg);
     vod_aggregate(&e->tree, ej->p->channel);
     vod_source src = vod_octree_source(&e->tree);
@@ -48,6 +60,7 @@ static int encode_setup(engine *e, void *job)
     b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
     if (b->brick_off > end) goto full;
     vod_collect(&src, &ej->L, shm_at(e->seg.base, nodes), n);
+    ej->t.fill += now_s() - t0;
     memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
     b->L = ej->L;
     b->p = *ej->p;
@@ -63,6 +76,9 @@ static int encode_setup(engine *e, void *job)
     atomic_store_explicit(&b->next, 0, memory_order_relaxed);
     atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
     atomic_store_explicit(&b->error, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->ns_fill, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->ns_hash, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->ns_compress, 0, memory_order_relaxed);
     h->job_off = boff;
     h->job_bytes = sizeof *b;
     shm_task t = {.kind = SHM_KIND_ENCODE, .op = ENCODE_BRICKS};
@@ -102,40 +118,63 @@ static void encode_describe(const shm_task *t, char *buf, size_t len)
     snprintf(buf, len, "brick encoding");
 }
 
-/* The records come from other processes: a missing (a worker died) or
- * malformed one is encoded again here, into memory of our own. */
-static int encode_gather(engine *e, const vod_params *p, const uint8_t **data,
+/* The records come from other processes: a missing (a worker died, or
+ * the brick area was full) or malformed one is encoded again here, into
+ * memory of our own, by an encoder of our own (its duplicates found as
+ * the workers' are; its times into ej->t). */
+static int encode_gather(engine *e, encode_job *ej, const uint8_t **data,
                          uint8_t **own)
 {
     encode_block *b = block(e);
+    const vod_params *p = ej->p;
     const vod_node *nodes = shm_at(e->seg.base, b->nodes_off);
     vod_encoded *recs = shm_at(e->seg.base, b->recs_off);
     const uint64_t *offs = shm_at(e->seg.base, b->offs_off);
     const uint8_t *bricks = shm_at(e->seg.base, b->brick_off);
     size_t bound = vod_encode_bound(&b->L, p);
-    uint8_t *scratch = NULL;
+    vod_encoder *enc = NULL;
     vod_source src = vod_octree_source(&e->tree);
     int rc = 0;
     for (uint64_t i = 0; i < b->n && !rc; i++) {
-        uint64_t off = offs[i];
+        uint64_t off = offs[i], same;
         uint32_t size = recs[i].size;
         if (off < b->brick_cap && size <= bound && size <= b->brick_cap - off) {
             data[i] = bricks + off;
             continue;
         }
-        if (!scratch && !(scratch = malloc(b->L.raw_bytes))) rc = -ENOMEM;
+        if (!enc) rc = vod_encoder_new(&b->L, p, &enc);
         if (!rc && !(own[i] = malloc(bound))) rc = -ENOMEM;
         if (!rc)
-            rc = vod_encode(&src, &b->L, p, &nodes[i], scratch, own[i],
-                            bound, &recs[i]);
-        data[i] = own[i];
+            rc = vod_encoder_put(enc, &src, &nodes[i], i, own[i], bound, &recs[i],
+                                 &same);
+        if (!rc && same != i) {
+            free(own[i]);
+            own[i] = NULL;
+        }
+        data[i] = rc || same == i ? own[i] : data[same];
     }
-    /* This thread encoded bricks: its cached deflate stream is this job's,
-     * freed now as vod_write_octree frees its own (a daemon's engine thread
-     * lives long, and an engine's caller need not know about the cache). */
-    if (scratch) vod_encode_cleanup();
-    free(scratch);
+    if (enc) {
+        vod_times t;
+        vod_encoder_times(enc, &t);
+        vod_times_add(&ej->t, &t);
+    }
+    vod_encoder_free(enc);
     return rc;
+}
+
+/* The stage times: the master's and the workers' (relaxed: read after
+ * every worker's done_seq acquire). */
+static void add_times(encode_block *b, encode_job *ej)
+{
+    if (!ej->st) return;
+    vod_times w = {
+        .fill = 1e-9 * (double)atomic_load_explicit(&b->ns_fill, memory_order_relaxed),
+        .hash = 1e-9 * (double)atomic_load_explicit(&b->ns_hash, memory_order_relaxed),
+        .compress = 1e-9 * (double)atomic_load_explicit(&b->ns_compress,
+                                                        memory_order_relaxed),
+    };
+    vod_times_add(&ej->st->t, &w);
+    vod_times_add(&ej->st->t, &ej->t);
 }
 
 /* vod_assemble says its own failures; a sink's has no message of its own. */
@@ -161,9 +200,10 @@ static int encode_finish(engine *e, void *job, int rc)
     sched_touched(e, b->brick_off + (used < b->brick_cap ? used : b->brick_cap));
     const uint8_t **data = calloc(b->n ? b->n : 1, sizeof *data);
     uint8_t **own = calloc(b->n ? b->n : 1, sizeof *own);
-    rc = data && own ? encode_gather(e, ej->p, data, own) : -ENOMEM;
+    rc = data && own ? encode_gather(e, ej, data, own) : -ENOMEM;
     if (rc) sched_fail(e, ENGINE_FAULT, rc, "%s", strerror(-rc));
     else rc = assemble(e, ej, data);
+    if (!rc) add_times(b, ej);
     for (uint64_t i = 0; own && i < b->n; i++) free(own[i]);
     free(own);
     free(data);

@@ -3,7 +3,7 @@
 # (valgrind: tests/integration/valgrind.sh; python3 and procps: the daemon's
 # integration tests, for the hand-written protocol client and pgrep/ps).
 set -e
-PKGS="build-essential pkg-config zlib1g-dev libpng-dev libxxhash-dev libuv1-dev \
+PKGS="build-essential pkg-config zlib1g-dev libdeflate-dev libpng-dev libxxhash-dev libuv1-dev \
 libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev \
 valgrind python3 procps groff-base"
 missing=""

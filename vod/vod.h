@@ -7,7 +7,8 @@
  * processes:
  *   1. master:  vod_layout_make(), vod_check_source(), vod_prepare(),
  *               vod_collect()                                  — plan
- *   2. workers: vod_encode() for each collected brick node     — fill, hash, compress
+ *   2. workers: vod_encoder_put() for each collected brick node — fill, hash,
+ *               look up, compress (a duplicate is found before compression)
  *   3. master:  vod_assemble()                                 — dedup, lay out, write
  * vod_write() runs all three in-process; vod_write_octree() wraps an octree.
  *
@@ -40,6 +41,8 @@
 #define VOD_HEADER_BYTES 64u
 #define VOD_DEFAULT_BRICK 16u
 #define VOD_MAX_METADATA 65536u
+#define VOD_ZLIB_LEVEL_MAX 12 /* libdeflate's levels: 1..9 as zlib's, 10..12 slower */
+#define VOD_SPARSE_LEVEL 6    /* up to it, 32-bit bricks go to vod_sparse_compress */
 
 /* What the writer is asked to produce. */
 typedef struct {
@@ -49,7 +52,7 @@ typedef struct {
                                or VOXEL_CH_SURFACE (32 bit); the source must give it */
     uint32_t comp;          /* VOD_COMP_* ; default ZLIB */
     uint32_t hash;          /* VOD_HASH_* ; default SFHS */
-    int zlib_level;         /* 1..9, default 6 */
+    int zlib_level;         /* ZLIB: 1..VOD_ZLIB_LEVEL_MAX, default 6 */
     float voxel_scale[3];   /* world size of a voxel */
     float origin[3];        /* world position of voxel (0,0,0)'s low corner */
     const char *metadata;   /* "key=value\n" lines, or NULL */
@@ -195,20 +198,52 @@ typedef struct {
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
- * it and compress it into out.  ZLIB reuses one deflate stream per thread
- * (see vod_encode_cleanup); the bytes depend only on the raw brick and p.
- * A uniform node's brick is made here, and its encoding kept per thread for
- * the next uniform node of the same value.  Returns 0, -ENOBUFS when cap is
- * too small, -EINVAL for a node outside the layout, or the source's error
- * (an octree without t->agg cannot fill levels >= 1). */
+ * it and compress it into out, without looking for duplicates (the
+ * encoder below does).  It uses an encoder kept per thread (see
+ * vod_encode_cleanup); the bytes depend only on the raw brick and p, and
+ * are what vod_encoder_put gives.  A uniform node's brick is made here.
+ * Returns 0, -ENOBUFS when cap is too small, -EINVAL for a node outside
+ * the layout, -ENOMEM, or the source's error (an octree without t->agg
+ * cannot fill levels >= 1). */
 int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
                const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
                vod_encoded *rec);
 
-/* Frees the calling thread's cached deflate stream and uniform brick (a
- * thread that used vod_encode should call it before it exits; a process
- * need not). */
+/* Frees the calling thread's vod_encode encoder (a thread that used
+ * vod_encode should call it before it exits; a process need not). */
 void vod_encode_cleanup(void);
+
+/* Seconds spent in each stage of writing one file, on CLOCK_MONOTONIC.
+ * fill: the source's prepare (the mip levels), vod_collect's walk and
+ * filling each brick; hash: hashing each brick and looking up an earlier
+ * equal one; compress; assemble: vod_assemble less its sink writes (dedup,
+ * the layout, the CRC); write: the sink's writes.  Where bricks are encoded
+ * in several processes, fill, hash and compress are their sum over the
+ * processes (so they may pass the wall time of the write). */
+typedef struct {
+    double fill, hash, compress, assemble, write;
+} vod_times;
+void vod_times_add(vod_times *to, const vod_times *t);
+
+/* An encoder of one file's bricks, for one thread: its scratch, its
+ * compressor, and the bricks it has compressed so far, by hash (a node,
+ * a record and a tag each, about 64 bytes; no raw brick is kept). */
+typedef struct vod_encoder vod_encoder;
+/* 0, -EINVAL for a level out of range, or -ENOMEM. */
+int vod_encoder_new(const vod_layout *L, const vod_params *p, vod_encoder **out);
+void vod_encoder_free(vod_encoder *e);
+/* Node n's brick: filled, hashed, and if this encoder compressed an equal
+ * brick before (the same hash, then the same raw bytes: the earlier node is
+ * filled again and compared), *same is the tag given with that brick and
+ * *rec its record, and nothing is written to out; else the brick is
+ * compressed into out (cap bytes) and *same = tag.  The caller stores the
+ * bytes of the first and points its duplicates at them, so the file is the
+ * same as if each had been compressed.  Returns vod_encode's errors. */
+int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
+                    uint64_t tag, uint8_t *out, size_t cap, vod_encoded *rec,
+                    uint64_t *same);
+/* Its fill, hash and compress seconds so far (the others 0). */
+void vod_encoder_times(const vod_encoder *e, vod_times *t);
 
 /* Where the file goes: write must write all n bytes or fail (negative errno). */
 typedef struct {
@@ -224,6 +259,8 @@ typedef struct {
     uint64_t brick_raw_bytes; /* raw bytes of the unique bricks */
     uint64_t brick_data_bytes; /* stored (compressed) bytes of the unique bricks */
     uint32_t crc32;           /* the trailer's fileCRC32 */
+    vod_times t;              /* vod_assemble sets assemble and write; the
+                                 writers add the phases before it */
 } vod_stats;
 
 /* Phase 3.  data[i] holds recs[i].size encoded bytes of nodes[i] (nodes in
@@ -322,6 +359,20 @@ size_t vod_runl_encode(uint32_t voxel_bits, const uint8_t *raw, size_t n,
  * bytes, or bytes are left over. */
 int vod_runl_decode(uint32_t voxel_bits, const uint8_t *in, size_t n,
                     uint8_t *raw, size_t raw_n);
+
+/* A zlib stream for a raw brick of 32-bit voxels, most of them 0, in one
+ * pass (vod_deflate.c says how): the encoder's compressor for such bricks.
+ * A vod_sparse holds the scratch for bricks of one size (brick^3 voxels,
+ * brick 2..VOD_SPARSE_MAX_BRICK): 0, -EINVAL or -ENOMEM. */
+#define VOD_SPARSE_MAX_BRICK 64u
+typedef struct vod_sparse vod_sparse;
+int vod_sparse_new(uint32_t brick, vod_sparse **out);
+void vod_sparse_free(vod_sparse *z);
+/* Compress the brick^3 voxels of raw (n bytes, at most the size given to
+ * vod_sparse_new) into out; returns the size, or 0 when cap is too small
+ * or n too large. */
+size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t *out,
+                           size_t cap);
 
 static inline uint32_t vod_get32(const uint8_t *p)
 {

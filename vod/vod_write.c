@@ -11,6 +11,10 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#include <time.h>
+
+#include <libdeflate.h>
+#include <xxhash.h>
 #include <zlib.h>
 
 #include "voxel.h"
@@ -91,9 +95,10 @@ static int check_encoding(const vod_params *p, char *err, size_t errlen)
         return fail(err, errlen, -EINVAL,
                     "compression '%s' unknown (NONE, ZLIB or RUNL)",
                     fourcc_str(p->comp, b));
-    if (p->comp == VOD_COMP_ZLIB && (p->zlib_level < 1 || p->zlib_level > 9))
-        return fail(err, errlen, -EINVAL, "zlib level %d outside 1..9",
-                    p->zlib_level);
+    if (p->comp == VOD_COMP_ZLIB &&
+        (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX))
+        return fail(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
+                    p->zlib_level, VOD_ZLIB_LEVEL_MAX);
     if (p->hash != VOD_HASH_SFHS && p->hash != VOD_HASH_XX32)
         return fail(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
                     fourcc_str(p->hash, b));
@@ -236,7 +241,9 @@ size_t vod_collect(const vod_source *s, const vod_layout *L, vod_node *out,
 /* ---- phase 2: encode ---- */
 
 /* zlib's bound for a deflate stream whose parameters are not the defaults
- * (deflateBound's conservative case), plus the zlib wrapper. */
+ * (deflateBound's conservative case), plus the zlib wrapper: more than
+ * libdeflate_zlib_compress needs (test_vod checks it), so compression
+ * into a buffer of this size never fails for room. */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
 {
     size_t n = L->raw_bytes;
@@ -246,74 +253,126 @@ size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
     return n;
 }
 
-/* One deflate stream per thread, reset between bricks: deflateInit's
- * allocations and table clearing cost more than compressing a small brick
- * (an 8^3 brick: compress2 ~170 us, deflateReset + deflate ~25 us).  The
- * window is the smallest that holds a whole brick, so the output is the
- * same as with a 32 KiB window, less the header's window size. */
-static _Thread_local struct {
-    z_stream z;
-    int level, wbits, live;
-} zc;
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
 
-/* The last uniform brick this thread encoded: the bricks of a solid's
- * inside are all alike, and hashing and compressing each again is most of
- * their cost.  Its key is everything the encoded bytes depend on. */
-static _Thread_local struct {
-    uint8_t *data;
-    size_t cap;
+/* The raw bytes of the first bricks an encoder compressed are kept up to
+ * this many bytes, to compare a duplicate with; past it the earlier brick
+ * is filled again for the comparison. */
+#define RAW_CACHE_BYTES (8u << 20)
+
+/* A brick the encoder has compressed: enough to compare a new brick of
+ * the same key with it (its raw bytes, kept or filled again) and to
+ * answer for its duplicates. */
+typedef struct {
+    uint64_t key;    /* XXH3-64 of the raw brick: the table's key */
+    vod_node node;
     vod_encoded rec;
-    uint32_t value, brick, bits, comp, hash;
-    int level, live;
-} uc;
+    uint64_t tag;
+    size_t raw_at;   /* its raw bytes in the cache, or SIZE_MAX */
+} seen_brick;
 
-void vod_encode_cleanup(void)
+struct vod_encoder {
+    vod_layout L;
+    vod_params p;          /* metadata NULL: encoding does not use it */
+    uint8_t *raw, *other;  /* this brick; an earlier one filled again */
+    struct libdeflate_compressor *ld; /* ZLIB: one per encoder, reused */
+    vod_sparse *sparse;    /* ZLIB at levels 1..6, 32-bit voxels */
+    size_t bound;          /* vod_encode_bound */
+    seen_brick *seen;      /* the bricks compressed so far, by first use */
+    size_t nseen, seen_cap;
+    uint32_t *slot;        /* open addressing on the key: seen index + 1 */
+    size_t slot_cap;       /* a power of two, at least 2 * nseen */
+    uint8_t *cache;        /* raw bricks of seen, up to RAW_CACHE_BYTES */
+    size_t cache_used;
+    long last_uniform;     /* seen index of the last uniform node, or -1 */
+    vod_times t;
+};
+
+void vod_encoder_free(vod_encoder *e)
 {
-    if (zc.live) deflateEnd(&zc.z);
-    zc.live = 0;
-    free(uc.data);
-    memset(&uc, 0, sizeof uc);
+    if (!e) return;
+    if (e->ld) libdeflate_free_compressor(e->ld);
+    vod_sparse_free(e->sparse);
+    free(e->raw);
+    free(e->other);
+    free(e->seen);
+    free(e->slot);
+    free(e->cache);
+    free(e);
 }
 
-static int zlib_stream(int level, int wbits)
+/* The compressors for p: libdeflate at p's level, and at the levels up to
+ * VOD_SPARSE_LEVEL the one-pass encoder of vod_deflate.c for bricks of
+ * 32-bit voxels (see there; voxbench deflate measures both). */
+static int make_compressors(vod_encoder *e, const vod_layout *L, const vod_params *p)
 {
-    if (zc.live && zc.level == level && zc.wbits == wbits)
-        return deflateReset(&zc.z) == Z_OK ? 0 : -EIO;
-    vod_encode_cleanup();
-    memset(&zc.z, 0, sizeof zc.z);
-    int zr = deflateInit2(&zc.z, level, Z_DEFLATED, wbits, 8, Z_DEFAULT_STRATEGY);
-    if (zr != Z_OK) return zr == Z_MEM_ERROR ? -ENOMEM : -EINVAL;
-    zc.live = 1;
-    zc.level = level;
-    zc.wbits = wbits;
+    if (p->comp != VOD_COMP_ZLIB) return 0;
+    if (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX) return -EINVAL;
+    if (!(e->ld = libdeflate_alloc_compressor(p->zlib_level))) return -ENOMEM;
+    if (L->voxel_bits == 32 && L->brick <= VOD_SPARSE_MAX_BRICK &&
+        p->zlib_level <= VOD_SPARSE_LEVEL)
+        return vod_sparse_new(L->brick, &e->sparse);
     return 0;
 }
 
-static int zlib_brick(const uint8_t *raw, size_t n, int level, uint8_t *out,
-                      size_t cap, uint32_t *size)
+int vod_encoder_new(const vod_layout *L, const vod_params *p, vod_encoder **out)
 {
-    int wbits = 9;
-    while (wbits < 15 && ((size_t)1 << wbits) < n) wbits++;
-    int rc = zlib_stream(level, wbits);
-    if (rc) return rc;
-    zc.z.next_in = (Bytef *)raw;
-    zc.z.avail_in = (uInt)n;
-    zc.z.next_out = out;
-    zc.z.avail_out = cap > UINT32_MAX ? UINT32_MAX : (uInt)cap;
-    if (deflate(&zc.z, Z_FINISH) != Z_STREAM_END) return -ENOBUFS;
-    *size = (uint32_t)zc.z.total_out;
+    vod_encoder *e = calloc(1, sizeof *e);
+    *out = NULL;
+    if (!e) return -ENOMEM;
+    e->L = *L;
+    e->p = *p;
+    e->p.metadata = NULL;
+    e->last_uniform = -1;
+    e->bound = vod_encode_bound(L, p);
+    e->raw = malloc(L->raw_bytes);
+    e->other = malloc(L->raw_bytes);
+    e->slot_cap = 1024;
+    e->slot = calloc(e->slot_cap, sizeof *e->slot);
+    int rc = e->raw && e->other && e->slot ? 0 : -ENOMEM;
+    if (!rc) rc = make_compressors(e, L, p);
+    if (rc) {
+        vod_encoder_free(e);
+        return rc;
+    }
+    *out = e;
     return 0;
 }
 
-static int compress_brick(const vod_layout *L, const vod_params *p,
-                          const uint8_t *raw, uint8_t *out, size_t cap,
-                          uint32_t *size)
+void vod_encoder_times(const vod_encoder *e, vod_times *t)
 {
-    size_t n = L->raw_bytes;
-    if (p->comp == VOD_COMP_ZLIB)
-        return zlib_brick(raw, n, p->zlib_level, out, cap, size);
-    if (p->comp == VOD_COMP_RUNL) {
-        size_t o = vod_runl_encode(L->voxel_bits, raw, n, out, cap);
+    *t = e->t;
+}
+
+/* The bytes depend on the raw brick alone, not on cap: the one-pass
+ * encoder's output is used when it fits the bound (and then fails for a
+ * smaller cap), libdeflate's when it does not. */
+static int compress_brick(vod_encoder *e, const uint8_t *raw, uint8_t *out,
+                          size_t cap, uint32_t *size)
+{
+    size_t n = e->L.raw_bytes;
+    if (e->p.comp == VOD_COMP_ZLIB) {
+        if (e->sparse && cap >= e->bound) {
+            size_t k = vod_sparse_compress(e->sparse, raw, n, out, e->bound);
+            if (k) {
+                *size = (uint32_t)k;
+                return 0;
+            }
+        } else if (e->sparse) {
+            return -ENOBUFS;
+        }
+        size_t k = libdeflate_zlib_compress(e->ld, raw, n, out, cap);
+        if (!k) return -ENOBUFS;
+        *size = (uint32_t)k;
+        return 0;
+    }
+    if (e->p.comp == VOD_COMP_RUNL) {
+        size_t o = vod_runl_encode(e->L.voxel_bits, raw, n, out, cap);
         if (!o) return -ENOBUFS;
         *size = (uint32_t)o;
         return 0;
@@ -336,57 +395,173 @@ static void fill_uniform(const vod_layout *L, uint32_t v, uint8_t *raw)
     memset(raw, byte, L->raw_bytes);
 }
 
-static bool uniform_cached(const vod_layout *L, const vod_params *p, uint32_t v)
+/* Node n's raw brick into raw: made here for a uniform node, else from the
+ * source. */
+static int fill_node(const vod_encoder *e, const vod_source *s, const vod_node *n,
+                     uint8_t *raw)
 {
-    return uc.live && uc.value == v && uc.brick == L->brick &&
-           uc.bits == L->voxel_bits && uc.comp == p->comp && uc.hash == p->hash &&
-           (p->comp != VOD_COMP_ZLIB || uc.level == p->zlib_level);
-}
-
-/* A uniform brick: from the cache, or made, encoded and kept (a cache that
- * cannot grow is only a lost shortcut, not an error). */
-static int encode_uniform(const vod_layout *L, const vod_params *p, uint32_t v,
-                          uint8_t *scratch, uint8_t *out, size_t cap,
-                          vod_encoded *rec)
-{
-    if (uniform_cached(L, p, v)) {
-        if (uc.rec.size > cap) return -ENOBUFS;
-        memcpy(out, uc.data, uc.rec.size);
-        *rec = uc.rec;
+    if (n->level >= e->L.height) return -EINVAL;
+    uint32_t per_axis = e->L.padded >> (e->L.brick_log2 + n->level);
+    if (n->bx >= per_axis || n->by >= per_axis || n->bz >= per_axis) return -EINVAL;
+    if (n->uniform) {
+        fill_uniform(&e->L, n->value, raw);
         return 0;
     }
-    fill_uniform(L, v, scratch);
-    rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
-    int rc = compress_brick(L, p, scratch, out, cap, &rec->size);
-    if (rc) return rc;
-    uc.live = 0;
-    if (uc.cap < rec->size) {
-        uint8_t *d = realloc(uc.data, rec->size);
-        if (!d) return 0;
-        uc.data = d;
-        uc.cap = rec->size;
+    memset(raw, 0, e->L.raw_bytes);
+    return s->ops->fill(s, &e->L, n, raw);
+}
+
+static size_t slot_of(uint64_t key, size_t cap)
+{
+    return (size_t)(key ^ key >> 29) & (cap - 1);
+}
+
+/* An earlier brick equal to e->raw (XXH3-64 key): candidates by the key,
+ * each compared byte for byte (from the cache, or filled again).  NULL if
+ * none, with *at the free slot where this brick goes. */
+static const seen_brick *find_seen(vod_encoder *e, const vod_source *s,
+                                   uint64_t key, size_t *at, int *rc)
+{
+    size_t j = slot_of(key, e->slot_cap);
+    for (; e->slot[j]; j = (j + 1) & (e->slot_cap - 1)) {
+        const seen_brick *b = &e->seen[e->slot[j] - 1];
+        if (b->key != key) continue;
+        const uint8_t *old = e->cache + b->raw_at;
+        if (b->raw_at == SIZE_MAX) {
+            if ((*rc = fill_node(e, s, &b->node, e->other))) return NULL;
+            old = e->other;
+        }
+        if (!memcmp(old, e->raw, e->L.raw_bytes)) return b;
     }
-    memcpy(uc.data, out, rec->size);
-    uc.rec = *rec;
-    uc.value = v, uc.brick = L->brick, uc.bits = L->voxel_bits;
-    uc.comp = p->comp, uc.hash = p->hash, uc.level = p->zlib_level;
-    uc.live = 1;
+    *at = j;
+    return NULL;
+}
+
+/* Keep the raw brick in the cache while it has room; its offset, or
+ * SIZE_MAX. */
+static size_t cache_raw(vod_encoder *e)
+{
+    size_t n = e->L.raw_bytes;
+    if (n > RAW_CACHE_BYTES - e->cache_used) return SIZE_MAX;
+    if (!e->cache && !(e->cache = malloc(RAW_CACHE_BYTES))) return SIZE_MAX;
+    memcpy(e->cache + e->cache_used, e->raw, n);
+    e->cache_used += n;
+    return e->cache_used - n;
+}
+
+/* Twice the slots; 0, or -ENOMEM with the table as it was. */
+static int grow_slots(vod_encoder *e)
+{
+    size_t cap = 2 * e->slot_cap;
+    uint32_t *slot = calloc(cap, sizeof *slot);
+    if (!slot) return -ENOMEM;
+    for (size_t i = 0; i < e->nseen; i++) {
+        size_t j = slot_of(e->seen[i].key, cap);
+        while (slot[j]) j = (j + 1) & (cap - 1);
+        slot[j] = (uint32_t)i + 1;
+    }
+    free(e->slot);
+    e->slot = slot;
+    e->slot_cap = cap;
     return 0;
+}
+
+/* Keep brick (n, rec, tag) at slot at.  A table that cannot grow only
+ * loses the shortcut: the duplicate is then compressed again, and
+ * vod_assemble still stores it once. */
+static void remember(vod_encoder *e, uint64_t key, const vod_node *n,
+                     const vod_encoded *rec, uint64_t tag, size_t at)
+{
+    if (e->nseen >= UINT32_MAX - 1) return;
+    if (e->nseen == e->seen_cap) {
+        size_t cap = e->seen_cap ? 2 * e->seen_cap : 256;
+        seen_brick *s = realloc(e->seen, cap * sizeof *s);
+        if (!s) return;
+        e->seen = s;
+        e->seen_cap = cap;
+    }
+    e->seen[e->nseen] = (seen_brick){key, *n, *rec, tag, cache_raw(e)};
+    e->slot[at] = (uint32_t)++e->nseen;
+    if (n->uniform) e->last_uniform = (long)e->nseen - 1;
+    if (2 * e->nseen >= e->slot_cap) grow_slots(e);
+}
+
+/* A uniform node like the last uniform one: its brick is that one's,
+ * without filling or hashing it again. */
+static const seen_brick *same_uniform(const vod_encoder *e, const vod_node *n)
+{
+    if (!n->uniform || e->last_uniform < 0) return NULL;
+    const seen_brick *b = &e->seen[e->last_uniform];
+    return b->node.value == n->value ? b : NULL;
+}
+
+int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
+                    uint64_t tag, uint8_t *out, size_t cap, vod_encoded *rec,
+                    uint64_t *same)
+{
+    const seen_brick *b = same_uniform(e, n);
+    size_t at = 0;
+    uint64_t key = 0;
+    int rc = 0;
+    double t0 = now_s(), t1 = t0, t2 = t0;
+    if (!b) {
+        if ((rc = fill_node(e, s, n, e->raw))) return rc;
+        t1 = now_s();
+        key = XXH3_64bits(e->raw, e->L.raw_bytes);
+        b = find_seen(e, s, key, &at, &rc);
+        if (rc) return rc;
+        e->t.fill += t1 - t0;
+    }
+    if (b) {
+        e->t.hash += now_s() - t1;
+        *rec = b->rec;
+        *same = b->tag;
+        return 0;
+    }
+    /* the file's hash, for the bricks it stores */
+    rec->hash = vod_hash(e->p.hash, e->raw, e->L.raw_bytes);
+    t2 = now_s();
+    e->t.hash += t2 - t1;
+    rc = compress_brick(e, e->raw, out, cap, &rec->size);
+    e->t.compress += now_s() - t2;
+    if (rc) return rc;
+    *same = tag;
+    remember(e, key, n, rec, tag, at);
+    return 0;
+}
+
+/* vod_encode's encoder, one per thread, made again when the layout or the
+ * encoding changes. */
+static _Thread_local vod_encoder *tl_enc;
+
+void vod_encode_cleanup(void)
+{
+    vod_encoder_free(tl_enc);
+    tl_enc = NULL;
+}
+
+static bool encoder_fits(const vod_encoder *e, const vod_layout *L,
+                         const vod_params *p)
+{
+    return e && e->L.brick == L->brick && e->L.voxel_bits == L->voxel_bits &&
+           e->L.height == L->height && e->L.padded == L->padded &&
+           e->p.comp == p->comp && e->p.hash == p->hash &&
+           (p->comp != VOD_COMP_ZLIB || e->p.zlib_level == p->zlib_level);
 }
 
 int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
                const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
                vod_encoded *rec)
 {
-    if (n->level >= L->height) return -EINVAL;
-    uint32_t per_axis = L->padded >> (L->brick_log2 + n->level);
-    if (n->bx >= per_axis || n->by >= per_axis || n->bz >= per_axis) return -EINVAL;
-    if (n->uniform) return encode_uniform(L, p, n->value, scratch, out, cap, rec);
-    memset(scratch, 0, L->raw_bytes);
-    int rc = s->ops->fill(s, L, n, scratch);
+    if (!encoder_fits(tl_enc, L, p)) {
+        vod_encode_cleanup();
+        int rc = vod_encoder_new(L, p, &tl_enc);
+        if (rc) return rc;
+    }
+    int rc = fill_node(tl_enc, s, n, scratch);
     if (rc) return rc;
     rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
-    return compress_brick(L, p, scratch, out, cap, &rec->size);
+    return compress_brick(tl_enc, scratch, out, cap, &rec->size);
 }
 
 /* ---- phase 3: assemble ---- */
@@ -399,6 +574,7 @@ typedef struct {
     uint32_t crc;
     uint64_t total;
     uint32_t file_crc; /* the trailer's fileCRC32, once written */
+    double t_write;    /* seconds in the sink's write */
     int err;
 } wbuf;
 
@@ -406,7 +582,9 @@ static void wb_flush(wbuf *w)
 {
     if (w->err || w->len == 0) return;
     w->crc = (uint32_t)crc32(w->crc, w->buf, (uInt)w->len);
+    double t0 = now_s();
     int rc = w->sink->write(w->sink->ud, w->buf, w->len);
+    w->t_write += now_s() - t0;
     if (rc < 0) w->err = rc;
     w->total += w->len;
     w->len = 0;
@@ -495,10 +673,11 @@ static void put_trailer(wbuf *w, const vod_params *p, size_t meta)
 /* IDs 1..u by first use.  Candidates come from the hash; a match is
  * confirmed by comparing the encoded bytes.  That is the same as comparing
  * the raw bricks: every brick of a file is encoded by the same
- * deterministic function of its raw bytes (same algorithm, same zlib
- * level), so equal raw bricks give equal encodings, and decoding is a
- * function, so equal encodings come from equal raw bricks.  Equal hashes
- * alone never merge. */
+ * deterministic function of its raw bytes (same algorithm, same level), so
+ * equal raw bricks give equal encodings, and decoding is a function, so
+ * equal encodings come from equal raw bricks.  Equal hashes alone never
+ * merge.  Duplicates an encoder already found (vod_encoder_put) point at
+ * the same bytes: no comparison then. */
 static int dedup(size_t n, const vod_encoded *recs, const uint8_t *const *data,
                  uint32_t *ids, uint32_t *first, uint32_t *unique)
 {
@@ -517,7 +696,8 @@ static int dedup(size_t n, const vod_encoded *recs, const uint8_t *const *data,
             }
             const uint32_t k = first[s - 1];
             if (recs[k].hash == h && recs[k].size == recs[i].size &&
-                memcmp(data[k], data[i], recs[i].size) == 0) {
+                (data[k] == data[i] ||
+                 memcmp(data[k], data[i], recs[i].size) == 0)) {
                 ids[i] = s;
                 break;
             }
@@ -604,6 +784,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
                  char *err, size_t errlen)
 {
     if (errlen) err[0] = '\0';
+    double t0 = now_s();
     int rc = check_inputs(L, p, n, nodes, recs, data);
     if (rc)
         return fail(err, errlen, rc, "bricks out of preorder or over their bound");
@@ -622,7 +803,11 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
         put_trailer(&w, p, meta);
         rc = w.err;
     }
-    if (!rc && st) fill_stats(st, L, n, recs, first, u, &w);
+    if (!rc && st) {
+        fill_stats(st, L, n, recs, first, u, &w);
+        st->t.write = w.t_write;
+        st->t.assemble = now_s() - t0 - w.t_write;
+    }
     free(ids);
     free(first);
     free(w.buf);
@@ -631,44 +816,60 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
 
 /* ---- all three phases ---- */
 
-/* Phase 2 for every node, serially, into one buffer (offsets in off). */
+/* Phase 2 for every node, serially, into one buffer (offsets in off; a
+ * duplicate the encoder found shares its first's); its times into t. */
 static int encode_all(const vod_source *s, const vod_layout *L,
                       const vod_params *p, size_t n, const vod_node *nodes,
-                      vod_encoded *recs, size_t *off, vod_membuf *b)
+                      vod_encoded *recs, size_t *off, vod_membuf *b, vod_times *t)
 {
     size_t bound = vod_encode_bound(L, p);
-    uint8_t *scratch = malloc(L->raw_bytes), *tmp = malloc(bound);
-    int rc = scratch && tmp ? 0 : -ENOMEM;
+    vod_encoder *e;
+    int rc = vod_encoder_new(L, p, &e);
+    if (rc) return rc;
+    uint8_t *tmp = malloc(bound);
+    rc = tmp ? 0 : -ENOMEM;
     for (size_t i = 0; i < n && !rc; i++) {
-        rc = vod_encode(s, L, p, &nodes[i], scratch, tmp, bound, &recs[i]);
+        uint64_t same;
+        rc = vod_encoder_put(e, s, &nodes[i], i, tmp, bound, &recs[i], &same);
+        if (rc) break;
+        if (same != i) {
+            off[i] = off[same];
+            continue;
+        }
         off[i] = b->n;
-        if (!rc) rc = vod_mem_write(b, tmp, recs[i].size);
+        rc = vod_mem_write(b, tmp, recs[i].size);
     }
-    free(scratch);
+    vod_times et;
+    vod_encoder_times(e, &et);
+    vod_times_add(t, &et);
+    vod_encoder_free(e);
     free(tmp);
-    vod_encode_cleanup();
     return rc;
 }
 
 static int write_planned(const vod_source *s, const vod_layout *L,
                          const vod_params *p, vod_sink *sink, vod_stats *st,
-                         char *err, size_t errlen)
+                         double t_prepare, char *err, size_t errlen)
 {
+    double t0 = now_s();
     size_t n = vod_collect(s, L, NULL, 0);
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);
     vod_encoded *recs = malloc((n + 1) * sizeof *recs);
     size_t *off = malloc((n + 1) * sizeof *off);
     const uint8_t **data = malloc((n + 1) * sizeof *data);
     vod_membuf b = {0};
+    vod_times t = {0};
     int rc = nodes && recs && off && data ? 0 : -ENOMEM;
     if (!rc) {
         vod_collect(s, L, nodes, n);
-        rc = encode_all(s, L, p, n, nodes, recs, off, &b);
+        t.fill = now_s() - t0 + t_prepare;
+        rc = encode_all(s, L, p, n, nodes, recs, off, &b, &t);
     }
     if (!rc) {
         for (size_t i = 0; i < n; i++) data[i] = b.p + off[i];
         rc = vod_assemble(L, p, n, nodes, recs, data, sink, st, err, errlen);
     }
+    if (!rc && st) vod_times_add(&st->t, &t);
     free(nodes);
     free(recs);
     free(off);
@@ -681,10 +882,11 @@ static int write_planned(const vod_source *s, const vod_layout *L,
 static int write_checked(vod_source *s, const vod_layout *L, const vod_params *p,
                          vod_sink *sink, vod_stats *st, char *err, size_t errlen)
 {
+    double t0 = now_s();
     int rc = vod_prepare(s, L, p->channel, err, errlen);
     if (rc) return rc;
     if (errlen) err[0] = '\0';
-    rc = write_planned(s, L, p, sink, st, err, errlen);
+    rc = write_planned(s, L, p, sink, st, now_s() - t0, err, errlen);
     /* vod_assemble's own failures are said; the sink's and the encoder's
      * are not yet */
     if (rc && (!errlen || !err[0]))
@@ -721,6 +923,15 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
         t->agg = NULL;
     }
     return rc;
+}
+
+void vod_times_add(vod_times *to, const vod_times *t)
+{
+    to->fill += t->fill;
+    to->hash += t->hash;
+    to->compress += t->compress;
+    to->assemble += t->assemble;
+    to->write += t->write;
 }
 
 int vod_mem_write(void *membuf, const void *buf, size_t n)

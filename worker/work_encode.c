@@ -1,6 +1,8 @@
 /* The encode kind's worker side: VOD bricks of the last job's octree,
  * encoded into the shared brick area.  Workers claim nodes in chunks from
- * the block's counter, so they share the work whatever its shape. */
+ * the block's counter, so they share the work whatever its shape.  Each
+ * worker's encoder finds the duplicates among the bricks it encodes before
+ * compressing them: a duplicate's record points at its first's bytes. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -10,38 +12,31 @@
 #define ENCODE_CHUNK 8u /* brick nodes claimed at a time */
 
 typedef struct {
-    uint8_t *scratch, *out;
-    size_t scratch_bytes, out_bytes;
+    uint8_t *out;
+    size_t out_bytes;
 } encode_state;
 
 static void encode_free(void *state)
 {
     encode_state *st = state;
     if (!st) return;
-    free(st->scratch);
     free(st->out);
     free(st);
 }
 
-static int grow(uint8_t **p, size_t *have, size_t want)
-{
-    if (*have >= want) return 0;
-    uint8_t *n = realloc(*p, want);
-    if (!n) return -ENOMEM;
-    *p = n;
-    *have = want;
-    return 0;
-}
-
-/* Scratch for a brick's raw data and its encoding, kept across jobs. */
+/* Room for a brick's encoding, kept across jobs. */
 static int encode_begin(work_ctx *w, void **state)
 {
     encode_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
     const encode_block *b = shm_at(w->base, w->h->job_off);
-    int rc = grow(&st->scratch, &st->scratch_bytes, b->L.raw_bytes);
-    if (!rc) rc = grow(&st->out, &st->out_bytes, vod_encode_bound(&b->L, &b->p));
-    return rc;
+    size_t want = vod_encode_bound(&b->L, &b->p);
+    if (st->out_bytes >= want) return 0;
+    uint8_t *n = realloc(st->out, want);
+    if (!n) return -ENOMEM;
+    st->out = n;
+    st->out_bytes = want;
+    return 0;
 }
 
 static void encode_fail(encode_block *b, int rc)
@@ -53,17 +48,27 @@ static void encode_fail(encode_block *b, int rc)
                                             memory_order_relaxed);
 }
 
-/* Encode node i into the shared brick area. */
+/* Encode node i into the shared brick area.  A duplicate of a brick this
+ * worker stored takes its offset; one whose first did not fit stays
+ * unrecorded like it (the master encodes both). */
 static int encode_one(work_ctx *w, encode_state *st, encode_block *b,
-                      const vod_source *t, uint64_t i)
+                      const vod_source *t, vod_encoder *enc, uint64_t i)
 {
     const vod_node *nodes = shm_at(w->base, b->nodes_off);
     vod_encoded *recs = shm_at(w->base, b->recs_off);
     uint64_t *offs = shm_at(w->base, b->offs_off);
     vod_encoded rec;
-    int rc = vod_encode(t, &b->L, &b->p, &nodes[i], st->scratch, st->out,
-                        st->out_bytes, &rec);
+    uint64_t same;
+    int rc = vod_encoder_put(enc, t, &nodes[i], i, st->out, st->out_bytes, &rec,
+                             &same);
     if (rc) return rc;
+    if (same != i) {
+        if (same < b->n && offs[same] < b->brick_cap) {
+            recs[i] = rec;
+            offs[i] = offs[same];
+        }
+        return 0;
+    }
     /* relaxed: only the uniqueness of the ranges matters; the bytes are
      * published to the master by the done_seq release. */
     uint64_t off = atomic_fetch_add_explicit(&b->bump, rec.size,
@@ -76,14 +81,9 @@ static int encode_one(work_ctx *w, encode_state *st, encode_block *b,
     return 0;
 }
 
-static int encode_run(work_ctx *w, void *state, const shm_task *t)
+static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
+                        const vod_source *src, vod_encoder *enc)
 {
-    encode_block *b = shm_at(w->base, w->h->job_off);
-    if (t->op != ENCODE_BRICKS) return -EINVAL;
-    octree tree;
-    octree_view(&tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
-    tree.agg = shm_at(w->base, b->agg_off);
-    vod_source src = vod_octree_source(&tree);
     for (;;) {
         /* relaxed: a counter that hands out disjoint chunks */
         uint64_t i0 = atomic_fetch_add_explicit(&b->next, ENCODE_CHUNK,
@@ -93,13 +93,40 @@ static int encode_run(work_ctx *w, void *state, const shm_task *t)
         for (uint64_t i = i0; i < end; i++) {
             /* relaxed: stop early once anybody failed */
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
-            int rc = encode_one(w, state, b, &src, i);
-            if (rc) {
-                encode_fail(b, rc);
-                return rc;
-            }
+            int rc = encode_one(w, st, b, src, enc, i);
+            if (rc) return rc;
         }
     }
+}
+
+static void add_ns(atomic_ullong *to, double seconds)
+{
+    /* relaxed: read by the master after every done_seq acquire */
+    atomic_fetch_add_explicit(to, (unsigned long long)(seconds * 1e9),
+                              memory_order_relaxed);
+}
+
+static int encode_run(work_ctx *w, void *state, const shm_task *t)
+{
+    encode_block *b = shm_at(w->base, w->h->job_off);
+    if (t->op != ENCODE_BRICKS) return -EINVAL;
+    octree tree;
+    octree_view(&tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
+    tree.agg = shm_at(w->base, b->agg_off);
+    vod_source src = vod_octree_source(&tree);
+    vod_encoder *enc;
+    int rc = vod_encoder_new(&b->L, &b->p, &enc);
+    if (!rc) {
+        rc = encode_nodes(w, state, b, &src, enc);
+        vod_times tm;
+        vod_encoder_times(enc, &tm);
+        add_ns(&b->ns_fill, tm.fill);
+        add_ns(&b->ns_hash, tm.hash);
+        add_ns(&b->ns_compress, tm.compress);
+        vod_encoder_free(enc);
+    }
+    if (rc) encode_fail(b, rc);
+    return rc;
 }
 
 const work_kind work_encode = {

@@ -13,6 +13,8 @@
 #include <unistd.h>
 #include <zlib.h>
 
+#include <libdeflate.h>
+
 #include "octree.h"
 #include "vod.h"
 #include "vod_volume.h"
@@ -360,8 +362,12 @@ Test(vod_layout, validates_params_per_spec)
     cr_assert_eq(layout_rc(&q, 3, "'FTLZ'"), -EINVAL);
     q = p, q.hash = VOD_FOURCC('M', 'D', '5', ' ');
     cr_assert_eq(layout_rc(&q, 3, "'MD5 '"), -EINVAL);
-    q = p, q.zlib_level = 10;
-    cr_assert_eq(layout_rc(&q, 3, "zlib level 10"), -EINVAL);
+    q = p, q.zlib_level = 13;
+    cr_assert_eq(layout_rc(&q, 3, "zlib level 13 outside 1..12"), -EINVAL);
+    q = p, q.zlib_level = 0;
+    cr_assert_eq(layout_rc(&q, 3, "zlib level 0"), -EINVAL);
+    q = p, q.zlib_level = 12; /* libdeflate's highest */
+    cr_assert_eq(layout_rc(&q, 3, NULL), 0);
     q = p, q.voxel_scale[2] = 0;
     cr_assert_eq(layout_rc(&q, 3, "voxelScale"), -EINVAL);
     q = p, q.voxel_scale[0] = NAN;
@@ -964,6 +970,195 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     free(data), free(recs), free(nodes), free(scratch), free(f.t.agg);
     f.t.agg = NULL;
     free(m.p), free(ref.p);
+    fx_free(&f);
+}
+
+/* ------------------------------------------------------------ encoder */
+
+/* A raw brick of brick^3 32-bit voxels of one kind: 0 sparse surface, 1
+ * dense random, 2 uniform, 3 few values, 4 all zero, 5 runs. */
+static void make_brick(uint8_t *raw, uint32_t brick, int kind)
+{
+    size_t nv = (size_t)brick * brick * brick;
+    uint32_t run = 0, rv = 0;
+    for (size_t i = 0; i < nv; i++) {
+        uint32_t v = 0;
+        switch (kind) {
+        case 0: v = rnd() % 9 == 0 ? 0xff | rnd() << 8 : 0; break;
+        case 1: v = rnd() ^ rnd() << 16; break;
+        case 2: v = 0x5a5a5aff; break;
+        case 3: v = rnd() % 3 ? 0 : 0xff | (rnd() % 4) << 8; break;
+        case 4: v = 0; break;
+        default:
+            if (!run) run = 1 + rnd() % 40, rv = rnd() % 2 ? 0 : rnd();
+            v = rv, run--;
+        }
+        vod_put32(raw + 4 * i, v);
+    }
+}
+
+Test(vod_encoder, one_pass_streams_inflate_to_the_brick)
+{
+    for (uint32_t brick = 2; brick <= 32; brick *= 2) {
+        vod_sparse *z;
+        cr_assert_eq(vod_sparse_new(brick, &z), 0);
+        size_t n = (size_t)brick * brick * brick * 4, cap = 2 * n + 64;
+        uint8_t *raw = malloc(n), *out = malloc(cap), *back = malloc(n);
+        for (int it = 0; it < 60; it++) {
+            int kind = it % 6;
+            make_brick(raw, brick, kind);
+            size_t k = vod_sparse_compress(z, raw, n, out, cap);
+            cr_assert_gt(k, 6, "brick %u kind %d", brick, kind);
+            uLongf got = n;
+            cr_assert_eq(uncompress(back, &got, out, k), Z_OK, "brick %u kind %d", brick, kind);
+            cr_assert_eq(got, n);
+            cr_assert_arr_eq(back, raw, n, "brick %u kind %d", brick, kind);
+            if (brick >= 8 && (kind == 0 || kind == 2 || kind == 4))
+                cr_assert_lt(k, n / 3, "brick %u kind %d: %zu of %zu bytes", brick, kind, k, n);
+            cr_assert_eq(vod_sparse_compress(z, raw, n, out, k - 1), 0, "no room");
+        }
+        cr_assert_eq(vod_sparse_compress(z, raw, n + 4, out, cap), 0, "larger than made for");
+        vod_sparse_free(z);
+        free(raw), free(out), free(back);
+    }
+    vod_sparse *z;
+    cr_assert_eq(vod_sparse_new(VOD_SPARSE_MAX_BRICK * 2, &z), -EINVAL);
+}
+
+Test(vod_encoder, bound_holds_any_zlib_stream)
+{
+    struct libdeflate_compressor *c = libdeflate_alloc_compressor(12);
+    for (uint32_t brick = 2; brick <= 64; brick *= 2)
+        for (int ch = 0; ch < 2; ch++) {
+            vod_params p;
+            vod_params_default(&p);
+            p.volume[0] = p.volume[1] = p.volume[2] = brick;
+            p.brick = brick;
+            p.channel = ch ? VOXEL_CH_OCCUPANCY : VOXEL_CH_SURFACE;
+            vod_layout L;
+            char err[256];
+            cr_assert_eq(vod_layout_make(&p, 6, &L, err, sizeof err), 0, "%s", err);
+            cr_assert_geq(vod_encode_bound(&L, &p), libdeflate_zlib_compress_bound(c, L.raw_bytes));
+        }
+    libdeflate_free_compressor(c);
+}
+
+/* A 128 x 128 x 256 volume of 32^3 bricks: the 64 bricks of the lower
+ * half all different, the upper half a copy of the lower, so that every
+ * brick of it, at each level below the root, repeats one of the lower
+ * half.  At 128 KiB a raw brick, the lower half's 74 bricks pass the 8 MiB
+ * the encoder keeps: duplicates are compared both ways (with the kept
+ * bytes, and by filling the first again). */
+static void fx_copies(fixture *f)
+{
+    for (uint32_t b = 0; b < 64; b++)
+        for (uint32_t i = 0; i < 40 + b; i++)
+            fx_store(f, b % 4 * 32 + rnd() % 32, b / 4 % 4 * 32 + rnd() % 32,
+                     b / 16 * 32 + rnd() % 32, random_surface());
+    for (uint32_t z = 0; z < 128; z++)
+        for (uint32_t y = 0; y < 128; y++)
+            for (uint32_t x = 0; x < 128; x++) {
+                uint32_t v = fx_get(f, x, y, z);
+                if (v) fx_store(f, x, y, z + 128, v);
+            }
+}
+
+Test(vod_encoder, duplicates_found_before_compression_change_nothing)
+{
+    fixture f;
+    fx_init(&f, 8, 128, 128, 256);
+    fx_copies(&f);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 32);
+    vod_stats st;
+    membuf ref = write_file(&f, &p, &st);
+    vod_layout L;
+    char err[256];
+    cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
+    f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
+    vod_aggregate(&f.t, p.channel);
+    vod_source src = vod_octree_source(&f.t);
+    size_t n = vod_collect(&src, &L, NULL, 0), bound = vod_encode_bound(&L, &p);
+    vod_node *nodes = malloc(n * sizeof *nodes);
+    vod_collect(&src, &L, nodes, n);
+    /* every brick compressed on its own, no duplicate looked for */
+    vod_encoded *recs = malloc(n * sizeof *recs);
+    uint8_t **data = malloc(n * sizeof *data), *scratch = malloc(L.raw_bytes);
+    for (size_t i = 0; i < n; i++) {
+        data[i] = malloc(bound);
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+    }
+    vod_encode_cleanup();
+    /* the encoder: a duplicate's first has the same bytes, and the firsts
+     * are as many as the file's unique bricks */
+    vod_encoder *e;
+    cr_assert_eq(vod_encoder_new(&L, &p, &e), 0);
+    uint8_t *out = malloc(bound);
+    size_t firsts = 0, dups = 0;
+    for (size_t i = 0; i < n; i++) {
+        vod_encoded rec;
+        uint64_t same;
+        cr_assert_eq(vod_encoder_put(e, &src, &nodes[i], i, out, bound, &rec, &same), 0);
+        cr_assert_eq(rec.hash, recs[i].hash);
+        cr_assert_eq(rec.size, recs[i].size);
+        if (same == i) {
+            firsts++;
+            cr_assert_arr_eq(out, data[i], rec.size);
+        } else {
+            dups++;
+            cr_assert_lt(same, i);
+            cr_assert_arr_eq(data[same], data[i], rec.size, "node %zu is not %llu", i,
+                             (unsigned long long)same);
+        }
+    }
+    cr_assert_eq(firsts, st.bricks);
+    cr_assert_gt(firsts, 64, "more firsts than the encoder keeps the bytes of");
+    cr_assert_geq(dups, 64 + 8, "the copies were found");
+    vod_times t;
+    vod_encoder_times(e, &t);
+    cr_assert(t.fill > 0 && t.hash > 0 && t.compress > 0);
+    vod_encoder_free(e);
+    /* and the file is the one of bricks compressed one by one */
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    cr_assert_eq(vod_assemble(&L, &p, n, nodes, recs, (const uint8_t *const *)data, &sink,
+                              NULL, err, sizeof err), 0);
+    cr_assert_eq(m.n, ref.n);
+    cr_assert_arr_eq(m.p, ref.p, m.n);
+    for (size_t i = 0; i < n; i++) free(data[i]);
+    free(data), free(recs), free(nodes), free(scratch), free(out), free(f.t.agg);
+    f.t.agg = NULL;
+    free(m.p), free(ref.p);
+    fx_free(&f);
+}
+
+Test(vod_encoder, every_level_gives_the_same_voxels)
+{
+    fixture f;
+    fx_init(&f, 6, 64, 64, 64);
+    fx_sphere(&f, 30.5, 33, 31, 25);
+    membuf files[4];
+    static const int levels[4] = {1, 6, 9, 12};
+    for (int k = 0; k < 4; k++) {
+        vod_params p;
+        params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 16);
+        p.zlib_level = levels[k];
+        vod_stats st;
+        files[k] = write_file(&f, &p, &st);
+        cr_assert(st.t.fill > 0 && st.t.hash > 0 && st.t.compress > 0 && st.t.assemble > 0 &&
+                  st.t.write > 0, "every stage timed");
+        vod_file *v = read_ok(&files[k]);
+        for (uint32_t z = 0; z < 64; z += 3)
+            for (uint32_t y = 0; y < 64; y++)
+                for (uint32_t x = 0; x < 64; x++)
+                    cr_assert_eq(vod_voxel(v, 0, x, y, z), fx_get(&f, x, y, z));
+        vod_close(v);
+    }
+    /* 1 and 6 use the one-pass encoder for 32-bit voxels, 9 and 12 libdeflate */
+    cr_assert_eq(files[0].n, files[1].n);
+    cr_assert_arr_eq(files[0].p, files[1].p, files[0].n);
+    cr_assert(files[1].n != files[2].n || memcmp(files[1].p, files[2].p, files[1].n));
+    for (int k = 0; k < 4; k++) free(files[k].p);
     fx_free(&f);
 }
 

@@ -1,0 +1,541 @@
+/* vod_deflate — a zlib stream (RFC 1950, 1951) for a brick of 32-bit
+ * voxels in one pass, made for the surface bricks the writer sees most:
+ * a few hundred non-zero voxels among thousands of zeros.
+ *
+ * A general deflate (zlib, libdeflate) looks for matches at every byte,
+ * zeros included, and spends most of its time in runs of zeros that any
+ * encoder turns into the same few tokens.  This one finds a run of zeros
+ * at word speed (a match at distance 1, after one literal 0 when the byte
+ * before is not 0, computing the Adler-32 of the run in one step), and at
+ * a non-zero voxel tries three candidates for a match: the last voxel of
+ * the same value (a hash table), the voxel one row back and the one a slice
+ * back.  One block with Huffman codes made for the brick (RFC 1951 3.2.7,
+ * code lengths limited as miniz does).  Any inflater reads the result. */
+#include "vod.h"
+
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
+#define MAX_BITS 15
+#define LITLEN_SYMS 288
+#define DIST_SYMS 30
+#define CL_SYMS 19
+#define HASH_BITS 12
+#define WINDOW 32768u
+#define MIN_MATCH 4 /* a voxel: shorter matches rarely beat their literals */
+#define MAX_MATCH 258
+#define ADLER_MOD 65521u
+
+static const uint16_t len_base[29] = {3,  4,  5,  6,  7,  8,  9,  10,  11,  13,
+                                      15, 17, 19, 23, 27, 31, 35, 43,  51,  59,
+                                      67, 83, 99, 115, 131, 163, 195, 227, 258};
+static const uint8_t len_extra[29] = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2,
+                                      2, 3, 3, 3, 3, 4, 4, 4, 4, 5, 5, 5, 5, 0};
+static const uint16_t dist_base[DIST_SYMS] = {
+    1,   2,   3,   4,   5,   7,    9,    13,   17,   25,   33,   49,   65,    97,    129,
+    193, 257, 385, 513, 769, 1025, 1537, 2049, 3073, 4097, 6145, 8193, 12289, 16385, 24577};
+static const uint8_t dist_extra[DIST_SYMS] = {0, 0, 0, 0, 1, 1, 2, 2,  3,  3,  4,  4,  5,  5,  6,
+                                              6, 7, 7, 8, 8, 9, 9, 10, 10, 11, 11, 12, 12, 13, 13};
+/* The order the code-length code's lengths are sent in. */
+static const uint8_t cl_order[CL_SYMS] = {16, 17, 18, 0, 8,  7, 9,  6, 10, 5,
+                                          11, 4,  12, 3, 13, 2, 14, 1, 15};
+
+/* A token: a literal byte (< 256), or MATCH | length << 15 | (distance - 1). */
+#define MATCH (1u << 31)
+
+struct vod_sparse {
+    size_t cap;             /* the brick's raw bytes */
+    uint64_t *mask;         /* bit i: voxel i is not 0 */
+    size_t row, slice;      /* bytes from a voxel to the one a row, a slice back */
+    uint32_t *tok;          /* cap + 1 tokens */
+    uint32_t head[1u << HASH_BITS]; /* voxel value -> last position + 1 */
+    uint8_t len_sym[MAX_MATCH + 1]; /* length -> 0..28 */
+    uint8_t dist_sym[WINDOW];       /* distance - 1 -> 0..29 */
+    uint32_t freq_l[LITLEN_SYMS], freq_d[DIST_SYMS];
+    uint8_t bits_l[LITLEN_SYMS], bits_d[DIST_SYMS];
+    uint16_t code_l[LITLEN_SYMS], code_d[DIST_SYMS];
+};
+
+int vod_sparse_new(uint32_t brick, vod_sparse **out)
+{
+    *out = NULL;
+    if (brick < 2 || brick > VOD_SPARSE_MAX_BRICK) return -EINVAL;
+    vod_sparse *z = calloc(1, sizeof *z);
+    if (!z) return -ENOMEM;
+    z->row = 4 * (size_t)brick;
+    z->slice = z->row * brick;
+    z->cap = z->slice * brick;
+    z->tok = malloc((z->cap + 1) * sizeof *z->tok);
+    z->mask = malloc((z->cap / 4 + 63) / 64 * sizeof *z->mask);
+    if (!z->tok || !z->mask) {
+        vod_sparse_free(z);
+        return -ENOMEM;
+    }
+    for (int s = 0; s < 29; s++) {
+        int end = s == 28 ? MAX_MATCH + 1 : len_base[s] + (1 << len_extra[s]);
+        for (int l = len_base[s]; l < end && l <= MAX_MATCH; l++) z->len_sym[l] = (uint8_t)s;
+    }
+    z->len_sym[MAX_MATCH] = 28;
+    for (int s = 0; s < DIST_SYMS; s++)
+        for (unsigned d = dist_base[s]; d < dist_base[s] + (1u << dist_extra[s]); d++)
+            z->dist_sym[d - 1] = (uint8_t)s;
+    *out = z;
+    return 0;
+}
+
+void vod_sparse_free(vod_sparse *z)
+{
+    if (!z) return;
+    free(z->tok);
+    free(z->mask);
+    free(z);
+}
+
+/* ---- Huffman codes ---- */
+
+/* Moffat and Katajainen's in-place minimum-redundancy code: a[0..n-1]
+ * holds weights in ascending order, and on return code lengths. */
+static void min_redundancy(uint32_t *a, int n)
+{
+    if (n == 1) {
+        a[0] = 1;
+        return;
+    }
+    int root = 0, leaf = 2, next;
+    a[0] += a[1];
+    for (next = 1; next < n - 1; next++) {
+        if (leaf >= n || a[root] < a[leaf]) {
+            a[next] = a[root];
+            a[root++] = (uint32_t)next;
+        } else {
+            a[next] = a[leaf++];
+        }
+        if (leaf >= n || (root < next && a[root] < a[leaf])) {
+            a[next] += a[root];
+            a[root++] = (uint32_t)next;
+        } else {
+            a[next] += a[leaf++];
+        }
+    }
+    a[n - 2] = 0;
+    for (next = n - 3; next >= 0; next--) a[next] = a[a[next]] + 1;
+    int avail = 1, used = 0, depth = 0;
+    root = n - 2;
+    next = n - 1;
+    while (avail > 0) {
+        while (root >= 0 && (int)a[root] == depth) {
+            used++;
+            root--;
+        }
+        while (avail > used) {
+            a[next--] = (uint32_t)depth;
+            avail--;
+        }
+        avail = 2 * used;
+        depth++;
+        used = 0;
+    }
+}
+
+/* The used symbols of freq in ascending order of frequency, ties in
+ * symbol order: an LSD radix sort, 8 bits a pass.  Returns how many. */
+static int sort_symbols(const uint32_t *freq, int n, uint32_t *sym, uint32_t *w)
+{
+    uint32_t tmp_s[LITLEN_SYMS], tmp_w[LITLEN_SYMS], max = 0;
+    int used = 0;
+    for (int s = 0; s < n; s++)
+        if (freq[s]) {
+            sym[used] = (uint32_t)s;
+            w[used++] = freq[s];
+            if (freq[s] > max) max = freq[s];
+        }
+    uint32_t *from_s = sym, *from_w = w, *to_s = tmp_s, *to_w = tmp_w;
+    for (unsigned shift = 0; shift < 32 && (max >> shift); shift += 8) {
+        unsigned count[257] = {0};
+        for (int i = 0; i < used; i++) count[((from_w[i] >> shift) & 255u) + 1]++;
+        for (int d = 0; d < 256; d++) count[d + 1] += count[d];
+        for (int i = 0; i < used; i++) {
+            unsigned d = (from_w[i] >> shift) & 255u;
+            to_s[count[d]] = from_s[i];
+            to_w[count[d]++] = from_w[i];
+        }
+        uint32_t *t = from_s; from_s = to_s; to_s = t;
+        t = from_w; from_w = to_w; to_w = t;
+    }
+    if (from_s != sym) {
+        memcpy(sym, from_s, (size_t)used * sizeof *sym);
+        memcpy(w, from_w, (size_t)used * sizeof *w);
+    }
+    return used;
+}
+
+/* The len low bits of code in reverse order (deflate sends Huffman codes
+ * from their first bit, everything else from the last). */
+static inline uint16_t reverse(uint32_t code, unsigned len)
+{
+    uint32_t x = code;
+    x = (x & 0x5555u) << 1 | (x >> 1 & 0x5555u);
+    x = (x & 0x3333u) << 2 | (x >> 2 & 0x3333u);
+    x = (x & 0x0f0fu) << 4 | (x >> 4 & 0x0f0fu);
+    x = (x & 0x00ffu) << 8 | (x >> 8 & 0x00ffu);
+    return (uint16_t)(x >> (16 - len));
+}
+
+/* Code lengths (at most max_bits) and bit-reversed canonical codes for
+ * freq[0..n-1].  At least two symbols get a code, as zlib makes sure: a
+ * lone symbol would make an incomplete code, which inflaters refuse. */
+static void build_code(uint32_t *freq, int n, unsigned max_bits, uint8_t *bits,
+                       uint16_t *code)
+{
+    uint32_t sym[LITLEN_SYMS], w[LITLEN_SYMS] = {0};
+    int used = 0;
+    for (int s = 0; s < n && used < 2; s++) used += freq[s] != 0;
+    for (int s = 0; s < n && used < 2; s++)
+        if (!freq[s]) freq[s] = 1, used++;
+    used = sort_symbols(freq, n, sym, w);
+    min_redundancy(w, used);
+    /* miniz's limit: fold longer codes into max_bits, then lengthen the
+     * shortest codes below it until the Kraft sum is exact again */
+    unsigned count[33] = {0};
+    for (int i = 0; i < used; i++) count[w[i] < 32 ? w[i] : 32]++;
+    for (unsigned l = max_bits + 1; l <= 32; l++) count[max_bits] += count[l], count[l] = 0;
+    uint32_t total = 0;
+    for (unsigned l = 1; l <= max_bits; l++) total += count[l] << (max_bits - l);
+    while (total != 1u << max_bits) {
+        count[max_bits]--;
+        for (unsigned l = max_bits - 1; l > 0; l--)
+            if (count[l]) {
+                count[l]--;
+                count[l + 1] += 2;
+                break;
+            }
+        total--;
+    }
+    memset(bits, 0, (size_t)n);
+    int j = used; /* the most frequent symbols get the shortest codes */
+    for (unsigned l = 1; l <= max_bits; l++)
+        for (unsigned k = count[l]; k > 0; k--) bits[sym[--j]] = (uint8_t)l;
+    uint32_t next[MAX_BITS + 2] = {0}, c = 0;
+    unsigned bl_count[MAX_BITS + 2] = {0};
+    for (int s = 0; s < n; s++) bl_count[bits[s]]++;
+    bl_count[0] = 0;
+    for (unsigned l = 1; l <= max_bits; l++) {
+        c = (c + bl_count[l - 1]) << 1;
+        next[l] = c;
+    }
+    for (int s = 0; s < n; s++)
+        code[s] = bits[s] ? reverse(next[bits[s]]++, bits[s]) : 0;
+}
+
+/* ---- bits out ---- */
+
+typedef struct {
+    uint8_t *p, *end;
+    uint64_t acc;
+    unsigned n;
+    int full;
+} bitw;
+
+static inline void put(bitw *w, uint32_t v, unsigned len)
+{
+    w->acc |= (uint64_t)v << w->n;
+    w->n += len;
+    if (w->n >= 32) {
+        if (w->end - w->p < 4) {
+            w->full = 1;
+            w->n = 0;
+            return;
+        }
+        uint32_t lo = (uint32_t)w->acc;
+        vod_put32(w->p, lo);
+        w->p += 4;
+        w->acc >>= 32;
+        w->n -= 32;
+    }
+}
+
+static void put_flush(bitw *w)
+{
+    while (w->n > 0) {
+        if (w->p == w->end) {
+            w->full = 1;
+            return;
+        }
+        *w->p++ = (uint8_t)w->acc;
+        w->acc >>= 8;
+        w->n = w->n > 8 ? w->n - 8 : 0;
+    }
+}
+
+/* ---- tokens ---- */
+
+typedef struct {
+    vod_sparse *z;
+    size_t nt;
+    uint32_t a, b; /* Adler-32 */
+} tokens;
+
+static inline void lit(tokens *t, uint8_t c)
+{
+    t->z->tok[t->nt++] = c;
+    t->z->freq_l[c]++;
+    t->a += c;
+    if (t->a >= ADLER_MOD) t->a -= ADLER_MOD;
+    t->b += t->a;
+    if (t->b >= ADLER_MOD) t->b -= ADLER_MOD;
+}
+
+static inline void match(tokens *t, unsigned len, unsigned dist)
+{
+    t->z->tok[t->nt++] = MATCH | len << 15 | (dist - 1);
+    t->z->freq_l[257 + t->z->len_sym[len]]++;
+    t->z->freq_d[t->z->dist_sym[dist - 1]]++;
+}
+
+/* The Adler-32 of bytes that a match copied. */
+static void adler_bytes(tokens *t, const uint8_t *p, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        t->a += p[i];
+        if (t->a >= ADLER_MOD) t->a -= ADLER_MOD;
+        t->b += t->a;
+        if (t->b >= ADLER_MOD) t->b -= ADLER_MOD;
+    }
+}
+
+/* k zeros after a zero byte: matches at distance 1 (the last one at
+ * least 3 long), 1 or 2 left over as literals. */
+static void zero_run(tokens *t, size_t k)
+{
+    t->b = (uint32_t)((t->b + (uint64_t)(k % ADLER_MOD) * t->a) % ADLER_MOD);
+    while (k >= 3) {
+        size_t m = k < MAX_MATCH ? k : MAX_MATCH;
+        if (k - m > 0 && k - m < 3) m = k - 3;
+        match(t, (unsigned)m, 1);
+        k -= m;
+    }
+    while (k--) {
+        t->z->tok[t->nt++] = 0;
+        t->z->freq_l[0]++;
+    }
+}
+
+static inline uint64_t load64(const uint8_t *p)
+{
+    uint64_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+static inline uint32_t load32(const uint8_t *p)
+{
+    uint32_t v;
+    memcpy(&v, p, sizeof v);
+    return v;
+}
+
+/* Bit i of mask: voxel i of raw (nv voxels) is not 0. */
+static void nonzero_mask(const uint8_t *raw, size_t nv, uint64_t *mask)
+{
+    size_t i = 0;
+    memset(mask, 0, (nv + 63) / 64 * sizeof *mask);
+#ifdef __SSE2__
+    const __m128i zero = _mm_setzero_si128();
+    for (; nv - i >= 16; i += 16) {
+        const __m128i *v = (const __m128i *)(raw + 4 * i);
+        __m128i e0 = _mm_cmpeq_epi32(_mm_loadu_si128(v), zero);
+        __m128i e1 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 1), zero);
+        __m128i e2 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 2), zero);
+        __m128i e3 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 3), zero);
+        __m128i e = _mm_packs_epi16(_mm_packs_epi32(e0, e1), _mm_packs_epi32(e2, e3));
+        uint64_t zeros = (uint64_t)(unsigned)_mm_movemask_epi8(e);
+        mask[i / 64] |= (~zeros & 0xffffu) << (i % 64);
+    }
+#endif
+    for (; i < nv; i++)
+        if (load32(raw + 4 * i)) mask[i / 64] |= 1ull << (i % 64);
+}
+
+/* The first voxel from i on that is not 0, or nv. */
+static size_t next_nonzero(const uint64_t *mask, size_t i, size_t nv)
+{
+    size_t w = i / 64;
+    uint64_t m = mask[w] >> (i % 64);
+    if (m) return i + (size_t)__builtin_ctzll(m);
+    for (w++; w * 64 < nv; w++)
+        if (mask[w]) return w * 64 + (size_t)__builtin_ctzll(mask[w]);
+    return nv;
+}
+
+/* Bytes equal at q and p, p > q, at most max. */
+static size_t match_len(const uint8_t *raw, size_t q, size_t p, size_t max)
+{
+    size_t l = 0;
+    while (max - l >= 8) {
+        uint64_t x = load64(raw + q + l) ^ load64(raw + p + l);
+        if (x) return l + (size_t)(__builtin_ctzll(x) >> 3);
+        l += 8;
+    }
+    while (l < max && raw[q + l] == raw[p + l]) l++;
+    return l;
+}
+
+static inline uint32_t hash_voxel(uint32_t v)
+{
+    return (v * 2654435761u) >> (32 - HASH_BITS);
+}
+
+/* The longest match at voxel-aligned p among the candidates. */
+static size_t best_match(const vod_sparse *z, const uint8_t *raw, size_t p, size_t n,
+                         uint32_t h, size_t *dist)
+{
+    size_t max = n - p < MAX_MATCH ? n - p : MAX_MATCH, best = 0;
+    size_t cand[3] = {z->head[h] ? z->head[h] - 1 : p, p >= z->row ? p - z->row : p,
+                      p >= z->slice ? p - z->slice : p};
+    for (int i = 0; i < 3; i++) {
+        size_t q = cand[i];
+        if (q >= p || p - q > WINDOW) continue;
+        size_t l = match_len(raw, q, p, max);
+        if (l > best) best = l, *dist = p - q;
+    }
+    return best;
+}
+
+/* Literals and matches for raw (n bytes, whole voxels), their frequencies,
+ * its Adler-32.  Every token starts at a voxel: a match is cut to whole
+ * voxels. */
+static void tokenize(tokens *t, const uint8_t *raw, size_t n)
+{
+    vod_sparse *z = t->z;
+    size_t nv = n / 4, i = 0;
+    nonzero_mask(raw, nv, z->mask);
+    memset(z->head, 0, sizeof z->head);
+    while (i < nv) {
+        size_t p = 4 * i;
+        if (!(z->mask[i / 64] >> (i % 64) & 1u)) {
+            size_t j = next_nonzero(z->mask, i, nv), k = 4 * (j - i);
+            if (p == 0 || raw[p - 1] != 0) {
+                lit(t, 0);
+                k--;
+            }
+            zero_run(t, k);
+            i = j;
+            continue;
+        }
+        uint32_t h = hash_voxel(load32(raw + p));
+        size_t dist = 0, l = best_match(z, raw, p, n, h, &dist) & ~(size_t)3;
+        z->head[h] = (uint32_t)p + 1;
+        if (l >= MIN_MATCH) {
+            match(t, (unsigned)l, (unsigned)dist);
+            adler_bytes(t, raw + p, l);
+            i += l / 4;
+            continue;
+        }
+        for (int b = 0; b < 4; b++) lit(t, raw[p + b]);
+        i++;
+    }
+    z->tok[t->nt++] = 256;
+    z->freq_l[256]++;
+}
+
+/* ---- the block ---- */
+
+/* The code lengths of both codes, run-length coded (RFC 1951 3.2.7):
+ * symbols in sym (with their extra bits above bit 8), frequencies in f. */
+static size_t rle_lengths(const uint8_t *len, size_t n, uint32_t *sym, uint32_t *f)
+{
+    size_t k = 0;
+    for (size_t i = 0; i < n;) {
+        uint8_t v = len[i];
+        size_t r = 1;
+        while (i + r < n && len[i + r] == v) r++;
+        i += r;
+        if (v == 0) {
+            while (r >= 11) {
+                size_t m = r < 138 ? r : 138;
+                sym[k++] = 18 | (uint32_t)(m - 11) << 8, f[18]++, r -= m;
+            }
+            if (r >= 3) sym[k++] = 17 | (uint32_t)(r - 3) << 8, f[17]++, r = 0;
+        } else {
+            sym[k++] = v, f[v]++, r--;
+            while (r >= 3) {
+                size_t m = r < 6 ? r : 6;
+                sym[k++] = 16 | (uint32_t)(m - 3) << 8, f[16]++, r -= m;
+            }
+        }
+        while (r--) sym[k++] = v, f[v]++;
+    }
+    return k;
+}
+
+static void put_header(vod_sparse *z, bitw *w)
+{
+    int hlit = 286, hdist = DIST_SYMS;
+    while (hlit > 257 && !z->bits_l[hlit - 1]) hlit--;
+    while (hdist > 1 && !z->bits_d[hdist - 1]) hdist--;
+    uint8_t lens[286 + DIST_SYMS];
+    memcpy(lens, z->bits_l, (size_t)hlit);
+    memcpy(lens + hlit, z->bits_d, (size_t)hdist);
+    uint32_t sym[286 + DIST_SYMS], f[CL_SYMS] = {0};
+    size_t k = rle_lengths(lens, (size_t)(hlit + hdist), sym, f);
+    uint8_t cb[CL_SYMS];
+    uint16_t cc[CL_SYMS];
+    build_code(f, CL_SYMS, 7, cb, cc);
+    int hclen = CL_SYMS;
+    while (hclen > 4 && !cb[cl_order[hclen - 1]]) hclen--;
+    put(w, 1, 1); /* BFINAL */
+    put(w, 2, 2); /* dynamic Huffman codes */
+    put(w, (uint32_t)(hlit - 257), 5);
+    put(w, (uint32_t)(hdist - 1), 5);
+    put(w, (uint32_t)(hclen - 4), 4);
+    for (int i = 0; i < hclen; i++) put(w, cb[cl_order[i]], 3);
+    static const uint8_t extra[3] = {2, 3, 7};
+    for (size_t i = 0; i < k; i++) {
+        uint32_t s = sym[i] & 0xffu;
+        put(w, cc[s], cb[s]);
+        if (s >= 16) put(w, sym[i] >> 8, extra[s - 16]);
+    }
+}
+
+static void put_tokens(const vod_sparse *z, const tokens *t, bitw *w)
+{
+    for (size_t i = 0; i < t->nt && !w->full; i++) {
+        uint32_t k = z->tok[i];
+        if (!(k & MATCH)) {
+            put(w, z->code_l[k], z->bits_l[k]);
+            continue;
+        }
+        unsigned len = (k >> 15) & 0x1ffu, d = (k & 0x7fffu) + 1;
+        unsigned ls = z->len_sym[len], ds = z->dist_sym[d - 1];
+        put(w, z->code_l[257 + ls], z->bits_l[257 + ls]);
+        put(w, len - len_base[ls], len_extra[ls]);
+        put(w, z->code_d[ds], z->bits_d[ds]);
+        put(w, d - dist_base[ds], dist_extra[ds]);
+    }
+}
+
+size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t *out,
+                           size_t cap)
+{
+    if (n > z->cap || n % 4 || cap < 6) return 0;
+    memset(z->freq_l, 0, sizeof z->freq_l);
+    memset(z->freq_d, 0, sizeof z->freq_d);
+    tokens t = {.z = z, .a = 1};
+    tokenize(&t, raw, n);
+    build_code(z->freq_l, 286, MAX_BITS, z->bits_l, z->code_l);
+    build_code(z->freq_d, DIST_SYMS, MAX_BITS, z->bits_d, z->code_d);
+    out[0] = 0x78; /* deflate, 32 KiB window */
+    out[1] = 0x5e; /* "fast" level; (0x78 * 256 + 0x5e) % 31 == 0 */
+    bitw w = {.p = out + 2, .end = out + cap - 4};
+    put_header(z, &w);
+    put_tokens(z, &t, &w);
+    put_flush(&w);
+    if (w.full) return 0;
+    uint32_t adler = t.b << 16 | t.a;
+    for (int i = 0; i < 4; i++) w.p[i] = (uint8_t)(adler >> (24 - 8 * i));
+    return (size_t)(w.p + 4 - out);
+}
