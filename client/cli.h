@@ -37,7 +37,7 @@ typedef struct {
     uint32_t res;
     const char *res_arg;       /* --res as written, for messages */
     uint32_t workers, shm_mib;
-    int engine_opts;           /* -w, --cpus or --shm-size was given */
+    int engine_opts;           /* -w, --cpus, --shm-size or --compress-level given */
     engine_schedule schedule;
     vod_params vod;            /* channel, brick, comp, hash */
     int progress, quiet;

@@ -38,6 +38,8 @@ static const char usage_voxelize[] =
     "  -w, --workers N        worker processes, 0 = serial in-process (default: cores)\n"
     "      --cpus LIST        CPUs to pin workers to, e.g. 0,1 or 0-3 (default: automatic)\n"
     OUTPUT_OPTIONS
+    "      --compress-level N zlib level 1..12 (default 6): 1..6 voxd's one-pass encoder\n"
+    "                         for 32-bit bricks (libdeflate's for others), 7..12 libdeflate's\n"
     "      --shm-size MIB     shared memory for the engine (default 2048)\n"
     SHOW_OPTIONS
     "      --embedded         run the embedded engine even when voxd answers\n"
@@ -46,9 +48,10 @@ static const char usage_voxelize[] =
     "The job runs on the voxd daemon when one answers on the socket (see vox --help),\n"
     "else on the engine embedded in vox; a daemon that is busy or stopping also leaves\n"
     "the job to the embedded engine.\n"
-    "-w, --cpus and --shm-size belong to the embedded engine and select it.  The file\n"
-    "is the same either way.  Exit status: 0 done, 1 the job failed, 2 bad usage or a\n"
-    "bad expression, 3 --daemon and no voxd answering.\n";
+    "-w, --cpus, --shm-size and --compress-level belong to the embedded engine and\n"
+    "select it (voxd writes at level 6).  The file is the same either way.  Exit\n"
+    "status: 0 done, 1 the job failed, 2 bad usage or a bad expression, 3 --daemon\n"
+    "and no voxd answering.\n";
 
 static const char usage_submit[] =
     "usage: vox [--socket PATH] submit (--expr EXPR | --file FILE.vx) -o OUT.vod [options]\n"
@@ -56,6 +59,8 @@ static const char usage_submit[] =
     "  -r, --res N            voxels along the longest axis, 1..the daemon's max_res\n"
     "                         (default 256)\n"
     OUTPUT_OPTIONS
+    "      --compress-level N 6 only: voxd writes zlib at level 6, as vox voxelize does\n"
+    "                         by default (the protocol carries no level)\n"
     SHOW_OPTIONS
     "\n"
     "Runs the job on the voxd daemon at the socket (see vox --help) and writes the\n"
@@ -118,6 +123,27 @@ static int parse_vod_option(int c, const char *arg, vod_params *v)
     return -1;
 }
 
+/* --compress-level: 1..VOD_ZLIB_LEVEL_MAX for vox voxelize; submit takes
+ * only the level voxd writes at, there being no level in the protocol. */
+static int parse_level(int submit, const char *arg, vod_params *v)
+{
+    uint32_t u;
+    vod_params d;
+    vod_params_default(&d);
+    if (cli_parse_uint(arg, 1, VOD_ZLIB_LEVEL_MAX, &u)) {
+        cli_error("bad --compress-level '%s': want 1..%d", arg, VOD_ZLIB_LEVEL_MAX);
+        return -1;
+    }
+    if (submit && (int)u != d.zlib_level) {
+        cli_error("bad --compress-level %u: voxd writes at level %d (the protocol carries "
+                  "no level); use vox voxelize --embedded --compress-level %u",
+                  u, d.zlib_level, u);
+        return -1;
+    }
+    v->zlib_level = (int)u;
+    return 0;
+}
+
 int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
 {
     /* The embedded engine's options and the mode switches are voxelize's. */
@@ -127,14 +153,14 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"cpus", 1, 0, 'P'}, {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
         {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
         {"shm-size", 1, 0, 'M'}, {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'},
-        {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'},
+        {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {"compress-level", 1, 0, 'L'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     static const struct option longs_submit[] = {
         {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
         {"domain", 1, 0, 'd'}, {"res", 1, 0, 'r'},
         {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
         {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
-        {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'},
+        {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int submit = cmd == CLI_CMD_SUBMIT;
     const char *name = submit ? "submit" : "voxelize";
@@ -187,6 +213,10 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
             }
             o->engine_opts = 1;
             break;
+        case 'L':
+            if (parse_level(submit, optarg, &o->vod)) return CLI_EXIT_USAGE;
+            o->engine_opts |= !submit;
+            break;
         case 'p': o->progress = 1; break;
         case 'q': o->quiet = 1; break;
         case 'E': case 'D': {
@@ -223,7 +253,8 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         return CLI_EXIT_USAGE;
     }
     if (o->mode == CLI_MODE_DAEMON && o->engine_opts) {
-        cli_error("-w, --cpus and --shm-size are the embedded engine's: not with --daemon");
+        cli_error("-w, --cpus, --shm-size and --compress-level are the embedded engine's: "
+                  "not with --daemon");
         return CLI_EXIT_USAGE;
     }
     return 0;

@@ -63,6 +63,7 @@ static inline grid_octant implicit_octant(const shm_task *t)
 
 enum encode_op {
     ENCODE_BRICKS = 1,     /* encode brick nodes until none is left */
+    ENCODE_AGGREGATE = 2,  /* the mip levels of subtrees until none is left */
 };
 
 typedef struct {
@@ -73,9 +74,17 @@ typedef struct {
     uint64_t cells_off, agg_off, nodes_off, recs_off, offs_off;
     uint64_t n;            /* brick nodes */
     uint64_t brick_off, brick_cap;
+    /* The aggregate's first phase: the subtrees of the cells of height
+     * root_height (u32 cell each at roots_off), each one's byte at
+     * roots_done_off set to 1 by the worker that finished it (published
+     * by its done_seq release); the master does the rest. */
+    uint64_t roots_off, roots_done_off, nroots;
+    int32_t root_height;
     /* Next node index to encode: workers fetch_add chunks (relaxed: the
      * node array was published by the task_seq release). */
     _Alignas(64) atomic_ullong next;
+    /* Next subtree to aggregate, the same way. */
+    _Alignas(64) atomic_ullong agg_next;
     /* Bump allocator in the brick area: workers fetch_add their encoded
      * size (relaxed: the bytes and record are published by done_seq). */
     _Alignas(64) atomic_ullong bump;

@@ -1,9 +1,14 @@
 /* The encode kind's master side: the last implicit job's octree written as
- * VOD, its bricks encoded by every worker in parallel into the segment.
- * The block and its arrays are laid out behind the octree's used cells:
- * the aggregate (u32 per cell), the brick nodes, their encoded records and
- * offsets, then the brick bytes.  A worker's death or failure costs
- * nothing but time: the bricks it left unrecorded are encoded here.
+ * VOD, its mip levels and its bricks made by every worker in parallel in
+ * the segment.  The block and its arrays are laid out behind the octree's
+ * used cells: the aggregate (u32 per cell), the aggregate's subtree roots
+ * and their done bytes, the brick nodes, their encoded records and
+ * offsets, then the brick bytes.  Two phases: the workers aggregate the
+ * subtrees below the cells AGG_SPLIT levels under the root while the
+ * master waits, then (when the last of those tasks is done) the master
+ * aggregates the cells above them and hands out the bricks.  A worker's
+ * death or failure costs nothing but time: the subtrees and the bricks it
+ * left undone are done here.
  * The stage times (vod_times) are the sum of the master's (planning,
  * what it encodes, assembling) and the workers'. */
 #include <errno.h>
@@ -21,7 +26,10 @@ typedef struct {
     vod_stats *st;
     engine_error *err;
     vod_times t;   /* the master's fill, hash and compress */
+    int agg_left;  /* aggregate tasks not done yet */
 } encode_job;
+
+#define AGG_SPLIT 3 /* the aggregate's subtrees: up to 8^3 of them */
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
 
@@ -37,8 +45,56 @@ static encode_block *block(engine *e)
     return shm_at(e->seg.base, e->h->job_off);
 }
 
-/* Lay the block and its arrays out behind the used cells and push one
- * task per worker. */
+/* One task of op per live worker; how many in *pushed. */
+static int push_all(engine *e, uint32_t op, int *pushed)
+{
+    shm_task t = {.kind = SHM_KIND_ENCODE, .op = op};
+    int rc = 0;
+    *pushed = 0;
+    for (int i = 0; i < e->n && !rc; i++)
+        if (e->ms[i].pid > 0 && !(rc = sched_push(e, &t))) ++*pushed;
+    return rc;
+}
+
+/* The aggregate's second phase, here: the subtrees no worker finished,
+ * the cells above them; then the bricks are handed out. */
+static int aggregate_rest(engine *e, encode_job *ej)
+{
+    encode_block *b = block(e);
+    const uint32_t *roots = shm_at(e->seg.base, b->roots_off);
+    const uint8_t *done = shm_at(e->seg.base, b->roots_done_off);
+    double t0 = now_s();
+    for (uint64_t i = 0; i < b->nroots; i++)
+        if (!done[i])
+            vod_aggregate_subtree(&e->tree, roots[i], b->root_height, ej->p->channel);
+    if (b->nroots) vod_aggregate_top(&e->tree, b->root_height, ej->p->channel);
+    else vod_aggregate(&e->tree, ej->p->channel);
+    ej->t.fill += now_s() - t0;
+    int pushed;
+    return push_all(e, ENCODE_BRICKS, &pushed);
+}
+
+/* The block's fields; the counters start at 0 (relaxed: published to the
+ * workers by the task_seq release). */
+static void block_init(engine *e, encode_job *ej, encode_block *b)
+{
+    b->L = ej->L;
+    b->p = *ej->p;
+    b->p.metadata = NULL;
+    b->cells_used = e->tree.used;
+    b->depth = e->tree.depth;
+    atomic_store_explicit(&b->next, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->agg_next, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->error, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->ns_fill, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->ns_hash, 0, memory_order_relaxed);
+    atomic_store_explicit(&b->ns_compress, 0, memory_order_relaxed);
+}
+
+/* Lay the block and its arrays out behind the used cells, list the brick
+ * nodes and the aggregate's subtrees, and push one aggregate task per
+ * worker (none: the master does it all and hands out the bricks). */
 static int encode_setup(engine *e, void *job)
 {
     encode_job *ej = job;
@@ -47,12 +103,14 @@ static int encode_setup(engine *e, void *job)
     uint64_t cells_off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
     uint64_t boff = align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
     uint64_t agg = align64(boff + sizeof(encode_block));
-    uint64_t nodes = align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
+    uint64_t roots = align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
+    int hr = e->tree.depth - 1 - AGG_SPLIT;
+    uint64_t nroots = hr >= 0 ? vod_aggregate_roots(&e->tree, hr, NULL, 0) : 0;
+    uint64_t nodes = align64(roots + nroots * (sizeof(uint32_t) + 1));
     if (nodes > end) goto full;
     encode_block *b = shm_at(e->seg.base, boff);
     double t0 = now_s();
     e->tree.agg = shm_at(e->seg.base, agg);
-    vod_aggregate(&e->tree, ej->p->channel);
     vod_source src = vod_octree_source(&e->tree);
     uint64_t n = vod_collect(&src, &ej->L, NULL, 0);
     b->recs_off = align64(nodes + n * sizeof(vod_node));
@@ -60,31 +118,24 @@ static int encode_setup(engine *e, void *job)
     b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
     if (b->brick_off > end) goto full;
     vod_collect(&src, &ej->L, shm_at(e->seg.base, nodes), n);
+    vod_aggregate_roots(&e->tree, hr, shm_at(e->seg.base, roots), nroots);
     ej->t.fill += now_s() - t0;
+    memset(shm_at(e->seg.base, roots + nroots * sizeof(uint32_t)), 0, nroots);
     memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
-    b->L = ej->L;
-    b->p = *ej->p;
-    b->p.metadata = NULL;
-    b->cells_used = e->tree.used;
-    b->depth = e->tree.depth;
+    block_init(e, ej, b);
     b->cells_off = cells_off;
     b->agg_off = agg;
+    b->roots_off = roots;
+    b->roots_done_off = roots + nroots * sizeof(uint32_t);
+    b->nroots = nroots;
+    b->root_height = hr;
     b->nodes_off = nodes;
     b->n = n;
     b->brick_cap = end - b->brick_off;
-    /* relaxed: published to the workers by the task_seq release */
-    atomic_store_explicit(&b->next, 0, memory_order_relaxed);
-    atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
-    atomic_store_explicit(&b->error, 0, memory_order_relaxed);
-    atomic_store_explicit(&b->ns_fill, 0, memory_order_relaxed);
-    atomic_store_explicit(&b->ns_hash, 0, memory_order_relaxed);
-    atomic_store_explicit(&b->ns_compress, 0, memory_order_relaxed);
     h->job_off = boff;
     h->job_bytes = sizeof *b;
-    shm_task t = {.kind = SHM_KIND_ENCODE, .op = ENCODE_BRICKS};
-    int rc = 0;
-    for (int i = 0; i < e->n && !rc; i++)
-        if (e->ms[i].pid > 0) rc = sched_push(e, &t);
+    int rc = nroots ? push_all(e, ENCODE_AGGREGATE, &ej->agg_left) : 0;
+    if (!rc && !ej->agg_left) rc = aggregate_rest(e, ej);
     return rc;
 full:
     return sched_fail(e, ENGINE_LIMIT, -ENOSPC,
@@ -99,11 +150,15 @@ static int encode_take(engine *e, int i, const shm_entry *en)
                       en->type);
 }
 
-/* A worker's failure leaves its bricks unrecorded: encode_gather()
- * encodes them here, so it needs no other handling. */
+/* A worker's failure leaves its subtrees or bricks undone, which
+ * aggregate_rest() and encode_gather() do here, so it needs no other
+ * handling.  The last aggregate task done starts the second phase. */
 static void encode_done(engine *e, int i, const shm_task *t, int error)
 {
-    (void)e, (void)i, (void)t, (void)error;
+    encode_job *ej = e->job;
+    (void)i, (void)error;
+    if (t->op != ENCODE_AGGREGATE || --ej->agg_left > 0 || e->err.failure) return;
+    aggregate_rest(e, ej);
 }
 
 static int encode_rerun(engine *e, int i, const shm_task *t)
@@ -114,8 +169,7 @@ static int encode_rerun(engine *e, int i, const shm_task *t)
 
 static void encode_describe(const shm_task *t, char *buf, size_t len)
 {
-    (void)t;
-    snprintf(buf, len, "brick encoding");
+    snprintf(buf, len, t->op == ENCODE_AGGREGATE ? "the mip levels" : "brick encoding");
 }
 
 /* The records come from other processes: a missing (a worker died, or

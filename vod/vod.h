@@ -183,6 +183,15 @@ int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
  * level's brick can be read off the tree: a level-l voxel (l >= 1) is agg of
  * the cell of height l-1 covering it.  O(cells), recursive to depth. */
 void vod_aggregate(octree *t, int channel);
+/* vod_aggregate in parts, for processes that share the work: the cells of
+ * height h in preorder (into out, up to cap; returns how many there are,
+ * out NULL to count), the aggregates of one of them and its subtree (any
+ * process, subtrees in any order: each writes its own cells' agg only),
+ * then those of the cells above height h from their children's.  The
+ * result is vod_aggregate's. */
+size_t vod_aggregate_roots(const octree *t, int h, uint32_t *out, size_t cap);
+void vod_aggregate_subtree(octree *t, uint32_t c, int h, int channel);
+void vod_aggregate_top(octree *t, int h, int channel);
 /* Phase 1.  Write the non-empty brick nodes in preorder to out (up to cap);
  * returns how many there are (call with out = NULL to count).  Asks the
  * source's region() about the root and the 8 children of each non-empty

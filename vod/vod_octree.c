@@ -73,9 +73,54 @@ void vod_aggregate(octree *t, int channel)
 {
     if (!t->agg || t->used < 2) return;
     t->agg[0] = 0;
+    vod_aggregate_subtree(t, 1, t->depth - 1, channel);
+}
+
+void vod_aggregate_subtree(octree *t, uint32_t c, int h, int channel)
+{
     /* constant channels: the compiler specializes the recursion for each */
-    if (channel == VOXEL_CH_SURFACE) agg_cell(t, 1, t->depth - 1, VOXEL_CH_SURFACE);
-    else agg_cell(t, 1, t->depth - 1, VOXEL_CH_OCCUPANCY);
+    if (channel == VOXEL_CH_SURFACE) agg_cell(t, c, h, VOXEL_CH_SURFACE);
+    else agg_cell(t, c, h, VOXEL_CH_OCCUPANCY);
+}
+
+static void roots_below(const octree *t, uint32_t c, int hc, int h, uint32_t *out,
+                        size_t cap, size_t *n)
+{
+    if (hc == h) {
+        if (*n < cap) out[*n] = c;
+        ++*n;
+        return;
+    }
+    for (int i = 0; i < 8; i++)
+        if (t->cells[c].child[i]) roots_below(t, t->cells[c].child[i], hc - 1, h, out, cap, n);
+}
+
+size_t vod_aggregate_roots(const octree *t, int h, uint32_t *out, size_t cap)
+{
+    size_t n = 0;
+    if (t->used < 2 || h < 0 || h > t->depth - 1) return 0;
+    roots_below(t, 1, t->depth - 1, h, out, out ? cap : 0, &n);
+    return n;
+}
+
+/* Cells above height h, from their children's aggregates. */
+static void agg_top(octree *t, uint32_t c, int hc, int h, int channel)
+{
+    if (hc == h) return;
+    uint32_t v[8];
+    for (int i = 0; i < 8; i++) {
+        uint32_t e = t->cells[c].child[i];
+        if (e) agg_top(t, e, hc - 1, h, channel);
+        v[i] = e ? t->agg[e] : 0;
+    }
+    t->agg[c] = vod_downsample(channel, v);
+}
+
+void vod_aggregate_top(octree *t, int h, int channel)
+{
+    if (!t->agg || t->used < 2) return;
+    t->agg[0] = 0;
+    agg_top(t, 1, t->depth - 1, h, channel);
 }
 
 static int octree_prepare(vod_source *s, const vod_layout *L, int channel)

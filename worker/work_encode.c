@@ -1,11 +1,12 @@
-/* The encode kind's worker side: VOD bricks of the last job's octree,
- * encoded into the shared brick area.  Workers claim nodes in chunks from
+/* The encode kind's worker side: the mip levels of subtrees of the last
+ * job's octree, then its VOD bricks encoded into the shared brick area.  Workers claim nodes in chunks from
  * the block's counter, so they share the work whatever its shape.  Each
  * worker's encoder finds the duplicates among the bricks it encodes before
  * compressing them: a duplicate's record points at its first's bytes. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "work.h"
 
@@ -106,13 +107,40 @@ static void add_ns(atomic_ullong *to, double seconds)
                               memory_order_relaxed);
 }
 
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+/* The mip levels of the subtrees this worker claims; each one's done byte
+ * set when it is complete. */
+static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
+{
+    const uint32_t *roots = shm_at(w->base, b->roots_off);
+    uint8_t *done = shm_at(w->base, b->roots_done_off);
+    double t0 = now_s();
+    for (;;) {
+        /* relaxed: a counter that hands out disjoint subtrees */
+        uint64_t i = atomic_fetch_add_explicit(&b->agg_next, 1, memory_order_relaxed);
+        if (i >= b->nroots) break;
+        if (roots[i] == 0 || roots[i] >= b->cells_used) return -EINVAL;
+        vod_aggregate_subtree(tree, roots[i], b->root_height, b->p.channel);
+        done[i] = 1;
+    }
+    add_ns(&b->ns_fill, now_s() - t0);
+    return 0;
+}
+
 static int encode_run(work_ctx *w, void *state, const shm_task *t)
 {
     encode_block *b = shm_at(w->base, w->h->job_off);
-    if (t->op != ENCODE_BRICKS) return -EINVAL;
     octree tree;
     octree_view(&tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
     tree.agg = shm_at(w->base, b->agg_off);
+    if (t->op == ENCODE_AGGREGATE) return aggregate_run(w, b, &tree);
+    if (t->op != ENCODE_BRICKS) return -EINVAL;
     vod_source src = vod_octree_source(&tree);
     vod_encoder *enc;
     int rc = vod_encoder_new(&b->L, &b->p, &enc);

@@ -997,6 +997,46 @@ static void make_brick(uint8_t *raw, uint32_t brick, int kind)
     }
 }
 
+/* The aggregate in parts, as the engine's processes share it: the
+ * subtrees of every split height in reverse order, some twice (a worker
+ * that died after writing part of one, done again by the master), then
+ * the cells above: vod_aggregate's values for every cell. */
+Test(vod_encoder, aggregate_in_parts_is_the_whole)
+{
+    fixture f;
+    fx_init(&f, 6, 64, 60, 50);
+    fx_random(&f, 3000);
+    fx_sphere(&f, 30, 31, 24, 20);
+    for (int ch = 0; ch < 2; ch++) {
+        int channel = ch ? VOXEL_CH_OCCUPANCY : VOXEL_CH_SURFACE;
+        uint32_t *whole = calloc(f.t.used, sizeof *whole);
+        uint32_t *parts = calloc(f.t.used, sizeof *parts);
+        f.t.agg = whole;
+        vod_aggregate(&f.t, channel);
+        for (int h = 0; h < f.t.depth; h++) {
+            size_t n = vod_aggregate_roots(&f.t, h, NULL, 0);
+            cr_assert_gt(n, 0);
+            uint32_t *roots = malloc(n * sizeof *roots);
+            cr_assert_eq(vod_aggregate_roots(&f.t, h, roots, n), n);
+            memset(parts, 0xab, f.t.used * sizeof *parts);
+            f.t.agg = parts;
+            for (size_t i = n; i-- > 0;) {
+                vod_aggregate_subtree(&f.t, roots[i], h, channel);
+                if (i % 3 == 0) vod_aggregate_subtree(&f.t, roots[i], h, channel);
+            }
+            vod_aggregate_top(&f.t, h, channel);
+            cr_assert_arr_eq(parts + 1, whole + 1, (f.t.used - 1) * sizeof *parts,
+                             "split at height %d, channel %d", h, channel);
+            free(roots);
+        }
+        cr_assert_eq(vod_aggregate_roots(&f.t, f.t.depth, NULL, 0), 0);
+        cr_assert_eq(vod_aggregate_roots(&f.t, f.t.depth - 1, NULL, 0), 1, "the root");
+        f.t.agg = NULL;
+        free(whole), free(parts);
+    }
+    fx_free(&f);
+}
+
 Test(vod_encoder, one_pass_streams_inflate_to_the_brick)
 {
     for (uint32_t brick = 2; brick <= 32; brick *= 2) {
