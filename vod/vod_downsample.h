@@ -10,6 +10,28 @@
 
 #include "voxel.h"
 
+extern const double vod_oct_unit[4096];
+
+/* voxel_unpack_normal, operation for operation on the same doubles, so bit
+ * for bit (test_vod compares them), but for its first two divisions: the
+ * 4096 values of a 12-bit coordinate are a table (vod_downsample.c). */
+static inline void vod_unpack_normal(uint32_t packed, double n[3])
+{
+    double u = vod_oct_unit[(packed >> 8) & 0xfffu];
+    double v = vod_oct_unit[(packed >> 20) & 0xfffu];
+    double z = 1.0 - fabs(u) - fabs(v);
+    if (z < 0.0) {
+        double fu = (1.0 - fabs(v)) * (u < 0.0 ? -1.0 : 1.0);
+        double fv = (1.0 - fabs(u)) * (v < 0.0 ? -1.0 : 1.0);
+        u = fu;
+        v = fv;
+    }
+    double len = sqrt(u * u + v * v + z * z);
+    n[0] = u / len;
+    n[1] = v / len;
+    n[2] = z / len;
+}
+
 /* Channel 3: occupancy is the mean rounded half up, the normal the
  * normalized sum of the normals of the occupied children; 0 (no voxel)
  * where the occupancy rounds to 0. */
@@ -21,7 +43,7 @@ static inline uint32_t vod_down_surface(const uint32_t v[8])
         uint32_t occ = voxel_occupancy(v[i]);
         if (!occ) continue;
         double m[3];
-        voxel_unpack_normal(v[i], m);
+        vod_unpack_normal(v[i], m);
         sum += occ;
         for (int a = 0; a < 3; a++) n[a] += m[a];
     }
@@ -35,7 +57,8 @@ static inline uint32_t vod_down_surface(const uint32_t v[8])
 
 /* Channel 1: 1 iff any child is non-zero (for voxel values at level 0 as
  * for 0/1 above); channel 2: the mean rounded half up; channel 3: above. */
-static inline uint32_t vod_downsample(int channel, const uint32_t v[8])
+__attribute__((always_inline)) static inline uint32_t vod_downsample(int channel,
+                                                                   const uint32_t v[8])
 {
     if (channel == VOXEL_CH_SURFACE) return vod_down_surface(v);
     if (channel == VOXEL_CH_DENSITY)

@@ -120,7 +120,8 @@ void vod_aggregate_top(octree *t, int h, int channel)
 {
     if (!t->agg || t->used < 2) return;
     t->agg[0] = 0;
-    agg_top(t, 1, t->depth - 1, h, channel);
+    if (channel == VOXEL_CH_SURFACE) agg_top(t, 1, t->depth - 1, h, VOXEL_CH_SURFACE);
+    else agg_top(t, 1, t->depth - 1, h, VOXEL_CH_OCCUPANCY);
 }
 
 static int octree_prepare(vod_source *s, const vod_layout *L, int channel)

@@ -17,6 +17,7 @@
 
 #include "octree.h"
 #include "vod.h"
+#include "vod_downsample.h"
 #include "vod_volume.h"
 #include "voxel.h"
 
@@ -1035,6 +1036,23 @@ Test(vod_encoder, aggregate_in_parts_is_the_whole)
         free(whole), free(parts);
     }
     fx_free(&f);
+}
+
+/* The mip levels' own unpacking of a normal is voxel_unpack_normal's, bit
+ * for bit: every u code with every 7th v code, and every v with every 7th
+ * u (both signs of z, the folds, the edges). */
+Test(vod_encoder, mip_unpack_is_voxel_unpack)
+{
+    for (uint32_t a = 0; a < 4096; a++)
+        for (uint32_t b = a % 7; b < 4096; b += 7)
+            for (int k = 0; k < 2; k++) {
+                uint32_t u = k ? b : a, v = k ? a : b;
+                uint32_t packed = u << 8 | v << 20 | 0xffu;
+                double x[3], y[3];
+                voxel_unpack_normal(packed, x);
+                vod_unpack_normal(packed, y);
+                cr_assert(!memcmp(x, y, sizeof x), "u %u v %u", u, v);
+            }
 }
 
 Test(vod_encoder, one_pass_streams_inflate_to_the_brick)
