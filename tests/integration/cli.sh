@@ -46,6 +46,20 @@ d=$(csum "$TMP/c-47.vod")
 if [ -n "$d" ] && [ "$d" != "$a" ]; then pass "content checksum tells other voxels apart"
 else fail "content checksum tells other voxels apart" "$a $d"; fi
 refuse "info counts the voxels" 0 "voxels +[0-9]+ non-empty at full resolution" "$VOX" info "$TMP/c-47.vod"
+# --compress-level: other bytes, the same voxels; the summary's stage times.
+for l in 1 9 12; do
+    check "sphere, zlib level $l" "$VOX" voxelize -e "$S" -r 48 --compress-level "$l" -o "$TMP/l$l.vod"
+    e=$(csum "$TMP/l$l.vod")
+    if [ -n "$e" ] && [ "$e" = "$a" ]; then pass "level $l: the same voxels"
+    else fail "level $l: the same voxels" "$a $e"; fi
+done
+check "level 1 = level 6 for surface bricks (one-pass encoder)" cmp "$TMP/l1.vod" "$TMP/c-zlib.vod"
+if ! cmp -s "$TMP/l9.vod" "$TMP/c-zlib.vod"; then pass "level 9 (libdeflate): other bytes"
+else fail "level 9 (libdeflate): other bytes"; fi
+refuse "level 13" 2 "bad --compress-level '13': want 1..12" "$VOX" voxelize -e "$S" -r 8 --compress-level 13 -o "$TMP/bad.vod"
+refuse "level with --daemon" 2 "--compress-level are the embedded engine's" "$VOX" voxelize -e "$S" -r 8 --compress-level 9 --daemon -o "$TMP/bad.vod"
+refuse "submit takes voxd's level only" 2 "voxd writes at level 6" "$VOX" submit -e "$S" -r 8 --compress-level 9 -o "$TMP/bad.vod"
+refuse "summary: VOD stage times" 0 "^  VOD stages: fill [0-9.]+ s, hash [0-9.]+ s, compress [0-9.]+ s, assemble [0-9.]+ s, write [0-9.]+ s" "$VOX" voxelize -e "$S" -r 48 -w 2 -o "$TMP/st.vod"
 refuse "progress line" 0 "level" "$VOX" voxelize -e "$S" -r 64 --progress -o "$TMP/p.vod"
 
 # Errors: clear message, exit 2, no output file left behind.
