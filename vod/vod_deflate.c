@@ -167,8 +167,11 @@ static void insertion_sort(uint32_t *sym, uint32_t *w, int n)
 static int sort_symbols(const uint32_t *freq, int n, uint32_t *sym, uint32_t *w)
 {
     int used = 0;
-    for (int s = 0; s < n; s++)
-        if (freq[s]) sym[used] = (uint32_t)s, w[used++] = freq[s];
+    for (int s = 0; s < n; s++) { /* without a branch: used symbols are random */
+        sym[used] = (uint32_t)s;
+        w[used] = freq[s];
+        used += freq[s] != 0;
+    }
     if (used <= 32) {
         insertion_sort(sym, w, used);
         return used;
@@ -250,11 +253,12 @@ static void build_code(uint32_t *freq, int n, unsigned max_bits, uint8_t *bits,
 
 /* ---- bits out ---- */
 
+/* The stream's size is known before a bit is written (stream_bytes), so
+ * the writer needs no bound: it stores four whole bytes at a time. */
 typedef struct {
-    uint8_t *p, *end;
+    uint8_t *p;
     uint64_t acc;
     unsigned n;
-    int full;
 } bitw;
 
 static inline void put(bitw *w, uint32_t v, unsigned len)
@@ -262,13 +266,7 @@ static inline void put(bitw *w, uint32_t v, unsigned len)
     w->acc |= (uint64_t)v << w->n;
     w->n += len;
     if (w->n >= 32) {
-        if (w->end - w->p < 4) {
-            w->full = 1;
-            w->n = 0;
-            return;
-        }
-        uint32_t lo = (uint32_t)w->acc;
-        vod_put32(w->p, lo);
+        vod_put32(w->p, (uint32_t)w->acc);
         w->p += 4;
         w->acc >>= 32;
         w->n -= 32;
@@ -277,14 +275,9 @@ static inline void put(bitw *w, uint32_t v, unsigned len)
 
 static void put_flush(bitw *w)
 {
-    while (w->n > 0) {
-        if (w->p == w->end) {
-            w->full = 1;
-            return;
-        }
+    for (; w->n > 0; w->n = w->n > 8 ? w->n - 8 : 0) {
         *w->p++ = (uint8_t)w->acc;
         w->acc >>= 8;
-        w->n = w->n > 8 ? w->n - 8 : 0;
     }
 }
 
@@ -476,38 +469,70 @@ static size_t rle_lengths(const uint8_t *len, size_t n, uint32_t *sym, uint32_t 
     return k;
 }
 
-static void put_header(vod_sparse *z, bitw *w)
-{
-    int hlit = 286, hdist = DIST_SYMS;
-    while (hlit > 257 && !z->bits_l[hlit - 1]) hlit--;
-    while (hdist > 1 && !z->bits_d[hdist - 1]) hdist--;
-    uint8_t lens[286 + DIST_SYMS];
-    memcpy(lens, z->bits_l, (size_t)hlit);
-    memcpy(lens + hlit, z->bits_d, (size_t)hdist);
-    uint32_t sym[286 + DIST_SYMS], f[CL_SYMS] = {0};
-    size_t k = rle_lengths(lens, (size_t)(hlit + hdist), sym, f);
+/* The block's header: the sizes of both codes, the code-length code, the
+ * run-length coded lengths. */
+typedef struct {
+    int hlit, hdist, hclen;
+    size_t k;
+    uint32_t sym[286 + DIST_SYMS];
     uint8_t cb[CL_SYMS];
     uint16_t cc[CL_SYMS];
-    build_code(f, CL_SYMS, 7, cb, cc);
-    int hclen = CL_SYMS;
-    while (hclen > 4 && !cb[cl_order[hclen - 1]]) hclen--;
+} header;
+
+static const uint8_t cl_extra[3] = {2, 3, 7};
+
+/* Makes the header; returns its size in bits. */
+static uint64_t make_header(const vod_sparse *z, header *h)
+{
+    h->hlit = 286, h->hdist = DIST_SYMS;
+    while (h->hlit > 257 && !z->bits_l[h->hlit - 1]) h->hlit--;
+    while (h->hdist > 1 && !z->bits_d[h->hdist - 1]) h->hdist--;
+    uint8_t lens[286 + DIST_SYMS];
+    memcpy(lens, z->bits_l, (size_t)h->hlit);
+    memcpy(lens + h->hlit, z->bits_d, (size_t)h->hdist);
+    uint32_t f[CL_SYMS] = {0};
+    h->k = rle_lengths(lens, (size_t)(h->hlit + h->hdist), h->sym, f);
+    build_code(f, CL_SYMS, 7, h->cb, h->cc);
+    h->hclen = CL_SYMS;
+    while (h->hclen > 4 && !h->cb[cl_order[h->hclen - 1]]) h->hclen--;
+    uint64_t bits = 3 + 5 + 5 + 4 + 3 * (uint64_t)h->hclen;
+    for (size_t i = 0; i < h->k; i++) {
+        uint32_t s = h->sym[i] & 0xffu;
+        bits += h->cb[s] + (s >= 16 ? cl_extra[s - 16] : 0);
+    }
+    return bits;
+}
+
+static void put_header(const header *h, bitw *w)
+{
     put(w, 1, 1); /* BFINAL */
     put(w, 2, 2); /* dynamic Huffman codes */
-    put(w, (uint32_t)(hlit - 257), 5);
-    put(w, (uint32_t)(hdist - 1), 5);
-    put(w, (uint32_t)(hclen - 4), 4);
-    for (int i = 0; i < hclen; i++) put(w, cb[cl_order[i]], 3);
-    static const uint8_t extra[3] = {2, 3, 7};
-    for (size_t i = 0; i < k; i++) {
-        uint32_t s = sym[i] & 0xffu;
-        put(w, cc[s], cb[s]);
-        if (s >= 16) put(w, sym[i] >> 8, extra[s - 16]);
+    put(w, (uint32_t)(h->hlit - 257), 5);
+    put(w, (uint32_t)(h->hdist - 1), 5);
+    put(w, (uint32_t)(h->hclen - 4), 4);
+    for (int i = 0; i < h->hclen; i++) put(w, h->cb[cl_order[i]], 3);
+    for (size_t i = 0; i < h->k; i++) {
+        uint32_t s = h->sym[i] & 0xffu;
+        put(w, h->cc[s], h->cb[s]);
+        if (s >= 16) put(w, h->sym[i] >> 8, cl_extra[s - 16]);
     }
+}
+
+/* The tokens' size in bits (at most one bit a symbol more: a symbol that
+ * build_code gave a code without its being used counts once). */
+static uint64_t data_bits(const vod_sparse *z)
+{
+    uint64_t bits = 0;
+    for (int s = 0; s < 286; s++) bits += (uint64_t)z->freq_l[s] * z->bits_l[s];
+    for (int s = 0; s < 29; s++) bits += (uint64_t)z->freq_l[257 + s] * len_extra[s];
+    for (int s = 0; s < DIST_SYMS; s++)
+        bits += (uint64_t)z->freq_d[s] * (z->bits_d[s] + dist_extra[s]);
+    return bits;
 }
 
 static void put_tokens(const vod_sparse *z, const tokens *t, bitw *w)
 {
-    for (size_t i = 0; i < t->nt && !w->full; i++) {
+    for (size_t i = 0; i < t->nt; i++) {
         uint32_t k = z->tok[i];
         if (!(k & MATCH)) {
             put(w, z->code_l[k], z->bits_l[k]);
@@ -532,13 +557,15 @@ size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t 
     tokenize(&t, raw, n);
     build_code(z->freq_l, 286, MAX_BITS, z->bits_l, z->code_l);
     build_code(z->freq_d, DIST_SYMS, MAX_BITS, z->bits_d, z->code_d);
+    header h;
+    uint64_t bits = make_header(z, &h) + data_bits(z);
+    if (2 + (bits + 7) / 8 + 4 > cap) return 0;
     out[0] = 0x78; /* deflate, 32 KiB window */
     out[1] = 0x5e; /* "fast" level; (0x78 * 256 + 0x5e) % 31 == 0 */
-    bitw w = {.p = out + 2, .end = out + cap - 4};
-    put_header(z, &w);
+    bitw w = {.p = out + 2};
+    put_header(&h, &w);
     put_tokens(z, &t, &w);
     put_flush(&w);
-    if (w.full) return 0;
     uint32_t adler = libdeflate_adler32(1, raw, n);
     for (int i = 0; i < 4; i++) w.p[i] = (uint8_t)(adler >> (24 - 8 * i));
     return (size_t)(w.p + 4 - out);
