@@ -15,9 +15,9 @@
  * the Adler-32 by libdeflate.  Any inflater reads the result; test_vod
  * checks it against zlib's on bricks of every kind.
  *
- * On the surface bricks of the standard shapes at 512^3 it is 5-6 times
- * as fast as libdeflate at level 6 for files 1-5% larger than zlib's at
- * level 6 (voxbench deflate; docs/benchmarks.md). */
+ * On the surface bricks of the standard shapes at 512^3 it is 3 to 4.4
+ * times as fast as libdeflate at level 6, for bricks 1 to 5% larger than
+ * zlib's at level 6 (voxbench deflate; docs/design.md). */
 #include "vod.h"
 
 #include <errno.h>
