@@ -421,22 +421,20 @@ static size_t slot_of(uint64_t key, size_t cap)
 
 /* An earlier brick equal to e->raw (XXH3-64 key): candidates by the key,
  * each compared byte for byte (from the cache, or filled again).  NULL if
- * none, with *at the free slot where this brick goes. */
+ * none.  The table always has a free slot (remember() keeps it at most
+ * half full), so the probe ends. */
 static const seen_brick *find_seen(vod_encoder *e, const vod_source *s,
-                                   uint64_t key, size_t *at, int *rc)
+                                   uint64_t key, int *rc)
 {
     size_t j = slot_of(key, e->slot_cap);
     for (; e->slot[j]; j = (j + 1) & (e->slot_cap - 1)) {
         const seen_brick *b = &e->seen[e->slot[j] - 1];
         if (b->key != key) continue;
-        const uint8_t *old = e->cache + b->raw_at;
-        if (b->raw_at == SIZE_MAX) {
-            if ((*rc = fill_node(e, s, &b->node, e->other))) return NULL;
-            old = e->other;
-        }
+        const uint8_t *old = e->other;
+        if (b->raw_at != SIZE_MAX) old = e->cache + b->raw_at;
+        else if ((*rc = fill_node(e, s, &b->node, e->other))) return NULL;
         if (!memcmp(old, e->raw, e->L.raw_bytes)) return b;
     }
-    *at = j;
     return NULL;
 }
 
@@ -469,13 +467,14 @@ static int grow_slots(vod_encoder *e)
     return 0;
 }
 
-/* Keep brick (n, rec, tag) at slot at.  A table that cannot grow only
- * loses the shortcut: the duplicate is then compressed again, and
- * vod_assemble still stores it once. */
+/* Keep brick (n, rec, tag), not in the table yet.  A table that cannot
+ * grow only loses the shortcut: a later duplicate is then compressed
+ * again, and vod_assemble still stores it once. */
 static void remember(vod_encoder *e, uint64_t key, const vod_node *n,
-                     const vod_encoded *rec, uint64_t tag, size_t at)
+                     const vod_encoded *rec, uint64_t tag)
 {
     if (e->nseen >= UINT32_MAX - 1) return;
+    if (2 * (e->nseen + 1) > e->slot_cap && grow_slots(e)) return;
     if (e->nseen == e->seen_cap) {
         size_t cap = e->seen_cap ? 2 * e->seen_cap : 256;
         seen_brick *s = realloc(e->seen, cap * sizeof *s);
@@ -483,10 +482,11 @@ static void remember(vod_encoder *e, uint64_t key, const vod_node *n,
         e->seen = s;
         e->seen_cap = cap;
     }
+    size_t j = slot_of(key, e->slot_cap);
+    while (e->slot[j]) j = (j + 1) & (e->slot_cap - 1);
     e->seen[e->nseen] = (seen_brick){key, *n, *rec, tag, cache_raw(e)};
-    e->slot[at] = (uint32_t)++e->nseen;
+    e->slot[j] = (uint32_t)++e->nseen;
     if (n->uniform) e->last_uniform = (long)e->nseen - 1;
-    if (2 * e->nseen >= e->slot_cap) grow_slots(e);
 }
 
 /* A uniform node like the last uniform one: its brick is that one's,
@@ -503,7 +503,6 @@ int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
                     uint64_t *same)
 {
     const seen_brick *b = same_uniform(e, n);
-    size_t at = 0;
     uint64_t key = 0;
     int rc = 0;
     double t0 = now_s(), t1 = t0, t2 = t0;
@@ -511,7 +510,7 @@ int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
         if ((rc = fill_node(e, s, n, e->raw))) return rc;
         t1 = now_s();
         key = XXH3_64bits(e->raw, e->L.raw_bytes);
-        b = find_seen(e, s, key, &at, &rc);
+        b = find_seen(e, s, key, &rc);
         if (rc) return rc;
         e->t.fill += t1 - t0;
     }
@@ -529,7 +528,7 @@ int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
     e->t.compress += now_s() - t2;
     if (rc) return rc;
     *same = tag;
-    remember(e, key, n, rec, tag, at);
+    remember(e, key, n, rec, tag);
     return 0;
 }
 
