@@ -356,6 +356,8 @@ int vod_foreach(const vod_file *f, int level,
 uint32_t vod_hash_sfhs(const void *data, size_t len);
 uint32_t vod_hash_xx32(const void *data, size_t len);
 uint32_t vod_hash(uint32_t alg, const void *data, size_t len);
+/* A FourCC as text for messages ("ZLIB"; '?' for unprintable bytes). */
+const char *vod_fourcc_str(uint32_t v, char buf[5]);
 
 /* RUNL (spec section 6) over raw bricks of voxel_bits 1, 8, 16 or 32:
  * pairs {u8 count-1, voxel}, voxels of 1 bit taken as whole raw bytes. */

@@ -68,3 +68,13 @@ uint32_t vod_hash(uint32_t alg, const void *data, size_t len)
     return alg == VOD_HASH_XX32 ? vod_hash_xx32(data, len)
                                 : vod_hash_sfhs(data, len);
 }
+
+const char *vod_fourcc_str(uint32_t v, char buf[5])
+{
+    for (int i = 0; i < 4; i++) {
+        char c = (char)(v >> (8 * i));
+        buf[i] = (c >= 32 && c < 127) ? c : '?';
+    }
+    buf[4] = '\0';
+    return buf;
+}

@@ -50,15 +50,6 @@ fail(parse *ps, int rc, const char *fmt, ...)
     return rc;
 }
 
-static const char *fourcc_str(uint32_t v, char buf[5])
-{
-    for (int i = 0; i < 4; i++) {
-        char c = (char)(v >> (8 * i));
-        buf[i] = (c >= 32 && c < 127) ? c : '?';
-    }
-    buf[4] = '\0';
-    return buf;
-}
 
 static float f32_at(const uint8_t *p)
 {
@@ -181,11 +172,11 @@ static int check_encoding(parse *ps, vod_info *in)
         return fail(ps, -EINVAL, "voxelSize %u is not 1, 8, 16 or 32 bits", vb);
     if (in->hash != VOD_HASH_SFHS && in->hash != VOD_HASH_XX32)
         return fail(ps, -EINVAL, "unsupported hashAlgorithm '%s'",
-                    fourcc_str(in->hash, s));
+                    vod_fourcc_str(in->hash, s));
     if (in->comp != VOD_COMP_NONE && in->comp != VOD_COMP_ZLIB &&
         in->comp != VOD_COMP_RUNL)
         return fail(ps, -EINVAL, "unsupported compAlgorithm '%s'",
-                    fourcc_str(in->comp, s));
+                    vod_fourcc_str(in->comp, s));
     return 0;
 }
 

@@ -34,16 +34,6 @@ fail(char *err, size_t errlen, int rc, const char *fmt, ...)
     return rc;
 }
 
-/* A FourCC as text for messages ("ZLIB"; '?' for unprintable bytes). */
-static const char *fourcc_str(uint32_t v, char buf[5])
-{
-    for (int i = 0; i < 4; i++) {
-        char c = (char)(v >> (8 * i));
-        buf[i] = (c >= 32 && c < 127) ? c : '?';
-    }
-    buf[4] = '\0';
-    return buf;
-}
 
 void vod_params_default(vod_params *p)
 {
@@ -94,14 +84,14 @@ static int check_encoding(const vod_params *p, char *err, size_t errlen)
         p->comp != VOD_COMP_RUNL)
         return fail(err, errlen, -EINVAL,
                     "compression '%s' unknown (NONE, ZLIB or RUNL)",
-                    fourcc_str(p->comp, b));
+                    vod_fourcc_str(p->comp, b));
     if (p->comp == VOD_COMP_ZLIB &&
         (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX))
         return fail(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
                     p->zlib_level, VOD_ZLIB_LEVEL_MAX);
     if (p->hash != VOD_HASH_SFHS && p->hash != VOD_HASH_XX32)
         return fail(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
-                    fourcc_str(p->hash, b));
+                    vod_fourcc_str(p->hash, b));
     size_t m = p->metadata ? strlen(p->metadata) : 0;
     if (m > VOD_MAX_METADATA)
         return fail(err, errlen, -EINVAL, "metadata of %zu bytes, more than %u",
