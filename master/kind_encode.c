@@ -17,6 +17,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "clock.h"
 #include "master.h"
 
 typedef struct {
@@ -32,13 +33,6 @@ typedef struct {
 #define AGG_SPLIT 3 /* the aggregate's subtrees: up to 8^3 of them */
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
 
 static encode_block *block(engine *e)
 {
@@ -63,13 +57,13 @@ static int aggregate_rest(engine *e, encode_job *ej)
     encode_block *b = block(e);
     const uint32_t *roots = shm_at(e->seg.base, b->roots_off);
     const uint8_t *done = shm_at(e->seg.base, b->roots_done_off);
-    double t0 = now_s();
+    double t0 = clock_now();
     for (uint64_t i = 0; i < b->nroots; i++)
         if (!done[i])
             vod_aggregate_subtree(&e->tree, roots[i], b->root_height, ej->p->channel);
     if (b->nroots) vod_aggregate_top(&e->tree, b->root_height, ej->p->channel);
     else vod_aggregate(&e->tree, ej->p->channel);
-    ej->t.fill += now_s() - t0;
+    ej->t.fill += clock_now() - t0;
     int pushed;
     return push_all(e, ENCODE_BRICKS, &pushed);
 }
@@ -109,7 +103,7 @@ static int encode_setup(engine *e, void *job)
     uint64_t nodes = align64(roots + nroots * (sizeof(uint32_t) + 1));
     if (nodes > end) goto full;
     encode_block *b = shm_at(e->seg.base, boff);
-    double t0 = now_s();
+    double t0 = clock_now();
     e->tree.agg = shm_at(e->seg.base, agg);
     vod_source src = vod_octree_source(&e->tree);
     uint64_t n = vod_collect(&src, &ej->L, NULL, 0);
@@ -119,7 +113,7 @@ static int encode_setup(engine *e, void *job)
     if (b->brick_off > end) goto full;
     vod_collect(&src, &ej->L, shm_at(e->seg.base, nodes), n);
     vod_aggregate_roots(&e->tree, hr, shm_at(e->seg.base, roots), nroots);
-    ej->t.fill += now_s() - t0;
+    ej->t.fill += clock_now() - t0;
     memset(shm_at(e->seg.base, roots + nroots * sizeof(uint32_t)), 0, nroots);
     memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
     block_init(e, ej, b);

@@ -8,18 +8,12 @@
 #include <sys/mman.h>
 #include <time.h>
 
+#include "clock.h"
 #include "job_meta.h"
 #include "master.h"
 #include "subdiv.h"
 
 #define SERIAL_CELLS (1u << 27) /* 4 GiB of address space, not of memory */
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
 
 __attribute__((format(printf, 4, 5))) static int fail(pipeline_report *r,
                                                       engine_failure f, int rc,
@@ -73,9 +67,9 @@ static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
     r->worker_cpu = er.worker_cpu;
     if (rc) return fail(r, er.failure, rc, "%s", er.error);
     r->stage = PIPELINE_WRITE;
-    double t0 = now_s();
+    double t0 = clock_now();
     rc = engine_write_vod(e, v, sink, &r->st, &r->err);
-    r->t_write = now_s() - t0;
+    r->t_write = clock_now() - t0;
     return rc;
 }
 
@@ -108,9 +102,9 @@ static int run_serial(const pipeline_job *job, const vod_params *v,
                     strerror(errno));
     octree t;
     octree_init(&t, arena, SERIAL_CELLS, r->grid.depth);
-    double t0 = now_s();
+    double t0 = clock_now();
     int rc = subdiv_serial(job->implicit.tape, &r->grid, &t);
-    r->t_voxelize = now_s() - t0;
+    r->t_voxelize = clock_now() - t0;
     r->voxels = t.voxels;
     if (rc == -ENOMEM)
         fail(r, ENGINE_LIMIT, rc, "the octree outgrew its 4 GiB arena");
@@ -121,9 +115,9 @@ static int run_serial(const pipeline_job *job, const vod_params *v,
         watched_sink w = {sink, 0};
         vod_sink ws = {watched_write, &w};
         char err[sizeof r->err.message] = "";
-        t0 = now_s();
+        t0 = clock_now();
         rc = vod_write_octree(&t, v, &ws, &r->st, err, sizeof err);
-        r->t_write = now_s() - t0;
+        r->t_write = clock_now() - t0;
         if (rc && w.rc == rc)
             fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
         else if (rc)
