@@ -4,5 +4,7 @@
 
 /* Seconds on the monotonic clock (intervals, timeouts, timings). */
 double clock_now(void);
+/* CPU seconds the calling thread has used. */
+double clock_thread_cpu(void);
 
 #endif

@@ -9,6 +9,7 @@
 #include <sys/mman.h>
 #include <time.h>
 
+#include "clock.h"
 #include "master.h"
 
 typedef struct {
@@ -220,7 +221,7 @@ static int implicit_finish(engine *e, void *job, int rc)
     if (e->tree.cells) /* octree_store clears whole blocks ahead */
         sched_touched(e, (uint64_t)((uint8_t *)e->tree.cells - e->seg.base) +
                              (uint64_t)e->tree.block_end * sizeof(octree_cell));
-    r->seconds = pool_now(CLOCK_MONOTONIC) - e->t0;
+    r->seconds = clock_now() - e->t0;
     if (rc) {
         r->failure = e->err.failure;
         snprintf(r->error, sizeof r->error, "%s", e->err.message);
@@ -247,11 +248,11 @@ const master_kind kind_implicit = {
 
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
 {
-    double c0 = pool_now(CLOCK_THREAD_CPUTIME_ID);
+    double c0 = clock_thread_cpu();
     memset(r, 0, sizeof *r);
     implicit_job ij = {.job = job, .r = r};
     sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
     int rc = engine_run(e, &kind_implicit, &ij, &w);
-    r->master_cpu = pool_now(CLOCK_THREAD_CPUTIME_ID) - c0;
+    r->master_cpu = clock_thread_cpu() - c0;
     return rc;
 }

@@ -93,7 +93,6 @@ extern const master_kind kind_implicit, kind_encode;
 
 /* ---- pool.c: the workers' lives ---- */
 
-double pool_now(clockid_t c);
 /* Fork worker i on its CPU; 0 or -errno with a message in err. */
 int pool_spawn(engine *e, int i, char *err, size_t errlen);
 /* Write task t into worker i's slot and wake it (the slot's mechanics;

@@ -10,18 +10,12 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "clock.h"
 #include "master.h"
 #include "worker.h"
 
 #define EXIT_WAIT_S 2.0               /* engine_destroy's patience */
 #define KEEP_BYTES ((size_t)64 << 20) /* default engine_opts.keep_bytes */
-
-double pool_now(clockid_t c)
-{
-    struct timespec ts;
-    clock_gettime(c, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
 
 static int pick_cpus(engine *e, const engine_opts *o, char *err,
                      size_t errlen)
@@ -92,7 +86,7 @@ void pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
 
 static void reap_all(engine *e)
 {
-    double deadline = pool_now(CLOCK_MONOTONIC) + EXIT_WAIT_S;
+    double deadline = clock_now() + EXIT_WAIT_S;
     for (;;) {
         int left = 0;
         for (int i = 0; i < e->n; i++) {
@@ -103,7 +97,7 @@ static void reap_all(engine *e)
             else left++;
         }
         if (!left) return;
-        if (pool_now(CLOCK_MONOTONIC) > deadline) break;
+        if (clock_now() > deadline) break;
         struct timespec ms = {0, 1000000};
         nanosleep(&ms, NULL);
     }

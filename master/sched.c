@@ -9,6 +9,7 @@
 #include <sys/mman.h>
 #include <sys/wait.h>
 
+#include "clock.h"
 #include "master.h"
 
 #define MASTER_SLEEP_NS 20000000L /* 20 ms: cancel and progress stay live */
@@ -188,7 +189,7 @@ static void handle_death(engine *e, int i)
 
 static void check_workers(engine *e, int force)
 {
-    double now = pool_now(CLOCK_MONOTONIC);
+    double now = clock_now();
     if (!force && now - e->last_check < LIVENESS_EVERY) return;
     e->last_check = now;
     for (int i = 0; i < e->n; i++) {
@@ -218,7 +219,7 @@ int engine_check_workers(engine *e)
 static void progress(engine *e, int force)
 {
     if (!e->watch.progress || !e->kind->progress) return;
-    double now = pool_now(CLOCK_MONOTONIC);
+    double now = clock_now();
     if (!force && now - e->last_progress < PROGRESS_EVERY) return;
     e->last_progress = now;
     engine_progress p = {.seconds = now - e->t0};
@@ -283,7 +284,7 @@ static void job_reset(engine *e, const master_kind *k, void *job,
     memset(&e->err, 0, sizeof e->err);
     e->restarts = 0;
     e->sp = 0;
-    e->t0 = pool_now(CLOCK_MONOTONIC);
+    e->t0 = clock_now();
     e->last_progress = e->t0 - 1.0; /* the first call comes at once */
     /* A new generation: workers begin the job afresh (their kernels' state,
      * their counters), and an abort names this job only. */

@@ -17,6 +17,7 @@
 #include <xxhash.h>
 #include <zlib.h>
 
+#include "clock.h"
 #include "voxel.h"
 
 #define TRAILER_FIXED 40u /* trailer bytes besides the metadata */
@@ -241,13 +242,6 @@ size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
         return n + ((n + 7) >> 3) + ((n + 63) >> 6) + 5 + 6 + 16;
     if (p->comp == VOD_COMP_RUNL) return vod_runl_bound(L->voxel_bits, n);
     return n;
-}
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
 }
 
 /* The raw bytes of the first bricks an encoder compressed are kept up to
@@ -495,27 +489,27 @@ int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
     const seen_brick *b = same_uniform(e, n);
     uint64_t key = 0;
     int rc = 0;
-    double t0 = now_s(), t1 = t0, t2 = t0;
+    double t0 = clock_now(), t1 = t0, t2 = t0;
     if (!b) {
         if ((rc = fill_node(e, s, n, e->raw))) return rc;
-        t1 = now_s();
+        t1 = clock_now();
         key = XXH3_64bits(e->raw, e->L.raw_bytes);
         b = find_seen(e, s, key, &rc);
         if (rc) return rc;
         e->t.fill += t1 - t0;
     }
     if (b) {
-        e->t.hash += now_s() - t1;
+        e->t.hash += clock_now() - t1;
         *rec = b->rec;
         *same = b->tag;
         return 0;
     }
     /* the file's hash, for the bricks it stores */
     rec->hash = vod_hash(e->p.hash, e->raw, e->L.raw_bytes);
-    t2 = now_s();
+    t2 = clock_now();
     e->t.hash += t2 - t1;
     rc = compress_brick(e, e->raw, out, cap, &rec->size);
-    e->t.compress += now_s() - t2;
+    e->t.compress += clock_now() - t2;
     if (rc) return rc;
     *same = tag;
     remember(e, key, n, rec, tag);
@@ -574,9 +568,9 @@ static void wb_flush(wbuf *w)
 {
     if (w->err || w->len == 0) return;
     w->crc = (uint32_t)crc32(w->crc, w->buf, (uInt)w->len);
-    double t0 = now_s();
+    double t0 = clock_now();
     int rc = w->sink->write(w->sink->ud, w->buf, w->len);
-    w->t_write += now_s() - t0;
+    w->t_write += clock_now() - t0;
     if (rc < 0) w->err = rc;
     w->total += w->len;
     w->len = 0;
@@ -776,7 +770,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
                  char *err, size_t errlen)
 {
     if (errlen) err[0] = '\0';
-    double t0 = now_s();
+    double t0 = clock_now();
     int rc = check_inputs(L, p, n, nodes, recs, data);
     if (rc)
         return fail(err, errlen, rc, "bricks out of preorder or over their bound");
@@ -798,7 +792,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     if (!rc && st) {
         fill_stats(st, L, n, recs, first, u, &w);
         st->t.write = w.t_write;
-        st->t.assemble = now_s() - t0 - w.t_write;
+        st->t.assemble = clock_now() - t0 - w.t_write;
     }
     free(ids);
     free(first);
@@ -843,7 +837,7 @@ static int write_planned(const vod_source *s, const vod_layout *L,
                          const vod_params *p, vod_sink *sink, vod_stats *st,
                          double t_prepare, char *err, size_t errlen)
 {
-    double t0 = now_s();
+    double t0 = clock_now();
     size_t n = vod_collect(s, L, NULL, 0);
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);
     vod_encoded *recs = malloc((n + 1) * sizeof *recs);
@@ -854,7 +848,7 @@ static int write_planned(const vod_source *s, const vod_layout *L,
     int rc = nodes && recs && off && data ? 0 : -ENOMEM;
     if (!rc) {
         vod_collect(s, L, nodes, n);
-        t.fill = now_s() - t0 + t_prepare;
+        t.fill = clock_now() - t0 + t_prepare;
         rc = encode_all(s, L, p, n, nodes, recs, off, &b, &t);
     }
     if (!rc) {
@@ -874,11 +868,11 @@ static int write_planned(const vod_source *s, const vod_layout *L,
 static int write_checked(vod_source *s, const vod_layout *L, const vod_params *p,
                          vod_sink *sink, vod_stats *st, char *err, size_t errlen)
 {
-    double t0 = now_s();
+    double t0 = clock_now();
     int rc = vod_prepare(s, L, p->channel, err, errlen);
     if (rc) return rc;
     if (errlen) err[0] = '\0';
-    rc = write_planned(s, L, p, sink, st, now_s() - t0, err, errlen);
+    rc = write_planned(s, L, p, sink, st, clock_now() - t0, err, errlen);
     /* vod_assemble's own failures are said; the sink's and the encoder's
      * are not yet */
     if (rc && (!errlen || !err[0]))

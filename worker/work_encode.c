@@ -8,6 +8,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "clock.h"
 #include "work.h"
 
 #define ENCODE_CHUNK 8u /* brick nodes claimed at a time */
@@ -107,20 +108,13 @@ static void add_ns(atomic_ullong *to, double seconds)
                               memory_order_relaxed);
 }
 
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
-}
-
 /* The mip levels of the subtrees this worker claims; each one's done byte
  * set when it is complete. */
 static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
 {
     const uint32_t *roots = shm_at(w->base, b->roots_off);
     uint8_t *done = shm_at(w->base, b->roots_done_off);
-    double t0 = now_s();
+    double t0 = clock_now();
     for (;;) {
         /* relaxed: a counter that hands out disjoint subtrees */
         uint64_t i = atomic_fetch_add_explicit(&b->agg_next, 1, memory_order_relaxed);
@@ -129,7 +123,7 @@ static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
         vod_aggregate_subtree(tree, roots[i], b->root_height, b->p.channel);
         done[i] = 1;
     }
-    add_ns(&b->ns_fill, now_s() - t0);
+    add_ns(&b->ns_fill, clock_now() - t0);
     return 0;
 }
 
