@@ -41,14 +41,15 @@ CSTD    := -std=c11 -D_GNU_SOURCE
 # against the layering does not compile (tests/integration/layering.sh
 # checks the same over the sources, and that no two files include each
 # other).  The data flows down this list; nothing includes upwards.
-MODULES := client server config libvox master worker engine proto vod expr common
-LAYER_client := config libvox master proto expr vod common
-LAYER_server := config master engine proto libvox expr vod common
+MODULES := client server config libvox master worker engine mesh proto vod expr common
+LAYER_client := config libvox master mesh proto expr vod common
+LAYER_server := config master engine mesh proto libvox expr vod common
 LAYER_config := proto expr common
 LAYER_libvox := proto common
-LAYER_master := worker engine expr vod common
-LAYER_worker := engine expr vod common
+LAYER_master := worker engine mesh expr vod common
+LAYER_worker := engine mesh expr vod common
 LAYER_engine := vod common
+LAYER_mesh   := vod common
 LAYER_proto  := common
 LAYER_vod    := common
 LAYER_expr   := common

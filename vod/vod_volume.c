@@ -14,7 +14,9 @@
  */
 #include "vod_volume.h"
 
+#include <assert.h>
 #include <errno.h>
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
@@ -35,7 +37,13 @@ struct vod_volume {
     uint32_t grid[VOL_LEVELS][3];
     uint64_t table_off[VOL_LEVELS]; /* from the start of the arena */
     uint64_t pool_off, brick_bytes;
-    uint32_t pool_cap, pool_used, pool_l0;
+    uint32_t pool_cap;
+    /* Bricks taken from the pool, and of those the level-0 ones.  Atomic
+     * because vod_volume_put_brick() writers of different bricks run
+     * concurrently (relaxed: a brick's bytes and table entry are published
+     * to the readers by whatever ends the writers' phase, in the engine the
+     * worker's done_seq release, which the master's acquire pairs with). */
+    atomic_uint pool_used, pool_l0;
     int mip_channel;
 };
 
@@ -138,8 +146,8 @@ void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
     out->sbrick = v->sbrick;
     out->depth = v->depth;
     out->pool_cap = v->pool_cap;
-    out->pool_used = v->pool_used;
-    out->level0_bricks = v->pool_l0;
+    out->pool_used = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
+    out->level0_bricks = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
     out->mip_channel = v->mip_channel;
 }
 
@@ -192,8 +200,13 @@ static void brick_set_all(const vod_volume *v, uint8_t *d, uint32_t val)
 /* A new pool brick holding val everywhere; its entry, or 0 when full. */
 static uint32_t pool_take(vod_volume *v, uint32_t val)
 {
-    if (v->pool_used >= v->pool_cap) return 0;
-    uint32_t e = ++v->pool_used;
+    uint32_t e = atomic_fetch_add_explicit(&v->pool_used, 1, memory_order_relaxed) + 1;
+    if (e > v->pool_cap) {
+        /* full: give the count back (every other taker fails too until
+         * the count is below the cap again) */
+        atomic_fetch_sub_explicit(&v->pool_used, 1, memory_order_relaxed);
+        return 0;
+    }
     brick_set_all(v, brick_data(v, e), val);
     return e;
 }
@@ -202,7 +215,9 @@ static uint32_t pool_take(vod_volume *v, uint32_t val)
 static void drop_mips(vod_volume *v)
 {
     v->mip_channel = 0;
-    v->pool_used = v->pool_l0;
+    atomic_store_explicit(&v->pool_used,
+                          atomic_load_explicit(&v->pool_l0, memory_order_relaxed),
+                          memory_order_relaxed);
 }
 
 /* The data of level-0 brick b, allocated (from empty or uniform) if need be. */
@@ -213,7 +228,7 @@ static int level0_data(vod_volume *v, const uint32_t b[3], uint8_t **out)
     if (!is_alloc(*e)) {
         uint32_t n = pool_take(v, *e & ~ENTRY_UNIFORM);
         if (!n) return -ENOMEM;
-        v->pool_l0++;
+        atomic_fetch_add_explicit(&v->pool_l0, 1, memory_order_relaxed);
         *e = n;
     }
     *out = brick_data(v, *e);
@@ -307,6 +322,41 @@ int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
                 if (rc) return rc;
             }
     return 0;
+}
+
+/* The value every voxel of the S^3 brick d holds, or -1 when they differ
+ * (or the one value cannot be a uniform entry). */
+static int64_t brick_uniform_value(const vod_volume *v, const uint8_t *d)
+{
+    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
+    uint32_t first = vox_get(v, d, 0);
+    if (first >= ENTRY_UNIFORM) return -1;
+    if (v->bits == 8) {
+        for (uint64_t i = 1; i < n; i++)
+            if (d[i] != first) return -1;
+    } else {
+        const uint32_t *w = (const uint32_t *)(const void *)d;
+        for (uint64_t i = 1; i < n; i++)
+            if (w[i] != first) return -1;
+    }
+    return first;
+}
+
+int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
+{
+    const uint32_t *g = v->grid[0];
+    if (b[0] >= g[0] || b[1] >= g[1] || b[2] >= g[2]) return -EINVAL;
+    assert(v->mip_channel == 0 && "put_brick runs before prepare()");
+    uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
+    int64_t u = brick_uniform_value(v, voxels);
+    if (u >= 0 && !is_alloc(*e)) {
+        *e = u ? ENTRY_UNIFORM | (uint32_t)u : 0;
+        return 0;
+    }
+    uint8_t *d;
+    int rc = level0_data(v, b, &d);
+    if (rc == 0) memcpy(d, voxels, v->brick_bytes);
+    return rc;
 }
 
 /* ---- mip levels ---- */

@@ -18,8 +18,8 @@
  * (the pool must have room: see vod_volume_bytes); writing a voxel after
  * that drops them, so the next prepare() builds them again.
  *
- * One writer at a time; any number of readers (region, fill, get) once the
- * writer is done.
+ * One writer at a time (but see vod_volume_put_brick); any number of
+ * readers (region, fill, get) once the writers are done.
  */
 #ifndef VOXD_VOD_VOLUME_H
 #define VOXD_VOD_VOLUME_H
@@ -65,6 +65,15 @@ int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
  * empty or inverted box); on -ENOMEM part of the box may be written. */
 int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
                     uint32_t value);
+/* Level-0 storage brick b (brick coordinates, each below
+ * ceil(dims / sbrick)) := voxels, sbrick^3 values of the volume's width, x
+ * fastest, 0 past dims.  A brick whose voxels are all one value becomes an
+ * empty or uniform entry without memory.  Unlike every other writer, calls
+ * for different bricks may run concurrently, in several threads or
+ * processes (the pool's allocation is atomic); they must come before
+ * prepare().  0, -EINVAL for a brick outside the grid, -ENOMEM when the
+ * pool is full (the brick is then unchanged). */
+int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels);
 /* The voxel at (x, y, z), 0 outside dims. */
 uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z);
 

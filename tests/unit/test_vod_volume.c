@@ -6,6 +6,7 @@
  * volume precondition and the mip levels' memory.  That octree and volume
  * give the same bytes for channels 1 and 3 is in test_vod.c. */
 #include <criterion/criterion.h>
+#include <pthread.h>
 #include <errno.h>
 #include <stdbool.h>
 #include <stdlib.h>
@@ -208,6 +209,79 @@ Test(vod_volume, a_full_pool_is_enomem_and_changes_nothing)
     cr_assert_eq(vod_volume_fill(v, lo, part, 3), -ENOMEM);
     cr_assert_eq(vod_volume_get(v, 1, 2, 3), 9);
     free(arena);
+}
+
+/* Whole bricks put at once: uniform ones take no memory, others are copied,
+ * and writers of different bricks may run at the same time. */
+typedef struct {
+    vfx *f;
+    uint32_t first, step; /* this thread's bricks: first, first+step, ... */
+} put_job;
+
+static void brick_pattern(uint32_t *vox, uint32_t S, const uint32_t b[3], uint32_t dims[3])
+{
+    uint32_t kind = (b[0] * 7 + b[1] * 3 + b[2]) % 4;
+    for (uint32_t z = 0; z < S; z++)
+        for (uint32_t y = 0; y < S; y++)
+            for (uint32_t x = 0; x < S; x++) {
+                uint32_t X = b[0] * S + x, Y = b[1] * S + y, Z = b[2] * S + z;
+                uint32_t v = kind == 0 ? 0 : kind == 1 ? 42 : (X ^ Y ^ Z) & 0xff;
+                if (kind == 3 && (X + Y + Z) % 5) v = 0;
+                if (X >= dims[0] || Y >= dims[1] || Z >= dims[2]) v = 0;
+                vox[(z * S + y) * S + x] = v;
+            }
+}
+
+static void *put_thread(void *arg)
+{
+    put_job *j = arg;
+    uint32_t S = 8, g[3] = {(j->f->dims[0] + 7) / 8, (j->f->dims[1] + 7) / 8,
+                            (j->f->dims[2] + 7) / 8};
+    uint32_t *vox = malloc(S * S * S * 4);
+    for (uint32_t i = j->first; i < g[0] * g[1] * g[2]; i += j->step) {
+        uint32_t b[3] = {i % g[0], i / g[0] % g[1], i / (g[0] * g[1])};
+        brick_pattern(vox, S, b, j->f->dims);
+        if (vod_volume_put_brick(j->f->v, b, vox) != 0) abort();
+    }
+    free(vox);
+    return NULL;
+}
+
+Test(vod_volume, bricks_put_whole_from_several_threads)
+{
+    vfx f;
+    vfx_init(&f, 61, 40, 35, 32, 8);
+    put_job jobs[4];
+    pthread_t th[4];
+    for (uint32_t t = 0; t < 4; t++) {
+        jobs[t] = (put_job){&f, t, 4};
+        cr_assert_eq(pthread_create(&th[t], NULL, put_thread, &jobs[t]), 0);
+    }
+    for (int t = 0; t < 4; t++) pthread_join(th[t], NULL);
+    uint32_t S = 8, g[3] = {8, 5, 5}, uniform = 0, vox[512];
+    for (uint32_t i = 0; i < g[0] * g[1] * g[2]; i++) {
+        uint32_t b[3] = {i % g[0], i / g[0] % g[1], i / (g[0] * g[1])};
+        brick_pattern(vox, S, b, f.dims);
+        uniform += (b[0] * 7 + b[1] * 3 + b[2]) % 4 < 2 &&
+                   (b[0] + 1) * S <= f.dims[0] && (b[1] + 1) * S <= f.dims[1] &&
+                   (b[2] + 1) * S <= f.dims[2];
+        for (uint32_t z = 0; z < S; z++)
+            for (uint32_t y = 0; y < S; y++)
+                for (uint32_t x = 0; x < S; x++) {
+                    uint32_t X = b[0] * S + x, Y = b[1] * S + y, Z = b[2] * S + z;
+                    if (X < f.dims[0] && Y < f.dims[1] && Z < f.dims[2])
+                        vfx_set(&f, X, Y, Z, vox[(z * S + y) * S + x]);
+                }
+    }
+    vod_volume_info in;
+    vod_volume_get_info(f.v, &in);
+    /* vfx_set wrote the same values again: no brick changes, and the
+     * uniform ones stayed without memory */
+    cr_assert_leq(in.level0_bricks, g[0] * g[1] * g[2] - uniform);
+    vfx_check(&f);
+    uint32_t outside[3] = {8, 0, 0};
+    cr_assert_eq(vod_volume_put_brick(f.v, outside, vox), -EINVAL);
+    vfx_free(&f);
 }
 
 /* The arena moved to another address (a worker maps the segment anywhere)

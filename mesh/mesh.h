@@ -1,0 +1,64 @@
+/* mesh — a triangle mesh in memory: what the loaders make and the mesh
+ * voxelizer reads.
+ *
+ * Vertices are single-precision positions (every supported format stores
+ * float or, for PLY, may store double: those are rounded to the nearest
+ * float, which keeps a watertight mesh watertight, since shared vertices
+ * are shared by index).  Triangles are three vertex indices, each below
+ * n_vertices: a loader guarantees it, so code past the loader asserts it
+ * and never checks again.  Polygons are fan-triangulated by the loaders;
+ * degenerate triangles (two equal indices or zero area) are dropped and
+ * counted.
+ */
+#ifndef VOXD_MESH_H
+#define VOXD_MESH_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef enum {
+    MESH_FORMAT_AUTO = 0, /* from the contents */
+    MESH_FORMAT_OBJ,
+    MESH_FORMAT_STL,      /* ascii or binary */
+    MESH_FORMAT_PLY,      /* ascii, binary little or big endian */
+    MESH_FORMAT_OFF,
+} mesh_format;
+
+typedef struct {
+    uint32_t n_vertices, n_triangles;
+    float (*vertices)[3];      /* n_vertices positions */
+    uint32_t (*triangles)[3];  /* n_triangles, counter-clockwise seen from outside */
+    uint64_t n_degenerate;     /* triangles the loader dropped */
+    mesh_format format;        /* what the file was */
+    float lo[3], hi[3];        /* bounding box of the triangles' vertices */
+} mesh;
+
+/* The loaders' bounds: every count in a file is checked against them (and
+ * against the bytes that could hold it) before anything is allocated. */
+typedef struct {
+    uint32_t max_triangles;    /* after triangulation; 0: MESH_MAX_TRIANGLES */
+    uint32_t max_vertices;     /* 0: MESH_MAX_VERTICES */
+} mesh_limits;
+#define MESH_MAX_TRIANGLES (64u << 20)
+#define MESH_MAX_VERTICES  (64u << 20)
+
+/* A loader's error: what went wrong and where (line for text formats,
+ * byte offset for binary ones; 0 when it is not about one place). */
+typedef struct {
+    char msg[200];
+    uint64_t line, offset;
+} mesh_error;
+
+/* Parse the mesh in buf[0, len) (format AUTO: told from the contents).  0
+ * and the mesh in *out (free with mesh_free), or a negative errno with
+ * *err filled: -EINVAL malformed, -E2BIG past a limit, -ENOMEM. */
+int mesh_parse(const void *buf, size_t len, mesh_format format,
+               const mesh_limits *lim, mesh *out, mesh_error *err);
+/* mesh_parse() of a file, mapped (mmap) rather than read. */
+int mesh_load(const char *path, mesh_format format, const mesh_limits *lim,
+              mesh *out, mesh_error *err);
+void mesh_free(mesh *m);
+
+const char *mesh_format_name(mesh_format f);
+
+#endif

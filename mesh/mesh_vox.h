@@ -1,0 +1,96 @@
+/* mesh_vox — voxelizing a triangle mesh (mesh.h) into a brick-sparse
+ * volume (vod_volume.h), one tile at a time.
+ *
+ * A tile is a column of MESH_TILE x MESH_TILE voxels in x and y through
+ * the whole grid in z: the unit of parallel work.  The workers of the
+ * engine run tiles concurrently; a tile writes only the storage bricks of
+ * its own column (vod_volume_put_brick, whose calls for different bricks
+ * may run concurrently), so the volume's storage brick side must divide
+ * MESH_TILE.  A tile's result depends on nothing but the mesh, the grid,
+ * the options and the tile: any number of workers, in any order, gives the
+ * same volume, and a tile run twice (after a worker's death) writes the
+ * same bricks again.
+ *
+ * Which triangles a tile needs is decided once for the job (mesh_bin):
+ * the triangles whose projection overlaps the tile's footprint (and, for
+ * the repair modes, what the parity along x and y needs).  The bins are
+ * flat arrays of integers, so the master can copy them into the shared
+ * segment and every worker reads them there.
+ */
+#ifndef VOXD_MESH_VOX_H
+#define VOXD_MESH_VOX_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "grid.h"
+#include "mesh.h"
+#include "vod_volume.h"
+
+#define MESH_TILE 64u
+
+typedef enum {
+    MESH_SOLID = 0,       /* voxel centres inside the mesh (parity) */
+    MESH_SURFACE,         /* every voxel whose closed box a triangle touches (26-separating) */
+    MESH_SURFACE6,        /* the thinner 6-separating surface */
+    MESH_CONSERVATIVE,    /* solid plus surface */
+    MESH_INTERIOR,        /* solid minus surface */
+} mesh_mode;
+
+typedef enum {
+    MESH_REPAIR_NONE = 0, /* parity along z only */
+    MESH_REPAIR_VOTE,     /* the majority of the parities along x, y and z */
+    MESH_REPAIR_WINDING,  /* where they disagree, the generalized winding number */
+} mesh_repair;
+
+typedef struct {
+    mesh_mode mode;
+    mesh_repair repair;
+    int channel;          /* VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY or VOXEL_CH_SURFACE */
+    uint32_t supersample; /* density: samples per voxel and axis, 2..8 (0: 2) */
+} mesh_vox_opts;
+
+/* The triangles of every tile: tile (tx, ty) is number ty * tiles[0] + tx
+ * and holds ids[start[t] .. start[t+1]) (triangle indices, ascending). */
+typedef struct {
+    uint32_t tiles[2];
+    uint64_t *start;      /* tiles[0] * tiles[1] + 1 entries */
+    uint32_t *ids;        /* start[tiles[0] * tiles[1]] entries */
+} mesh_bins;
+
+/* What tiles found, summed by the caller over a job's tiles. */
+typedef struct {
+    uint64_t voxels;          /* non-zero voxels written */
+    uint64_t disagreements;   /* repair modes: voxels whose parities along x, y, z differ */
+    uint64_t disagree_bricks; /* storage bricks holding such voxels */
+} mesh_tile_stats;
+
+/* Bits of the volume's voxels for these options: 8 (occupancy, density)
+ * or 32 (surface channel: occupancy and a packed normal, voxel.h). */
+uint32_t mesh_vox_bits(const mesh_vox_opts *o);
+
+/* 0 when o is a valid combination, else -EINVAL with a message. */
+int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen);
+
+/* Bin m's triangles to the tiles of grid g.  0, or -ENOMEM / -E2BIG (more
+ * ids than fit 2^32 per tile or memory allows). */
+int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+             mesh_bins *out);
+void mesh_bins_free(mesh_bins *b);
+
+/* Scratch a tile needs (the caller gives each worker one buffer). */
+size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);
+
+/* Voxelize tile (tx, ty) from the triangles ids[0, n) of m into vol, whose
+ * dims are g->res, bits mesh_vox_bits(o), and storage brick side divides
+ * MESH_TILE.  Adds to *st.  0, or -ENOMEM when vol's pool is full. */
+int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
+                  const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
+                  uint32_t ty, void *scratch, vod_volume *vol,
+                  mesh_tile_stats *st);
+
+/* Every tile, serially: the reference for the engine (tests, -w 0). */
+int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                  vod_volume *vol, mesh_tile_stats *st);
+
+#endif
