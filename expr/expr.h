@@ -46,9 +46,10 @@ typedef struct expr_vm expr_vm;
 /* Limits on the untrusted source; each violation is its own error message
  * and -E2BIG.  A field left 0 takes its default.  max_depth bounds the
  * parser's and the compiler's recursion (about 0.5 KB of stack per level),
- * counting parentheses, unary minus and '^' nesting, and the height of the
- * tree itself: a chain a+b+c+... of n terms is n-1 levels deep, while
- * min(a, b, c, ...) is one level whatever its argument count. */
+ * counting real nesting only: parentheses, function calls, unary minus and
+ * '^'.  A flat chain a+b-c+... or a*b/c*... of any length is one level,
+ * and so is min(a, b, c, ...) whatever its argument count; max_source_bytes
+ * and max_nodes bound their size. */
 typedef struct {
     uint32_t max_source_bytes; /* default 65536 */
     uint32_t max_depth;        /* nesting depth, default 256, at most 1024 */

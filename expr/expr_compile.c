@@ -234,6 +234,31 @@ done:
     return rc;
 }
 
+/* A chain a+b-c*d/...: its left spine of + - * / nodes in a loop, in the
+ * order the recursion of emit_op would take (the leftmost operand, then
+ * each right operand and its operation, bottom up), so the SSA and the tape
+ * are the same, and a sum of 10,000 terms recurses once per term's own
+ * nesting, not per term. */
+static int emit_chain(builder *b, const expr_ast *n, uint32_t *out)
+{
+    uint32_t len = 0;
+    const expr_ast *p;
+    for (p = n; expr_ast_chains(p); p = p->args[0]) len++;
+    const expr_ast *small[16], **spine = len <= 16 ? small : malloc(len * sizeof *spine);
+    if (!spine) return -ENOMEM;
+    uint32_t k = len;
+    for (p = n; k; p = p->args[0]) spine[--k] = p; /* spine[0]: the lowest */
+    uint32_t acc, r;
+    int rc = emit(b, p, &acc);
+    for (uint32_t i = 0; i < len && !rc; i++) {
+        rc = emit(b, spine[i]->args[1], &r);
+        if (!rc) rc = mk_op(b, spine[i]->op, 0, acc, r, &acc);
+    }
+    if (spine != small) free(spine);
+    if (!rc) *out = acc;
+    return rc;
+}
+
 /* Recursion depth is bounded by the tree height (the parser's limit). */
 static int emit(builder *b, const expr_ast *n, uint32_t *out)
 {
@@ -242,7 +267,7 @@ static int emit(builder *b, const expr_ast *n, uint32_t *out)
     case EXPR_AST_PI: return mk_const(b, M_PI, M_PI, nextafter(M_PI, INFINITY), out);
     case EXPR_AST_VAR: *out = REF(TAG_VAR, n->index); return 0;
     case EXPR_AST_NAME: *out = b->named[n->index]; return 0;
-    default: return emit_op(b, n, out);
+    default: return expr_ast_chains(n) ? emit_chain(b, n, out) : emit_op(b, n, out);
     }
 }
 

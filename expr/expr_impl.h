@@ -173,6 +173,19 @@ struct expr_ast {
     expr_ast **args;
 };
 
+/* + - * / chain: a+b-c+... is a left-deep tree of these nodes, which the
+ * parser builds in a loop and the compiler walks in a loop down its left
+ * spine (operands first to last, as recursion would), so a chain of any
+ * length is one level of nesting.  The height of a chaining node counts
+ * its left operand at one level less when that operand chains too: the
+ * height is then the compiler's recursion depth on the subtree. */
+static inline int expr_ast_chains(const expr_ast *n)
+{
+    return n->kind == EXPR_AST_OP && n->nargs == 2 &&
+           (n->op == EXPR_OP_ADD || n->op == EXPR_OP_SUB || n->op == EXPR_OP_MUL ||
+            n->op == EXPR_OP_DIV);
+}
+
 typedef struct expr_arena_chunk expr_arena_chunk;
 
 typedef struct {

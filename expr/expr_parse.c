@@ -7,10 +7,13 @@
  *   power     := primary [ '^' unary ]        (right-associative; -x^2 = -(x^2))
  *   primary   := NUMBER | NAME | NAME '(' [ expr { ',' expr } ] ')' | '(' expr ')'
  *
- * Recursion goes through parse_unary only, which counts nesting, so no input
- * can take the parser deeper than lim->max_depth levels; every node also
- * carries its height, so later passes that recurse over the tree are bounded
- * by the same limit.
+ * Recursion goes through parse_unary only, which counts nesting
+ * (parentheses, function arguments, unary signs, exponents), so no input
+ * can take the parser deeper than lim->max_depth levels.  The chains of
+ * expr and term are loops: a flat sum of 10,000 terms, as programs write
+ * them, is one level.  Every node also carries its height, so the
+ * compiler, which recurses over the tree (but loops along a chain, see
+ * expr_ast_chains), is bounded by the same limit.
  */
 #include <errno.h>
 #include <stdarg.h>
@@ -410,13 +413,16 @@ static expr_ast *new_node(parser *p, int kind, int op, const token *at,
     return n;
 }
 
-/* Set the children and check the height limit. */
+/* Set the children and check the height limit (a chain's left operand
+ * that chains too is one level less: see expr_ast_chains). */
 static expr_ast *set_args(parser *p, expr_ast *n, expr_ast *const *args)
 {
     uint32_t h = 0;
     for (uint32_t i = 0; i < n->nargs; i++) {
         n->args[i] = args[i];
-        if (args[i]->height > h) h = args[i]->height;
+        uint32_t hi = args[i]->height;
+        if (i == 0 && expr_ast_chains(n) && expr_ast_chains(args[0])) hi--;
+        if (hi > h) h = hi;
     }
     if (h + 1 > p->max_depth) {
         PERR(p, -E2BIG, n->line, n->col,

@@ -347,9 +347,9 @@ Test(expr_limits, deep_nesting_does_not_crash)
     cr_expect_eq(compile_rc("((((x))))", &lim, &e), 0);
     cr_expect_eq(compile_rc("(((((x)))))", &lim, &e), -E2BIG);
     cr_expect_eq(e.col, 6);
-    /* a long left-deep chain is a deep tree too (the compiler recurses on it) */
+    /* a long flat chain is one level (the compiler loops along it) */
     char *chain = repeat3("x+", 300, "x", "");
-    cr_expect_eq(compile_rc(chain, NULL, &e), -E2BIG);
+    cr_expect_eq(compile_rc(chain, NULL, &e), 0, "%s", e.msg);
     free(chain);
     chain = repeat3("x*", 200, "x", "");
     cr_expect_eq(compile_rc(chain, NULL, &e), 0);
@@ -361,6 +361,108 @@ Test(expr_limits, deep_nesting_does_not_crash)
     cr_expect_eq(compile_rc(m, NULL, &e), 0, "%s", e.msg);
     free(args);
     free(m);
+}
+
+/* "c0*x^2+c1*x^2+...": n terms with coefficients 0.00001 .. (as a program
+ * writes a polynomial), and the same sum folded left in C. */
+static char *coef_sum(int n, double x, double *want)
+{
+    char *s = malloc((size_t)n * 24 + 1), *p = s;
+    double acc = 0;
+    for (int i = 0; i < n; i++) {
+        char c[16];
+        snprintf(c, sizeof c, "0.%05d", i + 1);
+        p += sprintf(p, "%s%s*x^2", i ? "+" : "", c);
+        double t = strtod(c, NULL) * (x * x);
+        acc = i ? acc + t : t;
+    }
+    *want = acc;
+    return s;
+}
+
+Test(expr_limits, flat_chains_are_not_nesting)
+{
+    expr_error e;
+    expr_limits big = {.max_source_bytes = 1u << 20};
+    /* 10,000 terms: compiles with the default depth, evaluates as the left
+     * fold it is, bit for bit, with every evaluator */
+    double x = 0.3, want;
+    char *src = coef_sum(10000, x, &want);
+    expr_tape *t = NULL;
+    cr_assert_eq(expr_compile(src, strlen(src), &big, &t, &e), 0, "%d:%d: %s", e.line, e.col,
+                 e.msg);
+    /* x^2 once, a product per term, a sum per term but the first */
+    cr_expect_eq(expr_tape_length(t), 1 + 10000 + 9999);
+    cr_expect(same_double(expr_eval_point(t, x, 0, 0), want), "%.17g vs %.17g",
+              expr_eval_point(t, x, 0, 0), want);
+    ival v = expr_eval_ival(t, ival_point(x), ival_point(0), ival_point(0));
+    cr_expect(v.lo <= want && want <= v.hi, "[%.17g, %.17g] vs %.17g", v.lo, v.hi, want);
+    expr_vm *vm;
+    cr_assert_eq(expr_vm_new(t, 4, &vm), 0);
+    double g[3];
+    cr_expect(same_double(expr_vm_grad(vm, 0, x, 0, 0, g), want));
+    cr_expect(g[0] > 0 && g[1] == 0 && g[2] == 0);
+    expr_vm_free(vm);
+    expr_tape_free(t);
+    free(src);
+
+    /* a sum under min: pruning drops the whole chain where the other side wins */
+    src = coef_sum(10000, x, &want);
+    char *m = malloc(strlen(src) + 32);
+    sprintf(m, "min(%s, x - 10)", src);
+    cr_assert_eq(expr_compile(m, strlen(m), &big, &t, &e), 0, "%s", e.msg);
+    cr_assert_eq(expr_vm_new(t, 4, &vm), 0);
+    ival b = ival_make(-1, 1);
+    expr_vm_ival(vm, 0, b, b, b);
+    expr_vm_prune(vm, 0);
+    cr_expect_eq(expr_vm_length(vm, 1), 1, "pruned to x - 10: %u", expr_vm_length(vm, 1));
+    expr_vm_free(vm);
+    expr_tape_free(t);
+    free(m);
+    free(src);
+
+    /* products, quotients, differences and their mixes are chains too */
+    const char *ops[] = {"x*", "x/", "x-", "x*y+", "x^2*y-", "-x*2+"};
+    for (int i = 0; i < 6; i++) {
+        char *c = repeat3(ops[i], 5000, "x", "");
+        cr_expect_eq(compile_rc(c, &big, &e), 0, "%s...: %s", ops[i], e.msg);
+        free(c);
+    }
+    /* a chain inside 255 parentheses still fits the default 256 levels */
+    char *sum = repeat3("x+", 3000, "x", "");
+    char *in = repeat3("(", 255, sum, ")");
+    cr_expect_eq(compile_rc(in, &big, &e), 0, "%s", e.msg);
+    free(in);
+    free(sum);
+}
+
+Test(expr_limits, real_nesting_counts)
+{
+    expr_error e;
+    expr_limits big = {.max_source_bytes = 1u << 20};
+    /* 300 nested parentheses, calls, signs, powers: the depth error */
+    const char *opens[] = {"(", "sin(", "-", "x^", "(x+", "min(x,", "1+(", "2*sin("};
+    const char *closes[] = {")", ")", "", "", ")", ")", ")", ")"};
+    for (int i = 0; i < 8; i++) {
+        char *s = repeat3(opens[i], 300, "x", closes[i]);
+        cr_expect_eq(compile_rc(s, &big, &e), -E2BIG, "opener %s", opens[i]);
+        cr_expect_str_eq(e.msg, "expression nests too deeply (limit 256 levels)");
+        free(s);
+    }
+    /* parentheses around the right operands nest: a+(b+(c+...)) */
+    char *r = repeat3("x+(", 300, "x", ")");
+    cr_expect_eq(compile_rc(r, &big, &e), -E2BIG);
+    free(r);
+    /* ... and the limit is exact: a chain is one level above the terms it
+     * joins, whatever its length */
+    expr_limits three = {.max_depth = 3};
+    cr_expect_eq(compile_rc("((x+x+x+x*x*x))", &three, &e), 0, "%s", e.msg);
+    cr_expect_eq(compile_rc("(((x+x)))", &three, &e), -E2BIG);
+    cr_expect_eq(compile_rc("x*x*x/x*sin(x)", &three, &e), 0, "%s", e.msg);
+    cr_expect_eq(compile_rc("x*x*x/x*sin(x+x)", &three, &e), -E2BIG);
+    cr_expect_eq(compile_rc("sin(sin(x))", &three, &e), 0, "%s", e.msg);
+    cr_expect_eq(compile_rc("sin(sin(x+x))", &three, &e), -E2BIG);
+    cr_expect_str_eq(e.msg, "expression nests too deeply (limit 3 levels)");
 }
 
 Test(expr_limits, node_count)
