@@ -59,17 +59,12 @@ void source_free(source *s)
     s->text = NULL;
 }
 
-/* Print the source line of the error and a caret under its column. */
+/* Print the source line of the error (a window of it around the column
+ * when it is long) and a caret under its column. */
 static void show_position(const source *s, int line, int col)
 {
-    const char *p = s->text;
-    for (int l = 1; l < line && p; l++) {
-        p = strchr(p, '\n');
-        if (p) p++;
-    }
-    if (!p || col < 1) return;
-    int n = (int)strcspn(p, "\n");
-    fprintf(stderr, "  %.*s\n  %*s^\n", n, p, col - 1, "");
+    char buf[EXPR_EXCERPT_MAX];
+    if (expr_excerpt(s->text, s->len, line, col, buf, sizeof buf) == 0) fputs(buf, stderr);
 }
 
 int source_compile(const source *s, const expr_limits *lim, expr_tape **out)

@@ -99,6 +99,12 @@ static int refuse(reason *r, const char *fmt, ...)
     return -EINVAL;
 }
 
+/* A value of the file in a message: at most SHOWN_MAX bytes of it, then
+ * "...", so that no error line runs long whatever the file holds. */
+#define SHOWN_MAX 40
+#define SHOWN_LEN(s, n) ((n) > SHOWN_MAX ? SHOWN_MAX : (int)(n)), (s), ((n) > SHOWN_MAX ? "..." : "")
+#define SHOWN(s) SHOWN_LEN(s, strlen(s))
+
 /* Decimal digits at *s (no sign, no blanks); -ERANGE on overflow. */
 static int parse_digits(const char **s, uint64_t *v)
 {
@@ -158,7 +164,7 @@ static int out_of_range(const option *o, const char *val, reason *r)
         snprintf(lo, sizeof lo, "%llu", (unsigned long long)o->min);
         snprintf(hi, sizeof hi, "%llu", (unsigned long long)o->max);
     }
-    return refuse(r, "%s %s is out of range (%s to %s%s)", o->key, val, lo, hi,
+    return refuse(r, "%s %.*s%s is out of range (%s to %s%s)", o->key, SHOWN(val), lo, hi,
                   o->kind == K_SECONDS ? " seconds" : "");
 }
 
@@ -171,7 +177,7 @@ static int parse_number(const option *o, const char *val, uint64_t *out, reason 
     if (rc == -ERANGE) return out_of_range(o, val, r);
     if (rc == 0 && *p && !p[1] && (unit = unit_of(o, *p))) p++;
     if (rc || *p)
-        return refuse(r, "bad value '%s' for %s: want %s", val, o->key,
+        return refuse(r, "bad value '%.*s%s' for %s: want %s", SHOWN(val), o->key,
                       o->kind == K_BYTES      ? "a size like 65536, 256K, 2G"
                       : o->kind == K_SECONDS ? "a duration like 600, 10m, 2h"
                                              : "a whole number");
@@ -190,7 +196,7 @@ static void store_uint(void *field, size_t size, uint64_t v)
 static int parse_path(const option *o, const char *val, char *field, reason *r)
 {
     if (val[0] != '/')
-        return refuse(r, "%s must be an absolute path, got '%s'", o->key, val);
+        return refuse(r, "%s must be an absolute path, got '%.*s%s'", o->key, SHOWN(val));
     if (strlen(val) >= o->size)
         return refuse(r, "%s is longer than %zu bytes", o->key, o->size - 1);
     memcpy(field, val, strlen(val) + 1);
@@ -201,11 +207,11 @@ static int parse_mode(const option *o, const char *val, unsigned *mode, reason *
 {
     size_t n = strlen(val);
     if (n == 0 || n > 6 || strspn(val, "01234567") != n)
-        return refuse(r, "bad value '%s' for %s: want octal permissions like 0660", val,
+        return refuse(r, "bad value '%.*s%s' for %s: want octal permissions like 0660", SHOWN(val),
                       o->key);
     unsigned long m = strtoul(val, NULL, 8);
     if (m > o->max)
-        return refuse(r, "%s %s is out of range (0 to 0777)", o->key, val);
+        return refuse(r, "%s %.*s%s is out of range (0 to 0777)", o->key, SHOWN(val));
     *mode = (unsigned)m;
     return 0;
 }
@@ -218,11 +224,11 @@ static int parse_group(const char *val, voxd_config *c, reason *r)
         return 0;
     }
     if (strlen(val) >= sizeof c->socket_group)
-        return refuse(r, "socket_group '%s' is too long", val);
+        return refuse(r, "socket_group '%.*s%s' is too long", SHOWN(val));
     const char *p = val;
     uint64_t gid;
     if (parse_digits(&p, &gid) == 0 && !*p) {
-        if (gid >= (gid_t)-1) return refuse(r, "socket_group %s is out of range", val);
+        if (gid >= (gid_t)-1) return refuse(r, "socket_group %.*s%s is out of range", SHOWN(val));
         c->socket_gid = (gid_t)gid;
     } else {
         struct group gr, *res = NULL;
@@ -265,12 +271,12 @@ static int add_uid(const char *item, voxd_config *c, reason *r)
     if (c->n_allow_uids == CONFIG_MAX_UIDS)
         return refuse(r, "allow_uids lists more than %d users", CONFIG_MAX_UIDS);
     if (parse_digits(&p, &uid) == 0 && !*p) {
-        if (uid >= (uid_t)-1) return refuse(r, "allow_uids: uid %s is out of range", item);
+        if (uid >= (uid_t)-1) return refuse(r, "allow_uids: uid %.*s%s is out of range", SHOWN(item));
     } else {
         struct passwd pw, *res = NULL;
         char buf[4096];
         if (getpwnam_r(item, &pw, buf, sizeof buf, &res) != 0 || !res)
-            return refuse(r, "allow_uids: unknown user '%s'", item);
+            return refuse(r, "allow_uids: unknown user '%.*s%s'", SHOWN(item));
         uid = pw.pw_uid;
     }
     c->allow_uids[c->n_allow_uids++] = (uid_t)uid;
@@ -306,7 +312,7 @@ static int add_cpus(const char *item, voxd_config *c, reason *r)
     }
     return 0;
 bad:
-    return refuse(r, "bad value '%s' in cpus: want a CPU like 3 or a range like 0-3", item);
+    return refuse(r, "bad value '%.*s%s' in cpus: want a CPU like 3 or a range like 0-3", SHOWN(item));
 }
 
 static int parse_cpus(const char *val, voxd_config *c, reason *r)
@@ -329,8 +335,8 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
     case K_CPUS: return parse_cpus(val, c, r);
     case K_LEVEL:
         if ((rc = log_level_parse(val)) < 0)
-            return refuse(r, "bad value '%s' for log_level: want error, warn, info or debug",
-                          val);
+            return refuse(r, "bad value '%.*s%s' for log_level: want error, warn, info or debug",
+                          SHOWN(val));
         c->log_level = rc;
         return 0;
     case K_WORKERS:
@@ -339,7 +345,7 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
             return 0;
         }
         if (!isdigit((unsigned char)val[0]))
-            return refuse(r, "bad value '%s' for workers: want auto or 1 to %d", val,
+            return refuse(r, "bad value '%.*s%s' for workers: want auto or 1 to %d", SHOWN(val),
                           CONFIG_MAX_WORKERS);
         if ((rc = parse_number(o, val, &v, r))) return rc;
         c->workers = (int)v;
@@ -393,7 +399,7 @@ static int parse_line(parser *p, char *s, voxd_config *c)
     char *val = s + klen;
     val += strspn(val, " \t");
     const option *o = find_option(s, klen);
-    if (!o) return fail_at(p, p->line, "unknown key '%.*s'", (int)klen, s);
+    if (!o) return fail_at(p, p->line, "unknown key '%.*s%s'", SHOWN_LEN(s, klen));
     size_t i = (size_t)(o - options);
     if (p->set[i])
         return fail_at(p, p->line, "duplicate key '%s' (first set on line %d)", o->key,

@@ -68,6 +68,18 @@ typedef struct {
 
 void expr_limits_default(expr_limits *lim);
 
+/* Where an error is, as a compiler shows it: two lines, the source line
+ * of line:col and a caret under col, each indented by two spaces and
+ * ended by '\n'.  A line longer than EXPR_EXCERPT_WIDTH bytes is cut to a
+ * window of that many around col, with "..." where it was cut; tabs show
+ * as a space and other control or non-ASCII bytes as '?', one column per
+ * byte, so the caret is under the right character.  buf must hold
+ * EXPR_EXCERPT_MAX bytes.  0, or -EINVAL (buf "") when src has no such
+ * line or col is not positive. */
+#define EXPR_EXCERPT_WIDTH 80
+#define EXPR_EXCERPT_MAX (2 * (EXPR_EXCERPT_WIDTH + 10) + 1)
+int expr_excerpt(const char *src, size_t len, int line, int col, char *buf, size_t n);
+
 /* Compile src (NUL-terminated, len bytes).  lim may be NULL for the defaults.
  * Returns 0 and *out, or -EINVAL (syntax/semantic error) or -E2BIG (a limit)
  * with *err filled in, or -ENOMEM. */

@@ -51,6 +51,9 @@ typedef struct {
     char socket[CONFIG_SOCKET_MAX];
 } voxd_args;
 
+/* An argument in a message: at most 40 bytes of it, then "...". */
+#define ARG(s) (strlen(s) > 40 ? 40 : (int)strlen(s)), (s), (strlen(s) > 40 ? "..." : "")
+
 static int parse_uint(const char *s, unsigned lo, unsigned hi, unsigned *out)
 {
     char *end;
@@ -87,14 +90,14 @@ static int parse_args(int argc, char **argv, voxd_args *a)
         case 'c': a->o.config_path = optarg; break;
         case 's':
             if (set_socket(a, optarg)) {
-                fprintf(stderr, "voxd: socket path '%s' is too long (under %d bytes)\n",
-                        optarg, CONFIG_SOCKET_MAX);
+                fprintf(stderr, "voxd: socket path '%.*s%s' is too long (under %d bytes)\n",
+                        ARG(optarg), CONFIG_SOCKET_MAX);
                 return 2;
             }
             break;
         case 'w':
             if (parse_uint(optarg, 1, CONFIG_MAX_WORKERS, &u)) {
-                fprintf(stderr, "voxd: bad --workers '%s': want 1..%d\n", optarg,
+                fprintf(stderr, "voxd: bad --workers '%.*s%s': want 1..%d\n", ARG(optarg),
                         CONFIG_MAX_WORKERS);
                 return 2;
             }
@@ -102,8 +105,8 @@ static int parse_args(int argc, char **argv, voxd_args *a)
             break;
         case 'T':
             if (parse_uint(optarg, 1, 86400, &u)) {
-                fprintf(stderr, "voxd: bad --client-timeout '%s': want seconds 1..86400\n",
-                        optarg);
+                fprintf(stderr, "voxd: bad --client-timeout '%.*s%s': want seconds 1..86400\n",
+                        ARG(optarg));
                 return 2;
             }
             a->o.client_timeout = u;
@@ -116,7 +119,7 @@ static int parse_args(int argc, char **argv, voxd_args *a)
         }
     }
     if (optind < argc) {
-        fprintf(stderr, "voxd: unexpected argument '%s'\n", argv[optind]);
+        fprintf(stderr, "voxd: unexpected argument '%.*s%s'\n", ARG(argv[optind]));
         return 2;
     }
     return 0;

@@ -287,6 +287,97 @@ Test(expr_errors, err_may_be_null)
     cr_expect_null(t);
 }
 
+/* ---- where an error is: the excerpt ---- */
+
+static int compile_rc(const char *src, const expr_limits *lim, expr_error *e);
+
+/* The excerpt's two lines, checked: each at most 2 + 3 + 80 + 3 characters,
+ * and the caret under the character at col (or just past the line's end).
+ * Returns the shown line (without its indent) in text. */
+static void excerpt_ok(const char *src, int line, int col, char *text, size_t n)
+{
+    char buf[EXPR_EXCERPT_MAX];
+    cr_assert_eq(expr_excerpt(src, strlen(src), line, col, buf, sizeof buf), 0);
+    char *nl = strchr(buf, '\n');
+    cr_assert_not_null(nl);
+    size_t l1 = (size_t)(nl - buf), l2 = strlen(nl + 1) - 1;
+    cr_expect_leq(l1, 88, "%s", buf);
+    cr_expect_eq(nl[1 + l2], '\n');
+    cr_expect_eq(nl[l2], '^', "%s", buf);
+    for (size_t i = 0; i + 1 < l2; i++) cr_expect_eq(nl[1 + i], ' ');
+    /* the caret's column in the first line shows the source byte at col */
+    const char *ls = src;
+    for (int k = 1; k < line; k++) ls = strchr(ls, '\n') + 1;
+    size_t ll = strcspn(ls, "\n"), c = (size_t)col - 1;
+    char want = ls[c] == '\t' ? ' ' : ls[c] < 0x20 || ls[c] > 0x7e ? '?' : ls[c];
+    if (c < ll) cr_expect_eq(buf[l2 - 1], want, "col %d: %s", col, buf);
+    else cr_expect_eq(l2 - 1, l1, "past the end: %s", buf);
+    snprintf(text, n, "%.*s", (int)l1 - 2, buf + 2);
+}
+
+Test(expr_errors, excerpt_windows_long_lines)
+{
+    char text[128];
+    /* a short line is shown whole */
+    excerpt_ok("x + y * (z", 1, 11, text, sizeof text);
+    cr_expect_str_eq(text, "x + y * (z");
+    excerpt_ok("a = 1;\n\tb = sinn(x);\nb", 2, 6, text, sizeof text);
+    cr_expect_str_eq(text, " b = sinn(x);");
+    /* a line of 8000 bytes: a window around the column, cut at both ends */
+    size_t n = 8000;
+    char *src = malloc(n + 1);
+    for (size_t i = 0; i < n; i++) src[i] = "x+y*"[i % 4];
+    src[n] = 0;
+    src[5003] = '$';
+    excerpt_ok(src, 1, 5004, text, sizeof text);
+    cr_expect_eq(strncmp(text, "...", 3), 0, "%s", text);
+    cr_expect_eq(strcmp(text + strlen(text) - 3, "..."), 0, "%s", text);
+    cr_expect_eq(strlen(text), 86);
+    cr_expect_not_null(strchr(text, '$'));
+    /* near the start: cut at the end only; near the end: at the start only */
+    for (int col = 1; col <= 41; col += 10) {
+        excerpt_ok(src, 1, col, text, sizeof text);
+        cr_expect_neq(strncmp(text, "...", 3), 0, "col %d: %s", col, text);
+    }
+    for (int col = 7961; col <= 8001; col += 8) {
+        excerpt_ok(src, 1, col, text, sizeof text);
+        cr_expect_eq(strncmp(text, "...", 3), 0, "col %d: %s", col, text);
+        cr_expect_neq(strcmp(text + strlen(text) - 3, "..."), 0, "col %d: %s", col, text);
+    }
+    /* every column of a long line lands its caret right */
+    for (int col = 1; col <= 8001; col += 97) excerpt_ok(src, 1, col, text, sizeof text);
+    /* the line of the error, not the first one; control bytes are '?' */
+    src[100] = '\n';
+    src[130] = '\x01';
+    excerpt_ok(src, 2, 30, text, sizeof text);
+    cr_expect_eq(text[29], '?', "%s", text);
+    free(src);
+    /* no such line, no column */
+    char buf[EXPR_EXCERPT_MAX];
+    cr_expect_eq(expr_excerpt("x", 1, 2, 1, buf, sizeof buf), -EINVAL);
+    cr_expect_eq(expr_excerpt("x", 1, 1, 0, buf, sizeof buf), -EINVAL);
+    cr_expect_str_eq(buf, "");
+}
+
+Test(expr_errors, a_long_line_error_is_short)
+{
+    /* the parser's own messages stay short whatever the source: names and
+     * numbers are cut at 40 bytes */
+    size_t n = 9000;
+    char *src = malloc(n + 16);
+    memset(src, 'a', n);
+    strcpy(src + n, "(x)");
+    expr_error e;
+    cr_expect_eq(compile_rc(src, NULL, &e), -EINVAL);
+    cr_expect_leq(strlen(e.msg), 80, "%s", e.msg);
+    memcpy(src + n, " + 1", 5);
+    memset(src, '1', n);
+    src[1] = 'x';
+    cr_expect_eq(compile_rc(src, NULL, &e), -EINVAL);
+    cr_expect_leq(strlen(e.msg), 80, "%s", e.msg);
+    free(src);
+}
+
 /* ---- limits ---- */
 
 static char *repeat3(const char *a, int n, const char *mid, const char *b)
