@@ -10,6 +10,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "clock.h"
 static struct {
     int fd;              /* 2, or our descriptor of path */
     int own;             /* fd is ours to close */
@@ -137,3 +138,52 @@ LOG_FN(log_error, LOG_LEVEL_ERROR)
 LOG_FN(log_warn, LOG_LEVEL_WARN)
 LOG_FN(log_info, LOG_LEVEL_INFO)
 LOG_FN(log_debug, LOG_LEVEL_DEBUG)
+
+/* ---------------------------------------------------------------- rate limits */
+
+/* Tokens come back at LOG_LIMIT_PER_S, up to the burst. */
+static void refill(log_limit *l, double now)
+{
+    if (l->t > 0 && now > l->t) l->tokens += (now - l->t) * LOG_LIMIT_PER_S;
+    if (l->tokens > LOG_LIMIT_BURST) l->tokens = LOG_LIMIT_BURST;
+    if (now > l->t) l->t = now;
+}
+
+int log_limit_take(log_limit *l, double now, int level)
+{
+    refill(l, now);
+    if (l->tokens >= 1) {
+        l->tokens -= 1;
+        return 1;
+    }
+    if (level < l->level) l->level = level;
+    l->suppressed++;
+    return 0;
+}
+
+static void summary(log_limit *l)
+{
+    log_msg(l->level, "%lu similar message%s suppressed (%s)", l->suppressed,
+            l->suppressed == 1 ? "" : "s", l->what);
+    l->suppressed = 0;
+    l->level = LOG_LEVEL_DEBUG;
+}
+
+void log_limited(log_limit *l, int level, const char *fmt, ...)
+{
+    if (level > L.level || !log_limit_take(l, clock_now(), level)) return;
+    if (l->suppressed) summary(l);
+    va_list ap;
+    va_start(ap, fmt);
+    log_vmsg(level, fmt, ap);
+    va_end(ap);
+}
+
+void log_limit_flush(log_limit *l, double now)
+{
+    if (!l->suppressed) return;
+    refill(l, now);
+    if (l->tokens < 1) return;
+    l->tokens -= 1;
+    summary(l);
+}

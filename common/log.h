@@ -50,4 +50,40 @@ __attribute__((format(printf, 1, 2))) void log_warn(const char *fmt, ...);
 __attribute__((format(printf, 1, 2))) void log_info(const char *fmt, ...);
 __attribute__((format(printf, 1, 2))) void log_debug(const char *fmt, ...);
 
+/* A rate limit for one kind of repeated message, so that a flood (2,000
+ * refused connections, a client sending garbage in a loop) writes a few
+ * lines, not one per event.  A token bucket: LOG_LIMIT_BURST lines may go
+ * out at once, then one more each 1/LOG_LIMIT_PER_S seconds; the lines it
+ * holds back are counted, and the next line it lets through is preceded by
+ * one summary, at the level of the most severe line held back:
+ *
+ *   ... voxd[4242] warn: 1995 similar messages suppressed (refused connections: max_clients)
+ *
+ * log_limit_flush writes that summary when no line comes to carry it (the
+ * daemon calls it from its housekeeping timer), when a token allows.  A
+ * line below the log level is neither written nor counted.  One log_limit
+ * per kind, LOG_LIMIT_INIT("what it counts"); not thread-safe (the loop's). */
+#define LOG_LIMIT_BURST 5
+#define LOG_LIMIT_PER_S 1.0
+
+typedef struct {
+    const char *what;         /* the kind, in its summary */
+    double tokens;            /* lines that may go out now (at most LOG_LIMIT_BURST) */
+    double t;                 /* monotonic seconds of the last refill; 0 = never */
+    unsigned long suppressed; /* lines held back since the last summary */
+    int level;                /* the most severe of them */
+} log_limit;
+
+#define LOG_LIMIT_INIT(what_) \
+    {.what = (what_), .tokens = LOG_LIMIT_BURST, .level = LOG_LEVEL_DEBUG}
+
+/* The bucket alone, at monotonic time now: 1 when a line of this level may
+ * go out (its token taken), 0 when it is held back (counted). */
+int log_limit_take(log_limit *l, double now, int level);
+/* A line through the limit l. */
+__attribute__((format(printf, 3, 4)))
+void log_limited(log_limit *l, int level, const char *fmt, ...);
+/* The summary of the lines held back, if any and if a token allows. */
+void log_limit_flush(log_limit *l, double now);
+
 #endif

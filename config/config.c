@@ -26,6 +26,7 @@ enum kind {
     K_GROUP,   /* none | name | gid */
     K_UIDS,    /* any | list of names or uids */
     K_WORKERS, /* auto | count */
+    K_AUTO,    /* auto (stored as 0) | count */
     K_CPUS,    /* auto | list of CPUs and ranges */
     K_BYTES,   /* bytes with K/M/G/T */
     K_COUNT,   /* plain number */
@@ -60,6 +61,7 @@ static const option options[] = {
     {"log_level", K_LEVEL, F(log_level), 0, 0, NULL},
     {"pidfile", K_PATH, F(pidfile), 0, 0, NULL},
     {"max_clients", K_COUNT, F(max_clients), 1, 65536, NULL},
+    {"max_clients_per_uid", K_AUTO, F(max_clients_per_uid), 1, 65536, NULL},
     {"client_timeout", K_SECONDS, F(client_timeout), 1, 86400, NULL},
 #define LIMIT_OPTION(name, type, def, min, max, unit, doc) \
     {#name, K_##unit, F(name), (min), (max), doc},
@@ -350,6 +352,17 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
         if ((rc = parse_number(o, val, &v, r))) return rc;
         c->workers = (int)v;
         return 0;
+    case K_AUTO:
+        if (strcmp(val, "auto") == 0) {
+            store_uint(field, o->size, 0);
+            return 0;
+        }
+        if (!isdigit((unsigned char)val[0]))
+            return refuse(r, "bad value '%.*s%s' for %s: want auto or %llu to %llu", SHOWN(val),
+                          o->key, (unsigned long long)o->min, (unsigned long long)o->max);
+        if ((rc = parse_number(o, val, &v, r))) return rc;
+        store_uint(field, o->size, v);
+        return 0;
     default:
         if ((rc = parse_number(o, val, &v, r))) return rc;
         store_uint(field, o->size, v);
@@ -423,6 +436,11 @@ static int later_line(const parser *p, const char *a, const char *b)
 static int check_together(parser *p, const voxd_config *c)
 {
     char f[32], x[32];
+    if (c->max_clients_per_uid > c->max_clients)
+        return fail_at(p, later_line(p, "max_clients_per_uid", "max_clients"),
+                       "max_clients_per_uid %u is over max_clients %u (one uid's share of "
+                       "the connections; at most all of them)",
+                       c->max_clients_per_uid, c->max_clients);
     fmt_size(c->max_frame, f, sizeof f);
     if (c->chunk_size > c->max_frame - FRAME_CHUNK_OVERHEAD) {
         fmt_size(c->chunk_size, x, sizeof x);
@@ -545,6 +563,11 @@ static void print_option(FILE *out, const option *o, const voxd_config *c)
         if (c->workers) fprintf(out, "workers %d\n", c->workers);
         else fprintf(out, "# workers auto: %d on this machine\nworkers auto\n", config_workers(c));
         break;
+    case K_AUTO:
+        if (v) fprintf(out, "%s %llu\n", o->key, (unsigned long long)v);
+        else fprintf(out, "# %s auto: %u with max_clients %u\n%s auto\n", o->key,
+                     config_clients_per_uid(c), c->max_clients, o->key);
+        break;
     case K_BYTES:
         fmt_size(v, buf, sizeof buf);
         fprintf(out, "%s %s\n", o->key, buf);
@@ -567,6 +590,15 @@ int config_workers(const voxd_config *c)
     long n = sysconf(_SC_NPROCESSORS_ONLN);
     if (n < 1) n = 1;
     return n > CONFIG_MAX_WORKERS ? CONFIG_MAX_WORKERS : (int)n;
+}
+
+/* One uid may hold a quarter of the connections unless told otherwise:
+ * enough for a user's vox commands in parallel, and three more users
+ * always find room. */
+uint32_t config_clients_per_uid(const voxd_config *c)
+{
+    if (c->max_clients_per_uid) return c->max_clients_per_uid;
+    return c->max_clients >= 4 ? c->max_clients / 4 : 1;
 }
 
 int config_uid_allowed(const voxd_config *c, uid_t uid)

@@ -57,6 +57,7 @@ typedef struct {
     char pidfile[PATH_MAX];          /* "" = none */
     /* connections */
     uint32_t max_clients;            /* 128 */
+    uint32_t max_clients_per_uid;    /* 0 = auto: max_clients / 4, at least 1 */
     uint32_t client_timeout;         /* seconds, 30: hello, one frame, a stalled reply or upload */
     /* the limits clients are told (HelloOk): one field per row of VOX_LIMITS
      * (vox_limits.h), with its name, type, default and range */
@@ -78,6 +79,7 @@ void config_print(FILE *out, const voxd_config *c);
 /* Effective values for the daemon. */
 int config_workers(const voxd_config *c);          /* auto resolved, 1..256 */
 int config_uid_allowed(const voxd_config *c, uid_t uid);
+uint32_t config_clients_per_uid(const voxd_config *c); /* auto resolved */
 void config_proto_limits(const voxd_config *c, proto_limits *lim);
 
 #endif

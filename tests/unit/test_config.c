@@ -92,6 +92,8 @@ Test(config, defaults)
     cr_assert_eq(c.max_queued_jobs, 64);
     cr_assert_eq(c.max_jobs_per_uid, 16);
     cr_assert_eq(c.max_clients, 128);
+    cr_assert_eq(c.max_clients_per_uid, 0, "auto");
+    cr_assert_eq(config_clients_per_uid(&c), 32);
     cr_assert_eq(c.client_timeout, 30);
     cr_assert_eq(c.job_timeout, 600);
     cr_assert_eq(c.max_result_bytes, 4ull << 30);
@@ -137,6 +139,7 @@ static const char full[] =
     "max_queued_jobs 10\n"
     "max_jobs_per_uid 2\n"
     "max_clients 7\n"
+    "max_clients_per_uid 3\n"
     "client_timeout 2m\n"
     "job_timeout 90s\n"
     "max_result_bytes 1G\n"
@@ -172,6 +175,8 @@ Test(config, full_valid_file)
     cr_assert_eq(c.max_queued_jobs, 10);
     cr_assert_eq(c.max_jobs_per_uid, 2);
     cr_assert_eq(c.max_clients, 7);
+    cr_assert_eq(c.max_clients_per_uid, 3);
+    cr_assert_eq(config_clients_per_uid(&c), 3);
     cr_assert_eq(c.client_timeout, 120);
     cr_assert_eq(c.job_timeout, 90);
     cr_assert_eq(c.max_result_bytes, 1ull << 30);
@@ -244,6 +249,7 @@ Test(config, print_loads_back_to_the_same_config)
     cr_assert(strstr(text, "socket_mode 0600\n"));
     cr_assert(strstr(text, "client_timeout 120\n"), "%s", text);
     cr_assert(strstr(text, "max_input_bytes 8M\n"), "%s", text);
+    cr_assert(strstr(text, "\nmax_clients_per_uid 3\n"), "%s", text);
     /* Each limit says what it bounds, from the table. */
     cr_assert(strstr(text, "# max_res: voxels along a job's longest axis\nmax_res 2048\n"), "%s",
               text);
@@ -253,6 +259,8 @@ Test(config, print_loads_back_to_the_same_config)
     text = printed(&c);
     cr_assert(strstr(text, "workers auto\n"));
     cr_assert(strstr(text, "client_timeout 30\n"), "voxd --check-config shows it: %s", text);
+    cr_assert(strstr(text, "# max_clients_per_uid auto: 32 with max_clients 128\n"
+                           "max_clients_per_uid auto\n"), "%s", text);
     cr_assert(strstr(text, "# log_file: not set, so stderr\n"));
     load_ok(text, &d);
     assert_same(&c, &d);
@@ -482,6 +490,68 @@ Test(config, options_that_do_not_fit_together)
     load_ok("max_frame 4K\nchunk_size 4032\nmax_expr_bytes 3840\n", &c);
 }
 
+/* max_clients_per_uid: auto follows max_clients; a number is one uid's
+ * share, never over max_clients. */
+Test(config, max_clients_per_uid)
+{
+    voxd_config c;
+    load_ok("max_clients 10\n", &c);
+    cr_assert_eq(config_clients_per_uid(&c), 2);
+    load_ok("max_clients 3\nmax_clients_per_uid auto\n", &c);
+    cr_assert_eq(config_clients_per_uid(&c), 1, "at least 1");
+    load_ok("max_clients 1\n", &c);
+    cr_assert_eq(config_clients_per_uid(&c), 1);
+    load_ok("max_clients 5\nmax_clients_per_uid 5\n", &c);
+    cr_assert_eq(config_clients_per_uid(&c), 5);
+    load_ok("max_clients_per_uid 1\n", &c);
+    cr_assert_eq(config_clients_per_uid(&c), 1);
+    load_fails("max_clients_per_uid many\n",
+               "t.conf:1: bad value 'many' for max_clients_per_uid: want auto or 1 to 65536");
+    load_fails("max_clients_per_uid -1\n",
+               "t.conf:1: bad value '-1' for max_clients_per_uid: want auto or 1 to 65536");
+    load_fails("max_clients_per_uid 4K\n",
+               "t.conf:1: bad value '4K' for max_clients_per_uid: want a whole number");
+    load_fails("max_clients_per_uid 0\n",
+               "t.conf:1: max_clients_per_uid 0 is out of range (1 to 65536)");
+    load_fails("max_clients_per_uid 65537\n",
+               "t.conf:1: max_clients_per_uid 65537 is out of range (1 to 65536)");
+    load_fails("max_clients_per_uid 129\n",
+               "t.conf:1: max_clients_per_uid 129 is over max_clients 128 (one uid's share of "
+               "the connections; at most all of them)");
+    load_fails("max_clients_per_uid 8\n# fewer\nmax_clients 4\n",
+               "t.conf:3: max_clients_per_uid 8 is over max_clients 4 (one uid's share of "
+               "the connections; at most all of them)");
+    load_fails("max_clients_per_uid 2\nmax_clients_per_uid 3\n",
+               "t.conf:2: duplicate key 'max_clients_per_uid' (first set on line 1)");
+    load_fails("max_clients_per_uid\n", "t.conf:1: 'max_clients_per_uid' needs a value");
+}
+
+/* Whatever a line holds, its error quotes at most 40 bytes of it: no error
+ * line is long. */
+Test(config, long_values_are_cut_in_messages)
+{
+    static const char *const keys[] = {"max_res", "workers", "shm_size", "socket_mode",
+                                       "log_level", "cpus", "allow_uids", "socket",
+                                       "max_clients_per_uid", "job_timeout", "socket_group"};
+    char text[3000], err[512];
+    for (size_t k = 0; k < sizeof keys / sizeof *keys; k++) {
+        for (int digits = 0; digits < 2; digits++) {
+            int n = snprintf(text, sizeof text, "%s ", keys[k]);
+            memset(text + n, digits ? '9' : 'x', 2000);
+            strcpy(text + n + 2000, "\n");
+            voxd_config c;
+            cr_assert_eq(load_text(text, &c, err, sizeof err), -EINVAL, "%s", keys[k]);
+            cr_expect_leq(strlen(err), 160, "%s: %s", keys[k], err);
+            cr_expect(strstr(err, "...") || strstr(err, "too long"), "%s", err);
+        }
+    }
+    memset(text, 'k', 2000);
+    strcpy(text + 2000, " 1\n");
+    voxd_config c;
+    cr_assert_eq(load_text(text, &c, err, sizeof err), -EINVAL);
+    cr_expect_str_eq(err, "t.conf:1: unknown key 'kkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkk...'");
+}
+
 Test(config, line_too_long)
 {
     size_t n = CONFIG_MAX_LINE + 10;
@@ -538,7 +608,8 @@ Test(config, shipped_file_documents_the_true_defaults)
     /* The options outside the table of limits, then every row of it. */
     static const char *const keys[] = {
         "socket", "socket_mode", "socket_group", "allow_uids", "workers", "cpus",
-        "shm_size", "log_file", "log_level", "pidfile", "max_clients", "client_timeout",
+        "shm_size", "log_file", "log_level", "pidfile", "max_clients", "max_clients_per_uid",
+        "client_timeout",
 #define KEY(name, type, def, min, max, unit, doc) #name,
         VOX_LIMITS(KEY)
 #undef KEY
