@@ -251,6 +251,8 @@ static void on_tick(uv_timer_t *t)
     vd_daemon *d = t->data;
     double now = clock_now();
     check_job_timeout(d, now);
+    /* a flood that stopped: its count is written now, not at the next one */
+    for (int k = 0; k < VD_LOG_KINDS; k++) log_limit_flush(&d->loglim[k], now);
     for (vd_client *c = d->clients, *next; c; c = next) {
         next = c->next;
         vd_client_tick(c, now);
@@ -311,6 +313,21 @@ static void walk_close(uv_handle_t *h, void *arg)
     close_handle(h);
 }
 
+static void init_log_limits(vd_daemon *d)
+{
+    static const char *const what[VD_LOG_KINDS] = {
+        [VD_LOG_ACCEPT] = "failed accepts",
+        [VD_LOG_NOT_ALLOWED] = "refused connections: not in allow_uids",
+        [VD_LOG_PER_UID] = "refused connections: max_clients_per_uid",
+        [VD_LOG_FULL] = "refused connections: max_clients",
+        [VD_LOG_BAD_FRAME] = "bad frames",
+        [VD_LOG_BAD_REQUEST] = "refused requests",
+        [VD_LOG_STALLED] = "clients timed out",
+        [VD_LOG_CUT] = "connections ended inside a frame",
+    };
+    for (int k = 0; k < VD_LOG_KINDS; k++) d->loglim[k] = (log_limit)LOG_LIMIT_INIT(what[k]);
+}
+
 int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
 {
     vd_daemon *d = calloc(1, sizeof *d);
@@ -325,6 +342,7 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
     d->opt = *opt;
     snprintf(d->shm_name, sizeof d->shm_name, "%s", shm_name);
     d->t_start = clock_now();
+    init_log_limits(d);
     pthread_mutex_init(&d->mu, NULL);
     pthread_cond_init(&d->cv, NULL);
     pthread_cond_init(&d->started_cv, NULL);

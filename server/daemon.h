@@ -33,6 +33,7 @@
 #include "engine.h"
 #include "frame.h"
 #include "grid.h"
+#include "log.h"
 #include "voxd.pb-c.h"
 
 #define VD_SERVER_NAME "voxd 0.1"
@@ -111,6 +112,7 @@ struct vd_client {
     uid_t uid;
     pid_t pid;
     int hello;                 /* Hello received */
+    int admitted;              /* counted in nadmitted: not refused at accept */
     int closing;               /* uv_close called */
     int flush_close;           /* close once the write queue is empty */
     int reading;               /* uv_read_start in effect */
@@ -123,6 +125,20 @@ struct vd_client {
     /* A write finished (0) or failed (a negative libuv error): set by
      * daemon_client.c, called by daemon_conn.c. */
     void (*written)(vd_client *c, int status);
+};
+
+/* Kinds of repeated per-connection messages, each rate-limited on its own
+ * (log_limit): a flood of one kind writes a few lines and a count. */
+enum vd_log_kind {
+    VD_LOG_ACCEPT,      /* accept(2) failed (out of descriptors) */
+    VD_LOG_NOT_ALLOWED, /* refused: uid not in allow_uids */
+    VD_LOG_PER_UID,     /* refused: max_clients_per_uid */
+    VD_LOG_FULL,        /* refused: max_clients */
+    VD_LOG_BAD_FRAME,   /* garbage or a bad frame length: closed */
+    VD_LOG_BAD_REQUEST, /* a request the checker refused (debug) */
+    VD_LOG_STALLED,     /* a client timed out */
+    VD_LOG_CUT,         /* a connection ended inside a frame */
+    VD_LOG_KINDS
 };
 
 typedef struct {
@@ -150,7 +166,9 @@ struct vd_daemon {
     int exit_code;
 
     vd_client *clients;
-    unsigned nclients;
+    unsigned nclients;         /* connections, the ones being refused included */
+    unsigned nadmitted;        /* connections admitted: what max_clients bounds */
+    log_limit loglim[VD_LOG_KINDS];
     unsigned nuploading;       /* jobs waiting for their input (loop only) */
     uint64_t next_job_id;
     uint8_t readbuf[VD_READ_BUF];

@@ -1,4 +1,5 @@
-/* Connections: accept (max_clients, SO_PEERCRED against allow_uids), read
+/* Connections: accept (SO_PEERCRED against allow_uids, then max_clients
+ * and max_clients_per_uid), read
  * and decode frames (the one boundary check), answer requests, take jobs'
  * inputs in InputChunks, stream results under a bounded write queue, and
  * time out clients that stall. */
@@ -99,6 +100,7 @@ void vd_client_close(vd_client *c)
     else d->clients = c->next;
     if (c->next) c->next->prev = c->prev;
     d->nclients--;
+    d->nadmitted -= c->admitted != 0;
     /* A worker closes what it inherits as it starts (worker.c), but one
      * being forked this instant may hold a copy for a moment: shutdown()
      * ends the connection for the peer whoever holds one; close alone
@@ -484,7 +486,8 @@ static void on_frame(vd_client *c, const uint8_t *data, size_t len)
 {
     Voxd__Request *r = frame_unpack_request(data, len);
     if (!r) {
-        log_info("client pid %d: garbage frame of %zu bytes; closing", (int)c->pid, len);
+        log_limited(&c->d->loglim[VD_LOG_BAD_FRAME], LOG_LEVEL_INFO,
+                    "client pid %d: garbage frame of %zu bytes; closing", (int)c->pid, len);
         vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                         "malformed request: not a voxd protocol message");
         vd_client_close_after_flush(c);
@@ -496,7 +499,8 @@ static void on_frame(vd_client *c, const uint8_t *data, size_t len)
     if (proto_check_request(r, &lim, &pe) == 0) {
         dispatch(c, r);
     } else {
-        log_debug("client pid %d: refused request: %s", (int)c->pid, pe.msg);
+        log_limited(&c->d->loglim[VD_LOG_BAD_REQUEST], LOG_LEVEL_DEBUG,
+                    "client pid %d: refused request: %s", (int)c->pid, pe.msg);
         vd_client_error(c, 0, pe.code, "%s", pe.msg);
         /* A bad hello ends the conversation; a bad job only the job. */
         if (!c->hello) vd_client_close_after_flush(c);
@@ -523,7 +527,8 @@ static void on_bytes(vd_client *c, const uint8_t *p, size_t n)
     if (rc < 0 && !c->closing) {
         char why[128];
         frame_decoder_strerror(&c->dec, rc, why, sizeof why);
-        log_info("client pid %d: %s; closing", (int)c->pid, why);
+        log_limited(&c->d->loglim[VD_LOG_BAD_FRAME], LOG_LEVEL_INFO,
+                    "client pid %d: %s; closing", (int)c->pid, why);
         vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                         "%s (max_frame %u); closing the connection", why, c->d->cfg.max_frame);
         vd_client_close_after_flush(c);
@@ -547,7 +552,8 @@ static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
     }
     if (nread == 0) return;
     if (frame_decoder_finish(&c->dec) == -EPIPE)
-        log_info("client pid %d: connection ended inside a frame", (int)c->pid);
+        log_limited(&c->d->loglim[VD_LOG_CUT], LOG_LEVEL_INFO,
+                    "client pid %d: connection ended inside a frame", (int)c->pid);
     else if (nread != UV_EOF)
         log_debug("client pid %d: read failed: %s", (int)c->pid, uv_strerror((int)nread));
     vd_client_close(c);
@@ -574,17 +580,71 @@ static int peer_uid(vd_client *c)
 }
 
 /* Refuse with a typed error, then close once it is written. */
-static void refuse(vd_client *c, int code, const char *why)
+__attribute__((format(printf, 3, 4)))
+static void refuse(vd_client *c, int code, const char *fmt, ...)
 {
+    char why[256];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(why, sizeof why, fmt, ap);
+    va_end(ap);
     vd_client_error(c, 0, code, "%s", why);
     vd_client_close_after_flush(c);
+}
+
+/* Admitted connections of uid. */
+static unsigned clients_of(const vd_daemon *d, uid_t uid)
+{
+    unsigned n = 0;
+    for (const vd_client *o = d->clients; o; o = o->next) n += o->admitted && o->uid == uid;
+    return n;
+}
+
+/* Who may connect, and how many: allow_uids, then room at all, then the
+ * uid's share.  A refused connection is not counted against either
+ * limit while its error is written, so a flood of refused connections
+ * takes no slot from anyone.  Each refusal kind is logged through its
+ * own rate limit.  1 when admitted. */
+static int admit(vd_daemon *d, vd_client *c)
+{
+    unsigned mine, share = config_clients_per_uid(&d->cfg);
+    if (!config_uid_allowed(&d->cfg, c->uid)) {
+        log_limited(&d->loglim[VD_LOG_NOT_ALLOWED], LOG_LEVEL_WARN,
+                    "refused a connection from uid %u (pid %d): not in allow_uids",
+                    (unsigned)c->uid, (int)c->pid);
+        refuse(c, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
+               "this uid may not use this server (allow_uids in its config)");
+        return 0;
+    }
+    if (d->nadmitted >= d->cfg.max_clients) {
+        log_limited(&d->loglim[VD_LOG_FULL], LOG_LEVEL_WARN,
+                    "refused a connection from uid %u: %u clients (max_clients)",
+                    (unsigned)c->uid, d->nadmitted);
+        refuse(c, VOXD__ERROR_CODE__BUSY, "too many connections (max_clients); try again later");
+        return 0;
+    }
+    if ((mine = clients_of(d, c->uid)) >= share) {
+        log_limited(&d->loglim[VD_LOG_PER_UID], LOG_LEVEL_WARN,
+                    "refused a connection from uid %u (pid %d): it has %u connections "
+                    "(max_clients_per_uid)",
+                    (unsigned)c->uid, (int)c->pid, mine);
+        refuse(c, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
+               "uid %u already has %u connections to this server (max_clients_per_uid %u); "
+               "close one first",
+               (unsigned)c->uid, mine, share);
+        return 0;
+    }
+    c->admitted = 1;
+    d->nadmitted++;
+    return 1;
 }
 
 void vd_on_connection(uv_stream_t *server, int status)
 {
     vd_daemon *d = server->data;
     if (status < 0) {
-        log_warn("accept: %s", uv_strerror(status));
+        log_limited(&d->loglim[VD_LOG_ACCEPT], LOG_LEVEL_WARN, "accept: %s",
+                    uv_strerror(status));
         return;
     }
     vd_client *c = calloc(1, sizeof *c);
@@ -600,20 +660,10 @@ void vd_on_connection(uv_stream_t *server, int status)
     c->next = d->clients;
     if (d->clients) d->clients->prev = c;
     d->clients = c;
-    unsigned before = d->nclients++;
+    d->nclients++;
     if (peer_uid(c)) {
         vd_client_close(c);
-    } else if (!config_uid_allowed(&d->cfg, c->uid)) {
-        log_warn("refused a connection from uid %u (pid %d): not in allow_uids",
-                 (unsigned)c->uid, (int)c->pid);
-        refuse(c, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
-               "this uid may not use this server (allow_uids in its config)");
-    } else if (before >= d->cfg.max_clients) {
-        log_warn("refused a connection from uid %u: %u clients (max_clients)",
-                 (unsigned)c->uid, before);
-        refuse(c, VOXD__ERROR_CODE__BUSY,
-               "too many connections (max_clients); try again later");
-    } else {
+    } else if (admit(d, c)) {
         log_debug("client pid %d uid %u connected", (int)c->pid, (unsigned)c->uid);
         start_reading(c);
     }
@@ -642,8 +692,9 @@ void vd_client_tick(vd_client *c, double now)
     tick_uploads(c, now, t);
     if (c->closing) return;
     if (c->writes && now - c->t_write > t) {
-        log_info("client pid %d: has not read its replies for %.0f s; dropping it",
-                 (int)c->pid, t);
+        log_limited(&c->d->loglim[VD_LOG_STALLED], LOG_LEVEL_INFO,
+                    "client pid %d: has not read its replies for %.0f s; dropping it",
+                    (int)c->pid, t);
         vd_client_close(c);
         return;
     }
@@ -652,7 +703,8 @@ void vd_client_tick(vd_client *c, double now)
                        : c->t_frame && now - c->t_frame > t ? "a frame did not complete"
                                                              : NULL;
     if (!what) return;
-    log_info("client pid %d: %s within %.0f s; closing", (int)c->pid, what, t);
+    log_limited(&c->d->loglim[VD_LOG_STALLED], LOG_LEVEL_INFO,
+                "client pid %d: %s within %.0f s; closing", (int)c->pid, what, t);
     vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                     "%s within %.0f s; closing the connection", what, t);
     vd_client_close_after_flush(c);

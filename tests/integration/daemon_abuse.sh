@@ -113,7 +113,7 @@ sed -i '$d' "$TMP/voxd.conf"
 printf 'allow_uids 12345\n' >>"$TMP/voxd.conf"
 reload 4
 refuse "uid not in allow_uids: refused" 3 "ERROR LIMIT_EXCEEDED: this uid may not use this server" vc ping
-sed -i 's/^allow_uids 12345$/max_clients 2/' "$TMP/voxd.conf"
+sed -i 's/^allow_uids 12345$/max_clients 2\nmax_clients_per_uid 2/' "$TMP/voxd.conf"
 reload 5
 (exec "${CLIENT[@]}" "$S" abuse slow >/dev/null 2>&1) &
 S1=$!

@@ -13,6 +13,9 @@ hangs on it.
   daemon_client.py SOCK status            (prints pid=..,cpu=.. per worker, queued, running)
   daemon_client.py SOCK ping
   daemon_client.py SOCK abuse KIND        (see ABUSE)
+  daemon_client.py SOCK hold N            (N connections that say hello, then wait)
+  daemon_client.py SOCK flood N           (N connections at once, 100 open at a time,
+                                           each read to its end; prints the Error codes)
 
 Exit status: 0 success, 3 the server answered with an Error (printed as
 "ERROR CODE_NAME: message"), 4 the connection closed, 5 a timeout.
@@ -307,6 +310,39 @@ def cmd_ping(path):
     return 0
 
 
+def cmd_hold(path, n):
+    conns = []
+    for _ in range(n):
+        c = Conn(path)
+        c.hello()
+        conns.append(c)
+    print("holding %d" % n, flush=True)
+    time.sleep(3600)
+    return 0
+
+
+def cmd_flood(path, n):
+    """n connections in bursts of 100: every one read to its end (a
+    refused connection gets one Error and is closed)."""
+    counts, t0, done = {}, time.time(), 0
+    while done < n:
+        batch = [Conn(path) for _ in range(min(100, n - done))]
+        for c in batch:
+            got = "none"
+            while True:
+                r = c.recv_frame()
+                if r is None:
+                    break
+                if r[0] == 6:
+                    got = CODES.get(one(r[1], 2), "?")
+            counts[got] = counts.get(got, 0) + 1
+            c.s.close()
+        done += len(batch)
+    print("flood %d in %.1f s: %s" % (n, time.time() - t0,
+                                      " ".join("%s=%d" % kv for kv in sorted(counts.items()))))
+    return 0
+
+
 # ---------------------------------------------------------------- abuse
 
 def expect_close(c, want_error=None):
@@ -521,6 +557,10 @@ def main():
             return cmd_ping(path)
         if cmd == "abuse":
             return abuse(path, args[0])
+        if cmd == "hold":
+            return cmd_hold(path, int(args[0]))
+        if cmd == "flood":
+            return cmd_flood(path, int(args[0]))
     except socket.timeout:
         die(5, "TIMEOUT")
     except (ConnectionRefusedError, FileNotFoundError) as e:
