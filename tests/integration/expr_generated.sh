@@ -66,7 +66,7 @@ refuse "voxd: real nesting past its max_expr_depth is refused" 3 \
     "ERROR LIMIT_EXCEEDED: expression:1:[0-9]+: expression nests too deeply \(limit 8 levels\)" \
     vc submit "$(cat "$TMP/nest20.vx")" 8 -1,1 "$TMP/x.vod"
 short_lines "voxd depth error" "$TMP/out"
-refuse "vox: the same error from voxd" 1 "job failed: LIMIT_EXCEEDED: expression:1:[0-9]+: expression nests too deeply" \
+refuse "vox: the same error from voxd" 1 "job [0-9]+ failed: LIMIT_EXCEEDED: expression:1:[0-9]+: expression nests too deeply" \
     "$VOX" --socket "$S" submit -f "$TMP/nest20.vx" -r 8 -o "$TMP/x.vod"
 short_lines "vox's voxd depth error" "$TMP/out"
 refuse "voxd: an error in an 8 KB line" 3 "ERROR INVALID_INPUT: expression:1:6001: unknown function 'sinn'" \
