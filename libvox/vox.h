@@ -88,7 +88,8 @@ typedef struct {
 
 /* Connect to the daemon at socket_path and say hello.  opts may be NULL.
  * -ENOENT / -ECONNREFUSED when no daemon listens there, a VOX_E* code when
- * it refuses this client (VOX_EBUSY: too many clients), -ETIMEDOUT when it
+ * it refuses this client (VOX_EBUSY: too many clients; VOX_ELIMIT_EXCEEDED:
+ * a uid not allowed, or one at its max_clients_per_uid), -ETIMEDOUT when it
  * does not answer.  On success *out is a client to close with vox_close. */
 int vox_connect(const char *socket_path, const vox_options *opts, vox_client **out,
                 vox_error *err);
