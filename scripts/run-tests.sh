@@ -8,6 +8,7 @@ build=${1:-build/asan}
 root=$(cd "$(dirname "$0")/.." && pwd)
 export VOX="$root/build/release/vox" VOX_ASAN="$root/$build/vox" VOXD_ROOT="$root"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=0}
+export LSAN_OPTIONS=${LSAN_OPTIONS:-suppressions=$root/tests/lsan.supp:print_suppressions=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 passed=0 failed=0
 log=$(mktemp -d)
