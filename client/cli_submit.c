@@ -246,6 +246,7 @@ static const char *state_name(int s)
     case VOX_WORKER_IDLE: return "idle";
     case VOX_WORKER_BUSY: return "busy";
     case VOX_WORKER_STARTING: return "starting";
+    case VOX_WORKER_STALLED: return "stalled";
     default: return "unknown";
     }
 }
@@ -253,7 +254,9 @@ static const char *state_name(int s)
 static const char usage_status[] =
     "usage: vox [--socket PATH] status\n"
     "The daemon's state: uptime and clients, the queue, the running job, and each\n"
-    "worker's pid, CPU, state, jobs and voxels per second over its last job.\n"
+    "worker's pid, CPU, state (idle, busy, stalled, starting), jobs, voxels per\n"
+    "second over its last job, and how often it was replaced (died, or killed for\n"
+    "making no progress: STALLS).\n"
     "Exit status: 0, 1 the request failed, 3 no voxd answering on the socket.\n";
 
 int cli_status(int argc, char **argv, const char *sock)
@@ -287,14 +290,16 @@ int cli_status(int argc, char **argv, const char *sock)
         printf("running: nothing\n");
     }
     printf("workers: %zu\n", st.n_workers);
-    if (st.n_workers) printf("  %8s %4s %-9s %6s %14s\n", "PID", "CPU", "STATE", "JOBS", "VOXELS/S");
+    if (st.n_workers)
+        printf("  %8s %4s %-9s %6s %14s %8s %6s\n", "PID", "CPU", "STATE", "JOBS", "VOXELS/S",
+               "REPLACED", "STALLS");
     for (size_t i = 0; i < st.n_workers; i++) {
         const vox_worker_status *w = &st.workers[i];
         char cpu[16];
         if (w->cpu < 0) snprintf(cpu, sizeof cpu, "-");
         else snprintf(cpu, sizeof cpu, "%d", w->cpu);
-        printf("  %8u %4s %-9s %6llu %14.0f\n", w->pid, cpu, state_name(w->state),
-               (unsigned long long)w->jobs, w->voxels_per_second);
+        printf("  %8u %4s %-9s %6llu %14.0f %8u %6u\n", w->pid, cpu, state_name(w->state),
+               (unsigned long long)w->jobs, w->voxels_per_second, w->replaced, w->stalls);
     }
     vox_status_free(&st);
     vox_close(c);

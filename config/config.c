@@ -32,6 +32,7 @@ enum kind {
     K_COUNT,   /* plain number */
     K_SECONDS, /* with s/m/h/d */
     K_LEVEL,   /* log level name */
+    K_MEMORY,  /* auto | bytes with K/M/G/T */
 };
 
 typedef struct {
@@ -63,6 +64,8 @@ static const option options[] = {
     {"max_clients", K_COUNT, F(max_clients), 1, 65536, NULL},
     {"max_clients_per_uid", K_AUTO, F(max_clients_per_uid), 1, 65536, NULL},
     {"client_timeout", K_SECONDS, F(client_timeout), 1, 86400, NULL},
+    {"worker_stall_timeout", K_SECONDS, F(worker_stall_timeout), 0, 3600, NULL},
+    {"max_memory", K_MEMORY, F(max_memory), 64 * MIB, 1024 * TIB, NULL},
 #define LIMIT_OPTION(name, type, def, min, max, unit, doc) \
     {#name, K_##unit, F(name), (min), (max), doc},
     VOX_LIMITS(LIMIT_OPTION)
@@ -79,6 +82,7 @@ void config_defaults(voxd_config *c)
     c->log_level = LOG_LEVEL_INFO;
     c->max_clients = 128;
     c->client_timeout = 30;
+    c->worker_stall_timeout = 10;
 #define LIMIT_DEFAULT(name, type, def, min, max, unit, doc) c->name = (def);
     VOX_LIMITS(LIMIT_DEFAULT)
 #undef LIMIT_DEFAULT
@@ -145,7 +149,7 @@ static uint64_t unit_of(const option *o, char c)
         case 'h': return 3600;
         case 'd': return 86400;
         }
-    } else if (o->kind == K_BYTES) {
+    } else if (o->kind == K_BYTES || o->kind == K_MEMORY) {
         switch (toupper((unsigned char)c)) {
         case 'K': return KIB;
         case 'M': return MIB;
@@ -159,7 +163,7 @@ static uint64_t unit_of(const option *o, char c)
 static int out_of_range(const option *o, const char *val, reason *r)
 {
     char lo[32], hi[32];
-    if (o->kind == K_BYTES) {
+    if (o->kind == K_BYTES || o->kind == K_MEMORY) {
         fmt_size(o->min, lo, sizeof lo);
         fmt_size(o->max, hi, sizeof hi);
     } else {
@@ -181,6 +185,7 @@ static int parse_number(const option *o, const char *val, uint64_t *out, reason 
     if (rc || *p)
         return refuse(r, "bad value '%.*s%s' for %s: want %s", SHOWN(val), o->key,
                       o->kind == K_BYTES      ? "a size like 65536, 256K, 2G"
+                      : o->kind == K_MEMORY  ? "auto or a size like 512M, 8G"
                       : o->kind == K_SECONDS ? "a duration like 600, 10m, 2h"
                                              : "a whole number");
     if (v > UINT64_MAX / unit || v * unit < o->min || v * unit > o->max)
@@ -363,6 +368,11 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
         if ((rc = parse_number(o, val, &v, r))) return rc;
         store_uint(field, o->size, v);
         return 0;
+    case K_MEMORY:
+        if (strcmp(val, "auto") == 0) v = 0;
+        else if ((rc = parse_number(o, val, &v, r))) return rc;
+        store_uint(field, o->size, v);
+        return 0;
     default:
         if ((rc = parse_number(o, val, &v, r))) return rc;
         store_uint(field, o->size, v);
@@ -441,6 +451,16 @@ static int check_together(parser *p, const voxd_config *c)
                        "max_clients_per_uid %u is over max_clients %u (one uid's share of "
                        "the connections; at most all of them)",
                        c->max_clients_per_uid, c->max_clients);
+    /* The budget holds the segment and at least some results. */
+    if (c->max_memory && c->max_memory < c->shm_size + CONFIG_RESULT_ROOM) {
+        char m[32];
+        fmt_size(c->max_memory, x, sizeof x);
+        fmt_size(c->shm_size, m, sizeof m);
+        return fail_at(p, later_line(p, "max_memory", "shm_size"),
+                       "max_memory %s leaves no room for results beside shm_size %s "
+                       "(it must be at least %llu MiB more)",
+                       x, m, (unsigned long long)(CONFIG_RESULT_ROOM >> 20));
+    }
     fmt_size(c->max_frame, f, sizeof f);
     if (c->chunk_size > c->max_frame - FRAME_CHUNK_OVERHEAD) {
         fmt_size(c->chunk_size, x, sizeof x);
@@ -572,6 +592,11 @@ static void print_option(FILE *out, const option *o, const voxd_config *c)
         fmt_size(v, buf, sizeof buf);
         fprintf(out, "%s %s\n", o->key, buf);
         break;
+    case K_MEMORY:
+        fmt_size(config_max_memory(c), buf, sizeof buf);
+        if (v) fprintf(out, "%s %s\n", o->key, buf);
+        else fprintf(out, "# %s auto: %s on this machine\n%s auto\n", o->key, buf, o->key);
+        break;
     default: fprintf(out, "%s %llu\n", o->key, (unsigned long long)v); break;
     }
 }
@@ -599,6 +624,15 @@ uint32_t config_clients_per_uid(const voxd_config *c)
 {
     if (c->max_clients_per_uid) return c->max_clients_per_uid;
     return c->max_clients >= 4 ? c->max_clients / 4 : 1;
+}
+
+uint64_t config_max_memory(const voxd_config *c)
+{
+    if (c->max_memory) return c->max_memory;
+    long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+    uint64_t half = pages > 0 && page > 0 ? (uint64_t)pages * (uint64_t)page / 2 : 0;
+    uint64_t least = c->shm_size + CONFIG_RESULT_ROOM;
+    return (half > least ? half : least) / MIB * MIB;
 }
 
 int config_uid_allowed(const voxd_config *c, uid_t uid)

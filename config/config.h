@@ -34,6 +34,8 @@
  * keeps an expression of max_expr_bytes sendable, inline within
  * max_frame - CONFIG_REQUEST_OVERHEAD or as input within max_input_bytes. */
 #define CONFIG_REQUEST_OVERHEAD 256u
+/* max_memory must leave at least this much above shm_size for results. */
+#define CONFIG_RESULT_ROOM ((uint64_t)64 << 20)
 
 typedef struct {
     /* socket */
@@ -59,6 +61,10 @@ typedef struct {
     uint32_t max_clients;            /* 128 */
     uint32_t max_clients_per_uid;    /* 0 = auto: max_clients / 4, at least 1 */
     uint32_t client_timeout;         /* seconds, 30: hello, one frame, a stalled reply or upload */
+    /* liveness and memory */
+    uint32_t worker_stall_timeout;   /* seconds, 10: a busy worker without a heartbeat is
+                                        replaced; 0 = never */
+    uint64_t max_memory;             /* shared memory + results held; 0 = auto */
     /* the limits clients are told (HelloOk): one field per row of VOX_LIMITS
      * (vox_limits.h), with its name, type, default and range */
 #define CONFIG_LIMIT_FIELD(name, type, def, min, max, unit, doc) type name;
@@ -78,6 +84,9 @@ void config_print(FILE *out, const voxd_config *c);
 
 /* Effective values for the daemon. */
 int config_workers(const voxd_config *c);          /* auto resolved, 1..256 */
+/* max_memory, auto resolved: half the machine's memory, and at least
+ * shm_size + CONFIG_RESULT_ROOM. */
+uint64_t config_max_memory(const voxd_config *c);
 int config_uid_allowed(const voxd_config *c, uid_t uid);
 uint32_t config_clients_per_uid(const voxd_config *c); /* auto resolved */
 void config_proto_limits(const voxd_config *c, proto_limits *lim);

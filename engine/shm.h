@@ -34,7 +34,7 @@
 #include "queue.h"
 
 #define SHM_MAGIC 0x44584f56u /* "VOXD" */
-#define SHM_VERSION 2u
+#define SHM_VERSION 3u
 #define SHM_DEFAULT_BYTES ((size_t)2 << 30)   /* 2 GiB, sparse */
 #define SHM_MIN_DATA ((size_t)1 << 20)        /* data area at least 1 MiB */
 
@@ -94,6 +94,12 @@ typedef struct {
     uint32_t job_gen;     /* job the counters below are for */
     uint64_t job_tested;  /* boxes tested in this job */
     uint64_t job_cpu_ns;  /* CPU time spent on this job's tasks */
+    /* The heartbeat: advanced by the worker every few milliseconds of a
+     * task's work (work_tick), so the master can tell a worker that makes
+     * no progress (stopped, hung) from a busy one.  relaxed on both sides:
+     * the master only compares successive values; nothing is published
+     * with it. */
+    atomic_uint beat;
 
     queue_idx q;          /* prod: worker; cons: master */
     shm_entry ent[QUEUE_ENTRIES];

@@ -519,7 +519,8 @@ static int on_status(vox_client *c, const Voxd__StatusReply *m)
         for (size_t i = 0; i < m->n_workers; i++) {
             const Voxd__WorkerStatus *w = m->workers[i];
             s->workers[i] = (vox_worker_status){w->pid, w->cpu, (int)w->state, w->jobs,
-                                                w->voxels_per_second};
+                                                w->voxels_per_second, w->replaced,
+                                                w->stalls};
         }
     }
     if (m->running) {

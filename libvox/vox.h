@@ -243,6 +243,7 @@ enum {
     VOX_WORKER_IDLE = 1,
     VOX_WORKER_BUSY = 2,
     VOX_WORKER_STARTING = 3, /* being forked, again after a death */
+    VOX_WORKER_STALLED = 4,  /* holds a task, no progress for over a second */
 };
 
 typedef struct {
@@ -251,6 +252,8 @@ typedef struct {
     int state;                /* VOX_WORKER_* */
     uint64_t jobs;            /* jobs it took part in */
     double voxels_per_second; /* over its last job */
+    uint32_t replaced;        /* times its worker died or was killed and forked again */
+    uint32_t stalls;          /* ... of which for making no progress */
 } vox_worker_status;
 
 typedef struct {

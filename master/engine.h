@@ -42,6 +42,23 @@
  * bricks are encoded by the caller instead), counts for nothing.  The
  * default segment is 2 GiB of address space, at most half of /dev/shm's
  * free space; tmpfs gives pages only as they are touched.
+ *
+ * Liveness.  Each worker advances a heartbeat in its slot every few
+ * milliseconds of work.  A worker that holds a task and whose heartbeat
+ * has not moved for the stall timeout (stopped, hung; waiting on a full
+ * queue does not count) is killed with SIGKILL and replaced like one that
+ * died, its task handed out again: a stall counts as a death, so a task
+ * that stalls or kills its worker twice fails the job (ENGINE_CRASHED).
+ * A cancelled or failed job never waits on a worker that does not answer:
+ * one that has not let go of its task within a second (a quarter of a
+ * second without a heartbeat) is killed and replaced.
+ *
+ * Memory.  After every job, done, failed or cancelled, the pages of the
+ * data area beyond keep_bytes (and beyond the octree an implicit job left
+ * for the VOD phase) go back to tmpfs; engine_release() gives back the
+ * octree too.  A kind estimates what its job will need as it grows, and
+ * the job stops with ENGINE_LIMIT as soon as the estimate passes the
+ * segment, instead of filling it first.
  */
 #ifndef VOXD_ENGINE_H
 #define VOXD_ENGINE_H
@@ -66,10 +83,16 @@ typedef struct {
     int ncpus;
     size_t shm_bytes;     /* segment size; 0 = default (sparse, touched as used) */
     const char *shm_name; /* "/name" to keep (daemon); NULL = private, unlinked at once */
-    size_t keep_bytes;    /* data pages kept between jobs; a job that touched
-                             more gives the rest back to tmpfs when the next
-                             job starts; 0 = default (64 MiB) */
+    size_t keep_bytes;    /* data pages kept between jobs; what a job touched
+                             beyond them goes back to tmpfs when it ends;
+                             0 = default (ENGINE_KEEP_BYTES) */
+    double stall_timeout; /* seconds without a heartbeat before a busy worker
+                             is killed and replaced; 0 = default
+                             (ENGINE_STALL_TIMEOUT), < 0 = never */
 } engine_opts;
+
+#define ENGINE_KEEP_BYTES ((size_t)8 << 20) /* 8 MiB */
+#define ENGINE_STALL_TIMEOUT 10.0           /* seconds */
 
 typedef enum {
     ENGINE_SCHED_SUBTREE = 0, /* default: subtrees out, voxel batches back */
@@ -82,6 +105,10 @@ typedef struct {
                              tested: the grid's depth at the start, 0 at the end */
     uint64_t voxels;      /* stored so far */
     double seconds;
+    /* Bytes of the segment's data area the job uses now, and what the kind
+     * estimates it will need in all (0: no estimate yet).  The engine stops
+     * the job with ENGINE_LIMIT when the estimate passes the data area. */
+    uint64_t shm_used, shm_need;
 } engine_progress;
 
 typedef struct {
@@ -133,6 +160,8 @@ typedef struct {
     double master_cpu;       /* master thread CPU seconds */
     double worker_cpu;       /* sum of the workers' CPU seconds for the job */
     uint32_t restarts;       /* workers that died and were forked again */
+    uint32_t stalls;         /* ... of which were killed for making no
+                                progress (no heartbeat for the stall timeout) */
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
     engine_failure failure;  /* why engine_voxelize failed (ENGINE_OK if not) */
@@ -149,6 +178,31 @@ int engine_workers(const engine *e);
 /* Worker i's pid and the CPU it is pinned to (tests, status pages). */
 int engine_worker_pid(const engine *e, int i);
 int engine_worker_cpu(const engine *e, int i);
+
+/* A worker as the master sees it now (status pages, logs). */
+typedef enum {
+    ENGINE_WORKER_IDLE = 0,
+    ENGINE_WORKER_BUSY,      /* holds a task, its heartbeat moves */
+    ENGINE_WORKER_STALLED,   /* holds a task, no heartbeat for over a second */
+    ENGINE_WORKER_STARTING,  /* no process: being forked again */
+} engine_worker_state;
+
+typedef struct {
+    int pid, cpu;
+    engine_worker_state state;
+    double quiet;            /* seconds since its heartbeat last moved (busy) */
+    uint32_t replaced;       /* times this slot's worker died or was killed
+                                and was forked again, since engine_create */
+    uint32_t stalls;         /* ... of which for making no progress */
+    /* The last one killed for making no progress: its pid, how long it had
+     * been quiet and its process state then ('T' stopped, 'R' running...). */
+    int stalled_pid;
+    double stalled_quiet;
+    char stalled_state;
+} engine_worker_info;
+
+/* 0, or -EINVAL for a bad index. */
+int engine_worker_info_get(const engine *e, int i, engine_worker_info *out);
 
 /* Between jobs: reap the workers that died since the last job (or since
  * the last call) and fork each again on its CPU.  Returns how many were
@@ -169,8 +223,12 @@ int engine_check_workers(engine *e);
  * entries already taken are skipped); see Robustness above. */
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
 /* The last job's octree (a view into shared memory), NULL when the last
- * job failed or there was none. */
+ * job failed or there was none, or after engine_release. */
 octree *engine_octree(engine *e);
+/* The caller is done with the last job's octree: its pages (beyond
+ * keep_bytes) go back to tmpfs now.  pipeline_run calls it at the end of
+ * every job. */
+void engine_release(engine *e);
 /* Write the last job's octree as VOD, bricks encoded by the workers into
  * shared memory (what does not fit, or what a dying worker left undone, is
  * encoded by the caller's thread, which frees its encoder before
@@ -181,5 +239,11 @@ octree *engine_octree(engine *e);
  * ENGINE_BAD_JOB (no octree, bad parameters), ENGINE_FAULT. */
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, engine_error *err);
+/* The same, watched: progress (fraction = the bricks handed out so far)
+ * and a cancel flag (ENGINE_CANCELLED), as in engine_job; both optional. */
+int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
+                             vod_stats *st, engine_error *err,
+                             void (*progress)(void *ud, const engine_progress *p),
+                             void *ud, const atomic_int *cancel);
 
 #endif

@@ -155,6 +155,20 @@ static void encode_done(engine *e, int i, const shm_task *t, int error)
     aggregate_rest(e, ej);
 }
 
+/* How far: the mip levels' subtrees (a fifth), then the bricks handed
+ * out (relaxed: estimates, nothing is read through them). */
+static void encode_progress(engine *e, engine_progress *p)
+{
+    encode_block *b = block(e);
+    uint64_t agg = atomic_load_explicit(&b->agg_next, memory_order_relaxed);
+    uint64_t next = atomic_load_explicit(&b->next, memory_order_relaxed);
+    double fa = b->nroots ? (double)(agg < b->nroots ? agg : b->nroots) / (double)b->nroots : 1;
+    double fb = b->n ? (double)(next < b->n ? next : b->n) / (double)b->n : 1;
+    encode_job *ej = e->job;
+    p->fraction = ej->agg_left > 0 ? 0.2 * fa : 0.2 + 0.8 * fb;
+    p->voxels = e->tree.voxels;
+}
+
 static int encode_rerun(engine *e, int i, const shm_task *t)
 {
     (void)e, (void)i, (void)t;
@@ -243,9 +257,6 @@ static int encode_finish(engine *e, void *job, int rc)
     encode_job *ej = job;
     encode_block *b = block(e);
     if (rc) goto out; /* set up failed: nothing was handed out */
-    /* relaxed: read after every worker's done_seq acquire */
-    uint64_t used = atomic_load_explicit(&b->bump, memory_order_relaxed);
-    sched_touched(e, b->brick_off + (used < b->brick_cap ? used : b->brick_cap));
     const uint8_t **data = calloc(b->n ? b->n : 1, sizeof *data);
     uint8_t **own = calloc(b->n ? b->n : 1, sizeof *own);
     rc = data && own ? encode_gather(e, ej, data, own) : -ENOMEM;
@@ -268,13 +279,21 @@ const master_kind kind_encode = {
     .done = encode_done,
     .rerun = encode_rerun,
     .describe = encode_describe,
-    .progress = NULL,
+    .progress = encode_progress,
     .finish = encode_finish,
 };
 
-/* A job of the encode kind; the checks that need no workers first. */
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, engine_error *err)
+{
+    return engine_write_vod_watched(e, p, sink, st, err, NULL, NULL, NULL);
+}
+
+/* A job of the encode kind; the checks that need no workers first. */
+int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
+                             vod_stats *st, engine_error *err,
+                             void (*progress)(void *ud, const engine_progress *p),
+                             void *ud, const atomic_int *cancel)
 {
     memset(err, 0, sizeof *err);
     encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
@@ -291,5 +310,6 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
         err->code = rc;
         return rc;
     }
-    return engine_run(e, &kind_encode, &ej, NULL);
+    sched_watch w = {.progress = progress, .ud = ud, .cancel = cancel};
+    return engine_run(e, &kind_encode, &ej, &w);
 }

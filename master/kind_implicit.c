@@ -6,7 +6,6 @@
 #include <errno.h>
 #include <stdio.h>
 #include <string.h>
-#include <sys/mman.h>
 #include <time.h>
 
 #include "clock.h"
@@ -22,11 +21,20 @@ typedef struct {
     uint64_t stored;       /* voxels taken from the queues */
 } implicit_job;
 
+#define NEED_DOUBT 4.0 /* see implicit_progress */
+
 static uint64_t volume(int level) { return 1ull << (3 * level); }
 
 static const implicit_block *block(engine *e)
 {
     return shm_at(e->seg.base, e->h->job_off);
+}
+
+/* Bytes of the data area up to the octree's first `cells` cells. */
+static uint64_t tree_bytes(engine *e, uint64_t cells)
+{
+    uint64_t off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
+    return off - e->h->data_off + cells * sizeof(octree_cell);
 }
 
 static int push_octant(engine *e, implicit_job *ij, grid_octant o)
@@ -149,17 +157,15 @@ static void implicit_progress(engine *e, engine_progress *p)
     p->fraction = f > 1.0 ? 1.0 : f;
     p->level = top_pending(ij);
     p->voxels = e->tree.voxels;
-}
-
-/* A daemon's engine lives long: give back to tmpfs what the last big job
- * touched beyond the first keep bytes of the data area (kept warm for the
- * usual jobs).  The job is about to overwrite all of it anyway. */
-static void release_pages(engine *e)
-{
-    uint64_t keep = (e->h->data_off + e->keep + 4095) / 4096 * 4096;
-    if (e->touched <= keep) return;
-    madvise(e->seg.base + keep, e->touched - keep, MADV_REMOVE);
-    e->touched = keep;
+    p->shm_used = tree_bytes(e, e->tree.used);
+    /* The octree's need, extrapolated from the volume done (culled space
+     * included): used / fraction.  What is done may be denser than what
+     * is left (up to 3 times on a shape built to fool it, under 1.8 on the
+     * examples), so the need told is a NEED_DOUBT-th of that, and only once
+     * the octree holds a 64th of the data area: a job that fits is not
+     * stopped, and one that does not (x*0 at 4096^3) is stopped at once. */
+    if (f > 0 && p->shm_used >= e->h->data_bytes / 64)
+        p->shm_need = (uint64_t)((double)p->shm_used / f / NEED_DOUBT);
 }
 
 static int implicit_setup(engine *e, void *job)
@@ -167,6 +173,7 @@ static int implicit_setup(engine *e, void *job)
     implicit_job *ij = job;
     const engine_job *j = ij->job;
     e->have_tree = 0;
+    sched_hold(e, 0); /* the last job's octree: overwritten now */
     if (!j->tape) return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
     if (grid_check(&j->grid))
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's grid is invalid");
@@ -180,7 +187,6 @@ static int implicit_setup(engine *e, void *job)
                           "the expression (%zu bytes compiled) leaves no room "
                           "for the octree; raise the shared memory size", tb);
     uint64_t cap = (end - tree_off) / sizeof(octree_cell);
-    release_pages(e);
     implicit_block *b = shm_at(e->seg.base, h->data_off);
     b->grid = j->grid;
     b->tape_off = tape_off;
@@ -211,6 +217,7 @@ static void job_stats(engine *e, engine_result *r)
     r->octants = tested;
     r->worker_cpu = (double)cpu * 1e-9;
     r->restarts = e->restarts;
+    r->stalls = e->stalls;
 }
 
 static int implicit_finish(engine *e, void *job, int rc)
@@ -218,9 +225,6 @@ static int implicit_finish(engine *e, void *job, int rc)
     implicit_job *ij = job;
     engine_result *r = ij->r;
     job_stats(e, r);
-    if (e->tree.cells) /* octree_store clears whole blocks ahead */
-        sched_touched(e, (uint64_t)((uint8_t *)e->tree.cells - e->seg.base) +
-                             (uint64_t)e->tree.block_end * sizeof(octree_cell));
     r->seconds = clock_now() - e->t0;
     if (rc) {
         r->failure = e->err.failure;
@@ -228,6 +232,9 @@ static int implicit_finish(engine *e, void *job, int rc)
         return rc;
     }
     e->have_tree = 1;
+    /* the octree stays for the encode kind (octree_store clears whole
+     * blocks ahead: up to block_end) */
+    sched_hold(e, tree_bytes(e, e->tree.block_end));
     r->voxels = e->tree.voxels;
     r->cells = e->tree.used;
     r->duplicates = ij->stored - e->tree.voxels;

@@ -7,9 +7,13 @@
  * busy worker's queue through kind->take, hand stack tasks to idle
  * workers, sleep on the doorbell, replace workers that died (their task is
  * handed out again if kind->rerun says so, skipping the entries taken; a
- * second death on one task fails the job).  When the stack is empty and no
- * worker is busy, or on a failure or a cancel (the workers are then told to
- * drop the job and waited for), kind->finish produces the result.
+ * second death on one task fails the job), kill and replace busy workers
+ * whose heartbeat stands still for the stall timeout (a death too).  When
+ * the stack is empty and no worker is busy, or on a failure or a cancel
+ * (the workers are then told to drop the job and waited for, a second at
+ * most: one that does not answer is killed), kind->finish produces the
+ * result, and the data area's pages beyond what the job leaves behind
+ * (sched_hold) go back to tmpfs.
  */
 #ifndef VOXD_MASTER_H
 #define VOXD_MASTER_H
@@ -29,7 +33,17 @@ typedef struct {
     int busy;           /* a task given and not finished and drained */
     shm_task task;      /* the current task */
     uint32_t consumed;  /* entries of the current task taken */
-    int deaths;         /* workers that died on the current task */
+    int deaths;         /* workers that died (or stalled) on the current task */
+    int task_stalls;    /* ... of which stalled */
+    /* liveness */
+    unsigned beat;      /* the slot's heartbeat as last seen */
+    double beat_t;      /* when it last moved, or the watch was reset */
+    int killed;         /* SIGKILL sent, not reaped yet */
+    uint32_t replaced;  /* re-forks of this slot since engine_create */
+    uint32_t stalls;    /* ... for making no progress */
+    int stalled_pid;    /* the last worker killed for it, */
+    double stalled_quiet; /* how long it had been quiet, */
+    char stalled_state; /* its process state then (/proc: 'T' stopped) */
 } mslot;
 
 typedef struct master_kind master_kind;
@@ -57,11 +71,13 @@ struct engine {
     int aborting;
     int nbusy;
     engine_error err;   /* the job's first failure */
-    uint32_t restarts;
+    uint32_t restarts, stalls;
     double t0, last_progress, last_check;
+    double stall_s;     /* the stall timeout; <= 0: never */
     /* the segment's pages */
-    uint64_t touched;   /* end of the data pages the last job touched */
     uint64_t keep;      /* bytes of the data area kept between jobs */
+    uint64_t hold;      /* bytes of the data area the last job left for the
+                           next (the implicit kind's octree), 0 none */
     /* the last implicit job's octree, for engine_octree and the encoder */
     octree tree;
     int have_tree;
@@ -83,7 +99,10 @@ struct master_kind {
     int (*rerun)(engine *e, int i, const shm_task *t);
     /* Name task t for a message ("octant (1,2,3) level 4"). */
     void (*describe)(const shm_task *t, char *buf, size_t len);
-    /* Fill the progress report (NULL: the kind reports none). */
+    /* Fill the progress report (NULL: the kind reports none), with
+     * shm_used and shm_need when the kind can tell: the core stops the job
+     * when shm_need passes the data area.  Called every 0.1 s whether or
+     * not the caller watches. */
     void (*progress)(engine *e, engine_progress *p);
     /* The job is over with rc (0 or a failure): produce the result. */
     int (*finish)(engine *e, void *job, int rc);
@@ -98,6 +117,12 @@ int pool_spawn(engine *e, int i, char *err, size_t errlen);
 /* Write task t into worker i's slot and wake it (the slot's mechanics;
  * the scheduler's books are the caller's). */
 void pool_give(engine *e, int i, const shm_task *t, uint32_t skip);
+/* SIGKILL worker i (a stall, or no answer to an abort); the scheduler
+ * reaps and replaces it as after a crash. */
+void pool_kill(engine *e, int i);
+/* A process's state letter from /proc/PID/stat ('R', 'S', 'T' stopped...),
+ * '?' when it cannot be read. */
+char pool_proc_state(pid_t pid);
 
 static inline shm_slot *pool_slot(engine *e, int i)
 {
@@ -117,7 +142,12 @@ int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
 engine_failure engine_vod_failure(int rc, int said);
 /* Push task t onto the work stack; 0 or sched_fail (stack full). */
 int sched_push(engine *e, const shm_task *t);
-/* Remember that the job touched the data area up to offset end. */
-void sched_touched(engine *e, uint64_t end);
+/* The job leaves the data area's first `bytes` for the next job (the
+ * implicit kind's octree for the encode kind); 0 leaves nothing.  The core
+ * gives every page past them (and past keep_bytes) back to tmpfs when a
+ * job ends. */
+void sched_hold(engine *e, uint64_t bytes);
+/* Give back the data area's pages past max(keep_bytes, hold). */
+void sched_release(engine *e);
 
 #endif

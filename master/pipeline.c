@@ -50,26 +50,62 @@ static void vod_setup(vod_params *v, const pipeline_job *job, const grid_spec *g
     }
 }
 
+/* The job's progress as one fraction: the voxelization's to
+ * VOXELIZE_SHARE, the VOD's to just under 1; 1 only once the file is
+ * written (pipeline_run says it then), never while a stage still runs. */
+#define VOXELIZE_SHARE 0.6
+#define WRITE_END 0.99
+
+typedef struct {
+    const pipeline_job *job;
+    pipeline_stage stage;
+    uint64_t voxels;   /* the voxelization's, shown while writing */
+} staged;
+
+static void on_stage_progress(void *ud, const engine_progress *p)
+{
+    staged *s = ud;
+    engine_progress q = *p;
+    if (s->stage == PIPELINE_VOXELIZE) {
+        q.fraction = VOXELIZE_SHARE * p->fraction;
+    } else {
+        q.fraction = VOXELIZE_SHARE + (WRITE_END - VOXELIZE_SHARE) * p->fraction;
+        q.level = 0;
+        q.voxels = s->voxels;
+    }
+    s->job->progress(s->job->ud, &q);
+}
+
 static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
                       vod_sink *sink, pipeline_report *r)
 {
+    staged sp = {.job = job, .stage = PIPELINE_VOXELIZE};
+    void (*prog)(void *, const engine_progress *) = job->progress ? on_stage_progress : NULL;
     engine_job ej = {.tape = job->implicit.tape, .grid = r->grid,
-                     .schedule = job->schedule, .progress = job->progress,
-                     .ud = job->ud, .cancel = job->cancel};
+                     .schedule = job->schedule, .progress = prog,
+                     .ud = &sp, .cancel = job->cancel};
     engine_result er;
     r->stage = PIPELINE_VOXELIZE;
     int rc = engine_voxelize(e, &ej, &er);
     r->voxels = er.voxels;
     r->octants = er.octants;
     r->restarts = er.restarts;
+    r->stalls = er.stalls;
     r->t_voxelize = er.seconds;
     r->master_cpu = er.master_cpu;
     r->worker_cpu = er.worker_cpu;
     if (rc) return fail(r, er.failure, rc, "%s", er.error);
     r->stage = PIPELINE_WRITE;
+    sp.stage = PIPELINE_WRITE;
+    sp.voxels = er.voxels;
     double t0 = clock_now();
-    rc = engine_write_vod(e, v, sink, &r->st, &r->err);
+    rc = engine_write_vod_watched(e, v, sink, &r->st, &r->err, prog, &sp, job->cancel);
     r->t_write = clock_now() - t0;
+    if (!rc && job->progress) {
+        engine_progress done = {.fraction = 1.0, .voxels = er.voxels,
+                                .seconds = r->t_voxelize + r->t_write};
+        job->progress(job->ud, &done);
+    }
     return rc;
 }
 
@@ -140,5 +176,8 @@ int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
     char meta[JOB_META_MAX];
     vod_params v;
     vod_setup(&v, job, &r->grid, meta);
-    return e ? run_engine(e, job, &v, sink, r) : run_serial(job, &v, sink, r);
+    if (!e) return run_serial(job, &v, sink, r);
+    rc = run_engine(e, job, &v, sink, r);
+    engine_release(e); /* the job's pages go back, the octree's too */
+    return rc;
 }

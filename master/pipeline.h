@@ -39,7 +39,9 @@ typedef struct {
     /* Channel, brick, compression, hash; the geometry and the metadata
      * are the job's and filled in here. */
     vod_params vod;
-    /* Watching it (all optional; progress only with an engine). */
+    /* Watching it (all optional; progress only with an engine): one
+     * fraction over the voxelization and the VOD, 1 only once the VOD is
+     * written. */
     void (*progress)(void *ud, const engine_progress *p);
     void *ud;
     const atomic_int *cancel;     /* see engine_job.cancel */
@@ -52,6 +54,7 @@ typedef struct {
     uint64_t voxels;
     uint64_t octants;             /* boxes tested (engine only) */
     uint32_t restarts;            /* workers forked again (engine only) */
+    uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */
     double master_cpu, worker_cpu;
     vod_stats st;

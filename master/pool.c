@@ -1,6 +1,7 @@
 /* The engine's worker pool: CPUs, fork, pinning, giving a task to a slot,
  * reaping; the engine's creation and destruction. */
 #include <errno.h>
+#include <fcntl.h>
 #include <sched.h>
 #include <signal.h>
 #include <stdio.h>
@@ -14,8 +15,9 @@
 #include "master.h"
 #include "worker.h"
 
-#define EXIT_WAIT_S 2.0               /* engine_destroy's patience */
-#define KEEP_BYTES ((size_t)64 << 20) /* default engine_opts.keep_bytes */
+#define EXIT_WAIT_S 2.0 /* engine_destroy's patience */
+#define QUIET_SHOWN_S 1.0 /* a busy worker this long without a heartbeat is
+                             shown as stalled */
 
 static int pick_cpus(engine *e, const engine_opts *o, char *err,
                      size_t errlen)
@@ -84,6 +86,36 @@ void pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
     shm_wake_if_sleeping(&s->wake, &s->sleeping);
 }
 
+void pool_kill(engine *e, int i)
+{
+    mslot *m = &e->ms[i];
+    if (m->pid <= 0 || m->killed) return;
+    kill(m->pid, SIGKILL);
+    m->killed = 1;
+}
+
+char pool_proc_state(pid_t pid)
+{
+    char path[64], buf[512];
+    snprintf(path, sizeof path, "/proc/%d/stat", (int)pid);
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0) return '?';
+    ssize_t n = read(fd, buf, sizeof buf - 1);
+    close(fd);
+    if (n <= 0) return '?';
+    buf[n] = '\0';
+    /* "pid (comm) S ...": comm may hold anything, so from the last ')' */
+    char *p = strrchr(buf, ')');
+    return p && p[1] == ' ' && p[2] ? p[2] : '?';
+}
+
+/* A stopped worker (SIGSTOP, a debugger) would not take its exit task. */
+static int stopped(pid_t pid)
+{
+    char st = pool_proc_state(pid);
+    return st == 'T' || st == 't';
+}
+
 static void reap_all(engine *e)
 {
     double deadline = clock_now() + EXIT_WAIT_S;
@@ -93,8 +125,12 @@ static void reap_all(engine *e)
             pid_t pid = e->ms[i].pid;
             if (pid <= 0) continue;
             pid_t r = waitpid(pid, NULL, WNOHANG);
-            if (r == pid || (r < 0 && errno == ECHILD)) e->ms[i].pid = 0;
-            else left++;
+            if (r == pid || (r < 0 && errno == ECHILD)) {
+                e->ms[i].pid = 0;
+                continue;
+            }
+            if (stopped(pid)) kill(pid, SIGKILL); /* it would never answer */
+            left++;
         }
         if (!left) return;
         if (clock_now() > deadline) break;
@@ -137,7 +173,8 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     engine *e = calloc(1, sizeof *e);
     if (!e) return -ENOMEM;
     e->n = o->workers;
-    e->keep = o->keep_bytes ? o->keep_bytes : KEEP_BYTES;
+    e->keep = o->keep_bytes ? o->keep_bytes : ENGINE_KEEP_BYTES;
+    e->stall_s = o->stall_timeout == 0 ? ENGINE_STALL_TIMEOUT : o->stall_timeout;
     int rc = pick_cpus(e, o, err, errlen);
     if (!rc)
         rc = shm_create(&e->seg, o->shm_name, o->shm_bytes, (uint32_t)e->n,
@@ -168,6 +205,25 @@ int engine_worker_pid(const engine *e, int i)
 int engine_worker_cpu(const engine *e, int i)
 {
     return i >= 0 && i < e->n ? e->ms[i].cpu : -1;
+}
+
+int engine_worker_info_get(const engine *e, int i, engine_worker_info *out)
+{
+    if (i < 0 || i >= e->n) return -EINVAL;
+    const mslot *m = &e->ms[i];
+    *out = (engine_worker_info){
+        .pid = m->pid, .cpu = m->cpu, .state = ENGINE_WORKER_IDLE,
+        .replaced = m->replaced, .stalls = m->stalls,
+        .stalled_pid = m->stalled_pid, .stalled_quiet = m->stalled_quiet,
+        .stalled_state = m->stalled_state ? m->stalled_state : '?',
+    };
+    if (m->pid <= 0 || m->killed) {
+        out->state = ENGINE_WORKER_STARTING;
+    } else if (e->kind && m->busy) {
+        out->quiet = clock_now() - m->beat_t;
+        out->state = out->quiet >= QUIET_SHOWN_S ? ENGINE_WORKER_STALLED : ENGINE_WORKER_BUSY;
+    }
+    return 0;
 }
 
 octree *engine_octree(engine *e) { return e->have_tree ? &e->tree : NULL; }

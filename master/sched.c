@@ -1,13 +1,15 @@
 /* The scheduler: Figure 3's master loop over the shared-memory slots, the
  * same for every kind of job.  The kind (master.h) says what a task's
- * entries mean; this file moves tasks and entries, sleeps, and replaces
- * workers that die. */
+ * entries mean; this file moves tasks and entries, sleeps, replaces
+ * workers that die or stall, stops a job whose estimated memory passes the
+ * segment, and gives the job's pages back when it ends. */
 #include <errno.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include "clock.h"
 #include "master.h"
@@ -16,6 +18,12 @@
 #define PROGRESS_EVERY 0.1        /* seconds between progress callbacks */
 #define LIVENESS_EVERY 0.05       /* seconds between checks for dead workers */
 #define TASK_DEATHS 2             /* deaths on one task that fail the job */
+#define LOOKED_AWAY_S 1.0         /* a gap between checks this long (a long
+                                     setup, a starved master) restarts every
+                                     worker's quiet time */
+#define ABORT_WAIT_S 1.0          /* an abandoned job's workers let go within
+                                     this, or are killed */
+#define ABORT_QUIET_S 0.25        /* ... or within this without a heartbeat */
 
 const char *engine_failure_name(engine_failure f)
 {
@@ -55,9 +63,28 @@ int sched_push(engine *e, const shm_task *t)
     return 0;
 }
 
-void sched_touched(engine *e, uint64_t end)
+void sched_hold(engine *e, uint64_t bytes)
 {
-    if (end > e->touched) e->touched = end;
+    e->hold = bytes;
+}
+
+void sched_release(engine *e)
+{
+    uint64_t page = (uint64_t)sysconf(_SC_PAGESIZE);
+    uint64_t keep = e->keep > e->hold ? e->keep : e->hold;
+    uint64_t from = (e->h->data_off + keep + page - 1) / page * page;
+    if (from >= e->seg.bytes) return;
+    /* tmpfs frees the pages for every process that maps them; the range's
+     * untouched pages cost nothing (2 GiB of them: 0.2 ms). */
+    madvise(e->seg.base + from, e->seg.bytes - from, MADV_REMOVE);
+}
+
+void engine_release(engine *e)
+{
+    if (e->kind) return; /* inside a job: its finish holds what it needs */
+    e->have_tree = 0;
+    e->hold = 0;
+    sched_release(e);
 }
 
 /* Hand task t to worker i, the entries before skip already taken. */
@@ -68,6 +95,10 @@ static void give(engine *e, int i, const shm_task *t, uint32_t skip)
     m->task = *t;
     m->consumed = skip;
     m->deaths = 0;
+    m->task_stalls = 0;
+    /* relaxed: see shm_slot.beat */
+    m->beat = atomic_load_explicit(&pool_slot(e, i)->beat, memory_order_relaxed);
+    m->beat_t = clock_now();
     e->nbusy++;
     pool_give(e, i, t, skip);
 }
@@ -158,17 +189,20 @@ static void handle_death(engine *e, int i)
     mslot *m = &e->ms[i];
     shm_slot *s = pool_slot(e, i);
     m->pid = 0;
+    m->killed = 0;
+    m->replaced++;
     e->restarts++;
     if (m->busy) drain(e, i, e->aborting);
     int rerun = m->busy && !e->aborting && e->kind->rerun(e, i, &m->task);
-    /* The first death may be anybody's doing (a kill, the OOM killer): the
-     * task is handed out again.  A second one on the same task says the
-     * task kills its workers: the job fails. */
+    /* The first death may be anybody's doing (a kill, the OOM killer, a
+     * SIGSTOP that made it stall): the task is handed out again.  A second
+     * one on the same task says the task kills (or hangs) its workers: the
+     * job fails. */
     if (rerun && ++m->deaths >= TASK_DEATHS) {
         char what[128];
         e->kind->describe(&m->task, what, sizeof what);
-        sched_fail(e, ENGINE_CRASHED, -EIO,
-                   "%s killed its worker twice (worker %d)", what, i);
+        sched_fail(e, ENGINE_CRASHED, -EIO, "%s %s its worker twice (worker %d)", what,
+                   m->task_stalls ? "stalled or killed" : "killed", i);
         rerun = 0;
     }
     if (m->busy && !rerun) finish(e, i);
@@ -187,19 +221,57 @@ static void handle_death(engine *e, int i)
     }
 }
 
+/* Worker i's heartbeat: its quiet time starts again when it moved, when
+ * its queue is full (it waits on us, not we on it) or when asked. */
+static void watch_beat(engine *e, int i, double now, int reset)
+{
+    mslot *m = &e->ms[i];
+    shm_slot *s = pool_slot(e, i);
+    /* relaxed: see shm_slot.beat */
+    unsigned b = atomic_load_explicit(&s->beat, memory_order_relaxed);
+    if (reset || b != m->beat || queue_ready(&s->q) >= QUEUE_ENTRIES) {
+        m->beat = b;
+        m->beat_t = now;
+    }
+}
+
+/* Worker i made no progress for the stall timeout: killed, and replaced
+ * as after a crash once it is reaped (a death of its task). */
+static void stalled(engine *e, int i, double now)
+{
+    mslot *m = &e->ms[i];
+    m->stalled_pid = m->pid;
+    m->stalled_quiet = now - m->beat_t;
+    m->stalled_state = pool_proc_state(m->pid);
+    m->stalls++;
+    m->task_stalls++;
+    e->stalls++;
+    pool_kill(e, i);
+}
+
+/* Reap the dead (and replace them); in a job, watch the busy ones'
+ * heartbeats and kill those that stall. */
 static void check_workers(engine *e, int force)
 {
     double now = clock_now();
     if (!force && now - e->last_check < LIVENESS_EVERY) return;
+    int reset = now - e->last_check > LOOKED_AWAY_S;
     e->last_check = now;
     for (int i = 0; i < e->n; i++) {
-        pid_t pid = e->ms[i].pid;
+        mslot *m = &e->ms[i];
+        pid_t pid = m->pid;
         if (pid <= 0) {
-            if (force && !e->ms[i].busy) handle_death(e, i);
+            if (force && !m->busy) handle_death(e, i);
             continue;
         }
         pid_t r = waitpid(pid, NULL, WNOHANG);
-        if (r == pid || (r < 0 && errno == ECHILD)) handle_death(e, i);
+        if (r == pid || (r < 0 && errno == ECHILD)) {
+            handle_death(e, i);
+            continue;
+        }
+        if (!m->busy || m->killed) continue;
+        watch_beat(e, i, now, reset);
+        if (e->stall_s > 0 && now - m->beat_t >= e->stall_s) stalled(e, i, now);
     }
 }
 
@@ -216,15 +288,30 @@ int engine_check_workers(engine *e)
     return rc;
 }
 
+/* The kind's estimate of the job's need passed the data area: stop now,
+ * not once the segment is full. */
+static void too_big(engine *e, const engine_progress *p)
+{
+    sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+               "the job would need at least %llu MiB of shared memory (estimated at "
+               "%.2f%% done, %llu MiB in use), more than the %zu MiB there are; raise "
+               "the shared memory size or ask for less",
+               (unsigned long long)(p->shm_need >> 20), p->fraction * 100.0,
+               (unsigned long long)(p->shm_used >> 20), e->seg.bytes >> 20);
+}
+
+/* The kind's progress, every PROGRESS_EVERY (force: now, the job done):
+ * its estimate checked, then the watcher told. */
 static void progress(engine *e, int force)
 {
-    if (!e->watch.progress || !e->kind->progress) return;
+    if (!e->kind->progress) return;
     double now = clock_now();
     if (!force && now - e->last_progress < PROGRESS_EVERY) return;
     e->last_progress = now;
     engine_progress p = {.seconds = now - e->t0};
     e->kind->progress(e, &p);
-    e->watch.progress(e->watch.ud, &p);
+    if (!force && p.shm_need > e->h->data_bytes) too_big(e, &p);
+    if (e->watch.progress) e->watch.progress(e->watch.ud, &p);
 }
 
 static int cancelled(const engine *e)
@@ -253,9 +340,23 @@ static int run_loop(engine *e)
     }
 }
 
-/* Tell the workers to drop the job and wait until all are idle. */
+/* A worker that does not let go of an abandoned job (stopped, hung, or
+ * only slow to notice) is killed: a cancel never waits on it. */
+static void kill_unanswered(engine *e, double t0)
+{
+    double now = clock_now();
+    for (int i = 0; i < e->n; i++) {
+        mslot *m = &e->ms[i];
+        if (!m->busy || m->pid <= 0 || m->killed) continue;
+        if (now - t0 >= ABORT_WAIT_S || now - m->beat_t >= ABORT_QUIET_S) pool_kill(e, i);
+    }
+}
+
+/* Tell the workers to drop the job and wait until all are idle (a second
+ * at most: see kill_unanswered). */
 static void abort_job(engine *e)
 {
+    double t0 = clock_now();
     e->aborting = 1;
     /* relaxed: workers poll it; the fence in shm_wake_if_sleeping() pairs
      * with the one of a worker going to sleep. */
@@ -270,6 +371,7 @@ static void abort_job(engine *e)
             if (e->ms[i].busy) did += drain(e, i, 1);
         if (!did) sleep_master(e);
         check_workers(e, 0);
+        kill_unanswered(e, t0);
     }
     e->sp = 0;
     e->aborting = 0;
@@ -283,6 +385,7 @@ static void job_reset(engine *e, const master_kind *k, void *job,
     e->watch = watch ? *watch : (sched_watch){0};
     memset(&e->err, 0, sizeof e->err);
     e->restarts = 0;
+    e->stalls = 0;
     e->sp = 0;
     e->t0 = clock_now();
     e->last_progress = e->t0 - 1.0; /* the first call comes at once */
@@ -302,6 +405,7 @@ int engine_run(engine *e, const master_kind *k, void *job,
     if (e->nbusy) abort_job(e);
     if (!rc) progress(e, 1);
     rc = k->finish(e, job, rc);
+    sched_release(e); /* done, failed or cancelled: the pages go back */
     e->kind = NULL; /* the caller's job; nothing may use it after this */
     e->job = NULL;
     return rc;

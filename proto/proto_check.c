@@ -608,8 +608,11 @@ static int check_worker(const Voxd__WorkerStatus *w, size_t i, proto_error *e)
     if (w->cpu < -1 || w->cpu >= PROTO_MAX_CPUS)
         return bad(e, INVALID, "worker %zu has cpu %d", i, w->cpu);
     if (w->state == VOXD__WORKER_STATE__WORKER_STATE_UNSPECIFIED ||
-        (unsigned)w->state > VOXD__WORKER_STATE__WORKER_STATE_STARTING)
+        (unsigned)w->state > VOXD__WORKER_STATE__WORKER_STATE_STALLED)
         return bad(e, INVALID, "worker %zu has unknown state %d", i, (int)w->state);
+    if (w->stalls > w->replaced)
+        return bad(e, INVALID, "worker %zu has %u stalls but %u replacements", i,
+                   w->stalls, w->replaced);
     if (!isfinite(w->voxels_per_second) || w->voxels_per_second < 0)
         return bad(e, INVALID, "worker %zu has voxels_per_second %g", i,
                    w->voxels_per_second);

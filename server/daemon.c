@@ -26,17 +26,24 @@ int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen
     if (o->socket) snprintf(c->socket, sizeof c->socket, "%s", o->socket);
     if (o->workers) c->workers = o->workers;
     if (o->client_timeout) c->client_timeout = o->client_timeout;
+    if (o->stall_timeout >= 0) c->worker_stall_timeout = (uint32_t)o->stall_timeout;
     return 0;
 }
 
 void vd_engine_opts(vd_daemon *d, const voxd_config *c)
 {
     memcpy(d->cpus, c->cpus, sizeof d->cpus);
+    d->mem_max = config_max_memory(c);
+    d->mem_shm = c->shm_size;
     d->eopts = (engine_opts){.workers = config_workers(c),
                              .cpus = c->n_cpus ? d->cpus : NULL,
                              .ncpus = c->n_cpus,
                              .shm_bytes = (size_t)c->shm_size,
-                             .shm_name = d->shm_name};
+                             .shm_name = d->shm_name,
+                             /* 0 in the file: never (-1 to the engine) */
+                             .stall_timeout = c->worker_stall_timeout
+                                                  ? (double)c->worker_stall_timeout
+                                                  : -1.0};
 }
 
 /* ---------------------------------------------------------------- the socket */
@@ -302,8 +309,11 @@ static int start(vd_daemon *d)
     }
     if ((rc = listen_on(d))) return rc;
     uv_timer_start(&d->tick, on_tick, VD_TICK_MS, VD_TICK_MS);
-    log_info("listening on %s: %d worker(s), shared memory %s, client timeout %u s",
-             d->cfg.socket, d->nworkers, d->shm_name, d->cfg.client_timeout);
+    log_info("listening on %s: %d worker(s), shared memory %s, client timeout %u s, "
+             "worker stall timeout %u s, memory budget %llu MiB",
+             d->cfg.socket, d->nworkers, d->shm_name, d->cfg.client_timeout,
+             d->cfg.worker_stall_timeout,
+             (unsigned long long)(config_max_memory(&d->cfg) >> 20));
     return 0;
 }
 

@@ -52,6 +52,7 @@ typedef struct {
     const char *socket;        /* --socket: absolute, overrides the file's */
     int workers;               /* --workers: overrides the file's; 0 = not given */
     unsigned client_timeout;   /* --client-timeout: overrides the file's; 0 = not given */
+    int stall_timeout;         /* --worker-stall-timeout: overrides the file's; -1 = not given */
     int ready_fd;              /* --daemon: write 1 byte here once serving; -1 none */
 } vd_options;
 
@@ -83,6 +84,10 @@ struct vd_job {
     /* limits at submit time (a HUP does not change a job's) */
     uint32_t max_expr_bytes, max_expr_depth, job_timeout;
     uint64_t max_result_bytes;
+
+    /* The daemon's results_held, in which this job's result counts (size
+     * bytes, while fd holds it). */
+    atomic_ullong *held_sum;
 
     /* stopping it: the loop sets cancel_code under mu, then cancel */
     atomic_int cancel;
@@ -146,6 +151,8 @@ typedef struct {
     int cpu;
     uint64_t jobs;
     double vps;
+    int state;                 /* engine_worker_state */
+    uint32_t replaced, stalls; /* engine_worker_info's */
 } vd_worker_snap;
 
 struct vd_daemon {
@@ -170,6 +177,11 @@ struct vd_daemon {
     unsigned nadmitted;        /* connections admitted: what max_clients bounds */
     log_limit loglim[VD_LOG_KINDS];
     unsigned nuploading;       /* jobs waiting for their input (loop only) */
+    /* Bytes of the results held in memory files: the running job's as it
+     * is written, and the finished ones' until they are delivered or
+     * dropped.  relaxed: a sum read for the max_memory budget; nothing is
+     * published through it. */
+    atomic_ullong results_held;
     uint64_t next_job_id;
     uint8_t readbuf[VD_READ_BUF];
 
@@ -187,6 +199,8 @@ struct vd_daemon {
     int engine_state;          /* 0 starting, 1 ready, -errno failed */
     char engine_err[256];
     engine_opts eopts;         /* the next engine's (reload copies in) */
+    uint64_t mem_max, mem_shm; /* max_memory (resolved) and shm_size, for the
+                                  engine thread's budget checks */
     int cpus[CONFIG_MAX_CPUS];
     int nworkers;
     vd_worker_snap workers[ENGINE_MAX_WORKERS];
@@ -229,6 +243,11 @@ int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos);
  * code and gets it when the engine returns (0). */
 int vd_job_stop(vd_daemon *d, vd_job *j, int code);
 int vd_busy(vd_daemon *d); /* jobs queued, running or delivering */
+/* The memory budget (max_memory): room for one more job's result beside
+ * the segment (shm bytes) and the results held?  0, or
+ * VOXD__ERROR_CODE__BUSY with why in msg. */
+int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg,
+                   size_t len);
 
 /* daemon_conn.c: a connection's output */
 /* Frame r onto c's write queue; 0, or -errno after c->written(c, error). */

@@ -277,6 +277,7 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
     j->max_expr_depth = cfg->max_expr_depth;
     j->max_result_bytes = cfg->max_result_bytes;
     j->job_timeout = cfg->job_timeout;
+    j->held_sum = &c->d->results_held;
     j->t_submit = j->t_input = clock_now();
     return j;
 }
@@ -304,6 +305,11 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     vd_job *j = job_new(c, s);
     if (!j) return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
     j->id = d->next_job_id + 1;
+    char why[300];
+    if (vd_memory_room(d, config_max_memory(&d->cfg), d->cfg.shm_size, why, sizeof why)) {
+        vd_job_free(j);
+        return vd_client_error(c, 0, VOXD__ERROR_CODE__BUSY, "%s", why);
+    }
     uint32_t pos;
     int code = vd_queue_admit(d, j, loop_jobs_of(d, c->uid), &pos);
     if (code == VOXD__ERROR_CODE__BUSY) {

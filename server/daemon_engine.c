@@ -37,30 +37,74 @@ __attribute__((format(printf, 3, 4))) static void elog(vd_daemon *d, int level,
     d->elog[d->elog_n++].level = level;
 }
 
+/* The result's memory file is closed: its bytes leave the budget. */
+static void drop_result(vd_job *j)
+{
+    if (j->fd < 0) return;
+    close(j->fd);
+    j->fd = -1;
+    /* relaxed: see vd_daemon.results_held */
+    if (j->held_sum) atomic_fetch_sub_explicit(j->held_sum, j->size, memory_order_relaxed);
+}
+
+int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg, size_t len)
+{
+    /* relaxed: see vd_daemon.results_held */
+    uint64_t held = atomic_load_explicit(&d->results_held, memory_order_relaxed);
+    if (shm + held + CONFIG_RESULT_ROOM <= max_memory) return 0;
+    snprintf(msg, len,
+             "this server's memory budget (max_memory %llu MiB) is taken: %llu MiB of "
+             "shared memory and %llu MiB of results waiting for their clients; try again "
+             "later",
+             (unsigned long long)(max_memory >> 20), (unsigned long long)(shm >> 20),
+             (unsigned long long)(held >> 20));
+    return VOXD__ERROR_CODE__BUSY;
+}
+
 void vd_job_free(vd_job *j)
 {
     if (!j) return;
     if (j->map) munmap(j->map, j->size);
-    if (j->fd >= 0) close(j->fd);
+    drop_result(j);
     free(j->source);
     free(j->source_name);
     free(j);
 }
 
-/* Worker pids as the engine sees them now; a changed pid is a worker that
- * died and was forked again.  Engine thread, under mu. */
+/* A worker replaced since the last snapshot: why, in the log. */
+static void log_replaced(vd_daemon *d, int i, const vd_worker_snap *w,
+                         const engine_worker_info *in)
+{
+    if (in->stalls != w->stalls)
+        elog(d, LOG_LEVEL_WARN,
+             "worker %d (pid %d, CPU %d) made no progress for %.1f s (process state %c); "
+             "killed and forked again as pid %d, its task handed out again",
+             i, in->stalled_pid, in->cpu, in->stalled_quiet, in->stalled_state, in->pid);
+    else
+        elog(d, LOG_LEVEL_WARN, "worker %d (pid %d) died; forked again as pid %d on CPU %d",
+             i, (int)w->pid, in->pid, in->cpu);
+}
+
+/* The workers as the engine sees them now; a changed pid is a worker that
+ * died, or stalled and was killed, and was forked again.  Engine thread,
+ * under mu. */
 static void snapshot(vd_daemon *d, engine *e)
 {
     int n = engine_workers(e);
     for (int i = 0; i < n; i++) {
         vd_worker_snap *w = &d->workers[i];
-        pid_t pid = engine_worker_pid(e, i);
-        if (w->pid > 0 && pid > 0 && pid != w->pid)
-            elog(d, LOG_LEVEL_WARN,
-                 "worker %d (pid %d) died; forked again as pid %d on CPU %d", i,
-                 (int)w->pid, (int)pid, engine_worker_cpu(e, i));
-        if (pid > 0) w->pid = pid;
-        w->cpu = engine_worker_cpu(e, i);
+        engine_worker_info in;
+        if (engine_worker_info_get(e, i, &in)) continue;
+        /* the counts move with the pid: a stall is counted when the worker
+         * is killed, its pid changes once it is forked again */
+        if (w->pid > 0 && in.pid > 0 && in.pid != w->pid) log_replaced(d, i, w, &in);
+        if (in.pid > 0 && in.pid != w->pid) {
+            w->pid = in.pid;
+            w->replaced = in.replaced;
+            w->stalls = in.stalls;
+        }
+        w->cpu = in.cpu;
+        w->state = in.state;
     }
     d->nworkers = n;
 }
@@ -128,10 +172,14 @@ static void on_progress(void *ud, const engine_progress *p)
 }
 
 /* The VOD goes into a memfd: bounded by the job's max_result_bytes and
- * stopped by its cancel flag. */
+ * the memory budget, stopped by its cancel flag. */
 typedef struct {
     vd_job *j;
     int over;      /* max_result_bytes was reached (not VOD's own 4 GiB limit) */
+    /* the budget: results may hold max_memory - shm_size; 1 when this
+     * result alone, 2 when it with the others held would pass it */
+    uint64_t room;
+    int budget;
 } result_sink;
 
 static int sink_write(void *ud, const void *buf, size_t n)
@@ -144,6 +192,11 @@ static int sink_write(void *ud, const void *buf, size_t n)
         rs->over = 1;
         return -EFBIG;
     }
+    /* relaxed: see vd_daemon.results_held (it holds j->size too) */
+    uint64_t held = atomic_load_explicit(j->held_sum, memory_order_relaxed);
+    if (n > rs->room - j->size) rs->budget = 1;
+    else if (held > rs->room || n > rs->room - held) rs->budget = 2;
+    if (rs->budget) return -EFBIG;
     const uint8_t *p = buf;
     while (n) {
         ssize_t w = write(j->fd, p, n);
@@ -152,6 +205,8 @@ static int sink_write(void *ud, const void *buf, size_t n)
         p += w;
         n -= (size_t)w;
         j->size += (uint64_t)w;
+        /* relaxed: see vd_daemon.results_held */
+        atomic_fetch_add_explicit(j->held_sum, (uint64_t)w, memory_order_relaxed);
     }
     return 0;
 }
@@ -208,7 +263,10 @@ static int failure_code(const vd_job *j, const result_sink *rs, engine_failure f
     case ENGINE_BAD_JOB: return VOXD__ERROR_CODE__INVALID_INPUT;
     case ENGINE_LIMIT: return VOXD__ERROR_CODE__LIMIT_EXCEEDED;
     case ENGINE_CRASHED: return VOXD__ERROR_CODE__WORKER_CRASHED;
-    case ENGINE_SINK: return rs->over ? VOXD__ERROR_CODE__LIMIT_EXCEEDED : VOXD__ERROR_CODE__INTERNAL;
+    case ENGINE_SINK:
+        return rs->over || rs->budget == 1 ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
+               : rs->budget             ? VOXD__ERROR_CODE__BUSY
+                                        : VOXD__ERROR_CODE__INTERNAL;
     default: return VOXD__ERROR_CODE__INTERNAL;
     }
 }
@@ -229,12 +287,23 @@ static int job_failed(vd_job *j, const result_sink *rs, const pipeline_report *r
                          "the result is over this server's max_result_bytes (%llu bytes); "
                          "ask for a lower res or a coarser output",
                          (unsigned long long)j->max_result_bytes);
+    if (rs->budget == 1)
+        return job_error(j, code,
+                         "the result does not fit in this server's memory budget (max_memory "
+                         "less shm_size: %llu MiB); ask for a lower res or a coarser output",
+                         (unsigned long long)(rs->room >> 20));
+    if (rs->budget)
+        return job_error(j, code,
+                         "the result does not fit in this server's memory budget beside the "
+                         "results waiting for their clients (%llu MiB for results in all); "
+                         "try again later",
+                         (unsigned long long)(rs->room >> 20));
     if (r->stage == PIPELINE_VOXELIZE)
         return job_error(j, code, "voxelization failed: %s", err->message);
     return job_error(j, code, "cannot write the VOD: %s", err->message);
 }
 
-static void run_job(vd_daemon *d, engine *e, vd_job *j)
+static void run_job(vd_daemon *d, engine *e, vd_job *j, uint64_t room)
 {
     expr_tape *tape = NULL;
     if (compile(j, &tape)) return;
@@ -259,7 +328,7 @@ static void run_job(vd_daemon *d, engine *e, vd_job *j)
     job.vod.brick = j->brick;
     job.vod.comp = j->comp;
     job.vod.hash = j->hash;
-    result_sink rs = {j, 0};
+    result_sink rs = {.j = j, .room = room};
     vod_sink sink = {sink_write, &rs};
     pipeline_report r;
     if (pipeline_run(e, &job, &sink, &r) == 0) j->code = 0;
@@ -278,10 +347,7 @@ static void job_done(vd_daemon *d, engine *e, vd_job *j)
 {
     /* A stop asked for wins over an outcome that raced it. */
     if (j->cancel_code && j->code == 0) vd_job_stopped(j);
-    if (j->code && j->fd >= 0) {
-        close(j->fd);
-        j->fd = -1;
-    }
+    if (j->code) drop_result(j);
     if (j->code == VOXD__ERROR_CODE__WORKER_CRASHED)
         elog(d, LOG_LEVEL_ERROR, "job %llu: %s", (unsigned long long)j->id, j->message);
     int n = engine_workers(e);
@@ -309,11 +375,16 @@ static void run_next(vd_daemon *d, engine *e)
     j->state = VD_RUNNING;
     j->t_start = clock_now();
     d->running = j;
+    /* The budget, before anything is allocated: results delivered since
+     * the job was admitted may have left room, or not. */
+    uint64_t room = d->mem_max > d->mem_shm ? d->mem_max - d->mem_shm : 0;
+    int full = vd_memory_room(d, d->mem_max, d->mem_shm, j->message, sizeof j->message);
     pthread_mutex_unlock(&d->mu);
     wake_loop(d);
     /* relaxed: a flag, see engine_job.cancel */
-    if (!atomic_load_explicit(&j->cancel, memory_order_relaxed)) run_job(d, e, j);
-    else vd_job_stopped(j);
+    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) vd_job_stopped(j);
+    else if (full) j->code = full;
+    else run_job(d, e, j, room);
     pthread_mutex_lock(&d->mu);
     job_done(d, e, j);
 }

@@ -121,11 +121,15 @@ int vd_send_summary(vd_client *c, const vd_job *j)
     return vd_client_send(c, &r);
 }
 
-static Voxd__WorkerState worker_state(pid_t pid, int running)
+/* The engine's view of the worker when the engine thread last looked
+ * (every 0.1 s of a job, and at its end). */
+static Voxd__WorkerState worker_state(const vd_worker_snap *s, int running)
 {
-    if (pid <= 0) return VOXD__WORKER_STATE__WORKER_STATE_STARTING;
-    return running ? VOXD__WORKER_STATE__WORKER_STATE_BUSY
-                   : VOXD__WORKER_STATE__WORKER_STATE_IDLE;
+    if (s->pid <= 0 || s->state == ENGINE_WORKER_STARTING)
+        return VOXD__WORKER_STATE__WORKER_STATE_STARTING;
+    if (!running) return VOXD__WORKER_STATE__WORKER_STATE_IDLE;
+    return s->state == ENGINE_WORKER_STALLED ? VOXD__WORKER_STATE__WORKER_STATE_STALLED
+                                             : VOXD__WORKER_STATE__WORKER_STATE_BUSY;
 }
 
 /* Under mu: the workers as the engine thread last saw them. */
@@ -138,9 +142,11 @@ static size_t fill_workers(vd_daemon *d, Voxd__WorkerStatus *ws, Voxd__WorkerSta
         voxd__worker_status__init(&ws[n]);
         ws[n].pid = (uint32_t)s->pid;
         ws[n].cpu = s->cpu;
-        ws[n].state = worker_state(s->pid, d->running != NULL);
+        ws[n].state = worker_state(s, d->running != NULL);
         ws[n].jobs = s->jobs;
         ws[n].voxels_per_second = s->vps;
+        ws[n].replaced = s->replaced;
+        ws[n].stalls = s->stalls;
         wp[n] = &ws[n];
         n++;
     }

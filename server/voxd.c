@@ -32,6 +32,9 @@ static const char usage[] =
     "      --client-timeout S   seconds a client may take to send hello, to finish\n"
     "                           a started frame, or to read a pending reply, 1..86400\n"
     "                           (overrides the file's client_timeout, default 30)\n"
+    "      --worker-stall-timeout S  seconds a busy worker may go without progress\n"
+    "                           before it is killed and replaced, 0..3600, 0 = never\n"
+    "                           (overrides the file's worker_stall_timeout, default 10)\n"
     "  -d, --daemon             detach from the terminal once serving; write pidfile\n"
     "      --check-config FILE  load FILE, print the effective settings, exit 0 (valid)\n"
     "                           or 1 (FILE:LINE: why)\n"
@@ -80,7 +83,8 @@ static int parse_args(int argc, char **argv, voxd_args *a)
 {
     static const struct option longs[] = {
         {"config", 1, 0, 'c'}, {"socket", 1, 0, 's'}, {"workers", 1, 0, 'w'},
-        {"client-timeout", 1, 0, 'T'}, {"daemon", 0, 0, 'd'},
+        {"client-timeout", 1, 0, 'T'}, {"worker-stall-timeout", 1, 0, 'S'},
+        {"daemon", 0, 0, 'd'},
         {"check-config", 1, 0, 'C'}, {"help", 0, 0, 'h'}, {"version", 0, 0, 'V'},
         {0, 0, 0, 0}};
     unsigned u;
@@ -110,6 +114,15 @@ static int parse_args(int argc, char **argv, voxd_args *a)
                 return 2;
             }
             a->o.client_timeout = u;
+            break;
+        case 'S':
+            if (parse_uint(optarg, 0, 3600, &u)) {
+                fprintf(stderr,
+                        "voxd: bad --worker-stall-timeout '%s': want seconds 0..3600\n",
+                        optarg);
+                return 2;
+            }
+            a->o.stall_timeout = (int)u;
             break;
         case 'd': a->daemonize = 1; break;
         case 'C': a->check = optarg; break;
@@ -258,7 +271,7 @@ out:
 
 int main(int argc, char **argv)
 {
-    voxd_args a = {.o = {.ready_fd = -1}};
+    voxd_args a = {.o = {.ready_fd = -1, .stall_timeout = -1}};
     int rc = parse_args(argc, argv, &a);
     if (rc) return rc;
     if (a.check) return check_config(a.check);

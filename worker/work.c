@@ -26,6 +26,7 @@ int work_aborted(const work_ctx *w)
 shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
 {
     shm_slot *s = w->s;
+    work_tick(w);
     while (queue_space(&s->q) == 0) {
         if (work_aborted(w)) return NULL;
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
@@ -33,6 +34,7 @@ shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
             shm_futex_wait(&s->wake, v, WORK_WAIT_NS);
         shm_sleep_end(&s->sleeping);
         work_check_parent(w);
+        work_tick(w); /* waiting on the master is not a stall */
     }
     shm_entry *en = &s->ent[queue_head(&s->q)];
     en->kind = (uint16_t)s->task.kind;

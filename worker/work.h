@@ -9,6 +9,14 @@
  * element the master reads once published; on a re-run after a death the
  * core skips the entries the master already took (kernels are
  * deterministic), so a kernel never needs to know.
+ *
+ * Liveness: a kernel calls work_tick() every few milliseconds of work (the
+ * implicit kind at each poll of its subdivision, the encode kind at every
+ * brick and every subtree of the mip levels).  The master kills a worker
+ * whose heartbeat stands still for the stall timeout while it holds a task
+ * (engine_opts.stall_timeout) and hands its task out again as after a
+ * crash.  The core ticks as a task starts and ends and at every entry, so
+ * a kernel whose entries come often enough needs nothing more.
  */
 #ifndef VOXD_WORK_H
 #define VOXD_WORK_H
@@ -28,6 +36,7 @@ typedef struct work_ctx {
     uint32_t skip;           /* entries of the task still to skip */
     uint32_t gen;            /* job generation the counters are for */
     uint64_t cpu0;           /* CPU time at the job's first task */
+    unsigned beats;          /* the heartbeat's value (work_tick) */
     uint32_t begun[SHM_KINDS]; /* job generation each kind was begun for */
     void *state[SHM_KINDS];    /* each kind's state, across jobs */
 } work_ctx;
@@ -45,6 +54,15 @@ typedef struct {
 } work_kind;
 
 extern const work_kind work_implicit, work_encode;
+
+/* The heartbeat: "still working".  A store and an add, cheap enough for
+ * every few hundred microseconds of work; too seldom (seconds apart) and
+ * the master takes the worker for stalled. */
+static inline void work_tick(work_ctx *w)
+{
+    /* relaxed: see shm_slot.beat (only this worker writes it) */
+    atomic_store_explicit(&w->s->beat, ++w->beats, memory_order_relaxed);
+}
 
 /* Exit at once when the master is gone (checked after every wait). */
 void work_check_parent(const work_ctx *w);

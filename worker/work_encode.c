@@ -88,6 +88,7 @@ static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
 {
     for (;;) {
         /* relaxed: a counter that hands out disjoint chunks */
+        if (work_aborted(w)) return -ECANCELED; /* the job was cancelled */
         uint64_t i0 = atomic_fetch_add_explicit(&b->next, ENCODE_CHUNK,
                                                 memory_order_relaxed);
         if (i0 >= b->n) return 0;
@@ -95,6 +96,7 @@ static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
         for (uint64_t i = i0; i < end; i++) {
             /* relaxed: stop early once anybody failed */
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
+            work_tick(w);
             int rc = encode_one(w, st, b, src, enc, i);
             if (rc) return rc;
         }
@@ -116,10 +118,12 @@ static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
     uint8_t *done = shm_at(w->base, b->roots_done_off);
     double t0 = clock_now();
     for (;;) {
+        if (work_aborted(w)) return -ECANCELED;
         /* relaxed: a counter that hands out disjoint subtrees */
         uint64_t i = atomic_fetch_add_explicit(&b->agg_next, 1, memory_order_relaxed);
         if (i >= b->nroots) break;
         if (roots[i] == 0 || roots[i] >= b->cells_used) return -EINVAL;
+        work_tick(w);
         vod_aggregate_subtree(tree, roots[i], b->root_height, b->p.channel);
         done[i] = 1;
     }
@@ -147,7 +151,7 @@ static int encode_run(work_ctx *w, void *state, const shm_task *t)
         add_ns(&b->ns_compress, tm.compress);
         vod_encoder_free(enc);
     }
-    if (rc) encode_fail(b, rc);
+    if (rc && rc != -ECANCELED) encode_fail(b, rc);
     return rc;
 }
 

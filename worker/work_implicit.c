@@ -73,9 +73,11 @@ static int sink_voxel_batch(void *ud, const grid_voxel *v)
     return work_entry_end(st->w);
 }
 
+/* Every SUBDIV_POLL_TESTS box tests: the heartbeat, and the job's abort. */
 static int sink_poll(void *ud)
 {
     implicit_state *st = ud;
+    work_tick(st->w);
     return work_aborted(st->w) ? -ECANCELED : 0;
 }
 

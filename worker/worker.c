@@ -83,7 +83,9 @@ static void run_task(work_ctx *w, unsigned seq)
     w->task_gen = s->task_gen;
     w->skip = s->task_skip;
     job_counters(w);
+    work_tick(w);
     int rc = run_kind(w, &t);
+    work_tick(w);
     s->job_cpu_ns = cpu_ns() - w->cpu0;
     s->error = rc == -ECANCELED ? 0 : rc;
     /* release: publishes the task's last entries, counters and error
@@ -142,6 +144,7 @@ _Noreturn void worker_main(uint8_t *base, uint32_t index)
     /* relaxed: a fresh worker starts from the slot as its predecessor (or
      * the master, at creation) left it; the fork orders everything. */
     unsigned last = atomic_load_explicit(&w.s->done_seq, memory_order_relaxed);
+    w.beats = atomic_load_explicit(&w.s->beat, memory_order_relaxed);
     for (;;) {
         unsigned seq = wait_task(&w, last);
         run_task(&w, seq);

@@ -293,11 +293,14 @@ def cmd_status(path):
     f = c.expect(7)
     for w in f.get(2, []):
         wf = fields(w)
-        print("worker pid=%d cpu=%d state=%d jobs=%d" % (one(wf, 1), s64(one(wf, 2)),
-                                                          one(wf, 3), one(wf, 4)))
+        print("worker pid=%d cpu=%d state=%d jobs=%d replaced=%d stalls=%d"
+              % (one(wf, 1), s64(one(wf, 2)), one(wf, 3), one(wf, 4), one(wf, 6, 0),
+                 one(wf, 7, 0)))
     run = f.get(4)
-    print("queued=%d clients=%d running=%s" % (one(f, 3), one(f, 5),
-                                               one(fields(run[0]), 1) if run else "none"))
+    rf = fields(run[0]) if run else None
+    print("queued=%d clients=%d running=%s%s" % (
+        one(f, 3), one(f, 5), one(rf, 1) if run else "none",
+        " fraction=%.3f" % dbl(rf, 3) if run else ""))
     return 0
 
 

@@ -1384,7 +1384,8 @@ static void s_status(srv *s)
     Voxd__WorkerStatus w0 = VOXD__WORKER_STATUS__INIT, w1 = VOXD__WORKER_STATUS__INIT;
     w0.pid = 100, w0.cpu = 0, w0.state = VOXD__WORKER_STATE__WORKER_STATE_BUSY, w0.jobs = 3;
     w0.voxels_per_second = 1.5e6;
-    w1.pid = 101, w1.cpu = -1, w1.state = VOXD__WORKER_STATE__WORKER_STATE_IDLE;
+    w1.pid = 101, w1.cpu = -1, w1.state = VOXD__WORKER_STATE__WORKER_STATE_STALLED;
+    w1.replaced = 3, w1.stalls = 1;
     Voxd__WorkerStatus *ws[2] = {&w0, &w1};
     Voxd__RunningJob run = VOXD__RUNNING_JOB__INIT;
     run.job_id = 9, run.uid = 1000, run.fraction = 0.5, run.seconds = 2.5;
@@ -1416,7 +1417,10 @@ Test(libvox, status)
     cr_expect_eq(st.workers[0].jobs, 3);
     cr_expect_float_eq(st.workers[0].voxels_per_second, 1.5e6, 1e-6);
     cr_expect_eq(st.workers[1].cpu, -1);
-    cr_expect_eq(st.workers[1].state, VOX_WORKER_IDLE);
+    cr_expect_eq(st.workers[1].state, VOX_WORKER_STALLED);
+    cr_expect_eq(st.workers[1].replaced, 3);
+    cr_expect_eq(st.workers[1].stalls, 1);
+    cr_expect_eq(st.workers[0].replaced, 0);
     cr_expect_eq(st.queued, 4);
     cr_expect_eq(st.clients, 2);
     cr_expect(st.has_running);

@@ -1071,8 +1071,13 @@ Test(proto, status_rules)
 {
     reply x;
     reply_init(&x, VOXD__REPLY__MSG_STATUS);
-    x.w[1].state = (Voxd__WorkerState)4;
-    reply_refused(&x, INVALID, "worker 1 has unknown state 4");
+    x.w[1].state = (Voxd__WorkerState)5;
+    reply_refused(&x, INVALID, "worker 1 has unknown state 5");
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.w[1].state = VOXD__WORKER_STATE__WORKER_STATE_STALLED;
+    x.w[1].replaced = 2;
+    x.w[1].stalls = 3;
+    reply_refused(&x, INVALID, "worker 1 has 3 stalls but 2 replacements");
     reply_init(&x, VOXD__REPLY__MSG_STATUS);
     x.w[0].pid = 0;
     reply_refused(&x, INVALID, "worker 0 has pid 0");
