@@ -194,6 +194,8 @@ typedef struct {
     uint32_t replaced;       /* times this slot's worker died or was killed
                                 and was forked again, since engine_create */
     uint32_t stalls;         /* ... of which for making no progress */
+    uint32_t unanswered;     /* ... of which for not letting go of a cancelled
+                                or failed job within a second */
     /* The last one killed for making no progress: its pid, how long it had
      * been quiet and its process state then ('T' stopped, 'R' running...). */
     int stalled_pid;

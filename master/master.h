@@ -41,6 +41,7 @@ typedef struct {
     int killed;         /* SIGKILL sent, not reaped yet */
     uint32_t replaced;  /* re-forks of this slot since engine_create */
     uint32_t stalls;    /* ... for making no progress */
+    uint32_t unanswered; /* ... for not letting go of an abandoned job */
     int stalled_pid;    /* the last worker killed for it, */
     double stalled_quiet; /* how long it had been quiet, */
     char stalled_state; /* its process state then (/proc: 'T' stopped) */

@@ -213,7 +213,7 @@ int engine_worker_info_get(const engine *e, int i, engine_worker_info *out)
     const mslot *m = &e->ms[i];
     *out = (engine_worker_info){
         .pid = m->pid, .cpu = m->cpu, .state = ENGINE_WORKER_IDLE,
-        .replaced = m->replaced, .stalls = m->stalls,
+        .replaced = m->replaced, .stalls = m->stalls, .unanswered = m->unanswered,
         .stalled_pid = m->stalled_pid, .stalled_quiet = m->stalled_quiet,
         .stalled_state = m->stalled_state ? m->stalled_state : '?',
     };

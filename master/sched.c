@@ -348,7 +348,9 @@ static void kill_unanswered(engine *e, double t0)
     for (int i = 0; i < e->n; i++) {
         mslot *m = &e->ms[i];
         if (!m->busy || m->pid <= 0 || m->killed) continue;
-        if (now - t0 >= ABORT_WAIT_S || now - m->beat_t >= ABORT_QUIET_S) pool_kill(e, i);
+        if (now - t0 < ABORT_WAIT_S && now - m->beat_t < ABORT_QUIET_S) continue;
+        m->unanswered++;
+        pool_kill(e, i);
     }
 }
 

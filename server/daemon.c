@@ -309,10 +309,12 @@ static int start(vd_daemon *d)
     }
     if ((rc = listen_on(d))) return rc;
     uv_timer_start(&d->tick, on_tick, VD_TICK_MS, VD_TICK_MS);
+    char stall[32] = "off";
+    if (d->cfg.worker_stall_timeout)
+        snprintf(stall, sizeof stall, "%u s", d->cfg.worker_stall_timeout);
     log_info("listening on %s: %d worker(s), shared memory %s, client timeout %u s, "
-             "worker stall timeout %u s, memory budget %llu MiB",
-             d->cfg.socket, d->nworkers, d->shm_name, d->cfg.client_timeout,
-             d->cfg.worker_stall_timeout,
+             "worker stall timeout %s, memory budget %llu MiB",
+             d->cfg.socket, d->nworkers, d->shm_name, d->cfg.client_timeout, stall,
              (unsigned long long)(config_max_memory(&d->cfg) >> 20));
     return 0;
 }

@@ -152,7 +152,7 @@ typedef struct {
     uint64_t jobs;
     double vps;
     int state;                 /* engine_worker_state */
-    uint32_t replaced, stalls; /* engine_worker_info's */
+    uint32_t replaced, stalls, unanswered; /* engine_worker_info's */
 } vd_worker_snap;
 
 struct vd_daemon {

@@ -80,6 +80,11 @@ static void log_replaced(vd_daemon *d, int i, const vd_worker_snap *w,
              "worker %d (pid %d, CPU %d) made no progress for %.1f s (process state %c); "
              "killed and forked again as pid %d, its task handed out again",
              i, in->stalled_pid, in->cpu, in->stalled_quiet, in->stalled_state, in->pid);
+    else if (in->unanswered != w->unanswered)
+        elog(d, LOG_LEVEL_WARN,
+             "worker %d (pid %d, CPU %d) did not let go of a stopped job within a second; "
+             "killed and forked again as pid %d",
+             i, (int)w->pid, in->cpu, in->pid);
     else
         elog(d, LOG_LEVEL_WARN, "worker %d (pid %d) died; forked again as pid %d on CPU %d",
              i, (int)w->pid, in->pid, in->cpu);
@@ -102,6 +107,7 @@ static void snapshot(vd_daemon *d, engine *e)
             w->pid = in.pid;
             w->replaced = in.replaced;
             w->stalls = in.stalls;
+            w->unanswered = in.unanswered;
         }
         w->cpu = in.cpu;
         w->state = in.state;

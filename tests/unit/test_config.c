@@ -95,6 +95,10 @@ Test(config, defaults)
     cr_assert_eq(c.max_clients_per_uid, 0, "auto");
     cr_assert_eq(config_clients_per_uid(&c), 32);
     cr_assert_eq(c.client_timeout, 30);
+    cr_assert_eq(c.worker_stall_timeout, 10);
+    cr_assert_eq(c.max_memory, 0, "auto");
+    cr_assert_geq(config_max_memory(&c), c.shm_size + CONFIG_RESULT_ROOM);
+    cr_assert_eq(config_max_memory(&c) % (1u << 20), 0);
     cr_assert_eq(c.job_timeout, 600);
     cr_assert_eq(c.max_result_bytes, 4ull << 30);
     cr_assert_eq(c.chunk_size, 256u << 10);
@@ -305,6 +309,52 @@ Test(config, duration_units)
 }
 
 /* max_expr_depth reaches exactly as far as the expression parser does. */
+/* The liveness and memory keys: their units, auto, and every bad value. */
+Test(config, stall_timeout_and_max_memory)
+{
+    voxd_config c;
+    load_ok("worker_stall_timeout 2s\nmax_memory 8G\n", &c);
+    cr_assert_eq(c.worker_stall_timeout, 2);
+    cr_assert_eq(c.max_memory, 8ull << 30);
+    cr_assert_eq(config_max_memory(&c), 8ull << 30);
+    load_ok("worker_stall_timeout 0\nmax_memory auto\n", &c);
+    cr_assert_eq(c.worker_stall_timeout, 0, "0: never");
+    cr_assert_eq(c.max_memory, 0);
+    load_ok("worker_stall_timeout 1h\nshm_size 16M\nmax_memory 80M\n", &c);
+    cr_assert_eq(c.worker_stall_timeout, 3600);
+    cr_assert_eq(config_max_memory(&c), 80ull << 20);
+    /* auto is half the machine, but never below the segment and some room */
+    load_ok("shm_size 1T\n", &c);
+    cr_assert_geq(config_max_memory(&c), (1ull << 40) + CONFIG_RESULT_ROOM);
+    char *text = printed(&c);
+    cr_assert(strstr(text, "\nmax_memory auto\n") && strstr(text, "# max_memory auto: "),
+              "%s", text);
+    cr_assert(strstr(text, "\nworker_stall_timeout 10\n"), "%s", text);
+    free(text);
+
+    load_fails("worker_stall_timeout -1\n", "t.conf:1: bad value '-1' for "
+               "worker_stall_timeout: want a duration like 600, 10m, 2h");
+    load_fails("worker_stall_timeout soon\n", "t.conf:1: bad value 'soon' for "
+               "worker_stall_timeout: want a duration like 600, 10m, 2h");
+    load_fails("worker_stall_timeout 2G\n", "t.conf:1: bad value '2G' for "
+               "worker_stall_timeout: want a duration like 600, 10m, 2h");
+    load_fails("worker_stall_timeout 2h\n", "t.conf:1: worker_stall_timeout 2h is out of "
+               "range (0 to 3600 seconds)");
+    load_fails("worker_stall_timeout\n", "t.conf:1: 'worker_stall_timeout' needs a value");
+    load_fails("max_memory lots\n",
+               "t.conf:1: bad value 'lots' for max_memory: want auto or a size like 512M, 8G");
+    load_fails("max_memory -1G\n",
+               "t.conf:1: bad value '-1G' for max_memory: want auto or a size like 512M, 8G");
+    load_fails("max_memory 10s\n",
+               "t.conf:1: bad value '10s' for max_memory: want auto or a size like 512M, 8G");
+    load_fails("max_memory 1M\n", "t.conf:1: max_memory 1M is out of range (64M to 1024T)");
+    load_fails("max_memory 2048T\n", "t.conf:1: max_memory 2048T is out of range (64M to 1024T)");
+    load_fails("max_memory 2G\n", "t.conf:1: max_memory 2G leaves no room for results beside "
+               "shm_size 2G (it must be at least 64 MiB more)");
+    load_fails("max_memory 1G\nshm_size 1000M\n", "t.conf:2: max_memory 1G leaves no room for "
+               "results beside shm_size 1000M (it must be at least 64 MiB more)");
+}
+
 Test(config, max_expr_depth_is_the_parsers_range)
 {
     voxd_config c;
@@ -609,7 +659,7 @@ Test(config, shipped_file_documents_the_true_defaults)
     static const char *const keys[] = {
         "socket", "socket_mode", "socket_group", "allow_uids", "workers", "cpus",
         "shm_size", "log_file", "log_level", "pidfile", "max_clients", "max_clients_per_uid",
-        "client_timeout",
+        "client_timeout", "worker_stall_timeout", "max_memory",
 #define KEY(name, type, def, min, max, unit, doc) #name,
         VOX_LIMITS(KEY)
 #undef KEY

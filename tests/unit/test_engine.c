@@ -15,6 +15,7 @@
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "engine.h"
@@ -553,6 +554,150 @@ Test(engine, deaths_on_different_octants_do_not_fail_the_job)
     expr_tape_free(slow);
 }
 
+/* ---- liveness: stalled workers, cancels that never wait ---- */
+
+static engine *make_engine_stall(int workers, double stall)
+{
+    engine_opts o = {.workers = workers, .stall_timeout = stall};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    return e;
+}
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* SIGSTOP worker 0 at the progress calls: each worker forked since the
+ * last stop, `stops` times; then cancel, if asked, once a worker forked
+ * after the last stop runs (or at once, `cancel_now`). */
+typedef struct {
+    engine *e;
+    int stops, n, cancel_now;
+    pid_t last;
+    atomic_int *cancel;
+    double t_cancel;
+} stopper2;
+
+static void stop_worker0(void *ud, const engine_progress *p)
+{
+    stopper2 *k = ud;
+    (void)p;
+    pid_t pid = engine_worker_pid(k->e, 0);
+    if (k->n < k->stops) {
+        if (pid > 0 && pid != k->last) {
+            usleep(50000); /* inside its task */
+            cr_assert_eq(kill(pid, SIGSTOP), 0);
+            k->last = pid;
+            k->n++;
+        }
+    } else if (k->cancel && !k->t_cancel) {
+        usleep(300000); /* the stopped worker is quiet for a while */
+        k->t_cancel = now_s();
+        atomic_store(k->cancel, 1);
+    }
+}
+
+/* A worker stopped mid-task is found by its heartbeat, killed and forked
+ * again; its task is run again and the job comes out identical, with no
+ * voxel twice. */
+Test(engine, a_stopped_worker_is_replaced_and_the_job_completes, .timeout = 120)
+{
+    expr_tape *tape = compile(SPHERES);
+    grid_spec g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine_stall(2, 1.5);
+    for (int s = 0; s < 2; s++) {
+        stopper2 k = {.e = e, .stops = 1};
+        engine_job job = {.tape = tape, .grid = g, .schedule = (engine_schedule)s,
+                          .progress = stop_worker0, .ud = &k};
+        engine_result r;
+        double t0 = now_s();
+        cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+        cr_assert_eq(k.n, 1);
+        cr_assert_eq(r.stalls, 1);
+        cr_assert_geq(r.restarts, 1);
+        cr_assert_eq(r.duplicates, 0);
+        cr_assert_lt(now_s() - t0, 60.0);
+        assert_same(&ref.t, engine_octree(e), "after a stalled worker");
+        engine_worker_info in;
+        cr_assert_eq(engine_worker_info_get(e, 0, &in), 0);
+        cr_assert_eq(in.stalls, (uint32_t)s + 1);
+        cr_assert_eq(in.stalled_pid, k.last);
+        cr_assert_eq(in.stalled_state, 'T');
+        cr_assert_geq(in.stalled_quiet, 1.5);
+        cr_assert_neq(in.pid, k.last);
+        cr_assert_eq(in.state, ENGINE_WORKER_IDLE);
+        errno = 0;
+        cr_assert_eq(waitpid(k.last, NULL, WNOHANG), -1, "the stopped one was reaped");
+    }
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
+/* A stall is a death of its task: a task that stalls its worker twice
+ * fails the job, which names it. */
+Test(engine, a_task_that_stalls_its_worker_twice_fails_the_job, .timeout = 120)
+{
+    expr_tape *slow = compile_slow();
+    grid_spec g = grid(128);
+    engine *e = make_engine_stall(1, 1.0);
+    stopper2 k = {.e = e, .stops = 2};
+    engine_job job = {.tape = slow, .grid = g, .split_level = g.depth,
+                      .progress = stop_worker0, .ud = &k};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.error);
+    cr_assert_eq(r.failure, ENGINE_CRASHED);
+    cr_assert_eq(r.stalls, 2);
+    cr_assert(strstr(r.error, "octant (0,0,0) level 7 stalled or killed its worker twice"),
+              "%s", r.error);
+    engine_destroy(e);
+    expr_tape_free(slow);
+}
+
+/* A cancel while a worker is stopped (and stalls are never detected) is
+ * answered at once: the worker that does not let go is killed, the next
+ * job gets a fresh one. */
+Test(engine, a_cancel_never_waits_on_a_stopped_worker, .timeout = 60)
+{
+    expr_tape *slow = compile_slow(), *tape = compile(SPHERE);
+    grid_spec gs = grid(128), g = grid(64);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine_stall(2, -1);
+    atomic_int cancel = 0;
+    stopper2 k = {.e = e, .stops = 1, .cancel = &cancel};
+    engine_job job = {.tape = slow, .grid = gs, .progress = stop_worker0, .ud = &k,
+                      .cancel = &cancel};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED, "%s", r.error);
+    double waited = now_s() - k.t_cancel;
+    cr_assert(k.t_cancel > 0);
+    cr_assert_lt(waited, 5.0, "the cancel waited %.2f s", waited);
+    cr_assert_eq(r.stalls, 0, "stall detection is off");
+    engine_worker_info in;
+    cr_assert_eq(engine_worker_info_get(e, 0, &in), 0);
+    cr_assert_eq(in.unanswered, 1);
+    cr_assert_neq(in.pid, k.last);
+    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
+    assert_same(&ref.t, engine_octree(e), "the job after");
+    /* and destroying an engine with a stopped idle worker does not wait
+     * for it either */
+    cr_assert_eq(kill(engine_worker_pid(e, 1), SIGSTOP), 0);
+    double t0 = now_s();
+    engine_destroy(e);
+    cr_assert_lt(now_s() - t0, 1.5);
+    free(ref.arena);
+    expr_tape_free(tape);
+    expr_tape_free(slow);
+}
+
 /* ---- errors ---- */
 
 Test(engine, small_segments_give_clear_errors)
@@ -731,7 +876,8 @@ static long long shm_blocks(const char *path)
     return (long long)st.st_blocks;
 }
 
-/* Pages a big job touched go back to tmpfs when the next job starts. */
+/* Pages a job touched go back to tmpfs when it ends, but for the octree
+ * it leaves for its VOD; engine_release gives that back too. */
 Test(engine, pages_beyond_keep_are_given_back)
 {
     char name[64], path[80];
@@ -755,10 +901,50 @@ Test(engine, pages_beyond_keep_are_given_back)
     reference(big, &gb, &ref);
     run(e, big, &gb, ENGINE_SCHED_SUBTREE, 0, &r);
     assert_same(&ref.t, engine_octree(e), "after release");
+    /* the caller is done with the octree: only the fixed part and the
+     * kept bytes stay */
+    long long fixed = (long long)((shm_min_bytes(1) - SHM_MIN_DATA + 4096 + 4095) / 512);
+    engine_release(e);
+    cr_assert_null(engine_octree(e));
+    cr_assert_leq(shm_blocks(path), fixed, "%lld blocks", shm_blocks(path));
     engine_destroy(e);
     free(ref.arena);
     expr_tape_free(big);
     expr_tape_free(small);
+}
+
+/* A job that cannot fit stops as soon as its estimated need passes the
+ * segment (x*0: every voxel is on the surface), long before it fills it,
+ * and what it touched goes back; the next job runs. */
+Test(engine, a_job_too_big_stops_early_and_gives_its_pages_back, .timeout = 60)
+{
+    char name[64], path[80];
+    snprintf(name, sizeof name, "/voxd-big.%d.", (int)getpid());
+    snprintf(path, sizeof path, "/dev/shm%s", name);
+    size_t bytes = (size_t)256 << 20;
+    engine_opts o = {.workers = 2, .shm_name = name, .shm_bytes = bytes,
+                     .keep_bytes = 4096};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    expr_tape *all = compile("x*0"), *tape = compile(SPHERE);
+    grid_spec g = grid(2048), gs = grid(64);
+    engine_job job = {.tape = all, .grid = g};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM, "%s", r.error);
+    cr_assert_eq(r.failure, ENGINE_LIMIT);
+    cr_assert(strstr(r.error, "would need at least") && strstr(r.error, "256 MiB there are"),
+              "%s", r.error);
+    long long fixed = (long long)((shm_min_bytes(2) - SHM_MIN_DATA + 4096 + 4095) / 512);
+    cr_assert_leq(shm_blocks(path), fixed, "%lld blocks", shm_blocks(path));
+    ref_tree ref;
+    reference(tape, &gs, &ref);
+    run(e, tape, &gs, ENGINE_SCHED_SUBTREE, 0, &r);
+    assert_same(&ref.t, engine_octree(e), "after a job too big");
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(all);
+    expr_tape_free(tape);
 }
 
 static int pinned_cpu(pid_t pid)

@@ -156,3 +156,51 @@ Test(pipeline, a_cancelled_job_says_so)
     engine_destroy(e);
     expr_tape_free(t);
 }
+
+/* Progress is one fraction over both stages: it never goes back, and it
+ * says 1 once, at the end, after the file is written (the sink has every
+ * byte). */
+typedef struct {
+    int calls, ones, monotonic, levels_while_writing;
+    double last;
+    size_t bytes_at_one;
+    const vod_membuf *m;
+} prog;
+
+static void on_prog(void *ud, const engine_progress *p)
+{
+    prog *g = ud;
+    if (p->fraction < g->last || p->fraction > 1.0) g->monotonic = 0;
+    if (g->ones) g->monotonic = 0; /* nothing after 1 */
+    if (p->fraction >= 1.0) {
+        g->ones++;
+        g->bytes_at_one = g->m->n;
+    }
+    if (p->fraction > 0.6 && p->level) g->levels_while_writing++;
+    g->last = p->fraction;
+    g->calls++;
+}
+
+Test(pipeline, progress_says_done_only_when_the_file_is_written)
+{
+    expr_tape *t = compile(TORUS);
+    pipeline_job job = torus_job(t, 256);
+    engine *e = make_engine(2);
+    vod_membuf m = {0};
+    prog g = {.monotonic = 1, .m = &m};
+    job.progress = on_prog;
+    job.ud = &g;
+    vod_sink sink = {vod_mem_write, &m};
+    pipeline_report r;
+    cr_assert_eq(pipeline_run(e, &job, &sink, &r), 0, "%s", r.err.message);
+    cr_assert_geq(g.calls, 3);
+    cr_assert(g.monotonic);
+    cr_assert_eq(g.ones, 1);
+    cr_assert_eq(g.bytes_at_one, m.n);
+    cr_assert_eq(g.bytes_at_one, r.st.file_bytes);
+    cr_assert_eq(g.levels_while_writing, 0);
+    cr_assert_null(engine_octree(e), "the job's octree was given back");
+    free(m.p);
+    engine_destroy(e);
+    expr_tape_free(t);
+}
