@@ -50,8 +50,8 @@
  * died, its task handed out again: a stall counts as a death, so a task
  * that stalls or kills its worker twice fails the job (ENGINE_CRASHED).
  * A cancelled or failed job never waits on a worker that does not answer:
- * one that has not let go of its task within a second (a quarter of a
- * second without a heartbeat) is killed and replaced.
+ * one that has not let go of its task and is stopped (SIGSTOP), or has
+ * shown no heartbeat for a second, is killed and replaced (any, after 5 s).
  *
  * Memory.  After every job, done, failed or cancelled, the pages of the
  * data area beyond keep_bytes (and beyond the octree an implicit job left
@@ -195,7 +195,7 @@ typedef struct {
                                 and was forked again, since engine_create */
     uint32_t stalls;         /* ... of which for making no progress */
     uint32_t unanswered;     /* ... of which for not letting go of a cancelled
-                                or failed job within a second */
+                                or failed job (stopped, or silent) */
     /* The last one killed for making no progress: its pid, how long it had
      * been quiet and its process state then ('T' stopped, 'R' running...). */
     int stalled_pid;

@@ -10,8 +10,8 @@
  * second death on one task fails the job), kill and replace busy workers
  * whose heartbeat stands still for the stall timeout (a death too).  When
  * the stack is empty and no worker is busy, or on a failure or a cancel
- * (the workers are then told to drop the job and waited for, a second at
- * most: one that does not answer is killed), kind->finish produces the
+ * (the workers are then told to drop the job and waited for, but not one
+ * that does not answer: it is killed), kind->finish produces the
  * result, and the data area's pages beyond what the job leaves behind
  * (sched_hold) go back to tmpfs.
  */

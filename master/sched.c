@@ -21,9 +21,14 @@
 #define LOOKED_AWAY_S 1.0         /* a gap between checks this long (a long
                                      setup, a starved master) restarts every
                                      worker's quiet time */
-#define ABORT_WAIT_S 1.0          /* an abandoned job's workers let go within
-                                     this, or are killed */
-#define ABORT_QUIET_S 0.25        /* ... or within this without a heartbeat */
+/* An abandoned job's busy workers: one whose process is stopped is killed
+ * once it has been quiet ABORT_STOPPED_S, one without a heartbeat for
+ * ABORT_QUIET_S, any after ABORT_WAIT_S.  A live worker lets go at its next
+ * heartbeat (the kernels check the abort where they tick), so the last two
+ * are generous: a worker under valgrind ticks seconds apart. */
+#define ABORT_STOPPED_S 0.1
+#define ABORT_QUIET_S 1.0
+#define ABORT_WAIT_S 5.0
 
 const char *engine_failure_name(engine_failure f)
 {
@@ -340,22 +345,26 @@ static int run_loop(engine *e)
     }
 }
 
-/* A worker that does not let go of an abandoned job (stopped, hung, or
- * only slow to notice) is killed: a cancel never waits on it. */
+/* A worker that does not let go of an abandoned job (stopped, hung) is
+ * killed: a cancel never waits on it. */
 static void kill_unanswered(engine *e, double t0)
 {
     double now = clock_now();
     for (int i = 0; i < e->n; i++) {
         mslot *m = &e->ms[i];
         if (!m->busy || m->pid <= 0 || m->killed) continue;
-        if (now - t0 < ABORT_WAIT_S && now - m->beat_t < ABORT_QUIET_S) continue;
+        double quiet = now - m->beat_t;
+        if (quiet < ABORT_STOPPED_S) continue;
+        char st = quiet < ABORT_QUIET_S && now - t0 < ABORT_WAIT_S ? pool_proc_state(m->pid)
+                                                                   : 'T';
+        if (st != 'T' && st != 't') continue;
         m->unanswered++;
         pool_kill(e, i);
     }
 }
 
-/* Tell the workers to drop the job and wait until all are idle (a second
- * at most: see kill_unanswered). */
+/* Tell the workers to drop the job and wait until all are idle (see
+ * kill_unanswered for how long at most). */
 static void abort_job(engine *e)
 {
     double t0 = clock_now();

@@ -82,8 +82,8 @@ static void log_replaced(vd_daemon *d, int i, const vd_worker_snap *w,
              i, in->stalled_pid, in->cpu, in->stalled_quiet, in->stalled_state, in->pid);
     else if (in->unanswered != w->unanswered)
         elog(d, LOG_LEVEL_WARN,
-             "worker %d (pid %d, CPU %d) did not let go of a stopped job within a second; "
-             "killed and forked again as pid %d",
+             "worker %d (pid %d, CPU %d) did not let go of a stopped job (stopped, or no "
+             "progress); killed and forked again as pid %d",
              i, (int)w->pid, in->cpu, in->pid);
     else
         elog(d, LOG_LEVEL_WARN, "worker %d (pid %d) died; forked again as pid %d on CPU %d",
