@@ -118,8 +118,8 @@ static int parse_args(int argc, char **argv, voxd_args *a)
         case 'S':
             if (parse_uint(optarg, 0, 3600, &u)) {
                 fprintf(stderr,
-                        "voxd: bad --worker-stall-timeout '%s': want seconds 0..3600\n",
-                        optarg);
+                        "voxd: bad --worker-stall-timeout '%.*s%s': want seconds 0..3600\n",
+                        ARG(optarg));
                 return 2;
             }
             a->o.stall_timeout = (int)u;
