@@ -354,10 +354,12 @@ static void kill_unanswered(engine *e, double t0)
         mslot *m = &e->ms[i];
         if (!m->busy || m->pid <= 0 || m->killed) continue;
         double quiet = now - m->beat_t;
-        if (quiet < ABORT_STOPPED_S) continue;
-        char st = quiet < ABORT_QUIET_S && now - t0 < ABORT_WAIT_S ? pool_proc_state(m->pid)
-                                                                   : 'T';
-        if (st != 'T' && st != 't') continue;
+        int kill_it = now - t0 >= ABORT_WAIT_S || quiet >= ABORT_QUIET_S;
+        if (!kill_it && quiet >= ABORT_STOPPED_S) {
+            char st = pool_proc_state(m->pid);
+            kill_it = st == 'T' || st == 't';
+        }
+        if (!kill_it) continue;
         m->unanswered++;
         pool_kill(e, i);
     }

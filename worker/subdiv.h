@@ -49,8 +49,10 @@ void subdiv_box(const grid_spec *g, grid_octant o, ival *x, ival *y,
 
 /* What the kernels produce.  A callback returning non-zero stops the
  * kernel, which returns that value.  poll (may be NULL) is called every
- * SUBDIV_POLL_TESTS box tests so a long subtree can be abandoned. */
-#define SUBDIV_POLL_TESTS 4096u
+ * SUBDIV_POLL_TESTS box tests so a long subtree can be abandoned, and so
+ * that the worker's heartbeat moves every few milliseconds even on a long
+ * tape (512 tests of the 40-sine sphere of the tests: 4 ms). */
+#define SUBDIV_POLL_TESTS 512u
 typedef struct {
     int (*voxel)(void *ud, const grid_voxel *v);
     int (*octant)(void *ud, const grid_octant *o);
