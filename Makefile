@@ -128,6 +128,8 @@ $(BUILD)/voxdbench: bench/voxdbench.c $(LIB) | $(BUILD)/voxd
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 $(BUILD)/bench_expr: bench/bench_expr.c $(LIB)
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+$(BUILD)/bench_mesh: bench/bench_mesh.c bench/bench_util.h $(LIB)
+	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 # voxwhole times a whole command (scripts/bench-whole.sh): no library.
 $(BUILD)/voxwhole: bench/voxwhole.c bench/bench_util.h
 	$(CC) $(CFLAGS) $< -o $@ $(LDFLAGS) -lm

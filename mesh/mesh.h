@@ -61,4 +61,29 @@ void mesh_free(mesh *m);
 
 const char *mesh_format_name(mesh_format f);
 
+/* err as one line: "line N: msg", "byte N: msg" or "msg".  Returns buf. */
+const char *mesh_error_str(const mesh_error *err, char *buf, size_t len);
+
+/* The topology of a mesh, from its triangles' edges.  An edge is a pair of
+ * vertex indices; each triangle uses three (the loaders drop triangles
+ * with a repeated index).  The mesh is watertight when every edge is used
+ * by exactly two triangles traversing it in opposite directions: closed and
+ * consistently oriented, so that inside and outside are well defined (a
+ * vertex where two surfaces touch is not looked for). */
+typedef struct {
+    uint64_t edges;        /* distinct edges */
+    uint64_t open;         /* used by one triangle (the boundary) */
+    uint64_t nonmanifold;  /* used by more than two */
+    uint64_t inconsistent; /* used by two that traverse it in the same direction */
+    uint64_t components;   /* sets of triangles connected through shared edges */
+    int watertight;        /* no open, no non-manifold, no inconsistent edge */
+    double volume;         /* signed (divergence theorem): positive when the
+                              triangles are counter-clockwise seen from outside;
+                              meaningful when watertight */
+} mesh_topo;
+
+/* 0 and *out, or -ENOMEM.  O(n) time and memory in the triangles (a
+ * counting sort of the edges by their lower vertex). */
+int mesh_topology(const mesh *m, mesh_topo *out);
+
 #endif

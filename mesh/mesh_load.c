@@ -1,0 +1,437 @@
+/* mesh_load — the entry points of mesh.h (format detection, mmap, the
+ * mesh's release), the builder every loader fills (limits, degenerate
+ * triangles, bounding box, STL's welding) and the bounded text parsers. */
+#include <errno.h>
+#include <fcntl.h>
+#include <float.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "mesh_load.h"
+
+/* ------------------------------------------------------------------ builder */
+
+int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(b->err->msg, sizeof b->err->msg, fmt, ap);
+    va_end(ap);
+    b->err->line = b->err->offset = 0;
+    if (at == MB_NOWHERE) return rc;
+    if (b->binary) {
+        b->err->offset = at;
+    } else {
+        uint64_t line = 1;
+        for (const char *q = b->buf, *e = b->buf + at; (q = memchr(q, '\n', (size_t)(e - q))); q++)
+            line++;
+        b->err->line = line;
+    }
+    return rc;
+}
+
+/* Capacity for need items of size sz in *arr (cap: its capacity): exact
+ * when asked, else at least doubled, never past max. */
+static int grow(void **arr, size_t *cap, uint64_t need, uint64_t max, size_t sz, int exact)
+{
+    if (need <= *cap) return 0;
+    uint64_t n = need;
+    if (!exact) {
+        n = *cap * 2 > need ? *cap * 2 : need;
+        if (n < 1024) n = 1024;
+        if (n > max) n = max;
+    }
+    void *p = realloc(*arr, (size_t)n * sz);
+    if (!p) return -ENOMEM;
+    *arr = p;
+    *cap = (size_t)n;
+    return 0;
+}
+
+int mb_reserve_vertices(mbuild *b, uint64_t n, uint64_t at)
+{
+    if (n > b->max_vert - b->nv)
+        return mb_fail(b, -E2BIG, at, "%llu vertices: more than the limit of %u",
+                       (unsigned long long)(b->nv + n), b->max_vert);
+    if (grow((void **)&b->v, &b->cap_v, b->nv + n, b->max_vert, sizeof *b->v, 1))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %llu vertices",
+                       (unsigned long long)(b->nv + n));
+    return 0;
+}
+
+int mb_reserve_triangles(mbuild *b, uint64_t n, uint64_t at)
+{
+    if (n > b->max_tri - b->nt)
+        return mb_fail(b, -E2BIG, at, "%llu triangles: more than the limit of %u",
+                       (unsigned long long)(b->nt + n), b->max_tri);
+    if (grow((void **)&b->t, &b->cap_t, b->nt + n, b->max_tri, sizeof *b->t, 1))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %llu triangles",
+                       (unsigned long long)(b->nt + n));
+    return 0;
+}
+
+int mb_vertex_slow(mbuild *b, const float p[3], uint64_t at)
+{
+    if (!mb_finite(p))
+        return mb_fail(b, -EINVAL, at, "vertex %u: a coordinate is not a finite number", b->nv);
+    if (b->nv >= b->max_vert)
+        return mb_fail(b, -E2BIG, at, "more than the limit of %u vertices", b->max_vert);
+    if (grow((void **)&b->v, &b->cap_v, (uint64_t)b->nv + 1, b->max_vert, sizeof *b->v, 0))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %u vertices", b->nv + 1);
+    return mb_vertex(b, p, at);
+}
+
+int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
+{
+    if (b->nt >= b->max_tri)
+        return mb_fail(b, -E2BIG, at, "more than the limit of %u triangles", b->max_tri);
+    if (grow((void **)&b->t, &b->cap_t, (uint64_t)b->nt + 1, b->max_tri, sizeof *b->t, 0))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %u triangles", b->nt + 1);
+    return mb_triangle(b, a, c, d, at);
+}
+
+/* Zero area: the cross product of two edges is zero.  The edges are
+ * differences of floats taken in double (exact unless the exponents are
+ * far apart), the products and sums rounded once more: a triangle whose
+ * three positions are collinear (or two equal) gives exactly zero. */
+static int zero_area(const float *a, const float *b, const float *c)
+{
+    double u0 = (double)b[0] - a[0], u1 = (double)b[1] - a[1], u2 = (double)b[2] - a[2];
+    double v0 = (double)c[0] - a[0], v1 = (double)c[1] - a[1], v2 = (double)c[2] - a[2];
+    return u1 * v2 - u2 * v1 == 0.0 && u2 * v0 - u0 * v2 == 0.0 && u0 * v1 - u1 * v0 == 0.0;
+}
+
+int mb_finish(mbuild *b, mesh_format f, mesh *out)
+{
+    /* the box in scalars, so that they stay in registers */
+    float lx = FLT_MAX, ly = FLT_MAX, lz = FLT_MAX, hx = -FLT_MAX, hy = -FLT_MAX, hz = -FLT_MAX;
+    uint32_t kept = 0;
+    for (uint32_t i = 0; i < b->nt; i++) {
+        uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
+        if (t0 == t1 || t1 == t2 || t0 == t2) continue;
+        const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
+        if (zero_area(p[0], p[1], p[2])) continue;
+        for (int k = 0; k < 3; k++) {
+            float x = p[k][0], y = p[k][1], z = p[k][2];
+            lx = x < lx ? x : lx, ly = y < ly ? y : ly, lz = z < lz ? z : lz;
+            hx = x > hx ? x : hx, hy = y > hy ? y : hy, hz = z > hz ? z : hz;
+        }
+        b->t[kept][0] = t0, b->t[kept][1] = t1, b->t[kept][2] = t2;
+        kept++;
+    }
+    uint32_t dropped = b->nt - kept;
+    if (!kept)
+        return b->nt ? mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles: all %u are degenerate", b->nt)
+                     : mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles");
+    /* Give back what growth over-allocated (shrinking cannot fail the load). */
+    void *p = realloc(b->t, (size_t)kept * sizeof *b->t);
+    if (p) b->t = p;
+    if (b->cap_v > b->nv && (p = realloc(b->v, (size_t)b->nv * sizeof *b->v))) b->v = p;
+    *out = (mesh){.n_vertices = b->nv, .n_triangles = kept, .vertices = b->v,
+                  .triangles = b->t, .n_degenerate = dropped, .format = f};
+    out->lo[0] = lx, out->lo[1] = ly, out->lo[2] = lz;
+    out->hi[0] = hx, out->hi[1] = hy, out->hi[2] = hz;
+    b->v = NULL;
+    b->t = NULL;
+    b->nv = b->nt = 0;
+    b->cap_v = b->cap_t = 0;
+    return 0;
+}
+
+void mb_free(mbuild *b)
+{
+    free(b->v);
+    free(b->t);
+    b->v = NULL;
+    b->t = NULL;
+    b->nv = b->nt = 0;
+    b->cap_v = b->cap_t = 0;
+}
+
+/* A position's bits, -0 taken as +0 (-0 + 0 is +0), so the two zeros weld. */
+static void position_bits(const float p[3], uint32_t bits[3])
+{
+    for (int k = 0; k < 3; k++) {
+        float x = p[k] + 0.0f;
+        memcpy(&bits[k], &x, 4);
+    }
+}
+
+static uint64_t position_hash(const uint32_t bits[3])
+{
+    uint64_t h = ((uint64_t)bits[0] << 32 | bits[1]) * 0x9e3779b97f4a7c15ull;
+    h ^= (h >> 29) ^ bits[2] * 0xc2b2ae3d27d4eb4full;
+    return h * 0x94d049bb133111ebull;
+}
+
+int mb_weld(mbuild *b)
+{
+    uint32_t n = b->nv;
+    int tbits = 1;
+    while (((uint64_t)1 << tbits) < (uint64_t)n * 2) tbits++;
+    uint64_t size = (uint64_t)1 << tbits;
+    uint32_t *table = malloc(size * sizeof *table);
+    uint32_t *map = malloc((size_t)(n ? n : 1) * sizeof *map);
+    if (!table || !map) {
+        free(table);
+        free(map);
+        return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
+    }
+    memset(table, 0xff, size * sizeof *table);
+    /* Unique positions move down in place, in order of first appearance
+     * (u <= i: a slot below i is never needed again). */
+    uint32_t u = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t key[3], other[3];
+        position_bits(b->v[i], key);
+        for (uint64_t h = position_hash(key) >> (64 - tbits);; h = (h + 1) & (size - 1)) {
+            uint32_t j = table[h];
+            if (j == UINT32_MAX) {
+                table[h] = u;
+                memmove(b->v[u], b->v[i], sizeof *b->v);
+                map[i] = u++;
+                break;
+            }
+            position_bits(b->v[j], other);
+            if (!memcmp(key, other, sizeof key)) {
+                map[i] = j;
+                break;
+            }
+        }
+    }
+    free(table);
+    for (uint32_t i = 0; i < b->nt; i++)
+        for (int k = 0; k < 3; k++) b->t[i][k] = map[b->t[i][k]];
+    free(map);
+    b->nv = u;
+    if (u > b->max_vert)
+        return mb_fail(b, -E2BIG, MB_NOWHERE, "%u distinct vertices: more than the limit of %u", u,
+                       b->max_vert);
+    return 0;
+}
+
+/* --------------------------------------------------------------------- text */
+
+void mt_next_line(mtext *t)
+{
+    const char *nl = memchr(t->p, '\n', (size_t)(t->end - t->p));
+    t->p = nl ? nl + 1 : t->end;
+}
+
+size_t mt_toklen(const mtext *t)
+{
+    const char *q = t->p;
+    while (q < t->end && !mt_space(*q)) q++;
+    return (size_t)(q - t->p);
+}
+
+int mt_word(mtext *t, const char *w, int nocase)
+{
+    size_t n = strlen(w);
+    if ((size_t)(t->end - t->p) < n) return 0;
+    if (nocase ? strncasecmp(t->p, w, n) : memcmp(t->p, w, n)) return 0;
+    if (t->p + n < t->end && !mt_space(t->p[n])) return 0;
+    t->p += n;
+    return 1;
+}
+
+const char *mt_tokstr(const mtext *t, char buf[32])
+{
+    if (t->p == t->end) return "the end of the file";
+    if (*t->p == '\n') return "the end of the line";
+    size_t n = mt_toklen(t), i;
+    buf[0] = '\'';
+    for (i = 0; i < n && i < 24; i++) {
+        char c = t->p[i];
+        buf[i + 1] = c >= 32 && c < 127 ? c : '?';
+    }
+    if (n > 24) buf[i++ + 1] = '~';
+    buf[i + 1] = '\'';
+    buf[i + 2] = '\0';
+    return buf;
+}
+
+/* strtof on a terminated copy of the token: correctly rounded (glibc). */
+int mt_float_slow(mtext *t, float *out)
+{
+    size_t n = mt_toklen(t);
+    char tok[128];
+    if (n == 0 || n >= sizeof tok) return -EINVAL;
+    memcpy(tok, t->p, n);
+    tok[n] = '\0';
+    char *e;
+    float f = strtof(tok, &e);
+    if (e != tok + n) return -EINVAL;
+    if (!isfinite(f)) return -ERANGE;
+    *out = f;
+    t->p += n;
+    return 0;
+}
+
+const double mt_pow10[23] = {
+    1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
+    1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+const double mt_pow10_neg[23] = {
+    1e-0,  1e-1,  1e-2,  1e-3,  1e-4,  1e-5,  1e-6,  1e-7,  1e-8,  1e-9,  1e-10, 1e-11,
+    1e-12, 1e-13, 1e-14, 1e-15, 1e-16, 1e-17, 1e-18, 1e-19, 1e-20, 1e-21, 1e-22};
+
+int mt_uint_token(mtext *t, uint64_t max, uint64_t *out)
+{
+    const char *s = t->p;
+    if (!(s < t->end && mt_digit(*s))) return -EINVAL;
+    uint64_t v = 0;
+    int over = 0;
+    for (; s < t->end && mt_digit(*s); s++) {
+        if (v > (UINT64_MAX - 9) / 10) over = 1;
+        else v = v * 10 + (uint64_t)(*s - '0');
+    }
+    if (s < t->end && !mt_space(*s)) return -EINVAL;
+    if (over || v > max) return -ERANGE;
+    *out = v;
+    t->p = s;
+    return 0;
+}
+
+/* ------------------------------------------------------------------- detect */
+
+static int starts_nocase(const char *p, const char *end, const char *w)
+{
+    size_t n = strlen(w);
+    return (size_t)(end - p) >= n && !strncasecmp(p, w, n) &&
+           ((size_t)(end - p) == n || mt_space(p[n]));
+}
+
+/* The first statement of an OBJ file is one of its keywords. */
+static int obj_keyword(const char *p, size_t n)
+{
+    static const char *const kw[] = {"v", "vt", "vn", "vp", "f", "l", "p", "o", "g", "s",
+                                     "usemtl", "mtllib", "cstype", "deg", "curv", "surf"};
+    for (size_t i = 0; i < sizeof kw / sizeof *kw; i++)
+        if (strlen(kw[i]) == n && !memcmp(p, kw[i], n)) return 1;
+    return 0;
+}
+
+static mesh_format detect(const char *buf, size_t len)
+{
+    if (len >= 84) {
+        const unsigned char *u = (const unsigned char *)buf + 80;
+        uint64_t n = (uint64_t)u[0] | (uint64_t)u[1] << 8 | (uint64_t)u[2] << 16 |
+                     (uint64_t)u[3] << 24;
+        if (84 + 50 * n == len) return MESH_FORMAT_STL;
+    }
+    if (len >= 4 && (!memcmp(buf, "ply\n", 4) || (len >= 5 && !memcmp(buf, "ply\r\n", 5))))
+        return MESH_FORMAT_PLY;
+    mtext t = {buf, buf + len, buf};
+    for (;;) { /* past blank lines and comments */
+        mt_skip_space(&t);
+        if (t.p < t.end && *t.p == '#') mt_next_line(&t);
+        else break;
+    }
+    size_t n = mt_toklen(&t);
+    if (mesh_off_keyword(t.p, n)) return MESH_FORMAT_OFF;
+    if (starts_nocase(t.p, t.end, "solid")) return MESH_FORMAT_STL;
+    if (obj_keyword(t.p, n)) return MESH_FORMAT_OBJ;
+    return MESH_FORMAT_AUTO;
+}
+
+/* ---------------------------------------------------------------- interface */
+
+int mesh_parse(const void *buf, size_t len, mesh_format format, const mesh_limits *lim,
+               mesh *out, mesh_error *err)
+{
+    mesh_error scratch;
+    if (!err) err = &scratch;
+    memset(err, 0, sizeof *err);
+    memset(out, 0, sizeof *out);
+    mbuild b = {.max_tri = lim && lim->max_triangles ? lim->max_triangles : MESH_MAX_TRIANGLES,
+                .max_vert = lim && lim->max_vertices ? lim->max_vertices : MESH_MAX_VERTICES,
+                .buf = buf, .err = err};
+    if (len == 0) return mb_fail(&b, -EINVAL, MB_NOWHERE, "empty file");
+    if (format == MESH_FORMAT_AUTO && !(format = detect(buf, len)))
+        return mb_fail(&b, -EINVAL, MB_NOWHERE, "not a mesh file of a known format (OBJ, STL, PLY, OFF)");
+    int rc;
+    switch (format) {
+    case MESH_FORMAT_OBJ: rc = mesh_parse_obj(buf, len, &b); break;
+    case MESH_FORMAT_STL: rc = mesh_parse_stl(buf, len, &b); break;
+    case MESH_FORMAT_PLY: rc = mesh_parse_ply(buf, len, &b); break;
+    case MESH_FORMAT_OFF: rc = mesh_parse_off(buf, len, &b); break;
+    default: rc = mb_fail(&b, -EINVAL, MB_NOWHERE, "unknown mesh format %d", (int)format);
+    }
+    if (rc == 0) rc = mb_finish(&b, format, out);
+    mb_free(&b);
+    return rc;
+}
+
+int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh *out,
+              mesh_error *err)
+{
+    mesh_error scratch;
+    if (!err) err = &scratch;
+    memset(err, 0, sizeof *err);
+    memset(out, 0, sizeof *out);
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0) {
+        int e = errno;
+        snprintf(err->msg, sizeof err->msg, "cannot open: %s", strerror(e));
+        return -e;
+    }
+    struct stat st;
+    int rc = 0;
+    if (fstat(fd, &st)) rc = -errno;
+    else if (!S_ISREG(st.st_mode)) rc = -EINVAL;
+    if (rc) {
+        snprintf(err->msg, sizeof err->msg, "%s",
+                 rc == -EINVAL ? "not a regular file" : strerror(-rc));
+        close(fd);
+        return rc;
+    }
+    if (st.st_size == 0) {
+        close(fd);
+        return mesh_parse("", 0, format, lim, out, err);
+    }
+    /* Populated at once: the parser reads every page in order anyway. */
+    void *p = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
+    int e = errno;
+    close(fd);
+    if (p == MAP_FAILED) {
+        snprintf(err->msg, sizeof err->msg, "cannot map: %s", strerror(e));
+        return e == ENOMEM ? -ENOMEM : -e;
+    }
+    rc = mesh_parse(p, (size_t)st.st_size, format, lim, out, err);
+    munmap(p, (size_t)st.st_size);
+    return rc;
+}
+
+void mesh_free(mesh *m)
+{
+    if (!m) return;
+    free(m->vertices);
+    free(m->triangles);
+    memset(m, 0, sizeof *m);
+}
+
+const char *mesh_format_name(mesh_format f)
+{
+    switch (f) {
+    case MESH_FORMAT_AUTO: return "auto";
+    case MESH_FORMAT_OBJ: return "OBJ";
+    case MESH_FORMAT_STL: return "STL";
+    case MESH_FORMAT_PLY: return "PLY";
+    case MESH_FORMAT_OFF: return "OFF";
+    }
+    return "unknown";
+}
+
+const char *mesh_error_str(const mesh_error *err, char *buf, size_t len)
+{
+    if (err->line) snprintf(buf, len, "line %llu: %s", (unsigned long long)err->line, err->msg);
+    else if (err->offset) snprintf(buf, len, "byte %llu: %s", (unsigned long long)err->offset, err->msg);
+    else snprintf(buf, len, "%s", err->msg);
+    return buf;
+}

@@ -1,0 +1,220 @@
+/* mesh_load — what the format loaders (mesh_obj.c, mesh_stl.c, mesh_ply.c,
+ * mesh_off.c) share: the mesh being built, the checks every loader makes
+ * through it, and a bounded text cursor with its number parsers.  Internal
+ * to mesh/; the interface is mesh.h.
+ *
+ * The input is a mapped file: it is not NUL-terminated, so nothing here
+ * reads past `end`, and no libc parser is called on it directly (strtof
+ * runs on a bounded, terminated copy of one token).
+ */
+#ifndef VOXD_MESH_LOAD_H
+#define VOXD_MESH_LOAD_H
+
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "mesh.h"
+
+/* ---- the mesh being built ---- */
+
+typedef struct {
+    uint32_t max_tri, max_vert; /* the limits, resolved (never 0) */
+    int binary;                 /* errors say byte offsets, not lines */
+    const char *buf;            /* the input: a text error's line is counted there */
+    mesh_error *err;
+    float (*v)[3];
+    uint32_t nv;
+    size_t cap_v;
+    uint32_t (*t)[3];
+    uint32_t nt;                /* triangles made so far, degenerate included */
+    size_t cap_t;
+} mbuild;
+
+/* Fill the error and return rc.  at: the byte offset of the trouble, told
+ * as a line for text (b->binary 0), or MB_NOWHERE. */
+#define MB_NOWHERE UINT64_MAX
+int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+/* Room for n more vertices / triangles, checked against the limits first:
+ * -E2BIG past one, -ENOMEM. */
+int mb_reserve_vertices(mbuild *b, uint64_t n, uint64_t at);
+int mb_reserve_triangles(mbuild *b, uint64_t n, uint64_t at);
+/* Add a vertex: -EINVAL when not finite, -E2BIG past the vertex cap. */
+int mb_vertex_slow(mbuild *b, const float p[3], uint64_t at);
+/* Add triangle (a, c, d): the caller has checked the indices (below the
+ * vertex count the file declares); -E2BIG past the triangle cap. */
+int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at);
+
+static inline int mb_finite(const float p[3])
+{
+    return isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]);
+}
+
+static inline int mb_vertex(mbuild *b, const float p[3], uint64_t at)
+{
+    if (b->nv < b->cap_v && mb_finite(p)) {
+        float *q = b->v[b->nv++];
+        q[0] = p[0], q[1] = p[1], q[2] = p[2];
+        return 0;
+    }
+    return mb_vertex_slow(b, p, at);
+}
+
+static inline int mb_triangle(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
+{
+    if (b->nt < b->cap_t) {
+        uint32_t *q = b->t[b->nt++];
+        q[0] = a, q[1] = c, q[2] = d;
+        return 0;
+    }
+    return mb_triangle_slow(b, a, c, d, at);
+}
+
+/* Drop the degenerate triangles, take the bounding box, and move the
+ * arrays into *out (b is empty after).  -EINVAL when no triangle is left. */
+int mb_finish(mbuild *b, mesh_format f, mesh *out);
+void mb_free(mbuild *b);
+
+/* STL's vertices are per triangle: merge bit-equal positions (-0 as 0)
+ * into one vertex and renumber the triangles.  0 or -ENOMEM; -E2BIG when
+ * the merged vertices are still past the cap. */
+int mb_weld(mbuild *b);
+
+/* ---- the loaders: buf[0, len), format already told ---- */
+
+int mesh_parse_obj(const char *buf, size_t len, mbuild *b);
+int mesh_parse_stl(const char *buf, size_t len, mbuild *b);
+int mesh_parse_ply(const char *buf, size_t len, mbuild *b);
+int mesh_parse_off(const char *buf, size_t len, mbuild *b);
+/* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
+int mesh_off_keyword(const char *p, size_t n);
+
+/* ---- text ---- */
+
+/* Line numbers are not kept while parsing (the hot loops stay plain): an
+ * error counts the newlines before its byte offset (mb_fail). */
+typedef struct {
+    const char *p, *end, *base;
+} mtext;
+
+/* p's byte offset: where an error is (mb_fail makes it a line). */
+static inline uint64_t mt_at(const mtext *t) { return (uint64_t)(t->p - t->base); }
+
+/* A blank within a line (the line ends at '\n'; "\r\n" is a blank and a newline). */
+static inline int mt_blank(char c)
+{
+    return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
+}
+static inline int mt_space(char c) { return mt_blank(c) || c == '\n'; }
+
+static inline void mt_skip_blank(mtext *t)
+{
+    while (t->p < t->end && mt_blank(*t->p)) t->p++;
+}
+/* Blanks and newlines. */
+static inline void mt_skip_space(mtext *t)
+{
+    while (t->p < t->end && mt_space(*t->p)) t->p++;
+}
+/* At the end of the line (or of the text), after mt_skip_blank. */
+static inline int mt_eol(const mtext *t) { return t->p == t->end || *t->p == '\n'; }
+/* Past the next newline. */
+void mt_next_line(mtext *t);
+/* The length of the token at p (up to a blank, newline or the end). */
+size_t mt_toklen(const mtext *t);
+/* The token at p is w (ASCII case ignored when nocase): consume it. */
+int mt_word(mtext *t, const char *w, int nocase);
+
+int mt_float_slow(mtext *t, float *out);
+extern const double mt_pow10[23], mt_pow10_neg[23];
+
+static inline int mt_digit(char c) { return (unsigned)(c - '0') < 10; }
+
+/* The number token at p into *out; p moves past it.  The token must end at
+ * a blank, a newline or the end.  Correctly rounded to float.  0, -EINVAL
+ * not a number (p unmoved), -ERANGE not finite (NaN, Inf, beyond FLT_MAX).
+ *
+ * The fast path reads a decimal m * 10^e with m < 2^53 and |e| <= 22, and
+ * takes d = m * 10^e in double: exact operands and one rounding for e >= 0;
+ * for e < 0, m times the double nearest 10^e, within 2 units of the last
+ * place (ulp) of d from the true value x.  d rounds to the same float as x
+ * unless a point halfway between two floats lies within 3 ulp of d (the 29
+ * bits a float drops are then near 1000...0): those, and anything else
+ * (more digits, NaN and Inf spellings, hex floats, subnormal or overflowing
+ * floats), go to strtof on a terminated copy of the token. */
+static inline int mt_float(mtext *t, float *out)
+{
+#if FLT_EVAL_METHOD == 0
+    const char *s = t->p, *end = t->end;
+    int neg = 0, e10 = 0, nd = 0, inexact = 0;
+    uint64_t m = 0;
+    if (s < end && (*s == '+' || *s == '-')) neg = *s++ == '-';
+    for (; s < end && mt_digit(*s); s++, nd++) {
+        if (m < 1000000000000000000ull) m = m * 10 + (uint64_t)(*s - '0');
+        else e10++, inexact |= *s != '0';
+    }
+    if (s < end && *s == '.')
+        for (s++; s < end && mt_digit(*s); s++, nd++) {
+            if (m < 1000000000000000000ull) m = m * 10 + (uint64_t)(*s - '0'), e10--;
+            else inexact |= *s != '0';
+        }
+    if (nd && s < end && (*s == 'e' || *s == 'E')) {
+        const char *x = s + 1;
+        int eneg = 0, ev = 0;
+        if (x < end && (*x == '+' || *x == '-')) eneg = *x++ == '-';
+        if (!(x < end && mt_digit(*x))) return mt_float_slow(t, out); /* "1e": refused there */
+        for (; x < end && mt_digit(*x); x++)
+            if (ev < 100000) ev = ev * 10 + (*x - '0');
+        e10 += eneg ? -ev : ev;
+        s = x;
+    }
+    if (!nd || inexact || (s < end && !mt_space(*s))) return mt_float_slow(t, out);
+    if (m == 0) {
+        *out = neg ? -0.0f : 0.0f;
+        t->p = s;
+        return 0;
+    }
+    while ((m >= (1ull << 53) || e10 < -22) && m % 10 == 0) m /= 10, e10++;
+    if (m >= (1ull << 53) || e10 < -22 || e10 > 22) return mt_float_slow(t, out);
+    double d = e10 < 0 ? (double)m * mt_pow10_neg[-e10] : (double)m * mt_pow10[e10];
+    uint64_t bits;
+    memcpy(&bits, &d, 8);
+    if (d > FLT_MAX || d < FLT_MIN || (bits + 3 - 0x10000000u) % 0x20000000u <= 6)
+        return mt_float_slow(t, out);
+    float f = (float)d;
+    *out = neg ? -f : f;
+    t->p = s;
+    return 0;
+#else
+    return mt_float_slow(t, out);
+#endif
+}
+
+/* A decimal integer with an optional sign, ending wherever its digits end
+ * (the caller checks what follows).  0, -EINVAL, -ERANGE (past int64). */
+static inline int mt_int(mtext *t, int64_t *out)
+{
+    const char *s = t->p;
+    int neg = 0;
+    if (s < t->end && (*s == '+' || *s == '-')) neg = *s++ == '-';
+    if (!(s < t->end && mt_digit(*s))) return -EINVAL;
+    uint64_t v = 0;
+    for (; s < t->end && mt_digit(*s); s++) {
+        if (v >= 922337203685477580ull) return -ERANGE; /* INT64_MAX / 10: no overflow below */
+        v = v * 10 + (uint64_t)(*s - '0');
+    }
+    *out = neg ? -(int64_t)v : (int64_t)v;
+    t->p = s;
+    return 0;
+}
+/* A whole token that is a decimal integer in [0, max]: 0, -EINVAL, -ERANGE. */
+int mt_uint_token(mtext *t, uint64_t max, uint64_t *out);
+
+/* For messages: the token at p, at most 24 characters, printable. */
+const char *mt_tokstr(const mtext *t, char buf[32]);
+
+#endif

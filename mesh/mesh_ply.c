@@ -1,0 +1,471 @@
+/* mesh_ply — PLY (Turk's polygon file format), ascii and binary little and
+ * big endian.  The header declares elements (a name and a count) and their
+ * properties (a numeric type, or a list: a count type and an item type).
+ * The mesh is the element "vertex" (scalar properties x, y, z of any
+ * numeric type, rounded to float) and the element "face" (an integer list
+ * "vertex_indices" or "vertex_index", fan triangulated).  Every other
+ * element and property is skipped by its declared type.
+ *
+ * Before anything is allocated, every element's count is checked against
+ * the least number of bytes its items could take (binary: the sizes of
+ * its scalars and list counts, a face at least three indices; ascii: two
+ * bytes a token), and the vertex and face counts against the limits. */
+#include <errno.h>
+#include <stdint.h>
+#include <string.h>
+
+#include "mesh_load.h"
+
+enum { T_CHAR, T_UCHAR, T_SHORT, T_USHORT, T_INT, T_UINT, T_FLOAT, T_DOUBLE, T_NONE };
+
+static const struct {
+    const char *name, *alias;
+    unsigned size;
+} types[] = {
+    [T_CHAR] = {"char", "int8", 1},      [T_UCHAR] = {"uchar", "uint8", 1},
+    [T_SHORT] = {"short", "int16", 2},   [T_USHORT] = {"ushort", "uint16", 2},
+    [T_INT] = {"int", "int32", 4},       [T_UINT] = {"uint", "uint32", 4},
+    [T_FLOAT] = {"float", "float32", 4}, [T_DOUBLE] = {"double", "float64", 8},
+};
+/* The largest value of an integer type (a list count's bound). */
+static const uint64_t type_max[] = {127, 255, 32767, 65535, INT32_MAX, UINT32_MAX, 0, 0};
+
+enum { R_NONE, R_X, R_Y, R_Z, R_INDICES };
+enum { E_OTHER, E_VERTEX, E_FACE };
+#define MAX_ELEMS 32
+#define MAX_PROPS 64
+
+typedef struct {
+    uint8_t type, count_type, list, role;
+} ply_prop;
+
+typedef struct {
+    const char *name;
+    size_t name_len;
+    uint64_t count, at; /* at: where it is declared */
+    int kind;
+    uint32_t nprops;
+    ply_prop props[MAX_PROPS];
+} ply_elem;
+
+typedef struct {
+    mbuild *b;
+    int ascii, be;
+    uint32_t nelems;
+    ply_elem elems[MAX_ELEMS];
+    uint64_t n_vertices; /* declared: what face indices are checked against */
+    const char *data;    /* first byte after end_header */
+} ply;
+
+/* ------------------------------------------------------------------ header */
+
+static int type_of(mtext *t)
+{
+    size_t n = mt_toklen(t);
+    for (int i = 0; i < T_NONE; i++)
+        if ((strlen(types[i].name) == n && !memcmp(t->p, types[i].name, n)) ||
+            (strlen(types[i].alias) == n && !memcmp(t->p, types[i].alias, n))) {
+            t->p += n;
+            return i;
+        }
+    return T_NONE;
+}
+
+static int is_name(const mtext *t, size_t n, const char *w)
+{
+    return strlen(w) == n && !memcmp(t->p, w, n);
+}
+
+static int header_property(ply *y, mtext *t)
+{
+    mbuild *b = y->b;
+    char tok[32];
+    if (!y->nelems) return mb_fail(b, -EINVAL, mt_at(t), "a property before any element");
+    ply_elem *e = &y->elems[y->nelems - 1];
+    if (e->nprops == MAX_PROPS)
+        return mb_fail(b, -EINVAL, mt_at(t), "more than %d properties in an element", MAX_PROPS);
+    ply_prop *p = &e->props[e->nprops];
+    *p = (ply_prop){.count_type = T_NONE};
+    mt_skip_blank(t);
+    if (mt_word(t, "list", 0)) {
+        p->list = 1;
+        mt_skip_blank(t);
+        if ((p->count_type = (uint8_t)type_of(t)) == T_NONE)
+            return mb_fail(b, -EINVAL, mt_at(t), "unknown list count type %s", mt_tokstr(t, tok));
+        if (p->count_type >= T_FLOAT)
+            return mb_fail(b, -EINVAL, mt_at(t), "a list count of type %s (an integer type needed)",
+                           types[p->count_type].name);
+    }
+    mt_skip_blank(t);
+    if ((p->type = (uint8_t)type_of(t)) == T_NONE)
+        return mb_fail(b, -EINVAL, mt_at(t), "unknown property type %s", mt_tokstr(t, tok));
+    mt_skip_blank(t);
+    size_t n = mt_toklen(t);
+    if (!n) return mb_fail(b, -EINVAL, mt_at(t), "a property without a name");
+    if (e->kind == E_VERTEX && !p->list)
+        p->role = is_name(t, n, "x") ? R_X : is_name(t, n, "y") ? R_Y : is_name(t, n, "z") ? R_Z : 0;
+    if (e->kind == E_FACE && p->list &&
+        (is_name(t, n, "vertex_indices") || is_name(t, n, "vertex_index"))) {
+        if (p->type >= T_FLOAT)
+            return mb_fail(b, -EINVAL, mt_at(t), "vertex indices of type %s (an integer type needed)",
+                           types[p->type].name);
+        p->role = R_INDICES;
+    }
+    for (uint32_t i = 0; p->role && i < e->nprops; i++)
+        if (e->props[i].role == p->role)
+            return mb_fail(b, -EINVAL, mt_at(t), "property %.*s declared twice", (int)n, t->p);
+    e->nprops++;
+    t->p += n;
+    return 0;
+}
+
+static int header_element(ply *y, mtext *t)
+{
+    mbuild *b = y->b;
+    char tok[32];
+    if (y->nelems == MAX_ELEMS)
+        return mb_fail(b, -EINVAL, mt_at(t), "more than %d elements", MAX_ELEMS);
+    ply_elem *e = &y->elems[y->nelems];
+    memset(e, 0, sizeof *e);
+    mt_skip_blank(t);
+    e->name = t->p;
+    e->name_len = mt_toklen(t);
+    e->at = mt_at(t);
+    if (!e->name_len) return mb_fail(b, -EINVAL, mt_at(t), "an element without a name");
+    e->kind = is_name(t, e->name_len, "vertex") ? E_VERTEX : is_name(t, e->name_len, "face") ? E_FACE : E_OTHER;
+    for (uint32_t i = 0; e->kind != E_OTHER && i < y->nelems; i++)
+        if (y->elems[i].kind == e->kind)
+            return mb_fail(b, -EINVAL, mt_at(t), "element %.*s declared twice", (int)e->name_len,
+                           e->name);
+    t->p += e->name_len;
+    mt_skip_blank(t);
+    int rc = mt_uint_token(t, UINT64_MAX, &e->count);
+    if (rc)
+        return mb_fail(b, -EINVAL, mt_at(t), "element %.*s: the count %s is not a whole number",
+                       (int)e->name_len, e->name, mt_tokstr(t, tok));
+    y->nelems++;
+    return 0;
+}
+
+static int header_format(ply *y, mtext *t)
+{
+    mt_skip_blank(t);
+    if (mt_word(t, "ascii", 0)) y->ascii = 1;
+    else if (mt_word(t, "binary_little_endian", 0)) y->be = 0;
+    else if (mt_word(t, "binary_big_endian", 0)) y->be = 1;
+    else {
+        char tok[32];
+        return mb_fail(y->b, -EINVAL, mt_at(t), "unknown format %s", mt_tokstr(t, tok));
+    }
+    mt_skip_blank(t);
+    if (!mt_word(t, "1.0", 0)) {
+        char tok[32];
+        return mb_fail(y->b, -EINVAL, mt_at(t), "format version %s (1.0 is known)",
+                       mt_tokstr(t, tok));
+    }
+    return 0;
+}
+
+static int parse_header(ply *y, mtext *t)
+{
+    mbuild *b = y->b;
+    int have_format = 0, rc = 0;
+    mt_next_line(t); /* "ply", checked by the caller */
+    for (;;) {
+        if (t->p == t->end) return mb_fail(b, -EINVAL, mt_at(t), "no end_header");
+        mt_skip_blank(t);
+        if (mt_word(t, "end_header", 0)) break;
+        if (mt_word(t, "format", 0)) {
+            if (have_format++) return mb_fail(b, -EINVAL, mt_at(t), "a second format line");
+            rc = header_format(y, t);
+        } else if (!have_format) {
+            return mb_fail(b, -EINVAL, mt_at(t), "no format line after 'ply'");
+        } else if (mt_word(t, "element", 0)) {
+            rc = header_element(y, t);
+        } else if (mt_word(t, "property", 0)) {
+            rc = header_property(y, t);
+        } else if (mt_word(t, "comment", 0) || mt_word(t, "obj_info", 0) || mt_eol(t)) {
+            mt_next_line(t);
+            continue;
+        } else {
+            char tok[32];
+            return mb_fail(b, -EINVAL, mt_at(t), "unknown header line %s", mt_tokstr(t, tok));
+        }
+        if (rc) return rc;
+        mt_skip_blank(t);
+        if (!mt_eol(t)) {
+            char tok[32];
+            return mb_fail(b, -EINVAL, mt_at(t), "unexpected %s", mt_tokstr(t, tok));
+        }
+        mt_next_line(t);
+    }
+    /* end_header, then exactly one line end: the binary data begins after it. */
+    mt_skip_blank(t);
+    if (t->p == t->end || *t->p != '\n')
+        return mb_fail(b, -EINVAL, mt_at(t), "end_header not followed by a line end");
+    t->p++;
+        y->data = t->p;
+    return 0;
+}
+
+/* The roles the mesh needs, and the least bytes of each element's data. */
+static int check_elements(ply *y, size_t avail)
+{
+    mbuild *b = y->b;
+    int have[R_INDICES + 1] = {0};
+    const ply_elem *vert = NULL, *face = NULL;
+    /* ascii: n tokens take at least 2n - 1 bytes */
+    uint64_t room = y->ascii ? (uint64_t)avail + 1 : avail;
+    for (uint32_t i = 0; i < y->nelems; i++) {
+        const ply_elem *e = &y->elems[i];
+        if (e->kind == E_VERTEX) vert = e;
+        if (e->kind == E_FACE) face = e;
+        if (!e->nprops && e->count)
+            return mb_fail(b, -EINVAL, e->at, "element %.*s has no properties", (int)e->name_len,
+                           e->name);
+        uint64_t least = 0;
+        for (uint32_t k = 0; k < e->nprops; k++) {
+            const ply_prop *p = &e->props[k];
+            have[p->role] = 1;
+            uint64_t n = p->role == R_INDICES ? 3 : 0; /* a face: three indices at least */
+            if (y->ascii) least += 2 * (1 + n);
+            else least += p->list ? types[p->count_type].size + n * types[p->type].size
+                                  : types[p->type].size;
+        }
+        if (least && e->count > room / least)
+            return mb_fail(b, -EINVAL, e->at,
+                           "element %.*s: %llu of them need at least %llu bytes; %llu are left",
+                           (int)e->name_len, e->name, (unsigned long long)e->count,
+                           (unsigned long long)(e->count > UINT64_MAX / least ? UINT64_MAX
+                                                                              : e->count * least),
+                           (unsigned long long)room);
+        room -= e->count * least;
+    }
+    if (!vert) return mb_fail(b, -EINVAL, MB_NOWHERE, "no vertex element");
+    if (!have[R_X] || !have[R_Y] || !have[R_Z])
+        return mb_fail(b, -EINVAL, vert->at, "the vertex element lacks x, y or z");
+    if (!face) return mb_fail(b, -EINVAL, MB_NOWHERE, "no face element");
+    if (!have[R_INDICES])
+        return mb_fail(b, -EINVAL, face->at, "the face element has no vertex_indices list");
+    y->n_vertices = vert->count;
+    int rc = mb_reserve_vertices(b, vert->count, vert->at);
+    /* at least one triangle a face */
+    return rc ? rc : mb_reserve_triangles(b, face->count, face->at);
+}
+
+/* ------------------------------------------------------------------- ascii */
+
+static int ascii_error(ply *y, mtext *t, const ply_elem *e, uint64_t item, const char *what)
+{
+    char tok[32];
+    return mb_fail(y->b, -EINVAL, mt_at(t), "%.*s %llu: %s %s", (int)e->name_len, e->name,
+                   (unsigned long long)item, what, mt_tokstr(t, tok));
+}
+
+/* A face's index list: count, then the indices, fanned into triangles. */
+static int ascii_indices(ply *y, mtext *t, const ply_elem *e, uint64_t item, uint64_t cnt)
+{
+    if (cnt < 3) return ascii_error(y, t, e, item, "has fewer than 3 vertices; at");
+    uint32_t first = 0, prev = 0;
+    for (uint64_t j = 0; j < cnt; j++) {
+        mt_skip_space(t);
+        int64_t v;
+        if (mt_int(t, &v) || (t->p < t->end && !mt_space(*t->p)))
+            return ascii_error(y, t, e, item, "a vertex index expected, found");
+        if (v < 0 || (uint64_t)v >= y->n_vertices)
+            return mb_fail(y->b, -EINVAL, mt_at(t), "face %llu: vertex index %lld out of range (%llu vertices)",
+                           (unsigned long long)item, (long long)v, (unsigned long long)y->n_vertices);
+        if (j >= 2) {
+            int rc = mb_triangle(y->b, first, prev, (uint32_t)v, mt_at(t));
+            if (rc) return rc;
+        }
+        if (j == 0) first = (uint32_t)v;
+        prev = (uint32_t)v;
+    }
+    return 0;
+}
+
+static int ascii_item(ply *y, mtext *t, const ply_elem *e, uint64_t item)
+{
+    float pos[3] = {0, 0, 0};
+    for (uint32_t k = 0; k < e->nprops; k++) {
+        const ply_prop *p = &e->props[k];
+        mt_skip_space(t);
+        if (p->list) {
+            uint64_t cnt;
+            if (mt_uint_token(t, type_max[p->count_type], &cnt))
+                return ascii_error(y, t, e, item, "a list count expected, found");
+            if (p->role == R_INDICES) {
+                int rc = ascii_indices(y, t, e, item, cnt);
+                if (rc) return rc;
+                continue;
+            }
+            for (uint64_t j = 0; j < cnt; j++) {
+                mt_skip_space(t);
+                size_t n = mt_toklen(t);
+                if (!n) return ascii_error(y, t, e, item, "a list item expected, found");
+                t->p += n;
+            }
+        } else if (p->role) {
+            int rc = mt_float(t, &pos[p->role - R_X]);
+            if (rc)
+                return ascii_error(y, t, e, item, rc == -ERANGE ? "not a finite number:"
+                                                                : "a number expected, found");
+        } else {
+            size_t n = mt_toklen(t);
+            if (!n) return ascii_error(y, t, e, item, "a value expected, found");
+            t->p += n;
+        }
+    }
+    return e->kind == E_VERTEX ? mb_vertex(y->b, pos, mt_at(t)) : 0;
+}
+
+static int parse_ascii(ply *y, mtext *t)
+{
+    for (uint32_t i = 0; i < y->nelems; i++) {
+        const ply_elem *e = &y->elems[i];
+        for (uint64_t j = 0; j < e->count; j++) {
+            int rc = ascii_item(y, t, e, j);
+            if (rc) return rc;
+        }
+    }
+    mt_skip_space(t);
+    if (t->p != t->end) {
+        char tok[32];
+        return mb_fail(y->b, -EINVAL, mt_at(t), "%s after the last element", mt_tokstr(t, tok));
+    }
+    return 0;
+}
+
+/* ------------------------------------------------------------------ binary */
+
+static uint64_t rd_bits(const unsigned char *p, unsigned size, int be)
+{
+    uint64_t v = 0;
+    for (unsigned i = 0; i < size; i++) v |= (uint64_t)p[be ? size - 1 - i : i] << (8 * i);
+    return v;
+}
+
+/* An integer type's value (signed ones sign-extended). */
+static int64_t rd_int(const unsigned char *p, int type, int be)
+{
+    uint64_t v = rd_bits(p, types[type].size, be);
+    switch (type) {
+    case T_CHAR: return (int8_t)v;
+    case T_SHORT: return (int16_t)v;
+    case T_INT: return (int32_t)v;
+    default: return (int64_t)v;
+    }
+}
+
+static float rd_float(const unsigned char *p, int type, int be)
+{
+    if (type == T_FLOAT) {
+        uint32_t u = (uint32_t)rd_bits(p, 4, be);
+        float f;
+        memcpy(&f, &u, 4);
+        return f;
+    }
+    if (type == T_DOUBLE) {
+        uint64_t u = rd_bits(p, 8, be);
+        double d;
+        memcpy(&d, &u, 8);
+        return (float)d; /* to nearest; beyond FLT_MAX it is Inf, refused */
+    }
+    return (float)rd_int(p, type, be);
+}
+
+typedef struct {
+    const unsigned char *base;
+    size_t pos, len;
+} bcur;
+
+static int truncated(ply *y, const bcur *c, const ply_elem *e, uint64_t item)
+{
+    return mb_fail(y->b, -EINVAL, c->pos, "truncated in %.*s %llu of %llu", (int)e->name_len,
+                   e->name, (unsigned long long)item, (unsigned long long)e->count);
+}
+
+static int binary_list(ply *y, bcur *c, const ply_elem *e, const ply_prop *p, uint64_t item)
+{
+    unsigned cs = types[p->count_type].size, is = types[p->type].size;
+    if (c->len - c->pos < cs) return truncated(y, c, e, item);
+    int64_t cnt = rd_int(c->base + c->pos, p->count_type, y->be);
+    if (cnt < 0)
+        return mb_fail(y->b, -EINVAL, c->pos, "%.*s %llu: a list of %lld items", (int)e->name_len,
+                       e->name, (unsigned long long)item, (long long)cnt);
+    size_t at = c->pos;
+    c->pos += cs;
+    if ((uint64_t)cnt > (c->len - c->pos) / is) return truncated(y, c, e, item);
+    if (p->role != R_INDICES) {
+        c->pos += (size_t)cnt * is;
+        return 0;
+    }
+    if (cnt < 3)
+        return mb_fail(y->b, -EINVAL, at, "face %llu has %lld vertices (at least 3)",
+                       (unsigned long long)item, (long long)cnt);
+    uint32_t first = 0, prev = 0;
+    for (int64_t j = 0; j < cnt; j++, c->pos += is) {
+        int64_t v = rd_int(c->base + c->pos, p->type, y->be);
+        if (v < 0 || (uint64_t)v >= y->n_vertices)
+            return mb_fail(y->b, -EINVAL, c->pos,
+                           "face %llu: vertex index %lld out of range (%llu vertices)",
+                           (unsigned long long)item, (long long)v,
+                           (unsigned long long)y->n_vertices);
+        if (j >= 2) {
+            int rc = mb_triangle(y->b, first, prev, (uint32_t)v, c->pos);
+            if (rc) return rc;
+        }
+        if (j == 0) first = (uint32_t)v;
+        prev = (uint32_t)v;
+    }
+    return 0;
+}
+
+static int binary_item(ply *y, bcur *c, const ply_elem *e, uint64_t item)
+{
+    float pos[3] = {0, 0, 0};
+    size_t start = c->pos;
+    for (uint32_t k = 0; k < e->nprops; k++) {
+        const ply_prop *p = &e->props[k];
+        if (p->list) {
+            int rc = binary_list(y, c, e, p, item);
+            if (rc) return rc;
+            continue;
+        }
+        unsigned sz = types[p->type].size;
+        if (c->len - c->pos < sz) return truncated(y, c, e, item);
+        if (p->role) pos[p->role - R_X] = rd_float(c->base + c->pos, p->type, y->be);
+        c->pos += sz;
+    }
+    return e->kind == E_VERTEX ? mb_vertex(y->b, pos, start) : 0;
+}
+
+static int parse_binary(ply *y, const char *buf, size_t len)
+{
+    y->b->binary = 1;
+    bcur c = {(const unsigned char *)buf, (size_t)(y->data - buf), len};
+    for (uint32_t i = 0; i < y->nelems; i++) {
+        const ply_elem *e = &y->elems[i];
+        for (uint64_t j = 0; j < e->count; j++) {
+            int rc = binary_item(y, &c, e, j);
+            if (rc) return rc;
+        }
+    }
+    if (c.pos != len)
+        return mb_fail(y->b, -EINVAL, c.pos, "%zu bytes after the last element", len - c.pos);
+    return 0;
+}
+
+int mesh_parse_ply(const char *buf, size_t len, mbuild *b)
+{
+    mtext t = {buf, buf + len, buf};
+    if (!mt_word(&t, "ply", 0)) return mb_fail(b, -EINVAL, 0, "not a PLY file (no 'ply' line)");
+    mt_skip_blank(&t);
+    if (!mt_eol(&t)) return mb_fail(b, -EINVAL, 0, "not a PLY file (no 'ply' line)");
+    ply y = {.b = b}; /* about 10 KiB */
+    int rc = parse_header(&y, &t);
+    if (!rc) rc = check_elements(&y, len - (size_t)(y.data - buf));
+    if (rc) return rc;
+    return y.ascii ? parse_ascii(&y, &t) : parse_binary(&y, buf, len);
+}

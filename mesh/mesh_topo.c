@@ -1,0 +1,149 @@
+/* mesh_topo — a mesh's edges, boundary, manifoldness, orientation,
+ * components and volume (mesh_topology in mesh.h).
+ *
+ * Each triangle gives three edge uses.  They are grouped by edge with a
+ * counting sort on the lower vertex index (one bucket a vertex), then a
+ * sort of each bucket by the higher index: buckets hold a vertex's edges
+ * towards higher vertices, a handful in a usual mesh, so the whole is O(n)
+ * and touches memory in two streaming passes and one scatter.  Triangles
+ * that share an edge are joined in a union-find for the components. */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh.h"
+
+typedef struct {
+    uint32_t hi, tri;
+} edge_use;
+
+static int cmp_use(const void *a, const void *b)
+{
+    const edge_use *x = a, *y = b;
+    if (x->hi != y->hi) return x->hi < y->hi ? -1 : 1;
+    return (x->tri > y->tri) - (x->tri < y->tri);
+}
+
+static void sort_bucket(edge_use *e, size_t n)
+{
+    if (n > 32) {
+        qsort(e, n, sizeof *e, cmp_use);
+        return;
+    }
+    for (size_t i = 1; i < n; i++) {
+        edge_use x = e[i];
+        size_t j = i;
+        for (; j > 0 && e[j - 1].hi > x.hi; j--) e[j] = e[j - 1];
+        e[j] = x;
+    }
+}
+
+static uint32_t find(uint32_t *parent, uint32_t i)
+{
+    while (parent[i] != i) {
+        parent[i] = parent[parent[i]]; /* path halving */
+        i = parent[i];
+    }
+    return i;
+}
+
+static void join(uint32_t *parent, uint32_t a, uint32_t b)
+{
+    a = find(parent, a);
+    b = find(parent, b);
+    /* the lower root wins: deterministic, and the trees stay shallow
+     * enough with path halving */
+    if (a < b) parent[b] = a;
+    else if (b < a) parent[a] = b;
+}
+
+/* Whether triangle t traverses its edge (lo, hi) from lo to hi. */
+static int forward(const uint32_t t[3], uint32_t lo, uint32_t hi)
+{
+    for (int k = 0; k < 3; k++)
+        if (t[k] == lo) return t[(k + 1) % 3] == hi;
+    return 0;
+}
+
+/* The edges of one lower vertex's bucket, sorted: count them. */
+static void count_bucket(const mesh *m, uint32_t lo, const edge_use *e, size_t n,
+                         uint32_t *parent, mesh_topo *out)
+{
+    for (size_t i = 0; i < n;) {
+        size_t j = i + 1;
+        while (j < n && e[j].hi == e[i].hi) j++;
+        size_t k = j - i;
+        out->edges++;
+        if (k == 1) out->open++;
+        else if (k > 2) out->nonmanifold++;
+        else if (forward(m->triangles[e[i].tri], lo, e[i].hi) ==
+                 forward(m->triangles[e[i + 1].tri], lo, e[i].hi))
+            out->inconsistent++;
+        for (size_t x = i + 1; x < j; x++) join(parent, e[i].tri, e[x].tri);
+        i = j;
+    }
+}
+
+/* Signed volume by the divergence theorem: the sum of the tetrahedra from
+ * the centre of the bounding box (near the mesh: less cancellation than
+ * from the origin) to each triangle. */
+static double signed_volume(const mesh *m)
+{
+    double c[3], sum = 0;
+    for (int k = 0; k < 3; k++) c[k] = ((double)m->lo[k] + m->hi[k]) / 2;
+    for (uint32_t i = 0; i < m->n_triangles; i++) {
+        double p[3][3];
+        for (int v = 0; v < 3; v++)
+            for (int k = 0; k < 3; k++) p[v][k] = m->vertices[m->triangles[i][v]][k] - c[k];
+        sum += p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1]) +
+               p[0][1] * (p[1][2] * p[2][0] - p[1][0] * p[2][2]) +
+               p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0]);
+    }
+    return sum / 6;
+}
+
+int mesh_topology(const mesh *m, mesh_topo *out)
+{
+    memset(out, 0, sizeof *out);
+    uint32_t nv = m->n_vertices, nt = m->n_triangles;
+    uint64_t *start = calloc((size_t)nv + 1, sizeof *start);
+    edge_use *use = malloc((size_t)3 * nt * sizeof *use + 1);
+    uint32_t *parent = malloc((size_t)nt * sizeof *parent + 1);
+    if (!start || !use || !parent) {
+        free(start);
+        free(use);
+        free(parent);
+        return -ENOMEM;
+    }
+    for (uint32_t i = 0; i < nt; i++) {
+        const uint32_t *t = m->triangles[i];
+        for (int k = 0; k < 3; k++) {
+            uint32_t a = t[k], b = t[(k + 1) % 3];
+            start[(a < b ? a : b) + 1]++;
+        }
+        parent[i] = i;
+    }
+    for (uint32_t v = 0; v < nv; v++) start[v + 1] += start[v];
+    /* start[v] is bucket v's next free slot while filling, then its end */
+    for (uint32_t i = 0; i < nt; i++) {
+        const uint32_t *t = m->triangles[i];
+        for (int k = 0; k < 3; k++) {
+            uint32_t a = t[k], b = t[(k + 1) % 3];
+            use[start[a < b ? a : b]++] = (edge_use){a < b ? b : a, i};
+        }
+    }
+    uint64_t begin = 0;
+    for (uint32_t v = 0; v < nv; v++) {
+        size_t n = (size_t)(start[v] - begin);
+        sort_bucket(use + begin, n);
+        count_bucket(m, v, use + begin, n, parent, out);
+        begin = start[v];
+    }
+    for (uint32_t i = 0; i < nt; i++) out->components += parent[i] == i;
+    out->watertight = !out->open && !out->nonmanifold && !out->inconsistent;
+    out->volume = signed_volume(m);
+    free(start);
+    free(use);
+    free(parent);
+    return 0;
+}
