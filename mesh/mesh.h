@@ -82,8 +82,9 @@ typedef struct {
                               meaningful when watertight */
 } mesh_topo;
 
-/* 0 and *out, or -ENOMEM.  O(n) time and memory in the triangles (a
- * counting sort of the edges by their lower vertex). */
+/* 0 and *out, -ENOMEM, or -E2BIG past 2^31 - 1 triangles.  O(n) time and
+ * memory in the triangles (a counting sort of the edges by their lower
+ * vertex). */
 int mesh_topology(const mesh *m, mesh_topo *out);
 
 #endif

@@ -288,8 +288,9 @@ int mt_uint_token(mtext *t, uint64_t max, uint64_t *out)
     uint64_t v = 0;
     int over = 0;
     for (; s < t->end && mt_digit(*s); s++) {
-        if (v > (UINT64_MAX - 9) / 10) over = 1;
-        else v = v * 10 + (uint64_t)(*s - '0');
+        uint64_t d = (uint64_t)(*s - '0');
+        if (v > (UINT64_MAX - d) / 10) over = 1;
+        else v = v * 10 + d;
     }
     if (s < t->end && !mt_space(*s)) return -EINVAL;
     if (over || v > max) return -ERANGE;

@@ -87,9 +87,13 @@ static int parse_face(mtext *t, mbuild *b, uint64_t i, uint64_t nv)
     char tok[32];
     next_record(t);
     uint64_t k;
-    if (mt_uint_token(t, UINT32_MAX, &k) || k < 3)
-        return mb_fail(b, -EINVAL, mt_at(t), "face %llu: a vertex count of at least 3 expected, found %s",
+    uint64_t at = mt_at(t);
+    if (mt_uint_token(t, UINT32_MAX, &k))
+        return mb_fail(b, -EINVAL, at, "face %llu: a vertex count expected, found %s",
                        (unsigned long long)i, mt_tokstr(t, tok));
+    if (k < 3)
+        return mb_fail(b, -EINVAL, at, "face %llu has %llu vertices (at least 3)",
+                       (unsigned long long)i, (unsigned long long)k);
     uint32_t first = 0, prev = 0;
     for (uint64_t j = 0; j < k; j++) {
         mt_skip_blank(t);

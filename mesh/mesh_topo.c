@@ -13,15 +13,17 @@
 
 #include "mesh.h"
 
+/* One use of edge (lo, hi), filed under lo: the triangle, and whether it
+ * goes from lo to hi (bit 0 of td: td = tri << 1 | forward). */
 typedef struct {
-    uint32_t hi, tri;
+    uint32_t hi, td;
 } edge_use;
 
 static int cmp_use(const void *a, const void *b)
 {
     const edge_use *x = a, *y = b;
     if (x->hi != y->hi) return x->hi < y->hi ? -1 : 1;
-    return (x->tri > y->tri) - (x->tri < y->tri);
+    return (x->td > y->td) - (x->td < y->td);
 }
 
 static void sort_bucket(edge_use *e, size_t n)
@@ -57,17 +59,8 @@ static void join(uint32_t *parent, uint32_t a, uint32_t b)
     else if (b < a) parent[a] = b;
 }
 
-/* Whether triangle t traverses its edge (lo, hi) from lo to hi. */
-static int forward(const uint32_t t[3], uint32_t lo, uint32_t hi)
-{
-    for (int k = 0; k < 3; k++)
-        if (t[k] == lo) return t[(k + 1) % 3] == hi;
-    return 0;
-}
-
 /* The edges of one lower vertex's bucket, sorted: count them. */
-static void count_bucket(const mesh *m, uint32_t lo, const edge_use *e, size_t n,
-                         uint32_t *parent, mesh_topo *out)
+static void count_bucket(const edge_use *e, size_t n, uint32_t *parent, mesh_topo *out)
 {
     for (size_t i = 0; i < n;) {
         size_t j = i + 1;
@@ -76,10 +69,9 @@ static void count_bucket(const mesh *m, uint32_t lo, const edge_use *e, size_t n
         out->edges++;
         if (k == 1) out->open++;
         else if (k > 2) out->nonmanifold++;
-        else if (forward(m->triangles[e[i].tri], lo, e[i].hi) ==
-                 forward(m->triangles[e[i + 1].tri], lo, e[i].hi))
+        else if ((e[i].td & 1) == (e[i + 1].td & 1))
             out->inconsistent++;
-        for (size_t x = i + 1; x < j; x++) join(parent, e[i].tri, e[x].tri);
+        for (size_t x = i + 1; x < j; x++) join(parent, e[i].td >> 1, e[x].td >> 1);
         i = j;
     }
 }
@@ -106,6 +98,7 @@ int mesh_topology(const mesh *m, mesh_topo *out)
 {
     memset(out, 0, sizeof *out);
     uint32_t nv = m->n_vertices, nt = m->n_triangles;
+    if (nt > INT32_MAX) return -E2BIG;
     uint64_t *start = calloc((size_t)nv + 1, sizeof *start);
     edge_use *use = malloc((size_t)3 * nt * sizeof *use + 1);
     uint32_t *parent = malloc((size_t)nt * sizeof *parent + 1);
@@ -129,14 +122,14 @@ int mesh_topology(const mesh *m, mesh_topo *out)
         const uint32_t *t = m->triangles[i];
         for (int k = 0; k < 3; k++) {
             uint32_t a = t[k], b = t[(k + 1) % 3];
-            use[start[a < b ? a : b]++] = (edge_use){a < b ? b : a, i};
+            use[start[a < b ? a : b]++] = (edge_use){a < b ? b : a, i << 1 | (a < b)};
         }
     }
     uint64_t begin = 0;
     for (uint32_t v = 0; v < nv; v++) {
         size_t n = (size_t)(start[v] - begin);
         sort_bucket(use + begin, n);
-        count_bucket(m, v, use + begin, n, parent, out);
+        count_bucket(use + begin, n, parent, out);
         begin = start[v];
     }
     for (uint32_t i = 0; i < nt; i++) out->components += parent[i] == i;
