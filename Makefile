@@ -8,6 +8,7 @@
 #   make bench      benchmarks (release build): voxbench (embedded engine),
 #                   voxdbench (through a voxd it starts) and the whole vox
 #                   voxelize command (scripts/bench-whole.sh), tables in bench/results/
+#   make bench-mesh the mesh loaders on the Stanford dragon and bunny (npm models)
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -89,7 +90,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench bench-compare fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare bench-mesh fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
@@ -177,8 +178,12 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole
+bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh
 	@scripts/bench.sh $(BUILD)
+
+# The mesh loaders on the Stanford dragon and bunny ($VOXD_MESH_MODELS, or npm).
+bench-mesh: all $(BUILD)/bench_mesh
+	@scripts/bench-mesh.sh $(BUILD)
 
 # The whole vox voxelize command against commit BASE, in one run.
 BASE ?= HEAD~1

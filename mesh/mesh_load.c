@@ -261,8 +261,8 @@ const char *mt_tokstr(const mtext *t, char buf[32])
 int mt_float_slow(mtext *t, float *out)
 {
     size_t n = mt_toklen(t);
-    char tok[128];
-    if (n == 0 || n >= sizeof tok) return -EINVAL;
+    char tok[MT_TOKEN_MAX + 1];
+    if (n == 0 || n > MT_TOKEN_MAX) return -EINVAL;
     memcpy(tok, t->p, n);
     tok[n] = '\0';
     char *e;

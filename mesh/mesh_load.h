@@ -129,6 +129,8 @@ size_t mt_toklen(const mtext *t);
 /* The token at p is w (ASCII case ignored when nocase): consume it. */
 int mt_word(mtext *t, const char *w, int nocase);
 
+/* The longest number token read (longer ones are refused). */
+#define MT_TOKEN_MAX 127
 int mt_float_slow(mtext *t, float *out);
 extern const double mt_pow10[23], mt_pow10_neg[23];
 
@@ -149,7 +151,8 @@ static inline int mt_digit(char c) { return (unsigned)(c - '0') < 10; }
 static inline int mt_float(mtext *t, float *out)
 {
 #if FLT_EVAL_METHOD == 0
-    const char *s = t->p, *end = t->end;
+    /* at most MT_TOKEN_MAX characters scanned: the exponent stays small */
+    const char *s = t->p, *end = t->end - t->p > MT_TOKEN_MAX ? t->p + MT_TOKEN_MAX : t->end;
     int neg = 0, e10 = 0, nd = 0, inexact = 0;
     uint64_t m = 0;
     if (s < end && (*s == '+' || *s == '-')) neg = *s++ == '-';
@@ -172,7 +175,7 @@ static inline int mt_float(mtext *t, float *out)
         e10 += eneg ? -ev : ev;
         s = x;
     }
-    if (!nd || inexact || (s < end && !mt_space(*s))) return mt_float_slow(t, out);
+    if (!nd || inexact || (s < t->end && !mt_space(*s))) return mt_float_slow(t, out);
     if (m == 0) {
         *out = neg ? -0.0f : 0.0f;
         t->p = s;

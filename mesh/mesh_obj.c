@@ -95,7 +95,7 @@ static int parse_f(mtext *t, mbuild *b)
     uint32_t first = 0, prev = 0, n = 0;
     for (;; n++) {
         skip_blank(t);
-        if (mt_eol(t)) break;
+        if (mt_eol(t) || *t->p == '#') break; /* a comment ends the statement */
         uint32_t v = 0;
         int rc = face_vertex(t, b, &v);
         if (rc) return rc;

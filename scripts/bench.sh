@@ -22,6 +22,8 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$build/voxbench" memory -r "$res"
     "$build/voxdbench" all -r "$res" -n "$workers"
     echo
+    "$(dirname "$0")/bench-mesh.sh" "$build"
+    echo
     "$(dirname "$0")/bench-whole.sh" "$build"
 } | tee "$out" || rc=$?
 echo "bench: tables saved in $out"

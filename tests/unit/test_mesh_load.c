@@ -168,6 +168,7 @@ static void write_obj(sink *s, const model *md, int forms)
             else if (k % 3 == 1) fprintf(s->f, "\t%d//1", v + 1);
             else fprintf(s->f, " %d/1", v - md->nv);
         }
+        if (forms && i == 1) fputs(" # a comment", s->f);
         fputs(nl, s->f);
     }
     if (forms) fprintf(s->f, "l 1 2%s", nl);
