@@ -170,42 +170,93 @@ static uint64_t position_hash(const uint32_t bits[3])
     return h * 0x94d049bb133111ebull;
 }
 
+/* The welding table: open addressing, linear probing; a slot holds a
+ * unique vertex's index and 32 bits of its hash, so that most probes that
+ * miss do not read the vertex. */
+typedef struct {
+    uint32_t idx, tag;
+} weld_slot;
+
+typedef struct {
+    weld_slot *slot;
+    int bits;
+    uint64_t mask;
+} weld_table;
+
+static int weld_alloc(weld_table *w, int bits)
+{
+    w->bits = bits;
+    w->mask = ((uint64_t)1 << bits) - 1;
+    w->slot = malloc((size_t)(w->mask + 1) * sizeof *w->slot);
+    if (!w->slot) return -ENOMEM;
+    memset(w->slot, 0xff, (size_t)(w->mask + 1) * sizeof *w->slot);
+    return 0;
+}
+
+/* The slot of the vertex with these bits and hash: its own, or the empty
+ * one where it goes. */
+static weld_slot *weld_find(const weld_table *w, float (*v)[3], const uint32_t key[3], uint64_t h)
+{
+    uint32_t tag = (uint32_t)h;
+    for (uint64_t i = h >> (64 - w->bits);; i = (i + 1) & w->mask) {
+        weld_slot *s = &w->slot[i];
+        if (s->idx == UINT32_MAX) return s;
+        uint32_t other[3];
+        if (s->tag == tag && (position_bits(v[s->idx], other), !memcmp(key, other, sizeof other)))
+            return s;
+    }
+}
+
+/* Twice the slots, the u unique vertices so far put back. */
+static int weld_grow(weld_table *w, float (*v)[3], uint32_t u)
+{
+    weld_table bigger;
+    if (weld_alloc(&bigger, w->bits + 1)) return -ENOMEM;
+    for (uint32_t i = 0; i < u; i++) {
+        uint32_t key[3];
+        position_bits(v[i], key);
+        uint64_t h = position_hash(key);
+        *weld_find(&bigger, v, key, h) = (weld_slot){i, (uint32_t)h};
+    }
+    free(w->slot);
+    *w = bigger;
+    return 0;
+}
+
 int mb_weld(mbuild *b)
 {
     uint32_t n = b->nv;
-    int tbits = 1;
-    while (((uint64_t)1 << tbits) < (uint64_t)n * 2) tbits++;
-    uint64_t size = (uint64_t)1 << tbits;
-    uint32_t *table = malloc(size * sizeof *table);
+    /* a closed mesh has about a sixth as many vertices as corners: start
+     * there, and double when half full */
+    int bits = 10;
+    while (bits < 40 && ((uint64_t)1 << bits) < (uint64_t)n / 3) bits++;
+    weld_table w;
     uint32_t *map = malloc((size_t)(n ? n : 1) * sizeof *map);
-    if (!table || !map) {
-        free(table);
+    if (!map || weld_alloc(&w, bits)) {
         free(map);
         return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
     }
-    memset(table, 0xff, size * sizeof *table);
     /* Unique positions move down in place, in order of first appearance
      * (u <= i: a slot below i is never needed again). */
     uint32_t u = 0;
     for (uint32_t i = 0; i < n; i++) {
-        uint32_t key[3], other[3];
+        uint32_t key[3];
         position_bits(b->v[i], key);
-        for (uint64_t h = position_hash(key) >> (64 - tbits);; h = (h + 1) & (size - 1)) {
-            uint32_t j = table[h];
-            if (j == UINT32_MAX) {
-                table[h] = u;
-                memmove(b->v[u], b->v[i], sizeof *b->v);
-                map[i] = u++;
-                break;
-            }
-            position_bits(b->v[j], other);
-            if (!memcmp(key, other, sizeof key)) {
-                map[i] = j;
-                break;
-            }
+        uint64_t h = position_hash(key);
+        weld_slot *s = weld_find(&w, b->v, key, h);
+        if (s->idx != UINT32_MAX) {
+            map[i] = s->idx;
+            continue;
+        }
+        memmove(b->v[u], b->v[i], sizeof *b->v);
+        *s = (weld_slot){u, (uint32_t)h};
+        map[i] = u++;
+        if ((uint64_t)u * 2 > w.mask + 1 && weld_grow(&w, b->v, u)) {
+            free(map);
+            return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
         }
     }
-    free(table);
+    free(w.slot);
     for (uint32_t i = 0; i < b->nt; i++)
         for (int k = 0; k < 3; k++) b->t[i][k] = map[b->t[i][k]];
     free(map);

@@ -339,15 +339,26 @@ static int parse_ascii(ply *y, mtext *t)
 
 /* ------------------------------------------------------------------ binary */
 
-static uint64_t rd_bits(const unsigned char *p, unsigned size, int be)
+/* size bytes at p in the file's byte order (the fixed-size forms compile
+ * to one load, with a byte swap where the orders differ). */
+static inline uint64_t rd_bits(const unsigned char *p, unsigned size, int be)
 {
-    uint64_t v = 0;
-    for (unsigned i = 0; i < size; i++) v |= (uint64_t)p[be ? size - 1 - i : i] << (8 * i);
-    return v;
+    switch (size) {
+    case 1: return p[0];
+    case 2: return be ? (uint64_t)p[0] << 8 | p[1] : (uint64_t)p[1] << 8 | p[0];
+    case 4:
+        return be ? (uint64_t)p[0] << 24 | (uint64_t)p[1] << 16 | (uint64_t)p[2] << 8 | p[3]
+                  : (uint64_t)p[3] << 24 | (uint64_t)p[2] << 16 | (uint64_t)p[1] << 8 | p[0];
+    default: {
+        uint64_t v = 0;
+        for (unsigned i = 0; i < 8; i++) v |= (uint64_t)p[be ? 7 - i : i] << (8 * i);
+        return v;
+    }
+    }
 }
 
 /* An integer type's value (signed ones sign-extended). */
-static int64_t rd_int(const unsigned char *p, int type, int be)
+static inline int64_t rd_int(const unsigned char *p, int type, int be)
 {
     uint64_t v = rd_bits(p, types[type].size, be);
     switch (type) {
@@ -358,7 +369,7 @@ static int64_t rd_int(const unsigned char *p, int type, int be)
     }
 }
 
-static float rd_float(const unsigned char *p, int type, int be)
+static inline float rd_float(const unsigned char *p, int type, int be)
 {
     if (type == T_FLOAT) {
         uint32_t u = (uint32_t)rd_bits(p, 4, be);
