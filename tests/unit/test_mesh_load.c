@@ -719,6 +719,54 @@ Test(mesh_load, stl_welds_equal_positions_and_the_two_zeros)
     mesh_free(&m);
 }
 
+/* A grid of n x n squares (two triangles each) in binary STL: more
+ * distinct positions than the welding table starts with, so it grows. */
+Test(mesh_load, stl_welds_a_large_grid)
+{
+    const int n = 60;
+    sink s;
+    sink_open(&s);
+    char head[80] = "grid";
+    put(&s, head, 80);
+    put_uint(&s, (uint64_t)(2 * n * n), 4, 0);
+    for (int y = 0; y < n; y++)
+        for (int x = 0; x < n; x++) {
+            float c[4][3] = {{x * 0.1f, y * 0.1f, 0}, {(x + 1) * 0.1f, y * 0.1f, 0},
+                             {(x + 1) * 0.1f, (y + 1) * 0.1f, 0}, {x * 0.1f, (y + 1) * 0.1f, 0}};
+            const int tri[2][3] = {{0, 1, 2}, {0, 2, 3}};
+            for (int t = 0; t < 2; t++) {
+                for (int k = 0; k < 3; k++) put_f32(&s, 0, 0);
+                for (int v = 0; v < 3; v++)
+                    for (int k = 0; k < 3; k++) put_f32(&s, c[tri[t][v]][k], 0);
+                put_uint(&s, 0, 2, 0);
+            }
+        }
+    sink_close(&s);
+    mesh m;
+    mesh_error e;
+    cr_assert_eq(mesh_parse(s.buf, s.len, MESH_FORMAT_AUTO, NULL, &m, &e), 0, "%s", e.msg);
+    cr_assert_eq(m.n_vertices, (uint32_t)((n + 1) * (n + 1)));
+    cr_assert_eq(m.n_triangles, (uint32_t)(2 * n * n));
+    /* each triangle's corners are still its positions */
+    for (uint32_t i = 0; i < m.n_triangles; i++) {
+        int x = (int)(i / 2) % n, y = (int)(i / 2) / n;
+        const float *p = m.vertices[m.triangles[i][i % 2 ? 2 : 1]];
+        /* corner 1 of the first triangle is (x+1, y), corner 2 of the second (x, y+1) */
+        float want[3] = {(x + (i % 2 == 0)) * 0.1f, (y + (int)(i % 2)) * 0.1f, 0};
+        cr_assert(!memcmp(p, want, sizeof want), "triangle %u", i);
+        cr_assert(!memcmp(m.vertices[m.triangles[i][0]], (float[3]){x * 0.1f, y * 0.1f, 0},
+                          sizeof want), "triangle %u", i);
+    }
+    mesh_topo t;
+    cr_assert_eq(mesh_topology(&m, &t), 0);
+    cr_assert_eq(t.open, (uint64_t)(4 * n));
+    cr_assert_eq(t.edges, (uint64_t)(2 * n * (n + 1) + n * n));
+    cr_assert_eq(t.nonmanifold + t.inconsistent, 0);
+    cr_assert_eq(t.components, 1);
+    mesh_free(&m);
+    free(s.buf);
+}
+
 /* ------------------------------------------------------------ numbers */
 
 static void same_as_strtof(const char *tok)
