@@ -1,7 +1,8 @@
 /* mesh_load — what the format loaders (mesh_obj.c, mesh_stl.c, mesh_ply.c,
  * mesh_off.c) share: the mesh being built, the checks every loader makes
- * through it, and a bounded text cursor with its number parsers.  Internal
- * to mesh/; the interface is mesh.h.
+ * through it, and a bounded text cursor with its number parsers (in
+ * mesh_load_core.c, so that mesh_load.c's dispatch and the loaders form no
+ * cycle).  Internal to mesh/; the interface is mesh.h.
  *
  * The input is a mapped file: it is not NUL-terminated, so nothing here
  * reads past `end`, and no libc parser is called on it directly (strtof

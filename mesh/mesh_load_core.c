@@ -1,0 +1,348 @@
+/* mesh_load_core — what the format loaders share (mesh_load.h): the mesh
+ * being built (limits, degenerate triangles, bounding box, STL's welding)
+ * and the bounded text parsers.  The loaders call this file and nothing
+ * else of the module; mesh_load.c calls them. */
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh_load.h"
+
+/* ------------------------------------------------------------------ builder */
+
+int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(b->err->msg, sizeof b->err->msg, fmt, ap);
+    va_end(ap);
+    b->err->line = b->err->offset = 0;
+    if (at == MB_NOWHERE) return rc;
+    if (b->binary) {
+        b->err->offset = at;
+    } else {
+        uint64_t line = 1;
+        for (const char *q = b->buf, *e = b->buf + at; (q = memchr(q, '\n', (size_t)(e - q))); q++)
+            line++;
+        b->err->line = line;
+    }
+    return rc;
+}
+
+/* Capacity for need items of size sz in *arr (cap: its capacity): exact
+ * when asked, else at least doubled, never past max. */
+static int grow(void **arr, size_t *cap, uint64_t need, uint64_t max, size_t sz, int exact)
+{
+    if (need <= *cap) return 0;
+    uint64_t n = need;
+    if (!exact) {
+        n = *cap * 2 > need ? *cap * 2 : need;
+        if (n < 1024) n = 1024;
+        if (n > max) n = max;
+    }
+    void *p = realloc(*arr, (size_t)n * sz);
+    if (!p) return -ENOMEM;
+    *arr = p;
+    *cap = (size_t)n;
+    return 0;
+}
+
+int mb_reserve_vertices(mbuild *b, uint64_t n, uint64_t at)
+{
+    if (n > b->max_vert - b->nv)
+        return mb_fail(b, -E2BIG, at, "%llu vertices: more than the limit of %u",
+                       (unsigned long long)(b->nv + n), b->max_vert);
+    if (grow((void **)&b->v, &b->cap_v, b->nv + n, b->max_vert, sizeof *b->v, 1))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %llu vertices",
+                       (unsigned long long)(b->nv + n));
+    return 0;
+}
+
+int mb_reserve_triangles(mbuild *b, uint64_t n, uint64_t at)
+{
+    if (n > b->max_tri - b->nt)
+        return mb_fail(b, -E2BIG, at, "%llu triangles: more than the limit of %u",
+                       (unsigned long long)(b->nt + n), b->max_tri);
+    if (grow((void **)&b->t, &b->cap_t, b->nt + n, b->max_tri, sizeof *b->t, 1))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %llu triangles",
+                       (unsigned long long)(b->nt + n));
+    return 0;
+}
+
+int mb_vertex_slow(mbuild *b, const float p[3], uint64_t at)
+{
+    if (!mb_finite(p))
+        return mb_fail(b, -EINVAL, at, "vertex %u: a coordinate is not a finite number", b->nv);
+    if (b->nv >= b->max_vert)
+        return mb_fail(b, -E2BIG, at, "more than the limit of %u vertices", b->max_vert);
+    if (grow((void **)&b->v, &b->cap_v, (uint64_t)b->nv + 1, b->max_vert, sizeof *b->v, 0))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %u vertices", b->nv + 1);
+    return mb_vertex(b, p, at);
+}
+
+int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
+{
+    if (b->nt >= b->max_tri)
+        return mb_fail(b, -E2BIG, at, "more than the limit of %u triangles", b->max_tri);
+    if (grow((void **)&b->t, &b->cap_t, (uint64_t)b->nt + 1, b->max_tri, sizeof *b->t, 0))
+        return mb_fail(b, -ENOMEM, at, "out of memory for %u triangles", b->nt + 1);
+    return mb_triangle(b, a, c, d, at);
+}
+
+/* Zero area: the cross product of two edges is zero.  The edges are
+ * differences of floats taken in double (exact unless the exponents are
+ * far apart), the products and sums rounded once more: a triangle whose
+ * three positions are collinear (or two equal) gives exactly zero. */
+static int zero_area(const float *a, const float *b, const float *c)
+{
+    double u0 = (double)b[0] - a[0], u1 = (double)b[1] - a[1], u2 = (double)b[2] - a[2];
+    double v0 = (double)c[0] - a[0], v1 = (double)c[1] - a[1], v2 = (double)c[2] - a[2];
+    return u1 * v2 - u2 * v1 == 0.0 && u2 * v0 - u0 * v2 == 0.0 && u0 * v1 - u1 * v0 == 0.0;
+}
+
+int mb_finish(mbuild *b, mesh_format f, mesh *out)
+{
+    /* the box in scalars, so that they stay in registers */
+    float lx = FLT_MAX, ly = FLT_MAX, lz = FLT_MAX, hx = -FLT_MAX, hy = -FLT_MAX, hz = -FLT_MAX;
+    uint32_t kept = 0;
+    for (uint32_t i = 0; i < b->nt; i++) {
+        uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
+        if (t0 == t1 || t1 == t2 || t0 == t2) continue;
+        const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
+        if (zero_area(p[0], p[1], p[2])) continue;
+        for (int k = 0; k < 3; k++) {
+            float x = p[k][0], y = p[k][1], z = p[k][2];
+            lx = x < lx ? x : lx, ly = y < ly ? y : ly, lz = z < lz ? z : lz;
+            hx = x > hx ? x : hx, hy = y > hy ? y : hy, hz = z > hz ? z : hz;
+        }
+        b->t[kept][0] = t0, b->t[kept][1] = t1, b->t[kept][2] = t2;
+        kept++;
+    }
+    uint32_t dropped = b->nt - kept;
+    if (!kept)
+        return b->nt ? mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles: all %u are degenerate", b->nt)
+                     : mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles");
+    /* Give back what growth over-allocated (shrinking cannot fail the load). */
+    void *p = realloc(b->t, (size_t)kept * sizeof *b->t);
+    if (p) b->t = p;
+    if (b->cap_v > b->nv && (p = realloc(b->v, (size_t)b->nv * sizeof *b->v))) b->v = p;
+    *out = (mesh){.n_vertices = b->nv, .n_triangles = kept, .vertices = b->v,
+                  .triangles = b->t, .n_degenerate = dropped, .format = f};
+    out->lo[0] = lx, out->lo[1] = ly, out->lo[2] = lz;
+    out->hi[0] = hx, out->hi[1] = hy, out->hi[2] = hz;
+    b->v = NULL;
+    b->t = NULL;
+    b->nv = b->nt = 0;
+    b->cap_v = b->cap_t = 0;
+    return 0;
+}
+
+void mb_free(mbuild *b)
+{
+    free(b->v);
+    free(b->t);
+    b->v = NULL;
+    b->t = NULL;
+    b->nv = b->nt = 0;
+    b->cap_v = b->cap_t = 0;
+}
+
+/* A position's bits, -0 taken as +0 (-0 + 0 is +0), so the two zeros weld. */
+static void position_bits(const float p[3], uint32_t bits[3])
+{
+    for (int k = 0; k < 3; k++) {
+        float x = p[k] + 0.0f;
+        memcpy(&bits[k], &x, 4);
+    }
+}
+
+static uint64_t position_hash(const uint32_t bits[3])
+{
+    uint64_t h = ((uint64_t)bits[0] << 32 | bits[1]) * 0x9e3779b97f4a7c15ull;
+    h ^= (h >> 29) ^ bits[2] * 0xc2b2ae3d27d4eb4full;
+    return h * 0x94d049bb133111ebull;
+}
+
+/* The welding table: open addressing, linear probing; a slot holds a
+ * unique vertex's index and 32 bits of its hash, so that most probes that
+ * miss do not read the vertex. */
+typedef struct {
+    uint32_t idx, tag;
+} weld_slot;
+
+typedef struct {
+    weld_slot *slot;
+    int bits;
+    uint64_t mask;
+} weld_table;
+
+static int weld_alloc(weld_table *w, int bits)
+{
+    w->bits = bits;
+    w->mask = ((uint64_t)1 << bits) - 1;
+    w->slot = malloc((size_t)(w->mask + 1) * sizeof *w->slot);
+    if (!w->slot) return -ENOMEM;
+    memset(w->slot, 0xff, (size_t)(w->mask + 1) * sizeof *w->slot);
+    return 0;
+}
+
+/* The slot of the vertex with these bits and hash: its own, or the empty
+ * one where it goes. */
+static weld_slot *weld_find(const weld_table *w, float (*v)[3], const uint32_t key[3], uint64_t h)
+{
+    uint32_t tag = (uint32_t)h;
+    for (uint64_t i = h >> (64 - w->bits);; i = (i + 1) & w->mask) {
+        weld_slot *s = &w->slot[i];
+        if (s->idx == UINT32_MAX) return s;
+        uint32_t other[3];
+        if (s->tag == tag && (position_bits(v[s->idx], other), !memcmp(key, other, sizeof other)))
+            return s;
+    }
+}
+
+/* Twice the slots, the u unique vertices so far put back. */
+static int weld_grow(weld_table *w, float (*v)[3], uint32_t u)
+{
+    weld_table bigger;
+    if (weld_alloc(&bigger, w->bits + 1)) return -ENOMEM;
+    for (uint32_t i = 0; i < u; i++) {
+        uint32_t key[3];
+        position_bits(v[i], key);
+        uint64_t h = position_hash(key);
+        *weld_find(&bigger, v, key, h) = (weld_slot){i, (uint32_t)h};
+    }
+    free(w->slot);
+    *w = bigger;
+    return 0;
+}
+
+int mb_weld(mbuild *b)
+{
+    uint32_t n = b->nv;
+    /* a closed mesh has about a sixth as many vertices as corners: start
+     * there, and double when half full */
+    int bits = 10;
+    while (bits < 40 && ((uint64_t)1 << bits) < (uint64_t)n / 3) bits++;
+    weld_table w;
+    uint32_t *map = malloc((size_t)(n ? n : 1) * sizeof *map);
+    if (!map || weld_alloc(&w, bits)) {
+        free(map);
+        return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
+    }
+    /* Unique positions move down in place, in order of first appearance
+     * (u <= i: a slot below i is never needed again). */
+    uint32_t u = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t key[3];
+        position_bits(b->v[i], key);
+        uint64_t h = position_hash(key);
+        weld_slot *s = weld_find(&w, b->v, key, h);
+        if (s->idx != UINT32_MAX) {
+            map[i] = s->idx;
+            continue;
+        }
+        memmove(b->v[u], b->v[i], sizeof *b->v);
+        *s = (weld_slot){u, (uint32_t)h};
+        map[i] = u++;
+        if ((uint64_t)u * 2 > w.mask + 1 && weld_grow(&w, b->v, u)) {
+            free(map);
+            return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
+        }
+    }
+    free(w.slot);
+    for (uint32_t i = 0; i < b->nt; i++)
+        for (int k = 0; k < 3; k++) b->t[i][k] = map[b->t[i][k]];
+    free(map);
+    b->nv = u;
+    if (u > b->max_vert)
+        return mb_fail(b, -E2BIG, MB_NOWHERE, "%u distinct vertices: more than the limit of %u", u,
+                       b->max_vert);
+    return 0;
+}
+
+/* --------------------------------------------------------------------- text */
+
+void mt_next_line(mtext *t)
+{
+    const char *nl = memchr(t->p, '\n', (size_t)(t->end - t->p));
+    t->p = nl ? nl + 1 : t->end;
+}
+
+size_t mt_toklen(const mtext *t)
+{
+    const char *q = t->p;
+    while (q < t->end && !mt_space(*q)) q++;
+    return (size_t)(q - t->p);
+}
+
+int mt_word(mtext *t, const char *w, int nocase)
+{
+    size_t n = strlen(w);
+    if ((size_t)(t->end - t->p) < n) return 0;
+    if (nocase ? strncasecmp(t->p, w, n) : memcmp(t->p, w, n)) return 0;
+    if (t->p + n < t->end && !mt_space(t->p[n])) return 0;
+    t->p += n;
+    return 1;
+}
+
+const char *mt_tokstr(const mtext *t, char buf[32])
+{
+    if (t->p == t->end) return "the end of the file";
+    if (*t->p == '\n') return "the end of the line";
+    size_t n = mt_toklen(t), i;
+    buf[0] = '\'';
+    for (i = 0; i < n && i < 24; i++) {
+        char c = t->p[i];
+        buf[i + 1] = c >= 32 && c < 127 ? c : '?';
+    }
+    if (n > 24) buf[i++ + 1] = '~';
+    buf[i + 1] = '\'';
+    buf[i + 2] = '\0';
+    return buf;
+}
+
+/* strtof on a terminated copy of the token: correctly rounded (glibc). */
+int mt_float_slow(mtext *t, float *out)
+{
+    size_t n = mt_toklen(t);
+    char tok[MT_TOKEN_MAX + 1];
+    if (n == 0 || n > MT_TOKEN_MAX) return -EINVAL;
+    memcpy(tok, t->p, n);
+    tok[n] = '\0';
+    char *e;
+    float f = strtof(tok, &e);
+    if (e != tok + n) return -EINVAL;
+    if (!isfinite(f)) return -ERANGE;
+    *out = f;
+    t->p += n;
+    return 0;
+}
+
+const double mt_pow10[23] = {
+    1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
+    1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+const double mt_pow10_neg[23] = {
+    1e-0,  1e-1,  1e-2,  1e-3,  1e-4,  1e-5,  1e-6,  1e-7,  1e-8,  1e-9,  1e-10, 1e-11,
+    1e-12, 1e-13, 1e-14, 1e-15, 1e-16, 1e-17, 1e-18, 1e-19, 1e-20, 1e-21, 1e-22};
+
+int mt_uint_token(mtext *t, uint64_t max, uint64_t *out)
+{
+    const char *s = t->p;
+    if (!(s < t->end && mt_digit(*s))) return -EINVAL;
+    uint64_t v = 0;
+    int over = 0;
+    for (; s < t->end && mt_digit(*s); s++) {
+        uint64_t d = (uint64_t)(*s - '0');
+        if (v > (UINT64_MAX - d) / 10) over = 1;
+        else v = v * 10 + d;
+    }
+    if (s < t->end && !mt_space(*s)) return -EINVAL;
+    if (over || v > max) return -ERANGE;
+    *out = v;
+    t->p = s;
+    return 0;
+}
