@@ -1,0 +1,131 @@
+/* mesh_bin — which triangles each tile needs, decided once for a job.
+ *
+ * A tile needs the triangles whose bounding box meets its footprint (its
+ * columns, plus the one-voxel apron of the surface channel's normals, plus
+ * a margin for the snapping).  With repair it also needs, for the parity
+ * along x, every triangle of its rows of tiles that starts left of its end,
+ * and for the parity along y every triangle of its column of tiles that
+ * starts in front of its end.  Along z nothing is cut: a tile is a whole
+ * column.  Each triangle is listed once per tile, in ascending order. */
+#include "mesh_vox_int.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* The tile ranges of one triangle: footprint [x0, x1] x [y0, y1] (clamped
+ * to the grid's tiles; empty when x0 > x1 or y0 > y1). */
+typedef struct {
+    int16_t x0, x1, y0, y1;
+} tile_range;
+
+/* Voxel coordinate of v along a, clamped like the lattice (mv_snap). */
+static double vox_coord(const grid_spec *g, int a, float v)
+{
+    double t = ((double)v - g->lo[a]) / g->vs, lim = 1073741824.0; /* 2^30 */
+    if (!(t >= -lim)) t = -lim;
+    return t > lim ? lim : t;
+}
+
+static int16_t clamp_tile(double t, uint32_t n)
+{
+    double f = floor(t / MESH_TILE);
+    return f < 0 ? 0 : f > n ? (int16_t)n : (int16_t)f;
+}
+
+static tile_range triangle_tiles(const mesh *m, const grid_spec *g, uint32_t t,
+                                 double margin, const uint32_t nt[2])
+{
+    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (int i = 0; i < 3; i++) {
+        const float *v = m->vertices[m->triangles[t][i]];
+        for (int a = 0; a < 2; a++) {
+            double c = vox_coord(g, a, v[a]);
+            lo[a] = fmin(lo[a], c);
+            hi[a] = fmax(hi[a], c);
+        }
+    }
+    tile_range r;
+    r.x0 = clamp_tile(lo[0] - margin, nt[0]);
+    r.y0 = clamp_tile(lo[1] - margin, nt[1]);
+    /* the last tile whose start is <= hi, -1 when hi is before the grid */
+    double fx = floor((hi[0] + margin) / MESH_TILE), fy = floor((hi[1] + margin) / MESH_TILE);
+    r.x1 = fx < 0 ? -1 : fx >= nt[0] ? (int16_t)(nt[0] - 1) : (int16_t)fx;
+    r.y1 = fy < 0 ? -1 : fy >= nt[1] ? (int16_t)(nt[1] - 1) : (int16_t)fy;
+    return r;
+}
+
+/* Calls add(tile) for every tile r needs, each once. */
+#define FOR_TILES(r, rep, nt, add)                                             \
+    do {                                                                       \
+        for (int ty = (r).y0; ty <= (r).y1; ty++)                              \
+            for (int tx = (r).x0; tx <= ((rep) ? (int)(nt)[0] - 1 : (r).x1); tx++) \
+                add((uint64_t)ty * (nt)[0] + (uint64_t)tx);                    \
+        if (rep)                                                               \
+            for (int ty = (r).y1 + 1 > (r).y0 ? (r).y1 + 1 : (r).y0;           \
+                 ty < (int)(nt)[1]; ty++)                                      \
+                for (int tx = (r).x0; tx <= (r).x1; tx++)                      \
+                    add((uint64_t)ty * (nt)[0] + (uint64_t)tx);                \
+    } while (0)
+
+int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+             mesh_bins *out)
+{
+    memset(out, 0, sizeof *out);
+    mv_plan p;
+    mv_plan_make(g, o, &p);
+    uint32_t nt[2] = {(g->res[0] + MESH_TILE - 1) / MESH_TILE,
+                      (g->res[1] + MESH_TILE - 1) / MESH_TILE};
+    uint64_t ntiles = (uint64_t)nt[0] * nt[1];
+    double margin = p.apron + 1.0 / 64; /* the snapping moves < 2^-17 voxel */
+    bool rep = o->repair != MESH_REPAIR_NONE;
+    tile_range *r = malloc(((size_t)m->n_triangles + 1) * sizeof *r);
+    uint64_t *start = calloc(ntiles + 1, sizeof *start);
+    uint64_t *cur = malloc(ntiles * sizeof *cur);
+    if (!r || !start || !cur) goto nomem;
+#define COUNT(i) start[(i) + 1]++
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        r[t] = triangle_tiles(m, g, t, margin, nt);
+        /* a tile's columns need the triangle only when the footprint meets
+         * them; the repair's rows also when it lies left of / in front */
+        if (r[t].y0 > r[t].y1 && r[t].x0 > r[t].x1) continue;
+        if (!rep && (r[t].y0 > r[t].y1 || r[t].x0 > r[t].x1)) continue;
+        FOR_TILES(r[t], rep, nt, COUNT);
+    }
+#undef COUNT
+    for (uint64_t i = 0; i < ntiles; i++) start[i + 1] += start[i];
+    if (start[ntiles] > SIZE_MAX / sizeof(uint32_t)) {
+        free(r), free(start), free(cur);
+        return -E2BIG;
+    }
+    out->ids = malloc(start[ntiles] ? start[ntiles] * sizeof(uint32_t) : 1);
+    if (!out->ids) goto nomem;
+    memcpy(cur, start, ntiles * sizeof *cur);
+#define FILL(i) out->ids[cur[i]++] = t
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        if (r[t].y0 > r[t].y1 && r[t].x0 > r[t].x1) continue;
+        if (!rep && (r[t].y0 > r[t].y1 || r[t].x0 > r[t].x1)) continue;
+        FOR_TILES(r[t], rep, nt, FILL);
+    }
+#undef FILL
+    free(r);
+    free(cur);
+    out->start = start;
+    out->tiles[0] = nt[0];
+    out->tiles[1] = nt[1];
+    return 0;
+nomem:
+    free(r), free(start), free(cur);
+    free(out->ids);
+    out->ids = NULL;
+    return -ENOMEM;
+}
+
+void mesh_bins_free(mesh_bins *b)
+{
+    free(b->start);
+    free(b->ids);
+    b->start = NULL;
+    b->ids = NULL;
+}

@@ -1,0 +1,127 @@
+/* mesh_solid — the solid of a block of samples: parity along z, and for
+ * meshes with holes the parities along x and y, their vote or the
+ * generalized winding number where they disagree (Passalis et al.'s
+ * several directions as the cross-check). */
+#include "mesh_vox_int.h"
+
+#include <math.h>
+#include <string.h>
+
+void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
+{
+    f->m = m;
+    for (int a = 0; a < 3; a++) f->lo[a] = g->lo[a];
+    f->K = K;
+    f->scale = (double)K * (double)MV_L / g->vs;
+}
+
+/* Whether triangle id can cross a ray of the block: its world z range
+ * against the block's (one sample of margin covers the snapping).  z-rays
+ * need the triangles below the block only when it starts the column. */
+static bool z_relevant(const mv_solid_in *in, uint32_t id, bool first,
+                       bool *below)
+{
+    const mesh *m = in->f->m;
+    const uint32_t *t = m->triangles[id];
+    float z0 = m->vertices[t[0]][2], z1 = m->vertices[t[1]][2],
+          z2 = m->vertices[t[2]][2];
+    double lo = fmin(z0, fmin(z1, z2)), hi = fmax(z0, fmax(z1, z2));
+    *below = hi < in->zlo;
+    if (lo > in->zhi) return false;
+    return first || !*below;
+}
+
+/* Every sample of d (one bit each) decided by the winding number. */
+static void decide_winding(const mv_frame *f, const mv_block *b, size_t w,
+                           uint64_t d, uint64_t *bits)
+{
+    size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
+    size_t x0 = (w % b->nw) * 64;
+    while (d) {
+        unsigned i = (unsigned)__builtin_ctzll(d);
+        d &= d - 1;
+        double q[3] = {(double)(b->s0[0] + (int64_t)(x0 + i)) + 0.5,
+                       (double)(b->s0[1] + (int64_t)y) + 0.5,
+                       (double)(b->s0[2] + (int64_t)z) + 0.5};
+        if (fabs(mv_winding(f, q)) >= 0.5) bits[w] |= 1ull << i;
+        else bits[w] &= ~(1ull << i);
+    }
+}
+
+uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *buf)
+{
+    size_t nwords = mv_block_words(b);
+    bool rep = in->repair != MESH_REPAIR_NONE, first = in->first;
+    bool cull = !isnan(in->zlo);
+    size_t ncx = ((size_t)b->n[2] * (size_t)b->n[1] + 63) / 64,
+           ncy = (size_t)b->n[2] * b->nw;
+    memset(buf->bits, 0, nwords * 8);
+    if (rep) {
+        memset(buf->bx, 0, nwords * 8);
+        memset(buf->by, 0, nwords * 8);
+        memset(buf->cx, 0, ncx * 8);
+        memset(buf->cy, 0, ncy * 8);
+    }
+    mv_target tz = {b, buf->bits, NULL, first};
+    mv_target tx = {b, buf->bx, buf->cx, false}, ty = {b, buf->by, buf->cy, false};
+    for (size_t i = 0; i < in->n; i++) {
+        uint32_t id = in->ids[i];
+        bool below = false;
+        if (cull && !z_relevant(in, id, first, &below)) continue;
+        int64_t P[3][3];
+        mv_triangle(in->f, id, P);
+        mv_raster(P, 2, &tz);
+        if (rep && !below) { /* below the block: no x or y ray of it */
+            mv_raster(P, 0, &tx);
+            mv_raster(P, 1, &ty);
+        }
+    }
+    mv_prefix_z(b, buf->bits, buf->zcarry, first);
+    if (!rep) return 0;
+    mv_prefix_x(b, buf->bx, buf->cx);
+    mv_prefix_y(b, buf->by, buf->cy);
+    uint64_t count = 0;
+    for (size_t w = 0; w < nwords; w++) {
+        uint64_t a = buf->bits[w], x = buf->bx[w], y = buf->by[w];
+        uint64_t d = (a ^ x) | (a ^ y);
+        if (buf->dis) buf->dis[w] = d;
+        if (!d) continue;
+        count += (uint64_t)__builtin_popcountll(d);
+        if (in->repair == MESH_REPAIR_VOTE)
+            buf->bits[w] = (a & x) | (a & y) | (x & y);
+        else
+            decide_winding(in->f, b, w, d, buf->bits);
+    }
+    return count;
+}
+
+/* The solid angle of triangle (a, b, c) seen from the origin, over 2:
+ * atan2 of Van Oosterom and Strackee's formula. */
+static double half_solid_angle(const double a[3], const double b[3], const double c[3])
+{
+    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+    double lc = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    double det = a[0] * (b[1] * c[2] - b[2] * c[1]) -
+                 a[1] * (b[0] * c[2] - b[2] * c[0]) +
+                 a[2] * (b[0] * c[1] - b[1] * c[0]);
+    double ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    double bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
+    double ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2];
+    return atan2(det, la * lb * lc + ab * lc + bc * la + ca * lb);
+}
+
+double mv_winding(const mv_frame *f, const double q[3])
+{
+    const mesh *m = f->m;
+    double s = f->scale / (double)MV_L, sum = 0.0;
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        double p[3][3];
+        for (int i = 0; i < 3; i++) {
+            const float *v = m->vertices[m->triangles[t][i]];
+            for (int a = 0; a < 3; a++) p[i][a] = ((double)v[a] - f->lo[a]) * s - q[a];
+        }
+        sum += half_solid_angle(p[0], p[1], p[2]);
+    }
+    return sum / (2.0 * M_PI); /* sum of solid angles / (4 pi) */
+}

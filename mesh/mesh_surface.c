@@ -1,0 +1,141 @@
+/* mesh_surface — the voxels a triangle touches: Schwarz and Seidel's
+ * triangle/box overlap ("Fast parallel surface and solid voxelization on
+ * GPUs", 2010), a plane test and three 2D edge tests per voxel, in exact
+ * integer arithmetic on the snapped triangle (mesh_vox_int.h).
+ *
+ * 26-separating (MESH_SURFACE): voxel boxes are closed, so a triangle that
+ * only touches a box's face, edge or corner sets it.  The plane test asks
+ * whether the plane meets the box (its two critical corners on either side
+ * or on it); each projection on xy, yz and zx asks whether the projected
+ * triangle meets the projected square (each edge's critical corner on the
+ * inner side or on the edge).  With the plane test these are the 13 axes
+ * of the separating axis theorem, so the result is exact.
+ *
+ * 6-separating (MESH_SURFACE6): the plane must meet the segment through the
+ * voxel's centre along the normal's dominant axis, and each projection must
+ * meet the diamond inscribed in the projected square.  A subset of the
+ * 26-separating set, and thin: where two face-adjacent voxel centres lie on
+ * either side of the surface, one of the two voxels is in it.
+ *
+ * An edge-on projection (normal component 0) is a segment: the edge tests
+ * then ask whether its line meets the square, which the plane test already
+ * implies unless the triangle is degenerate, a segment or a point. */
+#include "mesh_vox_int.h"
+
+#include <math.h>
+
+typedef struct {
+    int64_t ne[3][2]; /* edge normals in the projection, inner side > 0 */
+    mv_i128 de[3];    /* test: ne . p + de >= 0, p the voxel's low corner */
+} proj_test;
+
+/* Projection (a, c) (dropping axis w) of triangle P. */
+static void proj_setup(const int64_t P[3][3], const mv_i128 n[3], int a, int c,
+                       int w, bool six, proj_test *pt)
+{
+    int s = n[w] >= 0 ? 1 : -1;
+    for (int i = 0; i < 3; i++) {
+        const int64_t *p = P[i], *q = P[(i + 1) % 3];
+        int64_t na = -s * (q[c] - p[c]), nc = s * (q[a] - p[a]);
+        pt->ne[i][0] = na, pt->ne[i][1] = nc;
+        mv_i128 d = -((mv_i128)na * p[a] + (mv_i128)nc * p[c]);
+        if (six) { /* the diamond's vertex furthest along ne */
+            int64_t m = na < 0 ? -na : na, mc = nc < 0 ? -nc : nc;
+            d += (mv_i128)MV_H * (na + nc) + (mv_i128)MV_H * (m > mc ? m : mc);
+        } else { /* the square's corner furthest along ne */
+            d += (mv_i128)MV_L * ((na > 0 ? na : 0) + (nc > 0 ? nc : 0));
+        }
+        pt->de[i] = d;
+    }
+}
+
+static inline bool proj_pass(const proj_test *pt, int64_t pa, int64_t pc)
+{
+    for (int i = 0; i < 3; i++)
+        if ((mv_i128)pt->ne[i][0] * pa + (mv_i128)pt->ne[i][1] * pc + pt->de[i] < 0)
+            return false;
+    return true;
+}
+
+/* Voxels X of the block whose closed boxes [X L, X L + L] meet [lo, hi]. */
+static int voxel_range(const mv_block *b, int a, int64_t lo, int64_t hi,
+                       int64_t *i0, int64_t *i1)
+{
+    int64_t s = mv_ceildiv(lo, MV_L) - 1, e = mv_floordiv(hi, MV_L);
+    if (s < b->s0[a]) s = b->s0[a];
+    if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
+    *i0 = s, *i1 = e;
+    return s <= e ? 0 : -1;
+}
+
+void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits)
+{
+    int64_t lo[3], hi[3], i0[3], i1[3];
+    for (int a = 0; a < 3; a++) {
+        lo[a] = hi[a] = P[0][a];
+        for (int i = 1; i < 3; i++) {
+            if (P[i][a] < lo[a]) lo[a] = P[i][a];
+            if (P[i][a] > hi[a]) hi[a] = P[i][a];
+        }
+        if (voxel_range(b, a, lo[a], hi[a], &i0[a], &i1[a])) return;
+    }
+    int64_t e1[3], e2[3];
+    for (int a = 0; a < 3; a++) e1[a] = P[1][a] - P[0][a], e2[a] = P[2][a] - P[0][a];
+    mv_i128 n[3] = {(mv_i128)e1[1] * e2[2] - (mv_i128)e1[2] * e2[1],
+                    (mv_i128)e1[2] * e2[0] - (mv_i128)e1[0] * e2[2],
+                    (mv_i128)e1[0] * e2[1] - (mv_i128)e1[1] * e2[0]};
+    proj_test xy, yz, zx;
+    proj_setup(P, n, 0, 1, 2, six, &xy);
+    proj_setup(P, n, 1, 2, 0, six, &yz);
+    proj_setup(P, n, 2, 0, 1, six, &zx);
+    /* plane: n . (p - P0) + lo_c <= 0 <= n . (p - P0) + hi_c over the box
+     * (26), or |n . (centre - P0)| <= L/2 max |n_a| (6) */
+    mv_i128 lo_c = 0, hi_c = 0, half = 0, dom = 0;
+    for (int a = 0; a < 3; a++) {
+        mv_i128 t = n[a] * MV_L, m = n[a] < 0 ? -n[a] : n[a];
+        if (t < 0) lo_c += t;
+        else hi_c += t;
+        half += n[a] * MV_H;
+        if (m > dom) dom = m;
+    }
+    dom *= MV_H;
+    /* the plane's z over a column, in double, narrows the z loop; the exact
+     * tests decide (one voxel of margin covers the rounding) */
+    double nzd = (double)n[2], gx = 0, gy = 0, spread = 0;
+    if (n[2] != 0) {
+        gx = -(double)n[0] / nzd, gy = -(double)n[1] / nzd;
+        spread = (fabs(gx) + fabs(gy)) * MV_H;
+    }
+    size_t n1 = (size_t)b->n[1], nw = b->nw;
+    for (int64_t Y = i0[1]; Y <= i1[1]; Y++) {
+        for (int64_t X = i0[0]; X <= i1[0]; X++) {
+            int64_t px = X * MV_L, py = Y * MV_L;
+            if (!proj_pass(&xy, px, py)) continue;
+            int64_t z0 = i0[2], z1 = i1[2];
+            if (n[2] != 0) {
+                double zc = (double)P[0][2] + gx * (double)(px + MV_H - P[0][0]) +
+                            gy * (double)(py + MV_H - P[0][1]);
+                double a = floor((zc - spread) / MV_L) - 1, c = floor((zc + spread) / MV_L) + 1;
+                if (a > (double)z0) z0 = (int64_t)a;
+                if (c < (double)z1) z1 = (int64_t)c;
+            }
+            mv_i128 sxy = n[0] * (px - P[0][0]) + n[1] * (py - P[0][1]);
+            size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
+            for (int64_t Z = z0; Z <= z1; Z++) {
+                int64_t pz = Z * MV_L;
+                mv_i128 s = sxy + n[2] * (pz - P[0][2]);
+                bool plane;
+                if (six) {
+                    mv_i128 c = s + half;
+                    plane = (c < 0 ? -c : c) <= dom;
+                } else {
+                    plane = s + lo_c <= 0 && s + hi_c >= 0;
+                }
+                if (!plane || !proj_pass(&yz, py, pz) || !proj_pass(&zx, pz, px))
+                    continue;
+                size_t z = (size_t)(Z - b->s0[2]);
+                bits[(z * n1 + y) * nw + x / 64] |= 1ull << (x & 63);
+            }
+        }
+    }
+}

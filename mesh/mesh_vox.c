@@ -1,0 +1,313 @@
+/* mesh_vox — one tile of a mesh job: the options, the scratch plan, the
+ * occupancy of the mode, and the tile's storage bricks (mesh_vox.h).
+ * The kernels are mesh_raster.c (crossings), mesh_solid.c (parities and
+ * their repair), mesh_surface.c (triangle/box overlap) and mesh_density.c
+ * (supersampled coverage, normals). */
+#include "mesh_vox_int.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "voxel.h"
+
+uint32_t mesh_vox_bits(const mesh_vox_opts *o)
+{
+    return o->channel == VOXEL_CH_SURFACE ? 32 : 8;
+}
+
+int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
+{
+    const char *why = NULL;
+    if ((unsigned)o->mode > MESH_INTERIOR) why = "unknown mesh mode";
+    else if ((unsigned)o->repair > MESH_REPAIR_WINDING) why = "unknown repair";
+    else if (o->channel != VOXEL_CH_OCCUPANCY && o->channel != VOXEL_CH_DENSITY &&
+             o->channel != VOXEL_CH_SURFACE)
+        why = "a mesh job gives channel 1 (occupancy), 2 (density) or 3 (surface)";
+    else if (o->supersample != 0 && (o->supersample < 2 || o->supersample > 8))
+        why = "supersample must be 2..8";
+    else if (o->channel == VOXEL_CH_DENSITY && o->mode != MESH_SOLID)
+        why = "the density channel is the solid's coverage: mode solid only";
+    if (why) {
+        snprintf(err, errlen, "%s", why);
+        return -EINVAL;
+    }
+    return 0;
+}
+
+/* ---- what a tile needs, and where it lies in the scratch ---- */
+
+#define DENS_BUDGET (4u << 20) /* bytes of one fine block's bits */
+#define MAX_S VOD_VOLUME_MAX_BRICK
+
+void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
+{
+    memset(p, 0, sizeof *p);
+    bool dens_ch = o->channel == VOXEL_CH_DENSITY;
+    p->solid1 = !dens_ch && (o->mode == MESH_SOLID || o->mode == MESH_CONSERVATIVE ||
+                             o->mode == MESH_INTERIOR);
+    p->surf = !dens_ch && o->mode != MESH_SOLID;
+    p->dens = dens_ch || o->channel == VOXEL_CH_SURFACE;
+    p->rep = o->repair != MESH_REPAIR_NONE && (p->solid1 || p->dens);
+    p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
+    p->K = o->supersample ? o->supersample : 2;
+    p->nz = g->res[2];
+    if (!p->dens) return;
+    uint32_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
+    p->fnw = (rows + 63) / 64;
+    p->zs = MAX_S;
+    while (p->zs > 1 && (size_t)rows * p->fnw * p->zs * p->K * 8 > DENS_BUDGET)
+        p->zs /= 2;
+    p->ring = MAX_S + 2 * p->apron + p->zs;
+}
+
+#define ALIGN64(n) (((n) + 63) & ~(size_t)63)
+
+/* The buffers of plan p in base (NULL: only the size).  The bytes used. */
+size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
+{
+    size_t off = 0;
+    memset(b, 0, sizeof *b);
+#define TAKE(ptr, bytes)                                                  \
+    do {                                                                  \
+        (ptr) = base ? (void *)((uint8_t *)base + off) : NULL;            \
+        off += ALIGN64((size_t)(bytes));                                  \
+    } while (0)
+    size_t col = (size_t)MESH_TILE * p->nz * 8, nz8 = (size_t)p->nz * 8;
+    if (p->solid1) TAKE(b->a, col);
+    if (p->solid1 && p->rep) {
+        TAKE(b->bx, col);
+        TAKE(b->by, col);
+        TAKE(b->cx, nz8);
+        TAKE(b->cy, nz8);
+    }
+    if (p->surf) TAKE(b->surf, col);
+    if (p->rep) TAKE(b->dis, col);
+    TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits / 8));
+    if (!p->dens) TAKE(b->full, (size_t)MAX_S * MAX_S * MAX_S);
+    if (p->dens) {
+        size_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
+        size_t slab = (size_t)p->zs * p->K, words = rows * p->fnw * slab;
+        TAKE(b->fa, words * 8);
+        TAKE(b->fzc, rows * p->fnw * 8);
+        if (p->rep) {
+            TAKE(b->fbx, words * 8);
+            TAKE(b->fby, words * 8);
+            TAKE(b->fcx, (slab * rows + 63) / 64 * 8);
+            TAKE(b->fcy, slab * p->fnw * 8);
+            TAKE(b->fdis, words * 8);
+        }
+        TAKE(b->ring, dn * dn * p->ring * sizeof(uint16_t));
+    }
+#undef TAKE
+    return off;
+}
+
+size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o)
+{
+    mv_plan p;
+    mv_bufs b;
+    mv_plan_make(g, o, &p);
+    return mv_layout(&p, mesh_vox_bits(o), NULL, &b);
+}
+
+/* ---- bricks ---- */
+
+/* The 8 bytes of 8 occupancy bits: bit i spread to byte i, times 255
+ * (VOXEL_FULL for inside). */
+static uint64_t byte_lut(unsigned bits8)
+{
+    uint64_t r = bits8;
+    r = (r | r << 28) & 0x0000000F0000000Full;
+    r = (r | r << 14) & 0x0003000300030003ull;
+    r = (r | r << 7) & 0x0101010101010101ull;
+    return r * VOXEL_FULL;
+}
+
+static uint64_t field(uint64_t w, uint32_t off, uint32_t S)
+{
+    return S == 64 ? w : w >> off & ((1ull << S) - 1);
+}
+
+/* Brick (bx, by, bz) of the tile's bits (one word a row): 0 none set,
+ * 2 every voxel set and inside the grid, 1 otherwise. */
+static int brick_kind(const mv_tile *t, const uint64_t *bits, uint32_t bx,
+                      uint32_t by, uint32_t bz)
+{
+    uint32_t S = t->S, x = bx * S;
+    uint64_t full = S == 64 ? ~0ull : (1ull << S) - 1, any = 0, all = full;
+    bool inside = x + S <= t->nx && (by + 1) * S <= t->ny && (bz + 1) * S <= t->nz;
+    for (uint32_t z = bz * S; z < (bz + 1) * S && z < t->nz; z++)
+        for (uint32_t y = by * S; y < (by + 1) * S && y < t->ny; y++) {
+            uint64_t f = field(bits[(size_t)z * t->ny + y], x, S);
+            any |= f;
+            all &= f;
+        }
+    return !any ? 0 : inside && all == full ? 2 : 1;
+}
+
+static int put(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, const void *vox)
+{
+    uint32_t b[3] = {t->x0 / t->S + bx, t->y0 / t->S + by, bz};
+    return vod_volume_put_brick(t->vol, b, vox);
+}
+
+/* Occupancy bricks: 0 or VOXEL_FULL from the tile's bits. */
+static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick,
+                          const uint8_t *full)
+{
+    uint32_t S = t->S, nbz = (t->nz + S - 1) / S;
+    for (uint32_t bz = 0; bz < nbz; bz++)
+        for (uint32_t by = 0; by * S < t->ny; by++)
+            for (uint32_t bx = 0; bx * S < t->nx; bx++) {
+                int kind = brick_kind(t, bits, bx, by, bz);
+                if (kind == 0) continue; /* the volume starts empty */
+                if (kind == 1) {
+                    memset(brick, 0, (size_t)S * S * S);
+                    for (uint32_t z = 0; z < S && bz * S + z < t->nz; z++)
+                        for (uint32_t y = 0; y < S && by * S + y < t->ny; y++) {
+                            uint64_t f = field(bits[(size_t)(bz * S + z) * t->ny + by * S + y],
+                                               bx * S, S);
+                            uint8_t *row = brick + ((size_t)z * S + y) * S;
+                            for (uint32_t i = 0; i < S; i += 8) {
+                                uint64_t v = byte_lut((unsigned)(f >> i) & 0xff);
+                                memcpy(row + i, &v, S - i < 8 ? S - i : 8);
+                            }
+                        }
+                }
+                int rc = put(t, bx, by, bz, kind == 2 ? full : brick);
+                if (rc) return rc;
+            }
+    return 0;
+}
+
+/* Storage bricks holding a disagreement. */
+static uint64_t count_disagree_bricks(const mv_tile *t, const uint64_t *dis)
+{
+    uint32_t S = t->S, nbz = (t->nz + S - 1) / S;
+    uint64_t n = 0;
+    for (uint32_t bz = 0; bz < nbz; bz++)
+        for (uint32_t by = 0; by * S < t->ny; by++)
+            for (uint32_t bx = 0; bx * S < t->nx; bx++)
+                n += brick_kind(t, dis, bx, by, bz) != 0;
+    return n;
+}
+
+static uint64_t popcount_words(const uint64_t *w, size_t n)
+{
+    uint64_t c = 0;
+    for (size_t i = 0; i < n; i++) c += (uint64_t)__builtin_popcountll(w[i]);
+    return c;
+}
+
+/* ---- the tile ---- */
+
+/* The voxel bits of the mode (K = 1): parity solid and/or surface. */
+static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
+{
+    mv_frame f;
+    mv_frame_init(&f, t->m, t->g, 1);
+    mv_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
+    if (p->solid1) {
+        mv_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
+        mv_solid_buf sb = {b->a, b->bx, b->by, b->cx, b->cy, NULL, b->dis};
+        t->st->disagreements += mv_solid(&in, &blk, &sb);
+    }
+    if (p->surf) {
+        bool six = t->o->mode == MESH_SURFACE6;
+        memset(b->surf, 0, mv_block_words(&blk) * 8);
+        for (size_t i = 0; i < t->n; i++) {
+            int64_t P[3][3];
+            mv_triangle(&f, t->ids[i], P);
+            mv_surface(P, six, &blk, b->surf);
+        }
+    }
+    size_t nwords = mv_block_words(&blk);
+    switch (t->o->mode) {
+    case MESH_SOLID: t->occ = b->a; break;
+    case MESH_SURFACE:
+    case MESH_SURFACE6: t->occ = b->surf; break;
+    case MESH_CONSERVATIVE:
+        for (size_t i = 0; i < nwords; i++) b->a[i] |= b->surf[i];
+        t->occ = b->a;
+        break;
+    case MESH_INTERIOR:
+        for (size_t i = 0; i < nwords; i++) b->a[i] &= ~b->surf[i];
+        t->occ = b->a;
+        break;
+    }
+}
+
+static int check_volume(const vod_volume *vol, const grid_spec *g,
+                        const mesh_vox_opts *o, uint32_t tx, uint32_t ty)
+{
+    vod_volume_info vi;
+    vod_volume_get_info(vol, &vi);
+    for (int a = 0; a < 3; a++)
+        if (vi.dims[a] != g->res[a]) return -EINVAL;
+    if (vi.bits != mesh_vox_bits(o) || MESH_TILE % vi.sbrick) return -EINVAL;
+    if (tx >= (g->res[0] + MESH_TILE - 1) / MESH_TILE ||
+        ty >= (g->res[1] + MESH_TILE - 1) / MESH_TILE)
+        return -EINVAL;
+    return 0;
+}
+
+int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
+                  const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
+                  uint32_t ty, void *scratch, vod_volume *vol,
+                  mesh_tile_stats *st)
+{
+    int rc = check_volume(vol, g, o, tx, ty);
+    if (rc) return rc;
+    mv_plan p;
+    mv_bufs b;
+    mv_plan_make(g, o, &p);
+    mv_layout(&p, mesh_vox_bits(o), scratch, &b);
+    vod_volume_info vi;
+    vod_volume_get_info(vol, &vi);
+    mv_tile t = {.m = m, .g = g, .o = o, .ids = ids, .n = n, .vol = vol,
+                 .S = vi.sbrick, .x0 = tx * MESH_TILE, .y0 = ty * MESH_TILE,
+                 .nz = g->res[2], .st = st, .dis = b.dis};
+    t.nx = g->res[0] - t.x0 < MESH_TILE ? g->res[0] - t.x0 : MESH_TILE;
+    t.ny = g->res[1] - t.y0 < MESH_TILE ? g->res[1] - t.y0 : MESH_TILE;
+    if (b.dis) memset(b.dis, 0, (size_t)t.ny * t.nz * 8);
+    if (o->channel == VOXEL_CH_DENSITY) {
+        rc = mv_density_run(&t, &p, &b);
+    } else {
+        occupancy_bits(&t, &p, &b);
+        if (o->channel == VOXEL_CH_OCCUPANCY) {
+            memset(b.full, VOXEL_FULL, (size_t)t.S * t.S * t.S);
+            rc = emit_occupancy(&t, t.occ, b.brick, b.full);
+        } else {
+            rc = mv_density_run(&t, &p, &b);
+        }
+        st->voxels += popcount_words(t.occ, (size_t)t.ny * t.nz);
+    }
+    if (b.dis) st->disagree_bricks += count_disagree_bricks(&t, b.dis);
+    return rc;
+}
+
+int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                  vod_volume *vol, mesh_tile_stats *st)
+{
+    mesh_bins bins;
+    int rc = mesh_bin(m, g, o, &bins);
+    if (rc) return rc;
+    void *scratch = malloc(mesh_tile_scratch_bytes(g, o));
+    if (!scratch) {
+        mesh_bins_free(&bins);
+        return -ENOMEM;
+    }
+    for (uint32_t ty = 0; ty < bins.tiles[1] && !rc; ty++)
+        for (uint32_t tx = 0; tx < bins.tiles[0] && !rc; tx++) {
+            uint64_t i = (uint64_t)ty * bins.tiles[0] + tx;
+            rc = mesh_tile_run(m, bins.ids + bins.start[i],
+                               (size_t)(bins.start[i + 1] - bins.start[i]), g, o,
+                               tx, ty, scratch, vol, st);
+        }
+    free(scratch);
+    mesh_bins_free(&bins);
+    return rc;
+}

@@ -1,0 +1,196 @@
+/* mesh_vox_int — what the files of the mesh voxelizer share; not an
+ * interface of the module (mesh_vox.h is).
+ *
+ * Exact arithmetic.  A pass samples the grid at K samples per voxel and
+ * axis (K = 1: voxel centres; K = supersample: the density's samples).
+ * Every vertex is mapped once, by one formula, to a lattice of 2^16 units
+ * per sample spacing, relative to the grid's low corner, and rounded to the
+ * nearest unit (mv_snap): the mesh that is voxelized is that snapped mesh,
+ * at most 2^-17 sample spacing from the given one, and since a vertex
+ * shared by two triangles is snapped once, a closed mesh stays closed.
+ * From there on every decision (a sample inside a projected triangle, a
+ * sample above or below a triangle's plane, a voxel box touching a
+ * triangle) is an exact sign of integer arithmetic in 64 and 128 bits:
+ * coordinates are clamped to +-2^40 units (2^24 sample spacings from the
+ * grid, far past any grid), so edge functions stay below 2^84 and their
+ * products with a coordinate below 2^126.
+ *
+ * Sample i along an axis is centred at lattice coordinate i * L + L/2;
+ * voxel X holds the samples X*K .. X*K + K - 1.
+ */
+#ifndef VOXD_MESH_VOX_INT_H
+#define VOXD_MESH_VOX_INT_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "mesh_vox.h"
+
+__extension__ typedef __int128 mv_i128;
+
+#define MV_QBITS 16
+#define MV_L ((int64_t)1 << MV_QBITS) /* lattice units per sample spacing */
+#define MV_H (MV_L / 2)
+#define MV_LIM 1099511627776.0 /* 2^40: the coordinates' clamp */
+
+/* The lattice of one pass: lattice = (v - lo) * scale. */
+typedef struct {
+    const mesh *m;
+    double lo[3];
+    double scale;   /* lattice units per world unit: K * L / vs */
+    uint32_t K;     /* samples per voxel and axis */
+} mv_frame;
+
+void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
+
+/* Nearest lattice point of t (in lattice units), clamped to +-2^40 (NaN to
+ * -2^40).  The rounding is the FPU's round-to-nearest: adding and taking
+ * away 1.5 * 2^52 leaves the nearest integer of any |t| < 2^51. */
+static inline int64_t mv_snap(double t)
+{
+    if (!(t >= -MV_LIM)) t = -MV_LIM;
+    if (t > MV_LIM) t = MV_LIM;
+    volatile double r = t + 6755399441055744.0; /* no reassociation */
+    return (int64_t)(r - 6755399441055744.0);
+}
+
+/* The snapped vertices of triangle t: P[vertex][axis]. */
+static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
+{
+    const uint32_t *tri = f->m->triangles[t];
+    for (int i = 0; i < 3; i++) {
+        const float *v = f->m->vertices[tri[i]];
+        for (int a = 0; a < 3; a++)
+            P[i][a] = mv_snap(((double)v[a] - f->lo[a]) * f->scale);
+    }
+}
+
+/* floor(a / b) and ceil(a / b) for b > 0. */
+static inline int64_t mv_floordiv(int64_t a, int64_t b)
+{
+    int64_t q = a / b;
+    return q - (a % b != 0 && a < 0);
+}
+static inline int64_t mv_ceildiv(int64_t a, int64_t b)
+{
+    int64_t q = a / b;
+    return q + (a % b != 0 && a > 0);
+}
+
+/* A block of samples: s0 + [0, n) per axis, one bit each, x fastest, rows
+ * of nw 64-bit words: bit x of word ((z * n[1] + y) * nw + x / 64), all
+ * relative to s0.  Bits past n[0] in a row stay 0. */
+typedef struct {
+    int64_t s0[3];
+    int32_t n[3];
+    uint32_t nw;
+} mv_block;
+
+static inline size_t mv_block_words(const mv_block *b)
+{
+    return (size_t)b->n[2] * (size_t)b->n[1] * b->nw;
+}
+
+/* Where the crossings of one ray direction go (mv_raster).
+ *  z: flip the bit of the first sample past the crossing in `bits`; a
+ *     crossing below the block flips its first slice when first_z (the
+ *     block starts the column), else it was counted before (the carry).
+ *  x: the same along x; a crossing left of the block toggles the row's bit
+ *     in `carry` (bit z * n[1] + y).
+ *  y: the same along y; a crossing in front of the block toggles bit x of
+ *     `carry` word z * nw + x / 64.
+ *  Crossings past the block's end are dropped. */
+typedef struct {
+    const mv_block *b;
+    uint64_t *bits, *carry;
+    bool first_z;
+} mv_target;
+
+/* Rasterize snapped triangle P along ray axis (0 x, 2 y... see mv_raster). */
+void mv_raster(const int64_t P[3][3], int axis, const mv_target *t);
+
+/* Parity from flips: z by XOR from slice to slice, starting from carry
+ * (one word per (y, x-word): the parities below the block) unless first,
+ * and leaving the last slice in carry (NULL: none kept); x by a prefix XOR
+ * along each row from its carry bit; y by XOR from row to row from the
+ * carry words. */
+void mv_prefix_z(const mv_block *b, uint64_t *bits, uint64_t *carry, bool first);
+void mv_prefix_x(const mv_block *b, uint64_t *bits, const uint64_t *carry);
+void mv_prefix_y(const mv_block *b, uint64_t *bits, const uint64_t *carry);
+
+/* The parity along z (and, with repair, along x and y and the decision) of
+ * block b's samples, from the triangles ids[0, n).  bits: the result;
+ * bx, by, cx, cy: the repair's buffers (NULL without repair); zcarry:
+ * n[1] * nw words, the column parities below the block in and its last
+ * slice out (see mv_prefix_z; NULL for a block through the whole column).
+ * When dis is not NULL, the samples whose three parities differ are set
+ * there (repair only).  Returns the number of those samples. */
+typedef struct {
+    const mv_frame *f;
+    const uint32_t *ids;
+    size_t n;
+    mesh_repair repair;
+    bool first;        /* the block starts the column */
+    double zlo, zhi;   /* world z range of the block (for culling), or NaN */
+} mv_solid_in;
+typedef struct {
+    uint64_t *bits, *bx, *by, *cx, *cy, *zcarry, *dis;
+} mv_solid_buf;
+uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *buf);
+
+/* The generalized winding number of the mesh at point q (in the frame's
+ * sample units: sample i is centred at i + 0.5). */
+double mv_winding(const mv_frame *f, const double q[3]);
+
+/* Surface bits (K = 1 blocks): every voxel of block b whose closed box
+ * triangle P touches (six = false), or its 6-separating subset. */
+void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits);
+
+/* ---- a tile (mesh_vox.c, mesh_density.c) ---- */
+
+/* What the options need, from the grid and the options alone. */
+typedef struct {
+    bool solid1;     /* the parity solid at voxel centres */
+    bool surf;       /* the surface bits */
+    bool dens;       /* the supersampled coverage (density or normals) */
+    bool rep;        /* parities along x and y too */
+    uint32_t apron;  /* 1: the coverage of the voxels around the tile too */
+    uint32_t K;      /* samples per voxel and axis of the coverage */
+    uint32_t nz;     /* voxels along z */
+    uint32_t fnw;    /* words per row of a fine block */
+    uint32_t zs;     /* voxel slices per fine block */
+    uint32_t ring;   /* voxel slices of counts kept */
+} mv_plan;
+
+/* The scratch's buffers (NULL where the plan needs none). */
+typedef struct {
+    uint64_t *a, *bx, *by, *cx, *cy, *surf, *dis; /* voxel bits of the tile */
+    uint8_t *brick, *full;                        /* one storage brick */
+    uint64_t *fa, *fzc, *fbx, *fby, *fcx, *fcy, *fdis; /* fine blocks */
+    uint16_t *ring;                               /* coverage counts */
+} mv_bufs;
+
+void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p);
+size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b);
+
+typedef struct {
+    const mesh *m;
+    const grid_spec *g;
+    const mesh_vox_opts *o;
+    const uint32_t *ids;
+    size_t n;
+    vod_volume *vol;
+    uint32_t S;                 /* the volume's storage brick side */
+    uint32_t x0, y0;            /* the tile's first voxel */
+    uint32_t nx, ny, nz;        /* its voxels (nx, ny <= MESH_TILE) */
+    const uint64_t *occ;        /* the mode's voxel bits: word z * ny + y */
+    uint64_t *dis;              /* voxels whose parities differ, or NULL */
+    mesh_tile_stats *st;
+} mv_tile;
+
+/* The density channel's bricks, or the surface channel's (occupancy from
+ * t->occ, normals from the coverage). */
+int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b);
+
+#endif

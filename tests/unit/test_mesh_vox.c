@@ -1,0 +1,857 @@
+/* The mesh voxelizer (mesh_vox.h) against oracles written here:
+ *  - solid: a ray from every voxel centre in the generic direction
+ *    (1, 0.37, 0.21), its crossings counted by Möller–Trumbore in double
+ *    (another algorithm, another direction), at 64^3 and 128^3;
+ *  - the top-left rule: a box whose faces, edges and corners lie exactly on
+ *    voxel centres: every column crossed 0 or 2 times, the inside exactly
+ *    the half-open box of centres, the three parities equal;
+ *  - surface: the separating axis theorem (13 axes) on every voxel box;
+ *    surface6 inside surface and 6-separating; conservative and interior
+ *    as set operations;
+ *  - holes: vote and winding number against the closed mesh;
+ *  - tiles in any order, one twice: the same volume as mesh_voxelize;
+ *  - density: the sum against the mesh's volume; normals of a sphere.
+ * The shapes (mesh_shapes.h) have vertices on the voxelizer's lattice, so
+ * the oracles see the very mesh that is voxelized. */
+#include <criterion/criterion.h>
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "grid.h"
+#include "mesh_shapes.h"
+#include "mesh_vox.h"
+#include "mesh_vox_int.h"
+#include "vod_volume.h"
+#include "voxel.h"
+
+/* ---- grids, volumes, dense copies ---- */
+
+/* The cube [-1, 1]^3 at res voxels a side (voxel size 2 / res, a power of
+ * two for the res used here). */
+static grid_spec cube_grid(uint32_t res)
+{
+    double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
+    grid_spec g;
+    char err[128];
+    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(g.res[0], res);
+    return g;
+}
+
+typedef struct {
+    void *arena;
+    vod_volume *v;
+} tvol;
+
+static tvol vol_make(const grid_spec *g, uint32_t bits, uint32_t sbrick)
+{
+    tvol r;
+    size_t bytes = vod_volume_bytes(g->res, bits, sbrick, UINT32_MAX);
+    cr_assert_gt(bytes, 0);
+    r.arena = malloc(bytes);
+    cr_assert_not_null(r.arena);
+    cr_assert_eq(vod_volume_init(&r.v, r.arena, bytes, g->res, bits, sbrick), 0);
+    return r;
+}
+
+static size_t nvox(const grid_spec *g)
+{
+    return (size_t)g->res[0] * g->res[1] * g->res[2];
+}
+
+static size_t vidx(const grid_spec *g, uint32_t x, uint32_t y, uint32_t z)
+{
+    return ((size_t)z * g->res[1] + y) * g->res[0] + x;
+}
+
+/* Every voxel of mesh m for options o, serially, as a dense array. */
+static uint32_t *voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                          uint32_t sbrick, mesh_tile_stats *st)
+{
+    tvol v = vol_make(g, mesh_vox_bits(o), sbrick);
+    mesh_tile_stats s = {0};
+    cr_assert_eq(mesh_voxelize(m, g, o, v.v, &s), 0);
+    uint32_t *d = malloc(nvox(g) * sizeof *d);
+    cr_assert_not_null(d);
+    for (uint32_t z = 0; z < g->res[2]; z++)
+        for (uint32_t y = 0; y < g->res[1]; y++)
+            for (uint32_t x = 0; x < g->res[0]; x++)
+                d[vidx(g, x, y, z)] = vod_volume_get(v.v, x, y, z);
+    free(v.arena);
+    if (st) *st = s;
+    return d;
+}
+
+static uint32_t *voxelize_mode(const mesh *m, const grid_spec *g, mesh_mode mode,
+                               mesh_repair rep, mesh_tile_stats *st)
+{
+    mesh_vox_opts o = {mode, rep, VOXEL_CH_OCCUPANCY, 0};
+    return voxelize(m, g, &o, 16, st);
+}
+
+static void centre(const grid_spec *g, uint32_t x, uint32_t y, uint32_t z, double c[3])
+{
+    c[0] = grid_coord(g, 0, x + 0.5);
+    c[1] = grid_coord(g, 1, y + 0.5);
+    c[2] = grid_coord(g, 2, z + 0.5);
+}
+
+/* ---- the ray oracle: crossings along a generic direction ---- */
+
+typedef struct {
+    const mesh *m;
+    double d[3], e1[3], e2[3];  /* direction and a basis across it */
+    double lo[2], cell;         /* 2D grid of the projections */
+    int G;
+    uint32_t *start, *list;     /* triangles per cell */
+} ray_oracle;
+
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+static void cross3(const double a[3], const double b[3], double r[3])
+{
+    r[0] = a[1] * b[2] - a[2] * b[1];
+    r[1] = a[2] * b[0] - a[0] * b[2];
+    r[2] = a[0] * b[1] - a[1] * b[0];
+}
+static void vert(const mesh *m, uint32_t t, int i, double p[3])
+{
+    const float *v = m->vertices[m->triangles[t][i]];
+    p[0] = v[0], p[1] = v[1], p[2] = v[2];
+}
+
+static void cell_range(const ray_oracle *o, const double s[2], int c[2])
+{
+    for (int a = 0; a < 2; a++) {
+        int i = (int)floor((s[a] - o->lo[a]) / o->cell);
+        c[a] = i < 0 ? 0 : i >= o->G ? o->G - 1 : i;
+    }
+}
+
+static void oracle_init(ray_oracle *o, const mesh *m)
+{
+    double d[3] = {1, 0.37, 0.21}, l = sqrt(dot3(d, d)), up[3] = {0, 0, 1};
+    for (int a = 0; a < 3; a++) o->d[a] = d[a] / l;
+    cross3(o->d, up, o->e1);
+    l = sqrt(dot3(o->e1, o->e1));
+    for (int a = 0; a < 3; a++) o->e1[a] /= l;
+    cross3(o->d, o->e1, o->e2);
+    o->m = m;
+    o->G = 96;
+    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (uint32_t t = 0; t < m->n_triangles; t++)
+        for (int i = 0; i < 3; i++) {
+            double p[3];
+            vert(m, t, i, p);
+            double s[2] = {dot3(p, o->e1), dot3(p, o->e2)};
+            for (int a = 0; a < 2; a++) lo[a] = fmin(lo[a], s[a]), hi[a] = fmax(hi[a], s[a]);
+        }
+    o->lo[0] = lo[0], o->lo[1] = lo[1];
+    o->cell = fmax(hi[0] - lo[0], hi[1] - lo[1]) / o->G * 1.0001;
+    o->start = calloc((size_t)o->G * o->G + 1, sizeof *o->start);
+    for (int pass = 0; pass < 2; pass++) {
+        if (pass == 1) {
+            for (int i = 0; i < o->G * o->G; i++) o->start[i + 1] += o->start[i];
+            o->list = malloc((o->start[o->G * o->G] + 1) * sizeof *o->list);
+        }
+        uint32_t *cur = pass ? calloc((size_t)o->G * o->G, sizeof *cur) : NULL;
+        for (uint32_t t = 0; t < m->n_triangles; t++) {
+            double a[2] = {INFINITY, INFINITY}, b[2] = {-INFINITY, -INFINITY};
+            for (int i = 0; i < 3; i++) {
+                double p[3];
+                vert(m, t, i, p);
+                double s[2] = {dot3(p, o->e1), dot3(p, o->e2)};
+                for (int k = 0; k < 2; k++) a[k] = fmin(a[k], s[k]), b[k] = fmax(b[k], s[k]);
+            }
+            int c0[2], c1[2];
+            cell_range(o, a, c0);
+            cell_range(o, b, c1);
+            for (int j = c0[1]; j <= c1[1]; j++)
+                for (int i = c0[0]; i <= c1[0]; i++) {
+                    int c = j * o->G + i;
+                    if (pass) o->list[o->start[c] + cur[c]++] = t;
+                    else o->start[c + 1]++;
+                }
+        }
+        free(cur);
+    }
+}
+
+static void oracle_free(ray_oracle *o)
+{
+    free(o->start);
+    free(o->list);
+}
+
+/* Möller–Trumbore: the ray c + t d crosses triangle tr at some t > 0. */
+static bool mt_hit(const ray_oracle *o, uint32_t tr, const double c[3])
+{
+    double v0[3], v1[3], v2[3], e1[3], e2[3], p[3], s[3], q[3];
+    vert(o->m, tr, 0, v0);
+    vert(o->m, tr, 1, v1);
+    vert(o->m, tr, 2, v2);
+    for (int a = 0; a < 3; a++) e1[a] = v1[a] - v0[a], e2[a] = v2[a] - v0[a], s[a] = c[a] - v0[a];
+    cross3(o->d, e2, p);
+    double det = dot3(e1, p);
+    if (det == 0) return false;
+    double u = dot3(s, p) / det;
+    if (u < 0 || u > 1) return false;
+    cross3(s, e1, q);
+    double v = dot3(o->d, q) / det;
+    if (v < 0 || u + v > 1) return false;
+    return dot3(e2, q) / det > 0;
+}
+
+static bool oracle_inside(const ray_oracle *o, const double c[3])
+{
+    double s[2] = {dot3(c, o->e1), dot3(c, o->e2)};
+    int k[2];
+    cell_range(o, s, k);
+    int cell = k[1] * o->G + k[0], n = 0;
+    for (uint32_t i = o->start[cell]; i < o->start[cell + 1]; i++) n += mt_hit(o, o->list[i], c);
+    return n & 1;
+}
+
+/* The solid of m at res against the ray oracle, voxel for voxel; its count
+ * against the mesh's volume within the voxels the surface touches. */
+static void check_solid(const mesh *m, uint32_t res)
+{
+    grid_spec g = cube_grid(res);
+    uint32_t *d = voxelize_mode(m, &g, MESH_SOLID, MESH_REPAIR_NONE, NULL);
+    uint32_t *s = voxelize_mode(m, &g, MESH_SURFACE, MESH_REPAIR_NONE, NULL);
+    ray_oracle o;
+    oracle_init(&o, m);
+    size_t wrong = 0, inside = 0, touched = 0;
+    for (uint32_t z = 0; z < res; z++)
+        for (uint32_t y = 0; y < res; y++)
+            for (uint32_t x = 0; x < res; x++) {
+                double c[3];
+                centre(&g, x, y, z, c);
+                uint32_t v = d[vidx(&g, x, y, z)];
+                cr_assert(v == 0 || v == VOXEL_FULL);
+                bool want = oracle_inside(&o, c);
+                if ((v != 0) != want && wrong++ < 5)
+                    cr_log_error("voxel %u %u %u: %d, oracle %d", x, y, z, v != 0, want);
+                inside += v != 0;
+                touched += s[vidx(&g, x, y, z)] != 0;
+            }
+    cr_expect_eq(wrong, 0, "%zu voxels differ from the ray oracle at %u^3", wrong, res);
+    double vol = shape_volume(m) / (g.vs * g.vs * g.vs);
+    cr_expect(fabs((double)inside - vol) <= (double)touched,
+              "%zu voxels inside, volume %.1f voxels, %zu touched", inside, vol, touched);
+    cr_expect_gt(inside, 0);
+    oracle_free(&o);
+    free(d);
+    free(s);
+}
+
+/* ---- solid ---- */
+
+Test(mesh_vox, icospheres_match_the_ray_oracle)
+{
+    for (int level = 1; level <= 4; level++) {
+        shape s;
+        shape_init(&s);
+        double c[3] = {0.0123 * level, -0.031, 0.017 * level};
+        shape_icosphere(&s, c, 0.55 + 0.07 * level, level, false);
+        const mesh *m = shape_finish(&s);
+        cr_assert_gt(shape_volume(m), 0, "the icosphere faces outwards");
+        check_solid(m, level == 3 ? 128 : 64);
+        shape_free(&s);
+    }
+}
+
+Test(mesh_vox, boxes_match_the_ray_oracle)
+{
+    shape s;
+    shape_init(&s);
+    double lo[3] = {-0.61, -0.33, -0.71}, hi[3] = {0.52, 0.47, 0.13};
+    shape_box(&s, lo, hi);
+    cr_assert_gt(shape_volume(shape_finish(&s)), 0);
+    check_solid(shape_finish(&s), 64);
+    /* a box turned about a generic axis: every face on a slant */
+    shape_free(&s);
+    shape_init(&s);
+    double l2[3] = {-0.5, -0.35, -0.4}, h2[3] = {0.45, 0.3, 0.5};
+    double k[3] = {0.48, 0.6, 0.64}, R[3][3], t[3] = {0.01, -0.02, 0.03};
+    shape_box(&s, l2, h2);
+    shape_rotation(k, 0.7, R);
+    shape_transform(&s, 0, R, t);
+    check_solid(shape_finish(&s), 128);
+    shape_free(&s);
+}
+
+Test(mesh_vox, torus_nested_spheres_and_c_match_the_ray_oracle)
+{
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.013, -0.021, 0.008};
+    shape_torus(&s, c, 0.6, 0.23, 48, 24);
+    cr_assert_gt(shape_volume(shape_finish(&s)), 0);
+    check_solid(shape_finish(&s), 64);
+    shape_free(&s);
+
+    shape_init(&s);
+    shape_nested(&s, c, 0.85, 0.6, 0.35, 3);
+    check_solid(shape_finish(&s), 64);
+    shape_free(&s);
+
+    shape_init(&s);
+    double lo[3] = {-0.77, -0.71, -0.43};
+    shape_c(&s, lo, 0.47, 0.91);
+    cr_assert_gt(shape_volume(shape_finish(&s)), 0);
+    check_solid(shape_finish(&s), 64);
+    /* the C turned, so its concave faces are slanted too */
+    double k[3] = {0, 0.6, 0.8}, R[3][3], t[3] = {0.05, 0.02, 0};
+    shape_rotation(k, 0.4, R);
+    shape_transform(&s, 0, R, t);
+    check_solid(shape_finish(&s), 128);
+    shape_free(&s);
+}
+
+/* A box whose faces lie on voxel centres: lo + (i + 0.5) vs, so its
+ * vertices and the diagonals of its faces go through centres too. */
+static const mesh *centre_box(shape *s, const grid_spec *g, const uint32_t a[3],
+                              const uint32_t b[3])
+{
+    double lo[3], hi[3];
+    for (int k = 0; k < 3; k++) {
+        lo[k] = grid_coord(g, k, a[k] + 0.5);
+        hi[k] = grid_coord(g, k, b[k] + 0.5);
+    }
+    shape_init(s);
+    shape_box(s, lo, hi);
+    return shape_finish(s);
+}
+
+Test(mesh_vox, box_on_voxel_centres_follows_the_top_left_rule)
+{
+    grid_spec g = cube_grid(64);
+    const uint32_t a[3] = {5, 9, 3}, b[3] = {41, 45, 30}; /* square xy: diagonals on centres */
+    shape s;
+    const mesh *m = centre_box(&s, &g, a, b);
+    /* each column is crossed 0 or 2 times, 2 exactly over [a, b) x [a, b) */
+    mv_frame f;
+    mv_frame_init(&f, m, &g, 1);
+    mv_block blk = {{0, 0, -4}, {64, 64, 72}, 1};
+    uint64_t *bits = malloc(mv_block_words(&blk) * 8);
+    uint8_t *count = calloc(64 * 64, 1);
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        memset(bits, 0, mv_block_words(&blk) * 8);
+        mv_target tg = {&blk, bits, NULL, true};
+        int64_t P[3][3];
+        mv_triangle(&f, t, P);
+        mv_raster(P, 2, &tg);
+        for (int z = 0; z < 72; z++)
+            for (int y = 0; y < 64; y++)
+                for (int x = 0; x < 64; x++)
+                    count[y * 64 + x] += bits[z * 64 + y] >> x & 1;
+    }
+    for (uint32_t y = 0; y < 64; y++)
+        for (uint32_t x = 0; x < 64; x++) {
+            bool in = x >= a[0] && x < b[0] && y >= a[1] && y < b[1];
+            cr_expect_eq(count[y * 64 + x], in ? 2 : 0, "column %u %u crossed %u times", x, y,
+                         count[y * 64 + x]);
+        }
+    /* the solid is exactly the half-open box of centres, with or without
+     * repair (whose three parities agree everywhere) */
+    for (int rep = 0; rep < 3; rep++) {
+        mesh_tile_stats st;
+        uint32_t *d = voxelize_mode(m, &g, MESH_SOLID, (mesh_repair)rep, &st);
+        size_t n = 0, wrong = 0;
+        for (uint32_t z = 0; z < 64; z++)
+            for (uint32_t y = 0; y < 64; y++)
+                for (uint32_t x = 0; x < 64; x++) {
+                    bool in = x >= a[0] && x < b[0] && y >= a[1] && y < b[1] && z >= a[2] && z < b[2];
+                    wrong += (d[vidx(&g, x, y, z)] != 0) != in;
+                    n += d[vidx(&g, x, y, z)] != 0;
+                }
+        cr_expect_eq(wrong, 0, "repair %d: %zu voxels off the box", rep, wrong);
+        cr_expect_eq(n, (size_t)(b[0] - a[0]) * (b[1] - a[1]) * (b[2] - a[2]));
+        cr_expect_eq(st.disagreements, 0);
+        cr_expect_eq(st.voxels, n);
+        free(d);
+    }
+    free(bits);
+    free(count);
+    shape_free(&s);
+}
+
+/* ---- surface ---- */
+
+/* Separating axis test of triangle tr against the closed box [b0, b1]. */
+static bool sat_touch(const mesh *m, uint32_t tr, const double b0[3], const double b1[3])
+{
+    double c[3], h[3], v[3][3], e[3][3], n[3];
+    for (int a = 0; a < 3; a++) c[a] = (b0[a] + b1[a]) / 2, h[a] = (b1[a] - b0[a]) / 2;
+    for (int i = 0; i < 3; i++) {
+        vert(m, tr, i, v[i]);
+        for (int a = 0; a < 3; a++) v[i][a] -= c[a];
+    }
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++) e[i][a] = v[(i + 1) % 3][a] - v[i][a];
+    double axes[13][3];
+    int na = 0;
+    for (int a = 0; a < 3; a++) {
+        double u[3] = {0, 0, 0};
+        u[a] = 1;
+        memcpy(axes[na++], u, sizeof u);
+        for (int i = 0; i < 3; i++) cross3(u, e[i], axes[na++]);
+    }
+    cross3(e[0], e[1], n);
+    memcpy(axes[na++], n, sizeof n);
+    for (int k = 0; k < na; k++) {
+        const double *L = axes[k];
+        double p0 = dot3(v[0], L), p1 = dot3(v[1], L), p2 = dot3(v[2], L);
+        double lo = fmin(p0, fmin(p1, p2)), hi = fmax(p0, fmax(p1, p2));
+        double r = h[0] * fabs(L[0]) + h[1] * fabs(L[1]) + h[2] * fabs(L[2]);
+        if (lo > r || hi < -r) return false;
+    }
+    return true;
+}
+
+/* The voxels the triangles touch, by the separating axis test. */
+static uint8_t *sat_surface(const mesh *m, const grid_spec *g)
+{
+    uint8_t *d = calloc(nvox(g), 1);
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        int i0[3], i1[3];
+        for (int a = 0; a < 3; a++) {
+            double lo = INFINITY, hi = -INFINITY;
+            for (int i = 0; i < 3; i++) {
+                double p[3];
+                vert(m, t, i, p);
+                lo = fmin(lo, p[a]), hi = fmax(hi, p[a]);
+            }
+            i0[a] = (int)floor((lo - g->lo[a]) / g->vs) - 1;
+            i1[a] = (int)floor((hi - g->lo[a]) / g->vs) + 1;
+            if (i0[a] < 0) i0[a] = 0;
+            if (i1[a] > (int)g->res[a] - 1) i1[a] = (int)g->res[a] - 1;
+        }
+        for (int z = i0[2]; z <= i1[2]; z++)
+            for (int y = i0[1]; y <= i1[1]; y++)
+                for (int x = i0[0]; x <= i1[0]; x++) {
+                    double b0[3] = {grid_coord(g, 0, x), grid_coord(g, 1, y), grid_coord(g, 2, z)};
+                    double b1[3] = {grid_coord(g, 0, x + 1), grid_coord(g, 1, y + 1),
+                                    grid_coord(g, 2, z + 1)};
+                    if (sat_touch(m, t, b0, b1)) d[vidx(g, (uint32_t)x, (uint32_t)y, (uint32_t)z)] = 1;
+                }
+    }
+    return d;
+}
+
+static void check_surface_modes(const mesh *m, uint32_t res)
+{
+    grid_spec g = cube_grid(res);
+    uint8_t *want = sat_surface(m, &g);
+    uint32_t *s26 = voxelize_mode(m, &g, MESH_SURFACE, MESH_REPAIR_NONE, NULL);
+    uint32_t *s6 = voxelize_mode(m, &g, MESH_SURFACE6, MESH_REPAIR_NONE, NULL);
+    uint32_t *sol = voxelize_mode(m, &g, MESH_SOLID, MESH_REPAIR_NONE, NULL);
+    uint32_t *con = voxelize_mode(m, &g, MESH_CONSERVATIVE, MESH_REPAIR_NONE, NULL);
+    uint32_t *in = voxelize_mode(m, &g, MESH_INTERIOR, MESH_REPAIR_NONE, NULL);
+    size_t wrong = 0, not_sub = 0, sets = 0, n26 = 0, n6 = 0, gaps = 0;
+    for (size_t i = 0; i < nvox(&g); i++) {
+        bool a = s26[i] != 0, b = s6[i] != 0, so = sol[i] != 0;
+        if (a != (want[i] != 0) && wrong++ < 5) cr_log_error("voxel %zu: %d, SAT %d", i, a, want[i]);
+        not_sub += b && !a;
+        sets += (con[i] != 0) != (so || a);
+        sets += (in[i] != 0) != (so && !a);
+        n26 += a, n6 += b;
+    }
+    /* 6-separating: of two face-adjacent voxels whose centres lie on either
+     * side, one is in surface6 */
+    for (uint32_t z = 0; z < res; z++)
+        for (uint32_t y = 0; y < res; y++)
+            for (uint32_t x = 0; x < res; x++) {
+                size_t i = vidx(&g, x, y, z);
+                size_t nb[3] = {x + 1 < res ? vidx(&g, x + 1, y, z) : i,
+                                y + 1 < res ? vidx(&g, x, y + 1, z) : i,
+                                z + 1 < res ? vidx(&g, x, y, z + 1) : i};
+                for (int k = 0; k < 3; k++)
+                    gaps += (sol[i] != 0) != (sol[nb[k]] != 0) && !s6[i] && !s6[nb[k]];
+            }
+    cr_expect_eq(wrong, 0, "%zu voxels differ from the SAT", wrong);
+    cr_expect_eq(not_sub, 0, "%zu surface6 voxels outside surface", not_sub);
+    cr_expect_eq(sets, 0, "conservative / interior differ from the set operations");
+    cr_expect_eq(gaps, 0, "%zu face-adjacent in/out pairs without a surface6 voxel", gaps);
+    cr_expect_gt(n6, 0);
+    cr_expect_lt(n6, n26, "surface6 (%zu) is thinner than surface (%zu)", n6, n26);
+    free(want), free(s26), free(s6), free(sol), free(con), free(in);
+}
+
+Test(mesh_vox, surface_modes_match_the_separating_axis_test)
+{
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.021, -0.013, 0.007};
+    shape_icosphere(&s, c, 0.7, 3, false);
+    check_surface_modes(shape_finish(&s), 64);
+    shape_free(&s);
+
+    shape_init(&s);
+    shape_torus(&s, c, 0.55, 0.2, 40, 20);
+    check_surface_modes(shape_finish(&s), 64);
+    shape_free(&s);
+
+    shape_init(&s);
+    double lo[3] = {-0.77, -0.71, -0.43};
+    double k[3] = {0.6, 0, 0.8}, R[3][3], t[3] = {0, 0, 0};
+    shape_c(&s, lo, 0.47, 0.91);
+    shape_rotation(k, 0.3, R);
+    shape_transform(&s, 0, R, t);
+    check_surface_modes(shape_finish(&s), 64);
+    shape_free(&s);
+}
+
+Test(mesh_vox, surface_touching_a_voxel_face_sets_both_voxels)
+{
+    /* a box whose faces lie on voxel boundaries: closed boxes, so both
+     * layers beside each face are touched; the SAT is exact here */
+    grid_spec g = cube_grid(32);
+    double lo[3] = {grid_coord(&g, 0, 4), grid_coord(&g, 1, 6), grid_coord(&g, 2, 8)};
+    double hi[3] = {grid_coord(&g, 0, 20), grid_coord(&g, 1, 17), grid_coord(&g, 2, 25)};
+    shape s;
+    shape_init(&s);
+    shape_box(&s, lo, hi);
+    const mesh *m = shape_finish(&s);
+    uint8_t *want = sat_surface(m, &g);
+    uint32_t *got = voxelize_mode(m, &g, MESH_SURFACE, MESH_REPAIR_NONE, NULL);
+    size_t wrong = 0, n = 0;
+    for (size_t i = 0; i < nvox(&g); i++) {
+        wrong += (got[i] != 0) != (want[i] != 0);
+        n += got[i] != 0;
+    }
+    cr_expect_eq(wrong, 0);
+    /* the shell of boxes [3, 21) x [5, 18) x [7, 26) less [5, 19) x [7, 16) x [9, 24) */
+    cr_expect_eq(n, (size_t)18 * 13 * 19 - (size_t)14 * 9 * 15);
+    free(want), free(got);
+    shape_free(&s);
+}
+
+/* ---- holes ---- */
+
+typedef struct {
+    double c[3], r;  /* triangles with a vertex in this ball go */
+    const mesh *m;
+} hole;
+
+static bool keep_outside_hole(uint32_t t, void *ctx)
+{
+    const hole *h = ctx;
+    for (int i = 0; i < 3; i++) {
+        double p[3], d = 0;
+        vert(h->m, t, i, p);
+        for (int a = 0; a < 3; a++) d += (p[a] - h->c[a]) * (p[a] - h->c[a]);
+        if (d < h->r * h->r) return false;
+    }
+    return true;
+}
+
+Test(mesh_vox, repair_fills_holes)
+{
+    grid_spec g = cube_grid(64);
+    double c[3] = {0.017, -0.023, 0.011};
+    shape s;
+    shape_init(&s);
+    shape_icosphere(&s, c, 0.7, 3, false);
+    const mesh *m = shape_finish(&s);
+    mesh_tile_stats st;
+    uint32_t *closed = voxelize_mode(m, &g, MESH_SOLID, MESH_REPAIR_NONE, NULL);
+    size_t n_closed = 0;
+    for (size_t i = 0; i < nvox(&g); i++) n_closed += closed[i] != 0;
+    for (int rep = 1; rep < 3; rep++) { /* a closed mesh: nothing to repair */
+        uint32_t *d = voxelize_mode(m, &g, MESH_SOLID, (mesh_repair)rep, &st);
+        cr_expect_eq(st.disagreements, 0);
+        cr_expect_eq(st.disagree_bricks, 0);
+        cr_expect_eq(memcmp(d, closed, nvox(&g) * 4), 0);
+        free(d);
+    }
+    /* holes at the top and on the side */
+    size_t before = s.m.n_triangles;
+    hole h1 = {{c[0], c[1] + 0.1, c[2] + 0.7}, 0.2, m}, h2 = {{c[0] + 0.7, c[1], c[2]}, 0.15, m};
+    shape_remove(&s, keep_outside_hole, &h1);
+    shape_remove(&s, keep_outside_hole, &h2);
+    cr_assert_lt(s.m.n_triangles, before);
+    size_t n_plain = 0;
+    uint32_t *plain = voxelize_mode(m, &g, MESH_SOLID, MESH_REPAIR_NONE, NULL);
+    for (size_t i = 0; i < nvox(&g); i++) n_plain += plain[i] != 0;
+    free(plain);
+    cr_expect_gt(fabs((double)n_plain - (double)n_closed), 0.01 * n_closed,
+                 "the holes spoil the plain parity (%zu vs %zu)", n_plain, n_closed);
+    for (int rep = 1; rep < 3; rep++) {
+        uint32_t *d = voxelize_mode(m, &g, MESH_SOLID, (mesh_repair)rep, &st);
+        size_t n = 0;
+        for (size_t i = 0; i < nvox(&g); i++) n += d[i] != 0;
+        cr_expect_gt(st.disagreements, 0);
+        cr_expect_gt(st.disagree_bricks, 0);
+        cr_expect_leq(st.disagree_bricks, 64 * 64 * 64 / (16 * 16 * 16));
+        cr_expect(fabs((double)n - (double)n_closed) <= 0.01 * n_closed,
+                  "repair %d: %zu voxels, closed %zu", rep, n, n_closed);
+        free(d);
+    }
+    free(closed);
+    shape_free(&s);
+}
+
+/* ---- tiles ---- */
+
+/* A grid whose sides are not multiples of the tile. */
+static grid_spec odd_grid(void)
+{
+    double lo[3] = {-1, -1, -1}, hi[3] = {1, 0.6, 0.25};
+    grid_spec g;
+    char err[128];
+    cr_assert_eq(grid_make(lo, hi, 160, &g, err, sizeof err), 0, "%s", err);
+    cr_assert(g.res[0] == 160 && g.res[1] == 128 && g.res[2] == 100);
+    return g;
+}
+
+static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                        uint32_t sbrick)
+{
+    uint32_t bits = mesh_vox_bits(o);
+    tvol ref = vol_make(g, bits, sbrick), got = vol_make(g, bits, sbrick);
+    mesh_tile_stats s_ref = {0}, s_got = {0}, s_once = {0};
+    cr_assert_eq(mesh_voxelize(m, g, o, ref.v, &s_ref), 0);
+    mesh_bins b;
+    cr_assert_eq(mesh_bin(m, g, o, &b), 0);
+    uint32_t nt = b.tiles[0] * b.tiles[1];
+    cr_assert_eq(b.tiles[0], (g->res[0] + 63) / 64);
+    uint32_t *order = malloc((nt + 1) * sizeof *order);
+    for (uint32_t i = 0; i < nt; i++) order[i] = (i * 5 + 3) % nt; /* 5 is prime to nt = 6 */
+    order[nt] = order[nt / 2];                                     /* one tile twice */
+    void *scratch = malloc(mesh_tile_scratch_bytes(g, o));
+    for (uint32_t i = 0; i <= nt; i++) {
+        uint32_t t = order[i];
+        mesh_tile_stats *st = i < nt ? &s_got : &s_once;
+        cr_assert_eq(mesh_tile_run(m, b.ids + b.start[t], b.start[t + 1] - b.start[t], g, o,
+                                   t % b.tiles[0], t / b.tiles[0], scratch, got.v, st), 0);
+    }
+    size_t diff = 0;
+    for (uint32_t z = 0; z < g->res[2]; z++)
+        for (uint32_t y = 0; y < g->res[1]; y++)
+            for (uint32_t x = 0; x < g->res[0]; x++)
+                diff += vod_volume_get(ref.v, x, y, z) != vod_volume_get(got.v, x, y, z);
+    cr_expect_eq(diff, 0, "%zu voxels differ with the tiles scrambled", diff);
+    cr_expect_eq(s_got.voxels, s_ref.voxels);
+    cr_expect_eq(s_got.disagreements, s_ref.disagreements);
+    cr_expect_gt(s_ref.voxels, 0);
+    vod_volume_info ia, ib;
+    vod_volume_get_info(ref.v, &ia);
+    vod_volume_get_info(got.v, &ib);
+    cr_expect_eq(ia.level0_bricks, ib.level0_bricks, "the tile run twice allocates nothing new");
+    free(order), free(scratch), free(ref.arena), free(got.arena);
+    mesh_bins_free(&b);
+}
+
+Test(mesh_vox, tiles_in_any_order_give_the_same_volume)
+{
+    grid_spec g = odd_grid();
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.1, -0.2, -0.35}, k[3] = {0.2, 0.5, 0.2};
+    shape_torus(&s, c, 0.62, 0.25, 40, 20);
+    shape_icosphere(&s, k, 0.3, 2, false); /* partly outside the grid */
+    size_t before = s.m.n_triangles;
+    shape_remove(&s, keep_outside_hole, &(hole){{0.97, -0.2, -0.35}, 0.1, &s.m});
+    cr_assert_lt(s.m.n_triangles, before, "a hole in the torus");
+    const mesh *m = shape_finish(&s);
+    mesh_vox_opts all[] = {
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_CONSERVATIVE, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_SURFACE6, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, 2},
+        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_DENSITY, 3},
+    };
+    const uint32_t sb[] = {16, 8, 32, 16, 64};
+    for (size_t i = 0; i < sizeof all / sizeof *all; i++) check_tiles(m, &g, &all[i], sb[i]);
+    shape_free(&s);
+}
+
+Test(mesh_vox, bins_list_each_triangle_once_in_ascending_order)
+{
+    grid_spec g = odd_grid();
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.1, -0.2, -0.35};
+    shape_icosphere(&s, c, 0.6, 3, false);
+    const mesh *m = shape_finish(&s);
+    for (int rep = 0; rep < 2; rep++) {
+        mesh_vox_opts o = {MESH_SOLID, rep ? MESH_REPAIR_VOTE : MESH_REPAIR_NONE,
+                           VOXEL_CH_OCCUPANCY, 0};
+        mesh_bins b;
+        cr_assert_eq(mesh_bin(m, &g, &o, &b), 0);
+        cr_assert_eq(b.tiles[0], 3);
+        cr_assert_eq(b.tiles[1], 2);
+        uint64_t total = 0;
+        for (uint32_t t = 0; t < 6; t++) {
+            for (uint64_t i = b.start[t] + 1; i < b.start[t + 1]; i++)
+                cr_assert_lt(b.ids[i - 1], b.ids[i]);
+            total += b.start[t + 1] - b.start[t];
+        }
+        /* every triangle somewhere; repair lists more (the rows to the right) */
+        cr_expect_geq(total, m->n_triangles);
+        if (rep) cr_expect_gt(total, 2 * (uint64_t)m->n_triangles);
+        mesh_bins_free(&b);
+    }
+    shape_free(&s);
+}
+
+/* ---- density and normals ---- */
+
+Test(mesh_vox, density_sums_to_the_volume)
+{
+    grid_spec g = cube_grid(64);
+    double c[3] = {0.011, 0.007, -0.013};
+    shape s;
+    shape_init(&s);
+    shape_icosphere(&s, c, 0.85, 4, false);
+    const mesh *m = shape_finish(&s);
+    double vol = shape_volume(m) / (g.vs * g.vs * g.vs);
+    for (uint32_t K = 2; K <= 4; K += 2) {
+        mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, K};
+        mesh_tile_stats st;
+        uint32_t *d = voxelize(m, &g, &o, 32, &st);
+        double sum = 0;
+        size_t partial = 0, nonzero = 0;
+        for (size_t i = 0; i < nvox(&g); i++) {
+            sum += d[i];
+            partial += d[i] != 0 && d[i] != 255;
+            nonzero += d[i] != 0;
+        }
+        /* the rounding to 8 bits moves each partly covered voxel by up to
+         * 1/510; the samples' own errors, up to a voxel's samples on the
+         * surface each, mostly cancel over a sphere (here |err| < 2 voxels) */
+        double err = fabs(sum / 255 - vol);
+        cr_expect(err < 0.01 * partial, "K %u: sum %.1f voxels, volume %.1f, %zu partial", K,
+                  sum / 255, vol, partial);
+        cr_expect_gt(partial, 1000);
+        cr_expect_eq(st.voxels, nonzero);
+        free(d);
+    }
+    shape_free(&s);
+}
+
+Test(mesh_vox, density_of_half_coverage_is_the_surface_threshold)
+{
+    /* a box over x in [0, 2.5) voxels (in the grid's frame): the voxel
+     * x = 2 is half covered: 127, the ICVG S; x < 2 full, x > 2 empty */
+    grid_spec g = cube_grid(16);
+    double lo[3] = {grid_coord(&g, 0, 0.0), grid_coord(&g, 1, 0), grid_coord(&g, 2, 0)};
+    double hi[3] = {grid_coord(&g, 0, 2.5), grid_coord(&g, 1, 16), grid_coord(&g, 2, 16)};
+    lo[0] -= 1, lo[1] -= 1, lo[2] -= 1, hi[1] += 1, hi[2] += 1; /* past the grid */
+    shape s;
+    shape_init(&s);
+    shape_box(&s, lo, hi);
+    for (uint32_t K = 2; K <= 8; K += 2) {
+        mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, K};
+        uint32_t *d = voxelize(shape_finish(&s), &g, &o, 8, NULL);
+        for (uint32_t z = 0; z < 16; z += 5)
+            for (uint32_t y = 0; y < 16; y += 3) {
+                cr_expect_eq(d[vidx(&g, 1, y, z)], 255);
+                cr_expect_eq(d[vidx(&g, 2, y, z)], 127, "K %u: %u", K, d[vidx(&g, 2, y, z)]);
+                cr_expect_eq(d[vidx(&g, 3, y, z)], 0);
+            }
+        free(d);
+    }
+    shape_free(&s);
+}
+
+Test(mesh_vox, sphere_normals_point_outwards)
+{
+    grid_spec g = cube_grid(64);
+    double c[3] = {0.013, -0.009, 0.004};
+    shape s;
+    shape_init(&s);
+    shape_icosphere(&s, c, 0.8, 4, false);
+    const mesh *m = shape_finish(&s);
+    uint32_t *occ = voxelize_mode(m, &g, MESH_SURFACE, MESH_REPAIR_NONE, NULL);
+    /* the default supersample (2) and 4: mean and worst angle to the radius
+     * (the icosphere's facets themselves lean by up to ~2 degrees) */
+    const uint32_t K[2] = {0, 4};
+    const double mean_max[2] = {3, 2}, worst_max[2] = {15, 8};
+    for (int k = 0; k < 2; k++) {
+        mesh_vox_opts o = {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, K[k]};
+        uint32_t *d = voxelize(m, &g, &o, 16, NULL);
+        size_t n = 0;
+        double worst = 0, sum = 0;
+        for (uint32_t z = 0; z < 64; z++)
+            for (uint32_t y = 0; y < 64; y++)
+                for (uint32_t x = 0; x < 64; x++) {
+                    uint32_t v = d[vidx(&g, x, y, z)];
+                    cr_assert_eq(v != 0, occ[vidx(&g, x, y, z)] != 0, "the mode's occupancy");
+                    if (!v) continue;
+                    cr_assert_eq(voxel_occupancy(v), VOXEL_FULL);
+                    double nrm[3], p[3], r[3], l = 0;
+                    voxel_unpack_normal(v, nrm);
+                    centre(&g, x, y, z, p);
+                    for (int a = 0; a < 3; a++) r[a] = p[a] - c[a], l += r[a] * r[a];
+                    double ang = acos(fmin(1, dot3(nrm, r) / sqrt(l))) * 180 / M_PI;
+                    worst = fmax(worst, ang);
+                    sum += ang;
+                    n++;
+                }
+        cr_assert_gt(n, 10000);
+        cr_expect_lt(sum / n, mean_max[k], "K %u: mean angle %.2f degrees", K[k], sum / n);
+        cr_expect_lt(worst, worst_max[k], "K %u: worst angle %.2f degrees", K[k], worst);
+        free(d);
+    }
+    free(occ);
+    shape_free(&s);
+}
+
+/* ---- the interface's edges ---- */
+
+Test(mesh_vox, options_are_checked)
+{
+    char err[128];
+    mesh_vox_opts ok = {MESH_SURFACE, MESH_REPAIR_VOTE, VOXEL_CH_SURFACE, 0};
+    cr_expect_eq(mesh_vox_check(&ok, err, sizeof err), 0);
+    cr_expect_eq(mesh_vox_bits(&ok), 32);
+    ok.channel = VOXEL_CH_OCCUPANCY;
+    cr_expect_eq(mesh_vox_bits(&ok), 8);
+    mesh_vox_opts bad[] = {
+        {(mesh_mode)9, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_SOLID, (mesh_repair)7, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 1},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 9},
+        {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2},
+    };
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        err[0] = 0;
+        cr_expect_eq(mesh_vox_check(&bad[i], err, sizeof err), -EINVAL, "case %zu", i);
+        cr_expect_neq(err[0], 0);
+    }
+}
+
+Test(mesh_vox, tile_run_refuses_a_volume_that_does_not_fit)
+{
+    grid_spec g = cube_grid(64);
+    shape s;
+    shape_init(&s);
+    double c[3] = {0, 0, 0};
+    shape_icosphere(&s, c, 0.5, 1, false);
+    const mesh *m = shape_finish(&s);
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0};
+    void *scratch = malloc(mesh_tile_scratch_bytes(&g, &o));
+    uint32_t ids[1] = {0};
+    mesh_tile_stats st = {0};
+    tvol v32 = vol_make(&g, 32, 16); /* the wrong width */
+    cr_expect_eq(mesh_tile_run(m, ids, 1, &g, &o, 0, 0, scratch, v32.v, &st), -EINVAL);
+    tvol v8 = vol_make(&g, 8, 16);
+    cr_expect_eq(mesh_tile_run(m, ids, 1, &g, &o, 1, 0, scratch, v8.v, &st), -EINVAL,
+                 "tile x 1 of a 64-wide grid");
+    /* a pool without room for a brick: -ENOMEM */
+    size_t bytes = vod_volume_bytes(g.res, 8, 16, 0);
+    void *arena = malloc(bytes);
+    vod_volume *small;
+    cr_assert_eq(vod_volume_init(&small, arena, bytes, g.res, 8, 16), 0);
+    cr_expect_eq(mesh_voxelize(m, &g, &o, small, &st), -ENOMEM);
+    free(arena), free(scratch), free(v32.arena), free(v8.arena);
+    shape_free(&s);
+}
