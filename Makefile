@@ -131,6 +131,9 @@ $(BUILD)/bench_expr: bench/bench_expr.c $(LIB)
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 $(BUILD)/bench_mesh: bench/bench_mesh.c bench/bench_util.h $(LIB)
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
+# mesh_vox_bench times the mesh voxelizer's kernels (not part of make bench).
+$(BUILD)/mesh_vox_bench: bench/mesh_vox_bench.c tests/unit/mesh_shapes.h $(LIB)
+	$(CC) $(CFLAGS) $(INC) -Itests/unit $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
 # voxwhole times a whole command (scripts/bench-whole.sh): no library.
 $(BUILD)/voxwhole: bench/voxwhole.c bench/bench_util.h
 	$(CC) $(CFLAGS) $< -o $@ $(LDFLAGS) -lm

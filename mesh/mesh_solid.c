@@ -31,20 +31,27 @@ static bool z_relevant(const mv_solid_in *in, uint32_t id, bool first,
     return first || !*below;
 }
 
-/* Every sample of d (one bit each) decided by the winding number. */
+/* Every sample of d (one bit each, word w of the block) decided by the
+ * winding number: the samples of a word together, each triangle read once
+ * for all of them. */
 static void decide_winding(const mv_frame *f, const mv_block *b, size_t w,
                            uint64_t d, uint64_t *bits)
 {
     size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
     size_t x0 = (w % b->nw) * 64;
-    while (d) {
-        unsigned i = (unsigned)__builtin_ctzll(d);
-        d &= d - 1;
-        double q[3] = {(double)(b->s0[0] + (int64_t)(x0 + i)) + 0.5,
-                       (double)(b->s0[1] + (int64_t)y) + 0.5,
-                       (double)(b->s0[2] + (int64_t)z) + 0.5};
-        if (fabs(mv_winding(f, q)) >= 0.5) bits[w] |= 1ull << i;
-        else bits[w] &= ~(1ull << i);
+    double q[64][3], wn[64];
+    unsigned idx[64], n = 0;
+    for (uint64_t r = d; r; r &= r - 1) {
+        unsigned i = (unsigned)__builtin_ctzll(r);
+        q[n][0] = (double)(b->s0[0] + (int64_t)(x0 + i)) + 0.5;
+        q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
+        q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
+        idx[n++] = i;
+    }
+    mv_winding_many(f, q, n, wn);
+    for (unsigned k = 0; k < n; k++) {
+        if (fabs(wn[k]) >= 0.5) bits[w] |= 1ull << idx[k];
+        else bits[w] &= ~(1ull << idx[k]);
     }
 }
 
@@ -96,7 +103,9 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
 }
 
 /* The solid angle of triangle (a, b, c) seen from the origin, over 2:
- * atan2 of Van Oosterom and Strackee's formula. */
+ * atan2 of Van Oosterom and Strackee's formula; for the small angles of
+ * the many far triangles, the series of atan (to t^7: below 1e-17 when
+ * |t| < 1/64) instead of atan2. */
 static double half_solid_angle(const double a[3], const double b[3], const double c[3])
 {
     double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
@@ -108,20 +117,31 @@ static double half_solid_angle(const double a[3], const double b[3], const doubl
     double ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     double bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
     double ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2];
-    return atan2(det, la * lb * lc + ab * lc + bc * la + ca * lb);
+    double den = la * lb * lc + ab * lc + bc * la + ca * lb;
+    if (den > 0 && fabs(det) < den * (1.0 / 64)) {
+        double t = det / den, t2 = t * t;
+        return t * (1 - t2 * (1.0 / 3 - t2 * (1.0 / 5 - t2 * (1.0 / 7))));
+    }
+    return atan2(det, den);
 }
 
-double mv_winding(const mv_frame *f, const double q[3])
+void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w)
 {
     const mesh *m = f->m;
-    double s = f->scale / (double)MV_L, sum = 0.0;
+    double s = f->scale / (double)MV_L;
+    for (unsigned k = 0; k < n; k++) w[k] = 0;
     for (uint32_t t = 0; t < m->n_triangles; t++) {
         double p[3][3];
         for (int i = 0; i < 3; i++) {
             const float *v = m->vertices[m->triangles[t][i]];
-            for (int a = 0; a < 3; a++) p[i][a] = ((double)v[a] - f->lo[a]) * s - q[a];
+            for (int a = 0; a < 3; a++) p[i][a] = ((double)v[a] - f->lo[a]) * s;
         }
-        sum += half_solid_angle(p[0], p[1], p[2]);
+        for (unsigned k = 0; k < n; k++) {
+            double r[3][3];
+            for (int i = 0; i < 3; i++)
+                for (int a = 0; a < 3; a++) r[i][a] = p[i][a] - q[k][a];
+            w[k] += half_solid_angle(r[0], r[1], r[2]);
+        }
     }
-    return sum / (2.0 * M_PI); /* sum of solid angles / (4 pi) */
+    for (unsigned k = 0; k < n; k++) w[k] /= 2.0 * M_PI; /* solid angles / (4 pi) */
 }

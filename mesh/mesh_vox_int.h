@@ -139,9 +139,9 @@ typedef struct {
 } mv_solid_buf;
 uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *buf);
 
-/* The generalized winding number of the mesh at point q (in the frame's
- * sample units: sample i is centred at i + 0.5). */
-double mv_winding(const mv_frame *f, const double q[3]);
+/* The generalized winding numbers w[k] of the mesh at points q[k], k < n
+ * (in the frame's sample units: sample i is centred at i + 0.5). */
+void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w);
 
 /* Surface bits (K = 1 blocks): every voxel of block b whose closed box
  * triangle P touches (six = false), or its 6-separating subset. */

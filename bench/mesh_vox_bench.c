@@ -1,0 +1,158 @@
+/* mesh_vox_bench — a timing harness for the mesh voxelizer's kernels (not
+ * a test): an icosphere of ~1.3M triangles (level 8) in a grid of its
+ * bounding box, per resolution: mesh_bin, the tiles on one thread, the
+ * tiles on two threads (tiles handed out by an atomic counter, as the
+ * engine's workers would take them), and what the volume holds.
+ *
+ *   make build/release/mesh_vox_bench
+ *   build/release/mesh_vox_bench [-l LEVEL] [-m MODE] [-c CHANNEL] [-s SBRICK] RES...
+ *
+ * MODE: solid surface surface6 conservative interior; CHANNEL 1, 2 or 3.
+ * Each time is the best of 3 runs. */
+#include <errno.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "grid.h"
+#include "mesh_shapes.h"
+#include "mesh_vox.h"
+#include "vod_volume.h"
+#include "voxel.h"
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+typedef struct {
+    const mesh *m;
+    const grid_spec *g;
+    const mesh_vox_opts *o;
+    const mesh_bins *b;
+    vod_volume *v;
+    atomic_uint next; /* the next tile to take (relaxed: no data is published through it) */
+    int rc;
+} job;
+
+static void *worker(void *arg)
+{
+    job *j = arg;
+    void *scratch = malloc(mesh_tile_scratch_bytes(j->g, j->o));
+    mesh_tile_stats st = {0};
+    uint32_t nt = j->b->tiles[0] * j->b->tiles[1];
+    for (;;) {
+        uint32_t t = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed);
+        if (t >= nt) break;
+        int rc = mesh_tile_run(j->m, j->b->ids + j->b->start[t],
+                               (size_t)(j->b->start[t + 1] - j->b->start[t]), j->g, j->o,
+                               t % j->b->tiles[0], t / j->b->tiles[0], scratch, j->v, &st);
+        if (rc) j->rc = rc;
+    }
+    free(scratch);
+    return NULL;
+}
+
+/* Seconds for the tiles on `threads` threads into a fresh volume. */
+static double run_tiles(job *j, void *arena, size_t bytes, uint32_t sbrick, int threads)
+{
+    vod_volume *v;
+    if (vod_volume_init(&v, arena, bytes, j->g->res, mesh_vox_bits(j->o), sbrick)) exit(1);
+    j->v = v;
+    atomic_store(&j->next, 0);
+    pthread_t th[2];
+    double t0 = now();
+    for (int i = 0; i < threads; i++) pthread_create(&th[i], NULL, worker, j);
+    for (int i = 0; i < threads; i++) pthread_join(th[i], NULL);
+    return now() - t0;
+}
+
+int main(int argc, char **argv)
+{
+    int level = 8, opt, channel = VOXEL_CH_OCCUPANCY;
+    uint32_t sbrick = 32;
+    mesh_mode mode = MESH_SOLID;
+    static const char *modes[] = {"solid", "surface", "surface6", "conservative", "interior"};
+    while ((opt = getopt(argc, argv, "l:m:c:s:")) != -1) {
+        if (opt == 'l') level = atoi(optarg);
+        else if (opt == 'c') channel = atoi(optarg);
+        else if (opt == 's') sbrick = (uint32_t)atoi(optarg);
+        else if (opt == 'm') {
+            for (int i = 0; i < 5; i++)
+                if (!strcmp(optarg, modes[i])) mode = (mesh_mode)i;
+        } else {
+            fprintf(stderr, "usage: %s [-l LEVEL] [-m MODE] [-c CHANNEL] [-s SBRICK] RES...\n", argv[0]);
+            return 2;
+        }
+    }
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.013, -0.007, 0.003};
+    double t0 = now();
+    shape_icosphere(&s, c, 1.0, level, false);
+    const mesh *m = shape_finish(&s);
+    printf("icosphere level %d: %u triangles, %u vertices (built in %.2f s); mode %s, channel %d, "
+           "storage bricks %u^3; %ld cores\n\n",
+           level, m->n_triangles, m->n_vertices, now() - t0, modes[mode], channel, sbrick,
+           sysconf(_SC_NPROCESSORS_ONLN));
+    printf("| res | bin | tiles, 1 thread | tiles, 2 threads | allocated bricks | voxels |\n");
+    printf("|---|---|---|---|---|---|\n");
+    mesh_vox_opts o = {mode, MESH_REPAIR_NONE, channel, 0};
+    for (int i = optind; i < argc; i++) {
+        uint32_t res = (uint32_t)atoi(argv[i]);
+        double lo[3] = {-1.02, -1.02, -1.02}, hi[3] = {1.02, 1.02, 1.02};
+        grid_spec g;
+        char err[128];
+        if (grid_make(lo, hi, res, &g, err, sizeof err)) {
+            fprintf(stderr, "%s\n", err);
+            return 1;
+        }
+        /* room for the bricks a sphere's surface crosses, with margin */
+        double r = res / 2.0 / sbrick;
+        uint64_t want = (uint64_t)(4 * 3.15 * r * r * 3) + 64;
+        size_t bytes = vod_volume_bytes(g.res, mesh_vox_bits(&o), sbrick, want);
+        void *arena = malloc(bytes);
+        mesh_bins b;
+        double bin = 1e9, one = 1e9, two = 1e9;
+        for (int rep = 0; rep < 3; rep++) {
+            t0 = now();
+            if (mesh_bin(m, &g, &o, &b)) return 1;
+            double tb = now() - t0;
+            bin = tb < bin ? tb : bin;
+            job j = {.m = m, .g = &g, .o = &o, .b = &b};
+            double t1 = run_tiles(&j, arena, bytes, sbrick, 1);
+            double t2 = run_tiles(&j, arena, bytes, sbrick, 2);
+            if (j.rc) {
+                fprintf(stderr, "tile: %s\n", strerror(-j.rc));
+                return 1;
+            }
+            one = t1 < one ? t1 : one;
+            two = t2 < two ? t2 : two;
+            if (rep < 2) mesh_bins_free(&b);
+        }
+        vod_volume *v = arena;
+        vod_volume_info vi;
+        vod_volume_get_info(v, &vi);
+        uint64_t n = 0;
+        mesh_tile_stats st = {0};
+        void *scratch = malloc(mesh_tile_scratch_bytes(&g, &o));
+        vod_volume_init(&v, arena, bytes, g.res, mesh_vox_bits(&o), sbrick);
+        for (uint32_t t = 0; t < b.tiles[0] * b.tiles[1]; t++)
+            mesh_tile_run(m, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, &o,
+                          t % b.tiles[0], t / b.tiles[0], scratch, v, &st);
+        n = st.voxels;
+        printf("| %u^3 | %.3f s | %.3f s | %.3f s | %u | %llu |\n", res, bin, one, two,
+               vi.level0_bricks, (unsigned long long)n);
+        free(scratch);
+        free(arena);
+        mesh_bins_free(&b);
+    }
+    shape_free(&s);
+    return 0;
+}
