@@ -37,13 +37,13 @@ static int16_t clamp_tile(double t, uint32_t n)
 static tile_range triangle_tiles(const mesh *m, const grid_spec *g, uint32_t t,
                                  double margin, const uint32_t nt[2])
 {
-    double lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    double lo[2], hi[2];
     for (int i = 0; i < 3; i++) {
         const float *v = m->vertices[m->triangles[t][i]];
         for (int a = 0; a < 2; a++) {
             double c = vox_coord(g, a, v[a]);
-            lo[a] = fmin(lo[a], c);
-            hi[a] = fmax(hi[a], c);
+            lo[a] = i == 0 || c < lo[a] ? c : lo[a];
+            hi[a] = i == 0 || c > hi[a] ? c : hi[a];
         }
     }
     tile_range r;
@@ -86,6 +86,7 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
     if (!r || !start || !cur) goto nomem;
 #define COUNT(i) start[(i) + 1]++
     for (uint32_t t = 0; t < m->n_triangles; t++) {
+        if (t + MV_AHEAD < m->n_triangles) mv_prefetch(m, t + MV_AHEAD);
         r[t] = triangle_tiles(m, g, t, margin, nt);
         /* a tile's columns need the triangle only when the footprint meets
          * them; the repair's rows also when it lies left of / in front */

@@ -55,7 +55,7 @@ static inline uint32_t field_count(const uint64_t *w, uint32_t off, uint32_t K)
     uint32_t i = off / 64, sh = off & 63;
     uint64_t v = w[i] >> sh;
     if (sh + K > 64) v |= w[i + 1] << (64 - sh);
-    return (uint32_t)__builtin_popcountll(v & ((1ull << K) - 1));
+    return (uint32_t)mv_popcount(v & ((1ull << K) - 1));
 }
 
 /* Counts of voxel row (yy, zz) of fine block fb (region-relative). */
@@ -253,6 +253,6 @@ int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     }
     if (p->rep && !p->solid1)
         for (size_t i = 0; i < (size_t)t->ny * t->nz; i++)
-            t->st->disagreements += (uint64_t)__builtin_popcountll(t->dis[i]);
+            t->st->disagreements += (uint64_t)mv_popcount(t->dis[i]);
     return 0;
 }

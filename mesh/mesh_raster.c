@@ -38,8 +38,8 @@ static int64_t max3(const int64_t a[3])
 
 /* Samples i of the block along axis a whose centres lie in [lo, hi]: 0 and
  * [*i0, *i1], or -1 when none. */
-static int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
-                        int64_t *i0, int64_t *i1)
+static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
+                               int64_t *i0, int64_t *i1)
 {
     int64_t s = mv_ceildiv(lo - MV_H, MV_L), e = mv_floordiv(hi - MV_H, MV_L);
     if (s < b->s0[a]) s = b->s0[a];
@@ -105,90 +105,190 @@ static int tie_past(const int64_t P[3][3], int axis)
     return sx == 0 || sx == sy;
 }
 
-/* The crossing's first sample past it, for a covered sample: kf in
- * [kmin, kmax] with X(k) = (k L + L/2 - r0) W - B + tie > 0 from kf on.
- * kd: a guess, exact or one off; the loops walk to the exact answer. */
-static inline int64_t first_past(int64_t kd, int64_t kmin, int64_t kmax,
-                                 int64_t r0, mv_i128 W, mv_i128 LW, mv_i128 B,
-                                 int tie)
+/* One triangle projected along a ray axis, counter-clockwise in (u, v). */
+typedef struct {
+    const mv_target *t;
+    int axis, tie;
+    int64_t u[3], v[3], r[3], du[3], dv[3];
+    int64_t thr[3];         /* inside: E_j >= thr_j */
+    mv_i128 W, LW;          /* twice the projected area, and L W */
+    int64_t dr1, dr2;
+    int64_t kmin, kmax;     /* the crossings' first samples past them lie here */
+    double gu, gv;          /* the plane r = r0 + gu (pu - u0) + gv (pv - v0) */
+    bool guess;             /* gu, gv, kmin, kmax made */
+} proj;
+
+/* Covered sample (iu, iv), E_0 and E_2 its edge functions: the first sample
+ * past the crossing along the ray, kf = the least k with
+ *     X(k) = (k L + L/2 - r0) W - B + tie > 0,
+ * where r(p) W = r0 W + B(p), B = (r1 - r0) E_2 + (r2 - r0) E_0 (E_1, E_2,
+ * E_0 are the barycentric weights of vertices 0, 1, 2).  A guess from the
+ * plane in double, then the exact X walks to kf (0 or 1 steps but for
+ * planes nearly along the ray).  kf lies in [kmin, kmax]: X(kmax) > 0 and
+ * X(kmin - 1) <= 0 since r(p) lies between the vertices' r. */
+static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
 {
-    if (kd < kmin) kd = kmin;
-    if (kd > kmax) kd = kmax;
-    mv_i128 X = (mv_i128)(kd * MV_L + MV_H - r0) * W - B + tie;
-    if (X > 0) {
-        while (kd > kmin && X - LW > 0) kd--, X -= LW;
-    } else {
-        while (X <= 0) kd++, X += LW; /* X(kmax) > 0 */
+    if (!T->guess) {
+        const int64_t *u = T->u, *v = T->v;
+        double Wd = (double)(u[1] - u[0]) * (double)(v[2] - v[0]) -
+                    (double)(v[1] - v[0]) * (double)(u[2] - u[0]);
+        T->gu = -((double)(v[1] - v[0]) * (double)T->dr2 -
+                  (double)T->dr1 * (double)(v[2] - v[0])) / Wd;
+        T->gv = -((double)T->dr1 * (double)(u[2] - u[0]) -
+                  (double)(u[1] - u[0]) * (double)T->dr2) / Wd;
+        T->kmin = mv_ceildiv(min3(T->r) - MV_H, MV_L);
+        T->kmax = mv_ceildiv(max3(T->r) - MV_H, MV_L) + 1;
+        T->guess = true;
     }
-    return kd;
+    double rd = (double)T->r[0] + T->gu * (double)(iu * MV_L + MV_H - T->u[0]) +
+                T->gv * (double)(iv * MV_L + MV_H - T->v[0]);
+    double kg = (rd - MV_H) / MV_L, kdmin = (double)T->kmin, kdmax = (double)T->kmax;
+    kg = kg >= kdmin ? kg : kdmin; /* also NaN: the guess of a plane */
+    kg = kg <= kdmax ? kg : kdmax; /* nearly along the ray is void */
+    int64_t k = (int64_t)kg;
+    mv_i128 B = (mv_i128)T->dr1 * E2 + (mv_i128)T->dr2 * E0;
+    mv_i128 X = (mv_i128)(k * MV_L + MV_H - T->r[0]) * T->W - B + T->tie;
+    if (X > 0) {
+        while (k > T->kmin && X - T->LW > 0) k--, X -= T->LW;
+    } else {
+        while (X <= 0) k++, X += T->LW;
+    }
+    emit(T->t, T->axis, iu, iv, k);
+}
+
+/* The samples of [iu0, iu1] x [iv0, iv1] inside the projection, edge
+ * functions in 64 bits: for projections less than 2^30 lattice units wide
+ * (2^14 samples: every triangle of a sane mesh), where each product of a
+ * difference by a difference stays below 2^60. */
+static void scan64(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
+{
+    int64_t step[3];
+    for (int j = 0; j < 3; j++) step[j] = -T->dv[j] * MV_L;
+    for (int64_t iv = iv0; iv <= iv1; iv++) {
+        int64_t pv = iv * MV_L + MV_H, pu = iu0 * MV_L + MV_H, E[3];
+        for (int j = 0; j < 3; j++)
+            E[j] = T->du[j] * (pv - T->v[j]) - T->dv[j] * (pu - T->u[j]);
+        for (int64_t iu = iu0; iu <= iu1; iu++) {
+            if (((E[0] - T->thr[0]) | (E[1] - T->thr[1]) | (E[2] - T->thr[2])) >= 0)
+                hit(T, iu, iv, E[0], E[2]);
+            E[0] += step[0], E[1] += step[1], E[2] += step[2];
+        }
+    }
+}
+
+/* The same in 128 bits, for any triangle. */
+static void scan128(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
+{
+    mv_i128 step[3];
+    for (int j = 0; j < 3; j++) step[j] = -(mv_i128)T->dv[j] * MV_L;
+    for (int64_t iv = iv0; iv <= iv1; iv++) {
+        int64_t pv = iv * MV_L + MV_H, pu = iu0 * MV_L + MV_H;
+        mv_i128 E[3];
+        for (int j = 0; j < 3; j++)
+            E[j] = (mv_i128)T->du[j] * (pv - T->v[j]) - (mv_i128)T->dv[j] * (pu - T->u[j]);
+        for (int64_t iu = iu0; iu <= iu1; iu++) {
+            if (E[0] >= T->thr[0] && E[1] >= T->thr[1] && E[2] >= T->thr[2])
+                hit(T, iu, iv, E[0], E[2]);
+            E[0] += step[0], E[1] += step[1], E[2] += step[2];
+        }
+    }
+}
+
+/* A triangle less than 2^19 lattice units (8 samples) wide along every
+ * axis, the usual case, in 64 bits throughout: edge functions below 2^40,
+ * B below 2^60, and the crossing by one exact division.  With r0 = k0 L +
+ * rho (0 <= rho < L) and k = k0 + j, X(k) > 0 reads
+ *     j L W > Q = B - tie - (L/2 - rho) W,  so  j = floor(Q / (L W)) + 1. */
+static void raster_tiny(const int64_t P[3][3], int axis, const mv_target *t,
+                        int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
+{
+    int ua = AX_U[axis], va = AX_V[axis], o1 = 1, o2 = 2;
+    int64_t W = (P[1][ua] - P[0][ua]) * (P[2][va] - P[0][va]) -
+                (P[1][va] - P[0][va]) * (P[2][ua] - P[0][ua]);
+    if (W == 0) return; /* edge-on: the moved sample never meets it */
+    if (W < 0) o1 = 2, o2 = 1, W = -W; /* counter-clockwise in (u, v) */
+    int64_t u[3] = {P[0][ua], P[o1][ua], P[o2][ua]}, v[3] = {P[0][va], P[o1][va], P[o2][va]};
+    int64_t du[3], dv[3], thr[3];
+    for (int j = 0; j < 3; j++) {
+        du[j] = u[(j + 1) % 3] - u[j], dv[j] = v[(j + 1) % 3] - v[j];
+        /* 1 where a sample on the edge is outside (no branches: the signs
+         * of edges are random) */
+        int64_t a = axis == 0 ? du[j] : -dv[j], c = axis == 0 ? -dv[j] : du[j];
+        thr[j] = (a < 0) | ((a == 0) & (c <= 0));
+    }
+    int64_t r0 = P[0][axis], dr1 = P[o1][axis] - r0, dr2 = P[o2][axis] - r0;
+    int64_t k0 = mv_floordiv(r0, MV_L), rho = r0 - k0 * MV_L, LW = W * MV_L;
+    int64_t base = tie_past(P, axis) + (MV_H - rho) * W;
+    double inv = 1.0 / (double)LW;
+    for (int64_t iv = iv0; iv <= iv1; iv++) {
+        int64_t pv = iv * MV_L + MV_H;
+        for (int64_t iu = iu0; iu <= iu1; iu++) {
+            int64_t pu = iu * MV_L + MV_H, E[3];
+            for (int j = 0; j < 3; j++) E[j] = du[j] * (pv - v[j]) - dv[j] * (pu - u[j]);
+            if (((E[0] - thr[0]) | (E[1] - thr[1]) | (E[2] - thr[2])) < 0) continue;
+            /* floor(Q / LW): a guess in double (|Q| < 2^61), made exact */
+            int64_t Q = dr1 * E[2] + dr2 * E[0] - base, j = (int64_t)((double)Q * inv);
+            int64_t rem = Q - j * LW;
+            j += (rem >= LW) - (rem < 0);
+            emit(t, axis, iu, iv, k0 + j + 1);
+        }
+    }
 }
 
 void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
 {
-    const mv_block *b = t->b;
+    /* most small triangles cover no sample: out before anything else */
     int ua = AX_U[axis], va = AX_V[axis];
-    int64_t u[3], v[3], r[3];
-    for (int i = 0; i < 3; i++) u[i] = P[i][ua], v[i] = P[i][va], r[i] = P[i][axis];
+    int64_t u0 = P[0][ua], u1 = P[1][ua], u2 = P[2][ua], v0 = P[0][va], v1 = P[1][va],
+            v2 = P[2][va];
+    int64_t umin = u0 < u1 ? u0 : u1, umax = u0 < u1 ? u1 : u0;
+    int64_t vmin = v0 < v1 ? v0 : v1, vmax = v0 < v1 ? v1 : v0;
+    umin = u2 < umin ? u2 : umin, umax = u2 > umax ? u2 : umax;
+    vmin = v2 < vmin ? v2 : vmin, vmax = v2 > vmax ? v2 : vmax;
     int64_t iu0, iu1, iv0, iv1;
-    if (sample_range(b, ua, min3(u), max3(u), &iu0, &iu1) ||
-        sample_range(b, va, min3(v), max3(v), &iv0, &iv1))
+    if (sample_range(t->b, ua, umin, umax, &iu0, &iu1) ||
+        sample_range(t->b, va, vmin, vmax, &iv0, &iv1))
         return;
-    mv_i128 W = (mv_i128)(u[1] - u[0]) * (v[2] - v[0]) -
-                (mv_i128)(v[1] - v[0]) * (u[2] - u[0]);
-    if (W == 0) return; /* edge-on: the moved sample never meets it */
-    int tie = tie_past(P, axis);
-    if (W < 0) { /* counter-clockwise in (u, v) from here on */
+    const int64_t tiny = (int64_t)1 << 19;
+    int64_t r0 = P[0][axis], r1 = P[1][axis], r2 = P[2][axis];
+    int64_t rmin = r0 < r1 ? r0 : r1, rmax = r0 < r1 ? r1 : r0;
+    rmin = r2 < rmin ? r2 : rmin, rmax = r2 > rmax ? r2 : rmax;
+    if (umax - umin < tiny && vmax - vmin < tiny && rmax - rmin < tiny) {
+        raster_tiny(P, axis, t, iu0, iu1, iv0, iv1);
+        return;
+    }
+    proj T;
+    T.t = t;
+    T.axis = axis;
+    for (int i = 0; i < 3; i++) T.u[i] = P[i][ua], T.v[i] = P[i][va], T.r[i] = P[i][axis];
+    int64_t *u = T.u, *v = T.v, *r = T.r;
+    T.W = (mv_i128)(u[1] - u[0]) * (v[2] - v[0]) - (mv_i128)(v[1] - v[0]) * (u[2] - u[0]);
+    if (T.W == 0) return; /* edge-on: the moved sample never meets it */
+    T.tie = tie_past(P, axis);
+    if (T.W < 0) { /* counter-clockwise in (u, v) from here on */
         int64_t s;
         s = u[1], u[1] = u[2], u[2] = s;
         s = v[1], v[1] = v[2], v[2] = s;
         s = r[1], r[1] = r[2], r[2] = s;
-        W = -W;
+        T.W = -T.W;
     }
     /* Edge j runs from vertex j to j + 1; E_j(p) = du (pv - vj) - dv (pu - uj)
      * is > 0 inside.  On the edge (E_j = 0) the move decides: x-rays move
      * (u, v) = (y, z) by (eps^3, eps), the others (u, v) by (eps^a, eps^b)
      * with a < b, so the term of dE/du = -dv or dE/dv = du comes first. */
-    int64_t du[3], dv[3];
-    mv_i128 thr[3], step[3];
     for (int j = 0; j < 3; j++) {
-        du[j] = u[(j + 1) % 3] - u[j];
-        dv[j] = v[(j + 1) % 3] - v[j];
-        bool in = axis == 0 ? du[j] > 0 || (du[j] == 0 && dv[j] < 0)
-                            : dv[j] < 0 || (dv[j] == 0 && du[j] > 0);
-        thr[j] = in ? 0 : 1; /* inside: E_j >= thr_j */
-        step[j] = -(mv_i128)dv[j] * MV_L;
+        int64_t du = u[(j + 1) % 3] - u[j], dv = v[(j + 1) % 3] - v[j];
+        bool in = axis == 0 ? du > 0 || (du == 0 && dv < 0) : dv < 0 || (dv == 0 && du > 0);
+        T.du[j] = du, T.dv[j] = dv;
+        T.thr[j] = in ? 0 : 1;
     }
-    /* Along the ray, r(p) W = r0 W + B(p), B = (r1 - r0) E_2 + (r2 - r0) E_0
-     * (E_1, E_2, E_0 are the barycentric weights of vertices 0, 1, 2). */
-    int64_t dr1 = r[1] - r[0], dr2 = r[2] - r[0];
-    int64_t kmin = mv_ceildiv(min3(r) - MV_H, MV_L);
-    int64_t kmax = mv_ceildiv(max3(r) - MV_H, MV_L) + 1;
-    mv_i128 LW = W * MV_L;
-    /* the guess: the plane r = r0 + gu (pu - u0) + gv (pv - v0) in double */
-    double Wd = (double)(u[1] - u[0]) * (double)(v[2] - v[0]) -
-                (double)(v[1] - v[0]) * (double)(u[2] - u[0]);
-    double gu = -((double)(v[1] - v[0]) * (double)dr2 - (double)dr1 * (double)(v[2] - v[0])) / Wd;
-    double gv = -((double)dr1 * (double)(u[2] - u[0]) - (double)(u[1] - u[0]) * (double)dr2) / Wd;
-    double kdmin = (double)kmin, kdmax = (double)kmax;
-    for (int64_t iv = iv0; iv <= iv1; iv++) {
-        int64_t pv = iv * MV_L + MV_H, pu = iu0 * MV_L + MV_H;
-        mv_i128 E[3];
-        for (int j = 0; j < 3; j++)
-            E[j] = (mv_i128)du[j] * (pv - v[j]) - (mv_i128)dv[j] * (pu - u[j]);
-        for (int64_t iu = iu0; iu <= iu1; iu++) {
-            if (E[0] >= thr[0] && E[1] >= thr[1] && E[2] >= thr[2]) {
-                double rd = (double)r[0] + gu * (double)(iu * MV_L + MV_H - u[0]) +
-                            gv * (double)(pv - v[0]);
-                double kg = (rd - MV_H) / MV_L;
-                kg = kg >= kdmin ? kg : kdmin; /* also NaN: an edge-on */
-                kg = kg <= kdmax ? kg : kdmax; /* plane's guess is void */
-                mv_i128 B = (mv_i128)dr1 * E[2] + (mv_i128)dr2 * E[0];
-                int64_t k = first_past((int64_t)kg, kmin, kmax, r[0], W, LW, B, tie);
-                emit(t, axis, iu, iv, k);
-            }
-            E[0] += step[0], E[1] += step[1], E[2] += step[2];
-        }
-    }
+    T.dr1 = r[1] - r[0], T.dr2 = r[2] - r[0];
+    T.LW = T.W * MV_L;
+    T.guess = false;
+    if (umax - umin <= (int64_t)1 << 30 && vmax - vmin <= (int64_t)1 << 30)
+        scan64(&T, iu0, iu1, iv0, iv1);
+    else
+        scan128(&T, iu0, iu1, iv0, iv1);
 }
 
 void mv_prefix_z(const mv_block *b, uint64_t *bits, uint64_t *carry, bool first)

@@ -73,6 +73,7 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
     mv_target tx = {b, buf->bx, buf->cx, false}, ty = {b, buf->by, buf->cy, false};
     for (size_t i = 0; i < in->n; i++) {
         uint32_t id = in->ids[i];
+        if (i + MV_AHEAD < in->n) mv_prefetch(in->f->m, in->ids[i + MV_AHEAD]);
         bool below = false;
         if (cull && !z_relevant(in, id, first, &below)) continue;
         int64_t P[3][3];
@@ -93,7 +94,7 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
         uint64_t d = (a ^ x) | (a ^ y);
         if (buf->dis) buf->dis[w] = d;
         if (!d) continue;
-        count += (uint64_t)__builtin_popcountll(d);
+        count += (uint64_t)mv_popcount(d);
         if (in->repair == MESH_REPAIR_VOTE)
             buf->bits[w] = (a & x) | (a & y) | (x & y);
         else

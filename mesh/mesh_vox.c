@@ -86,7 +86,6 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
     if (p->surf) TAKE(b->surf, col);
     if (p->rep) TAKE(b->dis, col);
     TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits / 8));
-    if (!p->dens) TAKE(b->full, (size_t)MAX_S * MAX_S * MAX_S);
     if (p->dens) {
         size_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
         size_t slab = (size_t)p->zs * p->K, words = rows * p->fnw * slab;
@@ -131,21 +130,27 @@ static uint64_t field(uint64_t w, uint32_t off, uint32_t S)
     return S == 64 ? w : w >> off & ((1ull << S) - 1);
 }
 
-/* Brick (bx, by, bz) of the tile's bits (one word a row): 0 none set,
- * 2 every voxel set and inside the grid, 1 otherwise. */
-static int brick_kind(const mv_tile *t, const uint64_t *bits, uint32_t bx,
-                      uint32_t by, uint32_t bz)
+/* The kind of every brick of row (by, bz) of the tile's bits (one word a
+ * row): 0 none set, 2 every voxel set and inside the grid, 1 otherwise.
+ * One pass over the row's words gathers which bits are set in any and in
+ * all of them; each brick reads its field of both. */
+static void brick_kinds(const mv_tile *t, const uint64_t *bits, uint32_t by,
+                        uint32_t bz, uint8_t *kind)
 {
-    uint32_t S = t->S, x = bx * S;
-    uint64_t full = S == 64 ? ~0ull : (1ull << S) - 1, any = 0, all = full;
-    bool inside = x + S <= t->nx && (by + 1) * S <= t->ny && (bz + 1) * S <= t->nz;
+    uint32_t S = t->S;
+    uint64_t any = 0, all = ~0ull;
     for (uint32_t z = bz * S; z < (bz + 1) * S && z < t->nz; z++)
         for (uint32_t y = by * S; y < (by + 1) * S && y < t->ny; y++) {
-            uint64_t f = field(bits[(size_t)z * t->ny + y], x, S);
-            any |= f;
-            all &= f;
+            uint64_t w = bits[(size_t)z * t->ny + y];
+            any |= w;
+            all &= w;
         }
-    return !any ? 0 : inside && all == full ? 2 : 1;
+    bool rows = (by + 1) * S <= t->ny && (bz + 1) * S <= t->nz;
+    uint64_t full = S == 64 ? ~0ull : (1ull << S) - 1;
+    for (uint32_t bx = 0; bx * S < t->nx; bx++)
+        kind[bx] = !field(any, bx * S, S) ? 0
+                   : rows && (bx + 1) * S <= t->nx && field(all, bx * S, S) == full ? 2
+                                                                                    : 1;
 }
 
 static int put(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, const void *vox)
@@ -154,32 +159,50 @@ static int put(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, const void *vo
     return vod_volume_put_brick(t->vol, b, vox);
 }
 
-/* Occupancy bricks: 0 or VOXEL_FULL from the tile's bits. */
-static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick,
-                          const uint8_t *full)
+static int put_uniform(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, uint32_t value)
+{
+    uint32_t b[3] = {t->x0 / t->S + bx, t->y0 / t->S + by, bz};
+    return vod_volume_put_uniform(t->vol, b, value);
+}
+
+/* Occupancy bricks: 0 or VOXEL_FULL from the tile's bits; the voxels set
+ * go to the stats. */
+static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick)
 {
     uint32_t S = t->S, nbz = (t->nz + S - 1) / S;
+    uint8_t kind[MESH_TILE];
     for (uint32_t bz = 0; bz < nbz; bz++)
-        for (uint32_t by = 0; by * S < t->ny; by++)
+        for (uint32_t by = 0; by * S < t->ny; by++) {
+            brick_kinds(t, bits, by, bz, kind);
             for (uint32_t bx = 0; bx * S < t->nx; bx++) {
-                int kind = brick_kind(t, bits, bx, by, bz);
-                if (kind == 0) continue; /* the volume starts empty */
-                if (kind == 1) {
-                    memset(brick, 0, (size_t)S * S * S);
-                    for (uint32_t z = 0; z < S && bz * S + z < t->nz; z++)
-                        for (uint32_t y = 0; y < S && by * S + y < t->ny; y++) {
-                            uint64_t f = field(bits[(size_t)(bz * S + z) * t->ny + by * S + y],
-                                               bx * S, S);
-                            uint8_t *row = brick + ((size_t)z * S + y) * S;
-                            for (uint32_t i = 0; i < S; i += 8) {
-                                uint64_t v = byte_lut((unsigned)(f >> i) & 0xff);
-                                memcpy(row + i, &v, S - i < 8 ? S - i : 8);
-                            }
-                        }
+                int rc;
+                if (kind[bx] == 0) continue; /* the volume starts empty */
+                if (kind[bx] == 2) {
+                    t->st->voxels += (uint64_t)S * S * S;
+                    rc = put_uniform(t, bx, by, bz, VOXEL_FULL);
+                    if (rc) return rc;
+                    continue;
                 }
-                int rc = put(t, bx, by, bz, kind == 2 ? full : brick);
+                /* rows and columns past the grid stay 0 */
+                if ((bx + 1) * S > t->nx || (by + 1) * S > t->ny || (bz + 1) * S > t->nz)
+                    memset(brick, 0, (size_t)S * S * S);
+                uint32_t nx = t->nx - bx * S < S ? t->nx - bx * S : S;
+                uint64_t in = nx == 64 ? ~0ull : (1ull << nx) - 1;
+                for (uint32_t z = 0; z < S && bz * S + z < t->nz; z++)
+                    for (uint32_t y = 0; y < S && by * S + y < t->ny; y++) {
+                        uint64_t f = field(bits[(size_t)(bz * S + z) * t->ny + by * S + y],
+                                           bx * S, S) & in;
+                        uint8_t *row = brick + ((size_t)z * S + y) * S;
+                        t->st->voxels += mv_popcount(f);
+                        for (uint32_t i = 0; i < S; i += 8) {
+                            uint64_t v = byte_lut((unsigned)(f >> i) & 0xff);
+                            memcpy(row + i, &v, S - i < 8 ? S - i : 8);
+                        }
+                    }
+                rc = put(t, bx, by, bz, brick);
                 if (rc) return rc;
             }
+        }
     return 0;
 }
 
@@ -188,17 +211,19 @@ static uint64_t count_disagree_bricks(const mv_tile *t, const uint64_t *dis)
 {
     uint32_t S = t->S, nbz = (t->nz + S - 1) / S;
     uint64_t n = 0;
+    uint8_t kind[MESH_TILE];
     for (uint32_t bz = 0; bz < nbz; bz++)
-        for (uint32_t by = 0; by * S < t->ny; by++)
-            for (uint32_t bx = 0; bx * S < t->nx; bx++)
-                n += brick_kind(t, dis, bx, by, bz) != 0;
+        for (uint32_t by = 0; by * S < t->ny; by++) {
+            brick_kinds(t, dis, by, bz, kind);
+            for (uint32_t bx = 0; bx * S < t->nx; bx++) n += kind[bx] != 0;
+        }
     return n;
 }
 
 static uint64_t popcount_words(const uint64_t *w, size_t n)
 {
     uint64_t c = 0;
-    for (size_t i = 0; i < n; i++) c += (uint64_t)__builtin_popcountll(w[i]);
+    for (size_t i = 0; i < n; i++) c += (uint64_t)mv_popcount(w[i]);
     return c;
 }
 
@@ -220,6 +245,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
         memset(b->surf, 0, mv_block_words(&blk) * 8);
         for (size_t i = 0; i < t->n; i++) {
             int64_t P[3][3];
+            if (i + MV_AHEAD < t->n) mv_prefetch(t->m, t->ids[i + MV_AHEAD]);
             mv_triangle(&f, t->ids[i], P);
             mv_surface(P, six, &blk, b->surf);
         }
@@ -278,12 +304,11 @@ int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
     } else {
         occupancy_bits(&t, &p, &b);
         if (o->channel == VOXEL_CH_OCCUPANCY) {
-            memset(b.full, VOXEL_FULL, (size_t)t.S * t.S * t.S);
-            rc = emit_occupancy(&t, t.occ, b.brick, b.full);
+            rc = emit_occupancy(&t, t.occ, b.brick);
         } else {
             rc = mv_density_run(&t, &p, &b);
+            st->voxels += popcount_words(t.occ, (size_t)t.ny * t.nz);
         }
-        st->voxels += popcount_words(t.occ, (size_t)t.ny * t.nz);
     }
     if (b.dis) st->disagree_bricks += count_disagree_bricks(&t, b.dis);
     return rc;

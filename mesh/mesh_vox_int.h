@@ -66,6 +66,28 @@ static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
     }
 }
 
+/* Bits set in w (SWAR: __builtin_popcountll is a library call without
+ * -mpopcnt). */
+static inline unsigned mv_popcount(uint64_t w)
+{
+    w -= (w >> 1) & 0x5555555555555555ull;
+    w = (w & 0x3333333333333333ull) + ((w >> 2) & 0x3333333333333333ull);
+    w = (w + (w >> 4)) & 0x0f0f0f0f0f0f0f0full;
+    return (unsigned)((w * 0x0101010101010101ull) >> 56);
+}
+
+/* The vertices of triangle t are about to be read: fetch them now (their
+ * indices make the reads random, and most of a small triangle's cost is
+ * waiting for them). */
+#define MV_AHEAD 12 /* triangles */
+static inline void mv_prefetch(const mesh *m, uint32_t t)
+{
+    const uint32_t *tri = m->triangles[t];
+    __builtin_prefetch(m->vertices[tri[0]]);
+    __builtin_prefetch(m->vertices[tri[1]]);
+    __builtin_prefetch(m->vertices[tri[2]]);
+}
+
 /* floor(a / b) and ceil(a / b) for b > 0. */
 static inline int64_t mv_floordiv(int64_t a, int64_t b)
 {
@@ -166,7 +188,7 @@ typedef struct {
 /* The scratch's buffers (NULL where the plan needs none). */
 typedef struct {
     uint64_t *a, *bx, *by, *cx, *cy, *surf, *dis; /* voxel bits of the tile */
-    uint8_t *brick, *full;                        /* one storage brick */
+    uint8_t *brick;                               /* one storage brick */
     uint64_t *fa, *fzc, *fbx, *fby, *fcx, *fcy, *fdis; /* fine blocks */
     uint16_t *ring;                               /* coverage counts */
 } mv_bufs;

@@ -359,6 +359,15 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
     return rc;
 }
 
+int vod_volume_put_uniform(vod_volume *v, const uint32_t b[3], uint32_t value)
+{
+    const uint32_t *g = v->grid[0];
+    if (b[0] >= g[0] || b[1] >= g[1] || b[2] >= g[2] || check_value(v, value))
+        return -EINVAL;
+    assert(v->mip_channel == 0 && "put_uniform runs before prepare()");
+    return fill_whole(v, b, value);
+}
+
 /* ---- mip levels ---- */
 
 static uint32_t channels_of(const vod_volume *v)

@@ -74,6 +74,13 @@ int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
  * prepare().  0, -EINVAL for a brick outside the grid, -ENOMEM when the
  * pool is full (the brick is then unchanged). */
 int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels);
+/* Level-0 storage brick b := value in every voxel, without scanning a
+ * buffer: an empty or uniform entry (or the brick's memory, when it has
+ * some already or value does not fit 31 bits).  Concurrent like
+ * vod_volume_put_brick; for bricks wholly inside dims (or value 0).  0,
+ * -EINVAL for a brick outside the grid or a value wider than the voxels,
+ * -ENOMEM when the pool is full. */
+int vod_volume_put_uniform(vod_volume *v, const uint32_t b[3], uint32_t value);
 /* The voxel at (x, y, z), 0 outside dims. */
 uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z);
 

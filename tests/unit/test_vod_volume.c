@@ -284,6 +284,38 @@ Test(vod_volume, bricks_put_whole_from_several_threads)
     vfx_free(&f);
 }
 
+/* The dense copy's brick b (side 8) := v. */
+static void dense_brick(vfx *f, const uint32_t b[3], uint32_t v)
+{
+    for (uint32_t z = 0; z < 8; z++)
+        for (uint32_t y = 0; y < 8; y++)
+            for (uint32_t x = 0; x < 8; x++) *vfx_at(f, b[0] * 8 + x, b[1] * 8 + y, b[2] * 8 + z) = v;
+}
+
+/* A whole brick of one value: an entry without memory, or the voxels of a
+ * brick that has memory already. */
+Test(vod_volume, uniform_bricks_put_without_a_buffer)
+{
+    vfx f;
+    vfx_init(&f, 32, 16, 16, 8, 8);
+    uint32_t a[3] = {1, 0, 1}, b[3] = {2, 1, 0}, outside[3] = {4, 0, 0};
+    cr_assert_eq(vod_volume_put_uniform(f.v, a, 77), 0);
+    dense_brick(&f, a, 77);
+    vfx_set(&f, 17, 9, 3, 5); /* brick b gets memory */
+    cr_assert_eq(vod_volume_put_uniform(f.v, b, 200), 0);
+    dense_brick(&f, b, 200);
+    vod_volume_info in;
+    vod_volume_get_info(f.v, &in);
+    cr_assert_eq(in.level0_bricks, 1, "only the brick that had memory has some");
+    vfx_check(&f);
+    cr_assert_eq(vod_volume_put_uniform(f.v, a, 0), 0);
+    dense_brick(&f, a, 0);
+    vfx_check(&f);
+    cr_assert_eq(vod_volume_put_uniform(f.v, outside, 1), -EINVAL);
+    cr_assert_eq(vod_volume_put_uniform(f.v, a, 256), -EINVAL, "8-bit voxels");
+    vfx_free(&f);
+}
+
 /* The arena moved to another address (a worker maps the segment anywhere)
  * gives the same file: the volume holds offsets, never pointers. */
 Test(vod_volume, a_view_at_another_address_gives_the_same_bytes)
