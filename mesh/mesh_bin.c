@@ -10,7 +10,6 @@
 #include "mesh_vox_int.h"
 
 #include <errno.h>
-#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -28,10 +27,19 @@ static double vox_coord(const grid_spec *g, int a, float v)
     return t > lim ? lim : t;
 }
 
+/* floor(t / MESH_TILE) for |t| <= 2^31 (a cast and a correction: floor()
+ * is a library call without SSE4.1). */
+static int64_t tile_floor(double t)
+{
+    double q = t / MESH_TILE;
+    int64_t i = (int64_t)q;
+    return i - (q < (double)i);
+}
+
 static int16_t clamp_tile(double t, uint32_t n)
 {
-    double f = floor(t / MESH_TILE);
-    return f < 0 ? 0 : f > n ? (int16_t)n : (int16_t)f;
+    int64_t f = tile_floor(t);
+    return f < 0 ? 0 : f > (int64_t)n ? (int16_t)n : (int16_t)f;
 }
 
 static tile_range triangle_tiles(const mesh *m, const grid_spec *g, uint32_t t,
@@ -50,9 +58,9 @@ static tile_range triangle_tiles(const mesh *m, const grid_spec *g, uint32_t t,
     r.x0 = clamp_tile(lo[0] - margin, nt[0]);
     r.y0 = clamp_tile(lo[1] - margin, nt[1]);
     /* the last tile whose start is <= hi, -1 when hi is before the grid */
-    double fx = floor((hi[0] + margin) / MESH_TILE), fy = floor((hi[1] + margin) / MESH_TILE);
-    r.x1 = fx < 0 ? -1 : fx >= nt[0] ? (int16_t)(nt[0] - 1) : (int16_t)fx;
-    r.y1 = fy < 0 ? -1 : fy >= nt[1] ? (int16_t)(nt[1] - 1) : (int16_t)fy;
+    int64_t fx = tile_floor(hi[0] + margin), fy = tile_floor(hi[1] + margin);
+    r.x1 = fx < 0 ? -1 : fx >= (int64_t)nt[0] ? (int16_t)(nt[0] - 1) : (int16_t)fx;
+    r.y1 = fy < 0 ? -1 : fy >= (int64_t)nt[1] ? (int16_t)(nt[1] - 1) : (int16_t)fy;
     return r;
 }
 

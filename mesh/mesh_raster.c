@@ -49,7 +49,7 @@ static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
 }
 
 /* Sample (iu, iv) on axis ray crosses the triangle just below sample k. */
-static inline void emit(const mv_target *t, int axis, int64_t iu, int64_t iv,
+__attribute__((always_inline)) static inline void emit(const mv_target *t, int axis, int64_t iu, int64_t iv,
                         int64_t k)
 {
     const mv_block *b = t->b;
