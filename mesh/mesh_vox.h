@@ -83,7 +83,9 @@ size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);
 
 /* Voxelize tile (tx, ty) from the triangles ids[0, n) of m into vol, whose
  * dims are g->res, bits mesh_vox_bits(o), and storage brick side divides
- * MESH_TILE.  Adds to *st.  0, or -ENOMEM when vol's pool is full. */
+ * MESH_TILE.  Adds to *st.  0, or -ENOMEM when vol's pool is full.
+ * A tile never writes a brick that is all 0: vol must start empty (as
+ * vod_volume_init leaves it). */
 int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
                   const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
                   uint32_t ty, void *scratch, vod_volume *vol,
