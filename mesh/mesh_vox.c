@@ -1,116 +1,16 @@
-/* mesh_vox — one tile of a mesh job: the options, the scratch plan, the
- * occupancy of the mode, and the tile's storage bricks (mesh_vox.h).
- * The kernels are mesh_raster.c (crossings), mesh_solid.c (parities and
- * their repair), mesh_surface.c (triangle/box overlap) and mesh_density.c
- * (supersampled coverage, normals). */
+/* mesh_vox — one tile of a mesh job: the occupancy of the mode and the
+ * tile's storage bricks, and every tile serially (mesh_vox.h).  The options
+ * and the scratch are mesh_plan.c; the kernels mesh_raster.c (crossings),
+ * mesh_solid.c (parities and their repair), mesh_surface.c (triangle/box
+ * overlap) and mesh_density.c (supersampled coverage, normals). */
 #include "mesh_vox_int.h"
 
 #include <errno.h>
 #include <math.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "voxel.h"
-
-uint32_t mesh_vox_bits(const mesh_vox_opts *o)
-{
-    return o->channel == VOXEL_CH_SURFACE ? 32 : 8;
-}
-
-int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
-{
-    const char *why = NULL;
-    if ((unsigned)o->mode > MESH_INTERIOR) why = "unknown mesh mode";
-    else if ((unsigned)o->repair > MESH_REPAIR_WINDING) why = "unknown repair";
-    else if (o->channel != VOXEL_CH_OCCUPANCY && o->channel != VOXEL_CH_DENSITY &&
-             o->channel != VOXEL_CH_SURFACE)
-        why = "a mesh job gives channel 1 (occupancy), 2 (density) or 3 (surface)";
-    else if (o->supersample != 0 && (o->supersample < 2 || o->supersample > 8))
-        why = "supersample must be 2..8";
-    else if (o->channel == VOXEL_CH_DENSITY && o->mode != MESH_SOLID)
-        why = "the density channel is the solid's coverage: mode solid only";
-    if (why) {
-        snprintf(err, errlen, "%s", why);
-        return -EINVAL;
-    }
-    return 0;
-}
-
-/* ---- what a tile needs, and where it lies in the scratch ---- */
-
-#define DENS_BUDGET (4u << 20) /* bytes of one fine block's bits */
-#define MAX_S VOD_VOLUME_MAX_BRICK
-
-void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
-{
-    memset(p, 0, sizeof *p);
-    bool dens_ch = o->channel == VOXEL_CH_DENSITY;
-    p->solid1 = !dens_ch && (o->mode == MESH_SOLID || o->mode == MESH_CONSERVATIVE ||
-                             o->mode == MESH_INTERIOR);
-    p->surf = !dens_ch && o->mode != MESH_SOLID;
-    p->dens = dens_ch || o->channel == VOXEL_CH_SURFACE;
-    p->rep = o->repair != MESH_REPAIR_NONE && (p->solid1 || p->dens);
-    p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
-    p->K = o->supersample ? o->supersample : 2;
-    p->nz = g->res[2];
-    if (!p->dens) return;
-    uint32_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
-    p->fnw = (rows + 63) / 64;
-    p->zs = MAX_S;
-    while (p->zs > 1 && (size_t)rows * p->fnw * p->zs * p->K * 8 > DENS_BUDGET)
-        p->zs /= 2;
-    p->ring = MAX_S + 2 * p->apron + p->zs;
-}
-
-#define ALIGN64(n) (((n) + 63) & ~(size_t)63)
-
-/* The buffers of plan p in base (NULL: only the size).  The bytes used. */
-size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
-{
-    size_t off = 0;
-    memset(b, 0, sizeof *b);
-#define TAKE(ptr, bytes)                                                  \
-    do {                                                                  \
-        (ptr) = base ? (void *)((uint8_t *)base + off) : NULL;            \
-        off += ALIGN64((size_t)(bytes));                                  \
-    } while (0)
-    size_t col = (size_t)MESH_TILE * p->nz * 8, nz8 = (size_t)p->nz * 8;
-    if (p->solid1) TAKE(b->a, col);
-    if (p->solid1 && p->rep) {
-        TAKE(b->bx, col);
-        TAKE(b->by, col);
-        TAKE(b->cx, nz8);
-        TAKE(b->cy, nz8);
-    }
-    if (p->surf) TAKE(b->surf, col);
-    if (p->rep) TAKE(b->dis, col);
-    TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits / 8));
-    if (p->dens) {
-        size_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
-        size_t slab = (size_t)p->zs * p->K, words = rows * p->fnw * slab;
-        TAKE(b->fa, words * 8);
-        TAKE(b->fzc, rows * p->fnw * 8);
-        if (p->rep) {
-            TAKE(b->fbx, words * 8);
-            TAKE(b->fby, words * 8);
-            TAKE(b->fcx, (slab * rows + 63) / 64 * 8);
-            TAKE(b->fcy, slab * p->fnw * 8);
-            TAKE(b->fdis, words * 8);
-        }
-        TAKE(b->ring, dn * dn * p->ring * sizeof(uint16_t));
-    }
-#undef TAKE
-    return off;
-}
-
-size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o)
-{
-    mv_plan p;
-    mv_bufs b;
-    mv_plan_make(g, o, &p);
-    return mv_layout(&p, mesh_vox_bits(o), NULL, &b);
-}
 
 /* ---- bricks ---- */
 
