@@ -7,6 +7,7 @@
 #include <stdio.h>
 
 #include "engine.h"
+#include "mesh_vox.h"
 #include "source.h"
 #include "vod.h"
 #include "vox.h"
@@ -33,6 +34,11 @@ typedef enum { CLI_MODE_AUTO, CLI_MODE_EMBEDDED, CLI_MODE_DAEMON } cli_mode;
 
 typedef struct {
     const char *expr, *file, *out, *cpus;
+    const char *mesh;          /* --mesh FILE: a mesh job */
+    mesh_vox_opts mesh_opts;   /* --mode, --repair, --supersample */
+    uint32_t pad;              /* --pad */
+    int mesh_opts_given;       /* one of those (they need --mesh) */
+    int channel_given;         /* --channel (a mesh job's default is occupancy) */
     double lo[3], hi[3];
     int has_domain;
     uint32_t res;

@@ -22,8 +22,9 @@
 #define OUTPUT_OPTIONS \
     "      --schedule subtree|paper\n" \
     "                         hand out subtrees (default) or single octants (the paper)\n" \
-    "      --channel surface|occupancy\n" \
-    "                         32-bit voxels with normals (default) or 1 bit\n" \
+    "      --channel surface|occupancy|density\n" \
+    "                         32-bit voxels with normals (the default for F), 1 bit (the\n" \
+    "                         default for a mesh) or 8-bit density (meshes only)\n" \
     "      --brick N          brick size, a power of two 2..256 (default 16)\n" \
     "      --compress zlib|runl|none   (default zlib)\n" \
     "      --hash sfhs|xx32   brick hash (default sfhs)\n"
@@ -31,9 +32,23 @@
     "      --progress         show progress even when stderr is not a terminal\n" \
     "  -q, --quiet            no summary\n"
 
+#define MESH_OPTIONS \
+    "      --mesh FILE        a triangle mesh (OBJ, STL, PLY, OFF: told from the contents)\n" \
+    "                         instead of F; --res voxels span its bounding box and --pad\n" \
+    "      --mode solid|surface|surface6|conservative|interior   (default solid)\n" \
+    "      --repair none|vote|winding\n" \
+    "                         meshes with holes: majority of the x, y, z parities, or the\n" \
+    "                         winding number where they disagree (default none)\n" \
+    "      --supersample K    density: KxKxK samples per voxel, 2..8 (default 2)\n" \
+    "      --pad N            empty voxels around the mesh's bounding box (default 1)\n" \
+    "      --bbox X0,X1,Y0,Y1,Z0,Z1\n" \
+    "                         the box to voxelize instead of the mesh's bounding box\n"
+
 static const char usage_voxelize[] =
-    "usage: vox [--socket PATH] voxelize (--expr EXPR | --file FILE.vx) -o OUT.vod [options]\n"
+    "usage: vox [--socket PATH] voxelize (--expr EXPR | --file FILE.vx | --mesh FILE)\n"
+    "           -o OUT.vod [options]\n"
     JOB_OPTIONS
+    MESH_OPTIONS
     "  -r, --res N            voxels along the longest axis, 1..4096 (default 256)\n"
     "  -w, --workers N        worker processes, 0 = serial in-process (default: cores)\n"
     "      --cpus LIST        CPUs to pin workers to, e.g. 0,1 or 0-3 (default: automatic)\n"
@@ -85,6 +100,7 @@ void cli_job_defaults(cli_job_opts *o)
     o->mode = CLI_MODE_AUTO;
     vod_params_default(&o->vod);
     o->vod.channel = VOXEL_CH_SURFACE;
+    o->pad = 1;
     for (int a = 0; a < 3; a++) o->lo[a] = -1, o->hi[a] = 1;
 }
 
@@ -101,8 +117,9 @@ static int parse_choice(const char *s, const char *const names[],
 
 static int parse_vod_option(int c, const char *arg, vod_params *v)
 {
-    static const char *const ch_names[] = {"surface", "occupancy", NULL};
-    static const uint32_t ch_values[] = {VOXEL_CH_SURFACE, VOXEL_CH_OCCUPANCY};
+    static const char *const ch_names[] = {"surface", "occupancy", "density", NULL};
+    static const uint32_t ch_values[] = {VOXEL_CH_SURFACE, VOXEL_CH_OCCUPANCY,
+                                         VOXEL_CH_DENSITY};
     static const char *const comp_names[] = {"zlib", "runl", "none", NULL};
     static const uint32_t comp_values[] = {VOD_COMP_ZLIB, VOD_COMP_RUNL, VOD_COMP_NONE};
     static const char *const hash_names[] = {"sfhs", "xx32", NULL};
@@ -121,6 +138,65 @@ static int parse_vod_option(int c, const char *arg, vod_params *v)
     case 'H': return parse_choice(arg, hash_names, hash_values, &v->hash);
     }
     return -1;
+}
+
+/* --mode, --repair, --supersample, --pad: 0, or -1 after a message. */
+static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
+{
+    static const char *const modes[] = {"solid", "surface", "surface6",
+                                        "conservative", "interior", NULL};
+    static const uint32_t mode_values[] = {MESH_SOLID, MESH_SURFACE, MESH_SURFACE6,
+                                           MESH_CONSERVATIVE, MESH_INTERIOR};
+    static const char *const repairs[] = {"none", "vote", "winding", NULL};
+    static const uint32_t repair_values[] = {MESH_REPAIR_NONE, MESH_REPAIR_VOTE,
+                                             MESH_REPAIR_WINDING};
+    uint32_t u;
+    o->mesh_opts_given = 1;
+    switch (c) {
+    case 'O':
+        if (!parse_choice(arg, modes, mode_values, &u)) return o->mesh_opts.mode = u, 0;
+        cli_error("bad --mode '%s': want solid, surface, surface6, conservative or interior", arg);
+        return -1;
+    case 'R':
+        if (!parse_choice(arg, repairs, repair_values, &u)) return o->mesh_opts.repair = u, 0;
+        cli_error("bad --repair '%s': want none, vote or winding", arg);
+        return -1;
+    case 'K':
+        if (!cli_parse_uint(arg, 2, 8, &o->mesh_opts.supersample)) return 0;
+        cli_error("bad --supersample '%s': want 2..8", arg);
+        return -1;
+    case 'A':
+        if (!cli_parse_uint(arg, 0, GRID_MAX_RES / 2, &o->pad)) return 0;
+        cli_error("bad --pad '%s': want 0..%u voxels", arg, GRID_MAX_RES / 2);
+        return -1;
+    case 'X':
+        if (!cli_parse_domain(arg, o->lo, o->hi) && strchr(arg, ',') != strrchr(arg, ','))
+            return o->has_domain = 1, 0;
+        cli_error("bad --bbox '%s': want X0,X1,Y0,Y1,Z0,Z1 with each low < high", arg);
+        return -1;
+    }
+    return -1;
+}
+
+/* What was given together that cannot be: 0 or CLI_EXIT_USAGE. */
+static int check_job_kind(cli_job_opts *o)
+{
+    if (!!o->expr + !!o->file + !!o->mesh != 1) {
+        cli_error("give exactly one of --expr, --file and --mesh");
+        return CLI_EXIT_USAGE;
+    }
+    if (!o->mesh && o->mesh_opts_given) {
+        cli_error("--mode, --repair, --supersample, --pad and --bbox are for --mesh jobs");
+        return CLI_EXIT_USAGE;
+    }
+    if (!o->mesh && o->vod.channel == VOXEL_CH_DENSITY) {
+        cli_error("--channel density is for --mesh jobs (an expression gives surface "
+                  "or occupancy)");
+        return CLI_EXIT_USAGE;
+    }
+    if (o->mesh && !o->channel_given) o->vod.channel = VOXEL_CH_OCCUPANCY;
+    o->mesh_opts.channel = o->vod.channel;
+    return 0;
 }
 
 /* --compress-level: 1..VOD_ZLIB_LEVEL_MAX for vox voxelize; submit takes
@@ -154,6 +230,8 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
         {"shm-size", 1, 0, 'M'}, {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'},
         {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {"compress-level", 1, 0, 'L'},
+        {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
+        {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     static const struct option longs_submit[] = {
         {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
@@ -229,7 +307,12 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
             break;
         }
         case 'h': cli_job_usage(cmd, stdout); exit(0);
+        case 'm': o->mesh = optarg; break;
+        case 'O': case 'R': case 'K': case 'A': case 'X':
+            if (parse_mesh_option(c, optarg, o)) return CLI_EXIT_USAGE;
+            break;
         case 'C': case 'B': case 'Z': case 'H':
+            o->channel_given |= c == 'C';
             if (parse_vod_option(c, optarg, &o->vod)) {
                 cli_error("bad value '%s' for --%s (see vox %s --help)", optarg,
                           c == 'C' ? "channel" : c == 'B' ? "brick" : c == 'Z' ? "compress" : "hash",
@@ -244,10 +327,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         cli_error("unexpected argument '%s'", argv[optind]);
         return CLI_EXIT_USAGE;
     }
-    if (!o->expr == !o->file) {
-        cli_error("give exactly one of --expr and --file");
-        return CLI_EXIT_USAGE;
-    }
+    if (check_job_kind(o)) return CLI_EXIT_USAGE;
     if (!o->out) {
         cli_error("missing -o OUT.vod");
         return CLI_EXIT_USAGE;

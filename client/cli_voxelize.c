@@ -6,10 +6,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "cli.h"
 #include "engine.h"
+#include "mesh.h"
 #include "outfile.h"
 #include "pipeline.h"
 #include "progress.h"
@@ -101,18 +103,28 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
     return rc;
 }
 
-static int voxelize(voxelize_opts *o, const source *src, const expr_tape *tape)
+static void print_mesh_summary(const voxelize_opts *o, const pipeline_report *r)
 {
-    pipeline_job job = {
-        .kind = PIPELINE_IMPLICIT,
-        .implicit = {.tape = tape, .source = src->text, .source_len = src->len,
-                     .source_name = src->path},
-        .lo = {o->lo[0], o->lo[1], o->lo[2]}, .hi = {o->hi[0], o->hi[1], o->hi[2]},
-        .res = o->res, .schedule = o->schedule, .vod = o->vod,
-    };
+    if (!o->mesh) return;
+    printf("  mesh: %u tiles with triangles", r->tiles);
+    if (o->mesh_opts.repair != MESH_REPAIR_NONE)
+        printf(", %llu voxels where the parities along x, y, z disagree (in %llu bricks)",
+               (unsigned long long)r->disagreements,
+               (unsigned long long)r->disagree_bricks);
+    printf("\n");
+}
+
+static int voxelize(voxelize_opts *o, pipeline_job *job)
+{
+    job->lo[0] = o->lo[0], job->lo[1] = o->lo[1], job->lo[2] = o->lo[2];
+    job->hi[0] = o->hi[0], job->hi[1] = o->hi[1], job->hi[2] = o->hi[2];
+    job->res = o->res;
+    job->schedule = o->schedule;
+    job->vod = o->vod;
     grid_spec g;
     char err[256];
-    if (grid_make(o->lo, o->hi, o->res, &g, err, sizeof err)) {
+    if (job->kind == PIPELINE_IMPLICIT &&
+        grid_make(o->lo, o->hi, o->res, &g, err, sizeof err)) {
         cli_error("%s", err);
         return 2;
     }
@@ -124,16 +136,52 @@ static int voxelize(voxelize_opts *o, const source *src, const expr_tape *tape)
     }
     progress pr;
     progress_init(&pr, o->progress);
-    job.progress = on_progress;
-    job.ud = &pr;
+    job->progress = on_progress;
+    job->ud = &pr;
     pipeline_report r;
-    rc = run_job(o, &job, f.fd, &r);
+    rc = run_job(o, job, f.fd, &r);
     progress_done(&pr);
     int rc2 = out_commit(&f, o->out, rc == 0);
     if (rc == 0 && rc2) cli_error("cannot write %s: %s", o->out, strerror(-rc2));
     if (rc || rc2) return 1;
-    if (!o->quiet) print_summary(o, &r);
+    if (!o->quiet) {
+        print_summary(o, &r);
+        print_mesh_summary(o, &r);
+    }
     return 0;
+}
+
+static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *tape)
+{
+    pipeline_job job = {
+        .kind = PIPELINE_IMPLICIT,
+        .implicit = {.tape = tape, .source = src->text, .source_len = src->len,
+                     .source_name = src->path},
+    };
+    return voxelize(o, &job);
+}
+
+/* A mesh job: loaded and checked here (its errors with the file's line or
+ * byte), voxelized by the embedded engine. */
+static int voxelize_mesh(voxelize_opts *o)
+{
+    mesh m;
+    mesh_error me;
+    int rc = mesh_load(o->mesh, MESH_FORMAT_AUTO, NULL, &m, &me);
+    if (rc) {
+        cli_error("%s: %s", o->mesh, me.msg);
+        return CLI_EXIT_USAGE;
+    }
+    struct stat sb;
+    pipeline_job job = {
+        .kind = PIPELINE_MESH,
+        .mesh = {.mesh = &m, .opts = o->mesh_opts, .pad = o->pad,
+                 .fit = !o->has_domain, .source_name = o->mesh,
+                 .source_bytes = stat(o->mesh, &sb) == 0 ? (uint64_t)sb.st_size : 0},
+    };
+    rc = voxelize(o, &job);
+    mesh_free(&m);
+    return rc;
 }
 
 /* The daemon, when one answers (or must): an exit code, or -1 to run the
@@ -163,27 +211,27 @@ static int try_daemon(const voxelize_opts *o, const source *src, const char *soc
     return rc;
 }
 
+/* The embedded engine's limit (the daemon has its own, max_res). */
+static int bad_res(const voxelize_opts *o)
+{
+    cli_error("bad --res '%s': want a whole number from 1 to %u", o->res_arg, GRID_MAX_RES);
+    return CLI_EXIT_USAGE;
+}
+
 int cli_voxelize(int argc, char **argv, const char *sock)
 {
     voxelize_opts o;
     cli_job_defaults(&o);
     int rc = cli_job_parse(CLI_CMD_VOXELIZE, argc, argv, &o);
     if (rc) return rc;
+    if (o.mesh) return o.res > GRID_MAX_RES ? bad_res(&o) : voxelize_mesh(&o);
     if (o.mode == CLI_MODE_AUTO && o.engine_opts) o.mode = CLI_MODE_EMBEDDED;
     source src;
     expr_tape *tape;
     if ((rc = cli_job_source(&o, &src, &tape))) return rc;
     rc = -1;
     if (o.mode != CLI_MODE_EMBEDDED) rc = try_daemon(&o, &src, sock);
-    if (rc < 0) {
-        if (o.res > GRID_MAX_RES) {
-            cli_error("bad --res '%s': want a whole number from 1 to %u", o.res_arg,
-                      GRID_MAX_RES);
-            rc = CLI_EXIT_USAGE;
-        } else {
-            rc = voxelize(&o, &src, tape);
-        }
-    }
+    if (rc < 0) rc = o.res > GRID_MAX_RES ? bad_res(&o) : voxelize_expr(&o, &src, tape);
     expr_tape_free(tape);
     source_free(&src);
     return rc;

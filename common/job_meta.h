@@ -12,7 +12,13 @@
  *
  * An expression of one line and at most JOB_META_INLINE bytes is recorded as
  * it is; a longer one by the name of the file it came from, or by its size
- * when it has no name.
+ * when it has no name.  A job of another kind (a mesh) is always recorded
+ * by its file's name or size, and adds its own pairs (kind_pairs) at the
+ * end, e.g. for a mesh:
+ *
+ *   mesh_triangles=<N>
+ *   mesh_mode=solid|surface|surface6|conservative|interior
+ *   mesh_repair=none|vote|winding
  */
 #ifndef VOXD_JOB_META_H
 #define VOXD_JOB_META_H
@@ -31,6 +37,7 @@ typedef struct {
     uint32_t res;               /* voxels along the longest axis, as asked */
     uint32_t grid[3];           /* voxels per axis */
     double lo[3], hi[3];        /* the domain */
+    const char *kind_pairs;     /* NULL for an expression; else "k=v\n" lines */
 } job_meta;
 
 /* The pairs above into buf (cap >= JOB_META_MAX), NUL-terminated. */

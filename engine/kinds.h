@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "grid.h"
+#include "mesh_vox.h"
 #include "shm.h"
 #include "vod.h"
 
@@ -29,6 +30,7 @@ enum shm_kind {
     SHM_KIND_CORE = 0,     /* the pool's own tasks (SHM_OP_EXIT) */
     SHM_KIND_IMPLICIT = 1, /* F(x,y,z) = 0 by interval subdivision */
     SHM_KIND_ENCODE = 2,   /* the VOD's bricks of the last job, in parallel */
+    SHM_KIND_MESH = 3,     /* a triangle mesh, tile by tile, into a volume */
     SHM_KINDS
 };
 
@@ -59,7 +61,12 @@ static inline grid_octant implicit_octant(const shm_task *t)
     return o;
 }
 
-/* ---- encode: the VOD bricks of the last implicit job's octree ---- */
+/* ---- encode: the VOD bricks of the last job's octree or volume ---- */
+
+enum encode_source {
+    ENCODE_OCTREE = 1,     /* the implicit kind's octree (cells_off ...) */
+    ENCODE_VOLUME = 2,     /* a vod_volume at volume_off (the mesh kind's) */
+};
 
 enum encode_op {
     ENCODE_BRICKS = 1,     /* encode brick nodes until none is left */
@@ -69,6 +76,8 @@ enum encode_op {
 typedef struct {
     vod_layout L;
     vod_params p;          /* metadata is NULL here: encoding does not use it */
+    uint32_t source;       /* enum encode_source */
+    uint64_t volume_off;   /* ENCODE_VOLUME: the volume, prepared by the master */
     uint32_t cells_used;
     int32_t depth;
     uint64_t cells_off, agg_off, nodes_off, recs_off, offs_off;
@@ -96,5 +105,36 @@ typedef struct {
      * read by the master after every done_seq acquire). */
     atomic_ullong ns_fill, ns_hash, ns_compress;
 } encode_block;
+
+/* ---- mesh: a triangle mesh voxelized tile by tile (mesh_vox.h) ---- */
+
+enum mesh_op {
+    MESH_TILES = 1,        /* voxelize tiles first .. first + count - 1 */
+};
+
+/* The task's argument: a run of tiles (numbered as mesh_bins numbers them). */
+typedef struct {
+    uint32_t first, count;
+} mesh_task_arg;
+
+typedef struct {
+    grid_spec grid;
+    mesh_vox_opts opts;
+    uint32_t n_vertices, n_triangles;
+    uint64_t vertices_off, triangles_off;   /* float[3], uint32_t[3] */
+    float lo[3], hi[3];                     /* the mesh's bounding box */
+    uint32_t tiles[2];
+    uint64_t start_off, ids_off;            /* mesh_bins' arrays */
+    uint64_t stats_off;                     /* mesh_tile_stats per tile */
+    uint64_t volume_off;                    /* the vod_volume's arena */
+} mesh_block;
+
+static inline mesh_task_arg mesh_task_tiles(const shm_task *t)
+{
+    mesh_task_arg a;
+    _Static_assert(sizeof a <= sizeof t->arg, "a tile run fits a task");
+    memcpy(&a, t->arg, sizeof a);
+    return a;
+}
 
 #endif

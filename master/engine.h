@@ -69,6 +69,7 @@
 
 #include "expr.h"
 #include "grid.h"
+#include "mesh_vox.h"
 #include "octree.h"
 #include "vod.h"
 
@@ -164,6 +165,11 @@ typedef struct {
                                 progress (no heartbeat for the stall timeout) */
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
+    /* mesh jobs */
+    uint32_t tiles;          /* tiles with triangles, each one task */
+    uint64_t disagreements;  /* repair modes: mesh_tile_stats, summed */
+    uint64_t disagree_bricks;
+    double t_bin;            /* seconds binning the triangles to tiles */
     engine_failure failure;  /* why engine_voxelize failed (ENGINE_OK if not) */
     char error[256];         /* ... in words ("" if it did not fail) */
 } engine_result;
@@ -224,14 +230,33 @@ int engine_check_workers(engine *e);
  * and its octant handed out again (its output is deterministic, so the
  * entries already taken are skipped); see Robustness above. */
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
+/* A triangle mesh voxelized tile by tile (mesh_vox.h) into a brick-sparse
+ * volume in shared memory: the triangles and their bins are copied into
+ * the segment, each worker runs whole tiles (the heaviest first) and
+ * writes their bricks, and a worker that dies has its tile run again (the
+ * tiles are deterministic: the same bricks are written again).  The
+ * result stays in shared memory until the next job, for engine_write_vod.
+ * Errors as engine_voxelize's (ENGINE_LIMIT: the volume or the mesh
+ * outgrew shared memory). */
+typedef struct {
+    const mesh *mesh;
+    grid_spec grid;
+    mesh_vox_opts opts;
+    void (*progress)(void *ud, const engine_progress *p);
+    void *ud;
+    const atomic_int *cancel;   /* as engine_job.cancel */
+} engine_mesh_job;
+int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r);
+
 /* The last job's octree (a view into shared memory), NULL when the last
- * job failed or there was none, or after engine_release. */
+ * job failed, was not an implicit one, or there was none, or after
+ * engine_release. */
 octree *engine_octree(engine *e);
-/* The caller is done with the last job's octree: its pages (beyond
+/* The caller is done with the last job's result: its pages (beyond
  * keep_bytes) go back to tmpfs now.  pipeline_run calls it at the end of
  * every job. */
 void engine_release(engine *e);
-/* Write the last job's octree as VOD, bricks encoded by the workers into
+/* Write the last job's octree or volume as VOD, bricks encoded by the workers into
  * shared memory (what does not fit, or what a dying worker left undone, is
  * encoded by the caller's thread, which frees its encoder before
  * returning); the bytes are vod_write_octree()'s.  Returns 0, or a

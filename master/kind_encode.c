@@ -34,6 +34,13 @@ typedef struct {
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
 
+/* The last job's result as a brick source. */
+static vod_source result_source(engine *e)
+{
+    return e->result == RESULT_VOLUME ? vod_volume_source(e->volume)
+                                      : vod_octree_source(&e->tree);
+}
+
 static encode_block *block(engine *e)
 {
     return shm_at(e->seg.base, e->h->job_off);
@@ -86,14 +93,41 @@ static void block_init(engine *e, encode_job *ej, encode_block *b)
     atomic_store_explicit(&b->ns_compress, 0, memory_order_relaxed);
 }
 
-/* Lay the block and its arrays out behind the used cells, list the brick
- * nodes and the aggregate's subtrees, and push one aggregate task per
- * worker (none: the master does it all and hands out the bricks). */
-static int encode_setup(engine *e, void *job)
+static int no_room(engine *e)
 {
-    encode_job *ej = job;
-    shm_header *h = e->h;
-    uint64_t end = h->data_off + h->data_bytes;
+    return sched_fail(e, ENGINE_LIMIT, -ENOSPC,
+                      "no room left in shared memory for the VOD bricks; "
+                      "raise its size (now %zu MiB)", e->seg.bytes >> 20);
+}
+
+/* The brick nodes at nodes_off, then their records, offsets and the brick
+ * area up to the end of the data area; every offset to -1 (not encoded). */
+static int lay_out_bricks(engine *e, encode_job *ej, encode_block *b,
+                          const vod_source *src, uint64_t nodes)
+{
+    uint64_t end = e->h->data_off + e->h->data_bytes;
+    double t0 = clock_now();
+    uint64_t n = vod_collect(src, &ej->L, NULL, 0);
+    b->recs_off = align64(nodes + n * sizeof(vod_node));
+    b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
+    b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
+    if (b->brick_off > end) return no_room(e);
+    vod_collect(src, &ej->L, shm_at(e->seg.base, nodes), n);
+    ej->t.fill += clock_now() - t0;
+    memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
+    b->nodes_off = nodes;
+    b->n = n;
+    b->brick_cap = end - b->brick_off;
+    return 0;
+}
+
+/* The octree: lay the block and its arrays out behind the used cells,
+ * list the brick nodes and the aggregate's subtrees, and push one
+ * aggregate task per worker (none: the master does it all and hands out
+ * the bricks). */
+static int setup_octree(engine *e, encode_job *ej)
+{
+    uint64_t end = e->h->data_off + e->h->data_bytes;
     uint64_t cells_off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
     uint64_t boff = align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
     uint64_t agg = align64(boff + sizeof(encode_block));
@@ -101,40 +135,64 @@ static int encode_setup(engine *e, void *job)
     int hr = e->tree.depth - 1 - AGG_SPLIT;
     uint64_t nroots = hr >= 0 ? vod_aggregate_roots(&e->tree, hr, NULL, 0) : 0;
     uint64_t nodes = align64(roots + nroots * (sizeof(uint32_t) + 1));
-    if (nodes > end) goto full;
+    if (nodes > end) return no_room(e);
     encode_block *b = shm_at(e->seg.base, boff);
-    double t0 = clock_now();
     e->tree.agg = shm_at(e->seg.base, agg);
     vod_source src = vod_octree_source(&e->tree);
-    uint64_t n = vod_collect(&src, &ej->L, NULL, 0);
-    b->recs_off = align64(nodes + n * sizeof(vod_node));
-    b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
-    b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
-    if (b->brick_off > end) goto full;
-    vod_collect(&src, &ej->L, shm_at(e->seg.base, nodes), n);
+    int rc = lay_out_bricks(e, ej, b, &src, nodes);
+    if (rc) return rc;
     vod_aggregate_roots(&e->tree, hr, shm_at(e->seg.base, roots), nroots);
-    ej->t.fill += clock_now() - t0;
     memset(shm_at(e->seg.base, roots + nroots * sizeof(uint32_t)), 0, nroots);
-    memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
     block_init(e, ej, b);
+    b->source = ENCODE_OCTREE;
     b->cells_off = cells_off;
     b->agg_off = agg;
     b->roots_off = roots;
     b->roots_done_off = roots + nroots * sizeof(uint32_t);
     b->nroots = nroots;
     b->root_height = hr;
-    b->nodes_off = nodes;
-    b->n = n;
-    b->brick_cap = end - b->brick_off;
-    h->job_off = boff;
-    h->job_bytes = sizeof *b;
-    int rc = nroots ? push_all(e, ENCODE_AGGREGATE, &ej->agg_left) : 0;
+    e->h->job_off = boff;
+    e->h->job_bytes = sizeof *b;
+    rc = nroots ? push_all(e, ENCODE_AGGREGATE, &ej->agg_left) : 0;
     if (!rc && !ej->agg_left) rc = aggregate_rest(e, ej);
     return rc;
-full:
-    return sched_fail(e, ENGINE_LIMIT, -ENOSPC,
-                      "no room left in shared memory for the VOD bricks; "
-                      "raise its size (now %zu MiB)", e->seg.bytes >> 20);
+}
+
+/* The volume: its mip levels built here (into its own pool), the block
+ * and the bricks' arrays behind the pool's used part, the bricks handed
+ * out. */
+static int setup_volume(engine *e, encode_job *ej)
+{
+    vod_source src = vod_volume_source(e->volume);
+    char msg[sizeof e->err.message];
+    double t0 = clock_now();
+    int rc = vod_prepare(&src, &ej->L, ej->p->channel, msg, sizeof msg);
+    ej->t.fill += clock_now() - t0;
+    if (rc)
+        return sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                          "%s", msg);
+    vod_volume_info in;
+    vod_volume_get_info(e->volume, &in);
+    uint64_t voff = (uint64_t)((uint8_t *)e->volume - e->seg.base);
+    uint64_t boff = align64(voff + in.bytes_used);
+    uint64_t nodes = align64(boff + sizeof(encode_block));
+    if (nodes > e->h->data_off + e->h->data_bytes) return no_room(e);
+    encode_block *b = shm_at(e->seg.base, boff);
+    rc = lay_out_bricks(e, ej, b, &src, nodes);
+    if (rc) return rc;
+    block_init(e, ej, b);
+    b->source = ENCODE_VOLUME;
+    b->volume_off = voff;
+    b->nroots = 0;
+    e->h->job_off = boff;
+    e->h->job_bytes = sizeof *b;
+    int pushed;
+    return push_all(e, ENCODE_BRICKS, &pushed);
+}
+
+static int encode_setup(engine *e, void *job)
+{
+    return e->result == RESULT_VOLUME ? setup_volume(e, job) : setup_octree(e, job);
 }
 
 static int encode_take(engine *e, int i, const shm_entry *en)
@@ -195,7 +253,7 @@ static int encode_gather(engine *e, encode_job *ej, const uint8_t **data,
     const uint8_t *bricks = shm_at(e->seg.base, b->brick_off);
     size_t bound = vod_encode_bound(&b->L, p);
     vod_encoder *enc = NULL;
-    vod_source src = vod_octree_source(&e->tree);
+    vod_source src = result_source(e);
     int rc = 0;
     for (uint64_t i = 0; i < b->n && !rc; i++) {
         uint64_t off = offs[i], same;
@@ -297,12 +355,12 @@ int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
 {
     memset(err, 0, sizeof *err);
     encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
-    vod_source src = vod_octree_source(&e->tree);
+    vod_source src = result_source(e);
     int rc = -EINVAL;
-    if (!e->have_tree)
+    if (e->result == RESULT_NONE)
         snprintf(err->message, sizeof err->message,
-                 "no octree to write: the last job failed or there was none");
-    else if (!(rc = vod_layout_make(p, e->tree.depth, &ej.L, err->message,
+                 "nothing to write: the last job failed or there was none");
+    else if (!(rc = vod_layout_make(p, src.depth, &ej.L, err->message,
                                     sizeof err->message)))
         rc = vod_check_source(&src, p, err->message, sizeof err->message);
     if (rc) {

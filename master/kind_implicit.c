@@ -172,8 +172,8 @@ static int implicit_setup(engine *e, void *job)
 {
     implicit_job *ij = job;
     const engine_job *j = ij->job;
-    e->have_tree = 0;
-    sched_hold(e, 0); /* the last job's octree: overwritten now */
+    e->result = RESULT_NONE;
+    sched_hold(e, 0); /* the last job's result: overwritten now */
     if (!j->tape) return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
     if (grid_check(&j->grid))
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's grid is invalid");
@@ -205,33 +205,18 @@ static int implicit_setup(engine *e, void *job)
     return push_octant(e, ij, grid_root(&j->grid));
 }
 
-static void job_stats(engine *e, engine_result *r)
-{
-    uint64_t tested = 0, cpu = 0;
-    for (int i = 0; i < e->n; i++) {
-        shm_slot *s = pool_slot(e, i);
-        if (s->job_gen != e->h->gen) continue;
-        tested += s->job_tested;
-        cpu += s->job_cpu_ns;
-    }
-    r->octants = tested;
-    r->worker_cpu = (double)cpu * 1e-9;
-    r->restarts = e->restarts;
-    r->stalls = e->stalls;
-}
-
 static int implicit_finish(engine *e, void *job, int rc)
 {
     implicit_job *ij = job;
     engine_result *r = ij->r;
-    job_stats(e, r);
+    sched_job_totals(e, r);
     r->seconds = clock_now() - e->t0;
     if (rc) {
         r->failure = e->err.failure;
         snprintf(r->error, sizeof r->error, "%s", e->err.message);
         return rc;
     }
-    e->have_tree = 1;
+    e->result = RESULT_OCTREE;
     /* the octree stays for the encode kind (octree_store clears whole
      * blocks ahead: up to block_end) */
     sched_hold(e, tree_bytes(e, e->tree.block_end));

@@ -25,6 +25,7 @@
 #include "engine.h"
 #include "kinds.h"
 #include "shm.h"
+#include "vod_volume.h"
 
 typedef struct {
     pid_t pid;          /* 0: no worker */
@@ -78,10 +79,14 @@ struct engine {
     /* the segment's pages */
     uint64_t keep;      /* bytes of the data area kept between jobs */
     uint64_t hold;      /* bytes of the data area the last job left for the
-                           next (the implicit kind's octree), 0 none */
-    /* the last implicit job's octree, for engine_octree and the encoder */
+                           next (the implicit kind's octree, the mesh kind's
+                           volume), 0 none */
+    /* the last job's result, for engine_octree and the encoder: the
+     * implicit kind's octree or the mesh kind's volume */
+    enum { RESULT_NONE, RESULT_OCTREE, RESULT_VOLUME } result;
     octree tree;
-    int have_tree;
+    vod_volume *volume;
+    uint64_t volume_bytes;  /* its arena */
 };
 
 struct master_kind {
@@ -109,7 +114,7 @@ struct master_kind {
     int (*finish)(engine *e, void *job, int rc);
 };
 
-extern const master_kind kind_implicit, kind_encode;
+extern const master_kind kind_implicit, kind_encode, kind_mesh;
 
 /* ---- pool.c: the workers' lives ---- */
 
@@ -150,5 +155,8 @@ int sched_push(engine *e, const shm_task *t);
 void sched_hold(engine *e, uint64_t bytes);
 /* Give back the data area's pages past max(keep_bytes, hold). */
 void sched_release(engine *e);
+/* The job's totals from the workers' slots (boxes tested, CPU) and the
+ * core's books (restarts, stalls), into r. */
+void sched_job_totals(engine *e, engine_result *r);
 
 #endif

@@ -30,16 +30,29 @@ __attribute__((format(printf, 4, 5))) static int fail(pipeline_report *r,
 
 /* The job's VOD parameters: its geometry and metadata on the caller's
  * choice of channel, brick, compression and hash. */
-static void vod_setup(vod_params *v, const pipeline_job *job, const grid_spec *g,
-                      char meta[JOB_META_MAX])
+static void vod_setup(vod_params *v, const pipeline_job *job, const double lo[3],
+                      const double hi[3], const grid_spec *g, char meta[JOB_META_MAX])
 {
     job_meta m = {
         .source = job->implicit.source, .source_len = job->implicit.source_len,
         .source_name = job->implicit.source_name, .res = job->res,
         .grid = {g->res[0], g->res[1], g->res[2]},
-        .lo = {job->lo[0], job->lo[1], job->lo[2]},
-        .hi = {job->hi[0], job->hi[1], job->hi[2]},
+        .lo = {lo[0], lo[1], lo[2]},
+        .hi = {hi[0], hi[1], hi[2]},
     };
+    char pairs[160];
+    if (job->kind == PIPELINE_MESH) {
+        static const char *const modes[] = {"solid", "surface", "surface6",
+                                            "conservative", "interior"};
+        static const char *const repairs[] = {"none", "vote", "winding"};
+        snprintf(pairs, sizeof pairs, "mesh_triangles=%u\nmesh_mode=%s\nmesh_repair=%s\n",
+                 job->mesh.mesh->n_triangles, modes[job->mesh.opts.mode],
+                 repairs[job->mesh.opts.repair]);
+        m.source = "";
+        m.source_len = job->mesh.source_bytes;
+        m.source_name = job->mesh.source_name;
+        m.kind_pairs = pairs;
+    }
     job_meta_format(meta, JOB_META_MAX, &m);
     *v = job->vod;
     v->metadata = meta;
@@ -76,18 +89,36 @@ static void on_stage_progress(void *ud, const engine_progress *p)
     s->job->progress(s->job->ud, &q);
 }
 
+/* The voxelization stage of job on the engine's workers, its progress
+ * through prog and ud. */
+static int engine_stage(engine *e, const pipeline_job *job, const grid_spec *g,
+                        void (*prog)(void *, const engine_progress *), void *ud,
+                        engine_result *er)
+{
+    if (job->kind == PIPELINE_MESH) {
+        engine_mesh_job mj = {.mesh = job->mesh.mesh, .grid = *g,
+                              .opts = job->mesh.opts, .progress = prog,
+                              .ud = ud, .cancel = job->cancel};
+        return engine_mesh(e, &mj, er);
+    }
+    engine_job ej = {.tape = job->implicit.tape, .grid = *g,
+                     .schedule = job->schedule, .progress = prog,
+                     .ud = ud, .cancel = job->cancel};
+    return engine_voxelize(e, &ej, er);
+}
+
 static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
                       vod_sink *sink, pipeline_report *r)
 {
     staged sp = {.job = job, .stage = PIPELINE_VOXELIZE};
     void (*prog)(void *, const engine_progress *) = job->progress ? on_stage_progress : NULL;
-    engine_job ej = {.tape = job->implicit.tape, .grid = r->grid,
-                     .schedule = job->schedule, .progress = prog,
-                     .ud = &sp, .cancel = job->cancel};
     engine_result er;
     r->stage = PIPELINE_VOXELIZE;
-    int rc = engine_voxelize(e, &ej, &er);
+    int rc = engine_stage(e, job, &r->grid, prog, &sp, &er);
     r->voxels = er.voxels;
+    r->tiles = er.tiles;
+    r->disagreements = er.disagreements;
+    r->disagree_bricks = er.disagree_bricks;
     r->octants = er.octants;
     r->restarts = er.restarts;
     r->stalls = er.stalls;
@@ -124,11 +155,63 @@ static int watched_write(void *ud, const void *buf, size_t n)
     return rc;
 }
 
+/* The write stage in this thread, from the octree t or else source s. */
+static int write_serial(octree *t, vod_source *s, const vod_params *v,
+                        vod_sink *sink, pipeline_report *r)
+{
+    r->stage = PIPELINE_WRITE;
+    watched_sink w = {sink, 0};
+    vod_sink ws = {watched_write, &w};
+    char err[sizeof r->err.message] = "";
+    double t0 = clock_now();
+    int rc = t ? vod_write_octree(t, v, &ws, &r->st, err, sizeof err)
+               : vod_write(s, v, &ws, &r->st, err, sizeof err);
+    r->t_write = clock_now() - t0;
+    if (rc && w.rc == rc) return fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
+    if (rc) return fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
+    return 0;
+}
+
+/* A mesh job in this thread: every tile in turn (mesh_voxelize) into a
+ * volume in a sparse private mapping, touched only as bricks are made. */
+static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
+                           vod_sink *sink, pipeline_report *r)
+{
+    const mesh_vox_opts *o = &job->mesh.opts;
+    r->stage = PIPELINE_VOXELIZE;
+    size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), 16, UINT64_MAX);
+    void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                               MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                        : MAP_FAILED;
+    if (arena == MAP_FAILED)
+        return fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
+                    r->grid.res[0], r->grid.res[1], r->grid.res[2]);
+    vod_volume *vol;
+    int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, mesh_vox_bits(o), 16);
+    mesh_tile_stats st = {0};
+    double t0 = clock_now();
+    if (!rc) rc = mesh_voxelize(job->mesh.mesh, &r->grid, o, vol, &st);
+    r->t_voxelize = clock_now() - t0;
+    r->voxels = st.voxels;
+    r->disagreements = st.disagreements;
+    r->disagree_bricks = st.disagree_bricks;
+    if (rc) {
+        fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+             "voxelizing the mesh: %s", strerror(-rc));
+    } else {
+        vod_source src = vod_volume_source(vol);
+        rc = write_serial(NULL, &src, v, sink, r);
+    }
+    munmap(arena, bytes);
+    return rc;
+}
+
 /* The serial algorithm: its octree in a sparse private mapping, touched
  * only as cells are handed out. */
 static int run_serial(const pipeline_job *job, const vod_params *v,
                       vod_sink *sink, pipeline_report *r)
 {
+    if (job->kind == PIPELINE_MESH) return run_serial_mesh(job, v, sink, r);
     size_t bytes = octree_arena_bytes(SERIAL_CELLS);
     void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
@@ -146,21 +229,50 @@ static int run_serial(const pipeline_job *job, const vod_params *v,
         fail(r, ENGINE_LIMIT, rc, "the octree outgrew its 4 GiB arena");
     else if (rc)
         fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
-    if (!rc) {
-        r->stage = PIPELINE_WRITE;
-        watched_sink w = {sink, 0};
-        vod_sink ws = {watched_write, &w};
-        char err[sizeof r->err.message] = "";
-        t0 = clock_now();
-        rc = vod_write_octree(&t, v, &ws, &r->st, err, sizeof err);
-        r->t_write = clock_now() - t0;
-        if (rc && w.rc == rc)
-            fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
-        else if (rc)
-            fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
-    }
+    if (!rc) rc = write_serial(&t, NULL, v, sink, r);
     munmap(arena, bytes);
     return rc;
+}
+
+/* A mesh job's domain: its bounding box grown by pad voxels each side,
+ * the voxel size such that res voxels span the longest side of that. */
+static int mesh_fit(const pipeline_job *job, double lo[3], double hi[3],
+                    pipeline_report *r)
+{
+    const mesh *m = job->mesh.mesh;
+    double ext = 0;
+    for (int a = 0; a < 3; a++)
+        if ((double)m->hi[a] - m->lo[a] > ext) ext = (double)m->hi[a] - m->lo[a];
+    if (!(ext > 0))
+        return fail(r, ENGINE_BAD_JOB, -EINVAL, "the mesh has an empty bounding box");
+    if ((uint64_t)job->mesh.pad * 2 >= job->res)
+        return fail(r, ENGINE_BAD_JOB, -EINVAL,
+                    "a padding of %u voxels leaves no room in %u voxels",
+                    job->mesh.pad, job->res);
+    double vs = ext / (double)(job->res - 2 * job->mesh.pad);
+    for (int a = 0; a < 3; a++) {
+        lo[a] = m->lo[a] - job->mesh.pad * vs;
+        hi[a] = m->hi[a] + job->mesh.pad * vs;
+    }
+    return 0;
+}
+
+/* The job's kind-specific checks and its domain. */
+static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
+                      pipeline_report *r)
+{
+    memcpy(lo, job->lo, 3 * sizeof *lo);
+    memcpy(hi, job->hi, 3 * sizeof *hi);
+    if (job->kind == PIPELINE_IMPLICIT)
+        return job->implicit.tape ? 0
+                                  : fail(r, ENGINE_BAD_JOB, -EINVAL,
+                                         "the job has no expression");
+    if (job->kind != PIPELINE_MESH || !job->mesh.mesh || !job->mesh.mesh->n_triangles)
+        return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
+    char err[sizeof r->err.message];
+    if (mesh_vox_check(&job->mesh.opts, err, sizeof err))
+        return fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err);
+    return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
 }
 
 int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
@@ -168,16 +280,17 @@ int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
 {
     memset(r, 0, sizeof *r);
     r->stage = PIPELINE_GRID;
-    if (job->kind != PIPELINE_IMPLICIT || !job->implicit.tape)
-        return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression");
+    double lo[3], hi[3];
+    int rc = job_domain(job, lo, hi, r);
+    if (rc) return rc;
     char err[sizeof r->err.message];
-    int rc = grid_make(job->lo, job->hi, job->res, &r->grid, err, sizeof err);
+    rc = grid_make(lo, hi, job->res, &r->grid, err, sizeof err);
     if (rc) return fail(r, ENGINE_BAD_JOB, rc, "%s", err);
     char meta[JOB_META_MAX];
     vod_params v;
-    vod_setup(&v, job, &r->grid, meta);
+    vod_setup(&v, job, lo, hi, &r->grid, meta);
     if (!e) return run_serial(job, &v, sink, r);
     rc = run_engine(e, job, &v, sink, r);
-    engine_release(e); /* the job's pages go back, the octree's too */
+    engine_release(e); /* the job's pages go back, its result's too */
     return rc;
 }

@@ -8,6 +8,11 @@
  *
  * A job kind that comes with its own description (meshes, CSG) adds its
  * member to pipeline_job and its case to pipeline_run.
+ *
+ * Mesh jobs: with mesh.fit, res voxels span the longest side of the
+ * mesh's bounding box grown by pad voxels on each side (so the mesh
+ * itself spans res - 2 pad voxels); without it, the domain lo/hi as for an
+ * expression.
  */
 #ifndef VOXD_PIPELINE_H
 #define VOXD_PIPELINE_H
@@ -19,10 +24,12 @@
 #include "engine.h"
 #include "expr.h"
 #include "grid.h"
+#include "mesh_vox.h"
 #include "vod.h"
 
 typedef enum {
     PIPELINE_IMPLICIT = 1, /* F(x,y,z) = 0 */
+    PIPELINE_MESH = 2,     /* a triangle mesh */
 } pipeline_kind;
 
 typedef struct {
@@ -33,6 +40,15 @@ typedef struct {
         size_t source_len;
         const char *source_name;  /* its file's name, or NULL */
     } implicit;
+    struct {
+        const mesh *mesh;         /* loaded (and so checked) by the caller */
+        mesh_vox_opts opts;
+        uint32_t pad;             /* voxels around the bounding box (fit) */
+        int fit;                  /* 1: the domain is the mesh's bounding box
+                                     plus pad voxels, lo/hi are ignored */
+        const char *source_name;  /* its file's name, or NULL */
+        uint64_t source_bytes;    /* its file's size, for the metadata */
+    } mesh;
     double lo[3], hi[3];          /* the domain */
     uint32_t res;                 /* voxels along its longest axis */
     engine_schedule schedule;
@@ -53,6 +69,8 @@ typedef struct {
     grid_spec grid;
     uint64_t voxels;
     uint64_t octants;             /* boxes tested (engine only) */
+    uint32_t tiles;               /* mesh: tiles with triangles */
+    uint64_t disagreements, disagree_bricks; /* mesh repair modes */
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */

@@ -226,4 +226,4 @@ int engine_worker_info_get(const engine *e, int i, engine_worker_info *out)
     return 0;
 }
 
-octree *engine_octree(engine *e) { return e->have_tree ? &e->tree : NULL; }
+octree *engine_octree(engine *e) { return e->result == RESULT_OCTREE ? &e->tree : NULL; }

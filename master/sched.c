@@ -84,13 +84,29 @@ void sched_release(engine *e)
     madvise(e->seg.base + from, e->seg.bytes - from, MADV_REMOVE);
 }
 
+void sched_job_totals(engine *e, engine_result *r)
+{
+    uint64_t tested = 0, cpu = 0;
+    for (int i = 0; i < e->n; i++) {
+        shm_slot *s = pool_slot(e, i);
+        if (s->job_gen != e->h->gen) continue;
+        tested += s->job_tested;
+        cpu += s->job_cpu_ns;
+    }
+    r->octants = tested;
+    r->worker_cpu = (double)cpu * 1e-9;
+    r->restarts = e->restarts;
+    r->stalls = e->stalls;
+}
+
 void engine_release(engine *e)
 {
     if (e->kind) return; /* inside a job: its finish holds what it needs */
-    e->have_tree = 0;
+    e->result = RESULT_NONE;
     e->hold = 0;
     sched_release(e);
 }
+
 
 /* Hand task t to worker i, the entries before skip already taken. */
 static void give(engine *e, int i, const shm_task *t, uint32_t skip)

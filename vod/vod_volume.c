@@ -149,6 +149,7 @@ void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
     out->pool_used = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     out->level0_bricks = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
     out->mip_channel = v->mip_channel;
+    out->bytes_used = v->pool_off + (uint64_t)out->pool_used * v->brick_bytes;
 }
 
 /* ---- bricks and voxels ---- */
@@ -156,6 +157,29 @@ void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
 static uint32_t *table(const vod_volume *v, int l)
 {
     return (uint32_t *)((uint8_t *)v + v->table_off[l]);
+}
+
+int vod_volume_check(const vod_volume *v, size_t bytes)
+{
+    struct vod_volume h;
+    if (bytes < sizeof h || v->magic != VOL_MAGIC ||
+        check_args(v->dims, v->bits, v->sbrick))
+        return -EINVAL;
+    uint64_t head = plan(&h, v->dims, v->bits, v->sbrick);
+    if (head > bytes || h.slog2 != v->slog2 || h.depth != v->depth ||
+        memcmp(h.grid, v->grid, sizeof h.grid) ||
+        memcmp(h.table_off, v->table_off, sizeof h.table_off) ||
+        h.pool_off != v->pool_off || h.brick_bytes != v->brick_bytes)
+        return -EINVAL;
+    uint32_t used = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
+    uint32_t l0 = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
+    if (v->pool_cap > (bytes - head) / h.brick_bytes || used > v->pool_cap ||
+        l0 > used || v->mip_channel != 0)
+        return -EINVAL;
+    const uint32_t *t = table(v, 0);
+    for (uint64_t i = 0, n = grid_bricks(v, 0); i < n; i++)
+        if (is_alloc(t[i]) && t[i] > used) return -EINVAL;
+    return 0;
 }
 
 /* The entry of brick b of level l; 0 (empty) outside the grid. */

@@ -92,8 +92,15 @@ typedef struct {
     uint32_t pool_used;        /* bricks allocated, mip bricks included */
     uint32_t level0_bricks;    /* allocated level-0 bricks */
     int mip_channel;           /* the channel the mip levels hold, 0: none */
+    uint64_t bytes_used;       /* of the arena: past this nothing is used */
 } vod_volume_info;
 void vod_volume_get_info(const vod_volume *v, vod_volume_info *out);
+
+/* 0 when v, in an arena of bytes, is a volume whose level 0 other
+ * processes wrote (vod_volume_put_brick) that is safe to read: its header
+ * is what vod_volume_init made for its dims, its pool inside the arena,
+ * every table entry inside the pool, no mip levels yet.  -EINVAL if not. */
+int vod_volume_check(const vod_volume *v, size_t bytes);
 
 /* v as a brick source (vod.h): ctx is v, valid in the process that made or
  * viewed it. */

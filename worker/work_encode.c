@@ -9,6 +9,7 @@
 #include <time.h>
 
 #include "clock.h"
+#include "vod_volume.h"
 #include "work.h"
 
 #define ENCODE_CHUNK 8u /* brick nodes claimed at a time */
@@ -131,17 +132,35 @@ static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
     return 0;
 }
 
+/* The source the block names: the octree (its view in *tree) or the
+ * volume the master prepared. */
+static int block_source(work_ctx *w, const encode_block *b, octree *tree,
+                        vod_source *src)
+{
+    if (b->source == ENCODE_VOLUME) {
+        vod_volume *v = vod_volume_view(shm_at(w->base, b->volume_off));
+        if (!v) return -EINVAL;
+        *src = vod_volume_source(v);
+        return 0;
+    }
+    octree_view(tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
+    tree->agg = shm_at(w->base, b->agg_off);
+    *src = vod_octree_source(tree);
+    return 0;
+}
+
 static int encode_run(work_ctx *w, void *state, const shm_task *t)
 {
     encode_block *b = shm_at(w->base, w->h->job_off);
     octree tree;
-    octree_view(&tree, shm_at(w->base, b->cells_off), b->cells_used, b->depth);
-    tree.agg = shm_at(w->base, b->agg_off);
-    if (t->op == ENCODE_AGGREGATE) return aggregate_run(w, b, &tree);
+    vod_source src;
+    int rc = block_source(w, b, &tree, &src);
+    if (rc) return rc;
+    if (t->op == ENCODE_AGGREGATE && b->source == ENCODE_OCTREE)
+        return aggregate_run(w, b, &tree);
     if (t->op != ENCODE_BRICKS) return -EINVAL;
-    vod_source src = vod_octree_source(&tree);
     vod_encoder *enc;
-    int rc = vod_encoder_new(&b->L, &b->p, &enc);
+    rc = vod_encoder_new(&b->L, &b->p, &enc);
     if (!rc) {
         rc = encode_nodes(w, state, b, &src, enc);
         vod_times tm;

@@ -16,6 +16,7 @@
 static const work_kind *const kinds[SHM_KINDS] = {
     [SHM_KIND_IMPLICIT] = &work_implicit,
     [SHM_KIND_ENCODE] = &work_encode,
+    [SHM_KIND_MESH] = &work_mesh,
 };
 
 static uint64_t cpu_ns(void)

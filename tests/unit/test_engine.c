@@ -757,7 +757,7 @@ Test(engine, bad_arguments)
     engine_error ee;
     cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, &ee), -EINVAL);
     cr_assert_eq(ee.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(ee.message, "no octree"), "%s", ee.message);
+    cr_assert(strstr(ee.message, "nothing to write"), "%s", ee.message);
     engine_destroy(e);
     expr_tape_free(tape);
 }

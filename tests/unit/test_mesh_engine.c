@@ -1,0 +1,207 @@
+/* Mesh jobs through the pipeline: the serial reference (mesh_voxelize)
+ * and the engine's mesh kind with 1 and 2 workers give the same bytes for
+ * every channel, the file holds the voxels a box must have, the engine
+ * runs mesh and implicit jobs one after the other, and bad mesh jobs fail
+ * typed, at the right stage. */
+#include <criterion/criterion.h>
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "engine.h"
+#include "mesh.h"
+#include "pipeline.h"
+#include "vod.h"
+#include "voxel.h"
+
+/* The axis-aligned box [lo, hi], 12 triangles facing outwards. */
+static mesh box_mesh(const float lo[3], const float hi[3])
+{
+    static const uint32_t tris[12][3] = {
+        {0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
+        {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5},
+    };
+    mesh m = {.n_vertices = 8, .n_triangles = 12};
+    m.vertices = malloc(sizeof *m.vertices * 8);
+    m.triangles = malloc(sizeof tris);
+    memcpy(m.triangles, tris, sizeof tris);
+    for (int i = 0; i < 8; i++)
+        for (int a = 0; a < 3; a++)
+            m.vertices[i][a] = (i >> a) & 1 ? hi[a] : lo[a];
+    memcpy(m.lo, lo, sizeof m.lo);
+    memcpy(m.hi, hi, sizeof m.hi);
+    return m;
+}
+
+static void box_free(mesh *m)
+{
+    free(m->vertices);
+    free(m->triangles);
+}
+
+static pipeline_job mesh_job(const mesh *m, uint32_t res, int channel)
+{
+    pipeline_job job = {
+        .kind = PIPELINE_MESH,
+        .mesh = {.mesh = m, .opts = {.mode = MESH_SOLID, .channel = channel},
+                 .pad = 1, .fit = 1, .source_name = "box.obj", .source_bytes = 999},
+        .res = res,
+    };
+    vod_params_default(&job.vod);
+    job.vod.channel = channel;
+    return job;
+}
+
+static engine *make_engine(int workers)
+{
+    engine_opts o = {.workers = workers, .shm_bytes = (size_t)256 << 20};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    return e;
+}
+
+static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
+{
+    vod_membuf m = {0};
+    vod_sink sink = {vod_mem_write, &m};
+    cr_assert_eq(pipeline_run(e, job, &sink, r), 0, "%s job on %s: %s",
+                 job->kind == PIPELINE_MESH ? "mesh" : "implicit",
+                 e ? "an engine" : "no engine", r->err.message);
+    return m;
+}
+
+/* Voxel centres inside a box whose faces lie between voxel centres: the
+ * file's level 0 must hold exactly those. */
+Test(mesh_engine, a_box_serial_and_on_the_engine)
+{
+    float lo[3] = {0.1f, 0.2f, 0.3f}, hi[3] = {0.9f, 0.6f, 0.5f};
+    mesh m = box_mesh(lo, hi);
+    static const int channels[] = {VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY,
+                                   VOXEL_CH_SURFACE};
+    engine *e[2] = {make_engine(1), make_engine(2)};
+    for (size_t c = 0; c < 3; c++) {
+        pipeline_job job = mesh_job(&m, 70, channels[c]);
+        pipeline_report r0, r;
+        vod_membuf ref = run(NULL, &job, &r0);
+        cr_assert_eq(r0.grid.res[0], 70);
+        cr_assert_gt(r0.voxels, 0);
+        for (int w = 0; w < 2; w++) {
+            vod_membuf mb = run(e[w], &job, &r);
+            cr_assert_eq(r.voxels, r0.voxels, "channel %d, %d workers", channels[c], w + 1);
+            cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0,
+                      "channel %d, %d workers: other bytes", channels[c], w + 1);
+            cr_assert_gt(r.tiles, 0);
+            free(mb.p);
+        }
+        if (channels[c] == VOXEL_CH_OCCUPANCY) {
+            vod_file *f;
+            char err[256];
+            cr_assert_eq(vod_read(ref.p, ref.n, &f, err, sizeof err), 0, "%s", err);
+            const grid_spec *g = &r0.grid;
+            uint64_t want = 0, got = 0;
+            for (uint32_t z = 0; z < g->res[2]; z++)
+                for (uint32_t y = 0; y < g->res[1]; y++)
+                    for (uint32_t x = 0; x < g->res[0]; x++) {
+                        double p[3] = {g->lo[0] + (x + 0.5) * g->vs,
+                                       g->lo[1] + (y + 0.5) * g->vs,
+                                       g->lo[2] + (z + 0.5) * g->vs};
+                        int in = 1;
+                        for (int a = 0; a < 3; a++) in &= p[a] > lo[a] && p[a] < hi[a];
+                        want += in;
+                        got += vod_voxel(f, 0, x, y, z) != 0;
+                        cr_assert_eq(vod_voxel(f, 0, x, y, z) != 0, in,
+                                     "voxel (%u,%u,%u)", x, y, z);
+                    }
+            cr_assert_eq(got, want);
+            cr_assert_eq(r0.voxels, want);
+            vod_close(f);
+        }
+        free(ref.p);
+    }
+    engine_destroy(e[0]);
+    engine_destroy(e[1]);
+    box_free(&m);
+}
+
+/* One engine, jobs of both kinds in turn: each one's result is its own. */
+Test(mesh_engine, mesh_and_implicit_jobs_share_an_engine)
+{
+    float lo[3] = {-0.5f, -0.5f, -0.5f}, hi[3] = {0.5f, 0.5f, 0.5f};
+    mesh m = box_mesh(lo, hi);
+    const char *src = "x^2 + y^2 + z^2 - 0.5";
+    expr_tape *t = NULL;
+    expr_error ee;
+    cr_assert_eq(expr_compile(src, strlen(src), NULL, &t, &ee), 0);
+    pipeline_job mj = mesh_job(&m, 40, VOXEL_CH_OCCUPANCY);
+    pipeline_job ij = {.kind = PIPELINE_IMPLICIT,
+                       .implicit = {.tape = t, .source = src, .source_len = strlen(src)},
+                       .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 40};
+    vod_params_default(&ij.vod);
+    pipeline_report r;
+    vod_membuf mref = run(NULL, &mj, &r);
+    vod_membuf iref = run(NULL, &ij, &r);
+    engine *e = make_engine(2);
+    for (int round = 0; round < 2; round++) {
+        vod_membuf a = run(e, &mj, &r), b = run(e, &ij, &r);
+        cr_assert(a.n == mref.n && memcmp(a.p, mref.p, a.n) == 0, "mesh, round %d", round);
+        cr_assert(b.n == iref.n && memcmp(b.p, iref.p, b.n) == 0, "implicit, round %d", round);
+        free(a.p);
+        free(b.p);
+    }
+    engine_destroy(e);
+    free(mref.p);
+    free(iref.p);
+    expr_tape_free(t);
+    box_free(&m);
+}
+
+Test(mesh_engine, bad_mesh_jobs_fail_typed)
+{
+    float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+    mesh m = box_mesh(lo, hi);
+    pipeline_job job = mesh_job(&m, 8, VOXEL_CH_OCCUPANCY);
+    vod_membuf out = {0};
+    vod_sink sink = {vod_mem_write, &out};
+    pipeline_report r;
+    job.mesh.pad = 4;
+    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert_eq(r.stage, PIPELINE_GRID);
+    cr_assert(strstr(r.err.message, "padding"), "%s", r.err.message);
+    job.mesh.pad = 1;
+    uint32_t n = m.n_triangles;
+    m.n_triangles = 0;
+    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    m.n_triangles = n;
+    float flat[3] = {1, 1, 1};
+    mesh pt = box_mesh(flat, flat);
+    job.mesh.mesh = &pt;
+    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert(strstr(r.err.message, "bounding box"), "%s", r.err.message);
+    box_free(&pt);
+    free(out.p);
+    box_free(&m);
+}
+
+/* A volume that cannot fit the segment is a limit, not a crash. */
+Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
+{
+    float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+    mesh m = box_mesh(lo, hi);
+    engine_opts o = {.workers = 1, .shm_bytes = (size_t)4 << 20};
+    engine *e;
+    char err[256];
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    pipeline_job job = mesh_job(&m, 1024, VOXEL_CH_SURFACE);
+    vod_membuf out = {0};
+    vod_sink sink = {vod_mem_write, &out};
+    pipeline_report r;
+    cr_assert_lt(pipeline_run(e, &job, &sink, &r), 0);
+    cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
+    cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
+    free(out.p);
+    engine_destroy(e);
+    box_free(&m);
+}

@@ -1,0 +1,80 @@
+/* The mesh kind's worker side: whole tiles of a triangle mesh voxelized
+ * into the job's volume (mesh_vox.h).  The mesh, the bins and the volume
+ * are in the segment, laid out by the master (mesh_block); a tile writes
+ * only the bricks of its own column, and its counts into its own entry of
+ * the stats array, so a tile run again after a death writes the same. */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh_vox.h"
+#include "vod_volume.h"
+#include "work.h"
+
+typedef struct {
+    void *scratch;
+    size_t scratch_bytes;
+} mesh_state;
+
+static void mesh_state_free(void *state)
+{
+    mesh_state *st = state;
+    if (!st) return;
+    free(st->scratch);
+    free(st);
+}
+
+/* The tile's scratch, kept across jobs and grown when a job needs more. */
+static int mesh_begin(work_ctx *w, void **state)
+{
+    mesh_state *st = *state;
+    if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
+    const mesh_block *b = shm_at(w->base, w->h->job_off);
+    size_t want = mesh_tile_scratch_bytes(&b->grid, &b->opts);
+    if (st->scratch_bytes >= want) return 0;
+    free(st->scratch);
+    st->scratch_bytes = 0;
+    if (!(st->scratch = malloc(want ? want : 1))) return -ENOMEM;
+    st->scratch_bytes = want;
+    return 0;
+}
+
+static int mesh_run(work_ctx *w, void *state, const shm_task *t)
+{
+    mesh_state *st = state;
+    const mesh_block *b = shm_at(w->base, w->h->job_off);
+    mesh_task_arg a = mesh_task_tiles(t);
+    uint64_t ntiles = (uint64_t)b->tiles[0] * b->tiles[1];
+    if (t->op != MESH_TILES || a.first >= ntiles || a.count > ntiles - a.first)
+        return -EINVAL;
+    mesh m = {
+        .n_vertices = b->n_vertices, .n_triangles = b->n_triangles,
+        .vertices = shm_at(w->base, b->vertices_off),
+        .triangles = shm_at(w->base, b->triangles_off),
+    };
+    memcpy(m.lo, b->lo, sizeof m.lo);
+    memcpy(m.hi, b->hi, sizeof m.hi);
+    const uint64_t *start = shm_at(w->base, b->start_off);
+    const uint32_t *ids = shm_at(w->base, b->ids_off);
+    mesh_tile_stats *stats = shm_at(w->base, b->stats_off);
+    vod_volume *vol = vod_volume_view(shm_at(w->base, b->volume_off));
+    if (!vol) return -EINVAL;
+    for (uint32_t k = a.first; k < a.first + a.count; k++) {
+        if (work_aborted(w)) return -ECANCELED;
+        mesh_tile_stats s = {0};
+        int rc = mesh_tile_run(&m, ids + start[k], start[k + 1] - start[k],
+                               &b->grid, &b->opts, k % b->tiles[0],
+                               k / b->tiles[0], st->scratch, vol, &s);
+        if (rc) return rc;
+        stats[k] = s;
+        work_tick(w);
+    }
+    return 0;
+}
+
+const work_kind work_mesh = {
+    .name = "mesh",
+    .begin = mesh_begin,
+    .run = mesh_run,
+    .free = mesh_state_free,
+};
