@@ -5,6 +5,7 @@
  * typed, at the right stage. */
 #include <criterion/criterion.h>
 #include <errno.h>
+#include <signal.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -202,6 +203,43 @@ Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
     cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
     cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
     free(out.p);
+    engine_destroy(e);
+    box_free(&m);
+}
+
+/* A worker killed while the tiles run: its tile is run again by the one
+ * forked in its place, and the file is the serial one. */
+typedef struct {
+    engine *e;
+    int killed;
+} killer;
+
+static void kill_first(void *ud, const engine_progress *p)
+{
+    killer *k = ud;
+    (void)p;
+    if (k->killed) return;
+    cr_assert_eq(kill(engine_worker_pid(k->e, 0), SIGKILL), 0);
+    k->killed = 1;
+}
+
+Test(mesh_engine, a_worker_killed_mid_job_changes_nothing)
+{
+    float lo[3] = {-0.4f, -0.3f, -0.2f}, hi[3] = {0.4f, 0.3f, 0.2f};
+    mesh m = box_mesh(lo, hi);
+    pipeline_job job = mesh_job(&m, 200, VOXEL_CH_OCCUPANCY);
+    pipeline_report r0, r;
+    vod_membuf ref = run(NULL, &job, &r0);
+    engine *e = make_engine(2);
+    killer k = {.e = e};
+    job.progress = kill_first;
+    job.ud = &k;
+    vod_membuf mb = run(e, &job, &r);
+    cr_assert(k.killed);
+    cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0, "other bytes");
+    cr_assert_eq(r.voxels, r0.voxels);
+    free(mb.p);
+    free(ref.p);
     engine_destroy(e);
     box_free(&m);
 }
