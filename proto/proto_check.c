@@ -254,22 +254,58 @@ static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
     return 0;
 }
 
+/* A mesh file: inline (1..max_mesh_bytes bytes, any bytes: binary formats
+ * hold NULs) or declared as the job's input.  What the bytes hold is the
+ * parser's to say when the job runs. */
+static int check_mesh_data(const Voxd__Mesh *m, const Voxd__Submit *s,
+                           const proto_limits *lim, proto_error *e)
+{
+    uint64_t n = s->input_bytes ? s->input_bytes : m->data.len;
+    if (s->input_bytes && m->data.len)
+        return bad(e, INVALID, "the mesh comes either inline or as input_bytes, not both");
+    if (n == 0) return bad(e, INVALID, "mesh data is empty");
+    if (n > lim->max_mesh_bytes)
+        return bad(e, LIMIT, "mesh is %llu bytes, over this server's max_mesh_bytes of %llu",
+                   (unsigned long long)n, (unsigned long long)lim->max_mesh_bytes);
+    return 0;
+}
+
+/* The enums and numbers of a mesh job's options. */
+static int check_mesh_options(const Voxd__Mesh *m, proto_error *e)
+{
+    if ((unsigned)m->format > VOXD__MESH_FORMAT__MESH_FORMAT_OFF)
+        return bad(e, INVALID, "unknown mesh format %d", (int)m->format);
+    if ((unsigned)m->mode > VOXD__MESH_MODE__MESH_MODE_INTERIOR)
+        return bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);
+    if ((unsigned)m->repair > VOXD__MESH_REPAIR__MESH_REPAIR_WINDING)
+        return bad(e, INVALID, "unknown mesh repair %d", (int)m->repair);
+    uint32_t k = m->supersample;
+    if (k && (k < PROTO_MIN_SUPERSAMPLE || k > PROTO_MAX_SUPERSAMPLE))
+        return bad(e, INVALID, "supersample %u is not from %u to %u (or 0: %u)", k,
+                   PROTO_MIN_SUPERSAMPLE, PROTO_MAX_SUPERSAMPLE, PROTO_MIN_SUPERSAMPLE);
+    return 0;
+}
+
 static int check_mesh(const Voxd__Mesh *m, const Voxd__Submit *s, const proto_limits *lim,
                       proto_error *e)
 {
     int rc;
-    if (m->format == VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED)
-        return bad(e, INVALID, "mesh format is missing");
-    if ((unsigned)m->format > VOXD__MESH_FORMAT__MESH_FORMAT_OFF)
-        return bad(e, INVALID, "unknown mesh format %d", (int)m->format);
-    if ((unsigned)m->mode > VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE)
-        return bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);
-    if (m->data.len == 0 && !s->input_bytes) return bad(e, INVALID, "mesh data is empty");
-    if (m->data.len && s->input_bytes)
-        return bad(e, INVALID, "the mesh comes either inline or as input_bytes, not both");
+    if ((rc = check_mesh_data(m, s, lim, e)) || (rc = check_mesh_options(m, e)) ||
+        (rc = check_source_name(&m->source_name, e)))
+        return rc;
     if (m->n_domain && (rc = check_box(m->domain, m->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(m->res, lim, e))) return rc;
-    return bad(e, INVALID, "mesh jobs are not supported yet");
+    if (m->n_domain && m->pad)
+        return bad(e, INVALID, "pad %u is for a mesh fitted to its bounding box, not with a domain",
+                   m->pad);
+    if ((uint64_t)m->pad * 2 >= m->res)
+        return bad(e, INVALID, "pad %u leaves no voxel for the mesh in res %u (2 pad < res)",
+                   m->pad, m->res);
+    if (s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
+        return bad(e, INVALID,
+                   "channel distance is not available for mesh jobs (use occupancy, density "
+                   "or surface)");
+    return 0;
 }
 
 typedef struct {

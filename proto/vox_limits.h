@@ -48,6 +48,11 @@
       "bytes of one ResultChunk's data")                                               \
     X(max_csg_nodes, uint32_t, 1024u, 1u, 65536u, COUNT, "nodes of a CSG job")          \
     X(max_input_bytes, uint64_t, (uint64_t)64 << 20, (uint64_t)4 << 10,                \
-      (uint64_t)4 << 30, BYTES, "bytes of a job's input sent as InputChunks")
+      (uint64_t)4 << 30, BYTES, "bytes of a job's input sent as InputChunks")          \
+    X(max_mesh_bytes, uint64_t, (uint64_t)64 << 20, (uint64_t)4 << 10,                 \
+      (uint64_t)4 << 30, BYTES,                                                        \
+      "bytes of a mesh job's file, inline or as input (max_input_bytes caps the latter)") \
+    X(max_triangles, uint32_t, 4u << 20, 1u, 64u << 20, COUNT,                         \
+      "triangles of a mesh job's mesh, polygons split (64M is the loaders' own cap)")
 
 #endif

@@ -34,6 +34,7 @@
 #include "frame.h"
 #include "grid.h"
 #include "log.h"
+#include "mesh_vox.h"
 #include "voxd.pb-c.h"
 
 #define VD_SERVER_NAME "voxd 0.1"
@@ -69,7 +70,10 @@ struct vd_job {
     int state;                 /* enum vd_job_state (under mu) */
 
     /* the request, copied and checked */
-    char *source;              /* NUL-terminated: inline, or the input as it arrives */
+    int kind;                  /* pipeline_kind: PIPELINE_IMPLICIT or PIPELINE_MESH */
+    /* The job's input: the expression, or the mesh file's bytes (freed
+     * once parsed); NUL-terminated; inline, or the input as it arrives. */
+    char *source;
     size_t source_len;         /* bytes of it (received so far while uploading) */
     /* an input sent as InputChunks (loop only) */
     uint64_t input_total;      /* bytes the Submit declared, 0 = inline */
@@ -81,8 +85,13 @@ struct vd_job {
     int schedule;              /* engine_schedule */
     int channel;               /* VOXEL_CH_* */
     uint32_t brick, comp, hash;
+    /* a mesh job's options (mesh_opts.channel = channel) */
+    mesh_format mesh_format;
+    mesh_vox_opts mesh_opts;
+    uint32_t pad;
+    int fit;                   /* no domain: the mesh's bounding box and pad */
     /* limits at submit time (a HUP does not change a job's) */
-    uint32_t max_expr_bytes, max_expr_depth, job_timeout;
+    uint32_t max_expr_bytes, max_expr_depth, job_timeout, max_triangles;
     uint64_t max_result_bytes;
 
     /* The daemon's results_held, in which this job's result counts (size

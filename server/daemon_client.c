@@ -14,6 +14,7 @@
 #include "clock.h"
 #include "daemon.h"
 #include "log.h"
+#include "pipeline.h"
 #include "proto_check.h"
 #include "vod.h"
 #include "voxel.h"
@@ -212,19 +213,73 @@ static int on_hello(vd_client *c, const Voxd__Hello *h)
     return vd_send_hello_ok(c);
 }
 
+/* A domain of 2 values (a cube) or 6 (checked). */
+static void job_domain(vd_job *j, const double *dom, size_t n)
+{
+    for (int a = 0; a < 3; a++) {
+        size_t k = n == 2 ? 0 : 2 * (size_t)a;
+        j->lo[a] = dom[k];
+        j->hi[a] = dom[k + 1];
+    }
+}
+
+/* The protocol's mesh enums are mesh.h's formats and mesh_vox.h's modes and
+ * repairs plus one (0 being the protocol's "not given"). */
+_Static_assert((int)VOXD__MESH_FORMAT__MESH_FORMAT_OBJ == MESH_FORMAT_OBJ &&
+                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_STL == MESH_FORMAT_STL &&
+                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_PLY == MESH_FORMAT_PLY &&
+                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_OFF == MESH_FORMAT_OFF,
+               "MeshFormat numbers");
+_Static_assert((int)VOXD__MESH_MODE__MESH_MODE_SOLID == MESH_SOLID + 1 &&
+                   (int)VOXD__MESH_MODE__MESH_MODE_SURFACE == MESH_SURFACE + 1 &&
+                   (int)VOXD__MESH_MODE__MESH_MODE_SURFACE6 == MESH_SURFACE6 + 1 &&
+                   (int)VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE == MESH_CONSERVATIVE + 1 &&
+                   (int)VOXD__MESH_MODE__MESH_MODE_INTERIOR == MESH_INTERIOR + 1,
+               "MeshMode numbers");
+_Static_assert((int)VOXD__MESH_REPAIR__MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 &&
+                   (int)VOXD__MESH_REPAIR__MESH_REPAIR_VOTE == MESH_REPAIR_VOTE + 1 &&
+                   (int)VOXD__MESH_REPAIR__MESH_REPAIR_WINDING == MESH_REPAIR_WINDING + 1,
+               "MeshRepair numbers");
+
+/* A mesh job's options, as vox voxelize --mesh gives them to the pipeline. */
+static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
+{
+    j->kind = PIPELINE_MESH;
+    j->fit = m->n_domain == 0;
+    if (!j->fit) job_domain(j, m->domain, m->n_domain);
+    j->res = m->res;
+    j->pad = m->pad;
+    j->mesh_format = (mesh_format)m->format; /* MESH_FORMAT_AUTO .. OFF, the same numbers */
+    j->mesh_opts.mode = m->mode ? (mesh_mode)(m->mode - 1) : MESH_SOLID;
+    j->mesh_opts.repair = m->repair ? (mesh_repair)(m->repair - 1) : MESH_REPAIR_NONE;
+    j->mesh_opts.supersample = m->supersample;
+    j->schedule = ENGINE_SCHED_SUBTREE; /* not the mesh kind's: tiles */
+}
+
+static int channel_of(const Voxd__Submit *s)
+{
+    switch (s->channel) {
+    case VOXD__CHANNEL__CHANNEL_OCCUPANCY: return VOXEL_CH_OCCUPANCY;
+    case VOXD__CHANNEL__CHANNEL_DENSITY: return VOXEL_CH_DENSITY;
+    case VOXD__CHANNEL__CHANNEL_SURFACE: return VOXEL_CH_SURFACE;
+    default: return s->job_case == VOXD__SUBMIT__JOB_MESH ? VOXEL_CH_OCCUPANCY : VOXEL_CH_SURFACE;
+    }
+}
+
 static void job_from_request(vd_job *j, const Voxd__Submit *s)
 {
-    const Voxd__Implicit *im = s->implicit;
-    for (int a = 0; a < 3; a++) {
-        size_t k = im->n_domain == 2 ? 0 : 2 * (size_t)a;
-        j->lo[a] = im->domain[k];
-        j->hi[a] = im->domain[k + 1];
+    if (s->job_case == VOXD__SUBMIT__JOB_MESH) {
+        mesh_from_request(j, s->mesh);
+    } else {
+        const Voxd__Implicit *im = s->implicit;
+        j->kind = PIPELINE_IMPLICIT;
+        job_domain(j, im->domain, im->n_domain);
+        j->res = im->res;
+        j->schedule = im->schedule == VOXD__SCHEDULE__SCHEDULE_PAPER ? ENGINE_SCHED_PAPER
+                                                                     : ENGINE_SCHED_SUBTREE;
     }
-    j->res = im->res;
-    j->schedule = im->schedule == VOXD__SCHEDULE__SCHEDULE_PAPER ? ENGINE_SCHED_PAPER
-                                                                 : ENGINE_SCHED_SUBTREE;
-    j->channel = s->channel == VOXD__CHANNEL__CHANNEL_OCCUPANCY ? VOXEL_CH_OCCUPANCY
-                                                               : VOXEL_CH_SURFACE;
+    j->channel = channel_of(s);
+    j->mesh_opts.channel = j->channel;
     j->brick = s->brick ? s->brick : VOD_DEFAULT_BRICK;
     j->comp = s->comp == VOXD__COMPRESSION__COMPRESSION_NONE   ? VOD_COMP_NONE
               : s->comp == VOXD__COMPRESSION__COMPRESSION_RUNL ? VOD_COMP_RUNL
@@ -236,11 +291,30 @@ static void job_from_request(vd_job *j, const Voxd__Submit *s)
  * a client that declares much and sends little holds little. */
 #define INPUT_FIRST_ALLOC (64u << 10)
 
-/* The job's source: the inline expression, or an empty buffer for the
- * input to come. */
+/* The job's input inline (the expression or the mesh file) and the file's
+ * name, per kind (proto_check made sure the member is there). */
+static const ProtobufCBinaryData *inline_input(const Voxd__Submit *s)
+{
+    return s->job_case == VOXD__SUBMIT__JOB_MESH ? &s->mesh->data : &s->implicit->source;
+}
+
+static const ProtobufCBinaryData *source_name_of(const Voxd__Submit *s)
+{
+    return s->job_case == VOXD__SUBMIT__JOB_MESH ? &s->mesh->source_name
+                                                 : &s->implicit->source_name;
+}
+
+/* What the job's input is, for messages. */
+static const char *input_name(const vd_job *j)
+{
+    return j->kind == PIPELINE_MESH ? "mesh" : "expression";
+}
+
+/* The job's source: the inline input, or an empty buffer for the input to
+ * come. */
 static int job_source(vd_job *j, const Voxd__Submit *s)
 {
-    const ProtobufCBinaryData *src = &s->implicit->source;
+    const ProtobufCBinaryData *src = inline_input(s);
     size_t cap = src->len + 1;
     if (s->input_bytes) {
         j->input_total = s->input_bytes;
@@ -264,7 +338,7 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
         free(j);
         return NULL;
     }
-    const ProtobufCBinaryData *name = &s->implicit->source_name;
+    const ProtobufCBinaryData *name = source_name_of(s);
     if (name->len && !(j->source_name = strndup((const char *)name->data, name->len))) {
         free(j->source);
         free(j);
@@ -275,6 +349,7 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
     j->fd = -1;
     j->max_expr_bytes = cfg->max_expr_bytes;
     j->max_expr_depth = cfg->max_expr_depth;
+    j->max_triangles = cfg->max_triangles;
     j->max_result_bytes = cfg->max_result_bytes;
     j->job_timeout = cfg->job_timeout;
     j->held_sum = &c->d->results_held;
@@ -333,12 +408,13 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     c->jobs = j;
     if (j->state == VD_UPLOADING) {
         d->nuploading++;
-        log_info("job %llu: accepted from uid %u, res %u, waiting for %llu bytes of expression",
+        log_info("job %llu: accepted from uid %u, res %u, waiting for %llu bytes of %s",
                  (unsigned long long)j->id, (unsigned)c->uid, j->res,
-                 (unsigned long long)j->input_total);
+                 (unsigned long long)j->input_total, input_name(j));
     } else {
-        log_info("job %llu: accepted from uid %u, res %u, %zu bytes of expression",
-                 (unsigned long long)j->id, (unsigned)c->uid, j->res, j->source_len);
+        log_info("job %llu: accepted from uid %u, res %u, %zu bytes of %s",
+                 (unsigned long long)j->id, (unsigned)c->uid, j->res, j->source_len,
+                 input_name(j));
     }
     return vd_send_accepted(c, j->id, pos);
 }
@@ -396,9 +472,10 @@ static vd_job *upload_of(vd_client *c, uint64_t id)
     return NULL;
 }
 
-/* A piece of a job's input: in order, within the declared size, bytes an
- * expression may hold.  The last one queues the job (admitted at its
- * Submit, where it was counted as queued). */
+/* A piece of a job's input: in order, within the declared size, bytes its
+ * kind may hold (an expression no NUL; a mesh file any byte).  The last
+ * one queues the job (admitted at its Submit, where it was counted as
+ * queued). */
 static int on_input(vd_client *c, const Voxd__InputChunk *m)
 {
     unsigned long long id = (unsigned long long)m->job_id;
@@ -418,7 +495,7 @@ static int on_input(vd_client *c, const Voxd__InputChunk *m)
                            "job declared (input_bytes)",
                            n, (unsigned long long)m->offset,
                            (unsigned long long)j->input_total);
-    const uint8_t *nul = memchr(data, 0, n);
+    const uint8_t *nul = j->kind == PIPELINE_IMPLICIT ? memchr(data, 0, n) : NULL;
     if (nul)
         return upload_fail(c, j, VOXD__ERROR_CODE__INVALID_INPUT,
                            "expression source contains a NUL byte at offset %llu",

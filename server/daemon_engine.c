@@ -15,6 +15,7 @@
 #include "daemon.h"
 #include "expr.h"
 #include "log.h"
+#include "mesh.h"
 #include "pipeline.h"
 #include "vod.h"
 
@@ -234,8 +235,8 @@ void vd_job_stopped(vd_job *j)
     case VOXD__ERROR_CODE__TIMEOUT:
         job_error(j, j->cancel_code,
                   "the job ran past this server's job_timeout of %u s; ask for a lower "
-                  "res or a simpler expression",
-                  j->job_timeout);
+                  "res or a simpler %s",
+                  j->job_timeout, j->kind == PIPELINE_MESH ? "mesh" : "expression");
         break;
     case VOXD__ERROR_CODE__SHUTTING_DOWN:
         job_error(j, j->cancel_code, "the daemon is stopping");
@@ -259,6 +260,39 @@ static int compile(vd_job *j, expr_tape **tape)
     if (xe.line > 0)
         return job_error(j, code, "expression:%d:%d: %s", xe.line, xe.col, xe.msg);
     return job_error(j, code, "expression: %s", xe.msg[0] ? xe.msg : strerror(-rc));
+}
+
+/* The mesh from the job's bytes, parsed here whatever a client did (its
+ * messages with the file's line or byte); then the bytes are freed, the
+ * mesh holding what the job needs.  0, or -1 with the job's error set. */
+static int parse_mesh(vd_job *j, mesh *m)
+{
+    mesh_limits lim = {.max_triangles = j->max_triangles};
+    mesh_error me = {0};
+    int rc = mesh_parse(j->source, j->source_len, j->mesh_format, &lim, m, &me);
+    if (rc == 0 && m->n_triangles == 0) {
+        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT,
+                  "mesh: no triangles (%llu degenerate ones dropped)",
+                  (unsigned long long)m->n_degenerate);
+        mesh_free(m);
+        return -1;
+    }
+    if (rc == 0) {
+        free(j->source);
+        j->source = NULL;
+        return 0;
+    }
+    char at[48] = "";
+    if (me.line) snprintf(at, sizeof at, "line %llu: ", (unsigned long long)me.line);
+    else if (me.offset) snprintf(at, sizeof at, "byte %llu: ", (unsigned long long)me.offset);
+    const char *why = me.msg[0] ? me.msg : strerror(-rc);
+    if (rc == -E2BIG)
+        return job_error(j, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
+                         "mesh: %s%s (this server's max_triangles is %u)", at, why,
+                         j->max_triangles);
+    return job_error(j, rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
+                                      : VOXD__ERROR_CODE__INTERNAL,
+                     "mesh: %s%s", at, why);
 }
 
 /* The daemon's error code for the engine's reason. */
@@ -309,42 +343,71 @@ static int job_failed(vd_job *j, const result_sink *rs, const pipeline_report *r
     return job_error(j, code, "cannot write the VOD: %s", err->message);
 }
 
-static void run_job(vd_daemon *d, engine *e, vd_job *j, uint64_t room)
+/* The job through the pipeline into its memfd, its outcome in j. */
+static void run_pipeline(engine *e, vd_job *j, pipeline_job *job, uint64_t room)
 {
-    expr_tape *tape = NULL;
-    if (compile(j, &tape)) return;
-    j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
-    if (j->fd < 0) {
-        job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
-                  strerror(errno));
-        expr_tape_free(tape);
-        return;
-    }
-    progress_ctx px = {d, j, e};
-    pipeline_job job = {
-        .kind = PIPELINE_IMPLICIT,
-        .implicit = {.tape = tape, .source = j->source, .source_len = j->source_len,
-                     .source_name = j->source_name},
-        .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
-        .res = j->res, .schedule = (engine_schedule)j->schedule,
-        .progress = on_progress, .ud = &px, .cancel = &j->cancel,
-    };
-    vod_params_default(&job.vod);
-    job.vod.channel = j->channel;
-    job.vod.brick = j->brick;
-    job.vod.comp = j->comp;
-    job.vod.hash = j->hash;
+    vod_params_default(&job->vod);
+    job->vod.channel = j->channel;
+    job->vod.brick = j->brick;
+    job->vod.comp = j->comp;
+    job->vod.hash = j->hash;
     result_sink rs = {.j = j, .room = room};
     vod_sink sink = {sink_write, &rs};
     pipeline_report r;
-    if (pipeline_run(e, &job, &sink, &r) == 0) j->code = 0;
+    if (pipeline_run(e, job, &sink, &r) == 0) j->code = 0;
     else job_failed(j, &rs, &r);
     j->grid = r.grid;
     j->t_voxelize = r.t_voxelize;
     j->t_write = r.t_write;
     j->voxels = r.voxels;
     j->st = r.st;
+}
+
+/* The kind's part of the pipeline job, as vox voxelize fills it (so the
+ * bytes are the same): the expression compiled or the mesh parsed, into
+ * *tape or *m (the caller frees them).  0, or -1 with the job's error. */
+static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m)
+{
+    if (j->kind == PIPELINE_MESH) {
+        if (parse_mesh(j, m)) return -1;
+        job->kind = PIPELINE_MESH;
+        job->mesh.mesh = m;
+        job->mesh.opts = j->mesh_opts;
+        job->mesh.pad = j->pad;
+        job->mesh.fit = j->fit;
+        job->mesh.source_name = j->source_name;
+        job->mesh.source_bytes = j->source_len;
+        return 0;
+    }
+    if (compile(j, tape)) return -1;
+    job->kind = PIPELINE_IMPLICIT;
+    job->implicit.tape = *tape;
+    job->implicit.source = j->source;
+    job->implicit.source_len = j->source_len;
+    job->implicit.source_name = j->source_name;
+    return 0;
+}
+
+static void run_job(vd_daemon *d, engine *e, vd_job *j, uint64_t room)
+{
+    progress_ctx px = {d, j, e};
+    pipeline_job job = {
+        .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
+        .res = j->res, .schedule = (engine_schedule)j->schedule,
+        .progress = on_progress, .ud = &px, .cancel = &j->cancel,
+    };
+    expr_tape *tape = NULL;
+    mesh m = {0};
+    if (job_input(j, &job, &tape, &m)) return;
+    j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
+    if (j->fd < 0) {
+        job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
+                  strerror(errno));
+    } else {
+        run_pipeline(e, j, &job, room);
+    }
     expr_tape_free(tape);
+    mesh_free(&m);
 }
 
 /* ---------------------------------------------------------------- the thread */
