@@ -937,40 +937,114 @@ static int upload(vox_client *c, uint64_t id, const uint8_t *data, size_t n, vox
     return rc;
 }
 
-/* The Submit of an implicit job, with its source inline or declared as
- * input (then sent by upload). */
-static void implicit_request(const vox_job *job, int chunked, Voxd__Implicit *im,
-                             Voxd__Submit *sub, Voxd__Request *req)
+/* A Submit and the messages it points into (the caller's, on its stack). */
+typedef struct {
+    Voxd__Implicit im;
+    Voxd__Mesh mesh;
+    Voxd__Submit sub;
+    Voxd__Request req;
+} submit_msg;
+
+/* The job's input, the expression or the mesh file: 0, or -EINVAL /
+ * -ENOTSUP with err set. */
+static int job_input(const vox_job *job, const uint8_t **data, size_t *len, vox_error *err)
+{
+    int k = job ? job->kind : 0;
+    if (k == VOX_JOB_IMPLICIT && job->implicit.source) {
+        *data = (const uint8_t *)job->implicit.source;
+        *len = job->implicit.source_len ? job->implicit.source_len
+                                        : strlen(job->implicit.source);
+        return 0;
+    }
+    if (k == VOX_JOB_MESH && job->mesh.data && job->mesh.len) {
+        *data = job->mesh.data;
+        *len = job->mesh.len;
+        return 0;
+    }
+    int rc = k == VOX_JOB_CSG ? -ENOTSUP : -EINVAL;
+    set_error(err, rc, 0, "%s",
+              k == VOX_JOB_CSG        ? "this libvox cannot send CSG jobs yet"
+              : k == VOX_JOB_IMPLICIT ? "the job has no expression"
+              : k == VOX_JOB_MESH     ? "the job has no mesh data"
+                                      : "the job is of no known kind");
+    return rc;
+}
+
+/* A file's name for the metadata, if any. */
+static ProtobufCBinaryData name_bytes(const char *name)
+{
+    ProtobufCBinaryData b = {name ? strlen(name) : 0, (uint8_t *)name};
+    return b;
+}
+
+/* The kind's message: its input inline, or left out (chunked: sent by
+ * upload after the Accepted). */
+static void implicit_request(const vox_job *job, const uint8_t *data, size_t len,
+                             int chunked, submit_msg *m)
 {
     const vox_implicit *ij = &job->implicit;
-    size_t len = ij->source_len ? ij->source_len : strlen(ij->source);
-    if (chunked) sub->input_bytes = len;
-    else im->source.data = (uint8_t *)ij->source, im->source.len = len;
-    if (ij->source_name) {
-        im->source_name.data = (uint8_t *)ij->source_name;
-        im->source_name.len = strlen(ij->source_name);
+    if (!chunked) m->im.source.data = (uint8_t *)data, m->im.source.len = len;
+    m->im.source_name = name_bytes(ij->source_name);
+    m->im.domain = (double *)ij->domain;
+    m->im.n_domain = 6;
+    m->im.res = ij->res;
+    m->im.schedule = (Voxd__Schedule)ij->schedule;
+    m->sub.job_case = VOXD__SUBMIT__JOB_IMPLICIT;
+    m->sub.implicit = &m->im;
+}
+
+static void mesh_request(const vox_job *job, const uint8_t *data, size_t len, int chunked,
+                         submit_msg *m)
+{
+    const vox_mesh *mj = &job->mesh;
+    if (!chunked) m->mesh.data.data = (uint8_t *)data, m->mesh.data.len = len;
+    m->mesh.format = (Voxd__MeshFormat)mj->format;
+    m->mesh.mode = (Voxd__MeshMode)mj->mode;
+    m->mesh.repair = (Voxd__MeshRepair)mj->repair;
+    m->mesh.supersample = mj->supersample;
+    m->mesh.source_name = name_bytes(mj->source_name);
+    if (mj->fit) {
+        m->mesh.pad = mj->pad;
+    } else {
+        m->mesh.domain = (double *)mj->domain;
+        m->mesh.n_domain = 6;
     }
-    im->domain = (double *)ij->domain;
-    im->n_domain = 6;
-    im->res = ij->res;
-    im->schedule = (Voxd__Schedule)ij->schedule;
-    sub->job_case = VOXD__SUBMIT__JOB_IMPLICIT;
-    sub->implicit = im;
-    sub->channel = (Voxd__Channel)job->channel;
-    sub->brick = job->brick;
-    sub->comp = (Voxd__Compression)job->comp;
-    sub->hash = (Voxd__Hash)job->hash;
-    req->msg_case = VOXD__REQUEST__MSG_SUBMIT;
-    req->submit = sub;
+    m->mesh.res = mj->res;
+    m->sub.job_case = VOXD__SUBMIT__JOB_MESH;
+    m->sub.mesh = &m->mesh;
+}
+
+/* The Submit of job, its input inline or declared as input_bytes. */
+static void submit_request(const vox_job *job, const uint8_t *data, size_t len, int chunked,
+                           submit_msg *m)
+{
+    *m = (submit_msg){VOXD__IMPLICIT__INIT, VOXD__MESH__INIT, VOXD__SUBMIT__INIT,
+                      VOXD__REQUEST__INIT};
+    if (job->kind == VOX_JOB_MESH) mesh_request(job, data, len, chunked, m);
+    else implicit_request(job, data, len, chunked, m);
+    if (chunked) m->sub.input_bytes = len;
+    m->sub.channel = (Voxd__Channel)job->channel;
+    m->sub.brick = job->brick;
+    m->sub.comp = (Voxd__Compression)job->comp;
+    m->sub.hash = (Voxd__Hash)job->hash;
+    m->req.msg_case = VOXD__REQUEST__MSG_SUBMIT;
+    m->req.submit = &m->sub;
 }
 
 /* What the daemon would refuse for its size, refused here unsent. */
-static int check_input_size(const vox_client *c, size_t len, int chunked, vox_error *err)
+static int check_input_size(const vox_client *c, int kind, size_t len, int chunked,
+                            vox_error *err)
 {
-    if (len > c->lim.max_expr_bytes) {
+    if (kind == VOX_JOB_IMPLICIT && len > c->lim.max_expr_bytes) {
         set_error(err, VOX_ELIMIT_EXCEEDED, 0,
                   "expression is %zu bytes, over this server's max_expr_bytes of %u", len,
                   c->lim.max_expr_bytes);
+        return VOX_ELIMIT_EXCEEDED;
+    }
+    if (kind == VOX_JOB_MESH && len > c->lim.max_mesh_bytes) {
+        set_error(err, VOX_ELIMIT_EXCEEDED, 0,
+                  "mesh is %zu bytes, over this server's max_mesh_bytes of %llu", len,
+                  (unsigned long long)c->lim.max_mesh_bytes);
         return VOX_ELIMIT_EXCEEDED;
     }
     if (chunked && len > c->lim.max_input_bytes) {
@@ -987,36 +1061,21 @@ int vox_submit_job(vox_client *c, const vox_job *job, uint64_t *job_id,
 {
     vox_error tmp;
     if (!err) err = &tmp;
-    if (!job || job->kind != VOX_JOB_IMPLICIT) {
-        int k = job ? job->kind : 0, rc = k == VOX_JOB_MESH || k == VOX_JOB_CSG ? -ENOTSUP : -EINVAL;
-        set_error(err, rc, 0, "%s", rc == -ENOTSUP ? "this libvox cannot send mesh or CSG jobs yet"
-                                                   : "the job is of no known kind");
-        return rc;
-    }
-    const vox_implicit *ij = &job->implicit;
-    if (!ij->source) {
-        set_error(err, -EINVAL, 0, "the job has no expression");
-        return -EINVAL;
-    }
-    size_t len = ij->source_len ? ij->source_len : strlen(ij->source);
-    Voxd__Implicit im = VOXD__IMPLICIT__INIT;
-    Voxd__Submit sub = VOXD__SUBMIT__INIT;
-    Voxd__Request req = VOXD__REQUEST__INIT;
-    implicit_request(job, 0, &im, &sub, &req);
+    const uint8_t *data;
+    size_t len;
+    int rc = job_input(job, &data, &len, err);
+    if (rc) return rc;
+    submit_msg m;
+    submit_request(job, data, len, 0, &m);
     /* Inline when small and it fits a frame; else in InputChunks. */
     int chunked = len > c->inline_max ||
-                  protobuf_c_message_get_packed_size(&req.base) > c->lim.max_frame;
-    int rc = check_input_size(c, len, chunked, err);
-    if (rc) return rc;
-    if (chunked) {
-        im = (Voxd__Implicit)VOXD__IMPLICIT__INIT;
-        sub = (Voxd__Submit)VOXD__SUBMIT__INIT;
-        implicit_request(job, 1, &im, &sub, &req);
-    }
-    if ((rc = request(c, P_SUBMIT, &req, err))) return rc;
+                  protobuf_c_message_get_packed_size(&m.req.base) > c->lim.max_frame;
+    if ((rc = check_input_size(c, job->kind, len, chunked, err))) return rc;
+    if (chunked) submit_request(job, data, len, 1, &m);
+    if ((rc = request(c, P_SUBMIT, &m.req, err))) return rc;
     uint64_t id = c->ans_job;
     uint32_t qpos = c->ans_qpos;
-    if (chunked && (rc = upload(c, id, (const uint8_t *)ij->source, len, err))) return rc;
+    if (chunked && (rc = upload(c, id, data, len, err))) return rc;
     *job_id = id;
     if (queue_position) *queue_position = qpos;
     return 0;

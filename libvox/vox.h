@@ -59,8 +59,9 @@ extern "C" {
 /* The daemon's default socket; vox uses $VOXD_SOCKET first. */
 #define VOX_DEFAULT_SOCKET "/run/voxd/voxd.sock"
 #define VOX_DEFAULT_TIMEOUT_MS 30000
-/* A job's input (an implicit job's expression) larger than this is sent
- * after the job's Submit in InputChunks rather than inside it. */
+/* A job's input (an implicit job's expression, a mesh job's file) larger
+ * than this is sent after the job's Submit in InputChunks rather than
+ * inside it. */
 #define VOX_DEFAULT_INLINE_MAX 65536
 
 /* A short description: "no such file or directory", "over a limit of the daemon". */
@@ -109,7 +110,7 @@ typedef struct {
     /* The daemon's limits, one field per row of VOX_LIMITS (vox_limits.h):
      * max_frame, max_expr_bytes, max_expr_depth, max_res, max_queued_jobs,
      * max_jobs_per_uid, job_timeout, max_result_bytes, chunk_size,
-     * max_csg_nodes, max_input_bytes. */
+     * max_csg_nodes, max_input_bytes, max_mesh_bytes, max_triangles. */
 #define VOX_SERVER_LIMIT(name, type, def, min, max, unit, doc) type name;
     VOX_LIMITS(VOX_SERVER_LIMIT)
 #undef VOX_SERVER_LIMIT
@@ -121,7 +122,14 @@ void vox_server(const vox_client *c, vox_server_info *out);
 /* ---------------------------------------------------------------- jobs */
 
 /* Enum values are the protocol's; 0 everywhere means the daemon's default. */
-enum { VOX_CHANNEL_DEFAULT = 0, VOX_CHANNEL_OCCUPANCY = 1, VOX_CHANNEL_SURFACE = 3 };
+/* DEFAULT: SURFACE for an implicit job, OCCUPANCY for a mesh job; DENSITY
+ * is for mesh jobs only. */
+enum {
+    VOX_CHANNEL_DEFAULT = 0,
+    VOX_CHANNEL_OCCUPANCY = 1,
+    VOX_CHANNEL_DENSITY = 2,
+    VOX_CHANNEL_SURFACE = 3,
+};
 enum { VOX_COMP_DEFAULT = 0, VOX_COMP_NONE = 1, VOX_COMP_ZLIB = 2, VOX_COMP_RUNL = 3 };
 enum { VOX_HASH_DEFAULT = 0, VOX_HASH_SFHS = 1, VOX_HASH_XX32 = 2 };
 enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 2 };
@@ -129,7 +137,7 @@ enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 
 /* The kinds of job (the protocol's Submit.job numbers). */
 enum {
     VOX_JOB_IMPLICIT = 1, /* vox_job.implicit */
-    VOX_JOB_MESH = 2,     /* a triangle mesh: not supported yet */
+    VOX_JOB_MESH = 2,     /* vox_job.mesh */
     VOX_JOB_CSG = 3,      /* volume CSG: not supported yet */
 };
 
@@ -144,12 +152,59 @@ typedef struct {
     int schedule;         /* VOX_SCHEDULE_* */
 } vox_implicit;
 
+/* A mesh job's file format, mode and repair (mesh/mesh_vox.h says what each
+ * does); 0 everywhere is the default. */
+enum {
+    VOX_MESH_FORMAT_AUTO = 0, /* told from the contents */
+    VOX_MESH_FORMAT_OBJ = 1,
+    VOX_MESH_FORMAT_STL = 2,
+    VOX_MESH_FORMAT_PLY = 3,
+    VOX_MESH_FORMAT_OFF = 4,
+};
+enum {
+    VOX_MESH_MODE_DEFAULT = 0, /* SOLID */
+    VOX_MESH_MODE_SOLID = 1,   /* voxel centres inside the mesh */
+    VOX_MESH_MODE_SURFACE = 2, /* voxels a triangle touches (26-separating) */
+    VOX_MESH_MODE_SURFACE6 = 3, /* the thinner 6-separating surface */
+    VOX_MESH_MODE_CONSERVATIVE = 4, /* solid plus surface */
+    VOX_MESH_MODE_INTERIOR = 5, /* solid minus surface */
+};
+enum {
+    VOX_MESH_REPAIR_DEFAULT = 0, /* NONE */
+    VOX_MESH_REPAIR_NONE = 1,    /* the parity along z */
+    VOX_MESH_REPAIR_VOTE = 2,    /* the majority of the parities along x, y, z */
+    VOX_MESH_REPAIR_WINDING = 3, /* the winding number where they disagree */
+};
+
+/* A triangle mesh file (OBJ, STL, PLY, OFF) voxelized on a grid: the job
+ * of `vox voxelize --mesh`, which gives the same file.  The daemon parses
+ * the bytes itself when the job runs; a file it cannot read is the job's
+ * VOX_EINVALID_INPUT (with the line or byte), too many triangles its
+ * VOX_ELIMIT_EXCEEDED. */
+typedef struct {
+    const void *data;     /* the file's bytes, as they are */
+    size_t len;           /* 1..the daemon's max_mesh_bytes */
+    int format;           /* VOX_MESH_FORMAT_* */
+    const char *source_name; /* the file's name, for the VOD's metadata
+                                (at most 512 bytes, one line); may be NULL */
+    int mode;             /* VOX_MESH_MODE_* */
+    int repair;           /* VOX_MESH_REPAIR_* */
+    uint32_t supersample; /* VOX_CHANNEL_DENSITY: samples per voxel and axis,
+                             2..8; 0 = 2 */
+    int fit;              /* 1: the grid fits the mesh's bounding box grown by
+                             pad voxels each side (domain unused); 0: domain */
+    uint32_t pad;         /* fit: empty voxels around the box (vox's default: 1) */
+    double domain[6];     /* !fit: x0, x1, y0, y1, z0, z1, each low < high */
+    uint32_t res;         /* voxels along the longest axis; 2 pad < res */
+} vox_mesh;
+
 /* A job of any kind: `kind` says which member of the union holds it; the
  * VOD options are common to every kind. */
 typedef struct {
     int kind;             /* VOX_JOB_* */
     union {
         vox_implicit implicit; /* VOX_JOB_IMPLICIT */
+        vox_mesh mesh;         /* VOX_JOB_MESH */
     };
     int channel;          /* VOX_CHANNEL_* */
     uint32_t brick;       /* brick side, a power of two 2..256; 0 = 16 */
@@ -159,15 +214,16 @@ typedef struct {
 
 /* Send a job.  On acceptance *job_id (never 0) names it and *queue_position
  * (may be NULL) is the number of jobs before it (0: running now).  An input
- * larger than the client's inline_max, or than fits the daemon's max_frame,
- * follows the job in InputChunks; the call returns once it is all sent (a
- * job that the daemon ends during its upload, say for a NUL byte in the
- * expression, is still accepted: vox_receive_* gives its error).  A
- * refusal is a VOX_E* code with the daemon's reason (VOX_EBUSY,
- * VOX_ELIMIT_EXCEEDED, VOX_EINVALID_INPUT, VOX_ESHUTTING_DOWN).  An input
- * over the daemon's max_expr_bytes or max_input_bytes is refused here with
- * VOX_ELIMIT_EXCEEDED, unsent; a kind this libvox cannot send yet (mesh,
- * CSG) with -ENOTSUP. */
+ * (the expression, the mesh file) larger than the client's inline_max, or
+ * than fits the daemon's max_frame, follows the job in InputChunks; the
+ * call returns once it is all sent (a job that the daemon ends during its
+ * upload, say for a NUL byte in the expression, is still accepted:
+ * vox_receive_* gives its error).  A refusal is a VOX_E* code with the
+ * daemon's reason (VOX_EBUSY, VOX_ELIMIT_EXCEEDED, VOX_EINVALID_INPUT,
+ * VOX_ESHUTTING_DOWN).  An input over the daemon's max_expr_bytes (an
+ * expression), max_mesh_bytes (a mesh) or max_input_bytes is refused here
+ * with VOX_ELIMIT_EXCEEDED, unsent; a kind this libvox cannot send yet
+ * (CSG) with -ENOTSUP. */
 int vox_submit_job(vox_client *c, const vox_job *job, uint64_t *job_id,
                    uint32_t *queue_position, vox_error *err);
 

@@ -46,6 +46,7 @@ struct srv {
     uint64_t max_result;   /* 0: default */
     uint32_t hello_max_expr;  /* 0: default */
     uint64_t hello_max_input; /* 0: default */
+    uint64_t hello_max_mesh;  /* 0: default */
     int job_timeout;       /* 0: 600; -1: none */
     frame_decoder dec;
     uint8_t in[65536];
@@ -201,6 +202,7 @@ static void send_hello_ok(srv *s)
     if (s->hello_chunk) lim.chunk_size = (uint32_t)s->hello_chunk;
     if (s->hello_max_expr) lim.max_expr_bytes = s->hello_max_expr;
     if (s->hello_max_input) lim.max_input_bytes = s->hello_max_input;
+    if (s->hello_max_mesh) lim.max_mesh_bytes = s->hello_max_mesh;
     Voxd__Limits l = VOXD__LIMITS__INIT;
     proto_limits_to_hello(&lim, &l);
     Voxd__HelloOk h = VOXD__HELLO_OK__INIT;
@@ -1544,14 +1546,17 @@ Test(libvox, job_kinds_not_supported_yet_are_refused_unsent)
     vox_client *c = start(s, 5000);
     uint64_t id = 0;
     vox_error e;
-    vox_job j = {.kind = VOX_JOB_MESH};
+    vox_job j = {.kind = VOX_JOB_CSG};
     cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -ENOTSUP);
-    cr_expect(strstr(e.message, "mesh or CSG"), "%s", e.message);
-    j.kind = VOX_JOB_CSG;
-    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -ENOTSUP);
+    cr_expect(strstr(e.message, "CSG"), "%s", e.message);
+    j.kind = VOX_JOB_MESH; /* no data */
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
+    cr_expect(strstr(e.message, "no mesh data"), "%s", e.message);
+    j.mesh.data = "v 0 0 0\n"; /* and no length */
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
     j.kind = 0;
     cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
-    j.kind = VOX_JOB_IMPLICIT; /* no source */
+    j = (vox_job){.kind = VOX_JOB_IMPLICIT}; /* no source */
     cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
     vox_close(c);
@@ -1579,8 +1584,10 @@ static void srv_upload(srv *s, uint64_t id, upload_log *u)
 {
     Voxd__Request *r = srv_accept_job(s, id, 0);
     if (!r) return;
-    if (r->submit->input_bytes != u->n || r->submit->implicit->source.len)
-        srv_bad(s, "submit does not declare its input");
+    const Voxd__Submit *sub = r->submit;
+    size_t inline_len = sub->job_case == VOXD__SUBMIT__JOB_MESH ? sub->mesh->data.len
+                                                                : sub->implicit->source.len;
+    if (sub->input_bytes != u->n || inline_len) srv_bad(s, "submit does not declare its input");
     voxd__request__free_unpacked(r, NULL);
     uint8_t *got = malloc(u->n);
     size_t have = 0;
@@ -1606,7 +1613,7 @@ static void srv_upload(srv *s, uint64_t id, upload_log *u)
         voxd__request__free_unpacked(r, NULL);
     }
     if (!u->fail_after && (have != u->n || memcmp(got, u->want, u->n)))
-        srv_bad(s, "the input assembled differs from the expression");
+        srv_bad(s, "the input assembled differs from the job's");
     free(got);
 }
 
@@ -1710,6 +1717,134 @@ Test(libvox, job_ended_during_its_upload)
     cr_expect_lt(u.chunks + u.stray, (HUGE_EXPR + 1023) / 1024, "the client sent all %d chunks",
                  u.chunks + u.stray);
     free(expr);
+}
+
+/* ---------------------------------------------------------------- mesh jobs */
+
+/* A small binary "file": every byte value, NULs included (the daemon, not
+ * libvox, parses it). */
+static uint8_t *mesh_bytes(size_t n)
+{
+    uint8_t *b = malloc(n);
+    for (size_t i = 0; i < n; i++) b[i] = (uint8_t)(i * 7);
+    return b;
+}
+
+static const vox_mesh bunny = {
+    .format = VOX_MESH_FORMAT_AUTO, .source_name = "models/bunny.stl",
+    .mode = VOX_MESH_MODE_CONSERVATIVE, .repair = VOX_MESH_REPAIR_WINDING,
+    .supersample = 4, .fit = 1, .pad = 3, .domain = {-1, 1, -2, 2, -3, 3}, .res = 100,
+};
+
+/* Two mesh jobs inline: the Submit carries the file's bytes and every
+ * option as the protocol says (the fitted one its pad and no domain, the
+ * other its domain and no pad). */
+static void s_mesh_inline(srv *s)
+{
+    const uint8_t *want = s->arg;
+    srv_hello(s);
+    for (uint64_t id = 40; id < 42; id++) {
+        Voxd__Request *r = srv_accept_job(s, id, 0);
+        if (!r) return;
+        const Voxd__Submit *sub = r->submit;
+        const Voxd__Mesh *m = sub->job_case == VOXD__SUBMIT__JOB_MESH ? sub->mesh : NULL;
+        int fit = id == 40;
+        if (!m || sub->input_bytes || m->data.len != 300 || memcmp(m->data.data, want, 300))
+            srv_bad(s, "the mesh is not inline as it was given");
+        else if (m->format != VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED ||
+                 m->mode != VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE ||
+                 m->repair != VOXD__MESH_REPAIR__MESH_REPAIR_WINDING || m->supersample != 4 ||
+                 m->res != 100 || sub->channel != VOXD__CHANNEL__CHANNEL_DENSITY)
+            srv_bad(s, "the mesh's options are not the job's");
+        else if (m->source_name.len != 16 || memcmp(m->source_name.data, "models/bunny.stl", 16))
+            srv_bad(s, "the mesh's source_name is not the job's");
+        else if (fit ? m->pad != 3 || m->n_domain : m->pad || m->n_domain != 6 || m->domain[3] != 2)
+            srv_bad(s, "the fitted job has a domain, or the other a pad");
+        voxd__request__free_unpacked(r, NULL);
+        uint32_t crc;
+        uint8_t *b = make_result(2000, (uint32_t)id, &crc);
+        send_result(s, id, b, 2000, 1000);
+        send_summary(s, id, 2000, crc);
+        free(b);
+    }
+    srv_drain(s);
+}
+
+Test(libvox, mesh_job_inline_with_its_options)
+{
+    uint8_t *data = mesh_bytes(300);
+    srv *s = srv_new(s_mesh_inline, data);
+    vox_client *c = start(s, 5000);
+    vox_job j = {.kind = VOX_JOB_MESH, .mesh = bunny, .channel = VOX_CHANNEL_DENSITY};
+    j.mesh.data = data, j.mesh.len = 300;
+    vox_error e;
+    for (uint64_t want = 40; want < 42; want++) {
+        uint64_t id = 0;
+        cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
+        cr_expect_eq(id, want);
+        cr_expect_eq(vox_receive_file(c, id, out_path("m.vod"), NULL, NULL, NULL, &e), 0, "%s",
+                     e.message);
+        j.mesh.fit = 0; /* the second: its domain, its pad not sent */
+    }
+    vox_close(c);
+    srv_finish(s);
+    free(data);
+}
+
+/* A mesh file over the daemon's max_frame goes as InputChunks, bytes as
+ * they are (NULs too). */
+Test(libvox, mesh_over_a_frame_goes_in_chunks)
+{
+    uint8_t *data = mesh_bytes(9000);
+    upload_log u = {.want = (const char *)data, .n = 9000, .max_piece = 1024};
+    srv *s = srv_new(s_upload, &u);
+    vox_client *c = start(s, 5000);
+    vox_job j = {.kind = VOX_JOB_MESH, .mesh = bunny};
+    j.mesh.data = data, j.mesh.len = 9000;
+    uint64_t id = 0;
+    vox_error e;
+    cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(id, 9);
+    cr_expect_eq(vox_receive_file(c, id, out_path("m.vod"), NULL, NULL, NULL, &e), 0, "%s",
+                 e.message);
+    vox_close(c);
+    srv_finish(s);
+    cr_expect_eq(u.chunks, (9000 + 1023) / 1024);
+    free(data);
+}
+
+static void s_small_mesh_limit(srv *s)
+{
+    s->hello_max_mesh = 8192;
+    s->hello_max_frame = 4096;
+    s->hello_chunk = 4000;
+    s->hello_max_input = 6000;
+    srv_hello(s);
+    srv_drain(s); /* the oversized submits never arrive; a ping does */
+}
+
+/* A mesh over max_mesh_bytes, or one that must go as input and is over
+ * max_input_bytes, is refused here, unsent. */
+Test(libvox, mesh_over_the_limits_is_refused_unsent)
+{
+    srv *s = srv_new(s_small_mesh_limit, NULL);
+    vox_client *c = start(s, 5000);
+    uint8_t *data = mesh_bytes(9000);
+    vox_job j = {.kind = VOX_JOB_MESH, .mesh = bunny};
+    j.mesh.data = data, j.mesh.len = 9000;
+    uint64_t id;
+    vox_error e;
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), VOX_ELIMIT_EXCEEDED);
+    cr_expect(strstr(e.message, "mesh is 9000 bytes, over this server's max_mesh_bytes of 8192"),
+              "%s", e.message);
+    j.mesh.len = 7000;
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), VOX_ELIMIT_EXCEEDED);
+    cr_expect(strstr(e.message, "7000 bytes, over this server's max_input_bytes of 6000"), "%s",
+              e.message);
+    cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
+    vox_close(c);
+    srv_finish(s);
+    free(data);
 }
 
 Test(libvox, unwritable_output_fails_at_once)
