@@ -74,7 +74,9 @@ int cli_connect(const char *sock, int timeout_ms, vox_client **c, vox_error *err
  * connect; returns CLI_EXIT_NO_DAEMON. */
 int cli_no_daemon(const char *sock, int rc, const vox_error *err);
 /* Run the job on the daemon: submit, receive into o->out with the progress
- * line, print the summary.  Returns an exit code.  *refused (may be NULL)
+ * line, print the summary.  src is the expression, NULL for a mesh job
+ * (o->mesh: its file goes as it is, the daemon parses it).  Returns an
+ * exit code.  *refused (may be NULL)
  * is set to the VOX_E* code when the daemon refused the job before
  * accepting it (nothing printed for BUSY and SHUTTING_DOWN when
  * quiet_refusal is set, so that the caller may fall back). */

@@ -69,8 +69,10 @@ static const char usage_voxelize[] =
     "and no voxd answering.\n";
 
 static const char usage_submit[] =
-    "usage: vox [--socket PATH] submit (--expr EXPR | --file FILE.vx) -o OUT.vod [options]\n"
+    "usage: vox [--socket PATH] submit (--expr EXPR | --file FILE.vx | --mesh FILE)\n"
+    "           -o OUT.vod [options]\n"
     JOB_OPTIONS
+    MESH_OPTIONS
     "  -r, --res N            voxels along the longest axis, 1..the daemon's max_res\n"
     "                         (default 256)\n"
     OUTPUT_OPTIONS
@@ -80,9 +82,11 @@ static const char usage_submit[] =
     "\n"
     "Runs the job on the voxd daemon at the socket (see vox --help) and writes the\n"
     "result it streams back, checked (length and CRC-32) before it is renamed into\n"
-    "place.  On a terminal the job's id is shown; an interrupt (Ctrl-C) cancels the\n"
-    "job.  Exit status: 0 done, 1 the job failed or was refused (with the daemon's\n"
-    "reason), 2 bad usage or a bad expression, 3 no voxd answering on the socket.\n";
+    "place.  A mesh file goes as it is (inline, or in chunks when large): the daemon\n"
+    "reads it and says what is wrong with it.  On a terminal the job's id is shown;\n"
+    "an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job failed\n"
+    "or was refused (with the daemon's reason), 2 bad usage, a bad expression or a\n"
+    "mesh file the daemon cannot read, 3 no voxd answering on the socket.\n";
 
 void cli_job_usage(int cmd, FILE *f)
 {
@@ -239,6 +243,8 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
         {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
         {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
+        {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
+        {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int submit = cmd == CLI_CMD_SUBMIT;
     const char *name = submit ? "submit" : "voxelize";

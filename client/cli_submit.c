@@ -1,12 +1,16 @@
 /* vox submit / status / cancel / ping: the voxd daemon through libvox; and
  * the daemon half of vox voxelize. */
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <inttypes.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "cli.h"
 #include "progress.h"
@@ -76,7 +80,9 @@ static int on_job_progress(void *ud, double fraction, int level, uint64_t voxels
 
 static int vox_channel(int ch)
 {
-    return ch == VOXEL_CH_OCCUPANCY ? VOX_CHANNEL_OCCUPANCY : VOX_CHANNEL_SURFACE;
+    return ch == VOXEL_CH_OCCUPANCY ? VOX_CHANNEL_OCCUPANCY
+           : ch == VOXEL_CH_DENSITY ? VOX_CHANNEL_DENSITY
+                                    : VOX_CHANNEL_SURFACE;
 }
 
 static int vox_comp(uint32_t comp)
@@ -135,36 +141,108 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
             snprintf(what, sizeof what, "job %" PRIu64 " failed", id);
         if (rc == VOX_ECANCELLED && interrupted) cli_error("%s", what);
         else print_failure(what, rc, &err);
-        return CLI_EXIT_FAILED;
+        /* A mesh file the daemon cannot read: as when vox reads it itself. */
+        return rc == VOX_EINVALID_INPUT && o->mesh ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }
     if (!o->quiet) print_summary(o, &sum);
     return CLI_EXIT_OK;
 }
 
-int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
-                   int quiet_refusal, int *refused)
+/* The mesh file's bytes as they are, mapped (the daemon parses them, as
+ * vox voxelize --embedded does the file): 0, or CLI_EXIT_USAGE after a
+ * message in the loader's words. */
+static int map_mesh(const char *path, void **data, size_t *len)
 {
-    vox_job job = {
-        .kind = VOX_JOB_IMPLICIT,
-        .implicit = {
-            .source = src->text,
-            .source_len = src->len,
-            .source_name = src->path,
-            .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
-            .res = o->res,
-            .schedule = o->schedule == ENGINE_SCHED_PAPER ? VOX_SCHEDULE_PAPER
-                                                          : VOX_SCHEDULE_SUBTREE,
-        },
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    struct stat st;
+    if (fd < 0 || fstat(fd, &st) != 0) {
+        cli_error("%s: cannot open: %s", path, strerror(errno));
+        if (fd >= 0) close(fd);
+        return CLI_EXIT_USAGE;
+    }
+    const char *bad = !S_ISREG(st.st_mode) ? "not a regular file"
+                      : st.st_size == 0    ? "empty file"
+                                           : NULL;
+    void *p = bad ? MAP_FAILED : mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE, fd, 0);
+    if (!bad && p == MAP_FAILED) bad = strerror(errno);
+    close(fd);
+    if (bad) {
+        cli_error("%s: %s", path, bad);
+        return CLI_EXIT_USAGE;
+    }
+    *data = p;
+    *len = (size_t)st.st_size;
+    return 0;
+}
+
+/* libvox's mesh enums are the protocol's: mesh_vox.h's plus one. */
+_Static_assert(VOX_MESH_MODE_SOLID == MESH_SOLID + 1 && VOX_MESH_MODE_SURFACE == MESH_SURFACE + 1 &&
+                   VOX_MESH_MODE_SURFACE6 == MESH_SURFACE6 + 1 &&
+                   VOX_MESH_MODE_CONSERVATIVE == MESH_CONSERVATIVE + 1 &&
+                   VOX_MESH_MODE_INTERIOR == MESH_INTERIOR + 1,
+               "VOX_MESH_MODE_* numbers");
+_Static_assert(VOX_MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 &&
+                   VOX_MESH_REPAIR_VOTE == MESH_REPAIR_VOTE + 1 &&
+                   VOX_MESH_REPAIR_WINDING == MESH_REPAIR_WINDING + 1,
+               "VOX_MESH_REPAIR_* numbers");
+
+/* The mesh job of o, on the file's bytes. */
+static void mesh_job(const cli_job_opts *o, const void *data, size_t len, vox_job *job)
+{
+    job->kind = VOX_JOB_MESH;
+    job->mesh = (vox_mesh){
+        .data = data, .len = len, .format = VOX_MESH_FORMAT_AUTO, .source_name = o->mesh,
+        .mode = (int)o->mesh_opts.mode + 1,     /* the protocol's numbers */
+        .repair = (int)o->mesh_opts.repair + 1,
+        .supersample = o->mesh_opts.supersample,
+        .fit = !o->has_domain, .pad = o->pad,
+        .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
+        .res = o->res,
+    };
+}
+
+/* The job of o: the expression in src, or the mesh file o->mesh (mapped
+ * into *map, *map_len; the caller unmaps it).  0, or an exit code. */
+static int daemon_job(const cli_job_opts *o, const source *src, vox_job *job, void **map,
+                      size_t *map_len)
+{
+    *job = (vox_job){
         .channel = vox_channel(o->vod.channel),
         .brick = o->vod.brick,
         .comp = vox_comp(o->vod.comp),
         .hash = o->vod.hash == VOD_HASH_XX32 ? VOX_HASH_XX32 : VOX_HASH_SFHS,
     };
-    if (refused) *refused = 0;
+    if (o->mesh) {
+        int rc = map_mesh(o->mesh, map, map_len);
+        if (rc == 0) mesh_job(o, *map, *map_len, job);
+        return rc;
+    }
     if (src->len == 0) {
         cli_error("%s: the expression is empty", src->name);
         return CLI_EXIT_USAGE;
     }
+    job->kind = VOX_JOB_IMPLICIT;
+    job->implicit = (vox_implicit){
+        .source = src->text,
+        .source_len = src->len,
+        .source_name = src->path,
+        .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
+        .res = o->res,
+        .schedule = o->schedule == ENGINE_SCHED_PAPER ? VOX_SCHEDULE_PAPER
+                                                      : VOX_SCHEDULE_SUBTREE,
+    };
+    return 0;
+}
+
+int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
+                   int quiet_refusal, int *refused)
+{
+    if (refused) *refused = 0;
+    vox_job job;
+    void *map = NULL;
+    size_t map_len = 0;
+    int rc = daemon_job(o, src, &job, &map, &map_len);
+    if (rc) return rc;
     /* An interrupt cancels the job on the daemon, then vox ends as the
      * job does (without SA_RESTART: it cuts the wait short).  The handler
      * is in place before the job exists, so no interrupt is lost between
@@ -174,9 +252,10 @@ int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
     interrupted = 0;
     sigaction(SIGINT, &sa, &old_int);
     sigaction(SIGTERM, &sa, &old_term);
-    int rc = submit_and_receive(c, &job, o, quiet_refusal, refused);
+    rc = submit_and_receive(c, &job, o, quiet_refusal, refused);
     sigaction(SIGINT, &old_int, NULL);
     sigaction(SIGTERM, &old_term, NULL);
+    if (map) munmap(map, map_len);
     return rc;
 }
 
@@ -186,12 +265,13 @@ int cli_submit(int argc, char **argv, const char *sock)
     cli_job_defaults(&o);
     int rc = cli_job_parse(CLI_CMD_SUBMIT, argc, argv, &o);
     if (rc) return rc;
-    source src;
-    if ((rc = cli_job_source(&o, &src, NULL))) return rc;
+    /* A mesh goes as it is: the daemon parses it. */
+    source src = {0};
+    if (!o.mesh && (rc = cli_job_source(&o, &src, NULL))) return rc;
     vox_client *c;
     rc = connect_or_say(sock, &c);
     if (rc == 0) {
-        rc = cli_daemon_job(c, &o, &src, 0, NULL);
+        rc = cli_daemon_job(c, &o, o.mesh ? NULL : &src, 0, NULL);
         vox_close(c);
     }
     source_free(&src);

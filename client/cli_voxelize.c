@@ -1,5 +1,5 @@
-/* vox voxelize: an implicit surface to a VOD file, on the voxd daemon when one
- * answers, else with the embedded engine. */
+/* vox voxelize: an implicit surface or a triangle mesh to a VOD file, on the
+ * voxd daemon when one answers, else with the embedded engine. */
 #include <errno.h>
 #include <stdatomic.h>
 #include <stdint.h>
@@ -161,8 +161,9 @@ static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *t
     return voxelize(o, &job);
 }
 
-/* A mesh job: loaded and checked here (its errors with the file's line or
- * byte), voxelized by the embedded engine. */
+/* A mesh job on the embedded engine: loaded and checked here (its errors
+ * with the file's line or byte).  (The daemon gets the file as it is and
+ * parses it itself.) */
 static int voxelize_mesh(voxelize_opts *o)
 {
     mesh m;
@@ -185,7 +186,7 @@ static int voxelize_mesh(voxelize_opts *o)
 }
 
 /* The daemon, when one answers (or must): an exit code, or -1 to run the
- * job here. */
+ * job here.  src: the expression, NULL for a mesh job. */
 static int try_daemon(const voxelize_opts *o, const source *src, const char *sock)
 {
     vox_client *c;
@@ -224,8 +225,12 @@ int cli_voxelize(int argc, char **argv, const char *sock)
     cli_job_defaults(&o);
     int rc = cli_job_parse(CLI_CMD_VOXELIZE, argc, argv, &o);
     if (rc) return rc;
-    if (o.mesh) return o.res > GRID_MAX_RES ? bad_res(&o) : voxelize_mesh(&o);
     if (o.mode == CLI_MODE_AUTO && o.engine_opts) o.mode = CLI_MODE_EMBEDDED;
+    if (o.mesh) {
+        rc = o.mode != CLI_MODE_EMBEDDED ? try_daemon(&o, NULL, sock) : -1;
+        if (rc >= 0) return rc;
+        return o.res > GRID_MAX_RES ? bad_res(&o) : voxelize_mesh(&o);
+    }
     source src;
     expr_tape *tape;
     if ((rc = cli_job_source(&o, &src, &tape))) return rc;
