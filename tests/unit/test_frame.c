@@ -50,7 +50,8 @@ static uint8_t *enc_req(int i, size_t *len)
     case 2:
         me.format = VOXD__MESH_FORMAT__MESH_FORMAT_OFF;
         me.data.data = (uint8_t *)"OFF\n0 0 0\n", me.data.len = 10;
-        me.res = 64, me.density = 1;
+        me.res = 64, me.pad = 1, me.repair = VOXD__MESH_REPAIR__MESH_REPAIR_VOTE;
+        s.channel = VOXD__CHANNEL__CHANNEL_DENSITY;
         s.job_case = VOXD__SUBMIT__JOB_MESH, s.mesh = &me;
         r.msg_case = VOXD__REQUEST__MSG_SUBMIT, r.submit = &s;
         break;

@@ -378,29 +378,126 @@ Test(proto, brick_power_of_two)
 
 /* ---------------------------------------------------------------- mesh */
 
-Test(proto, mesh_refused_as_not_supported_yet)
-{
+/* A valid mesh job, ready to be spoiled one field at a time. */
+typedef struct {
     job j;
-    job_init(&j);
-    Voxd__Mesh m = VOXD__MESH__INIT;
-    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_STL;
-    m.data.data = (uint8_t *)"solid x\nendsolid x\n", m.data.len = 19;
-    m.res = 64;
-    j.sub.job_case = VOXD__SUBMIT__JOB_MESH, j.sub.mesh = &m;
-    refused(&j.req, INVALID, "mesh jobs are not supported yet");
-    /* The fields are checked before that. */
-    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED;
-    refused(&j.req, INVALID, "mesh format is missing");
-    m.format = (Voxd__MeshFormat)5;
-    refused(&j.req, INVALID, "unknown mesh format 5");
-    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_OBJ, m.mode = (Voxd__MeshMode)4;
-    refused(&j.req, INVALID, "unknown mesh mode 4");
-    m.mode = VOXD__MESH_MODE__MESH_MODE_CONSERVATIVE, m.data.len = 0;
-    refused(&j.req, INVALID, "mesh data is empty");
-    m.data.len = 19, m.n_domain = 4, m.domain = j.dom;
-    refused(&j.req, INVALID, "domain needs 2 or 6 values, got 4");
-    m.n_domain = 0, m.res = 0;
-    refused(&j.req, INVALID, "res is missing");
+    Voxd__Mesh m;
+    uint8_t data[32];
+} mesh_job;
+
+static void mesh_init(mesh_job *mj)
+{
+    static const Voxd__Mesh m0 = VOXD__MESH__INIT;
+    job_init(&mj->j);
+    mj->m = m0;
+    memcpy(mj->data, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", 32);
+    mj->m.data.data = mj->data, mj->m.data.len = 32;
+    mj->m.res = 64;
+    mj->m.pad = 1;
+    mj->j.sub.job_case = VOXD__SUBMIT__JOB_MESH, mj->j.sub.mesh = &mj->m; /* a union */
+}
+
+Test(proto, valid_mesh_jobs_pass)
+{
+    mesh_job mj;
+    mesh_init(&mj);
+    accepted(&mj.j.req);
+    /* Every option given, each enum at its last value; a binary file may
+     * hold NULs. */
+    mj.m.format = VOXD__MESH_FORMAT__MESH_FORMAT_OFF;
+    mj.m.mode = VOXD__MESH_MODE__MESH_MODE_INTERIOR;
+    mj.m.repair = VOXD__MESH_REPAIR__MESH_REPAIR_WINDING;
+    mj.m.supersample = 8;
+    mj.data[3] = 0;
+    mj.m.source_name.data = (uint8_t *)"bunny.off", mj.m.source_name.len = 9;
+    mj.j.sub.channel = VOXD__CHANNEL__CHANNEL_DENSITY;
+    accepted(&mj.j.req);
+    mj.j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
+    mj.m.supersample = 2;
+    accepted(&mj.j.req);
+    /* A domain instead of the bounding box (then no pad), 2 or 6 values. */
+    double d6[6] = {-1, 1, -2, 2, -3, 3};
+    mj.m.pad = 0, mj.m.domain = d6, mj.m.n_domain = 6;
+    accepted(&mj.j.req);
+    mj.m.n_domain = 2;
+    accepted(&mj.j.req);
+    /* The largest pad res leaves room for; data exactly at the limit. */
+    mj.m.n_domain = 0, mj.m.res = 9, mj.m.pad = 4;
+    accepted(&mj.j.req);
+    lim.max_mesh_bytes = 32;
+    accepted(&mj.j.req);
+}
+
+Test(proto, mesh_job_rules)
+{
+    mesh_job mj;
+    mesh_init(&mj);
+    mj.m.format = (Voxd__MeshFormat)5;
+    refused(&mj.j.req, INVALID, "unknown mesh format 5");
+    mesh_init(&mj);
+    mj.m.mode = (Voxd__MeshMode)6;
+    refused(&mj.j.req, INVALID, "unknown mesh mode 6");
+    mesh_init(&mj);
+    mj.m.repair = (Voxd__MeshRepair)4;
+    refused(&mj.j.req, INVALID, "unknown mesh repair 4");
+    mesh_init(&mj);
+    mj.m.supersample = 1;
+    refused(&mj.j.req, INVALID, "supersample 1 is not from 2 to 8");
+    mj.m.supersample = 9;
+    refused(&mj.j.req, INVALID, "supersample 9 is not from 2 to 8");
+    mesh_init(&mj);
+    mj.m.data.len = 0;
+    refused(&mj.j.req, INVALID, "mesh data is empty");
+    mesh_init(&mj);
+    mj.m.res = 0;
+    refused(&mj.j.req, INVALID, "res is missing");
+    mj.m.res = lim.max_res + 1;
+    refused(&mj.j.req, LIMIT, "res 4097 is over this server's limit of 4096");
+    mesh_init(&mj);
+    mj.m.n_domain = 4, mj.m.domain = mj.j.dom;
+    refused(&mj.j.req, INVALID, "domain needs 2 or 6 values, got 4");
+    mj.m.n_domain = 2, mj.m.pad = 1; /* a domain and a pad */
+    refused(&mj.j.req, INVALID, "pad 1 is for a mesh fitted to its bounding box");
+    mesh_init(&mj);
+    mj.m.res = 8, mj.m.pad = 4;
+    refused(&mj.j.req, INVALID, "pad 4 leaves no voxel for the mesh in res 8");
+    mj.m.res = 1, mj.m.pad = UINT32_MAX; /* 2 pad overflows 32 bits */
+    refused(&mj.j.req, INVALID, "pad 4294967295 leaves no voxel");
+    mesh_init(&mj);
+    mj.j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE;
+    refused(&mj.j.req, INVALID, "channel distance is not available for mesh jobs");
+    mesh_init(&mj);
+    mj.m.source_name.data = (uint8_t *)"a\nb", mj.m.source_name.len = 3;
+    refused(&mj.j.req, INVALID, "source_name contains a line break at offset 1");
+    /* Over max_mesh_bytes inline: refused before the job exists. */
+    mesh_init(&mj);
+    lim.max_mesh_bytes = 31;
+    refused(&mj.j.req, LIMIT, "mesh is 32 bytes, over this server's max_mesh_bytes of 31");
+}
+
+Test(proto, mesh_job_survives_the_wire)
+{
+    mesh_job mj;
+    mesh_init(&mj);
+    mj.m.mode = VOXD__MESH_MODE__MESH_MODE_SURFACE6;
+    mj.m.repair = VOXD__MESH_REPAIR__MESH_REPAIR_VOTE;
+    mj.m.supersample = 3;
+    mj.m.source_name.data = (uint8_t *)"m.obj", mj.m.source_name.len = 5;
+    uint8_t *buf;
+    size_t n;
+    cr_assert_eq(frame_encode_request(&mj.j.req, &buf, &n), 0);
+    Voxd__Request *r = frame_unpack_request(buf + 4, n - 4);
+    cr_assert_not_null(r);
+    const Voxd__Mesh *m = r->submit->mesh;
+    cr_assert_eq(r->submit->job_case, VOXD__SUBMIT__JOB_MESH);
+    cr_expect(m->data.len == 32 && !memcmp(m->data.data, mj.data, 32));
+    cr_expect_eq(m->mode, VOXD__MESH_MODE__MESH_MODE_SURFACE6);
+    cr_expect_eq(m->repair, VOXD__MESH_REPAIR__MESH_REPAIR_VOTE);
+    cr_expect(m->supersample == 3 && m->pad == 1 && m->res == 64 && m->n_domain == 0);
+    cr_expect(m->source_name.len == 5 && !memcmp(m->source_name.data, "m.obj", 5));
+    accepted(r);
+    voxd__request__free_unpacked(r, NULL);
+    free(buf);
 }
 
 /* ---------------------------------------------------------------- CSG */
@@ -981,19 +1078,24 @@ Test(proto, submit_with_input_bytes)
     free(buf);
 }
 
-Test(proto, mesh_with_input_is_still_not_supported)
+/* A mesh as the job's input: its size declared, within max_mesh_bytes
+ * (and, as every input, max_input_bytes), no inline data beside it. */
+Test(proto, mesh_as_input)
 {
-    job j;
-    job_init(&j);
-    Voxd__Mesh m = VOXD__MESH__INIT;
-    m.format = VOXD__MESH_FORMAT__MESH_FORMAT_STL, m.res = 64;
-    j.sub.job_case = VOXD__SUBMIT__JOB_MESH, j.sub.mesh = &m;
-    refused(&j.req, INVALID, "mesh data is empty");
-    j.sub.input_bytes = 1 << 20;
-    refused(&j.req, INVALID, "mesh jobs are not supported yet");
-    uint8_t stl[4] = "soli";
-    m.data.data = stl, m.data.len = 4;
-    refused(&j.req, INVALID, "the mesh comes either inline or as input_bytes, not both");
+    mesh_job mj;
+    mesh_init(&mj);
+    mj.m.data.len = 0;
+    mj.j.sub.input_bytes = lim.max_mesh_bytes;
+    accepted(&mj.j.req);
+    mj.j.sub.input_bytes = lim.max_mesh_bytes + 1;
+    refused(&mj.j.req, LIMIT, "over this server's max_input_bytes"); /* the default: equal */
+    lim.max_input_bytes = 4ull << 30;
+    refused(&mj.j.req, LIMIT, "mesh is 67108865 bytes, over this server's max_mesh_bytes of 67108864");
+    /* The expression's limit is not the mesh's. */
+    mj.j.sub.input_bytes = lim.max_expr_bytes + 1;
+    accepted(&mj.j.req);
+    mj.m.data.len = 32;
+    refused(&mj.j.req, INVALID, "the mesh comes either inline or as input_bytes, not both");
 }
 
 typedef struct {
