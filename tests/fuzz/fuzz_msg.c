@@ -4,8 +4,9 @@
  * then trusts (abort otherwise): a known oneof case, enums in range, a
  * source within the limit and without NUL (or none, its size declared
  * within the limits), a finite domain with low < high, res within the
- * limit, CSG children earlier, an input chunk within the cap, a summary's
- * grid whole. */
+ * limit, a mesh's file within max_mesh_bytes and its options in range,
+ * CSG children earlier, an input chunk within the cap, a summary's grid
+ * whole. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -28,13 +29,34 @@ static void trusted_domain(const double *d, size_t n)
         must(isfinite(d[i]) && isfinite(d[i + 1]) && d[i] < d[i + 1]);
 }
 
+/* What the daemon takes from a mesh job without looking again. */
+static void trusted_mesh(const Voxd__Submit *s, const proto_limits *lim)
+{
+    const Voxd__Mesh *m = s->mesh;
+    must(m != NULL && s->channel != VOXD__CHANNEL__CHANNEL_DISTANCE);
+    uint64_t n = s->input_bytes ? s->input_bytes : m->data.len;
+    must(n >= 1 && n <= lim->max_mesh_bytes && (!s->input_bytes || !m->data.len));
+    must((unsigned)m->format <= 4 && (unsigned)m->mode <= 5 && (unsigned)m->repair <= 3);
+    must(m->supersample == 0 || (m->supersample >= 2 && m->supersample <= 8));
+    if (m->n_domain) trusted_domain(m->domain, m->n_domain);
+    must(m->res >= 1 && m->res <= lim->max_res && (uint64_t)m->pad * 2 < m->res);
+    must(!m->n_domain || !m->pad);
+    must(m->source_name.len <= 512 &&
+         (!m->source_name.len || !memchr(m->source_name.data, '\n', m->source_name.len)));
+}
+
 static void trusted_submit(const Voxd__Submit *s, const proto_limits *lim)
 {
-    must((unsigned)s->channel <= 3 && s->channel != VOXD__CHANNEL__CHANNEL_DENSITY);
+    must((unsigned)s->channel <= 4 && s->input_bytes <= lim->max_input_bytes);
     must((unsigned)s->comp <= 3 && (unsigned)s->hash <= 2);
     must(s->brick == 0 || (s->brick >= 2 && s->brick <= 256 && !(s->brick & (s->brick - 1))));
-    /* Mesh and CSG are refused for now. */
+    if (s->job_case == VOXD__SUBMIT__JOB_MESH) {
+        trusted_mesh(s, lim);
+        return;
+    }
+    /* CSG is refused for now. */
     must(s->job_case == VOXD__SUBMIT__JOB_IMPLICIT && s->implicit);
+    must(s->channel <= 3 && s->channel != VOXD__CHANNEL__CHANNEL_DENSITY);
     const Voxd__Implicit *im = s->implicit;
     if (s->input_bytes) {
         must(im->source.len == 0 && s->input_bytes <= lim->max_expr_bytes &&
@@ -103,7 +125,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     proto_limits_default(&lims[0]);
     lims[1] = (proto_limits){.max_frame = 4096, .max_expr_bytes = 8, .max_res = 16,
                              .max_csg_nodes = 2, .chunk_size = 16,
-                             .max_result_bytes = 1024, .max_input_bytes = 64};
+                             .max_result_bytes = 1024, .max_input_bytes = 64,
+                             .max_mesh_bytes = 48, .max_triangles = 4};
     Voxd__Request *rq = frame_unpack_request(data, size);
     if (rq) {
         for (int i = 0; i < 2; i++) {
