@@ -10,6 +10,11 @@ hangs on it.
                                           [--chunked N]  (the expression as InputChunks of N bytes)
                                           [--pause S]    (S seconds after the first chunk, unless
                                                           the server says something first)
+  daemon_client.py SOCK mesh FILE RES OUT [--cancel] [--channel N] [--pad N]
+                                          [--chunked N]  (the file as InputChunks of N bytes)
+                                          (the file's bytes as they are, its name as source_name)
+  daemon_client.py SOCK mesh-declare N    (a mesh Submit declaring N bytes of input: the
+                                           daemon's answer, then a ping on the same connection)
   daemon_client.py SOCK status            (prints pid=..,cpu=.. per worker, queued, running)
   daemon_client.py SOCK ping
   daemon_client.py SOCK abuse KIND        (see ABUSE)
@@ -80,6 +85,15 @@ def submit(expr, res, domain, channel=0, schedule=0, brick=0, input_bytes=0):
         + field_varint(3, res) + field_varint(4, schedule)
     body = field_bytes(1, imp) + field_varint(10, channel) + field_varint(11, brick) \
         + field_varint(14, input_bytes)
+    return frame(request(2, body))
+
+
+def mesh_submit(data, res, pad=0, channel=0, name=b"", input_bytes=0):
+    """A Submit of a mesh job (format told from the contents, solid); data
+    b"" with input_bytes N: the file comes as input."""
+    mesh = (field_bytes(2, data) if data else b"") + field_varint(7, pad) \
+        + field_varint(8, res) + (field_bytes(9, name) if name else b"")
+    body = field_bytes(2, mesh) + field_varint(10, channel) + field_varint(14, input_bytes)
     return frame(request(2, body))
 
 
@@ -252,6 +266,11 @@ def cmd_submit(path, args):
         if not readable:
             for off in range(piece, len(data), piece):
                 c.send(input_chunk(job, off, data[off:off + piece]))
+    return receive(c, job, out, opts)
+
+
+def receive(c, job, out, opts):
+    """The job's result into out (after a cancel, with --cancel)."""
     if "--cancel" in opts:
         c.send(cancel(job))
     if "--no-read" in opts:
@@ -284,6 +303,49 @@ def cmd_submit(path, args):
             err(f)
         else:
             die(1, "unexpected reply %d" % case)
+
+
+def cmd_mesh(path, args):
+    name, res, out, opts = args[0], int(args[1]), args[2], args[3:]
+    with open(name, "rb") as fh:
+        data = fh.read()
+    channel = int(opts[opts.index("--channel") + 1]) if "--channel" in opts else 0
+    pad = int(opts[opts.index("--pad") + 1]) if "--pad" in opts else 1
+    piece = int(opts[opts.index("--chunked") + 1]) if "--chunked" in opts else 0
+    c = Conn(path)
+    c.hello()
+    if piece:
+        c.send(mesh_submit(b"", res, pad, channel, name.encode(), input_bytes=len(data)))
+    else:
+        c.send(mesh_submit(data, res, pad, channel, name.encode()))
+    acc = c.expect(2)
+    job = one(acc, 1)
+    print("accepted job %d position %d" % (job, one(acc, 2)), flush=True)
+    if piece:
+        upload(c, job, data, piece)
+    return receive(c, job, out, opts)
+
+
+def cmd_mesh_declare(path, n):
+    """The answer to a mesh Submit declaring n bytes of input, none sent;
+    then the connection must still answer a ping."""
+    c = Conn(path)
+    c.hello()
+    c.send(mesh_submit(b"", 16, 1, input_bytes=n))
+    r = c.recv_frame()
+    if r is None:
+        die(4, "CLOSED: the server closed the connection")
+    if r[0] == 2:
+        print("accepted job %d" % one(r[1], 1), flush=True)
+        return 0
+    if r[0] != 6:
+        die(1, "unexpected reply %d" % r[0])
+    print("ERROR %s: %s (job %d)" % (CODES.get(one(r[1], 2), "?"),
+                                     one(r[1], 3, b"").decode(errors="replace"),
+                                     one(r[1], 1)), flush=True)
+    c.send(ping(11))
+    print("pong %d" % one(c.expect(8), 1), flush=True)
+    return 3
 
 
 def cmd_status(path):
@@ -554,6 +616,10 @@ def main():
     try:
         if cmd == "submit":
             return cmd_submit(path, args)
+        if cmd == "mesh":
+            return cmd_mesh(path, args)
+        if cmd == "mesh-declare":
+            return cmd_mesh_declare(path, int(args[0]))
         if cmd == "status":
             return cmd_status(path)
         if cmd == "ping":

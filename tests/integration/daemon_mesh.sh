@@ -1,0 +1,174 @@
+#!/bin/bash
+# Mesh jobs through voxd: the daemon's file is byte for byte the embedded
+# engine's (solid occupancy and density, fitted and in a box), inline and
+# uploaded in chunks, vox voxelize --mesh on the daemon and without one;
+# refusals (over max_mesh_bytes before any byte is sent, over max_triangles,
+# a malformed file, after which the daemon serves the next job) and the
+# cancel of a running mesh job.  The meshes are OBJ text, which every
+# loader reads.
+. "$(dirname "$0")/daemon_lib.bash"
+
+# A closed cube of 12 triangles, counter-clockwise seen from outside, with
+# no vertex on the grid's voxel centres.
+cube_obj() {
+    cat <<'OBJ'
+v -0.9 -0.8 -0.7
+v 0.9 -0.8 -0.7
+v 0.9 0.8 -0.7
+v -0.9 0.8 -0.7
+v -0.9 -0.8 0.7
+v 0.9 -0.8 0.7
+v 0.9 0.8 0.7
+v -0.9 0.8 0.7
+f 1 3 2
+f 1 4 3
+f 5 6 7
+f 5 7 8
+f 1 2 6
+f 1 6 5
+f 2 3 7
+f 2 7 6
+f 3 4 8
+f 3 8 7
+f 4 1 5
+f 4 5 8
+OBJ
+}
+cube_obj >"$TMP/cube.obj"
+# The same cube with 100 KB of comments: over the daemon's max_frame below,
+# so it goes as the job's input, in chunks.
+{ cube_obj; for i in $(seq 2000); do echo "# comment line $i to make the file longer than a frame"; done; } >"$TMP/long.obj"
+# Over max_triangles (1000 below): 1001 triangles of one fan.
+python3 - >"$TMP/many.obj" <<'PY'
+import math
+n = 1001
+print("v 0 0 0")
+for i in range(n + 1):
+    a = 2 * math.pi * i / n
+    print("v %.6f %.6f 0.25" % (math.cos(a), math.sin(a)))
+for i in range(n):
+    print("f 1 %d %d" % (i + 2, i + 3))
+PY
+# Malformed: a face names a vertex that is not there (line 4).
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n' >"$TMP/bad.obj"
+# Over max_mesh_bytes (256K below) but within max_input_bytes.
+{ cube_obj; for i in $(seq 6000); do echo "# comment line $i to make the file longer than max_mesh_bytes"; done; } >"$TMP/huge.obj"
+
+cat >"$TMP/voxd.conf" <<CONF
+workers 2
+max_frame 64K
+chunk_size 16K
+max_mesh_bytes 256K
+max_triangles 1000
+CONF
+if start_voxd "$TMP/voxd.log" --config "$TMP/voxd.conf"; then
+    pass "voxd starts with mesh limits"
+else
+    fail "voxd starts with mesh limits" "$(tail -5 "$TMP/voxd.log")"
+    exit 1
+fi
+vox() { timeout 120 "$VOX" --socket "$S" "$@"; }
+# jobs the daemon has accepted so far
+accepted() { grep -c "accepted from uid" "$TMP/voxd.log"; }
+
+# ---------------------------------------------------------------- same bytes
+
+check "embedded: the cube, solid occupancy" vox voxelize --embedded --mesh "$TMP/cube.obj" -r 48 -q -o "$TMP/e1.vod"
+check "vox submit --mesh: the cube" vox submit --mesh "$TMP/cube.obj" -r 48 -q -o "$TMP/d1.vod"
+check "submit = embedded, solid occupancy (bytes)" cmp "$TMP/d1.vod" "$TMP/e1.vod"
+refuse "vox info validates the daemon's mesh file" 0 "valid VOD.*CRC-32 checked" "$VOX" info "$TMP/d1.vod"
+refuse "its metadata names the file and the mesh" 0 "source=file:$TMP/cube.obj" "$VOX" info "$TMP/d1.vod"
+
+check "embedded: density, 4 samples a voxel, pad 3" \
+    vox voxelize --embedded --mesh "$TMP/cube.obj" -r 40 --channel density --supersample 4 --pad 3 -q -o "$TMP/e2.vod"
+check "vox submit: the same" \
+    vox submit --mesh "$TMP/cube.obj" -r 40 --channel density --supersample 4 --pad 3 -q -o "$TMP/d2.vod"
+check "submit = embedded, density (bytes)" cmp "$TMP/d2.vod" "$TMP/e2.vod"
+
+check "embedded: surface mode in a box" \
+    vox voxelize --embedded --mesh "$TMP/cube.obj" -r 33 --mode surface --bbox -1,1,-1,1,-0.5,0.5 -q -o "$TMP/e3.vod"
+check "vox submit: the same" \
+    vox submit --mesh "$TMP/cube.obj" -r 33 --mode surface --bbox -1,1,-1,1,-0.5,0.5 -q -o "$TMP/d3.vod"
+check "submit = embedded, a box (bytes)" cmp "$TMP/d3.vod" "$TMP/e3.vod"
+
+# vox voxelize --mesh runs on the daemon when one answers: a job more
+# there, and the same file.
+n=$(accepted)
+check "vox voxelize --mesh with a daemon" vox voxelize --mesh "$TMP/cube.obj" -r 48 -q -o "$TMP/v1.vod"
+[ "$(accepted)" -eq $((n + 1)) ] && pass "vox voxelize --mesh ran on voxd" ||
+    fail "vox voxelize --mesh ran on voxd" "$(tail -3 "$TMP/voxd.log")"
+check "and gave the embedded bytes" cmp "$TMP/v1.vod" "$TMP/e1.vod"
+# and on the embedded engine when none answers
+check "vox voxelize --mesh without a daemon" \
+    timeout 120 "$VOX" --socket "$TMP/none.sock" voxelize --mesh "$TMP/cube.obj" -r 48 -q -o "$TMP/v2.vod"
+check "the same bytes" cmp "$TMP/v2.vod" "$TMP/e1.vod"
+
+# The protocol client sends the file's bytes itself: inline, then in
+# chunks of 1000 bytes; the same file again.
+check "a mesh inline (protocol client)" vc mesh "$TMP/cube.obj" 48 "$TMP/p1.vod"
+check "inline = embedded (bytes)" cmp "$TMP/p1.vod" "$TMP/e1.vod"
+check "a mesh in chunks (protocol client)" vc mesh "$TMP/cube.obj" 48 "$TMP/p2.vod" --chunked 100
+check "chunked = embedded (bytes)" cmp "$TMP/p2.vod" "$TMP/e1.vod"
+
+# A file over max_frame goes as the job's input, in chunks.
+check "embedded: the long file" vox voxelize --embedded --mesh "$TMP/long.obj" -r 48 -q -o "$TMP/e4.vod"
+check "vox submit: the long file" vox submit --mesh "$TMP/long.obj" -r 48 -q -o "$TMP/d4.vod"
+check "long file: submit = embedded (bytes)" cmp "$TMP/d4.vod" "$TMP/e4.vod"
+size=$(stat -c %s "$TMP/long.obj")
+grep -q "waiting for $size bytes of mesh" "$TMP/voxd.log" &&
+    pass "the long file came as input ($size bytes over a 64K frame)" ||
+    fail "the long file came as input ($size bytes over a 64K frame)" "$(grep 'bytes of mesh' "$TMP/voxd.log")"
+
+# ---------------------------------------------------------------- refusals
+
+# Over max_mesh_bytes: refused at the Submit (job 0, no Accepted), before
+# any byte travels; the connection goes on.
+refuse "a declared input over max_mesh_bytes is refused" 3 \
+    "ERROR LIMIT_EXCEEDED: mesh is 262145 bytes, over this server's max_mesh_bytes of 262144 \(job 0\)" \
+    vc mesh-declare 262145
+grep -q "^pong 11" "$TMP/out" && pass "the connection goes on after the refusal" ||
+    fail "the connection goes on after the refusal" "$(cat "$TMP/out")"
+refuse "a declared input at max_mesh_bytes is accepted" 0 "accepted job" vc mesh-declare 262144
+refuse "vox submit of a file over max_mesh_bytes" 1 \
+    "LIMIT_EXCEEDED: mesh is [0-9]+ bytes, over this server's max_mesh_bytes of 262144" \
+    vox submit --mesh "$TMP/huge.obj" -r 48 -o "$TMP/x.vod"
+refuse "over max_triangles: the job's LIMIT_EXCEEDED, with the limit" 1 \
+    "LIMIT_EXCEEDED: mesh: .*1000.*max_triangles is 1000" \
+    vox submit --mesh "$TMP/many.obj" -r 48 -o "$TMP/x.vod"
+refuse "a malformed mesh: INVALID_INPUT with its line" 2 \
+    "job [0-9]+ failed: INVALID_INPUT: mesh: line 4: " vox submit --mesh "$TMP/bad.obj" -r 48 -o "$TMP/x.vod"
+refuse "vox voxelize --mesh --daemon: the same" 2 "INVALID_INPUT: mesh: line 4: " \
+    vox voxelize --daemon --mesh "$TMP/bad.obj" -r 48 -o "$TMP/x.vod"
+[ ! -e "$TMP/x.vod" ] && pass "no file is left by a failed job" || fail "no file is left by a failed job"
+check "the daemon serves the next mesh job" vox submit --mesh "$TMP/cube.obj" -r 48 -q -o "$TMP/d5.vod"
+check "with the same bytes" cmp "$TMP/d5.vod" "$TMP/e1.vod"
+
+# ---------------------------------------------------------------- cancel
+
+refuse "cancel a running mesh job" 3 "ERROR CANCELLED" vc mesh "$TMP/cube.obj" 256 "$TMP/x.vod" --cancel
+until_true 10 idle && pass "idle after the cancel" || fail "idle after the cancel" "$(vc status)"
+check "the daemon serves the next job" vox submit --mesh "$TMP/cube.obj" -r 48 -q -o "$TMP/d6.vod"
+check "with the same bytes again" cmp "$TMP/d6.vod" "$TMP/e1.vod"
+
+# QUIT: the daemon finishes and exits 0 (under ASan, without a leak: every
+# mesh and every input freed).
+quit_voxd() {
+    kill -QUIT "$VOXD_PID"
+    wait_gone "$VOXD_PID" 30 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0 ($1)" ||
+        fail "QUIT: exit 0 ($1)" "rc $WAIT_RC: $(tail -3 "$TMP/$1")"
+}
+quit_voxd voxd.log
+
+# A daemon whose max_mesh_bytes (4K, the least) is below its frame (1M): a
+# mesh inline over it is refused at the Submit, and the connection goes on.
+printf 'workers 1\nmax_mesh_bytes 4K\n' >"$TMP/voxd2.conf"
+if start_voxd "$TMP/voxd2.log" --config "$TMP/voxd2.conf"; then
+    refuse "an inline mesh over max_mesh_bytes is refused" 3 \
+        "ERROR LIMIT_EXCEEDED: mesh is $size bytes, over this server's max_mesh_bytes of 4096 \(job 0\)" \
+        vc mesh "$TMP/long.obj" 48 "$TMP/x.vod"
+    check "a mesh within it is served" vc mesh "$TMP/cube.obj" 48 "$TMP/p3.vod"
+    check "with the embedded bytes" cmp "$TMP/p3.vod" "$TMP/e1.vod"
+    quit_voxd voxd2.log
+else
+    fail "a second voxd starts" "$(tail -5 "$TMP/voxd2.log")"
+fi
