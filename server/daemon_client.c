@@ -223,9 +223,10 @@ static void job_domain(vd_job *j, const double *dom, size_t n)
     }
 }
 
-/* The protocol's mesh enums are mesh.h's formats and mesh_vox.h's modes and
- * repairs plus one (0 being the protocol's "not given"). */
-_Static_assert((int)VOXD__MESH_FORMAT__MESH_FORMAT_OBJ == MESH_FORMAT_OBJ &&
+/* The protocol's mesh formats are mesh.h's (0: told from the contents), its
+ * modes and repairs mesh_vox.h's plus one (0 being "not given"). */
+_Static_assert((int)VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED == MESH_FORMAT_AUTO &&
+                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_OBJ == MESH_FORMAT_OBJ &&
                    (int)VOXD__MESH_FORMAT__MESH_FORMAT_STL == MESH_FORMAT_STL &&
                    (int)VOXD__MESH_FORMAT__MESH_FORMAT_PLY == MESH_FORMAT_PLY &&
                    (int)VOXD__MESH_FORMAT__MESH_FORMAT_OFF == MESH_FORMAT_OFF,
