@@ -65,7 +65,7 @@ static const char usage_voxelize[] =
     "the job to the embedded engine.\n"
     "-w, --cpus, --shm-size and --compress-level belong to the embedded engine and\n"
     "select it (voxd writes at level 6).  The file is the same either way.  Exit\n"
-    "status: 0 done, 1 the job failed, 2 bad usage or a bad expression, 3 --daemon\n"
+    "status: 0 done, 1 the job failed, 2 bad usage, a bad expression or mesh file, 3 --daemon\n"
     "and no voxd answering.\n";
 
 static const char usage_submit[] =

@@ -106,7 +106,8 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
 static void print_mesh_summary(const voxelize_opts *o, const pipeline_report *r)
 {
     if (!o->mesh) return;
-    printf("  mesh: %u tiles with triangles", r->tiles);
+    if (o->workers > 0) printf("  mesh: %u tiles with triangles", r->tiles);
+    else printf("  mesh: tiles run in this process");
     if (o->mesh_opts.repair != MESH_REPAIR_NONE)
         printf(", %llu voxels where the parities along x, y, z disagree (in %llu bricks)",
                (unsigned long long)r->disagreements,
@@ -170,7 +171,8 @@ static int voxelize_mesh(voxelize_opts *o)
     mesh_error me;
     int rc = mesh_load(o->mesh, MESH_FORMAT_AUTO, NULL, &m, &me);
     if (rc) {
-        cli_error("%s: %s", o->mesh, me.msg);
+        char msg[sizeof me.msg + 64];
+        cli_error("%s: %s", o->mesh, mesh_error_str(&me, msg, sizeof msg));
         return CLI_EXIT_USAGE;
     }
     struct stat sb;
