@@ -103,16 +103,23 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
     return rc;
 }
 
-static void print_mesh_summary(const voxelize_opts *o, const pipeline_report *r)
+static void print_mesh_summary(const voxelize_opts *o, const pipeline_job *job,
+                               const pipeline_report *r)
 {
-    if (!o->mesh) return;
-    if (o->workers > 0) printf("  mesh: %u tiles with triangles", r->tiles);
-    else printf("  mesh: tiles run in this process");
-    if (o->mesh_opts.repair != MESH_REPAIR_NONE)
-        printf(", %llu voxels where the parities along x, y, z disagree (in %llu bricks)",
-               (unsigned long long)r->disagreements,
-               (unsigned long long)r->disagree_bricks);
+    if (job->kind != PIPELINE_MESH) return;
+    const mesh_topo *t = &r->topo;
+    printf("  mesh: %u triangles, %llu open and %llu non-manifold edges: %s (%.3f s)",
+           job->mesh.mesh->n_triangles, (unsigned long long)t->open,
+           (unsigned long long)t->nonmanifold, t->watertight ? "watertight" : "not watertight",
+           r->t_topology);
+    if (o->workers > 0) printf("; %u tiles with triangles", r->tiles);
     printf("\n");
+    if (r->repair_skipped)
+        printf("  repair: not needed, the mesh is watertight (its parities agree)\n");
+    else if (o->mesh_opts.repair != MESH_REPAIR_NONE)
+        printf("  repair: %llu voxels where the parities along x, y, z disagree, in %llu "
+               "storage bricks\n", (unsigned long long)r->disagreements,
+               (unsigned long long)r->disagree_bricks);
 }
 
 static int voxelize(voxelize_opts *o, pipeline_job *job)
@@ -147,7 +154,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     if (rc || rc2) return 1;
     if (!o->quiet) {
         print_summary(o, &r);
-        print_mesh_summary(o, &r);
+        print_mesh_summary(o, job, &r);
     }
     return 0;
 }

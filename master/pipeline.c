@@ -275,6 +275,22 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
     return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
 }
 
+/* A mesh job's topology into r; the repair dropped from *run when the
+ * mesh is watertight. */
+static int mesh_check(pipeline_job *run, pipeline_report *r)
+{
+    double t0 = clock_now();
+    int rc = mesh_topology(run->mesh.mesh, &r->topo);
+    r->t_topology = clock_now() - t0;
+    if (rc) return fail(r, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                        "the mesh's edges: %s", strerror(-rc));
+    if (r->topo.watertight && run->mesh.opts.repair != MESH_REPAIR_NONE) {
+        run->mesh.opts.repair = MESH_REPAIR_NONE;
+        r->repair_skipped = 1;
+    }
+    return 0;
+}
+
 int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
                  pipeline_report *r)
 {
@@ -288,9 +304,11 @@ int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
     if (rc) return fail(r, ENGINE_BAD_JOB, rc, "%s", err);
     char meta[JOB_META_MAX];
     vod_params v;
-    vod_setup(&v, job, lo, hi, &r->grid, meta);
-    if (!e) return run_serial(job, &v, sink, r);
-    rc = run_engine(e, job, &v, sink, r);
+    vod_setup(&v, job, lo, hi, &r->grid, meta); /* the repair asked for */
+    pipeline_job run = *job;
+    if (job->kind == PIPELINE_MESH && (rc = mesh_check(&run, r))) return rc;
+    if (!e) return run_serial(&run, &v, sink, r);
+    rc = run_engine(e, &run, &v, sink, r);
     engine_release(e); /* the job's pages go back, its result's too */
     return rc;
 }

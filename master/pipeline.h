@@ -12,7 +12,9 @@
  * Mesh jobs: with mesh.fit, res voxels span the longest side of the
  * mesh's bounding box grown by pad voxels on each side (so the mesh
  * itself spans res - 2 pad voxels); without it, the domain lo/hi as for an
- * expression.
+ * expression.  Every mesh job's report has the mesh's topology; a repair
+ * asked of a watertight mesh is not run (a closed mesh's parities along x,
+ * y and z agree: the voxels are the plain solid's), so it costs nothing.
  */
 #ifndef VOXD_PIPELINE_H
 #define VOXD_PIPELINE_H
@@ -71,6 +73,10 @@ typedef struct {
     uint64_t octants;             /* boxes tested (engine only) */
     uint32_t tiles;               /* mesh: tiles with triangles */
     uint64_t disagreements, disagree_bricks; /* mesh repair modes */
+    mesh_topo topo;               /* mesh: its edges (mesh_topology) */
+    double t_topology;            /* ... seconds finding them */
+    int repair_skipped;           /* a repair asked of a watertight mesh: not
+                                     needed (its three parities agree) */
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */

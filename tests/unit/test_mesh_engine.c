@@ -11,33 +11,18 @@
 
 #include "engine.h"
 #include "mesh.h"
+#include "mesh_shapes.h"
 #include "pipeline.h"
 #include "vod.h"
 #include "voxel.h"
 
-/* The axis-aligned box [lo, hi], 12 triangles facing outwards. */
-static mesh box_mesh(const float lo[3], const float hi[3])
+/* The axis-aligned box [lo, hi] (mesh_shapes.h), its mesh in *s. */
+static mesh box_mesh(shape *s, const float lo[3], const float hi[3])
 {
-    static const uint32_t tris[12][3] = {
-        {0, 2, 1}, {1, 2, 3}, {4, 5, 6}, {5, 7, 6}, {0, 1, 4}, {1, 5, 4},
-        {2, 6, 3}, {3, 6, 7}, {0, 4, 2}, {2, 4, 6}, {1, 3, 5}, {3, 7, 5},
-    };
-    mesh m = {.n_vertices = 8, .n_triangles = 12};
-    m.vertices = malloc(sizeof *m.vertices * 8);
-    m.triangles = malloc(sizeof tris);
-    memcpy(m.triangles, tris, sizeof tris);
-    for (int i = 0; i < 8; i++)
-        for (int a = 0; a < 3; a++)
-            m.vertices[i][a] = (i >> a) & 1 ? hi[a] : lo[a];
-    memcpy(m.lo, lo, sizeof m.lo);
-    memcpy(m.hi, hi, sizeof m.hi);
-    return m;
-}
-
-static void box_free(mesh *m)
-{
-    free(m->vertices);
-    free(m->triangles);
+    double l[3] = {lo[0], lo[1], lo[2]}, h[3] = {hi[0], hi[1], hi[2]};
+    shape_init(s);
+    shape_box(s, l, h);
+    return *shape_finish(s);
 }
 
 static pipeline_job mesh_job(const mesh *m, uint32_t res, int channel)
@@ -77,7 +62,8 @@ static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
 Test(mesh_engine, a_box_serial_and_on_the_engine)
 {
     float lo[3] = {0.1f, 0.2f, 0.3f}, hi[3] = {0.9f, 0.6f, 0.5f};
-    mesh m = box_mesh(lo, hi);
+    shape sh_m;
+    mesh m = box_mesh(&sh_m, lo, hi);
     static const int channels[] = {VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY,
                                    VOXEL_CH_SURFACE};
     engine *e[2] = {make_engine(1), make_engine(2)};
@@ -108,7 +94,7 @@ Test(mesh_engine, a_box_serial_and_on_the_engine)
                                        g->lo[1] + (y + 0.5) * g->vs,
                                        g->lo[2] + (z + 0.5) * g->vs};
                         int in = 1;
-                        for (int a = 0; a < 3; a++) in &= p[a] > lo[a] && p[a] < hi[a];
+                        for (int a = 0; a < 3; a++) in &= p[a] > m.lo[a] && p[a] < m.hi[a];
                         want += in;
                         got += vod_voxel(f, 0, x, y, z) != 0;
                         cr_assert_eq(vod_voxel(f, 0, x, y, z) != 0, in,
@@ -122,14 +108,15 @@ Test(mesh_engine, a_box_serial_and_on_the_engine)
     }
     engine_destroy(e[0]);
     engine_destroy(e[1]);
-    box_free(&m);
+    shape_free(&sh_m);
 }
 
 /* One engine, jobs of both kinds in turn: each one's result is its own. */
 Test(mesh_engine, mesh_and_implicit_jobs_share_an_engine)
 {
     float lo[3] = {-0.5f, -0.5f, -0.5f}, hi[3] = {0.5f, 0.5f, 0.5f};
-    mesh m = box_mesh(lo, hi);
+    shape sh_m;
+    mesh m = box_mesh(&sh_m, lo, hi);
     const char *src = "x^2 + y^2 + z^2 - 0.5";
     expr_tape *t = NULL;
     expr_error ee;
@@ -154,13 +141,14 @@ Test(mesh_engine, mesh_and_implicit_jobs_share_an_engine)
     free(mref.p);
     free(iref.p);
     expr_tape_free(t);
-    box_free(&m);
+    shape_free(&sh_m);
 }
 
 Test(mesh_engine, bad_mesh_jobs_fail_typed)
 {
     float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
-    mesh m = box_mesh(lo, hi);
+    shape sh_m;
+    mesh m = box_mesh(&sh_m, lo, hi);
     pipeline_job job = mesh_job(&m, 8, VOXEL_CH_OCCUPANCY);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
@@ -177,20 +165,22 @@ Test(mesh_engine, bad_mesh_jobs_fail_typed)
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
     m.n_triangles = n;
     float flat[3] = {1, 1, 1};
-    mesh pt = box_mesh(flat, flat);
+    shape sh_pt;
+    mesh pt = box_mesh(&sh_pt, flat, flat);
     job.mesh.mesh = &pt;
     cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert(strstr(r.err.message, "bounding box"), "%s", r.err.message);
-    box_free(&pt);
+    shape_free(&sh_pt);
     free(out.p);
-    box_free(&m);
+    shape_free(&sh_m);
 }
 
 /* A volume that cannot fit the segment is a limit, not a crash. */
 Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
 {
     float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
-    mesh m = box_mesh(lo, hi);
+    shape sh_m;
+    mesh m = box_mesh(&sh_m, lo, hi);
     engine_opts o = {.workers = 1, .shm_bytes = (size_t)4 << 20};
     engine *e;
     char err[256];
@@ -204,7 +194,7 @@ Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
     cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
     free(out.p);
     engine_destroy(e);
-    box_free(&m);
+    shape_free(&sh_m);
 }
 
 /* A worker killed while the tiles run: its tile is run again by the one
@@ -226,7 +216,8 @@ static void kill_first(void *ud, const engine_progress *p)
 Test(mesh_engine, a_worker_killed_mid_job_changes_nothing)
 {
     float lo[3] = {-0.4f, -0.3f, -0.2f}, hi[3] = {0.4f, 0.3f, 0.2f};
-    mesh m = box_mesh(lo, hi);
+    shape sh_m;
+    mesh m = box_mesh(&sh_m, lo, hi);
     pipeline_job job = mesh_job(&m, 200, VOXEL_CH_OCCUPANCY);
     pipeline_report r0, r;
     vod_membuf ref = run(NULL, &job, &r0);
@@ -241,5 +232,49 @@ Test(mesh_engine, a_worker_killed_mid_job_changes_nothing)
     free(mb.p);
     free(ref.p);
     engine_destroy(e);
-    box_free(&m);
+    shape_free(&sh_m);
+}
+
+/* A repair asked of a watertight mesh is not run: the same voxels as the
+ * plain solid, the report says so; a mesh with a hole runs it and counts
+ * where its parities disagree. */
+static bool not_every_seventh(uint32_t i, void *ctx)
+{
+    (void)ctx;
+    return i % 7 != 3;
+}
+
+Test(mesh_engine, repair_runs_only_where_the_mesh_is_open)
+{
+    shape s;
+    shape_init(&s);
+    double c[3] = {0, 0, 0};
+    shape_icosphere(&s, c, 1.0, 3, false);
+    const mesh *m = shape_finish(&s);
+    pipeline_job job = mesh_job(m, 48, VOXEL_CH_OCCUPANCY);
+    pipeline_report plain, voted;
+    vod_membuf a = run(NULL, &job, &plain);
+    cr_assert(plain.topo.watertight);
+    cr_assert_eq(plain.topo.open, 0);
+    cr_assert_not(plain.repair_skipped);
+    job.mesh.opts.repair = MESH_REPAIR_VOTE;
+    vod_membuf b = run(NULL, &job, &voted);
+    cr_assert(voted.repair_skipped);
+    cr_assert_eq(voted.voxels, plain.voxels);
+    free(a.p);
+    free(b.p);
+
+    shape_remove(&s, not_every_seventh, NULL);
+    engine *e = make_engine(2);
+    vod_membuf h0 = run(NULL, &job, &voted), h2 = run(e, &job, &plain);
+    cr_assert_not(voted.topo.watertight);
+    cr_assert_gt(voted.topo.open, 0);
+    cr_assert_not(voted.repair_skipped);
+    cr_assert_gt(voted.disagreements, 0, "a mesh with holes: the parities disagree");
+    cr_assert_eq(plain.disagreements, voted.disagreements, "engine and serial count alike");
+    cr_assert(h0.n == h2.n && memcmp(h0.p, h2.p, h0.n) == 0, "other bytes");
+    free(h0.p);
+    free(h2.p);
+    engine_destroy(e);
+    shape_free(&s);
 }
