@@ -407,6 +407,55 @@ typedef struct {
     bool nonempty;      /* the parent's footprint holds a voxel */
 } mip_ctx;
 
+/* The octant of the parent from child brick d, any voxel width and
+ * channel; returns the OR of the child's voxels. */
+static uint32_t mip_octant_any(mip_ctx *m, const uint8_t *d, uint32_t ox,
+                               uint32_t oy, uint32_t oz)
+{
+    const vod_volume *v = m->v;
+    uint32_t half = v->sbrick / 2, c[8], any = 0;
+    for (uint32_t z = 0; z < half; z++)
+        for (uint32_t y = 0; y < half; y++)
+            for (uint32_t x = 0; x < half; x++) {
+                for (unsigned i = 0; i < 8; i++) {
+                    c[i] = vox_get(v, d, vox_index(v, 2 * x + (i & 1u),
+                                                   2 * y + (i >> 1 & 1u),
+                                                   2 * z + (i >> 2 & 1u)));
+                    any |= c[i];
+                }
+                m->out[vox_index(v, ox + x, oy + y, oz + z)] = vod_downsample(m->ch, c);
+            }
+    return any;
+}
+
+/* The same for 8-bit voxels and channels 1 and 2 (vod_downsample's rules
+ * written out: any child non-zero, or the mean rounded half up), the mesh
+ * and CSG volumes' common case. */
+static uint32_t mip_octant8(mip_ctx *m, const uint8_t *d, uint32_t ox,
+                            uint32_t oy, uint32_t oz)
+{
+    const vod_volume *v = m->v;
+    size_t S = v->sbrick, half = S / 2, SS = S * S;
+    uint32_t any = 0;
+    for (size_t z = 0; z < half; z++)
+        for (size_t y = 0; y < half; y++) {
+            const uint8_t *r0 = d + (2 * z * S + 2 * y) * S, *r1 = r0 + S;
+            const uint8_t *r2 = r0 + SS, *r3 = r1 + SS;
+            uint32_t *out = m->out + ((oz + z) * S + oy + y) * S + ox;
+            for (size_t x = 0; x < half; x++) {
+                size_t i = 2 * x;
+                uint32_t ors = r0[i] | r0[i + 1] | r1[i] | r1[i + 1] | r2[i] |
+                              r2[i + 1] | r3[i] | r3[i + 1];
+                any |= ors;
+                out[x] = m->ch == VOXEL_CH_DENSITY
+                             ? (r0[i] + r0[i + 1] + r1[i] + r1[i + 1] + r2[i] +
+                                r2[i + 1] + r3[i] + r3[i + 1] + 4u) / 8u
+                             : ors != 0;
+            }
+        }
+    return any;
+}
+
 /* The octant of the parent that child entry e (level l-1) covers, from
  * (ox, oy, oz) in the parent. */
 static void mip_octant(mip_ctx *m, uint32_t e, uint32_t ox, uint32_t oy,
@@ -425,21 +474,38 @@ static void mip_octant(mip_ctx *m, uint32_t e, uint32_t ox, uint32_t oy,
         return;
     }
     const uint8_t *d = brick_data(v, e);
-    uint32_t any = 0;
-    for (uint32_t z = 0; z < half; z++)
-        for (uint32_t y = 0; y < half; y++)
-            for (uint32_t x = 0; x < half; x++) {
-                for (unsigned i = 0; i < 8; i++) {
-                    c[i] = vox_get(v, d, vox_index(v, 2 * x + (i & 1u),
-                                                   2 * y + (i >> 1 & 1u),
-                                                   2 * z + (i >> 2 & 1u)));
-                    any |= c[i];
-                }
-                m->out[vox_index(v, ox + x, oy + y, oz + z)] = vod_downsample(m->ch, c);
-            }
+    uint32_t any = v->bits == 8 && m->ch != VOXEL_CH_SURFACE
+                       ? mip_octant8(m, d, ox, oy, oz)
+                       : mip_octant_any(m, d, ox, oy, oz);
     /* a mip child with memory has a non-empty footprint by construction;
      * a level-0 one only if some voxel is non-zero */
     m->nonempty = m->nonempty || m->l > 1 || any;
+}
+
+/* The parent of 8 children that are all the same entry without memory
+ * (all empty, or all uniform with one value), without visiting a voxel:
+ * what the general path below gives for them.  false when they differ or
+ * the parent's value cannot be a uniform entry. */
+static bool mip_same_children(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
+{
+    uint32_t e0 = 0;
+    for (unsigned i = 0; i < 8; i++) {
+        uint32_t c[3] = {2 * p[0] + (i & 1u), 2 * p[1] + (i >> 1 & 1u),
+                         2 * p[2] + (i >> 2 & 1u)};
+        uint32_t e = entry_at(m->v, m->l - 1, c);
+        if (is_alloc(e) || (i && e != e0)) return false;
+        e0 = e;
+    }
+    if (e0 == 0) {
+        *entry = 0;
+        return true;
+    }
+    uint32_t c[8];
+    for (int i = 0; i < 8; i++) c[i] = e0 & ~ENTRY_UNIFORM;
+    uint32_t d = vod_downsample(m->ch, c);
+    if (d >= ENTRY_UNIFORM) return false;
+    *entry = ENTRY_UNIFORM | d;
+    return true;
 }
 
 /* Brick p of level m->l from its 8 children. */
@@ -447,6 +513,7 @@ static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
 {
     vod_volume *v = m->v;
     uint32_t half = v->sbrick / 2;
+    if (mip_same_children(m, p, entry)) return 0;
     m->nonempty = false;
     for (unsigned i = 0; i < 8; i++) {
         uint32_t c[3] = {2 * p[0] + (i & 1u), 2 * p[1] + (i >> 1 & 1u),
@@ -596,6 +663,29 @@ static inline void raw_put(uint8_t *raw, uint32_t bits, size_t i, uint32_t val)
     else if (val) raw[i >> 3] |= (uint8_t)(1u << (i & 7));
 }
 
+/* n voxels of a row of 8-bit voxels (src; NULL: all u) as bits of a
+ * channel-1 raw brick from bit r on: whole bytes at a time where they are
+ * aligned (a row of a 16^3 brick is two). */
+static void copy_row_bits8(uint8_t *raw, size_t r, const uint8_t *src, uint32_t u,
+                           uint32_t n)
+{
+    uint32_t x = 0;
+    for (; x < n && ((r + x) & 7); x++)
+        if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
+    for (; x + 8 <= n; x += 8) {
+        uint8_t bits = 0xff;
+        if (src) {
+            bits = 0;
+            for (unsigned k = 0; k < 8; k++) bits |= (uint8_t)((src[x + k] != 0) << k);
+        } else if (!u) {
+            bits = 0;
+        }
+        raw[(r + x) >> 3] |= bits;
+    }
+    for (; x < n; x++)
+        if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
+}
+
 /* The part of storage brick (entry e, low corner o, level-l voxels) that
  * lies in the raw brick whose low corner is lo. */
 static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
@@ -610,11 +700,14 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
     uint32_t u = e & ~ENTRY_UNIFORM;
     for (uint32_t z = a0[2]; z < a1[2]; z++)
         for (uint32_t y = a0[1]; y < a1[1]; y++) {
-            size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B;
-            size_t s = vox_index(v, 0, y - o[1], z - o[2]);
-            for (uint32_t x = a0[0]; x < a1[0]; x++)
-                raw_put(raw, L->voxel_bits, r + (x - lo[0]),
-                        d ? vox_get(v, d, s + (x - o[0])) : u);
+            size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0]);
+            size_t s = vox_index(v, a0[0] - o[0], y - o[1], z - o[2]);
+            uint32_t n = a1[0] - a0[0];
+            if (L->voxel_bits == 1 && v->bits == 8)
+                copy_row_bits8(raw, r, d ? d + s : NULL, u, n);
+            else
+                for (uint32_t x = 0; x < n; x++)
+                    raw_put(raw, L->voxel_bits, r + x, d ? vox_get(v, d, s + x) : u);
         }
 }
 
