@@ -104,6 +104,17 @@ static void print_summary(const cli_job_opts *o, const vox_summary *s)
            (unsigned long long)s->bricks, s->crc32);
     printf("  voxd job %llu, %.3f s in the queue\n", (unsigned long long)s->job_id,
            s->seconds_queued);
+    if (!s->has_mesh) return;
+    printf("  mesh: %u triangles, %llu open and %llu non-manifold edges: %s; %u tiles "
+           "with triangles\n", s->mesh.triangles, (unsigned long long)s->mesh.open_edges,
+           (unsigned long long)s->mesh.nonmanifold_edges,
+           s->mesh.watertight ? "watertight" : "not watertight", s->mesh.tiles);
+    if (s->mesh.repair_skipped)
+        printf("  repair: not needed, the mesh is watertight (its parities agree)\n");
+    else if (o->mesh_opts.repair != MESH_REPAIR_NONE)
+        printf("  repair: %llu voxels where the parities along x, y, z disagree, in %llu "
+               "storage bricks\n", (unsigned long long)s->mesh.disagreements,
+               (unsigned long long)s->mesh.disagree_bricks);
 }
 
 static int submit_and_receive(vox_client *c, const vox_job *job,

@@ -389,6 +389,18 @@ static void on_summary(vjob *j, const Voxd__Summary *m)
     }
     j->sum.depth = g->depth;
     j->sum.voxel_size = g->voxel_size;
+    const Voxd__MeshReport *mr = m->mesh;
+    if (mr) {
+        j->sum.has_mesh = 1;
+        j->sum.mesh.triangles = mr->triangles;
+        j->sum.mesh.open_edges = mr->open_edges;
+        j->sum.mesh.nonmanifold_edges = mr->nonmanifold_edges;
+        j->sum.mesh.watertight = mr->watertight;
+        j->sum.mesh.tiles = mr->tiles;
+        j->sum.mesh.repair_skipped = mr->repair_skipped;
+        j->sum.mesh.disagreements = mr->disagreements;
+        j->sum.mesh.disagree_bricks = mr->disagree_bricks;
+    }
 }
 
 /* ---------------------------------------------------------------- dispatch */

@@ -267,6 +267,16 @@ typedef struct {
     uint32_t depth;           /* octree levels: the smallest d >= 1, 2^d >= max(grid) */
     double voxel_size;        /* edge of the cubic voxels */
     double origin[3];         /* the grid's low corner (the domain's) */
+    /* A mesh job's (has_mesh set): what it found in the mesh and did. */
+    int has_mesh;
+    struct {
+        uint32_t triangles;   /* after the degenerate ones were dropped */
+        uint64_t open_edges, nonmanifold_edges;
+        int watertight;       /* no open, non-manifold or inconsistent edge */
+        uint32_t tiles;       /* tiles with triangles */
+        int repair_skipped;   /* a repair asked of a watertight mesh: not run */
+        uint64_t disagreements, disagree_bricks; /* repair: where the parities differ */
+    } mesh;
 } vox_summary;
 
 /* Wait for a job's end and write its VOD to path.  The file is written under

@@ -115,6 +115,18 @@ int vd_send_summary(vd_client *c, const vd_job *j)
     m.seconds_queued = nonneg(j->t_start - j->t_submit);
     m.seconds_voxelize = nonneg(j->t_voxelize);
     m.seconds_write = nonneg(j->t_write);
+    Voxd__MeshReport mr = VOXD__MESH_REPORT__INIT;
+    if (j->has_mesh_report) {
+        mr.triangles = j->mesh_report.triangles;
+        mr.open_edges = j->mesh_report.open;
+        mr.nonmanifold_edges = j->mesh_report.nonmanifold;
+        mr.watertight = j->mesh_report.watertight;
+        mr.tiles = j->mesh_report.tiles;
+        mr.repair_skipped = j->mesh_report.repair_skipped;
+        mr.disagreements = j->mesh_report.disagreements;
+        mr.disagree_bricks = j->mesh_report.disagree_bricks;
+        m.mesh = &mr;
+    }
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_SUMMARY;
     r.summary = &m;

@@ -78,6 +78,11 @@ check "vox submit --mesh: the cube" vox submit --mesh "$TMP/cube.obj" -r 48 -q -
 check "submit = embedded, solid occupancy (bytes)" cmp "$TMP/d1.vod" "$TMP/e1.vod"
 refuse "vox info validates the daemon's mesh file" 0 "valid VOD.*CRC-32 checked" "$VOX" info "$TMP/d1.vod"
 refuse "its metadata names the file and the mesh" 0 "source=file:$TMP/cube.obj" "$VOX" info "$TMP/d1.vod"
+refuse "vox submit's summary has the mesh's edges from voxd" 0 \
+    "mesh: 12 triangles, 0 open and 0 non-manifold edges: watertight" \
+    vox submit --mesh "$TMP/cube.obj" -r 48 -o "$TMP/d1s.vod"
+refuse "a repair asked of the closed cube is not run" 0 "repair: not needed" \
+    vox submit --mesh "$TMP/cube.obj" -r 48 --repair vote -o "$TMP/d1r.vod"
 
 check "embedded: density, 4 samples a voxel, pad 3" \
     vox voxelize --embedded --mesh "$TMP/cube.obj" -r 40 --channel density --supersample 4 --pad 3 -q -o "$TMP/e2.vod"
