@@ -211,11 +211,7 @@ static int implicit_finish(engine *e, void *job, int rc)
     engine_result *r = ij->r;
     sched_job_totals(e, r);
     r->seconds = clock_now() - e->t0;
-    if (rc) {
-        r->failure = e->err.failure;
-        snprintf(r->error, sizeof r->error, "%s", e->err.message);
-        return rc;
-    }
+    if (rc) return sched_job_failed(e, r, rc);
     e->result = RESULT_OCTREE;
     /* the octree stays for the encode kind (octree_store clears whole
      * blocks ahead: up to block_end) */

@@ -221,11 +221,7 @@ static int mesh_finish(engine *e, void *job, int rc)
     r->tiles = mj->ntiles;
     if (!rc) rc = collect(e, mj);
     r->seconds = clock_now() - e->t0;
-    if (rc) {
-        r->failure = e->err.failure;
-        snprintf(r->error, sizeof r->error, "%s", e->err.message);
-        return rc;
-    }
+    if (rc) return sched_job_failed(e, r, rc);
     e->result = RESULT_VOLUME;
     return 0;
 }

@@ -158,5 +158,7 @@ void sched_release(engine *e);
 /* The job's totals from the workers' slots (boxes tested, CPU) and the
  * core's books (restarts, stalls), into r. */
 void sched_job_totals(engine *e, engine_result *r);
+/* The job's failure (the first told) into r; returns rc. */
+int sched_job_failed(engine *e, engine_result *r, int rc);
 
 #endif

@@ -99,6 +99,13 @@ void sched_job_totals(engine *e, engine_result *r)
     r->stalls = e->stalls;
 }
 
+int sched_job_failed(engine *e, engine_result *r, int rc)
+{
+    r->failure = e->err.failure;
+    snprintf(r->error, sizeof r->error, "%s", e->err.message);
+    return rc;
+}
+
 void engine_release(engine *e)
 {
     if (e->kind) return; /* inside a job: its finish holds what it needs */
