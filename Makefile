@@ -42,14 +42,15 @@ CSTD    := -std=c11 -D_GNU_SOURCE
 # against the layering does not compile (tests/integration/layering.sh
 # checks the same over the sources, and that no two files include each
 # other).  The data flows down this list; nothing includes upwards.
-MODULES := client server config libvox master worker engine mesh proto vod expr common
-LAYER_client := config libvox master mesh proto expr vod common
-LAYER_server := config master engine mesh proto libvox expr vod common
+MODULES := client server config libvox master worker engine csg mesh proto vod expr common
+LAYER_client := config libvox master csg mesh proto expr vod common
+LAYER_server := config master engine csg mesh proto libvox expr vod common
 LAYER_config := proto expr common
 LAYER_libvox := proto common
-LAYER_master := worker engine mesh expr vod common
-LAYER_worker := engine mesh expr vod common
+LAYER_master := worker engine csg mesh expr vod common
+LAYER_worker := engine csg mesh expr vod common
 LAYER_engine := mesh vod common
+LAYER_csg    := mesh expr vod common
 LAYER_mesh   := vod common
 LAYER_proto  := common
 LAYER_vod    := common

@@ -1,0 +1,120 @@
+/* csg — volume constructive solid geometry on 8-bit densities (ICVG).
+ *
+ * A tree is a flat list of nodes in which every child has a smaller index
+ * than its parent (so the list is its own bottom-up order, and the wire
+ * form later needs no nesting); the last node is the result.  Leaves are
+ * the ICVG primitives (virtual volume sampling functions with the layers
+ * L = 0 < S = 127 < H = 255) and implicit expressions; the inner nodes are
+ * the ICVG algebra, erosion and dilation.  docs/csg.md gives every formula.
+ *
+ * Evaluation is brick by brick: csg_eval_brick() computes one cubic brick
+ * of the grid from (tree, grid, brick) alone, so bricks may be computed in
+ * any order, by any process, and give the same bytes.
+ */
+#ifndef VOXD_CSG_H
+#define VOXD_CSG_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "expr.h"
+#include "grid.h"
+#include "vod_volume.h"
+
+#define CSG_L 0u
+#define CSG_S 127u
+#define CSG_H 255u
+
+#define CSG_MAX_NODES 256u       /* nodes in a tree */
+#define CSG_MAX_DEPTH 64u        /* longest path from the result to a leaf */
+#define CSG_MAX_SOURCE 65536u    /* bytes of a .csg text */
+#define CSG_MAX_MORPH 16u        /* k of one erode / dilate */
+#define CSG_MAX_MARGIN 64u       /* sum of the k along any path */
+#define CSG_NAME_MAX 32u         /* bytes of a node name, NUL included */
+#define CSG_IMPLICIT_RAMP 1.0    /* voxels from S to L (or H) of an implicit leaf */
+
+typedef enum {
+    /* leaves */
+    CSG_CUBOID, CSG_ELLIPSOID, CSG_CYLINDER, CSG_CONE, CSG_IMPLICIT,
+    /* binary (a, b) */
+    CSG_UNION, CSG_INTERSECTION, CSG_TRIM, CSG_CAP, CSG_DIFFERENCE_A,
+    CSG_DIFFERENCE_B, CSG_DIFFERENCE, CSG_ADD, CSG_MODULATE, CSG_DIVIDE_A,
+    CSG_DIVIDE, /* param: S_L in (0, 1] */
+    /* unary (a) */
+    CSG_INVERSE, CSG_SCALAR_ADD, CSG_SCALAR_MUL, /* param: the scalar */
+    CSG_ERODE, CSG_DILATE,                        /* k: box half-width */
+    CSG_KIND_COUNT
+} csg_kind;
+
+typedef struct {
+    csg_kind kind;
+    char name[CSG_NAME_MAX];
+    int32_t a, b;          /* children (indices below this node), -1: none */
+    double param;          /* divide's S_L, a scalar */
+    uint32_t k;            /* erode / dilate */
+    /* primitives: centre, full size along the local axes (x, y, z), rotation (radians, applied
+     * about x, then y, then z) */
+    double center[3], size[3], rot[3];
+    double m[3][3];        /* world -> local rotation, from rot */
+    int axis;              /* cylinder, cone: the local axis along which
+                              size[axis] is the height (default 2: z) */
+    /* implicit: the expression (offset into the tree's text pool) and an
+     * optional cubic domain outside which the leaf is L */
+    uint32_t expr_off, expr_len;
+    int has_domain;
+    double dom_lo, dom_hi;
+} csg_node;
+
+typedef struct {
+    uint32_t n;
+    csg_node node[CSG_MAX_NODES];
+    char *text;            /* the implicit leaves' sources, NUL-separated */
+    size_t text_len;
+} csg_tree;
+
+typedef struct {
+    int line, col;         /* 1-based; 0 when none */
+    char node[CSG_NAME_MAX];
+    char msg[200];
+} csg_error;
+
+/* Parse a .csg text (docs/csg.md).  0 and *out (free with csg_tree_free),
+ * -EINVAL with err filled for a bad text, -E2BIG for a limit, -ENOMEM. */
+int csg_parse(const char *src, size_t len, csg_tree **out, csg_error *err);
+void csg_tree_free(csg_tree *t);
+/* The kind's name as the text writes it ("union", "cuboid"...). */
+const char *csg_kind_name(csg_kind k);
+
+/* The operator op on densities a, b (b ignored by unary ones), exactly as
+ * docs/csg.md defines it; param and k as in the node. */
+uint8_t csg_apply(csg_kind op, uint8_t a, uint8_t b, double param);
+/* The primitive n sampled at the world point p, with voxels of size vs. */
+uint8_t csg_prim_sample(const csg_node *n, const double p[3], double vs);
+/* The node's rotation matrix from its angles (the parser calls it). */
+void csg_node_rotation(csg_node *n);
+
+/* An evaluator: scratch buffers and the implicit leaves' compiled tapes.
+ * One per thread. */
+typedef struct csg_eval csg_eval;
+typedef struct {
+    uint64_t bricks, uniform_bricks;  /* results */
+    uint64_t skipped;     /* operand subtrees decided without evaluation */
+    uint64_t voxel_evals; /* voxels a leaf sampled */
+} csg_stats;
+
+int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side, csg_eval **out);
+void csg_eval_free(csg_eval *e);
+/* Brick b (brick coordinates: voxels b*side .. b*side+side-1 per axis) of
+ * the result into out (side^3 bytes, x fastest), or *uniform = 1 and
+ * *value when every voxel has one value (out then untouched).  Voxels past
+ * the grid are computed too (the caller masks them).  0 or -ENOMEM. */
+int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
+                   uint8_t *value);
+const csg_stats *csg_eval_stats(const csg_eval *e);
+
+/* Every brick of vol (8-bit, its storage brick side) in turn.  occupancy:
+ * store 1 where the density is >= S, else 0.  0 or a negative errno. */
+int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol,
+                    int occupancy, csg_stats *st);
+
+#endif

@@ -1,0 +1,377 @@
+/* csg_eval — the tree on one brick, bottom-up, deciding whole operand
+ * subtrees from a uniform operand where the operator allows. */
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "csg.h"
+
+struct csg_eval {
+    const csg_tree *t;
+    grid_spec g;
+    uint32_t side;
+    expr_tape *tape[CSG_MAX_NODES];
+    expr_vm *vm[CSG_MAX_NODES];
+    /* Binary operators: the table op(a, b), and for each value of one
+     * operand the result it forces whatever the other, or -1. */
+    uint8_t *lut[CSG_MAX_NODES];
+    int16_t *force_a[CSG_MAX_NODES], *force_b[CSG_MAX_NODES];
+    csg_stats st;
+};
+
+typedef struct {
+    int32_t lo[3];
+    uint32_t n; /* voxels per axis */
+} box;
+
+static int build_tables(csg_eval *e, uint32_t i)
+{
+    const csg_node *n = &e->t->node[i];
+    e->lut[i] = malloc(65536);
+    e->force_a[i] = malloc(256 * sizeof(int16_t));
+    e->force_b[i] = malloc(256 * sizeof(int16_t));
+    if (!e->lut[i] || !e->force_a[i] || !e->force_b[i]) return -ENOMEM;
+    for (int a = 0; a < 256; a++)
+        for (int b = 0; b < 256; b++)
+            e->lut[i][a * 256 + b] = csg_apply(n->kind, (uint8_t)a, (uint8_t)b, n->param);
+    for (int v = 0; v < 256; v++) {
+        e->force_a[i][v] = e->lut[i][v * 256];
+        e->force_b[i][v] = e->lut[i][v];
+        for (int o = 1; o < 256; o++) {
+            if (e->lut[i][v * 256 + o] != e->force_a[i][v]) e->force_a[i][v] = -1;
+            if (e->lut[i][o * 256 + v] != e->force_b[i][v]) e->force_b[i][v] = -1;
+        }
+    }
+    return 0;
+}
+
+int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side, csg_eval **out)
+{
+    *out = NULL;
+    if (!t->n || side < 1 || side > 256) return -EINVAL;
+    csg_eval *e = calloc(1, sizeof *e);
+    if (!e) return -ENOMEM;
+    e->t = t, e->g = *g, e->side = side;
+    int rc = 0;
+    for (uint32_t i = 0; i < t->n && !rc; i++) {
+        const csg_node *n = &t->node[i];
+        if (n->kind == CSG_IMPLICIT) {
+            expr_error ee;
+            rc = expr_compile(t->text + n->expr_off, n->expr_len, NULL, &e->tape[i], &ee);
+            if (!rc) rc = expr_vm_new(e->tape[i], 0, &e->vm[i]);
+        } else if (n->b >= 0) {
+            rc = build_tables(e, i);
+        }
+    }
+    if (rc) {
+        csg_eval_free(e);
+        return rc;
+    }
+    *out = e;
+    return 0;
+}
+
+void csg_eval_free(csg_eval *e)
+{
+    if (!e) return;
+    for (uint32_t i = 0; i < e->t->n; i++) {
+        expr_vm_free(e->vm[i]);
+        expr_tape_free(e->tape[i]);
+        free(e->lut[i]);
+        free(e->force_a[i]);
+        free(e->force_b[i]);
+    }
+    free(e);
+}
+
+const csg_stats *csg_eval_stats(const csg_eval *e)
+{
+    return &e->st;
+}
+
+static double centre(const csg_eval *e, int a, int32_t X)
+{
+    return grid_coord(&e->g, a, X + 0.5);
+}
+
+/* 1 when the box's voxel centres all lie inside the convex set where the
+ * primitive is H (cone: never claimed), else 0. */
+static int prim_all_h(const csg_eval *e, const csg_node *n, const box *b)
+{
+    double vs = e->g.vs, ei[3];
+    for (int i = 0; i < 3; i++) ei[i] = n->size[i] / (2 * vs);
+    if (n->kind == CSG_CONE) return 0;
+    for (int c = 0; c < 8; c++) {
+        double d[3], q[3];
+        for (int a = 0; a < 3; a++)
+            d[a] = centre(e, a, b->lo[a] + ((c >> a) & 1 ? (int32_t)b->n - 1 : 0)) - n->center[a];
+        for (int i = 0; i < 3; i++)
+            q[i] = (n->m[i][0] * d[0] + n->m[i][1] * d[1] + n->m[i][2] * d[2]) / vs;
+        if (n->kind == CSG_CUBOID) {
+            for (int i = 0; i < 3; i++)
+                if (fabs(q[i]) > ei[i] - 1.01) return 0;
+        } else if (n->kind == CSG_ELLIPSOID) {
+            double r = fmin(ei[0], fmin(ei[1], ei[2])) - 1.01;
+            if (!(r > 0) || q[0] * q[0] + q[1] * q[1] + q[2] * q[2] > r * r) return 0;
+        } else {
+            int ax = n->axis, c1 = (ax + 1) % 3, c2 = (ax + 2) % 3;
+            double r = fmin(ei[c1], ei[c2]) - 1.01;
+            if (!(r > 0) || fabs(q[ax]) > ei[ax] - 1.01 ||
+                q[c1] * q[c1] + q[c2] * q[c2] > r * r)
+                return 0;
+        }
+    }
+    return 1;
+}
+
+/* 1 when the box's voxel centres all lie 2 voxels or more outside the
+ * world box around the primitive's rotated local box (L there). */
+static int prim_all_l(const csg_eval *e, const csg_node *n, const box *b)
+{
+    double vs = e->g.vs;
+    for (int a = 0; a < 3; a++) {
+        double half = 0; /* world half-extent along a: |R| applied to the half sizes */
+        for (int i = 0; i < 3; i++) half += fabs(n->m[i][a]) * n->size[i] / 2;
+        half += 2 * vs;
+        double lo = centre(e, a, b->lo[a]), hi = centre(e, a, b->lo[a] + (int32_t)b->n - 1);
+        if (lo > n->center[a] + half || hi < n->center[a] - half) return 1;
+    }
+    return 0;
+}
+
+static uint8_t implicit_density(csg_eval *e, uint32_t i, const double p[3])
+{
+    const csg_node *n = &e->t->node[i];
+    if (n->has_domain)
+        for (int a = 0; a < 3; a++)
+            if (!(p[a] >= n->dom_lo && p[a] <= n->dom_hi)) return CSG_L;
+    double gr[3];
+    double f = expr_vm_grad(e->vm[i], 0, p[0], p[1], p[2], gr);
+    double len = sqrt(gr[0] * gr[0] + gr[1] * gr[1] + gr[2] * gr[2]);
+    /* t: the signed distance estimate, in voxels, positive inside. */
+    double t = -f / len / e->g.vs;
+    double v = CSG_S + t * (CSG_H - CSG_S) / CSG_IMPLICIT_RAMP;
+    if (!(v > CSG_L)) return CSG_L;
+    return v >= CSG_H ? CSG_H : (uint8_t)floor(v);
+}
+
+static int implicit_all_l(const csg_eval *e, const csg_node *n, const box *b)
+{
+    if (!n->has_domain) return 0;
+    for (int a = 0; a < 3; a++)
+        if (centre(e, a, b->lo[a]) > n->dom_hi ||
+            centre(e, a, b->lo[a] + (int32_t)b->n - 1) < n->dom_lo)
+            return 1;
+    return 0;
+}
+
+static void sample_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
+{
+    const csg_node *n = &e->t->node[i];
+    size_t k = 0;
+    for (uint32_t z = 0; z < b->n; z++)
+        for (uint32_t y = 0; y < b->n; y++)
+            for (uint32_t x = 0; x < b->n; x++) {
+                double p[3] = {centre(e, 0, b->lo[0] + (int32_t)x),
+                               centre(e, 1, b->lo[1] + (int32_t)y),
+                               centre(e, 2, b->lo[2] + (int32_t)z)};
+                buf[k++] = n->kind == CSG_IMPLICIT ? implicit_density(e, i, p)
+                                                   : csg_prim_sample(n, p, e->g.vs);
+            }
+    e->st.voxel_evals += k;
+}
+
+/* 1 and *v when buf's count bytes are all one value. */
+static int all_same(const uint8_t *buf, size_t count, uint8_t *v)
+{
+    for (size_t k = 1; k < count; k++)
+        if (buf[k] != buf[0]) return 0;
+    *v = buf[0];
+    return 1;
+}
+
+static int eval(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v);
+
+/* One axis of a separable min (erode) or max (dilate) filter of half-width
+ * k: src has dims sd (x fastest), dst the same with axis a shrunk by 2k. */
+static void filter_axis(const uint8_t *src, const uint32_t sd[3], int a, uint32_t k,
+                        int dilate, uint8_t *dst)
+{
+    uint32_t dd[3] = {sd[0], sd[1], sd[2]};
+    dd[a] -= 2 * k;
+    size_t stride = a == 0 ? 1 : a == 1 ? sd[0] : (size_t)sd[0] * sd[1];
+    size_t o = 0;
+    for (uint32_t z = 0; z < dd[2]; z++)
+        for (uint32_t y = 0; y < dd[1]; y++)
+            for (uint32_t x = 0; x < dd[0]; x++) {
+                const uint8_t *s = src + x + (size_t)sd[0] * (y + (size_t)sd[1] * z);
+                uint8_t m = s[0];
+                for (uint32_t j = 1; j <= 2 * k; j++) {
+                    uint8_t w = s[j * stride];
+                    if (dilate ? w > m : w < m) m = w;
+                }
+                dst[o++] = m;
+            }
+}
+
+static int morph(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
+{
+    const csg_node *n = &e->t->node[i];
+    box cb = {{b->lo[0] - (int32_t)n->k, b->lo[1] - (int32_t)n->k, b->lo[2] - (int32_t)n->k},
+              b->n + 2 * n->k};
+    size_t cn = (size_t)cb.n * cb.n * cb.n;
+    uint8_t *c = malloc(cn), *tmp = malloc(cn);
+    if (!c || !tmp) {
+        free(c);
+        free(tmp);
+        return -ENOMEM;
+    }
+    int rc = eval(e, (uint32_t)n->a, &cb, c, v);
+    if (rc == 0) {
+        int dil = n->kind == CSG_DILATE;
+        uint32_t d0[3] = {cb.n, cb.n, cb.n}, d1[3] = {b->n, cb.n, cb.n},
+                 d2[3] = {b->n, b->n, cb.n};
+        filter_axis(c, d0, 0, n->k, dil, tmp);
+        filter_axis(tmp, d1, 1, n->k, dil, c);
+        filter_axis(c, d2, 2, n->k, dil, buf);
+    }
+    free(c);
+    free(tmp);
+    return rc;
+}
+
+static int binary_op(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
+{
+    const csg_node *n = &e->t->node[i];
+    size_t count = (size_t)b->n * b->n * b->n;
+    uint8_t *a = malloc(count), va, vb;
+    if (!a) return -ENOMEM;
+    int ua = eval(e, (uint32_t)n->a, b, a, &va);
+    if (ua < 0 || (ua == 1 && e->force_a[i][va] >= 0)) {
+        if (ua == 1) *v = (uint8_t)e->force_a[i][va], e->st.skipped++;
+        free(a);
+        return ua;
+    }
+    int ub = eval(e, (uint32_t)n->b, b, buf, &vb);
+    if (ub < 0 || (ub == 1 && e->force_b[i][vb] >= 0) || (ub == 1 && ua == 1)) {
+        if (ub == 1) *v = ua == 1 ? e->lut[i][va * 256 + vb] : (uint8_t)e->force_b[i][vb];
+        free(a);
+        return ub;
+    }
+    const uint8_t *lut = e->lut[i];
+    for (size_t k = 0; k < count; k++) {
+        uint8_t x = ua ? va : a[k], y = ub ? vb : buf[k];
+        buf[k] = lut[x * 256 + y];
+    }
+    free(a);
+    return 0;
+}
+
+/* Node i over box b: 1 and *v when uniform (buf untouched), 0 with buf
+ * filled (b->n^3 bytes), or a negative errno. */
+static int eval(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
+{
+    const csg_node *n = &e->t->node[i];
+    size_t count = (size_t)b->n * b->n * b->n;
+    int rc;
+    switch (n->kind) {
+    case CSG_CUBOID: case CSG_ELLIPSOID: case CSG_CYLINDER: case CSG_CONE:
+        if (prim_all_l(e, n, b)) return *v = CSG_L, 1;
+        if (prim_all_h(e, n, b)) return *v = CSG_H, 1;
+        sample_leaf(e, i, b, buf);
+        rc = 0;
+        break;
+    case CSG_IMPLICIT:
+        if (implicit_all_l(e, n, b)) return *v = CSG_L, 1;
+        sample_leaf(e, i, b, buf);
+        rc = 0;
+        break;
+    case CSG_ERODE: case CSG_DILATE:
+        rc = morph(e, i, b, buf, v);
+        break;
+    case CSG_INVERSE: case CSG_SCALAR_ADD: case CSG_SCALAR_MUL:
+        rc = eval(e, (uint32_t)n->a, b, buf, v);
+        if (rc == 1) *v = csg_apply(n->kind, *v, 0, n->param);
+        if (rc == 0)
+            for (size_t k = 0; k < count; k++) buf[k] = csg_apply(n->kind, buf[k], 0, n->param);
+        break;
+    default:
+        rc = binary_op(e, i, b, buf, v);
+        break;
+    }
+    if (rc == 0 && all_same(buf, count, v)) rc = 1;
+    return rc;
+}
+
+int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
+                   uint8_t *value)
+{
+    box bx = {{(int32_t)(b[0] * e->side), (int32_t)(b[1] * e->side), (int32_t)(b[2] * e->side)},
+              e->side};
+    int rc = eval(e, e->t->n - 1, &bx, out, value);
+    if (rc < 0) return rc;
+    *uniform = rc;
+    e->st.bricks++;
+    e->st.uniform_bricks += (uint64_t)rc;
+    return 0;
+}
+
+/* Brick b's voxels past the grid := 0; densities to occupancy if asked. */
+static void finish(const csg_eval *e, const uint32_t b[3], uint8_t *buf, int occupancy)
+{
+    uint32_t s = e->side;
+    for (uint32_t z = 0; z < s; z++)
+        for (uint32_t y = 0; y < s; y++)
+            for (uint32_t x = 0; x < s; x++) {
+                uint8_t *p = buf + x + (size_t)s * (y + (size_t)s * z);
+                if (b[0] * s + x >= e->g.res[0] || b[1] * s + y >= e->g.res[1] ||
+                    b[2] * s + z >= e->g.res[2])
+                    *p = 0;
+                else if (occupancy)
+                    *p = *p >= CSG_S;
+            }
+}
+
+static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, int uniform,
+               uint8_t v, int occupancy)
+{
+    uint32_t s = e->side;
+    int inside = 1;
+    for (int a = 0; a < 3; a++) inside &= (b[a] + 1) * s <= e->g.res[a];
+    if (uniform && occupancy) v = v >= CSG_S;
+    if (uniform && (inside || v == 0)) return vod_volume_put_uniform(vol, b, v);
+    if (uniform) memset(buf, v, (size_t)s * s * s);
+    finish(e, b, buf, occupancy && !uniform);
+    return vod_volume_put_brick(vol, b, buf);
+}
+
+int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol, int occupancy,
+                    csg_stats *st)
+{
+    vod_volume_info in;
+    vod_volume_get_info(vol, &in);
+    if (in.bits != 8) return -EINVAL;
+    for (int a = 0; a < 3; a++)
+        if (in.dims[a] != g->res[a]) return -EINVAL;
+    csg_eval *e;
+    int rc = csg_eval_new(t, g, in.sbrick, &e);
+    if (rc) return rc;
+    uint8_t *buf = malloc((size_t)in.sbrick * in.sbrick * in.sbrick);
+    if (!buf) rc = -ENOMEM;
+    uint32_t nb[3];
+    for (int a = 0; a < 3; a++) nb[a] = (g->res[a] + in.sbrick - 1) / in.sbrick;
+    uint32_t b[3];
+    for (b[2] = 0; b[2] < nb[2] && !rc; b[2]++)
+        for (b[1] = 0; b[1] < nb[1] && !rc; b[1]++)
+            for (b[0] = 0; b[0] < nb[0] && !rc; b[0]++) {
+                int uniform;
+                uint8_t v;
+                rc = csg_eval_brick(e, b, buf, &uniform, &v);
+                if (!rc) rc = put(e, vol, b, buf, uniform, v, occupancy);
+            }
+    if (st) *st = e->st;
+    free(buf);
+    csg_eval_free(e);
+    return rc;
+}
