@@ -27,6 +27,7 @@ int cli_ping(int argc, char **argv, const char *sock);
 int cli_info(int argc, char **argv);
 int cli_render(int argc, char **argv);
 int cli_mesh_info(int argc, char **argv);
+int cli_csg(int argc, char **argv);
 
 /* ---- a voxelization job's options (vox voxelize, vox submit) ---- */
 

@@ -20,6 +20,7 @@ static const char usage[] =
     "  info       validate a VOD file and print its header, tree and bricks\n"
     "  render     draw a VOD file as shaded points into a PNG\n"
     "  mesh-info  load a triangle mesh (OBJ, STL, PLY, OFF) and describe its topology\n"
+    "  csg        evaluate a volume CSG tree (.csg) into a VOD file, in this process\n"
     "\n"
     "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else the socket of voxd's\n"
     "                  config file $VOXD_CONFIG or " CONFIG_DEFAULT_PATH ", else\n"
@@ -85,7 +86,8 @@ int main(int argc, char **argv)
         fputs(usage, stdout);
         return 0;
     }
-    if (strcmp(cmd, "info") && strcmp(cmd, "render") && strcmp(cmd, "mesh-info") && !sock)
+    if (strcmp(cmd, "info") && strcmp(cmd, "render") && strcmp(cmd, "mesh-info") && strcmp(cmd, "csg") &&
+        !sock)
         sock = default_socket(&cfg);
     if (!strcmp(cmd, "voxelize")) return cli_voxelize(n, v, sock);
     if (!strcmp(cmd, "submit")) return cli_submit(n, v, sock);
@@ -95,6 +97,7 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "info")) return cli_info(n, v);
     if (!strcmp(cmd, "render")) return cli_render(n, v);
     if (!strcmp(cmd, "mesh-info")) return cli_mesh_info(n, v);
+    if (!strcmp(cmd, "csg")) return cli_csg(n, v);
     cli_error("unknown command '%s'", cmd);
     fputs(usage, stderr);
     return CLI_EXIT_USAGE;

@@ -158,10 +158,12 @@ static int find_def(parser *p, const char *name)
 static int reference(parser *p, const char *name, size_t at, int32_t *idx)
 {
     int i = find_def(p, name);
+    size_t after = p->pos;
     p->pos = at;
     if (i < 0) return fail(p, -EINVAL, "unknown node '%s'", name);
     def *d = &p->defs[i];
     if (d->state == 1) return fail(p, -EINVAL, "a cycle: '%s' depends on itself", name);
+    p->pos = after;
     if (d->state == 0) {
         const def *cur = p->cur;
         size_t pos = p->pos, end = p->end;
@@ -299,7 +301,8 @@ static int implicit(parser *p, csg_node *n)
     return 0;
 }
 
-/* One "key value" of a leaf. */
+/* One "key value" of a leaf.  A cylinder's or cone's sizes are read as
+ * if its axis were z (size[2] the height) and moved to its axis after. */
 static int leaf_param(parser *p, csg_node *n, const char *key, int *sized)
 {
     double v[3];
@@ -323,21 +326,20 @@ static int leaf_param(parser *p, csg_node *n, const char *key, int *sized)
     } else if (!strcmp(key, "radius") && round) {
         if (number(p, v) || positive(p, v, 1, "radius")) return -EINVAL;
         for (int i = 0; i < 3; i++)
-            if (!axial || i != n->axis) n->size[i] = 2 * v[0];
+            if (!axial || i != 2) n->size[i] = 2 * v[0];
         *sized |= axial ? 3 : 7;
     } else if (!strcmp(key, "radii") && round) {
         int k = axial ? 2 : 3;
         if (numbers(p, v, k) || positive(p, v, k, "radii")) return -EINVAL;
         for (int i = 0, j = 0; i < 3; i++)
-            if (!axial || i != n->axis) n->size[i] = 2 * v[j++];
+            if (!axial || i != 2) n->size[i] = 2 * v[j++];
         *sized |= axial ? 3 : 7;
     } else if (!strcmp(key, "height") && axial) {
         if (number(p, v) || positive(p, v, 1, "height")) return -EINVAL;
-        n->size[n->axis] = v[0];
+        n->size[2] = v[0];
         *sized |= 4;
     } else if (!strcmp(key, "axis") && axial) {
         char w[CSG_NAME_MAX];
-        if (*sized) return fail(p, -EINVAL, "axis must come before the sizes");
         if (word(p, w)) return -EINVAL;
         if (strlen(w) != 1 || w[0] < 'x' || w[0] > 'z')
             return fail(p, -EINVAL, "axis is x, y or z");
@@ -364,6 +366,12 @@ static int leaf(parser *p, csg_kind k, int32_t *idx)
         return fail(p, -EINVAL, "%s needs its %s", csg_kind_name(k),
                     k == CSG_CUBOID ? "size" : k == CSG_ELLIPSOID ? "radius or radii"
                                                                    : "radius and height");
+    if (n->axis != 2) { /* sizes were read as if the axis were z */
+        double r[3] = {n->size[0], n->size[1], n->size[2]};
+        n->size[(n->axis + 1) % 3] = r[0];
+        n->size[(n->axis + 2) % 3] = r[1];
+        n->size[n->axis] = r[2];
+    }
     csg_node_rotation(n);
     *idx = (int32_t)p->t->n++;
     return 0;
