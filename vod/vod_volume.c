@@ -45,6 +45,7 @@ struct vod_volume {
      * worker's done_seq release, which the master's acquire pairs with). */
     atomic_uint pool_used, pool_l0;
     int mip_channel;
+    uint32_t mip_base;  /* pool_used before the mip levels were built */
 };
 
 static uint64_t align64(uint64_t v) { return (v + 63) & ~(uint64_t)63; }
@@ -238,10 +239,13 @@ static uint32_t pool_take(vod_volume *v, uint32_t val)
 /* Writing voxels makes the mip levels stale: give their bricks back. */
 static void drop_mips(vod_volume *v)
 {
+    /* The mip bricks were taken after every level-0 one: the pool goes
+     * back to where it stood before them.  (Not to pool_l0: concurrent
+     * writers, or one killed between taking a brick and counting it, may
+     * leave level-0 bricks above that count.) */
+    if (v->mip_channel)
+        atomic_store_explicit(&v->pool_used, v->mip_base, memory_order_relaxed);
     v->mip_channel = 0;
-    atomic_store_explicit(&v->pool_used,
-                          atomic_load_explicit(&v->pool_l0, memory_order_relaxed),
-                          memory_order_relaxed);
 }
 
 /* The data of level-0 brick b, allocated (from empty or uniform) if need be. */
@@ -560,6 +564,7 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
         return -EINVAL;
     if (v->mip_channel == channel) return 0;
     drop_mips(v);
+    v->mip_base = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
     mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
     int rc = m.out ? 0 : -ENOMEM;
@@ -568,8 +573,8 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
         rc = build_level(&m);
     }
     free(m.out);
-    if (rc) drop_mips(v);
-    else v->mip_channel = channel;
+    v->mip_channel = channel;
+    if (rc) drop_mips(v); /* the levels built so far go back too */
     return rc;
 }
 
