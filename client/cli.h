@@ -28,6 +28,7 @@ int cli_info(int argc, char **argv);
 int cli_render(int argc, char **argv);
 int cli_mesh_info(int argc, char **argv);
 int cli_csg(int argc, char **argv);
+int cli_export(int argc, char **argv);
 
 /* ---- a voxelization job's options (vox voxelize, vox submit) ---- */
 

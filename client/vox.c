@@ -21,6 +21,7 @@ static const char usage[] =
     "  render     draw a VOD file as shaded points into a PNG\n"
     "  mesh-info  load a triangle mesh (OBJ, STL, PLY, OFF) and describe its topology\n"
     "  csg        evaluate a volume CSG tree (.csg) into a VOD file, in this process\n"
+    "  export     write a VOD file's voxels as NRRD, raw + JSON, binvox or VTK (.vti)\n"
     "\n"
     "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else the socket of voxd's\n"
     "                  config file $VOXD_CONFIG or " CONFIG_DEFAULT_PATH ", else\n"
@@ -86,8 +87,8 @@ int main(int argc, char **argv)
         fputs(usage, stdout);
         return 0;
     }
-    if (strcmp(cmd, "info") && strcmp(cmd, "render") && strcmp(cmd, "mesh-info") && strcmp(cmd, "csg") &&
-        !sock)
+    if (strcmp(cmd, "info") && strcmp(cmd, "render") && strcmp(cmd, "mesh-info") &&
+        strcmp(cmd, "csg") && strcmp(cmd, "export") && !sock)
         sock = default_socket(&cfg);
     if (!strcmp(cmd, "voxelize")) return cli_voxelize(n, v, sock);
     if (!strcmp(cmd, "submit")) return cli_submit(n, v, sock);
@@ -98,6 +99,7 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "render")) return cli_render(n, v);
     if (!strcmp(cmd, "mesh-info")) return cli_mesh_info(n, v);
     if (!strcmp(cmd, "csg")) return cli_csg(n, v);
+    if (!strcmp(cmd, "export")) return cli_export(n, v);
     cli_error("unknown command '%s'", cmd);
     fputs(usage, stderr);
     return CLI_EXIT_USAGE;

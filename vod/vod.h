@@ -340,6 +340,11 @@ int vod_level_dims(const vod_file *f, int level, uint32_t dims[3]);
  * 8/16/32-bit voxels their unsigned value; 0 outside the padded cube. */
 uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y,
                    uint32_t z);
+/* The raw brick (section 5's layout at vod_get_info's voxel_bits) of the
+ * level-l node at brick coordinates b (each below vod_level_size / brick),
+ * or NULL when that node is empty (all its voxels 0) or b is outside the
+ * tree: for readers that copy whole bricks (vox export). */
+const uint8_t *vod_brick(const vod_file *f, int level, const uint32_t b[3]);
 /* Call fn for every non-zero voxel of level l inside vod_level_dims, brick
  * by brick in preorder, x fastest inside a brick; stops early and returns
  * fn's value if it returns non-zero; -EINVAL for a level out of range. */

@@ -523,6 +523,21 @@ uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_
     return raw_voxel(f->brick[id], f->info.voxel_bits, i);
 }
 
+const uint8_t *vod_brick(const vod_file *f, int level, const uint32_t b[3])
+{
+    if (level < 0 || (uint32_t)level >= f->info.height) return NULL;
+    uint32_t side = 1u << (f->info.height - 1 - (uint32_t)level);
+    if (b[0] >= side || b[1] >= side || b[2] >= side) return NULL;
+    uint64_t p = 0;
+    for (int l = (int)f->info.height - 1; l > level; l--) {
+        if (!f->tree[p]) return NULL;
+        int s = l - level - 1; /* the child's bit of a level-`level` brick coordinate */
+        unsigned c = (b[0] >> s & 1u) | (b[1] >> s & 1u) << 1 | (b[2] >> s & 1u) << 2;
+        p += 1 + c * f->sub[l - 1];
+    }
+    return f->tree[p] ? f->brick[f->tree[p]] : NULL;
+}
+
 typedef struct {
     const vod_file *f;
     int level;

@@ -1,0 +1,473 @@
+/* vox export: a VOD file's voxels (one level, optionally a box of it) as a
+ * dense array in a format other tools open: NRRD, raw + a JSON sidecar,
+ * binvox, VTK ImageData (.vti).
+ *
+ * The output is streamed a slab of one brick's thickness at a time (z slabs;
+ * x slabs for binvox, whose x runs slowest), each slab gathered from the
+ * bricks it crosses (vod_brick), so memory holds the open VOD file and one
+ * slab, never a dense copy of the volume.  Every format holds uint8 voxels:
+ * channel 1 as 0/1, channel 2 as its density, channel 3 as its occupancy
+ * byte (the normals are not exported yet); binvox holds occupancy only. */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <zlib.h>
+
+#include "cli.h"
+#include "outfile.h"
+#include "vod.h"
+#include "voxel.h"
+
+enum { FMT_NONE, FMT_NRRD, FMT_RAW, FMT_BINVOX, FMT_VTI };
+
+typedef struct {
+    const char *in, *out, *json; /* json: the raw format's sidecar */
+    int fmt, gzip, level;
+    const char *bbox;
+} export_opts;
+
+/* What is exported: the box [lo, hi) of level `level`'s voxels. */
+typedef struct {
+    const vod_file *f;
+    const vod_info *in;
+    int level;
+    uint32_t lo[3], hi[3], n[3];
+    double origin[3], spacing[3]; /* low corner of voxel lo, and a voxel's size */
+} export_box;
+
+/* Where the bytes go: a FILE, through a gzip stream when z is set. */
+typedef struct {
+    FILE *fp;
+    z_stream *z;
+    int err;
+} sink;
+
+static const char usage_text[] =
+    "usage: vox export FILE.vod -o OUT [--format nrrd|raw|binvox|vti] [--gzip]\n"
+    "                  [--level L] [--bbox X0,X1,Y0,Y1,Z0,Z1]\n"
+    "  writes the voxels of one level (0: full resolution) as a dense uint8 array:\n"
+    "  channel 1 as 0/1, 2 as its density, 3 as its occupancy byte\n"
+    "  -o OUT        the output; its extension (.nrrd, .raw, .binvox, .vti) names the\n"
+    "                format unless --format does\n"
+    "  --format F    nrrd, raw (a OUT.json sidecar beside it), binvox (occupancy:\n"
+    "                channel 2 above 127), vti (VTK ImageData, appended raw)\n"
+    "  --gzip        NRRD only: gzip-encoded data\n"
+    "  --level L     the mip level (default 0)\n"
+    "  --bbox X0,X1,Y0,Y1,Z0,Z1  only voxels X0 <= x < X1 (and so on), in the\n"
+    "                level's voxel indices\n";
+
+static int fmt_of(const char *s)
+{
+    static const char *const names[] = {"", "nrrd", "raw", "binvox", "vti"};
+    for (int i = FMT_NRRD; i <= FMT_VTI; i++)
+        if (!strcmp(s, names[i])) return i;
+    return FMT_NONE;
+}
+
+static int fmt_of_path(const char *path)
+{
+    const char *dot = strrchr(path, '.'), *slash = strrchr(path, '/');
+    if (!dot || (slash && dot < slash)) return FMT_NONE;
+    return fmt_of(dot + 1);
+}
+
+static int parse_opts(int argc, char **argv, export_opts *o)
+{
+    *o = (export_opts){0};
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        int takes = !strcmp(a, "-o") || !strcmp(a, "--format") ||
+                    !strcmp(a, "--level") || !strcmp(a, "--bbox");
+        if (takes && !v) {
+            cli_error("%s needs a value", a);
+            return CLI_EXIT_USAGE;
+        }
+        uint32_t l;
+        if (!strcmp(a, "-o")) o->out = v;
+        else if (!strcmp(a, "--format") && !(o->fmt = fmt_of(v))) {
+            cli_error("--format %s: not nrrd, raw, binvox or vti", v);
+            return CLI_EXIT_USAGE;
+        } else if (!strcmp(a, "--level")) {
+            if (cli_parse_uint(v, 0, 30, &l)) {
+                cli_error("--level %s: not a level 0..30", v);
+                return CLI_EXIT_USAGE;
+            }
+            o->level = (int)l;
+        } else if (!strcmp(a, "--bbox")) o->bbox = v;
+        else if (!strcmp(a, "--gzip")) o->gzip = 1;
+        else if (a[0] == '-' || o->in) {
+            cli_error(a[0] == '-' ? "unknown option '%s'" : "one input file only: '%s'", a);
+            return CLI_EXIT_USAGE;
+        } else o->in = a;
+        i += takes;
+    }
+    if (!o->in || !o->out) {
+        cli_error("export needs FILE.vod and -o OUT");
+        return CLI_EXIT_USAGE;
+    }
+    if (!o->fmt && !(o->fmt = fmt_of_path(o->out))) {
+        cli_error("%s: no format from its extension; give --format", o->out);
+        return CLI_EXIT_USAGE;
+    }
+    if (o->gzip && o->fmt != FMT_NRRD) {
+        cli_error("--gzip is for NRRD only");
+        return CLI_EXIT_USAGE;
+    }
+    return 0;
+}
+
+/* "X0,X1,Y0,Y1,Z0,Z1" of whole numbers inside dims, each X0 < X1. */
+static int parse_bbox(const char *s, const uint32_t dims[3], export_box *b)
+{
+    unsigned long v[6];
+    int used = 0;
+    if (sscanf(s, "%lu,%lu,%lu,%lu,%lu,%lu%n", &v[0], &v[1], &v[2], &v[3], &v[4],
+               &v[5], &used) != 6 || s[used] != '\0' || strchr(s, '-')) {
+        cli_error("--bbox %s: want X0,X1,Y0,Y1,Z0,Z1 (whole voxel indices)", s);
+        return CLI_EXIT_USAGE;
+    }
+    for (int a = 0; a < 3; a++) {
+        if (v[2 * a] >= v[2 * a + 1] || v[2 * a + 1] > dims[a]) {
+            cli_error("--bbox %s: axis %c needs 0 <= %c0 < %c1 <= %u (the level's size)",
+                      s, 'x' + a, 'X' + a, 'X' + a, dims[a]);
+            return CLI_EXIT_USAGE;
+        }
+        b->lo[a] = (uint32_t)v[2 * a];
+        b->hi[a] = (uint32_t)v[2 * a + 1];
+    }
+    return 0;
+}
+
+/* The channels whose voxels fit uint8; 0 or a message. */
+static int check_channel(const vod_info *in, const char *path)
+{
+    if (in->channel == VOXEL_CH_OCCUPANCY || in->channel == VOXEL_CH_DENSITY ||
+        in->channel == VOXEL_CH_SURFACE || (in->channel == 0 && in->voxel_bits <= 8))
+        return 0;
+    cli_error("%s: channel %u (%u-bit voxels) cannot be exported yet (channels 1, 2 "
+              "and 3 can)", path, in->channel, in->voxel_bits);
+    return CLI_EXIT_FAILED;
+}
+
+static int make_box(const vod_file *f, const export_opts *o, export_box *b)
+{
+    const vod_info *in = vod_get_info(f);
+    uint32_t dims[3];
+    if (vod_level_dims(f, o->level, dims)) {
+        cli_error("%s: --level %d: the file has levels 0..%u", o->in, o->level,
+                  in->height - 1);
+        return CLI_EXIT_USAGE;
+    }
+    *b = (export_box){.f = f, .in = in, .level = o->level};
+    for (int a = 0; a < 3; a++) b->hi[a] = dims[a];
+    if (o->bbox && parse_bbox(o->bbox, dims, b)) return CLI_EXIT_USAGE;
+    for (int a = 0; a < 3; a++) {
+        b->n[a] = b->hi[a] - b->lo[a];
+        b->spacing[a] = (double)in->voxel_scale[a] * (double)(1u << o->level);
+        b->origin[a] = (double)in->origin[a] + b->lo[a] * b->spacing[a];
+    }
+    return check_channel(in, o->in);
+}
+
+/* ---- gathering voxels ---- */
+
+static uint8_t voxel_u8(const vod_info *in, const uint8_t *raw, size_t i)
+{
+    switch (in->voxel_bits) {
+    case 1: return raw[i >> 3] >> (i & 7) & 1u;
+    case 8: return raw[i];
+    default: return raw[4 * i]; /* channel 3: bits 0-7, the occupancy */
+    }
+}
+
+/* The level voxels of the box [lo, hi) (absolute level coordinates) into
+ * out, x fastest, then y, then z; 0 where no brick is. */
+static void gather(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
+                   uint8_t *out)
+{
+    uint32_t B = b->in->brick, w = hi[0] - lo[0], h = hi[1] - lo[1];
+    memset(out, 0, (size_t)w * h * (hi[2] - lo[2]));
+    uint32_t bk[3];
+    for (bk[2] = lo[2] / B; bk[2] * B < hi[2]; bk[2]++)
+        for (bk[1] = lo[1] / B; bk[1] * B < hi[1]; bk[1]++)
+            for (bk[0] = lo[0] / B; bk[0] * B < hi[0]; bk[0]++) {
+                const uint8_t *raw = vod_brick(b->f, b->level, bk);
+                if (!raw) continue;
+                uint32_t s[3], e[3];
+                for (int a = 0; a < 3; a++) {
+                    s[a] = bk[a] * B > lo[a] ? bk[a] * B : lo[a];
+                    e[a] = (bk[a] + 1) * B < hi[a] ? (bk[a] + 1) * B : hi[a];
+                }
+                for (uint32_t z = s[2]; z < e[2]; z++)
+                    for (uint32_t y = s[1]; y < e[1]; y++) {
+                        size_t src = ((size_t)(z % B) * B + y % B) * B;
+                        size_t dst = ((size_t)(z - lo[2]) * h + (y - lo[1])) * w;
+                        for (uint32_t x = s[0]; x < e[0]; x++)
+                            out[dst + x - lo[0]] = voxel_u8(b->in, raw, src + x % B);
+                    }
+            }
+}
+
+/* ---- output ---- */
+
+static void put(sink *s, const void *p, size_t n)
+{
+    if (s->err || !n) return;
+    if (!s->z) {
+        if (fwrite(p, 1, n, s->fp) != n) s->err = -EIO;
+        return;
+    }
+    uint8_t buf[1 << 16];
+    s->z->next_in = (Bytef *)(uintptr_t)p; /* zlib does not write through next_in */
+    s->z->avail_in = (uInt)n;
+    do {
+        s->z->next_out = buf;
+        s->z->avail_out = sizeof buf;
+        deflate(s->z, Z_NO_FLUSH);
+        size_t k = sizeof buf - s->z->avail_out;
+        if (k && fwrite(buf, 1, k, s->fp) != k) s->err = -EIO;
+    } while (!s->err && (s->z->avail_in || !s->z->avail_out));
+}
+
+static void gz_finish(sink *s)
+{
+    uint8_t buf[1 << 16];
+    int zr;
+    do {
+        s->z->next_out = buf;
+        s->z->avail_out = sizeof buf;
+        zr = deflate(s->z, Z_FINISH);
+        size_t k = sizeof buf - s->z->avail_out;
+        if (k && fwrite(buf, 1, k, s->fp) != k) s->err = -EIO;
+    } while (!s->err && zr == Z_OK);
+    if (!s->err && zr != Z_STREAM_END) s->err = -EIO;
+}
+
+/* The box in z slabs of one brick (aligned to the bricks), x fastest. */
+static int stream_zyx(const export_box *b, sink *s)
+{
+    uint32_t B = b->in->brick;
+    uint8_t *slab = malloc((size_t)b->n[0] * b->n[1] * B);
+    if (!slab) return -ENOMEM;
+    for (uint32_t z0 = b->lo[2]; z0 < b->hi[2] && !s->err;) {
+        uint32_t z1 = (z0 / B + 1) * B < b->hi[2] ? (z0 / B + 1) * B : b->hi[2];
+        uint32_t lo[3] = {b->lo[0], b->lo[1], z0}, hi[3] = {b->hi[0], b->hi[1], z1};
+        gather(b, lo, hi, slab);
+        put(s, slab, (size_t)b->n[0] * b->n[1] * (z1 - z0));
+        z0 = z1;
+    }
+    free(slab);
+    return s->err;
+}
+
+static void print_vec(FILE *fp, const char *sep, const double v[3])
+{
+    fprintf(fp, "%.17g%s%.17g%s%.17g", v[0], sep, v[1], sep, v[2]);
+}
+
+/* NRRD0004: the space origin is the first sample's centre. */
+static int write_nrrd(const export_box *b, const export_opts *o, sink *s)
+{
+    double c[3];
+    for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
+    fprintf(s->fp, "NRRD0004\n# vox export of %s, level %d, channel %u\n"
+            "type: uint8\ndimension: 3\nspace: 3D-right-handed\nsizes: %u %u %u\n"
+            "space directions: (%.17g,0,0) (0,%.17g,0) (0,0,%.17g)\n"
+            "centerings: cell cell cell\nkinds: domain domain domain\n"
+            "encoding: %s\nspace origin: (", o->in, b->level, b->in->channel,
+            b->n[0], b->n[1], b->n[2], b->spacing[0], b->spacing[1], b->spacing[2],
+            o->gzip ? "gzip" : "raw");
+    print_vec(s->fp, ",", c);
+    fprintf(s->fp, ")\nvod_channel:=%u\nvod_level:=%d\n\n", b->in->channel, b->level);
+    z_stream z = {0};
+    if (o->gzip) {
+        if (deflateInit2(&z, 6, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY) != Z_OK)
+            return -ENOMEM;
+        s->z = &z; /* windowBits 15 + 16: a gzip wrapper, as NRRD's gzip wants */
+    }
+    int rc = stream_zyx(b, s);
+    if (o->gzip) {
+        if (!rc) gz_finish(s);
+        deflateEnd(&z);
+        s->z = NULL;
+    }
+    return rc ? rc : s->err;
+}
+
+/* VTK XML ImageData, the voxels as point data at their centres, appended raw
+ * after a UInt64 byte count. */
+static int write_vti(const export_box *b, sink *s)
+{
+    double c[3];
+    for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
+    char ext[96];
+    snprintf(ext, sizeof ext, "0 %u 0 %u 0 %u", b->n[0] - 1, b->n[1] - 1, b->n[2] - 1);
+    fprintf(s->fp, "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" "
+            "byte_order=\"LittleEndian\" header_type=\"UInt64\">\n"
+            "  <ImageData WholeExtent=\"%s\" Origin=\"", ext);
+    print_vec(s->fp, " ", c);
+    fputs("\" Spacing=\"", s->fp);
+    print_vec(s->fp, " ", b->spacing);
+    fprintf(s->fp, "\">\n    <Piece Extent=\"%s\">\n      <PointData Scalars=\"voxel\">\n"
+            "        <DataArray type=\"UInt8\" Name=\"voxel\" format=\"appended\" "
+            "offset=\"0\"/>\n      </PointData>\n    </Piece>\n  </ImageData>\n"
+            "  <AppendedData encoding=\"raw\">\n   _", ext);
+    uint64_t bytes = (uint64_t)b->n[0] * b->n[1] * b->n[2];
+    uint8_t le[8];
+    for (int i = 0; i < 8; i++) le[i] = (uint8_t)(bytes >> (8 * i));
+    put(s, le, sizeof le);
+    int rc = stream_zyx(b, s);
+    if (!rc) fputs("\n  </AppendedData>\n</VTKFile>\n", s->fp);
+    return rc;
+}
+
+/* The sidecar of the raw format: what it takes to read the array back. */
+static int write_json(const export_box *b, const export_opts *o)
+{
+    FILE *fp = fopen(o->json, "w");
+    if (!fp) return -errno;
+    fprintf(fp, "{\n  \"shape\": [%u, %u, %u],\n  \"dtype\": \"uint8\",\n"
+            "  \"order\": \"C: shape is (z, y, x), x varies fastest\",\n  \"origin\": [",
+            b->n[2], b->n[1], b->n[0]);
+    print_vec(fp, ", ", b->origin);
+    fputs("],\n  \"origin_is\": \"the low corner of voxel (0, 0, 0), x y z\",\n"
+          "  \"spacing\": [", fp);
+    print_vec(fp, ", ", b->spacing);
+    fprintf(fp, "],\n  \"channel\": %u,\n  \"level\": %d,\n  \"offset\": [%u, %u, %u]\n}\n",
+            b->in->channel, b->level, b->lo[0], b->lo[1], b->lo[2]);
+    return fclose(fp) ? -errno : 0;
+}
+
+/* binvox: a cube of side d = the largest side (zeros past the box), x
+ * slowest, then z, y fastest, in runs of (value, count 1..255); translate is
+ * the box's low corner and scale the cube's side in world units, so it
+ * needs cubic voxels. */
+static int binvox_rows(const export_box *b, sink *s, uint32_t d)
+{
+    uint32_t B = b->in->brick;
+    uint8_t *slab = malloc((size_t)B * b->n[1] * b->n[2]), run[2] = {0, 0};
+    if (!slab) return -ENOMEM;
+    for (uint32_t x0 = 0; x0 < d && !s->err;) {
+        uint32_t ax = b->lo[0] + x0;
+        uint32_t x1 = x0 < b->n[0] ? (ax / B + 1) * B - b->lo[0] : d;
+        if (x0 < b->n[0] && x1 > b->n[0]) x1 = b->n[0];
+        uint32_t w = x1 - x0;
+        if (x0 < b->n[0]) {
+            uint32_t lo[3] = {ax, b->lo[1], b->lo[2]}, hi[3] = {ax + w, b->hi[1], b->hi[2]};
+            gather(b, lo, hi, slab);
+        }
+        for (uint32_t x = 0; x < w; x++)
+            for (uint32_t z = 0; z < d; z++)
+                for (uint32_t y = 0; y < d; y++) {
+                    int in = x0 < b->n[0] && y < b->n[1] && z < b->n[2];
+                    uint8_t v = in ? slab[((size_t)z * b->n[1] + y) * w + x] : 0;
+                    if (b->in->channel == VOXEL_CH_DENSITY) v = v > 127;
+                    else v = v != 0;
+                    if (run[1] && (v != run[0] || run[1] == 255)) {
+                        put(s, run, 2);
+                        run[1] = 0;
+                    }
+                    run[0] = v;
+                    run[1]++;
+                }
+        x0 = x1;
+    }
+    if (run[1]) put(s, run, 2);
+    free(slab);
+    return s->err;
+}
+
+static int write_binvox(const export_box *b, sink *s)
+{
+    if (b->spacing[0] != b->spacing[1] || b->spacing[1] != b->spacing[2]) {
+        cli_error("binvox has one scale: the voxels (%g x %g x %g) must be cubes",
+                  b->spacing[0], b->spacing[1], b->spacing[2]);
+        return -EINVAL;
+    }
+    uint32_t d = b->n[0];
+    if (b->n[1] > d) d = b->n[1];
+    if (b->n[2] > d) d = b->n[2];
+    fprintf(s->fp, "#binvox 1\ndim %u %u %u\ntranslate %.17g %.17g %.17g\nscale %.17g\ndata\n",
+            d, d, d, b->origin[0], b->origin[1], b->origin[2], d * b->spacing[0]);
+    return binvox_rows(b, s, d);
+}
+
+static int write_format(const export_box *b, const export_opts *o, FILE *fp)
+{
+    sink s = {fp, NULL, 0};
+    static char buf[1 << 20];
+    setvbuf(fp, buf, _IOFBF, sizeof buf);
+    switch (o->fmt) {
+    case FMT_NRRD: return write_nrrd(b, o, &s);
+    case FMT_VTI: return write_vti(b, &s);
+    case FMT_BINVOX: return write_binvox(b, &s);
+    default: {
+        int rc = stream_zyx(b, &s);
+        return rc ? rc : write_json(b, o);
+    }
+    }
+}
+
+/* Written under a temporary name, renamed onto OUT when whole. */
+static int write_out(const export_box *b, const export_opts *o)
+{
+    char tmp[4096];
+    int fd = outfile_create(o->out, tmp, sizeof tmp);
+    if (fd < 0) {
+        cli_error("%s: cannot create: %s", o->out, strerror(-fd));
+        return CLI_EXIT_FAILED;
+    }
+    FILE *fp = fdopen(fd, "wb");
+    int rc = fp ? write_format(b, o, fp) : -errno;
+    if (!fp) close(fd);
+    else if (fclose(fp) && !rc) rc = -errno;
+    if (!rc && rename(tmp, o->out)) rc = -errno;
+    if (rc) {
+        unlink(tmp);
+        if (rc != -EINVAL) cli_error("%s: %s", o->out, strerror(-rc));
+        return CLI_EXIT_FAILED;
+    }
+    return CLI_EXIT_OK;
+}
+
+int cli_export(int argc, char **argv)
+{
+    for (int i = 1; i < argc; i++)
+        if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
+            fputs(usage_text, stdout);
+            return 0;
+        }
+    export_opts o;
+    int rc = parse_opts(argc, argv, &o);
+    if (rc) {
+        fputs(usage_text, stderr);
+        return rc;
+    }
+    char json[4096];
+    if (o.fmt == FMT_RAW) {
+        /* OUT.raw's sidecar is OUT.json; any other name gets .json added */
+        size_t n = strlen(o.out);
+        int ext = n > 4 && !strcmp(o.out + n - 4, ".raw");
+        if (snprintf(json, sizeof json, "%.*s.json", (int)(ext ? n - 4 : n), o.out) >=
+            (int)sizeof json) {
+            cli_error("%s: name too long", o.out);
+            return CLI_EXIT_USAGE;
+        }
+        o.json = json;
+    }
+    vod_file *f;
+    char err[512] = "";
+    if (vod_open(o.in, &f, err, sizeof err)) {
+        cli_error("%s: %s", o.in, err);
+        return CLI_EXIT_FAILED;
+    }
+    export_box b;
+    rc = make_box(f, &o, &b);
+    if (!rc) rc = write_out(&b, &o);
+    vod_close(f);
+    return rc;
+}
