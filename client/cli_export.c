@@ -88,9 +88,11 @@ static int parse_opts(int argc, char **argv, export_opts *o)
         }
         uint32_t l;
         if (!strcmp(a, "-o")) o->out = v;
-        else if (!strcmp(a, "--format") && !(o->fmt = fmt_of(v))) {
-            cli_error("--format %s: not nrrd, raw, binvox or vti", v);
-            return CLI_EXIT_USAGE;
+        else if (!strcmp(a, "--format")) {
+            if (!(o->fmt = fmt_of(v))) {
+                cli_error("--format %s: not nrrd, raw, binvox or vti", v);
+                return CLI_EXIT_USAGE;
+            }
         } else if (!strcmp(a, "--level")) {
             if (cli_parse_uint(v, 0, 30, &l)) {
                 cli_error("--level %s: not a level 0..30", v);

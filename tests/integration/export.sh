@@ -1,0 +1,97 @@
+#!/bin/bash
+# vox export and the Python reader (python/voxd) end to end. VOD files of
+# every channel (1, 2, 3), compression (ZLIB, RUNL, NONE), hash (SFHS, XX32)
+# and of expressions and meshes are written; each is exported to every format
+# and the exports are read back by export_check.py's readers, written from
+# the formats' specifications, and compared voxel for voxel with voxd.read;
+# voxd.read's content checksum must be vox info's (the C reader's) on every
+# file; damaged copies must be refused by both with the same message.
+. "$(dirname "$0")/lib.sh"
+
+# numpy is a test dependency (make deps installs python3-numpy): a python3
+# without it is a failure, never a skip.
+PY=""
+for p in python3 /usr/bin/python3; do
+    if command -v "$p" >/dev/null && "$p" -c 'import numpy' 2>/dev/null; then PY=$p; break; fi
+done
+if [ -z "$PY" ]; then
+    fail "a python3 with numpy (make deps installs python3-numpy)"
+    exit 0
+fi
+CHECK="$ROOT/tests/integration/export_check.py"
+
+cat >"$TMP/box.obj" <<'OBJ'
+v -1 -0.6 -0.8
+v 1 -0.6 -0.8
+v -1 0.6 -0.8
+v 1 0.6 -0.8
+v -1 -0.6 0.8
+v 1 -0.6 0.8
+v -1 0.6 0.8
+v 1 0.6 0.8
+f 1 3 4
+f 1 4 2
+f 5 6 8
+f 5 8 7
+f 1 2 6
+f 1 6 5
+f 3 7 8
+f 3 8 4
+f 1 5 7
+f 1 7 3
+f 2 4 8
+f 2 8 6
+OBJ
+
+vod() { # NAME ARGS...: write $TMP/NAME.vod with the embedded engine
+    local n=$1; shift
+    check "voxelize $n" "$VOX" voxelize --embedded -w 0 -q -o "$TMP/$n.vod" "$@"
+}
+vod sphere-ch3-zlib -e 'x*x+y*y+z*z-0.6' -r 37
+vod torus-ch1-runl-xx32 -e '(sqrt(x*x+y*y)-0.6)^2+z*z-0.09' -d -1,1,-1,1,-0.5,0.5 -r 45 \
+    --channel occupancy --compress runl --hash xx32
+vod sphere-ch3-none-b8 -e 'x*x+y*y+z*z-0.5' -r 30 --brick 8 --compress none
+vod box-ch2-density --mesh "$TMP/box.obj" --channel density -r 26
+vod box-ch1 --mesh "$TMP/box.obj" -r 33 --brick 4 --compress runl
+
+for f in "$TMP"/*.vod; do
+    n=$(basename "$f" .vod) d="$TMP/$n"
+    mkdir -p "$d"
+    for ext in nrrd raw vti binvox; do
+        check "$n: export .$ext" "$VOX" export "$f" -o "$d/x.$ext"
+    done
+    check "$n: export gzip NRRD level 1" "$VOX" export "$f" -o "$d/l1.nrrd" --gzip --level 1
+    echo "2,9,1,12,3,7" >"$d/box.txt"
+    check "$n: export --bbox" "$VOX" export "$f" --format raw -o "$d/box.raw" --bbox 2,9,1,12,3,7
+    "$PY" "$CHECK" formats "$f" "$d"
+    want=$("$VOX" info "$f" | grep '^  voxels')
+    got=$("$PY" "$CHECK" checksum "$f" 2>&1)
+    if [ -n "$want" ] && [ "$want" = "$got" ]; then pass "$n: voxd.read's voxels are vox info's"
+    else fail "$n: voxd.read's voxels are vox info's" "vox info: $want; voxd: $got"; fi
+    "$PY" "$CHECK" damage "$f" "$VOX" "$d"
+done
+
+# ---------------------------------------------------------------- refusals
+f="$TMP/sphere-ch3-zlib.vod"
+refuse "export: no format from the name" 2 "no format from its extension" "$VOX" export "$f" -o "$TMP/x.dat"
+refuse "export: unknown --format" 2 "not nrrd, raw, binvox or vti" "$VOX" export "$f" -o "$TMP/x" --format vdb
+refuse "export: --gzip outside NRRD" 2 "NRRD only" "$VOX" export "$f" -o "$TMP/x.raw" --gzip
+refuse "export: level out of range" 2 "the file has levels 0\.\.2" "$VOX" export "$f" -o "$TMP/x.raw" --level 5
+refuse "export: --bbox past the volume" 2 "axis y needs" "$VOX" export "$f" -o "$TMP/x.raw" --bbox 0,4,0,99,0,4
+refuse "export: --bbox malformed" 2 "want X0,X1" "$VOX" export "$f" -o "$TMP/x.raw" --bbox 0,4,0
+refuse "export: a damaged file" 1 "trailer channel 9 unknown" "$VOX" export "$TMP/sphere-ch3-zlib/damaged.vod" -o "$TMP/x.raw"
+if [ ! -e "$TMP/x.raw" ]; then pass "export: nothing written on refusal"
+else fail "export: nothing written on refusal"; fi
+head -c 300 "$f" >"$TMP/cut.vod"
+refuse "export: a truncated file" 1 "truncated" "$VOX" export "$TMP/cut.vod" -o "$TMP/x.nrrd"
+
+# ---------------------------------------------------------------- pip install
+if "$PY" -m pip --version >/dev/null 2>&1; then
+    if "$PY" -m pip install --no-deps --no-build-isolation --target "$TMP/site" "$ROOT/python" \
+        >"$TMP/pip.out" 2>&1 && PYTHONPATH="$TMP/site" "$PY" -c \
+        "import voxd, sys; v = voxd.read(sys.argv[1]); assert v.shape == (37, 37, 37)" "$f"; then
+        pass "pip install ./python gives an importable voxd"
+    else fail "pip install ./python gives an importable voxd" "$(tail -3 "$TMP/pip.out")"; fi
+else
+    fail "pip install ./python gives an importable voxd" "no pip for $PY"
+fi

@@ -1,0 +1,293 @@
+"""Checks of vox export and of the Python reader (python/voxd), for export.sh.
+
+The readers of the export formats here are written from the formats' own
+descriptions, not from vox's writer: NRRD (teem's NRRD format definition:
+a "NRRD000N" magic line, "field: value" lines, a blank line, the data; gzip
+encoding is a gzip stream), VTK XML ImageData (VTK's file-formats page: the
+appended block starts after '_', each array a header_type byte count then
+its bytes), binvox (Patrick Min's format page: "#binvox 1", dim, translate,
+scale, "data", then (value, count) byte pairs, x slowest, then z, y fastest),
+raw + its JSON sidecar (the sidecar's own fields).
+
+Every line printed is "PASS: name" or "FAIL: name"; the exit status is 0.
+
+    export_check.py formats VOD DIR       the exports in DIR against voxd.read
+    export_check.py checksum VOD          print vox info's voxel line, from voxd
+    export_check.py damage VOD VOX DIR    damaged copies: voxd and vox info agree
+"""
+
+import gzip
+import json
+import os
+import re
+import struct
+import subprocess
+import sys
+import zlib
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "python"))
+import numpy as np  # noqa: E402
+import voxd  # noqa: E402
+
+
+def report(name, ok, why=""):
+    print(("PASS: " if ok else "FAIL: ") + name)
+    if not ok and why:
+        print("  " + why)
+
+
+# ---- readers from the formats' specifications ----
+
+def read_nrrd(path):
+    with open(path, "rb") as fp:
+        data = fp.read()
+    head, sep, body = data.partition(b"\n\n")
+    lines = head.decode().split("\n")
+    assert re.match(r"NRRD000[1-5]$", lines[0]), lines[0]
+    fields, keys = {}, {}
+    for ln in lines[1:]:
+        if ln.startswith("#"):
+            continue
+        if ":=" in ln:
+            k, v = ln.split(":=", 1)
+            keys[k] = v
+        else:
+            k, v = ln.split(": ", 1)
+            fields[k] = v
+    sizes = [int(s) for s in fields["sizes"].split()]
+    assert fields["type"] in ("uint8", "uchar", "unsigned char"), fields["type"]
+    assert int(fields["dimension"]) == 3
+    if fields["encoding"] == "gzip":
+        body = gzip.decompress(body)
+    else:
+        assert fields["encoding"] == "raw", fields["encoding"]
+    vec = lambda s: [float(t) for t in s.strip("()").split(",")]  # noqa: E731
+    dirs = [vec(t) for t in fields["space directions"].split()]
+    origin = vec(fields["space origin"])
+    # the first axis is the fastest: (x, y, z) sizes are a (z, y, x) array
+    arr = np.frombuffer(body, np.uint8).reshape(sizes[2], sizes[1], sizes[0])
+    return arr, origin, [dirs[a][a] for a in range(3)], dirs, keys
+
+
+def read_vti(path):
+    with open(path, "rb") as fp:
+        data = fp.read()
+    at = data.index(b"<AppendedData")
+    xml = data[:at].decode()
+    start = data.index(b"_", at) + 1
+    assert 'header_type="UInt64"' in xml and 'byte_order="LittleEndian"' in xml
+    ext = [int(t) for t in re.search(r'WholeExtent="([^"]*)"', xml).group(1).split()]
+    origin = [float(t) for t in re.search(r'Origin="([^"]*)"', xml).group(1).split()]
+    spacing = [float(t) for t in re.search(r'Spacing="([^"]*)"', xml).group(1).split()]
+    off = int(re.search(r'format="appended" offset="(\d+)"', xml).group(1))
+    assert re.search(r'DataArray type="UInt8"', xml)
+    n = [ext[2 * a + 1] - ext[2 * a] + 1 for a in range(3)]
+    count = struct.unpack_from("<Q", data, start + off)[0]
+    assert count == n[0] * n[1] * n[2], (count, n)
+    body = data[start + off + 8:start + off + 8 + count]
+    tail = data[start + off + 8 + count:].strip()
+    assert tail.startswith(b"</AppendedData>"), tail[:40]
+    return np.frombuffer(body, np.uint8).reshape(n[2], n[1], n[0]), origin, spacing
+
+
+def read_binvox(path):
+    with open(path, "rb") as fp:
+        data = fp.read()
+    hdr = {}
+    p = 0
+    while True:
+        e = data.index(b"\n", p)
+        ln = data[p:e].decode()
+        p = e + 1
+        if ln == "data":
+            break
+        k, _, v = ln.partition(" ")
+        hdr[k] = v
+    assert hdr["#binvox"] == "1"
+    d, h, w = (int(t) for t in hdr["dim"].split())
+    pairs = np.frombuffer(data[p:], np.uint8).reshape(-1, 2)
+    assert (pairs[:, 1] > 0).all() and set(pairs[:, 0].tolist()) <= {0, 1}
+    flat = np.repeat(pairs[:, 0], pairs[:, 1])
+    assert flat.size == d * h * w, (flat.size, d, h, w)
+    # index = x * (w * h) + z * w + y: an (x, z, y) array
+    xzy = flat.reshape(d, h, w)
+    zyx = xzy.transpose(1, 2, 0)
+    trans = [float(t) for t in hdr["translate"].split()]
+    return zyx, trans, float(hdr["scale"])
+
+
+def read_raw(path, sidecar):
+    with open(sidecar) as fp:
+        meta = json.load(fp)
+    assert meta["dtype"] == "uint8"
+    arr = np.fromfile(path, np.uint8).reshape(meta["shape"])
+    return arr, meta
+
+
+# ---- checks ----
+
+def close(a, b):
+    return all(abs(x - y) <= 1e-6 * max(1.0, abs(y)) for x, y in zip(a, b))
+
+
+def check_formats(vod, d):
+    name = os.path.basename(vod)
+    v0 = voxd.read(vod, 0)
+    want = v0.occupancy
+    centre = [v0.origin[a] + 0.5 * v0.spacing[a] for a in range(3)]
+
+    arr, origin, spacing, dirs, keys = read_nrrd(os.path.join(d, "x.nrrd"))
+    report(name + ": NRRD voxels", np.array_equal(arr, want))
+    report(name + ": NRRD space origin and directions",
+           close(origin, centre) and close(spacing, v0.spacing) and
+           all(dirs[a][b] == 0 for a in range(3) for b in range(3) if a != b),
+           "%s %s" % (origin, spacing))
+    report(name + ": NRRD channel key", keys.get("vod_channel") == str(v0.channel))
+
+    arr, meta = read_raw(os.path.join(d, "x.raw"), os.path.join(d, "x.json"))
+    report(name + ": raw voxels", np.array_equal(arr, want))
+    report(name + ": raw sidecar", close(meta["origin"], v0.origin) and
+           close(meta["spacing"], v0.spacing) and meta["channel"] == v0.channel and
+           meta["level"] == 0, str(meta))
+
+    arr, origin, spacing = read_vti(os.path.join(d, "x.vti"))
+    report(name + ": VTI voxels", np.array_equal(arr, want))
+    report(name + ": VTI origin and spacing", close(origin, centre) and
+           close(spacing, v0.spacing))
+
+    if os.path.exists(os.path.join(d, "x.binvox")):
+        arr, trans, scale = read_binvox(os.path.join(d, "x.binvox"))
+        occ = (want > 127) if v0.channel == 2 else (want != 0)
+        z, y, x = want.shape
+        ok = arr.shape[0] == max(want.shape) and np.array_equal(
+            arr[:z, :y, :x], occ.astype(np.uint8)) and not arr[z:].any() and \
+            not arr[:, y:].any() and not arr[:, :, x:].any()
+        report(name + ": binvox voxels", ok)
+        report(name + ": binvox translate and scale", close(trans, v0.origin) and
+               close([scale], [arr.shape[0] * v0.spacing[0]]))
+
+    # level 1, gzip NRRD, against voxd's level 1
+    v1 = voxd.read(vod, 1)
+    arr, origin, spacing, _, keys = read_nrrd(os.path.join(d, "l1.nrrd"))
+    report(name + ": NRRD gzip level 1 voxels", np.array_equal(arr, v1.occupancy))
+    report(name + ": NRRD level 1 spacing", close(spacing, [2 * s for s in v0.spacing])
+           and keys.get("vod_level") == "1")
+
+    # a box: X0,X1,Y0,Y1,Z0,Z1 of the level's indices, written in box.txt
+    with open(os.path.join(d, "box.txt")) as fp:
+        b = [int(t) for t in fp.read().split(",")]
+    arr, meta = read_raw(os.path.join(d, "box.raw"), os.path.join(d, "box.json"))
+    report(name + ": raw --bbox voxels",
+           np.array_equal(arr, want[b[4]:b[5], b[2]:b[3], b[0]:b[1]]))
+    report(name + ": raw --bbox origin", close(
+        meta["origin"], [v0.origin[a] + b[2 * a] * v0.spacing[a] for a in range(3)]))
+
+
+def checksum_line(vod):
+    """vox info's 'voxels' line: the count of non-empty level-0 voxels and
+    the sum of CRC-32s of (level, x, y, z, value) over every level."""
+    v = voxd.read(vod, 0)
+    total, n0 = 0, 0
+    for level in range(v.info["height"]):
+        data = voxd.read(vod, level).data if level else v.data
+        raw = data.view(np.uint32) if data.dtype.kind == "f" else data
+        z, y, x = np.nonzero(raw)
+        vals = raw[z, y, x].astype(np.uint32)
+        if level == 0:
+            n0 = len(vals)
+        recs = np.stack([np.full(len(vals), level, np.uint32), x.astype(np.uint32),
+                         y.astype(np.uint32), z.astype(np.uint32), vals], axis=1)
+        recs = recs.astype("<u4")
+        for r in recs:
+            total = (total + zlib.crc32(r.tobytes())) & 0xFFFFFFFF
+    return "  voxels      %d non-empty at full resolution; content checksum %08x" % (
+        n0, total)
+
+
+def fix_crc(b):
+    b = bytearray(b)
+    struct.pack_into("<I", b, len(b) - 4, zlib.crc32(bytes(b[:-4])) & 0xFFFFFFFF)
+    return bytes(b)
+
+
+def damaged(b):
+    """(name, bytes): truncations, flipped bytes, and changes under a
+    recomputed CRC so that the checks behind the CRC are reached too."""
+    n = len(b)
+    u32 = lambda at: struct.unpack_from("<I", b, at)[0]  # noqa: E731
+    nodes = ((1 << (3 * u32(44))) - 1) // 7
+    table = 64 + 4 * nodes + 4
+    out = [("empty", b""), ("header cut", b[:40])]
+    for cut in (64, 100, n // 2, n - 13, n - 1):
+        out.append(("truncated to %d" % cut, b[:cut]))
+    for at in (0, 5, 45, n // 3, n - 20, n - 6, n - 2):
+        out.append(("byte %d flipped" % at,
+                    b[:at] + bytes([b[at] ^ 0x40]) + b[at + 1:]))
+
+    def patch(at, val):
+        c = bytearray(b)
+        struct.pack_into("<I", c, at, val)
+        return fix_crc(bytes(c))
+
+    first = u32(table + 4)  # brick 1's record offset
+    out += [
+        ("fileVersion 2, CRC fixed", patch(4, 2)),
+        ("brickSize 17, CRC fixed", patch(20, 17)),
+        ("voxelSize 7, CRC fixed", patch(48, 7)),
+        ("treeHeight 9, CRC fixed", patch(44, 9)),
+        ("flags reserved bit, CRC fixed", patch(60, u32(60) | 8)),
+        ("hash 'ABCD', CRC fixed", patch(52, 0x44434241)),
+        ("brick ID 999 in the tree, CRC fixed", patch(64, 999)),
+        ("duplicate table ID, CRC fixed",
+         patch(table + 12, u32(table)) if u32(table - 4) > 1 else patch(table, 0)),
+        ("brick offset past the end, CRC fixed", patch(table + 4, n + 100)),
+        ("brick hash wrong, CRC fixed", patch(table + 8, u32(table + 8) ^ 1)),
+        ("brick data byte flipped, CRC fixed",
+         fix_crc(b[:first + 6] + bytes([b[first + 6] ^ 0x10]) + b[first + 7:])),
+        ("dataSize + 1, CRC fixed", patch(first, u32(first) + 1)),
+        ("trailer channel 9, CRC fixed", patch(u32(n - 12) + 20, 9)),
+    ]
+    return out
+
+
+def check_damage(vod, vox, d):
+    name = os.path.basename(vod)
+    with open(vod, "rb") as fp:
+        good = fp.read()
+    for what, data in damaged(good):
+        path = os.path.join(d, "damaged.vod")
+        with open(path, "wb") as fp:
+            fp.write(data)
+        r = subprocess.run([vox, "info", path], capture_output=True, text=True)
+        prefix = "vox: %s: " % path
+        c_msg = r.stderr.strip()
+        c_msg = c_msg[len(prefix):] if c_msg.startswith(prefix) else c_msg
+        try:
+            voxd.read(path)
+            py_msg = None
+        except voxd.VodError as e:
+            py_msg = str(e)
+        ok = r.returncode == 1 and py_msg is not None and py_msg == c_msg
+        report("%s, %s: voxd refuses it as vox info does" % (name, what), ok,
+               "vox info (exit %d): %r; voxd: %r" % (r.returncode, c_msg, py_msg))
+
+
+def main():
+    try:
+        run(sys.argv[1])
+    except Exception as e:  # a reader that cannot parse an export fails the check
+        report("export_check.py %s %s runs" % (sys.argv[1], sys.argv[2]), False,
+               "%s: %s" % (type(e).__name__, e))
+
+
+def run(cmd):
+    if cmd == "formats":
+        check_formats(sys.argv[2], sys.argv[3])
+    elif cmd == "checksum":
+        print(checksum_line(sys.argv[2]))
+    elif cmd == "damage":
+        check_damage(sys.argv[2], sys.argv[3], sys.argv[4])
+
+
+if __name__ == "__main__":
+    main()
