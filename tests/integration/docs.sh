@@ -77,7 +77,7 @@ opts_documented() {
 }
 
 "$VOX" --help >"$TMP/h.vox" 2>&1
-for c in voxelize submit render status cancel ping info mesh-info; do
+for c in voxelize submit render status cancel ping info mesh-info export; do
     "$VOX" "$c" --help >"$TMP/h.$c" 2>&1 || fail "vox $c --help exits 0"
 done
 "$VOXD" --help >"$TMP/h.voxd" 2>&1 || fail "voxd --help exits 0"
@@ -86,7 +86,7 @@ if [ -s "$TMP/h.voxelize" ] && [ -s "$TMP/h.submit" ] && [ -s "$TMP/h.render" ] 
 else fail "the --help texts are there"; fi
 opts_documented vox "$TMP/vox.1.txt" docs/cli.md "$TMP/h.vox" "$TMP/h.voxelize" \
     "$TMP/h.submit" "$TMP/h.render" "$TMP/h.status" "$TMP/h.cancel" "$TMP/h.ping" "$TMP/h.info" \
-    "$TMP/h.mesh-info"
+    "$TMP/h.mesh-info" "$TMP/h.export"
 opts_documented voxd "$TMP/voxd.8.txt" docs/daemon.md "$TMP/h.voxd"
 
 # ---------------------------------------------------------------- paths, links, layering
