@@ -112,7 +112,8 @@ static void print_mesh_summary(const voxelize_opts *o, const pipeline_job *job,
            job->mesh.mesh->n_triangles, (unsigned long long)t->open,
            (unsigned long long)t->nonmanifold, t->watertight ? "watertight" : "not watertight",
            r->t_topology);
-    if (o->workers > 0) printf("; %u tiles with triangles", r->tiles);
+    if (o->workers > 0)
+        printf("; %u tiles with triangles, binned in %.3f s", r->tiles, r->t_bin);
     printf("\n");
     if (r->repair_skipped)
         printf("  repair: not needed, the mesh is watertight (its parities agree)\n");

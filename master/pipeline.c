@@ -117,6 +117,7 @@ static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
     int rc = engine_stage(e, job, &r->grid, prog, &sp, &er);
     r->voxels = er.voxels;
     r->tiles = er.tiles;
+    r->t_bin = er.t_bin;
     r->disagreements = er.disagreements;
     r->disagree_bricks = er.disagree_bricks;
     r->octants = er.octants;

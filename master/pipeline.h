@@ -72,6 +72,8 @@ typedef struct {
     uint64_t voxels;
     uint64_t octants;             /* boxes tested (engine only) */
     uint32_t tiles;               /* mesh: tiles with triangles */
+    double t_bin;                 /* mesh, engine only: seconds binning the
+                                     triangles to tiles (part of t_voxelize) */
     uint64_t disagreements, disagree_bricks; /* mesh repair modes */
     mesh_topo topo;               /* mesh: its edges (mesh_topology) */
     double t_topology;            /* ... seconds finding them */
