@@ -9,6 +9,7 @@
 #                   voxdbench (through a voxd it starts) and the whole vox
 #                   voxelize command (scripts/bench-whole.sh), tables in bench/results/
 #   make bench-mesh the mesh loaders on the Stanford dragon and bunny (npm models)
+#                   and the whole vox voxelize --mesh command (scripts/bench-mesh-whole.sh)
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -185,8 +186,9 @@ demo: deps all
 bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh
 	@scripts/bench.sh $(BUILD)
 
-# The mesh loaders on the Stanford dragon and bunny ($VOXD_MESH_MODELS, or npm).
-bench-mesh: all $(BUILD)/bench_mesh
+# The mesh loaders on the Stanford dragon and bunny ($VOXD_MESH_MODELS, or npm),
+# then the whole vox voxelize --mesh command on them and on icospheres.
+bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole
 	@scripts/bench-mesh.sh $(BUILD)
 
 # The whole vox voxelize command against commit BASE, in one run.

