@@ -130,9 +130,10 @@ medians() {
 # sampled run), once per job; leaves "key value" lines in
 # $tmp/job.MESH.RES.WORKERS.MODE, or one "error MESSAGE" line.
 measure() {
-    local f="$tmp/job.$1.$2.$3.$4" line
+    local f="$tmp/job.$1.$2.$3.$4" line la
     if [ ! -e "$f" ]; then
         echo "bench-mesh-whole: $1 $2^3 -w $3 --mode $4" >&2
+        la=$(cut -d' ' -f1 /proc/loadavg)
         : >"$f.runs"
         for _ in $(seq "$repeats"); do
             if ! one "$1" "$2" "$3" "$4" 0; then
@@ -146,6 +147,7 @@ measure() {
                 printf "%s job=%.6f\n", $0, v["topo"] + v["engine"] + v["write"] }' <<<"${line# }" >>"$f.runs"
         done
         medians <"$f.runs" >"$f"
+        echo "la $la" >>"$f" # the load average before the job
     fi
     [ "${5:-}" = mem ] && ! grep -q '^tree ' "$f" && ! grep -q '^error' "$f" || return 0
     if ! one "$1" "$2" "$3" "$4" "$sample_us"; then
@@ -161,6 +163,12 @@ fmt() { [ -n "$1" ] && awk -v x="$1" -v f="$2" 'BEGIN { printf f, x }' || echo -
 mib() { [ -n "$1" ] && awk -v k="$1" 'BEGIN { printf "%.1f", k / 1024 }' || echo -; }
 mark() { awk -v x="$1" -v t="$2" 'BEGIN { print (x <= t) ? "pass" : "FAIL" }'; }
 sub() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.3f", a - b }'; }
+# la_range FILE...: "LOW to HIGH", the 1-minute load averages taken before
+# the jobs of the files given (those that ran)
+la_range() {
+    cat "$@" 2>/dev/null | awk '$1 == "la" { if (n++ == 0 || $2 < lo) lo = $2; if ($2 > hi) hi = $2 }
+        END { if (n) printf "%s to %s", lo, hi; else printf "none (no job ran)" }'
+}
 
 # ---------------------------------------------------------------- the issue's jobs
 # "RES MODE WORKERS TARGET_S TARGET_MIB" at the issue's resolutions (divided
@@ -197,7 +205,8 @@ cpu=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')
 rev=$(git -C "$root" rev-parse --short HEAD 2>/dev/null || echo unknown)
 echo "### Mesh jobs: the whole \`vox voxelize --mesh\` command ($(nproc) cores: $cpu; $(date +%F), $rev)"
 echo
-echo "Load average (1, 5, 15 min) at the start: $load_start; at the end: $load_end."
+echo "Load average (1, 5, 15 min) at the start: $load_start; at the end: $load_end. The 1-minute"
+echo "load average before each of the dragon's jobs below: $(la_range "$tmp"/job.dragon.*.*.solid "$tmp"/job.dragon.*.*.surface)."
 echo "Release build, embedded engine (\`--embedded\`, no daemon); median of $repeats timed run(s)"
 echo "per job. *load*: \`mesh_load\` of the file alone (bench_mesh load, median of $repeats)."
 echo "*topology*, *binning*: vox's summary (\`mesh:\` line); *tiles*: the voxelization's time"
@@ -304,6 +313,8 @@ fi
 ttable() {
     echo
     echo "### Mesh jobs: $2 (s), solid, 2 workers, median of $repeats"
+    echo
+    echo "The 1-minute load average before each of these jobs: $(la_range "$tmp"/job.*.*.2.solid)."
     echo
     printf '| mesh | triangles |'; for r in $table_res; do printf ' %s^3 |' "$r"; done; echo
     printf '|---|---:|'; for _ in $table_res; do printf -- '---:|'; done; echo

@@ -66,7 +66,9 @@ numeric() {
 check "bench-mesh-whole: the core count in the header" \
     grep -q "^### Mesh jobs: the whole \`vox voxelize --mesh\` command ($(nproc) cores" "$B"
 check "bench-mesh-whole: the load average, at the start and the end" \
-    grep -Eq '^Load average \(1, 5, 15 min\) at the start: [0-9.]+ [0-9.]+ [0-9.]+; at the end: [0-9.]+ [0-9.]+ [0-9.]+\.$' "$B"
+    grep -Eq '^Load average \(1, 5, 15 min\) at the start: [0-9.]+ [0-9.]+ [0-9.]+; at the end: [0-9.]+ [0-9.]+ [0-9.]+\. ' "$B"
+check "bench-mesh-whole: the load average before the dragon's jobs, and those of each table" \
+    test "$(grep -Ec 'load average before (each of the dragon.s jobs below|each of these jobs): [0-9.]+ to [0-9.]+\.$' "$B")" = 3
 main=$(rows 'Mesh jobs: the whole `vox')
 jobs=$(grep -v -e skipped -e '^| load' <<<"$main")
 check "bench-mesh-whole: the issue's 7 rows, the 4096^3 one skipped" \
