@@ -57,7 +57,7 @@ done
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
-load_start=$(cut -d' ' -f1-3 /proc/loadavg)
+load_start=$(cut -d' ' -f1-3 /proc/loadavg) load_start1=$(cut -d' ' -f1 /proc/loadavg)
 failed=0
 
 # ---------------------------------------------------------------- the meshes
@@ -126,34 +126,55 @@ medians() {
     }'
 }
 
+# timed MESH RES WORKERS MODE: one timed run of the job, appended to
+# $tmp/job.MESH.RES.WORKERS.MODE.runs as a line of key=value (la: the
+# 1-minute load average before it); when vox failed, returns 1 and leaves
+# the job's file with one "error MESSAGE" line.
+timed() {
+    local f="$tmp/job.$1.$2.$3.$4" line la
+    la=$(cut -d' ' -f1 /proc/loadavg)
+    if ! one "$1" "$2" "$3" "$4" 0; then
+        echo "error vox failed: $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 1
+    fi
+    line=$(kv | tr -d '\n')
+    if ! grep -q 'engine=.*write=.*topo=.*bin=.*wall=' <<<"$line"; then
+        echo "error cannot read vox's summary: $(head -1 "$tmp/stdout")" >"$f"; failed=1; return 1
+    fi
+    awk -F'[ =]' -v la="$la" '{ for (i = 1; i < NF; i += 2) v[$i] = $(i + 1)
+        printf "%s job=%.6f la=%s\n", $0, v["topo"] + v["engine"] + v["write"], la }' <<<"${line# }" >>"$f.runs"
+}
+
 # measure MESH RES WORKERS MODE [mem]: REPEATS timed runs (and with mem, one
-# sampled run), once per job; leaves "key value" lines in
+# sampled run), once per job; leaves "key value" lines (the medians) in
 # $tmp/job.MESH.RES.WORKERS.MODE, or one "error MESSAGE" line.
 measure() {
-    local f="$tmp/job.$1.$2.$3.$4" line la
+    local f="$tmp/job.$1.$2.$3.$4"
     if [ ! -e "$f" ]; then
         echo "bench-mesh-whole: $1 $2^3 -w $3 --mode $4" >&2
-        la=$(cut -d' ' -f1 /proc/loadavg)
         : >"$f.runs"
-        for _ in $(seq "$repeats"); do
-            if ! one "$1" "$2" "$3" "$4" 0; then
-                echo "error vox failed: $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 0
-            fi
-            line=$(kv | tr -d '\n')
-            if ! grep -q 'engine=.*write=.*topo=.*bin=.*wall=' <<<"$line"; then
-                echo "error cannot read vox's summary: $(head -1 "$tmp/stdout")" >"$f"; failed=1; return 0
-            fi
-            awk -F'[ =]' '{ for (i = 1; i < NF; i += 2) v[$i] = $(i + 1)
-                printf "%s job=%.6f\n", $0, v["topo"] + v["engine"] + v["write"] }' <<<"${line# }" >>"$f.runs"
-        done
+        for _ in $(seq "$repeats"); do timed "$1" "$2" "$3" "$4" || return 0; done
         medians <"$f.runs" >"$f"
-        echo "la $la" >>"$f" # the load average before the job
     fi
     [ "${5:-}" = mem ] && ! grep -q '^tree ' "$f" && ! grep -q '^error' "$f" || return 0
     if ! one "$1" "$2" "$3" "$4" "$sample_us"; then
         echo "error vox failed (memory run): $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 0
     fi
     sed 's/.*tree_peak_kib=\([0-9]*\) shm_peak_kib=\([0-9]*\).*/tree \1\nshm \2/' "$tmp/m" >>"$f"
+}
+
+# measure_alt "JOB" "JOB": the timed runs of two jobs not yet measured
+# (each "MESH RES WORKERS MODE"), alternating, so that a change in the
+# machine's load falls on both alike: the yield is their ratio.
+measure_alt() {
+    local a b
+    read -ra a <<<"$1"; read -ra b <<<"$2"
+    echo "bench-mesh-whole: $1 and $2, alternating" >&2
+    : >"$tmp/job.${a[0]}.${a[1]}.${a[2]}.${a[3]}.runs"
+    : >"$tmp/job.${b[0]}.${b[1]}.${b[2]}.${b[3]}.runs"
+    for _ in $(seq "$repeats"); do timed "${a[@]}" && timed "${b[@]}" || return 0; done
+    for j in "${a[*]}" "${b[*]}"; do
+        medians <"$tmp/job.${j// /.}.runs" >"$tmp/job.${j// /.}"
+    done
 }
 
 # get KEY MESH RES WORKERS MODE: one value of a measured job (empty if none).
@@ -163,12 +184,16 @@ fmt() { [ -n "$1" ] && awk -v x="$1" -v f="$2" 'BEGIN { printf f, x }' || echo -
 mib() { [ -n "$1" ] && awk -v k="$1" 'BEGIN { printf "%.1f", k / 1024 }' || echo -; }
 mark() { awk -v x="$1" -v t="$2" 'BEGIN { print (x <= t) ? "pass" : "FAIL" }'; }
 sub() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.3f", a - b }'; }
-# la_range FILE...: "LOW to HIGH", the 1-minute load averages taken before
-# the jobs of the files given (those that ran)
+# la_range JOB_FILE...: "LOW to HIGH", the 1-minute load averages taken
+# before the timed runs of the jobs given (those that ran)
 la_range() {
-    cat "$@" 2>/dev/null | awk '$1 == "la" { if (n++ == 0 || $2 < lo) lo = $2; if ($2 > hi) hi = $2 }
-        END { if (n) printf "%s to %s", lo, hi; else printf "none (no job ran)" }'
+    local f
+    for f in "$@"; do [ -e "$f.runs" ] && cat "$f.runs"; done | tr ' ' '\n' |
+        awk -F= '$1 == "la" { if (n++ == 0 || $2 < lo) lo = $2; if ($2 > hi) hi = $2 }
+            END { if (n) printf "%s to %s", lo, hi; else printf "none (no job ran)" }'
 }
+# la_max MESH RES WORKERS MODE: the highest of the job's
+la_max() { la_range "$tmp/job.$1.$2.$3.$4" | sed 's/.* to //'; }
 
 # ---------------------------------------------------------------- the issue's jobs
 # "RES MODE WORKERS TARGET_S TARGET_MIB" at the issue's resolutions (divided
@@ -188,10 +213,12 @@ not_run() {
         echo "skipped: /dev/shm has $shm_free MiB free, vox asks for $shm_mib"
     fi
 }
+# the yield's t1 and t2 first, alternating; then every job (the memory of
+# the 1024^3 one)
+if [ -e "$tmp/dragon.mesh" ]; then measure_alt "dragon $r1024 1 solid" "dragon $r1024 2 solid"; fi
 while read -r r mode w _ _; do
     if [ -z "$(not_run "$r")" ]; then measure dragon "$r" "$w" "$mode" mem; fi
 done <<<"$jobs"
-if [ -e "$tmp/dragon.mesh" ]; then measure dragon "$r1024" 1 solid; fi # the yield's t1
 
 # ---------------------------------------------------------------- the tables' runs
 for m in $meshes; do
@@ -215,11 +242,11 @@ echo "vox's summary. *job*: topology + voxelization + VOD write, summed per run:
 echo "command does after parsing the file, but for starting the engine. *whole command*: the"
 echo "process's wall time, load and start-up included. Memory: the largest process's peak RSS,"
 echo "and the whole command's (vox and its workers, the shared segment once), sampled every"
-echo "$sample_us us in one more, untimed run."
+echo "$sample_us us in one more, untimed run. *load average*: the highest 1-minute load"
+echo "average before one of the job's timed runs (for the load row, before the loads)."
 echo
-hdr="| job | workers | load (s) | topology (s) | binning (s) | tiles (s) | VOD write (s) | job (s) | whole command (s) | largest process (MiB) | whole command memory (MiB) | target |"
-echo "$hdr"
-echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+echo "| job | workers | load (s) | topology (s) | binning (s) | tiles (s) | VOD write (s) | job (s) | whole command (s) | largest process (MiB) | whole command memory (MiB) | load average | target |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"
 # target TEXT VALUE LIMIT: "TEXT <= LIMIT: pass|FAIL", unmarked in quick mode
 target() {
     if [ "$quick" = 1 ]; then echo "$1 <= $3 (not marked in quick mode)"
@@ -231,19 +258,19 @@ jrow() {
     local label=$1 r=$2 mode=$3 w=$4 e
     e=$(not_run "$r")
     [ -z "$e" ] && e=$(err dragon "$r" "$w" "$mode")
-    if [ -n "$e" ]; then echo "| $label | $w | $e | | | | | | | | | |"; return; fi
-    printf '| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n' "$label" "$w" \
+    if [ -n "$e" ]; then echo "| $label | $w | $e | | | | | | | | | | |"; return; fi
+    printf '| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n' "$label" "$w" \
         "$(fmt "$(loadt dragon)" %.3f)" "$(fmt "$(get topo dragon "$r" "$w" "$mode")" %.3f)" \
         "$(fmt "$(get bin dragon "$r" "$w" "$mode")" %.3f)" \
         "$(sub "$(get engine dragon "$r" "$w" "$mode")" "$(get bin dragon "$r" "$w" "$mode")")" \
         "$(fmt "$(get write dragon "$r" "$w" "$mode")" %.3f)" "$(fmt "$(get job dragon "$r" "$w" "$mode")" %.3f)" \
         "$(fmt "$(get wall dragon "$r" "$w" "$mode")" %.3f)" "$(mib "$(get maxrss dragon "$r" "$w" "$mode")")" \
-        "$(mib "$(get tree dragon "$r" "$w" "$mode")")" "$5"
+        "$(mib "$(get tree dragon "$r" "$w" "$mode")")" "$(la_max dragon "$r" "$w" "$mode")" "$5"
 }
 if [ -e "$tmp/dragon.mesh" ]; then
-    printf '| load the dragon'"'"'s ASCII PLY | - | %s | - | - | - | - | - | - | - | - | %s |\n' \
-        "$(fmt "$(loadt dragon)" %.3f)" "$(target load "$(loadt dragon)" 0.1)"
-else echo "| load the dragon's ASCII PLY | - | skipped: the dragon: $(cat "$tmp/dragon.skip") | | | | | | | | | |"; fi
+    printf '| load the dragon'"'"'s ASCII PLY | - | %s | - | - | - | - | - | - | - | - | %s | %s |\n' \
+        "$(fmt "$(loadt dragon)" %.3f)" "$load_start1" "$(target load "$(loadt dragon)" 0.1)"
+else echo "| load the dragon's ASCII PLY | - | skipped: the dragon: $(cat "$tmp/dragon.skip") | | | | | | | | | | |"; fi
 while read -r r mode w ts tm; do
     t=""
     [ "$ts" != - ] && t=$(target job "$(get job dragon "$r" "$w" "$mode")" "$ts")
@@ -287,6 +314,8 @@ done <<<"$jobs"
 
 echo
 echo "### Mesh jobs: yield t1 / (2 t2), solid $r1024^3 (the dragon, median of $repeats)"
+echo
+echo "The 1 and 2 worker runs alternate; the 1-minute load average before them: $(la_range "$tmp/job.dragon.$r1024.1.solid" "$tmp/job.dragon.$r1024.2.solid")."
 echo
 echo "| time | 1 worker (s) | 2 workers (s) | yield | target |"
 echo "|---|---:|---:|---:|---|"
