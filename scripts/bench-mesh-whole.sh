@@ -141,7 +141,8 @@ timed() {
         echo "error cannot read vox's summary: $(head -1 "$tmp/stdout")" >"$f"; failed=1; return 1
     fi
     awk -F'[ =]' -v la="$la" '{ for (i = 1; i < NF; i += 2) v[$i] = $(i + 1)
-        printf "%s job=%.6f la=%s\n", $0, v["topo"] + v["engine"] + v["write"], la }' <<<"${line# }" >>"$f.runs"
+        printf "%s tiles=%.6f job=%.6f la=%s\n", $0, v["engine"] - v["bin"],
+               v["topo"] + v["engine"] + v["write"], la }' <<<"${line# }" >>"$f.runs"
 }
 
 # measure MESH RES WORKERS MODE [mem]: REPEATS timed runs (and with mem, one
@@ -183,7 +184,6 @@ err() { sed -n 's/^error //p' "$tmp/job.$1.$2.$3.$4" 2>/dev/null || true; }
 fmt() { [ -n "$1" ] && awk -v x="$1" -v f="$2" 'BEGIN { printf f, x }' || echo -; }
 mib() { [ -n "$1" ] && awk -v k="$1" 'BEGIN { printf "%.1f", k / 1024 }' || echo -; }
 mark() { awk -v x="$1" -v t="$2" 'BEGIN { print (x <= t) ? "pass" : "FAIL" }'; }
-sub() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.3f", a - b }'; }
 # la_range JOB_FILE...: "LOW to HIGH", the 1-minute load averages taken
 # before the timed runs of the jobs given (those that ran)
 la_range() {
@@ -237,8 +237,8 @@ echo "load average before each of the dragon's jobs below: $(la_range "$tmp"/job
 echo "Release build, embedded engine (\`--embedded\`, no daemon); median of $repeats timed run(s)"
 echo "per job. *load*: \`mesh_load\` of the file alone (bench_mesh load, median of $repeats)."
 echo "*topology*, *binning*: vox's summary (\`mesh:\` line); *tiles*: the voxelization's time"
-echo "less the binning (copying the mesh into the segment and the workers' tiles); *VOD write*:"
-echo "vox's summary. *job*: topology + voxelization + VOD write, summed per run: what the"
+echo "less the binning, per run (copying the mesh into the segment and the workers' tiles);"
+echo "*VOD write*: vox's summary. *job*: topology + voxelization + VOD write, per run: what the"
 echo "command does after parsing the file, but for starting the engine. *whole command*: the"
 echo "process's wall time, load and start-up included. Memory: the largest process's peak RSS,"
 echo "and the whole command's (vox and its workers, the shared segment once), sampled every"
@@ -262,7 +262,7 @@ jrow() {
     printf '| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |\n' "$label" "$w" \
         "$(fmt "$(loadt dragon)" %.3f)" "$(fmt "$(get topo dragon "$r" "$w" "$mode")" %.3f)" \
         "$(fmt "$(get bin dragon "$r" "$w" "$mode")" %.3f)" \
-        "$(sub "$(get engine dragon "$r" "$w" "$mode")" "$(get bin dragon "$r" "$w" "$mode")")" \
+        "$(fmt "$(get tiles dragon "$r" "$w" "$mode")" %.3f)" \
         "$(fmt "$(get write dragon "$r" "$w" "$mode")" %.3f)" "$(fmt "$(get job dragon "$r" "$w" "$mode")" %.3f)" \
         "$(fmt "$(get wall dragon "$r" "$w" "$mode")" %.3f)" "$(mib "$(get maxrss dragon "$r" "$w" "$mode")")" \
         "$(mib "$(get tree dragon "$r" "$w" "$mode")")" "$(la_max dragon "$r" "$w" "$mode")" "$5"
@@ -289,6 +289,7 @@ echo
 echo "### Mesh jobs: where the time goes (vox's summary, median of $repeats)"
 echo
 echo "Binning runs in the master before the tiles; *tiles*: the voxelization less the binning."
+echo "(The stage times are each a median over the runs, so a row need not add up exactly.)"
 echo "The VOD writer's stages are seconds summed over the processes that ran them (2 workers"
 echo "and the master can overlap), so they may add up to more than the VOD write's wall time."
 echo
@@ -306,8 +307,7 @@ while read -r r mode w _ _; do
     e=$(not_run "$r"); [ -z "$e" ] && e=$(err dragon "$r" "$w" "$mode")
     if [ -n "$e" ]; then echo "| $mode $r^3 | $w | $e |"; continue; fi
     printf '| %s %s^3 | %s | %s | %s | %s |' "$mode" "$r" "$w" "$(get ntiles dragon "$r" "$w" "$mode")" \
-        "$(fmt "$(get bin dragon "$r" "$w" "$mode")" %.3f)" \
-        "$(sub "$(get engine dragon "$r" "$w" "$mode")" "$(get bin dragon "$r" "$w" "$mode")")"
+        "$(fmt "$(get bin dragon "$r" "$w" "$mode")" %.3f)" "$(fmt "$(get tiles dragon "$r" "$w" "$mode")" %.3f)"
     for k in $stage_names; do printf ' %s |' "$(fmt "$(get "st.$k" dragon "$r" "$w" "$mode")" %.3f)"; done
     printf ' %s |\n' "$(fmt "$(get write dragon "$r" "$w" "$mode")" %.3f)"
 done <<<"$jobs"
@@ -323,10 +323,13 @@ e=$(not_run "$r1024")
 [ -z "$e" ] && e=$(err dragon "$r1024" 1 solid)$(err dragon "$r1024" 2 solid)
 if [ -n "$e" ]; then echo "| all | $e | | | |"
 else
-    for k in engine write job wall; do
+    for k in topo bin tiles engine write job wall; do
         t1=$(get "$k" dragon "$r1024" 1 solid) t2=$(get "$k" dragon "$r1024" 2 solid)
         y=$(awk -v a="$t1" -v b="$t2" 'BEGIN { printf "%.0f", (b > 0) ? 100 * a / (2 * b) : 0 }')
         case $k in
+        topo) n="topology (master)" t=- ;;
+        bin) n="binning (master)" t=- ;;
+        tiles) n="tiles (voxelization less binning)" t=- ;;
         engine) n="voxelization (binning + tiles)" t=- ;;
         write) n="VOD write" t=- ;;
         job) n="job (topology + voxelization + VOD write)"
