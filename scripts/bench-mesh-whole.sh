@@ -108,23 +108,7 @@ kv() {
     sed 's/^wall_s=\([0-9.]*\) maxrss_kib=\([0-9]*\).*/ wall=\1 maxrss=\2/' "$tmp/m"
 }
 
-# medians: every key of the key=value lines on stdin with the median of its
-# values (the mean of the middle two for an even count), in first-seen order.
-medians() {
-    tr ' ' '\n' | awk -F= 'NF == 2 && $1 != "" {
-        if (!($1 in n)) order[++keys] = $1
-        v[$1, ++n[$1]] = $2
-    }
-    END {
-        for (k = 1; k <= keys; k++) {
-            key = order[k]; c = n[key]
-            for (i = 1; i <= c; i++) a[i] = v[key, i] + 0
-            for (i = 2; i <= c; i++) { x = a[i]; for (j = i - 1; j >= 1 && a[j] > x; j--) a[j + 1] = a[j]; a[j + 1] = x }
-            m = (c % 2) ? a[(c + 1) / 2] : (a[c / 2] + a[c / 2 + 1]) / 2
-            printf "%s %s\n", key, m
-        }
-    }'
-}
+. "$root/scripts/bench-lib.sh" # medians
 
 # timed MESH RES WORKERS MODE: one timed run of the job, appended to
 # $tmp/job.MESH.RES.WORKERS.MODE.runs as a line of key=value (la: the

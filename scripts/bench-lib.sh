@@ -1,0 +1,21 @@
+#!/bin/bash
+# bench-lib.sh: what the whole-command benchmarks (bench-whole.sh,
+# bench-mesh-whole.sh) share; sourced, not run.
+
+# medians: every key of the key=value lines on stdin with the median of its
+# values (the mean of the middle two for an even count), in first-seen order.
+medians() {
+    tr ' ' '\n' | awk -F= 'NF == 2 && $1 != "" {
+        if (!($1 in n)) order[++keys] = $1
+        v[$1, ++n[$1]] = $2
+    }
+    END {
+        for (k = 1; k <= keys; k++) {
+            key = order[k]; c = n[key]
+            for (i = 1; i <= c; i++) a[i] = v[key, i] + 0
+            for (i = 2; i <= c; i++) { x = a[i]; for (j = i - 1; j >= 1 && a[j] > x; j--) a[j + 1] = a[j]; a[j + 1] = x }
+            m = (c % 2) ? a[(c + 1) / 2] : (a[c / 2] + a[c / 2 + 1]) / 2
+            printf "%s %s\n", key, m
+        }
+    }'
+}
