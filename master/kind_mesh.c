@@ -15,9 +15,6 @@
 #include "clock.h"
 #include "master.h"
 
-/* Storage bricks of the volume: a divisor of MESH_TILE; 16^3 keeps the
- * tables small at 4096^3 (64 MiB) and a surface brick's memory low. */
-#define MESH_STORAGE_BRICK 16u
 
 typedef struct {
     const engine_mesh_job *job;
@@ -96,7 +93,7 @@ static int init_volume(engine *e, const mesh_vox_opts *o, const grid_spec *g,
 {
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
     int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
-                             mesh_vox_bits(o), MESH_STORAGE_BRICK);
+                             mesh_vox_bits(o), MESH_VOLUME_BRICK);
     if (rc) return no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;

@@ -180,7 +180,8 @@ static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
 {
     const mesh_vox_opts *o = &job->mesh.opts;
     r->stage = PIPELINE_VOXELIZE;
-    size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), 16, UINT64_MAX);
+    size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), MESH_VOLUME_BRICK,
+                                    UINT64_MAX);
     void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                                MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
                         : MAP_FAILED;
@@ -188,7 +189,8 @@ static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
         return fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
                     r->grid.res[0], r->grid.res[1], r->grid.res[2]);
     vod_volume *vol;
-    int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, mesh_vox_bits(o), 16);
+    int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, mesh_vox_bits(o),
+                             MESH_VOLUME_BRICK);
     mesh_tile_stats st = {0};
     double t0 = clock_now();
     if (!rc) rc = mesh_voxelize(job->mesh.mesh, &r->grid, o, vol, &st);

@@ -28,6 +28,10 @@
 #include "vod_volume.h"
 
 #define MESH_TILE 64u
+/* The storage brick side of a mesh job's volume, serial or on the engine:
+ * a divisor of MESH_TILE; 16^3 keeps the tables small at 4096^3 (64 MiB)
+ * and a surface brick's memory low. */
+#define MESH_VOLUME_BRICK 16u
 
 typedef enum {
     MESH_SOLID = 0,       /* voxel centres inside the mesh (parity) */
