@@ -126,6 +126,11 @@ typedef struct {
      * subtree of 2^split_level voxels per axis); 0 = automatic (depth-3,
      * within 1..6: many more tasks than workers). */
     int split_level;
+    /* NULL: the whole grid.  Else only this octant's subtree, the octant
+     * taken as kept by its parent's test (vox_mpi hands a rank the octants
+     * its rank 0 kept); the voxels are those the whole grid's job gives
+     * inside it, and the automatic split level is taken from its level. */
+    const grid_octant *root;
 } engine_job;
 
 /* Why a job failed: the engine's reason, for a caller to act on (the
@@ -272,5 +277,17 @@ int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
                              vod_stats *st, engine_error *err,
                              void (*progress)(void *ud, const engine_progress *p),
                              void *ud, const atomic_int *cancel);
+/* The bricks engine_write_vod would write, without the file: the last
+ * job's non-empty brick nodes in preorder, each node's record and encoded
+ * bytes (a duplicate's data points at its first's), handed to deliver
+ * with the source they came from (its mip levels made: fill() works at
+ * every level) while they are still in shared memory.  vox_mpi's ranks
+ * send their subtrees' bricks this way.  deliver returns 0 or a negative
+ * errno (then ENGINE_SINK).  Errors as engine_write_vod's. */
+typedef int (*engine_deliver)(void *ud, const vod_layout *L, const vod_source *src,
+                              size_t n, const vod_node *nodes,
+                              const vod_encoded *recs, const uint8_t *const *data);
+int engine_encode_bricks(engine *e, const vod_params *p, engine_deliver deliver,
+                         void *ud, vod_stats *st, engine_error *err);
 
 #endif

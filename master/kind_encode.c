@@ -28,6 +28,8 @@ typedef struct {
     engine_error *err;
     vod_times t;   /* the master's fill, hash and compress */
     int agg_left;  /* aggregate tasks not done yet */
+    engine_deliver deliver; /* NULL: assemble the file into sink */
+    void *deliver_ud;
 } encode_job;
 
 #define AGG_SPLIT 3 /* the aggregate's subtrees: up to 8^3 of them */
@@ -310,6 +312,17 @@ static int assemble(engine *e, encode_job *ej, const uint8_t **data)
                       msg[0] ? msg : strerror(-rc));
 }
 
+/* The bricks to the caller instead of a file (engine_encode_bricks). */
+static int hand_out(engine *e, encode_job *ej, const uint8_t **data)
+{
+    encode_block *b = block(e);
+    vod_source src = result_source(e);
+    int rc = ej->deliver(ej->deliver_ud, &b->L, &src, b->n,
+                         shm_at(e->seg.base, b->nodes_off),
+                         shm_at(e->seg.base, b->recs_off), data);
+    return rc ? sched_fail(e, ENGINE_SINK, rc, "%s", strerror(-rc)) : 0;
+}
+
 static int encode_finish(engine *e, void *job, int rc)
 {
     encode_job *ej = job;
@@ -319,6 +332,7 @@ static int encode_finish(engine *e, void *job, int rc)
     uint8_t **own = calloc(b->n ? b->n : 1, sizeof *own);
     rc = data && own ? encode_gather(e, ej, data, own) : -ENOMEM;
     if (rc) sched_fail(e, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    else if (ej->deliver) rc = hand_out(e, ej, data);
     else rc = assemble(e, ej, data);
     if (!rc) add_times(b, ej);
     for (uint64_t i = 0; own && i < b->n; i++) free(own[i]);
@@ -347,20 +361,38 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
     return engine_write_vod_watched(e, p, sink, st, err, NULL, NULL, NULL);
 }
 
+static int encode_run(engine *e, encode_job *ej, const sched_watch *w);
+
 /* A job of the encode kind; the checks that need no workers first. */
 int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
                              vod_stats *st, engine_error *err,
                              void (*progress)(void *ud, const engine_progress *p),
                              void *ud, const atomic_int *cancel)
 {
-    memset(err, 0, sizeof *err);
     encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
+    sched_watch w = {.progress = progress, .ud = ud, .cancel = cancel};
+    return encode_run(e, &ej, &w);
+}
+
+int engine_encode_bricks(engine *e, const vod_params *p, engine_deliver deliver,
+                         void *ud, vod_stats *st, engine_error *err)
+{
+    encode_job ej = {.p = p, .st = st, .err = err, .deliver = deliver, .deliver_ud = ud};
+    sched_watch w = {0};
+    return encode_run(e, &ej, &w);
+}
+
+static int encode_run(engine *e, encode_job *ej, const sched_watch *w)
+{
+    const vod_params *p = ej->p;
+    engine_error *err = ej->err;
+    memset(err, 0, sizeof *err);
     vod_source src = result_source(e);
     int rc = -EINVAL;
     if (e->result == RESULT_NONE)
         snprintf(err->message, sizeof err->message,
                  "nothing to write: the last job failed or there was none");
-    else if (!(rc = vod_layout_make(p, src.depth, &ej.L, err->message,
+    else if (!(rc = vod_layout_make(p, src.depth, &ej->L, err->message,
                                     sizeof err->message)))
         rc = vod_check_source(&src, p, err->message, sizeof err->message);
     if (rc) {
@@ -368,6 +400,5 @@ int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
         err->code = rc;
         return rc;
     }
-    sched_watch w = {.progress = progress, .ud = ud, .cancel = cancel};
-    return engine_run(e, &kind_encode, &ej, &w);
+    return engine_run(e, &kind_encode, ej, w);
 }

@@ -197,12 +197,16 @@ static int implicit_setup(engine *e, void *job)
     int depth = j->grid.depth;
     octree_init(&e->tree, shm_at(e->seg.base, tree_off),
                 cap > UINT32_MAX ? UINT32_MAX : (uint32_t)cap, depth);
-    ij->total_vol = volume(depth);
-    ij->split = j->split_level > 0 ? j->split_level
-                : depth - 3 < 1    ? 1
-                : depth - 3 > 6    ? 6
-                                   : depth - 3;
-    return push_octant(e, ij, grid_root(&j->grid));
+    grid_octant root = j->root ? *j->root : grid_root(&j->grid);
+    if (root.level < 1 || root.level > depth || !inside(grid_root(&j->grid), root.x, root.y, root.z) ||
+        (root.x | root.y | root.z) & ((1u << root.level) - 1))
+        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's root octant is not one of its grid");
+    ij->total_vol = volume(root.level);
+    ij->split = j->split_level > 0    ? j->split_level
+                : root.level - 3 < 1 ? 1
+                : root.level - 3 > 6 ? 6
+                                     : root.level - 3;
+    return push_octant(e, ij, root);
 }
 
 static int implicit_finish(engine *e, void *job, int rc)

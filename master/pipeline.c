@@ -294,8 +294,8 @@ static int mesh_check(pipeline_job *run, pipeline_report *r)
     return 0;
 }
 
-int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
-                 pipeline_report *r)
+int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
+                  char meta[JOB_META_MAX])
 {
     memset(r, 0, sizeof *r);
     r->stage = PIPELINE_GRID;
@@ -305,9 +305,17 @@ int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
     char err[sizeof r->err.message];
     rc = grid_make(lo, hi, job->res, &r->grid, err, sizeof err);
     if (rc) return fail(r, ENGINE_BAD_JOB, rc, "%s", err);
+    vod_setup(v, job, lo, hi, &r->grid, meta); /* the repair asked for */
+    return 0;
+}
+
+int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
+                 pipeline_report *r)
+{
     char meta[JOB_META_MAX];
     vod_params v;
-    vod_setup(&v, job, lo, hi, &r->grid, meta); /* the repair asked for */
+    int rc = pipeline_plan(job, r, &v, meta);
+    if (rc) return rc;
     pipeline_job run = *job;
     if (job->kind == PIPELINE_MESH && (rc = mesh_check(&run, r))) return rc;
     if (!e) return run_serial(&run, &v, sink, r);

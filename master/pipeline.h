@@ -24,6 +24,7 @@
 #include <stdint.h>
 
 #include "engine.h"
+#include "job_meta.h"
 #include "expr.h"
 #include "grid.h"
 #include "mesh_vox.h"
@@ -87,6 +88,13 @@ typedef struct {
     pipeline_stage stage;         /* the stage reached (that failed, if so) */
     engine_error err;             /* why it failed */
 } pipeline_report;
+
+/* The job's grid (into r->grid) and the VOD parameters pipeline_run
+ * writes it with (v, its metadata in meta), without running it: what
+ * vox_mpi's rank 0 needs to write the same file from bricks made
+ * elsewhere.  0, or a negative errno with r->err saying why. */
+int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
+                  char meta[JOB_META_MAX]);
 
 /* Run job; e NULL runs the serial algorithm in this thread.  Returns 0, or
  * a negative errno with r->err saying why and r->stage where. */
