@@ -43,7 +43,8 @@ CSTD    := -std=c11 -D_GNU_SOURCE
 # against the layering does not compile (tests/integration/layering.sh
 # checks the same over the sources, and that no two files include each
 # other).  The data flows down this list; nothing includes upwards.
-MODULES := client server config libvox master worker engine csg mesh proto vod expr common
+MODULES := mpi client server config libvox master worker engine csg mesh proto vod expr common
+LAYER_mpi    := client config libvox master worker engine csg mesh proto expr vod common
 LAYER_client := config libvox master csg mesh proto expr vod common
 LAYER_server := config master engine csg mesh proto libvox expr vod common
 LAYER_config := proto expr common
@@ -73,7 +74,7 @@ LDFLAGS += $(filter -fsanitize=%,$(OPT))
 LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 
 LIB_SRC ?= $(wildcard $(MODULES:%=%/*.c))
-LIB_SRC := $(filter-out client/vox.c server/voxd.c,$(LIB_SRC))
+LIB_SRC := $(filter-out client/vox.c server/voxd.c mpi/vox_mpi.c,$(LIB_SRC))
 # libvox, the client library: only what a client needs (vox.h, framing,
 # the protocol), an archive of its own with a pkg-config file.
 LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c
@@ -83,7 +84,8 @@ PROTO   := $(wildcard proto/*.proto)
 PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
 LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIB     := $(BUILD)/libvoxd.a
-BINS    := $(BUILD)/vox $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(BUILD)/libvox.pc
+BINS    := $(BUILD)/vox $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(BUILD)/libvox.pc \
+           $(BUILD)/vox_mpi
 
 UNIT_SRC := $(wildcard tests/unit/test_*.c)
 UNIT_BIN := $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
@@ -123,6 +125,15 @@ $(BUILD)/vox: $(BUILD)/client/vox.o $(LIB)
 
 $(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
+
+# vox_mpi (docs/mpi.md): the one file that calls MPI, built with mpicc's
+# flags (asked when used: make deps installs mpicc first); MPI's headers
+# as system headers, out of our warnings.
+MPI_CFLAGS = $(addprefix -isystem ,$(shell mpicc --showme:incdirs))
+MPI_LIBS   = $(shell mpicc --showme:link)
+$(BUILD)/mpi/vox_mpi.o: CFLAGS += $(MPI_CFLAGS)
+$(BUILD)/vox_mpi: $(BUILD)/mpi/vox_mpi.o $(LIB)
+	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS) $(MPI_LIBS)
 
 $(BUILD)/voxbench: bench/voxbench.c $(LIB)
 	$(CC) $(CFLAGS) $(INC) $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS)
@@ -199,7 +210,7 @@ bench-compare: deps all
 clean:
 	rm -rf build
 
--include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d
+-include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d
 
 # ---------------------------------------------------------------- install
 # make install [PREFIX=/usr/local] [DESTDIR=]: vox in PREFIX/bin; voxd, a

@@ -1,0 +1,143 @@
+/* mpi_part — what vox_mpi does that is not talking MPI: the job cut into
+ * subtrees, one subtree voxelized and its bricks encoded on a rank, rank
+ * 0's book of the bricks it holds, and the levels above the subtrees.
+ *
+ * The seam.  A VOD file is a complete brick octree over the grid's octree
+ * (docs/vod-format.md): the brick node of level l covers a cube of
+ * brick * 2^l voxels, and its brick depends on the voxels of that cube
+ * alone.  Rank 0 cuts the grid at octree level s (cubes of 2^s voxels,
+ * s > log2(brick)), keeping the octants the subdivision's own interval
+ * tests keep; a subtree's VOD nodes are then those of level s - log2(brick)
+ * and below inside its cube, and a rank makes them exactly as one process
+ * would: the same boxes tested, the same voxels, the same mip levels, the
+ * same bytes per brick.  The nodes above (the "top") mix subtrees; rank 0
+ * makes them from each subtree's brick of level s - log2(brick), which the
+ * rank sends beside its records (the non-zero voxels only): a level-l voxel
+ * is made from the 8 level-(l-1) voxels below it (spec section 3), so the
+ * top needs nothing else.  Rank 0 then has every node's encoded brick in
+ * preorder and vod_assemble writes the same file as vox voxelize.
+ */
+#ifndef VOXD_MPI_PART_H
+#define VOXD_MPI_PART_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "engine.h"
+#include "expr.h"
+#include "grid.h"
+#include "vod.h"
+
+/* ---- the cut ---- */
+
+typedef struct {
+    grid_octant *oct;   /* the kept octants of level `level`, in preorder */
+    size_t n;
+    int level;          /* s: the subtrees' octree level */
+    uint32_t node_level; /* their VOD node level (the top is above it) */
+    uint64_t tested;    /* boxes rank 0 tested to find them */
+} mpi_cut;
+
+/* The subtrees' VOD node level for cut level s of a grid of depth `depth`:
+ * s - log2(brick), or the root's level when s is the whole grid. */
+uint32_t mpi_node_level(const vod_layout *L, int depth, int s);
+/* Subdivide the grid from its root with the subdivision kernel's interval
+ * tests (the boxes and tapes every job tests) until there are at least
+ * `target` kept octants or the next level would be a brick or smaller
+ * (subtrees stay above the brick: levels log2(brick) + 1 and up).  0 or
+ * -ENOMEM / the vm's error. */
+int mpi_cut_make(const expr_tape *tape, const grid_spec *g, const vod_layout *L,
+                 size_t target, mpi_cut *out);
+void mpi_cut_free(mpi_cut *c);
+
+/* ---- a subtree on a rank ---- */
+
+/* One brick node as it goes on the wire (48 bytes): where it is in the
+ * file, its record and a 128-bit content hash of its encoded bytes, by
+ * which rank 0 knows whether it holds those bytes already. */
+typedef struct {
+    uint64_t preorder;
+    uint32_t level;
+    uint32_t hash;      /* the file's hash of the raw brick (vod_encoded) */
+    uint32_t size;      /* encoded bytes */
+    uint32_t pad;
+    uint64_t key[2];    /* XXH3-128 of the encoded bytes */
+} mpi_rec;
+
+/* A non-zero voxel of a subtree's top brick: its index in the brick's
+ * raw layout (x fastest) and its value (0/1 for channel 1). */
+typedef struct {
+    uint32_t idx, value;
+} mpi_pair;
+
+/* What a subtree gave: its nodes (level <= node_level, preorder), their
+ * encoded bytes (valid only during the call), the top brick's voxels. */
+typedef struct {
+    size_t n;
+    const mpi_rec *recs;
+    const uint8_t *const *data;
+    size_t npairs;
+    const mpi_pair *pairs;
+    uint64_t voxels;    /* the subtree's */
+} mpi_bricks;
+
+/* Called once per subtree with its bricks; 0 or a negative errno. */
+typedef int (*mpi_deliver)(void *ud, const mpi_bricks *b);
+
+typedef struct {
+    const expr_tape *tape;
+    grid_spec grid;
+    vod_params vod;      /* metadata unused */
+    uint32_t node_level;
+    engine *e;           /* NULL: the serial algorithm in this thread */
+    engine_schedule schedule;
+} mpi_subtree_job;
+
+/* Voxelize octant o of the job (kept by its parent's test) and encode its
+ * bricks, on the engine or serially, then call deliver.  0, or a negative
+ * errno with the reason in err. */
+int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver,
+                    void *ud, char *err, size_t errlen);
+
+/* ---- rank 0's book of bricks ---- */
+
+/* Every distinct brick rank 0 has been told of, by content: held (its
+ * bytes at an offset in the spill file) or asked for (pending). */
+typedef struct {
+    uint64_t key[2];
+    uint32_t hash, size;
+    uint64_t off;       /* in the spill, once held */
+    int state;          /* 0 free slot, 1 asked for, 2 held */
+} mpi_book_entry;
+
+typedef struct {
+    mpi_book_entry *slot;
+    size_t cap, used;
+} mpi_book;
+
+void mpi_book_init(mpi_book *b);
+void mpi_book_free(mpi_book *b);
+/* The entry of r's content, made (state 1, asked for) when new: *fresh is
+ * then 1 and the caller asks the rank for its bytes.  NULL: no memory.
+ * The pointer is valid until the next call. */
+mpi_book_entry *mpi_book_get(mpi_book *b, const mpi_rec *r, int *fresh);
+
+/* The XXH3-128 key of encoded bytes. */
+void mpi_key(const uint8_t *data, size_t n, uint64_t key[2]);
+
+/* ---- the top ---- */
+
+/* The nodes above the subtrees, made from their top bricks.  Add each
+ * subtree's pairs, then mpi_top_encode calls put for every non-empty node
+ * above node_level with its record and encoded bytes (valid during the
+ * call), in preorder. */
+typedef struct mpi_top mpi_top;
+int mpi_top_new(const vod_layout *L, int depth, uint32_t node_level, mpi_top **out);
+void mpi_top_free(mpi_top *t);
+int mpi_top_add(mpi_top *t, grid_octant o, const mpi_pair *pairs, size_t n);
+int mpi_top_encode(mpi_top *t, const vod_params *p,
+                   int (*put)(void *ud, const vod_node *n, const vod_encoded *rec,
+                              const uint8_t *data),
+                   void *ud);
+
+#endif

@@ -1,0 +1,791 @@
+/* vox_mpi — vox voxelize over the ranks of an Open MPI job (docs/mpi.md).
+ *
+ * Every rank is a slave of rank 0, one level above the engine's own
+ * master–worker scheme: it asks rank 0 for a subtree, runs the engine that
+ * vox runs (its forked, pinned workers, which never call MPI) on it,
+ * encodes its bricks, sends their records and content keys, and then only
+ * the bricks rank 0 asks for (those it holds no copy of).  Rank 0 cuts the
+ * job into subtrees, hands them out on request, works on them too (a
+ * thread of its own, a slave like the others), makes the levels above the
+ * subtrees, and writes the file: the bytes vox voxelize writes.
+ *
+ * Messages: the job is broadcast once; then on the "up" communicator (to
+ * rank 0) REQ (the first request), NODES (a subtree's records, its voxel
+ * count and its top brick's voxels), BRICKS (the bytes asked for, in the
+ * order asked), FAIL (a message); on the "down" one (from rank 0) TASK (a
+ * subtree, or none left) and WANT (the records whose bytes to send).  A
+ * rank's next TASK comes once its exchange is over.  Two communicators,
+ * so that rank 0's two threads (MPI_THREAD_MULTIPLE) never take each
+ * other's messages.  Waits poll (MPI_Iprobe and a short sleep) instead of
+ * blocking: Open MPI's blocking calls spin, and the cores are the
+ * workers'.
+ */
+#include <mpi.h>
+
+#include <errno.h>
+#include <pthread.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "cli.h"
+#include "clock.h"
+#include "engine.h"
+#include "mpi_part.h"
+#include "outfile.h"
+#include "pipeline.h"
+#include "progress.h"
+#include "source.h"
+#include "vod.h"
+
+enum { TAG_REQ = 1, TAG_NODES, TAG_BRICKS, TAG_FAIL, /* up, to rank 0 */
+       TAG_TASK = 11, TAG_WANT };                   /* down, from rank 0 */
+
+#define SUBTREES_PER_RANK 8
+#define HOST_MAX 64
+
+/* The job as broadcast; status >= 0: every rank exits with it. */
+typedef struct {
+    int32_t status, schedule;
+    uint32_t workers, shm_mib;
+    grid_spec grid;
+    vod_params vod;      /* metadata NULL */
+    uint32_t node_level, pad;
+    uint64_t tape_bytes;
+    char cpus[128];
+} wire_job;
+
+typedef struct {
+    int32_t index;       /* -1: no subtree left */
+    grid_octant o;
+} wire_task;
+
+typedef struct {
+    uint64_t voxels;
+    uint32_t n, npairs;  /* then n mpi_rec, npairs mpi_pair */
+} wire_nodes;
+
+/* What a rank did, gathered by rank 0 at the end. */
+typedef struct {
+    uint64_t bytes, messages;    /* sent to rank 0 */
+    uint64_t subtrees, nodes, bricks, brick_bytes;
+    double busy;                 /* seconds voxelizing and encoding */
+} rank_stats;
+
+static MPI_Comm up, down;
+static int me, nranks;
+static char hosts[1][HOST_MAX]; /* this rank's; rank 0 has all in all_hosts */
+static char (*all_hosts)[HOST_MAX];
+static char tmp_path[4096];     /* rank 0's unfinished file, for the signals */
+
+static void msg(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static void msg(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "vox_mpi: ");
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, "\n");
+    va_end(ap);
+}
+
+/* Wait for a message without spinning: probe, then sleep a little longer
+ * each time up to half a millisecond. */
+static void wait_msg(MPI_Comm c, int src, int tag, MPI_Status *st)
+{
+    int flag = 0;
+    long ns = 20000;
+    for (;;) {
+        MPI_Iprobe(src, tag, c, &flag, st);
+        if (flag) return;
+        struct timespec ts = {0, ns};
+        nanosleep(&ts, NULL);
+        if (ns < 500000) ns *= 2;
+    }
+}
+
+/* The message st announced, into a new buffer (its size in *n). */
+static void *recv_msg(MPI_Comm c, MPI_Status *st, int *n)
+{
+    MPI_Get_count(st, MPI_BYTE, n);
+    void *buf = malloc(*n ? (size_t)*n : 1);
+    if (!buf) {
+        msg("rank %d on %s: out of memory for a message of %d bytes", me, hosts[0], *n);
+        MPI_Abort(MPI_COMM_WORLD, 1);
+    }
+    MPI_Recv(buf, *n, MPI_BYTE, st->MPI_SOURCE, st->MPI_TAG, c, MPI_STATUS_IGNORE);
+    return buf;
+}
+
+/* ---------------------------------------------------------------- slaves */
+
+typedef struct {
+    mpi_subtree_job sj;
+    rank_stats st;
+    int rc;
+} slave;
+
+static void send_up(slave *s, const void *buf, size_t n, int tag)
+{
+    MPI_Send(buf, (int)n, MPI_BYTE, 0, tag, up);
+    s->st.bytes += n;
+    s->st.messages++;
+}
+
+/* A subtree's exchange: its records, then the bytes rank 0 wants. */
+static int on_bricks(void *ud, const mpi_bricks *b)
+{
+    slave *s = ud;
+    size_t n = sizeof(wire_nodes) + b->n * sizeof(mpi_rec) + b->npairs * sizeof(mpi_pair);
+    if (n > INT32_MAX) return -E2BIG;
+    uint8_t *m = malloc(n);
+    if (!m) return -ENOMEM;
+    wire_nodes h = {.voxels = b->voxels, .n = (uint32_t)b->n, .npairs = (uint32_t)b->npairs};
+    memcpy(m, &h, sizeof h);
+    memcpy(m + sizeof h, b->recs, b->n * sizeof(mpi_rec));
+    memcpy(m + sizeof h + b->n * sizeof(mpi_rec), b->pairs, b->npairs * sizeof(mpi_pair));
+    send_up(s, m, n, TAG_NODES);
+    free(m);
+    s->st.nodes += b->n;
+    MPI_Status st;
+    wait_msg(down, 0, TAG_WANT, &st);
+    int wn;
+    uint32_t *want = recv_msg(down, &st, &wn);
+    size_t k = (size_t)wn / sizeof *want, bytes = 0;
+    for (size_t i = 0; i < k; i++) {
+        if (want[i] >= b->n) { free(want); return -EPROTO; }
+        bytes += b->recs[want[i]].size;
+    }
+    int rc = 0;
+    if (k && bytes <= INT32_MAX && (m = malloc(bytes))) {
+        size_t at = 0;
+        for (size_t i = 0; i < k; i++) {
+            memcpy(m + at, b->data[want[i]], b->recs[want[i]].size);
+            at += b->recs[want[i]].size;
+        }
+        send_up(s, m, bytes, TAG_BRICKS);
+        free(m);
+        s->st.bricks += k;
+        s->st.brick_bytes += bytes;
+    } else if (k) {
+        rc = bytes > INT32_MAX ? -E2BIG : -ENOMEM;
+    }
+    free(want);
+    return rc;
+}
+
+/* Ask, run, exchange, until rank 0 says there is nothing left; a failure
+ * goes to rank 0 as a message (it ends the job). */
+static int slave_loop(slave *s)
+{
+    send_up(s, "", 0, TAG_REQ);
+    for (;;) {
+        MPI_Status st;
+        wire_task t;
+        wait_msg(down, 0, TAG_TASK, &st);
+        MPI_Recv(&t, sizeof t, MPI_BYTE, 0, TAG_TASK, down, MPI_STATUS_IGNORE);
+        if (t.index < 0) return 0;
+        char err[400], m[600];
+        double t0 = clock_now();
+        int rc = mpi_subtree_run(&s->sj, t.o, on_bricks, s, err, sizeof err);
+        s->st.busy += clock_now() - t0;
+        if (rc) {
+            int k = snprintf(m, sizeof m, "%s", err[0] ? err : strerror(-rc));
+            send_up(s, m, (size_t)(k < (int)sizeof m ? k : (int)sizeof m - 1) + 1, TAG_FAIL);
+            return rc;
+        }
+        s->st.subtrees++;
+    }
+}
+
+static int affinity_cpus(void)
+{
+    cpu_set_t set;
+    if (sched_getaffinity(0, sizeof set, &set)) return 1;
+    int n = CPU_COUNT(&set);
+    return n > 0 ? n : 1;
+}
+
+/* The engine of this rank (none with -w 0), then the loop; called in the
+ * thread that then owns the engine (its workers die with that thread). */
+static int slave_run(slave *s, const wire_job *j)
+{
+    engine *e = NULL;
+    if (j->workers) {
+        int cpus[ENGINE_MAX_WORKERS], ncpus = 0;
+        if (j->cpus[0]) ncpus = cli_parse_cpus(j->cpus, cpus, ENGINE_MAX_WORKERS);
+        engine_opts eo = {.workers = (int)j->workers, .cpus = ncpus > 0 ? cpus : NULL,
+                          .ncpus = ncpus > 0 ? ncpus : 0,
+                          .shm_bytes = (size_t)j->shm_mib << 20};
+        char err[256] = "", m[400];
+        int rc = engine_create(&eo, &e, err, sizeof err);
+        if (rc) {
+            int k = snprintf(m, sizeof m, "cannot start the engine: %s",
+                             err[0] ? err : strerror(-rc));
+            send_up(s, m, (size_t)(k < (int)sizeof m ? k : (int)sizeof m - 1) + 1, TAG_FAIL);
+            return rc;
+        }
+    }
+    s->sj.e = e;
+    int rc = slave_loop(s);
+    engine_destroy(e);
+    return rc;
+}
+
+/* Rank 0's own slave: its state and its job, for its thread. */
+typedef struct {
+    slave s;
+    wire_job j;
+} own_slave;
+
+static void *slave_thread(void *ud)
+{
+    own_slave *o = ud;
+    o->s.rc = slave_run(&o->s, &o->j);
+    return NULL;
+}
+
+/* ---------------------------------------------------------------- rank 0 */
+
+typedef struct {
+    int task;            /* the subtree it holds, -1 none */
+    mpi_rec *want;       /* the records asked for, waiting for BRICKS */
+    size_t nwant;
+} rank_state;
+
+typedef struct {
+    const mpi_cut *cut;
+    mpi_book book;
+    mpi_rec *nodes;      /* every node of the file, in arrival order */
+    size_t n, cap;
+    int spill;           /* the distinct bricks' bytes, an unlinked file */
+    uint64_t spill_bytes;
+    mpi_top *top;
+    rank_state *rs;
+    size_t next, done;
+    uint64_t voxels, sent_bytes;
+    progress pr;
+} master;
+
+/* Everything rank 0 made is dropped, the unfinished file too; the other
+ * ranks are killed by MPI_Abort (their workers die with them). */
+static void abort_job(void)
+{
+    if (tmp_path[0]) unlink(tmp_path);
+    MPI_Abort(MPI_COMM_WORLD, 1);
+    _exit(1);
+}
+
+static void on_signal(int sig)
+{
+    static const char m[] = "vox_mpi: rank 0 stopped by a signal (mpirun stops every "
+                            "rank when one fails; its message names the rank and host); "
+                            "no file written\n";
+    if (tmp_path[0]) unlink(tmp_path);
+    ssize_t w = write(2, m, sizeof m - 1);
+    (void)w;
+    _exit(128 + sig);
+}
+
+static int push_node(master *m, const mpi_rec *r)
+{
+    if (m->n == m->cap) {
+        size_t cap = m->cap ? 2 * m->cap : 4096;
+        mpi_rec *v = realloc(m->nodes, cap * sizeof *v);
+        if (!v) return -ENOMEM;
+        m->nodes = v, m->cap = cap;
+    }
+    m->nodes[m->n++] = *r;
+    return 0;
+}
+
+static int spill(master *m, mpi_book_entry *e, const uint8_t *data)
+{
+    for (size_t at = 0; at < e->size;) {
+        ssize_t w = write(m->spill, data + at, e->size - at);
+        if (w < 0) return -errno;
+        at += (size_t)w;
+    }
+    e->off = m->spill_bytes;
+    e->state = 2;
+    m->spill_bytes += e->size;
+    return 0;
+}
+
+static void send_task(master *m, int r)
+{
+    wire_task t = {.index = -1};
+    if (m->next < m->cut->n) {
+        t.index = (int32_t)m->next;
+        t.o = m->cut->oct[m->next++];
+    }
+    m->rs[r].task = t.index;
+    MPI_Send(&t, sizeof t, MPI_BYTE, r, TAG_TASK, down);
+    m->sent_bytes += sizeof t;
+}
+
+static void fail_master(master *m, const char *what, int rc)
+{
+    progress_done(&m->pr);
+    msg("rank 0 on %s: %s: %s", all_hosts[0], what, strerror(-rc));
+    abort_job();
+}
+
+/* A subtree's records: book them, ask for the bytes of the new ones. */
+static int take_nodes(master *m, int r, const uint8_t *buf, int n)
+{
+    wire_nodes h;
+    if ((size_t)n < sizeof h) return -EPROTO;
+    memcpy(&h, buf, sizeof h);
+    if ((size_t)n != sizeof h + (uint64_t)h.n * sizeof(mpi_rec) + (uint64_t)h.npairs * sizeof(mpi_pair))
+        return -EPROTO;
+    const mpi_rec *recs = (const mpi_rec *)(buf + sizeof h);
+    rank_state *rs = &m->rs[r];
+    uint32_t *want = malloc((h.n ? h.n : 1) * sizeof *want);
+    rs->want = malloc((h.n ? h.n : 1) * sizeof *rs->want);
+    if (!want || !rs->want) return -ENOMEM;
+    rs->nwant = 0;
+    for (uint32_t i = 0; i < h.n; i++) {
+        int fresh;
+        mpi_book_entry *e = mpi_book_get(&m->book, &recs[i], &fresh);
+        if (!e || push_node(m, &recs[i])) return -ENOMEM;
+        if (fresh) {
+            want[rs->nwant] = i;
+            rs->want[rs->nwant++] = recs[i];
+        }
+    }
+    if (h.n) {
+        int rc = mpi_top_add(m->top, m->cut->oct[rs->task],
+                             (const mpi_pair *)(recs + h.n), h.npairs);
+        if (rc) return rc;
+    }
+    MPI_Send(want, (int)(rs->nwant * sizeof *want), MPI_BYTE, r, TAG_WANT, down);
+    m->sent_bytes += rs->nwant * sizeof *want;
+    free(want);
+    if (!rs->nwant) {
+        free(rs->want);
+        rs->want = NULL;
+    }
+    m->voxels += h.voxels;
+    m->done++;
+    progress_update(&m->pr, (double)m->done / (double)(m->cut->n ? m->cut->n : 1), 0,
+                    m->voxels);
+    return 0;
+}
+
+/* The bytes asked for, in the order asked. */
+static int take_bricks(master *m, int r, const uint8_t *buf, int n)
+{
+    rank_state *rs = &m->rs[r];
+    size_t at = 0;
+    for (size_t i = 0; i < rs->nwant; i++) {
+        int fresh;
+        mpi_book_entry *e = mpi_book_get(&m->book, &rs->want[i], &fresh);
+        if (!e || fresh) return -EPROTO;
+        if (at + e->size > (size_t)n) return -EPROTO;
+        int rc = spill(m, e, buf + at);
+        if (rc) return rc;
+        at += e->size;
+    }
+    return at == (size_t)n ? 0 : -EPROTO;
+}
+
+/* Rank 0's loop: hand out subtrees on request and take their bricks until
+ * every rank has been told there is nothing left. */
+static void serve(master *m)
+{
+    int active = nranks;
+    while (active) {
+        MPI_Status st;
+        wait_msg(up, MPI_ANY_SOURCE, MPI_ANY_TAG, &st);
+        int r = st.MPI_SOURCE, n, rc = 0;
+        uint8_t *buf = recv_msg(up, &st, &n);
+        if (st.MPI_TAG == TAG_FAIL) {
+            progress_done(&m->pr);
+            buf[n ? n - 1 : 0] = '\0';
+            msg("rank %d on %s failed: %s", r, all_hosts[r], n ? (char *)buf : "?");
+            abort_job();
+        }
+        if (st.MPI_TAG == TAG_NODES) {
+            rc = take_nodes(m, r, buf, n);
+            if (!rc && !m->rs[r].nwant) st.MPI_TAG = TAG_REQ; /* nothing to wait for */
+        } else if (st.MPI_TAG == TAG_BRICKS) {
+            rc = take_bricks(m, r, buf, n);
+            free(m->rs[r].want);
+            m->rs[r].want = NULL;
+            m->rs[r].nwant = 0;
+            st.MPI_TAG = TAG_REQ;
+        }
+        free(buf);
+        if (rc) {
+            char what[128];
+            snprintf(what, sizeof what, "the bricks of rank %d on %s", r, all_hosts[r]);
+            fail_master(m, what, rc);
+        }
+        if (st.MPI_TAG == TAG_REQ) {
+            send_task(m, r);
+            if (m->rs[r].task < 0) active--;
+        }
+    }
+}
+
+static int put_top(void *ud, const vod_node *n, const vod_encoded *rec, const uint8_t *data)
+{
+    master *m = ud;
+    mpi_rec r = {.preorder = n->preorder, .level = n->level, .hash = rec->hash,
+                 .size = rec->size};
+    mpi_key(data, rec->size, r.key);
+    int fresh, rc = 0;
+    mpi_book_entry *e = mpi_book_get(&m->book, &r, &fresh);
+    if (!e) return -ENOMEM;
+    if (fresh) rc = spill(m, e, data);
+    return rc ? rc : push_node(m, &r);
+}
+
+static int by_preorder(const void *a, const void *b)
+{
+    uint64_t x = ((const mpi_rec *)a)->preorder, y = ((const mpi_rec *)b)->preorder;
+    return x < y ? -1 : x > y;
+}
+
+/* Every node in preorder, its bytes from the spill: the file. */
+static int assemble(master *m, const vod_layout *L, const vod_params *v, int fd,
+                    vod_stats *st, char *err, size_t errlen)
+{
+    qsort(m->nodes, m->n, sizeof *m->nodes, by_preorder);
+    size_t n = m->n;
+    vod_node *nodes = calloc(n ? n : 1, sizeof *nodes);
+    vod_encoded *recs = calloc(n ? n : 1, sizeof *recs);
+    const uint8_t **data = calloc(n ? n : 1, sizeof *data);
+    const uint8_t *map = NULL;
+    int rc = nodes && recs && data ? 0 : -ENOMEM;
+    if (!rc && m->spill_bytes) {
+        void *p = mmap(NULL, m->spill_bytes, PROT_READ, MAP_SHARED, m->spill, 0);
+        if (p == MAP_FAILED) rc = -errno;
+        else map = p;
+    }
+    for (size_t i = 0; !rc && i < n; i++) {
+        int fresh;
+        mpi_book_entry *e = mpi_book_get(&m->book, &m->nodes[i], &fresh);
+        if (!e || e->state != 2) rc = -EPROTO;
+        else {
+            nodes[i] = (vod_node){.preorder = m->nodes[i].preorder, .level = m->nodes[i].level};
+            recs[i] = (vod_encoded){.hash = m->nodes[i].hash, .size = m->nodes[i].size};
+            data[i] = map + e->off;
+        }
+    }
+    if (rc) snprintf(err, errlen, "%s", strerror(-rc));
+    vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
+    if (!rc) rc = vod_assemble(L, v, n, nodes, recs, data, &sink, st, err, errlen);
+    if (rc && !err[0]) snprintf(err, errlen, "%s", strerror(-rc));
+    if (map) munmap((void *)map, m->spill_bytes);
+    free(nodes);
+    free(recs);
+    free(data);
+    return rc;
+}
+
+/* ---- rank 0's preparation: options, source, plan, cut ---- */
+
+typedef struct {
+    cli_job_opts o;
+    int stats;
+    uint32_t per_rank;
+    source src;
+    expr_tape *tape;
+    vod_params v;
+    char meta[JOB_META_MAX];
+    vod_layout L;
+    pipeline_report plan;
+    mpi_cut cut;
+    int fd;
+} prep;
+
+static void usage(FILE *f)
+{
+    fprintf(f,
+"usage: mpirun [mpirun options] vox_mpi voxelize (-e EXPR | -f FILE) -o OUT [options]\n"
+"\n"
+"vox voxelize's implicit-surface jobs over the ranks of an MPI job: rank 0 cuts\n"
+"the octree into subtrees and hands them out on request, every rank (rank 0\n"
+"too) runs the engine on them with -w workers of its own, and rank 0 writes\n"
+"OUT, the same bytes vox voxelize -w W writes for the job.  Mesh jobs are not\n"
+"run by vox_mpi yet.\n"
+"\n"
+"  -e, --expr EXPR       the implicit function F(x,y,z)\n"
+"  -f, --file FILE       ... from a .vx file (its #@ directives apply)\n"
+"  -o, --output FILE     the VOD file, written by rank 0 under a temporary\n"
+"                        name and renamed when complete\n"
+"  -r, --res N           voxels along the longest axis (default 256)\n"
+"  -d, --domain A,B | X0,X1,Y0,Y1,Z0,Z1\n"
+"                        the domain (default [-1,1]^3)\n"
+"  -w, --workers N       worker processes per rank (default: the CPUs the\n"
+"                        rank may run on; 0: the serial algorithm per rank)\n"
+"      --cpus LIST       CPUs to pin each rank's workers to\n"
+"      --shm-size MiB    each rank's shared-memory segment (default 2048)\n"
+"      --schedule subtree|paper, --channel, --brick, --compress,\n"
+"      --compress-level, --hash\n"
+"                        as vox voxelize (vox voxelize --help)\n"
+"      --subtrees N      subtrees per rank to aim for (default %d)\n"
+"      --stats           a line per rank: host, subtrees, bricks and bytes sent\n"
+"      --progress        the progress line, by subtrees done\n"
+"  -q, --quiet           no summary\n"
+"\n"
+"Under mpirun: --mca btl self,tcp for ranks on several hosts over TCP,\n"
+"--oversubscribe for more ranks than cores; as root, --allow-run-as-root\n"
+"(docs/mpi.md).\n", SUBTREES_PER_RANK);
+}
+
+/* Take vox_mpi's own options out of argv (the rest is vox voxelize's). */
+static int own_options(prep *p, int *argc, char **argv)
+{
+    int k = 0;
+    for (int i = 0; i < *argc; i++) {
+        if (!strcmp(argv[i], "--stats")) {
+            p->stats = 1;
+        } else if (!strcmp(argv[i], "--subtrees")) {
+            if (i + 1 >= *argc || cli_parse_uint(argv[i + 1], 1, 4096, &p->per_rank)) {
+                msg("bad --subtrees: want a whole number from 1 to 4096");
+                return CLI_EXIT_USAGE;
+            }
+            i++;
+        } else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+            usage(stdout);
+            return CLI_EXIT_OK;
+        } else {
+            argv[k++] = argv[i];
+        }
+    }
+    *argc = k;
+    return -1;
+}
+
+/* -1 when the job is ready to run; else the exit code of every rank. */
+static int prepare(prep *p, int argc, char **argv)
+{
+    p->per_rank = SUBTREES_PER_RANK;
+    p->fd = -1;
+    int rc = own_options(p, &argc, argv);
+    if (rc >= 0) return rc;
+    if (argc < 2 || strcmp(argv[1], "voxelize")) {
+        usage(stderr);
+        return CLI_EXIT_USAGE;
+    }
+    cli_job_defaults(&p->o);
+    p->o.workers = (uint32_t)affinity_cpus();
+    if ((rc = cli_job_parse(CLI_CMD_VOXELIZE, argc - 1, argv + 1, &p->o))) return rc;
+    if (p->o.mesh) {
+        msg("mesh jobs do not run on vox_mpi yet: use vox voxelize --mesh");
+        return CLI_EXIT_USAGE;
+    }
+    if (p->o.mode == CLI_MODE_DAEMON) {
+        msg("--daemon: vox_mpi runs its jobs itself, never on a voxd");
+        return CLI_EXIT_USAGE;
+    }
+    if (p->o.res > GRID_MAX_RES) {
+        msg("bad --res '%s': want a whole number from 1 to %u", p->o.res_arg, GRID_MAX_RES);
+        return CLI_EXIT_USAGE;
+    }
+    if ((rc = cli_job_source(&p->o, &p->src, &p->tape))) return rc;
+    pipeline_job pj = {
+        .kind = PIPELINE_IMPLICIT,
+        .implicit = {.tape = p->tape, .source = p->src.text, .source_len = p->src.len,
+                     .source_name = p->src.path},
+        .lo = {p->o.lo[0], p->o.lo[1], p->o.lo[2]},
+        .hi = {p->o.hi[0], p->o.hi[1], p->o.hi[2]},
+        .res = p->o.res, .schedule = p->o.schedule, .vod = p->o.vod,
+    };
+    char err[256];
+    if (pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||
+        vod_layout_make(&p->v, p->plan.grid.depth, &p->L, err, sizeof err)) {
+        msg("%s", p->plan.err.message[0] ? p->plan.err.message : err);
+        return CLI_EXIT_USAGE;
+    }
+    if ((rc = mpi_cut_make(p->tape, &p->plan.grid, &p->L, (size_t)p->per_rank * nranks,
+                           &p->cut))) {
+        msg("cutting the job into subtrees: %s", strerror(-rc));
+        return CLI_EXIT_FAILED;
+    }
+    p->fd = outfile_create(p->o.out, tmp_path, sizeof tmp_path);
+    if (p->fd < 0) {
+        tmp_path[0] = '\0';
+        msg("cannot create %s: %s", p->o.out, strerror(-p->fd));
+        return CLI_EXIT_FAILED;
+    }
+    return -1;
+}
+
+static void print_stats(const prep *p, const master *m, const rank_stats *all,
+                        const pipeline_report *r, double t_job, double t_write)
+{
+    const grid_spec *g = &r->grid;
+    printf("%s: %llu voxels on a %ux%ux%u grid in %.3f s on %d rank%s x %u worker%s "
+           "(%zu subtrees of %u^3 voxels), VOD written in %.3f s\n",
+           p->o.out, (unsigned long long)m->voxels, g->res[0], g->res[1], g->res[2],
+           t_job, nranks, nranks > 1 ? "s" : "", p->o.workers, p->o.workers == 1 ? "" : "s",
+           p->cut.n, 1u << p->cut.level, t_write);
+    printf("  %llu bytes, %llu bricks (%llu non-empty nodes), CRC %08x\n",
+           (unsigned long long)r->st.file_bytes, (unsigned long long)r->st.bricks,
+           (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
+    uint64_t total = 0;
+    for (int i = 0; i < nranks; i++) total += all[i].bytes;
+    printf("  sent to rank 0: %llu bytes (", (unsigned long long)total);
+    for (int i = 0; i < nranks; i++)
+        printf("%srank %d %llu", i ? ", " : "", i, (unsigned long long)all[i].bytes);
+    printf("); rank 0 sent %llu bytes of tasks and requests\n",
+           (unsigned long long)m->sent_bytes);
+    if (!p->stats) return;
+    printf("  rank  host              subtrees   nodes  bricks sent  brick bytes   bytes sent  busy s\n");
+    for (int i = 0; i < nranks; i++)
+        printf("  %4d  %-16.16s  %8llu  %6llu  %11llu  %11llu  %11llu  %6.3f\n", i,
+               all_hosts[i], (unsigned long long)all[i].subtrees,
+               (unsigned long long)all[i].nodes, (unsigned long long)all[i].bricks,
+               (unsigned long long)all[i].brick_bytes, (unsigned long long)all[i].bytes,
+               all[i].busy);
+}
+
+static void finish_file(prep *p, master *m, rank_stats *all, double t0)
+{
+    double t_job = clock_now() - t0;
+    char err[256] = "";
+    int rc = mpi_top_encode(m->top, &p->v, put_top, m);
+    if (rc) fail_master(m, "the levels above the subtrees", rc);
+    pipeline_report r = p->plan;
+    double t1 = clock_now();
+    rc = assemble(m, &p->L, &p->v, p->fd, &r.st, err, sizeof err);
+    if (!rc && fsync(p->fd)) rc = -errno;
+    if (close(p->fd) && !rc) rc = -errno;
+    if (!rc && rename(tmp_path, p->o.out)) rc = -errno;
+    if (rc) {
+        progress_done(&m->pr);
+        msg("cannot write %s: %s", p->o.out, err[0] ? err : strerror(-rc));
+        abort_job();
+    }
+    tmp_path[0] = '\0';
+    progress_done(&m->pr);
+    if (!p->o.quiet) print_stats(p, m, all, &r, t_job, clock_now() - t1);
+}
+
+static wire_job job_of(const prep *p)
+{
+    wire_job j = {.status = -1, .schedule = p->o.schedule, .workers = p->o.workers,
+                  .shm_mib = p->o.shm_mib, .grid = p->plan.grid, .vod = p->v,
+                  .node_level = p->cut.node_level,
+                  .tape_bytes = expr_tape_bytes(p->tape)};
+    j.vod.metadata = NULL;
+    if (p->o.cpus) snprintf(j.cpus, sizeof j.cpus, "%s", p->o.cpus);
+    return j;
+}
+
+static int run_master(int argc, char **argv)
+{
+    static prep p;
+    double t0 = clock_now();
+    int status = prepare(&p, argc, argv);
+    wire_job j = status >= 0 ? (wire_job){.status = status} : job_of(&p);
+    MPI_Bcast(&j, sizeof j, MPI_BYTE, 0, MPI_COMM_WORLD);
+    if (status >= 0) return status;
+    MPI_Bcast(p.tape, (int)j.tape_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGHUP, on_signal);
+    /* rank 0's own slave, its job right behind it (slave_thread) */
+    own_slave *own = calloc(1, sizeof *own);
+    master m = {.cut = &p.cut};
+    char spill_name[] = "/tmp/vox_mpi.XXXXXX";
+    m.spill = mkstemp(spill_name);
+    if (m.spill >= 0) unlink(spill_name);
+    m.rs = calloc((size_t)nranks, sizeof *m.rs);
+    mpi_book_init(&m.book);
+    if (!own || m.spill < 0 || !m.rs || mpi_top_new(&p.L, p.plan.grid.depth, p.cut.node_level, &m.top))
+        fail_master(&m, "starting", m.spill < 0 ? -errno : -ENOMEM);
+    progress_init(&m.pr, p.o.progress);
+    own->j = j;
+    own->s.sj = (mpi_subtree_job){.tape = p.tape, .grid = j.grid, .vod = j.vod,
+                                  .node_level = j.node_level, .schedule = j.schedule};
+    pthread_t th;
+    if (pthread_create(&th, NULL, slave_thread, own)) fail_master(&m, "starting", -EAGAIN);
+    serve(&m);
+    pthread_join(th, NULL);
+    rank_stats *all = calloc((size_t)nranks, sizeof *all);
+    MPI_Gather(&own->s.st, sizeof(rank_stats), MPI_BYTE, all, sizeof(rank_stats), MPI_BYTE,
+               0, MPI_COMM_WORLD);
+    finish_file(&p, &m, all, t0);
+    free(all);
+    close(m.spill);
+    mpi_top_free(m.top);
+    mpi_book_free(&m.book);
+    free(m.nodes);
+    free(m.rs);
+    free(own);
+    mpi_cut_free(&p.cut);
+    expr_tape_free(p.tape);
+    source_free(&p.src);
+    return 0;
+}
+
+/* ---------------------------------------------------------------- others */
+
+static int run_rank(void)
+{
+    wire_job j;
+    MPI_Bcast(&j, sizeof j, MPI_BYTE, 0, MPI_COMM_WORLD);
+    if (j.status >= 0) return j.status;
+    void *tape = aligned_alloc(64, (j.tape_bytes + 63) / 64 * 64);
+    if (!tape) {
+        msg("rank %d on %s: out of memory", me, hosts[0]);
+        MPI_Abort(MPI_COMM_WORLD, 1);
+    }
+    MPI_Bcast(tape, (int)j.tape_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
+    slave s = {.sj = {.tape = tape, .grid = j.grid, .vod = j.vod, .node_level = j.node_level,
+                      .schedule = j.schedule}};
+    if (expr_tape_validate(tape, j.tape_bytes) || grid_check(&j.grid)) {
+        static const char m[] = "the job's tape or grid came damaged";
+        send_up(&s, m, sizeof m, TAG_FAIL);
+        free(tape);
+        return 1;
+    }
+    int rc = slave_run(&s, &j);
+    free(tape);
+    if (rc) return 1;
+    MPI_Gather(&s.st, sizeof(rank_stats), MPI_BYTE, NULL, 0, MPI_BYTE, 0, MPI_COMM_WORLD);
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    int provided;
+    if (MPI_Init_thread(&argc, &argv, MPI_THREAD_MULTIPLE, &provided) != MPI_SUCCESS) {
+        msg("MPI_Init_thread failed");
+        return 1;
+    }
+    MPI_Comm_rank(MPI_COMM_WORLD, &me);
+    MPI_Comm_size(MPI_COMM_WORLD, &nranks);
+    MPI_Comm_dup(MPI_COMM_WORLD, &up);
+    MPI_Comm_dup(MPI_COMM_WORLD, &down);
+    int len = 0;
+    char name[MPI_MAX_PROCESSOR_NAME];
+    MPI_Get_processor_name(name, &len);
+    name[HOST_MAX - 1] = '\0'; /* a host name is shorter; cut, not refused */
+    memcpy(hosts[0], name, HOST_MAX);
+    if (me == 0 && !(all_hosts = calloc((size_t)nranks, HOST_MAX))) MPI_Abort(MPI_COMM_WORLD, 1);
+    MPI_Gather(hosts[0], HOST_MAX, MPI_CHAR, all_hosts, HOST_MAX, MPI_CHAR, 0, MPI_COMM_WORLD);
+    if (me == 0 && provided < MPI_THREAD_MULTIPLE) {
+        /* rank 0's own slave thread talks MPI beside its master */
+        msg("this MPI library gives thread level %d, vox_mpi needs MPI_THREAD_MULTIPLE",
+            provided);
+        MPI_Abort(MPI_COMM_WORLD, 1);
+    }
+    int rc = me == 0 ? run_master(argc, argv) : run_rank();
+    free(all_hosts);
+    MPI_Comm_free(&up);
+    MPI_Comm_free(&down);
+    MPI_Finalize();
+    return rc;
+}
