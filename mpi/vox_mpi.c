@@ -23,6 +23,8 @@
 #include <mpi.h>
 
 #include <errno.h>
+#include <fcntl.h>
+#include <libgen.h>
 #include <pthread.h>
 #include <sched.h>
 #include <signal.h>
@@ -82,7 +84,8 @@ static MPI_Comm up, down;
 static int me, nranks;
 static char hosts[1][HOST_MAX]; /* this rank's; rank 0 has all in all_hosts */
 static char (*all_hosts)[HOST_MAX];
-static char tmp_path[4096];     /* rank 0's unfinished file, for the signals */
+static char tmp_path[4096];     /* rank 0's unfinished file by name, for the
+                                   signals ("" when unnamed: O_TMPFILE) */
 
 static void msg(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void msg(const char *fmt, ...)
@@ -491,6 +494,46 @@ static int assemble(master *m, const vod_layout *L, const vod_params *v, int fd,
     return rc;
 }
 
+/* ---- rank 0's file ---- */
+
+/* The file is made unnamed (O_TMPFILE) in OUT's directory and given a name
+ * only once complete, so that no kill, not even mpirun's SIGKILL, leaves a
+ * partial file; where the filesystem has no O_TMPFILE (some network
+ * filesystems), it is made under a temporary name beside OUT
+ * (outfile_create), which the signal handler removes. */
+static int out_create(const char *path)
+{
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", path);
+    int fd = open(dirname(dir), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
+    if (fd >= 0) return fd;
+    if (errno != EOPNOTSUPP && errno != EISDIR && errno != EINVAL) return -errno;
+    return outfile_create(path, tmp_path, sizeof tmp_path);
+}
+
+/* The complete file under its name: an unnamed one linked in under a
+ * temporary name first (linkat cannot replace a file), then renamed. */
+static int out_commit(int fd, const char *path)
+{
+    if (fsync(fd)) return -errno;
+    char proc[64], tmp[sizeof tmp_path];
+    snprintf(proc, sizeof proc, "/proc/self/fd/%d", fd);
+    for (int i = 0; !tmp_path[0] && i < 100; i++) {
+        int k = snprintf(tmp, sizeof tmp, "%s.tmp.%d.%d", path, (int)getpid(), i);
+        if (k < 0 || (size_t)k >= sizeof tmp) return -ENAMETOOLONG;
+        if (!linkat(AT_FDCWD, proc, AT_FDCWD, tmp, AT_SYMLINK_FOLLOW)) {
+            memcpy(tmp_path, tmp, (size_t)k + 1);
+            break;
+        }
+        if (errno != EEXIST) return -errno;
+    }
+    if (!tmp_path[0]) return -EEXIST;
+    if (close(fd)) return -errno;
+    if (rename(tmp_path, path)) return -errno;
+    tmp_path[0] = '\0';
+    return 0;
+}
+
 /* ---- rank 0's preparation: options, source, plan, cut ---- */
 
 typedef struct {
@@ -612,7 +655,7 @@ static int prepare(prep *p, int argc, char **argv)
         msg("cutting the job into subtrees: %s", strerror(-rc));
         return CLI_EXIT_FAILED;
     }
-    p->fd = outfile_create(p->o.out, tmp_path, sizeof tmp_path);
+    p->fd = out_create(p->o.out);
     if (p->fd < 0) {
         tmp_path[0] = '\0';
         msg("cannot create %s: %s", p->o.out, strerror(-p->fd));
@@ -659,15 +702,12 @@ static void finish_file(prep *p, master *m, rank_stats *all, double t0)
     pipeline_report r = p->plan;
     double t1 = clock_now();
     rc = assemble(m, &p->L, &p->v, p->fd, &r.st, err, sizeof err);
-    if (!rc && fsync(p->fd)) rc = -errno;
-    if (close(p->fd) && !rc) rc = -errno;
-    if (!rc && rename(tmp_path, p->o.out)) rc = -errno;
+    if (!rc) rc = out_commit(p->fd, p->o.out);
     if (rc) {
         progress_done(&m->pr);
         msg("cannot write %s: %s", p->o.out, err[0] ? err : strerror(-rc));
         abort_job();
     }
-    tmp_path[0] = '\0';
     progress_done(&m->pr);
     if (!p->o.quiet) print_stats(p, m, all, &r, t_job, clock_now() - t1);
 }

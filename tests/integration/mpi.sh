@@ -1,0 +1,146 @@
+#!/bin/bash
+# vox_mpi (docs/mpi.md) under mpirun, its ranks talking over TCP as on
+# separate machines (--mca btl self,tcp; --oversubscribe: more ranks than
+# this machine's cores):
+#  - the file from R ranks x W workers is byte for byte vox voxelize -w W's,
+#    R = 1..4 x W = 0..2 on the sphere and Scene 1, and on the other shapes
+#    and scenes and a few options at some of them;
+#  - bad input on rank 0: its message, and every rank exits non-zero;
+#  - a rank that fails (its engine's limit): rank 0 names it and its host;
+#  - a rank killed mid-job: the job ends within seconds, mpirun names the
+#    rank and the host, and no file, temporary file, process or shared
+#    memory is left.
+# The release build (the runner's $VOX): Open MPI's own allocations are not
+# this project's to answer for under LeakSanitizer, and the sanitizers add
+# nothing to a comparison of outputs.
+VOXR=${VOX:-build/release/vox}
+. "$(dirname "$0")/lib.sh"
+VOXMPI=$(dirname "$VOXR")/vox_mpi
+export VOXD_SOCKET=/nonexistent/voxd.sock
+# CI runs as root, which mpirun refuses unless told
+[ "$(id -u)" -eq 0 ] && export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
+MPIRUN=(mpirun --oversubscribe --mca btl self,tcp)
+
+if ! command -v mpirun >/dev/null || [ ! -x "$VOXMPI" ]; then
+    fail "mpi: mpirun and $VOXMPI" "make deps installs openmpi-bin; make builds vox_mpi"
+    exit 0
+fi
+
+# same NAME R W ARGS...: vox_mpi on R ranks x W workers writes vox voxelize -w W's bytes
+same() {
+    local name=$1 r=$2 w=$3; shift 3
+    local ref="$TMP/ref-$name-$w.vod"
+    [ -f "$ref" ] || "$VOXR" voxelize --embedded -q -w "$w" "$@" -o "$ref" >"$TMP/ref.log" 2>&1
+    if ! timeout 60 "${MPIRUN[@]}" -np "$r" "$VOXMPI" voxelize -q -w "$w" "$@" \
+        -o "$TMP/m.vod" >"$TMP/m.log" 2>&1; then
+        fail "mpi: $name on $r ranks x $w workers ran" "$(tail -5 "$TMP/m.log")"
+    elif cmp -s "$ref" "$TMP/m.vod"; then
+        pass "mpi: $name on $r ranks x $w workers: vox voxelize's bytes"
+    else
+        fail "mpi: $name on $r ranks x $w workers: vox voxelize's bytes" "$(cmp "$ref" "$TMP/m.vod")"
+    fi
+    rm -f "$TMP/m.vod"
+}
+
+for r in 1 2 3 4; do
+    for w in 0 1 2; do
+        same sphere $r $w -f examples/sphere.vx -r 96
+        same scene1 $r $w -f examples/scene1.vx -r 128
+    done
+done
+i=0
+for s in torus blend2 union64 scene2 scene3; do
+    same "$s" $((2 + i % 3)) $((i % 3)) -f "examples/$s.vx" -r 100
+    i=$((i + 1))
+done
+same "scene3 at 256" 4 1 -f examples/scene3.vx -r 256
+same "scene2, occupancy, bricks of 8" 3 1 -f examples/scene2.vx -r 120 --channel occupancy --brick 8
+same "torus, RUNL, xx32, a flat domain" 2 2 -f examples/torus.vx -r 90 --compress runl --hash xx32 -d -1,1,-1,1,-0.4,0.4
+same "sphere at 8^3 (one brick)" 3 1 -e 'x^2+y^2+z^2-0.5' -r 8
+
+# The summary says what each rank sent.
+timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize -w 1 --stats -f examples/sphere.vx -r 96 \
+    -o "$TMP/s.vod" >"$TMP/s.log" 2>&1
+if grep -Eq '^  sent to rank 0: [0-9]+ bytes \(rank 0 [0-9]+, rank 1 [1-9][0-9]*\)' "$TMP/s.log" &&
+   [ "$(grep -Ec '^ +[01]  [^ ]+ +[0-9]+' "$TMP/s.log")" -eq 2 ]; then
+    pass "mpi: the summary and --stats give the bytes each rank sent"
+else
+    fail "mpi: the summary and --stats give the bytes each rank sent" "$(cat "$TMP/s.log")"
+fi
+
+# ranks_exit R CODE ARGS...: vox_mpi's every rank exits with CODE
+ranks_exit() {
+    local r=$1 code=$2; shift 2
+    timeout 60 "${MPIRUN[@]}" -np "$r" sh -c '"$0" "$@"; echo "rank $OMPI_COMM_WORLD_RANK exit $?"' \
+        "$VOXMPI" "$@" >"$TMP/b.log" 2>&1
+    [ "$(grep -c "^rank [0-9] exit $code\$" "$TMP/b.log")" -eq "$r" ]
+}
+if ranks_exit 3 2 voxelize -e 'sqrt(x' -o "$TMP/bad.vod" &&
+   grep -q "expected ')'" "$TMP/b.log" && [ ! -e "$TMP/bad.vod" ]; then
+    pass "mpi: a bad expression on rank 0: its message, every rank exits 2, no file"
+else
+    fail "mpi: a bad expression on rank 0: its message, every rank exits 2, no file" "$(head -8 "$TMP/b.log")"
+fi
+if ranks_exit 2 2 voxelize -f "$TMP/missing.vx" -o "$TMP/bad.vod" && grep -q 'missing.vx' "$TMP/b.log"; then
+    pass "mpi: a missing file on rank 0: every rank exits 2"
+else
+    fail "mpi: a missing file on rank 0: every rank exits 2" "$(head -8 "$TMP/b.log")"
+fi
+refuse "mpi: mesh jobs are refused, not run wrong" 2 'mesh jobs do not run on vox_mpi' \
+    timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize --mesh "$TMP/x.obj" -o "$TMP/bad.vod"
+refuse "mpi: an output directory that does not exist" 1 'cannot create' \
+    timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize -e x -o "$TMP/no/such/dir.vod"
+refuse "mpi: --help tells what vox_mpi runs" 0 'vox_mpi voxelize' \
+    timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" --help
+
+# A rank's own failure: rank 0 names the rank and the host, nothing is left.
+host=$(hostname)
+refuse "mpi: a rank's failure is told by rank 0 with the rank and host" 1 \
+    "rank [0-9] on $host failed: .*raise the shared memory size" \
+    timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize -w 1 --shm-size 16 --subtrees 1 \
+    -f examples/scene1.vx -r 2048 -o "$TMP/lim.vod"
+left=$(ls "$TMP" | grep -c '^lim\.vod')
+[ "$left" -eq 0 ] && pass "mpi: no file after a rank's failure" ||
+    fail "mpi: no file after a rank's failure" "$(ls "$TMP")"
+
+# A rank killed mid-job.
+shm_before=$(ls /dev/shm | sort)
+timeout 120 "${MPIRUN[@]}" -np 3 "$VOXMPI" voxelize -w 1 -f examples/scene1.vx -r 1024 \
+    -o "$TMP/kill.vod" >"$TMP/k.log" 2>&1 &
+job=$!
+victim=""
+for _ in $(seq 200); do  # rank 1 with its worker forked: the job is under way
+    for p in $(pgrep -f "$TMP/kill.vod"); do
+        rank=$(tr '\0' '\n' <"/proc/$p/environ" 2>/dev/null | sed -n 's/^OMPI_COMM_WORLD_RANK=//p')
+        [ "$rank" = 1 ] && [ -n "$(pgrep -P "$p")" ] && victim=$p
+    done
+    [ -n "$victim" ] && break
+    sleep 0.05
+done
+sleep 0.5
+t0=$(date +%s.%N)
+[ -n "$victim" ] && kill -9 "$victim"
+wait $job
+rc=$?
+secs=$(echo "$(date +%s.%N) - $t0" | bc)
+sleep 1
+if [ -n "$victim" ] && [ "$rc" -ne 0 ] && [ "$(echo "$secs < 10" | bc)" -eq 1 ]; then
+    pass "mpi: a rank killed mid-job ends the job (in $secs s)"
+else
+    fail "mpi: a rank killed mid-job ends the job" "victim '${victim}', exit $rc after $secs s: $(tail -5 "$TMP/k.log")"
+fi
+if grep -Eq "rank 1 .*on node $host" "$TMP/k.log"; then
+    pass "mpi: the killed rank is named with its host"
+else
+    fail "mpi: the killed rank is named with its host" "$(cat "$TMP/k.log")"
+fi
+[ -z "$(ls "$TMP" | grep '^kill\.vod')" ] && pass "mpi: no file or temporary file after a killed rank" ||
+    fail "mpi: no file or temporary file after a killed rank" "$(ls "$TMP")"
+[ -z "$(pgrep -f "$TMP/kill.vod")" ] && pass "mpi: no process left after a killed rank" ||
+    fail "mpi: no process left after a killed rank" "$(pgrep -af "$TMP/kill.vod")"
+# (what another program on the machine has open for a moment is not ours:
+# only what is still there two seconds later counts)
+new=$(comm -13 <(echo "$shm_before") <(ls /dev/shm | sort))
+[ -n "$new" ] && sleep 2 && new=$(comm -12 <(echo "$new") <(ls /dev/shm | sort))
+[ -z "$new" ] && pass "mpi: no shared memory left after a killed rank" ||
+    fail "mpi: no shared memory left after a killed rank" "$new"
