@@ -8,6 +8,8 @@
 #   make bench      benchmarks (release build): voxbench (embedded engine),
 #                   voxdbench (through a voxd it starts) and the whole vox
 #                   voxelize command (scripts/bench-whole.sh), tables in bench/results/
+#   make bench-mpi  vox_mpi on 1, 2 and 4 ranks over TCP against vox voxelize
+#                   (scripts/bench-mpi.sh; make bench runs it too)
 #   make bench-mesh the mesh loaders on the Stanford dragon and bunny (npm models)
 #                   and the whole vox voxelize --mesh command (scripts/bench-mesh-whole.sh)
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
@@ -94,7 +96,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench bench-compare bench-mesh fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
@@ -196,6 +198,10 @@ demo: deps all
 
 bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh
 	@scripts/bench.sh $(BUILD)
+
+# vox_mpi against vox voxelize, the whole command (docs/mpi.md).
+bench-mpi: all $(BUILD)/voxwhole
+	@scripts/bench-mpi.sh $(BUILD)
 
 # The mesh loaders on the Stanford dragon and bunny ($VOXD_MESH_MODELS, or npm),
 # then the whole vox voxelize --mesh command on them and on icospheres.

@@ -3,8 +3,10 @@
 # BENCH_RES (default 512) and BENCH_WORKERS (default: cores) adjust the runs;
 # the whole-command tables (scripts/bench-whole.sh) take BENCH_RES,
 # BENCH_REPEATS, BENCH_BIG and BENCH_QUICK; the mesh tables
-# (scripts/bench-mesh.sh) the last three.  Exits 1 when a whole-command
-# job or a mesh job failed (its row says why), after saving the tables.
+# (scripts/bench-mesh.sh) the last three; vox_mpi against vox voxelize
+# (scripts/bench-mpi.sh) BENCH_MPI_RES, BENCH_REPEATS and BENCH_QUICK.
+# Exits 1 when a whole-command, mesh or vox_mpi job failed (its row says
+# why), after saving the tables.
 set -euo pipefail
 build=${1:-build/release}
 res=${BENCH_RES:-512}
@@ -25,8 +27,10 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     echo
     "$(dirname "$0")/bench-mesh.sh" "$build" || mesh_rc=$? # the tables after it still run
     echo
-    "$(dirname "$0")/bench-whole.sh" "$build"
-    exit "${mesh_rc:-0}"
+    "$(dirname "$0")/bench-whole.sh" "$build" || whole_rc=$?
+    echo
+    "$(dirname "$0")/bench-mpi.sh" "$build" || mpi_rc=$?
+    exit "${mesh_rc:-${whole_rc:-${mpi_rc:-0}}}"
 } | tee "$out" || rc=$?
 echo "bench: tables saved in $out"
 exit "${rc:-0}"
