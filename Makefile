@@ -219,7 +219,7 @@ clean:
 -include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d
 
 # ---------------------------------------------------------------- install
-# make install [PREFIX=/usr/local] [DESTDIR=]: vox in PREFIX/bin; voxd, a
+# make install [PREFIX=/usr/local] [DESTDIR=]: vox and vox_mpi in PREFIX/bin; voxd, a
 # system daemon, in PREFIX/sbin; the manual pages vox(1) and voxd(8); the
 # systemd unit in PREFIX/lib/systemd/system with its paths set to the
 # install's; the documentation in PREFIX/share/doc/voxd; and the commented
@@ -243,6 +243,7 @@ install: all
 	  "$(DESTDIR)$(MANDIR)/man8" "$(DESTDIR)$(UNITDIR)" "$(DESTDIR)$(DOCDIR)/docs" \
 	  "$(DESTDIR)$(SYSCONFDIR)/voxd"
 	$(INSTALL) -m 755 $(BUILD)/vox "$(DESTDIR)$(BINDIR)/vox"
+	$(INSTALL) -m 755 $(BUILD)/vox_mpi "$(DESTDIR)$(BINDIR)/vox_mpi"
 	$(INSTALL) -m 755 $(BUILD)/voxd "$(DESTDIR)$(SBINDIR)/voxd"
 	$(INSTALL) -m 644 docs/man/vox.1 "$(DESTDIR)$(MANDIR)/man1/vox.1"
 	$(INSTALL) -m 644 docs/man/voxd.8 "$(DESTDIR)$(MANDIR)/man8/voxd.8"
@@ -263,7 +264,7 @@ install: all
 	  $(INSTALL) -m 644 config/voxd.conf "$(CONF_DEST)"; fi
 
 uninstall:
-	rm -f "$(DESTDIR)$(BINDIR)/vox" "$(DESTDIR)$(SBINDIR)/voxd" \
+	rm -f "$(DESTDIR)$(BINDIR)/vox" "$(DESTDIR)$(BINDIR)/vox_mpi" "$(DESTDIR)$(SBINDIR)/voxd" \
 	  "$(DESTDIR)$(MANDIR)/man1/vox.1" "$(DESTDIR)$(MANDIR)/man8/voxd.8" \
 	  "$(DESTDIR)$(UNITDIR)/voxd.service" "$(DESTDIR)$(DOCDIR)/README.md" \
 	  "$(DESTDIR)$(PREFIX)/lib/libvox.a" "$(DESTDIR)$(PREFIX)/include/vox.h" \

@@ -75,6 +75,7 @@ typedef struct {
 
 /* What a rank did, gathered by rank 0 at the end. */
 typedef struct {
+    uint32_t workers, pad;       /* this rank's */
     uint64_t bytes, messages;    /* sent to rank 0 */
     uint64_t subtrees, nodes, bricks, brick_bytes;
     double busy;                 /* seconds voxelizing and encoding */
@@ -82,6 +83,9 @@ typedef struct {
 
 static MPI_Comm up, down;
 static int me, nranks;
+static int local_rank, local_size; /* among the ranks on this host */
+
+#define WORKERS_AUTO UINT32_MAX /* -w not given: each rank decides */
 static char hosts[1][HOST_MAX]; /* this rank's; rank 0 has all in all_hosts */
 static char (*all_hosts)[HOST_MAX];
 static char tmp_path[4096];     /* rank 0's unfinished file by name, for the
@@ -207,12 +211,36 @@ static int slave_loop(slave *s)
     }
 }
 
-static int affinity_cpus(void)
+/* The CPUs this rank may run on, in order; how many. */
+static int rank_cpus(int *cpus, int cap)
 {
     cpu_set_t set;
-    if (sched_getaffinity(0, sizeof set, &set)) return 1;
-    int n = CPU_COUNT(&set);
-    return n > 0 ? n : 1;
+    int n = 0;
+    if (sched_getaffinity(0, sizeof set, &set)) return 0;
+    for (int c = 0; c < CPU_SETSIZE && n < cap; c++)
+        if (CPU_ISSET(c, &set)) cpus[n++] = c;
+    return n;
+}
+
+/* Where the workers go without --cpus: the rank's CPUs, the list turned
+ * by the workers of the ranks before it on this host, so that ranks that
+ * mpirun did not bind (each sees every CPU) do not pin their workers to
+ * the same ones; a bound rank's own CPUs are unchanged by it.  And how
+ * many without -w: the rank's CPUs, shared with the host's other ranks
+ * when they are not bound. */
+static int place_workers(const wire_job *j, uint32_t *workers, int *cpus)
+{
+    int all[ENGINE_MAX_WORKERS], n = rank_cpus(all, ENGINE_MAX_WORKERS);
+    long online = sysconf(_SC_NPROCESSORS_ONLN);
+    uint32_t w = j->workers;
+    if (w == WORKERS_AUTO) {
+        int share = n >= online && local_size > 1 ? n / local_size : n;
+        w = share > 0 ? (uint32_t)share : 1;
+    }
+    *workers = w;
+    if (j->cpus[0]) return cli_parse_cpus(j->cpus, cpus, ENGINE_MAX_WORKERS);
+    for (int i = 0; i < n; i++) cpus[i] = all[(i + (size_t)local_rank * w) % (size_t)n];
+    return n;
 }
 
 /* The engine of this rank (none with -w 0), then the loop; called in the
@@ -220,10 +248,9 @@ static int affinity_cpus(void)
 static int slave_run(slave *s, const wire_job *j)
 {
     engine *e = NULL;
-    if (j->workers) {
-        int cpus[ENGINE_MAX_WORKERS], ncpus = 0;
-        if (j->cpus[0]) ncpus = cli_parse_cpus(j->cpus, cpus, ENGINE_MAX_WORKERS);
-        engine_opts eo = {.workers = (int)j->workers, .cpus = ncpus > 0 ? cpus : NULL,
+    int cpus[ENGINE_MAX_WORKERS], ncpus = place_workers(j, &s->st.workers, cpus);
+    if (s->st.workers) {
+        engine_opts eo = {.workers = (int)s->st.workers, .cpus = ncpus > 0 ? cpus : NULL,
                           .ncpus = ncpus > 0 ? ncpus : 0,
                           .shm_bytes = (size_t)j->shm_mib << 20};
         char err[256] = "", m[400];
@@ -534,6 +561,23 @@ static int out_commit(int fd, const char *path)
     return 0;
 }
 
+/* The distinct bricks' bytes until the file is assembled: an unnamed file
+ * beside OUT (where the file's room is), else in $TMPDIR, unlinked at
+ * once; its pages are the kernel's to keep or write back, so rank 0's
+ * memory does not grow with the file. */
+static int spill_open(const char *path)
+{
+    char dir[4096];
+    snprintf(dir, sizeof dir, "%s", path);
+    int fd = open(dirname(dir), O_TMPFILE | O_RDWR | O_CLOEXEC, 0600);
+    if (fd >= 0) return fd;
+    const char *t = getenv("TMPDIR");
+    snprintf(dir, sizeof dir, "%s/vox_mpi.XXXXXX", t && t[0] ? t : "/tmp");
+    fd = mkstemp(dir);
+    if (fd >= 0) unlink(dir);
+    return fd;
+}
+
 /* ---- rank 0's preparation: options, source, plan, cut ---- */
 
 typedef struct {
@@ -621,7 +665,7 @@ static int prepare(prep *p, int argc, char **argv)
         return CLI_EXIT_USAGE;
     }
     cli_job_defaults(&p->o);
-    p->o.workers = (uint32_t)affinity_cpus();
+    p->o.workers = WORKERS_AUTO;
     if ((rc = cli_job_parse(CLI_CMD_VOXELIZE, argc - 1, argv + 1, &p->o))) return rc;
     if (p->o.mesh) {
         msg("mesh jobs do not run on vox_mpi yet: use vox voxelize --mesh");
@@ -668,11 +712,23 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
                         const pipeline_report *r, double t_job, double t_write)
 {
     const grid_spec *g = &r->grid;
-    printf("%s: %llu voxels on a %ux%ux%u grid in %.3f s on %d rank%s x %u worker%s "
+    uint64_t workers = 0;
+    int same = 1;
+    for (int i = 0; i < nranks; i++) {
+        workers += all[i].workers;
+        same &= all[i].workers == all[0].workers;
+    }
+    char how[64];
+    if (same)
+        snprintf(how, sizeof how, "%d rank%s x %u worker%s", nranks, nranks > 1 ? "s" : "",
+                 all[0].workers, all[0].workers == 1 ? "" : "s");
+    else
+        snprintf(how, sizeof how, "%d ranks, %llu workers in all", nranks,
+                 (unsigned long long)workers);
+    printf("%s: %llu voxels on a %ux%ux%u grid in %.3f s on %s "
            "(%zu subtrees of %u^3 voxels), VOD written in %.3f s\n",
            p->o.out, (unsigned long long)m->voxels, g->res[0], g->res[1], g->res[2],
-           t_job, nranks, nranks > 1 ? "s" : "", p->o.workers, p->o.workers == 1 ? "" : "s",
-           p->cut.n, 1u << p->cut.level, t_write);
+           t_job, how, p->cut.n, 1u << p->cut.level, t_write);
     printf("  %llu bytes, %llu bricks (%llu non-empty nodes), CRC %08x\n",
            (unsigned long long)r->st.file_bytes, (unsigned long long)r->st.bricks,
            (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
@@ -684,13 +740,13 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
     printf("); rank 0 sent %llu bytes of tasks and requests\n",
            (unsigned long long)m->sent_bytes);
     if (!p->stats) return;
-    printf("  rank  host              subtrees   nodes  bricks sent  brick bytes   bytes sent  busy s\n");
+    printf("  rank  host              subtrees   nodes  bricks sent  brick bytes   bytes sent  busy s  workers\n");
     for (int i = 0; i < nranks; i++)
-        printf("  %4d  %-16.16s  %8llu  %6llu  %11llu  %11llu  %11llu  %6.3f\n", i,
+        printf("  %4d  %-16.16s  %8llu  %6llu  %11llu  %11llu  %11llu  %6.3f  %7u\n", i,
                all_hosts[i], (unsigned long long)all[i].subtrees,
                (unsigned long long)all[i].nodes, (unsigned long long)all[i].bricks,
                (unsigned long long)all[i].brick_bytes, (unsigned long long)all[i].bytes,
-               all[i].busy);
+               all[i].busy, all[i].workers);
 }
 
 static void finish_file(prep *p, master *m, rank_stats *all, double t0)
@@ -738,9 +794,7 @@ static int run_master(int argc, char **argv)
     /* rank 0's own slave, its job right behind it (slave_thread) */
     own_slave *own = calloc(1, sizeof *own);
     master m = {.cut = &p.cut};
-    char spill_name[] = "/tmp/vox_mpi.XXXXXX";
-    m.spill = mkstemp(spill_name);
-    if (m.spill >= 0) unlink(spill_name);
+    m.spill = spill_open(p.o.out);
     m.rs = calloc((size_t)nranks, sizeof *m.rs);
     mpi_book_init(&m.book);
     if (!own || m.spill < 0 || !m.rs || mpi_top_new(&p.L, p.plan.grid.depth, p.cut.node_level, &m.top))
@@ -816,6 +870,11 @@ int main(int argc, char **argv)
     memcpy(hosts[0], name, HOST_MAX);
     if (me == 0 && !(all_hosts = calloc((size_t)nranks, HOST_MAX))) MPI_Abort(MPI_COMM_WORLD, 1);
     MPI_Gather(hosts[0], HOST_MAX, MPI_CHAR, all_hosts, HOST_MAX, MPI_CHAR, 0, MPI_COMM_WORLD);
+    MPI_Comm host;
+    MPI_Comm_split_type(MPI_COMM_WORLD, MPI_COMM_TYPE_SHARED, 0, MPI_INFO_NULL, &host);
+    MPI_Comm_rank(host, &local_rank);
+    MPI_Comm_size(host, &local_size);
+    MPI_Comm_free(&host);
     if (me == 0 && provided < MPI_THREAD_MULTIPLE) {
         /* rank 0's own slave thread talks MPI beside its master */
         msg("this MPI library gives thread level %d, vox_mpi needs MPI_THREAD_MULTIPLE",

@@ -3,7 +3,9 @@
 # command as a user times it (bench/voxwhole), on this machine with the
 # ranks talking over TCP (mpirun --mca btl self,tcp --oversubscribe).  Per
 # job: vox voxelize -w 2 and vox_mpi on 1 rank x 2 workers and 2 ranks x 1
-# worker (the same 2 workers in all), then vox voxelize -w 4 and vox_mpi on
+# worker (the same 2 workers in all; --bind-to none: vox_mpi places each
+# rank's workers on CPUs the host's other ranks do not use, as vox places
+# its own), then vox voxelize -w 4 and vox_mpi on
 # 1 x 4, 2 x 2 and 4 x 1 (4 workers, more than the cores here), each the
 # median of REPEATS runs, the runs of one repeat one after the other so
 # that a change in the machine's load falls on all of them; the time
@@ -44,7 +46,7 @@ run() {
         "$whole" -o "$tmp/m" -- "$vox" "${args[@]}" --embedded -o "$tmp/$3.vod" \
             >"$tmp/$3.out" 2>"$tmp/$3.err" || { echo ERROR; return; }
     else
-        "$whole" -o "$tmp/m" -- mpirun --oversubscribe --mca btl self,tcp -np "$4" \
+        "$whole" -o "$tmp/m" -- mpirun --oversubscribe --bind-to none --mca btl self,tcp -np "$4" \
             "$mpi" "${args[@]}" --stats -o "$tmp/$3.vod" >"$tmp/$3.out" 2>"$tmp/$3.err" ||
             { echo ERROR; return; }
         local ref=$tmp/vox2.vod # every vox_mpi file is vox -w 2's

@@ -199,7 +199,7 @@ fi
 R=$TMP/root
 mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$ROOT" "$@"; }
 check "make install DESTDIR PREFIX=/usr" mk install DESTDIR="$R" PREFIX=/usr
-installed="usr/bin/vox usr/sbin/voxd usr/share/man/man1/vox.1 usr/share/man/man8/voxd.8
+installed="usr/bin/vox usr/bin/vox_mpi usr/sbin/voxd usr/share/man/man1/vox.1 usr/share/man/man8/voxd.8
 usr/lib/systemd/system/voxd.service etc/voxd/voxd.conf usr/share/doc/voxd/README.md
 usr/share/doc/voxd/docs/vod-format.md usr/lib/libvox.a usr/include/vox.h usr/include/vox_limits.h
 usr/lib/pkgconfig/libvox.pc"

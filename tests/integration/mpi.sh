@@ -10,6 +10,7 @@
 #  - a rank killed mid-job: the job ends within seconds, mpirun names the
 #    rank and the host, and no file, temporary file, process or shared
 #    memory is left.
+#  - make bench-mpi's table in its quick mode, so that it cannot rot.
 # The release build (the runner's $VOX): Open MPI's own allocations are not
 # this project's to answer for under LeakSanitizer, and the sanitizers add
 # nothing to a comparison of outputs.
@@ -144,3 +145,15 @@ new=$(comm -13 <(echo "$shm_before") <(ls /dev/shm | sort))
 [ -n "$new" ] && sleep 2 && new=$(comm -12 <(echo "$new") <(ls /dev/shm | sort))
 [ -z "$new" ] && pass "mpi: no shared memory left after a killed rank" ||
     fail "mpi: no shared memory left after a killed rank" "$new"
+
+# make bench-mpi's table (scripts/bench-mpi.sh), quick: every command has a
+# time and every vox_mpi row its bytes per rank (no timing is asserted)
+mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$ROOT" "$@"; }
+if mk V=release "$(dirname "$VOXR")/voxwhole" >"$TMP/mk.log" 2>&1 &&
+   BENCH_QUICK=1 scripts/bench-mpi.sh "$(dirname "$VOXR")" >"$TMP/bench.md" 2>"$TMP/bench.err" &&
+   [ "$(grep -cE '^\| vox voxelize -w [24] \| [24] \| [0-9]+\.[0-9]{3} \| 1 \|' "$TMP/bench.md")" -eq 4 ] &&
+   [ "$(grep -cE '^\| vox_mpi [124] x [124] \| [24] \| [0-9]+\.[0-9]{3} \| [0-9.]+ \| [0-9]+ of [0-9]+\^3 \| [0-9]+ \(rank 0 [0-9]+' "$TMP/bench.md")" -eq 10 ]; then
+    pass "mpi: make bench-mpi's table, quick"
+else
+    fail "mpi: make bench-mpi's table, quick" "$(tail -5 "$TMP/mk.log" "$TMP/bench.err" "$TMP/bench.md")"
+fi
