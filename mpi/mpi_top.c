@@ -71,7 +71,7 @@ int mpi_top_add(mpi_top *t, grid_octant o, const mpi_pair *pairs, size_t n)
     for (size_t i = 0; i < n; i++)
         if (pairs[i].idx >= voxels) return -EINVAL;
     t->subs[t->nsubs++] = (top_sub){o, t->npairs, n};
-    memcpy(t->pairs + t->npairs, pairs, n * sizeof *pairs);
+    if (n) memcpy(t->pairs + t->npairs, pairs, n * sizeof *pairs);
     t->npairs += n;
     return 0;
 }

@@ -155,8 +155,9 @@ static int on_bricks(void *ud, const mpi_bricks *b)
     if (!m) return -ENOMEM;
     wire_nodes h = {.voxels = b->voxels, .n = (uint32_t)b->n, .npairs = (uint32_t)b->npairs};
     memcpy(m, &h, sizeof h);
-    memcpy(m + sizeof h, b->recs, b->n * sizeof(mpi_rec));
-    memcpy(m + sizeof h + b->n * sizeof(mpi_rec), b->pairs, b->npairs * sizeof(mpi_pair));
+    if (b->n) memcpy(m + sizeof h, b->recs, b->n * sizeof(mpi_rec));
+    if (b->npairs)
+        memcpy(m + sizeof h + b->n * sizeof(mpi_rec), b->pairs, b->npairs * sizeof(mpi_pair));
     send_up(s, m, n, TAG_NODES);
     free(m);
     s->st.nodes += b->n;

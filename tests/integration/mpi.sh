@@ -59,6 +59,28 @@ same "scene2, occupancy, bricks of 8" 3 1 -f examples/scene2.vx -r 120 --channel
 same "torus, RUNL, xx32, a flat domain" 2 2 -f examples/torus.vx -r 90 --compress runl --hash xx32 -d -1,1,-1,1,-0.4,0.4
 same "sphere at 8^3 (one brick)" 3 1 -e 'x^2+y^2+z^2-0.5' -r 8
 
+# Under AddressSanitizer and UBSan (the runner's $VOX_ASAN build): no error
+# in any rank, the same bytes.  Leaks are not looked for here: Open MPI's
+# plugins keep allocations past MPI_Finalize and are unloaded before
+# LeakSanitizer looks, so it cannot even name them; test_mpi_part runs
+# vox_mpi's own parts under LeakSanitizer.
+ASANMPI=$(dirname "${VOX_ASAN:-build/asan/vox}")/vox_mpi
+for w in 0 2; do
+    if ! [ -x "$ASANMPI" ]; then fail "mpi: the sanitizers' build $ASANMPI is there"; break; fi
+    ASAN_OPTIONS=detect_leaks=0:abort_on_error=0 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+        timeout 120 "${MPIRUN[@]}" -x ASAN_OPTIONS -x UBSAN_OPTIONS -np 3 "$ASANMPI" voxelize -q \
+        -w $w -f examples/scene1.vx -r 128 -o "$TMP/asan.vod" >"$TMP/asan.log" 2>&1
+    rc=$?
+    if [ "$rc" -eq 0 ] && ! grep -qE 'ERROR: AddressSanitizer|runtime error' "$TMP/asan.log" &&
+       cmp -s "$TMP/ref-scene1-$w.vod" "$TMP/asan.vod"; then
+        pass "mpi: 3 ranks x $w workers under the sanitizers: no error, the same bytes"
+    else
+        fail "mpi: 3 ranks x $w workers under the sanitizers: no error, the same bytes" \
+            "exit $rc: $(grep -m3 -E 'ERROR|runtime error' "$TMP/asan.log")"
+    fi
+    rm -f "$TMP/asan.vod"
+done
+
 # The summary says what each rank sent.
 timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize -w 1 --stats -f examples/sphere.vx -r 96 \
     -o "$TMP/s.vod" >"$TMP/s.log" 2>&1
