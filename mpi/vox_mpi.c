@@ -378,6 +378,9 @@ static int take_nodes(master *m, int r, const uint8_t *buf, int n)
         return -EPROTO;
     const mpi_rec *recs = (const mpi_rec *)(buf + sizeof h);
     rank_state *rs = &m->rs[r];
+    if (rs->task < 0 || rs->want) return -EPROTO; /* no subtree, or one unfinished */
+    for (uint32_t i = 0; i < h.n; i++)
+        if (recs[i].level > m->cut->node_level) return -EPROTO; /* the top is rank 0's */
     uint32_t *want = malloc((h.n ? h.n : 1) * sizeof *want);
     rs->want = malloc((h.n ? h.n : 1) * sizeof *rs->want);
     if (!want || !rs->want) return -ENOMEM;
@@ -453,6 +456,8 @@ static void serve(master *m)
             m->rs[r].nwant = 0;
             st.MPI_TAG = TAG_REQ;
         }
+        else if (st.MPI_TAG != TAG_REQ)
+            rc = -EPROTO;
         free(buf);
         if (rc) {
             char what[128];

@@ -7,7 +7,9 @@
 # rank's workers on CPUs the host's other ranks do not use, as vox places
 # its own), then vox voxelize -w 4 and vox_mpi on
 # 1 x 4, 2 x 2 and 4 x 1 (4 workers, more than the cores here), each the
-# median of REPEATS runs, the runs of one repeat one after the other so
+# median of REPEATS runs (and its largest process's peak resident memory,
+# voxwhole's maxrss: for vox_mpi, rank 0 or another rank), the runs of one
+# repeat one after the other so
 # that a change in the machine's load falls on all of them; the time
 # against vox voxelize with the same workers (the issue's target: 2 x 1 at
 # most 1.3 x vox -w 2 at 2048^3), and what the ranks sent: bytes per rank,
@@ -53,9 +55,11 @@ run() {
         [ -f "$ref" ] && ! cmp -s "$ref" "$tmp/$3.vod" && { echo DIFFERENT; return; }
     fi
     sed -n 's/^wall_s=\([0-9.]*\).*/\1/p' "$tmp/m"
+    sed -n 's/^wall_s=[0-9.]* maxrss_kib=\([0-9]*\).*/\1/p' "$tmp/m" >"$tmp/$3.rss"
 }
 
 fmt() { awk -v x="$1" 'BEGIN { printf "%.3f", x }'; }
+mib() { awk -v k="$1" 'BEGIN { if (k != "") printf "%.0f", k / 1024 }'; }
 ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (b > 0) printf "%.2f", a / b; else print "-" }'; }
 
 job() {
@@ -68,7 +72,7 @@ job() {
             echo "bench-mpi: $shape $res^3 $name" >&2
             t=$(run "$shape" "$res" "$name" "$r" "$w")
             case $t in ERROR|DIFFERENT|'') echo "$name=-1" >>"$tmp/runs"; echo "$name $t" >>"$tmp/bad"; failed=1 ;;
-            *) echo "$name=$t" >>"$tmp/runs" ;; esac
+            *) echo "$name=$t rss.$name=$(cat "$tmp/$name.rss")" >>"$tmp/runs" ;; esac
         done
     done
     medians <"$tmp/runs" >"$tmp/med"
@@ -76,26 +80,26 @@ job() {
     echo
     echo "### $shape at $res^3 ($reps run$([ "$reps" -gt 1 ] && echo s), median; 1-minute load $(cut -d' ' -f1 /proc/loadavg) after)"
     echo
-    echo "| command | workers in all | whole command (s) | against vox voxelize | subtrees | sent to rank 0 (bytes, per rank) | mean subtree (s, bytes) |"
-    echo "|---|---|---|---|---|---|---|"
+    echo "| command | workers in all | whole command (s) | against vox voxelize | largest process (MiB) | subtrees | sent to rank 0 (bytes, per rank) | mean subtree (s, bytes) |"
+    echo "|---|---|---|---|---|---|---|---|"
     for c in $configs; do
         IFS=: read -r name r w <<<"$c"
         local base all sent sub per
         if [ "$r" = 0 ]; then
             all=$w base=$(get "vox$w")
-            echo "| vox voxelize -w $w | $all | $(fmt "$base") | 1 | | | |"
+            echo "| vox voxelize -w $w | $all | $(fmt "$base") | 1 | $(mib "$(get "rss.vox$w")") | | | |"
             continue
         fi
         all=$((r * w)) base=$(get "vox$all")
         if grep -q "^$name " "$tmp/bad" 2>/dev/null; then
-            echo "| vox_mpi $r x $w | $all | $(grep "^$name " "$tmp/bad" | head -1 | cut -d' ' -f2) | | | | |"
+            echo "| vox_mpi $r x $w | $all | $(grep "^$name " "$tmp/bad" | head -1 | cut -d' ' -f2) | | | | | |"
             continue
         fi
         sent=$(sed -n 's/^  sent to rank 0: \([0-9]*\) bytes (\(.*\)); .*/\1 (\2)/p' "$tmp/$name.out")
         sub=$(sed -n 's/.* (\([0-9]*\) subtrees of \([0-9]*\)^3 voxels).*/\1 of \2^3/p' "$tmp/$name.out")
         per=$(awk '/^ +[0-9]+  [^ ]+ +[0-9]+ /{ n += $3; s += $8; b += $7 }
                    END { if (n) printf "%.3f s, %.0f bytes", s / n, b / n }' "$tmp/$name.out")
-        echo "| vox_mpi $r x $w | $all | $(fmt "$(get "$name")") | $(ratio "$(get "$name")" "$base") | $sub | $sent | $per |"
+        echo "| vox_mpi $r x $w | $all | $(fmt "$(get "$name")") | $(ratio "$(get "$name")" "$base") | $(mib "$(get "rss.$name")") | $sub | $sent | $per |"
     done
     rm -f "$tmp/bad"
 }

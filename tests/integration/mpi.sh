@@ -173,8 +173,8 @@ new=$(comm -13 <(echo "$shm_before") <(ls /dev/shm | sort))
 mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$ROOT" "$@"; }
 if mk V=release "$(dirname "$VOXR")/voxwhole" >"$TMP/mk.log" 2>&1 &&
    BENCH_QUICK=1 scripts/bench-mpi.sh "$(dirname "$VOXR")" >"$TMP/bench.md" 2>"$TMP/bench.err" &&
-   [ "$(grep -cE '^\| vox voxelize -w [24] \| [24] \| [0-9]+\.[0-9]{3} \| 1 \|' "$TMP/bench.md")" -eq 4 ] &&
-   [ "$(grep -cE '^\| vox_mpi [124] x [124] \| [24] \| [0-9]+\.[0-9]{3} \| [0-9.]+ \| [0-9]+ of [0-9]+\^3 \| [0-9]+ \(rank 0 [0-9]+' "$TMP/bench.md")" -eq 10 ]; then
+   [ "$(grep -cE '^\| vox voxelize -w [24] \| [24] \| [0-9]+\.[0-9]{3} \| 1 \| [0-9]+ \|' "$TMP/bench.md")" -eq 4 ] &&
+   [ "$(grep -cE '^\| vox_mpi [124] x [124] \| [24] \| [0-9]+\.[0-9]{3} \| [0-9.]+ \| [0-9]+ \| [0-9]+ of [0-9]+\^3 \| [0-9]+ \(rank 0 [0-9]+' "$TMP/bench.md")" -eq 10 ]; then
     pass "mpi: make bench-mpi's table, quick"
 else
     fail "mpi: make bench-mpi's table, quick" "$(tail -5 "$TMP/mk.log" "$TMP/bench.err" "$TMP/bench.md")"
