@@ -1,17 +1,19 @@
-/* vox csg: a volume CSG tree (.csg text, docs/csg.md) to a VOD file, in
- * this process, brick by brick (serial for now). */
+/* vox csg: a volume CSG tree (.csg text, docs/csg.md) to a VOD file,
+ * brick by brick on the embedded engine's workers (or in this process with
+ * -w 0), through the pipeline the daemon runs too. */
 #include <errno.h>
 #include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
 #include <unistd.h>
 
 #include "cli.h"
 #include "csg.h"
+#include "engine.h"
 #include "grid.h"
 #include "outfile.h"
+#include "pipeline.h"
 #include "vod.h"
 #include "vod_volume.h"
 #include "voxel.h"
@@ -26,6 +28,8 @@ static const char usage[] =
     "  -c, --channel CH       density (8 bit, default) or occupancy (density >= S);\n"
     "                         surface is not supported by csg yet\n"
     "  -d, --domain D         a,b (the cube [a,b]^3) or x0,x1,y0,y1,z0,z1 (default -1,1)\n"
+    "  -w, --workers N        worker processes, 0 = serial in this process (default: cores);\n"
+    "                         the same bytes whatever N\n"
     "  -q, --quiet            no summary line\n";
 
 static int read_tree(const char *path, char **text, size_t *len)
@@ -49,7 +53,7 @@ static int read_tree(const char *path, char **text, size_t *len)
 
 typedef struct {
     const char *in, *out;
-    uint32_t res;
+    uint32_t res, workers;
     int channel, quiet;
     double lo[3], hi[3];
 } csg_opts;
@@ -58,11 +62,13 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
 {
     static const struct option longs[] = {
         {"output", 1, 0, 'o'}, {"res", 1, 0, 'r'}, {"channel", 1, 0, 'c'},
-        {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    *o = (csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1}};
+        {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    *o = (csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
+                    .workers = cores > 0 ? (uint32_t)cores : 1};
     int c;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "o:r:c:d:qh", longs, NULL)) != -1) {
+    while ((c = getopt_long(argc, argv, "o:r:c:d:w:qh", longs, NULL)) != -1) {
         switch (c) {
         case 'o': o->out = optarg; break;
         case 'r':
@@ -86,6 +92,12 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
                 return CLI_EXIT_USAGE;
             }
             break;
+        case 'w':
+            if (cli_parse_uint(optarg, 0, ENGINE_MAX_WORKERS, &o->workers)) {
+                cli_error("bad --workers '%s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
+                return CLI_EXIT_USAGE;
+            }
+            break;
         case 'q': o->quiet = 1; break;
         case 'h': fputs(usage, stdout); return -1;
         default: fputs(usage, stderr); return CLI_EXIT_USAGE;
@@ -99,11 +111,12 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
     return 0;
 }
 
-static int load_tree(const csg_opts *o, csg_tree **t)
+static int load_tree(const csg_opts *o, csg_tree **t, uint64_t *text_bytes)
 {
     char *text;
     size_t len;
     int rc = read_tree(o->in, &text, &len);
+    *text_bytes = len;
     if (rc) {
         cli_error("%s: %s", o->in, rc == -EFBIG ? "over 65536 bytes" : strerror(-rc));
         return CLI_EXIT_USAGE;
@@ -124,53 +137,57 @@ static int load_tree(const csg_opts *o, csg_tree **t)
     return rc ? CLI_EXIT_USAGE : 0;
 }
 
-/* Evaluate into a sparse private volume and write it. */
-static int run(const csg_opts *o, const csg_tree *t, const grid_spec *g)
+static int make_engine(uint32_t workers, engine **e)
 {
-    size_t bytes = vod_volume_bytes(g->res, 8, 16, UINT64_MAX);
-    void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
-                               MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
-                        : MAP_FAILED;
-    if (arena == MAP_FAILED) {
-        cli_error("cannot map a volume of %ux%ux%u", g->res[0], g->res[1], g->res[2]);
-        return CLI_EXIT_FAILED;
-    }
-    vod_volume *vol;
-    csg_stats st = {0};
-    int rc = vod_volume_init(&vol, arena, bytes, g->res, 8, 16);
-    if (!rc) rc = csg_eval_volume(t, g, vol, o->channel == VOXEL_CH_OCCUPANCY, &st);
+    engine_opts eo = {.workers = (int)workers};
     char err[256] = "";
-    vod_stats vst = {0};
+    int rc = engine_create(&eo, e, err, sizeof err);
+    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
+    return rc;
+}
+
+/* The job through the pipeline (its workers, or this thread with -w 0),
+ * into OUT under a temporary name renamed into place once complete. */
+static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
+               const csg_tree *t)
+{
+    pipeline_job job = {.kind = PIPELINE_CSG,
+                        .csg = {.tree = t, .source_name = text_name,
+                                .source_bytes = text_bytes},
+                        .res = o->res};
+    memcpy(job.lo, o->lo, sizeof job.lo);
+    memcpy(job.hi, o->hi, sizeof job.hi);
+    vod_params_default(&job.vod);
+    job.vod.channel = o->channel;
+    engine *e = NULL;
+    if (o->workers && make_engine(o->workers, &e)) return CLI_EXIT_FAILED;
     char tmp[4096];
-    int fd = rc ? -1 : outfile_create(o->out, tmp, sizeof tmp);
-    if (!rc && fd < 0) rc = fd, snprintf(err, sizeof err, "%s: %s", o->out, strerror(-fd));
-    if (!rc) {
-        vod_params p;
-        vod_params_default(&p);
-        p.channel = o->channel;
-        for (int a = 0; a < 3; a++) {
-            p.volume[a] = g->res[a];
-            p.voxel_scale[a] = (float)g->vs;
-            p.origin[a] = (float)g->lo[a];
-        }
-        vod_source src = vod_volume_source(vol);
-        vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
-        rc = vod_write(&src, &p, &sink, &vst, err, sizeof err);
-        if (!rc && fsync(fd)) rc = -errno;
-        if (close(fd) && !rc) rc = -errno;
-        if (!rc && rename(tmp, o->out)) rc = -errno;
-        if (rc) unlink(tmp);
-    }
-    munmap(arena, bytes);
-    if (rc) {
-        cli_error("%s", err[0] ? err : strerror(-rc));
+    int fd = outfile_create(o->out, tmp, sizeof tmp);
+    if (fd < 0) {
+        engine_destroy(e);
+        cli_error("%s: %s", o->out, strerror(-fd));
         return CLI_EXIT_FAILED;
+    }
+    vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
+    pipeline_report r;
+    int rc = pipeline_run(e, &job, &sink, &r);
+    engine_destroy(e);
+    const char *why = rc ? r.err.message : NULL;
+    if (!rc && fsync(fd)) rc = -errno, why = strerror(errno);
+    if (close(fd) && !rc) rc = -errno, why = strerror(errno);
+    if (!rc && rename(tmp, o->out)) rc = -errno, why = strerror(errno);
+    if (rc) {
+        unlink(tmp);
+        cli_error("%s: %s", o->out, why);
+        return r.err.failure == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }
     if (!o->quiet)
         printf("%s: %ux%ux%u, %llu bricks (%llu uniform, %llu operand subtrees skipped), "
-               "%llu bytes\n", o->out, g->res[0], g->res[1], g->res[2],
-               (unsigned long long)st.bricks, (unsigned long long)st.uniform_bricks,
-               (unsigned long long)st.skipped, (unsigned long long)vst.file_bytes);
+               "%llu bytes; evaluated in %.3f s, written in %.3f s\n", o->out,
+               r.grid.res[0], r.grid.res[1], r.grid.res[2],
+               (unsigned long long)r.csg_bricks, (unsigned long long)r.csg_uniform,
+               (unsigned long long)r.csg_skipped, (unsigned long long)r.st.file_bytes,
+               r.t_voxelize, r.t_write);
     return CLI_EXIT_OK;
 }
 
@@ -186,8 +203,9 @@ int cli_csg(int argc, char **argv)
         return CLI_EXIT_USAGE;
     }
     csg_tree *t;
-    if ((rc = load_tree(&o, &t))) return rc;
-    rc = run(&o, t, &g);
+    uint64_t text_bytes = 0;
+    if ((rc = load_tree(&o, &t, &text_bytes))) return rc;
+    rc = run(&o, strcmp(o.in, "-") ? o.in : NULL, text_bytes, t);
     csg_tree_free(t);
     return rc;
 }

@@ -31,6 +31,7 @@
 #define CSG_MAX_MORPH 16u        /* k of one erode / dilate */
 #define CSG_MAX_MARGIN 64u       /* sum of the k along any path */
 #define CSG_NAME_MAX 32u         /* bytes of a node name, NUL included */
+#define CSG_VOLUME_BRICK 16u     /* storage brick of the result's vod_volume */
 #define CSG_IMPLICIT_RAMP 1.0    /* voxels from S to L (or H) of an implicit leaf */
 
 typedef enum {
@@ -111,6 +112,13 @@ void csg_eval_free(csg_eval *e);
 int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
                    uint8_t *value);
 const csg_stats *csg_eval_stats(const csg_eval *e);
+/* Brick b of the result stored into vol (8-bit, storage brick side as the
+ * evaluator's): a uniform brick as a table entry, voxels past the grid 0,
+ * densities to 0/1 with occupancy (1 where >= S).  buf: side^3 bytes of
+ * scratch.  Bricks may be stored concurrently (vod_volume_put_brick).  0
+ * or a negative errno (-ENOMEM: the volume's pool is full). */
+int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf,
+                   int occupancy);
 
 /* Every brick of vol (8-bit, its storage brick side) in turn.  occupancy:
  * store 1 where the density is >= S, else 0.  0 or a negative errno. */

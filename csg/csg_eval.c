@@ -346,6 +346,15 @@ static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, 
     return vod_volume_put_brick(vol, b, buf);
 }
 
+int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf,
+                   int occupancy)
+{
+    int uniform;
+    uint8_t v;
+    int rc = csg_eval_brick(e, b, buf, &uniform, &v);
+    return rc ? rc : put(e, vol, b, buf, uniform, v, occupancy);
+}
+
 int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol, int occupancy,
                     csg_stats *st)
 {
@@ -364,12 +373,8 @@ int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol, int 
     uint32_t b[3];
     for (b[2] = 0; b[2] < nb[2] && !rc; b[2]++)
         for (b[1] = 0; b[1] < nb[1] && !rc; b[1]++)
-            for (b[0] = 0; b[0] < nb[0] && !rc; b[0]++) {
-                int uniform;
-                uint8_t v;
-                rc = csg_eval_brick(e, b, buf, &uniform, &v);
-                if (!rc) rc = put(e, vol, b, buf, uniform, v, occupancy);
-            }
+            for (b[0] = 0; b[0] < nb[0] && !rc; b[0]++)
+                rc = csg_eval_store(e, vol, b, buf, occupancy);
     if (st) *st = e->st;
     free(buf);
     csg_eval_free(e);

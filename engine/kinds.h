@@ -31,6 +31,7 @@ enum shm_kind {
     SHM_KIND_IMPLICIT = 1, /* F(x,y,z) = 0 by interval subdivision */
     SHM_KIND_ENCODE = 2,   /* the VOD's bricks of the last job, in parallel */
     SHM_KIND_MESH = 3,     /* a triangle mesh, tile by tile, into a volume */
+    SHM_KIND_CSG = 4,      /* a volume CSG tree, brick by brick, into a volume */
     SHM_KINDS
 };
 
@@ -133,6 +134,46 @@ static inline mesh_task_arg mesh_task_tiles(const shm_task *t)
 {
     mesh_task_arg a;
     _Static_assert(sizeof a <= sizeof t->arg, "a tile run fits a task");
+    memcpy(&a, t->arg, sizeof a);
+    return a;
+}
+
+/* ---- csg: a volume CSG tree (csg.h) evaluated brick by brick ---- */
+
+enum csg_op {
+    CSG_BRICKS = 1,        /* bricks first .. first + count - 1 (x fastest) */
+};
+
+/* The task's argument: a run of storage bricks, numbered x fastest over
+ * the volume's brick grid; its counts go to stats[task]. */
+typedef struct {
+    uint32_t first, count, task;
+} csg_task_arg;
+
+/* What one task's bricks came to (csg_stats of its bricks); the task's own
+ * entry, so a task run again after a death writes the same. */
+typedef struct {
+    uint64_t bricks, uniform_bricks, skipped, voxel_evals;
+} csg_task_stats;
+
+/* The tree is csg.h's csg_tree: its n nodes (csg_node, an array at
+ * nodes_off) and its text pool (text_len bytes at text_off), copied by the
+ * master; the workers rebuild a csg_tree around them. */
+typedef struct {
+    grid_spec grid;
+    uint32_t occupancy;                     /* store density >= S as 0/1 */
+    uint32_t sbrick, nbricks[3];            /* the volume's storage bricks */
+    uint32_t n_nodes, node_bytes;           /* node_bytes: sizeof(csg_node) */
+    uint64_t nodes_off, text_off, text_len;
+    uint32_t ntasks;
+    uint64_t stats_off;                     /* csg_task_stats per task */
+    uint64_t volume_off;                    /* the vod_volume's arena */
+} csg_block;
+
+static inline csg_task_arg csg_task_bricks(const shm_task *t)
+{
+    csg_task_arg a;
+    _Static_assert(sizeof a <= sizeof t->arg, "a brick run fits a task");
     memcpy(&a, t->arg, sizeof a);
     return a;
 }

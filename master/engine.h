@@ -67,6 +67,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "csg.h"
 #include "expr.h"
 #include "grid.h"
 #include "mesh_vox.h"
@@ -175,6 +176,10 @@ typedef struct {
     uint64_t disagreements;  /* repair modes: mesh_tile_stats, summed */
     uint64_t disagree_bricks;
     double t_bin;            /* seconds binning the triangles to tiles */
+    /* csg jobs: storage bricks evaluated, of which uniform (a table entry,
+     * no voxels stored), operand subtrees decided from a uniform operand
+     * without evaluating them, voxels the leaves sampled */
+    uint64_t csg_bricks, csg_uniform, csg_skipped, csg_voxel_evals;
     engine_failure failure;  /* why engine_voxelize failed (ENGINE_OK if not) */
     char error[256];         /* ... in words ("" if it did not fail) */
 } engine_result;
@@ -252,6 +257,22 @@ typedef struct {
     const atomic_int *cancel;   /* as engine_job.cancel */
 } engine_mesh_job;
 int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r);
+/* A volume CSG tree (csg.h) evaluated brick by brick into a brick-sparse
+ * volume in shared memory (8-bit densities, or 0/1 with occupancy): the
+ * tree is copied into the segment, each worker evaluates runs of storage
+ * bricks (csg_eval_store), and a worker that dies has its run evaluated
+ * again (a brick is a pure function of the tree: the same bytes).  The
+ * result stays for engine_write_vod, as a mesh job's.  Errors as
+ * engine_mesh's. */
+typedef struct {
+    const csg_tree *tree;       /* parsed (and so checked) by the caller */
+    grid_spec grid;
+    int occupancy;              /* store density >= S as 1, else 0 */
+    void (*progress)(void *ud, const engine_progress *p);
+    void *ud;
+    const atomic_int *cancel;   /* as engine_job.cancel */
+} engine_csg_job;
+int engine_csg(engine *e, const engine_csg_job *job, engine_result *r);
 
 /* The last job's octree (a view into shared memory), NULL when the last
  * job failed, was not an implicit one, or there was none, or after

@@ -12,6 +12,7 @@
 #include "job_meta.h"
 #include "master.h"
 #include "subdiv.h"
+#include "voxel.h"
 
 #define SERIAL_CELLS (1u << 27) /* 4 GiB of address space, not of memory */
 
@@ -51,6 +52,12 @@ static void vod_setup(vod_params *v, const pipeline_job *job, const double lo[3]
         m.source = "";
         m.source_len = job->mesh.source_bytes;
         m.source_name = job->mesh.source_name;
+        m.kind_pairs = pairs;
+    } else if (job->kind == PIPELINE_CSG) {
+        snprintf(pairs, sizeof pairs, "csg_nodes=%u\n", job->csg.tree->n);
+        m.source = "";
+        m.source_len = job->csg.source_bytes;
+        m.source_name = job->csg.source_name;
         m.kind_pairs = pairs;
     }
     job_meta_format(meta, JOB_META_MAX, &m);
@@ -101,6 +108,12 @@ static int engine_stage(engine *e, const pipeline_job *job, const grid_spec *g,
                               .ud = ud, .cancel = job->cancel};
         return engine_mesh(e, &mj, er);
     }
+    if (job->kind == PIPELINE_CSG) {
+        engine_csg_job cj = {.tree = job->csg.tree, .grid = *g,
+                             .occupancy = job->vod.channel == VOXEL_CH_OCCUPANCY,
+                             .progress = prog, .ud = ud, .cancel = job->cancel};
+        return engine_csg(e, &cj, er);
+    }
     engine_job ej = {.tape = job->implicit.tape, .grid = *g,
                      .schedule = job->schedule, .progress = prog,
                      .ud = ud, .cancel = job->cancel};
@@ -121,6 +134,10 @@ static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
     r->disagreements = er.disagreements;
     r->disagree_bricks = er.disagree_bricks;
     r->octants = er.octants;
+    r->csg_bricks = er.csg_bricks;
+    r->csg_uniform = er.csg_uniform;
+    r->csg_skipped = er.csg_skipped;
+    r->csg_voxel_evals = er.csg_voxel_evals;
     r->restarts = er.restarts;
     r->stalls = er.stalls;
     r->t_voxelize = er.seconds;
@@ -209,12 +226,48 @@ static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
     return rc;
 }
 
+/* A csg job in this thread: every brick in turn (csg_eval_volume) into a
+ * volume in a sparse private mapping, the engine's layout. */
+static int run_serial_csg(const pipeline_job *job, const vod_params *v,
+                          vod_sink *sink, pipeline_report *r)
+{
+    r->stage = PIPELINE_VOXELIZE;
+    size_t bytes = vod_volume_bytes(r->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX);
+    void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                               MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                        : MAP_FAILED;
+    if (arena == MAP_FAILED)
+        return fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
+                    r->grid.res[0], r->grid.res[1], r->grid.res[2]);
+    vod_volume *vol;
+    int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, 8, CSG_VOLUME_BRICK);
+    csg_stats st = {0};
+    double t0 = clock_now();
+    if (!rc) rc = csg_eval_volume(job->csg.tree, &r->grid, vol,
+                                  v->channel == VOXEL_CH_OCCUPANCY, &st);
+    r->t_voxelize = clock_now() - t0;
+    r->csg_bricks = st.bricks;
+    r->csg_uniform = st.uniform_bricks;
+    r->csg_skipped = st.skipped;
+    r->csg_voxel_evals = st.voxel_evals;
+    if (rc) {
+        fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+             "evaluating the tree: %s", strerror(-rc));
+    } else {
+        vod_source src = vod_volume_source(vol);
+        rc = write_serial(NULL, &src, v, sink, r);
+    }
+    munmap(arena, bytes);
+    return rc;
+}
+
 /* The serial algorithm: its octree in a sparse private mapping, touched
  * only as cells are handed out. */
 static int run_serial(const pipeline_job *job, const vod_params *v,
                       vod_sink *sink, pipeline_report *r)
 {
     if (job->kind == PIPELINE_MESH) return run_serial_mesh(job, v, sink, r);
+    if (job->kind == PIPELINE_CSG) return run_serial_csg(job, v, sink, r);
     size_t bytes = octree_arena_bytes(SERIAL_CELLS);
     void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
@@ -270,6 +323,14 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
         return job->implicit.tape ? 0
                                   : fail(r, ENGINE_BAD_JOB, -EINVAL,
                                          "the job has no expression");
+    if (job->kind == PIPELINE_CSG) {
+        if (!job->csg.tree || !job->csg.tree->n)
+            return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no csg tree");
+        if (job->vod.channel != VOXEL_CH_DENSITY && job->vod.channel != VOXEL_CH_OCCUPANCY)
+            return fail(r, ENGINE_BAD_JOB, -EINVAL,
+                        "a csg job writes the density or the occupancy channel");
+        return 0;
+    }
     if (job->kind != PIPELINE_MESH || !job->mesh.mesh || !job->mesh.mesh->n_triangles)
         return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
     char err[sizeof r->err.message];

@@ -9,6 +9,12 @@
  * A job kind that comes with its own description (meshes, CSG) adds its
  * member to pipeline_job and its case to pipeline_run.
  *
+ * CSG jobs: the domain lo/hi as for an expression; the channel is the
+ * density (vod.channel 2) or the occupancy (1: density >= S); the engine
+ * evaluates the tree's bricks on its workers, the serial path in this
+ * thread (csg_eval_volume), into the same volume layout, so the bytes are
+ * the same.
+ *
  * Mesh jobs: with mesh.fit, res voxels span the longest side of the
  * mesh's bounding box grown by pad voxels on each side (so the mesh
  * itself spans res - 2 pad voxels); without it, the domain lo/hi as for an
@@ -23,6 +29,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "csg.h"
 #include "engine.h"
 #include "job_meta.h"
 #include "expr.h"
@@ -33,6 +40,7 @@
 typedef enum {
     PIPELINE_IMPLICIT = 1, /* F(x,y,z) = 0 */
     PIPELINE_MESH = 2,     /* a triangle mesh */
+    PIPELINE_CSG = 3,      /* a volume CSG tree (csg.h) */
 } pipeline_kind;
 
 typedef struct {
@@ -52,6 +60,11 @@ typedef struct {
         const char *source_name;  /* its file's name, or NULL */
         uint64_t source_bytes;    /* its file's size, for the metadata */
     } mesh;
+    struct {
+        const csg_tree *tree;     /* parsed (and so checked) by the caller */
+        const char *source_name;  /* its file's name, or NULL */
+        uint64_t source_bytes;    /* its text's size, for the metadata */
+    } csg;
     double lo[3], hi[3];          /* the domain */
     uint32_t res;                 /* voxels along its longest axis */
     engine_schedule schedule;
@@ -80,6 +93,9 @@ typedef struct {
     double t_topology;            /* ... seconds finding them */
     int repair_skipped;           /* a repair asked of a watertight mesh: not
                                      needed (its three parities agree) */
+    /* csg: storage bricks, of which uniform, operand subtrees skipped,
+     * voxels the leaves sampled (engine_result's csg_*) */
+    uint64_t csg_bricks, csg_uniform, csg_skipped, csg_voxel_evals;
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */

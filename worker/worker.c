@@ -17,6 +17,7 @@ static const work_kind *const kinds[SHM_KINDS] = {
     [SHM_KIND_IMPLICIT] = &work_implicit,
     [SHM_KIND_ENCODE] = &work_encode,
     [SHM_KIND_MESH] = &work_mesh,
+    [SHM_KIND_CSG] = &work_csg,
 };
 
 static uint64_t cpu_ns(void)

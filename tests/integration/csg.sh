@@ -18,6 +18,10 @@ check "it is the density channel" bash -c "'$VOX' info '$TMP/a.vod' | grep -q 'c
 check "from stdin" bash -c "'$VOX' csg - -o '$TMP/b.vod' --res 64 -q <'$TMP/part.csg'"
 check "the same bytes" cmp "$TMP/a.vod" "$TMP/b.vod"
 check "occupancy" bash -c "'$VOX' csg '$TMP/part.csg' -o '$TMP/o.vod' --res 64 -q --channel occupancy && '$VOX' info '$TMP/o.vod' | grep -q 'channel     1'"
+for w in 0 1 2; do
+    check "-w $w" "$VOX" csg "$TMP/part.csg" -o "$TMP/w$w.vod" --res 72 -q -w "$w"
+done
+check "0, 1 and 2 workers: the same bytes" bash -c "cmp '$TMP/w0.vod' '$TMP/w1.vod' && cmp '$TMP/w0.vod' '$TMP/w2.vod'"
 printf 'a = cuboid size 1,1,1\nb = union(a, nope)\nresult b\n' >"$TMP/bad.csg"
 refuse "a bad tree exits 2 with line, column and node" 2 "bad.csg:2:14: node 'b': unknown node 'nope'" \
     "$VOX" csg "$TMP/bad.csg" -o "$TMP/c.vod" --res 16

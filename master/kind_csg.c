@@ -1,0 +1,227 @@
+/* The csg kind's master side: a volume CSG tree (csg.h) evaluated brick by
+ * brick into a brick-sparse volume in the segment.  Setup copies the
+ * tree's nodes and text behind the block, gives the rest of the data area
+ * to the volume, and pushes the volume's storage bricks as runs of
+ * consecutive bricks (x fastest), at most CSG_TASKS of them.  Workers send
+ * no entries: a brick goes straight into the volume (uniform ones as a
+ * table entry) and a run's counts into its entry of the stats array.  A
+ * worker's death re-runs its run (the bricks are a pure function of the
+ * tree: the same bytes again).  The volume is checked before anyone reads
+ * it; the encode kind writes it. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "clock.h"
+#include "csg.h"
+#include "master.h"
+
+/* Runs of bricks: enough for the workers to share the load and the
+ * progress to move, few enough for the work stack (4096 + tasks). */
+#define CSG_TASKS 2048u
+
+typedef struct {
+    const engine_csg_job *job;
+    engine_result *r;
+    uint32_t ntasks;       /* runs of bricks */
+    uint32_t done;         /* runs finished */
+} csg_job;
+
+static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
+
+static csg_block *block(engine *e)
+{
+    return shm_at(e->seg.base, e->h->job_off);
+}
+
+static int no_room(engine *e, const char *what)
+{
+    return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+                      "%s does not fit in shared memory (%zu MiB); raise its size",
+                      what, e->seg.bytes >> 20);
+}
+
+/* The tree and the stats behind the block, the volume in the rest. */
+static int copy_input(engine *e, const csg_tree *t, csg_block *b, uint64_t *vol_off)
+{
+    uint64_t end = e->h->data_off + e->h->data_bytes;
+    b->n_nodes = t->n;
+    b->node_bytes = sizeof(csg_node);
+    b->nodes_off = align64(e->h->data_off + sizeof *b);
+    b->text_off = align64(b->nodes_off + (uint64_t)t->n * sizeof(csg_node));
+    b->text_len = t->text_len;
+    b->stats_off = align64(b->text_off + t->text_len + 1);
+    *vol_off = align64(b->stats_off + (uint64_t)b->ntasks * sizeof(csg_task_stats));
+    if (*vol_off >= end) return no_room(e, "the tree");
+    memcpy(shm_at(e->seg.base, b->nodes_off), t->node, t->n * sizeof(csg_node));
+    char *text = shm_at(e->seg.base, b->text_off);
+    if (t->text_len) memcpy(text, t->text, t->text_len);
+    text[t->text_len] = 0;
+    memset(shm_at(e->seg.base, b->stats_off), 0, b->ntasks * sizeof(csg_task_stats));
+    return 0;
+}
+
+static int init_volume(engine *e, const grid_spec *g, uint64_t off)
+{
+    uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
+    int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res, 8,
+                             CSG_VOLUME_BRICK);
+    if (rc) return no_room(e, "the volume's tables");
+    e->volume_bytes = bytes;
+    return 0;
+}
+
+/* The runs, the last pushed first: the stack hands out brick 0's first. */
+static int push_runs(engine *e, const csg_block *b, uint32_t per)
+{
+    uint64_t n = (uint64_t)b->nbricks[0] * b->nbricks[1] * b->nbricks[2];
+    int rc = 0;
+    for (uint32_t k = b->ntasks; k-- > 0 && !rc;) {
+        uint64_t first = (uint64_t)k * per;
+        csg_task_arg a = {(uint32_t)first, (uint32_t)(n - first < per ? n - first : per), k};
+        shm_task t = {.kind = SHM_KIND_CSG, .op = CSG_BRICKS};
+        memcpy(t.arg, &a, sizeof a);
+        rc = sched_push(e, &t);
+    }
+    return rc;
+}
+
+static int csg_setup(engine *e, void *job)
+{
+    csg_job *cj = job;
+    const engine_csg_job *j = cj->job;
+    e->result = RESULT_NONE;
+    sched_hold(e, 0); /* the last job's result: overwritten now */
+    if (!j->tree || !j->tree->n || j->tree->n > CSG_MAX_NODES || grid_check(&j->grid))
+        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
+    csg_block *b = shm_at(e->seg.base, e->h->data_off);
+    memset(b, 0, sizeof *b);
+    b->grid = j->grid;
+    b->occupancy = j->occupancy != 0;
+    b->sbrick = CSG_VOLUME_BRICK;
+    uint64_t n = 1;
+    for (int a = 0; a < 3; a++) {
+        b->nbricks[a] = (j->grid.res[a] + CSG_VOLUME_BRICK - 1) / CSG_VOLUME_BRICK;
+        n *= b->nbricks[a];
+    }
+    uint32_t per = (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS);
+    b->ntasks = cj->ntasks = (uint32_t)((n + per - 1) / per);
+    e->h->job_off = e->h->data_off;
+    e->h->job_bytes = sizeof *b;
+    uint64_t vol_off;
+    int rc = copy_input(e, j->tree, b, &vol_off);
+    if (!rc) rc = init_volume(e, &j->grid, vol_off);
+    if (!rc) {
+        b->volume_off = vol_off;
+        rc = push_runs(e, b, per);
+    }
+    return rc;
+}
+
+static int csg_take(engine *e, int i, const shm_entry *en)
+{
+    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                      "worker %d sent an entry of type %u in a csg brick run", i, en->type);
+}
+
+static void csg_describe(const shm_task *t, char *buf, size_t len)
+{
+    csg_task_arg a = csg_task_bricks(t);
+    snprintf(buf, len, "csg bricks %u..%u", a.first, a.first + a.count - 1);
+}
+
+static void csg_done(engine *e, int i, const shm_task *t, int error)
+{
+    csg_job *cj = e->job;
+    cj->done++;
+    if (!error || e->err.failure) return;
+    char what[64];
+    csg_describe(t, what, sizeof what);
+    if (error == -ENOMEM)
+        no_room(e, "the volume");
+    else
+        sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
+                   strerror(-error));
+}
+
+static int csg_rerun(engine *e, int i, const shm_task *t)
+{
+    (void)e, (void)i, (void)t;
+    return 1; /* a run writes the same bricks and counts again */
+}
+
+static void csg_progress(engine *e, engine_progress *p)
+{
+    const csg_job *cj = e->job;
+    p->fraction = cj->ntasks ? (double)cj->done / cj->ntasks : 1.0;
+    p->level = 0;
+    if (e->volume) { /* the pool grows as the workers write */
+        vod_volume_info in;
+        vod_volume_get_info(e->volume, &in);
+        p->shm_used = block(e)->volume_off - e->h->data_off + in.bytes_used;
+    }
+}
+
+/* The runs' counts, and the volume checked before the writer reads it. */
+static int collect(engine *e, csg_job *cj)
+{
+    const csg_block *b = block(e);
+    engine_result *r = cj->r;
+    const csg_task_stats *st = shm_at(e->seg.base, b->stats_off);
+    for (uint32_t t = 0; t < b->ntasks; t++) {
+        r->csg_bricks += st[t].bricks;
+        r->csg_uniform += st[t].uniform_bricks;
+        r->csg_skipped += st[t].skipped;
+        r->csg_voxel_evals += st[t].voxel_evals;
+    }
+    vod_volume_info in;
+    int bad = vod_volume_check(e->volume, e->volume_bytes);
+    if (!bad) {
+        vod_volume_get_info(e->volume, &in);
+        bad = memcmp(in.dims, cj->job->grid.res, sizeof in.dims) || in.bits != 8;
+    }
+    if (bad)
+        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                          "the workers left the volume inconsistent");
+    /* the volume stays for the encode kind */
+    sched_hold(e, b->volume_off - e->h->data_off + in.bytes_used);
+    return 0;
+}
+
+static int csg_finish(engine *e, void *job, int rc)
+{
+    csg_job *cj = job;
+    engine_result *r = cj->r;
+    sched_job_totals(e, r);
+    r->octants = 0;
+    if (!rc) rc = collect(e, cj);
+    r->seconds = clock_now() - e->t0;
+    if (rc) return sched_job_failed(e, r, rc);
+    e->result = RESULT_VOLUME;
+    return 0;
+}
+
+const master_kind kind_csg = {
+    .name = "csg",
+    .id = SHM_KIND_CSG,
+    .setup = csg_setup,
+    .take = csg_take,
+    .done = csg_done,
+    .rerun = csg_rerun,
+    .describe = csg_describe,
+    .progress = csg_progress,
+    .finish = csg_finish,
+};
+
+int engine_csg(engine *e, const engine_csg_job *job, engine_result *r)
+{
+    double c0 = clock_thread_cpu();
+    memset(r, 0, sizeof *r);
+    csg_job cj = {.job = job, .r = r};
+    sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
+    e->volume = NULL;
+    int rc = engine_run(e, &kind_csg, &cj, &w);
+    r->master_cpu = clock_thread_cpu() - c0;
+    return rc;
+}

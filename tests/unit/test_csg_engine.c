@@ -1,0 +1,255 @@
+/* CSG jobs through the pipeline: the serial evaluation (no engine) and the
+ * engine's csg kind with 1 and 2 workers give the same bytes for the
+ * density and the occupancy, the file holds the serial volume's voxels, a
+ * worker killed while the bricks run changes nothing, csg and implicit
+ * jobs share an engine, and bad csg jobs fail typed. */
+#include <criterion/criterion.h>
+#include <errno.h>
+#include <signal.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "csg.h"
+#include "engine.h"
+#include "pipeline.h"
+#include "vod.h"
+#include "voxel.h"
+
+static const char tree_text[] =
+    "base = cuboid center 0.05,0,0 size 1.5,1.0,0.7 rotate 0,0,20\n"
+    "hole = cylinder radius 0.3 height 2 axis z\n"
+    "bump = implicit \"x^2 + y^2 + (z-0.3)^2 - 0.2\" domain -1,1\n"
+    "egg  = ellipsoid center 0.4,0.3,-0.2 radii 0.3,0.2,0.25\n"
+    "out  = difference(union(base, bump), hole)\n"
+    "out2 = union(out, dilate(egg, 2))\n"
+    "result out2\n";
+
+static csg_tree *parse(const char *text)
+{
+    csg_tree *t;
+    csg_error err;
+    cr_assert_eq(csg_parse(text, strlen(text), &t, &err), 0, "%d:%d %s", err.line, err.col,
+                 err.msg);
+    return t;
+}
+
+static pipeline_job csg_job(const csg_tree *t, uint32_t res, int channel)
+{
+    pipeline_job job = {.kind = PIPELINE_CSG,
+                        .csg = {.tree = t, .source_name = "part.csg",
+                                .source_bytes = sizeof tree_text - 1},
+                        .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = res};
+    vod_params_default(&job.vod);
+    job.vod.channel = channel;
+    return job;
+}
+
+static engine *make_engine(int workers)
+{
+    engine_opts o = {.workers = workers, .shm_bytes = (size_t)256 << 20};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    return e;
+}
+
+static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
+{
+    vod_membuf m = {0};
+    vod_sink sink = {vod_mem_write, &m};
+    cr_assert_eq(pipeline_run(e, job, &sink, r), 0, "csg job on %s: %s",
+                 e ? "an engine" : "no engine", r->err.message);
+    return m;
+}
+
+/* The file's level 0 against the tree evaluated brick by brick here. */
+static void assert_voxels(const vod_membuf *m, const csg_tree *t, const grid_spec *g,
+                          int occupancy)
+{
+    vod_file *f;
+    char err[256];
+    cr_assert_eq(vod_read(m->p, m->n, &f, err, sizeof err), 0, "%s", err);
+    csg_eval *ev;
+    cr_assert_eq(csg_eval_new(t, g, 8, &ev), 0);
+    uint8_t buf[512];
+    uint32_t b[3];
+    for (b[2] = 0; b[2] * 8 < g->res[2]; b[2]++)
+        for (b[1] = 0; b[1] * 8 < g->res[1]; b[1]++)
+            for (b[0] = 0; b[0] * 8 < g->res[0]; b[0]++) {
+                int uniform;
+                uint8_t v;
+                cr_assert_eq(csg_eval_brick(ev, b, buf, &uniform, &v), 0);
+                for (uint32_t k = 0; k < 512; k++) {
+                    uint32_t x = b[0] * 8 + k % 8, y = b[1] * 8 + k / 8 % 8,
+                             z = b[2] * 8 + k / 64;
+                    if (x >= g->res[0] || y >= g->res[1] || z >= g->res[2]) continue;
+                    uint32_t want = uniform ? v : buf[k];
+                    if (occupancy) want = want >= CSG_S;
+                    cr_assert_eq(vod_voxel(f, 0, x, y, z), want, "voxel (%u,%u,%u)", x, y, z);
+                }
+            }
+    csg_eval_free(ev);
+    vod_close(f);
+}
+
+Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
+{
+    csg_tree *t = parse(tree_text);
+    engine *e[2] = {make_engine(1), make_engine(2)};
+    static const int channels[] = {VOXEL_CH_DENSITY, VOXEL_CH_OCCUPANCY};
+    for (size_t c = 0; c < 2; c++) {
+        /* 75: bricks cut by the grid's edge on every axis */
+        pipeline_job job = csg_job(t, 75, channels[c]);
+        pipeline_report r0, r;
+        vod_membuf ref = run(NULL, &job, &r0);
+        cr_assert_gt(r0.csg_bricks, 0);
+        cr_assert_gt(r0.csg_uniform, 0, "most of the box is empty");
+        cr_assert_lt(r0.csg_uniform, r0.csg_bricks);
+        assert_voxels(&ref, t, &r0.grid, channels[c] == VOXEL_CH_OCCUPANCY);
+        for (int w = 0; w < 2; w++) {
+            vod_membuf mb = run(e[w], &job, &r);
+            cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0,
+                      "channel %d, %d workers: other bytes", channels[c], w + 1);
+            cr_assert_eq(r.csg_bricks, r0.csg_bricks);
+            cr_assert_eq(r.csg_uniform, r0.csg_uniform);
+            cr_assert_eq(r.csg_skipped, r0.csg_skipped);
+            cr_assert_eq(r.csg_voxel_evals, r0.csg_voxel_evals);
+            free(mb.p);
+        }
+        free(ref.p);
+    }
+    engine_destroy(e[0]);
+    engine_destroy(e[1]);
+    csg_tree_free(t);
+}
+
+/* One engine, csg and implicit jobs in turn: each one's result is its own. */
+Test(csg_engine, csg_and_implicit_jobs_share_an_engine)
+{
+    csg_tree *t = parse(tree_text);
+    const char *src = "x^2 + y^2 + z^2 - 0.5";
+    expr_tape *tape = NULL;
+    expr_error ee;
+    cr_assert_eq(expr_compile(src, strlen(src), NULL, &tape, &ee), 0);
+    pipeline_job cj = csg_job(t, 40, VOXEL_CH_DENSITY);
+    pipeline_job ij = {.kind = PIPELINE_IMPLICIT,
+                       .implicit = {.tape = tape, .source = src, .source_len = strlen(src)},
+                       .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 40};
+    vod_params_default(&ij.vod);
+    pipeline_report r;
+    vod_membuf cref = run(NULL, &cj, &r), iref = run(NULL, &ij, &r);
+    engine *e = make_engine(2);
+    for (int round = 0; round < 2; round++) {
+        vod_membuf a = run(e, &cj, &r), b = run(e, &ij, &r);
+        cr_assert(a.n == cref.n && memcmp(a.p, cref.p, a.n) == 0, "csg, round %d", round);
+        cr_assert(b.n == iref.n && memcmp(b.p, iref.p, b.n) == 0, "implicit, round %d", round);
+        free(a.p);
+        free(b.p);
+    }
+    engine_destroy(e);
+    free(cref.p);
+    free(iref.p);
+    expr_tape_free(tape);
+    csg_tree_free(t);
+}
+
+/* A worker killed while the bricks run: its run of bricks is evaluated
+ * again by the one forked in its place, and the file is the serial one. */
+typedef struct {
+    engine *e;
+    int killed;
+} killer;
+
+static void kill_first(void *ud, const engine_progress *p)
+{
+    killer *k = ud;
+    pid_t pid = engine_worker_pid(k->e, 0);
+    if (k->killed || p->fraction >= 0.6 || pid <= 0) return;
+    cr_assert_eq(kill(pid, SIGKILL), 0, "kill worker 0 (pid %d): %s", (int)pid,
+                 strerror(errno));
+    k->killed = 1;
+}
+
+Test(csg_engine, a_worker_killed_mid_job_changes_nothing)
+{
+    csg_tree *t = parse(tree_text);
+    pipeline_job job = csg_job(t, 96, VOXEL_CH_DENSITY);
+    pipeline_report r0, r;
+    vod_membuf ref = run(NULL, &job, &r0);
+    engine *e = make_engine(2);
+    killer k = {.e = e};
+    job.progress = kill_first;
+    job.ud = &k;
+    vod_membuf mb = run(e, &job, &r);
+    cr_assert(k.killed, "no progress report came while the bricks ran");
+    cr_assert_geq(r.restarts, 1, "the killed worker was replaced");
+    cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0, "other bytes");
+    cr_assert_eq(r.csg_bricks, r0.csg_bricks);
+    free(mb.p);
+    free(ref.p);
+    engine_destroy(e);
+    csg_tree_free(t);
+}
+
+/* A cancel flag set before the job: it stops with ENGINE_CANCELLED and the
+ * engine runs the next job. */
+Test(csg_engine, a_cancelled_job_fails_typed_and_the_engine_goes_on)
+{
+    csg_tree *t = parse(tree_text);
+    pipeline_job job = csg_job(t, 64, VOXEL_CH_DENSITY);
+    atomic_int cancel = 1;
+    job.cancel = &cancel;
+    engine *e = make_engine(2);
+    vod_membuf out = {0};
+    vod_sink sink = {vod_mem_write, &out};
+    pipeline_report r;
+    cr_assert_eq(pipeline_run(e, &job, &sink, &r), -ECANCELED, "%s", r.err.message);
+    cr_assert_eq(r.err.failure, ENGINE_CANCELLED);
+    job.cancel = NULL;
+    pipeline_report r0;
+    vod_membuf ref = run(NULL, &job, &r0), mb = run(e, &job, &r);
+    cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0, "other bytes");
+    free(mb.p);
+    free(ref.p);
+    free(out.p);
+    engine_destroy(e);
+    csg_tree_free(t);
+}
+
+Test(csg_engine, bad_csg_jobs_fail_typed)
+{
+    csg_tree *t = parse(tree_text);
+    vod_membuf out = {0};
+    vod_sink sink = {vod_mem_write, &out};
+    pipeline_report r;
+    pipeline_job job = csg_job(t, 32, VOXEL_CH_SURFACE);
+    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert(strstr(r.err.message, "density or the occupancy"), "%s", r.err.message);
+    job = csg_job(NULL, 32, VOXEL_CH_DENSITY);
+    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert_eq(r.stage, PIPELINE_GRID);
+    free(out.p);
+    csg_tree_free(t);
+}
+
+/* A volume that cannot fit the segment is a limit, not a crash. */
+Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
+{
+    csg_tree *t = parse("n = implicit \"sin(40*x)*sin(40*y)*sin(40*z)\"\nresult n\n");
+    engine_opts o = {.workers = 1, .shm_bytes = (size_t)4 << 20};
+    engine *e;
+    char err[256];
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    pipeline_job job = csg_job(t, 256, VOXEL_CH_DENSITY);
+    vod_membuf out = {0};
+    vod_sink sink = {vod_mem_write, &out};
+    pipeline_report r;
+    cr_assert_lt(pipeline_run(e, &job, &sink, &r), 0);
+    cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
+    cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
+    free(out.p);
+    engine_destroy(e);
+    csg_tree_free(t);
+}
