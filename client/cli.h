@@ -28,6 +28,10 @@ int cli_info(int argc, char **argv);
 int cli_render(int argc, char **argv);
 int cli_mesh_info(int argc, char **argv);
 int cli_csg(int argc, char **argv);
+/* A .csg text from path ("-": standard input) parsed, its errors printed
+ * as path:line:col: node 'NAME': message.  0 and *t (csg_tree_free) with
+ * the text's size in *bytes, or CLI_EXIT_USAGE. */
+int cli_csg_load(const char *path, csg_tree **t, uint64_t *bytes);
 int cli_export(int argc, char **argv);
 
 /* ---- a voxelization job's options (vox voxelize, vox submit) ---- */
@@ -37,6 +41,7 @@ typedef enum { CLI_MODE_AUTO, CLI_MODE_EMBEDDED, CLI_MODE_DAEMON } cli_mode;
 typedef struct {
     const char *expr, *file, *out, *cpus;
     const char *mesh;          /* --mesh FILE: a mesh job */
+    const char *csg;           /* --csg FILE: a CSG job (vox submit) */
     mesh_vox_opts mesh_opts;   /* --mode, --repair, --supersample */
     uint32_t pad;              /* --pad */
     int mesh_opts_given;       /* one of those (they need --mesh) */

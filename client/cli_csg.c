@@ -111,20 +111,20 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
     return 0;
 }
 
-static int load_tree(const csg_opts *o, csg_tree **t, uint64_t *text_bytes)
+int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
 {
     char *text;
     size_t len;
-    int rc = read_tree(o->in, &text, &len);
-    *text_bytes = len;
+    int rc = read_tree(path, &text, &len);
     if (rc) {
-        cli_error("%s: %s", o->in, rc == -EFBIG ? "over 65536 bytes" : strerror(-rc));
+        cli_error("%s: %s", path, rc == -EFBIG ? "over 65536 bytes" : strerror(-rc));
         return CLI_EXIT_USAGE;
     }
+    *text_bytes = len;
     csg_error err;
     rc = csg_parse(text, len, t, &err);
     if (rc) {
-        const char *name = strcmp(o->in, "-") ? o->in : "<stdin>";
+        const char *name = strcmp(path, "-") ? path : "<stdin>";
         if (err.line) fprintf(stderr, "%s:%d:%d: ", name, err.line, err.col);
         else fprintf(stderr, "%s: ", name);
         if (err.node[0]) fprintf(stderr, "node '%s': ", err.node);
@@ -182,8 +182,9 @@ static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
         return r.err.failure == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }
     if (!o->quiet)
-        printf("%s: %ux%ux%u, %llu bricks (%llu uniform, %llu operand subtrees skipped), "
-               "%llu bytes; evaluated in %.3f s, written in %.3f s\n", o->out,
+        printf("%s: %llu voxels at or above S on a %ux%ux%u grid, %llu bricks (%llu uniform, "
+               "%llu operand subtrees skipped), %llu bytes; evaluated in %.3f s, written in "
+               "%.3f s\n", o->out, (unsigned long long)r.voxels,
                r.grid.res[0], r.grid.res[1], r.grid.res[2],
                (unsigned long long)r.csg_bricks, (unsigned long long)r.csg_uniform,
                (unsigned long long)r.csg_skipped, (unsigned long long)r.st.file_bytes,
@@ -204,7 +205,7 @@ int cli_csg(int argc, char **argv)
     }
     csg_tree *t;
     uint64_t text_bytes = 0;
-    if ((rc = load_tree(&o, &t, &text_bytes))) return rc;
+    if ((rc = cli_csg_load(o.in, &t, &text_bytes))) return rc;
     rc = run(&o, strcmp(o.in, "-") ? o.in : NULL, text_bytes, t);
     csg_tree_free(t);
     return rc;

@@ -69,7 +69,8 @@ static const char usage_voxelize[] =
     "and no voxd answering.\n";
 
 static const char usage_submit[] =
-    "usage: vox [--socket PATH] submit (--expr EXPR | --file FILE.vx | --mesh FILE)\n"
+    "usage: vox [--socket PATH] submit (--expr EXPR | --file FILE.vx | --mesh FILE |\n"
+    "           --csg FILE.csg)\n"
     "           -o OUT.vod [options]\n"
     JOB_OPTIONS
     MESH_OPTIONS
@@ -82,7 +83,10 @@ static const char usage_submit[] =
     "\n"
     "Runs the job on the voxd daemon at the socket (see vox --help) and writes the\n"
     "result it streams back, checked (length and CRC-32) before it is renamed into\n"
-    "place.  A mesh file goes as it is (inline, or in chunks when large): the daemon\n"
+    "place.  --csg sends a volume CSG tree (docs/csg.md), checked here and by the\n"
+    "daemon, as vox csg evaluates it (the same bytes; channel density by default, or\n"
+    "occupancy; --domain as for an expression).\n"
+    "A mesh file goes as it is (inline, or in chunks when large): the daemon\n"
     "reads it and says what is wrong with it.  On a terminal the job's id is shown;\n"
     "an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job failed\n"
     "or was refused (with the daemon's reason), 2 bad usage, a bad expression or a\n"
@@ -185,9 +189,21 @@ static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
 /* What was given together that cannot be: 0 or CLI_EXIT_USAGE. */
 static int check_job_kind(cli_job_opts *o)
 {
-    if (!!o->expr + !!o->file + !!o->mesh != 1) {
-        cli_error("give exactly one of --expr, --file and --mesh");
+    if (!!o->expr + !!o->file + !!o->mesh + !!o->csg != 1) {
+        cli_error("give exactly one of --expr, --file and --mesh (or, to vox submit, --csg)");
         return CLI_EXIT_USAGE;
+    }
+    if (o->csg) { /* the densities, or the occupancy */
+        if (o->mesh_opts_given) {
+            cli_error("--mode, --repair, --supersample, --pad and --bbox are for --mesh jobs");
+            return CLI_EXIT_USAGE;
+        }
+        if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
+        if (o->vod.channel == VOXEL_CH_SURFACE) {
+            cli_error("--channel surface is not available for --csg jobs (density or occupancy)");
+            return CLI_EXIT_USAGE;
+        }
+        return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {
         cli_error("--mode, --repair, --supersample, --pad and --bbox are for --mesh jobs");
@@ -245,7 +261,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
         {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
         {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
-        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int submit = cmd == CLI_CMD_SUBMIT;
     const char *name = submit ? "submit" : "voxelize";
     int c;
@@ -314,6 +330,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         }
         case 'h': cli_job_usage(cmd, stdout); exit(0);
         case 'm': o->mesh = optarg; break;
+        case 'G': o->csg = optarg; break;
         case 'O': case 'R': case 'K': case 'A': case 'X':
             if (parse_mesh_option(c, optarg, o)) return CLI_EXIT_USAGE;
             break;

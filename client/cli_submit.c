@@ -13,6 +13,7 @@
 #include <unistd.h>
 
 #include "cli.h"
+#include "csg.h"
 #include "progress.h"
 #include "voxel.h"
 
@@ -212,6 +213,75 @@ static void mesh_job(const cli_job_opts *o, const void *data, size_t len, vox_jo
     };
 }
 
+/* A CSG tree as libvox's nodes: the values the daemon rebuilds the same
+ * tree from (the rotation in radians, as the parser made it). */
+static int csg_wire_kind(csg_kind k)
+{
+    static const int ops[CSG_KIND_COUNT] = {
+        [CSG_CUBOID] = VOX_CSG_PRIMITIVE, [CSG_ELLIPSOID] = VOX_CSG_PRIMITIVE,
+        [CSG_CYLINDER] = VOX_CSG_PRIMITIVE, [CSG_CONE] = VOX_CSG_PRIMITIVE,
+        [CSG_IMPLICIT] = VOX_CSG_IMPLICIT, [CSG_UNION] = VOX_CSG_UNION,
+        [CSG_INTERSECTION] = VOX_CSG_INTERSECTION, [CSG_TRIM] = VOX_CSG_TRIM,
+        [CSG_CAP] = VOX_CSG_CAP, [CSG_DIFFERENCE_A] = VOX_CSG_DIFFERENCE_A,
+        [CSG_DIFFERENCE_B] = VOX_CSG_DIFFERENCE_B, [CSG_DIFFERENCE] = VOX_CSG_DIFFERENCE,
+        [CSG_ADD] = VOX_CSG_ADD, [CSG_MODULATE] = VOX_CSG_MODULATE,
+        [CSG_DIVIDE_A] = VOX_CSG_DIVIDE_A, [CSG_DIVIDE] = VOX_CSG_DIVIDE,
+        [CSG_INVERSE] = VOX_CSG_INVERSE, [CSG_SCALAR_ADD] = VOX_CSG_SCALAR_ADD,
+        [CSG_SCALAR_MUL] = VOX_CSG_SCALAR_MUL, [CSG_ERODE] = VOX_CSG_ERODE,
+        [CSG_DILATE] = VOX_CSG_DILATE,
+    };
+    return ops[k];
+}
+
+static void csg_wire_node(const csg_tree *t, const csg_node *n, vox_csg_node *v)
+{
+    static const int prims[] = {[CSG_CUBOID] = VOX_PRIMITIVE_CUBOID,
+                                [CSG_ELLIPSOID] = VOX_PRIMITIVE_ELLIPSOID,
+                                [CSG_CYLINDER] = VOX_PRIMITIVE_CYLINDER,
+                                [CSG_CONE] = VOX_PRIMITIVE_CONE};
+    *v = (vox_csg_node){.op = csg_wire_kind(n->kind), .name = n->name};
+    if (n->a >= 0) v->children[v->n_children++] = (uint32_t)n->a;
+    if (n->b >= 0) v->children[v->n_children++] = (uint32_t)n->b;
+    if (n->kind <= CSG_CONE) {
+        v->primitive = prims[n->kind];
+        memcpy(v->center, n->center, sizeof v->center);
+        memcpy(v->size, n->size, sizeof v->size);
+        memcpy(v->rotate, n->rot, sizeof v->rotate);
+        if (n->kind == CSG_CYLINDER || n->kind == CSG_CONE) v->axis = n->axis + 1;
+    } else if (n->kind == CSG_IMPLICIT) {
+        v->source = t->text + n->expr_off;
+        v->source_len = n->expr_len;
+        v->has_domain = n->has_domain;
+        v->domain[0] = n->dom_lo, v->domain[1] = n->dom_hi;
+    } else if (n->kind == CSG_DIVIDE || n->kind == CSG_SCALAR_ADD || n->kind == CSG_SCALAR_MUL) {
+        v->scalar = n->param;
+    } else if (n->kind == CSG_ERODE || n->kind == CSG_DILATE) {
+        v->k = n->k;
+    }
+}
+
+/* The CSG job of o: the tree parsed here (its errors with line and column),
+ * then sent as nodes (*nodes, freed by the caller with the tree *t). */
+static int csg_job(const cli_job_opts *o, vox_job *job, csg_tree **t, vox_csg_node **nodes)
+{
+    uint64_t bytes;
+    int rc = cli_csg_load(o->csg, t, &bytes);
+    if (rc) return rc;
+    if (!(*nodes = calloc((*t)->n, sizeof **nodes))) {
+        cli_error("out of memory");
+        return CLI_EXIT_FAILED;
+    }
+    for (uint32_t i = 0; i < (*t)->n; i++) csg_wire_node(*t, &(*t)->node[i], &(*nodes)[i]);
+    job->kind = VOX_JOB_CSG;
+    job->csg = (vox_csg){
+        .nodes = *nodes, .n_nodes = (*t)->n,
+        .source_name = strcmp(o->csg, "-") ? o->csg : NULL, .source_bytes = bytes,
+        .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
+        .res = o->res,
+    };
+    return 0;
+}
+
 /* The job of o: the expression in src, or the mesh file o->mesh (mapped
  * into *map, *map_len; the caller unmaps it).  0, or an exit code. */
 static int daemon_job(const cli_job_opts *o, const source *src, vox_job *job, void **map,
@@ -223,6 +293,7 @@ static int daemon_job(const cli_job_opts *o, const source *src, vox_job *job, vo
         .comp = vox_comp(o->vod.comp),
         .hash = o->vod.hash == VOD_HASH_XX32 ? VOX_HASH_XX32 : VOX_HASH_SFHS,
     };
+    if (o->csg) return 0; /* csg_job's */
     if (o->mesh) {
         int rc = map_mesh(o->mesh, map, map_len);
         if (rc == 0) mesh_job(o, *map, *map_len, job);
@@ -252,8 +323,15 @@ int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
     vox_job job;
     void *map = NULL;
     size_t map_len = 0;
+    csg_tree *tree = NULL;
+    vox_csg_node *nodes = NULL;
     int rc = daemon_job(o, src, &job, &map, &map_len);
-    if (rc) return rc;
+    if (rc == 0 && o->csg) rc = csg_job(o, &job, &tree, &nodes);
+    if (rc) {
+        csg_tree_free(tree);
+        free(nodes);
+        return rc;
+    }
     /* An interrupt cancels the job on the daemon, then vox ends as the
      * job does (without SA_RESTART: it cuts the wait short).  The handler
      * is in place before the job exists, so no interrupt is lost between
@@ -267,6 +345,8 @@ int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
     sigaction(SIGINT, &old_int, NULL);
     sigaction(SIGTERM, &old_term, NULL);
     if (map) munmap(map, map_len);
+    csg_tree_free(tree);
+    free(nodes);
     return rc;
 }
 
@@ -276,13 +356,14 @@ int cli_submit(int argc, char **argv, const char *sock)
     cli_job_defaults(&o);
     int rc = cli_job_parse(CLI_CMD_SUBMIT, argc, argv, &o);
     if (rc) return rc;
-    /* A mesh goes as it is: the daemon parses it. */
+    /* A mesh goes as it is: the daemon parses it; a CSG tree is parsed
+     * here (csg_job), then checked again by the daemon. */
     source src = {0};
-    if (!o.mesh && (rc = cli_job_source(&o, &src, NULL))) return rc;
+    if (!o.mesh && !o.csg && (rc = cli_job_source(&o, &src, NULL))) return rc;
     vox_client *c;
     rc = connect_or_say(sock, &c);
     if (rc == 0) {
-        rc = cli_daemon_job(c, &o, o.mesh ? NULL : &src, 0, NULL);
+        rc = cli_daemon_job(c, &o, o.mesh || o.csg ? NULL : &src, 0, NULL);
         vox_close(c);
     }
     source_free(&src);

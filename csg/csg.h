@@ -101,6 +101,7 @@ typedef struct {
     uint64_t bricks, uniform_bricks;  /* results */
     uint64_t skipped;     /* operand subtrees decided without evaluation */
     uint64_t voxel_evals; /* voxels a leaf sampled */
+    uint64_t solid_voxels; /* stored voxels (inside the grid) with density >= S */
 } csg_stats;
 
 int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side, csg_eval **out);

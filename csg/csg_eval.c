@@ -317,20 +317,25 @@ int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
     return 0;
 }
 
-/* Brick b's voxels past the grid := 0; densities to occupancy if asked. */
-static void finish(const csg_eval *e, const uint32_t b[3], uint8_t *buf, int occupancy)
+/* Brick b's voxels past the grid := 0, the voxels at or above S inside it
+ * counted; densities to occupancy if asked. */
+static void finish(csg_eval *e, const uint32_t b[3], uint8_t *buf, int occupancy)
 {
     uint32_t s = e->side;
+    uint64_t solid = 0;
     for (uint32_t z = 0; z < s; z++)
         for (uint32_t y = 0; y < s; y++)
             for (uint32_t x = 0; x < s; x++) {
                 uint8_t *p = buf + x + (size_t)s * (y + (size_t)s * z);
                 if (b[0] * s + x >= e->g.res[0] || b[1] * s + y >= e->g.res[1] ||
-                    b[2] * s + z >= e->g.res[2])
+                    b[2] * s + z >= e->g.res[2]) {
                     *p = 0;
-                else if (occupancy)
-                    *p = *p >= CSG_S;
+                    continue;
+                }
+                solid += *p >= CSG_S;
+                if (occupancy) *p = *p >= CSG_S;
             }
+    e->st.solid_voxels += solid;
 }
 
 static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, int uniform,
@@ -339,10 +344,13 @@ static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, 
     uint32_t s = e->side;
     int inside = 1;
     for (int a = 0; a < 3; a++) inside &= (b[a] + 1) * s <= e->g.res[a];
-    if (uniform && occupancy) v = v >= CSG_S;
-    if (uniform && (inside || v == 0)) return vod_volume_put_uniform(vol, b, v);
+    if (uniform && inside) {
+        if (v >= CSG_S) e->st.solid_voxels += (uint64_t)s * s * s;
+        return vod_volume_put_uniform(vol, b, occupancy ? v >= CSG_S : v);
+    }
+    if (uniform && v == 0) return vod_volume_put_uniform(vol, b, 0);
     if (uniform) memset(buf, v, (size_t)s * s * s);
-    finish(e, b, buf, occupancy && !uniform);
+    finish(e, b, buf, occupancy);
     return vod_volume_put_brick(vol, b, buf);
 }
 

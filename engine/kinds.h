@@ -153,7 +153,7 @@ typedef struct {
 /* What one task's bricks came to (csg_stats of its bricks); the task's own
  * entry, so a task run again after a death writes the same. */
 typedef struct {
-    uint64_t bricks, uniform_bricks, skipped, voxel_evals;
+    uint64_t bricks, uniform_bricks, skipped, voxel_evals, solid_voxels;
 } csg_task_stats;
 
 /* The tree is csg.h's csg_tree: its n nodes (csg_node, an array at

@@ -973,10 +973,9 @@ static int job_input(const vox_job *job, const uint8_t **data, size_t *len, vox_
         *len = job->mesh.len;
         return 0;
     }
-    int rc = k == VOX_JOB_CSG ? -ENOTSUP : -EINVAL;
+    int rc = -EINVAL;
     set_error(err, rc, 0, "%s",
-              k == VOX_JOB_CSG        ? "this libvox cannot send CSG jobs yet"
-              : k == VOX_JOB_IMPLICIT ? "the job has no expression"
+              k == VOX_JOB_IMPLICIT   ? "the job has no expression"
               : k == VOX_JOB_MESH     ? "the job has no mesh data"
                                       : "the job is of no known kind");
     return rc;
@@ -1033,7 +1032,7 @@ static void submit_request(const vox_job *job, const uint8_t *data, size_t len, 
     *m = (submit_msg){VOXD__IMPLICIT__INIT, VOXD__MESH__INIT, VOXD__SUBMIT__INIT,
                       VOXD__REQUEST__INIT};
     if (job->kind == VOX_JOB_MESH) mesh_request(job, data, len, chunked, m);
-    else implicit_request(job, data, len, chunked, m);
+    else if (job->kind == VOX_JOB_IMPLICIT) implicit_request(job, data, len, chunked, m);
     if (chunked) m->sub.input_bytes = len;
     m->sub.channel = (Voxd__Channel)job->channel;
     m->sub.brick = job->brick;
@@ -1068,11 +1067,92 @@ static int check_input_size(const vox_client *c, int kind, size_t len, int chunk
     return 0;
 }
 
+/* A CSG job's Submit: its nodes in arrays of the caller's (nodes, ptrs),
+ * pointing into job. */
+static void csg_request(const vox_job *job, Voxd__CsgNode *nodes, Voxd__CsgNode **ptrs,
+                        submit_msg *m, Voxd__Csg *cm)
+{
+    const vox_csg *cj = &job->csg;
+    for (size_t i = 0; i < cj->n_nodes; i++) {
+        const vox_csg_node *v = &cj->nodes[i];
+        Voxd__CsgNode *n = &nodes[i];
+        voxd__csg_node__init(n);
+        n->op = (Voxd__CsgOp)v->op;
+        n->children = (uint32_t *)v->children;
+        n->n_children = v->n_children > 2 ? 2 : v->n_children;
+        if (v->op == VOX_CSG_PRIMITIVE) {
+            n->primitive = (Voxd__Primitive)v->primitive;
+            n->center = (double *)v->center, n->n_center = 3;
+            n->size = (double *)v->size, n->n_size = 3;
+            n->rotate = (double *)v->rotate, n->n_rotate = 3;
+            n->axis = (Voxd__Axis)v->axis;
+        }
+        if (v->source) {
+            n->source.data = (uint8_t *)v->source;
+            n->source.len = v->source_len ? v->source_len : strlen(v->source);
+        }
+        if (v->has_domain) n->domain = (double *)v->domain, n->n_domain = 2;
+        n->scalar = v->scalar;
+        n->k = v->k;
+        n->name = name_bytes(v->name);
+        ptrs[i] = n;
+    }
+    voxd__csg__init(cm);
+    cm->nodes = ptrs;
+    cm->n_nodes = cj->n_nodes;
+    cm->domain = (double *)cj->domain;
+    cm->n_domain = 6;
+    cm->res = cj->res;
+    cm->source_name = name_bytes(cj->source_name);
+    cm->source_bytes = cj->source_bytes;
+    m->sub.job_case = VOXD__SUBMIT__JOB_CSG;
+    m->sub.csg = cm;
+}
+
+/* A CSG job: its tree whole in the Submit, which must fit a frame. */
+static int submit_csg(vox_client *c, const vox_job *job, uint64_t *job_id,
+                      uint32_t *queue_position, vox_error *err)
+{
+    size_t n = job->csg.n_nodes;
+    if (!n || !job->csg.nodes) {
+        set_error(err, -EINVAL, 0, "the CSG job has no nodes");
+        return -EINVAL;
+    }
+    Voxd__CsgNode *nodes = calloc(n, sizeof *nodes);
+    Voxd__CsgNode **ptrs = calloc(n, sizeof *ptrs);
+    int rc = 0;
+    if (!nodes || !ptrs) {
+        set_error(err, -ENOMEM, 0, "out of memory");
+        rc = -ENOMEM;
+    }
+    submit_msg m;
+    Voxd__Csg cm;
+    if (!rc) {
+        submit_request(job, NULL, 0, 0, &m);
+        csg_request(job, nodes, ptrs, &m, &cm);
+        size_t bytes = protobuf_c_message_get_packed_size(&m.req.base);
+        if (bytes > c->lim.max_frame) {
+            set_error(err, VOX_ELIMIT_EXCEEDED, 0,
+                      "the CSG tree's request is %zu bytes, over this server's max_frame "
+                      "of %u", bytes, c->lim.max_frame);
+            rc = VOX_ELIMIT_EXCEEDED;
+        }
+    }
+    if (!rc) rc = request(c, P_SUBMIT, &m.req, err);
+    free(nodes);
+    free(ptrs);
+    if (rc) return rc;
+    *job_id = c->ans_job;
+    if (queue_position) *queue_position = c->ans_qpos;
+    return 0;
+}
+
 int vox_submit_job(vox_client *c, const vox_job *job, uint64_t *job_id,
                    uint32_t *queue_position, vox_error *err)
 {
     vox_error tmp;
     if (!err) err = &tmp;
+    if (job && job->kind == VOX_JOB_CSG) return submit_csg(c, job, job_id, queue_position, err);
     const uint8_t *data;
     size_t len;
     int rc = job_input(job, &data, &len, err);

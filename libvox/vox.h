@@ -138,7 +138,7 @@ enum { VOX_SCHEDULE_DEFAULT = 0, VOX_SCHEDULE_SUBTREE = 1, VOX_SCHEDULE_PAPER = 
 enum {
     VOX_JOB_IMPLICIT = 1, /* vox_job.implicit */
     VOX_JOB_MESH = 2,     /* vox_job.mesh */
-    VOX_JOB_CSG = 3,      /* volume CSG: not supported yet */
+    VOX_JOB_CSG = 3,      /* vox_job.csg */
 };
 
 /* F(x,y,z) = 0 over a box: the job of `vox voxelize`. */
@@ -198,6 +198,52 @@ typedef struct {
     uint32_t res;         /* voxels along the longest axis; 2 pad < res */
 } vox_mesh;
 
+/* Volume CSG (docs/csg.md): the protocol's CsgOp, Primitive and Axis
+ * numbers (proto/voxd.proto). */
+enum {
+    VOX_CSG_PRIMITIVE = 1, VOX_CSG_IMPLICIT = 2,
+    VOX_CSG_UNION = 10, VOX_CSG_INTERSECTION = 11, VOX_CSG_DIFFERENCE = 12,
+    VOX_CSG_TRIM = 13, VOX_CSG_CAP = 14, VOX_CSG_ADD = 15, VOX_CSG_MODULATE = 16,
+    VOX_CSG_DIVIDE = 17, VOX_CSG_DIFFERENCE_A = 18, VOX_CSG_DIFFERENCE_B = 19,
+    VOX_CSG_INVERSE = 20, VOX_CSG_DIVIDE_A = 21, VOX_CSG_SCALAR_ADD = 22,
+    VOX_CSG_SCALAR_MUL = 23, VOX_CSG_ERODE = 24, VOX_CSG_DILATE = 25,
+};
+enum { VOX_PRIMITIVE_CUBOID = 1, VOX_PRIMITIVE_ELLIPSOID = 2, VOX_PRIMITIVE_CYLINDER = 3,
+       VOX_PRIMITIVE_CONE = 4 };
+enum { VOX_AXIS_DEFAULT = 0 /* z */, VOX_AXIS_X = 1, VOX_AXIS_Y = 2, VOX_AXIS_Z = 3 };
+
+/* One node of a CSG tree; the fields its op does not take stay 0. */
+typedef struct {
+    int op;                 /* VOX_CSG_* */
+    uint32_t children[2];   /* indices of earlier nodes */
+    uint32_t n_children;    /* 2 binary, 1 unary, 0 leaves */
+    int primitive;          /* VOX_PRIMITIVE_*: center, size (full, > 0) and rotate
+                               (radians about x, then y, then z), world units */
+    double center[3], size[3], rotate[3];
+    int axis;               /* VOX_AXIS_*: a cylinder's or cone's */
+    const char *source;     /* VOX_CSG_IMPLICIT: F(x,y,z), inside where F < 0 */
+    size_t source_len;      /* its bytes; 0 = strlen(source) */
+    int has_domain;         /* VOX_CSG_IMPLICIT: L outside [domain[0], domain[1]]^3 */
+    double domain[2];
+    double scalar;          /* divide's S_L, scale_add's and scale_mul's scalar */
+    uint32_t k;             /* erode, dilate: voxels, 1..16 */
+    const char *name;       /* for the daemon's messages; may be NULL */
+} vox_csg_node;
+
+/* A CSG tree on a grid: the job of `vox csg`, which gives the same file.
+ * The tree travels whole in the job's Submit (a flat node list, the last
+ * node the result); the daemon checks it and compiles its expressions when
+ * the job is submitted, refusing a bad one with VOX_EINVALID_INPUT (or
+ * VOX_ELIMIT_EXCEEDED: max_csg_nodes, max_csg_depth, max_expr_bytes). */
+typedef struct {
+    const vox_csg_node *nodes;
+    size_t n_nodes;         /* 1..the daemon's max_csg_nodes */
+    const char *source_name; /* the .csg file's name, for the VOD's metadata; may be NULL */
+    uint64_t source_bytes;  /* the .csg text's size, for the same */
+    double domain[6];       /* x0, x1, y0, y1, z0, z1, each low < high */
+    uint32_t res;           /* voxels along the longest axis */
+} vox_csg;
+
 /* A job of any kind: `kind` says which member of the union holds it; the
  * VOD options are common to every kind. */
 typedef struct {
@@ -205,6 +251,7 @@ typedef struct {
     union {
         vox_implicit implicit; /* VOX_JOB_IMPLICIT */
         vox_mesh mesh;         /* VOX_JOB_MESH */
+        vox_csg csg;           /* VOX_JOB_CSG */
     };
     int channel;          /* VOX_CHANNEL_* */
     uint32_t brick;       /* brick side, a power of two 2..256; 0 = 16 */
@@ -222,8 +269,8 @@ typedef struct {
  * daemon's reason (VOX_EBUSY, VOX_ELIMIT_EXCEEDED, VOX_EINVALID_INPUT,
  * VOX_ESHUTTING_DOWN).  An input over the daemon's max_expr_bytes (an
  * expression), max_mesh_bytes (a mesh) or max_input_bytes is refused here
- * with VOX_ELIMIT_EXCEEDED, unsent; a kind this libvox cannot send yet
- * (CSG) with -ENOTSUP. */
+ * with VOX_ELIMIT_EXCEEDED, unsent, and so is a CSG tree whose Submit
+ * would not fit the daemon's max_frame (a tree is never chunked). */
 int vox_submit_job(vox_client *c, const vox_job *job, uint64_t *job_id,
                    uint32_t *queue_position, vox_error *err);
 

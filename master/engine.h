@@ -159,7 +159,7 @@ typedef struct {
 const char *engine_failure_name(engine_failure f);
 
 typedef struct {
-    uint64_t voxels;
+    uint64_t voxels;         /* (csg jobs: voxels with density >= S) */
     uint64_t octants;        /* boxes tested (the same for every schedule and
                                 worker count; chain rebuilds not counted) */
     uint32_t cells;          /* octree cells used */

@@ -174,6 +174,7 @@ static int collect(engine *e, csg_job *cj)
         r->csg_uniform += st[t].uniform_bricks;
         r->csg_skipped += st[t].skipped;
         r->csg_voxel_evals += st[t].voxel_evals;
+        r->voxels += st[t].solid_voxels;
     }
     vod_volume_info in;
     int bad = vod_volume_check(e->volume, e->volume_bytes);

@@ -250,6 +250,7 @@ static int run_serial_csg(const pipeline_job *job, const vod_params *v,
     r->csg_uniform = st.uniform_bricks;
     r->csg_skipped = st.skipped;
     r->csg_voxel_evals = st.voxel_evals;
+    r->voxels = st.solid_voxels;
     if (rc) {
         fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
              "evaluating the tree: %s", strerror(-rc));

@@ -317,6 +317,7 @@ static const csg_op_info csg_ops[] = {
     [VOXD__CSG_OP__CSG_PRIMITIVE] = {"primitive", 0},
     [VOXD__CSG_OP__CSG_IMPLICIT] = {"implicit", 0},
     [VOXD__CSG_OP__CSG_MESH] = {"mesh", 0},
+    [VOXD__CSG_OP__CSG_VOD] = {"vod", 0},
     [VOXD__CSG_OP__CSG_UNION] = {"union", 2},
     [VOXD__CSG_OP__CSG_INTERSECTION] = {"intersection", 2},
     [VOXD__CSG_OP__CSG_DIFFERENCE] = {"difference", 2},
@@ -325,7 +326,14 @@ static const csg_op_info csg_ops[] = {
     [VOXD__CSG_OP__CSG_ADD] = {"add", 2},
     [VOXD__CSG_OP__CSG_MODULATE] = {"modulate", 2},
     [VOXD__CSG_OP__CSG_DIVIDE] = {"divide", 2},
+    [VOXD__CSG_OP__CSG_DIFFERENCE_A] = {"differenceA", 2},
+    [VOXD__CSG_OP__CSG_DIFFERENCE_B] = {"differenceB", 2},
+    [VOXD__CSG_OP__CSG_DIVIDE_A] = {"divideA", 2},
     [VOXD__CSG_OP__CSG_INVERSE] = {"inverse", 1},
+    [VOXD__CSG_OP__CSG_SCALAR_ADD] = {"scale_add", 1},
+    [VOXD__CSG_OP__CSG_SCALAR_MUL] = {"scale_mul", 1},
+    [VOXD__CSG_OP__CSG_ERODE] = {"erode", 1},
+    [VOXD__CSG_OP__CSG_DILATE] = {"dilate", 1},
 };
 
 static const csg_op_info *csg_op(Voxd__CsgOp op)
@@ -335,51 +343,124 @@ static const csg_op_info *csg_op(Voxd__CsgOp op)
     return &csg_ops[v];
 }
 
-/* The fields a node of this op must not carry. */
-static int check_csg_stray(const Voxd__CsgNode *n, size_t i, const char *name,
-                           proto_error *e)
+/* "CSG node 3 ('hole')" or "CSG node 3": how messages name a node. */
+static const char *node_label(const Voxd__CsgNode *n, size_t i, char *buf, size_t len)
 {
-    const char *field = NULL;
-    if (n->op != VOXD__CSG_OP__CSG_PRIMITIVE && (n->primitive || n->n_params))
-        field = "a primitive";
-    else if (n->op != VOXD__CSG_OP__CSG_IMPLICIT && n->op != VOXD__CSG_OP__CSG_MESH &&
-             n->source.len)
-        field = "a source";
-    else if (n->op != VOXD__CSG_OP__CSG_MESH && n->mesh_format)
-        field = "a mesh format";
-    else if (n->op != VOXD__CSG_OP__CSG_DIVIDE && n->scalar != 0)
-        field = "a scalar";
-    if (field)
-        return bad(e, INVALID, "CSG node %zu (%s) does not take %s", i, name, field);
+    int named = n && n->name.len > 0 && n->name.len < PROTO_CSG_NAME_MAX;
+    if (named)
+        snprintf(buf, len, "CSG node %zu ('%.*s')", i, (int)n->name.len,
+                 (const char *)n->name.data);
+    else
+        snprintf(buf, len, "CSG node %zu", i);
+    return buf;
+}
+
+/* A node's name: empty, or [A-Za-z_][A-Za-z0-9_]* of under 32 bytes. */
+static int check_csg_name(const ProtobufCBinaryData *nm, size_t i, proto_error *e)
+{
+    if (nm->len >= PROTO_CSG_NAME_MAX)
+        return bad(e, INVALID, "CSG node %zu's name is %zu bytes, limit %u", i, nm->len,
+                   PROTO_CSG_NAME_MAX - 1);
+    for (size_t k = 0; k < nm->len; k++) {
+        uint8_t c = nm->data[k];
+        int ok_c = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_' ||
+                   (k > 0 && c >= '0' && c <= '9');
+        if (!ok_c)
+            return bad(e, INVALID, "CSG node %zu's name has a byte 0x%02x at offset %zu "
+                       "(names are letters, digits and _)", i, c, k);
+    }
     return 0;
 }
 
-static int check_csg_leaf(const Voxd__CsgNode *n, size_t i, const proto_limits *lim,
+/* The fields a node of this op must not carry. */
+static int check_csg_stray(const Voxd__CsgNode *n, const char *who, const char *name,
+                           proto_error *e)
+{
+    const char *field = NULL;
+    int prim = n->op == VOXD__CSG_OP__CSG_PRIMITIVE;
+    int scalar_op = n->op == VOXD__CSG_OP__CSG_DIVIDE ||
+                    n->op == VOXD__CSG_OP__CSG_SCALAR_ADD ||
+                    n->op == VOXD__CSG_OP__CSG_SCALAR_MUL;
+    int morph = n->op == VOXD__CSG_OP__CSG_ERODE || n->op == VOXD__CSG_OP__CSG_DILATE;
+    if (!prim && (n->primitive || n->n_center || n->n_size || n->n_rotate || n->axis))
+        field = "a primitive's fields";
+    else if (n->op != VOXD__CSG_OP__CSG_IMPLICIT && (n->source.len || n->n_domain))
+        field = "an expression or its domain";
+    else if (!scalar_op && n->scalar != 0)
+        field = "a scalar";
+    else if (!morph && n->k)
+        field = "k";
+    if (field) return bad(e, INVALID, "%s (%s) does not take %s", who, name, field);
+    return 0;
+}
+
+/* count values (0 allowed when may_omit), each finite and within
+ * PROTO_CSG_MAX_COORD, and > 0 when positive. */
+static int check_csg_vec(const double *v, size_t n, int may_omit, int positive,
+                         const char *who, const char *what, proto_error *e)
+{
+    if (n != 3 && !(may_omit && n == 0))
+        return bad(e, INVALID, "%s needs 3 values for its %s%s, got %zu", who, what,
+                   may_omit ? " (or none)" : "", n);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(v[k]) || fabs(v[k]) > PROTO_CSG_MAX_COORD)
+            return bad(e, INVALID, "%s's %s value %zu is %g, not a finite number within "
+                       "+-%g", who, what, k + 1, v[k], PROTO_CSG_MAX_COORD);
+        if (positive && !(v[k] > 0))
+            return bad(e, INVALID, "%s's %s must be positive, value %zu is %g", who, what,
+                       k + 1, v[k]);
+    }
+    return 0;
+}
+
+static int check_csg_primitive(const Voxd__CsgNode *n, const char *who, proto_error *e)
+{
+    if (n->primitive == VOXD__PRIMITIVE__PRIMITIVE_UNSPECIFIED ||
+        (unsigned)n->primitive > VOXD__PRIMITIVE__PRIMITIVE_CONE)
+        return bad(e, INVALID, "%s has unknown primitive %d", who, (int)n->primitive);
+    if ((unsigned)n->axis > VOXD__AXIS__AXIS_Z)
+        return bad(e, INVALID, "%s has unknown axis %d", who, (int)n->axis);
+    if (n->axis && n->primitive != VOXD__PRIMITIVE__PRIMITIVE_CYLINDER &&
+        n->primitive != VOXD__PRIMITIVE__PRIMITIVE_CONE)
+        return bad(e, INVALID, "%s: only a cylinder or a cone has an axis", who);
+    int rc = check_csg_vec(n->center, n->n_center, 1, 0, who, "center", e);
+    if (!rc) rc = check_csg_vec(n->size, n->n_size, 0, 1, who, "size", e);
+    if (!rc) rc = check_csg_vec(n->rotate, n->n_rotate, 1, 0, who, "rotation", e);
+    return rc;
+}
+
+static int check_csg_leaf(const Voxd__CsgNode *n, const char *who, const proto_limits *lim,
                           proto_error *e)
 {
-    char what[64];
+    char what[128];
     switch (n->op) {
     case VOXD__CSG_OP__CSG_PRIMITIVE:
-        if (n->primitive == VOXD__PRIMITIVE__PRIMITIVE_UNSPECIFIED ||
-            (unsigned)n->primitive > VOXD__PRIMITIVE__PRIMITIVE_CONE)
-            return bad(e, INVALID, "CSG node %zu has unknown primitive %d", i,
-                       (int)n->primitive);
-        snprintf(what, sizeof what, "CSG node %zu box", i);
-        return check_box(n->params, n->n_params, 0, what, e);
+        return check_csg_primitive(n, who, e);
     case VOXD__CSG_OP__CSG_IMPLICIT:
-        snprintf(what, sizeof what, "CSG node %zu expression", i);
-        return check_source(&n->source, lim->max_expr_bytes, what, e);
-    case VOXD__CSG_OP__CSG_MESH:
-        if (n->mesh_format == VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED ||
-            (unsigned)n->mesh_format > VOXD__MESH_FORMAT__MESH_FORMAT_OFF)
-            return bad(e, INVALID, "CSG node %zu has unknown mesh format %d", i,
-                       (int)n->mesh_format);
-        if (n->source.len == 0) return bad(e, INVALID, "CSG node %zu mesh is empty", i);
-        return 0;
+        snprintf(what, sizeof what, "%.96s's expression", who);
+        if (n->n_domain == 0) return check_source(&n->source, lim->max_expr_bytes, what, e);
+        if (n->n_domain != 2)
+            return bad(e, INVALID, "%s's domain needs 2 values (or none), got %zu", who,
+                       n->n_domain);
+        int rc = check_source(&n->source, lim->max_expr_bytes, what, e);
+        snprintf(what, sizeof what, "%.96s's domain", who);
+        return rc ? rc : check_box(n->domain, n->n_domain, 1, what, e);
+    case VOXD__CSG_OP__CSG_MESH: case VOXD__CSG_OP__CSG_VOD:
+        return bad(e, INVALID, "%s: %s leaves are not supported yet", who,
+                   n->op == VOXD__CSG_OP__CSG_MESH ? "mesh" : "vod");
     case VOXD__CSG_OP__CSG_DIVIDE:
         if (!(n->scalar > 0 && n->scalar <= 1))
-            return bad(e, INVALID, "CSG node %zu (divide) needs a scalar in (0, 1], got %g",
-                       i, n->scalar);
+            return bad(e, INVALID, "%s (divide) needs a scalar S_L in (0, 1], got %g", who,
+                       n->scalar);
+        return 0;
+    case VOXD__CSG_OP__CSG_SCALAR_ADD: case VOXD__CSG_OP__CSG_SCALAR_MUL:
+        if (!isfinite(n->scalar))
+            return bad(e, INVALID, "%s needs a finite scalar, got %g", who, n->scalar);
+        return 0;
+    case VOXD__CSG_OP__CSG_ERODE: case VOXD__CSG_OP__CSG_DILATE:
+        if (n->k < 1 || n->k > PROTO_CSG_MAX_MORPH)
+            return bad(e, INVALID, "%s needs k of 1..%u voxels, got %u", who,
+                       PROTO_CSG_MAX_MORPH, n->k);
         return 0;
     default: return 0;
     }
@@ -388,34 +469,74 @@ static int check_csg_leaf(const Voxd__CsgNode *n, size_t i, const proto_limits *
 static int check_csg_node(const Voxd__CsgNode *n, size_t i, const proto_limits *lim,
                           proto_error *e)
 {
-    if (!n) return bad(e, INVALID, "CSG node %zu is missing", i);
-    if (n->op == VOXD__CSG_OP__CSG_OP_UNSPECIFIED)
-        return bad(e, INVALID, "CSG node %zu has no op", i);
+    char who[96];
+    node_label(n, i, who, sizeof who);
+    if (!n) return bad(e, INVALID, "%s is missing", who);
+    int rc = check_csg_name(&n->name, i, e);
+    if (rc) return rc;
+    if (n->op == VOXD__CSG_OP__CSG_OP_UNSPECIFIED) return bad(e, INVALID, "%s has no op", who);
     const csg_op_info *op = csg_op(n->op);
-    if (!op) return bad(e, INVALID, "CSG node %zu has unknown op %d", i, (int)n->op);
+    if (!op) return bad(e, INVALID, "%s has unknown op %d", who, (int)n->op);
     if (n->n_children != (size_t)op->arity)
-        return bad(e, INVALID, "CSG node %zu (%s) needs %d %s, got %zu", i, op->name,
-                   op->arity, op->arity == 1 ? "child" : "children", n->n_children);
+        return bad(e, INVALID, "%s (%s) needs %d %s, got %zu", who, op->name, op->arity,
+                   op->arity == 1 ? "child" : "children", n->n_children);
     for (size_t k = 0; k < n->n_children; k++)
         if (n->children[k] >= i)
-            return bad(e, INVALID, "CSG node %zu refers to node %u, which is not earlier",
-                       i, n->children[k]);
-    int rc = check_csg_stray(n, i, op->name, e);
-    return rc ? rc : check_csg_leaf(n, i, lim, e);
+            return bad(e, INVALID, "%s refers to node %u, which is not earlier "
+                       "(children come first: no cycles)", who, n->children[k]);
+    rc = check_csg_stray(n, who, op->name, e);
+    return rc ? rc : check_csg_leaf(n, who, lim, e);
 }
 
-static int check_csg(const Voxd__Csg *c, const proto_limits *lim, proto_error *e)
+/* The longest path from the result to a leaf, and the erosions' and
+ * dilations' widest sum along one (the evaluator grows a brick by it). */
+static int check_csg_shape(const Voxd__Csg *c, const proto_limits *lim, proto_error *e)
+{
+    uint32_t depth[PROTO_CSG_MAX_NODES], margin[PROTO_CSG_MAX_NODES];
+    char who[96];
+    for (size_t i = 0; i < c->n_nodes; i++) {
+        const Voxd__CsgNode *n = c->nodes[i];
+        uint32_t d = 0, m = 0;
+        for (size_t k = 0; k < n->n_children; k++) {
+            if (depth[n->children[k]] > d) d = depth[n->children[k]];
+            if (margin[n->children[k]] > m) m = margin[n->children[k]];
+        }
+        depth[i] = d + 1;
+        margin[i] = m + n->k;
+        if (depth[i] > lim->max_csg_depth)
+            return bad(e, LIMIT, "%s: the tree is deeper than this server's max_csg_depth "
+                       "of %u", node_label(n, i, who, sizeof who), lim->max_csg_depth);
+        if (margin[i] > PROTO_CSG_MAX_MARGIN)
+            return bad(e, INVALID, "%s: erosions and dilations along one path pass %u voxels",
+                       node_label(n, i, who, sizeof who), PROTO_CSG_MAX_MARGIN);
+    }
+    return 0;
+}
+
+static int check_csg(const Voxd__Csg *c, const Voxd__Submit *s, const proto_limits *lim,
+                     proto_error *e)
 {
     int rc;
     if (c->n_nodes == 0) return bad(e, INVALID, "CSG job has no nodes");
-    if (c->n_nodes > lim->max_csg_nodes)
-        return bad(e, LIMIT, "CSG job has %zu nodes, limit %u", c->n_nodes,
-                   lim->max_csg_nodes);
+    uint32_t max = lim->max_csg_nodes < PROTO_CSG_MAX_NODES ? lim->max_csg_nodes
+                                                            : PROTO_CSG_MAX_NODES;
+    if (c->n_nodes > max)
+        return bad(e, LIMIT, "CSG job has %zu nodes, over this server's max_csg_nodes of %u",
+                   c->n_nodes, max);
+    if (s->input_bytes)
+        return bad(e, INVALID, "a CSG job comes whole in its Submit, not as input_bytes");
     for (size_t i = 0; i < c->n_nodes; i++)
         if ((rc = check_csg_node(c->nodes[i], i, lim, e))) return rc;
+    if ((rc = check_csg_shape(c, lim, e))) return rc;
+    if ((rc = check_source_name(&c->source_name, e))) return rc;
     if ((rc = check_box(c->domain, c->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(c->res, lim, e))) return rc;
-    return bad(e, INVALID, "CSG jobs are not supported yet");
+    if (s->channel != VOXD__CHANNEL__CHANNEL_UNSPECIFIED &&
+        s->channel != VOXD__CHANNEL__CHANNEL_DENSITY &&
+        s->channel != VOXD__CHANNEL__CHANNEL_OCCUPANCY)
+        return bad(e, INVALID, "channel %s is not available for CSG jobs (use density or "
+                   "occupancy)", channel_names[s->channel]);
+    return 0;
 }
 
 static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_error *e)
@@ -437,7 +558,7 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
         return check_mesh(s->mesh, s, lim, e);
     case VOXD__SUBMIT__JOB_CSG:
         if (!s->csg) break;
-        return check_csg(s->csg, lim, e);
+        return check_csg(s->csg, s, lim, e);
     default:
         return bad(e, INVALID, "unknown job kind %d", (int)s->job_case);
     }

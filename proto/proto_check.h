@@ -34,10 +34,18 @@
 #define PROTO_MAX_BRICK 256u     /* Submit.brick: 0 or a power of two in 2..256 */
 #define PROTO_MIN_SUPERSAMPLE 2u /* Mesh.supersample: 0 or 2..8 */
 #define PROTO_MAX_SUPERSAMPLE 8u
+/* A CSG tree's fixed bounds, the evaluator's own (csg/csg.h): nodes,
+ * name bytes with the NUL, erode/dilate k, k summed along a path, and the
+ * magnitude of a primitive's coordinates and sizes (world units). */
+#define PROTO_CSG_MAX_NODES 256u
+#define PROTO_CSG_NAME_MAX 32u
+#define PROTO_CSG_MAX_MORPH 16u
+#define PROTO_CSG_MAX_MARGIN 64u
+#define PROTO_CSG_MAX_COORD 1e6
 
 /* The configurable limits (the table VOX_LIMITS): config_proto_limits()
  * fills them from the daemon's config, a client takes them from HelloOk.
- * The checks here use max_expr_bytes, max_res, max_csg_nodes, chunk_size,
+ * The checks here use max_expr_bytes, max_res, max_csg_nodes, max_csg_depth, chunk_size,
  * max_result_bytes, max_input_bytes and max_mesh_bytes; max_expr_depth
  * only the expression compiler can see and max_triangles only the mesh
  * parser, the others are the daemon's to count. */
@@ -76,7 +84,7 @@ void proto_limits_from_hello(const Voxd__Limits *l, proto_limits *lim);
 void proto_limits_to_hello(const proto_limits *lim, Voxd__Limits *l);
 
 /* 0 if r may be trusted; else -EINVAL (code INVALID_INPUT: malformed, or
- * a CSG job, "not supported yet") or -E2BIG (code LIMIT_EXCEEDED:
+ * a CSG mesh or VOD leaf, "not supported yet") or -E2BIG (code LIMIT_EXCEEDED:
  * over a configured limit), with err filled in.  err may be NULL. */
 int proto_check_request(const Voxd__Request *r, const proto_limits *lim,
                         proto_error *err);

@@ -46,13 +46,18 @@
       (uint64_t)4 << 30, BYTES, "bytes of a job's VOD file")                           \
     X(chunk_size, uint32_t, 256u << 10, 1024u, 64u << 20, BYTES,                       \
       "bytes of one ResultChunk's data")                                               \
-    X(max_csg_nodes, uint32_t, 1024u, 1u, 65536u, COUNT, "nodes of a CSG job")          \
+    X(max_csg_nodes, uint32_t, 256u, 1u, 256u, COUNT,                                  \
+      "nodes of a CSG job (256 is the evaluator's own cap)")                           \
     X(max_input_bytes, uint64_t, (uint64_t)64 << 20, (uint64_t)4 << 10,                \
       (uint64_t)4 << 30, BYTES, "bytes of a job's input sent as InputChunks")          \
     X(max_mesh_bytes, uint64_t, (uint64_t)64 << 20, (uint64_t)4 << 10,                 \
       (uint64_t)4 << 30, BYTES,                                                        \
       "bytes of a mesh job's file, inline or as input (max_input_bytes caps the latter)") \
     X(max_triangles, uint32_t, 4u << 20, 1u, 64u << 20, COUNT,                         \
-      "triangles of a mesh job's mesh, polygons split (64M is the loaders' own cap)")
+      "triangles of a mesh job's mesh, polygons split (64M is the loaders' own cap)")  \
+    X(max_csg_depth, uint32_t, 64u, 1u, 64u, COUNT,                                    \
+      "a CSG tree's longest path from its result to a leaf (64 is the evaluator's cap)") \
+    X(max_csg_leaf_bytes, uint64_t, (uint64_t)64 << 20, (uint64_t)4 << 10,             \
+      (uint64_t)4 << 30, BYTES, "bytes of a CSG job's mesh and VOD leaves, together")
 
 #endif

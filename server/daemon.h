@@ -70,7 +70,7 @@ struct vd_job {
     int state;                 /* enum vd_job_state (under mu) */
 
     /* the request, copied and checked */
-    int kind;                  /* pipeline_kind: PIPELINE_IMPLICIT or PIPELINE_MESH */
+    int kind;                  /* pipeline_kind: PIPELINE_IMPLICIT, _MESH or _CSG */
     /* The job's input: the expression, or the mesh file's bytes (freed
      * once parsed); NUL-terminated; inline, or the input as it arrives. */
     char *source;
@@ -90,6 +90,10 @@ struct vd_job {
     mesh_vox_opts mesh_opts;
     uint32_t pad;
     int fit;                   /* no domain: the mesh's bounding box and pad */
+    /* a CSG job's tree, built and checked at submit (daemon_csg.c), and
+     * its text's size for the metadata (its source is empty) */
+    csg_tree *csg;
+    uint64_t csg_source_bytes;
     /* limits at submit time (a HUP does not change a job's) */
     uint32_t max_expr_bytes, max_expr_depth, job_timeout, max_triangles;
     uint64_t max_result_bytes;
@@ -242,6 +246,11 @@ void vd_engine_opts(vd_daemon *d, const voxd_config *c); /* under mu */
 int vd_engine_start(vd_daemon *d);
 void vd_engine_stop(vd_daemon *d);
 void vd_job_free(vd_job *j);
+/* daemon_csg.c: a checked Csg message's tree, its expressions compiled
+ * under the limits given; 0, or a negative errno with msg saying why
+ * (-EINVAL a bad expression, -E2BIG one over a limit). */
+int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
+                csg_tree **out, char *msg, size_t len);
 /* Set j's terminal error from its cancel_code (a person's words for it). */
 void vd_job_stopped(vd_job *j);
 /* Push a checked job onto the queue; the caller counted the limits. */

@@ -263,7 +263,10 @@ static int channel_of(const Voxd__Submit *s)
     case VOXD__CHANNEL__CHANNEL_OCCUPANCY: return VOXEL_CH_OCCUPANCY;
     case VOXD__CHANNEL__CHANNEL_DENSITY: return VOXEL_CH_DENSITY;
     case VOXD__CHANNEL__CHANNEL_SURFACE: return VOXEL_CH_SURFACE;
-    default: return s->job_case == VOXD__SUBMIT__JOB_MESH ? VOXEL_CH_OCCUPANCY : VOXEL_CH_SURFACE;
+    default:
+        return s->job_case == VOXD__SUBMIT__JOB_MESH  ? VOXEL_CH_OCCUPANCY
+               : s->job_case == VOXD__SUBMIT__JOB_CSG ? VOXEL_CH_DENSITY
+                                                      : VOXEL_CH_SURFACE;
     }
 }
 
@@ -271,6 +274,12 @@ static void job_from_request(vd_job *j, const Voxd__Submit *s)
 {
     if (s->job_case == VOXD__SUBMIT__JOB_MESH) {
         mesh_from_request(j, s->mesh);
+    } else if (s->job_case == VOXD__SUBMIT__JOB_CSG) {
+        j->kind = PIPELINE_CSG;
+        job_domain(j, s->csg->domain, s->csg->n_domain);
+        j->res = s->csg->res;
+        j->csg_source_bytes = s->csg->source_bytes;
+        j->schedule = ENGINE_SCHED_SUBTREE; /* not the csg kind's: brick runs */
     } else {
         const Voxd__Implicit *im = s->implicit;
         j->kind = PIPELINE_IMPLICIT;
@@ -296,11 +305,14 @@ static void job_from_request(vd_job *j, const Voxd__Submit *s)
  * name, per kind (proto_check made sure the member is there). */
 static const ProtobufCBinaryData *inline_input(const Voxd__Submit *s)
 {
+    static const ProtobufCBinaryData none = {0, NULL}; /* a CSG job's tree is its own */
+    if (s->job_case == VOXD__SUBMIT__JOB_CSG) return &none;
     return s->job_case == VOXD__SUBMIT__JOB_MESH ? &s->mesh->data : &s->implicit->source;
 }
 
 static const ProtobufCBinaryData *source_name_of(const Voxd__Submit *s)
 {
+    if (s->job_case == VOXD__SUBMIT__JOB_CSG) return &s->csg->source_name;
     return s->job_case == VOXD__SUBMIT__JOB_MESH ? &s->mesh->source_name
                                                  : &s->implicit->source_name;
 }
@@ -308,7 +320,7 @@ static const ProtobufCBinaryData *source_name_of(const Voxd__Submit *s)
 /* What the job's input is, for messages. */
 static const char *input_name(const vd_job *j)
 {
-    return j->kind == PIPELINE_MESH ? "mesh" : "expression";
+    return j->kind == PIPELINE_MESH ? "mesh" : j->kind == PIPELINE_CSG ? "CSG tree" : "expression";
 }
 
 /* The job's source: the inline input, or an empty buffer for the input to
@@ -378,8 +390,26 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     if (d->stopping)
         return vd_client_error(c, 0, VOXD__ERROR_CODE__SHUTTING_DOWN,
                                "the daemon is stopping and takes no new jobs");
+    /* A CSG tree is built and its expressions compiled now: a bad one is
+     * refused here, the daemon never runs it. */
+    csg_tree *tree = NULL;
+    if (s->job_case == VOXD__SUBMIT__JOB_CSG) {
+        char msg[300];
+        int rc = vd_csg_tree(s->csg, d->cfg.max_expr_bytes, d->cfg.max_expr_depth, &tree,
+                             msg, sizeof msg);
+        if (rc)
+            return vd_client_error(c, 0,
+                                   rc == -E2BIG    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
+                                   : rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
+                                                   : VOXD__ERROR_CODE__INTERNAL,
+                                   "%s", msg);
+    }
     vd_job *j = job_new(c, s);
-    if (!j) return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
+    if (!j) {
+        csg_tree_free(tree);
+        return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
+    }
+    j->csg = tree;
     j->id = d->next_job_id + 1;
     char why[300];
     if (vd_memory_room(d, config_max_memory(&d->cfg), d->cfg.shm_size, why, sizeof why)) {

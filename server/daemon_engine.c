@@ -69,6 +69,7 @@ void vd_job_free(vd_job *j)
     drop_result(j);
     free(j->source);
     free(j->source_name);
+    csg_tree_free(j->csg);
     free(j);
 }
 
@@ -236,7 +237,9 @@ void vd_job_stopped(vd_job *j)
         job_error(j, j->cancel_code,
                   "the job ran past this server's job_timeout of %u s; ask for a lower "
                   "res or a simpler %s",
-                  j->job_timeout, j->kind == PIPELINE_MESH ? "mesh" : "expression");
+                  j->job_timeout,
+                  j->kind == PIPELINE_MESH ? "mesh" : j->kind == PIPELINE_CSG ? "CSG tree"
+                                                                              : "expression");
         break;
     case VOXD__ERROR_CODE__SHUTTING_DOWN:
         job_error(j, j->cancel_code, "the daemon is stopping");
@@ -388,6 +391,13 @@ static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m)
         job->mesh.fit = j->fit;
         job->mesh.source_name = j->source_name;
         job->mesh.source_bytes = j->source_len;
+        return 0;
+    }
+    if (j->kind == PIPELINE_CSG) {
+        job->kind = PIPELINE_CSG;
+        job->csg.tree = j->csg;
+        job->csg.source_name = j->source_name;
+        job->csg.source_bytes = j->csg_source_bytes;
         return 0;
     }
     if (compile(j, tape)) return -1;

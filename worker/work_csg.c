@@ -81,6 +81,7 @@ static int csg_run(work_ctx *w, void *state, const shm_task *t)
         .uniform_bricks = s1->uniform_bricks - s0.uniform_bricks,
         .skipped = s1->skipped - s0.skipped,
         .voxel_evals = s1->voxel_evals - s0.voxel_evals,
+        .solid_voxels = s1->solid_voxels - s0.solid_voxels,
     };
     return 0;
 }

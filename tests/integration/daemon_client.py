@@ -15,6 +15,8 @@ hangs on it.
                                           (the file's bytes as they are, its name as source_name)
   daemon_client.py SOCK mesh-declare N    (a mesh Submit declaring N bytes of input: the
                                            daemon's answer, then a ping on the same connection)
+  daemon_client.py SOCK csg-bad KIND      (a CSG Submit with a bad tree of KIND, see CSG_BAD:
+                                           the daemon's answer, then a ping on the same connection)
   daemon_client.py SOCK status            (prints pid=..,cpu=.. per worker, queued, running)
   daemon_client.py SOCK ping
   daemon_client.py SOCK abuse KIND        (see ABUSE)
@@ -95,6 +97,68 @@ def mesh_submit(data, res, pad=0, channel=0, name=b"", input_bytes=0):
         + field_varint(8, res) + (field_bytes(9, name) if name else b"")
     body = field_bytes(2, mesh) + field_varint(10, channel) + field_varint(14, input_bytes)
     return frame(request(2, body))
+
+
+def field_double(n, v):
+    return varint(n << 3 | 1) + struct.pack("<d", v)
+
+
+def csg_node(op, children=(), prim=0, size=None, source=b"", scalar=0.0, k=0, name=b""):
+    """A CsgNode: op and children, a primitive's size (centre at the origin,
+    no rotation), an implicit leaf's source, a scalar, k, a name."""
+    b = field_varint(1, op)
+    if children:
+        b += field_bytes(2, b"".join(varint(c) for c in children))
+    b += field_varint(3, prim)
+    if source:
+        b += field_bytes(5, source)
+    if scalar:
+        b += field_double(7, scalar)
+    if size:
+        b += field_packed_doubles(9, size)
+    return b + field_varint(13, k) + (field_bytes(14, name) if name else b"")
+
+
+def csg_submit(nodes, res=16, domain=(-1, 1)):
+    csg = b"".join(field_bytes(1, n) for n in nodes) + field_packed_doubles(2, domain) \
+        + field_varint(3, res)
+    return frame(request(2, field_bytes(3, csg)))
+
+
+# Bad trees, one of each kind: the daemon refuses each at the Submit.
+BOX = csg_node(1, prim=1, size=(1, 1, 1), name=b"box")
+CSG_BAD = {
+    # a child that is not an earlier node: a cycle cannot be written
+    "cycle": [BOX, csg_node(10, (0, 1), name=b"loop")],
+    "unknown-op": [BOX, csg_node(99, (0,), name=b"what")],
+    "arity": [BOX, csg_node(10, (0,), name=b"half")],
+    "param": [BOX, BOX, csg_node(17, (0, 1), scalar=1.5, name=b"div")],
+    "k": [BOX, csg_node(24, (0,), k=40, name=b"er")],
+    "expression": [csg_node(2, source=b"x^2 + (y", name=b"bad")],
+    "mesh-leaf": [csg_node(3, name=b"scan")],
+    "no-nodes": [],
+    "deep": [BOX] + [csg_node(20, (i,)) for i in range(70)],
+}
+
+
+def cmd_csg_bad(path, kind):
+    c = Conn(path)
+    c.hello()
+    c.send(csg_submit(CSG_BAD[kind]))
+    r = c.recv_frame()
+    if r is None:
+        die(4, "CLOSED: the server closed the connection")
+    if r[0] == 2:
+        print("accepted job %d" % one(r[1], 1), flush=True)
+        return 0
+    if r[0] != 6:
+        die(1, "unexpected reply %d" % r[0])
+    print("ERROR %s: %s (job %d)" % (CODES.get(one(r[1], 2), "?"),
+                                     one(r[1], 3, b"").decode(errors="replace"),
+                                     one(r[1], 1)), flush=True)
+    c.send(ping(12))
+    print("pong %d" % one(c.expect(8), 1), flush=True)
+    return 3
 
 
 def input_chunk(job_id, offset, data):
@@ -620,6 +684,8 @@ def main():
             return cmd_mesh(path, args)
         if cmd == "mesh-declare":
             return cmd_mesh_declare(path, int(args[0]))
+        if cmd == "csg-bad":
+            return cmd_csg_bad(path, args[0])
         if cmd == "status":
             return cmd_status(path)
         if cmd == "ping":

@@ -88,7 +88,7 @@ Test(config, defaults)
     cr_assert_eq(c.max_expr_bytes, 65536);
     cr_assert_eq(c.max_expr_depth, 256);
     cr_assert_eq(c.max_res, 4096);
-    cr_assert_eq(c.max_csg_nodes, 1024);
+    cr_assert_eq(c.max_csg_nodes, 256);
     cr_assert_eq(c.max_queued_jobs, 64);
     cr_assert_eq(c.max_jobs_per_uid, 16);
     cr_assert_eq(c.max_clients, 128);

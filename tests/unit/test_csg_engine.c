@@ -63,8 +63,8 @@ static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
 }
 
 /* The file's level 0 against the tree evaluated brick by brick here. */
-static void assert_voxels(const vod_membuf *m, const csg_tree *t, const grid_spec *g,
-                          int occupancy)
+static uint64_t assert_voxels(const vod_membuf *m, const csg_tree *t, const grid_spec *g,
+                              int occupancy)
 {
     vod_file *f;
     char err[256];
@@ -73,6 +73,7 @@ static void assert_voxels(const vod_membuf *m, const csg_tree *t, const grid_spe
     cr_assert_eq(csg_eval_new(t, g, 8, &ev), 0);
     uint8_t buf[512];
     uint32_t b[3];
+    uint64_t solid = 0;
     for (b[2] = 0; b[2] * 8 < g->res[2]; b[2]++)
         for (b[1] = 0; b[1] * 8 < g->res[1]; b[1]++)
             for (b[0] = 0; b[0] * 8 < g->res[0]; b[0]++) {
@@ -84,12 +85,14 @@ static void assert_voxels(const vod_membuf *m, const csg_tree *t, const grid_spe
                              z = b[2] * 8 + k / 64;
                     if (x >= g->res[0] || y >= g->res[1] || z >= g->res[2]) continue;
                     uint32_t want = uniform ? v : buf[k];
+                    solid += want >= CSG_S;
                     if (occupancy) want = want >= CSG_S;
                     cr_assert_eq(vod_voxel(f, 0, x, y, z), want, "voxel (%u,%u,%u)", x, y, z);
                 }
             }
     csg_eval_free(ev);
     vod_close(f);
+    return solid;
 }
 
 Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
@@ -105,7 +108,9 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
         cr_assert_gt(r0.csg_bricks, 0);
         cr_assert_gt(r0.csg_uniform, 0, "most of the box is empty");
         cr_assert_lt(r0.csg_uniform, r0.csg_bricks);
-        assert_voxels(&ref, t, &r0.grid, channels[c] == VOXEL_CH_OCCUPANCY);
+        uint64_t solid = assert_voxels(&ref, t, &r0.grid, channels[c] == VOXEL_CH_OCCUPANCY);
+        cr_assert_gt(solid, 0);
+        cr_assert_eq(r0.voxels, solid, "the report counts the voxels at or above S");
         for (int w = 0; w < 2; w++) {
             vod_membuf mb = run(e[w], &job, &r);
             cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0,
@@ -114,6 +119,7 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
             cr_assert_eq(r.csg_uniform, r0.csg_uniform);
             cr_assert_eq(r.csg_skipped, r0.csg_skipped);
             cr_assert_eq(r.csg_voxel_evals, r0.csg_voxel_evals);
+            cr_assert_eq(r.voxels, r0.voxels, "voxels at or above S");
             free(mb.p);
         }
         free(ref.p);

@@ -507,7 +507,7 @@ Test(libvox, hello_gives_server_and_limits)
     cr_expect_eq(i.chunk_size, 2000);
     cr_expect_eq(i.max_res, 4096);
     cr_expect_eq(i.job_timeout, 600);
-    cr_expect_eq(i.max_csg_nodes, 1024);
+    cr_expect_eq(i.max_csg_nodes, 256);
     cr_expect_eq(i.max_input_bytes, 64u << 20);
     vox_close(c);
     srv_finish(s);
@@ -1534,21 +1534,29 @@ Test(libvox, input_over_the_limits_is_refused_unsent)
     cr_expect_eq(vox_submit(c, &j, &id, NULL, &e), VOX_ELIMIT_EXCEEDED);
     cr_expect(strstr(e.message, "5500 bytes, over this server's max_input_bytes of 5000"), "%s",
               e.message);
+    /* A CSG tree never goes in chunks: one whose Submit passes max_frame
+     * is refused unsent. */
+    vox_csg_node leaf = {.op = VOX_CSG_IMPLICIT, .source = big, .source_len = 4500};
+    vox_job cj = {.kind = VOX_JOB_CSG,
+                  .csg = {.nodes = &leaf, .n_nodes = 1, .domain = {-1, 1, -1, 1, -1, 1},
+                          .res = 16}};
+    cr_expect_eq(vox_submit_job(c, &cj, &id, NULL, &e), VOX_ELIMIT_EXCEEDED);
+    cr_expect(strstr(e.message, "over this server's max_frame of 4096"), "%s", e.message);
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
     free(big);
     vox_close(c);
     srv_finish(s);
 }
 
-Test(libvox, job_kinds_not_supported_yet_are_refused_unsent)
+Test(libvox, incomplete_jobs_are_refused_unsent)
 {
     srv *s = srv_new(s_idle, NULL);
     vox_client *c = start(s, 5000);
     uint64_t id = 0;
     vox_error e;
     vox_job j = {.kind = VOX_JOB_CSG};
-    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -ENOTSUP);
-    cr_expect(strstr(e.message, "CSG"), "%s", e.message);
+    cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
+    cr_expect(strstr(e.message, "the CSG job has no nodes"), "%s", e.message);
     j.kind = VOX_JOB_MESH; /* no data */
     cr_expect_eq(vox_submit_job(c, &j, &id, NULL, &e), -EINVAL);
     cr_expect(strstr(e.message, "no mesh data"), "%s", e.message);
@@ -2033,7 +2041,7 @@ Test(libvox, server_info_and_grid_from_a_real_daemon, .timeout = 120)
                  (unsigned long long)i.name);
     VOX_LIMITS(EXPECT_LIMIT)
 #undef EXPECT_LIMIT
-    cr_expect_eq(i.max_csg_nodes, 1025);
+    cr_expect_eq(i.max_csg_nodes, 255);
     cr_expect_eq(i.max_input_bytes, (64u << 20) + 1);
 
     vox_job j = {.kind = VOX_JOB_IMPLICIT,

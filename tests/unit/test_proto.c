@@ -507,25 +507,28 @@ typedef struct {
     Voxd__CsgNode node[4];
     Voxd__CsgNode *ptr[4];
     uint32_t kids[4][2];
-    double box[6];
+    double center[3], size[3], rot[3];
     double dom[2];
 } csg;
 
-/* cuboid, ellipsoid, difference(0, 1), inverse(2): valid. */
+/* cuboid "base", ellipsoid "egg", difference(0, 1), inverse(2): valid. */
 static void csg_init(csg *c, job *j)
 {
     static const Voxd__Csg c0 = VOXD__CSG__INIT;
     static const Voxd__CsgNode n0 = VOXD__CSG_NODE__INIT;
     c->csg = c0;
     for (int i = 0; i < 4; i++) c->node[i] = n0, c->ptr[i] = &c->node[i];
-    const double box[6] = {0, 1, 0, 1, 0, 1};
-    memcpy(c->box, box, sizeof box);
+    for (int a = 0; a < 3; a++) c->center[a] = 0.1 * a, c->size[a] = 1, c->rot[a] = 0.5;
     for (int i = 0; i < 2; i++) {
         c->node[i].op = VOXD__CSG_OP__CSG_PRIMITIVE;
         c->node[i].primitive = i ? VOXD__PRIMITIVE__PRIMITIVE_ELLIPSOID
                                  : VOXD__PRIMITIVE__PRIMITIVE_CUBOID;
-        c->node[i].params = c->box, c->node[i].n_params = 6;
+        c->node[i].center = c->center, c->node[i].n_center = 3;
+        c->node[i].size = c->size, c->node[i].n_size = 3;
     }
+    c->node[0].rotate = c->rot, c->node[0].n_rotate = 3;
+    c->node[0].name.data = (uint8_t *)"base", c->node[0].name.len = 4;
+    c->node[1].name.data = (uint8_t *)"egg", c->node[1].name.len = 3;
     c->node[2].op = VOXD__CSG_OP__CSG_DIFFERENCE;
     c->kids[2][0] = 0, c->kids[2][1] = 1;
     c->node[2].children = c->kids[2], c->node[2].n_children = 2;
@@ -538,14 +541,24 @@ static void csg_init(csg *c, job *j)
     c->csg.res = 128;
     job_init(j);
     j->sub.job_case = VOXD__SUBMIT__JOB_CSG, j->sub.csg = &c->csg;
+    j->sub.channel = VOXD__CHANNEL__CHANNEL_UNSPECIFIED;
 }
 
-Test(proto, csg_refused_as_not_supported_yet)
+Test(proto, csg_a_valid_tree_passes)
 {
     csg c;
     job j;
     csg_init(&c, &j);
-    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+    accepted(&j.req);
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_OCCUPANCY;
+    accepted(&j.req);
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_DENSITY;
+    accepted(&j.req);
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
+    refused(&j.req, INVALID, "channel surface is not available for CSG jobs");
+    csg_init(&c, &j);
+    j.sub.input_bytes = 10;
+    refused(&j.req, INVALID, "a CSG job comes whole in its Submit, not as input_bytes");
 }
 
 Test(proto, csg_child_must_be_earlier)
@@ -570,19 +583,19 @@ Test(proto, csg_arity_ops_and_counts)
     refused(&j.req, INVALID, "CSG node 2 (difference) needs 2 children, got 1");
     csg_init(&c, &j);
     c.node[0].n_children = 1, c.node[0].children = c.kids[2];
-    refused(&j.req, INVALID, "CSG node 0 (primitive) needs 0 children, got 1");
+    refused(&j.req, INVALID, "CSG node 0 ('base') (primitive) needs 0 children, got 1");
     csg_init(&c, &j);
     c.node[1].op = VOXD__CSG_OP__CSG_OP_UNSPECIFIED;
-    refused(&j.req, INVALID, "CSG node 1 has no op");
+    refused(&j.req, INVALID, "CSG node 1 ('egg') has no op");
     c.node[1].op = (Voxd__CsgOp)5; /* a hole in the numbering */
-    refused(&j.req, INVALID, "CSG node 1 has unknown op 5");
+    refused(&j.req, INVALID, "CSG node 1 ('egg') has unknown op 5");
     c.node[1].op = (Voxd__CsgOp)99;
-    refused(&j.req, INVALID, "CSG node 1 has unknown op 99");
+    refused(&j.req, INVALID, "CSG node 1 ('egg') has unknown op 99");
     csg_init(&c, &j);
     c.csg.n_nodes = 0;
     refused(&j.req, INVALID, "CSG job has no nodes");
     c.csg.n_nodes = 4, lim.max_csg_nodes = 3;
-    refused(&j.req, LIMIT, "CSG job has 4 nodes, limit 3");
+    refused(&j.req, LIMIT, "CSG job has 4 nodes, over this server's max_csg_nodes of 3");
 }
 
 Test(proto, csg_huge_node_list)
@@ -594,78 +607,163 @@ Test(proto, csg_huge_node_list)
     Voxd__CsgNode **many = calloc(n, sizeof *many);
     for (size_t i = 0; i < n; i++) many[i] = &c.node[0];
     c.csg.nodes = many, c.csg.n_nodes = n;
-    refused(&j.req, LIMIT, "CSG job has 200000 nodes, limit 1024");
+    refused(&j.req, LIMIT, "CSG job has 200000 nodes, over this server's max_csg_nodes of 256");
     free(many);
 }
 
-Test(proto, csg_leaves)
+/* A chain of inverses: its depth against max_csg_depth; dilations along
+ * it against the evaluator's margin. */
+Test(proto, csg_depth_and_margin)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    lim.max_csg_depth = 3; /* egg or base, difference, inverse: 3 */
+    accepted(&j.req);
+    lim.max_csg_depth = 2;
+    refused(&j.req, LIMIT, "CSG node 3: the tree is deeper than this server's max_csg_depth of 2");
+
+    setup();
+    enum { N = 10 };
+    Voxd__CsgNode nodes[N], *ptrs[N];
+    uint32_t kids[N];
+    for (int i = 0; i < N; i++) {
+        nodes[i] = (Voxd__CsgNode)VOXD__CSG_NODE__INIT;
+        ptrs[i] = &nodes[i];
+        if (i == 0) {
+            nodes[0] = c.node[0];
+            continue;
+        }
+        kids[i] = (uint32_t)i - 1;
+        nodes[i].op = VOXD__CSG_OP__CSG_DILATE;
+        nodes[i].children = &kids[i], nodes[i].n_children = 1;
+        nodes[i].k = 8;
+    }
+    c.csg.nodes = ptrs, c.csg.n_nodes = N;
+    refused(&j.req, INVALID, "CSG node 9: erosions and dilations along one path pass 64 voxels");
+    c.csg.n_nodes = 9; /* 8 x 8 = 64 */
+    accepted(&j.req);
+}
+
+Test(proto, csg_names)
+{
+    csg c;
+    job j;
+    csg_init(&c, &j);
+    c.node[0].name.data = (uint8_t *)"1st", c.node[0].name.len = 3;
+    refused(&j.req, INVALID, "CSG node 0's name has a byte 0x31 at offset 0");
+    c.node[0].name.data = (uint8_t *)"a\nb", c.node[0].name.len = 3;
+    refused(&j.req, INVALID, "CSG node 0's name has a byte 0x0a at offset 1");
+    c.node[0].name.data = (uint8_t *)"abcdefghijabcdefghijabcdefghijab", c.node[0].name.len = 32;
+    refused(&j.req, INVALID, "CSG node 0's name is 32 bytes, limit 31");
+}
+
+Test(proto, csg_primitives)
 {
     csg c;
     job j;
     csg_init(&c, &j);
     c.node[1].primitive = (Voxd__Primitive)9;
-    refused(&j.req, INVALID, "CSG node 1 has unknown primitive 9");
+    refused(&j.req, INVALID, "CSG node 1 ('egg') has unknown primitive 9");
     csg_init(&c, &j);
-    c.node[0].n_params = 5;
-    refused(&j.req, INVALID, "CSG node 0 box needs 6 values, got 5");
+    c.node[0].n_size = 2;
+    refused(&j.req, INVALID, "CSG node 0 ('base') needs 3 values for its size, got 2");
     csg_init(&c, &j);
-    c.box[4] = INFINITY;
-    refused(&j.req, INVALID, "CSG node 0 box value 5 is not finite");
+    c.node[0].n_size = 0;
+    refused(&j.req, INVALID, "needs 3 values for its size, got 0");
     csg_init(&c, &j);
-    c.box[1] = -1;
-    refused(&j.req, INVALID, "CSG node 0 box x: low 0 is not below high -1");
+    c.size[1] = 0;
+    refused(&j.req, INVALID, "CSG node 0 ('base')'s size must be positive, value 2 is 0");
+    csg_init(&c, &j);
+    c.center[2] = INFINITY;
+    refused(&j.req, INVALID, "CSG node 0 ('base')'s center value 3 is inf");
+    csg_init(&c, &j);
+    c.rot[0] = 1e300;
+    refused(&j.req, INVALID, "'s rotation value 1 is 1e+300, not a finite number");
+    csg_init(&c, &j);
+    c.node[1].n_center = 0, c.node[1].n_rotate = 0; /* both may be left out */
+    accepted(&j.req);
+    c.node[1].axis = VOXD__AXIS__AXIS_X;
+    refused(&j.req, INVALID, "CSG node 1 ('egg'): only a cylinder or a cone has an axis");
+    c.node[1].primitive = VOXD__PRIMITIVE__PRIMITIVE_CONE;
+    accepted(&j.req);
+    c.node[1].axis = (Voxd__Axis)7;
+    refused(&j.req, INVALID, "CSG node 1 ('egg') has unknown axis 7");
+}
 
-    /* An implicit leaf: the same source rules as an implicit job. */
+Test(proto, csg_implicit_mesh_and_vod_leaves)
+{
+    csg c;
+    job j;
     csg_init(&c, &j);
     c.node[1] = (Voxd__CsgNode)VOXD__CSG_NODE__INIT;
     c.node[1].op = VOXD__CSG_OP__CSG_IMPLICIT;
-    refused(&j.req, INVALID, "CSG node 1 expression is empty");
+    refused(&j.req, INVALID, "CSG node 1's expression is empty");
     c.node[1].source.data = (uint8_t *)"x\0y", c.node[1].source.len = 3;
-    refused(&j.req, INVALID, "CSG node 1 expression source contains a NUL byte at offset 1");
+    refused(&j.req, INVALID, "CSG node 1's expression source contains a NUL byte at offset 1");
     c.node[1].source.len = 1;
-    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+    accepted(&j.req);
+    c.node[1].domain = c.dom, c.node[1].n_domain = 2;
+    accepted(&j.req);
+    c.node[1].n_domain = 6;
+    refused(&j.req, INVALID, "CSG node 1's domain needs 2 values (or none), got 6");
+    c.node[1].n_domain = 2, c.dom[1] = -3;
+    refused(&j.req, INVALID, "CSG node 1's domain: low -1 is not below high -3");
+    c.dom[1] = 2;
     lim.max_expr_bytes = 0;
-    refused(&j.req, LIMIT, "CSG node 1 expression is 1 bytes, limit 0");
+    refused(&j.req, LIMIT, "CSG node 1's expression is 1 bytes, limit 0");
 
-    /* A mesh leaf. */
     setup();
+    c.node[1] = (Voxd__CsgNode)VOXD__CSG_NODE__INIT;
     c.node[1].op = VOXD__CSG_OP__CSG_MESH;
-    refused(&j.req, INVALID, "CSG node 1 has unknown mesh format 0");
-    c.node[1].mesh_format = VOXD__MESH_FORMAT__MESH_FORMAT_PLY;
-    refused(&j.req, INVALID, "CSG jobs are not supported yet");
-    c.node[1].source.len = 0;
-    refused(&j.req, INVALID, "CSG node 1 mesh is empty");
+    refused(&j.req, INVALID, "CSG node 1: mesh leaves are not supported yet");
+    c.node[1].op = VOXD__CSG_OP__CSG_VOD;
+    refused(&j.req, INVALID, "CSG node 1: vod leaves are not supported yet");
 }
 
-Test(proto, csg_stray_fields_and_divide)
+Test(proto, csg_stray_fields_and_numbers)
 {
     csg c;
     job j;
     csg_init(&c, &j);
     c.node[2].source.data = (uint8_t *)"x", c.node[2].source.len = 1;
-    refused(&j.req, INVALID, "CSG node 2 (difference) does not take a source");
+    refused(&j.req, INVALID, "CSG node 2 (difference) does not take an expression or its domain");
     csg_init(&c, &j);
-    c.node[3].n_params = 6, c.node[3].params = c.box;
-    refused(&j.req, INVALID, "CSG node 3 (inverse) does not take a primitive");
-    csg_init(&c, &j);
-    c.node[0].mesh_format = VOXD__MESH_FORMAT__MESH_FORMAT_OBJ;
-    refused(&j.req, INVALID, "CSG node 0 (primitive) does not take a mesh format");
+    c.node[3].n_size = 3, c.node[3].size = c.size;
+    refused(&j.req, INVALID, "CSG node 3 (inverse) does not take a primitive's fields");
     csg_init(&c, &j);
     c.node[0].scalar = NAN;
-    refused(&j.req, INVALID, "CSG node 0 (primitive) does not take a scalar");
+    refused(&j.req, INVALID, "CSG node 0 ('base') (primitive) does not take a scalar");
+    csg_init(&c, &j);
+    c.node[3].k = 2;
+    refused(&j.req, INVALID, "CSG node 3 (inverse) does not take k");
 
     csg_init(&c, &j);
     c.node[2].op = VOXD__CSG_OP__CSG_DIVIDE;
-    refused(&j.req, INVALID, "CSG node 2 (divide) needs a scalar in (0, 1], got 0");
+    refused(&j.req, INVALID, "CSG node 2 (divide) needs a scalar S_L in (0, 1], got 0");
     c.node[2].scalar = 1.5;
     refused(&j.req, INVALID, "got 1.5");
     c.node[2].scalar = NAN;
     refused(&j.req, INVALID, "got nan");
     c.node[2].scalar = 0.5;
-    refused(&j.req, INVALID, "CSG jobs are not supported yet");
+    accepted(&j.req);
+
+    csg_init(&c, &j);
+    c.node[3].op = VOXD__CSG_OP__CSG_SCALAR_MUL;
+    c.node[3].scalar = INFINITY;
+    refused(&j.req, INVALID, "CSG node 3 needs a finite scalar, got inf");
+    c.node[3].scalar = -3;
+    accepted(&j.req);
+    c.node[3].scalar = 0;
+    c.node[3].op = VOXD__CSG_OP__CSG_ERODE;
+    refused(&j.req, INVALID, "CSG node 3 needs k of 1..16 voxels, got 0");
+    c.node[3].k = 17;
+    refused(&j.req, INVALID, "got 17");
+    c.node[3].k = 16;
+    accepted(&j.req);
 }
 
-Test(proto, csg_domain_and_res)
+Test(proto, csg_domain_res_and_name)
 {
     csg c;
     job j;
@@ -675,6 +773,9 @@ Test(proto, csg_domain_and_res)
     csg_init(&c, &j);
     c.csg.res = 100000;
     refused(&j.req, LIMIT, "res 100000 is over this server's limit of 4096");
+    csg_init(&c, &j);
+    c.csg.source_name.data = (uint8_t *)"a\nb", c.csg.source_name.len = 3;
+    refused(&j.req, INVALID, "source_name contains a line break at offset 1");
 }
 
 /* ---------------------------------------------------------------- replies */
@@ -861,7 +962,7 @@ Test(proto, hello_ok_rules)
     proto_limits_from_hello(&x.limits, &l);
     cr_assert_eq(l.chunk_size, 4096);
     cr_assert_eq(l.max_result_bytes, 1ull << 32);
-    cr_assert_eq(l.max_csg_nodes, 1024);
+    cr_assert_eq(l.max_csg_nodes, 256);
     cr_assert_eq(l.max_input_bytes, 64u << 20);
 }
 
@@ -930,7 +1031,9 @@ Test(proto, limits_defaults_are_the_tables)
     for (size_t i = 0; i < proto_n_limits; i++)
         cr_expect_eq(proto_limit_get(&d, i), proto_limit_table[i].def, "%s",
                      proto_limit_table[i].name);
-    cr_expect_eq(d.max_csg_nodes, 1024);
+    cr_expect_eq(d.max_csg_nodes, 256);
+    cr_expect_eq(d.max_csg_depth, 64);
+    cr_expect_eq(d.max_csg_leaf_bytes, 64u << 20);
     cr_expect_eq(d.max_input_bytes, 64u << 20);
 }
 

@@ -1,0 +1,134 @@
+/* A CSG job's tree from its checked Csg message (proto_check_request made
+ * sure of every op, arity, child index, number and name): the csg.h nodes,
+ * each implicit leaf's expression compiled once here under the daemon's
+ * expression limits, so a bad tree is refused when it is submitted, never
+ * when it runs.  The nodes get the values `vox csg` gives them from the
+ * text (the rotation travels in radians: the same doubles, the same
+ * matrix), so the daemon's file has the same bytes. */
+#include "daemon.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "csg.h"
+#include "expr.h"
+#include "proto_check.h"
+
+_Static_assert(PROTO_CSG_MAX_NODES == CSG_MAX_NODES && PROTO_CSG_NAME_MAX == CSG_NAME_MAX &&
+                   PROTO_CSG_MAX_MORPH == CSG_MAX_MORPH &&
+                   PROTO_CSG_MAX_MARGIN == CSG_MAX_MARGIN,
+               "the protocol's CSG bounds are the evaluator's");
+
+static int kind_of(const Voxd__CsgNode *n, csg_kind *k)
+{
+    static const csg_kind prims[] = {
+        [VOXD__PRIMITIVE__PRIMITIVE_CUBOID] = CSG_CUBOID,
+        [VOXD__PRIMITIVE__PRIMITIVE_ELLIPSOID] = CSG_ELLIPSOID,
+        [VOXD__PRIMITIVE__PRIMITIVE_CYLINDER] = CSG_CYLINDER,
+        [VOXD__PRIMITIVE__PRIMITIVE_CONE] = CSG_CONE,
+    };
+    switch (n->op) {
+    case VOXD__CSG_OP__CSG_PRIMITIVE: *k = prims[n->primitive]; return 0;
+    case VOXD__CSG_OP__CSG_IMPLICIT: *k = CSG_IMPLICIT; return 0;
+    case VOXD__CSG_OP__CSG_UNION: *k = CSG_UNION; return 0;
+    case VOXD__CSG_OP__CSG_INTERSECTION: *k = CSG_INTERSECTION; return 0;
+    case VOXD__CSG_OP__CSG_DIFFERENCE: *k = CSG_DIFFERENCE; return 0;
+    case VOXD__CSG_OP__CSG_TRIM: *k = CSG_TRIM; return 0;
+    case VOXD__CSG_OP__CSG_CAP: *k = CSG_CAP; return 0;
+    case VOXD__CSG_OP__CSG_ADD: *k = CSG_ADD; return 0;
+    case VOXD__CSG_OP__CSG_MODULATE: *k = CSG_MODULATE; return 0;
+    case VOXD__CSG_OP__CSG_DIVIDE: *k = CSG_DIVIDE; return 0;
+    case VOXD__CSG_OP__CSG_DIFFERENCE_A: *k = CSG_DIFFERENCE_A; return 0;
+    case VOXD__CSG_OP__CSG_DIFFERENCE_B: *k = CSG_DIFFERENCE_B; return 0;
+    case VOXD__CSG_OP__CSG_DIVIDE_A: *k = CSG_DIVIDE_A; return 0;
+    case VOXD__CSG_OP__CSG_INVERSE: *k = CSG_INVERSE; return 0;
+    case VOXD__CSG_OP__CSG_SCALAR_ADD: *k = CSG_SCALAR_ADD; return 0;
+    case VOXD__CSG_OP__CSG_SCALAR_MUL: *k = CSG_SCALAR_MUL; return 0;
+    case VOXD__CSG_OP__CSG_ERODE: *k = CSG_ERODE; return 0;
+    case VOXD__CSG_OP__CSG_DILATE: *k = CSG_DILATE; return 0;
+    default: return -EINVAL; /* mesh and VOD leaves: refused by the check */
+    }
+}
+
+/* Node i's expression compiled under the daemon's limits, then kept in
+ * the tree's text pool.  0, or the compiler's errno with msg filled. */
+static int implicit_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_t i,
+                         const expr_limits *lim, size_t *used, char *msg, size_t len)
+{
+    expr_tape *tape = NULL;
+    expr_error xe = {0};
+    int rc = expr_compile((const char *)m->source.data, m->source.len, lim, &tape, &xe);
+    expr_tape_free(tape);
+    if (rc) {
+        snprintf(msg, len, "CSG node %zu ('%s'): expression:%d:%d: %s", i, n->name, xe.line,
+                 xe.col, xe.msg[0] ? xe.msg : strerror(-rc));
+        return rc;
+    }
+    n->expr_off = (uint32_t)*used;
+    n->expr_len = (uint32_t)m->source.len;
+    memcpy(t->text + *used, m->source.data, m->source.len);
+    t->text[*used + m->source.len] = 0;
+    *used += m->source.len + 1;
+    if (m->n_domain == 2) n->has_domain = 1, n->dom_lo = m->domain[0], n->dom_hi = m->domain[1];
+    return 0;
+}
+
+static void node_fields(csg_node *n, const Voxd__CsgNode *m)
+{
+    n->a = m->n_children > 0 ? (int32_t)m->children[0] : -1;
+    n->b = m->n_children > 1 ? (int32_t)m->children[1] : -1;
+    n->param = m->scalar;
+    n->k = m->k;
+    n->axis = m->axis ? (int)m->axis - 1 : 2;
+    for (int a = 0; a < 3; a++) {
+        if (m->n_center == 3) n->center[a] = m->center[a];
+        if (m->n_size == 3) n->size[a] = m->size[a];
+        if (m->n_rotate == 3) n->rot[a] = m->rotate[a];
+    }
+    csg_node_rotation(n);
+}
+
+int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
+                csg_tree **out, char *msg, size_t len)
+{
+    *out = NULL;
+    size_t text = 1;
+    for (size_t i = 0; i < c->n_nodes; i++) text += c->nodes[i]->source.len + 1;
+    csg_tree *t = calloc(1, sizeof *t);
+    if (t) t->text = malloc(text);
+    if (!t || !t->text) {
+        csg_tree_free(t);
+        snprintf(msg, len, "out of memory");
+        return -ENOMEM;
+    }
+    expr_limits lim;
+    expr_limits_default(&lim);
+    lim.max_source_bytes = max_expr_bytes;
+    lim.max_depth = max_expr_depth;
+    size_t used = 0;
+    int rc = 0;
+    for (size_t i = 0; i < c->n_nodes && !rc; i++) {
+        const Voxd__CsgNode *m = c->nodes[i];
+        csg_node *n = &t->node[i];
+        memset(n, 0, sizeof *n);
+        if (kind_of(m, &n->kind)) {
+            snprintf(msg, len, "CSG node %zu: op %d is not supported", i, (int)m->op);
+            rc = -EINVAL;
+            break;
+        }
+        snprintf(n->name, sizeof n->name, "%.*s", (int)m->name.len, (const char *)m->name.data);
+        node_fields(n, m);
+        if (n->kind == CSG_IMPLICIT)
+            rc = implicit_leaf(t, n, m, i, &lim, &used, msg, len);
+    }
+    t->n = (uint32_t)c->n_nodes;
+    t->text_len = used;
+    if (rc) {
+        csg_tree_free(t);
+        return rc;
+    }
+    *out = t;
+    return 0;
+}

@@ -1,0 +1,107 @@
+#!/bin/bash
+# CSG jobs through voxd: vox submit --csg gives the bytes of vox csg (the
+# embedded engine, and -w 0 in the vox process), density and occupancy;
+# bad trees of each kind are refused at the Submit with their own error
+# while the connection and the daemon go on (a child that is not earlier,
+# an unknown op, a wrong arity, a bad parameter, a bad expression, a mesh
+# leaf, no nodes, deeper than max_csg_depth, more than max_csg_nodes);
+# a running CSG job is cancelled; the daemon exits clean.
+. "$(dirname "$0")/daemon_lib.bash"
+
+cat >"$TMP/part.csg" <<'EOT'
+# the issue's part, without its mesh and vod leaves
+base  = cuboid center 0,0,0 size 1.6,1.0,0.6 rotate 0,0,15
+hole  = cylinder center 0,0,0 radius 0.3 height 2 axis z
+bump  = implicit "x^2 + y^2 + (z-0.3)^2 - 0.2" domain -1,1
+peg   = cone center 0.5,0,0.2 radii 0.1,0.15 height 0.5 axis x
+out   = difference(union(base, bump), hole)
+out2  = union(out, dilate(peg, 2))
+result out2
+EOT
+# 20 nested inverses: within the text parser's depth, over max_csg_depth 16
+{ echo "n0 = ellipsoid radius 0.5"
+  for i in $(seq 20); do echo "n$i = inverse(n$((i - 1)))"; done
+  echo "result n20"; } >"$TMP/deep.csg"
+# an expression the client's parser takes but max_expr_depth 8 does not
+printf 'a = implicit "((((((((((x)))))))))) - 0.5"\nresult a\n' >"$TMP/nested.csg"
+
+cat >"$TMP/voxd.conf" <<CONF
+workers 2
+max_csg_depth 16
+max_expr_depth 8
+CONF
+if start_voxd "$TMP/voxd.log" --config "$TMP/voxd.conf"; then
+    pass "voxd starts with CSG limits"
+else
+    fail "voxd starts with CSG limits" "$(tail -5 "$TMP/voxd.log")"
+    exit 1
+fi
+vox() { timeout 120 "$VOX" --socket "$S" "$@"; }
+
+# ---------------------------------------------------------------- same bytes
+
+check "vox csg (embedded engine)" vox csg "$TMP/part.csg" -r 64 -q -o "$TMP/e1.vod"
+check "vox csg -w 0 (in vox)" vox csg "$TMP/part.csg" -r 64 -q -w 0 -o "$TMP/s1.vod"
+check "vox submit --csg" vox submit --csg "$TMP/part.csg" -r 64 -q -o "$TMP/d1.vod"
+check "submit = embedded = serial, density (bytes)" \
+    bash -c "cmp '$TMP/d1.vod' '$TMP/e1.vod' && cmp '$TMP/d1.vod' '$TMP/s1.vod'"
+refuse "vox info validates the daemon's CSG file" 0 "channel +2: density" "$VOX" info "$TMP/d1.vod"
+refuse "its metadata names the tree's file" 0 "source=file:$TMP/part.csg" "$VOX" info "$TMP/d1.vod"
+check "occupancy, embedded" vox csg "$TMP/part.csg" -r 50 -q -c occupancy -d -1,1,-0.8,0.8,-0.5,0.5 -o "$TMP/e2.vod"
+check "occupancy, vox submit" vox submit --csg "$TMP/part.csg" -r 50 -q --channel occupancy \
+    -d -1,1,-0.8,0.8,-0.5,0.5 -o "$TMP/d2.vod"
+check "submit = embedded, occupancy in a box (bytes)" cmp "$TMP/d2.vod" "$TMP/e2.vod"
+check "from standard input" bash -c "timeout 120 '$VOX' --socket '$S' submit --csg - -r 64 -q -o '$TMP/d3.vod' <'$TMP/part.csg'"
+refuse "recorded by its size" 0 "source=submitted:[0-9]+ bytes" "$VOX" info "$TMP/d3.vod"
+refuse "--channel surface is refused by vox" 2 "not available for --csg jobs" \
+    vox submit --csg "$TMP/part.csg" -r 16 --channel surface -o "$TMP/x.vod"
+
+# ---------------------------------------------------------------- bad trees
+
+bad() { # bad KIND CODE PATTERN
+    refuse "a bad tree ($1) is refused: $3" 3 "ERROR $2: .*$3.* \(job 0\)" vc csg-bad "$1"
+    grep -q "^pong 12" "$TMP/out" && pass "the connection goes on after it ($1)" ||
+        fail "the connection goes on after it ($1)" "$(cat "$TMP/out")"
+}
+bad cycle INVALID_INPUT "CSG node 1 \('loop'\) refers to node 1, which is not earlier"
+bad unknown-op INVALID_INPUT "CSG node 1 \('what'\) has unknown op 99"
+bad arity INVALID_INPUT "CSG node 1 \('half'\) \(union\) needs 2 children, got 1"
+bad param INVALID_INPUT "CSG node 2 \('div'\) \(divide\) needs a scalar S_L in \(0, 1\], got 1.5"
+bad k INVALID_INPUT "CSG node 1 \('er'\) needs k of 1..16 voxels, got 40"
+bad expression INVALID_INPUT "CSG node 0 \('bad'\): expression:1:"
+bad mesh-leaf INVALID_INPUT "CSG node 0 \('scan'\): mesh leaves are not supported yet"
+bad no-nodes INVALID_INPUT "CSG job has no nodes"
+bad deep LIMIT_EXCEEDED "the tree is deeper than this server's max_csg_depth of 16"
+refuse "vox submit: a tree over max_csg_depth" 1 \
+    "LIMIT_EXCEEDED: CSG node 16 \('n16'\): the tree is deeper than this server's max_csg_depth of 16" \
+    vox submit --csg "$TMP/deep.csg" -r 16 -o "$TMP/x.vod"
+refuse "vox submit: an expression over max_expr_depth" 1 \
+    "LIMIT_EXCEEDED: CSG node 0 \('a'\): expression" \
+    vox submit --csg "$TMP/nested.csg" -r 16 -o "$TMP/x.vod"
+printf 'a = cuboid size 1,1,1\nb = union(a, nope)\nresult b\n' >"$TMP/unknown.csg"
+refuse "vox submit: an unknown name, found by vox's parser" 2 "unknown.csg:2:14: node 'b': unknown node 'nope'" \
+    vox submit --csg "$TMP/unknown.csg" -r 16 -o "$TMP/x.vod"
+[ ! -e "$TMP/x.vod" ] && pass "no file is left by a refused job" || fail "no file is left by a refused job"
+check "the daemon serves the next CSG job" vox submit --csg "$TMP/part.csg" -r 64 -q -o "$TMP/d4.vod"
+check "with the same bytes" cmp "$TMP/d4.vod" "$TMP/e1.vod"
+
+# ---------------------------------------------------------------- cancel
+
+# A tree heavy enough to be running when the interrupt comes.
+printf 'a = implicit "sin(9*x)*sin(9*y)*sin(9*z) - 0.1"\nb = dilate(a, 3)\nresult b\n' >"$TMP/slow.csg"
+bg "$VOX" --socket "$S" submit --csg "$TMP/slow.csg" -r 512 -q -o "$TMP/slow.vod"
+SUB=$!
+until_true 20 running && pass "the heavy CSG job runs" || fail "the heavy CSG job runs" "$(vc status)"
+kill -INT "$SUB"
+wait "$SUB"
+rc=$?
+[ "$rc" -eq 1 ] && pass "an interrupted vox submit --csg exits 1 (cancelled)" ||
+    fail "an interrupted vox submit --csg exits 1 (cancelled)" "exit $rc"
+until_true 20 idle && pass "idle after the cancel" || fail "idle after the cancel" "$(vc status)"
+[ ! -e "$TMP/slow.vod" ] && pass "no file from the cancelled job" || fail "no file from the cancelled job"
+check "the daemon serves a CSG job after the cancel" vox submit --csg "$TMP/part.csg" -r 64 -q -o "$TMP/d5.vod"
+check "with the same bytes again" cmp "$TMP/d5.vod" "$TMP/e1.vod"
+
+kill -QUIT "$VOXD_PID"
+wait_gone "$VOXD_PID" 30 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0" ||
+    fail "QUIT: exit 0" "rc $WAIT_RC: $(tail -3 "$TMP/voxd.log")"
