@@ -111,6 +111,36 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
     return 0;
 }
 
+/* The bytes of every mesh and vod leaf's file, named relative to the
+ * .csg file's folder (the current one for standard input), into the tree
+ * (it frees them).  0, or CLI_EXIT_USAGE after a message. */
+static int read_leaves(const char *path, csg_tree *t)
+{
+    const char *slash = strcmp(path, "-") ? strrchr(path, '/') : NULL;
+    int dir_len = slash ? (int)(slash - path + 1) : 0;
+    for (uint32_t i = 0; i < t->n; i++) {
+        const csg_node *n = &t->node[i];
+        if (n->kind != CSG_MESH && n->kind != CSG_VOD) continue;
+        const char *name = t->text + n->path_off;
+        char full[4096];
+        if (name[0] == '/') snprintf(full, sizeof full, "%s", name);
+        else snprintf(full, sizeof full, "%.*s%s", dir_len, path, name);
+        char *data;
+        size_t len;
+        int rc = cli_read_file(full, CSG_MAX_LEAF_FILE, &data, &len);
+        if (!rc && !len) free(data), rc = -ENODATA;
+        if (rc) {
+            cli_error("%s: node '%s': %s: %s", strcmp(path, "-") ? path : "<stdin>", n->name,
+                      full, rc == -EFBIG ? "too large" : rc == -ENODATA ? "empty file"
+                                                       : strerror(-rc));
+            return CLI_EXIT_USAGE;
+        }
+        t->data[i] = data;
+        t->data_len[i] = len;
+    }
+    return 0;
+}
+
 int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
 {
     char *text;
@@ -134,6 +164,10 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
             fputs(ex, stderr);
     }
     free(text);
+    if (!rc && (rc = read_leaves(path, *t))) {
+        csg_tree_free(*t);
+        *t = NULL;
+    }
     return rc ? CLI_EXIT_USAGE : 0;
 }
 

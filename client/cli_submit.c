@@ -154,7 +154,8 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
         if (rc == VOX_ECANCELLED && interrupted) cli_error("%s", what);
         else print_failure(what, rc, &err);
         /* A mesh file the daemon cannot read: as when vox reads it itself. */
-        return rc == VOX_EINVALID_INPUT && o->mesh ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
+        return rc == VOX_EINVALID_INPUT && (o->mesh || o->csg) ? CLI_EXIT_USAGE
+                                                                : CLI_EXIT_FAILED;
     }
     if (!o->quiet) print_summary(o, &sum);
     return CLI_EXIT_OK;
@@ -220,7 +221,8 @@ static int csg_wire_kind(csg_kind k)
     static const int ops[CSG_KIND_COUNT] = {
         [CSG_CUBOID] = VOX_CSG_PRIMITIVE, [CSG_ELLIPSOID] = VOX_CSG_PRIMITIVE,
         [CSG_CYLINDER] = VOX_CSG_PRIMITIVE, [CSG_CONE] = VOX_CSG_PRIMITIVE,
-        [CSG_IMPLICIT] = VOX_CSG_IMPLICIT, [CSG_UNION] = VOX_CSG_UNION,
+        [CSG_IMPLICIT] = VOX_CSG_IMPLICIT, [CSG_MESH] = VOX_CSG_MESH, [CSG_VOD] = VOX_CSG_VOD,
+        [CSG_UNION] = VOX_CSG_UNION,
         [CSG_INTERSECTION] = VOX_CSG_INTERSECTION, [CSG_TRIM] = VOX_CSG_TRIM,
         [CSG_CAP] = VOX_CSG_CAP, [CSG_DIFFERENCE_A] = VOX_CSG_DIFFERENCE_A,
         [CSG_DIFFERENCE_B] = VOX_CSG_DIFFERENCE_B, [CSG_DIFFERENCE] = VOX_CSG_DIFFERENCE,
@@ -257,6 +259,14 @@ static void csg_wire_node(const csg_tree *t, const csg_node *n, vox_csg_node *v)
         v->scalar = n->param;
     } else if (n->kind == CSG_ERODE || n->kind == CSG_DILATE) {
         v->k = n->k;
+    } else if (n->kind == CSG_MESH || n->kind == CSG_VOD) {
+        v->data = t->data[n - t->node];
+        v->data_len = t->data_len[n - t->node];
+        if (n->kind == CSG_MESH) {
+            v->has_fit = n->has_fit;
+            memcpy(v->fit, n->fit, sizeof v->fit);
+            v->scale = n->scale;
+        }
     }
 }
 

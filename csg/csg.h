@@ -31,12 +31,14 @@
 #define CSG_MAX_MORPH 16u        /* k of one erode / dilate */
 #define CSG_MAX_MARGIN 64u       /* sum of the k along any path */
 #define CSG_NAME_MAX 32u         /* bytes of a node name, NUL included */
+#define CSG_MAX_LEAF_FILE ((size_t)4 << 30) /* bytes of a mesh or vod leaf's file */
 #define CSG_VOLUME_BRICK 16u     /* storage brick of the result's vod_volume */
 #define CSG_IMPLICIT_RAMP 1.0    /* voxels from S to L (or H) of an implicit leaf */
 
 typedef enum {
     /* leaves */
     CSG_CUBOID, CSG_ELLIPSOID, CSG_CYLINDER, CSG_CONE, CSG_IMPLICIT,
+    CSG_MESH, CSG_VOD,   /* a file's bytes made a volume on the job's grid (csg_leaf_build) */
     /* binary (a, b) */
     CSG_UNION, CSG_INTERSECTION, CSG_TRIM, CSG_CAP, CSG_DIFFERENCE_A,
     CSG_DIFFERENCE_B, CSG_DIFFERENCE, CSG_ADD, CSG_MODULATE, CSG_DIVIDE_A,
@@ -64,13 +66,29 @@ typedef struct {
     uint32_t expr_off, expr_len;
     int has_domain;
     double dom_lo, dom_hi;
+    /* mesh, vod: the file's name as written (offset into the text pool);
+     * mesh: with has_fit, its bounding box's centre moved to fit[] and its
+     * longest side made `scale` world units; without, its coordinates
+     * multiplied by scale (1 when not given) */
+    uint32_t path_off, path_len;
+    int has_fit;
+    double fit[3], scale;
 } csg_node;
+
+/* 1 for a leaf kind (no children). */
+static inline int csg_is_leaf(csg_kind k) { return k <= CSG_VOD; }
 
 typedef struct {
     uint32_t n;
     csg_node node[CSG_MAX_NODES];
-    char *text;            /* the implicit leaves' sources, NUL-separated */
+    char *text;            /* the implicit leaves' sources and the file leaves'
+                              names, NUL-separated */
     size_t text_len;
+    /* mesh and vod leaves: the file's bytes (malloc'd, the tree's: freed
+     * by csg_tree_free), set by whoever reads the files (vox) or receives
+     * them (the daemon); NULL for other nodes */
+    void *data[CSG_MAX_NODES];
+    size_t data_len[CSG_MAX_NODES];
 } csg_tree;
 
 typedef struct {
@@ -94,6 +112,28 @@ uint8_t csg_prim_sample(const csg_node *n, const double p[3], double vs);
 /* The node's rotation matrix from its angles (the parser calls it). */
 void csg_node_rotation(csg_node *n);
 
+/* ---- file leaves (csg_leaf.c) ---- */
+
+/* The 8-bit volume of a mesh or vod leaf on grid g, from the node's file
+ * bytes, into vol (g->res, 8 bits, empty): a mesh through the mesh
+ * voxelizer's density channel (solid, 2^3 samples a voxel: the fraction
+ * inside, so its surface lands on S), placed by fit and scale; a VOD file's
+ * level 0 at each voxel centre of g (nearest: the file voxel whose box holds
+ * the centre; L outside the file), occupancy 1 as H, density as it is,
+ * surface voxels as H where occupied.  Done once per job, before any brick.
+ * 0, or a negative errno with msg saying why (-EINVAL a file that does not
+ * load, -ENOMEM the volume's pool is full). */
+int csg_leaf_build(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
+                   char *msg, size_t len);
+/* Every file leaf of t built in turn (csg_leaf_build) into arena (bytes
+ * long, 8-byte aligned), one volume after the other: leaves[i] for each
+ * (NULL for the other nodes), *used the arena's bytes they take.  0, or
+ * the first leaf's error (-ENOSPC, -ENOMEM: the arena is too small). */
+int csg_leaves_build(const csg_tree *t, const grid_spec *g, void *arena, size_t bytes,
+                     vod_volume *leaves[CSG_MAX_NODES], size_t *used, char *msg, size_t len);
+/* 1 when t has a mesh or vod leaf. */
+int csg_has_file_leaves(const csg_tree *t);
+
 /* An evaluator: scratch buffers and the implicit leaves' compiled tapes.
  * One per thread. */
 typedef struct csg_eval csg_eval;
@@ -104,7 +144,10 @@ typedef struct {
     uint64_t solid_voxels; /* stored voxels (inside the grid) with density >= S */
 } csg_stats;
 
-int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side, csg_eval **out);
+/* leaves: for each mesh or vod node i, leaves[i] is its volume
+ * (csg_leaf_build, 8 bits, dims g->res); NULL when the tree has none. */
+int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side,
+                 const vod_volume *const *leaves, csg_eval **out);
 void csg_eval_free(csg_eval *e);
 /* Brick b (brick coordinates: voxels b*side .. b*side+side-1 per axis) of
  * the result into out (side^3 bytes, x fastest), or *uniform = 1 and
@@ -123,7 +166,7 @@ int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *b
 
 /* Every brick of vol (8-bit, its storage brick side) in turn.  occupancy:
  * store 1 where the density is >= S, else 0.  0 or a negative errno. */
-int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol,
-                    int occupancy, csg_stats *st);
+int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
+                    vod_volume *vol, int occupancy, csg_stats *st);
 
 #endif

@@ -11,6 +11,7 @@ struct csg_eval {
     const csg_tree *t;
     grid_spec g;
     uint32_t side;
+    const vod_volume *leaf[CSG_MAX_NODES]; /* mesh and vod leaves' volumes */
     expr_tape *tape[CSG_MAX_NODES];
     expr_vm *vm[CSG_MAX_NODES];
     /* Binary operators: the table op(a, b), and for each value of one
@@ -46,7 +47,8 @@ static int build_tables(csg_eval *e, uint32_t i)
     return 0;
 }
 
-int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side, csg_eval **out)
+int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side,
+                 const vod_volume *const *leaves, csg_eval **out)
 {
     *out = NULL;
     if (!t->n || side < 1 || side > 256) return -EINVAL;
@@ -56,7 +58,10 @@ int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side, csg_eval 
     int rc = 0;
     for (uint32_t i = 0; i < t->n && !rc; i++) {
         const csg_node *n = &t->node[i];
-        if (n->kind == CSG_IMPLICIT) {
+        if (n->kind == CSG_MESH || n->kind == CSG_VOD) {
+            e->leaf[i] = leaves ? leaves[i] : NULL;
+            rc = e->leaf[i] ? 0 : -EINVAL;
+        } else if (n->kind == CSG_IMPLICIT) {
             expr_error ee;
             rc = expr_compile(t->text + n->expr_off, n->expr_len, NULL, &e->tape[i], &ee);
             if (!rc) rc = expr_vm_new(e->tape[i], 0, &e->vm[i]);
@@ -182,6 +187,27 @@ static void sample_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
     e->st.voxel_evals += k;
 }
 
+/* A file leaf's volume over the box: uniform from its table, or read. */
+static int volume_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
+{
+    const vod_volume *vol = e->leaf[i];
+    int64_t lo[3] = {b->lo[0], b->lo[1], b->lo[2]};
+    uint32_t u;
+    if (vod_volume_box_uniform(vol, lo, b->n, &u)) return *v = (uint8_t)u, 1;
+    size_t k = 0;
+    for (uint32_t z = 0; z < b->n; z++)
+        for (uint32_t y = 0; y < b->n; y++)
+            for (uint32_t x = 0; x < b->n; x++) {
+                int64_t p[3] = {lo[0] + x, lo[1] + y, lo[2] + z};
+                buf[k++] = p[0] < 0 || p[1] < 0 || p[2] < 0
+                               ? 0
+                               : (uint8_t)vod_volume_get(vol, (uint32_t)p[0], (uint32_t)p[1],
+                                                         (uint32_t)p[2]);
+            }
+    e->st.voxel_evals += k;
+    return 0;
+}
+
 /* 1 and *v when buf's count bytes are all one value. */
 static int all_same(const uint8_t *buf, size_t count, uint8_t *v)
 {
@@ -287,6 +313,10 @@ static int eval(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
         sample_leaf(e, i, b, buf);
         rc = 0;
         break;
+    case CSG_MESH: case CSG_VOD:
+        rc = volume_leaf(e, i, b, buf, v);
+        if (rc == 1) return 1;
+        break;
     case CSG_ERODE: case CSG_DILATE:
         rc = morph(e, i, b, buf, v);
         break;
@@ -363,8 +393,8 @@ int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *b
     return rc ? rc : put(e, vol, b, buf, uniform, v, occupancy);
 }
 
-int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol, int occupancy,
-                    csg_stats *st)
+int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
+                    vod_volume *vol, int occupancy, csg_stats *st)
 {
     vod_volume_info in;
     vod_volume_get_info(vol, &in);
@@ -372,7 +402,7 @@ int csg_eval_volume(const csg_tree *t, const grid_spec *g, vod_volume *vol, int 
     for (int a = 0; a < 3; a++)
         if (in.dims[a] != g->res[a]) return -EINVAL;
     csg_eval *e;
-    int rc = csg_eval_new(t, g, in.sbrick, &e);
+    int rc = csg_eval_new(t, g, in.sbrick, leaves, &e);
     if (rc) return rc;
     uint8_t *buf = malloc((size_t)in.sbrick * in.sbrick * in.sbrick);
     if (!buf) rc = -ENOMEM;

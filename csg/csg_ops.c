@@ -6,7 +6,7 @@
 
 static const char *const names[CSG_KIND_COUNT] = {
     [CSG_CUBOID] = "cuboid", [CSG_ELLIPSOID] = "ellipsoid", [CSG_CYLINDER] = "cylinder",
-    [CSG_CONE] = "cone", [CSG_IMPLICIT] = "implicit", [CSG_UNION] = "union",
+    [CSG_CONE] = "cone", [CSG_IMPLICIT] = "implicit", [CSG_MESH] = "mesh", [CSG_VOD] = "vod", [CSG_UNION] = "union",
     [CSG_INTERSECTION] = "intersection", [CSG_TRIM] = "trim", [CSG_CAP] = "cap",
     [CSG_DIFFERENCE_A] = "differenceA", [CSG_DIFFERENCE_B] = "differenceB",
     [CSG_DIFFERENCE] = "difference", [CSG_ADD] = "add", [CSG_MODULATE] = "modulate",

@@ -208,7 +208,7 @@ static int operand(parser *p, int32_t *idx)
     skip_space(p);
     csg_kind k;
     if (p->pos < p->end && p->src[p->pos] == '(') {
-        if (kind_of(w, &k) || k <= CSG_IMPLICIT) {
+        if (kind_of(w, &k) || csg_is_leaf(k)) {
             p->pos = at;
             return fail(p, -EINVAL, "unknown operator '%s'", w);
         }
@@ -301,11 +301,41 @@ static int implicit(parser *p, csg_node *n)
     return 0;
 }
 
+/* A mesh or vod leaf's "file name" into the tree's text (the caller reads
+ * the file: the parser does no I/O). */
+static int file_name(parser *p, csg_node *n)
+{
+    skip_space(p);
+    if (p->pos >= p->end || p->src[p->pos] != '"')
+        return fail(p, -EINVAL, "%s needs its file's name in double quotes",
+                    csg_kind_name(n->kind));
+    size_t s = ++p->pos;
+    while (p->pos < p->end && p->src[p->pos] != '"') p->pos++;
+    if (p->pos >= p->end) return fail(p, -EINVAL, "the file name's quote is not closed");
+    size_t len = p->pos++ - s;
+    if (!len) return fail(p, -EINVAL, "the file name is empty");
+    n->path_off = (uint32_t)p->text_len;
+    n->path_len = (uint32_t)len;
+    n->scale = 1;
+    memcpy(p->text + p->text_len, p->src + s, len);
+    p->text[p->text_len + len] = 0;
+    p->text_len += len + 1;
+    return 0;
+}
+
 /* One "key value" of a leaf.  A cylinder's or cone's sizes are read as
  * if its axis were z (size[2] the height) and moved to its axis after. */
 static int leaf_param(parser *p, csg_node *n, const char *key, int *sized)
 {
     double v[3];
+    if (n->kind == CSG_MESH) {
+        if (!strcmp(key, "fit")) return n->has_fit = 1, numbers(p, n->fit, 3);
+        if (strcmp(key, "scale"))
+            return fail(p, -EINVAL, "mesh takes fit and scale, not '%s'", key);
+        return number(p, &n->scale) || positive(p, &n->scale, 1, "scale") ? -EINVAL : 0;
+    }
+    if (n->kind == CSG_VOD)
+        return fail(p, -EINVAL, "vod takes only its file's name, not '%s'", key);
     if (!strcmp(key, "center")) return numbers(p, n->center, 3);
     if (!strcmp(key, "rotate")) {
         if (numbers(p, v, 3)) return -EINVAL;
@@ -356,13 +386,14 @@ static int leaf(parser *p, csg_kind k, int32_t *idx)
     if (new_node(p, k, &n)) return -E2BIG;
     int sized = 0;
     if (k == CSG_IMPLICIT && implicit(p, n)) return -EINVAL;
+    if ((k == CSG_MESH || k == CSG_VOD) && file_name(p, n)) return -EINVAL;
     for (;;) {
         skip_space(p);
         if (p->pos >= p->end) break;
         char key[CSG_NAME_MAX];
         if (word(p, key) || leaf_param(p, n, key, &sized)) return -EINVAL;
     }
-    if (k != CSG_IMPLICIT && sized != 7)
+    if (k <= CSG_CONE && sized != 7)
         return fail(p, -EINVAL, "%s needs its %s", csg_kind_name(k),
                     k == CSG_CUBOID ? "size" : k == CSG_ELLIPSOID ? "radius or radii"
                                                                    : "radius and height");
@@ -388,15 +419,11 @@ static int parse_def(parser *p, def *d)
     if (word(p, w)) return -EINVAL;
     csg_kind k;
     int rc;
-    if (!strcmp(w, "mesh") || !strcmp(w, "vod")) {
-        p->pos = at;
-        return fail(p, -EINVAL, "%s leaves are not supported yet", w);
-    }
     if (kind_of(w, &k)) {
         p->pos = at;
         return fail(p, -EINVAL, "unknown primitive or operator '%s'", w);
     }
-    if (k <= CSG_IMPLICIT) {
+    if (csg_is_leaf(k)) {
         rc = leaf(p, k, &d->index);
     } else {
         rc = call(p, k, &d->index);
@@ -530,6 +557,7 @@ int csg_parse(const char *src, size_t len, csg_tree **out, csg_error *err)
 void csg_tree_free(csg_tree *t)
 {
     if (!t) return;
+    for (uint32_t i = 0; i < CSG_MAX_NODES; i++) free(t->data[i]);
     free(t->text);
     free(t);
 }

@@ -156,6 +156,8 @@ typedef struct {
     uint64_t bricks, uniform_bricks, skipped, voxel_evals, solid_voxels;
 } csg_task_stats;
 
+#define CSG_BLOCK_NODES 256u
+
 /* The tree is csg.h's csg_tree: its n nodes (csg_node, an array at
  * nodes_off) and its text pool (text_len bytes at text_off), copied by the
  * master; the workers rebuild a csg_tree around them. */
@@ -167,6 +169,10 @@ typedef struct {
     uint64_t nodes_off, text_off, text_len;
     uint32_t ntasks;
     uint64_t stats_off;                     /* csg_task_stats per task */
+    /* The mesh and vod leaves' volumes (8 bits, the job's grid), built by
+     * the master before the first task: node i's at leaf_off[i], 0 for
+     * the other nodes (CSG_BLOCK_NODES = csg.h's CSG_MAX_NODES). */
+    uint64_t leaf_off[CSG_BLOCK_NODES];
     uint64_t volume_off;                    /* the vod_volume's arena */
 } csg_block;
 

@@ -1095,6 +1095,9 @@ static void csg_request(const vox_job *job, Voxd__CsgNode *nodes, Voxd__CsgNode 
         n->scalar = v->scalar;
         n->k = v->k;
         n->name = name_bytes(v->name);
+        if (v->data) n->data.data = (uint8_t *)v->data, n->data.len = v->data_len;
+        if (v->has_fit) n->fit = (double *)v->fit, n->n_fit = 3;
+        n->scale = v->scale;
         ptrs[i] = n;
     }
     voxd__csg__init(cm);

@@ -201,7 +201,7 @@ typedef struct {
 /* Volume CSG (docs/csg.md): the protocol's CsgOp, Primitive and Axis
  * numbers (proto/voxd.proto). */
 enum {
-    VOX_CSG_PRIMITIVE = 1, VOX_CSG_IMPLICIT = 2,
+    VOX_CSG_PRIMITIVE = 1, VOX_CSG_IMPLICIT = 2, VOX_CSG_MESH = 3, VOX_CSG_VOD = 4,
     VOX_CSG_UNION = 10, VOX_CSG_INTERSECTION = 11, VOX_CSG_DIFFERENCE = 12,
     VOX_CSG_TRIM = 13, VOX_CSG_CAP = 14, VOX_CSG_ADD = 15, VOX_CSG_MODULATE = 16,
     VOX_CSG_DIVIDE = 17, VOX_CSG_DIFFERENCE_A = 18, VOX_CSG_DIFFERENCE_B = 19,
@@ -228,6 +228,11 @@ typedef struct {
     double scalar;          /* divide's S_L, scale_add's and scale_mul's scalar */
     uint32_t k;             /* erode, dilate: voxels, 1..16 */
     const char *name;       /* for the daemon's messages; may be NULL */
+    const void *data;       /* VOX_CSG_MESH, VOX_CSG_VOD: the file's bytes, as they are */
+    size_t data_len;
+    int has_fit;            /* VOX_CSG_MESH: the bounding box's centre moved to fit[], */
+    double fit[3];          /* its longest side made scale; else coordinates times scale */
+    double scale;           /* 0 = 1 */
 } vox_csg_node;
 
 /* A CSG tree on a grid: the job of `vox csg`, which gives the same file.

@@ -17,6 +17,8 @@
 #include "csg.h"
 #include "master.h"
 
+_Static_assert(CSG_BLOCK_NODES == CSG_MAX_NODES, "a leaf offset per node");
+
 /* Runs of bricks: enough for the workers to share the load and the
  * progress to move, few enough for the work stack (4096 + tasks). */
 #define CSG_TASKS 2048u
@@ -40,6 +42,27 @@ static int no_room(engine *e, const char *what)
     return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
                       "%s does not fit in shared memory (%zu MiB); raise its size",
                       what, e->seg.bytes >> 20);
+}
+
+/* The file leaves' volumes from off on (none: off unchanged), built here
+ * once for the job; their offsets in the block. */
+static int build_leaves(engine *e, const engine_csg_job *j, csg_block *b, uint64_t *off)
+{
+    if (!csg_has_file_leaves(j->tree)) return 0;
+    uint64_t end = e->h->data_off + e->h->data_bytes;
+    if (*off >= end) return no_room(e, "the leaves' volumes");
+    vod_volume *leaves[CSG_MAX_NODES];
+    size_t used;
+    char msg[sizeof e->err.message];
+    int rc = csg_leaves_build(j->tree, &j->grid, shm_at(e->seg.base, *off), end - *off, leaves,
+                              &used, msg, sizeof msg);
+    if (rc == -ENOMEM || rc == -ENOSPC)
+        return sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size", msg);
+    if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+    for (uint32_t i = 0; i < j->tree->n; i++)
+        b->leaf_off[i] = leaves[i] ? (uint64_t)((uint8_t *)leaves[i] - e->seg.base) : 0;
+    *off = align64(*off + used);
+    return 0;
 }
 
 /* The tree and the stats behind the block, the volume in the rest. */
@@ -111,6 +134,8 @@ static int csg_setup(engine *e, void *job)
     e->h->job_bytes = sizeof *b;
     uint64_t vol_off;
     int rc = copy_input(e, j->tree, b, &vol_off);
+    if (!rc) rc = build_leaves(e, j, b, &vol_off);
+    if (!rc && vol_off >= e->h->data_off + e->h->data_bytes) rc = no_room(e, "the volume");
     if (!rc) rc = init_volume(e, &j->grid, vol_off);
     if (!rc) {
         b->volume_off = vol_off;

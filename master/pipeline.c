@@ -228,23 +228,60 @@ static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
 
 /* A csg job in this thread: every brick in turn (csg_eval_volume) into a
  * volume in a sparse private mapping, the engine's layout. */
+/* The file leaves of a csg job in a sparse private mapping (*arena,
+ * *abytes; none: MAP_FAILED), their volumes in leaves. */
+static int serial_leaves(const pipeline_job *job, pipeline_report *r, void **arena,
+                         size_t *abytes, vod_volume *leaves[CSG_MAX_NODES])
+{
+    *arena = MAP_FAILED;
+    memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
+    const csg_tree *t = job->csg.tree;
+    if (!csg_has_file_leaves(t)) return 0;
+    size_t one = vod_volume_bytes(r->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX), n = 0;
+    for (uint32_t i = 0; i < t->n; i++)
+        n += t->node[i].kind == CSG_MESH || t->node[i].kind == CSG_VOD;
+    *abytes = one * n;
+    *arena = one ? mmap(NULL, *abytes, PROT_READ | PROT_WRITE,
+                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                 : MAP_FAILED;
+    if (*arena == MAP_FAILED)
+        return fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
+    char msg[sizeof r->err.message];
+    size_t used;
+    int rc = csg_leaves_build(t, &r->grid, *arena, *abytes, leaves, &used, msg, sizeof msg);
+    if (rc)
+        return fail(r, rc == -ENOMEM || rc == -ENOSPC ? ENGINE_LIMIT : ENGINE_BAD_JOB, rc, "%s",
+                    msg);
+    return 0;
+}
+
 static int run_serial_csg(const pipeline_job *job, const vod_params *v,
                           vod_sink *sink, pipeline_report *r)
 {
     r->stage = PIPELINE_VOXELIZE;
+    void *larena;
+    size_t lbytes = 0;
+    vod_volume *leaves[CSG_MAX_NODES];
+    double t0 = clock_now();
+    int rc = serial_leaves(job, r, &larena, &lbytes, leaves);
+    if (rc) {
+        if (larena != MAP_FAILED) munmap(larena, lbytes);
+        return rc;
+    }
     size_t bytes = vod_volume_bytes(r->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX);
     void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                                MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
                         : MAP_FAILED;
-    if (arena == MAP_FAILED)
+    if (arena == MAP_FAILED) {
+        if (larena != MAP_FAILED) munmap(larena, lbytes);
         return fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
                     r->grid.res[0], r->grid.res[1], r->grid.res[2]);
+    }
     vod_volume *vol;
-    int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, 8, CSG_VOLUME_BRICK);
+    rc = vod_volume_init(&vol, arena, bytes, r->grid.res, 8, CSG_VOLUME_BRICK);
     csg_stats st = {0};
-    double t0 = clock_now();
-    if (!rc) rc = csg_eval_volume(job->csg.tree, &r->grid, vol,
-                                  v->channel == VOXEL_CH_OCCUPANCY, &st);
+    if (!rc) rc = csg_eval_volume(job->csg.tree, &r->grid, (const vod_volume *const *)leaves,
+                                  vol, v->channel == VOXEL_CH_OCCUPANCY, &st);
     r->t_voxelize = clock_now() - t0;
     r->csg_bricks = st.bricks;
     r->csg_uniform = st.uniform_bricks;
@@ -259,6 +296,7 @@ static int run_serial_csg(const pipeline_job *job, const vod_params *v,
         rc = write_serial(NULL, &src, v, sink, r);
     }
     munmap(arena, bytes);
+    if (larena != MAP_FAILED) munmap(larena, lbytes);
     return rc;
 }
 

@@ -386,6 +386,10 @@ static int check_csg_stray(const Voxd__CsgNode *n, const char *who, const char *
         field = "a primitive's fields";
     else if (n->op != VOXD__CSG_OP__CSG_IMPLICIT && (n->source.len || n->n_domain))
         field = "an expression or its domain";
+    else if (n->op != VOXD__CSG_OP__CSG_MESH && n->op != VOXD__CSG_OP__CSG_VOD && n->data.len)
+        field = "a file's data";
+    else if (n->op != VOXD__CSG_OP__CSG_MESH && (n->n_fit || n->scale != 0))
+        field = "a mesh's fit or scale";
     else if (!scalar_op && n->scalar != 0)
         field = "a scalar";
     else if (!morph && n->k)
@@ -446,8 +450,14 @@ static int check_csg_leaf(const Voxd__CsgNode *n, const char *who, const proto_l
         snprintf(what, sizeof what, "%.96s's domain", who);
         return rc ? rc : check_box(n->domain, n->n_domain, 1, what, e);
     case VOXD__CSG_OP__CSG_MESH: case VOXD__CSG_OP__CSG_VOD:
-        return bad(e, INVALID, "%s: %s leaves are not supported yet", who,
-                   n->op == VOXD__CSG_OP__CSG_MESH ? "mesh" : "vod");
+        if (!n->data.len)
+            return bad(e, INVALID, "%s: a %s leaf needs its file's data", who,
+                       n->op == VOXD__CSG_OP__CSG_MESH ? "mesh" : "vod");
+        if (n->n_fit && check_csg_vec(n->fit, n->n_fit, 0, 0, who, "fit", e)) return -EINVAL;
+        if (!isfinite(n->scale) || n->scale < 0 || n->scale > PROTO_CSG_MAX_COORD)
+            return bad(e, INVALID, "%s's scale is %g: 0 (none) or a positive number", who,
+                       n->scale);
+        return 0;
     case VOXD__CSG_OP__CSG_DIVIDE:
         if (!(n->scalar > 0 && n->scalar <= 1))
             return bad(e, INVALID, "%s (divide) needs a scalar S_L in (0, 1], got %g", who,
@@ -525,8 +535,15 @@ static int check_csg(const Voxd__Csg *c, const Voxd__Submit *s, const proto_limi
                    c->n_nodes, max);
     if (s->input_bytes)
         return bad(e, INVALID, "a CSG job comes whole in its Submit, not as input_bytes");
-    for (size_t i = 0; i < c->n_nodes; i++)
+    uint64_t leaf_bytes = 0;
+    for (size_t i = 0; i < c->n_nodes; i++) {
         if ((rc = check_csg_node(c->nodes[i], i, lim, e))) return rc;
+        leaf_bytes += c->nodes[i]->data.len;
+    }
+    if (leaf_bytes > lim->max_csg_leaf_bytes)
+        return bad(e, LIMIT, "the CSG job's leaves are %llu bytes, over this server's "
+                   "max_csg_leaf_bytes of %llu", (unsigned long long)leaf_bytes,
+                   (unsigned long long)lim->max_csg_leaf_bytes);
     if ((rc = check_csg_shape(c, lim, e))) return rc;
     if ((rc = check_source_name(&c->source_name, e))) return rc;
     if ((rc = check_box(c->domain, c->n_domain, 1, "domain", e))) return rc;

@@ -48,7 +48,9 @@ static int kind_of(const Voxd__CsgNode *n, csg_kind *k)
     case VOXD__CSG_OP__CSG_SCALAR_MUL: *k = CSG_SCALAR_MUL; return 0;
     case VOXD__CSG_OP__CSG_ERODE: *k = CSG_ERODE; return 0;
     case VOXD__CSG_OP__CSG_DILATE: *k = CSG_DILATE; return 0;
-    default: return -EINVAL; /* mesh and VOD leaves: refused by the check */
+    case VOXD__CSG_OP__CSG_MESH: *k = CSG_MESH; return 0;
+    case VOXD__CSG_OP__CSG_VOD: *k = CSG_VOD; return 0;
+    default: return -EINVAL;
     }
 }
 
@@ -72,6 +74,23 @@ static int implicit_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_
     t->text[*used + m->source.len] = 0;
     *used += m->source.len + 1;
     if (m->n_domain == 2) n->has_domain = 1, n->dom_lo = m->domain[0], n->dom_hi = m->domain[1];
+    return 0;
+}
+
+/* A mesh or vod leaf: its file's bytes copied into the tree (which frees
+ * them), its placement; the daemon parses them when the job runs. */
+static int file_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_t i, char *msg,
+                     size_t len)
+{
+    if (!(t->data[i] = malloc(m->data.len))) {
+        snprintf(msg, len, "out of memory");
+        return -ENOMEM;
+    }
+    memcpy(t->data[i], m->data.data, m->data.len);
+    t->data_len[i] = m->data.len;
+    n->has_fit = m->n_fit == 3;
+    for (int a = 0; a < 3 && n->has_fit; a++) n->fit[a] = m->fit[a];
+    n->scale = m->scale > 0 ? m->scale : 1;
     return 0;
 }
 
@@ -122,6 +141,8 @@ int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_d
         node_fields(n, m);
         if (n->kind == CSG_IMPLICIT)
             rc = implicit_leaf(t, n, m, i, &lim, &used, msg, len);
+        if (n->kind == CSG_MESH || n->kind == CSG_VOD)
+            rc = file_leaf(t, n, m, i, msg, len);
     }
     t->n = (uint32_t)c->n_nodes;
     t->text_len = used;

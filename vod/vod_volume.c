@@ -294,6 +294,32 @@ uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
     return vox_get(v, brick_data(v, e), vox_index(v, x & m, y & m, z & m));
 }
 
+int vod_volume_box_uniform(const vod_volume *v, const int64_t lo[3], uint32_t n,
+                           uint32_t *value)
+{
+    int64_t a0[3], a1[3]; /* the box clamped to dims, [a0, a1) */
+    int outside = 0;
+    for (int a = 0; a < 3; a++) {
+        a0[a] = lo[a] < 0 ? 0 : lo[a];
+        a1[a] = lo[a] + n > v->dims[a] ? v->dims[a] : lo[a] + n;
+        outside |= lo[a] < 0 || lo[a] + n > v->dims[a];
+        if (a0[a] >= a1[a]) return *value = 0, 1; /* wholly outside */
+    }
+    int64_t found = outside ? 0 : -1;
+    uint32_t s = v->slog2, b[3];
+    for (b[2] = (uint32_t)(a0[2] >> s); b[2] <= (uint32_t)((a1[2] - 1) >> s); b[2]++)
+        for (b[1] = (uint32_t)(a0[1] >> s); b[1] <= (uint32_t)((a1[1] - 1) >> s); b[1]++)
+            for (b[0] = (uint32_t)(a0[0] >> s); b[0] <= (uint32_t)((a1[0] - 1) >> s); b[0]++) {
+                uint32_t e = entry_at(v, 0, b);
+                if (is_alloc(e)) return 0;
+                int64_t val = e & ~ENTRY_UNIFORM;
+                if (found >= 0 && val != found) return 0;
+                found = val;
+            }
+    *value = (uint32_t)found;
+    return 1;
+}
+
 /* Brick b wholly inside the box: one entry, or the brick's data when it has
  * memory already (or the value cannot be a uniform entry). */
 static int fill_whole(vod_volume *v, const uint32_t b[3], uint32_t value)

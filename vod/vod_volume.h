@@ -83,6 +83,12 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
 int vod_volume_put_uniform(vod_volume *v, const uint32_t b[3], uint32_t value);
 /* The voxel at (x, y, z), 0 outside dims. */
 uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z);
+/* 1 and *value when every voxel of the cube of n voxels per axis from lo
+ * (which may reach outside dims: those voxels are 0) is known to hold one
+ * value from the level-0 table alone (empty and uniform storage bricks),
+ * else 0 (a brick with memory, even if its voxels agree). */
+int vod_volume_box_uniform(const vod_volume *v, const int64_t lo[3], uint32_t n,
+                           uint32_t *value);
 
 /* What a volume holds, for tests and the job kinds' summaries. */
 typedef struct {

@@ -50,7 +50,11 @@ static int csg_begin(work_ctx *w, void **state)
         if (!(st->buf = malloc(want))) return -ENOMEM;
         st->buf_bytes = want;
     }
-    return csg_eval_new(&st->tree, &b->grid, b->sbrick, &st->ev);
+    const vod_volume *leaves[CSG_MAX_NODES] = {0};
+    for (uint32_t i = 0; i < b->n_nodes; i++)
+        if (b->leaf_off[i] && !(leaves[i] = vod_volume_view(shm_at(w->base, b->leaf_off[i]))))
+            return -EINVAL;
+    return csg_eval_new(&st->tree, &b->grid, b->sbrick, leaves, &st->ev);
 }
 
 static int csg_run(work_ctx *w, void *state, const shm_task *t)

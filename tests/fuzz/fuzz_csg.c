@@ -30,7 +30,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     grid_spec g;
     char gerr[100];
     csg_eval *e;
-    if (!grid_make(lo, hi, 16, &g, gerr, sizeof gerr) && !csg_eval_new(t, &g, 8, &e)) {
+    if (!grid_make(lo, hi, 16, &g, gerr, sizeof gerr) && !csg_eval_new(t, &g, 8, NULL, &e)) {
         uint8_t buf[512], v;
         uint32_t b[3] = {0, 1, 0};
         int uni;

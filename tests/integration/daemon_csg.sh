@@ -29,6 +29,7 @@ cat >"$TMP/voxd.conf" <<CONF
 workers 2
 max_csg_depth 16
 max_expr_depth 8
+max_csg_leaf_bytes 16K
 CONF
 if start_voxd "$TMP/voxd.log" --config "$TMP/voxd.conf"; then
     pass "voxd starts with CSG limits"
@@ -56,6 +57,59 @@ refuse "recorded by its size" 0 "source=submitted:[0-9]+ bytes" "$VOX" info "$TM
 refuse "--channel surface is refused by vox" 2 "not available for --csg jobs" \
     vox submit --csg "$TMP/part.csg" -r 16 --channel surface -o "$TMP/x.vod"
 
+# ---------------------------------------------------------------- leaves
+
+# A mesh leaf (a box, fitted and scaled) and a VOD leaf (the part itself
+# on another grid): vox sends the files' bytes, the daemon opens no path.
+mkdir "$TMP/leaves"
+cat >"$TMP/leaves/box.obj" <<'OBJ'
+v -1 -1 -1
+v 1 -1 -1
+v -1 1 -1
+v 1 1 -1
+v -1 -1 1
+v 1 -1 1
+v -1 1 1
+v 1 1 1
+f 1 3 4
+f 1 4 2
+f 5 6 8
+f 5 8 7
+f 1 2 6
+f 1 6 5
+f 3 7 8
+f 3 8 4
+f 1 5 7
+f 1 7 3
+f 2 4 8
+f 2 8 6
+OBJ
+check "the VOD leaf's file" vox csg "$TMP/part.csg" -r 24 -q -w 0 -d -1.2,1.2 -o "$TMP/leaves/prev.vod"
+cat >"$TMP/leaves/leaves.csg" <<'EOT'
+scan = mesh "box.obj" fit 0.3,0.2,-0.1 scale 0.7
+prev = vod "prev.vod"
+bump = implicit "x^2 + y^2 + (z-0.3)^2 - 0.2" domain -1,1
+out  = union(difference(scan, dilate(prev, 1)), intersection(bump, prev))
+result out
+EOT
+check "vox csg with mesh and vod leaves" vox csg "$TMP/leaves/leaves.csg" -r 48 -q -o "$TMP/l1.vod"
+check "vox csg -w 0, the same" vox csg "$TMP/leaves/leaves.csg" -r 48 -q -w 0 -o "$TMP/l0.vod"
+check "vox submit --csg with mesh and vod leaves" \
+    vox submit --csg "$TMP/leaves/leaves.csg" -r 48 -q -o "$TMP/l2.vod"
+check "leaves: submit = embedded = serial (bytes)" \
+    bash -c "cmp '$TMP/l1.vod' '$TMP/l0.vod' && cmp '$TMP/l1.vod' '$TMP/l2.vod'"
+printf 'garbage\n' >"$TMP/leaves/bad.obj"
+printf 'm = mesh "bad.obj"\nresult m\n' >"$TMP/leaves/badmesh.csg"
+refuse "a mesh leaf the daemon cannot read: the job's INVALID_INPUT, naming the node" 2 \
+    "INVALID_INPUT: .*node 'm': mesh: " vox submit --csg "$TMP/leaves/badmesh.csg" -r 16 -o "$TMP/x.vod"
+{ cat "$TMP/leaves/box.obj"; for i in $(seq 600); do echo "# a comment line to pass 16K of leaves"; done; } >"$TMP/leaves/big.obj"
+printf 'm = mesh "big.obj"\nresult m\n' >"$TMP/leaves/big.csg"
+refuse "leaves over max_csg_leaf_bytes are refused at the Submit" 1 \
+    "LIMIT_EXCEEDED: the CSG job's leaves are [0-9]+ bytes, over this server's max_csg_leaf_bytes of 16384" \
+    vox submit --csg "$TMP/leaves/big.csg" -r 16 -o "$TMP/x.vod"
+refuse "a missing leaf file is vox's error" 2 "node 'm': .*nothere.obj: No such file" \
+    bash -c "printf 'm = mesh \"nothere.obj\"\nresult m\n' >'$TMP/leaves/missing.csg' && timeout 60 '$VOX' --socket '$S' submit --csg '$TMP/leaves/missing.csg' -r 16 -o '$TMP/x.vod'"
+
 # ---------------------------------------------------------------- bad trees
 
 bad() { # bad KIND CODE PATTERN
@@ -69,7 +123,7 @@ bad arity INVALID_INPUT "CSG node 1 \('half'\) \(union\) needs 2 children, got 1
 bad param INVALID_INPUT "CSG node 2 \('div'\) \(divide\) needs a scalar S_L in \(0, 1\], got 1.5"
 bad k INVALID_INPUT "CSG node 1 \('er'\) needs k of 1..16 voxels, got 40"
 bad expression INVALID_INPUT "CSG node 0 \('bad'\): expression:1:"
-bad mesh-leaf INVALID_INPUT "CSG node 0 \('scan'\): mesh leaves are not supported yet"
+bad mesh-leaf INVALID_INPUT "CSG node 0 \('scan'\): a mesh leaf needs its file's data"
 bad no-nodes INVALID_INPUT "CSG job has no nodes"
 bad deep LIMIT_EXCEEDED "the tree is deeper than this server's max_csg_depth of 16"
 refuse "vox submit: a tree over max_csg_depth" 1 \

@@ -125,7 +125,7 @@ Test(csg, bricks_equal_dense_evaluation)
     csg_tree *t = parse(tree_src);
     grid_spec g = grid(40);
     csg_eval *e;
-    cr_assert_eq(csg_eval_new(t, &g, 8, &e), 0);
+    cr_assert_eq(csg_eval_new(t, &g, 8, NULL, &e), 0);
     uint8_t buf[512];
     uint64_t differ = 0;
     for (uint32_t bz = 0; bz < 5; bz++)
@@ -222,7 +222,13 @@ Test(csg, parse_errors)
     bad("a = cuboid size 1,1,1\n", 0, "result");
     bad("a = cuboid size 1,1,1\na = cuboid size 1,1,1\nresult a\n", 2, "twice");
     bad("a = frob size 1\nresult a\n", 1, "unknown");
-    bad("a = mesh \"x.ply\"\nresult a\n", 1, "not supported yet");
+    bad("a = mesh x.ply\nresult a\n", 1, "mesh needs its file's name in double quotes");
+    bad("a = mesh \"x.ply\" fit 1,2\nresult a\n", 1, "");
+    bad("a = mesh \"x.ply\" scale -1\nresult a\n", 1, "scale must be positive");
+    bad("a = mesh \"x.ply\" center 0,0,0\nresult a\n", 1, "mesh takes fit and scale, not 'center'");
+    bad("a = vod \"x.vod\" scale 2\nresult a\n", 1, "vod takes only its file's name");
+    bad("a = vod \"\"\nresult a\n", 1, "the file name is empty");
+    bad("a = vod \"x.vod\nresult a\n", 1, "quote is not closed");
     bad("a = cuboid\nresult a\n", 1, "needs its size");
     /* the node's name comes with the error */
     csg_tree *t;

@@ -70,7 +70,7 @@ static uint64_t assert_voxels(const vod_membuf *m, const csg_tree *t, const grid
     char err[256];
     cr_assert_eq(vod_read(m->p, m->n, &f, err, sizeof err), 0, "%s", err);
     csg_eval *ev;
-    cr_assert_eq(csg_eval_new(t, g, 8, &ev), 0);
+    cr_assert_eq(csg_eval_new(t, g, 8, NULL, &ev), 0);
     uint8_t buf[512];
     uint32_t b[3];
     uint64_t solid = 0;

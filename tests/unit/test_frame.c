@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "frame.h"
+#include "proto_check.h"
 
 /* ---------------------------------------------------------------- samples */
 
@@ -57,7 +58,7 @@ static uint8_t *enc_req(int i, size_t *len)
         break;
     case 3:
         n0.op = VOXD__CSG_OP__CSG_PRIMITIVE, n0.primitive = VOXD__PRIMITIVE__PRIMITIVE_CONE;
-        n0.n_params = 6, n0.params = box;
+        n0.n_size = 3, n0.size = box;
         n1.op = VOXD__CSG_OP__CSG_INVERSE, n1.n_children = 1, n1.children = kids;
         cs.n_nodes = 2, cs.nodes = nodes, cs.n_domain = 2, cs.domain = dom, cs.res = 32;
         s.job_case = VOXD__SUBMIT__JOB_CSG, s.csg = &cs;
@@ -575,15 +576,16 @@ static uint8_t *csg_nodes(size_t count, const uint8_t *node, size_t node_len, si
 Test(frame, unpack_refuses_heap_amplification)
 {
     /* The smallest meaningful node, {op: INVERSE, children: [0]}, 7 wire
-     * bytes: the most nodes a server may allow must still unpack. */
+     * bytes: the most nodes a server may allow (max_csg_nodes' maximum,
+     * the evaluator's PROTO_CSG_MAX_NODES) must still unpack. */
     static const uint8_t inverse[] = {0x08, 0x14, 0x12, 0x01, 0x00};
     size_t len;
-    uint8_t *b = csg_nodes(65536, inverse, sizeof inverse, &len);
+    uint8_t *b = csg_nodes(PROTO_CSG_MAX_NODES, inverse, sizeof inverse, &len);
     cr_assert_leq(len, FRAME_DEFAULT_MAX);
     Voxd__Request *r = frame_unpack_request(b, len);
     cr_assert_not_null(r, "a legitimate node count must unpack");
-    cr_assert_eq(r->submit->csg->n_nodes, 65536);
-    cr_assert_eq(r->submit->csg->nodes[65535]->op, VOXD__CSG_OP__CSG_INVERSE);
+    cr_assert_eq(r->submit->csg->n_nodes, PROTO_CSG_MAX_NODES);
+    cr_assert_eq(r->submit->csg->nodes[PROTO_CSG_MAX_NODES - 1]->op, VOXD__CSG_OP__CSG_INVERSE);
     voxd__request__free_unpacked(r, NULL);
     free(b);
 

@@ -716,9 +716,28 @@ Test(proto, csg_implicit_mesh_and_vod_leaves)
     setup();
     c.node[1] = (Voxd__CsgNode)VOXD__CSG_NODE__INIT;
     c.node[1].op = VOXD__CSG_OP__CSG_MESH;
-    refused(&j.req, INVALID, "CSG node 1: mesh leaves are not supported yet");
+    refused(&j.req, INVALID, "CSG node 1: a mesh leaf needs its file's data");
     c.node[1].op = VOXD__CSG_OP__CSG_VOD;
-    refused(&j.req, INVALID, "CSG node 1: vod leaves are not supported yet");
+    refused(&j.req, INVALID, "CSG node 1: a vod leaf needs its file's data");
+    c.node[1].data.data = (uint8_t *)"0123456789", c.node[1].data.len = 10;
+    accepted(&j.req);
+    c.node[1].scale = 2;
+    refused(&j.req, INVALID, "CSG node 1 (vod) does not take a mesh's fit or scale");
+    c.node[1].op = VOXD__CSG_OP__CSG_MESH;
+    accepted(&j.req);
+    c.node[1].scale = -1;
+    refused(&j.req, INVALID, "CSG node 1's scale is -1: 0 (none) or a positive number");
+    c.node[1].scale = 0;
+    c.node[1].fit = c.center, c.node[1].n_fit = 2;
+    refused(&j.req, INVALID, "CSG node 1 needs 3 values for its fit, got 2");
+    c.node[1].n_fit = 3;
+    accepted(&j.req);
+    lim.max_csg_leaf_bytes = 9;
+    refused(&j.req, LIMIT, "the CSG job's leaves are 10 bytes, over this server's "
+                           "max_csg_leaf_bytes of 9");
+    setup();
+    c.node[2].data.data = (uint8_t *)"x", c.node[2].data.len = 1;
+    refused(&j.req, INVALID, "CSG node 2 (difference) does not take a file's data");
 }
 
 Test(proto, csg_stray_fields_and_numbers)
