@@ -25,8 +25,8 @@ static const char usage[] =
     "  FILE - reads the tree from standard input\n"
     "  -o, --output OUT.vod   the file to write (required)\n"
     "  -r, --res N            voxels along the domain's longest axis, 1..4096 (required)\n"
-    "  -c, --channel CH       density (8 bit, default) or occupancy (density >= S);\n"
-    "                         surface is not supported by csg yet\n"
+    "  -c, --channel CH       density (8 bit, default), occupancy (density >= S) or\n"
+    "                         surface (density >= S, normals from its gradient)\n"
     "  -d, --domain D         a,b (the cube [a,b]^3) or x0,x1,y0,y1,z0,z1 (default -1,1)\n"
     "  -w, --workers N        worker processes, 0 = serial in this process (default: cores);\n"
     "                         the same bytes whatever N\n"
@@ -80,9 +80,9 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
         case 'c':
             if (!strcmp(optarg, "density")) o->channel = VOXEL_CH_DENSITY;
             else if (!strcmp(optarg, "occupancy")) o->channel = VOXEL_CH_OCCUPANCY;
+            else if (!strcmp(optarg, "surface")) o->channel = VOXEL_CH_SURFACE;
             else {
-                cli_error("bad --channel '%s': density or occupancy%s", optarg,
-                          strcmp(optarg, "surface") ? "" : " (surface is not supported by csg yet)");
+                cli_error("bad --channel '%s': density, occupancy or surface", optarg);
                 return CLI_EXIT_USAGE;
             }
             break;

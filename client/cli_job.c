@@ -199,10 +199,6 @@ static int check_job_kind(cli_job_opts *o)
             return CLI_EXIT_USAGE;
         }
         if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
-        if (o->vod.channel == VOXEL_CH_SURFACE) {
-            cli_error("--channel surface is not available for --csg jobs (density or occupancy)");
-            return CLI_EXIT_USAGE;
-        }
         return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {

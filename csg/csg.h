@@ -156,17 +156,23 @@ void csg_eval_free(csg_eval *e);
 int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
                    uint8_t *value);
 const csg_stats *csg_eval_stats(const csg_eval *e);
-/* Brick b of the result stored into vol (8-bit, storage brick side as the
- * evaluator's): a uniform brick as a table entry, voxels past the grid 0,
- * densities to 0/1 with occupancy (1 where >= S).  buf: side^3 bytes of
- * scratch.  Bricks may be stored concurrently (vod_volume_put_brick).  0
- * or a negative errno (-ENOMEM: the volume's pool is full). */
-int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf,
-                   int occupancy);
+/* Brick b of the result stored into vol (storage brick side as the
+ * evaluator's, csg_channel_bits(channel) bits) for the VOD channel
+ * (voxel.h): DENSITY the densities; OCCUPANCY 1 where >= S, else 0;
+ * SURFACE an occupied voxel (voxel_surface) where >= S, its normal minus
+ * the density's central-difference gradient (the tree is evaluated over
+ * the brick grown by one voxel).  A uniform brick is a table entry, voxels
+ * past the grid are 0.  buf: side^3 voxels of scratch.  Bricks may be
+ * stored concurrently (vod_volume_put_brick).  0 or a negative errno
+ * (-ENOMEM: the volume's pool is full). */
+int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], void *buf, int channel);
+/* The voxel bits of a channel's volume: 8 (density, occupancy), 32
+ * (surface), 0 for a channel CSG does not write. */
+uint32_t csg_channel_bits(int channel);
 
-/* Every brick of vol (8-bit, its storage brick side) in turn.  occupancy:
- * store 1 where the density is >= S, else 0.  0 or a negative errno. */
+/* Every brick of vol (its storage brick side) in turn, for the channel as
+ * csg_eval_store.  0 or a negative errno. */
 int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
-                    vod_volume *vol, int occupancy, csg_stats *st);
+                    vod_volume *vol, int channel, csg_stats *st);
 
 #endif

@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "csg.h"
+#include "voxel.h"
 
 struct csg_eval {
     const csg_tree *t;
@@ -384,27 +385,73 @@ static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, 
     return vod_volume_put_brick(vol, b, buf);
 }
 
-int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf,
-                   int occupancy)
+/* The surface channel's brick b: the tree over the brick grown by one
+ * voxel each side, then every voxel at or above S (inside the grid) as an
+ * occupied voxel whose normal is minus the density's central-difference
+ * gradient (outward: the density grows inwards; a zero gradient, inside a
+ * uniform region, encodes +z). */
+static int surface_brick(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint32_t *out)
 {
+    uint32_t s = e->side, n = s + 2;
+    box gb = {{(int32_t)(b[0] * s) - 1, (int32_t)(b[1] * s) - 1, (int32_t)(b[2] * s) - 1}, n};
+    uint8_t *g = malloc((size_t)n * n * n), v;
+    if (!g) return -ENOMEM;
+    int rc = eval(e, e->t->n - 1, &gb, g, &v);
+    if (rc < 0) {
+        free(g);
+        return rc;
+    }
+    e->st.bricks++;
+    int inside = 1;
+    for (int a = 0; a < 3; a++) inside &= (b[a] + 1) * s <= e->g.res[a];
+    if (rc == 1 && (v < CSG_S || inside)) {
+        e->st.uniform_bricks++;
+        free(g);
+        if (v < CSG_S) return vod_volume_put_uniform(vol, b, 0);
+        e->st.solid_voxels += (uint64_t)s * s * s;
+        const double zero[3] = {0, 0, 0};
+        return vod_volume_put_uniform(vol, b, voxel_surface(zero));
+    }
+    if (rc == 1) memset(g, v, (size_t)n * n * n);
+    size_t sy = n, sz = (size_t)n * n, k = 0;
+    for (uint32_t z = 0; z < s; z++)
+        for (uint32_t y = 0; y < s; y++)
+            for (uint32_t x = 0; x < s; x++, k++) {
+                const uint8_t *c = g + (x + 1) + sy * (y + 1) + sz * (z + 1);
+                out[k] = 0;
+                if (b[0] * s + x >= e->g.res[0] || b[1] * s + y >= e->g.res[1] ||
+                    b[2] * s + z >= e->g.res[2] || *c < CSG_S)
+                    continue;
+                double nrm[3] = {(double)c[-1] - c[1], (double)c[-(ptrdiff_t)sy] - c[sy],
+                                 (double)c[-(ptrdiff_t)sz] - c[sz]};
+                out[k] = voxel_surface(nrm);
+                e->st.solid_voxels++;
+            }
+    free(g);
+    return vod_volume_put_brick(vol, b, out);
+}
+
+int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], void *buf, int channel)
+{
+    if (channel == VOXEL_CH_SURFACE) return surface_brick(e, vol, b, buf);
     int uniform;
     uint8_t v;
     int rc = csg_eval_brick(e, b, buf, &uniform, &v);
-    return rc ? rc : put(e, vol, b, buf, uniform, v, occupancy);
+    return rc ? rc : put(e, vol, b, buf, uniform, v, channel == VOXEL_CH_OCCUPANCY);
 }
 
 int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
-                    vod_volume *vol, int occupancy, csg_stats *st)
+                    vod_volume *vol, int channel, csg_stats *st)
 {
     vod_volume_info in;
     vod_volume_get_info(vol, &in);
-    if (in.bits != 8) return -EINVAL;
+    if (in.bits != csg_channel_bits(channel)) return -EINVAL;
     for (int a = 0; a < 3; a++)
         if (in.dims[a] != g->res[a]) return -EINVAL;
     csg_eval *e;
     int rc = csg_eval_new(t, g, in.sbrick, leaves, &e);
     if (rc) return rc;
-    uint8_t *buf = malloc((size_t)in.sbrick * in.sbrick * in.sbrick);
+    uint8_t *buf = malloc((size_t)in.sbrick * in.sbrick * in.sbrick * in.bits / 8);
     if (!buf) rc = -ENOMEM;
     uint32_t nb[3];
     for (int a = 0; a < 3; a++) nb[a] = (g->res[a] + in.sbrick - 1) / in.sbrick;
@@ -412,9 +459,17 @@ int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *con
     for (b[2] = 0; b[2] < nb[2] && !rc; b[2]++)
         for (b[1] = 0; b[1] < nb[1] && !rc; b[1]++)
             for (b[0] = 0; b[0] < nb[0] && !rc; b[0]++)
-                rc = csg_eval_store(e, vol, b, buf, occupancy);
+                rc = csg_eval_store(e, vol, b, buf, channel);
     if (st) *st = e->st;
     free(buf);
     csg_eval_free(e);
     return rc;
+}
+
+uint32_t csg_channel_bits(int channel)
+{
+    return channel == VOXEL_CH_SURFACE ? 32 : channel == VOXEL_CH_DENSITY ||
+                                                      channel == VOXEL_CH_OCCUPANCY
+                                                  ? 8
+                                                  : 0;
 }

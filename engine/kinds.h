@@ -163,7 +163,7 @@ typedef struct {
  * master; the workers rebuild a csg_tree around them. */
 typedef struct {
     grid_spec grid;
-    uint32_t occupancy;                     /* store density >= S as 0/1 */
+    uint32_t channel;                       /* the VOD channel (csg_eval_store) */
     uint32_t sbrick, nbricks[3];            /* the volume's storage bricks */
     uint32_t n_nodes, node_bytes;           /* node_bytes: sizeof(csg_node) */
     uint64_t nodes_off, text_off, text_len;

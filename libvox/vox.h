@@ -235,7 +235,8 @@ typedef struct {
     double scale;           /* 0 = 1 */
 } vox_csg_node;
 
-/* A CSG tree on a grid: the job of `vox csg`, which gives the same file.
+/* A CSG tree on a grid: the job of `vox csg`, which gives the same file;
+ * channel DENSITY (the default), OCCUPANCY or SURFACE.
  * The tree travels whole in the job's Submit (a flat node list, the last
  * node the result); the daemon checks it and compiles its expressions when
  * the job is submitted, refusing a bad one with VOX_EINVALID_INPUT (or

@@ -258,7 +258,7 @@ typedef struct {
 } engine_mesh_job;
 int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r);
 /* A volume CSG tree (csg.h) evaluated brick by brick into a brick-sparse
- * volume in shared memory (8-bit densities, or 0/1 with occupancy): the
+ * volume in shared memory (densities, occupancy or surface voxels): the
  * tree is copied into the segment, each worker evaluates runs of storage
  * bricks (csg_eval_store), and a worker that dies has its run evaluated
  * again (a brick is a pure function of the tree: the same bytes).  The
@@ -267,7 +267,7 @@ int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r);
 typedef struct {
     const csg_tree *tree;       /* parsed (and so checked) by the caller */
     grid_spec grid;
-    int occupancy;              /* store density >= S as 1, else 0 */
+    int channel;                /* VOXEL_CH_DENSITY, _OCCUPANCY or _SURFACE (csg_eval_store) */
     void (*progress)(void *ud, const engine_progress *p);
     void *ud;
     const atomic_int *cancel;   /* as engine_job.cancel */

@@ -85,11 +85,11 @@ static int copy_input(engine *e, const csg_tree *t, csg_block *b, uint64_t *vol_
     return 0;
 }
 
-static int init_volume(engine *e, const grid_spec *g, uint64_t off)
+static int init_volume(engine *e, const grid_spec *g, int channel, uint64_t off)
 {
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
-    int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res, 8,
-                             CSG_VOLUME_BRICK);
+    int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
+                             csg_channel_bits(channel), CSG_VOLUME_BRICK);
     if (rc) return no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;
@@ -116,12 +116,13 @@ static int csg_setup(engine *e, void *job)
     const engine_csg_job *j = cj->job;
     e->result = RESULT_NONE;
     sched_hold(e, 0); /* the last job's result: overwritten now */
-    if (!j->tree || !j->tree->n || j->tree->n > CSG_MAX_NODES || grid_check(&j->grid))
+    if (!j->tree || !j->tree->n || j->tree->n > CSG_MAX_NODES || grid_check(&j->grid) ||
+        !csg_channel_bits(j->channel))
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     memset(b, 0, sizeof *b);
     b->grid = j->grid;
-    b->occupancy = j->occupancy != 0;
+    b->channel = (uint32_t)j->channel;
     b->sbrick = CSG_VOLUME_BRICK;
     uint64_t n = 1;
     for (int a = 0; a < 3; a++) {
@@ -136,7 +137,7 @@ static int csg_setup(engine *e, void *job)
     int rc = copy_input(e, j->tree, b, &vol_off);
     if (!rc) rc = build_leaves(e, j, b, &vol_off);
     if (!rc && vol_off >= e->h->data_off + e->h->data_bytes) rc = no_room(e, "the volume");
-    if (!rc) rc = init_volume(e, &j->grid, vol_off);
+    if (!rc) rc = init_volume(e, &j->grid, j->channel, vol_off);
     if (!rc) {
         b->volume_off = vol_off;
         rc = push_runs(e, b, per);
@@ -205,7 +206,8 @@ static int collect(engine *e, csg_job *cj)
     int bad = vod_volume_check(e->volume, e->volume_bytes);
     if (!bad) {
         vod_volume_get_info(e->volume, &in);
-        bad = memcmp(in.dims, cj->job->grid.res, sizeof in.dims) || in.bits != 8;
+        bad = memcmp(in.dims, cj->job->grid.res, sizeof in.dims) ||
+              in.bits != csg_channel_bits(cj->job->channel);
     }
     if (bad)
         return sched_fail(e, ENGINE_FAULT, -EPROTO,

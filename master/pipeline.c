@@ -110,7 +110,7 @@ static int engine_stage(engine *e, const pipeline_job *job, const grid_spec *g,
     }
     if (job->kind == PIPELINE_CSG) {
         engine_csg_job cj = {.tree = job->csg.tree, .grid = *g,
-                             .occupancy = job->vod.channel == VOXEL_CH_OCCUPANCY,
+                             .channel = job->vod.channel,
                              .progress = prog, .ud = ud, .cancel = job->cancel};
         return engine_csg(e, &cj, er);
     }
@@ -268,7 +268,8 @@ static int run_serial_csg(const pipeline_job *job, const vod_params *v,
         if (larena != MAP_FAILED) munmap(larena, lbytes);
         return rc;
     }
-    size_t bytes = vod_volume_bytes(r->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX);
+    uint32_t bits = csg_channel_bits(v->channel);
+    size_t bytes = vod_volume_bytes(r->grid.res, bits, CSG_VOLUME_BRICK, UINT64_MAX);
     void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                                MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
                         : MAP_FAILED;
@@ -278,10 +279,10 @@ static int run_serial_csg(const pipeline_job *job, const vod_params *v,
                     r->grid.res[0], r->grid.res[1], r->grid.res[2]);
     }
     vod_volume *vol;
-    rc = vod_volume_init(&vol, arena, bytes, r->grid.res, 8, CSG_VOLUME_BRICK);
+    rc = vod_volume_init(&vol, arena, bytes, r->grid.res, bits, CSG_VOLUME_BRICK);
     csg_stats st = {0};
     if (!rc) rc = csg_eval_volume(job->csg.tree, &r->grid, (const vod_volume *const *)leaves,
-                                  vol, v->channel == VOXEL_CH_OCCUPANCY, &st);
+                                  vol, v->channel, &st);
     r->t_voxelize = clock_now() - t0;
     r->csg_bricks = st.bricks;
     r->csg_uniform = st.uniform_bricks;
@@ -365,9 +366,9 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
     if (job->kind == PIPELINE_CSG) {
         if (!job->csg.tree || !job->csg.tree->n)
             return fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no csg tree");
-        if (job->vod.channel != VOXEL_CH_DENSITY && job->vod.channel != VOXEL_CH_OCCUPANCY)
+        if (!csg_channel_bits(job->vod.channel))
             return fail(r, ENGINE_BAD_JOB, -EINVAL,
-                        "a csg job writes the density or the occupancy channel");
+                        "a csg job writes the density, occupancy or surface channel");
         return 0;
     }
     if (job->kind != PIPELINE_MESH || !job->mesh.mesh || !job->mesh.mesh->n_triangles)

@@ -43,7 +43,7 @@ static int csg_begin(work_ctx *w, void **state)
     st->tree.n = b->n_nodes;
     st->tree.text = shm_at(w->base, b->text_off);
     st->tree.text_len = b->text_len;
-    size_t want = (size_t)b->sbrick * b->sbrick * b->sbrick;
+    size_t want = (size_t)b->sbrick * b->sbrick * b->sbrick * 4; /* up to 32-bit voxels */
     if (st->buf_bytes < want) {
         free(st->buf);
         st->buf_bytes = 0;
@@ -74,7 +74,7 @@ static int csg_run(work_ctx *w, void *state, const shm_task *t)
         uint32_t bc[3] = {(uint32_t)(k % b->nbricks[0]),
                           (uint32_t)(k / b->nbricks[0] % b->nbricks[1]),
                           (uint32_t)(k / b->nbricks[0] / b->nbricks[1])};
-        int rc = csg_eval_store(st->ev, vol, bc, st->buf, (int)b->occupancy);
+        int rc = csg_eval_store(st->ev, vol, bc, st->buf, (int)b->channel);
         if (rc) return rc;
         work_tick(w);
     }

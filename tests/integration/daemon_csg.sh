@@ -54,8 +54,10 @@ check "occupancy, vox submit" vox submit --csg "$TMP/part.csg" -r 50 -q --channe
 check "submit = embedded, occupancy in a box (bytes)" cmp "$TMP/d2.vod" "$TMP/e2.vod"
 check "from standard input" bash -c "timeout 120 '$VOX' --socket '$S' submit --csg - -r 64 -q -o '$TMP/d3.vod' <'$TMP/part.csg'"
 refuse "recorded by its size" 0 "source=submitted:[0-9]+ bytes" "$VOX" info "$TMP/d3.vod"
-refuse "--channel surface is refused by vox" 2 "not available for --csg jobs" \
-    vox submit --csg "$TMP/part.csg" -r 16 --channel surface -o "$TMP/x.vod"
+check "surface, embedded" vox csg "$TMP/part.csg" -r 40 -q -c surface -o "$TMP/e5.vod"
+check "surface, vox submit" vox submit --csg "$TMP/part.csg" -r 40 -q --channel surface -o "$TMP/d5s.vod"
+check "submit = embedded, surface (bytes)" cmp "$TMP/d5s.vod" "$TMP/e5.vod"
+check "vox render draws it" vox render "$TMP/d5s.vod" -o "$TMP/d5s.png" --size 64
 
 # ---------------------------------------------------------------- leaves
 

@@ -62,34 +62,57 @@ static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
     return m;
 }
 
-/* The file's level 0 against the tree evaluated brick by brick here. */
+/* The file's level 0 against the tree evaluated brick by brick here, as
+ * densities for the whole grid first: occupancy is density >= S; a
+ * surface voxel is occupied there, and (away from the grid's faces) its
+ * normal minus the densities' central differences.  Returns the voxels at
+ * or above S. */
 static uint64_t assert_voxels(const vod_membuf *m, const csg_tree *t, const grid_spec *g,
-                              int occupancy)
+                              int channel)
 {
     vod_file *f;
     char err[256];
     cr_assert_eq(vod_read(m->p, m->n, &f, err, sizeof err), 0, "%s", err);
     csg_eval *ev;
     cr_assert_eq(csg_eval_new(t, g, 8, NULL, &ev), 0);
-    uint8_t buf[512];
+    uint32_t X = g->res[0], Y = g->res[1], Z = g->res[2];
+    uint8_t *d = malloc((size_t)X * Y * Z), buf[512];
     uint32_t b[3];
-    uint64_t solid = 0;
-    for (b[2] = 0; b[2] * 8 < g->res[2]; b[2]++)
-        for (b[1] = 0; b[1] * 8 < g->res[1]; b[1]++)
-            for (b[0] = 0; b[0] * 8 < g->res[0]; b[0]++) {
+    for (b[2] = 0; b[2] * 8 < Z; b[2]++)
+        for (b[1] = 0; b[1] * 8 < Y; b[1]++)
+            for (b[0] = 0; b[0] * 8 < X; b[0]++) {
                 int uniform;
                 uint8_t v;
                 cr_assert_eq(csg_eval_brick(ev, b, buf, &uniform, &v), 0);
                 for (uint32_t k = 0; k < 512; k++) {
                     uint32_t x = b[0] * 8 + k % 8, y = b[1] * 8 + k / 8 % 8,
                              z = b[2] * 8 + k / 64;
-                    if (x >= g->res[0] || y >= g->res[1] || z >= g->res[2]) continue;
-                    uint32_t want = uniform ? v : buf[k];
-                    solid += want >= CSG_S;
-                    if (occupancy) want = want >= CSG_S;
-                    cr_assert_eq(vod_voxel(f, 0, x, y, z), want, "voxel (%u,%u,%u)", x, y, z);
+                    if (x < X && y < Y && z < Z)
+                        d[x + (size_t)X * (y + (size_t)Y * z)] = uniform ? v : buf[k];
                 }
             }
+    uint64_t solid = 0, normals = 0;
+    for (uint32_t z = 0; z < Z; z++)
+        for (uint32_t y = 0; y < Y; y++)
+            for (uint32_t x = 0; x < X; x++) {
+                const uint8_t *c = d + x + (size_t)X * (y + (size_t)Y * z);
+                uint32_t want = *c, got = vod_voxel(f, 0, x, y, z);
+                solid += want >= CSG_S;
+                if (channel == VOXEL_CH_OCCUPANCY) want = want >= CSG_S;
+                if (channel == VOXEL_CH_SURFACE) {
+                    cr_assert_eq(voxel_occupancy(got), *c >= CSG_S ? 255u : 0u,
+                                 "voxel (%u,%u,%u)", x, y, z);
+                    int edge = !x || !y || !z || x + 1 == X || y + 1 == Y || z + 1 == Z;
+                    if (*c < CSG_S || edge) continue;
+                    double n[3] = {(double)c[-1] - c[1], (double)c[-(ptrdiff_t)X] - c[X],
+                                   (double)c[-(ptrdiff_t)X * Y] - c[(size_t)X * Y]};
+                    want = voxel_surface(n);
+                    normals += n[0] != 0 || n[1] != 0 || n[2] != 0;
+                }
+                cr_assert_eq(got, want, "voxel (%u,%u,%u)", x, y, z);
+            }
+    if (channel == VOXEL_CH_SURFACE) cr_assert_gt(normals, 100, "normals checked");
+    free(d);
     csg_eval_free(ev);
     vod_close(f);
     return solid;
@@ -99,8 +122,8 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
 {
     csg_tree *t = parse(tree_text);
     engine *e[2] = {make_engine(1), make_engine(2)};
-    static const int channels[] = {VOXEL_CH_DENSITY, VOXEL_CH_OCCUPANCY};
-    for (size_t c = 0; c < 2; c++) {
+    static const int channels[] = {VOXEL_CH_DENSITY, VOXEL_CH_OCCUPANCY, VOXEL_CH_SURFACE};
+    for (size_t c = 0; c < 3; c++) {
         /* 75: bricks cut by the grid's edge on every axis */
         pipeline_job job = csg_job(t, 75, channels[c]);
         pipeline_report r0, r;
@@ -108,7 +131,7 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
         cr_assert_gt(r0.csg_bricks, 0);
         cr_assert_gt(r0.csg_uniform, 0, "most of the box is empty");
         cr_assert_lt(r0.csg_uniform, r0.csg_bricks);
-        uint64_t solid = assert_voxels(&ref, t, &r0.grid, channels[c] == VOXEL_CH_OCCUPANCY);
+        uint64_t solid = assert_voxels(&ref, t, &r0.grid, channels[c]);
         cr_assert_gt(solid, 0);
         cr_assert_eq(r0.voxels, solid, "the report counts the voxels at or above S");
         for (int w = 0; w < 2; w++) {
@@ -228,10 +251,10 @@ Test(csg_engine, bad_csg_jobs_fail_typed)
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
     pipeline_report r;
-    pipeline_job job = csg_job(t, 32, VOXEL_CH_SURFACE);
+    pipeline_job job = csg_job(t, 32, VOXEL_CH_DISTANCE);
     cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.err.message, "density or the occupancy"), "%s", r.err.message);
+    cr_assert(strstr(r.err.message, "density, occupancy or surface"), "%s", r.err.message);
     job = csg_job(NULL, 32, VOXEL_CH_DENSITY);
     cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
@@ -258,4 +281,61 @@ Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
     free(out.p);
     engine_destroy(e);
     csg_tree_free(t);
+}
+
+/* The thesis's Figure 22: a cuboid less an ellipsoid dug into its top
+ * face.  On the cuboid's S layer (its surface) just outside the ellipsoid
+ * (its ramp, 0 < b < S) differenceA, MAX(a - b, L), drops below S: the
+ * rim is bevelled; difference keeps S there: a sharp rim. */
+static uint8_t *densities(const char *text, uint32_t res, vod_membuf *keep)
+{
+    csg_tree *t = parse(text);
+    pipeline_job job = csg_job(t, res, VOXEL_CH_DENSITY);
+    pipeline_report r;
+    *keep = run(NULL, &job, &r);
+    csg_tree_free(t);
+    vod_file *f;
+    char err[256];
+    cr_assert_eq(vod_read(keep->p, keep->n, &f, err, sizeof err), 0, "%s", err);
+    uint8_t *d = malloc((size_t)res * res * res);
+    for (uint32_t z = 0; z < res; z++)
+        for (uint32_t y = 0; y < res; y++)
+            for (uint32_t x = 0; x < res; x++)
+                d[x + (size_t)res * (y + (size_t)res * z)] = (uint8_t)vod_voxel(f, 0, x, y, z);
+    vod_close(f);
+    return d;
+}
+
+Test(csg_engine, figure22_difference_keeps_the_rim_differenceA_bevels_it)
+{
+    const uint32_t res = 64;
+    const char *box = "box = cuboid size 1.2,1.2,0.8\nresult box\n",
+               *egg = "egg = ellipsoid center 0,0,0.4 radii 0.45,0.45,0.3\nresult egg\n",
+               *dif = "box = cuboid size 1.2,1.2,0.8\n"
+                      "egg = ellipsoid center 0,0,0.4 radii 0.45,0.45,0.3\n"
+                      "out = difference(box, egg)\nresult out\n",
+               *difa = "box = cuboid size 1.2,1.2,0.8\n"
+                       "egg = ellipsoid center 0,0,0.4 radii 0.45,0.45,0.3\n"
+                       "out = differenceA(box, egg)\nresult out\n";
+    vod_membuf m[4];
+    uint8_t *a = densities(box, res, &m[0]), *b = densities(egg, res, &m[1]),
+            *d = densities(dif, res, &m[2]), *da = densities(difa, res, &m[3]);
+    uint64_t rim = 0, kept = 0, bevelled = 0, same_elsewhere = 0, n = (uint64_t)res * res * res;
+    for (uint64_t k = 0; k < n; k++) {
+        if (a[k] == CSG_S && b[k] > CSG_L && b[k] < CSG_S) {
+            rim++;
+            kept += d[k] >= CSG_S;
+            bevelled += da[k] < CSG_S;
+        } else if (!(a[k] >= CSG_S && b[k] < CSG_S)) {
+            same_elsewhere += d[k] == da[k]; /* the two agree off a >= S, b < S */
+        }
+    }
+    cr_assert_gt(rim, 20, "the cuboid's S layer meets the ellipsoid's ramp");
+    cr_assert_eq(kept, rim, "difference keeps the S layer along the rim");
+    cr_assert_eq(bevelled, rim, "differenceA drops the S layer along the rim: a bevel");
+    uint64_t elsewhere = 0;
+    for (uint64_t k = 0; k < n; k++) elsewhere += !(a[k] >= CSG_S && b[k] < CSG_S);
+    cr_assert_eq(same_elsewhere, elsewhere, "they differ only where a >= S > b");
+    for (int i = 0; i < 4; i++) free(m[i].p);
+    free(a), free(b), free(d), free(da);
 }

@@ -555,7 +555,9 @@ Test(proto, csg_a_valid_tree_passes)
     j.sub.channel = VOXD__CHANNEL__CHANNEL_DENSITY;
     accepted(&j.req);
     j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
-    refused(&j.req, INVALID, "channel surface is not available for CSG jobs");
+    accepted(&j.req);
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE;
+    refused(&j.req, INVALID, "channel distance is not available for CSG jobs");
     csg_init(&c, &j);
     j.sub.input_bytes = 10;
     refused(&j.req, INVALID, "a CSG job comes whole in its Submit, not as input_bytes");
