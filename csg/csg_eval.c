@@ -20,6 +20,7 @@ struct csg_eval {
     uint8_t *lut[CSG_MAX_NODES];
     int16_t *force_a[CSG_MAX_NODES], *force_b[CSG_MAX_NODES];
     csg_stats st;
+    int has_morph;      /* erode or dilate in the tree: bricks are evaluated whole */
 };
 
 typedef struct {
@@ -59,6 +60,7 @@ int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side,
     int rc = 0;
     for (uint32_t i = 0; i < t->n && !rc; i++) {
         const csg_node *n = &t->node[i];
+        e->has_morph |= n->kind == CSG_ERODE || n->kind == CSG_DILATE;
         if (n->kind == CSG_MESH || n->kind == CSG_VOD) {
             e->leaf[i] = leaves ? leaves[i] : NULL;
             rc = e->leaf[i] ? 0 : -EINVAL;
@@ -188,6 +190,37 @@ static void sample_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
     e->st.voxel_evals += k;
 }
 
+/* A primitive over the box in cubes of CSG_SUB voxels: a cube its bounds
+ * show all L or all H is filled without sampling (the same values the
+ * samples would give: the bounds are the brick-level ones), the others
+ * sampled.  Boxes whose side is not a multiple of CSG_SUB are sampled
+ * whole. */
+#define CSG_SUB 4u
+static void sample_prim(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
+{
+    const csg_node *n = &e->t->node[i];
+    if (b->n % CSG_SUB || b->n == CSG_SUB) {
+        sample_leaf(e, i, b, buf);
+        return;
+    }
+    uint8_t sub[CSG_SUB * CSG_SUB * CSG_SUB];
+    for (uint32_t z0 = 0; z0 < b->n; z0 += CSG_SUB)
+        for (uint32_t y0 = 0; y0 < b->n; y0 += CSG_SUB)
+            for (uint32_t x0 = 0; x0 < b->n; x0 += CSG_SUB) {
+                box sb = {{b->lo[0] + (int32_t)x0, b->lo[1] + (int32_t)y0,
+                           b->lo[2] + (int32_t)z0}, CSG_SUB};
+                int v = prim_all_l(e, n, &sb) ? (int)CSG_L : prim_all_h(e, n, &sb) ? (int)CSG_H
+                                                                                     : -1;
+                if (v < 0) sample_leaf(e, i, &sb, sub);
+                for (uint32_t z = 0; z < CSG_SUB; z++)
+                    for (uint32_t y = 0; y < CSG_SUB; y++) {
+                        uint8_t *row = buf + x0 + (size_t)b->n * (y0 + y + (size_t)b->n * (z0 + z));
+                        if (v >= 0) memset(row, v, CSG_SUB);
+                        else memcpy(row, sub + CSG_SUB * (y + CSG_SUB * z), CSG_SUB);
+                    }
+            }
+}
+
 /* A file leaf's volume over the box: uniform from its table, or read. */
 static int volume_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
 {
@@ -306,7 +339,7 @@ static int eval(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
     case CSG_CUBOID: case CSG_ELLIPSOID: case CSG_CYLINDER: case CSG_CONE:
         if (prim_all_l(e, n, b)) return *v = CSG_L, 1;
         if (prim_all_h(e, n, b)) return *v = CSG_H, 1;
-        sample_leaf(e, i, b, buf);
+        sample_prim(e, i, b, buf);
         rc = 0;
         break;
     case CSG_IMPLICIT:
@@ -335,12 +368,76 @@ static int eval(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
     return rc;
 }
 
+/* Node i's value over the whole box when its bounds alone decide it (the
+ * checks eval makes before sampling, and the operators' forcing tables),
+ * else -1.  Nothing is sampled. */
+static int probe(csg_eval *e, uint32_t i, const box *b)
+{
+    const csg_node *n = &e->t->node[i];
+    int va, vb;
+    switch (n->kind) {
+    case CSG_CUBOID: case CSG_ELLIPSOID: case CSG_CYLINDER: case CSG_CONE:
+        return prim_all_l(e, n, b) ? (int)CSG_L : prim_all_h(e, n, b) ? (int)CSG_H : -1;
+    case CSG_IMPLICIT:
+        return implicit_all_l(e, n, b) ? (int)CSG_L : -1;
+    case CSG_MESH: case CSG_VOD: {
+        int64_t lo[3] = {b->lo[0], b->lo[1], b->lo[2]};
+        uint32_t u;
+        return vod_volume_box_uniform(e->leaf[i], lo, b->n, &u) ? (int)u : -1;
+    }
+    case CSG_ERODE: case CSG_DILATE: {
+        box cb = {{b->lo[0] - (int32_t)n->k, b->lo[1] - (int32_t)n->k, b->lo[2] - (int32_t)n->k},
+                  b->n + 2 * n->k};
+        return probe(e, (uint32_t)n->a, &cb); /* a uniform operand: the same value */
+    }
+    case CSG_INVERSE: case CSG_SCALAR_ADD: case CSG_SCALAR_MUL:
+        va = probe(e, (uint32_t)n->a, b);
+        return va < 0 ? -1 : csg_apply(n->kind, (uint8_t)va, 0, n->param);
+    default:
+        va = probe(e, (uint32_t)n->a, b);
+        if (va >= 0 && e->force_a[i][va] >= 0) return e->force_a[i][va];
+        vb = probe(e, (uint32_t)n->b, b);
+        if (vb >= 0 && e->force_b[i][vb] >= 0) return e->force_b[i][vb];
+        return va >= 0 && vb >= 0 ? e->lut[i][va * 256 + vb] : -1;
+    }
+}
+
+/* The brick in cubes of CSG_SUB voxels, each through the tree with its
+ * own uniform shortcuts (a leaf or an operand uniform over a cube is not
+ * sampled there): the voxels eval gives the whole brick, computed where
+ * the surfaces are.  1 and *v when the brick came out uniform. */
+static int eval_in_cubes(csg_eval *e, const box *bx, uint8_t *out, uint8_t *v)
+{
+    uint8_t sub[CSG_SUB * CSG_SUB * CSG_SUB], sv;
+    for (uint32_t z0 = 0; z0 < bx->n; z0 += CSG_SUB)
+        for (uint32_t y0 = 0; y0 < bx->n; y0 += CSG_SUB)
+            for (uint32_t x0 = 0; x0 < bx->n; x0 += CSG_SUB) {
+                box sb = {{bx->lo[0] + (int32_t)x0, bx->lo[1] + (int32_t)y0,
+                           bx->lo[2] + (int32_t)z0}, CSG_SUB};
+                int rc = eval(e, e->t->n - 1, &sb, sub, &sv);
+                if (rc < 0) return rc;
+                for (uint32_t z = 0; z < CSG_SUB; z++)
+                    for (uint32_t y = 0; y < CSG_SUB; y++) {
+                        uint8_t *row = out + x0 + (size_t)bx->n * (y0 + y + (size_t)bx->n * (z0 + z));
+                        if (rc == 1) memset(row, sv, CSG_SUB);
+                        else memcpy(row, sub + CSG_SUB * (y + CSG_SUB * z), CSG_SUB);
+                    }
+            }
+    return all_same(out, (size_t)bx->n * bx->n * bx->n, v);
+}
+
 int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
                    uint8_t *value)
 {
     box bx = {{(int32_t)(b[0] * e->side), (int32_t)(b[1] * e->side), (int32_t)(b[2] * e->side)},
               e->side};
-    int rc = eval(e, e->t->n - 1, &bx, out, value);
+    int rc, pv;
+    if (e->has_morph || e->side % CSG_SUB || e->side == CSG_SUB)
+        rc = eval(e, e->t->n - 1, &bx, out, value);
+    else if ((pv = probe(e, e->t->n - 1, &bx)) >= 0)
+        rc = 1, *value = (uint8_t)pv;
+    else
+        rc = eval_in_cubes(e, &bx, out, value);
     if (rc < 0) return rc;
     *uniform = rc;
     e->st.bricks++;

@@ -112,7 +112,10 @@ uint8_t csg_prim_sample(const csg_node *nd, const double p[3], double vs)
     int hin;
     if (nd->kind == CSG_CUBOID) {
         double t = INFINITY;
-        for (int i = 0; i < 3; i++) t = fmin(t, e[i] - fabs(q[i]));
+        for (int i = 0; i < 3; i++) { /* fmin, without the call: nothing here is NaN */
+            double ti = e[i] - fabs(q[i]);
+            t = ti < t ? ti : t;
+        }
         return t < 0 ? CSG_L : t < 1 ? CSG_S : CSG_H;
     }
     if (nd->kind == CSG_ELLIPSOID) {
