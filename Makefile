@@ -12,6 +12,8 @@
 #                   (scripts/bench-mpi.sh; make bench runs it too)
 #   make bench-mesh the mesh loaders on the Stanford dragon and bunny (npm models)
 #                   and the whole vox voxelize --mesh command (scripts/bench-mesh-whole.sh)
+#   make bench-csg  the vox csg command: the thesis's Tables 3/4 layout and the
+#                   CSG kind at 512^3 and 1024^3 with 1 and 2 workers (scripts/bench-csg.sh)
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -96,7 +98,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
@@ -207,6 +209,10 @@ bench-mpi: all $(BUILD)/voxwhole
 # then the whole vox voxelize --mesh command on them and on icospheres.
 bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole
 	@scripts/bench-mesh.sh $(BUILD)
+
+# Volume CSG jobs: the vox csg command (scripts/bench-csg.sh, also run by make bench).
+bench-csg: all $(BUILD)/voxwhole
+	@scripts/bench-csg.sh $(BUILD)
 
 # The whole vox voxelize command against commit BASE, in one run.
 BASE ?= HEAD~1

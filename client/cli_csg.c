@@ -28,6 +28,7 @@ static const char usage[] =
     "  -c, --channel CH       density (8 bit, default), occupancy (density >= S) or\n"
     "                         surface (density >= S, normals from its gradient)\n"
     "  -d, --domain D         a,b (the cube [a,b]^3) or x0,x1,y0,y1,z0,z1 (default -1,1)\n"
+    "  -Z, --compress C       the bricks' compression: zlib (default), runl or none\n"
     "  -w, --workers N        worker processes, 0 = serial in this process (default: cores);\n"
     "                         the same bytes whatever N\n"
     "  -q, --quiet            no summary line\n";
@@ -54,7 +55,7 @@ static int read_tree(const char *path, char **text, size_t *len)
 typedef struct {
     const char *in, *out;
     uint32_t res, workers;
-    int channel, quiet;
+    int channel, quiet, comp;
     double lo[3], hi[3];
 } csg_opts;
 
@@ -62,13 +63,14 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
 {
     static const struct option longs[] = {
         {"output", 1, 0, 'o'}, {"res", 1, 0, 'r'}, {"channel", 1, 0, 'c'},
-        {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"compress", 1, 0, 'Z'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     *o = (csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
+                    .comp = VOD_COMP_ZLIB,
                     .workers = cores > 0 ? (uint32_t)cores : 1};
     int c;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "o:r:c:d:w:qh", longs, NULL)) != -1) {
+    while ((c = getopt_long(argc, argv, "o:r:c:d:w:Z:qh", longs, NULL)) != -1) {
         switch (c) {
         case 'o': o->out = optarg; break;
         case 'r':
@@ -95,6 +97,15 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
         case 'w':
             if (cli_parse_uint(optarg, 0, ENGINE_MAX_WORKERS, &o->workers)) {
                 cli_error("bad --workers '%s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
+                return CLI_EXIT_USAGE;
+            }
+            break;
+        case 'Z':
+            if (!strcmp(optarg, "zlib")) o->comp = VOD_COMP_ZLIB;
+            else if (!strcmp(optarg, "runl")) o->comp = VOD_COMP_RUNL;
+            else if (!strcmp(optarg, "none")) o->comp = VOD_COMP_NONE;
+            else {
+                cli_error("bad --compress '%s': zlib, runl or none", optarg);
                 return CLI_EXIT_USAGE;
             }
             break;
@@ -193,6 +204,7 @@ static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
     memcpy(job.hi, o->hi, sizeof job.hi);
     vod_params_default(&job.vod);
     job.vod.channel = o->channel;
+    job.vod.comp = o->comp;
     engine *e = NULL;
     if (o->workers && make_engine(o->workers, &e)) return CLI_EXIT_FAILED;
     char tmp[4096];
