@@ -148,14 +148,9 @@ static int prim_all_l(const csg_eval *e, const csg_node *n, const box *b)
     return 0;
 }
 
-static uint8_t implicit_density(csg_eval *e, uint32_t i, const double p[3])
+/* The density of F and its gradient at a point (docs/csg.md). */
+static uint8_t implicit_value(const csg_eval *e, double f, const double gr[3])
 {
-    const csg_node *n = &e->t->node[i];
-    if (n->has_domain)
-        for (int a = 0; a < 3; a++)
-            if (!(p[a] >= n->dom_lo && p[a] <= n->dom_hi)) return CSG_L;
-    double gr[3];
-    double f = expr_vm_grad(e->vm[i], 0, p[0], p[1], p[2], gr);
     double len = sqrt(gr[0] * gr[0] + gr[1] * gr[1] + gr[2] * gr[2]);
     /* t: the signed distance estimate, in voxels, positive inside. */
     double t = -f / len / e->g.vs;
@@ -174,9 +169,49 @@ static int implicit_all_l(const csg_eval *e, const csg_node *n, const box *b)
     return 0;
 }
 
+static int in_domain(const csg_node *n, const double p[3])
+{
+    if (n->has_domain)
+        for (int a = 0; a < 3; a++)
+            if (!(p[a] >= n->dom_lo && p[a] <= n->dom_hi)) return 0;
+    return 1;
+}
+
+/* An implicit leaf over the box, each row's points eight at a time
+ * (expr_vm_grad8n: lane for lane expr_vm_grad's values, bit for bit). */
+static void sample_implicit(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
+{
+    const csg_node *n = &e->t->node[i];
+    _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
+    expr_grad8 out;
+    size_t k = 0;
+    for (uint32_t z = 0; z < b->n; z++)
+        for (uint32_t y = 0; y < b->n; y++)
+            for (uint32_t x0 = 0; x0 < b->n; x0 += EXPR_LANES) {
+                uint32_t cnt = b->n - x0 < EXPR_LANES ? b->n - x0 : EXPR_LANES;
+                for (uint32_t l = 0; l < EXPR_LANES; l++) {
+                    uint32_t x = x0 + (l < cnt ? l : 0); /* unused lanes: a copy */
+                    px[l] = centre(e, 0, b->lo[0] + (int32_t)x);
+                    py[l] = centre(e, 1, b->lo[1] + (int32_t)y);
+                    pz[l] = centre(e, 2, b->lo[2] + (int32_t)z);
+                }
+                expr_vm_grad8n(e->vm[i], 0, (int)cnt, px, py, pz, &out);
+                for (uint32_t l = 0; l < cnt; l++) {
+                    double p[3] = {px[l], py[l], pz[l]},
+                           gr[3] = {out.d[0][l], out.d[1][l], out.d[2][l]};
+                    buf[k++] = in_domain(n, p) ? implicit_value(e, out.v[l], gr) : CSG_L;
+                }
+            }
+    e->st.voxel_evals += k;
+}
+
 static void sample_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
 {
     const csg_node *n = &e->t->node[i];
+    if (n->kind == CSG_IMPLICIT) {
+        sample_implicit(e, i, b, buf);
+        return;
+    }
     size_t k = 0;
     for (uint32_t z = 0; z < b->n; z++)
         for (uint32_t y = 0; y < b->n; y++)
@@ -184,8 +219,7 @@ static void sample_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
                 double p[3] = {centre(e, 0, b->lo[0] + (int32_t)x),
                                centre(e, 1, b->lo[1] + (int32_t)y),
                                centre(e, 2, b->lo[2] + (int32_t)z)};
-                buf[k++] = n->kind == CSG_IMPLICIT ? implicit_density(e, i, p)
-                                                   : csg_prim_sample(n, p, e->g.vs);
+                buf[k++] = csg_prim_sample(n, p, e->g.vs);
             }
     e->st.voxel_evals += k;
 }
