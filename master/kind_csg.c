@@ -1,7 +1,8 @@
 /* The csg kind's master side: a volume CSG tree (csg.h) evaluated brick by
  * brick into a brick-sparse volume in the segment.  Setup copies the
- * tree's nodes and text behind the block, gives the rest of the data area
- * to the volume, and pushes the volume's storage bricks as runs of
+ * tree's nodes and text behind the block, builds the mesh and VOD leaves'
+ * volumes after them (here, once per job: csg_leaves_build), gives the
+ * rest of the data area to the result's volume, and pushes the volume's storage bricks as runs of
  * consecutive bricks (x fastest), at most CSG_TASKS of them.  Workers send
  * no entries: a brick goes straight into the volume (uniform ones as a
  * table entry) and a run's counts into its entry of the stats array.  A
