@@ -1069,8 +1069,8 @@ static int check_input_size(const vox_client *c, int kind, size_t len, int chunk
 
 /* A CSG job's Submit: its nodes in arrays of the caller's (nodes, ptrs),
  * pointing into job. */
-static void csg_request(const vox_job *job, Voxd__CsgNode *nodes, Voxd__CsgNode **ptrs,
-                        submit_msg *m, Voxd__Csg *cm)
+static void csg_request(const vox_job *job, int chunked, Voxd__CsgNode *nodes,
+                        Voxd__CsgNode **ptrs, submit_msg *m, Voxd__Csg *cm)
 {
     const vox_csg *cj = &job->csg;
     for (size_t i = 0; i < cj->n_nodes; i++) {
@@ -1095,7 +1095,8 @@ static void csg_request(const vox_job *job, Voxd__CsgNode *nodes, Voxd__CsgNode 
         n->scalar = v->scalar;
         n->k = v->k;
         n->name = name_bytes(v->name);
-        if (v->data) n->data.data = (uint8_t *)v->data, n->data.len = v->data_len;
+        if (v->data && chunked) n->data_bytes = v->data_len;
+        else if (v->data) n->data.data = (uint8_t *)v->data, n->data.len = v->data_len;
         if (v->has_fit) n->fit = (double *)v->fit, n->n_fit = 3;
         n->scale = v->scale;
         ptrs[i] = n;
@@ -1112,7 +1113,28 @@ static void csg_request(const vox_job *job, Voxd__CsgNode *nodes, Voxd__CsgNode 
     m->sub.csg = cm;
 }
 
-/* A CSG job: its tree whole in the Submit, which must fit a frame. */
+/* The mesh and VOD leaves' files one after the other, in node order (the
+ * job's input when they go in InputChunks); *len their size. */
+static uint8_t *csg_leaves_input(const vox_csg *cj, size_t *len)
+{
+    size_t n = 0;
+    for (size_t i = 0; i < cj->n_nodes; i++)
+        if (cj->nodes[i].data) n += cj->nodes[i].data_len;
+    uint8_t *buf = malloc(n ? n : 1);
+    if (!buf) return NULL;
+    size_t off = 0;
+    for (size_t i = 0; i < cj->n_nodes; i++)
+        if (cj->nodes[i].data) {
+            memcpy(buf + off, cj->nodes[i].data, cj->nodes[i].data_len);
+            off += cj->nodes[i].data_len;
+        }
+    *len = n;
+    return buf;
+}
+
+/* A CSG job: its tree in the Submit, which must fit a frame; the leaves'
+ * files inline when they fit too and are small (inline_max), else after
+ * the Accepted as the job's input. */
 static int submit_csg(vox_client *c, const vox_job *job, uint64_t *job_id,
                       uint32_t *queue_position, vox_error *err)
 {
@@ -1121,20 +1143,36 @@ static int submit_csg(vox_client *c, const vox_job *job, uint64_t *job_id,
         set_error(err, -EINVAL, 0, "the CSG job has no nodes");
         return -EINVAL;
     }
+    size_t in_len = 0;
+    uint8_t *input = csg_leaves_input(&job->csg, &in_len);
     Voxd__CsgNode *nodes = calloc(n, sizeof *nodes);
     Voxd__CsgNode **ptrs = calloc(n, sizeof *ptrs);
     int rc = 0;
-    if (!nodes || !ptrs) {
+    if (!nodes || !ptrs || !input) {
         set_error(err, -ENOMEM, 0, "out of memory");
         rc = -ENOMEM;
     }
     submit_msg m;
     Voxd__Csg cm;
+    int chunked = 0;
     if (!rc) {
         submit_request(job, NULL, 0, 0, &m);
-        csg_request(job, nodes, ptrs, &m, &cm);
+        csg_request(job, 0, nodes, ptrs, &m, &cm);
+        chunked = in_len && (in_len > c->inline_max ||
+                             protobuf_c_message_get_packed_size(&m.req.base) > c->lim.max_frame);
+        if (chunked) {
+            submit_request(job, NULL, 0, 0, &m);
+            csg_request(job, 1, nodes, ptrs, &m, &cm);
+            m.sub.input_bytes = in_len;
+        }
+        if (chunked && in_len > c->lim.max_input_bytes) {
+            set_error(err, VOX_ELIMIT_EXCEEDED, 0,
+                      "the CSG leaves are %zu bytes, over this server's max_input_bytes of %llu",
+                      in_len, (unsigned long long)c->lim.max_input_bytes);
+            rc = VOX_ELIMIT_EXCEEDED;
+        }
         size_t bytes = protobuf_c_message_get_packed_size(&m.req.base);
-        if (bytes > c->lim.max_frame) {
+        if (!rc && bytes > c->lim.max_frame) {
             set_error(err, VOX_ELIMIT_EXCEEDED, 0,
                       "the CSG tree's request is %zu bytes, over this server's max_frame "
                       "of %u", bytes, c->lim.max_frame);
@@ -1144,9 +1182,13 @@ static int submit_csg(vox_client *c, const vox_job *job, uint64_t *job_id,
     if (!rc) rc = request(c, P_SUBMIT, &m.req, err);
     free(nodes);
     free(ptrs);
+    uint64_t id = rc ? 0 : c->ans_job;
+    uint32_t qpos = rc ? 0 : c->ans_qpos;
+    if (!rc && chunked) rc = upload(c, id, input, in_len, err);
+    free(input);
     if (rc) return rc;
-    *job_id = c->ans_job;
-    if (queue_position) *queue_position = c->ans_qpos;
+    *job_id = id;
+    if (queue_position) *queue_position = qpos;
     return 0;
 }
 

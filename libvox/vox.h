@@ -238,7 +238,8 @@ typedef struct {
 /* A CSG tree on a grid: the job of `vox csg`, which gives the same file;
  * channel DENSITY (the default), OCCUPANCY or SURFACE.
  * The tree travels whole in the job's Submit (a flat node list, the last
- * node the result); the daemon checks it and compiles its expressions when
+ * node the result), the mesh and VOD leaves' files in their nodes, or,
+ * when large, after it as the job's input in InputChunks; the daemon checks it and compiles its expressions when
  * the job is submitted, refusing a bad one with VOX_EINVALID_INPUT (or
  * VOX_ELIMIT_EXCEEDED: max_csg_nodes, max_csg_depth, max_expr_bytes). */
 typedef struct {

@@ -386,7 +386,8 @@ static int check_csg_stray(const Voxd__CsgNode *n, const char *who, const char *
         field = "a primitive's fields";
     else if (n->op != VOXD__CSG_OP__CSG_IMPLICIT && (n->source.len || n->n_domain))
         field = "an expression or its domain";
-    else if (n->op != VOXD__CSG_OP__CSG_MESH && n->op != VOXD__CSG_OP__CSG_VOD && n->data.len)
+    else if (n->op != VOXD__CSG_OP__CSG_MESH && n->op != VOXD__CSG_OP__CSG_VOD &&
+             (n->data.len || n->data_bytes))
         field = "a file's data";
     else if (n->op != VOXD__CSG_OP__CSG_MESH && (n->n_fit || n->scale != 0))
         field = "a mesh's fit or scale";
@@ -450,9 +451,12 @@ static int check_csg_leaf(const Voxd__CsgNode *n, const char *who, const proto_l
         snprintf(what, sizeof what, "%.96s's domain", who);
         return rc ? rc : check_box(n->domain, n->n_domain, 1, what, e);
     case VOXD__CSG_OP__CSG_MESH: case VOXD__CSG_OP__CSG_VOD:
-        if (!n->data.len)
+        if (!n->data.len && !n->data_bytes)
             return bad(e, INVALID, "%s: a %s leaf needs its file's data", who,
                        n->op == VOXD__CSG_OP__CSG_MESH ? "mesh" : "vod");
+        if (n->data.len && n->data_bytes)
+            return bad(e, INVALID, "%s: its file comes inline or as input (data_bytes), "
+                       "not both", who);
         if (n->n_fit && check_csg_vec(n->fit, n->n_fit, 0, 0, who, "fit", e)) return -EINVAL;
         if (!isfinite(n->scale) || n->scale < 0 || n->scale > PROTO_CSG_MAX_COORD)
             return bad(e, INVALID, "%s's scale is %g: 0 (none) or a positive number", who,
@@ -533,13 +537,27 @@ static int check_csg(const Voxd__Csg *c, const Voxd__Submit *s, const proto_limi
     if (c->n_nodes > max)
         return bad(e, LIMIT, "CSG job has %zu nodes, over this server's max_csg_nodes of %u",
                    c->n_nodes, max);
-    if (s->input_bytes)
-        return bad(e, INVALID, "a CSG job comes whole in its Submit, not as input_bytes");
-    uint64_t leaf_bytes = 0;
+    uint64_t leaf_bytes = 0, input = 0;
     for (size_t i = 0; i < c->n_nodes; i++) {
         if ((rc = check_csg_node(c->nodes[i], i, lim, e))) return rc;
-        leaf_bytes += c->nodes[i]->data.len;
+        const Voxd__CsgNode *n = c->nodes[i];
+        if (n->data_bytes > lim->max_csg_leaf_bytes) /* no overflow below */
+            return bad(e, LIMIT, "CSG node %zu's file is %llu bytes, over this server's "
+                       "max_csg_leaf_bytes of %llu", i, (unsigned long long)n->data_bytes,
+                       (unsigned long long)lim->max_csg_leaf_bytes);
+        if (n->data_bytes && !s->input_bytes)
+            return bad(e, INVALID, "CSG node %zu has data_bytes but the job declares no "
+                       "input_bytes", i);
+        if (n->data.len && s->input_bytes)
+            return bad(e, INVALID, "CSG node %zu's file is inline but the job's leaves come "
+                       "as input (input_bytes)", i);
+        leaf_bytes += n->data.len + n->data_bytes;
+        input += n->data_bytes;
     }
+    if (input != s->input_bytes)
+        return bad(e, INVALID, "the CSG leaves' data_bytes add up to %llu, the job declares "
+                   "%llu bytes of input", (unsigned long long)input,
+                   (unsigned long long)s->input_bytes);
     if (leaf_bytes > lim->max_csg_leaf_bytes)
         return bad(e, LIMIT, "the CSG job's leaves are %llu bytes, over this server's "
                    "max_csg_leaf_bytes of %llu", (unsigned long long)leaf_bytes,

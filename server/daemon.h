@@ -251,6 +251,10 @@ void vd_job_free(vd_job *j);
  * (-EINVAL a bad expression, -E2BIG one over a limit). */
 int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
                 csg_tree **out, char *msg, size_t len);
+/* The job's input (len bytes) cut into the leaves that were sent as input
+ * (data_bytes: a length and no data yet), in node order.  0, -EINVAL when
+ * the lengths do not add up to len, -ENOMEM. */
+int vd_csg_input(csg_tree *t, const char *input, size_t len);
 /* Set j's terminal error from its cancel_code (a person's words for it). */
 void vd_job_stopped(vd_job *j);
 /* Push a checked job onto the queue; the caller counted the limits. */

@@ -82,12 +82,16 @@ static int implicit_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_
 static int file_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_t i, char *msg,
                      size_t len)
 {
-    if (!(t->data[i] = malloc(m->data.len))) {
-        snprintf(msg, len, "out of memory");
-        return -ENOMEM;
+    if (m->data_bytes) { /* the job's input, cut into the leaves when it runs */
+        t->data_len[i] = (size_t)m->data_bytes;
+    } else {
+        if (!(t->data[i] = malloc(m->data.len))) {
+            snprintf(msg, len, "out of memory");
+            return -ENOMEM;
+        }
+        memcpy(t->data[i], m->data.data, m->data.len);
+        t->data_len[i] = m->data.len;
     }
-    memcpy(t->data[i], m->data.data, m->data.len);
-    t->data_len[i] = m->data.len;
     n->has_fit = m->n_fit == 3;
     for (int a = 0; a < 3 && n->has_fit; a++) n->fit[a] = m->fit[a];
     n->scale = m->scale > 0 ? m->scale : 1;
@@ -107,6 +111,19 @@ static void node_fields(csg_node *n, const Voxd__CsgNode *m)
         if (m->n_rotate == 3) n->rot[a] = m->rotate[a];
     }
     csg_node_rotation(n);
+}
+
+int vd_csg_input(csg_tree *t, const char *input, size_t len)
+{
+    size_t off = 0;
+    for (uint32_t i = 0; i < t->n; i++) {
+        if (t->data[i] || !t->data_len[i]) continue;
+        if (t->data_len[i] > len - off || !(t->data[i] = malloc(t->data_len[i])))
+            return t->data_len[i] > len - off ? -EINVAL : -ENOMEM;
+        memcpy(t->data[i], input + off, t->data_len[i]);
+        off += t->data_len[i];
+    }
+    return off == len ? 0 : -EINVAL;
 }
 
 int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,

@@ -394,6 +394,12 @@ static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m)
         return 0;
     }
     if (j->kind == PIPELINE_CSG) {
+        int rc = j->input_total ? vd_csg_input(j->csg, j->source, j->source_len) : 0;
+        if (rc)
+            return job_error(j, rc == -ENOMEM ? VOXD__ERROR_CODE__INTERNAL
+                                              : VOXD__ERROR_CODE__INVALID_INPUT,
+                             "%s", rc == -ENOMEM ? "out of memory for the CSG leaves"
+                                                 : "the CSG leaves' input does not add up");
         job->kind = PIPELINE_CSG;
         job->csg.tree = j->csg;
         job->csg.source_name = j->source_name;

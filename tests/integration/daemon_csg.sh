@@ -29,7 +29,9 @@ cat >"$TMP/voxd.conf" <<CONF
 workers 2
 max_csg_depth 16
 max_expr_depth 8
-max_csg_leaf_bytes 16K
+max_csg_leaf_bytes 256K
+max_frame 64K
+chunk_size 16K
 CONF
 if start_voxd "$TMP/voxd.log" --config "$TMP/voxd.conf"; then
     pass "voxd starts with CSG limits"
@@ -104,10 +106,18 @@ printf 'garbage\n' >"$TMP/leaves/bad.obj"
 printf 'm = mesh "bad.obj"\nresult m\n' >"$TMP/leaves/badmesh.csg"
 refuse "a mesh leaf the daemon cannot read: the job's INVALID_INPUT, naming the node" 2 \
     "INVALID_INPUT: .*node 'm': mesh: " vox submit --csg "$TMP/leaves/badmesh.csg" -r 16 -o "$TMP/x.vod"
-{ cat "$TMP/leaves/box.obj"; for i in $(seq 600); do echo "# a comment line to pass 16K of leaves"; done; } >"$TMP/leaves/big.obj"
+# A mesh leaf over the 64K frame: the leaves go after the Accepted, as the
+# job's input, in chunks; the same bytes.
+{ cat "$TMP/leaves/box.obj"; for i in $(seq 2500); do echo "# a comment line to make the file longer than a frame"; done; } >"$TMP/leaves/long.obj"
+sed 's/box.obj/long.obj/' "$TMP/leaves/leaves.csg" >"$TMP/leaves/long.csg"
+check "vox csg with a leaf over a frame" vox csg "$TMP/leaves/long.csg" -r 48 -q -o "$TMP/lc1.vod"
+check "vox submit --csg with a leaf over a frame" vox submit --csg "$TMP/leaves/long.csg" -r 48 -q -o "$TMP/lc2.vod"
+check "a leaf over a frame: submit = embedded (bytes)" cmp "$TMP/lc1.vod" "$TMP/lc2.vod"
+check "its leaves came as the job's input" grep -q "waiting for [0-9]* bytes of CSG tree" "$TMP/voxd.log"
+{ cat "$TMP/leaves/box.obj"; for i in $(seq 6000); do echo "# a comment line to pass 256K of leaves, and a frame"; done; } >"$TMP/leaves/big.obj"
 printf 'm = mesh "big.obj"\nresult m\n' >"$TMP/leaves/big.csg"
 refuse "leaves over max_csg_leaf_bytes are refused at the Submit" 1 \
-    "LIMIT_EXCEEDED: the CSG job's leaves are [0-9]+ bytes, over this server's max_csg_leaf_bytes of 16384" \
+    "LIMIT_EXCEEDED: CSG node 0's file is [0-9]+ bytes, over this server's max_csg_leaf_bytes of 262144" \
     vox submit --csg "$TMP/leaves/big.csg" -r 16 -o "$TMP/x.vod"
 refuse "a missing leaf file is vox's error" 2 "node 'm': .*nothere.obj: No such file" \
     bash -c "printf 'm = mesh \"nothere.obj\"\nresult m\n' >'$TMP/leaves/missing.csg' && timeout 60 '$VOX' --socket '$S' submit --csg '$TMP/leaves/missing.csg' -r 16 -o '$TMP/x.vod'"

@@ -560,7 +560,8 @@ Test(proto, csg_a_valid_tree_passes)
     refused(&j.req, INVALID, "channel distance is not available for CSG jobs");
     csg_init(&c, &j);
     j.sub.input_bytes = 10;
-    refused(&j.req, INVALID, "a CSG job comes whole in its Submit, not as input_bytes");
+    refused(&j.req, INVALID, "the CSG leaves' data_bytes add up to 0, the job declares 10 "
+                             "bytes of input");
 }
 
 Test(proto, csg_child_must_be_earlier)
@@ -740,6 +741,23 @@ Test(proto, csg_implicit_mesh_and_vod_leaves)
     setup();
     c.node[2].data.data = (uint8_t *)"x", c.node[2].data.len = 1;
     refused(&j.req, INVALID, "CSG node 2 (difference) does not take a file's data");
+    c.node[2].data.len = 0, c.node[2].data_bytes = 1;
+    refused(&j.req, INVALID, "CSG node 2 (difference) does not take a file's data");
+    c.node[2].data_bytes = 0;
+
+    /* The leaves' files as the job's input: sizes in the nodes, adding up. */
+    c.node[1].fit = NULL, c.node[1].n_fit = 0;
+    c.node[1].data.len = 0, c.node[1].data_bytes = 1000;
+    refused(&j.req, INVALID, "CSG node 1 has data_bytes but the job declares no input_bytes");
+    j.sub.input_bytes = 999;
+    refused(&j.req, INVALID, "data_bytes add up to 1000, the job declares 999 bytes of input");
+    j.sub.input_bytes = 1000;
+    accepted(&j.req);
+    c.node[1].data.len = 10;
+    refused(&j.req, INVALID, "CSG node 1: its file comes inline or as input (data_bytes), not both");
+    c.node[1].data.len = 0;
+    lim.max_csg_leaf_bytes = 999;
+    refused(&j.req, LIMIT, "CSG node 1's file is 1000 bytes, over this server's max_csg_leaf_bytes of 999");
 }
 
 Test(proto, csg_stray_fields_and_numbers)
