@@ -168,6 +168,40 @@ until_true 20 idle && pass "idle after the cancel" || fail "idle after the cance
 check "the daemon serves a CSG job after the cancel" vox submit --csg "$TMP/part.csg" -r 64 -q -o "$TMP/d5.vod"
 check "with the same bytes again" cmp "$TMP/d5.vod" "$TMP/e1.vod"
 
+# ---------------------------------------------------------------- supervision
+
+# A worker killed while a CSG job runs: its run of bricks is evaluated again
+# by the one forked in its place, and the file is the embedded engine's.
+REL=build/release/vox # make test builds it beside asan; the reference only
+[ -x "$REL" ] || REL=$VOX
+check "the heavy job, embedded (release)" timeout 300 "$REL" csg "$TMP/slow.csg" -r 160 -q -o "$TMP/k1.vod"
+bg "$VOX" --socket "$S" submit --csg "$TMP/slow.csg" -r 160 -q -o "$TMP/k2.vod"
+SUB=$!
+until_true 20 running && pass "the heavy job runs on voxd" || fail "the heavy job runs on voxd" "$(vc status)"
+victim=$(worker_pids | head -1)
+kill -9 "$victim"
+wait "$SUB"
+rc=$?
+[ "$rc" -eq 0 ] && pass "the job survives a worker killed while it runs" ||
+    fail "the job survives a worker killed while it runs" "exit $rc: $(tail -3 "$TMP/voxd.log")"
+check "with the embedded engine's bytes" cmp "$TMP/k1.vod" "$TMP/k2.vod"
+until_true 10 eval '! worker_pids | grep -qx "$victim"' && [ "$(worker_pids | wc -l)" -eq 2 ] &&
+    pass "the killed worker was replaced" || fail "the killed worker was replaced" "$(vc status)"
+
 kill -QUIT "$VOXD_PID"
 wait_gone "$VOXD_PID" 30 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0" ||
     fail "QUIT: exit 0" "rc $WAIT_RC: $(tail -3 "$TMP/voxd.log")"
+
+# A CSG job over job_timeout ends with TIMEOUT, and the daemon goes on.
+printf 'workers 2\njob_timeout 1\n' >"$TMP/voxd2.conf"
+if start_voxd "$TMP/voxd2.log" --config "$TMP/voxd2.conf"; then
+    refuse "a CSG job over job_timeout: TIMEOUT" 1 "TIMEOUT: .*job_timeout of 1 s" \
+        vox submit --csg "$TMP/slow.csg" -r 512 -o "$TMP/x.vod"
+    check "the daemon serves the next CSG job" vox submit --csg "$TMP/part.csg" -r 64 -q -o "$TMP/d7.vod"
+    check "with the same bytes" cmp "$TMP/d7.vod" "$TMP/e1.vod"
+    kill -QUIT "$VOXD_PID"
+    wait_gone "$VOXD_PID" 30 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0 (second voxd)" ||
+        fail "QUIT: exit 0 (second voxd)" "rc $WAIT_RC: $(tail -3 "$TMP/voxd2.log")"
+else
+    fail "a second voxd starts" "$(tail -5 "$TMP/voxd2.log")"
+fi
