@@ -18,6 +18,7 @@
 #   make deps       installs the Debian packages the build needs, if missing
 
 CC      ?= cc
+CXX     ?= g++
 PREFIX  ?= /usr/local
 V       ?= release
 BUILD   ?= build/$(V)
@@ -88,7 +89,7 @@ PROTO   := $(wildcard proto/*.proto)
 PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
 LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIB     := $(BUILD)/libvoxd.a
-BINS    := $(BUILD)/vox $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(BUILD)/libvox.pc \
+BINS    := $(BUILD)/vox $(BUILD)/vox-vdb.so $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(BUILD)/libvox.pc \
            $(BUILD)/vox_mpi
 
 UNIT_SRC := $(wildcard tests/unit/test_*.c)
@@ -126,6 +127,24 @@ $(BUILD)/libvox.pc: libvox/libvox.pc.in
 
 $(BUILD)/vox: $(BUILD)/client/vox.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
+
+# OpenVDB is C++: client/vdb_out.cc, the shim behind vox export's .vdb, is
+# the one C++ source, built with g++ into a module of its own that vox
+# opens with dlopen for a .vdb only (client/vdb_out.h says why); the rest
+# stays C11 and never links libstdc++ or libopenvdb.
+VDB_MOD  := $(BUILD)/vox-vdb.so
+VDB_LIBS := -lopenvdb -ltbb -lImath
+CXXFLAGS += -std=c++17 -Wall -Wextra -Werror $(OPT) -fPIC -MMD -MP
+$(BUILD)/client/vdb_out.o: client/vdb_out.cc
+	@mkdir -p $(dir $@)
+	$(CXX) $(CXXFLAGS) -Iclient -c $< -o $@
+$(VDB_MOD): $(BUILD)/client/vdb_out.o
+	$(CXX) -shared $(filter -fsanitize=%,$(OPT)) $^ -o $@ $(VDB_LIBS)
+# The export tests' own reader of .vdb files (libopenvdb's reader, not
+# vox's writer); no sanitizers: none of it is voxd's code.
+$(BUILD)/tests/vdb_dump: tests/integration/vdb_dump.cc
+	@mkdir -p $(dir $@)
+	$(CXX) -std=c++17 -Wall -Wextra -Werror -O1 $< -o $@ $(VDB_LIBS)
 
 $(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
@@ -168,7 +187,7 @@ test: deps
 	@$(MAKE) --no-print-directory V=release all
 	@scripts/run-tests.sh build/asan
 
-test-build: all $(UNIT_BIN) fuzz-build-corpus
+test-build: all $(UNIT_BIN) $(BUILD)/tests/vdb_dump fuzz-build-corpus
 
 # Fuzz harnesses: libFuzzer binaries (clang), and plain drivers that replay the
 # seed corpus under the sanitizers for `make test`.
@@ -222,7 +241,7 @@ bench-compare: deps all
 clean:
 	rm -rf build
 
--include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d
+-include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d $(BUILD)/client/vdb_out.d
 
 # ---------------------------------------------------------------- install
 # make install [PREFIX=/usr/local] [DESTDIR=]: vox and vox_mpi in PREFIX/bin; voxd, a

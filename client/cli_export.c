@@ -18,26 +18,18 @@
 #include <zlib.h>
 
 #include "cli.h"
+#include "export.h"
 #include "outfile.h"
 #include "vod.h"
 #include "voxel.h"
 
-enum { FMT_NONE, FMT_NRRD, FMT_RAW, FMT_BINVOX, FMT_VTI };
+enum { FMT_NONE, FMT_NRRD, FMT_RAW, FMT_BINVOX, FMT_VTI, FMT_VDB };
 
 typedef struct {
     const char *in, *out, *json; /* json: the raw format's sidecar */
-    int fmt, gzip, level;
+    int fmt, gzip, level, no_normals;
     const char *bbox;
 } export_opts;
-
-/* What is exported: the box [lo, hi) of level `level`'s voxels. */
-typedef struct {
-    const vod_file *f;
-    const vod_info *in;
-    int level;
-    uint32_t lo[3], hi[3], n[3];
-    double origin[3], spacing[3]; /* low corner of voxel lo, and a voxel's size */
-} export_box;
 
 /* Where the bytes go: a FILE, through a gzip stream when z is set. */
 typedef struct {
@@ -62,8 +54,8 @@ static const char usage_text[] =
 
 static int fmt_of(const char *s)
 {
-    static const char *const names[] = {"", "nrrd", "raw", "binvox", "vti"};
-    for (int i = FMT_NRRD; i <= FMT_VTI; i++)
+    static const char *const names[] = {"", "nrrd", "raw", "binvox", "vti", "vdb"};
+    for (int i = FMT_NRRD; i <= FMT_VDB; i++)
         if (!strcmp(s, names[i])) return i;
     return FMT_NONE;
 }
@@ -90,7 +82,7 @@ static int parse_opts(int argc, char **argv, export_opts *o)
         if (!strcmp(a, "-o")) o->out = v;
         else if (!strcmp(a, "--format")) {
             if (!(o->fmt = fmt_of(v))) {
-                cli_error("--format %s: not nrrd, raw, binvox or vti", v);
+                cli_error("--format %s: not nrrd, raw, binvox, vti or vdb", v);
                 return CLI_EXIT_USAGE;
             }
         } else if (!strcmp(a, "--level")) {
@@ -101,6 +93,7 @@ static int parse_opts(int argc, char **argv, export_opts *o)
             o->level = (int)l;
         } else if (!strcmp(a, "--bbox")) o->bbox = v;
         else if (!strcmp(a, "--gzip")) o->gzip = 1;
+        else if (!strcmp(a, "--no-normals")) o->no_normals = 1;
         else if (a[0] == '-' || o->in) {
             cli_error(a[0] == '-' ? "unknown option '%s'" : "one input file only: '%s'", a);
             return CLI_EXIT_USAGE;
@@ -164,7 +157,10 @@ static int make_box(const vod_file *f, const export_opts *o, export_box *b)
                   in->height - 1);
         return CLI_EXIT_USAGE;
     }
-    *b = (export_box){.f = f, .in = in, .level = o->level};
+    /* channel 3's normals go where the format can hold them (not binvox) */
+    int nrm = in->channel == VOXEL_CH_SURFACE && in->voxel_bits == 32 && !o->no_normals &&
+              o->fmt == FMT_VDB;
+    *b = (export_box){.f = f, .in = in, .level = o->level, .normals = nrm};
     for (int a = 0; a < 3; a++) b->hi[a] = dims[a];
     if (o->bbox && parse_bbox(o->bbox, dims, b)) return CLI_EXIT_USAGE;
     for (int a = 0; a < 3; a++) {
@@ -414,6 +410,19 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
     }
 }
 
+/* OpenVDB writes by path: the temporary file's name is handed over. */
+static int write_vdb(const export_box *b, const export_opts *o, int fd, const char *tmp)
+{
+    char err[512] = "";
+    close(fd);
+    int rc = export_vdb(b, o->in, tmp, err, sizeof err);
+    if (rc) {
+        cli_error("%s", err);
+        return -EINVAL; /* told */
+    }
+    return 0;
+}
+
 /* Written under a temporary name, renamed onto OUT when whole. */
 static int write_out(const export_box *b, const export_opts *o)
 {
@@ -423,10 +432,14 @@ static int write_out(const export_box *b, const export_opts *o)
         cli_error("%s: cannot create: %s", o->out, strerror(-fd));
         return CLI_EXIT_FAILED;
     }
-    FILE *fp = fdopen(fd, "wb");
-    int rc = fp ? write_format(b, o, fp) : -errno;
-    if (!fp) close(fd);
-    else if (fclose(fp) && !rc) rc = -errno;
+    int rc;
+    if (o->fmt == FMT_VDB) rc = write_vdb(b, o, fd, tmp);
+    else {
+        FILE *fp = fdopen(fd, "wb");
+        rc = fp ? write_format(b, o, fp) : -errno;
+        if (!fp) close(fd);
+        else if (fclose(fp) && !rc) rc = -errno;
+    }
     if (!rc && rename(tmp, o->out)) rc = -errno;
     if (rc) {
         unlink(tmp);

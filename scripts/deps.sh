@@ -3,11 +3,15 @@
 # (valgrind: tests/integration/valgrind.sh; python3 and procps: the daemon's
 # integration tests, for the hand-written protocol client and pgrep/ps;
 # python3-numpy: python/voxd and the export tests; libopenmpi-dev and
-# openmpi-bin: vox_mpi, built with mpicc's flags, and its tests under mpirun).
+# openmpi-bin: vox_mpi, built with mpicc's flags, and its tests under mpirun;
+# libopenvdb-dev and libboost-dev, whose headers libopenvdb's include but
+# which Debian 12's libopenvdb-dev does not pull in: vox export's .vdb module;
+# libopenvdb-tools: vdb_print, which reads the .vdb exports back in the tests).
 set -e
 PKGS="build-essential pkg-config zlib1g-dev libdeflate-dev libpng-dev libxxhash-dev libuv1-dev \
 libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev \
-valgrind python3 python3-numpy procps groff-base libopenmpi-dev openmpi-bin"
+valgrind python3 python3-numpy procps groff-base libopenmpi-dev openmpi-bin \
+libopenvdb-dev libboost-dev libopenvdb-tools"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"

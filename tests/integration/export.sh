@@ -19,6 +19,11 @@ if [ -z "$PY" ]; then
     exit 0
 fi
 CHECK="$ROOT/tests/integration/export_check.py"
+# The .vdb exports are read by OpenVDB's own code: vdb_print (make deps
+# installs libopenvdb-tools) and vdb_dump, built beside the vox under test.
+VDB_DUMP="$(dirname "$VOX")/tests/vdb_dump"
+command -v vdb_print >/dev/null || fail "vdb_print on the PATH (make deps installs libopenvdb-tools)"
+[ -x "$VDB_DUMP" ] || fail "$VDB_DUMP built (make test-build builds it)"
 
 cat >"$TMP/box.obj" <<'OBJ'
 v -1 -0.6 -0.8
@@ -64,6 +69,10 @@ for f in "$TMP"/*.vod; do
     echo "2,9,1,12,3,7" >"$d/box.txt"
     check "$n: export --bbox" "$VOX" export "$f" --format raw -o "$d/box.raw" --bbox 2,9,1,12,3,7
     "$PY" "$CHECK" formats "$f" "$d"
+    check "$n: export .vdb" "$VOX" export "$f" -o "$d/x.vdb"
+    check "$n: export .vdb level 1" "$VOX" export "$f" -o "$d/l1.vdb" --level 1
+    check "$n: export .vdb --bbox" "$VOX" export "$f" -o "$d/box.vdb" --bbox 2,9,1,12,3,7
+    "$PY" "$CHECK" vdb "$f" "$d" "$VDB_DUMP"
     want=$("$VOX" info "$f" | grep '^  voxels')
     got=$("$PY" "$CHECK" checksum "$f" 2>&1)
     if [ -n "$want" ] && [ "$want" = "$got" ]; then pass "$n: voxd.read's voxels are vox info's"
@@ -74,7 +83,7 @@ done
 # ---------------------------------------------------------------- refusals
 f="$TMP/sphere-ch3-zlib.vod"
 refuse "export: no format from the name" 2 "no format from its extension" "$VOX" export "$f" -o "$TMP/x.dat"
-refuse "export: unknown --format" 2 "not nrrd, raw, binvox or vti" "$VOX" export "$f" -o "$TMP/x" --format vdb
+refuse "export: unknown --format" 2 "not nrrd, raw, binvox, vti or vdb" "$VOX" export "$f" -o "$TMP/x" --format vdf
 refuse "export: --gzip outside NRRD" 2 "NRRD only" "$VOX" export "$f" -o "$TMP/x.raw" --gzip
 refuse "export: level out of range" 2 "the file has levels 0\.\.2" "$VOX" export "$f" -o "$TMP/x.raw" --level 5
 refuse "export: --bbox past the volume" 2 "axis y needs" "$VOX" export "$f" -o "$TMP/x.raw" --bbox 0,4,0,99,0,4

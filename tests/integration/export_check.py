@@ -7,13 +7,18 @@ encoding is a gzip stream), VTK XML ImageData (VTK's file-formats page: the
 appended block starts after '_', each array a header_type byte count then
 its bytes), binvox (Patrick Min's format page: "#binvox 1", dim, translate,
 scale, "data", then (value, count) byte pairs, x slowest, then z, y fastest),
-raw + its JSON sidecar (the sidecar's own fields).
+raw + its JSON sidecar (the sidecar's own fields).  OpenVDB files are read by
+OpenVDB's own code: vdb_print (libopenvdb-tools) for what it says of the
+grids, and vdb_dump (tests/integration/vdb_dump.cc, libopenvdb's reader) for
+the voxels; the channel-3 normals are decoded here from the VOD format's
+octahedral encoding (docs/vod-format.md, section 7.1).
 
 Every line printed is "PASS: name" or "FAIL: name"; the exit status is 0.
 
     export_check.py formats VOD DIR       the exports in DIR against voxd.read
     export_check.py checksum VOD          print vox info's voxel line, from voxd
     export_check.py damage VOD VOX DIR    damaged copies: voxd and vox info agree
+    export_check.py vdb VOD DIR DUMP      the .vdb exports in DIR against voxd.read
 """
 
 import gzip
@@ -183,6 +188,95 @@ def check_formats(vod, d):
         meta["origin"], [v0.origin[a] + b[2 * a] * v0.spacing[a] for a in range(3)]))
 
 
+def octahedral(raw):
+    """Unit normals (..., 3) of channel-3 voxels: bits 8-19 u, 20-31 v, each
+    code / 4095 * 2 - 1; z = 1 - |u| - |v|, folded where negative."""
+    u = ((raw >> 8) & 0xFFF) / 4095.0 * 2.0 - 1.0
+    v = ((raw >> 20) & 0xFFF) / 4095.0 * 2.0 - 1.0
+    z = 1.0 - np.abs(u) - np.abs(v)
+    sgn = lambda t: np.where(t < 0, -1.0, 1.0)  # noqa: E731
+    fu = np.where(z < 0, (1.0 - np.abs(v)) * sgn(u), u)
+    fv = np.where(z < 0, (1.0 - np.abs(u)) * sgn(v), v)
+    n = np.stack([fu, fv, z], axis=-1)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def vdb_print(path):
+    """{grid name: (tree type, active voxels)} from vdb_print -l."""
+    out = subprocess.run(["vdb_print", "-l", path], capture_output=True, text=True,
+                         check=True).stdout
+    grids, name = {}, None
+    for ln in out.splitlines():
+        ln = ln.strip()
+        if ln.startswith("Name: "):
+            name = ln[6:]
+        elif ln.startswith("Type: ") and name:
+            grids[name] = [ln[6:], None]
+        elif ln.startswith("Number of active voxels:") and name:
+            grids[name][1] = int(ln.split(":")[1].replace(",", ""))
+    return grids
+
+
+def vdb_dump(dump, path, grid, lo, hi, out):
+    r = subprocess.run([dump, path, grid] + [str(t) for a in range(3) for t in (lo[a], hi[a])]
+                       + [out], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    f = r.stdout.split()
+    info = {"type": f[1], "active": int(f[3]), "tiles": int(f[5]),
+            "voxel": [float(t) for t in f[7:10]], "world0": [float(t) for t in f[11:14]]}
+    arr = np.fromfile(out, np.float32)
+    n = [hi[a] - lo[a] for a in range(3)]
+    shape = (n[2], n[1], n[0], 3) if info["type"] == "vec3s" else (n[2], n[1], n[0])
+    return arr.reshape(shape), info
+
+
+def check_vdb_one(name, vod, path, level, lo, hi, dump, d):
+    """One .vdb export of level `level`, box [lo, hi) (x, y, z), against
+    voxd.read: the scalar grid's values and activity exactly, the normals
+    to float precision, the transform, and vdb_print's counts."""
+    v = voxd.read(vod, level)
+    sub = v.occupancy[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]]
+    bits = v.info["voxel_bits"]
+    gname = "occupancy" if bits == 1 else "density"
+    arr, info = vdb_dump(dump, path, gname, lo, hi, os.path.join(d, "dump.f32"))
+    if bits == 1:
+        want = np.where(sub != 0, 1.0, -1.0).astype(np.float32)
+    else:
+        want = np.where(sub != 0, sub.astype(np.float32) / np.float32(255), -1.0)
+    report(name + ": VDB %s voxels" % gname, np.array_equal(arr, want.astype(np.float32)))
+    report(name + ": VDB active voxels", info["active"] == np.count_nonzero(sub),
+           "%d vs %d" % (info["active"], np.count_nonzero(sub)))
+    centre = [v.origin[a] + 0.5 * v.spacing[a] for a in range(3)]
+    report(name + ": VDB transform", close(info["voxel"], v.spacing) and
+           close(info["world0"], centre), str(info))
+    grids = vdb_print(path)
+    want_grids = {gname: ["Tree_%s_5_4_3" % ("bool" if bits == 1 else "float"),
+                          int(np.count_nonzero(sub))]}
+    if v.channel == 3 and bits == 32:
+        want_grids["normal"] = ["Tree_vec3s_5_4_3", int(np.count_nonzero(sub))]
+        raw = v.data[lo[2]:hi[2], lo[1]:hi[1], lo[0]:hi[0]].astype(np.int64)
+        nrm = np.where((sub != 0)[..., None], octahedral(raw), 0.0)
+        arr, info = vdb_dump(dump, path, "normal", lo, hi, os.path.join(d, "dump.f32"))
+        report(name + ": VDB normals", np.allclose(arr, nrm, rtol=0, atol=1e-6),
+               "max error %g" % np.abs(arr - nrm).max())
+    report(name + ": vdb_print's grids and counts", grids == want_grids,
+           "%s, want %s" % (grids, want_grids))
+
+
+def check_vdb(vod, d, dump):
+    name = os.path.basename(vod)
+    v0 = voxd.read(vod, 0)
+    z, y, x = v0.shape
+    check_vdb_one(name, vod, os.path.join(d, "x.vdb"), 0, (0, 0, 0), (x, y, z), dump, d)
+    z, y, x = voxd.read(vod, 1).shape
+    check_vdb_one(name + " level 1", vod, os.path.join(d, "l1.vdb"), 1, (0, 0, 0),
+                  (x, y, z), dump, d)
+    with open(os.path.join(d, "box.txt")) as fp:
+        b = [int(t) for t in fp.read().split(",")]
+    check_vdb_one(name + " --bbox", vod, os.path.join(d, "box.vdb"), 0, b[0::2], b[1::2],
+                  dump, d)
+
+
 def checksum_line(vod):
     """vox info's 'voxels' line: the count of non-empty level-0 voxels and
     the sum of CRC-32s of (level, x, y, z, value) over every level."""
@@ -287,6 +381,8 @@ def run(cmd):
         print(checksum_line(sys.argv[2]))
     elif cmd == "damage":
         check_damage(sys.argv[2], sys.argv[3], sys.argv[4])
+    elif cmd == "vdb":
+        check_vdb(sys.argv[2], sys.argv[3], sys.argv[4])
 
 
 if __name__ == "__main__":

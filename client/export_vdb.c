@@ -1,0 +1,166 @@
+/* vox export to OpenVDB: the level's bricks handed to vdb_out one at a time
+ * (export.h), through the vox-vdb.so module (vdb_out.h) opened here.  A brick of one value becomes tiles (vdb_out_fill), so a solid's
+ * inside costs nothing per voxel; the others are expanded into one brick-sized
+ * buffer and set voxel by voxel.  Memory: the sparse grid and one brick. */
+#include <dlfcn.h>
+#include <errno.h>
+#include <limits.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "export.h"
+#include "vdb_out.h"
+#include "voxel.h"
+
+typedef struct {
+    const export_box *b;
+    const vdb_out_api *api;
+    vdb_out *w;
+    uint8_t *v; /* one brick's voxel bytes, x fastest */
+    float *nrm; /* with normals: 3 floats a voxel */
+} vdb_job;
+
+/* The brick's one value when every voxel holds it (the byte a voxel
+ * exports as), else -1.  Bricks with normals are never uniform here. */
+static int uniform_byte(const export_box *b, const uint8_t *raw)
+{
+    size_t B = b->in->brick, bytes = B * B * B * b->in->voxel_bits / 8;
+    size_t w = b->in->voxel_bits == 32 ? 4 : 1; /* 1 bit: every byte 0x00 or 0xff */
+    if (b->normals || memcmp(raw, raw + w, bytes - w)) return -1;
+    if (b->in->voxel_bits == 1) return raw[0] == 0xff ? 1 : raw[0] == 0 ? 0 : -1;
+    return raw[0]; /* 8 bits: the byte; 32: the occupancy, bits 0-7 (little-endian) */
+}
+
+/* The part [s, e) of brick raw (at level coordinates base) into j->v and
+ * j->nrm, x fastest. */
+static void expand(const vdb_job *j, const uint8_t *raw, const uint32_t base[3],
+                   const uint32_t s[3], const uint32_t e[3])
+{
+    const vod_info *in = j->b->in;
+    uint32_t B = in->brick;
+    size_t o = 0;
+    for (uint32_t z = s[2]; z < e[2]; z++)
+        for (uint32_t y = s[1]; y < e[1]; y++)
+            for (uint32_t x = s[0]; x < e[0]; x++, o++) {
+                size_t i = ((size_t)(z - base[2]) * B + (y - base[1])) * B + (x - base[0]);
+                uint32_t v;
+                if (in->voxel_bits == 1) v = raw[i >> 3] >> (i & 7) & 1u;
+                else if (in->voxel_bits == 8) v = raw[i];
+                else memcpy(&v, raw + 4 * i, 4); /* little-endian bricks */
+                j->v[o] = (uint8_t)(in->voxel_bits == 32 ? voxel_occupancy(v) : v);
+                if (j->nrm && j->v[o]) {
+                    double n[3];
+                    voxel_unpack_normal(v, n);
+                    for (int a = 0; a < 3; a++) j->nrm[3 * o + a] = (float)n[a];
+                }
+            }
+}
+
+static int one_brick(const vdb_job *j, const uint32_t bk[3])
+{
+    const export_box *b = j->b;
+    const uint8_t *raw = vod_brick(b->f, b->level, bk);
+    if (!raw) return 0;
+    uint32_t B = b->in->brick, base[3], s[3], e[3], n[3];
+    int32_t lo[3];
+    for (int a = 0; a < 3; a++) {
+        base[a] = bk[a] * B;
+        s[a] = base[a] > b->lo[a] ? base[a] : b->lo[a];
+        e[a] = base[a] + B < b->hi[a] ? base[a] + B : b->hi[a];
+        n[a] = e[a] - s[a];
+        lo[a] = (int32_t)s[a];
+    }
+    int u = uniform_byte(b, raw);
+    if (u == 0) return 0;
+    if (u > 0) return j->api->fill(j->w, lo, n, (uint8_t)u);
+    expand(j, raw, base, s, e);
+    return j->api->block(j->w, lo, n, j->v, j->nrm);
+}
+
+static int walk(const vdb_job *j)
+{
+    const export_box *b = j->b;
+    uint32_t B = b->in->brick, bk[3];
+    for (bk[2] = b->lo[2] / B; bk[2] * B < b->hi[2]; bk[2]++)
+        for (bk[1] = b->lo[1] / B; bk[1] * B < b->hi[1]; bk[1]++)
+            for (bk[0] = b->lo[0] / B; bk[0] * B < b->hi[0]; bk[0]++) {
+                int rc = one_brick(j, bk);
+                if (rc) return rc;
+            }
+    return 0;
+}
+
+static int describe(const vdb_job *j, const char *src)
+{
+    const vdb_out_api *api = j->api;
+    int rc = api->meta_int(j->w, "vod_channel", j->b->in->channel);
+    if (!rc) rc = api->meta_int(j->w, "vod_level", j->b->level);
+    if (!rc) rc = api->meta_str(j->w, "vod_source", src);
+    if (!rc && j->b->in->voxel_bits > 1)
+        rc = api->meta_str(j->w, "vod_value",
+                           "voxel byte / 255 (channel 3: its occupancy byte)");
+    return rc;
+}
+
+/* The module beside the running vox (the build tree), else in ../lib/voxd
+ * from it (make install).  It stays loaded until exit: libopenvdb's
+ * registries and thread pool are not made to be unloaded. */
+static const vdb_out_api *load_api(char *err, size_t errlen)
+{
+    char exe[PATH_MAX], path[PATH_MAX + 32];
+    ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
+    if (n <= 0) n = 0;
+    exe[n] = '\0';
+    char *slash = strrchr(exe, '/');
+    if (slash) *slash = '\0';
+    static const char *const where[] = {"%s/" VDB_OUT_MODULE, "%s/../lib/voxd/" VDB_OUT_MODULE};
+    const char *why = "";
+    for (int i = 0; i < 2; i++) {
+        snprintf(path, sizeof path, where[i], exe);
+        void *h = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+        if (!h) {
+            if (!i) why = dlerror(); /* the build tree's reason, when both fail */
+            continue;
+        }
+        const vdb_out_api *api = dlsym(h, VDB_OUT_SYMBOL);
+        if (api) return api;
+        snprintf(err, errlen, "%s: no %s (a module of another version)", path, VDB_OUT_SYMBOL);
+        return NULL;
+    }
+    snprintf(err, errlen, ".vdb needs the OpenVDB module %s beside vox or in its "
+             "../lib/voxd: %s", VDB_OUT_MODULE, why);
+    return NULL;
+}
+
+int export_vdb(const export_box *b, const char *src, const char *path, char *err,
+               size_t errlen)
+{
+    vdb_out_grid g = {.kind = b->in->voxel_bits == 1 ? VDB_OUT_BOOL : VDB_OUT_FLOAT,
+                      .name = b->in->voxel_bits == 1 ? "occupancy" : "density",
+                      .normals = b->normals};
+    for (int a = 0; a < 3; a++) {
+        g.spacing[a] = b->spacing[a];
+        /* index (0,0,0) is level voxel (0,0,0), centred half a voxel in */
+        g.centre[a] = (double)b->in->origin[a] + 0.5 * b->spacing[a];
+    }
+    vdb_job j = {.b = b, .api = load_api(err, errlen)};
+    if (!j.api) return -ENOENT;
+    size_t B = b->in->brick, n = B * B * B;
+    j.v = malloc(n);
+    j.nrm = b->normals ? malloc(3 * n * sizeof(float)) : NULL;
+    int rc = (!j.v || (b->normals && !j.nrm)) ? -ENOMEM : 0;
+    if (rc) snprintf(err, errlen, "out of memory");
+    if (!rc) rc = j.api->open(&j.w, &g, err, errlen);
+    if (!rc) {
+        rc = describe(&j, src);
+        if (!rc) rc = walk(&j);
+        if (rc) snprintf(err, errlen, "%s", strerror(-rc));
+        else rc = j.api->write(j.w, path, err, errlen);
+        j.api->free(j.w);
+    }
+    free(j.v);
+    free(j.nrm);
+    return rc;
+}

@@ -1,0 +1,204 @@
+// vdb_out: see vdb_out.h.  The one C++ file of the tree, built with g++
+// as the module vox-vdb.so: its one exported symbol is the C table at the
+// end, and every exception stops at that interface.
+#include "vdb_out.h"
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <new>
+#include <string>
+
+#include <openvdb/io/File.h>
+#include <openvdb/math/Maps.h>
+#include <openvdb/openvdb.h>
+#include <openvdb/tools/Prune.h>
+
+namespace {
+
+using openvdb::Coord;
+using openvdb::CoordBBox;
+
+void say(char *err, size_t errlen, const char *what, const char *why)
+{
+    if (errlen) std::snprintf(err, errlen, "%s: %s", what, why);
+}
+
+} // namespace
+
+struct vdb_out {
+    int kind;
+    openvdb::BoolGrid::Ptr occ;
+    openvdb::FloatGrid::Ptr dens;
+    openvdb::Vec3SGrid::Ptr nrm;
+
+    openvdb::GridBase::Ptr scalar() const
+    {
+        if (occ) return occ;
+        return dens;
+    }
+};
+
+namespace {
+
+// Voxels of a dense block through an accessor (it caches the path to the
+// last leaf, so neighbours cost little); zero bytes stay inactive.
+template <typename GridT, typename F>
+void block(GridT &g, const int32_t lo[3], const uint32_t n[3], const uint8_t *v, F value)
+{
+    auto acc = g.getAccessor();
+    size_t i = 0;
+    for (uint32_t z = 0; z < n[2]; z++)
+        for (uint32_t y = 0; y < n[1]; y++)
+            for (uint32_t x = 0; x < n[0]; x++, i++)
+                if (v[i])
+                    acc.setValueOn(Coord(lo[0] + int32_t(x), lo[1] + int32_t(y),
+                                         lo[2] + int32_t(z)),
+                                   value(i));
+}
+
+CoordBBox box_of(const int32_t lo[3], const uint32_t n[3])
+{
+    return CoordBBox(Coord(lo[0], lo[1], lo[2]),
+                     Coord(lo[0] + int32_t(n[0]) - 1, lo[1] + int32_t(n[1]) - 1,
+                           lo[2] + int32_t(n[2]) - 1));
+}
+
+template <typename GridT>
+typename GridT::Ptr make_grid(const vdb_out_grid *g, openvdb::math::Transform::Ptr xf,
+                              openvdb::GridClass cls)
+{
+    auto grid = GridT::create();
+    grid->setName(g->name);
+    grid->setTransform(xf);
+    grid->setGridClass(cls);
+    return grid;
+}
+
+} // namespace
+
+static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, char *err, size_t errlen)
+{
+    *out = nullptr;
+    if (g->kind != VDB_OUT_BOOL && g->kind != VDB_OUT_FLOAT) {
+        say(err, errlen, "vdb", "unknown grid kind");
+        return -EINVAL;
+    }
+    try {
+        openvdb::initialize(); // registers the grid types; idempotent
+        // index (i, j, k) -> centre + (i, j, k) * spacing, per axis
+        openvdb::math::MapBase::Ptr map(new openvdb::math::ScaleTranslateMap(
+            openvdb::Vec3d(g->spacing[0], g->spacing[1], g->spacing[2]),
+            openvdb::Vec3d(g->centre[0], g->centre[1], g->centre[2])));
+        auto xf = openvdb::math::Transform::Ptr(new openvdb::math::Transform(map));
+        vdb_out *w = new vdb_out();
+        w->kind = g->kind;
+        if (g->kind == VDB_OUT_BOOL)
+            w->occ = make_grid<openvdb::BoolGrid>(g, xf, openvdb::GRID_UNKNOWN);
+        else
+            w->dens = make_grid<openvdb::FloatGrid>(g, xf, openvdb::GRID_FOG_VOLUME);
+        if (g->normals) {
+            vdb_out_grid ng = *g;
+            ng.name = "normal";
+            w->nrm = make_grid<openvdb::Vec3SGrid>(&ng, xf, openvdb::GRID_UNKNOWN);
+            w->nrm->setVectorType(openvdb::VEC_COVARIANT_NORMALIZE);
+        }
+        *out = w;
+        return 0;
+    } catch (const std::exception &e) {
+        say(err, errlen, "openvdb", e.what());
+        return -ENOMEM;
+    }
+}
+
+static int vdb_out_meta_int(vdb_out *w, const char *key, int64_t v)
+{
+    try {
+        w->scalar()->insertMeta(key, openvdb::Int64Metadata(v));
+        if (w->nrm) w->nrm->insertMeta(key, openvdb::Int64Metadata(v));
+        return 0;
+    } catch (const std::exception &) {
+        return -ENOMEM;
+    }
+}
+
+static int vdb_out_meta_str(vdb_out *w, const char *key, const char *v)
+{
+    try {
+        w->scalar()->insertMeta(key, openvdb::StringMetadata(v));
+        if (w->nrm) w->nrm->insertMeta(key, openvdb::StringMetadata(v));
+        return 0;
+    } catch (const std::exception &) {
+        return -ENOMEM;
+    }
+}
+
+static int vdb_out_block(vdb_out *w, const int32_t lo[3], const uint32_t n[3],
+                             const uint8_t *v, const float *nrm)
+{
+    try {
+        if (w->occ) block(*w->occ, lo, n, v, [v](size_t i) { return v[i] != 0; });
+        else block(*w->dens, lo, n, v, [v](size_t i) { return float(v[i]) / 255.0f; });
+        if (w->nrm)
+            block(*w->nrm, lo, n, v, [nrm](size_t i) {
+                return openvdb::Vec3s(nrm[3 * i], nrm[3 * i + 1], nrm[3 * i + 2]);
+            });
+        return 0;
+    } catch (const std::exception &) {
+        return -ENOMEM;
+    }
+}
+
+static int vdb_out_fill(vdb_out *w, const int32_t lo[3], const uint32_t n[3], uint8_t v)
+{
+    if (!v || w->nrm) return -EINVAL;
+    try {
+        // Tree::fill makes a tile of every node the box covers whole
+        if (w->occ) w->occ->tree().fill(box_of(lo, n), true, true);
+        else w->dens->tree().fill(box_of(lo, n), float(v) / 255.0f, true);
+        return 0;
+    } catch (const std::exception &) {
+        return -ENOMEM;
+    }
+}
+
+static int vdb_out_write(vdb_out *w, const char *path, char *err, size_t errlen)
+{
+    try {
+        openvdb::GridPtrVec grids;
+        if (w->occ) openvdb::tools::prune(w->occ->tree());
+        else openvdb::tools::prune(w->dens->tree());
+        grids.push_back(w->scalar());
+        if (w->nrm) {
+            openvdb::tools::prune(w->nrm->tree());
+            grids.push_back(w->nrm);
+        }
+        openvdb::MetaMap file_meta;
+        file_meta.insertMeta("creator", openvdb::StringMetadata("vox export"));
+        openvdb::io::File f(path);
+        f.write(grids, file_meta);
+        f.close();
+        return 0;
+    } catch (const std::bad_alloc &) {
+        say(err, errlen, path, "out of memory");
+        return -ENOMEM;
+    } catch (const std::exception &e) {
+        say(err, errlen, path, e.what());
+        return -EIO;
+    }
+}
+
+static uint64_t vdb_out_active(const vdb_out *w)
+{
+    return w->scalar()->activeVoxelCount();
+}
+
+static void vdb_out_free(vdb_out *w)
+{
+    delete w;
+}
+
+extern "C" __attribute__((visibility("default"))) const vdb_out_api vdb_out_api_v1 = {
+    vdb_out_open, vdb_out_meta_int, vdb_out_meta_str, vdb_out_block,
+    vdb_out_fill, vdb_out_write, vdb_out_active, vdb_out_free,
+};
