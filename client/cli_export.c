@@ -15,8 +15,6 @@
 #include <string.h>
 #include <unistd.h>
 
-#include <zlib.h>
-
 #include "cli.h"
 #include "export.h"
 #include "outfile.h"
@@ -31,10 +29,9 @@ typedef struct {
     const char *bbox;
 } export_opts;
 
-/* Where the bytes go: a FILE, through a gzip stream when z is set. */
+/* Where the bytes go, and the first error in writing them. */
 typedef struct {
     FILE *fp;
-    z_stream *z;
     int err;
 } sink;
 
@@ -171,78 +168,11 @@ static int make_box(const vod_file *f, const export_opts *o, export_box *b)
     return check_channel(in, o->in);
 }
 
-/* ---- gathering voxels ---- */
-
-static uint8_t voxel_u8(const vod_info *in, const uint8_t *raw, size_t i)
-{
-    switch (in->voxel_bits) {
-    case 1: return raw[i >> 3] >> (i & 7) & 1u;
-    case 8: return raw[i];
-    default: return raw[4 * i]; /* channel 3: bits 0-7, the occupancy */
-    }
-}
-
-/* The level voxels of the box [lo, hi) (absolute level coordinates) into
- * out, x fastest, then y, then z; 0 where no brick is. */
-static void gather(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
-                   uint8_t *out)
-{
-    uint32_t B = b->in->brick, w = hi[0] - lo[0], h = hi[1] - lo[1];
-    memset(out, 0, (size_t)w * h * (hi[2] - lo[2]));
-    uint32_t bk[3];
-    for (bk[2] = lo[2] / B; bk[2] * B < hi[2]; bk[2]++)
-        for (bk[1] = lo[1] / B; bk[1] * B < hi[1]; bk[1]++)
-            for (bk[0] = lo[0] / B; bk[0] * B < hi[0]; bk[0]++) {
-                const uint8_t *raw = vod_brick(b->f, b->level, bk);
-                if (!raw) continue;
-                uint32_t s[3], e[3];
-                for (int a = 0; a < 3; a++) {
-                    s[a] = bk[a] * B > lo[a] ? bk[a] * B : lo[a];
-                    e[a] = (bk[a] + 1) * B < hi[a] ? (bk[a] + 1) * B : hi[a];
-                }
-                for (uint32_t z = s[2]; z < e[2]; z++)
-                    for (uint32_t y = s[1]; y < e[1]; y++) {
-                        size_t src = ((size_t)(z % B) * B + y % B) * B;
-                        size_t dst = ((size_t)(z - lo[2]) * h + (y - lo[1])) * w;
-                        for (uint32_t x = s[0]; x < e[0]; x++)
-                            out[dst + x - lo[0]] = voxel_u8(b->in, raw, src + x % B);
-                    }
-            }
-}
-
 /* ---- output ---- */
 
 static void put(sink *s, const void *p, size_t n)
 {
-    if (s->err || !n) return;
-    if (!s->z) {
-        if (fwrite(p, 1, n, s->fp) != n) s->err = -EIO;
-        return;
-    }
-    uint8_t buf[1 << 16];
-    s->z->next_in = (Bytef *)(uintptr_t)p; /* zlib does not write through next_in */
-    s->z->avail_in = (uInt)n;
-    do {
-        s->z->next_out = buf;
-        s->z->avail_out = sizeof buf;
-        deflate(s->z, Z_NO_FLUSH);
-        size_t k = sizeof buf - s->z->avail_out;
-        if (k && fwrite(buf, 1, k, s->fp) != k) s->err = -EIO;
-    } while (!s->err && (s->z->avail_in || !s->z->avail_out));
-}
-
-static void gz_finish(sink *s)
-{
-    uint8_t buf[1 << 16];
-    int zr;
-    do {
-        s->z->next_out = buf;
-        s->z->avail_out = sizeof buf;
-        zr = deflate(s->z, Z_FINISH);
-        size_t k = sizeof buf - s->z->avail_out;
-        if (k && fwrite(buf, 1, k, s->fp) != k) s->err = -EIO;
-    } while (!s->err && zr == Z_OK);
-    if (!s->err && zr != Z_STREAM_END) s->err = -EIO;
+    if (!s->err && n && fwrite(p, 1, n, s->fp) != n) s->err = -EIO;
 }
 
 /* The box in z slabs of one brick (aligned to the bricks), x fastest. */
@@ -254,7 +184,7 @@ static int stream_zyx(const export_box *b, sink *s)
     for (uint32_t z0 = b->lo[2]; z0 < b->hi[2] && !s->err;) {
         uint32_t z1 = (z0 / B + 1) * B < b->hi[2] ? (z0 / B + 1) * B : b->hi[2];
         uint32_t lo[3] = {b->lo[0], b->lo[1], z0}, hi[3] = {b->hi[0], b->hi[1], z1};
-        gather(b, lo, hi, slab);
+        export_gather(b, lo, hi, slab);
         put(s, slab, (size_t)b->n[0] * b->n[1] * (z1 - z0));
         z0 = z1;
     }
@@ -281,19 +211,7 @@ static int write_nrrd(const export_box *b, const export_opts *o, sink *s)
             o->gzip ? "gzip" : "raw");
     print_vec(s->fp, ",", c);
     fprintf(s->fp, ")\nvod_channel:=%u\nvod_level:=%d\n\n", b->in->channel, b->level);
-    z_stream z = {0};
-    if (o->gzip) {
-        if (deflateInit2(&z, 6, Z_DEFLATED, 15 + 16, 8, Z_DEFAULT_STRATEGY) != Z_OK)
-            return -ENOMEM;
-        s->z = &z; /* windowBits 15 + 16: a gzip wrapper, as NRRD's gzip wants */
-    }
-    int rc = stream_zyx(b, s);
-    if (o->gzip) {
-        if (!rc) gz_finish(s);
-        deflateEnd(&z);
-        s->z = NULL;
-    }
-    return rc ? rc : s->err;
+    return o->gzip ? export_gzip(b, s->fp) : stream_zyx(b, s);
 }
 
 /* VTK XML ImageData, the voxels as point data at their centres, appended raw
@@ -356,7 +274,7 @@ static int binvox_rows(const export_box *b, sink *s, uint32_t d)
         uint32_t w = x1 - x0;
         if (x0 < b->n[0]) {
             uint32_t lo[3] = {ax, b->lo[1], b->lo[2]}, hi[3] = {ax + w, b->hi[1], b->hi[2]};
-            gather(b, lo, hi, slab);
+            export_gather(b, lo, hi, slab);
         }
         for (uint32_t x = 0; x < w; x++)
             for (uint32_t z = 0; z < d; z++)
@@ -396,7 +314,7 @@ static int write_binvox(const export_box *b, sink *s)
 
 static int write_format(const export_box *b, const export_opts *o, FILE *fp)
 {
-    sink s = {fp, NULL, 0};
+    sink s = {fp, 0};
     static char buf[1 << 20];
     setvbuf(fp, buf, _IOFBF, sizeof buf);
     switch (o->fmt) {

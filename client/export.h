@@ -5,6 +5,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "vod.h"
 
@@ -17,6 +18,21 @@ typedef struct {
     uint32_t lo[3], hi[3], n[3];
     double origin[3], spacing[3]; /* low corner of voxel lo, and a voxel's size */
 } export_box;
+
+/* The level voxels of the box [lo, hi) (absolute level coordinates) into
+ * out as bytes, x fastest, then y, then z: channel 1 as 0/1, 8-bit voxels
+ * as they are, channel 3 its occupancy byte; 0 where no brick is.  Safe to
+ * call from several threads at once (the file is only read). */
+void export_gather(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
+                   uint8_t *out);
+/* Channel 3's normals of the same box: comps 3 gives (nx, ny, nz) per
+ * voxel, comps 4 (occupancy byte, nx, ny, nz); zeros where no voxel is. */
+void export_gather_normals(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
+                           float *out, int comps);
+/* The whole box as one gzip member (RFC 1952), z slabs gathered and
+ * deflated by as many threads as there are CPUs (up to 8), to fp.  0 or a
+ * negative errno. */
+int export_gzip(const export_box *b, FILE *fp);
 
 /* The box as an OpenVDB file at path (export_vdb.c), brick by brick: a
  * BoolGrid "occupancy" for 1-bit voxels, else a FloatGrid "density" of the
