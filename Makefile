@@ -269,6 +269,8 @@ install: all
 	  "$(DESTDIR)$(SYSCONFDIR)/voxd"
 	$(INSTALL) -m 755 $(BUILD)/vox "$(DESTDIR)$(BINDIR)/vox"
 	$(INSTALL) -m 755 $(BUILD)/vox_mpi "$(DESTDIR)$(BINDIR)/vox_mpi"
+	$(INSTALL) -d "$(DESTDIR)$(PREFIX)/lib/voxd"
+	$(INSTALL) -m 644 $(VDB_MOD) "$(DESTDIR)$(PREFIX)/lib/voxd/vox-vdb.so"
 	$(INSTALL) -m 755 $(BUILD)/voxd "$(DESTDIR)$(SBINDIR)/voxd"
 	$(INSTALL) -m 644 docs/man/vox.1 "$(DESTDIR)$(MANDIR)/man1/vox.1"
 	$(INSTALL) -m 644 docs/man/voxd.8 "$(DESTDIR)$(MANDIR)/man8/voxd.8"
@@ -290,13 +292,14 @@ install: all
 
 uninstall:
 	rm -f "$(DESTDIR)$(BINDIR)/vox" "$(DESTDIR)$(BINDIR)/vox_mpi" "$(DESTDIR)$(SBINDIR)/voxd" \
+	  "$(DESTDIR)$(PREFIX)/lib/voxd/vox-vdb.so" \
 	  "$(DESTDIR)$(MANDIR)/man1/vox.1" "$(DESTDIR)$(MANDIR)/man8/voxd.8" \
 	  "$(DESTDIR)$(UNITDIR)/voxd.service" "$(DESTDIR)$(DOCDIR)/README.md" \
 	  "$(DESTDIR)$(PREFIX)/lib/libvox.a" "$(DESTDIR)$(PREFIX)/include/vox.h" \
 	  "$(DESTDIR)$(PREFIX)/include/vox_limits.h" \
 	  "$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc" \
 	  $(DOC_FILES:docs/%="$(DESTDIR)$(DOCDIR)/docs/%")
-	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" 2>/dev/null || true
+	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" "$(DESTDIR)$(PREFIX)/lib/voxd" 2>/dev/null || true
 	@if cmp -s config/voxd.conf "$(CONF_DEST)"; then \
 	  echo "rm -f $(CONF_DEST)"; rm -f "$(CONF_DEST)"; \
 	  rmdir "$(DESTDIR)$(SYSCONFDIR)/voxd" 2>/dev/null || true; \

@@ -1,13 +1,17 @@
 /* vox export: a VOD file's voxels (one level, optionally a box of it) as a
  * dense array in a format other tools open: NRRD, raw + a JSON sidecar,
- * binvox, VTK ImageData (.vti).
+ * binvox, VTK ImageData (.vti), OpenVDB (.vdb).
  *
  * The output is streamed a slab of one brick's thickness at a time (z slabs;
  * x slabs for binvox, whose x runs slowest), each slab gathered from the
- * bricks it crosses (vod_brick), so memory holds the open VOD file and one
- * slab, never a dense copy of the volume.  Every format holds uint8 voxels:
- * channel 1 as 0/1, channel 2 as its density, channel 3 as its occupancy
- * byte (the normals are not exported yet); binvox holds occupancy only. */
+ * bricks it crosses (export_gather.c), so memory holds the open VOD file and
+ * one slab, never a dense copy of the volume; gzip NRRD is deflated by
+ * several threads (export_gz.c), OpenVDB written through its module
+ * (export_vdb.c).  Voxels are uint8: channel 1 as 0/1, channel 2 as its
+ * density, channel 3 as its occupancy byte, with its normals as floats
+ * beside it unless --no-normals (NRRD and raw: float (occupancy, nx, ny,
+ * nz) per voxel; VTI: a second array; VDB: a Vec3SGrid); binvox holds
+ * occupancy only. */
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -36,18 +40,24 @@ typedef struct {
 } sink;
 
 static const char usage_text[] =
-    "usage: vox export FILE.vod -o OUT [--format nrrd|raw|binvox|vti] [--gzip]\n"
-    "                  [--level L] [--bbox X0,X1,Y0,Y1,Z0,Z1]\n"
+    "usage: vox export FILE.vod -o OUT [--format nrrd|raw|binvox|vti|vdb] [--gzip]\n"
+    "                  [--level L] [--bbox X0,X1,Y0,Y1,Z0,Z1] [--no-normals]\n"
     "  writes the voxels of one level (0: full resolution) as a dense uint8 array:\n"
-    "  channel 1 as 0/1, 2 as its density, 3 as its occupancy byte\n"
-    "  -o OUT        the output; its extension (.nrrd, .raw, .binvox, .vti) names the\n"
-    "                format unless --format does\n"
+    "  channel 1 as 0/1, 2 as its density, 3 as its occupancy byte; channel 3's\n"
+    "  normals too, where the format holds them\n"
+    "  -o OUT        the output; its extension (.nrrd, .raw, .binvox, .vti, .vdb)\n"
+    "                names the format unless --format does\n"
     "  --format F    nrrd, raw (a OUT.json sidecar beside it), binvox (occupancy:\n"
-    "                channel 2 above 127), vti (VTK ImageData, appended raw)\n"
+    "                channel 2 above 127), vti (VTK ImageData, appended raw), vdb\n"
+    "                (OpenVDB, sparse: a BoolGrid for channel 1, else a FloatGrid\n"
+    "                \"density\" of the byte / 255; normals a Vec3SGrid \"normal\")\n"
     "  --gzip        NRRD only: gzip-encoded data\n"
     "  --level L     the mip level (default 0)\n"
     "  --bbox X0,X1,Y0,Y1,Z0,Z1  only voxels X0 <= x < X1 (and so on), in the\n"
-    "                level's voxel indices\n";
+    "                level's voxel indices\n"
+    "  --no-normals  channel 3: its occupancy byte alone (NRRD and raw then hold\n"
+    "                uint8, not float (occupancy, nx, ny, nz); vti and vdb no\n"
+    "                \"normal\" array or grid)\n";
 
 static int fmt_of(const char *s)
 {
@@ -156,7 +166,7 @@ static int make_box(const vod_file *f, const export_opts *o, export_box *b)
     }
     /* channel 3's normals go where the format can hold them (not binvox) */
     int nrm = in->channel == VOXEL_CH_SURFACE && in->voxel_bits == 32 && !o->no_normals &&
-              o->fmt == FMT_VDB;
+              o->fmt != FMT_BINVOX;
     *b = (export_box){.f = f, .in = in, .level = o->level, .normals = nrm};
     for (int a = 0; a < 3; a++) b->hi[a] = dims[a];
     if (o->bbox && parse_bbox(o->bbox, dims, b)) return CLI_EXIT_USAGE;
@@ -192,30 +202,56 @@ static int stream_zyx(const export_box *b, sink *s)
     return s->err;
 }
 
+/* Channel 3's floats (comps per voxel, export_gather_normals) in z slabs of
+ * at most a brick and 32 MiB, little-endian as the host (x86 and arm64
+ * Linux are; the headers say little). */
+static int stream_floats(const export_box *b, sink *s, int comps)
+{
+    size_t plane = (size_t)b->n[0] * b->n[1] * comps * sizeof(float);
+    uint32_t t = b->in->brick;
+    if (plane * t > (32u << 20)) t = plane >= (32u << 20) ? 1 : (uint32_t)((32u << 20) / plane);
+    float *slab = malloc(plane * t);
+    if (!slab) return -ENOMEM;
+    for (uint32_t z0 = b->lo[2]; z0 < b->hi[2] && !s->err;) {
+        uint32_t z1 = z0 + t < b->hi[2] ? z0 + t : b->hi[2];
+        uint32_t lo[3] = {b->lo[0], b->lo[1], z0}, hi[3] = {b->hi[0], b->hi[1], z1};
+        export_gather_normals(b, lo, hi, slab, comps);
+        put(s, slab, plane * (z1 - z0));
+        z0 = z1;
+    }
+    free(slab);
+    return s->err;
+}
+
 static void print_vec(FILE *fp, const char *sep, const double v[3])
 {
     fprintf(fp, "%.17g%s%.17g%s%.17g", v[0], sep, v[1], sep, v[2]);
 }
 
-/* NRRD0004: the space origin is the first sample's centre. */
+/* NRRD0004: the space origin is the first sample's centre.  With normals a
+ * 4-D float array: (occupancy byte, nx, ny, nz) per voxel, fastest. */
 static int write_nrrd(const export_box *b, const export_opts *o, sink *s)
 {
     double c[3];
     for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
+    int v = b->normals;
     fprintf(s->fp, "NRRD0004\n# vox export of %s, level %d, channel %u\n"
-            "type: uint8\ndimension: 3\nspace: 3D-right-handed\nsizes: %u %u %u\n"
-            "space directions: (%.17g,0,0) (0,%.17g,0) (0,0,%.17g)\n"
-            "centerings: cell cell cell\nkinds: domain domain domain\n"
+            "type: %s\ndimension: %d\nspace: 3D-right-handed\nsizes: %s%u %u %u\n"
+            "space directions: %s(%.17g,0,0) (0,%.17g,0) (0,0,%.17g)\n"
+            "centerings: %scell cell cell\nkinds: %sdomain domain domain\n%s"
             "encoding: %s\nspace origin: (", o->in, b->level, b->in->channel,
-            b->n[0], b->n[1], b->n[2], b->spacing[0], b->spacing[1], b->spacing[2],
-            o->gzip ? "gzip" : "raw");
+            v ? "float" : "uint8", v ? 4 : 3, v ? "4 " : "", b->n[0], b->n[1], b->n[2],
+            v ? "none " : "", b->spacing[0], b->spacing[1], b->spacing[2], v ? "??? " : "",
+            v ? "4-vector " : "", v ? "endian: little\n" : "", o->gzip ? "gzip" : "raw");
     print_vec(s->fp, ",", c);
-    fprintf(s->fp, ")\nvod_channel:=%u\nvod_level:=%d\n\n", b->in->channel, b->level);
-    return o->gzip ? export_gzip(b, s->fp) : stream_zyx(b, s);
+    fprintf(s->fp, ")\nvod_channel:=%u\nvod_level:=%d\n%s\n", b->in->channel, b->level,
+            v ? "vod_components:=occupancy nx ny nz\n" : "");
+    if (o->gzip) return export_gzip(b, s->fp, v ? 4 : 0);
+    return v ? stream_floats(b, s, 4) : stream_zyx(b, s);
 }
 
 /* VTK XML ImageData, the voxels as point data at their centres, appended raw
- * after a UInt64 byte count. */
+ * after a UInt64 byte count; channel 3's normals a second array, "normal". */
 static int write_vti(const export_box *b, sink *s)
 {
     double c[3];
@@ -228,15 +264,25 @@ static int write_vti(const export_box *b, sink *s)
     print_vec(s->fp, " ", c);
     fputs("\" Spacing=\"", s->fp);
     print_vec(s->fp, " ", b->spacing);
-    fprintf(s->fp, "\">\n    <Piece Extent=\"%s\">\n      <PointData Scalars=\"voxel\">\n"
-            "        <DataArray type=\"UInt8\" Name=\"voxel\" format=\"appended\" "
-            "offset=\"0\"/>\n      </PointData>\n    </Piece>\n  </ImageData>\n"
-            "  <AppendedData encoding=\"raw\">\n   _", ext);
     uint64_t bytes = (uint64_t)b->n[0] * b->n[1] * b->n[2];
+    fprintf(s->fp, "\">\n    <Piece Extent=\"%s\">\n      <PointData Scalars=\"voxel\"%s>\n"
+            "        <DataArray type=\"UInt8\" Name=\"voxel\" format=\"appended\" "
+            "offset=\"0\"/>\n", ext, b->normals ? " Normals=\"normal\"" : "");
+    if (b->normals) /* the second array starts past the first's count and bytes */
+        fprintf(s->fp, "        <DataArray type=\"Float32\" Name=\"normal\" "
+                "NumberOfComponents=\"3\" format=\"appended\" offset=\"%llu\"/>\n",
+                (unsigned long long)(8 + bytes));
+    fputs("      </PointData>\n    </Piece>\n  </ImageData>\n"
+          "  <AppendedData encoding=\"raw\">\n   _", s->fp);
     uint8_t le[8];
     for (int i = 0; i < 8; i++) le[i] = (uint8_t)(bytes >> (8 * i));
     put(s, le, sizeof le);
     int rc = stream_zyx(b, s);
+    if (!rc && b->normals) {
+        for (int i = 0; i < 8; i++) le[i] = (uint8_t)((bytes * 12) >> (8 * i));
+        put(s, le, sizeof le);
+        rc = stream_floats(b, s, 3);
+    }
     if (!rc) fputs("\n  </AppendedData>\n</VTKFile>\n", s->fp);
     return rc;
 }
@@ -246,9 +292,16 @@ static int write_json(const export_box *b, const export_opts *o)
 {
     FILE *fp = fopen(o->json, "w");
     if (!fp) return -errno;
-    fprintf(fp, "{\n  \"shape\": [%u, %u, %u],\n  \"dtype\": \"uint8\",\n"
-            "  \"order\": \"C: shape is (z, y, x), x varies fastest\",\n  \"origin\": [",
-            b->n[2], b->n[1], b->n[0]);
+    if (b->normals)
+        fprintf(fp, "{\n  \"shape\": [%u, %u, %u, 4],\n  \"dtype\": \"float32\",\n"
+                "  \"byte_order\": \"little\",\n"
+                "  \"components\": [\"occupancy\", \"nx\", \"ny\", \"nz\"],\n"
+                "  \"order\": \"C: shape is (z, y, x, component), x varies fastest but "
+                "for the components\",\n  \"origin\": [", b->n[2], b->n[1], b->n[0]);
+    else
+        fprintf(fp, "{\n  \"shape\": [%u, %u, %u],\n  \"dtype\": \"uint8\",\n"
+                "  \"order\": \"C: shape is (z, y, x), x varies fastest\",\n  \"origin\": [",
+                b->n[2], b->n[1], b->n[0]);
     print_vec(fp, ", ", b->origin);
     fputs("],\n  \"origin_is\": \"the low corner of voxel (0, 0, 0), x y z\",\n"
           "  \"spacing\": [", fp);
@@ -322,7 +375,7 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
     case FMT_VTI: return write_vti(b, &s);
     case FMT_BINVOX: return write_binvox(b, &s);
     default: {
-        int rc = stream_zyx(b, &s);
+        int rc = b->normals ? stream_floats(b, &s, 4) : stream_zyx(b, &s);
         return rc ? rc : write_json(b, o);
     }
     }

@@ -30,9 +30,10 @@ void export_gather(const export_box *b, const uint32_t lo[3], const uint32_t hi[
 void export_gather_normals(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
                            float *out, int comps);
 /* The whole box as one gzip member (RFC 1952), z slabs gathered and
- * deflated by as many threads as there are CPUs (up to 8), to fp.  0 or a
+ * deflated by as many threads as there are CPUs (up to 8), to fp: bytes
+ * (export_gather) for comps 0, else export_gather_normals' floats.  0 or a
  * negative errno. */
-int export_gzip(const export_box *b, FILE *fp);
+int export_gzip(const export_box *b, FILE *fp, int comps);
 
 /* The box as an OpenVDB file at path (export_vdb.c), brick by brick: a
  * BoolGrid "occupancy" for 1-bit voxels, else a FloatGrid "density" of the

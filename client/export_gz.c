@@ -26,6 +26,7 @@
 
 typedef struct {
     const export_box *b;
+    int comps; /* 0: bytes (export_gather); 4: floats (export_gather_normals) */
     uint32_t z0, z1;
     int last;
     uint8_t *in, *out;
@@ -55,9 +56,11 @@ static void *chunk_run(void *p)
     gz_chunk *c = p;
     const export_box *b = c->b;
     uint32_t lo[3] = {b->lo[0], b->lo[1], c->z0}, hi[3] = {b->hi[0], b->hi[1], c->z1};
-    c->in_len = (size_t)b->n[0] * b->n[1] * (c->z1 - c->z0);
+    size_t es = c->comps ? c->comps * sizeof(float) : 1;
+    c->in_len = (size_t)b->n[0] * b->n[1] * (c->z1 - c->z0) * es;
     if ((c->err = chunk_buffers(c, c->in_len))) return NULL;
-    export_gather(b, lo, hi, c->in);
+    if (c->comps) export_gather_normals(b, lo, hi, (float *)(void *)c->in, c->comps);
+    else export_gather(b, lo, hi, c->in);
     c->crc = crc32_z(crc32(0, NULL, 0), c->in, c->in_len);
     z_stream z = {0};
     if (deflateInit2(&z, 6, Z_DEFLATED, -15, 8, Z_RLE) != Z_OK) {
@@ -101,11 +104,11 @@ static int threads(void)
     return n < 1 ? 1 : n > GZ_MAX_THREADS ? GZ_MAX_THREADS : (int)n;
 }
 
-int export_gzip(const export_box *b, FILE *fp)
+int export_gzip(const export_box *b, FILE *fp, int comps)
 {
     /* RFC 1952: magic, deflate, no flags, no time, no extra flags, Unix */
     static const uint8_t head[10] = {0x1f, 0x8b, 8, 0, 0, 0, 0, 0, 0, 3};
-    size_t plane = (size_t)b->n[0] * b->n[1];
+    size_t plane = (size_t)b->n[0] * b->n[1] * (comps ? comps * sizeof(float) : 1);
     uint32_t B = b->in->brick, nt = threads();
     uint32_t t = plane * B <= GZ_CHUNK_BYTES ? B : plane >= GZ_CHUNK_BYTES ? 1 : GZ_CHUNK_BYTES / plane;
     gz_chunk c[GZ_MAX_THREADS];
@@ -119,7 +122,7 @@ int export_gzip(const export_box *b, FILE *fp)
             /* whole bricks when a brick's slab fits a chunk, so no brick is cut */
             uint32_t z1 = t == B ? (z0 / B + 1) * B : z0 + t;
             if (z1 > b->hi[2]) z1 = b->hi[2];
-            c[n].b = b, c[n].z0 = z0, c[n].z1 = z1, c[n].last = z1 == b->hi[2];
+            c[n].b = b, c[n].comps = comps, c[n].z0 = z0, c[n].z1 = z1, c[n].last = z1 == b->hi[2];
             z0 = z1;
         }
         run_round(c, n);

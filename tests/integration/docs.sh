@@ -211,12 +211,17 @@ check "make install DESTDIR PREFIX=/usr" mk install DESTDIR="$R" PREFIX=/usr
 installed="usr/bin/vox usr/bin/vox_mpi usr/sbin/voxd usr/share/man/man1/vox.1 usr/share/man/man8/voxd.8
 usr/lib/systemd/system/voxd.service etc/voxd/voxd.conf usr/share/doc/voxd/README.md
 usr/share/doc/voxd/docs/vod-format.md usr/lib/libvox.a usr/include/vox.h usr/include/vox_limits.h
-usr/lib/pkgconfig/libvox.pc"
+usr/lib/pkgconfig/libvox.pc usr/lib/voxd/vox-vdb.so"
 missing=""
 for f in $installed; do [ -f "$R/$f" ] || missing="$missing $f"; done
 if [ -z "$missing" ]; then pass "make install installs every file"
 else fail "make install installs every file" "missing:$missing"; fi
 check "installed programs are executable" test -x "$R/usr/bin/vox" -a -x "$R/usr/sbin/voxd"
+# the installed vox finds its OpenVDB module in ../lib/voxd, not the build's
+check "installed vox writes a VOD" "$R/usr/bin/vox" voxelize --embedded -w 0 -q \
+    -e 'x*x+y*y+z*z-0.5' -r 16 -o "$TMP/installed.vod"
+check "installed vox exports .vdb through the installed vox-vdb.so" \
+    "$R/usr/bin/vox" export "$TMP/installed.vod" -o "$TMP/installed.vdb"
 check "installed voxd.conf is the shipped one" cmp config/voxd.conf "$R/etc/voxd/voxd.conf"
 refuse "the unit starts the installed voxd" 0 \
     '^ExecStart=/usr/sbin/voxd --config /etc/voxd/voxd.conf$' cat "$R/usr/lib/systemd/system/voxd.service"

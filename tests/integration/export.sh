@@ -66,6 +66,7 @@ for f in "$TMP"/*.vod; do
         check "$n: export .$ext" "$VOX" export "$f" -o "$d/x.$ext"
     done
     check "$n: export gzip NRRD level 1" "$VOX" export "$f" -o "$d/l1.nrrd" --gzip --level 1
+    check "$n: export NRRD --no-normals" "$VOX" export "$f" -o "$d/nn.nrrd" --no-normals
     echo "2,9,1,12,3,7" >"$d/box.txt"
     check "$n: export --bbox" "$VOX" export "$f" --format raw -o "$d/box.raw" --bbox 2,9,1,12,3,7
     "$PY" "$CHECK" formats "$f" "$d"
@@ -91,6 +92,13 @@ refuse "export: --bbox malformed" 2 "want X0,X1" "$VOX" export "$f" -o "$TMP/x.r
 refuse "export: a damaged file" 1 "trailer channel 9 unknown" "$VOX" export "$TMP/sphere-ch3-zlib/damaged.vod" -o "$TMP/x.raw"
 if [ ! -e "$TMP/x.raw" ]; then pass "export: nothing written on refusal"
 else fail "export: nothing written on refusal"; fi
+mkdir -p "$TMP/lone"
+cp "$VOX" "$TMP/lone/vox"
+refuse "export: .vdb without the vox-vdb.so module names it" 1 "needs the OpenVDB module vox-vdb.so" \
+    "$TMP/lone/vox" export "$f" -o "$TMP/x.vdb"
+check "export: other formats without the module" "$TMP/lone/vox" export "$f" -o "$TMP/lone.nrrd"
+if [ ! -e "$TMP/x.vdb" ]; then pass "export: no .vdb left on refusal"
+else fail "export: no .vdb left on refusal"; fi
 head -c 300 "$f" >"$TMP/cut.vod"
 refuse "export: a truncated file" 1 "truncated" "$VOX" export "$TMP/cut.vod" -o "$TMP/x.nrrd"
 

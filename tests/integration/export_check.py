@@ -60,17 +60,24 @@ def read_nrrd(path):
             k, v = ln.split(": ", 1)
             fields[k] = v
     sizes = [int(s) for s in fields["sizes"].split()]
-    assert fields["type"] in ("uint8", "uchar", "unsigned char"), fields["type"]
-    assert int(fields["dimension"]) == 3
+    dim = int(fields["dimension"])
+    assert dim == len(sizes)
+    if fields["type"] in ("uint8", "uchar", "unsigned char"):
+        dtype = np.uint8
+    else:  # a 4-vector of floats per voxel: its axis is the first (fastest)
+        assert fields["type"] == "float" and dim == 4 and sizes[0] == 4, fields["type"]
+        assert fields["kinds"].split()[1:] == ["domain"] * 3
+        dtype = np.dtype("<f4" if fields["endian"] == "little" else ">f4")
     if fields["encoding"] == "gzip":
         body = gzip.decompress(body)
     else:
         assert fields["encoding"] == "raw", fields["encoding"]
     vec = lambda s: [float(t) for t in s.strip("()").split(",")]  # noqa: E731
-    dirs = [vec(t) for t in fields["space directions"].split()]
+    dirs = [vec(t) for t in fields["space directions"].split() if t != "none"]
+    assert len(dirs) == 3
     origin = vec(fields["space origin"])
     # the first axis is the fastest: (x, y, z) sizes are a (z, y, x) array
-    arr = np.frombuffer(body, np.uint8).reshape(sizes[2], sizes[1], sizes[0])
+    arr = np.frombuffer(body, dtype).reshape(list(reversed(sizes)))
     return arr, origin, [dirs[a][a] for a in range(3)], dirs, keys
 
 
@@ -84,15 +91,22 @@ def read_vti(path):
     ext = [int(t) for t in re.search(r'WholeExtent="([^"]*)"', xml).group(1).split()]
     origin = [float(t) for t in re.search(r'Origin="([^"]*)"', xml).group(1).split()]
     spacing = [float(t) for t in re.search(r'Spacing="([^"]*)"', xml).group(1).split()]
-    off = int(re.search(r'format="appended" offset="(\d+)"', xml).group(1))
-    assert re.search(r'DataArray type="UInt8"', xml)
     n = [ext[2 * a + 1] - ext[2 * a] + 1 for a in range(3)]
-    count = struct.unpack_from("<Q", data, start + off)[0]
-    assert count == n[0] * n[1] * n[2], (count, n)
-    body = data[start + off + 8:start + off + 8 + count]
-    tail = data[start + off + 8 + count:].strip()
+    arrays, end = {}, 0
+    for m in re.finditer(r"<DataArray ([^>]*)/>", xml):
+        attr = dict(re.findall(r'(\w+)="([^"]*)"', m.group(1)))
+        assert attr["format"] == "appended"
+        off, comps = int(attr["offset"]), int(attr.get("NumberOfComponents", "1"))
+        dtype = {"UInt8": np.uint8, "Float32": np.dtype("<f4")}[attr["type"]]
+        count = struct.unpack_from("<Q", data, start + off)[0]
+        assert count == n[0] * n[1] * n[2] * comps * np.dtype(dtype).itemsize, (count, n)
+        body = data[start + off + 8:start + off + 8 + count]
+        shape = (n[2], n[1], n[0], comps) if comps > 1 else (n[2], n[1], n[0])
+        arrays[attr["Name"]] = np.frombuffer(body, dtype).reshape(shape)
+        end = max(end, start + off + 8 + count)
+    tail = data[end:].strip()
     assert tail.startswith(b"</AppendedData>"), tail[:40]
-    return np.frombuffer(body, np.uint8).reshape(n[2], n[1], n[0]), origin, spacing
+    return arrays, origin, spacing
 
 
 def read_binvox(path):
@@ -124,8 +138,11 @@ def read_binvox(path):
 def read_raw(path, sidecar):
     with open(sidecar) as fp:
         meta = json.load(fp)
-    assert meta["dtype"] == "uint8"
-    arr = np.fromfile(path, np.uint8).reshape(meta["shape"])
+    assert meta["dtype"] in ("uint8", "float32")
+    if meta["dtype"] == "float32":
+        assert meta["byte_order"] == "little" and meta["shape"][3] == 4
+        assert meta["components"] == ["occupancy", "nx", "ny", "nz"]
+    arr = np.fromfile(path, np.dtype(meta["dtype"]).newbyteorder("<")).reshape(meta["shape"])
     return arr, meta
 
 
@@ -135,6 +152,31 @@ def close(a, b):
     return all(abs(x - y) <= 1e-6 * max(1.0, abs(y)) for x, y in zip(a, b))
 
 
+def normals_of(v):
+    """Channel 3's normals (z, y, x, 3) from the VOD format's encoding, 0
+    where no voxel is; None for the other channels."""
+    if v.channel != 3 or v.info["voxel_bits"] != 32:
+        return None
+    return np.where((v.occupancy != 0)[..., None], octahedral(v.data.astype(np.int64)), 0.0)
+
+
+def same(arr, v, name, normals=True):
+    """An export's array against voxd's volume v: the occupancy bytes
+    exactly, or with channel 3's normals (the default unless normals is
+    False), (occupancy, nx, ny, nz) floats, the normals to float precision
+    (they are rounded to float32)."""
+    nrm = normals_of(v) if normals else None
+    if nrm is None:
+        report(name, arr.dtype == np.uint8 and np.array_equal(arr, v.occupancy),
+               "dtype %s shape %s" % (arr.dtype, arr.shape))
+        return
+    ok = arr.shape == v.shape + (4,)
+    report(name + " (occupancy)", ok and np.array_equal(arr[..., 0], v.occupancy.astype(np.float32)),
+           "dtype %s shape %s" % (arr.dtype, arr.shape))
+    report(name + " (normals)", ok and np.allclose(arr[..., 1:], nrm, rtol=0, atol=1e-6),
+           "max error %g" % (np.abs(arr[..., 1:] - nrm).max() if ok else -1))
+
+
 def check_formats(vod, d):
     name = os.path.basename(vod)
     v0 = voxd.read(vod, 0)
@@ -142,21 +184,30 @@ def check_formats(vod, d):
     centre = [v0.origin[a] + 0.5 * v0.spacing[a] for a in range(3)]
 
     arr, origin, spacing, dirs, keys = read_nrrd(os.path.join(d, "x.nrrd"))
-    report(name + ": NRRD voxels", np.array_equal(arr, want))
+    same(arr, v0, name + ": NRRD voxels")
     report(name + ": NRRD space origin and directions",
            close(origin, centre) and close(spacing, v0.spacing) and
            all(dirs[a][b] == 0 for a in range(3) for b in range(3) if a != b),
            "%s %s" % (origin, spacing))
     report(name + ": NRRD channel key", keys.get("vod_channel") == str(v0.channel))
 
+    if normals_of(v0) is not None:
+        arr, _, _, _, _ = read_nrrd(os.path.join(d, "nn.nrrd"))
+        same(arr, v0, name + ": NRRD voxels (--no-normals)", normals=False)
+
     arr, meta = read_raw(os.path.join(d, "x.raw"), os.path.join(d, "x.json"))
-    report(name + ": raw voxels", np.array_equal(arr, want))
+    same(arr, v0, name + ": raw voxels")
     report(name + ": raw sidecar", close(meta["origin"], v0.origin) and
            close(meta["spacing"], v0.spacing) and meta["channel"] == v0.channel and
            meta["level"] == 0, str(meta))
 
-    arr, origin, spacing = read_vti(os.path.join(d, "x.vti"))
-    report(name + ": VTI voxels", np.array_equal(arr, want))
+    arrays, origin, spacing = read_vti(os.path.join(d, "x.vti"))
+    report(name + ": VTI voxels", np.array_equal(arrays["voxel"], want))
+    nrm = normals_of(v0)
+    report(name + ": VTI arrays", sorted(arrays) == (["normal", "voxel"] if nrm is not None
+                                                     else ["voxel"]), str(sorted(arrays)))
+    if nrm is not None and "normal" in arrays:
+        report(name + ": VTI normals", np.allclose(arrays["normal"], nrm, rtol=0, atol=1e-6))
     report(name + ": VTI origin and spacing", close(origin, centre) and
            close(spacing, v0.spacing))
 
@@ -174,7 +225,7 @@ def check_formats(vod, d):
     # level 1, gzip NRRD, against voxd's level 1
     v1 = voxd.read(vod, 1)
     arr, origin, spacing, _, keys = read_nrrd(os.path.join(d, "l1.nrrd"))
-    report(name + ": NRRD gzip level 1 voxels", np.array_equal(arr, v1.occupancy))
+    same(arr, v1, name + ": NRRD gzip level 1 voxels")
     report(name + ": NRRD level 1 spacing", close(spacing, [2 * s for s in v0.spacing])
            and keys.get("vod_level") == "1")
 
@@ -182,8 +233,12 @@ def check_formats(vod, d):
     with open(os.path.join(d, "box.txt")) as fp:
         b = [int(t) for t in fp.read().split(",")]
     arr, meta = read_raw(os.path.join(d, "box.raw"), os.path.join(d, "box.json"))
-    report(name + ": raw --bbox voxels",
-           np.array_equal(arr, want[b[4]:b[5], b[2]:b[3], b[0]:b[1]]))
+    box = lambda a: a[b[4]:b[5], b[2]:b[3], b[0]:b[1]]  # noqa: E731
+    if normals_of(v0) is None:
+        report(name + ": raw --bbox voxels", np.array_equal(arr, box(want)))
+    else:
+        report(name + ": raw --bbox voxels", np.array_equal(arr[..., 0], box(want)) and
+               np.allclose(arr[..., 1:], box(normals_of(v0)), rtol=0, atol=1e-6))
     report(name + ": raw --bbox origin", close(
         meta["origin"], [v0.origin[a] + b[2 * a] * v0.spacing[a] for a in range(3)]))
 
