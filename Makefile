@@ -6,8 +6,9 @@
 #   make demo       installs missing Debian packages, builds, voxelizes Scene 1,
 #                   writes scene1.vod and scene1.png
 #   make bench      benchmarks (release build): voxbench (embedded engine),
-#                   voxdbench (through a voxd it starts) and the whole vox
-#                   voxelize command (scripts/bench-whole.sh), tables in bench/results/
+#                   voxdbench (through a voxd it starts), the whole vox
+#                   voxelize command (scripts/bench-whole.sh) and vox export
+#                   (scripts/bench-export.sh), tables in bench/results/
 #   make bench-mpi  vox_mpi on 1, 2 and 4 ranks over TCP against vox voxelize
 #                   (scripts/bench-mpi.sh; make bench runs it too)
 #   make bench-mesh the mesh loaders on the Stanford dragon and bunny (npm models)

@@ -119,7 +119,7 @@ static const vdb_out_api *load_api(char *err, size_t errlen)
     const char *why = "";
     for (int i = 0; i < 2; i++) {
         snprintf(path, sizeof path, where[i], exe);
-        void *h = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+        void *h = dlopen(path, RTLD_LAZY | RTLD_LOCAL);
         if (!h) {
             if (!i) why = dlerror(); /* the build tree's reason, when both fail */
             continue;
