@@ -1,15 +1,20 @@
-/* vox render: a VOD file drawn as shaded points into a PNG. */
+/* vox render: a VOD file drawn as shaded points, or a triangle mesh (OBJ,
+ * STL, PLY, OFF: told by the extension) as shaded triangles, into a PNG. */
 #include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <strings.h>
 #include <string.h>
 
 #include "cli.h"
+#include "mesh.h"
 #include "render.h"
 #include "vod.h"
 
 static const char usage[] =
-    "usage: vox render FILE.vod -o OUT.png [options]\n"
+    "usage: vox render FILE.vod|MESH -o OUT.png [options]\n"
+    "  draws a VOD file's voxels as shaded splats, or a triangle mesh (a file\n"
+    "  named .obj, .stl, .ply or .off) as shaded triangles framed alike\n"
     "  -o, --output OUT.png   the picture to write\n"
     "  -a, --azimuth DEG      camera angle about +z, from +x (default 30)\n"
     "  -e, --elevation DEG    camera angle above the xy-plane, -90..90 (default 20)\n"
@@ -19,7 +24,9 @@ static const char usage[] =
     "  -p, --perspective      perspective projection (default orthographic)\n"
     "      --fov DEG          perspective field of view (default 35)\n"
     "      --ambient A        ambient light 0..1 (default 0.2)\n"
-    "      --whole            frame the whole volume, not just the voxels\n";
+    "      --whole            frame the whole volume, not just the voxels\n"
+    "      --smooth           a mesh: normals interpolated from the vertices (default\n"
+    "                         flat: each triangle its own normal)\n";
 
 static int parse_double(const char *s, double lo, double hi, double *out)
 {
@@ -31,12 +38,12 @@ static int parse_double(const char *s, double lo, double hi, double *out)
 }
 
 static int parse_render_args(int argc, char **argv, render_opts *o,
-                             const char **out, int *level)
+                             const char **out, int *level, int *smooth)
 {
     static const struct option longs[] = {
         {"output", 1, 0, 'o'}, {"azimuth", 1, 0, 'a'}, {"elevation", 1, 0, 'e'},
         {"size", 1, 0, 's'}, {"level", 1, 0, 'l'}, {"perspective", 0, 0, 'p'},
-        {"fov", 1, 0, 'F'}, {"ambient", 1, 0, 'A'}, {"whole", 0, 0, 'W'},
+        {"fov", 1, 0, 'F'}, {"ambient", 1, 0, 'A'}, {"whole", 0, 0, 'W'}, {"smooth", 0, 0, 'S'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int c;
     uint32_t u;
@@ -59,6 +66,7 @@ static int parse_render_args(int argc, char **argv, render_opts *o,
         case 'F': bad = parse_double(optarg, 1, 169, &o->fov); break;
         case 'A': bad = parse_double(optarg, 0, 1, &o->ambient); break;
         case 'W': o->fit_volume = 1; break;
+        case 'S': *smooth = 1; break;
         case 'h': fputs(usage, stdout); exit(0);
         default: fputs(usage, stderr); return -1;
         }
@@ -70,18 +78,35 @@ static int parse_render_args(int argc, char **argv, render_opts *o,
     return 0;
 }
 
-int cli_render(int argc, char **argv)
+/* A mesh by its name's extension (the formats vox voxelize --mesh reads). */
+static int is_mesh_path(const char *path)
 {
-    render_opts o;
-    render_opts_default(&o);
-    const char *out = NULL;
-    int level = 0;
-    if (parse_render_args(argc, argv, &o, &out, &level)) return 2;
-    if (optind + 1 != argc || !out) {
-        cli_error("want one FILE.vod and -o OUT.png");
-        return 2;
+    const char *dot = strrchr(path, '.');
+    static const char *const ext[] = {".obj", ".stl", ".ply", ".off"};
+    for (int i = 0; dot && i < 4; i++)
+        if (!strcasecmp(dot, ext[i])) return 1;
+    return 0;
+}
+
+static int render_mesh_file(const char *path, const render_opts *o, int smooth,
+                            render_image *img)
+{
+    mesh m;
+    mesh_error merr;
+    char msg[300];
+    if (mesh_load(path, MESH_FORMAT_AUTO, NULL, &m, &merr)) {
+        cli_error("%s: %s", path, mesh_error_str(&merr, msg, sizeof msg));
+        return 1;
     }
-    const char *path = argv[optind];
+    int rc = render_mesh(&m, o, smooth, img);
+    mesh_free(&m);
+    if (rc) cli_error("cannot render %s: %s", path, strerror(-rc));
+    return rc ? 1 : 0;
+}
+
+static int render_vod_file(const char *path, const render_opts *o, int level,
+                           render_image *img)
+{
     vod_file *f;
     char err[512] = "";
     if (vod_open(path, &f, err, sizeof err)) {
@@ -94,15 +119,38 @@ int cli_render(int argc, char **argv)
         vod_close(f);
         return 2;
     }
-    render_image img;
-    int rc = render_vod(f, level, &o, &img, err, sizeof err);
+    int rc = render_vod(f, level, o, img, err, sizeof err);
     vod_close(f);
-    if (rc) {
-        cli_error("cannot render %s: %s", path, err);
-        return 1;
+    if (rc) cli_error("cannot render %s: %s", path, err);
+    return rc ? 1 : 0;
+}
+
+int cli_render(int argc, char **argv)
+{
+    render_opts o;
+    render_opts_default(&o);
+    const char *out = NULL;
+    int level = 0, smooth = 0;
+    if (parse_render_args(argc, argv, &o, &out, &level, &smooth)) return 2;
+    if (optind + 1 != argc || !out) {
+        cli_error("want one FILE.vod (or a mesh) and -o OUT.png");
+        return 2;
     }
+    const char *path = argv[optind];
+    int is_mesh = is_mesh_path(path);
+    if (is_mesh ? level != 0 || o.fit_volume : smooth) {
+        cli_error(is_mesh ? "--level and --whole are for VOD files, not meshes"
+                       : "--smooth is for meshes (.obj, .stl, .ply, .off), not VOD files");
+        return 2;
+    }
+    render_image img;
+    int rc = is_mesh ? render_mesh_file(path, &o, smooth, &img)
+                  : render_vod_file(path, &o, level, &img);
+    if (rc) return rc;
     rc = render_write_png(&img, out);
     if (rc) cli_error("cannot write %s: %s", out, strerror(-rc));
+    else if (is_mesh) printf("%s: %llu triangles drawn, %dx%d\n", out,
+                          (unsigned long long)img.splats, img.width, img.height);
     else printf("%s: %llu voxels drawn at level %d, %dx%d\n", out,
                 (unsigned long long)img.splats, level, img.width, img.height);
     render_image_free(&img);

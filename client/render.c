@@ -329,6 +329,72 @@ void render_splat(render_ctx *ctx, const double p[3], const double n[3])
          shade(ctx, p, n));
 }
 
+/* The triangle's edge function at (x, y): twice the signed area of (a, b,
+ * (x, y)), positive on the left of a->b in image coordinates. */
+static double edge(const double a[3], const double b[3], double x, double y)
+{
+    return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0]);
+}
+
+/* The pixels of one row whose centres lie in the triangle s (image x, y,
+ * depth per vertex), z-buffered as draw() does. */
+static void tri_row(render_ctx *ctx, const double s[3][3], const double p[3][3],
+                    const double n[3][3], double area, int j, int i0, int i1)
+{
+    render_image *img = &ctx->img;
+    double y = j + 0.5;
+    for (int i = i0; i < i1; i++) {
+        double x = i + 0.5, w[3];
+        w[0] = edge(s[1], s[2], x, y) / area;
+        w[1] = edge(s[2], s[0], x, y) / area;
+        w[2] = 1.0 - w[0] - w[1];
+        if (w[0] < 0.0 || w[1] < 0.0 || w[2] < 0.0) continue;
+        /* depth: linear in the image for orthographic, 1/depth for perspective */
+        double d = ctx->img.cam.perspective
+                       ? 1.0 / (w[0] / s[0][2] + w[1] / s[1][2] + w[2] / s[2][2])
+                       : w[0] * s[0][2] + w[1] * s[1][2] + w[2] * s[2][2];
+        size_t at = (size_t)j * (size_t)img->width + (size_t)i;
+        if (!((float)d <= img->depth[at])) continue;
+        double q[3], m[3];
+        for (int k = 0; k < 3; k++) {
+            q[k] = w[0] * p[0][k] + w[1] * p[1][k] + w[2] * p[2][k];
+            m[k] = w[0] * n[0][k] + w[1] * n[1][k] + w[2] * n[2][k];
+        }
+        uint32_t rgb = shade(ctx, q, m);
+        uint8_t *c = &img->rgb[3 * at];
+        uint32_t old = (uint32_t)c[0] << 16 | (uint32_t)c[1] << 8 | c[2];
+        /* Ties go to the brighter colour, as for splats: a shared edge's
+         * pixels do not depend on the order of the triangles. */
+        if ((float)d < img->depth[at] || rgb > old) {
+            img->depth[at] = (float)d;
+            c[0] = (uint8_t)(rgb >> 16);
+            c[1] = (uint8_t)(rgb >> 8);
+            c[2] = (uint8_t)rgb;
+        }
+    }
+}
+
+void render_triangle(render_ctx *ctx, const double p[3][3], const double n[3][3])
+{
+    double s[3][3], lo[2] = {INFINITY, INFINITY}, hi[2] = {-INFINITY, -INFINITY};
+    for (int v = 0; v < 3; v++) {
+        if (render_project(&ctx->img.cam, p[v], &s[v][0], &s[v][1], &s[v][2]) < 0) return;
+        for (int k = 0; k < 3; k++)
+            if (!isfinite(s[v][k])) return;
+        for (int k = 0; k < 2; k++) {
+            lo[k] = fmin(lo[k], s[v][k]);
+            hi[k] = fmax(hi[k], s[v][k]);
+        }
+    }
+    double area = edge(s[0], s[1], s[2][0], s[2][1]);
+    if (area == 0.0) return; /* edge-on: no pixel centre is inside */
+    /* pixel centres i + 0.5 in [lo, hi], clipped to the image */
+    int i0 = (int)fmax(0.0, ceil(lo[0] - 0.5)), i1 = (int)fmin(ctx->img.width, floor(hi[0] - 0.5) + 1);
+    int j0 = (int)fmax(0.0, ceil(lo[1] - 0.5)), j1 = (int)fmin(ctx->img.height, floor(hi[1] - 0.5) + 1);
+    ctx->img.splats++;
+    for (int j = j0; j < j1; j++) tri_row(ctx, s, p, n, area, j, i0, i1);
+}
+
 void render_finish(render_ctx *ctx, render_image *out)
 {
     *out = ctx->img;

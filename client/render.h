@@ -27,6 +27,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "mesh.h"
 #include "octree.h"
 #include "vod.h"
 
@@ -75,7 +76,7 @@ typedef struct {
     int width, height;
     uint8_t *rgb;       /* width * height * 3, rows top to bottom */
     float *depth;       /* width * height; INFINITY where no voxel */
-    uint64_t splats;    /* voxels drawn */
+    uint64_t splats;    /* voxels drawn (render_mesh: triangles) */
     render_camera cam;
 } render_image;
 
@@ -90,6 +91,12 @@ int render_begin(render_ctx **ctx, const render_opts *o, const double lo[3],
 /* Draw one voxel centred at world point p with normal n (any length; NULL
  * or zero: lit as if facing the light). */
 void render_splat(render_ctx *ctx, const double p[3], const double n[3]);
+/* Draw one triangle with corners p[0..2] (world) and a normal at each
+ * corner, n[0..2], interpolated across it (three equal normals: flat
+ * shading): every pixel whose centre it covers, z-buffered, depth and
+ * normal interpolated from the corners (perspective depth through 1/depth).
+ * A triangle with a corner behind the perspective camera is skipped. */
+void render_triangle(render_ctx *ctx, const double p[3][3], const double n[3][3]);
 /* Hand the image over to out (freed with render_image_free) and free ctx. */
 void render_finish(render_ctx *ctx, render_image *out);
 /* Free ctx without an image (error paths). */
@@ -119,6 +126,12 @@ int render_octree(const octree *t, const double origin[3],
  * -ENOMEM) come with a message in err. */
 int render_vod(const vod_file *f, int level, const render_opts *o,
                render_image *out, char *err, size_t errlen);
+
+/* A triangle mesh (mesh.h), framing its bounding box: flat shading (each
+ * triangle its face normal) or smooth (smooth 1: at each vertex the sum of
+ * its triangles' area-weighted normals, interpolated).  splats counts the
+ * triangles drawn.  0, -EINVAL (bad options) or -ENOMEM. */
+int render_mesh(const mesh *m, const render_opts *o, int smooth, render_image *out);
 
 /* ---- output ---- */
 

@@ -90,3 +90,22 @@ check "render" "$VOX" render "$TMP/s1.vod" -o "$TMP/s.png" --size 128
 check "render level 1, perspective" "$VOX" render "$TMP/s1.vod" -o "$TMP/s1.png" --size 64 --level 1 -p
 refuse "render bad level" 2 "levels 0" "$VOX" render "$TMP/s1.vod" -o "$TMP/x.png" --level 9
 check "render occupancy" "$VOX" render "$TMP/occ.vod" -o "$TMP/occ.png" --size 64
+# meshes (by their extension): flat and smooth, and the options of the other kind refused
+cat >"$TMP/tet.obj" <<'OBJ'
+v 0 0 0
+v 1 0 0
+v 0 1 0
+v 0 0 1
+f 1 3 2
+f 1 2 4
+f 1 4 3
+f 2 3 4
+OBJ
+refuse "render a mesh" 0 "tet.png: 4 triangles drawn, 64x64" "$VOX" render "$TMP/tet.obj" -o "$TMP/tet.png" --size 64
+refuse "render a mesh, smooth" 0 "4 triangles drawn" "$VOX" render "$TMP/tet.obj" -o "$TMP/tets.png" --size 64 --smooth
+if cmp -s "$TMP/tet.png" "$TMP/tets.png"; then fail "smooth shading differs from flat"
+else pass "smooth shading differs from flat"; fi
+refuse "render: --level is for VOD files" 2 "not meshes" "$VOX" render "$TMP/tet.obj" -o "$TMP/x.png" --level 1
+refuse "render: --smooth is for meshes" 2 "not VOD files" "$VOX" render "$TMP/s1.vod" -o "$TMP/x.png" --smooth
+printf 'v 0 0 0\nf 1 2 3\n' >"$TMP/bad.obj"
+refuse "render: a bad mesh is named with its line" 1 "bad.obj: line 2" "$VOX" render "$TMP/bad.obj" -o "$TMP/x.png"
