@@ -67,6 +67,7 @@ for f in "$TMP"/*.vod; do
     done
     check "$n: export gzip NRRD level 1" "$VOX" export "$f" -o "$d/l1.nrrd" --gzip --level 1
     check "$n: export NRRD --no-normals" "$VOX" export "$f" -o "$d/nn.nrrd" --no-normals
+    check "$n: export gzip NRRD" "$VOX" export "$f" -o "$d/gz.nrrd" --gzip
     echo "2,9,1,12,3,7" >"$d/box.txt"
     check "$n: export --bbox" "$VOX" export "$f" --format raw -o "$d/box.raw" --bbox 2,9,1,12,3,7
     "$PY" "$CHECK" formats "$f" "$d"

@@ -191,6 +191,9 @@ def check_formats(vod, d):
            "%s %s" % (origin, spacing))
     report(name + ": NRRD channel key", keys.get("vod_channel") == str(v0.channel))
 
+    arr, _, _, _, keys = read_nrrd(os.path.join(d, "gz.nrrd"))
+    same(arr, v0, name + ": NRRD gzip voxels")
+
     if normals_of(v0) is not None:
         arr, _, _, _, _ = read_nrrd(os.path.join(d, "nn.nrrd"))
         same(arr, v0, name + ": NRRD voxels (--no-normals)", normals=False)
