@@ -20,7 +20,13 @@ typedef struct {
     vdb_out *w;
     uint8_t *v; /* one brick's voxel bytes, x fastest */
     float *nrm; /* with normals: 3 floats a voxel */
+    uint8_t leaf_v[512];     /* one 8^3 piece of the brick, copied out */
+    float leaf_n[3 * 512];
 } vdb_job;
+
+/* OpenVDB's leaf nodes are 8^3 voxels at multiples of 8: a piece of a
+ * brick that covers one whole and holds one value becomes a tile. */
+#define LEAF 8u
 
 /* The brick's one value when every voxel holds it (the byte a voxel
  * exports as), else -1.  Bricks with normals are never uniform here. */
@@ -58,7 +64,30 @@ static void expand(const vdb_job *j, const uint8_t *raw, const uint32_t base[3],
             }
 }
 
-static int one_brick(const vdb_job *j, const uint32_t bk[3])
+/* The piece [s, e) (inside one leaf) of the expanded region whose box is
+ * [rs, rs + rn): a tile when it is a whole leaf of one value (and there are
+ * no normals), else its voxels. */
+static int one_leaf(vdb_job *j, const uint32_t rs[3], const uint32_t rn[3],
+                    const uint32_t s[3], const uint32_t e[3])
+{
+    uint32_t n[3] = {e[0] - s[0], e[1] - s[1], e[2] - s[2]};
+    size_t k = 0;
+    int same = 1;
+    for (uint32_t z = s[2]; z < e[2]; z++)
+        for (uint32_t y = s[1]; y < e[1]; y++)
+            for (uint32_t x = s[0]; x < e[0]; x++, k++) {
+                size_t i = ((size_t)(z - rs[2]) * rn[1] + (y - rs[1])) * rn[0] + (x - rs[0]);
+                j->leaf_v[k] = j->v[i];
+                same &= j->v[i] == j->leaf_v[0];
+                if (j->nrm) memcpy(j->leaf_n + 3 * k, j->nrm + 3 * i, 3 * sizeof(float));
+            }
+    int32_t lo[3] = {(int32_t)s[0], (int32_t)s[1], (int32_t)s[2]};
+    if (same && !j->leaf_v[0]) return 0;
+    if (same && !j->nrm && k == LEAF * LEAF * LEAF) return j->api->fill(j->w, lo, n, j->leaf_v[0]);
+    return j->api->block(j->w, lo, n, j->leaf_v, j->nrm ? j->leaf_n : NULL);
+}
+
+static int one_brick(vdb_job *j, const uint32_t bk[3])
 {
     const export_box *b = j->b;
     const uint8_t *raw = vod_brick(b->f, b->level, bk);
@@ -76,10 +105,21 @@ static int one_brick(const vdb_job *j, const uint32_t bk[3])
     if (u == 0) return 0;
     if (u > 0) return j->api->fill(j->w, lo, n, (uint8_t)u);
     expand(j, raw, base, s, e);
-    return j->api->block(j->w, lo, n, j->v, j->nrm);
+    uint32_t ls[3], le[3];
+    for (ls[2] = s[2]; ls[2] < e[2]; ls[2] = le[2])
+        for (ls[1] = s[1]; ls[1] < e[1]; ls[1] = le[1])
+            for (ls[0] = s[0]; ls[0] < e[0]; ls[0] = le[0]) {
+                for (int a = 0; a < 3; a++) {
+                    le[a] = (ls[a] / LEAF + 1) * LEAF;
+                    if (le[a] > e[a]) le[a] = e[a];
+                }
+                int rc = one_leaf(j, s, n, ls, le);
+                if (rc) return rc;
+            }
+    return 0;
 }
 
-static int walk(const vdb_job *j)
+static int walk(vdb_job *j)
 {
     const export_box *b = j->b;
     uint32_t B = b->in->brick, bk[3];
@@ -145,7 +185,8 @@ int export_vdb(const export_box *b, const char *src, const char *path, char *err
         /* index (0,0,0) is level voxel (0,0,0), centred half a voxel in */
         g.centre[a] = (double)b->in->origin[a] + 0.5 * b->spacing[a];
     }
-    vdb_job j = {.b = b, .api = load_api(err, errlen)};
+    static vdb_job j; /* its leaf buffers are 8 KiB: not on the stack */
+    j = (vdb_job){.b = b, .api = load_api(err, errlen)};
     if (!j.api) return -ENOENT;
     size_t B = b->in->brick, n = B * B * B;
     j.v = malloc(n);
