@@ -4,7 +4,8 @@
 # (bad expression), a cancelled job, a client that leaves mid-job, inputs
 # in chunks (whole, out of order, left mid-upload), takes
 # HUP (the workers are replaced) and USR1, and stops on QUIT; then vox
-# voxelize --embedded, vox info and vox render.  Every process valgrind
+# voxelize --embedded, vox info, vox render (a VOD file and a mesh) and vox
+# export (gzip NRRD: its threads).  Every process valgrind
 # watches must end with no error and no leak (definite, indirect or
 # possible; still-reachable memory is allowed): the master and vox by
 # valgrind's exit status, and each forked worker (valgrind follows forks) by
@@ -206,4 +207,7 @@ check "embedded: the daemon's bytes" cmp "$TMP/a.vod" "$TMP/e.vod"
 vgv info 0 info "$TMP/e.vod"
 vgv render 0 render "$TMP/e.vod" -o "$TMP/e.png" -s 64
 [ -s "$TMP/e.png" ] && pass "render wrote the picture" || fail "render wrote the picture"
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n' >"$TMP/tet.obj"
+vgv render-mesh 0 render "$TMP/tet.obj" -o "$TMP/tet.png" -s 64 --smooth
+vgv export-gzip 0 export "$TMP/e.vod" -o "$TMP/e.nrrd" --gzip
 echo "NOTE: valgrind: daemon lifecycle ${daemon_s} s, vox alone $(($(date +%s) - t1)) s"
