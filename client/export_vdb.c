@@ -156,12 +156,12 @@ static const vdb_out_api *load_api(char *err, size_t errlen)
     char *slash = strrchr(exe, '/');
     if (slash) *slash = '\0';
     static const char *const where[] = {"%s/" VDB_OUT_MODULE, "%s/../lib/voxd/" VDB_OUT_MODULE};
-    const char *why = "";
+    char why[512] = ""; /* dlerror's string lasts until the next dl call: copied */
     for (int i = 0; i < 2; i++) {
         snprintf(path, sizeof path, where[i], exe);
         void *h = dlopen(path, RTLD_LAZY | RTLD_LOCAL);
         if (!h) {
-            if (!i) why = dlerror(); /* the build tree's reason, when both fail */
+            if (!i) snprintf(why, sizeof why, "%s", dlerror()); /* the build tree's reason */
             continue;
         }
         const vdb_out_api *api = dlsym(h, VDB_OUT_SYMBOL);
