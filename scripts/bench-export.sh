@@ -3,8 +3,9 @@
 # (issue 12's export targets): a RES^3 solid, a sphere of radius 0.8 in
 # [-1,1]^3 written by `vox csg` as occupancy (1 bit) and as density (8 bit),
 # exported to NRRD with gzip and to OpenVDB; the median wall time of
-# REPEATS runs of each command under bench/voxwhole, its peak memory
-# (ru_maxrss), the output's size, and the issue's target (<= 2 s each at
+# REPEATS runs of each command under bench/voxwhole, the CPU time it took
+# (user + system, all threads: bash's times for the children), its peak
+# memory (ru_maxrss), the output's size, and the issue's target (<= 2 s each at
 # 1024^3) with a pass/FAIL mark.  Raw NRRD is there for scale (it writes a
 # dense RES^3 array of bytes), without a target.  Markdown on stdout.
 #
@@ -43,8 +44,8 @@ echo
 echo "A sphere of radius 0.8 in [-1,1]^3 (vox csg), $(sed -n 's/^  voxels *\([0-9]*\) non-empty.*/\1/p' \
     < <("$vox" info "$tmp/occupancy.vod")) voxels set; the whole command, median of $repeats run(s)."
 echo
-echo "| input | output | wall s | peak RSS MiB | output MB | load before | target |"
-echo "|---|---|---|---|---|---|---|"
+echo "| input | output | wall s | CPU s | peak RSS MiB | output MB | load before | target |"
+echo "|---|---|---|---|---|---|---|---|"
 for ch in occupancy density; do
     for fmt in "nrrd --gzip" vdb nrrd; do
         ext=${fmt%% *} opt=${fmt#"$ext"}
@@ -52,26 +53,32 @@ for ch in occupancy density; do
         : >"$tmp/kv"
         ok=1
         for _ in $(seq "$repeats"); do
+            # a subshell: its times line 2 is the CPU of its children alone
             # shellcheck disable=SC2086 # opt is empty or one word
-            if ! "$whole" -o "$tmp/m" -- "$vox" export "$tmp/$ch.vod" -o "$tmp/out.$ext" $opt \
-                >"$tmp/out" 2>&1; then ok=0; break; fi
-            cat "$tmp/m" >>"$tmp/kv"
+            if ! ( "$whole" -o "$tmp/m" -- "$vox" export "$tmp/$ch.vod" -o "$tmp/out.$ext" $opt \
+                >"$tmp/out" 2>&1 && times >"$tmp/times" ); then ok=0; break; fi
+            cpu=$(sed -n 2p "$tmp/times" | awk '{
+                n = split($0, t, " "); s = 0
+                for (i = 1; i <= n; i++) { split(t[i], ms, "m"); s += ms[1] * 60 + ms[2] }
+                printf "%.3f", s }')
+            echo "$(cat "$tmp/m") cpu_s=$cpu" >>"$tmp/kv"
         done
         name=$ch
         if [ "$ok" = 0 ]; then
-            echo "| $name | .$ext$opt | failed: $(tail -1 "$tmp/out") | | | $load | |"
+            echo "| $name | .$ext$opt | failed: $(tail -1 "$tmp/out") | | | | $load | |"
             failed=1
             continue
         fi
         wall=$(medians <"$tmp/kv" | awk '$1 == "wall_s" {print $2}')
         rss=$(medians <"$tmp/kv" | awk '$1 == "maxrss_kib" {printf "%.0f", $2 / 1024}')
+        cpu=$(medians <"$tmp/kv" | awk '$1 == "cpu_s" {print $2}')
         size=$(stat -c %s "$tmp/out.$ext" | awk '{printf "%.1f", $1 / 1e6}')
         target=""
         if [ "$res" = 1024 ] && [ "$fmt" != nrrd ]; then
             target=$(awk -v w="$wall" 'BEGIN { print (w <= 2.0 ? "<= 2 s: pass" : "<= 2 s: FAIL") }')
         fi
-        printf '| %s | .%s%s | %.3f | %s | %s | %s | %s |\n' "$name" "$ext" "$opt" "$wall" "$rss" \
-            "$size" "$load" "$target"
+        printf '| %s | .%s%s | %.3f | %.3f | %s | %s | %s | %s |\n' "$name" "$ext" "$opt" "$wall" \
+            "$cpu" "$rss" "$size" "$load" "$target"
         rm -f "$tmp/out.$ext"
     done
 done

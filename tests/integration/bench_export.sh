@@ -14,7 +14,7 @@ check "bench-export: the header names the solid" grep -q '^### vox export of a 9
 for ch in occupancy density; do
     for out in '.nrrd --gzip' '.vdb' '.nrrd'; do
         row=$(grep -F "| $ch | $out |" "$B")
-        if [[ $row =~ ^\|\ $ch\ \|\ [^|]+\|\ [0-9]+\.[0-9]{3}\ \|\ [0-9]+\ \|\ [0-9]+\.[0-9]\ \|\ [0-9.]+\ \|\ \ \|$ ]]; then
+        if [[ $row =~ ^\|\ $ch\ \|\ [^|]+\|\ [0-9]+\.[0-9]{3}\ \|\ [0-9]+\.[0-9]{3}\ \|\ [0-9]+\ \|\ [0-9]+\.[0-9]\ \|\ [0-9.]+\ \|\ \ \|$ ]]; then
             pass "bench-export: $ch to $out has its figures"
         else fail "bench-export: $ch to $out has its figures" "row: '$row'"; fi
     done
