@@ -1,7 +1,9 @@
 /* vox export to OpenVDB: the level's bricks handed to vdb_out one at a time
- * (export.h), through the vox-vdb.so module (vdb_out.h) opened here.  A brick of one value becomes tiles (vdb_out_fill), so a solid's
- * inside costs nothing per voxel; the others are expanded into one brick-sized
- * buffer and set voxel by voxel.  Memory: the sparse grid and one brick. */
+ * (export.h), through the vox-vdb.so module (vdb_out.h) opened here.  A brick
+ * of one value becomes tiles (vdb_out_fill), so a solid's inside costs
+ * nothing per voxel; the others go in pieces of OpenVDB's 8^3 leaves, each
+ * gathered by export_gather: a whole leaf of one value is a tile too, the
+ * rest are set voxel by voxel.  Memory: the sparse grid and one leaf. */
 #include <dlfcn.h>
 #include <errno.h>
 #include <limits.h>
@@ -12,21 +14,17 @@
 
 #include "export.h"
 #include "vdb_out.h"
-#include "voxel.h"
+
+/* OpenVDB's leaf nodes: 8^3 voxels at multiples of 8. */
+#define LEAF 8u
 
 typedef struct {
     const export_box *b;
     const vdb_out_api *api;
     vdb_out *w;
-    uint8_t *v; /* one brick's voxel bytes, x fastest */
-    float *nrm; /* with normals: 3 floats a voxel */
-    uint8_t leaf_v[512];     /* one 8^3 piece of the brick, copied out */
-    float leaf_n[3 * 512];
+    uint8_t v[LEAF * LEAF * LEAF];     /* one leaf's piece: bytes, x fastest */
+    float nrm[3 * LEAF * LEAF * LEAF]; /* and its normals */
 } vdb_job;
-
-/* OpenVDB's leaf nodes are 8^3 voxels at multiples of 8: a piece of a
- * brick that covers one whole and holds one value becomes a tile. */
-#define LEAF 8u
 
 /* The brick's one value when every voxel holds it (the byte a voxel
  * exports as), else -1.  Bricks with normals are never uniform here. */
@@ -39,52 +37,20 @@ static int uniform_byte(const export_box *b, const uint8_t *raw)
     return raw[0]; /* 8 bits: the byte; 32: the occupancy, bits 0-7 (little-endian) */
 }
 
-/* The part [s, e) of brick raw (at level coordinates base) into j->v and
- * j->nrm, x fastest. */
-static void expand(const vdb_job *j, const uint8_t *raw, const uint32_t base[3],
-                   const uint32_t s[3], const uint32_t e[3])
-{
-    const vod_info *in = j->b->in;
-    uint32_t B = in->brick;
-    size_t o = 0;
-    for (uint32_t z = s[2]; z < e[2]; z++)
-        for (uint32_t y = s[1]; y < e[1]; y++)
-            for (uint32_t x = s[0]; x < e[0]; x++, o++) {
-                size_t i = ((size_t)(z - base[2]) * B + (y - base[1])) * B + (x - base[0]);
-                uint32_t v;
-                if (in->voxel_bits == 1) v = raw[i >> 3] >> (i & 7) & 1u;
-                else if (in->voxel_bits == 8) v = raw[i];
-                else memcpy(&v, raw + 4 * i, 4); /* little-endian bricks */
-                j->v[o] = (uint8_t)(in->voxel_bits == 32 ? voxel_occupancy(v) : v);
-                if (j->nrm && j->v[o]) {
-                    double n[3];
-                    voxel_unpack_normal(v, n);
-                    for (int a = 0; a < 3; a++) j->nrm[3 * o + a] = (float)n[a];
-                }
-            }
-}
-
-/* The piece [s, e) (inside one leaf) of the expanded region whose box is
- * [rs, rs + rn): a tile when it is a whole leaf of one value (and there are
- * no normals), else its voxels. */
-static int one_leaf(vdb_job *j, const uint32_t rs[3], const uint32_t rn[3],
-                    const uint32_t s[3], const uint32_t e[3])
+/* The piece [s, e) of the level, inside one leaf: a tile when it is a
+ * whole leaf of one value (and there are no normals), else its voxels. */
+static int one_leaf(vdb_job *j, const uint32_t s[3], const uint32_t e[3])
 {
     uint32_t n[3] = {e[0] - s[0], e[1] - s[1], e[2] - s[2]};
-    size_t k = 0;
-    int same = 1;
-    for (uint32_t z = s[2]; z < e[2]; z++)
-        for (uint32_t y = s[1]; y < e[1]; y++)
-            for (uint32_t x = s[0]; x < e[0]; x++, k++) {
-                size_t i = ((size_t)(z - rs[2]) * rn[1] + (y - rs[1])) * rn[0] + (x - rs[0]);
-                j->leaf_v[k] = j->v[i];
-                same &= j->v[i] == j->leaf_v[0];
-                if (j->nrm) memcpy(j->leaf_n + 3 * k, j->nrm + 3 * i, 3 * sizeof(float));
-            }
+    size_t k = (size_t)n[0] * n[1] * n[2];
+    export_gather(j->b, s, e, j->v);
+    int same = !memcmp(j->v, j->v + 1, k - 1);
     int32_t lo[3] = {(int32_t)s[0], (int32_t)s[1], (int32_t)s[2]};
-    if (same && !j->leaf_v[0]) return 0;
-    if (same && !j->nrm && k == LEAF * LEAF * LEAF) return j->api->fill(j->w, lo, n, j->leaf_v[0]);
-    return j->api->block(j->w, lo, n, j->leaf_v, j->nrm ? j->leaf_n : NULL);
+    if (same && !j->v[0]) return 0;
+    if (same && !j->b->normals && k == LEAF * LEAF * LEAF)
+        return j->api->fill(j->w, lo, n, j->v[0]);
+    if (j->b->normals) export_gather_normals(j->b, s, e, j->nrm, 3);
+    return j->api->block(j->w, lo, n, j->v, j->b->normals ? j->nrm : NULL);
 }
 
 static int one_brick(vdb_job *j, const uint32_t bk[3])
@@ -92,19 +58,18 @@ static int one_brick(vdb_job *j, const uint32_t bk[3])
     const export_box *b = j->b;
     const uint8_t *raw = vod_brick(b->f, b->level, bk);
     if (!raw) return 0;
-    uint32_t B = b->in->brick, base[3], s[3], e[3], n[3];
+    uint32_t B = b->in->brick, s[3], e[3], n[3];
     int32_t lo[3];
     for (int a = 0; a < 3; a++) {
-        base[a] = bk[a] * B;
-        s[a] = base[a] > b->lo[a] ? base[a] : b->lo[a];
-        e[a] = base[a] + B < b->hi[a] ? base[a] + B : b->hi[a];
+        s[a] = bk[a] * B > b->lo[a] ? bk[a] * B : b->lo[a];
+        e[a] = bk[a] * B + B < b->hi[a] ? bk[a] * B + B : b->hi[a];
         n[a] = e[a] - s[a];
         lo[a] = (int32_t)s[a];
     }
     int u = uniform_byte(b, raw);
     if (u == 0) return 0;
     if (u > 0) return j->api->fill(j->w, lo, n, (uint8_t)u);
-    expand(j, raw, base, s, e);
+    /* bricks smaller than a leaf give pieces of it, which OpenVDB merges */
     uint32_t ls[3], le[3];
     for (ls[2] = s[2]; ls[2] < e[2]; ls[2] = le[2])
         for (ls[1] = s[1]; ls[1] < e[1]; ls[1] = le[1])
@@ -113,7 +78,7 @@ static int one_brick(vdb_job *j, const uint32_t bk[3])
                     le[a] = (ls[a] / LEAF + 1) * LEAF;
                     if (le[a] > e[a]) le[a] = e[a];
                 }
-                int rc = one_leaf(j, s, n, ls, le);
+                int rc = one_leaf(j, ls, le);
                 if (rc) return rc;
             }
     return 0;
@@ -186,22 +151,15 @@ int export_vdb(const export_box *b, const char *src, const char *path, char *err
         g.centre[a] = (double)b->in->origin[a] + 0.5 * b->spacing[a];
     }
     static vdb_job j; /* its leaf buffers are 8 KiB: not on the stack */
-    j = (vdb_job){.b = b, .api = load_api(err, errlen)};
-    if (!j.api) return -ENOENT;
-    size_t B = b->in->brick, n = B * B * B;
-    j.v = malloc(n);
-    j.nrm = b->normals ? malloc(3 * n * sizeof(float)) : NULL;
-    int rc = (!j.v || (b->normals && !j.nrm)) ? -ENOMEM : 0;
-    if (rc) snprintf(err, errlen, "out of memory");
-    if (!rc) rc = j.api->open(&j.w, &g, err, errlen);
-    if (!rc) {
-        rc = describe(&j, src);
-        if (!rc) rc = walk(&j);
-        if (rc) snprintf(err, errlen, "%s", strerror(-rc));
-        else rc = j.api->write(j.w, path, err, errlen);
-        j.api->free(j.w);
-    }
-    free(j.v);
-    free(j.nrm);
+    memset(&j, 0, sizeof j);
+    j.b = b;
+    if (!(j.api = load_api(err, errlen))) return -ENOENT;
+    int rc = j.api->open(&j.w, &g, err, errlen);
+    if (rc) return rc;
+    rc = describe(&j, src);
+    if (!rc) rc = walk(&j);
+    if (rc) snprintf(err, errlen, "%s", strerror(-rc));
+    else rc = j.api->write(j.w, path, err, errlen);
+    j.api->free(j.w);
     return rc;
 }
