@@ -42,9 +42,9 @@ typedef struct {
 static const char usage_text[] =
     "usage: vox export FILE.vod -o OUT [--format nrrd|raw|binvox|vti|vdb] [--gzip]\n"
     "                  [--level L] [--bbox X0,X1,Y0,Y1,Z0,Z1] [--no-normals]\n"
-    "  writes the voxels of one level (0: full resolution) as a dense uint8 array:\n"
-    "  channel 1 as 0/1, 2 as its density, 3 as its occupancy byte; channel 3's\n"
-    "  normals too, where the format holds them\n"
+    "  writes the voxels of one level (0: full resolution), uint8 as a dense array\n"
+    "  (sparse in vdb): channel 1 as 0/1, 2 as its density, 3 as its occupancy\n"
+    "  byte; channel 3's normals too, where the format holds them\n"
     "  -o OUT        the output; its extension (.nrrd, .raw, .binvox, .vti, .vdb)\n"
     "                names the format unless --format does\n"
     "  --format F    nrrd, raw (a OUT.json sidecar beside it), binvox (occupancy:\n"
