@@ -694,6 +694,19 @@ static inline void raw_put(uint8_t *raw, uint32_t bits, size_t i, uint32_t val)
     else if (val) raw[i >> 3] |= (uint8_t)(1u << (i & 7));
 }
 
+/* Bit k set where byte k of s[0, 8) is non-zero, without a branch or a
+ * loop: each byte's high bit is set when it is non-zero (its low 7 bits
+ * plus 0x7f carry into it, or it was set), then the multiplication gathers
+ * the 8 high bits (moved to bit 0 of their bytes) into the top byte. */
+static inline uint8_t nonzero_bits8(const uint8_t *s)
+{
+    uint64_t w = 0;
+    for (unsigned k = 0; k < 8; k++) w |= (uint64_t)s[k] << (8 * k); /* one load */
+    const uint64_t low7 = 0x7f7f7f7f7f7f7f7full, high = 0x8080808080808080ull;
+    uint64_t t = (((w & low7) + low7) | w) & high;
+    return (uint8_t)(((t >> 7) * 0x0102040810204080ull) >> 56);
+}
+
 /* n voxels of a row of 8-bit voxels (src; NULL: all u) as bits of a
  * channel-1 raw brick from bit r on: whole bytes at a time where they are
  * aligned (a row of a 16^3 brick is two). */
@@ -703,16 +716,8 @@ static void copy_row_bits8(uint8_t *raw, size_t r, const uint8_t *src, uint32_t 
     uint32_t x = 0;
     for (; x < n && ((r + x) & 7); x++)
         if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
-    for (; x + 8 <= n; x += 8) {
-        uint8_t bits = 0xff;
-        if (src) {
-            bits = 0;
-            for (unsigned k = 0; k < 8; k++) bits |= (uint8_t)((src[x + k] != 0) << k);
-        } else if (!u) {
-            bits = 0;
-        }
-        raw[(r + x) >> 3] |= bits;
-    }
+    for (; x + 8 <= n; x += 8)
+        raw[(r + x) >> 3] |= src ? nonzero_bits8(src + x) : u ? 0xff : 0;
     for (; x < n; x++)
         if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
 }
