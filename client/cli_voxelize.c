@@ -114,7 +114,7 @@ static void print_mesh_summary(const voxelize_opts *o, const pipeline_job *job,
            r->t_topology);
     if (o->workers > 0)
         printf("; %u tiles with triangles, binned in %.3f s", r->tiles, r->t_bin);
-    printf("\n");
+    printf("; job %.3f s\n", r->t_job);
     if (r->repair_skipped)
         printf("  repair: not needed, the mesh is watertight (its parities agree)\n");
     else if (o->mesh_opts.repair != MESH_REPAIR_NONE)

@@ -2,6 +2,8 @@
 #include "pipeline.h"
 
 #include <errno.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -120,14 +122,62 @@ static int engine_stage(engine *e, const pipeline_job *job, const grid_spec *g,
     return engine_voxelize(e, &ej, er);
 }
 
+/* A mesh's topology found in a thread of its own while the engine bins
+ * the triangles and the workers run the tiles: the master is idle then. */
+typedef struct {
+    const mesh *m;
+    pthread_t thread;
+    int started;
+    int rc;
+    mesh_topo topo;
+    double seconds;
+} topo_job;
+
+static void *topo_run(void *arg)
+{
+    topo_job *t = arg;
+    double t0 = clock_now();
+    t->rc = mesh_topology(t->m, &t->topo);
+    t->seconds = clock_now() - t0;
+    return NULL;
+}
+
+/* Start t in a thread (every signal blocked there: they stay the engine
+ * thread's, whose waits they are meant to interrupt); when no thread can
+ * be made, run it here and now. */
+static void topo_start(topo_job *t)
+{
+    sigset_t all, old;
+    sigfillset(&all);
+    pthread_sigmask(SIG_BLOCK, &all, &old);
+    t->started = pthread_create(&t->thread, NULL, topo_run, t) == 0;
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+    if (!t->started) topo_run(t);
+}
+
+static int topo_error(pipeline_report *r, int rc);
+
+/* Wait for t and put its result in r: 0, or the error mesh_check gives. */
+static int topo_join(topo_job *t, pipeline_report *r)
+{
+    if (t->started) pthread_join(t->thread, NULL);
+    t->started = 0;
+    r->topo = t->topo;
+    r->t_topology = t->seconds;
+    return t->rc ? topo_error(r, t->rc) : 0;
+}
+
+/* The voxelization on e, then (t not NULL) the topology joined, then the
+ * VOD written. */
 static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
-                      vod_sink *sink, pipeline_report *r)
+                      vod_sink *sink, topo_job *t, pipeline_report *r)
 {
     staged sp = {.job = job, .stage = PIPELINE_VOXELIZE};
     void (*prog)(void *, const engine_progress *) = job->progress ? on_stage_progress : NULL;
     engine_result er;
     r->stage = PIPELINE_VOXELIZE;
     int rc = engine_stage(e, job, &r->grid, prog, &sp, &er);
+    int trc = t ? topo_join(t, r) : 0;
     r->voxels = er.voxels;
     r->tiles = er.tiles;
     r->t_bin = er.t_bin;
@@ -143,6 +193,7 @@ static int run_engine(engine *e, const pipeline_job *job, const vod_params *v,
     r->t_voxelize = er.seconds;
     r->master_cpu = er.master_cpu;
     r->worker_cpu = er.worker_cpu;
+    if (trc) return trc;
     if (rc) return fail(r, er.failure, rc, "%s", er.error);
     r->stage = PIPELINE_WRITE;
     sp.stage = PIPELINE_WRITE;
@@ -379,6 +430,14 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
     return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
 }
 
+/* mesh_topology's failure rc, as the job's (before any voxel). */
+static int topo_error(pipeline_report *r, int rc)
+{
+    r->stage = PIPELINE_GRID;
+    return fail(r, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                "the mesh's edges: %s", strerror(-rc));
+}
+
 /* A mesh job's topology into r; the repair dropped from *run when the
  * mesh is watertight. */
 static int mesh_check(pipeline_job *run, pipeline_report *r)
@@ -386,8 +445,7 @@ static int mesh_check(pipeline_job *run, pipeline_report *r)
     double t0 = clock_now();
     int rc = mesh_topology(run->mesh.mesh, &r->topo);
     r->t_topology = clock_now() - t0;
-    if (rc) return fail(r, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
-                        "the mesh's edges: %s", strerror(-rc));
+    if (rc) return topo_error(r, rc);
     if (r->topo.watertight && run->mesh.opts.repair != MESH_REPAIR_NONE) {
         run->mesh.opts.repair = MESH_REPAIR_NONE;
         r->repair_skipped = 1;
@@ -410,17 +468,34 @@ int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
     return 0;
 }
 
-int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
-                 pipeline_report *r)
+/* pipeline_run from t0 on; r->t_job set before the engine's release. */
+static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
+                           double t0, pipeline_report *r)
 {
     char meta[JOB_META_MAX];
     vod_params v;
     int rc = pipeline_plan(job, r, &v, meta);
     if (rc) return rc;
     pipeline_job run = *job;
-    if (job->kind == PIPELINE_MESH && (rc = mesh_check(&run, r))) return rc;
+    /* Without a repair the topology decides nothing before the write: on
+     * an engine it is found while the triangles are voxelized. */
+    topo_job topo = {.m = job->mesh.mesh};
+    bool overlap = e && job->kind == PIPELINE_MESH &&
+                   job->mesh.opts.repair == MESH_REPAIR_NONE;
+    if (overlap) topo_start(&topo);
+    else if (job->kind == PIPELINE_MESH && (rc = mesh_check(&run, r))) return rc;
     if (!e) return run_serial(&run, &v, sink, r);
-    rc = run_engine(e, &run, &v, sink, r);
+    rc = run_engine(e, &run, &v, sink, overlap ? &topo : NULL, r);
+    r->t_job = clock_now() - t0; /* the release below is the engine's */
     engine_release(e); /* the job's pages go back, its result's too */
+    return rc;
+}
+
+int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
+                 pipeline_report *r)
+{
+    double t0 = clock_now();
+    int rc = pipeline_stages(e, job, sink, t0, r);
+    if (!r->t_job) r->t_job = clock_now() - t0;
     return rc;
 }

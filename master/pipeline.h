@@ -99,6 +99,11 @@ typedef struct {
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */
+    double t_job;                 /* wall seconds of pipeline_run but the
+                                     engine's release at its end (a mesh's
+                                     topology, without a repair and on an
+                                     engine, overlaps the voxelization:
+                                     t_job, not the sum, is the job's time) */
     double master_cpu, worker_cpu;
     vod_stats st;
     pipeline_stage stage;         /* the stage reached (that failed, if so) */
