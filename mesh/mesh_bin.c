@@ -42,25 +42,35 @@ static int16_t clamp_tile(double t, uint32_t n)
     return f < 0 ? 0 : f > (int64_t)n ? (int16_t)n : (int16_t)f;
 }
 
-static tile_range triangle_tiles(const mesh *m, const grid_spec *g, uint32_t t,
-                                 double margin, const uint32_t nt[2])
+/* The tile range of a point at voxel coordinates (x, y): the tiles from
+ * its coordinate less the margin to its coordinate plus it, clamped as a
+ * triangle's range is.  Floor, subtraction and clamping are all monotonic,
+ * so a triangle's range is the union (min of the starts, max of the ends)
+ * of its vertices' ranges: exactly what the bounds of its box would give,
+ * for two divisions a vertex instead of six a triangle. */
+static tile_range vertex_tiles(const mesh *m, const grid_spec *g, uint32_t v,
+                               double margin, const uint32_t nt[2])
 {
-    double lo[2], hi[2];
-    for (int i = 0; i < 3; i++) {
-        const float *v = m->vertices[m->triangles[t][i]];
-        for (int a = 0; a < 2; a++) {
-            double c = vox_coord(g, a, v[a]);
-            lo[a] = i == 0 || c < lo[a] ? c : lo[a];
-            hi[a] = i == 0 || c > hi[a] ? c : hi[a];
-        }
-    }
     tile_range r;
-    r.x0 = clamp_tile(lo[0] - margin, nt[0]);
-    r.y0 = clamp_tile(lo[1] - margin, nt[1]);
-    /* the last tile whose start is <= hi, -1 when hi is before the grid */
-    int64_t fx = tile_floor(hi[0] + margin), fy = tile_floor(hi[1] + margin);
+    double x = vox_coord(g, 0, m->vertices[v][0]), y = vox_coord(g, 1, m->vertices[v][1]);
+    r.x0 = clamp_tile(x - margin, nt[0]);
+    r.y0 = clamp_tile(y - margin, nt[1]);
+    /* the last tile whose start is <= the end, -1 when it is before the grid */
+    int64_t fx = tile_floor(x + margin), fy = tile_floor(y + margin);
     r.x1 = fx < 0 ? -1 : fx >= (int64_t)nt[0] ? (int16_t)(nt[0] - 1) : (int16_t)fx;
     r.y1 = fy < 0 ? -1 : fy >= (int64_t)nt[1] ? (int16_t)(nt[1] - 1) : (int16_t)fy;
+    return r;
+}
+
+static tile_range triangle_tiles(const mesh *m, const tile_range *vr, uint32_t t)
+{
+    const uint32_t *tri = m->triangles[t];
+    tile_range r = vr[tri[0]], b = vr[tri[1]], c = vr[tri[2]];
+#define MIN3(f) r.f = b.f < r.f ? b.f : r.f, r.f = c.f < r.f ? c.f : r.f
+#define MAX3(f) r.f = b.f > r.f ? b.f : r.f, r.f = c.f > r.f ? c.f : r.f
+    MIN3(x0), MIN3(y0), MAX3(x1), MAX3(y1);
+#undef MIN3
+#undef MAX3
     return r;
 }
 
@@ -89,13 +99,18 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
     double margin = p.apron + 1.0 / 64; /* the snapping moves < 2^-17 voxel */
     bool rep = o->repair != MESH_REPAIR_NONE;
     tile_range *r = malloc(((size_t)m->n_triangles + 1) * sizeof *r);
+    tile_range *vr = malloc(((size_t)m->n_vertices + 1) * sizeof *vr);
     uint64_t *start = calloc(ntiles + 1, sizeof *start);
     uint64_t *cur = malloc(ntiles * sizeof *cur);
-    if (!r || !start || !cur) goto nomem;
+    if (!r || !vr || !start || !cur) goto nomem;
+    for (uint32_t v = 0; v < m->n_vertices; v++) vr[v] = vertex_tiles(m, g, v, margin, nt);
 #define COUNT(i) start[(i) + 1]++
     for (uint32_t t = 0; t < m->n_triangles; t++) {
-        if (t + MV_AHEAD < m->n_triangles) mv_prefetch(m, t + MV_AHEAD);
-        r[t] = triangle_tiles(m, g, t, margin, nt);
+        if (t + MV_AHEAD < m->n_triangles) {
+            const uint32_t *ahead = m->triangles[t + MV_AHEAD];
+            for (int i = 0; i < 3; i++) __builtin_prefetch(&vr[ahead[i]]);
+        }
+        r[t] = triangle_tiles(m, vr, t);
         /* a tile's columns need the triangle only when the footprint meets
          * them; the repair's rows also when it lies left of / in front */
         if (r[t].y0 > r[t].y1 && r[t].x0 > r[t].x1) continue;
@@ -103,6 +118,8 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
         FOR_TILES(r[t], rep, nt, COUNT);
     }
 #undef COUNT
+    free(vr);
+    vr = NULL;
     for (uint64_t i = 0; i < ntiles; i++) start[i + 1] += start[i];
     if (start[ntiles] > SIZE_MAX / sizeof(uint32_t)) {
         free(r), free(start), free(cur);
@@ -125,7 +142,7 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
     out->tiles[1] = nt[1];
     return 0;
 nomem:
-    free(r), free(start), free(cur);
+    free(r), free(vr), free(start), free(cur);
     free(out->ids);
     out->ids = NULL;
     return -ENOMEM;
