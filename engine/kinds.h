@@ -128,6 +128,11 @@ typedef struct {
     uint64_t start_off, ids_off;            /* mesh_bins' arrays */
     uint64_t stats_off;                     /* mesh_tile_stats per tile */
     uint64_t volume_off;                    /* the vod_volume's arena */
+    /* After its bricks each tile builds mip levels 1..mip_levels of
+     * channel mip_channel under its column (0: none); the master declares
+     * them built once every tile is done. */
+    int32_t mip_channel;
+    uint32_t mip_levels;
 } mesh_block;
 
 static inline mesh_task_arg mesh_task_tiles(const shm_task *t)

@@ -252,6 +252,11 @@ typedef struct {
     const mesh *mesh;
     grid_spec grid;
     mesh_vox_opts opts;
+    /* The channel the VOD will be written in (0: not known): each tile
+     * then builds the volume's low mip levels of that channel under its
+     * own column (vod_volume_mip_columns), which the write's prepare()
+     * would otherwise build in the master alone. */
+    int mip_channel;
     void (*progress)(void *ud, const engine_progress *p);
     void *ud;
     const atomic_int *cancel;   /* as engine_job.cancel */

@@ -99,6 +99,24 @@ static int init_volume(engine *e, const mesh_vox_opts *o, const grid_spec *g,
     return 0;
 }
 
+/* The low mip levels the tiles build: those whose bricks lie in one tile's
+ * column (a level-l brick spans MESH_VOLUME_BRICK << l voxels), of the
+ * VOD's channel when the volume gives it (else none: the writer says
+ * what is wrong with the channel). */
+static void plan_mips(engine *e, int channel, mesh_block *b)
+{
+    vod_volume_info in;
+    vod_volume_get_info(e->volume, &in);
+    vod_source src = vod_volume_source(e->volume);
+    b->mip_channel = 0;
+    b->mip_levels = 0;
+    if (channel < 1 || channel > 31 || !(src.channels >> channel & 1u)) return;
+    while ((int)b->mip_levels < in.depth &&
+           (in.sbrick << (b->mip_levels + 1)) <= MESH_TILE)
+        b->mip_levels++;
+    if (b->mip_levels) b->mip_channel = channel;
+}
+
 static int mesh_setup(engine *e, void *job)
 {
     mesh_job *mj = job;
@@ -132,6 +150,7 @@ static int mesh_setup(engine *e, void *job)
     if (!rc) rc = init_volume(e, &j->opts, &j->grid, vol_off);
     if (!rc) {
         b->volume_off = vol_off;
+        plan_mips(e, j->mip_channel, b);
         rc = push_tiles(e, mj, &bins);
     }
     mesh_bins_free(&bins);
@@ -201,6 +220,8 @@ static int collect(engine *e, mesh_job *mj)
         bad = memcmp(in.dims, mj->job->grid.res, sizeof in.dims) ||
               in.bits != mesh_vox_bits(&mj->job->opts);
     }
+    if (!bad && b->mip_levels) /* every tile built its column's */
+        bad = vod_volume_mips_low(e->volume, b->mip_channel, (int)b->mip_levels);
     if (bad)
         return sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "the workers left the volume inconsistent");

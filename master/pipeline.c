@@ -106,7 +106,8 @@ static int engine_stage(engine *e, const pipeline_job *job, const grid_spec *g,
 {
     if (job->kind == PIPELINE_MESH) {
         engine_mesh_job mj = {.mesh = job->mesh.mesh, .grid = *g,
-                              .opts = job->mesh.opts, .progress = prog,
+                              .opts = job->mesh.opts,
+                              .mip_channel = job->vod.channel, .progress = prog,
                               .ud = ud, .cancel = job->cancel};
         return engine_mesh(e, &mj, er);
     }

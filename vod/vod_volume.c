@@ -46,6 +46,11 @@ struct vod_volume {
     atomic_uint pool_used, pool_l0;
     int mip_channel;
     uint32_t mip_base;  /* pool_used before the mip levels were built */
+    /* Levels 1..low_levels of channel low_channel built by column
+     * (vod_volume_mip_columns) and declared complete: prepare() of that
+     * channel builds only the levels above.  Their bricks are mixed with
+     * level 0's in the pool, so nothing gives them back. */
+    int low_channel, low_levels;
 };
 
 static uint64_t align64(uint64_t v) { return (v + 63) & ~(uint64_t)63; }
@@ -177,10 +182,13 @@ int vod_volume_check(const vod_volume *v, size_t bytes)
     if (v->pool_cap > (bytes - head) / h.brick_bytes || used > v->pool_cap ||
         l0 > used || v->mip_channel != 0)
         return -EINVAL;
-    const uint32_t *t = table(v, 0);
-    for (uint64_t i = 0, n = grid_bricks(v, 0); i < n; i++)
-        if (is_alloc(t[i]) && t[i] > used) return -EINVAL;
-    return 0;
+    /* every level: the mip levels built by column are in the tables too */
+    for (int l = 0; l <= v->depth; l++) {
+        const uint32_t *t = table(v, l);
+        for (uint64_t i = 0, n = grid_bricks(v, l); i < n; i++)
+            if (is_alloc(t[i]) && t[i] > used) return -EINVAL;
+    }
+    return v->low_levels == 0 ? 0 : -EINVAL;
 }
 
 /* The entry of brick b of level l; 0 (empty) outside the grid. */
@@ -268,13 +276,20 @@ static int check_value(const vod_volume *v, uint32_t value)
     return v->bits == 8 && value > 255 ? -EINVAL : 0;
 }
 
+/* Voxels are about to change: every mip level is stale. */
+static void stale_mips(vod_volume *v)
+{
+    drop_mips(v);
+    v->low_levels = 0;
+}
+
 int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
                    uint32_t value)
 {
     if (x >= v->dims[0] || y >= v->dims[1] || z >= v->dims[2] ||
         check_value(v, value))
         return -EINVAL;
-    drop_mips(v);
+    stale_mips(v);
     uint32_t s = v->slog2, m = v->sbrick - 1, b[3] = {x >> s, y >> s, z >> s};
     uint32_t e = entry_at(v, 0, b);
     if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
@@ -358,7 +373,7 @@ int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
     for (int a = 0; a < 3; a++)
         if (lo[a] >= hi[a] || hi[a] > v->dims[a]) return -EINVAL;
     if (check_value(v, value)) return -EINVAL;
-    drop_mips(v);
+    stale_mips(v);
     uint32_t s = v->slog2, S = v->sbrick, b[3];
     for (b[2] = lo[2] >> s; b[2] <= (hi[2] - 1) >> s; b[2]++)
         for (b[1] = lo[1] >> s; b[1] <= (hi[1] - 1) >> s; b[1]++)
@@ -400,7 +415,8 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
 {
     const uint32_t *g = v->grid[0];
     if (b[0] >= g[0] || b[1] >= g[1] || b[2] >= g[2]) return -EINVAL;
-    assert(v->mip_channel == 0 && "put_brick runs before prepare()");
+    assert(v->mip_channel == 0 && v->low_levels == 0 &&
+           "put_brick runs before prepare() and vod_volume_mips_low()");
     uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
     int64_t u = brick_uniform_value(v, voxels);
     if (u >= 0 && !is_alloc(*e)) {
@@ -418,7 +434,8 @@ int vod_volume_put_uniform(vod_volume *v, const uint32_t b[3], uint32_t value)
     const uint32_t *g = v->grid[0];
     if (b[0] >= g[0] || b[1] >= g[1] || b[2] >= g[2] || check_value(v, value))
         return -EINVAL;
-    assert(v->mip_channel == 0 && "put_uniform runs before prepare()");
+    assert(v->mip_channel == 0 && v->low_levels == 0 &&
+           "put_uniform runs before prepare() and vod_volume_mips_low()");
     return fill_whole(v, b, value);
 }
 
@@ -538,11 +555,12 @@ static bool mip_same_children(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
     return true;
 }
 
-/* Brick p of level m->l from its 8 children. */
+/* Brick p of level m->l from its 8 children, into *entry (whose memory
+ * is used again when it has some: a column built a second time). */
 static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
 {
     vod_volume *v = m->v;
-    uint32_t half = v->sbrick / 2;
+    uint32_t half = v->sbrick / 2, old = *entry;
     if (mip_same_children(m, p, entry)) return 0;
     m->nonempty = false;
     for (unsigned i = 0; i < 8; i++) {
@@ -559,7 +577,7 @@ static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
         *entry = ENTRY_UNIFORM | m->out[0];
         return 0;
     }
-    uint32_t e = pool_take(v, 0);
+    uint32_t e = is_alloc(old) ? old : pool_take(v, 0);
     if (!e) return -ENOMEM;
     uint8_t *d = brick_data(v, e);
     for (i = 0; i < n; i++) vox_put(v, d, (size_t)i, m->out[i]);
@@ -582,6 +600,55 @@ static int build_level(mip_ctx *m)
     return 0;
 }
 
+/* Levels 1..levels of the level-`levels` brick columns [lo, hi), every z. */
+static int build_columns(mip_ctx *m, int levels, const uint32_t lo[2],
+                         const uint32_t hi[2])
+{
+    vod_volume *v = m->v;
+    int rc = 0;
+    for (m->l = 1; m->l <= levels && !rc; m->l++) {
+        const uint32_t *g = v->grid[m->l];
+        uint32_t *t = table(v, m->l), p[3], k = (uint32_t)(levels - m->l);
+        uint32_t x1 = hi[0] << k < g[0] ? hi[0] << k : g[0];
+        uint32_t y1 = hi[1] << k < g[1] ? hi[1] << k : g[1];
+        for (p[2] = 0; p[2] < g[2] && !rc; p[2]++)
+            for (p[1] = lo[1] << k; p[1] < y1 && !rc; p[1]++)
+                for (p[0] = lo[0] << k; p[0] < x1 && !rc; p[0]++)
+                    rc = mip_brick(m, p, &t[((uint64_t)p[2] * g[1] + p[1]) * g[0] + p[0]]);
+    }
+    return rc;
+}
+
+static bool mip_args_ok(const vod_volume *v, int channel, int levels)
+{
+    return channel >= 0 && channel <= 31 && (channels_of(v) >> channel & 1u) &&
+           levels >= 1 && levels <= v->depth;
+}
+
+int vod_volume_mip_columns(vod_volume *v, int channel, int levels,
+                           const uint32_t lo[2], const uint32_t hi[2])
+{
+    if (!mip_args_ok(v, channel, levels)) return -EINVAL;
+    for (int a = 0; a < 2; a++) /* hi is clipped to the grid */
+        if (lo[a] >= hi[a] || lo[a] >= v->grid[levels][a]) return -EINVAL;
+    assert(v->mip_channel == 0 && v->low_levels == 0 &&
+           "mip_columns runs before prepare() and vod_volume_mips_low()");
+    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
+    mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
+    if (!m.out) return -ENOMEM;
+    int rc = build_columns(&m, levels, lo, hi);
+    free(m.out);
+    return rc;
+}
+
+int vod_volume_mips_low(vod_volume *v, int channel, int levels)
+{
+    if (!mip_args_ok(v, channel, levels) || v->mip_channel) return -EINVAL;
+    v->low_channel = channel;
+    v->low_levels = levels;
+    return 0;
+}
+
 static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
 {
     (void)L; /* every level is built: the writer needs at most depth */
@@ -590,11 +657,14 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
         return -EINVAL;
     if (v->mip_channel == channel) return 0;
     drop_mips(v);
+    /* the levels built by column, when they are this channel's */
+    int first = v->low_levels && v->low_channel == channel ? v->low_levels + 1 : 1;
+    if (first == 1) v->low_levels = 0; /* another channel's: built over */
     v->mip_base = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
     mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
     int rc = m.out ? 0 : -ENOMEM;
-    for (m.l = 1; m.l <= v->depth && !rc; m.l++) {
+    for (m.l = first; m.l <= v->depth && !rc; m.l++) {
         memset(table(v, m.l), 0, 4 * grid_bricks(v, m.l));
         rc = build_level(&m);
     }

@@ -81,6 +81,25 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
  * -EINVAL for a brick outside the grid or a value wider than the voxels,
  * -ENOMEM when the pool is full. */
 int vod_volume_put_uniform(vod_volume *v, const uint32_t b[3], uint32_t value);
+/* Mip levels 1..levels of channel (one the volume gives) under the
+ * level-`levels` brick columns [lo, hi) (x and y in that level's brick
+ * coordinates, every z; hi clipped to the grid), built from level 0,
+ * which must be final there.
+ * Calls for different columns may run concurrently, in several threads or
+ * processes, like vod_volume_put_brick (the mesh kind's workers build
+ * their tile's after its bricks); a column built again uses its bricks'
+ * memory again.  They count once vod_volume_mips_low() is called.  0,
+ * -EINVAL for bad arguments, -ENOMEM when the pool is full. */
+int vod_volume_mip_columns(vod_volume *v, int channel, int levels,
+                           const uint32_t lo[2], const uint32_t hi[2]);
+/* Levels 1..levels of channel are built (by vod_volume_mip_columns over
+ * every column that holds a non-zero voxel; the others' entries are the
+ * empty ones a new volume starts with): prepare() of that channel then
+ * builds only the levels above.  Writing a voxel drops them (their bricks
+ * stay taken); prepare() of another channel builds every level over them
+ * (the pool must then have room for both).  0, or -EINVAL for bad
+ * arguments or a volume already prepared. */
+int vod_volume_mips_low(vod_volume *v, int channel, int levels);
 /* The voxel at (x, y, z), 0 outside dims. */
 uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z);
 /* 1 and *value when every voxel of the cube of n voxels per axis from lo
@@ -102,10 +121,12 @@ typedef struct {
 } vod_volume_info;
 void vod_volume_get_info(const vod_volume *v, vod_volume_info *out);
 
-/* 0 when v, in an arena of bytes, is a volume whose level 0 other
- * processes wrote (vod_volume_put_brick) that is safe to read: its header
- * is what vod_volume_init made for its dims, its pool inside the arena,
- * every table entry inside the pool, no mip levels yet.  -EINVAL if not. */
+/* 0 when v, in an arena of bytes, is a volume whose level 0 (and maybe
+ * low mip levels, vod_volume_mip_columns) other processes wrote
+ * (vod_volume_put_brick) that is safe to read: its header is what
+ * vod_volume_init made for its dims, its pool inside the arena, every
+ * table entry of every level inside the pool, not prepared and no mip
+ * levels declared yet.  -EINVAL if not. */
 int vod_volume_check(const vod_volume *v, size_t bytes);
 
 /* v as a brick source (vod.h): ctx is v, valid in the process that made or

@@ -39,6 +39,20 @@ static int mesh_begin(work_ctx *w, void **state)
     return 0;
 }
 
+/* Tile (tx, ty)'s low mip levels (mesh_block.mip_levels), built right
+ * after its bricks, while they are in this worker's cache: the level-l
+ * bricks whose footprint is the tile's column. */
+static int tile_mips(vod_volume *vol, const mesh_block *b, uint32_t tx, uint32_t ty)
+{
+    if (!b->mip_levels) return 0;
+    vod_volume_info in;
+    vod_volume_get_info(vol, &in);
+    uint32_t per = MESH_TILE / (in.sbrick << b->mip_levels); /* >= 1: the master's plan */
+    if (!per) return -EINVAL;
+    uint32_t lo[2] = {tx * per, ty * per}, hi[2] = {lo[0] + per, lo[1] + per};
+    return vod_volume_mip_columns(vol, b->mip_channel, (int)b->mip_levels, lo, hi);
+}
+
 static int mesh_run(work_ctx *w, void *state, const shm_task *t)
 {
     mesh_state *st = state;
@@ -65,6 +79,7 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
         int rc = mesh_tile_run(&m, ids + start[k], start[k + 1] - start[k],
                                &b->grid, &b->opts, k % b->tiles[0],
                                k / b->tiles[0], st->scratch, vol, &s);
+        if (!rc) rc = tile_mips(vol, b, k % b->tiles[0], k / b->tiles[0]);
         if (rc) return rc;
         stats[k] = s;
         work_tick(w);

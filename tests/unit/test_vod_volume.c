@@ -633,3 +633,95 @@ Test(vod_volume_write, later_voxels_reach_the_next_file)
     free(a.p), free(b.p), free(c.p);
     vfx_free(&f);
 }
+
+/* ------------------------------------------- mip levels built by column */
+
+/* b := a copy of a's volume and voxels (the arena is position independent). */
+static void vfx_copy(vfx *b, const vfx *a, uint32_t sb)
+{
+    vfx_init(b, a->dims[0], a->dims[1], a->dims[2], a->bits, sb);
+    memcpy(b->arena, a->arena, a->bytes);
+    b->v = vod_volume_view(b->arena);
+    cr_assert_not_null(b->v);
+    memcpy(b->dense, a->dense, (size_t)a->dims[0] * a->dims[1] * a->dims[2] * sizeof *a->dense);
+}
+
+/* Levels 1..levels of channel built column by column at that level (one
+ * column twice, as a tile run again after a worker's death), declared. */
+static void build_by_columns(vfx *f, int channel, int levels, uint32_t sb)
+{
+    uint32_t g[2];
+    for (int a = 0; a < 2; a++) {
+        uint32_t side = (f->dims[a] + (1u << levels) - 1) >> levels;
+        g[a] = (side + sb - 1) / sb;
+    }
+    for (uint32_t y = 0; y < g[1]; y++)
+        for (uint32_t x = 0; x < g[0]; x++) {
+            uint32_t lo[2] = {x, y}, hi[2] = {x + 1, y + 1 + (y == g[1] - 1)}; /* clipped */
+            cr_assert_eq(vod_volume_mip_columns(f->v, channel, levels, lo, hi), 0);
+        }
+    uint32_t lo[2] = {0, 0}, hi[2] = {1, 1};
+    cr_assert_eq(vod_volume_mip_columns(f->v, channel, levels, lo, hi), 0, "again");
+    cr_assert_eq(vod_volume_check(f->v, f->bytes), 0, "built, not declared: checkable");
+    cr_assert_eq(vod_volume_mips_low(f->v, channel, levels), 0);
+    cr_assert_eq(vod_volume_check(f->v, f->bytes), -EINVAL, "declared: not level 0 alone");
+}
+
+static void same_files(vfx *a, vfx *b, int channel, const char *what)
+{
+    static const uint32_t bricks[] = {2, 4, 16, 32};
+    for (int i = 0; i < 4; i++) {
+        vod_params p;
+        params(&p, a->dims, channel, bricks[i], VOD_COMP_ZLIB);
+        vod_membuf ma = write_ok(a->v, &p), mb = write_ok(b->v, &p);
+        cr_assert_eq(ma.n, mb.n, "%s: brick %u channel %d", what, bricks[i], channel);
+        cr_assert_arr_eq(ma.p, mb.p, ma.n, "%s: brick %u channel %d", what, bricks[i], channel);
+        free(ma.p), free(mb.p);
+    }
+}
+
+/* The low mip levels built by column (as the mesh kind's tiles do), then
+ * the rest by prepare(), give the files of a volume prepared whole: for
+ * the channel they were built for, for another one (built over), and
+ * after a voxel written later (dropped). */
+Test(vod_volume_columns, give_the_files_of_a_whole_prepare)
+{
+    for (int levels = 1; levels <= 2; levels++)
+        for (int channel = VOXEL_CH_OCCUPANCY; channel <= VOXEL_CH_DENSITY; channel++) {
+            vfx a, b;
+            density_fixture(&a, 4);
+            vfx_copy(&b, &a, 4);
+            build_by_columns(&b, channel, levels, 4);
+            same_files(&a, &b, channel, "the columns' channel");
+            same_files(&a, &b, VOXEL_CH_OCCUPANCY + VOXEL_CH_DENSITY - channel,
+                       "the other channel");
+            vfx_set(&a, 36, 0, 0, 99);
+            vfx_set(&b, 36, 0, 0, 99);
+            vfx_check(&b);
+            same_files(&a, &b, channel, "a voxel written later");
+            vfx_free(&a), vfx_free(&b);
+        }
+}
+
+Test(vod_volume_columns, arguments_are_validated)
+{
+    vfx f;
+    vfx_init(&f, 20, 20, 20, 8, 4);
+    vfx_set(&f, 1, 2, 3, 40);
+    uint32_t lo[2] = {0, 0}, hi[2] = {1, 1}, far[2] = {9, 0}, far1[2] = {10, 1};
+    cr_assert_eq(vod_volume_mip_columns(f.v, VOXEL_CH_SURFACE, 1, lo, hi), -EINVAL,
+                 "a channel 8-bit voxels do not give");
+    cr_assert_eq(vod_volume_mip_columns(f.v, VOXEL_CH_DENSITY, 0, lo, hi), -EINVAL);
+    cr_assert_eq(vod_volume_mip_columns(f.v, VOXEL_CH_DENSITY, 6, lo, hi), -EINVAL,
+                 "past the depth (5)");
+    cr_assert_eq(vod_volume_mip_columns(f.v, VOXEL_CH_DENSITY, 1, hi, lo), -EINVAL);
+    cr_assert_eq(vod_volume_mip_columns(f.v, VOXEL_CH_DENSITY, 1, far, far1), -EINVAL,
+                 "a column past the level's grid (3 bricks)");
+    cr_assert_eq(vod_volume_mips_low(f.v, VOXEL_CH_SURFACE, 1), -EINVAL);
+    vod_params p;
+    params(&p, f.dims, VOXEL_CH_DENSITY, 4, VOD_COMP_NONE);
+    vod_membuf m = write_ok(f.v, &p);
+    cr_assert_eq(vod_volume_mips_low(f.v, VOXEL_CH_DENSITY, 1), -EINVAL, "prepared already");
+    free(m.p);
+    vfx_free(&f);
+}
