@@ -109,13 +109,15 @@ static int lay_out_bricks(engine *e, encode_job *ej, encode_block *b,
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
     double t0 = clock_now();
-    uint64_t n = vod_collect(src, &ej->L, NULL, 0);
+    /* one pass, straight into the segment: the nodes are the first array,
+     * so when they do not all fit there, nothing after them does */
+    uint64_t cap = nodes < end ? (end - nodes) / sizeof(vod_node) : 0;
+    uint64_t n = vod_collect(src, &ej->L, shm_at(e->seg.base, nodes), (size_t)cap);
+    ej->t.fill += clock_now() - t0;
     b->recs_off = align64(nodes + n * sizeof(vod_node));
     b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
     b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
-    if (b->brick_off > end) return no_room(e);
-    vod_collect(src, &ej->L, shm_at(e->seg.base, nodes), n);
-    ej->t.fill += clock_now() - t0;
+    if (n > cap || b->brick_off > end) return no_room(e);
     memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
     b->nodes_off = nodes;
     b->n = n;

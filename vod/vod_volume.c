@@ -44,6 +44,11 @@ struct vod_volume {
      * to the readers by whatever ends the writers' phase, in the engine the
      * worker's done_seq release, which the master's acquire pairs with). */
     atomic_uint pool_used, pool_l0;
+    /* 1 once a level-0 brick with memory may hold only zeros (a zero
+     * written into one); while 0, such a brick is known to hold a voxel
+     * without a scan.  Set by concurrent put_brick writers too (relaxed:
+     * published like pool_used, by the end of the writers' phase). */
+    atomic_uint zero_bricks;
     int mip_channel;
     uint32_t mip_base;  /* pool_used before the mip levels were built */
     /* Levels 1..low_levels of channel low_channel built by column
@@ -256,6 +261,12 @@ static void drop_mips(vod_volume *v)
     v->mip_channel = 0;
 }
 
+/* A brick with memory may hold only zeros from now on. */
+static void may_zero(vod_volume *v)
+{
+    atomic_store_explicit(&v->zero_bricks, 1, memory_order_relaxed);
+}
+
 /* The data of level-0 brick b, allocated (from empty or uniform) if need be. */
 static int level0_data(vod_volume *v, const uint32_t b[3], uint8_t **out)
 {
@@ -294,6 +305,7 @@ int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
     uint32_t e = entry_at(v, 0, b);
     if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
         return 0;
+    if (value == 0) may_zero(v); /* into memory: e is allocated */
     uint8_t *d;
     int rc = level0_data(v, b, &d);
     if (rc == 0) vox_put(v, d, vox_index(v, x & m, y & m, z & m), value);
@@ -345,6 +357,7 @@ static int fill_whole(vod_volume *v, const uint32_t b[3], uint32_t value)
         *e = value ? ENTRY_UNIFORM | value : 0;
         return 0;
     }
+    if (value == 0) may_zero(v);
     uint8_t *d;
     int rc = level0_data(v, b, &d);
     if (rc == 0) brick_set_all(v, d, value);
@@ -358,6 +371,7 @@ static int fill_part(vod_volume *v, const uint32_t b[3], const uint32_t lo[3],
     uint32_t e = entry_at(v, 0, b);
     if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
         return 0;
+    if (value == 0) may_zero(v);
     uint8_t *d;
     int rc = level0_data(v, b, &d);
     for (uint32_t z = lo[2]; z < hi[2] && !rc; z++)
@@ -423,6 +437,7 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
         *e = u ? ENTRY_UNIFORM | (uint32_t)u : 0;
         return 0;
     }
+    if (u == 0) may_zero(v); /* zeros into the memory the brick has */
     uint8_t *d;
     int rc = level0_data(v, b, &d);
     if (rc == 0) memcpy(d, voxels, v->brick_bytes);
@@ -687,6 +702,9 @@ static bool any_nonzero(const vod_volume *v, uint32_t e, const uint32_t lo[3],
                         uint32_t side)
 {
     if (!is_alloc(e)) return e != 0;
+    if (side == v->sbrick &&
+        !atomic_load_explicit(&v->zero_bricks, memory_order_relaxed))
+        return true; /* no zero was ever written into a brick's memory */
     const uint8_t *d = brick_data(v, e);
     for (uint32_t z = lo[2]; z < lo[2] + side; z++)
         for (uint32_t y = lo[1]; y < lo[1] + side; y++)
@@ -770,8 +788,11 @@ static inline void raw_put(uint8_t *raw, uint32_t bits, size_t i, uint32_t val)
  * the 8 high bits (moved to bit 0 of their bytes) into the top byte. */
 static inline uint8_t nonzero_bits8(const uint8_t *s)
 {
-    uint64_t w = 0;
-    for (unsigned k = 0; k < 8; k++) w |= (uint64_t)s[k] << (8 * k); /* one load */
+    uint64_t w; /* byte k in bits 8k .. 8k + 7 */
+    memcpy(&w, s, 8);
+#if __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    w = __builtin_bswap64(w);
+#endif
     const uint64_t low7 = 0x7f7f7f7f7f7f7f7full, high = 0x8080808080808080ull;
     uint64_t t = (((w & low7) + low7) | w) & high;
     return (uint8_t)(((t >> 7) * 0x0102040810204080ull) >> 56);

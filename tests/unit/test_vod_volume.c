@@ -725,3 +725,38 @@ Test(vod_volume_columns, arguments_are_validated)
     free(m.p);
     vfx_free(&f);
 }
+
+/* A brick put with voxels, then put again all zero, keeps its memory but
+ * holds no voxel: the file is that of a volume without it (the writer may
+ * not take a brick with memory for a non-empty one once a zero went into
+ * one), at brick sizes equal to and larger than the storage brick. */
+Test(vod_volume_oracle, a_brick_put_again_all_zero_is_empty)
+{
+    vfx a, b;
+    vfx_init(&a, 32, 32, 32, 8, 8);
+    vfx_init(&b, 32, 32, 32, 8, 8);
+    uint8_t vox[8 * 8 * 8] = {0};
+    vox[5] = 77;
+    uint32_t at[3] = {1, 2, 3};
+    cr_assert_eq(vod_volume_put_brick(a.v, at, vox), 0);
+    vod_volume_info in;
+    vod_volume_get_info(a.v, &in);
+    cr_assert_eq(in.level0_bricks, 1);
+    vox[5] = 0;
+    cr_assert_eq(vod_volume_put_brick(a.v, at, vox), 0);
+    vfx_set(&a, 30, 1, 2, 9);
+    vfx_set(&b, 30, 1, 2, 9);
+    vfx_set(&a, 0, 16, 16, 9); /* its level-1 parent holds a voxel: the writer */
+    vfx_set(&b, 0, 16, 16, 9); /* asks about the brick itself */
+    static const uint32_t bricks[] = {8, 16};
+    for (int i = 0; i < 2; i++)
+        for (int ch = 1; ch <= 2; ch++) {
+            vod_params p;
+            params(&p, a.dims, ch, bricks[i], VOD_COMP_ZLIB);
+            vod_membuf ma = write_ok(a.v, &p), mb = write_ok(b.v, &p);
+            cr_assert_eq(ma.n, mb.n, "brick %u channel %d", bricks[i], ch);
+            cr_assert_arr_eq(ma.p, mb.p, ma.n, "brick %u channel %d", bricks[i], ch);
+            free(ma.p), free(mb.p);
+        }
+    vfx_free(&a), vfx_free(&b);
+}
