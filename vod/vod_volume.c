@@ -466,6 +466,7 @@ typedef struct {
     vod_volume *v;
     int l, ch;          /* building level l from level l-1 */
     uint32_t *out;      /* S^3 parent voxels */
+    uint8_t *out8;      /* the same memory, as bytes: 8-bit volumes' */
     bool nonempty;      /* the parent's footprint holds a voxel */
 } mip_ctx;
 
@@ -490,32 +491,63 @@ static uint32_t mip_octant_any(mip_ctx *m, const uint8_t *d, uint32_t ox,
     return any;
 }
 
+static uint64_t load64(const uint8_t *p)
+{
+    uint64_t w; /* byte k in bits 8k .. 8k + 7 */
+    memcpy(&w, p, 8);
+#if __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    w = __builtin_bswap64(w);
+#endif
+    return w;
+}
+
+/* Channel 1 of 4 parent voxels from the 8 x-children of 4 rows (a..d, 8
+ * bytes each): out[k] = 1 when a byte 2k or 2k+1 of any row is non-zero.
+ * Returns the OR of the children. */
+static uint64_t or_pairs4(const uint8_t *a, const uint8_t *b, const uint8_t *c,
+                          const uint8_t *d, uint8_t *out)
+{
+    uint64_t w = load64(a) | load64(b) | load64(c) | load64(d);
+    uint64_t p = w | w >> 8; /* byte 2k: the OR of children 2k and 2k + 1 */
+    const uint64_t low7 = 0x7f7f7f7f7f7f7f7full;
+    uint64_t t = ((((p & low7) + low7) | p) & 0x0080008000800080ull) >> 7;
+    uint32_t q = (uint32_t)((t & 1u) | (t >> 8 & 0x100u) | (t >> 16 & 0x10000u) |
+                            (t >> 24 & 0x1000000u));
+    for (int k = 0; k < 4; k++) out[k] = (uint8_t)(q >> (8 * k));
+    return w;
+}
+
 /* The same for 8-bit voxels and channels 1 and 2 (vod_downsample's rules
  * written out: any child non-zero, or the mean rounded half up), the mesh
- * and CSG volumes' common case. */
+ * and CSG volumes' common case, into the parent's bytes m->out8. */
 static uint32_t mip_octant8(mip_ctx *m, const uint8_t *d, uint32_t ox,
                             uint32_t oy, uint32_t oz)
 {
     const vod_volume *v = m->v;
     size_t S = v->sbrick, half = S / 2, SS = S * S;
-    uint32_t any = 0;
+    uint64_t any = 0;
     for (size_t z = 0; z < half; z++)
         for (size_t y = 0; y < half; y++) {
             const uint8_t *r0 = d + (2 * z * S + 2 * y) * S, *r1 = r0 + S;
             const uint8_t *r2 = r0 + SS, *r3 = r1 + SS;
-            uint32_t *out = m->out + ((oz + z) * S + oy + y) * S + ox;
-            for (size_t x = 0; x < half; x++) {
+            uint8_t *out = m->out8 + ((oz + z) * S + oy + y) * S + ox;
+            size_t x = 0;
+            if (m->ch == VOXEL_CH_OCCUPANCY)
+                for (; x + 4 <= half; x += 4) /* 8 children a word */
+                    any |= or_pairs4(r0 + 2 * x, r1 + 2 * x, r2 + 2 * x, r3 + 2 * x,
+                                     out + x);
+            for (; x < half; x++) {
                 size_t i = 2 * x;
                 uint32_t ors = r0[i] | r0[i + 1] | r1[i] | r1[i + 1] | r2[i] |
                               r2[i + 1] | r3[i] | r3[i + 1];
                 any |= ors;
-                out[x] = m->ch == VOXEL_CH_DENSITY
-                             ? (r0[i] + r0[i + 1] + r1[i] + r1[i + 1] + r2[i] +
-                                r2[i + 1] + r3[i] + r3[i + 1] + 4u) / 8u
-                             : ors != 0;
+                out[x] = (uint8_t)(m->ch == VOXEL_CH_DENSITY
+                                       ? (r0[i] + r0[i + 1] + r1[i] + r1[i + 1] + r2[i] +
+                                          r2[i + 1] + r3[i] + r3[i + 1] + 4u) / 8u
+                                       : ors != 0);
             }
         }
-    return any;
+    return any != 0;
 }
 
 /* The octant of the parent that child entry e (level l-1) covers, from
@@ -530,15 +562,18 @@ static void mip_octant(mip_ctx *m, uint32_t e, uint32_t ox, uint32_t oy,
         uint32_t d = vod_downsample(m->ch, c);
         m->nonempty = m->nonempty || e != 0;
         for (uint32_t z = 0; z < half; z++)
-            for (uint32_t y = 0; y < half; y++)
-                for (uint32_t x = 0; x < half; x++)
-                    m->out[vox_index(v, ox + x, oy + y, oz + z)] = d;
+            for (uint32_t y = 0; y < half; y++) {
+                size_t at = vox_index(v, ox, oy + y, oz + z);
+                if (v->bits == 8) memset(m->out8 + at, (int)d, half);
+                else
+                    for (uint32_t x = 0; x < half; x++) m->out[at + x] = d;
+            }
         return;
     }
     const uint8_t *d = brick_data(v, e);
-    uint32_t any = v->bits == 8 && m->ch != VOXEL_CH_SURFACE
-                       ? mip_octant8(m, d, ox, oy, oz)
-                       : mip_octant_any(m, d, ox, oy, oz);
+    /* 8-bit voxels give channels 1 and 2 only (channels_of) */
+    uint32_t any = v->bits == 8 ? mip_octant8(m, d, ox, oy, oz)
+                                : mip_octant_any(m, d, ox, oy, oz);
     /* a mip child with memory has a non-empty footprint by construction;
      * a level-0 one only if some voxel is non-zero */
     m->nonempty = m->nonempty || m->l > 1 || any;
@@ -587,15 +622,21 @@ static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
     *entry = 0;
     if (!m->nonempty) return 0;
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick, i = 1;
-    while (i < n && m->out[i] == m->out[0]) i++;
-    if (i == n && m->out[0] < ENTRY_UNIFORM) {
-        *entry = ENTRY_UNIFORM | m->out[0];
+    uint32_t first = v->bits == 8 ? m->out8[0] : m->out[0];
+    if (v->bits == 8)
+        while (i < n && m->out8[i] == first) i++;
+    else
+        while (i < n && m->out[i] == first) i++;
+    if (i == n && first < ENTRY_UNIFORM) {
+        *entry = ENTRY_UNIFORM | first;
         return 0;
     }
     uint32_t e = is_alloc(old) ? old : pool_take(v, 0);
     if (!e) return -ENOMEM;
     uint8_t *d = brick_data(v, e);
-    for (i = 0; i < n; i++) vox_put(v, d, (size_t)i, m->out[i]);
+    if (v->bits == 8) memcpy(d, m->out8, n); /* the bytes are the voxels */
+    else
+        for (i = 0; i < n; i++) vox_put(v, d, (size_t)i, m->out[i]);
     *entry = e;
     return 0;
 }
@@ -651,6 +692,7 @@ int vod_volume_mip_columns(vod_volume *v, int channel, int levels,
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
     mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
     if (!m.out) return -ENOMEM;
+    m.out8 = (uint8_t *)m.out;
     int rc = build_columns(&m, levels, lo, hi);
     free(m.out);
     return rc;
@@ -678,6 +720,7 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
     v->mip_base = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
     mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
+    m.out8 = (uint8_t *)m.out;
     int rc = m.out ? 0 : -ENOMEM;
     for (m.l = first; m.l <= v->depth && !rc; m.l++) {
         memset(table(v, m.l), 0, 4 * grid_bricks(v, m.l));
