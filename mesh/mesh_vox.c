@@ -96,7 +96,8 @@ static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick)
                         t->st->voxels += mv_popcount(f);
                         for (uint32_t i = 0; i < S; i += 8) {
                             uint64_t v = byte_lut((unsigned)(f >> i) & 0xff);
-                            memcpy(row + i, &v, S - i < 8 ? S - i : 8);
+                            if (S - i >= 8) memcpy(row + i, &v, 8); /* one store */
+                            else memcpy(row + i, &v, S - i);
                         }
                     }
                 rc = put(t, bx, by, bz, brick);
