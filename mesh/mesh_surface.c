@@ -27,7 +27,17 @@
 typedef struct {
     int64_t ne[3][2]; /* edge normals in the projection, inner side > 0 */
     mv_i128 de[3];    /* test: ne . p + de >= 0, p the voxel's low corner */
+    int64_t de64[3];  /* de, when it fits (a narrow triangle's: see below) */
 } proj_test;
+
+/* A triangle narrower than NARROW lattice units on every axis (the usual
+ * one: 8 voxels) has edge normals below 2^19 in the projections and 2^39
+ * in space.  With every coordinate below 2^40 (the clamp) and every voxel
+ * corner tested within a voxel of its box (|p - P0| < 2^20), an edge
+ * test's terms stay below 2^59 and 2^61 in all, the plane's below 2^59
+ * each and 2^61 with the box's corner: 64-bit arithmetic gives the exact
+ * 128-bit signs, several times faster. */
+#define NARROW ((int64_t)1 << 19)
 
 /* Projection (a, c) (dropping axis w) of triangle P. */
 static void proj_setup(const int64_t P[3][3], const mv_i128 n[3], int a, int c,
@@ -46,6 +56,7 @@ static void proj_setup(const int64_t P[3][3], const mv_i128 n[3], int a, int c,
             d += (mv_i128)MV_L * ((na > 0 ? na : 0) + (nc > 0 ? nc : 0));
         }
         pt->de[i] = d;
+        pt->de64[i] = (int64_t)d; /* used only when narrow: then it fits */
     }
 }
 
@@ -54,6 +65,13 @@ static inline bool proj_pass(const proj_test *pt, int64_t pa, int64_t pc)
     for (int i = 0; i < 3; i++)
         if ((mv_i128)pt->ne[i][0] * pa + (mv_i128)pt->ne[i][1] * pc + pt->de[i] < 0)
             return false;
+    return true;
+}
+
+static inline bool proj_pass64(const proj_test *pt, int64_t pa, int64_t pc)
+{
+    for (int i = 0; i < 3; i++)
+        if (pt->ne[i][0] * pa + pt->ne[i][1] * pc + pt->de64[i] < 0) return false;
     return true;
 }
 
@@ -66,6 +84,20 @@ static int voxel_range(const mv_block *b, int a, int64_t lo, int64_t hi,
     if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
     *i0 = s, *i1 = e;
     return s <= e ? 0 : -1;
+}
+
+/* The voxels [z0, z1] of the column at (px, py) that the plane can reach,
+ * from its z over the column in double (one voxel of margin covers the
+ * rounding; the exact tests decide). */
+static inline void z_range(const int64_t P[3][3], double gx, double gy, double spread,
+                           bool slanted, int64_t px, int64_t py, int64_t *z0, int64_t *z1)
+{
+    if (!slanted) return;
+    double zc = (double)P[0][2] + gx * (double)(px + MV_H - P[0][0]) +
+                gy * (double)(py + MV_H - P[0][1]);
+    double a = floor((zc - spread) / MV_L) - 1, c = floor((zc + spread) / MV_L) + 1;
+    if (a > (double)*z0) *z0 = (int64_t)a;
+    if (c < (double)*z1) *z1 = (int64_t)c;
 }
 
 void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits)
@@ -107,18 +139,37 @@ void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bi
         spread = (fabs(gx) + fabs(gy)) * MV_H;
     }
     size_t n1 = (size_t)b->n[1], nw = b->nw;
+    bool narrow = hi[0] - lo[0] < NARROW && hi[1] - lo[1] < NARROW && hi[2] - lo[2] < NARROW;
+    if (narrow) {
+        int64_t n64[3] = {(int64_t)n[0], (int64_t)n[1], (int64_t)n[2]};
+        int64_t lo64 = (int64_t)lo_c, hi64 = (int64_t)hi_c, half64 = (int64_t)half;
+        int64_t dom64 = (int64_t)dom;
+        for (int64_t Y = i0[1]; Y <= i1[1]; Y++)
+            for (int64_t X = i0[0]; X <= i1[0]; X++) {
+                int64_t px = X * MV_L, py = Y * MV_L;
+                if (!proj_pass64(&xy, px, py)) continue;
+                int64_t z0 = i0[2], z1 = i1[2];
+                z_range(P, gx, gy, spread, n[2] != 0, px, py, &z0, &z1);
+                int64_t sxy = n64[0] * (px - P[0][0]) + n64[1] * (py - P[0][1]);
+                size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
+                for (int64_t Z = z0; Z <= z1; Z++) {
+                    int64_t pz = Z * MV_L, s = sxy + n64[2] * (pz - P[0][2]);
+                    int64_t c = s + half64;
+                    bool plane = six ? (c < 0 ? -c : c) <= dom64 : s + lo64 <= 0 && s + hi64 >= 0;
+                    if (!plane || !proj_pass64(&yz, py, pz) || !proj_pass64(&zx, pz, px))
+                        continue;
+                    size_t z = (size_t)(Z - b->s0[2]);
+                    bits[(z * n1 + y) * nw + x / 64] |= 1ull << (x & 63);
+                }
+            }
+        return;
+    }
     for (int64_t Y = i0[1]; Y <= i1[1]; Y++) {
         for (int64_t X = i0[0]; X <= i1[0]; X++) {
             int64_t px = X * MV_L, py = Y * MV_L;
             if (!proj_pass(&xy, px, py)) continue;
             int64_t z0 = i0[2], z1 = i1[2];
-            if (n[2] != 0) {
-                double zc = (double)P[0][2] + gx * (double)(px + MV_H - P[0][0]) +
-                            gy * (double)(py + MV_H - P[0][1]);
-                double a = floor((zc - spread) / MV_L) - 1, c = floor((zc + spread) / MV_L) + 1;
-                if (a > (double)z0) z0 = (int64_t)a;
-                if (c < (double)z1) z1 = (int64_t)c;
-            }
+            z_range(P, gx, gy, spread, n[2] != 0, px, py, &z0, &z1);
             mv_i128 sxy = n[0] * (px - P[0][0]) + n[1] * (py - P[0][1]);
             size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
             for (int64_t Z = z0; Z <= z1; Z++) {
