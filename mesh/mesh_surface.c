@@ -39,24 +39,27 @@ typedef struct {
  * 128-bit signs, several times faster. */
 #define NARROW ((int64_t)1 << 19)
 
-/* Projection (a, c) (dropping axis w) of triangle P. */
-static void proj_setup(const int64_t P[3][3], const mv_i128 n[3], int a, int c,
-                       int w, bool six, proj_test *pt)
+/* Projection (a, c) (dropping axis w) of triangle P; ns: the sign of the
+ * normal's component w (>= 0: 1).  A narrow triangle's tests in 64 bits
+ * (de64), any other's in 128 (de). */
+static void proj_setup(const int64_t P[3][3], int ns, int a, int c, bool six,
+                       bool narrow, proj_test *pt)
 {
-    int s = n[w] >= 0 ? 1 : -1;
     for (int i = 0; i < 3; i++) {
-        const int64_t *p = P[i], *q = P[(i + 1) % 3];
-        int64_t na = -s * (q[c] - p[c]), nc = s * (q[a] - p[a]);
+        const int64_t *p = P[i], *q = P[i == 2 ? 0 : i + 1];
+        int64_t na = -ns * (q[c] - p[c]), nc = ns * (q[a] - p[a]);
         pt->ne[i][0] = na, pt->ne[i][1] = nc;
-        mv_i128 d = -((mv_i128)na * p[a] + (mv_i128)nc * p[c]);
-        if (six) { /* the diamond's vertex furthest along ne */
-            int64_t m = na < 0 ? -na : na, mc = nc < 0 ? -nc : nc;
-            d += (mv_i128)MV_H * (na + nc) + (mv_i128)MV_H * (m > mc ? m : mc);
-        } else { /* the square's corner furthest along ne */
-            d += (mv_i128)MV_L * ((na > 0 ? na : 0) + (nc > 0 ? nc : 0));
+        int64_t m = na < 0 ? -na : na, mc = nc < 0 ? -nc : nc;
+        /* six: the diamond's vertex furthest along ne; else the square's
+         * corner furthest along ne */
+        int64_t k0 = six ? MV_H * (na + nc) : MV_L * ((na > 0 ? na : 0) + (nc > 0 ? nc : 0));
+        int64_t k1 = six ? MV_H * (m > mc ? m : mc) : 0;
+        if (narrow) {
+            pt->de64[i] = -(na * p[a] + nc * p[c]) + k0 + k1;
+        } else {
+            mv_i128 d = -((mv_i128)na * p[a] + (mv_i128)nc * p[c]);
+            pt->de[i] = d + k0 + k1;
         }
-        pt->de[i] = d;
-        pt->de64[i] = (int64_t)d; /* used only when narrow: then it fits */
     }
 }
 
@@ -86,6 +89,14 @@ static int voxel_range(const mv_block *b, int a, int64_t lo, int64_t hi,
     return s <= e ? 0 : -1;
 }
 
+/* floor(q) for |q| < 2^62: a cast and a correction, floor() being a
+ * library call without SSE4.1. */
+static inline int64_t ifloor(double q)
+{
+    int64_t i = (int64_t)q;
+    return i - (q < (double)i);
+}
+
 /* The voxels [z0, z1] of the column at (px, py) that the plane can reach,
  * from its z over the column in double (one voxel of margin covers the
  * rounding; the exact tests decide). */
@@ -95,9 +106,15 @@ static inline void z_range(const int64_t P[3][3], double gx, double gy, double s
     if (!slanted) return;
     double zc = (double)P[0][2] + gx * (double)(px + MV_H - P[0][0]) +
                 gy * (double)(py + MV_H - P[0][1]);
-    double a = floor((zc - spread) / MV_L) - 1, c = floor((zc + spread) / MV_L) + 1;
-    if (a > (double)*z0) *z0 = (int64_t)a;
-    if (c < (double)*z1) *z1 = (int64_t)c;
+    /* clamped to [z0 - 2, z1 + 2] first (the same voxels: past either end
+     * the range is as empty or as whole), so the conversion is exact */
+    double lo = (double)*z0 - 2, hi = (double)*z1 + 2;
+    double qa = (zc - spread) / MV_L, qc = (zc + spread) / MV_L;
+    qa = qa < lo ? lo : qa > hi ? hi : qa;
+    qc = qc < lo ? lo : qc > hi ? hi : qc;
+    int64_t a = ifloor(qa) - 1, c = ifloor(qc) + 1;
+    if (a > *z0) *z0 = a;
+    if (c < *z1) *z1 = c;
 }
 
 void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits)
@@ -116,10 +133,11 @@ void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bi
     mv_i128 n[3] = {(mv_i128)e1[1] * e2[2] - (mv_i128)e1[2] * e2[1],
                     (mv_i128)e1[2] * e2[0] - (mv_i128)e1[0] * e2[2],
                     (mv_i128)e1[0] * e2[1] - (mv_i128)e1[1] * e2[0]};
+    bool narrow = hi[0] - lo[0] < NARROW && hi[1] - lo[1] < NARROW && hi[2] - lo[2] < NARROW;
     proj_test xy, yz, zx;
-    proj_setup(P, n, 0, 1, 2, six, &xy);
-    proj_setup(P, n, 1, 2, 0, six, &yz);
-    proj_setup(P, n, 2, 0, 1, six, &zx);
+    proj_setup(P, n[2] >= 0 ? 1 : -1, 0, 1, six, narrow, &xy);
+    proj_setup(P, n[0] >= 0 ? 1 : -1, 1, 2, six, narrow, &yz);
+    proj_setup(P, n[1] >= 0 ? 1 : -1, 2, 0, six, narrow, &zx);
     /* plane: n . (p - P0) + lo_c <= 0 <= n . (p - P0) + hi_c over the box
      * (26), or |n . (centre - P0)| <= L/2 max |n_a| (6) */
     mv_i128 lo_c = 0, hi_c = 0, half = 0, dom = 0;
@@ -139,7 +157,6 @@ void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bi
         spread = (fabs(gx) + fabs(gy)) * MV_H;
     }
     size_t n1 = (size_t)b->n[1], nw = b->nw;
-    bool narrow = hi[0] - lo[0] < NARROW && hi[1] - lo[1] < NARROW && hi[2] - lo[2] < NARROW;
     if (narrow) {
         int64_t n64[3] = {(int64_t)n[0], (int64_t)n[1], (int64_t)n[2]};
         int64_t lo64 = (int64_t)lo_c, hi64 = (int64_t)hi_c, half64 = (int64_t)half;
