@@ -456,6 +456,16 @@ int vod_volume_put_uniform(vod_volume *v, const uint32_t b[3], uint32_t value)
 
 /* ---- mip levels ---- */
 
+static uint64_t load64(const uint8_t *p)
+{
+    uint64_t w; /* byte k in bits 8k .. 8k + 7 */
+    memcpy(&w, p, 8);
+#if __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    w = __builtin_bswap64(w);
+#endif
+    return w;
+}
+
 static uint32_t channels_of(const vod_volume *v)
 {
     return 1u << VOXEL_CH_OCCUPANCY |
@@ -489,16 +499,6 @@ static uint32_t mip_octant_any(mip_ctx *m, const uint8_t *d, uint32_t ox,
                 m->out[vox_index(v, ox + x, oy + y, oz + z)] = vod_downsample(m->ch, c);
             }
     return any;
-}
-
-static uint64_t load64(const uint8_t *p)
-{
-    uint64_t w; /* byte k in bits 8k .. 8k + 7 */
-    memcpy(&w, p, 8);
-#if __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
-    w = __builtin_bswap64(w);
-#endif
-    return w;
 }
 
 /* Channel 1 of 4 parent voxels from the 8 x-children of 4 rows (a..d, 8
@@ -831,11 +831,7 @@ static inline void raw_put(uint8_t *raw, uint32_t bits, size_t i, uint32_t val)
  * the 8 high bits (moved to bit 0 of their bytes) into the top byte. */
 static inline uint8_t nonzero_bits8(const uint8_t *s)
 {
-    uint64_t w; /* byte k in bits 8k .. 8k + 7 */
-    memcpy(&w, s, 8);
-#if __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
-    w = __builtin_bswap64(w);
-#endif
+    uint64_t w = load64(s);
     const uint64_t low7 = 0x7f7f7f7f7f7f7f7full, high = 0x8080808080808080ull;
     uint64_t t = (((w & low7) + low7) | w) & high;
     return (uint8_t)(((t >> 7) * 0x0102040810204080ull) >> 56);
