@@ -81,13 +81,12 @@ check "bench-mesh-whole: the jobs at 64, 128, 256 (the issue's / 8) and the surf
     test "$(cut -d'|' -f2 <<<"$jobs" | tr -d ' ' | tr '\n' ,)" = \
     'solid64^3,solid128^3,solid256^3,surface(26-separating)128^3,whole`voxvoxelize--meshdragon.ply--res128`,'
 # The topology runs alongside binning and tiles, then the VOD write: the
-# job takes at least the longer of the two, then the write, and at most
-# all four one after the other (each rounded to 3 decimals; the job also
-# holds the grid and the engine's hand-over between the stages).
+# job takes at least the longer of the two, then the write (each rounded
+# to 3 decimals).  No upper bound from the stages: the job also holds the
+# grid, the thread and the engine's hand-over between the stages, which a
+# busy machine can stretch (the whole command bounds it below).
 check "bench-mesh-whole: max(topology, binning + tiles) + VOD write <= job" \
     awk -F'|' '{ v = $6 + $7; if ($5 > v) v = $5; if (v + $8 - $9 > 0.004) { print; exit 1 } }' <<<"$jobs"
-check "bench-mesh-whole: job <= topology + binning + tiles + VOD write" \
-    awk -F'|' '{ if ($9 - ($5 + $6 + $7 + $8) > 0.010) { print; exit 1 } }' <<<"$jobs"
 check "bench-mesh-whole: whole command >= job" awk -F'|' '$10 + 0.002 < $9 { print; exit 1 }' <<<"$jobs"
 check "bench-mesh-whole: memory measured in every job row" awk -F'|' '$11 <= 0 || $12 <= 0 { print; exit 1 }' <<<"$jobs"
 check "bench-mesh-whole: targets unmarked in quick mode" \
