@@ -33,6 +33,7 @@ enum kind {
     K_SECONDS, /* with s/m/h/d */
     K_LEVEL,   /* log level name */
     K_MEMORY,  /* auto | bytes with K/M/G/T */
+    K_TEXT,    /* words, bounded by their field; none = empty */
 };
 
 typedef struct {
@@ -66,6 +67,13 @@ static const option options[] = {
     {"client_timeout", K_SECONDS, F(client_timeout), 1, 86400, NULL},
     {"worker_stall_timeout", K_SECONDS, F(worker_stall_timeout), 0, 3600, NULL},
     {"max_memory", K_MEMORY, F(max_memory), 64 * MIB, 1024 * TIB, NULL},
+    {"mpi_hostfile", K_PATH, F(mpi_hostfile), 0, 0, NULL},
+    {"mpi_min_res", K_COUNT, F(mpi_min_res), 1, 65536, NULL},
+    {"mpi_ranks", K_COUNT, F(mpi_ranks), 1, 4096, NULL},
+    {"mpi_workers", K_COUNT, F(mpi_workers), 0, CONFIG_MAX_WORKERS, NULL},
+    {"mpirun", K_PATH, F(mpirun), 0, 0, NULL},
+    {"mpirun_args", K_TEXT, F(mpirun_args), 0, 0, NULL},
+    {"vox_mpi", K_PATH, F(vox_mpi), 0, 0, NULL},
 #define LIMIT_OPTION(name, type, def, min, max, unit, doc) \
     {#name, K_##unit, F(name), (min), (max), doc},
     VOX_LIMITS(LIMIT_OPTION)
@@ -83,6 +91,10 @@ void config_defaults(voxd_config *c)
     c->max_clients = 128;
     c->client_timeout = 30;
     c->worker_stall_timeout = 10;
+    c->mpi_min_res = 1024;
+    c->mpi_ranks = 2;
+    c->mpi_workers = 1;
+    snprintf(c->mpirun_args, sizeof c->mpirun_args, "%s", CONFIG_MPIRUN_ARGS);
 #define LIMIT_DEFAULT(name, type, def, min, max, unit, doc) c->name = (def);
     VOX_LIMITS(LIMIT_DEFAULT)
 #undef LIMIT_DEFAULT
@@ -206,6 +218,19 @@ static int parse_path(const option *o, const char *val, char *field, reason *r)
         return refuse(r, "%s must be an absolute path, got '%.*s%s'", o->key, SHOWN(val));
     if (strlen(val) >= o->size)
         return refuse(r, "%s is longer than %zu bytes", o->key, o->size - 1);
+    memcpy(field, val, strlen(val) + 1);
+    return 0;
+}
+
+/* Printable words (no control character), or none for no words. */
+static int parse_text(const option *o, const char *val, char *field, reason *r)
+{
+    if (strcmp(val, "none") == 0) val = "";
+    if (strlen(val) >= o->size)
+        return refuse(r, "%s is longer than %zu bytes", o->key, o->size - 1);
+    for (const char *p = val; *p; p++)
+        if (!isprint((unsigned char)*p) && *p != '\t')
+            return refuse(r, "%s contains a control character", o->key);
     memcpy(field, val, strlen(val) + 1);
     return 0;
 }
@@ -336,6 +361,7 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
     int rc;
     switch (o->kind) {
     case K_PATH: return parse_path(o, val, field, r);
+    case K_TEXT: return parse_text(o, val, field, r);
     case K_MODE: return parse_mode(o, val, &c->socket_mode, r);
     case K_GROUP: return parse_group(val, c, r);
     case K_UIDS: return parse_uids(val, c, r);
@@ -570,8 +596,13 @@ static void print_option(FILE *out, const option *o, const voxd_config *c)
     case K_PATH:
         if (*field) fprintf(out, "%s %s\n", o->key, field);
         else fprintf(out, "# %s: not set, so %s\n", o->key,
-                     strcmp(o->key, "log_file") == 0 ? "stderr" : "none");
+                     strcmp(o->key, "log_file") == 0   ? "stderr"
+                     : strcmp(o->key, "mpi_hostfile") == 0 ? "no job runs through MPI"
+                     : strcmp(o->key, "mpirun") == 0   ? "mpirun on the PATH"
+                     : strcmp(o->key, "vox_mpi") == 0  ? "vox_mpi beside voxd, else on the PATH"
+                                                       : "none");
         break;
+    case K_TEXT: fprintf(out, "%s %s\n", o->key, *field ? field : "none"); break;
     case K_MODE: fprintf(out, "%s 0%03o\n", o->key, c->socket_mode); break;
     case K_GROUP:
         fprintf(out, "%s %s\n", o->key, c->has_socket_group ? c->socket_group : "none");

@@ -36,6 +36,8 @@
 #define CONFIG_REQUEST_OVERHEAD 256u
 /* max_memory must leave at least this much above shm_size for results. */
 #define CONFIG_RESULT_ROOM ((uint64_t)64 << 20)
+/* mpirun_args' default: ranks over TCP, more ranks than cores allowed. */
+#define CONFIG_MPIRUN_ARGS "--oversubscribe --mca btl self,tcp"
 
 typedef struct {
     /* socket */
@@ -65,6 +67,14 @@ typedef struct {
     uint32_t worker_stall_timeout;   /* seconds, 10: a busy worker without a heartbeat is
                                         replaced; 0 = never */
     uint64_t max_memory;             /* shared memory + results held; 0 = auto */
+    /* large implicit jobs through mpirun ... vox_mpi (docs/mpi.md) */
+    char mpi_hostfile[PATH_MAX];     /* "" = off: every job on the local engine */
+    uint32_t mpi_min_res;            /* 1024: jobs of this res and above go to MPI */
+    uint32_t mpi_ranks;              /* 2: mpirun -np */
+    uint32_t mpi_workers;            /* 1: vox_mpi -w, workers per rank (0 = serial) */
+    char mpirun[PATH_MAX];           /* "" = mpirun on the PATH */
+    char mpirun_args[512];           /* CONFIG_MPIRUN_ARGS, split on blanks */
+    char vox_mpi[PATH_MAX];          /* "" = vox_mpi beside voxd */
     /* the limits clients are told (HelloOk): one field per row of VOX_LIMITS
      * (vox_limits.h), with its name, type, default and range */
 #define CONFIG_LIMIT_FIELD(name, type, def, min, max, unit, doc) type name;

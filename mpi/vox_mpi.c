@@ -590,6 +590,9 @@ typedef struct {
     cli_job_opts o;
     int stats;
     uint32_t per_rank;
+    /* --source-name: the name the file's metadata gives the source (voxd
+     * runs a client's job from a private copy); "" none */
+    const char *source_name;
     source src;
     expr_tape *tape;
     vod_params v;
@@ -628,6 +631,8 @@ static void usage(FILE *f)
 "      --subtrees N      subtrees per rank to aim for (default %d)\n"
 "      --stats           a line per rank: host, subtrees, bricks and bytes sent\n"
 "      --progress        the progress line, by subtrees done\n"
+"      --source-name NAME  the source's name in the file's metadata (voxd's;\n"
+"                        \"\" for none)\n"
 "  -q, --quiet           no summary\n"
 "\n"
 "Under mpirun: --mca btl self,tcp for ranks on several hosts over TCP,\n"
@@ -648,6 +653,12 @@ static int own_options(prep *p, int *argc, char **argv)
                 return CLI_EXIT_USAGE;
             }
             i++;
+        } else if (!strcmp(argv[i], "--source-name")) {
+            if (i + 1 >= *argc) {
+                msg("--source-name wants a name (\"\" for none)");
+                return CLI_EXIT_USAGE;
+            }
+            p->source_name = argv[++i];
         } else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
             return CLI_EXIT_OK;
@@ -689,7 +700,9 @@ static int prepare(prep *p, int argc, char **argv)
     pipeline_job pj = {
         .kind = PIPELINE_IMPLICIT,
         .implicit = {.tape = p->tape, .source = p->src.text, .source_len = p->src.len,
-                     .source_name = p->src.path},
+                     .source_name = !p->source_name    ? p->src.path
+                                    : p->source_name[0] ? p->source_name
+                                                        : NULL},
         .lo = {p->o.lo[0], p->o.lo[1], p->o.lo[2]},
         .hi = {p->o.hi[0], p->o.hi[1], p->o.hi[2]},
         .res = p->o.res, .schedule = p->o.schedule, .vod = p->o.vod,

@@ -35,6 +35,14 @@ void vd_engine_opts(vd_daemon *d, const voxd_config *c)
     memcpy(d->cpus, c->cpus, sizeof d->cpus);
     d->mem_max = config_max_memory(c);
     d->mem_shm = c->shm_size;
+    vd_mpi *m = &d->mpi;
+    snprintf(m->hostfile, sizeof m->hostfile, "%s", c->mpi_hostfile);
+    snprintf(m->mpirun, sizeof m->mpirun, "%s", c->mpirun);
+    snprintf(m->args, sizeof m->args, "%s", c->mpirun_args);
+    snprintf(m->vox_mpi, sizeof m->vox_mpi, "%s", c->vox_mpi);
+    m->min_res = c->mpi_min_res;
+    m->ranks = c->mpi_ranks;
+    m->workers = c->mpi_workers;
     d->eopts = (engine_opts){.workers = config_workers(c),
                              .cpus = c->n_cpus ? d->cpus : NULL,
                              .ncpus = c->n_cpus,

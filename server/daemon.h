@@ -174,6 +174,15 @@ typedef struct {
     uint32_t replaced, stalls, unanswered; /* engine_worker_info's */
 } vd_worker_snap;
 
+/* The MPI settings (config's mpi_*), the engine thread's copy. */
+typedef struct {
+    char hostfile[PATH_MAX];   /* "" = no job runs through MPI */
+    uint32_t min_res, ranks, workers;
+    char mpirun[PATH_MAX];     /* "" = mpirun on the PATH */
+    char args[512];
+    char vox_mpi[PATH_MAX];    /* "" = beside voxd */
+} vd_mpi;
+
 struct vd_daemon {
     uv_loop_t *loop;
     voxd_config cfg;           /* loop's copy: limits of new requests */
@@ -218,6 +227,7 @@ struct vd_daemon {
     int engine_state;          /* 0 starting, 1 ready, -errno failed */
     char engine_err[256];
     engine_opts eopts;         /* the next engine's (reload copies in) */
+    vd_mpi mpi;                /* the next job's (reload copies in) */
     uint64_t mem_max, mem_shm; /* max_memory (resolved) and shm_size, for the
                                   engine thread's budget checks */
     int cpus[CONFIG_MAX_CPUS];
@@ -276,6 +286,15 @@ int vd_busy(vd_daemon *d); /* jobs queued, running or delivering */
  * VOXD__ERROR_CODE__BUSY with why in msg. */
 int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg,
                    size_t len);
+
+/* daemon_mpi.c: jobs through mpirun ... vox_mpi (engine thread) */
+int vd_mpi_wants(const vd_mpi *m, const vd_job *j);
+/* Run j through MPI: 0 with *result an open descriptor of its VOD file
+ * (unlinked) and j's voxels, st and times from vox_mpi's summary; or -1
+ * with j's error set (a cancel's too).  started(ud, line) is called once
+ * mpirun runs, with a line for the log. */
+int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result,
+               void (*started)(void *ud, const char *line), void *ud);
 
 /* daemon_conn.c: a connection's output */
 /* Frame r onto c's write queue; 0, or -errno after c->written(c, error). */

@@ -415,7 +415,72 @@ static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m)
     return 0;
 }
 
-static void run_job(vd_daemon *d, engine *e, vd_job *j, uint64_t room)
+/* The MPI run's file into the job's memfd, through the sink's limits. */
+static void copy_result(vd_job *j, int in, uint64_t room)
+{
+    result_sink rs = {.j = j, .room = room};
+    uint8_t buf[64 << 10];
+    ssize_t n;
+    int rc = 0;
+    while (rc == 0 && (n = read(in, buf, sizeof buf)) != 0) {
+        if (n < 0 && errno == EINTR) continue;
+        rc = n < 0 ? -errno : sink_write(&rs, buf, (size_t)n);
+    }
+    if (rc == 0) {
+        j->code = 0;
+        return;
+    }
+    pipeline_report r = {.stage = PIPELINE_WRITE};
+    r.err.failure = ENGINE_SINK;
+    snprintf(r.err.message, sizeof r.err.message, "%s", strerror(-rc));
+    job_failed(j, &rs, &r);
+}
+
+/* The MPI run started: its line in the log now, not when it ends. */
+static void mpi_started(void *ud, const char *line)
+{
+    vd_daemon *d = ud;
+    pthread_mutex_lock(&d->mu);
+    elog(d, LOG_LEVEL_INFO, "%s", line);
+    pthread_mutex_unlock(&d->mu);
+    wake_loop(d);
+}
+
+/* An implicit job through mpirun ... vox_mpi (daemon_mpi.c): its grid
+ * from the plan every job makes, its file copied into the memfd. */
+static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
+                    uint64_t room)
+{
+    vod_params_default(&job->vod);
+    job->vod.channel = j->channel;
+    job->vod.brick = j->brick;
+    job->vod.comp = j->comp;
+    job->vod.hash = j->hash;
+    pipeline_report r = {0};
+    vod_params v;
+    char meta[JOB_META_MAX];
+    if (pipeline_plan(job, &r, &v, meta)) {
+        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", r.err.message);
+        return;
+    }
+    j->grid = r.grid;
+    int in = -1;
+    int rc = vd_mpi_run(m, j, &in, mpi_started, d);
+    pthread_mutex_lock(&d->mu);
+    if (rc == 0)
+        elog(d, LOG_LEVEL_INFO, "job %llu ran through MPI on %u rank(s) in %.3f s",
+             (unsigned long long)j->id, m->ranks, j->t_voxelize + j->t_write);
+    else if (j->code != VOXD__ERROR_CODE__CANCELLED && j->code != VOXD__ERROR_CODE__TIMEOUT &&
+             j->code != VOXD__ERROR_CODE__SHUTTING_DOWN)
+        elog(d, LOG_LEVEL_ERROR, "job %llu: %.200s", (unsigned long long)j->id, j->message);
+    pthread_mutex_unlock(&d->mu);
+    wake_loop(d);
+    if (rc) return;
+    copy_result(j, in, room);
+    close(in);
+}
+
+static void run_job(vd_daemon *d, engine *e, vd_job *j, const vd_mpi *mpi, uint64_t room)
 {
     progress_ctx px = {d, j, e};
     pipeline_job job = {
@@ -430,6 +495,8 @@ static void run_job(vd_daemon *d, engine *e, vd_job *j, uint64_t room)
     if (j->fd < 0) {
         job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
                   strerror(errno));
+    } else if (vd_mpi_wants(mpi, j)) {
+        run_mpi(d, mpi, j, &job, room);
     } else {
         run_pipeline(e, j, &job, room);
     }
@@ -475,12 +542,16 @@ static void run_next(vd_daemon *d, engine *e)
      * the job was admitted may have left room, or not. */
     uint64_t room = d->mem_max > d->mem_shm ? d->mem_max - d->mem_shm : 0;
     int full = vd_memory_room(d, d->mem_max, d->mem_shm, j->message, sizeof j->message);
+    vd_mpi *m = malloc(sizeof *m); /* this job's MPI settings: a reload may change d's */
+    if (m) *m = d->mpi;
     pthread_mutex_unlock(&d->mu);
     wake_loop(d);
     /* relaxed: a flag, see engine_job.cancel */
     if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) vd_job_stopped(j);
     else if (full) j->code = full;
-    else run_job(d, e, j, room);
+    else if (!m) job_error(j, VOXD__ERROR_CODE__INTERNAL, "out of memory");
+    else run_job(d, e, j, m, room);
+    free(m);
     pthread_mutex_lock(&d->mu);
     job_done(d, e, j);
 }

@@ -1,0 +1,327 @@
+/* daemon_mpi — an implicit job at or above mpi_min_res runs through
+ * `mpirun ... vox_mpi voxelize` (docs/mpi.md, "voxd"), on the engine
+ * thread in place of the local engine: the queue, the per-user rules, the
+ * memory budget, cancel and job_timeout apply as to any job, and the loop
+ * never waits on it.
+ *
+ * The job runs from a private directory (mkdtemp, 0700): the expression
+ * as job.vx, the output as out.vod.  mpirun is started in a process group
+ * of its own (posix_spawn: no fork of this threaded process) with the
+ * signals the daemon blocks unblocked; a cancel sends the group SIGTERM,
+ * then SIGKILL after VD_MPI_KILL_GRACE_S.  vox_mpi unlinks its ranks'
+ * shared memory as soon as it is mapped and its workers die with their
+ * rank (docs/mpi.md, "Failures"), so killing the group leaves nothing. */
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <signal.h>
+#include <spawn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "clock.h"
+#include "daemon.h"
+#include "pipeline.h"
+#include "vod.h"
+#include "voxel.h"
+
+#define VD_MPI_POLL_NS 20000000L   /* 20 ms between looks at the child and the cancel flag */
+#define VD_MPI_KILL_GRACE_S 2.0    /* SIGTERM, then this long, then SIGKILL */
+#define VD_MPI_MAX_ARGS 96
+#define VD_MPI_ERR_LINES 4          /* lines of its output an error gives */
+#define VD_MPI_OUT_MAX 8192        /* bytes of mpirun's output kept for messages */
+
+extern char **environ;
+
+int vd_mpi_wants(const vd_mpi *m, const vd_job *j)
+{
+    return m->hostfile[0] && j->kind == PIPELINE_IMPLICIT && j->res >= m->min_res;
+}
+
+/* ---------------------------------------------------------------- the command */
+
+typedef struct {
+    char *argv[VD_MPI_MAX_ARGS + 1];
+    int n;
+    char words[sizeof ((vd_mpi *)0)->args];
+    char num[8][32];                /* numbers formatted for argv */
+    char dom[160];
+    char file[PATH_MAX + 16], out[PATH_MAX + 16], exe[PATH_MAX];
+} cmdline;
+
+static int add(cmdline *c, const char *a)
+{
+    if (c->n >= VD_MPI_MAX_ARGS) return -E2BIG;
+    c->argv[c->n++] = (char *)a;
+    c->argv[c->n] = NULL;
+    return 0;
+}
+
+/* vox_mpi: the configured path, else the one beside this voxd (a build
+ * tree), else plain vox_mpi, which mpirun looks for on the PATH of each
+ * host (make install puts voxd in sbin and vox_mpi in bin). */
+static int vox_mpi_path(const vd_mpi *m, char *buf, size_t len)
+{
+    if (m->vox_mpi[0]) return snprintf(buf, len, "%s", m->vox_mpi) < (int)len ? 0 : -ENAMETOOLONG;
+    char self[PATH_MAX];
+    ssize_t n = readlink("/proc/self/exe", self, sizeof self - 1);
+    if (n < 0) return -errno;
+    self[n] = '\0';
+    char *slash = strrchr(self, '/');
+    if (slash) *slash = '\0';
+    if (snprintf(buf, len, "%s/vox_mpi", self) < (int)len && access(buf, X_OK) == 0) return 0;
+    snprintf(buf, len, "vox_mpi");
+    return 0;
+}
+
+static const char *channel_name(int ch)
+{
+    return ch == VOXEL_CH_OCCUPANCY ? "occupancy" : ch == VOXEL_CH_DENSITY ? "density" : "surface";
+}
+
+/* mpirun ARGS -np R --hostfile H vox_mpi voxelize -f DIR/job.vx ... -o DIR/out.vod */
+static int build_cmd(cmdline *c, const vd_mpi *m, const vd_job *j, const char *dir)
+{
+    int rc;
+    c->n = 0;
+    if ((rc = add(c, m->mpirun[0] ? m->mpirun : "mpirun"))) return rc;
+    snprintf(c->words, sizeof c->words, "%s", m->args);
+    for (char *save = NULL, *w = strtok_r(c->words, " \t", &save); w;
+         w = strtok_r(NULL, " \t", &save))
+        if ((rc = add(c, w))) return rc;
+    if ((rc = vox_mpi_path(m, c->exe, sizeof c->exe))) return rc;
+    snprintf(c->num[0], sizeof c->num[0], "%u", m->ranks);
+    snprintf(c->num[1], sizeof c->num[1], "%u", m->workers);
+    snprintf(c->num[2], sizeof c->num[2], "%u", j->res);
+    snprintf(c->num[3], sizeof c->num[3], "%u", j->brick);
+    snprintf(c->dom, sizeof c->dom, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g", j->lo[0],
+             j->hi[0], j->lo[1], j->hi[1], j->lo[2], j->hi[2]);
+    snprintf(c->file, sizeof c->file, "%s/job.vx", dir);
+    snprintf(c->out, sizeof c->out, "%s/out.vod", dir);
+    const char *rest[] = {
+        "-np", c->num[0], "--hostfile", m->hostfile, c->exe, "voxelize",
+        "-f", c->file, "--source-name", j->source_name ? j->source_name : "",
+        "-o", c->out, "-r", c->num[2], "-d", c->dom, "-w", c->num[1],
+        "--channel", channel_name(j->channel), "--brick", c->num[3],
+        "--compress", j->comp == VOD_COMP_RUNL ? "runl" : j->comp == VOD_COMP_NONE ? "none" : "zlib",
+        "--hash", j->hash == VOD_HASH_XX32 ? "xx32" : "sfhs",
+        "--schedule", j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree",
+    };
+    for (size_t i = 0; i < sizeof rest / sizeof *rest; i++)
+        if ((rc = add(c, rest[i]))) return rc;
+    return 0;
+}
+
+/* The daemon's environment, and as root what lets mpirun run as root
+ * (docs/mpi.md, "As root"): a daemon started as root means it.  The
+ * strings are static or environ's; the array is the caller's to free. */
+static char **child_env(void)
+{
+    size_t n = 0;
+    while (environ[n]) n++;
+    char **env = calloc(n + 3, sizeof *env);
+    if (!env) return NULL;
+    size_t k = 0;
+    for (size_t i = 0; i < n; i++) env[k++] = environ[i];
+    if (geteuid() == 0) {
+        env[k++] = "OMPI_ALLOW_RUN_AS_ROOT=1";
+        env[k++] = "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1";
+    }
+    return env;
+}
+
+/* ---------------------------------------------------------------- the run */
+
+/* Start argv in a process group of its own, stdout and stderr into fd. */
+static int spawn(cmdline *c, int fd, pid_t *pid)
+{
+    posix_spawnattr_t at;
+    posix_spawn_file_actions_t fa;
+    sigset_t none, dfl;
+    sigemptyset(&none);
+    sigemptyset(&dfl);
+    /* the loop's uv_signal handlers and the blocked mask are not mpirun's */
+    int sigs[] = {SIGTERM, SIGINT, SIGQUIT, SIGHUP, SIGUSR1, SIGPIPE, SIGCHLD};
+    for (size_t i = 0; i < sizeof sigs / sizeof *sigs; i++) sigaddset(&dfl, sigs[i]);
+    posix_spawnattr_init(&at);
+    posix_spawnattr_setflags(&at, POSIX_SPAWN_SETPGROUP | POSIX_SPAWN_SETSIGMASK |
+                                      POSIX_SPAWN_SETSIGDEF);
+    posix_spawnattr_setpgroup(&at, 0);
+    posix_spawnattr_setsigmask(&at, &none);
+    posix_spawnattr_setsigdefault(&at, &dfl);
+    posix_spawn_file_actions_init(&fa);
+    posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_adddup2(&fa, fd, 1);
+    posix_spawn_file_actions_adddup2(&fa, fd, 2);
+    char **env = child_env();
+    int rc = env ? posix_spawnp(pid, c->argv[0], &fa, &at, c->argv, env) : ENOMEM;
+    free(env);
+    posix_spawn_file_actions_destroy(&fa);
+    posix_spawnattr_destroy(&at);
+    return -rc;
+}
+
+/* Wait for the group's leader; on a cancel, end the whole group.  Returns
+ * its wait status. */
+static int wait_child(pid_t pid, atomic_int *cancel)
+{
+    double t_kill = 0;
+    int st = 0, sent = 0;
+    for (;;) {
+        pid_t r = waitpid(pid, &st, WNOHANG);
+        if (r == pid || (r < 0 && errno != EINTR)) break;
+        /* relaxed: a flag, see engine_job.cancel */
+        if (!sent && atomic_load_explicit(cancel, memory_order_relaxed)) {
+            kill(-pid, SIGTERM);
+            sent = 1;
+            t_kill = clock_now() + VD_MPI_KILL_GRACE_S;
+        } else if (sent == 1 && clock_now() > t_kill) {
+            kill(-pid, SIGKILL);
+            sent = 2;
+        }
+        struct timespec ts = {0, VD_MPI_POLL_NS};
+        nanosleep(&ts, NULL);
+    }
+    /* what the leader left behind in its group (a rank mpirun lost) */
+    kill(-pid, SIGKILL);
+    return st;
+}
+
+static int write_all(int fd, const char *p, size_t n)
+{
+    while (n) {
+        ssize_t w = write(fd, p, n);
+        if (w < 0 && errno == EINTR) continue;
+        if (w <= 0) return w < 0 ? -errno : -EIO;
+        p += w;
+        n -= (size_t)w;
+    }
+    return 0;
+}
+
+/* The last lines of what mpirun and vox_mpi printed, one line of text. */
+static void output_tail(int fd, char *buf, size_t len)
+{
+    off_t end = lseek(fd, 0, SEEK_END);
+    off_t from = end > (off_t)len - 1 ? end - (off_t)len + 1 : 0;
+    ssize_t n = pread(fd, buf, len - 1, from);
+    buf[n > 0 ? n : 0] = '\0';
+}
+
+/* vox_mpi's summary: "...: V voxels on a ... grid in T s on R ranks ...,
+ * VOD written in T s" and "  B bytes, K bricks (N non-empty nodes), CRC X". */
+static void parse_summary(const char *text, vd_job *j)
+{
+    const char *p = strstr(text, " voxels on a ");
+    if (!p) return;
+    const char *start = p;
+    while (start > text && start[-1] >= '0' && start[-1] <= '9') start--;
+    unsigned long long v = 0, bytes = 0, bricks = 0, nodes = 0;
+    unsigned crc = 0;
+    double tj = 0, tw = 0;
+    if (sscanf(start, "%llu voxels on a %*ux%*ux%*u grid in %lf s", &v, &tj) == 2) {
+        j->voxels = v;
+        j->t_voxelize = tj;
+    }
+    const char *w = strstr(start, "VOD written in ");
+    if (w && sscanf(w, "VOD written in %lf s", &tw) == 1) j->t_write = tw;
+    const char *b = w ? strchr(w, '\n') : NULL;
+    if (b && sscanf(b + 1, " %llu bytes, %llu bricks (%llu non-empty nodes), CRC %x", &bytes,
+                    &bricks, &nodes, &crc) == 4) {
+        j->st.bricks = bricks;
+        j->st.nonempty_nodes = nodes;
+        j->st.crc32 = crc;
+        j->st.file_bytes = bytes;
+    }
+}
+
+/* Remove the job's directory and what is in it (vox_mpi's temporary name
+ * too, where the filesystem had no O_TMPFILE). */
+static void remove_dir(const char *dir)
+{
+    DIR *dp = opendir(dir);
+    if (dp) {
+        struct dirent *e;
+        while ((e = readdir(dp)))
+            if (strcmp(e->d_name, ".") && strcmp(e->d_name, ".."))
+                unlinkat(dirfd(dp), e->d_name, 0);
+        closedir(dp);
+    }
+    rmdir(dir);
+}
+
+/* The error for a run that did not end with a file. */
+static void run_failed(vd_job *j, int st, const char *cmd, int out)
+{
+    char tail[VD_MPI_OUT_MAX];
+    output_tail(out, tail, sizeof tail);
+    /* the last lines: vox_mpi's message, or mpirun's */
+    size_t n = strlen(tail);
+    while (n && (tail[n - 1] == '\n' || tail[n - 1] == ' ')) tail[--n] = '\0';
+    const char *t = tail + n;
+    for (int lines = 0; t > tail; t--)
+        if (t[-1] == '\n' && ++lines == VD_MPI_ERR_LINES) break;
+    char how[64];
+    if (WIFSIGNALED(st)) snprintf(how, sizeof how, "was killed by signal %d", WTERMSIG(st));
+    else if (WEXITSTATUS(st) == 127) snprintf(how, sizeof how, "could not be started");
+    else snprintf(how, sizeof how, "exited with status %d", WEXITSTATUS(st));
+    snprintf(j->message, sizeof j->message, "the MPI run (%s) %s: %s", cmd, how,
+             t[0] ? t : "it printed nothing");
+    j->code = VOXD__ERROR_CODE__INTERNAL;
+}
+
+int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result,
+               void (*started)(void *ud, const char *line), void *ud)
+{
+    *result = -1;
+    const char *tmp = getenv("TMPDIR");
+    char dir[PATH_MAX];
+    snprintf(dir, sizeof dir, "%s/voxd-mpi-XXXXXX", tmp && tmp[0] == '/' ? tmp : "/tmp");
+    if (!mkdtemp(dir)) {
+        snprintf(j->message, sizeof j->message, "cannot make the MPI job's directory: %s",
+                 strerror(errno));
+        return j->code = VOXD__ERROR_CODE__INTERNAL, -1;
+    }
+    cmdline c;
+    int out = memfd_create("voxd-mpi-output", MFD_CLOEXEC);
+    int rc = out < 0 ? -errno : build_cmd(&c, m, j, dir);
+    if (rc == 0) {
+        int fd = open(c.file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+        rc = fd < 0 ? -errno : write_all(fd, j->source, j->source_len);
+        if (fd >= 0) close(fd);
+    }
+    pid_t pid = 0;
+    if (rc == 0) rc = spawn(&c, out, &pid);
+    if (rc) {
+        snprintf(j->message, sizeof j->message, "cannot start the MPI run (%s): %s",
+                 rc == -E2BIG ? "mpirun_args has too many words" : c.argv[0], strerror(-rc));
+        j->code = VOXD__ERROR_CODE__INTERNAL;
+    } else {
+        char line[PATH_MAX + 128];
+        snprintf(line, sizeof line,
+                 "job %llu runs through MPI: %s -np %u (pid %d), %u worker(s) per rank",
+                 (unsigned long long)j->id, c.argv[0], m->ranks, (int)pid, m->workers);
+        started(ud, line);
+        int st = wait_child(pid, &j->cancel);
+        /* relaxed: a flag, see engine_job.cancel */
+        if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) {
+            vd_job_stopped(j);
+        } else if (WIFEXITED(st) && WEXITSTATUS(st) == 0 &&
+                   (*result = open(c.out, O_RDONLY | O_CLOEXEC)) >= 0) {
+            char text[VD_MPI_OUT_MAX];
+            output_tail(out, text, sizeof text);
+            parse_summary(text, j);
+        } else {
+            run_failed(j, st, c.argv[0], out);
+        }
+    }
+    if (out >= 0) close(out);
+    remove_dir(dir); /* an open result stays readable */
+    return *result >= 0 ? 0 : -1;
+}
