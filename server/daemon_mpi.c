@@ -34,7 +34,8 @@
 #define VD_MPI_POLL_NS 20000000L   /* 20 ms between looks at the child and the cancel flag */
 #define VD_MPI_KILL_GRACE_S 2.0    /* SIGTERM, then this long, then SIGKILL */
 #define VD_MPI_MAX_ARGS 96
-#define VD_MPI_ERR_LINES 4          /* lines of its output an error gives */
+#define VD_MPI_ERR_LINES 4          /* lines of its output an error gives ... */
+#define VD_MPI_ERR_CHARS 340        /* ... at most this many characters, the last */
 #define VD_MPI_OUT_MAX 8192        /* bytes of mpirun's output kept for messages */
 
 extern char **environ;
@@ -271,7 +272,9 @@ static void run_failed(vd_job *j, int st, const char *cmd, int out)
     if (WIFSIGNALED(st)) snprintf(how, sizeof how, "was killed by signal %d", WTERMSIG(st));
     else if (WEXITSTATUS(st) == 127) snprintf(how, sizeof how, "could not be started");
     else snprintf(how, sizeof how, "exited with status %d", WEXITSTATUS(st));
-    snprintf(j->message, sizeof j->message, "the MPI run (%s) %s: %s", cmd, how,
+    size_t tl = strlen(t);
+    if (tl > VD_MPI_ERR_CHARS) t += tl - VD_MPI_ERR_CHARS; /* the end says most */
+    snprintf(j->message, sizeof j->message, "the MPI run (%.80s) %.40s: %.340s", cmd, how,
              t[0] ? t : "it printed nothing");
     j->code = VOXD__ERROR_CODE__INTERNAL;
 }

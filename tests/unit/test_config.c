@@ -772,3 +772,35 @@ Test(log, level_names)
     cr_assert_eq(log_open("/nonexistent/dir/voxd.log", "x", LOG_LEVEL_INFO), -ENOENT);
     cr_assert_eq(log_reopen(), 0, "stderr needs no reopening");
 }
+
+/* ---------------------------------------------------------------- MPI */
+
+Test(config, mpi_keys)
+{
+    voxd_config c, d;
+    config_defaults(&c);
+    cr_assert_str_empty(c.mpi_hostfile, "off unless set");
+    cr_assert_eq(c.mpi_min_res, 1024);
+    cr_assert_str_eq(c.mpirun_args, CONFIG_MPIRUN_ARGS);
+    load_ok("mpi_hostfile /etc/voxd/hosts\nmpi_min_res 512\nmpi_ranks 4\nmpi_workers 0\n"
+            "mpirun /opt/ompi/bin/mpirun\nmpirun_args none\nvox_mpi /opt/vox/vox_mpi\n",
+            &c);
+    cr_assert_str_eq(c.mpi_hostfile, "/etc/voxd/hosts");
+    cr_assert_eq(c.mpi_min_res, 512);
+    cr_assert_eq(c.mpi_ranks, 4);
+    cr_assert_eq(c.mpi_workers, 0);
+    cr_assert_str_eq(c.mpirun, "/opt/ompi/bin/mpirun");
+    cr_assert_str_empty(c.mpirun_args);
+    cr_assert_str_eq(c.vox_mpi, "/opt/vox/vox_mpi");
+    char *text = printed(&c);
+    cr_assert(strstr(text, "\nmpirun_args none\n"), "%s", text);
+    load_ok(text, &d);
+    assert_same(&c, &d);
+    free(text);
+    load_ok("mpirun_args --mca btl self,tcp --bind-to none\n", &c);
+    cr_assert_str_eq(c.mpirun_args, "--mca btl self,tcp --bind-to none");
+    load_fails("mpi_hostfile hosts\n", "t.conf:1: mpi_hostfile must be an absolute path, got 'hosts'");
+    load_fails("mpi_ranks 0\n", "t.conf:1: mpi_ranks 0 is out of range (1 to 4096)");
+    load_fails("mpi_workers 257\n", "t.conf:1: mpi_workers 257 is out of range (0 to 256)");
+    load_fails("mpirun_args --mca\x01\n", "t.conf:1: mpirun_args contains a control character");
+}
