@@ -5,10 +5,10 @@
  * never waits on it.
  *
  * The job runs from a private directory (mkdtemp, 0700): the expression
- * as job.vx, the output as out.vod.  mpirun is started in a process group
- * of its own (posix_spawn: no fork of this threaded process) with the
- * signals the daemon blocks unblocked; a cancel sends the group SIGTERM,
- * then SIGKILL after VD_MPI_KILL_GRACE_S.  vox_mpi unlinks its ranks'
+ * as job.vx, the output as out.vod.  mpirun is started in a session of
+ * its own (posix_spawn: no fork of this threaded process) with the signals
+ * the daemon blocks unblocked; a cancel sends mpirun SIGTERM, then every
+ * process of the session SIGKILL after VD_MPI_KILL_GRACE_S.  vox_mpi unlinks its ranks'
  * shared memory as soon as it is mapped and its workers die with their
  * rank (docs/mpi.md, "Failures"), so killing the group leaves nothing. */
 #include <dirent.h>
@@ -139,7 +139,8 @@ static char **child_env(void)
 
 /* ---------------------------------------------------------------- the run */
 
-/* Start argv in a process group of its own, stdout and stderr into fd. */
+/* Start argv in a session of its own (its ranks' too: see kill_session),
+ * stdout and stderr into fd. */
 static int spawn(cmdline *c, int fd, pid_t *pid)
 {
     posix_spawnattr_t at;
@@ -151,9 +152,8 @@ static int spawn(cmdline *c, int fd, pid_t *pid)
     int sigs[] = {SIGTERM, SIGINT, SIGQUIT, SIGHUP, SIGUSR1, SIGPIPE, SIGCHLD};
     for (size_t i = 0; i < sizeof sigs / sizeof *sigs; i++) sigaddset(&dfl, sigs[i]);
     posix_spawnattr_init(&at);
-    posix_spawnattr_setflags(&at, POSIX_SPAWN_SETPGROUP | POSIX_SPAWN_SETSIGMASK |
+    posix_spawnattr_setflags(&at, POSIX_SPAWN_SETSID | POSIX_SPAWN_SETSIGMASK |
                                       POSIX_SPAWN_SETSIGDEF);
-    posix_spawnattr_setpgroup(&at, 0);
     posix_spawnattr_setsigmask(&at, &none);
     posix_spawnattr_setsigdefault(&at, &dfl);
     posix_spawn_file_actions_init(&fa);
@@ -168,8 +168,41 @@ static int spawn(cmdline *c, int fd, pid_t *pid)
     return -rc;
 }
 
-/* Wait for the group's leader; on a cancel, end the whole group.  Returns
- * its wait status. */
+/* Signal every process of session sid: mpirun puts each rank in a
+ * process group of its own, but in mpirun's session, and the ranks'
+ * workers with them.  The number signalled. */
+static int kill_session(pid_t sid, int sig)
+{
+    DIR *dp = opendir("/proc");
+    if (!dp) return 0;
+    int n = 0;
+    struct dirent *e;
+    while ((e = readdir(dp))) {
+        char *end;
+        long pid = strtol(e->d_name, &end, 10);
+        if (*end || pid <= 0) continue;
+        char path[64], buf[512];
+        snprintf(path, sizeof path, "/proc/%ld/stat", pid);
+        int fd = open(path, O_RDONLY | O_CLOEXEC);
+        if (fd < 0) continue;
+        ssize_t len = read(fd, buf, sizeof buf - 1);
+        close(fd);
+        if (len <= 0) continue;
+        buf[len] = '\0';
+        /* "pid (comm) state ppid pgrp session": comm may hold anything */
+        char *p = strrchr(buf, ')');
+        int ppid, pgrp, session;
+        if (p && sscanf(p + 1, " %*c %d %d %d", &ppid, &pgrp, &session) == 3 &&
+            session == sid && kill((pid_t)pid, sig) == 0)
+            n++;
+    }
+    closedir(dp);
+    return n;
+}
+
+/* Wait for mpirun; on a cancel, SIGTERM (mpirun ends its ranks), then
+ * SIGKILL to its whole session.  Whatever is left in the session once
+ * mpirun is gone is killed too.  Returns mpirun's wait status. */
 static int wait_child(pid_t pid, atomic_int *cancel)
 {
     double t_kill = 0;
@@ -179,18 +212,18 @@ static int wait_child(pid_t pid, atomic_int *cancel)
         if (r == pid || (r < 0 && errno != EINTR)) break;
         /* relaxed: a flag, see engine_job.cancel */
         if (!sent && atomic_load_explicit(cancel, memory_order_relaxed)) {
-            kill(-pid, SIGTERM);
+            kill(pid, SIGTERM);
             sent = 1;
             t_kill = clock_now() + VD_MPI_KILL_GRACE_S;
         } else if (sent == 1 && clock_now() > t_kill) {
-            kill(-pid, SIGKILL);
+            kill_session(pid, SIGKILL);
             sent = 2;
         }
         struct timespec ts = {0, VD_MPI_POLL_NS};
         nanosleep(&ts, NULL);
     }
-    /* what the leader left behind in its group (a rank mpirun lost) */
-    kill(-pid, SIGKILL);
+    /* what mpirun left behind (a rank it lost track of) */
+    kill_session(pid, SIGKILL);
     return st;
 }
 

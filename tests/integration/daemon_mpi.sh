@@ -5,7 +5,7 @@
 #  - a job at or above mpi_min_res runs through mpirun ... vox_mpi (the log
 #    says so) and its file is byte for byte `vox voxelize`'s; so is a job
 #    below it, which the local engine runs;
-#  - a cancel and a job_timeout mid-run end mpirun's process group: no
+#  - a cancel and a job_timeout mid-run end mpirun's session: no
 #    rank, no job directory, no shared memory left;
 #  - a broken mpirun path: a clear error, and the daemon goes on serving.
 # vox_mpi is the release build's (as in mpi.sh: Open MPI's own allocations
@@ -69,15 +69,15 @@ grep -q "job 3 r" "$TMP/a.log" && fail "daemon_mpi: job 3, below mpi_min_res, di
     "$(grep 'job 3' "$TMP/a.log")" || pass "daemon_mpi: job 3, below mpi_min_res, did not go to MPI"
 
 # ---------------------------------------------------------------- cancel
-# mpi_pid JOB: mpirun's pid as the log gave it (the process group's id)
+# mpi_pid JOB: mpirun's pid as the log gave it (its session's id)
 mpi_pid() { sed -n "s/.*job $1 runs through MPI: .*(pid \([0-9]*\)).*/\1/p" "$2" | head -1; }
-# nothing_left PGID NAME: no process of the group, no job directory, and
+# nothing_left PGID NAME: no process of mpirun's session, no job directory, and
 # no shared memory of the ranks seen while it ran ($RANKS)
 nothing_left() {
     local left="" r
     # the ranks were seen running in mpirun's group, so the checks below mean something
-    [ -n "$(echo "$RANKS" | tr -d ' ')" ] || left="no rank of group $1 was seen running"
-    until_true 10 sh -c "! pgrep -g $1" || left="processes: $(pgrep -a -g "$1")"
+    [ -n "$(echo "$RANKS" | tr -d ' ')" ] || left="no rank of session $1 was seen running"
+    until_true 10 sh -c "! pgrep -s $1" || left="processes: $(pgrep -a -s "$1")"
     [ -z "$(ls -A "$TMP/tmp")" ] || left="$left files: $(ls -A "$TMP/tmp")"
     for r in $RANKS; do
         ls /dev/shm 2>/dev/null | grep -q "^voxd\.$r\." && left="$left shm of pid $r"
@@ -88,9 +88,9 @@ nothing_left() {
 PIDS+=($!)
 until_true 20 grep -q "job 4 runs through MPI" "$TMP/a.log"
 P=$(mpi_pid 4 "$TMP/a.log")
-until_true 10 sh -c "pgrep -g $P vox_mpi"
+until_true 10 sh -c "pgrep -s $P vox_mpi"
 sleep 0.5
-RANKS=$(pgrep -g "$P" | tr '\n' ' ')
+RANKS=$(pgrep -s "$P" | tr '\n' ' ')
 check "daemon_mpi: vox cancel 4" "$VOX" --socket "$S" cancel 4
 until_true 20 grep -q "rc=" "$TMP/c.out"
 grep -q "CANCELLED" "$TMP/c.out" && ! grep -q "rc=0" "$TMP/c.out" \
@@ -108,8 +108,8 @@ submit -f examples/scene1.vx -r 1024 -o "$TMP/to.vod" >"$TMP/to.out" 2>&1 &
 PIDS+=($!)
 until_true 20 grep -q "job 1 runs through MPI" "$TMP/b.log"
 P=$(mpi_pid 1 "$TMP/b.log")
-until_true 10 sh -c "pgrep -g $P vox_mpi"
-RANKS=$(pgrep -g "$P" | tr '\n' ' ')
+until_true 10 sh -c "pgrep -s $P vox_mpi"
+RANKS=$(pgrep -s "$P" | tr '\n' ' ')
 until_true 20 grep -q "job_timeout" "$TMP/to.out"
 grep -q "TIMEOUT\|job_timeout of 1 s" "$TMP/to.out" && pass "daemon_mpi: an MPI job past job_timeout ends TIMEOUT" \
     || fail "daemon_mpi: an MPI job past job_timeout ends TIMEOUT" "$(cat "$TMP/to.out")"
