@@ -289,12 +289,16 @@ int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg,
 
 /* daemon_mpi.c: jobs through mpirun ... vox_mpi (engine thread) */
 int vd_mpi_wants(const vd_mpi *m, const vd_job *j);
+/* What an MPI run tells the engine thread while it runs. */
+typedef struct {
+    void (*started)(void *ud, const char *line);          /* mpirun runs: a log line */
+    void (*progress)(void *ud, double fraction, uint64_t voxels); /* subtrees done */
+    void *ud;
+} vd_mpi_hooks;
 /* Run j through MPI: 0 with *result an open descriptor of its VOD file
  * (unlinked) and j's voxels, st and times from vox_mpi's summary; or -1
- * with j's error set (a cancel's too).  started(ud, line) is called once
- * mpirun runs, with a line for the log. */
-int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result,
-               void (*started)(void *ud, const char *line), void *ud);
+ * with j's error set (a cancel's too). */
+int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h);
 
 /* daemon_conn.c: a connection's output */
 /* Frame r onto c's write queue; 0, or -errno after c->written(c, error). */

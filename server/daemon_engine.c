@@ -439,11 +439,24 @@ static void copy_result(vd_job *j, int in, uint64_t room)
 /* The MPI run started: its line in the log now, not when it ends. */
 static void mpi_started(void *ud, const char *line)
 {
-    vd_daemon *d = ud;
-    pthread_mutex_lock(&d->mu);
-    elog(d, LOG_LEVEL_INFO, "%s", line);
-    pthread_mutex_unlock(&d->mu);
-    wake_loop(d);
+    progress_ctx *x = ud;
+    pthread_mutex_lock(&x->d->mu);
+    elog(x->d, LOG_LEVEL_INFO, "%s", line);
+    pthread_mutex_unlock(&x->d->mu);
+    wake_loop(x->d);
+}
+
+/* vox_mpi's progress, by subtrees done, as the job's progress. */
+static void mpi_progress(void *ud, double fraction, uint64_t voxels)
+{
+    progress_ctx *x = ud;
+    pthread_mutex_lock(&x->d->mu);
+    x->j->progress.fraction = fraction;
+    x->j->progress.voxels = voxels;
+    x->j->progress.seconds = clock_now() - x->j->t_start;
+    x->j->progress_seq++;
+    pthread_mutex_unlock(&x->d->mu);
+    wake_loop(x->d);
 }
 
 /* An implicit job through mpirun ... vox_mpi (daemon_mpi.c): its grid
@@ -465,7 +478,9 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     }
     j->grid = r.grid;
     int in = -1;
-    int rc = vd_mpi_run(m, j, &in, mpi_started, d);
+    progress_ctx px = {d, j, NULL};
+    vd_mpi_hooks h = {mpi_started, mpi_progress, &px};
+    int rc = vd_mpi_run(m, j, &in, &h);
     pthread_mutex_lock(&d->mu);
     if (rc == 0)
         elog(d, LOG_LEVEL_INFO, "job %llu ran through MPI on %u rank(s) in %.3f s",

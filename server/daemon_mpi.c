@@ -32,6 +32,7 @@
 #include "voxel.h"
 
 #define VD_MPI_POLL_NS 20000000L   /* 20 ms between looks at the child and the cancel flag */
+#define VD_MPI_PROGRESS_TURNS 5     /* polls between looks at the progress line */
 #define VD_MPI_KILL_GRACE_S 2.0    /* SIGTERM, then this long, then SIGKILL */
 #define VD_MPI_MAX_ARGS 96
 #define VD_MPI_ERR_LINES 4          /* lines of its output an error gives ... */
@@ -113,6 +114,7 @@ static int build_cmd(cmdline *c, const vd_mpi *m, const vd_job *j, const char *d
         "--compress", j->comp == VOD_COMP_RUNL ? "runl" : j->comp == VOD_COMP_NONE ? "none" : "zlib",
         "--hash", j->hash == VOD_HASH_XX32 ? "xx32" : "sfhs",
         "--schedule", j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree",
+        "--progress",
     };
     for (size_t i = 0; i < sizeof rest / sizeof *rest; i++)
         if ((rc = add(c, rest[i]))) return rc;
@@ -168,6 +170,46 @@ static int spawn(cmdline *c, int fd, pid_t *pid)
     return -rc;
 }
 
+/* The last len - 1 bytes of what mpirun and vox_mpi printed, each line
+ * as a terminal would show it (what a '\r' went back over left out). */
+static void output_tail(int fd, char *buf, size_t len)
+{
+    off_t end = lseek(fd, 0, SEEK_END);
+    off_t from = end > (off_t)len - 1 ? end - (off_t)len + 1 : 0;
+    ssize_t n = pread(fd, buf, len - 1, from);
+    buf[n > 0 ? n : 0] = '\0';
+    char *w = buf, *line = buf;
+    for (const char *r = buf; *r; r++) {
+        if (*r == '\r') {
+            w = line;
+            continue;
+        }
+        *w++ = *r;
+        if (*r == '\n') line = w;
+    }
+    *w = '\0';
+}
+
+/* vox_mpi --progress's latest line ("\r  level L  NN.N%  V voxels ..."),
+ * to h->progress. */
+static void read_progress(int fd, const vd_mpi_hooks *h)
+{
+    char buf[256];
+    off_t end = lseek(fd, 0, SEEK_END);
+    off_t from = end > (off_t)sizeof buf - 1 ? end - (off_t)sizeof buf + 1 : 0;
+    ssize_t n = pread(fd, buf, sizeof buf - 1, from);
+    if (n <= 0) return;
+    buf[n] = '\0';
+    char *p = strrchr(buf, '\r');
+    int level;
+    double pct;
+    unsigned long long voxels;
+    if (p && sscanf(p + 1, " level %d %lf%% %llu voxels", &level, &pct, &voxels) == 3)
+        h->progress(h->ud, pct / 100.0, voxels);
+}
+
+
+
 /* Signal every process of session sid: mpirun puts each rank in a
  * process group of its own, but in mpirun's session, and the ranks'
  * workers with them.  The number signalled. */
@@ -203,11 +245,12 @@ static int kill_session(pid_t sid, int sig)
 /* Wait for mpirun; on a cancel, SIGTERM (mpirun ends its ranks), then
  * SIGKILL to its whole session.  Whatever is left in the session once
  * mpirun is gone is killed too.  Returns mpirun's wait status. */
-static int wait_child(pid_t pid, atomic_int *cancel)
+static int wait_child(pid_t pid, atomic_int *cancel, int out, const vd_mpi_hooks *h)
 {
     double t_kill = 0;
     int st = 0, sent = 0;
-    for (;;) {
+    for (unsigned turn = 1;; turn++) {
+        if (turn % VD_MPI_PROGRESS_TURNS == 0) read_progress(out, h);
         pid_t r = waitpid(pid, &st, WNOHANG);
         if (r == pid || (r < 0 && errno != EINTR)) break;
         /* relaxed: a flag, see engine_job.cancel */
@@ -237,15 +280,6 @@ static int write_all(int fd, const char *p, size_t n)
         n -= (size_t)w;
     }
     return 0;
-}
-
-/* The last lines of what mpirun and vox_mpi printed, one line of text. */
-static void output_tail(int fd, char *buf, size_t len)
-{
-    off_t end = lseek(fd, 0, SEEK_END);
-    off_t from = end > (off_t)len - 1 ? end - (off_t)len + 1 : 0;
-    ssize_t n = pread(fd, buf, len - 1, from);
-    buf[n > 0 ? n : 0] = '\0';
 }
 
 /* vox_mpi's summary: "...: V voxels on a ... grid in T s on R ranks ...,
@@ -312,8 +346,7 @@ static void run_failed(vd_job *j, int st, const char *cmd, int out)
     j->code = VOXD__ERROR_CODE__INTERNAL;
 }
 
-int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result,
-               void (*started)(void *ud, const char *line), void *ud)
+int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
 {
     *result = -1;
     const char *tmp = getenv("TMPDIR");
@@ -343,8 +376,8 @@ int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result,
         snprintf(line, sizeof line,
                  "job %llu runs through MPI: %s -np %u (pid %d), %u worker(s) per rank",
                  (unsigned long long)j->id, c.argv[0], m->ranks, (int)pid, m->workers);
-        started(ud, line);
-        int st = wait_child(pid, &j->cancel);
+        h->started(h->ud, line);
+        int st = wait_child(pid, &j->cancel, out, h);
         /* relaxed: a flag, see engine_job.cancel */
         if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) {
             vd_job_stopped(j);

@@ -7,6 +7,7 @@
 #    below it, which the local engine runs;
 #  - a cancel and a job_timeout mid-run end mpirun's session: no
 #    rank, no job directory, no shared memory left;
+#  - vox_mpi's progress reaches the client as Progress replies;
 #  - a broken mpirun path: a clear error, and the daemon goes on serving.
 # vox_mpi is the release build's (as in mpi.sh: Open MPI's own allocations
 # are not this project's to answer for under LeakSanitizer); voxd and vox
@@ -98,6 +99,11 @@ grep -q "CANCELLED" "$TMP/c.out" && ! grep -q "rc=0" "$TMP/c.out" \
     || fail "daemon_mpi: the cancelled MPI job ends CANCELLED" "$(cat "$TMP/c.out")"
 [ -n "$P" ] && nothing_left "$P" "daemon_mpi: cancel" || fail "daemon_mpi: cancel: mpirun's pid in the log"
 [ ! -e "$TMP/c.vod" ] && pass "daemon_mpi: cancel: no output file" || fail "daemon_mpi: cancel: no output file"
+# progress: vox_mpi's line, by subtrees done, as the job's Progress replies
+vc submit 'x^2+y^2+z^2-0.5' 1024 -1,1 "$TMP/p.vod" >"$TMP/p.out" 2>&1
+n=$(sed -n 's/.* \([0-9]*\) progress,.*/\1/p' "$TMP/p.out")
+[ "${n:-0}" -gt 0 ] && pass "daemon_mpi: an MPI job sends progress ($n)" \
+    || fail "daemon_mpi: an MPI job sends progress" "$(cat "$TMP/p.out")"
 kill -TERM "$VOXD_PID"
 wait_gone "$VOXD_PID" 20
 
