@@ -103,8 +103,10 @@ static void print_summary(const cli_job_opts *o, const vox_summary *s)
            t > 0 ? s->voxels / t / 1e6 : 0.0, s->seconds_write);
     printf("  %llu bytes, %llu bricks, CRC %08x\n", (unsigned long long)s->file_bytes,
            (unsigned long long)s->bricks, s->crc32);
-    printf("  voxd job %llu, %.3f s in the queue\n", (unsigned long long)s->job_id,
+    printf("  voxd job %llu, %.3f s in the queue", (unsigned long long)s->job_id,
            s->seconds_queued);
+    if (s->mpi_ranks) printf(", through MPI on %u rank%s", s->mpi_ranks, s->mpi_ranks > 1 ? "s" : "");
+    printf("\n");
     if (!s->has_mesh) return;
     printf("  mesh: %u triangles, %llu open and %llu non-manifold edges: %s; %u tiles "
            "with triangles\n", s->mesh.triangles, (unsigned long long)s->mesh.open_edges,

@@ -380,7 +380,7 @@ static void on_summary(vjob *j, const Voxd__Summary *m)
         .job_id = j->id, .voxels = m->voxels, .bricks = m->bricks,
         .file_bytes = m->file_bytes, .crc32 = m->crc32,
         .seconds_queued = m->seconds_queued, .seconds_voxelize = m->seconds_voxelize,
-        .seconds_write = m->seconds_write};
+        .seconds_write = m->seconds_write, .mpi_ranks = m->mpi_ranks};
     /* proto_check_reply made sure of 3 values each and a consistent grid. */
     const Voxd__Grid *g = m->grid;
     for (int a = 0; a < 3; a++) {

@@ -331,6 +331,9 @@ typedef struct {
         int repair_skipped;   /* a repair asked of a watertight mesh: not run */
         uint64_t disagreements, disagree_bricks; /* repair: where the parities differ */
     } mesh;
+    /* The job ran through mpirun ... vox_mpi on this many ranks (the daemon's
+     * mpi_hostfile, docs/mpi.md); 0: on the daemon's own workers. */
+    uint32_t mpi_ranks;
 } vox_summary;
 
 /* Wait for a job's end and write its VOD to path.  The file is written under

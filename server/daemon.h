@@ -126,6 +126,7 @@ struct vd_job {
     vod_stats st;
     double t_voxelize, t_write;
     grid_spec grid;            /* the job's grid, for its Summary (set when it succeeded) */
+    uint32_t mpi_ranks;        /* it ran through MPI on this many ranks; 0 = the engine */
 };
 
 struct vd_client {

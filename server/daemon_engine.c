@@ -491,6 +491,7 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     pthread_mutex_unlock(&d->mu);
     wake_loop(d);
     if (rc) return;
+    j->mpi_ranks = m->ranks;
     copy_result(j, in, room);
     close(in);
 }

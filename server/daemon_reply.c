@@ -115,6 +115,7 @@ int vd_send_summary(vd_client *c, const vd_job *j)
     m.seconds_queued = nonneg(j->t_start - j->t_submit);
     m.seconds_voxelize = nonneg(j->t_voxelize);
     m.seconds_write = nonneg(j->t_write);
+    m.mpi_ranks = j->mpi_ranks;
     Voxd__MeshReport mr = VOXD__MESH_REPORT__INIT;
     if (j->has_mesh_report) {
         mr.triangles = j->mesh_report.triangles;
