@@ -346,6 +346,37 @@ static void run_failed(vd_job *j, int st, const char *cmd, int out)
     j->code = VOXD__ERROR_CODE__INTERNAL;
 }
 
+/* The job's file and mpirun started: 0, or a negative errno. */
+static int start_run(cmdline *c, const vd_mpi *m, const vd_job *j, const char *dir, int out,
+                     pid_t *pid)
+{
+    int rc = build_cmd(c, m, j, dir);
+    if (rc) return rc;
+    int fd = open(c->file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+    rc = fd < 0 ? -errno : write_all(fd, j->source, j->source_len);
+    if (fd >= 0) close(fd);
+    return rc ? rc : spawn(c, out, pid);
+}
+
+/* mpirun has ended (st) or been stopped: the file, or j's error. */
+static int end_run(const cmdline *c, vd_job *j, int st, int out)
+{
+    /* relaxed: a flag, see engine_job.cancel */
+    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) {
+        vd_job_stopped(j);
+        return -1;
+    }
+    int fd = WIFEXITED(st) && WEXITSTATUS(st) == 0 ? open(c->out, O_RDONLY | O_CLOEXEC) : -1;
+    if (fd < 0) {
+        run_failed(j, st, c->argv[0], out);
+        return -1;
+    }
+    char text[VD_MPI_OUT_MAX];
+    output_tail(out, text, sizeof text);
+    parse_summary(text, j);
+    return fd;
+}
+
 int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
 {
     *result = -1;
@@ -358,15 +389,10 @@ int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
         return j->code = VOXD__ERROR_CODE__INTERNAL, -1;
     }
     cmdline c;
-    int out = memfd_create("voxd-mpi-output", MFD_CLOEXEC);
-    int rc = out < 0 ? -errno : build_cmd(&c, m, j, dir);
-    if (rc == 0) {
-        int fd = open(c.file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-        rc = fd < 0 ? -errno : write_all(fd, j->source, j->source_len);
-        if (fd >= 0) close(fd);
-    }
+    c.argv[0] = m->mpirun[0] ? (char *)m->mpirun : "mpirun"; /* for a message before build_cmd */
     pid_t pid = 0;
-    if (rc == 0) rc = spawn(&c, out, &pid);
+    int out = memfd_create("voxd-mpi-output", MFD_CLOEXEC);
+    int rc = out < 0 ? -errno : start_run(&c, m, j, dir, out, &pid);
     if (rc) {
         snprintf(j->message, sizeof j->message, "cannot start the MPI run (%s): %s",
                  rc == -E2BIG ? "mpirun_args has too many words" : c.argv[0], strerror(-rc));
@@ -377,18 +403,7 @@ int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
                  "job %llu runs through MPI: %s -np %u (pid %d), %u worker(s) per rank",
                  (unsigned long long)j->id, c.argv[0], m->ranks, (int)pid, m->workers);
         h->started(h->ud, line);
-        int st = wait_child(pid, &j->cancel, out, h);
-        /* relaxed: a flag, see engine_job.cancel */
-        if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) {
-            vd_job_stopped(j);
-        } else if (WIFEXITED(st) && WEXITSTATUS(st) == 0 &&
-                   (*result = open(c.out, O_RDONLY | O_CLOEXEC)) >= 0) {
-            char text[VD_MPI_OUT_MAX];
-            output_tail(out, text, sizeof text);
-            parse_summary(text, j);
-        } else {
-            run_failed(j, st, c.argv[0], out);
-        }
+        *result = end_run(&c, j, wait_child(pid, &j->cancel, out, h), out);
     }
     if (out >= 0) close(out);
     remove_dir(dir); /* an open result stays readable */
