@@ -297,8 +297,9 @@ typedef struct {
     void *ud;
 } vd_mpi_hooks;
 /* Run j through MPI: 0 with *result an open descriptor of its VOD file
- * (unlinked) and j's voxels, st and times from vox_mpi's summary; or -1
- * with j's error set (a cancel's too). */
+ * (unlinked) and j's voxels, st and times from vox_mpi's summary;
+ * -ECANCELED when j's cancel flag stopped it (the caller sets why); or -1
+ * with j's error set. */
 int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h);
 
 /* daemon_conn.c: a connection's output */

@@ -480,7 +480,9 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     int in = -1;
     progress_ctx px = {d, j, NULL};
     vd_mpi_hooks h = {mpi_started, mpi_progress, &px};
+    j->mpi_ranks = m->ranks;
     int rc = vd_mpi_run(m, j, &in, &h);
+    if (rc == -ECANCELED) vd_job_stopped(j);
     pthread_mutex_lock(&d->mu);
     if (rc == 0)
         elog(d, LOG_LEVEL_INFO, "job %llu ran through MPI on %u rank(s) in %.3f s",
@@ -491,7 +493,6 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     pthread_mutex_unlock(&d->mu);
     wake_loop(d);
     if (rc) return;
-    j->mpi_ranks = m->ranks;
     copy_result(j, in, room);
     close(in);
 }
@@ -529,7 +530,7 @@ static void job_done(vd_daemon *d, engine *e, vd_job *j)
     if (j->code) drop_result(j);
     if (j->code == VOXD__ERROR_CODE__WORKER_CRASHED)
         elog(d, LOG_LEVEL_ERROR, "job %llu: %s", (unsigned long long)j->id, j->message);
-    int n = engine_workers(e);
+    int n = j->mpi_ranks ? 0 : engine_workers(e); /* an MPI job was not theirs */
     for (int i = 0; i < n; i++) {
         d->workers[i].jobs++;
         if (j->code == 0 && j->t_voxelize > 0)

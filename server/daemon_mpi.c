@@ -361,11 +361,8 @@ static int start_run(cmdline *c, const vd_mpi *m, const vd_job *j, const char *d
 /* mpirun has ended (st) or been stopped: the file, or j's error. */
 static int end_run(const cmdline *c, vd_job *j, int st, int out)
 {
-    /* relaxed: a flag, see engine_job.cancel */
-    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) {
-        vd_job_stopped(j);
-        return -1;
-    }
+    /* relaxed: a flag, see engine_job.cancel; the caller says why it stopped */
+    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) return -ECANCELED;
     int fd = WIFEXITED(st) && WEXITSTATUS(st) == 0 ? open(c->out, O_RDONLY | O_CLOEXEC) : -1;
     if (fd < 0) {
         run_failed(j, st, c->argv[0], out);
@@ -403,9 +400,10 @@ int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
                  "job %llu runs through MPI: %s -np %u (pid %d), %u worker(s) per rank",
                  (unsigned long long)j->id, c.argv[0], m->ranks, (int)pid, m->workers);
         h->started(h->ud, line);
-        *result = end_run(&c, j, wait_child(pid, &j->cancel, out, h), out);
+        rc = end_run(&c, j, wait_child(pid, &j->cancel, out, h), out);
+        *result = rc >= 0 ? rc : -1;
     }
     if (out >= 0) close(out);
     remove_dir(dir); /* an open result stays readable */
-    return *result >= 0 ? 0 : -1;
+    return *result >= 0 ? 0 : rc == -ECANCELED ? rc : -1;
 }
