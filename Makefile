@@ -49,16 +49,17 @@ CSTD    := -std=c11 -D_GNU_SOURCE
 # against the layering does not compile (tests/integration/layering.sh
 # checks the same over the sources, and that no two files include each
 # other).  The data flows down this list; nothing includes upwards.
-MODULES := mpi client server config libvox master worker engine csg mesh proto vod expr common
-LAYER_mpi    := client config libvox master worker engine csg mesh proto expr vod common
-LAYER_client := config libvox master csg mesh proto expr vod common
-LAYER_server := config master engine csg mesh proto libvox expr vod common
+MODULES := mpi client server config libvox master worker engine csg iso mesh proto vod expr common
+LAYER_mpi    := client config libvox master worker engine csg iso mesh proto expr vod common
+LAYER_client := config libvox master csg iso mesh proto expr vod common
+LAYER_server := config master engine csg iso mesh proto libvox expr vod common
 LAYER_config := proto expr common
 LAYER_libvox := proto common
-LAYER_master := worker engine csg mesh expr vod common
-LAYER_worker := engine csg mesh expr vod common
-LAYER_engine := mesh vod common
+LAYER_master := worker engine csg iso mesh expr vod common
+LAYER_worker := engine csg iso mesh expr vod common
+LAYER_engine := iso mesh vod common
 LAYER_csg    := mesh expr vod common
+LAYER_iso    := vod common
 LAYER_mesh   := vod common
 LAYER_proto  := common
 LAYER_vod    := common

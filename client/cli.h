@@ -33,6 +33,7 @@ int cli_csg(int argc, char **argv);
  * the text's size in *bytes, or CLI_EXIT_USAGE. */
 int cli_csg_load(const char *path, csg_tree **t, uint64_t *bytes);
 int cli_export(int argc, char **argv);
+int cli_mesh(int argc, char **argv);
 
 /* ---- a voxelization job's options (vox voxelize, vox submit) ---- */
 

@@ -22,6 +22,7 @@ static const char usage[] =
     "  mesh-info  load a triangle mesh (OBJ, STL, PLY, OFF) and describe its topology\n"
     "  csg        evaluate a volume CSG tree (.csg) into a VOD file, in this process\n"
     "  export     write a VOD file's voxels as NRRD, raw + JSON, binvox or VTK (.vti)\n"
+    "  mesh       a VOD file's surface as triangles (marching cubes): PLY, OBJ, STL\n"
     "\n"
     "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else the socket of voxd's\n"
     "                  config file $VOXD_CONFIG or " CONFIG_DEFAULT_PATH ", else\n"
@@ -88,7 +89,7 @@ int main(int argc, char **argv)
         return 0;
     }
     if (strcmp(cmd, "info") && strcmp(cmd, "render") && strcmp(cmd, "mesh-info") &&
-        strcmp(cmd, "csg") && strcmp(cmd, "export") && !sock)
+        strcmp(cmd, "csg") && strcmp(cmd, "export") && strcmp(cmd, "mesh") && !sock)
         sock = default_socket(&cfg);
     if (!strcmp(cmd, "voxelize")) return cli_voxelize(n, v, sock);
     if (!strcmp(cmd, "submit")) return cli_submit(n, v, sock);
@@ -100,6 +101,7 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "mesh-info")) return cli_mesh_info(n, v);
     if (!strcmp(cmd, "csg")) return cli_csg(n, v);
     if (!strcmp(cmd, "export")) return cli_export(n, v);
+    if (!strcmp(cmd, "mesh")) return cli_mesh(n, v);
     cli_error("unknown command '%s'", cmd);
     fputs(usage, stderr);
     return CLI_EXIT_USAGE;

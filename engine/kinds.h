@@ -22,6 +22,7 @@
 #include <string.h>
 
 #include "grid.h"
+#include "iso.h"
 #include "mesh_vox.h"
 #include "shm.h"
 #include "vod.h"
@@ -32,6 +33,7 @@ enum shm_kind {
     SHM_KIND_ENCODE = 2,   /* the VOD's bricks of the last job, in parallel */
     SHM_KIND_MESH = 3,     /* a triangle mesh, tile by tile, into a volume */
     SHM_KIND_CSG = 4,      /* a volume CSG tree, brick by brick, into a volume */
+    SHM_KIND_ISO = 5,      /* marching cubes over a VOD file's bricks */
     SHM_KINDS
 };
 
@@ -188,5 +190,39 @@ static inline csg_task_arg csg_task_bricks(const shm_task *t)
     memcpy(&a, t->arg, sizeof a);
     return a;
 }
+
+/* ---- iso: marching cubes, brick by brick (iso.h) ---- */
+
+enum iso_op {
+    ISO_BRICKS = 1,        /* polygonize tasks until none is left */
+};
+
+/* One task's piece in the arena: its counts (iso_piece_view lays the
+ * bytes out), written by the worker that ran it before `done`. */
+typedef struct {
+    uint64_t off;          /* from the arena's start */
+    uint32_t nv, nc, nt, ne;
+    /* 1 once the piece is complete: stored with release after the piece
+     * and the fields above, loaded with acquire by the master (a worker
+     * that died half way leaves it 0, and the master runs the task). */
+    atomic_uint done;
+    uint32_t pad;
+} iso_result;
+
+typedef struct {
+    iso_params p;
+    /* the input (iso_input): n brick keys and offsets, the raw bricks */
+    uint64_t n_bricks, keys_off, offs_off, raw_off, raw_bytes;
+    uint64_t n_tasks, tasks_off;   /* iso_task[n_tasks], in key order */
+    uint64_t results_off;          /* iso_result[n_tasks] */
+    uint64_t arena_off, arena_cap; /* the pieces' bytes */
+    /* Next task to run: workers fetch_add (relaxed: the tasks were
+     * published by the task_seq release). */
+    _Alignas(64) atomic_ullong next;
+    /* Bump allocator in the arena: workers fetch_add a piece's size
+     * (relaxed: only the ranges' uniqueness matters; the bytes are
+     * published by the result's done release). */
+    _Alignas(64) atomic_ullong bump;
+} iso_block;
 
 #endif

@@ -70,6 +70,7 @@
 #include "csg.h"
 #include "expr.h"
 #include "grid.h"
+#include "iso.h"
 #include "mesh_vox.h"
 #include "octree.h"
 #include "vod.h"
@@ -278,6 +279,23 @@ typedef struct {
     const atomic_int *cancel;   /* as engine_job.cancel */
 } engine_csg_job;
 int engine_csg(engine *e, const engine_csg_job *job, engine_result *r);
+
+/* Marching cubes over an open VOD file (iso.h) by the workers: the raw
+ * bricks of the levels p reads are copied into the segment, each worker
+ * claims brick tasks until none is left and packs each task's piece into
+ * shared memory; a task a worker did not finish (it died, or the pieces
+ * outgrew the segment) is run by the caller's thread, and the pieces are
+ * welded here in task order, so *out is iso_run_serial's mesh, byte for
+ * byte.  Free it with iso_mesh_free.  Errors as engine_voxelize's
+ * (ENGINE_LIMIT: the bricks did not fit, or more than 2^32 vertices). */
+typedef struct {
+    const vod_file *file;
+    const iso_params *p;        /* iso_params_make's, for file */
+    void (*progress)(void *ud, const engine_progress *p);
+    void *ud;
+    const atomic_int *cancel;   /* as engine_job.cancel */
+} engine_iso_job;
+int engine_iso(engine *e, const engine_iso_job *job, iso_mesh *out, engine_result *r);
 
 /* The last job's octree (a view into shared memory), NULL when the last
  * job failed, was not an implicit one, or there was none, or after

@@ -114,7 +114,7 @@ struct master_kind {
     int (*finish)(engine *e, void *job, int rc);
 };
 
-extern const master_kind kind_implicit, kind_encode, kind_mesh, kind_csg;
+extern const master_kind kind_implicit, kind_encode, kind_mesh, kind_csg, kind_iso;
 
 /* ---- pool.c: the workers' lives ---- */
 

@@ -353,6 +353,15 @@ int vod_foreach(const vod_file *f, int level,
                           uint32_t v),
                 void *ud);
 
+/* Call fn for every non-empty brick of level l, in preorder, with its
+ * brick coordinates within the level and its raw bytes (section 5's
+ * layout; bricks the file shares give the same pointer); stops early and
+ * returns fn's value if it returns non-zero; -EINVAL for a level out of
+ * range.  For readers that take whole bricks (vox mesh). */
+int vod_foreach_brick(const vod_file *f, int level,
+                      int (*fn)(void *ud, const uint32_t b[3], const uint8_t *raw),
+                      void *ud);
+
 /* ---- building blocks (exposed for tests and the parallel writer) ---- */
 
 

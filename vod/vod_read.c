@@ -589,3 +589,34 @@ int vod_foreach(const vod_file *f, int level,
     uint32_t b[3] = {0, 0, 0};
     return walk(&w, 0, (int)f->info.height - 1, b);
 }
+
+typedef struct {
+    const vod_file *f;
+    int level;
+    int (*fn)(void *, const uint32_t *, const uint8_t *);
+    void *ud;
+} brick_walk;
+
+static int walk_bricks(const brick_walk *w, uint64_t p, int l, const uint32_t b[3])
+{
+    uint32_t id = w->f->tree[p];
+    if (!id) return 0;
+    if (l == w->level) return w->fn(w->ud, b, w->f->brick[id]);
+    for (unsigned i = 0; i < 8; i++) {
+        uint32_t cb[3];
+        for (int a = 0; a < 3; a++) cb[a] = b[a] << 1 | ((i >> a) & 1u);
+        int rc = walk_bricks(w, p + 1 + i * w->f->sub[l - 1], l - 1, cb);
+        if (rc) return rc;
+    }
+    return 0;
+}
+
+int vod_foreach_brick(const vod_file *f, int level,
+                      int (*fn)(void *ud, const uint32_t b[3], const uint8_t *raw),
+                      void *ud)
+{
+    if (level < 0 || (uint32_t)level >= f->info.height) return -EINVAL;
+    brick_walk w = {f, level, fn, ud};
+    uint32_t b[3] = {0, 0, 0};
+    return walk_bricks(&w, 0, (int)f->info.height - 1, b);
+}

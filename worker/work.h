@@ -53,7 +53,7 @@ typedef struct {
     void (*free)(void *state);
 } work_kind;
 
-extern const work_kind work_implicit, work_encode, work_mesh, work_csg;
+extern const work_kind work_implicit, work_encode, work_mesh, work_csg, work_iso;
 
 /* The heartbeat: "still working".  A store and an add, cheap enough for
  * every few hundred microseconds of work; too seldom (seconds apart) and

@@ -18,6 +18,7 @@ static const work_kind *const kinds[SHM_KINDS] = {
     [SHM_KIND_ENCODE] = &work_encode,
     [SHM_KIND_MESH] = &work_mesh,
     [SHM_KIND_CSG] = &work_csg,
+    [SHM_KIND_ISO] = &work_iso,
 };
 
 static uint64_t cpu_ns(void)

@@ -1,0 +1,271 @@
+/* vox mesh: a VOD file's surface as triangles (marching cubes, iso.h), one
+ * mip level or adaptive levels round a point, run by the engine's workers
+ * (or in this process with -w 0), written as PLY, OBJ or STL. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "cli.h"
+#include "clock.h"
+#include "iso.h"
+#include "outfile.h"
+#include "vod.h"
+
+typedef struct {
+    const char *in, *out, *cpus;
+    iso_format fmt;
+    uint32_t iso, level, workers, shm_mib;
+    double center[3], radii[ISO_MAX_RADII];
+    uint32_t nradii;
+    int has_center, quiet;
+} mesh_opts;
+
+static const char usage_text[] =
+    "usage: vox mesh FILE.vod -o OUT [--format ply|ply-ascii|obj|stl] [--level L]\n"
+    "                [--iso V] [--lod-center X,Y,Z --lod-radii R0,R1,...] [-w N]\n"
+    "  marching cubes over the file's bricks: a closed, oriented triangle mesh\n"
+    "  -o OUT           the mesh; its extension (.ply, .obj, .stl) names the format\n"
+    "                   unless --format does (ply: binary little-endian)\n"
+    "  --level L        polygonize the mip level L bricks (default 0)\n"
+    "  --iso V          a voxel is inside when its byte is above V, 0..254 (default\n"
+    "                   127): channel 2's density, channel 3's occupancy, channel 1\n"
+    "                   as 0/255\n"
+    "  --lod-center X,Y,Z  adaptive levels of detail round this point (world units)\n"
+    "  --lod-radii R0,R1,...  level i for the bricks a sphere of radius Ri touches,\n"
+    "                   level n (the count of radii) beyond them; increasing, at most 8\n"
+    "  -w, --workers N  worker processes, 0..256; 0 runs in this process\n"
+    "                   (default: cores)\n"
+    "  --cpus LIST      CPUs to pin the workers to\n"
+    "  --shm-size MIB   the engine's shared memory (default 2048)\n"
+    "  -q, --quiet      no summary\n";
+
+static int parse_list(const char *s, double *v, uint32_t cap, uint32_t *n)
+{
+    *n = 0;
+    while (*s) {
+        char *end;
+        if (*n == cap) return -1;
+        v[(*n)++] = strtod(s, &end);
+        if (end == s || (*end && *end != ',')) return -1;
+        s = *end ? end + 1 : end;
+        if (!*s && *end) return -1; /* a trailing comma */
+    }
+    return *n ? 0 : -1;
+}
+
+static int value_opt(const char *a)
+{
+    static const char *const v[] = {"-o", "--format", "--level", "--iso", "--lod-center",
+                                    "--lod-radii", "-w", "--workers", "--cpus",
+                                    "--shm-size"};
+    for (size_t i = 0; i < sizeof v / sizeof *v; i++)
+        if (!strcmp(a, v[i])) return 1;
+    return 0;
+}
+
+/* One option with its value; 0 or CLI_EXIT_USAGE. */
+static int take(mesh_opts *o, const char *a, const char *v)
+{
+    uint32_t n;
+    if (!strcmp(a, "-o")) o->out = v;
+    else if (!strcmp(a, "--format")) {
+        if (!(o->fmt = iso_format_of_name(v))) {
+            cli_error("--format %s: not ply, ply-ascii, obj or stl", v);
+            return CLI_EXIT_USAGE;
+        }
+    } else if (!strcmp(a, "--level")) {
+        if (cli_parse_uint(v, 0, ISO_MAX_LEVELS - 1, &o->level)) {
+            cli_error("--level %s: not a level 0..%u", v, ISO_MAX_LEVELS - 1);
+            return CLI_EXIT_USAGE;
+        }
+    } else if (!strcmp(a, "--iso")) {
+        if (cli_parse_uint(v, 0, 254, &o->iso)) {
+            cli_error("--iso %s: not a whole number 0..254", v);
+            return CLI_EXIT_USAGE;
+        }
+    } else if (!strcmp(a, "--lod-center")) {
+        if (parse_list(v, o->center, 3, &n) || n != 3) {
+            cli_error("--lod-center %s: want X,Y,Z", v);
+            return CLI_EXIT_USAGE;
+        }
+        o->has_center = 1;
+    } else if (!strcmp(a, "--lod-radii")) {
+        if (parse_list(v, o->radii, ISO_MAX_RADII, &o->nradii)) {
+            cli_error("--lod-radii %s: want 1 to %u numbers R0,R1,...", v, ISO_MAX_RADII);
+            return CLI_EXIT_USAGE;
+        }
+    } else if (!strcmp(a, "-w") || !strcmp(a, "--workers")) {
+        if (cli_parse_uint(v, 0, ENGINE_MAX_WORKERS, &o->workers)) {
+            cli_error("%s %s: want 0..%d", a, v, ENGINE_MAX_WORKERS);
+            return CLI_EXIT_USAGE;
+        }
+    } else if (!strcmp(a, "--cpus")) o->cpus = v;
+    else if (!strcmp(a, "--shm-size")) {
+        if (cli_parse_uint(v, 16, 1048576, &o->shm_mib)) {
+            cli_error("--shm-size %s: want 16..1048576 MiB", v);
+            return CLI_EXIT_USAGE;
+        }
+    }
+    return 0;
+}
+
+static int check_opts(mesh_opts *o)
+{
+    if (!o->in || !o->out) {
+        cli_error("mesh needs FILE.vod and -o OUT");
+        return CLI_EXIT_USAGE;
+    }
+    if (!o->fmt && !(o->fmt = iso_format_of_path(o->out))) {
+        cli_error("%s: no format from its extension (.ply, .obj, .stl); give --format",
+                  o->out);
+        return CLI_EXIT_USAGE;
+    }
+    if (o->has_center != (o->nradii > 0)) {
+        cli_error("--lod-center and --lod-radii go together");
+        return CLI_EXIT_USAGE;
+    }
+    if (o->nradii && o->level) {
+        cli_error("--level and adaptive levels (--lod-radii) exclude each other");
+        return CLI_EXIT_USAGE;
+    }
+    return 0;
+}
+
+/* 0, CLI_EXIT_USAGE, or -1 for --help (printed). */
+static int parse_opts(int argc, char **argv, mesh_opts *o)
+{
+    long cores = sysconf(_SC_NPROCESSORS_ONLN);
+    *o = (mesh_opts){.iso = 127, .workers = cores > 0 ? (uint32_t)cores : 1,
+                     .shm_mib = 2048};
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            fputs(usage_text, stdout);
+            return -1;
+        }
+        int takes = value_opt(a), rc;
+        if (takes && !v) {
+            cli_error("%s needs a value", a);
+            return CLI_EXIT_USAGE;
+        }
+        if (takes && (rc = take(o, a, v))) return rc;
+        if (takes) {
+            i++;
+            continue;
+        }
+        if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) o->quiet = 1;
+        else if (a[0] == '-' || o->in) {
+            cli_error(a[0] == '-' ? "unknown option '%s'" : "one input file only: '%s'", a);
+            return CLI_EXIT_USAGE;
+        } else o->in = a;
+    }
+    return check_opts(o);
+}
+
+static int make_engine(const mesh_opts *o, engine **e)
+{
+    int cpus[ENGINE_MAX_WORKERS], ncpus = 0;
+    if (o->cpus && (ncpus = cli_parse_cpus(o->cpus, cpus, ENGINE_MAX_WORKERS)) <= 0) {
+        cli_error("bad --cpus '%s': want a list like 0,1 or 0-3", o->cpus);
+        return -EINVAL;
+    }
+    engine_opts eo = {.workers = (int)o->workers, .cpus = ncpus ? cpus : NULL,
+                      .ncpus = ncpus, .shm_bytes = (size_t)o->shm_mib << 20};
+    char err[256] = "";
+    int rc = engine_create(&eo, e, err, sizeof err);
+    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
+    return rc;
+}
+
+static void *heap_alloc(void *ud, size_t bytes)
+{
+    void **keep = ud;
+    return *keep = malloc(bytes);
+}
+
+/* The mesh, by the engine's workers or (-w 0) in this process. */
+static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p,
+                      iso_mesh *m, uint64_t *tasks)
+{
+    char err[256] = "";
+    int rc;
+    if (o->workers) {
+        engine *e;
+        if ((rc = make_engine(o, &e))) return rc;
+        engine_iso_job job = {.file = f, .p = p};
+        engine_result r;
+        rc = engine_iso(e, &job, m, &r);
+        engine_destroy(e);
+        *tasks = r.tiles;
+        if (rc) snprintf(err, sizeof err, "%s", r.error);
+    } else {
+        void *mem = NULL;
+        iso_input in;
+        rc = iso_input_make(f, p, heap_alloc, &mem, &in);
+        if (rc) snprintf(err, sizeof err, "out of memory for the file's bricks");
+        else rc = iso_run_serial(p, &in, m, err, sizeof err);
+        iso_task *t;
+        if (!rc && !iso_tasks(p, &in, &t, tasks)) free(t);
+        free(mem);
+    }
+    if (rc) cli_error("%s: marching cubes failed: %s", o->in, err[0] ? err : strerror(-rc));
+    return rc;
+}
+
+static int write_mesh(const mesh_opts *o, const iso_mesh *m)
+{
+    char tmp[4096], comment[200];
+    snprintf(comment, sizeof comment, "vox mesh, iso %u", o->iso);
+    int fd = outfile_create(o->out, tmp, sizeof tmp), rc = fd < 0 ? fd : 0;
+    if (!rc) {
+        rc = iso_write(fd, m, o->fmt, comment);
+        if (close(fd) && !rc) rc = -errno;
+        if (!rc && rename(tmp, o->out)) rc = -errno;
+        if (rc) unlink(tmp);
+    }
+    if (rc) cli_error("cannot write %s: %s", o->out, strerror(-rc));
+    return rc;
+}
+
+static int run(const mesh_opts *o)
+{
+    char err[512] = "";
+    vod_file *f;
+    if (vod_open(o->in, &f, err, sizeof err)) {
+        cli_error("%s: %s", o->in, err);
+        return CLI_EXIT_FAILED;
+    }
+    iso_params p;
+    int rc = iso_params_make(f, o->iso, (int)o->level, o->center, o->radii, o->nradii, &p,
+                             err, sizeof err);
+    if (rc) {
+        cli_error("%s: %s", o->in, err);
+        vod_close(f);
+        return CLI_EXIT_USAGE;
+    }
+    iso_mesh m = {0};
+    uint64_t tasks = 0;
+    double t0 = clock_now();
+    rc = polygonize(o, f, &p, &m, &tasks);
+    double t1 = clock_now();
+    vod_close(f);
+    if (!rc) rc = write_mesh(o, &m);
+    if (!rc && !o->quiet)
+        printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%llu brick tasks, "
+               "%u workers), written in %.3f s\n", o->out,
+               (unsigned long long)m.n_triangles, (unsigned long long)m.n_vertices,
+               p.nradii ? "adaptive levels" : "one level", t1 - t0,
+               (unsigned long long)tasks, o->workers, clock_now() - t1);
+    iso_mesh_free(&m);
+    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
+}
+
+int cli_mesh(int argc, char **argv)
+{
+    mesh_opts o;
+    int rc = parse_opts(argc, argv, &o);
+    if (rc) return rc < 0 ? CLI_EXIT_OK : rc;
+    return run(&o);
+}

@@ -1,0 +1,219 @@
+/* iso — marching cubes over the bricks of a VOD file (docs/mesh-extraction.md).
+ *
+ * The surface is cut per brick: a task is one brick of one mip level, its
+ * cells the B^3 cubes whose low corner lies in the brick, its samples the
+ * brick's voxels and the one-voxel apron its cells reach into on the high
+ * side.  The volume is read as 0 outside (one layer of empty samples
+ * around it), so a surface is closed at the volume's border too.
+ *
+ * Values.  Every channel is read as a byte: channel 1 as 0 / 255, channel
+ * 2 as its density, channel 3 as its occupancy byte (with its normal).  A
+ * sample is inside when its byte is above iso; the surface crosses an edge
+ * from an outside sample a to an inside one b where the straight line
+ * between them reaches iso + 0.5, halfway between the last outside value
+ * and the first inside one, so a vertex never falls on a sample and no
+ * triangle is degenerate by construction (with iso 127 an occupancy edge
+ * is cut at its midpoint).
+ *
+ * The case table (iso_table.c) is built at first use from the cube's faces:
+ * on each face the crossings are paired by one fixed rule, an exit (inside
+ * to outside, walking round the face counter-clockwise seen from outside)
+ * with the next entry, which on a face with two diagonal inside corners
+ * joins them.  The rule depends on the face's four corners only, so the two
+ * cubes sharing a face cut it the same way: the surface has no crack and
+ * no doubled piece, whatever the case, and inside voxels touching along an
+ * edge stay joined (18-connected inside, 6-connected outside).  The face
+ * segments chain into loops, each triangulated as a fan whose diagonals
+ * never join two crossings on one face (so no edge is shared with a
+ * neighbour), or round a centre vertex when no such fan exists.
+ *
+ * Welding.  A vertex is named by its lattice edge (the edge's low sample
+ * and axis, and the level): a key.  The brick owning the edge's low sample
+ * owns the vertex; others refer to it by key, and the merge (iso_merge)
+ * resolves those to the owner's index.  Each brick's vertices come in key
+ * order, the bricks in (level, z, y, x) order, so the mesh is a function
+ * of the file and the options alone: byte for byte the same whoever ran
+ * which brick.
+ */
+#ifndef VOXD_ISO_H
+#define VOXD_ISO_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vod.h"
+
+#define ISO_MAX_RADII 8      /* --lod-radii: at most this many spheres */
+#define ISO_MAX_LEVELS 16
+
+/* What is polygonized; shared by the master and the workers (copied into
+ * the engine's block), so plain values only. */
+typedef struct {
+    uint32_t iso;            /* inside: byte > iso; 0..254, default 127 */
+    uint32_t bits;           /* the file's voxel bits: 1, 8 or 32 */
+    uint32_t normals;        /* channel 3: vertex normals from the voxels' */
+    uint32_t brick;          /* the file's brick side B */
+    uint32_t height;         /* its treeHeight */
+    uint32_t dims[ISO_MAX_LEVELS][3]; /* each level's volume (vod_level_dims) */
+    float origin[3], scale[3]; /* the trailer's origin, level 0's voxel size */
+    /* Levels: one (level) or adaptive (nradii > 0): a block, the brick of
+     * level lod_top (B 2^lod_top voxels a side), uses level i where i is
+     * the first sphere of radius radii[i] round center that touches it,
+     * and level nradii (at most the top level) where none does. */
+    uint32_t level;
+    uint32_t nradii, lod_top;
+    double center[3], radii[ISO_MAX_RADII];
+} iso_params;
+
+/* iso_params for file f: level, or the spheres when nradii > 0.  0, or
+ * -EINVAL with a message: a level past the tree, radii not increasing, a
+ * channel that is not 1, 2 or 3. */
+int iso_params_make(const vod_file *f, uint32_t iso, int level, const double center[3],
+                    const double *radii, uint32_t nradii, iso_params *p,
+                    char *err, size_t errlen);
+
+/* The level the block (b: block coordinates, blocks of lod_top) uses. */
+uint32_t iso_block_level(const iso_params *p, const uint32_t b[3]);
+
+/* ---- the input: a level's raw bricks, by key ---- */
+
+/* A brick's key: its level and its index within the level's bricks. */
+static inline uint64_t iso_brick_key(uint32_t level, uint64_t lin)
+{
+    return (uint64_t)level << 58 | lin;
+}
+
+/* The bricks a job reads, in memory any process can reach: n sorted keys,
+ * each with the offset of its raw brick from raw (bytes of p->bits). */
+typedef struct {
+    uint64_t n;
+    const uint64_t *keys, *offs;
+    const uint8_t *raw;
+    uint64_t raw_bytes;
+} iso_input;
+
+/* ---- tasks ---- */
+
+typedef struct {
+    uint32_t level, b[3];    /* the brick (task brick coordinates) */
+} iso_task;
+
+/* Task bricks per axis at a level: floor(dims / B) + 1 (the cells reach
+ * one sample past the volume). */
+void iso_task_grid(const iso_params *p, uint32_t level, uint32_t n[3]);
+static inline uint64_t iso_task_key(const iso_params *p, const iso_task *t)
+{
+    uint32_t n[3];
+    iso_task_grid(p, t->level, n);
+    return iso_brick_key(t->level, ((uint64_t)t->b[2] * n[1] + t->b[1]) * n[0] + t->b[0]);
+}
+
+/* The tasks of a job: every brick whose samples touch a non-empty brick
+ * of the file at its level (and, adaptive, a block of that level), sorted
+ * by key, into *out (malloc'd; free it).  0 or -ENOMEM. */
+int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t *n);
+
+/* ---- one task's polygons ---- */
+
+/* A reference to a vertex from a triangle: an owned edge vertex (its index
+ * in the piece), a centre vertex (ISO_REF_CENTRE | index), or a vertex
+ * another piece owns (ISO_REF_EXT | index in ext). */
+#define ISO_REF_CENTRE 0x40000000u
+#define ISO_REF_EXT 0x80000000u
+#define ISO_REF_INDEX 0x3fffffffu
+
+/* One task's output.  keys/pos/nrm: nv owned edge vertices in key order;
+ * cpos/cnrm: nc centre vertices; tri: nt triangles, counter-clockwise seen
+ * from outside (inside: the higher values); ext: ne keys of vertices
+ * other pieces own.  nrm and cnrm only with p->normals. */
+typedef struct {
+    uint64_t key;            /* the task's key (iso_task_key) */
+    uint32_t nv, nc, nt, ne;
+    const uint64_t *keys;
+    const float *pos, *nrm, *cpos, *cnrm;
+    const uint32_t *tri;
+    const uint64_t *ext;
+} iso_piece;
+
+/* A task's scratch and growing output, reused from task to task. */
+typedef struct iso_work iso_work;
+int iso_work_new(const iso_params *p, iso_work **out);
+void iso_work_free(iso_work *w);
+/* Polygonize task t into w; *piece then views w's arrays (valid until the
+ * next call).  0, -ENOMEM, or -EINVAL for a task outside the level. */
+int iso_task_run(iso_work *w, const iso_params *p, const iso_input *in,
+                 const iso_task *t, iso_piece *piece);
+
+/* The bytes of a piece laid out flat (iso_piece_pack/iso_piece_view): what
+ * a worker copies into shared memory. */
+size_t iso_piece_bytes(const iso_params *p, const iso_piece *pc);
+void iso_piece_pack(const iso_params *p, const iso_piece *pc, void *to);
+/* The view of packed bytes with the given counts; -EINVAL when they do
+ * not fit in `bytes` (the counts come from another process). */
+int iso_piece_view(const iso_params *p, const void *from, size_t bytes,
+                   uint64_t key, uint32_t nv, uint32_t nc, uint32_t nt, uint32_t ne,
+                   iso_piece *pc);
+
+/* ---- the whole mesh ---- */
+
+typedef struct {
+    uint64_t n_vertices, n_triangles;
+    float *pos;              /* n_vertices x 3 */
+    float *nrm;              /* n_vertices x 3, or NULL */
+    uint32_t *tri;           /* n_triangles x 3 */
+} iso_mesh;
+
+/* The pieces of every task (in task order, each task's key given) welded
+ * into one mesh.  A piece is checked before it is used (they come from
+ * other processes): -EPROTO with a message for one that is malformed or
+ * refers to a vertex nobody owns; -ENOMEM; -E2BIG past 2^32 vertices. */
+int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh *m,
+              char *err, size_t errlen);
+void iso_mesh_free(iso_mesh *m);
+
+/* Everything in this thread: the tasks, each polygonized, merged.  The
+ * reference for the engine's parallel run. */
+int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *err,
+                   size_t errlen);
+
+/* ---- the input from an open file ---- */
+
+/* The raw bricks of the levels p uses, copied once each (bricks the file
+ * shares are shared), into memory from alloc(ud, bytes) (NULL: no room ->
+ * -ENOMEM), laid out as: keys, offsets, raw bricks. */
+int iso_input_make(const vod_file *f, const iso_params *p,
+                   void *(*alloc)(void *ud, size_t bytes), void *ud, iso_input *in);
+
+/* ---- writing ---- */
+
+typedef enum { ISO_FMT_NONE, ISO_FMT_PLY, ISO_FMT_PLY_ASCII, ISO_FMT_OBJ, ISO_FMT_STL } iso_format;
+
+/* "ply", "obj", "stl" (and "ply-ascii" by name only); ISO_FMT_NONE if not. */
+iso_format iso_format_of_name(const char *s);
+iso_format iso_format_of_path(const char *path);
+/* Write m to fd in format f; 0 or a negative errno. */
+int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment);
+
+/* ---- the case table (iso_table.c) ---- */
+
+/* Edge slot e (0..11) of a cell: its axis (e / 4) and the offset of its
+ * low corner from the cell's (bits: x, y, z). */
+static inline uint32_t iso_edge_axis(uint32_t e) { return e >> 2; }
+uint32_t iso_edge_corner(uint32_t e);
+
+#define ISO_CENTRE_SLOT 12u  /* slot 12 + k: the case's k-th centre vertex */
+#define ISO_MAX_TRI 16u
+#define ISO_MAX_CENTRES 4u
+
+typedef struct {
+    uint8_t ntri, ncentre;
+    uint8_t tri[ISO_MAX_TRI][3];          /* slots */
+    uint8_t loop_len[ISO_MAX_CENTRES];    /* each centre's loop */
+    uint8_t loop[ISO_MAX_CENTRES][12];
+} iso_case;
+
+/* The 256 cases (bit c: corner c inside, corner c at x = c & 1,
+ * y = c >> 1 & 1, z = c >> 2), built on first use (thread-safe). */
+const iso_case *iso_cases(void);
+
+#endif

@@ -1,0 +1,261 @@
+/* What a marching-cubes job reads: its parameters from the file and the
+ * options, the raw bricks of the levels it uses (copied once into memory
+ * every process reaches), and its tasks. */
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "iso.h"
+
+__attribute__((format(printf, 3, 4))) static int
+say(char *err, size_t len, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(err, len, fmt, ap);
+    va_end(ap);
+    return -EINVAL;
+}
+
+static int check_channel(const vod_info *in, char *err, size_t len)
+{
+    if (in->voxel_bits == 16 || in->channel == 4 || in->flags & VOD_FLAG_FLOAT)
+        return say(err, len, "channel %u (%u-bit voxels) has no marching cubes here: "
+                   "channels 1, 2 and 3 do", in->channel, in->voxel_bits);
+    if (in->height > ISO_MAX_LEVELS)
+        return say(err, len, "treeHeight %u: more levels than %u", in->height,
+                   ISO_MAX_LEVELS);
+    return 0;
+}
+
+static int set_levels(iso_params *p, int level, const double center[3],
+                      const double *radii, uint32_t nradii, char *err, size_t len)
+{
+    if (nradii > ISO_MAX_RADII)
+        return say(err, len, "at most %u LOD radii", ISO_MAX_RADII);
+    for (uint32_t i = 0; i < nradii; i++) {
+        if (!isfinite(radii[i]) || radii[i] < 0 || (i && !(radii[i] > radii[i - 1])))
+            return say(err, len, "LOD radii must be finite, >= 0 and increasing");
+        p->radii[i] = radii[i];
+    }
+    if (level < 0 || (uint32_t)level >= p->height)
+        return say(err, len, "level %d: the file has levels 0..%u", level, p->height - 1);
+    p->level = (uint32_t)level;
+    p->nradii = nradii;
+    p->lod_top = nradii < p->height - 1 ? nradii : p->height - 1;
+    for (int a = 0; a < 3 && center; a++) p->center[a] = center[a];
+    return 0;
+}
+
+int iso_params_make(const vod_file *f, uint32_t iso, int level, const double center[3],
+                    const double *radii, uint32_t nradii, iso_params *p,
+                    char *err, size_t errlen)
+{
+    const vod_info *in = vod_get_info(f);
+    memset(p, 0, sizeof *p);
+    if (iso > 254) return say(err, errlen, "iso %u: not in 0..254", iso);
+    int rc = check_channel(in, err, errlen);
+    if (rc) return rc;
+    p->iso = iso;
+    p->bits = in->voxel_bits;
+    p->normals = in->voxel_bits == 32;
+    p->brick = in->brick;
+    p->height = in->height;
+    for (uint32_t l = 0; l < in->height; l++) vod_level_dims(f, (int)l, p->dims[l]);
+    for (int a = 0; a < 3; a++) {
+        p->origin[a] = in->origin[a];
+        p->scale[a] = in->voxel_scale[a];
+    }
+    return set_levels(p, level, center, radii, nradii, err, errlen);
+}
+
+/* The distance from the spheres' centre to the block's world box. */
+static double block_distance(const iso_params *p, const uint32_t b[3])
+{
+    double side = (double)p->brick * (double)(1u << p->lod_top), d2 = 0;
+    for (int a = 0; a < 3; a++) {
+        double lo = p->origin[a] + (double)b[a] * side * p->scale[a];
+        double hi = lo + side * p->scale[a], c = p->center[a];
+        double d = c < lo ? lo - c : c > hi ? c - hi : 0;
+        d2 += d * d;
+    }
+    return sqrt(d2);
+}
+
+uint32_t iso_block_level(const iso_params *p, const uint32_t b[3])
+{
+    if (!p->nradii) return p->level;
+    double d = block_distance(p, b);
+    uint32_t l = 0;
+    while (l < p->nradii && d > p->radii[l]) l++;
+    return l < p->lod_top ? l : p->lod_top;
+}
+
+void iso_task_grid(const iso_params *p, uint32_t level, uint32_t n[3])
+{
+    for (int a = 0; a < 3; a++) n[a] = p->dims[level][a] / p->brick + 1;
+}
+
+/* ---- the input ---- */
+
+typedef struct {
+    uint64_t key;
+    const uint8_t *raw;
+    uint64_t off;
+} brick_ref;
+
+typedef struct {
+    const iso_params *p;
+    uint32_t level;
+    brick_ref *v;
+    size_t n, cap;
+    int rc;
+} collect_ctx;
+
+/* A level-l brick is used when its block uses level l. */
+static int brick_used(const iso_params *p, uint32_t level, const uint32_t b[3])
+{
+    if (!p->nradii) return level == p->level;
+    uint32_t blk[3], s = p->lod_top - level;
+    for (int a = 0; a < 3; a++) blk[a] = b[a] >> s;
+    return iso_block_level(p, blk) == level;
+}
+
+static int collect_one(void *ud, const uint32_t b[3], const uint8_t *raw)
+{
+    collect_ctx *c = ud;
+    if (!brick_used(c->p, c->level, b)) return 0;
+    if (c->n == c->cap) {
+        size_t cap = c->cap ? 2 * c->cap : 1024;
+        brick_ref *v = realloc(c->v, cap * sizeof *v);
+        if (!v) return c->rc = -ENOMEM;
+        c->v = v;
+        c->cap = cap;
+    }
+    uint64_t side = 1ull << (c->p->height - 1 - c->level);
+    uint64_t lin = ((uint64_t)b[2] * side + b[1]) * side + b[0];
+    c->v[c->n++] = (brick_ref){iso_brick_key(c->level, lin), raw, 0};
+    return 0;
+}
+
+static int by_raw(const void *a, const void *b)
+{
+    const uint8_t *x = ((const brick_ref *)a)->raw, *y = ((const brick_ref *)b)->raw;
+    return (x > y) - (x < y);
+}
+
+static int by_key(const void *a, const void *b)
+{
+    uint64_t x = ((const brick_ref *)a)->key, y = ((const brick_ref *)b)->key;
+    return (x > y) - (x < y);
+}
+
+static int levels_used(const iso_params *p, uint32_t *lo, uint32_t *hi)
+{
+    *lo = p->nradii ? 0 : p->level;
+    *hi = p->nradii ? p->lod_top : p->level;
+    return 0;
+}
+
+int iso_input_make(const vod_file *f, const iso_params *p,
+                   void *(*alloc)(void *ud, size_t bytes), void *ud, iso_input *in)
+{
+    collect_ctx c = {.p = p};
+    uint32_t lo, hi;
+    levels_used(p, &lo, &hi);
+    for (uint32_t l = lo; l <= hi && !c.rc; l++) {
+        c.level = l;
+        vod_foreach_brick(f, (int)l, collect_one, &c);
+    }
+    if (c.rc) {
+        free(c.v);
+        return c.rc;
+    }
+    /* bricks the file shares (the same pointer) are copied once */
+    size_t raw_bytes = (size_t)p->brick * p->brick * p->brick * p->bits / 8, uniq = 0;
+    if (c.n) qsort(c.v, c.n, sizeof *c.v, by_raw);
+    for (size_t i = 0; i < c.n; i++) {
+        if (i == 0 || c.v[i].raw != c.v[i - 1].raw) uniq++;
+        c.v[i].off = (uniq - 1) * raw_bytes;
+    }
+    size_t bytes = c.n * 16 + uniq * raw_bytes;
+    uint8_t *mem = alloc(ud, bytes ? bytes : 16);
+    if (!mem) {
+        free(c.v);
+        return -ENOMEM;
+    }
+    uint64_t *keys = (uint64_t *)mem, *offs = keys + c.n;
+    uint8_t *raw = mem + c.n * 16;
+    for (size_t i = 0; i < c.n; i++)
+        if (i == 0 || c.v[i].raw != c.v[i - 1].raw)
+            memcpy(raw + c.v[i].off, c.v[i].raw, raw_bytes);
+    if (c.n) qsort(c.v, c.n, sizeof *c.v, by_key);
+    for (size_t i = 0; i < c.n; i++) {
+        keys[i] = c.v[i].key;
+        offs[i] = c.v[i].off;
+    }
+    *in = (iso_input){c.n, keys, offs, raw, uniq * raw_bytes};
+    free(c.v);
+    return 0;
+}
+
+/* ---- tasks ---- */
+
+static int by_u64(const void *a, const void *b)
+{
+    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* The task bricks that read file brick `key`: it and the next on each axis. */
+static size_t tasks_of(const iso_params *p, uint64_t key, uint64_t *out)
+{
+    uint32_t l = (uint32_t)(key >> 58), n[3], b[3];
+    uint64_t side = 1ull << (p->height - 1 - l), lin = key & ((1ull << 58) - 1);
+    b[0] = (uint32_t)(lin % side);
+    b[1] = (uint32_t)(lin / side % side);
+    b[2] = (uint32_t)(lin / side / side);
+    iso_task_grid(p, l, n);
+    size_t k = 0;
+    for (uint32_t c = 0; c < 8; c++) {
+        uint32_t t[3];
+        int ok = 1;
+        for (int a = 0; a < 3; a++) {
+            t[a] = b[a] + (c >> a & 1u);
+            ok &= t[a] < n[a];
+        }
+        if (ok) out[k++] = iso_brick_key(l, ((uint64_t)t[2] * n[1] + t[1]) * n[0] + t[0]);
+    }
+    return k;
+}
+
+int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t *n)
+{
+    uint64_t *keys = malloc((in->n ? in->n : 1) * 8 * sizeof *keys);
+    if (!keys) return -ENOMEM;
+    size_t k = 0;
+    for (uint64_t i = 0; i < in->n; i++) k += tasks_of(p, in->keys[i], keys + k);
+    if (k) qsort(keys, k, sizeof *keys, by_u64);
+    size_t u = 0;
+    for (size_t i = 0; i < k; i++)
+        if (!u || keys[i] != keys[u - 1]) keys[u++] = keys[i];
+    iso_task *t = malloc((u ? u : 1) * sizeof *t);
+    if (!t) {
+        free(keys);
+        return -ENOMEM;
+    }
+    for (size_t i = 0; i < u; i++) {
+        uint32_t l = (uint32_t)(keys[i] >> 58), g[3];
+        uint64_t lin = keys[i] & ((1ull << 58) - 1);
+        iso_task_grid(p, l, g);
+        t[i] = (iso_task){l, {(uint32_t)(lin % g[0]), (uint32_t)(lin / g[0] % g[1]),
+                              (uint32_t)(lin / g[0] / g[1])}};
+    }
+    free(keys);
+    *out = t;
+    *n = u;
+    return 0;
+}

@@ -1,0 +1,297 @@
+/* The pieces welded into one mesh, and the serial run.  Vertices come piece
+ * by piece in task order, each piece's edge vertices (in key order) then
+ * its centre vertices; a triangle's reference to another piece's vertex is
+ * found by key: the owner task from the key's sample, the vertex by binary
+ * search in the owner's keys.  Pieces may come from other processes: each
+ * is checked before it is used. */
+#include <errno.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "iso.h"
+
+#define KEY_LOW ((1ull << 58) - 1)
+
+/* ---- packing ---- */
+
+size_t iso_piece_bytes(const iso_params *p, const iso_piece *pc)
+{
+    size_t f = p->normals ? 6 : 3;
+    return 8 * ((size_t)pc->nv + pc->ne) + 4 * f * ((size_t)pc->nv + pc->nc) +
+           12 * (size_t)pc->nt;
+}
+
+/* Copy n bytes to *o and step past them. */
+static void put(uint8_t **o, const void *src, size_t n)
+{
+    if (n) memcpy(*o, src, n);
+    *o += n;
+}
+
+void iso_piece_pack(const iso_params *p, const iso_piece *pc, void *to)
+{
+    uint8_t *o = to;
+    put(&o, pc->keys, 8 * (size_t)pc->nv);
+    put(&o, pc->ext, 8 * (size_t)pc->ne);
+    put(&o, pc->pos, 12 * (size_t)pc->nv);
+    if (p->normals) put(&o, pc->nrm, 12 * (size_t)pc->nv);
+    put(&o, pc->cpos, 12 * (size_t)pc->nc);
+    if (p->normals) put(&o, pc->cnrm, 12 * (size_t)pc->nc);
+    put(&o, pc->tri, 12 * (size_t)pc->nt);
+}
+
+int iso_piece_view(const iso_params *p, const void *from, size_t bytes, uint64_t key,
+                   uint32_t nv, uint32_t nc, uint32_t nt, uint32_t ne, iso_piece *pc)
+{
+    *pc = (iso_piece){.key = key, .nv = nv, .nc = nc, .nt = nt, .ne = ne};
+    if (iso_piece_bytes(p, pc) > bytes) return -EINVAL;
+    const uint8_t *o = from;
+    pc->keys = (const uint64_t *)o;
+    pc->ext = (const uint64_t *)(o += 8 * (size_t)nv);
+    pc->pos = (const float *)(o += 8 * (size_t)ne);
+    o += 12 * (size_t)nv;
+    if (p->normals) {
+        pc->nrm = (const float *)o;
+        o += 12 * (size_t)nv;
+    }
+    pc->cpos = (const float *)o;
+    o += 12 * (size_t)nc;
+    if (p->normals) {
+        pc->cnrm = (const float *)o;
+        o += 12 * (size_t)nc;
+    }
+    pc->tri = (const uint32_t *)o;
+    return 0;
+}
+
+/* ---- merging ---- */
+
+typedef struct {
+    const iso_params *p;
+    const iso_piece *pc;
+    uint64_t n;
+    uint64_t *base;
+    char *err;
+    size_t errlen;
+} merge_ctx;
+
+__attribute__((format(printf, 2, 3))) static int bad(merge_ctx *m, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(m->err, m->errlen, fmt, ap);
+    va_end(ap);
+    return -EPROTO;
+}
+
+/* A vertex key's task key, or UINT64_MAX when it names no edge. */
+static uint64_t owner_of(const iso_params *p, uint64_t key)
+{
+    uint32_t l = (uint32_t)(key >> 58), g[3];
+    uint64_t lin = (key & KEY_LOW) >> 2, u[3], W[3];
+    if (l >= p->height || (key & 3u) == 3) return UINT64_MAX;
+    for (int a = 0; a < 3; a++) W[a] = (uint64_t)p->dims[l][a] + 2;
+    u[0] = lin % W[0];
+    u[1] = lin / W[0] % W[1];
+    u[2] = lin / W[0] / W[1];
+    if (u[2] >= W[2]) return UINT64_MAX;
+    iso_task_grid(p, l, g);
+    uint64_t b[3];
+    for (int a = 0; a < 3; a++) {
+        b[a] = u[a] / p->brick;
+        if (b[a] >= g[a]) return UINT64_MAX;
+    }
+    return iso_brick_key(l, (b[2] * g[1] + b[1]) * g[0] + b[0]);
+}
+
+static int64_t find_u64(const uint64_t *v, uint64_t n, uint64_t key)
+{
+    uint64_t lo = 0, hi = n;
+    while (lo < hi) {
+        uint64_t mid = lo + (hi - lo) / 2;
+        if (v[mid] < key) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo < n && v[lo] == key ? (int64_t)lo : -1;
+}
+
+static int64_t find_piece(const merge_ctx *m, uint64_t key)
+{
+    uint64_t lo = 0, hi = m->n;
+    while (lo < hi) {
+        uint64_t mid = lo + (hi - lo) / 2;
+        if (m->pc[mid].key < key) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo < m->n && m->pc[lo].key == key ? (int64_t)lo : -1;
+}
+
+/* Piece i's keys: increasing, each an edge of its own brick. */
+static int check_keys(merge_ctx *m, uint64_t i)
+{
+    const iso_piece *pc = &m->pc[i];
+    if (i && pc->key <= m->pc[i - 1].key) return bad(m, "the pieces are not in task order");
+    for (uint32_t k = 0; k < pc->nv; k++) {
+        if (k && pc->keys[k] <= pc->keys[k - 1])
+            return bad(m, "piece %llu: its vertices are not in key order",
+                       (unsigned long long)i);
+        if (owner_of(m->p, pc->keys[k]) != pc->key)
+            return bad(m, "piece %llu: vertex %u is not on its brick's edges",
+                       (unsigned long long)i, k);
+    }
+    return 0;
+}
+
+/* The global index of each of piece i's external references. */
+static int resolve_ext(merge_ctx *m, uint64_t i, uint32_t *out)
+{
+    const iso_piece *pc = &m->pc[i];
+    for (uint32_t k = 0; k < pc->ne; k++) {
+        uint64_t owner = owner_of(m->p, pc->ext[k]);
+        int64_t j = owner == UINT64_MAX ? -1 : find_piece(m, owner);
+        int64_t v = j < 0 ? -1 : find_u64(m->pc[j].keys, m->pc[j].nv, pc->ext[k]);
+        if (v < 0)
+            return bad(m, "piece %llu refers to a vertex no piece has (key %llx)",
+                       (unsigned long long)i, (unsigned long long)pc->ext[k]);
+        out[k] = (uint32_t)(m->base[j] + (uint64_t)v);
+    }
+    return 0;
+}
+
+static int convert_tris(merge_ctx *m, uint64_t i, const uint32_t *ext, uint32_t *to)
+{
+    const iso_piece *pc = &m->pc[i];
+    uint64_t base = m->base[i];
+    for (uint64_t k = 0; k < 3 * (uint64_t)pc->nt; k++) {
+        uint32_t r = pc->tri[k], x = r & ISO_REF_INDEX;
+        uint32_t kind = r & ~ISO_REF_INDEX;
+        if (kind == 0 && x < pc->nv) to[k] = (uint32_t)(base + x);
+        else if (kind == ISO_REF_CENTRE && x < pc->nc) to[k] = (uint32_t)(base + pc->nv + x);
+        else if (kind == ISO_REF_EXT && x < pc->ne) to[k] = ext[x];
+        else
+            return bad(m, "piece %llu: triangle %llu refers to no vertex",
+                       (unsigned long long)i, (unsigned long long)(k / 3));
+    }
+    return 0;
+}
+
+static void copy_vertices(const merge_ctx *m, uint64_t i, iso_mesh *out)
+{
+    const iso_piece *pc = &m->pc[i];
+    float *pos = out->pos + 3 * m->base[i];
+    memcpy(pos, pc->pos, 12 * (size_t)pc->nv);
+    memcpy(pos + 3 * (size_t)pc->nv, pc->cpos, 12 * (size_t)pc->nc);
+    if (!out->nrm) return;
+    float *nrm = out->nrm + 3 * m->base[i];
+    memcpy(nrm, pc->nrm, 12 * (size_t)pc->nv);
+    memcpy(nrm + 3 * (size_t)pc->nv, pc->cnrm, 12 * (size_t)pc->nc);
+}
+
+static int merge_all(merge_ctx *m, iso_mesh *out)
+{
+    uint32_t *ext = NULL;
+    uint64_t tri_at = 0;
+    int rc = 0;
+    for (uint64_t i = 0; i < m->n && !rc; i++) {
+        const iso_piece *pc = &m->pc[i];
+        uint32_t *e = realloc(ext, ((size_t)pc->ne + 1) * sizeof *e);
+        if (!e) {
+            rc = -ENOMEM;
+            break;
+        }
+        ext = e;
+        if (!(rc = resolve_ext(m, i, ext)))
+            rc = convert_tris(m, i, ext, out->tri + 3 * tri_at);
+        copy_vertices(m, i, out);
+        tri_at += pc->nt;
+    }
+    free(ext);
+    return rc;
+}
+
+int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh *out,
+              char *err, size_t errlen)
+{
+    memset(out, 0, sizeof *out);
+    merge_ctx m = {p, pieces, n, calloc(n + 1, sizeof(uint64_t)), err, errlen};
+    if (!m.base) return -ENOMEM;
+    uint64_t nv = 0, nt = 0;
+    int rc = 0;
+    for (uint64_t i = 0; i < n && !rc; i++) {
+        rc = check_keys(&m, i);
+        m.base[i] = nv;
+        nv += (uint64_t)pieces[i].nv + pieces[i].nc;
+        nt += pieces[i].nt;
+    }
+    if (!rc && nv > UINT32_MAX) {
+        snprintf(err, errlen, "%llu vertices: more than a mesh of 32-bit indices holds",
+                 (unsigned long long)nv);
+        rc = -E2BIG;
+    }
+    if (!rc) {
+        out->n_vertices = nv;
+        out->n_triangles = nt;
+        out->pos = malloc(12 * (size_t)(nv ? nv : 1));
+        out->nrm = p->normals ? malloc(12 * (size_t)(nv ? nv : 1)) : NULL;
+        out->tri = malloc(12 * (size_t)(nt ? nt : 1));
+        if (!out->pos || !out->tri || (p->normals && !out->nrm)) rc = -ENOMEM;
+    }
+    if (!rc) rc = merge_all(&m, out);
+    if (rc == -ENOMEM) snprintf(err, errlen, "out of memory for the mesh");
+    if (rc) iso_mesh_free(out);
+    free(m.base);
+    return rc;
+}
+
+void iso_mesh_free(iso_mesh *m)
+{
+    free(m->pos);
+    free(m->nrm);
+    free(m->tri);
+    memset(m, 0, sizeof *m);
+}
+
+/* ---- the serial run ---- */
+
+static int run_tasks(const iso_params *p, const iso_input *in, const iso_task *t,
+                     uint64_t n, iso_piece *pc, uint8_t **own)
+{
+    iso_work *w = NULL;
+    int rc = iso_work_new(p, &w);
+    for (uint64_t i = 0; i < n && !rc; i++) {
+        iso_piece v;
+        rc = iso_task_run(w, p, in, &t[i], &v);
+        size_t bytes = rc ? 0 : iso_piece_bytes(p, &v);
+        if (!rc && !(own[i] = malloc(bytes ? bytes : 1))) rc = -ENOMEM;
+        if (rc) break;
+        iso_piece_pack(p, &v, own[i]);
+        iso_piece_view(p, own[i], bytes, v.key, v.nv, v.nc, v.nt, v.ne, &pc[i]);
+    }
+    iso_work_free(w);
+    return rc;
+}
+
+int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *err,
+                   size_t errlen)
+{
+    iso_task *t;
+    uint64_t n;
+    memset(m, 0, sizeof *m);
+    int rc = iso_tasks(p, in, &t, &n);
+    if (rc) {
+        snprintf(err, errlen, "out of memory for the tasks");
+        return rc;
+    }
+    iso_piece *pc = calloc(n + 1, sizeof *pc);
+    uint8_t **own = calloc(n + 1, sizeof *own);
+    rc = pc && own ? run_tasks(p, in, t, n, pc, own) : -ENOMEM;
+    if (rc) snprintf(err, errlen, "%s", rc == -ENOMEM ? "out of memory" : "bad task");
+    else rc = iso_merge(p, pc, n, m, err, errlen);
+    for (uint64_t i = 0; own && i < n; i++) free(own[i]);
+    free(own);
+    free(pc);
+    free(t);
+    return rc;
+}

@@ -1,0 +1,92 @@
+/* The iso kind's worker side: marching cubes on the tasks it claims from
+ * the block's counter, each task's piece packed into the shared arena and
+ * its result marked done.  A task whose piece does not fit, or that this
+ * worker could not run, stays undone: the master runs it. */
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "work.h"
+
+typedef struct {
+    iso_work *w;
+    uint32_t brick, normals; /* what w was made for */
+} iso_state;
+
+static void iso_state_free(void *state)
+{
+    iso_state *st = state;
+    if (!st) return;
+    iso_work_free(st->w);
+    free(st);
+}
+
+/* The scratch for this job's bricks, kept while the brick size and the
+ * channel stay the same. */
+static int iso_begin(work_ctx *w, void **state)
+{
+    iso_state *st = *state;
+    if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
+    const iso_block *b = shm_at(w->base, w->h->job_off);
+    if (st->w && st->brick == b->p.brick && st->normals == b->p.normals) return 0;
+    iso_work_free(st->w);
+    st->w = NULL;
+    int rc = iso_work_new(&b->p, &st->w);
+    st->brick = b->p.brick;
+    st->normals = b->p.normals;
+    return rc;
+}
+
+static iso_input block_input(const work_ctx *w, const iso_block *b)
+{
+    return (iso_input){
+        .n = b->n_bricks,
+        .keys = shm_at(w->base, b->keys_off),
+        .offs = shm_at(w->base, b->offs_off),
+        .raw = shm_at(w->base, b->raw_off),
+        .raw_bytes = b->raw_bytes,
+    };
+}
+
+/* Task i's piece into the arena, if it fits. */
+static void store(work_ctx *w, iso_block *b, uint64_t i, const iso_piece *pc)
+{
+    iso_result *r = (iso_result *)shm_at(w->base, b->results_off) + i;
+    uint64_t bytes = iso_piece_bytes(&b->p, pc);
+    uint64_t off = atomic_fetch_add_explicit(&b->bump, (bytes + 7) & ~7ull,
+                                             memory_order_relaxed);
+    if (off > b->arena_cap || bytes > b->arena_cap - off) return;
+    iso_piece_pack(&b->p, pc, shm_at(w->base, b->arena_off + off));
+    r->off = off;
+    r->nv = pc->nv;
+    r->nc = pc->nc;
+    r->nt = pc->nt;
+    r->ne = pc->ne;
+    /* release: pairs with the master's acquire load of done */
+    atomic_store_explicit(&r->done, 1, memory_order_release);
+}
+
+static int iso_run(work_ctx *w, void *state, const shm_task *t)
+{
+    iso_state *st = state;
+    iso_block *b = shm_at(w->base, w->h->job_off);
+    if (t->op != ISO_BRICKS) return -EINVAL;
+    iso_input in = block_input(w, b);
+    const iso_task *tasks = shm_at(w->base, b->tasks_off);
+    for (;;) {
+        if (work_aborted(w)) return -ECANCELED;
+        /* relaxed: a counter that hands out disjoint tasks */
+        uint64_t i = atomic_fetch_add_explicit(&b->next, 1, memory_order_relaxed);
+        if (i >= b->n_tasks) return 0;
+        work_tick(w);
+        iso_piece pc;
+        if (iso_task_run(st->w, &b->p, &in, &tasks[i], &pc) == 0) store(w, b, i, &pc);
+    }
+}
+
+const work_kind work_iso = {
+    .name = "iso",
+    .begin = iso_begin,
+    .run = iso_run,
+    .free = iso_state_free,
+};
