@@ -203,9 +203,12 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
     } else {
         void *mem = NULL;
         iso_input in;
+        double t0 = clock_now();
         rc = iso_input_make(f, p, heap_alloc, &mem, &in);
+        double t_in = clock_now() - t0;
         if (rc) snprintf(err, sizeof err, "out of memory for the file's bricks");
         else rc = iso_run_serial(p, &in, m, err, sizeof err);
+        m->t_setup += t_in;
         iso_task *t;
         if (!rc && !iso_tasks(p, &in, &t, tasks)) free(t);
         free(mem);
@@ -233,6 +236,7 @@ static int run(const mesh_opts *o)
 {
     char err[512] = "";
     vod_file *f;
+    double tr = clock_now();
     if (vod_open(o->in, &f, err, sizeof err)) {
         cli_error("%s: %s", o->in, err);
         return CLI_EXIT_FAILED;
@@ -252,12 +256,15 @@ static int run(const mesh_opts *o)
     double t1 = clock_now();
     vod_close(f);
     if (!rc) rc = write_mesh(o, &m);
-    if (!rc && !o->quiet)
+    if (!rc && !o->quiet) {
         printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%llu brick tasks, "
                "%u workers), written in %.3f s\n", o->out,
                (unsigned long long)m.n_triangles, (unsigned long long)m.n_vertices,
                p.nradii ? "adaptive levels" : "one level", t1 - t0,
                (unsigned long long)tasks, o->workers, clock_now() - t1);
+        printf("  file read and checked in %.3f s; bricks and tasks %.3f s, marching "
+               "cubes %.3f s, weld %.3f s\n", t0 - tr, m.t_setup, m.t_tasks, m.t_weld);
+    }
     iso_mesh_free(&m);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }

@@ -18,6 +18,7 @@ struct iso_work {
     uint8_t *val;           /* S^3 sample bytes */
     uint32_t *word;         /* S^3 channel-3 voxels (normals), or NULL */
     int32_t *map;           /* S^3 x 3 edges: vertex reference, -1 none */
+    uint8_t *row;           /* S^2 rows of S samples (y, z): ROW_OUT, ROW_IN, ROW_MIXED */
     vec keys, pos, nrm, cpos, cnrm, tri, ext;
     /* the running task */
     const iso_params *p;
@@ -47,10 +48,11 @@ int iso_work_new(const iso_params *p, iso_work **out)
     w->val = malloc(n);
     w->map = malloc(n * 3 * sizeof *w->map);
     w->word = p->normals ? malloc(n * sizeof *w->word) : NULL;
+    w->row = malloc((size_t)w->S * w->S);
     w->keys.size = w->ext.size = 8;
     w->pos.size = w->nrm.size = w->cpos.size = w->cnrm.size = 3 * sizeof(float);
     w->tri.size = 3 * sizeof(uint32_t);
-    if (!w->val || !w->map || (p->normals && !w->word)) {
+    if (!w->val || !w->map || !w->row || (p->normals && !w->word)) {
         iso_work_free(w);
         return -ENOMEM;
     }
@@ -64,6 +66,7 @@ void iso_work_free(iso_work *w)
     free(w->val);
     free(w->word);
     free(w->map);
+    free(w->row);
     vec *v[] = {&w->keys, &w->pos, &w->nrm, &w->cpos, &w->cnrm, &w->tri, &w->ext};
     for (size_t i = 0; i < sizeof v / sizeof *v; i++) free(v[i]->p);
     free(w);
@@ -219,31 +222,64 @@ static int crossing(const iso_work *w, size_t i0, size_t i1)
     return (w->val[i0] > iso) != (w->val[i1] > iso);
 }
 
+enum { ROW_OUT = 0, ROW_IN = 1, ROW_MIXED = 2 };
+
+/* Each row of samples: all outside, all inside, or both, so that the
+ * passes skip the rows (most of them) where nothing can cross. */
+static int classify_rows(iso_work *w)
+{
+    uint32_t S = w->S, iso = w->p->iso, any = 0;
+    for (size_t r = 0; r < (size_t)S * S; r++) {
+        const uint8_t *v = w->val + r * S;
+        uint32_t in = 0;
+        for (uint32_t x = 0; x < S; x++) in += v[x] > iso;
+        w->row[r] = in == 0 ? ROW_OUT : in == S ? ROW_IN : ROW_MIXED;
+        any |= 1u << w->row[r];
+    }
+    return any != 1u << ROW_OUT && any != 1u << ROW_IN; /* anything to cut? */
+}
+
+/* Can an edge between rows r0 and r1 cross? */
+static int rows_differ(const iso_work *w, size_t r0, size_t r1)
+{
+    return w->row[r0] == ROW_MIXED || w->row[r0] != w->row[r1];
+}
+
+static int add_vertex(iso_work *w, uint32_t x, uint32_t y, uint32_t z, uint32_t a)
+{
+    if (vec_grow(&w->keys, 1) || vec_grow(&w->pos, 1) || (w->word && vec_grow(&w->nrm, 1)))
+        return -ENOMEM;
+    uint32_t l[3] = {x, y, z};
+    size_t k = w->keys.n++;
+    ((uint64_t *)w->keys.p)[k] = edge_key(w, l, a);
+    edge_vertex(w, l, a, (float *)w->pos.p + 3 * k, w->word ? (float *)w->nrm.p + 3 * k : NULL);
+    if (w->word) w->nrm.n++;
+    w->pos.n++;
+    w->map[sidx(w, x, y, z) * 3 + a] = (int32_t)k;
+    return 0;
+}
+
 /* Pass 1: the vertices this task owns: the crossings on the three edges
  * leaving the low corner of each of its cells, in key order. */
 static int own_vertices(iso_work *w, const uint32_t nc[3])
 {
-    static const uint32_t step[3][3] = {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+    uint32_t S = w->S;
     for (uint32_t z = 0; z < nc[2]; z++)
-        for (uint32_t y = 0; y < nc[1]; y++)
+        for (uint32_t y = 0; y < nc[1]; y++) {
+            size_t r = (size_t)z * S + y;
+            int ax[3] = {w->row[r] == ROW_MIXED, rows_differ(w, r, r + 1),
+                         rows_differ(w, r, r + S)};
+            if (!ax[0] && !ax[1] && !ax[2]) continue;
+            size_t step[3] = {1, S, (size_t)S * S};
             for (uint32_t x = 0; x < nc[0]; x++) {
                 size_t i0 = sidx(w, x, y, z);
                 for (uint32_t a = 0; a < 3; a++) {
-                    size_t i1 = sidx(w, x + step[a][0], y + step[a][1], z + step[a][2]);
-                    if (!crossing(w, i0, i1)) continue;
-                    if (vec_grow(&w->keys, 1) || vec_grow(&w->pos, 1) ||
-                        (w->word && vec_grow(&w->nrm, 1)))
-                        return -ENOMEM;
-                    uint32_t l[3] = {x, y, z};
-                    size_t k = w->keys.n++;
-                    ((uint64_t *)w->keys.p)[k] = edge_key(w, l, a);
-                    edge_vertex(w, l, a, (float *)w->pos.p + 3 * k,
-                                w->word ? (float *)w->nrm.p + 3 * k : NULL);
-                    if (w->word) w->nrm.n++;
-                    w->pos.n++;
-                    w->map[i0 * 3 + a] = (int32_t)k;
+                    if (!ax[a] || !crossing(w, i0, i0 + step[a])) continue;
+                    int rc = add_vertex(w, x, y, z, a);
+                    if (rc) return rc;
                 }
             }
+        }
     return 0;
 }
 
@@ -295,15 +331,19 @@ static int centre(iso_work *w, const uint32_t c[3], const iso_case *cs, uint32_t
     return 0;
 }
 
-static uint32_t cell_case(const iso_work *w, const uint32_t c[3])
+/* The inside bits of the four samples (x, y + j, z + k) of a column:
+ * bit j + 2 k. */
+static uint32_t column(const iso_work *w, size_t i)
 {
-    uint32_t cs = 0;
-    for (uint32_t k = 0; k < 8; k++) {
-        size_t i = sidx(w, c[0] + (k & 1u), c[1] + (k >> 1 & 1u), c[2] + (k >> 2));
-        cs |= (uint32_t)(w->val[i] > w->p->iso) << k;
-    }
-    return cs;
+    size_t S = w->S, SS = S * S;
+    uint32_t iso = w->p->iso;
+    return (uint32_t)(w->val[i] > iso) | (uint32_t)(w->val[i + S] > iso) << 1 |
+           (uint32_t)(w->val[i + SS] > iso) << 2 | (uint32_t)(w->val[i + SS + S] > iso) << 3;
 }
+
+/* A column's four bits at corner positions 0, 2, 4, 6 (x = 0). */
+static const uint8_t spread[16] = {0x00, 0x01, 0x04, 0x05, 0x10, 0x11, 0x14, 0x15,
+                                   0x40, 0x41, 0x44, 0x45, 0x50, 0x51, 0x54, 0x55};
 
 static int cell(iso_work *w, const uint32_t c[3], const iso_case *cs)
 {
@@ -327,27 +367,24 @@ static int cell(iso_work *w, const uint32_t c[3], const iso_case *cs)
 static int cells(iso_work *w, const uint32_t nc[3])
 {
     const iso_case *tab = iso_cases();
+    uint32_t S = w->S;
     for (uint32_t z = 0; z < nc[2]; z++)
-        for (uint32_t y = 0; y < nc[1]; y++)
+        for (uint32_t y = 0; y < nc[1]; y++) {
+            size_t r = (size_t)z * S + y;
+            if (!rows_differ(w, r, r + 1) && !rows_differ(w, r, r + S) &&
+                !rows_differ(w, r, r + S + 1))
+                continue; /* four rows all inside or all outside */
+            uint32_t lo = spread[column(w, sidx(w, 0, y, z))];
             for (uint32_t x = 0; x < nc[0]; x++) {
-                uint32_t c[3] = {x, y, z}, cs = cell_case(w, c);
+                uint32_t hi = spread[column(w, sidx(w, x + 1, y, z))];
+                uint32_t c[3] = {x, y, z}, cs = lo | hi << 1;
+                lo = hi;
                 if (cs == 0 || cs == 255) continue;
                 int rc = cell(w, c, &tab[cs]);
                 if (rc) return rc;
             }
+        }
     return 0;
-}
-
-/* Any sample inside, and any outside? */
-static int mixed(const iso_work *w)
-{
-    size_t n = (size_t)w->S * w->S * w->S;
-    int in = 0, out = 0;
-    for (size_t i = 0; i < n && !(in && out); i++) {
-        if (w->val[i] > w->p->iso) in = 1;
-        else out = 1;
-    }
-    return in && out;
 }
 
 static int begin_task(iso_work *w, const iso_params *p, const iso_task *t, uint32_t nc[3])
@@ -376,7 +413,7 @@ int iso_task_run(iso_work *w, const iso_params *p, const iso_input *in,
     int rc = begin_task(w, p, t, nc);
     if (rc) return rc;
     gather(w, in);
-    if (mixed(w)) {
+    if (classify_rows(w)) {
         memset(w->map, 0xff, (size_t)w->S * w->S * w->S * 3 * sizeof *w->map);
         rc = own_vertices(w, nc);
         if (!rc) rc = cells(w, nc);

@@ -53,13 +53,26 @@ __attribute__((format(printf, 2, 3))) static void putf(out_buf *o, const char *f
     if (k > 0) put(o, line, (size_t)k < sizeof line ? (size_t)k : sizeof line - 1);
 }
 
-/* Little-endian 32-bit words (this machine's order, checked). */
+/* n little-endian 32-bit words: copied as they are on a little-endian
+ * machine, byte by byte elsewhere. */
+static void put32s(out_buf *o, const void *p, size_t n)
+{
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    put(o, p, 4 * n);
+#else
+    const uint8_t *s = p;
+    for (size_t i = 0; i < n; i++, s += 4) {
+        uint32_t v;
+        memcpy(&v, s, 4);
+        uint8_t b[4] = {(uint8_t)v, (uint8_t)(v >> 8), (uint8_t)(v >> 16), (uint8_t)(v >> 24)};
+        put(o, b, 4);
+    }
+#endif
+}
+
 static void put32(out_buf *o, const void *p)
 {
-    uint32_t v;
-    memcpy(&v, p, 4);
-    uint8_t b[4] = {(uint8_t)v, (uint8_t)(v >> 8), (uint8_t)(v >> 16), (uint8_t)(v >> 24)};
-    put(o, b, 4);
+    put32s(o, p, 1);
 }
 
 static void ply_header(out_buf *o, const iso_mesh *m, int ascii, const char *comment)
@@ -84,8 +97,8 @@ static void write_ply(out_buf *o, const iso_mesh *m, int ascii, const char *comm
             putf(o, "\n");
             continue;
         }
-        for (int d = 0; d < 3; d++) put32(o, &p[d]);
-        for (int d = 0; n && d < 3; d++) put32(o, &n[d]);
+        put32s(o, p, 3);
+        if (n) put32s(o, n, 3);
     }
     for (uint64_t i = 0; i < m->n_triangles; i++) {
         const uint32_t *t = m->tri + 3 * i;
@@ -95,7 +108,7 @@ static void write_ply(out_buf *o, const iso_mesh *m, int ascii, const char *comm
         }
         uint8_t three = 3;
         put(o, &three, 1);
-        for (int d = 0; d < 3; d++) put32(o, &t[d]);
+        put32s(o, t, 3);
     }
 }
 
@@ -146,9 +159,8 @@ static int write_stl(out_buf *o, const iso_mesh *m, const char *comment)
         const uint32_t *t = m->tri + 3 * i;
         float fn[3];
         facet_normal(m, t, fn);
-        for (int d = 0; d < 3; d++) put32(o, &fn[d]);
-        for (int k = 0; k < 3; k++)
-            for (int d = 0; d < 3; d++) put32(o, &m->pos[3 * t[k] + d]);
+        put32s(o, fn, 3);
+        for (int k = 0; k < 3; k++) put32s(o, &m->pos[3 * t[k]], 3);
         uint8_t attr[2] = {0, 0};
         put(o, attr, 2);
     }

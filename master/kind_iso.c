@@ -21,6 +21,7 @@ typedef struct {
     iso_mesh *out;
     engine_result *r;
     uint64_t at;           /* the data area's next free byte (setup) */
+    double t_setup;        /* when setup was done */
 } iso_job;
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
@@ -103,6 +104,7 @@ static int iso_setup(engine *e, void *job)
     /* relaxed: published to the workers by the task_seq release */
     atomic_store_explicit(&b->next, 0, memory_order_relaxed);
     atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
+    ij->t_setup = clock_now();
     return push_all(e);
 }
 
@@ -194,8 +196,12 @@ static int iso_finish(engine *e, void *job, int rc)
     sched_job_totals(e, r);
     r->octants = 0;
     r->tiles = (uint32_t)block(e)->n_tasks;
+    double t = clock_now();
     if (!rc) rc = gather_and_merge(e, ij);
     r->seconds = clock_now() - e->t0;
+    ij->out->t_setup = ij->t_setup - e->t0;
+    ij->out->t_tasks = t - ij->t_setup;
+    ij->out->t_weld = clock_now() - t;
     return rc ? sched_job_failed(e, r, rc) : 0;
 }
 
