@@ -56,12 +56,15 @@ typedef struct {
     uint32_t height;         /* its treeHeight */
     uint32_t dims[ISO_MAX_LEVELS][3]; /* each level's volume (vod_level_dims) */
     float origin[3], scale[3]; /* the trailer's origin, level 0's voxel size */
-    /* Levels: one (level) or adaptive (nradii > 0): a block, the brick of
-     * level lod_top (B 2^lod_top voxels a side), uses level i where i is
-     * the first sphere of radius radii[i] round center that touches it,
-     * and level nradii (at most the top level) where none does. */
+    /* Levels: one (level) or adaptive (nradii > 0): a block, a cube of
+     * `block` level-0 voxels (a level-0 brick, or larger so that a voxel
+     * of level lod_top lies in one block), uses level i where i is the
+     * first sphere of radius radii[i] round center that touches it, and
+     * level lod_top = min(nradii, top level) where none does.  A level's
+     * bricks read the samples of other levels' blocks as 0, so each
+     * level's region is closed on its own (docs/mesh-extraction.md). */
     uint32_t level;
-    uint32_t nradii, lod_top;
+    uint32_t nradii, lod_top, block;
     double center[3], radii[ISO_MAX_RADII];
 } iso_params;
 
@@ -72,7 +75,7 @@ int iso_params_make(const vod_file *f, uint32_t iso, int level, const double cen
                     const double *radii, uint32_t nradii, iso_params *p,
                     char *err, size_t errlen);
 
-/* The level the block (b: block coordinates, blocks of lod_top) uses. */
+/* The level the block at block coordinates b uses. */
 uint32_t iso_block_level(const iso_params *p, const uint32_t b[3]);
 
 /* ---- the input: a level's raw bricks, by key ---- */

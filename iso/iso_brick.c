@@ -19,6 +19,8 @@ struct iso_work {
     uint32_t *word;         /* S^3 channel-3 voxels (normals), or NULL */
     int32_t *map;           /* S^3 x 3 edges: vertex reference, -1 none */
     uint8_t *row;           /* S^2 rows of S samples (y, z): ROW_OUT, ROW_IN, ROW_MIXED */
+    uint32_t *blk;          /* adaptive: 3 x S block coordinates */
+    uint8_t *same;          /* adaptive: S^3 flags, block of the task's level */
     vec keys, pos, nrm, cpos, cnrm, tri, ext;
     /* the running task */
     const iso_params *p;
@@ -49,10 +51,12 @@ int iso_work_new(const iso_params *p, iso_work **out)
     w->map = malloc(n * 3 * sizeof *w->map);
     w->word = p->normals ? malloc(n * sizeof *w->word) : NULL;
     w->row = malloc((size_t)w->S * w->S);
+    w->blk = malloc(3 * (size_t)w->S * sizeof *w->blk);
+    w->same = malloc(n);
     w->keys.size = w->ext.size = 8;
     w->pos.size = w->nrm.size = w->cpos.size = w->cnrm.size = 3 * sizeof(float);
     w->tri.size = 3 * sizeof(uint32_t);
-    if (!w->val || !w->map || !w->row || (p->normals && !w->word)) {
+    if (!w->val || !w->map || !w->row || !w->blk || !w->same || (p->normals && !w->word)) {
         iso_work_free(w);
         return -ENOMEM;
     }
@@ -67,6 +71,8 @@ void iso_work_free(iso_work *w)
     free(w->word);
     free(w->map);
     free(w->row);
+    free(w->blk);
+    free(w->same);
     vec *v[] = {&w->keys, &w->pos, &w->nrm, &w->cpos, &w->cnrm, &w->tri, &w->ext};
     for (size_t i = 0; i < sizeof v / sizeof *v; i++) free(v[i]->p);
     free(w);
@@ -94,8 +100,8 @@ static const uint8_t *find_brick(const iso_input *in, uint64_t key, uint32_t bit
     return in->raw + in->offs[lo];
 }
 
-/* The file brick fb of the task's level, NULL when empty, outside, or
- * (adaptive) in a block of another level: its samples read as 0. */
+/* The file brick fb of the task's level, NULL when empty or outside (or,
+ * adaptive, in no block of this level): its samples read as 0. */
 static const uint8_t *brick_at(iso_work *w, const iso_input *in, const int64_t fb[3])
 {
     const iso_params *p = w->p;
@@ -103,11 +109,6 @@ static const uint8_t *brick_at(iso_work *w, const iso_input *in, const int64_t f
     for (int a = 0; a < 3; a++) {
         if (fb[a] < 0 || fb[a] >= side) return NULL;
         u[a] = (uint32_t)fb[a];
-    }
-    if (p->nradii) {
-        uint32_t blk[3], s = p->lod_top - w->level;
-        for (int a = 0; a < 3; a++) blk[a] = u[a] >> s;
-        if (iso_block_level(p, blk) != w->level) return NULL;
     }
     uint64_t lin = ((uint64_t)u[2] * side + u[1]) * side + u[0];
     return find_brick(in, iso_brick_key(w->level, lin), p->bits, w->B);
@@ -156,6 +157,42 @@ static void clip(iso_work *w)
     }
 }
 
+/* Adaptive levels: the samples in blocks of another level read 0.  A
+ * sample of level l covers 2^l level-0 voxels, all in one block (blocks
+ * are at least 2^lod_top voxels); the task's samples span few blocks per
+ * axis, whose levels are looked up once. */
+static void mask_blocks(iso_work *w)
+{
+    const iso_params *p = w->p;
+    uint32_t S = w->S, lo[3], nb[3], *blk[3] = {w->blk, w->blk + S, w->blk + 2 * S};
+    for (int a = 0; a < 3; a++) {
+        for (uint32_t i = 0; i < S; i++) {
+            int64_t s = (int64_t)w->b[a] * w->B + i - 1; /* -1: read 0 anyway */
+            blk[a][i] = s < 0 ? 0 : (uint32_t)(((uint64_t)s << w->level) / p->block);
+        }
+        lo[a] = blk[a][0];
+        nb[a] = blk[a][S - 1] - lo[a] + 1;
+    }
+    uint8_t *same = w->same; /* nb[0] nb[1] nb[2] <= S^3 entries */
+    uint32_t k[3];
+    for (k[2] = 0; k[2] < nb[2]; k[2]++)
+        for (k[1] = 0; k[1] < nb[1]; k[1]++)
+            for (k[0] = 0; k[0] < nb[0]; k[0]++) {
+                uint32_t b[3] = {lo[0] + k[0], lo[1] + k[1], lo[2] + k[2]};
+                same[(k[2] * nb[1] + k[1]) * nb[0] + k[0]] = iso_block_level(p, b) == w->level;
+            }
+    for (uint32_t z = 0; z < S; z++)
+        for (uint32_t y = 0; y < S; y++)
+            for (uint32_t x = 0; x < S; x++) {
+                size_t t = ((size_t)(blk[2][z] - lo[2]) * nb[1] + blk[1][y] - lo[1]) * nb[0] +
+                           blk[0][x] - lo[0];
+                if (same[t]) continue;
+                size_t i = sidx(w, x, y, z);
+                w->val[i] = 0;
+                if (w->word) w->word[i] = 0;
+            }
+}
+
 /* The task's samples: local s on an axis is voxel b B - 1 + s of the
  * level; local 0 comes from file brick b - 1 (its last voxel), 1..B from
  * file brick b. */
@@ -178,6 +215,7 @@ static void gather(iso_work *w, const iso_input *in)
         if (r) copy_box(w, r, v0, s0, cnt);
     }
     clip(w);
+    if (w->p->nradii) mask_blocks(w);
 }
 
 /* ---- vertices ---- */

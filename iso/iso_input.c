@@ -46,6 +46,7 @@ static int set_levels(iso_params *p, int level, const double center[3],
     p->level = (uint32_t)level;
     p->nradii = nradii;
     p->lod_top = nradii < p->height - 1 ? nradii : p->height - 1;
+    p->block = p->brick > 1u << p->lod_top ? p->brick : 1u << p->lod_top;
     for (int a = 0; a < 3 && center; a++) p->center[a] = center[a];
     return 0;
 }
@@ -75,7 +76,7 @@ int iso_params_make(const vod_file *f, uint32_t iso, int level, const double cen
 /* The distance from the spheres' centre to the block's world box. */
 static double block_distance(const iso_params *p, const uint32_t b[3])
 {
-    double side = (double)p->brick * (double)(1u << p->lod_top), d2 = 0;
+    double side = p->block, d2 = 0;
     for (int a = 0; a < 3; a++) {
         double lo = p->origin[a] + (double)b[a] * side * p->scale[a];
         double hi = lo + side * p->scale[a], c = p->center[a];
@@ -115,13 +116,21 @@ typedef struct {
     int rc;
 } collect_ctx;
 
-/* A level-l brick is used when its block uses level l. */
+/* A level-l brick is used when one of the blocks it covers uses level l. */
 static int brick_used(const iso_params *p, uint32_t level, const uint32_t b[3])
 {
     if (!p->nradii) return level == p->level;
-    uint32_t blk[3], s = p->lod_top - level;
-    for (int a = 0; a < 3; a++) blk[a] = b[a] >> s;
-    return iso_block_level(p, blk) == level;
+    uint64_t side = (uint64_t)p->brick << level;
+    uint32_t lo[3], hi[3], k[3];
+    for (int a = 0; a < 3; a++) {
+        lo[a] = (uint32_t)(b[a] * side / p->block);
+        hi[a] = (uint32_t)(((b[a] + 1) * side - 1) / p->block);
+    }
+    for (k[2] = lo[2]; k[2] <= hi[2]; k[2]++)
+        for (k[1] = lo[1]; k[1] <= hi[1]; k[1]++)
+            for (k[0] = lo[0]; k[0] <= hi[0]; k[0]++)
+                if (iso_block_level(p, k) == level) return 1;
+    return 0;
 }
 
 static int collect_one(void *ud, const uint32_t b[3], const uint8_t *raw)
