@@ -185,19 +185,18 @@ static void *heap_alloc(void *ud, size_t bytes)
     return *keep = malloc(bytes);
 }
 
-/* The mesh, by the engine's workers or (-w 0) in this process. */
+/* The mesh, by the engine's workers (*e: the mesh lives in its shared
+ * memory until it is destroyed) or (-w 0) in this process. */
 static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p,
-                      iso_mesh *m, uint64_t *tasks)
+                      iso_mesh *m, uint64_t *tasks, engine **e)
 {
     char err[256] = "";
     int rc;
     if (o->workers) {
-        engine *e;
-        if ((rc = make_engine(o, &e))) return rc;
+        if ((rc = make_engine(o, e))) return rc;
         engine_iso_job job = {.file = f, .p = p};
         engine_result r;
-        rc = engine_iso(e, &job, m, &r);
-        engine_destroy(e);
+        rc = engine_iso(*e, &job, m, &r);
         *tasks = r.tiles;
         if (rc) snprintf(err, sizeof err, "%s", r.error);
     } else {
@@ -252,7 +251,8 @@ static int run(const mesh_opts *o)
     iso_mesh m = {0};
     uint64_t tasks = 0;
     double t0 = clock_now();
-    rc = polygonize(o, f, &p, &m, &tasks);
+    engine *e = NULL;
+    rc = polygonize(o, f, &p, &m, &tasks, &e);
     double t1 = clock_now();
     vod_close(f);
     if (!rc) rc = write_mesh(o, &m);
@@ -266,6 +266,7 @@ static int run(const mesh_opts *o)
                "cubes %.3f s, weld %.3f s\n", t0 - tr, m.t_setup, m.t_tasks, m.t_weld);
     }
     iso_mesh_free(&m);
+    engine_destroy(e);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 

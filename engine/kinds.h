@@ -195,6 +195,7 @@ static inline csg_task_arg csg_task_bricks(const shm_task *t)
 
 enum iso_op {
     ISO_BRICKS = 1,        /* polygonize tasks until none is left */
+    ISO_WELD = 2,          /* weld pieces into the mesh until none is left */
 };
 
 /* One task's piece in the arena: its counts (iso_piece_view lays the
@@ -206,7 +207,10 @@ typedef struct {
      * and the fields above, loaded with acquire by the master (a worker
      * that died half way leaves it 0, and the master runs the task). */
     atomic_uint done;
-    uint32_t pad;
+    /* 1 once the piece is welded into the mesh's arrays: release by the
+     * worker that welded it, acquire by the master, which welds the
+     * others itself. */
+    atomic_uint welded;
 } iso_result;
 
 typedef struct {
@@ -216,6 +220,11 @@ typedef struct {
     uint64_t n_tasks, tasks_off;   /* iso_task[n_tasks], in key order */
     uint64_t results_off;          /* iso_result[n_tasks] */
     uint64_t arena_off, arena_cap; /* the pieces' bytes */
+    /* The weld (written by the master between the phases, published by
+     * the ISO_WELD tasks' task_seq release): each piece's first vertex
+     * and triangle (u64[n_tasks + 1] each), the mesh's arrays. */
+    uint64_t vbase_off, tbase_off;
+    uint64_t pos_off, nrm_off, tri_off; /* nrm_off 0: no normals */
     /* Next task to run: workers fetch_add (relaxed: the tasks were
      * published by the task_seq release). */
     _Alignas(64) atomic_ullong next;
@@ -223,6 +232,9 @@ typedef struct {
      * (relaxed: only the ranges' uniqueness matters; the bytes are
      * published by the result's done release). */
     _Alignas(64) atomic_ullong bump;
+    /* Next piece to weld: workers fetch_add (relaxed: the weld's arrays
+     * were published by the ISO_WELD task_seq release). */
+    _Alignas(64) atomic_ullong weld_next;
 } iso_block;
 
 #endif

@@ -167,7 +167,28 @@ typedef struct {
     /* Where the time went (wall seconds): copying the input and listing
      * the tasks, running them, welding the pieces. */
     double t_setup, t_tasks, t_weld;
+    int borrowed;            /* the arrays are the engine's (its segment):
+                                valid until its next job, not freed here */
 } iso_mesh;
+
+/* Welding in parts, for processes that share the work: the pieces checked
+ * (keys in order and on their brick, every reference inside its piece's
+ * counts) and each one's first vertex and first triangle in the mesh
+ * (vbase, tbase: n + 1 entries, the last the totals); then each piece
+ * welded (its references to other pieces found by key) into the mesh's
+ * arrays, any process, any order: a piece writes its own vertices and
+ * triangles only. */
+typedef struct {
+    const iso_params *p;
+    const iso_piece *pc;
+    uint64_t n;
+    const uint64_t *vbase, *tbase;
+    float *pos, *nrm;        /* nrm with p->normals */
+    uint32_t *tri;
+} iso_weld;
+int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
+                   uint64_t *tbase, char *err, size_t errlen);
+int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen);
 
 /* The pieces of every task (in task order, each task's key given) welded
  * into one mesh.  A piece is checked before it is used (they come from

@@ -67,22 +67,14 @@ int iso_piece_view(const iso_params *p, const void *from, size_t bytes, uint64_t
     return 0;
 }
 
-/* ---- merging ---- */
+/* ---- welding ---- */
 
-typedef struct {
-    const iso_params *p;
-    const iso_piece *pc;
-    uint64_t n;
-    uint64_t *base;
-    char *err;
-    size_t errlen;
-} merge_ctx;
-
-__attribute__((format(printf, 2, 3))) static int bad(merge_ctx *m, const char *fmt, ...)
+__attribute__((format(printf, 3, 4))) static int bad(char *err, size_t len,
+                                                      const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(m->err, m->errlen, fmt, ap);
+    vsnprintf(err, len, fmt, ap);
     va_end(ap);
     return -EPROTO;
 }
@@ -118,142 +110,135 @@ static int64_t find_u64(const uint64_t *v, uint64_t n, uint64_t key)
     return lo < n && v[lo] == key ? (int64_t)lo : -1;
 }
 
-static int64_t find_piece(const merge_ctx *m, uint64_t key)
+static int64_t find_piece(const iso_piece *pc, uint64_t n, uint64_t key)
 {
-    uint64_t lo = 0, hi = m->n;
+    uint64_t lo = 0, hi = n;
     while (lo < hi) {
         uint64_t mid = lo + (hi - lo) / 2;
-        if (m->pc[mid].key < key) lo = mid + 1;
+        if (pc[mid].key < key) lo = mid + 1;
         else hi = mid;
     }
-    return lo < m->n && m->pc[lo].key == key ? (int64_t)lo : -1;
+    return lo < n && pc[lo].key == key ? (int64_t)lo : -1;
 }
 
 /* Piece i's keys: increasing (the binary searches need it), the first and
  * the last an edge of its own brick.  A key between them that is not
- * (only a broken worker makes one) cannot make the merge read or write
- * out of bounds: at worst a reference finds no vertex, and fails. */
-static int check_keys(merge_ctx *m, uint64_t i)
+ * (only a broken worker makes one) cannot make the weld read or write out
+ * of bounds: at worst a reference finds no vertex, and fails.  Its
+ * triangles' references: each inside its kind's count. */
+static int check_piece(const iso_params *p, const iso_piece *pcs, uint64_t i, char *err,
+                       size_t len)
 {
-    const iso_piece *pc = &m->pc[i];
-    if (i && pc->key <= m->pc[i - 1].key) return bad(m, "the pieces are not in task order");
+    const iso_piece *pc = &pcs[i];
+    unsigned long long id = (unsigned long long)i;
+    if (i && pc->key <= pcs[i - 1].key) return bad(err, len, "the pieces are not in task order");
     for (uint32_t k = 1; k < pc->nv; k++)
         if (pc->keys[k] <= pc->keys[k - 1])
-            return bad(m, "piece %llu: its vertices are not in key order",
-                       (unsigned long long)i);
-    if (pc->nv && (owner_of(m->p, pc->keys[0]) != pc->key ||
-                   owner_of(m->p, pc->keys[pc->nv - 1]) != pc->key))
-        return bad(m, "piece %llu: its vertices are not on its brick's edges",
-                   (unsigned long long)i);
+            return bad(err, len, "piece %llu: its vertices are not in key order", id);
+    if (pc->nv && (owner_of(p, pc->keys[0]) != pc->key ||
+                   owner_of(p, pc->keys[pc->nv - 1]) != pc->key))
+        return bad(err, len, "piece %llu: its vertices are not on its brick's edges", id);
+    for (uint64_t k = 0; k < 3 * (uint64_t)pc->nt; k++) {
+        uint32_t r = pc->tri[k], x = r & ISO_REF_INDEX, kind = r & ~ISO_REF_INDEX;
+        if (!(kind == 0 && x < pc->nv) && !(kind == ISO_REF_CENTRE && x < pc->nc) &&
+            !(kind == ISO_REF_EXT && x < pc->ne))
+            return bad(err, len, "piece %llu: triangle %llu refers to no vertex", id,
+                       (unsigned long long)(k / 3));
+    }
     return 0;
+}
+
+int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
+                   uint64_t *tbase, char *err, size_t errlen)
+{
+    uint64_t nv = 0, nt = 0;
+    for (uint64_t i = 0; i < n; i++) {
+        int rc = check_piece(p, pc, i, err, errlen);
+        if (rc) return rc;
+        vbase[i] = nv;
+        tbase[i] = nt;
+        nv += (uint64_t)pc[i].nv + pc[i].nc;
+        nt += pc[i].nt;
+    }
+    vbase[n] = nv;
+    tbase[n] = nt;
+    if (nv <= UINT32_MAX) return 0;
+    snprintf(err, errlen, "%llu vertices: more than a mesh of 32-bit indices holds",
+             (unsigned long long)nv);
+    return -E2BIG;
 }
 
 /* The global index of each of piece i's external references. */
-static int resolve_ext(merge_ctx *m, uint64_t i, uint32_t *out)
+static int resolve_ext(const iso_weld *w, uint64_t i, uint32_t *out, char *err, size_t len)
 {
-    const iso_piece *pc = &m->pc[i];
+    const iso_piece *pc = &w->pc[i];
     for (uint32_t k = 0; k < pc->ne; k++) {
-        uint64_t owner = owner_of(m->p, pc->ext[k]);
-        int64_t j = owner == UINT64_MAX ? -1 : find_piece(m, owner);
-        int64_t v = j < 0 ? -1 : find_u64(m->pc[j].keys, m->pc[j].nv, pc->ext[k]);
+        uint64_t owner = owner_of(w->p, pc->ext[k]);
+        int64_t j = owner == UINT64_MAX ? -1 : find_piece(w->pc, w->n, owner);
+        int64_t v = j < 0 ? -1 : find_u64(w->pc[j].keys, w->pc[j].nv, pc->ext[k]);
         if (v < 0)
-            return bad(m, "piece %llu refers to a vertex no piece has (key %llx)",
+            return bad(err, len, "piece %llu refers to a vertex no piece has (key %llx)",
                        (unsigned long long)i, (unsigned long long)pc->ext[k]);
-        out[k] = (uint32_t)(m->base[j] + (uint64_t)v);
+        out[k] = (uint32_t)(w->vbase[j] + (uint64_t)v);
     }
     return 0;
 }
 
-static int convert_tris(merge_ctx *m, uint64_t i, const uint32_t *ext, uint32_t *to)
+int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen)
 {
-    const iso_piece *pc = &m->pc[i];
-    uint64_t base = m->base[i];
-    for (uint64_t k = 0; k < 3 * (uint64_t)pc->nt; k++) {
-        uint32_t r = pc->tri[k], x = r & ISO_REF_INDEX;
-        uint32_t kind = r & ~ISO_REF_INDEX;
-        if (kind == 0 && x < pc->nv) to[k] = (uint32_t)(base + x);
-        else if (kind == ISO_REF_CENTRE && x < pc->nc) to[k] = (uint32_t)(base + pc->nv + x);
-        else if (kind == ISO_REF_EXT && x < pc->ne) to[k] = ext[x];
-        else
-            return bad(m, "piece %llu: triangle %llu refers to no vertex",
-                       (unsigned long long)i, (unsigned long long)(k / 3));
-    }
-    return 0;
-}
-
-static void copy_vertices(const merge_ctx *m, uint64_t i, iso_mesh *out)
-{
-    const iso_piece *pc = &m->pc[i];
-    float *pos = out->pos + 3 * m->base[i];
-    memcpy(pos, pc->pos, 12 * (size_t)pc->nv);
-    memcpy(pos + 3 * (size_t)pc->nv, pc->cpos, 12 * (size_t)pc->nc);
-    if (!out->nrm) return;
-    float *nrm = out->nrm + 3 * m->base[i];
-    memcpy(nrm, pc->nrm, 12 * (size_t)pc->nv);
-    memcpy(nrm + 3 * (size_t)pc->nv, pc->cnrm, 12 * (size_t)pc->nc);
-}
-
-static int merge_all(merge_ctx *m, iso_mesh *out)
-{
-    uint32_t *ext = NULL;
-    uint64_t tri_at = 0;
-    int rc = 0;
-    for (uint64_t i = 0; i < m->n && !rc; i++) {
-        const iso_piece *pc = &m->pc[i];
-        uint32_t *e = realloc(ext, ((size_t)pc->ne + 1) * sizeof *e);
-        if (!e) {
-            rc = -ENOMEM;
-            break;
-        }
-        ext = e;
-        if (!(rc = resolve_ext(m, i, ext)))
-            rc = convert_tris(m, i, ext, out->tri + 3 * tri_at);
-        copy_vertices(m, i, out);
-        tri_at += pc->nt;
+    const iso_piece *pc = &w->pc[i];
+    uint32_t *ext = malloc(((size_t)pc->ne + 1) * sizeof *ext);
+    if (!ext) return -ENOMEM;
+    int rc = resolve_ext(w, i, ext, err, errlen);
+    uint64_t base = w->vbase[i];
+    uint32_t *to = w->tri + 3 * w->tbase[i];
+    for (uint64_t k = 0; k < 3 * (uint64_t)pc->nt && !rc; k++) {
+        uint32_t r = pc->tri[k], x = r & ISO_REF_INDEX, kind = r & ~ISO_REF_INDEX;
+        /* in range: iso_weld_bases checked every reference */
+        to[k] = kind == ISO_REF_EXT ? ext[x]
+                                    : (uint32_t)(base + (kind ? pc->nv : 0) + x);
     }
     free(ext);
-    return rc;
+    if (rc) return rc;
+    memcpy(w->pos + 3 * base, pc->pos, 12 * (size_t)pc->nv);
+    memcpy(w->pos + 3 * (base + pc->nv), pc->cpos, 12 * (size_t)pc->nc);
+    if (w->nrm) {
+        memcpy(w->nrm + 3 * base, pc->nrm, 12 * (size_t)pc->nv);
+        memcpy(w->nrm + 3 * (base + pc->nv), pc->cnrm, 12 * (size_t)pc->nc);
+    }
+    return 0;
 }
 
 int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh *out,
               char *err, size_t errlen)
 {
     memset(out, 0, sizeof *out);
-    merge_ctx m = {p, pieces, n, calloc(n + 1, sizeof(uint64_t)), err, errlen};
-    if (!m.base) return -ENOMEM;
-    uint64_t nv = 0, nt = 0;
-    int rc = 0;
-    for (uint64_t i = 0; i < n && !rc; i++) {
-        rc = check_keys(&m, i);
-        m.base[i] = nv;
-        nv += (uint64_t)pieces[i].nv + pieces[i].nc;
-        nt += pieces[i].nt;
-    }
-    if (!rc && nv > UINT32_MAX) {
-        snprintf(err, errlen, "%llu vertices: more than a mesh of 32-bit indices holds",
-                 (unsigned long long)nv);
-        rc = -E2BIG;
-    }
+    uint64_t *vbase = malloc((n + 1) * sizeof *vbase), *tbase = malloc((n + 1) * sizeof *tbase);
+    int rc = vbase && tbase ? iso_weld_bases(p, pieces, n, vbase, tbase, err, errlen) : -ENOMEM;
     if (!rc) {
-        out->n_vertices = nv;
-        out->n_triangles = nt;
-        out->pos = malloc(12 * (size_t)(nv ? nv : 1));
-        out->nrm = p->normals ? malloc(12 * (size_t)(nv ? nv : 1)) : NULL;
-        out->tri = malloc(12 * (size_t)(nt ? nt : 1));
+        out->n_vertices = vbase[n];
+        out->n_triangles = tbase[n];
+        out->pos = malloc(12 * (size_t)(vbase[n] ? vbase[n] : 1));
+        out->nrm = p->normals ? malloc(12 * (size_t)(vbase[n] ? vbase[n] : 1)) : NULL;
+        out->tri = malloc(12 * (size_t)(tbase[n] ? tbase[n] : 1));
         if (!out->pos || !out->tri || (p->normals && !out->nrm)) rc = -ENOMEM;
     }
-    if (!rc) rc = merge_all(&m, out);
+    iso_weld w = {p, pieces, n, vbase, tbase, out->pos, out->nrm, out->tri};
+    for (uint64_t i = 0; i < n && !rc; i++) rc = iso_weld_piece(&w, i, err, errlen);
     if (rc == -ENOMEM) snprintf(err, errlen, "out of memory for the mesh");
     if (rc) iso_mesh_free(out);
-    free(m.base);
+    free(vbase);
+    free(tbase);
     return rc;
 }
 
 void iso_mesh_free(iso_mesh *m)
 {
-    free(m->pos);
-    free(m->nrm);
-    free(m->tri);
+    if (!m->borrowed) {
+        free(m->pos);
+        free(m->nrm);
+        free(m->tri);
+    }
     memset(m, 0, sizeof *m);
 }
 

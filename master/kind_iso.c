@@ -21,7 +21,11 @@ typedef struct {
     iso_mesh *out;
     engine_result *r;
     uint64_t at;           /* the data area's next free byte (setup) */
-    double t_setup;        /* when setup was done */
+    int bricks_left;       /* ISO_BRICKS tasks not done yet */
+    int weld_ready;        /* prepare_weld ran */
+    iso_piece *pc;         /* every piece's view, for the weld */
+    iso_work *work;        /* the tasks run here */
+    double t_setup, t_tasks_end; /* when setup and the tasks were done */
 } iso_job;
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
@@ -68,14 +72,15 @@ static int lay_out_tasks(engine *e, iso_block *b, const iso_input *in)
     return res ? 0 : no_room(e, "the tasks");
 }
 
-/* One task per live worker: each runs tasks until none is left. */
-static int push_all(engine *e)
+/* One task of op per live worker: each runs tasks (or welds pieces)
+ * until none is left.  How many were pushed. */
+static int push_all(engine *e, uint32_t op)
 {
-    shm_task t = {.kind = SHM_KIND_ISO, .op = ISO_BRICKS};
-    int rc = 0;
-    for (int i = 0; i < e->n && !rc; i++)
-        if (e->ms[i].pid > 0) rc = sched_push(e, &t);
-    return rc;
+    shm_task t = {.kind = SHM_KIND_ISO, .op = op};
+    int pushed = 0;
+    for (int i = 0; i < e->n; i++)
+        if (e->ms[i].pid > 0 && !sched_push(e, &t)) pushed++;
+    return pushed;
 }
 
 static int iso_setup(engine *e, void *job)
@@ -105,19 +110,14 @@ static int iso_setup(engine *e, void *job)
     atomic_store_explicit(&b->next, 0, memory_order_relaxed);
     atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
     ij->t_setup = clock_now();
-    return push_all(e);
+    ij->bricks_left = push_all(e, ISO_BRICKS);
+    return e->err.failure ? e->err.code : 0;
 }
 
 static int iso_take(engine *e, int i, const shm_entry *en)
 {
     return sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u in marching cubes", i, en->type);
-}
-
-/* A worker's failure or death leaves its tasks undone: iso_finish runs them. */
-static void iso_done(engine *e, int i, const shm_task *t, int error)
-{
-    (void)e, (void)i, (void)t, (void)error;
 }
 
 static int iso_rerun(engine *e, int i, const shm_task *t)
@@ -137,56 +137,138 @@ static void iso_progress(engine *e, engine_progress *p)
     iso_block *b = block(e);
     /* relaxed: an estimate, nothing is read through it */
     uint64_t next = atomic_load_explicit(&b->next, memory_order_relaxed);
-    p->fraction = b->n_tasks ? (double)(next < b->n_tasks ? next : b->n_tasks) / b->n_tasks : 1;
+    uint64_t weld = atomic_load_explicit(&b->weld_next, memory_order_relaxed);
+    double n = b->n_tasks ? (double)b->n_tasks : 1;
+    p->fraction = 0.8 * (double)(next < b->n_tasks ? next : b->n_tasks) / n +
+                  0.2 * (double)(weld < b->n_tasks ? weld : b->n_tasks) / n;
     p->level = (int)b->p.level;
     p->shm_used = align64(b->arena_off) - e->h->data_off +
                   atomic_load_explicit(&b->bump, memory_order_relaxed);
 }
 
-/* Task i's piece: the worker's when it is done and fits the arena, else
- * run here into own[i]. */
-static int piece_of(engine *e, iso_work **w, uint64_t i, iso_piece *pc, uint8_t **own)
+/* n bytes of the arena past the pieces (the workers are idle: nothing
+ * else takes from it now), or NULL when it is full. */
+static void *arena_alloc(engine *e, uint64_t n)
+{
+    iso_block *b = block(e);
+    /* relaxed: the workers are idle; the counter only hands out ranges */
+    uint64_t at = atomic_fetch_add_explicit(&b->bump, (n + 63) & ~63ull, memory_order_relaxed);
+    if (at > b->arena_cap || n > b->arena_cap - at) return NULL;
+    return shm_at(e->seg.base, b->arena_off + at);
+}
+
+/* Task i run here (its worker died or failed, or its piece did not fit),
+ * its piece packed into the arena for the weld. */
+static int run_here(engine *e, iso_job *ij, uint64_t i)
 {
     iso_block *b = block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     const iso_task *t = (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i;
-    uint64_t key = iso_task_key(&b->p, t);
-    /* acquire: pairs with the worker's release store of done */
-    if (atomic_load_explicit(&r->done, memory_order_acquire) && r->off < b->arena_cap &&
-        !iso_piece_view(&b->p, shm_at(e->seg.base, b->arena_off + r->off),
-                        b->arena_cap - r->off, key, r->nv, r->nc, r->nt, r->ne, pc))
-        return 0;
-    int rc = *w ? 0 : iso_work_new(&b->p, w);
     iso_input in = {b->n_bricks, shm_at(e->seg.base, b->keys_off),
                     shm_at(e->seg.base, b->offs_off), shm_at(e->seg.base, b->raw_off),
                     b->raw_bytes};
     iso_piece v;
-    if (!rc) rc = iso_task_run(*w, &b->p, &in, t, &v);
-    size_t bytes = rc ? 0 : iso_piece_bytes(&b->p, &v);
-    if (!rc && !(*own = malloc(bytes ? bytes : 1))) rc = -ENOMEM;
-    if (rc) return rc;
-    iso_piece_pack(&b->p, &v, *own);
-    return iso_piece_view(&b->p, *own, bytes, key, v.nv, v.nc, v.nt, v.ne, pc);
+    int rc = ij->work ? 0 : iso_work_new(&b->p, &ij->work);
+    if (!rc) rc = iso_task_run(ij->work, &b->p, &in, t, &v);
+    if (rc) return sched_fail(e, ENGINE_FAULT, rc, "marching cubes: %s", strerror(-rc));
+    uint8_t *to = arena_alloc(e, iso_piece_bytes(&b->p, &v));
+    if (!to) return no_room(e, "the mesh");
+    iso_piece_pack(&b->p, &v, to);
+    r->off = (uint64_t)(to - (uint8_t *)shm_at(e->seg.base, b->arena_off));
+    r->nv = v.nv, r->nc = v.nc, r->nt = v.nt, r->ne = v.ne;
+    /* release: the ISO_WELD tasks' task_seq release publishes it anyway */
+    atomic_store_explicit(&r->done, 1, memory_order_release);
+    return 0;
 }
 
-static int gather_and_merge(engine *e, iso_job *ij)
+/* Task i's piece as the workers will see it; run here when not done. */
+static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
+{
+    iso_block *b = block(e);
+    iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
+    uint64_t key = iso_task_key(&b->p, (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i);
+    for (int tries = 0; tries < 2; tries++) {
+        /* acquire: pairs with the worker's release store of done */
+        if (atomic_load_explicit(&r->done, memory_order_acquire) && r->off < b->arena_cap &&
+            !iso_piece_view(&b->p, shm_at(e->seg.base, b->arena_off + r->off),
+                            b->arena_cap - r->off, key, r->nv, r->nc, r->nt, r->ne, pc))
+            return 0;
+        int rc = tries ? -EPROTO : run_here(e, ij, i);
+        if (rc) return rc;
+    }
+    return sched_fail(e, ENGINE_FAULT, -EPROTO, "a piece of the mesh went missing");
+}
+
+/* Between the phases: every piece there and checked, the bases and the
+ * mesh's arrays laid out in the arena. */
+static int prepare_weld(engine *e, iso_job *ij)
 {
     iso_block *b = block(e);
     uint64_t n = b->n_tasks;
-    iso_piece *pc = calloc(n + 1, sizeof *pc);
-    uint8_t **own = calloc(n + 1, sizeof *own);
-    iso_work *w = NULL;
-    int rc = pc && own ? 0 : -ENOMEM;
-    for (uint64_t i = 0; i < n && !rc; i++) rc = piece_of(e, &w, i, &pc[i], &own[i]);
-    iso_work_free(w);
+    ij->t_tasks_end = clock_now();
+    ij->weld_ready = 1;
+    if (!(ij->pc = calloc(n + 1, sizeof *ij->pc)))
+        return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
+    int rc = 0;
+    for (uint64_t i = 0; i < n && !rc; i++) rc = piece_of(e, ij, i, &ij->pc[i]);
+    uint64_t *vb = rc ? NULL : arena_alloc(e, 8 * (n + 1));
+    uint64_t *tb = vb ? arena_alloc(e, 8 * (n + 1)) : NULL;
+    if (rc) return rc;
+    if (!tb) return no_room(e, "the mesh");
     char msg[sizeof e->err.message] = "";
-    if (rc) sched_fail(e, ENGINE_FAULT, rc, "marching cubes: %s", strerror(-rc));
-    else if ((rc = iso_merge(&b->p, pc, n, ij->out, msg, sizeof msg)))
-        sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", msg);
-    for (uint64_t i = 0; own && i < n; i++) free(own[i]);
-    free(own);
-    free(pc);
-    return rc;
+    if ((rc = iso_weld_bases(&b->p, ij->pc, n, vb, tb, msg, sizeof msg)))
+        return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", msg);
+    void *pos = arena_alloc(e, 12 * vb[n]), *tri = pos ? arena_alloc(e, 12 * tb[n]) : NULL;
+    void *nrm = tri && b->p.normals ? arena_alloc(e, 12 * vb[n]) : NULL;
+    if (!tri || (b->p.normals && !nrm)) return no_room(e, "the mesh");
+    b->vbase_off = (uint64_t)((uint8_t *)vb - e->seg.base);
+    b->tbase_off = (uint64_t)((uint8_t *)tb - e->seg.base);
+    b->pos_off = (uint64_t)((uint8_t *)pos - e->seg.base);
+    b->tri_off = (uint64_t)((uint8_t *)tri - e->seg.base);
+    b->nrm_off = nrm ? (uint64_t)((uint8_t *)nrm - e->seg.base) : 0;
+    /* relaxed: published by the ISO_WELD tasks' task_seq release */
+    atomic_store_explicit(&b->weld_next, 0, memory_order_relaxed);
+    return 0;
+}
+
+/* The last ISO_BRICKS task done starts the weld. */
+static void iso_done(engine *e, int i, const shm_task *t, int error)
+{
+    iso_job *ij = e->job;
+    (void)i, (void)error;
+    if (t->op != ISO_BRICKS || --ij->bricks_left > 0 || e->err.failure) return;
+    if (!prepare_weld(e, ij)) push_all(e, ISO_WELD);
+}
+
+/* The pieces no worker welded, welded here; then every index checked
+ * (the workers wrote them) and the mesh handed out as a view of the
+ * segment, kept until the next job. */
+static int weld_rest(engine *e, iso_job *ij)
+{
+    iso_block *b = block(e);
+    uint64_t n = b->n_tasks;
+    const uint64_t *vb = shm_at(e->seg.base, b->vbase_off), *tb = shm_at(e->seg.base, b->tbase_off);
+    iso_weld wd = {&b->p, ij->pc, n, vb, tb, shm_at(e->seg.base, b->pos_off),
+                   b->nrm_off ? shm_at(e->seg.base, b->nrm_off) : NULL,
+                   shm_at(e->seg.base, b->tri_off)};
+    iso_result *res = shm_at(e->seg.base, b->results_off);
+    char msg[sizeof e->err.message] = "";
+    for (uint64_t i = 0; i < n; i++) {
+        /* acquire: pairs with the worker's release store of welded */
+        if (atomic_load_explicit(&res[i].welded, memory_order_acquire)) continue;
+        int rc = iso_weld_piece(&wd, i, msg, sizeof msg);
+        if (rc) return sched_fail(e, ENGINE_FAULT, rc, "%s", msg[0] ? msg : strerror(-rc));
+    }
+    for (uint64_t k = 0; k < 3 * tb[n]; k++)
+        if (wd.tri[k] >= vb[n])
+            return sched_fail(e, ENGINE_FAULT, -EPROTO,
+                              "the workers left the mesh inconsistent");
+    *ij->out = (iso_mesh){.n_vertices = vb[n], .n_triangles = tb[n], .pos = wd.pos,
+                          .nrm = wd.nrm, .tri = wd.tri, .borrowed = 1};
+    /* the mesh stays until the next job */
+    sched_hold(e, b->arena_off - e->h->data_off +
+                      atomic_load_explicit(&b->bump, memory_order_relaxed));
+    return 0;
 }
 
 static int iso_finish(engine *e, void *job, int rc)
@@ -196,12 +278,14 @@ static int iso_finish(engine *e, void *job, int rc)
     sched_job_totals(e, r);
     r->octants = 0;
     r->tiles = (uint32_t)block(e)->n_tasks;
-    double t = clock_now();
-    if (!rc) rc = gather_and_merge(e, ij);
+    if (!rc && !ij->weld_ready) rc = prepare_weld(e, ij); /* no worker took a task */
+    if (!rc) rc = weld_rest(e, ij);
     r->seconds = clock_now() - e->t0;
     ij->out->t_setup = ij->t_setup - e->t0;
-    ij->out->t_tasks = t - ij->t_setup;
-    ij->out->t_weld = clock_now() - t;
+    ij->out->t_tasks = ij->weld_ready ? ij->t_tasks_end - ij->t_setup : 0;
+    ij->out->t_weld = ij->weld_ready ? clock_now() - ij->t_tasks_end : 0;
+    iso_work_free(ij->work);
+    free(ij->pc);
     return rc ? sched_job_failed(e, r, rc) : 0;
 }
 

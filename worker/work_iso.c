@@ -1,7 +1,10 @@
-/* The iso kind's worker side: marching cubes on the tasks it claims from
- * the block's counter, each task's piece packed into the shared arena and
- * its result marked done.  A task whose piece does not fit, or that this
- * worker could not run, stays undone: the master runs it. */
+/* The iso kind's worker side, two phases.  ISO_BRICKS: marching cubes on
+ * the tasks it claims from the block's counter, each task's piece packed
+ * into the shared arena and its result marked done.  ISO_WELD: the pieces
+ * it claims welded into the mesh's arrays (the master checked them and
+ * laid the arrays out in between).  What a worker does not finish (a
+ * piece that does not fit, a failure, a death) is left unmarked: the
+ * master does it. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -66,10 +69,55 @@ static void store(work_ctx *w, iso_block *b, uint64_t i, const iso_piece *pc)
     atomic_store_explicit(&r->done, 1, memory_order_release);
 }
 
+/* Every piece's view (the master checked them before the weld). */
+static iso_piece *views(const work_ctx *w, const iso_block *b)
+{
+    iso_piece *pc = calloc(b->n_tasks + 1, sizeof *pc);
+    const iso_result *res = shm_at(w->base, b->results_off);
+    const iso_task *t = shm_at(w->base, b->tasks_off);
+    for (uint64_t i = 0; pc && i < b->n_tasks; i++) {
+        const iso_result *r = &res[i];
+        if (r->off > b->arena_cap ||
+            iso_piece_view(&b->p, shm_at(w->base, b->arena_off + r->off),
+                           b->arena_cap - r->off, iso_task_key(&b->p, &t[i]), r->nv, r->nc,
+                           r->nt, r->ne, &pc[i])) {
+            free(pc);
+            return NULL;
+        }
+    }
+    return pc;
+}
+
+static int weld_run(work_ctx *w, iso_block *b)
+{
+    iso_piece *pc = views(w, b);
+    if (!pc) return -ENOMEM;
+    iso_result *res = shm_at(w->base, b->results_off);
+    iso_weld wd = {&b->p, pc, b->n_tasks, shm_at(w->base, b->vbase_off),
+                   shm_at(w->base, b->tbase_off), shm_at(w->base, b->pos_off),
+                   b->nrm_off ? shm_at(w->base, b->nrm_off) : NULL,
+                   shm_at(w->base, b->tri_off)};
+    char err[8];
+    int rc = 0;
+    while (!rc) {
+        if (work_aborted(w)) rc = -ECANCELED;
+        /* relaxed: a counter that hands out disjoint pieces */
+        uint64_t i = atomic_fetch_add_explicit(&b->weld_next, 1, memory_order_relaxed);
+        if (rc || i >= b->n_tasks) break;
+        work_tick(w);
+        /* release: pairs with the master's acquire load of welded */
+        if (!iso_weld_piece(&wd, i, err, sizeof err))
+            atomic_store_explicit(&res[i].welded, 1, memory_order_release);
+    }
+    free(pc);
+    return rc;
+}
+
 static int iso_run(work_ctx *w, void *state, const shm_task *t)
 {
     iso_state *st = state;
     iso_block *b = shm_at(w->base, w->h->job_off);
+    if (t->op == ISO_WELD) return weld_run(w, b);
     if (t->op != ISO_BRICKS) return -EINVAL;
     iso_input in = block_input(w, b);
     const iso_task *tasks = shm_at(w->base, b->tasks_off);
