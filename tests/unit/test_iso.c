@@ -8,6 +8,7 @@
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -584,5 +585,61 @@ Test(iso, a_piece_that_refers_to_nobody_is_refused)
     iso_work_free(w);
     free(t);
     free(mem);
+    vod_close(f);
+}
+
+/* A worker stopped before the job: it holds its task without a heartbeat,
+ * is killed after the stall timeout and replaced; the tasks it never ran
+ * are run by the other worker or the master, and the mesh is the same. */
+Test(iso, a_stalled_worker_costs_nothing_but_time)
+{
+    double R = 0.7;
+    vol_spec s = cube_spec(64, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    engine_opts o = {.workers = 2, .shm_bytes = (size_t)256 << 20, .stall_timeout = 0.2};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    iso_params p;
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    iso_mesh ref, m;
+    polygonize(f, 127, 0, NULL, NULL, 0, &ref);
+    cr_assert_eq(kill(engine_worker_pid(e, 0), SIGSTOP), 0);
+    engine_iso_job job = {.file = f, .p = &p};
+    engine_result res;
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert_geq(res.stalls, 1, "the stopped worker was not replaced");
+    cr_assert(same_mesh(&ref, &m), "another mesh after a stall");
+    iso_mesh_free(&m);
+    /* and the engine goes on: the next job on the replaced worker */
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert(same_mesh(&ref, &m));
+    iso_mesh_free(&m);
+    iso_mesh_free(&ref);
+    engine_destroy(e);
+    vod_close(f);
+}
+
+/* Shared memory too small for the pieces: a limit, said. */
+Test(iso, too_small_a_segment_is_a_limit)
+{
+    double R = 0.7;
+    vol_spec s = cube_spec(128, 16, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    engine_opts o = {.workers = 1, .shm_bytes = (size_t)3 << 20};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    iso_params p;
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    engine_iso_job job = {.file = f, .p = &p};
+    engine_result res;
+    iso_mesh m;
+    cr_assert_lt(engine_iso(e, &job, &m, &res), 0);
+    cr_assert_eq(res.failure, ENGINE_LIMIT, "%s", res.error);
+    cr_assert(strstr(res.error, "does not fit in shared memory"), "%s", res.error);
+    engine_destroy(e);
     vod_close(f);
 }
