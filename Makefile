@@ -7,8 +7,10 @@
 #                   writes scene1.vod and scene1.png
 #   make bench      benchmarks (release build): voxbench (embedded engine),
 #                   voxdbench (through a voxd it starts), the whole vox
-#                   voxelize command (scripts/bench-whole.sh) and vox export
-#                   (scripts/bench-export.sh), tables in bench/results/
+#                   voxelize command (scripts/bench-whole.sh), vox export
+#                   (scripts/bench-export.sh) and vox mesh in the layout of the
+#                   Isovox thesis's Tables 6-9 (scripts/bench-iso.sh), tables
+#                   in bench/results/
 #   make bench-mpi  vox_mpi on 1, 2 and 4 ranks over TCP against vox voxelize
 #                   (scripts/bench-mpi.sh; make bench runs it too)
 #   make bench-mesh the mesh loaders on the Stanford dragon and bunny (npm models)

@@ -1,10 +1,13 @@
 /* iso — marching cubes over the bricks of a VOD file (docs/mesh-extraction.md).
  *
  * The surface is cut per brick: a task is one brick of one mip level, its
- * cells the B^3 cubes whose low corner lies in the brick, its samples the
- * brick's voxels and the one-voxel apron its cells reach into on the high
- * side.  The volume is read as 0 outside (one layer of empty samples
- * around it), so a surface is closed at the volume's border too.
+ * cells the B^3 cubes whose high corner is a voxel of the brick, its
+ * samples the brick's voxels and the one-voxel apron its cells reach into
+ * (the last layer of the bricks below it on each axis).  The volume is
+ * read as 0 outside (one layer of empty samples around it), so a surface
+ * is closed at the volume's border too; one more task brick per axis takes
+ * the cells reaching into the empty layer above the volume.  Below, "local"
+ * sample coordinates count from that apron: local u is voxel b B - 1 + u.
  *
  * Values.  Every channel is read as a byte: channel 1 as 0 / 255, channel
  * 2 as its density, channel 3 as its occupancy byte (with its normal).  A

@@ -29,6 +29,8 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     echo
     "$(dirname "$0")/bench-mesh.sh" "$build" || mesh_rc=$? # the tables after it still run
     echo
+    "$(dirname "$0")/bench-iso.sh" "$build" || mesh_rc=$?
+    echo
     "$(dirname "$0")/bench-whole.sh" "$build" || whole_rc=$?
     echo
     "$(dirname "$0")/bench-mpi.sh" "$build" || mpi_rc=$?

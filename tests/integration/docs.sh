@@ -77,7 +77,7 @@ opts_documented() {
 }
 
 "$VOX" --help >"$TMP/h.vox" 2>&1
-for c in voxelize submit render status cancel ping info mesh-info export; do
+for c in voxelize submit render status cancel ping info mesh-info export mesh; do
     "$VOX" "$c" --help >"$TMP/h.$c" 2>&1 || fail "vox $c --help exits 0"
 done
 "$VOXD" --help >"$TMP/h.voxd" 2>&1 || fail "voxd --help exits 0"
@@ -86,7 +86,7 @@ if [ -s "$TMP/h.voxelize" ] && [ -s "$TMP/h.submit" ] && [ -s "$TMP/h.render" ] 
 else fail "the --help texts are there"; fi
 opts_documented vox "$TMP/vox.1.txt" docs/cli.md "$TMP/h.vox" "$TMP/h.voxelize" \
     "$TMP/h.submit" "$TMP/h.render" "$TMP/h.status" "$TMP/h.cancel" "$TMP/h.ping" "$TMP/h.info" \
-    "$TMP/h.mesh-info" "$TMP/h.export"
+    "$TMP/h.mesh-info" "$TMP/h.export" "$TMP/h.mesh"
 opts_documented voxd "$TMP/voxd.8.txt" docs/daemon.md "$TMP/h.voxd"
 # vox_mpi has no manual page: its --help's options against docs/mpi.md (it
 # prints its help without MPI's launcher: a singleton rank)

@@ -1,0 +1,154 @@
+#!/bin/bash
+# bench-iso.sh [BUILD]: vox mesh (marching cubes per brick, docs/
+# mesh-extraction.md) in the layout of the Isovox thesis's Tables 6 to 9,
+# run by `make bench`.  Markdown on stdout.  Two volumes are made here:
+#
+#   scene1   Scene 1 of the paper voxelized by vox voxelize (channel 3, the
+#            surface's shell of voxels) at BENCH_RES (default 512)
+#   solid    the same Scene 1 as a solid of density (channel 2): its level-1
+#            mesh voxelized by vox voxelize --mesh --channel density
+#
+#  Table 6: the polygonization's seconds (mean and standard deviation over
+#           BENCH_REPEATS runs) serially (-w 0) and with 1..BENCH_WORKERS
+#           workers, and the speed-up over 1 worker; the target: Scene 1 at
+#           512^3 in 0.5 s with 2 workers, and the yield t1 / (2 t2) >= 85%;
+#  Table 7: the speed-up per mip level and worker count, over level 0 with
+#           1 worker;
+#  Table 8: the triangles of each mip level and of adaptive levels (centre
+#           at a corner of the volume's box, radii a quarter and a half of
+#           its side), with the reduction against level 0;
+#  Table 9: their speed-up over level 0 (all workers).
+#
+# "polygonization" is the job itself: copying the level's bricks into shared
+# memory, the marching cubes and the weld (vox mesh's summary, second line);
+# the whole command (reading and checking the file, starting the workers,
+# writing the PLY) is given beside it.  The machine may be shared: the load
+# average before each table is printed with it.
+#
+#   BENCH_QUICK=1   a quick run for tests: 64^3, one repeat, levels 0..1
+#   BENCH_REPEATS   runs per cell (default 5; quick 1)
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+build=${1:-build/release}
+case $build in /*) ;; *) build=$root/$build ;; esac
+vox=$build/vox
+quick=${BENCH_QUICK:-0}
+res=${BENCH_RES:-512}
+repeats=${BENCH_REPEATS:-5}
+maxw=${BENCH_WORKERS:-$(nproc)}
+levels="0 1 2 3"
+if [ "$quick" = 1 ]; then res=64; repeats=1; levels="0 1"; fi
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+export VOXD_SOCKET=$tmp/no-daemon.sock
+
+load() { cut -d' ' -f1 /proc/loadavg; }
+div() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.2f", (b > 0 ? a / b : 0) }'; }
+
+# run VOD ARGS...: one vox mesh; prints "poly=S whole=S tri=N" from its summary
+run() {
+    local vod=$1 t0 t1
+    shift
+    t0=$(date +%s.%N)
+    "$vox" mesh "$vod" -o "$tmp/out.ply" "$@" >"$tmp/sum" 2>&1 || {
+        echo "bench-iso: vox mesh $vod $* failed: $(cat "$tmp/sum")" >&2; return 1; }
+    t1=$(date +%s.%N)
+    awk -v whole="$(echo "$t1 - $t0" | bc)" '
+        NR == 1 { tri = $2 }
+        /bricks and tasks/ { for (i = 1; i <= NF; i++) if ($i ~ /^[0-9.]+$/) s[++n] = $i }
+        END { printf "poly=%.4f whole=%.4f tri=%d\n", s[2] + s[3] + s[4], whole, tri }' "$tmp/sum"
+}
+
+# stats VOD ARGS...: BENCH_REPEATS runs; "mean sd whole tri" of the polygonization
+stats() {
+    local i
+    for ((i = 0; i < repeats; i++)); do run "$@"; done | awk '
+        { for (k = 1; k <= NF; k++) { split($k, kv, "="); v[kv[1], NR] = kv[2] } }
+        END {
+            for (i = 1; i <= NR; i++) { m += v["poly", i]; w += v["whole", i] }
+            m /= NR; w /= NR
+            for (i = 1; i <= NR; i++) sd += (v["poly", i] - m) ^ 2
+            sd = NR > 1 ? sqrt(sd / (NR - 1)) : 0
+            printf "%.4f %.4f %.4f %d\n", m, sd, w, v["tri", 1]
+        }'
+}
+
+# ---------------------------------------------------------------- volumes
+"$vox" voxelize --embedded -f "$root/examples/scene1.vx" -r "$res" -o "$tmp/scene1.vod" -q
+"$vox" mesh "$tmp/scene1.vod" -o "$tmp/scene1-l1.ply" --level 1 -q
+"$vox" voxelize --embedded --mesh "$tmp/scene1-l1.ply" --channel density -r "$res" \
+    -o "$tmp/solid.vod" -q
+sets="scene1 solid"
+
+echo "## Marching cubes (vox mesh): the thesis's Tables 6-9"
+echo
+echo "$(nproc) cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'); "\
+"volumes at ${res}^3; $repeats runs per cell; seconds are the polygonization's (vox mesh's"\
+" bricks, marching cubes and weld), the whole command's in its own column."
+echo
+
+# ---------------------------------------------------------------- Table 6
+echo "### Table 6: sequential and parallel polygonization, level 0 (load $(load))"
+echo
+echo "| volume | workers | mean (s) | sd (s) | speed-up | whole command (s) | triangles |"
+echo "|---|---|---|---|---|---|---|"
+declare -A t1
+for s in $sets; do
+    for w in 0 $(seq 1 "$maxw"); do
+        read -r m sd whole tri < <(stats "$tmp/$s.vod" -w "$w")
+        [ "$w" = 1 ] && t1[$s]=$m
+        sp=$( [ "$w" -ge 1 ] && div "${t1[$s]}" "$m" || echo "-")
+        echo "| $s | $( [ "$w" = 0 ] && echo "0 (in-process)" || echo "$w") | $m | $sd | $sp | $whole | $tri |"
+        [ "$s" = scene1 ] && [ "$w" = "$maxw" ] && t2=$m
+    done
+done
+echo
+if [ "$quick" != 1 ] && [ "$maxw" -ge 2 ]; then
+    yield=$(div "${t1[scene1]}" "$(awk -v w="$maxw" -v t="$t2" 'BEGIN { print w * t }')")
+    ok_t=$(awk -v t="$t2" 'BEGIN { print t <= 0.5 }'); ok_y=$(awk -v y="$yield" 'BEGIN { print y >= 0.85 }')
+    echo "Target: Scene 1 at 512^3 in <= 0.5 s with 2 workers: ${t2} s ($( [ "$ok_t" = 1 ] && echo met || echo MISSED));"\
+         "yield t1 / ($maxw t$maxw) = $yield ($( [ "$ok_y" = 1 ] && echo met || echo MISSED) against 0.85)."
+    echo
+fi
+
+# ---------------------------------------------------------------- Table 7
+echo "### Table 7: speed-up per mip level, over level 0 with 1 worker (load $(load))"
+echo
+printf "| volume | level |"; for w in $(seq 1 "$maxw"); do printf " %s worker(s) |" "$w"; done; echo
+printf "|---|---|"; for w in $(seq 1 "$maxw"); do printf "%s" "---|"; done; echo
+declare -A tri_l sec_l
+for s in $sets; do
+    for l in $levels; do
+        printf "| %s | %s |" "$s" "$l"
+        for w in $(seq 1 "$maxw"); do
+            read -r m sd whole tri < <(stats "$tmp/$s.vod" -w "$w" --level "$l")
+            printf " %s |" "$(div "${t1[$s]}" "$m")"
+            tri_l[$s,$l]=$tri
+            sec_l[$s,$l]=$m
+        done
+        echo
+    done
+done
+echo
+
+# ---------------------------------------------------------------- Tables 8, 9
+radii=0.5,1 # a quarter and a half of Scene 1's box, [-1, 1]^3
+echo "### Table 8: triangles of uniform and adaptive levels; Table 9: speed-up over level 0 ($maxw workers, load $(load))"
+echo
+echo "Adaptive: --lod-center -1,-1,-1 --lod-radii $radii (level 0 near the corner, 1 farther, 2 beyond)."
+echo
+echo "| volume | levels | triangles | reduction (%) | seconds | speed-up |"
+echo "|---|---|---|---|---|---|"
+for s in $sets; do
+    base=${tri_l[$s,0]}
+    for l in $levels; do
+        red=$(div "$((100 * (base - tri_l[$s,$l])))" "$base")
+        echo "| $s | mip $l | ${tri_l[$s,$l]} | $red | ${sec_l[$s,$l]} | $(div "${sec_l[$s,0]}" "${sec_l[$s,$l]}") |"
+    done
+    read -r m sd whole tri < <(stats "$tmp/$s.vod" -w "$maxw" --lod-center -1,-1,-1 --lod-radii "$radii")
+    red=$(div "$((100 * (base - tri)))" "$base")
+    echo "| $s | adaptive | $tri | $red | $m | $(div "${sec_l[$s,0]}" "$m") |"
+done
+echo
+echo "(The adaptive mesh keeps each level's region closed with caps, which count in its"\
+" triangles: docs/mesh-extraction.md.)"

@@ -1,0 +1,35 @@
+#!/bin/bash
+# The marching-cubes benchmark (scripts/bench-iso.sh) in its quick mode, so
+# that it cannot rot: every table has its rows with a number in every
+# column, every worker count gives the same triangles, each mip level fewer
+# than the one below, and the adaptive rows are there.  No timing is
+# asserted (the machine is shared).
+. "$(dirname "$0")/lib.sh"
+REL=build/release # the benchmark's build; make test builds it beside asan
+BENCH_QUICK=1 BENCH_WORKERS=2 scripts/bench-iso.sh "$REL" >"$TMP/b.md" 2>"$TMP/err"
+rc=$?
+if [ "$rc" -eq 0 ]; then pass "bench-iso.sh runs (quick)"
+else fail "bench-iso.sh runs (quick)" "exit $rc: $(tail -3 "$TMP/err")"; fi
+
+# rows VOLUME: Table 6's rows of a volume: workers and triangles
+t6() { awk -F'|' -v v="$1" '/^### Table 6/ { on = 1 } /^### Table 7/ { on = 0 }
+       on && $2 ~ " " v " " { print $3, $8 }' "$TMP/b.md"; }
+for v in scene1 solid; do
+    n=$(t6 $v | wc -l)
+    tris=$(t6 $v | awk '{ print $NF }' | sort -u | wc -l)
+    if [ "$n" -eq 3 ] && [ "$tris" -eq 1 ]; then pass "Table 6, $v: 0, 1, 2 workers, one triangle count"
+    else fail "Table 6, $v: 0, 1, 2 workers, one triangle count" "$(t6 $v)"; fi
+done
+# every cell of every table row a number (or '-' for the in-process speed-up)
+bad=$(awk -F'|' '/^\| (scene1|solid) / { for (i = 3; i < NF; i++) { c = $i; gsub(/ /, "", c)
+       if (c !~ /^[0-9.]+$/ && c != "-" && c !~ /^(0\(in-process\)|mip[0-9]|adaptive)$/) print }}' "$TMP/b.md")
+if [ -z "$bad" ]; then pass "every cell holds a number"; else fail "every cell holds a number" "$bad"; fi
+t8() { awk -F'|' -v v="$1" -v l="$2" '/^### Table 8/ { on = 1 } on && $2 ~ " " v " " && $3 ~ " " l " " { gsub(/ /, "", $4); print $4 }' "$TMP/b.md"; }
+for v in scene1 solid; do
+    m0=$(t8 $v "mip 0"); m1=$(t8 $v "mip 1"); ad=$(t8 $v adaptive)
+    if [ -n "$m0" ] && [ -n "$m1" ] && [ -n "$ad" ] && [ "$m1" -lt "$m0" ]; then
+        pass "Table 8, $v: mip 1 ($m1) has fewer triangles than mip 0 ($m0), adaptive $ad"
+    else fail "Table 8, $v: mip 1 has fewer triangles than mip 0, adaptive row" "$m0 $m1 $ad"; fi
+done
+n7=$(awk '/^### Table 7/ { on = 1 } /^### Table 8/ { on = 0 } on && /^\| (scene1|solid) /' "$TMP/b.md" | wc -l)
+if [ "$n7" -eq 4 ]; then pass "Table 7: two levels of two volumes"; else fail "Table 7: two levels of two volumes" "$n7 rows"; fi
