@@ -188,18 +188,18 @@ static void *heap_alloc(void *ud, size_t bytes)
 /* The mesh, by the engine's workers (*e: the mesh lives in its shared
  * memory until it is destroyed) or (-w 0) in this process. */
 static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p,
-                      iso_mesh *m, uint64_t *tasks, engine **e)
+                      iso_mesh *m, engine_result *r, engine **e)
 {
     char err[256] = "";
     int rc;
+    memset(r, 0, sizeof *r);
     if (o->workers) {
         if ((rc = make_engine(o, e))) return rc;
         engine_iso_job job = {.file = f, .p = p};
-        engine_result r;
-        rc = engine_iso(*e, &job, m, &r);
-        *tasks = r.tiles;
-        if (rc) snprintf(err, sizeof err, "%s", r.error);
+        rc = engine_iso(*e, &job, m, r);
+        if (rc) snprintf(err, sizeof err, "%s", r->error);
     } else {
+        double c0 = clock_thread_cpu();
         void *mem = NULL;
         iso_input in;
         double t0 = clock_now();
@@ -209,8 +209,10 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         else rc = iso_run_serial(p, &in, m, err, sizeof err);
         m->t_setup += t_in;
         iso_task *t;
-        if (!rc && !iso_tasks(p, &in, &t, tasks)) free(t);
+        uint64_t n;
+        if (!rc && !iso_tasks(p, &in, &t, &n)) free(t), r->tiles = (uint32_t)n;
         free(mem);
+        r->master_cpu = clock_thread_cpu() - c0;
     }
     if (rc) cli_error("%s: marching cubes failed: %s", o->in, err[0] ? err : strerror(-rc));
     return rc;
@@ -231,6 +233,20 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m)
     return rc;
 }
 
+/* t: when the file was opened, the job started and ended, the mesh written. */
+static void print_summary(const mesh_opts *o, const iso_params *p, const iso_mesh *m,
+                          const engine_result *r, const double t[4])
+{
+    printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%u brick tasks, "
+           "%u workers), written in %.3f s\n", o->out, (unsigned long long)m->n_triangles,
+           (unsigned long long)m->n_vertices, p->nradii ? "adaptive levels" : "one level",
+           t[2] - t[1], r->tiles, o->workers, t[3] - t[2]);
+    printf("  file read and checked in %.3f s; bricks and tasks %.3f s, marching cubes "
+           "%.3f s, weld %.3f s\n", t[1] - t[0], m->t_setup, m->t_tasks, m->t_weld);
+    if (o->workers)
+        printf("  CPU: master %.3f s, workers %.3f s\n", r->master_cpu, r->worker_cpu);
+}
+
 static int run(const mesh_opts *o)
 {
     char err[512] = "";
@@ -249,22 +265,15 @@ static int run(const mesh_opts *o)
         return CLI_EXIT_USAGE;
     }
     iso_mesh m = {0};
-    uint64_t tasks = 0;
-    double t0 = clock_now();
+    engine_result r;
+    double t[4] = {tr, clock_now()};
     engine *e = NULL;
-    rc = polygonize(o, f, &p, &m, &tasks, &e);
-    double t1 = clock_now();
+    rc = polygonize(o, f, &p, &m, &r, &e);
+    t[2] = clock_now();
     vod_close(f);
     if (!rc) rc = write_mesh(o, &m);
-    if (!rc && !o->quiet) {
-        printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%llu brick tasks, "
-               "%u workers), written in %.3f s\n", o->out,
-               (unsigned long long)m.n_triangles, (unsigned long long)m.n_vertices,
-               p.nradii ? "adaptive levels" : "one level", t1 - t0,
-               (unsigned long long)tasks, o->workers, clock_now() - t1);
-        printf("  file read and checked in %.3f s; bricks and tasks %.3f s, marching "
-               "cubes %.3f s, weld %.3f s\n", t0 - tr, m.t_setup, m.t_tasks, m.t_weld);
-    }
+    t[3] = clock_now();
+    if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);
     iso_mesh_free(&m);
     engine_destroy(e);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;

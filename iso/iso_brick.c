@@ -17,7 +17,8 @@ struct iso_work {
     uint32_t B, S;          /* brick, samples per axis (B + 1) */
     uint8_t *val;           /* S^3 sample bytes */
     uint32_t *word;         /* S^3 channel-3 voxels (normals), or NULL */
-    int32_t *map;           /* S^3 x 3 edges: vertex reference, -1 none */
+    int32_t *map;           /* S^3 x 3 edges: an owned vertex's index, -2 - k for
+                               ext[k] (another task's), -1 none yet */
     uint8_t *row;           /* S^2 rows of S samples (y, z): ROW_OUT, ROW_IN, ROW_MIXED */
     uint32_t *blk;          /* adaptive: 3 x S block coordinates */
     uint8_t *same;          /* adaptive: S^3 flags, block of the task's level */
@@ -328,8 +329,12 @@ static int edge_ref(iso_work *w, const uint32_t c[3], uint32_t e, uint32_t *ref)
     uint32_t o = iso_edge_corner(e), a = iso_edge_axis(e), l[3];
     for (int d = 0; d < 3; d++) l[d] = c[d] + (o >> d & 1u);
     size_t m = sidx(w, l[0], l[1], l[2]) * 3 + a;
-    if (w->map[m] >= 0) {
+    if (w->map[m] >= 0) { /* owned */
         *ref = (uint32_t)w->map[m];
+        return 0;
+    }
+    if (w->map[m] < -1) { /* another task's, met before: -2 - its index in ext */
+        *ref = ISO_REF_EXT | (uint32_t)(-2 - w->map[m]);
         return 0;
     }
     if (l[0] < w->B && l[1] < w->B && l[2] < w->B) return -EINVAL; /* pass 1 missed it */
@@ -337,7 +342,7 @@ static int edge_ref(iso_work *w, const uint32_t c[3], uint32_t e, uint32_t *ref)
     size_t k = w->ext.n++;
     ((uint64_t *)w->ext.p)[k] = edge_key(w, l, a);
     *ref = ISO_REF_EXT | (uint32_t)k;
-    w->map[m] = (int32_t)*ref;
+    w->map[m] = -2 - (int32_t)k;
     return 0;
 }
 

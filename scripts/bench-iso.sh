@@ -45,7 +45,8 @@ export VOXD_SOCKET=$tmp/no-daemon.sock
 load() { cut -d' ' -f1 /proc/loadavg; }
 div() { awk -v a="$1" -v b="$2" 'BEGIN { printf "%.2f", (b > 0 ? a / b : 0) }'; }
 
-# run VOD ARGS...: one vox mesh; prints "poly=S whole=S tri=N" from its summary
+# run VOD ARGS...: one vox mesh; prints "poly=S whole=S tri=N cpu=S" from its
+# summary (cpu: the master's and the workers' CPU seconds in the job; -w 0: 0)
 run() {
     local vod=$1 t0 t1
     shift
@@ -56,20 +57,21 @@ run() {
     awk -v whole="$(echo "$t1 - $t0" | bc)" '
         NR == 1 { tri = $2 }
         /bricks and tasks/ { for (i = 1; i <= NF; i++) if ($i ~ /^[0-9.]+$/) s[++n] = $i }
-        END { printf "poly=%.4f whole=%.4f tri=%d\n", s[2] + s[3] + s[4], whole, tri }' "$tmp/sum"
+        /CPU: master/ { cpu = $3 + $6 }
+        END { printf "poly=%.4f whole=%.4f tri=%d cpu=%.4f\n", s[2] + s[3] + s[4], whole, tri, cpu }' "$tmp/sum"
 }
 
-# stats VOD ARGS...: BENCH_REPEATS runs; "mean sd whole tri" of the polygonization
+# stats VOD ARGS...: BENCH_REPEATS runs; "mean sd whole tri cpu" of the polygonization
 stats() {
     local i
     for ((i = 0; i < repeats; i++)); do run "$@"; done | awk '
         { for (k = 1; k <= NF; k++) { split($k, kv, "="); v[kv[1], NR] = kv[2] } }
         END {
-            for (i = 1; i <= NR; i++) { m += v["poly", i]; w += v["whole", i] }
-            m /= NR; w /= NR
+            for (i = 1; i <= NR; i++) { m += v["poly", i]; w += v["whole", i]; c += v["cpu", i] }
+            m /= NR; w /= NR; c /= NR
             for (i = 1; i <= NR; i++) sd += (v["poly", i] - m) ^ 2
             sd = NR > 1 ? sqrt(sd / (NR - 1)) : 0
-            printf "%.4f %.4f %.4f %d\n", m, sd, w, v["tri", 1]
+            printf "%.4f %.4f %.4f %d %.4f\n", m, sd, w, v["tri", 1], c
         }'
 }
 
@@ -90,15 +92,15 @@ echo
 # ---------------------------------------------------------------- Table 6
 echo "### Table 6: sequential and parallel polygonization, level 0 (load $(load))"
 echo
-echo "| volume | workers | mean (s) | sd (s) | speed-up | whole command (s) | triangles |"
-echo "|---|---|---|---|---|---|---|"
+echo "| volume | workers | mean (s) | sd (s) | speed-up | CPU, all processes (s) | whole command (s) | triangles |"
+echo "|---|---|---|---|---|---|---|---|"
 declare -A t1
 for s in $sets; do
     for w in 0 $(seq 1 "$maxw"); do
-        read -r m sd whole tri < <(stats "$tmp/$s.vod" -w "$w")
+        read -r m sd whole tri cpu < <(stats "$tmp/$s.vod" -w "$w")
         [ "$w" = 1 ] && t1[$s]=$m
         sp=$( [ "$w" -ge 1 ] && div "${t1[$s]}" "$m" || echo "-")
-        echo "| $s | $( [ "$w" = 0 ] && echo "0 (in-process)" || echo "$w") | $m | $sd | $sp | $whole | $tri |"
+        echo "| $s | $( [ "$w" = 0 ] && echo "0 (in-process)" || echo "$w") | $m | $sd | $sp | $( [ "$w" = 0 ] && echo "-" || echo "$cpu") | $whole | $tri |"
         [ "$s" = scene1 ] && [ "$w" = "$maxw" ] && t2=$m
     done
 done
@@ -121,7 +123,7 @@ for s in $sets; do
     for l in $levels; do
         printf "| %s | %s |" "$s" "$l"
         for w in $(seq 1 "$maxw"); do
-            read -r m sd whole tri < <(stats "$tmp/$s.vod" -w "$w" --level "$l")
+            read -r m sd whole tri cpu < <(stats "$tmp/$s.vod" -w "$w" --level "$l")
             printf " %s |" "$(div "${t1[$s]}" "$m")"
             tri_l[$s,$l]=$tri
             sec_l[$s,$l]=$m
@@ -145,7 +147,7 @@ for s in $sets; do
         red=$(div "$((100 * (base - tri_l[$s,$l])))" "$base")
         echo "| $s | mip $l | ${tri_l[$s,$l]} | $red | ${sec_l[$s,$l]} | $(div "${sec_l[$s,0]}" "${sec_l[$s,$l]}") |"
     done
-    read -r m sd whole tri < <(stats "$tmp/$s.vod" -w "$maxw" --lod-center -1,-1,-1 --lod-radii "$radii")
+    read -r m sd whole tri cpu < <(stats "$tmp/$s.vod" -w "$maxw" --lod-center -1,-1,-1 --lod-radii "$radii")
     red=$(div "$((100 * (base - tri)))" "$base")
     echo "| $s | adaptive | $tri | $red | $m | $(div "${sec_l[$s,0]}" "$m") |"
 done

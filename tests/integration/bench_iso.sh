@@ -13,7 +13,7 @@ else fail "bench-iso.sh runs (quick)" "exit $rc: $(tail -3 "$TMP/err")"; fi
 
 # rows VOLUME: Table 6's rows of a volume: workers and triangles
 t6() { awk -F'|' -v v="$1" '/^### Table 6/ { on = 1 } /^### Table 7/ { on = 0 }
-       on && $2 ~ " " v " " { print $3, $8 }' "$TMP/b.md"; }
+       on && $2 ~ " " v " " { print $3, $9 }' "$TMP/b.md"; }
 for v in scene1 solid; do
     n=$(t6 $v | wc -l)
     tris=$(t6 $v | awk '{ print $NF }' | sort -u | wc -l)
