@@ -184,6 +184,12 @@ static int resolve_ext(const iso_weld *w, uint64_t i, uint32_t *out, char *err, 
     return 0;
 }
 
+/* n float triples (an empty piece's arrays may be NULL) */
+static void copy3(float *to, const float *from, uint32_t n)
+{
+    if (n) memcpy(to, from, 12 * (size_t)n);
+}
+
 int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen)
 {
     const iso_piece *pc = &w->pc[i];
@@ -200,11 +206,11 @@ int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen)
     }
     free(ext);
     if (rc) return rc;
-    memcpy(w->pos + 3 * base, pc->pos, 12 * (size_t)pc->nv);
-    memcpy(w->pos + 3 * (base + pc->nv), pc->cpos, 12 * (size_t)pc->nc);
+    copy3(w->pos + 3 * base, pc->pos, pc->nv);
+    copy3(w->pos + 3 * (base + pc->nv), pc->cpos, pc->nc);
     if (w->nrm) {
-        memcpy(w->nrm + 3 * base, pc->nrm, 12 * (size_t)pc->nv);
-        memcpy(w->nrm + 3 * (base + pc->nv), pc->cnrm, 12 * (size_t)pc->nc);
+        copy3(w->nrm + 3 * base, pc->nrm, pc->nv);
+        copy3(w->nrm + 3 * (base + pc->nv), pc->cnrm, pc->nc);
     }
     return 0;
 }
