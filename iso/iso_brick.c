@@ -23,6 +23,7 @@ struct iso_work {
     uint32_t *blk;          /* adaptive: 3 x S block coordinates */
     uint8_t *same;          /* adaptive: S^3 flags, block of the task's level */
     vec keys, pos, nrm, cpos, cnrm, tri, ext;
+    vec touched;            /* the map entries set by the running task */
     /* the running task */
     const iso_params *p;
     uint32_t level, b[3], W[3];
@@ -50,6 +51,7 @@ int iso_work_new(const iso_params *p, iso_work **out)
     size_t n = (size_t)w->S * w->S * w->S;
     w->val = malloc(n);
     w->map = malloc(n * 3 * sizeof *w->map);
+    if (w->map) memset(w->map, 0xff, n * 3 * sizeof *w->map); /* kept so: see forget() */
     w->word = p->normals ? malloc(n * sizeof *w->word) : NULL;
     w->row = malloc((size_t)w->S * w->S);
     w->blk = malloc(3 * (size_t)w->S * sizeof *w->blk);
@@ -57,6 +59,7 @@ int iso_work_new(const iso_params *p, iso_work **out)
     w->keys.size = w->ext.size = 8;
     w->pos.size = w->nrm.size = w->cpos.size = w->cnrm.size = 3 * sizeof(float);
     w->tri.size = 3 * sizeof(uint32_t);
+    w->touched.size = sizeof(size_t);
     if (!w->val || !w->map || !w->row || !w->blk || !w->same || (p->normals && !w->word)) {
         iso_work_free(w);
         return -ENOMEM;
@@ -74,7 +77,7 @@ void iso_work_free(iso_work *w)
     free(w->row);
     free(w->blk);
     free(w->same);
-    vec *v[] = {&w->keys, &w->pos, &w->nrm, &w->cpos, &w->cnrm, &w->tri, &w->ext};
+    vec *v[] = {&w->keys, &w->pos, &w->nrm, &w->cpos, &w->cnrm, &w->tri, &w->ext, &w->touched};
     for (size_t i = 0; i < sizeof v / sizeof *v; i++) free(v[i]->p);
     free(w);
 }
@@ -115,7 +118,8 @@ static const uint8_t *brick_at(iso_work *w, const iso_input *in, const int64_t f
     return find_brick(in, iso_brick_key(w->level, lin), p->bits, w->B);
 }
 
-/* Copy the voxels [v0, v0 + n) of raw brick r to the samples at s0. */
+/* Copy the voxels [v0, v0 + n) of raw brick r to the samples at s0; r
+ * NULL: those samples are 0. */
 static void copy_box(iso_work *w, const uint8_t *r, const uint32_t v0[3],
                      const uint32_t s0[3], const uint32_t n[3])
 {
@@ -124,7 +128,10 @@ static void copy_box(iso_work *w, const uint8_t *r, const uint32_t v0[3],
         for (uint32_t y = 0; y < n[1]; y++) {
             size_t vi = ((size_t)(v0[2] + z) * B + v0[1] + y) * B + v0[0];
             size_t si = ((size_t)(s0[2] + z) * S + s0[1] + y) * S + s0[0];
-            if (bits == 8) {
+            if (!r) {
+                memset(w->val + si, 0, n[0]);
+                if (w->word) memset(w->word + si, 0, n[0] * sizeof *w->word);
+            } else if (bits == 8) {
                 memcpy(w->val + si, r + vi, n[0]);
             } else if (bits == 1) {
                 for (uint32_t x = 0; x < n[0]; x++)
@@ -199,10 +206,7 @@ static void mask_blocks(iso_work *w)
  * file brick b. */
 static void gather(iso_work *w, const iso_input *in)
 {
-    size_t n = (size_t)w->S * w->S * w->S;
-    memset(w->val, 0, n);
-    if (w->word) memset(w->word, 0, n * sizeof *w->word);
-    for (uint32_t c = 0; c < 8; c++) {
+    for (uint32_t c = 0; c < 8; c++) { /* the 8 boxes cover every sample */
         int64_t fb[3];
         uint32_t v0[3], s0[3], cnt[3];
         for (int a = 0; a < 3; a++) {
@@ -212,14 +216,29 @@ static void gather(iso_work *w, const iso_input *in)
             s0[a] = hi ? 1 : 0;
             cnt[a] = hi ? w->B : 1;
         }
-        const uint8_t *r = brick_at(w, in, fb);
-        if (r) copy_box(w, r, v0, s0, cnt);
+        copy_box(w, brick_at(w, in, fb), v0, s0, cnt);
     }
     clip(w);
     if (w->p->nradii) mask_blocks(w);
 }
 
 /* ---- vertices ---- */
+
+/* The map is all -1 between tasks: a task notes each entry before it sets
+ * it, and forget() puts them back, instead of clearing 3 S^3 entries per
+ * task. */
+static int remember(iso_work *w, size_t m)
+{
+    if (vec_grow(&w->touched, 1)) return -ENOMEM;
+    ((size_t *)w->touched.p)[w->touched.n++] = m;
+    return 0;
+}
+
+static void forget(iso_work *w)
+{
+    for (size_t i = 0; i < w->touched.n; i++) w->map[((size_t *)w->touched.p)[i]] = -1;
+    w->touched.n = 0;
+}
 
 static uint64_t edge_key(const iso_work *w, const uint32_t l[3], uint32_t a)
 {
@@ -286,7 +305,9 @@ static int rows_differ(const iso_work *w, size_t r0, size_t r1)
 
 static int add_vertex(iso_work *w, uint32_t x, uint32_t y, uint32_t z, uint32_t a)
 {
-    if (vec_grow(&w->keys, 1) || vec_grow(&w->pos, 1) || (w->word && vec_grow(&w->nrm, 1)))
+    size_t m = sidx(w, x, y, z) * 3 + a;
+    if (vec_grow(&w->keys, 1) || vec_grow(&w->pos, 1) || (w->word && vec_grow(&w->nrm, 1)) ||
+        remember(w, m))
         return -ENOMEM;
     uint32_t l[3] = {x, y, z};
     size_t k = w->keys.n++;
@@ -294,7 +315,7 @@ static int add_vertex(iso_work *w, uint32_t x, uint32_t y, uint32_t z, uint32_t 
     edge_vertex(w, l, a, (float *)w->pos.p + 3 * k, w->word ? (float *)w->nrm.p + 3 * k : NULL);
     if (w->word) w->nrm.n++;
     w->pos.n++;
-    w->map[sidx(w, x, y, z) * 3 + a] = (int32_t)k;
+    w->map[m] = (int32_t)k;
     return 0;
 }
 
@@ -338,7 +359,7 @@ static int edge_ref(iso_work *w, const uint32_t c[3], uint32_t e, uint32_t *ref)
         return 0;
     }
     if (l[0] < w->B && l[1] < w->B && l[2] < w->B) return -EINVAL; /* pass 1 missed it */
-    if (vec_grow(&w->ext, 1)) return -ENOMEM;
+    if (vec_grow(&w->ext, 1) || remember(w, m)) return -ENOMEM;
     size_t k = w->ext.n++;
     ((uint64_t *)w->ext.p)[k] = edge_key(w, l, a);
     *ref = ISO_REF_EXT | (uint32_t)k;
@@ -457,9 +478,9 @@ int iso_task_run(iso_work *w, const iso_params *p, const iso_input *in,
     if (rc) return rc;
     gather(w, in);
     if (classify_rows(w)) {
-        memset(w->map, 0xff, (size_t)w->S * w->S * w->S * 3 * sizeof *w->map);
         rc = own_vertices(w, nc);
         if (!rc) rc = cells(w, nc);
+        forget(w);
         if (rc) return rc;
     }
     *pc = (iso_piece){
