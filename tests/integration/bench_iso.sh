@@ -33,3 +33,6 @@ for v in scene1 solid; do
 done
 n7=$(awk '/^### Table 7/ { on = 1 } /^### Table 8/ { on = 0 } on && /^\| (scene1|solid) /' "$TMP/b.md" | wc -l)
 if [ "$n7" -eq 4 ]; then pass "Table 7: two levels of two volumes"; else fail "Table 7: two levels of two volumes" "$n7 rows"; fi
+if grep -Eq '^Targets: Scene 1 at 512\^3 .* yield t1 / \(2 t2\) = [0-9.]+ \(not judged' "$TMP/b.md"; then
+    pass "the targets' line (not judged in a quick run)"
+else fail "the targets' line (not judged in a quick run)" "$(grep -m1 Targets "$TMP/b.md")"; fi
