@@ -1,13 +1,18 @@
 /* The iso kind's master side: marching cubes over a VOD file's bricks by
- * every worker.  Setup copies the raw bricks of the levels the job reads
- * into the data area behind the block (each shared brick once), then the
- * tasks (iso_tasks, in key order) and their result records, and gives the
- * rest of the data area to the pieces; one task per worker starts them,
- * each worker then claims tasks from the block's counter until none is
- * left.  At the end every task whose piece is not done (its worker died,
- * failed, or the arena was full) is run here, and the pieces are welded
- * (iso_merge, which checks each one) in task order: the mesh is the
- * serial run's, byte for byte, whoever ran which task. */
+ * every worker, in two phases.  Setup copies the raw bricks of the levels
+ * the job reads into the data area behind the block (each shared brick
+ * once), then the tasks (iso_tasks, in key order) and their result
+ * records, and gives the rest of the data area to the arena; one ISO_BRICKS
+ * task per worker starts phase 1, each worker claiming brick tasks from
+ * the block's counter until none is left and packing each piece into the
+ * arena.  When the last of them is done, the master runs every task whose
+ * piece is not there (its worker died, failed, or the arena was full),
+ * checks every piece and gives each its place in the mesh (iso_weld_bases),
+ * lays the mesh's arrays out in the arena, and one ISO_WELD task per worker
+ * starts phase 2: the workers weld pieces into those arrays.  At the end
+ * the master welds what no worker did and checks every index: the mesh is
+ * the serial run's, byte for byte, whoever ran which task, and stays in
+ * the segment (a view) until the next job. */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -281,9 +286,11 @@ static int iso_finish(engine *e, void *job, int rc)
     if (!rc && !ij->weld_ready) rc = prepare_weld(e, ij); /* no worker took a task */
     if (!rc) rc = weld_rest(e, ij);
     r->seconds = clock_now() - e->t0;
-    ij->out->t_setup = ij->t_setup - e->t0;
-    ij->out->t_tasks = ij->weld_ready ? ij->t_tasks_end - ij->t_setup : 0;
-    ij->out->t_weld = ij->weld_ready ? clock_now() - ij->t_tasks_end : 0;
+    if (!rc) {
+        ij->out->t_setup = ij->t_setup - e->t0;
+        ij->out->t_tasks = ij->t_tasks_end - ij->t_setup;
+        ij->out->t_weld = clock_now() - ij->t_tasks_end;
+    }
     iso_work_free(ij->work);
     free(ij->pc);
     return rc ? sched_job_failed(e, r, rc) : 0;

@@ -643,3 +643,40 @@ Test(iso, too_small_a_segment_is_a_limit)
     engine_destroy(e);
     vod_close(f);
 }
+
+/* vod_foreach_brick (what the input is made from): every non-empty brick
+ * of a level once, the pointer vod_brick gives for its coordinates. */
+typedef struct {
+    const vod_file *f;
+    int level;
+    uint64_t n, wrong;
+} walk_check;
+
+static int count_brick(void *ud, const uint32_t b[3], const uint8_t *raw)
+{
+    walk_check *w = ud;
+    w->n++;
+    if (vod_brick(w->f, w->level, b) != raw) w->wrong++;
+    return 0;
+}
+
+Test(iso, vod_foreach_brick_walks_every_brick_once)
+{
+    uint32_t mode = 2;
+    vol_spec s = {{37, 21, 29}, 4, 8, VOXEL_CH_DENSITY, 0.1, {0, 0, 0}};
+    vod_file *f = make_vod(&s, noise, &mode);
+    for (int l = 0; l < (int)vod_get_info(f)->height; l++) {
+        walk_check w = {f, l, 0, 0};
+        cr_assert_eq(vod_foreach_brick(f, l, count_brick, &w), 0);
+        uint32_t side = vod_level_size(f, l) / 4, b[3];
+        uint64_t expect = 0;
+        for (b[2] = 0; b[2] < side; b[2]++)
+            for (b[1] = 0; b[1] < side; b[1]++)
+                for (b[0] = 0; b[0] < side; b[0]++) expect += vod_brick(f, l, b) != NULL;
+        cr_assert_eq(w.n, expect, "level %d: %llu bricks walked, %llu there", l,
+                     (unsigned long long)w.n, (unsigned long long)expect);
+        cr_assert_eq(w.wrong, 0, "level %d", l);
+    }
+    cr_assert_eq(vod_foreach_brick(f, 99, count_brick, NULL), -EINVAL);
+    vod_close(f);
+}
