@@ -90,12 +90,16 @@ static inline uint64_t iso_brick_key(uint32_t level, uint64_t lin)
 }
 
 /* The bricks a job reads, in memory any process can reach: n sorted keys,
- * each with the offset of its raw brick from raw (bytes of p->bits). */
+ * each with the offset of its raw brick from raw (bytes of p->bits), and
+ * (for iso_tasks; NULL: unknown) each one's state: every voxel inside,
+ * every voxel outside, or both. */
+enum { ISO_BRICK_MIXED = 0, ISO_BRICK_IN = 1, ISO_BRICK_OUT = 2 };
 typedef struct {
     uint64_t n;
     const uint64_t *keys, *offs;
     const uint8_t *raw;
     uint64_t raw_bytes;
+    const uint8_t *state;
 } iso_input;
 
 /* ---- tasks ---- */
@@ -115,8 +119,9 @@ static inline uint64_t iso_task_key(const iso_params *p, const iso_task *t)
 }
 
 /* The tasks of a job: every brick whose samples touch a non-empty brick
- * of the file at its level (and, adaptive, a block of that level), sorted
- * by key, into *out (malloc'd; free it).  0 or -ENOMEM. */
+ * of the file at its level, sorted by key, into *out (malloc'd; free it),
+ * less those whose samples are all outside or (one level only) all inside
+ * by the bricks' states: a solid's interior costs nothing.  0 or -ENOMEM. */
 int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t *n);
 
 /* ---- one task's polygons ---- */
@@ -210,7 +215,7 @@ int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *
 
 /* The raw bricks of the levels p uses, copied once each (bricks the file
  * shares are shared), into memory from alloc(ud, bytes) (NULL: no room ->
- * -ENOMEM), laid out as: keys, offsets, raw bricks. */
+ * -ENOMEM), laid out as: keys, offsets, states, raw bricks. */
 int iso_input_make(const vod_file *f, const iso_params *p,
                    void *(*alloc)(void *ud, size_t bytes), void *ud, iso_input *in);
 

@@ -106,6 +106,7 @@ typedef struct {
     uint64_t key;
     const uint8_t *raw;
     uint64_t off;
+    uint8_t state;
 } brick_ref;
 
 typedef struct {
@@ -146,7 +147,7 @@ static int collect_one(void *ud, const uint32_t b[3], const uint8_t *raw)
     }
     uint64_t side = 1ull << (c->p->height - 1 - c->level);
     uint64_t lin = ((uint64_t)b[2] * side + b[1]) * side + b[0];
-    c->v[c->n++] = (brick_ref){iso_brick_key(c->level, lin), raw, 0};
+    c->v[c->n++] = (brick_ref){iso_brick_key(c->level, lin), raw, 0, ISO_BRICK_MIXED};
     return 0;
 }
 
@@ -160,6 +161,20 @@ static int by_key(const void *a, const void *b)
 {
     uint64_t x = ((const brick_ref *)a)->key, y = ((const brick_ref *)b)->key;
     return (x > y) - (x < y);
+}
+
+/* Every voxel of a raw brick inside (above iso), every one outside, or both. */
+static uint8_t brick_state(const iso_params *p, const uint8_t *raw)
+{
+    size_t n = (size_t)p->brick * p->brick * p->brick;
+    int in = 0, out = 0;
+    for (size_t i = 0; i < n && !(in && out); i++) {
+        uint32_t v = p->bits == 8 ? raw[i] : p->bits == 1 ? (raw[i >> 3] >> (i & 7) & 1u) * 255u
+                                                           : vod_get32(raw + 4 * i) & 0xffu;
+        if (v > p->iso) in = 1;
+        else out = 1;
+    }
+    return in && out ? ISO_BRICK_MIXED : in ? ISO_BRICK_IN : ISO_BRICK_OUT;
 }
 
 static int levels_used(const iso_params *p, uint32_t *lo, uint32_t *hi)
@@ -190,23 +205,26 @@ int iso_input_make(const vod_file *f, const iso_params *p,
         if (i == 0 || c.v[i].raw != c.v[i - 1].raw) uniq++;
         c.v[i].off = (uniq - 1) * raw_bytes;
     }
-    size_t bytes = c.n * 16 + uniq * raw_bytes;
+    size_t st_bytes = (c.n + 7) / 8 * 8, bytes = c.n * 16 + st_bytes + uniq * raw_bytes;
     uint8_t *mem = alloc(ud, bytes ? bytes : 16);
     if (!mem) {
         free(c.v);
         return -ENOMEM;
     }
     uint64_t *keys = (uint64_t *)mem, *offs = keys + c.n;
-    uint8_t *raw = mem + c.n * 16;
+    uint8_t *state = mem + c.n * 16, *raw = state + st_bytes;
     for (size_t i = 0; i < c.n; i++)
-        if (i == 0 || c.v[i].raw != c.v[i - 1].raw)
+        if (i == 0 || c.v[i].raw != c.v[i - 1].raw) {
             memcpy(raw + c.v[i].off, c.v[i].raw, raw_bytes);
+            c.v[i].state = brick_state(p, c.v[i].raw);
+        } else c.v[i].state = c.v[i - 1].state; /* a shared brick: the same */
     if (c.n) qsort(c.v, c.n, sizeof *c.v, by_key);
     for (size_t i = 0; i < c.n; i++) {
         keys[i] = c.v[i].key;
         offs[i] = c.v[i].off;
+        state[i] = c.v[i].state;
     }
-    *in = (iso_input){c.n, keys, offs, raw, uniq * raw_bytes};
+    *in = (iso_input){c.n, keys, offs, raw, uniq * raw_bytes, state};
     free(c.v);
     return 0;
 }
@@ -241,6 +259,47 @@ static size_t tasks_of(const iso_params *p, uint64_t key, uint64_t *out)
     return k;
 }
 
+/* A file brick's state; a brick the input does not have is empty: outside. */
+static uint8_t state_of(const iso_input *in, uint64_t key)
+{
+    uint64_t lo = 0, hi = in->n;
+    while (lo < hi) {
+        uint64_t mid = lo + (hi - lo) / 2;
+        if (in->keys[mid] < key) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo < in->n && in->keys[lo] == key ? in->state[lo] : ISO_BRICK_OUT;
+}
+
+/* Can task t's samples (voxels b B - 1 .. b B + B - 1 of its level on each
+ * axis, from file bricks b - 1 and b) hold both an inside and an outside
+ * one?  All from bricks wholly outside: no.  All from bricks wholly inside,
+ * none past the volume (read as 0) and one level (adaptive levels read the
+ * other levels' blocks as 0): no. */
+static int task_needed(const iso_params *p, const iso_input *in, const iso_task *t)
+{
+    if (!in->state) return 1;
+    uint32_t l = t->level, B = p->brick;
+    uint64_t side = 1ull << (p->height - 1 - l);
+    int all_in = !p->nradii, all_out = 1;
+    for (int a = 0; a < 3; a++)
+        all_in &= t->b[a] > 0 && (uint64_t)t->b[a] * B + B <= p->dims[l][a];
+    for (uint32_t c = 0; c < 8 && (all_in || all_out); c++) {
+        int64_t f[3];
+        int inside = 1;
+        for (int a = 0; a < 3; a++) {
+            f[a] = (int64_t)t->b[a] - (c >> a & 1u ? 0 : 1);
+            inside &= f[a] >= 0 && (uint64_t)f[a] < side;
+        }
+        uint8_t s = inside ? state_of(in, iso_brick_key(l, ((uint64_t)f[2] * side + (uint64_t)f[1]) *
+                                                               side + (uint64_t)f[0]))
+                           : ISO_BRICK_OUT;
+        all_in &= s == ISO_BRICK_IN;
+        all_out &= s == ISO_BRICK_OUT;
+    }
+    return !all_in && !all_out;
+}
+
 int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t *n)
 {
     uint64_t *keys = malloc((in->n ? in->n : 1) * 8 * sizeof *keys);
@@ -256,15 +315,17 @@ int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t
         free(keys);
         return -ENOMEM;
     }
+    size_t m = 0;
     for (size_t i = 0; i < u; i++) {
         uint32_t l = (uint32_t)(keys[i] >> 58), g[3];
         uint64_t lin = keys[i] & ((1ull << 58) - 1);
         iso_task_grid(p, l, g);
-        t[i] = (iso_task){l, {(uint32_t)(lin % g[0]), (uint32_t)(lin / g[0] % g[1]),
+        t[m] = (iso_task){l, {(uint32_t)(lin % g[0]), (uint32_t)(lin / g[0] % g[1]),
                               (uint32_t)(lin / g[0] / g[1])}};
+        m += task_needed(p, in, &t[m]);
     }
     free(keys);
     *out = t;
-    *n = u;
+    *n = m;
     return 0;
 }

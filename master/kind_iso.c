@@ -169,9 +169,9 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
     iso_block *b = block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     const iso_task *t = (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i;
-    iso_input in = {b->n_bricks, shm_at(e->seg.base, b->keys_off),
-                    shm_at(e->seg.base, b->offs_off), shm_at(e->seg.base, b->raw_off),
-                    b->raw_bytes};
+    iso_input in = {.n = b->n_bricks, .keys = shm_at(e->seg.base, b->keys_off),
+                    .offs = shm_at(e->seg.base, b->offs_off),
+                    .raw = shm_at(e->seg.base, b->raw_off), .raw_bytes = b->raw_bytes};
     iso_piece v;
     int rc = ij->work ? 0 : iso_work_new(&b->p, &ij->work);
     if (!rc) rc = iso_task_run(ij->work, &b->p, &in, t, &v);
