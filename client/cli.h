@@ -101,6 +101,10 @@ int cli_parse_cpus(const char *s, int *cpus, int cap);
 int cli_parse_uint(const char *s, uint32_t min, uint32_t max, uint32_t *out);
 /* Read a whole file (at most max bytes) into a NUL-terminated buffer. */
 int cli_read_file(const char *path, size_t max, char **out, size_t *len);
+/* The embedded engine with workers workers, on the CPUs of the list cpus
+ * (NULL: the engine's own placement) and a segment of shm_mib MiB (0: the
+ * engine's default); errors said on stderr.  0 or a negative errno. */
+int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engine **e);
 /* Print "vox: " + message to stderr. */
 void cli_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 

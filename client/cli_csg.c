@@ -182,15 +182,6 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
     return rc ? CLI_EXIT_USAGE : 0;
 }
 
-static int make_engine(uint32_t workers, engine **e)
-{
-    engine_opts eo = {.workers = (int)workers};
-    char err[256] = "";
-    int rc = engine_create(&eo, e, err, sizeof err);
-    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
-    return rc;
-}
-
 /* The job through the pipeline (its workers, or this thread with -w 0),
  * into OUT under a temporary name renamed into place once complete. */
 static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
@@ -206,7 +197,7 @@ static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
     job.vod.channel = o->channel;
     job.vod.comp = o->comp;
     engine *e = NULL;
-    if (o->workers && make_engine(o->workers, &e)) return CLI_EXIT_FAILED;
+    if (o->workers && cli_start_engine(o->workers, NULL, 0, &e)) return CLI_EXIT_FAILED;
     char tmp[4096];
     int fd = outfile_create(o->out, tmp, sizeof tmp);
     if (fd < 0) {

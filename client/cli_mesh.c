@@ -164,21 +164,6 @@ static int parse_opts(int argc, char **argv, mesh_opts *o)
     return check_opts(o);
 }
 
-static int make_engine(const mesh_opts *o, engine **e)
-{
-    int cpus[ENGINE_MAX_WORKERS], ncpus = 0;
-    if (o->cpus && (ncpus = cli_parse_cpus(o->cpus, cpus, ENGINE_MAX_WORKERS)) <= 0) {
-        cli_error("bad --cpus '%s': want a list like 0,1 or 0-3", o->cpus);
-        return -EINVAL;
-    }
-    engine_opts eo = {.workers = (int)o->workers, .cpus = ncpus ? cpus : NULL,
-                      .ncpus = ncpus, .shm_bytes = (size_t)o->shm_mib << 20};
-    char err[256] = "";
-    int rc = engine_create(&eo, e, err, sizeof err);
-    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
-    return rc;
-}
-
 static void *heap_alloc(void *ud, size_t bytes)
 {
     void **keep = ud;
@@ -194,7 +179,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
     int rc;
     memset(r, 0, sizeof *r);
     if (o->workers) {
-        if ((rc = make_engine(o, e))) return rc;
+        if ((rc = cli_start_engine(o->workers, o->cpus, o->shm_mib, e))) return rc;
         engine_iso_job job = {.file = f, .p = p};
         rc = engine_iso(*e, &job, m, r);
         if (rc) snprintf(err, sizeof err, "%s", r->error);

@@ -106,3 +106,18 @@ int cli_read_file(const char *path, size_t max, char **out, size_t *len)
     *len = n;
     return 0;
 }
+
+int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engine **e)
+{
+    int cpu[ENGINE_MAX_WORKERS], ncpus = 0;
+    if (cpus && (ncpus = cli_parse_cpus(cpus, cpu, ENGINE_MAX_WORKERS)) <= 0) {
+        cli_error("bad --cpus '%s': want a list like 0,1 or 0-3", cpus);
+        return -EINVAL;
+    }
+    engine_opts eo = {.workers = (int)workers, .cpus = ncpus ? cpu : NULL,
+                      .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20};
+    char err[256] = "";
+    int rc = engine_create(&eo, e, err, sizeof err);
+    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
+    return rc;
+}

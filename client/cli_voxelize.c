@@ -51,21 +51,6 @@ static void on_progress(void *ud, const engine_progress *p)
     progress_update((progress *)ud, p->fraction, p->level, p->voxels);
 }
 
-static int make_engine(const voxelize_opts *o, engine **e)
-{
-    int cpus[ENGINE_MAX_WORKERS], ncpus = 0;
-    if (o->cpus && (ncpus = cli_parse_cpus(o->cpus, cpus, ENGINE_MAX_WORKERS)) <= 0) {
-        cli_error("bad --cpus '%s': want a list like 0,1 or 0-3", o->cpus);
-        return -EINVAL;
-    }
-    engine_opts eo = {.workers = (int)o->workers, .cpus = ncpus ? cpus : NULL,
-                      .ncpus = ncpus, .shm_bytes = (size_t)o->shm_mib << 20};
-    char err[256] = "";
-    int rc = engine_create(&eo, e, err, sizeof err);
-    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
-    return rc;
-}
-
 static void print_summary(const voxelize_opts *o, const pipeline_report *r)
 {
     const grid_spec *g = &r->grid;
@@ -90,7 +75,7 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
                    pipeline_report *r)
 {
     engine *e = NULL;
-    int rc = o->workers ? make_engine(o, &e) : 0;
+    int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
     if (rc) return rc;
     vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
     rc = pipeline_run(e, job, &sink, r);
