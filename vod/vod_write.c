@@ -567,8 +567,7 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
     }
     double t0 = clock_now();
     batch_hash(e, kind, count, rec);
-    double t1 = clock_now();
-    e->t.hash += t1 - t0;
+    e->t.hash += clock_now() - t0;
     for (size_t i = 0; i < count; i++) {
         if (kind[i] == BATCH_SEEN) continue;
         if (kind[i] >= 0) {
@@ -576,12 +575,13 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
             same[i] = tag[kind[i]];
             continue;
         }
+        t0 = clock_now();
         int rc = compress_brick(e, e->raw + i * rb, out[i], cap, &rec[i].size);
+        e->t.compress += clock_now() - t0;
         if (rc) return rc;
         same[i] = tag[i];
         remember(e, key[i], e->raw + i * rb, &n[i], &rec[i], tag[i]);
     }
-    e->t.compress += clock_now() - t1;
     return 0;
 }
 
