@@ -1142,24 +1142,40 @@ static void fx_copies(fixture *f)
             }
 }
 
+/* fx_copies' fixture as surface bricks of the given size (zlib, SFHS):
+ * the file the writer makes of it into *ref when ref is not NULL (before
+ * the aggregates: the writer makes its own), then the layout, the
+ * aggregates, the source and its n non-empty nodes (malloc'ed). */
+static vod_node *copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
+                              vod_stats *st, vod_layout *L, vod_source *src, size_t *n)
+{
+    char err[256];
+    fx_init(f, 8, 128, 128, 256);
+    fx_copies(f);
+    params(p, f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, brick);
+    if (ref) *ref = write_file(f, p, st);
+    cr_assert_eq(vod_layout_make(p, f->t.depth, L, err, sizeof err), 0);
+    f->t.agg = malloc(f->t.used * sizeof *f->t.agg);
+    vod_aggregate(&f->t, p->channel);
+    *src = vod_octree_source(&f->t);
+    *n = vod_collect(src, L, NULL, 0);
+    vod_node *nodes = malloc(*n * sizeof *nodes);
+    vod_collect(src, L, nodes, *n);
+    return nodes;
+}
+
 Test(vod_encoder, duplicates_found_before_compression_change_nothing)
 {
     fixture f;
-    fx_init(&f, 8, 128, 128, 256);
-    fx_copies(&f);
     vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 32);
     vod_stats st;
-    membuf ref = write_file(&f, &p, &st);
+    membuf ref;
     vod_layout L;
+    vod_source src;
+    size_t n;
     char err[256];
-    cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
-    f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
-    vod_aggregate(&f.t, p.channel);
-    vod_source src = vod_octree_source(&f.t);
-    size_t n = vod_collect(&src, &L, NULL, 0), bound = vod_encode_bound(&L, &p);
-    vod_node *nodes = malloc(n * sizeof *nodes);
-    vod_collect(&src, &L, nodes, n);
+    vod_node *nodes = copies_nodes(&f, &p, 32, &ref, &st, &L, &src, &n);
+    size_t bound = vod_encode_bound(&L, &p);
     /* every brick compressed on its own, no duplicate looked for */
     vod_encoded *recs = malloc(n * sizeof *recs);
     uint8_t **data = malloc(n * sizeof *data), *scratch = malloc(L.raw_bytes);
@@ -1218,20 +1234,13 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
 Test(vod_encoder, batches_find_duplicates_inside_and_across)
 {
     fixture f;
-    fx_init(&f, 8, 128, 128, 256);
-    fx_copies(&f);
     vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 16);
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
-    f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
-    vod_aggregate(&f.t, p.channel);
-    vod_source src = vod_octree_source(&f.t);
-    size_t n = vod_collect(&src, &L, NULL, 0), bound = vod_encode_bound(&L, &p);
+    vod_source src;
+    size_t n;
+    vod_node *nodes = copies_nodes(&f, &p, 16, NULL, NULL, &L, &src, &n);
+    size_t bound = vod_encode_bound(&L, &p);
     cr_assert_gt(n, 24);
-    vod_node *nodes = malloc(n * sizeof *nodes);
-    vod_collect(&src, &L, nodes, n);
     enum { DISTINCT = 24, PICKS = 400 };
     vod_encoded ref[DISTINCT];
     uint8_t *data[DISTINCT], *scratch = malloc(L.raw_bytes);
