@@ -613,20 +613,22 @@ int csg_eval_brick(csg_eval *e, const uint32_t b[3], uint8_t *out, int *uniform,
  * counted; densities to occupancy if asked. */
 static void finish(csg_eval *e, const uint32_t b[3], uint8_t *buf, int occupancy)
 {
-    uint32_t s = e->side;
+    uint32_t s = e->side, n[3];
+    for (int a = 0; a < 3; a++) n[a] = e->g.res[a] - b[a] * s < s ? e->g.res[a] - b[a] * s : s;
     uint64_t solid = 0;
     for (uint32_t z = 0; z < s; z++)
-        for (uint32_t y = 0; y < s; y++)
-            for (uint32_t x = 0; x < s; x++) {
-                uint8_t *p = buf + x + (size_t)s * (y + (size_t)s * z);
-                if (b[0] * s + x >= e->g.res[0] || b[1] * s + y >= e->g.res[1] ||
-                    b[2] * s + z >= e->g.res[2]) {
-                    *p = 0;
-                    continue;
-                }
-                solid += *p >= CSG_S;
-                if (occupancy) *p = *p >= CSG_S;
+        for (uint32_t y = 0; y < s; y++) {
+            uint8_t *row = buf + (size_t)s * (y + (size_t)s * z);
+            if (z >= n[2] || y >= n[1]) {
+                memset(row, 0, s);
+                continue;
             }
+            memset(row + n[0], 0, s - n[0]);
+            for (uint32_t x = 0; x < n[0]; x++) {
+                solid += row[x] >= CSG_S;
+                if (occupancy) row[x] = row[x] >= CSG_S;
+            }
+        }
     e->st.solid_voxels += solid;
 }
 
