@@ -21,6 +21,9 @@ struct csg_eval {
     int16_t *force_a[CSG_MAX_NODES], *force_b[CSG_MAX_NODES];
     /* implicit leaves: 1 when expr_vm_ival_grad knows the tape's ops */
     uint8_t igrad[CSG_MAX_NODES];
+    /* primitive and implicit leaves' values over the whole brick that
+     * eval_in_cubes is evaluating (-1: not uniform there, or no brick) */
+    int16_t known[CSG_MAX_NODES];
     csg_stats st;
     int has_morph;      /* erode or dilate in the tree: bricks are evaluated whole */
     /* operands' scratch, taken and given back last in first out (scratch_take) */
@@ -65,6 +68,7 @@ int csg_eval_new(const csg_tree *t, const grid_spec *g, uint32_t side,
     if (!e) return -ENOMEM;
     e->t = t, e->g = *g, e->side = side;
     e->arena_cap = CSG_ARENA;
+    for (uint32_t i = 0; i < CSG_MAX_NODES; i++) e->known[i] = -1;
     int rc = (e->arena = malloc(e->arena_cap)) ? 0 : -ENOMEM;
     for (uint32_t i = 0; i < t->n && !rc; i++) {
         const csg_node *n = &t->node[i];
@@ -333,28 +337,32 @@ static void sample_leaf(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
 /* A primitive or implicit leaf over the box in cubes of CSG_SUB voxels: a
  * cube its bounds show all L or all H is filled without sampling (the same
  * values the samples would give: the bounds are the brick-level ones), the
- * others sampled.  Boxes whose side is not a multiple of CSG_SUB are
- * sampled whole. */
+ * others likewise in cubes of 2 (a primitive's bounds cost less than 8
+ * samples; an implicit leaf's intervals about as much) or sampled.  Boxes
+ * of other sides are sampled whole. */
 #define CSG_SUB 4u
 static void sample_in_cubes(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
 {
-    if (b->n % CSG_SUB || b->n == CSG_SUB) {
+    uint32_t c = b->n % CSG_SUB == 0 && b->n > CSG_SUB ? CSG_SUB
+                 : e->t->node[i].kind != CSG_IMPLICIT && b->n == CSG_SUB ? CSG_SUB / 2
+                                                                        : 0;
+    if (!c) {
         sample_leaf(e, i, b, buf);
         return;
     }
     uint8_t sub[CSG_SUB * CSG_SUB * CSG_SUB];
-    for (uint32_t z0 = 0; z0 < b->n; z0 += CSG_SUB)
-        for (uint32_t y0 = 0; y0 < b->n; y0 += CSG_SUB)
-            for (uint32_t x0 = 0; x0 < b->n; x0 += CSG_SUB) {
+    for (uint32_t z0 = 0; z0 < b->n; z0 += c)
+        for (uint32_t y0 = 0; y0 < b->n; y0 += c)
+            for (uint32_t x0 = 0; x0 < b->n; x0 += c) {
                 box sb = {{b->lo[0] + (int32_t)x0, b->lo[1] + (int32_t)y0,
-                           b->lo[2] + (int32_t)z0}, CSG_SUB};
+                           b->lo[2] + (int32_t)z0}, c};
                 int v = leaf_bound(e, i, &sb);
-                if (v < 0) sample_leaf(e, i, &sb, sub);
-                for (uint32_t z = 0; z < CSG_SUB; z++)
-                    for (uint32_t y = 0; y < CSG_SUB; y++) {
+                if (v < 0) sample_in_cubes(e, i, &sb, sub);
+                for (uint32_t z = 0; z < c; z++)
+                    for (uint32_t y = 0; y < c; y++) {
                         uint8_t *row = buf + x0 + (size_t)b->n * (y0 + y + (size_t)b->n * (z0 + z));
-                        if (v >= 0) memset(row, v, CSG_SUB);
-                        else memcpy(row, sub + CSG_SUB * (y + CSG_SUB * z), CSG_SUB);
+                        if (v >= 0) memset(row, v, c);
+                        else memcpy(row, sub + c * (y + c * z), c);
                     }
             }
 }
@@ -508,6 +516,7 @@ static int eval(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
     switch (n->kind) {
     case CSG_CUBOID: case CSG_ELLIPSOID: case CSG_CYLINDER: case CSG_CONE:
     case CSG_IMPLICIT:
+        if (e->known[i] >= 0) return *v = (uint8_t)e->known[i], 1;
         if ((rc = leaf_bound(e, i, b)) >= 0) return *v = (uint8_t)rc, 1;
         sample_in_cubes(e, i, b, buf);
         rc = 0;
@@ -570,16 +579,24 @@ static int probe(csg_eval *e, uint32_t i, const box *b)
  * own uniform shortcuts (a leaf or an operand uniform over a cube is not
  * sampled there): the voxels eval gives the whole brick, computed where
  * the surfaces are.  1 and *v when the brick came out uniform. */
+static void forget_known(csg_eval *e)
+{
+    for (uint32_t i = 0; i < e->t->n; i++) e->known[i] = -1;
+}
+
 static int eval_in_cubes(csg_eval *e, const box *bx, uint8_t *out, uint8_t *v)
 {
     uint8_t sub[CSG_SUB * CSG_SUB * CSG_SUB], sv;
+    /* a leaf uniform over the brick is so over each cube: decided once */
+    for (uint32_t i = 0; i < e->t->n; i++)
+        if (e->t->node[i].kind <= CSG_IMPLICIT) e->known[i] = (int16_t)leaf_bound(e, i, bx);
     for (uint32_t z0 = 0; z0 < bx->n; z0 += CSG_SUB)
         for (uint32_t y0 = 0; y0 < bx->n; y0 += CSG_SUB)
             for (uint32_t x0 = 0; x0 < bx->n; x0 += CSG_SUB) {
                 box sb = {{bx->lo[0] + (int32_t)x0, bx->lo[1] + (int32_t)y0,
                            bx->lo[2] + (int32_t)z0}, CSG_SUB};
                 int rc = eval(e, e->t->n - 1, &sb, sub, &sv);
-                if (rc < 0) return rc;
+                if (rc < 0) return forget_known(e), rc;
                 for (uint32_t z = 0; z < CSG_SUB; z++)
                     for (uint32_t y = 0; y < CSG_SUB; y++) {
                         uint8_t *row = out + x0 + (size_t)bx->n * (y0 + y + (size_t)bx->n * (z0 + z));
@@ -587,6 +604,7 @@ static int eval_in_cubes(csg_eval *e, const box *bx, uint8_t *out, uint8_t *v)
                         else memcpy(row, sub + CSG_SUB * (y + CSG_SUB * z), CSG_SUB);
                     }
             }
+    forget_known(e);
     return all_same(out, (size_t)bx->n * bx->n * bx->n, v);
 }
 
