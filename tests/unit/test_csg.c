@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "csg.h"
+#include "csg_fixture.h"
 
 /* ICVG section 3.3 and its appendix, L = 0, S = 127, H = 255. */
 static int ref_op(csg_kind op, int a, int b, double p)
@@ -64,24 +65,6 @@ Test(csg, unary_operators)
         cr_assert_eq(csg_apply(CSG_DIFFERENCE, (uint8_t)a, 0, 0), a);
         cr_assert_eq(csg_apply(CSG_INTERSECTION, (uint8_t)a, 255, 0), a);
     }
-}
-
-static csg_tree *parse(const char *src)
-{
-    csg_tree *t;
-    csg_error err;
-    int rc = csg_parse(src, strlen(src), &t, &err);
-    cr_assert_eq(rc, 0, "%d:%d %s: %s", err.line, err.col, err.node, err.msg);
-    return t;
-}
-
-static grid_spec grid(uint32_t res)
-{
-    double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
-    grid_spec g;
-    char err[100];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0);
-    return g;
 }
 
 /* The slow dense evaluator: node i at voxel (X, Y, Z), recursively. */

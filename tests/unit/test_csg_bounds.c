@@ -10,26 +10,9 @@
 #include <string.h>
 
 #include "csg.h"
+#include "csg_fixture.h"
 
 #define RES 48
-
-static grid_spec grid(uint32_t res)
-{
-    double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
-    grid_spec g;
-    char err[100];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0);
-    return g;
-}
-
-static csg_tree *parse(const char *src)
-{
-    csg_tree *t;
-    csg_error err;
-    int rc = csg_parse(src, strlen(src), &t, &err);
-    cr_assert_eq(rc, 0, "%s: %d:%d %s: %s", src, err.line, err.col, err.node, err.msg);
-    return t;
-}
 
 /* ---- the reference: every voxel from the definitions (docs/csg.md) ---- */
 
