@@ -415,26 +415,44 @@ static void scratch_give(csg_eval *e, uint8_t *p, size_t n)
     else free(p);
 }
 
+/* o[x] := max (dilate) or min of o[x] and t[x] for x < n, eight bytes at
+ * a time: a byte of o is at least t's where their high bits say so, or,
+ * when those are equal, where (o | 0x80) - (t & 0x7f) keeps its high bit
+ * (no borrow crosses a byte). */
+static void fold_row(uint8_t *o, const uint8_t *t, uint32_t n, int dilate)
+{
+    const uint64_t hi = 0x8080808080808080ull;
+    uint32_t x = 0;
+    for (; x + 8 <= n; x += 8) {
+        uint64_t a, b;
+        memcpy(&a, o + x, 8);
+        memcpy(&b, t + x, 8);
+        uint64_t low_ge = (a | hi) - (b & ~hi);
+        uint64_t ge = ((a & ~b) | (~(a ^ b) & low_ge)) & hi;
+        uint64_t m = (ge >> 7) * 0xff; /* 0xff where a >= b */
+        uint64_t r = dilate ? (a & m) | (b & ~m) : (b & m) | (a & ~m);
+        memcpy(o + x, &r, 8);
+    }
+    for (; x < n; x++) o[x] = dilate ? (t[x] > o[x] ? t[x] : o[x]) : (t[x] < o[x] ? t[x] : o[x]);
+}
+
 /* One axis of a separable min (erode) or max (dilate) filter of half-width
- * k: src has dims sd (x fastest), dst the same with axis a shrunk by 2k. */
+ * k: src has dims sd (x fastest), dst the same with axis a shrunk by 2k.
+ * Row by row: each output row is the first of its 2k+1 source rows, then
+ * folded with the others (loops over x without a branch). */
 static void filter_axis(const uint8_t *src, const uint32_t sd[3], int a, uint32_t k,
                         int dilate, uint8_t *dst)
 {
     uint32_t dd[3] = {sd[0], sd[1], sd[2]};
     dd[a] -= 2 * k;
     size_t stride = a == 0 ? 1 : a == 1 ? sd[0] : (size_t)sd[0] * sd[1];
-    size_t o = 0;
     for (uint32_t z = 0; z < dd[2]; z++)
-        for (uint32_t y = 0; y < dd[1]; y++)
-            for (uint32_t x = 0; x < dd[0]; x++) {
-                const uint8_t *s = src + x + (size_t)sd[0] * (y + (size_t)sd[1] * z);
-                uint8_t m = s[0];
-                for (uint32_t j = 1; j <= 2 * k; j++) {
-                    uint8_t w = s[j * stride];
-                    if (dilate ? w > m : w < m) m = w;
-                }
-                dst[o++] = m;
-            }
+        for (uint32_t y = 0; y < dd[1]; y++) {
+            const uint8_t *s = src + (size_t)sd[0] * (y + (size_t)sd[1] * z);
+            uint8_t *o = dst + (size_t)dd[0] * (y + (size_t)dd[1] * z);
+            memcpy(o, s, dd[0]);
+            for (uint32_t j = 1; j <= 2 * k; j++) fold_row(o, s + j * stride, dd[0], dilate);
+        }
 }
 
 static int morph(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
