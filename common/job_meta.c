@@ -17,9 +17,9 @@ void job_meta_format(char *buf, size_t cap, const job_meta *m)
     else
         snprintf(line, sizeof line, "submitted:%zu bytes", m->source_len);
     int n = snprintf(buf, cap,
-                     "generator=vox voxelize\nsource=%s\nresolution=%u\n"
+                     "generator=%s\nsource=%s\nresolution=%u\n"
                      "grid=%ux%ux%u\ndomain=%g,%g,%g,%g,%g,%g\n",
-                     line, m->res, m->grid[0], m->grid[1], m->grid[2], m->lo[0],
+                     m->generator ? m->generator : "vox voxelize", line, m->res, m->grid[0], m->grid[1], m->grid[2], m->lo[0],
                      m->hi[0], m->lo[1], m->hi[1], m->lo[2], m->hi[2]);
     if (m->kind_pairs && n > 0 && (size_t)n < cap)
         snprintf(buf + n, cap - (size_t)n, "%s", m->kind_pairs);

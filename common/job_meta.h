@@ -4,7 +4,7 @@
  * the same job gives the same bytes with any engine set-up, embedded in vox
  * or through voxd:
  *
- *   generator=vox voxelize
+ *   generator=vox voxelize        (vox csg for a CSG tree)
  *   source=<the expression> | file:<name> | submitted:<N> bytes
  *   resolution=<res>
  *   grid=<X>x<Y>x<Z>
@@ -38,6 +38,7 @@ typedef struct {
     uint32_t grid[3];           /* voxels per axis */
     double lo[3], hi[3];        /* the domain */
     const char *kind_pairs;     /* NULL for an expression; else "k=v\n" lines */
+    const char *generator;      /* the command that makes such a job; NULL: "vox voxelize" */
 } job_meta;
 
 /* The pairs above into buf (cap >= JOB_META_MAX), NUL-terminated. */

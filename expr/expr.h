@@ -164,6 +164,15 @@ int expr_vm_prune8_writes(const expr_vm *vm, int d, int lane);
 /* Whether tapes d1 and d2 are the same code (shared, not just equal). */
 int expr_vm_same_tape(const expr_vm *vm, int d1, int d2);
 
+/* Intervals of F and of its gradient on the box (x, y, z), with the full
+ * tape: *f and grad[j] enclose what expr_vm_grad gives at every point of
+ * the box where that is not NaN.  *total = 1 when moreover F and its
+ * gradient are defined (not NaN) and finite at every point of the box.
+ * 0, or -ENOTSUP when the tape has an op this evaluator does not know
+ * (tan, asin, acos, atan, log, atan2, pow, blend, theta, phi, x^n with
+ * n < 1): the caller then decides nothing from it. */
+int expr_vm_ival_grad(expr_vm *vm, ival x, ival y, ival z, ival *f, ival grad[3], int *total);
+
 /* Build the tape of depth d+1 from the choices of the last expr_vm_ival at
  * depth d.  Call it right after that evaluation.  Cheap when nothing prunes
  * (tape d+1 then shares tape d).  Tapes deeper than d+1 are stale until

@@ -88,6 +88,7 @@ static void preload(expr_vm *vm)
         vm->ir[r] = ival_make(c[j].lo, c[j].hi);
         vm->pr[r] = c[j].v;
         vm->gr[r] = (expr_grad_reg){c[j].v, {0, 0, 0}};
+        vm->igr[r] = (expr_igrad_reg){vm->ir[r], {{0, 0}, {0, 0}, {0, 0}}};
         for (int l = 0; l < EXPR_LANES; l++) {
             vm->ir8[r].lo[l] = c[j].lo;
             vm->ir8[r].hi[l] = c[j].hi;
@@ -120,11 +121,12 @@ static int vm_alloc(expr_vm *vm)
     vm->gr = calloc(vm->nregs, sizeof *vm->gr);
     vm->ir8 = calloc_aligned(vm->nregs, sizeof *vm->ir8);
     vm->gr8 = calloc_aligned(vm->nregs, sizeof *vm->gr8);
+    vm->igr = calloc(vm->nregs, sizeof *vm->igr);
     vm->ssa = calloc(n, sizeof *vm->ssa);
     vm->cur = calloc(vm->nregs, sizeof *vm->cur);
     vm->ra.regof = calloc(n, sizeof *vm->ra.regof);
     vm->ra.freelist = calloc(vm->nregs, sizeof *vm->ra.freelist);
-    if (!vm->ir || !vm->pr || !vm->gr || !vm->ir8 || !vm->gr8 || !vm->ssa || !vm->cur || !vm->ra.regof ||
+    if (!vm->ir || !vm->pr || !vm->gr || !vm->ir8 || !vm->gr8 || !vm->igr || !vm->ssa || !vm->cur || !vm->ra.regof ||
         !vm->ra.freelist)
         return -ENOMEM;
     for (int d = 0; d <= vm->max_depth; d++) {
@@ -147,6 +149,7 @@ void expr_vm_free(expr_vm *vm)
     free(vm->gr);
     free(vm->ir8);
     free(vm->gr8);
+    free(vm->igr);
     free(vm->ssa);
     free(vm->cur);
     free(vm->ra.regof);

@@ -229,6 +229,11 @@ typedef struct {
     double v, d[3];
 } expr_grad_reg;
 
+/* A register of the interval gradient (expr_igrad.c). */
+typedef struct {
+    ival v, d[3];
+} expr_igrad_reg;
+
 typedef struct {
     const expr_insn *code;
     uint32_t len, result;
@@ -249,6 +254,7 @@ struct expr_vm {
     expr_grad_reg *gr;
     ival8 *ir8;       /* the batched evaluators' registers (64-byte aligned) */
     expr_grad8 *gr8;
+    expr_igrad_reg *igr; /* expr_vm_ival_grad's registers */
     expr_ssa *ssa;
     uint32_t *cur;
     expr_ra_scratch ra;

@@ -57,6 +57,7 @@ static void vod_setup(vod_params *v, const pipeline_job *job, const double lo[3]
         m.kind_pairs = pairs;
     } else if (job->kind == PIPELINE_CSG) {
         snprintf(pairs, sizeof pairs, "csg_nodes=%u\n", job->csg.tree->n);
+        m.generator = "vox csg";
         m.source = "";
         m.source_len = job->csg.source_bytes;
         m.source_name = job->csg.source_name;

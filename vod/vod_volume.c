@@ -871,6 +871,8 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
             uint32_t n = a1[0] - a0[0];
             if (L->voxel_bits == 1 && v->bits == 8)
                 copy_row_bits8(raw, r, d ? d + s : NULL, u, n);
+            else if (L->voxel_bits == 8 && v->bits == 8) /* a row at a time */
+                d ? memcpy(raw + r, d + s, n) : memset(raw + r, (int)u, n);
             else
                 for (uint32_t x = 0; x < n; x++)
                     raw_put(raw, L->voxel_bits, r + x, d ? vox_get(v, d, s + x) : u);

@@ -19,6 +19,7 @@ check "it is the density channel" bash -c "'$VOX' info '$TMP/a.vod' | grep -q 'c
 check "from stdin" bash -c "'$VOX' csg - -o '$TMP/b.vod' --res 64 -q <'$TMP/part.csg'"
 # the metadata differ (source=file:... and source=submitted:N bytes), the voxels not
 check "the same voxels" bash -c "diff <('$VOX' info '$TMP/a.vod' | grep 'content checksum') <('$VOX' info '$TMP/b.vod' | grep 'content checksum')"
+check "made by vox csg, as its metadata says" bash -c "'$VOX' info '$TMP/a.vod' | grep -q 'generator=vox csg'"
 check "recorded by its size" bash -c "'$VOX' info '$TMP/b.vod' | grep -q 'source=submitted:[0-9]* bytes'"
 check "occupancy" bash -c "'$VOX' csg '$TMP/part.csg' -o '$TMP/o.vod' --res 64 -q --channel occupancy && '$VOX' info '$TMP/o.vod' | grep -q 'channel     1'"
 for w in 0 1 2; do

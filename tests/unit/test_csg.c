@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "csg.h"
+#include "csg_fixture.h"
 
 /* ICVG section 3.3 and its appendix, L = 0, S = 127, H = 255. */
 static int ref_op(csg_kind op, int a, int b, double p)
@@ -64,24 +65,6 @@ Test(csg, unary_operators)
         cr_assert_eq(csg_apply(CSG_DIFFERENCE, (uint8_t)a, 0, 0), a);
         cr_assert_eq(csg_apply(CSG_INTERSECTION, (uint8_t)a, 255, 0), a);
     }
-}
-
-static csg_tree *parse(const char *src)
-{
-    csg_tree *t;
-    csg_error err;
-    int rc = csg_parse(src, strlen(src), &t, &err);
-    cr_assert_eq(rc, 0, "%d:%d %s: %s", err.line, err.col, err.node, err.msg);
-    return t;
-}
-
-static grid_spec grid(uint32_t res)
-{
-    double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
-    grid_spec g;
-    char err[100];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0);
-    return g;
 }
 
 /* The slow dense evaluator: node i at voxel (X, Y, Z), recursively. */
@@ -147,6 +130,40 @@ Test(csg, bricks_equal_dense_evaluation)
     cr_assert_gt(csg_eval_stats(e)->uniform_bricks, 0);
     cr_assert_gt(csg_eval_stats(e)->skipped, 0);
     csg_eval_free(e);
+    csg_tree_free(t);
+}
+
+/* Wider erode and dilate (rows of the filter longer than eight bytes),
+ * on bricks of 16 and of an odd side. */
+Test(csg, wide_erode_and_dilate_equal_dense_evaluation, .timeout = 60)
+{
+    csg_tree *t = parse("a = ellipsoid center 0.1,0,0 radii 0.5,0.4,0.3 rotate 0,30,0\n"
+                        "b = cuboid size 1.0,0.7,0.9 rotate 20,0,0\n"
+                        "c = union(dilate(a, 4), erode(b, 3))\nresult c\n");
+    grid_spec g = grid(24);
+    static const uint32_t sides[] = {16, 7};
+    for (int s = 0; s < 2; s++) {
+        uint32_t side = sides[s], nb = (24 + side - 1) / side;
+        csg_eval *e;
+        cr_assert_eq(csg_eval_new(t, &g, side, NULL, &e), 0);
+        uint8_t buf[4096];
+        uint64_t differ = 0;
+        for (uint32_t k = 0; k < nb * nb * nb; k++) {
+            uint32_t b[3] = {k % nb, k / nb % nb, k / (nb * nb)};
+            int uni;
+            uint8_t v;
+            cr_assert_eq(csg_eval_brick(e, b, buf, &uni, &v), 0);
+            for (uint32_t j = 0; j < side * side * side; j++) {
+                int X = (int)(b[0] * side + j % side), Y = (int)(b[1] * side + j / side % side),
+                    Z = (int)(b[2] * side + j / (side * side));
+                if (X < 24 && Y < 24 && Z < 24)
+                    differ += (uni ? v : buf[j]) != dense(t, &g, (int)t->n - 1, X, Y, Z);
+            }
+        }
+        cr_assert_eq(differ, 0, "bricks of %u: %llu voxels differ", side,
+                     (unsigned long long)differ);
+        csg_eval_free(e);
+    }
     csg_tree_free(t);
 }
 

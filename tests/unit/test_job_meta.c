@@ -72,3 +72,15 @@ Test(job_meta, a_long_name_is_cut_and_the_pairs_stay_whole)
     job_meta_format(buf, sizeof buf, &m);
     cr_assert_not_null(strstr(buf, "\ndomain=-1,1,0,1,0.5,1\n"), "the last pair survives");
 }
+
+Test(job_meta, a_csg_tree_names_its_own_command)
+{
+    char buf[JOB_META_MAX];
+    job_meta m = sphere("", "part.csg");
+    m.source_len = 300;
+    m.kind_pairs = "csg_nodes=6\n";
+    m.generator = "vox csg";
+    job_meta_format(buf, sizeof buf, &m);
+    cr_assert_str_eq(buf, "generator=vox csg\nsource=file:part.csg\nresolution=100\n"
+                          "grid=100x50x25\ndomain=-1,1,0,1,0.5,1\ncsg_nodes=6\n");
+}
