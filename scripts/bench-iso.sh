@@ -106,12 +106,12 @@ echo "### Table 6: sequential and parallel polygonization, level 0 (load $(load)
 echo
 echo "| volume | workers | mean (s) | sd (s) | speed-up | CPU, all processes (s) | whole command (s) | triangles |"
 echo "|---|---|---|---|---|---|---|---|"
-declare -A t1 tw triw
+declare -A t1 tw triw cpuw
 for s in $sets; do
     for w in 0 $(seq 1 "$maxw"); do
         read -r m sd whole tri cpu < <(stats "$tmp/$s.vod" -w "$w")
         [ "$w" = 1 ] && t1[$s]=$m
-        tw[$s,$w]=$m triw[$s,$w]=$tri
+        tw[$s,$w]=$m triw[$s,$w]=$tri cpuw[$s,$w]=$cpu
         sp=$( [ "$w" -ge 1 ] && div "${t1[$s]}" "$m" || echo "-")
         echo "| $s | $( [ "$w" = 0 ] && echo "0 (in-process)" || echo "$w") | $m | $sd | $sp | $( [ "$w" = 0 ] && echo "-" || echo "$cpu") | $whole | $tri |"
         [ "$s" = scene1 ] && [ "$w" = "$maxw" ] && t2=$m
@@ -214,10 +214,11 @@ echo "VTK $("$py" -c 'from vtkmodules.vtkCommonCore import vtkVersion as v; prin
 " through $py; the same level-0 samples (the Python reader's, padded by one empty layer as"\
 " vox mesh pads them), contour value iso + 0.5 = 127.5 (vox mesh's vertex rule), normals,"\
 " gradients and scalars off; VTK's Update() alone against vox mesh's polygonization"\
-" (Table 6) with as many workers; $repeats runs per cell."
+" (Table 6) with as many workers, in wall seconds and in CPU seconds of all threads and"\
+" processes (which a shared machine's load disturbs less); $repeats runs per cell."
 echo
-echo "| volume | threads | vox mesh (s) | VTK Update() (s) | VTK sd (s) | vox mesh / VTK | vox mesh triangles | VTK triangles | VTK vertices | VTK's SMP backend |"
-echo "|---|---|---|---|---|---|---|---|---|---|"
+echo "| volume | threads | vox mesh (s) | VTK Update() (s) | VTK sd (s) | vox mesh / VTK | vox mesh CPU (s) | VTK CPU (s) | vox mesh triangles | VTK triangles | VTK vertices | VTK's SMP backend |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 for s in $sets; do
     # shellcheck disable=SC2086 # threads: one or two numbers
     PYTHONPATH="$root/python" "$py" "$root/scripts/bench-iso-vtk.py" "$tmp/$s.vod" 127 "$repeats" $threads \
@@ -229,7 +230,7 @@ for s in $sets; do
         [ -n "${kv[threads]:-}" ] || continue
         w=${kv[threads]}
         echo "| $s | $w | ${tw[$s,$w]} | ${kv[mean]} | ${kv[sd]} | $(div "${tw[$s,$w]}" "${kv[mean]}") |"\
-             "${triw[$s,$w]} | ${kv[triangles]} | ${kv[vertices]} | ${kv[backend]} |"
+             "${cpuw[$s,$w]} | ${kv[cpu]} | ${triw[$s,$w]} | ${kv[triangles]} | ${kv[vertices]} | ${kv[backend]} |"
     done <"$tmp/vtk.out"
 done
 echo

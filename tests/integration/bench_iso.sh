@@ -46,8 +46,8 @@ if grep -q '^VTK comparison skipped: not installed, and a quick run installs not
     pass "VTK table: skipped in a quick run without VTK, saying why"
 else
     rows=$(awk -F'|' '/^\| (scene1|solid) / { n++
-        for (i = 3; i <= 10; i++) { c = $i; gsub(/ /, "", c); if (c !~ /^[0-9.]+$/) bad++ }
-        t1 = $8 + 0; t2 = $9 + 0
+        for (i = 3; i <= 12; i++) { c = $i; gsub(/ /, "", c); if (c !~ /^[0-9.]+$/) bad++ }
+        t1 = $10 + 0; t2 = $11 + 0
         if (t1 <= 0 || (t2 - t1) ^ 2 > (0.02 * t1) ^ 2) bad++ }
         END { print n + 0, bad + 0 }' <<<"$vtk")
     if [ "$rows" = "4 0" ]; then pass "VTK table: four rows of numbers, triangles within 2% of vox mesh's"

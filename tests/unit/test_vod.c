@@ -1542,7 +1542,7 @@ Test(vod_corrupt, each_section8_case_has_its_message)
 /* ------------------------------------------- reading with several threads */
 
 /* A file of 1 MiB bricks (64^3, 32 bits): two to a chunk of the reader's
- * (2 MiB of raw bricks), so that threads share its 21 bricks. */
+ * (2 MiB of raw bricks), so that threads share its bricks (a dozen or more). */
 static membuf chunked_file(void)
 {
     fixture f;
