@@ -101,6 +101,9 @@ int cli_parse_cpus(const char *s, int *cpus, int cap);
 int cli_parse_uint(const char *s, uint32_t min, uint32_t max, uint32_t *out);
 /* Read a whole file (at most max bytes) into a NUL-terminated buffer. */
 int cli_read_file(const char *path, size_t max, char **out, size_t *len);
+/* The CPUs online, at least 1: the threads a command opens a VOD file with
+ * (vod_open_threads) when it has no worker count of its own. */
+uint32_t cli_cores(void);
 /* The embedded engine with workers workers, on the CPUs of the list cpus
  * (NULL: the engine's own placement) and a segment of shm_mib MiB (0: the
  * engine's default); errors said on stderr.  0 or a negative errno. */

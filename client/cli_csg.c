@@ -64,10 +64,9 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
     static const struct option longs[] = {
         {"output", 1, 0, 'o'}, {"res", 1, 0, 'r'}, {"channel", 1, 0, 'c'},
         {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"compress", 1, 0, 'Z'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    long cores = sysconf(_SC_NPROCESSORS_ONLN);
     *o = (csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
                     .comp = VOD_COMP_ZLIB,
-                    .workers = cores > 0 ? (uint32_t)cores : 1};
+                    .workers = cli_cores()};
     int c;
     optind = 1;
     while ((c = getopt_long(argc, argv, "o:r:c:d:w:Z:qh", longs, NULL)) != -1) {

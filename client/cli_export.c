@@ -447,7 +447,7 @@ int cli_export(int argc, char **argv)
     }
     vod_file *f;
     char err[512] = "";
-    if (vod_open(o.in, &f, err, sizeof err)) {
+    if (vod_open_threads(o.in, (int)cli_cores(), &f, err, sizeof err)) {
         cli_error("%s: %s", o.in, err);
         return CLI_EXIT_FAILED;
     }

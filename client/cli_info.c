@@ -103,7 +103,7 @@ int cli_info(int argc, char **argv)
     for (int i = 1; i < argc; i++) {
         vod_file *f;
         char err[512] = "";
-        if (vod_open(argv[i], &f, err, sizeof err)) {
+        if (vod_open_threads(argv[i], (int)cli_cores(), &f, err, sizeof err)) {
             cli_error("%s: %s", argv[i], err);
             bad = 1;
             continue;

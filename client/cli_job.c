@@ -99,10 +99,9 @@ void cli_job_usage(int cmd, FILE *f)
 
 void cli_job_defaults(cli_job_opts *o)
 {
-    long cores = sysconf(_SC_NPROCESSORS_ONLN);
     memset(o, 0, sizeof *o);
     o->res = 256;
-    o->workers = cores > 0 ? (uint32_t)cores : 1;
+    o->workers = cli_cores();
     o->shm_mib = 2048;
     o->schedule = ENGINE_SCHED_SUBTREE;
     o->mode = CLI_MODE_AUTO;

@@ -136,8 +136,7 @@ static int check_opts(mesh_opts *o)
 /* 0, CLI_EXIT_USAGE, or -1 for --help (printed). */
 static int parse_opts(int argc, char **argv, mesh_opts *o)
 {
-    long cores = sysconf(_SC_NPROCESSORS_ONLN);
-    *o = (mesh_opts){.iso = 127, .workers = cores > 0 ? (uint32_t)cores : 1,
+    *o = (mesh_opts){.iso = 127, .workers = cli_cores(),
                      .shm_mib = 2048};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
@@ -237,7 +236,8 @@ static int run(const mesh_opts *o)
     char err[512] = "";
     vod_file *f;
     double tr = clock_now();
-    if (vod_open(o->in, &f, err, sizeof err)) {
+    /* the bricks inflated and hashed by as many threads as the job's workers */
+    if (vod_open_threads(o->in, o->workers ? (int)o->workers : 1, &f, err, sizeof err)) {
         cli_error("%s: %s", o->in, err);
         return CLI_EXIT_FAILED;
     }

@@ -109,7 +109,7 @@ static int render_vod_file(const char *path, const render_opts *o, int level,
 {
     vod_file *f;
     char err[512] = "";
-    if (vod_open(path, &f, err, sizeof err)) {
+    if (vod_open_threads(path, (int)cli_cores(), &f, err, sizeof err)) {
         cli_error("%s: %s", path, err);
         return 1;
     }

@@ -19,7 +19,15 @@
 #           (the thesis's Figure 29: level 0 near the corner), radii a
 #           quarter and a half of its side; and centred on Scene 1's middle
 #           sphere, radii 0.3 and 0.6;
-#  Table 9: their speed-up over level 0 (all workers).
+#  Table 9: their speed-up over level 0 (all workers);
+#  VTK:     VTK's vtkFlyingEdges3D (its fastest marching cubes) on the same
+#           level-0 samples at the same iso value (scripts/bench-iso-vtk.py),
+#           its Update() timed with 1 and BENCH_WORKERS threads beside vox
+#           mesh's polygonization with as many workers, the triangles of
+#           both and the ratio of the times.  VTK comes from Debian's
+#           python3-vtk9, installed here with apt-get when missing (not a
+#           build or test dependency); without it the table is one line
+#           saying why it is skipped.
 #
 # "polygonization" is the job itself: copying the level's bricks into shared
 # memory, the marching cubes and the weld (vox mesh's summary, second line);
@@ -27,7 +35,9 @@
 # writing the PLY) is given beside it.  The machine may be shared: the load
 # average before each table is printed with it.
 #
-#   BENCH_QUICK=1   a quick run for tests: 64^3, one repeat, levels 0..1
+#   BENCH_QUICK=1   a quick run for tests: 64^3, one repeat, levels 0..1;
+#                   VTK only if it is installed already
+#   BENCH_VTK=0     no VTK comparison (a machine where it cannot run)
 #   BENCH_REPEATS   runs per cell (default 5; quick 1)
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -56,7 +66,7 @@ run() {
     "$vox" mesh "$vod" -o "$tmp/out.ply" "$@" >"$tmp/sum" 2>&1 || {
         echo "bench-iso: vox mesh $vod $* failed: $(cat "$tmp/sum")" >&2; return 1; }
     t1=$(date +%s.%N)
-    awk -v whole="$(echo "$t1 - $t0" | bc)" '
+    awk -v whole="$(awk -v a="$t1" -v b="$t0" 'BEGIN { print a - b }')" '
         NR == 1 { tri = $2 }
         /bricks and tasks/ { for (i = 1; i <= NF; i++) if ($i ~ /^[0-9.]+$/) s[++n] = $i }
         /CPU: master/ { cpu = $3 + $6 }
@@ -96,11 +106,12 @@ echo "### Table 6: sequential and parallel polygonization, level 0 (load $(load)
 echo
 echo "| volume | workers | mean (s) | sd (s) | speed-up | CPU, all processes (s) | whole command (s) | triangles |"
 echo "|---|---|---|---|---|---|---|---|"
-declare -A t1
+declare -A t1 tw triw cpuw
 for s in $sets; do
     for w in 0 $(seq 1 "$maxw"); do
         read -r m sd whole tri cpu < <(stats "$tmp/$s.vod" -w "$w")
         [ "$w" = 1 ] && t1[$s]=$m
+        tw[$s,$w]=$m triw[$s,$w]=$tri cpuw[$s,$w]=$cpu
         sp=$( [ "$w" -ge 1 ] && div "${t1[$s]}" "$m" || echo "-")
         echo "| $s | $( [ "$w" = 0 ] && echo "0 (in-process)" || echo "$w") | $m | $sd | $sp | $( [ "$w" = 0 ] && echo "-" || echo "$cpu") | $whole | $tri |"
         [ "$s" = scene1 ] && [ "$w" = "$maxw" ] && t2=$m
@@ -163,3 +174,66 @@ done
 echo
 echo "(The adaptive mesh keeps each level's region closed with caps, which count in its"\
 " triangles: docs/mesh-extraction.md.)"
+
+echo
+
+# ---------------------------------------------------------------- VTK
+# vtk_python: prints a python3 that imports VTK and numpy, installing
+# python3-vtk9 when it is missing and apt-get can (not in quick mode); else
+# prints nothing and says why in $tmp/vtk-why.
+vtk_python() {
+    local py sudo=""
+    has_vtk() { command -v "$1" >/dev/null && "$1" -c 'import numpy, vtkmodules.vtkFiltersCore' 2>/dev/null; }
+    if [ "${BENCH_VTK:-1}" = 0 ]; then echo "BENCH_VTK=0" >"$tmp/vtk-why"; return; fi
+    for py in python3 /usr/bin/python3; do has_vtk "$py" && { echo "$py"; return; }; done
+    if [ "$quick" = 1 ]; then echo "not installed, and a quick run installs nothing" >"$tmp/vtk-why"; return; fi
+    command -v apt-get >/dev/null || { echo "python3-vtk9 is missing and there is no apt-get" >"$tmp/vtk-why"; return; }
+    if [ "$(id -u)" != 0 ]; then
+        sudo -n true 2>/dev/null || { echo "python3-vtk9 is missing; installing it needs root (or sudo without a password)" >"$tmp/vtk-why"; return; }
+        sudo="sudo -n"
+    fi
+    echo "bench-iso: installing python3-vtk9 (apt-get) for the VTK comparison" >&2
+    if ! DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y --no-install-recommends python3-vtk9 >"$tmp/apt.log" 2>&1; then
+        $sudo apt-get update >>"$tmp/apt.log" 2>&1 || true
+        DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y --no-install-recommends python3-vtk9 >>"$tmp/apt.log" 2>&1 ||
+            { echo "apt-get install python3-vtk9 failed: $(tail -1 "$tmp/apt.log")" >"$tmp/vtk-why"; return; }
+    fi
+    has_vtk /usr/bin/python3 && { echo /usr/bin/python3; return; }
+    echo "python3-vtk9 installed, but /usr/bin/python3 cannot import vtkmodules and numpy" >"$tmp/vtk-why"
+}
+
+echo "### VTK's vtkFlyingEdges3D beside vox mesh, level 0 (load $(load))"
+echo
+py=$(vtk_python)
+if [ -z "$py" ]; then
+    echo "VTK comparison skipped: $(cat "$tmp/vtk-why")."
+    exit 0
+fi
+threads="1 $( [ "$maxw" -gt 1 ] && echo "$maxw")"
+echo "VTK $("$py" -c 'from vtkmodules.vtkCommonCore import vtkVersion as v; print(v.GetVTKVersion())')"\
+" through $py; the same level-0 samples (the Python reader's, padded by one empty layer as"\
+" vox mesh pads them), contour value iso + 0.5 = 127.5 (vox mesh's vertex rule), normals,"\
+" gradients and scalars off; VTK's Update() alone against vox mesh's polygonization"\
+" (Table 6) with as many workers, in wall seconds and in CPU seconds of all threads and"\
+" processes (which a shared machine's load disturbs less); $repeats runs per cell."
+echo
+echo "| volume | threads | vox mesh (s) | VTK Update() (s) | VTK sd (s) | vox mesh / VTK | vox mesh CPU (s) | VTK CPU (s) | vox mesh triangles | VTK triangles | VTK vertices | VTK's SMP backend |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
+for s in $sets; do
+    # shellcheck disable=SC2086 # threads: one or two numbers
+    PYTHONPATH="$root/python" "$py" "$root/scripts/bench-iso-vtk.py" "$tmp/$s.vod" 127 "$repeats" $threads \
+        >"$tmp/vtk.out" 2>"$tmp/vtk.err" || {
+        echo "bench-iso: VTK on $s failed: $(tail -3 "$tmp/vtk.err")" >&2; exit 1; }
+    while read -r line; do
+        declare -A kv=()
+        for f in $line; do kv[${f%%=*}]=${f#*=}; done
+        [ -n "${kv[threads]:-}" ] || continue
+        w=${kv[threads]}
+        echo "| $s | $w | ${tw[$s,$w]} | ${kv[mean]} | ${kv[sd]} | $(div "${tw[$s,$w]}" "${kv[mean]}") |"\
+             "${cpuw[$s,$w]} | ${kv[cpu]} | ${triw[$s,$w]} | ${kv[triangles]} | ${kv[vertices]} | ${kv[backend]} |"
+    done <"$tmp/vtk.out"
+done
+echo
+echo "(VTK's input is the dense array, $(awk -v r="$res" 'BEGIN { printf "%.1f", (r + 2) ^ 3 / 1048576 }')"\
+" MiB of bytes at ${res}^3, made once from the file and not timed; vox mesh's seconds include"\
+" copying the level's bricks into shared memory and the weld.)"

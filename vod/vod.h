@@ -339,6 +339,14 @@ typedef struct {
 int vod_read(const void *buf, size_t len, vod_file **out, char *err,
              size_t errlen);
 int vod_open(const char *path, vod_file **out, char *err, size_t errlen);
+/* vod_read and vod_open with up to `threads` threads (this one included)
+ * inflating and hashing the bricks, for callers that have the cores: the
+ * same checks, result and, for a damaged file, the same error and message
+ * (the first bad brick record in file order) as with one. */
+int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
+                     char *err, size_t errlen);
+int vod_open_threads(const char *path, int threads, vod_file **out, char *err,
+                     size_t errlen);
 void vod_close(vod_file *f);
 const vod_info *vod_get_info(const vod_file *f);
 

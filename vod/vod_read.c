@@ -5,11 +5,14 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <pthread.h>
 #include <stdarg.h>
+#include <stdatomic.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
@@ -21,7 +24,9 @@ struct vod_file {
     vod_info info;
     char *metadata;
     uint32_t *tree;   /* numberOfNodes brickIDs, preorder */
-    uint8_t **brick;  /* raw bricks by ID; [0] unused */
+    uint8_t **brick;  /* raw bricks by ID (into slab); [0] unused */
+    uint8_t **slab;   /* the raw bricks, a chunk of them in each (decode_chunk) */
+    uint32_t chunks;  /* slabs */
     uint64_t sub[MAX_HEIGHT + 1]; /* nodes in a subtree rooted at level l */
     uint32_t k, padded;
     size_t raw_bytes;
@@ -381,7 +386,113 @@ static int decode_brick(parse *ps, vod_file *f, const brick_ent *e, uint8_t *raw
     return 0;
 }
 
-static int read_bricks(parse *ps, vod_file *f)
+/* ---- inflating and hashing the bricks, in chunks, by one or more threads ----
+ *
+ * The records, in file order, are cut into chunks of about SLAB_BYTES of raw
+ * bricks; a chunk's bricks live in one allocation (its slab: few mallocs, and
+ * huge pages where the kernel gives them, so fewer page faults).  A thread
+ * claims the next chunk, allocates its slab, and inflates and hashes its
+ * bricks in order.  The first bad record in file order is the one reported,
+ * whatever the number of threads: a thread skips only records after the
+ * lowest bad one found so far, so every record before the final lowest one
+ * was checked, and that one is decoded again, alone, for its message. */
+
+#define SLAB_BYTES ((size_t)2 << 20) /* a huge page on x86-64 */
+#define MAX_THREADS 64
+
+typedef struct {
+    parse ps;          /* the image; err NULL: no thread writes a message */
+    vod_file *f;
+    const brick_ent *e; /* the records in file order */
+    uint32_t n, per;   /* records, records per chunk */
+    /* The next chunk to claim.  Relaxed: a claim orders nothing; what the
+     * threads wrote is read after pthread_join, which orders it. */
+    atomic_uint next;
+    /* The lowest bad record found (n: none), lowered by compare-and-swap.
+     * Relaxed: the threads read it only to stop early; the caller reads the
+     * final value after pthread_join. */
+    atomic_uint bad;
+} decode_job;
+
+static uint8_t *slab_alloc(size_t bytes)
+{
+    if (bytes < SLAB_BYTES) return malloc(bytes);
+    size_t whole = (bytes + SLAB_BYTES - 1) / SLAB_BYTES * SLAB_BYTES;
+    uint8_t *p = aligned_alloc(SLAB_BYTES, whole);
+#ifdef MADV_HUGEPAGE
+    if (p) (void)madvise(p, whole, MADV_HUGEPAGE); /* a hint: fine if refused */
+#endif
+    return p;
+}
+
+static void mark_bad(decode_job *j, uint32_t i)
+{
+    unsigned cur = atomic_load_explicit(&j->bad, memory_order_relaxed);
+    while (i < cur && !atomic_compare_exchange_weak_explicit(
+                          &j->bad, &cur, i, memory_order_relaxed, memory_order_relaxed)) {
+    }
+}
+
+static void decode_chunk(decode_job *j, uint32_t c)
+{
+    vod_file *f = j->f;
+    uint32_t lo = c * j->per, hi = j->n - lo < j->per ? j->n : lo + j->per;
+    f->slab[c] = slab_alloc((size_t)(hi - lo) * f->raw_bytes);
+    if (!f->slab[c]) {
+        mark_bad(j, lo);
+        return;
+    }
+    for (uint32_t i = lo; i < hi; i++) {
+        if (i > atomic_load_explicit(&j->bad, memory_order_relaxed)) return;
+        uint8_t *raw = f->slab[c] + (size_t)(i - lo) * f->raw_bytes;
+        f->brick[j->e[i].id] = raw;
+        if (decode_brick(&j->ps, f, &j->e[i], raw)) mark_bad(j, i);
+    }
+}
+
+static void *decode_run(void *arg)
+{
+    decode_job *j = arg;
+    uint32_t chunks = j->f->chunks;
+    for (;;) {
+        unsigned c = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed);
+        if (c >= chunks) return NULL;
+        if ((uint64_t)c * j->per > atomic_load_explicit(&j->bad, memory_order_relaxed))
+            return NULL; /* this chunk and the later ones are past a bad record */
+        decode_chunk(j, c);
+    }
+}
+
+/* Every record of e (n, in file order) inflated and hashed by `threads`
+ * threads (this one included). */
+static int decode_all(parse *ps, vod_file *f, const brick_ent *e, uint32_t n, int threads)
+{
+    decode_job j = {.ps = *ps, .f = f, .e = e, .n = n};
+    j.ps.err = NULL;
+    j.ps.errlen = 0;
+    j.per = f->raw_bytes >= SLAB_BYTES ? 1 : (uint32_t)(SLAB_BYTES / f->raw_bytes);
+    f->chunks = n / j.per + (n % j.per != 0);
+    f->slab = calloc((size_t)f->chunks + 1, sizeof *f->slab);
+    if (!f->slab) return fail(ps, -ENOMEM, "out of memory");
+    atomic_init(&j.next, 0);
+    atomic_init(&j.bad, n);
+    pthread_t t[MAX_THREADS];
+    int started = 0;
+    if (threads > MAX_THREADS) threads = MAX_THREADS;
+    if ((uint32_t)threads > f->chunks) threads = (int)f->chunks;
+    while (started + 1 < threads && !pthread_create(&t[started], NULL, decode_run, &j))
+        started++;
+    decode_run(&j);
+    for (int k = 0; k < started; k++) pthread_join(t[k], NULL);
+    uint32_t bad = atomic_load_explicit(&j.bad, memory_order_relaxed);
+    if (bad == n) return 0;
+    uint8_t *slab = f->slab[bad / j.per];
+    if (!slab) return fail(ps, -ENOMEM, "out of memory for brick %u", e[bad].id);
+    int rc = decode_brick(ps, f, &e[bad], slab + (size_t)(bad % j.per) * f->raw_bytes);
+    return rc ? rc : fail(ps, -EIO, "brick %u: decoded differently twice", e[bad].id);
+}
+
+static int read_bricks(parse *ps, vod_file *f, int threads)
 {
     uint32_t n = f->info.bricks;
     brick_ent *e = malloc(((size_t)n + 1) * sizeof *e);
@@ -389,37 +500,33 @@ static int read_bricks(parse *ps, vod_file *f)
     int rc = e && f->brick ? read_table(ps, f, e) : fail(ps, -ENOMEM, "out of memory");
     for (uint32_t i = 0; i < n && !rc; i++) rc = check_record(ps, &e[i]);
     if (!rc) rc = check_extents(ps, e, n);
-    for (uint32_t i = 0; i < n && !rc; i++) {
-        f->info.brick_data_bytes += e[i].size;
-        uint8_t *raw = malloc(f->raw_bytes);
-        if (!raw) rc = fail(ps, -ENOMEM, "out of memory for brick %u", e[i].id);
-        else f->brick[e[i].id] = raw;
-        if (!rc) rc = decode_brick(ps, f, &e[i], raw);
-    }
+    for (uint32_t i = 0; i < n && !rc; i++) f->info.brick_data_bytes += e[i].size;
+    if (!rc && n) rc = decode_all(ps, f, e, n, threads);
     free(e);
     return rc;
 }
 
 /* ---- open and close ---- */
 
-static int parse_all(parse *ps, vod_file *f)
+static int parse_all(parse *ps, vod_file *f, int threads)
 {
     int rc = read_header(ps, f);
     if (!rc) rc = read_tree(ps, f);
     if (!rc) rc = read_count(ps, f);
-    if (!rc) rc = read_bricks(ps, f);
+    if (!rc) rc = read_bricks(ps, f, threads);
     if (!rc) rc = check_subtree(ps, f, 0, f->info.height - 1);
     return rc;
 }
 
-int vod_read(const void *buf, size_t len, vod_file **out, char *err, size_t errlen)
+int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out, char *err,
+                     size_t errlen)
 {
     *out = NULL;
     if (err && errlen) err[0] = '\0';
     vod_file *f = calloc(1, sizeof *f);
     parse ps = {.b = buf, .len = len, .end = len, .err = err, .errlen = errlen};
     if (!f) return fail(&ps, -ENOMEM, "out of memory");
-    int rc = parse_all(&ps, f);
+    int rc = parse_all(&ps, f, threads < 1 ? 1 : threads);
     if (rc) {
         vod_close(f);
         return rc;
@@ -428,6 +535,11 @@ int vod_read(const void *buf, size_t len, vod_file **out, char *err, size_t errl
     f->info.file_bytes = len;
     *out = f;
     return 0;
+}
+
+int vod_read(const void *buf, size_t len, vod_file **out, char *err, size_t errlen)
+{
+    return vod_read_threads(buf, len, 1, out, err, errlen);
 }
 
 static int read_all(int fd, uint8_t *p, size_t n)
@@ -442,7 +554,8 @@ static int read_all(int fd, uint8_t *p, size_t n)
     return 0;
 }
 
-int vod_open(const char *path, vod_file **out, char *err, size_t errlen)
+int vod_open_threads(const char *path, int threads, vod_file **out, char *err,
+                     size_t errlen)
 {
     *out = NULL;
     parse ps = {.err = err, .errlen = errlen};
@@ -459,16 +572,22 @@ int vod_open(const char *path, vod_file **out, char *err, size_t errlen)
     if (!rc && (rc = read_all(fd, buf, (size_t)sb.st_size)))
         fail(&ps, rc, "cannot read: %s", strerror(-rc));
     close(fd);
-    if (!rc) rc = vod_read(buf, (size_t)sb.st_size, out, err, errlen);
+    if (!rc) rc = vod_read_threads(buf, (size_t)sb.st_size, threads, out, err, errlen);
     free(buf);
     return rc;
+}
+
+int vod_open(const char *path, vod_file **out, char *err, size_t errlen)
+{
+    return vod_open_threads(path, 1, out, err, errlen);
 }
 
 void vod_close(vod_file *f)
 {
     if (!f) return;
-    if (f->brick)
-        for (uint32_t i = 0; i <= f->info.bricks; i++) free(f->brick[i]);
+    if (f->slab)
+        for (uint32_t c = 0; c < f->chunks; c++) free(f->slab[c]);
+    free(f->slab);
     free(f->brick);
     free(f->tree);
     free(f->metadata);

@@ -1,5 +1,6 @@
 /* libFuzzer harness for the VOD reader: any input must be refused with a
- * message or open into a file whose every level can be walked. */
+ * message or open into a file whose every level can be walked, and read by
+ * three threads the same way as by one. */
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -17,11 +18,23 @@ static int visit(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
     return 0;
 }
 
+/* Three threads must answer as one does: the same code and message. */
+static void read_threaded(const uint8_t *data, size_t size, int rc, const char *err)
+{
+    vod_file *f;
+    char e3[256];
+    int r3 = vod_read_threads(data, size, 3, &f, e3, sizeof e3);
+    if (r3 != rc || (rc && strcmp(e3, err))) __builtin_trap();
+    if (!r3) vod_close(f);
+}
+
 static int read_and_walk(const uint8_t *data, size_t size)
 {
     vod_file *f;
     char err[256];
-    if (vod_read(data, size, &f, err, sizeof err) != 0) {
+    int rc = vod_read(data, size, &f, err, sizeof err);
+    read_threaded(data, size, rc, err);
+    if (rc != 0) {
         if (!err[0] || f) __builtin_trap(); /* refused, but without a message */
         return 0;
     }

@@ -8,6 +8,7 @@
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -1649,6 +1650,147 @@ Test(vod_corrupt, each_section8_case_has_its_message)
     expect_refusal(p_channel, 0, "trailer channel 1 needs voxelSize 1");
     expect_refusal(p_meta, 0, "metadataSize 1000");
     expect_refusal(p_garbage, 0, "4 unexpected bytes after the last brick record");
+}
+
+/* ------------------------------------------- reading with several threads */
+
+/* A file of 1 MiB bricks (64^3, 32 bits): two to a chunk of the reader's
+ * (2 MiB of raw bricks), so that threads share its bricks (a dozen or more). */
+static membuf chunked_file(void)
+{
+    fixture f;
+    fx_init(&f, 8, 192, 128, 128);
+    fx_sphere(&f, 96, 64, 64, 60);
+    fx_sphere(&f, 30, 30, 30, 20);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 64);
+    membuf m = write_file(&f, &p, NULL);
+    fx_free(&f);
+    return m;
+}
+
+/* The brick records' (offset, ID) in file order. */
+typedef struct {
+    uint32_t off, id;
+} brick_rec;
+
+static int brick_rec_cmp(const void *a, const void *b)
+{
+    const brick_rec *x = a, *y = b;
+    return (x->off > y->off) - (x->off < y->off);
+}
+
+static brick_rec *records(const membuf *m, uint32_t *n)
+{
+    where w = locate(m->p);
+    brick_rec *r = malloc(w.count * sizeof *r);
+    cr_assert(r);
+    for (uint32_t i = 0; i < w.count; i++)
+        r[i] = (brick_rec){vod_get32(m->p + w.table_at + 12 * i + 4),
+                     vod_get32(m->p + w.table_at + 12 * i)};
+    qsort(r, w.count, sizeof *r, brick_rec_cmp);
+    *n = w.count;
+    return r;
+}
+
+static const int thread_counts[] = {2, 3, 4, 16};
+
+/* m read by 1 thread and by each of thread_counts: the same return code and
+ * message, and when it opens, the same bricks at every level.  Returns the
+ * return code; err holds the message. */
+static int read_threads_agree(const membuf *m, char *err, size_t errlen)
+{
+    vod_file *one = (vod_file *)1;
+    int rc = vod_read_threads(m->p, m->n, 1, &one, err, errlen);
+    for (size_t k = 0; k < sizeof thread_counts / sizeof *thread_counts; k++) {
+        vod_file *v = (vod_file *)1;
+        char e2[512] = "";
+        int r2 = vod_read_threads(m->p, m->n, thread_counts[k], &v, e2, sizeof e2);
+        cr_assert_eq(r2, rc, "%d threads: %d (%s), 1 thread: %d (%s)", thread_counts[k], r2,
+                     e2, rc, err);
+        cr_assert_str_eq(e2, rc ? err : "", "%d threads", thread_counts[k]);
+        if (rc) {
+            cr_assert_null(v);
+            continue;
+        }
+        const vod_info *in = vod_get_info(one);
+        size_t raw = (size_t)in->brick * in->brick * in->brick * in->voxel_bits / 8;
+        for (int l = 0; l < (int)in->height; l++) {
+            uint32_t side = 1u << (in->height - 1 - (uint32_t)l), b[3];
+            for (b[2] = 0; b[2] < side; b[2]++)
+                for (b[1] = 0; b[1] < side; b[1]++)
+                    for (b[0] = 0; b[0] < side; b[0]++) {
+                        const uint8_t *x = vod_brick(one, l, b), *y = vod_brick(v, l, b);
+                        cr_assert_eq(!x, !y);
+                        if (x) cr_assert_eq(memcmp(x, y, raw), 0, "level %d brick %u %u %u",
+                                            l, b[0], b[1], b[2]);
+                    }
+        }
+        vod_close(v);
+    }
+    if (!rc) vod_close(one);
+    return rc;
+}
+
+Test(vod_threads, several_threads_read_what_one_reads)
+{
+    membuf m = chunked_file();
+    char err[512] = "";
+    uint32_t n;
+    free(records(&m, &n));
+    cr_assert_geq(n, 12, "only %u bricks", n);
+    cr_assert_eq(read_threads_agree(&m, err, sizeof err), 0, "%s", err);
+    /* and through a file */
+    char path[] = "/tmp/test_vod_threads_XXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    cr_assert_eq(write(fd, m.p, m.n), (ssize_t)m.n);
+    close(fd);
+    vod_file *v;
+    cr_assert_eq(vod_open_threads(path, 4, &v, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_get_info(v)->bricks, n);
+    vod_close(v);
+    unlink(path);
+    free(m.p);
+}
+
+/* Damage in records anywhere in the file (the first, one in the middle, the
+ * last, and two at once): every thread count reports the first damaged
+ * record in file order, with one thread's words. */
+Test(vod_threads, the_first_bad_record_is_reported_whatever_the_threads)
+{
+    membuf m = chunked_file();
+    uint32_t n;
+    brick_rec *r = records(&m, &n);
+    const uint32_t at[][2] = {{0, 0}, {n / 2, n / 2}, {n - 1, n - 1}, {n / 2, n - 1},
+                              {1, n - 2}, {n - 2, 1}};
+    for (size_t t = 0; t < sizeof at / sizeof *at; t++) {
+        for (int k = 0; k < 2; k++)
+            cr_assert_gt(vod_get32(m.p + r[at[t][k]].off), 30, "a record too small to damage");
+        uint8_t *p[2] = {m.p + r[at[t][0]].off + 20, m.p + r[at[t][1]].off + 30};
+        p[0][0] ^= 0x5a;
+        p[1][0] ^= 0x21;
+        fix_crc(m.p, m.n);
+        char err[512] = "", want[32];
+        cr_assert_neq(read_threads_agree(&m, err, sizeof err), 0);
+        uint32_t first = at[t][0] < at[t][1] ? at[t][0] : at[t][1];
+        snprintf(want, sizeof want, "brick %u", r[first].id);
+        cr_assert(strstr(err, want), "case %zu: '%s' does not name %s", t, err, want);
+        p[1][0] ^= 0x21;
+        p[0][0] ^= 0x5a;
+    }
+    /* a hash in the table that does not match: the last record's */
+    where w = locate(m.p);
+    for (uint32_t i = 0; i < n; i++)
+        if (vod_get32(m.p + w.table_at + 12 * i) == r[n - 1].id)
+            vod_put32(m.p + w.table_at + 12 * i + 8, vod_get32(m.p + w.table_at + 12 * i + 8) ^ 1);
+    fix_crc(m.p, m.n);
+    char err[512] = "", want[48];
+    cr_assert_neq(read_threads_agree(&m, err, sizeof err), 0);
+    snprintf(want, sizeof want, "brick %u: hash mismatch", r[n - 1].id);
+    cr_assert(strstr(err, want), "'%s' lacks '%s'", err, want);
+    free(r);
+    free(m.p);
 }
 
 Test(vod_corrupt, tiny_and_empty_inputs)
