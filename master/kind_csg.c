@@ -112,7 +112,7 @@ static int push_runs(engine *e, const csg_block *b, uint32_t per)
 }
 
 /* The bricks to evaluate: the whole volume, or those of the job's root
- * octant (its cube brick-aligned and inside the grid's octree). */
+ * octant (its cube brick-aligned, or the whole grid's). */
 static int set_box(const engine_csg_job *j, csg_block *b)
 {
     const grid_octant *o = j->root;
@@ -122,10 +122,12 @@ static int set_box(const engine_csg_job *j, csg_block *b)
     }
     if (!o) return 0;
     uint32_t side = 1u << o->level, at[3] = {o->x, o->y, o->z};
-    if (o->level > j->grid.depth || side % CSG_VOLUME_BRICK) return -EINVAL;
+    if (o->level > j->grid.depth || (side % CSG_VOLUME_BRICK && o->level != j->grid.depth))
+        return -EINVAL;
     for (int a = 0; a < 3; a++) {
         if (at[a] % side) return -EINVAL;
-        uint32_t lo = at[a] / CSG_VOLUME_BRICK, hi = (at[a] + side) / CSG_VOLUME_BRICK;
+        uint32_t lo = at[a] / CSG_VOLUME_BRICK;
+        uint32_t hi = (at[a] + side + CSG_VOLUME_BRICK - 1) / CSG_VOLUME_BRICK;
         b->box_lo[a] = lo < b->nbricks[a] ? lo : b->nbricks[a];
         b->box_n[a] = (hi < b->nbricks[a] ? hi : b->nbricks[a]) - b->box_lo[a];
     }

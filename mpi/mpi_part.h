@@ -132,6 +132,24 @@ void mpi_column_tiles(const grid_spec *g, grid_octant o, uint32_t tiles[4]);
 int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver,
                     void *ud, char *err, size_t errlen);
 
+/* ---- what mesh and CSG jobs send (mpi_wire.c) ---- */
+
+/* A CSG tree and its file leaves' bytes as one buffer (malloc'd), and
+ * back (checked: counts, lengths, children below their parent, text
+ * references inside the text; -EPROTO when not). */
+int mpi_csg_pack(const csg_tree *t, uint8_t **out, size_t *len);
+int mpi_csg_unpack(const uint8_t *buf, size_t len, csg_tree **out);
+/* The triangles the tiles need (bins: m's, for the job's grid and
+ * options), with their vertices, as one buffer (malloc'd): the triangles
+ * in m's order, so that a tile sees the same ones in the same order;
+ * tiles NULL: every triangle (the winding number's repair reads them
+ * all).  0 or -ENOMEM. */
+int mpi_mesh_part(const mesh *m, const mesh_bins *bins, const uint32_t tiles[4],
+                  uint8_t **out, size_t *len);
+/* A mesh over such a buffer (4-byte aligned, kept while the mesh is
+ * used), its indices checked and its bounding box found: 0 or -EPROTO. */
+int mpi_mesh_view(const uint8_t *buf, size_t len, mesh *out);
+
 /* ---- rank 0's book of bricks ---- */
 
 /* Every distinct brick rank 0 has been told of, by content: held (its
