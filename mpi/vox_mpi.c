@@ -885,6 +885,25 @@ static int prepare_bins(prep *p)
     return rc;
 }
 
+/* A mesh job's columns without a triangle are left out: they hold no
+ * voxel, and a rank gets no empty mesh. */
+static void drop_empty_columns(prep *p)
+{
+    size_t k = 0;
+    for (size_t i = 0; i < p->cut.n; i++) {
+        uint32_t t[4];
+        mpi_column_tiles(&p->plan.grid, p->cut.oct[i], t);
+        int any = 0;
+        for (uint32_t ty = t[1]; ty < t[3] && !any; ty++)
+            for (uint32_t tx = t[0]; tx < t[2] && !any; tx++) {
+                uint64_t c = (uint64_t)ty * p->bins.tiles[0] + tx;
+                any = p->bins.start[c + 1] > p->bins.start[c];
+            }
+        if (any) p->cut.oct[k++] = p->cut.oct[i];
+    }
+    p->cut.n = k;
+}
+
 /* The cut: an implicit job's by the kernel's interval tests; a CSG job's
  * octants of whole storage bricks; a mesh job's columns of whole tiles. */
 static int make_cut(prep *p)
@@ -895,7 +914,9 @@ static int make_cut(prep *p)
     if (p->kind == MPI_KIND_CSG)
         return mpi_cut_grid(&p->plan.grid, &p->L, target, 4 /* CSG_VOLUME_BRICK */, 0,
                             &p->cut);
-    return mpi_cut_grid(&p->plan.grid, &p->L, target, 6 /* MESH_TILE */, 1, &p->cut);
+    int rc = mpi_cut_grid(&p->plan.grid, &p->L, target, 6 /* MESH_TILE */, 1, &p->cut);
+    if (!rc && p->bins.start) drop_empty_columns(p);
+    return rc;
 }
 
 /* -1 when the job is ready to run; else the exit code of every rank. */
