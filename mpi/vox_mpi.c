@@ -704,12 +704,20 @@ static void usage(FILE *f)
 {
     fprintf(f,
 "usage: mpirun [mpirun options] vox_mpi voxelize (-e EXPR | -f FILE) -o OUT [options]\n"
+"       mpirun [mpirun options] vox_mpi voxelize --mesh FILE -o OUT [options]\n"
+"       mpirun [mpirun options] vox_mpi csg FILE -o OUT -r N [vox csg's options]\n"
 "\n"
-"vox voxelize's implicit-surface jobs over the ranks of an MPI job: rank 0 cuts\n"
-"the octree into subtrees and hands them out on request, every rank (rank 0\n"
+"vox voxelize's and vox csg's jobs over the ranks of an MPI job: rank 0 cuts\n"
+"the grid into subtrees (an implicit job's by its interval tests, a CSG job's\n"
+"into cubes of whole bricks, a mesh job's into columns through z, each sent\n"
+"with the triangles it needs) and hands them out on request, every rank (rank 0\n"
 "too) runs the engine on them with -w workers of its own, and rank 0 writes\n"
-"OUT, the same bytes vox voxelize -w W writes for the job.  Mesh jobs are not\n"
-"run by vox_mpi yet.\n"
+"OUT, the same bytes vox voxelize -w W (vox csg -w W) writes for the job.\n"
+"Only rank 0 reads files: the other hosts need the vox_mpi binary alone.\n"
+"\n"
+"voxelize takes vox voxelize's options (vox voxelize --help), --mesh's too\n"
+"(--mode, --repair, --supersample, --pad, --bbox, --channel); csg takes vox\n"
+"csg's (vox csg --help: -o, -r, -c, -d, -w, -Z, -q), its FILE a file.\n"
 "\n"
 "  -e, --expr EXPR       the implicit function F(x,y,z)\n"
 "  -f, --file FILE       ... from a .vx file (its #@ directives apply)\n"
@@ -725,7 +733,7 @@ static void usage(FILE *f)
 "      --schedule subtree|paper, --channel, --brick, --compress,\n"
 "      --compress-level, --hash\n"
 "                        as vox voxelize (vox voxelize --help)\n"
-"      --subtrees N      subtrees per rank to aim for (default %d)\n"
+"      --subtrees N      subtrees (mesh: columns) per rank to aim for (default %d)\n"
 "      --stats           a line per rank: host, subtrees, bricks and bytes sent\n"
 "      --progress        the progress line, by subtrees done\n"
 "      --source-name NAME  the source's name in the file's metadata (voxd's;\n"
@@ -970,10 +978,17 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
     else
         snprintf(how, sizeof how, "%d ranks, %llu workers in all", nranks,
                  (unsigned long long)workers);
-    printf("%s: %llu voxels on a %ux%ux%u grid in %.3f s on %s "
-           "(%zu subtrees of %u^3 voxels), VOD written in %.3f s\n",
-           p->o.out, (unsigned long long)m->voxels, g->res[0], g->res[1], g->res[2],
-           t_job, how, p->cut.n, 1u << p->cut.level, t_write);
+    char tasks[96];
+    uint32_t side = 1u << p->cut.level;
+    if (p->kind == MPI_KIND_MESH)
+        snprintf(tasks, sizeof tasks, "%zu columns of %ux%u voxels through z", p->cut.n,
+                 side, side);
+    else
+        snprintf(tasks, sizeof tasks, "%zu subtrees of %u^3 voxels", p->cut.n, side);
+    printf("%s: %llu voxels%s on a %ux%ux%u grid in %.3f s on %s (%s), VOD written in "
+           "%.3f s\n", p->o.out, (unsigned long long)m->voxels,
+           p->kind == MPI_KIND_CSG ? " at or above S" : "", g->res[0], g->res[1], g->res[2],
+           t_job, how, tasks, t_write);
     printf("  %llu bytes, %llu bricks (%llu non-empty nodes), CRC %08x\n",
            (unsigned long long)r->st.file_bytes, (unsigned long long)r->st.bricks,
            (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
