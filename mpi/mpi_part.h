@@ -109,7 +109,7 @@ typedef int (*mpi_deliver)(void *ud, const mpi_bricks *b);
 typedef enum { MPI_KIND_IMPLICIT = 1, MPI_KIND_MESH, MPI_KIND_CSG } mpi_kind;
 
 typedef struct {
-    mpi_kind kind;
+    mpi_kind kind;           /* 0: implicit */
     const expr_tape *tape;   /* implicit */
     const mesh *mesh;        /* mesh: the triangles the task's tiles need */
     mesh_vox_opts mesh_opts; /* ... the repair as run (none when watertight) */

@@ -332,6 +332,7 @@ int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver
     sub_ctx c = {.j = j, .deliver = deliver, .ud = ud};
     err[0] = '\0';
     if (j->e) return on_engine(j, o, &c, err, errlen);
-    return j->kind == MPI_KIND_IMPLICIT ? octree_serial(j, o, &c, err, errlen)
-                                        : volume_serial(j, o, &c, err, errlen);
+    return j->kind == MPI_KIND_MESH || j->kind == MPI_KIND_CSG
+               ? volume_serial(j, o, &c, err, errlen)
+               : octree_serial(j, o, &c, err, errlen);
 }
