@@ -105,7 +105,8 @@ for r in 1 2 3 4; do
 done
 i=0
 for a in "--channel density" "--channel surface" "--mode surface6" \
-         "--mode conservative --supersample 3 --channel density" "--pad 5 --brick 8" "--bbox -0.5,0.9"; do
+         "--mode interior --supersample 3" "--supersample 3 --channel density" "--pad 5 --brick 8" \
+         "--bbox -0.9,0.5,-0.9,0.9,-0.3,0.3"; do
     # shellcheck disable=SC2086 # the options are words
     same "torus mesh, $a" $((2 + i % 3)) $((i % 3)) --mesh "$TMP/torus.obj" -r 130 $a
     i=$((i + 1))
