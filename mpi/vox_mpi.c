@@ -830,6 +830,7 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
     }
     uint64_t text_bytes;
     if ((rc = cli_csg_load(co.in, &p->tree, &text_bytes))) return rc;
+    p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */
     if ((rc = mpi_csg_pack(p->tree, &p->input, &p->input_bytes))) {
         msg("%s: %s", co.in, strerror(-rc));
         return CLI_EXIT_FAILED;
@@ -839,7 +840,6 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
             co.in);
         return CLI_EXIT_USAGE;
     }
-    p->kind = MPI_KIND_CSG;
     p->o.out = co.out;
     p->o.quiet = co.quiet;
     p->o.res = co.res;

@@ -234,14 +234,15 @@ static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
 
 /* Voxel values are 32-bit surface voxels: channel 3 as they are, channel 1
  * as one bit (put_voxel sets it for any non-zero value, and the aggregates
- * of channel 1 are 0 or 1); 8-bit densities (channel 2: vox_mpi's levels
- * above a CSG or mesh job's subtrees, whose voxels are densities) as they
- * are. */
+ * of channel 1 are 0 or 1).  8 bits (channel 2) only above level 0, from
+ * aggregates that are densities: vox_mpi's levels above a CSG or mesh
+ * job's subtrees (mpi_top.c). */
 static int octree_fill(const vod_source *s, const vod_layout *L,
                        const vod_node *n, uint8_t *raw)
 {
     const octree *t = s->ctx;
     if (L->voxel_bits != 1 && L->voxel_bits != 8 && L->voxel_bits != 32) return -EINVAL;
+    if (L->voxel_bits == 8 && n->level == 0) return -EINVAL; /* voxels are not densities */
     if (n->level > 0 && !t->agg) return -EINVAL;
     fill_ctx f = {t, raw, L->brick, L->voxel_bits, n->level};
     uint32_t b[3] = {n->bx, n->by, n->bz};
