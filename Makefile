@@ -17,6 +17,8 @@
 #                   and the whole vox voxelize --mesh command (scripts/bench-mesh-whole.sh)
 #   make bench-csg  the vox csg command: the thesis's Tables 3/4 layout and the
 #                   CSG kind at 512^3 and 1024^3 with 1 and 2 workers (scripts/bench-csg.sh)
+#   make bench-scale every kind of job (implicit, mesh, CSG, marching cubes)
+#                   from 1 worker to one per core (scripts/bench-scale.sh)
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -103,7 +105,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg bench-scale fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
@@ -236,6 +238,10 @@ bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole
 # Volume CSG jobs: the vox csg command (scripts/bench-csg.sh, also run by make bench).
 bench-csg: all $(BUILD)/voxwhole
 	@scripts/bench-csg.sh $(BUILD)
+
+# Every kind of job from 1 to N workers (scripts/bench-scale.sh, also run by make bench).
+bench-scale: all $(BUILD)/voxwhole $(BUILD)/bench_mesh
+	@scripts/bench-scale.sh $(BUILD)
 
 # The whole vox voxelize command against commit BASE, in one run.
 BASE ?= HEAD~1

