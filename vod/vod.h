@@ -253,6 +253,18 @@ void vod_encoder_free(vod_encoder *e);
 int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
                     uint64_t tag, uint8_t *out, size_t cap, vod_encoded *rec,
                     uint64_t *same);
+/* vod_encoder_put for nodes n[0..count-1], count at most VOD_ENCODE_BATCH,
+ * with tags tag[i], brick i compressed into out[i] (cap bytes each): the
+ * records of count calls of vod_encoder_put in order (a brick equal to an
+ * earlier one of the batch is its duplicate), but the new bricks' file
+ * hashes computed together (SFHS is a serial chain: vod_hash_sfhs4 runs
+ * four at the cost of about one).  -EINVAL for a larger count, else
+ * vod_encoder_put's errors (the records before the failing brick may be
+ * unset). */
+#define VOD_ENCODE_BATCH 4
+int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n,
+                          const uint64_t *tag, size_t count, uint8_t *const *out,
+                          size_t cap, vod_encoded *rec, uint64_t *same);
 /* Its fill, hash and compress seconds so far (the others 0). */
 void vod_encoder_times(const vod_encoder *e, vod_times *t);
 
@@ -371,6 +383,10 @@ int vod_foreach_brick(const vod_file *f, int level,
  * and xxHash32 with seed 0; vod_hash picks by VOD_HASH_*. */
 uint32_t vod_hash_sfhs(const void *data, size_t len);
 uint32_t vod_hash_xx32(const void *data, size_t len);
+/* vod_hash_sfhs of four buffers of len bytes each, into out[0..3]: the
+ * hash is one serial chain, so four are computed in the lanes of a vector
+ * (about the time of one; SSE2, else one after another). */
+void vod_hash_sfhs4(const void *const data[4], size_t len, uint32_t out[4]);
 uint32_t vod_hash(uint32_t alg, const void *data, size_t len);
 /* A FourCC as text for messages ("ZLIB"; '?' for unprintable bytes). */
 const char *vod_fourcc_str(uint32_t v, char buf[5]);

@@ -249,6 +249,10 @@ size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
  * is filled again for the comparison. */
 #define RAW_CACHE_BYTES (8u << 20)
 
+/* Bricks up to this many raw bytes are encoded VOD_ENCODE_BATCH at a time
+ * (scratch for each); larger ones one at a time. */
+#define BATCH_RAW_BYTES (256u << 10)
+
 /* A brick the encoder has compressed: enough to compare a new brick of
  * the same key with it (its raw bytes, kept or filled again) and to
  * answer for its duplicates. */
@@ -263,7 +267,8 @@ typedef struct {
 struct vod_encoder {
     vod_layout L;
     vod_params p;          /* metadata NULL: encoding does not use it */
-    uint8_t *raw, *other;  /* this brick; an earlier one filled again */
+    uint8_t *raw, *other;  /* a batch's bricks; an earlier one filled again */
+    size_t batch;          /* bricks raw holds: VOD_ENCODE_BATCH, or 1 */
     struct libdeflate_compressor *ld; /* ZLIB: one per encoder, or NULL */
     vod_sparse *sparse;    /* ZLIB at levels 1..6, 32-bit voxels */
     size_t bound;          /* vod_encode_bound */
@@ -315,7 +320,8 @@ int vod_encoder_new(const vod_layout *L, const vod_params *p, vod_encoder **out)
     e->p.metadata = NULL;
     e->last_uniform = -1;
     e->bound = vod_encode_bound(L, p);
-    e->raw = malloc(L->raw_bytes);
+    e->batch = L->raw_bytes <= BATCH_RAW_BYTES ? VOD_ENCODE_BATCH : 1;
+    e->raw = malloc(e->batch * L->raw_bytes);
     e->other = malloc(L->raw_bytes);
     e->slot_cap = 1024;
     e->slot = calloc(e->slot_cap, sizeof *e->slot);
@@ -403,12 +409,12 @@ static size_t slot_of(uint64_t key, size_t cap)
     return (size_t)(key ^ key >> 29) & (cap - 1);
 }
 
-/* An earlier brick equal to e->raw (XXH3-64 key): candidates by the key,
+/* An earlier brick equal to raw (XXH3-64 key): candidates by the key,
  * each compared byte for byte (from the cache, or filled again).  NULL if
  * none.  The table always has a free slot (remember() keeps it at most
  * half full), so the probe ends. */
 static const seen_brick *find_seen(vod_encoder *e, const vod_source *s,
-                                   uint64_t key, int *rc)
+                                   uint64_t key, const uint8_t *raw, int *rc)
 {
     size_t j = slot_of(key, e->slot_cap);
     for (; e->slot[j]; j = (j + 1) & (e->slot_cap - 1)) {
@@ -417,19 +423,19 @@ static const seen_brick *find_seen(vod_encoder *e, const vod_source *s,
         const uint8_t *old = e->other;
         if (b->raw_at != SIZE_MAX) old = e->cache + b->raw_at;
         else if ((*rc = fill_node(e, s, &b->node, e->other))) return NULL;
-        if (!memcmp(old, e->raw, e->L.raw_bytes)) return b;
+        if (!memcmp(old, raw, e->L.raw_bytes)) return b;
     }
     return NULL;
 }
 
 /* Keep the raw brick in the cache while it has room; its offset, or
  * SIZE_MAX. */
-static size_t cache_raw(vod_encoder *e)
+static size_t cache_raw(vod_encoder *e, const uint8_t *raw)
 {
     size_t n = e->L.raw_bytes;
     if (n > RAW_CACHE_BYTES - e->cache_used) return SIZE_MAX;
     if (!e->cache && !(e->cache = malloc(RAW_CACHE_BYTES))) return SIZE_MAX;
-    memcpy(e->cache + e->cache_used, e->raw, n);
+    memcpy(e->cache + e->cache_used, raw, n);
     e->cache_used += n;
     return e->cache_used - n;
 }
@@ -454,8 +460,8 @@ static int grow_slots(vod_encoder *e)
 /* Keep brick (n, rec, tag), not in the table yet.  A table that cannot
  * grow only loses the shortcut: a later duplicate is then compressed
  * again, and vod_assemble still stores it once. */
-static void remember(vod_encoder *e, uint64_t key, const vod_node *n,
-                     const vod_encoded *rec, uint64_t tag)
+static void remember(vod_encoder *e, uint64_t key, const uint8_t *raw,
+                     const vod_node *n, const vod_encoded *rec, uint64_t tag)
 {
     if (e->nseen >= UINT32_MAX - 1) return;
     if (2 * (e->nseen + 1) > e->slot_cap && grow_slots(e)) return;
@@ -468,7 +474,7 @@ static void remember(vod_encoder *e, uint64_t key, const vod_node *n,
     }
     size_t j = slot_of(key, e->slot_cap);
     while (e->slot[j]) j = (j + 1) & (e->slot_cap - 1);
-    e->seen[e->nseen] = (seen_brick){key, *n, *rec, tag, cache_raw(e)};
+    e->seen[e->nseen] = (seen_brick){key, *n, *rec, tag, cache_raw(e, raw)};
     e->slot[j] = (uint32_t)++e->nseen;
     if (n->uniform) e->last_uniform = (long)e->nseen - 1;
 }
@@ -482,38 +488,108 @@ static const seen_brick *same_uniform(const vod_encoder *e, const vod_node *n)
     return b->node.value == n->value ? b : NULL;
 }
 
+/* What vod_encoder_put_batch found for one brick of the batch. */
+enum { BATCH_NEW = -1, BATCH_SEEN = -2 }; /* else: the index of its first */
+
+/* Brick i of a batch into kind[i]: a duplicate of a brick this encoder
+ * kept before (BATCH_SEEN, its record and tag set), of an earlier new
+ * brick of the batch (that one's index), or new (BATCH_NEW).  Its raw
+ * bytes are filled into e->raw's slot i, their key into key[i]. */
+static int batch_find(vod_encoder *e, const vod_source *s, const vod_node *n,
+                      size_t i, int *kind, uint64_t *key, vod_encoded *rec,
+                      uint64_t *same)
+{
+    size_t rb = e->L.raw_bytes;
+    uint8_t *raw = e->raw + i * rb;
+    const seen_brick *b = same_uniform(e, &n[i]);
+    double t0 = clock_now(), t1 = t0;
+    int rc = 0;
+    if (!b) {
+        if ((rc = fill_node(e, s, &n[i], raw))) return rc;
+        t1 = clock_now();
+        e->t.fill += t1 - t0;
+        key[i] = XXH3_64bits(raw, rb);
+        b = find_seen(e, s, key[i], raw, &rc);
+        if (rc) return rc;
+    }
+    kind[i] = BATCH_NEW;
+    if (b) {
+        rec[i] = b->rec;
+        same[i] = b->tag;
+        kind[i] = BATCH_SEEN;
+    }
+    for (size_t j = 0; j < i && kind[i] == BATCH_NEW; j++)
+        if (kind[j] == BATCH_NEW && key[j] == key[i] &&
+            !memcmp(e->raw + j * rb, raw, rb))
+            kind[i] = (int)j;
+    e->t.hash += clock_now() - t1;
+    return 0;
+}
+
+/* The file's hash of each new brick of the batch (SFHS four at a time). */
+static void batch_hash(vod_encoder *e, const int *kind, size_t count,
+                       vod_encoded *rec)
+{
+    size_t rb = e->L.raw_bytes, idx[VOD_ENCODE_BATCH], m = 0;
+    for (size_t i = 0; i < count; i++)
+        if (kind[i] == BATCH_NEW) idx[m++] = i;
+    if (e->p.hash != VOD_HASH_SFHS || m < 2) {
+        for (size_t k = 0; k < m; k++)
+            rec[idx[k]].hash = vod_hash(e->p.hash, e->raw + idx[k] * rb, rb);
+        return;
+    }
+    const void *d[4];
+    uint32_t h[4];
+    for (size_t k = 0; k < 4; k++) d[k] = e->raw + idx[k < m ? k : 0] * rb;
+    vod_hash_sfhs4(d, rb, h);
+    for (size_t k = 0; k < m; k++) rec[idx[k]].hash = h[k];
+}
+
+int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n,
+                          const uint64_t *tag, size_t count, uint8_t *const *out,
+                          size_t cap, vod_encoded *rec, uint64_t *same)
+{
+    int kind[VOD_ENCODE_BATCH];
+    uint64_t key[VOD_ENCODE_BATCH] = {0};
+    size_t rb = e->L.raw_bytes;
+    if (count > VOD_ENCODE_BATCH) return -EINVAL;
+    if (count > e->batch) { /* large bricks: one at a time */
+        for (size_t i = 0; i < count; i++) {
+            int rc = vod_encoder_put_batch(e, s, n + i, tag + i, 1, out + i, cap,
+                                           rec + i, same + i);
+            if (rc) return rc;
+        }
+        return 0;
+    }
+    for (size_t i = 0; i < count; i++) {
+        int rc = batch_find(e, s, n, i, kind, key, rec, same);
+        if (rc) return rc;
+    }
+    double t0 = clock_now();
+    batch_hash(e, kind, count, rec);
+    e->t.hash += clock_now() - t0;
+    for (size_t i = 0; i < count; i++) {
+        if (kind[i] == BATCH_SEEN) continue;
+        if (kind[i] >= 0) {
+            rec[i] = rec[kind[i]];
+            same[i] = tag[kind[i]];
+            continue;
+        }
+        t0 = clock_now();
+        int rc = compress_brick(e, e->raw + i * rb, out[i], cap, &rec[i].size);
+        e->t.compress += clock_now() - t0;
+        if (rc) return rc;
+        same[i] = tag[i];
+        remember(e, key[i], e->raw + i * rb, &n[i], &rec[i], tag[i]);
+    }
+    return 0;
+}
+
 int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
                     uint64_t tag, uint8_t *out, size_t cap, vod_encoded *rec,
                     uint64_t *same)
 {
-    const seen_brick *b = same_uniform(e, n);
-    uint64_t key = 0;
-    int rc = 0;
-    double t0 = clock_now(), t1 = t0, t2 = t0;
-    if (!b) {
-        if ((rc = fill_node(e, s, n, e->raw))) return rc;
-        t1 = clock_now();
-        key = XXH3_64bits(e->raw, e->L.raw_bytes);
-        b = find_seen(e, s, key, &rc);
-        if (rc) return rc;
-        e->t.fill += t1 - t0;
-    }
-    if (b) {
-        e->t.hash += clock_now() - t1;
-        *rec = b->rec;
-        *same = b->tag;
-        return 0;
-    }
-    /* the file's hash, for the bricks it stores */
-    rec->hash = vod_hash(e->p.hash, e->raw, e->L.raw_bytes);
-    t2 = clock_now();
-    e->t.hash += t2 - t1;
-    rc = compress_brick(e, e->raw, out, cap, &rec->size);
-    e->t.compress += clock_now() - t2;
-    if (rc) return rc;
-    *same = tag;
-    remember(e, key, n, rec, tag);
-    return 0;
+    return vod_encoder_put_batch(e, s, n, &tag, 1, &out, cap, rec, same);
 }
 
 /* vod_encode's encoder, one per thread, made again when the layout or the
@@ -802,6 +878,31 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
 
 /* ---- all three phases ---- */
 
+/* Nodes i..i+count-1 of encode_all, encoded together into tmp (bound
+ * bytes a brick) and appended to b. */
+static int encode_some(vod_encoder *e, const vod_source *s, const vod_node *nodes,
+                       size_t i, size_t count, uint8_t *tmp, size_t bound,
+                       vod_encoded *recs, size_t *off, vod_membuf *b)
+{
+    uint8_t *out[VOD_ENCODE_BATCH];
+    uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
+    for (size_t k = 0; k < count; k++) {
+        out[k] = tmp + k * bound;
+        tag[k] = i + k;
+    }
+    int rc = vod_encoder_put_batch(e, s, &nodes[i], tag, count, out, bound, &recs[i],
+                                   same);
+    for (size_t k = 0; k < count && !rc; k++) {
+        if (same[k] != i + k) {
+            off[i + k] = off[same[k]];
+            continue;
+        }
+        off[i + k] = b->n;
+        rc = vod_mem_write(b, out[k], recs[i + k].size);
+    }
+    return rc;
+}
+
 /* Phase 2 for every node, serially, into one buffer (offsets in off; a
  * duplicate the encoder found shares its first's); its times into t. */
 static int encode_all(const vod_source *s, const vod_layout *L,
@@ -812,18 +913,11 @@ static int encode_all(const vod_source *s, const vod_layout *L,
     vod_encoder *e;
     int rc = vod_encoder_new(L, p, &e);
     if (rc) return rc;
-    uint8_t *tmp = malloc(bound);
+    uint8_t *tmp = malloc(VOD_ENCODE_BATCH * bound);
     rc = tmp ? 0 : -ENOMEM;
-    for (size_t i = 0; i < n && !rc; i++) {
-        uint64_t same;
-        rc = vod_encoder_put(e, s, &nodes[i], i, tmp, bound, &recs[i], &same);
-        if (rc) break;
-        if (same != i) {
-            off[i] = off[same];
-            continue;
-        }
-        off[i] = b->n;
-        rc = vod_mem_write(b, tmp, recs[i].size);
+    for (size_t i = 0; i < n && !rc; i += VOD_ENCODE_BATCH) {
+        size_t count = n - i < VOD_ENCODE_BATCH ? n - i : VOD_ENCODE_BATCH;
+        rc = encode_some(e, s, nodes, i, count, tmp, bound, recs, off, b);
     }
     vod_times et;
     vod_encoder_times(e, &et);

@@ -29,6 +29,7 @@ shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
     work_tick(w);
     while (queue_space(&s->q) == 0) {
         if (work_aborted(w)) return NULL;
+        work_ring_master(w); /* entries published without a ring */
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
         if (queue_space(&s->q) == 0 && !work_aborted(w))
             shm_futex_wait(&s->wake, v, WORK_WAIT_NS);
@@ -45,13 +46,24 @@ shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
 
 /* A re-run after a death skips the entries the master already has: the
  * kernel's output is deterministic. */
-int work_entry_end(work_ctx *w)
+static int entry_end(work_ctx *w, int batched)
 {
     if (w->skip) {
         w->skip--;
     } else {
         queue_publish(&w->s->q);
-        work_ring_master(w);
+        if (!batched || QUEUE_ENTRIES - queue_space(&w->s->q) >= QUEUE_ENTRIES / 2)
+            work_ring_master(w);
     }
     return work_aborted(w) ? -ECANCELED : 0;
+}
+
+int work_entry_end(work_ctx *w)
+{
+    return entry_end(w, 0);
+}
+
+int work_entry_end_batched(work_ctx *w)
+{
+    return entry_end(w, 1);
 }

@@ -15,8 +15,8 @@
 #define ENCODE_CHUNK 8u /* brick nodes claimed at a time */
 
 typedef struct {
-    uint8_t *out;
-    size_t out_bytes;
+    uint8_t *out; /* VOD_ENCODE_BATCH bricks' encodings, bound bytes each */
+    size_t bound;
 } encode_state;
 
 static void encode_free(void *state)
@@ -27,18 +27,18 @@ static void encode_free(void *state)
     free(st);
 }
 
-/* Room for a brick's encoding, kept across jobs. */
+/* Room for a batch of bricks' encodings, kept across jobs. */
 static int encode_begin(work_ctx *w, void **state)
 {
     encode_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
     const encode_block *b = shm_at(w->base, w->h->job_off);
     size_t want = vod_encode_bound(&b->L, &b->p);
-    if (st->out_bytes >= want) return 0;
-    uint8_t *n = realloc(st->out, want);
+    if (st->bound >= want) return 0;
+    uint8_t *n = realloc(st->out, VOD_ENCODE_BATCH * want);
     if (!n) return -ENOMEM;
     st->out = n;
-    st->out_bytes = want;
+    st->bound = want;
     return 0;
 }
 
@@ -51,36 +51,50 @@ static void encode_fail(encode_block *b, int rc)
                                             memory_order_relaxed);
 }
 
-/* Encode node i into the shared brick area.  A duplicate of a brick this
- * worker stored takes its offset; one whose first did not fit stays
- * unrecorded like it (the master encodes both). */
-static int encode_one(work_ctx *w, encode_state *st, encode_block *b,
-                      const vod_source *t, vod_encoder *enc, uint64_t i)
+/* Node i, encoded into out (its record in rec, same: the tag of its
+ * first), into the shared brick area.  A duplicate of a brick this worker
+ * stored takes its offset; one whose first did not fit stays unrecorded
+ * like it (the master encodes both). */
+static void store_one(work_ctx *w, encode_block *b, uint64_t i,
+                      const uint8_t *out, const vod_encoded *rec, uint64_t same)
 {
-    const vod_node *nodes = shm_at(w->base, b->nodes_off);
     vod_encoded *recs = shm_at(w->base, b->recs_off);
     uint64_t *offs = shm_at(w->base, b->offs_off);
-    vod_encoded rec;
-    uint64_t same;
-    int rc = vod_encoder_put(enc, t, &nodes[i], i, st->out, st->out_bytes, &rec,
-                             &same);
-    if (rc) return rc;
     if (same != i) {
         if (same < b->n && offs[same] < b->brick_cap) {
-            recs[i] = rec;
+            recs[i] = *rec;
             offs[i] = offs[same];
         }
-        return 0;
+        return;
     }
     /* relaxed: only the uniqueness of the ranges matters; the bytes are
      * published to the master by the done_seq release. */
-    uint64_t off = atomic_fetch_add_explicit(&b->bump, rec.size,
+    uint64_t off = atomic_fetch_add_explicit(&b->bump, rec->size,
                                              memory_order_relaxed);
     /* Full: leave the node unrecorded, the master encodes it itself. */
-    if (off > b->brick_cap || rec.size > b->brick_cap - off) return 0;
-    memcpy((uint8_t *)shm_at(w->base, b->brick_off) + off, st->out, rec.size);
-    recs[i] = rec;
+    if (off > b->brick_cap || rec->size > b->brick_cap - off) return;
+    memcpy((uint8_t *)shm_at(w->base, b->brick_off) + off, out, rec->size);
+    recs[i] = *rec;
     offs[i] = off;
+}
+
+/* Nodes i0..i0+count-1 (count <= VOD_ENCODE_BATCH), encoded together. */
+static int encode_batch(work_ctx *w, encode_state *st, encode_block *b,
+                        const vod_source *t, vod_encoder *enc, uint64_t i0,
+                        size_t count)
+{
+    const vod_node *nodes = shm_at(w->base, b->nodes_off);
+    uint8_t *out[VOD_ENCODE_BATCH];
+    uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
+    vod_encoded rec[VOD_ENCODE_BATCH];
+    for (size_t k = 0; k < count; k++) {
+        out[k] = st->out + k * st->bound;
+        tag[k] = i0 + k;
+    }
+    int rc = vod_encoder_put_batch(enc, t, &nodes[i0], tag, count, out, st->bound,
+                                   rec, same);
+    if (rc) return rc;
+    for (size_t k = 0; k < count; k++) store_one(w, b, i0 + k, out[k], &rec[k], same[k]);
     return 0;
 }
 
@@ -94,11 +108,12 @@ static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
                                                 memory_order_relaxed);
         if (i0 >= b->n) return 0;
         uint64_t end = i0 + ENCODE_CHUNK < b->n ? i0 + ENCODE_CHUNK : b->n;
-        for (uint64_t i = i0; i < end; i++) {
+        for (uint64_t i = i0; i < end; i += VOD_ENCODE_BATCH) {
             /* relaxed: stop early once anybody failed */
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
             work_tick(w);
-            int rc = encode_one(w, st, b, src, enc, i);
+            size_t count = end - i < VOD_ENCODE_BATCH ? end - i : VOD_ENCODE_BATCH;
+            int rc = encode_batch(w, st, b, src, enc, i, count);
             if (rc) return rc;
         }
     }

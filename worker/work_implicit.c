@@ -70,7 +70,7 @@ static int sink_voxel_batch(void *ud, const grid_voxel *v)
     ((grid_voxel *)st->cur->payload)[st->cur->count++] = *v;
     if (st->cur->count < IMPLICIT_BATCH) return 0;
     st->cur = NULL;
-    return work_entry_end(st->w);
+    return work_entry_end_batched(st->w);
 }
 
 /* Every SUBDIV_POLL_TESTS box tests: the heartbeat, and the job's abort. */

@@ -260,6 +260,27 @@ Test(vod_hash, superfasthash_matches_the_reference_code)
     cr_assert_neq(vod_hash_sfhs("\x80", 1), vod_hash_sfhs("\x00", 1));
 }
 
+/* The four-lane SuperFastHash gives each buffer's reference hash, at
+ * every length around the vector loop's steps and tails. */
+Test(vod_hash, four_lanes_match_the_reference_code)
+{
+    static char buf[4][1100];
+    const int lens[] = {256, 257, 258, 259, 1023, 1024, 1027, 1100};
+    for (int round = 0; round < 4; round++)
+        for (int li = 0; li < 70 + 8; li++) {
+            int len = li < 70 ? li : lens[li - 70];
+            for (int b = 0; b < 4; b++)
+                for (int i = 0; i < len; i++)
+                    buf[b][i] = round == 0 ? (char)0xff : (char)rnd();
+            const void *d[4] = {buf[0], buf[1], buf[2], buf[3]};
+            if (round == 3) d[2] = d[1] = d[0]; /* one buffer in several lanes */
+            uint32_t h[4];
+            vod_hash_sfhs4(d, (size_t)len, h);
+            for (int b = 0; b < 4; b++)
+                cr_assert_eq(h[b], ref_sfhs(d[b], len), "length %d lane %d", len, b);
+        }
+}
+
 /* --------------------------------------------------------------- RUNL */
 
 Test(vod_runl, round_trip_every_width_and_run_boundaries)
@@ -1121,24 +1142,40 @@ static void fx_copies(fixture *f)
             }
 }
 
+/* fx_copies' fixture as surface bricks of the given size (zlib, SFHS):
+ * the file the writer makes of it into *ref when ref is not NULL (before
+ * the aggregates: the writer makes its own), then the layout, the
+ * aggregates, the source and its n non-empty nodes (malloc'ed). */
+static vod_node *copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
+                              vod_stats *st, vod_layout *L, vod_source *src, size_t *n)
+{
+    char err[256];
+    fx_init(f, 8, 128, 128, 256);
+    fx_copies(f);
+    params(p, f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, brick);
+    if (ref) *ref = write_file(f, p, st);
+    cr_assert_eq(vod_layout_make(p, f->t.depth, L, err, sizeof err), 0);
+    f->t.agg = malloc(f->t.used * sizeof *f->t.agg);
+    vod_aggregate(&f->t, p->channel);
+    *src = vod_octree_source(&f->t);
+    *n = vod_collect(src, L, NULL, 0);
+    vod_node *nodes = malloc(*n * sizeof *nodes);
+    vod_collect(src, L, nodes, *n);
+    return nodes;
+}
+
 Test(vod_encoder, duplicates_found_before_compression_change_nothing)
 {
     fixture f;
-    fx_init(&f, 8, 128, 128, 256);
-    fx_copies(&f);
     vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 32);
     vod_stats st;
-    membuf ref = write_file(&f, &p, &st);
+    membuf ref;
     vod_layout L;
+    vod_source src;
+    size_t n;
     char err[256];
-    cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
-    f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
-    vod_aggregate(&f.t, p.channel);
-    vod_source src = vod_octree_source(&f.t);
-    size_t n = vod_collect(&src, &L, NULL, 0), bound = vod_encode_bound(&L, &p);
-    vod_node *nodes = malloc(n * sizeof *nodes);
-    vod_collect(&src, &L, nodes, n);
+    vod_node *nodes = copies_nodes(&f, &p, 32, &ref, &st, &L, &src, &n);
+    size_t bound = vod_encode_bound(&L, &p);
     /* every brick compressed on its own, no duplicate looked for */
     vod_encoded *recs = malloc(n * sizeof *recs);
     uint8_t **data = malloc(n * sizeof *data), *scratch = malloc(L.raw_bytes);
@@ -1187,6 +1224,82 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     free(data), free(recs), free(nodes), free(scratch), free(out), free(f.t.agg);
     f.t.agg = NULL;
     free(m.p), free(ref.p);
+    fx_free(&f);
+}
+
+/* Node picks of the fixture's first few bricks, encoded in batches of 1
+ * to 4, so that a brick repeats inside a batch and across batches: each
+ * record is vod_encode's, a duplicate names an earlier equal brick, and
+ * each distinct brick is compressed once. */
+Test(vod_encoder, batches_find_duplicates_inside_and_across)
+{
+    fixture f;
+    vod_params p;
+    vod_layout L;
+    vod_source src;
+    size_t n;
+    vod_node *nodes = copies_nodes(&f, &p, 16, NULL, NULL, &L, &src, &n);
+    size_t bound = vod_encode_bound(&L, &p);
+    cr_assert_gt(n, 24);
+    enum { DISTINCT = 24, PICKS = 400 };
+    vod_encoded ref[DISTINCT];
+    uint8_t *data[DISTINCT], *scratch = malloc(L.raw_bytes);
+    for (size_t i = 0; i < DISTINCT; i++) {
+        data[i] = malloc(bound);
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &ref[i]), 0);
+    }
+    vod_encode_cleanup();
+    size_t pick[PICKS], firsts = 0;
+    vod_node picked[PICKS];
+    for (size_t j = 0; j < PICKS; j++) {
+        pick[j] = j < DISTINCT ? DISTINCT - 1 - j : rnd() % DISTINCT;
+        if (j % 5 == 1) pick[j] = pick[j - 1]; /* often the brick just before */
+        picked[j] = nodes[pick[j]];
+    }
+    vod_encoder *e;
+    cr_assert_eq(vod_encoder_new(&L, &p, &e), 0);
+    uint8_t *outs = malloc(VOD_ENCODE_BATCH * bound);
+    for (size_t j = 0; j < PICKS;) {
+        size_t k = 1 + rnd() % VOD_ENCODE_BATCH;
+        if (k > PICKS - j) k = PICKS - j;
+        uint8_t *out[VOD_ENCODE_BATCH];
+        uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
+        vod_encoded rec[VOD_ENCODE_BATCH];
+        for (size_t t = 0; t < k; t++) out[t] = outs + t * bound, tag[t] = j + t;
+        cr_assert_eq(vod_encoder_put_batch(e, &src, &picked[j], tag, k, out, bound, rec,
+                                           same), 0);
+        for (size_t t = 0; t < k; t++) {
+            const vod_encoded *r = &ref[pick[j + t]];
+            cr_assert_eq(rec[t].hash, r->hash, "pick %zu", j + t);
+            cr_assert_eq(rec[t].size, r->size, "pick %zu", j + t);
+            if (same[t] == j + t) {
+                firsts++;
+                cr_assert_arr_eq(out[t], data[pick[j + t]], r->size);
+                continue;
+            }
+            cr_assert_lt(same[t], j + t);
+            cr_assert_arr_eq(data[pick[same[t]]], data[pick[j + t]], r->size,
+                             "pick %zu is not %llu", j + t, (unsigned long long)same[t]);
+        }
+        j += k;
+    }
+    size_t distinct = 0; /* equal raw bricks <=> equal streams */
+    for (size_t i = 0; i < DISTINCT; i++) {
+        bool seen = false;
+        for (size_t h = 0; h < i && !seen; h++)
+            seen = ref[h].size == ref[i].size && !memcmp(data[h], data[i], ref[i].size);
+        distinct += !seen;
+    }
+    cr_assert_eq(firsts, distinct);
+    uint64_t tag[VOD_ENCODE_BATCH + 1] = {0}, same[VOD_ENCODE_BATCH + 1];
+    uint8_t *out[VOD_ENCODE_BATCH + 1] = {0};
+    vod_encoded rec[VOD_ENCODE_BATCH + 1];
+    cr_assert_eq(vod_encoder_put_batch(e, &src, nodes, tag, VOD_ENCODE_BATCH + 1, out,
+                                       bound, rec, same), -EINVAL);
+    vod_encoder_free(e);
+    for (size_t i = 0; i < DISTINCT; i++) free(data[i]);
+    free(outs), free(scratch), free(nodes), free(f.t.agg);
+    f.t.agg = NULL;
     fx_free(&f);
 }
 
