@@ -32,6 +32,16 @@ int cli_csg(int argc, char **argv);
  * as path:line:col: node 'NAME': message.  0 and *t (csg_tree_free) with
  * the text's size in *bytes, or CLI_EXIT_USAGE. */
 int cli_csg_load(const char *path, csg_tree **t, uint64_t *bytes);
+/* vox csg's options (vox_mpi csg takes them too). */
+typedef struct {
+    const char *in, *out;
+    uint32_t res, workers;
+    int workers_given;
+    int channel, quiet, comp;
+    double lo[3], hi[3];
+} cli_csg_opts;
+/* 0, CLI_EXIT_USAGE after a message, or -1 after --help's usage. */
+int cli_csg_parse(int argc, char **argv, cli_csg_opts *o);
 int cli_export(int argc, char **argv);
 int cli_mesh(int argc, char **argv);
 

@@ -52,19 +52,12 @@ static int read_tree(const char *path, char **text, size_t *len)
     return 0;
 }
 
-typedef struct {
-    const char *in, *out;
-    uint32_t res, workers;
-    int channel, quiet, comp;
-    double lo[3], hi[3];
-} csg_opts;
-
-static int parse_opts(int argc, char **argv, csg_opts *o)
+int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
 {
     static const struct option longs[] = {
         {"output", 1, 0, 'o'}, {"res", 1, 0, 'r'}, {"channel", 1, 0, 'c'},
         {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"compress", 1, 0, 'Z'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    *o = (csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
+    *o = (cli_csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
                     .comp = VOD_COMP_ZLIB,
                     .workers = cli_cores()};
     int c;
@@ -98,6 +91,7 @@ static int parse_opts(int argc, char **argv, csg_opts *o)
                 cli_error("bad --workers '%s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
                 return CLI_EXIT_USAGE;
             }
+            o->workers_given = 1;
             break;
         case 'Z':
             if (!strcmp(optarg, "zlib")) o->comp = VOD_COMP_ZLIB;
@@ -183,7 +177,7 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
 
 /* The job through the pipeline (its workers, or this thread with -w 0),
  * into OUT under a temporary name renamed into place once complete. */
-static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
+static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes,
                const csg_tree *t)
 {
     pipeline_job job = {.kind = PIPELINE_CSG,
@@ -230,8 +224,8 @@ static int run(const csg_opts *o, const char *text_name, uint64_t text_bytes,
 
 int cli_csg(int argc, char **argv)
 {
-    csg_opts o;
-    int rc = parse_opts(argc, argv, &o);
+    cli_csg_opts o;
+    int rc = cli_csg_parse(argc, argv, &o);
     if (rc) return rc < 0 ? CLI_EXIT_OK : rc;
     grid_spec g;
     char err[200];

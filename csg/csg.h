@@ -174,5 +174,11 @@ uint32_t csg_channel_bits(int channel);
  * csg_eval_store.  0 or a negative errno. */
 int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
                     vod_volume *vol, int channel, csg_stats *st);
+/* The bricks b with lo[a] <= b[a] < hi[a] alone (storage brick
+ * coordinates; NULL: from 0, to the volume's end), as csg_eval_volume
+ * stores them: vox_mpi's subtrees. */
+int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
+                    vod_volume *vol, int channel, const uint32_t lo[3], const uint32_t hi[3],
+                    csg_stats *st);
 
 #endif

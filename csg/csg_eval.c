@@ -755,8 +755,9 @@ int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], void *buf,
     return rc ? rc : put(e, vol, b, buf, uniform, v, channel == VOXEL_CH_OCCUPANCY);
 }
 
-int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
-                    vod_volume *vol, int channel, csg_stats *st)
+int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
+                    vod_volume *vol, int channel, const uint32_t lo[3], const uint32_t hi[3],
+                    csg_stats *st)
 {
     vod_volume_info in;
     vod_volume_get_info(vol, &in);
@@ -769,16 +770,25 @@ int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *con
     uint8_t *buf = malloc((size_t)in.sbrick * in.sbrick * in.sbrick * in.bits / 8);
     if (!buf) rc = -ENOMEM;
     uint32_t nb[3];
-    for (int a = 0; a < 3; a++) nb[a] = (g->res[a] + in.sbrick - 1) / in.sbrick;
+    for (int a = 0; a < 3; a++) {
+        nb[a] = (g->res[a] + in.sbrick - 1) / in.sbrick;
+        if (hi && hi[a] < nb[a]) nb[a] = hi[a];
+    }
     uint32_t b[3];
-    for (b[2] = 0; b[2] < nb[2] && !rc; b[2]++)
-        for (b[1] = 0; b[1] < nb[1] && !rc; b[1]++)
-            for (b[0] = 0; b[0] < nb[0] && !rc; b[0]++)
+    for (b[2] = lo ? lo[2] : 0; b[2] < nb[2] && !rc; b[2]++)
+        for (b[1] = lo ? lo[1] : 0; b[1] < nb[1] && !rc; b[1]++)
+            for (b[0] = lo ? lo[0] : 0; b[0] < nb[0] && !rc; b[0]++)
                 rc = csg_eval_store(e, vol, b, buf, channel);
     if (st) *st = e->st;
     free(buf);
     csg_eval_free(e);
     return rc;
+}
+
+int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
+                    vod_volume *vol, int channel, csg_stats *st)
+{
+    return csg_eval_bricks(t, g, leaves, vol, channel, NULL, NULL, st);
 }
 
 uint32_t csg_channel_bits(int channel)

@@ -148,11 +148,11 @@ static inline mesh_task_arg mesh_task_tiles(const shm_task *t)
 /* ---- csg: a volume CSG tree (csg.h) evaluated brick by brick ---- */
 
 enum csg_op {
-    CSG_BRICKS = 1,        /* bricks first .. first + count - 1 (x fastest) */
+    CSG_BRICKS = 1,        /* bricks first .. first + count - 1 of the box (x fastest) */
 };
 
 /* The task's argument: a run of storage bricks, numbered x fastest over
- * the volume's brick grid; its counts go to stats[task]. */
+ * the block's box of bricks; its counts go to stats[task]. */
 typedef struct {
     uint32_t first, count, task;
 } csg_task_arg;
@@ -172,6 +172,9 @@ typedef struct {
     grid_spec grid;
     uint32_t channel;                       /* the VOD channel (csg_eval_store) */
     uint32_t sbrick, nbricks[3];            /* the volume's storage bricks */
+    /* the bricks evaluated: box_n[a] from box_lo[a] on each axis (the
+     * whole volume, or vox_mpi's subtree); tasks number them x fastest */
+    uint32_t box_lo[3], box_n[3];
     uint32_t n_nodes, node_bytes;           /* node_bytes: sizeof(csg_node) */
     uint64_t nodes_off, text_off, text_len;
     uint32_t ntasks;

@@ -261,6 +261,10 @@ typedef struct {
     void (*progress)(void *ud, const engine_progress *p);
     void *ud;
     const atomic_int *cancel;   /* as engine_job.cancel */
+    /* NULL: every tile.  Else only the tiles tx in [tiles[0], tiles[2]),
+     * ty in [tiles[1], tiles[3]) (vox_mpi's column groups): the volume
+     * holds those columns alone, each as the whole grid's job makes it. */
+    const uint32_t *tiles;
 } engine_mesh_job;
 int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r);
 /* A volume CSG tree (csg.h) evaluated brick by brick into a brick-sparse
@@ -277,6 +281,10 @@ typedef struct {
     void (*progress)(void *ud, const engine_progress *p);
     void *ud;
     const atomic_int *cancel;   /* as engine_job.cancel */
+    /* NULL: every storage brick.  Else only the bricks inside this
+     * octant's cube (vox_mpi's subtrees; its side a multiple of
+     * CSG_VOLUME_BRICK), each as the whole grid's job makes it. */
+    const grid_octant *root;
 } engine_csg_job;
 int engine_csg(engine *e, const engine_csg_job *job, engine_result *r);
 

@@ -99,7 +99,7 @@ static int init_volume(engine *e, const grid_spec *g, int channel, uint64_t off)
 /* The runs, the last pushed first: the stack hands out brick 0's first. */
 static int push_runs(engine *e, const csg_block *b, uint32_t per)
 {
-    uint64_t n = (uint64_t)b->nbricks[0] * b->nbricks[1] * b->nbricks[2];
+    uint64_t n = (uint64_t)b->box_n[0] * b->box_n[1] * b->box_n[2];
     int rc = 0;
     for (uint32_t k = b->ntasks; k-- > 0 && !rc;) {
         uint64_t first = (uint64_t)k * per;
@@ -109,6 +109,29 @@ static int push_runs(engine *e, const csg_block *b, uint32_t per)
         rc = sched_push(e, &t);
     }
     return rc;
+}
+
+/* The bricks to evaluate: the whole volume, or those of the job's root
+ * octant (its cube brick-aligned, or the whole grid's). */
+static int set_box(const engine_csg_job *j, csg_block *b)
+{
+    const grid_octant *o = j->root;
+    for (int a = 0; a < 3; a++) {
+        b->box_lo[a] = 0;
+        b->box_n[a] = b->nbricks[a];
+    }
+    if (!o) return 0;
+    uint32_t side = 1u << o->level, at[3] = {o->x, o->y, o->z};
+    if (o->level > j->grid.depth || (side % CSG_VOLUME_BRICK && o->level != j->grid.depth))
+        return -EINVAL;
+    for (int a = 0; a < 3; a++) {
+        if (at[a] % side) return -EINVAL;
+        uint32_t lo = at[a] / CSG_VOLUME_BRICK;
+        uint32_t hi = (at[a] + side + CSG_VOLUME_BRICK - 1) / CSG_VOLUME_BRICK;
+        b->box_lo[a] = lo < b->nbricks[a] ? lo : b->nbricks[a];
+        b->box_n[a] = (hi < b->nbricks[a] ? hi : b->nbricks[a]) - b->box_lo[a];
+    }
+    return 0;
 }
 
 static int csg_setup(engine *e, void *job)
@@ -125,12 +148,11 @@ static int csg_setup(engine *e, void *job)
     b->grid = j->grid;
     b->channel = (uint32_t)j->channel;
     b->sbrick = CSG_VOLUME_BRICK;
-    uint64_t n = 1;
-    for (int a = 0; a < 3; a++) {
+    for (int a = 0; a < 3; a++)
         b->nbricks[a] = (j->grid.res[a] + CSG_VOLUME_BRICK - 1) / CSG_VOLUME_BRICK;
-        n *= b->nbricks[a];
-    }
-    uint32_t per = (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS);
+    if (set_box(j, b)) return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
+    uint64_t n = (uint64_t)b->box_n[0] * b->box_n[1] * b->box_n[2];
+    uint32_t per = n ? (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS) : 1;
     b->ntasks = cj->ntasks = (uint32_t)((n + per - 1) / per);
     e->h->job_off = e->h->data_off;
     e->h->job_bytes = sizeof *b;

@@ -67,6 +67,14 @@ static int by_triangles(const void *pa, const void *pb, void *ud)
     return na != nb ? (na < nb ? -1 : 1) : (a < b ? -1 : a > b);
 }
 
+/* 1 when tile t is one the job runs (engine_mesh_job.tiles). */
+static int tile_wanted(const engine_mesh_job *j, const mesh_bins *bins, uint32_t t)
+{
+    if (!j->tiles) return 1;
+    uint32_t tx = t % bins->tiles[0], ty = t / bins->tiles[0];
+    return tx >= j->tiles[0] && tx < j->tiles[2] && ty >= j->tiles[1] && ty < j->tiles[3];
+}
+
 /* One task per tile with triangles, the lightest pushed first. */
 static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
 {
@@ -74,7 +82,8 @@ static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
     uint32_t *order = malloc((n ? n : 1) * sizeof *order);
     if (!order) return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
     for (uint32_t t = 0; t < n; t++)
-        if (bins->start[t + 1] > bins->start[t]) order[k++] = t;
+        if (bins->start[t + 1] > bins->start[t] && tile_wanted(mj->job, bins, t))
+            order[k++] = t;
     qsort_r(order, k, sizeof *order, by_triangles, bins->start);
     int rc = 0;
     for (uint32_t i = 0; i < k && !rc; i++) {

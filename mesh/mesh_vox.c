@@ -215,8 +215,8 @@ int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
     return rc;
 }
 
-int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
-                  vod_volume *vol, mesh_tile_stats *st)
+int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                        const uint32_t *tiles, vod_volume *vol, mesh_tile_stats *st)
 {
     mesh_bins bins;
     int rc = mesh_bin(m, g, o, &bins);
@@ -226,8 +226,12 @@ int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
         mesh_bins_free(&bins);
         return -ENOMEM;
     }
-    for (uint32_t ty = 0; ty < bins.tiles[1] && !rc; ty++)
-        for (uint32_t tx = 0; tx < bins.tiles[0] && !rc; tx++) {
+    uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};
+    const uint32_t *box = tiles ? tiles : all;
+    uint32_t x1 = box[2] < bins.tiles[0] ? box[2] : bins.tiles[0];
+    uint32_t y1 = box[3] < bins.tiles[1] ? box[3] : bins.tiles[1];
+    for (uint32_t ty = box[1]; ty < y1 && !rc; ty++)
+        for (uint32_t tx = box[0]; tx < x1 && !rc; tx++) {
             uint64_t i = (uint64_t)ty * bins.tiles[0] + tx;
             rc = mesh_tile_run(m, bins.ids + bins.start[i],
                                (size_t)(bins.start[i + 1] - bins.start[i]), g, o,
@@ -236,4 +240,10 @@ int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
     free(scratch);
     mesh_bins_free(&bins);
     return rc;
+}
+
+int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                  vod_volume *vol, mesh_tile_stats *st)
+{
+    return mesh_voxelize_tiles(m, g, o, NULL, vol, st);
 }

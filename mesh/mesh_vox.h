@@ -98,5 +98,9 @@ int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
 /* Every tile, serially: the reference for the engine (tests, -w 0). */
 int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
                   vod_volume *vol, mesh_tile_stats *st);
+/* The tiles tx in [tiles[0], tiles[2]), ty in [tiles[1], tiles[3]) alone
+ * (NULL: every tile), serially: vox_mpi's column groups. */
+int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                        const uint32_t *tiles, vod_volume *vol, mesh_tile_stats *st);
 
 #endif

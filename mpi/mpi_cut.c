@@ -78,6 +78,37 @@ int mpi_cut_make(const expr_tape *tape, const grid_spec *g, const vod_layout *L,
     return 0;
 }
 
+/* Octants of level s meeting the grid along axis a. */
+static uint32_t along(const grid_spec *g, int a, int s)
+{
+    return (g->res[a] + (1u << s) - 1) >> s;
+}
+
+static uint64_t grid_tasks(const grid_spec *g, int s, int columns)
+{
+    return (uint64_t)along(g, 0, s) * along(g, 1, s) * (columns ? 1 : along(g, 2, s));
+}
+
+int mpi_cut_grid(const grid_spec *g, const vod_layout *L, size_t target, int min_level,
+                 int columns, mpi_cut *out)
+{
+    memset(out, 0, sizeof *out);
+    int s = g->depth, floor_level = (int)L->brick_log2 + 1;
+    if (floor_level < min_level) floor_level = min_level;
+    while (s - 1 >= floor_level && grid_tasks(g, s, columns) < target) s--;
+    uint64_t n = grid_tasks(g, s, columns);
+    if (!(out->oct = malloc(n * sizeof *out->oct))) return -ENOMEM;
+    uint32_t nz = columns ? 1 : along(g, 2, s);
+    for (uint32_t z = 0; z < nz; z++)
+        for (uint32_t y = 0; y < along(g, 1, s); y++)
+            for (uint32_t x = 0; x < along(g, 0, s); x++)
+                out->oct[out->n++] = (grid_octant){(uint16_t)(x << s), (uint16_t)(y << s),
+                                                   (uint16_t)(z << s), (uint16_t)s};
+    out->level = s;
+    out->node_level = mpi_node_level(L, g->depth, s);
+    return 0;
+}
+
 void mpi_cut_free(mpi_cut *c)
 {
     free(c->oct);

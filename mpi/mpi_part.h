@@ -23,9 +23,12 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "csg.h"
 #include "engine.h"
 #include "expr.h"
 #include "grid.h"
+#include "mesh.h"
+#include "mesh_vox.h"
 #include "vod.h"
 
 /* ---- the cut ---- */
@@ -49,6 +52,14 @@ uint32_t mpi_node_level(const vod_layout *L, int depth, int s);
 int mpi_cut_make(const expr_tape *tape, const grid_spec *g, const vod_layout *L,
                  size_t target, mpi_cut *out);
 void mpi_cut_free(mpi_cut *c);
+/* The cut of a mesh or CSG job, which has no interval test: level s the
+ * lowest at or above min_level (and above the brick) that still gives at
+ * least `target` tasks (the grid's whole depth when none does), and every
+ * octant of level s that meets the grid, in preorder; with columns, one
+ * octant per xy column of level s (z 0: the column through the whole grid
+ * in z), in x fastest order.  0 or -ENOMEM. */
+int mpi_cut_grid(const grid_spec *g, const vod_layout *L, size_t target, int min_level,
+                 int columns, mpi_cut *out);
 
 /* ---- a subtree on a rank ---- */
 
@@ -70,22 +81,39 @@ typedef struct {
     uint32_t idx, value;
 } mpi_pair;
 
-/* What a subtree gave: its nodes (level <= node_level, preorder), their
- * encoded bytes (valid only during the call), the top brick's voxels. */
+/* A subtree's top brick (its node of level node_level): the subtree's
+ * octant and how many of the task's pairs, in order, are its voxels. */
+typedef struct {
+    grid_octant o;
+    uint32_t npairs;
+} mpi_topref;
+
+/* What a task gave: its nodes (level <= node_level, preorder), their
+ * encoded bytes (valid only during the call), its subtrees' top bricks
+ * (one per subtree that gave nodes: one for an octant, any number for a
+ * mesh job's column) and their voxels, one top after the other. */
 typedef struct {
     size_t n;
     const mpi_rec *recs;
     const uint8_t *const *data;
+    size_t ntops;
+    const mpi_topref *tops;
     size_t npairs;
     const mpi_pair *pairs;
-    uint64_t voxels;    /* the subtree's */
+    uint64_t voxels;    /* the task's */
 } mpi_bricks;
 
 /* Called once per subtree with its bricks; 0 or a negative errno. */
 typedef int (*mpi_deliver)(void *ud, const mpi_bricks *b);
 
+typedef enum { MPI_KIND_IMPLICIT = 1, MPI_KIND_MESH, MPI_KIND_CSG } mpi_kind;
+
 typedef struct {
-    const expr_tape *tape;
+    mpi_kind kind;           /* 0: implicit */
+    const expr_tape *tape;   /* implicit */
+    const mesh *mesh;        /* mesh: the triangles the task's tiles need */
+    mesh_vox_opts mesh_opts; /* ... the repair as run (none when watertight) */
+    const csg_tree *tree;    /* csg, its file leaves' bytes with it */
     grid_spec grid;
     vod_params vod;      /* metadata unused */
     uint32_t node_level;
@@ -93,11 +121,34 @@ typedef struct {
     engine_schedule schedule;
 } mpi_subtree_job;
 
-/* Voxelize octant o of the job (kept by its parent's test) and encode its
- * bricks, on the engine or serially, then call deliver.  0, or a negative
- * errno with the reason in err. */
+/* The tiles of a mesh job's column o (mesh_vox.h's tx0, ty0, tx1, ty1). */
+void mpi_column_tiles(const grid_spec *g, grid_octant o, uint32_t tiles[4]);
+
+/* Run task o of the job and encode its bricks, on the engine or serially,
+ * then call deliver: an implicit job's octant (kept by its parent's
+ * test), a CSG job's octant (its storage bricks alone), a mesh job's
+ * column (o.x, o.y at o.level: its tiles alone, through the grid in z).
+ * 0, or a negative errno with the reason in err. */
 int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver,
                     void *ud, char *err, size_t errlen);
+
+/* ---- what mesh and CSG jobs send (mpi_wire.c) ---- */
+
+/* A CSG tree and its file leaves' bytes as one buffer (malloc'd), and
+ * back (checked: counts, lengths, children below their parent, text
+ * references inside the text; -EPROTO when not). */
+int mpi_csg_pack(const csg_tree *t, uint8_t **out, size_t *len);
+int mpi_csg_unpack(const uint8_t *buf, size_t len, csg_tree **out);
+/* The triangles the tiles need (bins: m's, for the job's grid and
+ * options), with their vertices, as one buffer (malloc'd): the triangles
+ * in m's order, so that a tile sees the same ones in the same order;
+ * tiles NULL: every triangle (the winding number's repair reads them
+ * all).  0 or -ENOMEM. */
+int mpi_mesh_part(const mesh *m, const mesh_bins *bins, const uint32_t tiles[4],
+                  uint8_t **out, size_t *len);
+/* A mesh over such a buffer (4-byte aligned, kept while the mesh is
+ * used), its indices checked and its bounding box found: 0 or -EPROTO. */
+int mpi_mesh_view(const uint8_t *buf, size_t len, mesh *out);
 
 /* ---- rank 0's book of bricks ---- */
 

@@ -19,31 +19,42 @@ typedef struct {
     uint64_t voxels;
 } sub_ctx;
 
-/* The non-zero voxels of node n's brick (the subtree's top brick). */
+/* The non-zero voxels of node n's brick (a subtree's top brick), added
+ * to *out (*np of them so far). */
 static int top_pairs(const vod_layout *L, const vod_source *src, const vod_node *n,
                      mpi_pair **out, size_t *np)
 {
     size_t voxels = (size_t)L->brick * L->brick * L->brick;
     uint8_t *raw = calloc(1, L->raw_bytes);
-    mpi_pair *p = malloc(voxels * sizeof *p);
+    mpi_pair *p = realloc(*out, (*np + voxels) * sizeof *p);
+    if (p) *out = p;
     int rc = raw && p ? 0 : -ENOMEM;
     if (!rc && n->uniform)
         for (size_t i = 0; i < voxels && n->value; i++) p[(*np)++] = (mpi_pair){(uint32_t)i, n->value};
     else if (!rc)
         rc = src->ops->fill(src, L, n, raw);
     for (size_t i = 0; !rc && !n->uniform && i < voxels; i++) {
-        uint32_t v = L->voxel_bits == 32 ? vod_get32(raw + 4 * i)
-                                         : (uint32_t)(raw[i >> 3] >> (i & 7) & 1u);
+        uint32_t v = L->voxel_bits == 32  ? vod_get32(raw + 4 * i)
+                     : L->voxel_bits == 8 ? raw[i]
+                                          : (uint32_t)(raw[i >> 3] >> (i & 7) & 1u);
         if (v) p[(*np)++] = (mpi_pair){(uint32_t)i, v};
     }
     free(raw);
-    if (rc) free(p);
-    else *out = p;
     return rc;
 }
 
-/* The subtree's nodes (level <= node_level: the others are the path above
- * it, rank 0's), keyed, with its top brick's voxels, to the caller. */
+/* The octant of the subtree whose top brick is node n (of level top). */
+static grid_octant top_octant(const vod_layout *L, int depth, const vod_node *n, uint32_t top)
+{
+    if (top >= L->height - 1) return (grid_octant){0, 0, 0, (uint16_t)depth};
+    uint32_t s = top + L->brick_log2;
+    return (grid_octant){(uint16_t)(n->bx << s), (uint16_t)(n->by << s),
+                         (uint16_t)(n->bz << s), (uint16_t)s};
+}
+
+/* The task's nodes (level <= node_level: the others are the paths above
+ * its subtrees, rank 0's), keyed, with each subtree's top brick and its
+ * voxels, to the caller. */
 static int hand_over(void *ud, const vod_layout *L, const vod_source *src, size_t n,
                      const vod_node *nodes, const vod_encoded *recs,
                      const uint8_t *const *data)
@@ -52,44 +63,95 @@ static int hand_over(void *ud, const vod_layout *L, const vod_source *src, size_
     uint32_t top = c->j->node_level;
     mpi_rec *r = malloc((n ? n : 1) * sizeof *r);
     const uint8_t **d = malloc((n ? n : 1) * sizeof *d);
+    mpi_topref *tops = malloc((n ? n : 1) * sizeof *tops);
     mpi_pair *pairs = NULL;
-    size_t k = 0, np = 0;
-    int rc = r && d ? 0 : -ENOMEM;
+    size_t k = 0, nt = 0, np = 0;
+    int rc = r && d && tops ? 0 : -ENOMEM;
     for (size_t i = 0; !rc && i < n; i++) {
         if (nodes[i].level > top) continue;
-        if (nodes[i].level == top && top < L->height - 1)
-            rc = top_pairs(L, src, &nodes[i], &pairs, &np);
+        if (nodes[i].level == top) {
+            size_t before = np;
+            if (top < L->height - 1) rc = top_pairs(L, src, &nodes[i], &pairs, &np);
+            tops[nt++] = (mpi_topref){top_octant(L, c->j->grid.depth, &nodes[i], top),
+                                      (uint32_t)(np - before)};
+        }
         r[k] = (mpi_rec){.preorder = nodes[i].preorder, .level = nodes[i].level,
                          .hash = recs[i].hash, .size = recs[i].size};
         mpi_key(data[i], recs[i].size, r[k].key);
         d[k++] = data[i];
     }
-    mpi_bricks b = {.n = k, .recs = r, .data = d, .npairs = np, .pairs = pairs,
-                    .voxels = c->voxels};
+    mpi_bricks b = {.n = k, .recs = r, .data = d, .ntops = nt, .tops = tops, .npairs = np,
+                    .pairs = pairs, .voxels = c->voxels};
     if (!rc) rc = c->deliver(c->ud, &b);
     free(pairs);
+    free(tops);
     free(r);
     free(d);
     return rc;
 }
 
+void mpi_column_tiles(const grid_spec *g, grid_octant o, uint32_t tiles[4])
+{
+    uint32_t side = 1u << o.level, at[2] = {o.x, o.y};
+    for (int a = 0; a < 2; a++) {
+        uint32_t n = (g->res[a] + MESH_TILE - 1) / MESH_TILE;
+        uint32_t hi = (at[a] + side + MESH_TILE - 1) / MESH_TILE;
+        tiles[a] = at[a] / MESH_TILE;
+        tiles[2 + a] = hi < n ? hi : n;
+    }
+}
+
+/* The storage bricks of octant o (csg_eval_bricks' lo, hi). */
+static void octant_bricks(grid_octant o, uint32_t lo[3], uint32_t hi[3])
+{
+    uint32_t side = 1u << o.level, at[3] = {o.x, o.y, o.z};
+    for (int a = 0; a < 3; a++) {
+        lo[a] = at[a] / CSG_VOLUME_BRICK;
+        hi[a] = (at[a] + side + CSG_VOLUME_BRICK - 1) / CSG_VOLUME_BRICK;
+    }
+}
+
+/* The task's voxels on the engine: its octant's (implicit), its column's
+ * tiles (mesh), its octant's storage bricks (csg). */
+static int engine_task(const mpi_subtree_job *j, grid_octant o, engine_result *er)
+{
+    if (j->kind == MPI_KIND_MESH) {
+        uint32_t tiles[4];
+        mpi_column_tiles(&j->grid, o, tiles);
+        engine_mesh_job mj = {.mesh = j->mesh, .grid = j->grid, .opts = j->mesh_opts,
+                              .mip_channel = j->vod.channel, .tiles = tiles};
+        return engine_mesh(j->e, &mj, er);
+    }
+    if (j->kind == MPI_KIND_CSG) {
+        engine_csg_job cj = {.tree = j->tree, .grid = j->grid, .channel = j->vod.channel,
+                             .root = &o};
+        return engine_csg(j->e, &cj, er);
+    }
+    engine_job ej = {.tape = j->tape, .grid = j->grid, .root = &o, .schedule = j->schedule};
+    return engine_voxelize(j->e, &ej, er);
+}
+
+static const char *task_noun(const mpi_subtree_job *j)
+{
+    return j->kind == MPI_KIND_MESH ? "column" : "octant";
+}
+
 static int on_engine(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
                      size_t errlen)
 {
-    engine_job ej = {.tape = j->tape, .grid = j->grid, .root = &o, .schedule = j->schedule};
     engine_result er;
-    int rc = engine_voxelize(j->e, &ej, &er);
+    int rc = engine_task(j, o, &er);
     c->voxels = er.voxels;
     if (rc) {
-        snprintf(err, errlen, "voxelizing octant (%u,%u,%u) level %u: %s", o.x, o.y, o.z,
-                 o.level, er.error);
+        snprintf(err, errlen, "voxelizing %s (%u,%u,%u) level %u: %s", task_noun(j), o.x,
+                 o.y, o.z, o.level, er.error);
         engine_release(j->e);
         return rc;
     }
     engine_error ee;
     rc = engine_encode_bricks(j->e, &j->vod, hand_over, c, NULL, &ee);
-    if (rc) snprintf(err, errlen, "encoding the bricks of octant (%u,%u,%u) level %u: %s",
-                     o.x, o.y, o.z, o.level, ee.message);
+    if (rc) snprintf(err, errlen, "encoding the bricks of %s (%u,%u,%u) level %u: %s",
+                     task_noun(j), o.x, o.y, o.z, o.level, ee.message);
     engine_release(j->e);
     return rc;
 }
@@ -99,32 +161,25 @@ static int store_voxel(void *ud, const grid_voxel *v)
     return octree_store(ud, v->x, v->y, v->z, v->value);
 }
 
-/* The subtree's nodes encoded here, each distinct brick once (its
- * duplicates point at it). */
-static int encode_serial(const mpi_subtree_job *j, octree *t, sub_ctx *c, char *err,
-                         size_t errlen)
+/* The task's nodes encoded here from src (prepared), each distinct brick
+ * once (its duplicates point at it). */
+static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_layout *L,
+                         sub_ctx *c, char *err, size_t errlen)
 {
-    vod_layout L;
-    int rc = vod_layout_make(&j->vod, t->depth, &L, err, errlen);
-    if (rc) return rc;
-    vod_source src = vod_octree_source(t);
-    t->agg = malloc((size_t)t->used * sizeof *t->agg);
-    if (!t->agg) return -ENOMEM;
-    if ((rc = vod_prepare(&src, &L, j->vod.channel, err, errlen))) return rc;
-    size_t n = vod_collect(&src, &L, NULL, 0);
+    size_t n = vod_collect(src, L, NULL, 0);
     vod_node *nodes = malloc((n ? n : 1) * sizeof *nodes);
     vod_encoded *recs = calloc(n ? n : 1, sizeof *recs);
     const uint8_t **data = calloc(n ? n : 1, sizeof *data);
     uint8_t **own = calloc(n ? n : 1, sizeof *own);
     vod_encoder *enc = NULL;
-    rc = nodes && recs && data && own ? vod_encoder_new(&L, &j->vod, &enc) : -ENOMEM;
-    if (!rc) vod_collect(&src, &L, nodes, n);
-    size_t bound = vod_encode_bound(&L, &j->vod);
+    int rc = nodes && recs && data && own ? vod_encoder_new(L, &j->vod, &enc) : -ENOMEM;
+    if (!rc) vod_collect(src, L, nodes, n);
+    size_t bound = vod_encode_bound(L, &j->vod);
     for (size_t i = 0; !rc && i < n; i++) {
         if (nodes[i].level > j->node_level) continue; /* rank 0's */
         uint64_t same;
         if (!(own[i] = malloc(bound))) rc = -ENOMEM;
-        if (!rc) rc = vod_encoder_put(enc, &src, &nodes[i], i, own[i], bound, &recs[i], &same);
+        if (!rc) rc = vod_encoder_put(enc, src, &nodes[i], i, own[i], bound, &recs[i], &same);
         if (!rc && same != i) {
             free(own[i]);
             own[i] = NULL;
@@ -135,20 +190,28 @@ static int encode_serial(const mpi_subtree_job *j, octree *t, sub_ctx *c, char *
     /* the nodes above the subtree: no bytes, and hand_over skips them */
     for (size_t i = 0; !rc && i < n; i++)
         if (!data[i]) data[i] = (const uint8_t *)"";
-    if (!rc) rc = hand_over(c, &L, &src, n, nodes, recs, data);
+    if (!rc) rc = hand_over(c, L, src, n, nodes, recs, data);
     vod_encoder_free(enc);
     for (size_t i = 0; own && i < n; i++) free(own[i]);
     free(own);
     free(data);
     free(recs);
     free(nodes);
-    free(t->agg);
-    t->agg = NULL;
     return rc;
 }
 
-static int on_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
-                     size_t errlen)
+/* The layout, the source prepared (its mip levels), then encode_serial. */
+static int prepare_encode(const mpi_subtree_job *j, vod_source *src, sub_ctx *c, char *err,
+                          size_t errlen)
+{
+    vod_layout L;
+    int rc = vod_layout_make(&j->vod, j->grid.depth, &L, err, errlen);
+    if (!rc) rc = vod_prepare(src, &L, j->vod.channel, err, errlen);
+    return rc ? rc : encode_serial(j, src, &L, c, err, errlen);
+}
+
+static int octree_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
+                         size_t errlen)
 {
     size_t bytes = octree_arena_bytes(SERIAL_CELLS);
     void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
@@ -172,7 +235,93 @@ static int on_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *
                      o.z, o.level, rc == -ENOMEM ? "the octree outgrew its arena"
                                                  : strerror(-rc));
     c->voxels = t.voxels;
-    if (!rc) rc = encode_serial(j, &t, c, err, errlen);
+    vod_source src = vod_octree_source(&t);
+    if (!rc && !(t.agg = malloc((size_t)t.used * sizeof *t.agg))) rc = -ENOMEM;
+    if (!rc) rc = prepare_encode(j, &src, c, err, errlen);
+    free(t.agg);
+    munmap(arena, bytes);
+    return rc;
+}
+
+/* A sparse private mapping of `bytes` (touched as used), MAP_FAILED if none. */
+static void *sparse_map(size_t bytes)
+{
+    return bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                 : MAP_FAILED;
+}
+
+/* A csg job's file leaves built in *arena (MAP_FAILED: none), as the
+ * serial pipeline builds them. */
+static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
+                      vod_volume *leaves[CSG_MAX_NODES], char *err, size_t errlen)
+{
+    *arena = MAP_FAILED;
+    memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
+    if (!csg_has_file_leaves(j->tree)) return 0;
+    size_t one = vod_volume_bytes(j->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX), n = 0;
+    for (uint32_t i = 0; i < j->tree->n; i++)
+        n += j->tree->node[i].kind == CSG_MESH || j->tree->node[i].kind == CSG_VOD;
+    *bytes = one * n;
+    if ((*arena = sparse_map(*bytes)) == MAP_FAILED) {
+        snprintf(err, errlen, "cannot map the leaves' volumes");
+        return -ENOMEM;
+    }
+    size_t used;
+    return csg_leaves_build(j->tree, &j->grid, *arena, *bytes, leaves, &used, err, errlen);
+}
+
+/* A csg task's bricks into vol, in this thread. */
+static int csg_serial(const mpi_subtree_job *j, grid_octant o, vod_volume *vol, sub_ctx *c,
+                      char *err, size_t errlen)
+{
+    void *larena;
+    size_t lbytes = 0;
+    vod_volume *leaves[CSG_MAX_NODES];
+    int rc = csg_leaves(j, &larena, &lbytes, leaves, err, errlen);
+    uint32_t lo[3], hi[3];
+    octant_bricks(o, lo, hi);
+    csg_stats st = {0};
+    if (!rc) {
+        rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)leaves, vol,
+                             j->vod.channel, lo, hi, &st);
+        if (rc) snprintf(err, errlen, "evaluating the tree: %s", strerror(-rc));
+    }
+    c->voxels = st.solid_voxels;
+    if (larena != MAP_FAILED) munmap(larena, lbytes);
+    return rc;
+}
+
+/* A mesh or csg task in this thread: its voxels into a volume of the
+ * whole grid (a sparse mapping: only the task's bricks are touched), then
+ * its nodes encoded. */
+static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
+                         size_t errlen)
+{
+    int is_mesh = j->kind == MPI_KIND_MESH;
+    uint32_t bits = is_mesh ? mesh_vox_bits(&j->mesh_opts) : csg_channel_bits(j->vod.channel);
+    uint32_t sbrick = is_mesh ? MESH_VOLUME_BRICK : CSG_VOLUME_BRICK;
+    size_t bytes = vod_volume_bytes(j->grid.res, bits, sbrick, UINT64_MAX);
+    void *arena = sparse_map(bytes);
+    if (arena == MAP_FAILED) {
+        snprintf(err, errlen, "cannot map a volume of %ux%ux%u", j->grid.res[0],
+                 j->grid.res[1], j->grid.res[2]);
+        return -ENOMEM;
+    }
+    vod_volume *vol;
+    int rc = vod_volume_init(&vol, arena, bytes, j->grid.res, bits, sbrick);
+    if (!rc && is_mesh) {
+        uint32_t tiles[4];
+        mpi_column_tiles(&j->grid, o, tiles);
+        mesh_tile_stats st = {0};
+        rc = mesh_voxelize_tiles(j->mesh, &j->grid, &j->mesh_opts, tiles, vol, &st);
+        c->voxels = st.voxels;
+        if (rc) snprintf(err, errlen, "voxelizing the mesh: %s", strerror(-rc));
+    } else if (!rc) {
+        rc = csg_serial(j, o, vol, c, err, errlen);
+    }
+    vod_source src = vod_volume_source(vol);
+    if (!rc) rc = prepare_encode(j, &src, c, err, errlen);
     munmap(arena, bytes);
     return rc;
 }
@@ -182,5 +331,8 @@ int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver
 {
     sub_ctx c = {.j = j, .deliver = deliver, .ud = ud};
     err[0] = '\0';
-    return j->e ? on_engine(j, o, &c, err, errlen) : on_serial(j, o, &c, err, errlen);
+    if (j->e) return on_engine(j, o, &c, err, errlen);
+    return j->kind == MPI_KIND_MESH || j->kind == MPI_KIND_CSG
+               ? volume_serial(j, o, &c, err, errlen)
+               : octree_serial(j, o, &c, err, errlen);
 }

@@ -33,10 +33,13 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "cli.h"
+#include "csg.h"
+#include "mesh.h"
 #include "clock.h"
 #include "engine.h"
 #include "mpi_part.h"
@@ -52,17 +55,23 @@ enum { TAG_REQ = 1, TAG_NODES, TAG_BRICKS, TAG_FAIL, /* up, to rank 0 */
 #define SUBTREES_PER_RANK 8
 #define HOST_MAX 64
 
-/* The job as broadcast; status >= 0: every rank exits with it. */
+/* The job as broadcast; status >= 0: every rank exits with it.  Behind
+ * it, input_bytes of the job's input: an implicit job's tape, a CSG job's
+ * tree (mpi_csg_pack); a mesh job's triangles go with its tasks. */
 typedef struct {
     int32_t status, schedule;
+    int32_t kind, pad;   /* mpi_kind */
     uint32_t workers, shm_mib;
     grid_spec grid;
     vod_params vod;      /* metadata NULL */
-    uint32_t node_level, pad;
-    uint64_t tape_bytes;
+    mesh_vox_opts mesh_opts;
+    uint32_t node_level, pad2;
+    uint64_t input_bytes;
     char cpus[128];
 } wire_job;
 
+/* A task: an octant, or a mesh job's column followed by its triangles
+ * (mpi_mesh_part). */
 typedef struct {
     int32_t index;       /* -1: no subtree left */
     grid_octant o;
@@ -70,7 +79,7 @@ typedef struct {
 
 typedef struct {
     uint64_t voxels;
-    uint32_t n, npairs;  /* then n mpi_rec, npairs mpi_pair */
+    uint32_t n, ntops, npairs, pad; /* then n mpi_rec, ntops mpi_topref, npairs mpi_pair */
 } wire_nodes;
 
 /* What a rank did, gathered by rank 0 at the end. */
@@ -145,19 +154,22 @@ static void send_up(slave *s, const void *buf, size_t n, int tag)
     s->st.messages++;
 }
 
-/* A subtree's exchange: its records, then the bytes rank 0 wants. */
+/* A task's exchange: its records, then the bytes rank 0 wants. */
 static int on_bricks(void *ud, const mpi_bricks *b)
 {
     slave *s = ud;
-    size_t n = sizeof(wire_nodes) + b->n * sizeof(mpi_rec) + b->npairs * sizeof(mpi_pair);
+    size_t recs = b->n * sizeof(mpi_rec), tops = b->ntops * sizeof(mpi_topref);
+    size_t n = sizeof(wire_nodes) + recs + tops + b->npairs * sizeof(mpi_pair);
     if (n > INT32_MAX) return -E2BIG;
     uint8_t *m = malloc(n);
     if (!m) return -ENOMEM;
-    wire_nodes h = {.voxels = b->voxels, .n = (uint32_t)b->n, .npairs = (uint32_t)b->npairs};
+    wire_nodes h = {.voxels = b->voxels, .n = (uint32_t)b->n, .ntops = (uint32_t)b->ntops,
+                    .npairs = (uint32_t)b->npairs};
     memcpy(m, &h, sizeof h);
-    if (b->n) memcpy(m + sizeof h, b->recs, b->n * sizeof(mpi_rec));
+    if (recs) memcpy(m + sizeof h, b->recs, recs);
+    if (tops) memcpy(m + sizeof h + recs, b->tops, tops);
     if (b->npairs)
-        memcpy(m + sizeof h + b->n * sizeof(mpi_rec), b->pairs, b->npairs * sizeof(mpi_pair));
+        memcpy(m + sizeof h + recs + tops, b->pairs, b->npairs * sizeof(mpi_pair));
     send_up(s, m, n, TAG_NODES);
     free(m);
     s->st.nodes += b->n;
@@ -188,21 +200,44 @@ static int on_bricks(void *ud, const mpi_bricks *b)
     return rc;
 }
 
+/* The next task from rank 0 (a mesh job's triangles with it, in *buf
+ * for the task's time): 0, 1 when none is left, or -EPROTO. */
+static int next_task(slave *s, wire_task *t, uint8_t **buf, mesh *m)
+{
+    MPI_Status st;
+    int n;
+    wait_msg(down, 0, TAG_TASK, &st);
+    *buf = recv_msg(down, &st, &n);
+    if ((size_t)n < sizeof *t) return -EPROTO;
+    memcpy(t, *buf, sizeof *t);
+    if (t->index < 0) return 1;
+    if (s->sj.kind != MPI_KIND_MESH) return (size_t)n == sizeof *t ? 0 : -EPROTO;
+    if (mpi_mesh_view(*buf + sizeof *t, (size_t)n - sizeof *t, m)) return -EPROTO;
+    s->sj.mesh = m;
+    return 0;
+}
+
 /* Ask, run, exchange, until rank 0 says there is nothing left; a failure
  * goes to rank 0 as a message (it ends the job). */
 static int slave_loop(slave *s)
 {
     send_up(s, "", 0, TAG_REQ);
     for (;;) {
-        MPI_Status st;
         wire_task t;
-        wait_msg(down, 0, TAG_TASK, &st);
-        MPI_Recv(&t, sizeof t, MPI_BYTE, 0, TAG_TASK, down, MPI_STATUS_IGNORE);
-        if (t.index < 0) return 0;
+        uint8_t *buf;
+        mesh part;
         char err[400], m[600];
+        int rc = next_task(s, &t, &buf, &part);
+        if (rc == 1) {
+            free(buf);
+            return 0;
+        }
         double t0 = clock_now();
-        int rc = mpi_subtree_run(&s->sj, t.o, on_bricks, s, err, sizeof err);
+        if (rc) snprintf(err, sizeof err, "a task came damaged");
+        else rc = mpi_subtree_run(&s->sj, t.o, on_bricks, s, err, sizeof err);
         s->st.busy += clock_now() - t0;
+        s->sj.mesh = NULL;
+        free(buf);
         if (rc) {
             int k = snprintf(m, sizeof m, "%s", err[0] ? err : strerror(-rc));
             send_up(s, m, (size_t)(k < (int)sizeof m ? k : (int)sizeof m - 1) + 1, TAG_FAIL);
@@ -292,6 +327,11 @@ typedef struct {
 
 typedef struct {
     const mpi_cut *cut;
+    const grid_spec *grid;
+    mpi_kind kind;
+    const mesh *mesh;        /* a mesh job's: its triangles go out with the tasks */
+    const mesh_bins *bins;   /* ... binned to the tiles; NULL: every triangle
+                                goes with every task (the winding number's repair) */
     mpi_book book;
     mpi_rec *nodes;      /* every node of the file, in arrival order */
     size_t n, cap;
@@ -349,6 +389,32 @@ static int spill(master *m, mpi_book_entry *e, const uint8_t *data)
     return 0;
 }
 
+static void fail_master(master *m, const char *what, int rc)
+{
+    progress_done(&m->pr);
+    msg("rank 0 on %s: %s: %s", all_hosts[0], what, strerror(-rc));
+    abort_job();
+}
+
+/* A mesh job's task: the column, then the triangles its tiles need. */
+static void send_column(master *m, int r, const wire_task *t)
+{
+    uint32_t tiles[4];
+    mpi_column_tiles(m->grid, t->o, tiles);
+    uint8_t *part;
+    size_t n;
+    int rc = mpi_mesh_part(m->mesh, m->bins, m->bins ? tiles : NULL, &part, &n);
+    uint8_t *msg_buf = rc ? NULL : malloc(sizeof *t + n);
+    if (rc || !msg_buf || sizeof *t + n > INT32_MAX)
+        fail_master(m, "the triangles of a column", rc ? rc : msg_buf ? -E2BIG : -ENOMEM);
+    memcpy(msg_buf, t, sizeof *t);
+    memcpy(msg_buf + sizeof *t, part, n);
+    free(part);
+    MPI_Send(msg_buf, (int)(sizeof *t + n), MPI_BYTE, r, TAG_TASK, down);
+    m->sent_bytes += sizeof *t + n;
+    free(msg_buf);
+}
+
 static void send_task(master *m, int r)
 {
     wire_task t = {.index = -1};
@@ -357,28 +423,51 @@ static void send_task(master *m, int r)
         t.o = m->cut->oct[m->next++];
     }
     m->rs[r].task = t.index;
+    if (t.index >= 0 && m->kind == MPI_KIND_MESH) {
+        send_column(m, r, &t);
+        return;
+    }
     MPI_Send(&t, sizeof t, MPI_BYTE, r, TAG_TASK, down);
     m->sent_bytes += sizeof t;
 }
 
-static void fail_master(master *m, const char *what, int rc)
+/* 1 when a top brick's octant o is one of task t's subtrees: t itself,
+ * or for a mesh job any octant of t's column. */
+static int in_task(const master *m, grid_octant t, grid_octant o)
 {
-    progress_done(&m->pr);
-    msg("rank 0 on %s: %s: %s", all_hosts[0], what, strerror(-rc));
-    abort_job();
+    return o.level == t.level && o.x == t.x && o.y == t.y &&
+           (o.z == t.z || (m->kind == MPI_KIND_MESH && o.z < m->grid->res[2]));
 }
 
-/* A subtree's records: book them, ask for the bytes of the new ones. */
+/* Each subtree's top brick to the top's builder. */
+static int take_tops(master *m, grid_octant task, const mpi_topref *tops, size_t ntops,
+                     const mpi_pair *pairs, size_t npairs)
+{
+    size_t at = 0;
+    for (size_t i = 0; i < ntops; i++) {
+        mpi_topref t;
+        memcpy(&t, &tops[i], sizeof t);
+        if (!in_task(m, task, t.o) || t.npairs > npairs - at) return -EPROTO;
+        int rc = mpi_top_add(m->top, t.o, pairs + at, t.npairs);
+        if (rc) return rc;
+        at += t.npairs;
+    }
+    return at == npairs ? 0 : -EPROTO;
+}
+
+/* A task's records: book them, ask for the bytes of the new ones. */
 static int take_nodes(master *m, int r, const uint8_t *buf, int n)
 {
     wire_nodes h;
     if ((size_t)n < sizeof h) return -EPROTO;
     memcpy(&h, buf, sizeof h);
-    if ((size_t)n != sizeof h + (uint64_t)h.n * sizeof(mpi_rec) + (uint64_t)h.npairs * sizeof(mpi_pair))
+    uint64_t recs_bytes = (uint64_t)h.n * sizeof(mpi_rec);
+    uint64_t tops_bytes = (uint64_t)h.ntops * sizeof(mpi_topref);
+    if ((size_t)n != sizeof h + recs_bytes + tops_bytes + (uint64_t)h.npairs * sizeof(mpi_pair))
         return -EPROTO;
     const mpi_rec *recs = (const mpi_rec *)(buf + sizeof h);
     rank_state *rs = &m->rs[r];
-    if (rs->task < 0 || rs->want) return -EPROTO; /* no subtree, or one unfinished */
+    if (rs->task < 0 || rs->want) return -EPROTO; /* no task, or one unfinished */
     for (uint32_t i = 0; i < h.n; i++)
         if (recs[i].level > m->cut->node_level) return -EPROTO; /* the top is rank 0's */
     uint32_t *want = malloc((h.n ? h.n : 1) * sizeof *want);
@@ -394,11 +483,10 @@ static int take_nodes(master *m, int r, const uint8_t *buf, int n)
             rs->want[rs->nwant++] = recs[i];
         }
     }
-    if (h.n) {
-        int rc = mpi_top_add(m->top, m->cut->oct[rs->task],
-                             (const mpi_pair *)(recs + h.n), h.npairs);
-        if (rc) return rc;
-    }
+    int rc = take_tops(m, m->cut->oct[rs->task], (const mpi_topref *)(buf + sizeof h + recs_bytes),
+                       h.ntops, (const mpi_pair *)(buf + sizeof h + recs_bytes + tops_bytes),
+                       h.npairs);
+    if (rc) return rc;
     MPI_Send(want, (int)(rs->nwant * sizeof *want), MPI_BYTE, r, TAG_WANT, down);
     m->sent_bytes += rs->nwant * sizeof *want;
     free(want);
@@ -593,8 +681,17 @@ typedef struct {
     /* --source-name: the name the file's metadata gives the source (voxd
      * runs a client's job from a private copy); "" none */
     const char *source_name;
+    mpi_kind kind;
     source src;
-    expr_tape *tape;
+    expr_tape *tape;       /* implicit */
+    mesh mesh;             /* mesh (mesh_loaded) */
+    int mesh_loaded;
+    mesh_vox_opts run_opts; /* ... the repair as run: none when watertight */
+    mesh_topo topo;
+    mesh_bins bins;        /* ... the triangles of each tile (none: winding) */
+    csg_tree *tree;        /* csg */
+    uint8_t *input;        /* what follows the job: the tape, the packed tree */
+    size_t input_bytes;
     vod_params v;
     char meta[JOB_META_MAX];
     vod_layout L;
@@ -607,12 +704,20 @@ static void usage(FILE *f)
 {
     fprintf(f,
 "usage: mpirun [mpirun options] vox_mpi voxelize (-e EXPR | -f FILE) -o OUT [options]\n"
+"       mpirun [mpirun options] vox_mpi voxelize --mesh FILE -o OUT [options]\n"
+"       mpirun [mpirun options] vox_mpi csg FILE -o OUT -r N [vox csg's options]\n"
 "\n"
-"vox voxelize's implicit-surface jobs over the ranks of an MPI job: rank 0 cuts\n"
-"the octree into subtrees and hands them out on request, every rank (rank 0\n"
+"vox voxelize's and vox csg's jobs over the ranks of an MPI job: rank 0 cuts\n"
+"the grid into subtrees (an implicit job's by its interval tests, a CSG job's\n"
+"into cubes of whole bricks, a mesh job's into columns through z, each sent\n"
+"with the triangles it needs) and hands them out on request, every rank (rank 0\n"
 "too) runs the engine on them with -w workers of its own, and rank 0 writes\n"
-"OUT, the same bytes vox voxelize -w W writes for the job.  Mesh jobs are not\n"
-"run by vox_mpi yet.\n"
+"OUT, the same bytes vox voxelize -w W (vox csg -w W) writes for the job.\n"
+"Only rank 0 reads files: the other hosts need the vox_mpi binary alone.\n"
+"\n"
+"voxelize takes vox voxelize's options (vox voxelize --help), --mesh's too\n"
+"(--mode, --repair, --supersample, --pad, --bbox, --channel); csg takes vox\n"
+"csg's (vox csg --help: -o, -r, -c, -d, -w, -Z, -q), its FILE a file.\n"
 "\n"
 "  -e, --expr EXPR       the implicit function F(x,y,z)\n"
 "  -f, --file FILE       ... from a .vx file (its #@ directives apply)\n"
@@ -628,7 +733,7 @@ static void usage(FILE *f)
 "      --schedule subtree|paper, --channel, --brick, --compress,\n"
 "      --compress-level, --hash\n"
 "                        as vox voxelize (vox voxelize --help)\n"
-"      --subtrees N      subtrees per rank to aim for (default %d)\n"
+"      --subtrees N      subtrees (mesh: columns) per rank to aim for (default %d)\n"
 "      --stats           a line per rank: host, subtrees, bricks and bytes sent\n"
 "      --progress        the progress line, by subtrees done\n"
 "      --source-name NAME  the source's name in the file's metadata (voxd's;\n"
@@ -670,24 +775,100 @@ static int own_options(prep *p, int *argc, char **argv)
     return -1;
 }
 
-/* -1 when the job is ready to run; else the exit code of every rank. */
-static int prepare(prep *p, int argc, char **argv)
+/* The source's name in the file's metadata: --source-name's, else the
+ * file's. */
+static const char *source_name(const prep *p, const char *file)
 {
-    p->per_rank = SUBTREES_PER_RANK;
-    p->fd = -1;
-    int rc = own_options(p, &argc, argv);
-    if (rc >= 0) return rc;
+    return !p->source_name ? file : p->source_name[0] ? p->source_name : NULL;
+}
+
+static int prepare_implicit(prep *p, pipeline_job *pj)
+{
+    int rc = cli_job_source(&p->o, &p->src, &p->tape);
+    if (rc) return rc;
+    p->kind = MPI_KIND_IMPLICIT;
+    pj->kind = PIPELINE_IMPLICIT;
+    pj->implicit.tape = p->tape;
+    pj->implicit.source = p->src.text;
+    pj->implicit.source_len = p->src.len;
+    pj->implicit.source_name = source_name(p, p->src.path);
+    p->input = (uint8_t *)p->tape;
+    p->input_bytes = expr_tape_bytes(p->tape);
+    return -1;
+}
+
+static int prepare_mesh(prep *p, pipeline_job *pj)
+{
+    mesh_error merr;
+    if (mesh_load(p->o.mesh, MESH_FORMAT_AUTO, NULL, &p->mesh, &merr)) {
+        char m[sizeof merr.msg + 64];
+        msg("%s: %s", p->o.mesh, mesh_error_str(&merr, m, sizeof m));
+        return CLI_EXIT_USAGE;
+    }
+    p->mesh_loaded = 1;
+    p->kind = MPI_KIND_MESH;
+    struct stat sb;
+    pj->kind = PIPELINE_MESH;
+    pj->mesh.mesh = &p->mesh;
+    pj->mesh.opts = p->o.mesh_opts;
+    pj->mesh.pad = p->o.pad;
+    pj->mesh.fit = !p->o.has_domain;
+    pj->mesh.source_name = source_name(p, p->o.mesh);
+    pj->mesh.source_bytes = stat(p->o.mesh, &sb) == 0 ? (uint64_t)sb.st_size : 0;
+    return -1;
+}
+
+/* vox csg's options into the job's (the rest of vox_mpi reads those). */
+static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
+{
+    cli_csg_opts co;
+    int rc = cli_csg_parse(argc, argv, &co);
+    if (rc) return rc < 0 ? CLI_EXIT_OK : rc;
+    if (!strcmp(co.in, "-")) {
+        msg("vox_mpi csg reads its tree from a file, not standard input");
+        return CLI_EXIT_USAGE;
+    }
+    uint64_t text_bytes;
+    if ((rc = cli_csg_load(co.in, &p->tree, &text_bytes))) return rc;
+    p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */
+    if ((rc = mpi_csg_pack(p->tree, &p->input, &p->input_bytes))) {
+        msg("%s: %s", co.in, strerror(-rc));
+        return CLI_EXIT_FAILED;
+    }
+    if (p->input_bytes > INT32_MAX) { /* one broadcast */
+        msg("%s: the tree and its files' bytes pass 2 GiB; vox_mpi broadcasts them at once",
+            co.in);
+        return CLI_EXIT_USAGE;
+    }
+    p->o.out = co.out;
+    p->o.quiet = co.quiet;
+    p->o.res = co.res;
+    if (co.workers_given) p->o.workers = co.workers;
+    p->o.shm_mib = 0; /* vox csg's: the engine's default */
+    vod_params_default(&p->o.vod);
+    p->o.vod.channel = co.channel;
+    p->o.vod.comp = co.comp;
+    memcpy(p->o.lo, co.lo, sizeof co.lo);
+    memcpy(p->o.hi, co.hi, sizeof co.hi);
+    pj->kind = PIPELINE_CSG;
+    pj->csg.tree = p->tree;
+    pj->csg.source_name = source_name(p, co.in);
+    pj->csg.source_bytes = text_bytes;
+    return -1;
+}
+
+/* The options of vox voxelize or vox csg, the job's input loaded. */
+static int prepare_kind(prep *p, int argc, char **argv, pipeline_job *pj)
+{
+    cli_job_defaults(&p->o);
+    p->o.workers = WORKERS_AUTO;
+    if (argc >= 2 && !strcmp(argv[1], "csg")) return prepare_csg(p, argc - 1, argv + 1, pj);
     if (argc < 2 || strcmp(argv[1], "voxelize")) {
         usage(stderr);
         return CLI_EXIT_USAGE;
     }
-    cli_job_defaults(&p->o);
-    p->o.workers = WORKERS_AUTO;
-    if ((rc = cli_job_parse(CLI_CMD_VOXELIZE, argc - 1, argv + 1, &p->o))) return rc;
-    if (p->o.mesh) {
-        msg("mesh jobs do not run on vox_mpi yet: use vox voxelize --mesh");
-        return CLI_EXIT_USAGE;
-    }
+    int rc = cli_job_parse(CLI_CMD_VOXELIZE, argc - 1, argv + 1, &p->o);
+    if (rc) return rc;
     if (p->o.mode == CLI_MODE_DAEMON) {
         msg("--daemon: vox_mpi runs its jobs itself, never on a voxd");
         return CLI_EXIT_USAGE;
@@ -696,25 +877,78 @@ static int prepare(prep *p, int argc, char **argv)
         msg("bad --res '%s': want a whole number from 1 to %u", p->o.res_arg, GRID_MAX_RES);
         return CLI_EXIT_USAGE;
     }
-    if ((rc = cli_job_source(&p->o, &p->src, &p->tape))) return rc;
-    pipeline_job pj = {
-        .kind = PIPELINE_IMPLICIT,
-        .implicit = {.tape = p->tape, .source = p->src.text, .source_len = p->src.len,
-                     .source_name = !p->source_name    ? p->src.path
-                                    : p->source_name[0] ? p->source_name
-                                                        : NULL},
-        .lo = {p->o.lo[0], p->o.lo[1], p->o.lo[2]},
-        .hi = {p->o.hi[0], p->o.hi[1], p->o.hi[2]},
-        .res = p->o.res, .schedule = p->o.schedule, .vod = p->o.vod,
-    };
+    return p->o.mesh ? prepare_mesh(p, pj) : prepare_implicit(p, pj);
+}
+
+/* A mesh job's topology (the repair dropped when the mesh is watertight,
+ * as pipeline_run drops it) and its triangles binned to the tiles. */
+static int prepare_bins(prep *p)
+{
+    p->run_opts = p->o.mesh_opts;
+    int rc = mesh_topology(&p->mesh, &p->topo);
+    if (!rc && p->topo.watertight) p->run_opts.repair = MESH_REPAIR_NONE;
+    if (!rc && p->run_opts.repair != MESH_REPAIR_WINDING)
+        rc = mesh_bin(&p->mesh, &p->plan.grid, &p->run_opts, &p->bins);
+    if (rc) msg("%s: the mesh's edges and tiles: %s", p->o.mesh, strerror(-rc));
+    return rc;
+}
+
+/* A mesh job's columns without a triangle are left out: they hold no
+ * voxel, and a rank gets no empty mesh. */
+static void drop_empty_columns(prep *p)
+{
+    size_t k = 0;
+    for (size_t i = 0; i < p->cut.n; i++) {
+        uint32_t t[4];
+        mpi_column_tiles(&p->plan.grid, p->cut.oct[i], t);
+        int any = 0;
+        for (uint32_t ty = t[1]; ty < t[3] && !any; ty++)
+            for (uint32_t tx = t[0]; tx < t[2] && !any; tx++) {
+                uint64_t c = (uint64_t)ty * p->bins.tiles[0] + tx;
+                any = p->bins.start[c + 1] > p->bins.start[c];
+            }
+        if (any) p->cut.oct[k++] = p->cut.oct[i];
+    }
+    p->cut.n = k;
+}
+
+/* The cut: an implicit job's by the kernel's interval tests; a CSG job's
+ * octants of whole storage bricks; a mesh job's columns of whole tiles. */
+static int make_cut(prep *p)
+{
+    size_t target = (size_t)p->per_rank * nranks;
+    if (p->kind == MPI_KIND_IMPLICIT)
+        return mpi_cut_make(p->tape, &p->plan.grid, &p->L, target, &p->cut);
+    if (p->kind == MPI_KIND_CSG)
+        return mpi_cut_grid(&p->plan.grid, &p->L, target, 4 /* CSG_VOLUME_BRICK */, 0,
+                            &p->cut);
+    int rc = mpi_cut_grid(&p->plan.grid, &p->L, target, 6 /* MESH_TILE */, 1, &p->cut);
+    if (!rc && p->bins.start) drop_empty_columns(p);
+    return rc;
+}
+
+/* -1 when the job is ready to run; else the exit code of every rank. */
+static int prepare(prep *p, int argc, char **argv)
+{
+    p->per_rank = SUBTREES_PER_RANK;
+    p->fd = -1;
+    int rc = own_options(p, &argc, argv);
+    if (rc >= 0) return rc;
+    pipeline_job pj = {0};
+    if ((rc = prepare_kind(p, argc, argv, &pj)) >= 0) return rc;
+    memcpy(pj.lo, p->o.lo, sizeof pj.lo);
+    memcpy(pj.hi, p->o.hi, sizeof pj.hi);
+    pj.res = p->o.res;
+    pj.schedule = p->o.schedule;
+    pj.vod = p->o.vod;
     char err[256];
     if (pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||
         vod_layout_make(&p->v, p->plan.grid.depth, &p->L, err, sizeof err)) {
         msg("%s", p->plan.err.message[0] ? p->plan.err.message : err);
         return CLI_EXIT_USAGE;
     }
-    if ((rc = mpi_cut_make(p->tape, &p->plan.grid, &p->L, (size_t)p->per_rank * nranks,
-                           &p->cut))) {
+    if (p->kind == MPI_KIND_MESH && prepare_bins(p)) return CLI_EXIT_FAILED;
+    if ((rc = make_cut(p))) {
         msg("cutting the job into subtrees: %s", strerror(-rc));
         return CLI_EXIT_FAILED;
     }
@@ -744,10 +978,17 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
     else
         snprintf(how, sizeof how, "%d ranks, %llu workers in all", nranks,
                  (unsigned long long)workers);
-    printf("%s: %llu voxels on a %ux%ux%u grid in %.3f s on %s "
-           "(%zu subtrees of %u^3 voxels), VOD written in %.3f s\n",
-           p->o.out, (unsigned long long)m->voxels, g->res[0], g->res[1], g->res[2],
-           t_job, how, p->cut.n, 1u << p->cut.level, t_write);
+    char tasks[96];
+    uint32_t side = 1u << p->cut.level;
+    if (p->kind == MPI_KIND_MESH)
+        snprintf(tasks, sizeof tasks, "%zu columns of %ux%u voxels through z", p->cut.n,
+                 side, side);
+    else
+        snprintf(tasks, sizeof tasks, "%zu subtrees of %u^3 voxels", p->cut.n, side);
+    printf("%s: %llu voxels%s on a %ux%ux%u grid in %.3f s on %s (%s), VOD written in "
+           "%.3f s\n", p->o.out, (unsigned long long)m->voxels,
+           p->kind == MPI_KIND_CSG ? " at or above S" : "", g->res[0], g->res[1], g->res[2],
+           t_job, how, tasks, t_write);
     printf("  %llu bytes, %llu bricks (%llu non-empty nodes), CRC %08x\n",
            (unsigned long long)r->st.file_bytes, (unsigned long long)r->st.bricks,
            (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
@@ -789,13 +1030,34 @@ static void finish_file(prep *p, master *m, rank_stats *all, double t0)
 
 static wire_job job_of(const prep *p)
 {
-    wire_job j = {.status = -1, .schedule = p->o.schedule, .workers = p->o.workers,
-                  .shm_mib = p->o.shm_mib, .grid = p->plan.grid, .vod = p->v,
-                  .node_level = p->cut.node_level,
-                  .tape_bytes = expr_tape_bytes(p->tape)};
+    wire_job j = {.status = -1, .schedule = p->o.schedule, .kind = p->kind,
+                  .workers = p->o.workers, .shm_mib = p->o.shm_mib, .grid = p->plan.grid,
+                  .vod = p->v, .mesh_opts = p->run_opts, .node_level = p->cut.node_level,
+                  .input_bytes = p->input_bytes};
     j.vod.metadata = NULL;
     if (p->o.cpus) snprintf(j.cpus, sizeof j.cpus, "%s", p->o.cpus);
     return j;
+}
+
+/* A rank's part of job j whose input (the tape, the tree) is at input. */
+static mpi_subtree_job subtree_job(const wire_job *j, const void *input, const csg_tree *tree)
+{
+    return (mpi_subtree_job){.kind = (mpi_kind)j->kind,
+                             .tape = j->kind == MPI_KIND_IMPLICIT ? input : NULL,
+                             .tree = tree, .mesh_opts = j->mesh_opts, .grid = j->grid,
+                             .vod = j->vod, .node_level = j->node_level,
+                             .schedule = j->schedule};
+}
+
+static void prep_free(prep *p)
+{
+    mpi_cut_free(&p->cut);
+    expr_tape_free(p->tape);
+    source_free(&p->src);
+    if (p->mesh_loaded) mesh_free(&p->mesh);
+    mesh_bins_free(&p->bins);
+    csg_tree_free(p->tree);
+    if (p->kind == MPI_KIND_CSG) free(p->input);
 }
 
 static int run_master(int argc, char **argv)
@@ -805,14 +1067,18 @@ static int run_master(int argc, char **argv)
     int status = prepare(&p, argc, argv);
     wire_job j = status >= 0 ? (wire_job){.status = status} : job_of(&p);
     MPI_Bcast(&j, sizeof j, MPI_BYTE, 0, MPI_COMM_WORLD);
-    if (status >= 0) return status;
-    MPI_Bcast(p.tape, (int)j.tape_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
+    if (status >= 0) {
+        prep_free(&p);
+        return status;
+    }
+    if (j.input_bytes) MPI_Bcast(p.input, (int)j.input_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
     signal(SIGTERM, on_signal);
     signal(SIGINT, on_signal);
     signal(SIGHUP, on_signal);
     /* rank 0's own slave, its job right behind it (slave_thread) */
     own_slave *own = calloc(1, sizeof *own);
-    master m = {.cut = &p.cut};
+    master m = {.cut = &p.cut, .grid = &p.plan.grid, .kind = p.kind, .mesh = &p.mesh,
+                .bins = p.bins.start ? &p.bins : NULL};
     m.spill = spill_open(p.o.out);
     m.rs = calloc((size_t)nranks, sizeof *m.rs);
     mpi_book_init(&m.book);
@@ -820,8 +1086,7 @@ static int run_master(int argc, char **argv)
         fail_master(&m, "starting", m.spill < 0 ? -errno : -ENOMEM);
     progress_init(&m.pr, p.o.progress);
     own->j = j;
-    own->s.sj = (mpi_subtree_job){.tape = p.tape, .grid = j.grid, .vod = j.vod,
-                                  .node_level = j.node_level, .schedule = j.schedule};
+    own->s.sj = subtree_job(&j, p.tape, p.tree);
     pthread_t th;
     if (pthread_create(&th, NULL, slave_thread, own)) fail_master(&m, "starting", -EAGAIN);
     serve(&m);
@@ -837,35 +1102,46 @@ static int run_master(int argc, char **argv)
     free(m.nodes);
     free(m.rs);
     free(own);
-    mpi_cut_free(&p.cut);
-    expr_tape_free(p.tape);
-    source_free(&p.src);
+    prep_free(&p);
     return 0;
 }
 
 /* ---------------------------------------------------------------- others */
+
+/* The job's input as broadcast, checked: 0, or a message's reason. */
+static const char *take_input(const wire_job *j, void *input, csg_tree **tree)
+{
+    if (grid_check(&j->grid)) return "the job's grid came damaged";
+    if (j->kind == MPI_KIND_IMPLICIT)
+        return expr_tape_validate(input, j->input_bytes) ? "the job's tape came damaged" : NULL;
+    if (j->kind == MPI_KIND_CSG)
+        return mpi_csg_unpack(input, j->input_bytes, tree) ? "the job's tree came damaged"
+                                                            : NULL;
+    return j->kind == MPI_KIND_MESH && !j->input_bytes ? NULL : "the job came damaged";
+}
 
 static int run_rank(void)
 {
     wire_job j;
     MPI_Bcast(&j, sizeof j, MPI_BYTE, 0, MPI_COMM_WORLD);
     if (j.status >= 0) return j.status;
-    void *tape = aligned_alloc(64, (j.tape_bytes + 63) / 64 * 64);
-    if (!tape) {
+    void *input = aligned_alloc(64, (j.input_bytes + 64) / 64 * 64);
+    if (!input) {
         msg("rank %d on %s: out of memory", me, hosts[0]);
         MPI_Abort(MPI_COMM_WORLD, 1);
     }
-    MPI_Bcast(tape, (int)j.tape_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
-    slave s = {.sj = {.tape = tape, .grid = j.grid, .vod = j.vod, .node_level = j.node_level,
-                      .schedule = j.schedule}};
-    if (expr_tape_validate(tape, j.tape_bytes) || grid_check(&j.grid)) {
-        static const char m[] = "the job's tape or grid came damaged";
-        send_up(&s, m, sizeof m, TAG_FAIL);
-        free(tape);
+    if (j.input_bytes) MPI_Bcast(input, (int)j.input_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
+    csg_tree *tree = NULL;
+    const char *bad = take_input(&j, input, &tree);
+    slave s = {.sj = subtree_job(&j, input, tree)};
+    if (bad) {
+        send_up(&s, bad, strlen(bad) + 1, TAG_FAIL);
+        free(input);
         return 1;
     }
     int rc = slave_run(&s, &j);
-    free(tape);
+    csg_tree_free(tree);
+    free(input);
     if (rc) return 1;
     MPI_Gather(&s.st, sizeof(rank_stats), MPI_BYTE, NULL, 0, MPI_BYTE, 0, MPI_COMM_WORLD);
     return 0;

@@ -121,6 +121,7 @@ void vod_aggregate_top(octree *t, int h, int channel)
     if (!t->agg || t->used < 2) return;
     t->agg[0] = 0;
     if (channel == VOXEL_CH_SURFACE) agg_top(t, 1, t->depth - 1, h, VOXEL_CH_SURFACE);
+    else if (channel == VOXEL_CH_DENSITY) agg_top(t, 1, t->depth - 1, h, VOXEL_CH_DENSITY);
     else agg_top(t, 1, t->depth - 1, h, VOXEL_CH_OCCUPANCY);
 }
 
@@ -203,6 +204,8 @@ static inline void put_voxel(const fill_ctx *f, uint32_t x, uint32_t y,
     size_t i = ((size_t)z * f->brick + y) * f->brick + x;
     if (f->bits == 32)
         vod_put32(f->raw + 4 * i, v);
+    else if (f->bits == 8)
+        f->raw[i] = (uint8_t)v;
     else if (v)
         f->raw[i >> 3] |= (uint8_t)(1u << (i & 7));
 }
@@ -231,12 +234,15 @@ static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
 
 /* Voxel values are 32-bit surface voxels: channel 3 as they are, channel 1
  * as one bit (put_voxel sets it for any non-zero value, and the aggregates
- * of channel 1 are 0 or 1). */
+ * of channel 1 are 0 or 1).  8 bits (channel 2) only above level 0, from
+ * aggregates that are densities: vox_mpi's levels above a CSG or mesh
+ * job's subtrees (mpi_top.c). */
 static int octree_fill(const vod_source *s, const vod_layout *L,
                        const vod_node *n, uint8_t *raw)
 {
     const octree *t = s->ctx;
-    if (L->voxel_bits != 1 && L->voxel_bits != 32) return -EINVAL;
+    if (L->voxel_bits != 1 && L->voxel_bits != 8 && L->voxel_bits != 32) return -EINVAL;
+    if (L->voxel_bits == 8 && n->level == 0) return -EINVAL; /* voxels are not densities */
     if (n->level > 0 && !t->agg) return -EINVAL;
     fill_ctx f = {t, raw, L->brick, L->voxel_bits, n->level};
     uint32_t b[3] = {n->bx, n->by, n->bz};

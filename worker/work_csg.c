@@ -62,7 +62,10 @@ static int csg_run(work_ctx *w, void *state, const shm_task *t)
     csg_state *st = state;
     const csg_block *b = shm_at(w->base, w->h->job_off);
     csg_task_arg a = csg_task_bricks(t);
-    uint64_t n = (uint64_t)b->nbricks[0] * b->nbricks[1] * b->nbricks[2];
+    uint64_t n = (uint64_t)b->box_n[0] * b->box_n[1] * b->box_n[2];
+    for (int i = 0; i < 3; i++)
+        if (b->box_lo[i] > b->nbricks[i] || b->box_n[i] > b->nbricks[i] - b->box_lo[i])
+            return -EINVAL;
     if (t->op != CSG_BRICKS || !st->ev || a.first >= n || a.count > n - a.first ||
         a.task >= b->ntasks)
         return -EINVAL;
@@ -71,9 +74,9 @@ static int csg_run(work_ctx *w, void *state, const shm_task *t)
     csg_stats s0 = *csg_eval_stats(st->ev);
     for (uint64_t k = a.first; k < (uint64_t)a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
-        uint32_t bc[3] = {(uint32_t)(k % b->nbricks[0]),
-                          (uint32_t)(k / b->nbricks[0] % b->nbricks[1]),
-                          (uint32_t)(k / b->nbricks[0] / b->nbricks[1])};
+        uint32_t bc[3] = {b->box_lo[0] + (uint32_t)(k % b->box_n[0]),
+                          b->box_lo[1] + (uint32_t)(k / b->box_n[0] % b->box_n[1]),
+                          b->box_lo[2] + (uint32_t)(k / b->box_n[0] / b->box_n[1])};
         int rc = csg_eval_store(st->ev, vol, bc, st->buf, (int)b->channel);
         if (rc) return rc;
         work_tick(w);

@@ -5,7 +5,13 @@
 #  - the file from R ranks x W workers is byte for byte vox voxelize -w W's,
 #    R = 1..4 x W = 0..2 on the sphere and Scene 1, and on the other shapes
 #    and scenes and a few options at some of them;
-#  - bad input on rank 0: its message, and every rank exits non-zero;
+#  - mesh jobs (a closed torus the test writes as OBJ, and one with holes
+#    for the repairs) and CSG jobs (examples/part.csg, a tree with a mesh
+#    leaf, erosion and dilation) the same way, against vox voxelize --mesh
+#    and vox csg -w W: R = 1..4 x W = 0..2, and the channels, modes and
+#    repairs at some of them;
+#  - bad input on rank 0 (an expression, a mesh, a CSG tree): its message,
+#    and every rank exits non-zero, no file;
 #  - a rank that fails (its engine's limit): rank 0 names it and its host;
 #  - a rank killed mid-job: the job ends within seconds, mpirun names the
 #    rank and the host, and no file, temporary file, process or shared
@@ -27,12 +33,14 @@ if ! command -v mpirun >/dev/null || [ ! -x "$VOXMPI" ]; then
     exit 0
 fi
 
-# same NAME R W ARGS...: vox_mpi on R ranks x W workers writes vox voxelize -w W's bytes
-same() {
-    local name=$1 r=$2 w=$3; shift 3
-    local ref="$TMP/ref-$name-$w.vod"
-    [ -f "$ref" ] || "$VOXR" voxelize --embedded -q -w "$w" "$@" -o "$ref" >"$TMP/ref.log" 2>&1
-    if ! timeout 60 "${MPIRUN[@]}" -np "$r" "$VOXMPI" voxelize -q -w "$w" "$@" \
+# same_as CMD NAME R W ARGS...: vox_mpi CMD on R ranks x W workers writes
+# vox CMD -w W's bytes (CMD voxelize or csg)
+same_as() {
+    local cmd=$1 name=$2 r=$3 w=$4; shift 4
+    local ref="$TMP/ref-$name-$w.vod" emb=()
+    [ "$cmd" = voxelize ] && emb=(--embedded)
+    [ -f "$ref" ] || "$VOXR" "$cmd" "${emb[@]}" -q -w "$w" "$@" -o "$ref" >"$TMP/ref.log" 2>&1
+    if ! timeout 60 "${MPIRUN[@]}" -np "$r" "$VOXMPI" "$cmd" -q -w "$w" "$@" \
         -o "$TMP/m.vod" >"$TMP/m.log" 2>&1; then
         fail "mpi: $name on $r ranks x $w workers ran" "$(tail -5 "$TMP/m.log")"
     elif cmp -s "$ref" "$TMP/m.vod"; then
@@ -42,6 +50,7 @@ same() {
     fi
     rm -f "$TMP/m.vod"
 }
+same() { same_as voxelize "$@"; }
 
 for r in 1 2 3 4; do
     for w in 0 1 2; do
@@ -59,27 +68,89 @@ same "scene2, occupancy, bricks of 8" 3 1 -f examples/scene2.vx -r 120 --channel
 same "torus, RUNL, xx32, a flat domain" 2 2 -f examples/torus.vx -r 90 --compress runl --hash xx32 -d -1,1,-1,1,-0.4,0.4
 same "sphere at 8^3 (one brick)" 3 1 -e 'x^2+y^2+z^2-0.5' -r 8
 
+# A torus of 576 triangles, closed and counter-clockwise seen from outside
+# (torus_obj NU NV), and with every DROP-th triangle left out (open: the
+# repairs have something to do).
+torus_obj() {
+    awk -v nu="$1" -v nv="$2" -v drop="${3:-0}" 'BEGIN {
+        pi = atan2(0, -1); R = 0.6; r = 0.25
+        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
+            u = 2 * pi * i / nu; v = 2 * pi * j / nv
+            printf "v %.6f %.6f %.6f\n", (R + r * cos(v)) * cos(u), (R + r * cos(v)) * sin(u), r * sin(v)
+        }
+        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
+            a = i * nv + j + 1; b = ((i + 1) % nu) * nv + j + 1
+            c = ((i + 1) % nu) * nv + (j + 1) % nv + 1; d = i * nv + (j + 1) % nv + 1
+            if (!drop || ++k % drop) printf "f %d %d %d\n", a, b, c
+            if (!drop || ++k % drop) printf "f %d %d %d\n", a, c, d
+        } }'
+}
+torus_obj 24 12 >"$TMP/torus.obj"
+torus_obj 24 12 37 >"$TMP/open.obj"
+refuse "mpi: the test's torus is watertight" 0 'watertight  yes' "$VOXR" mesh-info "$TMP/torus.obj"
+refuse "mpi: the test's open torus is not" 0 'watertight  no' "$VOXR" mesh-info "$TMP/open.obj"
+# the CSG tree with a mesh leaf: its name relative to the tree's folder
+cat >"$TMP/leaf.csg" <<'EOF'
+ring = mesh "torus.obj" fit 0,0,0.1 scale 1.5
+ball = implicit "x^2 + y^2 + z^2 - 0.3"
+all  = union(erode(ring, 1), dilate(ball, 2))
+result all
+EOF
+
+for r in 1 2 3 4; do
+    for w in 0 1 2; do
+        same "torus mesh" $r $w --mesh "$TMP/torus.obj" -r 150
+        same_as csg part $r $w examples/part.csg -r 96
+    done
+done
+i=0
+for a in "--channel density" "--channel surface" "--mode surface6" \
+         "--mode interior --supersample 3" "--supersample 3 --channel density" "--pad 5 --brick 8" \
+         "--bbox -0.9,0.5,-0.9,0.9,-0.3,0.3"; do
+    # shellcheck disable=SC2086 # the options are words
+    same "torus mesh, $a" $((2 + i % 3)) $((i % 3)) --mesh "$TMP/torus.obj" -r 130 $a
+    i=$((i + 1))
+done
+same "open torus, --repair vote" 3 1 --mesh "$TMP/open.obj" -r 200 --repair vote
+same "open torus, --repair winding" 2 2 --mesh "$TMP/open.obj" -r 100 --repair winding --mode interior
+same "closed torus, --repair vote (not needed)" 4 0 --mesh "$TMP/torus.obj" -r 100 --repair vote
+for r in 1 2 3 4; do
+    same_as csg "tree with a mesh leaf" $r $((r % 3)) "$TMP/leaf.csg" -r 80
+done
+same_as csg "tree with a mesh leaf, surface" 3 1 "$TMP/leaf.csg" -r 90 -c surface
+same_as csg "part, occupancy, RUNL, a flat domain" 2 2 examples/part.csg -r 110 -c occupancy -Z runl \
+    -d -1,1,-0.6,0.6,-0.5,0.5
+same_as csg "part at 8^3" 3 0 examples/part.csg -r 8
+
 # Under AddressSanitizer and UBSan (the runner's $VOX_ASAN build): no error
 # in any rank, the same bytes.  Leaks are not looked for here: Open MPI's
 # plugins keep allocations past MPI_Finalize and are unloaded before
 # LeakSanitizer looks, so it cannot even name them; test_mpi_part runs
 # vox_mpi's own parts under LeakSanitizer.
 ASANMPI=$(dirname "${VOX_ASAN:-build/asan/vox}")/vox_mpi
-for w in 0 2; do
-    if ! [ -x "$ASANMPI" ]; then fail "mpi: the sanitizers' build $ASANMPI is there"; break; fi
+# asan_same WHAT W REF ARGS...: vox_mpi ARGS on 3 ranks x W workers
+asan_same() {
+    local what=$1 w=$2 ref=$3; shift 3
+    if ! [ -x "$ASANMPI" ]; then fail "mpi: the sanitizers' build $ASANMPI is there"; return; fi
     ASAN_OPTIONS=detect_leaks=0:abort_on_error=0 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
-        timeout 120 "${MPIRUN[@]}" -x ASAN_OPTIONS -x UBSAN_OPTIONS -np 3 "$ASANMPI" voxelize -q \
-        -w $w -f examples/scene1.vx -r 128 -o "$TMP/asan.vod" >"$TMP/asan.log" 2>&1
-    rc=$?
+        timeout 120 "${MPIRUN[@]}" -x ASAN_OPTIONS -x UBSAN_OPTIONS -np 3 "$ASANMPI" "$@" -q \
+        -w "$w" -o "$TMP/asan.vod" >"$TMP/asan.log" 2>&1
+    local rc=$?
     if [ "$rc" -eq 0 ] && ! grep -qE 'ERROR: AddressSanitizer|runtime error' "$TMP/asan.log" &&
-       cmp -s "$TMP/ref-scene1-$w.vod" "$TMP/asan.vod"; then
-        pass "mpi: 3 ranks x $w workers under the sanitizers: no error, the same bytes"
+       cmp -s "$ref" "$TMP/asan.vod"; then
+        pass "mpi: $what on 3 ranks x $w workers under the sanitizers: no error, the same bytes"
     else
-        fail "mpi: 3 ranks x $w workers under the sanitizers: no error, the same bytes" \
+        fail "mpi: $what on 3 ranks x $w workers under the sanitizers: no error, the same bytes" \
             "exit $rc: $(grep -m3 -E 'ERROR|runtime error' "$TMP/asan.log")"
     fi
     rm -f "$TMP/asan.vod"
+}
+for w in 0 2; do
+    asan_same "Scene 1" $w "$TMP/ref-scene1-$w.vod" voxelize -f examples/scene1.vx -r 128
 done
+asan_same "the torus mesh" 1 "$TMP/ref-torus mesh-1.vod" voxelize --mesh "$TMP/torus.obj" -r 150
+asan_same "the CSG tree with a mesh leaf" 0 "$TMP/ref-tree with a mesh leaf-0.vod" \
+    csg "$TMP/leaf.csg" -r 80
 
 # The summary says what each rank sent.
 timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize -w 1 --stats -f examples/sphere.vx -r 96 \
@@ -109,8 +180,26 @@ if ranks_exit 2 2 voxelize -f "$TMP/missing.vx" -o "$TMP/bad.vod" && grep -q 'mi
 else
     fail "mpi: a missing file on rank 0: every rank exits 2" "$(head -8 "$TMP/b.log")"
 fi
-refuse "mpi: mesh jobs are refused, not run wrong" 2 'mesh jobs do not run on vox_mpi' \
-    timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize --mesh "$TMP/x.obj" -o "$TMP/bad.vod"
+printf 'v 0 0 0\nv 1 0 0\nf 1 2 3\n' >"$TMP/bad.obj"
+if ranks_exit 3 2 voxelize --mesh "$TMP/bad.obj" -r 64 -o "$TMP/bad.vod" &&
+   grep -q "bad.obj: " "$TMP/b.log" && [ ! -e "$TMP/bad.vod" ]; then
+    pass "mpi: a malformed mesh on rank 0: its message, every rank exits 2, no file"
+else
+    fail "mpi: a malformed mesh on rank 0: its message, every rank exits 2, no file" "$(head -8 "$TMP/b.log")"
+fi
+printf 'a = cuboid center 0,0 size 1,1,1\nresult a\n' >"$TMP/bad.csg"
+if ranks_exit 3 2 csg "$TMP/bad.csg" -r 64 -o "$TMP/bad.vod" &&
+   grep -q "bad.csg:1:" "$TMP/b.log" && [ ! -e "$TMP/bad.vod" ]; then
+    pass "mpi: a bad CSG tree on rank 0: its message, every rank exits 2, no file"
+else
+    fail "mpi: a bad CSG tree on rank 0: its message, every rank exits 2, no file" "$(head -8 "$TMP/b.log")"
+fi
+printf 'm = mesh "gone.obj"\nresult m\n' >"$TMP/gone.csg"
+if ranks_exit 2 2 csg "$TMP/gone.csg" -r 64 -o "$TMP/bad.vod" && grep -q "gone.obj" "$TMP/b.log"; then
+    pass "mpi: a CSG leaf's missing file on rank 0: every rank exits 2"
+else
+    fail "mpi: a CSG leaf's missing file on rank 0: every rank exits 2" "$(head -8 "$TMP/b.log")"
+fi
 refuse "mpi: an output directory that does not exist" 1 'cannot create' \
     timeout 60 "${MPIRUN[@]}" -np 2 "$VOXMPI" voxelize -e x -o "$TMP/no/such/dir.vod"
 refuse "mpi: --help tells what vox_mpi runs" 0 'vox_mpi voxelize' \
