@@ -199,8 +199,9 @@ static void scan128(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
  * B below 2^60, and the crossing by one exact division.  With r0 = k0 L +
  * rho (0 <= rho < L) and k = k0 + j, X(k) > 0 reads
  *     j L W > Q = B - tie - (L/2 - rho) W,  so  j = floor(Q / (L W)) + 1. */
-static void raster_tiny(const int64_t P[3][3], int axis, const mv_target *t,
-                        int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
+__attribute__((always_inline)) static inline void
+raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, int64_t iu1,
+            int64_t iv0, int64_t iv1)
 {
     int ua = AX_U[axis], va = AX_V[axis], o1 = 1, o2 = 2;
     int64_t W = (P[1][ua] - P[0][ua]) * (P[2][va] - P[0][va]) -
@@ -235,7 +236,10 @@ static void raster_tiny(const int64_t P[3][3], int axis, const mv_target *t,
     }
 }
 
-void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
+/* The body of mv_raster, inlined with a constant axis: the indexing by
+ * axis folds away. */
+__attribute__((always_inline)) static inline void
+raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
 {
     /* most small triangles cover no sample: out before anything else */
     int ua = AX_U[axis], va = AX_V[axis];
@@ -289,6 +293,15 @@ void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
         scan64(&T, iu0, iu1, iv0, iv1);
     else
         scan128(&T, iu0, iu1, iv0, iv1);
+}
+
+void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
+{
+    switch (axis) {
+    case 0: raster_axis(P, 0, t); break;
+    case 1: raster_axis(P, 1, t); break;
+    default: raster_axis(P, 2, t); break;
+    }
 }
 
 void mv_prefix_z(const mv_block *b, uint64_t *bits, uint64_t *carry, bool first)

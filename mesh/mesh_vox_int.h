@@ -21,11 +21,16 @@
 #ifndef VOXD_MESH_VOX_INT_H
 #define VOXD_MESH_VOX_INT_H
 
+#include <float.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
 #include "mesh_vox.h"
+
+#if defined(__FAST_MATH__) || defined(__ASSOCIATIVE_MATH__)
+#error "the mesh voxelizer's rounding (mv_snap) needs IEEE arithmetic: no -ffast-math"
+#endif
 
 __extension__ typedef __int128 mv_i128;
 
@@ -46,24 +51,34 @@ void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
 
 /* Nearest lattice point of t (in lattice units), clamped to +-2^40 (NaN to
  * -2^40).  The rounding is the FPU's round-to-nearest: adding and taking
- * away 1.5 * 2^52 leaves the nearest integer of any |t| < 2^51. */
+ * away 1.5 * 2^52 leaves the nearest integer of any |t| < 2^51.  That
+ * needs the sum rounded to a double and kept apart from the difference:
+ * no reassociation (refused above) and, where the FPU computes in more
+ * than double precision, a store. */
 static inline int64_t mv_snap(double t)
 {
-    if (!(t >= -MV_LIM)) t = -MV_LIM;
-    if (t > MV_LIM) t = MV_LIM;
-    volatile double r = t + 6755399441055744.0; /* no reassociation */
+    t = t > -MV_LIM ? t : -MV_LIM; /* NaN too: max and min, no branch */
+    t = t < MV_LIM ? t : MV_LIM;
+#if FLT_EVAL_METHOD == 0
+    double r = t + 6755399441055744.0;
+#else
+    volatile double r = t + 6755399441055744.0;
+#endif
     return (int64_t)(r - 6755399441055744.0);
+}
+
+/* Coordinate a of vertex v, snapped. */
+static inline int64_t mv_vertex(const mv_frame *f, uint32_t v, int a)
+{
+    return mv_snap(((double)f->m->vertices[v][a] - f->lo[a]) * f->scale);
 }
 
 /* The snapped vertices of triangle t: P[vertex][axis]. */
 static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
 {
     const uint32_t *tri = f->m->triangles[t];
-    for (int i = 0; i < 3; i++) {
-        const float *v = f->m->vertices[tri[i]];
-        for (int a = 0; a < 3; a++)
-            P[i][a] = mv_snap(((double)v[a] - f->lo[a]) * f->scale);
-    }
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++) P[i][a] = mv_vertex(f, tri[i], a);
 }
 
 /* Bits set in w (SWAR: __builtin_popcountll is a library call without
