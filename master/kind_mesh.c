@@ -1,8 +1,9 @@
 /* The mesh kind's master side: a triangle mesh voxelized tile by tile
  * (mesh_vox.h) into a brick-sparse volume in the segment.  Setup bins the
- * triangles to the tiles (here, once), copies the vertices, triangles and
- * bins into the data area behind the block, gives the rest of the data
- * area to the volume, and pushes one task per tile that has triangles
+ * triangles to the tiles (here, once, snapping the vertices straight into
+ * the segment on the way), copies the vertices, triangles and bins into
+ * the data area behind the block, gives the rest of the data area to the
+ * volume, and pushes one task per tile that has triangles
  * (a tile without any stays empty), lightest first so that the work
  * stack hands out the heaviest first.  Workers send no entries: a tile's
  * bricks go straight into the volume and its counts into its entry of
@@ -37,16 +38,24 @@ static int no_room(engine *e, const char *what)
                       what, e->seg.bytes >> 20);
 }
 
-/* Copy the mesh and the bins behind the block; the volume's offset (the
- * rest of the data area) in *vol_off. */
+/* Where the mesh goes behind the block, up to the lattice (which mesh_bin
+ * fills in place); the end of the lattice. */
+static uint64_t place_mesh(engine *e, const mesh *m, mesh_block *b)
+{
+    b->vertices_off = align64(e->h->data_off + sizeof *b);
+    b->triangles_off = align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
+    b->lattice_off = align64(b->triangles_off + (uint64_t)m->n_triangles * 12);
+    return b->lattice_off + (uint64_t)m->n_vertices * sizeof(mesh_lattice);
+}
+
+/* Copy the mesh and the bins behind the block (the lattice is there
+ * already); the volume's offset (the rest of the data area) in *vol_off. */
 static int copy_input(engine *e, const mesh *m, const mesh_bins *bins,
                       mesh_block *b, uint64_t *vol_off)
 {
     uint64_t n = (uint64_t)bins->tiles[0] * bins->tiles[1];
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->vertices_off = align64(e->h->data_off + sizeof *b);
-    b->triangles_off = align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
-    b->start_off = align64(b->triangles_off + (uint64_t)m->n_triangles * 12);
+    b->start_off = align64(place_mesh(e, m, b));
     b->ids_off = align64(b->start_off + (n + 1) * sizeof(uint64_t));
     b->stats_off = align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
     *vol_off = align64(b->stats_off + n * sizeof(mesh_tile_stats));
@@ -128,14 +137,16 @@ static int mesh_setup(engine *e, void *job)
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the mesh job is invalid");
     if (mesh_vox_check(&j->opts, msg, sizeof msg))
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "%s", msg);
+    mesh_block *b = shm_at(e->seg.base, e->h->data_off);
+    memset(b, 0, sizeof *b);
+    if (place_mesh(e, j->mesh, b) > e->h->data_off + e->h->data_bytes)
+        return no_room(e, "the mesh");
     double t0 = clock_now();
     mesh_bins bins;
-    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, &bins);
+    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, shm_at(e->seg.base, b->lattice_off), &bins);
     mj->r->t_bin = clock_now() - t0;
     if (rc) return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));
-    mesh_block *b = shm_at(e->seg.base, e->h->data_off);
-    memset(b, 0, sizeof *b);
     b->grid = j->grid;
     b->opts = j->opts;
     b->n_vertices = j->mesh->n_vertices;

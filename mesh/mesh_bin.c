@@ -76,14 +76,14 @@ static int16_t clamp_centre(int64_t i, int64_t lo, int64_t hi)
     return (int16_t)(i < lo ? lo : i > hi ? hi : i);
 }
 
-/* The voxel centres of a snapped vertex along x and y: x0 the first at or
- * past it, x1 the last at or before it, clamped to [0, res] and [-1,
+/* The voxel centres of a snapped vertex p along x and y: x0 the first at
+ * or past it, x1 the last at or before it, clamped to [0, res] and [-1,
  * res - 1].  Like the tiles' ranges these are monotonic, so a triangle's
  * union is the centres in the box of its snapped vertices, the samples
  * mv_raster looks at. */
-static span vertex_centres(const mv_frame *f, uint32_t v, const uint32_t res[3])
+static span vertex_centres(const int64_t p[3], const uint32_t res[3])
 {
-    int64_t x = mv_vertex(f, v, 0) - MV_H, y = mv_vertex(f, v, 1) - MV_H;
+    int64_t x = p[0] - MV_H, y = p[1] - MV_H;
     span r = {clamp_centre(mv_ceildiv(x, MV_L), 0, res[0]),
               clamp_centre(mv_floordiv(x, MV_L), -1, (int64_t)res[0] - 1),
               clamp_centre(mv_ceildiv(y, MV_L), 0, res[1]),
@@ -124,8 +124,20 @@ static span centre_tiles(span r)
                     add((uint64_t)ty * (nt)[0] + (uint64_t)tx);                \
     } while (0)
 
+/* Vertex v's span (and its lattice point, when lattice is not NULL). */
+static span vertex_span(const mesh *m, const grid_spec *g, const mv_frame *f, uint32_t v,
+                        bool exact, double margin, const uint32_t nt[2],
+                        mesh_lattice *lattice)
+{
+    int64_t p[3];
+    if (lattice || exact)
+        for (int a = 0; a < (lattice ? 3 : 2); a++) p[a] = mv_vertex(f, v, a);
+    if (lattice) memcpy(lattice[v], p, sizeof p);
+    return exact ? vertex_centres(p, g->res) : vertex_tiles(m, g, v, margin, nt);
+}
+
 int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
-             mesh_bins *out)
+             mesh_lattice *lattice, mesh_bins *out)
 {
     memset(out, 0, sizeof *out);
     mv_plan p;
@@ -144,7 +156,7 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
     uint64_t *cur = malloc(ntiles * sizeof *cur);
     if (!r || !vr || !start || !cur) goto nomem;
     for (uint32_t v = 0; v < m->n_vertices; v++)
-        vr[v] = exact ? vertex_centres(&f, v, g->res) : vertex_tiles(m, g, v, margin, nt);
+        vr[v] = vertex_span(m, g, &f, v, exact, margin, nt, lattice);
 #define COUNT(i) start[(i) + 1]++
     for (uint32_t t = 0; t < m->n_triangles; t++) {
         if (t + MV_AHEAD < m->n_triangles) {

@@ -10,6 +10,7 @@
 void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
 {
     f->m = m;
+    f->lat = NULL;
     for (int a = 0; a < 3; a++) f->lo[a] = g->lo[a];
     f->K = K;
     f->scale = (double)K * (double)MV_L / g->vs;

@@ -25,6 +25,7 @@
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "mesh_vox.h"
 
@@ -42,6 +43,7 @@ __extension__ typedef __int128 mv_i128;
 /* The lattice of one pass: lattice = (v - lo) * scale. */
 typedef struct {
     const mesh *m;
+    const mesh_lattice *lat; /* K = 1: the vertices snapped already, or NULL */
     double lo[3];
     double scale;   /* lattice units per world unit: K * L / vs */
     uint32_t K;     /* samples per voxel and axis */
@@ -77,6 +79,10 @@ static inline int64_t mv_vertex(const mv_frame *f, uint32_t v, int a)
 static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
 {
     const uint32_t *tri = f->m->triangles[t];
+    if (f->lat) {
+        for (int i = 0; i < 3; i++) memcpy(P[i], f->lat[tri[i]], sizeof P[i]);
+        return;
+    }
     for (int i = 0; i < 3; i++)
         for (int a = 0; a < 3; a++) P[i][a] = mv_vertex(f, tri[i], a);
 }
@@ -213,6 +219,7 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b);
 
 typedef struct {
     const mesh *m;
+    const mesh_lattice *lat;    /* K = 1 vertices, or NULL */
     const grid_spec *g;
     const mesh_vox_opts *o;
     const uint32_t *ids;
