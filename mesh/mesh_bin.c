@@ -84,10 +84,10 @@ static int16_t clamp_centre(int64_t i, int64_t lo, int64_t hi)
 static span vertex_centres(const int64_t p[3], const uint32_t res[3])
 {
     int64_t x = p[0] - MV_H, y = p[1] - MV_H;
-    span r = {clamp_centre(mv_ceildiv(x, MV_L), 0, res[0]),
-              clamp_centre(mv_floordiv(x, MV_L), -1, (int64_t)res[0] - 1),
-              clamp_centre(mv_ceildiv(y, MV_L), 0, res[1]),
-              clamp_centre(mv_floordiv(y, MV_L), -1, (int64_t)res[1] - 1)};
+    span r = {clamp_centre(mv_ceil_l(x), 0, res[0]),
+              clamp_centre(mv_floor_l(x), -1, (int64_t)res[0] - 1),
+              clamp_centre(mv_ceil_l(y), 0, res[1]),
+              clamp_centre(mv_floor_l(y), -1, (int64_t)res[1] - 1)};
     return r;
 }
 

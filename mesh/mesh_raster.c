@@ -41,7 +41,7 @@ static int64_t max3(const int64_t a[3])
 static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
                                int64_t *i0, int64_t *i1)
 {
-    int64_t s = mv_ceildiv(lo - MV_H, MV_L), e = mv_floordiv(hi - MV_H, MV_L);
+    int64_t s = mv_ceil_l(lo - MV_H), e = mv_floor_l(hi - MV_H);
     if (s < b->s0[a]) s = b->s0[a];
     if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
     *i0 = s, *i1 = e;
@@ -136,8 +136,8 @@ static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
                   (double)T->dr1 * (double)(v[2] - v[0])) / Wd;
         T->gv = -((double)T->dr1 * (double)(u[2] - u[0]) -
                   (double)(u[1] - u[0]) * (double)T->dr2) / Wd;
-        T->kmin = mv_ceildiv(min3(T->r) - MV_H, MV_L);
-        T->kmax = mv_ceildiv(max3(T->r) - MV_H, MV_L) + 1;
+        T->kmin = mv_ceil_l(min3(T->r) - MV_H);
+        T->kmax = mv_ceil_l(max3(T->r) - MV_H) + 1;
         T->guess = true;
     }
     double rd = (double)T->r[0] + T->gu * (double)(iu * MV_L + MV_H - T->u[0]) +
@@ -218,7 +218,7 @@ raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, in
         thr[j] = (a < 0) | ((a == 0) & (c <= 0));
     }
     int64_t r0 = P[0][axis], dr1 = P[o1][axis] - r0, dr2 = P[o2][axis] - r0;
-    int64_t k0 = mv_floordiv(r0, MV_L), rho = r0 - k0 * MV_L, LW = W * MV_L;
+    int64_t k0 = mv_floor_l(r0), rho = r0 - k0 * MV_L, LW = W * MV_L;
     int64_t base = tie_past(P, axis) + (MV_H - rho) * W;
     double inv = 1.0 / (double)LW;
     for (int64_t iv = iv0; iv <= iv1; iv++) {

@@ -109,17 +109,12 @@ static inline void mv_prefetch(const mesh *m, uint32_t t)
     __builtin_prefetch(m->vertices[tri[2]]);
 }
 
-/* floor(a / b) and ceil(a / b) for b > 0. */
-static inline int64_t mv_floordiv(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return q - (a % b != 0 && a < 0);
-}
-static inline int64_t mv_ceildiv(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return q + (a % b != 0 && a > 0);
-}
+/* floor(a / L) and ceil(a / L) by shifts: >> of a negative value is
+ * arithmetic (floor) with the compilers this builds with, checked here. */
+_Static_assert((-3 >> 1) == -2 && (-((int64_t)1 << 40) >> 16) == -((int64_t)1 << 24),
+               "right shifts of negative values are arithmetic");
+static inline int64_t mv_floor_l(int64_t a) { return a >> MV_QBITS; }
+static inline int64_t mv_ceil_l(int64_t a) { return -(-a >> MV_QBITS); }
 
 /* A block of samples: s0 + [0, n) per axis, one bit each, x fastest, rows
  * of nw 64-bit words: bit x of word ((z * n[1] + y) * nw + x / 64), all
