@@ -60,7 +60,8 @@ static int copy_input(engine *e, const mesh *m, const mesh_bins *bins,
     b->stats_off = align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
     *vol_off = align64(b->stats_off + n * sizeof(mesh_tile_stats));
     if (*vol_off >= end) return no_room(e, "the mesh");
-    memcpy(shm_at(e->seg.base, b->vertices_off), m->vertices, (size_t)m->n_vertices * 12);
+    if (mesh_vox_reads_vertices(&b->opts)) /* else the lattice alone */
+        memcpy(shm_at(e->seg.base, b->vertices_off), m->vertices, (size_t)m->n_vertices * 12);
     memcpy(shm_at(e->seg.base, b->triangles_off), m->triangles, (size_t)m->n_triangles * 12);
     memcpy(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
     memcpy(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));

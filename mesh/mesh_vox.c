@@ -147,7 +147,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
         memset(b->surf, 0, mv_block_words(&blk) * 8);
         for (size_t i = 0; i < t->n; i++) {
             int64_t P[3][3];
-            if (i + MV_AHEAD < t->n) mv_prefetch(t->m, t->ids[i + MV_AHEAD]);
+            if (i + MV_AHEAD < t->n) mv_prefetch(&f, t->ids[i + MV_AHEAD]);
             mv_triangle(&f, t->ids[i], P);
             mv_surface(P, six, &blk, b->surf);
         }

@@ -97,16 +97,21 @@ static inline unsigned mv_popcount(uint64_t w)
     return (unsigned)((w * 0x0101010101010101ull) >> 56);
 }
 
-/* The vertices of triangle t are about to be read: fetch them now (their
- * indices make the reads random, and most of a small triangle's cost is
- * waiting for them). */
+/* The vertices of triangle t are about to be read (snapped already, or
+ * not): fetch them now (their indices make the reads random, and most of
+ * a small triangle's cost is waiting for them). */
 #define MV_AHEAD 12 /* triangles */
-static inline void mv_prefetch(const mesh *m, uint32_t t)
+static inline void mv_prefetch(const mv_frame *f, uint32_t t)
 {
-    const uint32_t *tri = m->triangles[t];
-    __builtin_prefetch(m->vertices[tri[0]]);
-    __builtin_prefetch(m->vertices[tri[1]]);
-    __builtin_prefetch(m->vertices[tri[2]]);
+    const uint32_t *tri = f->m->triangles[t];
+    for (int i = 0; i < 3; i++) {
+        if (f->lat) { /* 24 bytes: maybe two cache lines */
+            __builtin_prefetch(f->lat[tri[i]]);
+            __builtin_prefetch(&f->lat[tri[i]][2]);
+        } else {
+            __builtin_prefetch(f->m->vertices[tri[i]]);
+        }
+    }
 }
 
 /* floor(a / L) and ceil(a / L) by shifts: >> of a negative value is

@@ -63,7 +63,8 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
         return -EINVAL;
     mesh m = {
         .n_vertices = b->n_vertices, .n_triangles = b->n_triangles,
-        .vertices = shm_at(w->base, b->vertices_off),
+        .vertices = mesh_vox_reads_vertices(&b->opts) ? shm_at(w->base, b->vertices_off)
+                                                      : NULL, /* not copied */
         .triangles = shm_at(w->base, b->triangles_off),
     };
     memcpy(m.lo, b->lo, sizeof m.lo);
