@@ -851,6 +851,27 @@ static void copy_row_bits8(uint8_t *raw, size_t r, const uint8_t *src, uint32_t 
         if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
 }
 
+/* The box [a0, a1) of 8-bit voxels (storage brick data d, low corner o;
+ * NULL: all u, not 0) as channel-1 bits of the raw brick of side B whose
+ * low corner is lo, when every row starts and ends on a byte of it (the
+ * usual case: bricks of 8 voxels or more): whole bytes, no bit offsets. */
+static void copy_bytes_bits8(const vod_volume *v, uint32_t B, const uint8_t *d,
+                             const uint32_t o[3], const uint32_t lo[3],
+                             const uint32_t a0[3], const uint32_t a1[3], uint8_t *raw)
+{
+    uint32_t n8 = (a1[0] - a0[0]) / 8;
+    for (uint32_t z = a0[2]; z < a1[2]; z++)
+        for (uint32_t y = a0[1]; y < a1[1]; y++) {
+            uint8_t *out = raw + (((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0])) / 8;
+            if (!d) {
+                memset(out, 0xff, n8);
+                continue;
+            }
+            const uint8_t *src = d + vox_index(v, a0[0] - o[0], y - o[1], z - o[2]);
+            for (uint32_t k = 0; k < n8; k++) out[k] |= nonzero_bits8(src + 8 * k);
+        }
+}
+
 /* The part of storage brick (entry e, low corner o, level-l voxels) that
  * lies in the raw brick whose low corner is lo. */
 static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
@@ -863,6 +884,11 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
     }
     const uint8_t *d = is_alloc(e) ? brick_data(v, e) : NULL;
     uint32_t u = e & ~ENTRY_UNIFORM;
+    if (L->voxel_bits == 1 && v->bits == 8 && B % 8 == 0 && (a0[0] - lo[0]) % 8 == 0 &&
+        (a1[0] - a0[0]) % 8 == 0) {
+        copy_bytes_bits8(v, B, d, o, lo, a0, a1, raw);
+        return;
+    }
     for (uint32_t z = a0[2]; z < a1[2]; z++)
         for (uint32_t y = a0[1]; y < a1[1]; y++) {
             size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0]);

@@ -887,27 +887,27 @@ Test(mesh_topology, a_removed_triangle_opens_three_edges)
     mesh_free(&m);
 }
 
+/* Triangle i the other way round. */
+static void flip(mesh *m, uint32_t i)
+{
+    uint32_t x = m->triangles[i][1];
+    m->triangles[i][1] = m->triangles[i][2];
+    m->triangles[i][2] = x;
+}
+
 Test(mesh_topology, a_flipped_triangle_is_inconsistent)
 {
     mesh m;
     load_model(&cube, &m);
-    uint32_t x = m.triangles[5][1];
-    m.triangles[5][1] = m.triangles[5][2];
-    m.triangles[5][2] = x;
+    flip(&m, 5);
     mesh_topo t;
     cr_assert_eq(mesh_topology(&m, &t), 0);
     cr_assert_eq(t.inconsistent, 3);
     cr_assert_eq(t.open + t.nonmanifold, 0);
     cr_assert(!t.watertight);
     /* all of them flipped: consistent again, the volume negative */
-    for (uint32_t i = 0; i < m.n_triangles; i++) {
-        x = m.triangles[i][1];
-        m.triangles[i][1] = m.triangles[i][2];
-        m.triangles[i][2] = x;
-    }
-    x = m.triangles[5][1];
-    m.triangles[5][1] = m.triangles[5][2];
-    m.triangles[5][2] = x;
+    for (uint32_t i = 0; i < m.n_triangles; i++)
+        if (i != 5) flip(&m, i);
     cr_assert_eq(mesh_topology(&m, &t), 0);
     cr_assert(t.watertight);
     cr_assert_float_eq(t.volume, -8.0, 1e-12);
@@ -1040,29 +1040,23 @@ Test(mesh_edges, the_same_counts_as_every_pair_of_uses)
 
 Test(mesh_edges, closed_flipped_and_opened_models)
 {
-    for (size_t i = 0; i < sizeof models / sizeof *models; i++) {
-        mesh m;
-        load_model(models[i], &m);
-        mesh_topo t;
-        cr_assert_eq(mesh_edges(&m, &t), 0);
-        cr_assert(t.watertight, "%s", models[i]->name);
-        cr_assert_eq((int64_t)m.n_vertices - (int64_t)t.edges + m.n_triangles, 2, "%s",
-                     models[i]->name);
-        mesh_free(&m);
-    }
-    mesh m;
-    load_model(&cube, &m);
-    uint32_t x = m.triangles[5][1];
-    m.triangles[5][1] = m.triangles[5][2];
-    m.triangles[5][2] = x;
-    mesh_topo t;
-    cr_assert_eq(mesh_edges(&m, &t), 0);
-    cr_assert_eq(t.inconsistent, 3);
-    cr_assert_eq(t.open + t.nonmanifold, 0);
-    cr_assert(!t.watertight);
-    m.n_triangles--; /* triangle 11 gone: three edges open */
-    cr_assert_eq(mesh_edges(&m, &t), 0);
-    cr_assert_eq(t.open, 3);
-    m.n_triangles++;
-    mesh_free(&m);
+    /* the same edge figures as mesh_topology (whose tests say what they are) */
+    for (size_t i = 0; i < sizeof models / sizeof *models; i++)
+        for (int change = 0; change < 3; change++) {
+            mesh m;
+            load_model(models[i], &m);
+            if (change == 1) flip(&m, 1);
+            if (change == 2) m.n_triangles--;
+            mesh_topo got, want;
+            cr_assert_eq(mesh_edges(&m, &got), 0);
+            cr_assert_eq(mesh_topology(&m, &want), 0);
+            cr_assert(got.edges == want.edges && got.open == want.open &&
+                          got.nonmanifold == want.nonmanifold &&
+                          got.inconsistent == want.inconsistent &&
+                          got.watertight == want.watertight,
+                      "%s, change %d", models[i]->name, change);
+            cr_assert_eq(got.watertight, change == 0, "%s", models[i]->name);
+            if (change == 2) m.n_triangles++;
+            mesh_free(&m);
+        }
 }
