@@ -125,7 +125,6 @@ typedef struct {
     mesh_vox_opts opts;
     uint32_t n_vertices, n_triangles;
     uint64_t vertices_off, triangles_off;   /* float[3], uint32_t[3] */
-    uint64_t lattice_off;                   /* mesh_lattice per vertex (mesh_bin) */
     float lo[3], hi[3];                     /* the mesh's bounding box */
     uint32_t tiles[2];
     uint64_t start_off, ids_off;            /* mesh_bins' arrays */

@@ -1,9 +1,8 @@
 /* The mesh kind's master side: a triangle mesh voxelized tile by tile
  * (mesh_vox.h) into a brick-sparse volume in the segment.  Setup bins the
- * triangles to the tiles (here, once, snapping the vertices straight into
- * the segment on the way), copies the vertices, triangles and bins into
- * the data area behind the block, gives the rest of the data area to the
- * volume, and pushes one task per tile that has triangles
+ * triangles to the tiles (here, once), copies the vertices, triangles and
+ * bins into the data area behind the block, gives the rest of the data
+ * area to the volume, and pushes one task per tile that has triangles
  * (a tile without any stays empty), lightest first so that the work
  * stack hands out the heaviest first.  Workers send no entries: a tile's
  * bricks go straight into the volume and its counts into its entry of
@@ -38,18 +37,19 @@ static int no_room(engine *e, const char *what)
                       what, e->seg.bytes >> 20);
 }
 
-/* Where the mesh goes behind the block, up to the lattice (which mesh_bin
- * fills in place); the end of the lattice. */
+/* Where the mesh goes behind the block; the end of its triangles.  (The
+ * tiles snap the vertices themselves: a lattice snapped here, serially,
+ * into fresh pages of the segment cost the job more than it saved the
+ * workers.) */
 static uint64_t place_mesh(engine *e, const mesh *m, mesh_block *b)
 {
     b->vertices_off = align64(e->h->data_off + sizeof *b);
     b->triangles_off = align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
-    b->lattice_off = align64(b->triangles_off + (uint64_t)m->n_triangles * 12);
-    return b->lattice_off + (uint64_t)m->n_vertices * sizeof(mesh_lattice);
+    return b->triangles_off + (uint64_t)m->n_triangles * 12;
 }
 
-/* Copy the mesh and the bins behind the block (the lattice is there
- * already); the volume's offset (the rest of the data area) in *vol_off. */
+/* Copy the mesh and the bins behind the block; the volume's offset (the
+ * rest of the data area) in *vol_off. */
 static int copy_input(engine *e, const mesh *m, const mesh_bins *bins,
                       mesh_block *b, uint64_t *vol_off)
 {
@@ -60,8 +60,7 @@ static int copy_input(engine *e, const mesh *m, const mesh_bins *bins,
     b->stats_off = align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
     *vol_off = align64(b->stats_off + n * sizeof(mesh_tile_stats));
     if (*vol_off >= end) return no_room(e, "the mesh");
-    if (mesh_vox_reads_vertices(&b->opts)) /* else the lattice alone */
-        memcpy(shm_at(e->seg.base, b->vertices_off), m->vertices, (size_t)m->n_vertices * 12);
+    memcpy(shm_at(e->seg.base, b->vertices_off), m->vertices, (size_t)m->n_vertices * 12);
     memcpy(shm_at(e->seg.base, b->triangles_off), m->triangles, (size_t)m->n_triangles * 12);
     memcpy(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
     memcpy(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
@@ -144,7 +143,7 @@ static int mesh_setup(engine *e, void *job)
         return no_room(e, "the mesh");
     double t0 = clock_now();
     mesh_bins bins;
-    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, shm_at(e->seg.base, b->lattice_off), &bins);
+    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, &bins);
     mj->r->t_bin = clock_now() - t0;
     if (rc) return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));

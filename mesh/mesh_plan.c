@@ -99,12 +99,6 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
     return off;
 }
 
-bool mesh_vox_reads_vertices(const mesh_vox_opts *o)
-{
-    bool dens = o->channel == VOXEL_CH_DENSITY || o->channel == VOXEL_CH_SURFACE;
-    return dens || o->repair == MESH_REPAIR_WINDING;
-}
-
 size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o)
 {
     mv_plan p;

@@ -20,7 +20,6 @@
 #ifndef VOXD_MESH_VOX_H
 #define VOXD_MESH_VOX_H
 
-#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -88,11 +87,6 @@ typedef int64_t mesh_lattice[3];
 int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
              mesh_lattice *lattice, mesh_bins *out);
 void mesh_bins_free(mesh_bins *b);
-
-/* Whether the tiles of these options read the mesh's float vertices
- * besides the lattice (the density's supersampled passes, the winding
- * number); when not, mesh_tile_run may be given a mesh without them. */
-bool mesh_vox_reads_vertices(const mesh_vox_opts *o);
 
 /* Scratch a tile needs (the caller gives each worker one buffer). */
 size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);

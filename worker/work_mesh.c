@@ -63,13 +63,11 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
         return -EINVAL;
     mesh m = {
         .n_vertices = b->n_vertices, .n_triangles = b->n_triangles,
-        .vertices = mesh_vox_reads_vertices(&b->opts) ? shm_at(w->base, b->vertices_off)
-                                                      : NULL, /* not copied */
+        .vertices = shm_at(w->base, b->vertices_off),
         .triangles = shm_at(w->base, b->triangles_off),
     };
     memcpy(m.lo, b->lo, sizeof m.lo);
     memcpy(m.hi, b->hi, sizeof m.hi);
-    const mesh_lattice *lat = shm_at(w->base, b->lattice_off);
     const uint64_t *start = shm_at(w->base, b->start_off);
     const uint32_t *ids = shm_at(w->base, b->ids_off);
     mesh_tile_stats *stats = shm_at(w->base, b->stats_off);
@@ -78,7 +76,7 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
     for (uint32_t k = a.first; k < a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
-        int rc = mesh_tile_run(&m, lat, ids + start[k], start[k + 1] - start[k],
+        int rc = mesh_tile_run(&m, NULL, ids + start[k], start[k + 1] - start[k],
                                &b->grid, &b->opts, k % b->tiles[0],
                                k / b->tiles[0], st->scratch, vol, &s);
         if (!rc) rc = tile_mips(vol, b, k % b->tiles[0], k / b->tiles[0]);
