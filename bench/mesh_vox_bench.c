@@ -40,6 +40,7 @@ typedef struct {
     const grid_spec *g;
     const mesh_vox_opts *o;
     const mesh_bins *b;
+    const mesh_lattice *lat;
     vod_volume *v;
     atomic_uint next; /* the next tile to take (relaxed: no data is published through it) */
     int rc;
@@ -54,7 +55,7 @@ static void *worker(void *arg)
     for (;;) {
         uint32_t t = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed);
         if (t >= nt) break;
-        int rc = mesh_tile_run(j->m, j->b->ids + j->b->start[t],
+        int rc = mesh_tile_run(j->m, j->lat, j->b->ids + j->b->start[t],
                                (size_t)(j->b->start[t + 1] - j->b->start[t]), j->g, j->o,
                                t % j->b->tiles[0], t / j->b->tiles[0], scratch, j->v, &st);
         if (rc) j->rc = rc;
@@ -126,13 +127,15 @@ int main(int argc, char **argv)
         size_t bytes = vod_volume_bytes(g.res, mesh_vox_bits(&o), sbrick, want);
         void *arena = malloc(bytes);
         mesh_bins b;
+        mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
+        if (!lat) return 1;
         double bin = 1e9, one = 1e9, two = 1e9, one_c = 1e9, two_c = 1e9, c1, c2;
         for (int rep = 0; rep < 3; rep++) {
             t0 = now();
-            if (mesh_bin(m, &g, &o, &b)) return 1;
+            if (mesh_bin(m, &g, &o, lat, &b)) return 1;
             double tb = now() - t0;
             bin = tb < bin ? tb : bin;
-            job j = {.m = m, .g = &g, .o = &o, .b = &b};
+            job j = {.m = m, .g = &g, .o = &o, .b = &b, .lat = lat};
             double t1 = run_tiles(&j, arena, bytes, sbrick, 1, &c1);
             double t2 = run_tiles(&j, arena, bytes, sbrick, 2, &c2);
             one_c = c1 < one_c ? c1 : one_c;
@@ -153,13 +156,14 @@ int main(int argc, char **argv)
         void *scratch = malloc(mesh_tile_scratch_bytes(&g, &o));
         vod_volume_init(&v, arena, bytes, g.res, mesh_vox_bits(&o), sbrick);
         for (uint32_t t = 0; t < b.tiles[0] * b.tiles[1]; t++)
-            mesh_tile_run(m, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, &o,
+            mesh_tile_run(m, lat, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, &o,
                           t % b.tiles[0], t / b.tiles[0], scratch, v, &st);
         n = st.voxels;
         printf("| %u^3 | %.3f s | %.3f s (%.3f) | %.3f s (%.3f) | %u | %llu |\n", res, bin, one,
                one_c, two, two_c, vi.level0_bricks, (unsigned long long)n);
         free(scratch);
         free(arena);
+        free(lat);
         mesh_bins_free(&b);
     }
     shape_free(&s);

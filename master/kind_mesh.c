@@ -37,6 +37,17 @@ static int no_room(engine *e, const char *what)
                       what, e->seg.bytes >> 20);
 }
 
+/* Where the mesh goes behind the block; the end of its triangles.  (The
+ * tiles snap the vertices themselves: a lattice snapped here, serially,
+ * into fresh pages of the segment cost the job more than it saved the
+ * workers.) */
+static uint64_t place_mesh(engine *e, const mesh *m, mesh_block *b)
+{
+    b->vertices_off = align64(e->h->data_off + sizeof *b);
+    b->triangles_off = align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
+    return b->triangles_off + (uint64_t)m->n_triangles * 12;
+}
+
 /* Copy the mesh and the bins behind the block; the volume's offset (the
  * rest of the data area) in *vol_off. */
 static int copy_input(engine *e, const mesh *m, const mesh_bins *bins,
@@ -44,9 +55,7 @@ static int copy_input(engine *e, const mesh *m, const mesh_bins *bins,
 {
     uint64_t n = (uint64_t)bins->tiles[0] * bins->tiles[1];
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->vertices_off = align64(e->h->data_off + sizeof *b);
-    b->triangles_off = align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
-    b->start_off = align64(b->triangles_off + (uint64_t)m->n_triangles * 12);
+    b->start_off = align64(place_mesh(e, m, b));
     b->ids_off = align64(b->start_off + (n + 1) * sizeof(uint64_t));
     b->stats_off = align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
     *vol_off = align64(b->stats_off + n * sizeof(mesh_tile_stats));
@@ -137,14 +146,16 @@ static int mesh_setup(engine *e, void *job)
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the mesh job is invalid");
     if (mesh_vox_check(&j->opts, msg, sizeof msg))
         return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "%s", msg);
+    mesh_block *b = shm_at(e->seg.base, e->h->data_off);
+    memset(b, 0, sizeof *b);
+    if (place_mesh(e, j->mesh, b) > e->h->data_off + e->h->data_bytes)
+        return no_room(e, "the mesh");
     double t0 = clock_now();
     mesh_bins bins;
-    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, &bins);
+    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, &bins);
     mj->r->t_bin = clock_now() - t0;
     if (rc) return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));
-    mesh_block *b = shm_at(e->seg.base, e->h->data_off);
-    memset(b, 0, sizeof *b);
     b->grid = j->grid;
     b->opts = j->opts;
     b->n_vertices = j->mesh->n_vertices;

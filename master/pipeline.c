@@ -139,7 +139,7 @@ static void *topo_run(void *arg)
 {
     topo_job *t = arg;
     double t0 = clock_now();
-    t->rc = mesh_topology(t->m, &t->topo);
+    t->rc = mesh_edges(t->m, &t->topo);
     t->seconds = clock_now() - t0;
     return NULL;
 }
@@ -432,7 +432,7 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
     return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
 }
 
-/* mesh_topology's failure rc, as the job's (before any voxel). */
+/* mesh_edges' failure rc, as the job's (before any voxel). */
 static int topo_error(pipeline_report *r, int rc)
 {
     r->stage = PIPELINE_GRID;
@@ -445,7 +445,7 @@ static int topo_error(pipeline_report *r, int rc)
 static int mesh_check(pipeline_job *run, pipeline_report *r)
 {
     double t0 = clock_now();
-    int rc = mesh_topology(run->mesh.mesh, &r->topo);
+    int rc = mesh_edges(run->mesh.mesh, &r->topo);
     r->t_topology = clock_now() - t0;
     if (rc) return topo_error(r, rc);
     if (r->topo.watertight && run->mesh.opts.repair != MESH_REPAIR_NONE) {

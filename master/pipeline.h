@@ -89,7 +89,7 @@ typedef struct {
     double t_bin;                 /* mesh, engine only: seconds binning the
                                      triangles to tiles (part of t_voxelize) */
     uint64_t disagreements, disagree_bricks; /* mesh repair modes */
-    mesh_topo topo;               /* mesh: its edges (mesh_topology) */
+    mesh_topo topo;               /* mesh: its edges (mesh_edges: no components, no volume) */
     double t_topology;            /* ... seconds finding them */
     int repair_skipped;           /* a repair asked of a watertight mesh: not
                                      needed (its three parities agree) */

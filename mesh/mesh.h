@@ -87,4 +87,10 @@ typedef struct {
  * vertex). */
 int mesh_topology(const mesh *m, mesh_topo *out);
 
+/* The edges alone: edges, open, nonmanifold, inconsistent and watertight
+ * as mesh_topology gives them, components and volume left 0 (what a
+ * voxelization job reports, for about half the time).  0, or -ENOMEM or
+ * -E2BIG as mesh_topology. */
+int mesh_edges(const mesh *m, mesh_topo *out);
+
 #endif

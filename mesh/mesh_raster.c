@@ -41,7 +41,7 @@ static int64_t max3(const int64_t a[3])
 static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
                                int64_t *i0, int64_t *i1)
 {
-    int64_t s = mv_ceildiv(lo - MV_H, MV_L), e = mv_floordiv(hi - MV_H, MV_L);
+    int64_t s = mv_ceil_l(lo - MV_H), e = mv_floor_l(hi - MV_H);
     if (s < b->s0[a]) s = b->s0[a];
     if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
     *i0 = s, *i1 = e;
@@ -136,8 +136,8 @@ static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
                   (double)T->dr1 * (double)(v[2] - v[0])) / Wd;
         T->gv = -((double)T->dr1 * (double)(u[2] - u[0]) -
                   (double)(u[1] - u[0]) * (double)T->dr2) / Wd;
-        T->kmin = mv_ceildiv(min3(T->r) - MV_H, MV_L);
-        T->kmax = mv_ceildiv(max3(T->r) - MV_H, MV_L) + 1;
+        T->kmin = mv_ceil_l(min3(T->r) - MV_H);
+        T->kmax = mv_ceil_l(max3(T->r) - MV_H) + 1;
         T->guess = true;
     }
     double rd = (double)T->r[0] + T->gu * (double)(iu * MV_L + MV_H - T->u[0]) +
@@ -199,8 +199,9 @@ static void scan128(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
  * B below 2^60, and the crossing by one exact division.  With r0 = k0 L +
  * rho (0 <= rho < L) and k = k0 + j, X(k) > 0 reads
  *     j L W > Q = B - tie - (L/2 - rho) W,  so  j = floor(Q / (L W)) + 1. */
-static void raster_tiny(const int64_t P[3][3], int axis, const mv_target *t,
-                        int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
+__attribute__((always_inline)) static inline void
+raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, int64_t iu1,
+            int64_t iv0, int64_t iv1)
 {
     int ua = AX_U[axis], va = AX_V[axis], o1 = 1, o2 = 2;
     int64_t W = (P[1][ua] - P[0][ua]) * (P[2][va] - P[0][va]) -
@@ -217,7 +218,7 @@ static void raster_tiny(const int64_t P[3][3], int axis, const mv_target *t,
         thr[j] = (a < 0) | ((a == 0) & (c <= 0));
     }
     int64_t r0 = P[0][axis], dr1 = P[o1][axis] - r0, dr2 = P[o2][axis] - r0;
-    int64_t k0 = mv_floordiv(r0, MV_L), rho = r0 - k0 * MV_L, LW = W * MV_L;
+    int64_t k0 = mv_floor_l(r0), rho = r0 - k0 * MV_L, LW = W * MV_L;
     int64_t base = tie_past(P, axis) + (MV_H - rho) * W;
     double inv = 1.0 / (double)LW;
     for (int64_t iv = iv0; iv <= iv1; iv++) {
@@ -235,7 +236,10 @@ static void raster_tiny(const int64_t P[3][3], int axis, const mv_target *t,
     }
 }
 
-void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
+/* The body of mv_raster, inlined with a constant axis: the indexing by
+ * axis folds away. */
+__attribute__((always_inline)) static inline void
+raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
 {
     /* most small triangles cover no sample: out before anything else */
     int ua = AX_U[axis], va = AX_V[axis];
@@ -289,6 +293,15 @@ void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
         scan64(&T, iu0, iu1, iv0, iv1);
     else
         scan128(&T, iu0, iu1, iv0, iv1);
+}
+
+void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
+{
+    switch (axis) {
+    case 0: raster_axis(P, 0, t); break;
+    case 1: raster_axis(P, 1, t); break;
+    default: raster_axis(P, 2, t); break;
+    }
 }
 
 void mv_prefix_z(const mv_block *b, uint64_t *bits, uint64_t *carry, bool first)

@@ -10,6 +10,7 @@
 void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
 {
     f->m = m;
+    f->lat = NULL;
     for (int a = 0; a < 3; a++) f->lo[a] = g->lo[a];
     f->K = K;
     f->scale = (double)K * (double)MV_L / g->vs;
@@ -73,7 +74,7 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
     mv_target tx = {b, buf->bx, buf->cx, false}, ty = {b, buf->by, buf->cy, false};
     for (size_t i = 0; i < in->n; i++) {
         uint32_t id = in->ids[i];
-        if (i + MV_AHEAD < in->n) mv_prefetch(in->f->m, in->ids[i + MV_AHEAD]);
+        if (i + MV_AHEAD < in->n) mv_prefetch(in->f, in->ids[i + MV_AHEAD]);
         bool below = false;
         if (cull && !z_relevant(in, id, first, &below)) continue;
         int64_t P[3][3];

@@ -82,7 +82,7 @@ static inline bool proj_pass64(const proj_test *pt, int64_t pa, int64_t pc)
 static int voxel_range(const mv_block *b, int a, int64_t lo, int64_t hi,
                        int64_t *i0, int64_t *i1)
 {
-    int64_t s = mv_ceildiv(lo, MV_L) - 1, e = mv_floordiv(hi, MV_L);
+    int64_t s = mv_ceil_l(lo) - 1, e = mv_floor_l(hi);
     if (s < b->s0[a]) s = b->s0[a];
     if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
     *i0 = s, *i1 = e;

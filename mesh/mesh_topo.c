@@ -6,7 +6,8 @@
  * sort of each bucket by the higher index: buckets hold a vertex's edges
  * towards higher vertices, a handful in a usual mesh, so the whole is O(n)
  * and touches memory in two streaming passes and one scatter.  Triangles
- * that share an edge are joined in a union-find for the components. */
+ * that share an edge are joined in a union-find for the components;
+ * mesh_edges, for jobs, does without. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -92,6 +93,82 @@ static double signed_volume(const mesh *m)
                p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0]);
     }
     return sum / 6;
+}
+
+/* mesh_edges: the same grouping with 4-byte uses, the higher vertex and
+ * the direction (hi << 1 | forward), and no triangle: what a job reports
+ * needs no components, so no union-find, and half the memory to scatter.
+ * Two uses of an edge in opposite directions differ in bit 0 only. */
+static void sort_keys(uint32_t *e, size_t n)
+{
+    for (size_t i = 1; i < n; i++) {
+        uint32_t x = e[i];
+        size_t j = i;
+        for (; j > 0 && e[j - 1] > x; j--) e[j] = e[j - 1];
+        e[j] = x;
+    }
+}
+
+static int key_order(const void *a, const void *b)
+{
+    uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
+    return (x > y) - (x < y);
+}
+
+static void count_keys(uint32_t *e, size_t n, mesh_topo *out)
+{
+    if (n > 32) qsort(e, n, sizeof *e, key_order);
+    else sort_keys(e, n);
+    for (size_t i = 0; i < n;) {
+        size_t j = i + 1;
+        while (j < n && e[j] >> 1 == e[i] >> 1) j++;
+        out->edges++;
+        if (j - i == 1) out->open++;
+        else if (j - i > 2) out->nonmanifold++;
+        else if (e[i] == e[i + 1]) out->inconsistent++;
+        i = j;
+    }
+}
+
+int mesh_edges(const mesh *m, mesh_topo *out)
+{
+    uint32_t nv = m->n_vertices, nt = m->n_triangles;
+    if (nv > INT32_MAX || (uint64_t)3 * nt > UINT32_MAX) { /* past 4-byte keys */
+        int rc = mesh_topology(m, out);
+        out->components = 0;
+        out->volume = 0;
+        return rc;
+    }
+    memset(out, 0, sizeof *out);
+    uint32_t *start = calloc((size_t)nv + 1, sizeof *start);
+    uint32_t *use = malloc((size_t)3 * nt * sizeof *use + 1);
+    if (!start || !use) {
+        free(start);
+        free(use);
+        return -ENOMEM;
+    }
+    for (uint32_t i = 0; i < nt; i++) {
+        uint32_t a = m->triangles[i][0], b = m->triangles[i][1], c = m->triangles[i][2];
+        start[(a < b ? a : b) + 1]++;
+        start[(b < c ? b : c) + 1]++;
+        start[(c < a ? c : a) + 1]++;
+    }
+    for (uint32_t v = 0; v < nv; v++) start[v + 1] += start[v];
+    /* start[v] is bucket v's next free slot while filling, then its end */
+    for (uint32_t i = 0; i < nt; i++)
+        for (int k = 0; k < 3; k++) {
+            uint32_t a = m->triangles[i][k], b = m->triangles[i][k == 2 ? 0 : k + 1];
+            use[start[a < b ? a : b]++] = (a < b ? b : a) << 1 | (a < b);
+        }
+    uint32_t begin = 0;
+    for (uint32_t v = 0; v < nv; v++) {
+        count_keys(use + begin, start[v] - begin, out);
+        begin = start[v];
+    }
+    out->watertight = !out->open && !out->nonmanifold && !out->inconsistent;
+    free(start);
+    free(use);
+    return 0;
 }
 
 int mesh_topology(const mesh *m, mesh_topo *out)

@@ -14,16 +14,16 @@
 
 /* ---- bricks ---- */
 
-/* The 8 bytes of 8 occupancy bits: bit i spread to byte i, times 255
- * (VOXEL_FULL for inside). */
-static uint64_t byte_lut(unsigned bits8)
-{
-    uint64_t r = bits8;
-    r = (r | r << 28) & 0x0000000F0000000Full;
-    r = (r | r << 14) & 0x0003000300030003ull;
-    r = (r | r << 7) & 0x0101010101010101ull;
-    return r * VOXEL_FULL;
-}
+/* The 8 bytes of 8 occupancy bits, a table made by the compiler: bit i
+ * spread to byte i, times 255 (VOXEL_FULL for inside). */
+#define LUT_B(i, k) ((uint64_t)((i) >> (k) & 1) * VOXEL_FULL << 8 * (k))
+#define LUT_1(i) \
+    (LUT_B(i, 0) | LUT_B(i, 1) | LUT_B(i, 2) | LUT_B(i, 3) | LUT_B(i, 4) | LUT_B(i, 5) | \
+     LUT_B(i, 6) | LUT_B(i, 7))
+#define LUT_4(i) LUT_1(i), LUT_1(i + 1), LUT_1(i + 2), LUT_1(i + 3)
+#define LUT_16(i) LUT_4(i), LUT_4(i + 4), LUT_4(i + 8), LUT_4(i + 12)
+#define LUT_64(i) LUT_16(i), LUT_16(i + 16), LUT_16(i + 32), LUT_16(i + 48)
+static const uint64_t byte_lut[256] = {LUT_64(0), LUT_64(64), LUT_64(128), LUT_64(192)};
 
 static uint64_t field(uint64_t w, uint32_t off, uint32_t S)
 {
@@ -95,7 +95,7 @@ static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick)
                         uint8_t *row = brick + ((size_t)z * S + y) * S;
                         t->st->voxels += mv_popcount(f);
                         for (uint32_t i = 0; i < S; i += 8) {
-                            uint64_t v = byte_lut((unsigned)(f >> i) & 0xff);
+                            uint64_t v = byte_lut[f >> i & 0xff];
                             if (S - i >= 8) memcpy(row + i, &v, 8); /* one store */
                             else memcpy(row + i, &v, S - i);
                         }
@@ -135,6 +135,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
 {
     mv_frame f;
     mv_frame_init(&f, t->m, t->g, 1);
+    f.lat = t->lat;
     mv_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
     if (p->solid1) {
         mv_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
@@ -146,7 +147,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
         memset(b->surf, 0, mv_block_words(&blk) * 8);
         for (size_t i = 0; i < t->n; i++) {
             int64_t P[3][3];
-            if (i + MV_AHEAD < t->n) mv_prefetch(t->m, t->ids[i + MV_AHEAD]);
+            if (i + MV_AHEAD < t->n) mv_prefetch(&f, t->ids[i + MV_AHEAD]);
             mv_triangle(&f, t->ids[i], P);
             mv_surface(P, six, &blk, b->surf);
         }
@@ -181,7 +182,7 @@ static int check_volume(const vod_volume *vol, const grid_spec *g,
     return 0;
 }
 
-int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
+int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *ids, size_t n,
                   const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
                   uint32_t ty, void *scratch, vod_volume *vol,
                   mesh_tile_stats *st)
@@ -194,7 +195,7 @@ int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
     mv_layout(&p, mesh_vox_bits(o), scratch, &b);
     vod_volume_info vi;
     vod_volume_get_info(vol, &vi);
-    mv_tile t = {.m = m, .g = g, .o = o, .ids = ids, .n = n, .vol = vol,
+    mv_tile t = {.m = m, .lat = lattice, .g = g, .o = o, .ids = ids, .n = n, .vol = vol,
                  .S = vi.sbrick, .x0 = tx * MESH_TILE, .y0 = ty * MESH_TILE,
                  .nz = g->res[2], .st = st, .dis = b.dis};
     t.nx = g->res[0] - t.x0 < MESH_TILE ? g->res[0] - t.x0 : MESH_TILE;
@@ -219,11 +220,17 @@ int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
                         const uint32_t *tiles, vod_volume *vol, mesh_tile_stats *st)
 {
     mesh_bins bins;
-    int rc = mesh_bin(m, g, o, &bins);
-    if (rc) return rc;
+    mesh_lattice *lat = malloc(((size_t)m->n_vertices + 1) * sizeof *lat);
+    if (!lat) return -ENOMEM;
+    int rc = mesh_bin(m, g, o, lat, &bins);
+    if (rc) {
+        free(lat);
+        return rc;
+    }
     void *scratch = malloc(mesh_tile_scratch_bytes(g, o));
     if (!scratch) {
         mesh_bins_free(&bins);
+        free(lat);
         return -ENOMEM;
     }
     uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};
@@ -233,11 +240,12 @@ int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     for (uint32_t ty = box[1]; ty < y1 && !rc; ty++)
         for (uint32_t tx = box[0]; tx < x1 && !rc; tx++) {
             uint64_t i = (uint64_t)ty * bins.tiles[0] + tx;
-            rc = mesh_tile_run(m, bins.ids + bins.start[i],
+            rc = mesh_tile_run(m, lat, bins.ids + bins.start[i],
                                (size_t)(bins.start[i + 1] - bins.start[i]), g, o,
                                tx, ty, scratch, vol, st);
         }
     free(scratch);
+    free(lat);
     mesh_bins_free(&bins);
     return rc;
 }

@@ -76,10 +76,16 @@ uint32_t mesh_vox_bits(const mesh_vox_opts *o);
 /* 0 when o is a valid combination, else -EINVAL with a message. */
 int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen);
 
-/* Bin m's triangles to the tiles of grid g.  0, or -ENOMEM / -E2BIG (more
- * ids than fit 2^32 per tile or memory allows). */
+/* The vertices on the lattice of the voxel centres (mesh_vox_int.h), one
+ * int64_t[3] each: what the tiles read instead of snapping every vertex of
+ * every triangle again (a flat array the master can put in the segment). */
+typedef int64_t mesh_lattice[3];
+
+/* Bin m's triangles to the tiles of grid g, and when lattice is not NULL
+ * (m->n_vertices entries) snap the vertices into it for mesh_tile_run.  0,
+ * or -ENOMEM / -E2BIG (more ids than fit 2^32 per tile or memory allows). */
 int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
-             mesh_bins *out);
+             mesh_lattice *lattice, mesh_bins *out);
 void mesh_bins_free(mesh_bins *b);
 
 /* Scratch a tile needs (the caller gives each worker one buffer). */
@@ -87,10 +93,11 @@ size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);
 
 /* Voxelize tile (tx, ty) from the triangles ids[0, n) of m into vol, whose
  * dims are g->res, bits mesh_vox_bits(o), and storage brick side divides
- * MESH_TILE.  Adds to *st.  0, or -ENOMEM when vol's pool is full.
- * A tile never writes a brick that is all 0: vol must start empty (as
- * vod_volume_init leaves it). */
-int mesh_tile_run(const mesh *m, const uint32_t *ids, size_t n,
+ * MESH_TILE; lattice: mesh_bin's for m and g, or NULL (the tile snaps the
+ * vertices itself, the same way).  Adds to *st.  0, or -ENOMEM when vol's
+ * pool is full.  A tile never writes a brick that is all 0: vol must start
+ * empty (as vod_volume_init leaves it). */
+int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *ids, size_t n,
                   const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
                   uint32_t ty, void *scratch, vod_volume *vol,
                   mesh_tile_stats *st);

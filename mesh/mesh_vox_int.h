@@ -21,11 +21,17 @@
 #ifndef VOXD_MESH_VOX_INT_H
 #define VOXD_MESH_VOX_INT_H
 
+#include <float.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "mesh_vox.h"
+
+#if defined(__FAST_MATH__) || defined(__ASSOCIATIVE_MATH__)
+#error "the mesh voxelizer's rounding (mv_snap) needs IEEE arithmetic: no -ffast-math"
+#endif
 
 __extension__ typedef __int128 mv_i128;
 
@@ -37,6 +43,7 @@ __extension__ typedef __int128 mv_i128;
 /* The lattice of one pass: lattice = (v - lo) * scale. */
 typedef struct {
     const mesh *m;
+    const mesh_lattice *lat; /* K = 1: the vertices snapped already, or NULL */
     double lo[3];
     double scale;   /* lattice units per world unit: K * L / vs */
     uint32_t K;     /* samples per voxel and axis */
@@ -46,24 +53,38 @@ void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
 
 /* Nearest lattice point of t (in lattice units), clamped to +-2^40 (NaN to
  * -2^40).  The rounding is the FPU's round-to-nearest: adding and taking
- * away 1.5 * 2^52 leaves the nearest integer of any |t| < 2^51. */
+ * away 1.5 * 2^52 leaves the nearest integer of any |t| < 2^51.  That
+ * needs the sum rounded to a double and kept apart from the difference:
+ * no reassociation (refused above) and, where the FPU computes in more
+ * than double precision, a store. */
 static inline int64_t mv_snap(double t)
 {
-    if (!(t >= -MV_LIM)) t = -MV_LIM;
-    if (t > MV_LIM) t = MV_LIM;
-    volatile double r = t + 6755399441055744.0; /* no reassociation */
+    t = t > -MV_LIM ? t : -MV_LIM; /* NaN too: max and min, no branch */
+    t = t < MV_LIM ? t : MV_LIM;
+#if FLT_EVAL_METHOD == 0
+    double r = t + 6755399441055744.0;
+#else
+    volatile double r = t + 6755399441055744.0;
+#endif
     return (int64_t)(r - 6755399441055744.0);
+}
+
+/* Coordinate a of vertex v, snapped. */
+static inline int64_t mv_vertex(const mv_frame *f, uint32_t v, int a)
+{
+    return mv_snap(((double)f->m->vertices[v][a] - f->lo[a]) * f->scale);
 }
 
 /* The snapped vertices of triangle t: P[vertex][axis]. */
 static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
 {
     const uint32_t *tri = f->m->triangles[t];
-    for (int i = 0; i < 3; i++) {
-        const float *v = f->m->vertices[tri[i]];
-        for (int a = 0; a < 3; a++)
-            P[i][a] = mv_snap(((double)v[a] - f->lo[a]) * f->scale);
+    if (f->lat) {
+        for (int i = 0; i < 3; i++) memcpy(P[i], f->lat[tri[i]], sizeof P[i]);
+        return;
     }
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++) P[i][a] = mv_vertex(f, tri[i], a);
 }
 
 /* Bits set in w (SWAR: __builtin_popcountll is a library call without
@@ -76,29 +97,29 @@ static inline unsigned mv_popcount(uint64_t w)
     return (unsigned)((w * 0x0101010101010101ull) >> 56);
 }
 
-/* The vertices of triangle t are about to be read: fetch them now (their
- * indices make the reads random, and most of a small triangle's cost is
- * waiting for them). */
+/* The vertices of triangle t are about to be read (snapped already, or
+ * not): fetch them now (their indices make the reads random, and most of
+ * a small triangle's cost is waiting for them). */
 #define MV_AHEAD 12 /* triangles */
-static inline void mv_prefetch(const mesh *m, uint32_t t)
+static inline void mv_prefetch(const mv_frame *f, uint32_t t)
 {
-    const uint32_t *tri = m->triangles[t];
-    __builtin_prefetch(m->vertices[tri[0]]);
-    __builtin_prefetch(m->vertices[tri[1]]);
-    __builtin_prefetch(m->vertices[tri[2]]);
+    const uint32_t *tri = f->m->triangles[t];
+    for (int i = 0; i < 3; i++) {
+        if (f->lat) { /* 24 bytes: maybe two cache lines */
+            __builtin_prefetch(f->lat[tri[i]]);
+            __builtin_prefetch(&f->lat[tri[i]][2]);
+        } else {
+            __builtin_prefetch(f->m->vertices[tri[i]]);
+        }
+    }
 }
 
-/* floor(a / b) and ceil(a / b) for b > 0. */
-static inline int64_t mv_floordiv(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return q - (a % b != 0 && a < 0);
-}
-static inline int64_t mv_ceildiv(int64_t a, int64_t b)
-{
-    int64_t q = a / b;
-    return q + (a % b != 0 && a > 0);
-}
+/* floor(a / L) and ceil(a / L) by shifts: >> of a negative value is
+ * arithmetic (floor) with the compilers this builds with, checked here. */
+_Static_assert((-3 >> 1) == -2 && (-((int64_t)1 << 40) >> 16) == -((int64_t)1 << 24),
+               "right shifts of negative values are arithmetic");
+static inline int64_t mv_floor_l(int64_t a) { return a >> MV_QBITS; }
+static inline int64_t mv_ceil_l(int64_t a) { return -(-a >> MV_QBITS); }
 
 /* A block of samples: s0 + [0, n) per axis, one bit each, x fastest, rows
  * of nw 64-bit words: bit x of word ((z * n[1] + y) * nw + x / 64), all
@@ -198,6 +219,7 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b);
 
 typedef struct {
     const mesh *m;
+    const mesh_lattice *lat;    /* K = 1 vertices, or NULL */
     const grid_spec *g;
     const mesh_vox_opts *o;
     const uint32_t *ids;

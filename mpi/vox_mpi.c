@@ -888,7 +888,7 @@ static int prepare_bins(prep *p)
     int rc = mesh_topology(&p->mesh, &p->topo);
     if (!rc && p->topo.watertight) p->run_opts.repair = MESH_REPAIR_NONE;
     if (!rc && p->run_opts.repair != MESH_REPAIR_WINDING)
-        rc = mesh_bin(&p->mesh, &p->plan.grid, &p->run_opts, &p->bins);
+        rc = mesh_bin(&p->mesh, &p->plan.grid, &p->run_opts, NULL, &p->bins);
     if (rc) msg("%s: the mesh's edges and tiles: %s", p->o.mesh, strerror(-rc));
     return rc;
 }

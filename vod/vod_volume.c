@@ -235,8 +235,9 @@ static void brick_set_all(const vod_volume *v, uint8_t *d, uint32_t val)
     for (uint64_t i = 0; i < v->brick_bytes / 4; i++) w[i] = val;
 }
 
-/* A new pool brick holding val everywhere; its entry, or 0 when full. */
-static uint32_t pool_take(vod_volume *v, uint32_t val)
+/* A new pool brick holding val everywhere (fill), or anything (the caller
+ * writes every voxel); its entry, or 0 when full. */
+static uint32_t pool_take(vod_volume *v, uint32_t val, bool fill)
 {
     uint32_t e = atomic_fetch_add_explicit(&v->pool_used, 1, memory_order_relaxed) + 1;
     if (e > v->pool_cap) {
@@ -245,7 +246,7 @@ static uint32_t pool_take(vod_volume *v, uint32_t val)
         atomic_fetch_sub_explicit(&v->pool_used, 1, memory_order_relaxed);
         return 0;
     }
-    brick_set_all(v, brick_data(v, e), val);
+    if (fill) brick_set_all(v, brick_data(v, e), val);
     return e;
 }
 
@@ -267,13 +268,14 @@ static void may_zero(vod_volume *v)
     atomic_store_explicit(&v->zero_bricks, 1, memory_order_relaxed);
 }
 
-/* The data of level-0 brick b, allocated (from empty or uniform) if need be. */
-static int level0_data(vod_volume *v, const uint32_t b[3], uint8_t **out)
+/* The data of level-0 brick b, allocated (from empty or uniform) if need
+ * be; whole: the caller writes every voxel (a new brick is not filled). */
+static int level0_data(vod_volume *v, const uint32_t b[3], bool whole, uint8_t **out)
 {
     const uint32_t *g = v->grid[0];
     uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
     if (!is_alloc(*e)) {
-        uint32_t n = pool_take(v, *e & ~ENTRY_UNIFORM);
+        uint32_t n = pool_take(v, *e & ~ENTRY_UNIFORM, !whole);
         if (!n) return -ENOMEM;
         atomic_fetch_add_explicit(&v->pool_l0, 1, memory_order_relaxed);
         *e = n;
@@ -307,7 +309,7 @@ int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
         return 0;
     if (value == 0) may_zero(v); /* into memory: e is allocated */
     uint8_t *d;
-    int rc = level0_data(v, b, &d);
+    int rc = level0_data(v, b, false, &d);
     if (rc == 0) vox_put(v, d, vox_index(v, x & m, y & m, z & m), value);
     return rc;
 }
@@ -359,7 +361,7 @@ static int fill_whole(vod_volume *v, const uint32_t b[3], uint32_t value)
     }
     if (value == 0) may_zero(v);
     uint8_t *d;
-    int rc = level0_data(v, b, &d);
+    int rc = level0_data(v, b, false, &d);
     if (rc == 0) brick_set_all(v, d, value);
     return rc;
 }
@@ -373,7 +375,7 @@ static int fill_part(vod_volume *v, const uint32_t b[3], const uint32_t lo[3],
         return 0;
     if (value == 0) may_zero(v);
     uint8_t *d;
-    int rc = level0_data(v, b, &d);
+    int rc = level0_data(v, b, false, &d);
     for (uint32_t z = lo[2]; z < hi[2] && !rc; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++)
             for (uint32_t x = lo[0]; x < hi[0]; x++)
@@ -414,9 +416,10 @@ static int64_t brick_uniform_value(const vod_volume *v, const uint8_t *d)
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
     uint32_t first = vox_get(v, d, 0);
     if (first >= ENTRY_UNIFORM) return -1;
-    if (v->bits == 8) {
-        for (uint64_t i = 1; i < n; i++)
-            if (d[i] != first) return -1;
+    if (v->bits == 8) { /* 8 voxels a compare: S^3 is a multiple of 8 */
+        uint64_t all = first * 0x0101010101010101ull, w;
+        for (uint64_t i = 0; i < n; i += 8)
+            if (memcpy(&w, d + i, 8), w != all) return -1;
     } else {
         const uint32_t *w = (const uint32_t *)(const void *)d;
         for (uint64_t i = 1; i < n; i++)
@@ -439,7 +442,7 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
     }
     if (u == 0) may_zero(v); /* zeros into the memory the brick has */
     uint8_t *d;
-    int rc = level0_data(v, b, &d);
+    int rc = level0_data(v, b, true, &d);
     if (rc == 0) memcpy(d, voxels, v->brick_bytes);
     return rc;
 }
@@ -621,17 +624,13 @@ static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
     }
     *entry = 0;
     if (!m->nonempty) return 0;
-    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick, i = 1;
-    uint32_t first = v->bits == 8 ? m->out8[0] : m->out[0];
-    if (v->bits == 8)
-        while (i < n && m->out8[i] == first) i++;
-    else
-        while (i < n && m->out[i] == first) i++;
-    if (i == n && first < ENTRY_UNIFORM) {
-        *entry = ENTRY_UNIFORM | first;
+    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick, i;
+    int64_t u = brick_uniform_value(v, v->bits == 8 ? m->out8 : (const uint8_t *)m->out);
+    if (u >= 0) {
+        *entry = ENTRY_UNIFORM | (uint32_t)u;
         return 0;
     }
-    uint32_t e = is_alloc(old) ? old : pool_take(v, 0);
+    uint32_t e = is_alloc(old) ? old : pool_take(v, 0, false); /* written whole below */
     if (!e) return -ENOMEM;
     uint8_t *d = brick_data(v, e);
     if (v->bits == 8) memcpy(d, m->out8, n); /* the bytes are the voxels */
@@ -852,6 +851,27 @@ static void copy_row_bits8(uint8_t *raw, size_t r, const uint8_t *src, uint32_t 
         if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
 }
 
+/* The box [a0, a1) of 8-bit voxels (storage brick data d, low corner o;
+ * NULL: all u, not 0) as channel-1 bits of the raw brick of side B whose
+ * low corner is lo, when every row starts and ends on a byte of it (the
+ * usual case: bricks of 8 voxels or more): whole bytes, no bit offsets. */
+static void copy_bytes_bits8(const vod_volume *v, uint32_t B, const uint8_t *d,
+                             const uint32_t o[3], const uint32_t lo[3],
+                             const uint32_t a0[3], const uint32_t a1[3], uint8_t *raw)
+{
+    uint32_t n8 = (a1[0] - a0[0]) / 8;
+    for (uint32_t z = a0[2]; z < a1[2]; z++)
+        for (uint32_t y = a0[1]; y < a1[1]; y++) {
+            uint8_t *out = raw + (((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0])) / 8;
+            if (!d) {
+                memset(out, 0xff, n8);
+                continue;
+            }
+            const uint8_t *src = d + vox_index(v, a0[0] - o[0], y - o[1], z - o[2]);
+            for (uint32_t k = 0; k < n8; k++) out[k] |= nonzero_bits8(src + 8 * k);
+        }
+}
+
 /* The part of storage brick (entry e, low corner o, level-l voxels) that
  * lies in the raw brick whose low corner is lo. */
 static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
@@ -864,6 +884,11 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
     }
     const uint8_t *d = is_alloc(e) ? brick_data(v, e) : NULL;
     uint32_t u = e & ~ENTRY_UNIFORM;
+    if (L->voxel_bits == 1 && v->bits == 8 && B % 8 == 0 && (a0[0] - lo[0]) % 8 == 0 &&
+        (a1[0] - a0[0]) % 8 == 0) {
+        copy_bytes_bits8(v, B, d, o, lo, a0, a1, raw);
+        return;
+    }
     for (uint32_t z = a0[2]; z < a1[2]; z++)
         for (uint32_t y = a0[1]; y < a1[1]; y++) {
             size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0]);

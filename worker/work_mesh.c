@@ -76,7 +76,7 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
     for (uint32_t k = a.first; k < a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
-        int rc = mesh_tile_run(&m, ids + start[k], start[k + 1] - start[k],
+        int rc = mesh_tile_run(&m, NULL, ids + start[k], start[k + 1] - start[k],
                                &b->grid, &b->opts, k % b->tiles[0],
                                k / b->tiles[0], st->scratch, vol, &s);
         if (!rc) rc = tile_mips(vol, b, k % b->tiles[0], k / b->tiles[0]);

@@ -887,27 +887,27 @@ Test(mesh_topology, a_removed_triangle_opens_three_edges)
     mesh_free(&m);
 }
 
+/* Triangle i the other way round. */
+static void flip(mesh *m, uint32_t i)
+{
+    uint32_t x = m->triangles[i][1];
+    m->triangles[i][1] = m->triangles[i][2];
+    m->triangles[i][2] = x;
+}
+
 Test(mesh_topology, a_flipped_triangle_is_inconsistent)
 {
     mesh m;
     load_model(&cube, &m);
-    uint32_t x = m.triangles[5][1];
-    m.triangles[5][1] = m.triangles[5][2];
-    m.triangles[5][2] = x;
+    flip(&m, 5);
     mesh_topo t;
     cr_assert_eq(mesh_topology(&m, &t), 0);
     cr_assert_eq(t.inconsistent, 3);
     cr_assert_eq(t.open + t.nonmanifold, 0);
     cr_assert(!t.watertight);
     /* all of them flipped: consistent again, the volume negative */
-    for (uint32_t i = 0; i < m.n_triangles; i++) {
-        x = m.triangles[i][1];
-        m.triangles[i][1] = m.triangles[i][2];
-        m.triangles[i][2] = x;
-    }
-    x = m.triangles[5][1];
-    m.triangles[5][1] = m.triangles[5][2];
-    m.triangles[5][2] = x;
+    for (uint32_t i = 0; i < m.n_triangles; i++)
+        if (i != 5) flip(&m, i);
     cr_assert_eq(mesh_topology(&m, &t), 0);
     cr_assert(t.watertight);
     cr_assert_float_eq(t.volume, -8.0, 1e-12);
@@ -966,4 +966,97 @@ Test(mesh_topology, components_and_their_volumes)
     cr_assert(!t.watertight);
     mesh_free(&m);
     free(s.buf);
+}
+
+/* mesh_edges (the jobs' topology) against a count written here: every
+ * pair of edge uses compared, O(n^2), on random triangles over a few
+ * vertices, so that edges are open, shared, shared the same way round and
+ * shared by many, and one vertex has more than 32 edge uses above it (the
+ * sort's other branch); and the same figures as mesh_topology gives. */
+static void edges_by_pairs(const mesh *m, mesh_topo *t)
+{
+    memset(t, 0, sizeof *t);
+    size_t n = (size_t)3 * m->n_triangles;
+    uint32_t (*use)[3] = malloc(n * sizeof *use); /* lo, hi, forward */
+    cr_assert(use);
+    for (uint32_t i = 0; i < m->n_triangles; i++)
+        for (int k = 0; k < 3; k++) {
+            uint32_t a = m->triangles[i][k], b = m->triangles[i][(k + 1) % 3];
+            uint32_t *u = use[3 * i + (uint32_t)k];
+            u[0] = a < b ? a : b, u[1] = a < b ? b : a, u[2] = a < b;
+        }
+    for (size_t i = 0; i < n; i++) {
+        size_t same = 0, fwd = 0, first = 1;
+        for (size_t j = 0; j < n; j++) {
+            if (use[j][0] != use[i][0] || use[j][1] != use[i][1]) continue;
+            if (j < i) first = 0;
+            same++;
+            fwd += use[j][2];
+        }
+        if (!first) continue; /* the edge was counted at its first use */
+        t->edges++;
+        if (same == 1) t->open++;
+        else if (same > 2) t->nonmanifold++;
+        else if (fwd != 1) t->inconsistent++;
+    }
+    t->watertight = !t->open && !t->nonmanifold && !t->inconsistent;
+    free(use);
+}
+
+Test(mesh_edges, the_same_counts_as_every_pair_of_uses)
+{
+    for (int round = 0; round < 40; round++) {
+        uint32_t nv = 4 + rnd() % 40, nt = 1 + rnd() % 400;
+        mesh m = {.n_vertices = nv, .n_triangles = nt};
+        m.vertices = calloc(nv, sizeof *m.vertices);
+        m.triangles = malloc(nt * sizeof *m.triangles);
+        cr_assert(m.vertices && m.triangles);
+        for (uint32_t i = 0; i < nt; i++) {
+            do {
+                for (int k = 0; k < 3; k++) /* vertex 0 in many: its bucket is long */
+                    m.triangles[i][k] = rnd() % 3 == 0 ? 0 : rnd() % nv;
+            } while (m.triangles[i][0] == m.triangles[i][1] ||
+                     m.triangles[i][1] == m.triangles[i][2] ||
+                     m.triangles[i][2] == m.triangles[i][0]);
+        }
+        mesh_topo want, got, full;
+        edges_by_pairs(&m, &want);
+        cr_assert_eq(mesh_edges(&m, &got), 0);
+        cr_assert_eq(mesh_topology(&m, &full), 0);
+        cr_assert_eq(got.edges, want.edges, "round %d", round);
+        cr_assert_eq(got.open, want.open, "round %d", round);
+        cr_assert_eq(got.nonmanifold, want.nonmanifold, "round %d", round);
+        cr_assert_eq(got.inconsistent, want.inconsistent, "round %d", round);
+        cr_assert_eq(got.watertight, want.watertight, "round %d", round);
+        cr_assert_eq(got.components, 0);
+        cr_assert_eq(got.volume, 0.0);
+        cr_assert_eq(full.edges, want.edges);
+        cr_assert_eq(full.open, want.open);
+        cr_assert_eq(full.nonmanifold, want.nonmanifold);
+        cr_assert_eq(full.inconsistent, want.inconsistent);
+        mesh_free(&m);
+    }
+}
+
+Test(mesh_edges, closed_flipped_and_opened_models)
+{
+    /* the same edge figures as mesh_topology (whose tests say what they are) */
+    for (size_t i = 0; i < sizeof models / sizeof *models; i++)
+        for (int change = 0; change < 3; change++) {
+            mesh m;
+            load_model(models[i], &m);
+            if (change == 1) flip(&m, 1);
+            if (change == 2) m.n_triangles--;
+            mesh_topo got, want;
+            cr_assert_eq(mesh_edges(&m, &got), 0);
+            cr_assert_eq(mesh_topology(&m, &want), 0);
+            cr_assert(got.edges == want.edges && got.open == want.open &&
+                          got.nonmanifold == want.nonmanifold &&
+                          got.inconsistent == want.inconsistent &&
+                          got.watertight == want.watertight,
+                      "%s, change %d", models[i]->name, change);
+            cr_assert_eq(got.watertight, change == 0, "%s", models[i]->name);
+            if (change == 2) m.n_triangles++;
+            mesh_free(&m);
+        }
 }

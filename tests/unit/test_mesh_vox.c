@@ -709,7 +709,8 @@ static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     mesh_tile_stats s_ref = {0}, s_got = {0}, s_once = {0};
     cr_assert_eq(mesh_voxelize(m, g, o, ref.v, &s_ref), 0);
     mesh_bins b;
-    cr_assert_eq(mesh_bin(m, g, o, &b), 0);
+    mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
+    cr_assert_eq(mesh_bin(m, g, o, lat, &b), 0);
     uint32_t nt = b.tiles[0] * b.tiles[1];
     cr_assert_eq(b.tiles[0], (g->res[0] + 63) / 64);
     uint32_t *order = malloc((nt + 1) * sizeof *order);
@@ -719,8 +720,10 @@ static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     for (uint32_t i = 0; i <= nt; i++) {
         uint32_t t = order[i];
         mesh_tile_stats *st = i < nt ? &s_got : &s_once;
-        cr_assert_eq(mesh_tile_run(m, b.ids + b.start[t], b.start[t + 1] - b.start[t], g, o,
-                                   t % b.tiles[0], t / b.tiles[0], scratch, got.v, st), 0);
+        /* half of them snap the vertices themselves */
+        cr_assert_eq(mesh_tile_run(m, i % 2 ? NULL : lat, b.ids + b.start[t],
+                                   b.start[t + 1] - b.start[t], g, o, t % b.tiles[0],
+                                   t / b.tiles[0], scratch, got.v, st), 0);
     }
     size_t diff = 0;
     for (uint32_t z = 0; z < g->res[2]; z++)
@@ -735,7 +738,7 @@ static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     vod_volume_get_info(ref.v, &ia);
     vod_volume_get_info(got.v, &ib);
     cr_expect_eq(ia.level0_bricks, ib.level0_bricks, "the tile run twice allocates nothing new");
-    free(order), free(scratch), free(ref.arena), free(got.arena);
+    free(order), free(scratch), free(ref.arena), free(got.arena), free(lat);
     mesh_bins_free(&b);
 }
 
@@ -775,7 +778,7 @@ Test(mesh_vox, bins_list_each_triangle_once_in_ascending_order)
         mesh_vox_opts o = {MESH_SOLID, rep ? MESH_REPAIR_VOTE : MESH_REPAIR_NONE,
                            VOXEL_CH_OCCUPANCY, 0};
         mesh_bins b;
-        cr_assert_eq(mesh_bin(m, &g, &o, &b), 0);
+        cr_assert_eq(mesh_bin(m, &g, &o, NULL, &b), 0);
         cr_assert_eq(b.tiles[0], 3);
         cr_assert_eq(b.tiles[1], 2);
         uint64_t total = 0;
@@ -789,6 +792,75 @@ Test(mesh_vox, bins_list_each_triangle_once_in_ascending_order)
         if (rep) cr_expect_gt(total, 2 * (uint64_t)m->n_triangles);
         mesh_bins_free(&b);
     }
+    shape_free(&s);
+}
+
+/* The plain solid's bins are exact: a triangle rasterized alone into a
+ * tile's columns (every crossing flips the one slice of a block far above
+ * the mesh) and flipping a bit there is in the tile's bin, and a triangle
+ * in the bin has a centre of the tile in the box of its snapped vertices;
+ * a fine mesh has triangles that hold no centre and are in no bin.  The
+ * lattice mesh_bin fills is the tiles' own snapping. */
+Test(mesh_vox, plain_solid_bins_hold_the_triangles_that_flip_a_column)
+{
+    grid_spec g = odd_grid();
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.1, -0.2, -0.35};
+    shape_icosphere(&s, c, 0.6, 6, false); /* 81920 triangles, most smaller than a voxel */
+    const mesh *m = shape_finish(&s);
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0};
+    mesh_bins b;
+    mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
+    cr_assert_eq(mesh_bin(m, &g, &o, lat, &b), 0);
+    uint32_t ntiles = b.tiles[0] * b.tiles[1];
+    bool *in_bin = calloc((size_t)ntiles * m->n_triangles, 1);
+    for (uint32_t t = 0; t < ntiles; t++)
+        for (uint64_t i = b.start[t]; i < b.start[t + 1]; i++)
+            in_bin[(size_t)t * m->n_triangles + b.ids[i]] = true;
+    mv_frame f;
+    mv_frame_init(&f, m, &g, 1);
+    uint64_t words[64], flipping = 0, listed = 0, none = 0;
+    for (uint32_t id = 0; id < m->n_triangles; id++) {
+        int64_t P[3][3];
+        mv_triangle(&f, id, P);
+        for (int k = 0; k < 3; k++)
+            cr_assert_eq(memcmp(P[k], lat[m->triangles[id][k]], sizeof P[k]), 0);
+        bool any = false;
+        for (uint32_t t = 0; t < ntiles; t++) {
+            uint32_t x0 = t % b.tiles[0] * 64, y0 = t / b.tiles[0] * 64;
+            mv_block blk = {{x0, y0, 1 << 20}, {(int32_t)(g.res[0] - x0 < 64 ? g.res[0] - x0 : 64),
+                                                (int32_t)(g.res[1] - y0 < 64 ? g.res[1] - y0 : 64), 1},
+                            1};
+            memset(words, 0, sizeof words);
+            mv_target tg = {&blk, words, NULL, true};
+            mv_raster(P, 2, &tg);
+            bool flips = false;
+            for (int i = 0; i < blk.n[1]; i++) flips |= words[i] != 0;
+            bool listed_here = in_bin[(size_t)t * m->n_triangles + id];
+            cr_assert(!flips || listed_here, "triangle %u flips tile %u but is not in its bin", id, t);
+            if (listed_here) /* the box of its snapped vertices holds a centre of the tile */
+                for (int a = 0; a < 2; a++) {
+                    int64_t lo = P[0][a], hi = P[0][a];
+                    for (int k = 1; k < 3; k++)
+                        lo = P[k][a] < lo ? P[k][a] : lo, hi = P[k][a] > hi ? P[k][a] : hi;
+                    int64_t first = (a ? y0 : x0), last = first + blk.n[a] - 1;
+                    while (first <= last && first * MV_L + MV_H < lo) first++;
+                    while (last >= first && last * MV_L + MV_H > hi) last--;
+                    cr_assert_leq(first, last, "triangle %u in tile %u holds no centre of it", id, t);
+                }
+            flipping += flips;
+            listed += listed_here;
+            any |= listed_here;
+        }
+        none += !any;
+    }
+    cr_expect_gt(flipping, 0);
+    cr_expect_gt(none, m->n_triangles / 10, "%lu of %u triangles hold no centre",
+                 (unsigned long)none, m->n_triangles);
+    cr_expect_geq(listed, flipping);
+    free(lat), free(in_bin);
+    mesh_bins_free(&b);
     shape_free(&s);
 }
 
@@ -933,9 +1005,9 @@ Test(mesh_vox, tile_run_refuses_a_volume_that_does_not_fit)
     uint32_t ids[1] = {0};
     mesh_tile_stats st = {0};
     tvol v32 = vol_make(&g, 32, 16); /* the wrong width */
-    cr_expect_eq(mesh_tile_run(m, ids, 1, &g, &o, 0, 0, scratch, v32.v, &st), -EINVAL);
+    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 0, 0, scratch, v32.v, &st), -EINVAL);
     tvol v8 = vol_make(&g, 8, 16);
-    cr_expect_eq(mesh_tile_run(m, ids, 1, &g, &o, 1, 0, scratch, v8.v, &st), -EINVAL,
+    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 1, 0, scratch, v8.v, &st), -EINVAL,
                  "tile x 1 of a 64-wide grid");
     /* a pool without room for a brick: -ENOMEM */
     size_t bytes = vod_volume_bytes(g.res, 8, 16, 0);
