@@ -1,6 +1,20 @@
 #!/bin/bash
 # bench-lib.sh: what the whole-command benchmarks (bench-whole.sh,
-# bench-mesh-whole.sh) share; sourced, not run.
+# bench-mesh-whole.sh, bench-scale.sh) share; sourced, not run.
+
+# bench_start NAME TOOL...: exits 2 when a tool is missing (naming its make
+# target); else makes the scratch folder $tmp, removed on exit, and points
+# VOXD_SOCKET where no daemon answers, so that vox runs its embedded engine.
+bench_start() {
+    local name=$1 b
+    shift
+    for b; do
+        [ -x "$b" ] || { echo "$name: $b is missing (make $b)" >&2; exit 2; }
+    done
+    tmp=$(mktemp -d)
+    trap 'rm -rf "$tmp"' EXIT
+    export VOXD_SOCKET=$tmp/no-voxd.sock
+}
 
 # medians: every key of the key=value lines on stdin with the median of its
 # values (the mean of the middle two for an even count), in first-seen order.

@@ -53,12 +53,8 @@ sample_us=${BENCH_SAMPLE_US:-$dus}
 models=${VOXD_MESH_MODELS:-build/npm/node_modules}
 shm_mib=2048 # what vox voxelize asks /dev/shm for (its --shm-size default)
 vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh
-for b in "$vox" "$whole" "$bm"; do
-    [ -x "$b" ] || { echo "bench-mesh-whole: $b is missing (make $b)" >&2; exit 2; }
-done
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
+. "$root/scripts/bench-lib.sh" # bench_start, medians
+bench_start bench-mesh-whole "$vox" "$whole" "$bm"
 load_start=$(cut -d' ' -f1-3 /proc/loadavg) load_start1=$(cut -d' ' -f1 /proc/loadavg)
 failed=0
 
@@ -112,7 +108,6 @@ kv() {
     sed 's/^wall_s=\([0-9.]*\) maxrss_kib=\([0-9]*\).*/ wall=\1 maxrss=\2/' "$tmp/m"
 }
 
-. "$root/scripts/bench-lib.sh" # medians
 
 # timed MESH RES WORKERS MODE: one timed run of the job, appended to
 # $tmp/job.MESH.RES.WORKERS.MODE.runs as a line of key=value (la: the

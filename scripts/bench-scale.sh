@@ -42,13 +42,8 @@ repeats=${BENCH_REPEATS:-$drep}
 workers=${BENCH_SCALE_WORKERS:-$dworkers}
 models=${VOXD_MESH_MODELS:-build/npm/node_modules}
 vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh
-for b in "$vox" "$whole" "$bm"; do
-    [ -x "$b" ] || { echo "bench-scale: $b is missing (make $b)" >&2; exit 2; }
-done
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
-. "$root/scripts/bench-lib.sh"       # medians
+. "$root/scripts/bench-lib.sh" # bench_start, medians
+bench_start bench-scale "$vox" "$whole" "$bm"
 failed=0
 
 sed -n '/^cat >"$tmp\/ten.csg"/,/^EOT$/p' scripts/bench-csg.sh | sed '1d;$d' >"$tmp/ten.csg"

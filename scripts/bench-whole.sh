@@ -37,12 +37,8 @@ big=${BENCH_BIG:-$dbig}
 sample_us=${BENCH_SAMPLE_US:-$dus}
 shm_mib=2048 # what vox voxelize asks /dev/shm for (its --shm-size default)
 vox=$build/vox whole=$build/voxwhole
-for b in "$vox" "$whole"; do
-    [ -x "$b" ] || { echo "bench-whole: $b is missing (make $b)" >&2; exit 2; }
-done
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
+. "$root/scripts/bench-lib.sh" # bench_start, medians
+bench_start bench-whole "$vox" "$whole"
 shapes="sphere union64 blend2 scene1 scene2 scene3"
 failed=0
 
@@ -65,7 +61,6 @@ kv() {
     sed 's/^wall_s=\([0-9.]*\) maxrss_kib=\([0-9]*\).*/ wall=\1 maxrss=\2/' "$tmp/m"
 }
 
-. "$root/scripts/bench-lib.sh" # medians
 
 # measure SHAPE RES WORKERS: REPEATS timed runs and one sampled run, once
 # per job; leaves "key value" lines in $tmp/job.SHAPE.RES.WORKERS, or an
