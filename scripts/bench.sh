@@ -27,6 +27,7 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$build/voxbench" brute -r 256,512,1024
     "$build/voxbench" vod -r "$res" -n "$workers"
     "$build/voxbench" memory -r "$res"
+    "$build/voxbench" deflate -r "$res"
     "$build/voxdbench" all -r "$res" -n "$workers"
     echo
     "$(dirname "$0")/bench-mesh.sh" "$build" || mesh_rc=$? # the tables after it still run

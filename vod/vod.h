@@ -42,7 +42,7 @@
 #define VOD_DEFAULT_BRICK 16u
 #define VOD_MAX_METADATA 65536u
 #define VOD_ZLIB_LEVEL_MAX 12 /* libdeflate's levels: 1..9 as zlib's, 10..12 slower */
-#define VOD_SPARSE_LEVEL 6    /* up to it, 32-bit bricks go to vod_sparse_compress */
+#define VOD_SPARSE_LEVEL 6    /* up to it, bricks go to vod_sparse_compress */
 
 /* What the writer is asked to produce. */
 typedef struct {
@@ -411,17 +411,18 @@ size_t vod_runl_encode(uint32_t voxel_bits, const uint8_t *raw, size_t n,
 int vod_runl_decode(uint32_t voxel_bits, const uint8_t *in, size_t n,
                     uint8_t *raw, size_t raw_n);
 
-/* A zlib stream for a raw brick of 32-bit voxels, most of them 0, in one
- * pass (vod_deflate.c says how): the encoder's compressor for such bricks.
- * A vod_sparse holds the scratch for bricks of one size (brick^3 voxels,
- * brick 2..VOD_SPARSE_MAX_BRICK): 0, -EINVAL or -ENOMEM. */
+/* A zlib stream for a raw brick in one pass (vod_deflate.c says how): the
+ * encoder's compressor at levels 1..VOD_SPARSE_LEVEL.  A vod_sparse holds
+ * the scratch for bricks of one size and voxel size (brick^3 voxels, brick
+ * 2..VOD_SPARSE_MAX_BRICK, voxel_bits 1, 8 or 32): 0, -EINVAL or
+ * -ENOMEM. */
 #define VOD_SPARSE_MAX_BRICK 64u
 typedef struct vod_sparse vod_sparse;
-int vod_sparse_new(uint32_t brick, vod_sparse **out);
+int vod_sparse_new(uint32_t brick, uint32_t voxel_bits, vod_sparse **out);
 void vod_sparse_free(vod_sparse *z);
 /* Compress the brick^3 voxels of raw (n bytes, at most the size given to
- * vod_sparse_new) into out; returns the size, or 0 when cap is too small
- * or n too large. */
+ * vod_sparse_new, whole voxels) into out; returns the size, or 0 when cap
+ * is too small or n too large. */
 size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t *out,
                            size_t cap);
 

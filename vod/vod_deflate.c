@@ -1,26 +1,37 @@
-/* vod_deflate — a zlib stream (RFC 1950, 1951) for a brick of 32-bit
- * voxels in one pass, made for the surface bricks the writer sees most:
- * a few hundred non-zero voxels among thousands of zeros.
+/* vod_deflate — a zlib stream (RFC 1950, 1951) for a brick in one pass,
+ * made for the bricks the writer sees: surface bricks of 32-bit voxels (a
+ * few hundred non-zero voxels among thousands of zeros), and the small
+ * bricks of 1-bit occupancy (512 bytes at 16^3) and of 8-bit densities,
+ * for which a general deflate's set-up per call (its tables cleared, its
+ * codes built over every symbol) costs more than the bytes.
  *
  * A general deflate (zlib, libdeflate) looks for matches at every byte,
  * zeros included, and spends most of its time in runs of zeros that any
- * encoder turns into the same few tokens.  This one works a voxel at a
- * time: a bit mask of the non-zero voxels (SSE2, 64 voxels a word) gives
- * each run of zero voxels at once, sent as matches at distance 1 (after
- * one literal 0 when the byte before is not 0); a non-zero voxel tries
- * three candidates for a match of whole voxels (the last voxel of the
- * same value, found by a hash table; the voxel a row back; the one a slice
- * back), and is otherwise four literals.  One block with Huffman codes
- * made for the brick (RFC 1951 3.2.7; code lengths limited as miniz does),
- * the Adler-32 by libdeflate.  Any inflater reads the result; test_vod
- * checks it against zlib's on bricks of every kind.
+ * encoder turns into the same few tokens.  This one works a unit at a
+ * time: a voxel (4 bytes) for 32-bit voxels, a byte for the others.  A
+ * bit mask of the non-zero units (SSE2, 64 units a mask word) gives each
+ * run of zero units at once, sent as matches at distance 1 (after one
+ * literal 0 when the byte before is not 0); a non-zero unit looks for a
+ * match of whole units, at least 4 bytes, among the positions of the
+ * same 4 bytes (a hash table; for bytes a chain of 4, with one step of
+ * lazy matching and the bytes of short matches entered, as zlib's middle
+ * levels do) and the bytes a row and a slice back (for bytes also two
+ * rows, and a slice and a row), and is otherwise its literals.  One
+ * block, with Huffman codes made for the brick (RFC 1951 3.2.7; code
+ * lengths limited as miniz does) or the fixed codes (3.2.6) when those
+ * make it smaller (a small brick: the dynamic codes' header is then most
+ * of the stream); the Adler-32 by libdeflate.  Any inflater reads the
+ * result; test_vod checks it against zlib's on bricks of every kind and
+ * fuzz_deflate by round trip.
  *
  * On the surface bricks of the standard shapes at 512^3 it is 3 to 4.4
  * times as fast as libdeflate at level 6, for bricks 1 to 5% larger than
- * zlib's at level 6 (voxbench deflate; docs/design.md). */
+ * zlib's at level 6; on the dragon's occupancy bricks 2 to 2.5 times, 3%
+ * larger (voxbench deflate; docs/design.md). */
 #include "vod.h"
 
 #include <errno.h>
+#include <stdbool.h>
 #include <stdlib.h>
 #include <string.h>
 #ifdef __SSE2__
@@ -33,10 +44,13 @@
 #define LITLEN_SYMS 288
 #define DIST_SYMS 30
 #define CL_SYMS 19
-#define HASH_BITS 12
+#define HASH_BITS 12 /* at most: fewer for small bricks (hash_bits) */
 #define WINDOW 32768u
 #define MIN_MATCH 4 /* a voxel: shorter matches rarely beat their literals */
 #define MAX_MATCH 258
+#define MAX_INSERT MAX_MATCH
+#define NICE_MATCH 128 /* a match this long ends the search */
+#define LAZY_MATCH 32  /* byte units: a shorter match waits a byte for a longer */
 
 static const uint16_t len_base[29] = {3,  4,  5,  6,  7,  8,  9,  10,  11,  13,
                                       15, 17, 19, 23, 27, 31, 35, 43,  51,  59,
@@ -57,29 +71,71 @@ static const uint8_t cl_order[CL_SYMS] = {16, 17, 18, 0, 8,  7, 9,  6, 10, 5,
 
 struct vod_sparse {
     size_t cap;             /* the brick's raw bytes */
-    uint64_t *mask;         /* bit i: voxel i is not 0 */
-    size_t row, slice;      /* bytes from a voxel to the one a row, a slice back */
+    uint64_t *mask;         /* bit i: word i is not 0 */
+    size_t row, slice;      /* bytes from a voxel to the one a row, a slice
+                               back (0: less than a byte) */
+    size_t dist[4];         /* the distances tried besides the hash's */
+    unsigned ndist;
+    unsigned unit;          /* bytes a token starts at a multiple of: 4
+                               for 32-bit voxels, 2 for 1-bit, 1 for 8-bit */
+    unsigned hash_bits;     /* of head: about half the brick's bytes */
     uint32_t *tok;          /* cap + 1 tokens */
-    uint32_t head[1u << HASH_BITS]; /* voxel value -> last position + 1 */
+    uint32_t head[1u << HASH_BITS]; /* 4 bytes' hash -> last position + 1 + base */
+    uint32_t *prev;         /* position -> the one before of its hash, the same way */
+    uint32_t base;          /* entries not above it are from earlier bricks */
+    unsigned chain;         /* positions of a hash tried */
     uint8_t len_sym[MAX_MATCH + 1]; /* length -> 0..28 */
     uint8_t dist_sym[WINDOW];       /* distance - 1 -> 0..29 */
     uint32_t freq_l[LITLEN_SYMS], freq_d[DIST_SYMS];
     uint8_t bits_l[LITLEN_SYMS], bits_d[DIST_SYMS];
     uint16_t code_l[LITLEN_SYMS], code_d[DIST_SYMS];
+    /* the fixed codes (RFC 1951 3.2.6) */
+    uint16_t used_l[LITLEN_SYMS], used_d[DIST_SYMS]; /* symbols with a code */
+    int nused_l, nused_d;
+    uint8_t fbits_l[LITLEN_SYMS];
+    uint16_t fcode_l[LITLEN_SYMS], fcode_d[DIST_SYMS];
 };
 
-int vod_sparse_new(uint32_t brick, vod_sparse **out)
+static uint16_t reverse(uint32_t code, unsigned len);
+
+static void fixed_codes(vod_sparse *z)
+{
+    for (int s = 0; s < LITLEN_SYMS; s++) {
+        unsigned len = s < 144 ? 8 : s < 256 ? 9 : s < 280 ? 7 : 8;
+        uint32_t first = s < 144 ? 0x30 : s < 256 ? 0x190 : s < 280 ? 0 : 0xc0;
+        int base = s < 144 ? 0 : s < 256 ? 144 : s < 280 ? 256 : 280;
+        z->fbits_l[s] = (uint8_t)len;
+        z->fcode_l[s] = reverse(first + (uint32_t)(s - base), len);
+    }
+    for (int s = 0; s < DIST_SYMS; s++) z->fcode_d[s] = reverse((uint32_t)s, 5);
+}
+
+int vod_sparse_new(uint32_t brick, uint32_t voxel_bits, vod_sparse **out)
 {
     *out = NULL;
     if (brick < 2 || brick > VOD_SPARSE_MAX_BRICK) return -EINVAL;
+    if (voxel_bits != 1 && voxel_bits != 8 && voxel_bits != 32) return -EINVAL;
+    size_t row_bits = (size_t)brick * voxel_bits;
+    unsigned unit = voxel_bits == 32 ? 4 : 1;
     vod_sparse *z = calloc(1, sizeof *z);
     if (!z) return -ENOMEM;
-    z->row = 4 * (size_t)brick;
-    z->slice = z->row * brick;
-    z->cap = z->slice * brick;
+    z->unit = unit;
+    z->row = row_bits / 8;
+    z->slice = row_bits * brick / 8;
+    z->cap = row_bits * brick * brick / 8;
+    /* a row and a slice back; for bricks of bytes or bits, whose rows
+     * are short, two rows back and a slice and a row back too */
+    size_t tried[4] = {z->row, z->slice, 2 * z->row, z->slice + z->row};
+    for (unsigned i = 0; i < (unit == 4 ? 2u : 4u); i++)
+        if (tried[i] && tried[i] <= WINDOW) z->dist[z->ndist++] = tried[i];
+    z->hash_bits = 6;
+    while (z->hash_bits < HASH_BITS && (1u << z->hash_bits) < z->cap / 2) z->hash_bits++;
+    fixed_codes(z);
     z->tok = malloc((z->cap + 1) * sizeof *z->tok);
-    z->mask = malloc((z->cap / 4 + 63) / 64 * sizeof *z->mask);
-    if (!z->tok || !z->mask) {
+    z->mask = malloc((z->cap / z->unit + 63) / 64 * sizeof *z->mask);
+    z->prev = malloc(z->cap * sizeof *z->prev);
+    z->chain = unit == 1 ? 4 : 1;
+    if (!z->tok || !z->mask || !z->prev) {
         vod_sparse_free(z);
         return -ENOMEM;
     }
@@ -100,6 +156,7 @@ void vod_sparse_free(vod_sparse *z)
     if (!z) return;
     free(z->tok);
     free(z->mask);
+    free(z->prev);
     free(z);
 }
 
@@ -160,41 +217,59 @@ static void insertion_sort(uint32_t *sym, uint32_t *w, int n)
     }
 }
 
-/* The used symbols of freq in ascending order of frequency, ties in
- * symbol order: a counting sort of the frequencies below 255, the few
- * above it (a brick's zeros, its 0xff bytes) sorted after them.  Returns
- * how many. */
-static int sort_symbols(const uint32_t *freq, int n, uint32_t *sym, uint32_t *w)
+/* The used symbols of freq[0..n-1] in symbol order into used; how many. */
+static int used_symbols(const uint32_t *freq, int n, uint16_t *used)
 {
-    int used = 0;
+    int k = 0;
     for (int s = 0; s < n; s++) { /* without a branch: used symbols are random */
-        sym[used] = (uint32_t)s;
-        w[used] = freq[s];
-        used += freq[s] != 0;
+        used[k] = (uint16_t)s;
+        k += freq[s] != 0;
     }
-    if (used <= 32) {
-        insertion_sort(sym, w, used);
-        return used;
+    return k;
+}
+
+/* At least two symbols get a code, as zlib makes sure: a lone symbol would
+ * make an incomplete code, which inflaters refuse.  The first unused
+ * symbols get frequency 1, used kept in symbol order; the new count. */
+static int two_symbols(uint32_t *freq, int n, uint16_t *used, int k)
+{
+    for (int s = 0; s < n && k < 2; s++) {
+        if (freq[s]) continue;
+        freq[s] = 1;
+        int i = k++;
+        for (; i > 0 && used[i - 1] > s; i--) used[i] = used[i - 1];
+        used[i] = (uint16_t)s;
     }
-    uint32_t in_s[LITLEN_SYMS], in_w[LITLEN_SYMS];
+    return k;
+}
+
+/* The k used symbols in ascending order of frequency, ties in symbol
+ * order, into sym and w: a counting sort of the frequencies below 255, the
+ * few above it (a brick's zeros, its 0xff bytes) sorted after them. */
+static void sort_symbols(const uint32_t *freq, const uint16_t *used, int k,
+                         uint32_t *sym, uint32_t *w)
+{
+    for (int i = 0; i < k; i++) sym[i] = used[i], w[i] = freq[used[i]];
+    if (k <= 32) {
+        insertion_sort(sym, w, k);
+        return;
+    }
     unsigned count[257] = {0};
-    memcpy(in_s, sym, (size_t)used * sizeof *sym);
-    memcpy(in_w, w, (size_t)used * sizeof *w);
-    for (int i = 0; i < used; i++) count[(in_w[i] < 255 ? in_w[i] : 255) + 1]++;
+    for (int i = 0; i < k; i++) count[(w[i] < 255 ? w[i] : 255) + 1]++;
     for (int d = 0; d < 256; d++) count[d + 1] += count[d];
-    for (int i = 0; i < used; i++) {
-        unsigned d = in_w[i] < 255 ? in_w[i] : 255;
-        sym[count[d]] = in_s[i];
-        w[count[d]++] = in_w[i];
+    for (int i = 0; i < k; i++) {
+        uint32_t f = freq[used[i]];
+        unsigned d = f < 255 ? f : 255;
+        sym[count[d]] = used[i];
+        w[count[d]++] = f;
     }
     int big = (int)count[254]; /* where the frequencies >= 255 start */
-    insertion_sort(sym + big, w + big, used - big);
-    return used;
+    insertion_sort(sym + big, w + big, k - big);
 }
 
 /* The len low bits of code in reverse order (deflate sends Huffman codes
  * from their first bit, everything else from the last). */
-static inline uint16_t reverse(uint32_t code, unsigned len)
+static uint16_t reverse(uint32_t code, unsigned len)
 {
     uint32_t x = code;
     x = (x & 0x5555u) << 1 | (x >> 1 & 0x5555u);
@@ -205,22 +280,18 @@ static inline uint16_t reverse(uint32_t code, unsigned len)
 }
 
 /* Code lengths (at most max_bits) and bit-reversed canonical codes for
- * freq[0..n-1].  At least two symbols get a code, as zlib makes sure: a
- * lone symbol would make an incomplete code, which inflaters refuse. */
-static void build_code(uint32_t *freq, int n, unsigned max_bits, uint8_t *bits,
-                       uint16_t *code)
+ * the k used symbols of freq[0..n-1] (used: in symbol order, at least
+ * two); the other symbols get length 0. */
+static void build_code(const uint32_t *freq, int n, const uint16_t *used, int k,
+                       unsigned max_bits, uint8_t *bits, uint16_t *code)
 {
-    uint32_t sym[LITLEN_SYMS], w[LITLEN_SYMS] = {0};
-    int used = 0;
-    for (int s = 0; s < n && used < 2; s++) used += freq[s] != 0;
-    for (int s = 0; s < n && used < 2; s++)
-        if (!freq[s]) freq[s] = 1, used++;
-    used = sort_symbols(freq, n, sym, w);
-    min_redundancy(w, used);
+    uint32_t sym[LITLEN_SYMS], w[LITLEN_SYMS];
+    sort_symbols(freq, used, k, sym, w);
+    min_redundancy(w, k);
     /* miniz's limit: fold longer codes into max_bits, then lengthen the
      * shortest codes below it until the Kraft sum is exact again */
     unsigned count[33] = {0};
-    for (int i = 0; i < used; i++) count[w[i] < 32 ? w[i] : 32]++;
+    for (int i = 0; i < k; i++) count[w[i] < 32 ? w[i] : 32]++;
     for (unsigned l = max_bits + 1; l <= 32; l++) count[max_bits] += count[l], count[l] = 0;
     uint32_t total = 0;
     for (unsigned l = 1; l <= max_bits; l++) total += count[l] << (max_bits - l);
@@ -235,9 +306,9 @@ static void build_code(uint32_t *freq, int n, unsigned max_bits, uint8_t *bits,
         total--;
     }
     memset(bits, 0, (size_t)n);
-    int j = used; /* the most frequent symbols get the shortest codes */
+    int j = k; /* the most frequent symbols get the shortest codes */
     for (unsigned l = 1; l <= max_bits; l++)
-        for (unsigned k = count[l]; k > 0; k--) bits[sym[--j]] = (uint8_t)l;
+        for (unsigned c = count[l]; c > 0; c--) bits[sym[--j]] = (uint8_t)l;
     /* canonical codes (RFC 1951 3.2.2), count[] being bl_count */
     uint32_t next[MAX_BITS + 2] = {0}, c = 0;
     count[0] = 0;
@@ -245,10 +316,19 @@ static void build_code(uint32_t *freq, int n, unsigned max_bits, uint8_t *bits,
         c = (c + count[l - 1]) << 1;
         next[l] = c;
     }
-    for (int s = 0; s < n; s++) {
-        unsigned l = bits[s];
-        code[s] = l ? reverse(next[l]++, l) : 0;
+    for (int i = 0; i < k; i++) {
+        unsigned l = bits[used[i]];
+        code[used[i]] = reverse(next[l]++, l);
     }
+}
+
+/* build_code for all of freq[0..n-1]. */
+static void build_code_all(uint32_t *freq, int n, unsigned max_bits, uint8_t *bits,
+                           uint16_t *code)
+{
+    uint16_t used[LITLEN_SYMS];
+    int k = two_symbols(freq, n, used, used_symbols(freq, n, used));
+    build_code(freq, n, used, k, max_bits, bits, code);
 }
 
 /* ---- bits out ---- */
@@ -331,40 +411,53 @@ static inline uint32_t load32(const uint8_t *p)
     return v;
 }
 
-/* Bit i of mask: voxel i of raw (nv voxels) is not 0. */
-static void nonzero_mask(const uint8_t *raw, size_t nv, uint64_t *mask)
+/* Bit i of mask: unit i of raw (nu units of u bytes, u 1, 2 or 4) is
+ * not 0. */
+static void nonzero_mask(const uint8_t *raw, size_t nu, unsigned u, uint64_t *mask)
 {
     size_t i = 0;
-    memset(mask, 0, (nv + 63) / 64 * sizeof *mask);
+    memset(mask, 0, (nu + 63) / 64 * sizeof *mask);
 #ifdef __SSE2__
     const __m128i zero = _mm_setzero_si128();
-    for (; nv - i >= 64; i += 64) {
+    for (; nu - i >= 64; i += 64) {
         uint64_t zeros = 0;
         for (unsigned k = 0; k < 64; k += 16) {
-            const __m128i *v = (const __m128i *)(raw + 4 * (i + k));
-            __m128i e0 = _mm_cmpeq_epi32(_mm_loadu_si128(v), zero);
-            __m128i e1 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 1), zero);
-            __m128i e2 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 2), zero);
-            __m128i e3 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 3), zero);
-            __m128i e = _mm_packs_epi16(_mm_packs_epi32(e0, e1), _mm_packs_epi32(e2, e3));
+            const __m128i *v = (const __m128i *)(raw + u * (i + k));
+            __m128i e;
+            if (u == 4) {
+                __m128i e0 = _mm_cmpeq_epi32(_mm_loadu_si128(v), zero);
+                __m128i e1 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 1), zero);
+                __m128i e2 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 2), zero);
+                __m128i e3 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 3), zero);
+                e = _mm_packs_epi16(_mm_packs_epi32(e0, e1), _mm_packs_epi32(e2, e3));
+            } else if (u == 2) {
+                e = _mm_packs_epi16(_mm_cmpeq_epi16(_mm_loadu_si128(v), zero),
+                                    _mm_cmpeq_epi16(_mm_loadu_si128(v + 1), zero));
+            } else {
+                e = _mm_cmpeq_epi8(_mm_loadu_si128(v), zero);
+            }
             zeros |= (uint64_t)(unsigned)_mm_movemask_epi8(e) << k;
         }
         mask[i / 64] = ~zeros;
     }
 #endif
-    for (; i < nv; i++)
-        if (load32(raw + 4 * i)) mask[i / 64] |= 1ull << (i % 64);
+    for (; i < nu; i++) {
+        const uint8_t *q = raw + u * i;
+        unsigned any = q[0];
+        for (unsigned b = 1; b < u; b++) any |= q[b];
+        if (any) mask[i / 64] |= 1ull << (i % 64);
+    }
 }
 
-/* The first voxel from i on that is not 0, or nv. */
-static size_t next_nonzero(const uint64_t *mask, size_t i, size_t nv)
+/* The first unit from i on that is not 0, or nu. */
+static size_t next_nonzero(const uint64_t *mask, size_t i, size_t nu)
 {
     size_t w = i / 64;
     uint64_t m = mask[w] >> (i % 64);
     if (m) return i + (size_t)__builtin_ctzll(m);
-    for (w++; w * 64 < nv; w++)
+    for (w++; w * 64 < nu; w++)
         if (mask[w]) return w * 64 + (size_t)__builtin_ctzll(mask[w]);
-    return nv;
+    return nu;
 }
 
 /* Bytes equal at q and p, p > q, at most max. */
@@ -380,22 +473,37 @@ static size_t match_len(const uint8_t *raw, size_t q, size_t p, size_t max)
     return l;
 }
 
-static inline uint32_t hash_voxel(uint32_t v)
+static inline uint32_t hash_word(uint32_t v, unsigned bits)
 {
-    return (v * 2654435761u) >> (32 - HASH_BITS);
+    return (v * 2654435761u) >> (32 - bits);
 }
 
-/* The longest match at voxel-aligned p among the candidates. */
+/* The position a head or prev entry holds, or p (none) when it is from an
+ * earlier brick: entries are position + 1 + base, and base moves past the
+ * last brick's entries for each brick, so the table is never cleared. */
+static inline size_t entry_pos(const vod_sparse *z, uint32_t e, size_t p)
+{
+    return e > z->base ? e - z->base - 1 : p;
+}
+
+/* The longest match at p (p + 4 <= n) among the candidates. */
 static size_t best_match(const vod_sparse *z, const uint8_t *raw, size_t p, size_t n,
                          uint32_t h, size_t *dist)
 {
     size_t max = n - p < MAX_MATCH ? n - p : MAX_MATCH, best = 0;
-    size_t cand[3] = {z->head[h] ? z->head[h] - 1 : p, p >= z->row ? p - z->row : p,
-                      p >= z->slice ? p - z->slice : p};
     uint32_t v = load32(raw + p);
-    for (int i = 0; i < 3; i++) {
-        size_t q = cand[i];
-        /* a match shorter than the voxel is not taken: a cheap no first */
+    /* the hash's chain, newest first, then the fixed distances */
+    size_t q = entry_pos(z, z->head[h], p);
+    for (unsigned c = 0; c < z->chain && q < p && p - q <= WINDOW; c++) {
+        if (load32(raw + q) == v) { /* shorter than 4 bytes is not taken */
+            size_t l = match_len(raw, q, p, max);
+            if (l > best) best = l, *dist = p - q;
+            if (best >= NICE_MATCH) return best;
+        }
+        q = entry_pos(z, z->prev[q], p);
+    }
+    for (unsigned i = 0; i < z->ndist; i++) {
+        q = p >= z->dist[i] ? p - z->dist[i] : p;
         if (q >= p || p - q > WINDOW || load32(raw + q) != v) continue;
         size_t l = match_len(raw, q, p, max);
         if (l > best) best = l, *dist = p - q;
@@ -403,40 +511,90 @@ static size_t best_match(const vod_sparse *z, const uint8_t *raw, size_t p, size
     return best;
 }
 
-/* Literals and matches for raw (n bytes, whole voxels), their frequencies,
- * its Adler-32.  Every token starts at a voxel: a match is cut to whole
- * voxels. */
-static void tokenize(tokens *t, const uint8_t *raw, size_t n)
+static inline uint32_t hash_at(const vod_sparse *z, const uint8_t *raw, size_t p)
+{
+    return hash_word(load32(raw + p), z->hash_bits);
+}
+
+static inline void insert(vod_sparse *z, uint32_t h, size_t p)
+{
+    z->prev[p] = z->head[h];
+    z->head[h] = (uint32_t)(p + 1 + z->base);
+}
+
+/* A new brick: base past every entry of the last one (the table cleared
+ * once in 2^32 / cap bricks). */
+static void next_base(vod_sparse *z)
+{
+    if (z->base > UINT32_MAX - 2 * (z->cap + 1)) {
+        memset(z->head, 0, sizeof z->head);
+        z->base = 0;
+        return;
+    }
+    z->base += (uint32_t)z->cap + 1;
+}
+
+/* The tokens from a non-zero unit at p; the units they cover.  Byte
+ * units (u == 1) search as zlib does at its middle levels: one step of
+ * lazy matching (a literal when the match at p + 1 is longer) and the
+ * bytes of a match entered in the hash. */
+static inline size_t tokens_at(tokens *t, const uint8_t *raw, size_t p, size_t n,
+                               const unsigned u)
 {
     vod_sparse *z = t->z;
-    size_t nv = n / 4, i = 0;
-    nonzero_mask(raw, nv, z->mask);
-    memset(z->head, 0, sizeof z->head);
-    while (i < nv) {
-        size_t p = 4 * i;
-        if (!(z->mask[i / 64] >> (i % 64) & 1u)) {
-            size_t j = next_nonzero(z->mask, i, nv), k = 4 * (j - i);
-            if (p == 0 || raw[p - 1] != 0) {
-                lit(t, 0);
-                k--;
-            }
-            zero_run(t, k);
-            i = j;
-            continue;
+    if (n - p >= MIN_MATCH) {
+        uint32_t h = hash_at(z, raw, p);
+        size_t dist = 0, l = best_match(z, raw, p, n, h, &dist) / u * u;
+        insert(z, h, p);
+        if (u == 1 && l >= MIN_MATCH && l < LAZY_MATCH && n - p > MIN_MATCH) {
+            size_t d1;
+            if (best_match(z, raw, p + 1, n, hash_at(z, raw, p + 1), &d1) > l) l = 0;
         }
-        uint32_t h = hash_voxel(load32(raw + p));
-        size_t dist = 0, l = best_match(z, raw, p, n, h, &dist) & ~(size_t)3;
-        z->head[h] = (uint32_t)p + 1;
         if (l >= MIN_MATCH) {
             match(t, (unsigned)l, (unsigned)dist);
-            i += l / 4;
+            if (u == 1 && l <= MAX_INSERT)
+                for (size_t q = p + 1; q < p + l && n - q >= MIN_MATCH; q++)
+                    insert(z, hash_at(z, raw, q), q);
+            return l / u;
+        }
+    }
+    for (unsigned b = 0; b < u; b++) lit(t, raw[p + b]);
+    return 1;
+}
+
+/* Literals and matches for raw (n bytes, whole units of u bytes), their
+ * frequencies.  Every token starts at a unit: a match is cut to whole
+ * units, and one of at least 4 bytes is looked for where 4 bytes are
+ * left.  Inlined for each unit, so that u is a constant. */
+static inline void tokenize_units(tokens *t, const uint8_t *raw, size_t n,
+                                  const unsigned u)
+{
+    vod_sparse *z = t->z;
+    size_t nu = n / u, i = 0;
+    nonzero_mask(raw, nu, u, z->mask);
+    next_base(z);
+    while (i < nu) {
+        size_t p = u * i;
+        if (z->mask[i / 64] >> (i % 64) & 1u) {
+            i += tokens_at(t, raw, p, n, u);
             continue;
         }
-        for (int b = 0; b < 4; b++) lit(t, raw[p + b]);
-        i++;
+        size_t j = next_nonzero(z->mask, i, nu), k = u * (j - i);
+        if (p == 0 || raw[p - 1] != 0) {
+            lit(t, 0);
+            k--;
+        }
+        zero_run(t, k);
+        i = j;
     }
     z->tok[t->nt++] = 256;
     z->freq_l[256]++;
+}
+
+static void tokenize(tokens *t, const uint8_t *raw, size_t n)
+{
+    if (t->z->unit == 4) tokenize_units(t, raw, n, 4);
+    else tokenize_units(t, raw, n, 1);
 }
 
 /* ---- the block ---- */
@@ -492,7 +650,7 @@ static uint64_t make_header(const vod_sparse *z, header *h)
     memcpy(lens + h->hlit, z->bits_d, (size_t)h->hdist);
     uint32_t f[CL_SYMS] = {0};
     h->k = rle_lengths(lens, (size_t)(h->hlit + h->hdist), h->sym, f);
-    build_code(f, CL_SYMS, 7, h->cb, h->cc);
+    build_code_all(f, CL_SYMS, 7, h->cb, h->cc);
     h->hclen = CL_SYMS;
     while (h->hclen > 4 && !h->cb[cl_order[h->hclen - 1]]) h->hclen--;
     uint64_t bits = 3 + 5 + 5 + 4 + 3 * (uint64_t)h->hclen;
@@ -505,8 +663,7 @@ static uint64_t make_header(const vod_sparse *z, header *h)
 
 static void put_header(const header *h, bitw *w)
 {
-    put(w, 1, 1); /* BFINAL */
-    put(w, 2, 2); /* dynamic Huffman codes */
+    put(w, 1 | 2 << 1, 3); /* BFINAL, dynamic Huffman codes */
     put(w, (uint32_t)(h->hlit - 257), 5);
     put(w, (uint32_t)(h->hdist - 1), 5);
     put(w, (uint32_t)(h->hclen - 4), 4);
@@ -518,31 +675,43 @@ static void put_header(const header *h, bitw *w)
     }
 }
 
-/* The tokens' size in bits (at most one bit a symbol more: a symbol that
- * build_code gave a code without its being used counts once). */
-static uint64_t data_bits(const vod_sparse *z)
+/* The tokens' size in bits with the literal/length code lengths bits_l
+ * and the distance code lengths bits_d (NULL: the fixed 5 bits), from the
+ * used symbols. */
+static uint64_t data_bits(const vod_sparse *z, const uint8_t *bits_l,
+                          const uint8_t *bits_d)
 {
     uint64_t bits = 0;
-    for (int s = 0; s < 286; s++) bits += (uint64_t)z->freq_l[s] * z->bits_l[s];
-    for (int s = 0; s < 29; s++) bits += (uint64_t)z->freq_l[257 + s] * len_extra[s];
-    for (int s = 0; s < DIST_SYMS; s++)
-        bits += (uint64_t)z->freq_d[s] * (z->bits_d[s] + dist_extra[s]);
+    for (int i = 0; i < z->nused_l; i++) {
+        unsigned s = z->used_l[i];
+        bits += (uint64_t)z->freq_l[s] * (bits_l[s] + (s > 256 ? len_extra[s - 257] : 0u));
+    }
+    for (int i = 0; i < z->nused_d; i++) {
+        unsigned s = z->used_d[i];
+        bits += (uint64_t)z->freq_d[s] * ((bits_d ? bits_d[s] : 5u) + dist_extra[s]);
+    }
     return bits;
 }
 
-static void put_tokens(const vod_sparse *z, const tokens *t, bitw *w)
+/* One code's symbols: lengths and bit-reversed codes. */
+typedef struct {
+    const uint8_t *bits_l, *bits_d;
+    const uint16_t *code_l, *code_d;
+} codes;
+
+static void put_tokens(const vod_sparse *z, const tokens *t, const codes *c, bitw *w)
 {
     for (size_t i = 0; i < t->nt; i++) {
         uint32_t k = z->tok[i];
         if (!(k & MATCH)) {
-            put(w, z->code_l[k], z->bits_l[k]);
+            put(w, c->code_l[k], c->bits_l[k]);
             continue;
         }
         unsigned len = (k >> 15) & 0x1ffu, d = (k & 0x7fffu) + 1;
         unsigned ls = z->len_sym[len], ds = z->dist_sym[d - 1];
-        put(w, z->code_l[257 + ls], z->bits_l[257 + ls]);
+        put(w, c->code_l[257 + ls], c->bits_l[257 + ls]);
         put(w, len - len_base[ls], len_extra[ls]);
-        put(w, z->code_d[ds], z->bits_d[ds]);
+        put(w, c->code_d[ds], c->bits_d ? c->bits_d[ds] : 5u);
         put(w, d - dist_base[ds], dist_extra[ds]);
     }
 }
@@ -550,21 +719,36 @@ static void put_tokens(const vod_sparse *z, const tokens *t, bitw *w)
 size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t *out,
                            size_t cap)
 {
-    if (n > z->cap || n % 4 || cap < 6) return 0;
+    if (n > z->cap || n % z->unit || cap < 6) return 0;
     memset(z->freq_l, 0, sizeof z->freq_l);
     memset(z->freq_d, 0, sizeof z->freq_d);
     tokens t = {.z = z};
     tokenize(&t, raw, n);
-    build_code(z->freq_l, 286, MAX_BITS, z->bits_l, z->code_l);
-    build_code(z->freq_d, DIST_SYMS, MAX_BITS, z->bits_d, z->code_d);
+    /* the fixed codes' size from the symbols sent, before two_symbols
+     * gives unused ones a frequency */
+    z->nused_l = used_symbols(z->freq_l, 286, z->used_l);
+    z->nused_d = used_symbols(z->freq_d, DIST_SYMS, z->used_d);
+    uint64_t fixed = 3 + data_bits(z, z->fbits_l, NULL);
+    z->nused_l = two_symbols(z->freq_l, 286, z->used_l, z->nused_l);
+    z->nused_d = two_symbols(z->freq_d, DIST_SYMS, z->used_d, z->nused_d);
+    build_code(z->freq_l, 286, z->used_l, z->nused_l, MAX_BITS, z->bits_l, z->code_l);
+    build_code(z->freq_d, DIST_SYMS, z->used_d, z->nused_d, MAX_BITS, z->bits_d, z->code_d);
     header h;
-    uint64_t bits = make_header(z, &h) + data_bits(z);
+    uint64_t bits = make_header(z, &h) + data_bits(z, z->bits_l, z->bits_d);
+    bool dynamic = bits < fixed;
+    if (!dynamic) bits = fixed;
     if (2 + (bits + 7) / 8 + 4 > cap) return 0;
     out[0] = 0x78; /* deflate, 32 KiB window */
     out[1] = 0x5e; /* "fast" level; (0x78 * 256 + 0x5e) % 31 == 0 */
     bitw w = {.p = out + 2};
-    put_header(&h, &w);
-    put_tokens(z, &t, &w);
+    codes c = {z->bits_l, z->bits_d, z->code_l, z->code_d};
+    if (dynamic) {
+        put_header(&h, &w);
+    } else {
+        put(&w, 1 | 1 << 1, 3); /* BFINAL, fixed Huffman codes */
+        c = (codes){z->fbits_l, NULL, z->fcode_l, z->fcode_d};
+    }
+    put_tokens(z, &t, &c, &w);
     put_flush(&w);
     uint32_t adler = libdeflate_adler32(1, raw, n);
     for (int i = 0; i < 4; i++) w.p[i] = (uint8_t)(adler >> (24 - 8 * i));

@@ -270,7 +270,7 @@ struct vod_encoder {
     uint8_t *raw, *other;  /* a batch's bricks; an earlier one filled again */
     size_t batch;          /* bricks raw holds: VOD_ENCODE_BATCH, or 1 */
     struct libdeflate_compressor *ld; /* ZLIB: one per encoder, or NULL */
-    vod_sparse *sparse;    /* ZLIB at levels 1..6, 32-bit voxels */
+    vod_sparse *sparse;    /* ZLIB at levels 1..6 */
     size_t bound;          /* vod_encode_bound */
     seen_brick *seen;      /* the bricks compressed so far, by first use */
     size_t nseen, seen_cap;
@@ -296,18 +296,17 @@ void vod_encoder_free(vod_encoder *e)
 }
 
 /* The compressors for p: at the levels up to VOD_SPARSE_LEVEL the
- * one-pass encoder of vod_deflate.c for bricks of 32-bit voxels (see
- * there; voxbench deflate measures it against zlib and libdeflate), and
- * libdeflate at p's level for the others, made when first needed (656 KiB
- * at level 6, 8.6 MiB at 12). */
+ * one-pass encoder of vod_deflate.c (see there; voxbench deflate measures
+ * it against zlib and libdeflate) for bricks up to VOD_SPARSE_MAX_BRICK,
+ * and libdeflate at p's level for the others, made when first needed
+ * (656 KiB at level 6, 8.6 MiB at 12). */
 static int make_compressors(vod_encoder *e, const vod_layout *L, const vod_params *p)
 {
     if (p->comp != VOD_COMP_ZLIB) return 0;
     if (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX) return -EINVAL;
-    if (L->voxel_bits == 32 && L->brick <= VOD_SPARSE_MAX_BRICK &&
-        p->zlib_level <= VOD_SPARSE_LEVEL)
-        return vod_sparse_new(L->brick, &e->sparse);
-    return 0;
+    if (p->zlib_level > VOD_SPARSE_LEVEL) return 0;
+    int rc = vod_sparse_new(L->brick, L->voxel_bits, &e->sparse);
+    return rc == -EINVAL ? 0 : rc; /* bricks too large for it: libdeflate */
 }
 
 int vod_encoder_new(const vod_layout *L, const vod_params *p, vod_encoder **out)

@@ -1,9 +1,9 @@
-/* Fuzz the one-pass deflate encoder of 32-bit bricks (vod_deflate.c) by
- * round trip: the input builds a brick (byte 0 picks its size, 2..16 per
- * side; then records of 6 bytes: a voxel index and its value, and every
- * 7th record copies a run of earlier voxels, so that matches and long runs
- * of zeros both occur), the encoder compresses it and zlib must inflate
- * the stream to the same bytes.  Invariants (abort on violation):
+/* Fuzz the one-pass deflate encoder (vod_deflate.c) by round trip: the
+ * input builds a brick (byte 0 picks its size, 2..16 per side, and its
+ * voxel size, 1, 8 or 32 bits; then records of 6 bytes: a 4-byte word's
+ * index and its value, and every 7th record copies a run of earlier
+ * words, so that matches and long runs of zeros both occur), the encoder
+ * compresses it and zlib must inflate the stream to the same bytes.  Invariants (abort on violation):
  *   - the stream inflates with zlib to exactly the brick;
  *   - one byte less of room than the stream took gives 0, never a
  *     truncated stream. */
@@ -40,12 +40,15 @@ static void build(const uint8_t *data, size_t size, uint32_t *raw, size_t n)
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (size < 1) return 0;
+    static const uint32_t voxel_bits[3] = {1, 8, 32};
     uint32_t brick = 2u << (data[0] % 4); /* 2, 4, 8, 16 */
-    size_t n = (size_t)brick * brick * brick, bytes = n * 4, cap = 2 * bytes + 64;
-    uint32_t *raw = malloc(bytes), *back = malloc(bytes);
+    uint32_t bits = voxel_bits[(data[0] >> 2) % 3];
+    size_t bytes = (size_t)brick * brick * brick * bits / 8, cap = 2 * bytes + 64;
+    size_t n = (bytes + 3) / 4; /* words; raw has room for the last one */
+    uint32_t *raw = malloc(n * 4), *back = malloc(n * 4);
     uint8_t *out = malloc(cap);
     vod_sparse *z = NULL;
-    if (!raw || !back || !out || vod_sparse_new(brick, &z)) abort();
+    if (!raw || !back || !out || vod_sparse_new(brick, bits, &z)) abort();
     build(data + 1, size - 1, raw, n);
     size_t k = vod_sparse_compress(z, (const uint8_t *)raw, bytes, out, cap);
     if (k == 0) abort(); /* 2n + 64 always holds a brick */

