@@ -19,7 +19,6 @@
 
 #include "clock.h"
 #include "master.h"
-#include "work.h"
 
 typedef struct {
     const vod_params *p;
@@ -60,59 +59,6 @@ static int push_all(engine *e, uint32_t op, int *pushed)
     return rc;
 }
 
-/* ---- the master's share, when a CPU is left for it ----
- *
- * With fewer workers than CPUs (-w 1 on two cores) the master would only
- * wait while the workers encode; it takes subtrees and bricks from the
- * same counters instead (work.h), right after handing the tasks out.  It
- * stores what it encodes as a worker does; what it fails at is left
- * unrecorded, and encode_gather() does it again at the end, as for a
- * dead worker.  Meanwhile it does not watch the workers: the share ends
- * when the counters run out, and the core's watch resumes. */
-
-static int master_stop(void *ud)
-{
-    const engine *e = ud;
-    /* relaxed: a flag polled between bricks, as the core polls it */
-    return e->aborting ||
-           (e->watch.cancel && atomic_load_explicit(e->watch.cancel, memory_order_relaxed));
-}
-
-static void master_tick(void *ud)
-{
-    (void)ud; /* nobody watches the master's heartbeat */
-}
-
-static void share_aggregate(engine *e, encode_job *ej)
-{
-    if (!e->spare_cpu) return;
-    sched_assign(e); /* the workers start first */
-    work_encode_hooks k = {master_stop, master_tick, e};
-    double t0 = clock_now();
-    (void)work_encode_aggregate(e->seg.base, block(e), &e->tree, &k);
-    ej->t.fill += clock_now() - t0;
-}
-
-static void share_bricks(engine *e, encode_job *ej)
-{
-    if (!e->spare_cpu) return;
-    sched_assign(e); /* the workers start first */
-    encode_block *b = block(e);
-    vod_source src = result_source(e);
-    size_t bound = vod_encode_bound(&b->L, &b->p);
-    uint8_t *out = malloc(VOD_ENCODE_BATCH * bound);
-    vod_encoder *enc = NULL;
-    if (out && !vod_encoder_new(&b->L, &b->p, &enc)) {
-        work_encode_hooks k = {master_stop, master_tick, e};
-        (void)work_encode_bricks(e->seg.base, b, &src, enc, out, bound, &k);
-        vod_times t;
-        vod_encoder_times(enc, &t);
-        vod_times_add(&ej->t, &t);
-    }
-    vod_encoder_free(enc);
-    free(out);
-}
-
 /* The aggregate's second phase, here: the subtrees no worker finished,
  * the cells above them; then the bricks are handed out. */
 static int aggregate_rest(engine *e, encode_job *ej)
@@ -127,9 +73,8 @@ static int aggregate_rest(engine *e, encode_job *ej)
     if (b->nroots) vod_aggregate_top(&e->tree, b->root_height, ej->p->channel);
     else vod_aggregate(&e->tree, ej->p->channel);
     ej->t.fill += clock_now() - t0;
-    int pushed, rc = push_all(e, ENCODE_BRICKS, &pushed);
-    if (!rc) share_bricks(e, ej);
-    return rc;
+    int pushed;
+    return push_all(e, ENCODE_BRICKS, &pushed);
 }
 
 /* The block's fields; the counters start at 0 (relaxed: published to the
@@ -213,7 +158,6 @@ static int setup_octree(engine *e, encode_job *ej)
     e->h->job_off = boff;
     e->h->job_bytes = sizeof *b;
     rc = nroots ? push_all(e, ENCODE_AGGREGATE, &ej->agg_left) : 0;
-    if (!rc && nroots) share_aggregate(e, ej);
     if (!rc && !ej->agg_left) rc = aggregate_rest(e, ej);
     return rc;
 }
@@ -247,9 +191,7 @@ static int setup_volume(engine *e, encode_job *ej)
     e->h->job_off = boff;
     e->h->job_bytes = sizeof *b;
     int pushed;
-    rc = push_all(e, ENCODE_BRICKS, &pushed);
-    if (!rc) share_bricks(e, ej);
-    return rc;
+    return push_all(e, ENCODE_BRICKS, &pushed);
 }
 
 static int encode_setup(engine *e, void *job)

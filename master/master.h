@@ -63,7 +63,6 @@ struct engine {
     shm_seg seg;
     shm_header *h;
     int n;
-    int spare_cpu;      /* the master has a CPU no worker is pinned to */
     mslot ms[ENGINE_MAX_WORKERS];
     shm_task *stack;    /* the work stack, in the segment */
     uint32_t sp, cap;
@@ -149,9 +148,6 @@ int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
 engine_failure engine_vod_failure(int rc, int said);
 /* Push task t onto the work stack; 0 or sched_fail (stack full). */
 int sched_push(engine *e, const shm_task *t);
-/* Hand the stack's tasks to the idle workers now, as the loop would next:
- * for a kind that works itself right after pushing (kind_encode.c). */
-void sched_assign(engine *e);
 /* The job leaves the data area's first `bytes` for the next job (the
  * implicit kind's octree for the encode kind); 0 leaves nothing.  The core
  * gives every page past them (and past keep_bytes) back to tmpfs when a

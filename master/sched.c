@@ -188,11 +188,6 @@ static int assign(engine *e)
     return did;
 }
 
-void sched_assign(engine *e)
-{
-    if (!e->err.failure) assign(e);
-}
-
 static int anything_ready(engine *e)
 {
     for (int i = 0; i < e->n; i++) {

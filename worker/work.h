@@ -83,28 +83,4 @@ int work_entry_end(work_ctx *w);
  * for the full queue work_entry_begin rings before it sleeps. */
 int work_entry_end_batched(work_ctx *w);
 
-/* ---- the encode kind's loops, which the master runs too ----
- *
- * When a CPU is left over by the workers (-w 1 on two cores), the master
- * takes mip-level subtrees and bricks from the same counters as the
- * workers instead of waiting for them (kind_encode.c).  Whoever runs a
- * loop says how it stops and shows it is alive. */
-typedef struct {
-    int (*stop)(void *ud);  /* non-zero: the job was abandoned */
-    void (*tick)(void *ud); /* at every subtree and every batch of bricks */
-    void *ud;
-} work_encode_hooks;
-
-/* Claim and aggregate subtrees of b until none is left, setting each
- * one's done byte: 0, -EINVAL for a bad root, -ECANCELED when stopped. */
-int work_encode_aggregate(uint8_t *base, encode_block *b, octree *tree,
-                          const work_encode_hooks *k);
-/* Claim and encode brick nodes of b from src until none is left (or
- * somebody failed), into out (VOD_ENCODE_BATCH encodings of bound bytes),
- * each stored in the shared brick area with its record: 0, the encoder's
- * error, or -ECANCELED when stopped. */
-int work_encode_bricks(uint8_t *base, encode_block *b, const vod_source *src,
-                       vod_encoder *enc, uint8_t *out, size_t bound,
-                       const work_encode_hooks *k);
-
 #endif

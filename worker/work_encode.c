@@ -1,10 +1,8 @@
 /* The encode kind's worker side: the mip levels of subtrees of the last
- * job's octree, then its VOD bricks encoded into the shared brick area.
- * Workers (and the master, when a CPU is left for it: work.h) claim nodes
- * in chunks from the block's counter, so they share the work whatever its
- * shape.  Each encoder finds the duplicates among the bricks it encodes
- * before compressing them: a duplicate's record points at its first's
- * bytes. */
+ * job's octree, then its VOD bricks encoded into the shared brick area.  Workers claim nodes in chunks from
+ * the block's counter, so they share the work whatever its shape.  Each
+ * worker's encoder finds the duplicates among the bricks it encodes before
+ * compressing them: a duplicate's record points at its first's bytes. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -54,14 +52,14 @@ static void encode_fail(encode_block *b, int rc)
 }
 
 /* Node i, encoded into out (its record in rec, same: the tag of its
- * first), into the shared brick area.  A duplicate of a brick this encoder
+ * first), into the shared brick area.  A duplicate of a brick this worker
  * stored takes its offset; one whose first did not fit stays unrecorded
- * like it (the master encodes both at the end). */
-static void store_one(uint8_t *base, encode_block *b, uint64_t i, const uint8_t *out,
-                      const vod_encoded *rec, uint64_t same)
+ * like it (the master encodes both). */
+static void store_one(work_ctx *w, encode_block *b, uint64_t i,
+                      const uint8_t *out, const vod_encoded *rec, uint64_t same)
 {
-    vod_encoded *recs = shm_at(base, b->recs_off);
-    uint64_t *offs = shm_at(base, b->offs_off);
+    vod_encoded *recs = shm_at(w->base, b->recs_off);
+    uint64_t *offs = shm_at(w->base, b->offs_off);
     if (same != i) {
         if (same < b->n && offs[same] < b->brick_cap) {
             recs[i] = *rec;
@@ -70,44 +68,42 @@ static void store_one(uint8_t *base, encode_block *b, uint64_t i, const uint8_t 
         return;
     }
     /* relaxed: only the uniqueness of the ranges matters; the bytes are
-     * published to the master by the done_seq release (or written by the
-     * master itself). */
+     * published to the master by the done_seq release. */
     uint64_t off = atomic_fetch_add_explicit(&b->bump, rec->size,
                                              memory_order_relaxed);
     /* Full: leave the node unrecorded, the master encodes it itself. */
     if (off > b->brick_cap || rec->size > b->brick_cap - off) return;
-    memcpy((uint8_t *)shm_at(base, b->brick_off) + off, out, rec->size);
+    memcpy((uint8_t *)shm_at(w->base, b->brick_off) + off, out, rec->size);
     recs[i] = *rec;
     offs[i] = off;
 }
 
 /* Nodes i0..i0+count-1 (count <= VOD_ENCODE_BATCH), encoded together. */
-static int encode_batch(uint8_t *base, encode_block *b, const vod_source *src,
-                        vod_encoder *enc, uint8_t *out, size_t bound, uint64_t i0,
+static int encode_batch(work_ctx *w, encode_state *st, encode_block *b,
+                        const vod_source *t, vod_encoder *enc, uint64_t i0,
                         size_t count)
 {
-    const vod_node *nodes = shm_at(base, b->nodes_off);
-    uint8_t *outs[VOD_ENCODE_BATCH];
+    const vod_node *nodes = shm_at(w->base, b->nodes_off);
+    uint8_t *out[VOD_ENCODE_BATCH];
     uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
     vod_encoded rec[VOD_ENCODE_BATCH];
     for (size_t k = 0; k < count; k++) {
-        outs[k] = out + k * bound;
+        out[k] = st->out + k * st->bound;
         tag[k] = i0 + k;
     }
-    int rc = vod_encoder_put_batch(enc, src, &nodes[i0], tag, count, outs, bound,
+    int rc = vod_encoder_put_batch(enc, t, &nodes[i0], tag, count, out, st->bound,
                                    rec, same);
     if (rc) return rc;
-    for (size_t k = 0; k < count; k++) store_one(base, b, i0 + k, outs[k], &rec[k], same[k]);
+    for (size_t k = 0; k < count; k++) store_one(w, b, i0 + k, out[k], &rec[k], same[k]);
     return 0;
 }
 
-int work_encode_bricks(uint8_t *base, encode_block *b, const vod_source *src,
-                       vod_encoder *enc, uint8_t *out, size_t bound,
-                       const work_encode_hooks *k)
+static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
+                        const vod_source *src, vod_encoder *enc)
 {
     for (;;) {
-        if (k->stop(k->ud)) return -ECANCELED; /* the job was cancelled */
         /* relaxed: a counter that hands out disjoint chunks */
+        if (work_aborted(w)) return -ECANCELED; /* the job was cancelled */
         uint64_t i0 = atomic_fetch_add_explicit(&b->next, ENCODE_CHUNK,
                                                 memory_order_relaxed);
         if (i0 >= b->n) return 0;
@@ -115,28 +111,11 @@ int work_encode_bricks(uint8_t *base, encode_block *b, const vod_source *src,
         for (uint64_t i = i0; i < end; i += VOD_ENCODE_BATCH) {
             /* relaxed: stop early once anybody failed */
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
-            k->tick(k->ud);
+            work_tick(w);
             size_t count = end - i < VOD_ENCODE_BATCH ? end - i : VOD_ENCODE_BATCH;
-            int rc = encode_batch(base, b, src, enc, out, bound, i, count);
+            int rc = encode_batch(w, st, b, src, enc, i, count);
             if (rc) return rc;
         }
-    }
-}
-
-int work_encode_aggregate(uint8_t *base, encode_block *b, octree *tree,
-                          const work_encode_hooks *k)
-{
-    const uint32_t *roots = shm_at(base, b->roots_off);
-    uint8_t *done = shm_at(base, b->roots_done_off);
-    for (;;) {
-        if (k->stop(k->ud)) return -ECANCELED;
-        /* relaxed: a counter that hands out disjoint subtrees */
-        uint64_t i = atomic_fetch_add_explicit(&b->agg_next, 1, memory_order_relaxed);
-        if (i >= b->nroots) return 0;
-        if (roots[i] == 0 || roots[i] >= b->cells_used) return -EINVAL;
-        k->tick(k->ud);
-        vod_aggregate_subtree(tree, roots[i], b->root_height, b->p.channel);
-        done[i] = 1;
     }
 }
 
@@ -147,14 +126,25 @@ static void add_ns(atomic_ullong *to, double seconds)
                               memory_order_relaxed);
 }
 
-static int worker_stop(void *ud)
+/* The mip levels of the subtrees this worker claims; each one's done byte
+ * set when it is complete. */
+static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
 {
-    return work_aborted(ud);
-}
-
-static void worker_tick(void *ud)
-{
-    work_tick(ud);
+    const uint32_t *roots = shm_at(w->base, b->roots_off);
+    uint8_t *done = shm_at(w->base, b->roots_done_off);
+    double t0 = clock_now();
+    for (;;) {
+        if (work_aborted(w)) return -ECANCELED;
+        /* relaxed: a counter that hands out disjoint subtrees */
+        uint64_t i = atomic_fetch_add_explicit(&b->agg_next, 1, memory_order_relaxed);
+        if (i >= b->nroots) break;
+        if (roots[i] == 0 || roots[i] >= b->cells_used) return -EINVAL;
+        work_tick(w);
+        vod_aggregate_subtree(tree, roots[i], b->root_height, b->p.channel);
+        done[i] = 1;
+    }
+    add_ns(&b->ns_fill, clock_now() - t0);
+    return 0;
 }
 
 /* The source the block names: the octree (its view in *tree) or the
@@ -181,19 +171,13 @@ static int encode_run(work_ctx *w, void *state, const shm_task *t)
     vod_source src;
     int rc = block_source(w, b, &tree, &src);
     if (rc) return rc;
-    work_encode_hooks k = {worker_stop, worker_tick, w};
-    if (t->op == ENCODE_AGGREGATE && b->source == ENCODE_OCTREE) {
-        double t0 = clock_now();
-        rc = work_encode_aggregate(w->base, b, &tree, &k);
-        add_ns(&b->ns_fill, clock_now() - t0);
-        return rc;
-    }
+    if (t->op == ENCODE_AGGREGATE && b->source == ENCODE_OCTREE)
+        return aggregate_run(w, b, &tree);
     if (t->op != ENCODE_BRICKS) return -EINVAL;
     vod_encoder *enc;
     rc = vod_encoder_new(&b->L, &b->p, &enc);
     if (!rc) {
-        encode_state *st = state;
-        rc = work_encode_bricks(w->base, b, &src, enc, st->out, st->bound, &k);
+        rc = encode_nodes(w, state, b, &src, enc);
         vod_times tm;
         vod_encoder_times(enc, &tm);
         add_ns(&b->ns_fill, tm.fill);

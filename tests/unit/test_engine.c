@@ -981,10 +981,8 @@ Test(engine, workers_are_pinned)
 
 /* ---- VOD ---- */
 
-/* The engine's VOD of its last job against the serial writer's of ref;
- * the engine's stats into *out when not NULL. */
-static void vod_same_stats(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
-                           uint32_t comp, int channel, vod_stats *out)
+static void vod_same(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
+                     uint32_t comp, int channel)
 {
     vod_params p;
     vod_params_default(&p);
@@ -1010,13 +1008,6 @@ static void vod_same_stats(engine *e, octree *ref, const grid_spec *g, uint32_t 
     cr_assert_gt(st_b.bricks, 1);
     free(a.p);
     free(b.p);
-    if (out) *out = st_b;
-}
-
-static void vod_same(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
-                     uint32_t comp, int channel)
-{
-    vod_same_stats(e, ref, g, brick, comp, channel, NULL);
 }
 
 Test(engine, vod_bytes_identical_to_serial_writer)
@@ -1069,53 +1060,6 @@ Test(engine, vod_zlib_bricks_encoded_by_the_master)
     const encode_block *b = (const encode_block *)((const uint8_t *)map + h->job_off);
     cr_assert_gt(atomic_load(&b->bump), b->brick_cap,
                  "the workers' bricks all fitted: the master encoded none");
-    munmap(map, o.shm_bytes);
-    engine_destroy(e);
-    free(ref.arena);
-    expr_tape_free(tape);
-}
-
-/* One worker pinned to one CPU: when the master may run on another, it
- * encodes bricks beside the worker instead of waiting (kind_encode.c), so
- * the stats' compression time (the master's and the worker's) exceeds
- * the worker's own; on a machine of one CPU it does not.  The bytes are
- * the serial writer's either way. */
-Test(engine, vod_the_master_encodes_beside_a_lone_worker)
-{
-    cpu_set_t mine;
-    cr_assert_eq(sched_getaffinity(0, sizeof mine, &mine), 0);
-    int cpu = 0;
-    while (!CPU_ISSET(cpu, &mine)) cpu++;
-    int spare = CPU_COUNT(&mine) > 1;
-    expr_tape *tape = compile(SCENE2);
-    grid_spec g = grid(128);
-    ref_tree ref;
-    reference(tape, &g, &ref);
-    char name[64];
-    snprintf(name, sizeof name, "/voxd-share.%d.", (int)getpid());
-    engine_opts o = {.workers = 1, .cpus = &cpu, .ncpus = 1, .shm_name = name,
-                     .shm_bytes = (size_t)64 << 20};
-    engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
-    engine_result r;
-    run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
-    vod_stats st;
-    vod_same_stats(e, &ref.t, &g, 16, VOD_COMP_ZLIB, VOXEL_CH_SURFACE, &st);
-    int fd = shm_open(name, O_RDONLY, 0);
-    cr_assert_geq(fd, 0);
-    void *map = mmap(NULL, o.shm_bytes, PROT_READ, MAP_SHARED, fd, 0);
-    close(fd);
-    cr_assert_neq(map, MAP_FAILED);
-    const shm_header *h = map;
-    const encode_block *b = (const encode_block *)((const uint8_t *)map + h->job_off);
-    double worker = 1e-9 * (double)atomic_load(&b->ns_compress);
-    if (spare)
-        cr_assert_gt(st.t.compress, worker + 1e-6,
-                     "%d CPUs: the master compressed nothing (%g s, the worker's %g s)",
-                     CPU_COUNT(&mine), st.t.compress, worker);
-    else
-        cr_assert_leq(st.t.compress, worker + 1e-6, "one CPU: the master compressed");
     munmap(map, o.shm_bytes);
     engine_destroy(e);
     free(ref.arena);
