@@ -15,7 +15,10 @@
 #include "master.h"
 #include "worker.h"
 
-#define EXIT_WAIT_S 2.0 /* engine_destroy's patience */
+#define EXIT_WAIT_S 2.0 /* engine_destroy's patience with a worker that
+                           does not run; one whose CPU time still grows
+                           (a slow machine, valgrind) gets up to: */
+#define EXIT_WAIT_MAX_S 60.0
 #define QUIET_SHOWN_S 1.0 /* a busy worker this long without a heartbeat is
                              shown as stalled */
 
@@ -94,19 +97,42 @@ void pool_kill(engine *e, int i)
     m->killed = 1;
 }
 
-char pool_proc_state(pid_t pid)
+/* /proc/PID/stat from its state on ("S ppid ..."), into buf; NULL when
+ * it cannot be read. */
+static const char *proc_stat(pid_t pid, char *buf, size_t len)
 {
-    char path[64], buf[512];
+    char path[64];
     snprintf(path, sizeof path, "/proc/%d/stat", (int)pid);
     int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0) return '?';
-    ssize_t n = read(fd, buf, sizeof buf - 1);
+    if (fd < 0) return NULL;
+    ssize_t n = read(fd, buf, len - 1);
     close(fd);
-    if (n <= 0) return '?';
+    if (n <= 0) return NULL;
     buf[n] = '\0';
     /* "pid (comm) S ...": comm may hold anything, so from the last ')' */
     char *p = strrchr(buf, ')');
-    return p && p[1] == ' ' && p[2] ? p[2] : '?';
+    return p && p[1] == ' ' && p[2] ? p + 2 : NULL;
+}
+
+char pool_proc_state(pid_t pid)
+{
+    char buf[512];
+    const char *st = proc_stat(pid, buf, sizeof buf);
+    return st ? st[0] : '?';
+}
+
+/* The process's user + system CPU time in clock ticks (fields 14 and 15
+ * of /proc/PID/stat), 0 when it cannot be read. */
+static unsigned long long proc_cpu_ticks(pid_t pid)
+{
+    char buf[512];
+    const char *st = proc_stat(pid, buf, sizeof buf);
+    unsigned long long ut = 0, stime = 0;
+    /* from the state (field 3): skip fields 4..13, read 14 and 15 */
+    if (!st || sscanf(st, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %llu %llu",
+                      &ut, &stime) != 2)
+        return 0;
+    return ut + stime;
 }
 
 /* A stopped worker (SIGSTOP, a debugger) would not take its exit task. */
@@ -116,11 +142,15 @@ static int stopped(pid_t pid)
     return st == 'T' || st == 't';
 }
 
+/* The workers' exit: each has EXIT_WAIT_S to go, renewed while its CPU
+ * time grows (it is on its way, only slowly: under valgrind, on a loaded
+ * machine), up to EXIT_WAIT_MAX_S; then it is killed. */
 static void reap_all(engine *e)
 {
-    double deadline = clock_now() + EXIT_WAIT_S;
+    double t0 = clock_now(), deadline = t0 + EXIT_WAIT_S;
+    unsigned long long cpu[ENGINE_MAX_WORKERS] = {0};
     for (;;) {
-        int left = 0;
+        int left = 0, moved = 0;
         for (int i = 0; i < e->n; i++) {
             pid_t pid = e->ms[i].pid;
             if (pid <= 0) continue;
@@ -133,7 +163,17 @@ static void reap_all(engine *e)
             left++;
         }
         if (!left) return;
-        if (clock_now() > deadline) break;
+        double now = clock_now();
+        if (now > deadline) {
+            for (int i = 0; i < e->n; i++) {
+                if (e->ms[i].pid <= 0) continue;
+                unsigned long long c = proc_cpu_ticks(e->ms[i].pid);
+                moved |= c > cpu[i];
+                cpu[i] = c;
+            }
+            if (!moved || now - t0 > EXIT_WAIT_MAX_S) break;
+            deadline = now + EXIT_WAIT_S;
+        }
         struct timespec ms = {0, 1000000};
         nanosleep(&ms, NULL);
     }
