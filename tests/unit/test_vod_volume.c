@@ -486,6 +486,10 @@ Test(vod_volume_oracle, density_storage_brick_4) { oracle_case(VOXEL_CH_DENSITY,
 Test(vod_volume_oracle, density_storage_brick_16) { oracle_case(VOXEL_CH_DENSITY, 16); }
 Test(vod_volume_oracle, density_storage_brick_64) { oracle_case(VOXEL_CH_DENSITY, 64); }
 Test(vod_volume_oracle, occupancy_of_densities) { oracle_case(VOXEL_CH_OCCUPANCY, 8); }
+/* storage bricks of 16 and 64: rows of 16 voxels and more, which the
+ * fill and the mip levels take 16 at a time (SSE2) */
+Test(vod_volume_oracle, occupancy_storage_brick_16) { oracle_case(VOXEL_CH_OCCUPANCY, 16); }
+Test(vod_volume_oracle, occupancy_storage_brick_64) { oracle_case(VOXEL_CH_OCCUPANCY, 64); }
 
 /* A brick that held a voxel and was cleared has memory but no voxel: the
  * file is the one of a volume that never had it, at every brick size
