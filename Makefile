@@ -148,6 +148,9 @@ $(VDB_MOD): $(BUILD)/client/vdb_out.o
 	$(CXX) -shared $(filter -fsanitize=%,$(OPT)) $^ -o $@ $(VDB_LIBS)
 # The export tests' own reader of .vdb files (libopenvdb's reader, not
 # vox's writer); no sanitizers: none of it is voxd's code.
+# The mesh benchmark's reference: OpenVDB's meshToVolume (bench only).
+$(BUILD)/vdb_mesh: bench/vdb_mesh.cc $(LIB)
+	$(CXX) -std=c++17 -Wall -Wextra -Werror $(OPT) -Imesh $< $(LIB) -o $@ $(VDB_LIBS) $(LDLIBS)
 $(BUILD)/tests/vdb_dump: tests/integration/vdb_dump.cc
 	@mkdir -p $(dir $@)
 	$(CXX) -std=c++17 -Wall -Wextra -Werror -O1 $< -o $@ $(VDB_LIBS)
@@ -223,7 +226,7 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh
+bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh $(BUILD)/vdb_mesh
 	@scripts/bench.sh $(BUILD)
 
 # vox_mpi against vox voxelize, the whole command (docs/mpi.md).
@@ -232,7 +235,7 @@ bench-mpi: all $(BUILD)/voxwhole
 
 # The mesh loaders on the Stanford dragon and bunny ($VOXD_MESH_MODELS, or npm),
 # then the whole vox voxelize --mesh command on them and on icospheres.
-bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole $(BUILD)/voxbench
+bench-mesh: all $(BUILD)/bench_mesh $(BUILD)/voxwhole $(BUILD)/voxbench $(BUILD)/vdb_mesh
 	@scripts/bench-mesh.sh $(BUILD)
 
 # Volume CSG jobs: the vox csg command (scripts/bench-csg.sh, also run by make bench).

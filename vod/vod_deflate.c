@@ -81,7 +81,8 @@ struct vod_sparse {
     unsigned hash_bits;     /* of head: about half the brick's bytes */
     uint32_t *tok;          /* cap + 1 tokens */
     uint32_t head[1u << HASH_BITS]; /* 4 bytes' hash -> last position + 1 + base */
-    uint32_t *prev;         /* position -> the one before of its hash, the same way */
+    uint32_t *prev;         /* position -> the one before of its hash, the same
+                               way (chains longer than 1 only) */
     uint32_t base;          /* entries not above it are from earlier bricks */
     unsigned chain;         /* positions of a hash tried */
     uint8_t len_sym[MAX_MATCH + 1]; /* length -> 0..28 */
@@ -110,6 +111,20 @@ static void fixed_codes(vod_sparse *z)
     for (int s = 0; s < DIST_SYMS; s++) z->fcode_d[s] = reverse((uint32_t)s, 5);
 }
 
+/* The fixed codes, and the symbols of every match length and distance. */
+static void symbol_tables(vod_sparse *z)
+{
+    fixed_codes(z);
+    for (int s = 0; s < 29; s++) {
+        int end = s == 28 ? MAX_MATCH + 1 : len_base[s] + (1 << len_extra[s]);
+        for (int l = len_base[s]; l < end && l <= MAX_MATCH; l++) z->len_sym[l] = (uint8_t)s;
+    }
+    z->len_sym[MAX_MATCH] = 28;
+    for (int s = 0; s < DIST_SYMS; s++)
+        for (unsigned d = dist_base[s]; d < dist_base[s] + (1u << dist_extra[s]); d++)
+            z->dist_sym[d - 1] = (uint8_t)s;
+}
+
 int vod_sparse_new(uint32_t brick, uint32_t voxel_bits, vod_sparse **out)
 {
     *out = NULL;
@@ -130,23 +145,15 @@ int vod_sparse_new(uint32_t brick, uint32_t voxel_bits, vod_sparse **out)
         if (tried[i] && tried[i] <= WINDOW) z->dist[z->ndist++] = tried[i];
     z->hash_bits = 6;
     while (z->hash_bits < HASH_BITS && (1u << z->hash_bits) < z->cap / 2) z->hash_bits++;
-    fixed_codes(z);
+    z->chain = unit == 1 ? 4 : 1;
     z->tok = malloc((z->cap + 1) * sizeof *z->tok);
     z->mask = malloc((z->cap / z->unit + 63) / 64 * sizeof *z->mask);
-    z->prev = malloc(z->cap * sizeof *z->prev);
-    z->chain = unit == 1 ? 4 : 1;
-    if (!z->tok || !z->mask || !z->prev) {
+    if (z->chain > 1) z->prev = malloc(z->cap * sizeof *z->prev);
+    if (!z->tok || !z->mask || (z->chain > 1 && !z->prev)) {
         vod_sparse_free(z);
         return -ENOMEM;
     }
-    for (int s = 0; s < 29; s++) {
-        int end = s == 28 ? MAX_MATCH + 1 : len_base[s] + (1 << len_extra[s]);
-        for (int l = len_base[s]; l < end && l <= MAX_MATCH; l++) z->len_sym[l] = (uint8_t)s;
-    }
-    z->len_sym[MAX_MATCH] = 28;
-    for (int s = 0; s < DIST_SYMS; s++)
-        for (unsigned d = dist_base[s]; d < dist_base[s] + (1u << dist_extra[s]); d++)
-            z->dist_sym[d - 1] = (uint8_t)s;
+    symbol_tables(z);
     *out = z;
     return 0;
 }
@@ -494,12 +501,13 @@ static size_t best_match(const vod_sparse *z, const uint8_t *raw, size_t p, size
     uint32_t v = load32(raw + p);
     /* the hash's chain, newest first, then the fixed distances */
     size_t q = entry_pos(z, z->head[h], p);
-    for (unsigned c = 0; c < z->chain && q < p && p - q <= WINDOW; c++) {
+    for (unsigned c = 1; q < p && p - q <= WINDOW; c++) {
         if (load32(raw + q) == v) { /* shorter than 4 bytes is not taken */
             size_t l = match_len(raw, q, p, max);
             if (l > best) best = l, *dist = p - q;
             if (best >= NICE_MATCH) return best;
         }
+        if (c == z->chain) break;
         q = entry_pos(z, z->prev[q], p);
     }
     for (unsigned i = 0; i < z->ndist; i++) {
@@ -518,7 +526,7 @@ static inline uint32_t hash_at(const vod_sparse *z, const uint8_t *raw, size_t p
 
 static inline void insert(vod_sparse *z, uint32_t h, size_t p)
 {
-    z->prev[p] = z->head[h];
+    if (z->chain > 1) z->prev[p] = z->head[h];
     z->head[h] = (uint32_t)(p + 1 + z->base);
 }
 

