@@ -6,16 +6,15 @@
 // The mesh is loaded by voxd's own loader (not timed), then converted
 // REPEATS times (default 1) at the voxel size of `vox voxelize --mesh FILE
 // --res RES` with its default padding (the bounding box's longest side over
-// RES - 2 voxels) into a solid: a signed distance field with one voxel of
-// exterior band and the interior filled (interior band FLT_MAX), which is
-// what a solid voxelization is in OpenVDB's terms.  Prints one line:
+// RES - 2 voxels) into OpenVDB's solid: a level set (meshToLevelSet, a
+// narrow band of 3 voxels on each side) whose inside is told by the sign,
+// the interior's tiles and voxels negative.  Prints one line:
 //   threads T seconds S active A inside I
 // T: the threads TBB runs it on (every CPU, as OpenVDB does by default), S:
-// the median wall time of one conversion, A: the grid's active voxels, I:
-// of them the ones inside (value <= 0).  Exit status 1 with a message on
-// any error.
+// the median wall time of one conversion, A: the grid's active voxels (the
+// band), I: the voxels inside (value < 0, active or not, tiles counted by
+// their voxels).  Exit status 1 with a message on any error.
 #include <algorithm>
-#include <cfloat>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -76,14 +75,14 @@ int main(int argc, char **argv)
     openvdb::FloatGrid::Ptr grid;
     for (long r = 0; r < reps; r++) {
         double t0 = now();
-        grid = openvdb::tools::meshToSignedDistanceField<openvdb::FloatGrid>(
-            *xform, points, tris, quads, 1.0f, FLT_MAX);
+        grid = openvdb::tools::meshToLevelSet<openvdb::FloatGrid>(*xform, points, tris,
+                                                                   quads, 3.0f);
         secs.push_back(now() - t0);
     }
     std::sort(secs.begin(), secs.end());
     uint64_t inside = 0;
-    for (auto it = grid->cbeginValueOn(); it; ++it)
-        if (*it <= 0) inside += it.getVoxelCount();
+    for (auto it = grid->cbeginValueAll(); it; ++it)
+        if (*it < 0) inside += it.getVoxelCount();
     std::printf("threads %d seconds %.3f active %llu inside %llu\n",
                 tbb::this_task_arena::max_concurrency(), secs[secs.size() / 2],
                 (unsigned long long)grid->activeVoxelCount(), (unsigned long long)inside);

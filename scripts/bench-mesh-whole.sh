@@ -359,16 +359,17 @@ else
 fi
 
 # ---------------------------------------------------------------- OpenVDB
-# OpenVDB's meshToVolume (bench/vdb_mesh.cc: a signed distance field, the
-# interior filled, at vox's voxel size) on the table's meshes at 512^3 and
+# OpenVDB's meshToVolume (bench/vdb_mesh.cc: a level set, the inside told
+# by its sign, at vox's voxel size) on the table's meshes at 512^3 and
 # the dragon at 1024^3, once each (it takes seconds), against vox's job time
 # at 2 workers from the table above: the same meshes, the same run.
 echo
 echo "### OpenVDB's meshToVolume against \`vox voxelize --mesh\` (solid, the same voxel size)"
 echo
-echo "OpenVDB 10 (Debian's libopenvdb), \`meshToSignedDistanceField\` with 1 voxel of exterior"
-echo "band and the interior filled, on every CPU (TBB); one run each, the mesh loaded"
-echo "beforehand. vox: the job's time at 2 workers from the table above (median of $repeats)."
+echo "OpenVDB 10 (Debian's libopenvdb), \`meshToLevelSet\` (a band of 3 voxels on each side,"
+echo "the inside told by the sign: OpenVDB's solid), on every CPU (TBB); one run each, the"
+echo "mesh loaded beforehand. vox: the job's time at 2 workers from the table above (median"
+echo "of $repeats). *inside*: OpenVDB's voxels of negative value, active or not."
 echo
 echo '| mesh | triangles | res | vox job (s) | OpenVDB (s) | OpenVDB threads | OpenVDB / vox | OpenVDB voxels inside |'
 echo '|---|---:|---:|---:|---:|---:|---:|---:|'
