@@ -226,6 +226,10 @@ static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
         return;
     }
     uint32_t half = 1u << (h - (int)f->level);
+    /* the children's cells are scattered in the segment: ask for them all
+     * before walking the first */
+    for (unsigned i = 0; i < 8; i++)
+        if (e[i]) __builtin_prefetch(&f->t->cells[e[i]]);
     for (unsigned i = 0; i < 8; i++)
         if (e[i])
             fill(f, e[i], h - 1, x + (i & 1u) * half, y + ((i >> 1) & 1u) * half,
