@@ -63,6 +63,7 @@ struct engine {
     shm_seg seg;
     shm_header *h;
     int n;
+    int spare_cpu;      /* the master may run on a CPU no worker is pinned to */
     mslot ms[ENGINE_MAX_WORKERS];
     shm_task *stack;    /* the work stack, in the segment */
     uint32_t sp, cap;

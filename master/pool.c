@@ -48,6 +48,17 @@ static int pick_cpus(engine *e, const engine_opts *o, char *err,
     return 0;
 }
 
+/* Whether the master may run on a CPU no worker is pinned to (-w 1 on two
+ * cores): then it polls for results a while before it sleeps (sched.c). */
+static int spare_cpu(const engine *e)
+{
+    cpu_set_t set;
+    if (sched_getaffinity(0, sizeof set, &set) != 0) return 0;
+    for (int i = 0; i < e->n; i++)
+        if (e->ms[i].cpu >= 0 && e->ms[i].cpu < CPU_SETSIZE) CPU_CLR(e->ms[i].cpu, &set);
+    return CPU_COUNT(&set) > 0;
+}
+
 int pool_spawn(engine *e, int i, char *err, size_t errlen)
 {
     pid_t pid = fork();
@@ -216,6 +227,7 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     e->keep = o->keep_bytes ? o->keep_bytes : ENGINE_KEEP_BYTES;
     e->stall_s = o->stall_timeout == 0 ? ENGINE_STALL_TIMEOUT : o->stall_timeout;
     int rc = pick_cpus(e, o, err, errlen);
+    e->spare_cpu = !rc && spare_cpu(e);
     if (!rc)
         rc = shm_create(&e->seg, o->shm_name, o->shm_bytes, (uint32_t)e->n,
                         err, errlen);
