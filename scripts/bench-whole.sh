@@ -62,6 +62,32 @@ kv() {
 }
 
 
+# run_once SHAPE RES WORKERS: one timed run of the job, appended to
+# $tmp/job.SHAPE.RES.WORKERS.runs as a line of key=value; returns 1, the
+# job's file holding an "error MESSAGE" line, when vox failed.
+run_once() {
+    local f="$tmp/job.$1.$2.$3"
+    if ! one "$1" "$2" "$3" 0; then
+        echo "error vox failed: $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 1
+    fi
+    kv | tr -d '\n' >>"$f.runs"; echo >>"$f.runs"
+    if ! tail -1 "$f.runs" | grep -q 'engine=.*write=.*wall='; then
+        echo "error cannot read vox's summary: $(head -1 "$tmp/stdout")" >"$f"; failed=1; return 1
+    fi
+}
+
+# finish SHAPE RES WORKERS: the medians of the timed runs into the job's
+# file as "key value" lines, then one run sampled for the memory (untimed).
+finish() {
+    local f="$tmp/job.$1.$2.$3"
+    medians <"$f.runs" >"$f"
+    if ! one "$1" "$2" "$3" "$sample_us"; then
+        echo "error vox failed (memory run): $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 0
+    fi
+    sed 's/.*tree_peak_kib=\([0-9]*\) shm_peak_kib=\([0-9]*\) shm_exact=\([01]\).*/tree \1\nshm \2\nexact \3/' \
+        "$tmp/m" >>"$f"
+}
+
 # measure SHAPE RES WORKERS: REPEATS timed runs and one sampled run, once
 # per job; leaves "key value" lines in $tmp/job.SHAPE.RES.WORKERS, or an
 # "error MESSAGE" line when vox failed.
@@ -70,21 +96,25 @@ measure() {
     [ -e "$f" ] && return 0
     echo "bench-whole: $1 $2^3 -w $3" >&2
     : >"$f.runs"
+    for _ in $(seq "$repeats"); do run_once "$1" "$2" "$3" || return 0; done
+    finish "$1" "$2" "$3"
+}
+
+# measure_pair SHAPE RES: the job at -w 0 and -w 1 alternating, run by
+# run, so that the machine's changes of speed (this one's come and go
+# within seconds) fall on both alike; each pair's -w 1 / -w 0 engine time
+# into $tmp/pairs.SHAPE.RES, one a line.
+measure_pair() {
+    local p="$tmp/pairs.$1.$2" e0 e1
+    echo "bench-whole: $1 $2^3 -w 0 and -w 1, alternating" >&2
+    : >"$tmp/job.$1.$2.0.runs"; : >"$tmp/job.$1.$2.1.runs"; : >"$p"
     for _ in $(seq "$repeats"); do
-        if ! one "$1" "$2" "$3" 0; then
-            echo "error vox failed: $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 0
-        fi
-        kv | tr -d '\n' >>"$f.runs"; echo >>"$f.runs"
-        if ! tail -1 "$f.runs" | grep -q 'engine=.*write=.*wall='; then
-            echo "error cannot read vox's summary: $(head -1 "$tmp/stdout")" >"$f"; failed=1; return 0
-        fi
+        run_once "$1" "$2" 0 && run_once "$1" "$2" 1 || return 0
+        e0=$(tail -1 "$tmp/job.$1.$2.0.runs" | sed 's/.*engine=\([0-9.]*\).*/\1/')
+        e1=$(tail -1 "$tmp/job.$1.$2.1.runs" | sed 's/.*engine=\([0-9.]*\).*/\1/')
+        awk -v a="$e1" -v b="$e0" 'BEGIN { if (b > 0) printf "%.4f\n", a / b }' >>"$p"
     done
-    medians <"$f.runs" >"$f"
-    if ! one "$1" "$2" "$3" "$sample_us"; then
-        echo "error vox failed (memory run): $(head -1 "$tmp/stderr")" >"$f"; failed=1; return 0
-    fi
-    sed 's/.*tree_peak_kib=\([0-9]*\) shm_peak_kib=\([0-9]*\) shm_exact=\([01]\).*/tree \1\nshm \2\nexact \3/' \
-        "$tmp/m" >>"$f"
+    finish "$1" "$2" 0; finish "$1" "$2" 1
 }
 
 # get KEY SHAPE RES WORKERS: one value of a measured job (empty if none).
@@ -145,7 +175,8 @@ if [ "$big" = 1 ] && [ "$shm_free" -ge "$shm_mib" ]; then
     while read -r s r; do measure "$s" "$r" 2; measured+="$s $r 2"$'\n'; done <<<"$big_jobs"
 fi
 for s in $shapes; do
-    for w in 0 1; do measure "$s" "$res" "$w"; measured+="$s $res $w"$'\n'; done
+    measure_pair "$s" "$res"
+    for w in 0 1; do measured+="$s $res $w"$'\n'; done
 done
 
 cpu=$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //')
@@ -212,13 +243,16 @@ for s in sphere union64 blend2; do for w in 0 1 2; do row "$s" "$res" "$w"; done
 echo
 echo "### -w 1 against -w 0 (engine time, $res^3, median of $repeats)"
 echo
+echo "The runs alternate, -w 0 then -w 1; *-w 1 / -w 0* is the median of each pair's ratio"
+echo "(the engine columns are each job's median, so their ratio may differ a little)."
+echo
 echo "| shape | -w 0 engine (s) | -w 1 engine (s) | -w 1 / -w 0 | target | -w 0 whole (s) | -w 1 whole (s) |"
 echo "|---|---:|---:|---:|---|---:|---:|"
 for s in $shapes; do
     e=$(err "$s" "$res" 0)$(err "$s" "$res" 1)
     if [ -n "$e" ]; then echo "| $s | $e | | | | | |"; continue; fi
     e0=$(get engine "$s" "$res" 0) e1=$(get engine "$s" "$res" 1)
-    q=$(ratio "$e1" "$e0")
+    q=$(sed 's/^/r=/' "$tmp/pairs.$s.$res" | medians | awk '{ printf "%.2f", $2 }')
     t=-; [ "$res" = 512 ] && t="<= 1.10: $(mark "$q" 1.10)"
     printf '| %s | %.3f | %.3f | %s | %s | %.3f | %.3f |\n' "$s" "$e0" "$e1" "$q" "$t" \
         "$(get wall "$s" "$res" 0)" "$(get wall "$s" "$res" 1)"

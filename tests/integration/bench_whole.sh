@@ -98,6 +98,8 @@ check "bench-whole: no shared segment at -w 0, one at -w 1 and 2" \
 w1=$(rows '-w 1 against -w 0')
 check "bench-whole: -w 1 table, 6 shapes" test "$(grep -c . <<<"$w1")" = 6
 check "bench-whole: -w 1 table, every column" numeric 2,3,4,6,7 <<<"$w1"
+check "bench-whole: -w 1 table says its runs alternate and what the ratio is" \
+    grep -q '^The runs alternate, -w 0 then -w 1; \*-w 1 / -w 0\* is the median of each pair' "$B"
 
 # The stage table has figures exactly when vox prints its stage profile.
 st=$(rows 'VOD writer stages')
