@@ -14,7 +14,7 @@
  * literal 0 when the byte before is not 0); a non-zero unit looks for a
  * match of whole units, at least 4 bytes, among the positions of the
  * same 4 bytes (a hash table; for bytes a chain of 4, with one step of
- * lazy matching and the bytes of short matches entered, as zlib's middle
+ * lazy matching and the bytes of its matches entered, as zlib's middle
  * levels do) and the bytes a row and a slice back (for bytes also two
  * rows, and a slice and a row), and is otherwise its literals.  One
  * block, with Huffman codes made for the brick (RFC 1951 3.2.7; code
@@ -48,7 +48,6 @@
 #define WINDOW 32768u
 #define MIN_MATCH 4 /* a voxel: shorter matches rarely beat their literals */
 #define MAX_MATCH 258
-#define MAX_INSERT MAX_MATCH
 #define NICE_MATCH 128 /* a match this long ends the search */
 #define LAZY_MATCH 32  /* byte units: a shorter match waits a byte for a longer */
 
@@ -560,7 +559,7 @@ static inline size_t tokens_at(tokens *t, const uint8_t *raw, size_t p, size_t n
         }
         if (l >= MIN_MATCH) {
             match(t, (unsigned)l, (unsigned)dist);
-            if (u == 1 && l <= MAX_INSERT)
+            if (u == 1)
                 for (size_t q = p + 1; q < p + l && n - q >= MIN_MATCH; q++)
                     insert(z, hash_at(z, raw, q), q);
             return l / u;

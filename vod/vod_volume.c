@@ -887,15 +887,18 @@ static void copy_bytes_bits8(const vod_volume *v, uint32_t B, const uint8_t *d,
     uint32_t n8 = (a1[0] - a0[0]) / 8;
     size_t S = v->sbrick, row = B / 8; /* bytes from a row to the next, in raw */
     uint8_t *out0 = raw + (((size_t)(a0[2] - lo[2]) * B + (a0[1] - lo[1])) * B + (a0[0] - lo[0])) / 8;
-    const uint8_t *src0 = d ? d + vox_index(v, a0[0] - o[0], a0[1] - o[1], a0[2] - o[2]) : NULL;
-    for (uint32_t z = a0[2]; z < a1[2]; z++, out0 += row * B, src0 = src0 ? src0 + S * S : NULL) {
+    size_t s0 = vox_index(v, a0[0] - o[0], a0[1] - o[1], a0[2] - o[2]);
+    /* rows and slices stepped, not recomputed: this is the writer's fill of
+     * every mesh and CSG occupancy brick */
+    for (uint32_t z = a0[2]; z < a1[2]; z++, out0 += row * B, s0 += S * S) {
         uint8_t *out = out0;
-        const uint8_t *src = src0;
-        for (uint32_t y = a0[1]; y < a1[1]; y++, out += row, src = src ? src + S : NULL) {
+        size_t s = s0;
+        for (uint32_t y = a0[1]; y < a1[1]; y++, out += row, s += S) {
             if (!d) {
                 memset(out, 0xff, n8);
                 continue;
             }
+            const uint8_t *src = d + s;
             uint32_t k = 0;
 #ifdef __SSE2__
             /* 16 voxels at once: a byte compare and its mask, bit i voxel i */
