@@ -54,7 +54,7 @@ static const char usage_voxelize[] =
     "      --cpus LIST        CPUs to pin workers to, e.g. 0,1 or 0-3 (default: automatic)\n"
     OUTPUT_OPTIONS
     "      --compress-level N zlib level 1..12 (default 6): 1..6 voxd's one-pass encoder\n"
-    "                         for 32-bit bricks (libdeflate's for others), 7..12 libdeflate's\n"
+    "                         (bricks up to 64^3; libdeflate's for larger), 7..12 libdeflate's\n"
     "      --shm-size MIB     shared memory for the engine (default 2048)\n"
     SHOW_OPTIONS
     "      --embedded         run the embedded engine even when voxd answers\n"
