@@ -70,13 +70,13 @@ static const uint8_t cl_order[CL_SYMS] = {16, 17, 18, 0, 8,  7, 9,  6, 10, 5,
 
 struct vod_sparse {
     size_t cap;             /* the brick's raw bytes */
-    uint64_t *mask;         /* bit i: word i is not 0 */
+    uint64_t *mask;         /* bit i: unit i is not 0 */
     size_t row, slice;      /* bytes from a voxel to the one a row, a slice
                                back (0: less than a byte) */
     size_t dist[4];         /* the distances tried besides the hash's */
     unsigned ndist;
     unsigned unit;          /* bytes a token starts at a multiple of: 4
-                               for 32-bit voxels, 2 for 1-bit, 1 for 8-bit */
+                               for 32-bit voxels, 1 for the others */
     unsigned hash_bits;     /* of head: about half the brick's bytes */
     uint32_t *tok;          /* cap + 1 tokens */
     uint32_t head[1u << HASH_BITS]; /* 4 bytes' hash -> last position + 1 + base */
@@ -89,14 +89,24 @@ struct vod_sparse {
     uint32_t freq_l[LITLEN_SYMS], freq_d[DIST_SYMS];
     uint8_t bits_l[LITLEN_SYMS], bits_d[DIST_SYMS];
     uint16_t code_l[LITLEN_SYMS], code_d[DIST_SYMS];
-    /* the fixed codes (RFC 1951 3.2.6) */
     uint16_t used_l[LITLEN_SYMS], used_d[DIST_SYMS]; /* symbols with a code */
     int nused_l, nused_d;
-    uint8_t fbits_l[LITLEN_SYMS];
+    /* the fixed codes (RFC 1951 3.2.6) */
+    uint8_t fbits_l[LITLEN_SYMS], fbits_d[DIST_SYMS];
     uint16_t fcode_l[LITLEN_SYMS], fcode_d[DIST_SYMS];
 };
 
-static uint16_t reverse(uint32_t code, unsigned len);
+/* The len low bits of code in reverse order (deflate sends Huffman codes
+ * from their first bit, everything else from the last). */
+static inline uint16_t reverse(uint32_t code, unsigned len)
+{
+    uint32_t x = code;
+    x = (x & 0x5555u) << 1 | (x >> 1 & 0x5555u);
+    x = (x & 0x3333u) << 2 | (x >> 2 & 0x3333u);
+    x = (x & 0x0f0fu) << 4 | (x >> 4 & 0x0f0fu);
+    x = (x & 0x00ffu) << 8 | (x >> 8 & 0x00ffu);
+    return (uint16_t)(x >> (16 - len));
+}
 
 static void fixed_codes(vod_sparse *z)
 {
@@ -107,7 +117,10 @@ static void fixed_codes(vod_sparse *z)
         z->fbits_l[s] = (uint8_t)len;
         z->fcode_l[s] = reverse(first + (uint32_t)(s - base), len);
     }
-    for (int s = 0; s < DIST_SYMS; s++) z->fcode_d[s] = reverse((uint32_t)s, 5);
+    for (int s = 0; s < DIST_SYMS; s++) {
+        z->fbits_d[s] = 5;
+        z->fcode_d[s] = reverse((uint32_t)s, 5);
+    }
 }
 
 /* The fixed codes, and the symbols of every match length and distance. */
@@ -273,18 +286,6 @@ static void sort_symbols(const uint32_t *freq, const uint16_t *used, int k,
     insertion_sort(sym + big, w + big, k - big);
 }
 
-/* The len low bits of code in reverse order (deflate sends Huffman codes
- * from their first bit, everything else from the last). */
-static uint16_t reverse(uint32_t code, unsigned len)
-{
-    uint32_t x = code;
-    x = (x & 0x5555u) << 1 | (x >> 1 & 0x5555u);
-    x = (x & 0x3333u) << 2 | (x >> 2 & 0x3333u);
-    x = (x & 0x0f0fu) << 4 | (x >> 4 & 0x0f0fu);
-    x = (x & 0x00ffu) << 8 | (x >> 8 & 0x00ffu);
-    return (uint16_t)(x >> (16 - len));
-}
-
 /* Code lengths (at most max_bits) and bit-reversed canonical codes for
  * the k used symbols of freq[0..n-1] (used: in symbol order, at least
  * two); the other symbols get length 0. */
@@ -417,8 +418,7 @@ static inline uint32_t load32(const uint8_t *p)
     return v;
 }
 
-/* Bit i of mask: unit i of raw (nu units of u bytes, u 1, 2 or 4) is
- * not 0. */
+/* Bit i of mask: unit i of raw (nu units of u bytes, u 1 or 4) is not 0. */
 static void nonzero_mask(const uint8_t *raw, size_t nu, unsigned u, uint64_t *mask)
 {
     size_t i = 0;
@@ -436,9 +436,6 @@ static void nonzero_mask(const uint8_t *raw, size_t nu, unsigned u, uint64_t *ma
                 __m128i e2 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 2), zero);
                 __m128i e3 = _mm_cmpeq_epi32(_mm_loadu_si128(v + 3), zero);
                 e = _mm_packs_epi16(_mm_packs_epi32(e0, e1), _mm_packs_epi32(e2, e3));
-            } else if (u == 2) {
-                e = _mm_packs_epi16(_mm_cmpeq_epi16(_mm_loadu_si128(v), zero),
-                                    _mm_cmpeq_epi16(_mm_loadu_si128(v + 1), zero));
             } else {
                 e = _mm_cmpeq_epi8(_mm_loadu_si128(v), zero);
             }
@@ -683,8 +680,7 @@ static void put_header(const header *h, bitw *w)
 }
 
 /* The tokens' size in bits with the literal/length code lengths bits_l
- * and the distance code lengths bits_d (NULL: the fixed 5 bits), from the
- * used symbols. */
+ * and the distance code lengths bits_d, from the used symbols. */
 static uint64_t data_bits(const vod_sparse *z, const uint8_t *bits_l,
                           const uint8_t *bits_d)
 {
@@ -695,7 +691,7 @@ static uint64_t data_bits(const vod_sparse *z, const uint8_t *bits_l,
     }
     for (int i = 0; i < z->nused_d; i++) {
         unsigned s = z->used_d[i];
-        bits += (uint64_t)z->freq_d[s] * ((bits_d ? bits_d[s] : 5u) + dist_extra[s]);
+        bits += (uint64_t)z->freq_d[s] * (bits_d[s] + dist_extra[s]);
     }
     return bits;
 }
@@ -718,9 +714,30 @@ static void put_tokens(const vod_sparse *z, const tokens *t, const codes *c, bit
         unsigned ls = z->len_sym[len], ds = z->dist_sym[d - 1];
         put(w, c->code_l[257 + ls], c->bits_l[257 + ls]);
         put(w, len - len_base[ls], len_extra[ls]);
-        put(w, c->code_d[ds], c->bits_d ? c->bits_d[ds] : 5u);
+        put(w, c->code_d[ds], c->bits_d[ds]);
         put(w, d - dist_base[ds], dist_extra[ds]);
     }
+}
+
+/* The brick's own codes (and its header, in h) or the fixed ones, which
+ * ever make the block smaller, into c; *dynamic says which.  The block's
+ * size in bits without the zlib header. */
+static uint64_t choose_codes(vod_sparse *z, header *h, codes *c, bool *dynamic)
+{
+    /* the fixed codes' size from the symbols sent, before two_symbols
+     * gives unused ones a frequency */
+    z->nused_l = used_symbols(z->freq_l, 286, z->used_l);
+    z->nused_d = used_symbols(z->freq_d, DIST_SYMS, z->used_d);
+    uint64_t fixed = 3 + data_bits(z, z->fbits_l, z->fbits_d);
+    z->nused_l = two_symbols(z->freq_l, 286, z->used_l, z->nused_l);
+    z->nused_d = two_symbols(z->freq_d, DIST_SYMS, z->used_d, z->nused_d);
+    build_code(z->freq_l, 286, z->used_l, z->nused_l, MAX_BITS, z->bits_l, z->code_l);
+    build_code(z->freq_d, DIST_SYMS, z->used_d, z->nused_d, MAX_BITS, z->bits_d, z->code_d);
+    uint64_t bits = make_header(z, h) + data_bits(z, z->bits_l, z->bits_d);
+    *dynamic = bits < fixed;
+    *c = *dynamic ? (codes){z->bits_l, z->bits_d, z->code_l, z->code_d}
+                  : (codes){z->fbits_l, z->fbits_d, z->fcode_l, z->fcode_d};
+    return *dynamic ? bits : fixed;
 }
 
 size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t *out,
@@ -731,30 +748,16 @@ size_t vod_sparse_compress(vod_sparse *z, const uint8_t *raw, size_t n, uint8_t 
     memset(z->freq_d, 0, sizeof z->freq_d);
     tokens t = {.z = z};
     tokenize(&t, raw, n);
-    /* the fixed codes' size from the symbols sent, before two_symbols
-     * gives unused ones a frequency */
-    z->nused_l = used_symbols(z->freq_l, 286, z->used_l);
-    z->nused_d = used_symbols(z->freq_d, DIST_SYMS, z->used_d);
-    uint64_t fixed = 3 + data_bits(z, z->fbits_l, NULL);
-    z->nused_l = two_symbols(z->freq_l, 286, z->used_l, z->nused_l);
-    z->nused_d = two_symbols(z->freq_d, DIST_SYMS, z->used_d, z->nused_d);
-    build_code(z->freq_l, 286, z->used_l, z->nused_l, MAX_BITS, z->bits_l, z->code_l);
-    build_code(z->freq_d, DIST_SYMS, z->used_d, z->nused_d, MAX_BITS, z->bits_d, z->code_d);
     header h;
-    uint64_t bits = make_header(z, &h) + data_bits(z, z->bits_l, z->bits_d);
-    bool dynamic = bits < fixed;
-    if (!dynamic) bits = fixed;
+    codes c;
+    bool dynamic;
+    uint64_t bits = choose_codes(z, &h, &c, &dynamic);
     if (2 + (bits + 7) / 8 + 4 > cap) return 0;
     out[0] = 0x78; /* deflate, 32 KiB window */
     out[1] = 0x5e; /* "fast" level; (0x78 * 256 + 0x5e) % 31 == 0 */
     bitw w = {.p = out + 2};
-    codes c = {z->bits_l, z->bits_d, z->code_l, z->code_d};
-    if (dynamic) {
-        put_header(&h, &w);
-    } else {
-        put(&w, 1 | 1 << 1, 3); /* BFINAL, fixed Huffman codes */
-        c = (codes){z->fbits_l, NULL, z->fcode_l, z->fcode_d};
-    }
+    if (dynamic) put_header(&h, &w);
+    else put(&w, 1 | 1 << 1, 3); /* BFINAL, fixed Huffman codes */
     put_tokens(z, &t, &c, &w);
     put_flush(&w);
     uint32_t adler = libdeflate_adler32(1, raw, n);
