@@ -3,9 +3,10 @@
  *
  * Each triangle gives three edge uses.  They are grouped by edge with a
  * counting sort on the lower vertex index (one bucket a vertex), then a
- * sort of each bucket by the higher index: buckets hold a vertex's edges
- * towards higher vertices, a handful in a usual mesh, so the whole is O(n)
- * and touches memory in two streaming passes and one scatter.  Triangles
+ * sort of each bucket by the higher index (mesh_edges: a stamped slot per
+ * higher vertex instead): buckets hold a vertex's edges towards higher
+ * vertices, a handful in a usual mesh, so the whole is O(n) and touches
+ * memory in two streaming passes and one scatter.  Triangles
  * that share an edge are joined in a union-find for the components;
  * mesh_edges, for jobs, does without. */
 #include <errno.h>
@@ -98,35 +99,34 @@ static double signed_volume(const mesh *m)
 /* mesh_edges: the same grouping with 4-byte uses, the higher vertex and
  * the direction (hi << 1 | forward), and no triangle: what a job reports
  * needs no components, so no union-find, and half the memory to scatter.
- * Two uses of an edge in opposite directions differ in bit 0 only. */
-static void sort_keys(uint32_t *e, size_t n)
-{
-    for (size_t i = 1; i < n; i++) {
-        uint32_t x = e[i];
-        size_t j = i;
-        for (; j > 0 && e[j - 1] > x; j--) e[j] = e[j - 1];
-        e[j] = x;
-    }
-}
+ *
+ * The uses of an edge (lo, hi) all lie in lo's bucket, and the buckets are
+ * read in order of lo: so a slot per higher vertex hi, stamped with the lo
+ * whose bucket last wrote it, tells an edge's first use (a stale stamp)
+ * from its later ones and counts them, with no sort and no branch on the
+ * keys (a sort of a handful of keys mispredicts most of its compares).
+ * A slot: lo << 32 | same-way-twice << 3 | uses (3 for more) << 1 | the
+ * first use's direction.  Each use adds what its count changes: the first
+ * an edge, open; the second closes it (inconsistent when both go the same
+ * way); the third makes it non-manifold (and no longer inconsistent). */
+typedef struct {
+    int64_t edges, open, nonmanifold, inconsistent;
+} edge_counts;
 
-static int key_order(const void *a, const void *b)
+static void count_stamped(const uint32_t *e, size_t n, uint64_t lo, uint64_t *slot,
+                          edge_counts *c)
 {
-    uint32_t x = *(const uint32_t *)a, y = *(const uint32_t *)b;
-    return (x > y) - (x < y);
-}
-
-static void count_keys(uint32_t *e, size_t n, mesh_topo *out)
-{
-    if (n > 32) qsort(e, n, sizeof *e, key_order);
-    else sort_keys(e, n);
-    for (size_t i = 0; i < n;) {
-        size_t j = i + 1;
-        while (j < n && e[j] >> 1 == e[i] >> 1) j++;
-        out->edges++;
-        if (j - i == 1) out->open++;
-        else if (j - i > 2) out->nonmanifold++;
-        else if (e[i] == e[i + 1]) out->inconsistent++;
-        i = j;
+    for (size_t i = 0; i < n; i++) {
+        uint32_t hi = e[i] >> 1, dir = e[i] & 1;
+        uint64_t s = slot[hi], live = (s >> 32) == lo;
+        uint64_t uses = live ? s >> 1 & 3 : 0, first_dir = live ? s & 1 : dir;
+        uint64_t same_way = uses == 1 && dir == first_dir;
+        uint64_t was_same = uses == 2 && (s >> 3 & 1);
+        c->edges += uses == 0;
+        c->open += (int64_t)(uses == 0) - (uses == 1);
+        c->nonmanifold += uses == 2;
+        c->inconsistent += (int64_t)same_way - (int64_t)was_same;
+        slot[hi] = lo << 32 | same_way << 3 | (uses + (uses < 3)) << 1 | first_dir;
     }
 }
 
@@ -142,11 +142,15 @@ int mesh_edges(const mesh *m, mesh_topo *out)
     memset(out, 0, sizeof *out);
     uint32_t *start = calloc((size_t)nv + 1, sizeof *start);
     uint32_t *use = malloc((size_t)3 * nt * sizeof *use + 1);
-    if (!start || !use) {
+    uint64_t *slot = malloc((size_t)nv * sizeof *slot + 1);
+    if (!start || !use || !slot) {
         free(start);
         free(use);
+        free(slot);
         return -ENOMEM;
     }
+    /* stamped with no vertex: lo < 2^31 - 1 */
+    memset(slot, 0xff, (size_t)nv * sizeof *slot);
     for (uint32_t i = 0; i < nt; i++) {
         uint32_t a = m->triangles[i][0], b = m->triangles[i][1], c = m->triangles[i][2];
         start[(a < b ? a : b) + 1]++;
@@ -161,13 +165,19 @@ int mesh_edges(const mesh *m, mesh_topo *out)
             use[start[a < b ? a : b]++] = (a < b ? b : a) << 1 | (a < b);
         }
     uint32_t begin = 0;
+    edge_counts c = {0};
     for (uint32_t v = 0; v < nv; v++) {
-        count_keys(use + begin, start[v] - begin, out);
+        count_stamped(use + begin, start[v] - begin, v, slot, &c);
         begin = start[v];
     }
+    out->edges = (uint64_t)c.edges;
+    out->open = (uint64_t)c.open;
+    out->nonmanifold = (uint64_t)c.nonmanifold;
+    out->inconsistent = (uint64_t)c.inconsistent;
     out->watertight = !out->open && !out->nonmanifold && !out->inconsistent;
     free(start);
     free(use);
+    free(slot);
     return 0;
 }
 

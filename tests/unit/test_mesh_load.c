@@ -971,8 +971,8 @@ Test(mesh_topology, components_and_their_volumes)
 /* mesh_edges (the jobs' topology) against a count written here: every
  * pair of edge uses compared, O(n^2), on random triangles over a few
  * vertices, so that edges are open, shared, shared the same way round and
- * shared by many, and one vertex has more than 32 edge uses above it (the
- * sort's other branch); and the same figures as mesh_topology gives. */
+ * shared by three, four and more (past the count a slot keeps), and one
+ * vertex has a long bucket; and the same figures as mesh_topology gives. */
 static void edges_by_pairs(const mesh *m, mesh_topo *t)
 {
     memset(t, 0, sizeof *t);
