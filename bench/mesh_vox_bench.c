@@ -132,7 +132,7 @@ int main(int argc, char **argv)
         double bin = 1e9, one = 1e9, two = 1e9, one_c = 1e9, two_c = 1e9, c1, c2;
         for (int rep = 0; rep < 3; rep++) {
             t0 = now();
-            if (mesh_bin(m, &g, &o, lat, &b)) return 1;
+            if (mesh_bin(m, &g, &o, lat, 1, &b)) return 1;
             double tb = now() - t0;
             bin = tb < bin ? tb : bin;
             job j = {.m = m, .g = &g, .o = &o, .b = &b, .lat = lat};

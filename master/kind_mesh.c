@@ -14,6 +14,7 @@
 
 #include "clock.h"
 #include "master.h"
+#include "par.h"
 
 
 typedef struct {
@@ -152,7 +153,7 @@ static int mesh_setup(engine *e, void *job)
         return no_room(e, "the mesh");
     double t0 = clock_now();
     mesh_bins bins;
-    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, &bins);
+    int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, par_cpus(), &bins);
     mj->r->t_bin = clock_now() - t0;
     if (rc) return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));

@@ -17,8 +17,11 @@
 #include "mesh_vox_int.h"
 
 #include <errno.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "par.h"
 
 /* A footprint [x0, x1] x [y0, y1] in tiles, or in voxel centres for the
  * exact bins of the plain solid; empty when x0 > x1 or y0 > y1. */
@@ -136,70 +139,203 @@ static span vertex_span(const mesh *m, const grid_spec *g, const mv_frame *f, ui
     return exact ? vertex_centres(p, g->res) : vertex_tiles(m, g, v, margin, nt);
 }
 
-int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
-             mesh_lattice *lattice, mesh_bins *out)
-{
-    memset(out, 0, sizeof *out);
-    mv_plan p;
-    mv_plan_make(g, o, &p);
-    uint32_t nt[2] = {(g->res[0] + MESH_TILE - 1) / MESH_TILE,
-                      (g->res[1] + MESH_TILE - 1) / MESH_TILE};
-    uint64_t ntiles = (uint64_t)nt[0] * nt[1];
-    double margin = p.apron + 1.0 / 64; /* the snapping moves < 2^-17 voxel */
-    bool rep = o->repair != MESH_REPAIR_NONE;
-    bool exact = p.solid1 && !p.surf && !p.rep && !p.dens; /* z rays only */
+/* The binning, split into parts that run at once (par_run): the vertices'
+ * spans, then each part counts its triangles per tile, then (once the
+ * counts are summed into every part's cursors) each part files its
+ * triangles.  The parts are ranges of triangles in order, and part k's
+ * cursors start behind the parts before it: a tile lists its triangles in
+ * ascending order, whatever the number of parts.
+ *
+ * The plain solid's triangles get a code first: the one tile whose
+ * centres they hold (nearly all of them at any resolution that matters),
+ * none, or several (then their tiles are walked as the other modes'
+ * are).  Filing by code has no branch on the geometry: the triangles that
+ * hold no centre, half of the dragon's at 512^3, are filed into a spare
+ * slot past the end. */
+typedef struct {
+    const mesh *m;
+    const grid_spec *g;
     mv_frame f;
-    mv_frame_init(&f, m, g, 1);
-    span *r = malloc(((size_t)m->n_triangles + 1) * sizeof *r);
-    span *vr = malloc(((size_t)m->n_vertices + 1) * sizeof *vr);
-    uint64_t *start = calloc(ntiles + 1, sizeof *start);
-    uint64_t *cur = malloc(ntiles * sizeof *cur);
-    if (!r || !vr || !start || !cur) goto nomem;
-    for (uint32_t v = 0; v < m->n_vertices; v++)
-        vr[v] = vertex_span(m, g, &f, v, exact, margin, nt, lattice);
-#define COUNT(i) start[(i) + 1]++
-    for (uint32_t t = 0; t < m->n_triangles; t++) {
-        if (t + MV_AHEAD < m->n_triangles) {
-            const uint32_t *ahead = m->triangles[t + MV_AHEAD];
-            for (int i = 0; i < 3; i++) __builtin_prefetch(&vr[ahead[i]]);
+    mesh_lattice *lattice;
+    bool exact, rep;
+    double margin;
+    uint32_t nt[2], ntiles;
+    span *vr;         /* a vertex's span */
+    span *r;          /* the other modes: a triangle's tiles */
+    uint32_t *code;   /* the plain solid: a triangle's tile, CODE_NONE or CODE_MANY */
+    uint64_t *cur;    /* (ntiles + 2) per part: its counts, then its cursors */
+    uint64_t *start;  /* ntiles + 1: the bins' starts */
+    uint32_t *ids;    /* start[ntiles] + 1: the bins and the spare slot */
+} binner;
+
+#define CODE_NONE(b) ((b)->ntiles)
+#define CODE_MANY(b) ((b)->ntiles + 1)
+
+static void part_range(uint64_t count, unsigned k, unsigned n, uint64_t *lo, uint64_t *hi)
+{
+    *lo = count * k / n;
+    *hi = count * (k + 1) / n;
+}
+
+/* Whether the other modes' triangle with tiles r is filed anywhere: a
+ * tile's columns need it only when its footprint meets them; the repair's
+ * rows also when it lies left of / in front. */
+static bool filed(span r, bool rep)
+{
+    if (r.y0 > r.y1 && r.x0 > r.x1) return false;
+    return rep || (r.y0 <= r.y1 && r.x0 <= r.x1);
+}
+
+/* The plain solid's code of triangle t. */
+static uint32_t code_of(const binner *b, uint32_t t)
+{
+    span s = triangle_span(b->m, b->vr, t);
+    bool none = s.x0 > s.x1 || s.y0 > s.y1;
+    uint32_t tx0 = (uint32_t)s.x0 / MESH_TILE, ty0 = (uint32_t)s.y0 / MESH_TILE;
+    bool one = tx0 == (uint32_t)s.x1 / MESH_TILE && ty0 == (uint32_t)s.y1 / MESH_TILE;
+    uint32_t tile = ty0 * b->nt[0] + tx0;
+    return none ? CODE_NONE(b) : one ? tile : CODE_MANY(b);
+}
+
+static void vertices_part(void *ud, unsigned k, unsigned n)
+{
+    binner *b = ud;
+    uint64_t lo, hi;
+    part_range(b->m->n_vertices, k, n, &lo, &hi);
+    for (uint64_t v = lo; v < hi; v++)
+        b->vr[v] = vertex_span(b->m, b->g, &b->f, (uint32_t)v, b->exact, b->margin,
+                               b->nt, b->lattice);
+}
+
+static void prefetch_ahead(const binner *b, uint64_t t, uint64_t hi)
+{
+    if (t + MV_AHEAD >= hi) return;
+    const uint32_t *ahead = b->m->triangles[t + MV_AHEAD];
+    for (int i = 0; i < 3; i++) __builtin_prefetch(&b->vr[ahead[i]]);
+}
+
+static void count_part(void *ud, unsigned k, unsigned n)
+{
+    binner *b = ud;
+    uint64_t lo, hi, *c = b->cur + (uint64_t)k * (b->ntiles + 2);
+    part_range(b->m->n_triangles, k, n, &lo, &hi);
+#define COUNT(i) c[i]++
+    for (uint64_t t = lo; t < hi; t++) {
+        prefetch_ahead(b, t, hi);
+        if (b->exact) {
+            uint32_t code = b->code[t] = code_of(b, (uint32_t)t);
+            c[code]++;
+            if (code == CODE_MANY(b)) {
+                span r = centre_tiles(triangle_span(b->m, b->vr, (uint32_t)t));
+                FOR_TILES(r, 0, b->nt, COUNT);
+            }
+            continue;
         }
-        r[t] = triangle_span(m, vr, t);
-        if (exact) r[t] = centre_tiles(r[t]);
-        /* a tile's columns need the triangle only when the footprint meets
-         * them; the repair's rows also when it lies left of / in front */
-        if (r[t].y0 > r[t].y1 && r[t].x0 > r[t].x1) continue;
-        if (!rep && (r[t].y0 > r[t].y1 || r[t].x0 > r[t].x1)) continue;
-        FOR_TILES(r[t], rep, nt, COUNT);
+        span r = b->r[t] = triangle_span(b->m, b->vr, (uint32_t)t);
+        if (filed(r, b->rep)) FOR_TILES(r, b->rep, b->nt, COUNT);
     }
 #undef COUNT
-    free(vr);
-    vr = NULL;
-    for (uint64_t i = 0; i < ntiles; i++) start[i + 1] += start[i];
-    if (start[ntiles] > SIZE_MAX / sizeof(uint32_t)) {
-        free(r), free(start), free(cur);
-        return -E2BIG;
-    }
-    out->ids = malloc(start[ntiles] ? start[ntiles] * sizeof(uint32_t) : 1);
-    if (!out->ids) goto nomem;
-    memcpy(cur, start, ntiles * sizeof *cur);
-#define FILL(i) out->ids[cur[i]++] = t
-    for (uint32_t t = 0; t < m->n_triangles; t++) {
-        if (r[t].y0 > r[t].y1 && r[t].x0 > r[t].x1) continue;
-        if (!rep && (r[t].y0 > r[t].y1 || r[t].x0 > r[t].x1)) continue;
-        FOR_TILES(r[t], rep, nt, FILL);
+}
+
+static void fill_part(void *ud, unsigned k, unsigned n)
+{
+    binner *b = ud;
+    uint64_t lo, hi, *c = b->cur + (uint64_t)k * (b->ntiles + 2);
+    uint32_t *ids = b->ids;
+    part_range(b->m->n_triangles, k, n, &lo, &hi);
+#define FILL(i) ids[c[i]++] = (uint32_t)t
+    for (uint64_t t = lo; t < hi; t++) {
+        if (b->exact) {
+            uint32_t code = b->code[t];
+            if (code == CODE_MANY(b)) {
+                span r = centre_tiles(triangle_span(b->m, b->vr, (uint32_t)t));
+                FOR_TILES(r, 0, b->nt, FILL);
+                continue;
+            }
+            ids[c[code]] = (uint32_t)t; /* CODE_NONE's cursor: the spare slot */
+            c[code] += code < b->ntiles;
+            continue;
+        }
+        if (filed(b->r[t], b->rep)) FOR_TILES(b->r[t], b->rep, b->nt, FILL);
     }
 #undef FILL
-    free(r);
-    free(cur);
-    out->start = start;
-    out->tiles[0] = nt[0];
-    out->tiles[1] = nt[1];
+}
+
+/* The parts' counts summed into the bins' starts, then turned into each
+ * part's cursors; 0 or -E2BIG. */
+static int sum_counts(binner *b, unsigned parts)
+{
+    uint64_t stride = b->ntiles + 2, pos = 0;
+    for (uint32_t i = 0; i < b->ntiles; i++) {
+        b->start[i] = pos;
+        for (unsigned k = 0; k < parts; k++) {
+            uint64_t count = b->cur[k * stride + i];
+            b->cur[k * stride + i] = pos;
+            pos += count;
+        }
+    }
+    b->start[b->ntiles] = pos;
+    for (unsigned k = 0; k < parts; k++) b->cur[k * stride + CODE_NONE(b)] = pos;
+    return pos >= SIZE_MAX / sizeof(uint32_t) ? -E2BIG : 0;
+}
+
+static void binner_free(binner *b)
+{
+    free(b->vr), free(b->r), free(b->code), free(b->cur), free(b->start), free(b->ids);
+}
+
+static int binner_init(binner *b, const mesh *m, const grid_spec *g,
+                       const mesh_vox_opts *o, mesh_lattice *lattice, unsigned parts)
+{
+    memset(b, 0, sizeof *b);
+    mv_plan p;
+    mv_plan_make(g, o, &p);
+    b->m = m, b->g = g, b->lattice = lattice;
+    b->nt[0] = (g->res[0] + MESH_TILE - 1) / MESH_TILE;
+    b->nt[1] = (g->res[1] + MESH_TILE - 1) / MESH_TILE;
+    b->ntiles = b->nt[0] * b->nt[1];
+    b->margin = p.apron + 1.0 / 64; /* the snapping moves < 2^-17 voxel */
+    b->rep = o->repair != MESH_REPAIR_NONE;
+    b->exact = p.solid1 && !p.surf && !p.rep && !p.dens; /* z rays only */
+    mv_frame_init(&b->f, m, g, 1);
+    size_t nt = (size_t)m->n_triangles + 1;
+    b->vr = malloc(((size_t)m->n_vertices + 1) * sizeof *b->vr);
+    if (b->exact) b->code = malloc(nt * sizeof *b->code);
+    else b->r = malloc(nt * sizeof *b->r);
+    b->cur = calloc((size_t)parts * (b->ntiles + 2), sizeof *b->cur);
+    b->start = malloc(((size_t)b->ntiles + 1) * sizeof *b->start);
+    return b->vr && (b->code || b->r) && b->cur && b->start ? 0 : -ENOMEM;
+}
+
+int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+             mesh_lattice *lattice, unsigned threads, mesh_bins *out)
+{
+    memset(out, 0, sizeof *out);
+    /* a part of fewer triangles costs more to start than it saves */
+    unsigned parts = m->n_triangles / MESH_BIN_PART_MIN;
+    if (parts > threads) parts = threads;
+    if (parts > PAR_MAX) parts = PAR_MAX;
+    if (parts < 1) parts = 1;
+    binner b;
+    int rc = binner_init(&b, m, g, o, lattice, parts);
+    if (!rc) {
+        par_run(parts, vertices_part, &b);
+        par_run(parts, count_part, &b);
+        rc = sum_counts(&b, parts);
+    }
+    if (!rc && !(b.ids = malloc((b.start[b.ntiles] + 1) * sizeof *b.ids))) rc = -ENOMEM;
+    if (!rc) par_run(parts, fill_part, &b);
+    if (rc) {
+        binner_free(&b);
+        return rc;
+    }
+    out->start = b.start;
+    out->ids = b.ids;
+    out->tiles[0] = b.nt[0];
+    out->tiles[1] = b.nt[1];
+    b.start = NULL, b.ids = NULL;
+    binner_free(&b);
     return 0;
-nomem:
-    free(r), free(vr), free(start), free(cur);
-    free(out->ids);
-    out->ids = NULL;
-    return -ENOMEM;
 }
 
 void mesh_bins_free(mesh_bins *b)

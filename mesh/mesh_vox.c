@@ -222,7 +222,7 @@ int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     mesh_bins bins;
     mesh_lattice *lat = malloc(((size_t)m->n_vertices + 1) * sizeof *lat);
     if (!lat) return -ENOMEM;
-    int rc = mesh_bin(m, g, o, lat, &bins);
+    int rc = mesh_bin(m, g, o, lat, 1, &bins);
     if (rc) {
         free(lat);
         return rc;

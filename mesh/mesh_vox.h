@@ -82,10 +82,14 @@ int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen);
 typedef int64_t mesh_lattice[3];
 
 /* Bin m's triangles to the tiles of grid g, and when lattice is not NULL
- * (m->n_vertices entries) snap the vertices into it for mesh_tile_run.  0,
- * or -ENOMEM / -E2BIG (more ids than fit 2^32 per tile or memory allows). */
+ * (m->n_vertices entries) snap the vertices into it for mesh_tile_run; on
+ * up to threads threads (this one among them; 0 or 1: this one alone),
+ * one per MESH_BIN_PART_MIN triangles at most.  The bins are the same
+ * whatever the number of threads.  0, or -ENOMEM / -E2BIG (more ids than
+ * memory allows). */
+#define MESH_BIN_PART_MIN 32768u
 int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
-             mesh_lattice *lattice, mesh_bins *out);
+             mesh_lattice *lattice, unsigned threads, mesh_bins *out);
 void mesh_bins_free(mesh_bins *b);
 
 /* Scratch a tile needs (the caller gives each worker one buffer). */

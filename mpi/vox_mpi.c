@@ -45,6 +45,7 @@
 #include "mpi_part.h"
 #include "outfile.h"
 #include "pipeline.h"
+#include "par.h"
 #include "progress.h"
 #include "source.h"
 #include "vod.h"
@@ -888,7 +889,7 @@ static int prepare_bins(prep *p)
     int rc = mesh_topology(&p->mesh, &p->topo);
     if (!rc && p->topo.watertight) p->run_opts.repair = MESH_REPAIR_NONE;
     if (!rc && p->run_opts.repair != MESH_REPAIR_WINDING)
-        rc = mesh_bin(&p->mesh, &p->plan.grid, &p->run_opts, NULL, &p->bins);
+        rc = mesh_bin(&p->mesh, &p->plan.grid, &p->run_opts, NULL, par_cpus(), &p->bins);
     if (rc) msg("%s: the mesh's edges and tiles: %s", p->o.mesh, strerror(-rc));
     return rc;
 }

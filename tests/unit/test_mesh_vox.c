@@ -710,7 +710,7 @@ static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     cr_assert_eq(mesh_voxelize(m, g, o, ref.v, &s_ref), 0);
     mesh_bins b;
     mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
-    cr_assert_eq(mesh_bin(m, g, o, lat, &b), 0);
+    cr_assert_eq(mesh_bin(m, g, o, lat, 1, &b), 0);
     uint32_t nt = b.tiles[0] * b.tiles[1];
     cr_assert_eq(b.tiles[0], (g->res[0] + 63) / 64);
     uint32_t *order = malloc((nt + 1) * sizeof *order);
@@ -778,7 +778,7 @@ Test(mesh_vox, bins_list_each_triangle_once_in_ascending_order)
         mesh_vox_opts o = {MESH_SOLID, rep ? MESH_REPAIR_VOTE : MESH_REPAIR_NONE,
                            VOXEL_CH_OCCUPANCY, 0};
         mesh_bins b;
-        cr_assert_eq(mesh_bin(m, &g, &o, NULL, &b), 0);
+        cr_assert_eq(mesh_bin(m, &g, &o, NULL, 1, &b), 0);
         cr_assert_eq(b.tiles[0], 3);
         cr_assert_eq(b.tiles[1], 2);
         uint64_t total = 0;
@@ -791,6 +791,46 @@ Test(mesh_vox, bins_list_each_triangle_once_in_ascending_order)
         cr_expect_geq(total, m->n_triangles);
         if (rep) cr_expect_gt(total, 2 * (uint64_t)m->n_triangles);
         mesh_bins_free(&b);
+    }
+    shape_free(&s);
+}
+
+/* Binning on several threads gives the bins one thread gives, in every
+ * mode (the plain solid's codes, the others' spans, the repair's rows),
+ * with triangles that hold no centre and triangles over several tiles. */
+Test(mesh_vox, bins_are_the_same_on_any_number_of_threads)
+{
+    grid_spec g = odd_grid();
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.1, -0.2, -0.35};
+    shape_icosphere(&s, c, 0.6, 6, false); /* 81920 triangles: up to 2 parts */
+    double k[3] = {0.3, 0.1, -0.5};
+    shape_icosphere(&s, k, 0.4, 6, false); /* 163840 in all: up to 5 */
+    const mesh *m = shape_finish(&s);
+    cr_assert_geq(m->n_triangles, 5 * MESH_BIN_PART_MIN);
+    mesh_vox_opts all[] = {
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0},
+        {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, 0},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2},
+    };
+    for (size_t i = 0; i < sizeof all / sizeof *all; i++) {
+        mesh_bins one;
+        cr_assert_eq(mesh_bin(m, &g, &all[i], NULL, 1, &one), 0);
+        uint32_t nt = one.tiles[0] * one.tiles[1];
+        cr_assert_gt(one.start[nt], 0);
+        for (unsigned threads = 2; threads <= 5; threads++) {
+            mesh_bins b;
+            cr_assert_eq(mesh_bin(m, &g, &all[i], NULL, threads, &b), 0);
+            cr_assert_eq(memcmp(b.tiles, one.tiles, sizeof b.tiles), 0);
+            cr_assert_eq(memcmp(b.start, one.start, (nt + 1) * sizeof *b.start), 0,
+                         "mode %zu, %u threads: the starts", i, threads);
+            cr_assert_eq(memcmp(b.ids, one.ids, one.start[nt] * sizeof *b.ids), 0,
+                         "mode %zu, %u threads: the ids", i, threads);
+            mesh_bins_free(&b);
+        }
+        mesh_bins_free(&one);
     }
     shape_free(&s);
 }
@@ -812,7 +852,7 @@ Test(mesh_vox, plain_solid_bins_hold_the_triangles_that_flip_a_column)
     mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0};
     mesh_bins b;
     mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
-    cr_assert_eq(mesh_bin(m, &g, &o, lat, &b), 0);
+    cr_assert_eq(mesh_bin(m, &g, &o, lat, 1, &b), 0);
     uint32_t ntiles = b.tiles[0] * b.tiles[1];
     bool *in_bin = calloc((size_t)ntiles * m->n_triangles, 1);
     for (uint32_t t = 0; t < ntiles; t++)

@@ -406,7 +406,7 @@ static void same_job(const pipeline_job *job, mpi_subtree_job j, size_t target, 
     j.grid = r.grid, j.vod = v, j.vod.metadata = NULL, j.node_level = c.node_level, j.e = e;
     mesh_bins bins = {0};
     if (columns && j.mesh_opts.repair != MESH_REPAIR_WINDING)
-        cr_assert_eq(mesh_bin(job->mesh.mesh, &r.grid, &j.mesh_opts, NULL, &bins), 0);
+        cr_assert_eq(mesh_bin(job->mesh.mesh, &r.grid, &j.mesh_opts, NULL, 1, &bins), 0);
     for (size_t i = 0; i < c.n; i++) {
         s.o = c.oct[i];
         mesh part;

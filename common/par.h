@@ -1,0 +1,18 @@
+/* par — one function run on several threads at once, the caller's among
+ * them: for work that is one process's own (the master binning a mesh's
+ * triangles while its workers wait), split by the callee into n parts. */
+#ifndef VOXD_PAR_H
+#define VOXD_PAR_H
+
+#define PAR_MAX 16 /* threads at most */
+
+/* The CPUs this process may run on (its affinity mask), 1 to PAR_MAX. */
+unsigned par_cpus(void);
+
+/* fn(ud, k, n) for k = 0 .. n-1 (n clamped to 1 .. PAR_MAX), each on a
+ * thread of its own (k = 0 on the caller's), every signal blocked in the
+ * new ones; returns when all are done.  A part whose thread cannot be
+ * made runs on the caller's after its own, so every part always runs. */
+void par_run(unsigned n, void (*fn)(void *ud, unsigned k, unsigned n), void *ud);
+
+#endif
