@@ -2,8 +2,6 @@
 #include "pipeline.h"
 
 #include <errno.h>
-#include <pthread.h>
-#include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -13,6 +11,7 @@
 #include "clock.h"
 #include "job_meta.h"
 #include "master.h"
+#include "par.h"
 #include "subdiv.h"
 #include "voxel.h"
 
@@ -128,8 +127,7 @@ static int engine_stage(engine *e, const pipeline_job *job, const grid_spec *g,
  * the triangles and the workers run the tiles: the master is idle then. */
 typedef struct {
     const mesh *m;
-    pthread_t thread;
-    int started;
+    par_task task;
     int rc;
     mesh_topo topo;
     double seconds;
@@ -144,26 +142,12 @@ static void *topo_run(void *arg)
     return NULL;
 }
 
-/* Start t in a thread (every signal blocked there: they stay the engine
- * thread's, whose waits they are meant to interrupt); when no thread can
- * be made, run it here and now. */
-static void topo_start(topo_job *t)
-{
-    sigset_t all, old;
-    sigfillset(&all);
-    pthread_sigmask(SIG_BLOCK, &all, &old);
-    t->started = pthread_create(&t->thread, NULL, topo_run, t) == 0;
-    pthread_sigmask(SIG_SETMASK, &old, NULL);
-    if (!t->started) topo_run(t);
-}
-
 static int topo_error(pipeline_report *r, int rc);
 
 /* Wait for t and put its result in r: 0, or the error mesh_check gives. */
 static int topo_join(topo_job *t, pipeline_report *r)
 {
-    if (t->started) pthread_join(t->thread, NULL);
-    t->started = 0;
+    par_join(&t->task);
     r->topo = t->topo;
     r->t_topology = t->seconds;
     return t->rc ? topo_error(r, t->rc) : 0;
@@ -484,7 +468,7 @@ static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
     topo_job topo = {.m = job->mesh.mesh};
     bool overlap = e && job->kind == PIPELINE_MESH &&
                    job->mesh.opts.repair == MESH_REPAIR_NONE;
-    if (overlap) topo_start(&topo);
+    if (overlap) par_start(&topo.task, topo_run, &topo);
     else if (job->kind == PIPELINE_MESH && (rc = mesh_check(&run, r))) return rc;
     if (!e) return run_serial(&run, &v, sink, r);
     rc = run_engine(e, &run, &v, sink, overlap ? &topo : NULL, r);
