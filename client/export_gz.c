@@ -15,7 +15,6 @@
  * 130 at level 6, and a smaller output).  The CRC is libdeflate's (PCLMUL):
  * zlib's took as long as the deflating. */
 #include <errno.h>
-#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
@@ -24,6 +23,7 @@
 #include <zlib.h>
 
 #include "export.h"
+#include "par.h"
 
 #define GZ_MAX_THREADS 8
 #define GZ_CHUNK_BYTES (32u << 20) /* a chunk's bytes, unless one plane is more */
@@ -177,18 +177,11 @@ static void *chunk_run(void *p)
     return NULL;
 }
 
-/* Chunks k = 0..n-1 at once: threads for 1..n-1, chunk 0 here (and any
- * chunk whose thread could not start). */
-static void run_round(gz_chunk *c, int n)
+/* Chunk k of a round (par_run: k = 0 on this thread). */
+static void chunk_part(void *ud, unsigned k, unsigned n)
 {
-    pthread_t t[GZ_MAX_THREADS];
-    int started[GZ_MAX_THREADS] = {0};
-    for (int k = 1; k < n; k++) started[k] = !pthread_create(&t[k], NULL, chunk_run, &c[k]);
-    chunk_run(&c[0]);
-    for (int k = 1; k < n; k++) {
-        if (started[k]) pthread_join(t[k], NULL);
-        else chunk_run(&c[k]);
-    }
+    (void)n;
+    chunk_run((gz_chunk *)ud + k);
 }
 
 static void put_le32(uint8_t *p, uint32_t v)
@@ -223,7 +216,7 @@ int export_gzip(const export_box *b, FILE *fp, int comps)
             c[n].b = b, c[n].comps = comps, c[n].z0 = z0, c[n].z1 = z1, c[n].last = z1 == b->hi[2];
             z0 = z1;
         }
-        run_round(c, n);
+        par_run((unsigned)n, chunk_part, c);
         for (int k = 0; k < n && !rc; k++) {
             rc = c[k].err;
             if (!rc && fwrite(c[k].out, 1, c[k].out_len, fp) != c[k].out_len) rc = -EIO;

@@ -7,7 +7,7 @@
 
 #include <pthread.h>
 
-#define PAR_MAX 16 /* threads at most */
+#define PAR_MAX 64 /* threads at most */
 
 /* The CPUs this process may run on (its affinity mask), 1 to PAR_MAX. */
 unsigned par_cpus(void);

@@ -5,7 +5,6 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
-#include <pthread.h>
 #include <stdarg.h>
 #include <stdatomic.h>
 #include <stdbool.h>
@@ -16,6 +15,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 #include <zlib.h>
+
+#include "par.h"
 
 #define TRAILER_FIXED 40u
 #define MAX_HEIGHT 21 /* (8^h - 1) / 7 * 4 still fits a u64 */
@@ -398,7 +399,6 @@ static int decode_brick(parse *ps, vod_file *f, const brick_ent *e, uint8_t *raw
  * was checked, and that one is decoded again, alone, for its message. */
 
 #define SLAB_BYTES ((size_t)2 << 20) /* a huge page on x86-64 */
-#define MAX_THREADS 64
 
 typedef struct {
     parse ps;          /* the image; err NULL: no thread writes a message */
@@ -406,11 +406,11 @@ typedef struct {
     const brick_ent *e; /* the records in file order */
     uint32_t n, per;   /* records, records per chunk */
     /* The next chunk to claim.  Relaxed: a claim orders nothing; what the
-     * threads wrote is read after pthread_join, which orders it. */
+     * threads wrote is read after par_run joins them, which orders it. */
     atomic_uint next;
     /* The lowest bad record found (n: none), lowered by compare-and-swap.
      * Relaxed: the threads read it only to stop early; the caller reads the
-     * final value after pthread_join. */
+     * final value after par_run joins them. */
     atomic_uint bad;
 } decode_job;
 
@@ -450,15 +450,16 @@ static void decode_chunk(decode_job *j, uint32_t c)
     }
 }
 
-static void *decode_run(void *arg)
+static void decode_part(void *arg, unsigned k, unsigned n)
 {
+    (void)k, (void)n; /* the parts share one counter of chunks */
     decode_job *j = arg;
     uint32_t chunks = j->f->chunks;
     for (;;) {
         unsigned c = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed);
-        if (c >= chunks) return NULL;
+        if (c >= chunks) return;
         if ((uint64_t)c * j->per > atomic_load_explicit(&j->bad, memory_order_relaxed))
-            return NULL; /* this chunk and the later ones are past a bad record */
+            return; /* this chunk and the later ones are past a bad record */
         decode_chunk(j, c);
     }
 }
@@ -476,14 +477,8 @@ static int decode_all(parse *ps, vod_file *f, const brick_ent *e, uint32_t n, in
     if (!f->slab) return fail(ps, -ENOMEM, "out of memory");
     atomic_init(&j.next, 0);
     atomic_init(&j.bad, n);
-    pthread_t t[MAX_THREADS];
-    int started = 0;
-    if (threads > MAX_THREADS) threads = MAX_THREADS;
     if ((uint32_t)threads > f->chunks) threads = (int)f->chunks;
-    while (started + 1 < threads && !pthread_create(&t[started], NULL, decode_run, &j))
-        started++;
-    decode_run(&j);
-    for (int k = 0; k < started; k++) pthread_join(t[k], NULL);
+    par_run(threads < 1 ? 1 : (unsigned)threads, decode_part, &j);
     uint32_t bad = atomic_load_explicit(&j.bad, memory_order_relaxed);
     if (bad == n) return 0;
     uint8_t *slab = f->slab[bad / j.per];
