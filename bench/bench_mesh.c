@@ -1,4 +1,4 @@
-/* bench_mesh — the mesh loaders and mesh_topology on real models (built
+/* bench_mesh — the mesh loaders, mesh_topology and mesh_edges on real models (built
  * and run by `make bench` and `make bench-mesh`, through
  * scripts/bench-mesh.sh, which finds or fetches the models), and the
  * meshes of the whole-command mesh benchmark (scripts/bench-mesh-whole.sh).
@@ -15,7 +15,8 @@
  * JavaScript arrays).  The dragon is unpacked, and also written as binary
  * PLY, binary STL, OBJ and OFF; the bunny as OBJ; each file is loaded with
  * mesh_load (mmap, parse, degenerate triangles, bounding box) and then
- * given to mesh_topology, each timed separately: the best of 5 runs
+ * given to mesh_topology and to mesh_edges (a job's topology), each timed
+ * separately: the best of 5 runs
  * ($BENCH_REPEATS), wall clock, with the CPU time of that run (the machine
  * may be shared).  A model that is not there is reported as skipped
  * ("skipped: ..." on stdout), never left out silently; export does the same.
@@ -46,9 +47,9 @@ static double file_mib(const char *path)
 
 static void row(const char *model, const char *form, const char *path)
 {
-    double best = 1e300, best_cpu = 0, topo = 1e300;
+    double best = 1e300, best_cpu = 0, topo = 1e300, edges = 1e300;
     mesh m;
-    mesh_topo tp = {0};
+    mesh_topo tp = {0}, te;
     mesh_error err;
     for (int r = 0; r < reps; r++) {
         double c0 = clock_thread_cpu(), t0 = now();
@@ -68,11 +69,19 @@ static void row(const char *model, const char *form, const char *path)
         }
         t = now() - t0;
         topo = t < topo ? t : topo;
+        t0 = now();
+        if (mesh_edges(&m, &te)) {
+            printf("| %s | %s | mesh_edges: out of memory |\n", model, form);
+            mesh_free(&m);
+            return;
+        }
+        t = now() - t0;
+        edges = t < edges ? t : edges;
         if (r < reps - 1) mesh_free(&m);
     }
     double mib = file_mib(path);
-    printf("| %s | %s | %.1f | %u | %u | %.3f | %.3f | %.0f | %.3f | %llu | %s |\n", model, form,
-           mib, m.n_vertices, m.n_triangles, best, best_cpu, mib / best, topo,
+    printf("| %s | %s | %.1f | %u | %u | %.3f | %.3f | %.0f | %.3f | %.3f | %llu | %s |\n", model,
+           form, mib, m.n_vertices, m.n_triangles, best, best_cpu, mib / best, topo, edges,
            (unsigned long long)tp.open, tp.watertight ? "yes" : "no");
     mesh_free(&m);
 }
@@ -395,7 +404,8 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "icosphere")) return argc == 4 ? icosphere(atoi(argv[2]), argv[3]) : usage();
     if (!strcmp(cmd, "load")) return argc > 2 ? load_times(argc - 2, argv + 2) : usage();
     const char *dir = argc > 1 ? argv[1] : getenv("VOXD_MESH_MODELS");
-    printf("### Mesh loading (mesh_load, then mesh_topology; best of %d, one core)\n\n", reps);
+    printf("### Mesh loading (mesh_load, then mesh_topology, then a job's mesh_edges; best of "
+           "%d, one core)\n\n", reps);
     if (!dir || !*dir) {
         printf("skipped: no models folder (give one, or set VOXD_MESH_MODELS)\n");
         return 0;
@@ -407,8 +417,8 @@ int main(int argc, char **argv)
         return 1;
     }
     puts("| model | file | MiB | vertices | triangles | load s | load cpu s | MiB/s | topology s "
-         "| open edges | watertight |");
-    puts("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+         "| job's edges s | open edges | watertight |");
+    puts("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
     dragon(dir);
     bunny(dir);
     rmdir(tmpdir);

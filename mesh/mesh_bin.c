@@ -214,25 +214,39 @@ static void prefetch_ahead(const binner *b, uint64_t t, uint64_t hi)
     for (int i = 0; i < 3; i++) __builtin_prefetch(&b->vr[ahead[i]]);
 }
 
+/* The tiles of a plain-solid triangle of code CODE_MANY: found again
+ * when it is filed (few triangles have it). */
+static span many_tiles(const binner *b, uint64_t t)
+{
+    return centre_tiles(triangle_span(b->m, b->vr, (uint32_t)t));
+}
+
+/* Part k's counters and its range of triangles. */
+static uint64_t *part_triangles(const binner *b, unsigned k, unsigned n, uint64_t *lo,
+                                uint64_t *hi)
+{
+    part_range(b->m->n_triangles, k, n, lo, hi);
+    return b->cur + (uint64_t)k * (b->ntiles + 2);
+}
+
 static void count_part(void *ud, unsigned k, unsigned n)
 {
     binner *b = ud;
-    uint64_t lo, hi, *c = b->cur + (uint64_t)k * (b->ntiles + 2);
-    part_range(b->m->n_triangles, k, n, &lo, &hi);
+    uint64_t lo, hi, *c = part_triangles(b, k, n, &lo, &hi);
 #define COUNT(i) c[i]++
     for (uint64_t t = lo; t < hi; t++) {
         prefetch_ahead(b, t, hi);
-        if (b->exact) {
-            uint32_t code = b->code[t] = code_of(b, (uint32_t)t);
-            c[code]++;
-            if (code == CODE_MANY(b)) {
-                span r = centre_tiles(triangle_span(b->m, b->vr, (uint32_t)t));
-                FOR_TILES(r, 0, b->nt, COUNT);
-            }
+        if (!b->exact) {
+            span r = b->r[t] = triangle_span(b->m, b->vr, (uint32_t)t);
+            if (filed(r, b->rep)) FOR_TILES(r, b->rep, b->nt, COUNT);
             continue;
         }
-        span r = b->r[t] = triangle_span(b->m, b->vr, (uint32_t)t);
-        if (filed(r, b->rep)) FOR_TILES(r, b->rep, b->nt, COUNT);
+        uint32_t code = b->code[t] = code_of(b, (uint32_t)t);
+        c[code]++;
+        if (code == CODE_MANY(b)) {
+            span r = many_tiles(b, t);
+            FOR_TILES(r, 0, b->nt, COUNT);
+        }
     }
 #undef COUNT
 }
@@ -240,23 +254,22 @@ static void count_part(void *ud, unsigned k, unsigned n)
 static void fill_part(void *ud, unsigned k, unsigned n)
 {
     binner *b = ud;
-    uint64_t lo, hi, *c = b->cur + (uint64_t)k * (b->ntiles + 2);
+    uint64_t lo, hi, *c = part_triangles(b, k, n, &lo, &hi);
     uint32_t *ids = b->ids;
-    part_range(b->m->n_triangles, k, n, &lo, &hi);
 #define FILL(i) ids[c[i]++] = (uint32_t)t
     for (uint64_t t = lo; t < hi; t++) {
-        if (b->exact) {
-            uint32_t code = b->code[t];
-            if (code == CODE_MANY(b)) {
-                span r = centre_tiles(triangle_span(b->m, b->vr, (uint32_t)t));
-                FOR_TILES(r, 0, b->nt, FILL);
-                continue;
-            }
-            ids[c[code]] = (uint32_t)t; /* CODE_NONE's cursor: the spare slot */
-            c[code] += code < b->ntiles;
+        if (!b->exact) {
+            if (filed(b->r[t], b->rep)) FOR_TILES(b->r[t], b->rep, b->nt, FILL);
             continue;
         }
-        if (filed(b->r[t], b->rep)) FOR_TILES(b->r[t], b->rep, b->nt, FILL);
+        uint32_t code = b->code[t];
+        if (code == CODE_MANY(b)) {
+            span r = many_tiles(b, t);
+            FOR_TILES(r, 0, b->nt, FILL);
+            continue;
+        }
+        ids[c[code]] = (uint32_t)t; /* CODE_NONE's cursor: the spare slot */
+        c[code] += code < b->ntiles;
     }
 #undef FILL
 }
