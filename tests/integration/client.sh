@@ -12,6 +12,7 @@ cleanup() {
     local p
     for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
     for p in "${PIDS[@]}"; do wait "$p" 2>/dev/null; done
+    san_scan
     rm -rf "$TMP"
 }
 trap cleanup EXIT

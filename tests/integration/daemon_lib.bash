@@ -11,6 +11,7 @@ cleanup() {
     # a background subshell's `timeout` passes the TERM on to its client
     for p in "${PIDS[@]}"; do pkill -TERM -P "$p" 2>/dev/null; kill -9 "$p" 2>/dev/null; done
     for p in "${PIDS[@]}"; do wait "$p" 2>/dev/null; done
+    san_scan
     rm -rf "$TMP"
 }
 trap cleanup EXIT

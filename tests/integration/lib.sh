@@ -3,19 +3,52 @@
 VOX=${VOX_ASAN:-${VOX:-build/asan/vox}}
 ROOT=${VOXD_ROOT:-$(pwd)}
 TMP=$(mktemp -d)
-trap 'rm -rf "$TMP"' EXIT
+trap 'san_scan; rm -rf "$TMP"' EXIT
 cd "$ROOT" || exit 1
-export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1}
+
+# The sanitizers exit with 86, a code no program of ours uses (the runner
+# sets the same), so that a report never passes for an expected exit status.
+# A report in a check's output, or a report file new in $VOX_SAN_DIR (where
+# the runner has ASan and LSan write them), fails the check.
+SAN_EXIT=86
+SAN_RE='ERROR: AddressSanitizer|ERROR: LeakSanitizer|runtime error:'
+san_opt() { case ":$1:" in *:exitcode=*) echo "$1" ;; *) echo "${1:+$1:}exitcode=$SAN_EXIT" ;; esac; }
+ASAN_OPTIONS=$(san_opt "${ASAN_OPTIONS:-detect_leaks=1}")
+LSAN_OPTIONS=$(san_opt "${LSAN_OPTIONS:-suppressions=$ROOT/tests/lsan.supp:print_suppressions=0}")
+UBSAN_OPTIONS=$(san_opt "${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}")
+export ASAN_OPTIONS LSAN_OPTIONS UBSAN_OPTIONS
+san_files() { ls -A "${VOX_SAN_DIR:-/nonexistent}" 2>/dev/null | wc -l; }
+# san_in FILE COUNT: 0 (and a line added to FILE) when FILE holds a
+# sanitizer report or $VOX_SAN_DIR more report files than COUNT
+san_in() {
+    if grep -aEq "$SAN_RE" "$1"; then return 0; fi
+    [ "$(san_files)" -gt "$2" ] || return 1
+    echo "sanitizer report files in $VOX_SAN_DIR: $(ls -t "$VOX_SAN_DIR" | head -3)" >>"$1"
+}
+# san_scan: at the end, a FAIL for each file at the top of $TMP (daemon
+# logs, captured outputs) that holds a sanitizer report
+san_scan() {
+    local f
+    for f in $(grep -aElIs "$SAN_RE" "$TMP"/* "$TMP"/.[!.]* 2>/dev/null); do
+        fail "no sanitizer report in ${f#"$TMP"/}" "$(grep -aE -m3 "$SAN_RE" "$f")"
+    done
+}
 
 pass() { echo "PASS: $1"; }
 fail() { echo "FAIL: $1"; [ -n "${2:-}" ] && printf '  %s\n' "$2"; }
-# check NAME COMMAND...: passes when the command succeeds
-check() { local n=$1; shift; if "$@" >"$TMP/out" 2>&1; then pass "$n"; else fail "$n" "$(tail -5 "$TMP/out")"; fi; }
+# check NAME COMMAND...: passes when the command succeeds with no sanitizer report
+check() {
+    local n=$1 s0; shift
+    s0=$(san_files)
+    if "$@" >"$TMP/out" 2>&1 && ! san_in "$TMP/out" "$s0"; then pass "$n"
+    else fail "$n" "$(tail -5 "$TMP/out")"; fi
+}
 # refuse NAME CODE PATTERN COMMAND...: passes when the command exits with CODE
-# and its output matches the extended regex PATTERN
+# and its output matches the extended regex PATTERN, with no sanitizer report
 refuse() {
-    local n=$1 code=$2 pat=$3; shift 3
-    "$@" >"$TMP/out" 2>&1; local rc=$?
-    if [ "$rc" -eq "$code" ] && grep -Eq -- "$pat" "$TMP/out"; then pass "$n"
-    else fail "$n" "exit $rc (want $code), output: $(head -3 "$TMP/out")"; fi
+    local n=$1 code=$2 pat=$3 s0 rc; shift 3
+    s0=$(san_files)
+    "$@" >"$TMP/out" 2>&1; rc=$?
+    if [ "$rc" -eq "$code" ] && grep -Eq -- "$pat" "$TMP/out" && ! san_in "$TMP/out" "$s0"; then pass "$n"
+    else fail "$n" "exit $rc (want $code), output: $(head -3 "$TMP/out"; grep -aE -m2 "$SAN_RE|^sanitizer report" "$TMP/out")"; fi
 }

@@ -132,16 +132,19 @@ ASANMPI=$(dirname "${VOX_ASAN:-build/asan/vox}")/vox_mpi
 asan_same() {
     local what=$1 w=$2 ref=$3; shift 3
     if ! [ -x "$ASANMPI" ]; then fail "mpi: the sanitizers' build $ASANMPI is there"; return; fi
-    ASAN_OPTIONS=detect_leaks=0:abort_on_error=0 UBSAN_OPTIONS=halt_on_error=1:print_stacktrace=1 \
+    local s0; s0=$(san_files)
+    # lib.sh's options (the sanitizers' exit code, the runner's report files) kept
+    ASAN_OPTIONS="$ASAN_OPTIONS:detect_leaks=0:abort_on_error=0" \
+        UBSAN_OPTIONS="$UBSAN_OPTIONS:halt_on_error=1:print_stacktrace=1" \
         timeout 120 "${MPIRUN[@]}" -x ASAN_OPTIONS -x UBSAN_OPTIONS -np 3 "$ASANMPI" "$@" -q \
         -w "$w" -o "$TMP/asan.vod" >"$TMP/asan.log" 2>&1
     local rc=$?
-    if [ "$rc" -eq 0 ] && ! grep -qE 'ERROR: AddressSanitizer|runtime error' "$TMP/asan.log" &&
+    if [ "$rc" -eq 0 ] && ! san_in "$TMP/asan.log" "$s0" &&
        cmp -s "$ref" "$TMP/asan.vod"; then
         pass "mpi: $what on 3 ranks x $w workers under the sanitizers: no error, the same bytes"
     else
         fail "mpi: $what on 3 ranks x $w workers under the sanitizers: no error, the same bytes" \
-            "exit $rc: $(grep -m3 -E 'ERROR|runtime error' "$TMP/asan.log")"
+            "exit $rc: $(grep -m3 -E 'ERROR|runtime error|^sanitizer report' "$TMP/asan.log")"
     fi
     rm -f "$TMP/asan.vod"
 }
