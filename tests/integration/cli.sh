@@ -64,7 +64,7 @@ refuse "progress line" 0 "level" "$VOX" voxelize -e "$S" -r 64 --progress -o "$T
 
 # Errors: clear message, exit 2, no output file left behind.
 refuse "parse error has line:col" 2 "<expr>:1:11: expected .\).* at 1:9" "$VOX" voxelize -e "x + y * (z" -r 8 -o "$TMP/bad.vod"
-refuse "unknown function" 2 "sinn" "$VOX" voxelize -e "sinn(x)" -r 8 -o "$TMP/bad.vod"
+refuse "unknown function" 2 "<expr>:1:1: unknown function 'sinn'" "$VOX" voxelize -e "sinn(x)" -r 8 -o "$TMP/bad.vod"
 refuse "res 0" 2 "bad --res" "$VOX" voxelize -e x -r 0 -o "$TMP/bad.vod"
 refuse "res 4097" 2 "bad --res" "$VOX" voxelize -e x -r 4097 -o "$TMP/bad.vod"
 refuse "empty domain" 2 "bad --domain" "$VOX" voxelize -e x -d 1,0 -o "$TMP/bad.vod"
@@ -82,7 +82,7 @@ modes="$(stat -c %a "$TMP/m022.vod" "$TMP/m077.vod" 2>&1 | tr '\n' ' ')"
 
 # A damaged file is refused by name.
 head -c 200 "$TMP/s1.vod" >"$TMP/trunc.vod"
-refuse "truncated file refused" 1 "trunc" "$VOX" info "$TMP/trunc.vod"
+refuse "truncated file refused" 1 "file is truncated or corrupted" "$VOX" info "$TMP/trunc.vod"
 
 # Pictures.
 check "render" "$VOX" render "$TMP/s1.vod" -o "$TMP/s.png" --size 128
