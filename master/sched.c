@@ -261,6 +261,12 @@ static void handle_death(engine *e, int i)
     if (rc) {
         sched_fail(e, ENGINE_FAULT, rc, "%s", err);
         if (m->busy) finish(e, i);
+    } else if (rerun) {
+        /* The task's new worker is quiet from its fork, not from its
+         * predecessor's last heartbeat: after a stall that one is a whole
+         * stall timeout old, and the new worker would be killed at the next
+         * check unless it ticked first (a loaded machine: the task failed) */
+        m->beat_t = clock_now();
     }
 }
 
