@@ -444,6 +444,7 @@ typedef struct {
     int level[16];
     uint64_t voxels[16];
     int cancel_at; /* return 1 at this call (1-based), 0: never */
+    int sent;      /* progress frames the fake daemon has sent (atomic) */
 } prog_log;
 
 static int on_prog(void *ud, double f, int level, uint64_t voxels)
@@ -574,7 +575,7 @@ Test(libvox, silent_daemon_at_hello_times_out)
     double t0 = now_s();
     cr_expect_eq(vox_connect_fd(fd, &o, &c, &e), -ETIMEDOUT);
     double t = now_s() - t0;
-    cr_expect(t >= 0.15 && t < 3, "timed out after %.3f s", t);
+    cr_expect(t >= 0.15 && t < 10, "timed out after %.3f s", t);
     srv_finish(s);
 }
 
@@ -683,7 +684,8 @@ static void s_progress_steps(srv *s)
     if (r) voxd__request__free_unpacked(r, NULL);
     for (int i = 1; i <= 5; i++) {
         send_progress(s, 3, i / 10.0, 10 - i, (uint64_t)i * 1000);
-        for (int t = 0; t < 5000 && __atomic_load_n(&pl->calls, __ATOMIC_ACQUIRE) < i; t++)
+        __atomic_store_n(&pl->sent, i, __ATOMIC_RELEASE); /* pairs with the test's load */
+        for (int t = 0; t < 30000 && __atomic_load_n(&pl->calls, __ATOMIC_ACQUIRE) < i; t++)
             usleep(1000);
     }
     uint32_t crc;
@@ -700,7 +702,11 @@ Test(libvox, progress_callbacks_in_order)
     srv *s = srv_new(s_progress_steps, &pl);
     vox_client *c = start(s, 5000);
     uint64_t id = submit(c, 3);
-    usleep(50000); /* the first progress is waiting */
+    /* the first progress is waiting when the receiving call starts (30 s
+     * at most: a loaded machine) */
+    for (int t = 0; t < 30000 && __atomic_load_n(&pl.sent, __ATOMIC_ACQUIRE) < 1; t++)
+        usleep(1000);
+    cr_assert_geq(__atomic_load_n(&pl.sent, __ATOMIC_ACQUIRE), 1, "no progress sent");
     vox_error e;
     cr_assert_eq(vox_receive_file(c, id, out_path("p.vod"), on_prog, &pl, NULL, &e), 0, "%s",
                  e.message);
@@ -1117,7 +1123,7 @@ Test(libvox, silent_daemon_mid_result_times_out)
     double t0 = now_s();
     expect_fail(c, id, -ETIMEDOUT, "stalled");
     double t = now_s() - t0;
-    cr_expect(t >= 0.25 && t < 3, "gave up after %.3f s", t);
+    cr_expect(t >= 0.25 && t < 10, "gave up after %.3f s", t);
     vox_close(c);
     srv_finish(s);
 }
@@ -1139,7 +1145,7 @@ Test(libvox, silent_daemon_times_out)
     double t0 = now_s();
     expect_fail(c, id, -ETIMEDOUT, "said nothing");
     double t = now_s() - t0;
-    cr_expect(t >= 0.25 && t < 3, "gave up after %.3f s", t);
+    cr_expect(t >= 0.25 && t < 10, "gave up after %.3f s", t);
     cr_expect(s->pings_seen >= 1, "no keepalive ping was sent");
     /* The connection is dead: every later call says so at once. */
     vox_error e;
@@ -1196,12 +1202,12 @@ static void expect_late_job(int stall, int timeout_ms, const char *msg, double t
 Test(libvox, job_past_the_daemons_job_timeout)
 {
     /* (0 ahead + 1) * (job_timeout 1 s + 0.2 s) + 0.2 s */
-    expect_late_job(0, 200, "did not finish in 1.4 s (the daemon's job_timeout is 1 s", 1.3, 5);
+    expect_late_job(0, 200, "did not finish in 1.4 s (the daemon's job_timeout is 1 s", 1.3, 10);
 }
 
 Test(libvox, result_stalled_while_pongs_come)
 {
-    expect_late_job(1, 300, "stalled", 0.25, 3);
+    expect_late_job(1, 300, "stalled", 0.25, 10);
 }
 
 static void s_pong_twice(srv *s)
@@ -1238,9 +1244,11 @@ static void s_slow_but_alive(srv *s)
     srv_hello(s);
     Voxd__Request *r = srv_accept_job(s, 6, 5);
     if (r) voxd__request__free_unpacked(r, NULL);
-    double until = now_s() + 1.5;
+    double until = now_s() + 5.0;
     while (now_s() < until) {
-        /* answer whatever pings come, for a second */
+        /* answer whatever pings come, for 5 s: five times the client's
+         * timeout, which is long enough that a loaded machine does not
+         * delay a pong past it */
         struct pollfd p = {s->fd, POLLIN, 0};
         if (poll(&p, 1, 20) == 1) {
             ssize_t n = read(s->fd, s->in, sizeof s->in);
@@ -1269,7 +1277,7 @@ static void s_slow_but_alive(srv *s)
 Test(libvox, keepalive_tells_busy_from_hung)
 {
     srv *s = srv_new(s_slow_but_alive, NULL);
-    vox_client *c = start(s, 300);
+    vox_client *c = start(s, 1000);
     uint64_t id = submit(c, 6);
     vox_error e;
     cr_expect_eq(vox_receive_file(c, id, out_path("slow.vod"), NULL, NULL, NULL, &e), 0, "%s",
