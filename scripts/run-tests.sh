@@ -5,7 +5,7 @@
 #  - integration: each tests/integration/*.sh prints "PASS: name" / "FAIL: name"
 # A suite also fails (one failure more, with its reason) when it
 #  - runs past its time limit: TEST_TIMEOUT_<suite> seconds, else the long
-#    suites' limits below, else TEST_TIMEOUT (default 900); a hang is named;
+#    suites' limits below, else TEST_TIMEOUT (default 1800); a hang is named;
 #  - exits non-zero, or with the sanitizers' exit code (SAN_EXIT);
 #  - ran no check (no test, no corpus file, no PASS/FAIL line);
 #  - left a sanitizer report in its output or in its report files
@@ -29,7 +29,7 @@ with_exitcode() { case ":$1:" in *:exitcode=*) echo "$1" ;; *) echo "${1:+$1:}ex
 ASAN_BASE=$(with_exitcode "${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=0}")
 export LSAN_OPTIONS=$(with_exitcode "${LSAN_OPTIONS:-suppressions=$root/tests/lsan.supp:print_suppressions=0}")
 export UBSAN_OPTIONS=$(with_exitcode "${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}")
-TEST_TIMEOUT=${TEST_TIMEOUT:-900}
+TEST_TIMEOUT=${TEST_TIMEOUT:-1800}
 passed=0 failed=0
 log=$(mktemp -d)
 trap 'rm -rf "$log"' EXIT
@@ -79,7 +79,7 @@ report() {
     passed=$((passed + p)); failed=$((failed + f))
     printf '%-5s %-28s %4d passed, %d failed\n' "$kind" "$name" "$p" "$f"
     [ -n "$WHY" ] && sed "s/^/FAIL: $name: /" <<<"$WHY"
-    [ "$f" -gt 0 ] && grep -a -v '^\[----\]\|^PASS:' "$log/$name" | tail -40
+    [ "$f" -gt 0 ] && grep -a -v '^PASS:' "$log/$name" | tail -40
     grep -a '^NOTE:' "$log/$name" | sort
 }
 
