@@ -188,6 +188,12 @@ from:  n[d] = va * n0[d] + vb * n1[d];
 to:    n[d] = va * n0[d] - vb * n1[d];
 tests: test_iso vox_mesh.sh
 
+id:    iso-normal-inward
+file:  iso/iso_brick.c
+from:  for (int d = 0; d < 3; d++) nrm[d] = (float)(n[d] * s);
+to:    for (int d = 0; d < 3; d++) nrm[d] = (float)(-n[d] * s);
+tests: test_iso vox_mesh.sh
+
 id:    iso-vertex-midpoint
 file:  iso/iso_brick.c
 from:  double t = ((double)w->p->iso + 0.5 - va) / (vb - va);
