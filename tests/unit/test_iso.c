@@ -563,6 +563,69 @@ Test(iso, adaptive_levels_have_no_boundary_at_any_radii)
     vod_close(f);
 }
 
+/* The accuracy of coarse and adaptive levels of detail, on a sphere.
+ * Mip level l: every vertex within a quarter of a level-l voxel (2^l h / 4)
+ * of the analytic sphere, the enclosed volume within that shell's volume
+ * of the exact one: a level whose voxels sat half a voxel off (the usual
+ * slip, 2^(l-1) h) would be twice the bound away.  Adaptive levels: a vertex
+ * within radii[0] of the centre lies in a block that touches the first
+ * sphere, so at level 0 (less 2h: the wall that closes the level-0 region
+ * lies within a voxel or so of its boundary): within h / 2 of the sphere as
+ * at level 0.  Elsewhere the regions' walls lie inside the solid, so only
+ * how far a vertex is outside the sphere is bounded (the coarsest level's
+ * quarter voxel), and the volume, walls and all, within that shell. */
+static double worst_dist(const iso_mesh *m, const ramp *r, const double *c, double within,
+                         int outside_only)
+{
+    double worst = 0;
+    for (uint64_t i = 0; i < m->n_vertices; i++) {
+        const float *p = m->pos + 3 * i;
+        if (c && hypot(hypot(p[0] - c[0], p[1] - c[1]), p[2] - c[2]) > within) continue;
+        double d = r->dist(r->ud, p[0], p[1], p[2]);
+        d = outside_only ? d : fabs(d);
+        if (d > worst) worst = d;
+    }
+    return worst;
+}
+
+Test(iso, coarse_and_adaptive_levels_stay_near_the_surface)
+{
+    double R = 0.8;
+    vol_spec s = cube_spec(64, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    double exact = 4.0 / 3.0 * M_PI * R * R * R;
+    for (int l = 0; l < 3; l++) {
+        iso_mesh m;
+        polygonize(f, 127, l, NULL, NULL, 0, &m);
+        double tol = l ? 0.25 * ldexp(s.h, l) : 0.5 * s.h, w = worst_dist(&m, &r, NULL, 0, 0);
+        double v = check(&m).volume, shell = 4.0 * M_PI * R * R * tol;
+        fprintf(stderr, "NOTE: iso level %d: worst vertex %.3f h from the sphere (bound %.2f h), "
+                        "volume off by %.4f (bound %.4f)\n", l, w / s.h, tol / s.h,
+                fabs(v - exact), shell);
+        cr_assert_leq(w, tol, "level %d: a vertex %g from the sphere (allowed %g)", l, w, tol);
+        cr_assert_leq(fabs(v - exact), shell, "level %d: volume %g, exact %g", l, v, exact);
+        iso_mesh_free(&m);
+    }
+    double c[3] = {0.8, 0, 0}, radii[2] = {0.3, 0.6};
+    iso_params p;
+    char err[256];
+    cr_assert_eq(iso_params_make(f, 127, 0, c, radii, 2, &p, err, sizeof err), 0, "%s", err);
+    iso_mesh m;
+    polygonize(f, 127, 0, c, radii, 2, &m);
+    double fine = worst_dist(&m, &r, c, radii[0] - 2 * s.h, 0);
+    double out = worst_dist(&m, &r, NULL, 0, 1), top = 0.25 * ldexp(s.h, (int)p.lod_top);
+    double v = check(&m).volume, shell = 4.0 * M_PI * R * R * top;
+    fprintf(stderr, "NOTE: iso adaptive (levels 0 to %u): worst vertex %.3f h near the centre "
+                    "(bound 0.5 h), %.3f h outside (bound %.2f h), volume off by %.4f (bound %.4f)\n",
+            p.lod_top, fine / s.h, out / s.h, top / s.h, fabs(v - exact), shell);
+    cr_assert_leq(fine, 0.5 * s.h, "a vertex near the centre %g from the sphere", fine);
+    cr_assert_leq(out, top, "a vertex %g outside the sphere (allowed %g)", out, top);
+    cr_assert_leq(fabs(v - exact), shell, "adaptive: volume %g, exact %g", v, exact);
+    iso_mesh_free(&m);
+    vod_close(f);
+}
+
 /* ---- the engine ---- */
 
 static int same_mesh(const iso_mesh *a, const iso_mesh *b)
