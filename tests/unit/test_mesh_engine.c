@@ -328,7 +328,7 @@ static want_grid expect_bbox(const double lo[3], const double hi[3], uint32_t re
         double span = (hi[a] - lo[a]) / w.vs;
         w.lo[a] = lo[a];
         w.dims[a] = (uint32_t)ceil(span - 1e-9);
-        cr_assert(fabs(span - round(span)) > 0.05 || fabs(span - res) < 1e-9,
+        cr_assert(fabs(span - round(span)) > 0.05 || span == round(span),
                   "the test's sizes: axis %d spans %.4f voxels", a, span);
     }
     return w;
@@ -413,5 +413,14 @@ Test(mesh_engine, the_grid_from_the_mesh_coordinates)
     memcpy(job.hi, bhi, sizeof bhi);
     want_grid w = expect_bbox(blo, bhi, 45);
     check_grid(&job, &w, m.lo, m.hi, "bbox");
+    /* a box whose sides are whole numbers of voxels, exactly (1, 1/2 and
+     * 1/4 over voxels of 1/32): 32 x 16 x 8 voxels, no voxel more */
+    static const double elo[3] = {0.140625, -0.25, 0.375}, ehi[3] = {1.140625, 0.25, 0.625};
+    memcpy(job.lo, elo, sizeof elo);
+    memcpy(job.hi, ehi, sizeof ehi);
+    job.res = 32;
+    w = expect_bbox(elo, ehi, 32);
+    cr_assert(w.dims[0] == 32 && w.dims[1] == 16 && w.dims[2] == 8);
+    check_grid(&job, &w, m.lo, m.hi, "exact bbox");
     shape_free(&sh_m);
 }
