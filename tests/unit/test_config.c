@@ -804,3 +804,30 @@ Test(config, mpi_keys)
     load_fails("mpi_workers 257\n", "t.conf:1: mpi_workers 257 is out of range (0 to 256)");
     load_fails("mpirun_args --mca\x01\n", "t.conf:1: mpirun_args contains a control character");
 }
+
+/* The connection limits at both ends of their ranges: 1 and 65536 taken,
+ * 0 and 65537 refused with the range (a daemon with max_clients 0 would
+ * refuse everyone). */
+Test(config, connection_limits_at_their_ends)
+{
+    static const char *const keys[] = {"max_clients", "max_clients_per_uid"};
+    for (size_t i = 0; i < 2; i++) {
+        char text[128], want[160];
+        voxd_config c;
+        config_defaults(&c);
+        /* max_clients_per_uid may not exceed max_clients: give both */
+        const char *room = i ? "max_clients 65536\n" : "";
+        snprintf(text, sizeof text, "%s%s 1\n", room, keys[i]);
+        load_ok(text, &c);
+        cr_assert_eq(i ? c.max_clients_per_uid : c.max_clients, 1u, "%s", text);
+        snprintf(text, sizeof text, "%s%s 65536\n", room, keys[i]);
+        load_ok(text, &c);
+        cr_assert_eq(i ? c.max_clients_per_uid : c.max_clients, 65536u, "%s", text);
+        snprintf(text, sizeof text, "%s 0\n", keys[i]);
+        snprintf(want, sizeof want, "t.conf:1: %s 0 is out of range (1 to 65536)", keys[i]);
+        load_fails(text, want);
+        snprintf(text, sizeof text, "%s 65537\n", keys[i]);
+        snprintf(want, sizeof want, "t.conf:1: %s 65537 is out of range (1 to 65536)", keys[i]);
+        load_fails(text, want);
+    }
+}

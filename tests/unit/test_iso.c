@@ -423,6 +423,93 @@ Test(iso, random_volumes_are_closed_whatever_the_cases)
     cr_assert_eq(tab[0].ntri + tab[255].ntri, 0);
 }
 
+/* ---- normals ---- */
+
+/* A solid ball of channel-3 voxels, each with the radial direction at its
+ * centre as its normal (outwards, as the voxelizers store them). */
+static uint32_t radial_surface(void *ud, double x, double y, double z)
+{
+    double R = *(const double *)ud;
+    if (x * x + y * y + z * z >= R * R) return 0;
+    const double n[3] = {x, y, z};
+    return voxel_surface(n);
+}
+
+/* The worst angle (degrees) between a normal and the radial direction at
+ * its vertex, over n vertices. */
+static double worst_angle(const float *pos, const float *nrm, uint64_t n)
+{
+    double worst = 0;
+    for (uint64_t i = 0; i < n; i++) {
+        const float *p = pos + 3 * i, *q = nrm + 3 * i;
+        double lp = sqrt((double)p[0] * p[0] + (double)p[1] * p[1] + (double)p[2] * p[2]);
+        double lq = sqrt((double)q[0] * q[0] + (double)q[1] * q[1] + (double)q[2] * q[2]);
+        double c = ((double)p[0] * q[0] + (double)p[1] * q[1] + (double)p[2] * q[2]) / (lp * lq);
+        double a = lq > 0 ? acos(fmax(-1, fmin(1, c))) * 180 / M_PI : 180;
+        if (a > worst) worst = a;
+    }
+    return worst;
+}
+
+/* The OBJ that vox mesh writes (iso_write) read back: its v and vn lines,
+ * one normal per vertex. */
+static double worst_angle_in_obj(const iso_mesh *m)
+{
+    FILE *f = tmpfile();
+    cr_assert(f);
+    cr_assert_eq(iso_write(fileno(f), m, ISO_FMT_OBJ, "normals"), 0);
+    rewind(f);
+    float *pos = malloc(m->n_vertices * 3 * sizeof *pos), *nrm = malloc(m->n_vertices * 3 * sizeof *nrm);
+    uint64_t nv = 0, nn = 0;
+    char line[256];
+    while (fgets(line, sizeof line, f)) {
+        float a, b, c;
+        if (sscanf(line, "v %f %f %f", &a, &b, &c) == 3 && nv < m->n_vertices)
+            pos[3 * nv] = a, pos[3 * nv + 1] = b, pos[3 * nv + 2] = c, nv++;
+        else if (sscanf(line, "vn %f %f %f", &a, &b, &c) == 3 && nn < m->n_vertices)
+            nrm[3 * nn] = a, nrm[3 * nn + 1] = b, nrm[3 * nn + 2] = c, nn++;
+    }
+    fclose(f);
+    cr_assert_eq(nv, m->n_vertices, "the OBJ has %llu vertices of %llu", (unsigned long long)nv,
+                 (unsigned long long)m->n_vertices);
+    cr_assert_eq(nn, m->n_vertices, "the OBJ has %llu normals for %llu vertices",
+                 (unsigned long long)nn, (unsigned long long)m->n_vertices);
+    double w = worst_angle(pos, nrm, nv);
+    free(pos);
+    free(nrm);
+    return w;
+}
+
+/* Every vertex normal, in the mesh and in the OBJ written from it, points
+ * along the radius at the vertex.  Level 0: a vertex lies on an edge from
+ * an occupied voxel's centre c, within a voxel h of it, and takes c's
+ * normal (the empty end weighs 0), so it is off the radial direction at the
+ * vertex by at most asin(h / |c|) = 3.9 degrees here (|c| > R - h), plus the
+ * 12-bit packing's 0.1: the bound is 5.  Level 1: the blend of the two
+ * ends' merged normals, each within the angle the 2h-voxel subtends: at
+ * most about 2 asin(2h / (R - 2h)) = 15.8 degrees; the bound is 16.  A sign
+ * lost in the blend or the normal turned inwards is off by far more. */
+Test(iso, normals_point_along_the_radius)
+{
+    double R = 0.7;
+    vol_spec s = {{48, 48, 48}, 8, 32, VOXEL_CH_SURFACE, 2.0 / 48, {-1, -1, -1}};
+    vod_file *f = make_vod(&s, radial_surface, &R);
+    static const double bound[2] = {5, 16};
+    for (int level = 0; level < 2; level++) {
+        iso_mesh m;
+        polygonize(f, 127, level, NULL, NULL, 0, &m);
+        cr_assert(m.nrm, "level %d: no normals from channel 3", level);
+        cr_assert_gt(m.n_vertices, 100);
+        double w = worst_angle(m.pos, m.nrm, m.n_vertices), wf = worst_angle_in_obj(&m);
+        fprintf(stderr, "NOTE: iso normals level %d: worst %.2f degrees off the radius (OBJ %.2f), "
+                        "bound %.0f\n", level, w, wf, bound[level]);
+        cr_assert_leq(w, bound[level], "level %d: a normal %.2f degrees off the radius", level, w);
+        cr_assert_leq(wf, bound[level], "level %d: the OBJ's normal %.2f degrees off", level, wf);
+        iso_mesh_free(&m);
+    }
+    vod_close(f);
+}
+
 /* ---- levels ---- */
 
 Test(iso, every_mip_level_is_closed_and_coarser)
@@ -473,6 +560,69 @@ Test(iso, adaptive_levels_have_no_boundary_at_any_radii)
     cr_assert_lt(m.n_triangles, full.n_triangles / 4);
     iso_mesh_free(&m);
     iso_mesh_free(&full);
+    vod_close(f);
+}
+
+/* The accuracy of coarse and adaptive levels of detail, on a sphere.
+ * Mip level l: every vertex within a quarter of a level-l voxel (2^l h / 4)
+ * of the analytic sphere, the enclosed volume within that shell's volume
+ * of the exact one: a level whose voxels sat half a voxel off (the usual
+ * slip, 2^(l-1) h) would be twice the bound away.  Adaptive levels: a vertex
+ * within radii[0] of the centre lies in a block that touches the first
+ * sphere, so at level 0 (less 2h: the wall that closes the level-0 region
+ * lies within a voxel or so of its boundary): within h / 2 of the sphere as
+ * at level 0.  Elsewhere the regions' walls lie inside the solid, so only
+ * how far a vertex is outside the sphere is bounded (the coarsest level's
+ * quarter voxel), and the volume, walls and all, within that shell. */
+static double worst_dist(const iso_mesh *m, const ramp *r, const double *c, double within,
+                         int outside_only)
+{
+    double worst = 0;
+    for (uint64_t i = 0; i < m->n_vertices; i++) {
+        const float *p = m->pos + 3 * i;
+        if (c && hypot(hypot(p[0] - c[0], p[1] - c[1]), p[2] - c[2]) > within) continue;
+        double d = r->dist(r->ud, p[0], p[1], p[2]);
+        d = outside_only ? d : fabs(d);
+        if (d > worst) worst = d;
+    }
+    return worst;
+}
+
+Test(iso, coarse_and_adaptive_levels_stay_near_the_surface)
+{
+    double R = 0.8;
+    vol_spec s = cube_spec(64, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    double exact = 4.0 / 3.0 * M_PI * R * R * R;
+    for (int l = 0; l < 3; l++) {
+        iso_mesh m;
+        polygonize(f, 127, l, NULL, NULL, 0, &m);
+        double tol = l ? 0.25 * ldexp(s.h, l) : 0.5 * s.h, w = worst_dist(&m, &r, NULL, 0, 0);
+        double v = check(&m).volume, shell = 4.0 * M_PI * R * R * tol;
+        fprintf(stderr, "NOTE: iso level %d: worst vertex %.3f h from the sphere (bound %.2f h), "
+                        "volume off by %.4f (bound %.4f)\n", l, w / s.h, tol / s.h,
+                fabs(v - exact), shell);
+        cr_assert_leq(w, tol, "level %d: a vertex %g from the sphere (allowed %g)", l, w, tol);
+        cr_assert_leq(fabs(v - exact), shell, "level %d: volume %g, exact %g", l, v, exact);
+        iso_mesh_free(&m);
+    }
+    double c[3] = {0.8, 0, 0}, radii[2] = {0.3, 0.6};
+    iso_params p;
+    char err[256];
+    cr_assert_eq(iso_params_make(f, 127, 0, c, radii, 2, &p, err, sizeof err), 0, "%s", err);
+    iso_mesh m;
+    polygonize(f, 127, 0, c, radii, 2, &m);
+    double fine = worst_dist(&m, &r, c, radii[0] - 2 * s.h, 0);
+    double out = worst_dist(&m, &r, NULL, 0, 1), top = 0.25 * ldexp(s.h, (int)p.lod_top);
+    double v = check(&m).volume, shell = 4.0 * M_PI * R * R * top;
+    fprintf(stderr, "NOTE: iso adaptive (levels 0 to %u): worst vertex %.3f h near the centre "
+                    "(bound 0.5 h), %.3f h outside (bound %.2f h), volume off by %.4f (bound %.4f)\n",
+            p.lod_top, fine / s.h, out / s.h, top / s.h, fabs(v - exact), shell);
+    cr_assert_leq(fine, 0.5 * s.h, "a vertex near the centre %g from the sphere", fine);
+    cr_assert_leq(out, top, "a vertex %g outside the sphere (allowed %g)", out, top);
+    cr_assert_leq(fabs(v - exact), shell, "adaptive: volume %g, exact %g", v, exact);
+    iso_mesh_free(&m);
     vod_close(f);
 }
 

@@ -5,7 +5,9 @@
  * typed, at the right stage. */
 #include <criterion/criterion.h>
 #include <errno.h>
+#include <math.h>
 #include <signal.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -280,4 +282,145 @@ Test(mesh_engine, repair_runs_only_where_the_mesh_is_open)
     free(h2.p);
     engine_destroy(e);
     shape_free(&s);
+}
+
+/* ---- the grid, from the mesh's coordinates (docs/cli.md, mesh jobs) ----
+ * With the mesh's bounding box as domain (fit; the CLI's default), --res N
+ * voxels span the longest side of the box grown by --pad voxels each side:
+ * the voxel size is the longest side over N - 2 pad, the origin the box's
+ * low corner less pad voxels, and the other axes get as many voxels as
+ * cover the grown box.  With --bbox (no fit), N voxels span the box's
+ * longest side from its low corner.  The expected grid is computed here
+ * from the vertices, never from the grid the code returns, and held
+ * against the report, the file's trailer and dims, and every voxel of the
+ * file (a voxel is set exactly when its centre, placed by the expected
+ * grid, is inside the box mesh; the sizes below keep every face at least
+ * 0.05 voxel from a centre, and every axis's cover 0.05 voxel from a whole
+ * number, so rounding decides nothing). */
+typedef struct {
+    double vs, lo[3];
+    uint32_t dims[3];
+} want_grid;
+
+static want_grid expect_fit(const float lo[3], const float hi[3], uint32_t res, uint32_t pad)
+{
+    want_grid w;
+    double ext = 0;
+    for (int a = 0; a < 3; a++) ext = fmax(ext, (double)hi[a] - lo[a]);
+    w.vs = ext / (res - 2.0 * pad);
+    for (int a = 0; a < 3; a++) {
+        double span = ((double)hi[a] - lo[a]) / w.vs + 2.0 * pad; /* voxels */
+        w.lo[a] = lo[a] - pad * w.vs;
+        w.dims[a] = (uint32_t)ceil(span - 1e-9);
+        cr_assert(fabs(span - round(span)) > 0.05 || fabs(span - res) < 1e-9,
+                  "the test's sizes: axis %d spans %.4f voxels", a, span);
+    }
+    return w;
+}
+
+static want_grid expect_bbox(const double lo[3], const double hi[3], uint32_t res)
+{
+    want_grid w;
+    double ext = 0;
+    for (int a = 0; a < 3; a++) ext = fmax(ext, hi[a] - lo[a]);
+    w.vs = ext / res;
+    for (int a = 0; a < 3; a++) {
+        double span = (hi[a] - lo[a]) / w.vs;
+        w.lo[a] = lo[a];
+        w.dims[a] = (uint32_t)ceil(span - 1e-9);
+        cr_assert(fabs(span - round(span)) > 0.05 || span == round(span),
+                  "the test's sizes: axis %d spans %.4f voxels", a, span);
+    }
+    return w;
+}
+
+/* The job's report, file and voxels against the expected grid w. */
+static void check_grid(const pipeline_job *job, const want_grid *w, const float blo[3],
+                       const float bhi[3], const char *what)
+{
+    /* a face this close to a centre would leave the voxel to rounding */
+    for (int a = 0; a < 3; a++)
+        for (int side = 0; side < 2; side++) {
+            double f = ((double)(side ? bhi[a] : blo[a]) - w->lo[a]) / w->vs - 0.5;
+            cr_assert_gt(fabs(f - round(f)), 0.05, "%s: the test's sizes, axis %d", what, a);
+        }
+    pipeline_report r;
+    vod_membuf mb = run(NULL, job, &r);
+    const double tol = 1e-9 * w->vs;
+    cr_assert(fabs(r.grid.vs - w->vs) < tol, "%s: voxel size %.17g, want %.17g", what,
+              r.grid.vs, w->vs);
+    for (int a = 0; a < 3; a++) {
+        cr_assert(fabs(r.grid.lo[a] - w->lo[a]) < tol, "%s: origin %d %.17g, want %.17g", what,
+                  a, r.grid.lo[a], w->lo[a]);
+        cr_assert_eq(r.grid.res[a], w->dims[a], "%s: axis %d has %u voxels, want %u", what, a,
+                     r.grid.res[a], w->dims[a]);
+    }
+    vod_file *f;
+    char err[256];
+    cr_assert_eq(vod_read(mb.p, mb.n, &f, err, sizeof err), 0, "%s", err);
+    const vod_info *in = vod_get_info(f);
+    uint32_t dims[3];
+    cr_assert_eq(vod_level_dims(f, 0, dims), 0);
+    for (int a = 0; a < 3; a++) {
+        /* the trailer's floats: within their rounding */
+        cr_assert(fabs(in->origin[a] - w->lo[a]) <= 1e-6 * (fabs(w->lo[a]) + w->vs), "%s: file origin %d %.9g, want %.9g",
+                  what, a, in->origin[a], w->lo[a]);
+        cr_assert(fabs(in->voxel_scale[a] - w->vs) <= 1e-6 * w->vs, "%s: file voxel %d %.9g, want %.9g",
+                  what, a, in->voxel_scale[a], w->vs);
+        cr_assert_eq(dims[a], w->dims[a], "%s: file axis %d has %u voxels, want %u", what, a,
+                     dims[a], w->dims[a]);
+    }
+    uint64_t set = 0;
+    for (uint32_t z = 0; z < w->dims[2]; z++)
+        for (uint32_t y = 0; y < w->dims[1]; y++)
+            for (uint32_t x = 0; x < w->dims[0]; x++) {
+                uint32_t X[3] = {x, y, z};
+                int in_box = 1;
+                for (int a = 0; a < 3; a++) {
+                    double c = w->lo[a] + (X[a] + 0.5) * w->vs;
+                    in_box &= c > blo[a] && c < bhi[a];
+                }
+                int got = vod_voxel(f, 0, x, y, z) != 0;
+                set += got;
+                cr_assert_eq(got, in_box, "%s: voxel (%u,%u,%u) is %d", what, x, y, z, got);
+            }
+    cr_assert_gt(set, 100, "%s: only %llu voxels set", what, (unsigned long long)set);
+    vod_close(f);
+    free(mb.p);
+}
+
+Test(mesh_engine, the_grid_from_the_mesh_coordinates)
+{
+    /* the box spans 0.83 x 0.553 x 0.366 from (0.11, -0.23, 0.31): x longest */
+    float lo[3] = {0.11f, -0.23f, 0.31f}, hi[3] = {0.94f, 0.323f, 0.676f};
+    shape sh_m;
+    mesh m = box_mesh(&sh_m, lo, hi);
+    static const uint32_t cases[][2] = {{40, 1}, {40, 0}, {37, 3}, {50, 6}};
+    for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
+        pipeline_job job = mesh_job(&m, cases[i][0], VOXEL_CH_OCCUPANCY);
+        job.mesh.pad = cases[i][1];
+        want_grid w = expect_fit(m.lo, m.hi, cases[i][0], cases[i][1]);
+        char what[64];
+        snprintf(what, sizeof what, "res %u pad %u", cases[i][0], cases[i][1]);
+        check_grid(&job, &w, m.lo, m.hi, what);
+    }
+    /* --bbox: the box given, its longest side (z here) res voxels, the
+     * mesh cut by it */
+    static const double blo[3] = {0.3, -0.1, 0.2}, bhi[3] = {0.8, 0.25, 1.0};
+    pipeline_job job = mesh_job(&m, 45, VOXEL_CH_OCCUPANCY);
+    job.mesh.fit = 0;
+    memcpy(job.lo, blo, sizeof blo);
+    memcpy(job.hi, bhi, sizeof bhi);
+    want_grid w = expect_bbox(blo, bhi, 45);
+    check_grid(&job, &w, m.lo, m.hi, "bbox");
+    /* a box whose sides are whole numbers of voxels, exactly (1, 1/2 and
+     * 1/4 over voxels of 1/32): 32 x 16 x 8 voxels, no voxel more */
+    static const double elo[3] = {0.140625, -0.25, 0.375}, ehi[3] = {1.140625, 0.25, 0.625};
+    memcpy(job.lo, elo, sizeof elo);
+    memcpy(job.hi, ehi, sizeof ehi);
+    job.res = 32;
+    w = expect_bbox(elo, ehi, 32);
+    cr_assert(w.dims[0] == 32 && w.dims[1] == 16 && w.dims[2] == 8);
+    check_grid(&job, &w, m.lo, m.hi, "exact bbox");
+    shape_free(&sh_m);
 }

@@ -640,3 +640,59 @@ Test(render, vod_voxel_scale_and_origin_place_the_splats)
     }
     vod_close(f);
 }
+
+/* The camera against one written here from docs/cli.md: azimuth about +z
+ * from +x, elevation above the xy-plane, the camera looking at the volume's
+ * centre, +z up on the picture and the view not mirrored (right = forward x
+ * up).  A 3^3 blob off the centre must appear, seen from each view, off the
+ * picture's centre in the direction (d . right, -d . up) the test computes
+ * (rows grow downwards), within 2 degrees (the volume box framed,
+ * fit_volume, so that the picture's centre is the volume's). */
+static void camera_axes(double az, double el, double right[3], double up[3])
+{
+    double a = az * M_PI / 180, e = el * M_PI / 180;
+    double f[3] = {-cos(e) * cos(a), -cos(e) * sin(a), -sin(e)}; /* forward */
+    double r[3] = {f[1], -f[0], 0}; /* f x (0, 0, 1) */
+    double lr = hypot(r[0], r[1]);
+    for (int k = 0; k < 3; k++) right[k] = r[k] / lr;
+    up[0] = right[1] * f[2] - right[2] * f[1];
+    up[1] = right[2] * f[0] - right[0] * f[2];
+    up[2] = right[0] * f[1] - right[1] * f[0];
+}
+
+Test(render, the_camera_options_place_a_point_where_the_test_computes)
+{
+    static octree t;
+    octree_init(&t, arena, CAP, 6);
+    const double d[3] = {12, -7, 9}; /* the blob's centre off the volume's (32, 32, 32) */
+    const double n[3] = {0, 0, 1};
+    for (int z = -1; z <= 1; z++)
+        for (int y = -1; y <= 1; y++)
+            for (int x = -1; x <= 1; x++)
+                cr_assert_eq(octree_store(&t, (uint32_t)(31 + d[0] + x), (uint32_t)(31 + d[1] + y),
+                                          (uint32_t)(31 + d[2] + z), voxel_surface(n)), 0);
+    /* voxel 31 + k spans 31 + k .. 32 + k: its centre is 32 + k - 0.5; the
+     * blob's centre is that of voxel 31 + d, at 32 + d - 0.5 */
+    const double views[][2] = {{0, 0}, {90, 0}, {30, 20}, {200, -30}, {45, 60}, {-120, 10}};
+    for (size_t v = 0; v < sizeof views / sizeof *views; v++) {
+        render_opts o = opts(301, 301, views[v][0], views[v][1]);
+        o.fit_volume = 1;
+        render_image img;
+        cr_assert_eq(render_octree(&t, ORIGIN0, UNIT, NULL, &o, &img), 0);
+        cover c = coverage(&img);
+        cr_assert_gt(c.n, 0, "view %zu: the blob is not in the picture", v);
+        double right[3], up[3], p[3];
+        camera_axes(views[v][0], views[v][1], right, up);
+        for (int k = 0; k < 3; k++) p[k] = d[k] - 0.5;
+        double wx = p[0] * right[0] + p[1] * right[1] + p[2] * right[2];
+        double wy = -(p[0] * up[0] + p[1] * up[1] + p[2] * up[2]);
+        double gx = c.mx - 150.5, gy = c.my - 150.5;
+        double angle = fabs(atan2(wx * gy - wy * gx, wx * gx + wy * gy)) * 180 / M_PI;
+        cr_assert_leq(angle, 2.0,
+                      "view %zu (azimuth %g, elevation %g): the blob at (%.1f, %.1f) px off the "
+                      "centre, the camera puts it at (%.1f, %.1f) x scale: %.1f degrees apart",
+                      v, views[v][0], views[v][1], gx, gy, wx, wy, angle);
+        cr_assert_gt(hypot(gx, gy), 10, "view %zu: the blob sits at the centre", v);
+        render_image_free(&img);
+    }
+}
