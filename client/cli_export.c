@@ -229,14 +229,18 @@ static void print_vec(FILE *fp, const char *sep, const double v[3])
 }
 
 /* NRRD0004: the space origin is the first sample's centre.  With normals a
- * 4-D float array: (occupancy byte, nx, ny, nz) per voxel, fastest. */
+ * 4-D float array: (occupancy byte, nx, ny, nz) per voxel, fastest, its
+ * axis of kind 4-vector with no space direction ("none").  "space:" comes
+ * after "sizes:": VTK's vtkNrrdReader (ParaView's) takes "space" to set the
+ * dimension to 3 and reads only that many sizes after it; NRRD wants it
+ * only before the per-axis space fields (directions, origin). */
 static int write_nrrd(const export_box *b, const export_opts *o, sink *s)
 {
     double c[3];
     for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
     int v = b->normals;
     fprintf(s->fp, "NRRD0004\n# vox export of %s, level %d, channel %u\n"
-            "type: %s\ndimension: %d\nspace: 3D-right-handed\nsizes: %s%u %u %u\n"
+            "type: %s\ndimension: %d\nsizes: %s%u %u %u\nspace: 3D-right-handed\n"
             "space directions: %s(%.17g,0,0) (0,%.17g,0) (0,0,%.17g)\n"
             "centerings: %scell cell cell\nkinds: %sdomain domain domain\n%s"
             "encoding: %s\nspace origin: (", o->in, b->level, b->in->channel,
