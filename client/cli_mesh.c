@@ -204,14 +204,14 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
 
 static int write_mesh(const mesh_opts *o, const iso_mesh *m)
 {
-    char tmp[4096], comment[200];
+    char comment[200];
     snprintf(comment, sizeof comment, "vox mesh, iso %u", o->iso);
-    int fd = outfile_create(o->out, tmp, sizeof tmp), rc = fd < 0 ? fd : 0;
+    outfile f;
+    int rc = outfile_open(&f, o->out);
     if (!rc) {
-        rc = iso_write(fd, m, o->fmt, comment);
-        if (close(fd) && !rc) rc = -errno;
-        if (!rc && rename(tmp, o->out)) rc = -errno;
-        if (rc) unlink(tmp);
+        rc = iso_write(f.fd, m, o->fmt, comment);
+        if (rc) outfile_abort(&f);
+        else rc = outfile_commit(&f, o->out);
     }
     if (rc) cli_error("cannot write %s: %s", o->out, strerror(-rc));
     return rc;
