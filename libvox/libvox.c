@@ -1465,7 +1465,8 @@ int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progr
     if (rc) outfile_abort(&f);
     else rc = outfile_commit(&f, path);
     if (rc) {
-        if (j->result.code) copy_error(err, &j->result);
+        /* the file's own failure (a full disk) names the file */
+        if (j->result.code && !j->local_err) copy_error(err, &j->result);
         else set_error(err, rc, job_id, "cannot write %s: %s", path, strerror(-rc));
     } else if (sum) {
         *sum = j->sum;
