@@ -123,10 +123,12 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
         return -EINVAL;
     }
     engine_opts eo = {.workers = (int)workers, .cpus = ncpus ? cpu : NULL,
-                      .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20};
+                      .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20,
+                      .shm_option = "--shm-size"};
     char err[256] = "";
     int rc = engine_create(&eo, e, err, sizeof err);
-    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
+    if (rc == -ENOSPC) cli_error("cannot start the engine: %s (--shm-size MIB sets it)", err);
+    else if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
     return rc;
 }
 

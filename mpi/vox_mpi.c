@@ -289,7 +289,8 @@ static int slave_run(slave *s, const wire_job *j)
     if (s->st.workers) {
         engine_opts eo = {.workers = (int)s->st.workers, .cpus = ncpus > 0 ? cpus : NULL,
                           .ncpus = ncpus > 0 ? ncpus : 0,
-                          .shm_bytes = (size_t)j->shm_mib << 20};
+                          .shm_bytes = (size_t)j->shm_mib << 20,
+                          .shm_option = "--shm-size"};
         char err[256] = "", m[400];
         int rc = engine_create(&eo, &e, err, sizeof err);
         if (rc) {

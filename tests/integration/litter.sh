@@ -40,8 +40,9 @@ one_run() {
     left=$(cd "$D" && ls -A | grep -v '^o\.vod$')
     if [ -n "$left" ]; then echo "$kind $sig at ${ms} ms (named=$named): left $left"; return; fi
     if [ "$RAN_RC" -eq 0 ]; then
-        [ -f "$out" ] && "$VOX" info "$out" >/dev/null 2>&1 ||
-            echo "$kind $sig at ${ms} ms (named=$named): exit 0 but no whole $out"
+        [ -f "$out" ] && "$VOX" info "$out" >"$TMP/info.log" 2>&1 ||
+            echo "$kind $sig at ${ms} ms (named=$named): exit 0 but no whole $out:" \
+                "$(ls -l "$out" 2>&1) $(tail -1 "$TMP/info.log")"
     elif [ -e "$out" ]; then
         echo "$kind $sig at ${ms} ms (named=$named): exit $RAN_RC and $out exists"
     fi
