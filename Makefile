@@ -91,11 +91,17 @@ LIB_SRC := $(filter-out client/vox.c server/voxd.c mpi/vox_mpi.c,$(LIB_SRC))
 LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c
 LIBVOX_OBJ = $(LIBVOX_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIBVOX     := $(BUILD)/libvox.a
+# ... and a shared library of the same sources built position-independent
+# (in $(BUILD)/pic), exporting vox.h's calls alone (libvox/libvox.map);
+# its soname, libvox.so.$(LIBVOX_MAJOR), changes when vox.h's interface does.
+LIBVOX_MAJOR := 1
+LIBVOX_SO    := $(BUILD)/libvox.so.$(LIBVOX_MAJOR).0.0
+LIBVOX_PIC    = $(LIBVOX_SRC:%.c=$(BUILD)/pic/%.o) $(PROTO_C:$(BUILD)/%.c=$(BUILD)/pic/%.o)
 PROTO   := $(wildcard proto/*.proto)
 PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
 LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIB     := $(BUILD)/libvoxd.a
-BINS    := $(BUILD)/vox $(BUILD)/vox-vdb.so $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(BUILD)/libvox.pc \
+BINS    := $(BUILD)/vox $(BUILD)/vox-vdb.so $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(LIBVOX_SO) $(BUILD)/libvox.pc \
            $(BUILD)/vox_mpi
 
 UNIT_SRC := $(wildcard tests/unit/test_*.c)
@@ -126,6 +132,19 @@ $(LIB): $(LIB_OBJ)
 $(LIBVOX): $(LIBVOX_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
+$(BUILD)/pic/proto/%.pb-c.o: $(BUILD)/proto/%.pb-c.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CSTD) $(OPT) -fPIC $(INC) -c $< -o $@
+$(BUILD)/pic/%.o: %.c | $(PROTO_C)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -fPIC $(call modinc,$(firstword $(subst /, ,$*))) -c $< -o $@
+# libvox.so.1 (the soname) and libvox.so (what -lvox finds) beside it, as
+# make install lays them out.
+$(LIBVOX_SO): $(LIBVOX_PIC) libvox/libvox.map
+	$(CC) -shared -Wl,-soname,libvox.so.$(LIBVOX_MAJOR) -Wl,--version-script=libvox/libvox.map -Wl,--as-needed \
+	  $(LDFLAGS) $(LIBVOX_PIC) -o $@ -lprotobuf-c -lz -lm -lpthread
+	ln -sf $(notdir $@) $(BUILD)/libvox.so.$(LIBVOX_MAJOR)
+	ln -sf libvox.so.$(LIBVOX_MAJOR) $(BUILD)/libvox.so
 # The prefix is the one given to make install (the .pc file is rewritten
 # there); the build's copy names the default.
 $(BUILD)/libvox.pc: libvox/libvox.pc.in
@@ -254,13 +273,17 @@ bench-compare: deps all
 clean:
 	rm -rf build
 
--include $(LIB_OBJ:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d $(BUILD)/client/vdb_out.d
+-include $(LIB_OBJ:.o=.d) $(LIBVOX_PIC:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d $(BUILD)/client/vdb_out.d
 
 # ---------------------------------------------------------------- install
 # make install [PREFIX=/usr/local] [DESTDIR=]: vox and vox_mpi in PREFIX/bin; voxd, a
 # system daemon, in PREFIX/sbin; the manual pages vox(1) and voxd(8); the
 # systemd unit in PREFIX/lib/systemd/system with its paths set to the
-# install's; the documentation in PREFIX/share/doc/voxd; and the commented
+# install's; the documentation in PREFIX/share/doc/voxd; libvox (vox.h,
+# libvox.a, libvox.so.1 with its links, libvox.pc); the Python reader voxd
+# in PYTHONDIR, a directory of the system python3's path (Debian's layout:
+# lib/python3/dist-packages under /usr, lib/python3.X/dist-packages under
+# any other prefix); vox's bash completion in BASHCOMPDIR; and the commented
 # configuration in SYSCONFDIR/voxd/voxd.conf, never over an existing one.
 # SYSCONFDIR is /etc whatever the prefix: it is where voxd and vox look for
 # the configuration by default.  make uninstall removes all of it, the
@@ -272,6 +295,11 @@ DOCDIR     ?= $(PREFIX)/share/doc/voxd
 UNITDIR    ?= $(PREFIX)/lib/systemd/system
 SYSCONFDIR ?= /etc
 INSTALL    ?= install
+PYTHON     ?= $(firstword $(wildcard /usr/bin/python3) python3)
+PYTHONDIR  ?= $(if $(filter /usr,$(PREFIX)),$(PREFIX)/lib/python3/dist-packages,$(PREFIX)/lib/python$(shell \
+                $(PYTHON) -c 'import sys; print("%d.%d" % sys.version_info[:2])')/dist-packages)
+BASHCOMPDIR ?= $(PREFIX)/share/bash-completion/completions
+PY_FILES   := $(wildcard python/voxd/*.py)
 DOC_FILES  := $(wildcard docs/*.md docs/*.png)
 CONF_DEST   = $(DESTDIR)$(SYSCONFDIR)/voxd/voxd.conf
 
@@ -295,6 +323,12 @@ install: all
 	$(INSTALL) -m 644 $(DOC_FILES) "$(DESTDIR)$(DOCDIR)/docs/"
 	$(INSTALL) -d "$(DESTDIR)$(PREFIX)/lib/pkgconfig" "$(DESTDIR)$(PREFIX)/include"
 	$(INSTALL) -m 644 $(LIBVOX) "$(DESTDIR)$(PREFIX)/lib/libvox.a"
+	$(INSTALL) -m 755 $(LIBVOX_SO) "$(DESTDIR)$(PREFIX)/lib/$(notdir $(LIBVOX_SO))"
+	ln -sf $(notdir $(LIBVOX_SO)) "$(DESTDIR)$(PREFIX)/lib/libvox.so.$(LIBVOX_MAJOR)"
+	ln -sf libvox.so.$(LIBVOX_MAJOR) "$(DESTDIR)$(PREFIX)/lib/libvox.so"
+	$(INSTALL) -d "$(DESTDIR)$(PYTHONDIR)/voxd" "$(DESTDIR)$(BASHCOMPDIR)"
+	$(INSTALL) -m 644 $(PY_FILES) "$(DESTDIR)$(PYTHONDIR)/voxd/"
+	$(INSTALL) -m 644 config/vox.bash-completion "$(DESTDIR)$(BASHCOMPDIR)/vox"
 	$(INSTALL) -m 644 libvox/vox.h "$(DESTDIR)$(PREFIX)/include/vox.h"
 	$(INSTALL) -m 644 proto/vox_limits.h "$(DESTDIR)$(PREFIX)/include/vox_limits.h"
 	sed -e 's|@PREFIX@|$(PREFIX)|' libvox/libvox.pc.in >"$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc"
@@ -302,6 +336,7 @@ install: all
 	  echo "install: keeping the existing $(CONF_DEST) (the shipped one is config/voxd.conf)"; \
 	else echo "$(INSTALL) -m 644 config/voxd.conf $(CONF_DEST)"; \
 	  $(INSTALL) -m 644 config/voxd.conf "$(CONF_DEST)"; fi
+	@if [ -z "$(DESTDIR)" ] && command -v ldconfig >/dev/null; then echo ldconfig; ldconfig; fi
 
 uninstall:
 	rm -f "$(DESTDIR)$(BINDIR)/vox" "$(DESTDIR)$(BINDIR)/vox_mpi" "$(DESTDIR)$(SBINDIR)/voxd" \
@@ -309,10 +344,15 @@ uninstall:
 	  "$(DESTDIR)$(MANDIR)/man1/vox.1" "$(DESTDIR)$(MANDIR)/man8/voxd.8" \
 	  "$(DESTDIR)$(UNITDIR)/voxd.service" "$(DESTDIR)$(DOCDIR)/README.md" \
 	  "$(DESTDIR)$(PREFIX)/lib/libvox.a" "$(DESTDIR)$(PREFIX)/include/vox.h" \
+	  "$(DESTDIR)$(PREFIX)/lib/$(notdir $(LIBVOX_SO))" "$(DESTDIR)$(PREFIX)/lib/libvox.so.$(LIBVOX_MAJOR)" \
+	  "$(DESTDIR)$(PREFIX)/lib/libvox.so" "$(DESTDIR)$(BASHCOMPDIR)/vox" \
+	  $(PY_FILES:python/%="$(DESTDIR)$(PYTHONDIR)/%") \
 	  "$(DESTDIR)$(PREFIX)/include/vox_limits.h" \
 	  "$(DESTDIR)$(PREFIX)/lib/pkgconfig/libvox.pc" \
 	  $(DOC_FILES:docs/%="$(DESTDIR)$(DOCDIR)/docs/%")
-	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" "$(DESTDIR)$(PREFIX)/lib/voxd" 2>/dev/null || true
+	rm -rf "$(DESTDIR)$(PYTHONDIR)/voxd/__pycache__"
+	rmdir "$(DESTDIR)$(DOCDIR)/docs" "$(DESTDIR)$(DOCDIR)" "$(DESTDIR)$(PREFIX)/lib/voxd" \
+	  "$(DESTDIR)$(PYTHONDIR)/voxd" 2>/dev/null || true
 	@if cmp -s config/voxd.conf "$(CONF_DEST)"; then \
 	  echo "rm -f $(CONF_DEST)"; rm -f "$(CONF_DEST)"; \
 	  rmdir "$(DESTDIR)$(SYSCONFDIR)/voxd" 2>/dev/null || true; \

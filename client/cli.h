@@ -2,6 +2,7 @@
 #ifndef VOXD_CLI_H
 #define VOXD_CLI_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -118,6 +119,19 @@ uint32_t cli_cores(void);
  * (NULL: the engine's own placement) and a segment of shm_mib MiB (0: the
  * engine's default); errors said on stderr.  0 or a negative errno. */
 int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engine **e);
+/* ---- interrupts ---- */
+
+/* SIGINT and SIGTERM only set cli_interrupt to the signal's number (a
+ * second one ends vox at once); the commands that write a file poll it
+ * (the engine as its job's cancel flag, the writers between chunks), drop
+ * the file and end with cli_end_interrupted. */
+extern atomic_int cli_interrupt;
+void cli_catch_interrupts(void);
+/* The signal that came, 0 if none. */
+int cli_interrupted(void);
+/* "interrupted; OUT not written", then the process ends by the signal
+ * (its default action), as it would have without the handler. */
+_Noreturn void cli_end_interrupted(const char *out);
 /* Print "vox: " + message to stderr. */
 void cli_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 

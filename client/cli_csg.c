@@ -191,23 +191,24 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     job.vod.comp = o->comp;
     engine *e = NULL;
     if (o->workers && cli_start_engine(o->workers, NULL, 0, &e)) return CLI_EXIT_FAILED;
-    char tmp[4096];
-    int fd = outfile_create(o->out, tmp, sizeof tmp);
-    if (fd < 0) {
+    outfile f;
+    int rc = outfile_open(&f, o->out);
+    if (rc) {
         engine_destroy(e);
-        cli_error("%s: %s", o->out, strerror(-fd));
+        cli_error("%s: %s", o->out, strerror(-rc));
         return CLI_EXIT_FAILED;
     }
-    vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
+    cli_catch_interrupts();
+    job.cancel = &cli_interrupt;
+    vod_sink sink = {vod_fd_write, (void *)(intptr_t)f.fd};
     pipeline_report r;
-    int rc = pipeline_run(e, &job, &sink, &r);
+    rc = pipeline_run(e, &job, &sink, &r);
     engine_destroy(e);
     const char *why = rc ? r.err.message : NULL;
-    if (!rc && fsync(fd)) rc = -errno, why = strerror(errno);
-    if (close(fd) && !rc) rc = -errno, why = strerror(errno);
-    if (!rc && rename(tmp, o->out)) rc = -errno, why = strerror(errno);
+    if (rc || cli_interrupted()) outfile_abort(&f);
+    else if ((rc = outfile_commit(&f, o->out))) why = strerror(-rc);
+    if (cli_interrupted()) cli_end_interrupted(o->out);
     if (rc) {
-        unlink(tmp);
         cli_error("%s: %s", o->out, why);
         return r.err.failure == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }

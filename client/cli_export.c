@@ -180,9 +180,12 @@ static int make_box(const vod_file *f, const export_opts *o, export_box *b)
 
 /* ---- output ---- */
 
+/* A failed write keeps its errno (ENOSPC on a full disk); an interrupt
+ * stops the writing between chunks. */
 static void put(sink *s, const void *p, size_t n)
 {
-    if (!s->err && n && fwrite(p, 1, n, s->fp) != n) s->err = -EIO;
+    if (!s->err && cli_interrupted()) s->err = -ECANCELED;
+    if (!s->err && n && fwrite(p, 1, n, s->fp) != n) s->err = errno ? -errno : -EIO;
 }
 
 /* The box in z slabs of one brick (aligned to the bricks), x fastest. */
@@ -229,14 +232,18 @@ static void print_vec(FILE *fp, const char *sep, const double v[3])
 }
 
 /* NRRD0004: the space origin is the first sample's centre.  With normals a
- * 4-D float array: (occupancy byte, nx, ny, nz) per voxel, fastest. */
+ * 4-D float array: (occupancy byte, nx, ny, nz) per voxel, fastest, its
+ * axis of kind 4-vector with no space direction ("none").  "space:" comes
+ * after "sizes:": VTK's vtkNrrdReader (ParaView's) takes "space" to set the
+ * dimension to 3 and reads only that many sizes after it; NRRD wants it
+ * only before the per-axis space fields (directions, origin). */
 static int write_nrrd(const export_box *b, const export_opts *o, sink *s)
 {
     double c[3];
     for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
     int v = b->normals;
     fprintf(s->fp, "NRRD0004\n# vox export of %s, level %d, channel %u\n"
-            "type: %s\ndimension: %d\nspace: 3D-right-handed\nsizes: %s%u %u %u\n"
+            "type: %s\ndimension: %d\nsizes: %s%u %u %u\nspace: 3D-right-handed\n"
             "space directions: %s(%.17g,0,0) (0,%.17g,0) (0,0,%.17g)\n"
             "centerings: %scell cell cell\nkinds: %sdomain domain domain\n%s"
             "encoding: %s\nspace origin: (", o->in, b->level, b->in->channel,
@@ -381,12 +388,12 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
     }
 }
 
-/* OpenVDB writes by path: the temporary file's name is handed over. */
-static int write_vdb(const export_box *b, const export_opts *o, int fd, const char *tmp)
+/* OpenVDB writes by path: the output's name while it is open
+ * (outfile_name) is handed over. */
+static int write_vdb(const export_box *b, const export_opts *o, const outfile *f)
 {
     char err[512] = "";
-    close(fd);
-    int rc = export_vdb(b, o->in, tmp, err, sizeof err);
+    int rc = export_vdb(b, o->in, outfile_name(f), err, sizeof err);
     if (rc) {
         cli_error("%s", err);
         return -EINVAL; /* told */
@@ -394,26 +401,29 @@ static int write_vdb(const export_box *b, const export_opts *o, int fd, const ch
     return 0;
 }
 
-/* Written under a temporary name, renamed onto OUT when whole. */
+/* Made by outfile (unnamed until whole, then linked onto OUT); the stream
+ * is flushed but the descriptor left to outfile, which syncs and closes it. */
 static int write_out(const export_box *b, const export_opts *o)
 {
-    char tmp[4096];
-    int fd = outfile_create(o->out, tmp, sizeof tmp);
-    if (fd < 0) {
-        cli_error("%s: cannot create: %s", o->out, strerror(-fd));
+    outfile f;
+    cli_catch_interrupts();
+    int rc = outfile_open(&f, o->out);
+    if (rc) {
+        cli_error("%s: cannot create: %s", o->out, strerror(-rc));
         return CLI_EXIT_FAILED;
     }
-    int rc;
-    if (o->fmt == FMT_VDB) rc = write_vdb(b, o, fd, tmp);
+    if (o->fmt == FMT_VDB) rc = write_vdb(b, o, &f);
     else {
-        FILE *fp = fdopen(fd, "wb");
+        FILE *fp = fdopen(dup(f.fd), "wb");
         rc = fp ? write_format(b, o, fp) : -errno;
-        if (!fp) close(fd);
-        else if (fclose(fp) && !rc) rc = -errno;
+        errno = 0;
+        if (fp && fclose(fp) && !rc) rc = errno ? -errno : -EIO;
     }
-    if (!rc && rename(tmp, o->out)) rc = -errno;
+    if (!rc && cli_interrupted()) rc = -ECANCELED;
+    if (!rc) rc = outfile_commit(&f, o->out);
+    else outfile_abort(&f);
+    if (cli_interrupted()) cli_end_interrupted(o->out);
     if (rc) {
-        unlink(tmp);
         if (rc != -EINVAL) cli_error("%s: %s", o->out, strerror(-rc));
         return CLI_EXIT_FAILED;
     }

@@ -55,7 +55,8 @@ static const char usage_voxelize[] =
     OUTPUT_OPTIONS
     "      --compress-level N zlib level 1..12 (default 6): 1..6 voxd's one-pass encoder\n"
     "                         (bricks up to 64^3; libdeflate's for larger), 7..12 libdeflate's\n"
-    "      --shm-size MIB     shared memory for the engine (default 2048)\n"
+    "      --shm-size MIB     shared memory for the engine (default 2048, at most half\n"
+    "                         of /dev/shm's free space)\n"
     SHOW_OPTIONS
     "      --embedded         run the embedded engine even when voxd answers\n"
     "      --daemon           run the job on voxd; exit 3 when none answers\n"
@@ -102,7 +103,7 @@ void cli_job_defaults(cli_job_opts *o)
     memset(o, 0, sizeof *o);
     o->res = 256;
     o->workers = cli_cores();
-    o->shm_mib = 2048;
+    o->shm_mib = 0; /* the engine's default: 2048, at most half of /dev/shm's free space */
     o->schedule = ENGINE_SCHED_SUBTREE;
     o->mode = CLI_MODE_AUTO;
     vod_params_default(&o->vod);

@@ -38,7 +38,8 @@ static const char usage_text[] =
     "  -w, --workers N  worker processes, 0..256; 0 runs in this process\n"
     "                   (default: cores)\n"
     "  --cpus LIST      CPUs to pin the workers to\n"
-    "  --shm-size MIB   the engine's shared memory (default 2048)\n"
+    "  --shm-size MIB   the engine's shared memory (default 2048, at most half of\n"
+    "                   /dev/shm's free space)\n"
     "  -q, --quiet      no summary\n";
 
 static int parse_list(const char *s, double *v, uint32_t cap, uint32_t *n)
@@ -137,7 +138,7 @@ static int check_opts(mesh_opts *o)
 static int parse_opts(int argc, char **argv, mesh_opts *o)
 {
     *o = (mesh_opts){.iso = 127, .workers = cli_cores(),
-                     .shm_mib = 2048};
+                     .shm_mib = 0 /* the engine's default */};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
@@ -179,7 +180,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
     memset(r, 0, sizeof *r);
     if (o->workers) {
         if ((rc = cli_start_engine(o->workers, o->cpus, o->shm_mib, e))) return rc;
-        engine_iso_job job = {.file = f, .p = p};
+        engine_iso_job job = {.file = f, .p = p, .cancel = &cli_interrupt};
         rc = engine_iso(*e, &job, m, r);
         if (rc) snprintf(err, sizeof err, "%s", r->error);
     } else {
@@ -198,20 +199,25 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         free(mem);
         r->master_cpu = clock_thread_cpu() - c0;
     }
-    if (rc) cli_error("%s: marching cubes failed: %s", o->in, err[0] ? err : strerror(-rc));
+    if (rc && !cli_interrupted())
+        cli_error("%s: marching cubes failed: %s", o->in, err[0] ? err : strerror(-rc));
     return rc;
 }
 
 static int write_mesh(const mesh_opts *o, const iso_mesh *m)
 {
-    char tmp[4096], comment[200];
+    char comment[200];
     snprintf(comment, sizeof comment, "vox mesh, iso %u", o->iso);
-    int fd = outfile_create(o->out, tmp, sizeof tmp), rc = fd < 0 ? fd : 0;
+    outfile f;
+    int rc = outfile_open(&f, o->out);
     if (!rc) {
-        rc = iso_write(fd, m, o->fmt, comment);
-        if (close(fd) && !rc) rc = -errno;
-        if (!rc && rename(tmp, o->out)) rc = -errno;
-        if (rc) unlink(tmp);
+        rc = iso_write(f.fd, m, o->fmt, comment);
+        if (!rc && !cli_interrupted()) {
+            rc = outfile_commit(&f, o->out);
+        } else {
+            outfile_abort(&f);
+            if (cli_interrupted()) cli_end_interrupted(o->out);
+        }
     }
     if (rc) cli_error("cannot write %s: %s", o->out, strerror(-rc));
     return rc;
@@ -253,9 +259,11 @@ static int run(const mesh_opts *o)
     engine_result r;
     double t[4] = {tr, clock_now()};
     engine *e = NULL;
+    cli_catch_interrupts();
     rc = polygonize(o, f, &p, &m, &r, &e);
     t[2] = clock_now();
     vod_close(f);
+    if (cli_interrupted()) cli_end_interrupted(o->out);
     if (!rc) rc = write_mesh(o, &m);
     t[3] = clock_now();
     if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);

@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <signal.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -122,9 +123,51 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
         return -EINVAL;
     }
     engine_opts eo = {.workers = (int)workers, .cpus = ncpus ? cpu : NULL,
-                      .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20};
+                      .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20,
+                      .shm_option = "--shm-size"};
     char err[256] = "";
     int rc = engine_create(&eo, e, err, sizeof err);
-    if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
+    if (rc == -ENOSPC) cli_error("cannot start the engine: %s (--shm-size MIB sets it)", err);
+    else if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
     return rc;
+}
+
+/* ---------------------------------------------------------------- interrupts */
+
+atomic_int cli_interrupt;
+
+static void on_interrupt(int sig)
+{
+    /* relaxed: a flag the same process's loops poll (pairs with their
+     * relaxed loads); nothing else is published through it */
+    atomic_store_explicit(&cli_interrupt, sig, memory_order_relaxed);
+    /* a second one ends vox at once */
+    struct sigaction dfl = {.sa_handler = SIG_DFL};
+    sigaction(sig, &dfl, NULL);
+}
+
+void cli_catch_interrupts(void)
+{
+    /* without SA_RESTART: a blocking call returns EINTR and its loop sees
+     * the flag */
+    struct sigaction sa = {.sa_handler = on_interrupt};
+    sigemptyset(&sa.sa_mask);
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+}
+
+int cli_interrupted(void)
+{
+    return atomic_load_explicit(&cli_interrupt, memory_order_relaxed);
+}
+
+_Noreturn void cli_end_interrupted(const char *out)
+{
+    int sig = cli_interrupted();
+    cli_error("interrupted (%s); %s not written", sig == SIGINT ? "SIGINT" : "SIGTERM", out);
+    fflush(NULL);
+    struct sigaction dfl = {.sa_handler = SIG_DFL};
+    sigaction(sig, &dfl, NULL);
+    raise(sig);
+    _exit(128 + sig);
 }

@@ -23,27 +23,15 @@ typedef cli_job_opts voxelize_opts;
 
 /* The options both commands take, in both usages. */
 
-/* The file is written under a temporary name beside OUT and renamed into
- * place only when complete, so a failed job never leaves a partial file. */
-typedef struct {
-    char tmp[4096];
-    int fd;
-} out_file;
+/* The file is made by outfile (unnamed until complete, then linked into
+ * place), so a failed or interrupted job never leaves a partial file. */
 
-static int out_open(out_file *f, const char *path)
+/* The sink's writes, stopped by an interrupt: the VOD writer fails with
+ * -ECANCELED and the file is dropped. */
+static int write_or_stop(void *ud, const void *p, size_t n)
 {
-    f->fd = outfile_create(path, f->tmp, sizeof f->tmp);
-    return f->fd < 0 ? f->fd : 0;
-}
-
-static int out_commit(out_file *f, const char *path, int ok)
-{
-    int rc = 0;
-    if (ok && fsync(f->fd) != 0) rc = -errno;
-    if (close(f->fd) != 0 && rc == 0) rc = -errno;
-    if (ok && rc == 0 && rename(f->tmp, path) != 0) rc = -errno;
-    if (!ok || rc) unlink(f->tmp);
-    return rc;
+    if (cli_interrupted()) return -ECANCELED;
+    return vod_fd_write(ud, p, n);
 }
 
 static void on_progress(void *ud, const engine_progress *p)
@@ -77,10 +65,10 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
     engine *e = NULL;
     int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
     if (rc) return rc;
-    vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
+    vod_sink sink = {write_or_stop, (void *)(intptr_t)fd};
     rc = pipeline_run(e, job, &sink, r);
     engine_destroy(e);
-    if (rc == 0) return 0;
+    if (rc == 0 || cli_interrupted()) return rc;
     if (r->stage == PIPELINE_WRITE)
         cli_error("cannot write %s: %s", o->out, r->err.message);
     else
@@ -122,8 +110,10 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
         cli_error("%s", err);
         return 2;
     }
-    out_file f;
-    int rc = out_open(&f, o->out);
+    cli_catch_interrupts();
+    job->cancel = &cli_interrupt;
+    outfile f;
+    int rc = outfile_open(&f, o->out);
     if (rc) {
         cli_error("cannot create %s: %s", o->out, strerror(-rc));
         return 1;
@@ -135,9 +125,15 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     pipeline_report r;
     rc = run_job(o, job, f.fd, &r);
     progress_done(&pr);
-    int rc2 = out_commit(&f, o->out, rc == 0);
-    if (rc == 0 && rc2) cli_error("cannot write %s: %s", o->out, strerror(-rc2));
-    if (rc || rc2) return 1;
+    if (rc || cli_interrupted()) {
+        outfile_abort(&f);
+        if (cli_interrupted()) cli_end_interrupted(o->out);
+        return 1;
+    }
+    if ((rc = outfile_commit(&f, o->out))) {
+        cli_error("cannot write %s: %s", o->out, strerror(-rc));
+        return 1;
+    }
     if (!o->quiet) {
         print_summary(o, &r);
         print_mesh_summary(o, job, &r);

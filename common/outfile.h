@@ -1,18 +1,43 @@
-/* outfile — a result file that appears whole or not at all.
+/* outfile — a result file that appears whole or not at all, and leaves
+ * nothing behind when its writer dies.
  *
- * outfile_create() makes a new file beside PATH under a temporary name
- * (PATH.tmp.XXXXXX, created exclusively, mode 0666 less the umask like any
- * file the user writes); the caller writes it, then renames it onto PATH
- * when it is complete and unlinks it otherwise.  vox voxelize and libvox
- * both write their VOD files this way.
+ * outfile_open() makes the file in PATH's directory as an unnamed file
+ * (O_TMPFILE): until outfile_commit() links it into place nothing names
+ * it, so a writer killed by any signal, SIGKILL included, leaves no
+ * litter.  Where the file system refuses O_TMPFILE (an older overlayfs,
+ * NFS) it falls back to a name beside PATH (PATH.tmp.XXXXXX, created
+ * exclusively); outfile_abort() removes that one, and the callers catch
+ * SIGINT and SIGTERM so that it is removed on an interrupt too (only
+ * SIGKILL leaves it then).  Either way the file gets mode 0666 less the
+ * umask, like any file the user writes, and replaces PATH by a rename: a
+ * reader sees the old file or the new one, never a part.  vox's commands,
+ * vox_mpi and libvox write their results this way.
+ *
+ * VOXD_OUTFILE_NAMED=1 in the environment skips O_TMPFILE (the tests run
+ * the fallback with it).
  */
 #ifndef VOXD_OUTFILE_H
 #define VOXD_OUTFILE_H
 
+#include <limits.h>
 #include <stddef.h>
 
-/* The open fd (O_WRONLY, O_CLOEXEC) with its name in tmp, or a negative
- * errno (-ENAMETOOLONG when the name does not fit in cap). */
-int outfile_create(const char *path, char *tmp, size_t cap);
+typedef struct {
+    int fd;                   /* O_WRONLY, O_CLOEXEC; -1 once closed */
+    int named;                /* the fallback: the file has the name tmp */
+    char tmp[PATH_MAX + 32];  /* the fallback's name; else the /proc path */
+} outfile;
+
+/* Create the file for PATH: 0, or a negative errno (-ENAMETOOLONG when
+ * PATH is too long for the temporary name). */
+int outfile_open(outfile *f, const char *path);
+/* A name that opens the file for writing while it is open (the temporary
+ * name, or /proc/self/fd/N): for a library that writes by name. */
+const char *outfile_name(const outfile *f);
+/* fsync, close, then link the file into place as PATH (replacing any
+ * file there): 0, or a negative errno after which nothing is left. */
+int outfile_commit(outfile *f, const char *path);
+/* Close and remove it: nothing is left.  Async-signal-safe. */
+void outfile_abort(outfile *f);
 
 #endif

@@ -457,6 +457,7 @@ static int parse_line(parser *p, char *s, voxd_config *c)
     reason r;
     if (parse_value(o, val, c, &r)) return fail_at(p, p->line, "%s", r.why);
     p->set[i] = p->line;
+    if (o->off == offsetof(voxd_config, shm_size)) c->shm_size_set = 1;
     return 0;
 }
 

@@ -55,6 +55,9 @@ typedef struct {
     int n_cpus;                      /* 0 = automatic pinning */
     int cpus[CONFIG_MAX_CPUS];       /* worker i on cpus[i % n_cpus] */
     uint64_t shm_size;               /* 2G */
+    int shm_size_set;                /* shm_size is the file's; else the daemon
+                                        takes at most half of /dev/shm's free
+                                        space (engine_shm_default) */
     /* logging, process */
     char log_file[PATH_MAX];         /* "" = stderr */
     int log_level;                   /* LOG_LEVEL_INFO */

@@ -61,17 +61,24 @@ static size_t shm_free_bytes(void)
     return b > SIZE_MAX ? SIZE_MAX : (size_t)b;
 }
 
+size_t shm_default_bytes(uint32_t workers)
+{
+    /* Sparse, but what is touched must fit: take at most half the free
+     * space so other users of /dev/shm keep some (a container's 64 MiB
+     * gives 32), yet never less than the fixed part needs while that fits
+     * at all. */
+    size_t min = shm_min_bytes(workers), avail = shm_free_bytes();
+    size_t bytes = SHM_DEFAULT_BYTES;
+    if (avail != SIZE_MAX && bytes > avail / 2) bytes = avail / 2 / MIB * MIB;
+    if (bytes < min && (avail == SIZE_MAX || min <= avail)) bytes = (min + MIB - 1) / MIB * MIB;
+    return bytes;
+}
+
 static int choose_size(size_t *bytes, uint32_t workers, char *err,
                        size_t errlen)
 {
     size_t min = shm_min_bytes(workers), avail = shm_free_bytes();
-    if (*bytes == 0) {
-        /* Sparse, but what is touched must fit: take at most half the
-         * free space so other users of /dev/shm keep some. */
-        *bytes = SHM_DEFAULT_BYTES;
-        if (avail != SIZE_MAX && *bytes > avail / 2)
-            *bytes = avail / 2 / MIB * MIB;
-    }
+    if (*bytes == 0) *bytes = shm_default_bytes(workers);
     if (*bytes < min) {
         snprintf(err, errlen,
                  "shared memory of %zu KiB is too small: %u worker(s) need at "

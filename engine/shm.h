@@ -141,9 +141,12 @@ typedef struct {
 
 /* Bytes the fixed part needs for n workers, plus the minimum data area. */
 size_t shm_min_bytes(uint32_t workers);
+/* The default segment for n workers: 2 GiB, but at most half of /dev/shm's
+ * free space (at least the fixed part's need, where that fits). */
+size_t shm_default_bytes(uint32_t workers);
 /* Create (O_EXCL, 0600), size and map the segment and write its header.
  * name NULL: a private unique name, unlinked right after mapping.
- * bytes 0: the default (2 GiB, less when /dev/shm has less free).  Returns
+ * bytes 0: shm_default_bytes.  Returns
  * 0 or a negative errno with a message in err. */
 int shm_create(shm_seg *s, const char *name, size_t bytes, uint32_t workers,
                char *err, size_t errlen);

@@ -1453,21 +1453,20 @@ int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progr
     if (!err) err = &tmp_err;
     vjob *j = receivable(c, job_id, err);
     if (!j) return -EINVAL;
-    char tmp[PATH_MAX + 32];
-    int fd = outfile_create(path, tmp, sizeof tmp);
-    if (fd < 0) {
-        set_error(err, fd, job_id, "cannot create %s: %s", path, strerror(-fd));
-        drop_job(c, j);
-        return fd;
-    }
-    unspool(j, SINK_FD, fd);
-    int rc = wait_job(c, j, cb, ud);
-    if (rc == 0 && fsync(fd) != 0) rc = -errno;
-    if (close(fd) != 0 && rc == 0) rc = -errno;
-    if (rc == 0 && rename(tmp, path) != 0) rc = -errno;
+    outfile f;
+    int rc = outfile_open(&f, path);
     if (rc) {
-        unlink(tmp);
-        if (j->result.code) copy_error(err, &j->result);
+        set_error(err, rc, job_id, "cannot create %s: %s", path, strerror(-rc));
+        drop_job(c, j);
+        return rc;
+    }
+    unspool(j, SINK_FD, f.fd);
+    rc = wait_job(c, j, cb, ud);
+    if (rc) outfile_abort(&f);
+    else rc = outfile_commit(&f, path);
+    if (rc) {
+        /* the file's own failure (a full disk) names the file */
+        if (j->result.code && !j->local_err) copy_error(err, &j->result);
         else set_error(err, rc, job_id, "cannot write %s: %s", path, strerror(-rc));
     } else if (sum) {
         *sum = j->sum;

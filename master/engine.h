@@ -79,12 +79,19 @@
 
 typedef struct engine engine;
 
+/* The segment engine_create makes for shm_bytes 0 and n workers. */
+size_t engine_shm_default(int workers);
+
 typedef struct {
     int workers;          /* >= 1 */
     const int *cpus;      /* worker i is pinned to cpus[i % ncpus]; NULL: the
                              i-th (mod count) CPU of this process's affinity */
     int ncpus;
-    size_t shm_bytes;     /* segment size; 0 = default (sparse, touched as used) */
+    size_t shm_bytes;     /* segment size; 0 = default (sparse, touched as used):
+                             2 GiB, at most half of /dev/shm's free space */
+    const char *shm_option; /* how the user raises shm_bytes ("--shm-size MIB"),
+                               named in the failures of jobs that outgrow it;
+                               NULL: none named */
     const char *shm_name; /* "/name" to keep (daemon); NULL = private, unlinked at once */
     size_t keep_bytes;    /* data pages kept between jobs; what a job touched
                              beyond them goes back to tmpfs when it ends;

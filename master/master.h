@@ -77,6 +77,7 @@ struct engine {
     uint32_t restarts, stalls;
     double t0, last_progress, last_check;
     double stall_s;     /* the stall timeout; <= 0: never */
+    const char *shm_option; /* engine_opts.shm_option */
     /* the segment's pages */
     uint64_t keep;      /* bytes of the data area kept between jobs */
     uint64_t hold;      /* bytes of the data area the last job left for the

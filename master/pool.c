@@ -226,6 +226,7 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     e->n = o->workers;
     e->keep = o->keep_bytes ? o->keep_bytes : ENGINE_KEEP_BYTES;
     e->stall_s = o->stall_timeout == 0 ? ENGINE_STALL_TIMEOUT : o->stall_timeout;
+    e->shm_option = o->shm_option;
     int rc = pick_cpus(e, o, err, errlen);
     e->spare_cpu = !rc && spare_cpu(e);
     if (!rc)
@@ -248,6 +249,11 @@ int engine_create(const engine_opts *o, engine **out, char *err,
 }
 
 int engine_workers(const engine *e) { return e->n; }
+
+size_t engine_shm_default(int workers)
+{
+    return shm_default_bytes(workers > 0 ? (uint32_t)workers : 1);
+}
 
 int engine_worker_pid(const engine *e, int i)
 {

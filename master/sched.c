@@ -50,6 +50,11 @@ int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(e->err.message, sizeof e->err.message, fmt, ap);
     va_end(ap);
+    /* every limit of the segment says "shared memory": name the way to
+     * raise it, the caller's (--shm-size, voxd.conf's shm_size) */
+    size_t n = strlen(e->err.message);
+    if (f == ENGINE_LIMIT && e->shm_option && strstr(e->err.message, "shared memory"))
+        snprintf(e->err.message + n, sizeof e->err.message - n, " (%s)", e->shm_option);
     return rc;
 }
 
@@ -342,8 +347,8 @@ int engine_check_workers(engine *e)
 static void too_big(engine *e, const engine_progress *p)
 {
     sched_fail(e, ENGINE_LIMIT, -ENOMEM,
-               "the job would need at least %llu MiB of shared memory (estimated at "
-               "%.2f%% done, %llu MiB in use), more than the %zu MiB there are; raise "
+               "the job would need at least %llu MiB of shared memory (at %.2f%% done, "
+               "%llu MiB in use), over the %zu MiB there are; raise "
                "the shared memory size or ask for less",
                (unsigned long long)(p->shm_need >> 20), p->fraction * 100.0,
                (unsigned long long)(p->shm_used >> 20), e->seg.bytes >> 20);

@@ -98,8 +98,8 @@ static int local_rank, local_size; /* among the ranks on this host */
 #define WORKERS_AUTO UINT32_MAX /* -w not given: each rank decides */
 static char hosts[1][HOST_MAX]; /* this rank's; rank 0 has all in all_hosts */
 static char (*all_hosts)[HOST_MAX];
-static char tmp_path[4096];     /* rank 0's unfinished file by name, for the
-                                   signals ("" when unnamed: O_TMPFILE) */
+static outfile out_file;        /* rank 0's unfinished file: the signals remove
+                                   it when it has a name (outfile.h) */
 
 static void msg(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 static void msg(const char *fmt, ...)
@@ -289,7 +289,8 @@ static int slave_run(slave *s, const wire_job *j)
     if (s->st.workers) {
         engine_opts eo = {.workers = (int)s->st.workers, .cpus = ncpus > 0 ? cpus : NULL,
                           .ncpus = ncpus > 0 ? ncpus : 0,
-                          .shm_bytes = (size_t)j->shm_mib << 20};
+                          .shm_bytes = (size_t)j->shm_mib << 20,
+                          .shm_option = "--shm-size"};
         char err[256] = "", m[400];
         int rc = engine_create(&eo, &e, err, sizeof err);
         if (rc) {
@@ -349,7 +350,7 @@ typedef struct {
  * ranks are killed by MPI_Abort (their workers die with them). */
 static void abort_job(void)
 {
-    if (tmp_path[0]) unlink(tmp_path);
+    outfile_abort(&out_file);
     MPI_Abort(MPI_COMM_WORLD, 1);
     _exit(1);
 }
@@ -359,7 +360,7 @@ static void on_signal(int sig)
     static const char m[] = "vox_mpi: rank 0 stopped by a signal (mpirun stops every "
                             "rank when one fails; its message names the rank and host); "
                             "no file written\n";
-    if (tmp_path[0]) unlink(tmp_path);
+    if (out_file.named) unlink(out_file.tmp);
     ssize_t w = write(2, m, sizeof m - 1);
     (void)w;
     _exit(128 + sig);
@@ -617,44 +618,6 @@ static int assemble(master *m, const vod_layout *L, const vod_params *v, int fd,
 }
 
 /* ---- rank 0's file ---- */
-
-/* The file is made unnamed (O_TMPFILE) in OUT's directory and given a name
- * only once complete, so that no kill, not even mpirun's SIGKILL, leaves a
- * partial file; where the filesystem has no O_TMPFILE (some network
- * filesystems), it is made under a temporary name beside OUT
- * (outfile_create), which the signal handler removes. */
-static int out_create(const char *path)
-{
-    char dir[4096];
-    snprintf(dir, sizeof dir, "%s", path);
-    int fd = open(dirname(dir), O_TMPFILE | O_WRONLY | O_CLOEXEC, 0666);
-    if (fd >= 0) return fd;
-    if (errno != EOPNOTSUPP && errno != EISDIR && errno != EINVAL) return -errno;
-    return outfile_create(path, tmp_path, sizeof tmp_path);
-}
-
-/* The complete file under its name: an unnamed one linked in under a
- * temporary name first (linkat cannot replace a file), then renamed. */
-static int out_commit(int fd, const char *path)
-{
-    if (fsync(fd)) return -errno;
-    char proc[64], tmp[sizeof tmp_path];
-    snprintf(proc, sizeof proc, "/proc/self/fd/%d", fd);
-    for (int i = 0; !tmp_path[0] && i < 100; i++) {
-        int k = snprintf(tmp, sizeof tmp, "%s.tmp.%d.%d", path, (int)getpid(), i);
-        if (k < 0 || (size_t)k >= sizeof tmp) return -ENAMETOOLONG;
-        if (!linkat(AT_FDCWD, proc, AT_FDCWD, tmp, AT_SYMLINK_FOLLOW)) {
-            memcpy(tmp_path, tmp, (size_t)k + 1);
-            break;
-        }
-        if (errno != EEXIST) return -errno;
-    }
-    if (!tmp_path[0]) return -EEXIST;
-    if (close(fd)) return -errno;
-    if (rename(tmp_path, path)) return -errno;
-    tmp_path[0] = '\0';
-    return 0;
-}
 
 /* The distinct bricks' bytes until the file is assembled: an unnamed file
  * beside OUT (where the file's room is), else in $TMPDIR, unlinked at
@@ -953,12 +916,13 @@ static int prepare(prep *p, int argc, char **argv)
         msg("cutting the job into subtrees: %s", strerror(-rc));
         return CLI_EXIT_FAILED;
     }
-    p->fd = out_create(p->o.out);
-    if (p->fd < 0) {
-        tmp_path[0] = '\0';
-        msg("cannot create %s: %s", p->o.out, strerror(-p->fd));
+    /* unnamed until complete (outfile.h): no kill, not even mpirun's
+     * SIGKILL, leaves a partial file */
+    if ((rc = outfile_open(&out_file, p->o.out))) {
+        msg("cannot create %s: %s", p->o.out, strerror(-rc));
         return CLI_EXIT_FAILED;
     }
+    p->fd = out_file.fd;
     return -1;
 }
 
@@ -1019,7 +983,7 @@ static void finish_file(prep *p, master *m, rank_stats *all, double t0)
     pipeline_report r = p->plan;
     double t1 = clock_now();
     rc = assemble(m, &p->L, &p->v, p->fd, &r.st, err, sizeof err);
-    if (!rc) rc = out_commit(p->fd, p->o.out);
+    if (!rc) rc = outfile_commit(&out_file, p->o.out);
     if (rc) {
         progress_done(&m->pr);
         msg("cannot write %s: %s", p->o.out, err[0] ? err : strerror(-rc));

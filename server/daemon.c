@@ -34,7 +34,10 @@ void vd_engine_opts(vd_daemon *d, const voxd_config *c)
 {
     memcpy(d->cpus, c->cpus, sizeof d->cpus);
     d->mem_max = config_max_memory(c);
-    d->mem_shm = c->shm_size;
+    /* the default fits /dev/shm (a container's 64 MiB runs small jobs);
+     * a size the file gives is taken as it is, or refused by the engine */
+    uint64_t fit = engine_shm_default(config_workers(c));
+    d->mem_shm = c->shm_size_set || fit > c->shm_size ? c->shm_size : fit;
     vd_mpi *m = &d->mpi;
     snprintf(m->hostfile, sizeof m->hostfile, "%s", c->mpi_hostfile);
     snprintf(m->mpirun, sizeof m->mpirun, "%s", c->mpirun);
@@ -46,7 +49,8 @@ void vd_engine_opts(vd_daemon *d, const voxd_config *c)
     d->eopts = (engine_opts){.workers = config_workers(c),
                              .cpus = c->n_cpus ? d->cpus : NULL,
                              .ncpus = c->n_cpus,
-                             .shm_bytes = (size_t)c->shm_size,
+                             .shm_bytes = (size_t)d->mem_shm,
+                             .shm_option = "voxd.conf's shm_size",
                              .shm_name = d->shm_name,
                              /* 0 in the file: never (-1 to the engine) */
                              .stall_timeout = c->worker_stall_timeout

@@ -412,7 +412,7 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     j->csg = tree;
     j->id = d->next_job_id + 1;
     char why[300];
-    if (vd_memory_room(d, config_max_memory(&d->cfg), d->cfg.shm_size, why, sizeof why)) {
+    if (vd_memory_room(d, config_max_memory(&d->cfg), d->mem_shm, why, sizeof why)) {
         vd_job_free(j);
         return vd_client_error(c, 0, VOXD__ERROR_CODE__BUSY, "%s", why);
     }

@@ -275,7 +275,10 @@ int main(int argc, char **argv)
 C
 pc() { PKG_CONFIG_SYSROOT_DIR="$R" PKG_CONFIG_LIBDIR="$R/usr/lib/pkgconfig" pkg-config "$@"; }
 refuse "pkg-config finds the installed libvox" 0 "-I$R/usr/include" pc --cflags libvox
-if cc -o "$TMP/client" "$TMP/client.c" $(pc --cflags libvox) $(pc --libs --static libvox) \
+# the archive by name (-l:libvox.a): -lvox finds the shared library first
+# (install.sh links against that one)
+if cc -o "$TMP/client" "$TMP/client.c" $(pc --cflags libvox) \
+       $(pc --libs --static libvox | sed 's/-lvox\b/-l:libvox.a/') \
        >"$TMP/cc.log" 2>&1; then pass "a client builds with the installed libvox alone"
 else fail "a client builds with the installed libvox alone" "$(head -5 "$TMP/cc.log")"; fi
 refuse "that client gets a typed error from a missing socket" 1 "^-2 .*no voxd answering" \

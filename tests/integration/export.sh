@@ -8,17 +8,26 @@
 # file; damaged copies must be refused by both with the same message.
 . "$(dirname "$0")/lib.sh"
 
-# numpy is a test dependency (make deps installs python3-numpy): a python3
-# without it is a failure, never a skip.
+# numpy and VTK are test dependencies (make deps installs python3-numpy and
+# python3-vtk9, for the system's python3): a python3 without them is a
+# failure, never a skip.
 PY=""
-for p in python3 /usr/bin/python3; do
-    if command -v "$p" >/dev/null && "$p" -c 'import numpy' 2>/dev/null; then PY=$p; break; fi
+for p in /usr/bin/python3 python3; do
+    if command -v "$p" >/dev/null && "$p" -c 'import numpy, vtkmodules.vtkIOImage' 2>/dev/null
+    then PY=$p; break; fi
 done
 if [ -z "$PY" ]; then
-    fail "a python3 with numpy (make deps installs python3-numpy)"
+    fail "a python3 with numpy and VTK (make deps installs python3-numpy, python3-vtk9)"
     exit 0
 fi
 CHECK="$ROOT/tests/integration/export_check.py"
+# checker ARGS...: export_check.py, which prints its own PASS/FAIL lines;
+# exit 2 (or a crash before its first line) is a failure of its own
+checker() {
+    "$PY" "$CHECK" "$@"
+    local rc=$?
+    [ "$rc" -le 1 ] || fail "export_check.py $1 $(basename "$2") ran to its end" "exit $rc"
+}
 # The .vdb exports are read by OpenVDB's own code: vdb_print (make deps
 # installs libopenvdb-tools) and vdb_dump, built beside the vox under test.
 VDB_DUMP="$(dirname "$VOX")/tests/vdb_dump"
@@ -68,18 +77,20 @@ for f in "$TMP"/*.vod; do
     check "$n: export gzip NRRD level 1" "$VOX" export "$f" -o "$d/l1.nrrd" --gzip --level 1
     check "$n: export NRRD --no-normals" "$VOX" export "$f" -o "$d/nn.nrrd" --no-normals
     check "$n: export gzip NRRD" "$VOX" export "$f" -o "$d/gz.nrrd" --gzip
+    check "$n: export gzip NRRD --no-normals" "$VOX" export "$f" -o "$d/gznn.nrrd" --gzip --no-normals
     echo "2,9,1,12,3,7" >"$d/box.txt"
     check "$n: export --bbox" "$VOX" export "$f" --format raw -o "$d/box.raw" --bbox 2,9,1,12,3,7
-    "$PY" "$CHECK" formats "$f" "$d"
+    checker formats "$f" "$d"
     check "$n: export .vdb" "$VOX" export "$f" -o "$d/x.vdb"
     check "$n: export .vdb level 1" "$VOX" export "$f" -o "$d/l1.vdb" --level 1
     check "$n: export .vdb --bbox" "$VOX" export "$f" -o "$d/box.vdb" --bbox 2,9,1,12,3,7
-    "$PY" "$CHECK" vdb "$f" "$d" "$VDB_DUMP"
+    checker vdb "$f" "$d" "$VDB_DUMP"
+    checker vtk "$f" "$d"
     want=$("$VOX" info "$f" | grep '^  voxels')
     got=$("$PY" "$CHECK" checksum "$f" 2>&1)
     if [ -n "$want" ] && [ "$want" = "$got" ]; then pass "$n: voxd.read's voxels are vox info's"
     else fail "$n: voxd.read's voxels are vox info's" "vox info: $want; voxd: $got"; fi
-    "$PY" "$CHECK" damage "$f" "$VOX" "$d"
+    checker damage "$f" "$VOX" "$d"
 done
 
 # ---------------------------------------------------------------- refusals

@@ -11,14 +11,19 @@ raw + its JSON sidecar (the sidecar's own fields).  OpenVDB files are read by
 OpenVDB's own code: vdb_print (libopenvdb-tools) for what it says of the
 grids, and vdb_dump (tests/integration/vdb_dump.cc, libopenvdb's reader) for
 the voxels; the channel-3 normals are decoded here from the VOD format's
-octahedral encoding (docs/vod-format.md, section 7.1).
+octahedral encoding (docs/vod-format.md, section 7.1).  The NRRD and .vti
+exports are also opened by VTK's own readers (vtkNrrdReader, what ParaView
+uses, and vtkXMLImageDataReader; Debian's python3-vtk9), the "vtk" command.
 
-Every line printed is "PASS: name" or "FAIL: name"; the exit status is 0.
+Every line printed is "PASS: name" or "FAIL: name"; the exit status is 0
+when every check passed, 1 when one failed, 2 when the checker itself broke
+(export.sh fails on 2 too, so a checker that cannot run is never a pass).
 
     export_check.py formats VOD DIR       the exports in DIR against voxd.read
     export_check.py checksum VOD          print vox info's voxel line, from voxd
     export_check.py damage VOD VOX DIR    damaged copies: voxd and vox info agree
     export_check.py vdb VOD DIR DUMP      the .vdb exports in DIR against voxd.read
+    export_check.py vtk VOD DIR           the NRRD and .vti exports through VTK
 """
 
 import gzip
@@ -35,8 +40,13 @@ import numpy as np  # noqa: E402
 import voxd  # noqa: E402
 
 
+FAILED = []
+
+
 def report(name, ok, why=""):
     print(("PASS: " if ok else "FAIL: ") + name)
+    if not ok:
+        FAILED.append(name)
     if not ok and why:
         print("  " + why)
 
@@ -335,6 +345,88 @@ def check_vdb(vod, d, dump):
                   dump, d)
 
 
+# ---- VTK's readers (what ParaView and 3D Slicer's VTK side use) ----
+
+def vtk_image(reader, path):
+    """(array (z, y, x[, comps]) of the active scalars, {name: array}, dims,
+    origin, spacing, errors VTK reported) of one file read by VTK."""
+    from vtkmodules.vtkCommonCore import vtkFileOutputWindow, vtkOutputWindow
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    log = path + ".vtklog"
+    win = vtkFileOutputWindow()
+    win.SetFileName(log)
+    vtkOutputWindow.SetInstance(win)
+    r = reader()
+    r.SetFileName(path)
+    r.Update()
+    im = r.GetOutput()
+    nx, ny, nz = im.GetDimensions()
+    pd = im.GetPointData()
+    arrays = {}
+    for i in range(pd.GetNumberOfArrays()):
+        a = pd.GetArray(i)
+        c = a.GetNumberOfComponents()
+        shape = (nz, ny, nx, c) if c > 1 else (nz, ny, nx)
+        # a copy: the VTK array's memory goes with the reader
+        arrays[a.GetName() or ""] = vtk_to_numpy(a).copy().reshape(shape)
+    sc = pd.GetScalars()
+    main_arr = arrays[sc.GetName() or ""] if sc is not None else None
+    errs = open(log).read() if os.path.exists(log) else ""
+    return main_arr, arrays, (nx, ny, nz), im.GetOrigin(), im.GetSpacing(), errs
+
+
+def check_vtk_nrrd(name, path, v, normals=True):
+    from vtkmodules.vtkIOImage import vtkNrrdReader
+    arr, _, dims, origin, spacing, errs = vtk_image(vtkNrrdReader, path)
+    z, y, x = v.shape
+    centre = [v.origin[a] + 0.5 * v.spacing[a] for a in range(3)]
+    report(name + ": dimensions %dx%dx%d, no error" % (x, y, z),
+           dims == (x, y, z) and "ERROR" not in errs, "VTK: %s %s" % (dims, errs[:300]))
+    report(name + ": origin and spacing", close(origin, centre) and close(spacing, v.spacing),
+           "%s %s" % (origin, spacing))
+    if arr is not None and dims == (x, y, z):
+        same(arr, v, name + ": voxels", normals=normals)
+
+
+def check_vtk(vod, d):
+    """Every NRRD and the .vti through VTK: the voxels of voxd.read exactly
+    (the normals to float precision), dimensions, origin and spacing.
+    Not the gzip NRRD of floats: VTK 9.1's vtkNrrdReader inflates only the
+    first quarter of a gzip float array (it counts the bytes as if one per
+    value; Python's gzip, teem and our reader read the same file whole),
+    so channel 3's gzip exports are opened by VTK with --no-normals only."""
+    name = os.path.basename(vod) + ": VTK vtkNrrdReader"
+    v0, v1 = voxd.read(vod, 0), voxd.read(vod, 1)
+    floats = normals_of(v0) is not None
+    # the gzip files first: a reader that fills only part of its array
+    # would show through, not the heap's copy of a file read before
+    if floats:
+        check_vtk_nrrd(name + " gzip --no-normals", os.path.join(d, "gznn.nrrd"), v0,
+                       normals=False)
+        check_vtk_nrrd(name + " --no-normals", os.path.join(d, "nn.nrrd"), v0, normals=False)
+    else:
+        check_vtk_nrrd(name + " gzip", os.path.join(d, "gz.nrrd"), v0)
+        check_vtk_nrrd(name + " gzip level 1", os.path.join(d, "l1.nrrd"), v1)
+    check_vtk_nrrd(name + " x.nrrd", os.path.join(d, "x.nrrd"), v0)
+    from vtkmodules.vtkIOXML import vtkXMLImageDataReader
+    name = os.path.basename(vod) + ": VTK vtkXMLImageDataReader"
+    _, arrays, dims, origin, spacing, errs = vtk_image(vtkXMLImageDataReader,
+                                                        os.path.join(d, "x.vti"))
+    z, y, x = v0.shape
+    centre = [v0.origin[a] + 0.5 * v0.spacing[a] for a in range(3)]
+    report(name + ": dimensions, origin and spacing, no error",
+           dims == (x, y, z) and close(origin, centre) and close(spacing, v0.spacing) and
+           "ERROR" not in errs, "%s %s %s %s" % (dims, origin, spacing, errs[:300]))
+    report(name + ": voxels", "voxel" in arrays and arrays["voxel"].dtype == np.uint8 and
+           np.array_equal(arrays["voxel"], v0.occupancy))
+    nrm = normals_of(v0)
+    if nrm is not None:
+        report(name + ": normals", "normal" in arrays and
+               np.allclose(arrays["normal"], nrm, rtol=0, atol=1e-6))
+    else:
+        report(name + ": no normals array", sorted(arrays) == ["voxel"], str(sorted(arrays)))
+
+
 def checksum_line(vod):
     """vox info's 'voxels' line: the count of non-empty level-0 voxels and
     the sum of CRC-32s of (level, x, y, z, value) over every level."""
@@ -430,6 +522,8 @@ def main():
     except Exception as e:  # a reader that cannot parse an export fails the check
         report("export_check.py %s %s runs" % (sys.argv[1], sys.argv[2]), False,
                "%s: %s" % (type(e).__name__, e))
+        sys.exit(2)
+    sys.exit(1 if FAILED else 0)
 
 
 def run(cmd):
@@ -441,6 +535,10 @@ def run(cmd):
         check_damage(sys.argv[2], sys.argv[3], sys.argv[4])
     elif cmd == "vdb":
         check_vdb(sys.argv[2], sys.argv[3], sys.argv[4])
+    elif cmd == "vtk":
+        check_vtk(sys.argv[2], sys.argv[3])
+    else:
+        raise ValueError("unknown command " + cmd)
 
 
 if __name__ == "__main__":
