@@ -19,6 +19,8 @@
 #                   CSG kind at 512^3 and 1024^3 with 1 and 2 workers (scripts/bench-csg.sh)
 #   make bench-scale every kind of job (implicit, mesh, CSG, marching cubes)
 #                   from 1 worker to one per core (scripts/bench-scale.sh)
+#   make bench-serial the serial share of six jobs with 2 workers, measured
+#                   from outside by bench/voxserial (scripts/bench-serial.sh)
 #   make fuzz       libFuzzer on every harness for FUZZ_SECONDS each
 #   make deps       installs the Debian packages the build needs, if missing
 
@@ -111,7 +113,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg bench-scale fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg bench-scale bench-serial fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
@@ -201,6 +203,9 @@ $(BUILD)/mesh_vox_bench: bench/mesh_vox_bench.c tests/unit/mesh_shapes.h $(LIB)
 # voxwhole times a whole command (scripts/bench-whole.sh): no library.
 $(BUILD)/voxwhole: bench/voxwhole.c bench/bench_util.h
 	$(CC) $(CFLAGS) $< -o $@ $(LDFLAGS) -lm
+# voxserial measures a command's serial share from outside (scripts/bench-serial.sh).
+$(BUILD)/voxserial: bench/voxserial.c bench/bench_util.h
+	$(CC) $(CFLAGS) $< -o $@ $(LDFLAGS) -lm -pthread
 
 $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 	@mkdir -p $(dir $@)
@@ -245,7 +250,7 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh $(BUILD)/vdb_mesh
+bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh $(BUILD)/vdb_mesh $(BUILD)/voxserial
 	@scripts/bench.sh $(BUILD)
 
 # vox_mpi against vox voxelize, the whole command (docs/mpi.md).
@@ -264,6 +269,10 @@ bench-csg: all $(BUILD)/voxwhole
 # Every kind of job from 1 to N workers (scripts/bench-scale.sh, also run by make bench).
 bench-scale: all $(BUILD)/voxwhole $(BUILD)/bench_mesh
 	@scripts/bench-scale.sh $(BUILD)
+
+# The serial share of six jobs, from outside (scripts/bench-serial.sh, also run by make bench).
+bench-serial: all $(BUILD)/voxserial
+	@scripts/bench-serial.sh $(BUILD)
 
 # The whole vox voxelize command against commit BASE, in one run.
 BASE ?= HEAD~1

@@ -19,6 +19,7 @@
 
 #include "clock.h"
 #include "master.h"
+#include "par.h"
 
 typedef struct {
     const vod_params *p;
@@ -30,6 +31,14 @@ typedef struct {
     int agg_left;  /* aggregate tasks not done yet */
     engine_deliver deliver; /* NULL: assemble the file into sink */
     void *deliver_ud;
+    /* The plan of an octree, on a thread of its own while the workers
+     * build the mip levels (setup_octree): the brick nodes listed at
+     * nodes_off (up to plan_cap) and their offsets set to -1. */
+    par_task plan;
+    int planning;        /* started and not joined yet */
+    engine *plan_e;
+    uint64_t nodes_off, plan_cap, plan_n;
+    double plan_s;
 } encode_job;
 
 #define AGG_SPLIT 3 /* the aggregate's subtrees: up to 8^3 of them */
@@ -59,10 +68,14 @@ static int push_all(engine *e, uint32_t op, int *pushed)
     return rc;
 }
 
+static int plan_join(engine *e, encode_job *ej);
+
 /* The aggregate's second phase, here: the subtrees no worker finished,
  * the cells above them; then the bricks are handed out. */
 static int aggregate_rest(engine *e, encode_job *ej)
 {
+    int rc = plan_join(e, ej);
+    if (rc) return rc;
     encode_block *b = block(e);
     const uint32_t *roots = shm_at(e->seg.base, b->roots_off);
     const uint8_t *done = shm_at(e->seg.base, b->roots_done_off);
@@ -102,33 +115,87 @@ static int no_room(engine *e)
                       "raise its size (now %zu MiB)", e->seg.bytes >> 20);
 }
 
-/* The brick nodes at nodes_off, then their records, offsets and the brick
- * area up to the end of the data area; every offset to -1 (not encoded). */
-static int lay_out_bricks(engine *e, encode_job *ej, encode_block *b,
-                          const vod_source *src, uint64_t nodes)
+/* How many brick nodes fit at nodes_off: the nodes are the first array,
+ * so when they do not all fit there, nothing after them does. */
+static uint64_t nodes_cap(const engine *e, uint64_t nodes)
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    double t0 = clock_now();
-    /* one pass, straight into the segment: the nodes are the first array,
-     * so when they do not all fit there, nothing after them does */
-    uint64_t cap = nodes < end ? (end - nodes) / sizeof(vod_node) : 0;
-    uint64_t n = vod_collect(src, &ej->L, shm_at(e->seg.base, nodes), (size_t)cap);
-    ej->t.fill += clock_now() - t0;
+    return nodes < end ? (end - nodes) / sizeof(vod_node) : 0;
+}
+
+/* Behind the n brick nodes at nodes: their records, offsets and the brick
+ * area up to the end of the data area; every offset to -1 (not encoded).
+ * The offsets are set by the caller (set_offsets). */
+static int lay_out_rest(engine *e, encode_block *b, uint64_t nodes, uint64_t n)
+{
+    uint64_t end = e->h->data_off + e->h->data_bytes;
     b->recs_off = align64(nodes + n * sizeof(vod_node));
     b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
     b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
-    if (n > cap || b->brick_off > end) return no_room(e);
-    memset(shm_at(e->seg.base, b->offs_off), 0xff, n * sizeof(uint64_t));
+    if (n > nodes_cap(e, nodes) || b->brick_off > end) return no_room(e);
     b->nodes_off = nodes;
     b->n = n;
     b->brick_cap = end - b->brick_off;
     return 0;
 }
 
+static void set_offsets(engine *e, uint64_t nodes, uint64_t n)
+{
+    uint64_t recs = align64(nodes + n * sizeof(vod_node));
+    uint64_t offs = align64(recs + n * sizeof(vod_encoded));
+    memset(shm_at(e->seg.base, offs), 0xff, n * sizeof(uint64_t));
+}
+
+/* The brick nodes straight into the segment at nodes, their offsets to -1
+ * when there is room; how many in *n. */
+static void plan_bricks(engine *e, const vod_layout *L, const vod_source *src,
+                        uint64_t nodes, uint64_t *n)
+{
+    uint64_t cap = nodes_cap(e, nodes);
+    *n = vod_collect(src, L, shm_at(e->seg.base, nodes), (size_t)cap);
+    uint64_t end = e->h->data_off + e->h->data_bytes;
+    uint64_t brick_off = align64(align64(align64(nodes + *n * sizeof(vod_node)) +
+                                         *n * sizeof(vod_encoded)) +
+                                 *n * sizeof(uint64_t));
+    if (*n <= cap && brick_off <= end) set_offsets(e, nodes, *n);
+}
+
+static int lay_out_bricks(engine *e, encode_job *ej, encode_block *b,
+                          const vod_source *src, uint64_t nodes)
+{
+    double t0 = clock_now();
+    uint64_t n;
+    plan_bricks(e, &ej->L, src, nodes, &n);
+    ej->t.fill += clock_now() - t0;
+    return lay_out_rest(e, b, nodes, n);
+}
+
+/* The plan's thread: the octree's brick nodes (the cells only: the mip
+ * levels the workers build meanwhile are not read). */
+static void *plan_run(void *arg)
+{
+    encode_job *ej = arg;
+    double t0 = clock_now();
+    vod_source src = vod_octree_source(&ej->plan_e->tree);
+    plan_bricks(ej->plan_e, &ej->L, &src, ej->nodes_off, &ej->plan_n);
+    ej->plan_s = clock_now() - t0;
+    return NULL;
+}
+
+/* Waits for the plan and lays the bricks' arrays out behind its nodes. */
+static int plan_join(engine *e, encode_job *ej)
+{
+    if (!ej->planning) return 0;
+    par_join(&ej->plan);
+    ej->planning = 0;
+    ej->t.fill += ej->plan_s;
+    return lay_out_rest(e, block(e), ej->nodes_off, ej->plan_n);
+}
+
 /* The octree: lay the block and its arrays out behind the used cells,
- * list the brick nodes and the aggregate's subtrees, and push one
- * aggregate task per worker (none: the master does it all and hands out
- * the bricks). */
+ * list the aggregate's subtrees, start the plan (the brick nodes) on a
+ * thread of its own, and push one aggregate task per worker (none: the
+ * master does it all and hands out the bricks once the plan is done). */
 static int setup_octree(engine *e, encode_job *ej)
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
@@ -142,9 +209,6 @@ static int setup_octree(engine *e, encode_job *ej)
     if (nodes > end) return no_room(e);
     encode_block *b = shm_at(e->seg.base, boff);
     e->tree.agg = shm_at(e->seg.base, agg);
-    vod_source src = vod_octree_source(&e->tree);
-    int rc = lay_out_bricks(e, ej, b, &src, nodes);
-    if (rc) return rc;
     vod_aggregate_roots(&e->tree, hr, shm_at(e->seg.base, roots), nroots);
     memset(shm_at(e->seg.base, roots + nroots * sizeof(uint32_t)), 0, nroots);
     block_init(e, ej, b);
@@ -155,9 +219,14 @@ static int setup_octree(engine *e, encode_job *ej)
     b->roots_done_off = roots + nroots * sizeof(uint32_t);
     b->nroots = nroots;
     b->root_height = hr;
+    b->n = 0; /* the bricks' fields: once the plan is joined */
     e->h->job_off = boff;
     e->h->job_bytes = sizeof *b;
-    rc = nroots ? push_all(e, ENCODE_AGGREGATE, &ej->agg_left) : 0;
+    ej->plan_e = e;
+    ej->nodes_off = nodes;
+    ej->planning = 1;
+    par_start(&ej->plan, plan_run, ej);
+    int rc = nroots ? push_all(e, ENCODE_AGGREGATE, &ej->agg_left) : 0;
     if (!rc && !ej->agg_left) rc = aggregate_rest(e, ej);
     return rc;
 }
@@ -329,6 +398,10 @@ static int encode_finish(engine *e, void *job, int rc)
 {
     encode_job *ej = job;
     encode_block *b = block(e);
+    if (ej->planning) { /* the job failed before the mip levels were done */
+        par_join(&ej->plan);
+        ej->planning = 0;
+    }
     if (rc) goto out; /* set up failed: nothing was handed out */
     const uint8_t **data = calloc(b->n ? b->n : 1, sizeof *data);
     uint8_t **own = calloc(b->n ? b->n : 1, sizeof *own);

@@ -8,7 +8,8 @@
 # tables (scripts/bench-csg.sh) BENCH_REPEATS and BENCH_QUICK; the export
 # table (scripts/bench-export.sh) BENCH_EXPORT_RES and BENCH_REPEATS; every
 # kind of job from 1 to N workers (scripts/bench-scale.sh) BENCH_SCALE_WORKERS
-# and BENCH_SCALE_RES.
+# and BENCH_SCALE_RES; the serial shares (scripts/bench-serial.sh)
+# BENCH_SERIAL_RES, BENCH_SERIAL_WORKERS and BENCH_REPEATS.
 # Exits 1 when a whole-command, mesh, vox_mpi or CSG job or an export failed
 # (its row says why), after saving the tables.
 set -euo pipefail
@@ -43,7 +44,9 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$(dirname "$0")/bench-export.sh" "$build" || export_rc=$?
     echo
     "$(dirname "$0")/bench-scale.sh" "$build" || scale_rc=$?
-    exit "${mesh_rc:-${whole_rc:-${mpi_rc:-${csg_rc:-${export_rc:-${scale_rc:-0}}}}}}"
+    echo
+    "$(dirname "$0")/bench-serial.sh" "$build" || serial_rc=$?
+    exit "${mesh_rc:-${whole_rc:-${mpi_rc:-${csg_rc:-${export_rc:-${scale_rc:-${serial_rc:-0}}}}}}}"
 } | tee "$out" || rc=$?
 echo "bench: tables saved in $out"
 exit "${rc:-0}"

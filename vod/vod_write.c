@@ -1,6 +1,7 @@
 /* VOD writer (docs/vod-format.md): plan (layout, check, prepare, collect),
- * encode bricks, assemble the file, over any brick source.  See vod.h for
- * the three phases and what a source must guarantee. */
+ * encode bricks, over any brick source; the file assembled by
+ * vod_assemble.c.  See vod.h for the three phases and what a source must
+ * guarantee. */
 #include "vod.h"
 
 #include <errno.h>
@@ -15,13 +16,10 @@
 
 #include <libdeflate.h>
 #include <xxhash.h>
-#include <zlib.h>
 
 #include "clock.h"
 #include "voxel.h"
 
-#define TRAILER_FIXED 40u /* trailer bytes besides the metadata */
-#define WBUF_BYTES (256u << 10)
 
 __attribute__((format(printf, 4, 5))) static int
 fail(char *err, size_t errlen, int rc, const char *fmt, ...)
@@ -185,48 +183,6 @@ int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
         return fail(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
                     s->ops->name, strerror(-rc));
     return 0;
-}
-
-typedef struct {
-    const vod_source *s;
-    const vod_layout *L;
-    vod_node *out;
-    size_t cap, n;
-    uint64_t sub[32]; /* nodes in a subtree rooted at level l */
-} collect_ctx;
-
-/* Node nd (preorder, level, brick and its parent's ref set), then its
- * children's subtrees in child order; an empty node ends its subtree. */
-static void collect_node(collect_ctx *x, vod_node nd)
-{
-    int r = x->s->ops->region(x->s, x->L, &nd);
-    if (r == VOD_REGION_EMPTY) return;
-    nd.uniform = r == VOD_REGION_UNIFORM;
-    if (!nd.uniform) nd.value = 0;
-    if (x->n < x->cap) x->out[x->n] = nd;
-    x->n++;
-    if (nd.level == 0) return;
-    for (unsigned i = 0; i < 8; i++) {
-        vod_node c = {
-            .preorder = nd.preorder + 1 + i * x->sub[nd.level - 1],
-            .level = nd.level - 1,
-            .bx = nd.bx << 1 | (i & 1u),
-            .by = nd.by << 1 | ((i >> 1) & 1u),
-            .bz = nd.bz << 1 | ((i >> 2) & 1u),
-            .ref = nd.ref,
-        };
-        collect_node(x, c);
-    }
-}
-
-size_t vod_collect(const vod_source *s, const vod_layout *L, vod_node *out,
-                   size_t cap)
-{
-    collect_ctx x = {.s = s, .L = L, .out = out, .cap = out ? cap : 0};
-    for (uint32_t l = 0; l < L->height && l < 31; l++)
-        x.sub[l] = ((1ull << (3 * (l + 1))) - 1) / 7;
-    collect_node(&x, (vod_node){.level = L->height - 1});
-    return x.n;
 }
 
 /* ---- phase 2: encode ---- */
@@ -623,256 +579,6 @@ int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
     if (rc) return rc;
     rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
     return compress_brick(tl_enc, scratch, out, cap, &rec->size);
-}
-
-/* ---- phase 3: assemble ---- */
-
-/* Buffered output that keeps the running CRC-32 of all bytes written. */
-typedef struct {
-    vod_sink *sink;
-    uint8_t *buf;
-    size_t len;
-    uint32_t crc;
-    uint64_t total;
-    uint32_t file_crc; /* the trailer's fileCRC32, once written */
-    double t_write;    /* seconds in the sink's write */
-    int err;
-} wbuf;
-
-static void wb_flush(wbuf *w)
-{
-    if (w->err || w->len == 0) return;
-    w->crc = (uint32_t)crc32(w->crc, w->buf, (uInt)w->len);
-    double t0 = clock_now();
-    int rc = w->sink->write(w->sink->ud, w->buf, w->len);
-    w->t_write += clock_now() - t0;
-    if (rc < 0) w->err = rc;
-    w->total += w->len;
-    w->len = 0;
-}
-
-static void wb_put(wbuf *w, const void *p, size_t n)
-{
-    const uint8_t *s = p;
-    while (n && !w->err) {
-        size_t k = WBUF_BYTES - w->len < n ? WBUF_BYTES - w->len : n;
-        memcpy(w->buf + w->len, s, k);
-        w->len += k;
-        s += k;
-        n -= k;
-        if (w->len == WBUF_BYTES) wb_flush(w);
-    }
-}
-
-static void wb_u32(wbuf *w, uint32_t v)
-{
-    uint8_t b[4];
-    vod_put32(b, v);
-    wb_put(w, b, 4);
-}
-
-/* Empty subtrees of the octree table go out as runs of zeros. */
-static void wb_zeros(wbuf *w, uint64_t n)
-{
-    while (n && !w->err) {
-        size_t k = WBUF_BYTES - w->len;
-        if (k > n) k = (size_t)n;
-        memset(w->buf + w->len, 0, k);
-        w->len += k;
-        n -= k;
-        if (w->len == WBUF_BYTES) wb_flush(w);
-    }
-}
-
-static uint32_t f32_bits(float f)
-{
-    uint32_t u;
-    memcpy(&u, &f, sizeof u);
-    return u;
-}
-
-static void put_header(wbuf *w, const vod_layout *L, const vod_params *p)
-{
-    uint8_t h[VOD_HEADER_BYTES];
-    uint32_t flags = VOD_FLAG_TRAILER;
-    if (p->comp != VOD_COMP_NONE) flags |= VOD_FLAG_COMPRESSED;
-    for (int a = 0; a < 3; a++)
-        if (L->padded > p->volume[a]) flags |= VOD_FLAG_PADDED;
-    memcpy(h, ".VOD", 4);
-    vod_put32(h + 4, 1);
-    for (int a = 0; a < 3; a++) {
-        vod_put32(h + 8 + 4 * a, p->volume[a]);
-        vod_put32(h + 20 + 4 * a, L->brick);
-        vod_put32(h + 32 + 4 * a, f32_bits(p->voxel_scale[a]));
-    }
-    vod_put32(h + 44, L->height);
-    vod_put32(h + 48, L->voxel_bits);
-    vod_put32(h + 52, p->hash);
-    vod_put32(h + 56, p->comp);
-    vod_put32(h + 60, flags);
-    wb_put(w, h, sizeof h);
-}
-
-/* Section 7; the CRC covers every byte before its own field. */
-static void put_trailer(wbuf *w, const vod_params *p, size_t meta)
-{
-    uint32_t at = (uint32_t)(w->total + w->len);
-    wb_put(w, "VODX", 4);
-    wb_u32(w, TRAILER_FIXED + (uint32_t)meta);
-    for (int a = 0; a < 3; a++) wb_u32(w, f32_bits(p->origin[a]));
-    wb_u32(w, (uint32_t)p->channel);
-    wb_u32(w, (uint32_t)meta);
-    wb_put(w, p->metadata, meta);
-    wb_u32(w, at);
-    wb_put(w, "XDOV", 4);
-    wb_flush(w);
-    w->file_crc = w->crc;
-    wb_u32(w, w->file_crc);
-    wb_flush(w);
-}
-
-/* IDs 1..u by first use.  Candidates come from the hash; a match is
- * confirmed by comparing the encoded bytes.  That is the same as comparing
- * the raw bricks: every brick of a file is encoded by the same
- * deterministic function of its raw bytes (same algorithm, same level), so
- * equal raw bricks give equal encodings, and decoding is a function, so
- * equal encodings come from equal raw bricks.  Equal hashes alone never
- * merge.  Duplicates an encoder already found (vod_encoder_put) point at
- * the same bytes: no comparison then. */
-static int dedup(size_t n, const vod_encoded *recs, const uint8_t *const *data,
-                 uint32_t *ids, uint32_t *first, uint32_t *unique)
-{
-    size_t cap = 16;
-    while (cap < 2 * n) cap *= 2;
-    uint32_t *slot = calloc(cap, sizeof *slot), u = 0;
-    if (!slot) return -ENOMEM;
-    for (size_t i = 0; i < n; i++) {
-        uint32_t h = recs[i].hash;
-        for (size_t j = (h ^ h >> 15) & (cap - 1);; j = (j + 1) & (cap - 1)) {
-            uint32_t s = slot[j];
-            if (!s) {
-                slot[j] = ids[i] = ++u;
-                first[u - 1] = (uint32_t)i;
-                break;
-            }
-            const uint32_t k = first[s - 1];
-            if (recs[k].hash == h && recs[k].size == recs[i].size &&
-                (data[k] == data[i] ||
-                 memcmp(data[k], data[i], recs[i].size) == 0)) {
-                ids[i] = s;
-                break;
-            }
-        }
-    }
-    free(slot);
-    *unique = u;
-    return 0;
-}
-
-static int check_inputs(const vod_layout *L, const vod_params *p, size_t n,
-                        const vod_node *nodes, const vod_encoded *recs,
-                        const uint8_t *const *data)
-{
-    size_t bound = vod_encode_bound(L, p);
-    if (n > UINT32_MAX - 1) return -EFBIG;
-    for (size_t i = 0; i < n; i++) {
-        if (nodes[i].preorder >= L->nodes) return -EINVAL;
-        if (i && nodes[i].preorder <= nodes[i - 1].preorder) return -EINVAL;
-        if (recs[i].size > bound || (recs[i].size && !data[i])) return -EINVAL;
-    }
-    return 0;
-}
-
-static void write_body(wbuf *w, const vod_layout *L, const vod_params *p,
-                       size_t n, const vod_node *nodes, const vod_encoded *recs,
-                       const uint8_t *const *data, const uint32_t *ids,
-                       const uint32_t *first, uint32_t u)
-{
-    put_header(w, L, p);
-    uint64_t at = 0; /* octree table: zeros between the non-empty nodes */
-    for (size_t i = 0; i < n; i++) {
-        wb_zeros(w, 4 * (nodes[i].preorder - at));
-        wb_u32(w, ids[i]);
-        at = nodes[i].preorder + 1;
-    }
-    wb_zeros(w, 4 * (L->nodes - at));
-    wb_u32(w, u);
-    uint64_t off = VOD_HEADER_BYTES + 4 * L->nodes + 4 + 12ull * u;
-    for (uint32_t j = 0; j < u; j++) {
-        wb_u32(w, j + 1);
-        wb_u32(w, (uint32_t)off);
-        wb_u32(w, recs[first[j]].hash);
-        off += 4 + (uint64_t)recs[first[j]].size;
-    }
-    for (uint32_t j = 0; j < u; j++) {
-        wb_u32(w, recs[first[j]].size);
-        wb_put(w, data[first[j]], recs[first[j]].size);
-    }
-}
-
-static void fill_stats(vod_stats *st, const vod_layout *L, size_t n,
-                       const vod_encoded *recs, const uint32_t *first,
-                       uint32_t u, const wbuf *w)
-{
-    uint64_t side = L->padded;
-    memset(st, 0, sizeof *st);
-    st->file_bytes = w->total;
-    st->raw_bytes = side * side * side * L->voxel_bits / 8;
-    st->nodes = L->nodes;
-    st->nonempty_nodes = n;
-    st->bricks = u;
-    st->brick_raw_bytes = (uint64_t)u * L->raw_bytes;
-    for (uint32_t j = 0; j < u; j++) st->brick_data_bytes += recs[first[j]].size;
-    st->crc32 = w->file_crc;
-}
-
-/* The 4 GiB limit, with what to ask for instead. */
-static int too_big(char *err, size_t errlen, const vod_layout *L, const vod_params *p,
-                   uint32_t unique)
-{
-    return fail(err, errlen, -EFBIG,
-                "the VOD file would pass 4 GiB, the limit of the format's 32-bit "
-                "offsets (%u unique bricks of %u^3 voxels); ask for %s",
-                unique, L->brick,
-                p->comp == VOD_COMP_NONE ? "compression (zlib or runl), a larger brick "
-                                           "or a lower res"
-                                         : "a larger brick or a lower res");
-}
-
-int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
-                 const vod_node *nodes, const vod_encoded *recs,
-                 const uint8_t *const *data, vod_sink *sink, vod_stats *st,
-                 char *err, size_t errlen)
-{
-    if (errlen) err[0] = '\0';
-    double t0 = clock_now();
-    int rc = check_inputs(L, p, n, nodes, recs, data);
-    if (rc)
-        return fail(err, errlen, rc, "bricks out of preorder or over their bound");
-    uint32_t *ids = malloc((n + 1) * sizeof *ids);
-    uint32_t *first = malloc((n + 1) * sizeof *first), u = 0;
-    wbuf w = {.sink = sink, .buf = malloc(WBUF_BYTES)};
-    rc = ids && first && w.buf ? dedup(n, recs, data, ids, first, &u) : -ENOMEM;
-    size_t meta = p->metadata ? strlen(p->metadata) : 0;
-    uint64_t size = VOD_HEADER_BYTES + 4 * L->nodes + 4 + 12ull * u +
-                    TRAILER_FIXED + meta;
-    for (uint32_t j = 0; j < u && !rc; j++) size += 4 + (uint64_t)recs[first[j]].size;
-    if (rc) fail(err, errlen, rc, "out of memory for %zu bricks", n);
-    else if (size > UINT32_MAX) rc = too_big(err, errlen, L, p, u);
-    if (!rc) {
-        write_body(&w, L, p, n, nodes, recs, data, ids, first, u);
-        put_trailer(&w, p, meta);
-        rc = w.err;
-    }
-    if (!rc && st) {
-        fill_stats(st, L, n, recs, first, u, &w);
-        st->t.write = w.t_write;
-        st->t.assemble = clock_now() - t0 - w.t_write;
-    }
-    free(ids);
-    free(first);
-    free(w.buf);
-    return rc;
 }
 
 /* ---- all three phases ---- */

@@ -1,0 +1,86 @@
+#!/bin/bash
+# bench/voxserial, which measures a command's serial share from outside
+# (make bench-serial), on commands whose answer is known: one busy thread
+# (all serial), two busy threads (all parallel), busy children and
+# grandchildren (seen through the process tree), a sleeper (idle), the
+# serial spans of a command that is serial then parallel; then
+# scripts/bench-serial.sh in its quick mode, so that it cannot rot.  Its
+# "runnable" measure does not depend on the shared machine's load (a thread
+# waiting for a CPU still counts), so the bounds hold on a loaded machine.
+. "$(dirname "$0")/lib.sh"
+REL=build/release # the benchmark's build; make test builds it beside asan
+S=$ROOT/$REL/voxserial
+mk() { env -u MAKEFLAGS -u MFLAGS -u MAKELEVEL make --no-print-directory -C "$ROOT" "$@"; }
+check "voxserial builds" mk V=release "$REL/voxserial"
+
+LINE='^wall_s=[0-9.]+ serial_s=[0-9.]+ idle_s=[0-9.]+ parallel_s=[0-9.]+ share=[0-9.]+ cap16=[0-9.]+ cap64=[0-9.]+ ran_serial_s=[0-9.]+ ran_parallel_s=[0-9.]+ ran_share=[0-9.]+ cpu_s=[0-9.]+ samples=[0-9]+ threads=[0-9]+ procs=[0-9]+$'
+refuse "voxserial: the command's exit status, one line" 3 "$LINE" "$S" -- sh -c 'exit 3'
+refuse "voxserial: a signal as 128 + its number" 143 "$LINE" "$S" -- sh -c 'kill -TERM $$'
+refuse "voxserial: a command that is not there" 127 "No such file" "$S" -- "$TMP/none"
+refuse "voxserial: a bad option" 125 "usage" "$S" -t 2 -- true
+
+# measure NAME ARGS...: runs voxserial ARGS into $TMP/NAME; val NAME KEY.
+measure() { local n=$1; shift; "$S" -o "$TMP/$n" "$@" >/dev/null 2>&1; }
+val() { sed -n "s/.*\\b$2=\\([0-9.]*\\).*/\\1/p" "$TMP/$1" | head -1; }
+# expect NAME CHECK: passes when the awk condition over the line's keys holds.
+expect() {
+    local n=$1 cond=$2 line; line=$(head -1 "$TMP/$n" 2>/dev/null)
+    if awk -v m="$line" "BEGIN { k = split(m, kv, \" \")
+        for (i = 1; i <= k; i++) { split(kv[i], p, \"=\"); v[p[1]] = p[2] + 0 }
+        exit !($cond) }"; then pass "voxserial: $n ($cond)"
+    else fail "voxserial: $n ($cond)" "$line"; fi
+}
+
+measure one -- "$S" -S 1:1
+expect one 'v["share"] >= 0.95 && v["parallel_s"] <= 0.05 && v["wall_s"] >= 0.95 && v["threads"] == 1'
+expect one 'v["ran_share"] >= 0.95' # at most one thread can run: whatever the load
+
+measure two -- "$S" -S 2:1
+# (the start, exec and the second thread's creation, is serial: a few
+# windows, longer on a loaded machine)
+expect two 'v["share"] <= 0.1 && v["parallel_s"] >= 0.85 && v["threads"] == 2'
+measure two-n4 -n 4 -- "$S" -S 2:1 # a parallel second is 4 workers' work
+expect two-n4 'v["share"] <= 0.05 && v["share"] * 4 >= 0.9 * (v["serial_s"] / (v["serial_s"] + 2 * v["parallel_s"]))'
+
+# A parent that forks one busy child and waits: serial, the child seen.
+measure child -- sh -c "'$S' -S 1:1 & wait"
+expect child 'v["share"] >= 0.8 && v["procs"] >= 2 && v["cpu_s"] >= 0.05'
+# Two busy children, and two busy grandchildren: parallel only when the
+# whole tree is sampled.
+measure children -- sh -c "'$S' -S 1:1 & '$S' -S 1:1; wait"
+expect children 'v["share"] <= 0.1 && v["procs"] >= 3'
+measure grandchildren -- sh -c "sh -c \"'$S' -S 1:1 & '$S' -S 1:1; wait\"; true"
+expect grandchildren 'v["share"] <= 0.1 && v["procs"] >= 4'
+
+measure sleep -- sleep 0.5
+expect sleep 'v["idle_s"] >= 0.4 && v["parallel_s"] <= 0.05'
+
+# Serial for 0.6 s, then parallel for 0.6 s: one serial span at the start
+# (its first window may be parallel: the shell and its child, just forked).
+measure spans -l 100 -- sh -c "'$S' -S 1:0.6; '$S' -S 2:0.6"
+spans=$(sed -n 's/^serial_spans=//p' "$TMP/spans")
+if awk -v s="$spans" 'BEGIN { n = split(s, a, ","); split(a[1], b, "-")
+        exit !(n >= 1 && b[1] + 0 <= 0.15 && b[2] + 0 >= 0.5 && b[2] + 0 <= 0.75) }'; then
+    pass "voxserial: the serial span of a serial-then-parallel command ($spans)"
+else fail "voxserial: the serial span of a serial-then-parallel command" "$(cat "$TMP/spans")"; fi
+
+# ---------------------------------------------------------------- the table
+check "bench-serial builds" mk V=release "$REL/vox"
+BENCH_QUICK=1 scripts/bench-serial.sh "$REL" >"$TMP/table" 2>"$TMP/table.err"
+rc=$?
+if [ "$rc" -eq 0 ]; then pass "bench-serial: quick mode runs"
+else fail "bench-serial: quick mode runs" "exit $rc: $(tail -3 "$TMP/table.err")"; fi
+grep -q "^### .*([0-9]* cores: " "$TMP/table" && pass "bench-serial: the core count in the header" ||
+    fail "bench-serial: the core count in the header" "$(head -1 "$TMP/table")"
+rows=$(grep -c '^| [A-Za-z1-9]' "$TMP/table" | head -1)
+want=6
+grep -q 'The dragon is skipped' "$TMP/table" && want=5
+# every row: a number in each of the nine measure columns, shares <= 100%,
+# the command's own stages beside them
+bad=$(awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ {
+        ok = $12 != ""
+        for (i = 3; i <= 11; i++) if ($i !~ /^ *[0-9.]+%? *$/) ok = 0
+        if ($7 + 0 > 100 || $10 + 0 > 100 || $13 !~ /[0-9] s/) ok = 0
+        if (!ok) print }' "$TMP/table")
+if [ "$((rows - 1))" -eq "$want" ] && [ -z "$bad" ]; then pass "bench-serial: $want rows, every column filled"
+else fail "bench-serial: $want rows, every column filled" "rows $((rows - 1)); $bad"; fi
