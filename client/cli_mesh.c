@@ -11,6 +11,7 @@
 #include "clock.h"
 #include "iso.h"
 #include "outfile.h"
+#include "par.h"
 #include "vod.h"
 
 typedef struct {
@@ -211,7 +212,8 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m)
     outfile f;
     int rc = outfile_open(&f, o->out);
     if (!rc) {
-        rc = iso_write(f.fd, m, o->fmt, comment);
+        /* formatted by as many threads as the job had workers (idle now) */
+        rc = iso_write(f.fd, m, o->fmt, comment, o->workers ? o->workers : 1);
         if (!rc && !cli_interrupted()) {
             rc = outfile_commit(&f, o->out);
         } else {
@@ -235,6 +237,31 @@ static void print_summary(const mesh_opts *o, const iso_params *p, const iso_mes
            "%.3f s, weld %.3f s\n", t[1] - t[0], m->t_setup, m->t_tasks, m->t_weld);
     if (o->workers)
         printf("  CPU: master %.3f s, workers %.3f s\n", r->master_cpu, r->worker_cpu);
+}
+
+/* The end of the command beside the mesh's write: the file's bricks
+ * freed, the workers gone and the segment's pages but the mesh's given
+ * back (engine_retire), none of it after the write. */
+typedef struct {
+    vod_file *f;
+    engine *e;
+    const iso_mesh *m;
+} wind_down;
+
+static void *wind_down_run(void *ud)
+{
+    wind_down *w = ud;
+    vod_close(w->f);
+    if (w->e) { /* the mesh's arrays lie one after another in the segment */
+        const uint8_t *lo = (const uint8_t *)w->m->pos, *hi = lo + 12 * w->m->n_vertices;
+        const uint8_t *t = (const uint8_t *)w->m->tri, *n = (const uint8_t *)w->m->nrm;
+        if (t < lo) lo = t;
+        if (t + 12 * w->m->n_triangles > hi) hi = t + 12 * w->m->n_triangles;
+        if (n && n < lo) lo = n;
+        if (n && n + 12 * w->m->n_vertices > hi) hi = n + 12 * w->m->n_vertices;
+        engine_retire(w->e, lo, (size_t)(hi - lo));
+    }
+    return NULL;
 }
 
 static int run(const mesh_opts *o)
@@ -262,10 +289,16 @@ static int run(const mesh_opts *o)
     cli_catch_interrupts();
     rc = polygonize(o, f, &p, &m, &r, &e);
     t[2] = clock_now();
-    vod_close(f);
-    if (cli_interrupted()) cli_end_interrupted(o->out);
+    wind_down wd = {f, rc ? NULL : e, &m};
+    par_task end;
+    par_start(&end, wind_down_run, &wd);
+    if (cli_interrupted()) {
+        par_join(&end);
+        cli_end_interrupted(o->out);
+    }
     if (!rc) rc = write_mesh(o, &m);
     t[3] = clock_now();
+    par_join(&end);
     if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);
     iso_mesh_free(&m);
     engine_destroy(e);

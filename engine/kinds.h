@@ -149,10 +149,13 @@ static inline mesh_task_arg mesh_task_tiles(const shm_task *t)
 
 enum csg_op {
     CSG_BRICKS = 1,        /* bricks first .. first + count - 1 of the box (x fastest) */
+    CSG_MIPS = 2,          /* mip columns first .. first + count - 1 (x fastest) */
 };
 
 /* The task's argument: a run of storage bricks, numbered x fastest over
- * the block's box of bricks; its counts go to stats[task]. */
+ * the block's box of bricks; its counts go to stats[task].  For CSG_MIPS
+ * a run of the volume's level-mip_levels brick columns, numbered x
+ * fastest (task unused). */
 typedef struct {
     uint32_t first, count, task;
 } csg_task_arg;
@@ -184,6 +187,10 @@ typedef struct {
      * the other nodes (CSG_BLOCK_NODES = csg.h's CSG_MAX_NODES). */
     uint64_t leaf_off[CSG_BLOCK_NODES];
     uint64_t volume_off;                    /* the vod_volume's arena */
+    /* Once every brick is in, the CSG_MIPS tasks build mip levels
+     * 1..mip_levels of the VOD's channel (`channel`) by columns
+     * (vod_volume_mip_columns); 0: none, the writer builds them all. */
+    uint32_t mip_levels;
 } csg_block;
 
 static inline csg_task_arg csg_task_bricks(const shm_task *t)

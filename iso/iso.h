@@ -181,8 +181,9 @@ typedef struct {
 
 /* Welding in parts, for processes that share the work: the pieces checked
  * (keys in order and on their brick, every reference inside its piece's
- * counts) and each one's first vertex and first triangle in the mesh
- * (vbase, tbase: n + 1 entries, the last the totals); then each piece
+ * counts; by `threads` threads at once, the error the first bad piece
+ * gives, as with one) and each one's first vertex and first triangle in
+ * the mesh (vbase, tbase: n + 1 entries, the last the totals); then each piece
  * welded (its references to other pieces found by key) into the mesh's
  * arrays, any process, any order: a piece writes its own vertices and
  * triangles only. */
@@ -195,7 +196,7 @@ typedef struct {
     uint32_t *tri;
 } iso_weld;
 int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
-                   uint64_t *tbase, char *err, size_t errlen);
+                   uint64_t *tbase, unsigned threads, char *err, size_t errlen);
 int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen);
 
 /* The pieces of every task (in task order, each task's key given) welded
@@ -218,6 +219,11 @@ int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *
  * -ENOMEM), laid out as: keys, offsets, states, raw bricks. */
 int iso_input_make(const vod_file *f, const iso_params *p,
                    void *(*alloc)(void *ud, size_t bytes), void *ud, iso_input *in);
+/* The same, the bricks copied (the first touch of alloc's memory) and
+ * their states found by `threads` threads at once. */
+int iso_input_make_threads(const vod_file *f, const iso_params *p,
+                           void *(*alloc)(void *ud, size_t bytes), void *ud,
+                           unsigned threads, iso_input *in);
 
 /* ---- writing ---- */
 
@@ -226,8 +232,12 @@ typedef enum { ISO_FMT_NONE, ISO_FMT_PLY, ISO_FMT_PLY_ASCII, ISO_FMT_OBJ, ISO_FM
 /* "ply", "obj", "stl" (and "ply-ascii" by name only); ISO_FMT_NONE if not. */
 iso_format iso_format_of_name(const char *s);
 iso_format iso_format_of_path(const char *path);
-/* Write m to fd in format f; 0 or a negative errno. */
-int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment);
+/* Write m to fd in format f, from where fd stands, formatted by `threads`
+ * threads at once (each writing its chunks at their offsets: fd must seek
+ * for more than one; one that cannot is written in order by one); 0 or a
+ * negative errno. */
+int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
+              unsigned threads);
 
 /* ---- the case table (iso_table.c) ---- */
 

@@ -7,8 +7,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include "iso.h"
+#include "par.h"
 
 __attribute__((format(printf, 3, 4))) static int
 say(char *err, size_t len, const char *fmt, ...)
@@ -184,8 +187,48 @@ static int levels_used(const iso_params *p, uint32_t *lo, uint32_t *hi)
     return 0;
 }
 
+/* The unique bricks' copies and states, split among threads: a part
+ * takes the runs of one raw brick that start in its range of c->v. */
+typedef struct {
+    const iso_params *p;
+    brick_ref *v;
+    size_t n, raw_bytes;
+    uint8_t *raw;
+} copy_ctx;
+
+/* The pages of raw[from, to) faulted in by one call, not one fault each
+ * (a kernel without MADV_POPULATE_WRITE faults them as the copy goes). */
+static void prefault(uint8_t *raw, size_t from, size_t to)
+{
+#ifdef MADV_POPULATE_WRITE
+    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE), a = (uintptr_t)(raw + from) / page * page;
+    if (to > from) madvise((void *)a, (uintptr_t)(raw + to) - a, MADV_POPULATE_WRITE);
+#else
+    (void)raw, (void)from, (void)to;
+#endif
+}
+
+static void copy_part(void *ud, unsigned k, unsigned parts)
+{
+    copy_ctx *c = ud;
+    size_t lo = c->n * k / parts, hi = c->n * (k + 1) / parts;
+    if (lo < hi) prefault(c->raw, c->v[lo].off, c->v[hi - 1].off + c->raw_bytes);
+    for (size_t i = lo; i < hi; i++)
+        if (i == 0 || c->v[i].raw != c->v[i - 1].raw) {
+            memcpy(c->raw + c->v[i].off, c->v[i].raw, c->raw_bytes);
+            c->v[i].state = brick_state(c->p, c->v[i].raw);
+        }
+}
+
 int iso_input_make(const vod_file *f, const iso_params *p,
                    void *(*alloc)(void *ud, size_t bytes), void *ud, iso_input *in)
+{
+    return iso_input_make_threads(f, p, alloc, ud, 1, in);
+}
+
+int iso_input_make_threads(const vod_file *f, const iso_params *p,
+                           void *(*alloc)(void *ud, size_t bytes), void *ud,
+                           unsigned threads, iso_input *in)
 {
     collect_ctx c = {.p = p};
     uint32_t lo, hi;
@@ -213,11 +256,13 @@ int iso_input_make(const vod_file *f, const iso_params *p,
     }
     uint64_t *keys = (uint64_t *)mem, *offs = keys + c.n;
     uint8_t *state = mem + c.n * 16, *raw = state + st_bytes;
-    for (size_t i = 0; i < c.n; i++)
-        if (i == 0 || c.v[i].raw != c.v[i - 1].raw) {
-            memcpy(raw + c.v[i].off, c.v[i].raw, raw_bytes);
-            c.v[i].state = brick_state(p, c.v[i].raw);
-        } else c.v[i].state = c.v[i - 1].state; /* a shared brick: the same */
+    /* the copy is the first touch of raw's pages: on every thread, with
+     * the states (a part copies 1 MiB at least) */
+    copy_ctx cc = {p, c.v, c.n, raw_bytes, raw};
+    size_t most = uniq * raw_bytes / (1u << 20) + 1;
+    par_run(threads < most ? threads : (unsigned)most, copy_part, &cc);
+    for (size_t i = 1; i < c.n; i++) /* a shared brick: its first's state */
+        if (c.v[i].raw == c.v[i - 1].raw) c.v[i].state = c.v[i - 1].state;
     if (c.n) qsort(c.v, c.n, sizeof *c.v, by_key);
     for (size_t i = 0; i < c.n; i++) {
         keys[i] = c.v[i].key;

@@ -12,6 +12,7 @@
 
 #include "clock.h"
 #include "iso.h"
+#include "par.h"
 
 #define KEY_LOW ((1ull << 58) - 1)
 
@@ -148,13 +149,52 @@ static int check_piece(const iso_params *p, const iso_piece *pcs, uint64_t i, ch
     return 0;
 }
 
-int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
-                   uint64_t *tbase, char *err, size_t errlen)
+/* The pieces checked in parts: each part stops at its first bad piece;
+ * the first of those in piece order is the error, as one thread finds. */
+typedef struct {
+    const iso_params *p;
+    const iso_piece *pc;
+    uint64_t n;
+    uint64_t bad[PAR_MAX];   /* each part's first bad piece, or n */
+    int rc[PAR_MAX];
+    char msg[PAR_MAX][160];
+} check_ctx;
+
+static void check_part(void *ud, unsigned k, unsigned parts)
 {
+    check_ctx *c = ud;
+    uint64_t lo = c->n * k / parts, hi = c->n * (k + 1) / parts;
+    c->bad[k] = c->n;
+    for (uint64_t i = lo; i < hi; i++)
+        if ((c->rc[k] = check_piece(c->p, c->pc, i, c->msg[k], sizeof c->msg[k]))) {
+            c->bad[k] = i;
+            return;
+        }
+}
+
+/* Pieces per part at least: a part is worth a thread. */
+#define CHECK_PART_MIN 256u
+
+int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
+                   uint64_t *tbase, unsigned threads, char *err, size_t errlen)
+{
+    check_ctx *c = malloc(sizeof *c);
+    if (!c) return -ENOMEM;
+    c->p = p, c->pc = pc, c->n = n;
+    uint64_t most = n / CHECK_PART_MIN + 1;
+    unsigned parts = threads < 1 ? 1 : threads > PAR_MAX ? PAR_MAX : threads;
+    if (parts > most) parts = (unsigned)most;
+    par_run(parts, check_part, c);
+    int rc = 0;
+    for (unsigned k = 0; k < parts && !rc; k++)
+        if (c->bad[k] < n) { /* the parts are in piece order */
+            rc = c->rc[k];
+            snprintf(err, errlen, "%s", c->msg[k]);
+        }
+    free(c);
+    if (rc) return rc;
     uint64_t nv = 0, nt = 0;
     for (uint64_t i = 0; i < n; i++) {
-        int rc = check_piece(p, pc, i, err, errlen);
-        if (rc) return rc;
         vbase[i] = nv;
         tbase[i] = nt;
         nv += (uint64_t)pc[i].nv + pc[i].nc;
@@ -220,7 +260,7 @@ int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh
 {
     memset(out, 0, sizeof *out);
     uint64_t *vbase = malloc((n + 1) * sizeof *vbase), *tbase = malloc((n + 1) * sizeof *tbase);
-    int rc = vbase && tbase ? iso_weld_bases(p, pieces, n, vbase, tbase, err, errlen) : -ENOMEM;
+    int rc = vbase && tbase ? iso_weld_bases(p, pieces, n, vbase, tbase, 1, err, errlen) : -ENOMEM;
     if (!rc) {
         out->n_vertices = vbase[n];
         out->n_triangles = tbase[n];

@@ -1,136 +1,75 @@
 /* Writing a mesh: PLY (binary little-endian by default, or ASCII), OBJ
  * (with "vn" normals when it has them), binary STL (facet normals from the
- * triangles; STL has no shared vertices).  Through a buffer of our own,
- * written with write(2) in large pieces. */
+ * triangles; STL has no shared vertices).
+ *
+ * The file after its header is a run of records (vertices, normals,
+ * triangles), cut into chunks of CHUNK records.  Each thread claims the
+ * next chunk, formats it into a buffer of its own, waits until the chunk
+ * before it has taken its place in the file (its offset plus its size
+ * give this one's offset), publishes its own end, and writes its bytes
+ * there with pwrite: the formatting, the most of the cost, runs on every
+ * thread, and only the handing on of offsets is in order.  One thread (or
+ * an fd that cannot seek) writes the chunks in order with write. */
 #include <errno.h>
 #include <math.h>
-#include <stdarg.h>
-#include <stdlib.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 #include "iso.h"
+#include "par.h"
+
+#define CHUNK 8192u     /* records a chunk */
+#define REC_MAX 160u    /* bytes of one record at most, in every format */
+#define HEAD_MAX 1024u  /* bytes of a header at most */
+
+typedef enum { R_PLY_V, R_PLY_VA, R_PLY_F, R_PLY_FA, R_OBJ_V, R_OBJ_VN, R_OBJ_F,
+               R_STL } rec_kind;
 
 typedef struct {
-    int fd, err;
-    size_t n;
-    uint8_t buf[1 << 16];
-} out_buf;
+    rec_kind kind;
+    uint64_t n;              /* records */
+} section;
 
-static void flush(out_buf *o)
-{
-    size_t at = 0;
-    while (!o->err && at < o->n) {
-        ssize_t k = write(o->fd, o->buf + at, o->n - at);
-        if (k < 0 && errno == EINTR) continue;
-        if (k <= 0) o->err = k < 0 ? -errno : -EIO;
-        else at += (size_t)k;
-    }
-    o->n = 0;
-}
+typedef struct {
+    const iso_mesh *m;
+    section sec[3];
+    int nsec;
+    uint64_t first[4];       /* the first chunk of each section, then the total */
+    int fd, seek;            /* seek: pwrite at base + offsets, else write in order */
+    off_t base;
+    atomic_uint_fast64_t next; /* the next chunk to claim: a counter, relaxed */
+    pthread_mutex_t mu;      /* guards the four below */
+    pthread_cond_t cv;
+    uint64_t placed;         /* chunks whose offset is known */
+    uint64_t end;            /* the offset past the last placed chunk */
+    int err;                 /* the first error: the others stop */
+} writer;
 
-static void put(out_buf *o, const void *p, size_t n)
-{
-    const uint8_t *s = p;
-    while (n) {
-        if (o->n == sizeof o->buf) flush(o);
-        size_t k = sizeof o->buf - o->n < n ? sizeof o->buf - o->n : n;
-        memcpy(o->buf + o->n, s, k);
-        o->n += k;
-        s += k;
-        n -= k;
-    }
-}
-
-__attribute__((format(printf, 2, 3))) static void putf(out_buf *o, const char *fmt, ...)
-{
-    char line[256];
-    va_list ap;
-    va_start(ap, fmt);
-    int k = vsnprintf(line, sizeof line, fmt, ap);
-    va_end(ap);
-    if (k > 0) put(o, line, (size_t)k < sizeof line ? (size_t)k : sizeof line - 1);
-}
-
-/* n little-endian 32-bit words: copied as they are on a little-endian
- * machine, byte by byte elsewhere. */
-static void put32s(out_buf *o, const void *p, size_t n)
+/* n little-endian 32-bit words at o: copied as they are on a
+ * little-endian machine, byte by byte elsewhere; the bytes written. */
+static size_t put32s(uint8_t *o, const void *p, size_t n)
 {
 #if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    put(o, p, 4 * n);
+    memcpy(o, p, 4 * n);
 #else
     const uint8_t *s = p;
     for (size_t i = 0; i < n; i++, s += 4) {
         uint32_t v;
         memcpy(&v, s, 4);
-        uint8_t b[4] = {(uint8_t)v, (uint8_t)(v >> 8), (uint8_t)(v >> 16), (uint8_t)(v >> 24)};
-        put(o, b, 4);
+        for (int b = 0; b < 4; b++) o[4 * i + b] = (uint8_t)(v >> 8 * b);
     }
 #endif
+    return 4 * n;
 }
 
-static void put32(out_buf *o, const void *p)
+static size_t put_text(uint8_t *o, int k)
 {
-    put32s(o, p, 1);
-}
-
-static void ply_header(out_buf *o, const iso_mesh *m, int ascii, const char *comment)
-{
-    putf(o, "ply\nformat %s 1.0\n", ascii ? "ascii" : "binary_little_endian");
-    if (comment) putf(o, "comment %s\n", comment);
-    putf(o, "element vertex %llu\n", (unsigned long long)m->n_vertices);
-    putf(o, "property float x\nproperty float y\nproperty float z\n");
-    if (m->nrm) putf(o, "property float nx\nproperty float ny\nproperty float nz\n");
-    putf(o, "element face %llu\n", (unsigned long long)m->n_triangles);
-    putf(o, "property list uchar uint vertex_indices\nend_header\n");
-}
-
-static void write_ply(out_buf *o, const iso_mesh *m, int ascii, const char *comment)
-{
-    ply_header(o, m, ascii, comment);
-    for (uint64_t i = 0; i < m->n_vertices; i++) {
-        const float *p = m->pos + 3 * i, *n = m->nrm ? m->nrm + 3 * i : NULL;
-        if (ascii) {
-            putf(o, "%.9g %.9g %.9g", (double)p[0], (double)p[1], (double)p[2]);
-            if (n) putf(o, " %.9g %.9g %.9g", (double)n[0], (double)n[1], (double)n[2]);
-            putf(o, "\n");
-            continue;
-        }
-        put32s(o, p, 3);
-        if (n) put32s(o, n, 3);
-    }
-    for (uint64_t i = 0; i < m->n_triangles; i++) {
-        const uint32_t *t = m->tri + 3 * i;
-        if (ascii) {
-            putf(o, "3 %u %u %u\n", t[0], t[1], t[2]);
-            continue;
-        }
-        uint8_t three = 3;
-        put(o, &three, 1);
-        put32s(o, t, 3);
-    }
-}
-
-static void write_obj(out_buf *o, const iso_mesh *m, const char *comment)
-{
-    if (comment) putf(o, "# %s\n", comment);
-    for (uint64_t i = 0; i < m->n_vertices; i++) {
-        const float *p = m->pos + 3 * i;
-        putf(o, "v %.9g %.9g %.9g\n", (double)p[0], (double)p[1], (double)p[2]);
-    }
-    for (uint64_t i = 0; m->nrm && i < m->n_vertices; i++) {
-        const float *n = m->nrm + 3 * i;
-        putf(o, "vn %.9g %.9g %.9g\n", (double)n[0], (double)n[1], (double)n[2]);
-    }
-    for (uint64_t i = 0; i < m->n_triangles; i++) {
-        const uint32_t *t = m->tri + 3 * i;
-        if (m->nrm)
-            putf(o, "f %u//%u %u//%u %u//%u\n", t[0] + 1, t[0] + 1, t[1] + 1, t[1] + 1,
-                 t[2] + 1, t[2] + 1);
-        else
-            putf(o, "f %u %u %u\n", t[0] + 1, t[1] + 1, t[2] + 1);
-    }
+    (void)o;
+    return k > 0 ? (size_t)k : 0;
 }
 
 static void facet_normal(const iso_mesh *m, const uint32_t *t, float n[3])
@@ -145,43 +84,210 @@ static void facet_normal(const iso_mesh *m, const uint32_t *t, float n[3])
     for (int d = 0; d < 3; d++) n[d] = (float)(len > 0 ? w[d] / len : 0);
 }
 
-/* Binary STL: 80 bytes of header, a u32 count, 50 bytes per triangle.  A
- * count past 2^32 - 1 does not fit: -EFBIG. */
-static int write_stl(out_buf *o, const iso_mesh *m, const char *comment)
+static size_t stl_facet(const iso_mesh *m, uint64_t i, uint8_t *o)
 {
-    if (m->n_triangles > UINT32_MAX) return -EFBIG;
-    char head[80] = {0};
-    snprintf(head, sizeof head, "%s", comment ? comment : "vox mesh");
-    put(o, head, sizeof head);
-    uint32_t n = (uint32_t)m->n_triangles;
-    put32(o, &n);
-    for (uint64_t i = 0; i < m->n_triangles; i++) {
-        const uint32_t *t = m->tri + 3 * i;
-        float fn[3];
-        facet_normal(m, t, fn);
-        put32s(o, fn, 3);
-        for (int k = 0; k < 3; k++) put32s(o, &m->pos[3 * t[k]], 3);
-        uint8_t attr[2] = {0, 0};
-        put(o, attr, 2);
+    const uint32_t *t = m->tri + 3 * i;
+    float fn[3];
+    facet_normal(m, t, fn);
+    size_t k = put32s(o, fn, 3);
+    for (int c = 0; c < 3; c++) k += put32s(o + k, &m->pos[3 * t[c]], 3);
+    o[k] = o[k + 1] = 0; /* the attribute byte count */
+    return k + 2;
+}
+
+/* Record i of kind at o (REC_MAX bytes of room); its bytes. */
+static size_t record(const iso_mesh *m, rec_kind kind, uint64_t i, uint8_t *o)
+{
+    const float *p = m->pos + 3 * i, *n = m->nrm ? m->nrm + 3 * i : NULL;
+    const uint32_t *t = m->tri + 3 * i;
+    char *s = (char *)o;
+    size_t k;
+    switch (kind) {
+    case R_PLY_V:
+        k = put32s(o, p, 3);
+        return n ? k + put32s(o + k, n, 3) : k;
+    case R_PLY_VA:
+        k = put_text(o, snprintf(s, REC_MAX, "%.9g %.9g %.9g", (double)p[0], (double)p[1],
+                                 (double)p[2]));
+        if (n)
+            k += put_text(o, snprintf(s + k, REC_MAX - k, " %.9g %.9g %.9g", (double)n[0],
+                                      (double)n[1], (double)n[2]));
+        o[k] = '\n';
+        return k + 1;
+    case R_PLY_F:
+        o[0] = 3;
+        return 1 + put32s(o + 1, t, 3);
+    case R_PLY_FA:
+        return put_text(o, snprintf(s, REC_MAX, "3 %u %u %u\n", t[0], t[1], t[2]));
+    case R_OBJ_V:
+        return put_text(o, snprintf(s, REC_MAX, "v %.9g %.9g %.9g\n", (double)p[0],
+                                    (double)p[1], (double)p[2]));
+    case R_OBJ_VN:
+        return put_text(o, snprintf(s, REC_MAX, "vn %.9g %.9g %.9g\n", (double)n[0],
+                                    (double)n[1], (double)n[2]));
+    case R_OBJ_F:
+        if (m->nrm)
+            return put_text(o, snprintf(s, REC_MAX, "f %u//%u %u//%u %u//%u\n", t[0] + 1,
+                                        t[0] + 1, t[1] + 1, t[1] + 1, t[2] + 1, t[2] + 1));
+        return put_text(o, snprintf(s, REC_MAX, "f %u %u %u\n", t[0] + 1, t[1] + 1,
+                                    t[2] + 1));
+    case R_STL:
+        return stl_facet(m, i, o);
     }
     return 0;
 }
 
-int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment)
+/* Chunk c's records formatted into buf; its bytes. */
+static size_t format_chunk(const writer *w, uint64_t c, uint8_t *buf)
+{
+    int s = 0;
+    while (c >= w->first[s + 1]) s++;
+    uint64_t i = (c - w->first[s]) * CHUNK, end = i + CHUNK;
+    if (end > w->sec[s].n) end = w->sec[s].n;
+    size_t k = 0;
+    for (; i < end; i++) k += record(w->m, w->sec[s].kind, i, buf + k);
+    return k;
+}
+
+/* All n bytes of buf at the file's offset at (or, without seek, where it
+ * stands); 0 or a negative errno. */
+static int put_all(const writer *w, const uint8_t *buf, size_t n, uint64_t at)
+{
+    while (n) {
+        ssize_t k = w->seek ? pwrite(w->fd, buf, n, w->base + (off_t)at) : write(w->fd, buf, n);
+        if (k < 0 && errno == EINTR) continue;
+        if (k <= 0) return k < 0 ? -errno : -EIO;
+        buf += k, n -= (size_t)k, at += (uint64_t)k;
+    }
+    return 0;
+}
+
+/* Chunk c of n bytes: its offset once chunk c - 1 has its own; -1 after
+ * an error anywhere. */
+static int64_t place(writer *w, uint64_t c, size_t n)
+{
+    pthread_mutex_lock(&w->mu);
+    while (w->placed < c && !w->err) pthread_cond_wait(&w->cv, &w->mu);
+    int64_t at = w->err ? -1 : (int64_t)w->end;
+    if (!w->err) {
+        w->end += n;
+        w->placed = c + 1;
+        pthread_cond_broadcast(&w->cv);
+    }
+    pthread_mutex_unlock(&w->mu);
+    return at;
+}
+
+static void fail(writer *w, int rc)
+{
+    pthread_mutex_lock(&w->mu);
+    if (!w->err) w->err = rc;
+    pthread_cond_broadcast(&w->cv);
+    pthread_mutex_unlock(&w->mu);
+}
+
+/* One thread's part: chunks claimed until none is left.  Without seek
+ * the chunks are written in order as they are placed (one thread). */
+static void write_part(void *ud, unsigned k, unsigned n)
+{
+    writer *w = ud;
+    (void)k, (void)n;
+    uint8_t *buf = malloc((size_t)CHUNK * REC_MAX);
+    if (!buf) {
+        fail(w, -ENOMEM);
+        return;
+    }
+    for (;;) {
+        /* relaxed: the counter only hands out chunk numbers */
+        uint64_t c = atomic_fetch_add_explicit(&w->next, 1, memory_order_relaxed);
+        if (c >= w->first[w->nsec]) break;
+        size_t bytes = format_chunk(w, c, buf);
+        int64_t at = place(w, c, bytes);
+        if (at < 0) break;
+        int rc = put_all(w, buf, bytes, (uint64_t)at);
+        if (rc) {
+            fail(w, rc);
+            break;
+        }
+    }
+    free(buf);
+}
+
+/* The header into h (room for HEAD_MAX bytes and the comment); its bytes. */
+static size_t header(const iso_mesh *m, iso_format f, const char *comment, char *h)
+{
+    size_t cap = HEAD_MAX + (comment ? strlen(comment) : 0), k = 0;
+    if (f == ISO_FMT_STL) { /* 80 bytes of text, the u32 count */
+        memset(h, 0, 80);
+        snprintf(h, 80, "%s", comment ? comment : "vox mesh");
+        uint32_t n = (uint32_t)m->n_triangles;
+        return 80 + put32s((uint8_t *)h + 80, &n, 1);
+    }
+    if (f == ISO_FMT_OBJ) return comment ? (size_t)snprintf(h, cap, "# %s\n", comment) : 0;
+    k += (size_t)snprintf(h + k, cap - k, "ply\nformat %s 1.0\n",
+                          f == ISO_FMT_PLY_ASCII ? "ascii" : "binary_little_endian");
+    if (comment) k += (size_t)snprintf(h + k, cap - k, "comment %s\n", comment);
+    k += (size_t)snprintf(h + k, cap - k,
+                          "element vertex %llu\nproperty float x\nproperty float y\n"
+                          "property float z\n", (unsigned long long)m->n_vertices);
+    if (m->nrm)
+        k += (size_t)snprintf(h + k, cap - k,
+                              "property float nx\nproperty float ny\nproperty float nz\n");
+    k += (size_t)snprintf(h + k, cap - k,
+                          "element face %llu\nproperty list uchar uint vertex_indices\n"
+                          "end_header\n", (unsigned long long)m->n_triangles);
+    return k;
+}
+
+/* The sections of records after the header, and their first chunks. */
+static void sections(writer *w, iso_format f)
+{
+    const iso_mesh *m = w->m;
+    int a = f == ISO_FMT_PLY_ASCII;
+    section *s = w->sec;
+    if (f == ISO_FMT_STL) s[w->nsec++] = (section){R_STL, m->n_triangles};
+    else if (f == ISO_FMT_OBJ) {
+        s[w->nsec++] = (section){R_OBJ_V, m->n_vertices};
+        if (m->nrm) s[w->nsec++] = (section){R_OBJ_VN, m->n_vertices};
+        s[w->nsec++] = (section){R_OBJ_F, m->n_triangles};
+    } else {
+        s[w->nsec++] = (section){a ? R_PLY_VA : R_PLY_V, m->n_vertices};
+        s[w->nsec++] = (section){a ? R_PLY_FA : R_PLY_F, m->n_triangles};
+    }
+    for (int i = 0; i < w->nsec; i++)
+        w->first[i + 1] = w->first[i] + (s[i].n + CHUNK - 1) / CHUNK;
+}
+
+int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
+              unsigned threads)
 {
     if (f < ISO_FMT_PLY || f > ISO_FMT_STL) return -EINVAL;
-    out_buf *o = malloc(sizeof *o); /* 64 KiB: not on the stack */
-    if (!o) return -ENOMEM;
-    o->fd = fd;
-    o->err = 0;
-    o->n = 0;
-    int rc = 0;
-    if (f == ISO_FMT_PLY || f == ISO_FMT_PLY_ASCII) write_ply(o, m, f == ISO_FMT_PLY_ASCII, comment);
-    else if (f == ISO_FMT_OBJ) write_obj(o, m, comment);
-    else rc = write_stl(o, m, comment);
-    flush(o);
-    if (!rc) rc = o->err;
-    free(o);
+    if (f == ISO_FMT_STL && m->n_triangles > UINT32_MAX) return -EFBIG;
+    writer *w = calloc(1, sizeof *w);
+    char *h = malloc(HEAD_MAX + (comment ? strlen(comment) : 0));
+    int rc = w && h ? 0 : -ENOMEM;
+    if (!rc) {
+        w->m = m;
+        w->fd = fd;
+        w->base = threads > 1 ? lseek(fd, 0, SEEK_CUR) : -1;
+        w->seek = w->base >= 0;
+        sections(w, f);
+        size_t hn = header(m, f, comment, h);
+        rc = put_all(w, (const uint8_t *)h, hn, 0);
+        if (w->seek) w->base += (off_t)hn;
+    }
+    if (!rc) {
+        pthread_mutex_init(&w->mu, NULL);
+        pthread_cond_init(&w->cv, NULL);
+        par_run(w->seek ? threads : 1, write_part, w);
+        pthread_cond_destroy(&w->cv);
+        pthread_mutex_destroy(&w->mu);
+        rc = w->err;
+        /* the fd stands past the file, as after write */
+        if (!rc && w->seek && lseek(fd, w->base + (off_t)w->end, SEEK_SET) < 0) rc = -errno;
+    }
+    free(h);
+    free(w);
     return rc;
 }
 

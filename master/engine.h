@@ -195,9 +195,15 @@ typedef struct {
 /* Must be called from a thread that outlives the engine: the workers get
  * SIGKILL when the thread that forked them exits (PR_SET_PDEATHSIG). */
 int engine_create(const engine_opts *o, engine **out, char *err, size_t errlen);
-/* Tells the workers to exit, reaps them (SIGKILL after 2 s), unmaps and
- * removes the segment. */
+/* Tells the workers to exit, unmaps and removes the segment while they
+ * go, and reaps them (SIGKILL after 2 s). */
 void engine_destroy(engine *e);
+/* The end of a command whose last output is still read from the segment
+ * (a mesh borrowed from it, being written): the workers told to exit and
+ * reaped, and the data area's pages outside [keep, keep + bytes) given
+ * back, on a thread of the caller's while its others read keep.  The
+ * segment stays mapped; only engine_destroy may follow. */
+void engine_retire(engine *e, const void *keep, size_t bytes);
 int engine_workers(const engine *e);
 /* Worker i's pid and the CPU it is pinned to (tests, status pages). */
 int engine_worker_pid(const engine *e, int i);

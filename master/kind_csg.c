@@ -5,10 +5,12 @@
  * rest of the data area to the result's volume, and pushes the volume's storage bricks as runs of
  * consecutive bricks (x fastest), at most CSG_TASKS of them.  Workers send
  * no entries: a brick goes straight into the volume (uniform ones as a
- * table entry) and a run's counts into its entry of the stats array.  A
- * worker's death re-runs its run (the bricks are a pure function of the
- * tree: the same bytes again).  The volume is checked before anyone reads
- * it; the encode kind writes it. */
+ * table entry) and a run's counts into its entry of the stats array.  When
+ * the last run is in, runs of brick columns follow, each building its
+ * columns' low mip levels (what the writer's prepare() built here, on one
+ * core, after the bricks).  A worker's death re-runs its run (the bricks
+ * are a pure function of the tree: the same bytes again).  The volume is
+ * checked before anyone reads it; the encode kind writes it. */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -29,7 +31,11 @@ typedef struct {
     engine_result *r;
     uint32_t ntasks;       /* runs of bricks */
     uint32_t done;         /* runs finished */
+    int mips_pushed;       /* the CSG_MIPS tasks are out */
 } csg_job;
+
+/* Mip columns a worker's share at least: enough to even out the load. */
+#define CSG_MIP_COLUMNS_PER_WORKER 4u
 
 static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
 
@@ -134,6 +140,48 @@ static int set_box(const engine_csg_job *j, csg_block *b)
     return 0;
 }
 
+/* Level l's brick columns, x and y: g[0] * g[1] of them. */
+static void mip_grid(const csg_block *b, uint32_t l, uint32_t g[2])
+{
+    uint32_t side = b->sbrick << l;
+    for (int a = 0; a < 2; a++) g[a] = (b->grid.res[a] + side - 1) / side;
+}
+
+/* The mip levels the workers build, by columns, once the bricks are in:
+ * the most whose columns still give every worker a few (the levels
+ * above, a few bricks, are the writer's); 0 when even level 1 has too
+ * few columns (a small volume: the writer builds them all). */
+static uint32_t plan_mips(const engine *e, const csg_block *b)
+{
+    vod_volume_info in;
+    vod_volume_get_info(e->volume, &in);
+    uint32_t levels = 0, g[2];
+    for (uint32_t l = 1; l <= (uint32_t)in.depth && l < 31; l++) {
+        mip_grid(b, l, g);
+        if ((uint64_t)g[0] * g[1] < (uint64_t)CSG_MIP_COLUMNS_PER_WORKER * (uint32_t)e->n) break;
+        levels = l;
+    }
+    return levels;
+}
+
+/* The mip columns in runs, at most CSG_TASKS, the last pushed first. */
+static int push_mips(engine *e, const csg_block *b)
+{
+    uint32_t g[2];
+    mip_grid(b, b->mip_levels, g);
+    uint64_t n = (uint64_t)g[0] * g[1];
+    uint32_t per = (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS), runs = (uint32_t)((n + per - 1) / per);
+    int rc = 0;
+    for (uint32_t k = runs; k-- > 0 && !rc;) {
+        uint64_t first = (uint64_t)k * per;
+        csg_task_arg a = {(uint32_t)first, (uint32_t)(n - first < per ? n - first : per), 0};
+        shm_task t = {.kind = SHM_KIND_CSG, .op = CSG_MIPS};
+        memcpy(t.arg, &a, sizeof a);
+        rc = sched_push(e, &t);
+    }
+    return rc;
+}
+
 static int csg_setup(engine *e, void *job)
 {
     csg_job *cj = job;
@@ -163,6 +211,7 @@ static int csg_setup(engine *e, void *job)
     if (!rc) rc = init_volume(e, &j->grid, j->channel, vol_off);
     if (!rc) {
         b->volume_off = vol_off;
+        b->mip_levels = plan_mips(e, b);
         rc = push_runs(e, b, per);
     }
     return rc;
@@ -177,13 +226,20 @@ static int csg_take(engine *e, int i, const shm_entry *en)
 static void csg_describe(const shm_task *t, char *buf, size_t len)
 {
     csg_task_arg a = csg_task_bricks(t);
-    snprintf(buf, len, "csg bricks %u..%u", a.first, a.first + a.count - 1);
+    snprintf(buf, len, "csg %s %u..%u", t->op == CSG_MIPS ? "mip columns" : "bricks", a.first,
+             a.first + a.count - 1);
 }
 
 static void csg_done(engine *e, int i, const shm_task *t, int error)
 {
     csg_job *cj = e->job;
-    cj->done++;
+    if (t->op == CSG_BRICKS) cj->done++;
+    /* the last brick in: the workers build the low mip levels */
+    if (!error && !e->err.failure && cj->done == cj->ntasks && !cj->mips_pushed &&
+        block(e)->mip_levels) {
+        cj->mips_pushed = 1;
+        push_mips(e, block(e)); /* a full stack fails the job there */
+    }
     if (!error || e->err.failure) return;
     char what[64];
     csg_describe(t, what, sizeof what);
@@ -232,6 +288,8 @@ static int collect(engine *e, csg_job *cj)
         bad = memcmp(in.dims, cj->job->grid.res, sizeof in.dims) ||
               in.bits != csg_channel_bits(cj->job->channel);
     }
+    if (!bad && cj->mips_pushed) /* every column's built */
+        bad = vod_volume_mips_low(e->volume, (int)b->channel, (int)b->mip_levels);
     if (bad)
         return sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "the workers left the volume inconsistent");

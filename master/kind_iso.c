@@ -20,6 +20,7 @@
 
 #include "clock.h"
 #include "master.h"
+#include "par.h"
 
 typedef struct {
     const engine_iso_job *job;
@@ -100,7 +101,9 @@ static int iso_setup(engine *e, void *job)
     e->h->job_bytes = sizeof *b;
     ij->at = e->h->data_off + sizeof *b;
     iso_input in;
-    int rc = iso_input_make(ij->job->file, &b->p, shm_alloc, e, &in);
+    /* the copy, the first touch of these pages, on every CPU the master
+     * may run on: the workers wait for it */
+    int rc = iso_input_make_threads(ij->job->file, &b->p, shm_alloc, e, par_cpus(), &in);
     if (rc) return no_room(e, "the file's bricks");
     b->n_bricks = in.n;
     b->keys_off = (uint64_t)((const uint8_t *)in.keys - e->seg.base);
@@ -221,7 +224,7 @@ static int prepare_weld(engine *e, iso_job *ij)
     if (rc) return rc;
     if (!tb) return no_room(e, "the mesh");
     char msg[sizeof e->err.message] = "";
-    if ((rc = iso_weld_bases(&b->p, ij->pc, n, vb, tb, msg, sizeof msg)))
+    if ((rc = iso_weld_bases(&b->p, ij->pc, n, vb, tb, par_cpus(), msg, sizeof msg)))
         return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", msg);
     void *pos = arena_alloc(e, 12 * vb[n]), *tri = pos ? arena_alloc(e, 12 * tb[n]) : NULL;
     void *nrm = tri && b->p.normals ? arena_alloc(e, 12 * vb[n]) : NULL;
@@ -245,6 +248,34 @@ static void iso_done(engine *e, int i, const shm_task *t, int error)
     if (!prepare_weld(e, ij)) push_all(e, ISO_WELD);
 }
 
+/* Every index the workers wrote checked against the vertex count, in
+ * parts on every CPU the master may run on. */
+typedef struct {
+    const uint32_t *tri;
+    uint64_t n, nv;          /* indices, vertices */
+    int bad[PAR_MAX];
+} index_check;
+
+static void check_indices(void *ud, unsigned k, unsigned parts)
+{
+    index_check *c = ud;
+    uint64_t lo = c->n * k / parts, hi = c->n * (k + 1) / parts;
+    uint32_t most = 0;
+    for (uint64_t i = lo; i < hi; i++) most = c->tri[i] > most ? c->tri[i] : most;
+    c->bad[k] = lo < hi && most >= c->nv;
+}
+
+static int indices_ok(const uint32_t *tri, uint64_t n, uint64_t nv)
+{
+    index_check c = {tri, n, nv, {0}};
+    unsigned parts = par_cpus();
+    if (parts > n / 65536 + 1) parts = (unsigned)(n / 65536 + 1);
+    par_run(parts, check_indices, &c);
+    for (unsigned k = 0; k < parts; k++)
+        if (c.bad[k]) return 0;
+    return 1;
+}
+
 /* The pieces no worker welded, welded here; then every index checked
  * (the workers wrote them) and the mesh handed out as a view of the
  * segment, kept until the next job. */
@@ -264,10 +295,8 @@ static int weld_rest(engine *e, iso_job *ij)
         int rc = iso_weld_piece(&wd, i, msg, sizeof msg);
         if (rc) return sched_fail(e, ENGINE_FAULT, rc, "%s", msg[0] ? msg : strerror(-rc));
     }
-    for (uint64_t k = 0; k < 3 * tb[n]; k++)
-        if (wd.tri[k] >= vb[n])
-            return sched_fail(e, ENGINE_FAULT, -EPROTO,
-                              "the workers left the mesh inconsistent");
+    if (!indices_ok(wd.tri, 3 * tb[n], vb[n]))
+        return sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left the mesh inconsistent");
     *ij->out = (iso_mesh){.n_vertices = vb[n], .n_triangles = tb[n], .pos = wd.pos,
                           .nrm = wd.nrm, .tri = wd.tri, .borrowed = 1};
     /* the mesh stays until the next job */

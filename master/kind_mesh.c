@@ -11,6 +11,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include "clock.h"
 #include "master.h"
@@ -58,11 +60,23 @@ typedef struct {
     void *vertices, *triangles;
 } mesh_copy;
 
+/* n bytes from src to fresh pages of the segment at to, the pages faulted
+ * in by one call first (MADV_POPULATE_WRITE) rather than one fault each
+ * as the copy goes; where the kernel has no such call, by the copy. */
+static void copy_fresh(void *to, const void *src, size_t n)
+{
+#ifdef MADV_POPULATE_WRITE
+    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE), a = (uintptr_t)to / page * page;
+    if (n) madvise((void *)a, (uintptr_t)to + n - a, MADV_POPULATE_WRITE);
+#endif
+    if (n) memcpy(to, src, n);
+}
+
 static void *copy_mesh(void *ud)
 {
     const mesh_copy *c = ud;
-    memcpy(c->vertices, c->m->vertices, (size_t)c->m->n_vertices * 12);
-    memcpy(c->triangles, c->m->triangles, (size_t)c->m->n_triangles * 12);
+    copy_fresh(c->vertices, c->m->vertices, (size_t)c->m->n_vertices * 12);
+    copy_fresh(c->triangles, c->m->triangles, (size_t)c->m->n_triangles * 12);
     return NULL;
 }
 
@@ -78,8 +92,8 @@ static int copy_bins(engine *e, const mesh *m, const mesh_bins *bins,
     b->stats_off = align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
     *vol_off = align64(b->stats_off + n * sizeof(mesh_tile_stats));
     if (*vol_off >= end) return no_room(e, "the mesh");
-    memcpy(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
-    memcpy(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
+    copy_fresh(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
+    copy_fresh(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
     memset(shm_at(e->seg.base, b->stats_off), 0, n * sizeof(mesh_tile_stats));
     return 0;
 }

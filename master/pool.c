@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
@@ -196,20 +197,48 @@ static void reap_all(engine *e)
     }
 }
 
-void engine_destroy(engine *e)
+/* Every live worker told to exit (a busy one killed). */
+static void order_exit(engine *e)
 {
     static const shm_task exit_task = {.kind = SHM_KIND_CORE, .op = SHM_OP_EXIT};
+    for (int i = 0; i < e->n; i++) {
+        if (e->ms[i].pid <= 0) continue;
+        if (e->ms[i].busy) kill(e->ms[i].pid, SIGKILL);
+        else pool_give(e, i, &exit_task, 0);
+    }
+}
+
+void engine_destroy(engine *e)
+{
     if (!e) return;
     if (e->seg.base) {
-        for (int i = 0; i < e->n; i++) {
-            if (e->ms[i].pid <= 0) continue;
-            if (e->ms[i].busy) kill(e->ms[i].pid, SIGKILL);
-            else pool_give(e, i, &exit_task, 0);
-        }
-        reap_all(e);
+        order_exit(e);
+        /* The segment unmapped and unlinked while the workers exit, not
+         * after: its pages go back to tmpfs when the last process lets go
+         * of them, and each process's unmapping (its page tables) runs
+         * beside the others' instead of after them. */
         shm_destroy(&e->seg);
+        reap_all(e);
     }
     free(e);
+}
+
+void engine_retire(engine *e, const void *keep, size_t bytes)
+{
+    if (!e || !e->seg.base) return;
+    order_exit(e);
+    uint64_t page = (uint64_t)sysconf(_SC_PAGESIZE);
+    uint64_t from = (e->h->data_off + page - 1) / page * page, to = e->seg.bytes;
+    if (keep && bytes) {
+        uint64_t lo = (uint64_t)((const uint8_t *)keep - e->seg.base);
+        uint64_t hi = (lo + bytes + page - 1) / page * page;
+        lo = lo / page * page;
+        if (lo > from) madvise(e->seg.base + from, lo - from, MADV_REMOVE);
+        from = hi > from ? hi : from;
+    }
+    /* tmpfs frees the pages for every process; untouched ones cost nothing */
+    if (from < to) madvise(e->seg.base + from, to - from, MADV_REMOVE);
+    reap_all(e);
 }
 
 int engine_create(const engine_opts *o, engine **out, char *err,

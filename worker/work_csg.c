@@ -4,7 +4,8 @@
  * worker rebuilds the tree around the nodes and text there and compiles
  * its implicit leaves once per job.  A brick is a pure function of tree,
  * grid and brick, and a task's counts go to its own stats entry, so a task
- * run again after a death writes the same bytes. */
+ * run again after a death writes the same bytes.  Once every brick is in,
+ * runs of brick columns get their low mip levels built here too. */
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,11 +58,33 @@ static int csg_begin(work_ctx *w, void **state)
     return csg_eval_new(&st->tree, &b->grid, b->sbrick, leaves, &st->ev);
 }
 
+/* Columns a.first .. a.first + a.count - 1 of level mip_levels: their
+ * mip levels 1..mip_levels, from the bricks every task has written. */
+static int mips_run(work_ctx *w, const csg_block *b, csg_task_arg a)
+{
+    vod_volume *vol = vod_volume_view(shm_at(w->base, b->volume_off));
+    if (!vol || !b->mip_levels || b->mip_levels > 31) return -EINVAL;
+    uint32_t side = b->sbrick << b->mip_levels, g[2];
+    for (int i = 0; i < 2; i++) g[i] = (b->grid.res[i] + side - 1) / side;
+    uint64_t n = (uint64_t)g[0] * g[1];
+    if (a.first >= n || a.count > n - a.first) return -EINVAL;
+    for (uint64_t k = a.first; k < (uint64_t)a.first + a.count; k++) {
+        if (work_aborted(w)) return -ECANCELED;
+        uint32_t lo[2] = {(uint32_t)(k % g[0]), (uint32_t)(k / g[0])};
+        uint32_t hi[2] = {lo[0] + 1, lo[1] + 1};
+        int rc = vod_volume_mip_columns(vol, (int)b->channel, (int)b->mip_levels, lo, hi);
+        if (rc) return rc;
+        work_tick(w);
+    }
+    return 0;
+}
+
 static int csg_run(work_ctx *w, void *state, const shm_task *t)
 {
     csg_state *st = state;
     const csg_block *b = shm_at(w->base, w->h->job_off);
     csg_task_arg a = csg_task_bricks(t);
+    if (t->op == CSG_MIPS) return mips_run(w, b, a);
     uint64_t n = (uint64_t)b->box_n[0] * b->box_n[1] * b->box_n[2];
     for (int i = 0; i < 3; i++)
         if (b->box_lo[i] > b->nbricks[i] || b->box_n[i] > b->nbricks[i] - b->box_lo[i])

@@ -4,7 +4,8 @@
  * volume by the divergence theorem, each vertex's distance to the analytic
  * surface); random volumes for the case table's consistency; 1 and 2
  * workers against the serial run, byte for byte; mip levels and adaptive
- * levels closed; bad parameters refused. */
+ * levels closed; bad parameters refused; the input, the checks and the
+ * writers on several threads against one, and the files read back. */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
@@ -12,10 +13,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "engine.h"
 #include "expr.h"
 #include "iso.h"
+#include "mesh.h"
 #include "vod.h"
 #include "vod_volume.h"
 #include "voxel.h"
@@ -863,5 +866,146 @@ Test(iso, a_solid_interior_costs_no_task)
     iso_mesh_free(&a);
     iso_mesh_free(&b);
     free(mem);
+    vod_close(f);
+}
+
+/* ---- several threads against one ---- */
+
+/* A mesh of nv random vertices (and normals) and nt triangles of three
+ * distinct random indices: several of the writer's chunks of each. */
+static iso_mesh random_mesh(uint64_t nv, uint64_t nt, int normals, unsigned seed)
+{
+    iso_mesh m = {.n_vertices = nv, .n_triangles = nt, .pos = malloc(12 * nv),
+                  .nrm = normals ? malloc(12 * nv) : NULL, .tri = malloc(12 * nt)};
+    srand(seed);
+    for (uint64_t i = 0; i < 3 * nv; i++) {
+        m.pos[i] = (float)rand() / (float)RAND_MAX * 2.0f - 1.0f;
+        if (normals) m.nrm[i] = (float)rand() / (float)RAND_MAX - 0.5f;
+    }
+    for (uint64_t i = 0; i < nt; i++) {
+        uint32_t a = (uint32_t)(rand() % (int)nv), b, c;
+        do b = (uint32_t)(rand() % (int)nv); while (b == a);
+        do c = (uint32_t)(rand() % (int)nv); while (c == a || c == b);
+        m.tri[3 * i] = a, m.tri[3 * i + 1] = b, m.tri[3 * i + 2] = c;
+    }
+    return m;
+}
+
+/* m written in format f by `threads` threads after `skip` bytes already in
+ * the file: the file's bytes past them, *len long. */
+static uint8_t *written(const iso_mesh *m, iso_format f, unsigned threads, size_t skip,
+                        size_t *len)
+{
+    char path[] = "/tmp/test_iso_writeXXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    unlink(path);
+    uint8_t pad[64] = {0};
+    cr_assert_eq(write(fd, pad, skip), (ssize_t)skip);
+    cr_assert_eq(iso_write(fd, m, f, "a comment", threads), 0);
+    off_t end = lseek(fd, 0, SEEK_CUR);
+    cr_assert_eq(end, lseek(fd, 0, SEEK_END), "the fd stands at the file's end");
+    *len = (size_t)end - skip;
+    uint8_t *buf = malloc(*len ? *len : 1);
+    cr_assert_eq(pread(fd, buf, *len, (off_t)skip), (ssize_t)*len);
+    close(fd);
+    return buf;
+}
+
+Test(iso, the_writers_on_several_threads_write_one_threads_bytes)
+{
+    static const iso_format fmt[] = {ISO_FMT_PLY, ISO_FMT_PLY_ASCII, ISO_FMT_OBJ, ISO_FMT_STL};
+    for (int normals = 0; normals < 2; normals++) {
+        iso_mesh m = random_mesh(20011, 30013, normals, 7u + (unsigned)normals);
+        for (size_t k = 0; k < sizeof fmt / sizeof *fmt; k++) {
+            size_t n1, nn;
+            uint8_t *one = written(&m, fmt[k], 1, 0, &n1);
+            for (unsigned threads = 2; threads <= 5; threads += 3) {
+                uint8_t *many = written(&m, fmt[k], threads, 17, &nn);
+                cr_assert(n1 == nn && !memcmp(one, many, n1),
+                          "format %d, normals %d: %u threads differ from one", (int)fmt[k],
+                          normals, threads);
+                free(many);
+            }
+            /* read back by the loaders (an independent parser): every
+             * vertex and triangle as written (STL has no shared vertices) */
+            mesh back;
+            mesh_error me;
+            if (fmt[k] != ISO_FMT_STL) {
+                cr_assert_eq(mesh_parse(one, n1, MESH_FORMAT_AUTO, NULL, &back, &me), 0, "%s",
+                             me.msg);
+                cr_assert_eq(back.n_vertices, m.n_vertices);
+                cr_assert_eq(back.n_triangles, m.n_triangles);
+                cr_assert(!memcmp(back.vertices, m.pos, 12 * m.n_vertices));
+                cr_assert(!memcmp(back.triangles, m.tri, 12 * m.n_triangles));
+                mesh_free(&back);
+            } else
+                cr_assert_eq(n1, 84 + 50 * m.n_triangles);
+            free(one);
+        }
+        iso_mesh_free(&m);
+    }
+}
+
+/* Waves of density: surface in nearly every brick, few bricks alike. */
+static uint32_t waves(void *ud, double x, double y, double z)
+{
+    (void)ud;
+    return (uint32_t)lround(127.5 + 127 * sin(7 * x) * sin(6 * y + 0.3) * sin(5 * z + 0.7));
+}
+
+Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
+{
+    vol_spec s = cube_spec(128, 8, -1, 1);
+    vod_file *f = make_vod(&s, waves, NULL);
+    iso_params p;
+    char err[256] = "", err3[256] = "";
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    void *mem1 = NULL, *mem3 = NULL;
+    iso_input a, b;
+    cr_assert_eq(iso_input_make_threads(f, &p, heap, &mem1, 1, &a), 0);
+    cr_assert_eq(iso_input_make_threads(f, &p, heap, &mem3, 3, &b), 0);
+    cr_assert(a.n == b.n && a.raw_bytes == b.raw_bytes && a.raw_bytes >= 2u << 20,
+              "want several parts of the copy: %zu bytes", (size_t)a.raw_bytes);
+    cr_assert(!memcmp(a.keys, b.keys, 8 * a.n) && !memcmp(a.offs, b.offs, 8 * a.n) &&
+              !memcmp(a.state, b.state, a.n) && !memcmp(a.raw, b.raw, a.raw_bytes));
+    /* every piece, then one broken at the back: the same error either way */
+    iso_task *t;
+    uint64_t n;
+    cr_assert_eq(iso_tasks(&p, &a, &t, &n), 0);
+    cr_assert_gt(n, 3 * 256, "want several parts of the check");
+    iso_work *w;
+    cr_assert_eq(iso_work_new(&p, &w), 0);
+    iso_piece *pc = calloc(n, sizeof *pc);
+    uint8_t **own = calloc(n, sizeof *own);
+    for (uint64_t i = 0; i < n; i++) {
+        iso_piece v;
+        cr_assert_eq(iso_task_run(w, &p, &a, &t[i], &v), 0);
+        size_t bytes = iso_piece_bytes(&p, &v);
+        own[i] = malloc(bytes ? bytes : 1);
+        iso_piece_pack(&p, &v, own[i]);
+        iso_piece_view(&p, own[i], bytes, v.key, v.nv, v.nc, v.nt, v.ne, &pc[i]);
+    }
+    uint64_t *vb1 = malloc(8 * (n + 1)), *tb1 = malloc(8 * (n + 1));
+    uint64_t *vb3 = malloc(8 * (n + 1)), *tb3 = malloc(8 * (n + 1));
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb1, tb1, 1, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err, sizeof err), 0, "%s", err);
+    cr_assert(!memcmp(vb1, vb3, 8 * (n + 1)) && !memcmp(tb1, tb3, 8 * (n + 1)));
+    uint64_t late = n - 2, early = n / 2; /* in the last part, then in the middle one */
+    while (!pc[late].nt) late--;
+    while (!pc[early].nt) early++;
+    ((uint32_t *)pc[late].tri)[0] = pc[late].nv + 1;
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb1, tb1, 1, err, sizeof err), -EPROTO);
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err3, sizeof err3), -EPROTO);
+    cr_assert_str_eq(err, err3);
+    ((uint32_t *)pc[early].tri)[0] = pc[early].nv + 1;
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err3, sizeof err3), -EPROTO);
+    char want[64];
+    snprintf(want, sizeof want, "piece %llu: ", (unsigned long long)early);
+    cr_assert(!strncmp(err3, want, strlen(want)), "the first bad piece: %s", err3);
+    for (uint64_t i = 0; i < n; i++) free(own[i]);
+    free(own), free(pc), free(vb1), free(tb1), free(vb3), free(tb3), free(t);
+    iso_work_free(w);
+    free(mem1), free(mem3);
     vod_close(f);
 }
