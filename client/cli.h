@@ -101,6 +101,13 @@ int cli_no_daemon(const char *sock, int rc, const vox_error *err);
 int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
                    int quiet_refusal, int *refused);
 
+/* ---- mesh files (cli_meshfile.c) ---- */
+
+/* Load the mesh at path (format AUTO: told from its contents) into *m, its
+ * loader's warning said on stderr.  0, or CLI_EXIT_USAGE after the
+ * loader's message. */
+int cli_mesh_load(const char *path, mesh_format format, mesh *m);
+
 /* ---- parsers ---- */
 
 /* Parse "a,b" (a cube [a,b]^3) or "x0,x1,y0,y1,z0,z1" into lo/hi. */

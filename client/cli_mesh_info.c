@@ -111,12 +111,7 @@ int cli_mesh_info(int argc, char **argv)
     }
     const char *path = argv[optind];
     mesh m;
-    mesh_error err;
-    char msg[300];
-    if (mesh_load(path, format, NULL, &m, &err)) {
-        cli_error("%s: %s", path, mesh_error_str(&err, msg, sizeof msg));
-        return CLI_EXIT_FAILED;
-    }
+    if (cli_mesh_load(path, format, &m)) return CLI_EXIT_FAILED;
     mesh_topo t;
     int rc = mesh_topology(&m, &t);
     if (rc) {

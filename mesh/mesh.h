@@ -31,6 +31,9 @@ typedef struct {
     uint64_t n_degenerate;     /* triangles the loader dropped */
     mesh_format format;        /* what the file was */
     float lo[3], hi[3];        /* bounding box of the triangles' vertices */
+    /* "" or one line a loader wants the user to see about a file it read
+     * anyway (a PLY header's unknown lines, skipped): "line 3: ..." */
+    char warning[200];
 } mesh;
 
 /* The loaders' bounds: every count in a file is checked against them (and

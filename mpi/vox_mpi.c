@@ -806,6 +806,7 @@ static int prepare_mesh(prep *p, pipeline_job *pj)
         msg("%s: %s", p->o.mesh, mesh_error_str(&merr, m, sizeof m));
         return CLI_EXIT_USAGE;
     }
+    if (p->mesh.warning[0]) msg("warning: %s: %s", p->o.mesh, p->mesh.warning);
     p->mesh_loaded = 1;
     p->kind = MPI_KIND_MESH;
     struct stat sb;

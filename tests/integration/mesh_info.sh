@@ -83,6 +83,15 @@ grep -v '^f 1 5 8 4' "$C.obj" >"$TMP/open.obj"
 refuse "mesh-info: open cube" 0 "edges +17: 4 open" "$VOX" mesh-info "$TMP/open.obj"
 refuse "mesh-info: open cube is not watertight" 0 "watertight +no" "$VOX" mesh-info "$TMP/open.obj"
 
+# Blender 2.47's "Created by" header line without "comment": read, with one warning
+{ sed -n 1,2p "$C.ply"; echo "Created by Blender3D 247 - www.blender.org, source file: 'cube.blend'"
+  tail -n +3 "$C.ply"; } >"$TMP/blender.ply"
+refuse "mesh-info: an unknown PLY header line is a warning" 0 \
+    "^vox: warning: .*blender.ply: line 3: PLY header: unknown line starting 'Created' skipped" \
+    "$VOX" mesh-info "$TMP/blender.ply"
+refuse "mesh-info: the PLY with an unknown header line is the cube" 0 "watertight +yes" \
+    "$VOX" mesh-info "$TMP/blender.ply"
+
 # bad files: exit 1 with the place
 sed 's/^f 2 3 7 6/f 2 3 7 9/' "$C.obj" >"$TMP/bad.obj"
 refuse "mesh-info: index out of range" 1 "^vox: .*bad.obj: line 14: face: vertex index 9 out of range" \
