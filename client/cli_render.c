@@ -92,7 +92,7 @@ static int render_mesh_file(const char *path, const render_opts *o, int smooth,
                             render_image *img)
 {
     mesh m;
-    if (cli_mesh_load(path, MESH_FORMAT_AUTO, &m)) return 1;
+    if (cli_mesh_load(path, MESH_FORMAT_AUTO, -1, &m, NULL)) return 1;
     int rc = render_mesh(&m, o, smooth, img);
     mesh_free(&m);
     if (rc) cli_error("cannot render %s: %s", path, strerror(-rc));

@@ -161,7 +161,7 @@ static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *t
 static int voxelize_mesh(voxelize_opts *o)
 {
     mesh m;
-    int rc = cli_mesh_load(o->mesh, MESH_FORMAT_AUTO, &m);
+    int rc = cli_mesh_load(o->mesh, MESH_FORMAT_AUTO, o->weld, &m, NULL);
     if (rc) return rc;
     struct stat sb;
     pipeline_job job = {

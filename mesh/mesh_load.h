@@ -79,6 +79,9 @@ static inline int mb_triangle(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uin
     return mb_triangle_slow(b, a, c, d, at);
 }
 
+/* A triangle of zero area: the cross product of two edges, the edges
+ * taken in double, is exactly zero (three collinear positions, two equal). */
+int mb_zero_area(const float *a, const float *b, const float *c);
 /* Drop the degenerate triangles, take the bounding box, and move the
  * arrays into *out (b is empty after).  -EINVAL when no triangle is left. */
 int mb_finish(mbuild *b, mesh_format f, mesh *out);

@@ -114,7 +114,7 @@ int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
  * differences of floats taken in double (exact unless the exponents are
  * far apart), the products and sums rounded once more: a triangle whose
  * three positions are collinear (or two equal) gives exactly zero. */
-static int zero_area(const float *a, const float *b, const float *c)
+int mb_zero_area(const float *a, const float *b, const float *c)
 {
     double u0 = (double)b[0] - a[0], u1 = (double)b[1] - a[1], u2 = (double)b[2] - a[2];
     double v0 = (double)c[0] - a[0], v1 = (double)c[1] - a[1], v2 = (double)c[2] - a[2];
@@ -130,7 +130,7 @@ int mb_finish(mbuild *b, mesh_format f, mesh *out)
         uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
         if (t0 == t1 || t1 == t2 || t0 == t2) continue;
         const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
-        if (zero_area(p[0], p[1], p[2])) continue;
+        if (mb_zero_area(p[0], p[1], p[2])) continue;
         for (int k = 0; k < 3; k++) {
             float x = p[k][0], y = p[k][1], z = p[k][2];
             lx = x < lx ? x : lx, ly = y < ly ? y : ly, lz = z < lz ? z : lz;
