@@ -56,6 +56,7 @@ typedef struct {
     const char *csg;           /* --csg FILE: a CSG job (vox submit) */
     mesh_vox_opts mesh_opts;   /* --mode, --repair, --supersample */
     uint32_t pad;              /* --pad */
+    double weld;               /* --weld EPS; -1: none */
     int mesh_opts_given;       /* one of those (they need --mesh) */
     int channel_given;         /* --channel (a mesh job's default is occupancy) */
     double lo[3], hi[3];
@@ -101,6 +102,21 @@ int cli_no_daemon(const char *sock, int rc, const vox_error *err);
  * quiet_refusal is set, so that the caller may fall back). */
 int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
                    int quiet_refusal, int *refused);
+
+/* ---- mesh files (cli_meshfile.c) ---- */
+
+/* Load the mesh at path (format AUTO: told from its contents) into *m, its
+ * loader's warning said on stderr, and weld it at weld (mesh_weld) unless
+ * weld < 0 (*merged: the vertices merged away, when not NULL).  0, or
+ * CLI_EXIT_USAGE after the loader's message. */
+int cli_mesh_load(const char *path, mesh_format format, double weld, mesh *m, uint32_t *merged);
+/* --weld EPS: 0, or MESH_WELD_MIN..MESH_WELD_MAX.  0, or -1 after a message. */
+int cli_parse_weld(const char *s, double *eps);
+#define CLI_WELD_HELP \
+    "      --weld EPS         merge the vertices within EPS of each other (the mesh's\n" \
+    "                         units; 0: exactly equal positions) before anything else,\n" \
+    "                         so that a file that repeats vertices is judged closed\n"
+
 
 /* ---- parsers ---- */
 

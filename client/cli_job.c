@@ -40,6 +40,7 @@
     "                         meshes with holes: majority of the x, y, z parities, or the\n" \
     "                         winding number where they disagree (default none)\n" \
     "      --supersample K    density: KxKxK samples per voxel, 2..8 (default 2)\n" \
+    CLI_WELD_HELP \
     "      --pad N            empty voxels around the mesh's bounding box (default 1)\n" \
     "      --bbox X0,X1,Y0,Y1,Z0,Z1\n" \
     "                         the box to voxelize instead of the mesh's bounding box\n"
@@ -109,6 +110,7 @@ void cli_job_defaults(cli_job_opts *o)
     vod_params_default(&o->vod);
     o->vod.channel = VOXEL_CH_SURFACE;
     o->pad = 1;
+    o->weld = -1;
     for (int a = 0; a < 3; a++) o->lo[a] = -1, o->hi[a] = 1;
 }
 
@@ -148,7 +150,8 @@ static int parse_vod_option(int c, const char *arg, vod_params *v)
     return -1;
 }
 
-/* --mode, --repair, --supersample, --pad: 0, or -1 after a message. */
+/* --mode, --repair, --supersample, --pad, --bbox, --weld: 0, or -1 after a
+ * message. */
 static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
 {
     static const char *const modes[] = {"solid", "surface", "surface6",
@@ -177,6 +180,7 @@ static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
         if (!cli_parse_uint(arg, 0, GRID_MAX_RES / 2, &o->pad)) return 0;
         cli_error("bad --pad '%s': want 0..%u voxels", arg, GRID_MAX_RES / 2);
         return -1;
+    case 'W': return cli_parse_weld(arg, &o->weld);
     case 'X':
         if (!cli_parse_domain(arg, o->lo, o->hi) && strchr(arg, ',') != strrchr(arg, ','))
             return o->has_domain = 1, 0;
@@ -195,14 +199,14 @@ static int check_job_kind(cli_job_opts *o)
     }
     if (o->csg) { /* the densities, or the occupancy */
         if (o->mesh_opts_given) {
-            cli_error("--mode, --repair, --supersample, --pad and --bbox are for --mesh jobs");
+            cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
             return CLI_EXIT_USAGE;
         }
         if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
         return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {
-        cli_error("--mode, --repair, --supersample, --pad and --bbox are for --mesh jobs");
+        cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
         return CLI_EXIT_USAGE;
     }
     if (!o->mesh && o->vod.channel == VOXEL_CH_DENSITY) {
@@ -248,6 +252,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {"compress-level", 1, 0, 'L'},
         {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
         {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
+        {"weld", 1, 0, 'W'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     static const struct option longs_submit[] = {
         {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
@@ -257,6 +262,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
         {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
         {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
+        {"weld", 1, 0, 'W'},
         {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int submit = cmd == CLI_CMD_SUBMIT;
     const char *name = submit ? "submit" : "voxelize";
@@ -327,7 +333,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         case 'h': cli_job_usage(cmd, stdout); exit(0);
         case 'm': o->mesh = optarg; break;
         case 'G': o->csg = optarg; break;
-        case 'O': case 'R': case 'K': case 'A': case 'X':
+        case 'O': case 'R': case 'K': case 'A': case 'X': case 'W':
             if (parse_mesh_option(c, optarg, o)) return CLI_EXIT_USAGE;
             break;
         case 'C': case 'B': case 'Z': case 'H':

@@ -10,13 +10,15 @@
 #include "mesh.h"
 
 static const char usage[] =
-    "usage: vox mesh-info FILE [--json] [--format FMT]\n"
+    "usage: vox mesh-info FILE [--json] [--format FMT] [--weld EPS]\n"
     "  loads a triangle mesh (OBJ, STL, PLY or OFF, told from its contents) and\n"
     "  prints its format, vertices, triangles (and the degenerate ones dropped),\n"
     "  bounding box, edges (open, non-manifold, inconsistently oriented),\n"
     "  connected components, signed volume, and whether it is watertight\n"
     "  -j, --json          one JSON object instead of the text\n"
-    "  -f, --format FMT    read FILE as obj, stl, ply or off (default: from its contents)\n";
+    "  -f, --format FMT    read FILE as obj, stl, ply or off (default: from its contents)\n"
+    "  -w, --weld EPS      merge the vertices within EPS of each other first (the mesh's\n"
+    "                      units; 0: exactly equal positions) and say how many merged\n";
 
 static int parse_format(const char *s, mesh_format *f)
 {
@@ -30,10 +32,17 @@ static int parse_format(const char *s, mesh_format *f)
     return -1;
 }
 
-static void print_text(const char *path, const mesh *m, const mesh_topo *t)
+/* What --weld did (weld < 0: not asked). */
+typedef struct {
+    double eps;
+    uint32_t merged;
+} weld_info;
+
+static void print_text(const char *path, const mesh *m, const mesh_topo *t, const weld_info *w)
 {
     printf("%s: %s mesh\n", path, mesh_format_name(m->format));
     printf("  vertices    %u\n", m->n_vertices);
+    if (w->eps >= 0) printf("  welded      %u vertices merged (within %g)\n", w->merged, w->eps);
     printf("  triangles   %u (%llu degenerate dropped)\n", m->n_triangles,
            (unsigned long long)m->n_degenerate);
     printf("  bbox        x %.9g .. %.9g, y %.9g .. %.9g, z %.9g .. %.9g\n", m->lo[0], m->hi[0],
@@ -67,13 +76,14 @@ static void json_number(double v)
     else fputs("null", stdout);
 }
 
-static void print_json(const char *path, const mesh *m, const mesh_topo *t)
+static void print_json(const char *path, const mesh *m, const mesh_topo *t, const weld_info *w)
 {
     fputs("{\"file\": ", stdout);
     json_string(path);
     printf(", \"format\": \"%s\", \"vertices\": %u, \"triangles\": %u, \"degenerate\": %llu",
            mesh_format_name(m->format), m->n_vertices, m->n_triangles,
            (unsigned long long)m->n_degenerate);
+    if (w->eps >= 0) printf(", \"weld\": %.9g, \"welded\": %u", w->eps, w->merged);
     printf(", \"bbox\": {\"min\": [%.9g, %.9g, %.9g], \"max\": [%.9g, %.9g, %.9g]}", m->lo[0],
            m->lo[1], m->lo[2], m->hi[0], m->hi[1], m->hi[2]);
     printf(", \"edges\": %llu, \"open_edges\": %llu, \"nonmanifold_edges\": %llu"
@@ -88,11 +98,13 @@ static void print_json(const char *path, const mesh *m, const mesh_topo *t)
 int cli_mesh_info(int argc, char **argv)
 {
     static const struct option longs[] = {
-        {"json", 0, 0, 'j'}, {"format", 1, 0, 'f'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"json", 0, 0, 'j'}, {"format", 1, 0, 'f'}, {"weld", 1, 0, 'w'},
+        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+    weld_info w = {-1, 0};
     int c, json = 0;
     mesh_format format = MESH_FORMAT_AUTO;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "jf:h", longs, NULL)) != -1) {
+    while ((c = getopt_long(argc, argv, "jf:w:h", longs, NULL)) != -1) {
         switch (c) {
         case 'j': json = 1; break;
         case 'f':
@@ -100,6 +112,9 @@ int cli_mesh_info(int argc, char **argv)
                 cli_error("bad value '%s' for --format: obj, stl, ply or off", optarg);
                 return CLI_EXIT_USAGE;
             }
+            break;
+        case 'w':
+            if (cli_parse_weld(optarg, &w.eps)) return CLI_EXIT_USAGE;
             break;
         case 'h': fputs(usage, stdout); return CLI_EXIT_OK;
         default: fputs(usage, stderr); return CLI_EXIT_USAGE;
@@ -111,12 +126,7 @@ int cli_mesh_info(int argc, char **argv)
     }
     const char *path = argv[optind];
     mesh m;
-    mesh_error err;
-    char msg[300];
-    if (mesh_load(path, format, NULL, &m, &err)) {
-        cli_error("%s: %s", path, mesh_error_str(&err, msg, sizeof msg));
-        return CLI_EXIT_FAILED;
-    }
+    if (cli_mesh_load(path, format, w.eps, &m, &w.merged)) return CLI_EXIT_FAILED;
     mesh_topo t;
     int rc = mesh_topology(&m, &t);
     if (rc) {
@@ -124,8 +134,8 @@ int cli_mesh_info(int argc, char **argv)
         mesh_free(&m);
         return CLI_EXIT_FAILED;
     }
-    if (json) print_json(path, &m, &t);
-    else print_text(path, &m, &t);
+    if (json) print_json(path, &m, &t, &w);
+    else print_text(path, &m, &t, &w);
     mesh_free(&m);
     return CLI_EXIT_OK;
 }

@@ -92,12 +92,7 @@ static int render_mesh_file(const char *path, const render_opts *o, int smooth,
                             render_image *img)
 {
     mesh m;
-    mesh_error merr;
-    char msg[300];
-    if (mesh_load(path, MESH_FORMAT_AUTO, NULL, &m, &merr)) {
-        cli_error("%s: %s", path, mesh_error_str(&merr, msg, sizeof msg));
-        return 1;
-    }
+    if (cli_mesh_load(path, MESH_FORMAT_AUTO, -1, &m, NULL)) return 1;
     int rc = render_mesh(&m, o, smooth, img);
     mesh_free(&m);
     if (rc) cli_error("cannot render %s: %s", path, strerror(-rc));

@@ -210,6 +210,8 @@ static void mesh_job(const cli_job_opts *o, const void *data, size_t len, vox_jo
         .mode = (int)o->mesh_opts.mode + 1,     /* the protocol's numbers */
         .repair = (int)o->mesh_opts.repair + 1,
         .supersample = o->mesh_opts.supersample,
+        .weld = o->weld >= 0,
+        .weld_eps = o->weld >= 0 ? o->weld : 0,
         .fit = !o->has_domain, .pad = o->pad,
         .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
         .res = o->res,

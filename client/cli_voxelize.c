@@ -157,13 +157,8 @@ static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *t
 static int voxelize_mesh(voxelize_opts *o)
 {
     mesh m;
-    mesh_error me;
-    int rc = mesh_load(o->mesh, MESH_FORMAT_AUTO, NULL, &m, &me);
-    if (rc) {
-        char msg[sizeof me.msg + 64];
-        cli_error("%s: %s", o->mesh, mesh_error_str(&me, msg, sizeof msg));
-        return CLI_EXIT_USAGE;
-    }
+    int rc = cli_mesh_load(o->mesh, MESH_FORMAT_AUTO, o->weld, &m, NULL);
+    if (rc) return rc;
     struct stat sb;
     pipeline_job job = {
         .kind = PIPELINE_MESH,

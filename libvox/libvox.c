@@ -1013,6 +1013,8 @@ static void mesh_request(const vox_job *job, const uint8_t *data, size_t len, in
     m->mesh.mode = (Voxd__MeshMode)mj->mode;
     m->mesh.repair = (Voxd__MeshRepair)mj->repair;
     m->mesh.supersample = mj->supersample;
+    m->mesh.weld = mj->weld != 0;
+    m->mesh.weld_eps = mj->weld_eps;
     m->mesh.source_name = name_bytes(mj->source_name);
     if (mj->fit) {
         m->mesh.pad = mj->pad;

@@ -196,6 +196,8 @@ typedef struct {
     uint32_t pad;         /* fit: empty voxels around the box (vox's default: 1) */
     double domain[6];     /* !fit: x0, x1, y0, y1, z0, z1, each low < high */
     uint32_t res;         /* voxels along the longest axis; 2 pad < res */
+    int weld;             /* 1: merge the vertices within weld_eps first */
+    double weld_eps;      /* 0 (equal positions) or 1e-30..1e30, the mesh's units */
 } vox_mesh;
 
 /* Volume CSG (docs/csg.md): the protocol's CsgOp, Primitive and Axis

@@ -31,6 +31,9 @@ typedef struct {
     uint64_t n_degenerate;     /* triangles the loader dropped */
     mesh_format format;        /* what the file was */
     float lo[3], hi[3];        /* bounding box of the triangles' vertices */
+    /* "" or one line a loader wants the user to see about a file it read
+     * anyway (a PLY header's unknown lines, skipped): "line 3: ..." */
+    char warning[200];
 } mesh;
 
 /* The loaders' bounds: every count in a file is checked against them (and
@@ -63,6 +66,21 @@ const char *mesh_format_name(mesh_format f);
 
 /* err as one line: "line N: msg", "byte N: msg" or "msg".  Returns buf. */
 const char *mesh_error_str(const mesh_error *err, char *buf, size_t len);
+
+/* Merge the vertices within eps of each other (distance <= eps, in the
+ * mesh's units; eps = 0: exactly equal positions, -0 equal to 0), so that
+ * a file that repeats its vertices (per face, or split at texture seams)
+ * shares them and its topology is judged on the geometry.  Greedy in the
+ * vertices' order: each goes to the lowest earlier kept vertex within eps
+ * (kept ones are more than eps apart), through a hash grid: O(n), the same
+ * result on any machine.  Triangles are renumbered; those the merge makes
+ * degenerate are dropped (added to n_degenerate); the box is taken again.
+ * eps is 0 or in [MESH_WELD_MIN, MESH_WELD_MAX]: else -EINVAL, the mesh
+ * unchanged.  0 (*merged: the vertices merged away, when not NULL),
+ * -ENOMEM, or -EINVAL when no triangle is left (the mesh unchanged). */
+#define MESH_WELD_MIN 1e-30
+#define MESH_WELD_MAX 1e30
+int mesh_weld(mesh *m, double eps, uint32_t *merged);
 
 /* The topology of a mesh, from its triangles' edges.  An edge is a pair of
  * vertex indices; each triangle uses three (the loaders drop triangles

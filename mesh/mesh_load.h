@@ -33,6 +33,7 @@ typedef struct {
     uint32_t (*t)[3];
     uint32_t nt;                /* triangles made so far, degenerate included */
     size_t cap_t;
+    char warning[200];          /* mb_warn's first line, into mesh.warning */
 } mbuild;
 
 /* Fill the error and return rc.  at: the byte offset of the trouble, told
@@ -40,6 +41,9 @@ typedef struct {
 #define MB_NOWHERE UINT64_MAX
 int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
+/* Keep the first warning (told at `at` as mb_fail tells an error); later
+ * ones are dropped: the loader counts them itself if it says so. */
+void mb_warn(mbuild *b, uint64_t at, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 /* Room for n more vertices / triangles, checked against the limits first:
  * -E2BIG past one, -ENOMEM. */
 int mb_reserve_vertices(mbuild *b, uint64_t n, uint64_t at);
@@ -75,6 +79,9 @@ static inline int mb_triangle(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uin
     return mb_triangle_slow(b, a, c, d, at);
 }
 
+/* A triangle of zero area: the cross product of two edges, the edges
+ * taken in double, is exactly zero (three collinear positions, two equal). */
+int mb_zero_area(const float *a, const float *b, const float *c);
 /* Drop the degenerate triangles, take the bounding box, and move the
  * arrays into *out (b is empty after).  -EINVAL when no triangle is left. */
 int mb_finish(mbuild *b, mesh_format f, mesh *out);

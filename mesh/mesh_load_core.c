@@ -14,6 +14,15 @@
 
 /* ------------------------------------------------------------------ builder */
 
+/* The line of byte offset at in a text file. */
+static uint64_t line_of(const mbuild *b, uint64_t at)
+{
+    uint64_t line = 1;
+    for (const char *q = b->buf, *e = b->buf + at; (q = memchr(q, '\n', (size_t)(e - q))); q++)
+        line++;
+    return line;
+}
+
 int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
 {
     va_list ap;
@@ -22,15 +31,23 @@ int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
     va_end(ap);
     b->err->line = b->err->offset = 0;
     if (at == MB_NOWHERE) return rc;
-    if (b->binary) {
-        b->err->offset = at;
-    } else {
-        uint64_t line = 1;
-        for (const char *q = b->buf, *e = b->buf + at; (q = memchr(q, '\n', (size_t)(e - q))); q++)
-            line++;
-        b->err->line = line;
-    }
+    if (b->binary) b->err->offset = at;
+    else b->err->line = line_of(b, at);
     return rc;
+}
+
+void mb_warn(mbuild *b, uint64_t at, const char *fmt, ...)
+{
+    if (b->warning[0]) return;
+    size_t n = 0;
+    if (at != MB_NOWHERE)
+        n = (size_t)snprintf(b->warning, sizeof b->warning, "%s %llu: ",
+                             b->binary ? "byte" : "line",
+                             (unsigned long long)(b->binary ? at : line_of(b, at)));
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(b->warning + n, sizeof b->warning - n, fmt, ap);
+    va_end(ap);
 }
 
 /* Capacity for need items of size sz in *arr (cap: its capacity): exact
@@ -97,7 +114,7 @@ int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
  * differences of floats taken in double (exact unless the exponents are
  * far apart), the products and sums rounded once more: a triangle whose
  * three positions are collinear (or two equal) gives exactly zero. */
-static int zero_area(const float *a, const float *b, const float *c)
+int mb_zero_area(const float *a, const float *b, const float *c)
 {
     double u0 = (double)b[0] - a[0], u1 = (double)b[1] - a[1], u2 = (double)b[2] - a[2];
     double v0 = (double)c[0] - a[0], v1 = (double)c[1] - a[1], v2 = (double)c[2] - a[2];
@@ -113,7 +130,7 @@ int mb_finish(mbuild *b, mesh_format f, mesh *out)
         uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
         if (t0 == t1 || t1 == t2 || t0 == t2) continue;
         const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
-        if (zero_area(p[0], p[1], p[2])) continue;
+        if (mb_zero_area(p[0], p[1], p[2])) continue;
         for (int k = 0; k < 3; k++) {
             float x = p[k][0], y = p[k][1], z = p[k][2];
             lx = x < lx ? x : lx, ly = y < ly ? y : ly, lz = z < lz ? z : lz;
@@ -132,6 +149,7 @@ int mb_finish(mbuild *b, mesh_format f, mesh *out)
     if (b->cap_v > b->nv && (p = realloc(b->v, (size_t)b->nv * sizeof *b->v))) b->v = p;
     *out = (mesh){.n_vertices = b->nv, .n_triangles = kept, .vertices = b->v,
                   .triangles = b->t, .n_degenerate = dropped, .format = f};
+    memcpy(out->warning, b->warning, sizeof out->warning);
     out->lo[0] = lx, out->lo[1] = ly, out->lo[2] = lz;
     out->hi[0] = hx, out->hi[1] = hy, out->hi[2] = hz;
     b->v = NULL;

@@ -12,6 +12,7 @@
  * bytes a token), and the vertex and face counts against the limits. */
 #include <errno.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "mesh_load.h"
@@ -55,6 +56,7 @@ typedef struct {
     ply_elem elems[MAX_ELEMS];
     uint64_t n_vertices; /* declared: what face indices are checked against */
     const char *data;    /* first byte after end_header */
+    uint64_t unknown;    /* header lines with no keyword of the format, skipped */
 } ply;
 
 /* ------------------------------------------------------------------ header */
@@ -166,6 +168,20 @@ static int header_format(ply *y, mtext *t)
     return 0;
 }
 
+/* A header line that starts with no keyword of the format: skipped with a
+ * warning, as common readers do (Blender 2.47 wrote its "Created by
+ * Blender3D ..." line without "comment").  It cannot hide an error: the
+ * elements, properties and the format are only what their own lines say. */
+static void unknown_line(ply *y, mtext *t)
+{
+    char tok[32];
+    if (!y->unknown++)
+        mb_warn(y->b, mt_at(t), "PLY header: unknown line starting %s skipped", mt_tokstr(t, tok));
+    mt_next_line(t);
+}
+
+#define NO_FORMAT(b, t) mb_fail(b, -EINVAL, mt_at(t), "no format line after 'ply'")
+
 static int parse_header(ply *y, mtext *t)
 {
     mbuild *b = y->b;
@@ -178,18 +194,16 @@ static int parse_header(ply *y, mtext *t)
         if (mt_word(t, "format", 0)) {
             if (have_format++) return mb_fail(b, -EINVAL, mt_at(t), "a second format line");
             rc = header_format(y, t);
-        } else if (!have_format) {
-            return mb_fail(b, -EINVAL, mt_at(t), "no format line after 'ply'");
         } else if (mt_word(t, "element", 0)) {
-            rc = header_element(y, t);
+            rc = have_format ? header_element(y, t) : NO_FORMAT(b, t);
         } else if (mt_word(t, "property", 0)) {
-            rc = header_property(y, t);
+            rc = have_format ? header_property(y, t) : NO_FORMAT(b, t);
         } else if (mt_word(t, "comment", 0) || mt_word(t, "obj_info", 0) || mt_eol(t)) {
             mt_next_line(t);
             continue;
         } else {
-            char tok[32];
-            return mb_fail(b, -EINVAL, mt_at(t), "unknown header line %s", mt_tokstr(t, tok));
+            unknown_line(y, t);
+            continue;
         }
         if (rc) return rc;
         mt_skip_blank(t);
@@ -199,12 +213,18 @@ static int parse_header(ply *y, mtext *t)
         }
         mt_next_line(t);
     }
+    if (!have_format) return NO_FORMAT(b, t);
+    if (y->unknown > 1) {
+        size_t n = strlen(b->warning);
+        snprintf(b->warning + n, sizeof b->warning - n, " (and %llu more unknown header lines)",
+                 (unsigned long long)(y->unknown - 1));
+    }
     /* end_header, then exactly one line end: the binary data begins after it. */
     mt_skip_blank(t);
     if (t->p == t->end || *t->p != '\n')
         return mb_fail(b, -EINVAL, mt_at(t), "end_header not followed by a line end");
     t->p++;
-        y->data = t->p;
+    y->data = t->p;
     return 0;
 }
 

@@ -680,7 +680,7 @@ static void usage(FILE *f)
 "Only rank 0 reads files: the other hosts need the vox_mpi binary alone.\n"
 "\n"
 "voxelize takes vox voxelize's options (vox voxelize --help), --mesh's too\n"
-"(--mode, --repair, --supersample, --pad, --bbox, --channel); csg takes vox\n"
+"(--mode, --repair, --supersample, --pad, --bbox, --weld, --channel); csg takes vox\n"
 "csg's (vox csg --help: -o, -r, -c, -d, -w, -Z, -q), its FILE a file.\n"
 "\n"
 "  -e, --expr EXPR       the implicit function F(x,y,z)\n"
@@ -767,6 +767,12 @@ static int prepare_mesh(prep *p, pipeline_job *pj)
     if (mesh_load(p->o.mesh, MESH_FORMAT_AUTO, NULL, &p->mesh, &merr)) {
         char m[sizeof merr.msg + 64];
         msg("%s: %s", p->o.mesh, mesh_error_str(&merr, m, sizeof m));
+        return CLI_EXIT_USAGE;
+    }
+    if (p->mesh.warning[0]) msg("warning: %s: %s", p->o.mesh, p->mesh.warning);
+    if (p->o.weld >= 0 && mesh_weld(&p->mesh, p->o.weld, NULL)) {
+        msg("%s: no triangle is left once welded at %g (or no memory)", p->o.mesh, p->o.weld);
+        mesh_free(&p->mesh);
         return CLI_EXIT_USAGE;
     }
     p->mesh_loaded = 1;

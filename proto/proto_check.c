@@ -283,6 +283,11 @@ static int check_mesh_options(const Voxd__Mesh *m, proto_error *e)
     if (k && (k < PROTO_MIN_SUPERSAMPLE || k > PROTO_MAX_SUPERSAMPLE))
         return bad(e, INVALID, "supersample %u is not from %u to %u (or 0: %u)", k,
                    PROTO_MIN_SUPERSAMPLE, PROTO_MAX_SUPERSAMPLE, PROTO_MIN_SUPERSAMPLE);
+    double w = m->weld_eps;
+    if (!(w == 0 || (w >= PROTO_MIN_WELD && w <= PROTO_MAX_WELD)))
+        return bad(e, INVALID, "weld_eps %g is not 0 or from %g to %g", w, PROTO_MIN_WELD,
+                   PROTO_MAX_WELD);
+    if (w != 0 && !m->weld) return bad(e, INVALID, "weld_eps %g without weld", w);
     return 0;
 }
 

@@ -33,6 +33,8 @@
 #define PROTO_MIN_BRICK 2u
 #define PROTO_MAX_BRICK 256u     /* Submit.brick: 0 or a power of two in 2..256 */
 #define PROTO_MIN_SUPERSAMPLE 2u /* Mesh.supersample: 0 or 2..8 */
+#define PROTO_MIN_WELD 1e-30      /* Mesh.weld_eps: 0 or these (mesh.h's MESH_WELD_*) */
+#define PROTO_MAX_WELD 1e30
 #define PROTO_MAX_SUPERSAMPLE 8u
 /* A CSG tree's fixed bounds, the evaluator's own (csg/csg.h): nodes,
  * name bytes with the NUL, erode/dilate k, k summed along a path, and the

@@ -88,6 +88,8 @@ struct vd_job {
     /* a mesh job's options (mesh_opts.channel = channel) */
     mesh_format mesh_format;
     mesh_vox_opts mesh_opts;
+    int weld;               /* Mesh.weld: mesh_weld(weld_eps) once parsed */
+    double weld_eps;
     uint32_t pad;
     int fit;                   /* no domain: the mesh's bounding box and pad */
     /* a CSG job's tree, built and checked at submit (daemon_csg.c), and

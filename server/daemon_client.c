@@ -242,6 +242,9 @@ _Static_assert((int)VOXD__MESH_REPAIR__MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 
                    (int)VOXD__MESH_REPAIR__MESH_REPAIR_WINDING == MESH_REPAIR_WINDING + 1,
                "MeshRepair numbers");
 
+_Static_assert(PROTO_MIN_WELD == MESH_WELD_MIN && PROTO_MAX_WELD == MESH_WELD_MAX,
+               "Mesh.weld_eps's range is mesh_weld's");
+
 /* A mesh job's options, as vox voxelize --mesh gives them to the pipeline. */
 static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
 {
@@ -254,6 +257,8 @@ static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
     j->mesh_opts.mode = m->mode ? (mesh_mode)(m->mode - 1) : MESH_SOLID;
     j->mesh_opts.repair = m->repair ? (mesh_repair)(m->repair - 1) : MESH_REPAIR_NONE;
     j->mesh_opts.supersample = m->supersample;
+    j->weld = m->weld;
+    j->weld_eps = m->weld_eps;
     j->schedule = ENGINE_SCHED_SUBTREE; /* not the mesh kind's: tiles */
 }
 

@@ -273,6 +273,13 @@ static int parse_mesh(vd_job *j, mesh *m)
     mesh_limits lim = {.max_triangles = j->max_triangles};
     mesh_error me = {0};
     int rc = mesh_parse(j->source, j->source_len, j->mesh_format, &lim, m, &me);
+    if (rc == 0 && j->weld && (rc = mesh_weld(m, j->weld_eps, NULL))) {
+        mesh_free(m);
+        return job_error(j, rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
+                                          : VOXD__ERROR_CODE__INTERNAL,
+                         rc == -EINVAL ? "mesh: no triangle is left once welded at %g"
+                                       : "mesh: welding at %g: out of memory", j->weld_eps);
+    }
     if (rc == 0 && m->n_triangles == 0) {
         job_error(j, VOXD__ERROR_CODE__INVALID_INPUT,
                   "mesh: no triangles (%llu degenerate ones dropped)",

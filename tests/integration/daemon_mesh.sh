@@ -96,6 +96,30 @@ check "vox submit: the same" \
     vox submit --mesh "$TMP/cube.obj" -r 33 --mode surface --bbox -1,1,-1,1,-0.5,0.5 -q -o "$TMP/d3.vod"
 check "submit = embedded, a box (bytes)" cmp "$TMP/d3.vod" "$TMP/e3.vod"
 
+# --weld: the cube of separate faces (24 vertices) is open as written;
+# welded, by vox and by voxd alike, it is the closed cube, the same bytes.
+awk '/^v /{ v[++n] = $0 } /^f /{ for (i = 2; i <= 4; i++) print v[$i]; k += 3
+     print "f", k - 2, k - 1, k }' "$TMP/cube.obj" >"$TMP/faces.obj"
+refuse "a cube of separate triangles is open" 0 "mesh: 12 triangles, 36 open" \
+    vox submit --mesh "$TMP/faces.obj" -r 48 -o "$TMP/w0.vod"
+refuse "vox submit --weld 0: voxd welds it closed" 0 \
+    "mesh: 12 triangles, 0 open and 0 non-manifold edges: watertight" \
+    vox submit --mesh "$TMP/faces.obj" --weld 0 -r 48 -o "$TMP/w1.vod"
+refuse "vox voxelize --embedded --weld 0: the same" 0 \
+    "mesh: 12 triangles, 0 open and 0 non-manifold edges: watertight" \
+    vox voxelize --embedded --mesh "$TMP/faces.obj" --weld 0 -r 48 -o "$TMP/w2.vod"
+check "welded: submit = embedded (bytes)" cmp "$TMP/w1.vod" "$TMP/w2.vod"
+check "vox submit --weld 1e-3: the same bytes" \
+    vox submit --mesh "$TMP/faces.obj" --weld 1e-3 -r 48 -q -o "$TMP/w3.vod"
+check "(cmp)" cmp "$TMP/w3.vod" "$TMP/w2.vod"
+refuse "a weld that leaves no triangle: voxd's INVALID_INPUT" 2 \
+    "INVALID_INPUT: mesh: no triangle is left once welded at 10" \
+    vox submit --mesh "$TMP/faces.obj" --weld 10 -r 48 -o "$TMP/x.vod"
+refuse "a bad --weld is refused by vox" 2 "bad --weld '-1'" \
+    vox submit --mesh "$TMP/faces.obj" --weld -1 -r 48 -o "$TMP/x.vod"
+refuse "--weld needs --mesh" 2 "are for --mesh jobs" \
+    vox submit -e 'x*x+y*y+z*z-0.5' --weld 0 -r 48 -o "$TMP/x.vod"
+
 # vox voxelize --mesh runs on the daemon when one answers: a job more
 # there, and the same file.
 n=$(accepted)

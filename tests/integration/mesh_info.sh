@@ -83,6 +83,36 @@ grep -v '^f 1 5 8 4' "$C.obj" >"$TMP/open.obj"
 refuse "mesh-info: open cube" 0 "edges +17: 4 open" "$VOX" mesh-info "$TMP/open.obj"
 refuse "mesh-info: open cube is not watertight" 0 "watertight +no" "$VOX" mesh-info "$TMP/open.obj"
 
+# Blender 2.47's "Created by" header line without "comment": read, with one warning
+{ sed -n 1,2p "$C.ply"; echo "Created by Blender3D 247 - www.blender.org, source file: 'cube.blend'"
+  tail -n +3 "$C.ply"; } >"$TMP/blender.ply"
+refuse "mesh-info: an unknown PLY header line is a warning" 0 \
+    "^vox: warning: .*blender.ply: line 3: PLY header: unknown line starting 'Created' skipped" \
+    "$VOX" mesh-info "$TMP/blender.ply"
+refuse "mesh-info: the PLY with an unknown header line is the cube" 0 "watertight +yes" \
+    "$VOX" mesh-info "$TMP/blender.ply"
+
+# --weld: the cube with every face's own four vertices is open until welded
+awk '/^v /{ v[++n] = $0 } /^f /{ for (i = 2; i <= 5; i++) print v[$i]; k += 4
+     print "f", k - 3, k - 2, k - 1, k }' "$C.obj" >"$TMP/faces.obj"
+refuse "mesh-info: a cube of separate faces is open" 0 "edges +30: 24 open" \
+    "$VOX" mesh-info "$TMP/faces.obj"
+for eps in 0 0.001 0.5; do
+    refuse "mesh-info --weld $eps: 16 vertices merged" 0 "welded +16 vertices merged \(within $eps\)" \
+        "$VOX" mesh-info --weld $eps "$TMP/faces.obj"
+    refuse "mesh-info --weld $eps: the cube, watertight" 0 \
+        "edges +18: 0 open, 0 non-manifold, 0 inconsistently oriented" \
+        "$VOX" mesh-info --weld $eps "$TMP/faces.obj"
+done
+refuse "mesh-info --weld in JSON" 0 '"weld": 0, "welded": 16,.* "open_edges": 0' \
+    "$VOX" mesh-info --json --weld 0 "$TMP/faces.obj"
+refuse "mesh-info --weld 3: every triangle collapses" 1 "no triangle is left once welded at 3" \
+    "$VOX" mesh-info --weld 3 "$TMP/faces.obj"
+for bad in -1 1e-31 2e30 nan inf x; do
+    refuse "mesh-info --weld $bad is refused" 2 "bad --weld '$bad': want 0 or a distance from 1e-30 to 1e\+30" \
+        "$VOX" mesh-info --weld $bad "$TMP/faces.obj"
+done
+
 # bad files: exit 1 with the place
 sed 's/^f 2 3 7 6/f 2 3 7 9/' "$C.obj" >"$TMP/bad.obj"
 refuse "mesh-info: index out of range" 1 "^vox: .*bad.obj: line 14: face: vertex index 9 out of range" \

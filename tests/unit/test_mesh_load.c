@@ -569,8 +569,47 @@ Test(mesh_load, ply_errors)
     refuse("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
            "property float z\nproperty float x\nend_header\n0 0 0\n", F, -EINVAL, "twice", 7);
     refuse("ply\nformat ascii 1.0\nelement vertex -1\n", F, -EINVAL, "not a whole number", 3);
-    refuse("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nfoo bar\n", F, -EINVAL,
-           "unknown header line", 5);
+    /* an unknown line hides no error: the elements are what their lines say */
+    refuse("ply\nformat ascii 1.0\nelements vertex 3\nproperty float x\nend_header\n", F,
+           -EINVAL, "a property before any element", 4);
+    refuse("ply\nformat ascii 1.0\nelements vertex 3\nend_header\n", F, -EINVAL,
+           "no vertex element", 0);
+    refuse("ply\nfoo bar\nend_header\n", F, -EINVAL, "no format line", 3);
+}
+
+/* Blender 2.47 wrote its "Created by" line without "comment": skipped with
+ * one warning line naming the first such line, the mesh as without it. */
+Test(mesh_load, ply_unknown_header_lines_are_skipped_with_a_warning)
+{
+    char plain[1024], blender[1200], two[1300];
+    const char *body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    snprintf(plain, sizeof plain, "%s%s", ply_head, body);
+    snprintf(blender, sizeof blender,
+             "ply\nformat ascii 1.0\nCreated by Blender3D 247 - www.blender.org, source file: "
+             "'x.blend'\n%s%s", ply_head + strlen("ply\nformat ascii 1.0\n"), body);
+    snprintf(two, sizeof two, "ply\nformat ascii 1.0\nCreated by Blender\n%s", blender + 4);
+    mesh a, b, c;
+    mesh_error e;
+    cr_assert_eq(parse_text(plain, MESH_FORMAT_AUTO, &a, &e), 0, "%s", e.msg);
+    cr_assert_str_empty(a.warning);
+    cr_assert_eq(parse_text(blender, MESH_FORMAT_AUTO, &b, &e), 0, "%s", e.msg);
+    cr_assert(strstr(b.warning, "line 3: ") == b.warning, "%s", b.warning);
+    cr_assert(strstr(b.warning, "'Created'"), "%s", b.warning);
+    cr_assert_null(strstr(b.warning, "more"), "%s", b.warning);
+    cr_assert_eq(b.n_triangles, a.n_triangles);
+    cr_assert_eq(memcmp(b.vertices, a.vertices, sizeof *a.vertices * a.n_vertices), 0);
+    cr_assert_eq(memcmp(b.triangles, a.triangles, sizeof *a.triangles * a.n_triangles), 0);
+    /* "ply", "format", then two unknown lines, then "format" again */
+    cr_assert_eq(parse_text(two, MESH_FORMAT_AUTO, &c, &e), -EINVAL);
+    cr_assert(strstr(e.msg, "a second format line"), "%s", e.msg);
+    snprintf(two, sizeof two, "ply\nformat ascii 1.0\nCreated by Blender\n%s",
+             blender + strlen("ply\nformat ascii 1.0\n"));
+    cr_assert_eq(parse_text(two, MESH_FORMAT_AUTO, &c, &e), 0, "%s", e.msg);
+    cr_assert(strstr(c.warning, "line 3: ") == c.warning, "%s", c.warning);
+    cr_assert(strstr(c.warning, "(and 1 more unknown header lines)"), "%s", c.warning);
+    mesh_free(&a);
+    mesh_free(&b);
+    mesh_free(&c);
 }
 
 /* Counts that cannot be true fail before anything is allocated: with the

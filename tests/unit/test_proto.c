@@ -415,6 +415,14 @@ Test(proto, valid_mesh_jobs_pass)
     mj.j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
     mj.m.supersample = 2;
     accepted(&mj.j.req);
+    /* A weld: at 0 (equal positions) and at both ends of its range. */
+    mj.m.weld = 1;
+    accepted(&mj.j.req);
+    mj.m.weld_eps = 1e-30;
+    accepted(&mj.j.req);
+    mj.m.weld_eps = 1e30;
+    accepted(&mj.j.req);
+    mj.m.weld = 0, mj.m.weld_eps = 0;
     /* A domain instead of the bounding box (then no pad), 2 or 6 values. */
     double d6[6] = {-1, 1, -2, 2, -3, 3};
     mj.m.pad = 0, mj.m.domain = d6, mj.m.n_domain = 6;
@@ -445,6 +453,15 @@ Test(proto, mesh_job_rules)
     refused(&mj.j.req, INVALID, "supersample 1 is not from 2 to 8");
     mj.m.supersample = 9;
     refused(&mj.j.req, INVALID, "supersample 9 is not from 2 to 8");
+    mesh_init(&mj);
+    mj.m.weld = 1;
+    const double bad_weld[] = {-1e-3, 1e-31, 2e30, NAN, INFINITY};
+    for (size_t i = 0; i < sizeof bad_weld / sizeof *bad_weld; i++) {
+        mj.m.weld_eps = bad_weld[i];
+        refused(&mj.j.req, INVALID, "is not 0 or from 1e-30 to 1e+30");
+    }
+    mj.m.weld = 0, mj.m.weld_eps = 1e-3;
+    refused(&mj.j.req, INVALID, "weld_eps 0.001 without weld");
     mesh_init(&mj);
     mj.m.data.len = 0;
     refused(&mj.j.req, INVALID, "mesh data is empty");
@@ -482,6 +499,7 @@ Test(proto, mesh_job_survives_the_wire)
     mj.m.mode = VOXD__MESH_MODE__MESH_MODE_SURFACE6;
     mj.m.repair = VOXD__MESH_REPAIR__MESH_REPAIR_VOTE;
     mj.m.supersample = 3;
+    mj.m.weld = 1, mj.m.weld_eps = 2.5e-4;
     mj.m.source_name.data = (uint8_t *)"m.obj", mj.m.source_name.len = 5;
     uint8_t *buf;
     size_t n;
@@ -494,6 +512,7 @@ Test(proto, mesh_job_survives_the_wire)
     cr_expect_eq(m->mode, VOXD__MESH_MODE__MESH_MODE_SURFACE6);
     cr_expect_eq(m->repair, VOXD__MESH_REPAIR__MESH_REPAIR_VOTE);
     cr_expect(m->supersample == 3 && m->pad == 1 && m->res == 64 && m->n_domain == 0);
+    cr_expect(m->weld && m->weld_eps == 2.5e-4);
     cr_expect(m->source_name.len == 5 && !memcmp(m->source_name.data, "m.obj", 5));
     accepted(r);
     voxd__request__free_unpacked(r, NULL);

@@ -1,0 +1,251 @@
+/* mesh_weld — merge the vertices of a loaded mesh that lie within eps of
+ * each other (mesh_weld in mesh.h), so that its topology is judged on the
+ * geometry rather than on how the file numbered its vertices.
+ *
+ * The merge is greedy in the file's order: vertex i goes to the first
+ * earlier kept vertex (the lowest index) within eps of it, or is kept.
+ * "Within eps" is dx^2 + dy^2 + dz^2 <= eps^2, the differences of the
+ * float positions taken in double.  The kept vertices are more than eps
+ * apart from each other, and the result depends on nothing but the
+ * vertices' order.
+ *
+ * The kept vertices are found through a hash grid of cells of side h, a
+ * hair over 2 eps (h = 2 eps (1 + 2^-10)), keyed by floor(x / h) on each
+ * axis: a vertex within eps of another lies in one of the 8 cells nearest
+ * it (merge_map), and since kept vertices are more than eps apart, a cell
+ * holds a few of them at most, so the whole is O(n).  x / h is exact to
+ * within 2^-13 of a cell while |x / h| < 2^40, inside the margin; beyond,
+ * the floats on that axis are more than eps apart, so vertices within eps
+ * have the same coordinate there and the same key.  That is why eps must
+ * be 0 or at least MESH_WELD_MIN: below it, floats near 0 could crowd a
+ * cell.  eps = 0 merges exactly equal positions (-0 equal to 0): a cell
+ * is then a position, and only its own cell is looked in. */
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh_load.h"
+
+/* A cell of the grid: its key, and its kept vertices as a list through
+ * next[] (first and last, in index order). */
+typedef struct {
+    double key[3];
+    uint32_t first, last;
+} cell;
+
+/* A slot of the table: a cell's index + 1 (0: empty) and the high half of
+ * its key's hash, so that most probes that miss read no cell. */
+typedef struct {
+    uint32_t cell, tag;
+} slot;
+
+typedef struct {
+    cell *cells;
+    uint32_t n_cells;
+    size_t cap_cells;
+    slot *slot;
+    uint64_t mask;
+    uint32_t *next; /* per kept vertex (its old index): the next in its cell */
+} grid;
+
+/* splitmix64's finaliser: every bit of x moves every bit of the result
+ * (the keys' low mantissa bits are mostly zero: floats widened, or whole
+ * numbers). */
+static uint64_t mix(uint64_t x)
+{
+    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+    return x ^ (x >> 31);
+}
+
+static uint64_t key_hash(const double k[3])
+{
+    uint64_t h = 0, b;
+    for (int i = 0; i < 3; i++) {
+        double x = k[i] + 0.0; /* -0 as 0 */
+        memcpy(&b, &x, 8);
+        h = mix(h ^ b);
+    }
+    return h;
+}
+
+/* The slot of the cell with key k (hash h): its own, or the empty one
+ * where it goes. */
+static slot *find_slot(const grid *g, const double k[3], uint64_t h)
+{
+    uint32_t tag = (uint32_t)(h >> 32);
+    for (uint64_t i = h & g->mask;; i = (i + 1) & g->mask) {
+        slot *s = &g->slot[i];
+        if (!s->cell) return s;
+        const double *c = g->cells[s->cell - 1].key;
+        if (s->tag == tag && c[0] == k[0] && c[1] == k[1] && c[2] == k[2]) return s;
+    }
+}
+
+static int grow_slots(grid *g)
+{
+    uint64_t size = (g->mask + 1) * 2;
+    slot *sl = calloc((size_t)size, sizeof *sl);
+    if (!sl) return -ENOMEM;
+    free(g->slot);
+    g->slot = sl;
+    g->mask = size - 1;
+    for (uint32_t c = 0; c < g->n_cells; c++) {
+        uint64_t h = key_hash(g->cells[c].key);
+        *find_slot(g, g->cells[c].key, h) = (slot){c + 1, (uint32_t)(h >> 32)};
+    }
+    return 0;
+}
+
+/* File kept vertex v under key k (hash h). */
+static int add_kept(grid *g, const double k[3], uint64_t h, uint32_t v)
+{
+    slot *s = find_slot(g, k, h);
+    g->next[v] = UINT32_MAX;
+    if (s->cell) {
+        cell *c = &g->cells[s->cell - 1];
+        g->next[c->last] = v;
+        c->last = v;
+        return 0;
+    }
+    if (g->n_cells == g->cap_cells) {
+        size_t cap = g->cap_cells ? g->cap_cells * 2 : 1024;
+        cell *p = realloc(g->cells, cap * sizeof *p);
+        if (!p) return -ENOMEM;
+        g->cells = p;
+        g->cap_cells = cap;
+    }
+    cell *c = &g->cells[g->n_cells++];
+    memcpy(c->key, k, sizeof c->key);
+    c->first = c->last = v;
+    *s = (slot){g->n_cells, (uint32_t)(h >> 32)};
+    return (uint64_t)g->n_cells * 2 > g->mask + 1 ? grow_slots(g) : 0;
+}
+
+static double dist2(const float a[3], const float b[3])
+{
+    double dx = (double)a[0] - b[0], dy = (double)a[1] - b[1], dz = (double)a[2] - b[2];
+    return dx * dx + dy * dy + dz * dz;
+}
+
+/* The lowest kept vertex within eps of v[i] in cell k, below best. */
+static uint32_t in_cell(const grid *g, float (*v)[3], uint32_t i, const double k[3],
+                        double eps2, uint32_t best)
+{
+    const slot *s = find_slot(g, k, key_hash(k));
+    if (!s->cell) return best;
+    /* the list is in index order: its first match is its lowest */
+    for (uint32_t j = g->cells[s->cell - 1].first; j < best; j = g->next[j])
+        if (dist2(v[j], v[i]) <= eps2) return j;
+    return best;
+}
+
+/* map[i]: the kept vertex (old index) vertex i merges into.  Cells of side
+ * h = 2 eps (1 + 2^-10): the ball of radius eps about a point reaches at
+ * most one neighbour on each axis, the one on the side of the cell's
+ * middle the point lies, so 8 cells are looked in (1 for eps = 0). */
+static int merge_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
+{
+    grid g = {0};
+    int bits = 10;
+    while (bits < 40 && ((uint64_t)1 << bits) < 2 * (uint64_t)n) bits++;
+    g.mask = ((uint64_t)1 << bits) - 1;
+    g.slot = calloc((size_t)g.mask + 1, sizeof *g.slot);
+    g.next = malloc((size_t)(n ? n : 1) * sizeof *g.next);
+    int rc = g.slot && g.next ? 0 : -ENOMEM;
+    double h = 2 * eps * (1 + 0x1p-10), eps2 = eps * eps;
+    for (uint32_t i = 0; !rc && i < n; i++) {
+        double k[3], side[3] = {0, 0, 0};
+        for (int a = 0; a < 3; a++) {
+            double q = v[i][a] / h;
+            k[a] = eps > 0 ? floor(q) : v[i][a] + 0.0;
+            if (eps > 0) side[a] = q - k[a] < 0.5 ? -1 : 1;
+        }
+        uint32_t best = UINT32_MAX;
+        for (int c = 0; c < (eps > 0 ? 8 : 1); c++) {
+            double nk[3] = {k[0] + (c & 1) * side[0], k[1] + (c >> 1 & 1) * side[1],
+                            k[2] + (c >> 2) * side[2]};
+            best = in_cell(&g, v, i, nk, eps2, best);
+        }
+        map[i] = best == UINT32_MAX ? i : best;
+        if (best == UINT32_MAX) rc = add_kept(&g, k, key_hash(k), i);
+    }
+    free(g.cells);
+    free(g.slot);
+    free(g.next);
+    return rc;
+}
+
+static int degenerate(float (*v)[3], uint32_t a, uint32_t b, uint32_t c)
+{
+    return a == b || b == c || a == c || mb_zero_area(v[a], v[b], v[c]);
+}
+
+/* Whether a triangle is left once merged (map: old indices). */
+static int any_left(const mesh *m, const uint32_t *map)
+{
+    for (uint32_t i = 0; i < m->n_triangles; i++) {
+        const uint32_t *t = m->triangles[i];
+        if (!degenerate(m->vertices, map[t[0]], map[t[1]], map[t[2]])) return 1;
+    }
+    return 0;
+}
+
+/* In place: the kept vertices moved down in order (map[i] becomes vertex
+ * i's new index), the triangles renumbered and the degenerate ones
+ * dropped, the box taken again. */
+static void apply(mesh *m, uint32_t *map)
+{
+    uint32_t u = 0;
+    for (uint32_t i = 0; i < m->n_vertices; i++) {
+        if (map[i] != i) {
+            map[i] = map[map[i]]; /* its kept vertex, earlier: renumbered already */
+            continue;
+        }
+        memmove(m->vertices[u], m->vertices[i], sizeof *m->vertices);
+        map[i] = u++;
+    }
+    float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
+    uint32_t kept = 0;
+    for (uint32_t i = 0; i < m->n_triangles; i++) {
+        uint32_t t[3] = {map[m->triangles[i][0]], map[m->triangles[i][1]], map[m->triangles[i][2]]};
+        if (degenerate(m->vertices, t[0], t[1], t[2])) continue;
+        for (int k = 0; k < 3; k++)
+            for (int a = 0; a < 3; a++) {
+                float x = m->vertices[t[k]][a];
+                lo[a] = x < lo[a] ? x : lo[a];
+                hi[a] = x > hi[a] ? x : hi[a];
+            }
+        memcpy(m->triangles[kept++], t, sizeof t);
+    }
+    m->n_degenerate += m->n_triangles - kept;
+    m->n_vertices = u;
+    m->n_triangles = kept;
+    memcpy(m->lo, lo, sizeof lo);
+    memcpy(m->hi, hi, sizeof hi);
+}
+
+int mesh_weld(mesh *m, double eps, uint32_t *merged)
+{
+    if (!(eps == 0 || (eps >= MESH_WELD_MIN && eps <= MESH_WELD_MAX))) return -EINVAL;
+    uint32_t *map = malloc((size_t)m->n_vertices * sizeof *map + 1);
+    if (!map) return -ENOMEM;
+    int rc = merge_map(m->vertices, m->n_vertices, eps, map);
+    if (!rc && !any_left(m, map)) rc = -EINVAL; /* the mesh stays as it was */
+    if (rc) {
+        free(map);
+        return rc;
+    }
+    uint32_t n = m->n_vertices;
+    apply(m, map);
+    free(map);
+    if (merged) *merged = n - m->n_vertices;
+    /* give back what the merge freed (shrinking cannot fail the weld) */
+    void *p = realloc(m->vertices, (size_t)m->n_vertices * sizeof *m->vertices);
+    if (p) m->vertices = p;
+    if ((p = realloc(m->triangles, (size_t)m->n_triangles * sizeof *m->triangles)))
+        m->triangles = p;
+    return 0;
+}

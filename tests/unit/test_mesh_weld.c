@@ -1,0 +1,246 @@
+/* mesh_weld against a brute-force weld written here from its definition:
+ * for each vertex in order, the first earlier kept vertex within eps
+ * (dx^2 + dy^2 + dz^2 <= eps^2 in double), else it is kept; O(n^2).
+ *
+ * The meshes are made here: an icosphere turned into a soup (every
+ * triangle its own three vertices) with each copy moved by up to a
+ * jitter, which the weld must close again; random clusters of points much
+ * denser than eps, where the greedy order decides everything; a lattice
+ * whose neighbours lie exactly eps apart; coordinates far past 2^40 cells
+ * and near zero; eps = 0 with -0 and 0.  Every case must give the brute
+ * force's vertices, bit for bit, and its triangles (less the degenerate
+ * ones, by their definition in mesh.h). */
+#include <criterion/criterion.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh.h"
+#include "mesh_shapes.h"
+
+/* ---------------------------------------------------------- the oracle */
+
+static void brute_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
+{
+    uint32_t *kept = malloc(n * sizeof *kept + 1), nk = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        map[i] = i;
+        for (uint32_t j = 0; j < nk; j++) {
+            const float *a = v[kept[j]], *b = v[i];
+            double dx = (double)a[0] - b[0], dy = (double)a[1] - b[1], dz = (double)a[2] - b[2];
+            if (dx * dx + dy * dy + dz * dz <= eps * eps) {
+                map[i] = kept[j];
+                break;
+            }
+        }
+        if (map[i] == i) kept[nk++] = i;
+    }
+    free(kept);
+}
+
+static int degenerate(float (*v)[3], const uint32_t t[3])
+{
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) return 1;
+    const float *a = v[t[0]], *b = v[t[1]], *c = v[t[2]];
+    double u[3], w[3];
+    for (int k = 0; k < 3; k++) u[k] = (double)b[k] - a[k], w[k] = (double)c[k] - a[k];
+    return u[1] * w[2] - u[2] * w[1] == 0 && u[2] * w[0] - u[0] * w[2] == 0 &&
+           u[0] * w[1] - u[1] * w[0] == 0;
+}
+
+/* A copy of m (mesh_weld replaces its arrays). */
+static mesh copy_of(const mesh *m)
+{
+    mesh c = *m;
+    c.vertices = malloc(m->n_vertices * sizeof *c.vertices + 1);
+    c.triangles = malloc(m->n_triangles * sizeof *c.triangles + 1);
+    memcpy(c.vertices, m->vertices, m->n_vertices * sizeof *c.vertices);
+    memcpy(c.triangles, m->triangles, m->n_triangles * sizeof *c.triangles);
+    return c;
+}
+
+/* mesh_weld(m, eps) gives the brute force's mesh; returns the vertices kept. */
+static uint32_t check_weld(const mesh *m, double eps, const char *what)
+{
+    uint32_t n = m->n_vertices, *map = malloc(n * sizeof *map + 1);
+    brute_map(m->vertices, n, eps, map);
+    uint32_t *renum = malloc(n * sizeof *renum + 1), nk = 0;
+    for (uint32_t i = 0; i < n; i++)
+        if (map[i] == i) renum[i] = nk++;
+    mesh w = copy_of(m);
+    uint32_t merged = 0;
+    int rc = mesh_weld(&w, eps, &merged);
+    cr_assert_eq(rc, 0, "%s: mesh_weld %d", what, rc);
+    cr_assert_eq(w.n_vertices, nk, "%s: %u vertices, brute force %u", what, w.n_vertices, nk);
+    cr_assert_eq(merged, n - nk, "%s", what);
+    for (uint32_t i = 0; i < n; i++)
+        if (map[i] == i)
+            cr_assert_eq(memcmp(w.vertices[renum[i]], m->vertices[i], sizeof *w.vertices), 0,
+                         "%s: vertex %u", what, i);
+    uint32_t kept = 0;
+    for (uint32_t i = 0; i < m->n_triangles; i++) {
+        uint32_t t[3];
+        for (int k = 0; k < 3; k++) t[k] = map[m->triangles[i][k]];
+        if (degenerate(m->vertices, t)) continue;
+        cr_assert_lt(kept, w.n_triangles, "%s", what);
+        for (int k = 0; k < 3; k++)
+            cr_assert_eq(w.triangles[kept][k], renum[t[k]], "%s: triangle %u", what, i);
+        kept++;
+    }
+    cr_assert_eq(kept, w.n_triangles, "%s: %u triangles, brute force %u", what, w.n_triangles,
+                 kept);
+    cr_assert_eq(w.n_degenerate, m->n_degenerate + (m->n_triangles - kept), "%s", what);
+    mesh_free(&w);
+    free(map);
+    free(renum);
+    return nk;
+}
+
+/* ---------------------------------------------------------- the meshes */
+
+static double urand(uint64_t *s)
+{
+    *s = *s * 6364136223846793005ull + 1442695040888963407ull;
+    return (double)(*s >> 11) / 9007199254740992.0;
+}
+
+/* Every triangle of m with its own three vertices, each coordinate moved
+ * by up to jitter. */
+static void soup_of(const mesh *m, double jitter, uint64_t seed, shape *out)
+{
+    shape_init(out);
+    for (uint32_t i = 0; i < m->n_triangles; i++) {
+        uint32_t c[3];
+        for (int k = 0; k < 3; k++) {
+            const float *p = m->vertices[m->triangles[i][k]];
+            c[k] = shape_vertex(out, 0, 0, 0);
+            for (int a = 0; a < 3; a++)
+                out->m.vertices[c[k]][a] = (float)(p[a] + jitter * (2 * urand(&seed) - 1));
+        }
+        shape_tri(out, c[0], c[1], c[2]);
+    }
+    shape_finish(out);
+}
+
+Test(mesh_weld, a_jittered_soup_closes_again)
+{
+    shape ico, soup;
+    shape_init(&ico);
+    shape_icosphere(&ico, (double[3]){0.25, -0.5, 1}, 1, 3, false); /* 1280 triangles */
+    const mesh *m = shape_finish(&ico);
+    soup_of(m, 1e-4, 7, &soup);
+    mesh_topo t;
+    cr_assert_eq(mesh_topology(&soup.m, &t), 0);
+    cr_assert_eq(t.open, 3 * 1280ull, "the soup: every edge open");
+    /* copies of one vertex lie within 2e-4 sqrt(3); distinct ones ~0.1 apart */
+    cr_assert_eq(check_weld(&soup.m, 1e-3, "soup"), m->n_vertices);
+    mesh w = copy_of(&soup.m);
+    cr_assert_eq(mesh_weld(&w, 1e-3, NULL), 0);
+    cr_assert_eq(mesh_topology(&w, &t), 0);
+    cr_assert(t.watertight, "welded soup: %llu open", (unsigned long long)t.open);
+    cr_assert_eq(t.edges, 3 * 1280ull / 2);
+    mesh_free(&w);
+    /* a weld smaller than the jitter leaves it open, and still agrees */
+    check_weld(&soup.m, 1e-6, "soup, eps below the jitter");
+    shape_free(&soup);
+    shape_free(&ico);
+    /* exact copies, a zero coordinate written -0 in every other copy: eps
+     * = 0 merges them all */
+    shape_init(&ico);
+    shape_icosphere(&ico, (double[3]){0, 0, 0}, 1, 2, false);
+    m = shape_finish(&ico);
+    soup_of(m, 0, 1, &soup);
+    int zeros = 0;
+    for (uint32_t i = 1; i < soup.m.n_vertices; i += 2)
+        for (int a = 0; a < 3; a++)
+            if (soup.m.vertices[i][a] == 0) soup.m.vertices[i][a] = -0.0f, zeros++;
+    cr_assert_gt(zeros, 10);
+    cr_assert_eq(check_weld(&soup.m, 0, "exact soup"), m->n_vertices);
+    shape_free(&soup);
+    shape_free(&ico);
+}
+
+/* n random points in a box of side `side` around c, random triangles over them. */
+static void cloud(shape *s, uint32_t n, uint32_t nt, const double c[3], double side, uint64_t seed)
+{
+    shape_init(s);
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t v = shape_vertex(s, 0, 0, 0);
+        for (int a = 0; a < 3; a++)
+            s->m.vertices[v][a] = (float)(c[a] + side * (urand(&seed) - 0.5));
+    }
+    for (uint32_t i = 0; i < nt; i++)
+        shape_tri(s, (uint32_t)(urand(&seed) * n), (uint32_t)(urand(&seed) * n),
+                  (uint32_t)(urand(&seed) * n));
+    shape_finish(s);
+}
+
+Test(mesh_weld, dense_clusters_follow_the_greedy_order)
+{
+    static const struct {
+        double c[3], side, eps;
+    } cases[] = {
+        {{0, 0, 0}, 1, 0.05},        /* many candidates a vertex */
+        {{0, 0, 0}, 1, 0.2},
+        {{-3, 7, 0.5}, 0.01, 3e-4},
+        {{1e7, -1e7, 3e6}, 64, 2},   /* float spacing 1 there: cells past 2^20 */
+        {{2e30, 0, 0}, 1e25, 1e-3},  /* cells far past 2^40: equal coordinates only */
+        {{0, 0, 0}, 1e-28, 1e-30},   /* the smallest eps, on tiny coordinates */
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
+        shape s;
+        cloud(&s, 3000, 3000, cases[i].c, cases[i].side, 11 + i);
+        char what[64];
+        snprintf(what, sizeof what, "cloud %zu", i);
+        uint32_t nk = check_weld(&s.m, cases[i].eps, what);
+        if (i < 3) cr_assert(nk < 3000 && nk > 10, "%s: %u kept", what, nk);
+        shape_free(&s);
+    }
+}
+
+/* Neighbours exactly eps apart (a power of two: exact) merge; points on
+ * the cells' borders. */
+Test(mesh_weld, a_lattice_eps_apart)
+{
+    shape s;
+    shape_init(&s);
+    for (int z = -4; z < 4; z++)
+        for (int y = -4; y < 4; y++)
+            for (int x = -4; x < 4; x++) shape_vertex(&s, x / 8.0, y / 8.0, z / 8.0);
+    uint64_t seed = 3;
+    for (int i = 0; i < 600; i++)
+        shape_tri(&s, (uint32_t)(urand(&seed) * 512), (uint32_t)(urand(&seed) * 512),
+                  (uint32_t)(urand(&seed) * 512));
+    shape_finish(&s);
+    cr_assert_lt(check_weld(&s.m, 0.125, "lattice at eps"), 512);
+    cr_assert_eq(check_weld(&s.m, 0.124, "lattice below eps"), 512);
+    check_weld(&s.m, 0.125 * sqrt(3.0), "lattice at the diagonal");
+    shape_free(&s);
+}
+
+Test(mesh_weld, bad_eps_and_a_weld_that_leaves_nothing)
+{
+    shape s;
+    shape_init(&s);
+    shape_icosphere(&s, (double[3]){0, 0, 0}, 1, 1, false);
+    shape_finish(&s);
+    mesh w = copy_of(&s.m);
+    const double bad[] = {-1, NAN, INFINITY, 1e-31, 2e30, -0.5e-30};
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++)
+        cr_assert_eq(mesh_weld(&w, bad[i], NULL), -EINVAL, "eps %g", bad[i]);
+    /* every vertex into one: every triangle degenerate */
+    cr_assert_eq(mesh_weld(&w, 10, NULL), -EINVAL);
+    cr_assert_eq(w.n_vertices, s.m.n_vertices, "the mesh unchanged");
+    cr_assert_eq(memcmp(w.vertices, s.m.vertices, w.n_vertices * sizeof *w.vertices), 0);
+    /* a closed mesh with no duplicate: nothing merged, the same mesh */
+    uint32_t merged = 1;
+    cr_assert_eq(mesh_weld(&w, 1e-3, &merged), 0);
+    cr_assert_eq(merged, 0);
+    cr_assert_eq(w.n_triangles, s.m.n_triangles);
+    cr_assert_eq(memcmp(w.triangles, s.m.triangles, w.n_triangles * sizeof *w.triangles), 0);
+    for (int a = 0; a < 3; a++) cr_assert(w.lo[a] == s.m.lo[a] && w.hi[a] == s.m.hi[a]);
+    mesh_free(&w);
+    shape_free(&s);
+}
