@@ -57,7 +57,7 @@ static void *worker(void *arg)
         if (t >= nt) break;
         int rc = mesh_tile_run(j->m, j->lat, j->b->ids + j->b->start[t],
                                (size_t)(j->b->start[t + 1] - j->b->start[t]), j->g, j->o,
-                               t % j->b->tiles[0], t / j->b->tiles[0], scratch, j->v, &st);
+                               t % j->b->tiles[0], t / j->b->tiles[0], scratch, j->v, NULL, &st);
         if (rc) j->rc = rc;
     }
     free(scratch);
@@ -157,7 +157,7 @@ int main(int argc, char **argv)
         vod_volume_init(&v, arena, bytes, g.res, mesh_vox_bits(&o), sbrick);
         for (uint32_t t = 0; t < b.tiles[0] * b.tiles[1]; t++)
             mesh_tile_run(m, lat, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, &o,
-                          t % b.tiles[0], t / b.tiles[0], scratch, v, &st);
+                          t % b.tiles[0], t / b.tiles[0], scratch, v, NULL, &st);
         n = st.voxels;
         printf("| %u^3 | %.3f s | %.3f s (%.3f) | %.3f s (%.3f) | %u | %llu |\n", res, bin, one,
                one_c, two, two_c, vi.level0_bricks, (unsigned long long)n);

@@ -16,6 +16,7 @@
  * than half of the voxel's samples are inside. */
 #include "mesh_vox_int.h"
 
+#include <errno.h>
 #include <math.h>
 #include <string.h>
 
@@ -235,6 +236,7 @@ int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
 {
     dens d = {.t = t, .p = p, .b = b};
     mv_frame_init(&d.f, t->m, t->g, p->K);
+    d.f.pulse = &t->pulse;
     d.vx0 = (int64_t)t->x0 - p->apron;
     d.vy0 = (int64_t)t->y0 - p->apron;
     d.dnx = t->nx + 2 * p->apron;
@@ -248,6 +250,7 @@ int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     for (uint32_t bz = 0; bz * S < t->nz; bz++) {
         int64_t top = (int64_t)(bz * S + S < t->nz ? bz * S + S : t->nz) - 1;
         ensure(&d, top + p->apron);
+        if (t->pulse.stop) return -ECANCELED;
         int rc = surface ? emit_surface_row(&d, bz) : emit_density_row(&d, bz);
         if (rc) return rc;
     }

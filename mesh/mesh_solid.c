@@ -14,6 +14,7 @@ void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
     for (int a = 0; a < 3; a++) f->lo[a] = g->lo[a];
     f->K = K;
     f->scale = (double)K * (double)MV_L / g->vs;
+    f->pulse = NULL;
 }
 
 /* Whether triangle id can cross a ray of the block: its world z range
@@ -74,6 +75,7 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
     mv_target tx = {b, buf->bx, buf->cx, false}, ty = {b, buf->by, buf->cy, false};
     for (size_t i = 0; i < in->n; i++) {
         uint32_t id = in->ids[i];
+        if (mv_beat(in->f->pulse, 8)) return 0; /* the tile is abandoned */
         if (i + MV_AHEAD < in->n) mv_prefetch(in->f, in->ids[i + MV_AHEAD]);
         bool below = false;
         if (cull && !z_relevant(in, id, first, &below)) continue;
@@ -95,6 +97,7 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
         uint64_t d = (a ^ x) | (a ^ y);
         if (buf->dis) buf->dis[w] = d;
         if (!d) continue;
+        if (mv_beat(in->f->pulse, 1)) return count;
         count += (uint64_t)mv_popcount(d);
         if (in->repair == MESH_REPAIR_VOTE)
             buf->bits[w] = (a & x) | (a & y) | (x & y);
@@ -133,6 +136,7 @@ void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double
     double s = f->scale / (double)MV_L;
     for (unsigned k = 0; k < n; k++) w[k] = 0;
     for (uint32_t t = 0; t < m->n_triangles; t++) {
+        if (mv_beat(f->pulse, n)) return; /* the tile is abandoned */
         double p[3][3];
         for (int i = 0; i < 3; i++) {
             const float *v = m->vertices[m->triangles[t][i]];

@@ -136,6 +136,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     mv_frame f;
     mv_frame_init(&f, t->m, t->g, 1);
     f.lat = t->lat;
+    f.pulse = &t->pulse;
     mv_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
     if (p->solid1) {
         mv_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
@@ -147,6 +148,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
         memset(b->surf, 0, mv_block_words(&blk) * 8);
         for (size_t i = 0; i < t->n; i++) {
             int64_t P[3][3];
+            if (mv_beat(f.pulse, 32)) return; /* the tile is abandoned */
             if (i + MV_AHEAD < t->n) mv_prefetch(&f, t->ids[i + MV_AHEAD]);
             mv_triangle(&f, t->ids[i], P);
             mv_surface(P, six, &blk, b->surf);
@@ -185,7 +187,7 @@ static int check_volume(const vod_volume *vol, const grid_spec *g,
 int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *ids, size_t n,
                   const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
                   uint32_t ty, void *scratch, vod_volume *vol,
-                  mesh_tile_stats *st)
+                  const mesh_tile_env *env, mesh_tile_stats *st)
 {
     int rc = check_volume(vol, g, o, tx, ty);
     if (rc) return rc;
@@ -197,7 +199,7 @@ int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *id
     vod_volume_get_info(vol, &vi);
     mv_tile t = {.m = m, .lat = lattice, .g = g, .o = o, .ids = ids, .n = n, .vol = vol,
                  .S = vi.sbrick, .x0 = tx * MESH_TILE, .y0 = ty * MESH_TILE,
-                 .nz = g->res[2], .st = st, .dis = b.dis};
+                 .nz = g->res[2], .st = st, .dis = b.dis, .pulse = {.env = env}};
     t.nx = g->res[0] - t.x0 < MESH_TILE ? g->res[0] - t.x0 : MESH_TILE;
     t.ny = g->res[1] - t.y0 < MESH_TILE ? g->res[1] - t.y0 : MESH_TILE;
     if (b.dis) memset(b.dis, 0, (size_t)t.ny * t.nz * 8);
@@ -205,7 +207,9 @@ int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *id
         rc = mv_density_run(&t, &p, &b);
     } else {
         occupancy_bits(&t, &p, &b);
-        if (o->channel == VOXEL_CH_OCCUPANCY) {
+        if (t.pulse.stop) {
+            rc = -ECANCELED;
+        } else if (o->channel == VOXEL_CH_OCCUPANCY) {
             rc = emit_occupancy(&t, t.occ, b.brick);
         } else {
             rc = mv_density_run(&t, &p, &b);
@@ -216,37 +220,41 @@ int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *id
     return rc;
 }
 
+/* Every tile of box (tx0, ty0, tx1, ty1) in turn. */
+static int run_tiles(const mesh *m, const mesh_lattice *lat, const mesh_bins *bins,
+                     const grid_spec *g, const mesh_vox_opts *o, const uint32_t box[4],
+                     void *scratch, vod_volume *vol, const mesh_tile_env *env,
+                     mesh_tile_stats *st)
+{
+    int rc = 0;
+    uint32_t x1 = box[2] < bins->tiles[0] ? box[2] : bins->tiles[0];
+    uint32_t y1 = box[3] < bins->tiles[1] ? box[3] : bins->tiles[1];
+    for (uint32_t ty = box[1]; ty < y1 && !rc; ty++)
+        for (uint32_t tx = box[0]; tx < x1 && !rc; tx++) {
+            uint64_t i = (uint64_t)ty * bins->tiles[0] + tx;
+            rc = mesh_tile_run(m, lat, bins->ids + bins->start[i],
+                               (size_t)(bins->start[i + 1] - bins->start[i]), g, o,
+                               tx, ty, scratch, vol, env, st);
+        }
+    return rc;
+}
+
 int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
                         const uint32_t *tiles, vod_volume *vol, mesh_tile_stats *st)
 {
     mesh_bins bins;
+    mesh_tile_env env = {0};
     mesh_lattice *lat = malloc(((size_t)m->n_vertices + 1) * sizeof *lat);
-    if (!lat) return -ENOMEM;
-    int rc = mesh_bin(m, g, o, lat, 1, &bins);
-    if (rc) {
-        free(lat);
-        return rc;
-    }
     void *scratch = malloc(mesh_tile_scratch_bytes(g, o));
-    if (!scratch) {
+    int rc = lat && scratch ? 0 : -ENOMEM;
+    if (!rc) rc = mesh_bin(m, g, o, lat, 1, &bins);
+    if (!rc) {
+        uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};
+        rc = run_tiles(m, lat, &bins, g, o, tiles ? tiles : all, scratch, vol, &env, st);
         mesh_bins_free(&bins);
-        free(lat);
-        return -ENOMEM;
     }
-    uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};
-    const uint32_t *box = tiles ? tiles : all;
-    uint32_t x1 = box[2] < bins.tiles[0] ? box[2] : bins.tiles[0];
-    uint32_t y1 = box[3] < bins.tiles[1] ? box[3] : bins.tiles[1];
-    for (uint32_t ty = box[1]; ty < y1 && !rc; ty++)
-        for (uint32_t tx = box[0]; tx < x1 && !rc; tx++) {
-            uint64_t i = (uint64_t)ty * bins.tiles[0] + tx;
-            rc = mesh_tile_run(m, lat, bins.ids + bins.start[i],
-                               (size_t)(bins.start[i + 1] - bins.start[i]), g, o,
-                               tx, ty, scratch, vol, st);
-        }
     free(scratch);
     free(lat);
-    mesh_bins_free(&bins);
     return rc;
 }
 

@@ -92,19 +92,30 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
              mesh_lattice *lattice, unsigned threads, mesh_bins *out);
 void mesh_bins_free(mesh_bins *b);
 
+/* What a tile's caller lends it besides the data.  tick is called every
+ * few milliseconds of work, whatever the tile does (rasterizing, the
+ * winding numbers, the supersampled density): a worker's heartbeat; when
+ * it returns non-zero the tile stops where it is and mesh_tile_run returns
+ * -ECANCELED. */
+typedef struct {
+    int (*tick)(void *arg);
+    void *arg;
+} mesh_tile_env;
+
 /* Scratch a tile needs (the caller gives each worker one buffer). */
 size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);
 
 /* Voxelize tile (tx, ty) from the triangles ids[0, n) of m into vol, whose
  * dims are g->res, bits mesh_vox_bits(o), and storage brick side divides
  * MESH_TILE; lattice: mesh_bin's for m and g, or NULL (the tile snaps the
- * vertices itself, the same way).  Adds to *st.  0, or -ENOMEM when vol's
+ * vertices itself, the same way); env: the heartbeat, or NULL.  Adds to
+ * *st.  0, -ECANCELED when env's tick said stop, or -ENOMEM when vol's
  * pool is full.  A tile never writes a brick that is all 0: vol must start
  * empty (as vod_volume_init leaves it). */
 int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *ids, size_t n,
                   const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
                   uint32_t ty, void *scratch, vod_volume *vol,
-                  mesh_tile_stats *st);
+                  const mesh_tile_env *env, mesh_tile_stats *st);
 
 /* Every tile, serially: the reference for the engine (tests, -w 0). */
 int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,

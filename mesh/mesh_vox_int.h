@@ -40,6 +40,31 @@ __extension__ typedef __int128 mv_i128;
 #define MV_H (MV_L / 2)
 #define MV_LIM 1099511627776.0 /* 2^40: the coordinates' clamp */
 
+/* A tile's heartbeat (mesh_tile_env.tick).  The long loops count their
+ * work in units of about 10 ns (a triangle's solid angle at one point; a
+ * triangle rasterized is 8) and tick every MV_BEAT units, a fraction of a
+ * millisecond; once a tick said stop, stop stays set, the loops end early
+ * and the tile returns -ECANCELED. */
+#define MV_BEAT 16384u
+typedef struct {
+    const mesh_tile_env *env; /* NULL: no heartbeat */
+    uint32_t work;            /* units since the last tick */
+    bool stop;
+} mv_pulse;
+
+/* units of work done (p may be NULL): ticks when due; true once the tile
+ * must stop. */
+static inline bool mv_beat(mv_pulse *p, uint32_t units)
+{
+    if (!p) return false;
+    p->work += units;
+    if (p->work >= MV_BEAT) {
+        p->work = 0;
+        if (p->env && p->env->tick && p->env->tick(p->env->arg)) p->stop = true;
+    }
+    return p->stop;
+}
+
 /* The lattice of one pass: lattice = (v - lo) * scale. */
 typedef struct {
     const mesh *m;
@@ -47,6 +72,7 @@ typedef struct {
     double lo[3];
     double scale;   /* lattice units per world unit: K * L / vs */
     uint32_t K;     /* samples per voxel and axis */
+    mv_pulse *pulse; /* the tile's heartbeat, or NULL */
 } mv_frame;
 
 void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
@@ -231,6 +257,7 @@ typedef struct {
     const uint64_t *occ;        /* the mode's voxel bits: word z * ny + y */
     uint64_t *dis;              /* voxels whose parities differ, or NULL */
     mesh_tile_stats *st;
+    mv_pulse pulse;             /* the heartbeat of every pass of the tile */
 } mv_tile;
 
 /* The density channel's bricks, or the surface channel's (occupancy from

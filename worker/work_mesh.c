@@ -53,6 +53,15 @@ static int tile_mips(vod_volume *vol, const mesh_block *b, uint32_t tx, uint32_t
     return vod_volume_mip_columns(vol, b->mip_channel, (int)b->mip_levels, lo, hi);
 }
 
+/* The tiles' heartbeat (mesh_tile_env): a winding-number or density tile
+ * can run for seconds; the abort is checked where the beat is given. */
+static int tile_tick(void *arg)
+{
+    work_ctx *w = arg;
+    work_tick(w);
+    return work_aborted(w);
+}
+
 static int mesh_run(work_ctx *w, void *state, const shm_task *t)
 {
     mesh_state *st = state;
@@ -73,12 +82,13 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
     mesh_tile_stats *stats = shm_at(w->base, b->stats_off);
     vod_volume *vol = vod_volume_view(shm_at(w->base, b->volume_off));
     if (!vol) return -EINVAL;
+    mesh_tile_env env = {.tick = tile_tick, .arg = w};
     for (uint32_t k = a.first; k < a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
         int rc = mesh_tile_run(&m, NULL, ids + start[k], start[k + 1] - start[k],
                                &b->grid, &b->opts, k % b->tiles[0],
-                               k / b->tiles[0], st->scratch, vol, &s);
+                               k / b->tiles[0], st->scratch, vol, &env, &s);
         if (!rc) rc = tile_mips(vol, b, k % b->tiles[0], k / b->tiles[0]);
         if (rc) return rc;
         stats[k] = s;

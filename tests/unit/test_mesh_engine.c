@@ -423,4 +423,46 @@ Test(mesh_engine, the_grid_from_the_mesh_coordinates)
     cr_assert(w.dims[0] == 32 && w.dims[1] == 16 && w.dims[2] == 8);
     check_grid(&job, &w, m.lo, m.hi, "exact bbox");
     shape_free(&sh_m);
+
+/* Long work is not a stall: a winding-number tile that runs far longer
+ * than the stall timeout ticks its worker's heartbeat, is not killed, and
+ * writes the serial reference's bytes.  (Before the tiles ticked, the
+ * same job failed: "mesh tile 0 stalled or killed its worker twice".) */
+Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
+{
+    shape s;
+    shape_init(&s);
+    double c[3] = {0, 0, 0};
+    shape_icosphere(&s, c, 1.0, 4, false);
+    shape_remove(&s, not_every_seventh, NULL);
+    const mesh *m = shape_finish(&s);
+    pipeline_job job = mesh_job(m, 56, VOXEL_CH_OCCUPANCY); /* one tile */
+    job.mesh.opts.repair = MESH_REPAIR_WINDING;
+    /* a worker pinned to a CPU of a loaded machine (load 25 on 2 cores)
+     * was seen to wait over a second for it: with less than 2 s, such a
+     * machine would kill a worker that ticks */
+    const double stall = 2.0;
+    engine_opts o = {.workers = 1, .shm_bytes = (size_t)256 << 20, .stall_timeout = stall};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    pipeline_report r0, r;
+    vod_membuf ref = run(NULL, &job, &r0), got = {0};
+    vod_sink sink = {vod_mem_write, &got};
+    int rc = pipeline_run(e, &job, &sink, &r);
+    engine_worker_info in;
+    cr_assert_eq(engine_worker_info_get(e, 0, &in), 0);
+    cr_assert_eq(rc, 0, "%s (quiet %.3f s, state %c)", r.err.message, in.stalled_quiet,
+                 in.stalled_state);
+    cr_log_info("the tile: %.3f s, serially %.3f s", r.t_voxelize, r0.t_voxelize);
+    cr_assert_geq(r.t_voxelize, 3 * stall, "the tile took %.3f s: not a long one", r.t_voxelize);
+    cr_assert_gt(r.disagreements, 0);
+    cr_assert_eq(in.stalls, 0, "the worker was taken for stalled");
+    cr_assert_eq(in.replaced, 0);
+    cr_assert_eq(r.stalls, 0);
+    cr_assert(got.n == ref.n && memcmp(got.p, ref.p, ref.n) == 0, "other bytes");
+    free(ref.p);
+    free(got.p);
+    engine_destroy(e);
+    shape_free(&s);
 }

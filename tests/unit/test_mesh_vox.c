@@ -723,7 +723,7 @@ static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
         /* half of them snap the vertices themselves */
         cr_assert_eq(mesh_tile_run(m, i % 2 ? NULL : lat, b.ids + b.start[t],
                                    b.start[t + 1] - b.start[t], g, o, t % b.tiles[0],
-                                   t / b.tiles[0], scratch, got.v, st), 0);
+                                   t / b.tiles[0], scratch, got.v, NULL, st), 0);
     }
     size_t diff = 0;
     for (uint32_t z = 0; z < g->res[2]; z++)
@@ -1045,9 +1045,9 @@ Test(mesh_vox, tile_run_refuses_a_volume_that_does_not_fit)
     uint32_t ids[1] = {0};
     mesh_tile_stats st = {0};
     tvol v32 = vol_make(&g, 32, 16); /* the wrong width */
-    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 0, 0, scratch, v32.v, &st), -EINVAL);
+    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 0, 0, scratch, v32.v, NULL, &st), -EINVAL);
     tvol v8 = vol_make(&g, 8, 16);
-    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 1, 0, scratch, v8.v, &st), -EINVAL,
+    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 1, 0, scratch, v8.v, NULL, &st), -EINVAL,
                  "tile x 1 of a 64-wide grid");
     /* a pool without room for a brick: -ENOMEM */
     size_t bytes = vod_volume_bytes(g.res, 8, 16, 0);
