@@ -83,6 +83,16 @@ else ifeq ($(V),debug)
   OPT   := -O0 -g
 endif
 CFLAGS  += $(CSTD) $(WARN) $(OPT) $(PKG_CFLAGS) -MMD -MP
+# --version of vox and voxd: the version and the git commit built from
+# ("unknown" outside git); the stamp rebuilds the two objects on a new commit.
+VOX_VERSION := 0.1
+VOX_COMMIT  := $(or $(shell git rev-parse --short=12 HEAD 2>/dev/null),unknown)
+VERSION_OBJ := $(BUILD)/client/cli_msg.o $(BUILD)/server/voxd.o
+$(VERSION_OBJ): CFLAGS += -DVOX_VERSION='"$(VOX_VERSION)"' -DVOX_COMMIT='"$(VOX_COMMIT)"'
+$(VERSION_OBJ): $(BUILD)/commit.stamp
+$(BUILD)/commit.stamp: FORCE
+	@mkdir -p $(@D); echo '$(VOX_COMMIT)' | cmp -s - $@ || echo '$(VOX_COMMIT)' > $@
+FORCE:
 LDFLAGS += $(filter -fsanitize=%,$(OPT))
 LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 

@@ -13,11 +13,13 @@
 #include "vod.h"
 #include "vox.h"
 
-/* Exit codes of every command. */
-#define CLI_EXIT_OK 0
-#define CLI_EXIT_FAILED 1    /* the job (or the request) failed */
-#define CLI_EXIT_USAGE 2     /* bad usage, a bad expression */
-#define CLI_EXIT_NO_DAEMON 3 /* no voxd answering on the socket */
+/* The exit status of every command (docs/cli.md, "Exit status"). */
+typedef enum {
+    CLI_EXIT_OK = 0,
+    CLI_EXIT_FAILED = 1,    /* the job (or the request) failed */
+    CLI_EXIT_USAGE = 2,     /* bad usage, a bad expression or input file */
+    CLI_EXIT_NO_DAEMON = 3, /* no voxd answering on the socket */
+} cli_exit;
 
 /* sock: the daemon's socket (vox --socket, $VOXD_SOCKET, the default). */
 int cli_voxelize(int argc, char **argv, const char *sock);
@@ -148,7 +150,38 @@ int cli_interrupted(void);
 /* "interrupted; OUT not written", then the process ends by the signal
  * (its default action), as it would have without the handler. */
 _Noreturn void cli_end_interrupted(const char *out);
-/* Print "vox: " + message to stderr. */
+
+/* ---- messages (cli_msg.c): every error and warning of vox, one line ---- */
+
+struct option;
+/* "vox: message" on stderr. */
 void cli_error(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+/* "vox: message" on stderr, for what is not an error (a job's id). */
+void cli_note(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+/* "vox: warning: message" on stderr. */
+void cli_warn(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+/* "vox: CMD: message; see 'vox CMD --help'" (cmd NULL: vox's own); returns
+ * CLI_EXIT_USAGE. */
+int cli_usage_error(const char *cmd, const char *fmt, ...)
+    __attribute__((format(printf, 2, 3)));
+/* The usage error for an unknown option arg, with the nearest of names
+ * (NULL-terminated, "--output", "-o") when it is a slip away, or the
+ * options an ambiguous abbreviation begins.  Returns CLI_EXIT_USAGE. */
+int cli_unknown_option(const char *cmd, const char *arg, const char *const names[]);
+/* The same for an unknown command (names: vox's commands). */
+int cli_unknown_command(const char *cmd, const char *const names[]);
+/* getopt_long for command cmd, its errors said by cli_unknown_option and
+ * cli_usage_error (getopt's own messages off): '?' after a message. */
+int cli_getopt(const char *cmd, int argc, char **argv, const char *shorts,
+               const struct option *longs);
+/* A parse error of a text (an expression, a .csg tree) compiler-style:
+ * "name:line:col: message", then the line and a caret under the column
+ * (line 0: "name: message" alone). */
+void cli_error_at(const char *name, int line, int col, const char *text, size_t len,
+                  const char *fmt, ...) __attribute__((format(printf, 6, 7)));
+/* "s" unless n is 1: "%u worker%s". */
+const char *cli_plural(uint64_t n);
+/* "PROG VERSION (commit HASH)" on stdout, from the build's -D flags. */
+void cli_version(const char *prog);
 
 #endif

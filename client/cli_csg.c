@@ -62,12 +62,12 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
                     .workers = cli_cores()};
     int c;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "o:r:c:d:w:Z:qh", longs, NULL)) != -1) {
+    while ((c = cli_getopt("csg", argc, argv, "o:r:c:d:w:Z:qh", longs)) != -1) {
         switch (c) {
         case 'o': o->out = optarg; break;
         case 'r':
             if (cli_parse_uint(optarg, 1, GRID_MAX_RES, &o->res)) {
-                cli_error("bad --res '%s': want 1..%u", optarg, GRID_MAX_RES);
+                cli_error("bad --res '%.40s': want 1..%u", optarg, GRID_MAX_RES);
                 return CLI_EXIT_USAGE;
             }
             break;
@@ -76,19 +76,19 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
             else if (!strcmp(optarg, "occupancy")) o->channel = VOXEL_CH_OCCUPANCY;
             else if (!strcmp(optarg, "surface")) o->channel = VOXEL_CH_SURFACE;
             else {
-                cli_error("bad --channel '%s': density, occupancy or surface", optarg);
+                cli_error("bad --channel '%.40s': density, occupancy or surface", optarg);
                 return CLI_EXIT_USAGE;
             }
             break;
         case 'd':
             if (cli_parse_domain(optarg, o->lo, o->hi)) {
-                cli_error("bad --domain '%s'", optarg);
+                cli_error("bad --domain '%.40s'", optarg);
                 return CLI_EXIT_USAGE;
             }
             break;
         case 'w':
             if (cli_parse_uint(optarg, 0, ENGINE_MAX_WORKERS, &o->workers)) {
-                cli_error("bad --workers '%s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
+                cli_error("bad --workers '%.40s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
                 return CLI_EXIT_USAGE;
             }
             o->workers_given = 1;
@@ -98,19 +98,21 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
             else if (!strcmp(optarg, "runl")) o->comp = VOD_COMP_RUNL;
             else if (!strcmp(optarg, "none")) o->comp = VOD_COMP_NONE;
             else {
-                cli_error("bad --compress '%s': zlib, runl or none", optarg);
+                cli_error("bad --compress '%.40s': zlib, runl or none", optarg);
                 return CLI_EXIT_USAGE;
             }
             break;
         case 'q': o->quiet = 1; break;
         case 'h': fputs(usage, stdout); return -1;
-        default: fputs(usage, stderr); return CLI_EXIT_USAGE;
+        default: return CLI_EXIT_USAGE;
         }
     }
-    if (optind + 1 != argc || !o->out || !o->res) {
-        fputs(usage, stderr);
-        return CLI_EXIT_USAGE;
-    }
+    if (optind == argc) return cli_usage_error("csg", "missing the tree: FILE.csg or -");
+    if (optind + 1 != argc)
+        return cli_usage_error("csg", "want one FILE.csg, not also '%.40s'", argv[optind + 1]);
+    if (!o->out) return cli_usage_error("csg", "missing -o OUT.vod (the file to write)");
+    if (!o->res)
+        return cli_usage_error("csg", "missing --res N (voxels along the longest axis)");
     o->in = argv[optind];
     return 0;
 }
@@ -159,13 +161,8 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
     rc = csg_parse(text, len, t, &err);
     if (rc) {
         const char *name = strcmp(path, "-") ? path : "<stdin>";
-        if (err.line) fprintf(stderr, "%s:%d:%d: ", name, err.line, err.col);
-        else fprintf(stderr, "%s: ", name);
-        if (err.node[0]) fprintf(stderr, "node '%s': ", err.node);
-        fprintf(stderr, "%s\n", err.msg);
-        char ex[EXPR_EXCERPT_MAX];
-        if (err.line && !expr_excerpt(text, len, err.line, err.col, ex, sizeof ex))
-            fputs(ex, stderr);
+        cli_error_at(name, err.line, err.col, text, len, "%s%s%s%s",
+                     err.node[0] ? "node '" : "", err.node, err.node[0] ? "': " : "", err.msg);
     }
     free(text);
     if (!rc && (rc = read_leaves(path, *t))) {
@@ -212,6 +209,7 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
         cli_error("%s: %s", o->out, why);
         return r.err.failure == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }
+    if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the tree meets its box (see --domain)", o->out);
     if (!o->quiet)
         printf("%s: %llu voxels at or above S on a %ux%ux%u grid, %llu bricks (%llu uniform, "
                "%llu operand subtrees skipped), %llu bytes; evaluated in %.3f s, written in "

@@ -17,6 +17,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "cli.h"
@@ -76,49 +77,39 @@ static int fmt_of_path(const char *path)
 
 static int parse_opts(int argc, char **argv, export_opts *o)
 {
+    static const char *const names[] = {"-o", "--format", "--level", "--bbox", "--gzip",
+                                        "--no-normals", "--help", NULL};
     *o = (export_opts){0};
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i], *v = i + 1 < argc ? argv[i + 1] : NULL;
         int takes = !strcmp(a, "-o") || !strcmp(a, "--format") ||
                     !strcmp(a, "--level") || !strcmp(a, "--bbox");
-        if (takes && !v) {
-            cli_error("%s needs a value", a);
-            return CLI_EXIT_USAGE;
-        }
+        if (takes && !v) return cli_usage_error("export", "option '%s' needs a value", a);
         uint32_t l;
         if (!strcmp(a, "-o")) o->out = v;
         else if (!strcmp(a, "--format")) {
-            if (!(o->fmt = fmt_of(v))) {
-                cli_error("--format %s: not nrrd, raw, binvox, vti or vdb", v);
-                return CLI_EXIT_USAGE;
-            }
+            if (!(o->fmt = fmt_of(v)))
+                return cli_usage_error("export", "--format %.40s: not nrrd, raw, binvox, "
+                                       "vti or vdb", v);
         } else if (!strcmp(a, "--level")) {
-            if (cli_parse_uint(v, 0, 30, &l)) {
-                cli_error("--level %s: not a level 0..30", v);
-                return CLI_EXIT_USAGE;
-            }
+            if (cli_parse_uint(v, 0, 30, &l))
+                return cli_usage_error("export", "--level %.40s: not a level 0..30", v);
             o->level = (int)l;
         } else if (!strcmp(a, "--bbox")) o->bbox = v;
         else if (!strcmp(a, "--gzip")) o->gzip = 1;
         else if (!strcmp(a, "--no-normals")) o->no_normals = 1;
-        else if (a[0] == '-' || o->in) {
-            cli_error(a[0] == '-' ? "unknown option '%s'" : "one input file only: '%s'", a);
-            return CLI_EXIT_USAGE;
-        } else o->in = a;
+        else if (a[0] == '-') return cli_unknown_option("export", a, names);
+        else if (o->in) return cli_usage_error("export", "one input file only: '%.40s'", a);
+        else o->in = a;
         i += takes;
     }
-    if (!o->in || !o->out) {
-        cli_error("export needs FILE.vod and -o OUT");
-        return CLI_EXIT_USAGE;
-    }
-    if (!o->fmt && !(o->fmt = fmt_of_path(o->out))) {
-        cli_error("%s: no format from its extension; give --format", o->out);
-        return CLI_EXIT_USAGE;
-    }
-    if (o->gzip && o->fmt != FMT_NRRD) {
-        cli_error("--gzip is for NRRD only");
-        return CLI_EXIT_USAGE;
-    }
+    if (!o->in) return cli_usage_error("export", "missing the input FILE.vod");
+    if (!o->out) return cli_usage_error("export", "missing -o OUT (the file to write)");
+    if (!o->fmt && !(o->fmt = fmt_of_path(o->out)))
+        return cli_usage_error("export", "%.40s: no format from its extension; give --format",
+                               o->out);
+    if (o->gzip && o->fmt != FMT_NRRD)
+        return cli_usage_error("export", "--gzip is for NRRD only");
     return 0;
 }
 
@@ -401,6 +392,19 @@ static int write_vdb(const export_box *b, const export_opts *o, const outfile *f
     return 0;
 }
 
+/* The one line of a successful export: what was written. */
+static void say_written(const export_box *b, const export_opts *o)
+{
+    static const char *const names[] = {"", "NRRD", "raw", "binvox", "VTK ImageData",
+                                        "OpenVDB"};
+    struct stat st;
+    unsigned long long bytes = stat(o->out, &st) == 0 ? (unsigned long long)st.st_size : 0;
+    printf("%s: %s%s, %ux%ux%u voxels of level %d%s, %llu bytes%s%s\n", o->out,
+           names[o->fmt], o->gzip ? " (gzip)" : "", b->n[0], b->n[1], b->n[2], b->level,
+           b->normals && o->fmt != FMT_BINVOX ? " with normals" : "", bytes,
+           o->json ? "; its header in " : "", o->json ? o->json : "");
+}
+
 /* Made by outfile (unnamed until whole, then linked onto OUT); the stream
  * is flushed but the descriptor left to outfile, which syncs and closes it. */
 static int write_out(const export_box *b, const export_opts *o)
@@ -427,6 +431,7 @@ static int write_out(const export_box *b, const export_opts *o)
         if (rc != -EINVAL) cli_error("%s: %s", o->out, strerror(-rc));
         return CLI_EXIT_FAILED;
     }
+    say_written(b, o);
     return CLI_EXIT_OK;
 }
 
@@ -439,10 +444,7 @@ int cli_export(int argc, char **argv)
         }
     export_opts o;
     int rc = parse_opts(argc, argv, &o);
-    if (rc) {
-        fputs(usage_text, stderr);
-        return rc;
-    }
+    if (rc) return rc;
     char json[4096];
     if (o.fmt == FMT_RAW) {
         /* OUT.raw's sidecar is OUT.json; any other name gets .json added */

@@ -90,14 +90,15 @@ static void print_voxels(const vod_file *f)
 
 int cli_info(int argc, char **argv)
 {
-    if (argc < 2 || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
+    if (argc < 2) return cli_usage_error("info", "missing FILE.vod");
+    if (!strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
         fputs("usage: vox info FILE.vod...\n"
               "  validates every part of each file (header, tree, every brick's size,\n"
               "  decompression and hash, the CRC) and prints what it holds; the content\n"
               "  checksum covers every voxel of every level, so files of the same voxels\n"
               "  and brick size written with any compression or hash share it\n",
-              argc < 2 ? stderr : stdout);
-        return argc < 2 ? 2 : 0;
+              stdout);
+        return CLI_EXIT_OK;
     }
     int bad = 0;
     for (int i = 1; i < argc; i++) {
@@ -112,5 +113,5 @@ int cli_info(int argc, char **argv)
         print_voxels(f);
         vod_close(f);
     }
-    return bad;
+    return bad ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }

@@ -89,8 +89,8 @@ static const char usage_submit[] =
     "daemon, as vox csg evaluates it (the same bytes; channel density by default, or\n"
     "occupancy; --domain as for an expression).\n"
     "A mesh file goes as it is (inline, or in chunks when large): the daemon\n"
-    "reads it and says what is wrong with it.  On a terminal the job's id is shown;\n"
-    "an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job failed\n"
+    "reads it and says what is wrong with it.  The job's id is said on stderr (for\n"
+    "vox cancel); an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job failed\n"
     "or was refused (with the daemon's reason), 2 bad usage, a bad expression or a\n"
     "mesh file the daemon cannot read, 3 no voxd answering on the socket.\n";
 
@@ -166,37 +166,49 @@ static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
     switch (c) {
     case 'O':
         if (!parse_choice(arg, modes, mode_values, &u)) return o->mesh_opts.mode = u, 0;
-        cli_error("bad --mode '%s': want solid, surface, surface6, conservative or interior", arg);
+        cli_error("bad --mode '%.40s': want solid, surface, surface6, conservative or interior", arg);
         return -1;
     case 'R':
         if (!parse_choice(arg, repairs, repair_values, &u)) return o->mesh_opts.repair = u, 0;
-        cli_error("bad --repair '%s': want none, vote or winding", arg);
+        cli_error("bad --repair '%.40s': want none, vote or winding", arg);
         return -1;
     case 'K':
         if (!cli_parse_uint(arg, 2, 8, &o->mesh_opts.supersample)) return 0;
-        cli_error("bad --supersample '%s': want 2..8", arg);
+        cli_error("bad --supersample '%.40s': want 2..8", arg);
         return -1;
     case 'A':
         if (!cli_parse_uint(arg, 0, GRID_MAX_RES / 2, &o->pad)) return 0;
-        cli_error("bad --pad '%s': want 0..%u voxels", arg, GRID_MAX_RES / 2);
+        cli_error("bad --pad '%.40s': want 0..%u voxels", arg, GRID_MAX_RES / 2);
         return -1;
     case 'W': return cli_parse_weld(arg, &o->weld);
     case 'X':
         if (!cli_parse_domain(arg, o->lo, o->hi) && strchr(arg, ',') != strrchr(arg, ','))
             return o->has_domain = 1, 0;
-        cli_error("bad --bbox '%s': want X0,X1,Y0,Y1,Z0,Z1 with each low < high", arg);
+        cli_error("bad --bbox '%.40s': want X0,X1,Y0,Y1,Z0,Z1 with each low < high", arg);
         return -1;
     }
     return -1;
 }
 
-/* What was given together that cannot be: 0 or CLI_EXIT_USAGE. */
-static int check_job_kind(cli_job_opts *o)
+/* vox submit given one of voxelize's engine options or mode switches. */
+static int engine_option(int c)
 {
-    if (!!o->expr + !!o->file + !!o->mesh + !!o->csg != 1) {
-        cli_error("give exactly one of --expr, --file and --mesh (or, to vox submit, --csg)");
-        return CLI_EXIT_USAGE;
-    }
+    if (c == 'E' || c == 'D')
+        return cli_usage_error("submit", "--%s is vox voxelize's: vox submit always runs "
+                               "the job on voxd", c == 'E' ? "embedded" : "daemon");
+    return cli_usage_error("submit", "%s belongs to the daemon (its config file's "
+                           "workers, cpus, shm_size); vox voxelize --embedded takes it",
+                           c == 'w' ? "-w/--workers" : c == 'P' ? "--cpus" : "--shm-size");
+}
+
+/* What was given together that cannot be: 0 or CLI_EXIT_USAGE. */
+static int check_job_kind(const char *name, cli_job_opts *o)
+{
+    int kinds = !!o->expr + !!o->file + !!o->mesh + !!o->csg;
+    if (kinds != 1)
+        return cli_usage_error(name, "%s of --expr, --file, --mesh%s",
+                               kinds ? "give only one" : "missing the job: give one",
+                               strcmp(name, "submit") ? "" : ", --csg");
     if (o->csg) { /* the densities, or the occupancy */
         if (o->mesh_opts_given) {
             cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
@@ -227,7 +239,7 @@ static int parse_level(int submit, const char *arg, vod_params *v)
     vod_params d;
     vod_params_default(&d);
     if (cli_parse_uint(arg, 1, VOD_ZLIB_LEVEL_MAX, &u)) {
-        cli_error("bad --compress-level '%s': want 1..%d", arg, VOD_ZLIB_LEVEL_MAX);
+        cli_error("bad --compress-level '%.40s': want 1..%d", arg, VOD_ZLIB_LEVEL_MAX);
         return -1;
     }
     if (submit && (int)u != d.zlib_level) {
@@ -263,20 +275,24 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
         {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
         {"weld", 1, 0, 'W'},
-        {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'},
+        /* voxelize's, each refused with why (engine_option) */
+        {"workers", 1, 0, 'w'}, {"cpus", 1, 0, 'P'}, {"shm-size", 1, 0, 'M'},
+        {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {0, 0, 0, 0}};
     int submit = cmd == CLI_CMD_SUBMIT;
     const char *name = submit ? "submit" : "voxelize";
     int c;
     optind = 1;
-    while ((c = getopt_long(argc, argv, submit ? "e:f:o:d:r:qh" : "e:f:o:d:r:w:qh",
-                            submit ? longs_submit : longs_voxelize, NULL)) != -1) {
+    while ((c = cli_getopt(name, argc, argv, submit ? "e:f:o:d:r:w:qh" : "e:f:o:d:r:w:qh",
+                           submit ? longs_submit : longs_voxelize)) != -1) {
+        if (submit && strchr("wPMED", c)) return engine_option(c);
         switch (c) {
         case 'e': o->expr = optarg; break;
         case 'f': o->file = optarg; break;
         case 'o': o->out = optarg; break;
         case 'd':
             if (cli_parse_domain(optarg, o->lo, o->hi)) {
-                cli_error("bad --domain '%s': want A,B or X0,X1,Y0,Y1,Z0,Z1 with each low < high", optarg);
+                cli_error("bad --domain '%.40s': want A,B or X0,X1,Y0,Y1,Z0,Z1 with each low < high", optarg);
                 return CLI_EXIT_USAGE;
             }
             o->has_domain = 1;
@@ -286,16 +302,16 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
              * daemon has its own (max_res). */
             if (cli_parse_uint(optarg, 1, UINT32_MAX, &o->res)) {
                 if (submit)
-                    cli_error("bad --res '%s': want a whole number from 1 (to the daemon's max_res)", optarg);
+                    cli_error("bad --res '%.40s': want a whole number from 1 (to the daemon's max_res)", optarg);
                 else
-                    cli_error("bad --res '%s': want a whole number from 1 to %u", optarg, GRID_MAX_RES);
+                    cli_error("bad --res '%.40s': want a whole number from 1 to %u", optarg, GRID_MAX_RES);
                 return CLI_EXIT_USAGE;
             }
             o->res_arg = optarg;
             break;
         case 'w':
             if (cli_parse_uint(optarg, 0, ENGINE_MAX_WORKERS, &o->workers)) {
-                cli_error("bad --workers '%s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
+                cli_error("bad --workers '%.40s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
                 return CLI_EXIT_USAGE;
             }
             o->engine_opts = 1;
@@ -303,14 +319,14 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         case 'P': o->cpus = optarg; o->engine_opts = 1; break;
         case 'S':
             if (strcmp(optarg, "subtree") && strcmp(optarg, "paper")) {
-                cli_error("bad --schedule '%s': want subtree or paper", optarg);
+                cli_error("bad --schedule '%.40s': want subtree or paper", optarg);
                 return CLI_EXIT_USAGE;
             }
             o->schedule = optarg[0] == 'p' ? ENGINE_SCHED_PAPER : ENGINE_SCHED_SUBTREE;
             break;
         case 'M':
             if (cli_parse_uint(optarg, 16, 1u << 20, &o->shm_mib)) {
-                cli_error("bad --shm-size '%s': want MiB from 16 to 1048576", optarg);
+                cli_error("bad --shm-size '%.40s': want MiB from 16 to 1048576", optarg);
                 return CLI_EXIT_USAGE;
             }
             o->engine_opts = 1;
@@ -339,24 +355,19 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         case 'C': case 'B': case 'Z': case 'H':
             o->channel_given |= c == 'C';
             if (parse_vod_option(c, optarg, &o->vod)) {
-                cli_error("bad value '%s' for --%s (see vox %s --help)", optarg,
+                cli_error("bad value '%.40s' for --%s (see vox %s --help)", optarg,
                           c == 'C' ? "channel" : c == 'B' ? "brick" : c == 'Z' ? "compress" : "hash",
                           name);
                 return CLI_EXIT_USAGE;
             }
             break;
-        default: cli_job_usage(cmd, stderr); return CLI_EXIT_USAGE;
+        default: return CLI_EXIT_USAGE;
         }
     }
-    if (optind < argc) {
-        cli_error("unexpected argument '%s'", argv[optind]);
-        return CLI_EXIT_USAGE;
-    }
-    if (check_job_kind(o)) return CLI_EXIT_USAGE;
-    if (!o->out) {
-        cli_error("missing -o OUT.vod");
-        return CLI_EXIT_USAGE;
-    }
+    if (optind < argc)
+        return cli_usage_error(name, "unexpected argument '%.40s'", argv[optind]);
+    if (check_job_kind(name, o)) return CLI_EXIT_USAGE;
+    if (!o->out) return cli_usage_error(name, "missing -o OUT.vod (the file to write)");
     if (o->mode == CLI_MODE_DAEMON && o->engine_opts) {
         cli_error("-w, --cpus, --shm-size and --compress-level are the embedded engine's: "
                   "not with --daemon");

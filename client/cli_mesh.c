@@ -67,77 +67,64 @@ static int value_opt(const char *a)
     return 0;
 }
 
+/* "OPT VALUE: WHY" (WHY: a format of one unsigned number). */
+static int bad_value(const char *opt, const char *v, const char *why, unsigned n)
+{
+    char w[80];
+    snprintf(w, sizeof w, why, n);
+    return cli_usage_error("mesh", "%s %.40s: %s", opt, v, w);
+}
+
 /* One option with its value; 0 or CLI_EXIT_USAGE. */
 static int take(mesh_opts *o, const char *a, const char *v)
 {
     uint32_t n;
     if (!strcmp(a, "-o")) o->out = v;
     else if (!strcmp(a, "--format")) {
-        if (!(o->fmt = iso_format_of_name(v))) {
-            cli_error("--format %s: not ply, ply-ascii, obj or stl", v);
-            return CLI_EXIT_USAGE;
-        }
+        if (!(o->fmt = iso_format_of_name(v)))
+            return bad_value(a, v, "not ply, ply-ascii, obj or stl", 0);
     } else if (!strcmp(a, "--level")) {
-        if (cli_parse_uint(v, 0, ISO_MAX_LEVELS - 1, &o->level)) {
-            cli_error("--level %s: not a level 0..%u", v, ISO_MAX_LEVELS - 1);
-            return CLI_EXIT_USAGE;
-        }
+        if (cli_parse_uint(v, 0, ISO_MAX_LEVELS - 1, &o->level))
+            return bad_value(a, v, "not a level 0..%u", ISO_MAX_LEVELS - 1);
     } else if (!strcmp(a, "--iso")) {
-        if (cli_parse_uint(v, 0, 254, &o->iso)) {
-            cli_error("--iso %s: not a whole number 0..254", v);
-            return CLI_EXIT_USAGE;
-        }
+        if (cli_parse_uint(v, 0, 254, &o->iso)) return bad_value(a, v, "not a whole number 0..254", 0);
     } else if (!strcmp(a, "--lod-center")) {
-        if (parse_list(v, o->center, 3, &n) || n != 3) {
-            cli_error("--lod-center %s: want X,Y,Z", v);
-            return CLI_EXIT_USAGE;
-        }
+        if (parse_list(v, o->center, 3, &n) || n != 3) return bad_value(a, v, "want X,Y,Z", 0);
         o->has_center = 1;
     } else if (!strcmp(a, "--lod-radii")) {
-        if (parse_list(v, o->radii, ISO_MAX_RADII, &o->nradii)) {
-            cli_error("--lod-radii %s: want 1 to %u numbers R0,R1,...", v, ISO_MAX_RADII);
-            return CLI_EXIT_USAGE;
-        }
+        if (parse_list(v, o->radii, ISO_MAX_RADII, &o->nradii))
+            return bad_value(a, v, "want 1 to %u numbers R0,R1,...", ISO_MAX_RADII);
     } else if (!strcmp(a, "-w") || !strcmp(a, "--workers")) {
-        if (cli_parse_uint(v, 0, ENGINE_MAX_WORKERS, &o->workers)) {
-            cli_error("%s %s: want 0..%d", a, v, ENGINE_MAX_WORKERS);
-            return CLI_EXIT_USAGE;
-        }
+        if (cli_parse_uint(v, 0, ENGINE_MAX_WORKERS, &o->workers))
+            return bad_value(a, v, "want 0..%u", ENGINE_MAX_WORKERS);
     } else if (!strcmp(a, "--cpus")) o->cpus = v;
     else if (!strcmp(a, "--shm-size")) {
-        if (cli_parse_uint(v, 16, 1048576, &o->shm_mib)) {
-            cli_error("--shm-size %s: want 16..1048576 MiB", v);
-            return CLI_EXIT_USAGE;
-        }
+        if (cli_parse_uint(v, 16, 1048576, &o->shm_mib)) return bad_value(a, v, "want 16..1048576 MiB", 0);
     }
     return 0;
 }
 
 static int check_opts(mesh_opts *o)
 {
-    if (!o->in || !o->out) {
-        cli_error("mesh needs FILE.vod and -o OUT");
-        return CLI_EXIT_USAGE;
-    }
-    if (!o->fmt && !(o->fmt = iso_format_of_path(o->out))) {
-        cli_error("%s: no format from its extension (.ply, .obj, .stl); give --format",
-                  o->out);
-        return CLI_EXIT_USAGE;
-    }
-    if (o->has_center != (o->nradii > 0)) {
-        cli_error("--lod-center and --lod-radii go together");
-        return CLI_EXIT_USAGE;
-    }
-    if (o->nradii && o->level) {
-        cli_error("--level and adaptive levels (--lod-radii) exclude each other");
-        return CLI_EXIT_USAGE;
-    }
+    if (!o->in) return cli_usage_error("mesh", "missing the input FILE.vod");
+    if (!o->out) return cli_usage_error("mesh", "missing -o OUT (the file to write)");
+    if (!o->fmt && !(o->fmt = iso_format_of_path(o->out)))
+        return cli_usage_error("mesh", "%.40s: no format from its extension (.ply, .obj, "
+                               ".stl); give --format", o->out);
+    if (o->has_center != (o->nradii > 0))
+        return cli_usage_error("mesh", "--lod-center and --lod-radii go together");
+    if (o->nradii && o->level)
+        return cli_usage_error("mesh", "--level and adaptive levels (--lod-radii) exclude "
+                               "each other");
     return 0;
 }
 
 /* 0, CLI_EXIT_USAGE, or -1 for --help (printed). */
 static int parse_opts(int argc, char **argv, mesh_opts *o)
 {
+    static const char *const names[] = {"-o", "--format", "--level", "--iso", "--lod-center",
+                                        "--lod-radii", "-w", "--workers", "--cpus",
+                                        "--shm-size", "-q", "--quiet", "--help", NULL};
     *o = (mesh_opts){.iso = 127, .workers = cli_cores(),
                      .shm_mib = 0 /* the engine's default */};
     for (int i = 1; i < argc; i++) {
@@ -147,20 +134,16 @@ static int parse_opts(int argc, char **argv, mesh_opts *o)
             return -1;
         }
         int takes = value_opt(a), rc;
-        if (takes && !v) {
-            cli_error("%s needs a value", a);
-            return CLI_EXIT_USAGE;
-        }
+        if (takes && !v) return cli_usage_error("mesh", "option '%s' needs a value", a);
         if (takes && (rc = take(o, a, v))) return rc;
         if (takes) {
             i++;
             continue;
         }
         if (!strcmp(a, "-q") || !strcmp(a, "--quiet")) o->quiet = 1;
-        else if (a[0] == '-' || o->in) {
-            cli_error(a[0] == '-' ? "unknown option '%s'" : "one input file only: '%s'", a);
-            return CLI_EXIT_USAGE;
-        } else o->in = a;
+        else if (a[0] == '-') return cli_unknown_option("mesh", a, names);
+        else if (o->in) return cli_usage_error("mesh", "one input file only: '%.40s'", a);
+        else o->in = a;
     }
     return check_opts(o);
 }
@@ -229,10 +212,10 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m)
 static void print_summary(const mesh_opts *o, const iso_params *p, const iso_mesh *m,
                           const engine_result *r, const double t[4])
 {
-    printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%u brick tasks, "
-           "%u workers), written in %.3f s\n", o->out, (unsigned long long)m->n_triangles,
+    printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%u brick task%s, "
+           "%u worker%s), written in %.3f s\n", o->out, (unsigned long long)m->n_triangles,
            (unsigned long long)m->n_vertices, p->nradii ? "adaptive levels" : "one level",
-           t[2] - t[1], r->tiles, o->workers, t[3] - t[2]);
+           t[2] - t[1], r->tiles, cli_plural(r->tiles), o->workers, cli_plural(o->workers), t[3] - t[2]);
     printf("  file read and checked in %.3f s; bricks and tasks %.3f s, marching cubes "
            "%.3f s, weld %.3f s\n", t[1] - t[0], m->t_setup, m->t_tasks, m->t_weld);
     if (o->workers)

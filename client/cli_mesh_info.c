@@ -104,26 +104,25 @@ int cli_mesh_info(int argc, char **argv)
     int c, json = 0;
     mesh_format format = MESH_FORMAT_AUTO;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "jf:w:h", longs, NULL)) != -1) {
+    while ((c = cli_getopt("mesh-info", argc, argv, "jf:w:h", longs)) != -1) {
         switch (c) {
         case 'j': json = 1; break;
         case 'f':
             if (parse_format(optarg, &format)) {
-                cli_error("bad value '%s' for --format: obj, stl, ply or off", optarg);
-                return CLI_EXIT_USAGE;
+                return cli_usage_error("mesh-info", "bad --format '%.40s': want obj, stl, "
+                                       "ply or off", optarg);
             }
             break;
         case 'w':
             if (cli_parse_weld(optarg, &w.eps)) return CLI_EXIT_USAGE;
             break;
         case 'h': fputs(usage, stdout); return CLI_EXIT_OK;
-        default: fputs(usage, stderr); return CLI_EXIT_USAGE;
+        default: return CLI_EXIT_USAGE;
         }
     }
-    if (optind + 1 != argc) {
-        fputs(usage, stderr);
-        return CLI_EXIT_USAGE;
-    }
+    if (optind + 1 != argc)
+        return cli_usage_error("mesh-info", optind == argc ? "missing the mesh FILE"
+                                                          : "want one mesh FILE");
     const char *path = argv[optind];
     mesh m;
     if (cli_mesh_load(path, format, w.eps, &m, &w.merged)) return CLI_EXIT_FAILED;

@@ -48,7 +48,7 @@ static int parse_render_args(int argc, char **argv, render_opts *o,
     int c;
     uint32_t u;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "o:a:e:s:l:ph", longs, NULL)) != -1) {
+    while ((c = cli_getopt("render", argc, argv, "o:a:e:s:l:ph", longs)) != -1) {
         int bad = 0;
         switch (c) {
         case 'o': *out = optarg; break;
@@ -68,10 +68,12 @@ static int parse_render_args(int argc, char **argv, render_opts *o,
         case 'W': o->fit_volume = 1; break;
         case 'S': *smooth = 1; break;
         case 'h': fputs(usage, stdout); exit(0);
-        default: fputs(usage, stderr); return -1;
+        default: return -1;
         }
         if (bad) {
-            cli_error("bad value '%s' for option -%c (see vox render --help)", optarg, c);
+            for (int i = 0; longs[i].name; i++)
+                if (longs[i].val == c)
+                    cli_usage_error("render", "bad --%s '%.40s'", longs[i].name, optarg);
             return -1;
         }
     }
@@ -92,11 +94,11 @@ static int render_mesh_file(const char *path, const render_opts *o, int smooth,
                             render_image *img)
 {
     mesh m;
-    if (cli_mesh_load(path, MESH_FORMAT_AUTO, -1, &m, NULL)) return 1;
+    if (cli_mesh_load(path, MESH_FORMAT_AUTO, -1, &m, NULL)) return CLI_EXIT_FAILED;
     int rc = render_mesh(&m, o, smooth, img);
     mesh_free(&m);
     if (rc) cli_error("cannot render %s: %s", path, strerror(-rc));
-    return rc ? 1 : 0;
+    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 
 static int render_vod_file(const char *path, const render_opts *o, int level,
@@ -106,18 +108,18 @@ static int render_vod_file(const char *path, const render_opts *o, int level,
     char err[512] = "";
     if (vod_open_threads(path, (int)cli_cores(), &f, err, sizeof err)) {
         cli_error("%s: %s", path, err);
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     const vod_info *in = vod_get_info(f);
     if ((uint32_t)level >= in->height) {
         cli_error("%s has levels 0..%u; --level %d does not exist", path, in->height - 1, level);
         vod_close(f);
-        return 2;
+        return CLI_EXIT_USAGE;
     }
     int rc = render_vod(f, level, o, img, err, sizeof err);
     vod_close(f);
     if (rc) cli_error("cannot render %s: %s", path, err);
-    return rc ? 1 : 0;
+    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 
 int cli_render(int argc, char **argv)
@@ -126,17 +128,16 @@ int cli_render(int argc, char **argv)
     render_opts_default(&o);
     const char *out = NULL;
     int level = 0, smooth = 0;
-    if (parse_render_args(argc, argv, &o, &out, &level, &smooth)) return 2;
-    if (optind + 1 != argc || !out) {
-        cli_error("want one FILE.vod (or a mesh) and -o OUT.png");
-        return 2;
-    }
+    if (parse_render_args(argc, argv, &o, &out, &level, &smooth)) return CLI_EXIT_USAGE;
+    if (optind + 1 != argc || !out)
+        return cli_usage_error("render", "%s", optind + 1 != argc
+                               ? "want one FILE.vod (or a mesh)" : "missing -o OUT.png");
     const char *path = argv[optind];
     int is_mesh = is_mesh_path(path);
     if (is_mesh ? level != 0 || o.fit_volume : smooth) {
-        cli_error(is_mesh ? "--level and --whole are for VOD files, not meshes"
-                       : "--smooth is for meshes (.obj, .stl, .ply, .off), not VOD files");
-        return 2;
+        return cli_usage_error("render", "%s", is_mesh
+                               ? "--level and --whole are for VOD files, not meshes"
+                               : "--smooth is for meshes (.obj, .stl, .ply, .off), not VOD files");
     }
     render_image img;
     int rc = is_mesh ? render_mesh_file(path, &o, smooth, &img)
@@ -149,5 +150,5 @@ int cli_render(int argc, char **argv)
     else printf("%s: %llu voxels drawn at level %d, %dx%d\n", out,
                 (unsigned long long)img.splats, level, img.width, img.height);
     render_image_free(&img);
-    return rc ? 1 : 0;
+    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }

@@ -96,16 +96,18 @@ static int vox_comp(uint32_t comp)
 /* The grid is the daemon's, from its summary. */
 static void print_summary(const cli_job_opts *o, const vox_summary *s)
 {
+    if (s->voxels == 0) cli_warn("%s has no voxel: nothing of the job meets its box (see --domain)", o->out);
+    if (o->quiet) return;
     double t = s->seconds_voxelize;
     printf("%s: %llu voxels on a %ux%ux%u grid", o->out, (unsigned long long)s->voxels,
            s->grid[0], s->grid[1], s->grid[2]);
     printf(" in %.3f s (%.2f Mvoxels/s), VOD written in %.3f s\n", t,
            t > 0 ? s->voxels / t / 1e6 : 0.0, s->seconds_write);
-    printf("  %llu bytes, %llu bricks, CRC %08x\n", (unsigned long long)s->file_bytes,
-           (unsigned long long)s->bricks, s->crc32);
+    printf("  %llu bytes, %llu brick%s, CRC %08x\n", (unsigned long long)s->file_bytes,
+           (unsigned long long)s->bricks, cli_plural(s->bricks), s->crc32);
     printf("  voxd job %llu, %.3f s in the queue", (unsigned long long)s->job_id,
            s->seconds_queued);
-    if (s->mpi_ranks) printf(", through MPI on %u rank%s", s->mpi_ranks, s->mpi_ranks > 1 ? "s" : "");
+    if (s->mpi_ranks) printf(", through MPI on %u rank%s", s->mpi_ranks, cli_plural(s->mpi_ranks));
     printf("\n");
     if (!s->has_mesh) return;
     printf("  mesh: %u triangles, %llu open and %llu non-manifold edges: %s; %u tiles "
@@ -134,14 +136,11 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
         return CLI_EXIT_FAILED;
     }
 
+    /* Always said, on a terminal or not: the id is what vox cancel takes. */
+    if (qpos) cli_note("voxd job %" PRIu64 ", %u ahead of it in the queue", id, qpos);
+    else cli_note("voxd job %" PRIu64, id);
     progress pr;
     progress_init(&pr, o->progress);
-    if (pr.enabled) {
-        if (qpos)
-            fprintf(stderr, "vox: voxd job %" PRIu64 ", %u ahead of it in the queue\n", id, qpos);
-        else
-            fprintf(stderr, "vox: voxd job %" PRIu64 "\n", id);
-    }
     if (interrupted) vox_cancel(c, id, &err); /* its outcome shows below */
     vox_summary sum;
     rc = vox_receive_file(c, id, o->out, on_job_progress, &pr, &sum, &err);
@@ -159,7 +158,7 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
         return rc == VOX_EINVALID_INPUT && (o->mesh || o->csg) ? CLI_EXIT_USAGE
                                                                 : CLI_EXIT_FAILED;
     }
-    if (!o->quiet) print_summary(o, &sum);
+    print_summary(o, &sum);
     return CLI_EXIT_OK;
 }
 
@@ -387,17 +386,16 @@ int cli_submit(int argc, char **argv, const char *sock)
 /* ---------------------------------------------------------------- status, cancel, ping */
 
 /* Only --help: 0 to go on, else the exit code. */
-static int no_options(int argc, char **argv, const char *usage)
+static int no_options(const char *cmd, int argc, char **argv, const char *usage)
 {
     static const struct option longs[] = {{"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     int c;
     optind = 1;
-    while ((c = getopt_long(argc, argv, "h", longs, NULL)) != -1) {
+    while ((c = cli_getopt(cmd, argc, argv, "h", longs)) != -1) {
         if (c == 'h') {
             fputs(usage, stdout);
             exit(0);
         }
-        fputs(usage, stderr);
         return CLI_EXIT_USAGE;
     }
     return -1;
@@ -405,15 +403,12 @@ static int no_options(int argc, char **argv, const char *usage)
 
 /* A command without options or arguments (status, ping): its usage
  * errors, else connected.  0 with *c, or the exit status. */
-static int plain_command(int argc, char **argv, const char *usage, const char *sock,
-                         vox_client **c)
+static int plain_command(const char *cmd, int argc, char **argv, const char *usage,
+                         const char *sock, vox_client **c)
 {
-    int rc = no_options(argc, argv, usage);
+    int rc = no_options(cmd, argc, argv, usage);
     if (rc >= 0) return rc;
-    if (optind < argc) {
-        cli_error("unexpected argument '%s'", argv[optind]);
-        return CLI_EXIT_USAGE;
-    }
+    if (optind < argc) return cli_usage_error(cmd, "unexpected argument '%.40s'", argv[optind]);
     return connect_or_say(sock, c);
 }
 
@@ -448,7 +443,7 @@ static const char usage_status[] =
 int cli_status(int argc, char **argv, const char *sock)
 {
     vox_client *c;
-    int rc = plain_command(argc, argv, usage_status, sock, &c);
+    int rc = plain_command("status", argc, argv, usage_status, sock, &c);
     if (rc) return rc;
     vox_status_info st;
     vox_error err;
@@ -494,7 +489,7 @@ int cli_status(int argc, char **argv, const char *sock)
 
 static const char usage_cancel[] =
     "usage: vox [--socket PATH] cancel JOB_ID\n"
-    "Asks voxd to cancel a job (its id is shown by vox submit on a terminal and by\n"
+    "Asks voxd to cancel a job (its id is said by vox submit and listed by\n"
     "vox status); the job ends with CANCELLED for the client that submitted it.\n"
     "The daemon decides whose jobs a connection may cancel and says why it refuses.\n"
     "Exit status: 0 the daemon took the cancel, 1 it refused (with its reason), 2 bad\n"
@@ -502,21 +497,17 @@ static const char usage_cancel[] =
 
 int cli_cancel(int argc, char **argv, const char *sock)
 {
-    int rc = no_options(argc, argv, usage_cancel);
+    int rc = no_options("cancel", argc, argv, usage_cancel);
     if (rc >= 0) return rc;
-    if (argc - optind != 1) {
-        cli_error(argc - optind ? "cancel takes one JOB_ID" : "missing JOB_ID");
-        fputs(usage_cancel, stderr);
-        return CLI_EXIT_USAGE;
-    }
+    if (argc - optind != 1)
+        return cli_usage_error("cancel", "%s", argc - optind ? "want one JOB_ID"
+                                                             : "missing JOB_ID (vox status lists them)");
     const char *arg = argv[optind];
     char *end;
     errno = 0;
     unsigned long long id = strtoull(arg, &end, 10);
-    if (arg[0] < '0' || arg[0] > '9' || *end || errno || id == 0) {
-        cli_error("bad JOB_ID '%s': want a job number (from 1)", arg);
-        return CLI_EXIT_USAGE;
-    }
+    if (arg[0] < '0' || arg[0] > '9' || *end || errno || id == 0)
+        return cli_usage_error("cancel", "bad JOB_ID '%.40s': want a job number (from 1)", arg);
     vox_client *c;
     if ((rc = connect_or_say(sock, &c))) return rc;
     vox_error err;
@@ -541,7 +532,7 @@ static const char usage_ping[] =
 int cli_ping(int argc, char **argv, const char *sock)
 {
     vox_client *c;
-    int rc = plain_command(argc, argv, usage_ping, sock, &c);
+    int rc = plain_command("ping", argc, argv, usage_ping, sock, &c);
     if (rc) return rc;
     vox_error err;
     double rtt;

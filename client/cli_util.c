@@ -4,22 +4,11 @@
 #include <errno.h>
 #include <math.h>
 #include <signal.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <unistd.h>
-
-void cli_error(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fputs("vox: ", stderr);
-    vfprintf(stderr, fmt, ap);
-    fputc('\n', stderr);
-    va_end(ap);
-}
 
 int cli_parse_domain(const char *s, double lo[3], double hi[3])
 {
@@ -119,7 +108,7 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
 {
     int cpu[ENGINE_MAX_WORKERS], ncpus = 0;
     if (cpus && (ncpus = cli_parse_cpus(cpus, cpu, ENGINE_MAX_WORKERS)) <= 0) {
-        cli_error("bad --cpus '%s': want a list like 0,1 or 0-3", cpus);
+        cli_error("bad --cpus '%.40s': want a list like 0,1 or 0-3", cpus);
         return -EINVAL;
     }
     engine_opts eo = {.workers = (int)workers, .cpus = ncpus ? cpu : NULL,

@@ -47,9 +47,10 @@ static void print_summary(const voxelize_opts *o, const pipeline_report *r)
            o->out, (unsigned long long)r->voxels, g->res[0], g->res[1], g->res[2],
            r->t_voxelize, r->t_voxelize > 0 ? r->voxels / r->t_voxelize / 1e6 : 0.0,
            r->t_write);
-    printf("  %llu bytes, %llu bricks (%llu non-empty nodes), CRC %08x\n",
+    printf("  %llu bytes, %llu brick%s (%llu non-empty node%s), CRC %08x\n",
            (unsigned long long)r->st.file_bytes, (unsigned long long)r->st.bricks,
-           (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
+           cli_plural(r->st.bricks), (unsigned long long)r->st.nonempty_nodes,
+           cli_plural(r->st.nonempty_nodes), r->st.crc32);
     if (o->workers > 0)
         printf("  CPU: master %.3f s, workers %.3f s\n", r->master_cpu, r->worker_cpu);
     const vod_times *t = &r->st.t;
@@ -86,7 +87,8 @@ static void print_mesh_summary(const voxelize_opts *o, const pipeline_job *job,
            (unsigned long long)t->nonmanifold, t->watertight ? "watertight" : "not watertight",
            r->t_topology);
     if (o->workers > 0)
-        printf("; %u tiles with triangles, binned in %.3f s", r->tiles, r->t_bin);
+        printf("; %u tile%s with triangles, binned in %.3f s", r->tiles, cli_plural(r->tiles),
+               r->t_bin);
     printf("; job %.3f s\n", r->t_job);
     if (r->repair_skipped)
         printf("  repair: not needed, the mesh is watertight (its parities agree)\n");
@@ -108,7 +110,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     if (job->kind == PIPELINE_IMPLICIT &&
         grid_make(o->lo, o->hi, o->res, &g, err, sizeof err)) {
         cli_error("%s", err);
-        return 2;
+        return CLI_EXIT_USAGE;
     }
     cli_catch_interrupts();
     job->cancel = &cli_interrupt;
@@ -116,7 +118,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     int rc = outfile_open(&f, o->out);
     if (rc) {
         cli_error("cannot create %s: %s", o->out, strerror(-rc));
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     progress pr;
     progress_init(&pr, o->progress);
@@ -128,17 +130,18 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     if (rc || cli_interrupted()) {
         outfile_abort(&f);
         if (cli_interrupted()) cli_end_interrupted(o->out);
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     if ((rc = outfile_commit(&f, o->out))) {
         cli_error("cannot write %s: %s", o->out, strerror(-rc));
-        return 1;
+        return CLI_EXIT_FAILED;
     }
+    if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the job meets its box (see --domain)", o->out);
     if (!o->quiet) {
         print_summary(o, &r);
         print_mesh_summary(o, job, &r);
     }
-    return 0;
+    return CLI_EXIT_OK;
 }
 
 static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *tape)

@@ -59,24 +59,11 @@ void source_free(source *s)
     s->text = NULL;
 }
 
-/* Print the source line of the error (a window of it around the column
- * when it is long) and a caret under its column. */
-static void show_position(const source *s, int line, int col)
-{
-    char buf[EXPR_EXCERPT_MAX];
-    if (expr_excerpt(s->text, s->len, line, col, buf, sizeof buf) == 0) fputs(buf, stderr);
-}
-
 int source_compile(const source *s, const expr_limits *lim, expr_tape **out)
 {
     expr_error err;
     int rc = expr_compile(s->text, s->len, lim, out, &err);
     if (rc == 0) return 0;
-    if (err.line > 0) {
-        fprintf(stderr, "%s:%d:%d: %s\n", s->name, err.line, err.col, err.msg);
-        show_position(s, err.line, err.col);
-    } else {
-        fprintf(stderr, "%s: %s\n", s->name, err.msg);
-    }
+    cli_error_at(s->name, err.line, err.col, s->text, s->len, "%s", err.msg);
     return rc;
 }

@@ -9,26 +9,31 @@
 
 static const char usage[] =
     "usage: vox [--socket PATH] COMMAND [options]\n"
+    "       vox --version\n"
     "\n"
     "commands:\n"
-    "  voxelize   voxelize an implicit surface F(x,y,z) = 0 into a VOD file, on voxd\n"
-    "             when one answers, else with the embedded engine\n"
-    "  submit     the same job, on voxd only\n"
-    "  status     voxd's workers, queue, running job, uptime and clients\n"
+    "  voxelize   an implicit surface F(x,y,z) = 0 or a triangle mesh into a VOD file,\n"
+    "             on voxd when one answers, else with the embedded engine\n"
+    "  submit     the same jobs, or a volume CSG tree (--csg), on voxd only\n"
+    "  status     voxd's jobs (running and queued), workers, uptime and clients\n"
     "  cancel     cancel a job on voxd\n"
     "  ping       check that voxd answers, and how fast\n"
     "  info       validate a VOD file and print its header, tree and bricks\n"
-    "  render     draw a VOD file as shaded points into a PNG\n"
+    "  render     draw a VOD file (shaded points) or a triangle mesh into a PNG\n"
     "  mesh-info  load a triangle mesh (OBJ, STL, PLY, OFF) and describe its topology\n"
-    "  csg        evaluate a volume CSG tree (.csg) into a VOD file, in this process\n"
-    "  export     write a VOD file's voxels as NRRD, raw + JSON, binvox or VTK (.vti)\n"
+    "  csg        evaluate a volume CSG tree (.csg) into a VOD file, on the embedded\n"
+    "             engine's workers (-w 0: in this process)\n"
+    "  export     write a VOD file's voxels as NRRD, raw + JSON, binvox, VTK (.vti)\n"
+    "             or OpenVDB (.vdb)\n"
     "  mesh       a VOD file's surface as triangles (marching cubes): PLY, OBJ, STL\n"
     "\n"
     "  --socket PATH   voxd's socket (default: $VOXD_SOCKET, else the socket of voxd's\n"
     "                  config file $VOXD_CONFIG or " CONFIG_DEFAULT_PATH ", else\n"
     "                  " VOX_DEFAULT_SOCKET ")\n"
+    "  --version       vox's version and the git commit it was built from\n"
     "\n"
-    "`vox COMMAND --help` tells a command's options.\n";
+    "`vox COMMAND --help` tells a command's options.  Exit status: 0 done, 1 the job\n"
+    "or request failed, 2 bad usage or input, 3 no voxd answering (docs/cli.md).\n";
 
 /* The socket when --socket is not given: $VOXD_SOCKET, else the `socket` of
  * the daemon's configuration (/etc/voxd/voxd.conf, or $VOXD_CONFIG) when it
@@ -49,38 +54,49 @@ static const char *default_socket(voxd_config *cfg)
     return VOX_DEFAULT_SOCKET;
 }
 
-int main(int argc, char **argv)
+static const char *const commands[] = {"voxelize", "submit", "status", "cancel", "ping",
+                                       "info", "render", "mesh-info", "csg", "export",
+                                       "mesh", "help", NULL};
+
+/* vox's own options, before the command: the index of the command, or
+ * -1 - the exit status. */
+static int own_options(int argc, char **argv, const char **sock)
 {
-    static voxd_config cfg;
-    const char *sock = NULL;
+    static const char *const names[] = {"--socket", "--help", "--version", "-h", NULL};
     int i = 1;
-    /* Options before the command: vox's own. */
     while (i < argc && argv[i][0] == '-') {
         const char *a = argv[i];
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
             fputs(usage, stdout);
-            return 0;
+            return -1 - CLI_EXIT_OK;
+        }
+        if (!strcmp(a, "--version") || !strcmp(a, "-V")) {
+            cli_version("vox");
+            return -1 - CLI_EXIT_OK;
         }
         if (!strcmp(a, "--socket")) {
-            if (i + 1 >= argc || !argv[i + 1][0]) {
-                cli_error("--socket needs a PATH");
-                return CLI_EXIT_USAGE;
-            }
-            sock = argv[i + 1];
+            if (i + 1 >= argc || !argv[i + 1][0])
+                return -1 - cli_usage_error(NULL, "option '--socket' needs a PATH");
+            *sock = argv[i + 1];
             i += 2;
         } else if (!strncmp(a, "--socket=", 9) && a[9]) {
-            sock = a + 9;
+            *sock = a + 9;
             i++;
         } else {
-            cli_error("unknown option '%s' (vox's options come before the command)", a);
-            fputs(usage, stderr);
-            return CLI_EXIT_USAGE;
+            return -1 - cli_unknown_option(NULL, a, names);
         }
     }
-    if (i >= argc) {
-        fputs(usage, stderr);
-        return CLI_EXIT_USAGE;
-    }
+    if (i >= argc)
+        return -1 - cli_usage_error(NULL, "missing COMMAND (voxelize, submit, status, ...)");
+    return i;
+}
+
+int main(int argc, char **argv)
+{
+    static voxd_config cfg;
+    const char *sock = NULL;
+    int i = own_options(argc, argv, &sock);
+    if (i < 0) return -1 - i;
     const char *cmd = argv[i];
     int n = argc - i;
     char **v = argv + i;
@@ -102,7 +118,5 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "csg")) return cli_csg(n, v);
     if (!strcmp(cmd, "export")) return cli_export(n, v);
     if (!strcmp(cmd, "mesh")) return cli_mesh(n, v);
-    cli_error("unknown command '%s'", cmd);
-    fputs(usage, stderr);
-    return CLI_EXIT_USAGE;
+    return cli_unknown_command(cmd, commands);
 }

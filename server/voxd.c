@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,6 +18,14 @@
 #include "config.h"
 #include "daemon.h"
 #include "log.h"
+#include "suggest.h"
+
+#ifndef VOX_VERSION
+#define VOX_VERSION "unknown"
+#endif
+#ifndef VOX_COMMIT
+#define VOX_COMMIT "unknown"
+#endif
 
 #define LOCK_PATIENCE_MS 2000 /* workers of a crashed daemon die within ms */
 
@@ -39,7 +48,7 @@ static const char usage[] =
     "      --check-config FILE  load FILE, print the effective settings, exit 0 (valid)\n"
     "                           or 1 (FILE:LINE: why)\n"
     "  -h, --help               this text\n"
-    "  -V, --version            the version\n"
+    "  -V, --version            the version and the git commit it was built from\n"
     "\n"
     "Signals: TERM/INT stop now (running jobs end with SHUTTING_DOWN); QUIT stops\n"
     "accepting and exits when the running and queued jobs are done; HUP rereads the\n"
@@ -79,6 +88,44 @@ static int set_socket(voxd_args *a, const char *path)
     return 0;
 }
 
+/* "voxd: message; see 'voxd --help'": exit status 2. */
+__attribute__((format(printf, 1, 2))) static int usage_error(const char *fmt, ...)
+{
+    char msg[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    fprintf(stderr, "voxd: %s; see 'voxd --help'\n", msg);
+    return 2;
+}
+
+/* getopt's '?' or ':' (it printed nothing: opterr is 0), in one line. */
+static int option_error(int c, char **argv, const struct option *longs)
+{
+    const char *arg = argv[optind - 1];
+    int n = (int)strcspn(arg, "=");
+    if (c == ':') {
+        if (!strncmp(arg, "--", 2)) return usage_error("option '%.*s' needs a value", n, arg);
+        return usage_error("option '-%c' needs a value", optopt);
+    }
+    if (strncmp(arg, "--", 2) || (optopt && !strchr(arg, '=')))
+        return usage_error("unknown option '-%c'", optopt);
+    if (optopt) return usage_error("option '%.*s' takes no value", n, arg);
+    const char *names[32];
+    char store[32][32];
+    int k = 0;
+    for (; longs[k].name && k < 31; k++) {
+        snprintf(store[k], sizeof store[k], "--%s", longs[k].name);
+        names[k] = store[k];
+    }
+    names[k] = NULL;
+    const char *near = suggest_nearest(arg, (size_t)n, names);
+    if (n > 40) n = 40;
+    if (near) return usage_error("unknown option '%.*s' (did you mean '%s'?)", n, arg, near);
+    return usage_error("unknown option '%.*s'", n, arg);
+}
+
 static int parse_args(int argc, char **argv, voxd_args *a)
 {
     static const struct option longs[] = {
@@ -89,7 +136,8 @@ static int parse_args(int argc, char **argv, voxd_args *a)
         {0, 0, 0, 0}};
     unsigned u;
     int c;
-    while ((c = getopt_long(argc, argv, "c:s:w:dhV", longs, NULL)) != -1) {
+    opterr = 0;
+    while ((c = getopt_long(argc, argv, ":c:s:w:dhV", longs, NULL)) != -1) {
         switch (c) {
         case 'c': a->o.config_path = optarg; break;
         case 's':
@@ -127,14 +175,13 @@ static int parse_args(int argc, char **argv, voxd_args *a)
         case 'd': a->daemonize = 1; break;
         case 'C': a->check = optarg; break;
         case 'h': fputs(usage, stdout); exit(0);
-        case 'V': puts(VD_SERVER_NAME " (protocol 1)"); exit(0);
-        default: fputs(usage, stderr); return 2;
+        case 'V':
+            printf("voxd %s (commit %s, protocol 1)\n", VOX_VERSION, VOX_COMMIT);
+            exit(0);
+        default: return option_error(c, argv, longs);
         }
     }
-    if (optind < argc) {
-        fprintf(stderr, "voxd: unexpected argument '%.*s%s'\n", ARG(argv[optind]));
-        return 2;
-    }
+    if (optind < argc) return usage_error("unexpected argument '%.*s%s'", ARG(argv[optind]));
     return 0;
 }
 

@@ -219,12 +219,20 @@ static int check_channel(parse *ps, const vod_info *in)
 static int read_header(parse *ps, vod_file *f)
 {
     vod_info *in = &f->info;
+    /* The signature first, as far as the file goes: a short text file is
+     * not a VOD file, not a truncated one. */
+    size_t sig = ps->len < 4 ? ps->len : 4;
+    if (memcmp(ps->b, ".VOD", sig) != 0) {
+        char got[16] = "";
+        for (size_t i = 0; i < sig; i++) /* "xx" or " xx": 3 bytes a step at most */
+            snprintf(got + strlen(got), sizeof got - strlen(got), "%s%02x", i ? " " : "",
+                     ps->b[i]);
+        return fail(ps, -EINVAL, "not a VOD file (bad signature %s; want 2e 56 4f 44, "
+                    "\".VOD\")", got);
+    }
     if (ps->len < VOD_HEADER_BYTES)
         return fail(ps, -EBADMSG, "file is truncated: the header needs %u bytes, "
                     "file has %zu", VOD_HEADER_BYTES, ps->len);
-    if (memcmp(ps->b, ".VOD", 4) != 0)
-        return fail(ps, -EINVAL, "bad signature %02x %02x %02x %02x (want 2e 56 4f 44, "
-                    "\".VOD\")", ps->b[0], ps->b[1], ps->b[2], ps->b[3]);
     in->flags = vod_get32(ps->b + 60);
     int rc = (in->flags & VOD_FLAG_TRAILER) ? read_trailer(ps, f) : 0;
     if (rc) return rc;

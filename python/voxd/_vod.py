@@ -223,12 +223,14 @@ class _File:
 
     def _header(self):
         b = self.b
+        # the signature first, as far as the file goes: a short text file
+        # is not a VOD file, not a truncated one (as vox info says)
+        if b[:4] != SIG[:len(b[:4])]:
+            raise VodError('not a VOD file (bad signature %s; want 2e 56 4f 44, ".VOD")'
+                           % " ".join("%02x" % c for c in b[:4]))
         if len(b) < 64:
             raise VodError("file is truncated: the header needs 64 bytes, file has %d"
                            % len(b))
-        if b[:4] != SIG:
-            raise VodError('bad signature %02x %02x %02x %02x (want 2e 56 4f 44, ".VOD")'
-                           % tuple(b[:4]))
         self.flags = _u32(b, 60)
         if self.flags & FLAG_TRAILER:
             self._trailer()

@@ -52,7 +52,7 @@ refuse "voxelize --daemon: no daemon" 3 "leave out --daemon" v voxelize --daemon
 refuse "voxelize without a daemon: embedded" 0 "CPU: master" v voxelize -e "$S" -r 64 -o "$TMP/auto0.vod"
 refuse "--daemon with --workers" 2 "embedded engine's" v voxelize --daemon -w 2 -e "$S" -o "$TMP/x.vod"
 refuse "--daemon and --embedded" 2 "at most one" v voxelize --daemon --embedded -e "$S" -o "$TMP/x.vod"
-refuse "submit takes no --workers" 2 "usage: vox" v submit -w 2 -e "$S" -o "$TMP/x.vod"
+refuse "submit takes no --workers" 2 "belongs to the daemon" v submit -w 2 -e "$S" -o "$TMP/x.vod"
 refuse "cancel needs a job id" 2 "missing JOB_ID" v cancel
 refuse "cancel: bad job id" 2 "bad JOB_ID" v cancel 12x
 refuse "unknown vox option" 2 "unknown option" "$VOX" --frobnicate status

@@ -5,7 +5,7 @@
 
 check "voxd --help" "$VOXD" --help
 refuse "voxd --version" 0 "voxd 0\\.1" "$VOXD" --version
-refuse "voxd bad option" 2 "usage" "$VOXD" --frobnicate
+refuse "voxd bad option" 2 "unknown option '--frobnicate'" "$VOXD" --frobnicate
 refuse "voxd bad --workers" 2 "bad --workers" "$VOXD" --workers 0
 
 cat >"$TMP/voxd.conf" <<CONF

@@ -127,6 +127,6 @@ refuse "mesh-info: PLY read as OFF" 1 "not an OFF file" "$VOX" mesh-info -f off 
 
 # usage
 refuse "mesh-info --help" 0 "usage: vox mesh-info FILE" "$VOX" mesh-info --help
-refuse "mesh-info without a file" 2 "usage: vox mesh-info" "$VOX" mesh-info
-refuse "mesh-info, a bad --format" 2 "bad value 'gltf' for --format" "$VOX" mesh-info -f gltf "$C.obj"
+refuse "mesh-info without a file" 2 "mesh-info: missing the mesh FILE" "$VOX" mesh-info
+refuse "mesh-info, a bad --format" 2 "bad --format 'gltf'" "$VOX" mesh-info -f gltf "$C.obj"
 refuse "vox --help names mesh-info" 0 "mesh-info" "$VOX" --help

@@ -69,7 +69,7 @@ if [ -n "$lod" ] && [ "$lod" -lt "$full" ]; then pass "adaptive: fewer triangles
 else fail "adaptive: fewer triangles" "$lod, $full"; fi
 
 # refusals
-refuse "no output" 2 "needs FILE.vod and -o" "$VOX" mesh "$TMP/s3.vod"
+refuse "no output" 2 "missing -o OUT" "$VOX" mesh "$TMP/s3.vod"
 refuse "unknown extension" 2 "no format from its extension" "$VOX" mesh "$TMP/s3.vod" -o "$TMP/x.off"
 refuse "bad --format" 2 "not ply, ply-ascii, obj or stl" "$VOX" mesh "$TMP/s3.vod" -o x --format vtk
 refuse "bad --iso" 2 "--iso 255: not a whole number 0..254" "$VOX" mesh "$TMP/s3.vod" -o "$TMP/x.ply" --iso 255
