@@ -460,7 +460,7 @@ static double worst_angle_in_obj(const iso_mesh *m)
 {
     FILE *f = tmpfile();
     cr_assert(f);
-    cr_assert_eq(iso_write(fileno(f), m, ISO_FMT_OBJ, "normals"), 0);
+    cr_assert_eq(iso_write(fileno(f), m, ISO_FMT_OBJ, "normals", 2), 0);
     rewind(f);
     float *pos = malloc(m->n_vertices * 3 * sizeof *pos), *nrm = malloc(m->n_vertices * 3 * sizeof *nrm);
     uint64_t nv = 0, nn = 0;
