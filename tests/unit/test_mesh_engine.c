@@ -423,6 +423,7 @@ Test(mesh_engine, the_grid_from_the_mesh_coordinates)
     cr_assert(w.dims[0] == 32 && w.dims[1] == 16 && w.dims[2] == 8);
     check_grid(&job, &w, m.lo, m.hi, "exact bbox");
     shape_free(&sh_m);
+}
 
 /* Long work is not a stall: a winding-number tile that runs far longer
  * than the stall timeout ticks its worker's heartbeat, is not killed, and
