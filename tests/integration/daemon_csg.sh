@@ -32,6 +32,8 @@ max_expr_depth 8
 max_csg_leaf_bytes 256K
 max_frame 64K
 chunk_size 16K
+worker_stall_timeout 600
+max_csg_nodes 100
 CONF
 if start_voxd "$TMP/voxd.log" --config "$TMP/voxd.conf"; then
     pass "voxd starts with CSG limits"
@@ -144,6 +146,21 @@ refuse "vox submit: a tree over max_csg_depth" 1 \
 refuse "vox submit: an expression over max_expr_depth" 1 \
     "LIMIT_EXCEEDED: CSG node 0 \('a'\): expression" \
     vox submit --csg "$TMP/nested.csg" -r 16 -o "$TMP/x.vod"
+# 64 cuboids joined pairwise: 127 nodes, only 7 deep, over max_csg_nodes 100
+# (csg-bad deep above has 71 nodes: under it)
+python3 -c '
+n = [f"c{i} = cuboid center {-0.95 + 0.029 * i:.3f},0,0 size 0.025,0.05,0.05" for i in range(64)]
+level, k = [f"c{i}" for i in range(64)], 0
+while len(level) > 1:
+    nxt = []
+    for a, b in zip(level[::2], level[1::2]):
+        n.append(f"u{k} = union({a}, {b})"); nxt.append(f"u{k}"); k += 1
+    level = nxt
+print("\n".join(n + ["result " + level[0]]))' >"$TMP/wide.csg"
+refuse "vox submit: a tree over max_csg_nodes (127 nodes, 7 deep)" 1 \
+    "LIMIT_EXCEEDED: CSG job has 127 nodes, over this server's max_csg_nodes of 100" \
+    vox submit --csg "$TMP/wide.csg" -r 16 -o "$TMP/x.vod"
+check "the same tree embedded (vox csg): no limit of the daemon's" "$VOX" csg "$TMP/wide.csg" -r 16 -q -o "$TMP/wide.vod"
 printf 'a = cuboid size 1,1,1\nb = union(a, nope)\nresult b\n' >"$TMP/unknown.csg"
 refuse "vox submit: an unknown name, found by vox's parser" 2 "unknown.csg:2:14: node 'b': unknown node 'nope'" \
     vox submit --csg "$TMP/unknown.csg" -r 16 -o "$TMP/x.vod"
@@ -170,16 +187,18 @@ check "with the same bytes again" cmp "$TMP/d5.vod" "$TMP/e1.vod"
 
 # ---------------------------------------------------------------- supervision
 
-# A worker killed while a CSG job runs: its run of bricks is evaluated again
-# by the one forked in its place, and the file is the embedded engine's.
+# A worker killed while it holds a task of a CSG job (shown STALLED while
+# stopped: kill_busy_worker): its run of bricks is evaluated again by the
+# one forked in its place, and the file is the embedded engine's.
 REL=build/release/vox # make test builds it beside asan; the reference only
 [ -x "$REL" ] || REL=$VOX
 check "the heavy job, embedded (release)" timeout 300 "$REL" csg "$TMP/slow.csg" -r 160 -q -o "$TMP/k1.vod"
 bg "$VOX" --socket "$S" submit --csg "$TMP/slow.csg" -r 160 -q -o "$TMP/k2.vod"
 SUB=$!
 until_true 20 running && pass "the heavy job runs on voxd" || fail "the heavy job runs on voxd" "$(vc status)"
-victim=$(worker_pids | head -1)
-kill -9 "$victim"
+kill_busy_worker && pass "a worker holding a task of the CSG job is killed" ||
+    fail "a worker holding a task of the CSG job is killed" "$(vc status)"
+victim=$VICTIM
 wait "$SUB"
 rc=$?
 [ "$rc" -eq 0 ] && pass "the job survives a worker killed while it runs" ||
@@ -187,6 +206,8 @@ rc=$?
 check "with the embedded engine's bytes" cmp "$TMP/k1.vod" "$TMP/k2.vod"
 until_true 10 eval '! worker_pids | grep -qx "$victim"' && [ "$(worker_pids | wc -l)" -eq 2 ] &&
     pass "the killed worker was replaced" || fail "the killed worker was replaced" "$(vc status)"
+[ -n "$victim" ] && grep -q "(pid $victim) died; forked again" "$TMP/voxd.log" &&
+    pass "the busy worker's death logged" || fail "the busy worker's death logged" "$(grep died "$TMP/voxd.log")"
 
 kill -QUIT "$VOXD_PID"
 wait_gone "$VOXD_PID" 30 && [ "$WAIT_RC" = 0 ] && pass "QUIT: exit 0" ||

@@ -59,20 +59,26 @@ refuse "2,000 connections past max_clients: all BUSY" 0 "flood 2000 in .* s: BUS
 cat "$TMP/out" >"$TMP/flood.out"
 kill "${HOLD[0]}"
 t0=$(date +%s%N)
-timeout 5 "${CLIENT[@]}" "$S" ping >"$TMP/ping.out" 2>&1
+timeout 10 "${CLIENT[@]}" "$S" ping >"$TMP/ping.out" 2>&1
 rc=$? ms=$((($(date +%s%N) - t0) / 1000000))
-[ "$rc" = 0 ] && [ "$ms" -lt 2000 ] && pass "then a ping is answered at once ($ms ms)" ||
+# (at once: in under 5 s on a loaded 2-core machine, where a daemon still
+# busy with the burst's backlog would take far longer)
+[ "$rc" = 0 ] && [ "$ms" -lt 5000 ] && pass "then a ping is answered at once ($ms ms)" ||
     fail "then a ping is answered at once" "rc $rc in $ms ms: $(cat "$TMP/ping.out")"
 # the summary of what was held back comes from the housekeeping timer
-until_true 10 grep -q "similar messages suppressed (refused connections: max_clients)" "$TMP/voxd.log"
-sleep 1.5
-tail -n +$((before + 1)) "$TMP/voxd.log" >"$TMP/flood.log"
+# (polled until every refusal is accounted for, 30 s at most)
+counted() {
+    tail -n +$((before + 1)) "$TMP/voxd.log" >"$TMP/flood.log"
+    shown=$(grep -c "refused a connection from uid [0-9]*: 8 clients (max_clients)" "$TMP/flood.log")
+    held=$(awk '/similar messages? suppressed \(refused connections: max_clients\)$/ {
+        for (i = 1; i < NF; i++) if ($(i + 1) == "similar") n += $i } END { print n + 0 }' "$TMP/flood.log")
+    [ "$((shown + ${held:-0}))" -ge 2000 ]
+}
+until_true 30 counted
+counted
 lines=$(wc -l <"$TMP/flood.log")
 [ "$lines" -le 50 ] && pass "the burst wrote $lines log lines (at most 50)" ||
     fail "the burst wrote at most 50 log lines" "$lines lines: $(sort "$TMP/flood.log" | head -5)"
-shown=$(grep -c "refused a connection from uid [0-9]*: 8 clients (max_clients)" "$TMP/flood.log")
-held=$(awk '/similar messages? suppressed \(refused connections: max_clients\)$/ {
-    for (i = 1; i < NF; i++) if ($(i + 1) == "similar") n += $i } END { print n + 0 }' "$TMP/flood.log")
 [ "$shown" -ge 1 ] && [ "$((shown + ${held:-0}))" = 2000 ] &&
     pass "every refusal is in the log: $shown lines, $held counted in summaries" ||
     fail "every refusal is in the log" "$shown lines + ${held:-0} counted, want 2000"

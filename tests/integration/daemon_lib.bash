@@ -17,8 +17,9 @@ cleanup() {
 trap cleanup EXIT
 export VOXD_TEST_TIMEOUT=30
 
-# vc ARGS...: the protocol client on $S, never longer than 60 s
-vc() { timeout 60 "${CLIENT[@]}" "$S" "$@"; }
+# vc ARGS...: the protocol client on $S, never longer than 5 minutes (a
+# loaded 2-core machine makes a flood or a big job take minutes under ASan)
+vc() { timeout 300 "${CLIENT[@]}" "$S" "$@"; }
 # bg CMD...: run in the background, remembered for the trap; $! as usual
 bg() { "$@" & PIDS+=($!); }
 
@@ -27,7 +28,8 @@ bg() { "$@" & PIDS+=($!); }
 bgsubmit() {
     local out=$1
     shift
-    (vc submit "$@" >"$out" 2>&1; echo "rc=$?" >>"$out") &
+    # (10 min at most: a job of a minute alone takes several on a loaded machine)
+    (timeout 600 "${CLIENT[@]}" "$S" submit "$@" >"$out" 2>&1; echo "rc=$?" >>"$out") &
     BG_PID=$!
     PIDS+=($BG_PID)
 }
@@ -37,7 +39,7 @@ bgsubmit() {
 bgclient() {
     local out=$1
     shift
-    (exec timeout 60 "${CLIENT[@]}" "$S" "$@" >"$out" 2>&1) &
+    (exec timeout 600 "${CLIENT[@]}" "$S" "$@" >"$out" 2>&1) &
     BG_PID=$!
     PIDS+=($BG_PID)
 }
@@ -75,6 +77,45 @@ until_true() {
     return 1
 }
 running() { vc status | grep -q 'running=[0-9]'; }
+# kill_busy_worker: kill -9 a worker proven to hold a task of the running
+# job.  The worker whose CPU time grows most over a second (the busy one)
+# is stopped and killed once the daemon shows it STALLED (it holds a task
+# and its heartbeat stands still: an idle worker never shows so); if it is
+# not shown so within 10 s it goes on and the choice is made again, for 3
+# minutes at most.  VICTIM its pid.  1 when none was caught holding a task
+# (the job ended first).  The daemon's worker_stall_timeout must be far
+# longer, or it kills the worker first.
+cpu_ticks() { awk '{ print $14 + $15 }' "/proc/$1/stat" 2>/dev/null || echo 0; }
+busiest_worker() {
+    local p best= most=0 d
+    declare -A t0
+    for p in $(worker_pids); do t0[$p]=$(cpu_ticks "$p"); done
+    sleep 1
+    for p in "${!t0[@]}"; do
+        d=$(($(cpu_ticks "$p") - t0[$p]))
+        [ "$d" -gt "$most" ] && most=$d best=$p
+    done
+    echo "$best"
+}
+kill_busy_worker() {
+    local p t end=$((SECONDS + 180))
+    VICTIM=
+    while [ "$SECONDS" -lt "$end" ] && running; do
+        p=$(busiest_worker)
+        [ -n "$p" ] && kill -STOP "$p" 2>/dev/null || continue
+        t=$((SECONDS + 10))
+        while [ "$SECONDS" -lt "$t" ]; do
+            if vc status | grep -q "^worker pid=$p .* state=4 "; then
+                VICTIM=$p
+                kill -9 "$p"
+                return 0
+            fi
+            sleep 0.2
+        done
+        kill -CONT "$p"
+    done
+    return 1
+}
 idle() { vc status | grep -q 'queued=0 .*running=none'; }
 worker_pids() { vc status | sed -n 's/^worker pid=\([0-9]*\).*/\1/p'; }
 # the shared memory name the daemon logged

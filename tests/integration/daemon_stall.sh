@@ -10,15 +10,15 @@
 cat >"$TMP/voxd.conf" <<CONF
 workers 2
 shm_size 128M
-worker_stall_timeout 2s
+worker_stall_timeout 5s
 log_file $TMP/voxd.log
 CONF
 start_voxd "$TMP/voxd.out" --config "$TMP/voxd.conf" &&
     pass "voxd starts" || { fail "voxd starts" "$(cat "$TMP/voxd.out" "$TMP/voxd.log")"; exit 1; }
-grep -q "worker stall timeout 2 s, memory budget [0-9]* MiB" "$TMP/voxd.log" &&
+grep -q "worker stall timeout 5 s, memory budget [0-9]* MiB" "$TMP/voxd.log" &&
     pass "the stall timeout and the budget are logged at start" ||
     fail "the stall timeout and the budget are logged at start" "$(head -2 "$TMP/voxd.log")"
-vs() { timeout 60 "$VOX" --socket "$S" "$@"; }
+vs() { timeout 300 "$VOX" --socket "$S" "$@"; }
 # reload N: HUP and wait for the N-th "configuration reloaded"
 reload() {
     kill -HUP "$VOXD_PID"
@@ -33,7 +33,12 @@ worker_line() { vc status | grep "^worker pid=$1 "; }
 # ---------------------------------------------------------------- a stopped worker
 
 # The embedded engine's bytes, the reference.
+# (5 s: a worker starved of CPU on a loaded 2-core machine under ASan is not
+# taken for a stopped one; the bound on the stalled job is the embedded
+# job's own time, twice, plus 30 s)
+t0=$(now)
 check "embedded reference" "$VOX" voxelize -e "$MEDIUM" -r 512 -w 2 -q -o "$TMP/ref.vod"
+ref=$(since "$t0")
 bgsubmit "$TMP/a.out" "$MEDIUM" 512 -1,1 "$TMP/a.vod"
 A=$BG_PID
 until_true 20 running && pass "a job runs" || fail "a job runs"
@@ -41,17 +46,17 @@ victim=$(worker_pids | head -1)
 cpu=$(vc status | sed -n "s/^worker pid=$victim cpu=\([0-9-]*\) .*/\1/p")
 kill -STOP "$victim"
 t0=$(now)
-wait_gone "$A" 60
+wait_gone "$A" $((2 * ref + 120))
 took=$(since "$t0")
 grep -q "^rc=0$" "$TMP/a.out" && pass "the job completes with a worker stopped" ||
     fail "the job completes with a worker stopped" "$(cat "$TMP/a.out")"
 check "... with the embedded bytes" cmp "$TMP/a.vod" "$TMP/ref.vod"
-[ "$took" -lt 30 ] && pass "... well within 30 s of the stop (${took} s)" ||
-    fail "... well within 30 s of the stop" "${took} s"
+[ "$took" -lt $((2 * ref + 30)) ] && pass "... well within twice the embedded job's ${ref} s + 30 s of the stop (${took} s)" ||
+    fail "... well within twice the embedded job's ${ref} s + 30 s of the stop" "${took} s"
 grep -q "worker [01] (pid $victim, CPU $cpu) made no progress for [0-9.]* s (process state T); killed and forked again as pid [0-9]*" "$TMP/voxd.log" &&
     pass "the stall is logged with the pid, the CPU and the state" ||
     fail "the stall is logged with the pid, the CPU and the state" "$(grep -i worker "$TMP/voxd.log" | tail -3)"
-until_true 5 eval '! kill -0 "$victim" 2>/dev/null' && pass "the stopped worker is gone" ||
+until_true 30 eval '! kill -0 "$victim" 2>/dev/null' && pass "the stopped worker is gone" ||
     fail "the stopped worker is gone"
 st=$(vc status)
 if [ "$(grep -c '^worker pid=' <<<"$st")" -eq 2 ] && ! grep -q "pid=$victim " <<<"$st" &&
@@ -66,7 +71,7 @@ grep -qE '^ +[0-9]+ +[0-9]+ +idle +[0-9]+ +[0-9]+ +1 +1$' <<<"$v_st" &&
 
 # Stall detection off: a stopped worker stays stopped, shows as stalled,
 # and a client's cancel (vox's answer to ^C or TERM) is answered at once.
-sed -i 's/^worker_stall_timeout 2s$/worker_stall_timeout 0/' "$TMP/voxd.conf"
+sed -i 's/^worker_stall_timeout 5s$/worker_stall_timeout 0/' "$TMP/voxd.conf"
 reload 1 && pass "HUP: stall detection off" || fail "HUP: stall detection off"
 check "a job after the reload" vc submit "$SPHERE" 16 -1,1 "$TMP/s.vod"
 (exec "$VOX" --socket "$S" submit -e "$SLOW" -r 512 -o "$TMP/c.vod" >"$TMP/c.out" 2>&1) &
@@ -75,7 +80,7 @@ PIDS+=($C)
 until_true 20 running
 victim=$(worker_pids | head -1)
 kill -STOP "$victim"
-until_true 10 eval 'worker_line "$victim" | grep -q "state=4 "' &&
+until_true 30 eval 'worker_line "$victim" | grep -q "state=4 "' &&
     pass "status: the stopped worker shows as stalled" ||
     fail "status: the stopped worker shows as stalled" "$(vc status)"
 vs status | grep -qE "^ +$victim +[0-9]+ +stalled " && pass "vox status says stalled" ||
@@ -84,7 +89,9 @@ t0=$(now)
 kill -TERM "$C"
 wait_gone "$C" 20
 took=$(since "$t0")
-[ "$took" -le 5 ] && pass "a cancel during a stall is answered at once (${took} s)" ||
+# (at once: the daemon kills a stopped worker 0.1 s into the cancel; 10 s
+# leaves room for a loaded machine)
+[ "$took" -le 10 ] && pass "a cancel during a stall is answered at once (${took} s)" ||
     fail "a cancel during a stall is answered at once" "${took} s"
 grep -q "cancelled" "$TMP/c.out" && pass "... and the client says cancelled" ||
     fail "... and the client says cancelled" "$(cat "$TMP/c.out")"
@@ -137,8 +144,22 @@ refuse "a result held fills the budget: BUSY up front" 3 \
     "BUSY: this server's memory budget \(max_memory 112 MiB\) is taken: 48 MiB of shared memory and [0-9]+ MiB of results" \
     vc submit "$SPHERE" 16 -1,1 "$TMP/s3.vod"
 kill "$N"
-until_true 10 vc submit "$SPHERE" 16 -1,1 "$TMP/s4.vod" && pass "room again once the result is gone" ||
+until_true 30 vc submit "$SPHERE" 16 -1,1 "$TMP/s4.vod" && pass "room again once the result is gone" ||
     fail "room again once the result is gone" "$(tail -3 "$TMP/voxd.log")"
+# A result that outgrows the budget while its job runs: the sphere's
+# surface at 384^3, uncompressed in bricks of 32, is about 79 MB (the
+# admission's 64 MiB lets it start); alone over max_memory less shm_size,
+# it ends with LIMIT_EXCEEDED, leaves no file, and the daemon goes on.
+refuse "a result that outgrows max_memory during its job: LIMIT_EXCEEDED" 1 \
+    "LIMIT_EXCEEDED: the result does not fit in this server's memory budget \(max_memory less shm_size: 64 MiB\)" \
+    vs submit -e "$SPHERE" -r 384 --channel surface --compress none --brick 32 -o "$TMP/big.vod"
+[ ! -e "$TMP/big.vod" ] && pass "... and leaves no file" || fail "... and leaves no file"
+"$VOX" voxelize --embedded -e "$SPHERE" -r 384 --channel surface --compress none --brick 32 -q -o "$TMP/bigref.vod"
+big=$(stat -c %s "$TMP/bigref.vod" 2>/dev/null || echo 0)
+[ "$big" -gt $((64 << 20)) ] && pass "... a result of $big bytes, over the 64 MiB it had (embedded)" ||
+    fail "... a result over the 64 MiB it had (embedded)" "$big bytes"
+rm -f "$TMP/bigref.vod"
+check "a job after it" vc submit "$SPHERE" 16 -1,1 "$TMP/s5.vod"
 
 # ---------------------------------------------------------------- bad values
 

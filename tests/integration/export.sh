@@ -21,13 +21,6 @@ if [ -z "$PY" ]; then
     exit 0
 fi
 CHECK="$ROOT/tests/integration/export_check.py"
-# checker ARGS...: export_check.py, which prints its own PASS/FAIL lines;
-# exit 2 (or a crash before its first line) is a failure of its own
-checker() {
-    "$PY" "$CHECK" "$@"
-    local rc=$?
-    [ "$rc" -le 1 ] || fail "export_check.py $1 $(basename "$2") ran to its end" "exit $rc"
-}
 # The .vdb exports are read by OpenVDB's own code: vdb_print (make deps
 # installs libopenvdb-tools) and vdb_dump, built beside the vox under test.
 VDB_DUMP="$(dirname "$VOX")/tests/vdb_dump"
@@ -57,6 +50,19 @@ f 2 4 8
 f 2 8 6
 OBJ
 
+# pycheck NAME MODE ARGS...: export_check.py's checks, printed; a crash, an
+# exit status other than 0 or a mode that checked nothing fails NAME
+pycheck() {
+    local n=$1 out rc
+    shift
+    out=$("$PY" "$CHECK" "$@" 2>&1)
+    rc=$?
+    printf '%s\n' "$out"
+    if [ "$rc" -ne 0 ] || ! grep -Eq '^(PASS|FAIL): ' <<<"$out"; then
+        fail "$n: export_check.py $1 ran to its end" "exit $rc: $(tail -3 <<<"$out")"
+    fi
+}
+
 vod() { # NAME ARGS...: write $TMP/NAME.vod with the embedded engine
     local n=$1; shift
     check "voxelize $n" "$VOX" voxelize --embedded -w 0 -q -o "$TMP/$n.vod" "$@"
@@ -80,17 +86,18 @@ for f in "$TMP"/*.vod; do
     check "$n: export gzip NRRD --no-normals" "$VOX" export "$f" -o "$d/gznn.nrrd" --gzip --no-normals
     echo "2,9,1,12,3,7" >"$d/box.txt"
     check "$n: export --bbox" "$VOX" export "$f" --format raw -o "$d/box.raw" --bbox 2,9,1,12,3,7
-    checker formats "$f" "$d"
+    pycheck "$n" formats "$f" "$d"
     check "$n: export .vdb" "$VOX" export "$f" -o "$d/x.vdb"
     check "$n: export .vdb level 1" "$VOX" export "$f" -o "$d/l1.vdb" --level 1
     check "$n: export .vdb --bbox" "$VOX" export "$f" -o "$d/box.vdb" --bbox 2,9,1,12,3,7
-    checker vdb "$f" "$d" "$VDB_DUMP"
-    checker vtk "$f" "$d"
+    pycheck "$n" vdb "$f" "$d" "$VDB_DUMP"
+    pycheck "$n" vtk "$f" "$d"
     want=$("$VOX" info "$f" | grep '^  voxels')
     got=$("$PY" "$CHECK" checksum "$f" 2>&1)
-    if [ -n "$want" ] && [ "$want" = "$got" ]; then pass "$n: voxd.read's voxels are vox info's"
-    else fail "$n: voxd.read's voxels are vox info's" "vox info: $want; voxd: $got"; fi
-    checker damage "$f" "$VOX" "$d"
+    rc=$?
+    if [ "$rc" -eq 0 ] && [ -n "$want" ] && [ "$want" = "$got" ]; then pass "$n: voxd.read's voxels are vox info's"
+    else fail "$n: voxd.read's voxels are vox info's" "vox info: $want; voxd (exit $rc): $got"; fi
+    pycheck "$n" damage "$f" "$VOX" "$d"
 done
 
 # ---------------------------------------------------------------- refusals
