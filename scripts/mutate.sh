@@ -173,7 +173,7 @@ tests: test_mesh_vox
 id:    mesh-rays-skip-below
 file:  mesh/mesh_solid.c
 from:  return first || !*below;
-to:    return !*below;
+to:    return (first && 0) || !*below;
 tests: test_mesh_vox test_mesh_engine
 
 id:    mesh-obj-negative-index
