@@ -33,7 +33,8 @@
     "  -q, --quiet            no summary\n"
 
 #define MESH_OPTIONS \
-    "      --mesh FILE        a triangle mesh (OBJ, STL, PLY, OFF: told from the contents)\n" \
+    "      --mesh FILE        a triangle mesh (OBJ, STL, PLY, OFF, glTF .gltf/.glb: told\n" \
+    "                         from the contents)\n" \
     "                         instead of F; --res voxels span its bounding box and --pad\n" \
     "      --mode solid|surface|surface6|conservative|interior   (default solid)\n" \
     "      --repair none|vote|winding\n" \

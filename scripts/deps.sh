@@ -6,12 +6,13 @@
 # openmpi-bin: vox_mpi, built with mpicc's flags, and its tests under mpirun;
 # libopenvdb-dev and libboost-dev, whose headers libopenvdb's include but
 # which Debian 12's libopenvdb-dev does not pull in: vox export's .vdb module;
-# libopenvdb-tools: vdb_print, which reads the .vdb exports back in the tests).
+# libopenvdb-tools: vdb_print, which reads the .vdb exports back in the tests;
+# libjson-c-dev: the glTF loader's JSON).
 set -e
 PKGS="build-essential pkg-config zlib1g-dev libdeflate-dev libpng-dev libxxhash-dev libuv1-dev \
 libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev \
 valgrind python3 python3-numpy procps groff-base libopenmpi-dev openmpi-bin \
-libopenvdb-dev libboost-dev libopenvdb-tools"
+libopenvdb-dev libboost-dev libopenvdb-tools libjson-c-dev"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
