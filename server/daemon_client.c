@@ -243,9 +243,6 @@ _Static_assert((int)VOXD__MESH_REPAIR__MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 
                    (int)VOXD__MESH_REPAIR__MESH_REPAIR_WINDING == MESH_REPAIR_WINDING + 1,
                "MeshRepair numbers");
 
-_Static_assert(PROTO_MIN_WELD == MESH_WELD_MIN && PROTO_MAX_WELD == MESH_WELD_MAX,
-               "Mesh.weld_eps's range is mesh_weld's");
-
 /* A mesh job's options, as vox voxelize --mesh gives them to the pipeline. */
 static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
 {
