@@ -103,11 +103,41 @@ int gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out)
     return 0;
 }
 
+/* The values of a JSON text at most: json-c takes some 50 to 100 bytes a
+ * value, so a file of a few bytes a value ("[0,0,0,...") could ask for
+ * gigabytes; a glTF's JSON holds a few values a node, accessor or view (its
+ * geometry is in the buffers), so 4 Mi of them leave room for hundreds of
+ * thousands of nodes. */
+#define JSON_MAX_VALUES (4u << 20)
+
+/* An upper bound on the values in j[0, n): the commas, opening brackets
+ * and colons outside strings, plus one. */
+static uint64_t json_values(const char *j, size_t n)
+{
+    uint64_t v = 1;
+    int in_str = 0;
+    for (size_t i = 0; i < n; i++) {
+        char c = j[i];
+        if (in_str) {
+            if (c == '\\') i++;
+            else if (c == '"') in_str = 0;
+        } else {
+            in_str = c == '"';
+            v += c == ',' || c == '[' || c == '{' || c == ':';
+        }
+    }
+    return v;
+}
+
 /* The JSON text j[0, n) (at: its byte offset in the file) into g->root. */
 static int parse_json(gltf *g, const char *j, size_t n, uint64_t at)
 {
     if (n > INT32_MAX - 1)
         return mb_fail(g->b, -E2BIG, MB_NOWHERE, "a JSON text of %zu bytes (2 GiB at most)", n);
+    uint64_t values = json_values(j, n);
+    if (values > JSON_MAX_VALUES)
+        return mb_fail(g->b, -E2BIG, MB_NOWHERE, "a JSON text of up to %llu values (%u at most)",
+                       (unsigned long long)values, JSON_MAX_VALUES);
     json_tokener *tok = json_tokener_new_ex(JSON_DEPTH);
     if (!tok) return mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory for the JSON");
     json_tokener_set_flags(tok, JSON_TOKENER_STRICT | JSON_TOKENER_ALLOW_TRAILING_CHARS);

@@ -411,6 +411,17 @@ Test(mesh_gltf, bad_files_are_refused_with_their_reason)
     char *j2 = embedded(&c2, one_node);
     refused(j2, strlen(j2), "index 8 out of range (8 positions)", "index");
     free(j2);
+    /* a JSON of millions of values, refused before json-c builds them */
+    size_t big = 9u << 20;
+    char *many = malloc(big + 64);
+    int k = sprintf(many, "{\"asset\": {\"version\": \"2.0\"}, \"extras\": [0");
+    while ((size_t)k < big) many[k++] = ',', many[k++] = '0';
+    strcpy(many + k, "]}");
+    mesh m;
+    mesh_error e;
+    cr_assert_eq(mesh_parse(many, strlen(many), MESH_FORMAT_GLTF, NULL, &m, &e), -E2BIG);
+    cr_assert(strstr(e.msg, "values (4194304 at most)"), "%s", e.msg);
+    free(many);
     /* JSON cut short, and data after it */
     refused(j, strlen(j) - 1, "JSON", "truncated JSON");
     char *tail = malloc(strlen(j) + 3);
