@@ -29,7 +29,7 @@ CXX     ?= g++
 PREFIX  ?= /usr/local
 V       ?= release
 BUILD   ?= build/$(V)
-PKGS    := zlib libdeflate libpng libxxhash libuv libprotobuf-c
+PKGS    := zlib libdeflate libpng libxxhash libuv libprotobuf-c json-c
 
 # PKG_CFLAGS and PKG_LIBS: scripts/configure asks pkg-config for them and writes
 # $(CONFIG), which make makes, then reads by starting over. Asking while make

@@ -33,8 +33,9 @@
     "  -q, --quiet            no summary\n"
 
 #define MESH_OPTIONS \
-    "      --mesh FILE        a triangle mesh (OBJ, STL, PLY, OFF: told from the contents)\n" \
-    "                         instead of F; --res voxels span its bounding box and --pad\n" \
+    "      --mesh FILE        a triangle mesh (OBJ, STL, PLY, OFF, glTF: told from the\n" \
+    "                         contents) instead of F; --res voxels span its bounding box\n" \
+    "                         and --pad\n" \
     "      --mode solid|surface|surface6|conservative|interior   (default solid)\n" \
     "      --repair none|vote|winding\n" \
     "                         meshes with holes: majority of the x, y, z parities, or the\n" \

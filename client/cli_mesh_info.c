@@ -11,19 +11,20 @@
 
 static const char usage[] =
     "usage: vox mesh-info FILE [--json] [--format FMT] [--weld EPS]\n"
-    "  loads a triangle mesh (OBJ, STL, PLY or OFF, told from its contents) and\n"
+    "  loads a triangle mesh (OBJ, STL, PLY, OFF or glTF, told from its contents) and\n"
     "  prints its format, vertices, triangles (and the degenerate ones dropped),\n"
     "  bounding box, edges (open, non-manifold, inconsistently oriented),\n"
     "  connected components, signed volume, and whether it is watertight\n"
     "  -j, --json          one JSON object instead of the text\n"
-    "  -f, --format FMT    read FILE as obj, stl, ply or off (default: from its contents)\n"
+    "  -f, --format FMT    read FILE as obj, stl, ply, off or gltf (.gltf or .glb)\n"
+    "                      (default: from its contents)\n"
     "  -w, --weld EPS      merge the vertices within EPS of each other first (the mesh's\n"
     "                      units; 0: exactly equal positions) and say how many merged\n";
 
 static int parse_format(const char *s, mesh_format *f)
 {
     static const mesh_format all[] = {MESH_FORMAT_OBJ, MESH_FORMAT_STL, MESH_FORMAT_PLY,
-                                      MESH_FORMAT_OFF};
+                                      MESH_FORMAT_OFF, MESH_FORMAT_GLTF};
     for (size_t i = 0; i < sizeof all / sizeof *all; i++)
         if (!strcasecmp(s, mesh_format_name(all[i]))) {
             *f = all[i];
@@ -110,7 +111,7 @@ int cli_mesh_info(int argc, char **argv)
         case 'f':
             if (parse_format(optarg, &format)) {
                 return cli_usage_error("mesh-info", "bad --format '%.40s': want obj, stl, "
-                                       "ply or off", optarg);
+                                       "ply, off or gltf", optarg);
             }
             break;
         case 'w':

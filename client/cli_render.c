@@ -14,7 +14,7 @@
 static const char usage[] =
     "usage: vox render FILE.vod|MESH -o OUT.png [options]\n"
     "  draws a VOD file's voxels as shaded splats, or a triangle mesh (a file\n"
-    "  named .obj, .stl, .ply or .off) as shaded triangles framed alike\n"
+    "  named .obj, .stl, .ply, .off, .gltf or .glb) as shaded triangles framed alike\n"
     "  -o, --output OUT.png   the picture to write\n"
     "  -a, --azimuth DEG      camera angle about +z, from +x (default 30)\n"
     "  -e, --elevation DEG    camera angle above the xy-plane, -90..90 (default 20)\n"
@@ -84,8 +84,8 @@ static int parse_render_args(int argc, char **argv, render_opts *o,
 static int is_mesh_path(const char *path)
 {
     const char *dot = strrchr(path, '.');
-    static const char *const ext[] = {".obj", ".stl", ".ply", ".off"};
-    for (int i = 0; dot && i < 4; i++)
+    static const char *const ext[] = {".obj", ".stl", ".ply", ".off", ".gltf", ".glb"};
+    for (int i = 0; dot && i < 6; i++)
         if (!strcasecmp(dot, ext[i])) return 1;
     return 0;
 }

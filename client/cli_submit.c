@@ -2,6 +2,7 @@
  * the daemon half of vox voxelize. */
 #include <errno.h>
 #include <fcntl.h>
+#include <libgen.h>
 #include <getopt.h>
 #include <inttypes.h>
 #include <signal.h>
@@ -162,6 +163,37 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
     return CLI_EXIT_OK;
 }
 
+/* A .gltf whose buffers name files: the daemon reads no file, so the JSON
+ * goes with them embedded as data: URIs (mesh_gltf_embed), in a mapping of
+ * its own in place of the file's.  0, or CLI_EXIT_USAGE after a message. */
+static int embed_gltf(const char *path, void **data, size_t *len)
+{
+    char *dup = strdup(path), *out;
+    size_t n;
+    mesh_error err;
+    int rc = dup ? mesh_gltf_embed(*data, *len, dirname(dup), &out, &n, &err) : -ENOMEM;
+    free(dup);
+    if (rc || !out) {
+        char msg[300];
+        if (rc) cli_error("%s: %s", path, rc == -ENOMEM && !err.msg[0] ? strerror(ENOMEM)
+                                                                      : mesh_error_str(&err, msg, sizeof msg));
+        if (rc) munmap(*data, *len);
+        return rc ? CLI_EXIT_USAGE : 0;
+    }
+    void *p = mmap(NULL, n, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
+    munmap(*data, *len);
+    if (p == MAP_FAILED) {
+        free(out);
+        cli_error("%s: %s", path, strerror(errno));
+        return CLI_EXIT_USAGE;
+    }
+    memcpy(p, out, n);
+    free(out);
+    *data = p;
+    *len = n;
+    return 0;
+}
+
 /* The mesh file's bytes as they are, mapped (the daemon parses them, as
  * vox voxelize --embedded does the file): 0, or CLI_EXIT_USAGE after a
  * message in the loader's words. */
@@ -186,7 +218,7 @@ static int map_mesh(const char *path, void **data, size_t *len)
     }
     *data = p;
     *len = (size_t)st.st_size;
-    return 0;
+    return embed_gltf(path, data, len);
 }
 
 /* libvox's mesh enums are the protocol's: mesh_vox.h's plus one. */

@@ -160,6 +160,7 @@ enum {
     VOX_MESH_FORMAT_STL = 2,
     VOX_MESH_FORMAT_PLY = 3,
     VOX_MESH_FORMAT_OFF = 4,
+    VOX_MESH_FORMAT_GLTF = 5, /* a .glb, or a .gltf with its buffers embedded */
 };
 enum {
     VOX_MESH_MODE_DEFAULT = 0, /* SOLID */

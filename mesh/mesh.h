@@ -22,6 +22,7 @@ typedef enum {
     MESH_FORMAT_STL,      /* ascii or binary */
     MESH_FORMAT_PLY,      /* ascii, binary little or big endian */
     MESH_FORMAT_OFF,
+    MESH_FORMAT_GLTF,     /* glTF 2.0: .gltf (JSON) or .glb (binary) */
 } mesh_format;
 
 typedef struct {
@@ -57,9 +58,18 @@ typedef struct {
  * *err filled: -EINVAL malformed, -E2BIG past a limit, -ENOMEM. */
 int mesh_parse(const void *buf, size_t len, mesh_format format,
                const mesh_limits *lim, mesh *out, mesh_error *err);
-/* mesh_parse() of a file, mapped (mmap) rather than read. */
+/* mesh_parse() of a file, mapped (mmap) rather than read.  A .gltf's
+ * buffers may then name files (relative, inside its folder); from
+ * mesh_parse() they may only be embedded (data: URIs) or a .glb's. */
 int mesh_load(const char *path, mesh_format format, const mesh_limits *lim,
               mesh *out, mesh_error *err);
+/* A .gltf to send elsewhere (vox submit): its JSON with every buffer that
+ * names a file (relative to dir, as mesh_load reads it) embedded as a
+ * base64 data: URI.  0 and *out (malloc, *out_len bytes), or 0 and *out
+ * NULL when there is nothing to embed (not a JSON glTF, or no such
+ * buffer); -EINVAL or -ENOMEM with *err. */
+int mesh_gltf_embed(const char *buf, size_t len, const char *dir, char **out, size_t *out_len,
+                    mesh_error *err);
 void mesh_free(mesh *m);
 
 const char *mesh_format_name(mesh_format f);

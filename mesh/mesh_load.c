@@ -1,5 +1,6 @@
 /* mesh_load — the entry points of mesh.h: format detection, the dispatch
- * to the loaders (mesh_obj.c, mesh_stl.c, mesh_ply.c, mesh_off.c, over
+ * to the loaders (mesh_obj.c, mesh_stl.c, mesh_ply.c, mesh_off.c,
+ * mesh_gltf.c, over
  * mesh_load_core.c), mmap, the mesh's release, names and messages. */
 #include <errno.h>
 #include <fcntl.h>
@@ -41,7 +42,10 @@ static mesh_format detect(const char *buf, size_t len)
     }
     if (len >= 4 && (!memcmp(buf, "ply\n", 4) || (len >= 5 && !memcmp(buf, "ply\r\n", 5))))
         return MESH_FORMAT_PLY;
+    if (len >= 4 && !memcmp(buf, "glTF", 4)) return MESH_FORMAT_GLTF; /* a .glb */
     mtext t = {buf, buf + len, buf};
+    mt_skip_space(&t);
+    if (t.p < t.end && *t.p == '{') return MESH_FORMAT_GLTF; /* JSON: a .gltf */
     for (;;) { /* past blank lines and comments */
         mt_skip_space(&t);
         if (t.p < t.end && *t.p == '#') mt_next_line(&t);
@@ -56,8 +60,9 @@ static mesh_format detect(const char *buf, size_t len)
 
 /* ---------------------------------------------------------------- interface */
 
-int mesh_parse(const void *buf, size_t len, mesh_format format, const mesh_limits *lim,
-               mesh *out, mesh_error *err)
+/* mesh_parse, a .gltf's external buffers read from dir (NULL: refused). */
+static int parse_in(const void *buf, size_t len, mesh_format format, const mesh_limits *lim,
+                    const char *dir, mesh *out, mesh_error *err)
 {
     mesh_error scratch;
     if (!err) err = &scratch;
@@ -65,21 +70,39 @@ int mesh_parse(const void *buf, size_t len, mesh_format format, const mesh_limit
     memset(out, 0, sizeof *out);
     mbuild b = {.max_tri = lim && lim->max_triangles ? lim->max_triangles : MESH_MAX_TRIANGLES,
                 .max_vert = lim && lim->max_vertices ? lim->max_vertices : MESH_MAX_VERTICES,
-                .buf = buf, .err = err};
+                .buf = buf, .err = err, .dir = dir};
     if (len == 0) return mb_fail(&b, -EINVAL, MB_NOWHERE, "empty file");
     if (format == MESH_FORMAT_AUTO && !(format = detect(buf, len)))
-        return mb_fail(&b, -EINVAL, MB_NOWHERE, "not a mesh file of a known format (OBJ, STL, PLY, OFF)");
+        return mb_fail(&b, -EINVAL, MB_NOWHERE,
+                       "not a mesh file of a known format (OBJ, STL, PLY, OFF, glTF)");
     int rc;
     switch (format) {
     case MESH_FORMAT_OBJ: rc = mesh_parse_obj(buf, len, &b); break;
     case MESH_FORMAT_STL: rc = mesh_parse_stl(buf, len, &b); break;
     case MESH_FORMAT_PLY: rc = mesh_parse_ply(buf, len, &b); break;
     case MESH_FORMAT_OFF: rc = mesh_parse_off(buf, len, &b); break;
+    case MESH_FORMAT_GLTF: rc = mesh_parse_gltf(buf, len, &b); break;
     default: rc = mb_fail(&b, -EINVAL, MB_NOWHERE, "unknown mesh format %d", (int)format);
     }
     if (rc == 0) rc = mb_finish(&b, format, out);
     mb_free(&b);
     return rc;
+}
+
+int mesh_parse(const void *buf, size_t len, mesh_format format, const mesh_limits *lim,
+               mesh *out, mesh_error *err)
+{
+    return parse_in(buf, len, format, lim, NULL, out, err);
+}
+
+/* The folder of path, into dir. */
+static const char *folder_of(const char *path, char *dir, size_t cap)
+{
+    const char *slash = strrchr(path, '/');
+    if (!slash) return ".";
+    if (slash == path) return "/";
+    snprintf(dir, cap, "%.*s", (int)(slash - path), path);
+    return dir;
 }
 
 int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh *out,
@@ -109,6 +132,8 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
         close(fd);
         return mesh_parse("", 0, format, lim, out, err);
     }
+    char dirbuf[4096];
+    const char *dir = folder_of(path, dirbuf, sizeof dirbuf);
     /* Populated at once: the parser reads every page in order anyway. */
     void *p = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
     int e = errno;
@@ -117,7 +142,7 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
         snprintf(err->msg, sizeof err->msg, "cannot map: %s", strerror(e));
         return e == ENOMEM ? -ENOMEM : -e;
     }
-    rc = mesh_parse(p, (size_t)st.st_size, format, lim, out, err);
+    rc = parse_in(p, (size_t)st.st_size, format, lim, dir, out, err);
     munmap(p, (size_t)st.st_size);
     return rc;
 }
@@ -138,6 +163,7 @@ const char *mesh_format_name(mesh_format f)
     case MESH_FORMAT_STL: return "STL";
     case MESH_FORMAT_PLY: return "PLY";
     case MESH_FORMAT_OFF: return "OFF";
+    case MESH_FORMAT_GLTF: return "glTF";
     }
     return "unknown";
 }

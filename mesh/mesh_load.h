@@ -34,6 +34,7 @@ typedef struct {
     uint32_t nt;                /* triangles made so far, degenerate included */
     size_t cap_t;
     char warning[200];          /* mb_warn's first line, into mesh.warning */
+    const char *dir;            /* the file's folder (glTF's external buffers); NULL: none */
 } mbuild;
 
 /* Fill the error and return rc.  at: the byte offset of the trouble, told
@@ -98,6 +99,7 @@ int mesh_parse_obj(const char *buf, size_t len, mbuild *b);
 int mesh_parse_stl(const char *buf, size_t len, mbuild *b);
 int mesh_parse_ply(const char *buf, size_t len, mbuild *b);
 int mesh_parse_off(const char *buf, size_t len, mbuild *b);
+int mesh_parse_gltf(const char *buf, size_t len, mbuild *b);
 /* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
 int mesh_off_keyword(const char *p, size_t n);
 

@@ -273,7 +273,7 @@ static int check_mesh_data(const Voxd__Mesh *m, const Voxd__Submit *s,
 /* The enums and numbers of a mesh job's options. */
 static int check_mesh_options(const Voxd__Mesh *m, proto_error *e)
 {
-    if ((unsigned)m->format > VOXD__MESH_FORMAT__MESH_FORMAT_OFF)
+    if ((unsigned)m->format > VOXD__MESH_FORMAT__MESH_FORMAT_GLTF)
         return bad(e, INVALID, "unknown mesh format %d", (int)m->format);
     if ((unsigned)m->mode > VOXD__MESH_MODE__MESH_MODE_INTERIOR)
         return bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);

@@ -9,13 +9,13 @@
 # libopenvdb-tools: vdb_print, which reads the .vdb exports back in the tests;
 # python3-vtk9: VTK's readers, which open the NRRD and .vti exports in the tests;
 # python3-pip, python3-setuptools and python3-venv: the offline pip install of
-# python/ that the tests run).
+# python/ that the tests run; libjson-c-dev: the glTF loader's JSON).
 set -e
 PKGS="build-essential pkg-config zlib1g-dev libdeflate-dev libpng-dev libxxhash-dev libuv1-dev \
 libprotobuf-c-dev protobuf-c-compiler libcriterion-dev clang libclang-rt-14-dev \
 valgrind python3 python3-numpy procps groff-base libopenmpi-dev openmpi-bin \
 libopenvdb-dev libboost-dev libopenvdb-tools python3-vtk9 \
-python3-pip python3-setuptools python3-venv"
+python3-pip python3-setuptools python3-venv libjson-c-dev"
 missing=""
 for p in $PKGS; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"

@@ -229,7 +229,8 @@ _Static_assert((int)VOXD__MESH_FORMAT__MESH_FORMAT_UNSPECIFIED == MESH_FORMAT_AU
                    (int)VOXD__MESH_FORMAT__MESH_FORMAT_OBJ == MESH_FORMAT_OBJ &&
                    (int)VOXD__MESH_FORMAT__MESH_FORMAT_STL == MESH_FORMAT_STL &&
                    (int)VOXD__MESH_FORMAT__MESH_FORMAT_PLY == MESH_FORMAT_PLY &&
-                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_OFF == MESH_FORMAT_OFF,
+                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_OFF == MESH_FORMAT_OFF &&
+                   (int)VOXD__MESH_FORMAT__MESH_FORMAT_GLTF == MESH_FORMAT_GLTF,
                "MeshFormat numbers");
 _Static_assert((int)VOXD__MESH_MODE__MESH_MODE_SOLID == MESH_SOLID + 1 &&
                    (int)VOXD__MESH_MODE__MESH_MODE_SURFACE == MESH_SURFACE + 1 &&
@@ -242,9 +243,6 @@ _Static_assert((int)VOXD__MESH_REPAIR__MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 
                    (int)VOXD__MESH_REPAIR__MESH_REPAIR_WINDING == MESH_REPAIR_WINDING + 1,
                "MeshRepair numbers");
 
-_Static_assert(PROTO_MIN_WELD == MESH_WELD_MIN && PROTO_MAX_WELD == MESH_WELD_MAX,
-               "Mesh.weld_eps's range is mesh_weld's");
-
 /* A mesh job's options, as vox voxelize --mesh gives them to the pipeline. */
 static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
 {
@@ -253,7 +251,7 @@ static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
     if (!j->fit) job_domain(j, m->domain, m->n_domain);
     j->res = m->res;
     j->pad = m->pad;
-    j->mesh_format = (mesh_format)m->format; /* MESH_FORMAT_AUTO .. OFF, the same numbers */
+    j->mesh_format = (mesh_format)m->format; /* MESH_FORMAT_AUTO .. GLTF, the same numbers */
     j->mesh_opts.mode = m->mode ? (mesh_mode)(m->mode - 1) : MESH_SOLID;
     j->mesh_opts.repair = m->repair ? (mesh_repair)(m->repair - 1) : MESH_REPAIR_NONE;
     j->mesh_opts.supersample = m->supersample;

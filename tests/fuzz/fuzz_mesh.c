@@ -66,6 +66,6 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     static const mesh_limits tight = {5, 5};
     one(data, size, MESH_FORMAT_AUTO, NULL);
     one(data, size, MESH_FORMAT_AUTO, &tight);
-    for (mesh_format f = MESH_FORMAT_OBJ; f <= MESH_FORMAT_OFF; f++) one(data, size, f, NULL);
+    for (mesh_format f = MESH_FORMAT_OBJ; f <= MESH_FORMAT_GLTF; f++) one(data, size, f, NULL);
     return 0;
 }

@@ -120,6 +120,22 @@ refuse "a bad --weld is refused by vox" 2 "bad --weld '-1'" \
 refuse "--weld needs --mesh" 2 "are for --mesh jobs" \
     vox submit -e 'x*x+y*y+z*z-0.5' --weld 0 -r 48 -o "$TMP/x.vod"
 
+# glTF: a .glb, and a .gltf whose buffer is a .bin beside it (vox submit
+# embeds it: the daemon reads no file), give the embedded engine's bytes.
+G=$(dirname "$0")/obj2gltf.py
+python3 "$G" "$TMP/cube.obj" "$TMP/cube.glb" glb && python3 "$G" "$TMP/cube.obj" "$TMP/ext" gltf
+for f in cube.glb ext.gltf; do
+    check "embedded: $f" vox voxelize --embedded --mesh "$TMP/$f" -r 48 -q -o "$TMP/eg-$f.vod"
+    check "vox submit --mesh $f" vox submit --mesh "$TMP/$f" -r 48 -q -o "$TMP/dg-$f.vod"
+    check "$f: submit = embedded (bytes)" cmp "$TMP/dg-$f.vod" "$TMP/eg-$f.vod"
+done
+refuse "vox submit of a .gltf: the cube from voxd" 0 \
+    "mesh: 12 triangles, 0 open and 0 non-manifold edges: watertight" \
+    vox submit --mesh "$TMP/ext.gltf" -r 48 -o "$TMP/dg2.vod"
+mv "$TMP/ext.bin" "$TMP/moved.bin"
+refuse "vox submit of a .gltf whose .bin is missing" 2 "buffer 0: cannot read" \
+    vox submit --mesh "$TMP/ext.gltf" -r 48 -o "$TMP/x.vod"
+
 # vox voxelize --mesh runs on the daemon when one answers: a job more
 # there, and the same file.
 n=$(accepted)

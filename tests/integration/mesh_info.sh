@@ -113,6 +113,29 @@ for bad in -1 1e-31 2e30 nan inf x; do
         "$VOX" mesh-info --weld $bad "$TMP/faces.obj"
 done
 
+# glTF: the cube as .glb, as .gltf with its .bin and with the buffer embedded
+G=$(dirname "$0")/obj2gltf.py
+python3 "$G" "$C.obj" "$TMP/cube.glb" glb && python3 "$G" "$C.obj" "$TMP/ext" gltf &&
+    python3 "$G" "$C.obj" "$TMP/emb" embedded
+for f in "$TMP/cube.glb" "$TMP/ext.gltf" "$TMP/emb.gltf"; do
+    n=$(basename "$f")
+    refuse "mesh-info $n: format" 0 "^$f: glTF mesh" "$VOX" mesh-info "$f"
+    refuse "mesh-info $n: the cube" 0 "edges +18: 0 open, 0 non-manifold, 0 inconsistently oriented" \
+        "$VOX" mesh-info "$f"
+    refuse "mesh-info $n: volume" 0 "volume +8$" "$VOX" mesh-info "$f"
+done
+refuse "mesh-info --format gltf" 0 "watertight +yes" "$VOX" mesh-info --format gltf "$TMP/cube.glb"
+check "render a .glb" "$VOX" render "$TMP/cube.glb" -o "$TMP/glb.png" --size 64
+check "render a .gltf with its .bin" "$VOX" render "$TMP/ext.gltf" -o "$TMP/gltf.png" --size 64
+check "render: the same picture" cmp "$TMP/glb.png" "$TMP/gltf.png"
+mv "$TMP/ext.bin" "$TMP/moved.bin"
+refuse "mesh-info: a .gltf whose .bin is missing" 1 "buffer 0: cannot read .*ext.bin" \
+    "$VOX" mesh-info "$TMP/ext.gltf"
+mv "$TMP/moved.bin" "$TMP/ext.bin"
+head -c 100 "$TMP/cube.glb" >"$TMP/short.glb"
+refuse "mesh-info: a .glb cut short" 1 "the GLB header says [0-9]+ bytes, the file has 100" \
+    "$VOX" mesh-info "$TMP/short.glb"
+
 # bad files: exit 1 with the place
 sed 's/^f 2 3 7 6/f 2 3 7 9/' "$C.obj" >"$TMP/bad.obj"
 refuse "mesh-info: index out of range" 1 "^vox: .*bad.obj: line 14: face: vertex index 9 out of range" \
@@ -128,5 +151,5 @@ refuse "mesh-info: PLY read as OFF" 1 "not an OFF file" "$VOX" mesh-info -f off 
 # usage
 refuse "mesh-info --help" 0 "usage: vox mesh-info FILE" "$VOX" mesh-info --help
 refuse "mesh-info without a file" 2 "mesh-info: missing the mesh FILE" "$VOX" mesh-info
-refuse "mesh-info, a bad --format" 2 "bad --format 'gltf'" "$VOX" mesh-info -f gltf "$C.obj"
+refuse "mesh-info, a bad --format" 2 "bad --format 'fbx'" "$VOX" mesh-info -f fbx "$C.obj"
 refuse "vox --help names mesh-info" 0 "mesh-info" "$VOX" --help

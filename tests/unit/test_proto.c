@@ -404,7 +404,7 @@ Test(proto, valid_mesh_jobs_pass)
     accepted(&mj.j.req);
     /* Every option given, each enum at its last value; a binary file may
      * hold NULs. */
-    mj.m.format = VOXD__MESH_FORMAT__MESH_FORMAT_OFF;
+    mj.m.format = VOXD__MESH_FORMAT__MESH_FORMAT_GLTF;
     mj.m.mode = VOXD__MESH_MODE__MESH_MODE_INTERIOR;
     mj.m.repair = VOXD__MESH_REPAIR__MESH_REPAIR_WINDING;
     mj.m.supersample = 8;
@@ -440,8 +440,8 @@ Test(proto, mesh_job_rules)
 {
     mesh_job mj;
     mesh_init(&mj);
-    mj.m.format = (Voxd__MeshFormat)5;
-    refused(&mj.j.req, INVALID, "unknown mesh format 5");
+    mj.m.format = (Voxd__MeshFormat)6;
+    refused(&mj.j.req, INVALID, "unknown mesh format 6");
     mesh_init(&mj);
     mj.m.mode = (Voxd__MeshMode)6;
     refused(&mj.j.req, INVALID, "unknown mesh mode 6");
