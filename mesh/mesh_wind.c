@@ -364,8 +364,8 @@ bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double ema
 #define CELL_MIN 4u   /* samples to decide that make a cell worth a query */
 #define BETA1 2.0     /* the first point query's opening ratio ... */
 #define BAND1 0.05    /* ... decides where |w| is farther from 1/2 */
-#define BETA2 5.0
-#define BAND2 0.005   /* else the exact sum over every triangle */
+#define BETA2 6.0
+#define BAND2 0.001   /* else the exact sum over every triangle */
 
 typedef struct {
     const mv_frame *f;

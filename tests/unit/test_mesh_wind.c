@@ -8,7 +8,7 @@
  *    the code before the tree: the oracle) on every voxel of spheres and
  *    tori with holes cut and of a soup of loose triangles, in the solid
  *    and the density: at least 99.99% equal, every voxel where the exact
- *    |w| is within 0.005 of 1/2 equal (the tree hands those to the exact
+ *    |w| is within 0.001 of 1/2 equal (the tree hands those to the exact
  *    sum), and the solid within 2% of the closed mesh's;
  *  - the same bytes from 0, 1 and 2 workers (test_mesh_engine's jobs
  *    hold the serial tiles against the engine's).
@@ -206,7 +206,7 @@ static size_t hold_against_exact(const mesh *m, const grid_spec *g, int channel,
         if (channel != VOXEL_CH_OCCUPANCY) continue;
         uint32_t vx = (uint32_t)(i % g->res[0]), vy = (uint32_t)(i / g->res[0] % g->res[1]),
                  vz = (uint32_t)(i / g->res[0] / g->res[1]);
-        near += fabs(exact_w(m, g, vx, vy, vz) - 0.5) < 0.005;
+        near += fabs(exact_w(m, g, vx, vy, vz) - 0.5) < 0.001;
     }
     cr_log_info("%s: %zu of %zu voxels differ, %llu disagreements", what, diff, n,
                 (unsigned long long)sx.disagreements);
