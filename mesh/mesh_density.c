@@ -237,6 +237,7 @@ int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     dens d = {.t = t, .p = p, .b = b};
     mv_frame_init(&d.f, t->m, t->g, p->K);
     d.f.pulse = &t->pulse;
+    d.f.wt = t->pulse.env ? t->pulse.env->wtree : NULL;
     d.vx0 = (int64_t)t->x0 - p->apron;
     d.vy0 = (int64_t)t->y0 - p->apron;
     d.dnx = t->nx + 2 * p->apron;

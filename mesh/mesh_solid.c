@@ -15,6 +15,7 @@ void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
     f->K = K;
     f->scale = (double)K * (double)MV_L / g->vs;
     f->pulse = NULL;
+    f->wt = NULL;
 }
 
 /* Whether triangle id can cross a ray of the block: its world z range
@@ -92,18 +93,21 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
     mv_prefix_x(b, buf->bx, buf->cx);
     mv_prefix_y(b, buf->by, buf->cy);
     uint64_t count = 0;
+    bool tree = in->repair == MESH_REPAIR_WINDING && in->f->wt;
     for (size_t w = 0; w < nwords; w++) {
         uint64_t a = buf->bits[w], x = buf->bx[w], y = buf->by[w];
         uint64_t d = (a ^ x) | (a ^ y);
         if (buf->dis) buf->dis[w] = d;
+        if (tree) buf->bx[w] = d; /* bx[w] read: the disagreements in its place */
         if (!d) continue;
         if (mv_beat(in->f->pulse, 1)) return count;
         count += (uint64_t)mv_popcount(d);
         if (in->repair == MESH_REPAIR_VOTE)
             buf->bits[w] = (a & x) | (a & y) | (x & y);
-        else
+        else if (!tree)
             decide_winding(in->f, b, w, d, buf->bits);
     }
+    if (tree) mv_wind_block(in->f, b, buf->bx, buf->bits);
     return count;
 }
 

@@ -137,6 +137,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     mv_frame_init(&f, t->m, t->g, 1);
     f.lat = t->lat;
     f.pulse = &t->pulse;
+    f.wt = t->pulse.env ? t->pulse.env->wtree : NULL;
     mv_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
     if (p->solid1) {
         mv_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
@@ -247,12 +248,15 @@ int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     mesh_lattice *lat = malloc(((size_t)m->n_vertices + 1) * sizeof *lat);
     void *scratch = malloc(mesh_tile_scratch_bytes(g, o));
     int rc = lat && scratch ? 0 : -ENOMEM;
+    if (!rc && o->repair == MESH_REPAIR_WINDING && !mesh_wind_exact)
+        rc = mesh_wtree_build(m, g, (mesh_wtree **)&env.wtree);
     if (!rc) rc = mesh_bin(m, g, o, lat, 1, &bins);
     if (!rc) {
         uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};
         rc = run_tiles(m, lat, &bins, g, o, tiles ? tiles : all, scratch, vol, &env, st);
         mesh_bins_free(&bins);
     }
+    mesh_wtree_free((mesh_wtree *)env.wtree);
     free(scratch);
     free(lat);
     return rc;

@@ -92,12 +92,29 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
              mesh_lattice *lattice, unsigned threads, mesh_bins *out);
 void mesh_bins_free(mesh_bins *b);
 
+/* The fast winding number's tree over a mesh's triangles (mesh_wind.c):
+ * what MESH_REPAIR_WINDING's tiles read instead of summing over every
+ * triangle.  It depends on the mesh and the grid alone (built the same
+ * way every time, one thread), so every tile decides the same whoever
+ * builds it.  0, -EINVAL (no triangles) or -ENOMEM. */
+typedef struct mesh_wtree mesh_wtree;
+/* Tests and benchmarks only: non-zero, no tree is built (mesh_voxelize,
+ * and the engine's workers forked after it is set) and MESH_REPAIR_WINDING
+ * is decided by the exact sum everywhere: the oracle.  0 by default;
+ * nothing in vox or voxd sets it. */
+extern int mesh_wind_exact;
+int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out);
+void mesh_wtree_free(mesh_wtree *t);
+
 /* What a tile's caller lends it besides the data.  tick is called every
  * few milliseconds of work, whatever the tile does (rasterizing, the
  * winding numbers, the supersampled density): a worker's heartbeat; when
  * it returns non-zero the tile stops where it is and mesh_tile_run returns
- * -ECANCELED. */
+ * -ECANCELED.  wtree: the mesh's tree for g (mesh_wtree_build), or NULL:
+ * the winding numbers by the exact sum over every triangle, the oracle the
+ * tree is held against. */
 typedef struct {
+    const mesh_wtree *wtree;
     int (*tick)(void *arg);
     void *arg;
 } mesh_tile_env;
@@ -108,7 +125,7 @@ size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);
 /* Voxelize tile (tx, ty) from the triangles ids[0, n) of m into vol, whose
  * dims are g->res, bits mesh_vox_bits(o), and storage brick side divides
  * MESH_TILE; lattice: mesh_bin's for m and g, or NULL (the tile snaps the
- * vertices itself, the same way); env: the heartbeat, or NULL.  Adds to
+ * vertices itself, the same way); env: the tree and the heartbeat, or NULL.  Adds to
  * *st.  0, -ECANCELED when env's tick said stop, or -ENOMEM when vol's
  * pool is full.  A tile never writes a brick that is all 0: vol must start
  * empty (as vod_volume_init leaves it). */

@@ -73,6 +73,7 @@ typedef struct {
     double scale;   /* lattice units per world unit: K * L / vs */
     uint32_t K;     /* samples per voxel and axis */
     mv_pulse *pulse; /* the tile's heartbeat, or NULL */
+    const mesh_wtree *wt; /* the winding numbers' tree, or NULL: the exact sum */
 } mv_frame;
 
 void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
@@ -211,6 +212,20 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
 /* The generalized winding numbers w[k] of the mesh at points q[k], k < n
  * (in the frame's sample units: sample i is centred at i + 0.5). */
 void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w);
+
+/* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
+ * mv_wind_point: w at p, far nodes by their expansion where |c - p| > beta
+ * r (work: node visits added).  mv_wind_cell: w at b and in *err a bound
+ * of |w(p) - *w| for every p within rho of b; false (and no bound) when a
+ * triangle comes within rho of b or the bound passes emax. */
+double mv_wind_point(const mesh_wtree *t, const double p[3], double beta, uint32_t *work);
+bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double emax, double *w,
+                  double *err, uint32_t *work);
+/* The samples of block b set in dis decided by the winding number of
+ * f->wt (inside: |w| >= 1/2) into bits, cells of samples at once where the
+ * bound decides them, else sample by sample: the tree, then, near 1/2, the
+ * exact sum (mv_winding_many). */
+void mv_wind_block(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits);
 
 /* Surface bits (K = 1 blocks): every voxel of block b whose closed box
  * triangle P touches (six = false), or its 6-separating subset. */

