@@ -9,8 +9,10 @@
  * give this one's offset), publishes its own end, and writes its bytes
  * there with pwrite: the formatting, the most of the cost, runs on every
  * thread, and only the handing on of offsets is in order.  One thread (or
- * an fd that cannot seek) writes the chunks in order with write. */
+ * an fd that cannot seek, or appends) writes the chunks in order with
+ * write. */
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <pthread.h>
 #include <stdatomic.h>
@@ -269,7 +271,10 @@ int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
     if (!rc) {
         w->m = m;
         w->fd = fd;
-        w->base = threads > 1 ? lseek(fd, 0, SEEK_CUR) : -1;
+        /* pwrite needs an fd that seeks, and not in append mode (where
+         * Linux appends whatever the offset) */
+        int fl = fcntl(fd, F_GETFL);
+        w->base = threads > 1 && fl >= 0 && !(fl & O_APPEND) ? lseek(fd, 0, SEEK_CUR) : -1;
         w->seek = w->base >= 0;
         sections(w, f);
         size_t hn = header(m, f, comment, h);
@@ -279,7 +284,10 @@ int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
     if (!rc) {
         pthread_mutex_init(&w->mu, NULL);
         pthread_cond_init(&w->cv, NULL);
-        par_run(w->seek ? threads : 1, write_part, w);
+        /* no more threads than chunks: each holds a chunk's buffer */
+        uint64_t chunks = w->first[w->nsec];
+        par_run(!w->seek ? 1 : threads < chunks ? threads : (unsigned)(chunks ? chunks : 1),
+                write_part, w);
         pthread_cond_destroy(&w->cv);
         pthread_mutex_destroy(&w->mu);
         rc = w->err;

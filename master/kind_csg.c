@@ -170,7 +170,8 @@ static int push_mips(engine *e, const csg_block *b)
     uint32_t g[2];
     mip_grid(b, b->mip_levels, g);
     uint64_t n = (uint64_t)g[0] * g[1];
-    uint32_t per = (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS), runs = (uint32_t)((n + per - 1) / per);
+    uint32_t per = (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS);
+    uint32_t runs = (uint32_t)((n + per - 1) / per);
     int rc = 0;
     for (uint32_t k = runs; k-- > 0 && !rc;) {
         uint64_t first = (uint64_t)k * per;

@@ -8,6 +8,7 @@
  * writers on several threads against one, and the files read back. */
 #include <criterion/criterion.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <math.h>
 #include <signal.h>
 #include <stdio.h>
@@ -952,6 +953,47 @@ static uint32_t waves(void *ud, double x, double y, double z)
 {
     (void)ud;
     return (uint32_t)lround(127.5 + 127 * sin(7 * x) * sin(6 * y + 0.3) * sin(5 * z + 0.7));
+}
+
+/* An fd in append mode (pwrite would append) and a pipe (no offsets):
+ * written in order by one thread, the same bytes. */
+Test(iso, the_writers_on_an_appending_fd_or_a_pipe_write_in_order)
+{
+    iso_mesh m = random_mesh(20011, 30013, 1, 3);
+    size_t n1;
+    uint8_t *one = written(&m, ISO_FMT_OBJ, 1, 0, &n1);
+    char path[] = "/tmp/test_iso_appendXXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    close(fd);
+    fd = open(path, O_WRONLY | O_APPEND);
+    unlink(path);
+    cr_assert_eq(iso_write(fd, &m, ISO_FMT_OBJ, "a comment", 4), 0);
+    cr_assert_eq(lseek(fd, 0, SEEK_END), (off_t)n1);
+    uint8_t *back = malloc(n1);
+    char fdpath[64];
+    snprintf(fdpath, sizeof fdpath, "/proc/self/fd/%d", fd);
+    int rd = open(fdpath, O_RDONLY);
+    cr_assert_geq(rd, 0);
+    cr_assert_eq(pread(rd, back, n1, 0), (ssize_t)n1);
+    cr_assert(!memcmp(one, back, n1), "appending: other bytes");
+    close(rd);
+    close(fd);
+    /* a pipe: a small mesh, whose file fits the pipe's buffer */
+    iso_mesh small = random_mesh(50, 60, 0, 5);
+    size_t ns;
+    uint8_t *want = written(&small, ISO_FMT_PLY, 1, 0, &ns);
+    cr_assert_lt(ns, 60000);
+    int pp[2];
+    cr_assert_eq(pipe(pp), 0);
+    cr_assert_eq(iso_write(pp[1], &small, ISO_FMT_PLY, "a comment", 4), 0);
+    close(pp[1]);
+    cr_assert_eq(read(pp[0], back, ns + 1), (ssize_t)ns);
+    cr_assert(!memcmp(want, back, ns), "a pipe: other bytes");
+    close(pp[0]);
+    free(want), free(back), free(one);
+    iso_mesh_free(&small);
+    iso_mesh_free(&m);
 }
 
 Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
