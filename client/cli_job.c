@@ -87,13 +87,13 @@ static const char usage_submit[] =
     "Runs the job on the voxd daemon at the socket (see vox --help) and writes the\n"
     "result it streams back, checked (length and CRC-32) before it is renamed into\n"
     "place.  --csg sends a volume CSG tree (docs/csg.md), checked here and by the\n"
-    "daemon, as vox csg evaluates it (the same bytes; channel density by default, or\n"
-    "occupancy; --domain as for an expression).\n"
+    "daemon, as vox csg evaluates it (the same bytes; channel density by default,\n"
+    "occupancy or surface; --domain as for an expression).\n"
     "A mesh file goes as it is (inline, or in chunks when large): the daemon\n"
     "reads it and says what is wrong with it.  The job's id is said on stderr (for\n"
-    "vox cancel); an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the job failed\n"
-    "or was refused (with the daemon's reason), 2 bad usage, a bad expression or a\n"
-    "mesh file the daemon cannot read, 3 no voxd answering on the socket.\n";
+    "vox cancel); an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the\n"
+    "job failed or was refused (with the daemon's reason), 2 bad usage, a bad\n"
+    "expression or a mesh file the daemon cannot read, 3 no voxd answering.\n";
 
 void cli_job_usage(int cmd, FILE *f)
 {

@@ -464,9 +464,28 @@ static const char *state_name(int s)
     }
 }
 
+/* Every job, running and queued: what vox cancel needs to find one. */
+static void print_jobs(const vox_status_info *st)
+{
+    static const char *const kinds[] = {"?", "implicit", "mesh", "csg"};
+    printf("jobs: %zu\n", st->n_jobs);
+    if (st->n_jobs)
+        printf("  %8s %6s %-8s %5s %-7s %6s %10s\n", "ID", "UID", "KIND", "RES", "STATE", "DONE",
+               "FOR");
+    for (size_t i = 0; i < st->n_jobs; i++) {
+        const vox_job_status *j = &st->jobs[i];
+        char t[64];
+        format_duration(j->seconds, t, sizeof t);
+        printf("  %8llu %6u %-8s %5u %-7s %5.1f%% %10s\n", (unsigned long long)j->id, j->uid,
+               kinds[j->kind >= 1 && j->kind <= 3 ? j->kind : 0], j->res,
+               j->state == VOX_JOB_RUNNING ? "running" : "queued", j->fraction * 100.0, t);
+    }
+}
+
 static const char usage_status[] =
     "usage: vox [--socket PATH] status\n"
-    "The daemon's state: uptime and clients, the queue, the running job, and each\n"
+    "The daemon's state: uptime and clients, the queue, the running job, every job\n"
+    "(running and queued: id, uid, kind, resolution, state, progress, time), and each\n"
     "worker's pid, CPU, state (idle, busy, stalled, starting), jobs, voxels per\n"
     "second over its last job, and how often it was replaced (died, or killed for\n"
     "making no progress: STALLS).\n"
@@ -502,6 +521,7 @@ int cli_status(int argc, char **argv, const char *sock)
     } else {
         printf("running: nothing\n");
     }
+    print_jobs(&st);
     printf("workers: %zu\n", st.n_workers);
     if (st.n_workers)
         printf("  %8s %4s %-9s %6s %14s %8s %6s\n", "PID", "CPU", "STATE", "JOBS", "VOXELS/S",

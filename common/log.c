@@ -7,6 +7,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <syslog.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -15,9 +16,11 @@ static struct {
     int fd;              /* 2, or our descriptor of path */
     int own;             /* fd is ours to close */
     int level;
-    char path[PATH_MAX]; /* "" = stderr */
+    char path[PATH_MAX]; /* "" = stderr, or syslog when detached */
     char ident[32];
-} L = {2, 0, LOG_LEVEL_INFO, "", "voxd"};
+    int detached;        /* no path means syslog (log_set_detached) */
+    int syslog;          /* lines go to syslog(3) */
+} L = {2, 0, LOG_LEVEL_INFO, "", "voxd", 0, 0};
 
 static const char *const level_names[] = {"error", "warn", "info", "debug"};
 
@@ -51,6 +54,11 @@ static int open_path(const char *path)
     return fd < 0 ? -errno : fd;
 }
 
+void log_set_detached(int on)
+{
+    L.detached = on;
+}
+
 int log_open(const char *path, const char *ident, int level)
 {
     int fd = 2, own = path && *path;
@@ -64,6 +72,8 @@ int log_open(const char *path, const char *ident, int level)
     snprintf(L.path, sizeof L.path, "%s", own ? path : "");
     snprintf(L.ident, sizeof L.ident, "%s", ident ? ident : "voxd");
     log_set_level(level);
+    /* openlog keeps the pointer: L.ident lives as long as the process */
+    if ((L.syslog = !own && L.detached)) openlog(L.ident, LOG_PID | LOG_NDELAY, LOG_DAEMON);
     return 0;
 }
 
@@ -81,6 +91,8 @@ int log_reopen(void)
 
 void log_close(void)
 {
+    if (L.syslog) closelog();
+    L.syslog = 0;
     if (L.own) close(L.fd);
     L.fd = 2;
     L.own = 0;
@@ -100,9 +112,24 @@ static int prefix(char *buf, size_t len, int level)
                     L.ident, (long)getpid(), log_level_name(level));
 }
 
+/* syslog's priority of a level */
+static int priority(int level)
+{
+    static const int p[] = {LOG_ERR, LOG_WARNING, LOG_INFO, LOG_DEBUG};
+    return p[level < 0 ? 0 : level > LOG_LEVEL_DEBUG ? LOG_LEVEL_DEBUG : level];
+}
+
 void log_vmsg(int level, const char *fmt, va_list ap)
 {
     if (level > L.level) return;
+    if (L.syslog) { /* syslog stamps the time, the ident and the pid itself */
+        char msg[LOG_MAX_LINE];
+        vsnprintf(msg, sizeof msg, fmt, ap);
+        for (char *c = msg; *c; c++)
+            if ((unsigned char)*c < 0x20 || *c == 0x7f) *c = '?';
+        syslog(priority(level), "%s: %s", log_level_name(level), msg);
+        return;
+    }
     char line[LOG_MAX_LINE];
     int n = prefix(line, sizeof line - 1, level);
     if (n < 0 || (size_t)n >= sizeof line - 1) return;

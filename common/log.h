@@ -1,4 +1,5 @@
-/* log — the daemon's log: one line per message, to a file or stderr.
+/* log — the daemon's log: one line per message, to a file, stderr, or (a
+ * detached daemon without a file) syslog(3) with facility daemon.
  *
  *   2025-01-31T12:00:00.123Z voxd[4242] info: listening on /run/voxd/voxd.sock
  *
@@ -30,6 +31,9 @@ enum log_level {
  * "".  ident names the process in each line ("voxd", "voxd-worker").
  * Returns 0 or a negative errno (the previous destination stays). */
 int log_open(const char *path, const char *ident, int level);
+/* On (voxd --daemon): no path means syslog, not the terminal left behind;
+ * before log_open, and kept by the reopens of a reload. */
+void log_set_detached(int on);
 /* Reopen the same path (0 when logging to stderr); on failure the old
  * descriptor stays in use and a negative errno is returned. */
 int log_reopen(void);

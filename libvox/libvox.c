@@ -535,6 +535,14 @@ static int on_status(vox_client *c, const Voxd__StatusReply *m)
                                                 w->stalls};
         }
     }
+    if (m->n_jobs && !(s->jobs = calloc(m->n_jobs, sizeof *s->jobs)))
+        return fail(c, -ENOMEM, "out of memory");
+    s->n_jobs = m->n_jobs;
+    for (size_t i = 0; i < m->n_jobs; i++) {
+        const Voxd__JobStatus *j = m->jobs[i];
+        s->jobs[i] = (vox_job_status){j->job_id, j->uid, (int)j->kind, j->res,
+                                      (int)j->state, j->fraction, j->seconds};
+    }
     if (m->running) {
         s->has_running = 1;
         s->running_job_id = m->running->job_id;
@@ -1295,6 +1303,9 @@ void vox_status_free(vox_status_info *s)
     free(s->workers);
     s->workers = NULL;
     s->n_workers = 0;
+    free(s->jobs);
+    s->jobs = NULL;
+    s->n_jobs = 0;
 }
 
 int vox_ping(vox_client *c, double *rtt_seconds, vox_error *err)

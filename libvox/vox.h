@@ -382,6 +382,22 @@ typedef struct {
     uint32_t stalls;          /* ... of which for making no progress */
 } vox_worker_status;
 
+enum {
+    VOX_JOB_QUEUED = 1,
+    VOX_JOB_RUNNING = 2,
+};
+
+/* A job of the daemon's (any uid's), running or queued. */
+typedef struct {
+    uint64_t id;
+    uint32_t uid;
+    int kind;        /* VOX_JOB_IMPLICIT, _MESH, _CSG */
+    uint32_t res;    /* voxels along the longest axis */
+    int state;       /* VOX_JOB_QUEUED or VOX_JOB_RUNNING */
+    double fraction; /* done, 0 while queued */
+    double seconds;  /* since it was queued, or since it started */
+} vox_job_status;
+
 typedef struct {
     double uptime;              /* seconds */
     size_t n_workers;
@@ -392,6 +408,11 @@ typedef struct {
     uint64_t running_job_id;
     uint32_t running_uid;
     double running_fraction, running_seconds;
+    /* The running job, then the queued ones in the order they will run
+     * (at most 1024; queued counts them all).  A voxd before this field
+     * sends none: n_jobs 0 with queued or has_running set. */
+    size_t n_jobs;
+    vox_job_status *jobs;
 } vox_status_info;
 
 /* The daemon's state.  Free with vox_status_free. */

@@ -814,6 +814,23 @@ static int check_worker(const Voxd__WorkerStatus *w, size_t i, proto_error *e)
     return 0;
 }
 
+static int check_job_status(const Voxd__JobStatus *j, proto_error *e)
+{
+    int rc = check_job_id(j->job_id, "status job", e);
+    if (rc || (rc = check_fraction(j->fraction, e)) ||
+        (rc = check_seconds(j->seconds, "job seconds", e)))
+        return rc;
+    if (j->kind == VOXD__JOB_KIND__JOB_KIND_UNSPECIFIED ||
+        (unsigned)j->kind > VOXD__JOB_KIND__JOB_KIND_CSG)
+        return bad(e, INVALID, "job %llu has unknown kind %d", (unsigned long long)j->job_id,
+                   (int)j->kind);
+    if (j->state == VOXD__JOB_STATE__JOB_STATE_UNSPECIFIED ||
+        (unsigned)j->state > VOXD__JOB_STATE__JOB_STATE_RUNNING)
+        return bad(e, INVALID, "job %llu has unknown state %d", (unsigned long long)j->job_id,
+                   (int)j->state);
+    return 0;
+}
+
 static int check_status(const Voxd__StatusReply *s, proto_error *e)
 {
     int rc = check_seconds(s->uptime, "uptime", e);
@@ -823,6 +840,11 @@ static int check_status(const Voxd__StatusReply *s, proto_error *e)
                    PROTO_MAX_WORKERS);
     for (size_t i = 0; i < s->n_workers; i++)
         if ((rc = check_worker(s->workers[i], i, e))) return rc;
+    if (s->n_jobs > PROTO_MAX_STATUS_JOBS)
+        return bad(e, INVALID, "status lists %zu jobs, limit %u", s->n_jobs,
+                   PROTO_MAX_STATUS_JOBS);
+    for (size_t i = 0; i < s->n_jobs; i++)
+        if ((rc = check_job_status(s->jobs[i], e))) return rc;
     if (!s->running) return 0;
     if ((rc = check_job_id(s->running->job_id, "running job", e)) ||
         (rc = check_fraction(s->running->fraction, e)))

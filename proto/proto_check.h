@@ -28,6 +28,7 @@
 #define PROTO_MAX_NAME 128u      /* Hello.client, HelloOk.server, in bytes */
 #define PROTO_MAX_MESSAGE 1024u  /* Error.message, in bytes */
 #define PROTO_MAX_WORKERS 256u   /* StatusReply.workers (= ENGINE_MAX_WORKERS) */
+#define PROTO_MAX_STATUS_JOBS 1024u /* StatusReply.jobs: the running one and the first queued */
 #define PROTO_MAX_CPUS 1024      /* a worker's cpu is -1 or below this (CPU_SETSIZE) */
 #define PROTO_MAX_LEVEL 64u      /* Progress.level */
 #define PROTO_MIN_BRICK 2u

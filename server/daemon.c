@@ -292,7 +292,7 @@ static void ready(vd_daemon *d)
     if (fd < 0) return;
     dup2(fd, 0);
     dup2(fd, 1);
-    if (d->cfg.log_file[0]) dup2(fd, 2);
+    dup2(fd, 2); /* the log is in its file or syslog: nothing goes to the terminal */
     close(fd);
 }
 
@@ -324,9 +324,9 @@ static int start(vd_daemon *d)
     char stall[32] = "off";
     if (d->cfg.worker_stall_timeout)
         snprintf(stall, sizeof stall, "%u s", d->cfg.worker_stall_timeout);
-    log_info("listening on %s: %d worker(s), shared memory %s, client timeout %u s, "
+    log_info("listening on %s: %d worker%s, shared memory %s, client timeout %u s, "
              "worker stall timeout %s, memory budget %llu MiB",
-             d->cfg.socket, d->nworkers, d->shm_name, d->cfg.client_timeout, stall,
+             d->cfg.socket, d->nworkers, d->nworkers == 1 ? "" : "s", d->shm_name, d->cfg.client_timeout, stall,
              (unsigned long long)(config_max_memory(&d->cfg) >> 20));
     return 0;
 }

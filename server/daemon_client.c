@@ -834,7 +834,8 @@ static void flush_elog(vd_daemon *d)
     for (unsigned i = 0; i < d->elog_n; i++)
         log_msg(d->elog[i].level, "%s", d->elog[i].text);
     if (d->elog_dropped)
-        log_warn("%u engine log line(s) dropped", d->elog_dropped);
+        log_warn("%u engine log line%s dropped", d->elog_dropped,
+                 d->elog_dropped == 1 ? "" : "s");
     d->elog_n = 0;
     d->elog_dropped = 0;
 }

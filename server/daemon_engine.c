@@ -492,8 +492,9 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     if (rc == -ECANCELED) vd_job_stopped(j);
     pthread_mutex_lock(&d->mu);
     if (rc == 0)
-        elog(d, LOG_LEVEL_INFO, "job %llu ran through MPI on %u rank(s) in %.3f s",
-             (unsigned long long)j->id, m->ranks, j->t_voxelize + j->t_write);
+        elog(d, LOG_LEVEL_INFO, "job %llu ran through MPI on %u rank%s in %.3f s",
+             (unsigned long long)j->id, m->ranks, m->ranks == 1 ? "" : "s",
+             j->t_voxelize + j->t_write);
     else if (j->code != VOXD__ERROR_CODE__CANCELLED && j->code != VOXD__ERROR_CODE__TIMEOUT &&
              j->code != VOXD__ERROR_CODE__SHUTTING_DOWN)
         elog(d, LOG_LEVEL_ERROR, "job %llu: %.200s", (unsigned long long)j->id, j->message);
@@ -588,7 +589,8 @@ static engine *reload(vd_daemon *d, engine *e)
     engine_destroy(e);
     pthread_mutex_lock(&d->mu);
     e = engine_make(d);
-    if (e) elog(d, LOG_LEVEL_INFO, "workers replaced: %d worker(s)", engine_workers(e));
+    if (e) elog(d, LOG_LEVEL_INFO, "workers replaced: %d worker%s", engine_workers(e),
+                engine_workers(e) == 1 ? "" : "s");
     else elog(d, LOG_LEVEL_ERROR, "cannot start new workers: %s", d->engine_err);
     return e;
 }

@@ -397,8 +397,9 @@ int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
     } else {
         char line[PATH_MAX + 128];
         snprintf(line, sizeof line,
-                 "job %llu runs through MPI: %s -np %u (pid %d), %u worker(s) per rank",
-                 (unsigned long long)j->id, c.argv[0], m->ranks, (int)pid, m->workers);
+                 "job %llu runs through MPI: %s -np %u (pid %d), %u worker%s per rank",
+                 (unsigned long long)j->id, c.argv[0], m->ranks, (int)pid, m->workers,
+                 m->workers == 1 ? "" : "s");
         h->started(h->ud, line);
         rc = end_run(&c, j, wait_child(pid, &j->cancel, out, h), out);
         *result = rc >= 0 ? rc : -1;

@@ -6,6 +6,7 @@
 
 #include "clock.h"
 #include "daemon.h"
+#include "pipeline.h"
 #include "proto_check.h"
 
 void vd_clean_text(char *s)
@@ -166,8 +167,38 @@ static size_t fill_workers(vd_daemon *d, Voxd__WorkerStatus *ws, Voxd__WorkerSta
     return n;
 }
 
+static void fill_job(const vd_job *j, int state, double now, Voxd__JobStatus *js)
+{
+    voxd__job_status__init(js);
+    js->job_id = j->id;
+    js->uid = (uint32_t)j->uid;
+    js->kind = j->kind == PIPELINE_MESH  ? VOXD__JOB_KIND__JOB_KIND_MESH
+               : j->kind == PIPELINE_CSG ? VOXD__JOB_KIND__JOB_KIND_CSG
+                                         : VOXD__JOB_KIND__JOB_KIND_IMPLICIT;
+    js->res = j->res;
+    js->state = state;
+    double f = state == VOXD__JOB_STATE__JOB_STATE_RUNNING ? j->progress.fraction : 0;
+    js->fraction = f >= 0 && f <= 1 ? f : 0;
+    js->seconds = nonneg(now - (state == VOXD__JOB_STATE__JOB_STATE_RUNNING ? j->t_start
+                                                                           : j->t_submit));
+}
+
+/* The running job, then the queued ones in their order (under d->mu). */
+static size_t fill_jobs(const vd_daemon *d, double now, Voxd__JobStatus *js,
+                        Voxd__JobStatus **jp)
+{
+    size_t n = 0;
+    if (d->running) fill_job(d->running, VOXD__JOB_STATE__JOB_STATE_RUNNING, now, &js[n++]);
+    for (const vd_job *j = d->queue; j && n < PROTO_MAX_STATUS_JOBS; j = j->next)
+        fill_job(j, VOXD__JOB_STATE__JOB_STATE_QUEUED, now, &js[n++]);
+    for (size_t i = 0; i < n; i++) jp[i] = &js[i];
+    return n;
+}
+
 int vd_send_status(vd_client *c)
 {
+    static Voxd__JobStatus js[PROTO_MAX_STATUS_JOBS]; /* loop thread only */
+    static Voxd__JobStatus *jp[PROTO_MAX_STATUS_JOBS];
     vd_daemon *d = c->d;
     static Voxd__WorkerStatus ws[ENGINE_MAX_WORKERS]; /* loop thread only */
     Voxd__WorkerStatus *wp[ENGINE_MAX_WORKERS];
@@ -180,6 +211,8 @@ int vd_send_status(vd_client *c)
     s.n_workers = fill_workers(d, ws, wp);
     s.workers = wp;
     s.queued = d->nqueued;
+    s.n_jobs = fill_jobs(d, now, js, jp);
+    s.jobs = jp;
     if (d->running) {
         rj.job_id = d->running->id;
         rj.uid = (uint32_t)d->running->uid;

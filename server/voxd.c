@@ -330,6 +330,7 @@ int main(int argc, char **argv)
     }
     /* A client that goes away mid-write is an EPIPE, not a signal. */
     signal(SIGPIPE, SIG_IGN);
+    log_set_detached(a.daemonize);
     if ((rc = log_open(cfg.log_file, "voxd", cfg.log_level))) {
         fprintf(stderr, "voxd: cannot open the log %s: %s\n", cfg.log_file, strerror(-rc));
         return 1;

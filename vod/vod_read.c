@@ -222,7 +222,7 @@ static int read_header(parse *ps, vod_file *f)
     /* The signature first, as far as the file goes: a short text file is
      * not a VOD file, not a truncated one. */
     size_t sig = ps->len < 4 ? ps->len : 4;
-    if (memcmp(ps->b, ".VOD", sig) != 0) {
+    if (sig && memcmp(ps->b, ".VOD", sig) != 0) {
         char got[16] = "";
         for (size_t i = 0; i < sig; i++) /* "xx" or " xx": 3 bytes a step at most */
             snprintf(got + strlen(got), sizeof got - strlen(got), "%s%02x", i ? " " : "",

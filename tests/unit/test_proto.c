@@ -1369,6 +1369,49 @@ Test(proto, status_rules)
     free(many);
 }
 
+/* StatusReply.jobs: each job's id, kind, state, fraction and seconds
+ * checked, and at most PROTO_MAX_STATUS_JOBS of them. */
+Test(proto, status_jobs)
+{
+    reply x;
+    Voxd__JobStatus js[2], *jp[2] = {&js[0], &js[1]};
+    for (int i = 0; i < 2; i++) {
+        js[i] = (Voxd__JobStatus)VOXD__JOB_STATUS__INIT;
+        js[i].job_id = 3 + (uint64_t)i, js[i].uid = 1000, js[i].res = 64;
+        js[i].kind = i ? VOXD__JOB_KIND__JOB_KIND_CSG : VOXD__JOB_KIND__JOB_KIND_IMPLICIT;
+        js[i].state = i ? VOXD__JOB_STATE__JOB_STATE_QUEUED : VOXD__JOB_STATE__JOB_STATE_RUNNING;
+        js[i].fraction = i ? 0 : 0.5, js[i].seconds = 1.5;
+    }
+    reply_init(&x, VOXD__REPLY__MSG_STATUS);
+    x.m.status.jobs = jp, x.m.status.n_jobs = 2;
+    reply_ok(&x);
+    js[1].kind = (Voxd__JobKind)4;
+    reply_refused(&x, INVALID, "job 4 has unknown kind 4");
+    js[1].kind = VOXD__JOB_KIND__JOB_KIND_UNSPECIFIED;
+    reply_refused(&x, INVALID, "job 4 has unknown kind 0");
+    js[1].kind = VOXD__JOB_KIND__JOB_KIND_MESH;
+    js[1].state = (Voxd__JobState)3;
+    reply_refused(&x, INVALID, "job 4 has unknown state 3");
+    js[1].state = VOXD__JOB_STATE__JOB_STATE_QUEUED;
+    js[0].job_id = 0;
+    reply_refused(&x, INVALID, "status job has no job id");
+    js[0].job_id = 3;
+    js[0].fraction = -0.5;
+    reply_refused(&x, INVALID, "fraction -0.5 is not in [0, 1]");
+    js[0].fraction = 0.5;
+    js[1].seconds = NAN;
+    reply_refused(&x, INVALID, "job seconds nan");
+    js[1].seconds = 0;
+    reply_ok(&x);
+
+    size_t n = PROTO_MAX_STATUS_JOBS + 1;
+    Voxd__JobStatus **many = calloc(n, sizeof *many);
+    for (size_t i = 0; i < n; i++) many[i] = &js[1];
+    x.m.status.jobs = many, x.m.status.n_jobs = n;
+    reply_refused(&x, INVALID, "status lists 1025 jobs, limit 1024");
+    free(many);
+}
+
 Test(proto, err_may_be_null)
 {
     job j;
