@@ -103,7 +103,7 @@ kv() {
     meshl=$(grep -m1 '^  mesh: ' "$tmp/stdout" || true)
     sed -n 's/.* in \([0-9.]*\) s (.*VOD written in \([0-9.]*\) s.*/engine=\1 write=\2/p' <<<"$first"
     { grep -oE '[A-Za-z_-]+ [0-9]+(\.[0-9]+)? s' <<<"$stages" || true; } | awk '{printf " st.%s=%s", $1, $2}'
-    sed -n 's/.*(\([0-9.]*\) s); \([0-9]*\) tiles with triangles, binned in \([0-9.]*\) s.*/ topo=\1 ntiles=\2 bin=\3/p' <<<"$meshl"
+    sed -n 's/.*(\([0-9.]*\) s); \([0-9]*\) tiles\{0,1\} with triangles, binned in \([0-9.]*\) s.*/ topo=\1 ntiles=\2 bin=\3/p' <<<"$meshl"
     sed -n 's/.*; job \([0-9.]*\) s$/ jobw=\1/p' <<<"$meshl"
     sed 's/^wall_s=\([0-9.]*\) maxrss_kib=\([0-9]*\).*/ wall=\1 maxrss=\2/' "$tmp/m"
 }

@@ -23,12 +23,15 @@ done
 # info's: the same solid (bench-export's, at its quick 96^3) counted by the
 # Python reader, and the sphere's volume in voxels, 4/3 pi (0.8 * 48)^3,
 # within the shell of half a voxel diagonal around its surface.
+# Debian's python3, which has python3-numpy (an earlier python3 on the PATH may not)
+PY=/usr/bin/python3
+[ -x "$PY" ] || PY=python3
 n=$(sed -n 's/^A sphere .*, \([0-9]*\) voxels set.*/\1/p' "$B")
 printf 's = ellipsoid radius 0.8\nresult s\n' >"$TMP/solid.csg"
 py=$("$VOX" csg "$TMP/solid.csg" -r 96 --channel occupancy -q -o "$TMP/o.vod" 2>&1 &&
-    PYTHONPATH="$ROOT/python" python3 -c 'import sys, numpy, voxd
+    PYTHONPATH="$ROOT/python" "$PY" -c 'import sys, numpy, voxd
 print(numpy.count_nonzero(voxd.read(sys.argv[1], 0).data))' "$TMP/o.vod" 2>&1)
-if [ -n "$n" ] && [ "$n" = "$py" ] && python3 -c 'import math, sys
+if [ -n "$n" ] && [ "$n" = "$py" ] && "$PY" -c 'import math, sys
 n, r, h = int(sys.argv[1]), 0.8 * 48, 3 ** 0.5 / 2
 sys.exit(not 4 / 3 * math.pi * (r - h) ** 3 <= n <= 4 / 3 * math.pi * (r + h) ** 3)' "$n"; then
     pass "bench-export: the voxel count ($n) is the Python reader's and the sphere's"

@@ -75,9 +75,9 @@ done; done
     fail "16 clients x 4 jobs: all intact, none mixed up" "$bad"
 "$VOX" info "$TMP/m7-3.vod" >/dev/null 2>&1 && pass "a concurrent result validates" || fail "a concurrent result validates"
 
-# kill -9 of a worker that holds a task mid-job (shown STALLED while
-# stopped, so the kill cannot land between tasks or after the job): the job
-# still gives the embedded bytes and the worker comes back on its CPU.
+# kill -9 of a worker that holds a task mid-job (the busiest one while the
+# job runs, so the kill cannot land on an idle worker or after the job): the
+# job still gives the embedded bytes and the worker comes back on its CPU.
 bgsubmit "$TMP/k.out" "$MEDIUM" 384 -1,1 "$TMP/k.vod"
 until_true 20 running && pass "a job runs" || fail "a job runs"
 before=$(vc status | grep '^worker')

@@ -188,7 +188,7 @@ check "with the same bytes again" cmp "$TMP/d5.vod" "$TMP/e1.vod"
 # ---------------------------------------------------------------- supervision
 
 # A worker killed while it holds a task of a CSG job (shown STALLED while
-# stopped: kill_busy_worker): its run of bricks is evaluated again by the
+# the busiest one: kill_busy_worker): its run of bricks is evaluated again by the
 # one forked in its place, and the file is the embedded engine's.
 REL=build/release/vox # make test builds it beside asan; the reference only
 [ -x "$REL" ] || REL=$VOX

@@ -77,14 +77,11 @@ until_true() {
     return 1
 }
 running() { vc status | grep -q 'running=[0-9]'; }
-# kill_busy_worker: kill -9 a worker proven to hold a task of the running
-# job.  The worker whose CPU time grows most over a second (the busy one)
-# is stopped and killed once the daemon shows it STALLED (it holds a task
-# and its heartbeat stands still: an idle worker never shows so); if it is
-# not shown so within 10 s it goes on and the choice is made again, for 3
-# minutes at most.  VICTIM its pid.  1 when none was caught holding a task
-# (the job ended first).  The daemon's worker_stall_timeout must be far
-# longer, or it kills the worker first.
+# kill_busy_worker: kill -9 a worker that holds a task of the running job:
+# the worker whose CPU time grew most over a second while the job ran (an
+# idle worker sleeps on its queue and gains none), killed while the job
+# still runs.  VICTIM its pid.  1 when none was caught working (the job
+# ended first).
 cpu_ticks() { awk '{ print $14 + $15 }' "/proc/$1/stat" 2>/dev/null || echo 0; }
 busiest_worker() {
     local p best= most=0 d
@@ -98,21 +95,15 @@ busiest_worker() {
     echo "$best"
 }
 kill_busy_worker() {
-    local p t end=$((SECONDS + 180))
+    local p end=$((SECONDS + 180))
     VICTIM=
     while [ "$SECONDS" -lt "$end" ] && running; do
         p=$(busiest_worker)
-        [ -n "$p" ] && kill -STOP "$p" 2>/dev/null || continue
-        t=$((SECONDS + 10))
-        while [ "$SECONDS" -lt "$t" ]; do
-            if vc status | grep -q "^worker pid=$p .* state=4 "; then
-                VICTIM=$p
-                kill -9 "$p"
-                return 0
-            fi
-            sleep 0.2
-        done
-        kill -CONT "$p"
+        if [ -n "$p" ] && running; then
+            VICTIM=$p
+            kill -9 "$p"
+            return 0
+        fi
     done
     return 1
 }
