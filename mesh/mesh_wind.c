@@ -502,3 +502,50 @@ void mv_wind_block(const mv_frame *f, const mv_block *b, const uint64_t *dis, ui
             }
     flush_exact(&w);
 }
+
+/* ---- the exact sum (the fallback near 1/2, and --repair winding without the tree) ---- */
+
+/* The solid angle of triangle (a, b, c) seen from the origin, over 2:
+ * atan2 of Van Oosterom and Strackee's formula; for the small angles of
+ * the many far triangles, the series of atan (to t^7: below 1e-17 when
+ * |t| < 1/64) instead of atan2. */
+static double half_solid_angle(const double a[3], const double b[3], const double c[3])
+{
+    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+    double lc = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    double det = a[0] * (b[1] * c[2] - b[2] * c[1]) -
+                 a[1] * (b[0] * c[2] - b[2] * c[0]) +
+                 a[2] * (b[0] * c[1] - b[1] * c[0]);
+    double ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    double bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
+    double ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2];
+    double den = la * lb * lc + ab * lc + bc * la + ca * lb;
+    if (den > 0 && fabs(det) < den * (1.0 / 64)) {
+        double t = det / den, t2 = t * t;
+        return t * (1 - t2 * (1.0 / 3 - t2 * (1.0 / 5 - t2 * (1.0 / 7))));
+    }
+    return atan2(det, den);
+}
+
+void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w)
+{
+    const mesh *m = f->m;
+    double s = f->scale / (double)MV_L;
+    for (unsigned k = 0; k < n; k++) w[k] = 0;
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        if (mv_beat(f->pulse, n)) return; /* the tile is abandoned */
+        double p[3][3];
+        for (int i = 0; i < 3; i++) {
+            const float *v = m->vertices[m->triangles[t][i]];
+            for (int a = 0; a < 3; a++) p[i][a] = ((double)v[a] - f->lo[a]) * s;
+        }
+        for (unsigned k = 0; k < n; k++) {
+            double r[3][3];
+            for (int i = 0; i < 3; i++)
+                for (int a = 0; a < 3; a++) r[i][a] = p[i][a] - q[k][a];
+            w[k] += half_solid_angle(r[0], r[1], r[2]);
+        }
+    }
+    for (unsigned k = 0; k < n; k++) w[k] /= 2.0 * M_PI; /* solid angles / (4 pi) */
+}

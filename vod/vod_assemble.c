@@ -450,3 +450,16 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     free(first);
     return rc;
 }
+
+/* zlib's bound for a deflate stream whose parameters are not the defaults
+ * (deflateBound's conservative case), plus the zlib wrapper: more than
+ * libdeflate_zlib_compress needs (test_vod checks it), so compression
+ * into a buffer of this size never fails for room. */
+size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
+{
+    size_t n = L->raw_bytes;
+    if (p->comp == VOD_COMP_ZLIB)
+        return n + ((n + 7) >> 3) + ((n + 63) >> 6) + 5 + 6 + 16;
+    if (p->comp == VOD_COMP_RUNL) return vod_runl_bound(L->voxel_bits, n);
+    return n;
+}

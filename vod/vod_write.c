@@ -20,7 +20,6 @@
 #include "clock.h"
 #include "voxel.h"
 
-
 __attribute__((format(printf, 4, 5))) static int
 fail(char *err, size_t errlen, int rc, const char *fmt, ...)
 {
@@ -32,7 +31,6 @@ fail(char *err, size_t errlen, int rc, const char *fmt, ...)
     }
     return rc;
 }
-
 
 void vod_params_default(vod_params *p)
 {
@@ -186,19 +184,6 @@ int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
 }
 
 /* ---- phase 2: encode ---- */
-
-/* zlib's bound for a deflate stream whose parameters are not the defaults
- * (deflateBound's conservative case), plus the zlib wrapper: more than
- * libdeflate_zlib_compress needs (test_vod checks it), so compression
- * into a buffer of this size never fails for room. */
-size_t vod_encode_bound(const vod_layout *L, const vod_params *p)
-{
-    size_t n = L->raw_bytes;
-    if (p->comp == VOD_COMP_ZLIB)
-        return n + ((n + 7) >> 3) + ((n + 63) >> 6) + 5 + 6 + 16;
-    if (p->comp == VOD_COMP_RUNL) return vod_runl_bound(L->voxel_bits, n);
-    return n;
-}
 
 /* The raw bytes of the first bricks an encoder compressed are kept up to
  * this many bytes, to compare a duplicate with; past it the earlier brick

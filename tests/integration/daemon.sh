@@ -78,13 +78,14 @@ done; done
 # kill -9 of a worker that holds a task mid-job (the busiest one while the
 # job runs, so the kill cannot land on an idle worker or after the job): the
 # job still gives the embedded bytes and the worker comes back on its CPU.
-bgsubmit "$TMP/k.out" "$MEDIUM" 384 -1,1 "$TMP/k.vod"
+# (1024^3: several seconds, so that the busiest worker is found mid-job)
+bgsubmit "$TMP/k.out" "$MEDIUM" 1024 -1,1 "$TMP/k.vod"
 until_true 20 running && pass "a job runs" || fail "a job runs"
 before=$(vc status | grep '^worker')
 kill_busy_worker && pass "a worker holding a task of the job is killed" ||
     fail "a worker holding a task of the job is killed" "$(vc status)"
 victim=$VICTIM
-check "embedded job" "$VOX" voxelize -e "$MEDIUM" -r 384 -w 2 -q -o "$TMP/ke.vod"
+check "embedded job" "$VOX" voxelize -e "$MEDIUM" -r 1024 -w 2 -q -o "$TMP/ke.vod"
 wait_gone "$BG_PID" 300
 grep -q "rc=0" "$TMP/k.out" && pass "job survives a killed worker" ||
     fail "job survives a killed worker" "$(cat "$TMP/k.out")"

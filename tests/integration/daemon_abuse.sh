@@ -127,7 +127,8 @@ S2=$BG_PID
 until_true 60 grep -q holding "$TMP/h1.out"
 until_true 60 grep -q holding "$TMP/h2.out"
 refuse "max_clients: BUSY" 3 "ERROR BUSY: too many connections" vc ping
-kill -9 "$S1" "$S2"
+# (the clients themselves, not only the timeout that runs each)
+pkill -9 -P "$S1"; pkill -9 -P "$S2"; kill -9 "$S1" "$S2"
 until_true 10 vc ping && pass "serving when the connections are gone" || fail "serving when the connections are gone"
 
 kill -TERM "$VOXD_PID"

@@ -192,8 +192,9 @@ check "with the same bytes again" cmp "$TMP/d5.vod" "$TMP/e1.vod"
 # one forked in its place, and the file is the embedded engine's.
 REL=build/release/vox # make test builds it beside asan; the reference only
 [ -x "$REL" ] || REL=$VOX
-check "the heavy job, embedded (release)" timeout 300 "$REL" csg "$TMP/slow.csg" -r 160 -q -o "$TMP/k1.vod"
-bg "$VOX" --socket "$S" submit --csg "$TMP/slow.csg" -r 160 -q -o "$TMP/k2.vod"
+# (256^3: several seconds under ASan, so that the busiest worker is found mid-job)
+check "the heavy job, embedded (release)" timeout 300 "$REL" csg "$TMP/slow.csg" -r 256 -q -o "$TMP/k1.vod"
+bg "$VOX" --socket "$S" submit --csg "$TMP/slow.csg" -r 256 -q -o "$TMP/k2.vod"
 SUB=$!
 until_true 20 running && pass "the heavy job runs on voxd" || fail "the heavy job runs on voxd" "$(vc status)"
 kill_busy_worker && pass "a worker holding a task of the CSG job is killed" ||

@@ -78,7 +78,7 @@ until_true() {
 }
 running() { vc status | grep -q 'running=[0-9]'; }
 # kill_busy_worker: kill -9 a worker that holds a task of the running job:
-# the worker whose CPU time grew most over a second while the job ran (an
+# the worker whose CPU time grew most over 0.3 s while the job ran (an
 # idle worker sleeps on its queue and gains none), killed while the job
 # still runs.  VICTIM its pid.  1 when none was caught working (the job
 # ended first).
@@ -87,7 +87,7 @@ busiest_worker() {
     local p best= most=0 d
     declare -A t0
     for p in $(worker_pids); do t0[$p]=$(cpu_ticks "$p"); done
-    sleep 1
+    sleep 0.3
     for p in "${!t0[@]}"; do
         d=$(($(cpu_ticks "$p") - t0[$p]))
         [ "$d" -gt "$most" ] && most=$d best=$p
