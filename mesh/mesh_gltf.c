@@ -375,7 +375,7 @@ static int check_asset(gltf *g)
     return rc;
 }
 
-static void gltf_free(gltf *g)
+void gltf_close(gltf *g)
 {
     for (size_t i = 0; i < g->n_buf; i++) {
         free(g->buf[i].owned);
@@ -385,23 +385,16 @@ static void gltf_free(gltf *g)
     json_object_put(g->root);
 }
 
-int mesh_parse_gltf(const char *buf, size_t len, mbuild *b)
+int gltf_open(gltf *g, const char *buf, size_t len)
 {
-    gltf g = {.b = b};
     const uint8_t *p = (const uint8_t *)buf;
-    b->binary = 1; /* errors name byte offsets (of the JSON's syntax) or none */
-    int rc = len >= 4 && le32(p) == GLB_MAGIC ? parse_glb(&g, p, len) : parse_json(&g, buf, len, 0);
-    if (!rc) rc = check_asset(&g);
+    int rc = len >= 4 && le32(p) == GLB_MAGIC ? parse_glb(g, p, len) : parse_json(g, buf, len, 0);
+    if (!rc) rc = check_asset(g);
     json_object *bufs = NULL;
-    if (!rc) rc = gltf_array(&g, g.root, "buffers", 0, "the glTF", &bufs);
-    if (!rc && bufs && (g.n_buf = json_object_array_length(bufs)) &&
-        !(g.buf = calloc(g.n_buf, sizeof *g.buf)))
-        rc = mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory for %zu buffers", g.n_buf);
-    if (!rc) rc = gltf_read_scene(&g);
-    if (!rc && g.skipped)
-        mb_warn(b, MB_NOWHERE, "glTF: %llu primitives that are not triangles (points, lines) "
-                "skipped", (unsigned long long)g.skipped);
-    gltf_free(&g);
+    if (!rc) rc = gltf_array(g, g->root, "buffers", 0, "the glTF", &bufs);
+    if (!rc && bufs && (g->n_buf = json_object_array_length(bufs)) &&
+        !(g->buf = calloc(g->n_buf, sizeof *g->buf)))
+        rc = mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory for %zu buffers", g->n_buf);
     return rc;
 }
 
@@ -471,6 +464,6 @@ int mesh_gltf_embed(const char *buf, size_t len, const char *dir, char **out, si
         if (!s || !(*out = malloc(n ? n : 1))) rc = mb_fail(&b, -ENOMEM, MB_NOWHERE, "out of memory");
         else memcpy(*out, s, n), *out_len = n;
     }
-    gltf_free(&g);
+    gltf_close(&g);
     return rc;
 }

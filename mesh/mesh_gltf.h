@@ -53,5 +53,10 @@ int gltf_buffer_get(gltf *g, uint64_t i, const gltf_buffer **out);
 
 /* The triangles of the default scene (or scene 0, or every root node) into g->b. */
 int gltf_read_scene(gltf *g);
+/* The file parsed (a .glb or a JSON text), its asset checked and its
+ * buffers' table made (each buffer read when first asked for); the
+ * caller ends with gltf_close, whatever the result. */
+int gltf_open(gltf *g, const char *buf, size_t len);
+void gltf_close(gltf *g);
 
 #endif

@@ -369,3 +369,16 @@ int gltf_read_scene(gltf *g)
     free(seen);
     return rc;
 }
+
+int mesh_parse_gltf(const char *buf, size_t len, mbuild *b)
+{
+    gltf g = {.b = b};
+    b->binary = 1; /* errors name byte offsets (of the JSON's syntax) or none */
+    int rc = gltf_open(&g, buf, len);
+    if (!rc) rc = gltf_read_scene(&g);
+    if (!rc && g.skipped)
+        mb_warn(b, MB_NOWHERE, "glTF: %llu primitives that are not triangles (points, lines) "
+                "skipped", (unsigned long long)g.skipped);
+    gltf_close(&g);
+    return rc;
+}
