@@ -9,12 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#ifndef VOX_VERSION
-#define VOX_VERSION "unknown"
-#endif
-#ifndef VOX_COMMIT
-#define VOX_COMMIT "unknown"
-#endif
+#include "version.h"
 
 /* What a message quotes of an argument: at most this many bytes, then "...",
  * so that no line grows past a terminal or two whatever was typed. */

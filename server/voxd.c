@@ -20,12 +20,7 @@
 #include "log.h"
 #include "suggest.h"
 
-#ifndef VOX_VERSION
-#define VOX_VERSION "unknown"
-#endif
-#ifndef VOX_COMMIT
-#define VOX_COMMIT "unknown"
-#endif
+#include "version.h"
 
 #define LOCK_PATIENCE_MS 2000 /* workers of a crashed daemon die within ms */
 

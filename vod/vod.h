@@ -208,6 +208,9 @@ typedef struct {
 } vod_encoded;
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
+/* The writer's error: fmt into err (when err has room), rc returned. */
+__attribute__((format(printf, 4, 5)))
+int vod_fail(char *err, size_t errlen, int rc, const char *fmt, ...);
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
  * it and compress it into out, without looking for duplicates (the
  * encoder below does).  It uses an encoder kept per thread (see

@@ -30,8 +30,7 @@
 #define ASSEMBLE_THREADS 16u  /* more only wait on the sink and the memory */
 #define NO_CHUNK UINT64_MAX
 
-__attribute__((format(printf, 4, 5))) static int
-fail(char *err, size_t errlen, int rc, const char *fmt, ...)
+int vod_fail(char *err, size_t errlen, int rc, const char *fmt, ...)
 {
     if (err && errlen) {
         va_list ap;
@@ -391,7 +390,7 @@ static void fill_stats(vod_stats *st, const vod_layout *L, const file_plan *f,
 static int too_big(char *err, size_t errlen, const vod_layout *L, const vod_params *p,
                    uint32_t unique)
 {
-    return fail(err, errlen, -EFBIG,
+    return vod_fail(err, errlen, -EFBIG,
                 "the VOD file would pass 4 GiB, the limit of the format's 32-bit "
                 "offsets (%u unique bricks of %u^3 voxels); ask for %s",
                 unique, L->brick,
@@ -428,7 +427,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     double t0 = clock_now();
     int rc = check_inputs(L, p, n, nodes, recs, data);
     if (rc)
-        return fail(err, errlen, rc, "bricks out of preorder or over their bound");
+        return vod_fail(err, errlen, rc, "bricks out of preorder or over their bound");
     uint32_t *ids = malloc((n + 1) * sizeof *ids);
     uint32_t *first = malloc((n + 1) * sizeof *first);
     file_plan f = {.nodes = nodes, .recs = recs, .data = data, .ids = ids,
@@ -436,7 +435,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     rc = ids && first ? dedup(n, recs, data, ids, first, &f.u) : -ENOMEM;
     if (!rc && !(f.boff = malloc(((size_t)f.u + 1) * sizeof *f.boff))) rc = -ENOMEM;
     if (rc) {
-        fail(err, errlen, rc, "out of memory for %zu bricks", n);
+        vod_fail(err, errlen, rc, "out of memory for %zu bricks", n);
     } else {
         plan_layout(&f, L);
         size_t meta = p->metadata ? strlen(p->metadata) : 0;

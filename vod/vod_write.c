@@ -6,7 +6,6 @@
 
 #include <errno.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,18 +18,6 @@
 
 #include "clock.h"
 #include "voxel.h"
-
-__attribute__((format(printf, 4, 5))) static int
-fail(char *err, size_t errlen, int rc, const char *fmt, ...)
-{
-    if (err && errlen) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err, errlen, fmt, ap);
-        va_end(ap);
-    }
-    return rc;
-}
 
 void vod_params_default(vod_params *p)
 {
@@ -47,19 +34,19 @@ static int check_geometry(const vod_params *p, char *err, size_t errlen)
 {
     const uint32_t *v = p->volume;
     if (!v[0] || !v[1] || !v[2])
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "volumeSize %ux%ux%u: each side must be at least 1", v[0],
                     v[1], v[2]);
     if (p->brick < 2 || p->brick > 256 || (p->brick & (p->brick - 1)))
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "brickSize %u is not a power of two in 2..256", p->brick);
     for (int a = 0; a < 3; a++) {
         if (!isfinite(p->voxel_scale[a]) || !(p->voxel_scale[a] > 0.0f))
-            return fail(err, errlen, -EINVAL,
+            return vod_fail(err, errlen, -EINVAL,
                         "voxelScale %g on axis %d must be finite and > 0",
                         (double)p->voxel_scale[a], a);
         if (!isfinite(p->origin[a]))
-            return fail(err, errlen, -EINVAL, "origin on axis %d is not finite", a);
+            return vod_fail(err, errlen, -EINVAL, "origin on axis %d is not finite", a);
     }
     return 0;
 }
@@ -68,30 +55,30 @@ static int check_encoding(const vod_params *p, char *err, size_t errlen)
 {
     char b[5];
     if (p->channel == VOXEL_CH_DISTANCE)
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "channel 4 (f32 signed distance) is not written yet: no job "
                     "kind produces it (1 occupancy, 2 density or 3 surface)");
     if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY &&
         p->channel != VOXEL_CH_DENSITY)
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "channel %d cannot be written (1 occupancy, 2 density or 3 "
                     "surface)",
                     p->channel);
     if (p->comp != VOD_COMP_NONE && p->comp != VOD_COMP_ZLIB &&
         p->comp != VOD_COMP_RUNL)
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "compression '%s' unknown (NONE, ZLIB or RUNL)",
                     vod_fourcc_str(p->comp, b));
     if (p->comp == VOD_COMP_ZLIB &&
         (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX))
-        return fail(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
+        return vod_fail(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
                     p->zlib_level, VOD_ZLIB_LEVEL_MAX);
     if (p->hash != VOD_HASH_SFHS && p->hash != VOD_HASH_XX32)
-        return fail(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
+        return vod_fail(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
                     vod_fourcc_str(p->hash, b));
     size_t m = p->metadata ? strlen(p->metadata) : 0;
     if (m > VOD_MAX_METADATA)
-        return fail(err, errlen, -EINVAL, "metadata of %zu bytes, more than %u",
+        return vod_fail(err, errlen, -EINVAL, "metadata of %zu bytes, more than %u",
                     m, VOD_MAX_METADATA);
     return 0;
 }
@@ -103,13 +90,13 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     if (rc == 0) rc = check_encoding(p, err, errlen);
     if (rc) return rc;
     if (octree_depth < 1 || octree_depth > OCTREE_MAX_DEPTH)
-        return fail(err, errlen, -EINVAL, "octree depth %d outside 1..%d",
+        return vod_fail(err, errlen, -EINVAL, "octree depth %d outside 1..%d",
                     octree_depth, OCTREE_MAX_DEPTH);
     uint32_t maxv = p->volume[0];
     if (p->volume[1] > maxv) maxv = p->volume[1];
     if (p->volume[2] > maxv) maxv = p->volume[2];
     if (maxv > 1u << octree_depth)
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "volume side %u exceeds the octree's %u voxels per axis",
                     maxv, 1u << octree_depth);
     memset(L, 0, sizeof *L);
@@ -127,7 +114,7 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     L->nodes = ((1ull << (3 * L->height)) - 1) / 7;
     L->octree_depth = octree_depth;
     if (VOD_HEADER_BYTES + L->nodes * 4 + 4 > UINT32_MAX)
-        return fail(err, errlen, -EFBIG,
+        return vod_fail(err, errlen, -EFBIG,
                     "octree table of %llu nodes (treeHeight %u) passes the 4 GiB "
                     "limit of VOD's u32 offsets; use a larger brick",
                     (unsigned long long)L->nodes, L->height);
@@ -161,13 +148,13 @@ int vod_check_source(const vod_source *s, const vod_params *p, char *err,
     uint32_t bad[3];
     char list[64];
     if (p->channel < 0 || p->channel > 31 || !(s->channels >> p->channel & 1u))
-        return fail(err, errlen, -EINVAL,
+        return vod_fail(err, errlen, -EINVAL,
                     "channel %d cannot be written from the %s (it gives channel%s %s)",
                     p->channel, s->ops->name,
                     (s->channels & (s->channels - 1)) ? "s" : "",
                     channel_list(s->channels, list, sizeof list));
     if (!s->ops->outside(s, v, bad)) return 0;
-    return fail(err, errlen, -EINVAL,
+    return vod_fail(err, errlen, -EINVAL,
                 "the %s holds a voxel at %u,%u,%u, outside volumeSize "
                 "%ux%ux%u (VOD padding must be 0)",
                 s->ops->name, bad[0], bad[1], bad[2], v[0], v[1], v[2]);
@@ -178,7 +165,7 @@ int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
 {
     int rc = s->ops->prepare(s, L, channel);
     if (rc)
-        return fail(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
+        return vod_fail(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
                     s->ops->name, strerror(-rc));
     return 0;
 }
@@ -660,7 +647,7 @@ static int write_checked(vod_source *s, const vod_layout *L, const vod_params *p
     /* vod_assemble's own failures are said; the sink's and the encoder's
      * are not yet */
     if (rc && (!errlen || !err[0]))
-        return fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
+        return vod_fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
     return rc;
 }
 
@@ -685,7 +672,7 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
     if (!t->agg) {
         own = t->agg = malloc((size_t)t->used * sizeof *t->agg);
         if (!own)
-            return fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
+            return vod_fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
     }
     rc = write_checked(&s, &L, p, sink, st, err, errlen);
     if (own) {
