@@ -37,27 +37,13 @@ typedef struct {
 /* Mip columns a worker's share at least: enough to even out the load. */
 #define CSG_MIP_COLUMNS_PER_WORKER 4u
 
-static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
-
-static csg_block *block(engine *e)
-{
-    return shm_at(e->seg.base, e->h->job_off);
-}
-
-static int no_room(engine *e, const char *what)
-{
-    return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
-                      "%s does not fit in shared memory (%zu MiB); raise its size",
-                      what, e->seg.bytes >> 20);
-}
-
 /* The file leaves' volumes from off on (none: off unchanged), built here
  * once for the job; their offsets in the block. */
 static int build_leaves(engine *e, const engine_csg_job *j, csg_block *b, uint64_t *off)
 {
     if (!csg_has_file_leaves(j->tree)) return 0;
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    if (*off >= end) return no_room(e, "the leaves' volumes");
+    if (*off >= end) return sched_no_room(e, "the leaves' volumes");
     vod_volume *leaves[CSG_MAX_NODES];
     size_t used;
     char msg[sizeof e->err.message];
@@ -68,7 +54,7 @@ static int build_leaves(engine *e, const engine_csg_job *j, csg_block *b, uint64
     if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
     for (uint32_t i = 0; i < j->tree->n; i++)
         b->leaf_off[i] = leaves[i] ? (uint64_t)((uint8_t *)leaves[i] - e->seg.base) : 0;
-    *off = align64(*off + used);
+    *off = sched_align64(*off + used);
     return 0;
 }
 
@@ -78,12 +64,12 @@ static int copy_input(engine *e, const csg_tree *t, csg_block *b, uint64_t *vol_
     uint64_t end = e->h->data_off + e->h->data_bytes;
     b->n_nodes = t->n;
     b->node_bytes = sizeof(csg_node);
-    b->nodes_off = align64(e->h->data_off + sizeof *b);
-    b->text_off = align64(b->nodes_off + (uint64_t)t->n * sizeof(csg_node));
+    b->nodes_off = sched_align64(e->h->data_off + sizeof *b);
+    b->text_off = sched_align64(b->nodes_off + (uint64_t)t->n * sizeof(csg_node));
     b->text_len = t->text_len;
-    b->stats_off = align64(b->text_off + t->text_len + 1);
-    *vol_off = align64(b->stats_off + (uint64_t)b->ntasks * sizeof(csg_task_stats));
-    if (*vol_off >= end) return no_room(e, "the tree");
+    b->stats_off = sched_align64(b->text_off + t->text_len + 1);
+    *vol_off = sched_align64(b->stats_off + (uint64_t)b->ntasks * sizeof(csg_task_stats));
+    if (*vol_off >= end) return sched_no_room(e, "the tree");
     memcpy(shm_at(e->seg.base, b->nodes_off), t->node, t->n * sizeof(csg_node));
     char *text = shm_at(e->seg.base, b->text_off);
     if (t->text_len) memcpy(text, t->text, t->text_len);
@@ -97,7 +83,7 @@ static int init_volume(engine *e, const grid_spec *g, int channel, uint64_t off)
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
     int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
                              csg_channel_bits(channel), CSG_VOLUME_BRICK);
-    if (rc) return no_room(e, "the volume's tables");
+    if (rc) return sched_no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;
 }
@@ -208,7 +194,7 @@ static int csg_setup(engine *e, void *job)
     uint64_t vol_off;
     int rc = copy_input(e, j->tree, b, &vol_off);
     if (!rc) rc = build_leaves(e, j, b, &vol_off);
-    if (!rc && vol_off >= e->h->data_off + e->h->data_bytes) rc = no_room(e, "the volume");
+    if (!rc && vol_off >= e->h->data_off + e->h->data_bytes) rc = sched_no_room(e, "the volume");
     if (!rc) rc = init_volume(e, &j->grid, j->channel, vol_off);
     if (!rc) {
         b->volume_off = vol_off;
@@ -234,18 +220,19 @@ static void csg_describe(const shm_task *t, char *buf, size_t len)
 static void csg_done(engine *e, int i, const shm_task *t, int error)
 {
     csg_job *cj = e->job;
+    const csg_block *b = sched_block(e);
     if (t->op == CSG_BRICKS) cj->done++;
     /* the last brick in: the workers build the low mip levels */
     if (!error && !e->err.failure && cj->done == cj->ntasks && !cj->mips_pushed &&
-        block(e)->mip_levels) {
+        b->mip_levels) {
         cj->mips_pushed = 1;
-        push_mips(e, block(e)); /* a full stack fails the job there */
+        push_mips(e, b); /* a full stack fails the job there */
     }
     if (!error || e->err.failure) return;
     char what[64];
     csg_describe(t, what, sizeof what);
     if (error == -ENOMEM)
-        no_room(e, "the volume");
+        sched_no_room(e, "the volume");
     else
         sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
                    strerror(-error));
@@ -265,14 +252,15 @@ static void csg_progress(engine *e, engine_progress *p)
     if (e->volume) { /* the pool grows as the workers write */
         vod_volume_info in;
         vod_volume_get_info(e->volume, &in);
-        p->shm_used = block(e)->volume_off - e->h->data_off + in.bytes_used;
+        const csg_block *b = sched_block(e);
+        p->shm_used = b->volume_off - e->h->data_off + in.bytes_used;
     }
 }
 
 /* The runs' counts, and the volume checked before the writer reads it. */
 static int collect(engine *e, csg_job *cj)
 {
-    const csg_block *b = block(e);
+    const csg_block *b = sched_block(e);
     engine_result *r = cj->r;
     const csg_task_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint32_t t = 0; t < b->ntasks; t++) {
@@ -326,12 +314,7 @@ const master_kind kind_csg = {
 
 int engine_csg(engine *e, const engine_csg_job *job, engine_result *r)
 {
-    double c0 = clock_thread_cpu();
-    memset(r, 0, sizeof *r);
     csg_job cj = {.job = job, .r = r};
     sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    e->volume = NULL;
-    int rc = engine_run(e, &kind_csg, &cj, &w);
-    r->master_cpu = clock_thread_cpu() - c0;
-    return rc;
+    return sched_run_job(e, &kind_csg, &cj, &w, r);
 }

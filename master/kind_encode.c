@@ -43,18 +43,11 @@ typedef struct {
 
 #define AGG_SPLIT 3 /* the aggregate's subtrees: up to 8^3 of them */
 
-static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
-
 /* The last job's result as a brick source. */
 static vod_source result_source(engine *e)
 {
     return e->result == RESULT_VOLUME ? vod_volume_source(e->volume)
                                       : vod_octree_source(&e->tree);
-}
-
-static encode_block *block(engine *e)
-{
-    return shm_at(e->seg.base, e->h->job_off);
 }
 
 /* One task of op per live worker; how many in *pushed. */
@@ -76,7 +69,7 @@ static int aggregate_rest(engine *e, encode_job *ej)
 {
     int rc = plan_join(e, ej);
     if (rc) return rc;
-    encode_block *b = block(e);
+    encode_block *b = sched_block(e);
     const uint32_t *roots = shm_at(e->seg.base, b->roots_off);
     const uint8_t *done = shm_at(e->seg.base, b->roots_done_off);
     double t0 = clock_now();
@@ -129,9 +122,9 @@ static uint64_t nodes_cap(const engine *e, uint64_t nodes)
 static int lay_out_rest(engine *e, encode_block *b, uint64_t nodes, uint64_t n)
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->recs_off = align64(nodes + n * sizeof(vod_node));
-    b->offs_off = align64(b->recs_off + n * sizeof(vod_encoded));
-    b->brick_off = align64(b->offs_off + n * sizeof(uint64_t));
+    b->recs_off = sched_align64(nodes + n * sizeof(vod_node));
+    b->offs_off = sched_align64(b->recs_off + n * sizeof(vod_encoded));
+    b->brick_off = sched_align64(b->offs_off + n * sizeof(uint64_t));
     if (n > nodes_cap(e, nodes) || b->brick_off > end) return no_room(e);
     b->nodes_off = nodes;
     b->n = n;
@@ -141,8 +134,8 @@ static int lay_out_rest(engine *e, encode_block *b, uint64_t nodes, uint64_t n)
 
 static void set_offsets(engine *e, uint64_t nodes, uint64_t n)
 {
-    uint64_t recs = align64(nodes + n * sizeof(vod_node));
-    uint64_t offs = align64(recs + n * sizeof(vod_encoded));
+    uint64_t recs = sched_align64(nodes + n * sizeof(vod_node));
+    uint64_t offs = sched_align64(recs + n * sizeof(vod_encoded));
     memset(shm_at(e->seg.base, offs), 0xff, n * sizeof(uint64_t));
 }
 
@@ -154,7 +147,7 @@ static void plan_bricks(engine *e, const vod_layout *L, const vod_source *src,
     uint64_t cap = nodes_cap(e, nodes);
     *n = vod_collect(src, L, shm_at(e->seg.base, nodes), (size_t)cap);
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    uint64_t brick_off = align64(align64(align64(nodes + *n * sizeof(vod_node)) +
+    uint64_t brick_off = sched_align64(sched_align64(sched_align64(nodes + *n * sizeof(vod_node)) +
                                          *n * sizeof(vod_encoded)) +
                                  *n * sizeof(uint64_t));
     if (*n <= cap && brick_off <= end) set_offsets(e, nodes, *n);
@@ -189,7 +182,7 @@ static int plan_join(engine *e, encode_job *ej)
     par_join(&ej->plan);
     ej->planning = 0;
     ej->t.fill += ej->plan_s;
-    return lay_out_rest(e, block(e), ej->nodes_off, ej->plan_n);
+    return lay_out_rest(e, sched_block(e), ej->nodes_off, ej->plan_n);
 }
 
 /* The octree: lay the block and its arrays out behind the used cells,
@@ -200,12 +193,12 @@ static int setup_octree(engine *e, encode_job *ej)
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
     uint64_t cells_off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
-    uint64_t boff = align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
-    uint64_t agg = align64(boff + sizeof(encode_block));
-    uint64_t roots = align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
+    uint64_t boff = sched_align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
+    uint64_t agg = sched_align64(boff + sizeof(encode_block));
+    uint64_t roots = sched_align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
     int hr = e->tree.depth - 1 - AGG_SPLIT;
     uint64_t nroots = hr >= 0 ? vod_aggregate_roots(&e->tree, hr, NULL, 0) : 0;
-    uint64_t nodes = align64(roots + nroots * (sizeof(uint32_t) + 1));
+    uint64_t nodes = sched_align64(roots + nroots * (sizeof(uint32_t) + 1));
     if (nodes > end) return no_room(e);
     encode_block *b = shm_at(e->seg.base, boff);
     e->tree.agg = shm_at(e->seg.base, agg);
@@ -247,8 +240,8 @@ static int setup_volume(engine *e, encode_job *ej)
     vod_volume_info in;
     vod_volume_get_info(e->volume, &in);
     uint64_t voff = (uint64_t)((uint8_t *)e->volume - e->seg.base);
-    uint64_t boff = align64(voff + in.bytes_used);
-    uint64_t nodes = align64(boff + sizeof(encode_block));
+    uint64_t boff = sched_align64(voff + in.bytes_used);
+    uint64_t nodes = sched_align64(boff + sizeof(encode_block));
     if (nodes > e->h->data_off + e->h->data_bytes) return no_room(e);
     encode_block *b = shm_at(e->seg.base, boff);
     rc = lay_out_bricks(e, ej, b, &src, nodes);
@@ -290,7 +283,7 @@ static void encode_done(engine *e, int i, const shm_task *t, int error)
  * out (relaxed: estimates, nothing is read through them). */
 static void encode_progress(engine *e, engine_progress *p)
 {
-    encode_block *b = block(e);
+    encode_block *b = sched_block(e);
     uint64_t agg = atomic_load_explicit(&b->agg_next, memory_order_relaxed);
     uint64_t next = atomic_load_explicit(&b->next, memory_order_relaxed);
     double fa = b->nroots ? (double)(agg < b->nroots ? agg : b->nroots) / (double)b->nroots : 1;
@@ -318,7 +311,7 @@ static void encode_describe(const shm_task *t, char *buf, size_t len)
 static int encode_gather(engine *e, encode_job *ej, const uint8_t **data,
                          uint8_t **own)
 {
-    encode_block *b = block(e);
+    encode_block *b = sched_block(e);
     const vod_params *p = ej->p;
     const vod_node *nodes = shm_at(e->seg.base, b->nodes_off);
     vod_encoded *recs = shm_at(e->seg.base, b->recs_off);
@@ -373,7 +366,7 @@ static void add_times(encode_block *b, encode_job *ej)
 /* vod_assemble says its own failures; a sink's has no message of its own. */
 static int assemble(engine *e, encode_job *ej, const uint8_t **data)
 {
-    encode_block *b = block(e);
+    encode_block *b = sched_block(e);
     char msg[sizeof ej->err->message] = "";
     int rc = vod_assemble(&b->L, ej->p, b->n, shm_at(e->seg.base, b->nodes_off),
                           shm_at(e->seg.base, b->recs_off), data, ej->sink,
@@ -386,7 +379,7 @@ static int assemble(engine *e, encode_job *ej, const uint8_t **data)
 /* The bricks to the caller instead of a file (engine_encode_bricks). */
 static int hand_out(engine *e, encode_job *ej, const uint8_t **data)
 {
-    encode_block *b = block(e);
+    encode_block *b = sched_block(e);
     vod_source src = result_source(e);
     int rc = ej->deliver(ej->deliver_ud, &b->L, &src, b->n,
                          shm_at(e->seg.base, b->nodes_off),
@@ -397,7 +390,7 @@ static int hand_out(engine *e, encode_job *ej, const uint8_t **data)
 static int encode_finish(engine *e, void *job, int rc)
 {
     encode_job *ej = job;
-    encode_block *b = block(e);
+    encode_block *b = sched_block(e);
     if (ej->planning) { /* the job failed before the mip levels were done */
         par_join(&ej->plan);
         ej->planning = 0;

@@ -25,11 +25,6 @@ typedef struct {
 
 static uint64_t volume(int level) { return 1ull << (3 * level); }
 
-static const implicit_block *block(engine *e)
-{
-    return shm_at(e->seg.base, e->h->job_off);
-}
-
 /* Bytes of the data area up to the octree's first `cells` cells. */
 static uint64_t tree_bytes(engine *e, uint64_t cells)
 {
@@ -51,7 +46,8 @@ static int push_octant(engine *e, implicit_job *ij, grid_octant o)
 
 static int outside_res(engine *e, unsigned x, unsigned y, unsigned z)
 {
-    const uint32_t *res = block(e)->grid.res;
+    const implicit_block *b = sched_block(e);
+    const uint32_t *res = b->grid.res;
     return x >= res[0] || y >= res[1] || z >= res[2];
 }
 
@@ -240,11 +236,7 @@ const master_kind kind_implicit = {
 
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
 {
-    double c0 = clock_thread_cpu();
-    memset(r, 0, sizeof *r);
     implicit_job ij = {.job = job, .r = r};
     sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    int rc = engine_run(e, &kind_implicit, &ij, &w);
-    r->master_cpu = clock_thread_cpu() - c0;
-    return rc;
+    return sched_run_job(e, &kind_implicit, &ij, &w, r);
 }

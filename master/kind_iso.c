@@ -34,26 +34,12 @@ typedef struct {
     double t_setup, t_tasks_end; /* when setup and the tasks were done */
 } iso_job;
 
-static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
-
-static iso_block *block(engine *e)
-{
-    return shm_at(e->seg.base, e->h->job_off);
-}
-
-static int no_room(engine *e, const char *what)
-{
-    return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
-                      "%s does not fit in shared memory (%zu MiB); raise its size",
-                      what, e->seg.bytes >> 20);
-}
-
 /* iso_input_make's allocator: the data area, from ij->at on. */
 static void *shm_alloc(void *ud, size_t bytes)
 {
     engine *e = ud;
     iso_job *ij = e->job;
-    uint64_t end = e->h->data_off + e->h->data_bytes, at = align64(ij->at);
+    uint64_t end = e->h->data_off + e->h->data_bytes, at = sched_align64(ij->at);
     if (at > end || bytes > end - at) return NULL;
     ij->at = at + bytes;
     return shm_at(e->seg.base, at);
@@ -75,7 +61,7 @@ static int lay_out_tasks(engine *e, iso_block *b, const iso_input *in)
         b->results_off = (uint64_t)((uint8_t *)res - e->seg.base);
     }
     free(t);
-    return res ? 0 : no_room(e, "the tasks");
+    return res ? 0 : sched_no_room(e, "the tasks");
 }
 
 /* One task of op per live worker: each runs tasks (or welds pieces)
@@ -104,7 +90,7 @@ static int iso_setup(engine *e, void *job)
     /* the copy, the first touch of these pages, on every CPU the master
      * may run on: the workers wait for it */
     int rc = iso_input_make_threads(ij->job->file, &b->p, shm_alloc, e, par_cpus(), &in);
-    if (rc) return no_room(e, "the file's bricks");
+    if (rc) return sched_no_room(e, "the file's bricks");
     b->n_bricks = in.n;
     b->keys_off = (uint64_t)((const uint8_t *)in.keys - e->seg.base);
     b->offs_off = (uint64_t)((const uint8_t *)in.offs - e->seg.base);
@@ -112,7 +98,7 @@ static int iso_setup(engine *e, void *job)
     b->raw_bytes = in.raw_bytes;
     if ((rc = lay_out_tasks(e, b, &in))) return rc;
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->arena_off = align64(ij->at);
+    b->arena_off = sched_align64(ij->at);
     b->arena_cap = b->arena_off < end ? end - b->arena_off : 0;
     /* relaxed: published to the workers by the task_seq release */
     atomic_store_explicit(&b->next, 0, memory_order_relaxed);
@@ -142,7 +128,7 @@ static void iso_describe(const shm_task *t, char *buf, size_t len)
 
 static void iso_progress(engine *e, engine_progress *p)
 {
-    iso_block *b = block(e);
+    iso_block *b = sched_block(e);
     /* relaxed: an estimate, nothing is read through it */
     uint64_t next = atomic_load_explicit(&b->next, memory_order_relaxed);
     uint64_t weld = atomic_load_explicit(&b->weld_next, memory_order_relaxed);
@@ -150,7 +136,7 @@ static void iso_progress(engine *e, engine_progress *p)
     p->fraction = 0.8 * (double)(next < b->n_tasks ? next : b->n_tasks) / n +
                   0.2 * (double)(weld < b->n_tasks ? weld : b->n_tasks) / n;
     p->level = (int)b->p.level;
-    p->shm_used = align64(b->arena_off) - e->h->data_off +
+    p->shm_used = sched_align64(b->arena_off) - e->h->data_off +
                   atomic_load_explicit(&b->bump, memory_order_relaxed);
 }
 
@@ -158,7 +144,7 @@ static void iso_progress(engine *e, engine_progress *p)
  * else takes from it now), or NULL when it is full. */
 static void *arena_alloc(engine *e, uint64_t n)
 {
-    iso_block *b = block(e);
+    iso_block *b = sched_block(e);
     /* relaxed: the workers are idle; the counter only hands out ranges */
     uint64_t at = atomic_fetch_add_explicit(&b->bump, (n + 63) & ~63ull, memory_order_relaxed);
     if (at > b->arena_cap || n > b->arena_cap - at) return NULL;
@@ -169,7 +155,7 @@ static void *arena_alloc(engine *e, uint64_t n)
  * its piece packed into the arena for the weld. */
 static int run_here(engine *e, iso_job *ij, uint64_t i)
 {
-    iso_block *b = block(e);
+    iso_block *b = sched_block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     const iso_task *t = (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i;
     iso_input in = {.n = b->n_bricks, .keys = shm_at(e->seg.base, b->keys_off),
@@ -180,7 +166,7 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
     if (!rc) rc = iso_task_run(ij->work, &b->p, &in, t, &v);
     if (rc) return sched_fail(e, ENGINE_FAULT, rc, "marching cubes: %s", strerror(-rc));
     uint8_t *to = arena_alloc(e, iso_piece_bytes(&b->p, &v));
-    if (!to) return no_room(e, "the mesh");
+    if (!to) return sched_no_room(e, "the mesh");
     iso_piece_pack(&b->p, &v, to);
     r->off = (uint64_t)(to - (uint8_t *)shm_at(e->seg.base, b->arena_off));
     r->nv = v.nv, r->nc = v.nc, r->nt = v.nt, r->ne = v.ne;
@@ -192,7 +178,7 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
 /* Task i's piece as the workers will see it; run here when not done. */
 static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
 {
-    iso_block *b = block(e);
+    iso_block *b = sched_block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     uint64_t key = iso_task_key(&b->p, (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i);
     for (int tries = 0; tries < 2; tries++) {
@@ -211,7 +197,7 @@ static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
  * mesh's arrays laid out in the arena. */
 static int prepare_weld(engine *e, iso_job *ij)
 {
-    iso_block *b = block(e);
+    iso_block *b = sched_block(e);
     uint64_t n = b->n_tasks;
     ij->t_tasks_end = clock_now();
     ij->weld_ready = 1;
@@ -222,13 +208,13 @@ static int prepare_weld(engine *e, iso_job *ij)
     uint64_t *vb = rc ? NULL : arena_alloc(e, 8 * (n + 1));
     uint64_t *tb = vb ? arena_alloc(e, 8 * (n + 1)) : NULL;
     if (rc) return rc;
-    if (!tb) return no_room(e, "the mesh");
+    if (!tb) return sched_no_room(e, "the mesh");
     char msg[sizeof e->err.message] = "";
     if ((rc = iso_weld_bases(&b->p, ij->pc, n, vb, tb, par_cpus(), msg, sizeof msg)))
         return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", msg);
     void *pos = arena_alloc(e, 12 * vb[n]), *tri = pos ? arena_alloc(e, 12 * tb[n]) : NULL;
     void *nrm = tri && b->p.normals ? arena_alloc(e, 12 * vb[n]) : NULL;
-    if (!tri || (b->p.normals && !nrm)) return no_room(e, "the mesh");
+    if (!tri || (b->p.normals && !nrm)) return sched_no_room(e, "the mesh");
     b->vbase_off = (uint64_t)((uint8_t *)vb - e->seg.base);
     b->tbase_off = (uint64_t)((uint8_t *)tb - e->seg.base);
     b->pos_off = (uint64_t)((uint8_t *)pos - e->seg.base);
@@ -281,7 +267,7 @@ static int indices_ok(const uint32_t *tri, uint64_t n, uint64_t nv)
  * segment, kept until the next job. */
 static int weld_rest(engine *e, iso_job *ij)
 {
-    iso_block *b = block(e);
+    iso_block *b = sched_block(e);
     uint64_t n = b->n_tasks;
     const uint64_t *vb = shm_at(e->seg.base, b->vbase_off), *tb = shm_at(e->seg.base, b->tbase_off);
     iso_weld wd = {&b->p, ij->pc, n, vb, tb, shm_at(e->seg.base, b->pos_off),
@@ -311,7 +297,8 @@ static int iso_finish(engine *e, void *job, int rc)
     engine_result *r = ij->r;
     sched_job_totals(e, r);
     r->octants = 0;
-    r->tiles = (uint32_t)block(e)->n_tasks;
+    const iso_block *b = sched_block(e);
+    r->tiles = (uint32_t)b->n_tasks;
     if (!rc && !ij->weld_ready) rc = prepare_weld(e, ij); /* no worker took a task */
     if (!rc) rc = weld_rest(e, ij);
     r->seconds = clock_now() - e->t0;
@@ -339,12 +326,8 @@ const master_kind kind_iso = {
 
 int engine_iso(engine *e, const engine_iso_job *job, iso_mesh *out, engine_result *r)
 {
-    double c0 = clock_thread_cpu();
-    memset(r, 0, sizeof *r);
     memset(out, 0, sizeof *out);
     iso_job ij = {.job = job, .out = out, .r = r};
     sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    int rc = engine_run(e, &kind_iso, &ij, &w);
-    r->master_cpu = clock_thread_cpu() - c0;
-    return rc;
+    return sched_run_job(e, &kind_iso, &ij, &w, r);
 }

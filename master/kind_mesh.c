@@ -26,28 +26,14 @@ typedef struct {
     uint32_t done;         /* tasks finished */
 } mesh_job;
 
-static uint64_t align64(uint64_t v) { return (v + 63) / 64 * 64; }
-
-static mesh_block *block(engine *e)
-{
-    return shm_at(e->seg.base, e->h->job_off);
-}
-
-static int no_room(engine *e, const char *what)
-{
-    return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
-                      "%s does not fit in shared memory (%zu MiB); raise its size",
-                      what, e->seg.bytes >> 20);
-}
-
 /* Where the mesh goes behind the block; the end of its triangles.  (The
  * tiles snap the vertices themselves: a lattice snapped here, serially,
  * into fresh pages of the segment cost the job more than it saved the
  * workers.) */
 static uint64_t place_mesh(engine *e, const mesh *m, mesh_block *b)
 {
-    b->vertices_off = align64(e->h->data_off + sizeof *b);
-    b->triangles_off = align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
+    b->vertices_off = sched_align64(e->h->data_off + sizeof *b);
+    b->triangles_off = sched_align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
     return b->triangles_off + (uint64_t)m->n_triangles * 12;
 }
 
@@ -87,11 +73,11 @@ static int copy_bins(engine *e, const mesh *m, const mesh_bins *bins,
 {
     uint64_t n = (uint64_t)bins->tiles[0] * bins->tiles[1];
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->start_off = align64(place_mesh(e, m, b));
-    b->ids_off = align64(b->start_off + (n + 1) * sizeof(uint64_t));
-    b->stats_off = align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
-    *vol_off = align64(b->stats_off + n * sizeof(mesh_tile_stats));
-    if (*vol_off >= end) return no_room(e, "the mesh");
+    b->start_off = sched_align64(place_mesh(e, m, b));
+    b->ids_off = sched_align64(b->start_off + (n + 1) * sizeof(uint64_t));
+    b->stats_off = sched_align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
+    *vol_off = sched_align64(b->stats_off + n * sizeof(mesh_tile_stats));
+    if (*vol_off >= end) return sched_no_room(e, "the mesh");
     copy_fresh(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
     copy_fresh(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
     memset(shm_at(e->seg.base, b->stats_off), 0, n * sizeof(mesh_tile_stats));
@@ -142,7 +128,7 @@ static int init_volume(engine *e, const mesh_vox_opts *o, const grid_spec *g,
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
     int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
                              mesh_vox_bits(o), MESH_VOLUME_BRICK);
-    if (rc) return no_room(e, "the volume's tables");
+    if (rc) return sched_no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;
 }
@@ -179,7 +165,7 @@ static int mesh_setup(engine *e, void *job)
     mesh_block *b = shm_at(e->seg.base, e->h->data_off);
     memset(b, 0, sizeof *b);
     if (place_mesh(e, j->mesh, b) > e->h->data_off + e->h->data_bytes)
-        return no_room(e, "the mesh");
+        return sched_no_room(e, "the mesh");
     mesh_copy copy = {j->mesh, shm_at(e->seg.base, b->vertices_off),
                       shm_at(e->seg.base, b->triangles_off)};
     par_task copying;
@@ -233,7 +219,7 @@ static void mesh_done(engine *e, int i, const shm_task *t, int error)
     char what[64];
     mesh_describe(t, what, sizeof what);
     if (error == -ENOMEM)
-        no_room(e, "the volume");
+        sched_no_room(e, "the volume");
     else
         sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
                    strerror(-error));
@@ -253,14 +239,15 @@ static void mesh_progress(engine *e, engine_progress *p)
     if (e->volume) { /* the pool grows as the workers write */
         vod_volume_info in;
         vod_volume_get_info(e->volume, &in);
-        p->shm_used = block(e)->volume_off - e->h->data_off + in.bytes_used;
+        const mesh_block *b = sched_block(e);
+        p->shm_used = b->volume_off - e->h->data_off + in.bytes_used;
     }
 }
 
 /* The tiles' counts, and the volume checked before the writer reads it. */
 static int collect(engine *e, mesh_job *mj)
 {
-    const mesh_block *b = block(e);
+    const mesh_block *b = sched_block(e);
     engine_result *r = mj->r;
     const mesh_tile_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint64_t t = 0; t < (uint64_t)b->tiles[0] * b->tiles[1]; t++) {
@@ -313,12 +300,7 @@ const master_kind kind_mesh = {
 
 int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r)
 {
-    double c0 = clock_thread_cpu();
-    memset(r, 0, sizeof *r);
     mesh_job mj = {.job = job, .r = r};
     sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    e->volume = NULL;
-    int rc = engine_run(e, &kind_mesh, &mj, &w);
-    r->master_cpu = clock_thread_cpu() - c0;
-    return rc;
+    return sched_run_job(e, &kind_mesh, &mj, &w, r);
 }

@@ -142,12 +142,20 @@ static inline shm_slot *pool_slot(engine *e, int i)
 /* Run a job of kind k; returns kind->finish's result. */
 int engine_run(engine *e, const master_kind *k, void *job,
                const sched_watch *watch);
+/* engine_run for a kind whose result is an engine_result: r zeroed
+ * first, the master thread's CPU time into it (the wrappers engine_mesh,
+ * engine_csg, ... are this with their kind's job). */
+int sched_run_job(engine *e, const master_kind *k, void *job, const sched_watch *watch,
+                  engine_result *r);
 /* Record the job's failure (the first one is the one told) and return rc. */
 int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 /* The failure of a VOD writer's rc: its own when it said something
  * (said), else the sink's. */
 engine_failure engine_vod_failure(int rc, int said);
+/* sched_fail's ENGINE_LIMIT for what ("the volume") that the data area
+ * cannot hold. */
+int sched_no_room(engine *e, const char *what);
 /* Push task t onto the work stack; 0 or sched_fail (stack full). */
 int sched_push(engine *e, const shm_task *t);
 /* The job leaves the data area's first `bytes` for the next job (the
@@ -157,6 +165,18 @@ int sched_push(engine *e, const shm_task *t);
 void sched_hold(engine *e, uint64_t bytes);
 /* Give back the data area's pages past max(keep_bytes, hold). */
 void sched_release(engine *e);
+/* The running job's block (engine/kinds.h's <kind>_block) in the data area. */
+static inline void *sched_block(engine *e)
+{
+    return shm_at(e->seg.base, e->h->job_off);
+}
+
+/* Offsets in the data area are kept 64-byte aligned (a cache line). */
+static inline uint64_t sched_align64(uint64_t v)
+{
+    return (v + 63) / 64 * 64;
+}
+
 /* The job's totals from the workers' slots (boxes tested, CPU) and the
  * core's books (restarts, stalls), into r. */
 void sched_job_totals(engine *e, engine_result *r);

@@ -58,6 +58,24 @@ int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
     return rc;
 }
 
+int sched_no_room(engine *e, const char *what)
+{
+    return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+                      "%s does not fit in shared memory (%zu MiB); raise its size",
+                      what, e->seg.bytes >> 20);
+}
+
+int sched_run_job(engine *e, const master_kind *k, void *job, const sched_watch *watch,
+                  engine_result *r)
+{
+    double c0 = clock_thread_cpu();
+    memset(r, 0, sizeof *r);
+    e->volume = NULL; /* a volume kind's progress reads it once its setup made it */
+    int rc = engine_run(e, k, job, watch);
+    r->master_cpu = clock_thread_cpu() - c0;
+    return rc;
+}
+
 engine_failure engine_vod_failure(int rc, int said)
 {
     if (!said) return ENGINE_SINK;
