@@ -210,14 +210,13 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
         return r.err.failure == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }
     if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the tree meets its box (see --domain)", o->out);
-    if (!o->quiet)
-        printf("%s: %llu voxels at or above S on a %ux%ux%u grid, %llu bricks (%llu uniform, "
-               "%llu operand subtrees skipped), %llu bytes; evaluated in %.3f s, written in "
-               "%.3f s\n", o->out, (unsigned long long)r.voxels,
-               r.grid.res[0], r.grid.res[1], r.grid.res[2],
-               (unsigned long long)r.csg_bricks, (unsigned long long)r.csg_uniform,
-               (unsigned long long)r.csg_skipped, (unsigned long long)r.st.file_bytes,
-               r.t_voxelize, r.t_write);
+    if (o->quiet) return CLI_EXIT_OK;
+    char bricks[160];
+    pipeline_describe(&job, &r, bricks, sizeof bricks);
+    printf("%s: %llu voxels at or above S on a %ux%ux%u grid, %s, %llu bytes; evaluated in "
+           "%.3f s, written in %.3f s\n", o->out, (unsigned long long)r.voxels,
+           r.grid.res[0], r.grid.res[1], r.grid.res[2], bricks,
+           (unsigned long long)r.st.file_bytes, r.t_voxelize, r.t_write);
     return CLI_EXIT_OK;
 }
 

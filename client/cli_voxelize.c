@@ -77,27 +77,6 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
     return rc;
 }
 
-static void print_mesh_summary(const voxelize_opts *o, const pipeline_job *job,
-                               const pipeline_report *r)
-{
-    if (job->kind != PIPELINE_MESH) return;
-    const mesh_topo *t = &r->topo;
-    printf("  mesh: %u triangles, %llu open and %llu non-manifold edges: %s (%.3f s)",
-           job->mesh.mesh->n_triangles, (unsigned long long)t->open,
-           (unsigned long long)t->nonmanifold, t->watertight ? "watertight" : "not watertight",
-           r->t_topology);
-    if (o->workers > 0)
-        printf("; %u tile%s with triangles, binned in %.3f s", r->tiles, cli_plural(r->tiles),
-               r->t_bin);
-    printf("; job %.3f s\n", r->t_job);
-    if (r->repair_skipped)
-        printf("  repair: not needed, the mesh is watertight (its parities agree)\n");
-    else if (o->mesh_opts.repair != MESH_REPAIR_NONE)
-        printf("  repair: %llu voxels where the parities along x, y, z disagree, in %llu "
-               "storage bricks\n", (unsigned long long)r->disagreements,
-               (unsigned long long)r->disagree_bricks);
-}
-
 static int voxelize(voxelize_opts *o, pipeline_job *job)
 {
     job->lo[0] = o->lo[0], job->lo[1] = o->lo[1], job->lo[2] = o->lo[2];
@@ -139,7 +118,9 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the job meets its box (see --domain)", o->out);
     if (!o->quiet) {
         print_summary(o, &r);
-        print_mesh_summary(o, job, &r);
+        char kind[512];
+        pipeline_describe(job, &r, kind, sizeof kind);
+        fputs(kind, stdout);
     }
     return CLI_EXIT_OK;
 }

@@ -166,6 +166,32 @@ typedef struct {
 /* "cancelled", "bad job", ...: for logs. */
 const char *engine_failure_name(engine_failure f);
 
+/* A kind's own figures: its member of engine_result.fig (the other
+ * kinds' members share the bytes; the implicit kind has none of its own). */
+typedef struct {
+    uint32_t tiles;          /* tiles with triangles, each one task */
+    double t_bin;            /* seconds binning the triangles to tiles */
+    uint64_t disagreements;  /* repair modes: mesh_tile_stats, summed */
+    uint64_t disagree_bricks;
+} engine_mesh_figures;
+
+/* Storage bricks evaluated, of which uniform (a table entry, no voxels
+ * stored), operand subtrees decided from a uniform operand without
+ * evaluating them, voxels the leaves sampled. */
+typedef struct {
+    uint64_t bricks, uniform, skipped, voxel_evals;
+} engine_csg_figures;
+
+typedef struct {
+    uint32_t tasks;          /* brick tasks (iso_tasks) */
+} engine_iso_figures;
+
+typedef union {
+    engine_mesh_figures mesh;
+    engine_csg_figures csg;
+    engine_iso_figures iso;
+} engine_figures;
+
 typedef struct {
     uint64_t voxels;         /* (csg jobs: voxels with density >= S) */
     uint64_t octants;        /* boxes tested (the same for every schedule and
@@ -179,15 +205,7 @@ typedef struct {
                                 progress (no heartbeat for the stall timeout) */
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
-    /* mesh jobs */
-    uint32_t tiles;          /* tiles with triangles, each one task */
-    uint64_t disagreements;  /* repair modes: mesh_tile_stats, summed */
-    uint64_t disagree_bricks;
-    double t_bin;            /* seconds binning the triangles to tiles */
-    /* csg jobs: storage bricks evaluated, of which uniform (a table entry,
-     * no voxels stored), operand subtrees decided from a uniform operand
-     * without evaluating them, voxels the leaves sampled */
-    uint64_t csg_bricks, csg_uniform, csg_skipped, csg_voxel_evals;
+    engine_figures fig;      /* the job's kind's own figures */
     engine_failure failure;  /* why engine_voxelize failed (ENGINE_OK if not) */
     char error[256];         /* ... in words ("" if it did not fail) */
 } engine_result;

@@ -15,6 +15,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 
 #include "clock.h"
 #include "csg.h"
@@ -264,10 +265,10 @@ static int collect(engine *e, csg_job *cj)
     engine_result *r = cj->r;
     const csg_task_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint32_t t = 0; t < b->ntasks; t++) {
-        r->csg_bricks += st[t].bricks;
-        r->csg_uniform += st[t].uniform_bricks;
-        r->csg_skipped += st[t].skipped;
-        r->csg_voxel_evals += st[t].voxel_evals;
+        r->fig.csg.bricks += st[t].bricks;
+        r->fig.csg.uniform += st[t].uniform_bricks;
+        r->fig.csg.skipped += st[t].skipped;
+        r->fig.csg.voxel_evals += st[t].voxel_evals;
         r->voxels += st[t].solid_voxels;
     }
     vod_volume_info in;
@@ -300,6 +301,123 @@ static int csg_finish(engine *e, void *job, int rc)
     return 0;
 }
 
+/* ---- the pipeline's side (master.h) ---- */
+
+static int csg_domain(const pipeline_job *job, double lo[3], double hi[3],
+                      pipeline_report *r)
+{
+    (void)lo, (void)hi; /* the job's own */
+    if (!job->csg.tree || !job->csg.tree->n)
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no csg tree");
+    if (!csg_channel_bits(job->vod.channel))
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+                             "a csg job writes the density, occupancy or surface channel");
+    return 0;
+}
+
+static void csg_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
+{
+    snprintf(pairs, len, "csg_nodes=%u\n", job->csg.tree->n);
+    m->generator = "vox csg";
+    m->source = "";
+    m->source_len = job->csg.source_bytes;
+    m->source_name = job->csg.source_name;
+    m->kind_pairs = pairs;
+}
+
+/* The file leaves of a csg job in a sparse private mapping (*arena,
+ * *abytes; none: MAP_FAILED), their volumes in leaves. */
+static int serial_leaves(const pipeline_job *job, pipeline_report *r, void **arena,
+                         size_t *abytes, vod_volume *leaves[CSG_MAX_NODES])
+{
+    *arena = MAP_FAILED;
+    memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
+    const csg_tree *t = job->csg.tree;
+    if (!csg_has_file_leaves(t)) return 0;
+    size_t one = vod_volume_bytes(r->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX), n = 0;
+    for (uint32_t i = 0; i < t->n; i++)
+        n += t->node[i].kind == CSG_MESH || t->node[i].kind == CSG_VOD;
+    *abytes = one * n;
+    *arena = one ? mmap(NULL, *abytes, PROT_READ | PROT_WRITE,
+                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                 : MAP_FAILED;
+    if (*arena == MAP_FAILED)
+        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
+    char msg[sizeof r->err.message];
+    size_t used;
+    int rc = csg_leaves_build(t, &r->grid, *arena, *abytes, leaves, &used, msg, sizeof msg);
+    if (rc)
+        return pipeline_fail(r, rc == -ENOMEM || rc == -ENOSPC ? ENGINE_LIMIT : ENGINE_BAD_JOB,
+                             rc, "%s", msg);
+    return 0;
+}
+
+/* A csg job in this thread: every brick in turn (csg_eval_volume) into a
+ * volume in a sparse private mapping, the engine's layout. */
+static int csg_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
+                      pipeline_report *r)
+{
+    r->stage = PIPELINE_VOXELIZE;
+    void *larena;
+    size_t lbytes = 0;
+    vod_volume *leaves[CSG_MAX_NODES];
+    double t0 = clock_now();
+    int rc = serial_leaves(job, r, &larena, &lbytes, leaves);
+    if (rc) {
+        if (larena != MAP_FAILED) munmap(larena, lbytes);
+        return rc;
+    }
+    uint32_t bits = csg_channel_bits(v->channel);
+    size_t bytes = vod_volume_bytes(r->grid.res, bits, CSG_VOLUME_BRICK, UINT64_MAX);
+    void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                               MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                        : MAP_FAILED;
+    if (arena == MAP_FAILED) {
+        if (larena != MAP_FAILED) munmap(larena, lbytes);
+        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
+                             r->grid.res[0], r->grid.res[1], r->grid.res[2]);
+    }
+    vod_volume *vol;
+    rc = vod_volume_init(&vol, arena, bytes, r->grid.res, bits, CSG_VOLUME_BRICK);
+    csg_stats st = {0};
+    if (!rc) rc = csg_eval_volume(job->csg.tree, &r->grid, (const vod_volume *const *)leaves,
+                                  vol, v->channel, &st);
+    r->t_voxelize = clock_now() - t0;
+    r->fig.csg = (engine_csg_figures){st.bricks, st.uniform_bricks, st.skipped, st.voxel_evals};
+    r->voxels = st.solid_voxels;
+    if (rc) {
+        pipeline_fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                      "evaluating the tree: %s", strerror(-rc));
+    } else {
+        vod_source src = vod_volume_source(vol);
+        rc = pipeline_write_serial(NULL, &src, v, sink, r);
+    }
+    munmap(arena, bytes);
+    if (larena != MAP_FAILED) munmap(larena, lbytes);
+    return rc;
+}
+
+static int csg_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
+                        engine_result *er, pipeline_report *r)
+{
+    engine_csg_job cj = {.tree = job->csg.tree, .grid = r->grid, .channel = job->vod.channel,
+                         .progress = w->progress, .ud = w->ud, .cancel = w->cancel};
+    int rc = engine_csg(e, &cj, er);
+    r->fig.csg = er->fig.csg;
+    return rc;
+}
+
+/* What vox says of a csg job that ran: its bricks. */
+static void csg_summary(const pipeline_job *job, const pipeline_report *r,
+                                char *buf, size_t len)
+{
+    (void)job;
+    const engine_csg_figures *f = &r->fig.csg;
+    snprintf(buf, len, "%llu bricks (%llu uniform, %llu operand subtrees skipped)",
+             (unsigned long long)f->bricks, (unsigned long long)f->uniform,
+             (unsigned long long)f->skipped);
+}
+
 const master_kind kind_csg = {
     .name = "csg",
     .id = SHM_KIND_CSG,
@@ -310,6 +428,11 @@ const master_kind kind_csg = {
     .describe = csg_describe,
     .progress = csg_progress,
     .finish = csg_finish,
+    .domain = csg_domain,
+    .meta = csg_meta,
+    .serial = csg_serial,
+    .voxelize = csg_voxelize,
+    .summary = csg_summary,
 };
 
 int engine_csg(engine *e, const engine_csg_job *job, engine_result *r)

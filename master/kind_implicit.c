@@ -6,10 +6,12 @@
 #include <errno.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <time.h>
 
 #include "clock.h"
 #include "master.h"
+#include "subdiv.h"
 
 typedef struct {
     const engine_job *job;
@@ -222,6 +224,63 @@ static int implicit_finish(engine *e, void *job, int rc)
     return 0;
 }
 
+/* ---- the pipeline's side (master.h) ---- */
+
+static int implicit_domain(const pipeline_job *job, double lo[3], double hi[3],
+                           pipeline_report *r)
+{
+    (void)lo, (void)hi; /* the job's own */
+    return job->implicit.tape ? 0
+                              : pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+                                              "the job has no expression");
+}
+
+static void implicit_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
+{
+    (void)pairs, (void)len; /* none of its own */
+    m->source = job->implicit.source;
+    m->source_len = job->implicit.source_len;
+    m->source_name = job->implicit.source_name;
+}
+
+#define SERIAL_CELLS (1u << 27) /* 4 GiB of address space, not of memory */
+
+/* The serial algorithm: its octree in a sparse private mapping, touched
+ * only as cells are handed out. */
+static int implicit_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
+                           pipeline_report *r)
+{
+    size_t bytes = octree_arena_bytes(SERIAL_CELLS);
+    void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                       MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    r->stage = PIPELINE_VOXELIZE;
+    if (arena == MAP_FAILED)
+        return pipeline_fail(r, ENGINE_FAULT, -errno, "cannot map the octree: %s",
+                             strerror(errno));
+    octree t;
+    octree_init(&t, arena, SERIAL_CELLS, r->grid.depth);
+    double t0 = clock_now();
+    int rc = subdiv_serial(job->implicit.tape, &r->grid, &t);
+    r->t_voxelize = clock_now() - t0;
+    r->voxels = t.voxels;
+    if (rc == -ENOMEM)
+        pipeline_fail(r, ENGINE_LIMIT, rc, "the octree outgrew its 4 GiB arena");
+    else if (rc)
+        pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    if (!rc) rc = pipeline_write_serial(&t, NULL, v, sink, r);
+    munmap(arena, bytes);
+    return rc;
+}
+
+static int implicit_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
+                             engine_result *er, pipeline_report *r)
+{
+    engine_job ej = {.tape = job->implicit.tape, .grid = r->grid,
+                     .schedule = job->schedule, .progress = w->progress,
+                     .ud = w->ud, .cancel = w->cancel};
+    return engine_voxelize(e, &ej, er);
+}
+
 const master_kind kind_implicit = {
     .name = "implicit",
     .id = SHM_KIND_IMPLICIT,
@@ -232,6 +291,10 @@ const master_kind kind_implicit = {
     .describe = implicit_describe,
     .progress = implicit_progress,
     .finish = implicit_finish,
+    .domain = implicit_domain,
+    .meta = implicit_meta,
+    .serial = implicit_serial,
+    .voxelize = implicit_voxelize,
 };
 
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r)

@@ -298,7 +298,7 @@ static int iso_finish(engine *e, void *job, int rc)
     sched_job_totals(e, r);
     r->octants = 0;
     const iso_block *b = sched_block(e);
-    r->tiles = (uint32_t)b->n_tasks;
+    r->fig.iso.tasks = (uint32_t)b->n_tasks;
     if (!rc && !ij->weld_ready) rc = prepare_weld(e, ij); /* no worker took a task */
     if (!rc) rc = weld_rest(e, ij);
     r->seconds = clock_now() - e->t0;

@@ -8,6 +8,7 @@
  * bricks go straight into the volume and its counts into its entry of
  * the stats array.  The volume is checked before anyone reads it. */
 #include <errno.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -173,7 +174,7 @@ static int mesh_setup(engine *e, void *job)
     double t0 = clock_now();
     mesh_bins bins;
     int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, par_cpus(), &bins);
-    mj->r->t_bin = clock_now() - t0;
+    mj->r->fig.mesh.t_bin = clock_now() - t0;
     par_join(&copying);
     if (rc) return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));
@@ -252,8 +253,8 @@ static int collect(engine *e, mesh_job *mj)
     const mesh_tile_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint64_t t = 0; t < (uint64_t)b->tiles[0] * b->tiles[1]; t++) {
         r->voxels += st[t].voxels;
-        r->disagreements += st[t].disagreements;
-        r->disagree_bricks += st[t].disagree_bricks;
+        r->fig.mesh.disagreements += st[t].disagreements;
+        r->fig.mesh.disagree_bricks += st[t].disagree_bricks;
     }
     vod_volume_info in;
     int bad = vod_volume_check(e->volume, e->volume_bytes);
@@ -278,12 +279,203 @@ static int mesh_finish(engine *e, void *job, int rc)
     engine_result *r = mj->r;
     sched_job_totals(e, r);
     r->octants = 0;
-    r->tiles = mj->ntiles;
+    r->fig.mesh.tiles = mj->ntiles;
     if (!rc) rc = collect(e, mj);
     r->seconds = clock_now() - e->t0;
     if (rc) return sched_job_failed(e, r, rc);
     e->result = RESULT_VOLUME;
     return 0;
+}
+
+/* ---- the pipeline's side (master.h) ---- */
+
+/* A mesh job's domain: its bounding box grown by pad voxels each side,
+ * the voxel size such that res voxels span the longest side of that. */
+static int mesh_fit(const pipeline_job *job, double lo[3], double hi[3],
+                    pipeline_report *r)
+{
+    const mesh *m = job->mesh.mesh;
+    double ext = 0;
+    for (int a = 0; a < 3; a++)
+        if ((double)m->hi[a] - m->lo[a] > ext) ext = (double)m->hi[a] - m->lo[a];
+    if (!(ext > 0))
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the mesh has an empty bounding box");
+    if ((uint64_t)job->mesh.pad * 2 >= job->res)
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+                             "a padding of %u voxels leaves no room in %u voxels",
+                             job->mesh.pad, job->res);
+    double vs = ext / (double)(job->res - 2 * job->mesh.pad);
+    for (int a = 0; a < 3; a++) {
+        lo[a] = m->lo[a] - job->mesh.pad * vs;
+        hi[a] = m->hi[a] + job->mesh.pad * vs;
+    }
+    return 0;
+}
+
+/* The job's checks, and its domain when it fits the mesh. */
+static int mesh_domain(const pipeline_job *job, double lo[3], double hi[3],
+                       pipeline_report *r)
+{
+    if (!job->mesh.mesh || !job->mesh.mesh->n_triangles)
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
+    char err[sizeof r->err.message];
+    if (mesh_vox_check(&job->mesh.opts, err, sizeof err))
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err);
+    r->fig.mesh.triangles = job->mesh.mesh->n_triangles;
+    return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
+}
+
+static void mesh_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
+{
+    static const char *const modes[] = {"solid", "surface", "surface6",
+                                        "conservative", "interior"};
+    static const char *const repairs[] = {"none", "vote", "winding"};
+    snprintf(pairs, len, "mesh_triangles=%u\nmesh_mode=%s\nmesh_repair=%s\n",
+             job->mesh.mesh->n_triangles, modes[job->mesh.opts.mode],
+             repairs[job->mesh.opts.repair]);
+    m->source = "";
+    m->source_len = job->mesh.source_bytes;
+    m->source_name = job->mesh.source_name;
+    m->kind_pairs = pairs;
+}
+
+/* A mesh's topology found in a thread of its own while the engine bins
+ * the triangles and the workers run the tiles: the master is idle then. */
+typedef struct {
+    const mesh *m;
+    par_task task;
+    int rc;
+    mesh_topo topo;
+    double seconds;
+} topo_job;
+
+static void *topo_run(void *arg)
+{
+    topo_job *t = arg;
+    double t0 = clock_now();
+    t->rc = mesh_edges(t->m, &t->topo);
+    t->seconds = clock_now() - t0;
+    return NULL;
+}
+
+/* mesh_edges' failure rc, as the job's (before any voxel). */
+static int topo_error(pipeline_report *r, int rc)
+{
+    r->stage = PIPELINE_GRID;
+    return pipeline_fail(r, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                         "the mesh's edges: %s", strerror(-rc));
+}
+
+/* Wait for t and put its result in r: 0, or the error mesh_check gives. */
+static int topo_join(topo_job *t, pipeline_report *r)
+{
+    par_join(&t->task);
+    r->fig.mesh.topo = t->topo;
+    r->fig.mesh.t_topology = t->seconds;
+    return t->rc ? topo_error(r, t->rc) : 0;
+}
+
+/* A mesh job's topology into r; the repair dropped from *run when the
+ * mesh is watertight. */
+static int mesh_check(pipeline_job *run, pipeline_report *r)
+{
+    double t0 = clock_now();
+    int rc = mesh_edges(run->mesh.mesh, &r->fig.mesh.topo);
+    r->fig.mesh.t_topology = clock_now() - t0;
+    if (rc) return topo_error(r, rc);
+    if (r->fig.mesh.topo.watertight && run->mesh.opts.repair != MESH_REPAIR_NONE) {
+        run->mesh.opts.repair = MESH_REPAIR_NONE;
+        r->fig.mesh.repair_skipped = 1;
+    }
+    return 0;
+}
+
+/* A mesh job in this thread: every tile in turn (mesh_voxelize) into a
+ * volume in a sparse private mapping, touched only as bricks are made. */
+static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
+                           vod_sink *sink, pipeline_report *r)
+{
+    const mesh_vox_opts *o = &job->mesh.opts;
+    r->stage = PIPELINE_VOXELIZE;
+    size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), MESH_VOLUME_BRICK,
+                                    UINT64_MAX);
+    void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
+                               MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
+                        : MAP_FAILED;
+    if (arena == MAP_FAILED)
+        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
+                             r->grid.res[0], r->grid.res[1], r->grid.res[2]);
+    vod_volume *vol;
+    int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, mesh_vox_bits(o),
+                             MESH_VOLUME_BRICK);
+    mesh_tile_stats st = {0};
+    double t0 = clock_now();
+    if (!rc) rc = mesh_voxelize(job->mesh.mesh, &r->grid, o, vol, &st);
+    r->t_voxelize = clock_now() - t0;
+    r->voxels = st.voxels;
+    r->fig.mesh.vox.disagreements = st.disagreements;
+    r->fig.mesh.vox.disagree_bricks = st.disagree_bricks;
+    if (rc) {
+        pipeline_fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                      "voxelizing the mesh: %s", strerror(-rc));
+    } else {
+        vod_source src = vod_volume_source(vol);
+        rc = pipeline_write_serial(NULL, &src, v, sink, r);
+    }
+    munmap(arena, bytes);
+    return rc;
+}
+
+static int mesh_serial(pipeline_job *run, const vod_params *v, vod_sink *sink,
+                       pipeline_report *r)
+{
+    int rc = mesh_check(run, r);
+    return rc ? rc : run_serial_mesh(run, v, sink, r);
+}
+
+/* Without a repair the topology decides nothing before the write: on an
+ * engine it is found while the triangles are voxelized. */
+static int mesh_voxelize_stage(engine *e, pipeline_job *run, const sched_watch *w,
+                               engine_result *er, pipeline_report *r)
+{
+    topo_job topo = {.m = run->mesh.mesh};
+    bool overlap = run->mesh.opts.repair == MESH_REPAIR_NONE;
+    if (overlap) par_start(&topo.task, topo_run, &topo);
+    else {
+        int rc = mesh_check(run, r);
+        if (rc) return rc;
+    }
+    engine_mesh_job mj = {.mesh = run->mesh.mesh, .grid = r->grid, .opts = run->mesh.opts,
+                          .mip_channel = run->vod.channel, .progress = w->progress,
+                          .ud = w->ud, .cancel = w->cancel};
+    int rc = engine_mesh(e, &mj, er);
+    int trc = overlap ? topo_join(&topo, r) : 0;
+    r->fig.mesh.vox = er->fig.mesh;
+    return trc ? trc : rc;
+}
+
+/* What vox says of a mesh job that ran. */
+static void mesh_summary(const pipeline_job *job, const pipeline_report *r,
+                                 char *buf, size_t len)
+{
+    const pipeline_mesh_figures *f = &r->fig.mesh;
+    FILE *out = fmemopen(buf, len, "w");
+    if (!out) return;
+    fprintf(out, "  mesh: %u triangles, %llu open and %llu non-manifold edges: %s (%.3f s)",
+            f->triangles, (unsigned long long)f->topo.open,
+            (unsigned long long)f->topo.nonmanifold,
+            f->topo.watertight ? "watertight" : "not watertight", f->t_topology);
+    if (r->workers > 0)
+        fprintf(out, "; %u tile%s with triangles, binned in %.3f s", f->vox.tiles,
+                f->vox.tiles == 1 ? "" : "s", f->vox.t_bin);
+    fprintf(out, "; job %.3f s\n", r->t_job);
+    if (f->repair_skipped)
+        fprintf(out, "  repair: not needed, the mesh is watertight (its parities agree)\n");
+    else if (job->mesh.opts.repair != MESH_REPAIR_NONE)
+        fprintf(out, "  repair: %llu voxels where the parities along x, y, z disagree, in %llu "
+                "storage bricks\n", (unsigned long long)f->vox.disagreements,
+                (unsigned long long)f->vox.disagree_bricks);
+    fclose(out);
 }
 
 const master_kind kind_mesh = {
@@ -296,6 +488,11 @@ const master_kind kind_mesh = {
     .describe = mesh_describe,
     .progress = mesh_progress,
     .finish = mesh_finish,
+    .domain = mesh_domain,
+    .meta = mesh_meta,
+    .serial = mesh_serial,
+    .voxelize = mesh_voxelize_stage,
+    .summary = mesh_summary,
 };
 
 int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r)

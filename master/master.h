@@ -24,6 +24,7 @@
 
 #include "engine.h"
 #include "kinds.h"
+#include "pipeline.h"
 #include "shm.h"
 #include "vod_volume.h"
 
@@ -114,9 +115,44 @@ struct master_kind {
     void (*progress)(engine *e, engine_progress *p);
     /* The job is over with rc (0 or a failure): produce the result. */
     int (*finish)(engine *e, void *job, int rc);
+    /* The pipeline's side (pipeline.c runs every job through these; NULL
+     * for a kind that is no pipeline job: encode, iso).  The job's checks
+     * and its domain (lo, hi: the job's, which a kind whose domain is its
+     * input's replaces); 0, or pipeline_fail's return. */
+    int (*domain)(const pipeline_job *job, double lo[3], double hi[3], pipeline_report *r);
+    /* Its source and pairs in the VOD's metadata (m's source fields, its
+     * "key=value\n" pairs written in pairs and named by m->kind_pairs). */
+    void (*meta)(const pipeline_job *job, job_meta *m, char *pairs, size_t len);
+    /* The job without an engine (vox -w 0), into r->grid, then the VOD
+     * written (pipeline_write_serial).  run: the caller's copy of the job,
+     * the kind's to change (a mesh's repair that is not needed). */
+    int (*serial)(pipeline_job *run, const vod_params *v, vod_sink *sink,
+                  pipeline_report *r);
+    /* The voxelization on e's workers (engine_<kind>), watched by w; the
+     * kind's figures from er into r->fig.  The core copies the common
+     * ones and writes the VOD.  0, or a negative errno (r->err set when
+     * the kind said why, else er's). */
+    int (*voxelize)(engine *e, pipeline_job *run, const sched_watch *w, engine_result *er,
+                    pipeline_report *r);
+    /* Its figures in words, for vox (pipeline_describe); NULL: none. */
+    void (*summary)(const pipeline_job *job, const pipeline_report *r, char *buf,
+                     size_t len);
 };
 
 extern const master_kind kind_implicit, kind_encode, kind_mesh, kind_csg, kind_iso;
+
+/* kinds.c: the kind of each pipeline_kind, NULL for none. */
+extern const master_kind *const pipeline_kinds[PIPELINE_KINDS];
+
+/* ---- pipeline.c: for the kinds' pipeline side ---- */
+
+/* r->err set (failure f, code rc, the message); returns rc. */
+int pipeline_fail(pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+/* The serial write stage, in this thread, from the octree t or else the
+ * source s (r->stage, r->t_write, r->st; r->err on a failure). */
+int pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sink *sink,
+                          pipeline_report *r);
 
 /* ---- pool.c: the workers' lives ---- */
 

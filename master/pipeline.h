@@ -6,8 +6,11 @@
  * caller's thread), then the VOD written to the caller's sink.  So the
  * bytes are the same wherever a job runs, by construction.
  *
- * A job kind that comes with its own description (meshes, CSG) adds its
- * member to pipeline_job and its case to pipeline_run.
+ * What a kind does is its master side's (master/kind_<name>.c, one row in
+ * master/kinds.c's table): its checks and domain, its metadata, its run
+ * without and with an engine, its figures (its own block of the report,
+ * pipeline_report.fig) and their words (pipeline_describe).  A kind that
+ * comes with its own description adds its member to pipeline_job.
  *
  * CSG jobs: the domain lo/hi as for an expression; the channel is the
  * density (vod.channel 2) or the occupancy (1: density >= S); the engine
@@ -41,6 +44,7 @@ typedef enum {
     PIPELINE_IMPLICIT = 1, /* F(x,y,z) = 0 */
     PIPELINE_MESH = 2,     /* a triangle mesh */
     PIPELINE_CSG = 3,      /* a volume CSG tree (csg.h) */
+    PIPELINE_KINDS
 } pipeline_kind;
 
 typedef struct {
@@ -81,21 +85,27 @@ typedef struct {
 
 typedef enum { PIPELINE_GRID, PIPELINE_VOXELIZE, PIPELINE_WRITE } pipeline_stage;
 
+/* A mesh job's figures: its voxelization's (tiles and t_bin on an engine
+ * only), and what the pipeline found of the mesh. */
+typedef struct {
+    engine_mesh_figures vox;
+    uint32_t triangles;
+    mesh_topo topo;               /* its edges (mesh_edges: no components, no volume) */
+    double t_topology;            /* ... seconds finding them */
+    int repair_skipped;           /* a repair asked of a watertight mesh: not
+                                     needed (its three parities agree) */
+} pipeline_mesh_figures;
+
+/* A kind's own figures, its member the one its kind fills. */
+typedef union {
+    pipeline_mesh_figures mesh;
+    engine_csg_figures csg;
+} pipeline_figures;
+
 typedef struct {
     grid_spec grid;
     uint64_t voxels;
     uint64_t octants;             /* boxes tested (engine only) */
-    uint32_t tiles;               /* mesh: tiles with triangles */
-    double t_bin;                 /* mesh, engine only: seconds binning the
-                                     triangles to tiles (part of t_voxelize) */
-    uint64_t disagreements, disagree_bricks; /* mesh repair modes */
-    mesh_topo topo;               /* mesh: its edges (mesh_edges: no components, no volume) */
-    double t_topology;            /* ... seconds finding them */
-    int repair_skipped;           /* a repair asked of a watertight mesh: not
-                                     needed (its three parities agree) */
-    /* csg: storage bricks, of which uniform, operand subtrees skipped,
-     * voxels the leaves sampled (engine_result's csg_*) */
-    uint64_t csg_bricks, csg_uniform, csg_skipped, csg_voxel_evals;
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */
@@ -105,6 +115,9 @@ typedef struct {
                                      engine, overlaps the voxelization:
                                      t_job, not the sum, is the job's time) */
     double master_cpu, worker_cpu;
+    int workers;                  /* the engine's, 0: the serial algorithm */
+    pipeline_figures fig;         /* the job's kind's own (set from the
+                                     domain's checks on) */
     vod_stats st;
     pipeline_stage stage;         /* the stage reached (that failed, if so) */
     engine_error err;             /* why it failed */
@@ -121,5 +134,11 @@ int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
  * a negative errno with r->err saying why and r->stage where. */
 int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
                  pipeline_report *r);
+
+/* The kind's figures of job (r: pipeline_run's) in words, for vox: a
+ * mesh's as lines of their own, a csg tree's bricks as a clause; "" when
+ * the kind has none. */
+void pipeline_describe(const pipeline_job *job, const pipeline_report *r, char *buf,
+                       size_t len);
 
 #endif

@@ -35,6 +35,7 @@
 #include "grid.h"
 #include "log.h"
 #include "mesh_vox.h"
+#include "pipeline.h"
 #include "voxd.pb-c.h"
 
 #define VD_SERVER_NAME "voxd 0.1"
@@ -119,12 +120,8 @@ struct vd_job {
     uint8_t *map;              /* the memfd mapped for delivery, NULL none */
     uint64_t size, sent;       /* bytes of the VOD, bytes sent as chunks */
     uint64_t voxels;
-    int has_mesh_report;       /* a mesh job that ran: mesh_report below */
-    struct {
-        uint32_t triangles, tiles;
-        uint64_t open, nonmanifold, disagreements, disagree_bricks;
-        int watertight, repair_skipped;
-    } mesh_report;
+    int has_figures;           /* the job passed its checks: fig below */
+    pipeline_figures fig;      /* its kind's own figures (pipeline_report.fig) */
     vod_stats st;
     double t_voxelize, t_write;
     grid_spec grid;            /* the job's grid, for its Summary (set when it succeeded) */

@@ -370,17 +370,8 @@ static void run_pipeline(engine *e, vd_job *j, pipeline_job *job, uint64_t room)
     j->t_voxelize = r.t_voxelize;
     j->t_write = r.t_write;
     j->voxels = r.voxels;
-    if (job->kind == PIPELINE_MESH && r.stage != PIPELINE_GRID) {
-        j->has_mesh_report = 1;
-        j->mesh_report.triangles = job->mesh.mesh->n_triangles;
-        j->mesh_report.tiles = r.tiles;
-        j->mesh_report.open = r.topo.open;
-        j->mesh_report.nonmanifold = r.topo.nonmanifold;
-        j->mesh_report.watertight = r.topo.watertight;
-        j->mesh_report.repair_skipped = r.repair_skipped;
-        j->mesh_report.disagreements = r.disagreements;
-        j->mesh_report.disagree_bricks = r.disagree_bricks;
-    }
+    j->has_figures = r.stage != PIPELINE_GRID;
+    j->fig = r.fig;
     j->st = r.st;
 }
 

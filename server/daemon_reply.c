@@ -94,6 +94,33 @@ static double nonneg(double s)
     return s > 0 ? s : 0;
 }
 
+/* A kind's part of a Summary: its own message (voxd.proto), filled from
+ * its figures.  One row per kind that has one. */
+typedef struct {
+    Voxd__MeshReport mesh;
+} kind_reports;
+
+static void mesh_summary(const pipeline_figures *f, Voxd__Summary *m, kind_reports *k)
+{
+    const pipeline_mesh_figures *mf = &f->mesh;
+    Voxd__MeshReport *mr = &k->mesh;
+    voxd__mesh_report__init(mr);
+    mr->triangles = mf->triangles;
+    mr->open_edges = mf->topo.open;
+    mr->nonmanifold_edges = mf->topo.nonmanifold;
+    mr->watertight = mf->topo.watertight;
+    mr->tiles = mf->vox.tiles;
+    mr->repair_skipped = mf->repair_skipped;
+    mr->disagreements = mf->vox.disagreements;
+    mr->disagree_bricks = mf->vox.disagree_bricks;
+    m->mesh = mr;
+}
+
+static void (*const kind_summary[PIPELINE_KINDS])(const pipeline_figures *f, Voxd__Summary *m,
+                                                  kind_reports *k) = {
+    [PIPELINE_MESH] = mesh_summary,
+};
+
 int vd_send_summary(vd_client *c, const vd_job *j)
 {
     const grid_spec *g = &j->grid;
@@ -117,18 +144,9 @@ int vd_send_summary(vd_client *c, const vd_job *j)
     m.seconds_voxelize = nonneg(j->t_voxelize);
     m.seconds_write = nonneg(j->t_write);
     m.mpi_ranks = j->mpi_ranks;
-    Voxd__MeshReport mr = VOXD__MESH_REPORT__INIT;
-    if (j->has_mesh_report) {
-        mr.triangles = j->mesh_report.triangles;
-        mr.open_edges = j->mesh_report.open;
-        mr.nonmanifold_edges = j->mesh_report.nonmanifold;
-        mr.watertight = j->mesh_report.watertight;
-        mr.tiles = j->mesh_report.tiles;
-        mr.repair_skipped = j->mesh_report.repair_skipped;
-        mr.disagreements = j->mesh_report.disagreements;
-        mr.disagree_bricks = j->mesh_report.disagree_bricks;
-        m.mesh = &mr;
-    }
+    kind_reports kr;
+    if (j->has_figures && (unsigned)j->kind < PIPELINE_KINDS && kind_summary[j->kind])
+        kind_summary[j->kind](&j->fig, &m, &kr);
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_SUMMARY;
     r.summary = &m;

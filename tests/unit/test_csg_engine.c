@@ -128,9 +128,9 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
         pipeline_job job = csg_job(t, 75, channels[c]);
         pipeline_report r0, r;
         vod_membuf ref = run(NULL, &job, &r0);
-        cr_assert_gt(r0.csg_bricks, 0);
-        cr_assert_gt(r0.csg_uniform, 0, "most of the box is empty");
-        cr_assert_lt(r0.csg_uniform, r0.csg_bricks);
+        cr_assert_gt(r0.fig.csg.bricks, 0);
+        cr_assert_gt(r0.fig.csg.uniform, 0, "most of the box is empty");
+        cr_assert_lt(r0.fig.csg.uniform, r0.fig.csg.bricks);
         uint64_t solid = assert_voxels(&ref, t, &r0.grid, channels[c]);
         cr_assert_gt(solid, 0);
         cr_assert_eq(r0.voxels, solid, "the report counts the voxels at or above S");
@@ -138,10 +138,10 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
             vod_membuf mb = run(e[w], &job, &r);
             cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0,
                       "channel %d, %d workers: other bytes", channels[c], w + 1);
-            cr_assert_eq(r.csg_bricks, r0.csg_bricks);
-            cr_assert_eq(r.csg_uniform, r0.csg_uniform);
-            cr_assert_eq(r.csg_skipped, r0.csg_skipped);
-            cr_assert_eq(r.csg_voxel_evals, r0.csg_voxel_evals);
+            cr_assert_eq(r.fig.csg.bricks, r0.fig.csg.bricks);
+            cr_assert_eq(r.fig.csg.uniform, r0.fig.csg.uniform);
+            cr_assert_eq(r.fig.csg.skipped, r0.fig.csg.skipped);
+            cr_assert_eq(r.fig.csg.voxel_evals, r0.fig.csg.voxel_evals);
             cr_assert_eq(r.voxels, r0.voxels, "voxels at or above S");
             free(mb.p);
         }
@@ -213,7 +213,7 @@ Test(csg_engine, a_worker_killed_mid_job_changes_nothing)
     cr_assert(k.killed, "no progress report came while the bricks ran");
     cr_assert_geq(r.restarts, 1, "the killed worker was replaced");
     cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0, "other bytes");
-    cr_assert_eq(r.csg_bricks, r0.csg_bricks);
+    cr_assert_eq(r.fig.csg.bricks, r0.fig.csg.bricks);
     free(mb.p);
     free(ref.p);
     engine_destroy(e);

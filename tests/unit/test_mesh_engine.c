@@ -80,7 +80,7 @@ Test(mesh_engine, a_box_serial_and_on_the_engine)
             cr_assert_eq(r.voxels, r0.voxels, "channel %d, %d workers", channels[c], w + 1);
             cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0,
                       "channel %d, %d workers: other bytes", channels[c], w + 1);
-            cr_assert_gt(r.tiles, 0);
+            cr_assert_gt(r.fig.mesh.vox.tiles, 0);
             free(mb.p);
         }
         if (channels[c] == VOXEL_CH_OCCUPANCY) {
@@ -259,12 +259,12 @@ Test(mesh_engine, repair_runs_only_where_the_mesh_is_open)
     pipeline_job job = mesh_job(m, 48, VOXEL_CH_OCCUPANCY);
     pipeline_report plain, voted;
     vod_membuf a = run(NULL, &job, &plain);
-    cr_assert(plain.topo.watertight);
-    cr_assert_eq(plain.topo.open, 0);
-    cr_assert_not(plain.repair_skipped);
+    cr_assert(plain.fig.mesh.topo.watertight);
+    cr_assert_eq(plain.fig.mesh.topo.open, 0);
+    cr_assert_not(plain.fig.mesh.repair_skipped);
     job.mesh.opts.repair = MESH_REPAIR_VOTE;
     vod_membuf b = run(NULL, &job, &voted);
-    cr_assert(voted.repair_skipped);
+    cr_assert(voted.fig.mesh.repair_skipped);
     cr_assert_eq(voted.voxels, plain.voxels);
     free(a.p);
     free(b.p);
@@ -272,11 +272,12 @@ Test(mesh_engine, repair_runs_only_where_the_mesh_is_open)
     shape_remove(&s, not_every_seventh, NULL);
     engine *e = make_engine(2);
     vod_membuf h0 = run(NULL, &job, &voted), h2 = run(e, &job, &plain);
-    cr_assert_not(voted.topo.watertight);
-    cr_assert_gt(voted.topo.open, 0);
-    cr_assert_not(voted.repair_skipped);
-    cr_assert_gt(voted.disagreements, 0, "a mesh with holes: the parities disagree");
-    cr_assert_eq(plain.disagreements, voted.disagreements, "engine and serial count alike");
+    cr_assert_not(voted.fig.mesh.topo.watertight);
+    cr_assert_gt(voted.fig.mesh.topo.open, 0);
+    cr_assert_not(voted.fig.mesh.repair_skipped);
+    cr_assert_gt(voted.fig.mesh.vox.disagreements, 0, "a mesh with holes: the parities disagree");
+    cr_assert_eq(plain.fig.mesh.vox.disagreements, voted.fig.mesh.vox.disagreements,
+                 "engine and serial count alike");
     cr_assert(h0.n == h2.n && memcmp(h0.p, h2.p, h0.n) == 0, "other bytes");
     free(h0.p);
     free(h2.p);
@@ -459,7 +460,7 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
                  in.stalled_state);
     cr_log_info("the tile: %.3f s, serially %.3f s", r.t_voxelize, r0.t_voxelize);
     cr_assert_geq(r.t_voxelize, 3 * stall, "the tile took %.3f s: not a long one", r.t_voxelize);
-    cr_assert_gt(r.disagreements, 0);
+    cr_assert_gt(r.fig.mesh.vox.disagreements, 0);
     cr_assert_eq(in.stalls, 0, "the worker was taken for stalled");
     cr_assert_eq(in.replaced, 0);
     cr_assert_eq(r.stalls, 0);
@@ -488,10 +489,10 @@ Test(mesh_engine, winding_repair_same_bytes_for_any_workers, .timeout = 600)
         job.mesh.opts.repair = MESH_REPAIR_WINDING;
         pipeline_report r0, r;
         vod_membuf ref = run(NULL, &job, &r0);
-        cr_assert_gt(r0.disagreements, 0);
+        cr_assert_gt(r0.fig.mesh.vox.disagreements, 0);
         for (int w = 0; w < 2; w++) {
             vod_membuf got = run(e[w], &job, &r);
-            cr_assert_eq(r.disagreements, r0.disagreements);
+            cr_assert_eq(r.fig.mesh.vox.disagreements, r0.fig.mesh.vox.disagreements);
             cr_assert(got.n == ref.n && memcmp(got.p, ref.p, ref.n) == 0,
                       "channel %d, %d workers: other bytes", channels[k], w + 1);
             free(got.p);
