@@ -11,8 +11,11 @@
  * the master writes before the job's first task (published by the
  * task_seq release) and the workers read.
  *
- * Adding a kind: a number and a block here, one master file, one worker
- * file, one entry in each side's table (master/kinds.c, worker/worker.c).
+ * Adding a kind: a number and a block here, one master file
+ * (master/kind_<name>.c), one worker file (worker/work_<name>.c), one
+ * entry in each side's table (master/kinds.c for a pipeline job's kind,
+ * worker/worker.c); docs/design.md, "Adding a kind of job", lists every
+ * file.
  */
 #ifndef VOXD_KINDS_H
 #define VOXD_KINDS_H
