@@ -8,6 +8,7 @@
  * bricks go straight into the volume and its counts into its entry of
  * the stats array.  The volume is checked before anyone reads it. */
 #include <errno.h>
+#include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,6 +18,7 @@
 #include "clock.h"
 #include "master.h"
 #include "par.h"
+#include "voxel.h"
 
 
 typedef struct {
@@ -114,14 +116,17 @@ static int tile_wanted(const engine_mesh_job *j, const mesh_bins *bins, uint32_t
     return tx >= j->tiles[0] && tx < j->tiles[2] && ty >= j->tiles[1] && ty < j->tiles[3];
 }
 
-/* One task per tile with triangles, the lightest pushed first. */
+/* One task per tile with triangles (every tile for a distance), the
+ * lightest pushed first. */
 static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
 {
     uint32_t n = bins->tiles[0] * bins->tiles[1], k = 0;
+    /* a distance tile without triangles still writes its +w bricks */
+    bool dist = mj->job->opts.channel == VOXEL_CH_DISTANCE;
     uint32_t *order = malloc((n ? n : 1) * sizeof *order);
     if (!order) return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
     for (uint32_t t = 0; t < n; t++)
-        if (bins->start[t + 1] > bins->start[t] && tile_wanted(mj->job, bins, t))
+        if ((bins->start[t + 1] > bins->start[t] || dist) && tile_wanted(mj->job, bins, t))
             order[k++] = t;
     qsort_r(order, k, sizeof *order, by_triangles, bins->start);
     int rc = 0;

@@ -47,9 +47,14 @@ static void vod_setup(vod_params *v, const pipeline_job *job, const double lo[3]
         static const char *const modes[] = {"solid", "surface", "surface6",
                                             "conservative", "interior"};
         static const char *const repairs[] = {"none", "vote", "winding"};
-        snprintf(pairs, sizeof pairs, "mesh_triangles=%u\nmesh_mode=%s\nmesh_repair=%s\n",
-                 job->mesh.mesh->n_triangles, modes[job->mesh.opts.mode],
-                 repairs[job->mesh.opts.repair]);
+        int n = snprintf(pairs, sizeof pairs, "mesh_triangles=%u\nmesh_mode=%s\nmesh_repair=%s\n",
+                         job->mesh.mesh->n_triangles, modes[job->mesh.opts.mode],
+                         repairs[job->mesh.opts.repair]);
+        /* the distance's band (voxels) and units: what readers of a
+         * level set (the .vdb's background) need */
+        if (job->mesh.opts.channel == VOXEL_CH_DISTANCE && n > 0 && (size_t)n < sizeof pairs)
+            snprintf(pairs + n, sizeof pairs - (size_t)n, "distance_band=%u\ndistance_units=world\n",
+                     mesh_vox_band(&job->mesh.opts));
         m.source = "";
         m.source_len = job->mesh.source_bytes;
         m.source_name = job->mesh.source_name;
