@@ -111,7 +111,7 @@ int main(int argc, char **argv)
            sysconf(_SC_NPROCESSORS_ONLN));
     printf("| res | bin | tiles, 1 thread (CPU) | tiles, 2 threads (CPU) | allocated bricks | voxels |\n");
     printf("|---|---|---|---|---|---|\n");
-    mesh_vox_opts o = {mode, MESH_REPAIR_NONE, channel, 0};
+    mesh_vox_opts o = {mode, MESH_REPAIR_NONE, channel, 0, 0};
     for (int i = optind; i < argc; i++) {
         uint32_t res = (uint32_t)atoi(argv[i]);
         double lo[3] = {-1.02, -1.02, -1.02}, hi[3] = {1.02, 1.02, 1.02};

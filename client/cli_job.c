@@ -22,9 +22,10 @@
 #define OUTPUT_OPTIONS \
     "      --schedule subtree|paper\n" \
     "                         hand out subtrees (default) or single octants (the paper)\n" \
-    "      --channel surface|occupancy|density\n" \
+    "      --channel surface|occupancy|density|distance\n" \
     "                         32-bit voxels with normals (the default for F), 1 bit (the\n" \
-    "                         default for a mesh) or 8-bit density (meshes only)\n" \
+    "                         default for a mesh), 8-bit density or the f32 signed\n" \
+    "                         distance (meshes only)\n" \
     "      --brick N          brick size, a power of two 2..256 (default 16)\n" \
     "      --compress zlib|runl|none   (default zlib)\n" \
     "      --hash sfhs|xx32   brick hash (default sfhs)\n"
@@ -41,6 +42,8 @@
     "                         meshes with holes: majority of the x, y, z parities, or the\n" \
     "                         winding number where they disagree (default none)\n" \
     "      --supersample K    density: KxKxK samples per voxel, 2..8 (default 2)\n" \
+    "      --band K           distance: exact within K voxels of the surface, 1..32\n" \
+    "                         (default 3); beyond, K voxels with the voxel's sign\n" \
     CLI_WELD_HELP \
     "      --pad N            empty voxels around the mesh's bounding box (default 1)\n" \
     "      --bbox X0,X1,Y0,Y1,Z0,Z1\n" \
@@ -128,9 +131,10 @@ static int parse_choice(const char *s, const char *const names[],
 
 static int parse_vod_option(int c, const char *arg, vod_params *v)
 {
-    static const char *const ch_names[] = {"surface", "occupancy", "density", NULL};
+    static const char *const ch_names[] = {"surface", "occupancy", "density", "distance",
+                                           NULL};
     static const uint32_t ch_values[] = {VOXEL_CH_SURFACE, VOXEL_CH_OCCUPANCY,
-                                         VOXEL_CH_DENSITY};
+                                         VOXEL_CH_DENSITY, VOXEL_CH_DISTANCE};
     static const char *const comp_names[] = {"zlib", "runl", "none", NULL};
     static const uint32_t comp_values[] = {VOD_COMP_ZLIB, VOD_COMP_RUNL, VOD_COMP_NONE};
     static const char *const hash_names[] = {"sfhs", "xx32", NULL};
@@ -151,8 +155,8 @@ static int parse_vod_option(int c, const char *arg, vod_params *v)
     return -1;
 }
 
-/* --mode, --repair, --supersample, --pad, --bbox, --weld: 0, or -1 after a
- * message. */
+/* --mode, --repair, --supersample, --band, --pad, --bbox, --weld: 0, or -1
+ * after a message. */
 static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
 {
     static const char *const modes[] = {"solid", "surface", "surface6",
@@ -176,6 +180,10 @@ static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
     case 'K':
         if (!cli_parse_uint(arg, 2, 8, &o->mesh_opts.supersample)) return 0;
         cli_error("bad --supersample '%.40s': want 2..8", arg);
+        return -1;
+    case 'N':
+        if (!cli_parse_uint(arg, 1, VOXEL_BAND_MAX, &o->mesh_opts.band)) return 0;
+        cli_error("bad --band '%.40s': want 1..%u voxels", arg, VOXEL_BAND_MAX);
         return -1;
     case 'A':
         if (!cli_parse_uint(arg, 0, GRID_MAX_RES / 2, &o->pad)) return 0;
@@ -212,19 +220,27 @@ static int check_job_kind(const char *name, cli_job_opts *o)
                                strcmp(name, "submit") ? "" : ", --csg");
     if (o->csg) { /* the densities, or the occupancy */
         if (o->mesh_opts_given) {
-            cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
+            cli_error("--mode, --repair, --supersample, --band, --pad, --bbox and --weld are for --mesh jobs");
             return CLI_EXIT_USAGE;
         }
         if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
         return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {
-        cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
+        cli_error("--mode, --repair, --supersample, --band, --pad, --bbox and --weld are for --mesh jobs");
         return CLI_EXIT_USAGE;
     }
-    if (!o->mesh && o->vod.channel == VOXEL_CH_DENSITY) {
-        cli_error("--channel density is for --mesh jobs (an expression gives surface "
-                  "or occupancy)");
+    if (!o->mesh && (o->vod.channel == VOXEL_CH_DENSITY || o->vod.channel == VOXEL_CH_DISTANCE)) {
+        cli_error("--channel %s is for --mesh jobs (an expression gives surface "
+                  "or occupancy)", o->vod.channel == VOXEL_CH_DENSITY ? "density" : "distance");
+        return CLI_EXIT_USAGE;
+    }
+    if (o->mesh_opts.band && o->vod.channel != VOXEL_CH_DISTANCE) {
+        cli_error("--band is for --channel distance");
+        return CLI_EXIT_USAGE;
+    }
+    if (o->vod.channel == VOXEL_CH_DISTANCE && o->mesh_opts.mode != MESH_SOLID) {
+        cli_error("--channel distance takes its sign from the solid: mode solid only");
         return CLI_EXIT_USAGE;
     }
     if (o->mesh && !o->channel_given) o->vod.channel = VOXEL_CH_OCCUPANCY;
@@ -264,7 +280,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"shm-size", 1, 0, 'M'}, {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'},
         {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {"compress-level", 1, 0, 'L'},
         {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
-        {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
+        {"supersample", 1, 0, 'K'}, {"band", 1, 0, 'N'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
         {"weld", 1, 0, 'W'},
         {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     static const struct option longs_submit[] = {
@@ -274,7 +290,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
         {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
         {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
-        {"supersample", 1, 0, 'K'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
+        {"supersample", 1, 0, 'K'}, {"band", 1, 0, 'N'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
         {"weld", 1, 0, 'W'},
         {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'},
         /* voxelize's, each refused with why (engine_option) */
@@ -350,7 +366,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         case 'h': cli_job_usage(cmd, stdout); exit(0);
         case 'm': o->mesh = optarg; break;
         case 'G': o->csg = optarg; break;
-        case 'O': case 'R': case 'K': case 'A': case 'X': case 'W':
+        case 'O': case 'R': case 'K': case 'N': case 'A': case 'X': case 'W':
             if (parse_mesh_option(c, optarg, o)) return CLI_EXIT_USAGE;
             break;
         case 'C': case 'B': case 'Z': case 'H':

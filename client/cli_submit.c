@@ -84,6 +84,7 @@ static int vox_channel(int ch)
 {
     return ch == VOXEL_CH_OCCUPANCY ? VOX_CHANNEL_OCCUPANCY
            : ch == VOXEL_CH_DENSITY ? VOX_CHANNEL_DENSITY
+           : ch == VOXEL_CH_DISTANCE ? VOX_CHANNEL_DISTANCE
                                     : VOX_CHANNEL_SURFACE;
 }
 
@@ -240,7 +241,9 @@ static void mesh_job(const cli_job_opts *o, const void *data, size_t len, vox_jo
         .data = data, .len = len, .format = VOX_MESH_FORMAT_AUTO, .source_name = o->mesh,
         .mode = (int)o->mesh_opts.mode + 1,     /* the protocol's numbers */
         .repair = (int)o->mesh_opts.repair + 1,
-        .supersample = o->mesh_opts.supersample,
+        /* vox_mesh's one field for the density's samples and the band */
+        .supersample = o->mesh_opts.channel == VOXEL_CH_DISTANCE ? o->mesh_opts.band
+                                                                 : o->mesh_opts.supersample,
         .weld = o->weld >= 0,
         .weld_eps = o->weld >= 0 ? o->weld : 0,
         .fit = !o->has_domain, .pad = o->pad,

@@ -20,6 +20,12 @@ enum voxel_channel {
 
 #define VOXEL_FULL 255u
 
+/* Channel 4's narrow band: the distance is exact within VOXEL_BAND voxels
+ * of the surface on each side (--band K), the band's width K * voxel size
+ * with the voxel's sign beyond it. */
+#define VOXEL_BAND_DEFAULT 3u
+#define VOXEL_BAND_MAX 32u
+
 /* Octahedral encoding of a unit vector into 2 x 12 bits (bits 8-31 of a
  * channel-3 voxel; returned already shifted).  A zero vector encodes +z. */
 uint32_t voxel_pack_normal(const double n[3]);

@@ -1020,7 +1020,9 @@ static void mesh_request(const vox_job *job, const uint8_t *data, size_t len, in
     m->mesh.format = (Voxd__MeshFormat)mj->format;
     m->mesh.mode = (Voxd__MeshMode)mj->mode;
     m->mesh.repair = (Voxd__MeshRepair)mj->repair;
-    m->mesh.supersample = mj->supersample;
+    /* one field of vox_mesh, two of the protocol's */
+    if (job->channel == VOX_CHANNEL_DISTANCE) m->mesh.band = mj->supersample;
+    else m->mesh.supersample = mj->supersample;
     m->mesh.weld = mj->weld != 0;
     m->mesh.weld_eps = mj->weld_eps;
     m->mesh.source_name = name_bytes(mj->source_name);

@@ -123,12 +123,13 @@ void vox_server(const vox_client *c, vox_server_info *out);
 
 /* Enum values are the protocol's; 0 everywhere means the daemon's default. */
 /* DEFAULT: SURFACE for an implicit job, OCCUPANCY for a mesh job; DENSITY
- * is for mesh jobs only. */
+ * and DISTANCE are for mesh jobs only. */
 enum {
     VOX_CHANNEL_DEFAULT = 0,
     VOX_CHANNEL_OCCUPANCY = 1,
     VOX_CHANNEL_DENSITY = 2,
     VOX_CHANNEL_SURFACE = 3,
+    VOX_CHANNEL_DISTANCE = 4, /* mesh jobs: the f32 signed distance */
 };
 enum { VOX_COMP_DEFAULT = 0, VOX_COMP_NONE = 1, VOX_COMP_ZLIB = 2, VOX_COMP_RUNL = 3 };
 enum { VOX_HASH_DEFAULT = 0, VOX_HASH_SFHS = 1, VOX_HASH_XX32 = 2 };
@@ -191,7 +192,9 @@ typedef struct {
     int mode;             /* VOX_MESH_MODE_* */
     int repair;           /* VOX_MESH_REPAIR_* */
     uint32_t supersample; /* VOX_CHANNEL_DENSITY: samples per voxel and axis,
-                             2..8; 0 = 2 */
+                             2..8; 0 = 2.  VOX_CHANNEL_DISTANCE: the band's
+                             half width in voxels, 1..32; 0 = 3 (one field
+                             for both keeps vox_job's layout) */
     int fit;              /* 1: the grid fits the mesh's bounding box grown by
                              pad voxels each side (domain unused); 0: domain */
     uint32_t pad;         /* fit: empty voxels around the box (vox's default: 1) */

@@ -18,6 +18,7 @@
 #include "clock.h"
 #include "master.h"
 #include "par.h"
+#include "voxel.h"
 
 
 typedef struct {
@@ -101,14 +102,17 @@ static int tile_wanted(const engine_mesh_job *j, const mesh_bins *bins, uint32_t
     return tx >= j->tiles[0] && tx < j->tiles[2] && ty >= j->tiles[1] && ty < j->tiles[3];
 }
 
-/* One task per tile with triangles, the lightest pushed first. */
+/* One task per tile with triangles (every tile for a distance), the
+ * lightest pushed first. */
 static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
 {
     uint32_t n = bins->tiles[0] * bins->tiles[1], k = 0;
+    /* a distance tile without triangles still writes its +w bricks */
+    bool dist = mj->job->opts.channel == VOXEL_CH_DISTANCE;
     uint32_t *order = malloc((n ? n : 1) * sizeof *order);
     if (!order) return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
     for (uint32_t t = 0; t < n; t++)
-        if (bins->start[t + 1] > bins->start[t] && tile_wanted(mj->job, bins, t))
+        if ((bins->start[t + 1] > bins->start[t] || dist) && tile_wanted(mj->job, bins, t))
             order[k++] = t;
     qsort_r(order, k, sizeof *order, by_triangles, bins->start);
     int rc = 0;
@@ -330,9 +334,14 @@ static void mesh_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t 
     static const char *const modes[] = {"solid", "surface", "surface6",
                                         "conservative", "interior"};
     static const char *const repairs[] = {"none", "vote", "winding"};
-    snprintf(pairs, len, "mesh_triangles=%u\nmesh_mode=%s\nmesh_repair=%s\n",
-             job->mesh.mesh->n_triangles, modes[job->mesh.opts.mode],
-             repairs[job->mesh.opts.repair]);
+    int n = snprintf(pairs, len, "mesh_triangles=%u\nmesh_mode=%s\nmesh_repair=%s\n",
+                     job->mesh.mesh->n_triangles, modes[job->mesh.opts.mode],
+                     repairs[job->mesh.opts.repair]);
+    /* the distance's band (voxels) and units: what readers of a level set
+     * (the .vdb's background) need */
+    if (job->mesh.opts.channel == VOXEL_CH_DISTANCE && n > 0 && (size_t)n < len)
+        snprintf(pairs + n, len - (size_t)n, "distance_band=%u\ndistance_units=world\n",
+                 mesh_vox_band(&job->mesh.opts));
     m->source = "";
     m->source_len = job->mesh.source_bytes;
     m->source_name = job->mesh.source_name;

@@ -307,9 +307,11 @@ static int binner_init(binner *b, const mesh *m, const grid_spec *g,
     b->nt[0] = (g->res[0] + MESH_TILE - 1) / MESH_TILE;
     b->nt[1] = (g->res[1] + MESH_TILE - 1) / MESH_TILE;
     b->ntiles = b->nt[0] * b->nt[1];
-    b->margin = p.apron + 1.0 / 64; /* the snapping moves < 2^-17 voxel */
+    /* the snapping moves < 2^-17 voxel; a distance tile needs the
+     * triangles within its band of its columns */
+    b->margin = p.apron + p.band + 1.0 / 64;
     b->rep = o->repair != MESH_REPAIR_NONE;
-    b->exact = p.solid1 && !p.surf && !p.rep && !p.dens; /* z rays only */
+    b->exact = p.solid1 && !p.surf && !p.rep && !p.dens && !p.dist; /* z rays only */
     mv_frame_init(&b->f, m, g, 1);
     size_t nt = (size_t)m->n_triangles + 1;
     b->vr = malloc(((size_t)m->n_vertices + 1) * sizeof *b->vr);

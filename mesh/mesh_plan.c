@@ -10,7 +10,12 @@
 
 uint32_t mesh_vox_bits(const mesh_vox_opts *o)
 {
-    return o->channel == VOXEL_CH_SURFACE ? 32 : 8;
+    return o->channel == VOXEL_CH_SURFACE ? 32 : o->channel == VOXEL_CH_DISTANCE ? VOD_VOLUME_F32 : 8;
+}
+
+uint32_t mesh_vox_band(const mesh_vox_opts *o)
+{
+    return o->band ? o->band : VOXEL_BAND_DEFAULT;
 }
 
 int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
@@ -19,12 +24,16 @@ int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
     if ((unsigned)o->mode > MESH_INTERIOR) why = "unknown mesh mode";
     else if ((unsigned)o->repair > MESH_REPAIR_WINDING) why = "unknown repair";
     else if (o->channel != VOXEL_CH_OCCUPANCY && o->channel != VOXEL_CH_DENSITY &&
-             o->channel != VOXEL_CH_SURFACE)
-        why = "a mesh job gives channel 1 (occupancy), 2 (density) or 3 (surface)";
+             o->channel != VOXEL_CH_SURFACE && o->channel != VOXEL_CH_DISTANCE)
+        why = "a mesh job gives channel 1 (occupancy), 2 (density), 3 (surface) or 4 (distance)";
     else if (o->supersample != 0 && (o->supersample < 2 || o->supersample > 8))
         why = "supersample must be 2..8";
     else if (o->channel == VOXEL_CH_DENSITY && o->mode != MESH_SOLID)
         why = "the density channel is the solid's coverage: mode solid only";
+    else if (o->channel == VOXEL_CH_DISTANCE && o->mode != MESH_SOLID)
+        why = "the distance channel's sign is the solid's: mode solid only";
+    else if (o->band > VOXEL_BAND_MAX || (o->band && o->channel != VOXEL_CH_DISTANCE))
+        why = "the band is 1..32 voxels, for the distance channel";
     if (why) {
         snprintf(err, errlen, "%s", why);
         return -EINVAL;
@@ -49,6 +58,8 @@ void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
     p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
     p->K = o->supersample ? o->supersample : 2;
     p->nz = g->res[2];
+    p->dist = o->channel == VOXEL_CH_DISTANCE;
+    p->band = p->dist ? mesh_vox_band(o) : 0;
     if (!p->dens) return;
     uint32_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
     p->fnw = (rows + 63) / 64;
@@ -80,7 +91,8 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
     }
     if (p->surf) TAKE(b->surf, col);
     if (p->rep) TAKE(b->dis, col);
-    TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits / 8));
+    TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits == VOD_VOLUME_F32 ? 4 : bits / 8));
+    if (p->dist) TAKE(b->d2, (size_t)MAX_S * MAX_S * MAX_S * sizeof(double));
     if (p->dens) {
         size_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
         size_t slab = (size_t)p->zs * p->K, words = rows * p->fnw * slab;

@@ -2,7 +2,8 @@
  * tile's storage bricks, and every tile serially (mesh_vox.h).  The options
  * and the scratch are mesh_plan.c; the kernels mesh_raster.c (crossings),
  * mesh_solid.c (parities and their repair), mesh_surface.c (triangle/box
- * overlap) and mesh_density.c (supersampled coverage, normals). */
+ * overlap), mesh_density.c (supersampled coverage, normals) and
+ * mesh_dist.c (the signed distance). */
 #include "mesh_vox_int.h"
 
 #include <errno.h>
@@ -212,6 +213,8 @@ int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *id
             rc = -ECANCELED;
         } else if (o->channel == VOXEL_CH_OCCUPANCY) {
             rc = emit_occupancy(&t, t.occ, b.brick);
+        } else if (o->channel == VOXEL_CH_DISTANCE) {
+            rc = mv_dist_run(&t, &p, &b);
         } else {
             rc = mv_density_run(&t, &p, &b);
             st->voxels += popcount_words(t.occ, (size_t)t.ny * t.nz);

@@ -50,8 +50,11 @@ typedef enum {
 typedef struct {
     mesh_mode mode;
     mesh_repair repair;
-    int channel;          /* VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY or VOXEL_CH_SURFACE */
+    int channel;          /* VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY, VOXEL_CH_SURFACE or
+                             VOXEL_CH_DISTANCE (mode solid: its sign) */
     uint32_t supersample; /* density: samples per voxel and axis, 2..8 (0: 2) */
+    uint32_t band;        /* distance: the narrow band's half width in voxels,
+                             1..VOXEL_BAND_MAX (0: VOXEL_BAND_DEFAULT) */
 } mesh_vox_opts;
 
 /* The triangles of every tile: tile (tx, ty) is number ty * tiles[0] + tx
@@ -69,12 +72,18 @@ typedef struct {
     uint64_t disagree_bricks; /* storage bricks holding such voxels */
 } mesh_tile_stats;
 
-/* Bits of the volume's voxels for these options: 8 (occupancy, density)
- * or 32 (surface channel: occupancy and a packed normal, voxel.h). */
+/* Bits of the volume's voxels for these options: 8 (occupancy, density),
+ * 32 (surface channel: occupancy and a packed normal, voxel.h) or
+ * VOD_VOLUME_F32 (distance). */
 uint32_t mesh_vox_bits(const mesh_vox_opts *o);
 
 /* 0 when o is a valid combination, else -EINVAL with a message. */
 int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen);
+/* The band of o in voxels (o->band, or VOXEL_BAND_DEFAULT for 0). */
+uint32_t mesh_vox_band(const mesh_vox_opts *o);
+/* The distance beyond the band, in world units, for a grid of voxel size
+ * vs: what every voxel there holds, with its sign (mesh_dist.c). */
+float mesh_dist_width(const mesh_vox_opts *o, double vs);
 
 /* The vertices on the lattice of the voxel centres (mesh_vox_int.h), one
  * int64_t[3] each: what the tiles read instead of snapping every vertex of

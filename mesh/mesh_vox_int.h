@@ -245,6 +245,8 @@ typedef struct {
     uint32_t fnw;    /* words per row of a fine block */
     uint32_t zs;     /* voxel slices per fine block */
     uint32_t ring;   /* voxel slices of counts kept */
+    bool dist;       /* the signed distance (channel 4) */
+    uint32_t band;   /* its band, voxels */
 } mv_plan;
 
 /* The scratch's buffers (NULL where the plan needs none). */
@@ -253,6 +255,7 @@ typedef struct {
     uint8_t *brick;                               /* one storage brick */
     uint64_t *fa, *fzc, *fbx, *fby, *fcx, *fcy, *fdis; /* fine blocks */
     uint16_t *ring;                               /* coverage counts */
+    double *d2;                                   /* a brick's squared distances */
 } mv_bufs;
 
 void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p);
@@ -278,5 +281,8 @@ typedef struct {
 /* The density channel's bricks, or the surface channel's (occupancy from
  * t->occ, normals from the coverage). */
 int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b);
+/* The distance channel's bricks (mesh_dist.c): the signed distance of
+ * every voxel within the band, the sign from t->occ (the solid). */
+int mv_dist_run(mv_tile *t, const mv_plan *p, const mv_bufs *b);
 
 #endif

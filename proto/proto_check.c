@@ -10,6 +10,7 @@
 
 #include "frame.h"
 #include "job_meta.h"
+#include "voxel.h"
 
 #define INVALID VOXD__ERROR_CODE__INVALID_INPUT
 #define LIMIT VOXD__ERROR_CODE__LIMIT_EXCEEDED
@@ -291,6 +292,19 @@ static int check_mesh_options(const Voxd__Mesh *m, proto_error *e)
     return 0;
 }
 
+/* The distance channel's band, and its sign's mode (the solid). */
+static int check_mesh_band(const Voxd__Mesh *m, const Voxd__Submit *s, proto_error *e)
+{
+    int dist = s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE;
+    if (m->band > VOXEL_BAND_MAX)
+        return bad(e, INVALID, "band %u is not from 1 to %u voxels (or 0: %u)", m->band,
+                   VOXEL_BAND_MAX, VOXEL_BAND_DEFAULT);
+    if (m->band && !dist) return bad(e, INVALID, "band %u is for channel distance", m->band);
+    if (dist && m->mode > VOXD__MESH_MODE__MESH_MODE_SOLID)
+        return bad(e, INVALID, "channel distance takes its sign from the solid: mode solid only");
+    return 0;
+}
+
 static int check_mesh(const Voxd__Mesh *m, const Voxd__Submit *s, const proto_limits *lim,
                       proto_error *e)
 {
@@ -306,11 +320,7 @@ static int check_mesh(const Voxd__Mesh *m, const Voxd__Submit *s, const proto_li
     if ((uint64_t)m->pad * 2 >= m->res)
         return bad(e, INVALID, "pad %u leaves no voxel for the mesh in res %u (2 pad < res)",
                    m->pad, m->res);
-    if (s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
-        return bad(e, INVALID,
-                   "channel distance is not available for mesh jobs (use occupancy, density "
-                   "or surface)");
-    return 0;
+    return check_mesh_band(m, s, e);
 }
 
 typedef struct {

@@ -255,6 +255,7 @@ static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
     j->mesh_opts.mode = m->mode ? (mesh_mode)(m->mode - 1) : MESH_SOLID;
     j->mesh_opts.repair = m->repair ? (mesh_repair)(m->repair - 1) : MESH_REPAIR_NONE;
     j->mesh_opts.supersample = m->supersample;
+    j->mesh_opts.band = m->band;
     j->weld = m->weld;
     j->weld_eps = m->weld_eps;
     j->schedule = ENGINE_SCHED_SUBTREE; /* not the mesh kind's: tiles */
@@ -266,6 +267,7 @@ static int channel_of(const Voxd__Submit *s)
     case VOXD__CHANNEL__CHANNEL_OCCUPANCY: return VOXEL_CH_OCCUPANCY;
     case VOXD__CHANNEL__CHANNEL_DENSITY: return VOXEL_CH_DENSITY;
     case VOXD__CHANNEL__CHANNEL_SURFACE: return VOXEL_CH_SURFACE;
+    case VOXD__CHANNEL__CHANNEL_DISTANCE: return VOXEL_CH_DISTANCE; /* mesh jobs (proto_check) */
     default:
         return s->job_case == VOXD__SUBMIT__JOB_MESH  ? VOXEL_CH_OCCUPANCY
                : s->job_case == VOXD__SUBMIT__JOB_CSG ? VOXEL_CH_DENSITY

@@ -48,8 +48,9 @@
 typedef struct {
     uint32_t volume[3];     /* volumeSize: the voxels asked for, each >= 1 */
     uint32_t brick;         /* 2^k, 1 <= k <= 8; default 16 */
-    int channel;            /* VOXEL_CH_OCCUPANCY (1 bit), VOXEL_CH_DENSITY (8 bit)
-                               or VOXEL_CH_SURFACE (32 bit); the source must give it */
+    int channel;            /* VOXEL_CH_OCCUPANCY (1 bit), VOXEL_CH_DENSITY (8 bit),
+                               VOXEL_CH_SURFACE (32 bit) or VOXEL_CH_DISTANCE (f32);
+                               the source must give it */
     uint32_t comp;          /* VOD_COMP_* ; default ZLIB */
     uint32_t hash;          /* VOD_HASH_* ; default SFHS */
     int zlib_level;         /* ZLIB: 1..VOD_ZLIB_LEVEL_MAX, default 6 */
@@ -74,8 +75,7 @@ typedef struct {
 
 /* Validate p against the spec and compute the layout.  -EINVAL with a
  * message in err for bad params (also when the volume is larger than the
- * source's 2^octree_depth cube, and for channel 4, which the spec declares
- * but nothing produces yet), -EFBIG when the octree table alone would
+ * source's 2^octree_depth cube), -EFBIG when the octree table alone would
  * pass 4 GiB.  The padded side N is 2^octree_depth, smaller than it (an
  * octree deeper than the volume needs: the file's root is the cell that
  * covers [0, N)^3), or the brick itself when the brick is larger than the

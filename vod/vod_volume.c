@@ -3,7 +3,9 @@
  * Each level l (0 = the voxels, 1..depth = mip levels) has a table of one
  * u32 entry per storage brick, grid[l] bricks per axis, covering the
  * ceil(dims / 2^l) voxels of that level: 0 = empty, ENTRY_UNIFORM | v =
- * every voxel is v (v < 2^31), anything else = pool brick entry - 1.
+ * every voxel is v (v < 2^31), WIDE_BASE + i = every voxel is wide[i] (a
+ * float volume's values of 2^31 and more: negative distances), anything
+ * else = pool brick entry - 1.
  *
  * At a mip level an entry is 0 exactly when the brick's full-resolution
  * footprint holds no non-zero voxel (prepare() computes it from the voxels,
@@ -30,12 +32,18 @@
 #define VOL_MAGIC 0x4c4f5656u /* "VVOL" */
 #define VOL_LEVELS (OCTREE_MAX_DEPTH + 1)
 #define ENTRY_UNIFORM 0x80000000u
-#define POOL_MAX (ENTRY_UNIFORM - 2u) /* entries 1..ENTRY_UNIFORM-1 */
+/* A float volume's uniform values with the top bit set (-w, the inside
+ * of a distance field beyond its band) have entries WIDE_BASE + i, their
+ * values in the header, added as the writers meet them. */
+#define WIDE_MAX 8u
+#define WIDE_BASE (ENTRY_UNIFORM - WIDE_MAX)
+#define POOL_MAX (WIDE_BASE - 2u) /* entries 1..WIDE_BASE-1 */
 
 struct vod_volume {
     uint32_t magic;
     uint32_t dims[3];
     uint32_t bits, sbrick, slog2;
+    uint32_t f32; /* 1: IEEE binary32 voxels, channel 4 (VOD_VOLUME_F32) */
     int depth;
     uint32_t grid[VOL_LEVELS][3];
     uint64_t table_off[VOL_LEVELS]; /* from the start of the arena */
@@ -59,12 +67,42 @@ struct vod_volume {
      * channel builds only the levels above.  Their bricks are mixed with
      * level 0's in the pool, so nothing gives them back. */
     int low_channel, low_levels;
+    /* The wide uniform values (WIDE_BASE).  A writer that needs a new one
+     * takes a slot (relaxed: slots are published to readers like the
+     * bricks, by the end of the writers' phase) and writes its value; two
+     * writers may take a slot each for one value, which costs a slot. */
+    atomic_uint wide_n;
+    uint32_t wide[WIDE_MAX];
 };
 
 static uint64_t align64(uint64_t v) { return (v + 63) & ~(uint64_t)63; }
 
-static bool is_uniform(uint32_t e) { return (e & ENTRY_UNIFORM) != 0; }
+static bool is_uniform(uint32_t e) { return e >= WIDE_BASE; }
 static bool is_alloc(uint32_t e) { return e && !is_uniform(e); }
+
+/* The value of an entry without memory. */
+static uint32_t uval(const struct vod_volume *v, uint32_t e)
+{
+    return e >= ENTRY_UNIFORM ? e & ~ENTRY_UNIFORM : e >= WIDE_BASE ? v->wide[e - WIDE_BASE] : 0;
+}
+
+/* The entry of value u without memory (0 for 0), or 0 when u cannot be
+ * one (the top bit set in an integer volume, or no wide slot left). */
+static uint32_t uentry(struct vod_volume *v, uint32_t u)
+{
+    if (u < ENTRY_UNIFORM) return u ? ENTRY_UNIFORM | u : 0;
+    if (!v->f32) return 0;
+    uint32_t n = atomic_load_explicit(&v->wide_n, memory_order_relaxed);
+    for (uint32_t i = 0; i < n && i < WIDE_MAX; i++)
+        if (v->wide[i] == u) return WIDE_BASE + i;
+    uint32_t i = atomic_fetch_add_explicit(&v->wide_n, 1, memory_order_relaxed);
+    if (i >= WIDE_MAX) {
+        atomic_fetch_sub_explicit(&v->wide_n, 1, memory_order_relaxed);
+        return 0;
+    }
+    v->wide[i] = u;
+    return WIDE_BASE + i;
+}
 
 /* ---- layout ---- */
 
@@ -72,7 +110,7 @@ static int check_args(const uint32_t dims[3], uint32_t bits, uint32_t sbrick)
 {
     for (int a = 0; a < 3; a++)
         if (dims[a] < 1 || dims[a] > VOD_VOLUME_MAX_SIDE) return -EINVAL;
-    if (bits != 8 && bits != 32) return -EINVAL;
+    if (bits != 8 && bits != 32 && bits != VOD_VOLUME_F32) return -EINVAL;
     if (sbrick < VOD_VOLUME_MIN_BRICK || sbrick > VOD_VOLUME_MAX_BRICK ||
         (sbrick & (sbrick - 1)))
         return -EINVAL;
@@ -87,7 +125,8 @@ static uint64_t plan(struct vod_volume *h, const uint32_t dims[3], uint32_t bits
     memset(h, 0, sizeof *h);
     h->magic = VOL_MAGIC;
     memcpy(h->dims, dims, sizeof h->dims);
-    h->bits = bits;
+    h->f32 = bits == VOD_VOLUME_F32;
+    h->bits = h->f32 ? 32 : bits;
     h->sbrick = sbrick;
     while (1u << h->slog2 < sbrick) h->slog2++;
     uint32_t m = dims[0] > dims[1] ? dims[0] : dims[1];
@@ -105,7 +144,7 @@ static uint64_t plan(struct vod_volume *h, const uint32_t dims[3], uint32_t bits
         h->table_off[l] = at;
         at = align64(at + 4 * g);
     }
-    h->brick_bytes = (uint64_t)sbrick * sbrick * sbrick * bits / 8;
+    h->brick_bytes = (uint64_t)sbrick * sbrick * sbrick * h->bits / 8;
     h->pool_off = at;
     return at;
 }
@@ -156,7 +195,7 @@ vod_volume *vod_volume_view(void *arena)
 void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
 {
     memcpy(out->dims, v->dims, sizeof out->dims);
-    out->bits = v->bits;
+    out->bits = v->f32 ? VOD_VOLUME_F32 : v->bits;
     out->sbrick = v->sbrick;
     out->depth = v->depth;
     out->pool_cap = v->pool_cap;
@@ -177,9 +216,9 @@ int vod_volume_check(const vod_volume *v, size_t bytes)
 {
     struct vod_volume h;
     if (bytes < sizeof h || v->magic != VOL_MAGIC ||
-        check_args(v->dims, v->bits, v->sbrick))
+        check_args(v->dims, v->bits, v->sbrick) || v->f32 > 1)
         return -EINVAL;
-    uint64_t head = plan(&h, v->dims, v->bits, v->sbrick);
+    uint64_t head = plan(&h, v->dims, v->f32 ? VOD_VOLUME_F32 : v->bits, v->sbrick);
     if (head > bytes || h.slog2 != v->slog2 || h.depth != v->depth ||
         memcmp(h.grid, v->grid, sizeof h.grid) ||
         memcmp(h.table_off, v->table_off, sizeof h.table_off) ||
@@ -188,13 +227,17 @@ int vod_volume_check(const vod_volume *v, size_t bytes)
     uint32_t used = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     uint32_t l0 = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
     if (v->pool_cap > (bytes - head) / h.brick_bytes || used > v->pool_cap ||
-        l0 > used || v->mip_channel != 0)
+        l0 > used || v->mip_channel != 0 ||
+        atomic_load_explicit(&v->wide_n, memory_order_relaxed) > WIDE_MAX)
         return -EINVAL;
     /* every level: the mip levels built by column are in the tables too */
     for (int l = 0; l <= v->depth; l++) {
         const uint32_t *t = table(v, l);
         for (uint64_t i = 0, n = grid_bricks(v, l); i < n; i++)
-            if (is_alloc(t[i]) && t[i] > used) return -EINVAL;
+            if ((is_alloc(t[i]) && t[i] > used) ||
+                (t[i] >= WIDE_BASE && t[i] < ENTRY_UNIFORM &&
+                 t[i] - WIDE_BASE >= atomic_load_explicit(&v->wide_n, memory_order_relaxed)))
+                return -EINVAL;
     }
     return v->low_levels == 0 ? 0 : -EINVAL;
 }
@@ -278,7 +321,7 @@ static int level0_data(vod_volume *v, const uint32_t b[3], bool whole, uint8_t *
     const uint32_t *g = v->grid[0];
     uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
     if (!is_alloc(*e)) {
-        uint32_t n = pool_take(v, *e & ~ENTRY_UNIFORM, !whole);
+        uint32_t n = pool_take(v, uval(v, *e), !whole);
         if (!n) return -ENOMEM;
         atomic_fetch_add_explicit(&v->pool_l0, 1, memory_order_relaxed);
         *e = n;
@@ -308,7 +351,7 @@ int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
     stale_mips(v);
     uint32_t s = v->slog2, m = v->sbrick - 1, b[3] = {x >> s, y >> s, z >> s};
     uint32_t e = entry_at(v, 0, b);
-    if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
+    if (e == 0 ? value == 0 : is_uniform(e) && uval(v, e) == value)
         return 0;
     if (value == 0) may_zero(v); /* into memory: e is allocated */
     uint8_t *d;
@@ -322,7 +365,7 @@ uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
     if (x >= v->dims[0] || y >= v->dims[1] || z >= v->dims[2]) return 0;
     uint32_t s = v->slog2, m = v->sbrick - 1, b[3] = {x >> s, y >> s, z >> s};
     uint32_t e = entry_at(v, 0, b);
-    if (!is_alloc(e)) return e & ~ENTRY_UNIFORM;
+    if (!is_alloc(e)) return uval(v, e);
     return vox_get(v, brick_data(v, e), vox_index(v, x & m, y & m, z & m));
 }
 
@@ -344,7 +387,7 @@ int vod_volume_box_uniform(const vod_volume *v, const int64_t lo[3], uint32_t n,
             for (b[0] = (uint32_t)(a0[0] >> s); b[0] <= (uint32_t)((a1[0] - 1) >> s); b[0]++) {
                 uint32_t e = entry_at(v, 0, b);
                 if (is_alloc(e)) return 0;
-                int64_t val = e & ~ENTRY_UNIFORM;
+                int64_t val = uval(v, e);
                 if (found >= 0 && val != found) return 0;
                 found = val;
             }
@@ -358,8 +401,9 @@ static int fill_whole(vod_volume *v, const uint32_t b[3], uint32_t value)
 {
     const uint32_t *g = v->grid[0];
     uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
-    if (!is_alloc(*e) && value < ENTRY_UNIFORM) {
-        *e = value ? ENTRY_UNIFORM | value : 0;
+    uint32_t u = is_alloc(*e) || !value ? 0 : uentry(v, value);
+    if (!is_alloc(*e) && (u || !value)) {
+        *e = u;
         return 0;
     }
     if (value == 0) may_zero(v);
@@ -374,7 +418,7 @@ static int fill_part(vod_volume *v, const uint32_t b[3], const uint32_t lo[3],
                      const uint32_t hi[3], uint32_t value)
 {
     uint32_t e = entry_at(v, 0, b);
-    if (e == 0 ? value == 0 : is_uniform(e) && (e & ~ENTRY_UNIFORM) == value)
+    if (e == 0 ? value == 0 : is_uniform(e) && uval(v, e) == value)
         return 0;
     if (value == 0) may_zero(v);
     uint8_t *d;
@@ -418,7 +462,7 @@ static int64_t brick_uniform_value(const vod_volume *v, const uint8_t *d)
 {
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
     uint32_t first = vox_get(v, d, 0);
-    if (first >= ENTRY_UNIFORM) return -1;
+    if (first >= ENTRY_UNIFORM && !v->f32) return -1;
     if (v->bits == 8) { /* 8 voxels a compare: S^3 is a multiple of 8 */
         uint64_t all = first * 0x0101010101010101ull, w;
         for (uint64_t i = 0; i < n; i += 8)
@@ -439,8 +483,9 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
            "put_brick runs before prepare() and vod_volume_mips_low()");
     uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
     int64_t u = brick_uniform_value(v, voxels);
-    if (u >= 0 && !is_alloc(*e)) {
-        *e = u ? ENTRY_UNIFORM | (uint32_t)u : 0;
+    uint32_t ue = u > 0 && !is_alloc(*e) ? uentry(v, (uint32_t)u) : 0;
+    if (!is_alloc(*e) && (u == 0 || ue)) {
+        *e = ue;
         return 0;
     }
     if (u == 0) may_zero(v); /* zeros into the memory the brick has */
@@ -474,6 +519,7 @@ static uint64_t load64(const uint8_t *p)
 
 static uint32_t channels_of(const vod_volume *v)
 {
+    if (v->f32) return 1u << VOXEL_CH_DISTANCE;
     return 1u << VOXEL_CH_OCCUPANCY |
            1u << (v->bits == 8 ? VOXEL_CH_DENSITY : VOXEL_CH_SURFACE);
 }
@@ -586,7 +632,7 @@ static void mip_octant(mip_ctx *m, uint32_t e, uint32_t ox, uint32_t oy,
     const vod_volume *v = m->v;
     uint32_t S = v->sbrick, half = S / 2, c[8];
     if (!is_alloc(e)) {
-        for (int i = 0; i < 8; i++) c[i] = e & ~ENTRY_UNIFORM;
+        for (int i = 0; i < 8; i++) c[i] = uval(v, e);
         uint32_t d = vod_downsample(m->ch, c);
         m->nonempty = m->nonempty || e != 0;
         for (uint32_t z = 0; z < half; z++)
@@ -626,10 +672,11 @@ static bool mip_same_children(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
         return true;
     }
     uint32_t c[8];
-    for (int i = 0; i < 8; i++) c[i] = e0 & ~ENTRY_UNIFORM;
-    uint32_t d = vod_downsample(m->ch, c);
-    if (d >= ENTRY_UNIFORM) return false;
-    *entry = ENTRY_UNIFORM | d;
+    for (int i = 0; i < 8; i++) c[i] = uval(m->v, e0);
+    /* a mip entry is 0 only for an empty footprint: a value 0 is uniform */
+    uint32_t d = vod_downsample(m->ch, c), u = d ? uentry(m->v, d) : ENTRY_UNIFORM;
+    if (!u) return false;
+    *entry = u;
     return true;
 }
 
@@ -651,8 +698,9 @@ static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
     if (!m->nonempty) return 0;
     uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick, i;
     int64_t u = brick_uniform_value(v, v->bits == 8 ? m->out8 : (const uint8_t *)m->out);
-    if (u >= 0) {
-        *entry = ENTRY_UNIFORM | (uint32_t)u;
+    uint32_t ue = u > 0 ? uentry(v, (uint32_t)u) : u == 0 ? ENTRY_UNIFORM : 0;
+    if (ue) {
+        *entry = ue;
         return 0;
     }
     uint32_t e = is_alloc(old) ? old : pool_take(v, 0, false); /* written whole below */
@@ -758,8 +806,9 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
 
 /* ---- the source ---- */
 
-static int channel_of_bits(uint32_t bits)
+static int channel_of_bits(const vod_volume *v, uint32_t bits)
 {
+    if (v->f32 && bits == 32) return VOXEL_CH_DISTANCE;
     return bits == 1 ? VOXEL_CH_OCCUPANCY : bits == 8 ? VOXEL_CH_DENSITY
                                                       : VOXEL_CH_SURFACE;
 }
@@ -810,7 +859,7 @@ static bool footprint_nonempty(const vod_volume *v, const vod_layout *L,
 static bool brick_uniform(const vod_volume *v, const vod_layout *L,
                           const vod_node *n, uint32_t *value)
 {
-    int l = (int)n->level, ch = channel_of_bits(L->voxel_bits);
+    int l = (int)n->level, ch = channel_of_bits(v, L->voxel_bits);
     if (l > v->depth || (l >= 1 && v->mip_channel != ch)) return false;
     uint32_t B = L->brick, per = B >= v->sbrick ? B >> v->slog2 : 1, b0[3], b[3];
     b0[0] = (n->bx * B) >> v->slog2;
@@ -823,7 +872,7 @@ static bool brick_uniform(const vod_volume *v, const vod_layout *L,
                 b[0] = b0[0] + x, b[1] = b0[1] + y, b[2] = b0[2] + z;
                 uint32_t e = entry_at(v, l, b);
                 if (is_alloc(e)) return false;
-                uint32_t u = e & ~ENTRY_UNIFORM;
+                uint32_t u = uval(v, e);
                 if (l == 0 && ch == VOXEL_CH_OCCUPANCY) u = u != 0;
                 if (!first && u != *value) return false;
                 *value = u;
@@ -925,7 +974,7 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
         a1[a] = o[a] + S < lo[a] + B ? o[a] + S : lo[a] + B;
     }
     const uint8_t *d = is_alloc(e) ? brick_data(v, e) : NULL;
-    uint32_t u = e & ~ENTRY_UNIFORM;
+    uint32_t u = uval(v, e);
     if (L->voxel_bits == 1 && v->bits == 8 && B % 8 == 0 && (a0[0] - lo[0]) % 8 == 0 &&
         (a1[0] - a0[0]) % 8 == 0) {
         copy_bytes_bits8(v, B, d, o, lo, a0, a1, raw);
@@ -950,7 +999,7 @@ static int vol_fill(const vod_source *s, const vod_layout *L, const vod_node *n,
                     uint8_t *raw)
 {
     const vod_volume *v = s->ctx;
-    int l = (int)n->level, ch = channel_of_bits(L->voxel_bits);
+    int l = (int)n->level, ch = channel_of_bits(v, L->voxel_bits);
     if (!(channels_of(v) >> ch & 1u) || l > v->depth ||
         (l >= 1 && v->mip_channel != ch))
         return -EINVAL;

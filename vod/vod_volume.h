@@ -13,7 +13,8 @@
  *
  * As a source (vod.h) the volume gives channel 1 (1 where a voxel is
  * non-zero) and, from 8-bit voxels, channel 2 (density), from 32-bit
- * voxels, channel 3 (surface voxels with normals).  Its prepare() builds the
+ * voxels, channel 3 (surface voxels with normals); a VOD_VOLUME_F32
+ * volume gives channel 4 alone (floats, their bits as the voxels).  Its prepare() builds the
  * mip levels 1..depth for the channel, brick-sparse too, into the same pool
  * (the pool must have room: see vod_volume_bytes); writing a voxel after
  * that drops them, so the next prepare() builds them again.
@@ -32,12 +33,16 @@
 #define VOD_VOLUME_MAX_SIDE 65536u /* 2^OCTREE_MAX_DEPTH */
 #define VOD_VOLUME_MIN_BRICK 2u
 #define VOD_VOLUME_MAX_BRICK 64u
+/* bits of a volume of IEEE binary32 voxels (channel 4, signed distances):
+ * 32 bits a voxel, any value a uniform brick (negative ones too), the mip
+ * levels the mean of the floats. */
+#define VOD_VOLUME_F32 0x120u
 
 /* The arena, whose first bytes are the volume's header. */
 typedef struct vod_volume vod_volume;
 
 /* Bytes of arena for a volume of dims (each 1..VOD_VOLUME_MAX_SIDE) with
- * voxels of bits (8 or 32) in storage bricks of side sbrick (a power of two
+ * voxels of bits (8, 32 or VOD_VOLUME_F32) in storage bricks of side sbrick (a power of two
  * in VOD_VOLUME_MIN_BRICK..MAX_BRICK) that can allocate `bricks` level-0
  * bricks and, whatever their place, every mip brick above them.  0 for bad
  * arguments or a size past SIZE_MAX. */
@@ -61,7 +66,8 @@ int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
                    uint32_t value);
 /* Every voxel of the box [lo, hi) := value; bricks the box covers whole
  * (and that lie inside dims) become uniform without memory, unless value
- * does not fit 31 bits.  Same errors as vod_volume_set (-EINVAL also for an
+ * does not fit 31 bits (in a VOD_VOLUME_F32 volume, past its 8 values that
+ * do not).  Same errors as vod_volume_set (-EINVAL also for an
  * empty or inverted box); on -ENOMEM part of the box may be written. */
 int vod_volume_fill(vod_volume *v, const uint32_t lo[3], const uint32_t hi[3],
                     uint32_t value);
@@ -111,7 +117,7 @@ int vod_volume_box_uniform(const vod_volume *v, const int64_t lo[3], uint32_t n,
 
 /* What a volume holds, for tests and the job kinds' summaries. */
 typedef struct {
-    uint32_t dims[3], bits, sbrick;
+    uint32_t dims[3], bits, sbrick; /* bits: 8, 32 or VOD_VOLUME_F32 */
     int depth;                 /* 2^depth >= every side, >= 1 */
     uint32_t pool_cap;         /* bricks the pool holds */
     uint32_t pool_used;        /* bricks allocated, mip bricks included */

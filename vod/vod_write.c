@@ -54,15 +54,11 @@ static int check_geometry(const vod_params *p, char *err, size_t errlen)
 static int check_encoding(const vod_params *p, char *err, size_t errlen)
 {
     char b[5];
-    if (p->channel == VOXEL_CH_DISTANCE)
-        return vod_fail(err, errlen, -EINVAL,
-                    "channel 4 (f32 signed distance) is not written yet: no job "
-                    "kind produces it (1 occupancy, 2 density or 3 surface)");
     if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY &&
-        p->channel != VOXEL_CH_DENSITY)
+        p->channel != VOXEL_CH_DENSITY && p->channel != VOXEL_CH_DISTANCE)
         return vod_fail(err, errlen, -EINVAL,
-                    "channel %d cannot be written (1 occupancy, 2 density or 3 "
-                    "surface)",
+                    "channel %d cannot be written (1 occupancy, 2 density, 3 "
+                    "surface or 4 distance)",
                     p->channel);
     if (p->comp != VOD_COMP_NONE && p->comp != VOD_COMP_ZLIB &&
         p->comp != VOD_COMP_RUNL)

@@ -87,7 +87,7 @@ static uint32_t *voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts
 static uint32_t *voxelize_mode(const mesh *m, const grid_spec *g, mesh_mode mode,
                                mesh_repair rep, mesh_tile_stats *st)
 {
-    mesh_vox_opts o = {mode, rep, VOXEL_CH_OCCUPANCY, 0};
+    mesh_vox_opts o = {mode, rep, VOXEL_CH_OCCUPANCY, 0, 0};
     return voxelize(m, g, &o, 16, st);
 }
 
@@ -755,11 +755,11 @@ Test(mesh_vox, tiles_in_any_order_give_the_same_volume)
     cr_assert_lt(s.m.n_triangles, before, "a hole in the torus");
     const mesh *m = shape_finish(&s);
     mesh_vox_opts all[] = {
-        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_CONSERVATIVE, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SURFACE6, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, 2},
-        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_DENSITY, 3},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_CONSERVATIVE, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SURFACE6, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, 2, 0},
+        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_DENSITY, 3, 0},
     };
     const uint32_t sb[] = {16, 8, 32, 16, 64};
     for (size_t i = 0; i < sizeof all / sizeof *all; i++) check_tiles(m, &g, &all[i], sb[i]);
@@ -776,7 +776,7 @@ Test(mesh_vox, bins_list_each_triangle_once_in_ascending_order)
     const mesh *m = shape_finish(&s);
     for (int rep = 0; rep < 2; rep++) {
         mesh_vox_opts o = {MESH_SOLID, rep ? MESH_REPAIR_VOTE : MESH_REPAIR_NONE,
-                           VOXEL_CH_OCCUPANCY, 0};
+                           VOXEL_CH_OCCUPANCY, 0, 0};
         mesh_bins b;
         cr_assert_eq(mesh_bin(m, &g, &o, NULL, 1, &b), 0);
         cr_assert_eq(b.tiles[0], 3);
@@ -810,10 +810,10 @@ Test(mesh_vox, bins_are_the_same_on_any_number_of_threads)
     const mesh *m = shape_finish(&s);
     cr_assert_geq(m->n_triangles, 5 * MESH_BIN_PART_MIN);
     mesh_vox_opts all[] = {
-        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, 0},
-        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, 0, 0},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2, 0},
     };
     for (size_t i = 0; i < sizeof all / sizeof *all; i++) {
         mesh_bins one;
@@ -849,7 +849,7 @@ Test(mesh_vox, plain_solid_bins_hold_the_triangles_that_flip_a_column)
     double c[3] = {0.1, -0.2, -0.35};
     shape_icosphere(&s, c, 0.6, 6, false); /* 81920 triangles, most smaller than a voxel */
     const mesh *m = shape_finish(&s);
-    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0};
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0};
     mesh_bins b;
     mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
     cr_assert_eq(mesh_bin(m, &g, &o, lat, 1, &b), 0);
@@ -916,7 +916,7 @@ Test(mesh_vox, density_sums_to_the_volume)
     const mesh *m = shape_finish(&s);
     double vol = shape_volume(m) / (g.vs * g.vs * g.vs);
     for (uint32_t K = 2; K <= 4; K += 2) {
-        mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, K};
+        mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, K, 0};
         mesh_tile_stats st;
         uint32_t *d = voxelize(m, &g, &o, 32, &st);
         double sum = 0;
@@ -951,7 +951,7 @@ Test(mesh_vox, density_of_half_coverage_is_the_surface_threshold)
     shape_init(&s);
     shape_box(&s, lo, hi);
     for (uint32_t K = 2; K <= 8; K += 2) {
-        mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, K};
+        mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, K, 0};
         uint32_t *d = voxelize(shape_finish(&s), &g, &o, 8, NULL);
         for (uint32_t z = 0; z < 16; z += 5)
             for (uint32_t y = 0; y < 16; y += 3) {
@@ -978,7 +978,7 @@ Test(mesh_vox, sphere_normals_point_outwards)
     const uint32_t K[2] = {0, 4};
     const double mean_max[2] = {3, 2}, worst_max[2] = {15, 8};
     for (int k = 0; k < 2; k++) {
-        mesh_vox_opts o = {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, K[k]};
+        mesh_vox_opts o = {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_SURFACE, K[k], 0};
         uint32_t *d = voxelize(m, &g, &o, 16, NULL);
         size_t n = 0;
         double worst = 0, sum = 0;
@@ -1012,18 +1012,17 @@ Test(mesh_vox, sphere_normals_point_outwards)
 Test(mesh_vox, options_are_checked)
 {
     char err[128];
-    mesh_vox_opts ok = {MESH_SURFACE, MESH_REPAIR_VOTE, VOXEL_CH_SURFACE, 0};
+    mesh_vox_opts ok = {MESH_SURFACE, MESH_REPAIR_VOTE, VOXEL_CH_SURFACE, 0, 0};
     cr_expect_eq(mesh_vox_check(&ok, err, sizeof err), 0);
     cr_expect_eq(mesh_vox_bits(&ok), 32);
     ok.channel = VOXEL_CH_OCCUPANCY;
     cr_expect_eq(mesh_vox_bits(&ok), 8);
     mesh_vox_opts bad[] = {
-        {(mesh_mode)9, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SOLID, (mesh_repair)7, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0},
-        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 1},
-        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 9},
-        {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2},
+        {(mesh_mode)9, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SOLID, (mesh_repair)7, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 1, 0},
+        {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 9, 0},
+        {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2, 0},
     };
     for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
         err[0] = 0;
@@ -1040,7 +1039,7 @@ Test(mesh_vox, tile_run_refuses_a_volume_that_does_not_fit)
     double c[3] = {0, 0, 0};
     shape_icosphere(&s, c, 0.5, 1, false);
     const mesh *m = shape_finish(&s);
-    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0};
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0};
     void *scratch = malloc(mesh_tile_scratch_bytes(&g, &o));
     uint32_t ids[1] = {0};
     mesh_tile_stats st = {0};

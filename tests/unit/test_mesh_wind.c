@@ -127,8 +127,8 @@ Test(mesh_wind, a_tile_ticks_all_along_and_stops_when_told, .timeout = 600)
     /* the same samples: 40^3 voxel centres, 20^3 voxels of 2^3 samples */
     grid_spec grids[] = {cube_grid(40), cube_grid(20)};
     mesh_vox_opts opts[] = {
-        {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0},
-        {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_DENSITY, 2},
+        {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0},
+        {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_DENSITY, 2, 0},
     };
     for (size_t i = 0; i < 2; i++) {
         const grid_spec g = grids[i];
@@ -190,7 +190,7 @@ static double exact_w(const mesh *m, const grid_spec *g, uint32_t x, uint32_t y,
 static size_t hold_against_exact(const mesh *m, const grid_spec *g, int channel,
                                  const char *what)
 {
-    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_WINDING, channel, 2};
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_WINDING, channel, 2, 0};
     mesh_tile_stats sf, sx;
     uint8_t *fast = dense(m, g, &o, &sf);
     mesh_wind_exact = 1;
@@ -231,7 +231,7 @@ Test(mesh_wind, spheres_and_tori_with_holes_against_the_exact_sum, .timeout = 90
     shape_init(&s);
     shape_icosphere(&s, c, 0.85, 3, false);
     const mesh *m = shape_finish(&s);
-    mesh_vox_opts plain = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0};
+    mesh_vox_opts plain = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0};
     mesh_tile_stats st;
     uint8_t *closed = dense(m, &g, &plain, &st);
     size_t n = (size_t)g.res[0] * g.res[1] * g.res[2], nclosed = 0;

@@ -482,7 +482,16 @@ Test(proto, mesh_job_rules)
     refused(&mj.j.req, INVALID, "pad 4294967295 leaves no voxel");
     mesh_init(&mj);
     mj.j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE;
-    refused(&mj.j.req, INVALID, "channel distance is not available for mesh jobs");
+    accepted(&mj.j.req); /* the default band */
+    mj.m.band = 32;
+    accepted(&mj.j.req);
+    mj.m.band = 33;
+    refused(&mj.j.req, INVALID, "band 33 is not from 1 to 32 voxels (or 0: 3)");
+    mj.m.band = 2, mj.m.mode = VOXD__MESH_MODE__MESH_MODE_SURFACE;
+    refused(&mj.j.req, INVALID, "channel distance takes its sign from the solid");
+    mesh_init(&mj);
+    mj.m.band = 2; /* a band without the distance channel */
+    refused(&mj.j.req, INVALID, "band 2 is for channel distance");
     mesh_init(&mj);
     mj.m.source_name.data = (uint8_t *)"a\nb", mj.m.source_name.len = 3;
     refused(&mj.j.req, INVALID, "source_name contains a line break at offset 1");

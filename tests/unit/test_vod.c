@@ -376,7 +376,9 @@ Test(vod_layout, validates_params_per_spec)
     cr_assert_eq(L.voxel_bits, 8);
     cr_assert_eq(L.raw_bytes, 16 * 16 * 16);
     q = p, q.channel = VOXEL_CH_DISTANCE;
-    cr_assert_eq(layout_rc(&q, 3, "channel 4 (f32 signed distance) is not written yet"), -EINVAL);
+    cr_assert_eq(layout_rc(&q, 3, NULL), 0, "channel 4: f32 voxels");
+    cr_assert_eq(vod_layout_make(&q, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(L.voxel_bits, 32);
     q = p, q.channel = 5;
     cr_assert_eq(layout_rc(&q, 3, "channel 5 cannot be written"), -EINVAL);
     q = p, q.channel = VOXEL_CH_UNSPECIFIED;
@@ -2044,31 +2046,89 @@ Test(vod_source, empty_sources_same_bytes)
     fx_free(&f);
 }
 
-Test(vod_source, channel_4_is_refused_with_a_reason)
+/* Channel 4 from a float volume (VOD_VOLUME_F32): negative and positive
+ * uniform bricks, mixed ones, and the padding: every voxel reads back with
+ * its float's bits, the float flag set, the mip levels the means.  The
+ * octree, which gives no distance, refuses it. */
+static float dist_at(uint32_t x, uint32_t y, uint32_t z)
 {
-    fixture f;
-    fx_init(&f, 4, 16, 16, 16);
-    fx_random(&f, 20);
-    vod_params p;
-    params(&p, &f, VOXEL_CH_DISTANCE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
-    vod_layout L;
-    char err[256] = "";
-    cr_assert_eq(vod_layout_make(&p, 4, &L, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "channel 4") && strstr(err, "not written yet"), "%s", err);
-    membuf m = {0};
-    vod_sink sink = {mem_write, &m};
-    err[0] = '\0';
-    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "channel 4"), "%s", err);
-    void *arena;
-    vod_volume *v = fx_volume(&f, 4, &arena);
+    return x < 8 ? -3.5f : x >= 16 ? 3.5f : (float)x * 0.25f - (float)y * 0.125f + (float)z;
+}
+
+Test(vod_source, channel_4_from_a_float_volume_reads_back)
+{
+    uint32_t dims[3] = {20, 16, 16};
+    size_t bytes = vod_volume_bytes(dims, VOD_VOLUME_F32, 8, UINT32_MAX);
+    void *arena = malloc(bytes);
+    vod_volume *v;
+    cr_assert_eq(vod_volume_init(&v, arena, bytes, dims, VOD_VOLUME_F32, 8), 0);
+    uint32_t b[3];
+    float brick[8 * 8 * 8];
+    for (b[2] = 0; b[2] < 2; b[2]++)
+        for (b[1] = 0; b[1] < 2; b[1]++)
+            for (b[0] = 0; b[0] < 3; b[0]++) {
+                for (uint32_t i = 0; i < 512; i++) {
+                    uint32_t x = b[0] * 8 + i % 8, y = b[1] * 8 + i / 8 % 8, z = b[2] * 8 + i / 64;
+                    brick[i] = x < dims[0] ? dist_at(x, y, z) : 0.0f;
+                }
+                cr_assert_eq(vod_volume_put_brick(v, b, brick), 0);
+            }
+    vod_volume_info in;
+    vod_volume_get_info(v, &in);
+    cr_assert_eq(in.bits, VOD_VOLUME_F32);
+    cr_assert_eq(in.level0_bricks, 8, "the -3.5 bricks are uniform: %u", in.level0_bricks);
     vod_source vs = vod_volume_source(v);
-    err[0] = '\0';
-    cr_assert_eq(vod_write(&vs, &p, &sink, NULL, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "channel 4"), "%s", err);
-    cr_assert_eq(m.calls, 0, "nothing written");
+    vod_params p;
+    vod_params_default(&p);
+    memcpy(p.volume, dims, sizeof dims);
+    p.channel = VOXEL_CH_DISTANCE;
+    p.brick = 4;
+    vod_stats vst;
+    membuf m = write_source(&vs, &p, &vst);
+    vod_file *f;
+    char err[256] = "";
+    cr_assert_eq(vod_read(m.p, m.n, &f, err, sizeof err), 0, "%s", err);
+    const vod_info *fi = vod_get_info(f);
+    cr_assert_eq(fi->channel, 4);
+    cr_assert_eq(fi->voxel_bits, 32);
+    cr_assert(fi->flags & VOD_FLAG_FLOAT);
+    for (uint32_t z = 0; z < dims[2]; z++)
+        for (uint32_t y = 0; y < dims[1]; y++)
+            for (uint32_t x = 0; x < dims[0]; x++) {
+                float want = dist_at(x, y, z), got;
+                uint32_t u = vod_voxel(f, 0, x, y, z);
+                memcpy(&got, &u, 4);
+                cr_assert_eq(memcmp(&want, &got, 4), 0, "(%u %u %u): %g, not %g", x, y, z,
+                             (double)got, (double)want);
+            }
+    /* level 1: the mean of the 8 children (padding counts as 0) */
+    for (uint32_t z = 0; z < 8; z++)
+        for (uint32_t y = 0; y < 8; y++)
+            for (uint32_t x = 0; x < 10; x++) {
+                double sum = 0;
+                for (int i = 0; i < 8; i++) {
+                    uint32_t cx = 2 * x + (i & 1), cy = 2 * y + (i >> 1 & 1), cz = 2 * z + (i >> 2);
+                    sum += cx < dims[0] ? dist_at(cx, cy, cz) : 0.0f;
+                }
+                float want = (float)(sum / 8), got;
+                uint32_t u = vod_voxel(f, 1, x, y, z);
+                memcpy(&got, &u, 4);
+                cr_assert_eq(memcmp(&want, &got, 4), 0, "level 1 (%u %u %u)", x, y, z);
+            }
+    vod_close(f);
+    free(m.p);
     free(arena);
-    fx_free(&f);
+    /* the octree gives no distance */
+    fixture fx;
+    fx_init(&fx, 4, 16, 16, 16);
+    fx_random(&fx, 20);
+    params(&p, &fx, VOXEL_CH_DISTANCE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    membuf m2 = {0};
+    vod_sink sink = {mem_write, &m2};
+    cr_assert_eq(vod_write_octree(&fx.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "channel 4 cannot be written from the octree"), "%s", err);
+    cr_assert_eq(m2.calls, 0, "nothing written");
+    fx_free(&fx);
 }
 
 Test(vod_source, a_channel_the_source_lacks_is_refused)
