@@ -197,10 +197,11 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     }
     cli_catch_interrupts();
     job.cancel = &cli_interrupt;
-    vod_sink sink = {vod_fd_write, (void *)(intptr_t)f.fd};
+    vod_sink sink = {outfile_write, &f};
     pipeline_report r;
+    if (e) engine_lazy_release(e); /* nothing to give back before we exit */
     rc = pipeline_run(e, &job, &sink, &r);
-    engine_destroy(e);
+    engine_abandon(e); /* its end is not waited for: the file is */
     const char *why = rc ? r.err.message : NULL;
     if (rc || cli_interrupted()) outfile_abort(&f);
     else if ((rc = outfile_commit(&f, o->out))) why = strerror(-rc);

@@ -31,7 +31,7 @@ typedef cli_job_opts voxelize_opts;
 static int write_or_stop(void *ud, const void *p, size_t n)
 {
     if (cli_interrupted()) return -ECANCELED;
-    return vod_fd_write(ud, p, n);
+    return outfile_write(ud, p, n);
 }
 
 static void on_progress(void *ud, const engine_progress *p)
@@ -60,15 +60,16 @@ static void print_summary(const voxelize_opts *o, const pipeline_report *r)
 }
 
 /* The job on the embedded engine (or the serial algorithm, -w 0). */
-static int run_job(const voxelize_opts *o, const pipeline_job *job, int fd,
+static int run_job(const voxelize_opts *o, const pipeline_job *job, outfile *f,
                    pipeline_report *r)
 {
     engine *e = NULL;
     int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
     if (rc) return rc;
-    vod_sink sink = {write_or_stop, (void *)(intptr_t)fd};
+    if (e) engine_lazy_release(e); /* nothing to give back before we exit */
+    vod_sink sink = {write_or_stop, f};
     rc = pipeline_run(e, job, &sink, r);
-    engine_destroy(e);
+    engine_abandon(e); /* its end is not waited for: the file is */
     if (rc == 0 || cli_interrupted()) return rc;
     if (r->stage == PIPELINE_WRITE)
         cli_error("cannot write %s: %s", o->out, r->err.message);
@@ -104,7 +105,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     job->progress = on_progress;
     job->ud = &pr;
     pipeline_report r;
-    rc = run_job(o, job, f.fd, &r);
+    rc = run_job(o, job, &f, &r);
     progress_done(&pr);
     if (rc || cli_interrupted()) {
         outfile_abort(&f);

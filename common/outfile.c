@@ -4,6 +4,7 @@
 #include <fcntl.h>
 #include <libgen.h>
 #include <stdatomic.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -57,6 +58,7 @@ static int open_unnamed(outfile *f, const char *path)
 int outfile_open(outfile *f, const char *path)
 {
     f->fd = -1;
+    f->written = f->kicked = 0;
     f->named = 0;
     f->tmp[0] = '\0';
     int rc = open_unnamed(f, path);
@@ -66,6 +68,27 @@ int outfile_open(outfile *f, const char *path)
 const char *outfile_name(const outfile *f)
 {
     return f->tmp;
+}
+
+int outfile_write(void *ud, const void *buf, size_t n)
+{
+    outfile *f = ud;
+    const uint8_t *p = buf;
+    for (size_t left = n; left;) {
+        ssize_t k = write(f->fd, p, left);
+        if (k < 0 && errno == EINTR) continue;
+        if (k <= 0) return k < 0 ? -errno : -EIO;
+        p += k;
+        left -= (size_t)k;
+    }
+    f->written += n;
+    if (f->written - f->kicked >= OUTFILE_KICK) {
+        /* a hint: where it fails (not a file), the commit's fsync decides */
+        sync_file_range(f->fd, (off64_t)f->kicked, (off64_t)(f->written - f->kicked),
+                        SYNC_FILE_RANGE_WRITE);
+        f->kicked = f->written;
+    }
+    return 0;
 }
 
 /* The unnamed file under a fresh name beside path (linkat cannot replace

@@ -22,10 +22,14 @@
 #include <limits.h>
 #include <stddef.h>
 
+#include <stdint.h>
+
 typedef struct {
     int fd;                   /* O_WRONLY, O_CLOEXEC; -1 once closed */
     int named;                /* the fallback: the file has the name tmp */
     char tmp[PATH_MAX + 32];  /* the fallback's name; else the /proc path */
+    uint64_t written;         /* outfile_write's bytes */
+    uint64_t kicked;          /* ... whose write-back has been started */
 } outfile;
 
 /* Create the file for PATH: 0, or a negative errno (-ENAMETOOLONG when
@@ -34,6 +38,12 @@ int outfile_open(outfile *f, const char *path);
 /* A name that opens the file for writing while it is open (the temporary
  * name, or /proc/self/fd/N): for a library that writes by name. */
 const char *outfile_name(const outfile *f);
+/* n bytes appended (a vod_sink's write, f as its ud: 0 or a negative
+ * errno).  Every OUTFILE_KICK bytes the kernel is asked to start writing
+ * them back (sync_file_range), so that the commit's fsync waits for the
+ * last few MiB only, not for the whole file after the last byte. */
+#define OUTFILE_KICK ((uint64_t)8 << 20)
+int outfile_write(void *f, const void *buf, size_t n);
 /* fsync, close, then link the file into place as PATH (replacing any
  * file there): 0, or a negative errno after which nothing is left. */
 int outfile_commit(outfile *f, const char *path);

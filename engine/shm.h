@@ -50,6 +50,8 @@ typedef struct {
 } shm_task;
 
 #define SHM_OP_EXIT 1u    /* SHM_KIND_CORE: leave the loop */
+#define SHM_OP_LEAVE 2u   /* SHM_KIND_CORE: let go of stdio, keep the segment
+                             until the master is gone, exit (engine_abandon) */
 
 /* What a worker hands back: one queue entry of its task's kind, `count`
  * records of the kind's record `type` in the payload.  The master checks

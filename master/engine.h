@@ -222,6 +222,16 @@ void engine_destroy(engine *e);
  * back, on a thread of the caller's while its others read keep.  The
  * segment stays mapped; only engine_destroy may follow. */
 void engine_retire(engine *e, const void *keep, size_t bytes);
+/* The end of a process that exits next, its output whole: the workers told
+ * to exit, the segment's name removed, and nothing waited for.  The
+ * workers let go of stdin, stdout and stderr and keep the segment mapped
+ * until this thread is gone (PR_SET_PDEATHSIG), so the pages are freed by
+ * the last of them after the process exits, not by it; the caller's own
+ * mapping is unmapped on a thread of its own beside what it does next
+ * (its exit finishes it); the init process (or a subreaper) reaps them.
+ * engine_destroy's cost at the end of a large job (its pages freed, the
+ * workers reaped) is then nobody's wait. */
+void engine_abandon(engine *e);
 int engine_workers(const engine *e);
 /* Worker i's pid and the CPU it is pinned to (tests, status pages). */
 int engine_worker_pid(const engine *e, int i);
@@ -344,6 +354,13 @@ octree *engine_octree(engine *e);
  * keep_bytes) go back to tmpfs now.  pipeline_run calls it at the end of
  * every job. */
 void engine_release(engine *e);
+/* From now on the pages a job gives back at its end, and engine_release's,
+ * go back at engine_tidy (or at the next job's start, or with the
+ * segment): a caller that has an answer to give (voxd's reply, vox's file)
+ * gives it first.  The bytes of every job are the same either way. */
+void engine_lazy_release(engine *e);
+/* The pages a lazy engine's last job left to give back, given back now. */
+void engine_tidy(engine *e);
 /* Write the last job's octree or volume as VOD, bricks encoded by the workers into
  * shared memory (what does not fit, or what a dying worker left undone, is
  * encoded by the caller's thread, which frees its encoder before

@@ -84,6 +84,9 @@ struct engine {
     uint64_t hold;      /* bytes of the data area the last job left for the
                            next (the implicit kind's octree, the mesh kind's
                            volume), 0 none */
+    int lazy;           /* engine_lazy_release: releases wait for engine_tidy */
+    uint64_t due;       /* lazy: the segment's pages from here on are to go
+                           back (engine_tidy, the next job's start); 0 none */
     /* the last job's result, for engine_octree and the encoder: the
      * implicit kind's octree or the mesh kind's volume */
     enum { RESULT_NONE, RESULT_OCTREE, RESULT_VOLUME } result;

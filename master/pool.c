@@ -2,6 +2,7 @@
  * reaping; the engine's creation and destruction. */
 #include <errno.h>
 #include <fcntl.h>
+#include <pthread.h>
 #include <sched.h>
 #include <signal.h>
 #include <stdio.h>
@@ -197,16 +198,18 @@ static void reap_all(engine *e)
     }
 }
 
-/* Every live worker told to exit (a busy one killed). */
-static void order_exit(engine *e)
+/* Every live worker given op (exit or leave; a busy one killed). */
+static void order(engine *e, uint32_t op)
 {
-    static const shm_task exit_task = {.kind = SHM_KIND_CORE, .op = SHM_OP_EXIT};
+    const shm_task task = {.kind = SHM_KIND_CORE, .op = op};
     for (int i = 0; i < e->n; i++) {
         if (e->ms[i].pid <= 0) continue;
         if (e->ms[i].busy) kill(e->ms[i].pid, SIGKILL);
-        else pool_give(e, i, &exit_task, 0);
+        else pool_give(e, i, &task, 0);
     }
 }
+
+static void order_exit(engine *e) { order(e, SHM_OP_EXIT); }
 
 void engine_destroy(engine *e)
 {
@@ -223,9 +226,57 @@ void engine_destroy(engine *e)
     free(e);
 }
 
+/* engine_abandon's unmapping, beside the caller's last steps. */
+typedef struct {
+    void *base;
+    size_t bytes;
+} unmapping;
+
+static void *unmap_run(void *arg)
+{
+    unmapping *u = arg;
+    munmap(u->base, u->bytes);
+    free(u);
+    return NULL;
+}
+
+/* The caller's mapping unmapped on a detached thread (here when none can
+ * be made): only its page tables go, the workers still map the pages. */
+static void unmap_beside(shm_seg *s)
+{
+    unmapping *u = malloc(sizeof *u);
+    pthread_t t;
+    pthread_attr_t a;
+    int started = 0;
+    if (u && !pthread_attr_init(&a)) {
+        *u = (unmapping){s->base, s->bytes};
+        pthread_attr_setdetachstate(&a, PTHREAD_CREATE_DETACHED);
+        started = !pthread_create(&t, &a, unmap_run, u);
+        pthread_attr_destroy(&a);
+    }
+    if (!started) {
+        munmap(s->base, s->bytes);
+        free(u);
+    }
+    s->base = NULL;
+}
+
+void engine_abandon(engine *e)
+{
+    if (!e) return;
+    if (e->seg.base) {
+        order(e, SHM_OP_LEAVE);
+        if (e->seg.named) shm_unlink(e->seg.name);
+        e->seg.named = 0;
+        unmap_beside(&e->seg);
+    }
+    free(e);
+}
+
 void engine_retire(engine *e, const void *keep, size_t bytes)
 {
     if (!e || !e->seg.base) return;
+    e->due = 0; /* given back below */
     order_exit(e);
     uint64_t page = (uint64_t)sysconf(_SC_PAGESIZE);
     uint64_t from = (e->h->data_off + page - 1) / page * page, to = e->seg.bytes;

@@ -96,15 +96,38 @@ void sched_hold(engine *e, uint64_t bytes)
     e->hold = bytes;
 }
 
+/* The segment's pages from `from` (page-aligned) to its end back to tmpfs,
+ * which frees them for every process that maps them; the range's
+ * untouched pages cost nothing (2 GiB of them: 0.2 ms). */
+static void give_back(engine *e, uint64_t from)
+{
+    madvise(e->seg.base + from, e->seg.bytes - from, MADV_REMOVE);
+}
+
 void sched_release(engine *e)
 {
     uint64_t page = (uint64_t)sysconf(_SC_PAGESIZE);
     uint64_t keep = e->keep > e->hold ? e->keep : e->hold;
     uint64_t from = (e->h->data_off + keep + page - 1) / page * page;
     if (from >= e->seg.bytes) return;
-    /* tmpfs frees the pages for every process that maps them; the range's
-     * untouched pages cost nothing (2 GiB of them: 0.2 ms). */
-    madvise(e->seg.base + from, e->seg.bytes - from, MADV_REMOVE);
+    /* Lazy: nothing reads or writes past `from` until the next job, whose
+     * start gives the pages back first (engine_tidy), so the next job sees
+     * what it would have seen; the caller answers before paying for it. */
+    if (e->lazy) {
+        if (!e->due || from < e->due) e->due = from;
+        return;
+    }
+    give_back(e, from);
+}
+
+void engine_lazy_release(engine *e) { e->lazy = 1; }
+
+void engine_tidy(engine *e)
+{
+    if (e->kind || !e->due) return;
+    uint64_t from = e->due;
+    e->due = 0;
+    give_back(e, from);
 }
 
 void sched_job_totals(engine *e, engine_result *r)
@@ -478,6 +501,7 @@ static void job_reset(engine *e, const master_kind *k, void *job,
 int engine_run(engine *e, const master_kind *k, void *job,
                const sched_watch *watch)
 {
+    engine_tidy(e); /* the last job's pages, where the caller left them */
     job_reset(e, k, job, watch);
     check_workers(e, 1); /* any that died since the last job */
     int rc = e->err.failure ? e->err.code : k->setup(e, job);

@@ -138,6 +138,7 @@ static engine *engine_make(vd_daemon *d)
         d->engine_state = rc;
         return NULL;
     }
+    engine_lazy_release(e); /* a job's pages go back after its reply (engine_main) */
     memset(d->workers, 0, sizeof d->workers);
     snapshot(d, e);
     d->engine_state = 1;
@@ -611,6 +612,15 @@ static void wait_work(vd_daemon *d)
     pthread_cond_timedwait(&d->cv, &d->mu, &ts);
 }
 
+/* The last job's pages given back once its outcome is out (the loop
+ * streams the result meanwhile), not before. */
+static void tidy(vd_daemon *d, engine *e)
+{
+    pthread_mutex_unlock(&d->mu);
+    engine_tidy(e);
+    pthread_mutex_lock(&d->mu);
+}
+
 static void *engine_main(void *arg)
 {
     vd_daemon *d = arg;
@@ -633,6 +643,7 @@ static void *engine_main(void *arg)
             else run_without_engine(d);
         }
         wake_loop(d);
+        if (e) tidy(d, e);
     }
     pthread_mutex_unlock(&d->mu);
     engine_destroy(e);

@@ -46,10 +46,30 @@ static unsigned wait_task(work_ctx *w, unsigned last)
     }
 }
 
-static _Noreturn void worker_exit(work_ctx *w)
+static void free_states(work_ctx *w)
 {
     for (int k = 0; k < SHM_KINDS; k++)
         if (kinds[k] && w->state[k]) kinds[k]->free(w->state[k]);
+}
+
+static _Noreturn void worker_exit(work_ctx *w)
+{
+    free_states(w);
+    _exit(0);
+}
+
+/* engine_abandon: the master's process exits next.  Whoever unmaps the
+ * segment last frees its pages, and the user waits for the master, not for
+ * us: so we keep it mapped until the master is gone (SIGKILL comes then,
+ * PR_SET_PDEATHSIG; the check is for a master gone already), and let go of
+ * stdin, stdout and stderr first, so that a reader of the command's output
+ * (a pipe) does not wait for us either. */
+static _Noreturn void worker_leave(work_ctx *w)
+{
+    free_states(w);
+    close(0), close(1), close(2);
+    struct timespec tick = {0, 100000000};
+    while (getppid() == w->h->master_pid) nanosleep(&tick, NULL);
     _exit(0);
 }
 
@@ -83,6 +103,7 @@ static void run_task(work_ctx *w, unsigned seq)
     shm_slot *s = w->s;
     shm_task t = s->task;
     if (t.kind == SHM_KIND_CORE && t.op == SHM_OP_EXIT) worker_exit(w);
+    if (t.kind == SHM_KIND_CORE && t.op == SHM_OP_LEAVE) worker_leave(w);
     w->task_gen = s->task_gen;
     w->skip = s->task_skip;
     job_counters(w);

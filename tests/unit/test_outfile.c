@@ -5,6 +5,7 @@
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -160,4 +161,40 @@ Test(outfile, errors_are_the_directorys)
     cr_assert_eq(outfile_open(&f, p), -ENOENT);
     setenv("VOXD_OUTFILE_NAMED", "1", 1);
     cr_assert_eq(outfile_open(&f, p), -ENOENT);
+}
+
+/* outfile_write appends whatever the sizes of the writes, across the
+ * write-back kicks (every OUTFILE_KICK bytes), counts what it wrote, and a
+ * write to a closed descriptor is an error, not a short file. */
+Test(outfile, outfile_write_appends_across_the_kicks)
+{
+    char p[128];
+    path_of("w.vod", p, sizeof p);
+    size_t total = (size_t)(2 * OUTFILE_KICK + 12345);
+    uint8_t *src = malloc(total), *back = malloc(total);
+    cr_assert(src && back);
+    for (size_t i = 0; i < total; i++) src[i] = (uint8_t)(i * 2654435761u >> 13);
+    outfile f;
+    cr_assert_eq(outfile_open(&f, p), 0);
+    for (size_t at = 0, k = 1; at < total; k = k * 3 % 1000003) {
+        size_t n = k < total - at ? k : total - at;
+        cr_assert_eq(outfile_write(&f, src + at, n), 0);
+        at += n;
+    }
+    cr_assert_eq(f.written, total);
+    /* started for all but the last OUTFILE_KICK bytes at most */
+    cr_assert(f.kicked >= OUTFILE_KICK && f.kicked <= total && total - f.kicked < OUTFILE_KICK,
+              "the write-back started up to %llu of %zu bytes",
+              (unsigned long long)f.kicked, total);
+    cr_assert_eq(outfile_commit(&f, p), 0);
+    FILE *in = fopen(p, "rb");
+    cr_assert_not_null(in);
+    cr_assert_eq(fread(back, 1, total, in), total);
+    cr_assert_eq(fgetc(in), EOF);
+    fclose(in);
+    cr_assert_eq(memcmp(src, back, total), 0);
+    outfile g = {.fd = -1};
+    cr_assert_eq(outfile_write(&g, src, 1), -EBADF);
+    free(src);
+    free(back);
 }
