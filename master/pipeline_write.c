@@ -1,0 +1,51 @@
+/* What the kinds' pipeline side shares with the pipeline (master.h): the
+ * report's failure and the serial write stage.  A file of its own: the
+ * kinds call it and the pipeline calls the kinds. */
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "clock.h"
+#include "master.h"
+
+int pipeline_fail(pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
+{
+    r->err.failure = f;
+    r->err.code = rc;
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(r->err.message, sizeof r->err.message, fmt, ap);
+    va_end(ap);
+    return rc;
+}
+
+/* The sink as the serial writer sees it: what the caller's sink said is
+ * the sink's failure, whatever message the writer puts around it. */
+typedef struct {
+    vod_sink *inner;
+    int rc;
+} watched_sink;
+
+static int watched_write(void *ud, const void *buf, size_t n)
+{
+    watched_sink *w = ud;
+    int rc = w->inner->write(w->inner->ud, buf, n);
+    if (rc) w->rc = rc;
+    return rc;
+}
+
+int pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sink *sink,
+                          pipeline_report *r)
+{
+    r->stage = PIPELINE_WRITE;
+    watched_sink w = {sink, 0};
+    vod_sink ws = {watched_write, &w};
+    char err[sizeof r->err.message] = "";
+    double t0 = clock_now();
+    int rc = t ? vod_write_octree(t, v, &ws, &r->st, err, sizeof err)
+               : vod_write(s, v, &ws, &r->st, err, sizeof err);
+    r->t_write = clock_now() - t0;
+    if (rc && w.rc == rc) return pipeline_fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
+    if (rc) return pipeline_fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
+    return 0;
+}
