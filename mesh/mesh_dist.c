@@ -39,6 +39,7 @@ float mesh_dist_width(const mesh_vox_opts *o, double vs)
  * reaches, [i0, i1] per axis (relative to the tile). */
 typedef struct {
     double a[3], ab[3], ac[3], n[3];
+    double lo[3], hi[3]; /* its box */
     int32_t i0[3], i1[3];
 } dtri;
 
@@ -112,8 +113,9 @@ static bool make_dtri(const mv_tile *t, uint32_t id, double K, dtri *d)
     int32_t org[3] = {(int32_t)t->x0, (int32_t)t->y0, 0};
     int32_t n[3] = {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz};
     for (int a = 0; a < 3; a++) {
-        double lo = fmin(v[0][a], fmin(v[1][a], v[2][a])) - org[a];
-        double hi = fmax(v[0][a], fmax(v[1][a], v[2][a])) - org[a];
+        d->lo[a] = fmin(v[0][a], fmin(v[1][a], v[2][a]));
+        d->hi[a] = fmax(v[0][a], fmax(v[1][a], v[2][a]));
+        double lo = d->lo[a] - org[a], hi = d->hi[a] - org[a];
         /* centres X + 0.5 in [lo - K, hi + K] */
         d->i0[a] = iceil(lo - K - 0.5, 0, n[a] - 1);
         d->i1[a] = ifloor(hi + K - 0.5, 0, n[a] - 1);
@@ -203,8 +205,20 @@ static uint32_t fbits(float f)
     return u;
 }
 
+/* The squared distance from c to [lo, hi] along one axis. */
+static inline double gap2(double c, double lo, double hi)
+{
+    double g = c < lo ? lo - c : c > hi ? c - hi : 0;
+    return g * g;
+}
+
 /* The voxels' squared distances (voxel units) in brick (bx, by, bz), from
- * its triangles, starting from K^2 (nothing nearer). */
+ * its triangles, starting from K^2 (nothing nearer).  The distance to a
+ * triangle's box is a lower bound of the distance to it: a row whose
+ * (y, z) lies K or more from the box is skipped, a row's x range is cut
+ * to where the box can be nearer than K, and a voxel is measured only
+ * when the box is nearer than the best distance it has so far (exact: a
+ * triangle skipped is no nearer than that best). */
 static void brick_d2(mv_tile *t, const dbins *d, uint32_t bx, uint32_t by, uint32_t bz,
                      uint32_t K, double *d2)
 {
@@ -220,14 +234,22 @@ static void brick_d2(mv_tile *t, const dbins *d, uint32_t bx, uint32_t by, uint3
             lo[a] = r->i0[a] > o[a] ? r->i0[a] : o[a];
             hi[a] = r->i1[a] < o[a] + (int32_t)S - 1 ? r->i1[a] : o[a] + (int32_t)S - 1;
         }
-        double p[3];
+        double p[3], KK = (double)K * K;
         for (int32_t z = lo[2]; z <= hi[2]; z++) {
             p[2] = z + 0.5;
+            double gz = gap2(p[2], r->lo[2], r->hi[2]);
             for (int32_t y = lo[1]; y <= hi[1]; y++) {
                 p[1] = (double)(t->y0 + (uint32_t)y) + 0.5;
+                double gyz = gz + gap2(p[1], r->lo[1], r->hi[1]);
+                if (gyz >= KK) continue;
+                /* x where the box is nearer than K: |x + 0.5 - box| < rx */
+                double rx = sqrt(KK - gyz), x0 = r->lo[0] - rx - t->x0 - 0.5,
+                       x1 = r->hi[0] + rx - t->x0 - 0.5;
+                int32_t a = iceil(x0, lo[0], hi[0]), b = ifloor(x1, lo[0], hi[0]);
                 double *row = d2 + ((size_t)(z - o[2]) * S + (size_t)(y - o[1])) * S - o[0];
-                for (int32_t x = lo[0]; x <= hi[0]; x++) {
+                for (int32_t x = a; x <= b; x++) {
                     p[0] = (double)(t->x0 + (uint32_t)x) + 0.5;
+                    if (gyz + gap2(p[0], r->lo[0], r->hi[0]) >= row[x]) continue;
                     double e = tri_d2(r, p);
                     if (e < row[x]) row[x] = e;
                 }

@@ -49,6 +49,7 @@
 #include "progress.h"
 #include "source.h"
 #include "vod.h"
+#include "voxel.h"
 
 enum { TAG_REQ = 1, TAG_NODES, TAG_BRICKS, TAG_FAIL, /* up, to rank 0 */
        TAG_TASK = 11, TAG_WANT };                   /* down, from rank 0 */
@@ -845,6 +846,12 @@ static int prepare_kind(prep *p, int argc, char **argv, pipeline_job *pj)
     }
     if (p->o.res > GRID_MAX_RES) {
         msg("bad --res '%s': want a whole number from 1 to %u", p->o.res_arg, GRID_MAX_RES);
+        return CLI_EXIT_USAGE;
+    }
+    /* its columns without triangles hold +w, and the ranks take no empty
+     * mesh yet */
+    if (p->o.vod.channel == VOXEL_CH_DISTANCE) {
+        msg("--channel distance is not available through vox_mpi yet: use vox voxelize");
         return CLI_EXIT_USAGE;
     }
     return p->o.mesh ? prepare_mesh(p, pj) : prepare_implicit(p, pj);

@@ -33,6 +33,8 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     echo
     "$(dirname "$0")/bench-mesh.sh" "$build" || mesh_rc=$? # the tables after it still run
     echo
+    "$(dirname "$0")/bench-distance.sh" "$build" || mesh_rc=$?
+    echo
     "$(dirname "$0")/bench-iso.sh" "$build" || mesh_rc=$?
     echo
     "$(dirname "$0")/bench-whole.sh" "$build" || whole_rc=$?

@@ -963,6 +963,24 @@ static void copy_bytes_bits8(const vod_volume *v, uint32_t B, const uint8_t *d,
     }
 }
 
+/* n 32-bit voxels of a row (src, the volume's native u32s; NULL: all u)
+ * into a raw brick's little-endian ones: the row at once where the two are
+ * the same bytes (the distance's and the surface's every brick). */
+static void copy_row32(uint8_t *raw, const uint8_t *src, uint32_t u, uint32_t n)
+{
+#if __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    if (src) {
+        memcpy(raw, src, (size_t)n * 4);
+        return;
+    }
+#endif
+    for (uint32_t x = 0; x < n; x++) {
+        uint32_t w;
+        if (src) memcpy(&w, src + 4 * x, 4);
+        vod_put32(raw + 4 * x, src ? w : u);
+    }
+}
+
 /* The part of storage brick (entry e, low corner o, level-l voxels) that
  * lies in the raw brick whose low corner is lo. */
 static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
@@ -989,6 +1007,8 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
                 copy_row_bits8(raw, r, d ? d + s : NULL, u, n);
             else if (L->voxel_bits == 8 && v->bits == 8) /* a row at a time */
                 d ? memcpy(raw + r, d + s, n) : memset(raw + r, (int)u, n);
+            else if (L->voxel_bits == 32 && v->bits == 32)
+                copy_row32(raw + 4 * r, d ? d + 4 * s : NULL, u, n);
             else
                 for (uint32_t x = 0; x < n; x++)
                     raw_put(raw, L->voxel_bits, r + x, d ? vox_get(v, d, s + x) : u);
