@@ -22,7 +22,7 @@
 #define OUTPUT_OPTIONS \
     "      --schedule subtree|paper\n" \
     "                         hand out subtrees (default) or single octants (the paper)\n" \
-    "      --channel surface|occupancy|density\n" \
+    "      --channel surface|occupancy|density|distance\n" \
     "                         32-bit voxels with normals (the default for F), 1 bit (the\n" \
     "                         default for a mesh) or 8-bit density (meshes only)\n" \
     "      --brick N          brick size, a power of two 2..256 (default 16)\n" \
@@ -128,9 +128,10 @@ static int parse_choice(const char *s, const char *const names[],
 
 static int parse_vod_option(int c, const char *arg, vod_params *v)
 {
-    static const char *const ch_names[] = {"surface", "occupancy", "density", NULL};
+    static const char *const ch_names[] = {"surface", "occupancy", "density", "distance",
+                                           NULL};
     static const uint32_t ch_values[] = {VOXEL_CH_SURFACE, VOXEL_CH_OCCUPANCY,
-                                         VOXEL_CH_DENSITY};
+                                         VOXEL_CH_DENSITY, VOXEL_CH_DISTANCE};
     static const char *const comp_names[] = {"zlib", "runl", "none", NULL};
     static const uint32_t comp_values[] = {VOD_COMP_ZLIB, VOD_COMP_RUNL, VOD_COMP_NONE};
     static const char *const hash_names[] = {"sfhs", "xx32", NULL};

@@ -20,6 +20,9 @@ enum voxel_channel {
 
 #define VOXEL_FULL 255u
 
+/* Channel 4's narrow band: voxels each side of the surface by default */
+#define VOXEL_BAND_DEFAULT 3
+
 /* Octahedral encoding of a unit vector into 2 x 12 bits (bits 8-31 of a
  * channel-3 voxel; returned already shifted).  A zero vector encodes +z. */
 uint32_t voxel_pack_normal(const double n[3]);

@@ -4,6 +4,7 @@
 #include <errno.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <time.h>
@@ -28,6 +29,11 @@ __attribute__((format(printf, 4, 5))) static int fail(pipeline_report *r,
     vsnprintf(r->err.message, sizeof r->err.message, fmt, ap);
     va_end(ap);
     return rc;
+}
+
+uint32_t pipeline_band(const pipeline_job *job)
+{
+    return job->band ? job->band : VOXEL_BAND_DEFAULT;
 }
 
 /* The job's VOD parameters: its geometry and metadata on the caller's
@@ -63,6 +69,11 @@ static void vod_setup(vod_params *v, const pipeline_job *job, const double lo[3]
         m.kind_pairs = pairs;
     }
     job_meta_format(meta, JOB_META_MAX, &m);
+    if (job->vod.channel == VOXEL_CH_DISTANCE) {
+        size_t n = strlen(meta);
+        snprintf(meta + n, JOB_META_MAX - n, "distance_band=%u\ndistance_units=world\n",
+                 pipeline_band(job));
+    }
     *v = job->vod;
     v->metadata = meta;
     for (int a = 0; a < 3; a++) {
@@ -396,6 +407,12 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
 {
     memcpy(lo, job->lo, 3 * sizeof *lo);
     memcpy(hi, job->hi, 3 * sizeof *hi);
+    if (pipeline_band(job) > CSG_DIST_MAX_BAND)
+        return fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
+                    job->band, CSG_DIST_MAX_BAND);
+    if (job->kind == PIPELINE_IMPLICIT && job->vod.channel == VOXEL_CH_DISTANCE &&
+        !job->implicit.source)
+        return fail(r, ENGINE_BAD_JOB, -EINVAL, "the distance job has no expression text");
     if (job->kind == PIPELINE_IMPLICIT)
         return job->implicit.tape ? 0
                                   : fail(r, ENGINE_BAD_JOB, -EINVAL,
@@ -406,6 +423,12 @@ static int job_domain(const pipeline_job *job, double lo[3], double hi[3],
         if (!csg_channel_bits(job->vod.channel))
             return fail(r, ENGINE_BAD_JOB, -EINVAL,
                         "a csg job writes the density, occupancy or surface channel");
+        const csg_node *root = &job->csg.tree->node[job->csg.tree->n - 1];
+        if (job->vod.channel == VOXEL_CH_DISTANCE &&
+            (root->kind != CSG_IMPLICIT || root->has_domain))
+            return fail(r, ENGINE_BAD_JOB, -ENOTSUP,
+                        "the distance channel of a csg tree is not built yet (only of "
+                        "an implicit surface)");
         return 0;
     }
     if (job->kind != PIPELINE_MESH || !job->mesh.mesh || !job->mesh.mesh->n_triangles)
@@ -454,6 +477,32 @@ int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
     return 0;
 }
 
+/* An implicit job's distance runs as the csg kind's: a tree of one
+ * implicit leaf (the job's text), its k the band; csg_dist does the rest. */
+static int distance_tree(const pipeline_job *job, csg_tree **out)
+{
+    csg_tree *t = calloc(1, sizeof *t);
+    char *text = malloc(job->implicit.source_len + 1);
+    if (!t || !text) {
+        free(t);
+        free(text);
+        return -ENOMEM;
+    }
+    memcpy(text, job->implicit.source, job->implicit.source_len);
+    text[job->implicit.source_len] = 0;
+    t->n = 1;
+    t->text = text;
+    t->text_len = job->implicit.source_len;
+    csg_node *n = &t->node[0];
+    n->kind = CSG_IMPLICIT;
+    n->a = n->b = -1;
+    n->expr_len = (uint32_t)job->implicit.source_len;
+    n->k = pipeline_band(job);
+    snprintf(n->name, sizeof n->name, "implicit");
+    *out = t;
+    return 0;
+}
+
 /* pipeline_run from t0 on; r->t_job set before the engine's release. */
 static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
                            double t0, pipeline_report *r)
@@ -463,6 +512,13 @@ static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
     int rc = pipeline_plan(job, r, &v, meta);
     if (rc) return rc;
     pipeline_job run = *job;
+    csg_tree *dist_tree = NULL;
+    if (job->kind == PIPELINE_IMPLICIT && job->vod.channel == VOXEL_CH_DISTANCE) {
+        if ((rc = distance_tree(job, &dist_tree)))
+            return fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
+        run.kind = PIPELINE_CSG;
+        run.csg.tree = dist_tree;
+    }
     /* Without a repair the topology decides nothing before the write: on
      * an engine it is found while the triangles are voxelized. */
     topo_job topo = {.m = job->mesh.mesh};
@@ -470,10 +526,14 @@ static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
                    job->mesh.opts.repair == MESH_REPAIR_NONE;
     if (overlap) par_start(&topo.task, topo_run, &topo);
     else if (job->kind == PIPELINE_MESH && (rc = mesh_check(&run, r))) return rc;
-    if (!e) return run_serial(&run, &v, sink, r);
-    rc = run_engine(e, &run, &v, sink, overlap ? &topo : NULL, r);
-    r->t_job = clock_now() - t0; /* the release below is the engine's */
-    engine_release(e); /* the job's pages go back, its result's too */
+    if (!e) {
+        rc = run_serial(&run, &v, sink, r);
+    } else {
+        rc = run_engine(e, &run, &v, sink, overlap ? &topo : NULL, r);
+        r->t_job = clock_now() - t0; /* the release below is the engine's */
+        engine_release(e); /* the job's pages go back, its result's too */
+    }
+    csg_tree_free(dist_tree);
     return rc;
 }
 

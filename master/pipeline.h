@@ -68,6 +68,7 @@ typedef struct {
     double lo[3], hi[3];          /* the domain */
     uint32_t res;                 /* voxels along its longest axis */
     engine_schedule schedule;
+    uint32_t band;                /* channel 4: voxels each side, 0 the default */
     /* Channel, brick, compression, hash; the geometry and the metadata
      * are the job's and filled in here. */
     vod_params vod;
@@ -121,5 +122,8 @@ int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
  * a negative errno with r->err saying why and r->stage where. */
 int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
                  pipeline_report *r);
+
+/* The job's distance band in voxels (VOXEL_BAND_DEFAULT when not given). */
+uint32_t pipeline_band(const pipeline_job *job);
 
 #endif

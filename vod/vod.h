@@ -67,6 +67,7 @@ typedef struct {
     uint32_t height;            /* treeHeight */
     uint32_t padded;            /* N = brick * 2^(height-1) */
     uint32_t voxel_bits;        /* 1, 8 or 32 */
+    int channel;                /* the params' (voxel.h) */
     size_t raw_bytes;           /* bytes of one raw brick */
     uint64_t nodes;             /* (8^height - 1) / 7 */
     int octree_depth;
@@ -74,8 +75,7 @@ typedef struct {
 
 /* Validate p against the spec and compute the layout.  -EINVAL with a
  * message in err for bad params (also when the volume is larger than the
- * source's 2^octree_depth cube, and for channel 4, which the spec declares
- * but nothing produces yet), -EFBIG when the octree table alone would
+ * source's 2^octree_depth cube), -EFBIG when the octree table alone would
  * pass 4 GiB.  The padded side N is 2^octree_depth, smaller than it (an
  * octree deeper than the volume needs: the file's root is the cell that
  * covers [0, N)^3), or the brick itself when the brick is larger than the

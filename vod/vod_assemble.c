@@ -24,6 +24,7 @@
 
 #include "clock.h"
 #include "par.h"
+#include "voxel.h"
 
 #define TRAILER_FIXED 40u     /* trailer bytes besides the metadata */
 #define CHUNK_BYTES (1u << 20) /* what one thread renders at a time */
@@ -66,6 +67,7 @@ static void make_header(uint8_t *h, const vod_layout *L, const vod_params *p)
 {
     uint32_t flags = VOD_FLAG_TRAILER;
     if (p->comp != VOD_COMP_NONE) flags |= VOD_FLAG_COMPRESSED;
+    if (p->channel == VOXEL_CH_DISTANCE) flags |= VOD_FLAG_FLOAT;
     for (int a = 0; a < 3; a++)
         if (L->padded > p->volume[a]) flags |= VOD_FLAG_PADDED;
     memcpy(h, ".VOD", 4);

@@ -7,6 +7,7 @@
 
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #include "voxel.h"
 
@@ -55,12 +56,27 @@ static inline uint32_t vod_down_surface(const uint32_t v[8])
     return occ | voxel_pack_normal(n);
 }
 
+/* Channel 4: the mean of the f32 children (spec section 3), summed in
+ * child order. */
+static inline uint32_t vod_down_float(const uint32_t v[8])
+{
+    float f[8], s = 0;
+    memcpy(f, v, sizeof f);
+    for (int i = 0; i < 8; i++) s += f[i];
+    s *= 0.125f;
+    uint32_t u;
+    memcpy(&u, &s, sizeof u);
+    return u;
+}
+
 /* Channel 1: 1 iff any child is non-zero (for voxel values at level 0 as
- * for 0/1 above); channel 2: the mean rounded half up; channel 3: above. */
+ * for 0/1 above); channel 2: the mean rounded half up; channels 3 and 4:
+ * above. */
 __attribute__((always_inline)) static inline uint32_t vod_downsample(int channel,
                                                                    const uint32_t v[8])
 {
     if (channel == VOXEL_CH_SURFACE) return vod_down_surface(v);
+    if (channel == VOXEL_CH_DISTANCE) return vod_down_float(v);
     if (channel == VOXEL_CH_DENSITY)
         return (v[0] + v[1] + v[2] + v[3] + v[4] + v[5] + v[6] + v[7] + 4) / 8;
     return (v[0] | v[1] | v[2] | v[3] | v[4] | v[5] | v[6] | v[7]) != 0;

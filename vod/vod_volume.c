@@ -475,7 +475,8 @@ static uint64_t load64(const uint8_t *p)
 static uint32_t channels_of(const vod_volume *v)
 {
     return 1u << VOXEL_CH_OCCUPANCY |
-           1u << (v->bits == 8 ? VOXEL_CH_DENSITY : VOXEL_CH_SURFACE);
+           (v->bits == 8 ? 1u << VOXEL_CH_DENSITY
+                         : 1u << VOXEL_CH_SURFACE | 1u << VOXEL_CH_DISTANCE);
 }
 
 typedef struct {
@@ -758,10 +759,12 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
 
 /* ---- the source ---- */
 
-static int channel_of_bits(uint32_t bits)
+/* The layout's channel (an unspecified one from its voxel width). */
+static int channel_of(const vod_layout *L)
 {
-    return bits == 1 ? VOXEL_CH_OCCUPANCY : bits == 8 ? VOXEL_CH_DENSITY
-                                                      : VOXEL_CH_SURFACE;
+    if (L->channel) return L->channel;
+    return L->voxel_bits == 1 ? VOXEL_CH_OCCUPANCY : L->voxel_bits == 8 ? VOXEL_CH_DENSITY
+                                                                        : VOXEL_CH_SURFACE;
 }
 
 /* Some voxel of level-0 brick e in the box [lo, lo + side) is non-zero. */
@@ -810,7 +813,7 @@ static bool footprint_nonempty(const vod_volume *v, const vod_layout *L,
 static bool brick_uniform(const vod_volume *v, const vod_layout *L,
                           const vod_node *n, uint32_t *value)
 {
-    int l = (int)n->level, ch = channel_of_bits(L->voxel_bits);
+    int l = (int)n->level, ch = channel_of(L);
     if (l > v->depth || (l >= 1 && v->mip_channel != ch)) return false;
     uint32_t B = L->brick, per = B >= v->sbrick ? B >> v->slog2 : 1, b0[3], b[3];
     b0[0] = (n->bx * B) >> v->slog2;
@@ -950,7 +953,7 @@ static int vol_fill(const vod_source *s, const vod_layout *L, const vod_node *n,
                     uint8_t *raw)
 {
     const vod_volume *v = s->ctx;
-    int l = (int)n->level, ch = channel_of_bits(L->voxel_bits);
+    int l = (int)n->level, ch = channel_of(L);
     if (!(channels_of(v) >> ch & 1u) || l > v->depth ||
         (l >= 1 && v->mip_channel != ch))
         return -EINVAL;

@@ -54,15 +54,11 @@ static int check_geometry(const vod_params *p, char *err, size_t errlen)
 static int check_encoding(const vod_params *p, char *err, size_t errlen)
 {
     char b[5];
-    if (p->channel == VOXEL_CH_DISTANCE)
-        return vod_fail(err, errlen, -EINVAL,
-                    "channel 4 (f32 signed distance) is not written yet: no job "
-                    "kind produces it (1 occupancy, 2 density or 3 surface)");
     if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY &&
-        p->channel != VOXEL_CH_DENSITY)
+        p->channel != VOXEL_CH_DENSITY && p->channel != VOXEL_CH_DISTANCE)
         return vod_fail(err, errlen, -EINVAL,
-                    "channel %d cannot be written (1 occupancy, 2 density or 3 "
-                    "surface)",
+                    "channel %d cannot be written (1 occupancy, 2 density, 3 "
+                    "surface or 4 distance)",
                     p->channel);
     if (p->comp != VOD_COMP_NONE && p->comp != VOD_COMP_ZLIB &&
         p->comp != VOD_COMP_RUNL)
@@ -110,6 +106,7 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     L->voxel_bits = p->channel == VOXEL_CH_OCCUPANCY ? 1
                     : p->channel == VOXEL_CH_DENSITY ? 8
                                                      : 32;
+    L->channel = p->channel;
     L->raw_bytes = (size_t)p->brick * p->brick * p->brick * L->voxel_bits / 8;
     L->nodes = ((1ull << (3 * L->height)) - 1) / 7;
     L->octree_depth = octree_depth;
