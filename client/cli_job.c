@@ -24,7 +24,8 @@
     "                         hand out subtrees (default) or single octants (the paper)\n" \
     "      --channel surface|occupancy|density|distance\n" \
     "                         32-bit voxels with normals (the default for F), 1 bit (the\n" \
-    "                         default for a mesh) or 8-bit density (meshes only)\n" \
+    "                         default for a mesh), 8-bit density (meshes only) or the\n" \
+    "                         f32 signed distance in a band (expressions)\n" \
     "      --brick N          brick size, a power of two 2..256 (default 16)\n" \
     "      --compress zlib|runl|none   (default zlib)\n" \
     "      --hash sfhs|xx32   brick hash (default sfhs)\n"
