@@ -45,13 +45,15 @@ static const char usage_text[] =
     "                  [--level L] [--bbox X0,X1,Y0,Y1,Z0,Z1] [--no-normals]\n"
     "  writes the voxels of one level (0: full resolution), uint8 as a dense array\n"
     "  (sparse in vdb): channel 1 as 0/1, 2 as its density, 3 as its occupancy\n"
-    "  byte; channel 3's normals too, where the format holds them\n"
+    "  byte; channel 3's normals too, where the format holds them; channel 4\n"
+    "  (signed distance) as float32 (binvox: 1 inside), in vdb a level set\n"
     "  -o OUT        the output; its extension (.nrrd, .raw, .binvox, .vti, .vdb)\n"
     "                names the format unless --format does\n"
     "  --format F    nrrd, raw (a OUT.json sidecar beside it), binvox (occupancy:\n"
     "                channel 2 above 127), vti (VTK ImageData, appended raw), vdb\n"
     "                (OpenVDB, sparse: a BoolGrid for channel 1, else a FloatGrid\n"
-    "                \"density\" of the byte / 255; normals a Vec3SGrid \"normal\")\n"
+    "                \"density\" of the byte / 255; normals a Vec3SGrid \"normal\";\n"
+    "                channel 4 a level set \"surface\")\n"
     "  --gzip        NRRD only: gzip-encoded data\n"
     "  --level L     the mip level (default 0)\n"
     "  --bbox X0,X1,Y0,Y1,Z0,Z1  only voxels X0 <= x < X1 (and so on), in the\n"
@@ -135,14 +137,16 @@ static int parse_bbox(const char *s, const uint32_t dims[3], export_box *b)
     return 0;
 }
 
-/* The channels whose voxels fit uint8; 0 or a message. */
+/* The channels whose voxels fit uint8, and channel 4's floats; 0 or a
+ * message. */
 static int check_channel(const vod_info *in, const char *path)
 {
     if (in->channel == VOXEL_CH_OCCUPANCY || in->channel == VOXEL_CH_DENSITY ||
-        in->channel == VOXEL_CH_SURFACE || (in->channel == 0 && in->voxel_bits <= 8))
+        in->channel == VOXEL_CH_SURFACE || in->channel == VOXEL_CH_DISTANCE ||
+        (in->channel == 0 && in->voxel_bits <= 8))
         return 0;
-    cli_error("%s: channel %u (%u-bit voxels) cannot be exported yet (channels 1, 2 "
-              "and 3 can)", path, in->channel, in->voxel_bits);
+    cli_error("%s: channel %u (%u-bit voxels) cannot be exported yet (channels 1 to 4 "
+              "can)", path, in->channel, in->voxel_bits);
     return CLI_EXIT_FAILED;
 }
 
@@ -158,7 +162,8 @@ static int make_box(const vod_file *f, const export_opts *o, export_box *b)
     /* channel 3's normals go where the format can hold them (not binvox) */
     int nrm = in->channel == VOXEL_CH_SURFACE && in->voxel_bits == 32 && !o->no_normals &&
               o->fmt != FMT_BINVOX;
-    *b = (export_box){.f = f, .in = in, .level = o->level, .normals = nrm};
+    *b = (export_box){.f = f, .in = in, .level = o->level, .normals = nrm,
+                      .distance = in->channel == VOXEL_CH_DISTANCE && o->fmt != FMT_BINVOX};
     for (int a = 0; a < 3; a++) b->hi[a] = dims[a];
     if (o->bbox && parse_bbox(o->bbox, dims, b)) return CLI_EXIT_USAGE;
     for (int a = 0; a < 3; a++) {
@@ -222,6 +227,26 @@ static void print_vec(FILE *fp, const char *sep, const double v[3])
     fprintf(fp, "%.17g%s%.17g%s%.17g", v[0], sep, v[1], sep, v[2]);
 }
 
+/* NRRD of channel 4: a 3-D float array of the distances, world units. */
+static int write_nrrd_distance(const export_box *b, const export_opts *o, sink *s)
+{
+    double c[3];
+    for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
+    unsigned band;
+    double w = export_band_width(b->in, &band);
+    fprintf(s->fp, "NRRD0004\n# vox export of %s, level %d, channel 4: signed distance\n"
+            "type: float\ndimension: 3\nsizes: %u %u %u\nspace: 3D-right-handed\n"
+            "space directions: (%.17g,0,0) (0,%.17g,0) (0,0,%.17g)\n"
+            "centerings: cell cell cell\nkinds: domain domain domain\nendian: little\n"
+            "encoding: %s\nspace origin: (", o->in, b->level, b->n[0], b->n[1], b->n[2],
+            b->spacing[0], b->spacing[1], b->spacing[2], o->gzip ? "gzip" : "raw");
+    print_vec(s->fp, ",", c);
+    fprintf(s->fp, ")\nvod_channel:=4\nvod_level:=%d\nvod_distance_band:=%u\n"
+            "vod_distance_width:=%.9g\n\n", b->level, band, w);
+    if (o->gzip) return export_gzip(b, s->fp, 1);
+    return stream_floats(b, s, 1);
+}
+
 /* NRRD0004: the space origin is the first sample's centre.  With normals a
  * 4-D float array: (occupancy byte, nx, ny, nz) per voxel, fastest, its
  * axis of kind 4-vector with no space direction ("none").  "space:" comes
@@ -232,6 +257,7 @@ static int write_nrrd(const export_box *b, const export_opts *o, sink *s)
 {
     double c[3];
     for (int a = 0; a < 3; a++) c[a] = b->origin[a] + 0.5 * b->spacing[a];
+    if (b->distance) return write_nrrd_distance(b, o, s);
     int v = b->normals;
     fprintf(s->fp, "NRRD0004\n# vox export of %s, level %d, channel %u\n"
             "type: %s\ndimension: %d\nsizes: %s%u %u %u\nspace: 3D-right-handed\n"
@@ -262,10 +288,12 @@ static int write_vti(const export_box *b, sink *s)
     print_vec(s->fp, " ", c);
     fputs("\" Spacing=\"", s->fp);
     print_vec(s->fp, " ", b->spacing);
-    uint64_t bytes = (uint64_t)b->n[0] * b->n[1] * b->n[2];
-    fprintf(s->fp, "\">\n    <Piece Extent=\"%s\">\n      <PointData Scalars=\"voxel\"%s>\n"
-            "        <DataArray type=\"UInt8\" Name=\"voxel\" format=\"appended\" "
-            "offset=\"0\"/>\n", ext, b->normals ? " Normals=\"normal\"" : "");
+    uint64_t bytes = (uint64_t)b->n[0] * b->n[1] * b->n[2] * (b->distance ? 4 : 1);
+    const char *name = b->distance ? "distance" : "voxel";
+    fprintf(s->fp, "\">\n    <Piece Extent=\"%s\">\n      <PointData Scalars=\"%s\"%s>\n"
+            "        <DataArray type=\"%s\" Name=\"%s\" format=\"appended\" "
+            "offset=\"0\"/>\n", ext, name, b->normals ? " Normals=\"normal\"" : "",
+            b->distance ? "Float32" : "UInt8", name);
     if (b->normals) /* the second array starts past the first's count and bytes */
         fprintf(s->fp, "        <DataArray type=\"Float32\" Name=\"normal\" "
                 "NumberOfComponents=\"3\" format=\"appended\" offset=\"%llu\"/>\n",
@@ -275,7 +303,7 @@ static int write_vti(const export_box *b, sink *s)
     uint8_t le[8];
     for (int i = 0; i < 8; i++) le[i] = (uint8_t)(bytes >> (8 * i));
     put(s, le, sizeof le);
-    int rc = stream_zyx(b, s);
+    int rc = b->distance ? stream_floats(b, s, 1) : stream_zyx(b, s);
     if (!rc && b->normals) {
         for (int i = 0; i < 8; i++) le[i] = (uint8_t)((bytes * 12) >> (8 * i));
         put(s, le, sizeof le);
@@ -290,7 +318,12 @@ static int write_json(const export_box *b, const export_opts *o)
 {
     FILE *fp = fopen(o->json, "w");
     if (!fp) return -errno;
-    if (b->normals)
+    if (b->distance)
+        fprintf(fp, "{\n  \"shape\": [%u, %u, %u],\n  \"dtype\": \"float32\",\n"
+                "  \"byte_order\": \"little\",\n  \"units\": \"world\",\n"
+                "  \"order\": \"C: shape is (z, y, x), x varies fastest\",\n  \"origin\": [",
+                b->n[2], b->n[1], b->n[0]);
+    else if (b->normals)
         fprintf(fp, "{\n  \"shape\": [%u, %u, %u, 4],\n  \"dtype\": \"float32\",\n"
                 "  \"byte_order\": \"little\",\n"
                 "  \"components\": [\"occupancy\", \"nx\", \"ny\", \"nz\"],\n"
@@ -373,7 +406,9 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
     case FMT_VTI: return write_vti(b, &s);
     case FMT_BINVOX: return write_binvox(b, &s);
     default: {
-        int rc = b->normals ? stream_floats(b, &s, 4) : stream_zyx(b, &s);
+        int rc = b->normals    ? stream_floats(b, &s, 4)
+                 : b->distance ? stream_floats(b, &s, 1)
+                               : stream_zyx(b, &s);
         return rc ? rc : write_json(b, o);
     }
     }

@@ -8,6 +8,20 @@
 #include "vod.h"
 #include "voxel.h"
 
+/* Channel 4's narrow band, from the metadata's distance_band (voxels). */
+static void print_band(const vod_info *in)
+{
+    const char *m = in->metadata ? strstr(in->metadata, "distance_band=") : NULL;
+    unsigned k = 0;
+    if (!m || (m != in->metadata && m[-1] != '\n') || sscanf(m + 14, "%u", &k) != 1 || !k) {
+        printf("  band        not recorded (no distance_band in the metadata)\n");
+        return;
+    }
+    printf("  band        %u voxels each side (%g world units); beyond it +-%g\n", k,
+           (double)(float)(k * (double)in->voxel_scale[0]),
+           (double)(float)(k * (double)in->voxel_scale[0]));
+}
+
 static const char *channel_name(uint32_t c)
 {
     switch (c) {
@@ -51,6 +65,7 @@ static void print_info(const char *path, const vod_info *in)
     if (in->has_trailer) {
         printf("  origin      %g, %g, %g\n", in->origin[0], in->origin[1], in->origin[2]);
         printf("  channel     %u: %s\n", in->channel, channel_name(in->channel));
+        if (in->channel == VOXEL_CH_DISTANCE) print_band(in);
         printf("  crc32       %08x\n", in->crc32);
         const char *m = in->metadata;
         while (m && *m) {

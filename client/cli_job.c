@@ -24,8 +24,8 @@
     "                         hand out subtrees (default) or single octants (the paper)\n" \
     "      --channel surface|occupancy|density|distance\n" \
     "                         32-bit voxels with normals (the default for F), 1 bit (the\n" \
-    "                         default for a mesh), 8-bit density or the f32 signed\n" \
-    "                         distance (meshes only)\n" \
+    "                         default for a mesh), 8-bit density (meshes only) or the\n" \
+    "                         f32 signed distance in a band (meshes and expressions)\n" \
     "      --brick N          brick size, a power of two 2..256 (default 16)\n" \
     "      --compress zlib|runl|none   (default zlib)\n" \
     "      --hash sfhs|xx32   brick hash (default sfhs)\n"
@@ -167,6 +167,11 @@ static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
     static const uint32_t repair_values[] = {MESH_REPAIR_NONE, MESH_REPAIR_VOTE,
                                              MESH_REPAIR_WINDING};
     uint32_t u;
+    if (c == 'N') { /* the band: any job's distance, not a mesh's option alone */
+        if (!cli_parse_uint(arg, 1, VOXEL_BAND_MAX, &o->mesh_opts.band)) return 0;
+        cli_error("bad --band '%.40s': want 1..%u voxels", arg, VOXEL_BAND_MAX);
+        return -1;
+    }
     o->mesh_opts_given = 1;
     switch (c) {
     case 'O':
@@ -180,10 +185,6 @@ static int parse_mesh_option(int c, const char *arg, cli_job_opts *o)
     case 'K':
         if (!cli_parse_uint(arg, 2, 8, &o->mesh_opts.supersample)) return 0;
         cli_error("bad --supersample '%.40s': want 2..8", arg);
-        return -1;
-    case 'N':
-        if (!cli_parse_uint(arg, 1, VOXEL_BAND_MAX, &o->mesh_opts.band)) return 0;
-        cli_error("bad --band '%.40s': want 1..%u voxels", arg, VOXEL_BAND_MAX);
         return -1;
     case 'A':
         if (!cli_parse_uint(arg, 0, GRID_MAX_RES / 2, &o->pad)) return 0;
@@ -220,19 +221,19 @@ static int check_job_kind(const char *name, cli_job_opts *o)
                                strcmp(name, "submit") ? "" : ", --csg");
     if (o->csg) { /* the densities, or the occupancy */
         if (o->mesh_opts_given) {
-            cli_error("--mode, --repair, --supersample, --band, --pad, --bbox and --weld are for --mesh jobs");
+            cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
             return CLI_EXIT_USAGE;
         }
         if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
         return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {
-        cli_error("--mode, --repair, --supersample, --band, --pad, --bbox and --weld are for --mesh jobs");
+        cli_error("--mode, --repair, --supersample, --pad, --bbox and --weld are for --mesh jobs");
         return CLI_EXIT_USAGE;
     }
-    if (!o->mesh && (o->vod.channel == VOXEL_CH_DENSITY || o->vod.channel == VOXEL_CH_DISTANCE)) {
-        cli_error("--channel %s is for --mesh jobs (an expression gives surface "
-                  "or occupancy)", o->vod.channel == VOXEL_CH_DENSITY ? "density" : "distance");
+    if (!o->mesh && o->vod.channel == VOXEL_CH_DENSITY) {
+        cli_error("--channel density is for --mesh jobs (an expression gives surface, "
+                  "occupancy or distance)");
         return CLI_EXIT_USAGE;
     }
     if (o->mesh_opts.band && o->vod.channel != VOXEL_CH_DISTANCE) {

@@ -132,6 +132,7 @@ static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *t
         .kind = PIPELINE_IMPLICIT,
         .implicit = {.tape = tape, .source = src->text, .source_len = src->len,
                      .source_name = src->path},
+        .band = o->mesh_opts.band,
     };
     return voxelize(o, &job);
 }
@@ -206,7 +207,15 @@ int cli_voxelize(int argc, char **argv, const char *sock)
     expr_tape *tape;
     if ((rc = cli_job_source(&o, &src, &tape))) return rc;
     rc = -1;
-    if (o.mode != CLI_MODE_EMBEDDED) rc = try_daemon(&o, &src, sock);
+    /* The protocol carries a band for meshes only: an expression's distance
+     * with a band of its own runs here. */
+    if (o.mesh_opts.band && o.mode == CLI_MODE_AUTO) o.mode = CLI_MODE_EMBEDDED;
+    if (o.mesh_opts.band && o.mode == CLI_MODE_DAEMON) {
+        rc = cli_usage_error("voxelize", "--band with an expression runs on the embedded "
+                             "engine only (voxd takes a band for --mesh jobs)");
+    } else if (o.mode != CLI_MODE_EMBEDDED) {
+        rc = try_daemon(&o, &src, sock);
+    }
     if (rc < 0) rc = o.res > GRID_MAX_RES ? bad_res(&o) : voxelize_expr(&o, &src, tape);
     expr_tape_free(tape);
     source_free(&src);

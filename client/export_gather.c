@@ -1,4 +1,6 @@
 /* Gathering a box's voxels from the bricks that hold them (export.h). */
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "export.h"
@@ -17,6 +19,7 @@ static const uint64_t bits8[256] = {T64(0u), T64(64u), T64(128u), T64(192u)};
 
 static uint8_t voxel_u8(const vod_info *in, const uint8_t *raw, size_t i)
 {
+    if (in->channel == VOXEL_CH_DISTANCE) return raw[4 * i + 3] >> 7; /* the f32's sign */
     switch (in->voxel_bits) {
     case 1: return raw[i >> 3] >> (i & 7) & 1u;
     case 8: return raw[i];
@@ -85,6 +88,10 @@ void export_gather_normals(const export_box *b, const uint32_t lo[3], const uint
                             size_t o = ((size_t)(z - lo[2]) * h + (y - lo[1])) * w + x - lo[0];
                             uint32_t v;
                             memcpy(&v, raw + 4 * i, 4); /* little-endian bricks */
+                            if (b->distance) {
+                                memcpy(out + o, &v, 4);
+                                continue;
+                            }
                             if (!voxel_occupancy(v)) continue;
                             double n[3];
                             voxel_unpack_normal(v, n);
@@ -93,4 +100,17 @@ void export_gather_normals(const export_box *b, const uint32_t lo[3], const uint
                             for (int a = 0; a < 3; a++) p[a] = (float)n[a];
                         }
             }
+}
+
+double export_band_width(const vod_info *in, unsigned *band)
+{
+    const char *m = in->metadata ? strstr(in->metadata, "distance_band=") : NULL;
+    unsigned k = VOXEL_BAND_DEFAULT;
+    if (m && (m == in->metadata || m[-1] == '\n')) {
+        char *end;
+        unsigned long v = strtoul(m + 14, &end, 10);
+        if (end != m + 14 && v >= 1 && v <= 4096) k = (unsigned)v;
+    }
+    if (band) *band = k;
+    return (double)(float)(k * (double)in->voxel_scale[0]);
 }

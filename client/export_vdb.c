@@ -53,6 +53,29 @@ static int one_leaf(vdb_job *j, const uint32_t s[3], const uint32_t e[3])
     return j->api->block(j->w, lo, n, j->v, j->b->normals ? j->nrm : NULL);
 }
 
+/* A channel-4 brick's part [s, e) of the box into the level set: one
+ * value (a brick beyond the band, or inside it) as tiles, else its
+ * distances voxel by voxel. */
+static int distance_brick(vdb_job *j, const uint8_t *raw, const uint32_t s[3],
+                          const uint32_t e[3])
+{
+    const export_box *b = j->b;
+    size_t B = b->in->brick, bytes = B * B * B * 4;
+    uint32_t n[3] = {e[0] - s[0], e[1] - s[1], e[2] - s[2]};
+    int32_t lo[3] = {(int32_t)s[0], (int32_t)s[1], (int32_t)s[2]};
+    if (!memcmp(raw, raw + 4, bytes - 4)) {
+        float v;
+        memcpy(&v, raw, 4);
+        return j->api->fill_f(j->w, lo, n, v);
+    }
+    float *d = malloc((size_t)n[0] * n[1] * n[2] * sizeof *d);
+    if (!d) return -ENOMEM;
+    export_gather_normals(b, s, e, d, 1);
+    int rc = j->api->block_f(j->w, lo, n, d);
+    free(d);
+    return rc;
+}
+
 static int one_brick(vdb_job *j, const uint32_t bk[3])
 {
     const export_box *b = j->b;
@@ -66,6 +89,7 @@ static int one_brick(vdb_job *j, const uint32_t bk[3])
         n[a] = e[a] - s[a];
         lo[a] = (int32_t)s[a];
     }
+    if (b->distance) return distance_brick(j, raw, s, e);
     int u = uniform_byte(b, raw);
     if (u == 0) return 0;
     if (u > 0) return j->api->fill(j->w, lo, n, (uint8_t)u);
@@ -103,7 +127,9 @@ static int describe(const vdb_job *j, const char *src)
     int rc = api->meta_int(j->w, "vod_channel", j->b->in->channel);
     if (!rc) rc = api->meta_int(j->w, "vod_level", j->b->level);
     if (!rc) rc = api->meta_str(j->w, "vod_source", src);
-    if (!rc && j->b->in->voxel_bits > 1)
+    if (!rc && j->b->distance)
+        rc = api->meta_str(j->w, "vod_value", "signed distance, world units, negative inside");
+    else if (!rc && j->b->in->voxel_bits > 1)
         rc = api->meta_str(j->w, "vod_value",
                            "voxel byte / 255 (channel 3: its occupancy byte)");
     return rc;
@@ -145,6 +171,11 @@ int export_vdb(const export_box *b, const char *src, const char *path, char *err
     vdb_out_grid g = {.kind = b->in->voxel_bits == 1 ? VDB_OUT_BOOL : VDB_OUT_FLOAT,
                       .name = b->in->voxel_bits == 1 ? "occupancy" : "density",
                       .normals = b->normals};
+    if (b->distance) { /* a level set, background the band's width */
+        g.kind = VDB_OUT_LEVEL_SET;
+        g.name = "surface";
+        g.background = export_band_width(b->in, NULL);
+    }
     for (int a = 0; a < 3; a++) {
         g.spacing[a] = b->spacing[a];
         /* index (0,0,0) is level voxel (0,0,0), centred half a voxel in */

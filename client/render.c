@@ -466,7 +466,7 @@ int render_octree(const octree *t, const double origin[3],
 
 /* ---- VOD source ---- */
 
-enum vod_mode { MODE_NORMALS, MODE_OCCUPANCY };
+enum vod_mode { MODE_NORMALS, MODE_OCCUPANCY, MODE_DISTANCE };
 
 typedef struct {
     render_ctx *ctx;
@@ -479,11 +479,25 @@ typedef struct {
     int any;
 } vod_walk;
 
+/* Channel 4: the voxel's distance, and whether it is within a voxel of
+ * the zero level (the voxels drawn). */
+static float as_float(uint32_t v)
+{
+    float f;
+    memcpy(&f, &v, sizeof f);
+    return f;
+}
+
+static int near_zero(const vod_walk *w, uint32_t v)
+{
+    return fabs(as_float(v)) < w->voxel[0];
+}
+
 static int bounds_cb(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 {
     vod_walk *w = ud;
     uint32_t p[3] = {x, y, z};
-    (void)v;
+    if (w->mode == MODE_DISTANCE && !near_zero(w, v)) return 0;
     for (int k = 0; k < 3; k++) {
         if (!w->any || p[k] < w->lo[k]) w->lo[k] = p[k];
         if (!w->any || p[k] + 1 > w->hi[k]) w->hi[k] = p[k] + 1;
@@ -527,10 +541,39 @@ static void occupancy_normal(const vod_walk *w, uint32_t x, uint32_t y,
     for (int k = 0; k < 3; k++) n[k] /= w->voxel[k];
 }
 
+/* The distance at (x, y, z) of the level, clamped into the volume. */
+static double dist_at(const vod_walk *w, int64_t x, int64_t y, int64_t z)
+{
+    int64_t c[3] = {x, y, z};
+    for (int k = 0; k < 3; k++) c[k] = c[k] < 0 ? 0 : c[k] >= w->lim ? w->lim - 1 : c[k];
+    return as_float(vod_voxel(w->f, w->level, (uint32_t)c[0], (uint32_t)c[1], (uint32_t)c[2]));
+}
+
+/* Channel 4: a voxel within a voxel of the zero level splats at its centre
+ * moved by -d along the distance's gradient (central differences, world
+ * units), the gradient its normal: the zero level drawn, not the shell. */
+static int splat_distance(vod_walk *w, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
+{
+    if (!near_zero(w, v)) return 0;
+    double d = as_float(v), n[3], p[3], len = 0;
+    int64_t X = x, Y = y, Z = z;
+    n[0] = (dist_at(w, X + 1, Y, Z) - dist_at(w, X - 1, Y, Z)) / w->voxel[0];
+    n[1] = (dist_at(w, X, Y + 1, Z) - dist_at(w, X, Y - 1, Z)) / w->voxel[1];
+    n[2] = (dist_at(w, X, Y, Z + 1) - dist_at(w, X, Y, Z - 1)) / w->voxel[2];
+    for (int k = 0; k < 3; k++) len += n[k] * n[k];
+    len = sqrt(len);
+    uint32_t c[3] = {x, y, z};
+    for (int k = 0; k < 3; k++)
+        p[k] = w->origin[k] + (c[k] + 0.5) * w->voxel[k] - (len > 0 ? d * n[k] / len : 0);
+    render_splat(w->ctx, p, n);
+    return 0;
+}
+
 static int splat_cb(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 {
     vod_walk *w = ud;
     double p[3], n[3];
+    if (w->mode == MODE_DISTANCE) return splat_distance(w, x, y, z, v);
     if (w->mode == MODE_NORMALS) {
         if (!voxel_occupancy(v)) return 0;
         voxel_unpack_normal(v, n);
@@ -560,9 +603,13 @@ static int vod_mode_of(const vod_info *in, enum vod_mode *mode, char *err,
         *mode = MODE_OCCUPANCY;
         return 0;
     }
+    if (ch == VOXEL_CH_DISTANCE && bits == 32) {
+        *mode = MODE_DISTANCE;
+        return 0;
+    }
     snprintf(err, errlen,
              "render: channel %u with %u-bit%s voxels is not supported "
-             "(only 1-bit occupancy and 32-bit surface voxels)",
+             "(only 1-bit occupancy, 32-bit surface voxels and f32 distances)",
              ch, bits, is_float ? " float" : "");
     return -ENOTSUP;
 }

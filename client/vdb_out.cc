@@ -4,6 +4,7 @@
 #include "vdb_out.h"
 
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <new>
@@ -28,6 +29,7 @@ void say(char *err, size_t errlen, const char *what, const char *why)
 
 struct vdb_out {
     int kind;
+    float bg; // a level set's background
     openvdb::BoolGrid::Ptr occ;
     openvdb::FloatGrid::Ptr dens;
     openvdb::Vec3SGrid::Ptr nrm;
@@ -80,7 +82,7 @@ typename GridT::Ptr make_grid(const vdb_out_grid *g, openvdb::math::Transform::P
 static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, char *err, size_t errlen)
 {
     *out = nullptr;
-    if (g->kind != VDB_OUT_BOOL && g->kind != VDB_OUT_FLOAT) {
+    if (g->kind != VDB_OUT_BOOL && g->kind != VDB_OUT_FLOAT && g->kind != VDB_OUT_LEVEL_SET) {
         say(err, errlen, "vdb", "unknown grid kind");
         return -EINVAL;
     }
@@ -95,7 +97,18 @@ static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, char *err, size_t 
         w->kind = g->kind;
         if (g->kind == VDB_OUT_BOOL)
             w->occ = make_grid<openvdb::BoolGrid>(g, xf, openvdb::GRID_UNKNOWN);
-        else
+        else if (g->kind == VDB_OUT_LEVEL_SET) {
+            if (!(g->background > 0)) {
+                delete w;
+                say(err, errlen, "vdb", "a level set needs a background > 0");
+                return -EINVAL;
+            }
+            w->bg = float(g->background);
+            w->dens = openvdb::FloatGrid::create(w->bg);
+            w->dens->setName(g->name);
+            w->dens->setTransform(xf);
+            w->dens->setGridClass(openvdb::GRID_LEVEL_SET);
+        } else
             w->dens = make_grid<openvdb::FloatGrid>(g, xf, openvdb::GRID_FOG_VOLUME);
         if (g->normals) {
             vdb_out_grid ng = *g;
@@ -162,11 +175,51 @@ static int vdb_out_fill(vdb_out *w, const int32_t lo[3], const uint32_t n[3], ui
     }
 }
 
+// A distance as a level set holds it: active in the band (|d| below the
+// background, with a relative margin for the last bit of the file's
+// width), else inactive at the background with the distance's sign.
+static void set_distance(openvdb::FloatGrid::Accessor &acc, const Coord &c, float d, float bg)
+{
+    if (std::fabs(d) < bg * (1.0f - 1e-6f)) acc.setValueOn(c, d);
+    else if (d < 0) acc.setValueOff(c, -bg);
+}
+
+static int vdb_out_block_f(vdb_out *w, const int32_t lo[3], const uint32_t n[3], const float *d)
+{
+    if (w->kind != VDB_OUT_LEVEL_SET) return -EINVAL;
+    try {
+        auto acc = w->dens->getAccessor();
+        size_t i = 0;
+        for (uint32_t z = 0; z < n[2]; z++)
+            for (uint32_t y = 0; y < n[1]; y++)
+                for (uint32_t x = 0; x < n[0]; x++, i++)
+                    set_distance(acc, Coord(lo[0] + int32_t(x), lo[1] + int32_t(y), lo[2] + int32_t(z)),
+                                 d[i], w->bg);
+        return 0;
+    } catch (const std::exception &) {
+        return -ENOMEM;
+    }
+}
+
+static int vdb_out_fill_f(vdb_out *w, const int32_t lo[3], const uint32_t n[3], float v)
+{
+    if (w->kind != VDB_OUT_LEVEL_SET) return -EINVAL;
+    try {
+        bool band = std::fabs(v) < w->bg * (1.0f - 1e-6f);
+        if (band) w->dens->tree().fill(box_of(lo, n), v, true);
+        else if (v < 0) w->dens->tree().fill(box_of(lo, n), -w->bg, false);
+        return 0;
+    } catch (const std::exception &) {
+        return -ENOMEM;
+    }
+}
+
 static int vdb_out_write(vdb_out *w, const char *path, char *err, size_t errlen)
 {
     try {
         openvdb::GridPtrVec grids;
         if (w->occ) openvdb::tools::prune(w->occ->tree());
+        else if (w->kind == VDB_OUT_LEVEL_SET) openvdb::tools::pruneLevelSet(w->dens->tree());
         else openvdb::tools::prune(w->dens->tree());
         grids.push_back(w->scalar());
         if (w->nrm) {
@@ -198,7 +251,7 @@ static void vdb_out_free(vdb_out *w)
     delete w;
 }
 
-extern "C" __attribute__((visibility("default"))) const vdb_out_api vdb_out_api_v1 = {
-    vdb_out_open, vdb_out_meta_int, vdb_out_meta_str, vdb_out_block,
-    vdb_out_fill, vdb_out_write, vdb_out_active, vdb_out_free,
+extern "C" __attribute__((visibility("default"))) const vdb_out_api vdb_out_api_v2 = {
+    vdb_out_open,    vdb_out_meta_int, vdb_out_meta_str, vdb_out_block,   vdb_out_fill,
+    vdb_out_block_f, vdb_out_fill_f,   vdb_out_write,    vdb_out_active, vdb_out_free,
 };

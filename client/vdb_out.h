@@ -3,8 +3,10 @@
  * catches every exception at this interface, so a C caller sees 0 or a
  * negative errno and a message, never an unwinding stack.
  *
- * One file holds one scalar grid (a BoolGrid, or a FloatGrid of the voxel
- * byte / 255) and optionally a Vec3SGrid "normal", active on the same voxels.
+ * One file holds one scalar grid (a BoolGrid, a FloatGrid of the voxel
+ * byte / 255, or a level set: a FloatGrid of signed distances, class level
+ * set, active in the narrow band) and optionally a Vec3SGrid "normal",
+ * active on the same voxels.
  * Voxel (i, j, k) is the index-space point (i, j, k); the transform maps it
  * to world centre + (i, j, k) * spacing, so an index is a voxel's centre, as
  * OpenVDB has it.  The grids are sparse: a box of one value becomes tiles
@@ -25,6 +27,8 @@ typedef struct vdb_out vdb_out;
 enum vdb_out_kind {
     VDB_OUT_BOOL = 1,  /* active and true where the byte is non-zero */
     VDB_OUT_FLOAT = 2, /* byte / 255 where non-zero, inactive 0 elsewhere */
+    VDB_OUT_LEVEL_SET = 3, /* distances: active where |d| < background, else
+                              inactive +-background (the distance's sign) */
 };
 
 typedef struct {
@@ -33,6 +37,7 @@ typedef struct {
     int normals;               /* 1: a Vec3SGrid "normal" beside it */
     double spacing[3];         /* a voxel's size, world units */
     double centre[3];          /* world position of index (0, 0, 0) */
+    double background;         /* a level set's: the band's width, world units */
 } vdb_out_grid;
 
 /* The interface, as a table: vdb_out.cc is built as a module of its own
@@ -54,6 +59,11 @@ typedef struct {
      * where the box covers whole nodes; not for a file with normals.
      * 0, -EINVAL or -ENOMEM. */
     int (*fill)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], uint8_t v);
+    /* A level set's voxels lo + [0, n) from the distances d (x fastest),
+     * and every voxel of lo + [0, n) := the distance v (as tiles where the
+     * box covers whole nodes).  0, -EINVAL (not a level set) or -ENOMEM. */
+    int (*block_f)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], const float *d);
+    int (*fill_f)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], float v);
     /* Prune the trees (equal leaves become tiles) and write the file at
      * path.  0, or a negative errno with a message in err. */
     int (*write)(vdb_out *w, const char *path, char *err, size_t errlen);
@@ -65,7 +75,7 @@ typedef struct {
 /* The module's one exported symbol, a const vdb_out_api; its name carries
  * a version, so a stale module is refused rather than misread. */
 #define VDB_OUT_MODULE "vox-vdb.so"
-#define VDB_OUT_SYMBOL "vdb_out_api_v1"
+#define VDB_OUT_SYMBOL "vdb_out_api_v2"
 
 #ifdef __cplusplus
 }

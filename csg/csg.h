@@ -181,4 +181,34 @@ int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *con
                     vod_volume *vol, int channel, const uint32_t lo[3], const uint32_t hi[3],
                     csg_stats *st);
 
+/* ---- the signed distance of an implicit surface (csg_dist.c) ---- */
+
+/* The band's width in voxels, at most; values are within CSG_DIST_EPS
+ * voxel above the length of a segment from the centre to the foot point
+ * (docs/expressions.md). */
+#define CSG_DIST_MAX_BAND 64u
+#define CSG_DIST_EPS 1e-4
+
+typedef struct csg_dist csg_dist;
+typedef struct {
+    uint64_t band_voxels;   /* voxels whose value was computed */
+    uint64_t projected;     /* ... by the certified foot point */
+    uint64_t marched;       /* ... by the march along 27 directions */
+} csg_dist_stats;
+
+/* The distance to t's F = 0 on grid g in a band of `band` voxels each side
+ * (1..CSG_DIST_MAX_BAND).  One per thread.  0, -EINVAL, -ENOMEM. */
+int csg_dist_new(const expr_tape *t, const grid_spec *g, uint32_t band, csg_dist **out);
+void csg_dist_free(csg_dist *d);
+/* The cube of n^3 voxels (n a power of two) from voxel lo into out (f32,
+ * x fastest): the signed distance in world units, negative inside (F < 0),
+ * within the band; beyond it +-W (W = band * vs, as a float); 0 past the
+ * grid.  0 or -EINVAL. */
+int csg_dist_brick(csg_dist *d, const uint32_t lo[3], uint32_t n, float *out);
+/* The value of one voxel centre c (world) in the band: its sign F's,
+ * decided by intervals (0 where they leave it open), its magnitude a
+ * certified upper bound of the distance to F = 0, at most W. */
+float csg_dist_voxel(csg_dist *d, const double c[3]);
+const csg_dist_stats *csg_dist_get_stats(const csg_dist *d);
+
 #endif

@@ -10,7 +10,11 @@
  * sample coordinates count from that apron: local u is voxel b B - 1 + u.
  *
  * Values.  Every channel is read as a byte: channel 1 as 0 / 255, channel
- * 2 as its density, channel 3 as its occupancy byte (with its normal).  A
+ * 2 as its density, channel 3 as its occupancy byte (with its normal),
+ * channel 4 (signed distance) as 255 where negative, else 0, with its
+ * floats beside: there the crossing is where the line between the two
+ * distances is 0 (the zero level), and halfway on an edge to a sample
+ * read as empty (outside the volume or the level).  A
  * sample is inside when its byte is above iso; the surface crosses an edge
  * from an outside sample a to an inside one b where the straight line
  * between them reaches iso + 0.5, halfway between the last outside value
@@ -55,6 +59,8 @@ typedef struct {
     uint32_t iso;            /* inside: byte > iso; 0..254, default 127 */
     uint32_t bits;           /* the file's voxel bits: 1, 8 or 32 */
     uint32_t normals;        /* channel 3: vertex normals from the voxels' */
+    uint32_t distance;       /* channel 4: f32 samples, inside where negative,
+                                the crossing where the line between them is 0 */
     uint32_t brick;          /* the file's brick side B */
     uint32_t height;         /* its treeHeight */
     uint32_t dims[ISO_MAX_LEVELS][3]; /* each level's volume (vod_level_dims) */

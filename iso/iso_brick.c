@@ -17,6 +17,7 @@ struct iso_work {
     uint32_t B, S;          /* brick, samples per axis (B + 1) */
     uint8_t *val;           /* S^3 sample bytes */
     uint32_t *word;         /* S^3 channel-3 voxels (normals), or NULL */
+    float *dist;            /* S^3 channel-4 distances (NaN: empty), or NULL */
     int32_t *map;           /* S^3 x 3 edges: an owned vertex's index, -2 - k for
                                ext[k] (another task's), -1 none yet */
     uint8_t *row;           /* S^2 rows of S samples (y, z): ROW_OUT, ROW_IN, ROW_MIXED */
@@ -53,6 +54,7 @@ int iso_work_new(const iso_params *p, iso_work **out)
     w->map = malloc(n * 3 * sizeof *w->map);
     if (w->map) memset(w->map, 0xff, n * 3 * sizeof *w->map); /* kept so: see forget() */
     w->word = p->normals ? malloc(n * sizeof *w->word) : NULL;
+    w->dist = p->distance ? malloc(n * sizeof *w->dist) : NULL;
     w->row = malloc((size_t)w->S * w->S);
     w->blk = malloc(3 * (size_t)w->S * sizeof *w->blk);
     w->same = malloc(n);
@@ -60,7 +62,8 @@ int iso_work_new(const iso_params *p, iso_work **out)
     w->pos.size = w->nrm.size = w->cpos.size = w->cnrm.size = 3 * sizeof(float);
     w->tri.size = 3 * sizeof(uint32_t);
     w->touched.size = sizeof(size_t);
-    if (!w->val || !w->map || !w->row || !w->blk || !w->same || (p->normals && !w->word)) {
+    if (!w->val || !w->map || !w->row || !w->blk || !w->same || (p->normals && !w->word) ||
+        (p->distance && !w->dist)) {
         iso_work_free(w);
         return -ENOMEM;
     }
@@ -73,6 +76,7 @@ void iso_work_free(iso_work *w)
     if (!w) return;
     free(w->val);
     free(w->word);
+    free(w->dist);
     free(w->map);
     free(w->row);
     free(w->blk);
@@ -131,8 +135,15 @@ static void copy_box(iso_work *w, const uint8_t *r, const uint32_t v0[3],
             if (!r) {
                 memset(w->val + si, 0, n[0]);
                 if (w->word) memset(w->word + si, 0, n[0] * sizeof *w->word);
+                for (uint32_t x = 0; w->dist && x < n[0]; x++) w->dist[si + x] = NAN;
             } else if (bits == 8) {
                 memcpy(w->val + si, r + vi, n[0]);
+            } else if (w->dist) {
+                for (uint32_t x = 0; x < n[0]; x++) {
+                    uint32_t v = vod_get32(r + 4 * (vi + x));
+                    memcpy(&w->dist[si + x], &v, 4);
+                    w->val[si + x] = v >> 31 ? 255 : 0; /* negative: inside */
+                }
             } else if (bits == 1) {
                 for (uint32_t x = 0; x < n[0]; x++)
                     w->val[si + x] = (r[(vi + x) >> 3] >> ((vi + x) & 7) & 1u) ? 255 : 0;
@@ -161,6 +172,7 @@ static void clip(iso_work *w)
                     size_t i = sidx(w, x, y, z);
                     w->val[i] = 0;
                     if (w->word) w->word[i] = 0;
+                    if (w->dist) w->dist[i] = NAN;
                 }
     }
 }
@@ -198,6 +210,7 @@ static void mask_blocks(iso_work *w)
                 size_t i = sidx(w, x, y, z);
                 w->val[i] = 0;
                 if (w->word) w->word[i] = 0;
+                if (w->dist) w->dist[i] = NAN;
             }
 }
 
@@ -247,6 +260,16 @@ static uint64_t edge_key(const iso_work *w, const uint32_t l[3], uint32_t a)
     return iso_brick_key(w->level, ((u[2] * w->W[1] + u[1]) * w->W[0] + u[0]) * 4 + a);
 }
 
+/* Channel 4: where the line from distance a to b (of opposite signs, or
+ * one NaN: an empty sample) is 0, kept off the samples by 2^-20 so that
+ * no triangle is degenerate. */
+static double distance_t(float a, float b)
+{
+    if (isnan(a) || isnan(b) || a == b) return 0.5;
+    double t = (double)a / ((double)a - (double)b), e = 1.0 / (1 << 20);
+    return t < e ? e : t > 1 - e ? 1 - e : t;
+}
+
 /* The crossing on the edge from local sample l along axis a: world
  * position and, with normals, the normal. */
 static void edge_vertex(const iso_work *w, const uint32_t l[3], uint32_t a, float pos[3],
@@ -257,6 +280,7 @@ static void edge_vertex(const iso_work *w, const uint32_t l[3], uint32_t a, floa
     size_t i0 = sidx(w, l[0], l[1], l[2]), i1 = sidx(w, m[0], m[1], m[2]);
     double va = w->val[i0], vb = w->val[i1];
     double t = ((double)w->p->iso + 0.5 - va) / (vb - va);
+    if (w->dist) t = distance_t(w->dist[i0], w->dist[i1]);
     for (int d = 0; d < 3; d++) {
         double s = (double)w->b[d] * w->B + l[d] + (d == (int)a ? t : 0) - 1.0;
         pos[d] = (float)(w->p->origin[d] + (s + 0.5) * w->vs[d]);

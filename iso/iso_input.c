@@ -25,9 +25,9 @@ say(char *err, size_t len, const char *fmt, ...)
 
 static int check_channel(const vod_info *in, char *err, size_t len)
 {
-    if (in->voxel_bits == 16 || in->channel == 4 || in->flags & VOD_FLAG_FLOAT)
+    if (in->voxel_bits == 16 || (in->flags & VOD_FLAG_FLOAT && in->channel != 4))
         return say(err, len, "channel %u (%u-bit voxels) has no marching cubes here: "
-                   "channels 1, 2 and 3 do", in->channel, in->voxel_bits);
+                   "channels 1 to 4 do", in->channel, in->voxel_bits);
     if (in->height > ISO_MAX_LEVELS)
         return say(err, len, "treeHeight %u: more levels than %u", in->height,
                    ISO_MAX_LEVELS);
@@ -65,7 +65,8 @@ int iso_params_make(const vod_file *f, uint32_t iso, int level, const double cen
     if (rc) return rc;
     p->iso = iso;
     p->bits = in->voxel_bits;
-    p->normals = in->voxel_bits == 32;
+    p->distance = in->channel == 4;
+    p->normals = in->voxel_bits == 32 && !p->distance;
     p->brick = in->brick;
     p->height = in->height;
     for (uint32_t l = 0; l < in->height; l++) vod_level_dims(f, (int)l, p->dims[l]);
@@ -172,8 +173,10 @@ static uint8_t brick_state(const iso_params *p, const uint8_t *raw)
     size_t n = (size_t)p->brick * p->brick * p->brick;
     int in = 0, out = 0;
     for (size_t i = 0; i < n && !(in && out); i++) {
-        uint32_t v = p->bits == 8 ? raw[i] : p->bits == 1 ? (raw[i >> 3] >> (i & 7) & 1u) * 255u
-                                                           : vod_get32(raw + 4 * i) & 0xffu;
+        uint32_t v = p->bits == 8      ? raw[i]
+                     : p->bits == 1    ? (raw[i >> 3] >> (i & 7) & 1u) * 255u
+                     : p->distance ? (raw[4 * i + 3] >> 7) * 255u /* the f32's sign */
+                                       : vod_get32(raw + 4 * i) & 0xffu;
         if (v > p->iso) in = 1;
         else out = 1;
     }

@@ -312,6 +312,11 @@ static int csg_domain(const pipeline_job *job, double lo[3], double hi[3],
     if (!csg_channel_bits(job->vod.channel))
         return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
                              "a csg job writes the density, occupancy or surface channel");
+    const csg_node *root = &job->csg.tree->node[job->csg.tree->n - 1];
+    if (job->vod.channel == VOXEL_CH_DISTANCE && (root->kind != CSG_IMPLICIT || root->has_domain))
+        return pipeline_fail(r, ENGINE_BAD_JOB, -ENOTSUP,
+                             "the distance channel of a csg tree is not built yet (only of "
+                             "an implicit surface)");
     return 0;
 }
 

@@ -5,6 +5,7 @@
  * else one octant whose kept children come back onto the work stack. */
 #include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <time.h>
@@ -12,6 +13,7 @@
 #include "clock.h"
 #include "master.h"
 #include "subdiv.h"
+#include "voxel.h"
 
 typedef struct {
     const engine_job *job;
@@ -230,6 +232,12 @@ static int implicit_domain(const pipeline_job *job, double lo[3], double hi[3],
                            pipeline_report *r)
 {
     (void)lo, (void)hi; /* the job's own */
+    if (job->vod.channel == VOXEL_CH_DISTANCE && pipeline_band(job) > CSG_DIST_MAX_BAND)
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
+                             pipeline_band(job), CSG_DIST_MAX_BAND);
+    if (job->vod.channel == VOXEL_CH_DISTANCE && !job->implicit.source)
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+                             "the distance job has no expression text");
     return job->implicit.tape ? 0
                               : pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
                                               "the job has no expression");
@@ -237,10 +245,51 @@ static int implicit_domain(const pipeline_job *job, double lo[3], double hi[3],
 
 static void implicit_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
 {
-    (void)pairs, (void)len; /* none of its own */
+    if (job->vod.channel == VOXEL_CH_DISTANCE) { /* what a level set's readers need */
+        snprintf(pairs, len, "distance_band=%u\ndistance_units=world\n", pipeline_band(job));
+        m->kind_pairs = pairs;
+    }
     m->source = job->implicit.source;
     m->source_len = job->implicit.source_len;
     m->source_name = job->implicit.source_name;
+}
+
+/* An implicit job's distance runs as the csg kind's: a tree of one
+ * implicit leaf (the job's text), its k the band; csg_dist does the rest
+ * (the octree keeps nothing of the space it prunes, whose sign a distance
+ * needs). */
+static int distance_tree(const pipeline_job *job, csg_tree **out)
+{
+    csg_tree *t = calloc(1, sizeof *t);
+    char *text = malloc(job->implicit.source_len + 1);
+    if (!t || !text) {
+        free(t);
+        free(text);
+        return -ENOMEM;
+    }
+    memcpy(text, job->implicit.source, job->implicit.source_len);
+    text[job->implicit.source_len] = 0;
+    t->n = 1;
+    t->text = text;
+    t->text_len = job->implicit.source_len;
+    csg_node *n = &t->node[0];
+    n->kind = CSG_IMPLICIT;
+    n->a = n->b = -1;
+    n->expr_len = (uint32_t)job->implicit.source_len;
+    n->k = pipeline_band(job);
+    snprintf(n->name, sizeof n->name, "implicit");
+    *out = t;
+    return 0;
+}
+
+static int implicit_rewrite(pipeline_job *run, csg_tree **owned)
+{
+    if (run->vod.channel != VOXEL_CH_DISTANCE) return 0;
+    int rc = distance_tree(run, owned);
+    if (rc) return rc;
+    run->kind = PIPELINE_CSG;
+    run->csg.tree = *owned;
+    return 0;
 }
 
 #define SERIAL_CELLS (1u << 27) /* 4 GiB of address space, not of memory */
@@ -293,6 +342,7 @@ const master_kind kind_implicit = {
     .finish = implicit_finish,
     .domain = implicit_domain,
     .meta = implicit_meta,
+    .rewrite = implicit_rewrite,
     .serial = implicit_serial,
     .voxelize = implicit_voxelize,
 };

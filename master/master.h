@@ -137,6 +137,10 @@ struct master_kind {
      * the kind said why, else er's). */
     int (*voxelize)(engine *e, pipeline_job *run, const sched_watch *w, engine_result *er,
                     pipeline_report *r);
+    /* The job run as another kind's (NULL: never): run rewritten in
+     * place, what it needs kept in *owned (csg_tree_free'd after the job).
+     * 0, or a negative errno. */
+    int (*rewrite)(pipeline_job *run, csg_tree **owned);
     /* Its figures in words, for vox (pipeline_describe); NULL: none. */
     void (*summary)(const pipeline_job *job, const pipeline_report *r, char *buf,
                      size_t len);

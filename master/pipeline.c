@@ -5,6 +5,7 @@
 
 #include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "clock.h"
@@ -16,6 +17,11 @@
 static const master_kind *kind_of(const pipeline_job *job)
 {
     return (unsigned)job->kind < PIPELINE_KINDS ? pipeline_kinds[job->kind] : NULL;
+}
+
+uint32_t pipeline_band(const pipeline_job *job)
+{
+    return job->band ? job->band : VOXEL_BAND_DEFAULT;
 }
 
 /* The job's VOD parameters: its geometry and metadata (the kind's source
@@ -140,10 +146,18 @@ static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
     if (rc) return rc;
     const master_kind *k = kind_of(job);
     pipeline_job run = *job; /* the kind may change it (a mesh's repair not needed) */
-    if (!e) return k->serial(&run, &v, sink, r);
-    rc = run_engine(e, k, &run, &v, sink, r);
-    r->t_job = clock_now() - t0; /* the release below is the engine's */
-    engine_release(e); /* the job's pages go back, its result's too */
+    csg_tree *owned = NULL; /* a kind's job run as another's (rewrite) */
+    if (k->rewrite && (rc = k->rewrite(&run, &owned)))
+        return pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    k = kind_of(&run);
+    if (!e) {
+        rc = k->serial(&run, &v, sink, r);
+    } else {
+        rc = run_engine(e, k, &run, &v, sink, r);
+        r->t_job = clock_now() - t0; /* the release below is the engine's */
+        engine_release(e); /* the job's pages go back, its result's too */
+    }
+    csg_tree_free(owned);
     return rc;
 }
 

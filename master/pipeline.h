@@ -72,6 +72,7 @@ typedef struct {
     double lo[3], hi[3];          /* the domain */
     uint32_t res;                 /* voxels along its longest axis */
     engine_schedule schedule;
+    uint32_t band;                /* channel 4: voxels each side, 0 the default */
     /* Channel, brick, compression, hash; the geometry and the metadata
      * are the job's and filled in here. */
     vod_params vod;
@@ -140,5 +141,8 @@ int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
  * the kind has none. */
 void pipeline_describe(const pipeline_job *job, const pipeline_report *r, char *buf,
                        size_t len);
+
+/* The job's distance band in voxels (VOXEL_BAND_DEFAULT when not given). */
+uint32_t pipeline_band(const pipeline_job *job);
 
 #endif

@@ -68,6 +68,7 @@ typedef struct {
     uint32_t height;            /* treeHeight */
     uint32_t padded;            /* N = brick * 2^(height-1) */
     uint32_t voxel_bits;        /* 1, 8 or 32 */
+    int channel;                /* the params' (voxel.h) */
     size_t raw_bytes;           /* bytes of one raw brick */
     uint64_t nodes;             /* (8^height - 1) / 7 */
     int octree_depth;

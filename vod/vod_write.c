@@ -106,6 +106,7 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     L->voxel_bits = p->channel == VOXEL_CH_OCCUPANCY ? 1
                     : p->channel == VOXEL_CH_DENSITY ? 8
                                                      : 32;
+    L->channel = p->channel;
     L->raw_bytes = (size_t)p->brick * p->brick * p->brick * L->voxel_bits / 8;
     L->nodes = ((1ull << (3 * L->height)) - 1) / 7;
     L->octree_depth = octree_depth;

@@ -52,7 +52,10 @@ class Volume:
     @property
     def occupancy(self):
         """uint8 (z, y, x): channel 1's 0/1, channel 2's density, channel 3's
-        occupancy byte (what `vox export` writes)."""
+        occupancy byte (what `vox export` writes), channel 4's 1 inside (a
+        negative distance)."""
+        if self.channel == 4:  # a signed distance: 1 inside
+            return (self.data < 0).astype(np.uint8)
         if self.info["voxel_bits"] == 32 and self.channel == 3:
             return (self.data & 0xFF).astype(np.uint8)
         return self.data.astype(np.uint8)

@@ -4,12 +4,13 @@
 //   vdb_dump FILE.vdb GRID X0 X1 Y0 Y1 Z0 Z1 OUT.f32
 //
 // prints one line
-//   type T active N tiles K voxel SX SY SZ world0 WX WY WZ
+//   type T active N tiles K voxel SX SY SZ world0 WX WY WZ class C background B
 // (T the grid's value type; N its active voxels; world0 index (0,0,0) in
-// world units) and writes the index box [X0,X1) x [Y0,Y1) x [Z0,Z1) to
-// OUT.f32 as float32, x fastest: a scalar grid's active value (a bool as
-// 1), -1 where a voxel is inactive; a vec3 grid's three components, 0 0 0
-// where inactive.  Exit status 1 with a message on any error.
+// world units; C the grid class, B a float grid's background) and writes
+// the index box [X0,X1) x [Y0,Y1) x [Z0,Z1) to OUT.f32 as float32, x
+// fastest: a scalar grid's active value (a bool as 1), -1 where a voxel is
+// inactive (a level set's value there, its +-background, instead); a vec3
+// grid's three components, 0 0 0 where inactive.  Exit status 1 with a message on any error.
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -47,21 +48,25 @@ int main(int argc, char **argv)
     try {
         openvdb::initialize();
         openvdb::io::File f(argv[1]);
-        f.open();
+        f.open(false); // no delayed loading: inactive values read whole too
         // read whole while the file is open (delayed loading reads leaves
         // from the file on first use)
         openvdb::GridBase::Ptr base = f.readGrid(argv[2])->deepCopyGrid();
         f.close();
         std::vector<float> out;
+        float bg = 0;
         std::string type = base->valueType();
         if (auto g = openvdb::gridPtrCast<openvdb::BoolGrid>(base))
             dump(*g, b, out, [](std::vector<float> &o, bool on, bool v) {
                 o.push_back(on ? float(v) : -1.0f);
             });
-        else if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(base))
-            dump(*g, b, out, [](std::vector<float> &o, bool on, float v) {
-                o.push_back(on ? v : -1.0f);
+        else if (auto g = openvdb::gridPtrCast<openvdb::FloatGrid>(base)) {
+            bool ls = g->getGridClass() == openvdb::GRID_LEVEL_SET;
+            dump(*g, b, out, [ls](std::vector<float> &o, bool on, float v) {
+                o.push_back(on || ls ? v : -1.0f);
             });
+            bg = g->background();
+        }
         else if (auto g = openvdb::gridPtrCast<openvdb::Vec3SGrid>(base))
             dump(*g, b, out, [](std::vector<float> &o, bool on, openvdb::Vec3s v) {
                 for (int a = 0; a < 3; a++) o.push_back(on ? v[a] : 0.0f);
@@ -71,10 +76,12 @@ int main(int argc, char **argv)
             return 1;
         }
         openvdb::Vec3d vs = base->voxelSize(), w0 = base->indexToWorld(openvdb::Vec3d(0, 0, 0));
-        std::printf("type %s active %llu tiles %llu voxel %.17g %.17g %.17g world0 %.17g %.17g %.17g\n",
+        std::printf("type %s active %llu tiles %llu voxel %.17g %.17g %.17g world0 %.17g %.17g %.17g"
+                    " class %s background %.9g\n",
                     type.c_str(), (unsigned long long)base->activeVoxelCount(),
                     (unsigned long long)base->baseTreePtr()->activeTileCount(), vs[0], vs[1],
-                    vs[2], w0[0], w0[1], w0[2]);
+                    vs[2], w0[0], w0[1], w0[2],
+                    openvdb::GridBase::gridClassToString(base->getGridClass()).c_str(), double(bg));
         FILE *fp = std::fopen(argv[9], "wb");
         if (!fp || std::fwrite(out.data(), sizeof(float), out.size(), fp) != out.size() ||
             std::fclose(fp)) {
