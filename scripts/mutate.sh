@@ -264,7 +264,7 @@ id:    daemon-cancel-any-uid
 file:  server/daemon_client.c
 from:  if (o != c && c->uid != 0 && o->uid != c->uid) continue;
 to:    if (o != c && 0) continue;
-tests: daemon.sh client.sh
+tests: daemon_users.sh daemon.sh client.sh
 
 id:    config-max-clients-zero
 file:  config/config.c
