@@ -5,7 +5,6 @@
 #include <libgen.h>
 #include <getopt.h>
 #include <inttypes.h>
-#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -64,20 +63,10 @@ static void print_failure(const char *what, int rc, const vox_error *err)
 
 /* ---------------------------------------------------------------- a job */
 
-static volatile sig_atomic_t interrupted;
-
-static void on_interrupt(int sig)
-{
-    interrupted = 1;
-    /* A second one ends vox at once. */
-    struct sigaction dfl = {.sa_handler = SIG_DFL};
-    sigaction(sig, &dfl, NULL);
-}
-
 static int on_job_progress(void *ud, double fraction, int level, uint64_t voxels)
 {
     progress_update(ud, fraction, level, voxels);
-    return interrupted;
+    return cli_interrupted() != 0;
 }
 
 static int vox_channel(int ch)
@@ -143,18 +132,18 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
     else cli_note("voxd job %" PRIu64, id);
     progress pr;
     progress_init(&pr, o->progress);
-    if (interrupted) vox_cancel(c, id, &err); /* its outcome shows below */
+    if (cli_interrupted()) vox_cancel(c, id, &err); /* its outcome shows below */
     vox_summary sum;
     rc = vox_receive_file(c, id, o->out, on_job_progress, &pr, &sum, &err);
     progress_done(&pr);
 
     if (rc) {
         char what[64];
-        if (rc == VOX_ECANCELLED && interrupted)
+        if (rc == VOX_ECANCELLED && cli_interrupted())
             snprintf(what, sizeof what, "job %" PRIu64 " cancelled (interrupted)", id);
         else
             snprintf(what, sizeof what, "job %" PRIu64 " failed", id);
-        if (rc == VOX_ECANCELLED && interrupted) cli_error("%s", what);
+        if (rc == VOX_ECANCELLED && cli_interrupted()) cli_error("%s", what);
         else print_failure(what, rc, &err);
         /* A mesh file the daemon cannot read: as when vox reads it itself. */
         return rc == VOX_EINVALID_INPUT && (o->mesh || o->csg) ? CLI_EXIT_USAGE
@@ -383,15 +372,14 @@ int cli_daemon_job(vox_client *c, const cli_job_opts *o, const source *src,
     /* An interrupt cancels the job on the daemon, then vox ends as the
      * job does (without SA_RESTART: it cuts the wait short).  The handler
      * is in place before the job exists, so no interrupt is lost between
-     * the daemon's accepting it and our waiting for it. */
-    struct sigaction sa = {.sa_handler = on_interrupt}, old_int, old_term;
-    sigemptyset(&sa.sa_mask);
-    interrupted = 0;
-    sigaction(SIGINT, &sa, &old_int);
-    sigaction(SIGTERM, &sa, &old_term);
+     * the daemon's accepting it and our waiting for it; and it stays until
+     * vox exits, as the embedded path's does: a signal once the file is in
+     * place changes nothing (exit 0, the file whole), where the default
+     * action put back here would end vox by the signal over a whole file.
+     * The flag is vox's one flag, so that an embedded run after a daemon's
+     * refusal sees an interrupt that came during the refusal. */
+    cli_catch_interrupts();
     rc = submit_and_receive(c, &job, o, quiet_refusal, refused);
-    sigaction(SIGINT, &old_int, NULL);
-    sigaction(SIGTERM, &old_term, NULL);
     if (map) munmap(map, map_len);
     csg_tree_free(tree);
     free(nodes);

@@ -168,7 +168,25 @@ id:    mesh-winding-threshold
 file:  mesh/mesh_solid.c
 from:  if (fabs(wn[k]) >= 0.5) bits[w] |= 1ull << idx[k];
 to:    if (fabs(wn[k]) >= 0.75) bits[w] |= 1ull << idx[k];
-tests: test_mesh_vox
+tests: test_mesh_repair test_mesh_vox
+
+id:    mesh-winding-sign
+file:  mesh/mesh_solid.c
+from:  if (fabs(wn[k]) >= 0.5) bits[w] |= 1ull << idx[k];
+to:    if (wn[k] >= 0.5) bits[w] |= 1ull << idx[k];
+tests: test_mesh_repair
+
+id:    mesh-winding-scale
+file:  mesh/mesh_wind.c
+from:  w[k] /= 2.0 * M_PI; /* solid angles / (4 pi) */
+to:    w[k] /= 2.5 * M_PI; /* solid angles / (4 pi) */
+tests: test_mesh_repair
+
+id:    mesh-wind-tree-threshold
+file:  mesh/mesh_wind.c
+from:  set_bit(w, at, v > 0.5);
+to:    set_bit(w, at, v > 0.75);
+tests: test_mesh_repair
 
 id:    mesh-rays-skip-below
 file:  mesh/mesh_solid.c
@@ -246,7 +264,7 @@ id:    daemon-cancel-any-uid
 file:  server/daemon_client.c
 from:  if (o != c && c->uid != 0 && o->uid != c->uid) continue;
 to:    if (o != c && 0) continue;
-tests: daemon.sh client.sh
+tests: daemon_users.sh daemon.sh client.sh
 
 id:    config-max-clients-zero
 file:  config/config.c
@@ -259,6 +277,18 @@ file:  client/render.c
 from:  c->right[0] = -sin(az);
 to:    c->right[0] = sin(az);
 tests: test_render test_render_mesh
+
+id:    render-fov-scaled
+file:  client/render.c
+from:  double ty = tan(0.5 * ctx->o.fov * DEG);
+to:    double ty = tan(0.48 * ctx->o.fov * DEG);
+tests: test_render test_render_mesh render_camera.sh
+
+id:    python-level-spacing
+file:  python/voxd/_vod.py
+from:  spacing = tuple(s * (1 << level) for s in f.scale)
+to:    spacing = tuple(s * (1 << min(level, 1)) for s in f.scale)
+tests: reader.sh
 EOF
 
 # ---- the mutants, one record per block ----

@@ -13,7 +13,9 @@
 # A fuzz replay must end with "REPLAYED: N inputs, 0 failed", N the number of
 # its corpus files, and as many PASS lines; if not, none of its PASS lines count.
 # VOX_TEST_INTEG_DIR and VOX_TEST_CORPUS point the runner elsewhere (its
-# self-test, tests/integration/runner_selftest.sh, feeds it toy suites).
+# self-test, tests/integration/runner_selftest.sh, feeds it toy suites);
+# VOX_TEST_ONLY="name ..." runs only the suites so named (test_engine,
+# daemon_stall, ...: scripts/stress-tests.sh), under the same rules.
 set -u
 build=${1:-build/asan}
 root=$(cd "$(dirname "$0")/.." && pwd)
@@ -126,10 +128,14 @@ integration() {
     report integ "$name" "$p" "$f"
 }
 
-for t in "$build"/tests/test_*; do [ -x "$t" ] && unit "$t"; done
-for d in "$build"/fuzz-replay/fuzz_*; do [ -x "$d" ] && fuzz "$d"; done
+# wanted NAME: whether VOX_TEST_ONLY (when set) names the suite
+wanted() { [ -z "${VOX_TEST_ONLY:-}" ] || [[ " $VOX_TEST_ONLY " == *" $1 "* ]]; }
+
+for t in "$build"/tests/test_*; do [ -x "$t" ] && wanted "$(basename "$t")" && unit "$t"; done
+for d in "$build"/fuzz-replay/fuzz_*; do [ -x "$d" ] && wanted "$(basename "$d")" && fuzz "$d"; done
 for s in "$integ"/*.sh; do
-    [ -f "$s" ] && [ "$(basename "$s")" != lib.sh ] && integration "$s"  # lib.sh: sourced by the others
+    # lib.sh: sourced by the others
+    [ -f "$s" ] && [ "$(basename "$s")" != lib.sh ] && wanted "$(basename "$s" .sh)" && integration "$s"
 done
 
 echo "$passed passed, $failed failed"

@@ -52,6 +52,12 @@ HOLD=()
 sed -i 's/^max_clients_per_uid 3$/max_clients_per_uid 8/' "$TMP/voxd.conf"
 kill -HUP "$VOXD_PID"
 until_true 10 grep -q "configuration reloaded" "$TMP/voxd.log"
+# the time a ping takes here and now, the client's start included: the
+# yardstick for "at once" below (seconds on a machine loaded 20 deep)
+t0=$(date +%s%N)
+timeout 60 "${CLIENT[@]}" "$S" ping >/dev/null 2>&1
+base=$((($(date +%s%N) - t0) / 1000000))
+lim=$((5000 + 3 * base))
 until_true 10 eval '[ "$(vc status | sed -n "s/.*clients=\([0-9]*\).*/\1/p")" = 1 ]'
 holders 8 && pass "8 connections held" || fail "8 connections held"
 before=$(wc -l <"$TMP/voxd.log")
@@ -59,12 +65,15 @@ refuse "2,000 connections past max_clients: all BUSY" 0 "flood 2000 in .* s: BUS
 cat "$TMP/out" >"$TMP/flood.out"
 kill "${HOLD[0]}"
 t0=$(date +%s%N)
-timeout 10 "${CLIENT[@]}" "$S" ping >"$TMP/ping.out" 2>&1
+timeout $((lim / 1000 + 5)) "${CLIENT[@]}" "$S" ping >"$TMP/ping.out" 2>&1
 rc=$? ms=$((($(date +%s%N) - t0) / 1000000))
-# (at once: in under 5 s on a loaded 2-core machine, where a daemon still
-# busy with the burst's backlog would take far longer)
-[ "$rc" = 0 ] && [ "$ms" -lt 5000 ] && pass "then a ping is answered at once ($ms ms)" ||
-    fail "then a ping is answered at once" "rc $rc in $ms ms: $(cat "$TMP/ping.out")"
+# (at once: within 5 s more than three times the quiet ping's time, where a
+# daemon still busy with the burst's backlog would take far longer; a fixed
+# 5 s failed beside a CPU hog with the machine loaded 25 deep, where the
+# quiet ping itself, the Python client's start included, took 11.6 s)
+[ "$rc" = 0 ] && [ "$ms" -lt "$lim" ] &&
+    pass "then a ping is answered at once ($ms ms; a quiet one took $base ms)" ||
+    fail "then a ping is answered at once" "rc $rc in $ms ms (a quiet one took $base ms): $(cat "$TMP/ping.out")"
 # the summary of what was held back comes from the housekeeping timer
 # (polled until every refusal is accounted for, 30 s at most)
 counted() {

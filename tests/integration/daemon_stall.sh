@@ -112,8 +112,10 @@ pss() { awk '/^Pss:/ { print $2 }' "/proc/$VOXD_PID/smaps_rollup"; }
 # A plane at 4096^3 needs more octree than 128 MiB: the job fills the
 # segment (its estimate stays under it) and fails; every page it touched
 # beyond the 8 MiB reserve goes back.
+t0=$(now)
 refuse "a job that fills the shared memory: LIMIT_EXCEEDED" 3 "LIMIT_EXCEEDED: .*octree needs more than" \
     vc submit "x" 4096 -1,1 "$TMP/p.vod"
+fill=$(since "$t0")
 p=$(pss)
 [ -n "$p" ] && [ "$p" -le 65536 ] && pass "master's Pss after filling 128 MiB: $p KiB (<= 64 MiB)" ||
     fail "master's Pss after filling 128 MiB: <= 64 MiB" "$p KiB"
@@ -123,7 +125,13 @@ t0=$(now)
 refuse "x*0 at 4096: stopped on its estimate" 3 "LIMIT_EXCEEDED: .*would need at least [0-9]+ MiB of shared memory" \
     vc submit "x*0" 4096 -1,1 "$TMP/z.vod"
 took=$(since "$t0")
-[ "$took" -le 10 ] && pass "... at once (${took} s)" || fail "... at once" "${took} s"
+# (at once: in 10 s, or on a machine so loaded that the job that filled the
+# segment took more than 20 s, in half that job's time: 12 s failed beside a
+# CPU hog with the machine loaded 25 deep; one that filled the segment first
+# would take about as long as that job)
+lim=$((fill / 2 > 10 ? fill / 2 : 10))
+[ "$took" -le "$lim" ] && pass "... at once (${took} s; filling the segment took ${fill} s)" ||
+    fail "... at once" "${took} s, over ${lim} s (filling the segment took ${fill} s)"
 p=$(pss)
 [ -n "$p" ] && [ "$p" -le 65536 ] && pass "master's Pss after x*0: $p KiB" ||
     fail "master's Pss after x*0: <= 64 MiB" "$p KiB"

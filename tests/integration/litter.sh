@@ -2,8 +2,9 @@
 # No litter: vox voxelize (the embedded engine) and vox submit (through a
 # voxd), interrupted by SIGINT or SIGTERM at random moments (before the
 # file exists, while the job runs, while it is written), leave no temporary
-# file and no partial output: either the whole file (the job ended first; it
-# must pass vox info) or nothing.  Both ways of making the file are run: the
+# file and no partial output: either exit 0 and the whole file (the job
+# ended first; it must pass vox info) or a failed exit and no file at all
+# (SIGKILL: no file or a whole one).  Both ways of making the file are run: the
 # unnamed O_TMPFILE one, and the named fallback (VOXD_OUTFILE_NAMED=1, as
 # on a file system without O_TMPFILE), which the interrupt handlers remove.
 # SIGKILL leaves nothing either where O_TMPFILE works.
@@ -43,9 +44,14 @@ one_run() {
         [ -f "$out" ] && "$VOX" info "$out" >"$TMP/info.log" 2>&1 ||
             echo "$kind $sig at ${ms} ms (named=$named): exit 0 but no whole $out:" \
                 "$(ls -l "$out" 2>&1) $(tail -1 "$TMP/info.log")"
+    elif [ "$sig" != KILL ] && [ -e "$out" ]; then
+        # INT and TERM: a failed exit leaves no file at all (the flag handler
+        # stays until vox exits, so a signal once the file is in place
+        # changes nothing and vox exits 0)
+        echo "$kind $sig at ${ms} ms (named=$named): exit $RAN_RC but $out is there:" \
+            "$(ls -l "$out" 2>&1)"
     elif [ -e "$out" ] && ! "$VOX" info "$out" >"$TMP/info.log" 2>&1; then
-        # (a whole file is no litter: the signal came after it was in place,
-        # once vox submit had put back the default handlers on its way out)
+        # SIGKILL once the file is linked leaves it whole: never partial
         echo "$kind $sig at ${ms} ms (named=$named): exit $RAN_RC and a partial $out:" \
             "$(tail -1 "$TMP/info.log")"
     fi
@@ -69,6 +75,38 @@ job_ms() {
         [ "$ms" -lt "$best" ] && best=$ms
     done
     echo $(( best < 50 ? 50 : best ))
+}
+
+# late NAME KIND N: N jobs each sent SIGTERM the moment its file is in
+# place (a busy loop polls for it), while vox is on its way out: vox must
+# exit 0 over the whole file (its handler stays until it exits), never die
+# by the signal over it.  Counts the signals that found vox still running.
+late() {
+    local name=$1 kind=$2 n=$3 i p rc st out="$D/o.vod" landed=0 bad=""
+    for i in $(seq "$n"); do
+        rm -f "$D"/*
+        if [ "$kind" = embedded ]; then
+            "$VOX" voxelize --embedded -w 2 -q -e 'x*x+y*y+z*z-0.5' -r 48 -o "$out" >"$TMP/run.log" 2>&1 &
+        else
+            "$VOX" --socket "$S" submit -q -e 'x*x+y*y+z*z-0.5' -r 48 -o "$out" >"$TMP/run.log" 2>&1 &
+        fi
+        p=$!
+        while [ ! -e "$out" ] && kill -0 "$p" 2>/dev/null; do :; done
+        # (builtins alone from the poll to the kill: a fork would let vox
+        # finish first; state Z is a vox that has exited, not yet reaped)
+        st=Z
+        read -r _ _ st _ <"/proc/$p/stat" 2>/dev/null
+        [ "$st" != Z ] && kill -TERM "$p" 2>/dev/null && landed=$((landed + 1))
+        wait "$p"
+        rc=$?
+        if [ "$rc" -ne 0 ] || ! "$VOX" info "$out" >"$TMP/info.log" 2>&1; then
+            bad="$bad run $i: exit $rc, $(ls "$D" | tr '\n' ' ');"
+        fi
+    done
+    if [ -z "$bad" ]; then pass "$name: a signal once the file is in place: exit 0, the file whole"
+    else fail "$name: a signal once the file is in place: exit 0, the file whole" "$bad"; fi
+    if [ "$landed" -gt 0 ]; then pass "$name: $landed of $n late signals found vox running"
+    else fail "$name: some late signals found vox running" "vox had always exited"; fi
 }
 
 # runs NAME N KIND MAXDELAY NAMED SIGS...: N runs, the signals in turn
@@ -95,6 +133,7 @@ echo "NOTE: a whole embedded job: $T ms with vox started (the delays: 0 to that)
 runs "vox voxelize, O_TMPFILE" "$per" embedded "$T" 0 INT TERM
 runs "vox voxelize, named temporary" "$per" embedded "$T" 1 INT TERM
 runs "vox voxelize, SIGKILL, O_TMPFILE" 4 embedded "$T" 0 KILL
+late "vox voxelize" embedded 8
 
 if start_voxd "$TMP/voxd.log" --workers 2; then
     pass "voxd started"
@@ -103,6 +142,7 @@ if start_voxd "$TMP/voxd.log" --workers 2; then
     runs "vox submit, O_TMPFILE" "$per" daemon "$T" 0 INT TERM
     runs "vox submit, named temporary" "$per" daemon "$T" 1 INT TERM
     runs "vox submit, SIGKILL, O_TMPFILE" 4 daemon "$T" 0 KILL
+    late "vox submit" daemon 8
 else
     fail "voxd started" "$(tail -3 "$TMP/voxd.log")"
 fi
