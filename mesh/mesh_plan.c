@@ -46,6 +46,7 @@ void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
     p->surf = !dens_ch && o->mode != MESH_SOLID;
     p->dens = dens_ch || o->channel == VOXEL_CH_SURFACE;
     p->rep = o->repair != MESH_REPAIR_NONE && (p->solid1 || p->dens);
+    p->count = p->solid1 && o->repair == MESH_REPAIR_WINDING;
     p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
     p->K = o->supersample ? o->supersample : 2;
     p->nz = g->res[2];
@@ -80,6 +81,7 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
     }
     if (p->surf) TAKE(b->surf, col);
     if (p->rep) TAKE(b->dis, col);
+    if (p->count) TAKE(b->count, col * 8 * sizeof(uint16_t)); /* one a voxel */
     TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits / 8));
     if (p->dens) {
         size_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
