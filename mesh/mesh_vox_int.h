@@ -224,7 +224,7 @@ void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double
 
 /* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
  * mv_wtree_make: the tree of m's triangles, or (m NULL) of the n triangles
- * tri (voxel units).  mv_wind_point: w at p, far nodes by their expansion
+ * tri (voxel units), ticking pulse (may be NULL) as it goes.  mv_wind_point: w at p, far nodes by their expansion
  * where |c - p| > beta r (work: node visits added).  mv_wind_cell: w at b
  * and in *err a bound of |w(p) - *w| for every p within rho of b, a node
  * by its expansion where |c - b| > 2 (r + rho) and its bound is at most
@@ -237,7 +237,7 @@ void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double
  * may differ from the raster's side of it). */
 typedef struct mv_wtree mv_wtree;
 int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
-                  mv_wtree **out);
+                  mv_pulse *pulse, mv_wtree **out);
 void mv_wtree_free(mv_wtree *t);
 double mv_wind_point(const mv_wtree *t, const double p[3], double beta, uint32_t *work);
 #define MV_NEAR_MAX 32
@@ -248,6 +248,12 @@ bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax,
                   mv_near *near, double *w, double *err, uint32_t *work);
 double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], double close,
                     bool *is_close);
+/* A bound of |w(p)| for every p within rho of b (a node of area a whose
+ * ball keeps f away subtends at most a / f^2, taken where that is at most
+ * tol); false when a leaf's ball meets the cell's or the bound passes
+ * emax.  Cheap where the triangles are small (the caps of small holes). */
+bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                 double *bound, uint32_t *work);
 /* The samples of block b set in dis decided by the winding number of tree
  * t (inside: |w| >= 1/2) into bits, cells of samples at once where the
  * bound decides them, else sample by sample: the tree, then, near 1/2, the

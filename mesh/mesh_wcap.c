@@ -40,7 +40,13 @@
 
 int mesh_wind_exact;
 
+/* Built lazily, by the first tile that needs each part, so that the build
+ * ticks that tile's heartbeat (a worker builds its own at its first tile
+ * of a job: seconds of wall time for a large mesh on a loaded machine). */
 struct mesh_wtree {
+    mesh m;                   /* the job's mesh (its arrays outlive the tiles) */
+    grid_spec g;
+    int tris_rc, caps_rc;     /* 1: not built yet; else the build's return */
     mv_wtree *tris;           /* the mesh's triangles (mesh_wind.c) */
     mv_wtree *caps;           /* the caps' triangles, or NULL: none */
     int64_t (*cap_lat)[3][3]; /* the caps on the K = 1 lattice */
@@ -148,7 +154,8 @@ static int fan_points(const mesh *m, const grid_spec *g, const dedge *e, size_t 
 
 /* The caps of t's mesh: the fans of the chain e[0, nb), as voxel-unit
  * triangles (the tree's) and lattice ones (the raster's). */
-static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const dedge *e, size_t nb)
+static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
+                     mv_pulse *pulse)
 {
     uint32_t *up;
     int64_t(*o)[3];
@@ -177,8 +184,9 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
             }
         }
     }
-    rc = vt && t->cap_lat ? mv_wtree_make(NULL, g, (const double (*)[3][3])vt, (uint32_t)n, &t->caps)
-                          : -ENOMEM;
+    rc = vt && t->cap_lat
+             ? mv_wtree_make(NULL, g, (const double (*)[3][3])vt, (uint32_t)n, pulse, &t->caps)
+             : -ENOMEM;
     t->n_caps = rc ? 0 : (uint32_t)n;
     free(vt), free(up), free(o);
     return rc;
@@ -190,18 +198,33 @@ int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out)
     if (!m->n_triangles) return -EINVAL;
     mesh_wtree *t = calloc(1, sizeof *t);
     if (!t) return -ENOMEM;
-    dedge *e = NULL;
-    size_t nb = 0;
-    int rc = mv_wtree_make(m, g, NULL, 0, &t->tris);
-    if (!rc) rc = boundary(m, &e, &nb);
-    if (!rc) rc = make_caps(t, m, g, e, nb);
-    free(e);
-    if (rc) {
-        mesh_wtree_free(t);
-        return rc;
-    }
+    t->m = *m;
+    t->g = *g;
+    t->tris_rc = t->caps_rc = 1;
     *out = t;
     return 0;
+}
+
+/* The parts of t a tile needs, built on first use (t is the caller's
+ * alone: one tile at a time reads it).  0 or -ENOMEM. */
+static int need_tris(const mesh_wtree *ct, mv_pulse *pulse)
+{
+    mesh_wtree *t = (mesh_wtree *)ct; /* const for the tiles: built once, then read */
+    if (t->tris_rc == 1) t->tris_rc = mv_wtree_make(&t->m, &t->g, NULL, 0, pulse, &t->tris);
+    return t->tris_rc;
+}
+
+static int need_caps(const mesh_wtree *ct, mv_pulse *pulse)
+{
+    mesh_wtree *t = (mesh_wtree *)ct;
+    if (t->caps_rc != 1) return t->caps_rc;
+    dedge *e = NULL;
+    size_t nb = 0;
+    int rc = boundary(&t->m, &e, &nb);
+    mv_beat(pulse, (uint32_t)(t->m.n_triangles / 4));
+    if (!rc) rc = make_caps(t, &t->m, &t->g, e, nb, pulse);
+    free(e);
+    return t->caps_rc = rc;
 }
 
 void mesh_wtree_free(mesh_wtree *t)
@@ -221,6 +244,7 @@ void mesh_wtree_free(mesh_wtree *t)
                           a cell to be tried sample by sample */
 #define TOL_SAMPLE 1e-4 /* a node's error at most, a sample's query */
 #define TOL_CELL 2e-3   /* ... a cell's */
+#define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
 #define NEAR 1e-3    /* voxels: nearer a cap triangle, mv_wind_block decides */
 #define MARGIN 1e-6  /* past the bound, nearer 1/2: mv_wind_block decides */
 
@@ -342,6 +366,12 @@ static void cell(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
         b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
+    double mag;
+    if (!one && mv_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
+        mv_beat(c->f->pulse, work);
+        cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
+        return;
+    }
     mv_near nr;
     bool ok = mv_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
                            &nr, &v, &e, &work);
@@ -398,18 +428,46 @@ static void count_caps(const mv_frame *f, const mesh_wtree *t, const mv_block *b
     }
 }
 
+/* The samples set in dis by the exact sum, a word at a time (when a
+ * tree cannot be had: no memory for it). */
+static void exact_words(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+{
+    for (size_t w = 0; w < mv_block_words(b); w++) {
+        size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
+        double q[64][3], wn[64];
+        unsigned idx[64], n = 0;
+        for (uint64_t r = dis[w]; r; r &= r - 1) {
+            unsigned i = (unsigned)__builtin_ctzll(r);
+            q[n][0] = (double)(b->s0[0] + (int64_t)((w % b->nw) * 64 + i)) + 0.5;
+            q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
+            q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
+            idx[n++] = i;
+        }
+        if (!n) continue;
+        mv_winding_many(f, (const double (*)[3])q, n, wn);
+        for (unsigned k = 0; k < n; k++)
+            bits[w] = fabs(wn[k]) >= 0.5 ? bits[w] | 1ull << idx[k] : bits[w] & ~(1ull << idx[k]);
+    }
+}
+
+/* The old path: the mesh's tree, sample by sample near 1/2. */
+static void by_tree(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+{
+    if (need_tris(f->wt, f->pulse)) exact_words(f, b, dis, bits);
+    else mv_wind_block(f, f->wt->tris, b, dis, bits);
+}
+
 void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
                    uint16_t *count, uint64_t *spare)
 {
     const mesh_wtree *t = f->wt;
-    size_t nwords = mv_block_words(b);
-    if (!count) {
-        mv_wind_block(f, t->tris, b, dis, bits);
-        return;
-    }
-    size_t i = 0;
+    size_t nwords = mv_block_words(b), i = 0;
     while (i < nwords && !dis[i]) i++;
     if (i == nwords) return;
+    if (!count || need_caps(t, f->pulse)) {
+        by_tree(f, b, dis, bits);
+        return;
+    }
     count_caps(f, t, b, count);
     memset(spare, 0, nwords * 8);
     cblock c = {.f = f, .b = b, .todo = dis, .bits = bits, .spare = spare, .count = count,
@@ -423,5 +481,5 @@ void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t
                                   z + TOP < n[2] ? z + TOP : n[2]};
                 cell(&c, lo, hi);
             }
-    if (c.any_spare) mv_wind_block(f, t->tris, b, spare, bits);
+    if (c.any_spare) by_tree(f, b, spare, bits);
 }

@@ -57,6 +57,7 @@ typedef struct {
     double (*cen)[3]; /* triangle centroids */
     uint32_t *ids;    /* triangle ids, permuted into leaf order */
     mv_wtree *t;
+    mv_pulse *pulse;  /* ticked as the nodes are made, or NULL */
 } builder;
 
 static void tri_voxels(const builder *b, uint32_t id, double p[3][3])
@@ -180,6 +181,7 @@ static void inner_moments(wnode *n, const wnode *k)
 /* Node ni over ids[lo, hi); its children take the next free slots. */
 static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
 {
+    mv_beat(b->pulse, (hi - lo) / 4 + 1); /* the build is not abandoned: a tile needs it */
     wnode *n = &b->t->nodes[ni];
     memset(n, 0, sizeof *n);
     if (hi - lo <= LEAF) {
@@ -208,14 +210,14 @@ static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
 }
 
 int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
-                  mv_wtree **out)
+                  mv_pulse *pulse, mv_wtree **out)
 {
     *out = NULL;
     if (m) n = m->n_triangles;
     if (!n) return -EINVAL;
     mv_wtree *t = calloc(1, sizeof *t);
     builder b = {m, g, tri, malloc((size_t)n * sizeof *b.cen), malloc((size_t)n * sizeof *b.ids),
-                 t};
+                 t, pulse};
     if (t) {
         t->nodes = malloc(2 * (size_t)n * sizeof *t->nodes);
         t->tri = malloc((size_t)n * sizeof *t->tri);
@@ -453,6 +455,35 @@ bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax,
     if (work) *work += visits;
     *w = w4 / (4 * M_PI);
     *err = e4 / (4 * M_PI) + 1e-9; /* and the rounding of the sums */
+    return ok;
+}
+
+bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                 double *bound, uint32_t *work)
+{
+    uint32_t stack[128], sp = 0, visits = 0;
+    double e4 = 0, e4max = emax * 4 * M_PI, tol4 = tol * 4 * M_PI;
+    bool ok = true;
+    stack[sp++] = 0;
+    while (sp && ok) {
+        const wnode *n = &t->nodes[stack[--sp]];
+        double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
+        double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r - rho;
+        visits++;
+        /* a triangle of area a at distance f subtends at most a / f^2 */
+        double e = f > 0 ? n->area / (f * f) : INFINITY;
+        if (e <= tol4) {
+            e4 += e;
+        } else if (n->count) {
+            ok = f > 0 && (e4 += e) <= e4max;
+        } else {
+            stack[sp++] = n->first + 1;
+            stack[sp++] = n->first;
+        }
+        if (e4 > e4max) ok = false;
+    }
+    if (work) *work += visits;
+    *bound = e4 / (4 * M_PI) + 1e-9;
     return ok;
 }
 
