@@ -167,8 +167,7 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
     if (rc) return rc;
     double(*vt)[3][3] = malloc(n * sizeof *vt);
     t->cap_lat = malloc(n * sizeof *t->cap_lat);
-    mv_frame f;
-    mv_frame_init(&f, m, g, 1);
+    double scale = (double)1u * (double)MV_L / g->vs; /* mv_frame_init's, K = 1 */
     for (size_t i = 0, k = 0; vt && t->cap_lat && i < nb; i++) {
         uint32_t lo = (uint32_t)(e[i].key >> 32), hi = (uint32_t)e[i].key;
         uint32_t v[2] = {e[i].s > 0 ? hi : lo, e[i].s > 0 ? lo : hi}; /* (b, a) of a -> b */
@@ -176,7 +175,9 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
         for (int r = 0; r < abs(e[i].s); r++, k++) {
             for (int j = 0; j < 2; j++) {
                 vox_of(m, g, v[j], vt[k][j]);
-                for (int a = 0; a < 3; a++) t->cap_lat[k][j][a] = mv_vertex(&f, v[j], a);
+                for (int a = 0; a < 3; a++) /* mv_vertex's snap: the mesh's lattice */
+                    t->cap_lat[k][j][a] =
+                        mv_snap(((double)m->vertices[v[j]][a] - g->lo[a]) * scale);
             }
             for (int a = 0; a < 3; a++) {
                 t->cap_lat[k][2][a] = c[a];
