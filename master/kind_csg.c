@@ -20,6 +20,7 @@
 #include "clock.h"
 #include "csg.h"
 #include "master.h"
+#include "voxel.h"
 
 _Static_assert(CSG_BLOCK_NODES == CSG_MAX_NODES, "a leaf offset per node");
 

@@ -55,6 +55,7 @@ void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
     p->surf = !dens_ch && o->mode != MESH_SOLID;
     p->dens = dens_ch || o->channel == VOXEL_CH_SURFACE;
     p->rep = o->repair != MESH_REPAIR_NONE && (p->solid1 || p->dens);
+    p->count = p->solid1 && o->repair == MESH_REPAIR_WINDING;
     p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
     p->K = o->supersample ? o->supersample : 2;
     p->nz = g->res[2];
@@ -91,6 +92,7 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
     }
     if (p->surf) TAKE(b->surf, col);
     if (p->rep) TAKE(b->dis, col);
+    if (p->count) TAKE(b->count, col * 8 * sizeof(uint16_t)); /* one a voxel */
     TAKE(b->brick, (size_t)MAX_S * MAX_S * MAX_S * (bits == VOD_VOLUME_F32 ? 4 : bits / 8));
     if (p->dist) TAKE(b->d2, (size_t)MAX_S * MAX_S * MAX_S * sizeof(double));
     if (p->dens) {

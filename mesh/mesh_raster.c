@@ -48,9 +48,11 @@ static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
     return s <= e ? 0 : -1;
 }
 
-/* Sample (iu, iv) on axis ray crosses the triangle just below sample k. */
+/* Sample (iu, iv) on axis ray crosses the triangle just below sample k;
+ * sign: +1 where the triangle faces down (its normal's z < 0), else -1,
+ * for the z counts. */
 __attribute__((always_inline)) static inline void emit(const mv_target *t, int axis, int64_t iu, int64_t iv,
-                        int64_t k)
+                        int64_t k, int sign)
 {
     const mv_block *b = t->b;
     size_t n1 = (size_t)b->n[1], nw = b->nw;
@@ -62,7 +64,12 @@ __attribute__((always_inline)) static inline void emit(const mv_target *t, int a
         }
         if (z >= b->n[2]) return;
         size_t x = (size_t)(iu - b->s0[0]), y = (size_t)(iv - b->s0[1]);
-        t->bits[((size_t)z * n1 + y) * nw + x / 64] ^= 1ull << (x & 63);
+        size_t i = ((size_t)z * n1 + y) * nw + x / 64;
+        if (t->count) { /* modulo 2^16: see mv_target */
+            t->count[i * 64 + (x & 63)] += (uint16_t)sign;
+            if (!t->bits) return;
+        }
+        t->bits[i] ^= 1ull << (x & 63);
     } else if (axis == 0) {
         size_t y = (size_t)(iu - b->s0[1]), z = (size_t)(iv - b->s0[2]);
         int64_t x = k - b->s0[0];
@@ -114,6 +121,7 @@ typedef struct {
     mv_i128 W, LW;          /* twice the projected area, and L W */
     int64_t dr1, dr2;
     int64_t kmin, kmax;     /* the crossings' first samples past them lie here */
+    int sign;               /* emit's: +1 when clockwise in (u, v) as given */
     double gu, gv;          /* the plane r = r0 + gu (pu - u0) + gv (pv - v0) */
     bool guess;             /* gu, gv, kmin, kmax made */
 } proj;
@@ -153,7 +161,7 @@ static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
     } else {
         while (X <= 0) k++, X += T->LW;
     }
-    emit(T->t, T->axis, iu, iv, k);
+    emit(T->t, T->axis, iu, iv, k, T->sign);
 }
 
 /* The samples of [iu0, iu1] x [iv0, iv1] inside the projection, edge
@@ -207,6 +215,7 @@ raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, in
     int64_t W = (P[1][ua] - P[0][ua]) * (P[2][va] - P[0][va]) -
                 (P[1][va] - P[0][va]) * (P[2][ua] - P[0][ua]);
     if (W == 0) return; /* edge-on: the moved sample never meets it */
+    int sign = W < 0 ? 1 : -1;
     if (W < 0) o1 = 2, o2 = 1, W = -W; /* counter-clockwise in (u, v) */
     int64_t u[3] = {P[0][ua], P[o1][ua], P[o2][ua]}, v[3] = {P[0][va], P[o1][va], P[o2][va]};
     int64_t du[3], dv[3], thr[3];
@@ -231,7 +240,7 @@ raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, in
             int64_t Q = dr1 * E[2] + dr2 * E[0] - base, j = (int64_t)((double)Q * inv);
             int64_t rem = Q - j * LW;
             j += (rem >= LW) - (rem < 0);
-            emit(t, axis, iu, iv, k0 + j + 1);
+            emit(t, axis, iu, iv, k0 + j + 1, sign);
         }
     }
 }
@@ -269,6 +278,7 @@ raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
     T.W = (mv_i128)(u[1] - u[0]) * (v[2] - v[0]) - (mv_i128)(v[1] - v[0]) * (u[2] - u[0]);
     if (T.W == 0) return; /* edge-on: the moved sample never meets it */
     T.tie = tie_past(P, axis);
+    T.sign = T.W < 0 ? 1 : -1;
     if (T.W < 0) { /* counter-clockwise in (u, v) from here on */
         int64_t s;
         s = u[1], u[1] = u[2], u[2] = s;

@@ -72,8 +72,12 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
         memset(buf->cx, 0, ncx * 8);
         memset(buf->cy, 0, ncy * 8);
     }
-    mv_target tz = {b, buf->bits, NULL, first};
-    mv_target tx = {b, buf->bx, buf->cx, false}, ty = {b, buf->by, buf->cy, false};
+    bool tree = in->repair == MESH_REPAIR_WINDING && in->f->wt;
+    /* the capped winding numbers count the crossings of whole columns */
+    uint16_t *count = tree && buf->count && first && !cull && in->f->K == 1 ? buf->count : NULL;
+    if (count) memset(count, 0, nwords * 64 * sizeof *count);
+    mv_target tz = {b, buf->bits, NULL, first, count};
+    mv_target tx = {b, buf->bx, buf->cx, false, NULL}, ty = {b, buf->by, buf->cy, false, NULL};
     for (size_t i = 0; i < in->n; i++) {
         uint32_t id = in->ids[i];
         if (mv_beat(in->f->pulse, 8)) return 0; /* the tile is abandoned */
@@ -92,22 +96,21 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
     if (!rep) return 0;
     mv_prefix_x(b, buf->bx, buf->cx);
     mv_prefix_y(b, buf->by, buf->cy);
-    uint64_t count = 0;
-    bool tree = in->repair == MESH_REPAIR_WINDING && in->f->wt;
+    uint64_t ndis = 0;
     for (size_t w = 0; w < nwords; w++) {
         uint64_t a = buf->bits[w], x = buf->bx[w], y = buf->by[w];
         uint64_t d = (a ^ x) | (a ^ y);
         if (buf->dis) buf->dis[w] = d;
         if (tree) buf->bx[w] = d; /* bx[w] read: the disagreements in its place */
         if (!d) continue;
-        if (mv_beat(in->f->pulse, 1)) return count;
-        count += (uint64_t)mv_popcount(d);
+        if (mv_beat(in->f->pulse, 1)) return ndis;
+        ndis += (uint64_t)mv_popcount(d);
         if (in->repair == MESH_REPAIR_VOTE)
             buf->bits[w] = (a & x) | (a & y) | (x & y);
         else if (!tree)
             decide_winding(in->f, b, w, d, buf->bits);
     }
-    if (tree) mv_wind_block(in->f, b, buf->bx, buf->bits);
-    return count;
+    if (tree) mv_wcap_block(in->f, b, buf->bx, buf->bits, count, buf->by);
+    return ndis;
 }
 

@@ -142,7 +142,7 @@ static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     mv_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
     if (p->solid1) {
         mv_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
-        mv_solid_buf sb = {b->a, b->bx, b->by, b->cx, b->cy, NULL, b->dis};
+        mv_solid_buf sb = {b->a, b->bx, b->by, b->cx, b->cy, NULL, b->dis, b->count};
         t->st->disagreements += mv_solid(&in, &blk, &sb);
     }
     if (p->surf) {

@@ -170,11 +170,17 @@ static inline size_t mv_block_words(const mv_block *b)
  *     in `carry` (bit z * n[1] + y).
  *  y: the same along y; a crossing in front of the block toggles bit x of
  *     `carry` word z * nw + x / 64.
- *  Crossings past the block's end are dropped. */
+ *  Crossings past the block's end are dropped.
+ *  count (z only, or NULL): one 16-bit counter a sample (index bit index *
+ *     64 + bit), the crossing's sign added (+1 for a triangle facing down,
+ *     -1 up), so that the prefix sum along z is the signed count of the
+ *     crossings below, modulo 2^16 (a ray would need 32768 more crossings
+ *     one way than the other to wrap); bits may then be NULL. */
 typedef struct {
     const mv_block *b;
     uint64_t *bits, *carry;
     bool first_z;
+    uint16_t *count;
 } mv_target;
 
 /* Rasterize snapped triangle P along ray axis (0 x, 2 y... see mv_raster). */
@@ -206,6 +212,9 @@ typedef struct {
 } mv_solid_in;
 typedef struct {
     uint64_t *bits, *bx, *by, *cx, *cy, *zcarry, *dis;
+    uint16_t *count; /* a counter a sample for the capped winding numbers
+                        (mesh_wcap.c; K = 1 blocks through the whole
+                        column), or NULL */
 } mv_solid_buf;
 uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *buf);
 
@@ -214,18 +223,50 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
 void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w);
 
 /* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
- * mv_wind_point: w at p, far nodes by their expansion where |c - p| > beta
- * r (work: node visits added).  mv_wind_cell: w at b and in *err a bound
- * of |w(p) - *w| for every p within rho of b; false (and no bound) when a
- * triangle comes within rho of b or the bound passes emax. */
-double mv_wind_point(const mesh_wtree *t, const double p[3], double beta, uint32_t *work);
-bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double emax, double *w,
-                  double *err, uint32_t *work);
-/* The samples of block b set in dis decided by the winding number of
- * f->wt (inside: |w| >= 1/2) into bits, cells of samples at once where the
+ * mv_wtree_make: the tree of m's triangles, or (m NULL) of the n triangles
+ * tri (voxel units), ticking pulse (may be NULL) as it goes.  mv_wind_point: w at p, far nodes by their expansion
+ * where |c - p| > beta r (work: node visits added).  mv_wind_cell: w at b
+ * and in *err a bound of |w(p) - *w| for every p within rho of b, a node
+ * by its expansion where |c - b| > 2 (r + rho) and its bound is at most
+ * tol (INFINITY: the first rule alone); false (and no bound) when a
+ * triangle comes within rho of b or the bound passes emax.  With a near
+ * list, the triangles within 3 (rho + 1) of the ball are left out of *w
+ * and listed there instead (false when more than MV_NEAR_MAX).
+ * mv_wind_near: the listed triangles' w at p, and *is_close set when p
+ * lies within close of one's plane and ball (where the sign of its angle
+ * may differ from the raster's side of it). */
+typedef struct mv_wtree mv_wtree;
+int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
+                  mv_pulse *pulse, mv_wtree **out);
+void mv_wtree_free(mv_wtree *t);
+double mv_wind_point(const mv_wtree *t, const double p[3], double beta, uint32_t *work);
+#define MV_NEAR_MAX 32
+typedef struct {
+    uint32_t n, tri[MV_NEAR_MAX], leaf[MV_NEAR_MAX];
+} mv_near;
+bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                  mv_near *near, double *w, double *err, uint32_t *work);
+double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], double close,
+                    bool *is_close);
+/* A bound of |w(p)| for every p within rho of b (a node of area a whose
+ * ball keeps f away subtends at most a / f^2, taken where that is at most
+ * tol); false when a leaf's ball meets the cell's or the bound passes
+ * emax.  Cheap where the triangles are small (the caps of small holes). */
+bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                 double *bound, uint32_t *work);
+/* The samples of block b set in dis decided by the winding number of tree
+ * t (inside: |w| >= 1/2) into bits, cells of samples at once where the
  * bound decides them, else sample by sample: the tree, then, near 1/2, the
  * exact sum (mv_winding_many). */
-void mv_wind_block(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits);
+void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, const uint64_t *dis,
+                   uint64_t *bits);
+
+/* The capped winding numbers (mesh_wcap.c): the samples of block b set in
+ * dis decided into bits by f->wt.  count: the block's counters filled by
+ * the z raster of the mesh (mv_target), or NULL: mv_wind_block alone.
+ * dis and spare: overwritten (spare: a block of words). */
+void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
+                   uint16_t *count, uint64_t *spare);
 
 /* Surface bits (K = 1 blocks): every voxel of block b whose closed box
  * triangle P touches (six = false), or its 6-separating subset. */
@@ -239,6 +280,7 @@ typedef struct {
     bool surf;       /* the surface bits */
     bool dens;       /* the supersampled coverage (density or normals) */
     bool rep;        /* parities along x and y too */
+    bool count;      /* the counters of the capped winding numbers */
     uint32_t apron;  /* 1: the coverage of the voxels around the tile too */
     uint32_t K;      /* samples per voxel and axis of the coverage */
     uint32_t nz;     /* voxels along z */
@@ -252,6 +294,7 @@ typedef struct {
 /* The scratch's buffers (NULL where the plan needs none). */
 typedef struct {
     uint64_t *a, *bx, *by, *cx, *cy, *surf, *dis; /* voxel bits of the tile */
+    uint16_t *count;                              /* mv_solid_buf's */
     uint8_t *brick;                               /* one storage brick */
     uint64_t *fa, *fzc, *fbx, *fby, *fcx, *fcy, *fdis; /* fine blocks */
     uint16_t *ring;                               /* coverage counts */

@@ -33,8 +33,6 @@
 
 #define LEAF 8 /* triangles at most in a leaf */
 
-int mesh_wind_exact;
-
 typedef struct {
     float c[3], r;   /* centre, radius */
     float m[3], area;
@@ -43,7 +41,7 @@ typedef struct {
     uint32_t count;  /* leaf: its triangles; 0: an inner node (children first, first + 1) */
 } wnode;
 
-struct mesh_wtree {
+struct mv_wtree {
     wnode *nodes;
     uint32_t n_nodes;
     float (*tri)[9]; /* the triangles' vertices in leaf order, voxel units
@@ -55,13 +53,19 @@ struct mesh_wtree {
 typedef struct {
     const mesh *m;
     const grid_spec *g;
+    const double (*vt)[3][3]; /* without m: the triangles, voxel units */
     double (*cen)[3]; /* triangle centroids */
     uint32_t *ids;    /* triangle ids, permuted into leaf order */
-    mesh_wtree *t;
+    mv_wtree *t;
+    mv_pulse *pulse;  /* ticked as the nodes are made, or NULL */
 } builder;
 
 static void tri_voxels(const builder *b, uint32_t id, double p[3][3])
 {
+    if (!b->m) {
+        memcpy(p, b->vt[id], sizeof b->vt[id]);
+        return;
+    }
     for (int i = 0; i < 3; i++) {
         const float *v = b->m->vertices[b->m->triangles[id][i]];
         for (int a = 0; a < 3; a++) p[i][a] = ((double)v[a] - b->g->lo[a]) / b->g->vs;
@@ -177,6 +181,7 @@ static void inner_moments(wnode *n, const wnode *k)
 /* Node ni over ids[lo, hi); its children take the next free slots. */
 static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
 {
+    mv_beat(b->pulse, (hi - lo) / 4 + 1); /* the build is not abandoned: a tile needs it */
     wnode *n = &b->t->nodes[ni];
     memset(n, 0, sizeof *n);
     if (hi - lo <= LEAF) {
@@ -204,20 +209,22 @@ static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
     inner_moments(n, &b->t->nodes[kid]);
 }
 
-int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out)
+int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
+                  mv_pulse *pulse, mv_wtree **out)
 {
     *out = NULL;
-    uint32_t n = m->n_triangles;
+    if (m) n = m->n_triangles;
     if (!n) return -EINVAL;
-    mesh_wtree *t = calloc(1, sizeof *t);
-    builder b = {m, g, malloc((size_t)n * sizeof *b.cen), malloc((size_t)n * sizeof *b.ids), t};
+    mv_wtree *t = calloc(1, sizeof *t);
+    builder b = {m, g, tri, malloc((size_t)n * sizeof *b.cen), malloc((size_t)n * sizeof *b.ids),
+                 t, pulse};
     if (t) {
         t->nodes = malloc(2 * (size_t)n * sizeof *t->nodes);
         t->tri = malloc((size_t)n * sizeof *t->tri);
     }
     if (!t || !b.cen || !b.ids || !t->nodes || !t->tri) {
         free(b.cen), free(b.ids);
-        mesh_wtree_free(t);
+        mv_wtree_free(t);
         return -ENOMEM;
     }
     for (uint32_t i = 0; i < n; i++) {
@@ -233,7 +240,7 @@ int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out)
     return 0;
 }
 
-void mesh_wtree_free(mesh_wtree *t)
+void mv_wtree_free(mv_wtree *t)
 {
     if (!t) return;
     free(t->nodes);
@@ -272,7 +279,7 @@ static double tri_half_angle(const float *v, const double p[3])
     return atan2(det, den);
 }
 
-double mv_wind_point(const mesh_wtree *t, const double p[3], double beta, uint32_t *work)
+double mv_wind_point(const mv_wtree *t, const double p[3], double beta, uint32_t *work)
 {
     uint32_t stack[128], sp = 0, visits = 0;
     double w = 0, b2 = beta * beta;
@@ -296,11 +303,72 @@ double mv_wind_point(const mesh_wtree *t, const double p[3], double beta, uint32
     return w / (4 * M_PI);
 }
 
+/* Whether p (relative to the leaf's centre) lies within near of triangle
+ * v's plane and of its vertices' ball: a point where the sign of the
+ * angle may differ from the raster's side of the triangle. */
+static bool near_tri(const float *v, const double q[3], double near)
+{
+    double e1[3], e2[3], c[3], r2 = 0, d2 = 0;
+    for (int i = 0; i < 3; i++) e1[i] = (double)v[3 + i] - v[i], e2[i] = (double)v[6 + i] - v[i];
+    double nx = e1[1] * e2[2] - e1[2] * e2[1], ny = e1[2] * e2[0] - e1[0] * e2[2],
+           nz = e1[0] * e2[1] - e1[1] * e2[0];
+    double h = nx * (q[0] - v[0]) + ny * (q[1] - v[1]) + nz * (q[2] - v[2]);
+    if (h * h > near * near * (nx * nx + ny * ny + nz * nz)) return false; /* off its plane */
+    for (int i = 0; i < 3; i++) {
+        c[i] = ((double)v[i] + v[3 + i] + v[6 + i]) / 3;
+        d2 += (q[i] - c[i]) * (q[i] - c[i]);
+    }
+    for (int j = 0; j < 3; j++) {
+        double s = 0;
+        for (int i = 0; i < 3; i++) s += (v[3 * j + i] - c[i]) * (v[3 * j + i] - c[i]);
+        r2 = s > r2 ? s : r2;
+    }
+    double r = sqrt(r2) + near;
+    return d2 <= r * r;
+}
+
+#define NEAR_REACH 3.0 /* a near list takes the triangles within this times
+                          (rho + 1 voxel) of a cell's ball */
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* The distance from p to triangle v (Ericson's closest point, "Real-Time
+ * Collision Detection" 5.1.5: the Voronoi regions of the vertices, edges
+ * and face in turn). */
+static double tri_dist(const float *v, const double p[3])
+{
+    double a[3], ab[3], ac[3], ap[3], bp[3], cp[3], q[3];
+    for (int i = 0; i < 3; i++) {
+        a[i] = v[i], ab[i] = (double)v[3 + i] - v[i], ac[i] = (double)v[6 + i] - v[i];
+        ap[i] = p[i] - v[i], bp[i] = p[i] - v[3 + i], cp[i] = p[i] - v[6 + i];
+    }
+    double d1 = dot3(ab, ap), d2 = dot3(ac, ap), d3 = dot3(ab, bp), d4 = dot3(ac, bp);
+    double d5 = dot3(ab, cp), d6 = dot3(ac, cp), s = 0, t = 0;
+    double va = d3 * d6 - d5 * d4, vb = d5 * d2 - d1 * d6, vc = d1 * d4 - d3 * d2;
+    if (d1 <= 0 && d2 <= 0) s = 0, t = 0;
+    else if (d3 >= 0 && d4 <= d3) s = 1, t = 0;
+    else if (d6 >= 0 && d5 <= d6) s = 0, t = 1;
+    else if (vc <= 0 && d1 >= 0 && d3 <= 0) s = d1 / (d1 - d3), t = 0;
+    else if (vb <= 0 && d2 >= 0 && d6 <= 0) s = 0, t = d2 / (d2 - d6);
+    else if (va <= 0 && d4 - d3 >= 0 && d5 - d6 >= 0) {
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        s = 1 - t;
+    } else {
+        double den = va + vb + vc;
+        s = vb / den, t = vc / den;
+    }
+    for (int i = 0; i < 3; i++) q[i] = a[i] + s * ab[i] + t * ac[i] - p[i];
+    return sqrt(dot3(q, q));
+}
+
 /* Leaf n's triangles at the centre b of a cell of half-diagonal rho:
- * their exact angles into *w4 (4 pi w), bound (2) into *e4; false when a
- * triangle comes within rho of b (no bound). */
-static bool leaf_cell(const mesh_wtree *t, const wnode *n, const double bw[3], double rho,
-                      double *w4, double *e4)
+ * their exact angles into *w4 (4 pi w), bound (2) into *e4; a triangle
+ * that comes within 2 rho of b goes to the near list instead when there
+ * is one (false when it is full), else within rho: false (no bound). */
+static bool leaf_cell(const mv_wtree *t, const wnode *n, const double bw[3], double rho,
+                      mv_near *near, double *w4, double *e4)
 {
     double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]}; /* from its centre */
     for (uint32_t k = 0; k < n->count; k++) {
@@ -320,19 +388,46 @@ static bool leaf_cell(const mesh_wtree *t, const wnode *n, const double bw[3], d
         a = 0.5 * sqrt(x * x + y * y + z * z);
         double R = sqrt((c[0] - b[0]) * (c[0] - b[0]) + (c[1] - b[1]) * (c[1] - b[1]) +
                         (c[2] - b[2]) * (c[2] - b[2]));
-        double dmin = R - sqrt(r2) * (1 + 1e-6) - rho;
+        double dmin = R - sqrt(r2) * (1 + 1e-6) - rho, reach = NEAR_REACH * (rho + 1);
+        if (near && dmin <= reach) /* the ball says near: the triangle itself */
+            dmin = tri_dist(v, b) * (1 - 1e-9) - 1e-9 - rho;
+        if (near && dmin <= reach) {
+            if (near->n == MV_NEAR_MAX) return false;
+            near->tri[near->n] = n->first + k;
+            near->leaf[near->n++] = (uint32_t)(n - t->nodes);
+            continue;
+        }
         if (dmin <= 0) return false;
         *w4 += 2 * tri_half_angle(v, b);
-        *e4 += a * 2 * rho / (dmin * dmin * dmin);
+        /* the kernel's gradient is at most 2 / d^3, which over the
+         * triangle sums to at most 2 a / d^3 and over its whole plane to
+         * 4 pi / d */
+        double g = 2 * a / (dmin * dmin * dmin);
+        *e4 += rho * (g < 4 * M_PI / dmin ? g : 4 * M_PI / dmin);
     }
     return true;
 }
 
-bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double emax, double *w,
-                  double *err, uint32_t *work)
+double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], double close,
+                    bool *is_close)
 {
+    double w4 = 0;
+    for (uint32_t k = 0; k < near->n; k++) {
+        const wnode *n = &t->nodes[near->leaf[k]];
+        const float *v = t->tri[near->tri[k]];
+        double q[3] = {p[0] - n->c[0], p[1] - n->c[1], p[2] - n->c[2]};
+        *is_close |= near_tri(v, q, close);
+        w4 += 2 * tri_half_angle(v, q);
+    }
+    return w4 / (4 * M_PI);
+}
+
+bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                  mv_near *near, double *w, double *err, uint32_t *work)
+{
+    if (near) near->n = 0;
     uint32_t stack[128], sp = 0, visits = 0;
-    double w4 = 0, e4 = 0, e4max = emax * 4 * M_PI, beta = 2;
+    double w4 = 0, e4 = 0, e4max = emax * 4 * M_PI, beta = 2, tol4 = tol * 4 * M_PI;
     bool ok = true;
     stack[sp++] = 0;
     while (sp && ok) {
@@ -340,12 +435,17 @@ bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double ema
         double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
         double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], rr = n->r + rho;
         visits++;
-        if (R2 > beta * beta * rr * rr) {
+        bool far = R2 > beta * beta * rr * rr; /* tol infinite: the old rule, beta alone */
+        double e = 0;
+        if (far) {
             double R = sqrt(R2), s = R - n->r, f = R - rr;
+            e = n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
+        }
+        if (far && e <= tol4) {
             w4 += expand(n, d, R2);
-            e4 += n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
+            e4 += e;
         } else if (n->count) {
-            ok = leaf_cell(t, n, b, rho, &w4, &e4);
+            ok = leaf_cell(t, n, b, rho, near, &w4, &e4);
         } else {
             stack[sp++] = n->first + 1;
             stack[sp++] = n->first;
@@ -355,6 +455,35 @@ bool mv_wind_cell(const mesh_wtree *t, const double b[3], double rho, double ema
     if (work) *work += visits;
     *w = w4 / (4 * M_PI);
     *err = e4 / (4 * M_PI) + 1e-9; /* and the rounding of the sums */
+    return ok;
+}
+
+bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                 double *bound, uint32_t *work)
+{
+    uint32_t stack[128], sp = 0, visits = 0;
+    double e4 = 0, e4max = emax * 4 * M_PI, tol4 = tol * 4 * M_PI;
+    bool ok = true;
+    stack[sp++] = 0;
+    while (sp && ok) {
+        const wnode *n = &t->nodes[stack[--sp]];
+        double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
+        double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r - rho;
+        visits++;
+        /* a triangle of area a at distance f subtends at most a / f^2 */
+        double e = f > 0 ? n->area / (f * f) : INFINITY;
+        if (e <= tol4) {
+            e4 += e;
+        } else if (n->count) {
+            ok = f > 0 && (e4 += e) <= e4max;
+        } else {
+            stack[sp++] = n->first + 1;
+            stack[sp++] = n->first;
+        }
+        if (e4 > e4max) ok = false;
+    }
+    if (work) *work += visits;
+    *bound = e4 / (4 * M_PI) + 1e-9;
     return ok;
 }
 
@@ -427,7 +556,7 @@ static void flush_exact(wblock *w)
 }
 
 /* Sample (x, y, z) of the block: the tree twice, then the exact sum. */
-static void point(wblock *w, const mesh_wtree *t, const uint32_t s[3])
+static void point(wblock *w, const mv_wtree *t, const uint32_t s[3])
 {
     const mv_frame *f = w->f;
     double q[3], p[3];
@@ -451,7 +580,7 @@ static void point(wblock *w, const mesh_wtree *t, const uint32_t s[3])
 
 /* Cell [lo, hi): decided whole by one query when the bound allows, else
  * its eight halves. */
-static void cell(wblock *w, const mesh_wtree *t, const uint32_t lo[3], const uint32_t hi[3])
+static void cell(wblock *w, const mv_wtree *t, const uint32_t lo[3], const uint32_t hi[3])
 {
     uint64_t n = cell_count(w, lo, hi);
     if (!n || (w->f->pulse && w->f->pulse->stop)) return;
@@ -467,7 +596,8 @@ static void cell(wblock *w, const mesh_wtree *t, const uint32_t lo[3], const uin
             b[a] = ((double)w->b->s0[a] + 0.5 * ((double)lo[a] + hi[a])) / K;
             r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
         }
-        bool ok = mv_wind_cell(t, b, sqrt(r2) / K * (1 + 1e-9), 0.5, &v, &e, &work);
+        bool ok = mv_wind_cell(t, b, sqrt(r2) / K * (1 + 1e-9), 0.5, INFINITY, NULL, &v, &e,
+                               &work);
         mv_beat(w->f->pulse, work);
         v = fabs(v);
         if (ok && (v - e > 0.5 || v + e < 0.5)) {
@@ -488,7 +618,8 @@ static void cell(wblock *w, const mesh_wtree *t, const uint32_t lo[3], const uin
     }
 }
 
-void mv_wind_block(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, const uint64_t *dis,
+                   uint64_t *bits)
 {
     wblock w = {.f = f, .b = b, .dis = dis, .bits = bits};
     uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
@@ -498,7 +629,7 @@ void mv_wind_block(const mv_frame *f, const mv_block *b, const uint64_t *dis, ui
                 uint32_t lo[3] = {x, y, z};
                 uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
                                   z + TOP < n[2] ? z + TOP : n[2]};
-                cell(&w, f->wt, lo, hi);
+                cell(&w, t, lo, hi);
             }
     flush_exact(&w);
 }

@@ -4,6 +4,7 @@
 # -w 2` command on the release build's embedded engine, run by
 # `make bench-mesh` after bench-mesh-whole.sh.  Markdown on stdout: per
 # job the median wall seconds of BENCH_REPEATS runs (default 3), the
+# workers' CPU seconds of the last run (steadier on a shared machine), the
 # target and a pass/FAIL mark, the voxels to decide (disagreements), the
 # voxels inside, and for the dragon the closed model's voxels beside.
 #
@@ -53,7 +54,7 @@ fi
 job() {
     local file=$1 res=$2 target=$3 name=$4 closed=${5:-} t s=() out
     if [ ! -e "$file" ]; then
-        echo "| $name | $res^3 | skipped: no $(basename "$file") | | | | |"
+        echo "| $name | $res^3 | skipped: no $(basename "$file") | | | | | |"
         return
     fi
     for ((i = 0; i < repeats; i++)); do
@@ -61,7 +62,7 @@ job() {
         t0=$(date +%s.%N)
         if ! out=$("$vox" voxelize --embedded --mesh "$file" -r "$res" --repair winding -w 2 \
                    -o "$tmp/out.vod" 2>&1); then
-            echo "| $name | $res^3 | FAILED: $(echo "$out" | tail -1) | | | | |"
+            echo "| $name | $res^3 | FAILED: $(echo "$out" | tail -1) | | | | | |"
             failed=1
             return
         fi
@@ -69,7 +70,8 @@ job() {
         s+=("t=$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.6f", b - a }')")
     done
     t=$(printf '%s\n' "${s[@]}" | medians | awk '{ print $NF }')
-    local dis inside ref="" mark=pass
+    local dis inside cpu ref="" mark=pass
+    cpu=$(echo "$out" | sed -n 's/.*CPU: master [0-9.]* s, workers \([0-9.]*\) s.*/\1/p')
     dis=$(echo "$out" | sed -n 's/.*repair: \([0-9]*\) voxels where.*/\1/p')
     inside=$(echo "$out" | sed -n 's/^.*: \([0-9]*\) voxels on .*/\1/p')
     if [ -n "$closed" ]; then
@@ -78,14 +80,14 @@ job() {
         ref="$ref ($(awk -v a="$inside" -v b="$ref" 'BEGIN { printf "%+.2f", 100 * (a - b) / b }')%)"
     fi
     awk -v a="$t" -v b="$target" 'BEGIN { exit !(a > b) }' && mark=FAIL
-    printf '| %s | %s^3 | %.3f s | %s s, %s | %s | %s | %s |\n' "$name" "$res" "$t" "$target" \
-        "$mark" "$dis" "$inside" "$ref"
+    printf '| %s | %s^3 | %.3f s | %s s | %s s, %s | %s | %s | %s |\n' "$name" "$res" "$t" "$cpu" \
+        "$target" "$mark" "$dis" "$inside" "$ref"
 }
 
 echo "### Repair by winding numbers (the whole command, 2 workers, median of $repeats)"
 echo
-echo "| model | res | seconds | target | voxels to decide | voxels inside | closed model's (difference) |"
-echo "|---|---|---:|---|---:|---:|---:|"
+echo "| model | res | seconds | workers' CPU (last run) | target | voxels to decide | voxels inside | closed model's (difference) |"
+echo "|---|---|---:|---:|---|---:|---:|---:|"
 job "$cgal/mech-holes-shark.off" 128 0.5 "mech-holes-shark.off"
 job "$cgal/mannequin-devil.off" 512 4 "mannequin-devil.off"
 job "$tmp/dragon-holes.stl" 1024 3 "dragon, 2% of its triangles removed" "$tmp/dragon-closed.stl"

@@ -383,7 +383,7 @@ Test(mesh_vox, box_on_voxel_centres_follows_the_top_left_rule)
     uint8_t *count = calloc(64 * 64, 1);
     for (uint32_t t = 0; t < m->n_triangles; t++) {
         memset(bits, 0, mv_block_words(&blk) * 8);
-        mv_target tg = {&blk, bits, NULL, true};
+        mv_target tg = {&blk, bits, NULL, true, NULL};
         int64_t P[3][3];
         mv_triangle(&f, t, P);
         mv_raster(P, 2, &tg);
@@ -873,7 +873,7 @@ Test(mesh_vox, plain_solid_bins_hold_the_triangles_that_flip_a_column)
                                                 (int32_t)(g.res[1] - y0 < 64 ? g.res[1] - y0 : 64), 1},
                             1};
             memset(words, 0, sizeof words);
-            mv_target tg = {&blk, words, NULL, true};
+            mv_target tg = {&blk, words, NULL, true, NULL};
             mv_raster(P, 2, &tg);
             bool flips = false;
             for (int i = 0; i < blk.n[1]; i++) flips |= words[i] != 0;

@@ -187,6 +187,9 @@ static double exact_w(const mesh *m, const grid_spec *g, uint32_t x, uint32_t y,
 /* The tree's voxels against the exact sum's, every voxel: the share that
  * differs, and none where the exact |w| is near 1/2; returns the voxels
  * inside (occupancy) for the closed-mesh comparison. */
+static size_t last_diff; /* hold_against_exact's voxels that differed */
+static size_t last_half; /* ... and the voxels whose exact |w| lies within 0.1 of 1/2 */
+
 static size_t hold_against_exact(const mesh *m, const grid_spec *g, int channel,
                                  const char *what)
 {
@@ -199,8 +202,14 @@ static size_t hold_against_exact(const mesh *m, const grid_spec *g, int channel,
     cr_assert_gt(sx.disagreements, 0, "%s: nothing to repair", what);
     cr_assert_eq(sf.disagreements, sx.disagreements);
     size_t n = (size_t)g->res[0] * g->res[1] * g->res[2], diff = 0, near = 0, inside = 0;
+    last_half = 0;
     for (size_t i = 0; i < n; i++) {
         inside += fast[i] != 0;
+        if (channel == VOXEL_CH_OCCUPANCY && n <= 32768) {
+            uint32_t vx = (uint32_t)(i % g->res[0]), vy = (uint32_t)(i / g->res[0] % g->res[1]),
+                     vz = (uint32_t)(i / g->res[0] / g->res[1]);
+            last_half += fabs(exact_w(m, g, vx, vy, vz) - 0.5) < 0.1;
+        }
         if (fast[i] == ref[i]) continue;
         diff++;
         if (channel != VOXEL_CH_OCCUPANCY) continue;
@@ -212,6 +221,7 @@ static size_t hold_against_exact(const mesh *m, const grid_spec *g, int channel,
                 (unsigned long long)sx.disagreements);
     cr_expect_leq(diff * 10000, sx.disagreements, "%s: %zu voxels differ", what, diff);
     cr_expect_eq(near, 0, "%s: %zu voxels near |w| = 1/2 differ", what, near);
+    last_diff = diff;
     free(fast);
     free(ref);
     return inside;
@@ -279,4 +289,124 @@ Test(mesh_wind, a_soup_against_the_exact_sum, .timeout = 900)
     hold_against_exact(m, &g40, VOXEL_CH_OCCUPANCY, "soup");
     shape_free(&s);
     shape_free(&src);
+}
+
+/* Large holes: large caps, whose solid angle varies across the cells, so
+ * that the cells' bound and the samples' threshold decide voxels where
+ * the exact |w| lies near 1/2: a sphere without its top and a box without
+ * its lid, each voxel equal to the exact sum's (a mutation of the
+ * threshold 1/2 or of the bound in mesh_wcap.c changes some of them). */
+static bool below_cut(uint32_t i, void *ctx)
+{
+    const shape *s = ctx;
+    double z = 0;
+    for (int k = 0; k < 3; k++) z += s->m.vertices[s->m.triangles[i][k]][2];
+    return z / 3 < 0.3;
+}
+
+Test(mesh_wind, large_holes_against_the_exact_sum_voxel_for_voxel, .timeout = 900)
+{
+    grid_spec g = cube_grid(32);
+    shape s;
+    double c[3] = {0.03, 0.01, -0.02};
+    shape_init(&s);
+    shape_icosphere(&s, c, 0.8, 3, false);
+    shape_remove(&s, below_cut, &s);
+    const mesh *m = shape_finish(&s);
+    hold_against_exact(m, &g, VOXEL_CH_OCCUPANCY, "sphere without its top");
+    cr_expect_eq(last_diff, 0, "%zu voxels differ", last_diff);
+    cr_expect_geq(last_half, 200, "only %zu voxels near |w| = 1/2: nothing to test", last_half);
+    shape_free(&s);
+
+    /* a box (outward, counter-clockwise) without its top face, turned a
+     * little so that no face lies on the samples */
+    static const uint32_t faces[10][3] = {{0, 2, 3}, {0, 3, 1}, {0, 1, 5}, {0, 5, 4}, {2, 6, 7},
+                                          {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
+    double R[3][3], axis[3] = {0.3, -0.2, 1};
+    shape_init(&s);
+    for (int v = 0; v < 8; v++)
+        shape_vertex(&s, v & 1 ? 0.66 : -0.71, v & 2 ? 0.69 : -0.62, v & 4 ? 0.58 : -0.73);
+    for (int f = 0; f < 10; f++) shape_tri(&s, faces[f][0], faces[f][1], faces[f][2]);
+    double len = sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]);
+    for (int a = 0; a < 3; a++) axis[a] /= len;
+    shape_rotation(axis, 0.2, R);
+    shape_transform(&s, 0, R, c);
+    m = shape_finish(&s);
+    hold_against_exact(m, &g, VOXEL_CH_OCCUPANCY, "box without its lid");
+    cr_expect_eq(last_diff, 0, "%zu voxels differ", last_diff);
+    cr_expect_geq(last_half, 200, "only %zu voxels near |w| = 1/2: nothing to test", last_half);
+    shape_free(&s);
+}
+
+/* ---- the cell bound itself ---- */
+
+/* w of triangle v at p (Van Oosterom and Strackee), here as the oracle. */
+static double tri_w(const double v[3][3], const double p[3])
+{
+    double a[3], b[3], c[3];
+    for (int i = 0; i < 3; i++) a[i] = v[0][i] - p[i], b[i] = v[1][i] - p[i], c[i] = v[2][i] - p[i];
+    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+    double lc = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+    double det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
+                 a[2] * (b[0] * c[1] - b[1] * c[0]);
+    double den = la * lb * lc + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * lc +
+                 (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) * la +
+                 (c[0] * a[0] + c[1] * a[1] + c[2] * a[2]) * lb;
+    return atan2(det, den) / (2 * M_PI);
+}
+
+/* mv_wind_cell's value at a cell's centre and its bound hold at every
+ * point tried within the cell's ball (the expansion's remainder and the
+ * variation over the ball: without the latter they would not), with and
+ * without a near list (mv_wind_near adds the near triangles exactly); the
+ * test shape is a wavy fan of 48 triangles, a cap as mesh_wcap.c makes. */
+Test(mesh_wind, the_cell_bound_holds_within_the_ball)
+{
+    enum { N = 48 };
+    double tri[N][3][3];
+    for (int k = 0; k < N; k++) {
+        double a0 = 2 * M_PI * k / N, a1 = 2 * M_PI * (k + 1) / N;
+        double r0 = 6 + sin(3 * a0), r1 = 6 + sin(3 * a1);
+        double p0[3] = {r0 * cos(a0), r0 * sin(a0), 0.7 * sin(2 * a0)};
+        double p1[3] = {r1 * cos(a1), r1 * sin(a1), 0.7 * sin(2 * a1)};
+        for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
+        tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
+    }
+    mv_wtree *t;
+    cr_assert_eq(mv_wtree_make(NULL, NULL, (const double (*)[3][3])tri, N, NULL, &t), 0);
+    size_t checked = 0, with_near = 0;
+    double worst = 0; /* the largest |w(p) - w(b)| seen: the variation is real */
+    for (double rho = 0.8; rho < 4; rho *= 2)
+        for (int z = -12; z <= 12; z += 3)
+            for (int y = -12; y <= 12; y += 3)
+                for (int x = -12; x <= 12; x += 3)
+                    for (int use_near = 0; use_near < 2; use_near++) {
+                        double b[3] = {x + 0.25, y - 0.35, z + 0.45}, v, e;
+                        mv_near nr;
+                        if (!mv_wind_cell(t, b, rho, 10, 2e-3, use_near ? &nr : NULL, &v, &e, NULL))
+                            continue;
+                        with_near += use_near && nr.n;
+                        for (int d = 0; d < 27; d++) {
+                            double p[3] = {b[0] + rho * (d % 3 - 1) / sqrt(3),
+                                           b[1] + rho * (d / 3 % 3 - 1) / sqrt(3),
+                                           b[2] + rho * (d / 9 - 1) / sqrt(3)};
+                            double w = 0, u = v;
+                            for (int k = 0; k < N; k++) w += tri_w(tri[k], p);
+                            if (use_near && nr.n) {
+                                bool close = false;
+                                u += mv_wind_near(t, &nr, p, 1e-3, &close);
+                            }
+                            cr_assert_leq(fabs(w - u), e, "b (%g %g %g) rho %g: |%g - %g| > %g",
+                                          b[0], b[1], b[2], rho, w, u, e);
+                            if (!use_near && fabs(w - v) > worst) worst = fabs(w - v);
+                            checked++;
+                        }
+                    }
+    cr_log_info("%zu points checked, %zu cells with near triangles, largest variation %.4f",
+                checked, with_near, worst);
+    cr_assert_gt(checked, 20000);
+    cr_assert_gt(with_near, 100);
+    cr_assert_gt(worst, 0.01);
+    mv_wtree_free(t);
 }

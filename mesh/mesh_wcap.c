@@ -1,0 +1,486 @@
+/* mesh_wcap — the winding number of an open mesh as an integer count and
+ * the solid angles of small caps: the repair's fast path (K = 1 blocks).
+ *
+ * The triangles' boundary chain B (each edge a -> b counted +1 per
+ * triangle that runs a -> b and -1 per triangle that runs b -> a; on a
+ * closed mesh every edge cancels) is closed, so every connected piece of
+ * it bounds a cap: the fan of its edges to one point o (the mean of its
+ * vertices, on the lattice), edge a -> b giving the triangle (b, a, o).
+ * The mesh S with its caps C is closed (its boundary B - B = 0), so its
+ * winding number is the signed count of the crossings of any ray from p,
+ *     w_S(p) + w_C(p) = N(p),
+ * N counted along -z by the same exact raster as the parity (mv_target's
+ * counters, the caps rasterized beside the tile's triangles: S and C share
+ * the snapped vertices, so the raster sees one closed surface).  Hence
+ *     |w_S(p)| >= 1/2  <=>  |N(p) - w_C(p)| >= 1/2,
+ * and where w_C stays within (k - 1/2, k + 1/2) over a cell of samples,
+ * every sample of the cell is inside exactly when N != k: one query of
+ * the caps' tree (mv_wind_cell, rigorous bound) decides a whole cell,
+ * wherever the mesh's own surface lies.  Near a cap the query leaves the
+ * cap triangles within reach out (its near list) and each sample adds
+ * their exact angles to the rest's value and bound; a cell still
+ * undecided is split in eight, down to single samples.  The caps are
+ * small where the holes are (the dragon's are a triangle each).  Samples
+ * within 1e-6 of 1/2 past the bound, or too near a cap triangle for the
+ * sign of its angle to be trusted against the raster's side, go to
+ * mv_wind_block (the tree, then the exact sum near 1/2): the answer stays
+ * the exact sum's where it matters.
+ *
+ * The angles use the mesh's vertices as given and the raster their
+ * snapped copies (within 2^-17 voxel): the two agree but for points that
+ * close to a triangle, where the raster's tie rule decides (as the parity
+ * does).
+ */
+#include "mesh_vox_int.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+int mesh_wind_exact;
+
+/* Built lazily, by the first tile that needs each part, so that the build
+ * ticks that tile's heartbeat (a worker builds its own at its first tile
+ * of a job: seconds of wall time for a large mesh on a loaded machine). */
+struct mesh_wtree {
+    mesh m;                   /* the job's mesh (its arrays outlive the tiles) */
+    grid_spec g;
+    int tris_rc, caps_rc;     /* 1: not built yet; else the build's return */
+    mv_wtree *tris;           /* the mesh's triangles (mesh_wind.c) */
+    mv_wtree *caps;           /* the caps' triangles, or NULL: none */
+    int64_t (*cap_lat)[3][3]; /* the caps on the K = 1 lattice */
+    uint32_t n_caps;
+};
+
+/* ---- the boundary chain and its caps ---- */
+
+typedef struct {
+    uint64_t key; /* lo << 32 | hi, lo < hi: an edge's vertices */
+    int32_t s;    /* +1: the triangle runs lo -> hi, -1: hi -> lo */
+} dedge;
+
+/* e[0, n) sorted by key (LSD radix, 8 bits a pass, passes whose digit is
+ * the same everywhere skipped); tmp: n more. */
+static void sort_edges(dedge *e, dedge *tmp, size_t n)
+{
+    for (int shift = 0; shift < 64; shift += 8) {
+        size_t cnt[257] = {0};
+        for (size_t i = 0; i < n; i++) cnt[(e[i].key >> shift & 255) + 1]++;
+        if (cnt[(e[0].key >> shift & 255) + 1] == n) continue;
+        for (int d = 0; d < 256; d++) cnt[d + 1] += cnt[d];
+        for (size_t i = 0; i < n; i++) tmp[cnt[e[i].key >> shift & 255]++] = e[i];
+        memcpy(e, tmp, n * sizeof *e);
+    }
+}
+
+/* The chain's edges with their multiplicities, a -> b for c > 0, into
+ * e[0, *nb) (e reused: key, s = c); -ENOMEM. */
+static int boundary(const mesh *m, dedge **out, size_t *nb)
+{
+    size_t n = 3 * (size_t)m->n_triangles, k = 0;
+    dedge *e = malloc(n * sizeof *e), *tmp = malloc(n * sizeof *tmp);
+    if (!e || !tmp) {
+        free(e), free(tmp);
+        return -ENOMEM;
+    }
+    for (uint32_t t = 0; t < m->n_triangles; t++)
+        for (int i = 0; i < 3; i++) {
+            uint32_t a = m->triangles[t][i], b = m->triangles[t][(i + 1) % 3];
+            if (a == b) continue;
+            uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
+            e[k++] = (dedge){(uint64_t)lo << 32 | hi, a < b ? 1 : -1};
+        }
+    if (k) sort_edges(e, tmp, k);
+    free(tmp);
+    size_t out_n = 0;
+    for (size_t i = 0; i < k;) {
+        size_t j = i;
+        int64_t c = 0;
+        while (j < k && e[j].key == e[i].key) c += e[j++].s;
+        if (c) e[out_n++] = (dedge){e[i].key, (int32_t)c};
+        i = j;
+    }
+    *out = e;
+    *nb = out_n;
+    return 0;
+}
+
+static uint32_t find(uint32_t *up, uint32_t v)
+{
+    while (up[v] != v) v = up[v] = up[up[v]];
+    return v;
+}
+
+static void vox_of(const mesh *m, const grid_spec *g, uint32_t v, double p[3])
+{
+    for (int a = 0; a < 3; a++) p[a] = ((double)m->vertices[v][a] - g->lo[a]) / g->vs;
+}
+
+/* The fan points: per piece of the chain (union-find over its vertices)
+ * the mean of its edges' ends, snapped to the lattice; o[root] for each
+ * root, in lattice units. */
+static int fan_points(const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
+                      uint32_t **up_out, int64_t (**o_out)[3])
+{
+    uint32_t *up = malloc((size_t)m->n_vertices * sizeof *up);
+    double(*sum)[4] = calloc(m->n_vertices, sizeof *sum);
+    int64_t(*o)[3] = malloc((size_t)m->n_vertices * sizeof *o);
+    if (!up || !sum || !o) {
+        free(up), free(sum), free(o);
+        return -ENOMEM;
+    }
+    for (uint32_t v = 0; v < m->n_vertices; v++) up[v] = v;
+    for (size_t i = 0; i < nb; i++) {
+        uint32_t a = find(up, (uint32_t)(e[i].key >> 32)), b = find(up, (uint32_t)e[i].key);
+        if (a != b) up[a > b ? a : b] = a < b ? a : b; /* the smaller id is the root */
+    }
+    for (size_t i = 0; i < nb; i++)
+        for (int h = 0; h < 2; h++) {
+            uint32_t v = h ? (uint32_t)e[i].key : (uint32_t)(e[i].key >> 32), r = find(up, v);
+            double p[3];
+            vox_of(m, g, v, p);
+            for (int a = 0; a < 3; a++) sum[r][a] += p[a];
+            sum[r][3] += 1;
+        }
+    for (uint32_t v = 0; v < m->n_vertices; v++)
+        if (sum[v][3] > 0)
+            for (int a = 0; a < 3; a++) o[v][a] = mv_snap(sum[v][a] / sum[v][3] * (double)MV_L);
+    free(sum);
+    *up_out = up;
+    *o_out = o;
+    return 0;
+}
+
+/* The caps of t's mesh: the fans of the chain e[0, nb), as voxel-unit
+ * triangles (the tree's) and lattice ones (the raster's). */
+static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
+                     mv_pulse *pulse)
+{
+    uint32_t *up;
+    int64_t(*o)[3];
+    size_t n = 0;
+    for (size_t i = 0; i < nb; i++) n += (size_t)abs(e[i].s);
+    if (!n) return 0;
+    if (n > UINT32_MAX) return -ENOMEM;
+    int rc = fan_points(m, g, e, nb, &up, &o);
+    if (rc) return rc;
+    double(*vt)[3][3] = malloc(n * sizeof *vt);
+    t->cap_lat = malloc(n * sizeof *t->cap_lat);
+    double scale = (double)1u * (double)MV_L / g->vs; /* mv_frame_init's, K = 1 */
+    for (size_t i = 0, k = 0; vt && t->cap_lat && i < nb; i++) {
+        uint32_t lo = (uint32_t)(e[i].key >> 32), hi = (uint32_t)e[i].key;
+        uint32_t v[2] = {e[i].s > 0 ? hi : lo, e[i].s > 0 ? lo : hi}; /* (b, a) of a -> b */
+        const int64_t *c = o[find(up, lo)];
+        for (int r = 0; r < abs(e[i].s); r++, k++) {
+            for (int j = 0; j < 2; j++) {
+                vox_of(m, g, v[j], vt[k][j]);
+                for (int a = 0; a < 3; a++) /* mv_vertex's snap: the mesh's lattice */
+                    t->cap_lat[k][j][a] =
+                        mv_snap(((double)m->vertices[v[j]][a] - g->lo[a]) * scale);
+            }
+            for (int a = 0; a < 3; a++) {
+                t->cap_lat[k][2][a] = c[a];
+                vt[k][2][a] = (double)c[a] / (double)MV_L; /* exact */
+            }
+        }
+    }
+    rc = vt && t->cap_lat
+             ? mv_wtree_make(NULL, g, (const double (*)[3][3])vt, (uint32_t)n, pulse, &t->caps)
+             : -ENOMEM;
+    t->n_caps = rc ? 0 : (uint32_t)n;
+    free(vt), free(up), free(o);
+    return rc;
+}
+
+int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out)
+{
+    *out = NULL;
+    if (!m->n_triangles) return -EINVAL;
+    mesh_wtree *t = calloc(1, sizeof *t);
+    if (!t) return -ENOMEM;
+    t->m = *m;
+    t->g = *g;
+    t->tris_rc = t->caps_rc = 1;
+    *out = t;
+    return 0;
+}
+
+/* The parts of t a tile needs, built on first use (t is the caller's
+ * alone: one tile at a time reads it).  0 or -ENOMEM. */
+static int need_tris(const mesh_wtree *ct, mv_pulse *pulse)
+{
+    mesh_wtree *t = (mesh_wtree *)ct; /* const for the tiles: built once, then read */
+    if (t->tris_rc == 1) t->tris_rc = mv_wtree_make(&t->m, &t->g, NULL, 0, pulse, &t->tris);
+    return t->tris_rc;
+}
+
+static int need_caps(const mesh_wtree *ct, mv_pulse *pulse)
+{
+    mesh_wtree *t = (mesh_wtree *)ct;
+    if (t->caps_rc != 1) return t->caps_rc;
+    dedge *e = NULL;
+    size_t nb = 0;
+    int rc = boundary(&t->m, &e, &nb);
+    mv_beat(pulse, (uint32_t)(t->m.n_triangles / 4));
+    if (!rc) rc = make_caps(t, &t->m, &t->g, e, nb, pulse);
+    free(e);
+    return t->caps_rc = rc;
+}
+
+void mesh_wtree_free(mesh_wtree *t)
+{
+    if (!t) return;
+    mv_wtree_free(t->tris);
+    mv_wtree_free(t->caps);
+    free(t->cap_lat);
+    free(t);
+}
+
+/* ---- a block's samples ---- */
+
+#define TOP 32u      /* the largest cell tried, samples a side */
+#define CELL_MIN 4u  /* samples to decide that make a cell worth a query */
+#define NEAR_WORK 512u /* near triangles times the cell's samples, at most, for
+                          a cell to be tried sample by sample */
+#define TOL_SAMPLE 1e-4 /* a node's error at most, a sample's query */
+#define TOL_CELL 2e-3   /* ... a cell's */
+#define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
+#define NEAR 1e-3    /* voxels: nearer a cap triangle, mv_wind_block decides */
+#define MARGIN 1e-6  /* past the bound, nearer 1/2: mv_wind_block decides */
+
+typedef struct {
+    const mv_frame *f;
+    const mv_block *b;
+    uint64_t *todo; /* the samples still to decide */
+    uint64_t *bits, *spare;
+    const uint16_t *count;
+    const mv_wtree *caps;
+    bool any_spare;
+} cblock;
+
+static size_t word_of(const cblock *c, uint32_t x, uint32_t y, uint32_t z)
+{
+    return ((size_t)z * (size_t)c->b->n[1] + y) * c->b->nw + x / 64;
+}
+
+static uint64_t xmask(const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint32_t s = lo[0] & 63, n = hi[0] - lo[0];
+    return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
+}
+
+static uint64_t cell_count(const cblock *c, const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint64_t mask = xmask(lo, hi), n = 0;
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++)
+            n += mv_popcount(c->todo[word_of(c, lo[0], y, z)] & mask);
+    return n;
+}
+
+/* Every sample of the cell to decide: inside when its count is not k. */
+static void cell_by_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], uint16_t k)
+{
+    uint64_t mask = xmask(lo, hi);
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = word_of(c, lo[0], y, z);
+            uint64_t d = c->todo[i] & mask, in = 0;
+            const uint16_t *n = c->count + i * 64;
+            for (uint64_t r = d; r; r &= r - 1) {
+                unsigned x = (unsigned)__builtin_ctzll(r);
+                in |= (uint64_t)(n[x] != k) << x;
+            }
+            c->bits[i] = (c->bits[i] & ~d) | in;
+            c->todo[i] &= ~d;
+        }
+}
+
+/* Sample bit x of word i (at p) where w_C lies within e of v: decided
+ * (and no longer to do) when |N - w_C| keeps off 1/2. */
+static void decide(cblock *c, size_t i, unsigned x, double v, double e)
+{
+    uint64_t bit = 1ull << x;
+    double a = fabs((double)(int16_t)c->count[i * 64 + x] - v);
+    if (fabs(a - 0.5) <= e + MARGIN) return;
+    c->bits[i] = a > 0.5 ? c->bits[i] | bit : c->bits[i] & ~bit;
+    c->todo[i] &= ~bit;
+}
+
+/* The samples of the cell one by one from a cell query: w_C = v (within
+ * e) plus the near triangles' exact angles. */
+static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
+                         const mv_near *nr, double v, double e)
+{
+    uint64_t mask = xmask(lo, hi);
+    uint32_t work = 0;
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = word_of(c, lo[0], y, z);
+            for (uint64_t r = c->todo[i] & mask; r; r &= r - 1) {
+                unsigned x = (unsigned)__builtin_ctzll(r);
+                double p[3] = {(double)(c->b->s0[0] + (int64_t)(lo[0] / 64 * 64 + x)) + 0.5,
+                               (double)(c->b->s0[1] + (int64_t)y) + 0.5,
+                               (double)(c->b->s0[2] + (int64_t)z) + 0.5};
+                bool close = false;
+                double u = v + mv_wind_near(c->caps, nr, p, NEAR, &close);
+                if (!close) decide(c, i, x, u, e);
+                work += nr->n;
+            }
+        }
+    mv_beat(c->f->pulse, work);
+}
+
+/* The samples of the cell still to do to mv_wind_block. */
+static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint64_t mask = xmask(lo, hi);
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = word_of(c, lo[0], y, z);
+            uint64_t d = c->todo[i] & mask;
+            if (!d) continue;
+            c->spare[i] |= d;
+            c->todo[i] &= ~d;
+            c->any_spare = true;
+        }
+}
+
+/* Cell [lo, hi): a query of the caps' tree decides it whole (w_C off
+ * every half integer) or sample by sample (near triangles exact), else
+ * its eight halves. */
+static void cell(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint64_t n = cell_count(c, lo, hi);
+    if (!n || (c->f->pulse && c->f->pulse->stop)) return;
+    uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    if (!c->caps) { /* closed: w_C = 0 */
+        cell_by_count(c, lo, hi, 0);
+        mv_beat(c->f->pulse, (uint32_t)(n / 8 + 1));
+        return;
+    }
+    bool one = ext[0] == 1 && ext[1] == 1 && ext[2] == 1;
+    double b[3], r2 = 0, v, e;
+    uint32_t work = (uint32_t)(n / 8);
+    for (int a = 0; a < 3; a++) {
+        b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
+        r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
+    }
+    double mag;
+    if (!one && mv_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
+        mv_beat(c->f->pulse, work);
+        cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
+        return;
+    }
+    mv_near nr;
+    bool ok = mv_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
+                           &nr, &v, &e, &work);
+    mv_beat(c->f->pulse, work);
+    if (ok && !nr.n) {
+        double k = floor(v + 0.5);
+        if (v - e > k - 0.5 && v + e < k + 0.5) {
+            cell_by_count(c, lo, hi, (uint16_t)(int64_t)k);
+            return;
+        }
+    }
+    if (ok && (n < CELL_MIN || nr.n * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
+        cell_by_near(c, lo, hi, &nr, v, e);
+    if (one) {
+        cell_spare(c, lo, hi);
+        return;
+    }
+    for (int q = 0; q < 8; q++) {
+        uint32_t clo[3], chi[3];
+        bool skip = false;
+        for (int a = 0; a < 3; a++) {
+            uint32_t mid = lo[a] + (ext[a] + 1) / 2, up = q >> a & 1;
+            clo[a] = up ? mid : lo[a];
+            chi[a] = up ? hi[a] : mid;
+            skip |= clo[a] >= chi[a];
+        }
+        if (!skip) cell(c, clo, chi);
+    }
+}
+
+/* The caps into the counters (those whose x, y box meets the block's),
+ * then the prefix sum along z: count = N. */
+static void count_caps(const mv_frame *f, const mesh_wtree *t, const mv_block *b,
+                       uint16_t *count)
+{
+    mv_target tc = {b, NULL, NULL, true, count};
+    int64_t xlo = b->s0[0] * MV_L, xhi = (b->s0[0] + b->n[0]) * MV_L;
+    int64_t ylo = b->s0[1] * MV_L, yhi = (b->s0[1] + b->n[1]) * MV_L;
+    for (uint32_t i = 0; i < t->n_caps; i++) {
+        const int64_t(*P)[3] = t->cap_lat[i];
+        if (mv_beat(f->pulse, 1)) return;
+        if ((P[0][0] < xlo && P[1][0] < xlo && P[2][0] < xlo) ||
+            (P[0][0] > xhi && P[1][0] > xhi && P[2][0] > xhi) ||
+            (P[0][1] < ylo && P[1][1] < ylo && P[2][1] < ylo) ||
+            (P[0][1] > yhi && P[1][1] > yhi && P[2][1] > yhi))
+            continue;
+        mv_raster(P, 2, &tc);
+    }
+    size_t slice = (size_t)b->n[1] * b->nw * 64;
+    for (int32_t z = 1; z < b->n[2]; z++) {
+        uint16_t *s = count + (size_t)z * slice, *p = s - slice;
+        for (size_t i = 0; i < slice; i++) s[i] = (uint16_t)(s[i] + p[i]);
+        mv_beat(f->pulse, (uint32_t)(slice / 256));
+    }
+}
+
+/* The samples set in dis by the exact sum, a word at a time (when a
+ * tree cannot be had: no memory for it). */
+static void exact_words(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+{
+    for (size_t w = 0; w < mv_block_words(b); w++) {
+        size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
+        double q[64][3], wn[64];
+        unsigned idx[64], n = 0;
+        for (uint64_t r = dis[w]; r; r &= r - 1) {
+            unsigned i = (unsigned)__builtin_ctzll(r);
+            q[n][0] = (double)(b->s0[0] + (int64_t)((w % b->nw) * 64 + i)) + 0.5;
+            q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
+            q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
+            idx[n++] = i;
+        }
+        if (!n) continue;
+        mv_winding_many(f, (const double (*)[3])q, n, wn);
+        for (unsigned k = 0; k < n; k++)
+            bits[w] = fabs(wn[k]) >= 0.5 ? bits[w] | 1ull << idx[k] : bits[w] & ~(1ull << idx[k]);
+    }
+}
+
+/* The old path: the mesh's tree, sample by sample near 1/2. */
+static void by_tree(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+{
+    if (need_tris(f->wt, f->pulse)) exact_words(f, b, dis, bits);
+    else mv_wind_block(f, f->wt->tris, b, dis, bits);
+}
+
+void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
+                   uint16_t *count, uint64_t *spare)
+{
+    const mesh_wtree *t = f->wt;
+    size_t nwords = mv_block_words(b), i = 0;
+    while (i < nwords && !dis[i]) i++;
+    if (i == nwords) return;
+    if (!count || need_caps(t, f->pulse)) {
+        by_tree(f, b, dis, bits);
+        return;
+    }
+    count_caps(f, t, b, count);
+    memset(spare, 0, nwords * 8);
+    cblock c = {.f = f, .b = b, .todo = dis, .bits = bits, .spare = spare, .count = count,
+                .caps = t->caps};
+    uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
+    for (uint32_t z = 0; z < n[2]; z += TOP)
+        for (uint32_t y = 0; y < n[1]; y += TOP)
+            for (uint32_t x = 0; x < n[0]; x += TOP) {
+                uint32_t lo[3] = {x, y, z};
+                uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
+                                  z + TOP < n[2] ? z + TOP : n[2]};
+                cell(&c, lo, hi);
+            }
+    if (c.any_spare) by_tree(f, b, spare, bits);
+}
