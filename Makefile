@@ -100,7 +100,7 @@ LIB_SRC ?= $(wildcard $(MODULES:%=%/*.c))
 LIB_SRC := $(filter-out client/vox.c server/voxd.c mpi/vox_mpi.c,$(LIB_SRC))
 # libvox, the client library: only what a client needs (vox.h, framing,
 # the protocol), an archive of its own with a pkg-config file.
-LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c
+LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c common/err.c
 LIBVOX_OBJ = $(LIBVOX_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIBVOX     := $(BUILD)/libvox.a
 # ... and a shared library of the same sources built position-independent
