@@ -1,8 +1,9 @@
 /* vox_mpi's own: the messages between ranks, the context every rank
  * shares, and the calls its files share (vox_mpi.c: main and each rank's
- * run; vox_mpi_slave.c: a rank working on subtrees; vox_mpi_serve.c: rank
- * 0 handing them out and writing the file; vox_mpi_prep.c: rank 0's
- * options, plan and cut).  Only these files call MPI. */
+ * run; vox_mpi_msg.c: messages on stderr and between ranks;
+ * vox_mpi_slave.c: a rank working on subtrees; vox_mpi_serve.c: rank 0
+ * handing them out and writing the file; vox_mpi_prep.c: rank 0's options,
+ * plan and cut).  Only these files call MPI. */
 #ifndef VOX_MPI_H
 #define VOX_MPI_H
 
@@ -144,7 +145,7 @@ typedef struct {
     int fd;
 } prep;
 
-/* vox_mpi.c */
+/* vox_mpi_msg.c */
 void mpi_msg(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 void mpi_wait_msg(MPI_Comm c, int src, int tag, MPI_Status *st);
 void *mpi_recv_msg(const mpi_ctx *ctx, MPI_Comm c, MPI_Status *st, int *n);
