@@ -97,10 +97,10 @@ LDFLAGS += $(filter -fsanitize=%,$(OPT))
 LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 
 LIB_SRC ?= $(wildcard $(MODULES:%=%/*.c))
-LIB_SRC := $(filter-out client/vox.c server/voxd.c mpi/vox_mpi.c,$(LIB_SRC))
+LIB_SRC := $(filter-out client/vox.c server/voxd.c mpi/vox_mpi%.c,$(LIB_SRC))
 # libvox, the client library: only what a client needs (vox.h, framing,
 # the protocol), an archive of its own with a pkg-config file.
-LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c
+LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c common/err.c
 LIBVOX_OBJ = $(LIBVOX_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIBVOX     := $(BUILD)/libvox.a
 # ... and a shared library of the same sources built position-independent
@@ -189,13 +189,14 @@ $(BUILD)/tests/vdb_dump: tests/integration/vdb_dump.cc
 $(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
 
-# vox_mpi (docs/mpi.md): the one file that calls MPI, built with mpicc's
-# flags (asked when used: make deps installs mpicc first); MPI's headers
-# as system headers, out of our warnings.
+# vox_mpi (docs/mpi.md): the files that call MPI (mpi/vox_mpi*.c), built
+# with mpicc's flags (asked when used: make deps installs mpicc first);
+# MPI's headers as system headers, out of our warnings.
 MPI_CFLAGS = $(addprefix -isystem ,$(shell mpicc --showme:incdirs))
 MPI_LIBS   = $(shell mpicc --showme:link)
-$(BUILD)/mpi/vox_mpi.o: CFLAGS += $(MPI_CFLAGS)
-$(BUILD)/vox_mpi: $(BUILD)/mpi/vox_mpi.o $(LIB)
+MPI_OBJ   := $(patsubst %.c,$(BUILD)/%.o,$(wildcard mpi/vox_mpi*.c))
+$(MPI_OBJ): CFLAGS += $(MPI_CFLAGS)
+$(BUILD)/vox_mpi: $(MPI_OBJ) $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS) $(MPI_LIBS)
 
 $(BUILD)/voxbench: bench/voxbench.c $(LIB)
@@ -292,7 +293,7 @@ bench-compare: deps all
 clean:
 	rm -rf build
 
--include $(LIB_OBJ:.o=.d) $(LIBVOX_PIC:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(BUILD)/mpi/vox_mpi.d $(BUILD)/client/vdb_out.d
+-include $(LIB_OBJ:.o=.d) $(LIBVOX_PIC:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(MPI_OBJ:.o=.d) $(BUILD)/client/vdb_out.d
 
 # ---------------------------------------------------------------- install
 # make install [PREFIX=/usr/local] [DESTDIR=]: vox and vox_mpi in PREFIX/bin; voxd, a

@@ -126,15 +126,11 @@ static int read_thread(int pid, int tid, char *state, unsigned long long *run)
 {
     char path[96], buf[512];
     snprintf(path, sizeof path, "/proc/%d/task/%d/stat", pid, tid);
+    const char *p = proc_stat_fields(path, buf, sizeof buf);
+    if (!p || sscanf(p, " %c", state) != 1) return -1;
+    snprintf(path, sizeof path, "/proc/%d/task/%d/schedstat", pid, tid);
     FILE *f = fopen(path, "r");
     if (!f) return -1;
-    size_t n = fread(buf, 1, sizeof buf - 1, f);
-    fclose(f);
-    buf[n] = '\0';
-    char *p = strrchr(buf, ')');
-    if (!p || sscanf(p + 1, " %c", state) != 1) return -1;
-    snprintf(path, sizeof path, "/proc/%d/task/%d/schedstat", pid, tid);
-    if (!(f = fopen(path, "r"))) return -1;
     int k = fscanf(f, "%llu", run);
     fclose(f);
     return k == 1 ? 0 : -1;

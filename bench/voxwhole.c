@@ -69,15 +69,10 @@ static int read_ppid(int pid)
 {
     char path[64], buf[512];
     snprintf(path, sizeof path, "/proc/%d/stat", pid);
-    FILE *f = fopen(path, "r");
-    if (!f) return -1;
-    size_t n = fread(buf, 1, sizeof buf - 1, f);
-    fclose(f);
-    buf[n] = '\0';
-    char *p = strrchr(buf, ')');
+    const char *p = proc_stat_fields(path, buf, sizeof buf);
     char state;
     int ppid;
-    if (!p || sscanf(p + 1, " %c %d", &state, &ppid) != 2) return -1;
+    if (!p || sscanf(p, " %c %d", &state, &ppid) != 2) return -1;
     return ppid;
 }
 

@@ -8,18 +8,13 @@
 #include <stdio.h>
 
 #include "engine.h"
+#include "exit_status.h"
 #include "mesh_vox.h"
 #include "source.h"
 #include "vod.h"
 #include "vox.h"
 
-/* The exit status of every command (docs/cli.md, "Exit status"). */
-typedef enum {
-    CLI_EXIT_OK = 0,
-    CLI_EXIT_FAILED = 1,    /* the job (or the request) failed */
-    CLI_EXIT_USAGE = 2,     /* bad usage, a bad expression or input file */
-    CLI_EXIT_NO_DAEMON = 3, /* no voxd answering on the socket */
-} cli_exit;
+/* The exit status of every command: cli_exit, CLI_EXIT_* (exit_status.h). */
 
 /* sock: the daemon's socket (vox --socket, $VOXD_SOCKET, the default). */
 int cli_voxelize(int argc, char **argv, const char *sock);

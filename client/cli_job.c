@@ -364,7 +364,7 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
             o->mode = m;
             break;
         }
-        case 'h': cli_job_usage(cmd, stdout); exit(0);
+        case 'h': cli_job_usage(cmd, stdout); exit(CLI_EXIT_OK);
         case 'm': o->mesh = optarg; break;
         case 'G': o->csg = optarg; break;
         case 'O': case 'R': case 'K': case 'N': case 'A': case 'X': case 'W':

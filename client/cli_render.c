@@ -67,7 +67,7 @@ static int parse_render_args(int argc, char **argv, render_opts *o,
         case 'A': bad = parse_double(optarg, 0, 1, &o->ambient); break;
         case 'W': o->fit_volume = 1; break;
         case 'S': *smooth = 1; break;
-        case 'h': fputs(usage, stdout); exit(0);
+        case 'h': fputs(usage, stdout); exit(CLI_EXIT_OK);
         default: return -1;
         }
         if (bad) {

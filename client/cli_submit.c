@@ -417,7 +417,7 @@ static int no_options(const char *cmd, int argc, char **argv, const char *usage)
     while ((c = cli_getopt(cmd, argc, argv, "h", longs)) != -1) {
         if (c == 'h') {
             fputs(usage, stdout);
-            exit(0);
+            exit(CLI_EXIT_OK);
         }
         return CLI_EXIT_USAGE;
     }

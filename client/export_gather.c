@@ -40,66 +40,87 @@ static void row(const vod_info *in, const uint8_t *raw, size_t src, uint32_t n, 
     for (; x < n; x++) out[x] = voxel_u8(in, raw, src + x);
 }
 
-void export_gather(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
-                   uint8_t *out)
+/* What one brick's part of a box goes to: the box and its output. */
+typedef struct {
+    const export_box *b;
+    const uint32_t *lo;
+    uint32_t B, w, h;     /* the brick's side; the box's width and height */
+    void *out;
+    int comps;            /* export_gather_normals' */
+} gather;
+
+/* Every brick of the box lo..hi that the file holds (an empty one holds
+ * 0s, which out starts with), its part of the box s..e to fn. */
+static void each_brick(gather *g, const uint32_t hi[3],
+                       void (*fn)(const gather *g, const uint8_t *raw, const uint32_t s[3],
+                                  const uint32_t e[3]))
 {
-    uint32_t B = b->in->brick, w = hi[0] - lo[0], h = hi[1] - lo[1];
-    memset(out, 0, (size_t)w * h * (hi[2] - lo[2]));
+    const uint32_t *lo = g->lo, B = g->B;
     uint32_t bk[3];
     for (bk[2] = lo[2] / B; bk[2] * B < hi[2]; bk[2]++)
         for (bk[1] = lo[1] / B; bk[1] * B < hi[1]; bk[1]++)
             for (bk[0] = lo[0] / B; bk[0] * B < hi[0]; bk[0]++) {
-                const uint8_t *raw = vod_brick(b->f, b->level, bk);
+                const uint8_t *raw = vod_brick(g->b->f, g->b->level, bk);
                 if (!raw) continue;
                 uint32_t s[3], e[3];
                 for (int a = 0; a < 3; a++) {
                     s[a] = bk[a] * B > lo[a] ? bk[a] * B : lo[a];
                     e[a] = (bk[a] + 1) * B < hi[a] ? (bk[a] + 1) * B : hi[a];
                 }
-                for (uint32_t z = s[2]; z < e[2]; z++)
-                    for (uint32_t y = s[1]; y < e[1]; y++) {
-                        size_t src = ((size_t)(z % B) * B + y % B) * B + s[0] % B;
-                        size_t dst = ((size_t)(z - lo[2]) * h + (y - lo[1])) * w + s[0] - lo[0];
-                        row(b->in, raw, src, e[0] - s[0], out + dst);
-                    }
+                fn(g, raw, s, e);
+            }
+}
+
+static void gather_values(const gather *g, const uint8_t *raw, const uint32_t s[3],
+                          const uint32_t e[3])
+{
+    const uint32_t *lo = g->lo, B = g->B;
+    for (uint32_t z = s[2]; z < e[2]; z++)
+        for (uint32_t y = s[1]; y < e[1]; y++) {
+            size_t src = ((size_t)(z % B) * B + y % B) * B + s[0] % B;
+            size_t dst = ((size_t)(z - lo[2]) * g->h + (y - lo[1])) * g->w + s[0] - lo[0];
+            row(g->b->in, raw, src, e[0] - s[0], (uint8_t *)g->out + dst);
+        }
+}
+
+void export_gather(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
+                   uint8_t *out)
+{
+    gather g = {b, lo, b->in->brick, hi[0] - lo[0], hi[1] - lo[1], out, 0};
+    memset(out, 0, (size_t)g.w * g.h * (hi[2] - lo[2]));
+    each_brick(&g, hi, gather_values);
+}
+
+static void gather_normals(const gather *g, const uint8_t *raw, const uint32_t s[3],
+                           const uint32_t e[3])
+{
+    const uint32_t *lo = g->lo, B = g->B;
+    for (uint32_t z = s[2]; z < e[2]; z++)
+        for (uint32_t y = s[1]; y < e[1]; y++)
+            for (uint32_t x = s[0]; x < e[0]; x++) {
+                size_t i = ((size_t)(z % B) * B + y % B) * B + x % B;
+                size_t o = ((size_t)(z - lo[2]) * g->h + (y - lo[1])) * g->w + x - lo[0];
+                uint32_t v;
+                memcpy(&v, raw + 4 * i, 4); /* little-endian bricks */
+                if (g->b->distance) { /* channel 4: the float itself */
+                    memcpy((float *)g->out + o, &v, 4);
+                    continue;
+                }
+                if (!voxel_occupancy(v)) continue;
+                double n[3];
+                voxel_unpack_normal(v, n);
+                float *p = (float *)g->out + o * g->comps;
+                if (g->comps == 4) *p++ = (float)voxel_occupancy(v);
+                for (int a = 0; a < 3; a++) p[a] = (float)n[a];
             }
 }
 
 void export_gather_normals(const export_box *b, const uint32_t lo[3], const uint32_t hi[3],
                            float *out, int comps)
 {
-    uint32_t B = b->in->brick, w = hi[0] - lo[0], h = hi[1] - lo[1];
-    memset(out, 0, (size_t)w * h * (hi[2] - lo[2]) * comps * sizeof(float));
-    uint32_t bk[3];
-    for (bk[2] = lo[2] / B; bk[2] * B < hi[2]; bk[2]++)
-        for (bk[1] = lo[1] / B; bk[1] * B < hi[1]; bk[1]++)
-            for (bk[0] = lo[0] / B; bk[0] * B < hi[0]; bk[0]++) {
-                const uint8_t *raw = vod_brick(b->f, b->level, bk);
-                if (!raw) continue;
-                uint32_t s[3], e[3];
-                for (int a = 0; a < 3; a++) {
-                    s[a] = bk[a] * B > lo[a] ? bk[a] * B : lo[a];
-                    e[a] = (bk[a] + 1) * B < hi[a] ? (bk[a] + 1) * B : hi[a];
-                }
-                for (uint32_t z = s[2]; z < e[2]; z++)
-                    for (uint32_t y = s[1]; y < e[1]; y++)
-                        for (uint32_t x = s[0]; x < e[0]; x++) {
-                            size_t i = ((size_t)(z % B) * B + y % B) * B + x % B;
-                            size_t o = ((size_t)(z - lo[2]) * h + (y - lo[1])) * w + x - lo[0];
-                            uint32_t v;
-                            memcpy(&v, raw + 4 * i, 4); /* little-endian bricks */
-                            if (b->distance) {
-                                memcpy(out + o, &v, 4);
-                                continue;
-                            }
-                            if (!voxel_occupancy(v)) continue;
-                            double n[3];
-                            voxel_unpack_normal(v, n);
-                            float *p = out + o * comps;
-                            if (comps == 4) *p++ = (float)voxel_occupancy(v);
-                            for (int a = 0; a < 3; a++) p[a] = (float)n[a];
-                        }
-            }
+    gather g = {b, lo, b->in->brick, hi[0] - lo[0], hi[1] - lo[1], out, comps};
+    memset(out, 0, (size_t)g.w * g.h * (hi[2] - lo[2]) * comps * sizeof(float));
+    each_brick(&g, hi, gather_normals);
 }
 
 double export_band_width(const vod_info *in, unsigned *band)

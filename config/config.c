@@ -11,6 +11,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "err.h"
 #include "expr.h"
 #include "frame.h"
 #include "log.h"
@@ -102,20 +103,8 @@ void config_defaults(voxd_config *c)
 
 /* ---------------------------------------------------------------- values */
 
-/* Why a value was refused, filled by the parsers below. */
-typedef struct {
-    char why[256];
-} reason;
-
-__attribute__((format(printf, 2, 3)))
-static int refuse(reason *r, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(r->why, sizeof r->why, fmt, ap);
-    va_end(ap);
-    return -EINVAL;
-}
+/* Why a value was refused, filled by the parsers below (err_set, -EINVAL). */
+typedef err_info reason;
 
 /* A value of the file in a message: at most SHOWN_MAX bytes of it, then
  * "...", so that no error line runs long whatever the file holds. */
@@ -182,7 +171,7 @@ static int out_of_range(const option *o, const char *val, reason *r)
         snprintf(lo, sizeof lo, "%llu", (unsigned long long)o->min);
         snprintf(hi, sizeof hi, "%llu", (unsigned long long)o->max);
     }
-    return refuse(r, "%s %.*s%s is out of range (%s to %s%s)", o->key, SHOWN(val), lo, hi,
+    return err_set(r, -EINVAL, "%s %.*s%s is out of range (%s to %s%s)", o->key, SHOWN(val), lo, hi,
                   o->kind == K_SECONDS ? " seconds" : "");
 }
 
@@ -195,7 +184,7 @@ static int parse_number(const option *o, const char *val, uint64_t *out, reason 
     if (rc == -ERANGE) return out_of_range(o, val, r);
     if (rc == 0 && *p && !p[1] && (unit = unit_of(o, *p))) p++;
     if (rc || *p)
-        return refuse(r, "bad value '%.*s%s' for %s: want %s", SHOWN(val), o->key,
+        return err_set(r, -EINVAL, "bad value '%.*s%s' for %s: want %s", SHOWN(val), o->key,
                       o->kind == K_BYTES      ? "a size like 65536, 256K, 2G"
                       : o->kind == K_MEMORY  ? "auto or a size like 512M, 8G"
                       : o->kind == K_SECONDS ? "a duration like 600, 10m, 2h"
@@ -215,9 +204,9 @@ static void store_uint(void *field, size_t size, uint64_t v)
 static int parse_path(const option *o, const char *val, char *field, reason *r)
 {
     if (val[0] != '/')
-        return refuse(r, "%s must be an absolute path, got '%.*s%s'", o->key, SHOWN(val));
+        return err_set(r, -EINVAL, "%s must be an absolute path, got '%.*s%s'", o->key, SHOWN(val));
     if (strlen(val) >= o->size)
-        return refuse(r, "%s is longer than %zu bytes", o->key, o->size - 1);
+        return err_set(r, -EINVAL, "%s is longer than %zu bytes", o->key, o->size - 1);
     memcpy(field, val, strlen(val) + 1);
     return 0;
 }
@@ -227,10 +216,10 @@ static int parse_text(const option *o, const char *val, char *field, reason *r)
 {
     if (strcmp(val, "none") == 0) val = "";
     if (strlen(val) >= o->size)
-        return refuse(r, "%s is longer than %zu bytes", o->key, o->size - 1);
+        return err_set(r, -EINVAL, "%s is longer than %zu bytes", o->key, o->size - 1);
     for (const char *p = val; *p; p++)
         if (!isprint((unsigned char)*p) && *p != '\t')
-            return refuse(r, "%s contains a control character", o->key);
+            return err_set(r, -EINVAL, "%s contains a control character", o->key);
     memcpy(field, val, strlen(val) + 1);
     return 0;
 }
@@ -239,11 +228,11 @@ static int parse_mode(const option *o, const char *val, unsigned *mode, reason *
 {
     size_t n = strlen(val);
     if (n == 0 || n > 6 || strspn(val, "01234567") != n)
-        return refuse(r, "bad value '%.*s%s' for %s: want octal permissions like 0660", SHOWN(val),
+        return err_set(r, -EINVAL, "bad value '%.*s%s' for %s: want octal permissions like 0660", SHOWN(val),
                       o->key);
     unsigned long m = strtoul(val, NULL, 8);
     if (m > o->max)
-        return refuse(r, "%s %.*s%s is out of range (0 to 0777)", o->key, SHOWN(val));
+        return err_set(r, -EINVAL, "%s %.*s%s is out of range (0 to 0777)", o->key, SHOWN(val));
     *mode = (unsigned)m;
     return 0;
 }
@@ -256,17 +245,17 @@ static int parse_group(const char *val, voxd_config *c, reason *r)
         return 0;
     }
     if (strlen(val) >= sizeof c->socket_group)
-        return refuse(r, "socket_group '%.*s%s' is too long", SHOWN(val));
+        return err_set(r, -EINVAL, "socket_group '%.*s%s' is too long", SHOWN(val));
     const char *p = val;
     uint64_t gid;
     if (parse_digits(&p, &gid) == 0 && !*p) {
-        if (gid >= (gid_t)-1) return refuse(r, "socket_group %.*s%s is out of range", SHOWN(val));
+        if (gid >= (gid_t)-1) return err_set(r, -EINVAL, "socket_group %.*s%s is out of range", SHOWN(val));
         c->socket_gid = (gid_t)gid;
     } else {
         struct group gr, *res = NULL;
         char buf[4096];
         if (getgrnam_r(val, &gr, buf, sizeof buf, &res) != 0 || !res)
-            return refuse(r, "unknown group '%s' for socket_group", val);
+            return err_set(r, -EINVAL, "unknown group '%s' for socket_group", val);
         c->socket_gid = gr.gr_gid;
     }
     c->has_socket_group = 1;
@@ -283,7 +272,7 @@ static int for_each_item(const char *val, reason *r, voxd_config *c,
     const char *p = val;
     while (*p) {
         size_t n = strcspn(p, ", \t");
-        if (n >= sizeof item) return refuse(r, "list item '%.32s...' is too long", p);
+        if (n >= sizeof item) return err_set(r, -EINVAL, "list item '%.32s...' is too long", p);
         if (n) {
             memcpy(item, p, n);
             item[n] = '\0';
@@ -301,14 +290,14 @@ static int add_uid(const char *item, voxd_config *c, reason *r)
     const char *p = item;
     uint64_t uid;
     if (c->n_allow_uids == CONFIG_MAX_UIDS)
-        return refuse(r, "allow_uids lists more than %d users", CONFIG_MAX_UIDS);
+        return err_set(r, -EINVAL, "allow_uids lists more than %d users", CONFIG_MAX_UIDS);
     if (parse_digits(&p, &uid) == 0 && !*p) {
-        if (uid >= (uid_t)-1) return refuse(r, "allow_uids: uid %.*s%s is out of range", SHOWN(item));
+        if (uid >= (uid_t)-1) return err_set(r, -EINVAL, "allow_uids: uid %.*s%s is out of range", SHOWN(item));
     } else {
         struct passwd pw, *res = NULL;
         char buf[4096];
         if (getpwnam_r(item, &pw, buf, sizeof buf, &res) != 0 || !res)
-            return refuse(r, "allow_uids: unknown user '%.*s%s'", SHOWN(item));
+            return err_set(r, -EINVAL, "allow_uids: unknown user '%.*s%s'", SHOWN(item));
         uid = pw.pw_uid;
     }
     c->allow_uids[c->n_allow_uids++] = (uid_t)uid;
@@ -335,16 +324,16 @@ static int add_cpus(const char *item, voxd_config *c, reason *r)
     }
     if (*p || lo > hi) goto bad;
     if (hi >= CONFIG_MAX_CPUS)
-        return refuse(r, "cpus: CPU %llu is out of range (0 to %d)",
+        return err_set(r, -EINVAL, "cpus: CPU %llu is out of range (0 to %d)",
                       (unsigned long long)hi, CONFIG_MAX_CPUS - 1);
     for (uint64_t cpu = lo; cpu <= hi; cpu++) {
         if (c->n_cpus == CONFIG_MAX_CPUS)
-            return refuse(r, "cpus lists more than %d CPUs", CONFIG_MAX_CPUS);
+            return err_set(r, -EINVAL, "cpus lists more than %d CPUs", CONFIG_MAX_CPUS);
         c->cpus[c->n_cpus++] = (int)cpu;
     }
     return 0;
 bad:
-    return refuse(r, "bad value '%.*s%s' in cpus: want a CPU like 3 or a range like 0-3", SHOWN(item));
+    return err_set(r, -EINVAL, "bad value '%.*s%s' in cpus: want a CPU like 3 or a range like 0-3", SHOWN(item));
 }
 
 static int parse_cpus(const char *val, voxd_config *c, reason *r)
@@ -368,7 +357,7 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
     case K_CPUS: return parse_cpus(val, c, r);
     case K_LEVEL:
         if ((rc = log_level_parse(val)) < 0)
-            return refuse(r, "bad value '%.*s%s' for log_level: want error, warn, info or debug",
+            return err_set(r, -EINVAL, "bad value '%.*s%s' for log_level: want error, warn, info or debug",
                           SHOWN(val));
         c->log_level = rc;
         return 0;
@@ -378,7 +367,7 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
             return 0;
         }
         if (!isdigit((unsigned char)val[0]))
-            return refuse(r, "bad value '%.*s%s' for workers: want auto or 1 to %d", SHOWN(val),
+            return err_set(r, -EINVAL, "bad value '%.*s%s' for workers: want auto or 1 to %d", SHOWN(val),
                           CONFIG_MAX_WORKERS);
         if ((rc = parse_number(o, val, &v, r))) return rc;
         c->workers = (int)v;
@@ -389,7 +378,7 @@ static int parse_value(const option *o, const char *val, voxd_config *c, reason 
             return 0;
         }
         if (!isdigit((unsigned char)val[0]))
-            return refuse(r, "bad value '%.*s%s' for %s: want auto or %llu to %llu", SHOWN(val),
+            return err_set(r, -EINVAL, "bad value '%.*s%s' for %s: want auto or %llu to %llu", SHOWN(val),
                           o->key, (unsigned long long)o->min, (unsigned long long)o->max);
         if ((rc = parse_number(o, val, &v, r))) return rc;
         store_uint(field, o->size, v);
@@ -422,11 +411,10 @@ static int fail_at(parser *p, int line, const char *fmt, ...)
     char why[512];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(why, sizeof why, fmt, ap);
+    err_vfmt(why, sizeof why, -EINVAL, fmt, ap);
     va_end(ap);
-    if (line > 0) snprintf(p->err, p->errlen, "%s:%d: %s", p->name, line, why);
-    else snprintf(p->err, p->errlen, "%s: %s", p->name, why);
-    return -EINVAL;
+    if (line > 0) return err_fmt(p->err, p->errlen, -EINVAL, "%s:%d: %s", p->name, line, why);
+    return err_fmt(p->err, p->errlen, -EINVAL, "%s: %s", p->name, why);
 }
 
 static const option *find_option(const char *key, size_t len)
@@ -455,7 +443,7 @@ static int parse_line(parser *p, char *s, voxd_config *c)
                        p->set[i]);
     if (!*val) return fail_at(p, p->line, "'%s' needs a value", o->key);
     reason r;
-    if (parse_value(o, val, c, &r)) return fail_at(p, p->line, "%s", r.why);
+    if (parse_value(o, val, c, &r)) return fail_at(p, p->line, "%s", r.msg);
     p->set[i] = p->line;
     if (o->off == offsetof(voxd_config, shm_size)) c->shm_size_set = 1;
     return 0;
@@ -531,7 +519,7 @@ int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
     }
     if (rc == 0 && ferror(f)) {
         rc = errno ? -errno : -EIO;
-        snprintf(err, errlen, "%s: %s", name, strerror(-rc));
+        err_fmt(err, errlen, rc, "%s: %s", name, strerror(-rc));
     }
     if (rc == 0) rc = check_together(&p, tmp);
     if (rc == 0) *c = *tmp;
@@ -544,8 +532,7 @@ int config_load(const char *path, voxd_config *c, char *err, size_t errlen)
     FILE *f = fopen(path, "re");
     if (!f) {
         int rc = -errno;
-        snprintf(err, errlen, "%s: %s", path, strerror(errno));
-        return rc;
+        return err_fmt(err, errlen, rc, "%s: %s", path, strerror(-rc));
     }
     errno = 0;
     int rc = config_load_stream(f, path, c, err, errlen);

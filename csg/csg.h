@@ -17,6 +17,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "csg_limits.h"
 #include "expr.h"
 #include "grid.h"
 #include "vod_volume.h"
@@ -25,12 +26,9 @@
 #define CSG_S 127u
 #define CSG_H 255u
 
-#define CSG_MAX_NODES 256u       /* nodes in a tree */
+/* CSG_MAX_NODES, CSG_MAX_MORPH, CSG_MAX_MARGIN, CSG_NAME_MAX: csg_limits.h */
 #define CSG_MAX_DEPTH 64u        /* longest path from the result to a leaf */
 #define CSG_MAX_SOURCE 65536u    /* bytes of a .csg text */
-#define CSG_MAX_MORPH 16u        /* k of one erode / dilate */
-#define CSG_MAX_MARGIN 64u       /* sum of the k along any path */
-#define CSG_NAME_MAX 32u         /* bytes of a node name, NUL included */
 #define CSG_MAX_LEAF_FILE ((size_t)4 << 30) /* bytes of a mesh or vod leaf's file */
 #define CSG_VOLUME_BRICK 16u     /* storage brick of the result's vod_volume */
 #define CSG_IMPLICIT_RAMP 1.0    /* voxels from S to L (or H) of an implicit leaf */

@@ -16,6 +16,7 @@
 #include <string.h>
 
 #include "csg.h"
+#include "err.h"
 
 typedef struct {
     char name[CSG_NAME_MAX];
@@ -44,7 +45,7 @@ static int fail_at(parser *p, int rc, int line, int col, const char *node, const
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(p->err->msg, sizeof p->err->msg, fmt, ap);
+    err_vfmt(p->err->msg, sizeof p->err->msg, rc, fmt, ap);
     va_end(ap);
     p->err->line = line;
     p->err->col = col;
@@ -58,7 +59,7 @@ static int fail(parser *p, int rc, const char *fmt, ...)
     va_list ap;
     va_start(ap, fmt);
     char msg[sizeof p->err->msg];
-    vsnprintf(msg, sizeof msg, fmt, ap);
+    err_vfmt(msg, sizeof msg, rc, fmt, ap);
     va_end(ap);
     return fail_at(p, rc, p->cur->line, p->cur->col + (int)(p->pos - p->cur->start),
                    p->cur->name, "%s", msg);

@@ -21,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "err.h"
 #include "expr_impl.h"
 
 /* ---- arena: every node of a program lives here, freed at once ---- */
@@ -68,7 +69,7 @@ void expr_set_error(expr_error *err, int line, int col, const char *fmt, ...)
     err->line = line;
     err->col = col;
     va_start(ap, fmt);
-    vsnprintf(err->msg, sizeof err->msg, fmt, ap);
+    err_vfmt(err->msg, sizeof err->msg, -EINVAL, fmt, ap);
     va_end(ap);
 }
 

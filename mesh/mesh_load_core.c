@@ -10,6 +10,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "err.h"
 #include "mesh_load.h"
 
 /* ------------------------------------------------------------------ builder */
@@ -27,7 +28,7 @@ int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(b->err->msg, sizeof b->err->msg, fmt, ap);
+    err_vfmt(b->err->msg, sizeof b->err->msg, rc, fmt, ap);
     va_end(ap);
     b->err->line = b->err->offset = 0;
     if (at == MB_NOWHERE) return rc;

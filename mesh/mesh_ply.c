@@ -273,6 +273,29 @@ static int check_elements(ply *y, size_t avail)
     return rc ? rc : mb_reserve_triangles(b, face->count, face->at);
 }
 
+/* A face's fan, ASCII or binary: its first and latest vertex; from its
+ * third on, a triangle each (first, latest, this one). */
+typedef struct {
+    uint32_t first, prev;
+} fan;
+
+/* Vertex index v, the j-th of face item's list, read at at (a byte). */
+static int fan_add(ply *y, fan *f, uint64_t item, uint64_t j, int64_t v, uint64_t at)
+{
+    if (v < 0 || (uint64_t)v >= y->n_vertices)
+        return mb_fail(y->b, -EINVAL, at,
+                       "face %llu: vertex index %lld out of range (%llu vertices)",
+                       (unsigned long long)item, (long long)v,
+                       (unsigned long long)y->n_vertices);
+    if (j >= 2) {
+        int rc = mb_triangle(y->b, f->first, f->prev, (uint32_t)v, at);
+        if (rc) return rc;
+    }
+    if (j == 0) f->first = (uint32_t)v;
+    f->prev = (uint32_t)v;
+    return 0;
+}
+
 /* ------------------------------------------------------------------- ascii */
 
 static int ascii_error(ply *y, mtext *t, const ply_elem *e, uint64_t item, const char *what)
@@ -286,21 +309,14 @@ static int ascii_error(ply *y, mtext *t, const ply_elem *e, uint64_t item, const
 static int ascii_indices(ply *y, mtext *t, const ply_elem *e, uint64_t item, uint64_t cnt)
 {
     if (cnt < 3) return ascii_error(y, t, e, item, "has fewer than 3 vertices; at");
-    uint32_t first = 0, prev = 0;
+    fan f = {0, 0};
     for (uint64_t j = 0; j < cnt; j++) {
         mt_skip_space(t);
         int64_t v;
         if (mt_int(t, &v) || (t->p < t->end && !mt_space(*t->p)))
             return ascii_error(y, t, e, item, "a vertex index expected, found");
-        if (v < 0 || (uint64_t)v >= y->n_vertices)
-            return mb_fail(y->b, -EINVAL, mt_at(t), "face %llu: vertex index %lld out of range (%llu vertices)",
-                           (unsigned long long)item, (long long)v, (unsigned long long)y->n_vertices);
-        if (j >= 2) {
-            int rc = mb_triangle(y->b, first, prev, (uint32_t)v, mt_at(t));
-            if (rc) return rc;
-        }
-        if (j == 0) first = (uint32_t)v;
-        prev = (uint32_t)v;
+        int rc = fan_add(y, &f, item, j, v, mt_at(t));
+        if (rc) return rc;
     }
     return 0;
 }
@@ -435,20 +451,11 @@ static int binary_list(ply *y, bcur *c, const ply_elem *e, const ply_prop *p, ui
     if (cnt < 3)
         return mb_fail(y->b, -EINVAL, at, "face %llu has %lld vertices (at least 3)",
                        (unsigned long long)item, (long long)cnt);
-    uint32_t first = 0, prev = 0;
+    fan f = {0, 0};
     for (int64_t j = 0; j < cnt; j++, c->pos += is) {
         int64_t v = rd_int(c->base + c->pos, p->type, y->be);
-        if (v < 0 || (uint64_t)v >= y->n_vertices)
-            return mb_fail(y->b, -EINVAL, c->pos,
-                           "face %llu: vertex index %lld out of range (%llu vertices)",
-                           (unsigned long long)item, (long long)v,
-                           (unsigned long long)y->n_vertices);
-        if (j >= 2) {
-            int rc = mb_triangle(y->b, first, prev, (uint32_t)v, c->pos);
-            if (rc) return rc;
-        }
-        if (j == 0) first = (uint32_t)v;
-        prev = (uint32_t)v;
+        int rc = fan_add(y, &f, item, (uint64_t)j, v, c->pos);
+        if (rc) return rc;
     }
     return 0;
 }

@@ -7,6 +7,7 @@
 #include <string.h>
 #include <sys/mman.h>
 
+#include "err.h"
 #include "mpi_part.h"
 #include "subdiv.h"
 
@@ -143,14 +144,14 @@ static int on_engine(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *
     int rc = engine_task(j, o, &er);
     c->voxels = er.voxels;
     if (rc) {
-        snprintf(err, errlen, "voxelizing %s (%u,%u,%u) level %u: %s", task_noun(j), o.x,
+        err_fmt(err, errlen, rc, "voxelizing %s (%u,%u,%u) level %u: %s", task_noun(j), o.x,
                  o.y, o.z, o.level, er.error);
         engine_release(j->e);
         return rc;
     }
     engine_error ee;
     rc = engine_encode_bricks(j->e, &j->vod, hand_over, c, NULL, &ee);
-    if (rc) snprintf(err, errlen, "encoding the bricks of %s (%u,%u,%u) level %u: %s",
+    if (rc) err_fmt(err, errlen, rc, "encoding the bricks of %s (%u,%u,%u) level %u: %s",
                      task_noun(j), o.x, o.y, o.z, o.level, ee.message);
     engine_release(j->e);
     return rc;
@@ -186,7 +187,7 @@ static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_la
         }
         if (!rc) data[i] = same == i ? own[i] : data[same];
     }
-    if (rc) snprintf(err, errlen, "encoding a subtree's bricks: %s", strerror(-rc));
+    if (rc) err_fmt(err, errlen, rc, "encoding a subtree's bricks: %s", strerror(-rc));
     /* the nodes above the subtree: no bytes, and hand_over skips them */
     for (size_t i = 0; !rc && i < n; i++)
         if (!data[i]) data[i] = (const uint8_t *)"";
@@ -217,8 +218,7 @@ static int octree_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
     void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
     if (arena == MAP_FAILED) {
-        snprintf(err, errlen, "cannot map the octree: %s", strerror(errno));
-        return -ENOMEM;
+        return err_fmt(err, errlen, -ENOMEM, "cannot map the octree: %s", strerror(errno));
     }
     octree t;
     octree_init(&t, arena, SERIAL_CELLS, j->grid.depth);
@@ -231,7 +231,7 @@ static int octree_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
         rc = subdiv_subtree(&k, o, &sink);
         expr_vm_free(vm);
     }
-    if (rc) snprintf(err, errlen, "voxelizing octant (%u,%u,%u) level %u: %s", o.x, o.y,
+    if (rc) err_fmt(err, errlen, rc, "voxelizing octant (%u,%u,%u) level %u: %s", o.x, o.y,
                      o.z, o.level, rc == -ENOMEM ? "the octree outgrew its arena"
                                                  : strerror(-rc));
     c->voxels = t.voxels;
@@ -264,8 +264,7 @@ static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
         n += j->tree->node[i].kind == CSG_MESH || j->tree->node[i].kind == CSG_VOD;
     *bytes = one * n;
     if ((*arena = sparse_map(*bytes)) == MAP_FAILED) {
-        snprintf(err, errlen, "cannot map the leaves' volumes");
-        return -ENOMEM;
+        return err_fmt(err, errlen, -ENOMEM, "cannot map the leaves' volumes");
     }
     size_t used;
     return csg_leaves_build(j->tree, &j->grid, *arena, *bytes, leaves, &used, err, errlen);
@@ -285,7 +284,7 @@ static int csg_serial(const mpi_subtree_job *j, grid_octant o, vod_volume *vol, 
     if (!rc) {
         rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)leaves, vol,
                              j->vod.channel, lo, hi, &st);
-        if (rc) snprintf(err, errlen, "evaluating the tree: %s", strerror(-rc));
+        if (rc) err_fmt(err, errlen, rc, "evaluating the tree: %s", strerror(-rc));
     }
     c->voxels = st.solid_voxels;
     if (larena != MAP_FAILED) munmap(larena, lbytes);
@@ -304,9 +303,8 @@ static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
     size_t bytes = vod_volume_bytes(j->grid.res, bits, sbrick, UINT64_MAX);
     void *arena = sparse_map(bytes);
     if (arena == MAP_FAILED) {
-        snprintf(err, errlen, "cannot map a volume of %ux%ux%u", j->grid.res[0],
-                 j->grid.res[1], j->grid.res[2]);
-        return -ENOMEM;
+        return err_fmt(err, errlen, -ENOMEM, "cannot map a volume of %ux%ux%u", j->grid.res[0],
+                       j->grid.res[1], j->grid.res[2]);
     }
     vod_volume *vol;
     int rc = vod_volume_init(&vol, arena, bytes, j->grid.res, bits, sbrick);
@@ -316,7 +314,7 @@ static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
         mesh_tile_stats st = {0};
         rc = mesh_voxelize_tiles(j->mesh, &j->grid, &j->mesh_opts, tiles, vol, &st);
         c->voxels = st.voxels;
-        if (rc) snprintf(err, errlen, "voxelizing the mesh: %s", strerror(-rc));
+        if (rc) err_fmt(err, errlen, rc, "voxelizing the mesh: %s", strerror(-rc));
     } else if (!rc) {
         rc = csg_serial(j, o, vol, c, err, errlen);
     }

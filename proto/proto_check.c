@@ -8,6 +8,7 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "err.h"
 #include "frame.h"
 #include "job_meta.h"
 #include "voxel.h"
@@ -79,14 +80,15 @@ const char *proto_error_code_name(int code)
 __attribute__((format(printf, 3, 4)))
 static int bad(proto_error *e, Voxd__ErrorCode code, const char *fmt, ...)
 {
+    int rc = code == LIMIT ? -E2BIG : -EINVAL;
     if (e) {
         va_list ap;
         va_start(ap, fmt);
         e->code = code;
-        vsnprintf(e->msg, sizeof e->msg, fmt, ap);
+        err_vfmt(e->msg, sizeof e->msg, rc, fmt, ap);
         va_end(ap);
     }
-    return code == LIMIT ? -E2BIG : -EINVAL;
+    return rc;
 }
 
 static int ok(proto_error *e)

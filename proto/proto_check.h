@@ -20,6 +20,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "csg_limits.h"
 #include "vox_limits.h"
 #include "voxd.pb-c.h"
 
@@ -37,13 +38,13 @@
 #define PROTO_MIN_WELD 1e-30      /* Mesh.weld_eps: 0 or these (mesh.h's MESH_WELD_*) */
 #define PROTO_MAX_WELD 1e30
 #define PROTO_MAX_SUPERSAMPLE 8u
-/* A CSG tree's fixed bounds, the evaluator's own (csg/csg.h): nodes,
- * name bytes with the NUL, erode/dilate k, k summed along a path, and the
- * magnitude of a primitive's coordinates and sizes (world units). */
-#define PROTO_CSG_MAX_NODES 256u
-#define PROTO_CSG_NAME_MAX 32u
-#define PROTO_CSG_MAX_MORPH 16u
-#define PROTO_CSG_MAX_MARGIN 64u
+/* A CSG tree's fixed bounds, the evaluator's own (common/csg_limits.h):
+ * nodes, name bytes with the NUL, erode/dilate k, k summed along a path;
+ * and the magnitude of a primitive's coordinates and sizes (world units). */
+#define PROTO_CSG_MAX_NODES CSG_MAX_NODES
+#define PROTO_CSG_NAME_MAX CSG_NAME_MAX
+#define PROTO_CSG_MAX_MORPH CSG_MAX_MORPH
+#define PROTO_CSG_MAX_MARGIN CSG_MAX_MARGIN
 #define PROTO_CSG_MAX_COORD 1e6
 
 /* The configurable limits (the table VOX_LIMITS): config_proto_limits()

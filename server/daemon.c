@@ -376,7 +376,7 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
         ready(d);
         uv_run(&loop, UV_RUN_DEFAULT);
     } else {
-        d->exit_code = 1;
+        d->exit_code = CLI_EXIT_FAILED;
     }
     vd_engine_stop(d);
     uv_walk(&loop, walk_close, NULL);

@@ -31,6 +31,7 @@
 
 #include "config.h"
 #include "engine.h"
+#include "exit_status.h"
 #include "frame.h"
 #include "grid.h"
 #include "log.h"
@@ -62,13 +63,16 @@ typedef struct {
  * list only (loop only) until the last byte, then queued. */
 enum vd_job_state { VD_QUEUED, VD_RUNNING, VD_DONE, VD_DELIVERING, VD_UPLOADING };
 
+/* How the daemon is stopping: a graceful stop lets the jobs finish. */
+enum vd_stop { VD_STOP_NONE, VD_STOP_GRACEFUL, VD_STOP_FAST };
+
 struct vd_job {
     uint64_t id;
     uid_t uid;
     vd_client *client;         /* NULL once the client is gone (loop only) */
     vd_job *next;              /* queue / done list (under mu) */
     vd_job *cnext;             /* the client's jobs (loop only) */
-    int state;                 /* enum vd_job_state (under mu) */
+    enum vd_job_state state;   /* under mu */
 
     /* the request, copied and checked */
     int kind;                  /* pipeline_kind: PIPELINE_IMPLICIT, _MESH or _CSG */
@@ -170,7 +174,7 @@ typedef struct {
     int cpu;
     uint64_t jobs;
     double vps;
-    int state;                 /* engine_worker_state */
+    engine_worker_state state;
     uint32_t replaced, stalls, unanswered; /* engine_worker_info's */
 } vd_worker_snap;
 
@@ -196,9 +200,9 @@ struct vd_daemon {
     uv_timer_t tick, stop_timer;
     uv_async_t wake;
     uv_check_t turn;           /* after every turn of the loop: time to exit? */
-    int stopping;              /* 0, VD_STOP_GRACEFUL, VD_STOP_FAST */
+    enum vd_stop stopping;     /* VD_STOP_NONE until a signal */
     int exiting;               /* handles are being closed */
-    int exit_code;
+    cli_exit exit_code;        /* vd_run's: CLI_EXIT_OK, or CLI_EXIT_FAILED at a failed start */
 
     vd_client *clients;
     unsigned nclients;         /* connections, the ones being refused included */
@@ -236,8 +240,6 @@ struct vd_daemon {
     struct { int level; char text[300]; } elog[VD_ELOG_LINES];
     unsigned elog_n, elog_dropped;
 };
-
-enum { VD_STOP_GRACEFUL = 1, VD_STOP_FAST = 2 };
 
 /* voxd.c: the whole server, from a loaded config to the end.  The caller
  * has opened the log, holds the lock and removed stale files.  Returns the

@@ -13,6 +13,7 @@
 
 #include "clock.h"
 #include "daemon.h"
+#include "err.h"
 #include "log.h"
 #include "pipeline.h"
 #include "proto_check.h"
@@ -464,7 +465,7 @@ static int upload_fail(vd_client *c, vd_job *j, int code, const char *fmt, ...)
     char msg[512];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
+    err_vfmt(msg, sizeof msg, 0, fmt, ap);
     va_end(ap);
     c->d->nuploading--;
     vd_job_fail(c->d, j, code, msg);
@@ -705,7 +706,7 @@ static void refuse(vd_client *c, int code, const char *fmt, ...)
     char why[256];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(why, sizeof why, fmt, ap);
+    err_vfmt(why, sizeof why, 0, fmt, ap);
     va_end(ap);
     vd_client_error(c, 0, code, "%s", why);
     vd_client_close_after_flush(c);

@@ -16,11 +16,6 @@
 #include "expr.h"
 #include "proto_check.h"
 
-_Static_assert(PROTO_CSG_MAX_NODES == CSG_MAX_NODES && PROTO_CSG_NAME_MAX == CSG_NAME_MAX &&
-                   PROTO_CSG_MAX_MORPH == CSG_MAX_MORPH &&
-                   PROTO_CSG_MAX_MARGIN == CSG_MAX_MARGIN,
-               "the protocol's CSG bounds are the evaluator's");
-
 static int kind_of(const Voxd__CsgNode *n, csg_kind *k)
 {
     static const csg_kind prims[] = {

@@ -13,6 +13,7 @@
 
 #include "clock.h"
 #include "daemon.h"
+#include "err.h"
 #include "expr.h"
 #include "log.h"
 #include "mesh.h"
@@ -225,7 +226,7 @@ __attribute__((format(printf, 3, 4))) static int job_error(vd_job *j, int code,
 {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(j->message, sizeof j->message, fmt, ap);
+    err_vfmt(j->message, sizeof j->message, 0, fmt, ap);
     va_end(ap);
     j->code = code;
     return -1;

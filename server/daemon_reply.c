@@ -6,6 +6,7 @@
 
 #include "clock.h"
 #include "daemon.h"
+#include "err.h"
 #include "pipeline.h"
 #include "proto_check.h"
 
@@ -20,7 +21,7 @@ int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ..
     char msg[PROTO_MAX_MESSAGE];
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(msg, sizeof msg, fmt, ap);
+    err_vfmt(msg, sizeof msg, 0, fmt, ap);
     va_end(ap);
     vd_clean_text(msg);
     Voxd__Error e = VOXD__ERROR__INIT;

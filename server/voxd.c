@@ -83,7 +83,7 @@ static int set_socket(voxd_args *a, const char *path)
     return 0;
 }
 
-/* "voxd: message; see 'voxd --help'": exit status 2. */
+/* "voxd: message; see 'voxd --help'": CLI_EXIT_USAGE. */
 __attribute__((format(printf, 1, 2))) static int usage_error(const char *fmt, ...)
 {
     char msg[512];
@@ -92,7 +92,7 @@ __attribute__((format(printf, 1, 2))) static int usage_error(const char *fmt, ..
     vsnprintf(msg, sizeof msg, fmt, ap);
     va_end(ap);
     fprintf(stderr, "voxd: %s; see 'voxd --help'\n", msg);
-    return 2;
+    return CLI_EXIT_USAGE;
 }
 
 /* getopt's '?' or ':' (it printed nothing: opterr is 0), in one line. */
@@ -139,14 +139,14 @@ static int parse_args(int argc, char **argv, voxd_args *a)
             if (set_socket(a, optarg)) {
                 fprintf(stderr, "voxd: socket path '%.*s%s' is too long (under %d bytes)\n",
                         ARG(optarg), CONFIG_SOCKET_MAX);
-                return 2;
+                return CLI_EXIT_USAGE;
             }
             break;
         case 'w':
             if (parse_uint(optarg, 1, CONFIG_MAX_WORKERS, &u)) {
                 fprintf(stderr, "voxd: bad --workers '%.*s%s': want 1..%d\n", ARG(optarg),
                         CONFIG_MAX_WORKERS);
-                return 2;
+                return CLI_EXIT_USAGE;
             }
             a->o.workers = (int)u;
             break;
@@ -154,7 +154,7 @@ static int parse_args(int argc, char **argv, voxd_args *a)
             if (parse_uint(optarg, 1, 86400, &u)) {
                 fprintf(stderr, "voxd: bad --client-timeout '%.*s%s': want seconds 1..86400\n",
                         ARG(optarg));
-                return 2;
+                return CLI_EXIT_USAGE;
             }
             a->o.client_timeout = u;
             break;
@@ -163,16 +163,16 @@ static int parse_args(int argc, char **argv, voxd_args *a)
                 fprintf(stderr,
                         "voxd: bad --worker-stall-timeout '%.*s%s': want seconds 0..3600\n",
                         ARG(optarg));
-                return 2;
+                return CLI_EXIT_USAGE;
             }
             a->o.stall_timeout = (int)u;
             break;
         case 'd': a->daemonize = 1; break;
         case 'C': a->check = optarg; break;
-        case 'h': fputs(usage, stdout); exit(0);
+        case 'h': fputs(usage, stdout); exit(CLI_EXIT_OK);
         case 'V':
             printf("voxd %s (commit %s, protocol 1)\n", VOX_VERSION, VOX_COMMIT);
-            exit(0);
+            exit(CLI_EXIT_OK);
         default: return option_error(c, argv, longs);
         }
     }
@@ -186,7 +186,7 @@ static int check_config(const char *path)
     char err[512];
     if (config_load(path, &c, err, sizeof err)) {
         fprintf(stderr, "voxd: %s\n", err);
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     config_print(stdout, &c);
     return 0;
@@ -269,7 +269,7 @@ static int detach(int *ready_fd)
         ssize_t r;
         do r = read(p[0], &b, 1);
         while (r < 0 && errno == EINTR);
-        _exit(r == 1 && b == '1' ? 0 : 1);
+        _exit(r == 1 && b == '1' ? CLI_EXIT_OK : CLI_EXIT_FAILED);
     }
     close(p[0]);
     setsid();
@@ -296,7 +296,7 @@ static int write_pidfile(const char *path)
 
 static int serve(const voxd_config *cfg, voxd_args *a)
 {
-    int lock = -1, rc = 1;
+    int lock = -1, rc = CLI_EXIT_FAILED;
     char shm[64];
     shm_name_for(cfg->socket, shm, sizeof shm);
     if (take_lock(cfg->socket, &lock) || remove_stale(cfg->socket, shm) ||
@@ -321,20 +321,20 @@ int main(int argc, char **argv)
     char err[512];
     if (vd_load_config(&a.o, &cfg, err, sizeof err)) {
         fprintf(stderr, "voxd: %s\n", err);
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     /* A client that goes away mid-write is an EPIPE, not a signal. */
     signal(SIGPIPE, SIG_IGN);
     log_set_detached(a.daemonize);
     if ((rc = log_open(cfg.log_file, "voxd", cfg.log_level))) {
         fprintf(stderr, "voxd: cannot open the log %s: %s\n", cfg.log_file, strerror(-rc));
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     if (a.daemonize && (rc = detach(&a.o.ready_fd))) {
         fprintf(stderr, "voxd: cannot detach: %s\n", strerror(-rc));
-        return 1;
+        return CLI_EXIT_FAILED;
     }
-    if (a.daemonize && chdir("/") != 0) return 1;
+    if (a.daemonize && chdir("/") != 0) return CLI_EXIT_FAILED;
     rc = serve(&cfg, &a);
     log_close();
     return rc;

@@ -22,6 +22,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
 #include "octree.h"
 
 #define VOD_FOURCC(a, b, c, d)                                                \
@@ -209,9 +210,9 @@ typedef struct {
 } vod_encoded;
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
-/* The writer's error: fmt into err (when err has room), rc returned. */
-__attribute__((format(printf, 4, 5)))
-int vod_fail(char *err, size_t errlen, int rc, const char *fmt, ...);
+/* err_fmt (common/err.h) under its old name, for master/'s callers until
+ * they call err_fmt; vod/ itself calls err_fmt. */
+#define vod_fail err_fmt
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
  * it and compress it into out, without looking for duplicates (the
  * encoder below does).  It uses an encoder kept per thread (see

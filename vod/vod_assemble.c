@@ -16,13 +16,13 @@
 
 #include <errno.h>
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <zlib.h>
 
 #include "clock.h"
+#include "err.h"
 #include "par.h"
 #include "voxel.h"
 
@@ -30,17 +30,6 @@
 #define CHUNK_BYTES (1u << 20) /* what one thread renders at a time */
 #define ASSEMBLE_THREADS 16u  /* more only wait on the sink and the memory */
 #define NO_CHUNK UINT64_MAX
-
-int vod_fail(char *err, size_t errlen, int rc, const char *fmt, ...)
-{
-    if (err && errlen) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err, errlen, fmt, ap);
-        va_end(ap);
-    }
-    return rc;
-}
 
 /* The file's layout: where each part starts, the unique bricks' offsets. */
 typedef struct {
@@ -392,7 +381,7 @@ static void fill_stats(vod_stats *st, const vod_layout *L, const file_plan *f,
 static int too_big(char *err, size_t errlen, const vod_layout *L, const vod_params *p,
                    uint32_t unique)
 {
-    return vod_fail(err, errlen, -EFBIG,
+    return err_fmt(err, errlen, -EFBIG,
                 "the VOD file would pass 4 GiB, the limit of the format's 32-bit "
                 "offsets (%u unique bricks of %u^3 voxels); ask for %s",
                 unique, L->brick,
@@ -429,7 +418,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     double t0 = clock_now();
     int rc = check_inputs(L, p, n, nodes, recs, data);
     if (rc)
-        return vod_fail(err, errlen, rc, "bricks out of preorder or over their bound");
+        return err_fmt(err, errlen, rc, "bricks out of preorder or over their bound");
     uint32_t *ids = malloc((n + 1) * sizeof *ids);
     uint32_t *first = malloc((n + 1) * sizeof *first);
     file_plan f = {.nodes = nodes, .recs = recs, .data = data, .ids = ids,
@@ -437,7 +426,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
     rc = ids && first ? dedup(n, recs, data, ids, first, &f.u) : -ENOMEM;
     if (!rc && !(f.boff = malloc(((size_t)f.u + 1) * sizeof *f.boff))) rc = -ENOMEM;
     if (rc) {
-        vod_fail(err, errlen, rc, "out of memory for %zu bricks", n);
+        err_fmt(err, errlen, rc, "out of memory for %zu bricks", n);
     } else {
         plan_layout(&f, L);
         size_t meta = p->metadata ? strlen(p->metadata) : 0;

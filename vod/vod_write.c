@@ -17,6 +17,7 @@
 #include <xxhash.h>
 
 #include "clock.h"
+#include "err.h"
 #include "voxel.h"
 
 void vod_params_default(vod_params *p)
@@ -34,19 +35,19 @@ static int check_geometry(const vod_params *p, char *err, size_t errlen)
 {
     const uint32_t *v = p->volume;
     if (!v[0] || !v[1] || !v[2])
-        return vod_fail(err, errlen, -EINVAL,
+        return err_fmt(err, errlen, -EINVAL,
                     "volumeSize %ux%ux%u: each side must be at least 1", v[0],
                     v[1], v[2]);
     if (p->brick < 2 || p->brick > 256 || (p->brick & (p->brick - 1)))
-        return vod_fail(err, errlen, -EINVAL,
+        return err_fmt(err, errlen, -EINVAL,
                     "brickSize %u is not a power of two in 2..256", p->brick);
     for (int a = 0; a < 3; a++) {
         if (!isfinite(p->voxel_scale[a]) || !(p->voxel_scale[a] > 0.0f))
-            return vod_fail(err, errlen, -EINVAL,
+            return err_fmt(err, errlen, -EINVAL,
                         "voxelScale %g on axis %d must be finite and > 0",
                         (double)p->voxel_scale[a], a);
         if (!isfinite(p->origin[a]))
-            return vod_fail(err, errlen, -EINVAL, "origin on axis %d is not finite", a);
+            return err_fmt(err, errlen, -EINVAL, "origin on axis %d is not finite", a);
     }
     return 0;
 }
@@ -56,25 +57,25 @@ static int check_encoding(const vod_params *p, char *err, size_t errlen)
     char b[5];
     if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY &&
         p->channel != VOXEL_CH_DENSITY && p->channel != VOXEL_CH_DISTANCE)
-        return vod_fail(err, errlen, -EINVAL,
+        return err_fmt(err, errlen, -EINVAL,
                     "channel %d cannot be written (1 occupancy, 2 density, 3 "
                     "surface or 4 distance)",
                     p->channel);
     if (p->comp != VOD_COMP_NONE && p->comp != VOD_COMP_ZLIB &&
         p->comp != VOD_COMP_RUNL)
-        return vod_fail(err, errlen, -EINVAL,
+        return err_fmt(err, errlen, -EINVAL,
                     "compression '%s' unknown (NONE, ZLIB or RUNL)",
                     vod_fourcc_str(p->comp, b));
     if (p->comp == VOD_COMP_ZLIB &&
         (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX))
-        return vod_fail(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
+        return err_fmt(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
                     p->zlib_level, VOD_ZLIB_LEVEL_MAX);
     if (p->hash != VOD_HASH_SFHS && p->hash != VOD_HASH_XX32)
-        return vod_fail(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
+        return err_fmt(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
                     vod_fourcc_str(p->hash, b));
     size_t m = p->metadata ? strlen(p->metadata) : 0;
     if (m > VOD_MAX_METADATA)
-        return vod_fail(err, errlen, -EINVAL, "metadata of %zu bytes, more than %u",
+        return err_fmt(err, errlen, -EINVAL, "metadata of %zu bytes, more than %u",
                     m, VOD_MAX_METADATA);
     return 0;
 }
@@ -86,13 +87,13 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     if (rc == 0) rc = check_encoding(p, err, errlen);
     if (rc) return rc;
     if (octree_depth < 1 || octree_depth > OCTREE_MAX_DEPTH)
-        return vod_fail(err, errlen, -EINVAL, "octree depth %d outside 1..%d",
+        return err_fmt(err, errlen, -EINVAL, "octree depth %d outside 1..%d",
                     octree_depth, OCTREE_MAX_DEPTH);
     uint32_t maxv = p->volume[0];
     if (p->volume[1] > maxv) maxv = p->volume[1];
     if (p->volume[2] > maxv) maxv = p->volume[2];
     if (maxv > 1u << octree_depth)
-        return vod_fail(err, errlen, -EINVAL,
+        return err_fmt(err, errlen, -EINVAL,
                     "volume side %u exceeds the octree's %u voxels per axis",
                     maxv, 1u << octree_depth);
     memset(L, 0, sizeof *L);
@@ -111,7 +112,7 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     L->nodes = ((1ull << (3 * L->height)) - 1) / 7;
     L->octree_depth = octree_depth;
     if (VOD_HEADER_BYTES + L->nodes * 4 + 4 > UINT32_MAX)
-        return vod_fail(err, errlen, -EFBIG,
+        return err_fmt(err, errlen, -EFBIG,
                     "octree table of %llu nodes (treeHeight %u) passes the 4 GiB "
                     "limit of VOD's u32 offsets; use a larger brick",
                     (unsigned long long)L->nodes, L->height);
@@ -145,13 +146,13 @@ int vod_check_source(const vod_source *s, const vod_params *p, char *err,
     uint32_t bad[3];
     char list[64];
     if (p->channel < 0 || p->channel > 31 || !(s->channels >> p->channel & 1u))
-        return vod_fail(err, errlen, -EINVAL,
+        return err_fmt(err, errlen, -EINVAL,
                     "channel %d cannot be written from the %s (it gives channel%s %s)",
                     p->channel, s->ops->name,
                     (s->channels & (s->channels - 1)) ? "s" : "",
                     channel_list(s->channels, list, sizeof list));
     if (!s->ops->outside(s, v, bad)) return 0;
-    return vod_fail(err, errlen, -EINVAL,
+    return err_fmt(err, errlen, -EINVAL,
                 "the %s holds a voxel at %u,%u,%u, outside volumeSize "
                 "%ux%ux%u (VOD padding must be 0)",
                 s->ops->name, bad[0], bad[1], bad[2], v[0], v[1], v[2]);
@@ -162,7 +163,7 @@ int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
 {
     int rc = s->ops->prepare(s, L, channel);
     if (rc)
-        return vod_fail(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
+        return err_fmt(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
                     s->ops->name, strerror(-rc));
     return 0;
 }
@@ -552,27 +553,39 @@ int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
 
 /* ---- all three phases ---- */
 
-/* Nodes i..i+count-1 of encode_all, encoded together into tmp (bound
- * bytes a brick) and appended to b. */
-static int encode_some(vod_encoder *e, const vod_source *s, const vod_node *nodes,
-                       size_t i, size_t count, uint8_t *tmp, size_t bound,
-                       vod_encoded *recs, size_t *off, vod_membuf *b)
+/* What encode_all encodes with: the encoder, the source, the nodes, a
+ * batch's room (bound bytes a brick), and where the records, their
+ * offsets and their bytes go. */
+typedef struct {
+    vod_encoder *e;
+    const vod_source *s;
+    const vod_node *nodes;
+    uint8_t *tmp;
+    size_t bound;
+    vod_encoded *recs;
+    size_t *off;
+    vod_membuf *b;
+} encode_job;
+
+/* Nodes i..i+count-1 of encode_all, encoded together into j->tmp and
+ * appended to j->b. */
+static int encode_some(const encode_job *j, size_t i, size_t count)
 {
     uint8_t *out[VOD_ENCODE_BATCH];
     uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
     for (size_t k = 0; k < count; k++) {
-        out[k] = tmp + k * bound;
+        out[k] = j->tmp + k * j->bound;
         tag[k] = i + k;
     }
-    int rc = vod_encoder_put_batch(e, s, &nodes[i], tag, count, out, bound, &recs[i],
-                                   same);
+    int rc = vod_encoder_put_batch(j->e, j->s, &j->nodes[i], tag, count, out, j->bound,
+                                   &j->recs[i], same);
     for (size_t k = 0; k < count && !rc; k++) {
         if (same[k] != i + k) {
-            off[i + k] = off[same[k]];
+            j->off[i + k] = j->off[same[k]];
             continue;
         }
-        off[i + k] = b->n;
-        rc = vod_mem_write(b, out[k], recs[i + k].size);
+        j->off[i + k] = j->b->n;
+        rc = vod_mem_write(j->b, out[k], j->recs[i + k].size);
     }
     return rc;
 }
@@ -589,9 +602,10 @@ static int encode_all(const vod_source *s, const vod_layout *L,
     if (rc) return rc;
     uint8_t *tmp = malloc(VOD_ENCODE_BATCH * bound);
     rc = tmp ? 0 : -ENOMEM;
+    encode_job j = {e, s, nodes, tmp, bound, recs, off, b};
     for (size_t i = 0; i < n && !rc; i += VOD_ENCODE_BATCH) {
         size_t count = n - i < VOD_ENCODE_BATCH ? n - i : VOD_ENCODE_BATCH;
-        rc = encode_some(e, s, nodes, i, count, tmp, bound, recs, off, b);
+        rc = encode_some(&j, i, count);
     }
     vod_times et;
     vod_encoder_times(e, &et);
@@ -644,7 +658,7 @@ static int write_checked(vod_source *s, const vod_layout *L, const vod_params *p
     /* vod_assemble's own failures are said; the sink's and the encoder's
      * are not yet */
     if (rc && (!errlen || !err[0]))
-        return vod_fail(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
+        return err_fmt(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
     return rc;
 }
 
@@ -669,7 +683,7 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
     if (!t->agg) {
         own = t->agg = malloc((size_t)t->used * sizeof *t->agg);
         if (!own)
-            return vod_fail(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
+            return err_fmt(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
     }
     rc = write_checked(&s, &L, p, sink, st, err, errlen);
     if (own) {

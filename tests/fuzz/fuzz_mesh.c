@@ -10,27 +10,14 @@
 #include <string.h>
 
 #include "mesh.h"
+#include "mesh_check.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 static void check_mesh(const mesh *m, mesh_format f)
 {
-    if (m->n_triangles == 0 || m->n_vertices == 0) __builtin_trap();
+    mesh_check_promises(m);
     if (f != MESH_FORMAT_AUTO && m->format != f) __builtin_trap();
-    for (uint32_t i = 0; i < m->n_vertices; i++)
-        for (int k = 0; k < 3; k++)
-            if (!isfinite(m->vertices[i][k])) __builtin_trap();
-    for (uint32_t i = 0; i < m->n_triangles; i++) {
-        const uint32_t *t = m->triangles[i];
-        if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) __builtin_trap();
-        for (int k = 0; k < 3; k++) {
-            if (t[k] >= m->n_vertices) __builtin_trap();
-            for (int j = 0; j < 3; j++) {
-                float x = m->vertices[t[k]][j];
-                if (x < m->lo[j] || x > m->hi[j]) __builtin_trap();
-            }
-        }
-    }
     mesh_topo tp;
     if (mesh_topology(m, &tp)) return; /* out of memory: allowed */
     uint64_t uses = 3 * (uint64_t)m->n_triangles;

@@ -23,9 +23,9 @@ done
 # info's: the same solid (bench-export's, at its quick 96^3) counted by the
 # Python reader, and the sphere's volume in voxels, 4/3 pi (0.8 * 48)^3,
 # within the shell of half a voxel diagonal around its surface.
-# Debian's python3, which has python3-numpy (an earlier python3 on the PATH may not)
-PY=/usr/bin/python3
-[ -x "$PY" ] || PY=python3
+# a python3 with numpy (Debian's; an earlier python3 on the PATH may lack it):
+# without one, the count below fails with Python's message
+PY=$(python_with numpy) || PY=python3
 n=$(sed -n 's/^A sphere .*, \([0-9]*\) voxels set.*/\1/p' "$B")
 printf 's = ellipsoid radius 0.8\nresult s\n' >"$TMP/solid.csg"
 py=$("$VOX" csg "$TMP/solid.csg" -r 96 --channel occupancy -q -o "$TMP/o.vod" 2>&1 &&

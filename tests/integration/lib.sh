@@ -34,6 +34,21 @@ san_scan() {
     done
 }
 
+# python_with MODULE...: the first python3 (Debian's, with its python3-numpy
+# and python3-vtk9, then the PATH's) that imports every MODULE; fails, with
+# nothing printed, when none does.
+python_with() {
+    local p mods
+    mods=$(IFS=,; echo "$*")
+    for p in /usr/bin/python3 python3; do
+        if command -v "$p" >/dev/null && "$p" -c "import $mods" 2>/dev/null; then
+            echo "$p"
+            return 0
+        fi
+    done
+    return 1
+}
+
 pass() { echo "PASS: $1"; }
 fail() { echo "FAIL: $1"; [ -n "${2:-}" ] && printf '  %s\n' "$2"; }
 # check NAME COMMAND...: passes when the command succeeds with no sanitizer report

@@ -22,38 +22,12 @@
 #include "vod_volume.h"
 #include "voxel.h"
 
+#include "unit_util.h"
+
 /* ---------------------------------------------------------------- helpers */
 
-typedef struct {
-    uint8_t *p;
-    size_t n, cap;
-    int calls;
-} membuf;
-
-static int mem_write(void *ud, const void *buf, size_t n)
-{
-    membuf *m = ud;
-    m->calls++;
-    if (m->cap - m->n < n) {
-        size_t cap = m->cap ? m->cap : 4096;
-        while (cap - m->n < n) cap *= 2;
-        m->p = realloc(m->p, cap);
-        cr_assert(m->p);
-        m->cap = cap;
-    }
-    memcpy(m->p + m->n, buf, n);
-    m->n += n;
-    return 0;
-}
-
 static uint64_t rng_state = 88172645463325252ull;
-static uint32_t rnd(void)
-{
-    rng_state ^= rng_state << 13;
-    rng_state ^= rng_state >> 7;
-    rng_state ^= rng_state << 17;
-    return (uint32_t)(rng_state >> 16);
-}
+static uint32_t rnd(void) { return xorshift32(&rng_state); }
 
 /* An octree and a dense copy of its voxels over the octree's 2^depth cube. */
 typedef struct {

@@ -18,37 +18,10 @@
 #include "vod_volume.h"
 #include "voxel.h"
 
-typedef struct {
-    uint8_t *p;
-    size_t n, cap;
-    int calls, fail_at; /* fail_at > 0: that call fails with -EIO */
-} membuf;
-
-static int mem_write(void *ud, const void *buf, size_t n)
-{
-    membuf *m = ud;
-    if (++m->calls == m->fail_at) return -EIO;
-    cr_assert_eq(m->fail_at && m->calls > m->fail_at, 0, "a write after the failure");
-    if (m->cap - m->n < n) {
-        size_t cap = m->cap ? m->cap : 4096;
-        while (cap - m->n < n) cap *= 2;
-        m->p = realloc(m->p, cap);
-        cr_assert(m->p);
-        m->cap = cap;
-    }
-    memcpy(m->p + m->n, buf, n);
-    m->n += n;
-    return 0;
-}
+#include "unit_util.h"
 
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
-static uint32_t rnd(void)
-{
-    rng_state ^= rng_state << 13;
-    rng_state ^= rng_state >> 7;
-    rng_state ^= rng_state << 17;
-    return (uint32_t)(rng_state >> 16);
-}
+static uint32_t rnd(void) { return xorshift32(&rng_state); }
 
 /* ------------------------------------------- the reference, sequential */
 

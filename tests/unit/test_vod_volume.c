@@ -16,14 +16,10 @@
 #include "vod_volume.h"
 #include "voxel.h"
 
+#include "unit_util.h"
+
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
-static uint32_t rnd(void)
-{
-    rng_state ^= rng_state << 13;
-    rng_state ^= rng_state >> 7;
-    rng_state ^= rng_state << 17;
-    return (uint32_t)(rng_state >> 16);
-}
+static uint32_t rnd(void) { return xorshift32(&rng_state); }
 
 /* A volume and a dense copy of its voxels. */
 typedef struct {
