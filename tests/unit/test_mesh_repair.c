@@ -189,7 +189,7 @@ static void oracle_free(oracle_t *o)
 static uint8_t *voxelize(const mesh *m, const grid_spec *g, mesh_repair rep,
                          mesh_tile_stats *st)
 {
-    mesh_vox_opts o = {MESH_SOLID, rep, VOXEL_CH_OCCUPANCY, 0};
+    mesh_vox_opts o = {.mode = MESH_SOLID, .repair = rep, .channel = VOXEL_CH_OCCUPANCY};
     size_t bytes = vod_volume_bytes(g->res, 8, MESH_VOLUME_BRICK, UINT32_MAX);
     void *arena = malloc(bytes);
     vod_volume *v;
