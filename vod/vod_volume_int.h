@@ -1,0 +1,129 @@
+/* Internals of the brick-sparse volume shared by its two files:
+ * vod_volume.c (the store: layout, voxels, fills, bricks) and
+ * vod_volume_src.c (its mip levels and its VOD source).  The source
+ * side calls the store side, never the other way round. */
+#ifndef VOD_VOLUME_INT_H
+#define VOD_VOLUME_INT_H
+
+#include "vod_volume.h"
+
+#include <stdatomic.h>
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "octree.h"
+
+#define VOL_MAGIC 0x4c4f5656u /* "VVOL" */
+#define VOL_LEVELS (OCTREE_MAX_DEPTH + 1)
+#define ENTRY_UNIFORM 0x80000000u
+/* A float volume's uniform values with the top bit set (-w, the inside
+ * of a distance field beyond its band) have entries WIDE_BASE + i, their
+ * values in the header, added as the writers meet them. */
+#define WIDE_MAX 8u
+#define WIDE_BASE (ENTRY_UNIFORM - WIDE_MAX)
+#define POOL_MAX (WIDE_BASE - 2u) /* entries 1..WIDE_BASE-1 */
+
+struct vod_volume {
+    uint32_t magic;
+    uint32_t dims[3];
+    uint32_t bits, sbrick, slog2;
+    uint32_t f32; /* 1: IEEE binary32 voxels, channel 4 (VOD_VOLUME_F32) */
+    int depth;
+    uint32_t grid[VOL_LEVELS][3];
+    uint64_t table_off[VOL_LEVELS]; /* from the start of the arena */
+    uint64_t pool_off, brick_bytes;
+    uint32_t pool_cap;
+    /* Bricks taken from the pool, and of those the level-0 ones.  Atomic
+     * because vod_volume_put_brick() writers of different bricks run
+     * concurrently (relaxed: a brick's bytes and table entry are published
+     * to the readers by whatever ends the writers' phase, in the engine the
+     * worker's done_seq release, which the master's acquire pairs with). */
+    atomic_uint pool_used, pool_l0;
+    /* 1 once a level-0 brick with memory may hold only zeros (a zero
+     * written into one); while 0, such a brick is known to hold a voxel
+     * without a scan.  Set by concurrent put_brick writers too (relaxed:
+     * published like pool_used, by the end of the writers' phase). */
+    atomic_uint zero_bricks;
+    int mip_channel;
+    uint32_t mip_base;  /* pool_used before the mip levels were built */
+    /* Levels 1..low_levels of channel low_channel built by column
+     * (vod_volume_mip_columns) and declared complete: prepare() of that
+     * channel builds only the levels above.  Their bricks are mixed with
+     * level 0's in the pool, so nothing gives them back. */
+    int low_channel, low_levels;
+    /* The wide uniform values (WIDE_BASE).  A writer that needs a new one
+     * takes a slot (relaxed: slots are published to readers like the
+     * bricks, by the end of the writers' phase) and writes its value; two
+     * writers may take a slot each for one value, which costs a slot. */
+    atomic_uint wide_n;
+    uint32_t wide[WIDE_MAX];
+};
+
+static inline uint64_t align64(uint64_t v) { return (v + 63) & ~(uint64_t)63; }
+
+static inline bool is_uniform(uint32_t e) { return e >= WIDE_BASE; }
+
+static inline bool is_alloc(uint32_t e) { return e && !is_uniform(e); }
+
+/* The value of an entry without memory. */
+static inline uint32_t uval(const struct vod_volume *v, uint32_t e)
+{
+    return e >= ENTRY_UNIFORM ? e & ~ENTRY_UNIFORM : e >= WIDE_BASE ? v->wide[e - WIDE_BASE] : 0;
+}
+
+static inline uint64_t grid_bricks(const struct vod_volume *h, int l)
+{
+    return (uint64_t)h->grid[l][0] * h->grid[l][1] * h->grid[l][2];
+}
+
+static inline uint32_t *table(const vod_volume *v, int l)
+{
+    return (uint32_t *)((uint8_t *)v + v->table_off[l]);
+}
+
+/* The entry of brick b of level l; 0 (empty) outside the grid. */
+static inline uint32_t entry_at(const vod_volume *v, int l, const uint32_t b[3])
+{
+    const uint32_t *g = v->grid[l];
+    if (b[0] >= g[0] || b[1] >= g[1] || b[2] >= g[2]) return 0;
+    return table(v, l)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
+}
+
+static inline uint8_t *brick_data(const vod_volume *v, uint32_t e)
+{
+    return (uint8_t *)v + v->pool_off + (uint64_t)(e - 1) * v->brick_bytes;
+}
+
+static inline size_t vox_index(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
+{
+    return ((size_t)z * v->sbrick + y) * v->sbrick + x;
+}
+
+static inline uint32_t vox_get(const vod_volume *v, const uint8_t *d, size_t i)
+{
+    return v->bits == 8 ? d[i] : ((const uint32_t *)(const void *)d)[i];
+}
+
+static inline void vox_put(const vod_volume *v, uint8_t *d, size_t i, uint32_t val)
+{
+    if (v->bits == 8) d[i] = (uint8_t)val;
+    else ((uint32_t *)(void *)d)[i] = val;
+}
+
+/* The entry of value u without memory (0 for 0), or 0 when u cannot be
+ * one (the top bit set in an integer volume, or no wide slot left). */
+uint32_t vod_vol_uentry(struct vod_volume *v, uint32_t u);
+
+/* A new pool brick holding val everywhere (fill), or anything (the caller
+ * writes every voxel); its entry, or 0 when full. */
+uint32_t vod_vol_pool_take(vod_volume *v, uint32_t val, bool fill);
+
+/* Writing voxels makes the mip levels stale: give their bricks back. */
+void vod_vol_drop_mips(vod_volume *v);
+
+/* The value every voxel of the S^3 brick d holds, or -1 when they differ
+ * (or the one value cannot be a uniform entry). */
+int64_t vod_vol_uniform_value(const vod_volume *v, const uint8_t *d);
+
+#endif
