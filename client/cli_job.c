@@ -270,118 +270,131 @@ static int parse_level(int submit, const char *arg, vod_params *v)
     return 0;
 }
 
-int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
+/* The embedded engine's options and the mode switches are voxelize's. */
+static const struct option longs_voxelize[] = {
+    {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
+    {"domain", 1, 0, 'd'}, {"res", 1, 0, 'r'}, {"workers", 1, 0, 'w'},
+    {"cpus", 1, 0, 'P'}, {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
+    {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
+    {"shm-size", 1, 0, 'M'}, {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'},
+    {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {"compress-level", 1, 0, 'L'},
+    {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
+    {"supersample", 1, 0, 'K'}, {"band", 1, 0, 'N'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
+    {"weld", 1, 0, 'W'},
+    {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+static const struct option longs_submit[] = {
+    {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
+    {"domain", 1, 0, 'd'}, {"res", 1, 0, 'r'},
+    {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
+    {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
+    {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
+    {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
+    {"supersample", 1, 0, 'K'}, {"band", 1, 0, 'N'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
+    {"weld", 1, 0, 'W'},
+    {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'},
+    /* voxelize's, each refused with why (engine_option) */
+    {"workers", 1, 0, 'w'}, {"cpus", 1, 0, 'P'}, {"shm-size", 1, 0, 'M'},
+    {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {0, 0, 0, 0}};
+
+/* The options with a checked value: the domain, the resolution and the
+ * engine's numbers.  0, or CLI_EXIT_USAGE (said). */
+static int parse_value_option(int submit, int c, const char *arg, cli_job_opts *o)
 {
-    /* The embedded engine's options and the mode switches are voxelize's. */
-    static const struct option longs_voxelize[] = {
-        {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
-        {"domain", 1, 0, 'd'}, {"res", 1, 0, 'r'}, {"workers", 1, 0, 'w'},
-        {"cpus", 1, 0, 'P'}, {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
-        {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
-        {"shm-size", 1, 0, 'M'}, {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'},
-        {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {"compress-level", 1, 0, 'L'},
-        {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
-        {"supersample", 1, 0, 'K'}, {"band", 1, 0, 'N'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
-        {"weld", 1, 0, 'W'},
-        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
-    static const struct option longs_submit[] = {
-        {"expr", 1, 0, 'e'}, {"file", 1, 0, 'f'}, {"output", 1, 0, 'o'},
-        {"domain", 1, 0, 'd'}, {"res", 1, 0, 'r'},
-        {"schedule", 1, 0, 'S'}, {"channel", 1, 0, 'C'},
-        {"brick", 1, 0, 'B'}, {"compress", 1, 0, 'Z'}, {"hash", 1, 0, 'H'},
-        {"progress", 0, 0, 'p'}, {"quiet", 0, 0, 'q'}, {"compress-level", 1, 0, 'L'},
-        {"mesh", 1, 0, 'm'}, {"mode", 1, 0, 'O'}, {"repair", 1, 0, 'R'},
-        {"supersample", 1, 0, 'K'}, {"band", 1, 0, 'N'}, {"pad", 1, 0, 'A'}, {"bbox", 1, 0, 'X'},
-        {"weld", 1, 0, 'W'},
-        {"csg", 1, 0, 'G'}, {"help", 0, 0, 'h'},
-        /* voxelize's, each refused with why (engine_option) */
-        {"workers", 1, 0, 'w'}, {"cpus", 1, 0, 'P'}, {"shm-size", 1, 0, 'M'},
-        {"embedded", 0, 0, 'E'}, {"daemon", 0, 0, 'D'}, {0, 0, 0, 0}};
-    int submit = cmd == CLI_CMD_SUBMIT;
-    const char *name = submit ? "submit" : "voxelize";
-    int c;
-    optind = 1;
-    while ((c = cli_getopt(name, argc, argv, submit ? "e:f:o:d:r:w:qh" : "e:f:o:d:r:w:qh",
-                           submit ? longs_submit : longs_voxelize)) != -1) {
-        if (submit && strchr("wPMED", c)) return engine_option(c);
-        switch (c) {
-        case 'e': o->expr = optarg; break;
-        case 'f': o->file = optarg; break;
-        case 'o': o->out = optarg; break;
-        case 'd':
-            if (cli_parse_domain(optarg, o->lo, o->hi)) {
-                cli_error("bad --domain '%.40s': want A,B or X0,X1,Y0,Y1,Z0,Z1 with each low < high", optarg);
-                return CLI_EXIT_USAGE;
-            }
-            o->has_domain = 1;
-            break;
-        case 'r':
-            /* The embedded engine's limit is checked when it runs: the
-             * daemon has its own (max_res). */
-            if (cli_parse_uint(optarg, 1, UINT32_MAX, &o->res)) {
-                if (submit)
-                    cli_error("bad --res '%.40s': want a whole number from 1 (to the daemon's max_res)", optarg);
-                else
-                    cli_error("bad --res '%.40s': want a whole number from 1 to %u", optarg, GRID_MAX_RES);
-                return CLI_EXIT_USAGE;
-            }
-            o->res_arg = optarg;
-            break;
-        case 'w':
-            if (cli_parse_uint(optarg, 0, ENGINE_MAX_WORKERS, &o->workers)) {
-                cli_error("bad --workers '%.40s': want 0..%d", optarg, ENGINE_MAX_WORKERS);
-                return CLI_EXIT_USAGE;
-            }
-            o->engine_opts = 1;
-            break;
-        case 'P': o->cpus = optarg; o->engine_opts = 1; break;
-        case 'S':
-            if (strcmp(optarg, "subtree") && strcmp(optarg, "paper")) {
-                cli_error("bad --schedule '%.40s': want subtree or paper", optarg);
-                return CLI_EXIT_USAGE;
-            }
-            o->schedule = optarg[0] == 'p' ? ENGINE_SCHED_PAPER : ENGINE_SCHED_SUBTREE;
-            break;
-        case 'M':
-            if (cli_parse_uint(optarg, 16, 1u << 20, &o->shm_mib)) {
-                cli_error("bad --shm-size '%.40s': want MiB from 16 to 1048576", optarg);
-                return CLI_EXIT_USAGE;
-            }
-            o->engine_opts = 1;
-            break;
-        case 'L':
-            if (parse_level(submit, optarg, &o->vod)) return CLI_EXIT_USAGE;
-            o->engine_opts |= !submit;
-            break;
-        case 'p': o->progress = 1; break;
-        case 'q': o->quiet = 1; break;
-        case 'E': case 'D': {
-            cli_mode m = c == 'E' ? CLI_MODE_EMBEDDED : CLI_MODE_DAEMON;
-            if (o->mode != CLI_MODE_AUTO && o->mode != m) {
-                cli_error("give at most one of --embedded and --daemon");
-                return CLI_EXIT_USAGE;
-            }
-            o->mode = m;
-            break;
+    switch (c) {
+    case 'd':
+        if (cli_parse_domain(arg, o->lo, o->hi)) {
+            cli_error("bad --domain '%.40s': want A,B or X0,X1,Y0,Y1,Z0,Z1 with each low < high", arg);
+            return CLI_EXIT_USAGE;
         }
-        case 'h': cli_job_usage(cmd, stdout); exit(CLI_EXIT_OK);
-        case 'm': o->mesh = optarg; break;
-        case 'G': o->csg = optarg; break;
-        case 'O': case 'R': case 'K': case 'N': case 'A': case 'X': case 'W':
-            if (parse_mesh_option(c, optarg, o)) return CLI_EXIT_USAGE;
-            break;
-        case 'C': case 'B': case 'Z': case 'H':
-            o->channel_given |= c == 'C';
-            if (parse_vod_option(c, optarg, &o->vod)) {
-                cli_error("bad value '%.40s' for --%s (see vox %s --help)", optarg,
-                          c == 'C' ? "channel" : c == 'B' ? "brick" : c == 'Z' ? "compress" : "hash",
-                          name);
-                return CLI_EXIT_USAGE;
-            }
-            break;
-        default: return CLI_EXIT_USAGE;
+        o->has_domain = 1;
+        break;
+    case 'r':
+        /* The embedded engine's limit is checked when it runs: the
+         * daemon has its own (max_res). */
+        if (cli_parse_uint(arg, 1, UINT32_MAX, &o->res)) {
+            if (submit)
+                cli_error("bad --res '%.40s': want a whole number from 1 (to the daemon's max_res)", arg);
+            else
+                cli_error("bad --res '%.40s': want a whole number from 1 to %u", arg, GRID_MAX_RES);
+            return CLI_EXIT_USAGE;
         }
+        o->res_arg = arg;
+        break;
+    case 'w':
+        if (cli_parse_uint(arg, 0, ENGINE_MAX_WORKERS, &o->workers)) {
+            cli_error("bad --workers '%.40s': want 0..%d", arg, ENGINE_MAX_WORKERS);
+            return CLI_EXIT_USAGE;
+        }
+        o->engine_opts = 1;
+        break;
+    case 'S':
+        if (strcmp(arg, "subtree") && strcmp(arg, "paper")) {
+            cli_error("bad --schedule '%.40s': want subtree or paper", arg);
+            return CLI_EXIT_USAGE;
+        }
+        o->schedule = arg[0] == 'p' ? ENGINE_SCHED_PAPER : ENGINE_SCHED_SUBTREE;
+        break;
+    case 'M':
+        if (cli_parse_uint(arg, 16, 1u << 20, &o->shm_mib)) {
+            cli_error("bad --shm-size '%.40s': want MiB from 16 to 1048576", arg);
+            return CLI_EXIT_USAGE;
+        }
+        o->engine_opts = 1;
+        break;
     }
+    return 0;
+}
+
+/* One option c (with its argument arg) of voxelize or submit (name) into o.
+ * 0, or CLI_EXIT_USAGE (said). */
+static int parse_option(int cmd, const char *name, int c, const char *arg, cli_job_opts *o)
+{
+    int submit = cmd == CLI_CMD_SUBMIT;
+    switch (c) {
+    case 'e': o->expr = arg; break;
+    case 'f': o->file = arg; break;
+    case 'o': o->out = arg; break;
+    case 'd': case 'r': case 'w': case 'S': case 'M':
+        return parse_value_option(submit, c, arg, o);
+    case 'P': o->cpus = arg; o->engine_opts = 1; break;
+    case 'L':
+        if (parse_level(submit, arg, &o->vod)) return CLI_EXIT_USAGE;
+        o->engine_opts |= !submit;
+        break;
+    case 'p': o->progress = 1; break;
+    case 'q': o->quiet = 1; break;
+    case 'E': case 'D': {
+        cli_mode m = c == 'E' ? CLI_MODE_EMBEDDED : CLI_MODE_DAEMON;
+        if (o->mode != CLI_MODE_AUTO && o->mode != m) {
+            cli_error("give at most one of --embedded and --daemon");
+            return CLI_EXIT_USAGE;
+        }
+        o->mode = m;
+        break;
+    }
+    case 'h': cli_job_usage(cmd, stdout); exit(CLI_EXIT_OK);
+    case 'm': o->mesh = arg; break;
+    case 'G': o->csg = arg; break;
+    case 'O': case 'R': case 'K': case 'N': case 'A': case 'X': case 'W':
+        if (parse_mesh_option(c, arg, o)) return CLI_EXIT_USAGE;
+        break;
+    case 'C': case 'B': case 'Z': case 'H':
+        o->channel_given |= c == 'C';
+        if (parse_vod_option(c, arg, &o->vod)) {
+            cli_error("bad value '%.40s' for --%s (see vox %s --help)", arg,
+                      c == 'C' ? "channel" : c == 'B' ? "brick" : c == 'Z' ? "compress" : "hash",
+                      name);
+            return CLI_EXIT_USAGE;
+        }
+        break;
+    default: return CLI_EXIT_USAGE;
+    }
+    return 0;
+}
+
+/* What the options must hold together once read. */
+static int check_options(const char *name, int argc, char **argv, cli_job_opts *o)
+{
     if (optind < argc)
         return cli_usage_error(name, "unexpected argument '%.40s'", argv[optind]);
     if (check_job_kind(name, o)) return CLI_EXIT_USAGE;
@@ -392,6 +405,21 @@ int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
         return CLI_EXIT_USAGE;
     }
     return 0;
+}
+
+int cli_job_parse(int cmd, int argc, char **argv, cli_job_opts *o)
+{
+    int submit = cmd == CLI_CMD_SUBMIT;
+    const char *name = submit ? "submit" : "voxelize";
+    int c;
+    optind = 1;
+    while ((c = cli_getopt(name, argc, argv, submit ? "e:f:o:d:r:w:qh" : "e:f:o:d:r:w:qh",
+                           submit ? longs_submit : longs_voxelize)) != -1) {
+        if (submit && strchr("wPMED", c)) return engine_option(c);
+        int rc = parse_option(cmd, name, c, optarg, o);
+        if (rc) return rc;
+    }
+    return check_options(name, argc, argv, o);
 }
 
 int cli_job_source(cli_job_opts *o, source *src, expr_tape **tape)
