@@ -117,38 +117,60 @@ static inline void z_range(const int64_t P[3][3], double gx, double gy, double s
     if (c < *z1) *z1 = c;
 }
 
-void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits)
+/* The voxels of block b that triangle P's bounding box covers, [i0, i1]
+ * per axis, and whether the box is narrow (the 64-bit tests suffice);
+ * nonzero when it covers none. */
+static int tri_range(const int64_t P[3][3], const mv_block *b, int64_t i0[3], int64_t i1[3],
+                     bool *narrow)
 {
-    int64_t lo[3], hi[3], i0[3], i1[3];
+    int64_t lo[3], hi[3];
     for (int a = 0; a < 3; a++) {
         lo[a] = hi[a] = P[0][a];
         for (int i = 1; i < 3; i++) {
             if (P[i][a] < lo[a]) lo[a] = P[i][a];
             if (P[i][a] > hi[a]) hi[a] = P[i][a];
         }
-        if (voxel_range(b, a, lo[a], hi[a], &i0[a], &i1[a])) return;
+        if (voxel_range(b, a, lo[a], hi[a], &i0[a], &i1[a])) return 1;
     }
+    *narrow = hi[0] - lo[0] < NARROW && hi[1] - lo[1] < NARROW && hi[2] - lo[2] < NARROW;
+    return 0;
+}
+
+/* The plane test's constants for normal n: the box's extremes lo_c, hi_c
+ * (26-separating), the centre's offset half and the bound dom
+ * (6-separating). */
+static void plane_bounds(const mv_i128 n[3], mv_i128 *lo_c, mv_i128 *hi_c, mv_i128 *half,
+                         mv_i128 *dom)
+{
+    *lo_c = *hi_c = *half = *dom = 0;
+    for (int a = 0; a < 3; a++) {
+        mv_i128 t = n[a] * MV_L, m = n[a] < 0 ? -n[a] : n[a];
+        if (t < 0) *lo_c += t;
+        else *hi_c += t;
+        *half += n[a] * MV_H;
+        if (m > *dom) *dom = m;
+    }
+    *dom *= MV_H;
+}
+
+void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits)
+{
+    int64_t i0[3], i1[3];
+    bool narrow;
+    if (tri_range(P, b, i0, i1, &narrow)) return;
     int64_t e1[3], e2[3];
     for (int a = 0; a < 3; a++) e1[a] = P[1][a] - P[0][a], e2[a] = P[2][a] - P[0][a];
     mv_i128 n[3] = {(mv_i128)e1[1] * e2[2] - (mv_i128)e1[2] * e2[1],
                     (mv_i128)e1[2] * e2[0] - (mv_i128)e1[0] * e2[2],
                     (mv_i128)e1[0] * e2[1] - (mv_i128)e1[1] * e2[0]};
-    bool narrow = hi[0] - lo[0] < NARROW && hi[1] - lo[1] < NARROW && hi[2] - lo[2] < NARROW;
     proj_test xy, yz, zx;
     proj_setup(P, n[2] >= 0 ? 1 : -1, 0, 1, six, narrow, &xy);
     proj_setup(P, n[0] >= 0 ? 1 : -1, 1, 2, six, narrow, &yz);
     proj_setup(P, n[1] >= 0 ? 1 : -1, 2, 0, six, narrow, &zx);
     /* plane: n . (p - P0) + lo_c <= 0 <= n . (p - P0) + hi_c over the box
      * (26), or |n . (centre - P0)| <= L/2 max |n_a| (6) */
-    mv_i128 lo_c = 0, hi_c = 0, half = 0, dom = 0;
-    for (int a = 0; a < 3; a++) {
-        mv_i128 t = n[a] * MV_L, m = n[a] < 0 ? -n[a] : n[a];
-        if (t < 0) lo_c += t;
-        else hi_c += t;
-        half += n[a] * MV_H;
-        if (m > dom) dom = m;
-    }
-    dom *= MV_H;
+    mv_i128 lo_c, hi_c, half, dom;
+    plane_bounds(n, &lo_c, &hi_c, &half, &dom);
     /* the plane's z over a column, in double, narrows the z loop; the exact
      * tests decide (one voxel of margin covers the rounding) */
     double nzd = (double)n[2], gx = 0, gy = 0, spread = 0;
