@@ -81,6 +81,64 @@ static double run_tiles(job *j, void *arena, size_t bytes, uint32_t sbrick, int 
     return now() - t0;
 }
 
+/* One row of the table: resolution res, best of three runs. 0, or 1
+ * (said). */
+static int bench_res(const mesh *m, const mesh_vox_opts *o, uint32_t res, uint32_t sbrick)
+{
+    double lo[3] = {-1.02, -1.02, -1.02}, hi[3] = {1.02, 1.02, 1.02};
+    grid_spec g;
+    char err[128];
+    if (grid_make(lo, hi, res, &g, err, sizeof err)) {
+        fprintf(stderr, "%s\n", err);
+        return 1;
+    }
+    /* room for the bricks a sphere's surface crosses, with margin */
+    double r = res / 2.0 / sbrick;
+    uint64_t want = (uint64_t)(4 * 3.15 * r * r * 3) + 64;
+    size_t bytes = vod_volume_bytes(g.res, mesh_vox_bits(o), sbrick, want);
+    void *arena = malloc(bytes);
+    mesh_bins b;
+    mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
+    if (!lat) return 1;
+    double t0, bin = 1e9, one = 1e9, two = 1e9, one_c = 1e9, two_c = 1e9, c1, c2;
+    for (int rep = 0; rep < 3; rep++) {
+        t0 = now();
+        if (mesh_bin(m, &g, o, lat, 1, &b)) return 1;
+        double tb = now() - t0;
+        bin = tb < bin ? tb : bin;
+        job j = {.m = m, .g = &g, .o = o, .b = &b, .lat = lat};
+        double t1 = run_tiles(&j, arena, bytes, sbrick, 1, &c1);
+        double t2 = run_tiles(&j, arena, bytes, sbrick, 2, &c2);
+        one_c = c1 < one_c ? c1 : one_c;
+        two_c = c2 < two_c ? c2 : two_c;
+        if (j.rc) {
+            fprintf(stderr, "tile: %s\n", strerror(-j.rc));
+            return 1;
+        }
+        one = t1 < one ? t1 : one;
+        two = t2 < two ? t2 : two;
+        if (rep < 2) mesh_bins_free(&b);
+    }
+    vod_volume *v = arena;
+    vod_volume_info vi;
+    vod_volume_get_info(v, &vi);
+    uint64_t n = 0;
+    mesh_tile_stats st = {0};
+    void *scratch = malloc(mesh_tile_scratch_bytes(&g, o));
+    vod_volume_init(&v, arena, bytes, g.res, mesh_vox_bits(o), sbrick);
+    for (uint32_t t = 0; t < b.tiles[0] * b.tiles[1]; t++)
+        mesh_tile_run(m, lat, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, o,
+                      t % b.tiles[0], t / b.tiles[0], scratch, v, NULL, &st);
+    n = st.voxels;
+    printf("| %u^3 | %.3f s | %.3f s (%.3f) | %.3f s (%.3f) | %u | %llu |\n", res, bin, one,
+           one_c, two, two_c, vi.level0_bricks, (unsigned long long)n);
+    free(scratch);
+    free(arena);
+    free(lat);
+    mesh_bins_free(&b);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     int level = 8, opt, channel = VOXEL_CH_OCCUPANCY;
@@ -112,60 +170,8 @@ int main(int argc, char **argv)
     printf("| res | bin | tiles, 1 thread (CPU) | tiles, 2 threads (CPU) | allocated bricks | voxels |\n");
     printf("|---|---|---|---|---|---|\n");
     mesh_vox_opts o = {mode, MESH_REPAIR_NONE, channel, 0, 0};
-    for (int i = optind; i < argc; i++) {
-        uint32_t res = (uint32_t)atoi(argv[i]);
-        double lo[3] = {-1.02, -1.02, -1.02}, hi[3] = {1.02, 1.02, 1.02};
-        grid_spec g;
-        char err[128];
-        if (grid_make(lo, hi, res, &g, err, sizeof err)) {
-            fprintf(stderr, "%s\n", err);
-            return 1;
-        }
-        /* room for the bricks a sphere's surface crosses, with margin */
-        double r = res / 2.0 / sbrick;
-        uint64_t want = (uint64_t)(4 * 3.15 * r * r * 3) + 64;
-        size_t bytes = vod_volume_bytes(g.res, mesh_vox_bits(&o), sbrick, want);
-        void *arena = malloc(bytes);
-        mesh_bins b;
-        mesh_lattice *lat = malloc(m->n_vertices * sizeof *lat);
-        if (!lat) return 1;
-        double bin = 1e9, one = 1e9, two = 1e9, one_c = 1e9, two_c = 1e9, c1, c2;
-        for (int rep = 0; rep < 3; rep++) {
-            t0 = now();
-            if (mesh_bin(m, &g, &o, lat, 1, &b)) return 1;
-            double tb = now() - t0;
-            bin = tb < bin ? tb : bin;
-            job j = {.m = m, .g = &g, .o = &o, .b = &b, .lat = lat};
-            double t1 = run_tiles(&j, arena, bytes, sbrick, 1, &c1);
-            double t2 = run_tiles(&j, arena, bytes, sbrick, 2, &c2);
-            one_c = c1 < one_c ? c1 : one_c;
-            two_c = c2 < two_c ? c2 : two_c;
-            if (j.rc) {
-                fprintf(stderr, "tile: %s\n", strerror(-j.rc));
-                return 1;
-            }
-            one = t1 < one ? t1 : one;
-            two = t2 < two ? t2 : two;
-            if (rep < 2) mesh_bins_free(&b);
-        }
-        vod_volume *v = arena;
-        vod_volume_info vi;
-        vod_volume_get_info(v, &vi);
-        uint64_t n = 0;
-        mesh_tile_stats st = {0};
-        void *scratch = malloc(mesh_tile_scratch_bytes(&g, &o));
-        vod_volume_init(&v, arena, bytes, g.res, mesh_vox_bits(&o), sbrick);
-        for (uint32_t t = 0; t < b.tiles[0] * b.tiles[1]; t++)
-            mesh_tile_run(m, lat, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, &o,
-                          t % b.tiles[0], t / b.tiles[0], scratch, v, NULL, &st);
-        n = st.voxels;
-        printf("| %u^3 | %.3f s | %.3f s (%.3f) | %.3f s (%.3f) | %u | %llu |\n", res, bin, one,
-               one_c, two, two_c, vi.level0_bricks, (unsigned long long)n);
-        free(scratch);
-        free(arena);
-        free(lat);
-        mesh_bins_free(&b);
-    }
+    for (int i = optind; i < argc; i++)
+        if (bench_res(m, &o, (uint32_t)atoi(argv[i]), sbrick)) return 1;
     shape_free(&s);
     return 0;
 }
