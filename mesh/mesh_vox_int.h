@@ -162,6 +162,25 @@ static inline size_t mv_block_words(const mv_block *b)
     return (size_t)b->n[2] * (size_t)b->n[1] * b->nw;
 }
 
+/* The bits of x in [lo[0], hi[0]) in their word (a cell's row: at most 64
+ * samples, within one word). */
+static inline uint64_t mv_xmask(const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint32_t s = lo[0] & 63, n = hi[0] - lo[0];
+    return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
+}
+
+/* The bits set in cell [lo, hi) of bits, a bit array of block b's layout. */
+static inline uint64_t mv_cell_count(const mv_block *b, const uint64_t *bits,
+                                     const uint32_t lo[3], const uint32_t hi[3])
+{
+    uint64_t mask = mv_xmask(lo, hi), n = 0;
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++)
+            n += mv_popcount(bits[((size_t)z * (size_t)b->n[1] + y) * b->nw + lo[0] / 64] & mask);
+    return n;
+}
+
 /* Where the crossings of one ray direction go (mv_raster).
  *  z: flip the bit of the first sample past the crossing in `bits`; a
  *     crossing below the block flips its first slice when first_z (the

@@ -264,25 +264,10 @@ static size_t word_of(const cblock *c, uint32_t x, uint32_t y, uint32_t z)
     return ((size_t)z * (size_t)c->b->n[1] + y) * c->b->nw + x / 64;
 }
 
-static uint64_t xmask(const uint32_t lo[3], const uint32_t hi[3])
-{
-    uint32_t s = lo[0] & 63, n = hi[0] - lo[0];
-    return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
-}
-
-static uint64_t cell_count(const cblock *c, const uint32_t lo[3], const uint32_t hi[3])
-{
-    uint64_t mask = xmask(lo, hi), n = 0;
-    for (uint32_t z = lo[2]; z < hi[2]; z++)
-        for (uint32_t y = lo[1]; y < hi[1]; y++)
-            n += mv_popcount(c->todo[word_of(c, lo[0], y, z)] & mask);
-    return n;
-}
-
 /* Every sample of the cell to decide: inside when its count is not k. */
 static void cell_by_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], uint16_t k)
 {
-    uint64_t mask = xmask(lo, hi);
+    uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
             size_t i = word_of(c, lo[0], y, z);
@@ -313,7 +298,7 @@ static void decide(cblock *c, size_t i, unsigned x, double v, double e)
 static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
                          const mv_near *nr, double v, double e)
 {
-    uint64_t mask = xmask(lo, hi);
+    uint64_t mask = mv_xmask(lo, hi);
     uint32_t work = 0;
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
@@ -335,7 +320,7 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
 /* The samples of the cell still to do to mv_wind_block. */
 static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
 {
-    uint64_t mask = xmask(lo, hi);
+    uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
             size_t i = word_of(c, lo[0], y, z);
@@ -352,7 +337,7 @@ static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
  * its eight halves. */
 static void cell(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
 {
-    uint64_t n = cell_count(c, lo, hi);
+    uint64_t n = mv_cell_count(c->b, c->todo, lo, hi);
     if (!n || (c->f->pulse && c->f->pulse->stop)) return;
     uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
     if (!c->caps) { /* closed: w_C = 0 */

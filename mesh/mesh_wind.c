@@ -508,29 +508,14 @@ typedef struct {
 
 /* Cell [lo, hi) of the block (x within one word): the word of row (y, z)
  * and the mask of its x range. */
-static uint64_t xmask(const uint32_t lo[3], const uint32_t hi[3])
-{
-    uint32_t s = lo[0] & 63, n = hi[0] - lo[0];
-    return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
-}
-
 static size_t word_of(const wblock *w, uint32_t x, uint32_t y, uint32_t z)
 {
     return ((size_t)z * (size_t)w->b->n[1] + y) * w->b->nw + x / 64;
 }
 
-static uint64_t cell_count(const wblock *w, const uint32_t lo[3], const uint32_t hi[3])
-{
-    uint64_t mask = xmask(lo, hi), n = 0;
-    for (uint32_t z = lo[2]; z < hi[2]; z++)
-        for (uint32_t y = lo[1]; y < hi[1]; y++)
-            n += mv_popcount(w->dis[word_of(w, lo[0], y, z)] & mask);
-    return n;
-}
-
 static void cell_fill(wblock *w, const uint32_t lo[3], const uint32_t hi[3], bool inside)
 {
-    uint64_t mask = xmask(lo, hi);
+    uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
             size_t i = word_of(w, lo[0], y, z);
@@ -582,7 +567,7 @@ static void point(wblock *w, const mv_wtree *t, const uint32_t s[3])
  * its eight halves. */
 static void cell(wblock *w, const mv_wtree *t, const uint32_t lo[3], const uint32_t hi[3])
 {
-    uint64_t n = cell_count(w, lo, hi);
+    uint64_t n = mv_cell_count(w->b, w->dis, lo, hi);
     if (!n || (w->f->pulse && w->f->pulse->stop)) return;
     uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
     if (ext[0] == 1 && ext[1] == 1 && ext[2] == 1) {
