@@ -11,17 +11,11 @@
 #include "clock.h"
 #include "job_meta.h"
 #include "master.h"
-#include "voxel.h"
 
 /* The master side of the job's kind, NULL when it is none. */
 static const master_kind *kind_of(const pipeline_job *job)
 {
     return (unsigned)job->kind < PIPELINE_KINDS ? pipeline_kinds[job->kind] : NULL;
-}
-
-uint32_t pipeline_band(const pipeline_job *job)
-{
-    return job->band ? job->band : VOXEL_BAND_DEFAULT;
 }
 
 /* The job's VOD parameters: its geometry and metadata (the kind's source

@@ -1,12 +1,13 @@
 /* What the kinds' pipeline side shares with the pipeline (master.h): the
- * report's failure and the serial write stage.  A file of its own: the
- * kinds call it and the pipeline calls the kinds. */
+ * report's failure, the serial write stage and the distance's band.  A
+ * file of its own: the kinds call it and the pipeline calls the kinds. */
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "clock.h"
 #include "master.h"
+#include "voxel.h"
 
 int pipeline_fail(pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
 {
@@ -48,4 +49,9 @@ int pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sin
     if (rc && w.rc == rc) return pipeline_fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
     if (rc) return pipeline_fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
     return 0;
+}
+
+uint32_t pipeline_band(const pipeline_job *job)
+{
+    return job->band ? job->band : VOXEL_BAND_DEFAULT;
 }

@@ -60,14 +60,16 @@ static _Noreturn void worker_exit(work_ctx *w)
 
 /* engine_abandon: the master's process exits next.  Whoever unmaps the
  * segment last frees its pages, and the user waits for the master, not for
- * us: so we keep it mapped until the master is gone (SIGKILL comes then,
- * PR_SET_PDEATHSIG; the check is for a master gone already), and let go of
- * stdin, stdout and stderr first, so that a reader of the command's output
- * (a pipe) does not wait for us either. */
+ * us: so we keep it mapped until the master is gone (seen as a new parent
+ * within 0.1 s), and let go of stdin, stdout and stderr first, so that a
+ * reader of the command's output (a pipe) does not wait for us either.
+ * The SIGKILL of PR_SET_PDEATHSIG is off here: we leave by _exit, so that
+ * a tool watching the process (valgrind) sees its exit. */
 static _Noreturn void worker_leave(work_ctx *w)
 {
     free_states(w);
     close(0), close(1), close(2);
+    prctl(PR_SET_PDEATHSIG, 0);
     struct timespec tick = {0, 100000000};
     while (getppid() == w->h->master_pid) nanosleep(&tick, NULL);
     _exit(0);

@@ -53,6 +53,17 @@ vg_excerpt() {
     grep -e 'LEAK SUMMARY' -e '    [a-z ]*: [0-9,]* bytes' -e 'ERROR SUMMARY' "$1" | uniq
 }
 
+# The log's summary, waited for up to 30 s: vox's workers outlive the
+# command by design (engine_abandon: they unmap the segment after it exits),
+# so their logs end a little after it.
+wait_summary() {
+    local i
+    for i in $(seq 300); do
+        grep -q 'ERROR SUMMARY' "$1" && return 0
+        sleep 0.1
+    done
+}
+
 # vg_clean NAME RC WANT [MAIN_PID]: the command NAME ended with RC (WANT
 # expected); every log of NAME says "0 errors" and the main process's log
 # uses no suppression meant for the workers
@@ -61,6 +72,7 @@ vg_clean() {
     for f in "$VG_LOGS/$name".*; do
         [ -f "$f" ] || continue
         n=$((n + 1))
+        wait_summary "$f"
         if ! grep -q 'ERROR SUMMARY: 0 errors' "$f"; then
             bad="$bad
 $(basename "$f"): $(grep -q 'ERROR SUMMARY' "$f" && echo "errors" || echo "no summary: killed before its exit checks (the engine kills a worker that takes over 2 s to exit)?")

@@ -271,7 +271,9 @@ Test(csg_dist, pipeline_same_bytes_and_values)
     for (uint32_t z = 0; z < 24; z += 3)
         for (uint32_t y = 0; y < 24; y += 5)
             for (uint32_t x = 0; x < 24; x++) {
-                float sum = 0, c, got;
+                /* summed in double in child order, rounded once */
+                double sum = 0;
+                float c, got;
                 for (unsigned i = 0; i < 8; i++) {
                     uint32_t u = vod_voxel(f, 0, 2 * x + (i & 1u), 2 * y + (i >> 1 & 1u),
                                            2 * z + (i >> 2 & 1u));
@@ -280,7 +282,7 @@ Test(csg_dist, pipeline_same_bytes_and_values)
                 }
                 uint32_t u = vod_voxel(f, 1, x, y, z);
                 memcpy(&got, &u, 4);
-                cr_assert_eq(got, sum * 0.125f, "level 1 (%u,%u,%u)", x, y, z);
+                cr_assert_eq(got, (float)(sum / 8), "level 1 (%u,%u,%u)", x, y, z);
             }
     csg_dist_free(d);
     vod_close(f);
