@@ -170,6 +170,12 @@ static inline uint64_t mv_xmask(const uint32_t lo[3], const uint32_t hi[3])
     return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
 }
 
+/* The word of a bit array of block b's layout that holds sample (x, y, z). */
+static inline size_t mv_word(const mv_block *b, uint32_t x, uint32_t y, uint32_t z)
+{
+    return ((size_t)z * (size_t)b->n[1] + y) * b->nw + x / 64;
+}
+
 /* The bits set in cell [lo, hi) of bits, a bit array of block b's layout. */
 static inline uint64_t mv_cell_count(const mv_block *b, const uint64_t *bits,
                                      const uint32_t lo[3], const uint32_t hi[3])
@@ -177,7 +183,7 @@ static inline uint64_t mv_cell_count(const mv_block *b, const uint64_t *bits,
     uint64_t mask = mv_xmask(lo, hi), n = 0;
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++)
-            n += mv_popcount(bits[((size_t)z * (size_t)b->n[1] + y) * b->nw + lo[0] / 64] & mask);
+            n += mv_popcount(bits[mv_word(b, lo[0], y, z)] & mask);
     return n;
 }
 

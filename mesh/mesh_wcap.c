@@ -259,18 +259,13 @@ typedef struct {
     bool any_spare;
 } cblock;
 
-static size_t word_of(const cblock *c, uint32_t x, uint32_t y, uint32_t z)
-{
-    return ((size_t)z * (size_t)c->b->n[1] + y) * c->b->nw + x / 64;
-}
-
 /* Every sample of the cell to decide: inside when its count is not k. */
 static void cell_by_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], uint16_t k)
 {
     uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = word_of(c, lo[0], y, z);
+            size_t i = mv_word(c->b, lo[0], y, z);
             uint64_t d = c->todo[i] & mask, in = 0;
             const uint16_t *n = c->count + i * 64;
             for (uint64_t r = d; r; r &= r - 1) {
@@ -302,7 +297,7 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
     uint32_t work = 0;
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = word_of(c, lo[0], y, z);
+            size_t i = mv_word(c->b, lo[0], y, z);
             for (uint64_t r = c->todo[i] & mask; r; r &= r - 1) {
                 unsigned x = (unsigned)__builtin_ctzll(r);
                 double p[3] = {(double)(c->b->s0[0] + (int64_t)(lo[0] / 64 * 64 + x)) + 0.5,
@@ -323,7 +318,7 @@ static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
     uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = word_of(c, lo[0], y, z);
+            size_t i = mv_word(c->b, lo[0], y, z);
             uint64_t d = c->todo[i] & mask;
             if (!d) continue;
             c->spare[i] |= d;

@@ -506,19 +506,12 @@ typedef struct {
     unsigned n;
 } wblock;
 
-/* Cell [lo, hi) of the block (x within one word): the word of row (y, z)
- * and the mask of its x range. */
-static size_t word_of(const wblock *w, uint32_t x, uint32_t y, uint32_t z)
-{
-    return ((size_t)z * (size_t)w->b->n[1] + y) * w->b->nw + x / 64;
-}
-
 static void cell_fill(wblock *w, const uint32_t lo[3], const uint32_t hi[3], bool inside)
 {
     uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = word_of(w, lo[0], y, z);
+            size_t i = mv_word(w->b, lo[0], y, z);
             uint64_t d = w->dis[i] & mask;
             w->bits[i] = inside ? w->bits[i] | d : w->bits[i] & ~d;
         }
@@ -550,7 +543,7 @@ static void point(wblock *w, const mv_wtree *t, const uint32_t s[3])
         q[a] = (double)(w->b->s0[a] + (int64_t)s[a]) + 0.5;
         p[a] = q[a] / f->K;
     }
-    size_t at = word_of(w, s[0], s[1], s[2]) * 64 + (s[0] & 63);
+    size_t at = mv_word(w->b, s[0], s[1], s[2]) * 64 + (s[0] & 63);
     double v = fabs(mv_wind_point(t, p, BETA1, &work));
     if (fabs(v - 0.5) <= BAND1) v = fabs(mv_wind_point(t, p, BETA2, &work));
     mv_beat(f->pulse, work);
