@@ -11,12 +11,7 @@
 # the Python checks.
 . "$(dirname "$0")/lib.sh"
 
-PY=""
-for p in /usr/bin/python3 python3; do
-    if command -v "$p" >/dev/null && "$p" -c 'import numpy, vtkmodules.vtkIOImage' 2>/dev/null
-    then PY=$p; break; fi
-done
-if [ -z "$PY" ]; then
+if ! PY=$(python_with numpy vtkmodules.vtkIOImage); then
     fail "a python3 with numpy and VTK (make deps installs python3-numpy, python3-vtk9)"
     exit 0
 fi
