@@ -1,5 +1,7 @@
-/* proto_check — validation of every message at the socket.  See proto_check.h. */
+/* proto_check — the limits table, the checks' shared pieces and the requests
+ * (the daemon's side); the replies are in proto_check_reply.c.  See proto_check.h. */
 #include "proto_check.h"
+#include "proto_check_int.h"
 
 #include <errno.h>
 #include <math.h>
@@ -9,12 +11,8 @@
 #include <string.h>
 
 #include "err.h"
-#include "frame.h"
 #include "job_meta.h"
 #include "voxel.h"
-
-#define INVALID VOXD__ERROR_CODE__INVALID_INPUT
-#define LIMIT VOXD__ERROR_CODE__LIMIT_EXCEEDED
 
 /* Each default within its own range, at compile time. */
 #define RANGE_OK(name, type, def, min, max, unit, doc)                                   \
@@ -78,7 +76,7 @@ const char *proto_error_code_name(int code)
 }
 
 __attribute__((format(printf, 3, 4)))
-static int bad(proto_error *e, Voxd__ErrorCode code, const char *fmt, ...)
+int proto_bad(proto_error *e, Voxd__ErrorCode code, const char *fmt, ...)
 {
     int rc = code == LIMIT ? -E2BIG : -EINVAL;
     if (e) {
@@ -91,7 +89,7 @@ static int bad(proto_error *e, Voxd__ErrorCode code, const char *fmt, ...)
     return rc;
 }
 
-static int ok(proto_error *e)
+int proto_ok(proto_error *e)
 {
     if (e) {
         e->code = VOXD__ERROR_CODE__ERROR_CODE_UNSPECIFIED;
@@ -125,21 +123,21 @@ static size_t utf8_len(const unsigned char *s, size_t n)
 
 /* Text for logs and terminals: bounded, UTF-8, no control characters
  * (newline and tab allowed where multiline is set). */
-static int check_text(const char *s, size_t max, int multiline,
-                      const char *what, proto_error *e)
+int proto_check_text(const char *s, size_t max, int multiline, const char *what,
+                     proto_error *e)
 {
     if (!s) return 0;
     size_t n = strlen(s);
-    if (n > max) return bad(e, INVALID, "%s is %zu bytes, limit %zu", what, n, max);
+    if (n > max) return proto_bad(e, INVALID, "%s is %zu bytes, limit %zu", what, n, max);
     for (size_t i = 0; i < n;) {
         unsigned char c = (unsigned char)s[i];
         if (c < 0x20 || c == 0x7f) {
             if (!(multiline && (c == '\n' || c == '\t')))
-                return bad(e, INVALID, "%s contains control character 0x%02x at offset %zu",
-                           what, c, i);
+                return proto_bad(e, INVALID, "%s contains control character 0x%02x at offset %zu",
+                                 what, c, i);
         }
         size_t k = utf8_len((const unsigned char *)s + i, n - i);
-        if (!k) return bad(e, INVALID, "%s is not valid UTF-8 at offset %zu", what, i);
+        if (!k) return proto_bad(e, INVALID, "%s is not valid UTF-8 at offset %zu", what, i);
         i += k;
     }
     return 0;
@@ -150,13 +148,13 @@ static int check_text(const char *s, size_t max, int multiline,
 static int check_source(const ProtobufCBinaryData *s, uint32_t max,
                         const char *what, proto_error *e)
 {
-    if (s->len == 0) return bad(e, INVALID, "%s is empty", what);
+    if (s->len == 0) return proto_bad(e, INVALID, "%s is empty", what);
     if (s->len > max)
-        return bad(e, LIMIT, "%s is %zu bytes, limit %u", what, s->len, max);
+        return proto_bad(e, LIMIT, "%s is %zu bytes, limit %u", what, s->len, max);
     const uint8_t *nul = memchr(s->data, 0, s->len);
     if (nul)
-        return bad(e, INVALID, "%s source contains a NUL byte at offset %zu", what,
-                   (size_t)(nul - s->data));
+        return proto_bad(e, INVALID, "%s source contains a NUL byte at offset %zu", what,
+                         (size_t)(nul - s->data));
     return 0;
 }
 
@@ -164,11 +162,11 @@ static int check_source(const ProtobufCBinaryData *s, uint32_t max,
 static int check_source_name(const ProtobufCBinaryData *s, proto_error *e)
 {
     if (s->len > JOB_META_NAME_MAX)
-        return bad(e, LIMIT, "source_name is %zu bytes, limit %u", s->len, JOB_META_NAME_MAX);
+        return proto_bad(e, LIMIT, "source_name is %zu bytes, limit %u", s->len, JOB_META_NAME_MAX);
     for (size_t i = 0; i < s->len; i++)
         if (s->data[i] == 0 || s->data[i] == '\n' || s->data[i] == '\r')
-            return bad(e, INVALID, "source_name contains a %s at offset %zu",
-                       s->data[i] ? "line break" : "NUL byte", i);
+            return proto_bad(e, INVALID, "source_name contains a %s at offset %zu",
+                             s->data[i] ? "line break" : "NUL byte", i);
     return 0;
 }
 
@@ -178,18 +176,18 @@ static int check_box(const double *v, size_t n, int cube_ok, const char *what,
                      proto_error *e)
 {
     if (cube_ok ? (n != 2 && n != 6) : n != 6)
-        return bad(e, INVALID, "%s needs %s values, got %zu", what,
-                   cube_ok ? "2 or 6" : "6", n);
+        return proto_bad(e, INVALID, "%s needs %s values, got %zu", what,
+                         cube_ok ? "2 or 6" : "6", n);
     for (size_t i = 0; i < n; i++)
         if (!isfinite(v[i]))
-            return bad(e, INVALID, "%s value %zu is not finite (%g)", what, i + 1, v[i]);
+            return proto_bad(e, INVALID, "%s value %zu is not finite (%g)", what, i + 1, v[i]);
     for (size_t a = 0; a < n / 2; a++) {
         double lo = v[2 * a], hi = v[2 * a + 1];
         const char *axis = n == 2 ? "" : a == 0 ? " x" : a == 1 ? " y" : " z";
         if (!(lo < hi))
-            return bad(e, INVALID, "%s%s: low %g is not below high %g", what, axis, lo, hi);
+            return proto_bad(e, INVALID, "%s%s: low %g is not below high %g", what, axis, lo, hi);
         if (!isfinite(hi - lo))
-            return bad(e, INVALID, "%s%s is too wide (%g to %g)", what, axis, lo, hi);
+            return proto_bad(e, INVALID, "%s%s is too wide (%g to %g)", what, axis, lo, hi);
     }
     return 0;
 }
@@ -197,10 +195,10 @@ static int check_box(const double *v, size_t n, int cube_ok, const char *what,
 static int check_res(uint32_t res, const proto_limits *lim, proto_error *e)
 {
     if (res == 0)
-        return bad(e, INVALID, "res is missing (give 1 to %u)", lim->max_res);
+        return proto_bad(e, INVALID, "res is missing (give 1 to %u)", lim->max_res);
     if (res > lim->max_res)
-        return bad(e, LIMIT, "res %u is over this server's limit of %u", res,
-                   lim->max_res);
+        return proto_bad(e, LIMIT, "res %u is over this server's limit of %u", res,
+                         lim->max_res);
     return 0;
 }
 
@@ -211,15 +209,15 @@ static const char *const channel_names[] = {"unspecified", "occupancy", "density
 static int check_output(const Voxd__Submit *s, proto_error *e)
 {
     if ((unsigned)s->channel > VOXD__CHANNEL__CHANNEL_DISTANCE)
-        return bad(e, INVALID, "unknown channel %d", (int)s->channel);
+        return proto_bad(e, INVALID, "unknown channel %d", (int)s->channel);
     uint32_t b = s->brick;
     if (b != 0 && (b < PROTO_MIN_BRICK || b > PROTO_MAX_BRICK || (b & (b - 1))))
-        return bad(e, INVALID, "brick %u is not a power of two from %u to %u", b,
-                   PROTO_MIN_BRICK, PROTO_MAX_BRICK);
+        return proto_bad(e, INVALID, "brick %u is not a power of two from %u to %u", b,
+                         PROTO_MIN_BRICK, PROTO_MAX_BRICK);
     if ((unsigned)s->comp > VOXD__COMPRESSION__COMPRESSION_RUNL)
-        return bad(e, INVALID, "unknown compression %d", (int)s->comp);
+        return proto_bad(e, INVALID, "unknown compression %d", (int)s->comp);
     if ((unsigned)s->hash > VOXD__HASH__HASH_XX32)
-        return bad(e, INVALID, "unknown hash %d", (int)s->hash);
+        return proto_bad(e, INVALID, "unknown hash %d", (int)s->hash);
     return 0;
 }
 
@@ -231,9 +229,11 @@ static int check_source_input(const ProtobufCBinaryData *inline_src, uint64_t n,
                               uint32_t max, proto_error *e)
 {
     if (inline_src->len)
-        return bad(e, INVALID, "the expression comes either inline or as input_bytes, not both");
+        return proto_bad(e, INVALID,
+                         "the expression comes either inline or as input_bytes, not both");
     if (n > max)
-        return bad(e, LIMIT, "expression is %llu bytes, limit %u", (unsigned long long)n, max);
+        return proto_bad(e, LIMIT, "expression is %llu bytes, limit %u", (unsigned long long)n,
+                         max);
     return 0;
 }
 
@@ -248,12 +248,12 @@ static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
     if ((rc = check_box(im->domain, im->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(im->res, lim, e))) return rc;
     if ((unsigned)im->schedule > VOXD__SCHEDULE__SCHEDULE_PAPER)
-        return bad(e, INVALID, "unknown schedule %d", (int)im->schedule);
+        return proto_bad(e, INVALID, "unknown schedule %d", (int)im->schedule);
     if (s->channel == VOXD__CHANNEL__CHANNEL_DENSITY ||
         s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
-        return bad(e, INVALID,
-                   "channel %s is not available for implicit jobs (use surface or occupancy)",
-                   channel_names[s->channel]);
+        return proto_bad(e, INVALID,
+                         "channel %s is not available for implicit jobs (use surface or occupancy)",
+                         channel_names[s->channel]);
     return 0;
 }
 
@@ -265,11 +265,11 @@ static int check_mesh_data(const Voxd__Mesh *m, const Voxd__Submit *s,
 {
     uint64_t n = s->input_bytes ? s->input_bytes : m->data.len;
     if (s->input_bytes && m->data.len)
-        return bad(e, INVALID, "the mesh comes either inline or as input_bytes, not both");
-    if (n == 0) return bad(e, INVALID, "mesh data is empty");
+        return proto_bad(e, INVALID, "the mesh comes either inline or as input_bytes, not both");
+    if (n == 0) return proto_bad(e, INVALID, "mesh data is empty");
     if (n > lim->max_mesh_bytes)
-        return bad(e, LIMIT, "mesh is %llu bytes, over this server's max_mesh_bytes of %llu",
-                   (unsigned long long)n, (unsigned long long)lim->max_mesh_bytes);
+        return proto_bad(e, LIMIT, "mesh is %llu bytes, over this server's max_mesh_bytes of %llu",
+                         (unsigned long long)n, (unsigned long long)lim->max_mesh_bytes);
     return 0;
 }
 
@@ -277,20 +277,20 @@ static int check_mesh_data(const Voxd__Mesh *m, const Voxd__Submit *s,
 static int check_mesh_options(const Voxd__Mesh *m, proto_error *e)
 {
     if ((unsigned)m->format > VOXD__MESH_FORMAT__MESH_FORMAT_GLTF)
-        return bad(e, INVALID, "unknown mesh format %d", (int)m->format);
+        return proto_bad(e, INVALID, "unknown mesh format %d", (int)m->format);
     if ((unsigned)m->mode > VOXD__MESH_MODE__MESH_MODE_INTERIOR)
-        return bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);
+        return proto_bad(e, INVALID, "unknown mesh mode %d", (int)m->mode);
     if ((unsigned)m->repair > VOXD__MESH_REPAIR__MESH_REPAIR_WINDING)
-        return bad(e, INVALID, "unknown mesh repair %d", (int)m->repair);
+        return proto_bad(e, INVALID, "unknown mesh repair %d", (int)m->repair);
     uint32_t k = m->supersample;
     if (k && (k < PROTO_MIN_SUPERSAMPLE || k > PROTO_MAX_SUPERSAMPLE))
-        return bad(e, INVALID, "supersample %u is not from %u to %u (or 0: %u)", k,
-                   PROTO_MIN_SUPERSAMPLE, PROTO_MAX_SUPERSAMPLE, PROTO_MIN_SUPERSAMPLE);
+        return proto_bad(e, INVALID, "supersample %u is not from %u to %u (or 0: %u)", k,
+                         PROTO_MIN_SUPERSAMPLE, PROTO_MAX_SUPERSAMPLE, PROTO_MIN_SUPERSAMPLE);
     double w = m->weld_eps;
     if (!(w == 0 || (w >= PROTO_MIN_WELD && w <= PROTO_MAX_WELD)))
-        return bad(e, INVALID, "weld_eps %g is not 0 or from %g to %g", w, PROTO_MIN_WELD,
-                   PROTO_MAX_WELD);
-    if (w != 0 && !m->weld) return bad(e, INVALID, "weld_eps %g without weld", w);
+        return proto_bad(e, INVALID, "weld_eps %g is not 0 or from %g to %g", w, PROTO_MIN_WELD,
+                         PROTO_MAX_WELD);
+    if (w != 0 && !m->weld) return proto_bad(e, INVALID, "weld_eps %g without weld", w);
     return 0;
 }
 
@@ -299,11 +299,12 @@ static int check_mesh_band(const Voxd__Mesh *m, const Voxd__Submit *s, proto_err
 {
     int dist = s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE;
     if (m->band > VOXEL_BAND_MAX)
-        return bad(e, INVALID, "band %u is not from 1 to %u voxels (or 0: %u)", m->band,
-                   VOXEL_BAND_MAX, VOXEL_BAND_DEFAULT);
-    if (m->band && !dist) return bad(e, INVALID, "band %u is for channel distance", m->band);
+        return proto_bad(e, INVALID, "band %u is not from 1 to %u voxels (or 0: %u)", m->band,
+                         VOXEL_BAND_MAX, VOXEL_BAND_DEFAULT);
+    if (m->band && !dist) return proto_bad(e, INVALID, "band %u is for channel distance", m->band);
     if (dist && m->mode > VOXD__MESH_MODE__MESH_MODE_SOLID)
-        return bad(e, INVALID, "channel distance takes its sign from the solid: mode solid only");
+        return proto_bad(e, INVALID,
+                         "channel distance takes its sign from the solid: mode solid only");
     return 0;
 }
 
@@ -317,11 +318,12 @@ static int check_mesh(const Voxd__Mesh *m, const Voxd__Submit *s, const proto_li
     if (m->n_domain && (rc = check_box(m->domain, m->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(m->res, lim, e))) return rc;
     if (m->n_domain && m->pad)
-        return bad(e, INVALID, "pad %u is for a mesh fitted to its bounding box, not with a domain",
-                   m->pad);
+        return proto_bad(e, INVALID,
+                         "pad %u is for a mesh fitted to its bounding box, not with a domain",
+                         m->pad);
     if ((uint64_t)m->pad * 2 >= m->res)
-        return bad(e, INVALID, "pad %u leaves no voxel for the mesh in res %u (2 pad < res)",
-                   m->pad, m->res);
+        return proto_bad(e, INVALID, "pad %u leaves no voxel for the mesh in res %u (2 pad < res)",
+                         m->pad, m->res);
     return check_mesh_band(m, s, e);
 }
 
@@ -376,15 +378,15 @@ static const char *node_label(const Voxd__CsgNode *n, size_t i, char *buf, size_
 static int check_csg_name(const ProtobufCBinaryData *nm, size_t i, proto_error *e)
 {
     if (nm->len >= PROTO_CSG_NAME_MAX)
-        return bad(e, INVALID, "CSG node %zu's name is %zu bytes, limit %u", i, nm->len,
-                   PROTO_CSG_NAME_MAX - 1);
+        return proto_bad(e, INVALID, "CSG node %zu's name is %zu bytes, limit %u", i, nm->len,
+                         PROTO_CSG_NAME_MAX - 1);
     for (size_t k = 0; k < nm->len; k++) {
         uint8_t c = nm->data[k];
         int ok_c = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || c == '_' ||
                    (k > 0 && c >= '0' && c <= '9');
         if (!ok_c)
-            return bad(e, INVALID, "CSG node %zu's name has a byte 0x%02x at offset %zu "
-                       "(names are letters, digits and _)", i, c, k);
+            return proto_bad(e, INVALID, "CSG node %zu's name has a byte 0x%02x at offset %zu "
+                             "(names are letters, digits and _)", i, c, k);
     }
     return 0;
 }
@@ -412,7 +414,7 @@ static int check_csg_stray(const Voxd__CsgNode *n, const char *who, const char *
         field = "a scalar";
     else if (!morph && n->k)
         field = "k";
-    if (field) return bad(e, INVALID, "%s (%s) does not take %s", who, name, field);
+    if (field) return proto_bad(e, INVALID, "%s (%s) does not take %s", who, name, field);
     return 0;
 }
 
@@ -422,15 +424,15 @@ static int check_csg_vec(const double *v, size_t n, int may_omit, int positive,
                          const char *who, const char *what, proto_error *e)
 {
     if (n != 3 && !(may_omit && n == 0))
-        return bad(e, INVALID, "%s needs 3 values for its %s%s, got %zu", who, what,
-                   may_omit ? " (or none)" : "", n);
+        return proto_bad(e, INVALID, "%s needs 3 values for its %s%s, got %zu", who, what,
+                         may_omit ? " (or none)" : "", n);
     for (size_t k = 0; k < n; k++) {
         if (!isfinite(v[k]) || fabs(v[k]) > PROTO_CSG_MAX_COORD)
-            return bad(e, INVALID, "%s's %s value %zu is %g, not a finite number within "
-                       "+-%g", who, what, k + 1, v[k], PROTO_CSG_MAX_COORD);
+            return proto_bad(e, INVALID, "%s's %s value %zu is %g, not a finite number within "
+                             "+-%g", who, what, k + 1, v[k], PROTO_CSG_MAX_COORD);
         if (positive && !(v[k] > 0))
-            return bad(e, INVALID, "%s's %s must be positive, value %zu is %g", who, what,
-                       k + 1, v[k]);
+            return proto_bad(e, INVALID, "%s's %s must be positive, value %zu is %g", who, what,
+                             k + 1, v[k]);
     }
     return 0;
 }
@@ -439,12 +441,12 @@ static int check_csg_primitive(const Voxd__CsgNode *n, const char *who, proto_er
 {
     if (n->primitive == VOXD__PRIMITIVE__PRIMITIVE_UNSPECIFIED ||
         (unsigned)n->primitive > VOXD__PRIMITIVE__PRIMITIVE_CONE)
-        return bad(e, INVALID, "%s has unknown primitive %d", who, (int)n->primitive);
+        return proto_bad(e, INVALID, "%s has unknown primitive %d", who, (int)n->primitive);
     if ((unsigned)n->axis > VOXD__AXIS__AXIS_Z)
-        return bad(e, INVALID, "%s has unknown axis %d", who, (int)n->axis);
+        return proto_bad(e, INVALID, "%s has unknown axis %d", who, (int)n->axis);
     if (n->axis && n->primitive != VOXD__PRIMITIVE__PRIMITIVE_CYLINDER &&
         n->primitive != VOXD__PRIMITIVE__PRIMITIVE_CONE)
-        return bad(e, INVALID, "%s: only a cylinder or a cone has an axis", who);
+        return proto_bad(e, INVALID, "%s: only a cylinder or a cone has an axis", who);
     int rc = check_csg_vec(n->center, n->n_center, 1, 0, who, "center", e);
     if (!rc) rc = check_csg_vec(n->size, n->n_size, 0, 1, who, "size", e);
     if (!rc) rc = check_csg_vec(n->rotate, n->n_rotate, 1, 0, who, "rotation", e);
@@ -462,36 +464,36 @@ static int check_csg_leaf(const Voxd__CsgNode *n, const char *who, const proto_l
         snprintf(what, sizeof what, "%.96s's expression", who);
         if (n->n_domain == 0) return check_source(&n->source, lim->max_expr_bytes, what, e);
         if (n->n_domain != 2)
-            return bad(e, INVALID, "%s's domain needs 2 values (or none), got %zu", who,
-                       n->n_domain);
+            return proto_bad(e, INVALID, "%s's domain needs 2 values (or none), got %zu", who,
+                             n->n_domain);
         int rc = check_source(&n->source, lim->max_expr_bytes, what, e);
         snprintf(what, sizeof what, "%.96s's domain", who);
         return rc ? rc : check_box(n->domain, n->n_domain, 1, what, e);
     case VOXD__CSG_OP__CSG_MESH: case VOXD__CSG_OP__CSG_VOD:
         if (!n->data.len && !n->data_bytes)
-            return bad(e, INVALID, "%s: a %s leaf needs its file's data", who,
-                       n->op == VOXD__CSG_OP__CSG_MESH ? "mesh" : "vod");
+            return proto_bad(e, INVALID, "%s: a %s leaf needs its file's data", who,
+                             n->op == VOXD__CSG_OP__CSG_MESH ? "mesh" : "vod");
         if (n->data.len && n->data_bytes)
-            return bad(e, INVALID, "%s: its file comes inline or as input (data_bytes), "
-                       "not both", who);
+            return proto_bad(e, INVALID, "%s: its file comes inline or as input (data_bytes), "
+                             "not both", who);
         if (n->n_fit && check_csg_vec(n->fit, n->n_fit, 0, 0, who, "fit", e)) return -EINVAL;
         if (!isfinite(n->scale) || n->scale < 0 || n->scale > PROTO_CSG_MAX_COORD)
-            return bad(e, INVALID, "%s's scale is %g: 0 (none) or a positive number", who,
-                       n->scale);
+            return proto_bad(e, INVALID, "%s's scale is %g: 0 (none) or a positive number", who,
+                             n->scale);
         return 0;
     case VOXD__CSG_OP__CSG_DIVIDE:
         if (!(n->scalar > 0 && n->scalar <= 1))
-            return bad(e, INVALID, "%s (divide) needs a scalar S_L in (0, 1], got %g", who,
-                       n->scalar);
+            return proto_bad(e, INVALID, "%s (divide) needs a scalar S_L in (0, 1], got %g", who,
+                             n->scalar);
         return 0;
     case VOXD__CSG_OP__CSG_SCALAR_ADD: case VOXD__CSG_OP__CSG_SCALAR_MUL:
         if (!isfinite(n->scalar))
-            return bad(e, INVALID, "%s needs a finite scalar, got %g", who, n->scalar);
+            return proto_bad(e, INVALID, "%s needs a finite scalar, got %g", who, n->scalar);
         return 0;
     case VOXD__CSG_OP__CSG_ERODE: case VOXD__CSG_OP__CSG_DILATE:
         if (n->k < 1 || n->k > PROTO_CSG_MAX_MORPH)
-            return bad(e, INVALID, "%s needs k of 1..%u voxels, got %u", who,
-                       PROTO_CSG_MAX_MORPH, n->k);
+            return proto_bad(e, INVALID, "%s needs k of 1..%u voxels, got %u", who,
+                             PROTO_CSG_MAX_MORPH, n->k);
         return 0;
     default: return 0;
     }
@@ -502,19 +504,20 @@ static int check_csg_node(const Voxd__CsgNode *n, size_t i, const proto_limits *
 {
     char who[96];
     node_label(n, i, who, sizeof who);
-    if (!n) return bad(e, INVALID, "%s is missing", who);
+    if (!n) return proto_bad(e, INVALID, "%s is missing", who);
     int rc = check_csg_name(&n->name, i, e);
     if (rc) return rc;
-    if (n->op == VOXD__CSG_OP__CSG_OP_UNSPECIFIED) return bad(e, INVALID, "%s has no op", who);
+    if (n->op == VOXD__CSG_OP__CSG_OP_UNSPECIFIED)
+        return proto_bad(e, INVALID, "%s has no op", who);
     const csg_op_info *op = csg_op(n->op);
-    if (!op) return bad(e, INVALID, "%s has unknown op %d", who, (int)n->op);
+    if (!op) return proto_bad(e, INVALID, "%s has unknown op %d", who, (int)n->op);
     if (n->n_children != (size_t)op->arity)
-        return bad(e, INVALID, "%s (%s) needs %d %s, got %zu", who, op->name, op->arity,
-                   op->arity == 1 ? "child" : "children", n->n_children);
+        return proto_bad(e, INVALID, "%s (%s) needs %d %s, got %zu", who, op->name, op->arity,
+                         op->arity == 1 ? "child" : "children", n->n_children);
     for (size_t k = 0; k < n->n_children; k++)
         if (n->children[k] >= i)
-            return bad(e, INVALID, "%s refers to node %u, which is not earlier "
-                       "(children come first: no cycles)", who, n->children[k]);
+            return proto_bad(e, INVALID, "%s refers to node %u, which is not earlier "
+                             "(children come first: no cycles)", who, n->children[k]);
     rc = check_csg_stray(n, who, op->name, e);
     return rc ? rc : check_csg_leaf(n, who, lim, e);
 }
@@ -535,11 +538,11 @@ static int check_csg_shape(const Voxd__Csg *c, const proto_limits *lim, proto_er
         depth[i] = d + 1;
         margin[i] = m + n->k;
         if (depth[i] > lim->max_csg_depth)
-            return bad(e, LIMIT, "%s: the tree is deeper than this server's max_csg_depth "
-                       "of %u", node_label(n, i, who, sizeof who), lim->max_csg_depth);
+            return proto_bad(e, LIMIT, "%s: the tree is deeper than this server's max_csg_depth "
+                             "of %u", node_label(n, i, who, sizeof who), lim->max_csg_depth);
         if (margin[i] > PROTO_CSG_MAX_MARGIN)
-            return bad(e, INVALID, "%s: erosions and dilations along one path pass %u voxels",
-                       node_label(n, i, who, sizeof who), PROTO_CSG_MAX_MARGIN);
+            return proto_bad(e, INVALID, "%s: erosions and dilations along one path pass %u voxels",
+                             node_label(n, i, who, sizeof who), PROTO_CSG_MAX_MARGIN);
     }
     return 0;
 }
@@ -548,44 +551,44 @@ static int check_csg(const Voxd__Csg *c, const Voxd__Submit *s, const proto_limi
                      proto_error *e)
 {
     int rc;
-    if (c->n_nodes == 0) return bad(e, INVALID, "CSG job has no nodes");
+    if (c->n_nodes == 0) return proto_bad(e, INVALID, "CSG job has no nodes");
     uint32_t max = lim->max_csg_nodes < PROTO_CSG_MAX_NODES ? lim->max_csg_nodes
                                                             : PROTO_CSG_MAX_NODES;
     if (c->n_nodes > max)
-        return bad(e, LIMIT, "CSG job has %zu nodes, over this server's max_csg_nodes of %u",
-                   c->n_nodes, max);
+        return proto_bad(e, LIMIT, "CSG job has %zu nodes, over this server's max_csg_nodes of %u",
+                         c->n_nodes, max);
     uint64_t leaf_bytes = 0, input = 0;
     for (size_t i = 0; i < c->n_nodes; i++) {
         if ((rc = check_csg_node(c->nodes[i], i, lim, e))) return rc;
         const Voxd__CsgNode *n = c->nodes[i];
         if (n->data_bytes > lim->max_csg_leaf_bytes) /* no overflow below */
-            return bad(e, LIMIT, "CSG node %zu's file is %llu bytes, over this server's "
-                       "max_csg_leaf_bytes of %llu", i, (unsigned long long)n->data_bytes,
-                       (unsigned long long)lim->max_csg_leaf_bytes);
+            return proto_bad(e, LIMIT, "CSG node %zu's file is %llu bytes, over this server's "
+                             "max_csg_leaf_bytes of %llu", i, (unsigned long long)n->data_bytes,
+                             (unsigned long long)lim->max_csg_leaf_bytes);
         if (n->data_bytes && !s->input_bytes)
-            return bad(e, INVALID, "CSG node %zu has data_bytes but the job declares no "
-                       "input_bytes", i);
+            return proto_bad(e, INVALID, "CSG node %zu has data_bytes but the job declares no "
+                             "input_bytes", i);
         if (n->data.len && s->input_bytes)
-            return bad(e, INVALID, "CSG node %zu's file is inline but the job's leaves come "
-                       "as input (input_bytes)", i);
+            return proto_bad(e, INVALID, "CSG node %zu's file is inline but the job's leaves come "
+                             "as input (input_bytes)", i);
         leaf_bytes += n->data.len + n->data_bytes;
         input += n->data_bytes;
     }
     if (input != s->input_bytes)
-        return bad(e, INVALID, "the CSG leaves' data_bytes add up to %llu, the job declares "
-                   "%llu bytes of input", (unsigned long long)input,
-                   (unsigned long long)s->input_bytes);
+        return proto_bad(e, INVALID, "the CSG leaves' data_bytes add up to %llu, the job declares "
+                         "%llu bytes of input", (unsigned long long)input,
+                         (unsigned long long)s->input_bytes);
     if (leaf_bytes > lim->max_csg_leaf_bytes)
-        return bad(e, LIMIT, "the CSG job's leaves are %llu bytes, over this server's "
-                   "max_csg_leaf_bytes of %llu", (unsigned long long)leaf_bytes,
-                   (unsigned long long)lim->max_csg_leaf_bytes);
+        return proto_bad(e, LIMIT, "the CSG job's leaves are %llu bytes, over this server's "
+                         "max_csg_leaf_bytes of %llu", (unsigned long long)leaf_bytes,
+                         (unsigned long long)lim->max_csg_leaf_bytes);
     if ((rc = check_csg_shape(c, lim, e))) return rc;
     if ((rc = check_source_name(&c->source_name, e))) return rc;
     if ((rc = check_box(c->domain, c->n_domain, 1, "domain", e))) return rc;
     if ((rc = check_res(c->res, lim, e))) return rc;
     if (s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
-        return bad(e, INVALID, "channel %s is not available for CSG jobs (use density, "
-                   "occupancy or surface)", channel_names[s->channel]);
+        return proto_bad(e, INVALID, "channel %s is not available for CSG jobs (use density, "
+                         "occupancy or surface)", channel_names[s->channel]);
     return 0;
 }
 
@@ -594,12 +597,13 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
     int rc = check_output(s, e);
     if (rc) return rc;
     if (s->input_bytes > lim->max_input_bytes)
-        return bad(e, LIMIT, "input is %llu bytes, over this server's max_input_bytes of %llu",
-                   (unsigned long long)s->input_bytes,
-                   (unsigned long long)lim->max_input_bytes);
+        return proto_bad(e, LIMIT,
+                         "input is %llu bytes, over this server's max_input_bytes of %llu",
+                         (unsigned long long)s->input_bytes,
+                         (unsigned long long)lim->max_input_bytes);
     switch (s->job_case) {
     case VOXD__SUBMIT__JOB__NOT_SET:
-        return bad(e, INVALID, "submit has no job (implicit, mesh or csg)");
+        return proto_bad(e, INVALID, "submit has no job (implicit, mesh or csg)");
     case VOXD__SUBMIT__JOB_IMPLICIT:
         if (!s->implicit) break;
         return check_implicit(s->implicit, s, lim, e);
@@ -610,9 +614,9 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
         if (!s->csg) break;
         return check_csg(s->csg, s, lim, e);
     default:
-        return bad(e, INVALID, "unknown job kind %d", (int)s->job_case);
+        return proto_bad(e, INVALID, "unknown job kind %d", (int)s->job_case);
     }
-    return bad(e, INVALID, "submit job is missing");
+    return proto_bad(e, INVALID, "submit job is missing");
 }
 
 /* A piece of a job's input: whether it fits its job is the daemon's to
@@ -620,13 +624,14 @@ static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_er
 static int check_input_chunk(const Voxd__InputChunk *c, const proto_limits *lim,
                              proto_error *e)
 {
-    if (!c->job_id) return bad(e, INVALID, "input chunk has no job id");
+    if (!c->job_id) return proto_bad(e, INVALID, "input chunk has no job id");
     if (c->data.len == 0)
-        return bad(e, INVALID, "input chunk at offset %llu is empty",
-                   (unsigned long long)c->offset);
+        return proto_bad(e, INVALID, "input chunk at offset %llu is empty",
+                         (unsigned long long)c->offset);
     if (c->offset > lim->max_input_bytes || c->data.len > lim->max_input_bytes - c->offset)
-        return bad(e, LIMIT, "input chunk at offset %llu passes this server's max_input_bytes of %llu",
-                   (unsigned long long)c->offset, (unsigned long long)lim->max_input_bytes);
+        return proto_bad(e, LIMIT,
+                         "input chunk at offset %llu passes this server's max_input_bytes of %llu",
+                         (unsigned long long)c->offset, (unsigned long long)lim->max_input_bytes);
     return 0;
 }
 
@@ -635,9 +640,9 @@ static int check_input_chunk(const Voxd__InputChunk *c, const proto_limits *lim,
 static int check_hello(const Voxd__Hello *h, proto_error *e)
 {
     if (h->version != PROTO_VERSION)
-        return bad(e, INVALID, "protocol version %u is not supported (this server speaks %u)",
-                   h->version, PROTO_VERSION);
-    return check_text(h->client, PROTO_MAX_NAME, 0, "client name", e);
+        return proto_bad(e, INVALID, "protocol version %u is not supported (this server speaks %u)",
+                         h->version, PROTO_VERSION);
+    return proto_check_text(h->client, PROTO_MAX_NAME, 0, "client name", e);
 }
 
 /* The message of a set oneof case, NULL if a local caller set the case but
@@ -659,244 +664,21 @@ int proto_check_request(const Voxd__Request *r, const proto_limits *lim,
                         proto_error *err)
 {
     int rc;
-    if (!r) return bad(err, INVALID, "malformed request");
+    if (!r) return proto_bad(err, INVALID, "malformed request");
     if (r->msg_case == VOXD__REQUEST__MSG__NOT_SET)
-        return bad(err, INVALID, "request of no type this server knows (protocol version %u)",
-                   PROTO_VERSION);
+        return proto_bad(err, INVALID, "request of no type this server knows (protocol version %u)",
+                         PROTO_VERSION);
     if (!request_body(r))
-        return bad(err, INVALID, "request of unknown type %d", (int)r->msg_case);
+        return proto_bad(err, INVALID, "request of unknown type %d", (int)r->msg_case);
     switch (r->msg_case) {
     case VOXD__REQUEST__MSG_HELLO: rc = check_hello(r->hello, err); break;
     case VOXD__REQUEST__MSG_SUBMIT: rc = check_submit(r->submit, lim, err); break;
     case VOXD__REQUEST__MSG_CANCEL:
-        rc = r->cancel->job_id ? 0 : bad(err, INVALID, "cancel needs a job id");
+        rc = r->cancel->job_id ? 0 : proto_bad(err, INVALID, "cancel needs a job id");
         break;
     case VOXD__REQUEST__MSG_INPUT: rc = check_input_chunk(r->input, lim, err); break;
     default: rc = 0; break; /* Status, Ping: nothing to check */
     }
-    return rc ? rc : ok(err);
+    return rc ? rc : proto_ok(err);
 }
 
-/* ---------------------------------------------------------------- replies */
-
-static int check_seconds(double s, const char *what, proto_error *e)
-{
-    if (!isfinite(s) || s < 0)
-        return bad(e, INVALID, "%s %g is not a finite number of seconds >= 0", what, s);
-    return 0;
-}
-
-static int check_fraction(double f, proto_error *e)
-{
-    if (!(f >= 0 && f <= 1)) return bad(e, INVALID, "fraction %g is not in [0, 1]", f);
-    return 0;
-}
-
-static int check_job_id(uint64_t id, const char *what, proto_error *e)
-{
-    return id ? 0 : bad(e, INVALID, "%s has no job id", what);
-}
-
-/* Every limit in the range a daemon's config accepts (the table's), and
- * a chunk within a frame. */
-static int check_limits(const Voxd__Limits *l, proto_error *e)
-{
-    if (!l) return bad(e, INVALID, "hello_ok has no limits");
-    proto_limits lim;
-    proto_limits_from_hello(l, &lim);
-    for (size_t i = 0; i < proto_n_limits; i++) {
-        const proto_limit_info *r = &proto_limit_table[i];
-        uint64_t v = proto_limit_get(&lim, i);
-        if (v < r->min || v > r->max)
-            return bad(e, INVALID, "server %s %llu is outside %llu to %llu", r->name,
-                       (unsigned long long)v, (unsigned long long)r->min,
-                       (unsigned long long)r->max);
-    }
-    if (l->chunk_size > l->max_frame - FRAME_CHUNK_OVERHEAD)
-        return bad(e, INVALID, "server chunk_size %u does not fit its max_frame %u",
-                   l->chunk_size, l->max_frame);
-    return 0;
-}
-
-static int check_hello_ok(const Voxd__HelloOk *h, proto_error *e)
-{
-    int rc;
-    if (h->version != PROTO_VERSION)
-        return bad(e, INVALID, "server speaks protocol version %u, this client %u",
-                   h->version, PROTO_VERSION);
-    if ((rc = check_text(h->server, PROTO_MAX_NAME, 0, "server name", e))) return rc;
-    if (h->workers > PROTO_MAX_WORKERS)
-        return bad(e, INVALID, "server reports %u workers, limit %u", h->workers,
-                   PROTO_MAX_WORKERS);
-    return check_limits(h->limits, e);
-}
-
-static int check_progress(const Voxd__Progress *p, proto_error *e)
-{
-    int rc = check_job_id(p->job_id, "progress", e);
-    if (rc || (rc = check_fraction(p->fraction, e))) return rc;
-    if (p->level > PROTO_MAX_LEVEL)
-        return bad(e, INVALID, "progress level %u is over %u", p->level, PROTO_MAX_LEVEL);
-    return 0;
-}
-
-static int check_chunk(const Voxd__ResultChunk *c, const proto_limits *lim,
-                       proto_error *e)
-{
-    int rc = check_job_id(c->job_id, "chunk", e);
-    if (rc) return rc;
-    if (c->data.len == 0) return bad(e, INVALID, "chunk at offset %llu is empty",
-                                     (unsigned long long)c->offset);
-    if (c->data.len > lim->chunk_size)
-        return bad(e, INVALID, "chunk of %zu bytes is over chunk_size %u", c->data.len,
-                   lim->chunk_size);
-    if (c->offset > lim->max_result_bytes || c->data.len > lim->max_result_bytes - c->offset)
-        return bad(e, LIMIT, "chunk at offset %llu passes max_result_bytes %llu",
-                   (unsigned long long)c->offset,
-                   (unsigned long long)lim->max_result_bytes);
-    return 0;
-}
-
-/* The grid of a job: what grid_make (common/grid.h) makes (res within max_res, the
- * octree's depth the smallest that holds it, a finite cubic voxel). */
-static int check_grid(const Voxd__Grid *g, const proto_limits *lim, proto_error *e)
-{
-    if (!g) return bad(e, INVALID, "summary has no grid");
-    if (g->n_res != 3 || g->n_origin != 3)
-        return bad(e, INVALID, "summary grid has %zu res and %zu origin values, not 3",
-                   g->n_res, g->n_origin);
-    uint32_t top = 0;
-    for (int a = 0; a < 3; a++) {
-        if (g->res[a] == 0 || g->res[a] > lim->max_res)
-            return bad(e, INVALID, "summary grid res %u is outside 1 to %u", g->res[a],
-                       lim->max_res);
-        if (g->res[a] > top) top = g->res[a];
-        if (!isfinite(g->origin[a]))
-            return bad(e, INVALID, "summary grid origin %g is not finite", g->origin[a]);
-    }
-    uint32_t depth = 1;
-    while (((uint64_t)1 << depth) < top) depth++;
-    if (g->depth != depth)
-        return bad(e, INVALID, "summary grid depth %u, where res %u needs %u", g->depth, top,
-                   depth);
-    if (!isfinite(g->voxel_size) || !(g->voxel_size > 0))
-        return bad(e, INVALID, "summary grid voxel_size %g is not finite and > 0",
-                   g->voxel_size);
-    return 0;
-}
-
-static int check_summary(const Voxd__Summary *s, const proto_limits *lim, proto_error *e)
-{
-    int rc = check_job_id(s->job_id, "summary", e);
-    if (rc || (rc = check_grid(s->grid, lim, e))) return rc;
-    if (s->file_bytes == 0 || s->file_bytes > lim->max_result_bytes)
-        return bad(e, INVALID, "summary file_bytes %llu is outside 1 to %llu",
-                   (unsigned long long)s->file_bytes,
-                   (unsigned long long)lim->max_result_bytes);
-    if ((rc = check_seconds(s->seconds_queued, "seconds_queued", e)) ||
-        (rc = check_seconds(s->seconds_voxelize, "seconds_voxelize", e)))
-        return rc;
-    return check_seconds(s->seconds_write, "seconds_write", e);
-}
-
-static int check_error(const Voxd__Error *x, proto_error *e)
-{
-    if (x->code == VOXD__ERROR_CODE__ERROR_CODE_UNSPECIFIED ||
-        (unsigned)x->code > VOXD__ERROR_CODE__INTERNAL)
-        return bad(e, INVALID, "unknown error code %d", (int)x->code);
-    return check_text(x->message, PROTO_MAX_MESSAGE, 1, "error message", e);
-}
-
-static int check_worker(const Voxd__WorkerStatus *w, size_t i, proto_error *e)
-{
-    if (!w) return bad(e, INVALID, "worker %zu is missing", i);
-    if (w->pid == 0 || w->pid > INT32_MAX)
-        return bad(e, INVALID, "worker %zu has pid %u", i, w->pid);
-    if (w->cpu < -1 || w->cpu >= PROTO_MAX_CPUS)
-        return bad(e, INVALID, "worker %zu has cpu %d", i, w->cpu);
-    if (w->state == VOXD__WORKER_STATE__WORKER_STATE_UNSPECIFIED ||
-        (unsigned)w->state > VOXD__WORKER_STATE__WORKER_STATE_STALLED)
-        return bad(e, INVALID, "worker %zu has unknown state %d", i, (int)w->state);
-    if (w->stalls > w->replaced)
-        return bad(e, INVALID, "worker %zu has %u stalls but %u replacements", i,
-                   w->stalls, w->replaced);
-    if (!isfinite(w->voxels_per_second) || w->voxels_per_second < 0)
-        return bad(e, INVALID, "worker %zu has voxels_per_second %g", i,
-                   w->voxels_per_second);
-    return 0;
-}
-
-static int check_job_status(const Voxd__JobStatus *j, proto_error *e)
-{
-    int rc = check_job_id(j->job_id, "status job", e);
-    if (rc || (rc = check_fraction(j->fraction, e)) ||
-        (rc = check_seconds(j->seconds, "job seconds", e)))
-        return rc;
-    if (j->kind == VOXD__JOB_KIND__JOB_KIND_UNSPECIFIED ||
-        (unsigned)j->kind > VOXD__JOB_KIND__JOB_KIND_CSG)
-        return bad(e, INVALID, "job %llu has unknown kind %d", (unsigned long long)j->job_id,
-                   (int)j->kind);
-    if (j->state == VOXD__JOB_STATE__JOB_STATE_UNSPECIFIED ||
-        (unsigned)j->state > VOXD__JOB_STATE__JOB_STATE_RUNNING)
-        return bad(e, INVALID, "job %llu has unknown state %d", (unsigned long long)j->job_id,
-                   (int)j->state);
-    return 0;
-}
-
-static int check_status(const Voxd__StatusReply *s, proto_error *e)
-{
-    int rc = check_seconds(s->uptime, "uptime", e);
-    if (rc) return rc;
-    if (s->n_workers > PROTO_MAX_WORKERS)
-        return bad(e, INVALID, "status lists %zu workers, limit %u", s->n_workers,
-                   PROTO_MAX_WORKERS);
-    for (size_t i = 0; i < s->n_workers; i++)
-        if ((rc = check_worker(s->workers[i], i, e))) return rc;
-    if (s->n_jobs > PROTO_MAX_STATUS_JOBS)
-        return bad(e, INVALID, "status lists %zu jobs, limit %u", s->n_jobs,
-                   PROTO_MAX_STATUS_JOBS);
-    for (size_t i = 0; i < s->n_jobs; i++)
-        if ((rc = check_job_status(s->jobs[i], e))) return rc;
-    if (!s->running) return 0;
-    if ((rc = check_job_id(s->running->job_id, "running job", e)) ||
-        (rc = check_fraction(s->running->fraction, e)))
-        return rc;
-    return check_seconds(s->running->seconds, "running seconds", e);
-}
-
-static const void *reply_body(const Voxd__Reply *r)
-{
-    switch (r->msg_case) {
-    case VOXD__REPLY__MSG_HELLO_OK: return r->hello_ok;
-    case VOXD__REPLY__MSG_ACCEPTED: return r->accepted;
-    case VOXD__REPLY__MSG_PROGRESS: return r->progress;
-    case VOXD__REPLY__MSG_CHUNK: return r->chunk;
-    case VOXD__REPLY__MSG_SUMMARY: return r->summary;
-    case VOXD__REPLY__MSG_ERROR: return r->error;
-    case VOXD__REPLY__MSG_STATUS: return r->status;
-    case VOXD__REPLY__MSG_PONG: return r->pong;
-    default: return NULL;
-    }
-}
-
-int proto_check_reply(const Voxd__Reply *r, const proto_limits *lim, proto_error *err)
-{
-    int rc;
-    if (!r) return bad(err, INVALID, "malformed reply");
-    if (r->msg_case == VOXD__REPLY__MSG__NOT_SET)
-        return bad(err, INVALID, "reply of no type this client knows (protocol version %u)",
-                   PROTO_VERSION);
-    if (!reply_body(r))
-        return bad(err, INVALID, "reply of unknown type %d", (int)r->msg_case);
-    switch (r->msg_case) {
-    case VOXD__REPLY__MSG_HELLO_OK: rc = check_hello_ok(r->hello_ok, err); break;
-    case VOXD__REPLY__MSG_ACCEPTED: rc = check_job_id(r->accepted->job_id, "accepted", err); break;
-    case VOXD__REPLY__MSG_PROGRESS: rc = check_progress(r->progress, err); break;
-    case VOXD__REPLY__MSG_CHUNK: rc = check_chunk(r->chunk, lim, err); break;
-    case VOXD__REPLY__MSG_SUMMARY: rc = check_summary(r->summary, lim, err); break;
-    case VOXD__REPLY__MSG_ERROR: rc = check_error(r->error, err); break;
-    case VOXD__REPLY__MSG_STATUS: rc = check_status(r->status, err); break;
-    default: rc = 0; break; /* Pong */
-    }
-    return rc ? rc : ok(err);
-}
