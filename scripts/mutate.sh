@@ -126,19 +126,19 @@ id:    ival-mul-corner
 file:  expr/ival.c
 from:  double p[4] = {a.lo * b.lo, a.lo * b.hi, a.hi * b.lo, a.hi * b.hi};
 to:    double p[4] = {a.lo * b.lo, a.lo * b.lo, a.hi * b.lo, a.hi * b.hi};
-tests: test_ival test_expr
+tests: test_ival test_expr test_expr_eval
 
 id:    ival-sqrt-narrow
 file:  expr/ival.c
 from:  r = ival_widen((ival){sqrt(ival_fmax_(a.lo, 0)), sqrt(a.hi)});
 to:    r = ival_widen((ival){sqrt(ival_fmax_(a.lo, 0)), sqrt(a.hi) * 0.999});
-tests: test_ival test_expr
+tests: test_ival test_expr test_expr_eval
 
 id:    expr-neg-dropped
 file:  expr/expr_eval.c
 from:  case EXPR_OP_NEG: return -a;
 to:    case EXPR_OP_NEG: return a;
-tests: test_expr test_ival
+tests: test_expr test_expr_eval test_ival
 
 id:    grid-axis-one-more
 file:  common/grid.c
@@ -168,7 +168,7 @@ id:    mesh-winding-threshold
 file:  mesh/mesh_solid.c
 from:  if (fabs(wn[k]) >= 0.5) bits[w] |= 1ull << idx[k];
 to:    if (fabs(wn[k]) >= 0.75) bits[w] |= 1ull << idx[k];
-tests: test_mesh_repair test_mesh_vox
+tests: test_mesh_repair test_mesh_vox test_mesh_vox_surface
 
 id:    mesh-winding-sign
 file:  mesh/mesh_solid.c
@@ -222,13 +222,13 @@ id:    heartbeat-dropped
 file:  worker/work.h
 from:  atomic_store_explicit(&w->s->beat, ++w->beats, memory_order_relaxed);
 to:    (void)w;
-tests: test_engine daemon_stall.sh
+tests: test_engine_death daemon_stall.sh
 
 id:    stall-detection-off
 file:  master/sched.c
 from:  if (e->stall_s > 0 && now - m->beat_t >= e->stall_s) stalled(e, i, now);
 to:    if (0 && e->stall_s > 0 && now - m->beat_t >= e->stall_s) stalled(e, i, now);
-tests: test_engine daemon_stall.sh
+tests: test_engine_death daemon_stall.sh
 
 id:    frame-max-off-by-one
 file:  proto/frame.c
@@ -252,7 +252,7 @@ id:    vod-crc-ignored
 file:  vod/vod_read.c
 from:  if (crc != stored)
 to:    if (crc != stored && 0)
-tests: test_vod
+tests: test_vod_corrupt test_vod
 
 id:    daemon-uid-cap-off-by-one
 file:  server/daemon_client.c

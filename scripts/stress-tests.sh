@@ -27,10 +27,11 @@ while getopts "n:j:b:h" o; do
     esac
 done
 shift $((OPTIND - 1))
-# test_engine and test_libvox (stall timeouts, destroy and cancel times),
+# test_engine, test_engine_death, test_libvox and test_libvox_wait (stall
+# timeouts, destroy and cancel times),
 # the daemon's state waits, the scripts whose kill_busy_worker must find a
 # worker mid-job (daemon.sh, daemon_csg.sh), and MPI's rank kills
-suites=${*:-test_engine test_libvox daemon_stall daemon_fair daemon_life daemon_abuse daemon daemon_csg mpi}
+suites=${*:-test_engine test_engine_death test_libvox test_libvox_wait daemon_stall daemon_fair daemon_life daemon_abuse daemon daemon_csg mpi}
 case $rounds in '' | *[!0-9]*) echo "stress-tests.sh: -n wants a whole number" >&2; exit 2 ;; esac
 case $hogs in '' | *[!0-9]*) echo "stress-tests.sh: -j wants a whole number" >&2; exit 2 ;; esac
 cd "$root" || exit 2

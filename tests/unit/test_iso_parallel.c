@@ -1,0 +1,447 @@
+/* Marching cubes on workers and threads: 1 and 2 workers against the serial run,
+ * byte for byte; bad parameters and a piece that refers to nobody refused; a
+ * stalled worker costs nothing but time; too small a segment is a limit; the
+ * brick walk; a solid interior costs no task; the writers on several threads, on
+ * an appending fd and on a pipe, and the input and its checks on several
+ * threads, against one thread. */
+#include <criterion/criterion.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "engine.h"
+#include "expr.h"
+#include "iso.h"
+#include "mesh.h"
+#include "vod.h"
+#include "vod_volume.h"
+#include "voxel.h"
+
+#include "iso_fixture.h"
+
+/* ---- the engine ---- */
+
+static int same_mesh(const iso_mesh *a, const iso_mesh *b)
+{
+    return a->n_vertices == b->n_vertices && a->n_triangles == b->n_triangles &&
+           !memcmp(a->pos, b->pos, 12 * a->n_vertices) &&
+           !memcmp(a->tri, b->tri, 12 * a->n_triangles) && !a->nrm == !b->nrm &&
+           (!a->nrm || !memcmp(a->nrm, b->nrm, 12 * a->n_vertices));
+}
+
+Test(iso, the_workers_give_the_serial_mesh_byte_for_byte)
+{
+    double rr[2] = {0.6, 0.25};
+    vol_spec s = cube_spec(80, 8, -1, 1);
+    ramp r = {torus_dist, rr, s.h};
+    vod_file *files[2] = {make_vod(&s, ramp_value, &r), NULL};
+    uint32_t mode = 3;
+    vol_spec s3 = {{21, 17, 19}, 4, 32, VOXEL_CH_SURFACE, 0.1, {0, 0, 0}};
+    files[1] = make_vod(&s3, noise, &mode);
+    for (int w = 1; w <= 2; w++) {
+        engine_opts o = {.workers = w, .shm_bytes = (size_t)256 << 20};
+        engine *e;
+        char err[256] = "";
+        cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+        for (int k = 0; k < 2; k++)
+            for (int level = 0; level < 2; level++) {
+                iso_params p;
+                cr_assert_eq(iso_params_make(files[k], 127, level, NULL, NULL, 0, &p, err,
+                                             sizeof err), 0, "%s", err);
+                iso_mesh ref, m;
+                polygonize(files[k], 127, level, NULL, NULL, 0, &ref);
+                engine_iso_job job = {.file = files[k], .p = &p};
+                engine_result res;
+                cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+                cr_assert(same_mesh(&ref, &m), "file %d level %d, %d workers: another mesh",
+                          k, level, w);
+                cr_assert_eq(!m.nrm, k == 0, "normals only from channel 3");
+                iso_mesh_free(&ref);
+                iso_mesh_free(&m);
+            }
+        engine_destroy(e);
+    }
+    vod_close(files[0]);
+    vod_close(files[1]);
+}
+
+/* ---- refusals ---- */
+
+Test(iso, bad_parameters_are_refused)
+{
+    double R = 0.5;
+    vol_spec s = cube_spec(16, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    iso_params p;
+    char err[256];
+    double c[3] = {0, 0, 0}, dec[2] = {1, 0.5}, nan_r[1] = {NAN};
+    cr_assert_eq(iso_params_make(f, 255, 0, NULL, NULL, 0, &p, err, sizeof err), -EINVAL);
+    cr_assert_eq(iso_params_make(f, 127, 2, NULL, NULL, 0, &p, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "levels 0..1"), "%s", err);
+    cr_assert_eq(iso_params_make(f, 127, 0, c, dec, 2, &p, err, sizeof err), -EINVAL);
+    cr_assert(strstr(err, "increasing"), "%s", err);
+    cr_assert_eq(iso_params_make(f, 127, 0, c, nan_r, 1, &p, err, sizeof err), -EINVAL);
+    vod_close(f);
+}
+
+Test(iso, a_piece_that_refers_to_nobody_is_refused)
+{
+    double R = 0.5;
+    vol_spec s = cube_spec(16, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    iso_params p;
+    char err[256] = "";
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    void *mem = NULL;
+    iso_input in;
+    cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
+    iso_task *t;
+    uint64_t n;
+    cr_assert_eq(iso_tasks(&p, &in, &t, &n), 0);
+    cr_assert_gt(n, 1);
+    iso_work *w;
+    cr_assert_eq(iso_work_new(&p, &w), 0);
+    iso_piece pc;
+    cr_assert_eq(iso_task_run(w, &p, &in, &t[0], &pc), 0);
+    cr_assert_gt(pc.ne, 0);
+    /* the first task alone: its references to the others find nobody */
+    iso_mesh m;
+    cr_assert_eq(iso_merge(&p, &pc, 1, &m, err, sizeof err), -EPROTO);
+    cr_assert(strstr(err, "refers to a vertex no piece has"), "%s", err);
+    /* a piece that owns every vertex it uses, alone, then with a
+     * reference past its vertices */
+    uint64_t i = 0;
+    for (; i < n; i++) {
+        cr_assert_eq(iso_task_run(w, &p, &in, &t[i], &pc), 0);
+        if (!pc.ne && pc.nt) break;
+    }
+    cr_assert_lt(i, n, "no task owns all its vertices");
+    cr_assert_eq(iso_merge(&p, &pc, 1, &m, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(m.n_triangles, pc.nt);
+    iso_mesh_free(&m);
+    uint32_t *tri = (uint32_t *)pc.tri;
+    tri[0] = pc.nv + 5;
+    cr_assert_eq(iso_merge(&p, &pc, 1, &m, err, sizeof err), -EPROTO);
+    cr_assert(strstr(err, "refers to no vertex"), "%s", err);
+    iso_work_free(w);
+    free(t);
+    free(mem);
+    vod_close(f);
+}
+
+/* A worker stopped before the job: it holds its task without a heartbeat,
+ * is killed after the stall timeout and replaced; the tasks it never ran
+ * are run by the other worker or the master, and the mesh is the same. */
+Test(iso, a_stalled_worker_costs_nothing_but_time)
+{
+    double R = 0.7;
+    vol_spec s = cube_spec(64, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    engine_opts o = {.workers = 2, .shm_bytes = (size_t)256 << 20, .stall_timeout = 0.2};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    iso_params p;
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    iso_mesh ref, m;
+    polygonize(f, 127, 0, NULL, NULL, 0, &ref);
+    cr_assert_eq(kill(engine_worker_pid(e, 0), SIGSTOP), 0);
+    engine_iso_job job = {.file = f, .p = &p};
+    engine_result res;
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert_geq(res.stalls, 1, "the stopped worker was not replaced");
+    cr_assert(same_mesh(&ref, &m), "another mesh after a stall");
+    iso_mesh_free(&m);
+    /* and the engine goes on: the next job on the replaced worker */
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert(same_mesh(&ref, &m));
+    iso_mesh_free(&m);
+    iso_mesh_free(&ref);
+    engine_destroy(e);
+    vod_close(f);
+}
+
+/* Shared memory too small for the pieces: a limit, said. */
+Test(iso, too_small_a_segment_is_a_limit)
+{
+    double R = 0.7;
+    vol_spec s = cube_spec(128, 16, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    engine_opts o = {.workers = 1, .shm_bytes = (size_t)3 << 20};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    iso_params p;
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    engine_iso_job job = {.file = f, .p = &p};
+    engine_result res;
+    iso_mesh m;
+    cr_assert_lt(engine_iso(e, &job, &m, &res), 0);
+    cr_assert_eq(res.failure, ENGINE_LIMIT, "%s", res.error);
+    cr_assert(strstr(res.error, "does not fit in shared memory"), "%s", res.error);
+    engine_destroy(e);
+    vod_close(f);
+}
+
+/* vod_foreach_brick (what the input is made from): every non-empty brick
+ * of a level once, the pointer vod_brick gives for its coordinates. */
+typedef struct {
+    const vod_file *f;
+    int level;
+    uint64_t n, wrong;
+} walk_check;
+
+static int count_brick(void *ud, const uint32_t b[3], const uint8_t *raw)
+{
+    walk_check *w = ud;
+    w->n++;
+    if (vod_brick(w->f, w->level, b) != raw) w->wrong++;
+    return 0;
+}
+
+Test(iso, vod_foreach_brick_walks_every_brick_once)
+{
+    uint32_t mode = 2;
+    vol_spec s = {{37, 21, 29}, 4, 8, VOXEL_CH_DENSITY, 0.1, {0, 0, 0}};
+    vod_file *f = make_vod(&s, noise, &mode);
+    for (int l = 0; l < (int)vod_get_info(f)->height; l++) {
+        walk_check w = {f, l, 0, 0};
+        cr_assert_eq(vod_foreach_brick(f, l, count_brick, &w), 0);
+        uint32_t side = vod_level_size(f, l) / 4, b[3];
+        uint64_t expect = 0;
+        for (b[2] = 0; b[2] < side; b[2]++)
+            for (b[1] = 0; b[1] < side; b[1]++)
+                for (b[0] = 0; b[0] < side; b[0]++) expect += vod_brick(f, l, b) != NULL;
+        cr_assert_eq(w.n, expect, "level %d: %llu bricks walked, %llu there", l,
+                     (unsigned long long)w.n, (unsigned long long)expect);
+        cr_assert_eq(w.wrong, 0, "level %d", l);
+    }
+    cr_assert_eq(vod_foreach_brick(f, 99, count_brick, NULL), -EINVAL);
+    vod_close(f);
+}
+
+/* The bricks' states drop the tasks wholly inside a solid or wholly
+ * outside: fewer tasks, the same mesh, byte for byte. */
+Test(iso, a_solid_interior_costs_no_task)
+{
+    double R = 0.85;
+    vol_spec s = cube_spec(96, 8, -1, 1);
+    ramp r = {sphere_dist, &R, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    iso_params p;
+    char err[256] = "";
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0, "%s", err);
+    void *mem = NULL;
+    iso_input in;
+    cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
+    iso_input blind = in;
+    blind.state = NULL;
+    iso_task *t;
+    uint64_t n_state, n_blind;
+    cr_assert_eq(iso_tasks(&p, &in, &t, &n_state), 0);
+    free(t);
+    cr_assert_eq(iso_tasks(&p, &blind, &t, &n_blind), 0);
+    free(t);
+    cr_assert_lt(n_state, n_blind, "%llu tasks with the states, %llu without",
+                 (unsigned long long)n_state, (unsigned long long)n_blind);
+    iso_mesh a, b;
+    cr_assert_eq(iso_run_serial(&p, &in, &a, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_run_serial(&p, &blind, &b, err, sizeof err), 0, "%s", err);
+    cr_assert(same_mesh(&a, &b), "the states changed the mesh");
+    assert_closed(&a, "sphere, interior skipped");
+    iso_mesh_free(&a);
+    iso_mesh_free(&b);
+    free(mem);
+    vod_close(f);
+}
+
+/* ---- several threads against one ---- */
+
+/* A mesh of nv random vertices (and normals) and nt triangles of three
+ * distinct random indices: several of the writer's chunks of each. */
+static iso_mesh random_mesh(uint64_t nv, uint64_t nt, int normals, unsigned seed)
+{
+    iso_mesh m = {.n_vertices = nv, .n_triangles = nt, .pos = malloc(12 * nv),
+                  .nrm = normals ? malloc(12 * nv) : NULL, .tri = malloc(12 * nt)};
+    srand(seed);
+    for (uint64_t i = 0; i < 3 * nv; i++) {
+        m.pos[i] = (float)rand() / (float)RAND_MAX * 2.0f - 1.0f;
+        if (normals) m.nrm[i] = (float)rand() / (float)RAND_MAX - 0.5f;
+    }
+    for (uint64_t i = 0; i < nt; i++) {
+        uint32_t a = (uint32_t)(rand() % (int)nv), b, c;
+        do b = (uint32_t)(rand() % (int)nv); while (b == a);
+        do c = (uint32_t)(rand() % (int)nv); while (c == a || c == b);
+        m.tri[3 * i] = a, m.tri[3 * i + 1] = b, m.tri[3 * i + 2] = c;
+    }
+    return m;
+}
+
+/* m written in format f by `threads` threads after `skip` bytes already in
+ * the file: the file's bytes past them, *len long. */
+static uint8_t *written(const iso_mesh *m, iso_format f, unsigned threads, size_t skip,
+                        size_t *len)
+{
+    char path[] = "/tmp/test_iso_writeXXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    unlink(path);
+    uint8_t pad[64] = {0};
+    cr_assert_eq(write(fd, pad, skip), (ssize_t)skip);
+    cr_assert_eq(iso_write(fd, m, f, "a comment", threads), 0);
+    off_t end = lseek(fd, 0, SEEK_CUR);
+    cr_assert_eq(end, lseek(fd, 0, SEEK_END), "the fd stands at the file's end");
+    *len = (size_t)end - skip;
+    uint8_t *buf = malloc(*len ? *len : 1);
+    cr_assert_eq(pread(fd, buf, *len, (off_t)skip), (ssize_t)*len);
+    close(fd);
+    return buf;
+}
+
+Test(iso, the_writers_on_several_threads_write_one_threads_bytes)
+{
+    static const iso_format fmt[] = {ISO_FMT_PLY, ISO_FMT_PLY_ASCII, ISO_FMT_OBJ, ISO_FMT_STL};
+    for (int normals = 0; normals < 2; normals++) {
+        iso_mesh m = random_mesh(20011, 30013, normals, 7u + (unsigned)normals);
+        for (size_t k = 0; k < sizeof fmt / sizeof *fmt; k++) {
+            size_t n1, nn;
+            uint8_t *one = written(&m, fmt[k], 1, 0, &n1);
+            for (unsigned threads = 2; threads <= 5; threads += 3) {
+                uint8_t *many = written(&m, fmt[k], threads, 17, &nn);
+                cr_assert(n1 == nn && !memcmp(one, many, n1),
+                          "format %d, normals %d: %u threads differ from one", (int)fmt[k],
+                          normals, threads);
+                free(many);
+            }
+            /* read back by the loaders (an independent parser): every
+             * vertex and triangle as written (STL has no shared vertices) */
+            mesh back;
+            mesh_error me;
+            if (fmt[k] != ISO_FMT_STL) {
+                cr_assert_eq(mesh_parse(one, n1, MESH_FORMAT_AUTO, NULL, &back, &me), 0, "%s",
+                             me.msg);
+                cr_assert_eq(back.n_vertices, m.n_vertices);
+                cr_assert_eq(back.n_triangles, m.n_triangles);
+                cr_assert(!memcmp(back.vertices, m.pos, 12 * m.n_vertices));
+                cr_assert(!memcmp(back.triangles, m.tri, 12 * m.n_triangles));
+                mesh_free(&back);
+            } else
+                cr_assert_eq(n1, 84 + 50 * m.n_triangles);
+            free(one);
+        }
+        iso_mesh_free(&m);
+    }
+}
+
+/* Waves of density: surface in nearly every brick, few bricks alike. */
+static uint32_t waves(void *ud, double x, double y, double z)
+{
+    (void)ud;
+    return (uint32_t)lround(127.5 + 127 * sin(7 * x) * sin(6 * y + 0.3) * sin(5 * z + 0.7));
+}
+
+/* An fd in append mode (pwrite would append) and a pipe (no offsets):
+ * written in order by one thread, the same bytes. */
+Test(iso, the_writers_on_an_appending_fd_or_a_pipe_write_in_order)
+{
+    iso_mesh m = random_mesh(20011, 30013, 1, 3);
+    size_t n1;
+    uint8_t *one = written(&m, ISO_FMT_OBJ, 1, 0, &n1);
+    char path[] = "/tmp/test_iso_appendXXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    close(fd);
+    fd = open(path, O_WRONLY | O_APPEND);
+    unlink(path);
+    cr_assert_eq(iso_write(fd, &m, ISO_FMT_OBJ, "a comment", 4), 0);
+    cr_assert_eq(lseek(fd, 0, SEEK_END), (off_t)n1);
+    uint8_t *back = malloc(n1);
+    char fdpath[64];
+    snprintf(fdpath, sizeof fdpath, "/proc/self/fd/%d", fd);
+    int rd = open(fdpath, O_RDONLY);
+    cr_assert_geq(rd, 0);
+    cr_assert_eq(pread(rd, back, n1, 0), (ssize_t)n1);
+    cr_assert(!memcmp(one, back, n1), "appending: other bytes");
+    close(rd);
+    close(fd);
+    /* a pipe: a small mesh, whose file fits the pipe's buffer */
+    iso_mesh small = random_mesh(50, 60, 0, 5);
+    size_t ns;
+    uint8_t *want = written(&small, ISO_FMT_PLY, 1, 0, &ns);
+    cr_assert_lt(ns, 60000);
+    int pp[2];
+    cr_assert_eq(pipe(pp), 0);
+    cr_assert_eq(iso_write(pp[1], &small, ISO_FMT_PLY, "a comment", 4), 0);
+    close(pp[1]);
+    cr_assert_eq(read(pp[0], back, ns + 1), (ssize_t)ns);
+    cr_assert(!memcmp(want, back, ns), "a pipe: other bytes");
+    close(pp[0]);
+    free(want), free(back), free(one);
+    iso_mesh_free(&small);
+    iso_mesh_free(&m);
+}
+
+Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
+{
+    vol_spec s = cube_spec(128, 8, -1, 1);
+    vod_file *f = make_vod(&s, waves, NULL);
+    iso_params p;
+    char err[256] = "", err3[256] = "";
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    void *mem1 = NULL, *mem3 = NULL;
+    iso_input a, b;
+    cr_assert_eq(iso_input_make_threads(f, &p, heap, &mem1, 1, &a), 0);
+    cr_assert_eq(iso_input_make_threads(f, &p, heap, &mem3, 3, &b), 0);
+    cr_assert(a.n == b.n && a.raw_bytes == b.raw_bytes && a.raw_bytes >= 2u << 20,
+              "want several parts of the copy: %zu bytes", (size_t)a.raw_bytes);
+    cr_assert(!memcmp(a.keys, b.keys, 8 * a.n) && !memcmp(a.offs, b.offs, 8 * a.n) &&
+              !memcmp(a.state, b.state, a.n) && !memcmp(a.raw, b.raw, a.raw_bytes));
+    /* every piece, then one broken at the back: the same error either way */
+    iso_task *t;
+    uint64_t n;
+    cr_assert_eq(iso_tasks(&p, &a, &t, &n), 0);
+    cr_assert_gt(n, 3 * 256, "want several parts of the check");
+    iso_work *w;
+    cr_assert_eq(iso_work_new(&p, &w), 0);
+    iso_piece *pc = calloc(n, sizeof *pc);
+    uint8_t **own = calloc(n, sizeof *own);
+    for (uint64_t i = 0; i < n; i++) {
+        iso_piece v;
+        cr_assert_eq(iso_task_run(w, &p, &a, &t[i], &v), 0);
+        size_t bytes = iso_piece_bytes(&p, &v);
+        own[i] = malloc(bytes ? bytes : 1);
+        iso_piece_pack(&p, &v, own[i]);
+        iso_piece_view(&p, own[i], bytes, v.key, v.nv, v.nc, v.nt, v.ne, &pc[i]);
+    }
+    uint64_t *vb1 = malloc(8 * (n + 1)), *tb1 = malloc(8 * (n + 1));
+    uint64_t *vb3 = malloc(8 * (n + 1)), *tb3 = malloc(8 * (n + 1));
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb1, tb1, 1, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err, sizeof err), 0, "%s", err);
+    cr_assert(!memcmp(vb1, vb3, 8 * (n + 1)) && !memcmp(tb1, tb3, 8 * (n + 1)));
+    uint64_t late = n - 2, early = n / 2; /* in the last part, then in the middle one */
+    while (!pc[late].nt) late--;
+    while (!pc[early].nt) early++;
+    ((uint32_t *)pc[late].tri)[0] = pc[late].nv + 1;
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb1, tb1, 1, err, sizeof err), -EPROTO);
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err3, sizeof err3), -EPROTO);
+    cr_assert_str_eq(err, err3);
+    ((uint32_t *)pc[early].tri)[0] = pc[early].nv + 1;
+    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err3, sizeof err3), -EPROTO);
+    char want[64];
+    snprintf(want, sizeof want, "piece %llu: ", (unsigned long long)early);
+    cr_assert(!strncmp(err3, want, strlen(want)), "the first bad piece: %s", err3);
+    for (uint64_t i = 0; i < n; i++) free(own[i]);
+    free(own), free(pc), free(vb1), free(tb1), free(vb3), free(tb3), free(t);
+    iso_work_free(w);
+    free(mem1), free(mem3);
+    vod_close(f);
+}
