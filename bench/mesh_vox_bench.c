@@ -52,12 +52,14 @@ static void *worker(void *arg)
     void *scratch = malloc(mesh_tile_scratch_bytes(j->g, j->o));
     mesh_tile_stats st = {0};
     uint32_t nt = j->b->tiles[0] * j->b->tiles[1];
+    mesh_tiles tj = {.m = j->m, .lattice = j->lat, .g = j->g, .o = j->o, .vol = j->v,
+                     .scratch = scratch};
     for (;;) {
         uint32_t t = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed);
         if (t >= nt) break;
-        int rc = mesh_tile_run(j->m, j->lat, j->b->ids + j->b->start[t],
-                               (size_t)(j->b->start[t + 1] - j->b->start[t]), j->g, j->o,
-                               t % j->b->tiles[0], t / j->b->tiles[0], scratch, j->v, NULL, &st);
+        int rc = mesh_tile_run(&tj, j->b->ids + j->b->start[t],
+                               (size_t)(j->b->start[t + 1] - j->b->start[t]),
+                               t % j->b->tiles[0], t / j->b->tiles[0], &st);
         if (rc) j->rc = rc;
     }
     free(scratch);
@@ -126,9 +128,10 @@ static int bench_res(const mesh *m, const mesh_vox_opts *o, uint32_t res, uint32
     mesh_tile_stats st = {0};
     void *scratch = malloc(mesh_tile_scratch_bytes(&g, o));
     vod_volume_init(&v, arena, bytes, g.res, mesh_vox_bits(o), sbrick);
+    mesh_tiles tj = {.m = m, .lattice = lat, .g = &g, .o = o, .vol = v, .scratch = scratch};
     for (uint32_t t = 0; t < b.tiles[0] * b.tiles[1]; t++)
-        mesh_tile_run(m, lat, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]), &g, o,
-                      t % b.tiles[0], t / b.tiles[0], scratch, v, NULL, &st);
+        mesh_tile_run(&tj, b.ids + b.start[t], (size_t)(b.start[t + 1] - b.start[t]),
+                      t % b.tiles[0], t / b.tiles[0], &st);
     n = st.voxels;
     printf("| %u^3 | %.3f s | %.3f s (%.3f) | %.3f s (%.3f) | %u | %llu |\n", res, bin, one,
            one_c, two, two_c, vi.level0_bricks, (unsigned long long)n);

@@ -186,22 +186,22 @@ static int check_volume(const vod_volume *vol, const grid_spec *g,
     return 0;
 }
 
-int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *ids, size_t n,
-                  const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
-                  uint32_t ty, void *scratch, vod_volume *vol,
-                  const mesh_tile_env *env, mesh_tile_stats *st)
+int mesh_tile_run(const mesh_tiles *j, const uint32_t *ids, size_t n, uint32_t tx,
+                  uint32_t ty, mesh_tile_stats *st)
 {
-    int rc = check_volume(vol, g, o, tx, ty);
+    const grid_spec *g = j->g;
+    const mesh_vox_opts *o = j->o;
+    int rc = check_volume(j->vol, g, o, tx, ty);
     if (rc) return rc;
     mv_plan p;
     mv_bufs b;
     mv_plan_make(g, o, &p);
-    mv_layout(&p, mesh_vox_bits(o), scratch, &b);
+    mv_layout(&p, mesh_vox_bits(o), j->scratch, &b);
     vod_volume_info vi;
-    vod_volume_get_info(vol, &vi);
-    mv_tile t = {.m = m, .lat = lattice, .g = g, .o = o, .ids = ids, .n = n, .vol = vol,
-                 .S = vi.sbrick, .x0 = tx * MESH_TILE, .y0 = ty * MESH_TILE,
-                 .nz = g->res[2], .st = st, .dis = b.dis, .pulse = {.env = env}};
+    vod_volume_get_info(j->vol, &vi);
+    mv_tile t = {.m = j->m, .lat = j->lattice, .g = g, .o = o, .ids = ids, .n = n,
+                 .vol = j->vol, .S = vi.sbrick, .x0 = tx * MESH_TILE, .y0 = ty * MESH_TILE,
+                 .nz = g->res[2], .st = st, .dis = b.dis, .pulse = {.env = j->env}};
     t.nx = g->res[0] - t.x0 < MESH_TILE ? g->res[0] - t.x0 : MESH_TILE;
     t.ny = g->res[1] - t.y0 < MESH_TILE ? g->res[1] - t.y0 : MESH_TILE;
     if (b.dis) memset(b.dis, 0, (size_t)t.ny * t.nz * 8);
@@ -225,9 +225,7 @@ int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *id
 }
 
 /* Every tile of box (tx0, ty0, tx1, ty1) in turn. */
-static int run_tiles(const mesh *m, const mesh_lattice *lat, const mesh_bins *bins,
-                     const grid_spec *g, const mesh_vox_opts *o, const uint32_t box[4],
-                     void *scratch, vod_volume *vol, const mesh_tile_env *env,
+static int run_tiles(const mesh_tiles *j, const mesh_bins *bins, const uint32_t box[4],
                      mesh_tile_stats *st)
 {
     int rc = 0;
@@ -236,9 +234,8 @@ static int run_tiles(const mesh *m, const mesh_lattice *lat, const mesh_bins *bi
     for (uint32_t ty = box[1]; ty < y1 && !rc; ty++)
         for (uint32_t tx = box[0]; tx < x1 && !rc; tx++) {
             uint64_t i = (uint64_t)ty * bins->tiles[0] + tx;
-            rc = mesh_tile_run(m, lat, bins->ids + bins->start[i],
-                               (size_t)(bins->start[i + 1] - bins->start[i]), g, o,
-                               tx, ty, scratch, vol, env, st);
+            rc = mesh_tile_run(j, bins->ids + bins->start[i],
+                               (size_t)(bins->start[i + 1] - bins->start[i]), tx, ty, st);
         }
     return rc;
 }
@@ -256,7 +253,9 @@ int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     if (!rc) rc = mesh_bin(m, g, o, lat, 1, &bins);
     if (!rc) {
         uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};
-        rc = run_tiles(m, lat, &bins, g, o, tiles ? tiles : all, scratch, vol, &env, st);
+        mesh_tiles j = {.m = m, .lattice = lat, .g = g, .o = o, .vol = vol, .env = &env,
+                        .scratch = scratch};
+        rc = run_tiles(&j, &bins, tiles ? tiles : all, st);
         mesh_bins_free(&bins);
     }
     mesh_wtree_free((mesh_wtree *)env.wtree);

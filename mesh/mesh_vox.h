@@ -131,17 +131,28 @@ typedef struct {
 /* Scratch a tile needs (the caller gives each worker one buffer). */
 size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o);
 
-/* Voxelize tile (tx, ty) from the triangles ids[0, n) of m into vol, whose
- * dims are g->res, bits mesh_vox_bits(o), and storage brick side divides
- * MESH_TILE; lattice: mesh_bin's for m and g, or NULL (the tile snaps the
- * vertices itself, the same way); env: the tree and the heartbeat, or NULL.  Adds to
- * *st.  0, -ECANCELED when env's tick said stop, or -ENOMEM when vol's
+/* What the tiles of one voxelization share: mesh m on grid g with options
+ * o into vol, whose dims are g->res, bits mesh_vox_bits(o), and storage
+ * brick side divides MESH_TILE; lattice: mesh_bin's for m and g, or NULL
+ * (the tile snaps the vertices itself, the same way); env: the tree and the
+ * heartbeat, or NULL; scratch: mesh_tile_scratch_bytes of it, a thread's
+ * own. */
+typedef struct {
+    const mesh *m;
+    const mesh_lattice *lattice;
+    const grid_spec *g;
+    const mesh_vox_opts *o;
+    vod_volume *vol;
+    const mesh_tile_env *env;
+    void *scratch;
+} mesh_tiles;
+
+/* Voxelize tile (tx, ty) of j from the triangles ids[0, n) of j->m.  Adds
+ * to *st.  0, -ECANCELED when env's tick said stop, or -ENOMEM when vol's
  * pool is full.  A tile never writes a brick that is all 0: vol must start
  * empty (as vod_volume_init leaves it). */
-int mesh_tile_run(const mesh *m, const mesh_lattice *lattice, const uint32_t *ids, size_t n,
-                  const grid_spec *g, const mesh_vox_opts *o, uint32_t tx,
-                  uint32_t ty, void *scratch, vod_volume *vol,
-                  const mesh_tile_env *env, mesh_tile_stats *st);
+int mesh_tile_run(const mesh_tiles *j, const uint32_t *ids, size_t n, uint32_t tx,
+                  uint32_t ty, mesh_tile_stats *st);
 
 /* Every tile, serially: the reference for the engine (tests, -w 0). */
 int mesh_voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,

@@ -103,12 +103,13 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
     vod_volume *vol = vod_volume_view(shm_at(w->base, b->volume_off));
     if (!vol) return -EINVAL;
     mesh_tile_env env = {.wtree = st->wt, .tick = tile_tick, .arg = w};
+    mesh_tiles j = {.m = &m, .g = &b->grid, .o = &b->opts, .vol = vol, .env = &env,
+                    .scratch = st->scratch};
     for (uint32_t k = a.first; k < a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
-        int rc = mesh_tile_run(&m, NULL, ids + start[k], start[k + 1] - start[k],
-                               &b->grid, &b->opts, k % b->tiles[0],
-                               k / b->tiles[0], st->scratch, vol, &env, &s);
+        int rc = mesh_tile_run(&j, ids + start[k], start[k + 1] - start[k], k % b->tiles[0],
+                               k / b->tiles[0], &s);
         if (!rc) rc = tile_mips(vol, b, k % b->tiles[0], k / b->tiles[0]);
         if (rc) return rc;
         stats[k] = s;

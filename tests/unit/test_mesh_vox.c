@@ -527,9 +527,11 @@ Test(mesh_vox, tile_run_refuses_a_volume_that_does_not_fit)
     uint32_t ids[1] = {0};
     mesh_tile_stats st = {0};
     tvol v32 = vol_make(&g, 32, 16); /* the wrong width */
-    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 0, 0, scratch, v32.v, NULL, &st), -EINVAL);
+    mesh_tiles j = {.m = m, .g = &g, .o = &o, .vol = v32.v, .scratch = scratch};
+    cr_expect_eq(mesh_tile_run(&j, ids, 1, 0, 0, &st), -EINVAL);
     tvol v8 = vol_make(&g, 8, 16);
-    cr_expect_eq(mesh_tile_run(m, NULL, ids, 1, &g, &o, 1, 0, scratch, v8.v, NULL, &st), -EINVAL,
+    j.vol = v8.v;
+    cr_expect_eq(mesh_tile_run(&j, ids, 1, 1, 0, &st), -EINVAL,
                  "tile x 1 of a 64-wide grid");
     /* a pool without room for a brick: -ENOMEM */
     size_t bytes = vod_volume_bytes(g.res, 8, 16, 0);

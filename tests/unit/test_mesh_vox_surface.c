@@ -167,9 +167,10 @@ static void check_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
         uint32_t t = order[i];
         mesh_tile_stats *st = i < nt ? &s_got : &s_once;
         /* half of them snap the vertices themselves */
-        cr_assert_eq(mesh_tile_run(m, i % 2 ? NULL : lat, b.ids + b.start[t],
-                                   b.start[t + 1] - b.start[t], g, o, t % b.tiles[0],
-                                   t / b.tiles[0], scratch, got.v, NULL, st), 0);
+        mesh_tiles j = {.m = m, .lattice = i % 2 ? NULL : lat, .g = g, .o = o, .vol = got.v,
+                        .scratch = scratch};
+        cr_assert_eq(mesh_tile_run(&j, b.ids + b.start[t], b.start[t + 1] - b.start[t],
+                                   t % b.tiles[0], t / b.tiles[0], st), 0);
     }
     size_t diff = 0;
     for (uint32_t z = 0; z < g->res[2]; z++)

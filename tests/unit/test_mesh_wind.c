@@ -108,8 +108,8 @@ static int tile_with(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
     cr_assert_not_null(scratch);
     mesh_tile_stats st = {0};
     double t0 = cpu_now();
-    int rc = mesh_tile_run(m, NULL, b.ids + b.start[0], (size_t)(b.start[1] - b.start[0]), g, o,
-                           0, 0, scratch, v.v, env, &st);
+    mesh_tiles j = {.m = m, .g = g, .o = o, .vol = v.v, .env = env, .scratch = scratch};
+    int rc = mesh_tile_run(&j, b.ids + b.start[0], (size_t)(b.start[1] - b.start[0]), 0, 0, &st);
     *cpu = cpu_now() - t0;
     free(scratch);
     free(v.arena);
