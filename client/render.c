@@ -292,13 +292,17 @@ static int span(double centre, double half, int size, int *a, int *b)
     return 1;
 }
 
-static void draw(render_ctx *ctx, double px, double py, double hw, double hh,
-                 float depth, uint32_t rgb)
+/* A splat's rectangle in the image: its centre and half its sides. */
+typedef struct {
+    double x, y, hw, hh;
+} splat_rect;
+
+static void draw(render_ctx *ctx, const splat_rect *r, float depth, uint32_t rgb)
 {
     render_image *img = &ctx->img;
     int i0, i1, j0, j1;
-    if (!span(px, hw, img->width, &i0, &i1) ||
-        !span(py, hh, img->height, &j0, &j1))
+    if (!span(r->x, r->hw, img->width, &i0, &i1) ||
+        !span(r->y, r->hh, img->height, &j0, &j1))
         return;
     for (int j = j0; j < j1; j++) {
         size_t row = (size_t)j * (size_t)img->width;
@@ -325,8 +329,8 @@ void render_splat(render_ctx *ctx, const double p[3], const double n[3])
     if (!isfinite(px) || !isfinite(py) || !isfinite(depth)) return;
     double k = c->perspective ? c->focal / depth : c->scale;
     ctx->img.splats++;
-    draw(ctx, px, py, ctx->half_w * k, ctx->half_h * k, (float)depth,
-         shade(ctx, p, n));
+    splat_rect r = {px, py, ctx->half_w * k, ctx->half_h * k};
+    draw(ctx, &r, (float)depth, shade(ctx, p, n));
 }
 
 /* The triangle's edge function at (x, y): twice the signed area of (a, b,
@@ -336,12 +340,20 @@ static double edge(const double a[3], const double b[3], double x, double y)
     return (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0]);
 }
 
-/* The pixels of one row whose centres lie in the triangle s (image x, y,
- * depth per vertex), z-buffered as draw() does. */
-static void tri_row(render_ctx *ctx, const double s[3][3], const double p[3][3],
-                    const double n[3][3], double area, int j, int i0, int i1)
+/* A triangle being drawn: its vertices in the image (x, y, depth), in the
+ * world and their normals, and twice its signed area in the image. */
+typedef struct {
+    const double (*s)[3], (*p)[3], (*n)[3];
+    double area;
+} render_tri;
+
+/* The pixels of row j, columns [i0, i1), whose centres lie in the triangle,
+ * z-buffered as draw() does. */
+static void tri_row(render_ctx *ctx, const render_tri *t, int j, int i0, int i1)
 {
     render_image *img = &ctx->img;
+    const double(*s)[3] = t->s, (*p)[3] = t->p, (*n)[3] = t->n;
+    double area = t->area;
     double y = j + 0.5;
     for (int i = i0; i < i1; i++) {
         double x = i + 0.5, w[3];
@@ -392,7 +404,8 @@ void render_triangle(render_ctx *ctx, const double p[3][3], const double n[3][3]
     int i0 = (int)fmax(0.0, ceil(lo[0] - 0.5)), i1 = (int)fmin(ctx->img.width, floor(hi[0] - 0.5) + 1);
     int j0 = (int)fmax(0.0, ceil(lo[1] - 0.5)), j1 = (int)fmin(ctx->img.height, floor(hi[1] - 0.5) + 1);
     ctx->img.splats++;
-    for (int j = j0; j < j1; j++) tri_row(ctx, s, p, n, area, j, i0, i1);
+    render_tri t = {s, p, n, area};
+    for (int j = j0; j < j1; j++) tri_row(ctx, &t, j, i0, i1);
 }
 
 void render_finish(render_ctx *ctx, render_image *out)

@@ -418,11 +418,21 @@ static int check_csg_stray(const Voxd__CsgNode *n, const char *who, const char *
     return 0;
 }
 
-/* count values (0 allowed when may_omit), each finite and within
- * PROTO_CSG_MAX_COORD, and > 0 when positive. */
-static int check_csg_vec(const double *v, size_t n, int may_omit, int positive,
-                         const char *who, const char *what, proto_error *e)
+/* A vector of a CSG node: 3 values (0 allowed when may_omit), each finite
+ * and within PROTO_CSG_MAX_COORD, and > 0 when positive. */
+typedef struct {
+    const char *what; /* "center", ... */
+    int may_omit, positive;
+} csg_vec_rule;
+
+static const csg_vec_rule vec_center = {"center", 1, 0}, vec_size = {"size", 0, 1},
+                          vec_rotation = {"rotation", 1, 0}, vec_fit = {"fit", 0, 0};
+
+static int check_csg_vec(const double *v, size_t n, const csg_vec_rule *r, const char *who,
+                         proto_error *e)
 {
+    const char *what = r->what;
+    int may_omit = r->may_omit, positive = r->positive;
     if (n != 3 && !(may_omit && n == 0))
         return proto_bad(e, INVALID, "%s needs 3 values for its %s%s, got %zu", who, what,
                          may_omit ? " (or none)" : "", n);
@@ -447,9 +457,9 @@ static int check_csg_primitive(const Voxd__CsgNode *n, const char *who, proto_er
     if (n->axis && n->primitive != VOXD__PRIMITIVE__PRIMITIVE_CYLINDER &&
         n->primitive != VOXD__PRIMITIVE__PRIMITIVE_CONE)
         return proto_bad(e, INVALID, "%s: only a cylinder or a cone has an axis", who);
-    int rc = check_csg_vec(n->center, n->n_center, 1, 0, who, "center", e);
-    if (!rc) rc = check_csg_vec(n->size, n->n_size, 0, 1, who, "size", e);
-    if (!rc) rc = check_csg_vec(n->rotate, n->n_rotate, 1, 0, who, "rotation", e);
+    int rc = check_csg_vec(n->center, n->n_center, &vec_center, who, e);
+    if (!rc) rc = check_csg_vec(n->size, n->n_size, &vec_size, who, e);
+    if (!rc) rc = check_csg_vec(n->rotate, n->n_rotate, &vec_rotation, who, e);
     return rc;
 }
 
@@ -476,7 +486,7 @@ static int check_csg_leaf(const Voxd__CsgNode *n, const char *who, const proto_l
         if (n->data.len && n->data_bytes)
             return proto_bad(e, INVALID, "%s: its file comes inline or as input (data_bytes), "
                              "not both", who);
-        if (n->n_fit && check_csg_vec(n->fit, n->n_fit, 0, 0, who, "fit", e)) return -EINVAL;
+        if (n->n_fit && check_csg_vec(n->fit, n->n_fit, &vec_fit, who, e)) return -EINVAL;
         if (!isfinite(n->scale) || n->scale < 0 || n->scale > PROTO_CSG_MAX_COORD)
             return proto_bad(e, INVALID, "%s's scale is %g: 0 (none) or a positive number", who,
                              n->scale);
