@@ -75,7 +75,7 @@ struct vd_job {
     enum vd_job_state state;   /* under mu */
 
     /* the request, copied and checked */
-    int kind;                  /* pipeline_kind: PIPELINE_IMPLICIT, _MESH or _CSG */
+    pipeline_kind kind;        /* PIPELINE_IMPLICIT, _MESH or _CSG */
     /* The job's input: the expression, or the mesh file's bytes (freed
      * once parsed); NUL-terminated; inline, or the input as it arrives. */
     char *source;

@@ -244,10 +244,33 @@ _Static_assert((int)VOXD__MESH_REPAIR__MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 
                    (int)VOXD__MESH_REPAIR__MESH_REPAIR_WINDING == MESH_REPAIR_WINDING + 1,
                "MeshRepair numbers");
 
-/* A mesh job's options, as vox voxelize --mesh gives them to the pipeline. */
-static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
+/* ---------------------------------------------------------------- kinds */
+
+/* Each kind's fields of the job from its Submit, as vox voxelize gives them
+ * to the pipeline; its input inline and its file's name (proto_check made
+ * sure the member is there). */
+static void implicit_from_request(vd_job *j, const Voxd__Submit *s)
 {
-    j->kind = PIPELINE_MESH;
+    const Voxd__Implicit *im = s->implicit;
+    job_domain(j, im->domain, im->n_domain);
+    j->res = im->res;
+    j->schedule = im->schedule == VOXD__SCHEDULE__SCHEDULE_PAPER ? ENGINE_SCHED_PAPER
+                                                                 : ENGINE_SCHED_SUBTREE;
+}
+
+static const ProtobufCBinaryData *implicit_input(const Voxd__Submit *s)
+{
+    return &s->implicit->source;
+}
+
+static const ProtobufCBinaryData *implicit_name(const Voxd__Submit *s)
+{
+    return &s->implicit->source_name;
+}
+
+static void mesh_from_request(vd_job *j, const Voxd__Submit *s)
+{
+    const Voxd__Mesh *m = s->mesh;
     j->fit = m->n_domain == 0;
     if (!j->fit) job_domain(j, m->domain, m->n_domain);
     j->res = m->res;
@@ -262,39 +285,93 @@ static void mesh_from_request(vd_job *j, const Voxd__Mesh *m)
     j->schedule = ENGINE_SCHED_SUBTREE; /* not the mesh kind's: tiles */
 }
 
-static int channel_of(const Voxd__Submit *s)
+static const ProtobufCBinaryData *mesh_input(const Voxd__Submit *s)
+{
+    return &s->mesh->data;
+}
+
+static const ProtobufCBinaryData *mesh_name(const Voxd__Submit *s)
+{
+    return &s->mesh->source_name;
+}
+
+static void csg_from_request(vd_job *j, const Voxd__Submit *s)
+{
+    job_domain(j, s->csg->domain, s->csg->n_domain);
+    j->res = s->csg->res;
+    j->csg_source_bytes = s->csg->source_bytes;
+    j->schedule = ENGINE_SCHED_SUBTREE; /* not the csg kind's: brick runs */
+}
+
+static const ProtobufCBinaryData *csg_input(const Voxd__Submit *s)
+{
+    static const ProtobufCBinaryData none = {0, NULL}; /* a CSG job's tree is its own */
+    (void)s;
+    return &none;
+}
+
+static const ProtobufCBinaryData *csg_name(const Voxd__Submit *s)
+{
+    return &s->csg->source_name;
+}
+
+/* A CSG tree is built and its expressions compiled at its Submit: a bad
+ * one is refused there, the daemon never runs it. */
+static int csg_build(const voxd_config *cfg, const Voxd__Submit *s, csg_tree **out, char *msg,
+                     size_t len)
+{
+    return vd_csg_tree(s->csg, cfg->max_expr_bytes, cfg->max_expr_depth, out, msg, len);
+}
+
+/* What the daemon's Submit takes of each kind of job: the one place in this
+ * file that tells the kinds apart (docs/design.md, "Adding a kind of job"). */
+typedef struct {
+    Voxd__Submit__JobCase job_case;
+    const char *input;   /* what its input is, for messages */
+    int channel;         /* VOXEL_CH_*: the channel when the Submit names none */
+    int text;            /* its input is text: no NUL byte in it */
+    void (*from_request)(vd_job *j, const Voxd__Submit *s);
+    const ProtobufCBinaryData *(*input_of)(const Voxd__Submit *s);
+    const ProtobufCBinaryData *(*name_of)(const Voxd__Submit *s);
+    /* what is built and checked before the job is queued, or NULL */
+    int (*build)(const voxd_config *cfg, const Voxd__Submit *s, csg_tree **out, char *msg,
+                 size_t len);
+} submit_kind;
+
+static const submit_kind submit_kinds[PIPELINE_KINDS] = {
+    [PIPELINE_IMPLICIT] = {VOXD__SUBMIT__JOB_IMPLICIT, "expression", VOXEL_CH_SURFACE, 1,
+                           implicit_from_request, implicit_input, implicit_name, NULL},
+    [PIPELINE_MESH] = {VOXD__SUBMIT__JOB_MESH, "mesh", VOXEL_CH_OCCUPANCY, 0,
+                       mesh_from_request, mesh_input, mesh_name, NULL},
+    [PIPELINE_CSG] = {VOXD__SUBMIT__JOB_CSG, "CSG tree", VOXEL_CH_DENSITY, 0,
+                      csg_from_request, csg_input, csg_name, csg_build},
+};
+
+/* The Submit's kind (proto_check made sure it has one of the table's). */
+static pipeline_kind kind_of(const Voxd__Submit *s)
+{
+    for (int k = PIPELINE_IMPLICIT; k < PIPELINE_KINDS; k++)
+        if (submit_kinds[k].job_case == s->job_case) return (pipeline_kind)k;
+    return PIPELINE_IMPLICIT;
+}
+
+static int channel_of(const Voxd__Submit *s, const submit_kind *k)
 {
     switch (s->channel) {
     case VOXD__CHANNEL__CHANNEL_OCCUPANCY: return VOXEL_CH_OCCUPANCY;
     case VOXD__CHANNEL__CHANNEL_DENSITY: return VOXEL_CH_DENSITY;
     case VOXD__CHANNEL__CHANNEL_SURFACE: return VOXEL_CH_SURFACE;
     case VOXD__CHANNEL__CHANNEL_DISTANCE: return VOXEL_CH_DISTANCE; /* mesh jobs (proto_check) */
-    default:
-        return s->job_case == VOXD__SUBMIT__JOB_MESH  ? VOXEL_CH_OCCUPANCY
-               : s->job_case == VOXD__SUBMIT__JOB_CSG ? VOXEL_CH_DENSITY
-                                                      : VOXEL_CH_SURFACE;
+    default: return k->channel;
     }
 }
 
 static void job_from_request(vd_job *j, const Voxd__Submit *s)
 {
-    if (s->job_case == VOXD__SUBMIT__JOB_MESH) {
-        mesh_from_request(j, s->mesh);
-    } else if (s->job_case == VOXD__SUBMIT__JOB_CSG) {
-        j->kind = PIPELINE_CSG;
-        job_domain(j, s->csg->domain, s->csg->n_domain);
-        j->res = s->csg->res;
-        j->csg_source_bytes = s->csg->source_bytes;
-        j->schedule = ENGINE_SCHED_SUBTREE; /* not the csg kind's: brick runs */
-    } else {
-        const Voxd__Implicit *im = s->implicit;
-        j->kind = PIPELINE_IMPLICIT;
-        job_domain(j, im->domain, im->n_domain);
-        j->res = im->res;
-        j->schedule = im->schedule == VOXD__SCHEDULE__SCHEDULE_PAPER ? ENGINE_SCHED_PAPER
-                                                                     : ENGINE_SCHED_SUBTREE;
-    }
-    j->channel = channel_of(s);
+    j->kind = kind_of(s);
+    const submit_kind *k = &submit_kinds[j->kind];
+    k->from_request(j, s);
+    j->channel = channel_of(s, k);
     j->mesh_opts.channel = j->channel;
     j->brick = s->brick ? s->brick : VOD_DEFAULT_BRICK;
     j->comp = s->comp == VOXD__COMPRESSION__COMPRESSION_NONE   ? VOD_COMP_NONE
@@ -307,33 +384,17 @@ static void job_from_request(vd_job *j, const Voxd__Submit *s)
  * a client that declares much and sends little holds little. */
 #define INPUT_FIRST_ALLOC (64u << 10)
 
-/* The job's input inline (the expression or the mesh file) and the file's
- * name, per kind (proto_check made sure the member is there). */
-static const ProtobufCBinaryData *inline_input(const Voxd__Submit *s)
-{
-    static const ProtobufCBinaryData none = {0, NULL}; /* a CSG job's tree is its own */
-    if (s->job_case == VOXD__SUBMIT__JOB_CSG) return &none;
-    return s->job_case == VOXD__SUBMIT__JOB_MESH ? &s->mesh->data : &s->implicit->source;
-}
-
-static const ProtobufCBinaryData *source_name_of(const Voxd__Submit *s)
-{
-    if (s->job_case == VOXD__SUBMIT__JOB_CSG) return &s->csg->source_name;
-    return s->job_case == VOXD__SUBMIT__JOB_MESH ? &s->mesh->source_name
-                                                 : &s->implicit->source_name;
-}
-
 /* What the job's input is, for messages. */
 static const char *input_name(const vd_job *j)
 {
-    return j->kind == PIPELINE_MESH ? "mesh" : j->kind == PIPELINE_CSG ? "CSG tree" : "expression";
+    return submit_kinds[j->kind].input;
 }
 
 /* The job's source: the inline input, or an empty buffer for the input to
  * come. */
 static int job_source(vd_job *j, const Voxd__Submit *s)
 {
-    const ProtobufCBinaryData *src = inline_input(s);
+    const ProtobufCBinaryData *src = submit_kinds[kind_of(s)].input_of(s);
     size_t cap = src->len + 1;
     if (s->input_bytes) {
         j->input_total = s->input_bytes;
@@ -357,7 +418,7 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
         free(j);
         return NULL;
     }
-    const ProtobufCBinaryData *name = source_name_of(s);
+    const ProtobufCBinaryData *name = submit_kinds[kind_of(s)].name_of(s);
     if (name->len && !(j->source_name = strndup((const char *)name->data, name->len))) {
         free(j->source);
         free(j);
@@ -396,13 +457,11 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     if (d->stopping)
         return vd_client_error(c, 0, VOXD__ERROR_CODE__SHUTTING_DOWN,
                                "the daemon is stopping and takes no new jobs");
-    /* A CSG tree is built and its expressions compiled now: a bad one is
-     * refused here, the daemon never runs it. */
+    const submit_kind *k = &submit_kinds[kind_of(s)];
     csg_tree *tree = NULL;
-    if (s->job_case == VOXD__SUBMIT__JOB_CSG) {
+    if (k->build) {
         char msg[300];
-        int rc = vd_csg_tree(s->csg, d->cfg.max_expr_bytes, d->cfg.max_expr_depth, &tree,
-                             msg, sizeof msg);
+        int rc = k->build(&d->cfg, s, &tree, msg, sizeof msg);
         if (rc)
             return vd_client_error(c, 0,
                                    rc == -E2BIG    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
@@ -532,7 +591,7 @@ static int on_input(vd_client *c, const Voxd__InputChunk *m)
                            "job declared (input_bytes)",
                            n, (unsigned long long)m->offset,
                            (unsigned long long)j->input_total);
-    const uint8_t *nul = j->kind == PIPELINE_IMPLICIT ? memchr(data, 0, n) : NULL;
+    const uint8_t *nul = submit_kinds[j->kind].text ? memchr(data, 0, n) : NULL;
     if (nul)
         return upload_fail(c, j, VOXD__ERROR_CODE__INVALID_INPUT,
                            "expression source contains a NUL byte at offset %llu",
