@@ -247,6 +247,11 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
  * (in the frame's sample units: sample i is centred at i + 0.5). */
 void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w);
 
+/* The solid angle of triangle (a, b, c) seen from the origin, over 2
+ * (Van Oosterom and Strackee); the distance from p to triangle v. */
+double mv_half_solid_angle(const double a[3], const double b[3], const double c[3]);
+double mv_tri_dist(const double v[3][3], const double p[3]);
+
 /* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
  * mv_wtree_make: the tree of m's triangles, or (m NULL) of the n triangles
  * tri (voxel units), ticking pulse (may be NULL) as it goes.  mv_wind_point: w at p, far nodes by their expansion
@@ -275,10 +280,14 @@ double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], d
                     bool *is_close);
 /* A bound of |w(p)| for every p within rho of b (a node of area a whose
  * ball keeps f away subtends at most a / f^2, taken where that is at most
- * tol); false when a leaf's ball meets the cell's or the bound passes
- * emax.  Cheap where the triangles are small (the caps of small holes). */
-bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
-                 double *bound, uint32_t *work);
+ * tol), but for the leaves whose share passes tol: those are listed in
+ * near->leaf (near->n; false when more than MV_NEAR_MAX, or when the bound
+ * passes emax), and mv_wind_mag_at gives their share at p (INFINITY when
+ * p lies in one's ball), which added to *bound bounds |w(p)|.  Cheap
+ * where the triangles are small (the caps of small holes). */
+bool mv_wind_mag_near(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                      mv_near *near, double *bound, uint32_t *work);
+double mv_wind_mag_at(const mv_wtree *t, const mv_near *near, const double p[3]);
 /* The samples of block b set in dis decided by the winding number of tree
  * t (inside: |w| >= 1/2) into bits, cells of samples at once where the
  * bound decides them, else sample by sample: the tree, then, near 1/2, the
@@ -292,6 +301,9 @@ void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, cons
  * dis and spare: overwritten (spare: a block of words). */
 void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
                    uint16_t *count, uint64_t *spare);
+/* For the tests: nonzero, the caps' tree even where they are few enough
+ * for the direct path (every cap triangle at every cell). */
+extern int mesh_wcap_tree_only;
 
 /* Surface bits (K = 1 blocks): every voxel of block b whose closed box
  * triangle P touches (six = false), or its 6-separating subset. */

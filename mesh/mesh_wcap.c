@@ -39,6 +39,7 @@
 #include <string.h>
 
 int mesh_wind_exact;
+int mesh_wcap_tree_only;
 
 /* Built lazily, by the first tile that needs each part, so that the build
  * ticks that tile's heartbeat (a worker builds its own at its first tile
@@ -50,8 +51,14 @@ struct mesh_wtree {
     mv_wtree *tris;           /* the mesh's triangles (mesh_wind.c) */
     mv_wtree *caps;           /* the caps' triangles, or NULL: none */
     int64_t (*cap_lat)[3][3]; /* the caps on the K = 1 lattice */
+    double (*cap_vt)[3][3];   /* the caps in voxel units when at most
+                                 DIRECT_MAX (mv_wcap_block's direct path),
+                                 else NULL: the tree's */
+    double (*cap_ball)[4];    /* ... and a ball about each (centre, radius) */
     uint32_t n_caps;
 };
+
+#define DIRECT_MAX 1024u /* cap triangles at most for the direct path */
 
 /* ---- the boundary chain and its caps ---- */
 
@@ -152,6 +159,25 @@ static int fan_points(const mesh *m, const grid_spec *g, const dedge *e, size_t 
     return 0;
 }
 
+/* The n caps vt into t for the direct path, with their balls. */
+static int keep_caps(mesh_wtree *t, double (*vt)[3][3], size_t n)
+{
+    t->cap_vt = vt;
+    t->cap_ball = malloc(n * sizeof *t->cap_ball);
+    if (!t->cap_ball) return -ENOMEM;
+    for (size_t k = 0; k < n; k++) {
+        double *o = t->cap_ball[k], r2 = 0;
+        for (int a = 0; a < 3; a++) o[a] = (vt[k][0][a] + vt[k][1][a] + vt[k][2][a]) / 3;
+        for (int i = 0; i < 3; i++) {
+            double s = 0;
+            for (int a = 0; a < 3; a++) s += (vt[k][i][a] - o[a]) * (vt[k][i][a] - o[a]);
+            r2 = s > r2 ? s : r2;
+        }
+        o[3] = sqrt(r2) * (1 + 1e-9) + 1e-9;
+    }
+    return 0;
+}
+
 /* The caps of t's mesh: the fans of the chain e[0, nb), as voxel-unit
  * triangles (the tree's) and lattice ones (the raster's). */
 static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
@@ -189,6 +215,7 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
              ? mv_wtree_make(NULL, g, (const double (*)[3][3])vt, (uint32_t)n, pulse, &t->caps)
              : -ENOMEM;
     t->n_caps = rc ? 0 : (uint32_t)n;
+    if (!rc && n <= DIRECT_MAX) rc = keep_caps(t, vt, n), vt = NULL;
     free(vt), free(up), free(o);
     return rc;
 }
@@ -234,6 +261,8 @@ void mesh_wtree_free(mesh_wtree *t)
     mv_wtree_free(t->tris);
     mv_wtree_free(t->caps);
     free(t->cap_lat);
+    free(t->cap_vt);
+    free(t->cap_ball);
     free(t);
 }
 
@@ -246,6 +275,7 @@ void mesh_wtree_free(mesh_wtree *t)
 #define TOL_SAMPLE 1e-4 /* a node's error at most, a sample's query */
 #define TOL_CELL 2e-3   /* ... a cell's */
 #define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
+#define MAG_MAX 0.45    /* a bound of |w_C| that decides by N = 0 */
 #define NEAR 1e-3    /* voxels: nearer a cap triangle, mv_wind_block decides */
 #define MARGIN 1e-6  /* past the bound, nearer 1/2: mv_wind_block decides */
 
@@ -312,6 +342,34 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
     mv_beat(c->f->pulse, work);
 }
 
+/* The cell's samples one by one where w_C keeps within 0.45 of 0 (the
+ * far leaves' bound far plus the listed leaves' at each sample): outside
+ * when N = 0, else inside.  Returns the samples left. */
+static uint64_t cell_by_mag(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
+                            const mv_near *nr, double far)
+{
+    uint64_t mask = mv_xmask(lo, hi), left = 0;
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = mv_word(c->b, lo[0], y, z);
+            uint64_t d = c->todo[i] & mask, in = 0, done = 0;
+            for (uint64_t r = d; r; r &= r - 1) {
+                unsigned x = (unsigned)__builtin_ctzll(r);
+                double p[3] = {(double)(c->b->s0[0] + (int64_t)(lo[0] / 64 * 64 + x)) + 0.5,
+                               (double)(c->b->s0[1] + (int64_t)y) + 0.5,
+                               (double)(c->b->s0[2] + (int64_t)z) + 0.5};
+                if (!(far + mv_wind_mag_at(c->caps, nr, p) < MAG_MAX)) continue;
+                done |= 1ull << x;
+                in |= (uint64_t)(c->count[i * 64 + x] != 0) << x;
+            }
+            c->bits[i] = (c->bits[i] & ~done) | in;
+            c->todo[i] &= ~done;
+            left += (uint64_t)__builtin_popcountll(d & ~done);
+        }
+    mv_beat(c->f->pulse, (uint32_t)(nr->n * (hi[0] - lo[0]) * (hi[1] - lo[1]) / 8 + 1));
+    return left;
+}
+
 /* The samples of the cell still to do to mv_wind_block. */
 static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
 {
@@ -327,10 +385,39 @@ static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
         }
 }
 
-/* Cell [lo, hi): a query of the caps' tree decides it whole (w_C off
- * every half integer) or sample by sample (near triangles exact), else
- * its eight halves. */
-static void cell(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
+/* The eight halves of cell [lo, hi) (those with samples) to fn. */
+static void split(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
+                  void (*fn)(cblock *, const uint32_t *, const uint32_t *))
+{
+    for (int q = 0; q < 8; q++) {
+        uint32_t clo[3], chi[3];
+        bool skip = false;
+        for (int a = 0; a < 3; a++) {
+            uint32_t ext = hi[a] - lo[a], mid = lo[a] + (ext + 1) / 2, up = q >> a & 1;
+            clo[a] = up ? mid : lo[a];
+            chi[a] = up ? hi[a] : mid;
+            skip |= clo[a] >= chi[a];
+        }
+        if (!skip) fn(c, clo, chi);
+    }
+}
+
+/* The cell decided by its counts when w_C = v within e keeps off every
+ * half integer. */
+static bool try_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], double v, double e)
+{
+    double k = floor(v + 0.5);
+    if (!(v - e > k - 0.5 && v + e < k + 0.5)) return false;
+    cell_by_count(c, lo, hi, (uint16_t)(int64_t)k);
+    return true;
+}
+
+/* Cell [lo, hi): a bound of |w_C| decides it whole or sample by sample
+ * (the leaves near the cell at each sample) where it keeps under 0.45;
+ * else a query of the caps' tree decides it whole (w_C off every half
+ * integer) or sample by sample (near triangles exact), else its eight
+ * halves. */
+static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 {
     uint64_t n = mv_cell_count(c->b, c->todo, lo, hi);
     if (!n || (c->f->pulse && c->f->pulse->stop)) return;
@@ -348,39 +435,136 @@ static void cell(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
     double mag;
-    if (!one && mv_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
-        mv_beat(c->f->pulse, work);
-        cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
-        return;
-    }
     mv_near nr;
-    bool ok = mv_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
-                           &nr, &v, &e, &work);
-    mv_beat(c->f->pulse, work);
-    if (ok && !nr.n) {
-        double k = floor(v + 0.5);
-        if (v - e > k - 0.5 && v + e < k + 0.5) {
-            cell_by_count(c, lo, hi, (uint16_t)(int64_t)k);
+    if (!one && mv_wind_mag_near(c->caps, b, sqrt(r2) * (1 + 1e-9), MAG_MAX, TOL_MAG, &nr, &mag,
+                                 &work)) {
+        if (!nr.n) cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
+        n = nr.n ? cell_by_mag(c, lo, hi, &nr, mag) : 0;
+        if (!n) {
+            mv_beat(c->f->pulse, work);
             return;
         }
     }
+    bool ok = mv_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
+                           &nr, &v, &e, &work);
+    mv_beat(c->f->pulse, work);
+    if (ok && !nr.n && try_count(c, lo, hi, v, e)) return;
     if (ok && (n < CELL_MIN || nr.n * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
         cell_by_near(c, lo, hi, &nr, v, e);
     if (one) {
         cell_spare(c, lo, hi);
         return;
     }
-    for (int q = 0; q < 8; q++) {
-        uint32_t clo[3], chi[3];
-        bool skip = false;
-        for (int a = 0; a < 3; a++) {
-            uint32_t mid = lo[a] + (ext[a] + 1) / 2, up = q >> a & 1;
-            clo[a] = up ? mid : lo[a];
-            chi[a] = up ? hi[a] : mid;
-            skip |= clo[a] >= chi[a];
-        }
-        if (!skip) cell(c, clo, chi);
+    split(c, lo, hi, cell);
+}
+
+/* ---- the direct path: few cap triangles, all of them at every cell ---- */
+
+/* The gradient of the solid angle of a surface bounded by the segment
+ * a -> b (relative to the point) gains (a x b)(|a| + |b|) / (|a| |b|
+ * (|a| |b| + a.b)): Biot and Savart's law of a straight wire. */
+static void seg_grad(const double a[3], const double b[3], double g[3])
+{
+    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
+    double s = (la + lb) / (la * lb * (la * lb + a[0] * b[0] + a[1] * b[1] + a[2] * b[2]));
+    g[0] += (a[1] * b[2] - a[2] * b[1]) * s;
+    g[1] += (a[2] * b[0] - a[0] * b[2]) * s;
+    g[2] += (a[0] * b[1] - a[1] * b[0]) * s;
+}
+
+/* The distance from the origin to the segment a -> b; its length in *len. */
+static double seg_dist(const double a[3], const double b[3], double *len)
+{
+    double d[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
+    double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    double s = dd > 0 ? -(a[0] * d[0] + a[1] * d[1] + a[2] * d[2]) / dd : 0;
+    s = s < 0 ? 0 : s > 1 ? 1 : s;
+    double q[3] = {a[0] + s * d[0], a[1] + s * d[1], a[2] + s * d[2]};
+    *len = sqrt(dd);
+    return sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+}
+
+/* w_C about b: for every p within rho of b, |w_C(p) - v - g.(p - b)| <= e. */
+typedef struct {
+    double v, g[3], e;
+} cexp;
+
+/* The caps' value at b (every triangle's exact angle) and gradient (the
+ * boundary's segments, edges 0 -> 1 of the cap triangles: the spokes to
+ * the fan points cancel); off the caps w_C is smooth and its second
+ * derivative along a unit u is the boundary's integral of
+ * dl x D_u((x - p) / |x - p|^3) / (4 pi), at most 2 l / (4 pi d^3) a
+ * segment (l its length, d its distance), so Taylor's remainder over the
+ * cell is at most the sum of rho^2 l / (4 pi (d - rho)^3) over the
+ * segments, d from b.  False where a cap triangle comes within rho + NEAR
+ * of b (a cell the caps may cross). */
+static bool cap_expand(const mesh_wtree *t, const double b[3], double rho, cexp *x)
+{
+    double h = 0, g[3] = {0, 0, 0}, e = 0, reach = rho + NEAR;
+    for (uint32_t k = 0; k < t->n_caps; k++) {
+        const double(*T)[3] = (const double(*)[3])t->cap_vt[k];
+        const double *o = t->cap_ball[k];
+        double r[3][3], l, c2 = 0;
+        for (int a = 0; a < 3; a++) c2 += (o[a] - b[a]) * (o[a] - b[a]);
+        if (c2 <= (o[3] + reach) * (o[3] + reach) && /* its ball says near: itself */
+            !(mv_tri_dist(T, b) * (1 - 1e-9) > reach))
+            return false;
+        for (int i = 0; i < 3; i++)
+            for (int a = 0; a < 3; a++) r[i][a] = T[i][a] - b[a];
+        double f = seg_dist(r[0], r[1], &l) * (1 - 1e-9) - rho; /* > NEAR: the cap's edge */
+        e += l / (f * f * f);
+        h += mv_half_solid_angle(r[0], r[1], r[2]);
+        seg_grad(r[0], r[1], g);
     }
+    x->v = h / (2 * M_PI);
+    for (int a = 0; a < 3; a++) x->g[a] = g[a] / (4 * M_PI);
+    x->e = rho * rho * e / (4 * M_PI) + 1e-9; /* and the sums' rounding */
+    return true;
+}
+
+/* The cell's samples one by one from the expansion x about b. */
+static void cell_by_lin(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const double b[3],
+                        const cexp *x)
+{
+    uint64_t mask = mv_xmask(lo, hi);
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = mv_word(c->b, lo[0], y, z);
+            double dz = (double)(c->b->s0[2] + (int64_t)z) + 0.5 - b[2];
+            double dy = (double)(c->b->s0[1] + (int64_t)y) + 0.5 - b[1];
+            double u0 = x->v + x->g[1] * dy + x->g[2] * dz;
+            for (uint64_t r = c->todo[i] & mask; r; r &= r - 1) {
+                unsigned xb = (unsigned)__builtin_ctzll(r);
+                double dx = (double)(c->b->s0[0] + (int64_t)(lo[0] / 64 * 64 + xb)) + 0.5 - b[0];
+                decide(c, i, xb, u0 + x->g[0] * dx, x->e);
+            }
+        }
+}
+
+/* Cell [lo, hi) by the caps' expansion about its centre: whole when it
+ * keeps off every half integer, else sample by sample, the samples left
+ * to its eight halves; a sample too near a cap to mv_wind_block. */
+static void direct_cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
+{
+    uint64_t n = mv_cell_count(c->b, c->todo, lo, hi);
+    if (!n || (c->f->pulse && c->f->pulse->stop)) return;
+    double b[3], r2 = 0;
+    for (int a = 0; a < 3; a++) {
+        b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
+        r2 += 0.25 * (double)(hi[a] - lo[a] - 1) * (hi[a] - lo[a] - 1);
+    }
+    double rho = sqrt(r2) * (1 + 1e-9);
+    cexp x;
+    bool ok = cap_expand(c->f->wt, b, rho, &x);
+    mv_beat(c->f->pulse, c->f->wt->n_caps);
+    if (ok) {
+        double gn = sqrt(x.g[0] * x.g[0] + x.g[1] * x.g[1] + x.g[2] * x.g[2]);
+        if (try_count(c, lo, hi, x.v, gn * rho * (1 + 1e-9) + x.e)) return;
+        cell_by_lin(c, lo, hi, b, &x);
+    }
+    if (r2 == 0) cell_spare(c, lo, hi);
+    else split(c, lo, hi, direct_cell);
 }
 
 /* The caps into the counters (those whose x, y box meets the block's),
@@ -460,7 +644,8 @@ void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t
                 uint32_t lo[3] = {x, y, z};
                 uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
                                   z + TOP < n[2] ? z + TOP : n[2]};
-                cell(&c, lo, hi);
+                if (t->cap_vt && !mesh_wcap_tree_only) direct_cell(&c, lo, hi);
+                else cell(&c, lo, hi);
             }
     if (c.any_spare) by_tree(f, b, spare, bits);
 }

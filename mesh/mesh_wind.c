@@ -334,15 +334,14 @@ static double dot3(const double a[3], const double b[3])
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
-/* The distance from p to triangle v (Ericson's closest point, "Real-Time
- * Collision Detection" 5.1.5: the Voronoi regions of the vertices, edges
- * and face in turn). */
-static double tri_dist(const float *v, const double p[3])
+double mv_tri_dist(const double v[3][3], const double p[3])
 {
-    double a[3], ab[3], ac[3], ap[3], bp[3], cp[3], q[3];
+    /* Ericson's closest point, "Real-Time Collision Detection" 5.1.5: the
+     * Voronoi regions of the vertices, edges and face in turn */
+    double ab[3], ac[3], ap[3], bp[3], cp[3], q[3];
     for (int i = 0; i < 3; i++) {
-        a[i] = v[i], ab[i] = (double)v[3 + i] - v[i], ac[i] = (double)v[6 + i] - v[i];
-        ap[i] = p[i] - v[i], bp[i] = p[i] - v[3 + i], cp[i] = p[i] - v[6 + i];
+        ab[i] = v[1][i] - v[0][i], ac[i] = v[2][i] - v[0][i];
+        ap[i] = p[i] - v[0][i], bp[i] = p[i] - v[1][i], cp[i] = p[i] - v[2][i];
     }
     double d1 = dot3(ab, ap), d2 = dot3(ac, ap), d3 = dot3(ab, bp), d4 = dot3(ac, bp);
     double d5 = dot3(ab, cp), d6 = dot3(ac, cp), s = 0, t = 0;
@@ -359,8 +358,16 @@ static double tri_dist(const float *v, const double p[3])
         double den = va + vb + vc;
         s = vb / den, t = vc / den;
     }
-    for (int i = 0; i < 3; i++) q[i] = a[i] + s * ab[i] + t * ac[i] - p[i];
+    for (int i = 0; i < 3; i++) q[i] = v[0][i] + s * ab[i] + t * ac[i] - p[i];
     return sqrt(dot3(q, q));
+}
+
+/* The distance from p to triangle v (9 floats). */
+static double tri_dist(const float *v, const double p[3])
+{
+    double d[3][3];
+    for (int i = 0; i < 9; i++) d[i / 3][i % 3] = v[i];
+    return mv_tri_dist((const double (*)[3])d, p);
 }
 
 /* Leaf n's triangles at the centre b of a cell of half-diagonal rho:
@@ -458,24 +465,25 @@ bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax,
     return ok;
 }
 
-bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
-                 double *bound, uint32_t *work)
+bool mv_wind_mag_near(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                      mv_near *near, double *bound, uint32_t *work)
 {
     uint32_t stack[128], sp = 0, visits = 0;
     double e4 = 0, e4max = emax * 4 * M_PI, tol4 = tol * 4 * M_PI;
     bool ok = true;
+    near->n = 0;
     stack[sp++] = 0;
     while (sp && ok) {
         const wnode *n = &t->nodes[stack[--sp]];
         double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
         double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r - rho;
         visits++;
-        /* a triangle of area a at distance f subtends at most a / f^2 */
         double e = f > 0 ? n->area / (f * f) : INFINITY;
         if (e <= tol4) {
             e4 += e;
-        } else if (n->count) {
-            ok = f > 0 && (e4 += e) <= e4max;
+        } else if (n->count) { /* a leaf the samples bound one by one */
+            ok = near->n < MV_NEAR_MAX;
+            if (ok) near->leaf[near->n++] = (uint32_t)(n - t->nodes);
         } else {
             stack[sp++] = n->first + 1;
             stack[sp++] = n->first;
@@ -485,6 +493,19 @@ bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, 
     if (work) *work += visits;
     *bound = e4 / (4 * M_PI) + 1e-9;
     return ok;
+}
+
+double mv_wind_mag_at(const mv_wtree *t, const mv_near *near, const double p[3])
+{
+    double e4 = 0;
+    for (uint32_t k = 0; k < near->n; k++) {
+        const wnode *n = &t->nodes[near->leaf[k]];
+        double d[3] = {n->c[0] - p[0], n->c[1] - p[1], n->c[2] - p[2]};
+        double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r;
+        if (!(f > 0)) return INFINITY;
+        e4 += n->area / (f * f);
+    }
+    return e4 / (4 * M_PI);
 }
 
 /* ---- a block's samples ---- */
@@ -618,7 +639,7 @@ void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, cons
  * atan2 of Van Oosterom and Strackee's formula; for the small angles of
  * the many far triangles, the series of atan (to t^7: below 1e-17 when
  * |t| < 1/64) instead of atan2. */
-static double half_solid_angle(const double a[3], const double b[3], const double c[3])
+double mv_half_solid_angle(const double a[3], const double b[3], const double c[3])
 {
     double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
     double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
@@ -653,7 +674,7 @@ void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double
             double r[3][3];
             for (int i = 0; i < 3; i++)
                 for (int a = 0; a < 3; a++) r[i][a] = p[i][a] - q[k][a];
-            w[k] += half_solid_angle(r[0], r[1], r[2]);
+            w[k] += mv_half_solid_angle(r[0], r[1], r[2]);
         }
     }
     for (unsigned k = 0; k < n; k++) w[k] /= 2.0 * M_PI; /* solid angles / (4 pi) */
