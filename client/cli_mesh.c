@@ -2,9 +2,12 @@
  * mip level or adaptive levels round a point, run by the engine's workers
  * (or in this process with -w 0), written as PLY, OBJ or STL. */
 #include <errno.h>
+#include <fcntl.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "cli.h"
@@ -164,6 +167,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
     memset(r, 0, sizeof *r);
     if (o->workers) {
         if ((rc = cli_start_engine(o->workers, o->cpus, o->shm_mib, e))) return rc;
+        engine_lazy_release(*e); /* nothing to give back before we exit */
         engine_iso_job job = {.file = f, .p = p, .cancel = &cli_interrupt};
         rc = engine_iso(*e, &job, m, r);
         if (rc) snprintf(err, sizeof err, "%s", r->error);
@@ -188,7 +192,27 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
     return rc;
 }
 
-static int write_mesh(const mesh_opts *o, const iso_mesh *m)
+/* The regular file the mesh replaces, held open (-1: none): the rename
+ * then only unlinks it, and its blocks and pages are freed when *old is
+ * closed, on a thread beside the engine's end instead of in the rename. */
+static int replaced_file(const char *path)
+{
+    int fd = open(path, O_RDONLY | O_NONBLOCK | O_NOFOLLOW | O_CLOEXEC);
+    struct stat st;
+    if (fd >= 0 && (fstat(fd, &st) || !S_ISREG(st.st_mode) || st.st_nlink != 1)) {
+        close(fd);
+        fd = -1;
+    }
+    return fd;
+}
+
+static void *close_fd(void *ud)
+{
+    close((int)(intptr_t)ud);
+    return NULL;
+}
+
+static int write_mesh(const mesh_opts *o, const iso_mesh *m, int *old)
 {
     char comment[200];
     snprintf(comment, sizeof comment, "vox mesh, iso %u", o->iso);
@@ -198,6 +222,7 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m)
         /* formatted by as many threads as the job had workers (idle now) */
         rc = iso_write(f.fd, m, o->fmt, comment, o->workers ? o->workers : 1);
         if (!rc && !cli_interrupted()) {
+            *old = replaced_file(o->out);
             rc = outfile_commit(&f, o->out);
         } else {
             outfile_abort(&f);
@@ -223,28 +248,10 @@ static void print_summary(const mesh_opts *o, const iso_params *p, const iso_mes
         printf("  CPU: master %.3f s, workers %.3f s\n", r->master_cpu, r->worker_cpu);
 }
 
-/* The end of the command beside the mesh's write: the file's bricks
- * freed, the workers gone and the segment's pages but the mesh's given
- * back (engine_retire), none of it after the write. */
-typedef struct {
-    vod_file *f;
-    engine *e;
-    const iso_mesh *m;
-} wind_down;
-
-static void *wind_down_run(void *ud)
+/* The file's bricks freed beside the mesh's write, not after it. */
+static void *close_run(void *ud)
 {
-    wind_down *w = ud;
-    vod_close(w->f);
-    if (w->e) { /* the mesh's arrays lie one after another in the segment */
-        const uint8_t *lo = (const uint8_t *)w->m->pos, *hi = lo + 12 * w->m->n_vertices;
-        const uint8_t *t = (const uint8_t *)w->m->tri, *n = (const uint8_t *)w->m->nrm;
-        if (t < lo) lo = t;
-        if (t + 12 * w->m->n_triangles > hi) hi = t + 12 * w->m->n_triangles;
-        if (n && n < lo) lo = n;
-        if (n && n + 12 * w->m->n_vertices > hi) hi = n + 12 * w->m->n_vertices;
-        engine_retire(w->e, lo, (size_t)(hi - lo));
-    }
+    vod_close(ud);
     return NULL;
 }
 
@@ -273,19 +280,25 @@ static int run(const mesh_opts *o)
     cli_catch_interrupts();
     rc = polygonize(o, f, &p, &m, &r, &e);
     t[2] = clock_now();
-    wind_down wd = {f, rc ? NULL : e, &m};
     par_task end;
-    par_start(&end, wind_down_run, &wd);
+    par_start(&end, close_run, f);
     if (cli_interrupted()) {
         par_join(&end);
         cli_end_interrupted(o->out);
     }
-    if (!rc) rc = write_mesh(o, &m);
+    int old = -1;
+    if (!rc) rc = write_mesh(o, &m, &old);
     t[3] = clock_now();
     par_join(&end);
     if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);
     iso_mesh_free(&m);
-    engine_destroy(e);
+    if (old >= 0) par_start(&end, close_fd, (void *)(intptr_t)old);
+    /* The mesh was read from the segment until the write's end; now the
+     * workers free it after we exit, and nothing of the engine's end is
+     * waited for (engine_abandon, as vox voxelize ends): its unmapping
+     * runs beside the replaced file's freeing. */
+    engine_abandon(e);
+    if (old >= 0) par_join(&end);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 

@@ -13,6 +13,7 @@
 #include "engine.h"
 #include "mesh.h"
 #include "outfile.h"
+#include "par.h"
 #include "pipeline.h"
 #include "progress.h"
 #include "source.h"
@@ -59,12 +60,12 @@ static void print_summary(const voxelize_opts *o, const pipeline_report *r)
            o->workers > 0 ? "seconds in each, summed over the processes" : "seconds in each");
 }
 
-/* The job on the embedded engine (or the serial algorithm, -w 0). */
+/* The job on the embedded engine (or the serial algorithm, -w 0): e, when
+ * the caller started it, else one started here. */
 static int run_job(const voxelize_opts *o, const pipeline_job *job, outfile *f,
-                   pipeline_report *r)
+                   pipeline_report *r, engine *e)
 {
-    engine *e = NULL;
-    int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
+    int rc = o->workers && !e ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
     if (rc) return rc;
     if (e) engine_lazy_release(e); /* nothing to give back before we exit */
     vod_sink sink = {write_or_stop, f};
@@ -78,7 +79,9 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, outfile *f,
     return rc;
 }
 
-static int voxelize(voxelize_opts *o, pipeline_job *job)
+/* e: the engine the caller started (NULL: started here); it is the job's
+ * from here on, whatever happens. */
+static int voxelize(voxelize_opts *o, pipeline_job *job, engine *e)
 {
     job->lo[0] = o->lo[0], job->lo[1] = o->lo[1], job->lo[2] = o->lo[2];
     job->hi[0] = o->hi[0], job->hi[1] = o->hi[1], job->hi[2] = o->hi[2];
@@ -90,6 +93,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     if (job->kind == PIPELINE_IMPLICIT &&
         grid_make(o->lo, o->hi, o->res, &g, err, sizeof err)) {
         cli_error("%s", err);
+        engine_abandon(e);
         return CLI_EXIT_USAGE;
     }
     cli_catch_interrupts();
@@ -98,6 +102,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     int rc = outfile_open(&f, o->out);
     if (rc) {
         cli_error("cannot create %s: %s", o->out, strerror(-rc));
+        engine_abandon(e);
         return CLI_EXIT_FAILED;
     }
     progress pr;
@@ -105,7 +110,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job)
     job->progress = on_progress;
     job->ud = &pr;
     pipeline_report r;
-    rc = run_job(o, job, &f, &r);
+    rc = run_job(o, job, &f, &r, e);
     progress_done(&pr);
     if (rc || cli_interrupted()) {
         outfile_abort(&f);
@@ -134,7 +139,23 @@ static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *t
                      .source_name = src->path},
         .band = o->mesh_opts.band,
     };
-    return voxelize(o, &job);
+    return voxelize(o, &job, NULL);
+}
+
+/* The mesh loaded on a thread of its own while the caller's starts the
+ * engine (the segment mapped, the workers forked): neither waits for the
+ * other, and the load's errors are told as before. */
+typedef struct {
+    const voxelize_opts *o;
+    mesh m;
+    int rc;
+} mesh_loading;
+
+static void *load_run(void *ud)
+{
+    mesh_loading *l = ud;
+    l->rc = cli_mesh_load(l->o->mesh, MESH_FORMAT_AUTO, l->o->weld, &l->m, NULL);
+    return NULL;
 }
 
 /* A mesh job on the embedded engine: loaded and checked here (its errors
@@ -142,9 +163,18 @@ static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *t
  * parses it itself.) */
 static int voxelize_mesh(voxelize_opts *o)
 {
-    mesh m;
-    int rc = cli_mesh_load(o->mesh, MESH_FORMAT_AUTO, o->weld, &m, NULL);
-    if (rc) return rc;
+    mesh_loading l = {.o = o};
+    par_task loading;
+    par_start(&loading, load_run, &l);
+    engine *e = NULL;
+    int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
+    par_join(&loading);
+    if (l.rc || rc) { /* the load's error first, as when it ran alone */
+        engine_abandon(e);
+        if (!l.rc) mesh_free(&l.m);
+        return l.rc ? l.rc : CLI_EXIT_FAILED;
+    }
+    mesh m = l.m;
     struct stat sb;
     pipeline_job job = {
         .kind = PIPELINE_MESH,
@@ -152,7 +182,7 @@ static int voxelize_mesh(voxelize_opts *o)
                  .fit = !o->has_domain, .source_name = o->mesh,
                  .source_bytes = stat(o->mesh, &sb) == 0 ? (uint64_t)sb.st_size : 0},
     };
-    rc = voxelize(o, &job);
+    rc = voxelize(o, &job, e);
     mesh_free(&m);
     return rc;
 }

@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "mesh_load.h"
+#include "par.h"
 
 /* ------------------------------------------------------------------- detect */
 
@@ -105,6 +106,56 @@ static const char *folder_of(const char *path, char *dir, size_t cap)
     return dir;
 }
 
+/* A large file's mapping filled (MADV_POPULATE_READ) before the parse and
+ * emptied (MADV_DONTNEED) before munmap in parts, one a CPU: page-table
+ * work that the kernel does under the mapping's read lock, so that the
+ * parts run at once (munmap's own, under the write lock, would not). */
+#define MAP_PAR_MIN (4u << 20)
+
+typedef struct {
+    char *base;
+    size_t len;
+    int advice;
+} map_parts;
+
+static void map_part(void *ud, unsigned k, unsigned n)
+{
+    const map_parts *m = ud;
+    size_t page = (size_t)sysconf(_SC_PAGESIZE), pages = (m->len + page - 1) / page;
+    size_t from = pages * k / n * page, to = pages * (k + 1) / n * page;
+    if (to > m->len) to = m->len;
+    if (to > from) madvise(m->base + from, to - from, m->advice);
+}
+
+/* 1 when done in parts; 0 when the caller maps the pages as it goes. */
+static int map_in_parts(char *p, size_t len, int advice)
+{
+    unsigned cpus = par_cpus();
+    if (len < MAP_PAR_MIN || cpus < 2) return 0;
+    map_parts m = {p, len, advice};
+    par_run(cpus, map_part, &m);
+    return 1;
+}
+
+static void *map_file(int fd, size_t len)
+{
+#ifdef MADV_POPULATE_READ
+    void *p = mmap(NULL, len, PROT_READ, MAP_PRIVATE, fd, 0);
+    if (p != MAP_FAILED && !map_in_parts(p, len, MADV_POPULATE_READ))
+        madvise(p, len, MADV_POPULATE_READ);
+    return p;
+#else
+    /* Populated at once: the parser reads every page in order anyway. */
+    return mmap(NULL, len, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
+#endif
+}
+
+static void unmap_file(void *p, size_t len)
+{
+    map_in_parts(p, len, MADV_DONTNEED);
+    munmap(p, len);
+}
+
 int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh *out,
               mesh_error *err)
 {
@@ -134,8 +185,7 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
     }
     char dirbuf[4096];
     const char *dir = folder_of(path, dirbuf, sizeof dirbuf);
-    /* Populated at once: the parser reads every page in order anyway. */
-    void *p = mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
+    void *p = map_file(fd, (size_t)st.st_size);
     int e = errno;
     close(fd);
     if (p == MAP_FAILED) {
@@ -143,7 +193,7 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
         return e == ENOMEM ? -ENOMEM : -e;
     }
     rc = parse_in(p, (size_t)st.st_size, format, lim, dir, out, err);
-    munmap(p, (size_t)st.st_size);
+    unmap_file(p, (size_t)st.st_size);
     return rc;
 }
 

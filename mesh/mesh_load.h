@@ -100,6 +100,9 @@ int mesh_parse_stl(const char *buf, size_t len, mbuild *b);
 int mesh_parse_ply(const char *buf, size_t len, mbuild *b);
 int mesh_parse_off(const char *buf, size_t len, mbuild *b);
 int mesh_parse_gltf(const char *buf, size_t len, mbuild *b);
+/* ASCII PLY files parsed on every CPU so far (mesh_ply.c's fast path; the
+ * others are parsed by one thread): the tests check which path ran. */
+extern _Atomic uint64_t mesh_ply_par_runs;
 /* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
 int mesh_off_keyword(const char *p, size_t n);
 

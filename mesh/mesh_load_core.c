@@ -6,12 +6,14 @@
 #include <float.h>
 #include <math.h>
 #include <stdarg.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "err.h"
 #include "mesh_load.h"
+#include "par.h"
 
 /* ------------------------------------------------------------------ builder */
 
@@ -122,12 +124,18 @@ int mb_zero_area(const float *a, const float *b, const float *c)
     return u1 * v2 - u2 * v1 == 0.0 && u2 * v0 - u0 * v2 == 0.0 && u0 * v1 - u1 * v0 == 0.0;
 }
 
-int mb_finish(mbuild *b, mesh_format f, mesh *out)
+/* Triangles [from, to) of b: the box of those kept (not degenerate) grown
+ * in lo and hi, the kept ones copied to out[0, kept) when out is not NULL
+ * (out may be b->t + from: each goes to or below its own place).  The box
+ * takes the first of equal values (-0 and +0): folding parts in order
+ * gives what one pass over all of them gives. */
+static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, float lo[3],
+                            float hi[3], uint32_t (*out)[3])
 {
     /* the box in scalars, so that they stay in registers */
-    float lx = FLT_MAX, ly = FLT_MAX, lz = FLT_MAX, hx = -FLT_MAX, hy = -FLT_MAX, hz = -FLT_MAX;
+    float lx = lo[0], ly = lo[1], lz = lo[2], hx = hi[0], hy = hi[1], hz = hi[2];
     uint32_t kept = 0;
-    for (uint32_t i = 0; i < b->nt; i++) {
+    for (uint32_t i = from; i < to; i++) {
         uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
         if (t0 == t1 || t1 == t2 || t0 == t2) continue;
         const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
@@ -137,22 +145,107 @@ int mb_finish(mbuild *b, mesh_format f, mesh *out)
             lx = x < lx ? x : lx, ly = y < ly ? y : ly, lz = z < lz ? z : lz;
             hx = x > hx ? x : hx, hy = y > hy ? y : hy, hz = z > hz ? z : hz;
         }
-        b->t[kept][0] = t0, b->t[kept][1] = t1, b->t[kept][2] = t2;
+        if (out) out[kept][0] = t0, out[kept][1] = t1, out[kept][2] = t2;
         kept++;
     }
+    lo[0] = lx, lo[1] = ly, lo[2] = lz, hi[0] = hx, hi[1] = hy, hi[2] = hz;
+    return kept;
+}
+
+/* mb_finish on every CPU for a large mesh: each part's box and count
+ * first; when some triangles are degenerate, each part copies its kept
+ * ones to its place (the counts' prefix sums) in a new array. */
+#define FINISH_PAR_MIN 65536 /* triangles: fewer are finished by one thread */
+#define FINISH_PARTS 64
+
+typedef struct {
+    const mbuild *b;
+    uint32_t (*out)[3]; /* the second pass's array; NULL in the first */
+    atomic_uint next;   /* the next part to take */
+    float lo[FINISH_PARTS][3], hi[FINISH_PARTS][3];
+    uint32_t kept[FINISH_PARTS + 1]; /* then the prefix sums: each part's place */
+} finish_par;
+
+static void finish_parts(void *ud, unsigned k, unsigned n)
+{
+    (void)k, (void)n;
+    finish_par *fp = ud;
+    uint64_t nt = fp->b->nt;
+    /* relaxed: a counter; the parts are disjoint, par_run's join orders the results */
+    for (uint32_t i; (i = atomic_fetch_add_explicit(&fp->next, 1, memory_order_relaxed)) <
+                     FINISH_PARTS;) {
+        uint32_t from = (uint32_t)(nt * i / FINISH_PARTS), to = (uint32_t)(nt * (i + 1) / FINISH_PARTS);
+        if (!fp->out) {
+            fp->lo[i][0] = fp->lo[i][1] = fp->lo[i][2] = FLT_MAX;
+            fp->hi[i][0] = fp->hi[i][1] = fp->hi[i][2] = -FLT_MAX;
+            fp->kept[i] = finish_part(fp->b, from, to, fp->lo[i], fp->hi[i], NULL);
+        } else {
+            float lo[3], hi[3];
+            finish_part(fp->b, from, to, lo, hi, fp->out + fp->kept[i]);
+        }
+    }
+}
+
+/* The kept triangles' count and box, b->t compacted; 0 or -ENOMEM. */
+static int finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
+{
+    unsigned cpus = par_cpus();
+    if (b->nt < FINISH_PAR_MIN || cpus < 2) {
+        *kept = finish_part(b, 0, b->nt, lo, hi, b->t);
+        return 0;
+    }
+    finish_par *fp = calloc(1, sizeof *fp);
+    if (!fp) return -ENOMEM;
+    fp->b = b;
+    atomic_init(&fp->next, 0);
+    par_run(cpus, finish_parts, fp);
+    uint32_t sum = 0;
+    for (int i = 0; i < FINISH_PARTS; i++) { /* in order: the first of equal values */
+        for (int a = 0; a < 3; a++) {
+            lo[a] = fp->lo[i][a] < lo[a] ? fp->lo[i][a] : lo[a];
+            hi[a] = fp->hi[i][a] > hi[a] ? fp->hi[i][a] : hi[a];
+        }
+        uint32_t c = fp->kept[i];
+        fp->kept[i] = sum;
+        sum += c;
+    }
+    int rc = 0;
+    if (sum < b->nt && sum > 0) {
+        fp->out = malloc((size_t)sum * sizeof *fp->out);
+        if (fp->out) {
+            atomic_store_explicit(&fp->next, 0, memory_order_relaxed); /* before the threads */
+            par_run(cpus, finish_parts, fp);
+            free(b->t);
+            b->t = fp->out;
+            b->cap_t = sum;
+        } else {
+            rc = -ENOMEM;
+        }
+    }
+    free(fp);
+    *kept = sum;
+    return rc;
+}
+
+int mb_finish(mbuild *b, mesh_format f, mesh *out)
+{
+    float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
+    uint32_t kept;
+    if (finish_all(b, lo, hi, &kept))
+        return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory for %u triangles", b->nt);
     uint32_t dropped = b->nt - kept;
     if (!kept)
         return b->nt ? mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles: all %u are degenerate", b->nt)
                      : mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles");
     /* Give back what growth over-allocated (shrinking cannot fail the load). */
-    void *p = realloc(b->t, (size_t)kept * sizeof *b->t);
+    void *p = b->cap_t > kept ? realloc(b->t, (size_t)kept * sizeof *b->t) : NULL;
     if (p) b->t = p;
     if (b->cap_v > b->nv && (p = realloc(b->v, (size_t)b->nv * sizeof *b->v))) b->v = p;
     *out = (mesh){.n_vertices = b->nv, .n_triangles = kept, .vertices = b->v,
                   .triangles = b->t, .n_degenerate = dropped, .format = f};
     memcpy(out->warning, b->warning, sizeof out->warning);
-    out->lo[0] = lx, out->lo[1] = ly, out->lo[2] = lz;
-    out->hi[0] = hx, out->hi[1] = hy, out->hi[2] = hz;
+    memcpy(out->lo, lo, sizeof lo);
+    memcpy(out->hi, hi, sizeof hi);
     b->v = NULL;
     b->t = NULL;
     b->nv = b->nt = 0;

@@ -11,11 +11,14 @@
  * its scalars and list counts, a face at least three indices; ascii: two
  * bytes a token), and the vertex and face counts against the limits. */
 #include <errno.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "mesh_load.h"
+#include "par.h"
 
 enum { T_CHAR, T_UCHAR, T_SHORT, T_USHORT, T_INT, T_UINT, T_FLOAT, T_DOUBLE, T_NONE };
 
@@ -373,6 +376,188 @@ static int parse_ascii(ply *y, mtext *t)
     return 0;
 }
 
+/* ------------------------------------------------------ ascii on every CPU */
+
+/* A large ASCII file is parsed by every CPU when its layout is the common
+ * one: each item of every element on a line of its own, every face a
+ * triangle, nothing but blanks after the last item.  The lines are counted
+ * in parts first, so that each part knows the element and item of its
+ * first line and writes its vertices and triangles straight into the
+ * builder's arrays, sized by check_elements (no per-thread buffers, no
+ * copy, no allocation on the threads).  Each line is read by the serial
+ * parser's own token readers (mt_float, mt_int, mt_uint_token), so what it
+ * takes it reads to the same bits.  Anything else (an item over two lines,
+ * a blank line, a polygon, any error) makes a part give up, and the whole
+ * file is parsed again by parse_ascii: its mesh, or its error and line,
+ * are then the serial parser's. */
+#define PAR_MIN_BYTES (1u << 20) /* below this, one thread */
+#define PAR_PARTS 256            /* parts, taken in turn by the threads */
+
+_Atomic uint64_t mesh_ply_par_runs;
+
+typedef struct {
+    ply *y;
+    const char *data, *end;
+    uint32_t nparts;
+    uint64_t ebase[MAX_ELEMS + 1]; /* the index of each element's first line */
+    uint64_t first[PAR_PARTS + 1]; /* newlines in part k, then its first line's index */
+    atomic_uint next;              /* the next part to take */
+    atomic_int bad;                /* a part gave up: parse_ascii decides */
+} par_ply;
+
+/* Part k's first byte: the start of the line at or after its share of the
+ * data (so part k - 1's last byte is found the same way). */
+static const char *part_start(const par_ply *pp, uint32_t k)
+{
+    size_t len = (size_t)(pp->end - pp->data), at = (size_t)((uint64_t)len * k / pp->nparts);
+    if (at == 0) return pp->data;
+    if (at >= len) return pp->end;
+    const char *nl = memchr(pp->data + at - 1, '\n', len - at + 1);
+    return nl ? nl + 1 : pp->end;
+}
+
+/* The '\n' bytes in [p, end): eight bytes at a time, a byte that is '\n'
+ * becomes 0 and each zero byte sets its top bit (exactly: no carries). */
+static uint64_t count_newlines(const char *p, const char *end)
+{
+    const uint64_t lo7 = 0x7f7f7f7f7f7f7f7full, nl = 0x0a0a0a0a0a0a0a0aull;
+    uint64_t n = 0;
+    for (; end - p >= 8; p += 8) {
+        uint64_t w;
+        memcpy(&w, p, 8);
+        w ^= nl;
+        n += (uint64_t)__builtin_popcountll(~(((w & lo7) + lo7) | w | lo7));
+    }
+    for (; p < end; p++) n += *p == '\n';
+    return n;
+}
+
+/* The part that the calling thread takes next; nparts when none is left. */
+static uint32_t take_part(par_ply *pp)
+{
+    /* relaxed: a counter; the parts' bounds are computed, not published */
+    return atomic_fetch_add_explicit(&pp->next, 1, memory_order_relaxed);
+}
+
+static void count_parts(void *ud, unsigned k, unsigned n)
+{
+    (void)k, (void)n;
+    par_ply *pp = ud;
+    for (uint32_t i; (i = take_part(pp)) < pp->nparts;)
+        pp->first[i] = count_newlines(part_start(pp, i), part_start(pp, i + 1));
+}
+
+/* One line [t->p, t->end) as item `item` of element e: 0, or -1 when the
+ * fast path does not take it. */
+static int line_item(ply *y, mtext *t, const ply_elem *e, uint64_t item)
+{
+    float pos[3] = {0, 0, 0};
+    uint32_t tri[3];
+    for (uint32_t k = 0; k < e->nprops; k++) {
+        const ply_prop *p = &e->props[k];
+        mt_skip_blank(t);
+        uint64_t cnt = 1;
+        if (p->list && mt_uint_token(t, type_max[p->count_type], &cnt)) return -1;
+        if (p->role == R_INDICES) {
+            if (cnt != 3) return -1;
+            for (int j = 0; j < 3; j++) {
+                int64_t v;
+                mt_skip_blank(t);
+                if (mt_int(t, &v) || (t->p < t->end && !mt_blank(*t->p))) return -1;
+                if (v < 0 || (uint64_t)v >= y->n_vertices) return -1;
+                tri[j] = (uint32_t)v;
+            }
+        } else if (p->role) {
+            if (mt_float(t, &pos[p->role - R_X])) return -1;
+        } else {
+            for (uint64_t j = 0; j < cnt; j++) { /* skipped, as parse_ascii does */
+                mt_skip_blank(t);
+                size_t n = mt_toklen(t);
+                if (!n) return -1;
+                t->p += n;
+            }
+        }
+    }
+    mt_skip_blank(t);
+    if (t->p != t->end) return -1;
+    if (e->kind == E_VERTEX) memcpy(y->b->v[item], pos, sizeof pos);
+    if (e->kind == E_FACE) memcpy(y->b->t[item], tri, sizeof tri);
+    return 0;
+}
+
+/* The lines of part i, whose first is line g of the data. */
+static int parse_part(par_ply *pp, uint32_t i, uint64_t g)
+{
+    ply *y = pp->y;
+    const char *p = part_start(pp, i), *stop = part_start(pp, i + 1);
+    uint32_t ei = 0;
+    for (; p < stop; g++) {
+        const char *nl = memchr(p, '\n', (size_t)(stop - p));
+        mtext t = {p, nl ? nl : stop, y->b->buf};
+        p = nl ? nl + 1 : stop;
+        while (ei < y->nelems && g >= pp->ebase[ei + 1]) ei++;
+        if (ei == y->nelems) { /* past the last item: blanks only */
+            mt_skip_blank(&t);
+            if (t.p != t.end) return -1;
+        } else if (line_item(y, &t, &y->elems[ei], g - pp->ebase[ei])) {
+            return -1;
+        }
+        /* relaxed: only a hint to stop early; par_run's join orders the result */
+        if (!(g & 4095) && atomic_load_explicit(&pp->bad, memory_order_relaxed)) return -1;
+    }
+    return 0;
+}
+
+static void parse_parts(void *ud, unsigned k, unsigned n)
+{
+    (void)k, (void)n;
+    par_ply *pp = ud;
+    for (uint32_t i; (i = take_part(pp)) < pp->nparts;)
+        if (parse_part(pp, i, pp->first[i])) {
+            /* relaxed: read after par_run's join (and as a hint before) */
+            atomic_store_explicit(&pp->bad, 1, memory_order_relaxed);
+            return;
+        }
+}
+
+/* 1 when the data was parsed on every CPU into y's builder, 0 when
+ * parse_ascii must parse it (the builder left empty). */
+static int parse_ascii_par(ply *y, const char *end)
+{
+    size_t len = (size_t)(end - y->data);
+    unsigned cpus = par_cpus();
+    if (len < PAR_MIN_BYTES || cpus < 2) return 0;
+    par_ply *pp = calloc(1, sizeof *pp); /* 2 KiB of part bounds: off the stack */
+    if (!pp) return 0;
+    atomic_init(&pp->next, 0);
+    atomic_init(&pp->bad, 0);
+    pp->y = y, pp->data = y->data, pp->end = end, pp->nparts = PAR_PARTS;
+    for (uint32_t i = 0; i < y->nelems; i++)
+        pp->ebase[i + 1] = pp->ebase[i] + y->elems[i].count;
+    par_run(cpus, count_parts, pp);
+    uint64_t lines = 0, items = pp->ebase[y->nelems];
+    for (uint32_t i = 0; i <= pp->nparts; i++) {
+        uint64_t c = i < pp->nparts ? pp->first[i] : 0;
+        pp->first[i] = lines;
+        lines += c;
+    }
+    lines += end[-1] != '\n'; /* a last line without its line end */
+    int ok = lines >= items;
+    if (ok) {
+        atomic_store_explicit(&pp->next, 0, memory_order_relaxed); /* before par_run's threads */
+        par_run(cpus, parse_parts, pp);
+        ok = !atomic_load_explicit(&pp->bad, memory_order_relaxed); /* after the join */
+    }
+    free(pp);
+    if (!ok) return 0;
+    /* relaxed: a count for the tests, which read it after the parse */
+    atomic_fetch_add_explicit(&mesh_ply_par_runs, 1, memory_order_relaxed);
+    y->b->nv = (uint32_t)y->n_vertices;
+    for (uint32_t i = 0; i < y->nelems; i++)
+        if (y->elems[i].kind == E_FACE) y->b->nt = (uint32_t)y->elems[i].count;
+    return 1;
+}
+
 /* ------------------------------------------------------------------ binary */
 
 /* size bytes at p in the file's byte order (the fixed-size forms compile
@@ -505,5 +690,6 @@ int mesh_parse_ply(const char *buf, size_t len, mbuild *b)
     int rc = parse_header(&y, &t);
     if (!rc) rc = check_elements(&y, len - (size_t)(y.data - buf));
     if (rc) return rc;
-    return y.ascii ? parse_ascii(&y, &t) : parse_binary(&y, buf, len);
+    if (!y.ascii) return parse_binary(&y, buf, len);
+    return parse_ascii_par(&y, buf + len) ? 0 : parse_ascii(&y, &t);
 }
