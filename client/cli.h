@@ -36,6 +36,7 @@ typedef struct {
     uint32_t res, workers;
     int workers_given;
     int channel, quiet, comp;
+    uint32_t band;             /* --band K (channel distance), 0: the default */
     double lo[3], hi[3];
 } cli_csg_opts;
 /* 0, CLI_EXIT_USAGE after a message, or -1 after --help's usage. */

@@ -25,8 +25,11 @@ static const char usage[] =
     "  FILE - reads the tree from standard input\n"
     "  -o, --output OUT.vod   the file to write (required)\n"
     "  -r, --res N            voxels along the domain's longest axis, 1..4096 (required)\n"
-    "  -c, --channel CH       density (8 bit, default), occupancy (density >= S) or\n"
-    "                         surface (density >= S, normals from its gradient)\n"
+    "  -c, --channel CH       density (8 bit, default), occupancy (density >= S),\n"
+    "                         surface (density >= S, normals from its gradient) or\n"
+    "                         distance (f32 signed distance in a band; implicit and mesh\n"
+    "                         leaves, union, intersection, difference, inverse)\n"
+    "      --band K           distance: the band's half width in voxels, 1..32 (default 3)\n"
     "  -d, --domain D         a,b (the cube [a,b]^3) or x0,x1,y0,y1,z0,z1 (default -1,1)\n"
     "  -Z, --compress C       the bricks' compression: zlib (default), runl or none\n"
     "  -w, --workers N        worker processes, 0 = serial in this process (default: cores);\n"
@@ -56,7 +59,8 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
 {
     static const struct option longs[] = {
         {"output", 1, 0, 'o'}, {"res", 1, 0, 'r'}, {"channel", 1, 0, 'c'},
-        {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"compress", 1, 0, 'Z'}, {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
+        {"domain", 1, 0, 'd'}, {"quiet", 0, 0, 'q'}, {"workers", 1, 0, 'w'}, {"compress", 1, 0, 'Z'}, {"band", 1, 0, 'N'},
+        {"help", 0, 0, 'h'}, {0, 0, 0, 0}};
     *o = (cli_csg_opts){.channel = VOXEL_CH_DENSITY, .lo = {-1, -1, -1}, .hi = {1, 1, 1},
                     .comp = VOD_COMP_ZLIB,
                     .workers = cli_cores()};
@@ -75,8 +79,10 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
             if (!strcmp(optarg, "density")) o->channel = VOXEL_CH_DENSITY;
             else if (!strcmp(optarg, "occupancy")) o->channel = VOXEL_CH_OCCUPANCY;
             else if (!strcmp(optarg, "surface")) o->channel = VOXEL_CH_SURFACE;
+            else if (!strcmp(optarg, "distance")) o->channel = VOXEL_CH_DISTANCE;
             else {
-                cli_error("bad --channel '%.40s': density, occupancy or surface", optarg);
+                cli_error("bad --channel '%.40s': density, occupancy, surface or distance",
+                          optarg);
                 return CLI_EXIT_USAGE;
             }
             break;
@@ -102,6 +108,12 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
                 return CLI_EXIT_USAGE;
             }
             break;
+        case 'N':
+            if (cli_parse_uint(optarg, 1, VOXEL_BAND_MAX, &o->band)) {
+                cli_error("bad --band '%.40s': want 1..%u voxels", optarg, VOXEL_BAND_MAX);
+                return CLI_EXIT_USAGE;
+            }
+            break;
         case 'q': o->quiet = 1; break;
         case 'h': fputs(usage, stdout); return -1;
         default: return CLI_EXIT_USAGE;
@@ -113,6 +125,8 @@ int cli_csg_parse(int argc, char **argv, cli_csg_opts *o)
     if (!o->out) return cli_usage_error("csg", "missing -o OUT.vod (the file to write)");
     if (!o->res)
         return cli_usage_error("csg", "missing --res N (voxels along the longest axis)");
+    if (o->band && o->channel != VOXEL_CH_DISTANCE)
+        return cli_usage_error("csg", "--band is for --channel distance");
     o->in = argv[optind];
     return 0;
 }
@@ -180,7 +194,7 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     pipeline_job job = {.kind = PIPELINE_CSG,
                         .csg = {.tree = t, .source_name = text_name,
                                 .source_bytes = text_bytes},
-                        .res = o->res};
+                        .res = o->res, .band = o->band};
     memcpy(job.lo, o->lo, sizeof job.lo);
     memcpy(job.hi, o->hi, sizeof job.hi);
     vod_params_default(&job.vod);
@@ -214,8 +228,9 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     if (o->quiet) return CLI_EXIT_OK;
     char bricks[160];
     pipeline_describe(&job, &r, bricks, sizeof bricks);
-    printf("%s: %llu voxels at or above S on a %ux%ux%u grid, %s, %llu bytes; evaluated in "
+    printf("%s: %llu voxels %s on a %ux%ux%u grid, %s, %llu bytes; evaluated in "
            "%.3f s, written in %.3f s\n", o->out, (unsigned long long)r.voxels,
+           o->channel == VOXEL_CH_DISTANCE ? "inside (negative)" : "at or above S",
            r.grid.res[0], r.grid.res[1], r.grid.res[2], bricks,
            (unsigned long long)r.st.file_bytes, r.t_voxelize, r.t_write);
     return CLI_EXIT_OK;

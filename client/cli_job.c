@@ -225,6 +225,10 @@ static int check_job_kind(const char *name, cli_job_opts *o)
             return CLI_EXIT_USAGE;
         }
         if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
+        if (o->mesh_opts.band) /* the protocol's CSG message has no band */
+            return cli_usage_error(name, "--band with --csg: voxd takes the default band (%u) "
+                                   "for a tree; vox csg --band runs it embedded",
+                                   VOXEL_BAND_DEFAULT);
         return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {

@@ -20,6 +20,7 @@
 #include "csg_limits.h"
 #include "expr.h"
 #include "grid.h"
+#include "mesh_vox.h"
 #include "vod_volume.h"
 
 #define CSG_L 0u
@@ -52,7 +53,7 @@ typedef struct {
     char name[CSG_NAME_MAX];
     int32_t a, b;          /* children (indices below this node), -1: none */
     double param;          /* divide's S_L, a scalar */
-    uint32_t k;            /* erode / dilate */
+    uint32_t k;            /* erode / dilate; a distance leaf's band (csg_tree_set_band) */
     /* primitives: centre, full size along the local axes (x, y, z), rotation (radians, applied
      * about x, then y, then z) */
     double center[3], size[3], rot[3];
@@ -113,9 +114,10 @@ void csg_node_rotation(csg_node *n);
 /* ---- file leaves (csg_leaf.c) ---- */
 
 /* The 8-bit volume of a mesh or vod leaf on grid g, from the node's file
- * bytes, into vol (g->res, 8 bits, empty): a mesh through the mesh
- * voxelizer's density channel (solid, 2^3 samples a voxel: the fraction
- * inside, so its surface lands on S), placed by fit and scale; a VOD file's
+ * bytes, into vol (g->res, csg_leaf_bits(node) bits, empty): a mesh through
+ * the mesh voxelizer's density channel (solid, 4^3 samples a voxel: the
+ * fraction inside, so its surface lands on S), placed by fit and scale, or
+ * with a band (k > 0: channel 4) its signed distance (f32, mesh_dist); a VOD file's
  * level 0 at each voxel centre of g (nearest: the file voxel whose box holds
  * the centre; L outside the file), occupancy 1 as H, density as it is,
  * surface voxels as H where occupied.  Done once per job, before any brick.
@@ -123,6 +125,12 @@ void csg_node_rotation(csg_node *n);
  * load, -ENOMEM the volume's pool is full). */
 int csg_leaf_build(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
                    char *msg, size_t len);
+/* Mesh leaf i's mesh parsed from its bytes and placed (fit, scale) into
+ * *m (mesh_free it), and the options csg_leaf_build voxelizes it with into
+ * *o: what the engine's workers build the leaf's volume from, tile by tile
+ * (mesh_tile_run), the same volume.  0, or a negative errno with msg. */
+int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, char *msg,
+                  size_t len);
 /* Every file leaf of t built in turn (csg_leaf_build) into arena (bytes
  * long, 8-byte aligned), one volume after the other: leaves[i] for each
  * (NULL for the other nodes), *used the arena's bytes they take.  0, or
@@ -178,6 +186,21 @@ int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *con
 int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
                     vod_volume *vol, int channel, const uint32_t lo[3], const uint32_t hi[3],
                     csg_stats *st);
+
+/* ---- a tree's signed distance, channel 4 (csg_deval.c) ---- */
+
+/* 0 when the tree's result (the nodes it reaches) has a signed distance:
+ * implicit leaves without a domain and mesh leaves, combined by union
+ * (min), intersection (max), difference (max(a, -b)) and inverse (-a);
+ * else -ENOTSUP with msg naming the first node that has none. */
+int csg_dist_check(const csg_tree *t, char *msg, size_t len);
+/* Every implicit and mesh leaf's k := band (voxels each side, 0: the
+ * default): what the distance channel's evaluation and csg_leaf_build
+ * read (a mesh leaf with k > 0 is built as its distance, f32). */
+void csg_tree_set_band(csg_tree *t, uint32_t band);
+/* The voxel bits of node i's leaf volume (csg_leaf_build): VOD_VOLUME_F32
+ * for a mesh leaf with a band (k > 0), else 8. */
+uint32_t csg_leaf_bits(const csg_node *n);
 
 /* ---- the signed distance of an implicit surface (csg_dist.c) ---- */
 

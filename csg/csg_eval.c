@@ -5,32 +5,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "csg.h"
+#include "csg_eval_int.h"
 #include "voxel.h"
-
-struct csg_eval {
-    const csg_tree *t;
-    grid_spec g;
-    uint32_t side;
-    const vod_volume *leaf[CSG_MAX_NODES]; /* mesh and vod leaves' volumes */
-    expr_tape *tape[CSG_MAX_NODES];
-    expr_vm *vm[CSG_MAX_NODES];
-    /* Binary operators: the table op(a, b), and for each value of one
-     * operand the result it forces whatever the other, or -1. */
-    uint8_t *lut[CSG_MAX_NODES];
-    int16_t *force_a[CSG_MAX_NODES], *force_b[CSG_MAX_NODES];
-    /* implicit leaves: 1 when expr_vm_ival_grad knows the tape's ops */
-    uint8_t igrad[CSG_MAX_NODES];
-    /* primitive and implicit leaves' values over the whole brick that
-     * eval_in_cubes is evaluating (-1: not uniform there, or no brick) */
-    int16_t known[CSG_MAX_NODES];
-    csg_stats st;
-    csg_dist *dist;     /* channel 4: the root implicit leaf's distance */
-    int has_morph;      /* erode or dilate in the tree: bricks are evaluated whole */
-    /* operands' scratch, taken and given back last in first out (scratch_take) */
-    uint8_t *arena;
-    size_t arena_top, arena_cap;
-};
 
 #define CSG_ARENA (64u << 10)
 
@@ -104,7 +80,7 @@ void csg_eval_free(csg_eval *e)
         free(e->force_a[i]);
         free(e->force_b[i]);
     }
-    csg_dist_free(e->dist);
+    csg_deval_free(e);
     free(e->arena);
     free(e);
 }
@@ -748,34 +724,10 @@ static int surface_brick(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint
     return vod_volume_put_brick(vol, b, out);
 }
 
-/* Channel 4's brick b: the signed distance of a tree whose result is an
- * implicit leaf (its k the band, 0 the default), csg_dist_brick. */
-static int distance_brick(csg_eval *e, vod_volume *vol, const uint32_t b[3], float *out)
-{
-    uint32_t root = e->t->n - 1, s = e->side;
-    const csg_node *n = &e->t->node[root];
-    if (n->kind != CSG_IMPLICIT || n->has_domain) return -ENOTSUP;
-    int rc = 0;
-    if (!e->dist) rc = csg_dist_new(e->tape[root], &e->g, n->k ? n->k : VOXEL_BAND_DEFAULT, &e->dist);
-    uint64_t v0 = e->dist ? csg_dist_get_stats(e->dist)->band_voxels : 0;
-    uint32_t lo[3] = {b[0] * s, b[1] * s, b[2] * s};
-    if (!rc) rc = csg_dist_brick(e->dist, lo, s, out);
-    if (rc) return rc;
-    e->st.bricks++;
-    e->st.voxel_evals += csg_dist_get_stats(e->dist)->band_voxels - v0;
-    size_t nv = (size_t)s * s * s, inside = 0;
-    for (size_t i = 0; i < nv; i++) inside += out[i] < 0;
-    e->st.solid_voxels += inside;
-    size_t i = 1;
-    while (i < nv && !memcmp(&out[i], &out[0], sizeof *out)) i++;
-    e->st.uniform_bricks += i == nv;
-    return vod_volume_put_brick(vol, b, out);
-}
-
 int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], void *buf, int channel)
 {
     if (channel == VOXEL_CH_SURFACE) return surface_brick(e, vol, b, buf);
-    if (channel == VOXEL_CH_DISTANCE) return distance_brick(e, vol, b, buf);
+    if (channel == VOXEL_CH_DISTANCE) return csg_deval_store(e, vol, b, buf);
     int uniform;
     uint8_t v;
     int rc = csg_eval_brick(e, b, buf, &uniform, &v);

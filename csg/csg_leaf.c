@@ -43,30 +43,52 @@ static int place_mesh(const csg_node *n, mesh *m, char *msg, size_t len)
     return 0;
 }
 
-static int mesh_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
-                     char *msg, size_t len)
+int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, char *msg,
+                  size_t len)
 {
     const csg_node *n = &t->node[i];
-    mesh m;
     mesh_error me = {0};
-    int rc = mesh_parse(t->data[i], t->data_len[i], MESH_FORMAT_AUTO, NULL, &m, &me);
+    msg[0] = 0;
+    if (n->kind != CSG_MESH || !t->data[i] || !t->data_len[i]) {
+        snprintf(msg, len, "node '%s': no file data for a %s leaf", n->name,
+                 csg_kind_name(n->kind));
+        return -EINVAL;
+    }
+    int rc = mesh_parse(t->data[i], t->data_len[i], MESH_FORMAT_AUTO, NULL, m, &me);
     if (rc) {
         char why[256];
         snprintf(msg, len, "node '%s': mesh: %s", n->name, mesh_error_str(&me, why, sizeof why));
         return rc;
     }
-    if (!m.n_triangles) {
+    if (!m->n_triangles) {
         snprintf(msg, len, "node '%s': mesh: no triangles", n->name);
-        mesh_free(&m);
+        mesh_free(m);
         return -EINVAL;
     }
-    rc = place_mesh(n, &m, msg, len);
-    mesh_vox_opts o = {.mode = MESH_SOLID, .repair = MESH_REPAIR_NONE,
-                       .channel = VOXEL_CH_DENSITY, .supersample = CSG_MESH_SUPERSAMPLE};
+    if ((rc = place_mesh(n, m, msg, len))) {
+        mesh_free(m);
+        return rc;
+    }
+    *o = (mesh_vox_opts){.mode = MESH_SOLID, .repair = MESH_REPAIR_NONE,
+                         .channel = VOXEL_CH_DENSITY, .supersample = CSG_MESH_SUPERSAMPLE};
+    if (csg_leaf_bits(n) == VOD_VOLUME_F32) /* channel 4: its exact distance (mesh_dist) */
+        *o = (mesh_vox_opts){.mode = MESH_SOLID, .repair = MESH_REPAIR_NONE,
+                             .channel = VOXEL_CH_DISTANCE, .band = n->k};
+    return 0;
+}
+
+static int mesh_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
+                     char *msg, size_t len)
+{
+    mesh m;
+    mesh_vox_opts o;
+    int rc = csg_leaf_mesh(t, i, &m, &o, msg, len);
+    if (rc) return rc;
     mesh_tile_stats st = {0};
-    if (!rc) rc = mesh_voxelize(&m, g, &o, vol, &st);
+    rc = mesh_voxelize(&m, g, &o, vol, &st);
     if (rc && !msg[0])
-        snprintf(msg, len, "node '%s': voxelizing the mesh: %s", n->name, strerror(-rc));
+        snprintf(msg, len, "node '%s': voxelizing the mesh: %s", t->node[i].name,
+                 strerror(-rc));
     mesh_free(&m);
     return rc;
 }
@@ -178,7 +200,7 @@ int csg_leaves_build(const csg_tree *t, const grid_spec *g, void *arena, size_t 
         const csg_node *n = &t->node[i];
         if (n->kind != CSG_MESH && n->kind != CSG_VOD) continue;
         int rc = off < bytes ? vod_volume_init(&leaves[i], (uint8_t *)arena + off, bytes - off,
-                                               g->res, 8, CSG_VOLUME_BRICK)
+                                               g->res, csg_leaf_bits(n), CSG_VOLUME_BRICK)
                              : -ENOSPC;
         if (!rc) rc = csg_leaf_build(t, i, g, leaves[i], msg, len);
         if (rc) {

@@ -153,12 +153,14 @@ static inline mesh_task_arg mesh_task_tiles(const shm_task *t)
 enum csg_op {
     CSG_BRICKS = 1,        /* bricks first .. first + count - 1 of the box (x fastest) */
     CSG_MIPS = 2,          /* mip columns first .. first + count - 1 (x fastest) */
+    CSG_LEAF_TILES = 3,    /* tiles first .. first + count - 1 of mesh leaf `task` */
 };
 
 /* The task's argument: a run of storage bricks, numbered x fastest over
  * the block's box of bricks; its counts go to stats[task].  For CSG_MIPS
  * a run of the volume's level-mip_levels brick columns, numbered x
- * fastest (task unused). */
+ * fastest (task unused); for CSG_LEAF_TILES a run of the mesh leaf's
+ * tiles (mesh_bins' numbers), task its node. */
 typedef struct {
     uint32_t first, count, task;
 } csg_task_arg;
@@ -194,6 +196,10 @@ typedef struct {
      * 1..mip_levels of the VOD's channel (`channel`) by columns
      * (vod_volume_mip_columns); 0: none, the writer builds them all. */
     uint32_t mip_levels;
+    /* The mesh leaf whose volume the CSG_LEAF_TILES tasks build (one
+     * leaf at a time, before the bricks): its mesh, bins and volume
+     * (leaf_off[node]) as a mesh job's block (mesh_block) at leaf_mesh_off. */
+    uint64_t leaf_mesh_off;
 } csg_block;
 
 static inline csg_task_arg csg_task_bricks(const shm_task *t)

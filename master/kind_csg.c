@@ -1,8 +1,12 @@
 /* The csg kind's master side: a volume CSG tree (csg.h) evaluated brick by
  * brick into a brick-sparse volume in the segment.  Setup copies the
- * tree's nodes and text behind the block, builds the mesh and VOD leaves'
- * volumes after them (here, once per job: csg_leaves_build), gives the
- * rest of the data area to the result's volume, and pushes the volume's storage bricks as runs of
+ * tree's nodes and text behind the block; then the file leaves' volumes
+ * follow, one leaf after the other: a mesh leaf's by the workers, tile by
+ * tile (its mesh parsed, placed and binned here, copied into the segment
+ * as a mesh job's block, CSG_LEAF_TILES tasks building its volume with
+ * mesh_tile_run, the same volume csg_leaf_build makes), a VOD leaf's here
+ * (csg_leaf_build).  Once the last is in, the rest of the data area goes
+ * to the result's volume, and the volume's storage bricks are pushed as runs of
  * consecutive bricks (x fastest), at most CSG_TASKS of them.  Workers send
  * no entries: a brick goes straight into the volume (uniform ones as a
  * table entry) and a run's counts into its entry of the stats array.  When
@@ -20,6 +24,7 @@
 #include "clock.h"
 #include "csg.h"
 #include "master.h"
+#include "par.h"
 #include "voxel.h"
 
 _Static_assert(CSG_BLOCK_NODES == CSG_MAX_NODES, "a leaf offset per node");
@@ -34,31 +39,17 @@ typedef struct {
     uint32_t ntasks;       /* runs of bricks */
     uint32_t done;         /* runs finished */
     int mips_pushed;       /* the CSG_MIPS tasks are out */
+    uint32_t per;          /* bricks a run */
+    /* the file leaves, before the bricks: the next node to look at, the
+     * mesh leaf whose tiles are out (-1: none) and its tasks */
+    uint32_t next_leaf;
+    int32_t leaf;
+    uint32_t leaf_tasks, leaf_done;
+    uint64_t off;          /* where the next leaf's data (then the volume) go */
 } csg_job;
 
 /* Mip columns a worker's share at least: enough to even out the load. */
 #define CSG_MIP_COLUMNS_PER_WORKER 4u
-
-/* The file leaves' volumes from off on (none: off unchanged), built here
- * once for the job; their offsets in the block. */
-static int build_leaves(engine *e, const engine_csg_job *j, csg_block *b, uint64_t *off)
-{
-    if (!csg_has_file_leaves(j->tree)) return 0;
-    uint64_t end = e->h->data_off + e->h->data_bytes;
-    if (*off >= end) return sched_no_room(e, "the leaves' volumes");
-    vod_volume *leaves[CSG_MAX_NODES];
-    size_t used;
-    char msg[sizeof e->err.message];
-    int rc = csg_leaves_build(j->tree, &j->grid, shm_at(e->seg.base, *off), end - *off, leaves,
-                              &used, msg, sizeof msg);
-    if (rc == -ENOMEM || rc == -ENOSPC)
-        return sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size", msg);
-    if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
-    for (uint32_t i = 0; i < j->tree->n; i++)
-        b->leaf_off[i] = leaves[i] ? (uint64_t)((uint8_t *)leaves[i] - e->seg.base) : 0;
-    *off = sched_align64(*off + used);
-    return 0;
-}
 
 /* The tree and the stats behind the block, the volume in the rest. */
 static int copy_input(engine *e, const csg_tree *t, csg_block *b, uint64_t *vol_off)
@@ -171,6 +162,164 @@ static int push_mips(engine *e, const csg_block *b)
     return rc;
 }
 
+/* ---- the file leaves, one after the other, before the bricks ---- */
+
+/* The bricks: the rest of the data area to the result's volume, its runs
+ * pushed. */
+static int start_bricks(engine *e, csg_job *cj)
+{
+    csg_block *b = shm_at(e->seg.base, e->h->data_off);
+    const engine_csg_job *j = cj->job;
+    if (cj->off >= e->h->data_off + e->h->data_bytes) return sched_no_room(e, "the volume");
+    int rc = init_volume(e, &j->grid, j->channel, cj->off);
+    if (rc) return rc;
+    b->volume_off = cj->off;
+    b->mip_levels = plan_mips(e, b);
+    return push_runs(e, b, cj->per);
+}
+
+/* The mesh leaf's mesh, bins and tile stats into the segment at *off as
+ * a mesh job's block (mesh_block), the leaf's volume in the rest; *off
+ * moved to the volume. */
+static int lay_out_mesh(engine *e, const mesh *m, const mesh_vox_opts *o, const grid_spec *g,
+                        const mesh_bins *bins, uint64_t *off)
+{
+    csg_block *b = shm_at(e->seg.base, e->h->data_off);
+    uint64_t n = (uint64_t)bins->tiles[0] * bins->tiles[1], end = e->h->data_off + e->h->data_bytes;
+    uint64_t at = sched_align64(*off), v = sched_align64(at + sizeof(mesh_block));
+    uint64_t t = sched_align64(v + (uint64_t)m->n_vertices * 12);
+    uint64_t st = sched_align64(t + (uint64_t)m->n_triangles * 12);
+    uint64_t ids = sched_align64(st + (n + 1) * sizeof(uint64_t));
+    uint64_t stats = sched_align64(ids + bins->start[n] * sizeof(uint32_t));
+    uint64_t vol = sched_align64(stats + n * sizeof(mesh_tile_stats));
+    if (vol >= end) return sched_no_room(e, "a mesh leaf");
+    mesh_block *mb = shm_at(e->seg.base, at);
+    *mb = (mesh_block){.grid = *g, .opts = *o, .n_vertices = m->n_vertices,
+                       .n_triangles = m->n_triangles, .vertices_off = v, .triangles_off = t,
+                       .tiles = {bins->tiles[0], bins->tiles[1]}, .start_off = st,
+                       .ids_off = ids, .stats_off = stats, .volume_off = vol};
+    memcpy(mb->lo, m->lo, sizeof mb->lo);
+    memcpy(mb->hi, m->hi, sizeof mb->hi);
+    memcpy(shm_at(e->seg.base, v), m->vertices, (size_t)m->n_vertices * 12);
+    memcpy(shm_at(e->seg.base, t), m->triangles, (size_t)m->n_triangles * 12);
+    memcpy(shm_at(e->seg.base, st), bins->start, (n + 1) * sizeof(uint64_t));
+    memcpy(shm_at(e->seg.base, ids), bins->ids, bins->start[n] * sizeof(uint32_t));
+    vod_volume *lv;
+    if (vod_volume_init(&lv, shm_at(e->seg.base, vol), end - vol, g->res, mesh_vox_bits(o),
+                        CSG_VOLUME_BRICK))
+        return sched_no_room(e, "a mesh leaf's tables");
+    b->leaf_mesh_off = at;
+    *off = vol;
+    return 0;
+}
+
+/* The tiles of the mesh leaf in runs (every tile for a distance, whose
+ * empty tiles write their +w bricks; else those with triangles), at most
+ * CSG_TASKS, tile 0's first out; the count in cj->leaf_tasks. */
+static int push_leaf_tiles(engine *e, csg_job *cj, const mesh_bins *bins, int dist)
+{
+    uint32_t n = bins->tiles[0] * bins->tiles[1], first = 0, last = 0;
+    while (first < n && !dist && bins->start[first + 1] == bins->start[first]) first++;
+    for (uint32_t k = 0; k < n; k++)
+        if (dist || bins->start[k + 1] > bins->start[k]) last = k + 1;
+    uint32_t span = last > first ? last - first : 0, per = (span + CSG_TASKS - 1) / CSG_TASKS;
+    uint32_t runs = per ? (span + per - 1) / per : 0;
+    int rc = 0;
+    cj->leaf_tasks = runs;
+    cj->leaf_done = 0;
+    for (uint32_t k = runs; k-- > 0 && !rc;) {
+        uint32_t a0 = first + k * per;
+        csg_task_arg a = {a0, last - a0 < per ? last - a0 : per, (uint32_t)cj->leaf};
+        shm_task t = {.kind = SHM_KIND_CSG, .op = CSG_LEAF_TILES};
+        memcpy(t.arg, &a, sizeof a);
+        rc = sched_push(e, &t);
+    }
+    return rc;
+}
+
+/* Mesh leaf i: parsed, placed and binned here, laid out in the segment,
+ * its tiles pushed (none: cj->leaf_tasks 0). */
+static int start_mesh_leaf(engine *e, csg_job *cj, uint32_t i)
+{
+    csg_block *b = shm_at(e->seg.base, e->h->data_off);
+    const engine_csg_job *j = cj->job;
+    char msg[sizeof e->err.message];
+    mesh m;
+    mesh_vox_opts o;
+    int rc = csg_leaf_mesh(j->tree, i, &m, &o, msg, sizeof msg);
+    if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+    mesh_bins bins;
+    rc = mesh_bin(&m, &j->grid, &o, NULL, par_cpus(), &bins);
+    if (rc) {
+        mesh_free(&m);
+        return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+                          "node '%s': binning the triangles to tiles: %s",
+                          j->tree->node[i].name, strerror(-rc));
+    }
+    rc = lay_out_mesh(e, &m, &o, &j->grid, &bins, &cj->off);
+    if (!rc) {
+        b->leaf_off[i] = cj->off;
+        cj->leaf = (int32_t)i;
+        rc = push_leaf_tiles(e, cj, &bins, o.channel == VOXEL_CH_DISTANCE);
+    }
+    mesh_bins_free(&bins);
+    mesh_free(&m);
+    return rc;
+}
+
+/* The mesh leaf's tiles are all in: its volume checked, the next data
+ * after it. */
+static int end_mesh_leaf(engine *e, csg_job *cj)
+{
+    uint64_t end = e->h->data_off + e->h->data_bytes;
+    vod_volume *lv = shm_at(e->seg.base, cj->off);
+    vod_volume_info in;
+    if (vod_volume_check(lv, end - cj->off))
+        return sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left a mesh leaf inconsistent");
+    vod_volume_get_info(lv, &in);
+    cj->off = sched_align64(cj->off + in.bytes_used);
+    cj->leaf = -1;
+    return 0;
+}
+
+/* A VOD leaf's volume, here (csg_leaf_build), at cj->off. */
+static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
+{
+    csg_block *b = shm_at(e->seg.base, e->h->data_off);
+    const engine_csg_job *j = cj->job;
+    uint64_t end = e->h->data_off + e->h->data_bytes;
+    char msg[sizeof e->err.message];
+    vod_volume *lv;
+    if (cj->off >= end || vod_volume_init(&lv, shm_at(e->seg.base, cj->off), end - cj->off,
+                                          j->grid.res, 8, CSG_VOLUME_BRICK))
+        return sched_no_room(e, "the leaves' volumes");
+    int rc = csg_leaf_build(j->tree, i, &j->grid, lv, msg, sizeof msg);
+    if (rc == -ENOMEM)
+        return sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size", msg);
+    if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+    vod_volume_info in;
+    vod_volume_get_info(lv, &in);
+    b->leaf_off[i] = cj->off;
+    cj->off = sched_align64(cj->off + in.bytes_used);
+    return 0;
+}
+
+/* What comes next: the next file leaf (a mesh leaf's tiles pushed: the
+ * workers' turn), or, after the last, the bricks. */
+static int next_phase(engine *e, csg_job *cj)
+{
+    const csg_tree *t = cj->job->tree;
+    int rc = 0;
+    while (!rc && cj->next_leaf < t->n) {
+        uint32_t i = cj->next_leaf++;
+        if (t->node[i].kind == CSG_VOD) rc = vod_leaf(e, cj, i);
+        if (t->node[i].kind != CSG_MESH) continue;
+        if (!(rc = start_mesh_leaf(e, cj, i)) && cj->leaf_tasks) return 0;
+        if (!rc) rc = end_mesh_leaf(e, cj); /* no tile to build */
+    }
+    return rc ? rc : start_bricks(e, cj);
+}
+
 static int csg_setup(engine *e, void *job)
 {
     csg_job *cj = job;
@@ -193,17 +342,10 @@ static int csg_setup(engine *e, void *job)
     b->ntasks = cj->ntasks = (uint32_t)((n + per - 1) / per);
     e->h->job_off = e->h->data_off;
     e->h->job_bytes = sizeof *b;
-    uint64_t vol_off;
-    int rc = copy_input(e, j->tree, b, &vol_off);
-    if (!rc) rc = build_leaves(e, j, b, &vol_off);
-    if (!rc && vol_off >= e->h->data_off + e->h->data_bytes) rc = sched_no_room(e, "the volume");
-    if (!rc) rc = init_volume(e, &j->grid, j->channel, vol_off);
-    if (!rc) {
-        b->volume_off = vol_off;
-        b->mip_levels = plan_mips(e, b);
-        rc = push_runs(e, b, per);
-    }
-    return rc;
+    cj->per = per;
+    cj->leaf = -1;
+    int rc = copy_input(e, j->tree, b, &cj->off);
+    return rc ? rc : next_phase(e, cj);
 }
 
 static int csg_take(engine *e, int i, const shm_entry *en)
@@ -215,8 +357,12 @@ static int csg_take(engine *e, int i, const shm_entry *en)
 static void csg_describe(const shm_task *t, char *buf, size_t len)
 {
     csg_task_arg a = csg_task_bricks(t);
-    snprintf(buf, len, "csg %s %u..%u", t->op == CSG_MIPS ? "mip columns" : "bricks", a.first,
-             a.first + a.count - 1);
+    if (t->op == CSG_LEAF_TILES)
+        snprintf(buf, len, "csg mesh leaf %u tiles %u..%u", a.task, a.first,
+                 a.first + a.count - 1);
+    else
+        snprintf(buf, len, "csg %s %u..%u", t->op == CSG_MIPS ? "mip columns" : "bricks",
+                 a.first, a.first + a.count - 1);
 }
 
 static void csg_done(engine *e, int i, const shm_task *t, int error)
@@ -224,6 +370,10 @@ static void csg_done(engine *e, int i, const shm_task *t, int error)
     csg_job *cj = e->job;
     const csg_block *b = sched_block(e);
     if (t->op == CSG_BRICKS) cj->done++;
+    /* the mesh leaf's last tile in: the next leaf, or the bricks */
+    if (t->op == CSG_LEAF_TILES && ++cj->leaf_done == cj->leaf_tasks && !error &&
+        !e->err.failure && !end_mesh_leaf(e, cj))
+        next_phase(e, cj); /* a failure fails the job there */
     /* the last brick in: the workers build the low mip levels */
     if (!error && !e->err.failure && cj->done == cj->ntasks && !cj->mips_pushed &&
         b->mip_levels) {
@@ -251,10 +401,10 @@ static void csg_progress(engine *e, engine_progress *p)
     const csg_job *cj = e->job;
     p->fraction = cj->ntasks ? (double)cj->done / cj->ntasks : 1.0;
     p->level = 0;
-    if (e->volume) { /* the pool grows as the workers write */
+    const csg_block *b = sched_block(e);
+    if (e->volume && b->volume_off) { /* the pool grows as the workers write */
         vod_volume_info in;
         vod_volume_get_info(e->volume, &in);
-        const csg_block *b = sched_block(e);
         p->shm_used = b->volume_off - e->h->data_off + in.bytes_used;
     }
 }
@@ -312,23 +462,45 @@ static int csg_domain(const pipeline_job *job, double lo[3], double hi[3],
         return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no csg tree");
     if (!csg_channel_bits(job->vod.channel))
         return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
-                             "a csg job writes the density, occupancy or surface channel");
-    const csg_node *root = &job->csg.tree->node[job->csg.tree->n - 1];
-    if (job->vod.channel == VOXEL_CH_DISTANCE && (root->kind != CSG_IMPLICIT || root->has_domain))
-        return pipeline_fail(r, ENGINE_BAD_JOB, -ENOTSUP,
-                             "the distance channel of a csg tree is not built yet (only of "
-                             "an implicit surface)");
+                             "a csg job writes the density, occupancy, surface or distance "
+                             "channel");
+    if (job->vod.channel != VOXEL_CH_DISTANCE) return 0;
+    if (pipeline_band(job) > VOXEL_BAND_MAX)
+        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
+                             pipeline_band(job), VOXEL_BAND_MAX);
+    char why[sizeof r->err.message - 32];
+    int rc = csg_dist_check(job->csg.tree, why, sizeof why);
+    if (rc) return pipeline_fail(r, ENGINE_BAD_JOB, rc, "the distance channel: %s", why);
     return 0;
 }
 
 static void csg_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
 {
-    snprintf(pairs, len, "csg_nodes=%u\n", job->csg.tree->n);
+    int n = snprintf(pairs, len, "csg_nodes=%u\n", job->csg.tree->n);
+    /* the distance's band and units, as a mesh's or an expression's */
+    if (job->vod.channel == VOXEL_CH_DISTANCE && n > 0 && (size_t)n < len)
+        snprintf(pairs + n, len - (size_t)n, "distance_band=%u\ndistance_units=world\n",
+                 pipeline_band(job));
     m->generator = "vox csg";
     m->source = "";
     m->source_len = job->csg.source_bytes;
     m->source_name = job->csg.source_name;
     m->kind_pairs = pairs;
+}
+
+/* Channel 4: job's tree copied (the struct alone, its pointers shared:
+ * free() it, not csg_tree_free) with the band in its distance leaves' k
+ * (csg_tree_set_band), made the job's; *copy NULL for other channels. */
+static int band_tree(pipeline_job *job, csg_tree **copy, pipeline_report *r)
+{
+    *copy = NULL;
+    if (job->vod.channel != VOXEL_CH_DISTANCE) return 0;
+    if (!(*copy = malloc(sizeof **copy)))
+        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "out of memory");
+    **copy = *job->csg.tree;
+    csg_tree_set_band(*copy, pipeline_band(job));
+    job->csg.tree = *copy;
+    return 0;
 }
 
 /* The file leaves of a csg job in a sparse private mapping (*arena,
@@ -340,11 +512,15 @@ static int serial_leaves(const pipeline_job *job, pipeline_report *r, void **are
     memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
     const csg_tree *t = job->csg.tree;
     if (!csg_has_file_leaves(t)) return 0;
-    size_t one = vod_volume_bytes(r->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX), n = 0;
+    *abytes = 0;
     for (uint32_t i = 0; i < t->n; i++)
-        n += t->node[i].kind == CSG_MESH || t->node[i].kind == CSG_VOD;
-    *abytes = one * n;
-    *arena = one ? mmap(NULL, *abytes, PROT_READ | PROT_WRITE,
+        if (t->node[i].kind == CSG_MESH || t->node[i].kind == CSG_VOD) {
+            size_t one = vod_volume_bytes(r->grid.res, csg_leaf_bits(&t->node[i]),
+                                          CSG_VOLUME_BRICK, UINT64_MAX);
+            *abytes = one && *abytes + one > *abytes ? *abytes + one : 0;
+            if (!*abytes) break;
+        }
+    *arena = *abytes ? mmap(NULL, *abytes, PROT_READ | PROT_WRITE,
                         MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
                  : MAP_FAILED;
     if (*arena == MAP_FAILED)
@@ -360,8 +536,23 @@ static int serial_leaves(const pipeline_job *job, pipeline_report *r, void **are
 
 /* A csg job in this thread: every brick in turn (csg_eval_volume) into a
  * volume in a sparse private mapping, the engine's layout. */
+static int csg_serial_run(pipeline_job *job, const vod_params *v, vod_sink *sink,
+                          pipeline_report *r);
+
 static int csg_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
                       pipeline_report *r)
+{
+    const csg_tree *own = job->csg.tree;
+    csg_tree *copy;
+    int rc = band_tree(job, &copy, r);
+    if (!rc) rc = csg_serial_run(job, v, sink, r);
+    job->csg.tree = own;
+    free(copy);
+    return rc;
+}
+
+static int csg_serial_run(pipeline_job *job, const vod_params *v, vod_sink *sink,
+                          pipeline_report *r)
 {
     r->stage = PIPELINE_VOXELIZE;
     void *larena;
@@ -406,10 +597,16 @@ static int csg_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
 static int csg_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
                         engine_result *er, pipeline_report *r)
 {
+    const csg_tree *own = job->csg.tree;
+    csg_tree *copy;
+    int rc = band_tree(job, &copy, r);
+    if (rc) return rc;
     engine_csg_job cj = {.tree = job->csg.tree, .grid = r->grid, .channel = job->vod.channel,
                          .progress = w->progress, .ud = w->ud, .cancel = w->cancel};
-    int rc = engine_csg(e, &cj, er);
+    rc = engine_csg(e, &cj, er);
     r->fig.csg = er->fig.csg;
+    job->csg.tree = own;
+    free(copy);
     return rc;
 }
 

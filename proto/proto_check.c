@@ -595,11 +595,9 @@ static int check_csg(const Voxd__Csg *c, const Voxd__Submit *s, const proto_limi
     if ((rc = check_csg_shape(c, lim, e))) return rc;
     if ((rc = check_source_name(&c->source_name, e))) return rc;
     if ((rc = check_box(c->domain, c->n_domain, 1, "domain", e))) return rc;
-    if ((rc = check_res(c->res, lim, e))) return rc;
-    if (s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
-        return proto_bad(e, INVALID, "channel %s is not available for CSG jobs (use density, "
-                         "occupancy or surface)", channel_names[s->channel]);
-    return 0;
+    /* the distance channel too (the default band: the message carries none); which trees
+     * have one the pipeline decides (csg_dist_check), naming the node */
+    return check_res(c->res, lim, e);
 }
 
 static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_error *e)

@@ -254,11 +254,12 @@ Test(csg_engine, bad_csg_jobs_fail_typed)
     pipeline_job job = csg_job(t, 32, 5);
     cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.err.message, "density, occupancy or surface"), "%s", r.err.message);
-    job = csg_job(t, 32, VOXEL_CH_DISTANCE); /* only an implicit surface's, so far */
+    cr_assert(strstr(r.err.message, "density, occupancy, surface or distance"), "%s",
+              r.err.message);
+    job = csg_job(t, 32, VOXEL_CH_DISTANCE); /* primitives have no distance (yet) */
     cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -ENOTSUP);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.err.message, "distance channel of a csg tree"), "%s", r.err.message);
+    cr_assert(strstr(r.err.message, "the distance channel: node '"), "%s", r.err.message);
     job = csg_job(NULL, 32, VOXEL_CH_DENSITY);
     cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
