@@ -301,6 +301,16 @@ void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, cons
  * dis and spare: overwritten (spare: a block of words). */
 void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
                    uint16_t *count, uint64_t *spare);
+/* The caps' expansion about b (mesh_wcap.c's direct path): for every p
+ * within rho of b, |w(p) - v - g.(p - b)| <= e, w the winding number of
+ * the n triangles tri (their edges 0 -> 1 their boundary, as a cap's fan:
+ * the other edges cancel), ball about each (centre, radius) or NULL;
+ * false when a triangle comes within rho + 0.001 of b. */
+typedef struct {
+    double v, g[3], e;
+} mv_cexp;
+bool mv_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t n,
+                    const double b[3], double rho, mv_cexp *x);
 /* For the tests: nonzero, the caps' tree even where they are few enough
  * for the direct path (every cap triangle at every cell). */
 extern int mesh_wcap_tree_only;

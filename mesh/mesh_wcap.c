@@ -485,10 +485,6 @@ static double seg_dist(const double a[3], const double b[3], double *len)
     return sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
 }
 
-/* w_C about b: for every p within rho of b, |w_C(p) - v - g.(p - b)| <= e. */
-typedef struct {
-    double v, g[3], e;
-} cexp;
 
 /* The caps' value at b (every triangle's exact angle) and gradient (the
  * boundary's segments, edges 0 -> 1 of the cap triangles: the spokes to
@@ -499,15 +495,16 @@ typedef struct {
  * cell is at most the sum of rho^2 l / (4 pi (d - rho)^3) over the
  * segments, d from b.  False where a cap triangle comes within rho + NEAR
  * of b (a cell the caps may cross). */
-static bool cap_expand(const mesh_wtree *t, const double b[3], double rho, cexp *x)
+bool mv_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t n,
+                    const double b[3], double rho, mv_cexp *x)
 {
     double h = 0, g[3] = {0, 0, 0}, e = 0, reach = rho + NEAR;
-    for (uint32_t k = 0; k < t->n_caps; k++) {
-        const double(*T)[3] = (const double(*)[3])t->cap_vt[k];
-        const double *o = t->cap_ball[k];
+    for (uint32_t k = 0; k < n; k++) {
+        const double(*T)[3] = tri[k];
         double r[3][3], l, c2 = 0;
-        for (int a = 0; a < 3; a++) c2 += (o[a] - b[a]) * (o[a] - b[a]);
-        if (c2 <= (o[3] + reach) * (o[3] + reach) && /* its ball says near: itself */
+        if (ball) /* its ball says far: no need of the triangle's distance */
+            for (int a = 0; a < 3; a++) c2 += (ball[k][a] - b[a]) * (ball[k][a] - b[a]);
+        if ((!ball || c2 <= (ball[k][3] + reach) * (ball[k][3] + reach)) &&
             !(mv_tri_dist(T, b) * (1 - 1e-9) > reach))
             return false;
         for (int i = 0; i < 3; i++)
@@ -525,7 +522,7 @@ static bool cap_expand(const mesh_wtree *t, const double b[3], double rho, cexp 
 
 /* The cell's samples one by one from the expansion x about b. */
 static void cell_by_lin(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const double b[3],
-                        const cexp *x)
+                        const mv_cexp *x)
 {
     uint64_t mask = mv_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
@@ -555,8 +552,10 @@ static void direct_cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
         r2 += 0.25 * (double)(hi[a] - lo[a] - 1) * (hi[a] - lo[a] - 1);
     }
     double rho = sqrt(r2) * (1 + 1e-9);
-    cexp x;
-    bool ok = cap_expand(c->f->wt, b, rho, &x);
+    const mesh_wtree *t = c->f->wt;
+    mv_cexp x;
+    bool ok = mv_wcap_expand((const double (*)[3][3])t->cap_vt,
+                             (const double (*)[4])t->cap_ball, t->n_caps, b, rho, &x);
     mv_beat(c->f->pulse, c->f->wt->n_caps);
     if (ok) {
         double gn = sqrt(x.g[0] * x.g[0] + x.g[1] * x.g[1] + x.g[2] * x.g[2]);

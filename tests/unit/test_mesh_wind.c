@@ -415,3 +415,52 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
     cr_assert_gt(worst, 0.01);
     mv_wtree_free(t);
 }
+
+/* The caps' expansion about a cell's centre (mesh_wcap.c's direct path:
+ * the exact value, the gradient by Biot and Savart over the boundary, the
+ * remainder's bound per boundary segment) holds at every point tried
+ * within the cell's ball, on the same wavy fan; and the gradient matters:
+ * without it the bound fails at many of the points (so that a wrong sign
+ * or a wrong gradient would fail here). */
+Test(mesh_wind, the_caps_expansion_holds_within_the_ball)
+{
+    enum { N = 48 };
+    double tri[N][3][3];
+    for (int k = 0; k < N; k++) {
+        double a0 = 2 * M_PI * k / N, a1 = 2 * M_PI * (k + 1) / N;
+        double r0 = 6 + sin(3 * a0), r1 = 6 + sin(3 * a1);
+        double p0[3] = {r0 * cos(a0), r0 * sin(a0), 0.7 * sin(2 * a0)};
+        double p1[3] = {r1 * cos(a1), r1 * sin(a1), 0.7 * sin(2 * a1)};
+        for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
+        tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
+    }
+    size_t checked = 0, cells = 0, refused = 0, needs_grad = 0;
+    for (double rho = 0.8; rho < 7; rho *= 2)
+        for (int z = -12; z <= 12; z += 2)
+            for (int y = -12; y <= 12; y += 3)
+                for (int x = -12; x <= 12; x += 3) {
+                    double b[3] = {x + 0.25, y - 0.35, z + 0.45};
+                    mv_cexp e;
+                    if (!mv_wcap_expand((const double (*)[3][3])tri, NULL, N, b, rho, &e)) {
+                        refused++;
+                        continue;
+                    }
+                    cells++;
+                    for (int d = 0; d < 27; d++) {
+                        double q[3] = {rho * (d % 3 - 1) / sqrt(3), rho * (d / 3 % 3 - 1) / sqrt(3),
+                                       rho * (d / 9 - 1) / sqrt(3)};
+                        double p[3] = {b[0] + q[0], b[1] + q[1], b[2] + q[2]}, w = 0;
+                        for (int k = 0; k < N; k++) w += tri_w(tri[k], p);
+                        double u = e.v + e.g[0] * q[0] + e.g[1] * q[1] + e.g[2] * q[2];
+                        cr_assert_leq(fabs(w - u), e.e, "b (%g %g %g) rho %g: |%g - %g| > %g",
+                                      b[0], b[1], b[2], rho, w, u, e.e);
+                        needs_grad += fabs(w - e.v) > e.e;
+                        checked++;
+                    }
+                }
+    cr_log_info("%zu points in %zu cells checked (%zu cells refused), %zu need the gradient",
+                checked, cells, refused, needs_grad);
+    cr_assert_gt(checked, 50000);
+    cr_assert_gt(refused, 100); /* the cells the fan crosses */
+    cr_assert_gt(needs_grad, checked / 10);
+}
