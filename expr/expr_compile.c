@@ -347,11 +347,11 @@ static int finish(const builder *b, uint32_t result, expr_tape **out)
         ssa[k] = (expr_ssa){L.live[k] ? i->op : EXPR_OP_NOP, i->imm, L.nfixed + k,
                             ar >= 1 ? ssa_id(&L, i->a) : 0, ar >= 2 ? ssa_id(&L, i->b) : 0};
     }
-    uint32_t len, rreg, nregs;
-    rc = expr_regalloc(ssa, b->nins, L.nfixed + n, L.nfixed, ssa_id(&L, result),
-                       EXPR_MAX_REGS, &s, code + n, &len, &rreg, &nregs);
+    expr_ra_input ri = {ssa, b->nins, L.nfixed + n, L.nfixed, ssa_id(&L, result), EXPR_MAX_REGS};
+    expr_ra_output ro;
+    rc = expr_regalloc(&ri, &s, code + n, &ro);
     if (rc) goto done;
-    *out = build_tape(b, &L, code + n - len, len, rreg, nregs);
+    *out = build_tape(b, &L, code + n - ro.len, ro.len, ro.result_reg, ro.nregs);
     rc = *out ? 0 : -ENOMEM;
 done:
     free(L.newc);

@@ -655,13 +655,13 @@ static int prune_into(expr_vm *vm, const expr_vm_depth *src, expr_vm_depth *dst,
         ssa[i] = (expr_ssa){in.op, in.op == EXPR_OP_POWI ? (int16_t)in.b : 0, nf + i, a, b};
         cur[in.out] = nf + i;
     }
-    uint32_t len, result, nregs;
-    int rc = expr_regalloc(ssa, src->len, nf + src->len, nf, cur[src->result], vm->nregs,
-                           &vm->ra, dst->buf + vm->n0, &len, &result, &nregs);
+    expr_ra_input ri = {ssa, src->len, nf + src->len, nf, cur[src->result], vm->nregs};
+    expr_ra_output ro;
+    int rc = expr_regalloc(&ri, &vm->ra, dst->buf + vm->n0, &ro);
     if (rc) return rc;
-    dst->code = dst->buf + vm->n0 - len;
-    dst->len = len;
-    dst->result = result;
+    dst->code = dst->buf + vm->n0 - ro.len;
+    dst->len = ro.len;
+    dst->result = ro.result_reg;
     return 0;
 }
 

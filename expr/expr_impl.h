@@ -210,16 +210,27 @@ typedef struct {
 
 #define EXPR_NOREG 0xffffffffu
 
-/* Backward pass over ssa[0..n) (topological order; NOP entries skipped):
+/* What expr_regalloc allocates: ssa[0..n) whose ids below nfixed are the
+ * fixed registers, result the id of the value wanted, at most cap
+ * registers; nids - nfixed must be >= every non-fixed id + 1 - nfixed. */
+typedef struct {
+    const expr_ssa *ssa;
+    uint32_t n, nids, nfixed, result, cap;
+} expr_ra_input;
+
+/* Its answer: len instructions ending at out_end, the result's register,
+ * the registers used. */
+typedef struct {
+    uint32_t len, result_reg, nregs;
+} expr_ra_output;
+
+/* Backward pass over in->ssa (topological order; NOP entries skipped):
  * drops instructions whose value is dead, assigns registers (reusing one as
  * soon as its value is dead, so the count is the peak number of live
  * values) and writes the register code so that it ends at out_end.
- * nids - nfixed must be >= every non-fixed id + 1 - nfixed.
  * Returns 0, or -E2BIG when more than cap registers would be needed. */
-int expr_regalloc(const expr_ssa *ssa, uint32_t n, uint32_t nids,
-                  uint32_t nfixed, uint32_t result, uint32_t cap,
-                  expr_ra_scratch *s, expr_insn *out_end, uint32_t *len,
-                  uint32_t *result_reg, uint32_t *nregs);
+int expr_regalloc(const expr_ra_input *in, expr_ra_scratch *s, expr_insn *out_end,
+                  expr_ra_output *out);
 
 /* ---- the vm (expr_eval.c, expr_grad.c) ---- */
 

@@ -29,16 +29,16 @@ static uint32_t ra_use(ra_state *ra, uint32_t id)
     return *r;
 }
 
-int expr_regalloc(const expr_ssa *ssa, uint32_t n, uint32_t nids,
-                  uint32_t nfixed, uint32_t result, uint32_t cap,
-                  expr_ra_scratch *s, expr_insn *out_end, uint32_t *len,
-                  uint32_t *result_reg, uint32_t *nregs)
+int expr_regalloc(const expr_ra_input *in, expr_ra_scratch *s, expr_insn *out_end,
+                  expr_ra_output *out)
 {
-    ra_state ra = {s, nfixed, cap, nfixed, 0, 0};
-    for (uint32_t i = 0; i < nids - nfixed; i++) s->regof[i] = EXPR_NOREG;
-    *result_reg = ra_use(&ra, result);
+    const expr_ssa *ssa = in->ssa;
+    uint32_t nfixed = in->nfixed;
+    ra_state ra = {s, nfixed, in->cap, nfixed, 0, 0};
+    for (uint32_t i = 0; i < in->nids - nfixed; i++) s->regof[i] = EXPR_NOREG;
+    out->result_reg = ra_use(&ra, in->result);
     expr_insn *w = out_end;
-    for (uint32_t k = n; k-- > 0 && !ra.overflow;) {
+    for (uint32_t k = in->n; k-- > 0 && !ra.overflow;) {
         const expr_ssa *i = &ssa[k];
         if (i->op == EXPR_OP_NOP) continue;
         uint32_t o = s->regof[i->out - nfixed];
@@ -52,8 +52,8 @@ int expr_regalloc(const expr_ssa *ssa, uint32_t n, uint32_t nids,
         *--w = (expr_insn){i->op, 0, (uint16_t)o, (uint16_t)a, (uint16_t)b};
     }
     if (ra.overflow) return -E2BIG;
-    *len = (uint32_t)(out_end - w);
-    *nregs = ra.next;
+    out->len = (uint32_t)(out_end - w);
+    out->nregs = ra.next;
     return 0;
 }
 
