@@ -116,9 +116,10 @@ static int render_vod_file(const char *path, const render_opts *o, int level,
         vod_close(f);
         return CLI_EXIT_USAGE;
     }
-    int rc = render_vod(f, level, o, img, err, sizeof err);
+    err_info re = {0};
+    int rc = render_vod(f, level, o, img, &re);
     vod_close(f);
-    if (rc) cli_error("cannot render %s: %s", path, err);
+    if (rc) cli_error("cannot render %s: %s", path, re.msg);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 

@@ -602,8 +602,7 @@ static int splat_cb(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 }
 
 /* How to shade the file's voxels, or -ENOTSUP. */
-static int vod_mode_of(const vod_info *in, enum vod_mode *mode, char *err,
-                       size_t errlen)
+static int vod_mode_of(const vod_info *in, enum vod_mode *mode, err_info *e)
 {
     uint32_t ch = in->channel, bits = in->voxel_bits;
     int is_float = (in->flags & VOD_FLAG_FLOAT) != 0;
@@ -620,24 +619,19 @@ static int vod_mode_of(const vod_info *in, enum vod_mode *mode, char *err,
         *mode = MODE_DISTANCE;
         return 0;
     }
-    snprintf(err, errlen,
-             "render: channel %u with %u-bit%s voxels is not supported "
-             "(only 1-bit occupancy, 32-bit surface voxels and f32 distances)",
-             ch, bits, is_float ? " float" : "");
-    return -ENOTSUP;
+    return err_set(e, -ENOTSUP,
+                   "render: channel %u with %u-bit%s voxels is not supported "
+                   "(only 1-bit occupancy, 32-bit surface voxels and f32 distances)",
+                   ch, bits, is_float ? " float" : "");
 }
 
-static int vod_walk_init(vod_walk *w, const vod_file *f, int level,
-                         char *err, size_t errlen)
+static int vod_walk_init(vod_walk *w, const vod_file *f, int level, err_info *e)
 {
     const vod_info *in = vod_get_info(f);
     memset(w, 0, sizeof(*w));
-    if (level < 0 || (uint32_t)level >= in->height) {
-        snprintf(err, errlen, "render: level %d outside 0..%u", level,
-                 in->height - 1);
-        return -EINVAL;
-    }
-    int rc = vod_mode_of(in, &w->mode, err, errlen);
+    if (level < 0 || (uint32_t)level >= in->height)
+        return err_set(e, -EINVAL, "render: level %d outside 0..%u", level, in->height - 1);
+    int rc = vod_mode_of(in, &w->mode, e);
     if (rc < 0) return rc;
     w->f = f;
     w->level = level;
@@ -666,30 +660,24 @@ static void vod_box(vod_walk *w, const render_opts *o, double lo[3],
     }
 }
 
-int render_vod(const vod_file *f, int level, const render_opts *o,
-               render_image *out, char *err, size_t errlen)
+int render_vod(const vod_file *f, int level, const render_opts *o, render_image *out,
+               err_info *e)
 {
     vod_walk w;
     double lo[3], hi[3];
-    int rc = vod_walk_init(&w, f, level, err, errlen);
+    int rc = vod_walk_init(&w, f, level, e);
     if (rc < 0) return rc;
-    if (render_opts_check(o) < 0) {
-        snprintf(err, errlen, "render: bad options (size 1..%d, elevation "
-                 "-90..90, fov 0..170, ambient 0..1)", RENDER_MAX_SIZE);
-        return -EINVAL;
-    }
+    if (render_opts_check(o) < 0)
+        return err_set(e, -EINVAL, "render: bad options (size 1..%d, elevation "
+                       "-90..90, fov 0..170, ambient 0..1)", RENDER_MAX_SIZE);
     vod_box(&w, o, lo, hi);
     rc = render_begin(&w.ctx, o, lo, hi, w.voxel);
-    if (rc < 0) {
-        snprintf(err, errlen, "render: %s", strerror(-rc));
-        return rc;
-    }
+    if (rc < 0) return err_set(e, rc, "render: %s", strerror(-rc));
     rc = vod_foreach(f, level, splat_cb, &w);
     if (rc) { /* splat_cb never stops the walk: the reader failed */
         render_abort(w.ctx);
-        snprintf(err, errlen, "render: reading level %d: %s", level,
-                 strerror(rc < 0 ? -rc : EIO));
-        return rc < 0 ? rc : -EIO;
+        return err_set(e, rc < 0 ? rc : -EIO, "render: reading level %d: %s", level,
+                       strerror(rc < 0 ? -rc : EIO));
     }
     render_finish(w.ctx, out);
     return 0;

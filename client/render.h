@@ -27,6 +27,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
 #include "mesh.h"
 #include "octree.h"
 #include "vod.h"
@@ -123,9 +124,9 @@ int render_octree(const octree *t, const double origin[3],
  * coarse level's box may be up to 2^L - 1 voxels larger), so levels frame
  * alike but not exactly; fit_volume frames every level the same.  Errors
  * (-EINVAL for a level outside 0..treeHeight-1 or bad options, -ENOTSUP,
- * -ENOMEM) come with a message in err. */
-int render_vod(const vod_file *f, int level, const render_opts *o,
-               render_image *out, char *err, size_t errlen);
+ * -ENOMEM) come with a message in e. */
+int render_vod(const vod_file *f, int level, const render_opts *o, render_image *out,
+               err_info *e);
 
 /* A triangle mesh (mesh.h), framing its bounding box: flat shading (each
  * triangle its face normal) or smooth (smooth 1: at each vertex the sum of

@@ -48,6 +48,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
 #include "vod.h"
 
 #define ISO_MAX_RADII 8      /* --lod-radii: at most this many spheres */
@@ -165,11 +166,10 @@ int iso_task_run(iso_work *w, const iso_params *p, const iso_input *in,
  * a worker copies into shared memory. */
 size_t iso_piece_bytes(const iso_params *p, const iso_piece *pc);
 void iso_piece_pack(const iso_params *p, const iso_piece *pc, void *to);
-/* The view of packed bytes with the given counts; -EINVAL when they do
- * not fit in `bytes` (the counts come from another process). */
-int iso_piece_view(const iso_params *p, const void *from, size_t bytes,
-                   uint64_t key, uint32_t nv, uint32_t nc, uint32_t nt, uint32_t ne,
-                   iso_piece *pc);
+/* The view of packed bytes: pc's key and counts (nv, nc, nt, ne) as the
+ * caller set them, its arrays laid over `from`; -EINVAL when they do not
+ * fit in `bytes` (the counts come from another process). */
+int iso_piece_view(const iso_params *p, const void *from, size_t bytes, iso_piece *pc);
 
 /* ---- the whole mesh ---- */
 
@@ -197,20 +197,20 @@ typedef struct {
     const iso_params *p;
     const iso_piece *pc;
     uint64_t n;
-    const uint64_t *vbase, *tbase;
+    uint64_t *vbase, *tbase; /* written by iso_weld_bases */
     float *pos, *nrm;        /* nrm with p->normals */
     uint32_t *tri;
 } iso_weld;
-int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
-                   uint64_t *tbase, unsigned threads, char *err, size_t errlen);
-int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen);
+/* w's bases from its pieces (p, pc, n), its arrays not used yet. */
+int iso_weld_bases(const iso_weld *w, unsigned threads, err_info *e);
+int iso_weld_piece(const iso_weld *w, uint64_t i, err_info *e);
 
 /* The pieces of every task (in task order, each task's key given) welded
  * into one mesh.  A piece is checked before it is used (they come from
  * other processes): -EPROTO with a message for one that is malformed or
  * refers to a vertex nobody owns; -ENOMEM; -E2BIG past 2^32 vertices. */
 int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh *m,
-              char *err, size_t errlen);
+              err_info *e);
 void iso_mesh_free(iso_mesh *m);
 
 /* Everything in this thread: the tasks, each polygonized, merged.  The

@@ -3,34 +3,24 @@
  * every process reaches), and its tasks. */
 #include <errno.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
 #include <unistd.h>
 
+#include "err.h"
 #include "iso.h"
 #include "par.h"
-
-__attribute__((format(printf, 3, 4))) static int
-say(char *err, size_t len, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, len, fmt, ap);
-    va_end(ap);
-    return -EINVAL;
-}
 
 static int check_channel(const vod_info *in, char *err, size_t len)
 {
     if (in->voxel_bits == 16 || (in->flags & VOD_FLAG_FLOAT && in->channel != 4))
-        return say(err, len, "channel %u (%u-bit voxels) has no marching cubes here: "
-                   "channels 1 to 4 do", in->channel, in->voxel_bits);
+        return err_fmt(err, len, -EINVAL, "channel %u (%u-bit voxels) has no marching cubes "
+                       "here: channels 1 to 4 do", in->channel, in->voxel_bits);
     if (in->height > ISO_MAX_LEVELS)
-        return say(err, len, "treeHeight %u: more levels than %u", in->height,
-                   ISO_MAX_LEVELS);
+        return err_fmt(err, len, -EINVAL, "treeHeight %u: more levels than %u", in->height,
+                       ISO_MAX_LEVELS);
     return 0;
 }
 
@@ -38,14 +28,15 @@ static int set_levels(iso_params *p, int level, const double center[3],
                       const double *radii, uint32_t nradii, char *err, size_t len)
 {
     if (nradii > ISO_MAX_RADII)
-        return say(err, len, "at most %u LOD radii", ISO_MAX_RADII);
+        return err_fmt(err, len, -EINVAL, "at most %u LOD radii", ISO_MAX_RADII);
     for (uint32_t i = 0; i < nradii; i++) {
         if (!isfinite(radii[i]) || radii[i] < 0 || (i && !(radii[i] > radii[i - 1])))
-            return say(err, len, "LOD radii must be finite, >= 0 and increasing");
+            return err_fmt(err, len, -EINVAL, "LOD radii must be finite, >= 0 and increasing");
         p->radii[i] = radii[i];
     }
     if (level < 0 || (uint32_t)level >= p->height)
-        return say(err, len, "level %d: the file has levels 0..%u", level, p->height - 1);
+        return err_fmt(err, len, -EINVAL, "level %d: the file has levels 0..%u", level,
+                       p->height - 1);
     p->level = (uint32_t)level;
     p->nradii = nradii;
     p->lod_top = nradii < p->height - 1 ? nradii : p->height - 1;
@@ -60,7 +51,7 @@ int iso_params_make(const vod_file *f, uint32_t iso, int level, const double cen
 {
     const vod_info *in = vod_get_info(f);
     memset(p, 0, sizeof *p);
-    if (iso > 254) return say(err, errlen, "iso %u: not in 0..254", iso);
+    if (iso > 254) return err_fmt(err, errlen, -EINVAL, "iso %u: not in 0..254", iso);
     int rc = check_channel(in, err, errlen);
     if (rc) return rc;
     p->iso = iso;

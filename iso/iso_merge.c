@@ -5,12 +5,12 @@
  * search in the owner's keys.  Pieces may come from other processes: each
  * is checked before it is used. */
 #include <errno.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "clock.h"
+#include "err.h"
 #include "iso.h"
 #include "par.h"
 
@@ -44,10 +44,10 @@ void iso_piece_pack(const iso_params *p, const iso_piece *pc, void *to)
     put(&o, pc->tri, 12 * (size_t)pc->nt);
 }
 
-int iso_piece_view(const iso_params *p, const void *from, size_t bytes, uint64_t key,
-                   uint32_t nv, uint32_t nc, uint32_t nt, uint32_t ne, iso_piece *pc)
+int iso_piece_view(const iso_params *p, const void *from, size_t bytes, iso_piece *pc)
 {
-    *pc = (iso_piece){.key = key, .nv = nv, .nc = nc, .nt = nt, .ne = ne};
+    uint32_t nv = pc->nv, nc = pc->nc, ne = pc->ne;
+    *pc = (iso_piece){.key = pc->key, .nv = nv, .nc = nc, .nt = pc->nt, .ne = ne};
     if (iso_piece_bytes(p, pc) > bytes) return -EINVAL;
     const uint8_t *o = from;
     pc->keys = (const uint64_t *)o;
@@ -69,16 +69,6 @@ int iso_piece_view(const iso_params *p, const void *from, size_t bytes, uint64_t
 }
 
 /* ---- welding ---- */
-
-__attribute__((format(printf, 3, 4))) static int bad(char *err, size_t len,
-                                                      const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(err, len, fmt, ap);
-    va_end(ap);
-    return -EPROTO;
-}
 
 /* A vertex key's task key, or UINT64_MAX when it names no edge. */
 static uint64_t owner_of(const iso_params *p, uint64_t key)
@@ -127,23 +117,22 @@ static int64_t find_piece(const iso_piece *pc, uint64_t n, uint64_t key)
  * (only a broken worker makes one) cannot make the weld read or write out
  * of bounds: at worst a reference finds no vertex, and fails.  Its
  * triangles' references: each inside its kind's count. */
-static int check_piece(const iso_params *p, const iso_piece *pcs, uint64_t i, char *err,
-                       size_t len)
+static int check_piece(const iso_params *p, const iso_piece *pcs, uint64_t i, err_info *e)
 {
     const iso_piece *pc = &pcs[i];
     unsigned long long id = (unsigned long long)i;
-    if (i && pc->key <= pcs[i - 1].key) return bad(err, len, "the pieces are not in task order");
+    if (i && pc->key <= pcs[i - 1].key) return err_set(e, -EPROTO, "the pieces are not in task order");
     for (uint32_t k = 1; k < pc->nv; k++)
         if (pc->keys[k] <= pc->keys[k - 1])
-            return bad(err, len, "piece %llu: its vertices are not in key order", id);
+            return err_set(e, -EPROTO, "piece %llu: its vertices are not in key order", id);
     if (pc->nv && (owner_of(p, pc->keys[0]) != pc->key ||
                    owner_of(p, pc->keys[pc->nv - 1]) != pc->key))
-        return bad(err, len, "piece %llu: its vertices are not on its brick's edges", id);
+        return err_set(e, -EPROTO, "piece %llu: its vertices are not on its brick's edges", id);
     for (uint64_t k = 0; k < 3 * (uint64_t)pc->nt; k++) {
         uint32_t r = pc->tri[k], x = r & ISO_REF_INDEX, kind = r & ~ISO_REF_INDEX;
         if (!(kind == 0 && x < pc->nv) && !(kind == ISO_REF_CENTRE && x < pc->nc) &&
             !(kind == ISO_REF_EXT && x < pc->ne))
-            return bad(err, len, "piece %llu: triangle %llu refers to no vertex", id,
+            return err_set(e, -EPROTO, "piece %llu: triangle %llu refers to no vertex", id,
                        (unsigned long long)(k / 3));
     }
     return 0;
@@ -156,8 +145,7 @@ typedef struct {
     const iso_piece *pc;
     uint64_t n;
     uint64_t bad[PAR_MAX];   /* each part's first bad piece, or n */
-    int rc[PAR_MAX];
-    char msg[PAR_MAX][160];
+    err_info err[PAR_MAX];   /* and what is wrong with it */
 } check_ctx;
 
 static void check_part(void *ud, unsigned k, unsigned parts)
@@ -166,7 +154,7 @@ static void check_part(void *ud, unsigned k, unsigned parts)
     uint64_t lo = c->n * k / parts, hi = c->n * (k + 1) / parts;
     c->bad[k] = c->n;
     for (uint64_t i = lo; i < hi; i++)
-        if ((c->rc[k] = check_piece(c->p, c->pc, i, c->msg[k], sizeof c->msg[k]))) {
+        if (check_piece(c->p, c->pc, i, &c->err[k])) {
             c->bad[k] = i;
             return;
         }
@@ -175,22 +163,21 @@ static void check_part(void *ud, unsigned k, unsigned parts)
 /* Pieces per part at least: a part is worth a thread. */
 #define CHECK_PART_MIN 256u
 
-int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_t *vbase,
-                   uint64_t *tbase, unsigned threads, char *err, size_t errlen)
+int iso_weld_bases(const iso_weld *w, unsigned threads, err_info *e)
 {
+    const iso_piece *pc = w->pc;
+    uint64_t n = w->n, *vbase = w->vbase, *tbase = w->tbase;
     check_ctx *c = malloc(sizeof *c);
     if (!c) return -ENOMEM;
-    c->p = p, c->pc = pc, c->n = n;
+    c->p = w->p, c->pc = pc, c->n = n;
     uint64_t most = n / CHECK_PART_MIN + 1;
     unsigned parts = threads < 1 ? 1 : threads > PAR_MAX ? PAR_MAX : threads;
     if (parts > most) parts = (unsigned)most;
     par_run(parts, check_part, c);
     int rc = 0;
     for (unsigned k = 0; k < parts && !rc; k++)
-        if (c->bad[k] < n) { /* the parts are in piece order */
-            rc = c->rc[k];
-            snprintf(err, errlen, "%s", c->msg[k]);
-        }
+        if (c->bad[k] < n) /* the parts are in piece order */
+            rc = err_set(e, c->err[k].code, "%s", c->err[k].msg);
     free(c);
     if (rc) return rc;
     uint64_t nv = 0, nt = 0;
@@ -203,13 +190,12 @@ int iso_weld_bases(const iso_params *p, const iso_piece *pc, uint64_t n, uint64_
     vbase[n] = nv;
     tbase[n] = nt;
     if (nv <= UINT32_MAX) return 0;
-    snprintf(err, errlen, "%llu vertices: more than a mesh of 32-bit indices holds",
-             (unsigned long long)nv);
-    return -E2BIG;
+    return err_set(e, -E2BIG, "%llu vertices: more than a mesh of 32-bit indices holds",
+                   (unsigned long long)nv);
 }
 
 /* The global index of each of piece i's external references. */
-static int resolve_ext(const iso_weld *w, uint64_t i, uint32_t *out, char *err, size_t len)
+static int resolve_ext(const iso_weld *w, uint64_t i, uint32_t *out, err_info *e)
 {
     const iso_piece *pc = &w->pc[i];
     for (uint32_t k = 0; k < pc->ne; k++) {
@@ -217,7 +203,7 @@ static int resolve_ext(const iso_weld *w, uint64_t i, uint32_t *out, char *err, 
         int64_t j = owner == UINT64_MAX ? -1 : find_piece(w->pc, w->n, owner);
         int64_t v = j < 0 ? -1 : find_u64(w->pc[j].keys, w->pc[j].nv, pc->ext[k]);
         if (v < 0)
-            return bad(err, len, "piece %llu refers to a vertex no piece has (key %llx)",
+            return err_set(e, -EPROTO, "piece %llu refers to a vertex no piece has (key %llx)",
                        (unsigned long long)i, (unsigned long long)pc->ext[k]);
         out[k] = (uint32_t)(w->vbase[j] + (uint64_t)v);
     }
@@ -230,12 +216,12 @@ static void copy3(float *to, const float *from, uint32_t n)
     if (n) memcpy(to, from, 12 * (size_t)n);
 }
 
-int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen)
+int iso_weld_piece(const iso_weld *w, uint64_t i, err_info *e)
 {
     const iso_piece *pc = &w->pc[i];
     uint32_t *ext = malloc(((size_t)pc->ne + 1) * sizeof *ext);
     if (!ext) return -ENOMEM;
-    int rc = resolve_ext(w, i, ext, err, errlen);
+    int rc = resolve_ext(w, i, ext, e);
     uint64_t base = w->vbase[i];
     uint32_t *to = w->tri + 3 * w->tbase[i];
     for (uint64_t k = 0; k < 3 * (uint64_t)pc->nt && !rc; k++) {
@@ -256,11 +242,12 @@ int iso_weld_piece(const iso_weld *w, uint64_t i, char *err, size_t errlen)
 }
 
 int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh *out,
-              char *err, size_t errlen)
+              err_info *e)
 {
     memset(out, 0, sizeof *out);
     uint64_t *vbase = malloc((n + 1) * sizeof *vbase), *tbase = malloc((n + 1) * sizeof *tbase);
-    int rc = vbase && tbase ? iso_weld_bases(p, pieces, n, vbase, tbase, 1, err, errlen) : -ENOMEM;
+    iso_weld w = {p, pieces, n, vbase, tbase, NULL, NULL, NULL};
+    int rc = vbase && tbase ? iso_weld_bases(&w, 1, e) : -ENOMEM;
     if (!rc) {
         out->n_vertices = vbase[n];
         out->n_triangles = tbase[n];
@@ -269,9 +256,9 @@ int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh
         out->tri = malloc(12 * (size_t)(tbase[n] ? tbase[n] : 1));
         if (!out->pos || !out->tri || (p->normals && !out->nrm)) rc = -ENOMEM;
     }
-    iso_weld w = {p, pieces, n, vbase, tbase, out->pos, out->nrm, out->tri};
-    for (uint64_t i = 0; i < n && !rc; i++) rc = iso_weld_piece(&w, i, err, errlen);
-    if (rc == -ENOMEM) snprintf(err, errlen, "out of memory for the mesh");
+    w.pos = out->pos, w.nrm = out->nrm, w.tri = out->tri;
+    for (uint64_t i = 0; i < n && !rc; i++) rc = iso_weld_piece(&w, i, e);
+    if (rc == -ENOMEM) err_set(e, rc, "out of memory for the mesh");
     if (rc) iso_mesh_free(out);
     free(vbase);
     free(tbase);
@@ -302,7 +289,8 @@ static int run_tasks(const iso_params *p, const iso_input *in, const iso_task *t
         if (!rc && !(own[i] = malloc(bytes ? bytes : 1))) rc = -ENOMEM;
         if (rc) break;
         iso_piece_pack(p, &v, own[i]);
-        iso_piece_view(p, own[i], bytes, v.key, v.nv, v.nc, v.nt, v.ne, &pc[i]);
+        pc[i] = v;
+        iso_piece_view(p, own[i], bytes, &pc[i]);
     }
     iso_work_free(w);
     return rc;
@@ -325,8 +313,9 @@ int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *
     uint8_t **own = calloc(n + 1, sizeof *own);
     rc = pc && own ? run_tasks(p, in, t, n, pc, own) : -ENOMEM;
     double t2 = clock_now();
+    err_info e = {0};
     if (rc) snprintf(err, errlen, "%s", rc == -ENOMEM ? "out of memory" : "bad task");
-    else rc = iso_merge(p, pc, n, m, err, errlen);
+    else if ((rc = iso_merge(p, pc, n, m, &e))) err_fmt(err, errlen, rc, "%s", e.msg);
     m->t_setup = t1 - t0;
     m->t_tasks = t2 - t1;
     m->t_weld = clock_now() - t2;

@@ -183,9 +183,11 @@ static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
     uint64_t key = iso_task_key(&b->p, (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i);
     for (int tries = 0; tries < 2; tries++) {
         /* acquire: pairs with the worker's release store of done */
-        if (atomic_load_explicit(&r->done, memory_order_acquire) && r->off < b->arena_cap &&
+        int done = atomic_load_explicit(&r->done, memory_order_acquire);
+        *pc = (iso_piece){.key = key, .nv = r->nv, .nc = r->nc, .nt = r->nt, .ne = r->ne};
+        if (done && r->off < b->arena_cap &&
             !iso_piece_view(&b->p, shm_at(e->seg.base, b->arena_off + r->off),
-                            b->arena_cap - r->off, key, r->nv, r->nc, r->nt, r->ne, pc))
+                            b->arena_cap - r->off, pc))
             return 0;
         int rc = tries ? -EPROTO : run_here(e, ij, i);
         if (rc) return rc;
@@ -209,9 +211,10 @@ static int prepare_weld(engine *e, iso_job *ij)
     uint64_t *tb = vb ? arena_alloc(e, 8 * (n + 1)) : NULL;
     if (rc) return rc;
     if (!tb) return sched_no_room(e, "the mesh");
-    char msg[sizeof e->err.message] = "";
-    if ((rc = iso_weld_bases(&b->p, ij->pc, n, vb, tb, par_cpus(), msg, sizeof msg)))
-        return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", msg);
+    iso_weld wb = {.p = &b->p, .pc = ij->pc, .n = n, .vbase = vb, .tbase = tb};
+    err_info why = {0};
+    if ((rc = iso_weld_bases(&wb, par_cpus(), &why)))
+        return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", why.msg);
     void *pos = arena_alloc(e, 12 * vb[n]), *tri = pos ? arena_alloc(e, 12 * tb[n]) : NULL;
     void *nrm = tri && b->p.normals ? arena_alloc(e, 12 * vb[n]) : NULL;
     if (!tri || (b->p.normals && !nrm)) return sched_no_room(e, "the mesh");
@@ -269,17 +272,18 @@ static int weld_rest(engine *e, iso_job *ij)
 {
     iso_block *b = sched_block(e);
     uint64_t n = b->n_tasks;
-    const uint64_t *vb = shm_at(e->seg.base, b->vbase_off), *tb = shm_at(e->seg.base, b->tbase_off);
+    uint64_t *vb = shm_at(e->seg.base, b->vbase_off), *tb = shm_at(e->seg.base, b->tbase_off);
     iso_weld wd = {&b->p, ij->pc, n, vb, tb, shm_at(e->seg.base, b->pos_off),
                    b->nrm_off ? shm_at(e->seg.base, b->nrm_off) : NULL,
                    shm_at(e->seg.base, b->tri_off)};
     iso_result *res = shm_at(e->seg.base, b->results_off);
-    char msg[sizeof e->err.message] = "";
+    err_info why = {0};
     for (uint64_t i = 0; i < n; i++) {
         /* acquire: pairs with the worker's release store of welded */
         if (atomic_load_explicit(&res[i].welded, memory_order_acquire)) continue;
-        int rc = iso_weld_piece(&wd, i, msg, sizeof msg);
-        if (rc) return sched_fail(e, ENGINE_FAULT, rc, "%s", msg[0] ? msg : strerror(-rc));
+        int rc = iso_weld_piece(&wd, i, &why);
+        if (rc)
+            return sched_fail(e, ENGINE_FAULT, rc, "%s", why.msg[0] ? why.msg : strerror(-rc));
     }
     if (!indices_ok(wd.tri, 3 * tb[n], vb[n]))
         return sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left the mesh inconsistent");

@@ -14,6 +14,7 @@
 #include <unistd.h>
 
 #include "clock.h"
+#include "err.h"
 #include "master.h"
 #include "worker.h"
 
@@ -30,11 +31,9 @@ static int pick_cpus(engine *e, const engine_opts *o, char *err,
     if (o->cpus && o->ncpus > 0) {
         for (int i = 0; i < e->n; i++) {
             int c = o->cpus[i % o->ncpus];
-            if (c < 0 || c >= CPU_SETSIZE) {
-                snprintf(err, errlen, "CPU %d is out of range 0..%d", c,
-                         CPU_SETSIZE - 1);
-                return -EINVAL;
-            }
+            if (c < 0 || c >= CPU_SETSIZE)
+                return err_fmt(err, errlen, -EINVAL, "CPU %d is out of range 0..%d", c,
+                               CPU_SETSIZE - 1);
             e->ms[i].cpu = c;
         }
         return 0;
@@ -66,8 +65,7 @@ int pool_spawn(engine *e, int i, char *err, size_t errlen)
     pid_t pid = fork();
     if (pid < 0) {
         int rc = -errno;
-        snprintf(err, errlen, "cannot fork worker %d: %s", i, strerror(-rc));
-        return rc;
+        return err_fmt(err, errlen, rc, "cannot fork worker %d: %s", i, strerror(-rc));
     }
     if (pid == 0) worker_main(e->seg.base, (uint32_t)i);
     e->ms[i].pid = pid;
@@ -81,9 +79,8 @@ int pool_spawn(engine *e, int i, char *err, size_t errlen)
         kill(pid, SIGKILL);
         waitpid(pid, NULL, 0);
         e->ms[i].pid = 0;
-        snprintf(err, errlen, "cannot pin worker %d to CPU %d: %s", i,
-                 e->ms[i].cpu, strerror(-rc));
-        return rc;
+        return err_fmt(err, errlen, rc, "cannot pin worker %d to CPU %d: %s", i, e->ms[i].cpu,
+                       strerror(-rc));
     }
     return 0;
 }
@@ -296,11 +293,9 @@ int engine_create(const engine_opts *o, engine **out, char *err,
                   size_t errlen)
 {
     *out = NULL;
-    if (!o || o->workers < 1 || o->workers > ENGINE_MAX_WORKERS) {
-        snprintf(err, errlen, "the number of workers must be 1..%d (got %d)",
-                 ENGINE_MAX_WORKERS, o ? o->workers : 0);
-        return -EINVAL;
-    }
+    if (!o || o->workers < 1 || o->workers > ENGINE_MAX_WORKERS)
+        return err_fmt(err, errlen, -EINVAL, "the number of workers must be 1..%d (got %d)",
+                       ENGINE_MAX_WORKERS, o ? o->workers : 0);
     engine *e = calloc(1, sizeof *e);
     if (!e) return -ENOMEM;
     e->n = o->workers;

@@ -77,10 +77,11 @@ static iso_piece *views(const work_ctx *w, const iso_block *b)
     const iso_task *t = shm_at(w->base, b->tasks_off);
     for (uint64_t i = 0; pc && i < b->n_tasks; i++) {
         const iso_result *r = &res[i];
+        pc[i] = (iso_piece){.key = iso_task_key(&b->p, &t[i]), .nv = r->nv, .nc = r->nc,
+                            .nt = r->nt, .ne = r->ne};
         if (r->off > b->arena_cap ||
             iso_piece_view(&b->p, shm_at(w->base, b->arena_off + r->off),
-                           b->arena_cap - r->off, iso_task_key(&b->p, &t[i]), r->nv, r->nc,
-                           r->nt, r->ne, &pc[i])) {
+                           b->arena_cap - r->off, &pc[i])) {
             free(pc);
             return NULL;
         }
@@ -97,7 +98,6 @@ static int weld_run(work_ctx *w, iso_block *b)
                    shm_at(w->base, b->tbase_off), shm_at(w->base, b->pos_off),
                    b->nrm_off ? shm_at(w->base, b->nrm_off) : NULL,
                    shm_at(w->base, b->tri_off)};
-    char err[8];
     int rc = 0;
     while (!rc) {
         if (work_aborted(w)) rc = -ECANCELED;
@@ -106,7 +106,7 @@ static int weld_run(work_ctx *w, iso_block *b)
         if (rc || i >= b->n_tasks) break;
         work_tick(w);
         /* release: pairs with the master's acquire load of welded */
-        if (!iso_weld_piece(&wd, i, err, sizeof err))
+        if (!iso_weld_piece(&wd, i, NULL)) /* the master says what failed */
             atomic_store_explicit(&res[i].welded, 1, memory_order_release);
     }
     free(pc);

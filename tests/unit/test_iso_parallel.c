@@ -98,6 +98,7 @@ Test(iso, a_piece_that_refers_to_nobody_is_refused)
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_params p;
     char err[256] = "";
+    err_info me = {0};
     cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
     void *mem = NULL;
     iso_input in;
@@ -113,8 +114,8 @@ Test(iso, a_piece_that_refers_to_nobody_is_refused)
     cr_assert_gt(pc.ne, 0);
     /* the first task alone: its references to the others find nobody */
     iso_mesh m;
-    cr_assert_eq(iso_merge(&p, &pc, 1, &m, err, sizeof err), -EPROTO);
-    cr_assert(strstr(err, "refers to a vertex no piece has"), "%s", err);
+    cr_assert_eq(iso_merge(&p, &pc, 1, &m, &me), -EPROTO);
+    cr_assert(strstr(me.msg, "refers to a vertex no piece has"), "%s", me.msg);
     /* a piece that owns every vertex it uses, alone, then with a
      * reference past its vertices */
     uint64_t i = 0;
@@ -123,13 +124,13 @@ Test(iso, a_piece_that_refers_to_nobody_is_refused)
         if (!pc.ne && pc.nt) break;
     }
     cr_assert_lt(i, n, "no task owns all its vertices");
-    cr_assert_eq(iso_merge(&p, &pc, 1, &m, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_merge(&p, &pc, 1, &m, &me), 0, "%s", me.msg);
     cr_assert_eq(m.n_triangles, pc.nt);
     iso_mesh_free(&m);
     uint32_t *tri = (uint32_t *)pc.tri;
     tri[0] = pc.nv + 5;
-    cr_assert_eq(iso_merge(&p, &pc, 1, &m, err, sizeof err), -EPROTO);
-    cr_assert(strstr(err, "refers to no vertex"), "%s", err);
+    cr_assert_eq(iso_merge(&p, &pc, 1, &m, &me), -EPROTO);
+    cr_assert(strstr(me.msg, "refers to no vertex"), "%s", me.msg);
     iso_work_free(w);
     free(t);
     free(mem);
@@ -395,7 +396,7 @@ Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
     vol_spec s = cube_spec(128, 8, -1, 1);
     vod_file *f = make_vod(&s, waves, NULL);
     iso_params p;
-    char err[256] = "", err3[256] = "";
+    char err[256] = "";
     cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
     void *mem1 = NULL, *mem3 = NULL;
     iso_input a, b;
@@ -420,25 +421,29 @@ Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
         size_t bytes = iso_piece_bytes(&p, &v);
         own[i] = malloc(bytes ? bytes : 1);
         iso_piece_pack(&p, &v, own[i]);
-        iso_piece_view(&p, own[i], bytes, v.key, v.nv, v.nc, v.nt, v.ne, &pc[i]);
+        pc[i] = v;
+        iso_piece_view(&p, own[i], bytes, &pc[i]);
     }
     uint64_t *vb1 = malloc(8 * (n + 1)), *tb1 = malloc(8 * (n + 1));
     uint64_t *vb3 = malloc(8 * (n + 1)), *tb3 = malloc(8 * (n + 1));
-    cr_assert_eq(iso_weld_bases(&p, pc, n, vb1, tb1, 1, err, sizeof err), 0, "%s", err);
-    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err, sizeof err), 0, "%s", err);
+    iso_weld w1 = {.p = &p, .pc = pc, .n = n, .vbase = vb1, .tbase = tb1};
+    iso_weld w3 = {.p = &p, .pc = pc, .n = n, .vbase = vb3, .tbase = tb3};
+    err_info e1 = {0}, e3 = {0};
+    cr_assert_eq(iso_weld_bases(&w1, 1, &e1), 0, "%s", e1.msg);
+    cr_assert_eq(iso_weld_bases(&w3, 3, &e3), 0, "%s", e3.msg);
     cr_assert(!memcmp(vb1, vb3, 8 * (n + 1)) && !memcmp(tb1, tb3, 8 * (n + 1)));
     uint64_t late = n - 2, early = n / 2; /* in the last part, then in the middle one */
     while (!pc[late].nt) late--;
     while (!pc[early].nt) early++;
     ((uint32_t *)pc[late].tri)[0] = pc[late].nv + 1;
-    cr_assert_eq(iso_weld_bases(&p, pc, n, vb1, tb1, 1, err, sizeof err), -EPROTO);
-    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err3, sizeof err3), -EPROTO);
-    cr_assert_str_eq(err, err3);
+    cr_assert_eq(iso_weld_bases(&w1, 1, &e1), -EPROTO);
+    cr_assert_eq(iso_weld_bases(&w3, 3, &e3), -EPROTO);
+    cr_assert_str_eq(e1.msg, e3.msg);
     ((uint32_t *)pc[early].tri)[0] = pc[early].nv + 1;
-    cr_assert_eq(iso_weld_bases(&p, pc, n, vb3, tb3, 3, err3, sizeof err3), -EPROTO);
+    cr_assert_eq(iso_weld_bases(&w3, 3, &e3), -EPROTO);
     char want[64];
     snprintf(want, sizeof want, "piece %llu: ", (unsigned long long)early);
-    cr_assert(!strncmp(err3, want, strlen(want)), "the first bad piece: %s", err3);
+    cr_assert(!strncmp(e3.msg, want, strlen(want)), "the first bad piece: %s", e3.msg);
     for (uint64_t i = 0; i < n; i++) free(own[i]);
     free(own), free(pc), free(vb1), free(tb1), free(vb3), free(tb3), free(t);
     iso_work_free(w);

@@ -547,10 +547,10 @@ Test(render, vod_level_zero_matches_the_octree_and_level_one_is_coarser)
     vod_file *f = to_vod(&t, VOXEL_CH_SURFACE);
     render_opts o = opts(300, 300, 30, 20);
     render_image direct, l0, l1;
-    char err[256];
+    err_info re = {0};
     cr_assert_eq(render_octree(&t, ORIGIN0, UNIT, NULL, &o, &direct), 0);
-    cr_assert_eq(render_vod(f, 0, &o, &l0, err, sizeof err), 0, "%s", err);
-    cr_assert_eq(render_vod(f, 1, &o, &l1, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(render_vod(f, 0, &o, &l0, &re), 0, "%s", re.msg);
+    cr_assert_eq(render_vod(f, 1, &o, &l1, &re), 0, "%s", re.msg);
     /* Same voxels, other order: the z-buffer makes the bytes equal. */
     cr_assert_eq(l0.splats, t.voxels);
     cr_assert_eq(memcmp(direct.rgb, l0.rgb, 300 * 300 * 3), 0);
@@ -565,10 +565,10 @@ Test(render, vod_level_zero_matches_the_octree_and_level_one_is_coarser)
     render_image_free(&l0);
     render_image_free(&l1);
 
-    cr_assert_eq(render_vod(f, 3, &o, &l0, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "level"), "%s", err);
+    cr_assert_eq(render_vod(f, 3, &o, &l0, &re), -EINVAL);
+    cr_assert(strstr(re.msg, "level"), "%s", re.msg);
     o.width = 0;
-    cr_assert_eq(render_vod(f, 0, &o, &l0, err, sizeof err), -EINVAL);
+    cr_assert_eq(render_vod(f, 0, &o, &l0, &re), -EINVAL);
     vod_close(f);
 }
 
@@ -587,8 +587,8 @@ Test(render, occupancy_vod_is_shaded_from_neighbour_gradients)
     vod_file *f = to_vod(&t, VOXEL_CH_OCCUPANCY);
     render_opts o = opts(300, 300, 30, 20);
     render_image img;
-    char err[256];
-    cr_assert_eq(render_vod(f, 0, &o, &img, err, sizeof err), 0, "%s", err);
+    err_info re = {0};
+    cr_assert_eq(render_vod(f, 0, &o, &img, &re), 0, "%s", re.msg);
     /* Hidden inner voxels are skipped. */
     cr_assert_lt(img.splats * 4, t.voxels);
     cover c = coverage(&img);
@@ -604,7 +604,7 @@ Test(render, occupancy_vod_is_shaded_from_neighbour_gradients)
     cr_assert_lt(darkest, centre * 0.6);
     render_image_free(&img);
     /* Level 1 of the ball: coarser, same disc. */
-    cr_assert_eq(render_vod(f, 1, &o, &img, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(render_vod(f, 1, &o, &img, &re), 0, "%s", re.msg);
     cover c1 = coverage(&img);
     /* OR-downsampling dilates by up to one coarse voxel. */
     cr_assert(fabs((double)c1.n / c.n - 1) < 0.15, "%ld vs %ld", c1.n, c.n);
@@ -619,13 +619,13 @@ Test(render, vod_voxel_scale_and_origin_place_the_splats)
     make_shell(&t, CENTRE, 20);
     const float scale[3] = {2, 1, 0.5f}, origin[3] = {-5, 3, 7};
     vod_file *f = to_vod_placed(&t, VOXEL_CH_SURFACE, scale, origin);
-    char err[256];
+    err_info re = {0};
     for (int view = 0; view < 2; view++) {
         /* Looking down -y: x across, z up; then down -x: y across. */
         render_opts o = opts(240, 240, view ? 0 : 90, 0);
         o.fit_volume = 1;
         render_image img;
-        cr_assert_eq(render_vod(f, 0, &o, &img, err, sizeof err), 0, "%s", err);
+        cr_assert_eq(render_vod(f, 0, &o, &img, &re), 0, "%s", re.msg);
         cover c = coverage(&img);
         double w = c.i1 - c.i0 + 1, h = c.j1 - c.j0 + 1;
         double want = view ? 1.0 / 0.5 : 2.0 / 0.5;
