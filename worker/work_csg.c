@@ -106,12 +106,13 @@ static int leaf_tiles(work_ctx *w, csg_state *st, const csg_block *b, csg_task_a
     vod_volume *vol = vod_volume_view(shm_at(w->base, mb->volume_off));
     if (!vol) return -EINVAL;
     mesh_tile_env env = {.tick = tile_tick, .arg = w};
+    const mesh_tiles j = {.m = &m, .g = &mb->grid, .o = &mb->opts, .vol = vol, .env = &env,
+                          .scratch = st->scratch};
     for (uint64_t k = a.first; k < (uint64_t)a.first + a.count; k++) {
         if (work_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
-        int rc = mesh_tile_run(&m, NULL, ids + start[k], start[k + 1] - start[k], &mb->grid,
-                               &mb->opts, (uint32_t)(k % mb->tiles[0]),
-                               (uint32_t)(k / mb->tiles[0]), st->scratch, vol, &env, &s);
+        int rc = mesh_tile_run(&j, ids + start[k], start[k + 1] - start[k],
+                               (uint32_t)(k % mb->tiles[0]), (uint32_t)(k / mb->tiles[0]), &s);
         if (rc) return rc;
         work_tick(w);
     }
