@@ -41,7 +41,7 @@ limit() {
     local var="TEST_TIMEOUT_${1//[^A-Za-z0-9_]/_}"
     if [ -n "${!var:-}" ]; then echo "${!var}"; return; fi
     case $1 in  # the long ones, with room for a loaded 2-core machine
-        valgrind | mpi | daemon_mpi | golden | docs | bench_* | test_mesh_vox) echo $((TEST_TIMEOUT * 2)) ;;
+        valgrind | mpi | daemon_mpi | golden | docs | bench_* | test_mesh_vox*) echo $((TEST_TIMEOUT * 2)) ;;
         *) echo "$TEST_TIMEOUT" ;;
     esac
 }
