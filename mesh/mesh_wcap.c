@@ -26,6 +26,14 @@
  * mv_wind_block (the tree, then the exact sum near 1/2): the answer stays
  * the exact sum's where it matters.
  *
+ * Where the caps are few (at most DIRECT_MAX triangles: a few large
+ * holes) the tree is left aside: every cell takes every cap triangle,
+ * w_C's exact value at its centre, its gradient by Biot and Savart over
+ * the boundary, and Taylor's remainder bounded per boundary segment
+ * (mv_wcap_expand), which a large cap's area does not feed; the cell is
+ * decided whole, or sample by sample from the linear expansion, and the
+ * samples left go to its eight halves.
+ *
  * The angles use the mesh's vertices as given and the raster their
  * snapped copies (within 2^-17 voxel): the two agree but for points that
  * close to a triangle, where the raster's tie rule decides (as the parity
