@@ -280,14 +280,10 @@ double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], d
                     bool *is_close);
 /* A bound of |w(p)| for every p within rho of b (a node of area a whose
  * ball keeps f away subtends at most a / f^2, taken where that is at most
- * tol), but for the leaves whose share passes tol: those are listed in
- * near->leaf (near->n; false when more than MV_NEAR_MAX, or when the bound
- * passes emax), and mv_wind_mag_at gives their share at p (INFINITY when
- * p lies in one's ball), which added to *bound bounds |w(p)|.  Cheap
- * where the triangles are small (the caps of small holes). */
-bool mv_wind_mag_near(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
-                      mv_near *near, double *bound, uint32_t *work);
-double mv_wind_mag_at(const mv_wtree *t, const mv_near *near, const double p[3]);
+ * tol); false when a leaf's ball meets the cell's or the bound passes
+ * emax.  Cheap where the triangles are small (the caps of small holes). */
+bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                 double *bound, uint32_t *work);
 /* The samples of block b set in dis decided by the winding number of tree
  * t (inside: |w| >= 1/2) into bits, cells of samples at once where the
  * bound decides them, else sample by sample: the tree, then, near 1/2, the

@@ -26,6 +26,14 @@
  * mv_wind_block (the tree, then the exact sum near 1/2): the answer stays
  * the exact sum's where it matters.
  *
+ * Where the caps are few (at most DIRECT_MAX triangles: a few large
+ * holes) the tree is left aside: every cell takes every cap triangle,
+ * w_C's exact value at its centre, its gradient by Biot and Savart over
+ * the boundary, and Taylor's remainder bounded per boundary segment
+ * (mv_wcap_expand), which a large cap's area does not feed; the cell is
+ * decided whole, or sample by sample from the linear expansion, and the
+ * samples left go to its eight halves.
+ *
  * The angles use the mesh's vertices as given and the raster their
  * snapped copies (within 2^-17 voxel): the two agree but for points that
  * close to a triangle, where the raster's tie rule decides (as the parity
@@ -275,7 +283,6 @@ void mesh_wtree_free(mesh_wtree *t)
 #define TOL_SAMPLE 1e-4 /* a node's error at most, a sample's query */
 #define TOL_CELL 2e-3   /* ... a cell's */
 #define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
-#define MAG_MAX 0.45    /* a bound of |w_C| that decides by N = 0 */
 #define NEAR 1e-3    /* voxels: nearer a cap triangle, mv_wind_block decides */
 #define MARGIN 1e-6  /* past the bound, nearer 1/2: mv_wind_block decides */
 
@@ -342,34 +349,6 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
     mv_beat(c->f->pulse, work);
 }
 
-/* The cell's samples one by one where w_C keeps within 0.45 of 0 (the
- * far leaves' bound far plus the listed leaves' at each sample): outside
- * when N = 0, else inside.  Returns the samples left. */
-static uint64_t cell_by_mag(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
-                            const mv_near *nr, double far)
-{
-    uint64_t mask = mv_xmask(lo, hi), left = 0;
-    for (uint32_t z = lo[2]; z < hi[2]; z++)
-        for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mv_word(c->b, lo[0], y, z);
-            uint64_t d = c->todo[i] & mask, in = 0, done = 0;
-            for (uint64_t r = d; r; r &= r - 1) {
-                unsigned x = (unsigned)__builtin_ctzll(r);
-                double p[3] = {(double)(c->b->s0[0] + (int64_t)(lo[0] / 64 * 64 + x)) + 0.5,
-                               (double)(c->b->s0[1] + (int64_t)y) + 0.5,
-                               (double)(c->b->s0[2] + (int64_t)z) + 0.5};
-                if (!(far + mv_wind_mag_at(c->caps, nr, p) < MAG_MAX)) continue;
-                done |= 1ull << x;
-                in |= (uint64_t)(c->count[i * 64 + x] != 0) << x;
-            }
-            c->bits[i] = (c->bits[i] & ~done) | in;
-            c->todo[i] &= ~done;
-            left += (uint64_t)__builtin_popcountll(d & ~done);
-        }
-    mv_beat(c->f->pulse, (uint32_t)(nr->n * (hi[0] - lo[0]) * (hi[1] - lo[1]) / 8 + 1));
-    return left;
-}
-
 /* The samples of the cell still to do to mv_wind_block. */
 static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
 {
@@ -412,11 +391,9 @@ static bool try_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], dou
     return true;
 }
 
-/* Cell [lo, hi): a bound of |w_C| decides it whole or sample by sample
- * (the leaves near the cell at each sample) where it keeps under 0.45;
- * else a query of the caps' tree decides it whole (w_C off every half
- * integer) or sample by sample (near triangles exact), else its eight
- * halves. */
+/* Cell [lo, hi): a query of the caps' tree decides it whole (w_C off
+ * every half integer) or sample by sample (near triangles exact), else
+ * its eight halves. */
 static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 {
     uint64_t n = mv_cell_count(c->b, c->todo, lo, hi);
@@ -435,16 +412,12 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
     double mag;
-    mv_near nr;
-    if (!one && mv_wind_mag_near(c->caps, b, sqrt(r2) * (1 + 1e-9), MAG_MAX, TOL_MAG, &nr, &mag,
-                                 &work)) {
-        if (!nr.n) cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
-        n = nr.n ? cell_by_mag(c, lo, hi, &nr, mag) : 0;
-        if (!n) {
-            mv_beat(c->f->pulse, work);
-            return;
-        }
+    if (!one && mv_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
+        mv_beat(c->f->pulse, work);
+        cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
+        return;
     }
+    mv_near nr;
     bool ok = mv_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
                            &nr, &v, &e, &work);
     mv_beat(c->f->pulse, work);

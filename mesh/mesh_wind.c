@@ -465,25 +465,24 @@ bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax,
     return ok;
 }
 
-bool mv_wind_mag_near(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
-                      mv_near *near, double *bound, uint32_t *work)
+bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+                 double *bound, uint32_t *work)
 {
     uint32_t stack[128], sp = 0, visits = 0;
     double e4 = 0, e4max = emax * 4 * M_PI, tol4 = tol * 4 * M_PI;
     bool ok = true;
-    near->n = 0;
     stack[sp++] = 0;
     while (sp && ok) {
         const wnode *n = &t->nodes[stack[--sp]];
         double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
         double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r - rho;
         visits++;
+        /* a triangle of area a at distance f subtends at most a / f^2 */
         double e = f > 0 ? n->area / (f * f) : INFINITY;
         if (e <= tol4) {
             e4 += e;
-        } else if (n->count) { /* a leaf the samples bound one by one */
-            ok = near->n < MV_NEAR_MAX;
-            if (ok) near->leaf[near->n++] = (uint32_t)(n - t->nodes);
+        } else if (n->count) {
+            ok = f > 0 && (e4 += e) <= e4max;
         } else {
             stack[sp++] = n->first + 1;
             stack[sp++] = n->first;
@@ -493,19 +492,6 @@ bool mv_wind_mag_near(const mv_wtree *t, const double b[3], double rho, double e
     if (work) *work += visits;
     *bound = e4 / (4 * M_PI) + 1e-9;
     return ok;
-}
-
-double mv_wind_mag_at(const mv_wtree *t, const mv_near *near, const double p[3])
-{
-    double e4 = 0;
-    for (uint32_t k = 0; k < near->n; k++) {
-        const wnode *n = &t->nodes[near->leaf[k]];
-        double d[3] = {n->c[0] - p[0], n->c[1] - p[1], n->c[2] - p[2]};
-        double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r;
-        if (!(f > 0)) return INFINITY;
-        e4 += n->area / (f * f);
-    }
-    return e4 / (4 * M_PI);
 }
 
 /* ---- a block's samples ---- */
