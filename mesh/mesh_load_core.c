@@ -125,23 +125,25 @@ int mb_zero_area(const float *a, const float *b, const float *c)
 }
 
 /* Triangles [from, to) of b: the box of those kept (not degenerate) grown
- * in lo and hi, the kept ones copied to out[0, kept) when out is not NULL
- * (out may be b->t + from: each goes to or below its own place).  The box
- * takes the first of equal values (-0 and +0): folding parts in order
- * gives what one pass over all of them gives. */
+ * in lo and hi and the number kept returned; each kept one copied to
+ * out[0, kept) when out is not NULL (out may be b->t + from: each goes to
+ * or below its own place), and keep[i - from] set to whether triangle i
+ * is kept when keep is not NULL.  The box takes the first of equal values
+ * (-0 and +0): folding parts in order gives what one pass gives. */
 static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, float lo[3],
-                            float hi[3], uint32_t (*out)[3])
+                            float hi[3], uint32_t (*out)[3], uint8_t *keep)
 {
     /* the box in scalars, so that they stay in registers */
     float lx = lo[0], ly = lo[1], lz = lo[2], hx = hi[0], hy = hi[1], hz = hi[2];
     uint32_t kept = 0;
     for (uint32_t i = from; i < to; i++) {
         uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
-        if (t0 == t1 || t1 == t2 || t0 == t2) continue;
         const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
-        if (mb_zero_area(p[0], p[1], p[2])) continue;
-        for (int k = 0; k < 3; k++) {
-            float x = p[k][0], y = p[k][1], z = p[k][2];
+        int k = t0 != t1 && t1 != t2 && t0 != t2 && !mb_zero_area(p[0], p[1], p[2]);
+        if (keep) keep[i - from] = (uint8_t)k;
+        if (!k) continue;
+        for (int c = 0; c < 3; c++) {
+            float x = p[c][0], y = p[c][1], z = p[c][2];
             lx = x < lx ? x : lx, ly = y < ly ? y : ly, lz = z < lz ? z : lz;
             hx = x > hx ? x : hx, hy = y > hy ? y : hy, hz = z > hz ? z : hz;
         }
@@ -152,18 +154,19 @@ static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, float l
     return kept;
 }
 
-/* mb_finish on every CPU for a large mesh: each part's box and count
- * first; when some triangles are degenerate, each part copies its kept
- * ones to its place (the counts' prefix sums) in a new array. */
+/* mb_finish on every CPU for a large mesh: each part's box, count and
+ * kept flags; then, when some triangles are degenerate, one pass moves the
+ * kept ones down in place by the flags (a copy into a new array by every
+ * CPU cost more than it saved: its fresh pages' faults). */
 #define FINISH_PAR_MIN 65536 /* triangles: fewer are finished by one thread */
 #define FINISH_PARTS 64
 
 typedef struct {
     const mbuild *b;
-    uint32_t (*out)[3]; /* the second pass's array; NULL in the first */
+    uint8_t *keep;      /* a triangle's flag: kept */
     atomic_uint next;   /* the next part to take */
     float lo[FINISH_PARTS][3], hi[FINISH_PARTS][3];
-    uint32_t kept[FINISH_PARTS + 1]; /* then the prefix sums: each part's place */
+    uint32_t kept[FINISH_PARTS];
 } finish_par;
 
 static void finish_parts(void *ud, unsigned k, unsigned n)
@@ -175,27 +178,25 @@ static void finish_parts(void *ud, unsigned k, unsigned n)
     for (uint32_t i; (i = atomic_fetch_add_explicit(&fp->next, 1, memory_order_relaxed)) <
                      FINISH_PARTS;) {
         uint32_t from = (uint32_t)(nt * i / FINISH_PARTS), to = (uint32_t)(nt * (i + 1) / FINISH_PARTS);
-        if (!fp->out) {
-            fp->lo[i][0] = fp->lo[i][1] = fp->lo[i][2] = FLT_MAX;
-            fp->hi[i][0] = fp->hi[i][1] = fp->hi[i][2] = -FLT_MAX;
-            fp->kept[i] = finish_part(fp->b, from, to, fp->lo[i], fp->hi[i], NULL);
-        } else {
-            float lo[3], hi[3];
-            finish_part(fp->b, from, to, lo, hi, fp->out + fp->kept[i]);
-        }
+        fp->lo[i][0] = fp->lo[i][1] = fp->lo[i][2] = FLT_MAX;
+        fp->hi[i][0] = fp->hi[i][1] = fp->hi[i][2] = -FLT_MAX;
+        fp->kept[i] = finish_part(fp->b, from, to, fp->lo[i], fp->hi[i], NULL, fp->keep + from);
     }
 }
 
-/* The kept triangles' count and box, b->t compacted; 0 or -ENOMEM. */
-static int finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
+/* The kept triangles' count and box, b->t compacted. */
+static void finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
 {
     unsigned cpus = par_cpus();
-    if (b->nt < FINISH_PAR_MIN || cpus < 2) {
-        *kept = finish_part(b, 0, b->nt, lo, hi, b->t);
-        return 0;
+    finish_par *fp = b->nt >= FINISH_PAR_MIN && cpus > 1 ? calloc(1, sizeof *fp) : NULL;
+    if (fp && !(fp->keep = malloc(b->nt))) {
+        free(fp);
+        fp = NULL;
     }
-    finish_par *fp = calloc(1, sizeof *fp);
-    if (!fp) return -ENOMEM;
+    if (!fp) { /* one thread */
+        *kept = finish_part(b, 0, b->nt, lo, hi, b->t, NULL);
+        return;
+    }
     fp->b = b;
     atomic_init(&fp->next, 0);
     par_run(cpus, finish_parts, fp);
@@ -205,34 +206,24 @@ static int finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
             lo[a] = fp->lo[i][a] < lo[a] ? fp->lo[i][a] : lo[a];
             hi[a] = fp->hi[i][a] > hi[a] ? fp->hi[i][a] : hi[a];
         }
-        uint32_t c = fp->kept[i];
-        fp->kept[i] = sum;
-        sum += c;
+        sum += fp->kept[i];
     }
-    int rc = 0;
-    if (sum < b->nt && sum > 0) {
-        fp->out = malloc((size_t)sum * sizeof *fp->out);
-        if (fp->out) {
-            atomic_store_explicit(&fp->next, 0, memory_order_relaxed); /* before the threads */
-            par_run(cpus, finish_parts, fp);
-            free(b->t);
-            b->t = fp->out;
-            b->cap_t = sum;
-        } else {
-            rc = -ENOMEM;
-        }
+    if (sum < b->nt) { /* each kept one goes to or below its own place */
+        const uint8_t *first = memchr(fp->keep, 0, b->nt);
+        uint32_t k = (uint32_t)(first - fp->keep);
+        for (uint32_t t = k; t < b->nt; t++)
+            if (fp->keep[t]) memcpy(b->t[k++], b->t[t], sizeof *b->t);
     }
+    free(fp->keep);
     free(fp);
     *kept = sum;
-    return rc;
 }
 
 int mb_finish(mbuild *b, mesh_format f, mesh *out)
 {
     float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
     uint32_t kept;
-    if (finish_all(b, lo, hi, &kept))
-        return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory for %u triangles", b->nt);
+    finish_all(b, lo, hi, &kept);
     uint32_t dropped = b->nt - kept;
     if (!kept)
         return b->nt ? mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles: all %u are degenerate", b->nt)
