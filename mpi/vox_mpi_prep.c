@@ -143,6 +143,12 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
         mpi_msg("vox_mpi csg reads its tree from a file, not standard input");
         return CLI_EXIT_USAGE;
     }
+    /* a tree's distance needs its band in the leaves (csg_tree_set_band) and f32 mesh
+     * leaves (csg_leaf_bits), which the ranks do not make yet */
+    if (co.channel == VOXEL_CH_DISTANCE) {
+        mpi_msg("--channel distance is not available through vox_mpi yet: use vox csg");
+        return CLI_EXIT_USAGE;
+    }
     uint64_t text_bytes;
     if ((rc = cli_csg_load(co.in, &p->tree, &text_bytes))) return rc;
     p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */

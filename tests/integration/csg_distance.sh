@@ -6,6 +6,8 @@
 # file; bad bands and trees without a distance are refused in one line,
 # naming the node, and leave no file.  (The values against closed forms:
 # tests/unit/test_csg_distance.c.)
+# vox_mpi: the release build's (the runner's $VOX), as distance.sh takes it.
+VOXMPI=$(dirname "${VOX:-build/release/vox}")/vox_mpi
 . "$(dirname "$0")/daemon_lib.bash"
 ICO=$PWD/tests/golden/ico.obj
 
@@ -60,6 +62,9 @@ refuse "add does not combine distances" 2 "node 'c' \\(add\\): this operator doe
     "$VOX" csg "$TMP/add.csg" -r 32 --channel distance -o "$TMP/x.vod"
 refuse "vox submit --csg takes no band" 2 "^vox: submit: --band with --csg" \
     "$VOX" submit --csg "$TMP/balls.csg" -r 32 --channel distance --band 4 -o "$TMP/x.vod"
+refuse "vox_mpi refuses a tree's distance, for now, in one line" 2 \
+    "^vox_mpi: --channel distance is not available through vox_mpi yet: use vox csg$" \
+    "$VOXMPI" csg "$TMP/balls.csg" -r 32 --channel distance -o "$TMP/x.vod"
 [ ! -e "$TMP/x.vod" ] && pass "no file after a refusal" || fail "no file after a refusal"
 
 # ---------------------------------------------------------------- voxd
