@@ -368,9 +368,11 @@ static int assemble(engine *e, encode_job *ej, const uint8_t **data)
 {
     encode_block *b = sched_block(e);
     char msg[sizeof ej->err->message] = "";
-    int rc = vod_assemble(&b->L, ej->p, b->n, shm_at(e->seg.base, b->nodes_off),
-                          shm_at(e->seg.base, b->recs_off), data, ej->sink,
-                          ej->st, msg, sizeof msg);
+    vod_assembly a = {.L = &b->L, .p = ej->p, .n = b->n,
+                      .nodes = shm_at(e->seg.base, b->nodes_off),
+                      .recs = shm_at(e->seg.base, b->recs_off), .data = data,
+                      .sink = ej->sink, .st = ej->st, .err = msg, .errlen = sizeof msg};
+    int rc = vod_assemble(&a);
     if (!rc) return 0;
     return sched_fail(e, engine_vod_failure(rc, msg[0]), rc, "%s",
                       msg[0] ? msg : strerror(-rc));

@@ -289,7 +289,9 @@ static int assemble(master *m, const vod_layout *L, const vod_params *v, int fd,
     }
     if (rc) err_fmt(err, errlen, rc, "%s", strerror(-rc));
     vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
-    if (!rc) rc = vod_assemble(L, v, n, nodes, recs, data, &sink, st, err, errlen);
+    vod_assembly a = {.L = L, .p = v, .n = n, .nodes = nodes, .recs = recs, .data = data,
+                      .sink = &sink, .st = st, .err = err, .errlen = errlen};
+    if (!rc) rc = vod_assemble(&a);
     if (rc && !err[0]) snprintf(err, errlen, "%s", strerror(-rc));
     if (map) munmap((void *)map, m->spill_bytes);
     free(nodes);

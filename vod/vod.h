@@ -297,10 +297,19 @@ typedef struct {
  * strictly increasing in preorder or a size above vod_encode_bound, -EFBIG
  * when the file would pass 4 GiB, -ENOMEM, each with its message in err;
  * or the sink's error, with err left empty (the sink's owner knows why). */
-int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
-                 const vod_node *nodes, const vod_encoded *recs,
-                 const uint8_t *const *data, vod_sink *sink, vod_stats *st,
-                 char *err, size_t errlen);
+typedef struct {
+    const vod_layout *L;
+    const vod_params *p;
+    size_t n;                   /* bricks: nodes, recs and data have n each */
+    const vod_node *nodes;
+    const vod_encoded *recs;
+    const uint8_t *const *data;
+    vod_sink *sink;
+    vod_stats *st;              /* NULL: no figures */
+    char *err;                  /* the message, errlen bytes */
+    size_t errlen;
+} vod_assembly;
+int vod_assemble(const vod_assembly *a);
 
 /* All three phases in this process: the byte-for-byte reference for a
  * parallel writer.  0, or a negative errno with its message in err. */

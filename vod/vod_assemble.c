@@ -16,6 +16,7 @@
 
 #include <errno.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -300,40 +301,97 @@ static int write_trailer(const vod_params *p, uint64_t at, size_t meta, vod_sink
     return rc < 0 ? rc : 0;
 }
 
-/* IDs 1..u by first use.  Candidates come from the hash; a match is
- * confirmed by comparing the encoded bytes.  That is the same as comparing
- * the raw bricks: every brick of a file is encoded by the same
- * deterministic function of its raw bytes (same algorithm, same level), so
- * equal raw bricks give equal encodings, and decoding is a function, so
- * equal encodings come from equal raw bricks.  Equal hashes alone never
- * merge.  Duplicates an encoder already found (vod_encoder_put) point at
- * the same bytes: no comparison then. */
-static int dedup(size_t n, const vod_encoded *recs, const uint8_t *const *data,
-                 uint32_t *ids, uint32_t *first, uint32_t *unique)
+/* Duplicates: every brick pointed at the first brick with the same bytes
+ * (first_of[i] = j <= i), then IDs 1..u by first use.  Candidates come
+ * from the hash; a match is confirmed by comparing the encoded bytes.
+ * That is the same as comparing the raw bricks: every brick of a file is
+ * encoded by the same deterministic function of its raw bytes (same
+ * algorithm, same level), so equal raw bricks give equal encodings, and
+ * decoding is a function, so equal encodings come from equal raw bricks.
+ * Equal hashes alone never merge.  Duplicates an encoder already found
+ * (vod_encoder_put) point at the same bytes: no comparison then.
+ *
+ * The search runs on several threads (issue 24: it was a serial span of
+ * 0.1-0.25 s after the bricks on a loaded machine): the hashes are cut
+ * into parts by a mix of their bits, each part searched by one thread in
+ * a table of its own, in the bricks' order.  Equal bytes have equal
+ * hashes, so a brick's duplicates are all in its part, and the first of
+ * them is found whatever the other parts do: the IDs are those of one
+ * thread. */
+#define DEDUP_MIN_PER_THREAD 8192u /* fewer bricks a thread: not worth one */
+
+typedef struct {
+    size_t n;
+    const vod_encoded *recs;
+    const uint8_t *const *data;
+    uint32_t *first_of;
+    atomic_int err; /* -ENOMEM from any part (relaxed: read after par_run's
+                       join, which orders it) */
+} dedup_job;
+
+static unsigned dedup_part(uint32_t h, unsigned n)
 {
-    size_t cap = 16;
-    while (cap < 2 * n) cap *= 2;
-    uint32_t *slot = calloc(cap, sizeof *slot), u = 0;
-    if (!slot) return -ENOMEM;
-    for (size_t i = 0; i < n; i++) {
-        uint32_t h = recs[i].hash;
+    return (unsigned)(((uint64_t)(uint32_t)(h * 2654435761u) * n) >> 32);
+}
+
+static int same_brick(const dedup_job *d, size_t k, size_t i)
+{
+    const vod_encoded *r = d->recs;
+    return r[k].hash == r[i].hash && r[k].size == r[i].size &&
+           (d->data[k] == d->data[i] ||
+            memcmp(d->data[k], d->data[i], r[i].size) == 0);
+}
+
+/* Part k of n: its bricks, in order, into a table of first indices + 1. */
+static void dedup_part_run(void *ud, unsigned k, unsigned n)
+{
+    dedup_job *d = ud;
+    size_t mine = 0, cap = 16;
+    for (size_t i = 0; i < d->n; i++) mine += dedup_part(d->recs[i].hash, n) == k;
+    while (cap < 2 * mine) cap *= 2;
+    uint32_t *slot = calloc(cap, sizeof *slot);
+    if (!slot) {
+        atomic_store_explicit(&d->err, -ENOMEM, memory_order_relaxed);
+        return;
+    }
+    for (size_t i = 0; i < d->n; i++) {
+        uint32_t h = d->recs[i].hash;
+        if (dedup_part(h, n) != k) continue;
         for (size_t j = (h ^ h >> 15) & (cap - 1);; j = (j + 1) & (cap - 1)) {
-            uint32_t s = slot[j];
-            if (!s) {
-                slot[j] = ids[i] = ++u;
-                first[u - 1] = (uint32_t)i;
+            if (!slot[j]) {
+                slot[j] = (uint32_t)i + 1;
+                d->first_of[i] = (uint32_t)i;
                 break;
             }
-            const uint32_t k = first[s - 1];
-            if (recs[k].hash == h && recs[k].size == recs[i].size &&
-                (data[k] == data[i] ||
-                 memcmp(data[k], data[i], recs[i].size) == 0)) {
-                ids[i] = s;
+            if (same_brick(d, slot[j] - 1, i)) {
+                d->first_of[i] = slot[j] - 1;
                 break;
             }
         }
     }
     free(slot);
+}
+
+/* ids[i] in 1..u, first[id - 1] the brick that first used it. */
+static int dedup(size_t n, const vod_encoded *recs, const uint8_t *const *data,
+                 uint32_t *ids, uint32_t *first, uint32_t *unique)
+{
+    dedup_job d = {.n = n, .recs = recs, .data = data, .first_of = first};
+    atomic_init(&d.err, 0);
+    unsigned threads = par_cpus();
+    if (threads > ASSEMBLE_THREADS) threads = ASSEMBLE_THREADS;
+    if (threads > n / DEDUP_MIN_PER_THREAD) threads = (unsigned)(n / DEDUP_MIN_PER_THREAD);
+    par_run(threads ? threads : 1, dedup_part_run, &d);
+    int rc = atomic_load_explicit(&d.err, memory_order_relaxed);
+    if (rc) return rc;
+    /* first[] held first_of[]; ids[] now, then first[] over it: the u-th
+     * new brick is at i >= u - 1, so first[u - 1] is no longer read. */
+    uint32_t u = 0;
+    for (size_t i = 0; i < n; i++) {
+        uint32_t j = first[i];
+        ids[i] = j == i ? ++u : ids[j];
+        if (j == i) first[u - 1] = (uint32_t)i;
+    }
     *unique = u;
     return 0;
 }
@@ -409,21 +467,23 @@ static int write_file(const vod_layout *L, const vod_params *p, file_plan *f,
     return rc;
 }
 
-int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
-                 const vod_node *nodes, const vod_encoded *recs,
-                 const uint8_t *const *data, vod_sink *sink, vod_stats *st,
-                 char *err, size_t errlen)
+int vod_assemble(const vod_assembly *a)
 {
+    const vod_layout *L = a->L;
+    const vod_params *p = a->p;
+    size_t n = a->n;
+    char *err = a->err;
+    size_t errlen = a->errlen;
     if (errlen) err[0] = '\0';
     double t0 = clock_now();
-    int rc = check_inputs(L, p, n, nodes, recs, data);
+    int rc = check_inputs(L, p, n, a->nodes, a->recs, a->data);
     if (rc)
         return err_fmt(err, errlen, rc, "bricks out of preorder or over their bound");
     uint32_t *ids = malloc((n + 1) * sizeof *ids);
     uint32_t *first = malloc((n + 1) * sizeof *first);
-    file_plan f = {.nodes = nodes, .recs = recs, .data = data, .ids = ids,
+    file_plan f = {.nodes = a->nodes, .recs = a->recs, .data = a->data, .ids = ids,
                    .first = first, .n = n};
-    rc = ids && first ? dedup(n, recs, data, ids, first, &f.u) : -ENOMEM;
+    rc = ids && first ? dedup(n, a->recs, a->data, ids, first, &f.u) : -ENOMEM;
     if (!rc && !(f.boff = malloc(((size_t)f.u + 1) * sizeof *f.boff))) rc = -ENOMEM;
     if (rc) {
         err_fmt(err, errlen, rc, "out of memory for %zu bricks", n);
@@ -433,7 +493,7 @@ int vod_assemble(const vod_layout *L, const vod_params *p, size_t n,
         if (f.boff[f.u] + TRAILER_FIXED + meta > UINT32_MAX)
             rc = too_big(err, errlen, L, p, f.u);
         else
-            rc = write_file(L, p, &f, sink, st, t0);
+            rc = write_file(L, p, &f, a->sink, a->st, t0);
     }
     free(f.boff);
     free(ids);

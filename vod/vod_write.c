@@ -635,7 +635,10 @@ static int write_planned(const vod_source *s, const vod_layout *L,
     }
     if (!rc) {
         for (size_t i = 0; i < n; i++) data[i] = b.p + off[i];
-        rc = vod_assemble(L, p, n, nodes, recs, data, sink, st, err, errlen);
+        vod_assembly a = {.L = L, .p = p, .n = n, .nodes = nodes, .recs = recs,
+                          .data = data, .sink = sink, .st = st, .err = err,
+                          .errlen = errlen};
+        rc = vod_assemble(&a);
     }
     if (!rc && st) vod_times_add(&st->t, &t);
     free(nodes);

@@ -282,7 +282,9 @@ static void assemble_same(scheme *sp, const vod_layout *Lp, const vod_params *pp
     }
     vod_membuf got = {0};
     vod_sink gs = {vod_mem_write, &got};
-    cr_assert_eq(vod_assemble(&L, &p, s.n, nodes, recs, data, &gs, NULL, err, sizeof err), 0,
+    vod_assembly a = {.L = &L, .p = &p, .n = s.n, .nodes = nodes, .recs = recs,
+                      .data = data, .sink = &gs, .err = err, .errlen = sizeof err};
+    cr_assert_eq(vod_assemble(&a), 0,
                  "%s", err);
     cr_assert_eq(got.n, ref.n, "%zu bytes, want %zu (%s, %u^3, %zu subtrees of level %d)",
                  got.n, ref.n, src, res, c.n, c.level);

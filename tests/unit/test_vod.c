@@ -573,7 +573,10 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
-    cr_assert_eq(vod_assemble(&L, &p, n, nodes, recs, (const uint8_t *const *)data, &sink, &st, err, sizeof err), 0);
+    cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = n, .nodes = nodes,
+                                              .recs = recs, .data = (const uint8_t *const *)data,
+                                              .sink = &sink, .st = &st,
+                                              .err = err, .errlen = sizeof err}), 0);
     cr_assert_eq(m.n, ref.n);
     cr_assert_arr_eq(m.p, ref.p, m.n);
     cr_assert_eq(st.nonempty_nodes, n);
@@ -629,7 +632,10 @@ Test(vod_write, file_past_4_gib_is_refused_before_writing)
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
-    cr_assert_eq(vod_assemble(&L, &p, N, nodes, recs, data, &sink, &st, err, sizeof err), -EFBIG);
+    cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = N, .nodes = nodes,
+                                              .recs = recs, .data = data,
+                                              .sink = &sink, .st = &st,
+                                              .err = err, .errlen = sizeof err}), -EFBIG);
     cr_assert_eq(m.calls, 0);
     cr_assert(strstr(err, "would pass 4 GiB") && strstr(err, "65 unique bricks"), "%s", err);
     free(raw);

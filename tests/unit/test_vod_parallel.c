@@ -153,8 +153,10 @@ static membuf assemble(const forged *f, vod_stats *st, int fail_at, int *rc)
     membuf m = {.fail_at = fail_at};
     vod_sink sink = {mem_write, &m};
     char err[256];
-    *rc = vod_assemble(&f->L, &f->p, f->n, f->nodes, f->recs, f->data, &sink, st, err,
-                       sizeof err);
+    vod_assembly a = {.L = &f->L, .p = &f->p, .n = f->n, .nodes = f->nodes,
+                      .recs = f->recs, .data = f->data, .sink = &sink, .st = st,
+                      .err = err, .errlen = sizeof err};
+    *rc = vod_assemble(&a);
     return m;
 }
 
