@@ -24,6 +24,7 @@
 #include <stdint.h>
 
 #include "csg.h"
+#include "csg_pack.h"
 #include "engine.h"
 #include "expr.h"
 #include "grid.h"
@@ -132,13 +133,8 @@ void mpi_column_tiles(const grid_spec *g, grid_octant o, uint32_t tiles[4]);
 int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver,
                     void *ud, char *err, size_t errlen);
 
-/* ---- what mesh and CSG jobs send (mpi_wire.c) ---- */
+/* ---- what mesh jobs send (mpi_wire.c; a CSG tree goes as csg_pack.h packs it) ---- */
 
-/* A CSG tree and its file leaves' bytes as one buffer (malloc'd), and
- * back (checked: counts, lengths, children below their parent, text
- * references inside the text; -EPROTO when not). */
-int mpi_csg_pack(const csg_tree *t, uint8_t **out, size_t *len);
-int mpi_csg_unpack(const uint8_t *buf, size_t len, csg_tree **out);
 /* The triangles the tiles need (bins: m's, for the job's grid and
  * options), with their vertices, as one buffer (malloc'd): the triangles
  * in m's order, so that a tile sees the same ones in the same order;

@@ -97,7 +97,7 @@ static const char *take_input(const wire_job *j, void *input, csg_tree **tree)
     if (j->kind == MPI_KIND_IMPLICIT)
         return expr_tape_validate(input, j->input_bytes) ? "the job's tape came damaged" : NULL;
     if (j->kind == MPI_KIND_CSG)
-        return mpi_csg_unpack(input, j->input_bytes, tree) ? "the job's tree came damaged"
+        return csg_tree_unpack(input, j->input_bytes, tree) ? "the job's tree came damaged"
                                                             : NULL;
     return j->kind == MPI_KIND_MESH && !j->input_bytes ? NULL : "the job came damaged";
 }

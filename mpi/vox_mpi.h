@@ -31,7 +31,7 @@ enum { TAG_REQ = 1, TAG_NODES, TAG_BRICKS, TAG_FAIL, /* up, to rank 0 */
 
 /* The job as broadcast; status >= 0: every rank exits with it.  Behind
  * it, input_bytes of the job's input: an implicit job's tape, a CSG job's
- * tree (mpi_csg_pack); a mesh job's triangles go with its tasks. */
+ * tree (csg_tree_pack); a mesh job's triangles go with its tasks. */
 typedef struct {
     int32_t status, schedule;
     int32_t kind, pad;   /* mpi_kind */
@@ -126,6 +126,14 @@ typedef struct {
     /* --source-name: the name the file's metadata gives the source (voxd
      * runs a client's job from a private copy); "" none */
     const char *source_name;
+    /* voxd's: the job's mesh format (AUTO: from the contents); a csg
+     * FILE packed as csg_pack.h packs it, the tree text's size for the
+     * metadata, and the options vox csg has not: --brick, --hash,
+     * --progress (0 when not given) */
+    mesh_format mesh_format;
+    int packed, csg_progress;
+    uint64_t source_bytes;
+    uint32_t csg_brick, csg_hash;
     mpi_kind kind;
     source src;
     expr_tape *tape;       /* implicit */

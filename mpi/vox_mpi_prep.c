@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 
 #include "par.h"
@@ -54,31 +55,76 @@ static void usage(FILE *f)
 "(docs/mpi.md).\n", SUBTREES_PER_RANK);
 }
 
-/* Take vox_mpi's own options out of argv (the rest is vox voxelize's). */
+/* --mesh-format NAME: 0, or -1 when NAME is no format's. */
+static int parse_mesh_format(const char *s, mesh_format *f)
+{
+    static const mesh_format all[] = {MESH_FORMAT_OBJ, MESH_FORMAT_STL, MESH_FORMAT_PLY,
+                                      MESH_FORMAT_OFF, MESH_FORMAT_GLTF};
+    for (size_t i = 0; i < sizeof all / sizeof *all; i++)
+        if (!strcasecmp(s, mesh_format_name(all[i]))) return *f = all[i], 0;
+    return -1;
+}
+
+/* vox csg's job given the options voxd passes and vox csg has not:
+ * 1 when argv[i] (and its value, then *i moves on) was one, 0 when not,
+ * -1 after a message. */
+static int csg_option(prep *p, int argc, char **argv, int *i)
+{
+    const char *a = argv[*i], *v = *i + 1 < argc ? argv[*i + 1] : NULL;
+    uint32_t u;
+    if (!strcmp(a, "--packed")) return p->packed = 1;
+    if (!strcmp(a, "--progress")) return p->csg_progress = 1;
+    if (strcmp(a, "--brick") && strcmp(a, "--hash") && strcmp(a, "--source-bytes")) return 0;
+    ++*i;
+    if (!strcmp(a, "--brick") && v && !cli_parse_uint(v, 2, 256, &u) && !(u & (u - 1)))
+        return p->csg_brick = u, 1;
+    if (!strcmp(a, "--hash") && v && (!strcmp(v, "sfhs") || !strcmp(v, "xx32")))
+        return p->csg_hash = !strcmp(v, "sfhs") ? VOD_HASH_SFHS : VOD_HASH_XX32, 1;
+    if (!strcmp(a, "--source-bytes") && v && !cli_parse_uint(v, 0, UINT32_MAX, &u))
+        return p->source_bytes = u, 1;
+    mpi_msg("bad %s '%.40s'", a, v ? v : "");
+    return -1;
+}
+
+/* One of vox_mpi's own options at argv[*i] taken (1), none (0), or -1
+ * after a message. */
+static int own_option(prep *p, int argc, char **argv, int *i)
+{
+    const char *a = argv[*i];
+    if (!strcmp(a, "--stats")) return p->stats = 1;
+    if (!strcmp(a, "--subtrees")) {
+        if (++*i >= argc || cli_parse_uint(argv[*i], 1, 4096, &p->per_rank)) {
+            mpi_msg("bad --subtrees: want a whole number from 1 to 4096");
+            return -1;
+        }
+        return 1;
+    }
+    if (!strcmp(a, "--source-name") || !strcmp(a, "--mesh-format")) {
+        if (++*i >= argc) {
+            mpi_msg("%s wants a value", a);
+            return -1;
+        }
+        if (a[2] == 's') return p->source_name = argv[*i], 1;
+        if (!parse_mesh_format(argv[*i], &p->mesh_format)) return 1;
+        mpi_msg("bad --mesh-format '%.40s': want obj, stl, ply, off or gltf", argv[*i]);
+        return -1;
+    }
+    return argc > 1 && !strcmp(argv[1], "csg") ? csg_option(p, argc, argv, i) : 0;
+}
+
+/* Take vox_mpi's own options out of argv (the rest is vox voxelize's or
+ * vox csg's). */
 static int own_options(prep *p, int *argc, char **argv)
 {
     int k = 0;
     for (int i = 0; i < *argc; i++) {
-        if (!strcmp(argv[i], "--stats")) {
-            p->stats = 1;
-        } else if (!strcmp(argv[i], "--subtrees")) {
-            if (i + 1 >= *argc || cli_parse_uint(argv[i + 1], 1, 4096, &p->per_rank)) {
-                mpi_msg("bad --subtrees: want a whole number from 1 to 4096");
-                return CLI_EXIT_USAGE;
-            }
-            i++;
-        } else if (!strcmp(argv[i], "--source-name")) {
-            if (i + 1 >= *argc) {
-                mpi_msg("--source-name wants a name (\"\" for none)");
-                return CLI_EXIT_USAGE;
-            }
-            p->source_name = argv[++i];
-        } else if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+        if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
             usage(stdout);
             return CLI_EXIT_OK;
-        } else {
-            argv[k++] = argv[i];
         }
+        int rc = i ? own_option(p, *argc, argv, &i) : 0;
+        if (rc < 0) return CLI_EXIT_USAGE;
+        if (!rc) argv[k++] = argv[i];
     }
     *argc = k;
     return -1;
@@ -109,7 +155,7 @@ static int prepare_implicit(prep *p, pipeline_job *pj)
 static int prepare_mesh(prep *p, pipeline_job *pj)
 {
     mesh_error merr;
-    if (mesh_load(p->o.mesh, MESH_FORMAT_AUTO, NULL, &p->mesh, &merr)) {
+    if (mesh_load(p->o.mesh, p->mesh_format, NULL, &p->mesh, &merr)) {
         char m[sizeof merr.msg + 64];
         mpi_msg("%s: %s", p->o.mesh, mesh_error_str(&merr, m, sizeof m));
         return CLI_EXIT_USAGE;
@@ -133,6 +179,21 @@ static int prepare_mesh(prep *p, pipeline_job *pj)
     return -1;
 }
 
+/* A tree packed as csg_pack.h packs it (voxd's job file): 0, or the
+ * exit code after a message. */
+static int load_packed(const char *path, csg_tree **out)
+{
+    char *buf;
+    size_t len;
+    int rc = cli_read_file(path, INT32_MAX, &buf, &len); /* one broadcast */
+    if (!rc) {
+        rc = csg_tree_unpack((const uint8_t *)buf, len, out);
+        free(buf);
+    }
+    if (rc) mpi_msg("%s: %s", path, rc == -EPROTO ? "not a packed CSG tree" : strerror(-rc));
+    return rc ? CLI_EXIT_USAGE : 0;
+}
+
 /* vox csg's options into the job's (the rest of vox_mpi reads those). */
 static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
 {
@@ -149,10 +210,11 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
         mpi_msg("--channel distance is not available through vox_mpi yet: use vox csg");
         return CLI_EXIT_USAGE;
     }
-    uint64_t text_bytes;
-    if ((rc = cli_csg_load(co.in, &p->tree, &text_bytes))) return rc;
+    uint64_t text_bytes = p->source_bytes;
+    if ((rc = p->packed ? load_packed(co.in, &p->tree) : cli_csg_load(co.in, &p->tree, &text_bytes)))
+        return rc;
     p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */
-    if ((rc = mpi_csg_pack(p->tree, &p->input, &p->input_bytes))) {
+    if ((rc = csg_tree_pack(p->tree, &p->input, &p->input_bytes))) {
         mpi_msg("%s: %s", co.in, strerror(-rc));
         return CLI_EXIT_FAILED;
     }
@@ -169,6 +231,9 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
     vod_params_default(&p->o.vod);
     p->o.vod.channel = co.channel;
     p->o.vod.comp = co.comp;
+    if (p->csg_brick) p->o.vod.brick = p->csg_brick;
+    if (p->csg_hash) p->o.vod.hash = p->csg_hash;
+    p->o.progress = p->csg_progress;
     memcpy(p->o.lo, co.lo, sizeof co.lo);
     memcpy(p->o.hi, co.hi, sizeof co.hi);
     pj->kind = PIPELINE_CSG;

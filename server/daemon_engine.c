@@ -269,8 +269,9 @@ static int compile(vd_job *j, expr_tape **tape)
 
 /* The mesh from the job's bytes, parsed here whatever a client did (its
  * messages with the file's line or byte); then the bytes are freed, the
- * mesh holding what the job needs.  0, or -1 with the job's error set. */
-static int parse_mesh(vd_job *j, mesh *m)
+ * mesh holding what the job needs, unless keep (an MPI run hands them to
+ * vox_mpi).  0, or -1 with the job's error set. */
+static int parse_mesh(vd_job *j, mesh *m, int keep)
 {
     mesh_limits lim = {.max_triangles = j->max_triangles};
     mesh_error me = {0};
@@ -290,8 +291,10 @@ static int parse_mesh(vd_job *j, mesh *m)
         return -1;
     }
     if (rc == 0) {
-        free(j->source);
-        j->source = NULL;
+        if (!keep) {
+            free(j->source);
+            j->source = NULL;
+        }
         return 0;
     }
     char at[48] = "";
@@ -379,11 +382,13 @@ static void run_pipeline(engine *e, vd_job *j, pipeline_job *job, uint64_t room)
 
 /* The kind's part of the pipeline job, as vox voxelize fills it (so the
  * bytes are the same): the expression compiled or the mesh parsed, into
- * *tape or *m (the caller frees them).  0, or -1 with the job's error. */
-static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m)
+ * *tape or *m (the caller frees them), a bad input refused here with its
+ * typed error even when the job then runs through MPI (mpi: the mesh's
+ * bytes kept for vox_mpi).  0, or -1 with the job's error. */
+static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m, int mpi)
 {
     if (j->kind == PIPELINE_MESH) {
-        if (parse_mesh(j, m)) return -1;
+        if (parse_mesh(j, m, mpi)) return -1;
         job->kind = PIPELINE_MESH;
         job->mesh.mesh = m;
         job->mesh.opts = j->mesh_opts;
@@ -459,8 +464,8 @@ static void mpi_progress(void *ud, double fraction, uint64_t voxels)
     wake_loop(x->d);
 }
 
-/* An implicit job through mpirun ... vox_mpi (daemon_mpi.c): its grid
- * from the plan every job makes, its file copied into the memfd. */
+/* A job through mpirun ... vox_mpi (daemon_mpi.c): its grid from the
+ * plan every job makes, its file copied into the memfd. */
 static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
                     uint64_t room)
 {
@@ -508,12 +513,13 @@ static void run_job(vd_daemon *d, engine *e, vd_job *j, const vd_mpi *mpi, uint6
     };
     expr_tape *tape = NULL;
     mesh m = {0};
-    if (job_input(j, &job, &tape, &m)) return;
+    int via_mpi = vd_mpi_wants(mpi, j);
+    if (job_input(j, &job, &tape, &m, via_mpi)) return;
     j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
     if (j->fd < 0) {
         job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
                   strerror(errno));
-    } else if (vd_mpi_wants(mpi, j)) {
+    } else if (via_mpi) {
         run_mpi(d, mpi, j, &job, room);
     } else {
         run_pipeline(e, j, &job, room);

@@ -1,11 +1,12 @@
-/* daemon_mpi — an implicit job at or above mpi_min_res runs through
- * `mpirun ... vox_mpi voxelize` (docs/mpi.md, "voxd"), on the engine
+/* daemon_mpi — a job at or above mpi_min_res runs through `mpirun ...
+ * vox_mpi voxelize` or `vox_mpi csg` (docs/mpi.md, "voxd"), on the engine
  * thread in place of the local engine: the queue, the per-user rules, the
  * memory budget, cancel and job_timeout apply as to any job, and the loop
  * never waits on it.
  *
- * The job runs from a private directory (mkdtemp, 0700): the expression
- * as job.vx, the output as out.vod.  mpirun is started in a session of
+ * The job runs from a private directory (mkdtemp, 0700): its input (the
+ * expression as job.vx, the mesh file as job.mesh, the CSG tree packed as
+ * job.csgp), the output as out.vod.  mpirun is started in a session of
  * its own (posix_spawn: no fork of this threaded process) with the signals
  * the daemon blocks unblocked; a cancel sends mpirun SIGTERM, then every
  * process of the session SIGKILL after VD_MPI_KILL_GRACE_S.  vox_mpi unlinks its ranks'
@@ -26,7 +27,9 @@
 #include <unistd.h>
 
 #include "clock.h"
+#include "csg_pack.h"
 #include "daemon.h"
+#include "mesh.h"
 #include "pipeline.h"
 #include "vod.h"
 #include "voxel.h"
@@ -43,7 +46,8 @@ extern char **environ;
 
 int vd_mpi_wants(const vd_mpi *m, const vd_job *j)
 {
-    return m->hostfile[0] && j->kind == PIPELINE_IMPLICIT && j->res >= m->min_res;
+    /* the distance channel does not run through vox_mpi yet */
+    return m->hostfile[0] && j->res >= m->min_res && j->channel != VOXEL_CH_DISTANCE;
 }
 
 /* ---------------------------------------------------------------- the command */
@@ -52,7 +56,7 @@ typedef struct {
     char *argv[VD_MPI_MAX_ARGS + 1];
     int n;
     char words[sizeof ((vd_mpi *)0)->args];
-    char num[8][32];                /* numbers formatted for argv */
+    char num[10][32];               /* numbers formatted for argv */
     char dom[160];
     char file[PATH_MAX + 16], out[PATH_MAX + 16], exe[PATH_MAX];
 } cmdline;
@@ -63,6 +67,13 @@ static int add(cmdline *c, const char *a)
     c->argv[c->n++] = (char *)a;
     c->argv[c->n] = NULL;
     return 0;
+}
+
+static int add_all(cmdline *c, const char *const *a, size_t n)
+{
+    int rc = 0;
+    for (size_t i = 0; i < n && !rc; i++) rc = a[i] ? add(c, a[i]) : 0;
+    return rc;
 }
 
 /* vox_mpi: the configured path, else the one beside this voxd (a build
@@ -84,10 +95,54 @@ static int vox_mpi_path(const vd_mpi *m, char *buf, size_t len)
 
 static const char *channel_name(int ch)
 {
-    return ch == VOXEL_CH_OCCUPANCY ? "occupancy" : ch == VOXEL_CH_DENSITY ? "density" : "surface";
+    return ch == VOXEL_CH_OCCUPANCY ? "occupancy" : ch == VOXEL_CH_DENSITY ? "density"
+           : ch == VOXEL_CH_DISTANCE ? "distance" : "surface";
 }
 
-/* mpirun ARGS -np R --hostfile H vox_mpi voxelize -f DIR/job.vx ... -o DIR/out.vod */
+/* The job's input file's name in dir: the expression, the mesh file's
+ * bytes, the packed CSG tree (csg_pack.h). */
+static void input_name(cmdline *c, const vd_job *j, const char *dir)
+{
+    snprintf(c->file, sizeof c->file, "%s/%s", dir,
+             j->kind == PIPELINE_MESH ? "job.mesh" : j->kind == PIPELINE_CSG ? "job.csgp"
+                                                                           : "job.vx");
+}
+
+/* vox_mpi's subcommand and what its kind takes: vox voxelize -f's,
+ * vox voxelize --mesh's, vox csg's with voxd's extras (docs/mpi.md). */
+static int kind_args(cmdline *c, const vd_job *j)
+{
+    static const char *const modes[] = {"solid", "surface", "surface6", "conservative",
+                                        "interior"};
+    static const char *const repairs[] = {"none", "vote", "winding"};
+    const mesh_vox_opts *o = &j->mesh_opts;
+    snprintf(c->num[4], sizeof c->num[4], "%u", j->pad);
+    snprintf(c->num[5], sizeof c->num[5], "%u", o->supersample);
+    snprintf(c->num[6], sizeof c->num[6], "%u", o->band);
+    snprintf(c->num[7], sizeof c->num[7], "%.17g", j->weld_eps);
+    snprintf(c->num[8], sizeof c->num[8], "%llu", (unsigned long long)j->csg_source_bytes);
+    int is_mesh = j->kind == PIPELINE_MESH, dist = j->channel == VOXEL_CH_DISTANCE;
+    const char *implicit[] = {"voxelize", "-f", c->file, "--schedule",
+                              j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree"};
+    const char *msh[] = {
+        "voxelize", "--mesh", c->file, "--mode", modes[o->mode % 5], "--repair",
+        repairs[o->repair % 3], "--pad", c->num[4],
+        o->supersample && !dist ? "--supersample" : NULL, c->num[5],
+        o->band && dist ? "--band" : NULL, c->num[6],
+        j->weld ? "--weld" : NULL, c->num[7],
+        j->mesh_format ? "--mesh-format" : NULL, mesh_format_name(j->mesh_format)};
+    const char *csg[] = {"csg", c->file, "--packed", "--source-bytes", c->num[8]};
+    /* a NULL option drops the value after it too */
+    if (j->kind == PIPELINE_CSG) return add_all(c, csg, sizeof csg / sizeof *csg);
+    if (!is_mesh) return add_all(c, implicit, sizeof implicit / sizeof *implicit);
+    int rc = 0;
+    for (size_t i = 0; i < sizeof msh / sizeof *msh && !rc; i++)
+        if (msh[i]) rc = add(c, msh[i]);
+        else i++;
+    return rc;
+}
+
+/* mpirun ARGS -np R --hostfile H vox_mpi KIND... -o DIR/out.vod ... */
 static int build_cmd(cmdline *c, const vd_mpi *m, const vd_job *j, const char *dir)
 {
     int rc;
@@ -104,21 +159,22 @@ static int build_cmd(cmdline *c, const vd_mpi *m, const vd_job *j, const char *d
     snprintf(c->num[3], sizeof c->num[3], "%u", j->brick);
     snprintf(c->dom, sizeof c->dom, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g", j->lo[0],
              j->hi[0], j->lo[1], j->hi[1], j->lo[2], j->hi[2]);
-    snprintf(c->file, sizeof c->file, "%s/job.vx", dir);
+    input_name(c, j, dir);
     snprintf(c->out, sizeof c->out, "%s/out.vod", dir);
+    const char *head[] = {"-np", c->num[0], "--hostfile", m->hostfile, c->exe};
+    /* a mesh fitted to its bounding box has no domain */
+    int domain = j->kind != PIPELINE_MESH || !j->fit;
     const char *rest[] = {
-        "-np", c->num[0], "--hostfile", m->hostfile, c->exe, "voxelize",
-        "-f", c->file, "--source-name", j->source_name ? j->source_name : "",
-        "-o", c->out, "-r", c->num[2], "-d", c->dom, "-w", c->num[1],
+        "--source-name", j->source_name ? j->source_name : "",
+        "-o", c->out, "-r", c->num[2], "-w", c->num[1],
         "--channel", channel_name(j->channel), "--brick", c->num[3],
         "--compress", j->comp == VOD_COMP_RUNL ? "runl" : j->comp == VOD_COMP_NONE ? "none" : "zlib",
         "--hash", j->hash == VOD_HASH_XX32 ? "xx32" : "sfhs",
-        "--schedule", j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree",
-        "--progress",
+        "--progress", domain ? "-d" : NULL, domain ? c->dom : NULL,
     };
-    for (size_t i = 0; i < sizeof rest / sizeof *rest; i++)
-        if ((rc = add(c, rest[i]))) return rc;
-    return 0;
+    if ((rc = add_all(c, head, sizeof head / sizeof *head))) return rc;
+    if ((rc = kind_args(c, j))) return rc;
+    return add_all(c, rest, sizeof rest / sizeof *rest);
 }
 
 /* The daemon's environment, and as root what lets mpirun run as root
@@ -283,17 +339,20 @@ static int write_all(int fd, const char *p, size_t n)
 }
 
 /* vox_mpi's summary: "...: V voxels on a ... grid in T s on R ranks ...,
- * VOD written in T s" and "  B bytes, K bricks (N non-empty nodes), CRC X". */
+ * VOD written in T s" (a CSG job's "V voxels at or above S on a ...") and
+ * "  B bytes, K bricks (N non-empty nodes), CRC X". */
 static void parse_summary(const char *text, vd_job *j)
 {
     const char *p = strstr(text, " voxels on a ");
+    if (!p) p = strstr(text, " voxels at or above S on a ");
     if (!p) return;
     const char *start = p;
     while (start > text && start[-1] >= '0' && start[-1] <= '9') start--;
     unsigned long long v = 0, bytes = 0, bricks = 0, nodes = 0;
     unsigned crc = 0;
     double tj = 0, tw = 0;
-    if (sscanf(start, "%llu voxels on a %*ux%*ux%*u grid in %lf s", &v, &tj) == 2) {
+    const char *g = strstr(p, " grid in ");
+    if (sscanf(start, "%llu", &v) == 1 && g && sscanf(g, " grid in %lf s", &tj) == 1) {
         j->voxels = v;
         j->t_voxelize = tj;
     }
@@ -346,15 +405,28 @@ static void run_failed(vd_job *j, int st, const char *cmd, int out)
     j->code = VOXD__ERROR_CODE__INTERNAL;
 }
 
+/* The job's input as vox_mpi reads it: the expression's text, the mesh
+ * file's bytes (kept for this), the CSG tree packed (csg_pack.h) with its
+ * leaves' files.  0, or a negative errno. */
+static int write_input(const cmdline *c, const vd_job *j)
+{
+    uint8_t *packed = NULL;
+    size_t len = j->source_len;
+    int rc = j->kind == PIPELINE_CSG ? csg_tree_pack(j->csg, &packed, &len) : 0;
+    int fd = rc ? -1 : open(c->file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+    if (!rc && fd < 0) rc = -errno;
+    if (!rc) rc = write_all(fd, packed ? (const char *)packed : j->source, len);
+    if (fd >= 0) close(fd);
+    free(packed);
+    return rc;
+}
+
 /* The job's file and mpirun started: 0, or a negative errno. */
 static int start_run(cmdline *c, const vd_mpi *m, const vd_job *j, const char *dir, int out,
                      pid_t *pid)
 {
     int rc = build_cmd(c, m, j, dir);
-    if (rc) return rc;
-    int fd = open(c->file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-    rc = fd < 0 ? -errno : write_all(fd, j->source, j->source_len);
-    if (fd >= 0) close(fd);
+    if (!rc) rc = write_input(c, j);
     return rc ? rc : spawn(c, out, pid);
 }
 

@@ -107,6 +107,67 @@ vc submit 'x^2+y^2+z^2-0.5' 1024 -1,1 "$TMP/p.vod" >"$TMP/p.out" 2>&1
 n=$(sed -n 's/.* \([0-9]*\) progress,.*/\1/p' "$TMP/p.out")
 [ "${n:-0}" -gt 0 ] && pass "daemon_mpi: an MPI job sends progress ($n)" \
     || fail "daemon_mpi: an MPI job sends progress" "$(cat "$TMP/p.out")"
+
+# ---------------------------------------------------------------- mesh and CSG jobs
+# A torus of 576 triangles (tests/integration/mpi.sh's), closed, and open
+# (every 37th triangle left out) for the repairs; a CSG tree with a mesh leaf.
+torus_obj() {
+    awk -v nu="$1" -v nv="$2" -v drop="${3:-0}" 'BEGIN {
+        pi = atan2(0, -1); R = 0.6; r = 0.25
+        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
+            u = 2 * pi * i / nu; v = 2 * pi * j / nv
+            printf "v %.6f %.6f %.6f\n", (R + r * cos(v)) * cos(u), (R + r * cos(v)) * sin(u), r * sin(v)
+        }
+        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
+            a = i * nv + j + 1; b = ((i + 1) % nu) * nv + j + 1
+            c = ((i + 1) % nu) * nv + (j + 1) % nv + 1; d = i * nv + (j + 1) % nv + 1
+            if (!drop || ++k % drop) printf "f %d %d %d\n", a, b, c
+            if (!drop || ++k % drop) printf "f %d %d %d\n", a, c, d
+        } }'
+}
+torus_obj 24 12 >"$TMP/torus.obj"
+torus_obj 24 12 37 >"$TMP/open.obj"
+printf '%s\n' 'ring = mesh "torus.obj" fit 0,0,0.1 scale 1.5' \
+    'ball = implicit "x^2 + y^2 + z^2 - 0.3"' \
+    'all  = union(erode(ring, 1), dilate(ball, 2))' 'result all' >"$TMP/leaf.csg"
+# mpi_job NAME REF_ARGS... -- SUBMIT_ARGS...: through MPI (the summary says
+# so), with the bytes of REF (vox voxelize --embedded or vox csg, one process)
+mpi_job() {
+    local name=$1 ref=()
+    shift
+    while [ $# -gt 0 ] && [ "$1" != "--" ]; do ref+=("$1"); shift; done
+    shift
+    rm -f "$TMP/m.vod"
+    if submit "$@" -o "$TMP/m.vod" >"$TMP/m.out" 2>&1 && grep -q "through MPI on 2 ranks" "$TMP/m.out"; then
+        pass "daemon_mpi: $name through MPI"
+    else
+        fail "daemon_mpi: $name through MPI" "$(cat "$TMP/m.out")"
+    fi
+    "$VOXR" "${ref[@]}" -q -w 1 -o "$TMP/m-ref.vod"
+    same "$TMP/m.vod" "$TMP/m-ref.vod" "daemon_mpi: $name: the bytes of vox ${ref[0]}, one process"
+}
+mpi_job "torus mesh at 96" voxelize --embedded --mesh "$TMP/torus.obj" -r 96 -- \
+    --mesh "$TMP/torus.obj" -r 96
+mpi_job "open torus, --repair vote, density, --pad 3" voxelize --embedded --mesh "$TMP/open.obj" \
+    -r 100 --repair vote --channel density --supersample 3 --pad 3 -- \
+    --mesh "$TMP/open.obj" -r 100 --repair vote --channel density --supersample 3 --pad 3
+mpi_job "open torus, --repair winding, surface, a domain, --weld" voxelize --embedded \
+    --mesh "$TMP/open.obj" -r 80 --repair winding --channel surface --bbox -1,1,-1,1,-0.5,0.5 \
+    --weld 1e-4 -- --mesh "$TMP/open.obj" -r 80 --repair winding --channel surface \
+    --bbox -1,1,-1,1,-0.5,0.5 --weld 1e-4
+mpi_job "examples/part.csg at 96" csg examples/part.csg -r 96 -- --csg examples/part.csg -r 96
+mpi_job "a CSG tree with a mesh leaf, occupancy, RUNL, a flat domain" csg "$TMP/leaf.csg" \
+    -r 90 -c occupancy -Z runl -d -1.2,1.2,-1.2,1.2,-0.6,0.6 -- --csg "$TMP/leaf.csg" -r 90 \
+    --channel occupancy --compress runl -d -1.2,1.2,-1.2,1.2,-0.6,0.6
+submit --mesh "$TMP/torus.obj" -r 48 -o "$TMP/m48.vod" >"$TMP/m48.out" 2>&1 && ! grep -q MPI "$TMP/m48.out" \
+    && pass "daemon_mpi: a mesh at 48, below mpi_min_res, on the workers" \
+    || fail "daemon_mpi: a mesh at 48, below mpi_min_res, on the workers" "$(cat "$TMP/m48.out")"
+# bad input is refused as without MPI: typed errors, and the daemon goes on
+printf 'v 0 0 0\nv 1 0 0\nf 1 2 3\n' >"$TMP/bad.obj"
+refuse "daemon_mpi: a bad mesh at 96: INVALID_INPUT, as on the workers" 2 "INVALID_INPUT: mesh: line 3" \
+    submit --mesh "$TMP/bad.obj" -r 96 -o "$TMP/bad.vod"
+[ -z "$(ls -A "$TMP/tmp")" ] && pass "daemon_mpi: mesh and CSG jobs: no job directory left" \
+    || fail "daemon_mpi: mesh and CSG jobs: no job directory left" "$(ls -A "$TMP/tmp")"
 kill -TERM "$VOXD_PID"
 wait_gone "$VOXD_PID" 20
 

@@ -5,7 +5,7 @@
  * assembles the bytes of vod_write_octree over the whole grid, asking for
  * each distinct brick once.  For mesh and CSG jobs the same against
  * pipeline_run's file, each column's triangles through mpi_mesh_part and
- * mpi_mesh_view, and the tree through mpi_csg_pack and mpi_csg_unpack;
+ * mpi_mesh_view, and the tree through csg_tree_pack and csg_tree_unpack;
  * damaged trees and meshes are refused. */
 #include <criterion/criterion.h>
 #include <errno.h>
@@ -483,8 +483,8 @@ static void tree_pair(csg_tree **parsed, csg_tree **got)
     (*parsed)->data[0] = torus_obj(&(*parsed)->data_len[0]);
     uint8_t *buf;
     size_t n;
-    cr_assert_eq(mpi_csg_pack(*parsed, &buf, &n), 0);
-    cr_assert_eq(mpi_csg_unpack(buf, n, got), 0);
+    cr_assert_eq(csg_tree_pack(*parsed, &buf, &n), 0);
+    cr_assert_eq(csg_tree_unpack(buf, n, got), 0);
     free(buf);
 }
 
@@ -519,13 +519,13 @@ Test(mpi_wire, damaged_trees_and_meshes_are_refused)
     cr_assert(!memcmp(u->data[0], t->data[0], t->data_len[0]));
     uint8_t *buf;
     size_t n;
-    cr_assert_eq(mpi_csg_pack(t, &buf, &n), 0);
+    cr_assert_eq(csg_tree_pack(t, &buf, &n), 0);
     csg_tree *bad = NULL;
-    cr_assert_eq(mpi_csg_unpack(buf, n - 1, &bad), -EPROTO, "a short buffer");
+    cr_assert_eq(csg_tree_unpack(buf, n - 1, &bad), -EPROTO, "a short buffer");
     t->node[t->n - 1].a = (int32_t)t->n - 1; /* a child that is not below its parent */
     free(buf);
-    cr_assert_eq(mpi_csg_pack(t, &buf, &n), 0);
-    cr_assert_eq(mpi_csg_unpack(buf, n, &bad), -EPROTO, "a child above its parent");
+    cr_assert_eq(csg_tree_pack(t, &buf, &n), 0);
+    cr_assert_eq(csg_tree_unpack(buf, n, &bad), -EPROTO, "a child above its parent");
     cr_assert_null(bad);
     free(buf);
     csg_tree_free(t);
