@@ -10,10 +10,40 @@ include from.  This checks, printing PASS:/FAIL: lines:
     read with nm from a build) runs only along the LAYER graph between
     modules, and has no cycle between the files of one module.  This is
     the real dependency: a header shared by two files that call each other
-    hides a cycle from the include graph, not from the symbols.
+    hides a cycle from the include graph, not from the symbols;
+  - every global symbol (nm's T, D, B, R) a module's objects define starts
+    with one of the module's prefixes (PREFIXES below), so a name says
+    its folder.
 usage: layering.py ROOT BUILD_DIR
 """
 import os, re, subprocess, sys
+
+# The prefixes of each module's global symbols.  A module that is a set of
+# small modules (common/, client/) is PARTS: a file's symbols start with
+# the first word of its name (common/job_meta.c: job_, client/render_mesh.c:
+# render_).  libvox's public calls are vox_*, its insides libvox_*.  `main`
+# is any program's; protobuf-c's generated code is not checked.
+PARTS = "parts"
+PREFIXES = {
+    "mpi": ("mpi_",),
+    "client": PARTS,
+    "daemon": ("daemon_",),
+    "config": ("config_",),
+    "libvox": ("vox_", "libvox_"),
+    "engine": ("engine_",),
+    "worker": ("worker_",),
+    "subdiv": ("subdiv_",),
+    "shm": ("shm_",),
+    "csg": ("csg_",),
+    "iso": ("iso_",),
+    "mesh": ("mesh_",),
+    "proto": ("proto_",),
+    "vod": ("vod_",),
+    "octree": ("octree_",),
+    "expr": ("expr_",),
+    "ival": ("ival_",),
+    "common": PARTS,
+}
 
 root, build = sys.argv[1], sys.argv[2]
 ok = True
@@ -82,14 +112,18 @@ for m in modules:
 report(not bad, "layering: every include follows the LAYER lines", "; ".join(bad))
 
 # Link level: symbols.
+globals_of = {}  # object -> its T, D, B and R symbols
 def symbols(obj):
     out = subprocess.run(["nm", "-P", obj], capture_output=True, text=True, check=True).stdout
-    defined, used = set(), set()
+    defined, used, glob = set(), set(), set()
     for line in out.splitlines():
         parts = line.split()
         if len(parts) < 2:
             continue
         (used if parts[1] == "U" else defined if parts[1] in "TDBRCGSV" else set()).add(parts[0])
+        if parts[1] in "TDBR":
+            glob.add(parts[0])
+    globals_of[obj] = glob
     return defined, used
 
 objs = {}
@@ -128,4 +162,22 @@ for m in modules:
     cyc = find_cycle(sub)
     report(cyc is None, "layering: no cycle between the files of %s/" % m,
            " -> ".join(cyc or []))
+
+# Names: every global symbol starts with its module's prefix.
+bad = []
+for name in sorted(objs):
+    m, f = name.split("/")
+    if name == "proto/voxd.pb-c":
+        continue
+    allowed = PREFIXES.get(m)
+    if allowed is None:
+        bad.append("module %s/ has no line in layering.py's PREFIXES" % m)
+        continue
+    if allowed == PARTS:
+        allowed = (f.split("_")[0] + "_",)
+    for s in sorted(globals_of[os.path.join(build, m, f + ".o")]):
+        if s != "main" and not s.startswith(allowed):
+            bad.append("%s in %s/%s.c (allowed: %s)" % (s, m, f, " ".join(p + "*" for p in allowed)))
+report(not bad, "layering: every global symbol starts with its module's prefix (%d modules)"
+       % len(modules), "; ".join(bad[:40]) + (" ... %d in all" % len(bad) if len(bad) > 40 else ""))
 sys.exit(0 if ok else 1)
