@@ -55,21 +55,24 @@ CSTD    := -std=c11 -D_GNU_SOURCE
 # against the layering does not compile (tests/integration/layering.sh
 # checks the same over the sources, and that no two files include each
 # other).  The data flows down this list; nothing includes upwards.
-MODULES := mpi client server config libvox master worker engine csg iso mesh proto vod expr common
-LAYER_mpi    := client config libvox master worker engine csg iso mesh proto expr vod common
-LAYER_client := config libvox master csg iso mesh proto expr vod common
-LAYER_server := config master engine csg iso mesh proto libvox expr vod common
-LAYER_config := proto expr common
+MODULES := mpi client daemon config libvox engine worker subdiv shm csg iso mesh proto vod octree expr ival common
+LAYER_mpi    := client config libvox engine worker subdiv shm csg iso mesh proto expr ival vod octree common
+LAYER_client := config libvox engine csg iso mesh proto expr ival vod octree common
+LAYER_daemon := config engine shm csg iso mesh proto libvox expr ival vod octree common
+LAYER_config := proto expr ival common
 LAYER_libvox := proto common
-LAYER_master := worker engine csg iso mesh expr vod common
-LAYER_worker := engine csg iso mesh expr vod common
-LAYER_engine := iso mesh vod common
-LAYER_csg    := mesh expr vod common
-LAYER_iso    := vod common
-LAYER_mesh   := vod common
+LAYER_engine := worker subdiv shm csg iso mesh expr ival vod octree common
+LAYER_worker := subdiv shm csg iso mesh expr ival vod octree common
+LAYER_subdiv := expr ival octree common
+LAYER_shm    := iso mesh vod octree common
+LAYER_csg    := mesh expr ival vod octree common
+LAYER_iso    := vod octree common
+LAYER_mesh   := vod octree common
 LAYER_proto  := common
-LAYER_vod    := common
-LAYER_expr   := common
+LAYER_vod    := octree common
+LAYER_octree :=
+LAYER_expr   := ival common
+LAYER_ival   :=
 LAYER_common :=
 # -I flags of module $(1): itself, its layers, and the generated protocol
 # headers for those that may include proto/.
@@ -87,7 +90,7 @@ CFLAGS  += $(CSTD) $(WARN) $(OPT) $(PKG_CFLAGS) -MMD -MP
 # ("unknown" outside git); the stamp rebuilds the two objects on a new commit.
 VOX_VERSION := 0.1
 VOX_COMMIT  := $(or $(shell git rev-parse --short=12 HEAD 2>/dev/null),unknown)
-VERSION_OBJ := $(BUILD)/client/cli_msg.o $(BUILD)/server/voxd.o
+VERSION_OBJ := $(BUILD)/client/cli_msg.o $(BUILD)/daemon/voxd.o
 $(VERSION_OBJ): CFLAGS += -DVOX_VERSION='"$(VOX_VERSION)"' -DVOX_COMMIT='"$(VOX_COMMIT)"'
 $(VERSION_OBJ): $(BUILD)/commit.stamp
 $(BUILD)/commit.stamp: FORCE
@@ -97,7 +100,7 @@ LDFLAGS += $(filter -fsanitize=%,$(OPT))
 LDLIBS  += $(PKG_LIBS) -lm -lpthread -lrt
 
 LIB_SRC ?= $(wildcard $(MODULES:%=%/*.c))
-LIB_SRC := $(filter-out client/vox.c server/voxd.c mpi/vox_mpi%.c,$(LIB_SRC))
+LIB_SRC := $(filter-out client/vox.c daemon/voxd.c mpi/vox_mpi%.c,$(LIB_SRC))
 # libvox, the client library: only what a client needs (vox.h, framing,
 # the protocol), an archive of its own with a pkg-config file.
 LIBVOX_SRC := $(wildcard libvox/*.c proto/*.c) common/outfile.c common/job_meta.c common/err.c
@@ -113,7 +116,7 @@ PROTO   := $(wildcard proto/*.proto)
 PROTO_C := $(PROTO:proto/%.proto=$(BUILD)/proto/%.pb-c.c)
 LIB_OBJ := $(LIB_SRC:%.c=$(BUILD)/%.o) $(PROTO_C:.c=.o)
 LIB     := $(BUILD)/libvoxd.a
-BINS    := $(BUILD)/vox $(BUILD)/vox-vdb.so $(if $(wildcard server/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(LIBVOX_SO) $(BUILD)/libvox.pc \
+BINS    := $(BUILD)/vox $(BUILD)/vox-vdb.so $(if $(wildcard daemon/voxd.c),$(BUILD)/voxd) $(LIBVOX) $(LIBVOX_SO) $(BUILD)/libvox.pc \
            $(BUILD)/vox_mpi
 
 UNIT_SRC := $(wildcard tests/unit/test_*.c)
@@ -186,7 +189,7 @@ $(BUILD)/tests/vdb_dump: tests/integration/vdb_dump.cc
 	@mkdir -p $(dir $@)
 	$(CXX) -std=c++17 -Wall -Wextra -Werror -O1 $< -o $@ $(VDB_LIBS)
 
-$(BUILD)/voxd: $(BUILD)/server/voxd.o $(LIB)
+$(BUILD)/voxd: $(BUILD)/daemon/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
 
 # vox_mpi (docs/mpi.md): the files that call MPI (mpi/vox_mpi*.c), built
@@ -293,7 +296,7 @@ bench-compare: deps all
 clean:
 	rm -rf build
 
--include $(LIB_OBJ:.o=.d) $(LIBVOX_PIC:.o=.d) $(BUILD)/client/vox.d $(BUILD)/server/voxd.d $(MPI_OBJ:.o=.d) $(BUILD)/client/vdb_out.d
+-include $(LIB_OBJ:.o=.d) $(LIBVOX_PIC:.o=.d) $(BUILD)/client/vox.d $(BUILD)/daemon/voxd.d $(MPI_OBJ:.o=.d) $(BUILD)/client/vdb_out.d
 
 # ---------------------------------------------------------------- install
 # make install [PREFIX=/usr/local] [DESTDIR=]: vox and vox_mpi in PREFIX/bin; voxd, a

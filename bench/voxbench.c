@@ -1,7 +1,7 @@
 /* voxbench — the benchmarks behind `make bench`.
  *
  *   voxbench shapes  [-r RES]           standard shapes: serial and 1-worker times vs targets,
- *                                       the VOD write and the whole job (pipeline_run)
+ *                                       the VOD write and the whole job (engine_pipeline_run)
  *   voxbench table1  [-r RES] [-n MAX]  the paper's Table 1 for Scenes 1-3, both schedules
  *   voxbench brute   [-r RES,...]       brute-force corner evaluation vs interval pruning
  *   voxbench vod     [-r RES] [-n MAX]  VOD write throughput, size, dedup, compression, read
@@ -170,25 +170,25 @@ static int null_write(void *ud, const void *buf, size_t n)
     return 0;
 }
 
-/* The whole job as the daemon and vox run it (pipeline_run: grid,
+/* The whole job as the daemon and vox run it (engine_pipeline_run: grid,
  * voxelization, VOD written to a sink that counts the bytes); the run of
  * median wall time. */
-static pipeline_report time_pipeline(engine *e, const shape *s, const expr_tape *t,
+static engine_pipeline_report time_pipeline(engine *e, const shape *s, const expr_tape *t,
                                      uint32_t res, double *whole)
 {
-    pipeline_job job = {
-        .kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job job = {
+        .kind = ENGINE_PIPELINE_IMPLICIT,
         .implicit = {.tape = t, .source = "", .source_name = s->file},
         .lo = {s->lo, s->lo, s->lo}, .hi = {s->hi, s->hi, s->hi}, .res = res,
     };
     vod_params_default(&job.vod);
-    pipeline_report runs[REPEATS];
+    engine_pipeline_report runs[REPEATS];
     double secs[REPEATS];
     for (int i = 0; i < REPEATS; i++) {
         uint64_t bytes = 0;
         vod_sink sink = {null_write, &bytes};
         double t0 = now();
-        if (pipeline_run(e, &job, &sink, &runs[i])) die("job", runs[i].err.message);
+        if (engine_pipeline_run(e, &job, &sink, &runs[i])) die("job", runs[i].err.message);
         secs[i] = now() - t0;
     }
     *whole = median(secs, REPEATS);
@@ -211,7 +211,7 @@ static void bench_shapes(uint32_t res)
         double ser = time_serial(t, &g, &vox);
         job_time w = time_engine(e, t, &g, ENGINE_SCHED_SUBTREE);
         double whole;
-        pipeline_report r = time_pipeline(e, s, t, res, &whole);
+        engine_pipeline_report r = time_pipeline(e, s, t, res, &whole);
         char tgt[32] = "-", ratio[32] = "-";
         if (s->target > 0 && res == 512) {
             snprintf(tgt, sizeof tgt, "%.2f", s->target);

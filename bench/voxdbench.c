@@ -398,8 +398,8 @@ static void embedded_job(engine *e, job_out *o)
     expr_error xe;
     if (expr_compile(SMALL_EXPR, strlen(SMALL_EXPR), NULL, &t, &xe))
         die("%s: %s", SMALL_EXPR, xe.msg);
-    pipeline_job job = {
-        .kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job job = {
+        .kind = ENGINE_PIPELINE_IMPLICIT,
         .implicit = {.tape = t, .source = SMALL_EXPR, .source_len = strlen(SMALL_EXPR)},
         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = SMALL_RES,
         .schedule = ENGINE_SCHED_SUBTREE,
@@ -408,8 +408,8 @@ static void embedded_job(engine *e, job_out *o)
     job.vod.channel = VOXEL_CH_SURFACE;
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    pipeline_report r;
-    int rc = pipeline_run(e, &job, &sink, &r);
+    engine_pipeline_report r;
+    int rc = engine_pipeline_run(e, &job, &sink, &r);
     free(m.p);
     if (rc) die("embedded job failed: %s", r.err.message);
     o->voxels = r.voxels;

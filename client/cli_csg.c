@@ -191,7 +191,7 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
 static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes,
                const csg_tree *t)
 {
-    pipeline_job job = {.kind = PIPELINE_CSG,
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG,
                         .csg = {.tree = t, .source_name = text_name,
                                 .source_bytes = text_bytes},
                         .res = o->res, .band = o->band};
@@ -212,9 +212,9 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     cli_catch_interrupts();
     job.cancel = &cli_interrupt;
     vod_sink sink = {outfile_write, &f};
-    pipeline_report r;
+    engine_pipeline_report r;
     if (e) engine_lazy_release(e); /* nothing to give back before we exit */
-    rc = pipeline_run(e, &job, &sink, &r);
+    rc = engine_pipeline_run(e, &job, &sink, &r);
     engine_abandon(e); /* its end is not waited for: the file is */
     const char *why = rc ? r.err.message : NULL;
     if (rc || cli_interrupted()) outfile_abort(&f);
@@ -227,7 +227,7 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the tree meets its box (see --domain)", o->out);
     if (o->quiet) return CLI_EXIT_OK;
     char bricks[160];
-    pipeline_describe(&job, &r, bricks, sizeof bricks);
+    engine_pipeline_describe(&job, &r, bricks, sizeof bricks);
     printf("%s: %llu voxels %s on a %ux%ux%u grid, %s, %llu bytes; evaluated in "
            "%.3f s, written in %.3f s\n", o->out, (unsigned long long)r.voxels,
            o->channel == VOXEL_CH_DISTANCE ? "inside (negative)" : "at or above S",

@@ -40,7 +40,7 @@ static void on_progress(void *ud, const engine_progress *p)
     progress_update((progress *)ud, p->fraction, p->level, p->voxels);
 }
 
-static void print_summary(const voxelize_opts *o, const pipeline_report *r)
+static void print_summary(const voxelize_opts *o, const engine_pipeline_report *r)
 {
     const grid_spec *g = &r->grid;
     printf("%s: %llu voxels on a %ux%ux%u grid in %.3f s (%.2f Mvoxels/s), "
@@ -62,17 +62,17 @@ static void print_summary(const voxelize_opts *o, const pipeline_report *r)
 
 /* The job on the embedded engine (or the serial algorithm, -w 0): e, when
  * the caller started it, else one started here. */
-static int run_job(const voxelize_opts *o, const pipeline_job *job, outfile *f,
-                   pipeline_report *r, engine *e)
+static int run_job(const voxelize_opts *o, const engine_pipeline_job *job, outfile *f,
+                   engine_pipeline_report *r, engine *e)
 {
     int rc = o->workers && !e ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
     if (rc) return rc;
     if (e) engine_lazy_release(e); /* nothing to give back before we exit */
     vod_sink sink = {write_or_stop, f};
-    rc = pipeline_run(e, job, &sink, r);
+    rc = engine_pipeline_run(e, job, &sink, r);
     engine_abandon(e); /* its end is not waited for: the file is */
     if (rc == 0 || cli_interrupted()) return rc;
-    if (r->stage == PIPELINE_WRITE)
+    if (r->stage == ENGINE_PIPELINE_WRITE)
         cli_error("cannot write %s: %s", o->out, r->err.message);
     else
         cli_error("voxelization failed: %s", r->err.message);
@@ -81,7 +81,7 @@ static int run_job(const voxelize_opts *o, const pipeline_job *job, outfile *f,
 
 /* e: the engine the caller started (NULL: started here); it is the job's
  * from here on, whatever happens. */
-static int voxelize(voxelize_opts *o, pipeline_job *job, engine *e)
+static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
 {
     job->lo[0] = o->lo[0], job->lo[1] = o->lo[1], job->lo[2] = o->lo[2];
     job->hi[0] = o->hi[0], job->hi[1] = o->hi[1], job->hi[2] = o->hi[2];
@@ -90,7 +90,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job, engine *e)
     job->vod = o->vod;
     grid_spec g;
     char err[256];
-    if (job->kind == PIPELINE_IMPLICIT &&
+    if (job->kind == ENGINE_PIPELINE_IMPLICIT &&
         grid_make(o->lo, o->hi, o->res, &g, err, sizeof err)) {
         cli_error("%s", err);
         engine_abandon(e);
@@ -109,7 +109,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job, engine *e)
     progress_init(&pr, o->progress);
     job->progress = on_progress;
     job->ud = &pr;
-    pipeline_report r;
+    engine_pipeline_report r;
     rc = run_job(o, job, &f, &r, e);
     progress_done(&pr);
     if (rc || cli_interrupted()) {
@@ -125,7 +125,7 @@ static int voxelize(voxelize_opts *o, pipeline_job *job, engine *e)
     if (!o->quiet) {
         print_summary(o, &r);
         char kind[512];
-        pipeline_describe(job, &r, kind, sizeof kind);
+        engine_pipeline_describe(job, &r, kind, sizeof kind);
         fputs(kind, stdout);
     }
     return CLI_EXIT_OK;
@@ -133,8 +133,8 @@ static int voxelize(voxelize_opts *o, pipeline_job *job, engine *e)
 
 static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *tape)
 {
-    pipeline_job job = {
-        .kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job job = {
+        .kind = ENGINE_PIPELINE_IMPLICIT,
         .implicit = {.tape = tape, .source = src->text, .source_len = src->len,
                      .source_name = src->path},
         .band = o->mesh_opts.band,
@@ -176,8 +176,8 @@ static int voxelize_mesh(voxelize_opts *o)
     }
     mesh m = l.m;
     struct stat sb;
-    pipeline_job job = {
-        .kind = PIPELINE_MESH,
+    engine_pipeline_job job = {
+        .kind = ENGINE_PIPELINE_MESH,
         .mesh = {.mesh = &m, .opts = o->mesh_opts, .pad = o->pad,
                  .fit = !o->has_domain, .source_name = o->mesh,
                  .source_bytes = stat(o->mesh, &sb) == 0 ? (uint64_t)sb.st_size : 0},

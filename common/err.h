@@ -9,7 +9,7 @@
  * "...", ...);`.  A formatter that keeps state of its own (a position, the
  * first failure only) calls err_vfmt.
  *
- * master/ (engine_error, engine_result's own message) adopts it after the
+ * engine/ (engine_error, engine_result's own message) adopts it after the
  * kind table's merge; the structures that carry a position (mesh_error,
  * expr_error, csg_error) keep their own buffer sizes, their messages being
  * part of what users see. */

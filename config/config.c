@@ -47,8 +47,8 @@ typedef struct {
 
 /* Constants of other modules the table's ranges must agree with. */
 _Static_assert(EXPR_MAX_DEPTH_CAP == 1024, "max_expr_depth's range in VOX_LIMITS");
-_Static_assert(FRAME_MIN_MAX == 4096 && FRAME_LIMIT_MAX == 64u << 20 &&
-                   FRAME_DEFAULT_MAX == 1u << 20,
+_Static_assert(PROTO_FRAME_MIN_MAX == 4096 && PROTO_FRAME_LIMIT_MAX == 64u << 20 &&
+                   PROTO_FRAME_DEFAULT_MAX == 1u << 20,
                "max_frame's default and range in VOX_LIMITS");
 
 #define F(m) offsetof(voxd_config, m), sizeof(((voxd_config *)0)->m)
@@ -477,11 +477,11 @@ static int check_together(parser *p, const voxd_config *c)
                        x, m, (unsigned long long)(CONFIG_RESULT_ROOM >> 20));
     }
     fmt_size(c->max_frame, f, sizeof f);
-    if (c->chunk_size > c->max_frame - FRAME_CHUNK_OVERHEAD) {
+    if (c->chunk_size > c->max_frame - PROTO_FRAME_CHUNK_OVERHEAD) {
         fmt_size(c->chunk_size, x, sizeof x);
         return fail_at(p, later_line(p, "chunk_size", "max_frame"),
                        "chunk_size %s does not fit in max_frame %s (a chunk needs %u bytes more)",
-                       x, f, FRAME_CHUNK_OVERHEAD);
+                       x, f, PROTO_FRAME_CHUNK_OVERHEAD);
     }
     /* An expression of max_expr_bytes must be sendable: inline in a
      * Submit, or as the job's input. */

@@ -56,7 +56,7 @@ int vox_connect_fd(int fd, const vox_options *opts, vox_client **out, vox_error 
     c->inline_max = opts && opts->inline_max ? opts->inline_max : VOX_DEFAULT_INLINE_MAX;
     c->next_token = 1;
     proto_limits_default(&c->lim);
-    frame_decoder_init(&c->dec, FRAME_DEFAULT_MAX);
+    proto_frame_decoder_init(&c->dec, PROTO_FRAME_DEFAULT_MAX);
     c->last_rx = libvox_mono();
 
     Voxd__Hello hello = VOXD__HELLO__INIT;
@@ -117,7 +117,7 @@ void vox_close(vox_client *c)
         libvox_free_job(j);
     }
     close(c->fd);
-    frame_decoder_free(&c->dec);
+    proto_frame_decoder_free(&c->dec);
     free(c->rbuf);
     free(c);
 }

@@ -68,7 +68,7 @@ static int on_hello_ok(vox_client *c, const Voxd__HelloOk *m)
         return libvox_fail(c, -EPROTO, "voxd sent a second hello");
     const Voxd__Limits *l = m->limits;
     proto_limits_from_hello(l, &c->lim);
-    frame_decoder_set_max(&c->dec, l->max_frame);
+    proto_frame_decoder_set_max(&c->dec, l->max_frame);
     vox_server_info *i = &c->info;
     snprintf(i->name, sizeof i->name, "%s", m->server ? m->server : "");
     i->version = m->version;
@@ -175,7 +175,7 @@ static int on_pong(vox_client *c, const Voxd__Pong *m)
 
 int libvox_dispatch(vox_client *c, const uint8_t *data, size_t len)
 {
-    Voxd__Reply *r = frame_unpack_reply(data, len);
+    Voxd__Reply *r = proto_frame_unpack_reply(data, len);
     if (!r) return libvox_fail(c, -EPROTO, "voxd sent a reply that does not unpack (%zu bytes)", len);
     proto_error pe;
     int rc = proto_check_reply(r, &c->lim, &pe);

@@ -60,7 +60,7 @@ struct vox_client {
     int fd;
     int timeout_ms;
     size_t inline_max;
-    frame_decoder dec;
+    proto_frame_decoder dec;
     proto_limits lim;
     vox_server_info info;
     int ready;              /* HelloOk received */

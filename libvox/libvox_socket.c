@@ -34,20 +34,20 @@ static int read_some(vox_client *c)
         return libvox_fail(c, -errno, "reading from voxd: %s", strerror(errno));
     }
     if (n == 0) {
-        int rc = frame_decoder_finish(&c->dec);
+        int rc = proto_frame_decoder_finish(&c->dec);
         return fail_closed(c, rc ? " in the middle of a reply" : "");
     }
     c->last_rx = libvox_mono();
     const uint8_t *p = c->rbuf;
     size_t left = (size_t)n;
-    frame_view f;
+    proto_frame_view f;
     int rc;
-    while ((rc = frame_decode(&c->dec, &p, &left, &f)) == 1)
+    while ((rc = proto_frame_decode(&c->dec, &p, &left, &f)) == 1)
         if ((rc = libvox_dispatch(c, f.data, f.len))) return rc;
     if (rc < 0) {
         char why[160];
         return libvox_fail(c, -EPROTO, "voxd sent a bad frame: %s",
-                    frame_decoder_strerror(&c->dec, rc, why, sizeof why));
+                    proto_frame_decoder_strerror(&c->dec, rc, why, sizeof why));
     }
     return 0;
 }
@@ -104,7 +104,7 @@ int libvox_send_request(vox_client *c, const Voxd__Request *req)
 {
     uint8_t *buf;
     size_t len;
-    int rc = frame_encode_request(req, &buf, &len);
+    int rc = proto_frame_encode_request(req, &buf, &len);
     if (rc) return rc;
     rc = send_frame(c, buf, len);
     free(buf);

@@ -12,7 +12,7 @@
  * triangle flips bits only in the columns whose centre its projection
  * covers, so a tile needs it only when the box of its snapped vertices
  * holds a voxel centre of the tile, decided exactly from the same snapped
- * coordinates as the rasterizer's (mv_raster drops the others unseen).  On
+ * coordinates as the rasterizer's (mesh_vox_raster drops the others unseen).  On
  * a fine mesh most triangles hold none (half of the dragon's at 512^3). */
 #include "mesh_vox_int.h"
 
@@ -31,7 +31,7 @@ typedef struct {
 
 _Static_assert(GRID_MAX_RES < INT16_MAX, "a voxel index fits a span");
 
-/* Voxel coordinate of v along a, clamped like the lattice (mv_snap). */
+/* Voxel coordinate of v along a, clamped like the lattice (mesh_vox_snap). */
 static double vox_coord(const grid_spec *g, int a, float v)
 {
     double t = ((double)v - g->lo[a]) / g->vs, lim = 1073741824.0; /* 2^30 */
@@ -83,14 +83,14 @@ static int16_t clamp_centre(int64_t i, int64_t lo, int64_t hi)
  * or past it, x1 the last at or before it, clamped to [0, res] and [-1,
  * res - 1].  Like the tiles' ranges these are monotonic, so a triangle's
  * union is the centres in the box of its snapped vertices, the samples
- * mv_raster looks at. */
+ * mesh_vox_raster looks at. */
 static span vertex_centres(const int64_t p[3], const uint32_t res[3])
 {
-    int64_t x = p[0] - MV_H, y = p[1] - MV_H;
-    span r = {clamp_centre(mv_ceil_l(x), 0, res[0]),
-              clamp_centre(mv_floor_l(x), -1, (int64_t)res[0] - 1),
-              clamp_centre(mv_ceil_l(y), 0, res[1]),
-              clamp_centre(mv_floor_l(y), -1, (int64_t)res[1] - 1)};
+    int64_t x = p[0] - MESH_VOX_H, y = p[1] - MESH_VOX_H;
+    span r = {clamp_centre(mesh_vox_ceil_l(x), 0, res[0]),
+              clamp_centre(mesh_vox_floor_l(x), -1, (int64_t)res[0] - 1),
+              clamp_centre(mesh_vox_ceil_l(y), 0, res[1]),
+              clamp_centre(mesh_vox_floor_l(y), -1, (int64_t)res[1] - 1)};
     return r;
 }
 
@@ -128,13 +128,13 @@ static span centre_tiles(span r)
     } while (0)
 
 /* Vertex v's span (and its lattice point, when lattice is not NULL). */
-static span vertex_span(const mesh *m, const grid_spec *g, const mv_frame *f, uint32_t v,
+static span vertex_span(const mesh *m, const grid_spec *g, const mesh_vox_frame *f, uint32_t v,
                         bool exact, double margin, const uint32_t nt[2],
                         mesh_lattice *lattice)
 {
     int64_t p[3];
     if (lattice || exact)
-        for (int a = 0; a < (lattice ? 3 : 2); a++) p[a] = mv_vertex(f, v, a);
+        for (int a = 0; a < (lattice ? 3 : 2); a++) p[a] = mesh_vox_vertex(f, v, a);
     if (lattice) memcpy(lattice[v], p, sizeof p);
     return exact ? vertex_centres(p, g->res) : vertex_tiles(m, g, v, margin, nt);
 }
@@ -155,7 +155,7 @@ static span vertex_span(const mesh *m, const grid_spec *g, const mv_frame *f, ui
 typedef struct {
     const mesh *m;
     const grid_spec *g;
-    mv_frame f;
+    mesh_vox_frame f;
     mesh_lattice *lattice;
     bool exact, rep;
     double margin;
@@ -209,8 +209,8 @@ static void vertices_part(void *ud, unsigned k, unsigned n)
 
 static void prefetch_ahead(const binner *b, uint64_t t, uint64_t hi)
 {
-    if (t + MV_AHEAD >= hi) return;
-    const uint32_t *ahead = b->m->triangles[t + MV_AHEAD];
+    if (t + MESH_VOX_AHEAD >= hi) return;
+    const uint32_t *ahead = b->m->triangles[t + MESH_VOX_AHEAD];
     for (int i = 0; i < 3; i++) __builtin_prefetch(&b->vr[ahead[i]]);
 }
 
@@ -301,8 +301,8 @@ static int binner_init(binner *b, const mesh *m, const grid_spec *g,
                        const mesh_vox_opts *o, mesh_lattice *lattice, unsigned parts)
 {
     memset(b, 0, sizeof *b);
-    mv_plan p;
-    mv_plan_make(g, o, &p);
+    mesh_vox_plan p;
+    mesh_vox_plan_make(g, o, &p);
     b->m = m, b->g = g, b->lattice = lattice;
     b->nt[0] = (g->res[0] + MESH_TILE - 1) / MESH_TILE;
     b->nt[1] = (g->res[1] + MESH_TILE - 1) / MESH_TILE;
@@ -312,7 +312,7 @@ static int binner_init(binner *b, const mesh *m, const grid_spec *g,
     b->margin = p.apron + p.band + 1.0 / 64;
     b->rep = o->repair != MESH_REPAIR_NONE;
     b->exact = p.solid1 && !p.surf && !p.rep && !p.dens && !p.dist; /* z rays only */
-    mv_frame_init(&b->f, m, g, 1);
+    mesh_vox_frame_init(&b->f, m, g, 1);
     size_t nt = (size_t)m->n_triangles + 1;
     b->vr = malloc(((size_t)m->n_vertices + 1) * sizeof *b->vr);
     if (b->exact) b->code = malloc(nt * sizeof *b->code);

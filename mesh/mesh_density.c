@@ -23,10 +23,10 @@
 #include "voxel.h"
 
 typedef struct {
-    mv_tile *t;
-    const mv_plan *p;
-    const mv_bufs *b;
-    mv_frame f;
+    mesh_vox_tile *t;
+    const mesh_vox_plan *p;
+    const mesh_vox_bufs *b;
+    mesh_vox_frame f;
     int64_t vx0, vy0;     /* the region's first voxel (the tile less the apron) */
     uint32_t dnx, dny;    /* its voxels per row and rows */
     int64_t next_z, z_end; /* the next voxel slice to compute, and the end */
@@ -56,11 +56,11 @@ static inline uint32_t field_count(const uint64_t *w, uint32_t off, uint32_t K)
     uint32_t i = off / 64, sh = off & 63;
     uint64_t v = w[i] >> sh;
     if (sh + K > 64) v |= w[i + 1] << (64 - sh);
-    return (uint32_t)mv_popcount(v & ((1ull << K) - 1));
+    return (uint32_t)mesh_vox_popcount(v & ((1ull << K) - 1));
 }
 
 /* Counts of voxel row (yy, zz) of fine block fb (region-relative). */
-static void count_row(const dens *d, const mv_block *fb, uint32_t zz,
+static void count_row(const dens *d, const mesh_vox_block *fb, uint32_t zz,
                       uint32_t yy, uint16_t *out)
 {
     uint32_t K = d->p->K, nbits = (uint32_t)fb->n[0], rows = (uint32_t)fb->n[1];
@@ -86,11 +86,11 @@ static void count_row(const dens *d, const mv_block *fb, uint32_t zz,
 }
 
 /* Voxels of the tile holding a sample whose parities differ. */
-static void fold_disagreements(const dens *d, const mv_block *fb, int64_t z0,
+static void fold_disagreements(const dens *d, const mesh_vox_block *fb, int64_t z0,
                                uint32_t nzs)
 {
     uint32_t K = d->p->K, rows = (uint32_t)fb->n[1], a = d->p->apron;
-    mv_tile *t = d->t;
+    mesh_vox_tile *t = d->t;
     for (uint32_t zz = 0; zz < nzs; zz++) {
         int64_t z = z0 + zz;
         if (z < 0 || z >= (int64_t)t->nz) continue;
@@ -109,20 +109,20 @@ static void fold_disagreements(const dens *d, const mv_block *fb, int64_t z0,
 /* Counts of voxel slices [z0, z0 + nzs) from one fine block. */
 static void fine_block(dens *d, int64_t z0, uint32_t nzs)
 {
-    const mv_plan *p = d->p;
-    const mv_bufs *b = d->b;
+    const mesh_vox_plan *p = d->p;
+    const mesh_vox_bufs *b = d->b;
     uint32_t K = p->K;
-    mv_block fb = {{d->vx0 * K, d->vy0 * K, z0 * K},
+    mesh_vox_block fb = {{d->vx0 * K, d->vy0 * K, z0 * K},
                    {(int32_t)(d->dnx * K), (int32_t)(d->dny * K), (int32_t)(nzs * K)},
                    (d->dnx * K + 63) / 64};
     const grid_spec *g = d->t->g;
     double h = g->vs / K;
     bool first = z0 == -(int64_t)p->apron;
-    mv_solid_in in = {&d->f, d->t->ids, d->t->n, d->t->o->repair, first,
+    mesh_vox_solid_in in = {&d->f, d->t->ids, d->t->n, d->t->o->repair, first,
                       g->lo[2] + (double)(fb.s0[2] - 1) * h,
                       g->lo[2] + (double)(fb.s0[2] + fb.n[2] + 1) * h};
-    mv_solid_buf sb = {b->fa, b->fbx, b->fby, b->fcx, b->fcy, b->fzc, b->fdis, NULL};
-    mv_solid(&in, &fb, &sb);
+    mesh_vox_solid_buf sb = {b->fa, b->fbx, b->fby, b->fcx, b->fcy, b->fzc, b->fdis, NULL};
+    mesh_vox_solid(&in, &fb, &sb);
     /* the disagreements counted are those of the pass that decides the
      * voxels: this one only without the voxel-centre solid */
     if (p->rep && !p->solid1) fold_disagreements(d, &fb, z0, nzs);
@@ -154,7 +154,7 @@ static inline int count_at(const dens *d, int64_t x, int64_t y, int64_t z)
 
 static int put(const dens *d, uint32_t bx, uint32_t by, uint32_t bz, const void *vox)
 {
-    const mv_tile *t = d->t;
+    const mesh_vox_tile *t = d->t;
     uint32_t b[3] = {t->x0 / t->S + bx, t->y0 / t->S + by, bz};
     return vod_volume_put_brick(t->vol, b, vox);
 }
@@ -162,7 +162,7 @@ static int put(const dens *d, uint32_t bx, uint32_t by, uint32_t bz, const void 
 /* The density channel's bricks of row bz. */
 static int emit_density_row(dens *d, uint32_t bz)
 {
-    mv_tile *t = d->t;
+    mesh_vox_tile *t = d->t;
     uint32_t S = t->S;
     uint8_t *brick = d->b->brick;
     for (uint32_t by = 0; by * S < t->ny; by++)
@@ -208,7 +208,7 @@ static uint32_t surface_voxel(const dens *d, int64_t x, int64_t y, int64_t z)
 /* The surface channel's bricks of row bz. */
 static int emit_surface_row(dens *d, uint32_t bz)
 {
-    mv_tile *t = d->t;
+    mesh_vox_tile *t = d->t;
     uint32_t S = t->S;
     uint32_t *brick = (uint32_t *)(void *)d->b->brick;
     for (uint32_t by = 0; by * S < t->ny; by++)
@@ -232,10 +232,10 @@ static int emit_surface_row(dens *d, uint32_t bz)
     return 0;
 }
 
-int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
+int mesh_vox_density_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b)
 {
     dens d = {.t = t, .p = p, .b = b};
-    mv_frame_init(&d.f, t->m, t->g, p->K);
+    mesh_vox_frame_init(&d.f, t->m, t->g, p->K);
     d.f.pulse = &t->pulse;
     d.f.wt = t->pulse.env ? t->pulse.env->wtree : NULL;
     d.vx0 = (int64_t)t->x0 - p->apron;
@@ -257,6 +257,6 @@ int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
     }
     if (p->rep && !p->solid1)
         for (size_t i = 0; i < (size_t)t->ny * t->nz; i++)
-            t->st->disagreements += (uint64_t)mv_popcount(t->dis[i]);
+            t->st->disagreements += (uint64_t)mesh_vox_popcount(t->dis[i]);
     return 0;
 }

@@ -135,7 +135,7 @@ static void edge_planes(dtri *d)
 
 /* Triangle id of the mesh in voxel units relative to the tile, with the
  * tile's voxels its grown box reaches; false when it reaches none. */
-static bool make_dtri(const mv_tile *t, uint32_t id, double K, dtri *d)
+static bool make_dtri(const mesh_vox_tile *t, uint32_t id, double K, dtri *d)
 {
     const mesh *m = t->m;
     double v[3][3];
@@ -190,7 +190,7 @@ static uint64_t brick_index(const dbins *d, uint32_t bx, uint32_t by, uint32_t b
 
 /* Each triangle into the bricks its grown box meets, in the tile's
  * triangle order (a counting sort: counted, then filed). */
-static int dbins_make(const mv_tile *t, uint32_t K, dbins *d)
+static int dbins_make(const mesh_vox_tile *t, uint32_t K, dbins *d)
 {
     uint32_t S = t->S;
     memset(d, 0, sizeof *d);
@@ -226,7 +226,7 @@ static int dbins_make(const mv_tile *t, uint32_t K, dbins *d)
 }
 
 /* The solid's bit of tile voxel (x, y, z). */
-static bool inside(const mv_tile *t, uint32_t x, uint32_t y, uint32_t z)
+static bool inside(const mesh_vox_tile *t, uint32_t x, uint32_t y, uint32_t z)
 {
     return t->occ[(size_t)z * t->ny + y] >> x & 1u;
 }
@@ -283,7 +283,7 @@ static inline void slab(const dtri *r, double py, double pz, double K, double *h
 /* Row y, z of the brick's squared distances (row[x] for the tile's x in
  * [lo, hi]) lowered by triangle r: Ericson's test only where the bound is
  * below the voxel's best. */
-static void row_d2(const mv_tile *t, const dtri *r, double py, double pz, int32_t lo,
+static void row_d2(const mesh_vox_tile *t, const dtri *r, double py, double pz, int32_t lo,
                    int32_t hi, double K, double *row)
 {
     double ax = r->a[0] - t->x0 - 0.5, x0 = lo - ax, x1 = hi - ax, h0; /* x = X - ax */
@@ -310,7 +310,7 @@ static void row_d2(const mv_tile *t, const dtri *r, double py, double pz, int32_
  * triangle's box is a lower bound of the distance to it: a row whose
  * (y, z) lies K or more from the box is skipped; in the others the slab
  * |h| < K cuts the row and the bound of row_d2 skips most voxels. */
-static void brick_d2(mv_tile *t, const dbins *d, uint32_t bx, uint32_t by, uint32_t bz,
+static void brick_d2(mesh_vox_tile *t, const dbins *d, uint32_t bx, uint32_t by, uint32_t bz,
                      uint32_t K, double *d2)
 {
     uint32_t S = t->S;
@@ -335,14 +335,14 @@ static void brick_d2(mv_tile *t, const dbins *d, uint32_t bx, uint32_t by, uint3
                 row_d2(t, r, py, pz, lo[0], hi[0], K, row);
             }
         }
-        if (mv_beat(&t->pulse, (uint32_t)(hi[0] - lo[0] + 1) * (uint32_t)(hi[1] - lo[1] + 1) *
+        if (mesh_vox_beat(&t->pulse, (uint32_t)(hi[0] - lo[0] + 1) * (uint32_t)(hi[1] - lo[1] + 1) *
                                    (uint32_t)(hi[2] - lo[2] + 1) / 4 + 1))
             return;
     }
 }
 
 /* 0 none, 2 every voxel, 1 some of brick (bx, by, bz)'s voxels inside. */
-static int brick_sign(const mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz)
+static int brick_sign(const mesh_vox_tile *t, uint32_t bx, uint32_t by, uint32_t bz)
 {
     uint32_t S = t->S;
     uint64_t full = S == 64 ? ~0ull : ((1ull << S) - 1) << (bx * S), any = 0, all = full;
@@ -357,7 +357,7 @@ static int brick_sign(const mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz)
 
 /* Brick (bx, by, bz): a uniform +w or -w when no triangle reaches it and
  * the solid agrees over it (inside the grid whole), else every voxel. */
-static int dist_brick(mv_tile *t, const dbins *d, const mv_bufs *b, uint32_t K, float w,
+static int dist_brick(mesh_vox_tile *t, const dbins *d, const mesh_vox_bufs *b, uint32_t K, float w,
                       uint32_t bx, uint32_t by, uint32_t bz)
 {
     uint32_t S = t->S;
@@ -388,7 +388,7 @@ static int dist_brick(mv_tile *t, const dbins *d, const mv_bufs *b, uint32_t K, 
     return vod_volume_put_brick(t->vol, at, out);
 }
 
-int mv_dist_run(mv_tile *t, const mv_plan *p, const mv_bufs *b)
+int mesh_vox_dist_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b)
 {
     dbins d;
     int rc = dbins_make(t, p->band, &d);

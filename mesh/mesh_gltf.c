@@ -35,70 +35,70 @@ static uint32_t le32(const uint8_t *p)
 
 /* ---------------------------------------------------------------- JSON */
 
-int gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64_t max,
+int mesh_gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64_t max,
               const char *what, uint64_t *out)
 {
     json_object *v;
     if (!json_object_object_get_ex(o, key, &v)) {
-        if (def < 0) return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s has no %s", what, key);
+        if (def < 0) return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s has no %s", what, key);
         *out = (uint64_t)def;
         return 0;
     }
     if (!json_object_is_type(v, json_type_int))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %s is not a whole number", what, key);
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s is not a whole number", what, key);
     int64_t x = json_object_get_int64(v);
     if (x < 0 || (uint64_t)x > max || x == INT64_MAX)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %s %lld is out of range (0 to %llu)",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s %lld is out of range (0 to %llu)",
                        what, key, (long long)x, (unsigned long long)max);
     *out = (uint64_t)x;
     return 0;
 }
 
-int gltf_array(gltf *g, json_object *o, const char *key, int required, const char *what,
+int mesh_gltf_array(gltf *g, json_object *o, const char *key, int required, const char *what,
                json_object **out)
 {
     *out = NULL;
     json_object *v;
     if (!json_object_object_get_ex(o, key, &v))
-        return required ? mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s has no %s", what, key) : 0;
+        return required ? mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s has no %s", what, key) : 0;
     if (!json_object_is_type(v, json_type_array))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %s is not an array", what, key);
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s is not an array", what, key);
     *out = v;
     return 0;
 }
 
-int gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const char *what,
+int mesh_gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const char *what,
                  double *out, int *given)
 {
     json_object *a;
-    int rc = gltf_array(g, o, key, 0, what, &a);
+    int rc = mesh_gltf_array(g, o, key, 0, what, &a);
     *given = a != NULL;
     if (rc || !a) return rc;
     if (json_object_array_length(a) != n)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %s needs %zu numbers", what, key, n);
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s needs %zu numbers", what, key, n);
     for (size_t i = 0; i < n; i++) {
         json_object *v = json_object_array_get_idx(a, i);
         if (!json_object_is_type(v, json_type_double) && !json_object_is_type(v, json_type_int))
-            return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %s[%zu] is not a number", what, key, i);
+            return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s[%zu] is not a number", what, key, i);
         out[i] = json_object_get_double(v);
         if (!isfinite(out[i]))
-            return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %s[%zu] is not finite", what, key, i);
+            return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s[%zu] is not finite", what, key, i);
     }
     return 0;
 }
 
-int gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out)
+int mesh_gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out)
 {
     json_object *a;
-    int rc = gltf_array(g, g->root, kind, 0, "the glTF", &a);
+    int rc = mesh_gltf_array(g, g->root, kind, 0, "the glTF", &a);
     if (rc) return rc;
     size_t n = a ? json_object_array_length(a) : 0;
     if (i >= n)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s %llu does not exist (%zu of them)", kind,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s %llu does not exist (%zu of them)", kind,
                        (unsigned long long)i, n);
     *out = json_object_array_get_idx(a, (size_t)i);
     if (!json_object_is_type(*out, json_type_object))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s %llu is not an object", kind,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s %llu is not an object", kind,
                        (unsigned long long)i);
     return 0;
 }
@@ -133,27 +133,27 @@ static uint64_t json_values(const char *j, size_t n)
 static int parse_json(gltf *g, const char *j, size_t n, uint64_t at)
 {
     if (n > INT32_MAX - 1)
-        return mb_fail(g->b, -E2BIG, MB_NOWHERE, "a JSON text of %zu bytes (2 GiB at most)", n);
+        return mesh_build_fail(g->b, -E2BIG, MESH_BUILD_NOWHERE, "a JSON text of %zu bytes (2 GiB at most)", n);
     uint64_t values = json_values(j, n);
     if (values > JSON_MAX_VALUES)
-        return mb_fail(g->b, -E2BIG, MB_NOWHERE, "a JSON text of up to %llu values (%u at most)",
+        return mesh_build_fail(g->b, -E2BIG, MESH_BUILD_NOWHERE, "a JSON text of up to %llu values (%u at most)",
                        (unsigned long long)values, JSON_MAX_VALUES);
     json_tokener *tok = json_tokener_new_ex(JSON_DEPTH);
-    if (!tok) return mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory for the JSON");
+    if (!tok) return mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for the JSON");
     json_tokener_set_flags(tok, JSON_TOKENER_STRICT | JSON_TOKENER_ALLOW_TRAILING_CHARS);
     g->root = json_tokener_parse_ex(tok, j, (int)n);
     enum json_tokener_error e = json_tokener_get_error(tok);
     size_t end = json_tokener_get_parse_end(tok);
     json_tokener_free(tok);
     if (!g->root || e != json_tokener_success)
-        return mb_fail(g->b, -EINVAL, at + end, "JSON: %s",
+        return mesh_build_fail(g->b, -EINVAL, at + end, "JSON: %s",
                        e == json_tokener_continue ? "the text ends inside a value"
                                                   : json_tokener_error_desc(e));
     for (size_t i = end; i < n; i++) /* a .glb pads its JSON with spaces */
         if (j[i] != ' ' && j[i] != '\t' && j[i] != '\n' && j[i] != '\r')
-            return mb_fail(g->b, -EINVAL, at + i, "JSON: data after the top-level value");
+            return mesh_build_fail(g->b, -EINVAL, at + i, "JSON: data after the top-level value");
     if (!json_object_is_type(g->root, json_type_object))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "the glTF JSON is not an object");
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "the glTF JSON is not an object");
     return 0;
 }
 
@@ -193,17 +193,17 @@ static int b64_decode(const char *s, size_t n, uint8_t **out, size_t *len)
 }
 
 /* A data: URI's bytes: "data:[type][;params];base64,...". */
-static int data_uri(gltf *g, uint64_t i, const char *uri, size_t n, gltf_buffer *bf, uint64_t *have)
+static int data_uri(gltf *g, uint64_t i, const char *uri, size_t n, mesh_gltf_buffer *bf, uint64_t *have)
 {
     const char *comma = memchr(uri, ',', n);
     if (!comma || comma - uri < 12 || memcmp(comma - 7, ";base64", 7))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "buffer %llu: a data: URI that is not base64",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "buffer %llu: a data: URI that is not base64",
                        (unsigned long long)i);
     uint8_t *d;
     size_t len;
     int rc = b64_decode(comma + 1, n - (size_t)(comma + 1 - uri), &d, &len);
     if (rc)
-        return mb_fail(g->b, rc, MB_NOWHERE, "buffer %llu: %s", (unsigned long long)i,
+        return mesh_build_fail(g->b, rc, MESH_BUILD_NOWHERE, "buffer %llu: %s", (unsigned long long)i,
                        rc == -ENOMEM ? "out of memory" : "bad base64 in its data: URI");
     bf->owned = d;
     bf->data = d;
@@ -247,15 +247,15 @@ static int uri_path(const char *dir, const char *uri, size_t n, char *path, size
 }
 
 /* An external file's bytes, mapped. */
-static int file_uri(gltf *g, uint64_t i, const char *uri, size_t n, gltf_buffer *bf, uint64_t *have)
+static int file_uri(gltf *g, uint64_t i, const char *uri, size_t n, mesh_gltf_buffer *bf, uint64_t *have)
 {
     char path[4096];
     if (!g->b->dir)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE,
                        "buffer %llu names the file '%.*s': only a .gltf read from disk may "
                        "(vox submit embeds them)", (unsigned long long)i, (int)(n > 64 ? 64 : n), uri);
     if (uri_path(g->b->dir, uri, n, path, sizeof path))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE,
                        "buffer %llu: the URI '%.*s' is not a relative path inside the .gltf's "
                        "folder", (unsigned long long)i, (int)(n > 64 ? 64 : n), uri);
     int fd = open(path, O_RDONLY | O_CLOEXEC);
@@ -263,13 +263,13 @@ static int file_uri(gltf *g, uint64_t i, const char *uri, size_t n, gltf_buffer 
     if (fd < 0 || fstat(fd, &st) || !S_ISREG(st.st_mode)) {
         int e = fd < 0 ? errno : EINVAL;
         if (fd >= 0) close(fd);
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "buffer %llu: cannot read %s: %s",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "buffer %llu: cannot read %s: %s",
                        (unsigned long long)i, path, strerror(e));
     }
     void *p = st.st_size ? mmap(NULL, (size_t)st.st_size, PROT_READ, MAP_PRIVATE, fd, 0) : NULL;
     close(fd);
     if (p == MAP_FAILED)
-        return mb_fail(g->b, -ENOMEM, MB_NOWHERE, "buffer %llu: cannot map %s", (unsigned long long)i, path);
+        return mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "buffer %llu: cannot map %s", (unsigned long long)i, path);
     bf->map = p;
     bf->map_len = (size_t)st.st_size;
     bf->data = p;
@@ -279,23 +279,23 @@ static int file_uri(gltf *g, uint64_t i, const char *uri, size_t n, gltf_buffer 
 
 /* Buffer i: its byteLength, and its bytes from the BIN chunk, a data: URI
  * or a file; at least byteLength of them. */
-static int resolve(gltf *g, uint64_t i, gltf_buffer *bf)
+static int resolve(gltf *g, uint64_t i, mesh_gltf_buffer *bf)
 {
     json_object *o, *u;
     char what[48];
     snprintf(what, sizeof what, "buffer %llu", (unsigned long long)i);
-    int rc = gltf_item(g, "buffers", i, &o);
-    if (!rc) rc = gltf_uint(g, o, "byteLength", -1, UINT64_MAX >> 1, what, &bf->len);
+    int rc = mesh_gltf_item(g, "buffers", i, &o);
+    if (!rc) rc = mesh_gltf_uint(g, o, "byteLength", -1, UINT64_MAX >> 1, what, &bf->len);
     if (rc) return rc;
     uint64_t have = 0;
     if (!json_object_object_get_ex(o, "uri", &u)) {
         if (i != 0 || !g->bin)
-            return mb_fail(g->b, -EINVAL, MB_NOWHERE,
+            return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE,
                            "%s has no uri (only a .glb's first buffer, in its BIN chunk, may)", what);
         bf->data = g->bin;
         have = g->bin_len;
     } else if (!json_object_is_type(u, json_type_string)) {
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: its uri is not a string", what);
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: its uri is not a string", what);
     } else {
         const char *s = json_object_get_string(u);
         size_t n = (size_t)json_object_get_string_len(u);
@@ -304,17 +304,17 @@ static int resolve(gltf *g, uint64_t i, gltf_buffer *bf)
         if (rc) return rc;
     }
     if (have < bf->len)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: byteLength %llu, but only %llu bytes",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: byteLength %llu, but only %llu bytes",
                        what, (unsigned long long)bf->len, (unsigned long long)have);
     return 0;
 }
 
-int gltf_buffer_get(gltf *g, uint64_t i, const gltf_buffer **out)
+int mesh_gltf_buffer_get(gltf *g, uint64_t i, const mesh_gltf_buffer **out)
 {
     if (i >= g->n_buf)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "buffer %llu does not exist (%zu of them)",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "buffer %llu does not exist (%zu of them)",
                        (unsigned long long)i, g->n_buf);
-    gltf_buffer *bf = &g->buf[i];
+    mesh_gltf_buffer *bf = &g->buf[i];
     if (!bf->data) {
         int rc = resolve(g, i, bf);
         if (rc) return rc;
@@ -330,20 +330,20 @@ int gltf_buffer_get(gltf *g, uint64_t i, const gltf_buffer **out)
 static int parse_glb(gltf *g, const uint8_t *p, size_t len)
 {
     mbuild *b = g->b;
-    if (len < 20) return mb_fail(b, -EINVAL, MB_NOWHERE, "a .glb of %zu bytes: too short", len);
+    if (len < 20) return mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "a .glb of %zu bytes: too short", len);
     if (le32(p + 4) != 2)
-        return mb_fail(b, -EINVAL, 4, "GLB version %u (2 is read)", le32(p + 4));
+        return mesh_build_fail(b, -EINVAL, 4, "GLB version %u (2 is read)", le32(p + 4));
     if (le32(p + 8) != len)
-        return mb_fail(b, -EINVAL, 8, "the GLB header says %u bytes, the file has %zu",
+        return mesh_build_fail(b, -EINVAL, 8, "the GLB header says %u bytes, the file has %zu",
                        le32(p + 8), len);
     size_t at = 12, json_at = 0, json_len = 0;
     for (int k = 0; at < len; k++) {
-        if (len - at < 8) return mb_fail(b, -EINVAL, at, "a truncated chunk header");
+        if (len - at < 8) return mesh_build_fail(b, -EINVAL, at, "a truncated chunk header");
         uint32_t n = le32(p + at), type = le32(p + at + 4);
         if (n > len - at - 8)
-            return mb_fail(b, -EINVAL, at, "chunk %d: %u bytes, %zu are left", k, n, len - at - 8);
+            return mesh_build_fail(b, -EINVAL, at, "chunk %d: %u bytes, %zu are left", k, n, len - at - 8);
         if (k == 0 && type != CHUNK_JSON)
-            return mb_fail(b, -EINVAL, at + 4, "the first chunk is not JSON");
+            return mesh_build_fail(b, -EINVAL, at + 4, "the first chunk is not JSON");
         if (k == 0) json_at = at + 8, json_len = n;
         if (k == 1 && type == CHUNK_BIN) g->bin = p + at + 8, g->bin_len = n;
         at += 8 + (size_t)n;
@@ -357,11 +357,11 @@ static int check_asset(gltf *g)
     json_object *a, *v, *req;
     if (!json_object_object_get_ex(g->root, "asset", &a) ||
         !json_object_object_get_ex(a, "version", &v) || !json_object_is_type(v, json_type_string))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "no asset.version: not a glTF 2.0 file");
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "no asset.version: not a glTF 2.0 file");
     const char *s = json_object_get_string(v);
     if (strncmp(s, "2.", 2))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "glTF version %.16s (2.x is read)", s);
-    int rc = gltf_array(g, g->root, "extensionsRequired", 0, "the glTF", &req);
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "glTF version %.16s (2.x is read)", s);
+    int rc = mesh_gltf_array(g, g->root, "extensionsRequired", 0, "the glTF", &req);
     for (size_t i = 0; !rc && req && i < json_object_array_length(req); i++) {
         const char *e = json_object_get_string(json_object_array_get_idx(req, i));
         /* geometry as the core reads it, or only looks (materials, textures, lights) */
@@ -369,13 +369,13 @@ static int check_asset(gltf *g)
                   !strncmp(e, "KHR_texture_", 12) || !strcmp(e, "KHR_lights_punctual") ||
                   !strcmp(e, "EXT_texture_webp")))
             continue;
-        rc = mb_fail(g->b, -EINVAL, MB_NOWHERE, "the file requires the extension %.64s, "
+        rc = mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "the file requires the extension %.64s, "
                      "which is not read", e ? e : "(not a string)");
     }
     return rc;
 }
 
-void gltf_close(gltf *g)
+void mesh_gltf_close(gltf *g)
 {
     for (size_t i = 0; i < g->n_buf; i++) {
         free(g->buf[i].owned);
@@ -385,16 +385,16 @@ void gltf_close(gltf *g)
     json_object_put(g->root);
 }
 
-int gltf_open(gltf *g, const char *buf, size_t len)
+int mesh_gltf_open(gltf *g, const char *buf, size_t len)
 {
     const uint8_t *p = (const uint8_t *)buf;
     int rc = len >= 4 && le32(p) == GLB_MAGIC ? parse_glb(g, p, len) : parse_json(g, buf, len, 0);
     if (!rc) rc = check_asset(g);
     json_object *bufs = NULL;
-    if (!rc) rc = gltf_array(g, g->root, "buffers", 0, "the glTF", &bufs);
+    if (!rc) rc = mesh_gltf_array(g, g->root, "buffers", 0, "the glTF", &bufs);
     if (!rc && bufs && (g->n_buf = json_object_array_length(bufs)) &&
         !(g->buf = calloc(g->n_buf, sizeof *g->buf)))
-        rc = mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory for %zu buffers", g->n_buf);
+        rc = mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu buffers", g->n_buf);
     return rc;
 }
 
@@ -424,13 +424,13 @@ static int embed_buffers(gltf *g, int *changed)
         if (!json_object_is_type(o, json_type_object) || !json_object_object_get_ex(o, "uri", &u) ||
             !json_object_is_type(u, json_type_string) || !strncmp(json_object_get_string(u), "data:", 5))
             continue;
-        const gltf_buffer *bf;
-        int rc = gltf_buffer_get(g, i, &bf);
+        const mesh_gltf_buffer *bf;
+        int rc = mesh_gltf_buffer_get(g, i, &bf);
         if (rc) return rc;
         char *enc = b64_encode(bf->data, (size_t)bf->len), *uri;
         if (!enc || asprintf(&uri, "data:application/octet-stream;base64,%s", enc) < 0) {
             free(enc);
-            return mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory embedding buffer %zu", i);
+            return mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory embedding buffer %zu", i);
         }
         free(enc);
         json_object_object_add(o, "uri", json_object_new_string(uri));
@@ -453,17 +453,17 @@ int mesh_gltf_embed(const char *buf, size_t len, const char *dir, char **out, si
     if (i == len || buf[i] != '{') return 0; /* not a JSON glTF: nothing to embed */
     int rc = parse_json(&g, buf, len, 0), changed = 0;
     json_object *bufs = NULL;
-    if (!rc) rc = gltf_array(&g, g.root, "buffers", 0, "the glTF", &bufs);
+    if (!rc) rc = mesh_gltf_array(&g, g.root, "buffers", 0, "the glTF", &bufs);
     if (!rc && bufs && (g.n_buf = json_object_array_length(bufs)) &&
         !(g.buf = calloc(g.n_buf, sizeof *g.buf)))
-        rc = mb_fail(&b, -ENOMEM, MB_NOWHERE, "out of memory");
+        rc = mesh_build_fail(&b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory");
     if (!rc) rc = embed_buffers(&g, &changed);
     if (!rc && changed) {
         size_t n;
         const char *s = json_object_to_json_string_length(g.root, JSON_C_TO_STRING_PLAIN, &n);
-        if (!s || !(*out = malloc(n ? n : 1))) rc = mb_fail(&b, -ENOMEM, MB_NOWHERE, "out of memory");
+        if (!s || !(*out = malloc(n ? n : 1))) rc = mesh_build_fail(&b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory");
         else memcpy(*out, s, n), *out_len = n;
     }
-    gltf_close(&g);
+    mesh_gltf_close(&g);
     return rc;
 }

@@ -19,14 +19,14 @@ typedef struct {
     void *owned;        /* decoded from a data: URI (free) */
     void *map;          /* an external file, mapped (munmap map_len) */
     size_t map_len;
-} gltf_buffer;
+} mesh_gltf_buffer;
 
 typedef struct {
     mbuild *b;
     json_object *root;
     const uint8_t *bin;  /* a .glb's BIN chunk, or NULL */
     uint64_t bin_len;
-    gltf_buffer *buf;
+    mesh_gltf_buffer *buf;
     size_t n_buf;
     uint64_t skipped;    /* primitives that are not triangles */
 } gltf;
@@ -34,29 +34,29 @@ typedef struct {
 /* ---- mesh_gltf.c ---- */
 
 /* o[key] as a whole number in [0, max], def when absent (def < 0: required).
- * what names o in a message.  0 or -EINVAL after mb_fail. */
-int gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64_t max,
+ * what names o in a message.  0 or -EINVAL after mesh_build_fail. */
+int mesh_gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64_t max,
               const char *what, uint64_t *out);
 /* o[key] as an array (required: -EINVAL when absent); NULL *out when absent
  * and optional. */
-int gltf_array(gltf *g, json_object *o, const char *key, int required, const char *what,
+int mesh_gltf_array(gltf *g, json_object *o, const char *key, int required, const char *what,
                json_object **out);
 /* n numbers of the array o[key] into out; absent: out unchanged, *given 0. */
-int gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const char *what,
+int mesh_gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const char *what,
                  double *out, int *given);
 /* root[kind][i] as an object, i checked against the array's length. */
-int gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out);
+int mesh_gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out);
 /* Buffer i's bytes (resolved on first use). */
-int gltf_buffer_get(gltf *g, uint64_t i, const gltf_buffer **out);
+int mesh_gltf_buffer_get(gltf *g, uint64_t i, const mesh_gltf_buffer **out);
 
 /* ---- mesh_gltf_scene.c ---- */
 
 /* The triangles of the default scene (or scene 0, or every root node) into g->b. */
-int gltf_read_scene(gltf *g);
+int mesh_gltf_read_scene(gltf *g);
 /* The file parsed (a .glb or a JSON text), its asset checked and its
  * buffers' table made (each buffer read when first asked for); the
- * caller ends with gltf_close, whatever the result. */
-int gltf_open(gltf *g, const char *buf, size_t len);
-void gltf_close(gltf *g);
+ * caller ends with mesh_gltf_close, whatever the result. */
+int mesh_gltf_open(gltf *g, const char *buf, size_t len);
+void mesh_gltf_close(gltf *g);
 
 #endif

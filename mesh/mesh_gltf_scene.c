@@ -46,33 +46,33 @@ static int bind_view(gltf *g, uint64_t bv, uint64_t off, view *v, int vertex, co
 {
     json_object *o;
     uint64_t buffer, boff, blen, stride;
-    const gltf_buffer *bf;
-    int rc = gltf_item(g, "bufferViews", bv, &o);
-    if (!rc) rc = gltf_uint(g, o, "buffer", -1, UINT32_MAX, what, &buffer);
-    if (!rc) rc = gltf_uint(g, o, "byteOffset", 0, UINT64_MAX >> 2, what, &boff);
-    if (!rc) rc = gltf_uint(g, o, "byteLength", -1, UINT64_MAX >> 2, what, &blen);
-    if (!rc) rc = gltf_uint(g, o, "byteStride", 0, 252, what, &stride);
-    if (!rc) rc = gltf_buffer_get(g, buffer, &bf);
+    const mesh_gltf_buffer *bf;
+    int rc = mesh_gltf_item(g, "bufferViews", bv, &o);
+    if (!rc) rc = mesh_gltf_uint(g, o, "buffer", -1, UINT32_MAX, what, &buffer);
+    if (!rc) rc = mesh_gltf_uint(g, o, "byteOffset", 0, UINT64_MAX >> 2, what, &boff);
+    if (!rc) rc = mesh_gltf_uint(g, o, "byteLength", -1, UINT64_MAX >> 2, what, &blen);
+    if (!rc) rc = mesh_gltf_uint(g, o, "byteStride", 0, 252, what, &stride);
+    if (!rc) rc = mesh_gltf_buffer_get(g, buffer, &bf);
     if (rc) return rc;
     uint64_t elem = (uint64_t)v->size * v->n;
     if (stride && (!vertex || stride < 4 || stride % 4 || stride < elem))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: bufferView %llu's byteStride %llu %s", what,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: bufferView %llu's byteStride %llu %s", what,
                        (unsigned long long)bv, (unsigned long long)stride,
                        vertex ? "(4 to 252, a multiple of 4, at least the element)"
                               : "on indices (not allowed)");
     if (boff > bf->len || blen > bf->len - boff)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE,
                        "%s: bufferView %llu (%llu bytes at %llu) overflows buffer %llu (%llu bytes)",
                        what, (unsigned long long)bv, (unsigned long long)blen,
                        (unsigned long long)boff, (unsigned long long)buffer,
                        (unsigned long long)bf->len);
     v->stride = stride ? stride : elem;
     if (off % v->size || (boff + off) % v->size)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: byte offset %llu is not aligned to its "
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: byte offset %llu is not aligned to its "
                        "%u-byte components", what, (unsigned long long)(boff + off), v->size);
     /* the last element's end: off + stride (count - 1) + elem, count < 2^32 */
     if (off > blen || v->stride * (v->count - 1) + elem > blen - off)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE,
                        "%s: %llu elements of %llu bytes every %llu from byte %llu overflow "
                        "bufferView %llu (%llu bytes)", what, (unsigned long long)v->count,
                        (unsigned long long)elem, (unsigned long long)v->stride,
@@ -88,29 +88,29 @@ static int accessor(gltf *g, uint64_t a, int vertex, view *v)
     snprintf(what, sizeof what, "accessor %llu", (unsigned long long)a);
     json_object *o, *t, *x;
     uint64_t comp, off, bv;
-    int rc = gltf_item(g, "accessors", a, &o);
-    if (!rc) rc = gltf_uint(g, o, "componentType", -1, UINT32_MAX, what, &comp);
-    if (!rc) rc = gltf_uint(g, o, "count", -1, UINT32_MAX, what, &v->count);
-    if (!rc) rc = gltf_uint(g, o, "byteOffset", 0, UINT64_MAX >> 2, what, &off);
+    int rc = mesh_gltf_item(g, "accessors", a, &o);
+    if (!rc) rc = mesh_gltf_uint(g, o, "componentType", -1, UINT32_MAX, what, &comp);
+    if (!rc) rc = mesh_gltf_uint(g, o, "count", -1, UINT32_MAX, what, &v->count);
+    if (!rc) rc = mesh_gltf_uint(g, o, "byteOffset", 0, UINT64_MAX >> 2, what, &off);
     if (rc) return rc;
     const char *type = json_object_object_get_ex(o, "type", &t) ? json_object_get_string(t) : "";
     if (strcmp(type ? type : "", vertex ? "VEC3" : "SCALAR"))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: type %.16s, %s wanted", what, type ? type : "",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: type %.16s, %s wanted", what, type ? type : "",
                        vertex ? "VEC3 (POSITION)" : "SCALAR (indices)");
     v->comp = (unsigned)comp, v->size = comp_size(comp), v->n = vertex ? 3 : 1;
     if (!v->size || (vertex && comp == C_U32) ||
         (!vertex && (comp == C_I8 || comp == C_I16 || comp == C_F32)))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: componentType %llu is not for %s", what,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: componentType %llu is not for %s", what,
                        (unsigned long long)comp,
                        vertex ? "positions (float; i8, u8, i16, u16 quantized)"
                               : "indices (u8, u16, u32)");
     v->normalized = json_object_object_get_ex(o, "normalized", &x) && json_object_get_boolean(x);
     if (json_object_object_get_ex(o, "sparse", &x))
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s is sparse (not read)", what);
-    if (!v->count) return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: count 0", what);
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s is sparse (not read)", what);
+    if (!v->count) return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: count 0", what);
     v->p = NULL;
     if (!json_object_object_get_ex(o, "bufferView", &x)) return 0; /* all zeros */
-    if ((rc = gltf_uint(g, o, "bufferView", -1, UINT32_MAX, what, &bv))) return rc;
+    if ((rc = mesh_gltf_uint(g, o, "bufferView", -1, UINT32_MAX, what, &bv))) return rc;
     return bind_view(g, bv, off, v, vertex, what);
 }
 
@@ -135,13 +135,13 @@ static double component(const view *v, uint64_t i, unsigned k)
 /* The positions of v, transformed by the column-major m, appended to b. */
 static int add_positions(gltf *g, const view *v, const double m[16])
 {
-    int rc = mb_reserve_vertices(g->b, v->count, MB_NOWHERE);
+    int rc = mesh_build_reserve_vertices(g->b, v->count, MESH_BUILD_NOWHERE);
     for (uint64_t i = 0; !rc && i < v->count; i++) {
         double p[3] = {component(v, i, 0), component(v, i, 1), component(v, i, 2)};
         float q[3];
         for (int r = 0; r < 3; r++)
             q[r] = (float)(m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r]);
-        rc = mb_vertex(g->b, q, MB_NOWHERE);
+        rc = mesh_build_vertex(g->b, q, MESH_BUILD_NOWHERE);
     }
     return rc;
 }
@@ -157,10 +157,10 @@ static int add_triangles(gltf *g, const view *ix, int indexed, uint64_t n, uint6
                          uint32_t base, uint64_t nv, int flip, const char *what)
 {
     if (mode == 4 && n % 3)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: %llu corners, not a multiple of 3", what,
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %llu corners, not a multiple of 3", what,
                        (unsigned long long)n);
     uint64_t nt = mode == 4 ? n / 3 : n >= 3 ? n - 2 : 0;
-    int rc = mb_reserve_triangles(g->b, nt, MB_NOWHERE);
+    int rc = mesh_build_reserve_triangles(g->b, nt, MESH_BUILD_NOWHERE);
     for (uint64_t t = 0; !rc && t < nt; t++) {
         uint64_t c[3];
         if (mode == 4) c[0] = 3 * t, c[1] = 3 * t + 1, c[2] = 3 * t + 2;
@@ -169,13 +169,13 @@ static int add_triangles(gltf *g, const view *ix, int indexed, uint64_t n, uint6
         uint64_t v[3];
         for (int k = 0; k < 3; k++)
             if ((v[k] = corner(ix, indexed, c[k])) >= nv)
-                return mb_fail(g->b, -EINVAL, MB_NOWHERE,
+                return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE,
                                "%s: index %llu out of range (%llu positions)", what,
                                (unsigned long long)v[k], (unsigned long long)nv);
-        rc = flip ? mb_triangle(g->b, base + (uint32_t)v[0], base + (uint32_t)v[2],
-                                base + (uint32_t)v[1], MB_NOWHERE)
-                  : mb_triangle(g->b, base + (uint32_t)v[0], base + (uint32_t)v[1],
-                                base + (uint32_t)v[2], MB_NOWHERE);
+        rc = flip ? mesh_build_triangle(g->b, base + (uint32_t)v[0], base + (uint32_t)v[2],
+                                base + (uint32_t)v[1], MESH_BUILD_NOWHERE)
+                  : mesh_build_triangle(g->b, base + (uint32_t)v[0], base + (uint32_t)v[1],
+                                base + (uint32_t)v[2], MESH_BUILD_NOWHERE);
     }
     return rc;
 }
@@ -184,7 +184,7 @@ static int primitive(gltf *g, json_object *p, const double m[16], int flip, cons
 {
     json_object *attr, *pos;
     uint64_t mode, a;
-    int rc = gltf_uint(g, p, "mode", 4, 6, what, &mode);
+    int rc = mesh_gltf_uint(g, p, "mode", 4, 6, what, &mode);
     if (rc) return rc;
     if (mode < 4 || !json_object_object_get_ex(p, "attributes", &attr) ||
         !json_object_object_get_ex(attr, "POSITION", &pos)) {
@@ -192,11 +192,11 @@ static int primitive(gltf *g, json_object *p, const double m[16], int flip, cons
         return 0;
     }
     view v, ix = {0};
-    if ((rc = gltf_uint(g, attr, "POSITION", -1, UINT32_MAX, what, &a)) ||
+    if ((rc = mesh_gltf_uint(g, attr, "POSITION", -1, UINT32_MAX, what, &a)) ||
         (rc = accessor(g, a, 1, &v)))
         return rc;
     int indexed = json_object_object_get_ex(p, "indices", &pos);
-    if (indexed && ((rc = gltf_uint(g, p, "indices", -1, UINT32_MAX, what, &a)) ||
+    if (indexed && ((rc = mesh_gltf_uint(g, p, "indices", -1, UINT32_MAX, what, &a)) ||
                     (rc = accessor(g, a, 0, &ix))))
         return rc;
     uint32_t base = g->b->nv;
@@ -209,8 +209,8 @@ static int mesh_of(gltf *g, uint64_t mi, const double m[16])
 {
     json_object *o, *prims;
     char what[64];
-    int rc = gltf_item(g, "meshes", mi, &o);
-    if (!rc) rc = gltf_array(g, o, "primitives", 1, "a mesh", &prims);
+    int rc = mesh_gltf_item(g, "meshes", mi, &o);
+    if (!rc) rc = mesh_gltf_array(g, o, "primitives", 1, "a mesh", &prims);
     double det = m[0] * (m[5] * m[10] - m[9] * m[6]) - m[4] * (m[1] * m[10] - m[9] * m[2]) +
                  m[8] * (m[1] * m[6] - m[5] * m[2]);
     for (size_t i = 0; !rc && i < json_object_array_length(prims); i++) {
@@ -218,7 +218,7 @@ static int mesh_of(gltf *g, uint64_t mi, const double m[16])
         snprintf(what, sizeof what, "mesh %llu primitive %zu", (unsigned long long)mi, i);
         rc = json_object_is_type(p, json_type_object)
                  ? primitive(g, p, m, det < 0, what)
-                 : mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s is not an object", what);
+                 : mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s is not an object", what);
     }
     return rc;
 }
@@ -240,17 +240,17 @@ static int local(gltf *g, json_object *o, const char *what, double m[16])
 {
     double t[3] = {0, 0, 0}, q[4] = {0, 0, 0, 1}, s[3] = {1, 1, 1};
     int has_m, has_t, has_r, has_s;
-    int rc = gltf_numbers(g, o, "matrix", 16, what, m, &has_m);
-    if (!rc) rc = gltf_numbers(g, o, "translation", 3, what, t, &has_t);
-    if (!rc) rc = gltf_numbers(g, o, "rotation", 4, what, q, &has_r);
-    if (!rc) rc = gltf_numbers(g, o, "scale", 3, what, s, &has_s);
+    int rc = mesh_gltf_numbers(g, o, "matrix", 16, what, m, &has_m);
+    if (!rc) rc = mesh_gltf_numbers(g, o, "translation", 3, what, t, &has_t);
+    if (!rc) rc = mesh_gltf_numbers(g, o, "rotation", 4, what, q, &has_r);
+    if (!rc) rc = mesh_gltf_numbers(g, o, "scale", 3, what, s, &has_s);
     if (rc || has_m) {
         if (!rc && (has_t || has_r || has_s))
-            return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s has both a matrix and TRS", what);
+            return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s has both a matrix and TRS", what);
         return rc;
     }
     double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
-    if (!(n > 0)) return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: a zero rotation", what);
+    if (!(n > 0)) return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: a zero rotation", what);
     double x = q[0] / n, y = q[1] / n, z = q[2] / n, w = q[3] / n;
     double r[9] = {1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w),
                    2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w),
@@ -276,27 +276,27 @@ static int visit(gltf *g, uint64_t node, const double parent[16], frame *stack, 
     json_object *o, *kids, *x;
     char what[48];
     snprintf(what, sizeof what, "node %llu", (unsigned long long)node);
-    int rc = gltf_item(g, "nodes", node, &o);
+    int rc = mesh_gltf_item(g, "nodes", node, &o);
     if (rc) return rc;
     if (seen[node]++)
-        return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s is reached twice (a cycle, or two parents)",
+        return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s is reached twice (a cycle, or two parents)",
                        what);
     double l[16], m[16];
     if ((rc = local(g, o, what, l))) return rc;
     mat_mul(parent, l, m);
     uint64_t mi;
     if (json_object_object_get_ex(o, "mesh", &x) &&
-        ((rc = gltf_uint(g, o, "mesh", -1, UINT32_MAX, what, &mi)) || (rc = mesh_of(g, mi, m))))
+        ((rc = mesh_gltf_uint(g, o, "mesh", -1, UINT32_MAX, what, &mi)) || (rc = mesh_of(g, mi, m))))
         return rc;
-    if ((rc = gltf_array(g, o, "children", 0, what, &kids)) || !kids) return rc;
+    if ((rc = mesh_gltf_array(g, o, "children", 0, what, &kids)) || !kids) return rc;
     /* pushed last first: popped, and so read, in the file's order */
     for (size_t i = json_object_array_length(kids); i-- > 0;) {
         json_object *k = json_object_array_get_idx(kids, i);
         int64_t c = json_object_is_type(k, json_type_int) ? json_object_get_int64(k) : -1;
         if (c < 0 || (uint64_t)c >= n_nodes)
-            return mb_fail(g->b, -EINVAL, MB_NOWHERE, "%s: child %zu is not a node", what, i);
+            return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: child %zu is not a node", what, i);
         if (*top == n_nodes) /* more pushes than nodes: one is reached twice */
-            return mb_fail(g->b, -EINVAL, MB_NOWHERE, "node %lld is reached twice", (long long)c);
+            return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "node %lld is reached twice", (long long)c);
         stack[*top].node = (uint64_t)c;
         memcpy(stack[(*top)++].m, m, sizeof m);
     }
@@ -309,28 +309,28 @@ static int roots_of(gltf *g, size_t n_nodes, uint64_t *roots, size_t *n)
 {
     json_object *scenes, *sc, *list;
     uint64_t which;
-    int rc = gltf_array(g, g->root, "scenes", 0, "the glTF", &scenes);
+    int rc = mesh_gltf_array(g, g->root, "scenes", 0, "the glTF", &scenes);
     if (!rc && scenes && json_object_array_length(scenes)) {
-        if ((rc = gltf_uint(g, g->root, "scene", 0, UINT32_MAX, "the glTF", &which)) ||
-            (rc = gltf_item(g, "scenes", which, &sc)) ||
-            (rc = gltf_array(g, sc, "nodes", 0, "the scene", &list)))
+        if ((rc = mesh_gltf_uint(g, g->root, "scene", 0, UINT32_MAX, "the glTF", &which)) ||
+            (rc = mesh_gltf_item(g, "scenes", which, &sc)) ||
+            (rc = mesh_gltf_array(g, sc, "nodes", 0, "the scene", &list)))
             return rc;
         *n = 0;
         for (size_t i = 0; list && i < json_object_array_length(list); i++) {
             json_object *k = json_object_array_get_idx(list, i);
             int64_t c = json_object_is_type(k, json_type_int) ? json_object_get_int64(k) : -1;
             if (c < 0 || (uint64_t)c >= n_nodes || *n == n_nodes)
-                return mb_fail(g->b, -EINVAL, MB_NOWHERE, "scene %llu: node %zu is not a node "
+                return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "scene %llu: node %zu is not a node "
                                "(or named twice)", (unsigned long long)which, i);
             roots[(*n)++] = (uint64_t)c;
         }
         return 0;
     }
     uint8_t *child = calloc(n_nodes + 1, 1);
-    if (!child) return mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory for %zu nodes", n_nodes);
+    if (!child) return mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu nodes", n_nodes);
     for (size_t i = 0; !rc && i < n_nodes; i++) {
         json_object *o = json_object_array_get_idx(json_object_object_get(g->root, "nodes"), i), *kids;
-        if (!json_object_is_type(o, json_type_object) || gltf_array(g, o, "children", 0, "a node", &kids) || !kids)
+        if (!json_object_is_type(o, json_type_object) || mesh_gltf_array(g, o, "children", 0, "a node", &kids) || !kids)
             continue;
         for (size_t j = 0; j < json_object_array_length(kids); j++) {
             int64_t c = json_object_get_int64(json_object_array_get_idx(kids, j));
@@ -344,16 +344,16 @@ static int roots_of(gltf *g, size_t n_nodes, uint64_t *roots, size_t *n)
     return 0;
 }
 
-int gltf_read_scene(gltf *g)
+int mesh_gltf_read_scene(gltf *g)
 {
     json_object *nodes;
-    int rc = gltf_array(g, g->root, "nodes", 0, "the glTF", &nodes);
+    int rc = mesh_gltf_array(g, g->root, "nodes", 0, "the glTF", &nodes);
     size_t n = nodes ? json_object_array_length(nodes) : 0, n_roots = 0;
     frame *stack = malloc((n + 1) * sizeof *stack);
     uint64_t *roots = malloc((n + 1) * sizeof *roots);
     uint8_t *seen = calloc(n + 1, 1);
     if (!rc && (!stack || !roots || !seen))
-        rc = mb_fail(g->b, -ENOMEM, MB_NOWHERE, "out of memory for %zu nodes", n);
+        rc = mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu nodes", n);
     if (!rc) rc = roots_of(g, n, roots, &n_roots);
     static const double id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
     for (size_t r = 0; !rc && r < n_roots; r++) {
@@ -374,11 +374,11 @@ int mesh_parse_gltf(const char *buf, size_t len, mbuild *b)
 {
     gltf g = {.b = b};
     b->binary = 1; /* errors name byte offsets (of the JSON's syntax) or none */
-    int rc = gltf_open(&g, buf, len);
-    if (!rc) rc = gltf_read_scene(&g);
+    int rc = mesh_gltf_open(&g, buf, len);
+    if (!rc) rc = mesh_gltf_read_scene(&g);
     if (!rc && g.skipped)
-        mb_warn(b, MB_NOWHERE, "glTF: %llu primitives that are not triangles (points, lines) "
+        mesh_build_warn(b, MESH_BUILD_NOWHERE, "glTF: %llu primitives that are not triangles (points, lines) "
                 "skipped", (unsigned long long)g.skipped);
-    gltf_close(&g);
+    mesh_gltf_close(&g);
     return rc;
 }

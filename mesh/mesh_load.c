@@ -20,7 +20,7 @@ static int starts_nocase(const char *p, const char *end, const char *w)
 {
     size_t n = strlen(w);
     return (size_t)(end - p) >= n && !strncasecmp(p, w, n) &&
-           ((size_t)(end - p) == n || mt_space(p[n]));
+           ((size_t)(end - p) == n || mesh_text_space(p[n]));
 }
 
 /* The first statement of an OBJ file is one of its keywords. */
@@ -45,14 +45,14 @@ static mesh_format detect(const char *buf, size_t len)
         return MESH_FORMAT_PLY;
     if (len >= 4 && !memcmp(buf, "glTF", 4)) return MESH_FORMAT_GLTF; /* a .glb */
     mtext t = {buf, buf + len, buf};
-    mt_skip_space(&t);
+    mesh_text_skip_space(&t);
     if (t.p < t.end && *t.p == '{') return MESH_FORMAT_GLTF; /* JSON: a .gltf */
     for (;;) { /* past blank lines and comments */
-        mt_skip_space(&t);
-        if (t.p < t.end && *t.p == '#') mt_next_line(&t);
+        mesh_text_skip_space(&t);
+        if (t.p < t.end && *t.p == '#') mesh_text_next_line(&t);
         else break;
     }
-    size_t n = mt_toklen(&t);
+    size_t n = mesh_text_toklen(&t);
     if (mesh_off_keyword(t.p, n)) return MESH_FORMAT_OFF;
     if (starts_nocase(t.p, t.end, "solid")) return MESH_FORMAT_STL;
     if (obj_keyword(t.p, n)) return MESH_FORMAT_OBJ;
@@ -72,9 +72,9 @@ static int parse_in(const void *buf, size_t len, mesh_format format, const mesh_
     mbuild b = {.max_tri = lim && lim->max_triangles ? lim->max_triangles : MESH_MAX_TRIANGLES,
                 .max_vert = lim && lim->max_vertices ? lim->max_vertices : MESH_MAX_VERTICES,
                 .buf = buf, .err = err, .dir = dir};
-    if (len == 0) return mb_fail(&b, -EINVAL, MB_NOWHERE, "empty file");
+    if (len == 0) return mesh_build_fail(&b, -EINVAL, MESH_BUILD_NOWHERE, "empty file");
     if (format == MESH_FORMAT_AUTO && !(format = detect(buf, len)))
-        return mb_fail(&b, -EINVAL, MB_NOWHERE,
+        return mesh_build_fail(&b, -EINVAL, MESH_BUILD_NOWHERE,
                        "not a mesh file of a known format (OBJ, STL, PLY, OFF, glTF)");
     int rc;
     switch (format) {
@@ -83,10 +83,10 @@ static int parse_in(const void *buf, size_t len, mesh_format format, const mesh_
     case MESH_FORMAT_PLY: rc = mesh_parse_ply(buf, len, &b); break;
     case MESH_FORMAT_OFF: rc = mesh_parse_off(buf, len, &b); break;
     case MESH_FORMAT_GLTF: rc = mesh_parse_gltf(buf, len, &b); break;
-    default: rc = mb_fail(&b, -EINVAL, MB_NOWHERE, "unknown mesh format %d", (int)format);
+    default: rc = mesh_build_fail(&b, -EINVAL, MESH_BUILD_NOWHERE, "unknown mesh format %d", (int)format);
     }
-    if (rc == 0) rc = mb_finish(&b, format, out);
-    mb_free(&b);
+    if (rc == 0) rc = mesh_build_finish(&b, format, out);
+    mesh_build_free(&b);
     return rc;
 }
 

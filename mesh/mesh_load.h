@@ -33,65 +33,65 @@ typedef struct {
     uint32_t (*t)[3];
     uint32_t nt;                /* triangles made so far, degenerate included */
     size_t cap_t;
-    char warning[200];          /* mb_warn's first line, into mesh.warning */
+    char warning[200];          /* mesh_build_warn's first line, into mesh.warning */
     const char *dir;            /* the file's folder (glTF's external buffers); NULL: none */
 } mbuild;
 
 /* Fill the error and return rc.  at: the byte offset of the trouble, told
- * as a line for text (b->binary 0), or MB_NOWHERE. */
-#define MB_NOWHERE UINT64_MAX
-int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
+ * as a line for text (b->binary 0), or MESH_BUILD_NOWHERE. */
+#define MESH_BUILD_NOWHERE UINT64_MAX
+int mesh_build_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
-/* Keep the first warning (told at `at` as mb_fail tells an error); later
+/* Keep the first warning (told at `at` as mesh_build_fail tells an error); later
  * ones are dropped: the loader counts them itself if it says so. */
-void mb_warn(mbuild *b, uint64_t at, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+void mesh_build_warn(mbuild *b, uint64_t at, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 /* Room for n more vertices / triangles, checked against the limits first:
  * -E2BIG past one, -ENOMEM. */
-int mb_reserve_vertices(mbuild *b, uint64_t n, uint64_t at);
-int mb_reserve_triangles(mbuild *b, uint64_t n, uint64_t at);
+int mesh_build_reserve_vertices(mbuild *b, uint64_t n, uint64_t at);
+int mesh_build_reserve_triangles(mbuild *b, uint64_t n, uint64_t at);
 /* Add a vertex: -EINVAL when not finite, -E2BIG past the vertex cap. */
-int mb_vertex_slow(mbuild *b, const float p[3], uint64_t at);
+int mesh_build_vertex_slow(mbuild *b, const float p[3], uint64_t at);
 /* Add triangle (a, c, d): the caller has checked the indices (below the
  * vertex count the file declares); -E2BIG past the triangle cap. */
-int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at);
+int mesh_build_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at);
 
-static inline int mb_finite(const float p[3])
+static inline int mesh_build_finite(const float p[3])
 {
     return isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2]);
 }
 
-static inline int mb_vertex(mbuild *b, const float p[3], uint64_t at)
+static inline int mesh_build_vertex(mbuild *b, const float p[3], uint64_t at)
 {
-    if (b->nv < b->cap_v && mb_finite(p)) {
+    if (b->nv < b->cap_v && mesh_build_finite(p)) {
         float *q = b->v[b->nv++];
         q[0] = p[0], q[1] = p[1], q[2] = p[2];
         return 0;
     }
-    return mb_vertex_slow(b, p, at);
+    return mesh_build_vertex_slow(b, p, at);
 }
 
-static inline int mb_triangle(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
+static inline int mesh_build_triangle(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
 {
     if (b->nt < b->cap_t) {
         uint32_t *q = b->t[b->nt++];
         q[0] = a, q[1] = c, q[2] = d;
         return 0;
     }
-    return mb_triangle_slow(b, a, c, d, at);
+    return mesh_build_triangle_slow(b, a, c, d, at);
 }
 
 /* A triangle of zero area: the cross product of two edges, the edges
  * taken in double, is exactly zero (three collinear positions, two equal). */
-int mb_zero_area(const float *a, const float *b, const float *c);
+int mesh_build_zero_area(const float *a, const float *b, const float *c);
 /* Drop the degenerate triangles, take the bounding box, and move the
  * arrays into *out (b is empty after).  -EINVAL when no triangle is left. */
-int mb_finish(mbuild *b, mesh_format f, mesh *out);
-void mb_free(mbuild *b);
+int mesh_build_finish(mbuild *b, mesh_format f, mesh *out);
+void mesh_build_free(mbuild *b);
 
 /* STL's vertices are per triangle: merge bit-equal positions (-0 as 0)
  * into one vertex and renumber the triangles.  0 or -ENOMEM; -E2BIG when
  * the merged vertices are still past the cap. */
-int mb_weld(mbuild *b);
+int mesh_build_weld(mbuild *b);
 
 /* ---- the loaders: buf[0, len), format already told ---- */
 
@@ -109,45 +109,45 @@ int mesh_off_keyword(const char *p, size_t n);
 /* ---- text ---- */
 
 /* Line numbers are not kept while parsing (the hot loops stay plain): an
- * error counts the newlines before its byte offset (mb_fail). */
+ * error counts the newlines before its byte offset (mesh_build_fail). */
 typedef struct {
     const char *p, *end, *base;
 } mtext;
 
-/* p's byte offset: where an error is (mb_fail makes it a line). */
-static inline uint64_t mt_at(const mtext *t) { return (uint64_t)(t->p - t->base); }
+/* p's byte offset: where an error is (mesh_build_fail makes it a line). */
+static inline uint64_t mesh_text_at(const mtext *t) { return (uint64_t)(t->p - t->base); }
 
 /* A blank within a line (the line ends at '\n'; "\r\n" is a blank and a newline). */
-static inline int mt_blank(char c)
+static inline int mesh_text_blank(char c)
 {
     return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
 }
-static inline int mt_space(char c) { return mt_blank(c) || c == '\n'; }
+static inline int mesh_text_space(char c) { return mesh_text_blank(c) || c == '\n'; }
 
-static inline void mt_skip_blank(mtext *t)
+static inline void mesh_text_skip_blank(mtext *t)
 {
-    while (t->p < t->end && mt_blank(*t->p)) t->p++;
+    while (t->p < t->end && mesh_text_blank(*t->p)) t->p++;
 }
 /* Blanks and newlines. */
-static inline void mt_skip_space(mtext *t)
+static inline void mesh_text_skip_space(mtext *t)
 {
-    while (t->p < t->end && mt_space(*t->p)) t->p++;
+    while (t->p < t->end && mesh_text_space(*t->p)) t->p++;
 }
-/* At the end of the line (or of the text), after mt_skip_blank. */
-static inline int mt_eol(const mtext *t) { return t->p == t->end || *t->p == '\n'; }
+/* At the end of the line (or of the text), after mesh_text_skip_blank. */
+static inline int mesh_text_eol(const mtext *t) { return t->p == t->end || *t->p == '\n'; }
 /* Past the next newline. */
-void mt_next_line(mtext *t);
+void mesh_text_next_line(mtext *t);
 /* The length of the token at p (up to a blank, newline or the end). */
-size_t mt_toklen(const mtext *t);
+size_t mesh_text_toklen(const mtext *t);
 /* The token at p is w (ASCII case ignored when nocase): consume it. */
-int mt_word(mtext *t, const char *w, int nocase);
+int mesh_text_word(mtext *t, const char *w, int nocase);
 
 /* The longest number token read (longer ones are refused). */
-#define MT_TOKEN_MAX 127
-int mt_float_slow(mtext *t, float *out);
-extern const double mt_pow10[23], mt_pow10_neg[23];
+#define MESH_TEXT_TOKEN_MAX 127
+int mesh_text_float_slow(mtext *t, float *out);
+extern const double mesh_text_pow10[23], mesh_text_pow10_neg[23];
 
-static inline int mt_digit(char c) { return (unsigned)(c - '0') < 10; }
+static inline int mesh_text_digit(char c) { return (unsigned)(c - '0') < 10; }
 
 /* The number token at p into *out; p moves past it.  The token must end at
  * a blank, a newline or the end.  Correctly rounded to float.  0, -EINVAL
@@ -161,20 +161,20 @@ static inline int mt_digit(char c) { return (unsigned)(c - '0') < 10; }
  * bits a float drops are then near 1000...0): those, and anything else
  * (more digits, NaN and Inf spellings, hex floats, subnormal or overflowing
  * floats), go to strtof on a terminated copy of the token. */
-static inline int mt_float(mtext *t, float *out)
+static inline int mesh_text_float(mtext *t, float *out)
 {
 #if FLT_EVAL_METHOD == 0
-    /* at most MT_TOKEN_MAX characters scanned: the exponent stays small */
-    const char *s = t->p, *end = t->end - t->p > MT_TOKEN_MAX ? t->p + MT_TOKEN_MAX : t->end;
+    /* at most MESH_TEXT_TOKEN_MAX characters scanned: the exponent stays small */
+    const char *s = t->p, *end = t->end - t->p > MESH_TEXT_TOKEN_MAX ? t->p + MESH_TEXT_TOKEN_MAX : t->end;
     int neg = 0, e10 = 0, nd = 0, inexact = 0;
     uint64_t m = 0;
     if (s < end && (*s == '+' || *s == '-')) neg = *s++ == '-';
-    for (; s < end && mt_digit(*s); s++, nd++) {
+    for (; s < end && mesh_text_digit(*s); s++, nd++) {
         if (m < 1000000000000000000ull) m = m * 10 + (uint64_t)(*s - '0');
         else e10++, inexact |= *s != '0';
     }
     if (s < end && *s == '.')
-        for (s++; s < end && mt_digit(*s); s++, nd++) {
+        for (s++; s < end && mesh_text_digit(*s); s++, nd++) {
             if (m < 1000000000000000000ull) m = m * 10 + (uint64_t)(*s - '0'), e10--;
             else inexact |= *s != '0';
         }
@@ -182,44 +182,44 @@ static inline int mt_float(mtext *t, float *out)
         const char *x = s + 1;
         int eneg = 0, ev = 0;
         if (x < end && (*x == '+' || *x == '-')) eneg = *x++ == '-';
-        if (!(x < end && mt_digit(*x))) return mt_float_slow(t, out); /* "1e": refused there */
-        for (; x < end && mt_digit(*x); x++)
+        if (!(x < end && mesh_text_digit(*x))) return mesh_text_float_slow(t, out); /* "1e": refused there */
+        for (; x < end && mesh_text_digit(*x); x++)
             if (ev < 100000) ev = ev * 10 + (*x - '0');
         e10 += eneg ? -ev : ev;
         s = x;
     }
-    if (!nd || inexact || (s < t->end && !mt_space(*s))) return mt_float_slow(t, out);
+    if (!nd || inexact || (s < t->end && !mesh_text_space(*s))) return mesh_text_float_slow(t, out);
     if (m == 0) {
         *out = neg ? -0.0f : 0.0f;
         t->p = s;
         return 0;
     }
     while ((m >= (1ull << 53) || e10 < -22) && m % 10 == 0) m /= 10, e10++;
-    if (m >= (1ull << 53) || e10 < -22 || e10 > 22) return mt_float_slow(t, out);
-    double d = e10 < 0 ? (double)m * mt_pow10_neg[-e10] : (double)m * mt_pow10[e10];
+    if (m >= (1ull << 53) || e10 < -22 || e10 > 22) return mesh_text_float_slow(t, out);
+    double d = e10 < 0 ? (double)m * mesh_text_pow10_neg[-e10] : (double)m * mesh_text_pow10[e10];
     uint64_t bits;
     memcpy(&bits, &d, 8);
     if (d > FLT_MAX || d < FLT_MIN || (bits + 3 - 0x10000000u) % 0x20000000u <= 6)
-        return mt_float_slow(t, out);
+        return mesh_text_float_slow(t, out);
     float f = (float)d;
     *out = neg ? -f : f;
     t->p = s;
     return 0;
 #else
-    return mt_float_slow(t, out);
+    return mesh_text_float_slow(t, out);
 #endif
 }
 
 /* A decimal integer with an optional sign, ending wherever its digits end
  * (the caller checks what follows).  0, -EINVAL, -ERANGE (past int64). */
-static inline int mt_int(mtext *t, int64_t *out)
+static inline int mesh_text_int(mtext *t, int64_t *out)
 {
     const char *s = t->p;
     int neg = 0;
     if (s < t->end && (*s == '+' || *s == '-')) neg = *s++ == '-';
-    if (!(s < t->end && mt_digit(*s))) return -EINVAL;
+    if (!(s < t->end && mesh_text_digit(*s))) return -EINVAL;
     uint64_t v = 0;
-    for (; s < t->end && mt_digit(*s); s++) {
+    for (; s < t->end && mesh_text_digit(*s); s++) {
         if (v >= 922337203685477580ull) return -ERANGE; /* INT64_MAX / 10: no overflow below */
         v = v * 10 + (uint64_t)(*s - '0');
     }
@@ -228,9 +228,9 @@ static inline int mt_int(mtext *t, int64_t *out)
     return 0;
 }
 /* A whole token that is a decimal integer in [0, max]: 0, -EINVAL, -ERANGE. */
-int mt_uint_token(mtext *t, uint64_t max, uint64_t *out);
+int mesh_text_uint_token(mtext *t, uint64_t max, uint64_t *out);
 
 /* For messages: the token at p, at most 24 characters, printable. */
-const char *mt_tokstr(const mtext *t, char buf[32]);
+const char *mesh_text_tokstr(const mtext *t, char buf[32]);
 
 #endif

@@ -26,24 +26,24 @@ static uint64_t line_of(const mbuild *b, uint64_t at)
     return line;
 }
 
-int mb_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
+int mesh_build_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
     err_vfmt(b->err->msg, sizeof b->err->msg, rc, fmt, ap);
     va_end(ap);
     b->err->line = b->err->offset = 0;
-    if (at == MB_NOWHERE) return rc;
+    if (at == MESH_BUILD_NOWHERE) return rc;
     if (b->binary) b->err->offset = at;
     else b->err->line = line_of(b, at);
     return rc;
 }
 
-void mb_warn(mbuild *b, uint64_t at, const char *fmt, ...)
+void mesh_build_warn(mbuild *b, uint64_t at, const char *fmt, ...)
 {
     if (b->warning[0]) return;
     size_t n = 0;
-    if (at != MB_NOWHERE)
+    if (at != MESH_BUILD_NOWHERE)
         n = (size_t)snprintf(b->warning, sizeof b->warning, "%s %llu: ",
                              b->binary ? "byte" : "line",
                              (unsigned long long)(b->binary ? at : line_of(b, at)));
@@ -71,53 +71,53 @@ static int grow(void **arr, size_t *cap, uint64_t need, uint64_t max, size_t sz,
     return 0;
 }
 
-int mb_reserve_vertices(mbuild *b, uint64_t n, uint64_t at)
+int mesh_build_reserve_vertices(mbuild *b, uint64_t n, uint64_t at)
 {
     if (n > b->max_vert - b->nv)
-        return mb_fail(b, -E2BIG, at, "%llu vertices: more than the limit of %u",
+        return mesh_build_fail(b, -E2BIG, at, "%llu vertices: more than the limit of %u",
                        (unsigned long long)(b->nv + n), b->max_vert);
     if (grow((void **)&b->v, &b->cap_v, b->nv + n, b->max_vert, sizeof *b->v, 1))
-        return mb_fail(b, -ENOMEM, at, "out of memory for %llu vertices",
+        return mesh_build_fail(b, -ENOMEM, at, "out of memory for %llu vertices",
                        (unsigned long long)(b->nv + n));
     return 0;
 }
 
-int mb_reserve_triangles(mbuild *b, uint64_t n, uint64_t at)
+int mesh_build_reserve_triangles(mbuild *b, uint64_t n, uint64_t at)
 {
     if (n > b->max_tri - b->nt)
-        return mb_fail(b, -E2BIG, at, "%llu triangles: more than the limit of %u",
+        return mesh_build_fail(b, -E2BIG, at, "%llu triangles: more than the limit of %u",
                        (unsigned long long)(b->nt + n), b->max_tri);
     if (grow((void **)&b->t, &b->cap_t, b->nt + n, b->max_tri, sizeof *b->t, 1))
-        return mb_fail(b, -ENOMEM, at, "out of memory for %llu triangles",
+        return mesh_build_fail(b, -ENOMEM, at, "out of memory for %llu triangles",
                        (unsigned long long)(b->nt + n));
     return 0;
 }
 
-int mb_vertex_slow(mbuild *b, const float p[3], uint64_t at)
+int mesh_build_vertex_slow(mbuild *b, const float p[3], uint64_t at)
 {
-    if (!mb_finite(p))
-        return mb_fail(b, -EINVAL, at, "vertex %u: a coordinate is not a finite number", b->nv);
+    if (!mesh_build_finite(p))
+        return mesh_build_fail(b, -EINVAL, at, "vertex %u: a coordinate is not a finite number", b->nv);
     if (b->nv >= b->max_vert)
-        return mb_fail(b, -E2BIG, at, "more than the limit of %u vertices", b->max_vert);
+        return mesh_build_fail(b, -E2BIG, at, "more than the limit of %u vertices", b->max_vert);
     if (grow((void **)&b->v, &b->cap_v, (uint64_t)b->nv + 1, b->max_vert, sizeof *b->v, 0))
-        return mb_fail(b, -ENOMEM, at, "out of memory for %u vertices", b->nv + 1);
-    return mb_vertex(b, p, at);
+        return mesh_build_fail(b, -ENOMEM, at, "out of memory for %u vertices", b->nv + 1);
+    return mesh_build_vertex(b, p, at);
 }
 
-int mb_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
+int mesh_build_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint64_t at)
 {
     if (b->nt >= b->max_tri)
-        return mb_fail(b, -E2BIG, at, "more than the limit of %u triangles", b->max_tri);
+        return mesh_build_fail(b, -E2BIG, at, "more than the limit of %u triangles", b->max_tri);
     if (grow((void **)&b->t, &b->cap_t, (uint64_t)b->nt + 1, b->max_tri, sizeof *b->t, 0))
-        return mb_fail(b, -ENOMEM, at, "out of memory for %u triangles", b->nt + 1);
-    return mb_triangle(b, a, c, d, at);
+        return mesh_build_fail(b, -ENOMEM, at, "out of memory for %u triangles", b->nt + 1);
+    return mesh_build_triangle(b, a, c, d, at);
 }
 
 /* Zero area: the cross product of two edges is zero.  The edges are
  * differences of floats taken in double (exact unless the exponents are
  * far apart), the products and sums rounded once more: a triangle whose
  * three positions are collinear (or two equal) gives exactly zero. */
-int mb_zero_area(const float *a, const float *b, const float *c)
+int mesh_build_zero_area(const float *a, const float *b, const float *c)
 {
     double u0 = (double)b[0] - a[0], u1 = (double)b[1] - a[1], u2 = (double)b[2] - a[2];
     double v0 = (double)c[0] - a[0], v1 = (double)c[1] - a[1], v2 = (double)c[2] - a[2];
@@ -139,7 +139,7 @@ static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, float l
     for (uint32_t i = from; i < to; i++) {
         uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
         const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
-        int k = t0 != t1 && t1 != t2 && t0 != t2 && !mb_zero_area(p[0], p[1], p[2]);
+        int k = t0 != t1 && t1 != t2 && t0 != t2 && !mesh_build_zero_area(p[0], p[1], p[2]);
         if (keep) keep[i - from] = (uint8_t)k;
         if (!k) continue;
         for (int c = 0; c < 3; c++) {
@@ -154,7 +154,7 @@ static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, float l
     return kept;
 }
 
-/* mb_finish on every CPU for a large mesh: each part's box, count and
+/* mesh_build_finish on every CPU for a large mesh: each part's box, count and
  * kept flags; then, when some triangles are degenerate, one pass moves the
  * kept ones down in place by the flags (a copy into a new array by every
  * CPU cost more than it saved: its fresh pages' faults). */
@@ -219,15 +219,15 @@ static void finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
     *kept = sum;
 }
 
-int mb_finish(mbuild *b, mesh_format f, mesh *out)
+int mesh_build_finish(mbuild *b, mesh_format f, mesh *out)
 {
     float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
     uint32_t kept;
     finish_all(b, lo, hi, &kept);
     uint32_t dropped = b->nt - kept;
     if (!kept)
-        return b->nt ? mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles: all %u are degenerate", b->nt)
-                     : mb_fail(b, -EINVAL, MB_NOWHERE, "no triangles");
+        return b->nt ? mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "no triangles: all %u are degenerate", b->nt)
+                     : mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "no triangles");
     /* Give back what growth over-allocated (shrinking cannot fail the load). */
     void *p = b->cap_t > kept ? realloc(b->t, (size_t)kept * sizeof *b->t) : NULL;
     if (p) b->t = p;
@@ -244,7 +244,7 @@ int mb_finish(mbuild *b, mesh_format f, mesh *out)
     return 0;
 }
 
-void mb_free(mbuild *b)
+void mesh_build_free(mbuild *b)
 {
     free(b->v);
     free(b->t);
@@ -323,7 +323,7 @@ static int weld_grow(weld_table *w, float (*v)[3], uint32_t u)
     return 0;
 }
 
-int mb_weld(mbuild *b)
+int mesh_build_weld(mbuild *b)
 {
     uint32_t n = b->nv;
     /* a closed mesh has about a sixth as many vertices as corners: start
@@ -334,7 +334,7 @@ int mb_weld(mbuild *b)
     uint32_t *map = malloc((size_t)(n ? n : 1) * sizeof *map);
     if (!map || weld_alloc(&w, bits)) {
         free(map);
-        return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
+        return mesh_build_fail(b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory welding %u vertices", n);
     }
     /* Unique positions move down in place, in order of first appearance
      * (u <= i: a slot below i is never needed again). */
@@ -353,7 +353,7 @@ int mb_weld(mbuild *b)
         map[i] = u++;
         if ((uint64_t)u * 2 > w.mask + 1 && weld_grow(&w, b->v, u)) {
             free(map);
-            return mb_fail(b, -ENOMEM, MB_NOWHERE, "out of memory welding %u vertices", n);
+            return mesh_build_fail(b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory welding %u vertices", n);
         }
     }
     free(w.slot);
@@ -362,41 +362,41 @@ int mb_weld(mbuild *b)
     free(map);
     b->nv = u;
     if (u > b->max_vert)
-        return mb_fail(b, -E2BIG, MB_NOWHERE, "%u distinct vertices: more than the limit of %u", u,
+        return mesh_build_fail(b, -E2BIG, MESH_BUILD_NOWHERE, "%u distinct vertices: more than the limit of %u", u,
                        b->max_vert);
     return 0;
 }
 
 /* --------------------------------------------------------------------- text */
 
-void mt_next_line(mtext *t)
+void mesh_text_next_line(mtext *t)
 {
     const char *nl = memchr(t->p, '\n', (size_t)(t->end - t->p));
     t->p = nl ? nl + 1 : t->end;
 }
 
-size_t mt_toklen(const mtext *t)
+size_t mesh_text_toklen(const mtext *t)
 {
     const char *q = t->p;
-    while (q < t->end && !mt_space(*q)) q++;
+    while (q < t->end && !mesh_text_space(*q)) q++;
     return (size_t)(q - t->p);
 }
 
-int mt_word(mtext *t, const char *w, int nocase)
+int mesh_text_word(mtext *t, const char *w, int nocase)
 {
     size_t n = strlen(w);
     if ((size_t)(t->end - t->p) < n) return 0;
     if (nocase ? strncasecmp(t->p, w, n) : memcmp(t->p, w, n)) return 0;
-    if (t->p + n < t->end && !mt_space(t->p[n])) return 0;
+    if (t->p + n < t->end && !mesh_text_space(t->p[n])) return 0;
     t->p += n;
     return 1;
 }
 
-const char *mt_tokstr(const mtext *t, char buf[32])
+const char *mesh_text_tokstr(const mtext *t, char buf[32])
 {
     if (t->p == t->end) return "the end of the file";
     if (*t->p == '\n') return "the end of the line";
-    size_t n = mt_toklen(t), i;
+    size_t n = mesh_text_toklen(t), i;
     buf[0] = '\'';
     for (i = 0; i < n && i < 24; i++) {
         char c = t->p[i];
@@ -409,11 +409,11 @@ const char *mt_tokstr(const mtext *t, char buf[32])
 }
 
 /* strtof on a terminated copy of the token: correctly rounded (glibc). */
-int mt_float_slow(mtext *t, float *out)
+int mesh_text_float_slow(mtext *t, float *out)
 {
-    size_t n = mt_toklen(t);
-    char tok[MT_TOKEN_MAX + 1];
-    if (n == 0 || n > MT_TOKEN_MAX) return -EINVAL;
+    size_t n = mesh_text_toklen(t);
+    char tok[MESH_TEXT_TOKEN_MAX + 1];
+    if (n == 0 || n > MESH_TEXT_TOKEN_MAX) return -EINVAL;
     memcpy(tok, t->p, n);
     tok[n] = '\0';
     char *e;
@@ -425,25 +425,25 @@ int mt_float_slow(mtext *t, float *out)
     return 0;
 }
 
-const double mt_pow10[23] = {
+const double mesh_text_pow10[23] = {
     1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
     1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
-const double mt_pow10_neg[23] = {
+const double mesh_text_pow10_neg[23] = {
     1e-0,  1e-1,  1e-2,  1e-3,  1e-4,  1e-5,  1e-6,  1e-7,  1e-8,  1e-9,  1e-10, 1e-11,
     1e-12, 1e-13, 1e-14, 1e-15, 1e-16, 1e-17, 1e-18, 1e-19, 1e-20, 1e-21, 1e-22};
 
-int mt_uint_token(mtext *t, uint64_t max, uint64_t *out)
+int mesh_text_uint_token(mtext *t, uint64_t max, uint64_t *out)
 {
     const char *s = t->p;
-    if (!(s < t->end && mt_digit(*s))) return -EINVAL;
+    if (!(s < t->end && mesh_text_digit(*s))) return -EINVAL;
     uint64_t v = 0;
     int over = 0;
-    for (; s < t->end && mt_digit(*s); s++) {
+    for (; s < t->end && mesh_text_digit(*s); s++) {
         uint64_t d = (uint64_t)(*s - '0');
         if (v > (UINT64_MAX - d) / 10) over = 1;
         else v = v * 10 + d;
     }
-    if (s < t->end && !mt_space(*s)) return -EINVAL;
+    if (s < t->end && !mesh_text_space(*s)) return -EINVAL;
     if (over || v > max) return -ERANGE;
     *out = v;
     t->p = s;

@@ -14,7 +14,7 @@
 static void skip_blank(mtext *t)
 {
     for (;;) {
-        mt_skip_blank(t);
+        mesh_text_skip_blank(t);
         const char *q = t->p;
         if (q < t->end && *q == '\\') {
             q++;
@@ -51,15 +51,15 @@ static int parse_v(mtext *t, mbuild *b)
     for (int k = 0; k < 3; k++) {
         skip_blank(t);
         char tok[32];
-        int rc = mt_float(t, &p[k]);
+        int rc = mesh_text_float(t, &p[k]);
         if (rc == -ERANGE)
-            return mb_fail(b, -EINVAL, mt_at(t), "vertex %u: %s is not a finite number", b->nv + 1,
-                           mt_tokstr(t, tok));
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "vertex %u: %s is not a finite number", b->nv + 1,
+                           mesh_text_tokstr(t, tok));
         if (rc)
-            return mb_fail(b, -EINVAL, mt_at(t), "vertex %u: coordinate %c: %s is not a number",
-                           b->nv + 1, "xyz"[k], mt_tokstr(t, tok));
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "vertex %u: coordinate %c: %s is not a number",
+                           b->nv + 1, "xyz"[k], mesh_text_tokstr(t, tok));
     }
-    return mb_vertex(b, p, mt_at(t));
+    return mesh_build_vertex(b, p, mesh_text_at(t));
 }
 
 /* One face vertex "i[/[t][/n]]": the 0-based vertex index. */
@@ -68,24 +68,24 @@ static int face_vertex(mtext *t, mbuild *b, uint32_t *out)
     char tok[32];
     const char *at = t->p;
     int64_t i, ignored;
-    if (mt_int(t, &i))
-        return mb_fail(b, -EINVAL, mt_at(t), "face: %s is not a vertex index", mt_tokstr(t, tok));
+    if (mesh_text_int(t, &i))
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "face: %s is not a vertex index", mesh_text_tokstr(t, tok));
     if (i == 0 || i > (int64_t)b->nv || i < -(int64_t)b->nv) {
         t->p = at;
-        return mb_fail(b, -EINVAL, mt_at(t),
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t),
                        "face: vertex index %lld out of range (%u vertices so far)", (long long)i,
                        b->nv);
     }
     *out = i > 0 ? (uint32_t)(i - 1) : (uint32_t)((int64_t)b->nv + i);
     for (int k = 0; k < 2 && t->p < t->end && *t->p == '/'; k++) {
         t->p++;
-        if (t->p < t->end && (*t->p == '/' || mt_space(*t->p))) continue; /* "i//n", "i/" */
-        if (mt_int(t, &ignored)) break;
+        if (t->p < t->end && (*t->p == '/' || mesh_text_space(*t->p))) continue; /* "i//n", "i/" */
+        if (mesh_text_int(t, &ignored)) break;
     }
-    if (t->p < t->end && !mt_space(*t->p)) {
+    if (t->p < t->end && !mesh_text_space(*t->p)) {
         t->p = at;
-        return mb_fail(b, -EINVAL, mt_at(t), "face: %s is not a vertex (i, i/t, i/t/n or i//n)",
-                       mt_tokstr(t, tok));
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "face: %s is not a vertex (i, i/t, i/t/n or i//n)",
+                       mesh_text_tokstr(t, tok));
     }
     return 0;
 }
@@ -95,15 +95,15 @@ static int parse_f(mtext *t, mbuild *b)
     uint32_t first = 0, prev = 0, n = 0;
     for (;; n++) {
         skip_blank(t);
-        if (mt_eol(t) || *t->p == '#') break; /* a comment ends the statement */
+        if (mesh_text_eol(t) || *t->p == '#') break; /* a comment ends the statement */
         uint32_t v = 0;
         int rc = face_vertex(t, b, &v);
         if (rc) return rc;
-        if (n >= 2 && (rc = mb_triangle(b, first, prev, v, mt_at(t)))) return rc;
+        if (n >= 2 && (rc = mesh_build_triangle(b, first, prev, v, mesh_text_at(t)))) return rc;
         if (n == 0) first = v;
         prev = v;
     }
-    if (n < 3) return mb_fail(b, -EINVAL, mt_at(t), "face with %u vertices (at least 3)", n);
+    if (n < 3) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "face with %u vertices (at least 3)", n);
     return 0;
 }
 
@@ -113,8 +113,8 @@ int mesh_parse_obj(const char *buf, size_t len, mbuild *b)
     while (t.p < t.end) {
         skip_blank(&t);
         int rc = 0;
-        if (mt_word(&t, "v", 0)) rc = parse_v(&t, b);
-        else if (mt_word(&t, "f", 0)) rc = parse_f(&t, b);
+        if (mesh_text_word(&t, "v", 0)) rc = parse_v(&t, b);
+        else if (mesh_text_word(&t, "f", 0)) rc = parse_f(&t, b);
         if (rc) return rc;
         next_statement(&t); /* the rest: a vertex's w or colour, or a skipped statement */
     }

@@ -25,8 +25,8 @@ int mesh_off_keyword(const char *p, size_t n)
 static void next_record(mtext *t)
 {
     for (;;) {
-        mt_skip_space(t);
-        if (t->p < t->end && *t->p == '#') mt_next_line(t);
+        mesh_text_skip_space(t);
+        if (t->p < t->end && *t->p == '#') mesh_text_next_line(t);
         else return;
     }
 }
@@ -34,8 +34,8 @@ static void next_record(mtext *t)
 /* The rest of a line is blank or a comment. */
 static int line_done(mtext *t)
 {
-    mt_skip_blank(t);
-    return mt_eol(t) || *t->p == '#';
+    mesh_text_skip_blank(t);
+    return mesh_text_eol(t) || *t->p == '#';
 }
 
 static int parse_counts(mtext *t, mbuild *b, uint64_t *nv, uint64_t *nf)
@@ -43,25 +43,25 @@ static int parse_counts(mtext *t, mbuild *b, uint64_t *nv, uint64_t *nf)
     char tok[32];
     if (line_done(t)) next_record(t); /* the counts on a line of their own */
     uint64_t ne;
-    if (mt_uint_token(t, UINT64_MAX, nv) || (mt_skip_blank(t), mt_uint_token(t, UINT64_MAX, nf)))
-        return mb_fail(b, -EINVAL, mt_at(t), "expected the counts 'vertices faces [edges]', found %s",
-                       mt_tokstr(t, tok));
-    mt_skip_blank(t);
-    if (!line_done(t) && mt_uint_token(t, UINT64_MAX, &ne))
-        return mb_fail(b, -EINVAL, mt_at(t), "the edge count %s is not a whole number",
-                       mt_tokstr(t, tok));
-    if (!line_done(t)) return mb_fail(b, -EINVAL, mt_at(t), "unexpected %s after the counts",
-                                      mt_tokstr(t, tok));
+    if (mesh_text_uint_token(t, UINT64_MAX, nv) || (mesh_text_skip_blank(t), mesh_text_uint_token(t, UINT64_MAX, nf)))
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "expected the counts 'vertices faces [edges]', found %s",
+                       mesh_text_tokstr(t, tok));
+    mesh_text_skip_blank(t);
+    if (!line_done(t) && mesh_text_uint_token(t, UINT64_MAX, &ne))
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "the edge count %s is not a whole number",
+                       mesh_text_tokstr(t, tok));
+    if (!line_done(t)) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "unexpected %s after the counts",
+                                      mesh_text_tokstr(t, tok));
     /* The least bytes: "0 0 0\n" a vertex, "3 0 1 2\n" a face (the last
      * line end may be missing). */
     uint64_t room = (uint64_t)(t->end - t->p) + 1;
     if (*nv > room / 6 || *nf > (room - *nv * 6) / 8)
-        return mb_fail(b, -EINVAL, mt_at(t),
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t),
                        "%llu vertices and %llu faces cannot fit in the %llu bytes left",
                        (unsigned long long)*nv, (unsigned long long)*nf,
                        (unsigned long long)(room - 1));
-    int rc = mb_reserve_vertices(b, *nv, mt_at(t));
-    return rc ? rc : mb_reserve_triangles(b, *nf, mt_at(t));
+    int rc = mesh_build_reserve_vertices(b, *nv, mesh_text_at(t));
+    return rc ? rc : mesh_build_reserve_triangles(b, *nf, mesh_text_at(t));
 }
 
 static int parse_vertex(mtext *t, mbuild *b, uint64_t i)
@@ -69,17 +69,17 @@ static int parse_vertex(mtext *t, mbuild *b, uint64_t i)
     float p[3];
     char tok[32];
     next_record(t);
-    uint64_t at = mt_at(t);
+    uint64_t at = mesh_text_at(t);
     for (int k = 0; k < 3; k++) {
-        mt_skip_blank(t);
-        int rc = mt_float(t, &p[k]);
+        mesh_text_skip_blank(t);
+        int rc = mesh_text_float(t, &p[k]);
         if (rc)
-            return mb_fail(b, -EINVAL, mt_at(t), "vertex %llu: %s%s", (unsigned long long)i,
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "vertex %llu: %s%s", (unsigned long long)i,
                            rc == -ERANGE ? "not a finite number: " : "a coordinate expected, found ",
-                           mt_tokstr(t, tok));
+                           mesh_text_tokstr(t, tok));
     }
-    mt_next_line(t); /* colour, normal, texture coordinates */
-    return mb_vertex(b, p, at);
+    mesh_text_next_line(t); /* colour, normal, texture coordinates */
+    return mesh_build_vertex(b, p, at);
 }
 
 static int parse_face(mtext *t, mbuild *b, uint64_t i, uint64_t nv)
@@ -87,29 +87,29 @@ static int parse_face(mtext *t, mbuild *b, uint64_t i, uint64_t nv)
     char tok[32];
     next_record(t);
     uint64_t k;
-    uint64_t at = mt_at(t);
-    if (mt_uint_token(t, UINT32_MAX, &k))
-        return mb_fail(b, -EINVAL, at, "face %llu: a vertex count expected, found %s",
-                       (unsigned long long)i, mt_tokstr(t, tok));
+    uint64_t at = mesh_text_at(t);
+    if (mesh_text_uint_token(t, UINT32_MAX, &k))
+        return mesh_build_fail(b, -EINVAL, at, "face %llu: a vertex count expected, found %s",
+                       (unsigned long long)i, mesh_text_tokstr(t, tok));
     if (k < 3)
-        return mb_fail(b, -EINVAL, at, "face %llu has %llu vertices (at least 3)",
+        return mesh_build_fail(b, -EINVAL, at, "face %llu has %llu vertices (at least 3)",
                        (unsigned long long)i, (unsigned long long)k);
     uint32_t first = 0, prev = 0;
     for (uint64_t j = 0; j < k; j++) {
-        mt_skip_blank(t);
+        mesh_text_skip_blank(t);
         uint64_t v;
-        int rc = mt_uint_token(t, UINT64_MAX, &v);
-        if (rc) return mb_fail(b, -EINVAL, mt_at(t), "face %llu: a vertex index expected, found %s",
-                               (unsigned long long)i, mt_tokstr(t, tok));
+        int rc = mesh_text_uint_token(t, UINT64_MAX, &v);
+        if (rc) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "face %llu: a vertex index expected, found %s",
+                               (unsigned long long)i, mesh_text_tokstr(t, tok));
         if (v >= nv)
-            return mb_fail(b, -EINVAL, mt_at(t),
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t),
                            "face %llu: vertex index %llu out of range (%llu vertices)",
                            (unsigned long long)i, (unsigned long long)v, (unsigned long long)nv);
-        if (j >= 2 && (rc = mb_triangle(b, first, prev, (uint32_t)v, mt_at(t)))) return rc;
+        if (j >= 2 && (rc = mesh_build_triangle(b, first, prev, (uint32_t)v, mesh_text_at(t)))) return rc;
         if (j == 0) first = (uint32_t)v;
         prev = (uint32_t)v;
     }
-    mt_next_line(t); /* an optional colour */
+    mesh_text_next_line(t); /* an optional colour */
     return 0;
 }
 
@@ -118,20 +118,20 @@ int mesh_parse_off(const char *buf, size_t len, mbuild *b)
     mtext t = {buf, buf + len, buf};
     char tok[32];
     next_record(&t);
-    size_t n = mt_toklen(&t);
+    size_t n = mesh_text_toklen(&t);
     if (!mesh_off_keyword(t.p, n))
-        return mb_fail(b, -EINVAL, mt_at(&t), "not an OFF file: %s", mt_tokstr(&t, tok));
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(&t), "not an OFF file: %s", mesh_text_tokstr(&t, tok));
     t.p += n;
-    mt_skip_blank(&t);
-    if (mt_word(&t, "BINARY", 0)) return mb_fail(b, -EINVAL, mt_at(&t), "binary OFF is not supported");
+    mesh_text_skip_blank(&t);
+    if (mesh_text_word(&t, "BINARY", 0)) return mesh_build_fail(b, -EINVAL, mesh_text_at(&t), "binary OFF is not supported");
     uint64_t nv, nf;
     int rc = parse_counts(&t, b, &nv, &nf);
-    mt_next_line(&t);
+    mesh_text_next_line(&t);
     for (uint64_t i = 0; !rc && i < nv; i++) rc = parse_vertex(&t, b, i);
     for (uint64_t i = 0; !rc && i < nf; i++) rc = parse_face(&t, b, i, nv);
     if (rc) return rc;
     next_record(&t);
     if (t.p != t.end)
-        return mb_fail(b, -EINVAL, mt_at(&t), "%s after the last face", mt_tokstr(&t, tok));
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(&t), "%s after the last face", mesh_text_tokstr(&t, tok));
     return 0;
 }

@@ -46,7 +46,7 @@ int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
 #define DENS_BUDGET (4u << 20) /* bytes of one fine block's bits */
 #define MAX_S VOD_VOLUME_MAX_BRICK
 
-void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
+void mesh_vox_plan_make(const grid_spec *g, const mesh_vox_opts *o, mesh_vox_plan *p)
 {
     memset(p, 0, sizeof *p);
     bool dens_ch = o->channel == VOXEL_CH_DENSITY;
@@ -73,7 +73,7 @@ void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p)
 #define ALIGN64(n) (((n) + 63) & ~(size_t)63)
 
 /* The buffers of plan p in base (NULL: only the size).  The bytes used. */
-size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
+size_t mesh_vox_layout(const mesh_vox_plan *p, uint32_t bits, void *base, mesh_vox_bufs *b)
 {
     size_t off = 0;
     memset(b, 0, sizeof *b);
@@ -115,9 +115,9 @@ size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b)
 
 size_t mesh_tile_scratch_bytes(const grid_spec *g, const mesh_vox_opts *o)
 {
-    mv_plan p;
-    mv_bufs b;
-    mv_plan_make(g, o, &p);
-    return mv_layout(&p, mesh_vox_bits(o), NULL, &b);
+    mesh_vox_plan p;
+    mesh_vox_bufs b;
+    mesh_vox_plan_make(g, o, &p);
+    return mesh_vox_layout(&p, mesh_vox_bits(o), NULL, &b);
 }
 

@@ -70,7 +70,7 @@ typedef struct {
 
 static int type_of(mtext *t)
 {
-    size_t n = mt_toklen(t);
+    size_t n = mesh_text_toklen(t);
     for (int i = 0; i < T_NONE; i++)
         if ((strlen(types[i].name) == n && !memcmp(t->p, types[i].name, n)) ||
             (strlen(types[i].alias) == n && !memcmp(t->p, types[i].alias, n))) {
@@ -89,40 +89,40 @@ static int header_property(ply *y, mtext *t)
 {
     mbuild *b = y->b;
     char tok[32];
-    if (!y->nelems) return mb_fail(b, -EINVAL, mt_at(t), "a property before any element");
+    if (!y->nelems) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "a property before any element");
     ply_elem *e = &y->elems[y->nelems - 1];
     if (e->nprops == MAX_PROPS)
-        return mb_fail(b, -EINVAL, mt_at(t), "more than %d properties in an element", MAX_PROPS);
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "more than %d properties in an element", MAX_PROPS);
     ply_prop *p = &e->props[e->nprops];
     *p = (ply_prop){.count_type = T_NONE};
-    mt_skip_blank(t);
-    if (mt_word(t, "list", 0)) {
+    mesh_text_skip_blank(t);
+    if (mesh_text_word(t, "list", 0)) {
         p->list = 1;
-        mt_skip_blank(t);
+        mesh_text_skip_blank(t);
         if ((p->count_type = (uint8_t)type_of(t)) == T_NONE)
-            return mb_fail(b, -EINVAL, mt_at(t), "unknown list count type %s", mt_tokstr(t, tok));
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "unknown list count type %s", mesh_text_tokstr(t, tok));
         if (p->count_type >= T_FLOAT)
-            return mb_fail(b, -EINVAL, mt_at(t), "a list count of type %s (an integer type needed)",
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "a list count of type %s (an integer type needed)",
                            types[p->count_type].name);
     }
-    mt_skip_blank(t);
+    mesh_text_skip_blank(t);
     if ((p->type = (uint8_t)type_of(t)) == T_NONE)
-        return mb_fail(b, -EINVAL, mt_at(t), "unknown property type %s", mt_tokstr(t, tok));
-    mt_skip_blank(t);
-    size_t n = mt_toklen(t);
-    if (!n) return mb_fail(b, -EINVAL, mt_at(t), "a property without a name");
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "unknown property type %s", mesh_text_tokstr(t, tok));
+    mesh_text_skip_blank(t);
+    size_t n = mesh_text_toklen(t);
+    if (!n) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "a property without a name");
     if (e->kind == E_VERTEX && !p->list)
         p->role = is_name(t, n, "x") ? R_X : is_name(t, n, "y") ? R_Y : is_name(t, n, "z") ? R_Z : 0;
     if (e->kind == E_FACE && p->list &&
         (is_name(t, n, "vertex_indices") || is_name(t, n, "vertex_index"))) {
         if (p->type >= T_FLOAT)
-            return mb_fail(b, -EINVAL, mt_at(t), "vertex indices of type %s (an integer type needed)",
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "vertex indices of type %s (an integer type needed)",
                            types[p->type].name);
         p->role = R_INDICES;
     }
     for (uint32_t i = 0; p->role && i < e->nprops; i++)
         if (e->props[i].role == p->role)
-            return mb_fail(b, -EINVAL, mt_at(t), "property %.*s declared twice", (int)n, t->p);
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "property %.*s declared twice", (int)n, t->p);
     e->nprops++;
     t->p += n;
     return 0;
@@ -133,44 +133,44 @@ static int header_element(ply *y, mtext *t)
     mbuild *b = y->b;
     char tok[32];
     if (y->nelems == MAX_ELEMS)
-        return mb_fail(b, -EINVAL, mt_at(t), "more than %d elements", MAX_ELEMS);
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "more than %d elements", MAX_ELEMS);
     ply_elem *e = &y->elems[y->nelems];
     memset(e, 0, sizeof *e);
-    mt_skip_blank(t);
+    mesh_text_skip_blank(t);
     e->name = t->p;
-    e->name_len = mt_toklen(t);
-    e->at = mt_at(t);
-    if (!e->name_len) return mb_fail(b, -EINVAL, mt_at(t), "an element without a name");
+    e->name_len = mesh_text_toklen(t);
+    e->at = mesh_text_at(t);
+    if (!e->name_len) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "an element without a name");
     e->kind = is_name(t, e->name_len, "vertex") ? E_VERTEX : is_name(t, e->name_len, "face") ? E_FACE : E_OTHER;
     for (uint32_t i = 0; e->kind != E_OTHER && i < y->nelems; i++)
         if (y->elems[i].kind == e->kind)
-            return mb_fail(b, -EINVAL, mt_at(t), "element %.*s declared twice", (int)e->name_len,
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "element %.*s declared twice", (int)e->name_len,
                            e->name);
     t->p += e->name_len;
-    mt_skip_blank(t);
-    int rc = mt_uint_token(t, UINT64_MAX, &e->count);
+    mesh_text_skip_blank(t);
+    int rc = mesh_text_uint_token(t, UINT64_MAX, &e->count);
     if (rc)
-        return mb_fail(b, -EINVAL, mt_at(t), "element %.*s: the count %s is not a whole number",
-                       (int)e->name_len, e->name, mt_tokstr(t, tok));
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "element %.*s: the count %s is not a whole number",
+                       (int)e->name_len, e->name, mesh_text_tokstr(t, tok));
     y->nelems++;
     return 0;
 }
 
 static int header_format(ply *y, mtext *t)
 {
-    mt_skip_blank(t);
-    if (mt_word(t, "ascii", 0)) y->ascii = 1;
-    else if (mt_word(t, "binary_little_endian", 0)) y->be = 0;
-    else if (mt_word(t, "binary_big_endian", 0)) y->be = 1;
+    mesh_text_skip_blank(t);
+    if (mesh_text_word(t, "ascii", 0)) y->ascii = 1;
+    else if (mesh_text_word(t, "binary_little_endian", 0)) y->be = 0;
+    else if (mesh_text_word(t, "binary_big_endian", 0)) y->be = 1;
     else {
         char tok[32];
-        return mb_fail(y->b, -EINVAL, mt_at(t), "unknown format %s", mt_tokstr(t, tok));
+        return mesh_build_fail(y->b, -EINVAL, mesh_text_at(t), "unknown format %s", mesh_text_tokstr(t, tok));
     }
-    mt_skip_blank(t);
-    if (!mt_word(t, "1.0", 0)) {
+    mesh_text_skip_blank(t);
+    if (!mesh_text_word(t, "1.0", 0)) {
         char tok[32];
-        return mb_fail(y->b, -EINVAL, mt_at(t), "format version %s (1.0 is known)",
-                       mt_tokstr(t, tok));
+        return mesh_build_fail(y->b, -EINVAL, mesh_text_at(t), "format version %s (1.0 is known)",
+                       mesh_text_tokstr(t, tok));
     }
     return 0;
 }
@@ -183,42 +183,42 @@ static void unknown_line(ply *y, mtext *t)
 {
     char tok[32];
     if (!y->unknown++)
-        mb_warn(y->b, mt_at(t), "PLY header: unknown line starting %s skipped", mt_tokstr(t, tok));
-    mt_next_line(t);
+        mesh_build_warn(y->b, mesh_text_at(t), "PLY header: unknown line starting %s skipped", mesh_text_tokstr(t, tok));
+    mesh_text_next_line(t);
 }
 
-#define NO_FORMAT(b, t) mb_fail(b, -EINVAL, mt_at(t), "no format line after 'ply'")
+#define NO_FORMAT(b, t) mesh_build_fail(b, -EINVAL, mesh_text_at(t), "no format line after 'ply'")
 
 static int parse_header(ply *y, mtext *t)
 {
     mbuild *b = y->b;
     int have_format = 0, rc = 0;
-    mt_next_line(t); /* "ply", checked by the caller */
+    mesh_text_next_line(t); /* "ply", checked by the caller */
     for (;;) {
-        if (t->p == t->end) return mb_fail(b, -EINVAL, mt_at(t), "no end_header");
-        mt_skip_blank(t);
-        if (mt_word(t, "end_header", 0)) break;
-        if (mt_word(t, "format", 0)) {
-            if (have_format++) return mb_fail(b, -EINVAL, mt_at(t), "a second format line");
+        if (t->p == t->end) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "no end_header");
+        mesh_text_skip_blank(t);
+        if (mesh_text_word(t, "end_header", 0)) break;
+        if (mesh_text_word(t, "format", 0)) {
+            if (have_format++) return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "a second format line");
             rc = header_format(y, t);
-        } else if (mt_word(t, "element", 0)) {
+        } else if (mesh_text_word(t, "element", 0)) {
             rc = have_format ? header_element(y, t) : NO_FORMAT(b, t);
-        } else if (mt_word(t, "property", 0)) {
+        } else if (mesh_text_word(t, "property", 0)) {
             rc = have_format ? header_property(y, t) : NO_FORMAT(b, t);
-        } else if (mt_word(t, "comment", 0) || mt_word(t, "obj_info", 0) || mt_eol(t)) {
-            mt_next_line(t);
+        } else if (mesh_text_word(t, "comment", 0) || mesh_text_word(t, "obj_info", 0) || mesh_text_eol(t)) {
+            mesh_text_next_line(t);
             continue;
         } else {
             unknown_line(y, t);
             continue;
         }
         if (rc) return rc;
-        mt_skip_blank(t);
-        if (!mt_eol(t)) {
+        mesh_text_skip_blank(t);
+        if (!mesh_text_eol(t)) {
             char tok[32];
-            return mb_fail(b, -EINVAL, mt_at(t), "unexpected %s", mt_tokstr(t, tok));
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "unexpected %s", mesh_text_tokstr(t, tok));
         }
-        mt_next_line(t);
+        mesh_text_next_line(t);
     }
     if (!have_format) return NO_FORMAT(b, t);
     if (y->unknown > 1) {
@@ -227,9 +227,9 @@ static int parse_header(ply *y, mtext *t)
                  (unsigned long long)(y->unknown - 1));
     }
     /* end_header, then exactly one line end: the binary data begins after it. */
-    mt_skip_blank(t);
+    mesh_text_skip_blank(t);
     if (t->p == t->end || *t->p != '\n')
-        return mb_fail(b, -EINVAL, mt_at(t), "end_header not followed by a line end");
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "end_header not followed by a line end");
     t->p++;
     y->data = t->p;
     return 0;
@@ -248,7 +248,7 @@ static int check_elements(ply *y, size_t avail)
         if (e->kind == E_VERTEX) vert = e;
         if (e->kind == E_FACE) face = e;
         if (!e->nprops && e->count)
-            return mb_fail(b, -EINVAL, e->at, "element %.*s has no properties", (int)e->name_len,
+            return mesh_build_fail(b, -EINVAL, e->at, "element %.*s has no properties", (int)e->name_len,
                            e->name);
         uint64_t least = 0;
         for (uint32_t k = 0; k < e->nprops; k++) {
@@ -260,7 +260,7 @@ static int check_elements(ply *y, size_t avail)
                                   : types[p->type].size;
         }
         if (least && e->count > room / least)
-            return mb_fail(b, -EINVAL, e->at,
+            return mesh_build_fail(b, -EINVAL, e->at,
                            "element %.*s: %llu of them need at least %llu bytes; %llu are left",
                            (int)e->name_len, e->name, (unsigned long long)e->count,
                            (unsigned long long)(e->count > UINT64_MAX / least ? UINT64_MAX
@@ -268,16 +268,16 @@ static int check_elements(ply *y, size_t avail)
                            (unsigned long long)room);
         room -= e->count * least;
     }
-    if (!vert) return mb_fail(b, -EINVAL, MB_NOWHERE, "no vertex element");
+    if (!vert) return mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "no vertex element");
     if (!have[R_X] || !have[R_Y] || !have[R_Z])
-        return mb_fail(b, -EINVAL, vert->at, "the vertex element lacks x, y or z");
-    if (!face) return mb_fail(b, -EINVAL, MB_NOWHERE, "no face element");
+        return mesh_build_fail(b, -EINVAL, vert->at, "the vertex element lacks x, y or z");
+    if (!face) return mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "no face element");
     if (!have[R_INDICES])
-        return mb_fail(b, -EINVAL, face->at, "the face element has no vertex_indices list");
+        return mesh_build_fail(b, -EINVAL, face->at, "the face element has no vertex_indices list");
     y->n_vertices = vert->count;
-    int rc = mb_reserve_vertices(b, vert->count, vert->at);
+    int rc = mesh_build_reserve_vertices(b, vert->count, vert->at);
     /* at least one triangle a face */
-    return rc ? rc : mb_reserve_triangles(b, face->count, face->at);
+    return rc ? rc : mesh_build_reserve_triangles(b, face->count, face->at);
 }
 
 /* A face's fan, ASCII or binary: its first and latest vertex; from its
@@ -290,12 +290,12 @@ typedef struct {
 static int fan_add(ply *y, fan *f, uint64_t item, uint64_t j, int64_t v, uint64_t at)
 {
     if (v < 0 || (uint64_t)v >= y->n_vertices)
-        return mb_fail(y->b, -EINVAL, at,
+        return mesh_build_fail(y->b, -EINVAL, at,
                        "face %llu: vertex index %lld out of range (%llu vertices)",
                        (unsigned long long)item, (long long)v,
                        (unsigned long long)y->n_vertices);
     if (j >= 2) {
-        int rc = mb_triangle(y->b, f->first, f->prev, (uint32_t)v, at);
+        int rc = mesh_build_triangle(y->b, f->first, f->prev, (uint32_t)v, at);
         if (rc) return rc;
     }
     if (j == 0) f->first = (uint32_t)v;
@@ -308,8 +308,8 @@ static int fan_add(ply *y, fan *f, uint64_t item, uint64_t j, int64_t v, uint64_
 static int ascii_error(ply *y, mtext *t, const ply_elem *e, uint64_t item, const char *what)
 {
     char tok[32];
-    return mb_fail(y->b, -EINVAL, mt_at(t), "%.*s %llu: %s %s", (int)e->name_len, e->name,
-                   (unsigned long long)item, what, mt_tokstr(t, tok));
+    return mesh_build_fail(y->b, -EINVAL, mesh_text_at(t), "%.*s %llu: %s %s", (int)e->name_len, e->name,
+                   (unsigned long long)item, what, mesh_text_tokstr(t, tok));
 }
 
 /* A face's index list: count, then the indices, fanned into triangles. */
@@ -318,11 +318,11 @@ static int ascii_indices(ply *y, mtext *t, const ply_elem *e, uint64_t item, uin
     if (cnt < 3) return ascii_error(y, t, e, item, "has fewer than 3 vertices; at");
     fan f = {0, 0};
     for (uint64_t j = 0; j < cnt; j++) {
-        mt_skip_space(t);
+        mesh_text_skip_space(t);
         int64_t v;
-        if (mt_int(t, &v) || (t->p < t->end && !mt_space(*t->p)))
+        if (mesh_text_int(t, &v) || (t->p < t->end && !mesh_text_space(*t->p)))
             return ascii_error(y, t, e, item, "a vertex index expected, found");
-        int rc = fan_add(y, &f, item, j, v, mt_at(t));
+        int rc = fan_add(y, &f, item, j, v, mesh_text_at(t));
         if (rc) return rc;
     }
     return 0;
@@ -333,10 +333,10 @@ static int ascii_item(ply *y, mtext *t, const ply_elem *e, uint64_t item)
     float pos[3] = {0, 0, 0};
     for (uint32_t k = 0; k < e->nprops; k++) {
         const ply_prop *p = &e->props[k];
-        mt_skip_space(t);
+        mesh_text_skip_space(t);
         if (p->list) {
             uint64_t cnt;
-            if (mt_uint_token(t, type_max[p->count_type], &cnt))
+            if (mesh_text_uint_token(t, type_max[p->count_type], &cnt))
                 return ascii_error(y, t, e, item, "a list count expected, found");
             if (p->role == R_INDICES) {
                 int rc = ascii_indices(y, t, e, item, cnt);
@@ -344,23 +344,23 @@ static int ascii_item(ply *y, mtext *t, const ply_elem *e, uint64_t item)
                 continue;
             }
             for (uint64_t j = 0; j < cnt; j++) {
-                mt_skip_space(t);
-                size_t n = mt_toklen(t);
+                mesh_text_skip_space(t);
+                size_t n = mesh_text_toklen(t);
                 if (!n) return ascii_error(y, t, e, item, "a list item expected, found");
                 t->p += n;
             }
         } else if (p->role) {
-            int rc = mt_float(t, &pos[p->role - R_X]);
+            int rc = mesh_text_float(t, &pos[p->role - R_X]);
             if (rc)
                 return ascii_error(y, t, e, item, rc == -ERANGE ? "not a finite number:"
                                                                 : "a number expected, found");
         } else {
-            size_t n = mt_toklen(t);
+            size_t n = mesh_text_toklen(t);
             if (!n) return ascii_error(y, t, e, item, "a value expected, found");
             t->p += n;
         }
     }
-    return e->kind == E_VERTEX ? mb_vertex(y->b, pos, mt_at(t)) : 0;
+    return e->kind == E_VERTEX ? mesh_build_vertex(y->b, pos, mesh_text_at(t)) : 0;
 }
 
 static int parse_ascii(ply *y, mtext *t)
@@ -372,10 +372,10 @@ static int parse_ascii(ply *y, mtext *t)
             if (rc) return rc;
         }
     }
-    mt_skip_space(t);
+    mesh_text_skip_space(t);
     if (t->p != t->end) {
         char tok[32];
-        return mb_fail(y->b, -EINVAL, mt_at(t), "%s after the last element", mt_tokstr(t, tok));
+        return mesh_build_fail(y->b, -EINVAL, mesh_text_at(t), "%s after the last element", mesh_text_tokstr(t, tok));
     }
     return 0;
 }
@@ -389,7 +389,7 @@ static int parse_ascii(ply *y, mtext *t)
  * first line and writes its vertices and triangles straight into the
  * builder's arrays, sized by check_elements (no per-thread buffers, no
  * copy, no allocation on the threads).  Each line is read by the serial
- * parser's own token readers (mt_float, mt_int, mt_uint_token), so what it
+ * parser's own token readers (mesh_text_float, mesh_text_int, mesh_text_uint_token), so what it
  * takes it reads to the same bits.  Anything else (an item over two lines,
  * a blank line, a polygon, any error) makes a part give up, and the whole
  * file is parsed again by parse_ascii: its mesh, or its error and line,
@@ -474,30 +474,30 @@ static int line_item(ply *y, mtext *t, const ply_elem *e, uint64_t item)
     uint32_t tri[3];
     for (uint32_t k = 0; k < e->nprops; k++) {
         const ply_prop *p = &e->props[k];
-        mt_skip_blank(t);
+        mesh_text_skip_blank(t);
         uint64_t cnt = 1;
-        if (p->list && mt_uint_token(t, type_max[p->count_type], &cnt)) return -1;
+        if (p->list && mesh_text_uint_token(t, type_max[p->count_type], &cnt)) return -1;
         if (p->role == R_INDICES) {
             if (cnt != 3) return -1;
             for (int j = 0; j < 3; j++) {
                 int64_t v;
-                mt_skip_blank(t);
-                if (mt_int(t, &v) || (t->p < t->end && !mt_blank(*t->p))) return -1;
+                mesh_text_skip_blank(t);
+                if (mesh_text_int(t, &v) || (t->p < t->end && !mesh_text_blank(*t->p))) return -1;
                 if (v < 0 || (uint64_t)v >= y->n_vertices) return -1;
                 tri[j] = (uint32_t)v;
             }
         } else if (p->role) {
-            if (mt_float(t, &pos[p->role - R_X])) return -1;
+            if (mesh_text_float(t, &pos[p->role - R_X])) return -1;
         } else {
             for (uint64_t j = 0; j < cnt; j++) { /* skipped, as parse_ascii does */
-                mt_skip_blank(t);
-                size_t n = mt_toklen(t);
+                mesh_text_skip_blank(t);
+                size_t n = mesh_text_toklen(t);
                 if (!n) return -1;
                 t->p += n;
             }
         }
     }
-    mt_skip_blank(t);
+    mesh_text_skip_blank(t);
     if (t->p != t->end) return -1;
     if (e->kind == E_VERTEX) memcpy(y->b->v[item], pos, sizeof pos);
     if (e->kind == E_FACE) memcpy(y->b->t[item], tri, sizeof tri);
@@ -516,7 +516,7 @@ static int parse_part(par_ply *pp, uint32_t i, uint64_t g)
         p = nl ? nl + 1 : stop;
         while (ei < y->nelems && g >= pp->ebase[ei + 1]) ei++;
         if (ei == y->nelems) { /* past the last item: blanks only */
-            mt_skip_blank(&t);
+            mesh_text_skip_blank(&t);
             if (t.p != t.end) return -1;
         } else if (line_item(y, &t, &y->elems[ei], g - pp->ebase[ei])) {
             return -1;
@@ -633,7 +633,7 @@ typedef struct {
 
 static int truncated(ply *y, const bcur *c, const ply_elem *e, uint64_t item)
 {
-    return mb_fail(y->b, -EINVAL, c->pos, "truncated in %.*s %llu of %llu", (int)e->name_len,
+    return mesh_build_fail(y->b, -EINVAL, c->pos, "truncated in %.*s %llu of %llu", (int)e->name_len,
                    e->name, (unsigned long long)item, (unsigned long long)e->count);
 }
 
@@ -643,7 +643,7 @@ static int binary_list(ply *y, bcur *c, const ply_elem *e, const ply_prop *p, ui
     if (c->len - c->pos < cs) return truncated(y, c, e, item);
     int64_t cnt = rd_int(c->base + c->pos, p->count_type, y->be);
     if (cnt < 0)
-        return mb_fail(y->b, -EINVAL, c->pos, "%.*s %llu: a list of %lld items", (int)e->name_len,
+        return mesh_build_fail(y->b, -EINVAL, c->pos, "%.*s %llu: a list of %lld items", (int)e->name_len,
                        e->name, (unsigned long long)item, (long long)cnt);
     size_t at = c->pos;
     c->pos += cs;
@@ -653,7 +653,7 @@ static int binary_list(ply *y, bcur *c, const ply_elem *e, const ply_prop *p, ui
         return 0;
     }
     if (cnt < 3)
-        return mb_fail(y->b, -EINVAL, at, "face %llu has %lld vertices (at least 3)",
+        return mesh_build_fail(y->b, -EINVAL, at, "face %llu has %lld vertices (at least 3)",
                        (unsigned long long)item, (long long)cnt);
     fan f = {0, 0};
     for (int64_t j = 0; j < cnt; j++, c->pos += is) {
@@ -680,7 +680,7 @@ static int binary_item(ply *y, bcur *c, const ply_elem *e, uint64_t item)
         if (p->role) pos[p->role - R_X] = rd_float(c->base + c->pos, p->type, y->be);
         c->pos += sz;
     }
-    return e->kind == E_VERTEX ? mb_vertex(y->b, pos, start) : 0;
+    return e->kind == E_VERTEX ? mesh_build_vertex(y->b, pos, start) : 0;
 }
 
 static int parse_binary(ply *y, const char *buf, size_t len)
@@ -695,16 +695,16 @@ static int parse_binary(ply *y, const char *buf, size_t len)
         }
     }
     if (c.pos != len)
-        return mb_fail(y->b, -EINVAL, c.pos, "%zu bytes after the last element", len - c.pos);
+        return mesh_build_fail(y->b, -EINVAL, c.pos, "%zu bytes after the last element", len - c.pos);
     return 0;
 }
 
 int mesh_parse_ply(const char *buf, size_t len, mbuild *b)
 {
     mtext t = {buf, buf + len, buf};
-    if (!mt_word(&t, "ply", 0)) return mb_fail(b, -EINVAL, 0, "not a PLY file (no 'ply' line)");
-    mt_skip_blank(&t);
-    if (!mt_eol(&t)) return mb_fail(b, -EINVAL, 0, "not a PLY file (no 'ply' line)");
+    if (!mesh_text_word(&t, "ply", 0)) return mesh_build_fail(b, -EINVAL, 0, "not a PLY file (no 'ply' line)");
+    mesh_text_skip_blank(&t);
+    if (!mesh_text_eol(&t)) return mesh_build_fail(b, -EINVAL, 0, "not a PLY file (no 'ply' line)");
     ply y = {.b = b}; /* about 10 KiB */
     int rc = parse_header(&y, &t);
     if (!rc) rc = check_elements(&y, len - (size_t)(y.data - buf));

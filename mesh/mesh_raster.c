@@ -24,7 +24,7 @@
 /* The plane of projection of ray axis r: u = AX_U[r], v = AX_V[r]. */
 static const int AX_U[3] = {1, 2, 0}, AX_V[3] = {2, 0, 1};
 
-static int sgn128(mv_i128 v) { return (v > 0) - (v < 0); }
+static int sgn128(mesh_vox_i128 v) { return (v > 0) - (v < 0); }
 static int64_t min3(const int64_t a[3])
 {
     int64_t m = a[0] < a[1] ? a[0] : a[1];
@@ -38,10 +38,10 @@ static int64_t max3(const int64_t a[3])
 
 /* Samples i of the block along axis a whose centres lie in [lo, hi]: 0 and
  * [*i0, *i1], or -1 when none. */
-static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
+static inline int sample_range(const mesh_vox_block *b, int a, int64_t lo, int64_t hi,
                                int64_t *i0, int64_t *i1)
 {
-    int64_t s = mv_ceil_l(lo - MV_H), e = mv_floor_l(hi - MV_H);
+    int64_t s = mesh_vox_ceil_l(lo - MESH_VOX_H), e = mesh_vox_floor_l(hi - MESH_VOX_H);
     if (s < b->s0[a]) s = b->s0[a];
     if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
     *i0 = s, *i1 = e;
@@ -51,10 +51,10 @@ static inline int sample_range(const mv_block *b, int a, int64_t lo, int64_t hi,
 /* Sample (iu, iv) on axis ray crosses the triangle just below sample k;
  * sign: +1 where the triangle faces down (its normal's z < 0), else -1,
  * for the z counts. */
-__attribute__((always_inline)) static inline void emit(const mv_target *t, int axis, int64_t iu, int64_t iv,
+__attribute__((always_inline)) static inline void emit(const mesh_vox_target *t, int axis, int64_t iu, int64_t iv,
                         int64_t k, int sign)
 {
-    const mv_block *b = t->b;
+    const mesh_vox_block *b = t->b;
     size_t n1 = (size_t)b->n[1], nw = b->nw;
     if (axis == 2) {
         int64_t z = k - b->s0[2];
@@ -65,7 +65,7 @@ __attribute__((always_inline)) static inline void emit(const mv_target *t, int a
         if (z >= b->n[2]) return;
         size_t x = (size_t)(iu - b->s0[0]), y = (size_t)(iv - b->s0[1]);
         size_t i = ((size_t)z * n1 + y) * nw + x / 64;
-        if (t->count) { /* modulo 2^16: see mv_target */
+        if (t->count) { /* modulo 2^16: see mesh_vox_target */
             t->count[i * 64 + (x & 63)] += (uint16_t)sign;
             if (!t->bits) return;
         }
@@ -100,9 +100,9 @@ static int tie_past(const int64_t P[3][3], int axis)
     if (axis == 2) return 1; /* the move's largest part, eps, is along z */
     int64_t e1[3], e2[3];
     for (int a = 0; a < 3; a++) e1[a] = P[1][a] - P[0][a], e2[a] = P[2][a] - P[0][a];
-    mv_i128 nx = (mv_i128)e1[1] * e2[2] - (mv_i128)e1[2] * e2[1];
-    mv_i128 ny = (mv_i128)e1[2] * e2[0] - (mv_i128)e1[0] * e2[2];
-    mv_i128 nz = (mv_i128)e1[0] * e2[1] - (mv_i128)e1[1] * e2[0];
+    mesh_vox_i128 nx = (mesh_vox_i128)e1[1] * e2[2] - (mesh_vox_i128)e1[2] * e2[1];
+    mesh_vox_i128 ny = (mesh_vox_i128)e1[2] * e2[0] - (mesh_vox_i128)e1[0] * e2[2];
+    mesh_vox_i128 nz = (mesh_vox_i128)e1[0] * e2[1] - (mesh_vox_i128)e1[1] * e2[0];
     int sx = sgn128(nx), sy = sgn128(ny), sz = sgn128(nz);
     /* along x: x moves by eps^2 against the plane's x at (y + eps^3,
      * z + eps): dx/dz = -nz/nx comes first, then eps^2 itself */
@@ -114,11 +114,11 @@ static int tie_past(const int64_t P[3][3], int axis)
 
 /* One triangle projected along a ray axis, counter-clockwise in (u, v). */
 typedef struct {
-    const mv_target *t;
+    const mesh_vox_target *t;
     int axis, tie;
     int64_t u[3], v[3], r[3], du[3], dv[3];
     int64_t thr[3];         /* inside: E_j >= thr_j */
-    mv_i128 W, LW;          /* twice the projected area, and L W */
+    mesh_vox_i128 W, LW;          /* twice the projected area, and L W */
     int64_t dr1, dr2;
     int64_t kmin, kmax;     /* the crossings' first samples past them lie here */
     int sign;               /* emit's: +1 when clockwise in (u, v) as given */
@@ -134,7 +134,7 @@ typedef struct {
  * plane in double, then the exact X walks to kf (0 or 1 steps but for
  * planes nearly along the ray).  kf lies in [kmin, kmax]: X(kmax) > 0 and
  * X(kmin - 1) <= 0 since r(p) lies between the vertices' r. */
-static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
+static void hit(proj *T, int64_t iu, int64_t iv, mesh_vox_i128 E0, mesh_vox_i128 E2)
 {
     if (!T->guess) {
         const int64_t *u = T->u, *v = T->v;
@@ -144,18 +144,18 @@ static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
                   (double)T->dr1 * (double)(v[2] - v[0])) / Wd;
         T->gv = -((double)T->dr1 * (double)(u[2] - u[0]) -
                   (double)(u[1] - u[0]) * (double)T->dr2) / Wd;
-        T->kmin = mv_ceil_l(min3(T->r) - MV_H);
-        T->kmax = mv_ceil_l(max3(T->r) - MV_H) + 1;
+        T->kmin = mesh_vox_ceil_l(min3(T->r) - MESH_VOX_H);
+        T->kmax = mesh_vox_ceil_l(max3(T->r) - MESH_VOX_H) + 1;
         T->guess = true;
     }
-    double rd = (double)T->r[0] + T->gu * (double)(iu * MV_L + MV_H - T->u[0]) +
-                T->gv * (double)(iv * MV_L + MV_H - T->v[0]);
-    double kg = (rd - MV_H) / MV_L, kdmin = (double)T->kmin, kdmax = (double)T->kmax;
+    double rd = (double)T->r[0] + T->gu * (double)(iu * MESH_VOX_L + MESH_VOX_H - T->u[0]) +
+                T->gv * (double)(iv * MESH_VOX_L + MESH_VOX_H - T->v[0]);
+    double kg = (rd - MESH_VOX_H) / MESH_VOX_L, kdmin = (double)T->kmin, kdmax = (double)T->kmax;
     kg = kg >= kdmin ? kg : kdmin; /* also NaN: the guess of a plane */
     kg = kg <= kdmax ? kg : kdmax; /* nearly along the ray is void */
     int64_t k = (int64_t)kg;
-    mv_i128 B = (mv_i128)T->dr1 * E2 + (mv_i128)T->dr2 * E0;
-    mv_i128 X = (mv_i128)(k * MV_L + MV_H - T->r[0]) * T->W - B + T->tie;
+    mesh_vox_i128 B = (mesh_vox_i128)T->dr1 * E2 + (mesh_vox_i128)T->dr2 * E0;
+    mesh_vox_i128 X = (mesh_vox_i128)(k * MESH_VOX_L + MESH_VOX_H - T->r[0]) * T->W - B + T->tie;
     if (X > 0) {
         while (k > T->kmin && X - T->LW > 0) k--, X -= T->LW;
     } else {
@@ -171,9 +171,9 @@ static void hit(proj *T, int64_t iu, int64_t iv, mv_i128 E0, mv_i128 E2)
 static void scan64(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
 {
     int64_t step[3];
-    for (int j = 0; j < 3; j++) step[j] = -T->dv[j] * MV_L;
+    for (int j = 0; j < 3; j++) step[j] = -T->dv[j] * MESH_VOX_L;
     for (int64_t iv = iv0; iv <= iv1; iv++) {
-        int64_t pv = iv * MV_L + MV_H, pu = iu0 * MV_L + MV_H, E[3];
+        int64_t pv = iv * MESH_VOX_L + MESH_VOX_H, pu = iu0 * MESH_VOX_L + MESH_VOX_H, E[3];
         for (int j = 0; j < 3; j++)
             E[j] = T->du[j] * (pv - T->v[j]) - T->dv[j] * (pu - T->u[j]);
         for (int64_t iu = iu0; iu <= iu1; iu++) {
@@ -187,13 +187,13 @@ static void scan64(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
 /* The same in 128 bits, for any triangle. */
 static void scan128(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
 {
-    mv_i128 step[3];
-    for (int j = 0; j < 3; j++) step[j] = -(mv_i128)T->dv[j] * MV_L;
+    mesh_vox_i128 step[3];
+    for (int j = 0; j < 3; j++) step[j] = -(mesh_vox_i128)T->dv[j] * MESH_VOX_L;
     for (int64_t iv = iv0; iv <= iv1; iv++) {
-        int64_t pv = iv * MV_L + MV_H, pu = iu0 * MV_L + MV_H;
-        mv_i128 E[3];
+        int64_t pv = iv * MESH_VOX_L + MESH_VOX_H, pu = iu0 * MESH_VOX_L + MESH_VOX_H;
+        mesh_vox_i128 E[3];
         for (int j = 0; j < 3; j++)
-            E[j] = (mv_i128)T->du[j] * (pv - T->v[j]) - (mv_i128)T->dv[j] * (pu - T->u[j]);
+            E[j] = (mesh_vox_i128)T->du[j] * (pv - T->v[j]) - (mesh_vox_i128)T->dv[j] * (pu - T->u[j]);
         for (int64_t iu = iu0; iu <= iu1; iu++) {
             if (E[0] >= T->thr[0] && E[1] >= T->thr[1] && E[2] >= T->thr[2])
                 hit(T, iu, iv, E[0], E[2]);
@@ -208,7 +208,7 @@ static void scan128(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
  * rho (0 <= rho < L) and k = k0 + j, X(k) > 0 reads
  *     j L W > Q = B - tie - (L/2 - rho) W,  so  j = floor(Q / (L W)) + 1. */
 __attribute__((always_inline)) static inline void
-raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, int64_t iu1,
+raster_tiny(const int64_t P[3][3], int axis, const mesh_vox_target *t, int64_t iu0, int64_t iu1,
             int64_t iv0, int64_t iv1)
 {
     int ua = AX_U[axis], va = AX_V[axis], o1 = 1, o2 = 2;
@@ -227,13 +227,13 @@ raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, in
         thr[j] = (a < 0) | ((a == 0) & (c <= 0));
     }
     int64_t r0 = P[0][axis], dr1 = P[o1][axis] - r0, dr2 = P[o2][axis] - r0;
-    int64_t k0 = mv_floor_l(r0), rho = r0 - k0 * MV_L, LW = W * MV_L;
-    int64_t base = tie_past(P, axis) + (MV_H - rho) * W;
+    int64_t k0 = mesh_vox_floor_l(r0), rho = r0 - k0 * MESH_VOX_L, LW = W * MESH_VOX_L;
+    int64_t base = tie_past(P, axis) + (MESH_VOX_H - rho) * W;
     double inv = 1.0 / (double)LW;
     for (int64_t iv = iv0; iv <= iv1; iv++) {
-        int64_t pv = iv * MV_L + MV_H;
+        int64_t pv = iv * MESH_VOX_L + MESH_VOX_H;
         for (int64_t iu = iu0; iu <= iu1; iu++) {
-            int64_t pu = iu * MV_L + MV_H, E[3];
+            int64_t pu = iu * MESH_VOX_L + MESH_VOX_H, E[3];
             for (int j = 0; j < 3; j++) E[j] = du[j] * (pv - v[j]) - dv[j] * (pu - u[j]);
             if (((E[0] - thr[0]) | (E[1] - thr[1]) | (E[2] - thr[2])) < 0) continue;
             /* floor(Q / LW): a guess in double (|Q| < 2^61), made exact */
@@ -245,10 +245,10 @@ raster_tiny(const int64_t P[3][3], int axis, const mv_target *t, int64_t iu0, in
     }
 }
 
-/* The body of mv_raster, inlined with a constant axis: the indexing by
+/* The body of mesh_vox_raster, inlined with a constant axis: the indexing by
  * axis folds away. */
 __attribute__((always_inline)) static inline void
-raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
+raster_axis(const int64_t P[3][3], int axis, const mesh_vox_target *t)
 {
     /* most small triangles cover no sample: out before anything else */
     int ua = AX_U[axis], va = AX_V[axis];
@@ -275,7 +275,7 @@ raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
     T.axis = axis;
     for (int i = 0; i < 3; i++) T.u[i] = P[i][ua], T.v[i] = P[i][va], T.r[i] = P[i][axis];
     int64_t *u = T.u, *v = T.v, *r = T.r;
-    T.W = (mv_i128)(u[1] - u[0]) * (v[2] - v[0]) - (mv_i128)(v[1] - v[0]) * (u[2] - u[0]);
+    T.W = (mesh_vox_i128)(u[1] - u[0]) * (v[2] - v[0]) - (mesh_vox_i128)(v[1] - v[0]) * (u[2] - u[0]);
     if (T.W == 0) return; /* edge-on: the moved sample never meets it */
     T.tie = tie_past(P, axis);
     T.sign = T.W < 0 ? 1 : -1;
@@ -297,7 +297,7 @@ raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
         T.thr[j] = in ? 0 : 1;
     }
     T.dr1 = r[1] - r[0], T.dr2 = r[2] - r[0];
-    T.LW = T.W * MV_L;
+    T.LW = T.W * MESH_VOX_L;
     T.guess = false;
     if (umax - umin <= (int64_t)1 << 30 && vmax - vmin <= (int64_t)1 << 30)
         scan64(&T, iu0, iu1, iv0, iv1);
@@ -305,7 +305,7 @@ raster_axis(const int64_t P[3][3], int axis, const mv_target *t)
         scan128(&T, iu0, iu1, iv0, iv1);
 }
 
-void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
+void mesh_vox_raster(const int64_t P[3][3], int axis, const mesh_vox_target *t)
 {
     switch (axis) {
     case 0: raster_axis(P, 0, t); break;
@@ -314,7 +314,7 @@ void mv_raster(const int64_t P[3][3], int axis, const mv_target *t)
     }
 }
 
-void mv_prefix_z(const mv_block *b, uint64_t *bits, uint64_t *carry, bool first)
+void mesh_vox_prefix_z(const mesh_vox_block *b, uint64_t *bits, uint64_t *carry, bool first)
 {
     size_t slice = (size_t)b->n[1] * b->nw;
     if (carry && !first)
@@ -338,7 +338,7 @@ static inline uint64_t prefix_xor(uint64_t w)
     return w;
 }
 
-void mv_prefix_x(const mv_block *b, uint64_t *bits, const uint64_t *carry)
+void mesh_vox_prefix_x(const mesh_vox_block *b, uint64_t *bits, const uint64_t *carry)
 {
     size_t rows = (size_t)b->n[2] * (size_t)b->n[1], nw = b->nw;
     unsigned tail = (unsigned)b->n[0] & 63;
@@ -353,7 +353,7 @@ void mv_prefix_x(const mv_block *b, uint64_t *bits, const uint64_t *carry)
     }
 }
 
-void mv_prefix_y(const mv_block *b, uint64_t *bits, const uint64_t *carry)
+void mesh_vox_prefix_y(const mesh_vox_block *b, uint64_t *bits, const uint64_t *carry)
 {
     size_t nw = b->nw, slice = (size_t)b->n[1] * nw;
     for (int32_t z = 0; z < b->n[2]; z++) {

@@ -7,13 +7,13 @@
 #include <math.h>
 #include <string.h>
 
-void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
+void mesh_vox_frame_init(mesh_vox_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
 {
     f->m = m;
     f->lat = NULL;
     for (int a = 0; a < 3; a++) f->lo[a] = g->lo[a];
     f->K = K;
-    f->scale = (double)K * (double)MV_L / g->vs;
+    f->scale = (double)K * (double)MESH_VOX_L / g->vs;
     f->pulse = NULL;
     f->wt = NULL;
 }
@@ -21,7 +21,7 @@ void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K)
 /* Whether triangle id can cross a ray of the block: its world z range
  * against the block's (one sample of margin covers the snapping).  z-rays
  * need the triangles below the block only when it starts the column. */
-static bool z_relevant(const mv_solid_in *in, uint32_t id, bool first,
+static bool z_relevant(const mesh_vox_solid_in *in, uint32_t id, bool first,
                        bool *below)
 {
     const mesh *m = in->f->m;
@@ -37,7 +37,7 @@ static bool z_relevant(const mv_solid_in *in, uint32_t id, bool first,
 /* Every sample of d (one bit each, word w of the block) decided by the
  * winding number: the samples of a word together, each triangle read once
  * for all of them. */
-static void decide_winding(const mv_frame *f, const mv_block *b, size_t w,
+static void decide_winding(const mesh_vox_frame *f, const mesh_vox_block *b, size_t w,
                            uint64_t d, uint64_t *bits)
 {
     size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
@@ -51,16 +51,16 @@ static void decide_winding(const mv_frame *f, const mv_block *b, size_t w,
         q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
         idx[n++] = i;
     }
-    mv_winding_many(f, q, n, wn);
+    mesh_vox_winding_many(f, q, n, wn);
     for (unsigned k = 0; k < n; k++) {
         if (fabs(wn[k]) >= 0.5) bits[w] |= 1ull << idx[k];
         else bits[w] &= ~(1ull << idx[k]);
     }
 }
 
-uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *buf)
+uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, const mesh_vox_solid_buf *buf)
 {
-    size_t nwords = mv_block_words(b);
+    size_t nwords = mesh_vox_block_words(b);
     bool rep = in->repair != MESH_REPAIR_NONE, first = in->first;
     bool cull = !isnan(in->zlo);
     size_t ncx = ((size_t)b->n[2] * (size_t)b->n[1] + 63) / 64,
@@ -76,26 +76,26 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
     /* the capped winding numbers count the crossings of whole columns */
     uint16_t *count = tree && buf->count && first && !cull && in->f->K == 1 ? buf->count : NULL;
     if (count) memset(count, 0, nwords * 64 * sizeof *count);
-    mv_target tz = {b, buf->bits, NULL, first, count};
-    mv_target tx = {b, buf->bx, buf->cx, false, NULL}, ty = {b, buf->by, buf->cy, false, NULL};
+    mesh_vox_target tz = {b, buf->bits, NULL, first, count};
+    mesh_vox_target tx = {b, buf->bx, buf->cx, false, NULL}, ty = {b, buf->by, buf->cy, false, NULL};
     for (size_t i = 0; i < in->n; i++) {
         uint32_t id = in->ids[i];
-        if (mv_beat(in->f->pulse, 8)) return 0; /* the tile is abandoned */
-        if (i + MV_AHEAD < in->n) mv_prefetch(in->f, in->ids[i + MV_AHEAD]);
+        if (mesh_vox_beat(in->f->pulse, 8)) return 0; /* the tile is abandoned */
+        if (i + MESH_VOX_AHEAD < in->n) mesh_vox_prefetch(in->f, in->ids[i + MESH_VOX_AHEAD]);
         bool below = false;
         if (cull && !z_relevant(in, id, first, &below)) continue;
         int64_t P[3][3];
-        mv_triangle(in->f, id, P);
-        mv_raster(P, 2, &tz);
+        mesh_vox_triangle(in->f, id, P);
+        mesh_vox_raster(P, 2, &tz);
         if (rep && !below) { /* below the block: no x or y ray of it */
-            mv_raster(P, 0, &tx);
-            mv_raster(P, 1, &ty);
+            mesh_vox_raster(P, 0, &tx);
+            mesh_vox_raster(P, 1, &ty);
         }
     }
-    mv_prefix_z(b, buf->bits, buf->zcarry, first);
+    mesh_vox_prefix_z(b, buf->bits, buf->zcarry, first);
     if (!rep) return 0;
-    mv_prefix_x(b, buf->bx, buf->cx);
-    mv_prefix_y(b, buf->by, buf->cy);
+    mesh_vox_prefix_x(b, buf->bx, buf->cx);
+    mesh_vox_prefix_y(b, buf->by, buf->cy);
     uint64_t ndis = 0;
     for (size_t w = 0; w < nwords; w++) {
         uint64_t a = buf->bits[w], x = buf->bx[w], y = buf->by[w];
@@ -103,14 +103,14 @@ uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *
         if (buf->dis) buf->dis[w] = d;
         if (tree) buf->bx[w] = d; /* bx[w] read: the disagreements in its place */
         if (!d) continue;
-        if (mv_beat(in->f->pulse, 1)) return ndis;
-        ndis += (uint64_t)mv_popcount(d);
+        if (mesh_vox_beat(in->f->pulse, 1)) return ndis;
+        ndis += (uint64_t)mesh_vox_popcount(d);
         if (in->repair == MESH_REPAIR_VOTE)
             buf->bits[w] = (a & x) | (a & y) | (x & y);
         else if (!tree)
             decide_winding(in->f, b, w, d, buf->bits);
     }
-    if (tree) mv_wcap_block(in->f, b, buf->bx, buf->bits, count, buf->by);
+    if (tree) mesh_vox_wcap_block(in->f, b, buf->bx, buf->bits, count, buf->by);
     return ndis;
 }
 

@@ -9,7 +9,7 @@
  * orientation is the vertices' order.
  *
  * STL repeats each position once per triangle; the positions are welded
- * into shared vertices (mb_weld) so that the mesh's edges are real. */
+ * into shared vertices (mesh_build_weld) so that the mesh's edges are real. */
 #include <errno.h>
 #include <stdint.h>
 #include <string.h>
@@ -33,25 +33,25 @@ static int parse_binary(const unsigned char *u, size_t len, mbuild *b)
 {
     b->binary = 1;
     if (len < 84)
-        return mb_fail(b, -EINVAL, MB_NOWHERE,
+        return mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE,
                        "neither ASCII STL (no 'solid') nor binary STL (%zu bytes, less than "
                        "the 84 of the header and count)", len);
     uint64_t n = le32(u + 80);
     if (84 + 50 * n != len)
-        return mb_fail(b, -EINVAL, 80,
+        return mesh_build_fail(b, -EINVAL, 80,
                        "binary STL of %llu triangles must be %llu bytes, the file has %zu "
                        "(and is not ASCII STL: no 'solid')",
                        (unsigned long long)n, (unsigned long long)(84 + 50 * n), len);
     int rc;
-    if ((rc = mb_reserve_triangles(b, n, 80)) || (rc = mb_reserve_vertices(b, 3 * n, 80)))
+    if ((rc = mesh_build_reserve_triangles(b, n, 80)) || (rc = mesh_build_reserve_vertices(b, 3 * n, 80)))
         return rc;
     for (uint32_t i = 0; i < n; i++) {
         const unsigned char *r = u + 84 + 50 * (size_t)i + 12;
         for (int k = 0; k < 3; k++) {
             float p[3] = {lef32(r + 12 * k), lef32(r + 12 * k + 4), lef32(r + 12 * k + 8)};
-            if ((rc = mb_vertex(b, p, (uint64_t)(r + 12 * k - u)))) return rc;
+            if ((rc = mesh_build_vertex(b, p, (uint64_t)(r + 12 * k - u)))) return rc;
         }
-        if ((rc = mb_triangle(b, 3 * i, 3 * i + 1, 3 * i + 2, (uint64_t)(r - 12 - u)))) return rc;
+        if ((rc = mesh_build_triangle(b, 3 * i, 3 * i + 1, 3 * i + 2, (uint64_t)(r - 12 - u)))) return rc;
     }
     return 0;
 }
@@ -59,10 +59,10 @@ static int parse_binary(const unsigned char *u, size_t len, mbuild *b)
 /* The keyword w next (after blanks and newlines), or an error naming what is there. */
 static int expect(mtext *t, mbuild *b, const char *w)
 {
-    mt_skip_space(t);
-    if (mt_word(t, w, 1)) return 0;
+    mesh_text_skip_space(t);
+    if (mesh_text_word(t, w, 1)) return 0;
     char tok[32];
-    return mb_fail(b, -EINVAL, mt_at(t), "expected '%s', found %s", w, mt_tokstr(t, tok));
+    return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "expected '%s', found %s", w, mesh_text_tokstr(t, tok));
 }
 
 /* "outer loop", the vertices, "endloop": fan triangles of the raw vertices. */
@@ -73,21 +73,21 @@ static int parse_loop(mtext *t, mbuild *b)
     uint32_t first = b->nv, n = 0;
     char tok[32];
     for (;; n++) {
-        mt_skip_space(t);
-        if (!mt_word(t, "vertex", 1)) break;
+        mesh_text_skip_space(t);
+        if (!mesh_text_word(t, "vertex", 1)) break;
         float p[3];
         for (int k = 0; k < 3; k++) {
-            mt_skip_blank(t);
-            if ((rc = mt_float(t, &p[k])))
-                return mb_fail(b, -EINVAL, mt_at(t), "vertex: %s is not a %snumber",
-                               mt_tokstr(t, tok), rc == -ERANGE ? "finite " : "");
+            mesh_text_skip_blank(t);
+            if ((rc = mesh_text_float(t, &p[k])))
+                return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "vertex: %s is not a %snumber",
+                               mesh_text_tokstr(t, tok), rc == -ERANGE ? "finite " : "");
         }
-        if ((rc = mb_vertex(b, p, mt_at(t)))) return rc;
-        if (n >= 2 && (rc = mb_triangle(b, first, b->nv - 2, b->nv - 1, mt_at(t)))) return rc;
+        if ((rc = mesh_build_vertex(b, p, mesh_text_at(t)))) return rc;
+        if (n >= 2 && (rc = mesh_build_triangle(b, first, b->nv - 2, b->nv - 1, mesh_text_at(t)))) return rc;
     }
     if (n < 3)
-        return mb_fail(b, -EINVAL, mt_at(t), "a facet of %u vertices (at least 3), then %s", n,
-                       mt_tokstr(t, tok));
+        return mesh_build_fail(b, -EINVAL, mesh_text_at(t), "a facet of %u vertices (at least 3), then %s", n,
+                       mesh_text_tokstr(t, tok));
     if ((rc = expect(t, b, "endloop")) || (rc = expect(t, b, "endfacet"))) return rc;
     return 0;
 }
@@ -97,27 +97,27 @@ static int parse_ascii(const char *buf, size_t len, mbuild *b)
     mtext t = {buf, buf + len, buf};
     int rc = expect(&t, b, "solid");
     if (rc) return rc;
-    mt_next_line(&t); /* the solid's name */
+    mesh_text_next_line(&t); /* the solid's name */
     for (;;) {
-        mt_skip_space(&t);
-        if (mt_word(&t, "facet", 1)) {
+        mesh_text_skip_space(&t);
+        if (mesh_text_word(&t, "facet", 1)) {
             /* "normal nx ny nz": not used (the vertices' order is the orientation) */
             if ((rc = expect(&t, b, "normal"))) return rc;
             for (int k = 0; k < 3; k++) {
-                mt_skip_blank(&t);
-                t.p += mt_toklen(&t);
+                mesh_text_skip_blank(&t);
+                t.p += mesh_text_toklen(&t);
             }
             if ((rc = parse_loop(&t, b))) return rc;
-        } else if (mt_word(&t, "endsolid", 1)) {
-            mt_next_line(&t);
-            mt_skip_space(&t);
+        } else if (mesh_text_word(&t, "endsolid", 1)) {
+            mesh_text_next_line(&t);
+            mesh_text_skip_space(&t);
             if (t.p == t.end) return 0;
             if ((rc = expect(&t, b, "solid"))) return rc;
-            mt_next_line(&t);
+            mesh_text_next_line(&t);
         } else {
             char tok[32];
-            return mb_fail(b, -EINVAL, mt_at(&t), "expected 'facet' or 'endsolid', found %s",
-                           mt_tokstr(&t, tok));
+            return mesh_build_fail(b, -EINVAL, mesh_text_at(&t), "expected 'facet' or 'endsolid', found %s",
+                           mesh_text_tokstr(&t, tok));
         }
     }
 }
@@ -131,8 +131,8 @@ int mesh_parse_stl(const char *buf, size_t len, mbuild *b)
     int binary = len < 84 || 84 + 50 * (uint64_t)le32(u + 80) != len ? 0 : 1;
     if (!binary) {
         mtext t = {buf, buf + len, buf};
-        mt_skip_space(&t);
-        binary = !mt_word(&t, "solid", 1);
+        mesh_text_skip_space(&t);
+        binary = !mesh_text_word(&t, "solid", 1);
     }
     uint32_t cap = b->max_vert;
     b->max_vert = UINT32_MAX;
@@ -143,11 +143,11 @@ int mesh_parse_stl(const char *buf, size_t len, mbuild *b)
     if (rc == -EINVAL && !binary && len >= 84 && memchr(buf, 0, len < 4096 ? len : 4096)) {
         uint64_t n = le32(u + 80);
         b->binary = 1;
-        rc = mb_fail(b, -EINVAL, 80,
+        rc = mesh_build_fail(b, -EINVAL, 80,
                      "binary STL of %llu triangles must be %llu bytes, the file has %zu "
                      "(and it is not ASCII STL: NUL bytes)",
                      (unsigned long long)n, (unsigned long long)(84 + 50 * n), len);
     }
     if (rc) return rc;
-    return mb_weld(b);
+    return mesh_build_weld(b);
 }

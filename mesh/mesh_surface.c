@@ -26,7 +26,7 @@
 
 typedef struct {
     int64_t ne[3][2]; /* edge normals in the projection, inner side > 0 */
-    mv_i128 de[3];    /* test: ne . p + de >= 0, p the voxel's low corner */
+    mesh_vox_i128 de[3];    /* test: ne . p + de >= 0, p the voxel's low corner */
     int64_t de64[3];  /* de, when it fits (a narrow triangle's: see below) */
 } proj_test;
 
@@ -52,12 +52,12 @@ static void proj_setup(const int64_t P[3][3], int ns, int a, int c, bool six,
         int64_t m = na < 0 ? -na : na, mc = nc < 0 ? -nc : nc;
         /* six: the diamond's vertex furthest along ne; else the square's
          * corner furthest along ne */
-        int64_t k0 = six ? MV_H * (na + nc) : MV_L * ((na > 0 ? na : 0) + (nc > 0 ? nc : 0));
-        int64_t k1 = six ? MV_H * (m > mc ? m : mc) : 0;
+        int64_t k0 = six ? MESH_VOX_H * (na + nc) : MESH_VOX_L * ((na > 0 ? na : 0) + (nc > 0 ? nc : 0));
+        int64_t k1 = six ? MESH_VOX_H * (m > mc ? m : mc) : 0;
         if (narrow) {
             pt->de64[i] = -(na * p[a] + nc * p[c]) + k0 + k1;
         } else {
-            mv_i128 d = -((mv_i128)na * p[a] + (mv_i128)nc * p[c]);
+            mesh_vox_i128 d = -((mesh_vox_i128)na * p[a] + (mesh_vox_i128)nc * p[c]);
             pt->de[i] = d + k0 + k1;
         }
     }
@@ -66,7 +66,7 @@ static void proj_setup(const int64_t P[3][3], int ns, int a, int c, bool six,
 static inline bool proj_pass(const proj_test *pt, int64_t pa, int64_t pc)
 {
     for (int i = 0; i < 3; i++)
-        if ((mv_i128)pt->ne[i][0] * pa + (mv_i128)pt->ne[i][1] * pc + pt->de[i] < 0)
+        if ((mesh_vox_i128)pt->ne[i][0] * pa + (mesh_vox_i128)pt->ne[i][1] * pc + pt->de[i] < 0)
             return false;
     return true;
 }
@@ -79,10 +79,10 @@ static inline bool proj_pass64(const proj_test *pt, int64_t pa, int64_t pc)
 }
 
 /* Voxels X of the block whose closed boxes [X L, X L + L] meet [lo, hi]. */
-static int voxel_range(const mv_block *b, int a, int64_t lo, int64_t hi,
+static int voxel_range(const mesh_vox_block *b, int a, int64_t lo, int64_t hi,
                        int64_t *i0, int64_t *i1)
 {
-    int64_t s = mv_ceil_l(lo) - 1, e = mv_floor_l(hi);
+    int64_t s = mesh_vox_ceil_l(lo) - 1, e = mesh_vox_floor_l(hi);
     if (s < b->s0[a]) s = b->s0[a];
     if (e > b->s0[a] + b->n[a] - 1) e = b->s0[a] + b->n[a] - 1;
     *i0 = s, *i1 = e;
@@ -104,12 +104,12 @@ static inline void z_range(const int64_t P[3][3], double gx, double gy, double s
                            bool slanted, int64_t px, int64_t py, int64_t *z0, int64_t *z1)
 {
     if (!slanted) return;
-    double zc = (double)P[0][2] + gx * (double)(px + MV_H - P[0][0]) +
-                gy * (double)(py + MV_H - P[0][1]);
+    double zc = (double)P[0][2] + gx * (double)(px + MESH_VOX_H - P[0][0]) +
+                gy * (double)(py + MESH_VOX_H - P[0][1]);
     /* clamped to [z0 - 2, z1 + 2] first (the same voxels: past either end
      * the range is as empty or as whole), so the conversion is exact */
     double lo = (double)*z0 - 2, hi = (double)*z1 + 2;
-    double qa = (zc - spread) / MV_L, qc = (zc + spread) / MV_L;
+    double qa = (zc - spread) / MESH_VOX_L, qc = (zc + spread) / MESH_VOX_L;
     qa = qa < lo ? lo : qa > hi ? hi : qa;
     qc = qc < lo ? lo : qc > hi ? hi : qc;
     int64_t a = ifloor(qa) - 1, c = ifloor(qc) + 1;
@@ -120,7 +120,7 @@ static inline void z_range(const int64_t P[3][3], double gx, double gy, double s
 /* The voxels of block b that triangle P's bounding box covers, [i0, i1]
  * per axis, and whether the box is narrow (the 64-bit tests suffice);
  * nonzero when it covers none. */
-static int tri_range(const int64_t P[3][3], const mv_block *b, int64_t i0[3], int64_t i1[3],
+static int tri_range(const int64_t P[3][3], const mesh_vox_block *b, int64_t i0[3], int64_t i1[3],
                      bool *narrow)
 {
     int64_t lo[3], hi[3];
@@ -139,44 +139,44 @@ static int tri_range(const int64_t P[3][3], const mv_block *b, int64_t i0[3], in
 /* The plane test's constants for normal n: the box's extremes lo_c, hi_c
  * (26-separating), the centre's offset half and the bound dom
  * (6-separating). */
-static void plane_bounds(const mv_i128 n[3], mv_i128 *lo_c, mv_i128 *hi_c, mv_i128 *half,
-                         mv_i128 *dom)
+static void plane_bounds(const mesh_vox_i128 n[3], mesh_vox_i128 *lo_c, mesh_vox_i128 *hi_c, mesh_vox_i128 *half,
+                         mesh_vox_i128 *dom)
 {
     *lo_c = *hi_c = *half = *dom = 0;
     for (int a = 0; a < 3; a++) {
-        mv_i128 t = n[a] * MV_L, m = n[a] < 0 ? -n[a] : n[a];
+        mesh_vox_i128 t = n[a] * MESH_VOX_L, m = n[a] < 0 ? -n[a] : n[a];
         if (t < 0) *lo_c += t;
         else *hi_c += t;
-        *half += n[a] * MV_H;
+        *half += n[a] * MESH_VOX_H;
         if (m > *dom) *dom = m;
     }
-    *dom *= MV_H;
+    *dom *= MESH_VOX_H;
 }
 
-void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits)
+void mesh_vox_surface(const int64_t P[3][3], bool six, const mesh_vox_block *b, uint64_t *bits)
 {
     int64_t i0[3], i1[3];
     bool narrow;
     if (tri_range(P, b, i0, i1, &narrow)) return;
     int64_t e1[3], e2[3];
     for (int a = 0; a < 3; a++) e1[a] = P[1][a] - P[0][a], e2[a] = P[2][a] - P[0][a];
-    mv_i128 n[3] = {(mv_i128)e1[1] * e2[2] - (mv_i128)e1[2] * e2[1],
-                    (mv_i128)e1[2] * e2[0] - (mv_i128)e1[0] * e2[2],
-                    (mv_i128)e1[0] * e2[1] - (mv_i128)e1[1] * e2[0]};
+    mesh_vox_i128 n[3] = {(mesh_vox_i128)e1[1] * e2[2] - (mesh_vox_i128)e1[2] * e2[1],
+                    (mesh_vox_i128)e1[2] * e2[0] - (mesh_vox_i128)e1[0] * e2[2],
+                    (mesh_vox_i128)e1[0] * e2[1] - (mesh_vox_i128)e1[1] * e2[0]};
     proj_test xy, yz, zx;
     proj_setup(P, n[2] >= 0 ? 1 : -1, 0, 1, six, narrow, &xy);
     proj_setup(P, n[0] >= 0 ? 1 : -1, 1, 2, six, narrow, &yz);
     proj_setup(P, n[1] >= 0 ? 1 : -1, 2, 0, six, narrow, &zx);
     /* plane: n . (p - P0) + lo_c <= 0 <= n . (p - P0) + hi_c over the box
      * (26), or |n . (centre - P0)| <= L/2 max |n_a| (6) */
-    mv_i128 lo_c, hi_c, half, dom;
+    mesh_vox_i128 lo_c, hi_c, half, dom;
     plane_bounds(n, &lo_c, &hi_c, &half, &dom);
     /* the plane's z over a column, in double, narrows the z loop; the exact
      * tests decide (one voxel of margin covers the rounding) */
     double nzd = (double)n[2], gx = 0, gy = 0, spread = 0;
     if (n[2] != 0) {
         gx = -(double)n[0] / nzd, gy = -(double)n[1] / nzd;
-        spread = (fabs(gx) + fabs(gy)) * MV_H;
+        spread = (fabs(gx) + fabs(gy)) * MESH_VOX_H;
     }
     size_t n1 = (size_t)b->n[1], nw = b->nw;
     if (narrow) {
@@ -185,14 +185,14 @@ void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bi
         int64_t dom64 = (int64_t)dom;
         for (int64_t Y = i0[1]; Y <= i1[1]; Y++)
             for (int64_t X = i0[0]; X <= i1[0]; X++) {
-                int64_t px = X * MV_L, py = Y * MV_L;
+                int64_t px = X * MESH_VOX_L, py = Y * MESH_VOX_L;
                 if (!proj_pass64(&xy, px, py)) continue;
                 int64_t z0 = i0[2], z1 = i1[2];
                 z_range(P, gx, gy, spread, n[2] != 0, px, py, &z0, &z1);
                 int64_t sxy = n64[0] * (px - P[0][0]) + n64[1] * (py - P[0][1]);
                 size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
                 for (int64_t Z = z0; Z <= z1; Z++) {
-                    int64_t pz = Z * MV_L, s = sxy + n64[2] * (pz - P[0][2]);
+                    int64_t pz = Z * MESH_VOX_L, s = sxy + n64[2] * (pz - P[0][2]);
                     int64_t c = s + half64;
                     bool plane = six ? (c < 0 ? -c : c) <= dom64 : s + lo64 <= 0 && s + hi64 >= 0;
                     if (!plane || !proj_pass64(&yz, py, pz) || !proj_pass64(&zx, pz, px))
@@ -205,18 +205,18 @@ void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bi
     }
     for (int64_t Y = i0[1]; Y <= i1[1]; Y++) {
         for (int64_t X = i0[0]; X <= i1[0]; X++) {
-            int64_t px = X * MV_L, py = Y * MV_L;
+            int64_t px = X * MESH_VOX_L, py = Y * MESH_VOX_L;
             if (!proj_pass(&xy, px, py)) continue;
             int64_t z0 = i0[2], z1 = i1[2];
             z_range(P, gx, gy, spread, n[2] != 0, px, py, &z0, &z1);
-            mv_i128 sxy = n[0] * (px - P[0][0]) + n[1] * (py - P[0][1]);
+            mesh_vox_i128 sxy = n[0] * (px - P[0][0]) + n[1] * (py - P[0][1]);
             size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
             for (int64_t Z = z0; Z <= z1; Z++) {
-                int64_t pz = Z * MV_L;
-                mv_i128 s = sxy + n[2] * (pz - P[0][2]);
+                int64_t pz = Z * MESH_VOX_L;
+                mesh_vox_i128 s = sxy + n[2] * (pz - P[0][2]);
                 bool plane;
                 if (six) {
-                    mv_i128 c = s + half;
+                    mesh_vox_i128 c = s + half;
                     plane = (c < 0 ? -c : c) <= dom;
                 } else {
                     plane = s + lo_c <= 0 && s + hi_c >= 0;

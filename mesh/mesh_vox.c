@@ -35,7 +35,7 @@ static uint64_t field(uint64_t w, uint32_t off, uint32_t S)
  * row): 0 none set, 2 every voxel set and inside the grid, 1 otherwise.
  * One pass over the row's words gathers which bits are set in any and in
  * all of them; each brick reads its field of both. */
-static void brick_kinds(const mv_tile *t, const uint64_t *bits, uint32_t by,
+static void brick_kinds(const mesh_vox_tile *t, const uint64_t *bits, uint32_t by,
                         uint32_t bz, uint8_t *kind)
 {
     uint32_t S = t->S;
@@ -54,13 +54,13 @@ static void brick_kinds(const mv_tile *t, const uint64_t *bits, uint32_t by,
                                                                                     : 1;
 }
 
-static int put(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, const void *vox)
+static int put(mesh_vox_tile *t, uint32_t bx, uint32_t by, uint32_t bz, const void *vox)
 {
     uint32_t b[3] = {t->x0 / t->S + bx, t->y0 / t->S + by, bz};
     return vod_volume_put_brick(t->vol, b, vox);
 }
 
-static int put_uniform(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, uint32_t value)
+static int put_uniform(mesh_vox_tile *t, uint32_t bx, uint32_t by, uint32_t bz, uint32_t value)
 {
     uint32_t b[3] = {t->x0 / t->S + bx, t->y0 / t->S + by, bz};
     return vod_volume_put_uniform(t->vol, b, value);
@@ -68,7 +68,7 @@ static int put_uniform(mv_tile *t, uint32_t bx, uint32_t by, uint32_t bz, uint32
 
 /* Occupancy bricks: 0 or VOXEL_FULL from the tile's bits; the voxels set
  * go to the stats. */
-static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick)
+static int emit_occupancy(mesh_vox_tile *t, const uint64_t *bits, uint8_t *brick)
 {
     uint32_t S = t->S, nbz = (t->nz + S - 1) / S;
     uint8_t kind[MESH_TILE];
@@ -94,7 +94,7 @@ static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick)
                         uint64_t f = field(bits[(size_t)(bz * S + z) * t->ny + by * S + y],
                                            bx * S, S) & in;
                         uint8_t *row = brick + ((size_t)z * S + y) * S;
-                        t->st->voxels += mv_popcount(f);
+                        t->st->voxels += mesh_vox_popcount(f);
                         for (uint32_t i = 0; i < S; i += 8) {
                             uint64_t v = byte_lut[f >> i & 0xff];
                             if (S - i >= 8) memcpy(row + i, &v, 8); /* one store */
@@ -109,7 +109,7 @@ static int emit_occupancy(mv_tile *t, const uint64_t *bits, uint8_t *brick)
 }
 
 /* Storage bricks holding a disagreement. */
-static uint64_t count_disagree_bricks(const mv_tile *t, const uint64_t *dis)
+static uint64_t count_disagree_bricks(const mesh_vox_tile *t, const uint64_t *dis)
 {
     uint32_t S = t->S, nbz = (t->nz + S - 1) / S;
     uint64_t n = 0;
@@ -125,38 +125,38 @@ static uint64_t count_disagree_bricks(const mv_tile *t, const uint64_t *dis)
 static uint64_t popcount_words(const uint64_t *w, size_t n)
 {
     uint64_t c = 0;
-    for (size_t i = 0; i < n; i++) c += (uint64_t)mv_popcount(w[i]);
+    for (size_t i = 0; i < n; i++) c += (uint64_t)mesh_vox_popcount(w[i]);
     return c;
 }
 
 /* ---- the tile ---- */
 
 /* The voxel bits of the mode (K = 1): parity solid and/or surface. */
-static void occupancy_bits(mv_tile *t, const mv_plan *p, const mv_bufs *b)
+static void occupancy_bits(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b)
 {
-    mv_frame f;
-    mv_frame_init(&f, t->m, t->g, 1);
+    mesh_vox_frame f;
+    mesh_vox_frame_init(&f, t->m, t->g, 1);
     f.lat = t->lat;
     f.pulse = &t->pulse;
     f.wt = t->pulse.env ? t->pulse.env->wtree : NULL;
-    mv_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
+    mesh_vox_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
     if (p->solid1) {
-        mv_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
-        mv_solid_buf sb = {b->a, b->bx, b->by, b->cx, b->cy, NULL, b->dis, b->count};
-        t->st->disagreements += mv_solid(&in, &blk, &sb);
+        mesh_vox_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
+        mesh_vox_solid_buf sb = {b->a, b->bx, b->by, b->cx, b->cy, NULL, b->dis, b->count};
+        t->st->disagreements += mesh_vox_solid(&in, &blk, &sb);
     }
     if (p->surf) {
         bool six = t->o->mode == MESH_SURFACE6;
-        memset(b->surf, 0, mv_block_words(&blk) * 8);
+        memset(b->surf, 0, mesh_vox_block_words(&blk) * 8);
         for (size_t i = 0; i < t->n; i++) {
             int64_t P[3][3];
-            if (mv_beat(f.pulse, 32)) return; /* the tile is abandoned */
-            if (i + MV_AHEAD < t->n) mv_prefetch(&f, t->ids[i + MV_AHEAD]);
-            mv_triangle(&f, t->ids[i], P);
-            mv_surface(P, six, &blk, b->surf);
+            if (mesh_vox_beat(f.pulse, 32)) return; /* the tile is abandoned */
+            if (i + MESH_VOX_AHEAD < t->n) mesh_vox_prefetch(&f, t->ids[i + MESH_VOX_AHEAD]);
+            mesh_vox_triangle(&f, t->ids[i], P);
+            mesh_vox_surface(P, six, &blk, b->surf);
         }
     }
-    size_t nwords = mv_block_words(&blk);
+    size_t nwords = mesh_vox_block_words(&blk);
     switch (t->o->mode) {
     case MESH_SOLID: t->occ = b->a; break;
     case MESH_SURFACE:
@@ -193,20 +193,20 @@ int mesh_tile_run(const mesh_tiles *j, const uint32_t *ids, size_t n, uint32_t t
     const mesh_vox_opts *o = j->o;
     int rc = check_volume(j->vol, g, o, tx, ty);
     if (rc) return rc;
-    mv_plan p;
-    mv_bufs b;
-    mv_plan_make(g, o, &p);
-    mv_layout(&p, mesh_vox_bits(o), j->scratch, &b);
+    mesh_vox_plan p;
+    mesh_vox_bufs b;
+    mesh_vox_plan_make(g, o, &p);
+    mesh_vox_layout(&p, mesh_vox_bits(o), j->scratch, &b);
     vod_volume_info vi;
     vod_volume_get_info(j->vol, &vi);
-    mv_tile t = {.m = j->m, .lat = j->lattice, .g = g, .o = o, .ids = ids, .n = n,
+    mesh_vox_tile t = {.m = j->m, .lat = j->lattice, .g = g, .o = o, .ids = ids, .n = n,
                  .vol = j->vol, .S = vi.sbrick, .x0 = tx * MESH_TILE, .y0 = ty * MESH_TILE,
                  .nz = g->res[2], .st = st, .dis = b.dis, .pulse = {.env = j->env}};
     t.nx = g->res[0] - t.x0 < MESH_TILE ? g->res[0] - t.x0 : MESH_TILE;
     t.ny = g->res[1] - t.y0 < MESH_TILE ? g->res[1] - t.y0 : MESH_TILE;
     if (b.dis) memset(b.dis, 0, (size_t)t.ny * t.nz * 8);
     if (o->channel == VOXEL_CH_DENSITY) {
-        rc = mv_density_run(&t, &p, &b);
+        rc = mesh_vox_density_run(&t, &p, &b);
     } else {
         occupancy_bits(&t, &p, &b);
         if (t.pulse.stop) {
@@ -214,9 +214,9 @@ int mesh_tile_run(const mesh_tiles *j, const uint32_t *ids, size_t n, uint32_t t
         } else if (o->channel == VOXEL_CH_OCCUPANCY) {
             rc = emit_occupancy(&t, t.occ, b.brick);
         } else if (o->channel == VOXEL_CH_DISTANCE) {
-            rc = mv_dist_run(&t, &p, &b);
+            rc = mesh_vox_dist_run(&t, &p, &b);
         } else {
-            rc = mv_density_run(&t, &p, &b);
+            rc = mesh_vox_density_run(&t, &p, &b);
             st->voxels += popcount_words(t.occ, (size_t)t.ny * t.nz);
         }
     }

@@ -5,7 +5,7 @@
  * axis (K = 1: voxel centres; K = supersample: the density's samples).
  * Every vertex is mapped once, by one formula, to a lattice of 2^16 units
  * per sample spacing, relative to the grid's low corner, and rounded to the
- * nearest unit (mv_snap): the mesh that is voxelized is that snapped mesh,
+ * nearest unit (mesh_vox_snap): the mesh that is voxelized is that snapped mesh,
  * at most 2^-17 sample spacing from the given one, and since a vertex
  * shared by two triangles is snapped once, a closed mesh stays closed.
  * From there on every decision (a sample inside a projected triangle, a
@@ -30,35 +30,35 @@
 #include "mesh_vox.h"
 
 #if defined(__FAST_MATH__) || defined(__ASSOCIATIVE_MATH__)
-#error "the mesh voxelizer's rounding (mv_snap) needs IEEE arithmetic: no -ffast-math"
+#error "the mesh voxelizer's rounding (mesh_vox_snap) needs IEEE arithmetic: no -ffast-math"
 #endif
 
-__extension__ typedef __int128 mv_i128;
+__extension__ typedef __int128 mesh_vox_i128;
 
-#define MV_QBITS 16
-#define MV_L ((int64_t)1 << MV_QBITS) /* lattice units per sample spacing */
-#define MV_H (MV_L / 2)
-#define MV_LIM 1099511627776.0 /* 2^40: the coordinates' clamp */
+#define MESH_VOX_QBITS 16
+#define MESH_VOX_L ((int64_t)1 << MESH_VOX_QBITS) /* lattice units per sample spacing */
+#define MESH_VOX_H (MESH_VOX_L / 2)
+#define MESH_VOX_LIM 1099511627776.0 /* 2^40: the coordinates' clamp */
 
 /* A tile's heartbeat (mesh_tile_env.tick).  The long loops count their
  * work in units of about 10 ns (a triangle's solid angle at one point; a
- * triangle rasterized is 8) and tick every MV_BEAT units, a fraction of a
+ * triangle rasterized is 8) and tick every MESH_VOX_BEAT units, a fraction of a
  * millisecond; once a tick said stop, stop stays set, the loops end early
  * and the tile returns -ECANCELED. */
-#define MV_BEAT 16384u
+#define MESH_VOX_BEAT 16384u
 typedef struct {
     const mesh_tile_env *env; /* NULL: no heartbeat */
     uint32_t work;            /* units since the last tick */
     bool stop;
-} mv_pulse;
+} mesh_vox_pulse;
 
 /* units of work done (p may be NULL): ticks when due; true once the tile
  * must stop. */
-static inline bool mv_beat(mv_pulse *p, uint32_t units)
+static inline bool mesh_vox_beat(mesh_vox_pulse *p, uint32_t units)
 {
     if (!p) return false;
     p->work += units;
-    if (p->work >= MV_BEAT) {
+    if (p->work >= MESH_VOX_BEAT) {
         p->work = 0;
         if (p->env && p->env->tick && p->env->tick(p->env->arg)) p->stop = true;
     }
@@ -72,11 +72,11 @@ typedef struct {
     double lo[3];
     double scale;   /* lattice units per world unit: K * L / vs */
     uint32_t K;     /* samples per voxel and axis */
-    mv_pulse *pulse; /* the tile's heartbeat, or NULL */
+    mesh_vox_pulse *pulse; /* the tile's heartbeat, or NULL */
     const mesh_wtree *wt; /* the winding numbers' tree, or NULL: the exact sum */
-} mv_frame;
+} mesh_vox_frame;
 
-void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
+void mesh_vox_frame_init(mesh_vox_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
 
 /* Nearest lattice point of t (in lattice units), clamped to +-2^40 (NaN to
  * -2^40).  The rounding is the FPU's round-to-nearest: adding and taking
@@ -84,10 +84,10 @@ void mv_frame_init(mv_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
  * needs the sum rounded to a double and kept apart from the difference:
  * no reassociation (refused above) and, where the FPU computes in more
  * than double precision, a store. */
-static inline int64_t mv_snap(double t)
+static inline int64_t mesh_vox_snap(double t)
 {
-    t = t > -MV_LIM ? t : -MV_LIM; /* NaN too: max and min, no branch */
-    t = t < MV_LIM ? t : MV_LIM;
+    t = t > -MESH_VOX_LIM ? t : -MESH_VOX_LIM; /* NaN too: max and min, no branch */
+    t = t < MESH_VOX_LIM ? t : MESH_VOX_LIM;
 #if FLT_EVAL_METHOD == 0
     double r = t + 6755399441055744.0;
 #else
@@ -97,13 +97,13 @@ static inline int64_t mv_snap(double t)
 }
 
 /* Coordinate a of vertex v, snapped. */
-static inline int64_t mv_vertex(const mv_frame *f, uint32_t v, int a)
+static inline int64_t mesh_vox_vertex(const mesh_vox_frame *f, uint32_t v, int a)
 {
-    return mv_snap(((double)f->m->vertices[v][a] - f->lo[a]) * f->scale);
+    return mesh_vox_snap(((double)f->m->vertices[v][a] - f->lo[a]) * f->scale);
 }
 
 /* The snapped vertices of triangle t: P[vertex][axis]. */
-static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
+static inline void mesh_vox_triangle(const mesh_vox_frame *f, uint32_t t, int64_t P[3][3])
 {
     const uint32_t *tri = f->m->triangles[t];
     if (f->lat) {
@@ -111,12 +111,12 @@ static inline void mv_triangle(const mv_frame *f, uint32_t t, int64_t P[3][3])
         return;
     }
     for (int i = 0; i < 3; i++)
-        for (int a = 0; a < 3; a++) P[i][a] = mv_vertex(f, tri[i], a);
+        for (int a = 0; a < 3; a++) P[i][a] = mesh_vox_vertex(f, tri[i], a);
 }
 
 /* Bits set in w (SWAR: __builtin_popcountll is a library call without
  * -mpopcnt). */
-static inline unsigned mv_popcount(uint64_t w)
+static inline unsigned mesh_vox_popcount(uint64_t w)
 {
     w -= (w >> 1) & 0x5555555555555555ull;
     w = (w & 0x3333333333333333ull) + ((w >> 2) & 0x3333333333333333ull);
@@ -127,8 +127,8 @@ static inline unsigned mv_popcount(uint64_t w)
 /* The vertices of triangle t are about to be read (snapped already, or
  * not): fetch them now (their indices make the reads random, and most of
  * a small triangle's cost is waiting for them). */
-#define MV_AHEAD 12 /* triangles */
-static inline void mv_prefetch(const mv_frame *f, uint32_t t)
+#define MESH_VOX_AHEAD 12 /* triangles */
+static inline void mesh_vox_prefetch(const mesh_vox_frame *f, uint32_t t)
 {
     const uint32_t *tri = f->m->triangles[t];
     for (int i = 0; i < 3; i++) {
@@ -145,8 +145,8 @@ static inline void mv_prefetch(const mv_frame *f, uint32_t t)
  * arithmetic (floor) with the compilers this builds with, checked here. */
 _Static_assert((-3 >> 1) == -2 && (-((int64_t)1 << 40) >> 16) == -((int64_t)1 << 24),
                "right shifts of negative values are arithmetic");
-static inline int64_t mv_floor_l(int64_t a) { return a >> MV_QBITS; }
-static inline int64_t mv_ceil_l(int64_t a) { return -(-a >> MV_QBITS); }
+static inline int64_t mesh_vox_floor_l(int64_t a) { return a >> MESH_VOX_QBITS; }
+static inline int64_t mesh_vox_ceil_l(int64_t a) { return -(-a >> MESH_VOX_QBITS); }
 
 /* A block of samples: s0 + [0, n) per axis, one bit each, x fastest, rows
  * of nw 64-bit words: bit x of word ((z * n[1] + y) * nw + x / 64), all
@@ -155,39 +155,39 @@ typedef struct {
     int64_t s0[3];
     int32_t n[3];
     uint32_t nw;
-} mv_block;
+} mesh_vox_block;
 
-static inline size_t mv_block_words(const mv_block *b)
+static inline size_t mesh_vox_block_words(const mesh_vox_block *b)
 {
     return (size_t)b->n[2] * (size_t)b->n[1] * b->nw;
 }
 
 /* The bits of x in [lo[0], hi[0]) in their word (a cell's row: at most 64
  * samples, within one word). */
-static inline uint64_t mv_xmask(const uint32_t lo[3], const uint32_t hi[3])
+static inline uint64_t mesh_vox_xmask(const uint32_t lo[3], const uint32_t hi[3])
 {
     uint32_t s = lo[0] & 63, n = hi[0] - lo[0];
     return (n == 64 ? ~0ull : ((1ull << n) - 1)) << s;
 }
 
 /* The word of a bit array of block b's layout that holds sample (x, y, z). */
-static inline size_t mv_word(const mv_block *b, uint32_t x, uint32_t y, uint32_t z)
+static inline size_t mesh_vox_word(const mesh_vox_block *b, uint32_t x, uint32_t y, uint32_t z)
 {
     return ((size_t)z * (size_t)b->n[1] + y) * b->nw + x / 64;
 }
 
 /* The bits set in cell [lo, hi) of bits, a bit array of block b's layout. */
-static inline uint64_t mv_cell_count(const mv_block *b, const uint64_t *bits,
+static inline uint64_t mesh_vox_cell_count(const mesh_vox_block *b, const uint64_t *bits,
                                      const uint32_t lo[3], const uint32_t hi[3])
 {
-    uint64_t mask = mv_xmask(lo, hi), n = 0;
+    uint64_t mask = mesh_vox_xmask(lo, hi), n = 0;
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++)
-            n += mv_popcount(bits[mv_word(b, lo[0], y, z)] & mask);
+            n += mesh_vox_popcount(bits[mesh_vox_word(b, lo[0], y, z)] & mask);
     return n;
 }
 
-/* Where the crossings of one ray direction go (mv_raster).
+/* Where the crossings of one ray direction go (mesh_vox_raster).
  *  z: flip the bit of the first sample past the crossing in `bits`; a
  *     crossing below the block flips its first slice when first_z (the
  *     block starts the column), else it was counted before (the carry).
@@ -202,100 +202,100 @@ static inline uint64_t mv_cell_count(const mv_block *b, const uint64_t *bits,
  *     crossings below, modulo 2^16 (a ray would need 32768 more crossings
  *     one way than the other to wrap); bits may then be NULL. */
 typedef struct {
-    const mv_block *b;
+    const mesh_vox_block *b;
     uint64_t *bits, *carry;
     bool first_z;
     uint16_t *count;
-} mv_target;
+} mesh_vox_target;
 
-/* Rasterize snapped triangle P along ray axis (0 x, 2 y... see mv_raster). */
-void mv_raster(const int64_t P[3][3], int axis, const mv_target *t);
+/* Rasterize snapped triangle P along ray axis (0 x, 2 y... see mesh_vox_raster). */
+void mesh_vox_raster(const int64_t P[3][3], int axis, const mesh_vox_target *t);
 
 /* Parity from flips: z by XOR from slice to slice, starting from carry
  * (one word per (y, x-word): the parities below the block) unless first,
  * and leaving the last slice in carry (NULL: none kept); x by a prefix XOR
  * along each row from its carry bit; y by XOR from row to row from the
  * carry words. */
-void mv_prefix_z(const mv_block *b, uint64_t *bits, uint64_t *carry, bool first);
-void mv_prefix_x(const mv_block *b, uint64_t *bits, const uint64_t *carry);
-void mv_prefix_y(const mv_block *b, uint64_t *bits, const uint64_t *carry);
+void mesh_vox_prefix_z(const mesh_vox_block *b, uint64_t *bits, uint64_t *carry, bool first);
+void mesh_vox_prefix_x(const mesh_vox_block *b, uint64_t *bits, const uint64_t *carry);
+void mesh_vox_prefix_y(const mesh_vox_block *b, uint64_t *bits, const uint64_t *carry);
 
 /* The parity along z (and, with repair, along x and y and the decision) of
  * block b's samples, from the triangles ids[0, n).  bits: the result;
  * bx, by, cx, cy: the repair's buffers (NULL without repair); zcarry:
  * n[1] * nw words, the column parities below the block in and its last
- * slice out (see mv_prefix_z; NULL for a block through the whole column).
+ * slice out (see mesh_vox_prefix_z; NULL for a block through the whole column).
  * When dis is not NULL, the samples whose three parities differ are set
  * there (repair only).  Returns the number of those samples. */
 typedef struct {
-    const mv_frame *f;
+    const mesh_vox_frame *f;
     const uint32_t *ids;
     size_t n;
     mesh_repair repair;
     bool first;        /* the block starts the column */
     double zlo, zhi;   /* world z range of the block (for culling), or NaN */
-} mv_solid_in;
+} mesh_vox_solid_in;
 typedef struct {
     uint64_t *bits, *bx, *by, *cx, *cy, *zcarry, *dis;
     uint16_t *count; /* a counter a sample for the capped winding numbers
                         (mesh_wcap.c; K = 1 blocks through the whole
                         column), or NULL */
-} mv_solid_buf;
-uint64_t mv_solid(const mv_solid_in *in, const mv_block *b, const mv_solid_buf *buf);
+} mesh_vox_solid_buf;
+uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, const mesh_vox_solid_buf *buf);
 
 /* The generalized winding numbers w[k] of the mesh at points q[k], k < n
  * (in the frame's sample units: sample i is centred at i + 0.5). */
-void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w);
+void mesh_vox_winding_many(const mesh_vox_frame *f, const double (*q)[3], unsigned n, double *w);
 
 /* The solid angle of triangle (a, b, c) seen from the origin, over 2
  * (Van Oosterom and Strackee); the distance from p to triangle v. */
-double mv_half_solid_angle(const double a[3], const double b[3], const double c[3]);
-double mv_tri_dist(const double v[3][3], const double p[3]);
+double mesh_vox_half_solid_angle(const double a[3], const double b[3], const double c[3]);
+double mesh_vox_tri_dist(const double v[3][3], const double p[3]);
 
 /* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
- * mv_wtree_make: the tree of m's triangles, or (m NULL) of the n triangles
- * tri (voxel units), ticking pulse (may be NULL) as it goes.  mv_wind_point: w at p, far nodes by their expansion
- * where |c - p| > beta r (work: node visits added).  mv_wind_cell: w at b
+ * mesh_vox_wtree_make: the tree of m's triangles, or (m NULL) of the n triangles
+ * tri (voxel units), ticking pulse (may be NULL) as it goes.  mesh_vox_wind_point: w at p, far nodes by their expansion
+ * where |c - p| > beta r (work: node visits added).  mesh_vox_wind_cell: w at b
  * and in *err a bound of |w(p) - *w| for every p within rho of b, a node
  * by its expansion where |c - b| > 2 (r + rho) and its bound is at most
  * tol (INFINITY: the first rule alone); false (and no bound) when a
  * triangle comes within rho of b or the bound passes emax.  With a near
  * list, the triangles within 3 (rho + 1) of the ball are left out of *w
- * and listed there instead (false when more than MV_NEAR_MAX).
- * mv_wind_near: the listed triangles' w at p, and *is_close set when p
+ * and listed there instead (false when more than MESH_VOX_NEAR_MAX).
+ * mesh_vox_wind_near: the listed triangles' w at p, and *is_close set when p
  * lies within close of one's plane and ball (where the sign of its angle
  * may differ from the raster's side of it). */
-typedef struct mv_wtree mv_wtree;
-int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
-                  mv_pulse *pulse, mv_wtree **out);
-void mv_wtree_free(mv_wtree *t);
-double mv_wind_point(const mv_wtree *t, const double p[3], double beta, uint32_t *work);
-#define MV_NEAR_MAX 32
+typedef struct mesh_vox_wtree mesh_vox_wtree;
+int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
+                  mesh_vox_pulse *pulse, mesh_vox_wtree **out);
+void mesh_vox_wtree_free(mesh_vox_wtree *t);
+double mesh_vox_wind_point(const mesh_vox_wtree *t, const double p[3], double beta, uint32_t *work);
+#define MESH_VOX_NEAR_MAX 32
 typedef struct {
-    uint32_t n, tri[MV_NEAR_MAX], leaf[MV_NEAR_MAX];
-} mv_near;
-bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
-                  mv_near *near, double *w, double *err, uint32_t *work);
-double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], double close,
+    uint32_t n, tri[MESH_VOX_NEAR_MAX], leaf[MESH_VOX_NEAR_MAX];
+} mesh_vox_near;
+bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
+                  mesh_vox_near *near, double *w, double *err, uint32_t *work);
+double mesh_vox_wind_near(const mesh_vox_wtree *t, const mesh_vox_near *near, const double p[3], double close,
                     bool *is_close);
 /* A bound of |w(p)| for every p within rho of b (a node of area a whose
  * ball keeps f away subtends at most a / f^2, taken where that is at most
  * tol); false when a leaf's ball meets the cell's or the bound passes
  * emax.  Cheap where the triangles are small (the caps of small holes). */
-bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
                  double *bound, uint32_t *work);
 /* The samples of block b set in dis decided by the winding number of tree
  * t (inside: |w| >= 1/2) into bits, cells of samples at once where the
  * bound decides them, else sample by sample: the tree, then, near 1/2, the
- * exact sum (mv_winding_many). */
-void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, const uint64_t *dis,
+ * exact sum (mesh_vox_winding_many). */
+void mesh_vox_wind_block(const mesh_vox_frame *f, const mesh_vox_wtree *t, const mesh_vox_block *b, const uint64_t *dis,
                    uint64_t *bits);
 
 /* The capped winding numbers (mesh_wcap.c): the samples of block b set in
  * dis decided into bits by f->wt.  count: the block's counters filled by
- * the z raster of the mesh (mv_target), or NULL: mv_wind_block alone.
+ * the z raster of the mesh (mesh_vox_target), or NULL: mesh_vox_wind_block alone.
  * dis and spare: overwritten (spare: a block of words). */
-void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
+void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *dis, uint64_t *bits,
                    uint16_t *count, uint64_t *spare);
 /* The caps' expansion about b (mesh_wcap.c's direct path): for every p
  * within rho of b, |w(p) - v - g.(p - b)| <= e, w the winding number of
@@ -304,16 +304,16 @@ void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t
  * false when a triangle comes within rho + 0.001 of b. */
 typedef struct {
     double v, g[3], e;
-} mv_cexp;
-bool mv_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t n,
-                    const double b[3], double rho, mv_cexp *x);
+} mesh_vox_cexp;
+bool mesh_vox_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t n,
+                    const double b[3], double rho, mesh_vox_cexp *x);
 /* For the tests: nonzero, the caps' tree even where they are few enough
  * for the direct path (every cap triangle at every cell). */
 extern int mesh_wcap_tree_only;
 
 /* Surface bits (K = 1 blocks): every voxel of block b whose closed box
  * triangle P touches (six = false), or its 6-separating subset. */
-void mv_surface(const int64_t P[3][3], bool six, const mv_block *b, uint64_t *bits);
+void mesh_vox_surface(const int64_t P[3][3], bool six, const mesh_vox_block *b, uint64_t *bits);
 
 /* ---- a tile (mesh_vox.c, mesh_density.c) ---- */
 
@@ -332,20 +332,20 @@ typedef struct {
     uint32_t ring;   /* voxel slices of counts kept */
     bool dist;       /* the signed distance (channel 4) */
     uint32_t band;   /* its band, voxels */
-} mv_plan;
+} mesh_vox_plan;
 
 /* The scratch's buffers (NULL where the plan needs none). */
 typedef struct {
     uint64_t *a, *bx, *by, *cx, *cy, *surf, *dis; /* voxel bits of the tile */
-    uint16_t *count;                              /* mv_solid_buf's */
+    uint16_t *count;                              /* mesh_vox_solid_buf's */
     uint8_t *brick;                               /* one storage brick */
     uint64_t *fa, *fzc, *fbx, *fby, *fcx, *fcy, *fdis; /* fine blocks */
     uint16_t *ring;                               /* coverage counts */
     double *d2;                                   /* a brick's squared distances */
-} mv_bufs;
+} mesh_vox_bufs;
 
-void mv_plan_make(const grid_spec *g, const mesh_vox_opts *o, mv_plan *p);
-size_t mv_layout(const mv_plan *p, uint32_t bits, void *base, mv_bufs *b);
+void mesh_vox_plan_make(const grid_spec *g, const mesh_vox_opts *o, mesh_vox_plan *p);
+size_t mesh_vox_layout(const mesh_vox_plan *p, uint32_t bits, void *base, mesh_vox_bufs *b);
 
 typedef struct {
     const mesh *m;
@@ -361,14 +361,14 @@ typedef struct {
     const uint64_t *occ;        /* the mode's voxel bits: word z * ny + y */
     uint64_t *dis;              /* voxels whose parities differ, or NULL */
     mesh_tile_stats *st;
-    mv_pulse pulse;             /* the heartbeat of every pass of the tile */
-} mv_tile;
+    mesh_vox_pulse pulse;             /* the heartbeat of every pass of the tile */
+} mesh_vox_tile;
 
 /* The density channel's bricks, or the surface channel's (occupancy from
  * t->occ, normals from the coverage). */
-int mv_density_run(mv_tile *t, const mv_plan *p, const mv_bufs *b);
+int mesh_vox_density_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b);
 /* The distance channel's bricks (mesh_dist.c): the signed distance of
  * every voxel within the band, the sign from t->occ (the solid). */
-int mv_dist_run(mv_tile *t, const mv_plan *p, const mv_bufs *b);
+int mesh_vox_dist_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b);
 
 #endif

@@ -9,13 +9,13 @@
  * The mesh S with its caps C is closed (its boundary B - B = 0), so its
  * winding number is the signed count of the crossings of any ray from p,
  *     w_S(p) + w_C(p) = N(p),
- * N counted along -z by the same exact raster as the parity (mv_target's
+ * N counted along -z by the same exact raster as the parity (mesh_vox_target's
  * counters, the caps rasterized beside the tile's triangles: S and C share
  * the snapped vertices, so the raster sees one closed surface).  Hence
  *     |w_S(p)| >= 1/2  <=>  |N(p) - w_C(p)| >= 1/2,
  * and where w_C stays within (k - 1/2, k + 1/2) over a cell of samples,
  * every sample of the cell is inside exactly when N != k: one query of
- * the caps' tree (mv_wind_cell, rigorous bound) decides a whole cell,
+ * the caps' tree (mesh_vox_wind_cell, rigorous bound) decides a whole cell,
  * wherever the mesh's own surface lies.  Near a cap the query leaves the
  * cap triangles within reach out (its near list) and each sample adds
  * their exact angles to the rest's value and bound; a cell still
@@ -23,14 +23,14 @@
  * small where the holes are (the dragon's are a triangle each).  Samples
  * within 1e-6 of 1/2 past the bound, or too near a cap triangle for the
  * sign of its angle to be trusted against the raster's side, go to
- * mv_wind_block (the tree, then the exact sum near 1/2): the answer stays
+ * mesh_vox_wind_block (the tree, then the exact sum near 1/2): the answer stays
  * the exact sum's where it matters.
  *
  * Where the caps are few (at most DIRECT_MAX triangles: a few large
  * holes) the tree is left aside: every cell takes every cap triangle,
  * w_C's exact value at its centre, its gradient by Biot and Savart over
  * the boundary, and Taylor's remainder bounded per boundary segment
- * (mv_wcap_expand), which a large cap's area does not feed; the cell is
+ * (mesh_vox_wcap_expand), which a large cap's area does not feed; the cell is
  * decided whole, or sample by sample from the linear expansion, and the
  * samples left go to its eight halves.
  *
@@ -56,11 +56,11 @@ struct mesh_wtree {
     mesh m;                   /* the job's mesh (its arrays outlive the tiles) */
     grid_spec g;
     int tris_rc, caps_rc;     /* 1: not built yet; else the build's return */
-    mv_wtree *tris;           /* the mesh's triangles (mesh_wind.c) */
-    mv_wtree *caps;           /* the caps' triangles, or NULL: none */
+    mesh_vox_wtree *tris;           /* the mesh's triangles (mesh_wind.c) */
+    mesh_vox_wtree *caps;           /* the caps' triangles, or NULL: none */
     int64_t (*cap_lat)[3][3]; /* the caps on the K = 1 lattice */
     double (*cap_vt)[3][3];   /* the caps in voxel units when at most
-                                 DIRECT_MAX (mv_wcap_block's direct path),
+                                 DIRECT_MAX (mesh_vox_wcap_block's direct path),
                                  else NULL: the tree's */
     double (*cap_ball)[4];    /* ... and a ball about each (centre, radius) */
     uint32_t n_caps;
@@ -160,7 +160,7 @@ static int fan_points(const mesh *m, const grid_spec *g, const dedge *e, size_t 
         }
     for (uint32_t v = 0; v < m->n_vertices; v++)
         if (sum[v][3] > 0)
-            for (int a = 0; a < 3; a++) o[v][a] = mv_snap(sum[v][a] / sum[v][3] * (double)MV_L);
+            for (int a = 0; a < 3; a++) o[v][a] = mesh_vox_snap(sum[v][a] / sum[v][3] * (double)MESH_VOX_L);
     free(sum);
     *up_out = up;
     *o_out = o;
@@ -189,7 +189,7 @@ static int keep_caps(mesh_wtree *t, double (*vt)[3][3], size_t n)
 /* The caps of t's mesh: the fans of the chain e[0, nb), as voxel-unit
  * triangles (the tree's) and lattice ones (the raster's). */
 static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
-                     mv_pulse *pulse)
+                     mesh_vox_pulse *pulse)
 {
     uint32_t *up;
     int64_t(*o)[3];
@@ -201,7 +201,7 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
     if (rc) return rc;
     double(*vt)[3][3] = malloc(n * sizeof *vt);
     t->cap_lat = malloc(n * sizeof *t->cap_lat);
-    double scale = (double)1u * (double)MV_L / g->vs; /* mv_frame_init's, K = 1 */
+    double scale = (double)1u * (double)MESH_VOX_L / g->vs; /* mesh_vox_frame_init's, K = 1 */
     for (size_t i = 0, k = 0; vt && t->cap_lat && i < nb; i++) {
         uint32_t lo = (uint32_t)(e[i].key >> 32), hi = (uint32_t)e[i].key;
         uint32_t v[2] = {e[i].s > 0 ? hi : lo, e[i].s > 0 ? lo : hi}; /* (b, a) of a -> b */
@@ -209,18 +209,18 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
         for (int r = 0; r < abs(e[i].s); r++, k++) {
             for (int j = 0; j < 2; j++) {
                 vox_of(m, g, v[j], vt[k][j]);
-                for (int a = 0; a < 3; a++) /* mv_vertex's snap: the mesh's lattice */
+                for (int a = 0; a < 3; a++) /* mesh_vox_vertex's snap: the mesh's lattice */
                     t->cap_lat[k][j][a] =
-                        mv_snap(((double)m->vertices[v[j]][a] - g->lo[a]) * scale);
+                        mesh_vox_snap(((double)m->vertices[v[j]][a] - g->lo[a]) * scale);
             }
             for (int a = 0; a < 3; a++) {
                 t->cap_lat[k][2][a] = c[a];
-                vt[k][2][a] = (double)c[a] / (double)MV_L; /* exact */
+                vt[k][2][a] = (double)c[a] / (double)MESH_VOX_L; /* exact */
             }
         }
     }
     rc = vt && t->cap_lat
-             ? mv_wtree_make(NULL, g, (const double (*)[3][3])vt, (uint32_t)n, pulse, &t->caps)
+             ? mesh_vox_wtree_make(NULL, g, (const double (*)[3][3])vt, (uint32_t)n, pulse, &t->caps)
              : -ENOMEM;
     t->n_caps = rc ? 0 : (uint32_t)n;
     if (!rc && n <= DIRECT_MAX) rc = keep_caps(t, vt, n), vt = NULL;
@@ -243,21 +243,21 @@ int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out)
 
 /* The parts of t a tile needs, built on first use (t is the caller's
  * alone: one tile at a time reads it).  0 or -ENOMEM. */
-static int need_tris(const mesh_wtree *ct, mv_pulse *pulse)
+static int need_tris(const mesh_wtree *ct, mesh_vox_pulse *pulse)
 {
     mesh_wtree *t = (mesh_wtree *)ct; /* const for the tiles: built once, then read */
-    if (t->tris_rc == 1) t->tris_rc = mv_wtree_make(&t->m, &t->g, NULL, 0, pulse, &t->tris);
+    if (t->tris_rc == 1) t->tris_rc = mesh_vox_wtree_make(&t->m, &t->g, NULL, 0, pulse, &t->tris);
     return t->tris_rc;
 }
 
-static int need_caps(const mesh_wtree *ct, mv_pulse *pulse)
+static int need_caps(const mesh_wtree *ct, mesh_vox_pulse *pulse)
 {
     mesh_wtree *t = (mesh_wtree *)ct;
     if (t->caps_rc != 1) return t->caps_rc;
     dedge *e = NULL;
     size_t nb = 0;
     int rc = boundary(&t->m, &e, &nb);
-    mv_beat(pulse, (uint32_t)(t->m.n_triangles / 4));
+    mesh_vox_beat(pulse, (uint32_t)(t->m.n_triangles / 4));
     if (!rc) rc = make_caps(t, &t->m, &t->g, e, nb, pulse);
     free(e);
     return t->caps_rc = rc;
@@ -266,8 +266,8 @@ static int need_caps(const mesh_wtree *ct, mv_pulse *pulse)
 void mesh_wtree_free(mesh_wtree *t)
 {
     if (!t) return;
-    mv_wtree_free(t->tris);
-    mv_wtree_free(t->caps);
+    mesh_vox_wtree_free(t->tris);
+    mesh_vox_wtree_free(t->caps);
     free(t->cap_lat);
     free(t->cap_vt);
     free(t->cap_ball);
@@ -283,26 +283,26 @@ void mesh_wtree_free(mesh_wtree *t)
 #define TOL_SAMPLE 1e-4 /* a node's error at most, a sample's query */
 #define TOL_CELL 2e-3   /* ... a cell's */
 #define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
-#define NEAR 1e-3    /* voxels: nearer a cap triangle, mv_wind_block decides */
-#define MARGIN 1e-6  /* past the bound, nearer 1/2: mv_wind_block decides */
+#define NEAR 1e-3    /* voxels: nearer a cap triangle, mesh_vox_wind_block decides */
+#define MARGIN 1e-6  /* past the bound, nearer 1/2: mesh_vox_wind_block decides */
 
 typedef struct {
-    const mv_frame *f;
-    const mv_block *b;
+    const mesh_vox_frame *f;
+    const mesh_vox_block *b;
     uint64_t *todo; /* the samples still to decide */
     uint64_t *bits, *spare;
     const uint16_t *count;
-    const mv_wtree *caps;
+    const mesh_vox_wtree *caps;
     bool any_spare;
 } cblock;
 
 /* Every sample of the cell to decide: inside when its count is not k. */
 static void cell_by_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], uint16_t k)
 {
-    uint64_t mask = mv_xmask(lo, hi);
+    uint64_t mask = mesh_vox_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mv_word(c->b, lo[0], y, z);
+            size_t i = mesh_vox_word(c->b, lo[0], y, z);
             uint64_t d = c->todo[i] & mask, in = 0;
             const uint16_t *n = c->count + i * 64;
             for (uint64_t r = d; r; r &= r - 1) {
@@ -328,34 +328,34 @@ static void decide(cblock *c, size_t i, unsigned x, double v, double e)
 /* The samples of the cell one by one from a cell query: w_C = v (within
  * e) plus the near triangles' exact angles. */
 static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
-                         const mv_near *nr, double v, double e)
+                         const mesh_vox_near *nr, double v, double e)
 {
-    uint64_t mask = mv_xmask(lo, hi);
+    uint64_t mask = mesh_vox_xmask(lo, hi);
     uint32_t work = 0;
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mv_word(c->b, lo[0], y, z);
+            size_t i = mesh_vox_word(c->b, lo[0], y, z);
             for (uint64_t r = c->todo[i] & mask; r; r &= r - 1) {
                 unsigned x = (unsigned)__builtin_ctzll(r);
                 double p[3] = {(double)(c->b->s0[0] + (int64_t)(lo[0] / 64 * 64 + x)) + 0.5,
                                (double)(c->b->s0[1] + (int64_t)y) + 0.5,
                                (double)(c->b->s0[2] + (int64_t)z) + 0.5};
                 bool close = false;
-                double u = v + mv_wind_near(c->caps, nr, p, NEAR, &close);
+                double u = v + mesh_vox_wind_near(c->caps, nr, p, NEAR, &close);
                 if (!close) decide(c, i, x, u, e);
                 work += nr->n;
             }
         }
-    mv_beat(c->f->pulse, work);
+    mesh_vox_beat(c->f->pulse, work);
 }
 
-/* The samples of the cell still to do to mv_wind_block. */
+/* The samples of the cell still to do to mesh_vox_wind_block. */
 static void cell_spare(cblock *c, const uint32_t lo[3], const uint32_t hi[3])
 {
-    uint64_t mask = mv_xmask(lo, hi);
+    uint64_t mask = mesh_vox_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mv_word(c->b, lo[0], y, z);
+            size_t i = mesh_vox_word(c->b, lo[0], y, z);
             uint64_t d = c->todo[i] & mask;
             if (!d) continue;
             c->spare[i] |= d;
@@ -396,12 +396,12 @@ static bool try_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], dou
  * its eight halves. */
 static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 {
-    uint64_t n = mv_cell_count(c->b, c->todo, lo, hi);
+    uint64_t n = mesh_vox_cell_count(c->b, c->todo, lo, hi);
     if (!n || (c->f->pulse && c->f->pulse->stop)) return;
     uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
     if (!c->caps) { /* closed: w_C = 0 */
         cell_by_count(c, lo, hi, 0);
-        mv_beat(c->f->pulse, (uint32_t)(n / 8 + 1));
+        mesh_vox_beat(c->f->pulse, (uint32_t)(n / 8 + 1));
         return;
     }
     bool one = ext[0] == 1 && ext[1] == 1 && ext[2] == 1;
@@ -412,15 +412,15 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
     double mag;
-    if (!one && mv_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
-        mv_beat(c->f->pulse, work);
+    if (!one && mesh_vox_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
+        mesh_vox_beat(c->f->pulse, work);
         cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
         return;
     }
-    mv_near nr;
-    bool ok = mv_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
+    mesh_vox_near nr;
+    bool ok = mesh_vox_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
                            &nr, &v, &e, &work);
-    mv_beat(c->f->pulse, work);
+    mesh_vox_beat(c->f->pulse, work);
     if (ok && !nr.n && try_count(c, lo, hi, v, e)) return;
     if (ok && (n < CELL_MIN || nr.n * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
         cell_by_near(c, lo, hi, &nr, v, e);
@@ -468,8 +468,8 @@ static double seg_dist(const double a[3], const double b[3], double *len)
  * cell is at most the sum of rho^2 l / (4 pi (d - rho)^3) over the
  * segments, d from b.  False where a cap triangle comes within rho + NEAR
  * of b (a cell the caps may cross). */
-bool mv_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t n,
-                    const double b[3], double rho, mv_cexp *x)
+bool mesh_vox_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t n,
+                    const double b[3], double rho, mesh_vox_cexp *x)
 {
     double h = 0, g[3] = {0, 0, 0}, e = 0, reach = rho + NEAR;
     for (uint32_t k = 0; k < n; k++) {
@@ -478,13 +478,13 @@ bool mv_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t
         if (ball) /* its ball says far: no need of the triangle's distance */
             for (int a = 0; a < 3; a++) c2 += (ball[k][a] - b[a]) * (ball[k][a] - b[a]);
         if ((!ball || c2 <= (ball[k][3] + reach) * (ball[k][3] + reach)) &&
-            !(mv_tri_dist(T, b) * (1 - 1e-9) > reach))
+            !(mesh_vox_tri_dist(T, b) * (1 - 1e-9) > reach))
             return false;
         for (int i = 0; i < 3; i++)
             for (int a = 0; a < 3; a++) r[i][a] = T[i][a] - b[a];
         double f = seg_dist(r[0], r[1], &l) * (1 - 1e-9) - rho; /* > NEAR: the cap's edge */
         e += l / (f * f * f);
-        h += mv_half_solid_angle(r[0], r[1], r[2]);
+        h += mesh_vox_half_solid_angle(r[0], r[1], r[2]);
         seg_grad(r[0], r[1], g);
     }
     x->v = h / (2 * M_PI);
@@ -495,12 +495,12 @@ bool mv_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], uint32_t
 
 /* The cell's samples one by one from the expansion x about b. */
 static void cell_by_lin(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const double b[3],
-                        const mv_cexp *x)
+                        const mesh_vox_cexp *x)
 {
-    uint64_t mask = mv_xmask(lo, hi);
+    uint64_t mask = mesh_vox_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mv_word(c->b, lo[0], y, z);
+            size_t i = mesh_vox_word(c->b, lo[0], y, z);
             double dz = (double)(c->b->s0[2] + (int64_t)z) + 0.5 - b[2];
             double dy = (double)(c->b->s0[1] + (int64_t)y) + 0.5 - b[1];
             double u0 = x->v + x->g[1] * dy + x->g[2] * dz;
@@ -514,10 +514,10 @@ static void cell_by_lin(cblock *c, const uint32_t lo[3], const uint32_t hi[3], c
 
 /* Cell [lo, hi) by the caps' expansion about its centre: whole when it
  * keeps off every half integer, else sample by sample, the samples left
- * to its eight halves; a sample too near a cap to mv_wind_block. */
+ * to its eight halves; a sample too near a cap to mesh_vox_wind_block. */
 static void direct_cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 {
-    uint64_t n = mv_cell_count(c->b, c->todo, lo, hi);
+    uint64_t n = mesh_vox_cell_count(c->b, c->todo, lo, hi);
     if (!n || (c->f->pulse && c->f->pulse->stop)) return;
     double b[3], r2 = 0;
     for (int a = 0; a < 3; a++) {
@@ -526,10 +526,10 @@ static void direct_cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
     }
     double rho = sqrt(r2) * (1 + 1e-9);
     const mesh_wtree *t = c->f->wt;
-    mv_cexp x;
-    bool ok = mv_wcap_expand((const double (*)[3][3])t->cap_vt,
+    mesh_vox_cexp x;
+    bool ok = mesh_vox_wcap_expand((const double (*)[3][3])t->cap_vt,
                              (const double (*)[4])t->cap_ball, t->n_caps, b, rho, &x);
-    mv_beat(c->f->pulse, c->f->wt->n_caps);
+    mesh_vox_beat(c->f->pulse, c->f->wt->n_caps);
     if (ok) {
         double gn = sqrt(x.g[0] * x.g[0] + x.g[1] * x.g[1] + x.g[2] * x.g[2]);
         if (try_count(c, lo, hi, x.v, gn * rho * (1 + 1e-9) + x.e)) return;
@@ -541,35 +541,35 @@ static void direct_cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 
 /* The caps into the counters (those whose x, y box meets the block's),
  * then the prefix sum along z: count = N. */
-static void count_caps(const mv_frame *f, const mesh_wtree *t, const mv_block *b,
+static void count_caps(const mesh_vox_frame *f, const mesh_wtree *t, const mesh_vox_block *b,
                        uint16_t *count)
 {
-    mv_target tc = {b, NULL, NULL, true, count};
-    int64_t xlo = b->s0[0] * MV_L, xhi = (b->s0[0] + b->n[0]) * MV_L;
-    int64_t ylo = b->s0[1] * MV_L, yhi = (b->s0[1] + b->n[1]) * MV_L;
+    mesh_vox_target tc = {b, NULL, NULL, true, count};
+    int64_t xlo = b->s0[0] * MESH_VOX_L, xhi = (b->s0[0] + b->n[0]) * MESH_VOX_L;
+    int64_t ylo = b->s0[1] * MESH_VOX_L, yhi = (b->s0[1] + b->n[1]) * MESH_VOX_L;
     for (uint32_t i = 0; i < t->n_caps; i++) {
         const int64_t(*P)[3] = t->cap_lat[i];
-        if (mv_beat(f->pulse, 1)) return;
+        if (mesh_vox_beat(f->pulse, 1)) return;
         if ((P[0][0] < xlo && P[1][0] < xlo && P[2][0] < xlo) ||
             (P[0][0] > xhi && P[1][0] > xhi && P[2][0] > xhi) ||
             (P[0][1] < ylo && P[1][1] < ylo && P[2][1] < ylo) ||
             (P[0][1] > yhi && P[1][1] > yhi && P[2][1] > yhi))
             continue;
-        mv_raster(P, 2, &tc);
+        mesh_vox_raster(P, 2, &tc);
     }
     size_t slice = (size_t)b->n[1] * b->nw * 64;
     for (int32_t z = 1; z < b->n[2]; z++) {
         uint16_t *s = count + (size_t)z * slice, *p = s - slice;
         for (size_t i = 0; i < slice; i++) s[i] = (uint16_t)(s[i] + p[i]);
-        mv_beat(f->pulse, (uint32_t)(slice / 256));
+        mesh_vox_beat(f->pulse, (uint32_t)(slice / 256));
     }
 }
 
 /* The samples set in dis by the exact sum, a word at a time (when a
  * tree cannot be had: no memory for it). */
-static void exact_words(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+static void exact_words(const mesh_vox_frame *f, const mesh_vox_block *b, const uint64_t *dis, uint64_t *bits)
 {
-    for (size_t w = 0; w < mv_block_words(b); w++) {
+    for (size_t w = 0; w < mesh_vox_block_words(b); w++) {
         size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
         double q[64][3], wn[64];
         unsigned idx[64], n = 0;
@@ -581,24 +581,24 @@ static void exact_words(const mv_frame *f, const mv_block *b, const uint64_t *di
             idx[n++] = i;
         }
         if (!n) continue;
-        mv_winding_many(f, (const double (*)[3])q, n, wn);
+        mesh_vox_winding_many(f, (const double (*)[3])q, n, wn);
         for (unsigned k = 0; k < n; k++)
             bits[w] = fabs(wn[k]) >= 0.5 ? bits[w] | 1ull << idx[k] : bits[w] & ~(1ull << idx[k]);
     }
 }
 
 /* The old path: the mesh's tree, sample by sample near 1/2. */
-static void by_tree(const mv_frame *f, const mv_block *b, const uint64_t *dis, uint64_t *bits)
+static void by_tree(const mesh_vox_frame *f, const mesh_vox_block *b, const uint64_t *dis, uint64_t *bits)
 {
     if (need_tris(f->wt, f->pulse)) exact_words(f, b, dis, bits);
-    else mv_wind_block(f, f->wt->tris, b, dis, bits);
+    else mesh_vox_wind_block(f, f->wt->tris, b, dis, bits);
 }
 
-void mv_wcap_block(const mv_frame *f, const mv_block *b, uint64_t *dis, uint64_t *bits,
+void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *dis, uint64_t *bits,
                    uint16_t *count, uint64_t *spare)
 {
     const mesh_wtree *t = f->wt;
-    size_t nwords = mv_block_words(b), i = 0;
+    size_t nwords = mesh_vox_block_words(b), i = 0;
     while (i < nwords && !dis[i]) i++;
     if (i == nwords) return;
     if (!count || need_caps(t, f->pulse)) {

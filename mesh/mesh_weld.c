@@ -180,7 +180,7 @@ static int merge_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
 
 static int degenerate(float (*v)[3], uint32_t a, uint32_t b, uint32_t c)
 {
-    return a == b || b == c || a == c || mb_zero_area(v[a], v[b], v[c]);
+    return a == b || b == c || a == c || mesh_build_zero_area(v[a], v[b], v[c]);
 }
 
 /* Whether a triangle is left once merged (map: old indices). */

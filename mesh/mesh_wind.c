@@ -41,7 +41,7 @@ typedef struct {
     uint32_t count;  /* leaf: its triangles; 0: an inner node (children first, first + 1) */
 } wnode;
 
-struct mv_wtree {
+struct mesh_vox_wtree {
     wnode *nodes;
     uint32_t n_nodes;
     float (*tri)[9]; /* the triangles' vertices in leaf order, voxel units
@@ -56,8 +56,8 @@ typedef struct {
     const double (*vt)[3][3]; /* without m: the triangles, voxel units */
     double (*cen)[3]; /* triangle centroids */
     uint32_t *ids;    /* triangle ids, permuted into leaf order */
-    mv_wtree *t;
-    mv_pulse *pulse;  /* ticked as the nodes are made, or NULL */
+    mesh_vox_wtree *t;
+    mesh_vox_pulse *pulse;  /* ticked as the nodes are made, or NULL */
 } builder;
 
 static void tri_voxels(const builder *b, uint32_t id, double p[3][3])
@@ -181,7 +181,7 @@ static void inner_moments(wnode *n, const wnode *k)
 /* Node ni over ids[lo, hi); its children take the next free slots. */
 static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
 {
-    mv_beat(b->pulse, (hi - lo) / 4 + 1); /* the build is not abandoned: a tile needs it */
+    mesh_vox_beat(b->pulse, (hi - lo) / 4 + 1); /* the build is not abandoned: a tile needs it */
     wnode *n = &b->t->nodes[ni];
     memset(n, 0, sizeof *n);
     if (hi - lo <= LEAF) {
@@ -209,13 +209,13 @@ static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
     inner_moments(n, &b->t->nodes[kid]);
 }
 
-int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
-                  mv_pulse *pulse, mv_wtree **out)
+int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
+                  mesh_vox_pulse *pulse, mesh_vox_wtree **out)
 {
     *out = NULL;
     if (m) n = m->n_triangles;
     if (!n) return -EINVAL;
-    mv_wtree *t = calloc(1, sizeof *t);
+    mesh_vox_wtree *t = calloc(1, sizeof *t);
     builder b = {m, g, tri, malloc((size_t)n * sizeof *b.cen), malloc((size_t)n * sizeof *b.ids),
                  t, pulse};
     if (t) {
@@ -224,7 +224,7 @@ int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], 
     }
     if (!t || !b.cen || !b.ids || !t->nodes || !t->tri) {
         free(b.cen), free(b.ids);
-        mv_wtree_free(t);
+        mesh_vox_wtree_free(t);
         return -ENOMEM;
     }
     for (uint32_t i = 0; i < n; i++) {
@@ -240,7 +240,7 @@ int mv_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], 
     return 0;
 }
 
-void mv_wtree_free(mv_wtree *t)
+void mesh_vox_wtree_free(mesh_vox_wtree *t)
 {
     if (!t) return;
     free(t->nodes);
@@ -279,7 +279,7 @@ static double tri_half_angle(const float *v, const double p[3])
     return atan2(det, den);
 }
 
-double mv_wind_point(const mv_wtree *t, const double p[3], double beta, uint32_t *work)
+double mesh_vox_wind_point(const mesh_vox_wtree *t, const double p[3], double beta, uint32_t *work)
 {
     uint32_t stack[128], sp = 0, visits = 0;
     double w = 0, b2 = beta * beta;
@@ -334,7 +334,7 @@ static double dot3(const double a[3], const double b[3])
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
-double mv_tri_dist(const double v[3][3], const double p[3])
+double mesh_vox_tri_dist(const double v[3][3], const double p[3])
 {
     /* Ericson's closest point, "Real-Time Collision Detection" 5.1.5: the
      * Voronoi regions of the vertices, edges and face in turn */
@@ -367,15 +367,15 @@ static double tri_dist(const float *v, const double p[3])
 {
     double d[3][3];
     for (int i = 0; i < 9; i++) d[i / 3][i % 3] = v[i];
-    return mv_tri_dist((const double (*)[3])d, p);
+    return mesh_vox_tri_dist((const double (*)[3])d, p);
 }
 
 /* Leaf n's triangles at the centre b of a cell of half-diagonal rho:
  * their exact angles into *w4 (4 pi w), bound (2) into *e4; a triangle
  * that comes within 2 rho of b goes to the near list instead when there
  * is one (false when it is full), else within rho: false (no bound). */
-static bool leaf_cell(const mv_wtree *t, const wnode *n, const double bw[3], double rho,
-                      mv_near *near, double *w4, double *e4)
+static bool leaf_cell(const mesh_vox_wtree *t, const wnode *n, const double bw[3], double rho,
+                      mesh_vox_near *near, double *w4, double *e4)
 {
     double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]}; /* from its centre */
     for (uint32_t k = 0; k < n->count; k++) {
@@ -399,7 +399,7 @@ static bool leaf_cell(const mv_wtree *t, const wnode *n, const double bw[3], dou
         if (near && dmin <= reach) /* the ball says near: the triangle itself */
             dmin = tri_dist(v, b) * (1 - 1e-9) - 1e-9 - rho;
         if (near && dmin <= reach) {
-            if (near->n == MV_NEAR_MAX) return false;
+            if (near->n == MESH_VOX_NEAR_MAX) return false;
             near->tri[near->n] = n->first + k;
             near->leaf[near->n++] = (uint32_t)(n - t->nodes);
             continue;
@@ -415,7 +415,7 @@ static bool leaf_cell(const mv_wtree *t, const wnode *n, const double bw[3], dou
     return true;
 }
 
-double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], double close,
+double mesh_vox_wind_near(const mesh_vox_wtree *t, const mesh_vox_near *near, const double p[3], double close,
                     bool *is_close)
 {
     double w4 = 0;
@@ -429,8 +429,8 @@ double mv_wind_near(const mv_wtree *t, const mv_near *near, const double p[3], d
     return w4 / (4 * M_PI);
 }
 
-bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
-                  mv_near *near, double *w, double *err, uint32_t *work)
+bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
+                  mesh_vox_near *near, double *w, double *err, uint32_t *work)
 {
     if (near) near->n = 0;
     uint32_t stack[128], sp = 0, visits = 0;
@@ -465,7 +465,7 @@ bool mv_wind_cell(const mv_wtree *t, const double b[3], double rho, double emax,
     return ok;
 }
 
-bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, double tol,
+bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
                  double *bound, uint32_t *work)
 {
     uint32_t stack[128], sp = 0, visits = 0;
@@ -504,8 +504,8 @@ bool mv_wind_mag(const mv_wtree *t, const double b[3], double rho, double emax, 
 #define BAND2 0.001   /* else the exact sum over every triangle */
 
 typedef struct {
-    const mv_frame *f;
-    const mv_block *b;
+    const mesh_vox_frame *f;
+    const mesh_vox_block *b;
     const uint64_t *dis;
     uint64_t *bits;
     double q[64][3];  /* the exact sum's points, sample units ... */
@@ -515,10 +515,10 @@ typedef struct {
 
 static void cell_fill(wblock *w, const uint32_t lo[3], const uint32_t hi[3], bool inside)
 {
-    uint64_t mask = mv_xmask(lo, hi);
+    uint64_t mask = mesh_vox_xmask(lo, hi);
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mv_word(w->b, lo[0], y, z);
+            size_t i = mesh_vox_word(w->b, lo[0], y, z);
             uint64_t d = w->dis[i] & mask;
             w->bits[i] = inside ? w->bits[i] | d : w->bits[i] & ~d;
         }
@@ -535,25 +535,25 @@ static void flush_exact(wblock *w)
 {
     double wn[64];
     if (!w->n) return;
-    mv_winding_many(w->f, (const double (*)[3])w->q, w->n, wn);
+    mesh_vox_winding_many(w->f, (const double (*)[3])w->q, w->n, wn);
     for (unsigned k = 0; k < w->n; k++) set_bit(w, w->at[k], fabs(wn[k]) >= 0.5);
     w->n = 0;
 }
 
 /* Sample (x, y, z) of the block: the tree twice, then the exact sum. */
-static void point(wblock *w, const mv_wtree *t, const uint32_t s[3])
+static void point(wblock *w, const mesh_vox_wtree *t, const uint32_t s[3])
 {
-    const mv_frame *f = w->f;
+    const mesh_vox_frame *f = w->f;
     double q[3], p[3];
     uint32_t work = 0;
     for (int a = 0; a < 3; a++) {
         q[a] = (double)(w->b->s0[a] + (int64_t)s[a]) + 0.5;
         p[a] = q[a] / f->K;
     }
-    size_t at = mv_word(w->b, s[0], s[1], s[2]) * 64 + (s[0] & 63);
-    double v = fabs(mv_wind_point(t, p, BETA1, &work));
-    if (fabs(v - 0.5) <= BAND1) v = fabs(mv_wind_point(t, p, BETA2, &work));
-    mv_beat(f->pulse, work);
+    size_t at = mesh_vox_word(w->b, s[0], s[1], s[2]) * 64 + (s[0] & 63);
+    double v = fabs(mesh_vox_wind_point(t, p, BETA1, &work));
+    if (fabs(v - 0.5) <= BAND1) v = fabs(mesh_vox_wind_point(t, p, BETA2, &work));
+    mesh_vox_beat(f->pulse, work);
     if (fabs(v - 0.5) > BAND2) {
         set_bit(w, at, v > 0.5);
         return;
@@ -565,9 +565,9 @@ static void point(wblock *w, const mv_wtree *t, const uint32_t s[3])
 
 /* Cell [lo, hi): decided whole by one query when the bound allows, else
  * its eight halves. */
-static void cell(wblock *w, const mv_wtree *t, const uint32_t lo[3], const uint32_t hi[3])
+static void cell(wblock *w, const mesh_vox_wtree *t, const uint32_t lo[3], const uint32_t hi[3])
 {
-    uint64_t n = mv_cell_count(w->b, w->dis, lo, hi);
+    uint64_t n = mesh_vox_cell_count(w->b, w->dis, lo, hi);
     if (!n || (w->f->pulse && w->f->pulse->stop)) return;
     uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
     if (ext[0] == 1 && ext[1] == 1 && ext[2] == 1) {
@@ -581,9 +581,9 @@ static void cell(wblock *w, const mv_wtree *t, const uint32_t lo[3], const uint3
             b[a] = ((double)w->b->s0[a] + 0.5 * ((double)lo[a] + hi[a])) / K;
             r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
         }
-        bool ok = mv_wind_cell(t, b, sqrt(r2) / K * (1 + 1e-9), 0.5, INFINITY, NULL, &v, &e,
+        bool ok = mesh_vox_wind_cell(t, b, sqrt(r2) / K * (1 + 1e-9), 0.5, INFINITY, NULL, &v, &e,
                                &work);
-        mv_beat(w->f->pulse, work);
+        mesh_vox_beat(w->f->pulse, work);
         v = fabs(v);
         if (ok && (v - e > 0.5 || v + e < 0.5)) {
             cell_fill(w, lo, hi, v > 0.5);
@@ -603,7 +603,7 @@ static void cell(wblock *w, const mv_wtree *t, const uint32_t lo[3], const uint3
     }
 }
 
-void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, const uint64_t *dis,
+void mesh_vox_wind_block(const mesh_vox_frame *f, const mesh_vox_wtree *t, const mesh_vox_block *b, const uint64_t *dis,
                    uint64_t *bits)
 {
     wblock w = {.f = f, .b = b, .dis = dis, .bits = bits};
@@ -625,7 +625,7 @@ void mv_wind_block(const mv_frame *f, const mv_wtree *t, const mv_block *b, cons
  * atan2 of Van Oosterom and Strackee's formula; for the small angles of
  * the many far triangles, the series of atan (to t^7: below 1e-17 when
  * |t| < 1/64) instead of atan2. */
-double mv_half_solid_angle(const double a[3], const double b[3], const double c[3])
+double mesh_vox_half_solid_angle(const double a[3], const double b[3], const double c[3])
 {
     double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
     double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
@@ -644,13 +644,13 @@ double mv_half_solid_angle(const double a[3], const double b[3], const double c[
     return atan2(det, den);
 }
 
-void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double *w)
+void mesh_vox_winding_many(const mesh_vox_frame *f, const double (*q)[3], unsigned n, double *w)
 {
     const mesh *m = f->m;
-    double s = f->scale / (double)MV_L;
+    double s = f->scale / (double)MESH_VOX_L;
     for (unsigned k = 0; k < n; k++) w[k] = 0;
     for (uint32_t t = 0; t < m->n_triangles; t++) {
-        if (mv_beat(f->pulse, n)) return; /* the tile is abandoned */
+        if (mesh_vox_beat(f->pulse, n)) return; /* the tile is abandoned */
         double p[3][3];
         for (int i = 0; i < 3; i++) {
             const float *v = m->vertices[m->triangles[t][i]];
@@ -660,7 +660,7 @@ void mv_winding_many(const mv_frame *f, const double (*q)[3], unsigned n, double
             double r[3][3];
             for (int i = 0; i < 3; i++)
                 for (int a = 0; a < 3; a++) r[i][a] = p[i][a] - q[k][a];
-            w[k] += mv_half_solid_angle(r[0], r[1], r[2]);
+            w[k] += mesh_vox_half_solid_angle(r[0], r[1], r[2]);
         }
     }
     for (unsigned k = 0; k < n; k++) w[k] /= 2.0 * M_PI; /* solid angles / (4 pi) */

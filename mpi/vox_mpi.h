@@ -148,7 +148,7 @@ typedef struct {
     vod_params v;
     char meta[JOB_META_MAX];
     vod_layout L;
-    pipeline_report plan;
+    engine_pipeline_report plan;
     mpi_cut cut;
     int fd;
 } prep;

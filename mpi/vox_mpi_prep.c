@@ -137,12 +137,12 @@ static const char *source_name(const prep *p, const char *file)
     return !p->source_name ? file : p->source_name[0] ? p->source_name : NULL;
 }
 
-static int prepare_implicit(prep *p, pipeline_job *pj)
+static int prepare_implicit(prep *p, engine_pipeline_job *pj)
 {
     int rc = cli_job_source(&p->o, &p->src, &p->tape);
     if (rc) return rc;
     p->kind = MPI_KIND_IMPLICIT;
-    pj->kind = PIPELINE_IMPLICIT;
+    pj->kind = ENGINE_PIPELINE_IMPLICIT;
     pj->implicit.tape = p->tape;
     pj->implicit.source = p->src.text;
     pj->implicit.source_len = p->src.len;
@@ -152,7 +152,7 @@ static int prepare_implicit(prep *p, pipeline_job *pj)
     return -1;
 }
 
-static int prepare_mesh(prep *p, pipeline_job *pj)
+static int prepare_mesh(prep *p, engine_pipeline_job *pj)
 {
     mesh_error merr;
     if (mesh_load(p->o.mesh, p->mesh_format, NULL, &p->mesh, &merr)) {
@@ -169,7 +169,7 @@ static int prepare_mesh(prep *p, pipeline_job *pj)
     p->mesh_loaded = 1;
     p->kind = MPI_KIND_MESH;
     struct stat sb;
-    pj->kind = PIPELINE_MESH;
+    pj->kind = ENGINE_PIPELINE_MESH;
     pj->mesh.mesh = &p->mesh;
     pj->mesh.opts = p->o.mesh_opts;
     pj->mesh.pad = p->o.pad;
@@ -195,7 +195,7 @@ static int load_packed(const char *path, csg_tree **out)
 }
 
 /* vox csg's options into the job's (the rest of vox_mpi reads those). */
-static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
+static int prepare_csg(prep *p, int argc, char **argv, engine_pipeline_job *pj)
 {
     cli_csg_opts co;
     int rc = cli_csg_parse(argc, argv, &co);
@@ -236,7 +236,7 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
     p->o.progress = p->csg_progress;
     memcpy(p->o.lo, co.lo, sizeof co.lo);
     memcpy(p->o.hi, co.hi, sizeof co.hi);
-    pj->kind = PIPELINE_CSG;
+    pj->kind = ENGINE_PIPELINE_CSG;
     pj->csg.tree = p->tree;
     pj->csg.source_name = source_name(p, co.in);
     pj->csg.source_bytes = text_bytes;
@@ -244,7 +244,7 @@ static int prepare_csg(prep *p, int argc, char **argv, pipeline_job *pj)
 }
 
 /* The options of vox voxelize or vox csg, the job's input loaded. */
-static int prepare_kind(prep *p, int argc, char **argv, pipeline_job *pj)
+static int prepare_kind(prep *p, int argc, char **argv, engine_pipeline_job *pj)
 {
     cli_job_defaults(&p->o);
     p->o.workers = WORKERS_AUTO;
@@ -273,7 +273,7 @@ static int prepare_kind(prep *p, int argc, char **argv, pipeline_job *pj)
 }
 
 /* A mesh job's topology (the repair dropped when the mesh is watertight,
- * as pipeline_run drops it) and its triangles binned to the tiles. */
+ * as engine_pipeline_run drops it) and its triangles binned to the tiles. */
 static int prepare_bins(prep *p)
 {
     p->run_opts = p->o.mesh_opts;
@@ -326,7 +326,7 @@ int mpi_prepare(prep *p, int argc, char **argv)
     p->fd = -1;
     int rc = own_options(p, &argc, argv);
     if (rc >= 0) return rc;
-    pipeline_job pj = {0};
+    engine_pipeline_job pj = {0};
     if ((rc = prepare_kind(p, argc, argv, &pj)) >= 0) return rc;
     memcpy(pj.lo, p->o.lo, sizeof pj.lo);
     memcpy(pj.hi, p->o.hi, sizeof pj.hi);
@@ -334,7 +334,7 @@ int mpi_prepare(prep *p, int argc, char **argv)
     pj.schedule = p->o.schedule;
     pj.vod = p->o.vod;
     char err[256];
-    if (pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||
+    if (engine_pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||
         vod_layout_make(&p->v, p->plan.grid.depth, &p->L, err, sizeof err)) {
         mpi_msg("%s", p->plan.err.message[0] ? p->plan.err.message : err);
         return CLI_EXIT_USAGE;

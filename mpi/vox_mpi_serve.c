@@ -318,7 +318,7 @@ int mpi_spill_open(const char *path)
 }
 
 static void print_stats(const prep *p, const master *m, const rank_stats *all,
-                        const pipeline_report *r, double t_job, double t_write)
+                        const engine_pipeline_report *r, double t_job, double t_write)
 {
     const grid_spec *g = &r->grid;
     const int nranks = m->ctx->nranks;
@@ -373,7 +373,7 @@ void mpi_finish_file(prep *p, master *m, rank_stats *all, double t0)
     char err[256] = "";
     int rc = mpi_top_encode(m->top, &p->v, put_top, m);
     if (rc) mpi_fail_master(m, "the levels above the subtrees", rc);
-    pipeline_report r = p->plan;
+    engine_pipeline_report r = p->plan;
     double t1 = clock_now();
     rc = assemble(m, &p->L, &p->v, p->fd, &r.st, err, sizeof err);
     if (!rc) rc = outfile_commit(&m->ctx->out_file, p->o.out);

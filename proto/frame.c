@@ -8,46 +8,46 @@
 
 static uint32_t clamp_max(uint32_t max)
 {
-    if (max < FRAME_MIN_MAX) return FRAME_MIN_MAX;
-    if (max > FRAME_LIMIT_MAX) return FRAME_LIMIT_MAX;
+    if (max < PROTO_FRAME_MIN_MAX) return PROTO_FRAME_MIN_MAX;
+    if (max > PROTO_FRAME_LIMIT_MAX) return PROTO_FRAME_LIMIT_MAX;
     return max;
 }
 
-void frame_decoder_init(frame_decoder *d, uint32_t max)
+void proto_frame_decoder_init(proto_frame_decoder *d, uint32_t max)
 {
     memset(d, 0, sizeof *d);
     d->max = clamp_max(max);
 }
 
-void frame_decoder_free(frame_decoder *d)
+void proto_frame_decoder_free(proto_frame_decoder *d)
 {
     free(d->buf);
     d->buf = NULL;
     d->cap = 0;
 }
 
-void frame_decoder_set_max(frame_decoder *d, uint32_t max)
+void proto_frame_decoder_set_max(proto_frame_decoder *d, uint32_t max)
 {
     d->max = clamp_max(max);
 }
 
-static int fail(frame_decoder *d, int err, uint32_t bad_len)
+static int fail(proto_frame_decoder *d, int err, uint32_t bad_len)
 {
     d->err = err;
     d->bad_len = bad_len;
-    frame_decoder_free(d);
+    proto_frame_decoder_free(d);
     return err;
 }
 
 /* Start the next frame; drop a buffer grown for an unusually large one, so
- * an idle connection holds at most FRAME_KEEP_ALLOC. */
-static void next_frame(frame_decoder *d)
+ * an idle connection holds at most PROTO_FRAME_KEEP_ALLOC. */
+static void next_frame(proto_frame_decoder *d)
 {
     d->hdr_have = 0;
     d->need = 0;
     d->have = 0;
     d->handed = 0;
-    if (d->cap > FRAME_KEEP_ALLOC) frame_decoder_free(d);
+    if (d->cap > PROTO_FRAME_KEEP_ALLOC) proto_frame_decoder_free(d);
 }
 
 static void advance(const uint8_t **data, size_t *len, size_t n)
@@ -57,15 +57,15 @@ static void advance(const uint8_t **data, size_t *len, size_t n)
 }
 
 /* Read header bytes; 1 once the length is known and valid. */
-static int read_header(frame_decoder *d, const uint8_t **data, size_t *len)
+static int read_header(proto_frame_decoder *d, const uint8_t **data, size_t *len)
 {
-    size_t take = FRAME_HEADER_BYTES - d->hdr_have;
+    size_t take = PROTO_FRAME_HEADER_BYTES - d->hdr_have;
     if (take > *len) take = *len;
     if (take == 0) return 0;
     memcpy(d->hdr + d->hdr_have, *data, take);
     d->hdr_have += (uint32_t)take;
     advance(data, len, take);
-    if (d->hdr_have < FRAME_HEADER_BYTES) return 0;
+    if (d->hdr_have < PROTO_FRAME_HEADER_BYTES) return 0;
 
     uint32_t n = (uint32_t)d->hdr[0] << 24 | (uint32_t)d->hdr[1] << 16 |
                  (uint32_t)d->hdr[2] << 8 | d->hdr[3];
@@ -77,11 +77,11 @@ static int read_header(frame_decoder *d, const uint8_t **data, size_t *len)
 
 /* Room for want bytes of the current frame: grow geometrically with what has
  * arrived, never past the frame's own length (so never past max). */
-static int reserve(frame_decoder *d, size_t want)
+static int reserve(proto_frame_decoder *d, size_t want)
 {
     if (want <= d->cap) return 0;
     size_t cap = d->cap * 2;
-    if (cap < FRAME_INITIAL_ALLOC) cap = FRAME_INITIAL_ALLOC;
+    if (cap < PROTO_FRAME_INITIAL_ALLOC) cap = PROTO_FRAME_INITIAL_ALLOC;
     if (cap < want) cap = want;
     if (cap > d->need) cap = d->need;
     uint8_t *p = realloc(d->buf, cap);
@@ -91,8 +91,8 @@ static int reserve(frame_decoder *d, size_t want)
     return 0;
 }
 
-int frame_decode(frame_decoder *d, const uint8_t **data, size_t *len,
-                 frame_view *out)
+int proto_frame_decode(proto_frame_decoder *d, const uint8_t **data, size_t *len,
+                 proto_frame_view *out)
 {
     if (d->err) return d->err;
     if (d->handed) next_frame(d);
@@ -122,19 +122,19 @@ int frame_decode(frame_decoder *d, const uint8_t **data, size_t *len,
     return 1;
 }
 
-int frame_decoder_finish(const frame_decoder *d)
+int proto_frame_decoder_finish(const proto_frame_decoder *d)
 {
     if (d->err) return d->err;
-    return frame_decoder_pending(d) ? -EPIPE : 0;
+    return proto_frame_decoder_pending(d) ? -EPIPE : 0;
 }
 
-size_t frame_decoder_pending(const frame_decoder *d)
+size_t proto_frame_decoder_pending(const proto_frame_decoder *d)
 {
     if (d->handed) return 0;
     return (size_t)d->hdr_have + d->have;
 }
 
-const char *frame_decoder_strerror(const frame_decoder *d, int rc, char *buf,
+const char *proto_frame_decoder_strerror(const proto_frame_decoder *d, int rc, char *buf,
                                    size_t len)
 {
     switch (rc) {
@@ -146,41 +146,41 @@ const char *frame_decoder_strerror(const frame_decoder *d, int rc, char *buf,
         break;
     case -EPIPE:
         snprintf(buf, len, "truncated frame at end of stream (%zu bytes of it)",
-                 frame_decoder_pending(d));
+                 proto_frame_decoder_pending(d));
         break;
     default: snprintf(buf, len, "%s", strerror(-rc)); break;
     }
     return buf;
 }
 
-int frame_encode(const ProtobufCMessage *m, uint8_t **buf, size_t *len)
+int proto_frame_encode(const ProtobufCMessage *m, uint8_t **buf, size_t *len)
 {
     size_t n = protobuf_c_message_get_packed_size(m);
     if (n == 0) return -EINVAL;
-    if (n > FRAME_LIMIT_MAX) return -EMSGSIZE;
-    uint8_t *p = malloc(FRAME_HEADER_BYTES + n);
+    if (n > PROTO_FRAME_LIMIT_MAX) return -EMSGSIZE;
+    uint8_t *p = malloc(PROTO_FRAME_HEADER_BYTES + n);
     if (!p) return -ENOMEM;
     p[0] = (uint8_t)(n >> 24);
     p[1] = (uint8_t)(n >> 16);
     p[2] = (uint8_t)(n >> 8);
     p[3] = (uint8_t)n;
-    if (protobuf_c_message_pack(m, p + FRAME_HEADER_BYTES) != n) {
+    if (protobuf_c_message_pack(m, p + PROTO_FRAME_HEADER_BYTES) != n) {
         free(p);
         return -EINVAL;
     }
     *buf = p;
-    *len = FRAME_HEADER_BYTES + n;
+    *len = PROTO_FRAME_HEADER_BYTES + n;
     return 0;
 }
 
-int frame_encode_request(const Voxd__Request *m, uint8_t **buf, size_t *len)
+int proto_frame_encode_request(const Voxd__Request *m, uint8_t **buf, size_t *len)
 {
-    return frame_encode(&m->base, buf, len);
+    return proto_frame_encode(&m->base, buf, len);
 }
 
-int frame_encode_reply(const Voxd__Reply *m, uint8_t **buf, size_t *len)
+int proto_frame_encode_reply(const Voxd__Reply *m, uint8_t **buf, size_t *len)
 {
-    return frame_encode(&m->base, buf, len);
+    return proto_frame_encode(&m->base, buf, len);
 }
 
 /* An allocator that refuses once a budget is spent.  It allocates with
@@ -211,17 +211,17 @@ static void budget_free(void *ud, void *p)
 static ProtobufCMessage *unpack(const ProtobufCMessageDescriptor *desc,
                                 const uint8_t *data, size_t len)
 {
-    unpack_budget b = {FRAME_UNPACK_BUDGET(len)};
+    unpack_budget b = {PROTO_FRAME_UNPACK_BUDGET(len)};
     ProtobufCAllocator a = {budget_alloc, budget_free, &b};
     return protobuf_c_message_unpack(desc, &a, len, data);
 }
 
-Voxd__Request *frame_unpack_request(const uint8_t *data, size_t len)
+Voxd__Request *proto_frame_unpack_request(const uint8_t *data, size_t len)
 {
     return (Voxd__Request *)unpack(&voxd__request__descriptor, data, len);
 }
 
-Voxd__Reply *frame_unpack_reply(const uint8_t *data, size_t len)
+Voxd__Reply *proto_frame_unpack_reply(const uint8_t *data, size_t len)
 {
     return (Voxd__Reply *)unpack(&voxd__reply__descriptor, data, len);
 }

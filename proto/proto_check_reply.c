@@ -42,7 +42,7 @@ static int check_limits(const Voxd__Limits *l, proto_error *e)
                              (unsigned long long)v, (unsigned long long)r->min,
                              (unsigned long long)r->max);
     }
-    if (l->chunk_size > l->max_frame - FRAME_CHUNK_OVERHEAD)
+    if (l->chunk_size > l->max_frame - PROTO_FRAME_CHUNK_OVERHEAD)
         return proto_bad(e, INVALID, "server chunk_size %u does not fit its max_frame %u",
                          l->chunk_size, l->max_frame);
     return 0;

@@ -11,7 +11,7 @@
  * exactly the fields of the table, with the same widths.
  *
  * It lives in proto/, the lowest module that every user of the table may
- * include from (config/, libvox/, server/ and proto_check itself), and it
+ * include from (config/, libvox/, daemon/ and proto_check itself), and it
  * is public, installed beside vox.h: vox_server_info, which libvox gives
  * its callers, is made of these fields.  It needs nothing but <stdint.h>.
  *

@@ -105,31 +105,31 @@ to:    double f = round((p - in->origin[a]) / in->voxel_scale[a]);
 tests: test_csg_leaves test_csg_engine
 
 id:    envelope-every-voxel
-file:  worker/subdiv.c
+file:  subdiv/subdiv.c
 from:  unsigned keep = ~out & 0xffu;
 to:    unsigned keep = 0xffu;
 tests: test_envelope test_subdiv
 
 id:    envelope-one-level-early
-file:  worker/subdiv.c
+file:  subdiv/subdiv.c
 from:  if (o.level == 1) return queue_children(k, o, m, p, s);
 to:    if (o.level == 1) return queue_children(k, o, inside, p, s);
 tests: test_envelope test_subdiv
 
 id:    subdiv-children-past-res
-file:  worker/subdiv.c
+file:  subdiv/subdiv.c
 from:  if (lo[a] + h >= g->res[a]) m &= ~upper[a];
 to:    if (lo[a] + h > g->res[a]) m &= ~upper[a];
 tests: test_subdiv test_envelope test_engine
 
 id:    ival-mul-corner
-file:  expr/ival.c
+file:  ival/ival.c
 from:  double p[4] = {a.lo * b.lo, a.lo * b.hi, a.hi * b.lo, a.hi * b.hi};
 to:    double p[4] = {a.lo * b.lo, a.lo * b.lo, a.hi * b.lo, a.hi * b.hi};
 tests: test_ival test_expr test_expr_eval
 
 id:    ival-sqrt-narrow
-file:  expr/ival.c
+file:  ival/ival.c
 from:  r = ival_widen((ival){sqrt(ival_fmax_(a.lo, 0)), sqrt(a.hi)});
 to:    r = ival_widen((ival){sqrt(ival_fmax_(a.lo, 0)), sqrt(a.hi) * 0.999});
 tests: test_ival test_expr test_expr_eval
@@ -147,13 +147,13 @@ to:    while (v < res && grid_coord(g, a, v) <= hi[a]) v++;
 tests: test_pipeline test_mesh_engine test_engine
 
 id:    mesh-grid-pad-size
-file:  master/pipeline.c
+file:  engine/pipeline.c
 from:  double vs = ext / (double)(job->res - 2 * job->mesh.pad);
 to:    double vs = ext / (double)(job->res - job->mesh.pad);
 tests: test_mesh_engine test_pipeline
 
 id:    mesh-grid-pad-origin
-file:  master/pipeline.c
+file:  engine/pipeline.c
 from:  lo[a] = m->lo[a] - job->mesh.pad * vs;
 to:    lo[a] = m->lo[a] - (job->mesh.pad + 1) * vs;
 tests: test_mesh_engine test_pipeline
@@ -225,7 +225,7 @@ to:    (void)w;
 tests: test_engine_death daemon_stall.sh
 
 id:    stall-detection-off
-file:  master/sched.c
+file:  engine/sched.c
 from:  if (e->stall_s > 0 && now - m->beat_t >= e->stall_s) stalled(e, i, now);
 to:    if (0 && e->stall_s > 0 && now - m->beat_t >= e->stall_s) stalled(e, i, now);
 tests: test_engine_death daemon_stall.sh
@@ -255,13 +255,13 @@ to:    if (crc != stored && 0)
 tests: test_vod_corrupt test_vod
 
 id:    daemon-uid-cap-off-by-one
-file:  server/daemon_client.c
+file:  daemon/daemon_client.c
 from:  if ((mine = clients_of(d, c->uid)) >= share) {
 to:    if ((mine = clients_of(d, c->uid)) > share) {
 tests: daemon_fair.sh
 
 id:    daemon-cancel-any-uid
-file:  server/daemon_client.c
+file:  daemon/daemon_client.c
 from:  if (o != c && c->uid != 0 && o->uid != c->uid) continue;
 to:    if (o != c && 0) continue;
 tests: daemon_users.sh daemon.sh client.sh

@@ -210,7 +210,7 @@ typedef struct {
 } vod_encoded;
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
-/* err_fmt (common/err.h) under its old name, for master/'s callers until
+/* err_fmt (common/err.h) under its old name, for engine/'s callers until
  * they call err_fmt; vod/ itself calls err_fmt. */
 #define vod_fail err_fmt
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash

@@ -5,17 +5,17 @@
 #include <errno.h>
 #include <unistd.h>
 
-void work_check_parent(const work_ctx *w)
+void worker_check_parent(const worker_ctx *w)
 {
     if (getppid() != w->h->master_pid) _exit(1);
 }
 
-void work_ring_master(work_ctx *w)
+void worker_ring_master(worker_ctx *w)
 {
     shm_wake_if_sleeping(&w->h->doorbell, &w->h->master_sleeping);
 }
 
-int work_aborted(const work_ctx *w)
+int worker_aborted(const worker_ctx *w)
 {
     /* relaxed: a flag checked between records; the master's fence and
      * wake (shm_wake_if_sleeping) reach a worker that sleeps. */
@@ -23,19 +23,19 @@ int work_aborted(const work_ctx *w)
            w->task_gen;
 }
 
-shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
+shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type)
 {
     shm_slot *s = w->s;
-    work_tick(w);
+    worker_tick(w);
     while (queue_space(&s->q) == 0) {
-        if (work_aborted(w)) return NULL;
-        work_ring_master(w); /* entries published without a ring */
+        if (worker_aborted(w)) return NULL;
+        worker_ring_master(w); /* entries published without a ring */
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
-        if (queue_space(&s->q) == 0 && !work_aborted(w))
-            shm_futex_wait(&s->wake, v, WORK_WAIT_NS);
+        if (queue_space(&s->q) == 0 && !worker_aborted(w))
+            shm_futex_wait(&s->wake, v, WORKER_WAIT_NS);
         shm_sleep_end(&s->sleeping);
-        work_check_parent(w);
-        work_tick(w); /* waiting on the master is not a stall */
+        worker_check_parent(w);
+        worker_tick(w); /* waiting on the master is not a stall */
     }
     shm_entry *en = &s->ent[queue_head(&s->q)];
     en->kind = (uint16_t)s->task.kind;
@@ -46,24 +46,24 @@ shm_entry *work_entry_begin(work_ctx *w, uint16_t type)
 
 /* A re-run after a death skips the entries the master already has: the
  * kernel's output is deterministic. */
-static int entry_end(work_ctx *w, int batched)
+static int entry_end(worker_ctx *w, int batched)
 {
     if (w->skip) {
         w->skip--;
     } else {
         queue_publish(&w->s->q);
         if (!batched || QUEUE_ENTRIES - queue_space(&w->s->q) >= QUEUE_ENTRIES / 2)
-            work_ring_master(w);
+            worker_ring_master(w);
     }
-    return work_aborted(w) ? -ECANCELED : 0;
+    return worker_aborted(w) ? -ECANCELED : 0;
 }
 
-int work_entry_end(work_ctx *w)
+int worker_entry_end(worker_ctx *w)
 {
     return entry_end(w, 0);
 }
 
-int work_entry_end_batched(work_ctx *w)
+int worker_entry_end_batched(worker_ctx *w)
 {
     return entry_end(w, 1);
 }

@@ -5,12 +5,12 @@
  * The core (worker.c) waits for a task, finds its kind in the table, calls
  * the kind's begin() on the kind's first task of a job generation, then
  * run(); it publishes done_seq when run() returns.  A kernel hands results
- * back with work_entry_begin() / work_entry_end(): the entry is the queue
+ * back with worker_entry_begin() / worker_entry_end(): the entry is the queue
  * element the master reads once published; on a re-run after a death the
  * core skips the entries the master already took (kernels are
  * deterministic), so a kernel never needs to know.
  *
- * Liveness: a kernel calls work_tick() every few milliseconds of work (the
+ * Liveness: a kernel calls worker_tick() every few milliseconds of work (the
  * implicit kind at each poll of its subdivision, the encode kind at every
  * brick and every subtree of the mip levels).  The master kills a worker
  * whose heartbeat stands still for the stall timeout while it holds a task
@@ -26,9 +26,9 @@
 #include "kinds.h"
 #include "shm.h"
 
-#define WORK_WAIT_NS 1000000000L /* waits re-check the parent once a second */
+#define WORKER_WAIT_NS 1000000000L /* waits re-check the parent once a second */
 
-typedef struct work_ctx {
+typedef struct worker_ctx {
     uint8_t *base;           /* the segment */
     shm_header *h;
     shm_slot *s;             /* this worker's slot */
@@ -36,51 +36,51 @@ typedef struct work_ctx {
     uint32_t skip;           /* entries of the task still to skip */
     uint32_t gen;            /* job generation the counters are for */
     uint64_t cpu0;           /* CPU time at the job's first task */
-    unsigned beats;          /* the heartbeat's value (work_tick) */
+    unsigned beats;          /* the heartbeat's value (worker_tick) */
     uint32_t begun[SHM_KINDS]; /* job generation each kind was begun for */
     void *state[SHM_KINDS];    /* each kind's state, across jobs */
-} work_ctx;
+} worker_ctx;
 
 typedef struct {
     const char *name;
     /* First task of a job of this kind: read the kind's block, set up
      * *state (kept across jobs; NULL at first).  0 or a negative errno. */
-    int (*begin)(work_ctx *w, void **state);
+    int (*begin)(worker_ctx *w, void **state);
     /* Run task t.  0, -ECANCELED when the job was abandoned, or a
      * negative errno (the master fails the job with it). */
-    int (*run)(work_ctx *w, void *state, const shm_task *t);
+    int (*run)(worker_ctx *w, void *state, const shm_task *t);
     /* The worker exits: free *state. */
     void (*free)(void *state);
-} work_kind;
+} worker_kind;
 
-extern const work_kind work_implicit, work_encode, work_mesh, work_csg, work_iso;
+extern const worker_kind worker_implicit, worker_encode, worker_mesh, worker_csg, worker_iso;
 
 /* The heartbeat: "still working".  A store and an add, cheap enough for
  * every few hundred microseconds of work; too seldom (seconds apart) and
  * the master takes the worker for stalled. */
-static inline void work_tick(work_ctx *w)
+static inline void worker_tick(worker_ctx *w)
 {
     /* relaxed: see shm_slot.beat (only this worker writes it) */
     atomic_store_explicit(&w->s->beat, ++w->beats, memory_order_relaxed);
 }
 
 /* Exit at once when the master is gone (checked after every wait). */
-void work_check_parent(const work_ctx *w);
+void worker_check_parent(const worker_ctx *w);
 /* Ring the master's doorbell (after publishing something). */
-void work_ring_master(work_ctx *w);
+void worker_ring_master(worker_ctx *w);
 /* The job was abandoned (the master's abort_gen). */
-int work_aborted(const work_ctx *w);
+int worker_aborted(const worker_ctx *w);
 /* The queue element to fill next, as an entry of `type` with count 0,
  * waiting while the queue is full; NULL when the job was abandoned. */
-shm_entry *work_entry_begin(work_ctx *w, uint16_t type);
+shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type);
 /* Publish the entry being filled; -ECANCELED when the job was abandoned
  * meanwhile, else 0. */
-int work_entry_end(work_ctx *w);
-/* work_entry_end for output the master only stores (no other worker waits
+int worker_entry_end(worker_ctx *w);
+/* worker_entry_end for output the master only stores (no other worker waits
  * on it): the master is rung once half the queue is ready, not at every
  * entry, so that a wake (a system call on each side and the master's
  * context switch) drains several.  The rest wait for the task's end, or
- * for the full queue work_entry_begin rings before it sleeps. */
-int work_entry_end_batched(work_ctx *w);
+ * for the full queue worker_entry_begin rings before it sleeps. */
+int worker_entry_end_batched(worker_ctx *w);
 
 #endif

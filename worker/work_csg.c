@@ -37,7 +37,7 @@ static void csg_state_free(void *state)
 }
 
 /* The job's tree (the last job's evaluator dropped; the new one at the first brick). */
-static int csg_begin(work_ctx *w, void **state)
+static int csg_begin(worker_ctx *w, void **state)
 {
     csg_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
@@ -62,7 +62,7 @@ static int csg_begin(work_ctx *w, void **state)
 
 /* The evaluator, at the job's first brick: the leaves' volumes are built
  * by then (the master pushes no brick before the last leaf is in). */
-static int csg_evaluator(work_ctx *w, csg_state *st, const csg_block *b)
+static int csg_evaluator(worker_ctx *w, csg_state *st, const csg_block *b)
 {
     if (st->ev) return 0;
     const vod_volume *leaves[CSG_MAX_NODES] = {0};
@@ -75,14 +75,14 @@ static int csg_evaluator(work_ctx *w, csg_state *st, const csg_block *b)
 /* The tiles' heartbeat (mesh_tile_env), as the mesh kind's. */
 static int tile_tick(void *arg)
 {
-    work_ctx *w = arg;
-    work_tick(w);
-    return work_aborted(w);
+    worker_ctx *w = arg;
+    worker_tick(w);
+    return worker_aborted(w);
 }
 
 /* Tiles a.first .. a.first + a.count - 1 of mesh leaf a.task into its
  * volume: its mesh, bins and volume as the master laid them out. */
-static int leaf_tiles(work_ctx *w, csg_state *st, const csg_block *b, csg_task_arg a)
+static int leaf_tiles(worker_ctx *w, csg_state *st, const csg_block *b, csg_task_arg a)
 {
     if (a.task >= b->n_nodes || !b->leaf_mesh_off || b->leaf_off[a.task] == 0) return -EINVAL;
     const mesh_block *mb = shm_at(w->base, b->leaf_mesh_off);
@@ -109,19 +109,19 @@ static int leaf_tiles(work_ctx *w, csg_state *st, const csg_block *b, csg_task_a
     const mesh_tiles j = {.m = &m, .g = &mb->grid, .o = &mb->opts, .vol = vol, .env = &env,
                           .scratch = st->scratch};
     for (uint64_t k = a.first; k < (uint64_t)a.first + a.count; k++) {
-        if (work_aborted(w)) return -ECANCELED;
+        if (worker_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
         int rc = mesh_tile_run(&j, ids + start[k], start[k + 1] - start[k],
                                (uint32_t)(k % mb->tiles[0]), (uint32_t)(k / mb->tiles[0]), &s);
         if (rc) return rc;
-        work_tick(w);
+        worker_tick(w);
     }
     return 0;
 }
 
 /* Columns a.first .. a.first + a.count - 1 of level mip_levels: their
  * mip levels 1..mip_levels, from the bricks every task has written. */
-static int mips_run(work_ctx *w, const csg_block *b, csg_task_arg a)
+static int mips_run(worker_ctx *w, const csg_block *b, csg_task_arg a)
 {
     vod_volume *vol = vod_volume_view(shm_at(w->base, b->volume_off));
     if (!vol || !b->mip_levels || b->mip_levels > 31) return -EINVAL;
@@ -130,17 +130,17 @@ static int mips_run(work_ctx *w, const csg_block *b, csg_task_arg a)
     uint64_t n = (uint64_t)g[0] * g[1];
     if (a.first >= n || a.count > n - a.first) return -EINVAL;
     for (uint64_t k = a.first; k < (uint64_t)a.first + a.count; k++) {
-        if (work_aborted(w)) return -ECANCELED;
+        if (worker_aborted(w)) return -ECANCELED;
         uint32_t lo[2] = {(uint32_t)(k % g[0]), (uint32_t)(k / g[0])};
         uint32_t hi[2] = {lo[0] + 1, lo[1] + 1};
         int rc = vod_volume_mip_columns(vol, (int)b->channel, (int)b->mip_levels, lo, hi);
         if (rc) return rc;
-        work_tick(w);
+        worker_tick(w);
     }
     return 0;
 }
 
-static int csg_run(work_ctx *w, void *state, const shm_task *t)
+static int csg_run(worker_ctx *w, void *state, const shm_task *t)
 {
     csg_state *st = state;
     const csg_block *b = shm_at(w->base, w->h->job_off);
@@ -160,12 +160,12 @@ static int csg_run(work_ctx *w, void *state, const shm_task *t)
     if (!vol) return -EINVAL;
     csg_stats s0 = *csg_eval_stats(st->ev);
     for (uint64_t k = a.first; k < (uint64_t)a.first + a.count; k++) {
-        if (work_aborted(w)) return -ECANCELED;
+        if (worker_aborted(w)) return -ECANCELED;
         uint32_t bc[3] = {b->box_lo[0] + (uint32_t)(k % b->box_n[0]),
                           b->box_lo[1] + (uint32_t)(k / b->box_n[0] % b->box_n[1]),
                           b->box_lo[2] + (uint32_t)(k / b->box_n[0] / b->box_n[1])};
         if ((rc = csg_eval_store(st->ev, vol, bc, st->buf, (int)b->channel))) return rc;
-        work_tick(w);
+        worker_tick(w);
     }
     const csg_stats *s1 = csg_eval_stats(st->ev);
     csg_task_stats *out = shm_at(w->base, b->stats_off);
@@ -179,7 +179,7 @@ static int csg_run(work_ctx *w, void *state, const shm_task *t)
     return 0;
 }
 
-const work_kind work_csg = {
+const worker_kind worker_csg = {
     .name = "csg",
     .begin = csg_begin,
     .run = csg_run,

@@ -28,7 +28,7 @@ static void encode_free(void *state)
 }
 
 /* Room for a batch of bricks' encodings, kept across jobs. */
-static int encode_begin(work_ctx *w, void **state)
+static int encode_begin(worker_ctx *w, void **state)
 {
     encode_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
@@ -55,7 +55,7 @@ static void encode_fail(encode_block *b, int rc)
  * first), into the shared brick area.  A duplicate of a brick this worker
  * stored takes its offset; one whose first did not fit stays unrecorded
  * like it (the master encodes both). */
-static void store_one(work_ctx *w, encode_block *b, uint64_t i,
+static void store_one(worker_ctx *w, encode_block *b, uint64_t i,
                       const uint8_t *out, const vod_encoded *rec, uint64_t same)
 {
     vod_encoded *recs = shm_at(w->base, b->recs_off);
@@ -79,7 +79,7 @@ static void store_one(work_ctx *w, encode_block *b, uint64_t i,
 }
 
 /* Nodes i0..i0+count-1 (count <= VOD_ENCODE_BATCH), encoded together. */
-static int encode_batch(work_ctx *w, encode_state *st, encode_block *b,
+static int encode_batch(worker_ctx *w, encode_state *st, encode_block *b,
                         const vod_source *t, vod_encoder *enc, uint64_t i0,
                         size_t count)
 {
@@ -98,12 +98,12 @@ static int encode_batch(work_ctx *w, encode_state *st, encode_block *b,
     return 0;
 }
 
-static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
+static int encode_nodes(worker_ctx *w, encode_state *st, encode_block *b,
                         const vod_source *src, vod_encoder *enc)
 {
     for (;;) {
         /* relaxed: a counter that hands out disjoint chunks */
-        if (work_aborted(w)) return -ECANCELED; /* the job was cancelled */
+        if (worker_aborted(w)) return -ECANCELED; /* the job was cancelled */
         uint64_t i0 = atomic_fetch_add_explicit(&b->next, ENCODE_CHUNK,
                                                 memory_order_relaxed);
         if (i0 >= b->n) return 0;
@@ -111,7 +111,7 @@ static int encode_nodes(work_ctx *w, encode_state *st, encode_block *b,
         for (uint64_t i = i0; i < end; i += VOD_ENCODE_BATCH) {
             /* relaxed: stop early once anybody failed */
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
-            work_tick(w);
+            worker_tick(w);
             size_t count = end - i < VOD_ENCODE_BATCH ? end - i : VOD_ENCODE_BATCH;
             int rc = encode_batch(w, st, b, src, enc, i, count);
             if (rc) return rc;
@@ -128,18 +128,18 @@ static void add_ns(atomic_ullong *to, double seconds)
 
 /* The mip levels of the subtrees this worker claims; each one's done byte
  * set when it is complete. */
-static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
+static int aggregate_run(worker_ctx *w, encode_block *b, octree *tree)
 {
     const uint32_t *roots = shm_at(w->base, b->roots_off);
     uint8_t *done = shm_at(w->base, b->roots_done_off);
     double t0 = clock_now();
     for (;;) {
-        if (work_aborted(w)) return -ECANCELED;
+        if (worker_aborted(w)) return -ECANCELED;
         /* relaxed: a counter that hands out disjoint subtrees */
         uint64_t i = atomic_fetch_add_explicit(&b->agg_next, 1, memory_order_relaxed);
         if (i >= b->nroots) break;
         if (roots[i] == 0 || roots[i] >= b->cells_used) return -EINVAL;
-        work_tick(w);
+        worker_tick(w);
         vod_aggregate_subtree(tree, roots[i], b->root_height, b->p.channel);
         done[i] = 1;
     }
@@ -149,7 +149,7 @@ static int aggregate_run(work_ctx *w, encode_block *b, octree *tree)
 
 /* The source the block names: the octree (its view in *tree) or the
  * volume the master prepared. */
-static int block_source(work_ctx *w, const encode_block *b, octree *tree,
+static int block_source(worker_ctx *w, const encode_block *b, octree *tree,
                         vod_source *src)
 {
     if (b->source == ENCODE_VOLUME) {
@@ -164,7 +164,7 @@ static int block_source(work_ctx *w, const encode_block *b, octree *tree,
     return 0;
 }
 
-static int encode_run(work_ctx *w, void *state, const shm_task *t)
+static int encode_run(worker_ctx *w, void *state, const shm_task *t)
 {
     encode_block *b = shm_at(w->base, w->h->job_off);
     octree tree;
@@ -189,7 +189,7 @@ static int encode_run(work_ctx *w, void *state, const shm_task *t)
     return rc;
 }
 
-const work_kind work_encode = {
+const worker_kind worker_encode = {
     .name = "encode",
     .begin = encode_begin,
     .run = encode_run,

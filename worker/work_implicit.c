@@ -8,7 +8,7 @@
 #include "work.h"
 
 typedef struct {
-    work_ctx *w;
+    worker_ctx *w;
     expr_vm *vm;
     grid_spec grid;
     subdiv_kernel k;
@@ -24,7 +24,7 @@ static void implicit_free(void *state)
 }
 
 /* A vm over the job's tape (in the segment). */
-static int implicit_begin(work_ctx *w, void **state)
+static int implicit_begin(worker_ctx *w, void **state)
 {
     implicit_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
@@ -43,48 +43,48 @@ static int implicit_begin(work_ctx *w, void **state)
 static int sink_octant(void *ud, const grid_octant *o)
 {
     implicit_state *st = ud;
-    shm_entry *en = work_entry_begin(st->w, IMPLICIT_OCTANTS);
+    shm_entry *en = worker_entry_begin(st->w, IMPLICIT_OCTANTS);
     if (!en) return -ECANCELED;
     ((grid_octant *)en->payload)[0] = *o;
     en->count = 1;
-    return work_entry_end(st->w);
+    return worker_entry_end(st->w);
 }
 
 /* Paper schedule: one voxel per entry, as in Figure 3. */
 static int sink_voxel_one(void *ud, const grid_voxel *v)
 {
     implicit_state *st = ud;
-    shm_entry *en = work_entry_begin(st->w, IMPLICIT_VOXELS);
+    shm_entry *en = worker_entry_begin(st->w, IMPLICIT_VOXELS);
     if (!en) return -ECANCELED;
     ((grid_voxel *)en->payload)[0] = *v;
     en->count = 1;
-    return work_entry_end(st->w);
+    return worker_entry_end(st->w);
 }
 
 /* Subtree schedule: batches of IMPLICIT_BATCH voxels in preorder. */
 static int sink_voxel_batch(void *ud, const grid_voxel *v)
 {
     implicit_state *st = ud;
-    if (!st->cur && !(st->cur = work_entry_begin(st->w, IMPLICIT_VOXELS)))
+    if (!st->cur && !(st->cur = worker_entry_begin(st->w, IMPLICIT_VOXELS)))
         return -ECANCELED;
     ((grid_voxel *)st->cur->payload)[st->cur->count++] = *v;
     if (st->cur->count < IMPLICIT_BATCH) return 0;
     st->cur = NULL;
-    return work_entry_end_batched(st->w);
+    return worker_entry_end_batched(st->w);
 }
 
 /* Every SUBDIV_POLL_TESTS box tests: the heartbeat, and the job's abort. */
 static int sink_poll(void *ud)
 {
     implicit_state *st = ud;
-    work_tick(st->w);
-    return work_aborted(st->w) ? -ECANCELED : 0;
+    worker_tick(st->w);
+    return worker_aborted(st->w) ? -ECANCELED : 0;
 }
 
-static int implicit_run(work_ctx *w, void *state, const shm_task *t)
+static int implicit_run(worker_ctx *w, void *state, const shm_task *t)
 {
     implicit_state *st = state;
-    if (work_aborted(w)) return -ECANCELED; /* handed out just before a cancel */
+    if (worker_aborted(w)) return -ECANCELED; /* handed out just before a cancel */
     subdiv_sink sink = {.octant = sink_octant, .poll = sink_poll, .ud = st};
     grid_octant o = implicit_octant(t);
     int rc;
@@ -96,7 +96,7 @@ static int implicit_run(work_ctx *w, void *state, const shm_task *t)
         rc = subdiv_subtree(&st->k, o, &sink);
         if (rc == 0 && st->cur) {
             st->cur = NULL;
-            rc = work_entry_end(w);
+            rc = worker_entry_end(w);
         }
     } else {
         return -EINVAL;
@@ -106,7 +106,7 @@ static int implicit_run(work_ctx *w, void *state, const shm_task *t)
     return rc;
 }
 
-const work_kind work_implicit = {
+const worker_kind worker_implicit = {
     .name = "implicit",
     .begin = implicit_begin,
     .run = implicit_run,

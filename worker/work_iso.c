@@ -26,7 +26,7 @@ static void iso_state_free(void *state)
 
 /* The scratch for this job's bricks, kept while the brick size and the
  * channel stay the same. */
-static int iso_begin(work_ctx *w, void **state)
+static int iso_begin(worker_ctx *w, void **state)
 {
     iso_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
@@ -40,7 +40,7 @@ static int iso_begin(work_ctx *w, void **state)
     return rc;
 }
 
-static iso_input block_input(const work_ctx *w, const iso_block *b)
+static iso_input block_input(const worker_ctx *w, const iso_block *b)
 {
     return (iso_input){
         .n = b->n_bricks,
@@ -52,7 +52,7 @@ static iso_input block_input(const work_ctx *w, const iso_block *b)
 }
 
 /* Task i's piece into the arena, if it fits. */
-static void store(work_ctx *w, iso_block *b, uint64_t i, const iso_piece *pc)
+static void store(worker_ctx *w, iso_block *b, uint64_t i, const iso_piece *pc)
 {
     iso_result *r = (iso_result *)shm_at(w->base, b->results_off) + i;
     uint64_t bytes = iso_piece_bytes(&b->p, pc);
@@ -70,7 +70,7 @@ static void store(work_ctx *w, iso_block *b, uint64_t i, const iso_piece *pc)
 }
 
 /* Every piece's view (the master checked them before the weld). */
-static iso_piece *views(const work_ctx *w, const iso_block *b)
+static iso_piece *views(const worker_ctx *w, const iso_block *b)
 {
     iso_piece *pc = calloc(b->n_tasks + 1, sizeof *pc);
     const iso_result *res = shm_at(w->base, b->results_off);
@@ -89,7 +89,7 @@ static iso_piece *views(const work_ctx *w, const iso_block *b)
     return pc;
 }
 
-static int weld_run(work_ctx *w, iso_block *b)
+static int weld_run(worker_ctx *w, iso_block *b)
 {
     iso_piece *pc = views(w, b);
     if (!pc) return -ENOMEM;
@@ -100,11 +100,11 @@ static int weld_run(work_ctx *w, iso_block *b)
                    shm_at(w->base, b->tri_off)};
     int rc = 0;
     while (!rc) {
-        if (work_aborted(w)) rc = -ECANCELED;
+        if (worker_aborted(w)) rc = -ECANCELED;
         /* relaxed: a counter that hands out disjoint pieces */
         uint64_t i = atomic_fetch_add_explicit(&b->weld_next, 1, memory_order_relaxed);
         if (rc || i >= b->n_tasks) break;
-        work_tick(w);
+        worker_tick(w);
         /* release: pairs with the master's acquire load of welded */
         if (!iso_weld_piece(&wd, i, NULL)) /* the master says what failed */
             atomic_store_explicit(&res[i].welded, 1, memory_order_release);
@@ -113,7 +113,7 @@ static int weld_run(work_ctx *w, iso_block *b)
     return rc;
 }
 
-static int iso_run(work_ctx *w, void *state, const shm_task *t)
+static int iso_run(worker_ctx *w, void *state, const shm_task *t)
 {
     iso_state *st = state;
     iso_block *b = shm_at(w->base, w->h->job_off);
@@ -122,17 +122,17 @@ static int iso_run(work_ctx *w, void *state, const shm_task *t)
     iso_input in = block_input(w, b);
     const iso_task *tasks = shm_at(w->base, b->tasks_off);
     for (;;) {
-        if (work_aborted(w)) return -ECANCELED;
+        if (worker_aborted(w)) return -ECANCELED;
         /* relaxed: a counter that hands out disjoint tasks */
         uint64_t i = atomic_fetch_add_explicit(&b->next, 1, memory_order_relaxed);
         if (i >= b->n_tasks) return 0;
-        work_tick(w);
+        worker_tick(w);
         iso_piece pc;
         if (iso_task_run(st->w, &b->p, &in, &tasks[i], &pc) == 0) store(w, b, i, &pc);
     }
 }
 
-const work_kind work_iso = {
+const worker_kind worker_iso = {
     .name = "iso",
     .begin = iso_begin,
     .run = iso_run,

@@ -27,7 +27,7 @@ static void mesh_state_free(void *state)
 }
 
 /* The mesh in the segment, as the block describes it. */
-static mesh block_mesh(const work_ctx *w, const mesh_block *b)
+static mesh block_mesh(const worker_ctx *w, const mesh_block *b)
 {
     mesh m = {
         .n_vertices = b->n_vertices, .n_triangles = b->n_triangles,
@@ -43,7 +43,7 @@ static mesh block_mesh(const work_ctx *w, const mesh_block *b)
  * for the repair by winding numbers the job's tree, built by every worker
  * at its first tile of the job (the same tree: it depends on the mesh and
  * the grid alone). */
-static int mesh_begin(work_ctx *w, void **state)
+static int mesh_begin(worker_ctx *w, void **state)
 {
     mesh_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
@@ -53,7 +53,7 @@ static int mesh_begin(work_ctx *w, void **state)
     if (b->opts.repair == MESH_REPAIR_WINDING && !mesh_wind_exact) {
         mesh m = block_mesh(w, b);
         int rc = mesh_wtree_build(&m, &b->grid, &st->wt);
-        work_tick(w);
+        worker_tick(w);
         if (rc) return rc;
     }
     size_t want = mesh_tile_scratch_bytes(&b->grid, &b->opts);
@@ -83,12 +83,12 @@ static int tile_mips(vod_volume *vol, const mesh_block *b, uint32_t tx, uint32_t
  * can run for seconds; the abort is checked where the beat is given. */
 static int tile_tick(void *arg)
 {
-    work_ctx *w = arg;
-    work_tick(w);
-    return work_aborted(w);
+    worker_ctx *w = arg;
+    worker_tick(w);
+    return worker_aborted(w);
 }
 
-static int mesh_run(work_ctx *w, void *state, const shm_task *t)
+static int mesh_run(worker_ctx *w, void *state, const shm_task *t)
 {
     mesh_state *st = state;
     const mesh_block *b = shm_at(w->base, w->h->job_off);
@@ -106,19 +106,19 @@ static int mesh_run(work_ctx *w, void *state, const shm_task *t)
     mesh_tiles j = {.m = &m, .g = &b->grid, .o = &b->opts, .vol = vol, .env = &env,
                     .scratch = st->scratch};
     for (uint32_t k = a.first; k < a.first + a.count; k++) {
-        if (work_aborted(w)) return -ECANCELED;
+        if (worker_aborted(w)) return -ECANCELED;
         mesh_tile_stats s = {0};
         int rc = mesh_tile_run(&j, ids + start[k], start[k + 1] - start[k], k % b->tiles[0],
                                k / b->tiles[0], &s);
         if (!rc) rc = tile_mips(vol, b, k % b->tiles[0], k / b->tiles[0]);
         if (rc) return rc;
         stats[k] = s;
-        work_tick(w);
+        worker_tick(w);
     }
     return 0;
 }
 
-const work_kind work_mesh = {
+const worker_kind worker_mesh = {
     .name = "mesh",
     .begin = mesh_begin,
     .run = mesh_run,

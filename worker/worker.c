@@ -13,12 +13,12 @@
 #include "work.h"
 
 /* The worker side of every kind: the task's kind is an index here. */
-static const work_kind *const kinds[SHM_KINDS] = {
-    [SHM_KIND_IMPLICIT] = &work_implicit,
-    [SHM_KIND_ENCODE] = &work_encode,
-    [SHM_KIND_MESH] = &work_mesh,
-    [SHM_KIND_CSG] = &work_csg,
-    [SHM_KIND_ISO] = &work_iso,
+static const worker_kind *const kinds[SHM_KINDS] = {
+    [SHM_KIND_IMPLICIT] = &worker_implicit,
+    [SHM_KIND_ENCODE] = &worker_encode,
+    [SHM_KIND_MESH] = &worker_mesh,
+    [SHM_KIND_CSG] = &worker_csg,
+    [SHM_KIND_ISO] = &worker_iso,
 };
 
 static uint64_t cpu_ns(void)
@@ -29,7 +29,7 @@ static uint64_t cpu_ns(void)
 }
 
 /* Wait for the next task (task_seq != last); returns its sequence number. */
-static unsigned wait_task(work_ctx *w, unsigned last)
+static unsigned wait_task(worker_ctx *w, unsigned last)
 {
     shm_slot *s = w->s;
     for (;;) {
@@ -40,19 +40,19 @@ static unsigned wait_task(work_ctx *w, unsigned last)
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
         /* acquire: as above; after the fence, the Dekker re-check */
         t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
-        if (t == last) shm_futex_wait(&s->wake, v, WORK_WAIT_NS);
+        if (t == last) shm_futex_wait(&s->wake, v, WORKER_WAIT_NS);
         shm_sleep_end(&s->sleeping);
-        work_check_parent(w);
+        worker_check_parent(w);
     }
 }
 
-static void free_states(work_ctx *w)
+static void free_states(worker_ctx *w)
 {
     for (int k = 0; k < SHM_KINDS; k++)
         if (kinds[k] && w->state[k]) kinds[k]->free(w->state[k]);
 }
 
-static _Noreturn void worker_exit(work_ctx *w)
+static _Noreturn void worker_exit(worker_ctx *w)
 {
     free_states(w);
     _exit(0);
@@ -65,7 +65,7 @@ static _Noreturn void worker_exit(work_ctx *w)
  * reader of the command's output (a pipe) does not wait for us either.
  * The SIGKILL of PR_SET_PDEATHSIG is off here: we leave by _exit, so that
  * a tool watching the process (valgrind) sees its exit. */
-static _Noreturn void worker_leave(work_ctx *w)
+static _Noreturn void worker_leave(worker_ctx *w)
 {
     free_states(w);
     close(0), close(1), close(2);
@@ -77,7 +77,7 @@ static _Noreturn void worker_leave(work_ctx *w)
 
 /* The per-job counters the master sums (job_stats): reset on a job's
  * first task, whatever its kind. */
-static void job_counters(work_ctx *w)
+static void job_counters(worker_ctx *w)
 {
     if (w->gen == w->task_gen) return;
     w->gen = w->task_gen;
@@ -87,9 +87,9 @@ static void job_counters(work_ctx *w)
     w->cpu0 = cpu_ns();
 }
 
-static int run_kind(work_ctx *w, const shm_task *t)
+static int run_kind(worker_ctx *w, const shm_task *t)
 {
-    const work_kind *k = t->kind < SHM_KINDS ? kinds[t->kind] : NULL;
+    const worker_kind *k = t->kind < SHM_KINDS ? kinds[t->kind] : NULL;
     if (!k) return -EINVAL;
     if (w->begun[t->kind] != w->task_gen) {
         w->begun[t->kind] = 0;
@@ -100,7 +100,7 @@ static int run_kind(work_ctx *w, const shm_task *t)
     return k->run(w, w->state[t->kind], t);
 }
 
-static void run_task(work_ctx *w, unsigned seq)
+static void run_task(worker_ctx *w, unsigned seq)
 {
     shm_slot *s = w->s;
     shm_task t = s->task;
@@ -109,16 +109,16 @@ static void run_task(work_ctx *w, unsigned seq)
     w->task_gen = s->task_gen;
     w->skip = s->task_skip;
     job_counters(w);
-    work_tick(w);
+    worker_tick(w);
     int rc = run_kind(w, &t);
-    work_tick(w);
+    worker_tick(w);
     s->job_cpu_ns = cpu_ns() - w->cpu0;
     s->error = rc == -ECANCELED ? 0 : rc;
     /* release: publishes the task's last entries, counters and error
      * (and whatever its kind's block lets it write) to the master's
      * acquire load of done_seq. */
     atomic_store_explicit(&s->done_seq, seq, memory_order_release);
-    work_ring_master(w);
+    worker_ring_master(w);
 }
 
 /* The master's handlers (an event loop's, say) mean nothing here; crash
@@ -156,7 +156,7 @@ static void close_inherited(void)
 
 _Noreturn void worker_main(uint8_t *base, uint32_t index)
 {
-    work_ctx w;
+    worker_ctx w;
     memset(&w, 0, sizeof w);
     w.base = base;
     w.h = shm_hdr(base);
@@ -164,7 +164,7 @@ _Noreturn void worker_main(uint8_t *base, uint32_t index)
     /* Die with the master (the thread that forked us, strictly), and make
      * sure it did not die before the request took effect. */
     prctl(PR_SET_PDEATHSIG, SIGKILL);
-    work_check_parent(&w);
+    worker_check_parent(&w);
     reset_signals();
     close_inherited();
     /* relaxed: a fresh worker starts from the slot as its predecessor (or

@@ -4,9 +4,9 @@
  * It waits on its slot's futex until the master hands it a task (task_seq
  * moves), runs it, publishes the results in its 8-entry queue, marks the
  * task done (done_seq) and rings the master's doorbell.  The task's kind
- * picks the kernel (work.h, engine/kinds.h); a worker reads the job's block
+ * picks the kernel (work.h, shm/kinds.h); a worker reads the job's block
  * and writes only its own slot, its queue and what its kind's block lets
- * it.  See engine/shm.h for the layout and the sleeping protocol.
+ * it.  See shm/shm.h for the layout and the sleeping protocol.
  */
 #ifndef VOXD_WORKER_H
 #define VOXD_WORKER_H

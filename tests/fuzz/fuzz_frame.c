@@ -27,15 +27,15 @@ static void mix(uint64_t *h, const uint8_t *p, size_t n)
     for (size_t i = 0; i < n; i++) *h = (*h ^ p[i]) * 0x100000001b3ull;
 }
 
-static void check_frame(const frame_view *f, const proto_limits *lim)
+static void check_frame(const proto_frame_view *f, const proto_limits *lim)
 {
-    Voxd__Request *rq = frame_unpack_request(f->data, f->len);
+    Voxd__Request *rq = proto_frame_unpack_request(f->data, f->len);
     if (rq) {
         proto_error e;
         proto_check_request(rq, lim, &e);
         voxd__request__free_unpacked(rq, NULL);
     }
-    Voxd__Reply *rp = frame_unpack_reply(f->data, f->len);
+    Voxd__Reply *rp = proto_frame_unpack_reply(f->data, f->len);
     if (rp) {
         proto_check_reply(rp, lim, NULL);
         voxd__reply__free_unpacked(rp, NULL);
@@ -48,8 +48,8 @@ static outcome run(const uint8_t *data, size_t size, uint32_t max, uint32_t seed
                    int validate)
 {
     outcome o = {0xcbf29ce484222325ull, 0, 0, 0};
-    frame_decoder d;
-    frame_decoder_init(&d, max);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, max);
     proto_limits lim;
     proto_limits_default(&lim);
     size_t pos = 0;
@@ -63,9 +63,9 @@ static outcome run(const uint8_t *data, size_t size, uint32_t max, uint32_t seed
         }
         const uint8_t *p = data + pos;
         size_t n = piece;
-        frame_view f;
+        proto_frame_view f;
         int rc;
-        while ((rc = frame_decode(&d, &p, &n, &f)) == 1) {
+        while ((rc = proto_frame_decode(&d, &p, &n, &f)) == 1) {
             if (f.len == 0 || f.len > d.max) abort();
             uint8_t len[4] = {(uint8_t)(f.len >> 24), (uint8_t)(f.len >> 16),
                               (uint8_t)(f.len >> 8), (uint8_t)f.len};
@@ -79,15 +79,15 @@ static outcome run(const uint8_t *data, size_t size, uint32_t max, uint32_t seed
         o.rc = rc;
         pos += piece - n;
     }
-    o.finish = frame_decoder_finish(&d);
-    frame_decoder_free(&d);
+    o.finish = proto_frame_decoder_finish(&d);
+    proto_frame_decoder_free(&d);
     return o;
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (size < 3) return 0;
-    uint32_t max = FRAME_MIN_MAX << (data[0] % 4); /* 4K .. 32K: big frames reachable */
+    uint32_t max = PROTO_FRAME_MIN_MAX << (data[0] % 4); /* 4K .. 32K: big frames reachable */
     uint32_t seed = (uint32_t)data[1] << 8 | data[2];
     data += 3, size -= 3;
     outcome whole = run(data, size, max, 0, 0);

@@ -127,7 +127,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                              .max_csg_nodes = 2, .chunk_size = 16,
                              .max_result_bytes = 1024, .max_input_bytes = 64,
                              .max_mesh_bytes = 48, .max_triangles = 4};
-    Voxd__Request *rq = frame_unpack_request(data, size);
+    Voxd__Request *rq = proto_frame_unpack_request(data, size);
     if (rq) {
         for (int i = 0; i < 2; i++) {
             proto_error e;
@@ -138,7 +138,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
         voxd__request__free_unpacked(rq, NULL);
     }
-    Voxd__Reply *rp = frame_unpack_reply(data, size);
+    Voxd__Reply *rp = proto_frame_unpack_reply(data, size);
     if (rp) {
         for (int i = 0; i < 2; i++) {
             proto_error e;

@@ -286,8 +286,8 @@ refuse "that client gets a typed error from a missing socket" 1 "^-2 .*no voxd a
 # (nm must read it: its client functions are there, the engine's are not)
 if ! nm "$R/usr/lib/libvox.a" >"$TMP/nm.out" 2>&1 || ! grep -q ' T vox_connect$' "$TMP/nm.out"; then
     fail "libvox holds only the client's code" "nm: $(head -3 "$TMP/nm.out")"
-elif grep -Eq ' T (engine_|vd_|subdiv_|expr_)' "$TMP/nm.out"; then
-    fail "libvox holds only the client's code" "$(grep -E ' T (engine_|vd_|subdiv_|expr_)' "$TMP/nm.out" | head -3)"
+elif grep -Eq ' T (engine_|daemon_|subdiv_|expr_)' "$TMP/nm.out"; then
+    fail "libvox holds only the client's code" "$(grep -E ' T (engine_|daemon_|subdiv_|expr_)' "$TMP/nm.out" | head -3)"
 else pass "libvox holds only the client's code"; fi
 check "make uninstall of an unedited install" mk uninstall DESTDIR="$R" PREFIX=/usr
 left=$(cd "$R" && find . -type f | wc -l)

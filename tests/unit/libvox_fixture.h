@@ -46,7 +46,7 @@ struct srv {
     uint64_t hello_max_input; /* 0: default */
     uint64_t hello_max_mesh;  /* 0: default */
     int job_timeout;       /* 0: 600; -1: none */
-    frame_decoder dec;
+    proto_frame_decoder dec;
     uint8_t in[65536];
     const uint8_t *p;
     size_t n;
@@ -90,7 +90,7 @@ static inline void srv_send(srv *s, Voxd__Reply *r)
 {
     uint8_t *buf;
     size_t len;
-    if (frame_encode_reply(r, &buf, &len)) {
+    if (proto_frame_encode_reply(r, &buf, &len)) {
         srv_bad(s, "cannot encode a reply");
         return;
     }
@@ -112,10 +112,10 @@ static inline void send_pong(srv *s, uint64_t token)
 static inline Voxd__Request *srv_read(srv *s)
 {
     for (;;) {
-        frame_view f;
-        int rc = frame_decode(&s->dec, &s->p, &s->n, &f);
+        proto_frame_view f;
+        int rc = proto_frame_decode(&s->dec, &s->p, &s->n, &f);
         if (rc == 1) {
-            Voxd__Request *r = frame_unpack_request(f.data, f.len);
+            Voxd__Request *r = proto_frame_unpack_request(f.data, f.len);
             if (!r) {
                 srv_bad(s, "a request that does not unpack");
                 return NULL;
@@ -316,9 +316,9 @@ static inline void *srv_main(void *arg)
             return NULL;
         }
     }
-    frame_decoder_init(&s->dec, FRAME_DEFAULT_MAX);
+    proto_frame_decoder_init(&s->dec, PROTO_FRAME_DEFAULT_MAX);
     s->fn(s);
-    frame_decoder_free(&s->dec);
+    proto_frame_decoder_free(&s->dec);
     close(s->fd);
     return NULL;
 }

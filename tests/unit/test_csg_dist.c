@@ -210,12 +210,12 @@ static engine *make_engine(int workers)
     return e;
 }
 
-static vod_membuf run(engine *e, const pipeline_job *job)
+static vod_membuf run(engine *e, const engine_pipeline_job *job)
 {
-    pipeline_report r;
+    engine_pipeline_report r;
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    cr_assert_eq(pipeline_run(e, job, &sink, &r), 0, "%s", r.err.message);
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, &r), 0, "%s", r.err.message);
     return m;
 }
 
@@ -225,7 +225,7 @@ Test(csg_dist, pipeline_same_bytes_and_values)
     expr_tape *t;
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &t, &ee), 0, "%s", ee.msg);
-    pipeline_job job = {.kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_IMPLICIT,
                         .implicit = {.tape = t, .source = src, .source_len = strlen(src),
                                      .source_name = "torus.vx"},
                         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 48, .band = 2};

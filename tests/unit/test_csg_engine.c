@@ -33,9 +33,9 @@ static csg_tree *parse(const char *text)
     return t;
 }
 
-static pipeline_job csg_job(const csg_tree *t, uint32_t res, int channel)
+static engine_pipeline_job csg_job(const csg_tree *t, uint32_t res, int channel)
 {
-    pipeline_job job = {.kind = PIPELINE_CSG,
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG,
                         .csg = {.tree = t, .source_name = "part.csg",
                                 .source_bytes = sizeof tree_text - 1},
                         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = res};
@@ -53,11 +53,11 @@ static engine *make_engine(int workers)
     return e;
 }
 
-static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
+static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline_report *r)
 {
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    cr_assert_eq(pipeline_run(e, job, &sink, r), 0, "csg job on %s: %s",
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "csg job on %s: %s",
                  e ? "an engine" : "no engine", r->err.message);
     return m;
 }
@@ -125,8 +125,8 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
     static const int channels[] = {VOXEL_CH_DENSITY, VOXEL_CH_OCCUPANCY, VOXEL_CH_SURFACE};
     for (size_t c = 0; c < 3; c++) {
         /* 75: bricks cut by the grid's edge on every axis */
-        pipeline_job job = csg_job(t, 75, channels[c]);
-        pipeline_report r0, r;
+        engine_pipeline_job job = csg_job(t, 75, channels[c]);
+        engine_pipeline_report r0, r;
         vod_membuf ref = run(NULL, &job, &r0);
         cr_assert_gt(r0.fig.csg.bricks, 0);
         cr_assert_gt(r0.fig.csg.uniform, 0, "most of the box is empty");
@@ -160,12 +160,12 @@ Test(csg_engine, csg_and_implicit_jobs_share_an_engine)
     expr_tape *tape = NULL;
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &tape, &ee), 0);
-    pipeline_job cj = csg_job(t, 40, VOXEL_CH_DENSITY);
-    pipeline_job ij = {.kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job cj = csg_job(t, 40, VOXEL_CH_DENSITY);
+    engine_pipeline_job ij = {.kind = ENGINE_PIPELINE_IMPLICIT,
                        .implicit = {.tape = tape, .source = src, .source_len = strlen(src)},
                        .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 40};
     vod_params_default(&ij.vod);
-    pipeline_report r;
+    engine_pipeline_report r;
     vod_membuf cref = run(NULL, &cj, &r), iref = run(NULL, &ij, &r);
     engine *e = make_engine(2);
     for (int round = 0; round < 2; round++) {
@@ -202,8 +202,8 @@ static void kill_first(void *ud, const engine_progress *p)
 Test(csg_engine, a_worker_killed_mid_job_changes_nothing)
 {
     csg_tree *t = parse(tree_text);
-    pipeline_job job = csg_job(t, 96, VOXEL_CH_DENSITY);
-    pipeline_report r0, r;
+    engine_pipeline_job job = csg_job(t, 96, VOXEL_CH_DENSITY);
+    engine_pipeline_report r0, r;
     vod_membuf ref = run(NULL, &job, &r0);
     engine *e = make_engine(2);
     killer k = {.e = e};
@@ -225,17 +225,17 @@ Test(csg_engine, a_worker_killed_mid_job_changes_nothing)
 Test(csg_engine, a_cancelled_job_fails_typed_and_the_engine_goes_on)
 {
     csg_tree *t = parse(tree_text);
-    pipeline_job job = csg_job(t, 64, VOXEL_CH_DENSITY);
+    engine_pipeline_job job = csg_job(t, 64, VOXEL_CH_DENSITY);
     atomic_int cancel = 1;
     job.cancel = &cancel;
     engine *e = make_engine(2);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
-    pipeline_report r;
-    cr_assert_eq(pipeline_run(e, &job, &sink, &r), -ECANCELED, "%s", r.err.message);
+    engine_pipeline_report r;
+    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), -ECANCELED, "%s", r.err.message);
     cr_assert_eq(r.err.failure, ENGINE_CANCELLED);
     job.cancel = NULL;
-    pipeline_report r0;
+    engine_pipeline_report r0;
     vod_membuf ref = run(NULL, &job, &r0), mb = run(e, &job, &r);
     cr_assert(mb.n == ref.n && memcmp(mb.p, ref.p, mb.n) == 0, "other bytes");
     free(mb.p);
@@ -250,20 +250,20 @@ Test(csg_engine, bad_csg_jobs_fail_typed)
     csg_tree *t = parse(tree_text);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
-    pipeline_report r;
-    pipeline_job job = csg_job(t, 32, 5);
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    engine_pipeline_report r;
+    engine_pipeline_job job = csg_job(t, 32, 5);
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
     cr_assert(strstr(r.err.message, "density, occupancy, surface or distance"), "%s",
               r.err.message);
     job = csg_job(t, 32, VOXEL_CH_DISTANCE); /* primitives have no distance (yet) */
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -ENOTSUP);
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -ENOTSUP);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
     cr_assert(strstr(r.err.message, "the distance channel: node '"), "%s", r.err.message);
     job = csg_job(NULL, 32, VOXEL_CH_DENSITY);
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert_eq(r.stage, PIPELINE_GRID);
+    cr_assert_eq(r.stage, ENGINE_PIPELINE_GRID);
     free(out.p);
     csg_tree_free(t);
 }
@@ -276,13 +276,13 @@ Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
     engine *e;
     char err[256];
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
-    pipeline_job job = csg_job(t, 256, VOXEL_CH_DENSITY);
+    engine_pipeline_job job = csg_job(t, 256, VOXEL_CH_DENSITY);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
-    pipeline_report r;
-    cr_assert_lt(pipeline_run(e, &job, &sink, &r), 0);
+    engine_pipeline_report r;
+    cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
     cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
-    cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
+    cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     free(out.p);
     engine_destroy(e);
     csg_tree_free(t);
@@ -295,8 +295,8 @@ Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
 static uint8_t *densities(const char *text, uint32_t res, vod_membuf *keep)
 {
     csg_tree *t = parse(text);
-    pipeline_job job = csg_job(t, res, VOXEL_CH_DENSITY);
-    pipeline_report r;
+    engine_pipeline_job job = csg_job(t, res, VOXEL_CH_DENSITY);
+    engine_pipeline_report r;
     *keep = run(NULL, &job, &r);
     csg_tree_free(t);
     vod_file *f;

@@ -44,9 +44,9 @@ static char *box_obj(size_t *len)
     return s;
 }
 
-static pipeline_job csg_job(const csg_tree *t, double lo, double hi, uint32_t res)
+static engine_pipeline_job csg_job(const csg_tree *t, double lo, double hi, uint32_t res)
 {
-    pipeline_job job = {.kind = PIPELINE_CSG, .csg = {.tree = t, .source_bytes = 1},
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG, .csg = {.tree = t, .source_bytes = 1},
                         .lo = {lo, lo, lo}, .hi = {hi, hi, hi}, .res = res};
     vod_params_default(&job.vod);
     job.vod.channel = VOXEL_CH_DENSITY;
@@ -62,12 +62,12 @@ static csg_tree *parse(const char *text)
     return t;
 }
 
-static vod_membuf run(engine *e, const pipeline_job *job)
+static vod_membuf run(engine *e, const engine_pipeline_job *job)
 {
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    pipeline_report r;
-    cr_assert_eq(pipeline_run(e, job, &sink, &r), 0, "%s", r.err.message);
+    engine_pipeline_report r;
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, &r), 0, "%s", r.err.message);
     return m;
 }
 
@@ -151,7 +151,7 @@ Test(csg_leaves, implicit_mesh_and_vod_leaves_against_a_dense_evaluator, .timeou
 {
     /* The VOD leaf's file: an ellipsoid's densities on a coarser grid. */
     csg_tree *pt = parse("e = ellipsoid center 0.1,0,0.2 radii 0.45,0.35,0.4\nresult e\n");
-    pipeline_job pj = csg_job(pt, -0.9, 0.9, 20);
+    engine_pipeline_job pj = csg_job(pt, -0.9, 0.9, 20);
     vod_membuf prev = run(NULL, &pj);
     csg_tree_free(pt);
 
@@ -184,7 +184,7 @@ Test(csg_leaves, implicit_mesh_and_vod_leaves_against_a_dense_evaluator, .timeou
                 ip[k] = (uint8_t)mn(pv[k], plane[k]);
             }
 
-    pipeline_job job = csg_job(t, -1, 1, N);
+    engine_pipeline_job job = csg_job(t, -1, 1, N);
     vod_membuf serial = run(NULL, &job);
     engine_opts eo = {.workers = 2, .shm_bytes = (size_t)256 << 20};
     engine *e;
@@ -236,7 +236,7 @@ Test(csg_leaves, a_fitted_mesh_lands_where_it_is_told)
     char *obj = box_obj(&olen);
     attach(t, "m", obj, olen);
     free(obj);
-    pipeline_job job = csg_job(t, -1, 1, 40);
+    engine_pipeline_job job = csg_job(t, -1, 1, 40);
     vod_membuf m = run(NULL, &job);
     vod_file *f;
     char err[256];
@@ -271,23 +271,23 @@ Test(csg_leaves, bad_leaf_files_fail_typed)
     attach(t, "m", obj, olen);
     free(obj);
     attach(t, "v", "not a vod file", 14);
-    pipeline_job job = csg_job(t, -1, 1, 16);
+    engine_pipeline_job job = csg_job(t, -1, 1, 16);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
-    pipeline_report r;
-    cr_assert_lt(pipeline_run(NULL, &job, &sink, &r), 0);
+    engine_pipeline_report r;
+    cr_assert_lt(engine_pipeline_run(NULL, &job, &sink, &r), 0);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
     cr_assert(strstr(r.err.message, "node 'v': vod:"), "%s", r.err.message);
     engine_opts eo = {.workers = 1, .shm_bytes = (size_t)64 << 20};
     engine *e;
     char err[256];
     cr_assert_eq(engine_create(&eo, &e, err, sizeof err), 0, "%s", err);
-    cr_assert_lt(pipeline_run(e, &job, &sink, &r), 0);
+    cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB, "%s", r.err.message);
     cr_assert(strstr(r.err.message, "node 'v': vod:"), "%s", r.err.message);
     free(t->data[node_of(t, "m")]);
     t->data[node_of(t, "m")] = NULL; /* no data: refused too */
-    cr_assert_lt(pipeline_run(e, &job, &sink, &r), 0);
+    cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
     cr_assert(strstr(r.err.message, "node 'm': no file data"), "%s", r.err.message);
     engine_destroy(e);
     free(out.p);

@@ -75,7 +75,7 @@ static uint8_t *enc_req(int i, size_t *len)
         break;
     }
     uint8_t *buf;
-    cr_assert_eq(frame_encode_request(&r, &buf, len), 0, "request %d", i);
+    cr_assert_eq(proto_frame_encode_request(&r, &buf, len), 0, "request %d", i);
     return buf;
 }
 
@@ -144,7 +144,7 @@ static uint8_t *enc_rep(int i, size_t *len)
         break;
     }
     uint8_t *buf;
-    cr_assert_eq(frame_encode_reply(&r, &buf, len), 0, "reply %d", i);
+    cr_assert_eq(proto_frame_encode_reply(&r, &buf, len), 0, "reply %d", i);
     return buf;
 }
 
@@ -171,24 +171,24 @@ Test(frame, every_request_round_trips)
     for (int i = 0; i < N_REQ; i++) {
         size_t len;
         uint8_t *buf = enc_req(i, &len);
-        cr_assert_gt(len, FRAME_HEADER_BYTES);
-        cr_assert_eq(be32(buf), len - FRAME_HEADER_BYTES, "header of request %d", i);
+        cr_assert_gt(len, PROTO_FRAME_HEADER_BYTES);
+        cr_assert_eq(be32(buf), len - PROTO_FRAME_HEADER_BYTES, "header of request %d", i);
 
-        frame_decoder d;
-        frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+        proto_frame_decoder d;
+        proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
         const uint8_t *p = buf;
         size_t n = len;
-        frame_view f;
-        cr_assert_eq(frame_decode(&d, &p, &n, &f), 1);
+        proto_frame_view f;
+        cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 1);
         cr_assert_eq(n, 0);
-        cr_assert_eq(f.len, len - FRAME_HEADER_BYTES);
-        Voxd__Request *r = frame_unpack_request(f.data, f.len);
+        cr_assert_eq(f.len, len - PROTO_FRAME_HEADER_BYTES);
+        Voxd__Request *r = proto_frame_unpack_request(f.data, f.len);
         cr_assert_not_null(r, "request %d", i);
         assert_repacks(&r->base, f.data, f.len);
         voxd__request__free_unpacked(r, NULL);
-        cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
-        cr_assert_eq(frame_decoder_finish(&d), 0);
-        frame_decoder_free(&d);
+        cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
+        cr_assert_eq(proto_frame_decoder_finish(&d), 0);
+        proto_frame_decoder_free(&d);
         free(buf);
     }
 }
@@ -198,8 +198,8 @@ Test(frame, every_reply_round_trips)
     for (int i = 0; i < N_REP; i++) {
         size_t len;
         uint8_t *buf = enc_rep(i, &len);
-        cr_assert_eq(be32(buf), len - FRAME_HEADER_BYTES);
-        Voxd__Reply *r = frame_unpack_reply(buf + 4, len - 4);
+        cr_assert_eq(be32(buf), len - PROTO_FRAME_HEADER_BYTES);
+        Voxd__Reply *r = proto_frame_unpack_reply(buf + 4, len - 4);
         cr_assert_not_null(r, "reply %d", i);
         assert_repacks(&r->base, buf + 4, len - 4);
         if (i == 3) {
@@ -222,7 +222,7 @@ Test(frame, fields_survive_the_trip)
 {
     size_t len;
     uint8_t *buf = enc_req(1, &len);
-    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, len - 4);
     cr_assert_not_null(r);
     cr_assert_eq(r->msg_case, VOXD__REQUEST__MSG_SUBMIT);
     Voxd__Implicit *im = r->submit->implicit;
@@ -243,7 +243,7 @@ Test(frame, empty_message_cannot_be_framed)
     Voxd__Request r = VOXD__REQUEST__INIT;
     uint8_t *buf = NULL;
     size_t len = 0;
-    cr_assert_eq(frame_encode_request(&r, &buf, &len), -EINVAL);
+    cr_assert_eq(proto_frame_encode_request(&r, &buf, &len), -EINVAL);
     cr_assert_null(buf);
 }
 
@@ -274,17 +274,17 @@ static void stream_make(stream *s)
  * frame comes out once, whole, in order. */
 static void feed_with_cuts(const stream *s, const size_t *cuts, int ncuts)
 {
-    frame_decoder d;
-    frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
     int got = 0;
     size_t start = 0;
     for (int c = 0; c <= ncuts; c++) {
         size_t end = c < ncuts ? cuts[c] : s->len;
         const uint8_t *p = s->data + start;
         size_t n = end - start;
-        frame_view f;
+        proto_frame_view f;
         int rc;
-        while ((rc = frame_decode(&d, &p, &n, &f)) == 1) {
+        while ((rc = proto_frame_decode(&d, &p, &n, &f)) == 1) {
             cr_assert_lt(got, s->n);
             size_t fend = s->ends[got];
             cr_assert_eq(memcmp(f.data, s->data + fend - f.len, f.len), 0,
@@ -297,8 +297,8 @@ static void feed_with_cuts(const stream *s, const size_t *cuts, int ncuts)
         start = end;
     }
     cr_assert_eq(got, s->n, "got %d frames of %d", got, s->n);
-    cr_assert_eq(frame_decoder_finish(&d), 0);
-    frame_decoder_free(&d);
+    cr_assert_eq(proto_frame_decoder_finish(&d), 0);
+    proto_frame_decoder_free(&d);
 }
 
 Test(frame, split_at_every_byte_boundary)
@@ -343,66 +343,66 @@ Test(frame, whole_frame_in_one_read_is_not_copied)
 {
     size_t len;
     uint8_t *buf = enc_req(4, &len);
-    frame_decoder d;
-    frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
     const uint8_t *p = buf;
     size_t n = len;
-    frame_view f;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 1);
+    proto_frame_view f;
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 1);
     cr_assert_eq(f.data, buf + 4);
     cr_assert_eq(d.cap, 0);
-    frame_decoder_free(&d);
+    proto_frame_decoder_free(&d);
     free(buf);
 }
 
 /* ---------------------------------------------------------------- lengths */
 
-static int feed_header(frame_decoder *d, uint32_t n)
+static int feed_header(proto_frame_decoder *d, uint32_t n)
 {
     uint8_t h[4] = {(uint8_t)(n >> 24), (uint8_t)(n >> 16), (uint8_t)(n >> 8), (uint8_t)n};
     const uint8_t *p = h;
     size_t len = 4;
-    frame_view f;
-    return frame_decode(d, &p, &len, &f);
+    proto_frame_view f;
+    return proto_frame_decode(d, &p, &len, &f);
 }
 
 Test(frame, length_zero_is_a_protocol_error_and_sticks)
 {
-    frame_decoder d;
-    frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
     cr_assert_eq(feed_header(&d, 0), -EPROTO);
     char msg[128];
-    cr_assert_str_eq(frame_decoder_strerror(&d, -EPROTO, msg, sizeof msg), "frame length 0");
+    cr_assert_str_eq(proto_frame_decoder_strerror(&d, -EPROTO, msg, sizeof msg), "frame length 0");
     /* Refuses more input, consuming none. */
     uint8_t more[8] = {0, 0, 0, 1, 0x28, 0};
     const uint8_t *p = more;
     size_t n = sizeof more;
-    frame_view f;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), -EPROTO);
+    proto_frame_view f;
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), -EPROTO);
     cr_assert_eq(n, sizeof more);
-    cr_assert_eq(frame_decoder_finish(&d), -EPROTO);
-    frame_decoder_free(&d);
+    cr_assert_eq(proto_frame_decoder_finish(&d), -EPROTO);
+    proto_frame_decoder_free(&d);
 }
 
 Test(frame, length_max_is_accepted)
 {
     const uint32_t max = 8192;
-    frame_decoder d;
-    frame_decoder_init(&d, max);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, max);
     uint8_t *buf = malloc(max + 4);
     buf[0] = 0, buf[1] = 0, buf[2] = max >> 8, buf[3] = max & 0xff;
     for (uint32_t i = 0; i < max; i++) buf[4 + i] = (uint8_t)i;
     /* In two reads, so the decoder must buffer it. */
     const uint8_t *p = buf;
     size_t n = 100;
-    frame_view f;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
+    proto_frame_view f;
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
     n = max + 4 - 100;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 1);
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 1);
     cr_assert_eq(f.len, max);
     cr_assert_eq(memcmp(f.data, buf + 4, max), 0);
     cr_assert_leq(d.cap, max);
-    frame_decoder_free(&d);
+    proto_frame_decoder_free(&d);
     free(buf);
 }
 
@@ -410,40 +410,40 @@ Test(frame, length_over_max_is_refused)
 {
     const uint32_t lens[] = {8193, 0xFFFFFFFFu, 0x80000000u};
     for (size_t i = 0; i < 3; i++) {
-        frame_decoder d;
-        frame_decoder_init(&d, 8192);
+        proto_frame_decoder d;
+        proto_frame_decoder_init(&d, 8192);
         cr_assert_eq(feed_header(&d, lens[i]), -EMSGSIZE);
         cr_assert_eq(d.cap, 0);
         char msg[128], want[128];
         snprintf(want, sizeof want, "frame length %u is over the limit of 8192", lens[i]);
-        cr_assert_str_eq(frame_decoder_strerror(&d, -EMSGSIZE, msg, sizeof msg), want);
+        cr_assert_str_eq(proto_frame_decoder_strerror(&d, -EMSGSIZE, msg, sizeof msg), want);
         cr_assert_eq(feed_header(&d, 10), -EMSGSIZE);
-        frame_decoder_free(&d);
+        proto_frame_decoder_free(&d);
     }
 }
 
 Test(frame, max_is_clamped_and_can_change)
 {
-    frame_decoder d;
-    frame_decoder_init(&d, 1);
-    cr_assert_eq(d.max, FRAME_MIN_MAX);
-    frame_decoder_set_max(&d, 0xFFFFFFFFu);
-    cr_assert_eq(d.max, FRAME_LIMIT_MAX);
-    frame_decoder_set_max(&d, 5000);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, 1);
+    cr_assert_eq(d.max, PROTO_FRAME_MIN_MAX);
+    proto_frame_decoder_set_max(&d, 0xFFFFFFFFu);
+    cr_assert_eq(d.max, PROTO_FRAME_LIMIT_MAX);
+    proto_frame_decoder_set_max(&d, 5000);
     cr_assert_eq(feed_header(&d, 5001), -EMSGSIZE);
-    frame_decoder_free(&d);
+    proto_frame_decoder_free(&d);
 }
 
 /* ---------------------------------------------------------------- memory */
 
 Test(frame, header_alone_allocates_nothing)
 {
-    frame_decoder d;
-    frame_decoder_init(&d, FRAME_LIMIT_MAX);
-    cr_assert_eq(feed_header(&d, FRAME_LIMIT_MAX), 0);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, PROTO_FRAME_LIMIT_MAX);
+    cr_assert_eq(feed_header(&d, PROTO_FRAME_LIMIT_MAX), 0);
     cr_assert_eq(d.cap, 0, "allocated %zu bytes for a header", d.cap);
     cr_assert_null(d.buf);
-    cr_assert_eq(frame_decoder_pending(&d), 4);
+    cr_assert_eq(proto_frame_decoder_pending(&d), 4);
 
     /* A trickle of bytes keeps the buffer proportional to what arrived. */
     static uint8_t chunk[10000];
@@ -451,46 +451,46 @@ Test(frame, header_alone_allocates_nothing)
     for (int i = 0; i < 20; i++) {
         const uint8_t *p = chunk;
         size_t n = sizeof chunk;
-        frame_view f;
-        cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
+        proto_frame_view f;
+        cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
         total += sizeof chunk;
-        cr_assert_leq(d.cap, 2 * total + FRAME_INITIAL_ALLOC, "cap %zu after %zu bytes",
+        cr_assert_leq(d.cap, 2 * total + PROTO_FRAME_INITIAL_ALLOC, "cap %zu after %zu bytes",
                       d.cap, total);
     }
-    cr_assert_eq(frame_decoder_pending(&d), total + 4);
-    frame_decoder_free(&d);
+    cr_assert_eq(proto_frame_decoder_pending(&d), total + 4);
+    proto_frame_decoder_free(&d);
 }
 
 Test(frame, first_byte_allocates_only_a_little)
 {
-    frame_decoder d;
-    frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
     uint8_t b[5] = {0, 0x10, 0, 0, 0x42}; /* length 1 MiB, then one byte */
     const uint8_t *p = b;
     size_t n = 5;
-    frame_view f;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
-    cr_assert_eq(d.cap, FRAME_INITIAL_ALLOC);
-    frame_decoder_free(&d);
+    proto_frame_view f;
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
+    cr_assert_eq(d.cap, PROTO_FRAME_INITIAL_ALLOC);
+    proto_frame_decoder_free(&d);
 }
 
 Test(frame, large_buffer_is_dropped_after_its_frame)
 {
     const uint32_t len = 200000;
-    frame_decoder d;
-    frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+    proto_frame_decoder d;
+    proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
     uint8_t *buf = calloc(1, len + 4);
     buf[1] = len >> 16, buf[2] = (len >> 8) & 0xff, buf[3] = len & 0xff;
     const uint8_t *p = buf;
     size_t n = 10;
-    frame_view f;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
+    proto_frame_view f;
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
     n = len + 4 - 10;
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 1);
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 1);
     cr_assert_eq(d.cap, len); /* exactly the frame, not more */
-    cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
+    cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
     cr_assert_eq(d.cap, 0, "an idle connection keeps %zu bytes", d.cap);
-    frame_decoder_free(&d);
+    proto_frame_decoder_free(&d);
     free(buf);
 }
 
@@ -501,17 +501,17 @@ Test(frame, truncated_frame_at_eof_is_detected)
     size_t len;
     uint8_t *buf = enc_req(1, &len);
     for (size_t cut = 1; cut < len; cut++) {
-        frame_decoder d;
-        frame_decoder_init(&d, FRAME_DEFAULT_MAX);
+        proto_frame_decoder d;
+        proto_frame_decoder_init(&d, PROTO_FRAME_DEFAULT_MAX);
         const uint8_t *p = buf;
         size_t n = cut;
-        frame_view f;
-        cr_assert_eq(frame_decode(&d, &p, &n, &f), 0);
-        cr_assert_eq(frame_decoder_pending(&d), cut);
-        cr_assert_eq(frame_decoder_finish(&d), -EPIPE, "cut at %zu", cut);
+        proto_frame_view f;
+        cr_assert_eq(proto_frame_decode(&d, &p, &n, &f), 0);
+        cr_assert_eq(proto_frame_decoder_pending(&d), cut);
+        cr_assert_eq(proto_frame_decoder_finish(&d), -EPIPE, "cut at %zu", cut);
         char msg[128];
-        cr_assert(strstr(frame_decoder_strerror(&d, -EPIPE, msg, sizeof msg), "truncated"));
-        frame_decoder_free(&d);
+        cr_assert(strstr(proto_frame_decoder_strerror(&d, -EPIPE, msg, sizeof msg), "truncated"));
+        proto_frame_decoder_free(&d);
     }
     free(buf);
 }
@@ -529,13 +529,13 @@ Test(frame, garbage_unpacks_to_null)
     };
     static const size_t lens[] = {6, 3, 3, 2, 2};
     for (size_t i = 0; i < 5; i++) {
-        cr_assert_null(frame_unpack_request(bad[i], lens[i]), "garbage %zu", i);
-        cr_assert_null(frame_unpack_reply(bad[i], lens[i]), "garbage %zu", i);
+        cr_assert_null(proto_frame_unpack_request(bad[i], lens[i]), "garbage %zu", i);
+        cr_assert_null(proto_frame_unpack_reply(bad[i], lens[i]), "garbage %zu", i);
     }
     /* A valid request cut short. */
     size_t len;
     uint8_t *buf = enc_req(1, &len);
-    cr_assert_null(frame_unpack_request(buf + 4, len - 5));
+    cr_assert_null(proto_frame_unpack_request(buf + 4, len - 5));
     free(buf);
 }
 
@@ -581,8 +581,8 @@ Test(frame, unpack_refuses_heap_amplification)
     static const uint8_t inverse[] = {0x08, 0x14, 0x12, 0x01, 0x00};
     size_t len;
     uint8_t *b = csg_nodes(PROTO_CSG_MAX_NODES, inverse, sizeof inverse, &len);
-    cr_assert_leq(len, FRAME_DEFAULT_MAX);
-    Voxd__Request *r = frame_unpack_request(b, len);
+    cr_assert_leq(len, PROTO_FRAME_DEFAULT_MAX);
+    Voxd__Request *r = proto_frame_unpack_request(b, len);
     cr_assert_not_null(r, "a legitimate node count must unpack");
     cr_assert_eq(r->submit->csg->n_nodes, PROTO_CSG_MAX_NODES);
     cr_assert_eq(r->submit->csg->nodes[PROTO_CSG_MAX_NODES - 1]->op, VOXD__CSG_OP__CSG_INVERSE);
@@ -592,8 +592,8 @@ Test(frame, unpack_refuses_heap_amplification)
     /* Empty nodes, 2 wire bytes for ~130 bytes of heap each: 800 KB that
      * would unpack to ~50 MB is refused. */
     b = csg_nodes(400000, NULL, 0, &len);
-    cr_assert_leq(len, FRAME_DEFAULT_MAX);
-    cr_assert_null(frame_unpack_request(b, len));
+    cr_assert_leq(len, PROTO_FRAME_DEFAULT_MAX);
+    cr_assert_null(proto_frame_unpack_request(b, len));
     r = voxd__request__unpack(NULL, len, b); /* well-formed: only the budget refuses it */
     cr_assert_not_null(r);
     voxd__request__free_unpacked(r, NULL);

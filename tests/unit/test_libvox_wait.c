@@ -230,9 +230,9 @@ static void s_slow_but_alive(srv *s)
             if (n <= 0) return;
             const uint8_t *q = s->in;
             size_t left = (size_t)n;
-            frame_view f;
-            while (frame_decode(&s->dec, &q, &left, &f) == 1) {
-                Voxd__Request *x = frame_unpack_request(f.data, f.len);
+            proto_frame_view f;
+            while (proto_frame_decode(&s->dec, &q, &left, &f) == 1) {
+                Voxd__Request *x = proto_frame_unpack_request(f.data, f.len);
                 if (x && x->msg_case == VOXD__REQUEST__MSG_PING) {
                     s->pings_seen++;
                     send_pong(s, x->ping->token);

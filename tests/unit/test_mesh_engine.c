@@ -27,10 +27,10 @@ static mesh box_mesh(shape *s, const float lo[3], const float hi[3])
     return *shape_finish(s);
 }
 
-static pipeline_job mesh_job(const mesh *m, uint32_t res, int channel)
+static engine_pipeline_job mesh_job(const mesh *m, uint32_t res, int channel)
 {
-    pipeline_job job = {
-        .kind = PIPELINE_MESH,
+    engine_pipeline_job job = {
+        .kind = ENGINE_PIPELINE_MESH,
         .mesh = {.mesh = m, .opts = {.mode = MESH_SOLID, .channel = channel},
                  .pad = 1, .fit = 1, .source_name = "box.obj", .source_bytes = 999},
         .res = res,
@@ -49,12 +49,12 @@ static engine *make_engine(int workers)
     return e;
 }
 
-static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
+static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline_report *r)
 {
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    cr_assert_eq(pipeline_run(e, job, &sink, r), 0, "%s job on %s: %s",
-                 job->kind == PIPELINE_MESH ? "mesh" : "implicit",
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "%s job on %s: %s",
+                 job->kind == ENGINE_PIPELINE_MESH ? "mesh" : "implicit",
                  e ? "an engine" : "no engine", r->err.message);
     return m;
 }
@@ -70,8 +70,8 @@ Test(mesh_engine, a_box_serial_and_on_the_engine)
                                    VOXEL_CH_SURFACE};
     engine *e[2] = {make_engine(1), make_engine(2)};
     for (size_t c = 0; c < 3; c++) {
-        pipeline_job job = mesh_job(&m, 70, channels[c]);
-        pipeline_report r0, r;
+        engine_pipeline_job job = mesh_job(&m, 70, channels[c]);
+        engine_pipeline_report r0, r;
         vod_membuf ref = run(NULL, &job, &r0);
         cr_assert_eq(r0.grid.res[0], 70);
         cr_assert_gt(r0.voxels, 0);
@@ -123,12 +123,12 @@ Test(mesh_engine, mesh_and_implicit_jobs_share_an_engine)
     expr_tape *t = NULL;
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &t, &ee), 0);
-    pipeline_job mj = mesh_job(&m, 40, VOXEL_CH_OCCUPANCY);
-    pipeline_job ij = {.kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job mj = mesh_job(&m, 40, VOXEL_CH_OCCUPANCY);
+    engine_pipeline_job ij = {.kind = ENGINE_PIPELINE_IMPLICIT,
                        .implicit = {.tape = t, .source = src, .source_len = strlen(src)},
                        .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 40};
     vod_params_default(&ij.vod);
-    pipeline_report r;
+    engine_pipeline_report r;
     vod_membuf mref = run(NULL, &mj, &r);
     vod_membuf iref = run(NULL, &ij, &r);
     engine *e = make_engine(2);
@@ -151,26 +151,26 @@ Test(mesh_engine, bad_mesh_jobs_fail_typed)
     float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
     shape sh_m;
     mesh m = box_mesh(&sh_m, lo, hi);
-    pipeline_job job = mesh_job(&m, 8, VOXEL_CH_OCCUPANCY);
+    engine_pipeline_job job = mesh_job(&m, 8, VOXEL_CH_OCCUPANCY);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
-    pipeline_report r;
+    engine_pipeline_report r;
     job.mesh.pad = 4;
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert_eq(r.stage, PIPELINE_GRID);
+    cr_assert_eq(r.stage, ENGINE_PIPELINE_GRID);
     cr_assert(strstr(r.err.message, "padding"), "%s", r.err.message);
     job.mesh.pad = 1;
     uint32_t n = m.n_triangles;
     m.n_triangles = 0;
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
     m.n_triangles = n;
     float flat[3] = {1, 1, 1};
     shape sh_pt;
     mesh pt = box_mesh(&sh_pt, flat, flat);
     job.mesh.mesh = &pt;
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert(strstr(r.err.message, "bounding box"), "%s", r.err.message);
     shape_free(&sh_pt);
     free(out.p);
@@ -187,13 +187,13 @@ Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
     engine *e;
     char err[256];
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
-    pipeline_job job = mesh_job(&m, 1024, VOXEL_CH_SURFACE);
+    engine_pipeline_job job = mesh_job(&m, 1024, VOXEL_CH_SURFACE);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
-    pipeline_report r;
-    cr_assert_lt(pipeline_run(e, &job, &sink, &r), 0);
+    engine_pipeline_report r;
+    cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
     cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
-    cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
+    cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     free(out.p);
     engine_destroy(e);
     shape_free(&sh_m);
@@ -223,8 +223,8 @@ Test(mesh_engine, a_worker_killed_mid_job_changes_nothing)
     float lo[3] = {-0.4f, -0.3f, -0.2f}, hi[3] = {0.4f, 0.3f, 0.2f};
     shape sh_m;
     mesh m = box_mesh(&sh_m, lo, hi);
-    pipeline_job job = mesh_job(&m, 200, VOXEL_CH_OCCUPANCY);
-    pipeline_report r0, r;
+    engine_pipeline_job job = mesh_job(&m, 200, VOXEL_CH_OCCUPANCY);
+    engine_pipeline_report r0, r;
     vod_membuf ref = run(NULL, &job, &r0);
     engine *e = make_engine(2);
     killer k = {.e = e};
@@ -256,8 +256,8 @@ Test(mesh_engine, repair_runs_only_where_the_mesh_is_open)
     double c[3] = {0, 0, 0};
     shape_icosphere(&s, c, 1.0, 3, false);
     const mesh *m = shape_finish(&s);
-    pipeline_job job = mesh_job(m, 48, VOXEL_CH_OCCUPANCY);
-    pipeline_report plain, voted;
+    engine_pipeline_job job = mesh_job(m, 48, VOXEL_CH_OCCUPANCY);
+    engine_pipeline_report plain, voted;
     vod_membuf a = run(NULL, &job, &plain);
     cr_assert(plain.fig.mesh.topo.watertight);
     cr_assert_eq(plain.fig.mesh.topo.open, 0);
@@ -336,7 +336,7 @@ static want_grid expect_bbox(const double lo[3], const double hi[3], uint32_t re
 }
 
 /* The job's report, file and voxels against the expected grid w. */
-static void check_grid(const pipeline_job *job, const want_grid *w, const float blo[3],
+static void check_grid(const engine_pipeline_job *job, const want_grid *w, const float blo[3],
                        const float bhi[3], const char *what)
 {
     /* a face this close to a centre would leave the voxel to rounding */
@@ -345,7 +345,7 @@ static void check_grid(const pipeline_job *job, const want_grid *w, const float 
             double f = ((double)(side ? bhi[a] : blo[a]) - w->lo[a]) / w->vs - 0.5;
             cr_assert_gt(fabs(f - round(f)), 0.05, "%s: the test's sizes, axis %d", what, a);
         }
-    pipeline_report r;
+    engine_pipeline_report r;
     vod_membuf mb = run(NULL, job, &r);
     const double tol = 1e-9 * w->vs;
     cr_assert(fabs(r.grid.vs - w->vs) < tol, "%s: voxel size %.17g, want %.17g", what,
@@ -398,7 +398,7 @@ Test(mesh_engine, the_grid_from_the_mesh_coordinates)
     mesh m = box_mesh(&sh_m, lo, hi);
     static const uint32_t cases[][2] = {{40, 1}, {40, 0}, {37, 3}, {50, 6}};
     for (size_t i = 0; i < sizeof cases / sizeof *cases; i++) {
-        pipeline_job job = mesh_job(&m, cases[i][0], VOXEL_CH_OCCUPANCY);
+        engine_pipeline_job job = mesh_job(&m, cases[i][0], VOXEL_CH_OCCUPANCY);
         job.mesh.pad = cases[i][1];
         want_grid w = expect_fit(m.lo, m.hi, cases[i][0], cases[i][1]);
         char what[64];
@@ -408,7 +408,7 @@ Test(mesh_engine, the_grid_from_the_mesh_coordinates)
     /* --bbox: the box given, its longest side (z here) res voxels, the
      * mesh cut by it */
     static const double blo[3] = {0.3, -0.1, 0.2}, bhi[3] = {0.8, 0.25, 1.0};
-    pipeline_job job = mesh_job(&m, 45, VOXEL_CH_OCCUPANCY);
+    engine_pipeline_job job = mesh_job(&m, 45, VOXEL_CH_OCCUPANCY);
     job.mesh.fit = 0;
     memcpy(job.lo, blo, sizeof blo);
     memcpy(job.hi, bhi, sizeof bhi);
@@ -438,7 +438,7 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
     shape_icosphere(&s, c, 1.0, 4, false);
     shape_remove(&s, not_every_seventh, NULL);
     const mesh *m = shape_finish(&s);
-    pipeline_job job = mesh_job(m, 56, VOXEL_CH_OCCUPANCY); /* one tile */
+    engine_pipeline_job job = mesh_job(m, 56, VOXEL_CH_OCCUPANCY); /* one tile */
     job.mesh.opts.repair = MESH_REPAIR_WINDING;
 
     /* a worker pinned to a CPU of a loaded machine (load 25 on 2 cores)
@@ -450,10 +450,10 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
     engine *e;
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
-    pipeline_report r0, r;
+    engine_pipeline_report r0, r;
     vod_membuf ref = run(NULL, &job, &r0), got = {0};
     vod_sink sink = {vod_mem_write, &got};
-    int rc = pipeline_run(e, &job, &sink, &r);
+    int rc = engine_pipeline_run(e, &job, &sink, &r);
     engine_worker_info in;
     cr_assert_eq(engine_worker_info_get(e, 0, &in), 0);
     cr_assert_eq(rc, 0, "%s (quiet %.3f s, state %c)", r.err.message, in.stalled_quiet,
@@ -485,9 +485,9 @@ Test(mesh_engine, winding_repair_same_bytes_for_any_workers, .timeout = 600)
     engine *e[2] = {make_engine(1), make_engine(2)};
     static const int channels[] = {VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY};
     for (int k = 0; k < 2; k++) {
-        pipeline_job job = mesh_job(m, k ? 70 : 100, channels[k]); /* 4 tiles each */
+        engine_pipeline_job job = mesh_job(m, k ? 70 : 100, channels[k]); /* 4 tiles each */
         job.mesh.opts.repair = MESH_REPAIR_WINDING;
-        pipeline_report r0, r;
+        engine_pipeline_report r0, r;
         vod_membuf ref = run(NULL, &job, &r0);
         cr_assert_gt(r0.fig.mesh.vox.disagreements, 0);
         for (int w = 0; w < 2; w++) {

@@ -118,7 +118,7 @@ static void same_as_strtof(const char *tok)
     float got = 0;
     char *end;
     float want = strtof(tok, &end);
-    int rc = mt_float(&t, &got);
+    int rc = mesh_text_float(&t, &got);
     if (*end || end == tok) {
         cr_assert_eq(rc, -EINVAL, "'%s': %d", tok, rc);
         cr_assert_eq(t.p, tok);

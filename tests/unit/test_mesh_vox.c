@@ -105,7 +105,7 @@ static void oracle_free(ray_oracle *o)
 }
 
 /* Möller–Trumbore: the ray c + t d crosses triangle tr at some t > 0. */
-static bool mt_hit(const ray_oracle *o, uint32_t tr, const double c[3])
+static bool mesh_text_hit(const ray_oracle *o, uint32_t tr, const double c[3])
 {
     double v0[3], v1[3], v2[3], e1[3], e2[3], p[3], s[3], q[3];
     vert(o->m, tr, 0, v0);
@@ -129,7 +129,7 @@ static bool oracle_inside(const ray_oracle *o, const double c[3])
     int k[2];
     cell_range(o, s, k);
     int cell = k[1] * o->G + k[0], n = 0;
-    for (uint32_t i = o->start[cell]; i < o->start[cell + 1]; i++) n += mt_hit(o, o->list[i], c);
+    for (uint32_t i = o->start[cell]; i < o->start[cell + 1]; i++) n += mesh_text_hit(o, o->list[i], c);
     return n & 1;
 }
 
@@ -291,17 +291,17 @@ Test(mesh_vox, box_on_voxel_centres_follows_the_top_left_rule)
     shape s;
     const mesh *m = centre_box(&s, &g, a, b);
     /* each column is crossed 0 or 2 times, 2 exactly over [a, b) x [a, b) */
-    mv_frame f;
-    mv_frame_init(&f, m, &g, 1);
-    mv_block blk = {{0, 0, -4}, {64, 64, 72}, 1};
-    uint64_t *bits = malloc(mv_block_words(&blk) * 8);
+    mesh_vox_frame f;
+    mesh_vox_frame_init(&f, m, &g, 1);
+    mesh_vox_block blk = {{0, 0, -4}, {64, 64, 72}, 1};
+    uint64_t *bits = malloc(mesh_vox_block_words(&blk) * 8);
     uint8_t *count = calloc(64 * 64, 1);
     for (uint32_t t = 0; t < m->n_triangles; t++) {
-        memset(bits, 0, mv_block_words(&blk) * 8);
-        mv_target tg = {&blk, bits, NULL, true, NULL};
+        memset(bits, 0, mesh_vox_block_words(&blk) * 8);
+        mesh_vox_target tg = {&blk, bits, NULL, true, NULL};
         int64_t P[3][3];
-        mv_triangle(&f, t, P);
-        mv_raster(P, 2, &tg);
+        mesh_vox_triangle(&f, t, P);
+        mesh_vox_raster(P, 2, &tg);
         for (int z = 0; z < 72; z++)
             for (int y = 0; y < 64; y++)
                 for (int x = 0; x < 64; x++)

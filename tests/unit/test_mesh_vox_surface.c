@@ -305,23 +305,23 @@ Test(mesh_vox, plain_solid_bins_hold_the_triangles_that_flip_a_column)
     for (uint32_t t = 0; t < ntiles; t++)
         for (uint64_t i = b.start[t]; i < b.start[t + 1]; i++)
             in_bin[(size_t)t * m->n_triangles + b.ids[i]] = true;
-    mv_frame f;
-    mv_frame_init(&f, m, &g, 1);
+    mesh_vox_frame f;
+    mesh_vox_frame_init(&f, m, &g, 1);
     uint64_t words[64], flipping = 0, listed = 0, none = 0;
     for (uint32_t id = 0; id < m->n_triangles; id++) {
         int64_t P[3][3];
-        mv_triangle(&f, id, P);
+        mesh_vox_triangle(&f, id, P);
         for (int k = 0; k < 3; k++)
             cr_assert_eq(memcmp(P[k], lat[m->triangles[id][k]], sizeof P[k]), 0);
         bool any = false;
         for (uint32_t t = 0; t < ntiles; t++) {
             uint32_t x0 = t % b.tiles[0] * 64, y0 = t / b.tiles[0] * 64;
-            mv_block blk = {{x0, y0, 1 << 20}, {(int32_t)(g.res[0] - x0 < 64 ? g.res[0] - x0 : 64),
+            mesh_vox_block blk = {{x0, y0, 1 << 20}, {(int32_t)(g.res[0] - x0 < 64 ? g.res[0] - x0 : 64),
                                                 (int32_t)(g.res[1] - y0 < 64 ? g.res[1] - y0 : 64), 1},
                             1};
             memset(words, 0, sizeof words);
-            mv_target tg = {&blk, words, NULL, true, NULL};
-            mv_raster(P, 2, &tg);
+            mesh_vox_target tg = {&blk, words, NULL, true, NULL};
+            mesh_vox_raster(P, 2, &tg);
             bool flips = false;
             for (int i = 0; i < blk.n[1]; i++) flips |= words[i] != 0;
             bool listed_here = in_bin[(size_t)t * m->n_triangles + id];
@@ -332,8 +332,8 @@ Test(mesh_vox, plain_solid_bins_hold_the_triangles_that_flip_a_column)
                     for (int k = 1; k < 3; k++)
                         lo = P[k][a] < lo ? P[k][a] : lo, hi = P[k][a] > hi ? P[k][a] : hi;
                     int64_t first = (a ? y0 : x0), last = first + blk.n[a] - 1;
-                    while (first <= last && first * MV_L + MV_H < lo) first++;
-                    while (last >= first && last * MV_L + MV_H > hi) last--;
+                    while (first <= last && first * MESH_VOX_L + MESH_VOX_H < lo) first++;
+                    while (last >= first && last * MESH_VOX_L + MESH_VOX_H > hi) last--;
                     cr_assert_leq(first, last, "triangle %u in tile %u holds no centre of it", id, t);
                 }
             flipping += flips;

@@ -178,10 +178,10 @@ static uint8_t *dense(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
 /* The exact |w| at voxel centre (x, y, z) (mesh_solid.c's sum). */
 static double exact_w(const mesh *m, const grid_spec *g, uint32_t x, uint32_t y, uint32_t z)
 {
-    mv_frame f;
-    mv_frame_init(&f, m, g, 1);
+    mesh_vox_frame f;
+    mesh_vox_frame_init(&f, m, g, 1);
     double q[1][3] = {{x + 0.5, y + 0.5, z + 0.5}}, w;
-    mv_winding_many(&f, (const double (*)[3])q, 1, &w);
+    mesh_vox_winding_many(&f, (const double (*)[3])q, 1, &w);
     return fabs(w);
 }
 
@@ -361,10 +361,10 @@ static double tri_w(const double v[3][3], const double p[3])
     return atan2(det, den) / (2 * M_PI);
 }
 
-/* mv_wind_cell's value at a cell's centre and its bound hold at every
+/* mesh_vox_wind_cell's value at a cell's centre and its bound hold at every
  * point tried within the cell's ball (the expansion's remainder and the
  * variation over the ball: without the latter they would not), with and
- * without a near list (mv_wind_near adds the near triangles exactly); the
+ * without a near list (mesh_vox_wind_near adds the near triangles exactly); the
  * test shape is a wavy fan of 48 triangles, a cap as mesh_wcap.c makes. */
 Test(mesh_wind, the_cell_bound_holds_within_the_ball)
 {
@@ -378,8 +378,8 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
         for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
         tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
     }
-    mv_wtree *t;
-    cr_assert_eq(mv_wtree_make(NULL, NULL, (const double (*)[3][3])tri, N, NULL, &t), 0);
+    mesh_vox_wtree *t;
+    cr_assert_eq(mesh_vox_wtree_make(NULL, NULL, (const double (*)[3][3])tri, N, NULL, &t), 0);
     size_t checked = 0, with_near = 0;
     double worst = 0; /* the largest |w(p) - w(b)| seen: the variation is real */
     for (double rho = 0.8; rho < 4; rho *= 2)
@@ -388,8 +388,8 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
                 for (int x = -12; x <= 12; x += 3)
                     for (int use_near = 0; use_near < 2; use_near++) {
                         double b[3] = {x + 0.25, y - 0.35, z + 0.45}, v, e;
-                        mv_near nr;
-                        if (!mv_wind_cell(t, b, rho, 10, 2e-3, use_near ? &nr : NULL, &v, &e, NULL))
+                        mesh_vox_near nr;
+                        if (!mesh_vox_wind_cell(t, b, rho, 10, 2e-3, use_near ? &nr : NULL, &v, &e, NULL))
                             continue;
                         with_near += use_near && nr.n;
                         for (int d = 0; d < 27; d++) {
@@ -400,7 +400,7 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
                             for (int k = 0; k < N; k++) w += tri_w(tri[k], p);
                             if (use_near && nr.n) {
                                 bool close = false;
-                                u += mv_wind_near(t, &nr, p, 1e-3, &close);
+                                u += mesh_vox_wind_near(t, &nr, p, 1e-3, &close);
                             }
                             cr_assert_leq(fabs(w - u), e, "b (%g %g %g) rho %g: |%g - %g| > %g",
                                           b[0], b[1], b[2], rho, w, u, e);
@@ -413,7 +413,7 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
     cr_assert_gt(checked, 20000);
     cr_assert_gt(with_near, 100);
     cr_assert_gt(worst, 0.01);
-    mv_wtree_free(t);
+    mesh_vox_wtree_free(t);
 }
 
 /* The caps' expansion about a cell's centre (mesh_wcap.c's direct path:
@@ -440,8 +440,8 @@ Test(mesh_wind, the_caps_expansion_holds_within_the_ball)
             for (int y = -12; y <= 12; y += 3)
                 for (int x = -12; x <= 12; x += 3) {
                     double b[3] = {x + 0.25, y - 0.35, z + 0.45};
-                    mv_cexp e;
-                    if (!mv_wcap_expand((const double (*)[3][3])tri, NULL, N, b, rho, &e)) {
+                    mesh_vox_cexp e;
+                    if (!mesh_vox_wcap_expand((const double (*)[3][3])tri, NULL, N, b, rho, &e)) {
                         refused++;
                         continue;
                     }

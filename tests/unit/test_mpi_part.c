@@ -4,7 +4,7 @@
  * bricks booked by content, the levels above made from their top bricks)
  * assembles the bytes of vod_write_octree over the whole grid, asking for
  * each distinct brick once.  For mesh and CSG jobs the same against
- * pipeline_run's file, each column's triangles through mpi_mesh_part and
+ * engine_pipeline_run's file, each column's triangles through mpi_mesh_part and
  * mpi_mesh_view, and the tree through csg_tree_pack and csg_tree_unpack;
  * damaged trees and meshes are refused. */
 #include <criterion/criterion.h>
@@ -380,16 +380,16 @@ static uint8_t *column_mesh(const mesh *m, const mesh_bins *bins, const grid_spe
 }
 
 /* job (a mesh or CSG one) run task by task, as vox_mpi's ranks run it
- * (j: the rank's part, its kind and input), against pipeline_run's file. */
-static void same_job(const pipeline_job *job, mpi_subtree_job j, size_t target, int workers)
+ * (j: the rank's part, its kind and input), against engine_pipeline_run's file. */
+static void same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t target, int workers)
 {
     char meta[JOB_META_MAX], err[256];
     vod_params v;
-    pipeline_report r, rr;
+    engine_pipeline_report r, rr;
     vod_membuf ref = {0};
     vod_sink rs = {vod_mem_write, &ref};
-    cr_assert_eq(pipeline_plan(job, &r, &v, meta), 0, "%s", r.err.message);
-    cr_assert_eq(pipeline_run(NULL, job, &rs, &rr), 0, "%s", rr.err.message);
+    cr_assert_eq(engine_pipeline_plan(job, &r, &v, meta), 0, "%s", r.err.message);
+    cr_assert_eq(engine_pipeline_run(NULL, job, &rs, &rr), 0, "%s", rr.err.message);
     vod_layout L;
     cr_assert_eq(vod_layout_make(&v, r.grid.depth, &L, err, sizeof err), 0, "%s", err);
     int columns = j.kind == MPI_KIND_MESH;
@@ -428,7 +428,7 @@ static void same_job(const pipeline_job *job, mpi_subtree_job j, size_t target, 
 static void same_mesh(uint32_t res, mesh_vox_opts o, uint32_t drop, size_t target, int workers)
 {
     mesh m = torus(24, 12, drop);
-    pipeline_job job = {.kind = PIPELINE_MESH, .mesh = {.mesh = &m, .opts = o, .fit = 1},
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_MESH, .mesh = {.mesh = &m, .opts = o, .fit = 1},
                         .res = res};
     vod_params_default(&job.vod);
     job.vod.channel = o.channel;
@@ -492,7 +492,7 @@ static void same_csg(uint32_t res, int channel, size_t target, int workers)
 {
     csg_tree *t, *u;
     tree_pair(&t, &u);
-    pipeline_job job = {.kind = PIPELINE_CSG, .csg = {.tree = t}, .res = res,
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG, .csg = {.tree = t}, .res = res,
                         .lo = {-1, -1, -1}, .hi = {1, 1, 1}};
     vod_params_default(&job.vod);
     job.vod.channel = channel;

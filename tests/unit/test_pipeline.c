@@ -20,10 +20,10 @@ static expr_tape *compile(const char *src)
     return t;
 }
 
-static pipeline_job torus_job(const expr_tape *t, uint32_t res)
+static engine_pipeline_job torus_job(const expr_tape *t, uint32_t res)
 {
-    pipeline_job job = {
-        .kind = PIPELINE_IMPLICIT,
+    engine_pipeline_job job = {
+        .kind = ENGINE_PIPELINE_IMPLICIT,
         .implicit = {.tape = t, .source = TORUS, .source_len = strlen(TORUS)},
         .lo = {-1, -1, -0.5}, .hi = {1, 1, 0.5}, .res = res,
     };
@@ -41,21 +41,21 @@ static engine *make_engine(int workers)
 }
 
 /* Run job on e (NULL: serial) into memory; the report and the bytes. */
-static vod_membuf run(engine *e, const pipeline_job *job, pipeline_report *r)
+static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline_report *r)
 {
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    cr_assert_eq(pipeline_run(e, job, &sink, r), 0, "%s", r->err.message);
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "%s", r->err.message);
     cr_assert_eq(r->err.failure, ENGINE_OK);
-    cr_assert_eq(r->stage, PIPELINE_WRITE);
+    cr_assert_eq(r->stage, ENGINE_PIPELINE_WRITE);
     return m;
 }
 
 Test(pipeline, serial_and_engines_give_the_same_bytes)
 {
     expr_tape *t = compile(TORUS);
-    pipeline_job job = torus_job(t, 80);
-    pipeline_report r0, r;
+    engine_pipeline_job job = torus_job(t, 80);
+    engine_pipeline_report r0, r;
     vod_membuf ref = run(NULL, &job, &r0);
     cr_assert_eq(r0.grid.res[0], 80);
     cr_assert_eq(r0.grid.res[2], 40, "the box's short axis gets cubic voxels");
@@ -81,9 +81,9 @@ Test(pipeline, serial_and_engines_give_the_same_bytes)
 Test(pipeline, the_file_names_the_job)
 {
     expr_tape *t = compile(TORUS);
-    pipeline_job job = torus_job(t, 32);
+    engine_pipeline_job job = torus_job(t, 32);
     job.implicit.source_name = "torus.vx";
-    pipeline_report r;
+    engine_pipeline_report r;
     vod_membuf m = run(NULL, &job, &r);
     vod_file *f;
     char err[256];
@@ -100,14 +100,14 @@ Test(pipeline, the_file_names_the_job)
 Test(pipeline, a_bad_domain_fails_before_any_work)
 {
     expr_tape *t = compile(TORUS);
-    pipeline_job job = torus_job(t, 32);
+    engine_pipeline_job job = torus_job(t, 32);
     job.hi[1] = job.lo[1];
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    pipeline_report r;
-    cr_assert_eq(pipeline_run(NULL, &job, &sink, &r), -EINVAL);
+    engine_pipeline_report r;
+    cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
     cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert_eq(r.stage, PIPELINE_GRID);
+    cr_assert_eq(r.stage, ENGINE_PIPELINE_GRID);
     cr_assert(strstr(r.err.message, "empty on y"), "%s", r.err.message);
     cr_assert_eq(m.n, 0);
     expr_tape_free(t);
@@ -123,15 +123,15 @@ static int refusing_write(void *ud, const void *buf, size_t n)
 Test(pipeline, a_sink_failure_is_typed_and_staged)
 {
     expr_tape *t = compile(TORUS);
-    pipeline_job job = torus_job(t, 32);
+    engine_pipeline_job job = torus_job(t, 32);
     vod_sink sink = {refusing_write, NULL};
     engine *e = make_engine(2);
     engine *on[2] = {NULL, e};
     for (int k = 0; k < 2; k++) {
-        pipeline_report r;
-        cr_assert_eq(pipeline_run(on[k], &job, &sink, &r), -ENOSPC);
+        engine_pipeline_report r;
+        cr_assert_eq(engine_pipeline_run(on[k], &job, &sink, &r), -ENOSPC);
         cr_assert_eq(r.err.failure, ENGINE_SINK, "%s", engine_failure_name(r.err.failure));
-        cr_assert_eq(r.stage, PIPELINE_WRITE);
+        cr_assert_eq(r.stage, ENGINE_PIPELINE_WRITE);
         cr_assert_gt(r.voxels, 0, "voxelized before writing");
     }
     engine_destroy(e);
@@ -142,16 +142,16 @@ Test(pipeline, a_sink_failure_is_typed_and_staged)
 Test(pipeline, a_cancelled_job_says_so)
 {
     expr_tape *t = compile(TORUS);
-    pipeline_job job = torus_job(t, 64);
+    engine_pipeline_job job = torus_job(t, 64);
     atomic_int cancel = 1;
     job.cancel = &cancel;
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
     engine *e = make_engine(1);
-    pipeline_report r;
-    cr_assert_eq(pipeline_run(e, &job, &sink, &r), -ECANCELED);
+    engine_pipeline_report r;
+    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), -ECANCELED);
     cr_assert_eq(r.err.failure, ENGINE_CANCELLED);
-    cr_assert_eq(r.stage, PIPELINE_VOXELIZE);
+    cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     cr_assert_eq(m.n, 0);
     engine_destroy(e);
     expr_tape_free(t);
@@ -184,15 +184,15 @@ static void on_prog(void *ud, const engine_progress *p)
 Test(pipeline, progress_says_done_only_when_the_file_is_written)
 {
     expr_tape *t = compile(TORUS);
-    pipeline_job job = torus_job(t, 256);
+    engine_pipeline_job job = torus_job(t, 256);
     engine *e = make_engine(2);
     vod_membuf m = {0};
     prog g = {.monotonic = 1, .m = &m};
     job.progress = on_prog;
     job.ud = &g;
     vod_sink sink = {vod_mem_write, &m};
-    pipeline_report r;
-    cr_assert_eq(pipeline_run(e, &job, &sink, &r), 0, "%s", r.err.message);
+    engine_pipeline_report r;
+    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), 0, "%s", r.err.message);
     cr_assert_geq(g.calls, 3);
     cr_assert(g.monotonic);
     cr_assert_eq(g.ones, 1);

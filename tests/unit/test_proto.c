@@ -64,8 +64,8 @@ Test(proto, valid_request_survives_the_wire)
     job_init(&j);
     uint8_t *buf;
     size_t len;
-    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_eq(proto_frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, len - 4);
     cr_assert_not_null(r);
     accepted(r);
     voxd__request__free_unpacked(r, NULL);
@@ -90,7 +90,7 @@ Test(proto, unknown_request_field_from_a_newer_client)
     /* Field 9, varint: a type this server does not know.  protobuf-c keeps it
      * as an unknown field and leaves the oneof unset. */
     static const uint8_t wire[] = {0x48, 0x01};
-    Voxd__Request *r = frame_unpack_request(wire, sizeof wire);
+    Voxd__Request *r = proto_frame_unpack_request(wire, sizeof wire);
     cr_assert_not_null(r);
     refused(r, INVALID, "no type this server knows (protocol version 1)");
     voxd__request__free_unpacked(r, NULL);
@@ -203,8 +203,8 @@ Test(proto, non_finite_domain_through_the_wire)
     j.dom[0] = NAN;
     uint8_t *buf;
     size_t len;
-    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_eq(proto_frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, len - 4);
     cr_assert_not_null(r);
     cr_assert(isnan(r->submit->implicit->domain[0]));
     refused(r, INVALID, "domain value 1 is not finite");
@@ -252,8 +252,8 @@ Test(proto, nul_in_source_survives_the_wire_and_is_refused)
     j.src[0] = '\0'; /* a C string would look empty; bytes keep the length */
     uint8_t *buf;
     size_t len;
-    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_eq(proto_frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, len - 4);
     cr_assert_eq(r->submit->implicit->source.len, strlen("x^2 + y^2 + z^2 - 1"));
     refused(r, INVALID, "source contains a NUL byte at offset 0");
     voxd__request__free_unpacked(r, NULL);
@@ -287,8 +287,8 @@ Test(proto, unknown_enum_number_through_the_wire)
     j.sub.channel = (Voxd__Channel)1000;
     uint8_t *buf;
     size_t len;
-    cr_assert_eq(frame_encode_request(&j.req, &buf, &len), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, len - 4);
+    cr_assert_eq(proto_frame_encode_request(&j.req, &buf, &len), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, len - 4);
     cr_assert_not_null(r);
     cr_assert_eq((int)r->submit->channel, 1000, "protobuf-c keeps unknown enum numbers");
     refused(r, INVALID, "unknown channel 1000");
@@ -462,8 +462,8 @@ Test(proto, mesh_job_survives_the_wire)
     mj.m.source_name.data = (uint8_t *)"m.obj", mj.m.source_name.len = 5;
     uint8_t *buf;
     size_t n;
-    cr_assert_eq(frame_encode_request(&mj.j.req, &buf, &n), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, n - 4);
+    cr_assert_eq(proto_frame_encode_request(&mj.j.req, &buf, &n), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, n - 4);
     cr_assert_not_null(r);
     const Voxd__Mesh *m = r->submit->mesh;
     cr_assert_eq(r->submit->job_case, VOXD__SUBMIT__JOB_MESH);
@@ -504,8 +504,8 @@ Test(proto, submit_with_input_bytes)
     j.sub.input_bytes = 1000;
     uint8_t *buf;
     size_t n;
-    cr_assert_eq(frame_encode_request(&j.req, &buf, &n), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, n - 4);
+    cr_assert_eq(proto_frame_encode_request(&j.req, &buf, &n), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, n - 4);
     cr_assert_not_null(r);
     cr_assert_eq(r->submit->input_bytes, 1000);
     cr_assert_eq(r->submit->implicit->source.len, 0);
@@ -575,8 +575,8 @@ Test(proto, input_chunk_rules)
     uint8_t *buf;
     size_t n;
     c.in.offset = 12345;
-    cr_assert_eq(frame_encode_request(&c.req, &buf, &n), 0);
-    Voxd__Request *r = frame_unpack_request(buf + 4, n - 4);
+    cr_assert_eq(proto_frame_encode_request(&c.req, &buf, &n), 0);
+    Voxd__Request *r = proto_frame_unpack_request(buf + 4, n - 4);
     cr_assert_not_null(r);
     cr_assert_eq(r->msg_case, VOXD__REQUEST__MSG_INPUT);
     cr_assert(r->input->job_id == 3 && r->input->offset == 12345 && r->input->data.len == 7);

@@ -255,10 +255,10 @@ Test(proto, limits_table_is_the_limits_message)
     for (size_t i = 0; i < proto_n_limits; i++) {
         const proto_limit_info *row = &proto_limit_table[i];
         if (!strcmp(row->name, "max_frame"))
-            cr_expect(row->min == FRAME_MIN_MAX && row->max == FRAME_LIMIT_MAX &&
-                      row->def == FRAME_DEFAULT_MAX);
+            cr_expect(row->min == PROTO_FRAME_MIN_MAX && row->max == PROTO_FRAME_LIMIT_MAX &&
+                      row->def == PROTO_FRAME_DEFAULT_MAX);
         if (!strcmp(row->name, "max_expr_depth")) cr_expect_eq(row->max, EXPR_MAX_DEPTH_CAP);
-        if (!strcmp(row->name, "chunk_size")) cr_expect_leq(row->max, FRAME_LIMIT_MAX);
+        if (!strcmp(row->name, "chunk_size")) cr_expect_leq(row->max, PROTO_FRAME_LIMIT_MAX);
     }
 }
 

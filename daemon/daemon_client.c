@@ -24,27 +24,27 @@ typedef struct {
     uv_write_t req;
     uint8_t *buf;
     size_t len;
-} vd_write;
+} daemon_write;
 
-static void start_reading(vd_client *c);
+static void start_reading(daemon_client *c);
 
-static double client_timeout(const vd_client *c)
+static double client_timeout(const daemon_client *c)
 {
-    return c->d->cfg.client_timeout; /* --client-timeout applied (vd_load_config) */
+    return c->d->cfg.client_timeout; /* --client-timeout applied (daemon_load_config) */
 }
 
 /* ---------------------------------------------------------------- closing */
 
 static void on_closed(uv_handle_t *h)
 {
-    vd_client *c = (vd_client *)h;
-    frame_decoder_free(&c->dec);
+    daemon_client *c = (daemon_client *)h;
+    proto_frame_decoder_free(&c->dec);
     free(c);
 }
 
-void vd_client_unlink_job(vd_client *c, vd_job *j)
+void daemon_client_unlink_job(daemon_client *c, daemon_job *j)
 {
-    for (vd_job **pp = &c->jobs; *pp; pp = &(*pp)->cnext)
+    for (daemon_job **pp = &c->jobs; *pp; pp = &(*pp)->cnext)
         if (*pp == j) {
             *pp = j->cnext;
             break;
@@ -53,10 +53,10 @@ void vd_client_unlink_job(vd_client *c, vd_job *j)
     j->client = NULL;
 }
 
-static void unlink_delivery(vd_client *c, vd_job *j)
+static void unlink_delivery(daemon_client *c, daemon_job *j)
 {
-    vd_job *prev = NULL;
-    for (vd_job *q = c->deliver; q; prev = q, q = q->next)
+    daemon_job *prev = NULL;
+    for (daemon_job *q = c->deliver; q; prev = q, q = q->next)
         if (q == j) {
             if (prev) prev->next = j->next;
             else c->deliver = j->next;
@@ -68,23 +68,23 @@ static void unlink_delivery(vd_client *c, vd_job *j)
 
 /* The client is gone: its uploading and queued jobs are freed now, a
  * running one is cancelled and freed when the engine gives it back. */
-static void drop_jobs(vd_client *c)
+static void drop_jobs(daemon_client *c)
 {
-    vd_daemon *d = c->d;
+    daemon_ctx *d = c->d;
     while (c->jobs) {
-        vd_job *j = c->jobs;
-        vd_client_unlink_job(c, j);
-        if (j->state == VD_UPLOADING) {
+        daemon_job *j = c->jobs;
+        daemon_client_unlink_job(c, j);
+        if (j->state == DAEMON_UPLOADING) {
             d->nuploading--;
             log_info("job %llu: dropped, its client left during its upload (%zu of %llu bytes)",
                      (unsigned long long)j->id, j->source_len,
                      (unsigned long long)j->input_total);
-            vd_job_free(j);
-        } else if (j->state == VD_DELIVERING) {
-            vd_job_free(j);
-        } else if (vd_job_stop(d, j, VOXD__ERROR_CODE__CANCELLED)) {
+            daemon_job_free(j);
+        } else if (j->state == DAEMON_DELIVERING) {
+            daemon_job_free(j);
+        } else if (daemon_job_stop(d, j, VOXD__ERROR_CODE__CANCELLED)) {
             log_info("job %llu: cancelled, its client left", (unsigned long long)j->id);
-            vd_job_free(j);
+            daemon_job_free(j);
         } else {
             log_info("job %llu: stopping, its client left", (unsigned long long)j->id);
         }
@@ -92,10 +92,10 @@ static void drop_jobs(vd_client *c)
     c->deliver = c->deliver_tail = NULL;
 }
 
-void vd_client_close(vd_client *c)
+void daemon_client_close(daemon_client *c)
 {
     if (c->closing) return;
-    vd_daemon *d = c->d;
+    daemon_ctx *d = c->d;
     c->closing = 1;
     drop_jobs(c);
     if (c->prev) c->prev->next = c->next;
@@ -112,110 +112,110 @@ void vd_client_close(vd_client *c)
     uv_close((uv_handle_t *)&c->pipe, on_closed);
 }
 
-void vd_client_close_after_flush(vd_client *c)
+void daemon_client_close_after_flush(daemon_client *c)
 {
     if (c->closing) return;
     c->flush_close = 1;
     if (c->reading) uv_read_stop((uv_stream_t *)&c->pipe);
     c->reading = 0;
-    if (c->writes == 0) vd_client_close(c);
+    if (c->writes == 0) daemon_client_close(c);
 }
 
 /* A write finished (status 0) or failed (negative): the connection layer's
  * callback (daemon_conn.c). */
-static void on_written(vd_client *c, int status)
+static void on_written(daemon_client *c, int status)
 {
     if (status < 0) {
         log_debug("client pid %d: write failed: %s", (int)c->pid, uv_strerror(status));
-        vd_client_close(c);
+        daemon_client_close(c);
         return;
     }
     if (c->flush_close) {
-        if (c->writes == 0) vd_client_close(c);
+        if (c->writes == 0) daemon_client_close(c);
         return;
     }
-    if (!c->reading && vd_conn_queued(c) <= vd_conn_read_mark(c)) start_reading(c);
-    vd_client_pump(c);
+    if (!c->reading && daemon_conn_queued(c) <= daemon_conn_read_mark(c)) start_reading(c);
+    daemon_client_pump(c);
 }
 
 /* ---------------------------------------------------------------- results */
 
-void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg)
+void daemon_job_fail(daemon_ctx *d, daemon_job *j, int code, const char *msg)
 {
     (void)d;
-    vd_client *c = j->client;
+    daemon_client *c = j->client;
     log_info("job %llu: %s: %s", (unsigned long long)j->id, proto_error_code_name(code), msg);
     /* Out of the client's list first: a failed send closes the client,
      * which frees the jobs still listed. */
-    if (c) vd_client_unlink_job(c, j);
-    if (c) vd_client_error(c, j->id, code, "%s", msg);
-    vd_job_free(j);
+    if (c) daemon_client_unlink_job(c, j);
+    if (c) daemon_client_error(c, j->id, code, "%s", msg);
+    daemon_job_free(j);
 }
 
-void vd_job_finished(vd_daemon *d, vd_job *j)
+void daemon_job_finished(daemon_ctx *d, daemon_job *j)
 {
-    vd_client *c = j->client;
+    daemon_client *c = j->client;
     if (!c) {
-        vd_job_free(j);
+        daemon_job_free(j);
         return;
     }
-    if (j->cancel_code && j->code == 0) vd_job_stopped(j);
+    if (j->cancel_code && j->code == 0) daemon_job_stopped(j);
     if (j->code) {
-        vd_job_fail(d, j, j->code, j->message);
+        daemon_job_fail(d, j, j->code, j->message);
         return;
     }
     void *map = mmap(NULL, j->size, PROT_READ, MAP_SHARED, j->fd, 0);
     if (map == MAP_FAILED) {
-        vd_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, "cannot read the result back");
+        daemon_job_fail(d, j, VOXD__ERROR_CODE__INTERNAL, "cannot read the result back");
         return;
     }
     j->map = map;
     log_info("job %llu: %llu voxels, %llu bytes in %.3f s", (unsigned long long)j->id,
              (unsigned long long)j->voxels, (unsigned long long)j->size,
              j->t_voxelize + j->t_write);
-    j->state = VD_DELIVERING;
+    j->state = DAEMON_DELIVERING;
     j->next = NULL;
     if (c->deliver_tail) c->deliver_tail->next = j;
     else c->deliver = j;
     c->deliver_tail = j;
-    vd_client_pump(c);
+    daemon_client_pump(c);
 }
 
 /* Stream the finished results: one chunk at a time while the write queue
  * is short, then the summary. */
-void vd_client_pump(vd_client *c)
+void daemon_client_pump(daemon_client *c)
 {
-    while (!c->closing && c->deliver && vd_conn_queued(c) < vd_conn_pump_mark(c)) {
-        vd_job *j = c->deliver;
+    while (!c->closing && c->deliver && daemon_conn_queued(c) < daemon_conn_pump_mark(c)) {
+        daemon_job *j = c->deliver;
         if (j->sent < j->size) {
             uint64_t n = j->size - j->sent;
             if (n > c->d->cfg.chunk_size) n = c->d->cfg.chunk_size;
-            if (vd_send_chunk(c, j, j->map + j->sent, (size_t)n)) return;
+            if (daemon_send_chunk(c, j, j->map + j->sent, (size_t)n)) return;
             j->sent += n;
             continue;
         }
-        if (vd_send_summary(c, j)) return;
+        if (daemon_send_summary(c, j)) return;
         unlink_delivery(c, j);
-        vd_client_unlink_job(c, j);
-        vd_job_free(j);
+        daemon_client_unlink_job(c, j);
+        daemon_job_free(j);
     }
 }
 
 /* ---------------------------------------------------------------- requests */
 
-static int on_hello(vd_client *c, const Voxd__Hello *h)
+static int on_hello(daemon_client *c, const Voxd__Hello *h)
 {
     if (c->hello)
-        return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+        return daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                                "hello was already received on this connection");
     c->hello = 1;
     log_debug("client pid %d uid %u: hello from \"%s\"", (int)c->pid, (unsigned)c->uid,
               h->client ? h->client : "");
-    return vd_send_hello_ok(c);
+    return daemon_send_hello_ok(c);
 }
 
 /* A domain of 2 values (a cube) or 6 (checked). */
-static void job_domain(vd_job *j, const double *dom, size_t n)
+static void job_domain(daemon_job *j, const double *dom, size_t n)
 {
     for (int a = 0; a < 3; a++) {
         size_t k = n == 2 ? 0 : 2 * (size_t)a;
@@ -249,7 +249,7 @@ _Static_assert((int)VOXD__MESH_REPAIR__MESH_REPAIR_NONE == MESH_REPAIR_NONE + 1 
 /* Each kind's fields of the job from its Submit, as vox voxelize gives them
  * to the pipeline; its input inline and its file's name (proto_check made
  * sure the member is there). */
-static void implicit_from_request(vd_job *j, const Voxd__Submit *s)
+static void implicit_from_request(daemon_job *j, const Voxd__Submit *s)
 {
     const Voxd__Implicit *im = s->implicit;
     job_domain(j, im->domain, im->n_domain);
@@ -268,7 +268,7 @@ static const ProtobufCBinaryData *implicit_name(const Voxd__Submit *s)
     return &s->implicit->source_name;
 }
 
-static void mesh_from_request(vd_job *j, const Voxd__Submit *s)
+static void mesh_from_request(daemon_job *j, const Voxd__Submit *s)
 {
     const Voxd__Mesh *m = s->mesh;
     j->fit = m->n_domain == 0;
@@ -295,7 +295,7 @@ static const ProtobufCBinaryData *mesh_name(const Voxd__Submit *s)
     return &s->mesh->source_name;
 }
 
-static void csg_from_request(vd_job *j, const Voxd__Submit *s)
+static void csg_from_request(daemon_job *j, const Voxd__Submit *s)
 {
     job_domain(j, s->csg->domain, s->csg->n_domain);
     j->res = s->csg->res;
@@ -320,7 +320,7 @@ static const ProtobufCBinaryData *csg_name(const Voxd__Submit *s)
 static int csg_build(const voxd_config *cfg, const Voxd__Submit *s, csg_tree **out, char *msg,
                      size_t len)
 {
-    return vd_csg_tree(s->csg, cfg->max_expr_bytes, cfg->max_expr_depth, out, msg, len);
+    return daemon_csg_tree(s->csg, cfg->max_expr_bytes, cfg->max_expr_depth, out, msg, len);
 }
 
 /* What the daemon's Submit takes of each kind of job: the one place in this
@@ -330,7 +330,7 @@ typedef struct {
     const char *input;   /* what its input is, for messages */
     int channel;         /* VOXEL_CH_*: the channel when the Submit names none */
     int text;            /* its input is text: no NUL byte in it */
-    void (*from_request)(vd_job *j, const Voxd__Submit *s);
+    void (*from_request)(daemon_job *j, const Voxd__Submit *s);
     const ProtobufCBinaryData *(*input_of)(const Voxd__Submit *s);
     const ProtobufCBinaryData *(*name_of)(const Voxd__Submit *s);
     /* what is built and checked before the job is queued, or NULL */
@@ -338,21 +338,21 @@ typedef struct {
                  size_t len);
 } submit_kind;
 
-static const submit_kind submit_kinds[PIPELINE_KINDS] = {
-    [PIPELINE_IMPLICIT] = {VOXD__SUBMIT__JOB_IMPLICIT, "expression", VOXEL_CH_SURFACE, 1,
+static const submit_kind submit_kinds[ENGINE_PIPELINE_KINDS] = {
+    [ENGINE_PIPELINE_IMPLICIT] = {VOXD__SUBMIT__JOB_IMPLICIT, "expression", VOXEL_CH_SURFACE, 1,
                            implicit_from_request, implicit_input, implicit_name, NULL},
-    [PIPELINE_MESH] = {VOXD__SUBMIT__JOB_MESH, "mesh", VOXEL_CH_OCCUPANCY, 0,
+    [ENGINE_PIPELINE_MESH] = {VOXD__SUBMIT__JOB_MESH, "mesh", VOXEL_CH_OCCUPANCY, 0,
                        mesh_from_request, mesh_input, mesh_name, NULL},
-    [PIPELINE_CSG] = {VOXD__SUBMIT__JOB_CSG, "CSG tree", VOXEL_CH_DENSITY, 0,
+    [ENGINE_PIPELINE_CSG] = {VOXD__SUBMIT__JOB_CSG, "CSG tree", VOXEL_CH_DENSITY, 0,
                       csg_from_request, csg_input, csg_name, csg_build},
 };
 
 /* The Submit's kind (proto_check made sure it has one of the table's). */
-static pipeline_kind kind_of(const Voxd__Submit *s)
+static engine_pipeline_kind kind_of(const Voxd__Submit *s)
 {
-    for (int k = PIPELINE_IMPLICIT; k < PIPELINE_KINDS; k++)
-        if (submit_kinds[k].job_case == s->job_case) return (pipeline_kind)k;
-    return PIPELINE_IMPLICIT;
+    for (int k = ENGINE_PIPELINE_IMPLICIT; k < ENGINE_PIPELINE_KINDS; k++)
+        if (submit_kinds[k].job_case == s->job_case) return (engine_pipeline_kind)k;
+    return ENGINE_PIPELINE_IMPLICIT;
 }
 
 static int channel_of(const Voxd__Submit *s, const submit_kind *k)
@@ -366,7 +366,7 @@ static int channel_of(const Voxd__Submit *s, const submit_kind *k)
     }
 }
 
-static void job_from_request(vd_job *j, const Voxd__Submit *s)
+static void job_from_request(daemon_job *j, const Voxd__Submit *s)
 {
     j->kind = kind_of(s);
     const submit_kind *k = &submit_kinds[j->kind];
@@ -385,20 +385,20 @@ static void job_from_request(vd_job *j, const Voxd__Submit *s)
 #define INPUT_FIRST_ALLOC (64u << 10)
 
 /* What the job's input is, for messages. */
-static const char *input_name(const vd_job *j)
+static const char *input_name(const daemon_job *j)
 {
     return submit_kinds[j->kind].input;
 }
 
 /* The job's source: the inline input, or an empty buffer for the input to
  * come. */
-static int job_source(vd_job *j, const Voxd__Submit *s)
+static int job_source(daemon_job *j, const Voxd__Submit *s)
 {
     const ProtobufCBinaryData *src = submit_kinds[kind_of(s)].input_of(s);
     size_t cap = src->len + 1;
     if (s->input_bytes) {
         j->input_total = s->input_bytes;
-        j->state = VD_UPLOADING;
+        j->state = DAEMON_UPLOADING;
         cap = s->input_bytes < INPUT_FIRST_ALLOC ? (size_t)s->input_bytes + 1
                                                  : INPUT_FIRST_ALLOC;
     }
@@ -410,10 +410,10 @@ static int job_source(vd_job *j, const Voxd__Submit *s)
     return 0;
 }
 
-static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
+static daemon_job *job_new(daemon_client *c, const Voxd__Submit *s)
 {
     const voxd_config *cfg = &c->d->cfg;
-    vd_job *j = calloc(1, sizeof *j);
+    daemon_job *j = calloc(1, sizeof *j);
     if (!j || job_source(j, s)) {
         free(j);
         return NULL;
@@ -440,22 +440,22 @@ static vd_job *job_new(vd_client *c, const Voxd__Submit *s)
 /* Jobs of uid on the loop's lists: results waiting to be streamed and
  * inputs being uploaded hold memory as a running job does, so they count
  * against max_jobs_per_uid. */
-static unsigned loop_jobs_of(vd_daemon *d, uid_t uid)
+static unsigned loop_jobs_of(daemon_ctx *d, uid_t uid)
 {
     unsigned n = 0;
-    for (vd_client *o = d->clients; o; o = o->next) {
+    for (daemon_client *o = d->clients; o; o = o->next) {
         if (o->uid != uid) continue;
-        for (vd_job *j = o->deliver; j; j = j->next) n++;
-        for (vd_job *j = o->jobs; j; j = j->cnext) n += j->state == VD_UPLOADING;
+        for (daemon_job *j = o->deliver; j; j = j->next) n++;
+        for (daemon_job *j = o->jobs; j; j = j->cnext) n += j->state == DAEMON_UPLOADING;
     }
     return n;
 }
 
-static int on_submit(vd_client *c, const Voxd__Submit *s)
+static int on_submit(daemon_client *c, const Voxd__Submit *s)
 {
-    vd_daemon *d = c->d;
+    daemon_ctx *d = c->d;
     if (d->stopping)
-        return vd_client_error(c, 0, VOXD__ERROR_CODE__SHUTTING_DOWN,
+        return daemon_client_error(c, 0, VOXD__ERROR_CODE__SHUTTING_DOWN,
                                "the daemon is stopping and takes no new jobs");
     const submit_kind *k = &submit_kinds[kind_of(s)];
     csg_tree *tree = NULL;
@@ -463,35 +463,35 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
         char msg[300];
         int rc = k->build(&d->cfg, s, &tree, msg, sizeof msg);
         if (rc)
-            return vd_client_error(c, 0,
+            return daemon_client_error(c, 0,
                                    rc == -E2BIG    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
                                    : rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
                                                    : VOXD__ERROR_CODE__INTERNAL,
                                    "%s", msg);
     }
-    vd_job *j = job_new(c, s);
+    daemon_job *j = job_new(c, s);
     if (!j) {
         csg_tree_free(tree);
-        return vd_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
+        return daemon_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL, "out of memory");
     }
     j->csg = tree;
     j->id = d->next_job_id + 1;
     char why[300];
-    if (vd_memory_room(d, config_max_memory(&d->cfg), d->mem_shm, why, sizeof why)) {
-        vd_job_free(j);
-        return vd_client_error(c, 0, VOXD__ERROR_CODE__BUSY, "%s", why);
+    if (daemon_memory_room(d, config_max_memory(&d->cfg), d->mem_shm, why, sizeof why)) {
+        daemon_job_free(j);
+        return daemon_client_error(c, 0, VOXD__ERROR_CODE__BUSY, "%s", why);
     }
     uint32_t pos;
-    int code = vd_queue_admit(d, j, loop_jobs_of(d, c->uid), &pos);
+    int code = daemon_queue_admit(d, j, loop_jobs_of(d, c->uid), &pos);
     if (code == VOXD__ERROR_CODE__BUSY) {
-        vd_job_free(j);
-        return vd_client_error(c, 0, code,
+        daemon_job_free(j);
+        return daemon_client_error(c, 0, code,
                                "the job queue is full (max_queued_jobs %u); try again later",
                                d->cfg.max_queued_jobs);
     }
     if (code) {
-        vd_job_free(j);
-        return vd_client_error(c, 0, code,
+        daemon_job_free(j);
+        return daemon_client_error(c, 0, code,
                                "uid %u already has %u jobs queued, running or being "
                                "delivered (max_jobs_per_uid); wait for one to finish",
                                (unsigned)c->uid, d->cfg.max_jobs_per_uid);
@@ -502,7 +502,7 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
     j->client = c;
     j->cnext = c->jobs;
     c->jobs = j;
-    if (j->state == VD_UPLOADING) {
+    if (j->state == DAEMON_UPLOADING) {
         d->nuploading++;
         log_info("job %llu: accepted from uid %u, res %u, waiting for %llu bytes of %s",
                  (unsigned long long)j->id, (unsigned)c->uid, j->res,
@@ -512,14 +512,14 @@ static int on_submit(vd_client *c, const Voxd__Submit *s)
                  (unsigned long long)j->id, (unsigned)c->uid, j->res, j->source_len,
                  input_name(j));
     }
-    return vd_send_accepted(c, j->id, pos);
+    return daemon_send_accepted(c, j->id, pos);
 }
 
 /* ---------------------------------------------------------------- inputs */
 
 /* An upload that went wrong: the job's terminal error, its buffer freed. */
 __attribute__((format(printf, 4, 5)))
-static int upload_fail(vd_client *c, vd_job *j, int code, const char *fmt, ...)
+static int upload_fail(daemon_client *c, daemon_job *j, int code, const char *fmt, ...)
 {
     char msg[512];
     va_list ap;
@@ -527,23 +527,23 @@ static int upload_fail(vd_client *c, vd_job *j, int code, const char *fmt, ...)
     err_vfmt(msg, sizeof msg, 0, fmt, ap);
     va_end(ap);
     c->d->nuploading--;
-    vd_job_fail(c->d, j, code, msg);
+    daemon_job_fail(c->d, j, code, msg);
     return 0;
 }
 
 /* A failed send closes c and frees its jobs: the loops over c->jobs below
  * stop then. */
-void vd_client_fail_uploads(vd_client *c, int code, const char *msg)
+void daemon_client_fail_uploads(daemon_client *c, int code, const char *msg)
 {
-    for (vd_job *j = c->jobs, *next; j && !c->closing; j = next) {
+    for (daemon_job *j = c->jobs, *next; j && !c->closing; j = next) {
         next = j->cnext;
-        if (j->state == VD_UPLOADING) upload_fail(c, j, code, "%s", msg);
+        if (j->state == DAEMON_UPLOADING) upload_fail(c, j, code, "%s", msg);
     }
 }
 
 /* Append to the job's input, growing the buffer by doubling up to the
  * declared size (and its NUL). */
-static int input_append(vd_job *j, const uint8_t *p, size_t n)
+static int input_append(daemon_job *j, const uint8_t *p, size_t n)
 {
     size_t need = j->source_len + n + 1;
     if (need > j->input_cap) {
@@ -561,10 +561,10 @@ static int input_append(vd_job *j, const uint8_t *p, size_t n)
     return 0;
 }
 
-static vd_job *upload_of(vd_client *c, uint64_t id)
+static daemon_job *upload_of(daemon_client *c, uint64_t id)
 {
-    for (vd_job *j = c->jobs; j; j = j->cnext)
-        if (j->id == id && j->state == VD_UPLOADING) return j;
+    for (daemon_job *j = c->jobs; j; j = j->cnext)
+        if (j->id == id && j->state == DAEMON_UPLOADING) return j;
     return NULL;
 }
 
@@ -572,12 +572,12 @@ static vd_job *upload_of(vd_client *c, uint64_t id)
  * kind may hold (an expression no NUL; a mesh file any byte).  The last
  * one queues the job (admitted at its Submit, where it was counted as
  * queued). */
-static int on_input(vd_client *c, const Voxd__InputChunk *m)
+static int on_input(daemon_client *c, const Voxd__InputChunk *m)
 {
     unsigned long long id = (unsigned long long)m->job_id;
-    vd_job *j = upload_of(c, m->job_id);
+    daemon_job *j = upload_of(c, m->job_id);
     if (!j)
-        return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+        return daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                                "no job %llu of this connection is waiting for input", id);
     const uint8_t *data = m->data.data;
     size_t n = m->data.len;
@@ -603,17 +603,17 @@ static int on_input(vd_client *c, const Voxd__InputChunk *m)
     c->d->nuploading--;
     j->t_submit = clock_now(); /* Summary.seconds_queued: from here */
     log_info("job %llu: input complete (%zu bytes); queued", id, j->source_len);
-    vd_queue_push(c->d, j);
+    daemon_queue_push(c->d, j);
     return 0;
 }
 
 /* A job of this connection, or of another connection of the same uid
  * (`vox cancel ID` runs in a process of its own); root may cancel any. */
-static vd_job *find_job(vd_client *c, uint64_t id)
+static daemon_job *find_job(daemon_client *c, uint64_t id)
 {
-    for (vd_client *o = c->d->clients; o; o = o->next) {
+    for (daemon_client *o = c->d->clients; o; o = o->next) {
         if (o != c && c->uid != 0 && o->uid != c->uid) continue;
-        for (vd_job *j = o->jobs; j; j = j->cnext)
+        for (daemon_job *j = o->jobs; j; j = j->cnext)
             if (j->id == id) return j;
     }
     return NULL;
@@ -622,54 +622,54 @@ static vd_job *find_job(vd_client *c, uint64_t id)
 /* The job's terminal Error CANCELLED goes to the connection that submitted
  * it: now for a queued or delivering job, when the engine has stopped for
  * a running one. */
-static int on_cancel(vd_client *c, uint64_t id)
+static int on_cancel(daemon_client *c, uint64_t id)
 {
-    vd_job *j = find_job(c, id);
+    daemon_job *j = find_job(c, id);
     if (!j)
-        return vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+        return daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                                "no job %llu of this uid is uploading, queued, running or being delivered",
                                (unsigned long long)id);
     log_info("job %llu: cancel asked by client pid %d", (unsigned long long)id, (int)c->pid);
-    if (j->state == VD_UPLOADING) {
+    if (j->state == DAEMON_UPLOADING) {
         upload_fail(j->client, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
-    } else if (j->state == VD_DELIVERING) {
+    } else if (j->state == DAEMON_DELIVERING) {
         unlink_delivery(j->client, j);
-        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
-    } else if (vd_job_stop(c->d, j, VOXD__ERROR_CODE__CANCELLED)) {
-        vd_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
+        daemon_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
+    } else if (daemon_job_stop(c->d, j, VOXD__ERROR_CODE__CANCELLED)) {
+        daemon_job_fail(c->d, j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client");
     }
     return 0;
 }
 
-static void dispatch(vd_client *c, const Voxd__Request *r)
+static void dispatch(daemon_client *c, const Voxd__Request *r)
 {
     if (!c->hello && r->msg_case != VOXD__REQUEST__MSG_HELLO) {
-        vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+        daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                         "the first message must be hello (protocol version %u)",
                         PROTO_VERSION);
-        vd_client_close_after_flush(c);
+        daemon_client_close_after_flush(c);
         return;
     }
     switch (r->msg_case) {
     case VOXD__REQUEST__MSG_HELLO: on_hello(c, r->hello); break;
     case VOXD__REQUEST__MSG_SUBMIT: on_submit(c, r->submit); break;
     case VOXD__REQUEST__MSG_CANCEL: on_cancel(c, r->cancel->job_id); break;
-    case VOXD__REQUEST__MSG_STATUS: vd_send_status(c); break;
-    case VOXD__REQUEST__MSG_PING: vd_send_pong(c, r->ping->token); break;
+    case VOXD__REQUEST__MSG_STATUS: daemon_send_status(c); break;
+    case VOXD__REQUEST__MSG_PING: daemon_send_pong(c, r->ping->token); break;
     case VOXD__REQUEST__MSG_INPUT: on_input(c, r->input); break;
     default: break; /* proto_check_request refused it */
     }
 }
 
-static void on_frame(vd_client *c, const uint8_t *data, size_t len)
+static void on_frame(daemon_client *c, const uint8_t *data, size_t len)
 {
-    Voxd__Request *r = frame_unpack_request(data, len);
+    Voxd__Request *r = proto_frame_unpack_request(data, len);
     if (!r) {
-        log_limited(&c->d->loglim[VD_LOG_BAD_FRAME], LOG_LEVEL_INFO,
+        log_limited(&c->d->loglim[DAEMON_LOG_BAD_FRAME], LOG_LEVEL_INFO,
                     "client pid %d: garbage frame of %zu bytes; closing", (int)c->pid, len);
-        vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+        daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                         "malformed request: not a voxd protocol message");
-        vd_client_close_after_flush(c);
+        daemon_client_close_after_flush(c);
         return;
     }
     proto_limits lim;
@@ -678,11 +678,11 @@ static void on_frame(vd_client *c, const uint8_t *data, size_t len)
     if (proto_check_request(r, &lim, &pe) == 0) {
         dispatch(c, r);
     } else {
-        log_limited(&c->d->loglim[VD_LOG_BAD_REQUEST], LOG_LEVEL_DEBUG,
+        log_limited(&c->d->loglim[DAEMON_LOG_BAD_REQUEST], LOG_LEVEL_DEBUG,
                     "client pid %d: refused request: %s", (int)c->pid, pe.msg);
-        vd_client_error(c, 0, pe.code, "%s", pe.msg);
+        daemon_client_error(c, 0, pe.code, "%s", pe.msg);
         /* A bad hello ends the conversation; a bad job only the job. */
-        if (!c->hello) vd_client_close_after_flush(c);
+        if (!c->hello) daemon_client_close_after_flush(c);
     }
     voxd__request__free_unpacked(r, NULL);
 }
@@ -692,60 +692,60 @@ static void on_frame(vd_client *c, const uint8_t *data, size_t len)
 static void on_alloc(uv_handle_t *h, size_t hint, uv_buf_t *buf)
 {
     (void)hint;
-    vd_client *c = (vd_client *)h;
+    daemon_client *c = (daemon_client *)h;
     /* One buffer for every client: a read is consumed before the next. */
     *buf = uv_buf_init((char *)c->d->readbuf, sizeof c->d->readbuf);
 }
 
-static void on_bytes(vd_client *c, const uint8_t *p, size_t n)
+static void on_bytes(daemon_client *c, const uint8_t *p, size_t n)
 {
-    frame_view f;
+    proto_frame_view f;
     int rc = 0;
-    while (!c->closing && !c->flush_close && (rc = frame_decode(&c->dec, &p, &n, &f)) == 1)
+    while (!c->closing && !c->flush_close && (rc = proto_frame_decode(&c->dec, &p, &n, &f)) == 1)
         on_frame(c, f.data, f.len);
     if (rc < 0 && !c->closing) {
         char why[128];
-        frame_decoder_strerror(&c->dec, rc, why, sizeof why);
-        log_limited(&c->d->loglim[VD_LOG_BAD_FRAME], LOG_LEVEL_INFO,
+        proto_frame_decoder_strerror(&c->dec, rc, why, sizeof why);
+        log_limited(&c->d->loglim[DAEMON_LOG_BAD_FRAME], LOG_LEVEL_INFO,
                     "client pid %d: %s; closing", (int)c->pid, why);
-        vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+        daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                         "%s (max_frame %u); closing the connection", why, c->d->cfg.max_frame);
-        vd_client_close_after_flush(c);
+        daemon_client_close_after_flush(c);
         return;
     }
-    if (frame_decoder_pending(&c->dec) == 0) c->t_frame = 0;
+    if (proto_frame_decoder_pending(&c->dec) == 0) c->t_frame = 0;
     else if (c->t_frame == 0) c->t_frame = clock_now();
 }
 
 static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
 {
-    vd_client *c = (vd_client *)s;
+    daemon_client *c = (daemon_client *)s;
     if (c->closing) return;
     if (nread > 0) {
         on_bytes(c, (const uint8_t *)buf->base, (size_t)nread);
-        if (!c->closing && c->reading && vd_conn_queued(c) > vd_conn_read_mark(c)) {
+        if (!c->closing && c->reading && daemon_conn_queued(c) > daemon_conn_read_mark(c)) {
             uv_read_stop(s); /* on_write starts it again */
             c->reading = 0;
         }
         return;
     }
     if (nread == 0) return;
-    if (frame_decoder_finish(&c->dec) == -EPIPE)
-        log_limited(&c->d->loglim[VD_LOG_CUT], LOG_LEVEL_INFO,
+    if (proto_frame_decoder_finish(&c->dec) == -EPIPE)
+        log_limited(&c->d->loglim[DAEMON_LOG_CUT], LOG_LEVEL_INFO,
                     "client pid %d: connection ended inside a frame", (int)c->pid);
     else if (nread != UV_EOF)
         log_debug("client pid %d: read failed: %s", (int)c->pid, uv_strerror((int)nread));
-    vd_client_close(c);
+    daemon_client_close(c);
 }
 
-static void start_reading(vd_client *c)
+static void start_reading(daemon_client *c)
 {
     if (uv_read_start((uv_stream_t *)&c->pipe, on_alloc, on_read) == 0) c->reading = 1;
 }
 
 /* ---------------------------------------------------------------- accepting */
 
-static int peer_uid(vd_client *c)
+static int peer_uid(daemon_client *c)
 {
     struct ucred cred;
     socklen_t len = sizeof cred;
@@ -760,22 +760,22 @@ static int peer_uid(vd_client *c)
 
 /* Refuse with a typed error, then close once it is written. */
 __attribute__((format(printf, 3, 4)))
-static void refuse(vd_client *c, int code, const char *fmt, ...)
+static void refuse(daemon_client *c, int code, const char *fmt, ...)
 {
     char why[256];
     va_list ap;
     va_start(ap, fmt);
     err_vfmt(why, sizeof why, 0, fmt, ap);
     va_end(ap);
-    vd_client_error(c, 0, code, "%s", why);
-    vd_client_close_after_flush(c);
+    daemon_client_error(c, 0, code, "%s", why);
+    daemon_client_close_after_flush(c);
 }
 
 /* Admitted connections of uid. */
-static unsigned clients_of(const vd_daemon *d, uid_t uid)
+static unsigned clients_of(const daemon_ctx *d, uid_t uid)
 {
     unsigned n = 0;
-    for (const vd_client *o = d->clients; o; o = o->next) n += o->admitted && o->uid == uid;
+    for (const daemon_client *o = d->clients; o; o = o->next) n += o->admitted && o->uid == uid;
     return n;
 }
 
@@ -784,11 +784,11 @@ static unsigned clients_of(const vd_daemon *d, uid_t uid)
  * limit while its error is written, so a flood of refused connections
  * takes no slot from anyone.  Each refusal kind is logged through its
  * own rate limit.  1 when admitted. */
-static int admit(vd_daemon *d, vd_client *c)
+static int admit(daemon_ctx *d, daemon_client *c)
 {
     unsigned mine, share = config_clients_per_uid(&d->cfg);
     if (!config_uid_allowed(&d->cfg, c->uid)) {
-        log_limited(&d->loglim[VD_LOG_NOT_ALLOWED], LOG_LEVEL_WARN,
+        log_limited(&d->loglim[DAEMON_LOG_NOT_ALLOWED], LOG_LEVEL_WARN,
                     "refused a connection from uid %u (pid %d): not in allow_uids",
                     (unsigned)c->uid, (int)c->pid);
         refuse(c, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
@@ -796,14 +796,14 @@ static int admit(vd_daemon *d, vd_client *c)
         return 0;
     }
     if (d->nadmitted >= d->cfg.max_clients) {
-        log_limited(&d->loglim[VD_LOG_FULL], LOG_LEVEL_WARN,
+        log_limited(&d->loglim[DAEMON_LOG_FULL], LOG_LEVEL_WARN,
                     "refused a connection from uid %u: %u clients (max_clients)",
                     (unsigned)c->uid, d->nadmitted);
         refuse(c, VOXD__ERROR_CODE__BUSY, "too many connections (max_clients); try again later");
         return 0;
     }
     if ((mine = clients_of(d, c->uid)) >= share) {
-        log_limited(&d->loglim[VD_LOG_PER_UID], LOG_LEVEL_WARN,
+        log_limited(&d->loglim[DAEMON_LOG_PER_UID], LOG_LEVEL_WARN,
                     "refused a connection from uid %u (pid %d): it has %u connections "
                     "(max_clients_per_uid)",
                     (unsigned)c->uid, (int)c->pid, mine);
@@ -818,15 +818,15 @@ static int admit(vd_daemon *d, vd_client *c)
     return 1;
 }
 
-void vd_on_connection(uv_stream_t *server, int status)
+void daemon_on_connection(uv_stream_t *server, int status)
 {
-    vd_daemon *d = server->data;
+    daemon_ctx *d = server->data;
     if (status < 0) {
-        log_limited(&d->loglim[VD_LOG_ACCEPT], LOG_LEVEL_WARN, "accept: %s",
+        log_limited(&d->loglim[DAEMON_LOG_ACCEPT], LOG_LEVEL_WARN, "accept: %s",
                     uv_strerror(status));
         return;
     }
-    vd_client *c = calloc(1, sizeof *c);
+    daemon_client *c = calloc(1, sizeof *c);
     if (!c) return;
     c->d = d;
     c->written = on_written;
@@ -834,14 +834,14 @@ void vd_on_connection(uv_stream_t *server, int status)
         uv_close((uv_handle_t *)&c->pipe, (uv_close_cb)free);
         return;
     }
-    frame_decoder_init(&c->dec, d->cfg.max_frame);
+    proto_frame_decoder_init(&c->dec, d->cfg.max_frame);
     c->t_connect = clock_now();
     c->next = d->clients;
     if (d->clients) d->clients->prev = c;
     d->clients = c;
     d->nclients++;
     if (peer_uid(c)) {
-        vd_client_close(c);
+        daemon_client_close(c);
     } else if (admit(d, c)) {
         log_debug("client pid %d uid %u connected", (int)c->pid, (unsigned)c->uid);
         start_reading(c);
@@ -852,11 +852,11 @@ void vd_on_connection(uv_stream_t *server, int status)
 
 /* An upload that stopped holds its buffer: it ends as a stalled frame
  * would, after the client timeout. */
-static void tick_uploads(vd_client *c, double now, double t)
+static void tick_uploads(daemon_client *c, double now, double t)
 {
-    for (vd_job *j = c->jobs, *next; j && !c->closing; j = next) {
+    for (daemon_job *j = c->jobs, *next; j && !c->closing; j = next) {
         next = j->cnext;
-        if (j->state == VD_UPLOADING && now - j->t_input > t)
+        if (j->state == DAEMON_UPLOADING && now - j->t_input > t)
             upload_fail(c, j, VOXD__ERROR_CODE__TIMEOUT,
                         "the job's input stopped: no chunk for %.0f s (client_timeout); "
                         "%zu of %llu bytes came",
@@ -864,17 +864,17 @@ static void tick_uploads(vd_client *c, double now, double t)
     }
 }
 
-void vd_client_tick(vd_client *c, double now)
+void daemon_client_tick(daemon_client *c, double now)
 {
     double t = client_timeout(c);
     if (c->closing) return;
     tick_uploads(c, now, t);
     if (c->closing) return;
     if (c->writes && now - c->t_write > t) {
-        log_limited(&c->d->loglim[VD_LOG_STALLED], LOG_LEVEL_INFO,
+        log_limited(&c->d->loglim[DAEMON_LOG_STALLED], LOG_LEVEL_INFO,
                     "client pid %d: has not read its replies for %.0f s; dropping it",
                     (int)c->pid, t);
-        vd_client_close(c);
+        daemon_client_close(c);
         return;
     }
     if (c->flush_close) return;
@@ -882,16 +882,16 @@ void vd_client_tick(vd_client *c, double now)
                        : c->t_frame && now - c->t_frame > t ? "a frame did not complete"
                                                              : NULL;
     if (!what) return;
-    log_limited(&c->d->loglim[VD_LOG_STALLED], LOG_LEVEL_INFO,
+    log_limited(&c->d->loglim[DAEMON_LOG_STALLED], LOG_LEVEL_INFO,
                 "client pid %d: %s within %.0f s; closing", (int)c->pid, what, t);
-    vd_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
+    daemon_client_error(c, 0, VOXD__ERROR_CODE__INVALID_INPUT,
                     "%s within %.0f s; closing the connection", what, t);
-    vd_client_close_after_flush(c);
+    daemon_client_close_after_flush(c);
 }
 
 /* ---------------------------------------------------------------- engine news */
 
-static void flush_elog(vd_daemon *d)
+static void flush_elog(daemon_ctx *d)
 {
     for (unsigned i = 0; i < d->elog_n; i++)
         log_msg(d->elog[i].level, "%s", d->elog[i].text);
@@ -903,14 +903,14 @@ static void flush_elog(vd_daemon *d)
 }
 
 /* The engine thread said something: log lines, progress, finished jobs. */
-void vd_on_wake(uv_async_t *a)
+void daemon_on_wake(uv_async_t *a)
 {
-    vd_daemon *d = a->data;
+    daemon_ctx *d = a->data;
     pthread_mutex_lock(&d->mu);
     flush_elog(d);
-    vd_job *done = d->done;
+    daemon_job *done = d->done;
     d->done = d->done_tail = NULL;
-    vd_job *r = d->running;
+    daemon_job *r = d->running;
     engine_progress p;
     int send = r && r->client && r->progress_seq != r->progress_sent;
     if (send) {
@@ -918,11 +918,11 @@ void vd_on_wake(uv_async_t *a)
         r->progress_sent = r->progress_seq;
     }
     pthread_mutex_unlock(&d->mu);
-    if (send && !vd_client_backed_up(r->client)) vd_send_progress(r->client, r, &p);
+    if (send && !daemon_client_backed_up(r->client)) daemon_send_progress(r->client, r, &p);
     while (done) {
-        vd_job *j = done;
+        daemon_job *j = done;
         done = j->next;
         j->next = NULL;
-        vd_job_finished(d, j);
+        daemon_job_finished(d, j);
     }
 }

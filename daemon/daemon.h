@@ -9,7 +9,7 @@
  *     job queue (push), cancels  --- mu/cv -->   compiles, voxelizes, writes
  *     results to the clients     <-- async ---   the VOD into a memfd
  *
- * Everything a client sends goes through frame_decode and
+ * Everything a client sends goes through proto_frame_decode and
  * proto_check_request once, in daemon_client.c; past that it is trusted.
  *
  * Threads.  d->mu guards what both threads touch: the queue, the running
@@ -39,15 +39,15 @@
 #include "pipeline.h"
 #include "voxd.pb-c.h"
 
-#define VD_SERVER_NAME "voxd 0.1"
-#define VD_TICK_MS 100                /* housekeeping period */
-#define VD_READ_BUF (64u << 10)       /* one read's buffer, shared by all clients */
-#define VD_ELOG_LINES 32              /* engine thread log lines awaiting the loop */
-#define VD_STOP_GRACE_MS 2000         /* fast stop: how long clients get to read their errors */
+#define DAEMON_SERVER_NAME "voxd 0.1"
+#define DAEMON_TICK_MS 100                /* housekeeping period */
+#define DAEMON_READ_BUF (64u << 10)       /* one read's buffer, shared by all clients */
+#define DAEMON_ELOG_LINES 32              /* engine thread log lines awaiting the loop */
+#define DAEMON_STOP_GRACE_MS 2000         /* fast stop: how long clients get to read their errors */
 
-typedef struct vd_daemon vd_daemon;
-typedef struct vd_client vd_client;
-typedef struct vd_job vd_job;
+typedef struct daemon_ctx daemon_ctx;
+typedef struct daemon_client daemon_client;
+typedef struct daemon_job daemon_job;
 
 /* Settings from the command line that the config file does not hold. */
 typedef struct {
@@ -57,25 +57,25 @@ typedef struct {
     unsigned client_timeout;   /* --client-timeout: overrides the file's; 0 = not given */
     int stall_timeout;         /* --worker-stall-timeout: overrides the file's; -1 = not given */
     int ready_fd;              /* --daemon: write 1 byte here once serving; -1 none */
-} vd_options;
+} daemon_options;
 
 /* UPLOADING: accepted, its input coming in InputChunks; on the client's
  * list only (loop only) until the last byte, then queued. */
-enum vd_job_state { VD_QUEUED, VD_RUNNING, VD_DONE, VD_DELIVERING, VD_UPLOADING };
+enum daemon_job_state { DAEMON_QUEUED, DAEMON_RUNNING, DAEMON_DONE, DAEMON_DELIVERING, DAEMON_UPLOADING };
 
 /* How the daemon is stopping: a graceful stop lets the jobs finish. */
-enum vd_stop { VD_STOP_NONE, VD_STOP_GRACEFUL, VD_STOP_FAST };
+enum daemon_stop { DAEMON_STOP_NONE, DAEMON_STOP_GRACEFUL, DAEMON_STOP_FAST };
 
-struct vd_job {
+struct daemon_job {
     uint64_t id;
     uid_t uid;
-    vd_client *client;         /* NULL once the client is gone (loop only) */
-    vd_job *next;              /* queue / done list (under mu) */
-    vd_job *cnext;             /* the client's jobs (loop only) */
-    enum vd_job_state state;   /* under mu */
+    daemon_client *client;         /* NULL once the client is gone (loop only) */
+    daemon_job *next;              /* queue / done list (under mu) */
+    daemon_job *cnext;             /* the client's jobs (loop only) */
+    enum daemon_job_state state;   /* under mu */
 
     /* the request, copied and checked */
-    pipeline_kind kind;        /* PIPELINE_IMPLICIT, _MESH or _CSG */
+    engine_pipeline_kind kind;        /* ENGINE_PIPELINE_IMPLICIT, _MESH or _CSG */
     /* The job's input: the expression, or the mesh file's bytes (freed
      * once parsed); NUL-terminated; inline, or the input as it arrives. */
     char *source;
@@ -125,18 +125,18 @@ struct vd_job {
     uint64_t size, sent;       /* bytes of the VOD, bytes sent as chunks */
     uint64_t voxels;
     int has_figures;           /* the job passed its checks: fig below */
-    pipeline_figures fig;      /* its kind's own figures (pipeline_report.fig) */
+    engine_pipeline_figures fig;      /* its kind's own figures (engine_pipeline_report.fig) */
     vod_stats st;
     double t_voxelize, t_write;
     grid_spec grid;            /* the job's grid, for its Summary (set when it succeeded) */
     uint32_t mpi_ranks;        /* it ran through MPI on this many ranks; 0 = the engine */
 };
 
-struct vd_client {
+struct daemon_client {
     uv_pipe_t pipe;            /* first: handle->data is not needed */
-    vd_daemon *d;
-    vd_client *prev, *next;    /* d->clients */
-    frame_decoder dec;
+    daemon_ctx *d;
+    daemon_client *prev, *next;    /* d->clients */
+    proto_frame_decoder dec;
     uid_t uid;
     pid_t pid;
     int hello;                 /* Hello received */
@@ -148,25 +148,25 @@ struct vd_client {
     double t_connect;          /* monotonic seconds */
     double t_frame;            /* when the partial frame began, 0 = none */
     double t_write;            /* last write progress while writes pend */
-    vd_job *jobs;              /* its jobs in every state (cnext) */
-    vd_job *deliver, *deliver_tail; /* finished jobs to stream, in order (next) */
+    daemon_job *jobs;              /* its jobs in every state (cnext) */
+    daemon_job *deliver, *deliver_tail; /* finished jobs to stream, in order (next) */
     /* A write finished (0) or failed (a negative libuv error): set by
      * daemon_client.c, called by daemon_conn.c. */
-    void (*written)(vd_client *c, int status);
+    void (*written)(daemon_client *c, int status);
 };
 
 /* Kinds of repeated per-connection messages, each rate-limited on its own
  * (log_limit): a flood of one kind writes a few lines and a count. */
-enum vd_log_kind {
-    VD_LOG_ACCEPT,      /* accept(2) failed (out of descriptors) */
-    VD_LOG_NOT_ALLOWED, /* refused: uid not in allow_uids */
-    VD_LOG_PER_UID,     /* refused: max_clients_per_uid */
-    VD_LOG_FULL,        /* refused: max_clients */
-    VD_LOG_BAD_FRAME,   /* garbage or a bad frame length: closed */
-    VD_LOG_BAD_REQUEST, /* a request the checker refused (debug) */
-    VD_LOG_STALLED,     /* a client timed out */
-    VD_LOG_CUT,         /* a connection ended inside a frame */
-    VD_LOG_KINDS
+enum daemon_log_kind {
+    DAEMON_LOG_ACCEPT,      /* accept(2) failed (out of descriptors) */
+    DAEMON_LOG_NOT_ALLOWED, /* refused: uid not in allow_uids */
+    DAEMON_LOG_PER_UID,     /* refused: max_clients_per_uid */
+    DAEMON_LOG_FULL,        /* refused: max_clients */
+    DAEMON_LOG_BAD_FRAME,   /* garbage or a bad frame length: closed */
+    DAEMON_LOG_BAD_REQUEST, /* a request the checker refused (debug) */
+    DAEMON_LOG_STALLED,     /* a client timed out */
+    DAEMON_LOG_CUT,         /* a connection ended inside a frame */
+    DAEMON_LOG_KINDS
 };
 
 typedef struct {
@@ -176,7 +176,7 @@ typedef struct {
     double vps;
     engine_worker_state state;
     uint32_t replaced, stalls, unanswered; /* engine_worker_info's */
-} vd_worker_snap;
+} daemon_worker_snap;
 
 /* The MPI settings (config's mpi_*), the engine thread's copy. */
 typedef struct {
@@ -185,12 +185,12 @@ typedef struct {
     char mpirun[PATH_MAX];     /* "" = mpirun on the PATH */
     char args[512];
     char vox_mpi[PATH_MAX];    /* "" = beside voxd */
-} vd_mpi;
+} daemon_mpi;
 
-struct vd_daemon {
+struct daemon_ctx {
     uv_loop_t *loop;
     voxd_config cfg;           /* loop's copy: limits of new requests */
-    vd_options opt;
+    daemon_options opt;
     char shm_name[64];
     double t_start;
 
@@ -200,14 +200,14 @@ struct vd_daemon {
     uv_timer_t tick, stop_timer;
     uv_async_t wake;
     uv_check_t turn;           /* after every turn of the loop: time to exit? */
-    enum vd_stop stopping;     /* VD_STOP_NONE until a signal */
+    enum daemon_stop stopping;     /* DAEMON_STOP_NONE until a signal */
     int exiting;               /* handles are being closed */
-    cli_exit exit_code;        /* vd_run's: CLI_EXIT_OK, or CLI_EXIT_FAILED at a failed start */
+    cli_exit exit_code;        /* daemon_run's: CLI_EXIT_OK, or CLI_EXIT_FAILED at a failed start */
 
-    vd_client *clients;
+    daemon_client *clients;
     unsigned nclients;         /* connections, the ones being refused included */
     unsigned nadmitted;        /* connections admitted: what max_clients bounds */
-    log_limit loglim[VD_LOG_KINDS];
+    log_limit loglim[DAEMON_LOG_KINDS];
     unsigned nuploading;       /* jobs waiting for their input (loop only) */
     /* Bytes of the results held in memory files: the running job's as it
      * is written, and the finished ones' until they are delivered or
@@ -215,7 +215,7 @@ struct vd_daemon {
      * published through it. */
     atomic_ullong results_held;
     uint64_t next_job_id;
-    uint8_t readbuf[VD_READ_BUF];
+    uint8_t readbuf[DAEMON_READ_BUF];
 
     /* ---- shared with the engine thread, under mu ---- */
     pthread_mutex_t mu;
@@ -223,123 +223,123 @@ struct vd_daemon {
     pthread_cond_t started_cv; /* loop: the engine was created (or not) */
     pthread_t thread;
     int thread_started;
-    vd_job *queue, *queue_tail;
+    daemon_job *queue, *queue_tail;
     unsigned nqueued;
-    vd_job *running;
-    vd_job *done, *done_tail;
+    daemon_job *running;
+    daemon_job *done, *done_tail;
     int quit, reload;
     int engine_state;          /* 0 starting, 1 ready, -errno failed */
     char engine_err[256];
     engine_opts eopts;         /* the next engine's (reload copies in) */
-    vd_mpi mpi;                /* the next job's (reload copies in) */
+    daemon_mpi mpi;                /* the next job's (reload copies in) */
     uint64_t mem_max, mem_shm; /* max_memory (resolved) and shm_size, for the
                                   engine thread's budget checks */
     int cpus[CONFIG_MAX_CPUS];
     int nworkers;
-    vd_worker_snap workers[ENGINE_MAX_WORKERS];
-    struct { int level; char text[300]; } elog[VD_ELOG_LINES];
+    daemon_worker_snap workers[ENGINE_MAX_WORKERS];
+    struct { int level; char text[300]; } elog[DAEMON_ELOG_LINES];
     unsigned elog_n, elog_dropped;
 };
 
 /* voxd.c: the whole server, from a loaded config to the end.  The caller
  * has opened the log, holds the lock and removed stale files.  Returns the
  * process exit code. */
-int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name);
+int daemon_run(const voxd_config *cfg, const daemon_options *opt, const char *shm_name);
 
 /* daemon.c */
 /* The configuration the options name: the file (or the defaults when no
  * file was named and /etc/voxd/voxd.conf does not exist), then the
  * command line's overrides (--socket, --workers, --client-timeout).
  * 0 or -errno with a message in err. */
-int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen);
-void vd_engine_opts(vd_daemon *d, const voxd_config *c); /* under mu */
+int daemon_load_config(const daemon_options *o, voxd_config *c, char *err, size_t errlen);
+void daemon_engine_opts(daemon_ctx *d, const voxd_config *c); /* under mu */
 
 /* daemon_engine.c */
-int vd_engine_start(vd_daemon *d);
-void vd_engine_stop(vd_daemon *d);
-void vd_job_free(vd_job *j);
+int daemon_engine_start(daemon_ctx *d);
+void daemon_engine_stop(daemon_ctx *d);
+void daemon_job_free(daemon_job *j);
 /* daemon_csg.c: a checked Csg message's tree, its expressions compiled
  * under the limits given; 0, or a negative errno with msg saying why
  * (-EINVAL a bad expression, -E2BIG one over a limit). */
-int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
+int daemon_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
                 csg_tree **out, char *msg, size_t len);
 /* The job's input (len bytes) cut into the leaves that were sent as input
  * (data_bytes: a length and no data yet), in node order.  0, -EINVAL when
  * the lengths do not add up to len, -ENOMEM. */
-int vd_csg_input(csg_tree *t, const char *input, size_t len);
+int daemon_csg_input(csg_tree *t, const char *input, size_t len);
 /* Set j's terminal error from its cancel_code (a person's words for it). */
-void vd_job_stopped(vd_job *j);
+void daemon_job_stopped(daemon_job *j);
 /* Push a checked job onto the queue; the caller counted the limits. */
-void vd_queue_push(vd_daemon *d, vd_job *j);
+void daemon_queue_push(daemon_ctx *d, daemon_job *j);
 /* Admit j if the queue and j's uid have room (its jobs uploading, queued,
  * running, or finished and not yet delivered: `delivering` of them, the
  * uploading and the delivering, are on the loop's lists; the queue's room
  * counts the uploading jobs as queued): 0 (queued, or left uploading when
- * j is VD_UPLOADING; *pos = jobs ahead of it), or
+ * j is DAEMON_UPLOADING; *pos = jobs ahead of it), or
  * VOXD__ERROR_CODE__BUSY / __LIMIT_EXCEEDED. */
-int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos);
+int daemon_queue_admit(daemon_ctx *d, daemon_job *j, unsigned delivering, uint32_t *pos);
 /* Stop a job wherever it is: queued ones are taken out and get their
  * terminal error now (1 is returned), a running one is told to stop with
  * code and gets it when the engine returns (0). */
-int vd_job_stop(vd_daemon *d, vd_job *j, int code);
-int vd_busy(vd_daemon *d); /* jobs queued, running or delivering */
+int daemon_job_stop(daemon_ctx *d, daemon_job *j, int code);
+int daemon_busy(daemon_ctx *d); /* jobs queued, running or delivering */
 /* The memory budget (max_memory): room for one more job's result beside
  * the segment (shm bytes) and the results held?  0, or
  * VOXD__ERROR_CODE__BUSY with why in msg. */
-int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg,
+int daemon_memory_room(daemon_ctx *d, uint64_t max_memory, uint64_t shm, char *msg,
                    size_t len);
 
 /* daemon_mpi.c: jobs through mpirun ... vox_mpi (engine thread) */
-int vd_mpi_wants(const vd_mpi *m, const vd_job *j);
+int daemon_mpi_wants(const daemon_mpi *m, const daemon_job *j);
 /* What an MPI run tells the engine thread while it runs. */
 typedef struct {
     void (*started)(void *ud, const char *line);          /* mpirun runs: a log line */
     void (*progress)(void *ud, double fraction, uint64_t voxels); /* subtrees done */
     void *ud;
-} vd_mpi_hooks;
+} daemon_mpi_hooks;
 /* Run j through MPI: 0 with *result an open descriptor of its VOD file
  * (unlinked) and j's voxels, st and times from vox_mpi's summary;
  * -ECANCELED when j's cancel flag stopped it (the caller sets why); or -1
  * with j's error set. */
-int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h);
+int daemon_mpi_run(const daemon_mpi *m, daemon_job *j, int *result, const daemon_mpi_hooks *h);
 
 /* daemon_conn.c: a connection's output */
 /* Frame r onto c's write queue; 0, or -errno after c->written(c, error). */
-int vd_client_send(vd_client *c, const Voxd__Reply *r);
-size_t vd_conn_queued(vd_client *c);          /* bytes waiting in user space */
-size_t vd_conn_pump_mark(const vd_client *c); /* results stream below this */
-size_t vd_conn_read_mark(const vd_client *c); /* requests are read below this */
-int vd_client_backed_up(vd_client *c);        /* progress replies are dropped */
+int daemon_client_send(daemon_client *c, const Voxd__Reply *r);
+size_t daemon_conn_queued(daemon_client *c);          /* bytes waiting in user space */
+size_t daemon_conn_pump_mark(const daemon_client *c); /* results stream below this */
+size_t daemon_conn_read_mark(const daemon_client *c); /* requests are read below this */
+int daemon_client_backed_up(daemon_client *c);        /* progress replies are dropped */
 
 /* daemon_client.c */
 /* The engine thread said something (d->wake): log lines, progress,
  * finished jobs. */
-void vd_on_wake(uv_async_t *a);
-void vd_on_connection(uv_stream_t *server, int status);
-void vd_client_close(vd_client *c);
-void vd_client_close_after_flush(vd_client *c);
-void vd_client_tick(vd_client *c, double now);
-int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ...)
+void daemon_on_wake(uv_async_t *a);
+void daemon_on_connection(uv_stream_t *server, int status);
+void daemon_client_close(daemon_client *c);
+void daemon_client_close_after_flush(daemon_client *c);
+void daemon_client_tick(daemon_client *c, double now);
+int daemon_client_error(daemon_client *c, uint64_t job_id, int code, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
-void vd_client_pump(vd_client *c);
+void daemon_client_pump(daemon_client *c);
 /* The job's terminal error to its client (if any), the job out of the
  * client's list and freed. */
-void vd_job_fail(vd_daemon *d, vd_job *j, int code, const char *msg);
+void daemon_job_fail(daemon_ctx *d, daemon_job *j, int code, const char *msg);
 /* A finished job from the engine: its terminal error, or on to delivery. */
-void vd_job_finished(vd_daemon *d, vd_job *j);
-void vd_client_unlink_job(vd_client *c, vd_job *j);
+void daemon_job_finished(daemon_ctx *d, daemon_job *j);
+void daemon_client_unlink_job(daemon_client *c, daemon_job *j);
 /* End every job of c still uploading its input with code (a stop). */
-void vd_client_fail_uploads(vd_client *c, int code, const char *msg);
+void daemon_client_fail_uploads(daemon_client *c, int code, const char *msg);
 
 /* daemon_reply.c */
-int vd_send_hello_ok(vd_client *c);
-int vd_send_accepted(vd_client *c, uint64_t id, uint32_t pos);
-int vd_send_progress(vd_client *c, const vd_job *j, const engine_progress *p);
-int vd_send_chunk(vd_client *c, const vd_job *j, const uint8_t *data, size_t n);
-int vd_send_summary(vd_client *c, const vd_job *j);
-int vd_send_status(vd_client *c);
-int vd_send_pong(vd_client *c, uint64_t token);
+int daemon_send_hello_ok(daemon_client *c);
+int daemon_send_accepted(daemon_client *c, uint64_t id, uint32_t pos);
+int daemon_send_progress(daemon_client *c, const daemon_job *j, const engine_progress *p);
+int daemon_send_chunk(daemon_client *c, const daemon_job *j, const uint8_t *data, size_t n);
+int daemon_send_summary(daemon_client *c, const daemon_job *j);
+int daemon_send_status(daemon_client *c);
+int daemon_send_pong(daemon_client *c, uint64_t token);
 /* Text for an Error message: printable ASCII, newline and tab; the rest '?'. */
-void vd_clean_text(char *s);
+void daemon_clean_text(char *s);
 
 #endif

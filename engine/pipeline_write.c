@@ -9,7 +9,7 @@
 #include "master.h"
 #include "voxel.h"
 
-int pipeline_fail(pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
+int engine_pipeline_fail(engine_pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
 {
     r->err.failure = f;
     r->err.code = rc;
@@ -35,10 +35,10 @@ static int watched_write(void *ud, const void *buf, size_t n)
     return rc;
 }
 
-int pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sink *sink,
-                          pipeline_report *r)
+int engine_pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sink *sink,
+                          engine_pipeline_report *r)
 {
-    r->stage = PIPELINE_WRITE;
+    r->stage = ENGINE_PIPELINE_WRITE;
     watched_sink w = {sink, 0};
     vod_sink ws = {watched_write, &w};
     char err[sizeof r->err.message] = "";
@@ -46,12 +46,12 @@ int pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sin
     int rc = t ? vod_write_octree(t, v, &ws, &r->st, err, sizeof err)
                : vod_write(s, v, &ws, &r->st, err, sizeof err);
     r->t_write = clock_now() - t0;
-    if (rc && w.rc == rc) return pipeline_fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
-    if (rc) return pipeline_fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
+    if (rc && w.rc == rc) return engine_pipeline_fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
+    if (rc) return engine_pipeline_fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
     return 0;
 }
 
-uint32_t pipeline_band(const pipeline_job *job)
+uint32_t engine_pipeline_band(const engine_pipeline_job *job)
 {
     return job->band ? job->band : VOXEL_BAND_DEFAULT;
 }

@@ -9,7 +9,7 @@
  * job.csgp), the output as out.vod.  mpirun is started in a session of
  * its own (posix_spawn: no fork of this threaded process) with the signals
  * the daemon blocks unblocked; a cancel sends mpirun SIGTERM, then every
- * process of the session SIGKILL after VD_MPI_KILL_GRACE_S.  vox_mpi unlinks its ranks'
+ * process of the session SIGKILL after DAEMON_MPI_KILL_GRACE_S.  vox_mpi unlinks its ranks'
  * shared memory as soon as it is mapped and its workers die with their
  * rank (docs/mpi.md, "Failures"), so killing the group leaves nothing. */
 #include <dirent.h>
@@ -34,17 +34,17 @@
 #include "vod.h"
 #include "voxel.h"
 
-#define VD_MPI_POLL_NS 20000000L   /* 20 ms between looks at the child and the cancel flag */
-#define VD_MPI_PROGRESS_TURNS 5     /* polls between looks at the progress line */
-#define VD_MPI_KILL_GRACE_S 2.0    /* SIGTERM, then this long, then SIGKILL */
-#define VD_MPI_MAX_ARGS 96
-#define VD_MPI_ERR_LINES 4          /* lines of its output an error gives ... */
-#define VD_MPI_ERR_CHARS 340        /* ... at most this many characters, the last */
-#define VD_MPI_OUT_MAX 8192        /* bytes of mpirun's output kept for messages */
+#define DAEMON_MPI_POLL_NS 20000000L   /* 20 ms between looks at the child and the cancel flag */
+#define DAEMON_MPI_PROGRESS_TURNS 5     /* polls between looks at the progress line */
+#define DAEMON_MPI_KILL_GRACE_S 2.0    /* SIGTERM, then this long, then SIGKILL */
+#define DAEMON_MPI_MAX_ARGS 96
+#define DAEMON_MPI_ERR_LINES 4          /* lines of its output an error gives ... */
+#define DAEMON_MPI_ERR_CHARS 340        /* ... at most this many characters, the last */
+#define DAEMON_MPI_OUT_MAX 8192        /* bytes of mpirun's output kept for messages */
 
 extern char **environ;
 
-int vd_mpi_wants(const vd_mpi *m, const vd_job *j)
+int daemon_mpi_wants(const daemon_mpi *m, const daemon_job *j)
 {
     /* the distance channel does not run through vox_mpi yet */
     return m->hostfile[0] && j->res >= m->min_res && j->channel != VOXEL_CH_DISTANCE;
@@ -53,9 +53,9 @@ int vd_mpi_wants(const vd_mpi *m, const vd_job *j)
 /* ---------------------------------------------------------------- the command */
 
 typedef struct {
-    char *argv[VD_MPI_MAX_ARGS + 1];
+    char *argv[DAEMON_MPI_MAX_ARGS + 1];
     int n;
-    char words[sizeof ((vd_mpi *)0)->args];
+    char words[sizeof ((daemon_mpi *)0)->args];
     char num[10][32];               /* numbers formatted for argv */
     char dom[160];
     char file[PATH_MAX + 16], out[PATH_MAX + 16], exe[PATH_MAX];
@@ -63,7 +63,7 @@ typedef struct {
 
 static int add(cmdline *c, const char *a)
 {
-    if (c->n >= VD_MPI_MAX_ARGS) return -E2BIG;
+    if (c->n >= DAEMON_MPI_MAX_ARGS) return -E2BIG;
     c->argv[c->n++] = (char *)a;
     c->argv[c->n] = NULL;
     return 0;
@@ -79,7 +79,7 @@ static int add_all(cmdline *c, const char *const *a, size_t n)
 /* vox_mpi: the configured path, else the one beside this voxd (a build
  * tree), else plain vox_mpi, which mpirun looks for on the PATH of each
  * host (make install puts voxd in sbin and vox_mpi in bin). */
-static int vox_mpi_path(const vd_mpi *m, char *buf, size_t len)
+static int vox_mpi_path(const daemon_mpi *m, char *buf, size_t len)
 {
     if (m->vox_mpi[0]) return snprintf(buf, len, "%s", m->vox_mpi) < (int)len ? 0 : -ENAMETOOLONG;
     char self[PATH_MAX];
@@ -101,16 +101,16 @@ static const char *channel_name(int ch)
 
 /* The job's input file's name in dir: the expression, the mesh file's
  * bytes, the packed CSG tree (csg_pack.h). */
-static void input_name(cmdline *c, const vd_job *j, const char *dir)
+static void input_name(cmdline *c, const daemon_job *j, const char *dir)
 {
     snprintf(c->file, sizeof c->file, "%s/%s", dir,
-             j->kind == PIPELINE_MESH ? "job.mesh" : j->kind == PIPELINE_CSG ? "job.csgp"
+             j->kind == ENGINE_PIPELINE_MESH ? "job.mesh" : j->kind == ENGINE_PIPELINE_CSG ? "job.csgp"
                                                                            : "job.vx");
 }
 
 /* vox_mpi's subcommand and what its kind takes: vox voxelize -f's,
  * vox voxelize --mesh's, vox csg's with voxd's extras (docs/mpi.md). */
-static int kind_args(cmdline *c, const vd_job *j)
+static int kind_args(cmdline *c, const daemon_job *j)
 {
     static const char *const modes[] = {"solid", "surface", "surface6", "conservative",
                                         "interior"};
@@ -121,7 +121,7 @@ static int kind_args(cmdline *c, const vd_job *j)
     snprintf(c->num[6], sizeof c->num[6], "%u", o->band);
     snprintf(c->num[7], sizeof c->num[7], "%.17g", j->weld_eps);
     snprintf(c->num[8], sizeof c->num[8], "%llu", (unsigned long long)j->csg_source_bytes);
-    int is_mesh = j->kind == PIPELINE_MESH, dist = j->channel == VOXEL_CH_DISTANCE;
+    int is_mesh = j->kind == ENGINE_PIPELINE_MESH, dist = j->channel == VOXEL_CH_DISTANCE;
     const char *implicit[] = {"voxelize", "-f", c->file, "--schedule",
                               j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree"};
     const char *msh[] = {
@@ -133,7 +133,7 @@ static int kind_args(cmdline *c, const vd_job *j)
         j->mesh_format ? "--mesh-format" : NULL, mesh_format_name(j->mesh_format)};
     const char *csg[] = {"csg", c->file, "--packed", "--source-bytes", c->num[8]};
     /* a NULL option drops the value after it too */
-    if (j->kind == PIPELINE_CSG) return add_all(c, csg, sizeof csg / sizeof *csg);
+    if (j->kind == ENGINE_PIPELINE_CSG) return add_all(c, csg, sizeof csg / sizeof *csg);
     if (!is_mesh) return add_all(c, implicit, sizeof implicit / sizeof *implicit);
     int rc = 0;
     for (size_t i = 0; i < sizeof msh / sizeof *msh && !rc; i++)
@@ -143,7 +143,7 @@ static int kind_args(cmdline *c, const vd_job *j)
 }
 
 /* mpirun ARGS -np R --hostfile H vox_mpi KIND... -o DIR/out.vod ... */
-static int build_cmd(cmdline *c, const vd_mpi *m, const vd_job *j, const char *dir)
+static int build_cmd(cmdline *c, const daemon_mpi *m, const daemon_job *j, const char *dir)
 {
     int rc;
     c->n = 0;
@@ -163,7 +163,7 @@ static int build_cmd(cmdline *c, const vd_mpi *m, const vd_job *j, const char *d
     snprintf(c->out, sizeof c->out, "%s/out.vod", dir);
     const char *head[] = {"-np", c->num[0], "--hostfile", m->hostfile, c->exe};
     /* a mesh fitted to its bounding box has no domain */
-    int domain = j->kind != PIPELINE_MESH || !j->fit;
+    int domain = j->kind != ENGINE_PIPELINE_MESH || !j->fit;
     const char *rest[] = {
         "--source-name", j->source_name ? j->source_name : "",
         "-o", c->out, "-r", c->num[2], "-w", c->num[1],
@@ -248,7 +248,7 @@ static void output_tail(int fd, char *buf, size_t len)
 
 /* vox_mpi --progress's latest line ("\r  level L  NN.N%  V voxels ..."),
  * to h->progress. */
-static void read_progress(int fd, const vd_mpi_hooks *h)
+static void read_progress(int fd, const daemon_mpi_hooks *h)
 {
     char buf[256];
     off_t end = lseek(fd, 0, SEEK_END);
@@ -301,24 +301,24 @@ static int kill_session(pid_t sid, int sig)
 /* Wait for mpirun; on a cancel, SIGTERM (mpirun ends its ranks), then
  * SIGKILL to its whole session.  Whatever is left in the session once
  * mpirun is gone is killed too.  Returns mpirun's wait status. */
-static int wait_child(pid_t pid, atomic_int *cancel, int out, const vd_mpi_hooks *h)
+static int wait_child(pid_t pid, atomic_int *cancel, int out, const daemon_mpi_hooks *h)
 {
     double t_kill = 0;
     int st = 0, sent = 0;
     for (unsigned turn = 1;; turn++) {
-        if (turn % VD_MPI_PROGRESS_TURNS == 0) read_progress(out, h);
+        if (turn % DAEMON_MPI_PROGRESS_TURNS == 0) read_progress(out, h);
         pid_t r = waitpid(pid, &st, WNOHANG);
         if (r == pid || (r < 0 && errno != EINTR)) break;
         /* relaxed: a flag, see engine_job.cancel */
         if (!sent && atomic_load_explicit(cancel, memory_order_relaxed)) {
             kill(pid, SIGTERM);
             sent = 1;
-            t_kill = clock_now() + VD_MPI_KILL_GRACE_S;
+            t_kill = clock_now() + DAEMON_MPI_KILL_GRACE_S;
         } else if (sent == 1 && clock_now() > t_kill) {
             kill_session(pid, SIGKILL);
             sent = 2;
         }
-        struct timespec ts = {0, VD_MPI_POLL_NS};
+        struct timespec ts = {0, DAEMON_MPI_POLL_NS};
         nanosleep(&ts, NULL);
     }
     /* what mpirun left behind (a rank it lost track of) */
@@ -341,7 +341,7 @@ static int write_all(int fd, const char *p, size_t n)
 /* vox_mpi's summary: "...: V voxels on a ... grid in T s on R ranks ...,
  * VOD written in T s" (a CSG job's "V voxels at or above S on a ...") and
  * "  B bytes, K bricks (N non-empty nodes), CRC X". */
-static void parse_summary(const char *text, vd_job *j)
+static void parse_summary(const char *text, daemon_job *j)
 {
     const char *p = strstr(text, " voxels on a ");
     if (!p) p = strstr(text, " voxels at or above S on a ");
@@ -384,22 +384,22 @@ static void remove_dir(const char *dir)
 }
 
 /* The error for a run that did not end with a file. */
-static void run_failed(vd_job *j, int st, const char *cmd, int out)
+static void run_failed(daemon_job *j, int st, const char *cmd, int out)
 {
-    char tail[VD_MPI_OUT_MAX];
+    char tail[DAEMON_MPI_OUT_MAX];
     output_tail(out, tail, sizeof tail);
     /* the last lines: vox_mpi's message, or mpirun's */
     size_t n = strlen(tail);
     while (n && (tail[n - 1] == '\n' || tail[n - 1] == ' ')) tail[--n] = '\0';
     const char *t = tail + n;
     for (int lines = 0; t > tail; t--)
-        if (t[-1] == '\n' && ++lines == VD_MPI_ERR_LINES) break;
+        if (t[-1] == '\n' && ++lines == DAEMON_MPI_ERR_LINES) break;
     char how[64];
     if (WIFSIGNALED(st)) snprintf(how, sizeof how, "was killed by signal %d", WTERMSIG(st));
     else if (WEXITSTATUS(st) == 127) snprintf(how, sizeof how, "could not be started");
     else snprintf(how, sizeof how, "exited with status %d", WEXITSTATUS(st));
     size_t tl = strlen(t);
-    if (tl > VD_MPI_ERR_CHARS) t += tl - VD_MPI_ERR_CHARS; /* the end says most */
+    if (tl > DAEMON_MPI_ERR_CHARS) t += tl - DAEMON_MPI_ERR_CHARS; /* the end says most */
     snprintf(j->message, sizeof j->message, "the MPI run (%.80s) %.40s: %.340s", cmd, how,
              t[0] ? t : "it printed nothing");
     j->code = VOXD__ERROR_CODE__INTERNAL;
@@ -408,11 +408,11 @@ static void run_failed(vd_job *j, int st, const char *cmd, int out)
 /* The job's input as vox_mpi reads it: the expression's text, the mesh
  * file's bytes (kept for this), the CSG tree packed (csg_pack.h) with its
  * leaves' files.  0, or a negative errno. */
-static int write_input(const cmdline *c, const vd_job *j)
+static int write_input(const cmdline *c, const daemon_job *j)
 {
     uint8_t *packed = NULL;
     size_t len = j->source_len;
-    int rc = j->kind == PIPELINE_CSG ? csg_tree_pack(j->csg, &packed, &len) : 0;
+    int rc = j->kind == ENGINE_PIPELINE_CSG ? csg_tree_pack(j->csg, &packed, &len) : 0;
     int fd = rc ? -1 : open(c->file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
     if (!rc && fd < 0) rc = -errno;
     if (!rc) rc = write_all(fd, packed ? (const char *)packed : j->source, len);
@@ -422,7 +422,7 @@ static int write_input(const cmdline *c, const vd_job *j)
 }
 
 /* The job's file and mpirun started: 0, or a negative errno. */
-static int start_run(cmdline *c, const vd_mpi *m, const vd_job *j, const char *dir, int out,
+static int start_run(cmdline *c, const daemon_mpi *m, const daemon_job *j, const char *dir, int out,
                      pid_t *pid)
 {
     int rc = build_cmd(c, m, j, dir);
@@ -431,7 +431,7 @@ static int start_run(cmdline *c, const vd_mpi *m, const vd_job *j, const char *d
 }
 
 /* mpirun has ended (st) or been stopped: the file, or j's error. */
-static int end_run(const cmdline *c, vd_job *j, int st, int out)
+static int end_run(const cmdline *c, daemon_job *j, int st, int out)
 {
     /* relaxed: a flag, see engine_job.cancel; the caller says why it stopped */
     if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) return -ECANCELED;
@@ -440,13 +440,13 @@ static int end_run(const cmdline *c, vd_job *j, int st, int out)
         run_failed(j, st, c->argv[0], out);
         return -1;
     }
-    char text[VD_MPI_OUT_MAX];
+    char text[DAEMON_MPI_OUT_MAX];
     output_tail(out, text, sizeof text);
     parse_summary(text, j);
     return fd;
 }
 
-int vd_mpi_run(const vd_mpi *m, vd_job *j, int *result, const vd_mpi_hooks *h)
+int daemon_mpi_run(const daemon_mpi *m, daemon_job *j, int *result, const daemon_mpi_hooks *h)
 {
     *result = -1;
     const char *tmp = getenv("TMPDIR");

@@ -43,14 +43,14 @@ static int push_octant(engine *e, implicit_job *ij, grid_octant o)
                             ? IMPLICIT_CHILDREN
                             : IMPLICIT_SUBTREE};
     memcpy(t.arg, &o, sizeof o);
-    int rc = sched_push(e, &t);
+    int rc = engine_sched_push(e, &t);
     if (!rc) ij->pending[o.level]++;
     return rc;
 }
 
 static int outside_res(engine *e, unsigned x, unsigned y, unsigned z)
 {
-    const implicit_block *b = sched_block(e);
+    const implicit_block *b = engine_sched_block(e);
     const uint32_t *res = b->grid.res;
     return x >= res[0] || y >= res[1] || z >= res[2];
 }
@@ -70,7 +70,7 @@ static int take_octants(engine *e, int i, const shm_entry *en)
     if (en->count != 1 || t->op != IMPLICIT_CHILDREN || o.level + 1 != task.level ||
         !inside(task, o.x, o.y, o.z) || (o.x | o.y | o.z) & ((1u << o.level) - 1) ||
         outside_res(e, o.x, o.y, o.z))
-        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "worker %d sent octant (%u,%u,%u) level %u, not a "
                           "child of its task",
                           i, o.x, o.y, o.z, o.level);
@@ -86,19 +86,19 @@ static int take_voxels(engine *e, int i, const shm_entry *en)
     uint32_t n = en->count; /* read once: the worker's memory */
     if (n == 0 || n > IMPLICIT_BATCH ||
         (t->op == IMPLICIT_CHILDREN && (n != 1 || task.level != 1)))
-        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "worker %d sent a batch of %u voxels", i, n);
     const grid_voxel *vox = (const grid_voxel *)en->payload;
     for (uint32_t j = 0; j < n; j++) {
         grid_voxel v = vox[j];
         if (!inside(task, v.x, v.y, v.z) || outside_res(e, v.x, v.y, v.z) ||
             v.value == 0)
-            return sched_fail(e, ENGINE_FAULT, -EPROTO,
+            return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                               "worker %d sent voxel (%u,%u,%u) outside its "
                               "task", i, v.x, v.y, v.z);
         ij->stored++;
         if (octree_store(&e->tree, v.x, v.y, v.z, v.value))
-            return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+            return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
                               "the octree needs more than %u cells; raise the "
                               "shared memory size (now %zu MiB)",
                               e->tree.capacity, e->seg.bytes >> 20);
@@ -111,7 +111,7 @@ static int implicit_take(engine *e, int i, const shm_entry *en)
     uint32_t type = en->type; /* read once: the worker's memory */
     if (type == IMPLICIT_OCTANTS) return take_octants(e, i, en);
     if (type == IMPLICIT_VOXELS) return take_voxels(e, i, en);
-    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+    return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u", i, type);
 }
 
@@ -119,7 +119,7 @@ static void implicit_done(engine *e, int i, const shm_task *t, int error)
 {
     implicit_job *ij = e->job;
     if (error)
-        sched_fail(e, ENGINE_FAULT, error, "worker %d failed: %s", i,
+        engine_sched_fail(e, ENGINE_FAULT, error, "worker %d failed: %s", i,
                    strerror(-error));
     int l = implicit_octant(t).level;
     ij->pending[l]--;
@@ -173,17 +173,17 @@ static int implicit_setup(engine *e, void *job)
     implicit_job *ij = job;
     const engine_job *j = ij->job;
     e->result = RESULT_NONE;
-    sched_hold(e, 0); /* the last job's result: overwritten now */
-    if (!j->tape) return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
+    engine_sched_hold(e, 0); /* the last job's result: overwritten now */
+    if (!j->tape) return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
     if (grid_check(&j->grid))
-        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's grid is invalid");
+        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's grid is invalid");
     shm_header *h = e->h;
     size_t tb = expr_tape_bytes(j->tape);
     uint64_t end = h->data_off + h->data_bytes;
     uint64_t tape_off = (h->data_off + sizeof(implicit_block) + 63) / 64 * 64;
     uint64_t tree_off = (tape_off + tb + 63) / 64 * 64;
     if (tree_off + 2 * sizeof(octree_cell) > end)
-        return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+        return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
                           "the expression (%zu bytes compiled) leaves no room "
                           "for the octree; raise the shared memory size", tb);
     uint64_t cap = (end - tree_off) / sizeof(octree_cell);
@@ -200,7 +200,7 @@ static int implicit_setup(engine *e, void *job)
     grid_octant root = j->root ? *j->root : grid_root(&j->grid);
     if (root.level < 1 || root.level > depth || !inside(grid_root(&j->grid), root.x, root.y, root.z) ||
         (root.x | root.y | root.z) & ((1u << root.level) - 1))
-        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's root octant is not one of its grid");
+        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's root octant is not one of its grid");
     ij->total_vol = volume(root.level);
     ij->split = j->split_level > 0    ? j->split_level
                 : root.level - 3 < 1 ? 1
@@ -213,13 +213,13 @@ static int implicit_finish(engine *e, void *job, int rc)
 {
     implicit_job *ij = job;
     engine_result *r = ij->r;
-    sched_job_totals(e, r);
+    engine_sched_job_totals(e, r);
     r->seconds = clock_now() - e->t0;
-    if (rc) return sched_job_failed(e, r, rc);
+    if (rc) return engine_sched_job_failed(e, r, rc);
     e->result = RESULT_OCTREE;
     /* the octree stays for the encode kind (octree_store clears whole
      * blocks ahead: up to block_end) */
-    sched_hold(e, tree_bytes(e, e->tree.block_end));
+    engine_sched_hold(e, tree_bytes(e, e->tree.block_end));
     r->voxels = e->tree.voxels;
     r->cells = e->tree.used;
     r->duplicates = ij->stored - e->tree.voxels;
@@ -228,25 +228,25 @@ static int implicit_finish(engine *e, void *job, int rc)
 
 /* ---- the pipeline's side (master.h) ---- */
 
-static int implicit_domain(const pipeline_job *job, double lo[3], double hi[3],
-                           pipeline_report *r)
+static int implicit_domain(const engine_pipeline_job *job, double lo[3], double hi[3],
+                           engine_pipeline_report *r)
 {
     (void)lo, (void)hi; /* the job's own */
-    if (job->vod.channel == VOXEL_CH_DISTANCE && pipeline_band(job) > CSG_DIST_MAX_BAND)
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
-                             pipeline_band(job), CSG_DIST_MAX_BAND);
+    if (job->vod.channel == VOXEL_CH_DISTANCE && engine_pipeline_band(job) > CSG_DIST_MAX_BAND)
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
+                             engine_pipeline_band(job), CSG_DIST_MAX_BAND);
     if (job->vod.channel == VOXEL_CH_DISTANCE && !job->implicit.source)
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
                              "the distance job has no expression text");
     return job->implicit.tape ? 0
-                              : pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+                              : engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
                                               "the job has no expression");
 }
 
-static void implicit_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
+static void implicit_meta(const engine_pipeline_job *job, job_meta *m, char *pairs, size_t len)
 {
     if (job->vod.channel == VOXEL_CH_DISTANCE) { /* what a level set's readers need */
-        snprintf(pairs, len, "distance_band=%u\ndistance_units=world\n", pipeline_band(job));
+        snprintf(pairs, len, "distance_band=%u\ndistance_units=world\n", engine_pipeline_band(job));
         m->kind_pairs = pairs;
     }
     m->source = job->implicit.source;
@@ -258,7 +258,7 @@ static void implicit_meta(const pipeline_job *job, job_meta *m, char *pairs, siz
  * implicit leaf (the job's text), its k the band; csg_dist does the rest
  * (the octree keeps nothing of the space it prunes, whose sign a distance
  * needs). */
-static int distance_tree(const pipeline_job *job, csg_tree **out)
+static int distance_tree(const engine_pipeline_job *job, csg_tree **out)
 {
     csg_tree *t = calloc(1, sizeof *t);
     char *text = malloc(job->implicit.source_len + 1);
@@ -276,18 +276,18 @@ static int distance_tree(const pipeline_job *job, csg_tree **out)
     n->kind = CSG_IMPLICIT;
     n->a = n->b = -1;
     n->expr_len = (uint32_t)job->implicit.source_len;
-    n->k = pipeline_band(job);
+    n->k = engine_pipeline_band(job);
     snprintf(n->name, sizeof n->name, "implicit");
     *out = t;
     return 0;
 }
 
-static int implicit_rewrite(pipeline_job *run, csg_tree **owned)
+static int implicit_rewrite(engine_pipeline_job *run, csg_tree **owned)
 {
     if (run->vod.channel != VOXEL_CH_DISTANCE) return 0;
     int rc = distance_tree(run, owned);
     if (rc) return rc;
-    run->kind = PIPELINE_CSG;
+    run->kind = ENGINE_PIPELINE_CSG;
     run->csg.tree = *owned;
     return 0;
 }
@@ -296,15 +296,15 @@ static int implicit_rewrite(pipeline_job *run, csg_tree **owned)
 
 /* The serial algorithm: its octree in a sparse private mapping, touched
  * only as cells are handed out. */
-static int implicit_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
-                           pipeline_report *r)
+static int implicit_serial(engine_pipeline_job *job, const vod_params *v, vod_sink *sink,
+                           engine_pipeline_report *r)
 {
     size_t bytes = octree_arena_bytes(SERIAL_CELLS);
     void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
-    r->stage = PIPELINE_VOXELIZE;
+    r->stage = ENGINE_PIPELINE_VOXELIZE;
     if (arena == MAP_FAILED)
-        return pipeline_fail(r, ENGINE_FAULT, -errno, "cannot map the octree: %s",
+        return engine_pipeline_fail(r, ENGINE_FAULT, -errno, "cannot map the octree: %s",
                              strerror(errno));
     octree t;
     octree_init(&t, arena, SERIAL_CELLS, r->grid.depth);
@@ -313,16 +313,16 @@ static int implicit_serial(pipeline_job *job, const vod_params *v, vod_sink *sin
     r->t_voxelize = clock_now() - t0;
     r->voxels = t.voxels;
     if (rc == -ENOMEM)
-        pipeline_fail(r, ENGINE_LIMIT, rc, "the octree outgrew its 4 GiB arena");
+        engine_pipeline_fail(r, ENGINE_LIMIT, rc, "the octree outgrew its 4 GiB arena");
     else if (rc)
-        pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
-    if (!rc) rc = pipeline_write_serial(&t, NULL, v, sink, r);
+        engine_pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    if (!rc) rc = engine_pipeline_write_serial(&t, NULL, v, sink, r);
     munmap(arena, bytes);
     return rc;
 }
 
-static int implicit_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
-                             engine_result *er, pipeline_report *r)
+static int implicit_voxelize(engine *e, engine_pipeline_job *job, const engine_sched_watch *w,
+                             engine_result *er, engine_pipeline_report *r)
 {
     engine_job ej = {.tape = job->implicit.tape, .grid = r->grid,
                      .schedule = job->schedule, .progress = w->progress,
@@ -330,7 +330,7 @@ static int implicit_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
     return engine_voxelize(e, &ej, er);
 }
 
-const master_kind kind_implicit = {
+const engine_kind engine_kind_implicit = {
     .name = "implicit",
     .id = SHM_KIND_IMPLICIT,
     .setup = implicit_setup,
@@ -350,6 +350,6 @@ const master_kind kind_implicit = {
 int engine_voxelize(engine *e, const engine_job *job, engine_result *r)
 {
     implicit_job ij = {.job = job, .r = r};
-    sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    return sched_run_job(e, &kind_implicit, &ij, &w, r);
+    engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
+    return engine_sched_run_job(e, &engine_kind_implicit, &ij, &w, r);
 }

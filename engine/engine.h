@@ -10,7 +10,7 @@
  * on a futex when there is nothing to do.  Workers sleep on their own futex
  * when idle.  The same workers then encode the VOD's bricks in parallel.
  *
- * Inside, the engine is a core and job kinds (engine/kinds.h): the worker
+ * Inside, the engine is a core and job kinds (shm/kinds.h): the worker
  * pool (pool.c: fork, pin, reap, re-fork), the scheduler of Figure 3
  * (sched.c: queues, work stack, sleeping, deaths), and one file per kind
  * (kind_implicit.c: this header's voxelization; kind_encode.c: its VOD
@@ -351,7 +351,7 @@ int engine_iso(engine *e, const engine_iso_job *job, iso_mesh *out, engine_resul
  * engine_release. */
 octree *engine_octree(engine *e);
 /* The caller is done with the last job's result: its pages (beyond
- * keep_bytes) go back to tmpfs now.  pipeline_run calls it at the end of
+ * keep_bytes) go back to tmpfs now.  engine_pipeline_run calls it at the end of
  * every job. */
 void engine_release(engine *e);
 /* From now on the pages a job gives back at its end, and engine_release's,

@@ -34,8 +34,8 @@ typedef struct {
  * workers.) */
 static uint64_t place_mesh(engine *e, const mesh *m, mesh_block *b)
 {
-    b->vertices_off = sched_align64(e->h->data_off + sizeof *b);
-    b->triangles_off = sched_align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
+    b->vertices_off = engine_sched_align64(e->h->data_off + sizeof *b);
+    b->triangles_off = engine_sched_align64(b->vertices_off + (uint64_t)m->n_vertices * 12);
     return b->triangles_off + (uint64_t)m->n_triangles * 12;
 }
 
@@ -75,11 +75,11 @@ static int copy_bins(engine *e, const mesh *m, const mesh_bins *bins,
 {
     uint64_t n = (uint64_t)bins->tiles[0] * bins->tiles[1];
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->start_off = sched_align64(place_mesh(e, m, b));
-    b->ids_off = sched_align64(b->start_off + (n + 1) * sizeof(uint64_t));
-    b->stats_off = sched_align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
-    *vol_off = sched_align64(b->stats_off + n * sizeof(mesh_tile_stats));
-    if (*vol_off >= end) return sched_no_room(e, "the mesh");
+    b->start_off = engine_sched_align64(place_mesh(e, m, b));
+    b->ids_off = engine_sched_align64(b->start_off + (n + 1) * sizeof(uint64_t));
+    b->stats_off = engine_sched_align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
+    *vol_off = engine_sched_align64(b->stats_off + n * sizeof(mesh_tile_stats));
+    if (*vol_off >= end) return engine_sched_no_room(e, "the mesh");
     copy_fresh(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
     copy_fresh(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
     memset(shm_at(e->seg.base, b->stats_off), 0, n * sizeof(mesh_tile_stats));
@@ -110,7 +110,7 @@ static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
     /* a distance tile without triangles still writes its +w bricks */
     bool dist = mj->job->opts.channel == VOXEL_CH_DISTANCE;
     uint32_t *order = malloc((n ? n : 1) * sizeof *order);
-    if (!order) return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
+    if (!order) return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
     for (uint32_t t = 0; t < n; t++)
         if ((bins->start[t + 1] > bins->start[t] || dist) && tile_wanted(mj->job, bins, t))
             order[k++] = t;
@@ -120,7 +120,7 @@ static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
         shm_task t = {.kind = SHM_KIND_MESH, .op = MESH_TILES};
         mesh_task_arg a = {order[i], 1};
         memcpy(t.arg, &a, sizeof a);
-        rc = sched_push(e, &t);
+        rc = engine_sched_push(e, &t);
     }
     mj->ntiles = k;
     free(order);
@@ -133,7 +133,7 @@ static int init_volume(engine *e, const mesh_vox_opts *o, const grid_spec *g,
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
     int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
                              mesh_vox_bits(o), MESH_VOLUME_BRICK);
-    if (rc) return sched_no_room(e, "the volume's tables");
+    if (rc) return engine_sched_no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;
 }
@@ -162,15 +162,15 @@ static int mesh_setup(engine *e, void *job)
     const engine_mesh_job *j = mj->job;
     char msg[sizeof e->err.message];
     e->result = RESULT_NONE;
-    sched_hold(e, 0); /* the last job's result: overwritten now */
+    engine_sched_hold(e, 0); /* the last job's result: overwritten now */
     if (!j->mesh || !j->mesh->n_triangles || grid_check(&j->grid))
-        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the mesh job is invalid");
+        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the mesh job is invalid");
     if (mesh_vox_check(&j->opts, msg, sizeof msg))
-        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "%s", msg);
+        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "%s", msg);
     mesh_block *b = shm_at(e->seg.base, e->h->data_off);
     memset(b, 0, sizeof *b);
     if (place_mesh(e, j->mesh, b) > e->h->data_off + e->h->data_bytes)
-        return sched_no_room(e, "the mesh");
+        return engine_sched_no_room(e, "the mesh");
     mesh_copy copy = {j->mesh, shm_at(e->seg.base, b->vertices_off),
                       shm_at(e->seg.base, b->triangles_off)};
     par_task copying;
@@ -180,7 +180,7 @@ static int mesh_setup(engine *e, void *job)
     int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, par_cpus(), &bins);
     mj->r->fig.mesh.t_bin = clock_now() - t0;
     par_join(&copying);
-    if (rc) return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+    if (rc) return engine_sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));
     b->grid = j->grid;
     b->opts = j->opts;
@@ -205,7 +205,7 @@ static int mesh_setup(engine *e, void *job)
 
 static int mesh_take(engine *e, int i, const shm_entry *en)
 {
-    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+    return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u in a mesh tile", i,
                       en->type);
 }
@@ -224,9 +224,9 @@ static void mesh_done(engine *e, int i, const shm_task *t, int error)
     char what[64];
     mesh_describe(t, what, sizeof what);
     if (error == -ENOMEM)
-        sched_no_room(e, "the volume");
+        engine_sched_no_room(e, "the volume");
     else
-        sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
+        engine_sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
                    strerror(-error));
 }
 
@@ -244,7 +244,7 @@ static void mesh_progress(engine *e, engine_progress *p)
     if (e->volume) { /* the pool grows as the workers write */
         vod_volume_info in;
         vod_volume_get_info(e->volume, &in);
-        const mesh_block *b = sched_block(e);
+        const mesh_block *b = engine_sched_block(e);
         p->shm_used = b->volume_off - e->h->data_off + in.bytes_used;
     }
 }
@@ -252,7 +252,7 @@ static void mesh_progress(engine *e, engine_progress *p)
 /* The tiles' counts, and the volume checked before the writer reads it. */
 static int collect(engine *e, mesh_job *mj)
 {
-    const mesh_block *b = sched_block(e);
+    const mesh_block *b = engine_sched_block(e);
     engine_result *r = mj->r;
     const mesh_tile_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint64_t t = 0; t < (uint64_t)b->tiles[0] * b->tiles[1]; t++) {
@@ -270,10 +270,10 @@ static int collect(engine *e, mesh_job *mj)
     if (!bad && b->mip_levels) /* every tile built its column's */
         bad = vod_volume_mips_low(e->volume, b->mip_channel, (int)b->mip_levels);
     if (bad)
-        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "the workers left the volume inconsistent");
     /* the volume stays for the encode kind */
-    sched_hold(e, b->volume_off - e->h->data_off + in.bytes_used);
+    engine_sched_hold(e, b->volume_off - e->h->data_off + in.bytes_used);
     return 0;
 }
 
@@ -281,12 +281,12 @@ static int mesh_finish(engine *e, void *job, int rc)
 {
     mesh_job *mj = job;
     engine_result *r = mj->r;
-    sched_job_totals(e, r);
+    engine_sched_job_totals(e, r);
     r->octants = 0;
     r->fig.mesh.tiles = mj->ntiles;
     if (!rc) rc = collect(e, mj);
     r->seconds = clock_now() - e->t0;
-    if (rc) return sched_job_failed(e, r, rc);
+    if (rc) return engine_sched_job_failed(e, r, rc);
     e->result = RESULT_VOLUME;
     return 0;
 }
@@ -295,17 +295,17 @@ static int mesh_finish(engine *e, void *job, int rc)
 
 /* A mesh job's domain: its bounding box grown by pad voxels each side,
  * the voxel size such that res voxels span the longest side of that. */
-static int mesh_fit(const pipeline_job *job, double lo[3], double hi[3],
-                    pipeline_report *r)
+static int mesh_fit(const engine_pipeline_job *job, double lo[3], double hi[3],
+                    engine_pipeline_report *r)
 {
     const mesh *m = job->mesh.mesh;
     double ext = 0;
     for (int a = 0; a < 3; a++)
         if ((double)m->hi[a] - m->lo[a] > ext) ext = (double)m->hi[a] - m->lo[a];
     if (!(ext > 0))
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the mesh has an empty bounding box");
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the mesh has an empty bounding box");
     if ((uint64_t)job->mesh.pad * 2 >= job->res)
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
                              "a padding of %u voxels leaves no room in %u voxels",
                              job->mesh.pad, job->res);
     double vs = ext / (double)(job->res - 2 * job->mesh.pad);
@@ -317,19 +317,19 @@ static int mesh_fit(const pipeline_job *job, double lo[3], double hi[3],
 }
 
 /* The job's checks, and its domain when it fits the mesh. */
-static int mesh_domain(const pipeline_job *job, double lo[3], double hi[3],
-                       pipeline_report *r)
+static int mesh_domain(const engine_pipeline_job *job, double lo[3], double hi[3],
+                       engine_pipeline_report *r)
 {
     if (!job->mesh.mesh || !job->mesh.mesh->n_triangles)
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
     char err[sizeof r->err.message];
     if (mesh_vox_check(&job->mesh.opts, err, sizeof err))
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err);
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err);
     r->fig.mesh.triangles = job->mesh.mesh->n_triangles;
     return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
 }
 
-static void mesh_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
+static void mesh_meta(const engine_pipeline_job *job, job_meta *m, char *pairs, size_t len)
 {
     static const char *const modes[] = {"solid", "surface", "surface6",
                                         "conservative", "interior"};
@@ -368,15 +368,15 @@ static void *topo_run(void *arg)
 }
 
 /* mesh_edges' failure rc, as the job's (before any voxel). */
-static int topo_error(pipeline_report *r, int rc)
+static int topo_error(engine_pipeline_report *r, int rc)
 {
-    r->stage = PIPELINE_GRID;
-    return pipeline_fail(r, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+    r->stage = ENGINE_PIPELINE_GRID;
+    return engine_pipeline_fail(r, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                          "the mesh's edges: %s", strerror(-rc));
 }
 
 /* Wait for t and put its result in r: 0, or the error mesh_check gives. */
-static int topo_join(topo_job *t, pipeline_report *r)
+static int topo_join(topo_job *t, engine_pipeline_report *r)
 {
     par_join(&t->task);
     r->fig.mesh.topo = t->topo;
@@ -386,7 +386,7 @@ static int topo_join(topo_job *t, pipeline_report *r)
 
 /* A mesh job's topology into r; the repair dropped from *run when the
  * mesh is watertight. */
-static int mesh_check(pipeline_job *run, pipeline_report *r)
+static int mesh_check(engine_pipeline_job *run, engine_pipeline_report *r)
 {
     double t0 = clock_now();
     int rc = mesh_edges(run->mesh.mesh, &r->fig.mesh.topo);
@@ -401,18 +401,18 @@ static int mesh_check(pipeline_job *run, pipeline_report *r)
 
 /* A mesh job in this thread: every tile in turn (mesh_voxelize) into a
  * volume in a sparse private mapping, touched only as bricks are made. */
-static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
-                           vod_sink *sink, pipeline_report *r)
+static int run_serial_mesh(const engine_pipeline_job *job, const vod_params *v,
+                           vod_sink *sink, engine_pipeline_report *r)
 {
     const mesh_vox_opts *o = &job->mesh.opts;
-    r->stage = PIPELINE_VOXELIZE;
+    r->stage = ENGINE_PIPELINE_VOXELIZE;
     size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), MESH_VOLUME_BRICK,
                                     UINT64_MAX);
     void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                                MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
                         : MAP_FAILED;
     if (arena == MAP_FAILED)
-        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
+        return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
                              r->grid.res[0], r->grid.res[1], r->grid.res[2]);
     vod_volume *vol;
     int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, mesh_vox_bits(o),
@@ -425,18 +425,18 @@ static int run_serial_mesh(const pipeline_job *job, const vod_params *v,
     r->fig.mesh.vox.disagreements = st.disagreements;
     r->fig.mesh.vox.disagree_bricks = st.disagree_bricks;
     if (rc) {
-        pipeline_fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+        engine_pipeline_fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                       "voxelizing the mesh: %s", strerror(-rc));
     } else {
         vod_source src = vod_volume_source(vol);
-        rc = pipeline_write_serial(NULL, &src, v, sink, r);
+        rc = engine_pipeline_write_serial(NULL, &src, v, sink, r);
     }
     munmap(arena, bytes);
     return rc;
 }
 
-static int mesh_serial(pipeline_job *run, const vod_params *v, vod_sink *sink,
-                       pipeline_report *r)
+static int mesh_serial(engine_pipeline_job *run, const vod_params *v, vod_sink *sink,
+                       engine_pipeline_report *r)
 {
     int rc = mesh_check(run, r);
     return rc ? rc : run_serial_mesh(run, v, sink, r);
@@ -444,8 +444,8 @@ static int mesh_serial(pipeline_job *run, const vod_params *v, vod_sink *sink,
 
 /* Without a repair the topology decides nothing before the write: on an
  * engine it is found while the triangles are voxelized. */
-static int mesh_voxelize_stage(engine *e, pipeline_job *run, const sched_watch *w,
-                               engine_result *er, pipeline_report *r)
+static int mesh_voxelize_stage(engine *e, engine_pipeline_job *run, const engine_sched_watch *w,
+                               engine_result *er, engine_pipeline_report *r)
 {
     topo_job topo = {.m = run->mesh.mesh};
     bool overlap = run->mesh.opts.repair == MESH_REPAIR_NONE;
@@ -464,10 +464,10 @@ static int mesh_voxelize_stage(engine *e, pipeline_job *run, const sched_watch *
 }
 
 /* What vox says of a mesh job that ran. */
-static void mesh_summary(const pipeline_job *job, const pipeline_report *r,
+static void mesh_summary(const engine_pipeline_job *job, const engine_pipeline_report *r,
                                  char *buf, size_t len)
 {
-    const pipeline_mesh_figures *f = &r->fig.mesh;
+    const engine_pipeline_mesh_figures *f = &r->fig.mesh;
     FILE *out = fmemopen(buf, len, "w");
     if (!out) return;
     fprintf(out, "  mesh: %u triangles, %llu open and %llu non-manifold edges: %s (%.3f s)",
@@ -487,7 +487,7 @@ static void mesh_summary(const pipeline_job *job, const pipeline_report *r,
     fclose(out);
 }
 
-const master_kind kind_mesh = {
+const engine_kind engine_kind_mesh = {
     .name = "mesh",
     .id = SHM_KIND_MESH,
     .setup = mesh_setup,
@@ -507,6 +507,6 @@ const master_kind kind_mesh = {
 int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r)
 {
     mesh_job mj = {.job = job, .r = r};
-    sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    return sched_run_job(e, &kind_mesh, &mj, &w, r);
+    engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
+    return engine_sched_run_job(e, &engine_kind_mesh, &mj, &w, r);
 }

@@ -52,7 +52,7 @@ static const char usage[] =
     "shared memory are removed at start (under the lock file SOCKET.lock).\n";
 
 typedef struct {
-    vd_options o;
+    daemon_options o;
     int daemonize;
     const char *check;
     char socket[CONFIG_SOCKET_MAX];
@@ -302,7 +302,7 @@ static int serve(const voxd_config *cfg, voxd_args *a)
     if (take_lock(cfg->socket, &lock) || remove_stale(cfg->socket, shm) ||
         write_pidfile(cfg->pidfile))
         goto out;
-    rc = vd_run(cfg, &a->o, shm);
+    rc = daemon_run(cfg, &a->o, shm);
     unlink(cfg->socket);
     shm_unlink(shm); /* the engine removed it; a failed start may not have */
     if (cfg->pidfile[0]) unlink(cfg->pidfile);
@@ -319,7 +319,7 @@ int main(int argc, char **argv)
     if (a.check) return check_config(a.check);
     voxd_config cfg;
     char err[512];
-    if (vd_load_config(&a.o, &cfg, err, sizeof err)) {
+    if (daemon_load_config(&a.o, &cfg, err, sizeof err)) {
         fprintf(stderr, "voxd: %s\n", err);
         return CLI_EXIT_FAILED;
     }

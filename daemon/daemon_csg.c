@@ -108,7 +108,7 @@ static void node_fields(csg_node *n, const Voxd__CsgNode *m)
     csg_node_rotation(n);
 }
 
-int vd_csg_input(csg_tree *t, const char *input, size_t len)
+int daemon_csg_input(csg_tree *t, const char *input, size_t len)
 {
     size_t off = 0;
     for (uint32_t i = 0; i < t->n; i++) {
@@ -121,7 +121,7 @@ int vd_csg_input(csg_tree *t, const char *input, size_t len)
     return off == len ? 0 : -EINVAL;
 }
 
-int vd_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
+int daemon_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_expr_depth,
                 csg_tree **out, char *msg, size_t len)
 {
     *out = NULL;

@@ -57,7 +57,7 @@ static int push_all(engine *e, uint32_t op, int *pushed)
     int rc = 0;
     *pushed = 0;
     for (int i = 0; i < e->n && !rc; i++)
-        if (e->ms[i].pid > 0 && !(rc = sched_push(e, &t))) ++*pushed;
+        if (e->ms[i].pid > 0 && !(rc = engine_sched_push(e, &t))) ++*pushed;
     return rc;
 }
 
@@ -69,7 +69,7 @@ static int aggregate_rest(engine *e, encode_job *ej)
 {
     int rc = plan_join(e, ej);
     if (rc) return rc;
-    encode_block *b = sched_block(e);
+    encode_block *b = engine_sched_block(e);
     const uint32_t *roots = shm_at(e->seg.base, b->roots_off);
     const uint8_t *done = shm_at(e->seg.base, b->roots_done_off);
     double t0 = clock_now();
@@ -103,7 +103,7 @@ static void block_init(engine *e, encode_job *ej, encode_block *b)
 
 static int no_room(engine *e)
 {
-    return sched_fail(e, ENGINE_LIMIT, -ENOSPC,
+    return engine_sched_fail(e, ENGINE_LIMIT, -ENOSPC,
                       "no room left in shared memory for the VOD bricks; "
                       "raise its size (now %zu MiB)", e->seg.bytes >> 20);
 }
@@ -122,9 +122,9 @@ static uint64_t nodes_cap(const engine *e, uint64_t nodes)
 static int lay_out_rest(engine *e, encode_block *b, uint64_t nodes, uint64_t n)
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->recs_off = sched_align64(nodes + n * sizeof(vod_node));
-    b->offs_off = sched_align64(b->recs_off + n * sizeof(vod_encoded));
-    b->brick_off = sched_align64(b->offs_off + n * sizeof(uint64_t));
+    b->recs_off = engine_sched_align64(nodes + n * sizeof(vod_node));
+    b->offs_off = engine_sched_align64(b->recs_off + n * sizeof(vod_encoded));
+    b->brick_off = engine_sched_align64(b->offs_off + n * sizeof(uint64_t));
     if (n > nodes_cap(e, nodes) || b->brick_off > end) return no_room(e);
     b->nodes_off = nodes;
     b->n = n;
@@ -134,8 +134,8 @@ static int lay_out_rest(engine *e, encode_block *b, uint64_t nodes, uint64_t n)
 
 static void set_offsets(engine *e, uint64_t nodes, uint64_t n)
 {
-    uint64_t recs = sched_align64(nodes + n * sizeof(vod_node));
-    uint64_t offs = sched_align64(recs + n * sizeof(vod_encoded));
+    uint64_t recs = engine_sched_align64(nodes + n * sizeof(vod_node));
+    uint64_t offs = engine_sched_align64(recs + n * sizeof(vod_encoded));
     memset(shm_at(e->seg.base, offs), 0xff, n * sizeof(uint64_t));
 }
 
@@ -147,7 +147,7 @@ static void plan_bricks(engine *e, const vod_layout *L, const vod_source *src,
     uint64_t cap = nodes_cap(e, nodes);
     *n = vod_collect(src, L, shm_at(e->seg.base, nodes), (size_t)cap);
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    uint64_t brick_off = sched_align64(sched_align64(sched_align64(nodes + *n * sizeof(vod_node)) +
+    uint64_t brick_off = engine_sched_align64(engine_sched_align64(engine_sched_align64(nodes + *n * sizeof(vod_node)) +
                                          *n * sizeof(vod_encoded)) +
                                  *n * sizeof(uint64_t));
     if (*n <= cap && brick_off <= end) set_offsets(e, nodes, *n);
@@ -182,7 +182,7 @@ static int plan_join(engine *e, encode_job *ej)
     par_join(&ej->plan);
     ej->planning = 0;
     ej->t.fill += ej->plan_s;
-    return lay_out_rest(e, sched_block(e), ej->nodes_off, ej->plan_n);
+    return lay_out_rest(e, engine_sched_block(e), ej->nodes_off, ej->plan_n);
 }
 
 /* The octree: lay the block and its arrays out behind the used cells,
@@ -193,12 +193,12 @@ static int setup_octree(engine *e, encode_job *ej)
 {
     uint64_t end = e->h->data_off + e->h->data_bytes;
     uint64_t cells_off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
-    uint64_t boff = sched_align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
-    uint64_t agg = sched_align64(boff + sizeof(encode_block));
-    uint64_t roots = sched_align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
+    uint64_t boff = engine_sched_align64(cells_off + (uint64_t)e->tree.used * sizeof(octree_cell));
+    uint64_t agg = engine_sched_align64(boff + sizeof(encode_block));
+    uint64_t roots = engine_sched_align64(agg + (uint64_t)e->tree.used * sizeof(uint32_t));
     int hr = e->tree.depth - 1 - AGG_SPLIT;
     uint64_t nroots = hr >= 0 ? vod_aggregate_roots(&e->tree, hr, NULL, 0) : 0;
-    uint64_t nodes = sched_align64(roots + nroots * (sizeof(uint32_t) + 1));
+    uint64_t nodes = engine_sched_align64(roots + nroots * (sizeof(uint32_t) + 1));
     if (nodes > end) return no_room(e);
     encode_block *b = shm_at(e->seg.base, boff);
     e->tree.agg = shm_at(e->seg.base, agg);
@@ -235,13 +235,13 @@ static int setup_volume(engine *e, encode_job *ej)
     int rc = vod_prepare(&src, &ej->L, ej->p->channel, msg, sizeof msg);
     ej->t.fill += clock_now() - t0;
     if (rc)
-        return sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+        return engine_sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                           "%s", msg);
     vod_volume_info in;
     vod_volume_get_info(e->volume, &in);
     uint64_t voff = (uint64_t)((uint8_t *)e->volume - e->seg.base);
-    uint64_t boff = sched_align64(voff + in.bytes_used);
-    uint64_t nodes = sched_align64(boff + sizeof(encode_block));
+    uint64_t boff = engine_sched_align64(voff + in.bytes_used);
+    uint64_t nodes = engine_sched_align64(boff + sizeof(encode_block));
     if (nodes > e->h->data_off + e->h->data_bytes) return no_room(e);
     encode_block *b = shm_at(e->seg.base, boff);
     rc = lay_out_bricks(e, ej, b, &src, nodes);
@@ -263,7 +263,7 @@ static int encode_setup(engine *e, void *job)
 
 static int encode_take(engine *e, int i, const shm_entry *en)
 {
-    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+    return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u while encoding", i,
                       en->type);
 }
@@ -283,7 +283,7 @@ static void encode_done(engine *e, int i, const shm_task *t, int error)
  * out (relaxed: estimates, nothing is read through them). */
 static void encode_progress(engine *e, engine_progress *p)
 {
-    encode_block *b = sched_block(e);
+    encode_block *b = engine_sched_block(e);
     uint64_t agg = atomic_load_explicit(&b->agg_next, memory_order_relaxed);
     uint64_t next = atomic_load_explicit(&b->next, memory_order_relaxed);
     double fa = b->nroots ? (double)(agg < b->nroots ? agg : b->nroots) / (double)b->nroots : 1;
@@ -311,7 +311,7 @@ static void encode_describe(const shm_task *t, char *buf, size_t len)
 static int encode_gather(engine *e, encode_job *ej, const uint8_t **data,
                          uint8_t **own)
 {
-    encode_block *b = sched_block(e);
+    encode_block *b = engine_sched_block(e);
     const vod_params *p = ej->p;
     const vod_node *nodes = shm_at(e->seg.base, b->nodes_off);
     vod_encoded *recs = shm_at(e->seg.base, b->recs_off);
@@ -366,7 +366,7 @@ static void add_times(encode_block *b, encode_job *ej)
 /* vod_assemble says its own failures; a sink's has no message of its own. */
 static int assemble(engine *e, encode_job *ej, const uint8_t **data)
 {
-    encode_block *b = sched_block(e);
+    encode_block *b = engine_sched_block(e);
     char msg[sizeof ej->err->message] = "";
     vod_assembly a = {.L = &b->L, .p = ej->p, .n = b->n,
                       .nodes = shm_at(e->seg.base, b->nodes_off),
@@ -374,25 +374,25 @@ static int assemble(engine *e, encode_job *ej, const uint8_t **data)
                       .sink = ej->sink, .st = ej->st, .err = msg, .errlen = sizeof msg};
     int rc = vod_assemble(&a);
     if (!rc) return 0;
-    return sched_fail(e, engine_vod_failure(rc, msg[0]), rc, "%s",
+    return engine_sched_fail(e, engine_vod_failure(rc, msg[0]), rc, "%s",
                       msg[0] ? msg : strerror(-rc));
 }
 
 /* The bricks to the caller instead of a file (engine_encode_bricks). */
 static int hand_out(engine *e, encode_job *ej, const uint8_t **data)
 {
-    encode_block *b = sched_block(e);
+    encode_block *b = engine_sched_block(e);
     vod_source src = result_source(e);
     int rc = ej->deliver(ej->deliver_ud, &b->L, &src, b->n,
                          shm_at(e->seg.base, b->nodes_off),
                          shm_at(e->seg.base, b->recs_off), data);
-    return rc ? sched_fail(e, ENGINE_SINK, rc, "%s", strerror(-rc)) : 0;
+    return rc ? engine_sched_fail(e, ENGINE_SINK, rc, "%s", strerror(-rc)) : 0;
 }
 
 static int encode_finish(engine *e, void *job, int rc)
 {
     encode_job *ej = job;
-    encode_block *b = sched_block(e);
+    encode_block *b = engine_sched_block(e);
     if (ej->planning) { /* the job failed before the mip levels were done */
         par_join(&ej->plan);
         ej->planning = 0;
@@ -401,7 +401,7 @@ static int encode_finish(engine *e, void *job, int rc)
     const uint8_t **data = calloc(b->n ? b->n : 1, sizeof *data);
     uint8_t **own = calloc(b->n ? b->n : 1, sizeof *own);
     rc = data && own ? encode_gather(e, ej, data, own) : -ENOMEM;
-    if (rc) sched_fail(e, ENGINE_FAULT, rc, "%s", strerror(-rc));
+    if (rc) engine_sched_fail(e, ENGINE_FAULT, rc, "%s", strerror(-rc));
     else if (ej->deliver) rc = hand_out(e, ej, data);
     else rc = assemble(e, ej, data);
     if (!rc) add_times(b, ej);
@@ -413,7 +413,7 @@ out:
     return rc;
 }
 
-const master_kind kind_encode = {
+const engine_kind engine_kind_encode = {
     .name = "encode",
     .id = SHM_KIND_ENCODE,
     .setup = encode_setup,
@@ -431,7 +431,7 @@ int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
     return engine_write_vod_watched(e, p, sink, st, err, NULL, NULL, NULL);
 }
 
-static int encode_run(engine *e, encode_job *ej, const sched_watch *w);
+static int encode_run(engine *e, encode_job *ej, const engine_sched_watch *w);
 
 /* A job of the encode kind; the checks that need no workers first. */
 int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
@@ -440,7 +440,7 @@ int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
                              void *ud, const atomic_int *cancel)
 {
     encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
-    sched_watch w = {.progress = progress, .ud = ud, .cancel = cancel};
+    engine_sched_watch w = {.progress = progress, .ud = ud, .cancel = cancel};
     return encode_run(e, &ej, &w);
 }
 
@@ -448,11 +448,11 @@ int engine_encode_bricks(engine *e, const vod_params *p, engine_deliver deliver,
                          void *ud, vod_stats *st, engine_error *err)
 {
     encode_job ej = {.p = p, .st = st, .err = err, .deliver = deliver, .deliver_ud = ud};
-    sched_watch w = {0};
+    engine_sched_watch w = {0};
     return encode_run(e, &ej, &w);
 }
 
-static int encode_run(engine *e, encode_job *ej, const sched_watch *w)
+static int encode_run(engine *e, encode_job *ej, const engine_sched_watch *w)
 {
     const vod_params *p = ej->p;
     engine_error *err = ej->err;
@@ -470,5 +470,5 @@ static int encode_run(engine *e, encode_job *ej, const sched_watch *w)
         err->code = rc;
         return rc;
     }
-    return engine_run(e, &kind_encode, ej, w);
+    return engine_run(e, &engine_kind_encode, ej, w);
 }

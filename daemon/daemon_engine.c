@@ -25,10 +25,10 @@
 /* ---------------------------------------------------------------- helpers */
 
 /* A line for the loop to log (the log is the loop's).  Under mu. */
-__attribute__((format(printf, 3, 4))) static void elog(vd_daemon *d, int level,
+__attribute__((format(printf, 3, 4))) static void elog(daemon_ctx *d, int level,
                                                        const char *fmt, ...)
 {
-    if (d->elog_n == VD_ELOG_LINES) {
+    if (d->elog_n == DAEMON_ELOG_LINES) {
         d->elog_dropped++;
         return;
     }
@@ -40,18 +40,18 @@ __attribute__((format(printf, 3, 4))) static void elog(vd_daemon *d, int level,
 }
 
 /* The result's memory file is closed: its bytes leave the budget. */
-static void drop_result(vd_job *j)
+static void drop_result(daemon_job *j)
 {
     if (j->fd < 0) return;
     close(j->fd);
     j->fd = -1;
-    /* relaxed: see vd_daemon.results_held */
+    /* relaxed: see daemon_ctx.results_held */
     if (j->held_sum) atomic_fetch_sub_explicit(j->held_sum, j->size, memory_order_relaxed);
 }
 
-int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg, size_t len)
+int daemon_memory_room(daemon_ctx *d, uint64_t max_memory, uint64_t shm, char *msg, size_t len)
 {
-    /* relaxed: see vd_daemon.results_held */
+    /* relaxed: see daemon_ctx.results_held */
     uint64_t held = atomic_load_explicit(&d->results_held, memory_order_relaxed);
     if (shm + held + CONFIG_RESULT_ROOM <= max_memory) return 0;
     snprintf(msg, len,
@@ -63,7 +63,7 @@ int vd_memory_room(vd_daemon *d, uint64_t max_memory, uint64_t shm, char *msg, s
     return VOXD__ERROR_CODE__BUSY;
 }
 
-void vd_job_free(vd_job *j)
+void daemon_job_free(daemon_job *j)
 {
     if (!j) return;
     if (j->map) munmap(j->map, j->size);
@@ -75,7 +75,7 @@ void vd_job_free(vd_job *j)
 }
 
 /* A worker replaced since the last snapshot: why, in the log. */
-static void log_replaced(vd_daemon *d, int i, const vd_worker_snap *w,
+static void log_replaced(daemon_ctx *d, int i, const daemon_worker_snap *w,
                          const engine_worker_info *in)
 {
     if (in->stalls != w->stalls)
@@ -96,11 +96,11 @@ static void log_replaced(vd_daemon *d, int i, const vd_worker_snap *w,
 /* The workers as the engine sees them now; a changed pid is a worker that
  * died, or stalled and was killed, and was forked again.  Engine thread,
  * under mu. */
-static void snapshot(vd_daemon *d, engine *e)
+static void snapshot(daemon_ctx *d, engine *e)
 {
     int n = engine_workers(e);
     for (int i = 0; i < n; i++) {
-        vd_worker_snap *w = &d->workers[i];
+        daemon_worker_snap *w = &d->workers[i];
         engine_worker_info in;
         if (engine_worker_info_get(e, i, &in)) continue;
         /* the counts move with the pid: a stall is counted when the worker
@@ -118,14 +118,14 @@ static void snapshot(vd_daemon *d, engine *e)
     d->nworkers = n;
 }
 
-static void wake_loop(vd_daemon *d)
+static void wake_loop(daemon_ctx *d)
 {
     uv_async_send(&d->wake);
 }
 
 /* ---------------------------------------------------------------- engine life */
 
-static engine *engine_make(vd_daemon *d)
+static engine *engine_make(daemon_ctx *d)
 {
     engine *e = NULL;
     char err[256] = "";
@@ -148,7 +148,7 @@ static engine *engine_make(vd_daemon *d)
 
 /* Between jobs: a worker that died is reaped and forked again now, not
  * when the next job starts; snapshot() logs each one forked again. */
-static void reap_idle(vd_daemon *d, engine *e)
+static void reap_idle(daemon_ctx *d, engine *e)
 {
     pthread_mutex_unlock(&d->mu);
     int rc = engine_check_workers(e);
@@ -165,8 +165,8 @@ static void reap_idle(vd_daemon *d, engine *e)
 /* ---------------------------------------------------------------- one job */
 
 typedef struct {
-    vd_daemon *d;
-    vd_job *j;
+    daemon_ctx *d;
+    daemon_job *j;
     engine *e;
 } progress_ctx;
 
@@ -184,7 +184,7 @@ static void on_progress(void *ud, const engine_progress *p)
 /* The VOD goes into a memfd: bounded by the job's max_result_bytes and
  * the memory budget, stopped by its cancel flag. */
 typedef struct {
-    vd_job *j;
+    daemon_job *j;
     int over;      /* max_result_bytes was reached (not VOD's own 4 GiB limit) */
     /* the budget: results may hold max_memory - shm_size; 1 when this
      * result alone, 2 when it with the others held would pass it */
@@ -195,14 +195,14 @@ typedef struct {
 static int sink_write(void *ud, const void *buf, size_t n)
 {
     result_sink *rs = ud;
-    vd_job *j = rs->j;
+    daemon_job *j = rs->j;
     /* relaxed: a flag, see engine_job.cancel */
     if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) return -ECANCELED;
     if (n > j->max_result_bytes - j->size) {
         rs->over = 1;
         return -EFBIG;
     }
-    /* relaxed: see vd_daemon.results_held (it holds j->size too) */
+    /* relaxed: see daemon_ctx.results_held (it holds j->size too) */
     uint64_t held = atomic_load_explicit(j->held_sum, memory_order_relaxed);
     if (n > rs->room - j->size) rs->budget = 1;
     else if (held > rs->room || n > rs->room - held) rs->budget = 2;
@@ -215,13 +215,13 @@ static int sink_write(void *ud, const void *buf, size_t n)
         p += w;
         n -= (size_t)w;
         j->size += (uint64_t)w;
-        /* relaxed: see vd_daemon.results_held */
+        /* relaxed: see daemon_ctx.results_held */
         atomic_fetch_add_explicit(j->held_sum, (uint64_t)w, memory_order_relaxed);
     }
     return 0;
 }
 
-__attribute__((format(printf, 3, 4))) static int job_error(vd_job *j, int code,
+__attribute__((format(printf, 3, 4))) static int job_error(daemon_job *j, int code,
                                                            const char *fmt, ...)
 {
     va_list ap;
@@ -232,7 +232,7 @@ __attribute__((format(printf, 3, 4))) static int job_error(vd_job *j, int code,
     return -1;
 }
 
-void vd_job_stopped(vd_job *j)
+void daemon_job_stopped(daemon_job *j)
 {
     switch (j->cancel_code) {
     case VOXD__ERROR_CODE__TIMEOUT:
@@ -240,7 +240,7 @@ void vd_job_stopped(vd_job *j)
                   "the job ran past this server's job_timeout of %u s; ask for a lower "
                   "res or a simpler %s",
                   j->job_timeout,
-                  j->kind == PIPELINE_MESH ? "mesh" : j->kind == PIPELINE_CSG ? "CSG tree"
+                  j->kind == ENGINE_PIPELINE_MESH ? "mesh" : j->kind == ENGINE_PIPELINE_CSG ? "CSG tree"
                                                                               : "expression");
         break;
     case VOXD__ERROR_CODE__SHUTTING_DOWN:
@@ -250,7 +250,7 @@ void vd_job_stopped(vd_job *j)
     }
 }
 
-static int compile(vd_job *j, expr_tape **tape)
+static int compile(daemon_job *j, expr_tape **tape)
 {
     expr_limits lim;
     expr_limits_default(&lim);
@@ -271,7 +271,7 @@ static int compile(vd_job *j, expr_tape **tape)
  * messages with the file's line or byte); then the bytes are freed, the
  * mesh holding what the job needs, unless keep (an MPI run hands them to
  * vox_mpi).  0, or -1 with the job's error set. */
-static int parse_mesh(vd_job *j, mesh *m, int keep)
+static int parse_mesh(daemon_job *j, mesh *m, int keep)
 {
     mesh_limits lim = {.max_triangles = j->max_triangles};
     mesh_error me = {0};
@@ -311,7 +311,7 @@ static int parse_mesh(vd_job *j, mesh *m, int keep)
 }
 
 /* The daemon's error code for the engine's reason. */
-static int failure_code(const vd_job *j, const result_sink *rs, engine_failure f)
+static int failure_code(const daemon_job *j, const result_sink *rs, engine_failure f)
 {
     switch (f) {
     case ENGINE_CANCELLED: return j->cancel_code ? j->cancel_code : VOXD__ERROR_CODE__CANCELLED;
@@ -326,14 +326,14 @@ static int failure_code(const vd_job *j, const result_sink *rs, engine_failure f
     }
 }
 
-static int job_failed(vd_job *j, const result_sink *rs, const pipeline_report *r)
+static int job_failed(daemon_job *j, const result_sink *rs, const engine_pipeline_report *r)
 {
     const engine_error *err = &r->err;
     int code = failure_code(j, rs, err->failure);
     /* a cancel shows as the engine's, or as the sink's refusal */
     if (err->failure == ENGINE_CANCELLED || (err->failure == ENGINE_SINK && j->cancel_code))
-        return vd_job_stopped(j), -1;
-    if (r->stage == PIPELINE_GRID) return job_error(j, code, "%s", err->message);
+        return daemon_job_stopped(j), -1;
+    if (r->stage == ENGINE_PIPELINE_GRID) return job_error(j, code, "%s", err->message);
     if (err->failure == ENGINE_CRASHED)
         return job_error(j, code, "this job kills its workers: %s; the daemon goes on",
                          err->message);
@@ -353,13 +353,13 @@ static int job_failed(vd_job *j, const result_sink *rs, const pipeline_report *r
                          "results waiting for their clients (%llu MiB for results in all); "
                          "try again later",
                          (unsigned long long)(rs->room >> 20));
-    if (r->stage == PIPELINE_VOXELIZE)
+    if (r->stage == ENGINE_PIPELINE_VOXELIZE)
         return job_error(j, code, "voxelization failed: %s", err->message);
     return job_error(j, code, "cannot write the VOD: %s", err->message);
 }
 
 /* The job through the pipeline into its memfd, its outcome in j. */
-static void run_pipeline(engine *e, vd_job *j, pipeline_job *job, uint64_t room)
+static void run_pipeline(engine *e, daemon_job *j, engine_pipeline_job *job, uint64_t room)
 {
     vod_params_default(&job->vod);
     job->vod.channel = j->channel;
@@ -368,14 +368,14 @@ static void run_pipeline(engine *e, vd_job *j, pipeline_job *job, uint64_t room)
     job->vod.hash = j->hash;
     result_sink rs = {.j = j, .room = room};
     vod_sink sink = {sink_write, &rs};
-    pipeline_report r;
-    if (pipeline_run(e, job, &sink, &r) == 0) j->code = 0;
+    engine_pipeline_report r;
+    if (engine_pipeline_run(e, job, &sink, &r) == 0) j->code = 0;
     else job_failed(j, &rs, &r);
     j->grid = r.grid;
     j->t_voxelize = r.t_voxelize;
     j->t_write = r.t_write;
     j->voxels = r.voxels;
-    j->has_figures = r.stage != PIPELINE_GRID;
+    j->has_figures = r.stage != ENGINE_PIPELINE_GRID;
     j->fig = r.fig;
     j->st = r.st;
 }
@@ -385,11 +385,11 @@ static void run_pipeline(engine *e, vd_job *j, pipeline_job *job, uint64_t room)
  * *tape or *m (the caller frees them), a bad input refused here with its
  * typed error even when the job then runs through MPI (mpi: the mesh's
  * bytes kept for vox_mpi).  0, or -1 with the job's error. */
-static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m, int mpi)
+static int job_input(daemon_job *j, engine_pipeline_job *job, expr_tape **tape, mesh *m, int mpi)
 {
-    if (j->kind == PIPELINE_MESH) {
+    if (j->kind == ENGINE_PIPELINE_MESH) {
         if (parse_mesh(j, m, mpi)) return -1;
-        job->kind = PIPELINE_MESH;
+        job->kind = ENGINE_PIPELINE_MESH;
         job->mesh.mesh = m;
         job->mesh.opts = j->mesh_opts;
         job->mesh.pad = j->pad;
@@ -398,21 +398,21 @@ static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m, in
         job->mesh.source_bytes = j->source_len;
         return 0;
     }
-    if (j->kind == PIPELINE_CSG) {
-        int rc = j->input_total ? vd_csg_input(j->csg, j->source, j->source_len) : 0;
+    if (j->kind == ENGINE_PIPELINE_CSG) {
+        int rc = j->input_total ? daemon_csg_input(j->csg, j->source, j->source_len) : 0;
         if (rc)
             return job_error(j, rc == -ENOMEM ? VOXD__ERROR_CODE__INTERNAL
                                               : VOXD__ERROR_CODE__INVALID_INPUT,
                              "%s", rc == -ENOMEM ? "out of memory for the CSG leaves"
                                                  : "the CSG leaves' input does not add up");
-        job->kind = PIPELINE_CSG;
+        job->kind = ENGINE_PIPELINE_CSG;
         job->csg.tree = j->csg;
         job->csg.source_name = j->source_name;
         job->csg.source_bytes = j->csg_source_bytes;
         return 0;
     }
     if (compile(j, tape)) return -1;
-    job->kind = PIPELINE_IMPLICIT;
+    job->kind = ENGINE_PIPELINE_IMPLICIT;
     job->implicit.tape = *tape;
     job->implicit.source = j->source;
     job->implicit.source_len = j->source_len;
@@ -421,7 +421,7 @@ static int job_input(vd_job *j, pipeline_job *job, expr_tape **tape, mesh *m, in
 }
 
 /* The MPI run's file into the job's memfd, through the sink's limits. */
-static void copy_result(vd_job *j, int in, uint64_t room)
+static void copy_result(daemon_job *j, int in, uint64_t room)
 {
     result_sink rs = {.j = j, .room = room};
     uint8_t buf[64 << 10];
@@ -435,7 +435,7 @@ static void copy_result(vd_job *j, int in, uint64_t room)
         j->code = 0;
         return;
     }
-    pipeline_report r = {.stage = PIPELINE_WRITE};
+    engine_pipeline_report r = {.stage = ENGINE_PIPELINE_WRITE};
     r.err.failure = ENGINE_SINK;
     snprintf(r.err.message, sizeof r.err.message, "%s", strerror(-rc));
     job_failed(j, &rs, &r);
@@ -466,7 +466,7 @@ static void mpi_progress(void *ud, double fraction, uint64_t voxels)
 
 /* A job through mpirun ... vox_mpi (daemon_mpi.c): its grid from the
  * plan every job makes, its file copied into the memfd. */
-static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
+static void run_mpi(daemon_ctx *d, const daemon_mpi *m, daemon_job *j, engine_pipeline_job *job,
                     uint64_t room)
 {
     vod_params_default(&job->vod);
@@ -474,20 +474,20 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     job->vod.brick = j->brick;
     job->vod.comp = j->comp;
     job->vod.hash = j->hash;
-    pipeline_report r = {0};
+    engine_pipeline_report r = {0};
     vod_params v;
     char meta[JOB_META_MAX];
-    if (pipeline_plan(job, &r, &v, meta)) {
+    if (engine_pipeline_plan(job, &r, &v, meta)) {
         job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", r.err.message);
         return;
     }
     j->grid = r.grid;
     int in = -1;
     progress_ctx px = {d, j, NULL};
-    vd_mpi_hooks h = {mpi_started, mpi_progress, &px};
+    daemon_mpi_hooks h = {mpi_started, mpi_progress, &px};
     j->mpi_ranks = m->ranks;
-    int rc = vd_mpi_run(m, j, &in, &h);
-    if (rc == -ECANCELED) vd_job_stopped(j);
+    int rc = daemon_mpi_run(m, j, &in, &h);
+    if (rc == -ECANCELED) daemon_job_stopped(j);
     pthread_mutex_lock(&d->mu);
     if (rc == 0)
         elog(d, LOG_LEVEL_INFO, "job %llu ran through MPI on %u rank%s in %.3f s",
@@ -503,17 +503,17 @@ static void run_mpi(vd_daemon *d, const vd_mpi *m, vd_job *j, pipeline_job *job,
     close(in);
 }
 
-static void run_job(vd_daemon *d, engine *e, vd_job *j, const vd_mpi *mpi, uint64_t room)
+static void run_job(daemon_ctx *d, engine *e, daemon_job *j, const daemon_mpi *mpi, uint64_t room)
 {
     progress_ctx px = {d, j, e};
-    pipeline_job job = {
+    engine_pipeline_job job = {
         .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
         .res = j->res, .schedule = (engine_schedule)j->schedule,
         .progress = on_progress, .ud = &px, .cancel = &j->cancel,
     };
     expr_tape *tape = NULL;
     mesh m = {0};
-    int via_mpi = vd_mpi_wants(mpi, j);
+    int via_mpi = daemon_mpi_wants(mpi, j);
     if (job_input(j, &job, &tape, &m, via_mpi)) return;
     j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
     if (j->fd < 0) {
@@ -530,10 +530,10 @@ static void run_job(vd_daemon *d, engine *e, vd_job *j, const vd_mpi *mpi, uint6
 
 /* ---------------------------------------------------------------- the thread */
 
-static void job_done(vd_daemon *d, engine *e, vd_job *j)
+static void job_done(daemon_ctx *d, engine *e, daemon_job *j)
 {
     /* A stop asked for wins over an outcome that raced it. */
-    if (j->cancel_code && j->code == 0) vd_job_stopped(j);
+    if (j->cancel_code && j->code == 0) daemon_job_stopped(j);
     if (j->code) drop_result(j);
     if (j->code == VOXD__ERROR_CODE__WORKER_CRASHED)
         elog(d, LOG_LEVEL_ERROR, "job %llu: %s", (unsigned long long)j->id, j->message);
@@ -545,33 +545,33 @@ static void job_done(vd_daemon *d, engine *e, vd_job *j)
     }
     snapshot(d, e);
     d->running = NULL;
-    j->state = VD_DONE;
+    j->state = DAEMON_DONE;
     j->next = NULL;
     if (d->done_tail) d->done_tail->next = j;
     else d->done = j;
     d->done_tail = j;
 }
 
-static void run_next(vd_daemon *d, engine *e)
+static void run_next(daemon_ctx *d, engine *e)
 {
-    vd_job *j = d->queue;
+    daemon_job *j = d->queue;
     d->queue = j->next;
     if (!d->queue) d->queue_tail = NULL;
     d->nqueued--;
     j->next = NULL;
-    j->state = VD_RUNNING;
+    j->state = DAEMON_RUNNING;
     j->t_start = clock_now();
     d->running = j;
     /* The budget, before anything is allocated: results delivered since
      * the job was admitted may have left room, or not. */
     uint64_t room = d->mem_max > d->mem_shm ? d->mem_max - d->mem_shm : 0;
-    int full = vd_memory_room(d, d->mem_max, d->mem_shm, j->message, sizeof j->message);
-    vd_mpi *m = malloc(sizeof *m); /* this job's MPI settings: a reload may change d's */
+    int full = daemon_memory_room(d, d->mem_max, d->mem_shm, j->message, sizeof j->message);
+    daemon_mpi *m = malloc(sizeof *m); /* this job's MPI settings: a reload may change d's */
     if (m) *m = d->mpi;
     pthread_mutex_unlock(&d->mu);
     wake_loop(d);
     /* relaxed: a flag, see engine_job.cancel */
-    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) vd_job_stopped(j);
+    if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) daemon_job_stopped(j);
     else if (full) j->code = full;
     else if (!m) job_error(j, VOXD__ERROR_CODE__INTERNAL, "out of memory");
     else run_job(d, e, j, m, room);
@@ -581,7 +581,7 @@ static void run_next(vd_daemon *d, engine *e)
 }
 
 /* Between jobs: the loop asked for new workers (SIGHUP). */
-static engine *reload(vd_daemon *d, engine *e)
+static engine *reload(daemon_ctx *d, engine *e)
 {
     d->reload = 0;
     pthread_mutex_unlock(&d->mu);
@@ -596,22 +596,22 @@ static engine *reload(vd_daemon *d, engine *e)
 
 /* Jobs while there is no engine (a reload failed): each gets INTERNAL, and
  * the next job tries to create the engine again. */
-static void run_without_engine(vd_daemon *d)
+static void run_without_engine(daemon_ctx *d)
 {
-    vd_job *j = d->queue;
+    daemon_job *j = d->queue;
     d->queue = j->next;
     if (!d->queue) d->queue_tail = NULL;
     d->nqueued--;
     job_error(j, VOXD__ERROR_CODE__INTERNAL, "the daemon has no workers: %s",
               d->engine_err);
-    j->state = VD_DONE;
+    j->state = DAEMON_DONE;
     j->next = NULL;
     if (d->done_tail) d->done_tail->next = j;
     else d->done = j;
     d->done_tail = j;
 }
 
-static void wait_work(vd_daemon *d)
+static void wait_work(daemon_ctx *d)
 {
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
@@ -621,7 +621,7 @@ static void wait_work(vd_daemon *d)
 
 /* The last job's pages given back once its outcome is out (the loop
  * streams the result meanwhile), not before. */
-static void tidy(vd_daemon *d, engine *e)
+static void tidy(daemon_ctx *d, engine *e)
 {
     pthread_mutex_unlock(&d->mu);
     engine_tidy(e);
@@ -630,11 +630,11 @@ static void tidy(vd_daemon *d, engine *e)
 
 static void *engine_main(void *arg)
 {
-    vd_daemon *d = arg;
+    daemon_ctx *d = arg;
     pthread_mutex_lock(&d->mu);
     engine *e = engine_make(d);
     pthread_cond_broadcast(&d->started_cv);
-    /* A failure at start ends the thread (vd_engine_start reports it); a
+    /* A failure at start ends the thread (daemon_engine_start reports it); a
      * failed reload later leaves e NULL and the next job tries again. */
     int started = e != NULL;
     while (started && !d->quit) {
@@ -658,7 +658,7 @@ static void *engine_main(void *arg)
     return NULL;
 }
 
-int vd_engine_start(vd_daemon *d)
+int daemon_engine_start(daemon_ctx *d)
 {
     /* The engine thread and the workers it forks take no signal: the loop's
      * uv_signal handlers get them all (a worker resets its own). */
@@ -676,7 +676,7 @@ int vd_engine_start(vd_daemon *d)
     return rc;
 }
 
-void vd_engine_stop(vd_daemon *d)
+void daemon_engine_stop(daemon_ctx *d)
 {
     if (!d->thread_started) return;
     pthread_mutex_lock(&d->mu);
@@ -693,10 +693,10 @@ void vd_engine_stop(vd_daemon *d)
 
 /* ---------------------------------------------------------------- loop side */
 
-void vd_queue_push(vd_daemon *d, vd_job *j)
+void daemon_queue_push(daemon_ctx *d, daemon_job *j)
 {
     pthread_mutex_lock(&d->mu);
-    j->state = VD_QUEUED;
+    j->state = DAEMON_QUEUED;
     j->next = NULL;
     if (d->queue_tail) d->queue_tail->next = j;
     else d->queue = j;
@@ -707,9 +707,9 @@ void vd_queue_push(vd_daemon *d, vd_job *j)
 }
 
 /* Under mu: take j out of the queue; 1 if it was there. */
-static int unqueue(vd_daemon *d, vd_job *j)
+static int unqueue(daemon_ctx *d, daemon_job *j)
 {
-    vd_job **pp = &d->queue, *prev = NULL;
+    daemon_job **pp = &d->queue, *prev = NULL;
     while (*pp && *pp != j) prev = *pp, pp = &(*pp)->next;
     if (!*pp) return 0;
     *pp = j->next;
@@ -719,12 +719,12 @@ static int unqueue(vd_daemon *d, vd_job *j)
     return 1;
 }
 
-int vd_job_stop(vd_daemon *d, vd_job *j, int code)
+int daemon_job_stop(daemon_ctx *d, daemon_job *j, int code)
 {
     pthread_mutex_lock(&d->mu);
-    int state = j->state, out = state == VD_QUEUED && unqueue(d, j);
-    if (state == VD_RUNNING || state == VD_DONE) {
-        /* DONE: still on d->done; vd_job_finished sees the code */
+    int state = j->state, out = state == DAEMON_QUEUED && unqueue(d, j);
+    if (state == DAEMON_RUNNING || state == DAEMON_DONE) {
+        /* DONE: still on d->done; daemon_job_finished sees the code */
         if (!j->cancel_code) j->cancel_code = code;
         atomic_store_explicit(&j->cancel, 1, memory_order_relaxed);
     }
@@ -732,28 +732,28 @@ int vd_job_stop(vd_daemon *d, vd_job *j, int code)
     return out;
 }
 
-int vd_queue_admit(vd_daemon *d, vd_job *j, unsigned delivering, uint32_t *pos)
+int daemon_queue_admit(daemon_ctx *d, daemon_job *j, unsigned delivering, uint32_t *pos)
 {
     const voxd_config *c = &d->cfg;
     pthread_mutex_lock(&d->mu);
     unsigned mine = delivering + (d->running && d->running->uid == j->uid);
-    for (vd_job *q = d->done; q; q = q->next) mine += q->uid == j->uid;
-    for (vd_job *q = d->queue; q; q = q->next) mine += q->uid == j->uid;
+    for (daemon_job *q = d->done; q; q = q->next) mine += q->uid == j->uid;
+    for (daemon_job *q = d->queue; q; q = q->next) mine += q->uid == j->uid;
     int code = d->nqueued + d->nuploading >= c->max_queued_jobs ? VOXD__ERROR_CODE__BUSY
                : mine >= c->max_jobs_per_uid    ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
                                                 : 0;
     *pos = d->nqueued + (d->running != NULL);
     pthread_mutex_unlock(&d->mu);
-    if (!code && j->state != VD_UPLOADING) vd_queue_push(d, j); /* else when its input is in */
+    if (!code && j->state != DAEMON_UPLOADING) daemon_queue_push(d, j); /* else when its input is in */
     return code;
 }
 
-int vd_busy(vd_daemon *d)
+int daemon_busy(daemon_ctx *d)
 {
     pthread_mutex_lock(&d->mu);
     int busy = d->queue || d->running || d->done;
     pthread_mutex_unlock(&d->mu);
-    for (vd_client *c = d->clients; c && !busy; c = c->next)
+    for (daemon_client *c = d->clients; c && !busy; c = c->next)
         busy = c->deliver != NULL;
     return busy;
 }

@@ -13,7 +13,7 @@
  * (the workers are then told to drop the job and waited for, but not one
  * that does not answer: it is killed), kind->finish produces the
  * result, and the data area's pages beyond what the job leaves behind
- * (sched_hold) go back to tmpfs.
+ * (engine_sched_hold) go back to tmpfs.
  */
 #ifndef VOXD_MASTER_H
 #define VOXD_MASTER_H
@@ -49,7 +49,7 @@ typedef struct {
     char stalled_state; /* its process state then (/proc: 'T' stopped) */
 } mslot;
 
-typedef struct master_kind master_kind;
+typedef struct engine_kind engine_kind;
 
 /* What the caller of a job watches it with (all optional). */
 typedef struct {
@@ -58,7 +58,7 @@ typedef struct {
     /* Set to non-zero by anyone to stop the job.  Read with relaxed loads;
      * nothing pairs with it. */
     const atomic_int *cancel;
-} sched_watch;
+} engine_sched_watch;
 
 struct engine {
     shm_seg seg;
@@ -69,9 +69,9 @@ struct engine {
     shm_task *stack;    /* the work stack, in the segment */
     uint32_t sp, cap;
     /* the running job */
-    const master_kind *kind;
+    const engine_kind *kind;
     void *job;          /* the kind's */
-    sched_watch watch;
+    engine_sched_watch watch;
     int aborting;
     int nbusy;
     engine_error err;   /* the job's first failure */
@@ -95,14 +95,14 @@ struct engine {
     uint64_t volume_bytes;  /* its arena */
 };
 
-struct master_kind {
+struct engine_kind {
     const char *name;
     uint32_t id;        /* shm_kind: the workers' side of the same kind */
     /* Set the job up in the segment and push its first tasks; 0, or
-     * sched_fail's return. */
+     * engine_sched_fail's return. */
     int (*setup)(engine *e, void *job);
     /* Check and take one entry worker i published (untrusted); 0, or
-     * sched_fail's return. */
+     * engine_sched_fail's return. */
     int (*take)(engine *e, int i, const shm_entry *en);
     /* Worker i's task is over (finished and drained, or dropped after a
      * death); error: the worker's negative errno, 0 if none. */
@@ -121,61 +121,61 @@ struct master_kind {
     /* The pipeline's side (pipeline.c runs every job through these; NULL
      * for a kind that is no pipeline job: encode, iso).  The job's checks
      * and its domain (lo, hi: the job's, which a kind whose domain is its
-     * input's replaces); 0, or pipeline_fail's return. */
-    int (*domain)(const pipeline_job *job, double lo[3], double hi[3], pipeline_report *r);
+     * input's replaces); 0, or engine_pipeline_fail's return. */
+    int (*domain)(const engine_pipeline_job *job, double lo[3], double hi[3], engine_pipeline_report *r);
     /* Its source and pairs in the VOD's metadata (m's source fields, its
      * "key=value\n" pairs written in pairs and named by m->kind_pairs). */
-    void (*meta)(const pipeline_job *job, job_meta *m, char *pairs, size_t len);
+    void (*meta)(const engine_pipeline_job *job, job_meta *m, char *pairs, size_t len);
     /* The job without an engine (vox -w 0), into r->grid, then the VOD
-     * written (pipeline_write_serial).  run: the caller's copy of the job,
+     * written (engine_pipeline_write_serial).  run: the caller's copy of the job,
      * the kind's to change (a mesh's repair that is not needed). */
-    int (*serial)(pipeline_job *run, const vod_params *v, vod_sink *sink,
-                  pipeline_report *r);
+    int (*serial)(engine_pipeline_job *run, const vod_params *v, vod_sink *sink,
+                  engine_pipeline_report *r);
     /* The voxelization on e's workers (engine_<kind>), watched by w; the
      * kind's figures from er into r->fig.  The core copies the common
      * ones and writes the VOD.  0, or a negative errno (r->err set when
      * the kind said why, else er's). */
-    int (*voxelize)(engine *e, pipeline_job *run, const sched_watch *w, engine_result *er,
-                    pipeline_report *r);
+    int (*voxelize)(engine *e, engine_pipeline_job *run, const engine_sched_watch *w, engine_result *er,
+                    engine_pipeline_report *r);
     /* The job run as another kind's (NULL: never): run rewritten in
      * place, what it needs kept in *owned (csg_tree_free'd after the job).
      * 0, or a negative errno. */
-    int (*rewrite)(pipeline_job *run, csg_tree **owned);
-    /* Its figures in words, for vox (pipeline_describe); NULL: none. */
-    void (*summary)(const pipeline_job *job, const pipeline_report *r, char *buf,
+    int (*rewrite)(engine_pipeline_job *run, csg_tree **owned);
+    /* Its figures in words, for vox (engine_pipeline_describe); NULL: none. */
+    void (*summary)(const engine_pipeline_job *job, const engine_pipeline_report *r, char *buf,
                      size_t len);
 };
 
-extern const master_kind kind_implicit, kind_encode, kind_mesh, kind_csg, kind_iso;
+extern const engine_kind engine_kind_implicit, engine_kind_encode, engine_kind_mesh, engine_kind_csg, engine_kind_iso;
 
-/* kinds.c: the kind of each pipeline_kind, NULL for none. */
-extern const master_kind *const pipeline_kinds[PIPELINE_KINDS];
+/* kinds.c: the kind of each engine_pipeline_kind, NULL for none. */
+extern const engine_kind *const engine_pipeline_kinds[ENGINE_PIPELINE_KINDS];
 
 /* ---- pipeline.c: for the kinds' pipeline side ---- */
 
 /* r->err set (failure f, code rc, the message); returns rc. */
-int pipeline_fail(pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
+int engine_pipeline_fail(engine_pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 /* The serial write stage, in this thread, from the octree t or else the
  * source s (r->stage, r->t_write, r->st; r->err on a failure). */
-int pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sink *sink,
-                          pipeline_report *r);
+int engine_pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, vod_sink *sink,
+                          engine_pipeline_report *r);
 
 /* ---- pool.c: the workers' lives ---- */
 
 /* Fork worker i on its CPU; 0 or -errno with a message in err. */
-int pool_spawn(engine *e, int i, char *err, size_t errlen);
+int engine_pool_spawn(engine *e, int i, char *err, size_t errlen);
 /* Write task t into worker i's slot and wake it (the slot's mechanics;
  * the scheduler's books are the caller's). */
-void pool_give(engine *e, int i, const shm_task *t, uint32_t skip);
+void engine_pool_give(engine *e, int i, const shm_task *t, uint32_t skip);
 /* SIGKILL worker i (a stall, or no answer to an abort); the scheduler
  * reaps and replaces it as after a crash. */
-void pool_kill(engine *e, int i);
+void engine_pool_kill(engine *e, int i);
 /* A process's state letter from /proc/PID/stat ('R', 'S', 'T' stopped...),
  * '?' when it cannot be read. */
-char pool_proc_state(pid_t pid);
+char engine_pool_proc_state(pid_t pid);
 
-static inline shm_slot *pool_slot(engine *e, int i)
+static inline shm_slot *engine_pool_slot(engine *e, int i)
 {
     return shm_slot_at(e->seg.base, (uint32_t)i);
 }
@@ -183,47 +183,47 @@ static inline shm_slot *pool_slot(engine *e, int i)
 /* ---- sched.c: Figure 3's loop, for any kind ---- */
 
 /* Run a job of kind k; returns kind->finish's result. */
-int engine_run(engine *e, const master_kind *k, void *job,
-               const sched_watch *watch);
+int engine_run(engine *e, const engine_kind *k, void *job,
+               const engine_sched_watch *watch);
 /* engine_run for a kind whose result is an engine_result: r zeroed
  * first, the master thread's CPU time into it (the wrappers engine_mesh,
  * engine_csg, ... are this with their kind's job). */
-int sched_run_job(engine *e, const master_kind *k, void *job, const sched_watch *watch,
+int engine_sched_run_job(engine *e, const engine_kind *k, void *job, const engine_sched_watch *watch,
                   engine_result *r);
 /* Record the job's failure (the first one is the one told) and return rc. */
-int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
+int engine_sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
     __attribute__((format(printf, 4, 5)));
 /* The failure of a VOD writer's rc: its own when it said something
  * (said), else the sink's. */
 engine_failure engine_vod_failure(int rc, int said);
-/* sched_fail's ENGINE_LIMIT for what ("the volume") that the data area
+/* engine_sched_fail's ENGINE_LIMIT for what ("the volume") that the data area
  * cannot hold. */
-int sched_no_room(engine *e, const char *what);
-/* Push task t onto the work stack; 0 or sched_fail (stack full). */
-int sched_push(engine *e, const shm_task *t);
+int engine_sched_no_room(engine *e, const char *what);
+/* Push task t onto the work stack; 0 or engine_sched_fail (stack full). */
+int engine_sched_push(engine *e, const shm_task *t);
 /* The job leaves the data area's first `bytes` for the next job (the
  * implicit kind's octree for the encode kind); 0 leaves nothing.  The core
  * gives every page past them (and past keep_bytes) back to tmpfs when a
  * job ends. */
-void sched_hold(engine *e, uint64_t bytes);
+void engine_sched_hold(engine *e, uint64_t bytes);
 /* Give back the data area's pages past max(keep_bytes, hold). */
-void sched_release(engine *e);
-/* The running job's block (engine/kinds.h's <kind>_block) in the data area. */
-static inline void *sched_block(engine *e)
+void engine_sched_release(engine *e);
+/* The running job's block (shm/kinds.h's <kind>_block) in the data area. */
+static inline void *engine_sched_block(engine *e)
 {
     return shm_at(e->seg.base, e->h->job_off);
 }
 
 /* Offsets in the data area are kept 64-byte aligned (a cache line). */
-static inline uint64_t sched_align64(uint64_t v)
+static inline uint64_t engine_sched_align64(uint64_t v)
 {
     return (v + 63) / 64 * 64;
 }
 
 /* The job's totals from the workers' slots (boxes tested, CPU) and the
  * core's books (restarts, stalls), into r. */
-void sched_job_totals(engine *e, engine_result *r);
+void engine_sched_job_totals(engine *e, engine_result *r);
 /* The job's failure (the first told) into r; returns rc. */
-int sched_job_failed(engine *e, engine_result *r, int rc);
+int engine_sched_job_failed(engine *e, engine_result *r, int rc);
 
 #endif

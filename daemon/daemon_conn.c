@@ -14,37 +14,37 @@ typedef struct {
     uv_write_t req;
     uint8_t *buf;
     size_t len;
-} vd_write;
+} daemon_write;
 
-size_t vd_conn_queued(vd_client *c)
+size_t daemon_conn_queued(daemon_client *c)
 {
     return uv_stream_get_write_queue_size((uv_stream_t *)&c->pipe);
 }
 
 /* Chunks are produced while fewer bytes than this wait in user space. */
-size_t vd_conn_pump_mark(const vd_client *c)
+size_t daemon_conn_pump_mark(const daemon_client *c)
 {
     return c->d->cfg.chunk_size;
 }
 
 /* Reading stops while more than this waits: a client that sends requests
  * and never reads the replies cannot grow the queue without bound. */
-size_t vd_conn_read_mark(const vd_client *c)
+size_t daemon_conn_read_mark(const daemon_client *c)
 {
     return 2 * (size_t)c->d->cfg.max_frame + c->d->cfg.chunk_size;
 }
 
 /* Progress is dropped for a client whose replies pile up: only the
  * latest matters, and the stall timeout deals with the client. */
-int vd_client_backed_up(vd_client *c)
+int daemon_client_backed_up(daemon_client *c)
 {
-    return c->closing || c->flush_close || vd_conn_queued(c) >= vd_conn_pump_mark(c);
+    return c->closing || c->flush_close || daemon_conn_queued(c) >= daemon_conn_pump_mark(c);
 }
 
 static void on_write(uv_write_t *req, int status)
 {
-    vd_write *w = (vd_write *)req;
-    vd_client *c = req->data;
+    daemon_write *w = (daemon_write *)req;
+    daemon_client *c = req->data;
     free(w->buf);
     free(w);
     c->writes--;
@@ -53,11 +53,11 @@ static void on_write(uv_write_t *req, int status)
     c->written(c, status);
 }
 
-int vd_client_send(vd_client *c, const Voxd__Reply *r)
+int daemon_client_send(daemon_client *c, const Voxd__Reply *r)
 {
     if (c->closing) return -EPIPE;
-    vd_write *w = malloc(sizeof *w);
-    int rc = w ? frame_encode_reply(r, &w->buf, &w->len) : -ENOMEM;
+    daemon_write *w = malloc(sizeof *w);
+    int rc = w ? proto_frame_encode_reply(r, &w->buf, &w->len) : -ENOMEM;
     if (rc) {
         free(w);
         log_error("client pid %d: cannot encode a reply: %s", (int)c->pid, strerror(-rc));

@@ -1,16 +1,16 @@
 /* pipeline — one job from its description to a VOD sink and a report.
  *
  * The daemon, `vox voxelize` and the benchmarks all run a job through
- * pipeline_run: the grid from the domain and resolution, the metadata,
+ * engine_pipeline_run: the grid from the domain and resolution, the metadata,
  * the voxelization (on an engine's workers, or the serial algorithm in the
  * caller's thread), then the VOD written to the caller's sink.  So the
  * bytes are the same wherever a job runs, by construction.
  *
- * What a kind does is its master side's (master/kind_<name>.c, one row in
- * master/kinds.c's table): its checks and domain, its metadata, its run
+ * What a kind does is its master side's (engine/kind_<name>.c, one row in
+ * engine/kinds.c's table): its checks and domain, its metadata, its run
  * without and with an engine, its figures (its own block of the report,
- * pipeline_report.fig) and their words (pipeline_describe).  A kind that
- * comes with its own description adds its member to pipeline_job.
+ * engine_pipeline_report.fig) and their words (engine_pipeline_describe).  A kind that
+ * comes with its own description adds its member to engine_pipeline_job.
  *
  * CSG jobs: the domain lo/hi as for an expression; the channel is the
  * density (vod.channel 2) or the occupancy (1: density >= S); the engine
@@ -41,14 +41,14 @@
 #include "vod.h"
 
 typedef enum {
-    PIPELINE_IMPLICIT = 1, /* F(x,y,z) = 0 */
-    PIPELINE_MESH = 2,     /* a triangle mesh */
-    PIPELINE_CSG = 3,      /* a volume CSG tree (csg.h) */
-    PIPELINE_KINDS
-} pipeline_kind;
+    ENGINE_PIPELINE_IMPLICIT = 1, /* F(x,y,z) = 0 */
+    ENGINE_PIPELINE_MESH = 2,     /* a triangle mesh */
+    ENGINE_PIPELINE_CSG = 3,      /* a volume CSG tree (csg.h) */
+    ENGINE_PIPELINE_KINDS
+} engine_pipeline_kind;
 
 typedef struct {
-    pipeline_kind kind;
+    engine_pipeline_kind kind;
     struct {
         const expr_tape *tape;    /* compiled by the caller (its messages) */
         const char *source;       /* the expression's text, for the metadata */
@@ -82,9 +82,9 @@ typedef struct {
     void (*progress)(void *ud, const engine_progress *p);
     void *ud;
     const atomic_int *cancel;     /* see engine_job.cancel */
-} pipeline_job;
+} engine_pipeline_job;
 
-typedef enum { PIPELINE_GRID, PIPELINE_VOXELIZE, PIPELINE_WRITE } pipeline_stage;
+typedef enum { ENGINE_PIPELINE_GRID, ENGINE_PIPELINE_VOXELIZE, ENGINE_PIPELINE_WRITE } engine_pipeline_stage;
 
 /* A mesh job's figures: its voxelization's (tiles and t_bin on an engine
  * only), and what the pipeline found of the mesh. */
@@ -95,13 +95,13 @@ typedef struct {
     double t_topology;            /* ... seconds finding them */
     int repair_skipped;           /* a repair asked of a watertight mesh: not
                                      needed (its three parities agree) */
-} pipeline_mesh_figures;
+} engine_pipeline_mesh_figures;
 
 /* A kind's own figures, its member the one its kind fills. */
 typedef union {
-    pipeline_mesh_figures mesh;
+    engine_pipeline_mesh_figures mesh;
     engine_csg_figures csg;
-} pipeline_figures;
+} engine_pipeline_figures;
 
 typedef struct {
     grid_spec grid;
@@ -110,39 +110,39 @@ typedef struct {
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */
-    double t_job;                 /* wall seconds of pipeline_run but the
+    double t_job;                 /* wall seconds of engine_pipeline_run but the
                                      engine's release at its end (a mesh's
                                      topology, without a repair and on an
                                      engine, overlaps the voxelization:
                                      t_job, not the sum, is the job's time) */
     double master_cpu, worker_cpu;
     int workers;                  /* the engine's, 0: the serial algorithm */
-    pipeline_figures fig;         /* the job's kind's own (set from the
+    engine_pipeline_figures fig;         /* the job's kind's own (set from the
                                      domain's checks on) */
     vod_stats st;
-    pipeline_stage stage;         /* the stage reached (that failed, if so) */
+    engine_pipeline_stage stage;         /* the stage reached (that failed, if so) */
     engine_error err;             /* why it failed */
-} pipeline_report;
+} engine_pipeline_report;
 
-/* The job's grid (into r->grid) and the VOD parameters pipeline_run
+/* The job's grid (into r->grid) and the VOD parameters engine_pipeline_run
  * writes it with (v, its metadata in meta), without running it: what
  * vox_mpi's rank 0 needs to write the same file from bricks made
  * elsewhere.  0, or a negative errno with r->err saying why. */
-int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
+int engine_pipeline_plan(const engine_pipeline_job *job, engine_pipeline_report *r, vod_params *v,
                   char meta[JOB_META_MAX]);
 
 /* Run job; e NULL runs the serial algorithm in this thread.  Returns 0, or
  * a negative errno with r->err saying why and r->stage where. */
-int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
-                 pipeline_report *r);
+int engine_pipeline_run(engine *e, const engine_pipeline_job *job, vod_sink *sink,
+                 engine_pipeline_report *r);
 
-/* The kind's figures of job (r: pipeline_run's) in words, for vox: a
+/* The kind's figures of job (r: engine_pipeline_run's) in words, for vox: a
  * mesh's as lines of their own, a csg tree's bricks as a clause; "" when
  * the kind has none. */
-void pipeline_describe(const pipeline_job *job, const pipeline_report *r, char *buf,
+void engine_pipeline_describe(const engine_pipeline_job *job, const engine_pipeline_report *r, char *buf,
                        size_t len);
 
 /* The job's distance band in voxels (VOXEL_BAND_DEFAULT when not given). */
-uint32_t pipeline_band(const pipeline_job *job);
+uint32_t engine_pipeline_band(const engine_pipeline_job *job);
 
 #endif

@@ -60,7 +60,7 @@ static int spare_cpu(const engine *e)
     return CPU_COUNT(&set) > 0;
 }
 
-int pool_spawn(engine *e, int i, char *err, size_t errlen)
+int engine_pool_spawn(engine *e, int i, char *err, size_t errlen)
 {
     pid_t pid = fork();
     if (pid < 0) {
@@ -69,8 +69,8 @@ int pool_spawn(engine *e, int i, char *err, size_t errlen)
     }
     if (pid == 0) worker_main(e->seg.base, (uint32_t)i);
     e->ms[i].pid = pid;
-    pool_slot(e, i)->pid = pid;
-    pool_slot(e, i)->cpu = e->ms[i].cpu;
+    engine_pool_slot(e, i)->pid = pid;
+    engine_pool_slot(e, i)->cpu = e->ms[i].cpu;
     cpu_set_t set;
     CPU_ZERO(&set);
     CPU_SET(e->ms[i].cpu, &set);
@@ -85,9 +85,9 @@ int pool_spawn(engine *e, int i, char *err, size_t errlen)
     return 0;
 }
 
-void pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
+void engine_pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
 {
-    shm_slot *s = pool_slot(e, i);
+    shm_slot *s = engine_pool_slot(e, i);
     mslot *m = &e->ms[i];
     s->task = *t;
     s->task_gen = e->h->gen;
@@ -99,7 +99,7 @@ void pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
     shm_wake_if_sleeping(&s->wake, &s->sleeping);
 }
 
-void pool_kill(engine *e, int i)
+void engine_pool_kill(engine *e, int i)
 {
     mslot *m = &e->ms[i];
     if (m->pid <= 0 || m->killed) return;
@@ -124,7 +124,7 @@ static const char *proc_stat(pid_t pid, char *buf, size_t len)
     return p && p[1] == ' ' && p[2] ? p + 2 : NULL;
 }
 
-char pool_proc_state(pid_t pid)
+char engine_pool_proc_state(pid_t pid)
 {
     char buf[512];
     const char *st = proc_stat(pid, buf, sizeof buf);
@@ -148,7 +148,7 @@ static unsigned long long proc_cpu_ticks(pid_t pid)
 /* A stopped worker (SIGSTOP, a debugger) would not take its exit task. */
 static int stopped(pid_t pid)
 {
-    char st = pool_proc_state(pid);
+    char st = engine_pool_proc_state(pid);
     return st == 'T' || st == 't';
 }
 
@@ -202,7 +202,7 @@ static void order(engine *e, uint32_t op)
     for (int i = 0; i < e->n; i++) {
         if (e->ms[i].pid <= 0) continue;
         if (e->ms[i].busy) kill(e->ms[i].pid, SIGKILL);
-        else pool_give(e, i, &task, 0);
+        else engine_pool_give(e, i, &task, 0);
     }
 }
 
@@ -314,7 +314,7 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     e->h = shm_hdr(e->seg.base);
     e->stack = shm_at(e->seg.base, e->h->stack_off);
     e->cap = (uint32_t)e->h->stack_cap;
-    for (int i = 0; i < e->n && !rc; i++) rc = pool_spawn(e, i, err, errlen);
+    for (int i = 0; i < e->n && !rc; i++) rc = engine_pool_spawn(e, i, err, errlen);
     if (rc) {
         engine_destroy(e);
         return rc;

@@ -6,7 +6,7 @@
  * segment anywhere).  This file is the core's contract, the same for every
  * kind of job: slots with their task and 8-entry queue, the work stack of
  * tasks, the job's generation.  The data area belongs to the job's kind:
- * engine/kinds.h says what each kind keeps there.
+ * shm/kinds.h says what each kind keeps there.
  *
  * Who writes what: the master writes the header and, in each slot, the
  * task fields and the queue's consumer index; a worker writes only its own
@@ -41,7 +41,7 @@
 _Static_assert(ATOMIC_INT_LOCK_FREE == 2, "lock-free int atomics needed");
 _Static_assert(ATOMIC_LLONG_LOCK_FREE == 2, "lock-free 64-bit atomics needed");
 
-/* What the master hands a worker: a task of a job kind (engine/kinds.h).
+/* What the master hands a worker: a task of a job kind (shm/kinds.h).
  * The core's own kind, SHM_KIND_CORE, has one operation: exit. */
 typedef struct {
     uint32_t kind;        /* shm_kind */
@@ -97,7 +97,7 @@ typedef struct {
     uint64_t job_tested;  /* boxes tested in this job */
     uint64_t job_cpu_ns;  /* CPU time spent on this job's tasks */
     /* The heartbeat: advanced by the worker every few milliseconds of a
-     * task's work (work_tick), so the master can tell a worker that makes
+     * task's work (worker_tick), so the master can tell a worker that makes
      * no progress (stopped, hung) from a busy one.  relaxed on both sides:
      * the master only compares successive values; nothing is published
      * with it. */
@@ -118,7 +118,7 @@ typedef struct {
 
     /* The job, written by the master before a job's first task (the
      * task_seq release publishes it): its kind's block in the data area
-     * (engine/kinds.h), where the kind keeps its input and shared state. */
+     * (shm/kinds.h), where the kind keeps its input and shared state. */
     uint32_t gen;                    /* current job generation (master) */
     uint32_t job_kind;               /* shm_kind */
     uint64_t job_off, job_bytes;

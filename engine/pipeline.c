@@ -1,5 +1,5 @@
 /* One job from its description to a VOD sink: see pipeline.h.  What a
- * kind does differently is its master_kind's pipeline side (master.h),
+ * kind does differently is its engine_kind's pipeline side (master.h),
  * in its own file; this one is the same for every kind. */
 #include "pipeline.h"
 
@@ -13,15 +13,15 @@
 #include "master.h"
 
 /* The master side of the job's kind, NULL when it is none. */
-static const master_kind *kind_of(const pipeline_job *job)
+static const engine_kind *kind_of(const engine_pipeline_job *job)
 {
-    return (unsigned)job->kind < PIPELINE_KINDS ? pipeline_kinds[job->kind] : NULL;
+    return (unsigned)job->kind < ENGINE_PIPELINE_KINDS ? engine_pipeline_kinds[job->kind] : NULL;
 }
 
 /* The job's VOD parameters: its geometry and metadata (the kind's source
  * and pairs) on the caller's choice of channel, brick, compression and
  * hash. */
-static void vod_setup(vod_params *v, const pipeline_job *job, const master_kind *k,
+static void vod_setup(vod_params *v, const engine_pipeline_job *job, const engine_kind *k,
                       const double lo[3], const double hi[3], const grid_spec *g,
                       char meta[JOB_META_MAX])
 {
@@ -45,13 +45,13 @@ static void vod_setup(vod_params *v, const pipeline_job *job, const master_kind 
 
 /* The job's progress as one fraction: the voxelization's to
  * VOXELIZE_SHARE, the VOD's to just under 1; 1 only once the file is
- * written (pipeline_run says it then), never while a stage still runs. */
+ * written (engine_pipeline_run says it then), never while a stage still runs. */
 #define VOXELIZE_SHARE 0.6
 #define WRITE_END 0.99
 
 typedef struct {
-    const pipeline_job *job;
-    pipeline_stage stage;
+    const engine_pipeline_job *job;
+    engine_pipeline_stage stage;
     uint64_t voxels;   /* the voxelization's, shown while writing */
 } staged;
 
@@ -59,7 +59,7 @@ static void on_stage_progress(void *ud, const engine_progress *p)
 {
     staged *s = ud;
     engine_progress q = *p;
-    if (s->stage == PIPELINE_VOXELIZE) {
+    if (s->stage == ENGINE_PIPELINE_VOXELIZE) {
         q.fraction = VOXELIZE_SHARE * p->fraction;
     } else {
         q.fraction = VOXELIZE_SHARE + (WRITE_END - VOXELIZE_SHARE) * p->fraction;
@@ -71,7 +71,7 @@ static void on_stage_progress(void *ud, const engine_progress *p)
 
 /* The engine's figures every kind has, into r (the kind's own block is
  * the kind's to copy). */
-static void engine_figures_common(pipeline_report *r, const engine_result *er)
+static void engine_figures_common(engine_pipeline_report *r, const engine_result *er)
 {
     r->voxels = er->voxels;
     r->octants = er->octants;
@@ -83,22 +83,22 @@ static void engine_figures_common(pipeline_report *r, const engine_result *er)
 }
 
 /* The kind's voxelization on e, then the VOD written. */
-static int run_engine(engine *e, const master_kind *k, pipeline_job *run,
-                      const vod_params *v, vod_sink *sink, pipeline_report *r)
+static int run_engine(engine *e, const engine_kind *k, engine_pipeline_job *run,
+                      const vod_params *v, vod_sink *sink, engine_pipeline_report *r)
 {
-    staged sp = {.job = run, .stage = PIPELINE_VOXELIZE};
-    sched_watch w = {.progress = run->progress ? on_stage_progress : NULL, .ud = &sp,
+    staged sp = {.job = run, .stage = ENGINE_PIPELINE_VOXELIZE};
+    engine_sched_watch w = {.progress = run->progress ? on_stage_progress : NULL, .ud = &sp,
                      .cancel = run->cancel};
     engine_result er;
     memset(&er, 0, sizeof er);
-    r->stage = PIPELINE_VOXELIZE;
+    r->stage = ENGINE_PIPELINE_VOXELIZE;
     r->workers = engine_workers(e);
     int rc = k->voxelize(e, run, &w, &er, r);
     engine_figures_common(r, &er);
     if (rc && r->err.failure) return rc; /* the kind said why */
-    if (rc) return pipeline_fail(r, er.failure, rc, "%s", er.error);
-    r->stage = PIPELINE_WRITE;
-    sp.stage = PIPELINE_WRITE;
+    if (rc) return engine_pipeline_fail(r, er.failure, rc, "%s", er.error);
+    r->stage = ENGINE_PIPELINE_WRITE;
+    sp.stage = ENGINE_PIPELINE_WRITE;
     sp.voxels = er.voxels;
     double t0 = clock_now();
     rc = engine_write_vod_watched(e, v, sink, &r->st, &r->err, w.progress, &sp, run->cancel);
@@ -111,13 +111,13 @@ static int run_engine(engine *e, const master_kind *k, pipeline_job *run,
     return rc;
 }
 
-int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
+int engine_pipeline_plan(const engine_pipeline_job *job, engine_pipeline_report *r, vod_params *v,
                   char meta[JOB_META_MAX])
 {
     memset(r, 0, sizeof *r);
-    r->stage = PIPELINE_GRID;
-    const master_kind *k = kind_of(job);
-    if (!k) return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
+    r->stage = ENGINE_PIPELINE_GRID;
+    const engine_kind *k = kind_of(job);
+    if (!k) return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
     double lo[3], hi[3];
     memcpy(lo, job->lo, sizeof lo);
     memcpy(hi, job->hi, sizeof hi);
@@ -125,24 +125,24 @@ int pipeline_plan(const pipeline_job *job, pipeline_report *r, vod_params *v,
     if (rc) return rc;
     char err[sizeof r->err.message];
     rc = grid_make(lo, hi, job->res, &r->grid, err, sizeof err);
-    if (rc) return pipeline_fail(r, ENGINE_BAD_JOB, rc, "%s", err);
+    if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "%s", err);
     vod_setup(v, job, k, lo, hi, &r->grid, meta); /* the job as asked for */
     return 0;
 }
 
-/* pipeline_run from t0 on; r->t_job set before the engine's release. */
-static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
-                           double t0, pipeline_report *r)
+/* engine_pipeline_run from t0 on; r->t_job set before the engine's release. */
+static int engine_pipeline_stages(engine *e, const engine_pipeline_job *job, vod_sink *sink,
+                           double t0, engine_pipeline_report *r)
 {
     char meta[JOB_META_MAX];
     vod_params v;
-    int rc = pipeline_plan(job, r, &v, meta);
+    int rc = engine_pipeline_plan(job, r, &v, meta);
     if (rc) return rc;
-    const master_kind *k = kind_of(job);
-    pipeline_job run = *job; /* the kind may change it (a mesh's repair not needed) */
+    const engine_kind *k = kind_of(job);
+    engine_pipeline_job run = *job; /* the kind may change it (a mesh's repair not needed) */
     csg_tree *owned = NULL; /* a kind's job run as another's (rewrite) */
     if (k->rewrite && (rc = k->rewrite(&run, &owned)))
-        return pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
+        return engine_pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
     k = kind_of(&run);
     if (!e) {
         rc = k->serial(&run, &v, sink, r);
@@ -155,19 +155,19 @@ static int pipeline_stages(engine *e, const pipeline_job *job, vod_sink *sink,
     return rc;
 }
 
-int pipeline_run(engine *e, const pipeline_job *job, vod_sink *sink,
-                 pipeline_report *r)
+int engine_pipeline_run(engine *e, const engine_pipeline_job *job, vod_sink *sink,
+                 engine_pipeline_report *r)
 {
     double t0 = clock_now();
-    int rc = pipeline_stages(e, job, sink, t0, r);
+    int rc = engine_pipeline_stages(e, job, sink, t0, r);
     if (!r->t_job) r->t_job = clock_now() - t0;
     return rc;
 }
 
-void pipeline_describe(const pipeline_job *job, const pipeline_report *r, char *buf,
+void engine_pipeline_describe(const engine_pipeline_job *job, const engine_pipeline_report *r, char *buf,
                        size_t len)
 {
-    const master_kind *k = kind_of(job);
+    const engine_kind *k = kind_of(job);
     if (len) buf[0] = 0;
     if (k && k->summary) k->summary(job, r, buf, len);
 }

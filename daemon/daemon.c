@@ -15,7 +15,7 @@
 #include "log.h"
 #include "proto_check.h"
 
-int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen)
+int daemon_load_config(const daemon_options *o, voxd_config *c, char *err, size_t errlen)
 {
     const char *path = o->config_path;
     if (!path && access(CONFIG_DEFAULT_PATH, F_OK) == 0) path = CONFIG_DEFAULT_PATH;
@@ -30,7 +30,7 @@ int vd_load_config(const vd_options *o, voxd_config *c, char *err, size_t errlen
     return 0;
 }
 
-void vd_engine_opts(vd_daemon *d, const voxd_config *c)
+void daemon_engine_opts(daemon_ctx *d, const voxd_config *c)
 {
     memcpy(d->cpus, c->cpus, sizeof d->cpus);
     d->mem_max = config_max_memory(c);
@@ -38,7 +38,7 @@ void vd_engine_opts(vd_daemon *d, const voxd_config *c)
      * a size the file gives is taken as it is, or refused by the engine */
     uint64_t fit = engine_shm_default(config_workers(c));
     d->mem_shm = c->shm_size_set || fit > c->shm_size ? c->shm_size : fit;
-    vd_mpi *m = &d->mpi;
+    daemon_mpi *m = &d->mpi;
     snprintf(m->hostfile, sizeof m->hostfile, "%s", c->mpi_hostfile);
     snprintf(m->mpirun, sizeof m->mpirun, "%s", c->mpirun);
     snprintf(m->args, sizeof m->args, "%s", c->mpirun_args);
@@ -62,7 +62,7 @@ void vd_engine_opts(vd_daemon *d, const voxd_config *c)
 
 /* Created under umask 0177 (owner only), then given its group and mode:
  * never, not for an instant, more open than the config says. */
-static int listen_on(vd_daemon *d)
+static int listen_on(daemon_ctx *d)
 {
     const voxd_config *c = &d->cfg;
     int rc = uv_pipe_init(d->loop, &d->listener, 0);
@@ -85,12 +85,12 @@ static int listen_on(vd_daemon *d)
         log_error("cannot chmod %s: %s", c->socket, strerror(errno));
         return -errno;
     }
-    rc = uv_listen((uv_stream_t *)&d->listener, 128, vd_on_connection);
+    rc = uv_listen((uv_stream_t *)&d->listener, 128, daemon_on_connection);
     if (rc) log_error("cannot listen on %s: %s", c->socket, uv_strerror(rc));
     return rc;
 }
 
-static void stop_listening(vd_daemon *d)
+static void stop_listening(daemon_ctx *d)
 {
     if (!d->listening) return;
     d->listening = 0;
@@ -111,30 +111,30 @@ static void close_handle(uv_handle_t *h)
 
 static void on_stop_timer(uv_timer_t *t)
 {
-    vd_daemon *d = t->data;
+    daemon_ctx *d = t->data;
     log_warn("clients did not read their last replies in time; closing them");
-    while (d->clients) vd_client_close(d->clients);
+    while (d->clients) daemon_client_close(d->clients);
 }
 
 /* Everything is done: close the remaining clients once their replies are
  * written (bounded by the stop timer), then the engine, then the loop.
  * Runs after every turn of the loop (on_loop_turn), so what ends a job, an
  * upload or a connection need not call up here. */
-static void maybe_exit(vd_daemon *d)
+static void maybe_exit(daemon_ctx *d)
 {
-    if (!d->stopping || d->exiting || vd_busy(d) || d->nuploading) return;
-    for (vd_client *c = d->clients, *next; c; c = next) {
+    if (!d->stopping || d->exiting || daemon_busy(d) || d->nuploading) return;
+    for (daemon_client *c = d->clients, *next; c; c = next) {
         next = c->next;
-        vd_client_close_after_flush(c);
+        daemon_client_close_after_flush(c);
     }
     if (d->clients) {
         if (!uv_is_active((uv_handle_t *)&d->stop_timer))
-            uv_timer_start(&d->stop_timer, on_stop_timer, VD_STOP_GRACE_MS, 0);
+            uv_timer_start(&d->stop_timer, on_stop_timer, DAEMON_STOP_GRACE_MS, 0);
         return;
     }
     d->exiting = 1;
     stop_listening(d);
-    vd_engine_stop(d); /* the workers exit, the segment is removed */
+    daemon_engine_stop(d); /* the workers exit, the segment is removed */
     uv_handle_t *hs[] = {(uv_handle_t *)&d->sig_term, (uv_handle_t *)&d->sig_int,
                          (uv_handle_t *)&d->sig_quit, (uv_handle_t *)&d->sig_hup,
                          (uv_handle_t *)&d->sig_usr1, (uv_handle_t *)&d->tick,
@@ -147,14 +147,14 @@ static void maybe_exit(vd_daemon *d)
 /* TERM/INT: uploading, queued and delivering jobs end with SHUTTING_DOWN
  * now, the running one is cancelled and ends with it when the engine
  * returns. */
-static void stop_fast(vd_daemon *d)
+static void stop_fast(daemon_ctx *d)
 {
-    if (d->stopping == VD_STOP_FAST) return;
-    d->stopping = VD_STOP_FAST;
+    if (d->stopping == DAEMON_STOP_FAST) return;
+    d->stopping = DAEMON_STOP_FAST;
     log_info("stopping now: jobs end with SHUTTING_DOWN");
     stop_listening(d);
     pthread_mutex_lock(&d->mu);
-    vd_job *q = d->queue;
+    daemon_job *q = d->queue;
     d->queue = d->queue_tail = NULL;
     d->nqueued = 0;
     if (d->running && !d->running->cancel_code) {
@@ -163,39 +163,39 @@ static void stop_fast(vd_daemon *d)
     }
     pthread_mutex_unlock(&d->mu);
     while (q) {
-        vd_job *j = q;
+        daemon_job *j = q;
         q = q->next;
-        vd_job_fail(d, j, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
+        daemon_job_fail(d, j, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
     }
-    for (vd_client *c = d->clients; c; c = c->next)
-        vd_client_fail_uploads(c, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
-    for (vd_client *c = d->clients; c; c = c->next)
+    for (daemon_client *c = d->clients; c; c = c->next)
+        daemon_client_fail_uploads(c, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
+    for (daemon_client *c = d->clients; c; c = c->next)
         while (c->deliver) {
-            vd_job *j = c->deliver;
+            daemon_job *j = c->deliver;
             c->deliver = j->next;
             if (!c->deliver) c->deliver_tail = NULL;
-            vd_job_fail(d, j, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
+            daemon_job_fail(d, j, VOXD__ERROR_CODE__SHUTTING_DOWN, "the daemon is stopping");
         }
-    uv_timer_start(&d->stop_timer, on_stop_timer, VD_STOP_GRACE_MS, 0);
+    uv_timer_start(&d->stop_timer, on_stop_timer, DAEMON_STOP_GRACE_MS, 0);
 }
 
 /* QUIT: no new connections or jobs; the uploading, queued and running ones
  * finish (an upload that stalls ends after the client timeout). */
-static void stop_graceful(vd_daemon *d)
+static void stop_graceful(daemon_ctx *d)
 {
     if (d->stopping) return;
-    d->stopping = VD_STOP_GRACEFUL;
+    d->stopping = DAEMON_STOP_GRACEFUL;
     log_info("stopping when the running and queued jobs are done");
     stop_listening(d);
 }
 
 /* ---------------------------------------------------------------- reload */
 
-static void reload(vd_daemon *d)
+static void reload(daemon_ctx *d)
 {
     voxd_config nc;
     char err[512];
-    if (vd_load_config(&d->opt, &nc, err, sizeof err)) {
+    if (daemon_load_config(&d->opt, &nc, err, sizeof err)) {
         log_error("reload: %s; keeping the running configuration", err);
         return;
     }
@@ -209,7 +209,7 @@ static void reload(vd_daemon *d)
     }
     d->cfg = nc;
     pthread_mutex_lock(&d->mu);
-    vd_engine_opts(d, &nc);
+    daemon_engine_opts(d, &nc);
     d->reload = 1;
     pthread_cond_signal(&d->cv);
     pthread_mutex_unlock(&d->mu);
@@ -220,7 +220,7 @@ static void reload(vd_daemon *d)
 
 static void on_signal(uv_signal_t *s, int signum)
 {
-    vd_daemon *d = s->data;
+    daemon_ctx *d = s->data;
     switch (signum) {
     case SIGTERM: case SIGINT: stop_fast(d); break;
     case SIGQUIT: stop_graceful(d); break;
@@ -234,7 +234,7 @@ static void on_signal(uv_signal_t *s, int signum)
     }
 }
 
-static int watch_signals(vd_daemon *d)
+static int watch_signals(daemon_ctx *d)
 {
     struct { uv_signal_t *h; int sig; } sigs[] = {
         {&d->sig_term, SIGTERM}, {&d->sig_int, SIGINT}, {&d->sig_quit, SIGQUIT},
@@ -249,10 +249,10 @@ static int watch_signals(vd_daemon *d)
 }
 
 /* The running job past its job_timeout is told to stop. */
-static void check_job_timeout(vd_daemon *d, double now)
+static void check_job_timeout(daemon_ctx *d, double now)
 {
     pthread_mutex_lock(&d->mu);
-    vd_job *j = d->running;
+    daemon_job *j = d->running;
     int late = j && j->job_timeout && !j->cancel_code &&
                now - j->t_start > (double)j->job_timeout;
     if (late) {
@@ -267,21 +267,21 @@ static void check_job_timeout(vd_daemon *d, double now)
 
 static void on_tick(uv_timer_t *t)
 {
-    vd_daemon *d = t->data;
+    daemon_ctx *d = t->data;
     double now = clock_now();
     check_job_timeout(d, now);
     /* a flood that stopped: its count is written now, not at the next one */
-    for (int k = 0; k < VD_LOG_KINDS; k++) log_limit_flush(&d->loglim[k], now);
-    for (vd_client *c = d->clients, *next; c; c = next) {
+    for (int k = 0; k < DAEMON_LOG_KINDS; k++) log_limit_flush(&d->loglim[k], now);
+    for (daemon_client *c = d->clients, *next; c; c = next) {
         next = c->next;
-        vd_client_tick(c, now);
+        daemon_client_tick(c, now);
     }
 }
 
 /* ---------------------------------------------------------------- run */
 
 /* --daemon: tell the waiting parent we serve, then let go of the terminal. */
-static void ready(vd_daemon *d)
+static void ready(daemon_ctx *d)
 {
     if (d->opt.ready_fd < 0) return;
     ssize_t w = write(d->opt.ready_fd, "1", 1);
@@ -301,9 +301,9 @@ static void on_loop_turn(uv_check_t *h)
     maybe_exit(h->data);
 }
 
-static int start(vd_daemon *d)
+static int start(daemon_ctx *d)
 {
-    int rc = uv_async_init(d->loop, &d->wake, vd_on_wake);
+    int rc = uv_async_init(d->loop, &d->wake, daemon_on_wake);
     if (rc) return rc;
     d->wake.data = d;
     uv_check_init(d->loop, &d->turn);
@@ -315,12 +315,12 @@ static int start(vd_daemon *d)
     if ((rc = watch_signals(d))) return rc;
     /* The workers first: forked before the socket exists, they do not
      * hold it. */
-    if ((rc = vd_engine_start(d))) {
+    if ((rc = daemon_engine_start(d))) {
         log_error("cannot start the workers: %s", d->engine_err[0] ? d->engine_err : strerror(-rc));
         return rc;
     }
     if ((rc = listen_on(d))) return rc;
-    uv_timer_start(&d->tick, on_tick, VD_TICK_MS, VD_TICK_MS);
+    uv_timer_start(&d->tick, on_tick, DAEMON_TICK_MS, DAEMON_TICK_MS);
     char stall[32] = "off";
     if (d->cfg.worker_stall_timeout)
         snprintf(stall, sizeof stall, "%u s", d->cfg.worker_stall_timeout);
@@ -337,24 +337,24 @@ static void walk_close(uv_handle_t *h, void *arg)
     close_handle(h);
 }
 
-static void init_log_limits(vd_daemon *d)
+static void init_log_limits(daemon_ctx *d)
 {
-    static const char *const what[VD_LOG_KINDS] = {
-        [VD_LOG_ACCEPT] = "failed accepts",
-        [VD_LOG_NOT_ALLOWED] = "refused connections: not in allow_uids",
-        [VD_LOG_PER_UID] = "refused connections: max_clients_per_uid",
-        [VD_LOG_FULL] = "refused connections: max_clients",
-        [VD_LOG_BAD_FRAME] = "bad frames",
-        [VD_LOG_BAD_REQUEST] = "refused requests",
-        [VD_LOG_STALLED] = "clients timed out",
-        [VD_LOG_CUT] = "connections ended inside a frame",
+    static const char *const what[DAEMON_LOG_KINDS] = {
+        [DAEMON_LOG_ACCEPT] = "failed accepts",
+        [DAEMON_LOG_NOT_ALLOWED] = "refused connections: not in allow_uids",
+        [DAEMON_LOG_PER_UID] = "refused connections: max_clients_per_uid",
+        [DAEMON_LOG_FULL] = "refused connections: max_clients",
+        [DAEMON_LOG_BAD_FRAME] = "bad frames",
+        [DAEMON_LOG_BAD_REQUEST] = "refused requests",
+        [DAEMON_LOG_STALLED] = "clients timed out",
+        [DAEMON_LOG_CUT] = "connections ended inside a frame",
     };
-    for (int k = 0; k < VD_LOG_KINDS; k++) d->loglim[k] = (log_limit)LOG_LIMIT_INIT(what[k]);
+    for (int k = 0; k < DAEMON_LOG_KINDS; k++) d->loglim[k] = (log_limit)LOG_LIMIT_INIT(what[k]);
 }
 
-int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
+int daemon_run(const voxd_config *cfg, const daemon_options *opt, const char *shm_name)
 {
-    vd_daemon *d = calloc(1, sizeof *d);
+    daemon_ctx *d = calloc(1, sizeof *d);
     uv_loop_t loop;
     if (!d || uv_loop_init(&loop)) {
         free(d);
@@ -370,7 +370,7 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
     pthread_mutex_init(&d->mu, NULL);
     pthread_cond_init(&d->cv, NULL);
     pthread_cond_init(&d->started_cv, NULL);
-    vd_engine_opts(d, cfg);
+    daemon_engine_opts(d, cfg);
     int rc = start(d);
     if (rc == 0) {
         ready(d);
@@ -378,7 +378,7 @@ int vd_run(const voxd_config *cfg, const vd_options *opt, const char *shm_name)
     } else {
         d->exit_code = CLI_EXIT_FAILED;
     }
-    vd_engine_stop(d);
+    daemon_engine_stop(d);
     uv_walk(&loop, walk_close, NULL);
     uv_run(&loop, UV_RUN_DEFAULT);
     uv_loop_close(&loop);

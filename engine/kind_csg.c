@@ -57,12 +57,12 @@ static int copy_input(engine *e, const csg_tree *t, csg_block *b, uint64_t *vol_
     uint64_t end = e->h->data_off + e->h->data_bytes;
     b->n_nodes = t->n;
     b->node_bytes = sizeof(csg_node);
-    b->nodes_off = sched_align64(e->h->data_off + sizeof *b);
-    b->text_off = sched_align64(b->nodes_off + (uint64_t)t->n * sizeof(csg_node));
+    b->nodes_off = engine_sched_align64(e->h->data_off + sizeof *b);
+    b->text_off = engine_sched_align64(b->nodes_off + (uint64_t)t->n * sizeof(csg_node));
     b->text_len = t->text_len;
-    b->stats_off = sched_align64(b->text_off + t->text_len + 1);
-    *vol_off = sched_align64(b->stats_off + (uint64_t)b->ntasks * sizeof(csg_task_stats));
-    if (*vol_off >= end) return sched_no_room(e, "the tree");
+    b->stats_off = engine_sched_align64(b->text_off + t->text_len + 1);
+    *vol_off = engine_sched_align64(b->stats_off + (uint64_t)b->ntasks * sizeof(csg_task_stats));
+    if (*vol_off >= end) return engine_sched_no_room(e, "the tree");
     memcpy(shm_at(e->seg.base, b->nodes_off), t->node, t->n * sizeof(csg_node));
     char *text = shm_at(e->seg.base, b->text_off);
     if (t->text_len) memcpy(text, t->text, t->text_len);
@@ -76,7 +76,7 @@ static int init_volume(engine *e, const grid_spec *g, int channel, uint64_t off)
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
     int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
                              csg_channel_bits(channel), CSG_VOLUME_BRICK);
-    if (rc) return sched_no_room(e, "the volume's tables");
+    if (rc) return engine_sched_no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;
 }
@@ -91,7 +91,7 @@ static int push_runs(engine *e, const csg_block *b, uint32_t per)
         csg_task_arg a = {(uint32_t)first, (uint32_t)(n - first < per ? n - first : per), k};
         shm_task t = {.kind = SHM_KIND_CSG, .op = CSG_BRICKS};
         memcpy(t.arg, &a, sizeof a);
-        rc = sched_push(e, &t);
+        rc = engine_sched_push(e, &t);
     }
     return rc;
 }
@@ -157,7 +157,7 @@ static int push_mips(engine *e, const csg_block *b)
         csg_task_arg a = {(uint32_t)first, (uint32_t)(n - first < per ? n - first : per), 0};
         shm_task t = {.kind = SHM_KIND_CSG, .op = CSG_MIPS};
         memcpy(t.arg, &a, sizeof a);
-        rc = sched_push(e, &t);
+        rc = engine_sched_push(e, &t);
     }
     return rc;
 }
@@ -170,7 +170,7 @@ static int start_bricks(engine *e, csg_job *cj)
 {
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     const engine_csg_job *j = cj->job;
-    if (cj->off >= e->h->data_off + e->h->data_bytes) return sched_no_room(e, "the volume");
+    if (cj->off >= e->h->data_off + e->h->data_bytes) return engine_sched_no_room(e, "the volume");
     int rc = init_volume(e, &j->grid, j->channel, cj->off);
     if (rc) return rc;
     b->volume_off = cj->off;
@@ -186,13 +186,13 @@ static int lay_out_mesh(engine *e, const mesh *m, const mesh_vox_opts *o, const 
 {
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     uint64_t n = (uint64_t)bins->tiles[0] * bins->tiles[1], end = e->h->data_off + e->h->data_bytes;
-    uint64_t at = sched_align64(*off), v = sched_align64(at + sizeof(mesh_block));
-    uint64_t t = sched_align64(v + (uint64_t)m->n_vertices * 12);
-    uint64_t st = sched_align64(t + (uint64_t)m->n_triangles * 12);
-    uint64_t ids = sched_align64(st + (n + 1) * sizeof(uint64_t));
-    uint64_t stats = sched_align64(ids + bins->start[n] * sizeof(uint32_t));
-    uint64_t vol = sched_align64(stats + n * sizeof(mesh_tile_stats));
-    if (vol >= end) return sched_no_room(e, "a mesh leaf");
+    uint64_t at = engine_sched_align64(*off), v = engine_sched_align64(at + sizeof(mesh_block));
+    uint64_t t = engine_sched_align64(v + (uint64_t)m->n_vertices * 12);
+    uint64_t st = engine_sched_align64(t + (uint64_t)m->n_triangles * 12);
+    uint64_t ids = engine_sched_align64(st + (n + 1) * sizeof(uint64_t));
+    uint64_t stats = engine_sched_align64(ids + bins->start[n] * sizeof(uint32_t));
+    uint64_t vol = engine_sched_align64(stats + n * sizeof(mesh_tile_stats));
+    if (vol >= end) return engine_sched_no_room(e, "a mesh leaf");
     mesh_block *mb = shm_at(e->seg.base, at);
     *mb = (mesh_block){.grid = *g, .opts = *o, .n_vertices = m->n_vertices,
                        .n_triangles = m->n_triangles, .vertices_off = v, .triangles_off = t,
@@ -207,7 +207,7 @@ static int lay_out_mesh(engine *e, const mesh *m, const mesh_vox_opts *o, const 
     vod_volume *lv;
     if (vod_volume_init(&lv, shm_at(e->seg.base, vol), end - vol, g->res, mesh_vox_bits(o),
                         CSG_VOLUME_BRICK))
-        return sched_no_room(e, "a mesh leaf's tables");
+        return engine_sched_no_room(e, "a mesh leaf's tables");
     b->leaf_mesh_off = at;
     *off = vol;
     return 0;
@@ -232,7 +232,7 @@ static int push_leaf_tiles(engine *e, csg_job *cj, const mesh_bins *bins, int di
         csg_task_arg a = {a0, last - a0 < per ? last - a0 : per, (uint32_t)cj->leaf};
         shm_task t = {.kind = SHM_KIND_CSG, .op = CSG_LEAF_TILES};
         memcpy(t.arg, &a, sizeof a);
-        rc = sched_push(e, &t);
+        rc = engine_sched_push(e, &t);
     }
     return rc;
 }
@@ -247,12 +247,12 @@ static int start_mesh_leaf(engine *e, csg_job *cj, uint32_t i)
     mesh m;
     mesh_vox_opts o;
     int rc = csg_leaf_mesh(j->tree, i, &m, &o, msg, sizeof msg);
-    if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
     mesh_bins bins;
     rc = mesh_bin(&m, &j->grid, &o, NULL, par_cpus(), &bins);
     if (rc) {
         mesh_free(&m);
-        return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+        return engine_sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                           "node '%s': binning the triangles to tiles: %s",
                           j->tree->node[i].name, strerror(-rc));
     }
@@ -275,9 +275,9 @@ static int end_mesh_leaf(engine *e, csg_job *cj)
     vod_volume *lv = shm_at(e->seg.base, cj->off);
     vod_volume_info in;
     if (vod_volume_check(lv, end - cj->off))
-        return sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left a mesh leaf inconsistent");
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left a mesh leaf inconsistent");
     vod_volume_get_info(lv, &in);
-    cj->off = sched_align64(cj->off + in.bytes_used);
+    cj->off = engine_sched_align64(cj->off + in.bytes_used);
     cj->leaf = -1;
     return 0;
 }
@@ -292,15 +292,15 @@ static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
     vod_volume *lv;
     if (cj->off >= end || vod_volume_init(&lv, shm_at(e->seg.base, cj->off), end - cj->off,
                                           j->grid.res, 8, CSG_VOLUME_BRICK))
-        return sched_no_room(e, "the leaves' volumes");
+        return engine_sched_no_room(e, "the leaves' volumes");
     int rc = csg_leaf_build(j->tree, i, &j->grid, lv, msg, sizeof msg);
     if (rc == -ENOMEM)
-        return sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size", msg);
-    if (rc) return sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+        return engine_sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size", msg);
+    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
     vod_volume_info in;
     vod_volume_get_info(lv, &in);
     b->leaf_off[i] = cj->off;
-    cj->off = sched_align64(cj->off + in.bytes_used);
+    cj->off = engine_sched_align64(cj->off + in.bytes_used);
     return 0;
 }
 
@@ -325,10 +325,10 @@ static int csg_setup(engine *e, void *job)
     csg_job *cj = job;
     const engine_csg_job *j = cj->job;
     e->result = RESULT_NONE;
-    sched_hold(e, 0); /* the last job's result: overwritten now */
+    engine_sched_hold(e, 0); /* the last job's result: overwritten now */
     if (!j->tree || !j->tree->n || j->tree->n > CSG_MAX_NODES || grid_check(&j->grid) ||
         !csg_channel_bits(j->channel))
-        return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
+        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     memset(b, 0, sizeof *b);
     b->grid = j->grid;
@@ -336,7 +336,7 @@ static int csg_setup(engine *e, void *job)
     b->sbrick = CSG_VOLUME_BRICK;
     for (int a = 0; a < 3; a++)
         b->nbricks[a] = (j->grid.res[a] + CSG_VOLUME_BRICK - 1) / CSG_VOLUME_BRICK;
-    if (set_box(j, b)) return sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
+    if (set_box(j, b)) return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the csg job is invalid");
     uint64_t n = (uint64_t)b->box_n[0] * b->box_n[1] * b->box_n[2];
     uint32_t per = n ? (uint32_t)((n + CSG_TASKS - 1) / CSG_TASKS) : 1;
     b->ntasks = cj->ntasks = (uint32_t)((n + per - 1) / per);
@@ -350,7 +350,7 @@ static int csg_setup(engine *e, void *job)
 
 static int csg_take(engine *e, int i, const shm_entry *en)
 {
-    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+    return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u in a csg brick run", i, en->type);
 }
 
@@ -368,7 +368,7 @@ static void csg_describe(const shm_task *t, char *buf, size_t len)
 static void csg_done(engine *e, int i, const shm_task *t, int error)
 {
     csg_job *cj = e->job;
-    const csg_block *b = sched_block(e);
+    const csg_block *b = engine_sched_block(e);
     if (t->op == CSG_BRICKS) cj->done++;
     /* the mesh leaf's last tile in: the next leaf, or the bricks */
     if (t->op == CSG_LEAF_TILES && ++cj->leaf_done == cj->leaf_tasks && !error &&
@@ -384,9 +384,9 @@ static void csg_done(engine *e, int i, const shm_task *t, int error)
     char what[64];
     csg_describe(t, what, sizeof what);
     if (error == -ENOMEM)
-        sched_no_room(e, "the volume");
+        engine_sched_no_room(e, "the volume");
     else
-        sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
+        engine_sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,
                    strerror(-error));
 }
 
@@ -401,7 +401,7 @@ static void csg_progress(engine *e, engine_progress *p)
     const csg_job *cj = e->job;
     p->fraction = cj->ntasks ? (double)cj->done / cj->ntasks : 1.0;
     p->level = 0;
-    const csg_block *b = sched_block(e);
+    const csg_block *b = engine_sched_block(e);
     if (e->volume && b->volume_off) { /* the pool grows as the workers write */
         vod_volume_info in;
         vod_volume_get_info(e->volume, &in);
@@ -412,7 +412,7 @@ static void csg_progress(engine *e, engine_progress *p)
 /* The runs' counts, and the volume checked before the writer reads it. */
 static int collect(engine *e, csg_job *cj)
 {
-    const csg_block *b = sched_block(e);
+    const csg_block *b = engine_sched_block(e);
     engine_result *r = cj->r;
     const csg_task_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint32_t t = 0; t < b->ntasks; t++) {
@@ -432,10 +432,10 @@ static int collect(engine *e, csg_job *cj)
     if (!bad && cj->mips_pushed) /* every column's built */
         bad = vod_volume_mips_low(e->volume, (int)b->channel, (int)b->mip_levels);
     if (bad)
-        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "the workers left the volume inconsistent");
     /* the volume stays for the encode kind */
-    sched_hold(e, b->volume_off - e->h->data_off + in.bytes_used);
+    engine_sched_hold(e, b->volume_off - e->h->data_off + in.bytes_used);
     return 0;
 }
 
@@ -443,44 +443,44 @@ static int csg_finish(engine *e, void *job, int rc)
 {
     csg_job *cj = job;
     engine_result *r = cj->r;
-    sched_job_totals(e, r);
+    engine_sched_job_totals(e, r);
     r->octants = 0;
     if (!rc) rc = collect(e, cj);
     r->seconds = clock_now() - e->t0;
-    if (rc) return sched_job_failed(e, r, rc);
+    if (rc) return engine_sched_job_failed(e, r, rc);
     e->result = RESULT_VOLUME;
     return 0;
 }
 
 /* ---- the pipeline's side (master.h) ---- */
 
-static int csg_domain(const pipeline_job *job, double lo[3], double hi[3],
-                      pipeline_report *r)
+static int csg_domain(const engine_pipeline_job *job, double lo[3], double hi[3],
+                      engine_pipeline_report *r)
 {
     (void)lo, (void)hi; /* the job's own */
     if (!job->csg.tree || !job->csg.tree->n)
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no csg tree");
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no csg tree");
     if (!csg_channel_bits(job->vod.channel))
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL,
                              "a csg job writes the density, occupancy, surface or distance "
                              "channel");
     if (job->vod.channel != VOXEL_CH_DISTANCE) return 0;
-    if (pipeline_band(job) > VOXEL_BAND_MAX)
-        return pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
-                             pipeline_band(job), VOXEL_BAND_MAX);
+    if (engine_pipeline_band(job) > VOXEL_BAND_MAX)
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
+                             engine_pipeline_band(job), VOXEL_BAND_MAX);
     char why[sizeof r->err.message - 32];
     int rc = csg_dist_check(job->csg.tree, why, sizeof why);
-    if (rc) return pipeline_fail(r, ENGINE_BAD_JOB, rc, "the distance channel: %s", why);
+    if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "the distance channel: %s", why);
     return 0;
 }
 
-static void csg_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t len)
+static void csg_meta(const engine_pipeline_job *job, job_meta *m, char *pairs, size_t len)
 {
     int n = snprintf(pairs, len, "csg_nodes=%u\n", job->csg.tree->n);
     /* the distance's band and units, as a mesh's or an expression's */
     if (job->vod.channel == VOXEL_CH_DISTANCE && n > 0 && (size_t)n < len)
         snprintf(pairs + n, len - (size_t)n, "distance_band=%u\ndistance_units=world\n",
-                 pipeline_band(job));
+                 engine_pipeline_band(job));
     m->generator = "vox csg";
     m->source = "";
     m->source_len = job->csg.source_bytes;
@@ -491,21 +491,21 @@ static void csg_meta(const pipeline_job *job, job_meta *m, char *pairs, size_t l
 /* Channel 4: job's tree copied (the struct alone, its pointers shared:
  * free() it, not csg_tree_free) with the band in its distance leaves' k
  * (csg_tree_set_band), made the job's; *copy NULL for other channels. */
-static int band_tree(pipeline_job *job, csg_tree **copy, pipeline_report *r)
+static int band_tree(engine_pipeline_job *job, csg_tree **copy, engine_pipeline_report *r)
 {
     *copy = NULL;
     if (job->vod.channel != VOXEL_CH_DISTANCE) return 0;
     if (!(*copy = malloc(sizeof **copy)))
-        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "out of memory");
+        return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "out of memory");
     **copy = *job->csg.tree;
-    csg_tree_set_band(*copy, pipeline_band(job));
+    csg_tree_set_band(*copy, engine_pipeline_band(job));
     job->csg.tree = *copy;
     return 0;
 }
 
 /* The file leaves of a csg job in a sparse private mapping (*arena,
  * *abytes; none: MAP_FAILED), their volumes in leaves. */
-static int serial_leaves(const pipeline_job *job, pipeline_report *r, void **arena,
+static int serial_leaves(const engine_pipeline_job *job, engine_pipeline_report *r, void **arena,
                          size_t *abytes, vod_volume *leaves[CSG_MAX_NODES])
 {
     *arena = MAP_FAILED;
@@ -524,23 +524,23 @@ static int serial_leaves(const pipeline_job *job, pipeline_report *r, void **are
                         MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
                  : MAP_FAILED;
     if (*arena == MAP_FAILED)
-        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
+        return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
     char msg[sizeof r->err.message];
     size_t used;
     int rc = csg_leaves_build(t, &r->grid, *arena, *abytes, leaves, &used, msg, sizeof msg);
     if (rc)
-        return pipeline_fail(r, rc == -ENOMEM || rc == -ENOSPC ? ENGINE_LIMIT : ENGINE_BAD_JOB,
+        return engine_pipeline_fail(r, rc == -ENOMEM || rc == -ENOSPC ? ENGINE_LIMIT : ENGINE_BAD_JOB,
                              rc, "%s", msg);
     return 0;
 }
 
 /* A csg job in this thread: every brick in turn (csg_eval_volume) into a
  * volume in a sparse private mapping, the engine's layout. */
-static int csg_serial_run(pipeline_job *job, const vod_params *v, vod_sink *sink,
-                          pipeline_report *r);
+static int csg_serial_run(engine_pipeline_job *job, const vod_params *v, vod_sink *sink,
+                          engine_pipeline_report *r);
 
-static int csg_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
-                      pipeline_report *r)
+static int csg_serial(engine_pipeline_job *job, const vod_params *v, vod_sink *sink,
+                      engine_pipeline_report *r)
 {
     const csg_tree *own = job->csg.tree;
     csg_tree *copy;
@@ -551,10 +551,10 @@ static int csg_serial(pipeline_job *job, const vod_params *v, vod_sink *sink,
     return rc;
 }
 
-static int csg_serial_run(pipeline_job *job, const vod_params *v, vod_sink *sink,
-                          pipeline_report *r)
+static int csg_serial_run(engine_pipeline_job *job, const vod_params *v, vod_sink *sink,
+                          engine_pipeline_report *r)
 {
-    r->stage = PIPELINE_VOXELIZE;
+    r->stage = ENGINE_PIPELINE_VOXELIZE;
     void *larena;
     size_t lbytes = 0;
     vod_volume *leaves[CSG_MAX_NODES];
@@ -571,7 +571,7 @@ static int csg_serial_run(pipeline_job *job, const vod_params *v, vod_sink *sink
                         : MAP_FAILED;
     if (arena == MAP_FAILED) {
         if (larena != MAP_FAILED) munmap(larena, lbytes);
-        return pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
+        return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map a volume of %ux%ux%u",
                              r->grid.res[0], r->grid.res[1], r->grid.res[2]);
     }
     vod_volume *vol;
@@ -583,19 +583,19 @@ static int csg_serial_run(pipeline_job *job, const vod_params *v, vod_sink *sink
     r->fig.csg = (engine_csg_figures){st.bricks, st.uniform_bricks, st.skipped, st.voxel_evals};
     r->voxels = st.solid_voxels;
     if (rc) {
-        pipeline_fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
+        engine_pipeline_fail(r, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                       "evaluating the tree: %s", strerror(-rc));
     } else {
         vod_source src = vod_volume_source(vol);
-        rc = pipeline_write_serial(NULL, &src, v, sink, r);
+        rc = engine_pipeline_write_serial(NULL, &src, v, sink, r);
     }
     munmap(arena, bytes);
     if (larena != MAP_FAILED) munmap(larena, lbytes);
     return rc;
 }
 
-static int csg_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
-                        engine_result *er, pipeline_report *r)
+static int csg_voxelize(engine *e, engine_pipeline_job *job, const engine_sched_watch *w,
+                        engine_result *er, engine_pipeline_report *r)
 {
     const csg_tree *own = job->csg.tree;
     csg_tree *copy;
@@ -611,7 +611,7 @@ static int csg_voxelize(engine *e, pipeline_job *job, const sched_watch *w,
 }
 
 /* What vox says of a csg job that ran: its bricks. */
-static void csg_summary(const pipeline_job *job, const pipeline_report *r,
+static void csg_summary(const engine_pipeline_job *job, const engine_pipeline_report *r,
                                 char *buf, size_t len)
 {
     (void)job;
@@ -621,7 +621,7 @@ static void csg_summary(const pipeline_job *job, const pipeline_report *r,
              (unsigned long long)f->skipped);
 }
 
-const master_kind kind_csg = {
+const engine_kind engine_kind_csg = {
     .name = "csg",
     .id = SHM_KIND_CSG,
     .setup = csg_setup,
@@ -641,6 +641,6 @@ const master_kind kind_csg = {
 int engine_csg(engine *e, const engine_csg_job *job, engine_result *r)
 {
     csg_job cj = {.job = job, .r = r};
-    sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    return sched_run_job(e, &kind_csg, &cj, &w, r);
+    engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
+    return engine_sched_run_job(e, &engine_kind_csg, &cj, &w, r);
 }

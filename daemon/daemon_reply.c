@@ -1,5 +1,5 @@
 /* The replies the daemon sends, built on the stack and framed by
- * vd_client_send. */
+ * daemon_client_send. */
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -10,20 +10,20 @@
 #include "pipeline.h"
 #include "proto_check.h"
 
-void vd_clean_text(char *s)
+void daemon_clean_text(char *s)
 {
     for (unsigned char *p = (unsigned char *)s; *p; p++)
         if ((*p < 0x20 && *p != '\n' && *p != '\t') || *p >= 0x7f) *p = '?';
 }
 
-int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ...)
+int daemon_client_error(daemon_client *c, uint64_t job_id, int code, const char *fmt, ...)
 {
     char msg[PROTO_MAX_MESSAGE];
     va_list ap;
     va_start(ap, fmt);
     err_vfmt(msg, sizeof msg, 0, fmt, ap);
     va_end(ap);
-    vd_clean_text(msg);
+    daemon_clean_text(msg);
     Voxd__Error e = VOXD__ERROR__INIT;
     e.job_id = job_id;
     e.code = (Voxd__ErrorCode)code;
@@ -31,10 +31,10 @@ int vd_client_error(vd_client *c, uint64_t job_id, int code, const char *fmt, ..
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_ERROR;
     r.error = &e;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
-int vd_send_hello_ok(vd_client *c)
+int daemon_send_hello_ok(daemon_client *c)
 {
     proto_limits lim;
     config_proto_limits(&c->d->cfg, &lim);
@@ -42,7 +42,7 @@ int vd_send_hello_ok(vd_client *c)
     proto_limits_to_hello(&lim, &l);
     Voxd__HelloOk h = VOXD__HELLO_OK__INIT;
     h.version = PROTO_VERSION;
-    h.server = (char *)VD_SERVER_NAME;
+    h.server = (char *)DAEMON_SERVER_NAME;
     h.limits = &l;
     pthread_mutex_lock(&c->d->mu);
     h.workers = (uint32_t)c->d->nworkers;
@@ -50,10 +50,10 @@ int vd_send_hello_ok(vd_client *c)
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_HELLO_OK;
     r.hello_ok = &h;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
-int vd_send_accepted(vd_client *c, uint64_t id, uint32_t pos)
+int daemon_send_accepted(daemon_client *c, uint64_t id, uint32_t pos)
 {
     Voxd__Accepted a = VOXD__ACCEPTED__INIT;
     a.job_id = id;
@@ -61,10 +61,10 @@ int vd_send_accepted(vd_client *c, uint64_t id, uint32_t pos)
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_ACCEPTED;
     r.accepted = &a;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
-int vd_send_progress(vd_client *c, const vd_job *j, const engine_progress *p)
+int daemon_send_progress(daemon_client *c, const daemon_job *j, const engine_progress *p)
 {
     Voxd__Progress m = VOXD__PROGRESS__INIT;
     m.job_id = j->id;
@@ -74,10 +74,10 @@ int vd_send_progress(vd_client *c, const vd_job *j, const engine_progress *p)
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_PROGRESS;
     r.progress = &m;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
-int vd_send_chunk(vd_client *c, const vd_job *j, const uint8_t *data, size_t n)
+int daemon_send_chunk(daemon_client *c, const daemon_job *j, const uint8_t *data, size_t n)
 {
     Voxd__ResultChunk m = VOXD__RESULT_CHUNK__INIT;
     m.job_id = j->id;
@@ -87,7 +87,7 @@ int vd_send_chunk(vd_client *c, const vd_job *j, const uint8_t *data, size_t n)
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_CHUNK;
     r.chunk = &m;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
 static double nonneg(double s)
@@ -101,9 +101,9 @@ typedef struct {
     Voxd__MeshReport mesh;
 } kind_reports;
 
-static void mesh_summary(const pipeline_figures *f, Voxd__Summary *m, kind_reports *k)
+static void mesh_summary(const engine_pipeline_figures *f, Voxd__Summary *m, kind_reports *k)
 {
-    const pipeline_mesh_figures *mf = &f->mesh;
+    const engine_pipeline_mesh_figures *mf = &f->mesh;
     Voxd__MeshReport *mr = &k->mesh;
     voxd__mesh_report__init(mr);
     mr->triangles = mf->triangles;
@@ -117,12 +117,12 @@ static void mesh_summary(const pipeline_figures *f, Voxd__Summary *m, kind_repor
     m->mesh = mr;
 }
 
-static void (*const kind_summary[PIPELINE_KINDS])(const pipeline_figures *f, Voxd__Summary *m,
+static void (*const kind_summary[ENGINE_PIPELINE_KINDS])(const engine_pipeline_figures *f, Voxd__Summary *m,
                                                   kind_reports *k) = {
-    [PIPELINE_MESH] = mesh_summary,
+    [ENGINE_PIPELINE_MESH] = mesh_summary,
 };
 
-int vd_send_summary(vd_client *c, const vd_job *j)
+int daemon_send_summary(daemon_client *c, const daemon_job *j)
 {
     const grid_spec *g = &j->grid;
     uint32_t res[3] = {g->res[0], g->res[1], g->res[2]};
@@ -146,17 +146,17 @@ int vd_send_summary(vd_client *c, const vd_job *j)
     m.seconds_write = nonneg(j->t_write);
     m.mpi_ranks = j->mpi_ranks;
     kind_reports kr;
-    if (j->has_figures && (unsigned)j->kind < PIPELINE_KINDS && kind_summary[j->kind])
+    if (j->has_figures && (unsigned)j->kind < ENGINE_PIPELINE_KINDS && kind_summary[j->kind])
         kind_summary[j->kind](&j->fig, &m, &kr);
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_SUMMARY;
     r.summary = &m;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
 /* The engine's view of the worker when the engine thread last looked
  * (every 0.1 s of a job, and at its end). */
-static Voxd__WorkerState worker_state(const vd_worker_snap *s, int running)
+static Voxd__WorkerState worker_state(const daemon_worker_snap *s, int running)
 {
     if (s->pid <= 0 || s->state == ENGINE_WORKER_STARTING)
         return VOXD__WORKER_STATE__WORKER_STATE_STARTING;
@@ -166,11 +166,11 @@ static Voxd__WorkerState worker_state(const vd_worker_snap *s, int running)
 }
 
 /* Under mu: the workers as the engine thread last saw them. */
-static size_t fill_workers(vd_daemon *d, Voxd__WorkerStatus *ws, Voxd__WorkerStatus **wp)
+static size_t fill_workers(daemon_ctx *d, Voxd__WorkerStatus *ws, Voxd__WorkerStatus **wp)
 {
     size_t n = 0;
     for (int i = 0; i < d->nworkers; i++) {
-        const vd_worker_snap *s = &d->workers[i];
+        const daemon_worker_snap *s = &d->workers[i];
         if (s->pid <= 0) continue; /* never started: nothing to show */
         voxd__worker_status__init(&ws[n]);
         ws[n].pid = (uint32_t)s->pid;
@@ -186,13 +186,13 @@ static size_t fill_workers(vd_daemon *d, Voxd__WorkerStatus *ws, Voxd__WorkerSta
     return n;
 }
 
-static void fill_job(const vd_job *j, int state, double now, Voxd__JobStatus *js)
+static void fill_job(const daemon_job *j, int state, double now, Voxd__JobStatus *js)
 {
     voxd__job_status__init(js);
     js->job_id = j->id;
     js->uid = (uint32_t)j->uid;
-    js->kind = j->kind == PIPELINE_MESH  ? VOXD__JOB_KIND__JOB_KIND_MESH
-               : j->kind == PIPELINE_CSG ? VOXD__JOB_KIND__JOB_KIND_CSG
+    js->kind = j->kind == ENGINE_PIPELINE_MESH  ? VOXD__JOB_KIND__JOB_KIND_MESH
+               : j->kind == ENGINE_PIPELINE_CSG ? VOXD__JOB_KIND__JOB_KIND_CSG
                                          : VOXD__JOB_KIND__JOB_KIND_IMPLICIT;
     js->res = j->res;
     js->state = state;
@@ -203,22 +203,22 @@ static void fill_job(const vd_job *j, int state, double now, Voxd__JobStatus *js
 }
 
 /* The running job, then the queued ones in their order (under d->mu). */
-static size_t fill_jobs(const vd_daemon *d, double now, Voxd__JobStatus *js,
+static size_t fill_jobs(const daemon_ctx *d, double now, Voxd__JobStatus *js,
                         Voxd__JobStatus **jp)
 {
     size_t n = 0;
     if (d->running) fill_job(d->running, VOXD__JOB_STATE__JOB_STATE_RUNNING, now, &js[n++]);
-    for (const vd_job *j = d->queue; j && n < PROTO_MAX_STATUS_JOBS; j = j->next)
+    for (const daemon_job *j = d->queue; j && n < PROTO_MAX_STATUS_JOBS; j = j->next)
         fill_job(j, VOXD__JOB_STATE__JOB_STATE_QUEUED, now, &js[n++]);
     for (size_t i = 0; i < n; i++) jp[i] = &js[i];
     return n;
 }
 
-int vd_send_status(vd_client *c)
+int daemon_send_status(daemon_client *c)
 {
     static Voxd__JobStatus js[PROTO_MAX_STATUS_JOBS]; /* loop thread only */
     static Voxd__JobStatus *jp[PROTO_MAX_STATUS_JOBS];
-    vd_daemon *d = c->d;
+    daemon_ctx *d = c->d;
     static Voxd__WorkerStatus ws[ENGINE_MAX_WORKERS]; /* loop thread only */
     Voxd__WorkerStatus *wp[ENGINE_MAX_WORKERS];
     Voxd__StatusReply s = VOXD__STATUS_REPLY__INIT;
@@ -244,15 +244,15 @@ int vd_send_status(vd_client *c)
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_STATUS;
     r.status = &s;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }
 
-int vd_send_pong(vd_client *c, uint64_t token)
+int daemon_send_pong(daemon_client *c, uint64_t token)
 {
     Voxd__Pong p = VOXD__PONG__INIT;
     p.token = token;
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_PONG;
     r.pong = &p;
-    return vd_client_send(c, &r);
+    return daemon_client_send(c, &r);
 }

@@ -1,7 +1,7 @@
 /* kinds — the kinds of job the engine runs, and what each keeps in the
  * shared segment's data area.
  *
- * A kind is a pair: its master side (master/kind_<name>.c: set the job up
+ * A kind is a pair: its master side (engine/kind_<name>.c: set the job up
  * here, seed the work stack, take what the workers return, progress,
  * what a worker's death means, the result) and its worker side
  * (worker/work_<name>.c: begin a job, run one task).  The core (the pool,
@@ -12,8 +12,8 @@
  * task_seq release) and the workers read.
  *
  * Adding a kind: a number and a block here, one master file
- * (master/kind_<name>.c), one worker file (worker/work_<name>.c), one
- * entry in each side's table (master/kinds.c for a pipeline job's kind,
+ * (engine/kind_<name>.c), one worker file (worker/work_<name>.c), one
+ * entry in each side's table (engine/kinds.c for a pipeline job's kind,
  * worker/worker.c); docs/design.md, "Adding a kind of job", lists every
  * file.
  */

@@ -41,7 +41,7 @@ const char *engine_failure_name(engine_failure f)
     return (unsigned)f < sizeof names / sizeof names[0] ? names[f] : "?";
 }
 
-int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
+int engine_sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
 {
     if (e->err.failure) return e->err.code; /* the first is the one told */
     e->err.failure = f;
@@ -58,14 +58,14 @@ int sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
     return rc;
 }
 
-int sched_no_room(engine *e, const char *what)
+int engine_sched_no_room(engine *e, const char *what)
 {
-    return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+    return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
                       "%s does not fit in shared memory (%zu MiB); raise its size",
                       what, e->seg.bytes >> 20);
 }
 
-int sched_run_job(engine *e, const master_kind *k, void *job, const sched_watch *watch,
+int engine_sched_run_job(engine *e, const engine_kind *k, void *job, const engine_sched_watch *watch,
                   engine_result *r)
 {
     double c0 = clock_thread_cpu();
@@ -82,16 +82,16 @@ engine_failure engine_vod_failure(int rc, int said)
     return rc == -EFBIG ? ENGINE_LIMIT : rc == -EINVAL ? ENGINE_BAD_JOB : ENGINE_FAULT;
 }
 
-int sched_push(engine *e, const shm_task *t)
+int engine_sched_push(engine *e, const shm_task *t)
 {
     if (e->sp == e->cap)
-        return sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+        return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
                           "the work stack overflowed (%u tasks)", e->cap);
     e->stack[e->sp++] = *t;
     return 0;
 }
 
-void sched_hold(engine *e, uint64_t bytes)
+void engine_sched_hold(engine *e, uint64_t bytes)
 {
     e->hold = bytes;
 }
@@ -104,7 +104,7 @@ static void give_back(engine *e, uint64_t from)
     madvise(e->seg.base + from, e->seg.bytes - from, MADV_REMOVE);
 }
 
-void sched_release(engine *e)
+void engine_sched_release(engine *e)
 {
     uint64_t page = (uint64_t)sysconf(_SC_PAGESIZE);
     uint64_t keep = e->keep > e->hold ? e->keep : e->hold;
@@ -130,11 +130,11 @@ void engine_tidy(engine *e)
     give_back(e, from);
 }
 
-void sched_job_totals(engine *e, engine_result *r)
+void engine_sched_job_totals(engine *e, engine_result *r)
 {
     uint64_t tested = 0, cpu = 0;
     for (int i = 0; i < e->n; i++) {
-        shm_slot *s = pool_slot(e, i);
+        shm_slot *s = engine_pool_slot(e, i);
         if (s->job_gen != e->h->gen) continue;
         tested += s->job_tested;
         cpu += s->job_cpu_ns;
@@ -145,7 +145,7 @@ void sched_job_totals(engine *e, engine_result *r)
     r->stalls = e->stalls;
 }
 
-int sched_job_failed(engine *e, engine_result *r, int rc)
+int engine_sched_job_failed(engine *e, engine_result *r, int rc)
 {
     r->failure = e->err.failure;
     snprintf(r->error, sizeof r->error, "%s", e->err.message);
@@ -157,7 +157,7 @@ void engine_release(engine *e)
     if (e->kind) return; /* inside a job: its finish holds what it needs */
     e->result = RESULT_NONE;
     e->hold = 0;
-    sched_release(e);
+    engine_sched_release(e);
 }
 
 
@@ -171,10 +171,10 @@ static void give(engine *e, int i, const shm_task *t, uint32_t skip)
     m->deaths = 0;
     m->task_stalls = 0;
     /* relaxed: see shm_slot.beat */
-    m->beat = atomic_load_explicit(&pool_slot(e, i)->beat, memory_order_relaxed);
+    m->beat = atomic_load_explicit(&engine_pool_slot(e, i)->beat, memory_order_relaxed);
     m->beat_t = clock_now();
     e->nbusy++;
-    pool_give(e, i, t, skip);
+    engine_pool_give(e, i, t, skip);
 }
 
 /* Worker i's task is over: finished and drained, or dropped. */
@@ -183,14 +183,14 @@ static void finish(engine *e, int i)
     mslot *m = &e->ms[i];
     m->busy = 0;
     e->nbusy--;
-    e->kind->done(e, i, &m->task, pool_slot(e, i)->error);
+    e->kind->done(e, i, &m->task, engine_pool_slot(e, i)->error);
 }
 
 static int take(engine *e, int i, const shm_entry *en)
 {
     uint32_t kind = en->kind; /* read once: the worker's memory */
     if (kind != e->ms[i].task.kind)
-        return sched_fail(e, ENGINE_FAULT, -EPROTO,
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "worker %d sent an entry of kind %u in a task of "
                           "kind %u", i, kind, e->ms[i].task.kind);
     return e->kind->take(e, i, en);
@@ -200,7 +200,7 @@ static int take(engine *e, int i, const shm_entry *en)
  * much happened. */
 static int drain(engine *e, int i, int discard)
 {
-    shm_slot *s = pool_slot(e, i);
+    shm_slot *s = engine_pool_slot(e, i);
     mslot *m = &e->ms[i];
     /* acquire: pairs with the worker's release of done_seq, so the prod
      * read next covers every entry of the finished task. */
@@ -208,7 +208,7 @@ static int drain(engine *e, int i, int discard)
                m->seq;
     unsigned n = queue_ready(&s->q), tail = queue_tail(&s->q);
     if (n > QUEUE_ENTRIES) {
-        sched_fail(e, ENGINE_FAULT, -EPROTO,
+        engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                    "worker %d: its queue claims %u entries", i, n);
         discard = 1;
     }
@@ -238,7 +238,7 @@ static int anything_ready(engine *e)
 {
     for (int i = 0; i < e->n; i++) {
         if (!e->ms[i].busy) continue;
-        shm_slot *s = pool_slot(e, i);
+        shm_slot *s = engine_pool_slot(e, i);
         /* acquire: as in drain() */
         if (queue_ready(&s->q) ||
             atomic_load_explicit(&s->done_seq, memory_order_acquire) ==
@@ -276,7 +276,7 @@ static void sleep_master(engine *e)
 static void handle_death(engine *e, int i)
 {
     mslot *m = &e->ms[i];
-    shm_slot *s = pool_slot(e, i);
+    shm_slot *s = engine_pool_slot(e, i);
     m->pid = 0;
     m->killed = 0;
     m->replaced++;
@@ -290,7 +290,7 @@ static void handle_death(engine *e, int i)
     if (rerun && ++m->deaths >= TASK_DEATHS) {
         char what[128];
         e->kind->describe(&m->task, what, sizeof what);
-        sched_fail(e, ENGINE_CRASHED, -EIO, "%s %s its worker twice (worker %d)", what,
+        engine_sched_fail(e, ENGINE_CRASHED, -EIO, "%s %s its worker twice (worker %d)", what,
                    m->task_stalls ? "stalled or killed" : "killed", i);
         rerun = 0;
     }
@@ -303,9 +303,9 @@ static void handle_death(engine *e, int i)
     s->task_skip = m->consumed;
     if (!rerun) atomic_store_explicit(&s->done_seq, m->seq, memory_order_relaxed);
     char err[200];
-    int rc = pool_spawn(e, i, err, sizeof err);
+    int rc = engine_pool_spawn(e, i, err, sizeof err);
     if (rc) {
-        sched_fail(e, ENGINE_FAULT, rc, "%s", err);
+        engine_sched_fail(e, ENGINE_FAULT, rc, "%s", err);
         if (m->busy) finish(e, i);
     } else if (rerun) {
         /* The task's new worker is quiet from its fork, not from its
@@ -321,7 +321,7 @@ static void handle_death(engine *e, int i)
 static void watch_beat(engine *e, int i, double now, int reset)
 {
     mslot *m = &e->ms[i];
-    shm_slot *s = pool_slot(e, i);
+    shm_slot *s = engine_pool_slot(e, i);
     /* relaxed: see shm_slot.beat */
     unsigned b = atomic_load_explicit(&s->beat, memory_order_relaxed);
     if (reset || b != m->beat || queue_ready(&s->q) >= QUEUE_ENTRIES) {
@@ -337,11 +337,11 @@ static void stalled(engine *e, int i, double now)
     mslot *m = &e->ms[i];
     m->stalled_pid = m->pid;
     m->stalled_quiet = now - m->beat_t;
-    m->stalled_state = pool_proc_state(m->pid);
+    m->stalled_state = engine_pool_proc_state(m->pid);
     m->stalls++;
     m->task_stalls++;
     e->stalls++;
-    pool_kill(e, i);
+    engine_pool_kill(e, i);
 }
 
 /* Reap the dead (and replace them); in a job, watch the busy ones'
@@ -387,7 +387,7 @@ int engine_check_workers(engine *e)
  * not once the segment is full. */
 static void too_big(engine *e, const engine_progress *p)
 {
-    sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+    engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
                "the job would need at least %llu MiB of shared memory (at %.2f%% done, "
                "%llu MiB in use), over the %zu MiB there are; raise "
                "the shared memory size or ask for less",
@@ -411,7 +411,7 @@ static void progress(engine *e, int force)
 
 static int cancelled(const engine *e)
 {
-    /* relaxed: see sched_watch.cancel */
+    /* relaxed: see engine_sched_watch.cancel */
     return e->watch.cancel &&
            atomic_load_explicit(e->watch.cancel, memory_order_relaxed);
 }
@@ -427,7 +427,7 @@ static int run_loop(engine *e)
         if (e->err.failure) return e->err.code;
         if (e->nbusy == 0 && e->sp == 0) return 0;
         if (cancelled(e))
-            return sched_fail(e, ENGINE_CANCELLED, -ECANCELED,
+            return engine_sched_fail(e, ENGINE_CANCELLED, -ECANCELED,
                               "the job was cancelled");
         progress(e, 0);
         if (!did) sleep_master(e);
@@ -446,12 +446,12 @@ static void kill_unanswered(engine *e, double t0)
         double quiet = now - m->beat_t;
         int kill_it = now - t0 >= ABORT_WAIT_S || quiet >= ABORT_QUIET_S;
         if (!kill_it && quiet >= ABORT_STOPPED_S) {
-            char st = pool_proc_state(m->pid);
+            char st = engine_pool_proc_state(m->pid);
             kill_it = st == 'T' || st == 't';
         }
         if (!kill_it) continue;
         m->unanswered++;
-        pool_kill(e, i);
+        engine_pool_kill(e, i);
     }
 }
 
@@ -466,8 +466,8 @@ static void abort_job(engine *e)
     atomic_store_explicit(&e->h->abort_gen, e->h->gen, memory_order_relaxed);
     for (int i = 0; i < e->n; i++)
         if (e->ms[i].busy)
-            shm_wake_if_sleeping(&pool_slot(e, i)->wake,
-                                 &pool_slot(e, i)->sleeping);
+            shm_wake_if_sleeping(&engine_pool_slot(e, i)->wake,
+                                 &engine_pool_slot(e, i)->sleeping);
     while (e->nbusy) {
         int did = 0;
         for (int i = 0; i < e->n; i++)
@@ -480,12 +480,12 @@ static void abort_job(engine *e)
     e->aborting = 0;
 }
 
-static void job_reset(engine *e, const master_kind *k, void *job,
-                      const sched_watch *watch)
+static void job_reset(engine *e, const engine_kind *k, void *job,
+                      const engine_sched_watch *watch)
 {
     e->kind = k;
     e->job = job;
-    e->watch = watch ? *watch : (sched_watch){0};
+    e->watch = watch ? *watch : (engine_sched_watch){0};
     memset(&e->err, 0, sizeof e->err);
     e->restarts = 0;
     e->stalls = 0;
@@ -498,8 +498,8 @@ static void job_reset(engine *e, const master_kind *k, void *job,
     e->h->job_kind = k->id;
 }
 
-int engine_run(engine *e, const master_kind *k, void *job,
-               const sched_watch *watch)
+int engine_run(engine *e, const engine_kind *k, void *job,
+               const engine_sched_watch *watch)
 {
     engine_tidy(e); /* the last job's pages, where the caller left them */
     job_reset(e, k, job, watch);
@@ -509,7 +509,7 @@ int engine_run(engine *e, const master_kind *k, void *job,
     if (e->nbusy) abort_job(e);
     if (!rc) progress(e, 1);
     rc = k->finish(e, job, rc);
-    sched_release(e); /* done, failed or cancelled: the pages go back */
+    engine_sched_release(e); /* done, failed or cancelled: the pages go back */
     e->kind = NULL; /* the caller's job; nothing may use it after this */
     e->job = NULL;
     return rc;

@@ -39,7 +39,7 @@ static void *shm_alloc(void *ud, size_t bytes)
 {
     engine *e = ud;
     iso_job *ij = e->job;
-    uint64_t end = e->h->data_off + e->h->data_bytes, at = sched_align64(ij->at);
+    uint64_t end = e->h->data_off + e->h->data_bytes, at = engine_sched_align64(ij->at);
     if (at > end || bytes > end - at) return NULL;
     ij->at = at + bytes;
     return shm_at(e->seg.base, at);
@@ -50,7 +50,7 @@ static int lay_out_tasks(engine *e, iso_block *b, const iso_input *in)
     iso_task *t;
     uint64_t n;
     if (iso_tasks(&b->p, in, &t, &n))
-        return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory for the tasks");
+        return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory for the tasks");
     iso_task *st = shm_alloc(e, n * sizeof *t);
     iso_result *res = st ? shm_alloc(e, n * sizeof *res) : NULL;
     if (res) {
@@ -61,7 +61,7 @@ static int lay_out_tasks(engine *e, iso_block *b, const iso_input *in)
         b->results_off = (uint64_t)((uint8_t *)res - e->seg.base);
     }
     free(t);
-    return res ? 0 : sched_no_room(e, "the tasks");
+    return res ? 0 : engine_sched_no_room(e, "the tasks");
 }
 
 /* One task of op per live worker: each runs tasks (or welds pieces)
@@ -71,7 +71,7 @@ static int push_all(engine *e, uint32_t op)
     shm_task t = {.kind = SHM_KIND_ISO, .op = op};
     int pushed = 0;
     for (int i = 0; i < e->n; i++)
-        if (e->ms[i].pid > 0 && !sched_push(e, &t)) pushed++;
+        if (e->ms[i].pid > 0 && !engine_sched_push(e, &t)) pushed++;
     return pushed;
 }
 
@@ -79,7 +79,7 @@ static int iso_setup(engine *e, void *job)
 {
     iso_job *ij = job;
     e->result = RESULT_NONE;
-    sched_hold(e, 0);
+    engine_sched_hold(e, 0);
     iso_block *b = shm_at(e->seg.base, e->h->data_off);
     memset(b, 0, sizeof *b);
     b->p = *ij->job->p;
@@ -90,7 +90,7 @@ static int iso_setup(engine *e, void *job)
     /* the copy, the first touch of these pages, on every CPU the master
      * may run on: the workers wait for it */
     int rc = iso_input_make_threads(ij->job->file, &b->p, shm_alloc, e, par_cpus(), &in);
-    if (rc) return sched_no_room(e, "the file's bricks");
+    if (rc) return engine_sched_no_room(e, "the file's bricks");
     b->n_bricks = in.n;
     b->keys_off = (uint64_t)((const uint8_t *)in.keys - e->seg.base);
     b->offs_off = (uint64_t)((const uint8_t *)in.offs - e->seg.base);
@@ -98,7 +98,7 @@ static int iso_setup(engine *e, void *job)
     b->raw_bytes = in.raw_bytes;
     if ((rc = lay_out_tasks(e, b, &in))) return rc;
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    b->arena_off = sched_align64(ij->at);
+    b->arena_off = engine_sched_align64(ij->at);
     b->arena_cap = b->arena_off < end ? end - b->arena_off : 0;
     /* relaxed: published to the workers by the task_seq release */
     atomic_store_explicit(&b->next, 0, memory_order_relaxed);
@@ -110,7 +110,7 @@ static int iso_setup(engine *e, void *job)
 
 static int iso_take(engine *e, int i, const shm_entry *en)
 {
-    return sched_fail(e, ENGINE_FAULT, -EPROTO,
+    return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u in marching cubes", i, en->type);
 }
 
@@ -128,7 +128,7 @@ static void iso_describe(const shm_task *t, char *buf, size_t len)
 
 static void iso_progress(engine *e, engine_progress *p)
 {
-    iso_block *b = sched_block(e);
+    iso_block *b = engine_sched_block(e);
     /* relaxed: an estimate, nothing is read through it */
     uint64_t next = atomic_load_explicit(&b->next, memory_order_relaxed);
     uint64_t weld = atomic_load_explicit(&b->weld_next, memory_order_relaxed);
@@ -136,7 +136,7 @@ static void iso_progress(engine *e, engine_progress *p)
     p->fraction = 0.8 * (double)(next < b->n_tasks ? next : b->n_tasks) / n +
                   0.2 * (double)(weld < b->n_tasks ? weld : b->n_tasks) / n;
     p->level = (int)b->p.level;
-    p->shm_used = sched_align64(b->arena_off) - e->h->data_off +
+    p->shm_used = engine_sched_align64(b->arena_off) - e->h->data_off +
                   atomic_load_explicit(&b->bump, memory_order_relaxed);
 }
 
@@ -144,7 +144,7 @@ static void iso_progress(engine *e, engine_progress *p)
  * else takes from it now), or NULL when it is full. */
 static void *arena_alloc(engine *e, uint64_t n)
 {
-    iso_block *b = sched_block(e);
+    iso_block *b = engine_sched_block(e);
     /* relaxed: the workers are idle; the counter only hands out ranges */
     uint64_t at = atomic_fetch_add_explicit(&b->bump, (n + 63) & ~63ull, memory_order_relaxed);
     if (at > b->arena_cap || n > b->arena_cap - at) return NULL;
@@ -155,7 +155,7 @@ static void *arena_alloc(engine *e, uint64_t n)
  * its piece packed into the arena for the weld. */
 static int run_here(engine *e, iso_job *ij, uint64_t i)
 {
-    iso_block *b = sched_block(e);
+    iso_block *b = engine_sched_block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     const iso_task *t = (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i;
     iso_input in = {.n = b->n_bricks, .keys = shm_at(e->seg.base, b->keys_off),
@@ -164,9 +164,9 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
     iso_piece v;
     int rc = ij->work ? 0 : iso_work_new(&b->p, &ij->work);
     if (!rc) rc = iso_task_run(ij->work, &b->p, &in, t, &v);
-    if (rc) return sched_fail(e, ENGINE_FAULT, rc, "marching cubes: %s", strerror(-rc));
+    if (rc) return engine_sched_fail(e, ENGINE_FAULT, rc, "marching cubes: %s", strerror(-rc));
     uint8_t *to = arena_alloc(e, iso_piece_bytes(&b->p, &v));
-    if (!to) return sched_no_room(e, "the mesh");
+    if (!to) return engine_sched_no_room(e, "the mesh");
     iso_piece_pack(&b->p, &v, to);
     r->off = (uint64_t)(to - (uint8_t *)shm_at(e->seg.base, b->arena_off));
     r->nv = v.nv, r->nc = v.nc, r->nt = v.nt, r->ne = v.ne;
@@ -178,7 +178,7 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
 /* Task i's piece as the workers will see it; run here when not done. */
 static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
 {
-    iso_block *b = sched_block(e);
+    iso_block *b = engine_sched_block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     uint64_t key = iso_task_key(&b->p, (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i);
     for (int tries = 0; tries < 2; tries++) {
@@ -192,32 +192,32 @@ static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
         int rc = tries ? -EPROTO : run_here(e, ij, i);
         if (rc) return rc;
     }
-    return sched_fail(e, ENGINE_FAULT, -EPROTO, "a piece of the mesh went missing");
+    return engine_sched_fail(e, ENGINE_FAULT, -EPROTO, "a piece of the mesh went missing");
 }
 
 /* Between the phases: every piece there and checked, the bases and the
  * mesh's arrays laid out in the arena. */
 static int prepare_weld(engine *e, iso_job *ij)
 {
-    iso_block *b = sched_block(e);
+    iso_block *b = engine_sched_block(e);
     uint64_t n = b->n_tasks;
     ij->t_tasks_end = clock_now();
     ij->weld_ready = 1;
     if (!(ij->pc = calloc(n + 1, sizeof *ij->pc)))
-        return sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
+        return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
     int rc = 0;
     for (uint64_t i = 0; i < n && !rc; i++) rc = piece_of(e, ij, i, &ij->pc[i]);
     uint64_t *vb = rc ? NULL : arena_alloc(e, 8 * (n + 1));
     uint64_t *tb = vb ? arena_alloc(e, 8 * (n + 1)) : NULL;
     if (rc) return rc;
-    if (!tb) return sched_no_room(e, "the mesh");
+    if (!tb) return engine_sched_no_room(e, "the mesh");
     iso_weld wb = {.p = &b->p, .pc = ij->pc, .n = n, .vbase = vb, .tbase = tb};
     err_info why = {0};
     if ((rc = iso_weld_bases(&wb, par_cpus(), &why)))
-        return sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", why.msg);
+        return engine_sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc, "%s", why.msg);
     void *pos = arena_alloc(e, 12 * vb[n]), *tri = pos ? arena_alloc(e, 12 * tb[n]) : NULL;
     void *nrm = tri && b->p.normals ? arena_alloc(e, 12 * vb[n]) : NULL;
-    if (!tri || (b->p.normals && !nrm)) return sched_no_room(e, "the mesh");
+    if (!tri || (b->p.normals && !nrm)) return engine_sched_no_room(e, "the mesh");
     b->vbase_off = (uint64_t)((uint8_t *)vb - e->seg.base);
     b->tbase_off = (uint64_t)((uint8_t *)tb - e->seg.base);
     b->pos_off = (uint64_t)((uint8_t *)pos - e->seg.base);
@@ -270,7 +270,7 @@ static int indices_ok(const uint32_t *tri, uint64_t n, uint64_t nv)
  * segment, kept until the next job. */
 static int weld_rest(engine *e, iso_job *ij)
 {
-    iso_block *b = sched_block(e);
+    iso_block *b = engine_sched_block(e);
     uint64_t n = b->n_tasks;
     uint64_t *vb = shm_at(e->seg.base, b->vbase_off), *tb = shm_at(e->seg.base, b->tbase_off);
     iso_weld wd = {&b->p, ij->pc, n, vb, tb, shm_at(e->seg.base, b->pos_off),
@@ -283,14 +283,14 @@ static int weld_rest(engine *e, iso_job *ij)
         if (atomic_load_explicit(&res[i].welded, memory_order_acquire)) continue;
         int rc = iso_weld_piece(&wd, i, &why);
         if (rc)
-            return sched_fail(e, ENGINE_FAULT, rc, "%s", why.msg[0] ? why.msg : strerror(-rc));
+            return engine_sched_fail(e, ENGINE_FAULT, rc, "%s", why.msg[0] ? why.msg : strerror(-rc));
     }
     if (!indices_ok(wd.tri, 3 * tb[n], vb[n]))
-        return sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left the mesh inconsistent");
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left the mesh inconsistent");
     *ij->out = (iso_mesh){.n_vertices = vb[n], .n_triangles = tb[n], .pos = wd.pos,
                           .nrm = wd.nrm, .tri = wd.tri, .borrowed = 1};
     /* the mesh stays until the next job */
-    sched_hold(e, b->arena_off - e->h->data_off +
+    engine_sched_hold(e, b->arena_off - e->h->data_off +
                       atomic_load_explicit(&b->bump, memory_order_relaxed));
     return 0;
 }
@@ -299,9 +299,9 @@ static int iso_finish(engine *e, void *job, int rc)
 {
     iso_job *ij = job;
     engine_result *r = ij->r;
-    sched_job_totals(e, r);
+    engine_sched_job_totals(e, r);
     r->octants = 0;
-    const iso_block *b = sched_block(e);
+    const iso_block *b = engine_sched_block(e);
     r->fig.iso.tasks = (uint32_t)b->n_tasks;
     if (!rc && !ij->weld_ready) rc = prepare_weld(e, ij); /* no worker took a task */
     if (!rc) rc = weld_rest(e, ij);
@@ -313,10 +313,10 @@ static int iso_finish(engine *e, void *job, int rc)
     }
     iso_work_free(ij->work);
     free(ij->pc);
-    return rc ? sched_job_failed(e, r, rc) : 0;
+    return rc ? engine_sched_job_failed(e, r, rc) : 0;
 }
 
-const master_kind kind_iso = {
+const engine_kind engine_kind_iso = {
     .name = "iso",
     .id = SHM_KIND_ISO,
     .setup = iso_setup,
@@ -332,6 +332,6 @@ int engine_iso(engine *e, const engine_iso_job *job, iso_mesh *out, engine_resul
 {
     memset(out, 0, sizeof *out);
     iso_job ij = {.job = job, .out = out, .r = r};
-    sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    return sched_run_job(e, &kind_iso, &ij, &w, r);
+    engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
+    return engine_sched_run_job(e, &engine_kind_iso, &ij, &w, r);
 }
