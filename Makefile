@@ -184,7 +184,7 @@ $(VDB_MOD): $(BUILD)/client/vdb_out.o
 # vox's writer); no sanitizers: none of it is voxd's code.
 # The mesh benchmark's reference: OpenVDB's meshToVolume (bench only).
 $(BUILD)/vdb_mesh: bench/vdb_mesh.cc $(LIB)
-	$(CXX) -std=c++17 -Wall -Wextra -Werror $(OPT) -Imesh -Ivod -Icommon $< $(LIB) -o $@ $(VDB_LIBS) $(LDLIBS)
+	$(CXX) -std=c++17 -Wall -Wextra -Werror $(OPT) -Imesh -Ivod -Ioctree -Icommon $< $(LIB) -o $@ $(VDB_LIBS) $(LDLIBS)
 $(BUILD)/tests/vdb_dump: tests/integration/vdb_dump.cc
 	@mkdir -p $(dir $@)
 	$(CXX) -std=c++17 -Wall -Wextra -Werror -O1 $< -o $@ $(VDB_LIBS)
