@@ -216,12 +216,6 @@ int engine_create(const engine_opts *o, engine **out, char *err, size_t errlen);
 /* Tells the workers to exit, unmaps and removes the segment while they
  * go, and reaps them (SIGKILL after 2 s). */
 void engine_destroy(engine *e);
-/* The end of a command whose last output is still read from the segment
- * (a mesh borrowed from it, being written): the workers told to exit and
- * reaped, and the data area's pages outside [keep, keep + bytes) given
- * back, on a thread of the caller's while its others read keep.  The
- * segment stays mapped; only engine_destroy may follow. */
-void engine_retire(engine *e, const void *keep, size_t bytes);
 /* The end of a process that exits next, its output whole: the workers told
  * to exit, the segment's name removed, and nothing waited for.  The
  * workers let go of stdin, stdout and stderr and keep the segment mapped

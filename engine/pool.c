@@ -270,25 +270,6 @@ void engine_abandon(engine *e)
     free(e);
 }
 
-void engine_retire(engine *e, const void *keep, size_t bytes)
-{
-    if (!e || !e->seg.base) return;
-    e->due = 0; /* given back below */
-    order_exit(e);
-    uint64_t page = (uint64_t)sysconf(_SC_PAGESIZE);
-    uint64_t from = (e->h->data_off + page - 1) / page * page, to = e->seg.bytes;
-    if (keep && bytes) {
-        uint64_t lo = (uint64_t)((const uint8_t *)keep - e->seg.base);
-        uint64_t hi = (lo + bytes + page - 1) / page * page;
-        lo = lo / page * page;
-        if (lo > from) madvise(e->seg.base + from, lo - from, MADV_REMOVE);
-        from = hi > from ? hi : from;
-    }
-    /* tmpfs frees the pages for every process; untouched ones cost nothing */
-    if (from < to) madvise(e->seg.base + from, to - from, MADV_REMOVE);
-    reap_all(e);
-}
-
 int engine_create(const engine_opts *o, engine **out, char *err,
                   size_t errlen)
 {
