@@ -109,22 +109,8 @@ n=$(sed -n 's/.* \([0-9]*\) progress,.*/\1/p' "$TMP/p.out")
     || fail "daemon_mpi: an MPI job sends progress" "$(cat "$TMP/p.out")"
 
 # ---------------------------------------------------------------- mesh and CSG jobs
-# A torus of 576 triangles (tests/integration/mpi.sh's), closed, and open
+# A torus of 576 triangles (lib.sh's torus_obj), closed, and open
 # (every 37th triangle left out) for the repairs; a CSG tree with a mesh leaf.
-torus_obj() {
-    awk -v nu="$1" -v nv="$2" -v drop="${3:-0}" 'BEGIN {
-        pi = atan2(0, -1); R = 0.6; r = 0.25
-        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
-            u = 2 * pi * i / nu; v = 2 * pi * j / nv
-            printf "v %.6f %.6f %.6f\n", (R + r * cos(v)) * cos(u), (R + r * cos(v)) * sin(u), r * sin(v)
-        }
-        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
-            a = i * nv + j + 1; b = ((i + 1) % nu) * nv + j + 1
-            c = ((i + 1) % nu) * nv + (j + 1) % nv + 1; d = i * nv + (j + 1) % nv + 1
-            if (!drop || ++k % drop) printf "f %d %d %d\n", a, b, c
-            if (!drop || ++k % drop) printf "f %d %d %d\n", a, c, d
-        } }'
-}
 torus_obj 24 12 >"$TMP/torus.obj"
 torus_obj 24 12 37 >"$TMP/open.obj"
 printf '%s\n' 'ring = mesh "torus.obj" fit 0,0,0.1 scale 1.5' \

@@ -49,6 +49,24 @@ python_with() {
     return 1
 }
 
+# torus_obj NU NV [DROP]: an OBJ torus (R 0.6, r 0.25) of 2 NU NV triangles,
+# closed and counter-clockwise seen from outside, on stdout; with DROP, every
+# DROP-th triangle left out (an open mesh for the repairs).
+torus_obj() {
+    awk -v nu="$1" -v nv="$2" -v drop="${3:-0}" 'BEGIN {
+        pi = atan2(0, -1); R = 0.6; r = 0.25
+        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
+            u = 2 * pi * i / nu; v = 2 * pi * j / nv
+            printf "v %.6f %.6f %.6f\n", (R + r * cos(v)) * cos(u), (R + r * cos(v)) * sin(u), r * sin(v)
+        }
+        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
+            a = i * nv + j + 1; b = ((i + 1) % nu) * nv + j + 1
+            c = ((i + 1) % nu) * nv + (j + 1) % nv + 1; d = i * nv + (j + 1) % nv + 1
+            if (!drop || ++k % drop) printf "f %d %d %d\n", a, b, c
+            if (!drop || ++k % drop) printf "f %d %d %d\n", a, c, d
+        } }'
+}
+
 pass() { echo "PASS: $1"; }
 fail() { echo "FAIL: $1"; [ -n "${2:-}" ] && printf '  %s\n' "$2"; }
 # check NAME COMMAND...: passes when the command succeeds with no sanitizer report

@@ -68,23 +68,8 @@ same "scene2, occupancy, bricks of 8" 3 1 -f examples/scene2.vx -r 120 --channel
 same "torus, RUNL, xx32, a flat domain" 2 2 -f examples/torus.vx -r 90 --compress runl --hash xx32 -d -1,1,-1,1,-0.4,0.4
 same "sphere at 8^3 (one brick)" 3 1 -e 'x^2+y^2+z^2-0.5' -r 8
 
-# A torus of 576 triangles, closed and counter-clockwise seen from outside
-# (torus_obj NU NV), and with every DROP-th triangle left out (open: the
-# repairs have something to do).
-torus_obj() {
-    awk -v nu="$1" -v nv="$2" -v drop="${3:-0}" 'BEGIN {
-        pi = atan2(0, -1); R = 0.6; r = 0.25
-        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
-            u = 2 * pi * i / nu; v = 2 * pi * j / nv
-            printf "v %.6f %.6f %.6f\n", (R + r * cos(v)) * cos(u), (R + r * cos(v)) * sin(u), r * sin(v)
-        }
-        for (i = 0; i < nu; i++) for (j = 0; j < nv; j++) {
-            a = i * nv + j + 1; b = ((i + 1) % nu) * nv + j + 1
-            c = ((i + 1) % nu) * nv + (j + 1) % nv + 1; d = i * nv + (j + 1) % nv + 1
-            if (!drop || ++k % drop) printf "f %d %d %d\n", a, b, c
-            if (!drop || ++k % drop) printf "f %d %d %d\n", a, c, d
-        } }'
-}
+# A torus of 576 triangles, closed, and open (every 37th triangle left out:
+# the repairs have something to do): lib.sh's torus_obj.
 torus_obj 24 12 >"$TMP/torus.obj"
 torus_obj 24 12 37 >"$TMP/open.obj"
 refuse "mpi: the test's torus is watertight" 0 'watertight  yes' "$VOXR" mesh-info "$TMP/torus.obj"
