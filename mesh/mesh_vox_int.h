@@ -278,6 +278,28 @@ bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, 
                   mesh_vox_near *near, double *w, double *err, uint32_t *work);
 double mesh_vox_wind_near(const mesh_vox_wtree *t, const mesh_vox_near *near, const double p[3], double close,
                     bool *is_close);
+/* mesh_vox_wind_tris: mesh_vox_wind_near's sum over nt triangles tri[k]
+ * (leaf order) of leaves leaf[k]. */
+double mesh_vox_wind_tris(const mesh_vox_wtree *t, const uint32_t *tri, const uint32_t *leaf, uint32_t nt,
+                          const double p[3], double close, bool *is_close);
+/* The far field handed down from a cell to its halves (a dual-tree
+ * descent): nodes node[0, n_node) and triangles tri[k] of leaves leaf[k],
+ * k < n_tri, still to take, and 4 pi times the value w4 of those taken
+ * and the bound e4 of its error over the cell's ball.  mesh_vox_wind_down:
+ * in's part at the cell (b, rho) into out (room for cap of each): a node
+ * by its expansion (beta 2) or its magnitude (area / f^2) where that bound
+ * is at most tol, a triangle by its exact angle and gradient bound where
+ * it keeps NEAR_REACH (rho + 1) voxels off the ball; else a node no larger
+ * than the cell and a triangle are handed down (rho = 0: none is, but the
+ * triangles within 3 voxels of b, for mesh_vox_wind_tris).  false when a
+ * list would overflow or e4 passes 4 pi emax.  A root list: node 0. */
+typedef struct {
+    uint32_t n_node, n_tri, cap;
+    uint32_t *node, *tri, *leaf;
+    double w4, e4;
+} mesh_vox_wlist;
+bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const double b[3], double rho,
+                        double tol, double emax, mesh_vox_wlist *out, uint32_t *work);
 /* A bound of |w(p)| for every p within rho of b (a node of area a whose
  * ball keeps f away subtends at most a / f^2, taken where that is at most
  * tol); false when a leaf's ball meets the cell's or the bound passes

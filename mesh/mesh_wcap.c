@@ -285,6 +285,8 @@ void mesh_wtree_free(mesh_wtree *t)
 #define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
 #define NEAR 1e-3    /* voxels: nearer a cap triangle, mesh_vox_wind_block decides */
 #define MARGIN 1e-6  /* past the bound, nearer 1/2: mesh_vox_wind_block decides */
+#define DEPTH 8         /* down_cell's depths (32 samples a side: 6) */
+#define LIST_CAP 4096u  /* nodes, and triangles, handed down at most */
 
 typedef struct {
     const mesh_vox_frame *f;
@@ -293,6 +295,7 @@ typedef struct {
     uint64_t *bits, *spare;
     const uint16_t *count;
     const mesh_vox_wtree *caps;
+    mesh_vox_wlist *lists; /* one a depth of down_cell, or NULL */
     bool any_spare;
 } cblock;
 
@@ -327,8 +330,8 @@ static void decide(cblock *c, size_t i, unsigned x, double v, double e)
 
 /* The samples of the cell one by one from a cell query: w_C = v (within
  * e) plus the near triangles' exact angles. */
-static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
-                         const mesh_vox_near *nr, double v, double e)
+static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const uint32_t *tri,
+                         const uint32_t *leaf, uint32_t nt, double v, double e)
 {
     uint64_t mask = mesh_vox_xmask(lo, hi);
     uint32_t work = 0;
@@ -341,9 +344,9 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
                                (double)(c->b->s0[1] + (int64_t)y) + 0.5,
                                (double)(c->b->s0[2] + (int64_t)z) + 0.5};
                 bool close = false;
-                double u = v + mesh_vox_wind_near(c->caps, nr, p, NEAR, &close);
+                double u = v + mesh_vox_wind_tris(c->caps, tri, leaf, nt, p, NEAR, &close);
                 if (!close) decide(c, i, x, u, e);
-                work += nr->n;
+                work += nt;
             }
         }
     mesh_vox_beat(c->f->pulse, work);
@@ -423,12 +426,65 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
     mesh_vox_beat(c->f->pulse, work);
     if (ok && !nr.n && try_count(c, lo, hi, v, e)) return;
     if (ok && (n < CELL_MIN || nr.n * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
-        cell_by_near(c, lo, hi, &nr, v, e);
+        cell_by_near(c, lo, hi, nr.tri, nr.leaf, nr.n, v, e);
     if (one) {
         cell_spare(c, lo, hi);
         return;
     }
     split(c, lo, hi, cell);
+}
+
+/* Half q of cell [lo, hi) into [clo, chi); false when it is empty. */
+static bool half(const uint32_t lo[3], const uint32_t hi[3], int q, uint32_t clo[3], uint32_t chi[3])
+{
+    bool some = true;
+    for (int a = 0; a < 3; a++) {
+        uint32_t ext = hi[a] - lo[a], mid = lo[a] + (ext + 1) / 2, up = q >> a & 1;
+        clo[a] = up ? mid : lo[a];
+        chi[a] = up ? hi[a] : mid;
+        some &= clo[a] < chi[a];
+    }
+    return some;
+}
+
+/* Cell [lo, hi) from its parent's far field in (the caps' tree's root
+ * for a top cell): the nodes and triangles far enough taken, the rest
+ * handed to its halves; decided whole when nothing is left near and w_C
+ * keeps off every half integer, else sample by sample when few triangles
+ * are left near; a single sample still to do (or a list too long) goes
+ * to cell(), a fresh query from the root. */
+static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const mesh_vox_wlist *in,
+                      int depth)
+{
+    uint64_t n = mesh_vox_cell_count(c->b, c->todo, lo, hi);
+    if (!n || (c->f->pulse && c->f->pulse->stop)) return;
+    uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]}, work = (uint32_t)(n / 8);
+    bool one = ext[0] == 1 && ext[1] == 1 && ext[2] == 1;
+    double b[3], r2 = 0;
+    for (int a = 0; a < 3; a++) {
+        b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
+        r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
+    }
+    mesh_vox_wlist *out = &c->lists[depth];
+    bool ok = depth < DEPTH && mesh_vox_wind_down(c->caps, in, b, sqrt(r2) * (1 + 1e-9),
+                                                  one ? TOL_SAMPLE : TOL_CELL, 0.5, out, &work);
+    mesh_vox_beat(c->f->pulse, work);
+    if (!ok) {
+        cell(c, lo, hi);
+        return;
+    }
+    double v = out->w4 / (4 * M_PI), e = out->e4 / (4 * M_PI) + 1e-9; /* and the sums' rounding */
+    if (!out->n_node && !out->n_tri && try_count(c, lo, hi, v, e)) return;
+    if (!out->n_node && (one || n < CELL_MIN || out->n_tri * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
+        cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, v, e);
+    if (one) {
+        cell(c, lo, hi);
+        return;
+    }
+    for (int q = 0; q < 8; q++) {
+        uint32_t clo[3], chi[3];
+        if (half(lo, hi, q, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
+    }
 }
 
 /* ---- the direct path: few cap triangles, all of them at every cell ---- */
@@ -609,6 +665,14 @@ void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint6
     memset(spare, 0, nwords * 8);
     cblock c = {.f = f, .b = b, .todo = dis, .bits = bits, .spare = spare, .count = count,
                 .caps = t->caps};
+    bool direct = t->cap_vt && !mesh_wcap_tree_only;
+    uint32_t root = 0, *room = direct || !t->caps ? NULL : malloc(DEPTH * 3 * LIST_CAP * sizeof *room);
+    mesh_vox_wlist lists[DEPTH], top = {.n_node = 1, .node = &root};
+    for (int d = 0; room && d < DEPTH; d++)
+        lists[d] = (mesh_vox_wlist){.cap = LIST_CAP, .node = room + 3 * d * LIST_CAP,
+                                    .tri = room + (3 * d + 1) * LIST_CAP,
+                                    .leaf = room + (3 * d + 2) * LIST_CAP};
+    c.lists = room ? lists : NULL;
     uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
     for (uint32_t z = 0; z < n[2]; z += TOP)
         for (uint32_t y = 0; y < n[1]; y += TOP)
@@ -616,8 +680,10 @@ void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint6
                 uint32_t lo[3] = {x, y, z};
                 uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
                                   z + TOP < n[2] ? z + TOP : n[2]};
-                if (t->cap_vt && !mesh_wcap_tree_only) direct_cell(&c, lo, hi);
+                if (direct) direct_cell(&c, lo, hi);
+                else if (c.lists) down_cell(&c, lo, hi, &top, 0);
                 else cell(&c, lo, hi);
             }
+    free(room);
     if (c.any_spare) by_tree(f, b, spare, bits);
 }

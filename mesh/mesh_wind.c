@@ -418,10 +418,16 @@ static bool leaf_cell(const mesh_vox_wtree *t, const wnode *n, const double bw[3
 double mesh_vox_wind_near(const mesh_vox_wtree *t, const mesh_vox_near *near, const double p[3], double close,
                     bool *is_close)
 {
+    return mesh_vox_wind_tris(t, near->tri, near->leaf, near->n, p, close, is_close);
+}
+
+double mesh_vox_wind_tris(const mesh_vox_wtree *t, const uint32_t *tri, const uint32_t *leaf, uint32_t nt,
+                          const double p[3], double close, bool *is_close)
+{
     double w4 = 0;
-    for (uint32_t k = 0; k < near->n; k++) {
-        const wnode *n = &t->nodes[near->leaf[k]];
-        const float *v = t->tri[near->tri[k]];
+    for (uint32_t k = 0; k < nt; k++) {
+        const wnode *n = &t->nodes[leaf[k]];
+        const float *v = t->tri[tri[k]];
         double q[3] = {p[0] - n->c[0], p[1] - n->c[1], p[2] - n->c[2]};
         *is_close |= near_tri(v, q, close);
         w4 += 2 * tri_half_angle(v, q);
@@ -463,6 +469,112 @@ bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, 
     *w = w4 / (4 * M_PI);
     *err = e4 / (4 * M_PI) + 1e-9; /* and the rounding of the sums */
     return ok;
+}
+
+/* ---- the far field handed down a cell's halves ---- */
+
+/* Triangle k of leaf l at the cell (b, rho): its exact angle at b into
+ * *w4 and bound (2) into *e4 (true), or false: it comes within
+ * NEAR_REACH (rho + 1) of the cell, or its bound passes tol4 (the cell's
+ * halves take it). */
+static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const double bw[3], double rho,
+                     double tol4, double *w4, double *e4)
+{
+    const wnode *n = &t->nodes[l];
+    const float *v = t->tri[k];
+    double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]}, c[3], r2 = 0, e1[3], e2[3];
+    for (int i = 0; i < 3; i++) {
+        c[i] = ((double)v[i] + v[3 + i] + v[6 + i]) / 3;
+        e1[i] = (double)v[3 + i] - v[i], e2[i] = (double)v[6 + i] - v[i];
+    }
+    for (int j = 0; j < 3; j++) {
+        double s = 0;
+        for (int i = 0; i < 3; i++) s += (v[3 * j + i] - c[i]) * (v[3 * j + i] - c[i]);
+        r2 = s > r2 ? s : r2;
+    }
+    double R = sqrt((c[0] - b[0]) * (c[0] - b[0]) + (c[1] - b[1]) * (c[1] - b[1]) +
+                    (c[2] - b[2]) * (c[2] - b[2]));
+    double dmin = R - sqrt(r2) * (1 + 1e-6) - rho, reach = NEAR_REACH * (rho + 1);
+    if (dmin <= reach) dmin = tri_dist(v, b) * (1 - 1e-9) - 1e-9 - rho;
+    if (dmin <= reach) return false;
+    double x = e1[1] * e2[2] - e1[2] * e2[1], y = e1[2] * e2[0] - e1[0] * e2[2],
+           z = e1[0] * e2[1] - e1[1] * e2[0];
+    double g = sqrt(x * x + y * y + z * z) / (dmin * dmin * dmin); /* 2 a / d^3: leaf_cell's */
+    double e = rho * (g < 4 * M_PI / dmin ? g : 4 * M_PI / dmin);
+    if (e > tol4) return false;
+    *w4 += 2 * tri_half_angle(v, b);
+    *e4 += e;
+    return true;
+}
+
+/* Node ni at the cell (b, rho): taken whole (by its expansion, or by its
+ * magnitude: area / f^2 with value 0), else 1: open it, 2: hand it down. */
+static int down_node(const wnode *n, const double b[3], double rho, double tol4, double *w4, double *e4)
+{
+    double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
+    double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], rr = n->r + rho;
+    if (R2 > 4 * rr * rr) { /* beta 2, as mesh_vox_wind_cell */
+        double R = sqrt(R2), s = R - n->r, f = R - rr;
+        double e = n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
+        if (e <= tol4) {
+            *w4 += expand(n, d, R2);
+            *e4 += e;
+            return 0;
+        }
+        double m = n->area / (f * f); /* a surface of area a beyond f subtends at most a / f^2 */
+        if (m <= tol4) {
+            *e4 += m;
+            return 0;
+        }
+    }
+    return rho > 0 && n->r <= rho ? 2 : 1;
+}
+
+static bool down_push(mesh_vox_wlist *o, uint32_t node, uint32_t tri)
+{
+    if (tri == UINT32_MAX) {
+        if (o->n_node == o->cap) return false;
+        o->node[o->n_node++] = node;
+        return true;
+    }
+    if (o->n_tri == o->cap) return false;
+    o->tri[o->n_tri] = tri;
+    o->leaf[o->n_tri++] = node;
+    return true;
+}
+
+bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const double b[3], double rho,
+                        double tol, double emax, mesh_vox_wlist *out, uint32_t *work)
+{
+    uint32_t stack[128], sp = 0, visits = 0;
+    double tol4 = tol * 4 * M_PI, e4max = emax * 4 * M_PI;
+    out->n_node = out->n_tri = 0;
+    out->w4 = in->w4, out->e4 = in->e4;
+    bool ok = true;
+    for (uint32_t k = 0; k < in->n_tri && ok; k++)
+        if (!down_tri(t, in->leaf[k], in->tri[k], b, rho, tol4, &out->w4, &out->e4))
+            ok = down_push(out, in->leaf[k], in->tri[k]);
+    for (uint32_t i = 0; i < in->n_node && ok; i++) {
+        stack[sp++] = in->node[i];
+        while (sp && ok) {
+            uint32_t ni = stack[--sp];
+            const wnode *n = &t->nodes[ni];
+            visits++;
+            int r = down_node(n, b, rho, tol4, &out->w4, &out->e4);
+            if (r == 2) {
+                ok = down_push(out, ni, UINT32_MAX);
+            } else if (r == 1 && n->count) {
+                for (uint32_t k = n->first; k < n->first + n->count && ok; k++)
+                    if (!down_tri(t, ni, k, b, rho, tol4, &out->w4, &out->e4)) ok = down_push(out, ni, k);
+            } else if (r == 1) {
+                stack[sp++] = n->first + 1;
+                stack[sp++] = n->first;
+            }
+        }
+        if (out->e4 > e4max) ok = false;
+    }
+    if (work) *work += visits + in->n_tri;
+    return ok && out->e4 <= e4max;
 }
 
 bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
