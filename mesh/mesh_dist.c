@@ -88,6 +88,10 @@ static uint32_t fbits(float f)
     return u;
 }
 
+/* The larger and smaller of two numbers (fmax and fmin are calls) */
+#define MAXD(a, b) ((a) > (b) ? (a) : (b))
+#define MIND(a, b) ((a) < (b) ? (a) : (b))
+
 /* The x (voxel centres, absolute) of row (py, pz) inside region f:
  * [*x0, *x1] narrowed by its half spaces and its ball or cylinder; false
  * when nothing is left. */
@@ -98,9 +102,15 @@ static bool row_span(const dcpt *d, const dfeat *f, double py, double pz, double
     for (uint32_t j = 0; j < f->nh; j++) {
         const double *h = d->hs[f->h0 + j];
         double s = h[3] - h[1] * py - h[2] * pz;
-        if (h[0] > 0) hi = fmin(hi, s / h[0]);
-        else if (h[0] < 0) lo = fmax(lo, s / h[0]);
-        else if (s < 0) return false;
+        if (h[0] > 0) {
+            double q = s / h[0];
+            hi = q < hi ? q : hi;
+        } else if (h[0] < 0) {
+            double q = s / h[0];
+            lo = q > lo ? q : lo;
+        } else if (s < 0) {
+            return false;
+        }
         if (!(lo <= hi)) return false;
     }
     double qy = py - f->c[1], qz = pz - f->c[2], r;
@@ -108,7 +118,7 @@ static bool row_span(const dcpt *d, const dfeat *f, double py, double pz, double
         double s = R2 - qy * qy - qz * qz;
         if (s < 0) return false;
         r = sqrt(s);
-        lo = fmax(lo, f->c[0] - r), hi = fmin(hi, f->c[0] + r);
+        lo = MAXD(lo, f->c[0] - r), hi = MIND(hi, f->c[0] + r);
     } else if (f->quad == 2) { /* within R of the line c + s u: A q^2 + B q + C < 0 */
         double w = qy * f->u[1] + qz * f->u[2], A = 1 - f->u[0] * f->u[0];
         double B = -2 * f->u[0] * w, C = qy * qy + qz * qz - w * w - R2;
@@ -116,8 +126,8 @@ static bool row_span(const dcpt *d, const dfeat *f, double py, double pz, double
             double disc = B * B - 4 * A * C;
             if (disc < 0) return false;
             r = sqrt(disc);
-            lo = fmax(lo, f->c[0] + (-B - r) / (2 * A));
-            hi = fmin(hi, f->c[0] + (-B + r) / (2 * A));
+            lo = MAXD(lo, f->c[0] + (-B - r) / (2 * A));
+            hi = MIND(hi, f->c[0] + (-B + r) / (2 * A));
         } else if (C > 0) {
             return false;
         }
