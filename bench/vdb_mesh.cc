@@ -1,7 +1,7 @@
 // vdb_mesh: OpenVDB's meshToVolume on a mesh, the reference beside which
 // scripts/bench-mesh-whole.sh puts `vox voxelize --mesh` (issue 10).
 //
-//   vdb_mesh FILE RES [REPEATS [DISTANCE.vod]]
+//   vdb_mesh FILE RES [REPEATS [DISTANCE.vod [WELD]]]
 //
 // The mesh is loaded by voxd's own loader (not timed), then converted
 // REPEATS times (default 1) at the voxel size of `vox voxelize --mesh FILE
@@ -25,6 +25,8 @@
 // |ours - OpenVDB| in voxels over OpenVDB's active voxels that lie in both
 // bands, E: the same of the unsigned distances, N: of those voxels the
 // ones whose signs differ, C: how many were compared.
+// With WELD (a distance in the mesh's units, 0: equal positions) the
+// vertices are merged first, as `vox voxelize --weld WELD` does (mesh_weld).
 // Exit status 1 with a message on any error.
 #include <algorithm>
 #include <chrono>
@@ -117,19 +119,22 @@ void compare(const distance_file &d, const openvdb::FloatGrid &grid)
 
 int main(int argc, char **argv)
 {
-    if (argc < 3 || argc > 5) {
-        std::fprintf(stderr, "usage: vdb_mesh FILE RES [REPEATS [DISTANCE.vod]]\n");
+    if (argc < 3 || argc > 6) {
+        std::fprintf(stderr, "usage: vdb_mesh FILE RES [REPEATS [DISTANCE.vod [WELD]]]\n");
         return 2;
     }
     long res = std::strtol(argv[2], nullptr, 10);
     long reps = argc >= 4 ? std::strtol(argv[3], nullptr, 10) : 1;
     distance_file dist;
-    if (argc == 5 && open_distance(argv[4], &dist)) return 1;
+    if (argc >= 5 && open_distance(argv[4], &dist)) return 1;
     if (res < 8 || res > 8192) return fail(argv[2], "RES wants 8..8192");
     if (reps < 1 || reps > 100) return fail(argv[3], "REPEATS wants 1..100");
     mesh m;
     mesh_error err;
     if (mesh_load(argv[1], MESH_FORMAT_AUTO, nullptr, &m, &err)) return fail(argv[1], err.msg);
+    uint32_t merged = 0;
+    if (argc == 6 && mesh_weld(&m, std::strtod(argv[5], nullptr), &merged))
+        return fail(argv[5], "the weld failed");
     float ext = 0;
     for (int a = 0; a < 3; a++) ext = std::max(ext, m.hi[a] - m.lo[a]);
     if (!(ext > 0)) return fail(argv[1], "a flat mesh");
