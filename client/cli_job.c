@@ -42,8 +42,8 @@
     "                         meshes with holes: majority of the x, y, z parities, or the\n" \
     "                         winding number where they disagree (default none)\n" \
     "      --supersample K    density: KxKxK samples per voxel, 2..8 (default 2)\n" \
-    "      --band K           distance: exact within K voxels of the surface, 1..32\n" \
-    "                         (default 3); beyond, K voxels with the voxel's sign\n" \
+    "      --band K           distance (any job): exact within K voxels of the surface,\n" \
+    "                         1..32 (default 3); beyond, K voxels with the voxel's sign\n" \
     CLI_WELD_HELP \
     "      --pad N            empty voxels around the mesh's bounding box (default 1)\n" \
     "      --bbox X0,X1,Y0,Y1,Z0,Z1\n" \
@@ -91,7 +91,7 @@ static const char usage_submit[] =
     "result it streams back, checked (length and CRC-32) before it is renamed into\n"
     "place.  --csg sends a volume CSG tree (docs/csg.md), checked here and by the\n"
     "daemon, as vox csg evaluates it (the same bytes; channel density by default,\n"
-    "occupancy or surface; --domain as for an expression).\n"
+    "occupancy, surface or distance with --band; --domain as for an expression).\n"
     "A mesh file goes as it is (inline, or in chunks when large): the daemon\n"
     "reads it and says what is wrong with it.  The job's id is said on stderr (for\n"
     "vox cancel); an interrupt (Ctrl-C) cancels the job.  Exit status: 0 done, 1 the\n"
@@ -225,10 +225,10 @@ static int check_job_kind(const char *name, cli_job_opts *o)
             return CLI_EXIT_USAGE;
         }
         if (!o->channel_given) o->vod.channel = VOXEL_CH_DENSITY;
-        if (o->mesh_opts.band) /* the protocol's CSG message has no band */
-            return cli_usage_error(name, "--band with --csg: voxd takes the default band (%u) "
-                                   "for a tree; vox csg --band runs it embedded",
-                                   VOXEL_BAND_DEFAULT);
+        if (o->mesh_opts.band && o->vod.channel != VOXEL_CH_DISTANCE) {
+            cli_error("--band is for --channel distance");
+            return CLI_EXIT_USAGE;
+        }
         return 0;
     }
     if (!o->mesh && o->mesh_opts_given) {

@@ -314,7 +314,7 @@ static int csg_job(const cli_job_opts *o, vox_job *job, csg_tree **t, vox_csg_no
         .nodes = *nodes, .n_nodes = (*t)->n,
         .source_name = strcmp(o->csg, "-") ? o->csg : NULL, .source_bytes = bytes,
         .domain = {o->lo[0], o->hi[0], o->lo[1], o->hi[1], o->lo[2], o->hi[2]},
-        .res = o->res,
+        .res = o->res, .band = o->mesh_opts.band,
     };
     return 0;
 }
@@ -349,6 +349,7 @@ static int daemon_job(const cli_job_opts *o, const source *src, vox_job *job, vo
         .res = o->res,
         .schedule = o->schedule == ENGINE_SCHED_PAPER ? VOX_SCHEDULE_PAPER
                                                       : VOX_SCHEDULE_SUBTREE,
+        .band = o->mesh_opts.band,
     };
     return 0;
 }

@@ -236,16 +236,7 @@ int cli_voxelize(int argc, char **argv, const char *sock)
     source src;
     expr_tape *tape;
     if ((rc = cli_job_source(&o, &src, &tape))) return rc;
-    rc = -1;
-    /* The protocol carries a band for meshes only: an expression's distance
-     * with a band of its own runs here. */
-    if (o.mesh_opts.band && o.mode == CLI_MODE_AUTO) o.mode = CLI_MODE_EMBEDDED;
-    if (o.mesh_opts.band && o.mode == CLI_MODE_DAEMON) {
-        rc = cli_usage_error("voxelize", "--band with an expression runs on the embedded "
-                             "engine only (voxd takes a band for --mesh jobs)");
-    } else if (o.mode != CLI_MODE_EMBEDDED) {
-        rc = try_daemon(&o, &src, sock);
-    }
+    rc = o.mode != CLI_MODE_EMBEDDED ? try_daemon(&o, &src, sock) : -1;
     if (rc < 0) rc = o.res > GRID_MAX_RES ? bad_res(&o) : voxelize_expr(&o, &src, tape);
     expr_tape_free(tape);
     source_free(&src);

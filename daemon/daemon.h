@@ -89,6 +89,7 @@ struct daemon_job {
     uint32_t res;
     int schedule;              /* engine_schedule */
     int channel;               /* VOXEL_CH_* */
+    uint32_t band;             /* channel 4, any kind: voxels each side, 0 the default */
     uint32_t brick, comp, hash;
     /* a mesh job's options (mesh_opts.channel = channel) */
     mesh_format mesh_format;

@@ -256,6 +256,7 @@ static void implicit_from_request(daemon_job *j, const Voxd__Submit *s)
     j->res = im->res;
     j->schedule = im->schedule == VOXD__SCHEDULE__SCHEDULE_PAPER ? ENGINE_SCHED_PAPER
                                                                  : ENGINE_SCHED_SUBTREE;
+    j->band = im->band;
 }
 
 static const ProtobufCBinaryData *implicit_input(const Voxd__Submit *s)
@@ -279,7 +280,7 @@ static void mesh_from_request(daemon_job *j, const Voxd__Submit *s)
     j->mesh_opts.mode = m->mode ? (mesh_mode)(m->mode - 1) : MESH_SOLID;
     j->mesh_opts.repair = m->repair ? (mesh_repair)(m->repair - 1) : MESH_REPAIR_NONE;
     j->mesh_opts.supersample = m->supersample;
-    j->mesh_opts.band = m->band;
+    j->mesh_opts.band = j->band = m->band;
     j->weld = m->weld;
     j->weld_eps = m->weld_eps;
     j->schedule = ENGINE_SCHED_SUBTREE; /* not the mesh kind's: tiles */
@@ -300,6 +301,7 @@ static void csg_from_request(daemon_job *j, const Voxd__Submit *s)
     job_domain(j, s->csg->domain, s->csg->n_domain);
     j->res = s->csg->res;
     j->csg_source_bytes = s->csg->source_bytes;
+    j->band = s->csg->band;
     j->schedule = ENGINE_SCHED_SUBTREE; /* not the csg kind's: brick runs */
 }
 
@@ -361,7 +363,7 @@ static int channel_of(const Voxd__Submit *s, const submit_kind *k)
     case VOXD__CHANNEL__CHANNEL_OCCUPANCY: return VOXEL_CH_OCCUPANCY;
     case VOXD__CHANNEL__CHANNEL_DENSITY: return VOXEL_CH_DENSITY;
     case VOXD__CHANNEL__CHANNEL_SURFACE: return VOXEL_CH_SURFACE;
-    case VOXD__CHANNEL__CHANNEL_DISTANCE: return VOXEL_CH_DISTANCE; /* mesh jobs (proto_check) */
+    case VOXD__CHANNEL__CHANNEL_DISTANCE: return VOXEL_CH_DISTANCE;
     default: return k->channel;
     }
 }

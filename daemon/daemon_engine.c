@@ -508,7 +508,7 @@ static void run_job(daemon_ctx *d, engine *e, daemon_job *j, const daemon_mpi *m
     progress_ctx px = {d, j, e};
     engine_pipeline_job job = {
         .lo = {j->lo[0], j->lo[1], j->lo[2]}, .hi = {j->hi[0], j->hi[1], j->hi[2]},
-        .res = j->res, .schedule = (engine_schedule)j->schedule,
+        .res = j->res, .schedule = (engine_schedule)j->schedule, .band = j->band,
         .progress = on_progress, .ud = &px, .cancel = &j->cancel,
     };
     expr_tape *tape = NULL;

@@ -44,6 +44,12 @@ static int upload(vox_client *c, uint64_t id, const uint8_t *data, size_t n, vox
     return rc;
 }
 
+/* The band fields came after the first release: vox_job's union (and so
+ * every field after it) stays where it was only while vox_mesh is its
+ * largest member. */
+_Static_assert(sizeof(vox_implicit) <= sizeof(vox_mesh) && sizeof(vox_csg) <= sizeof(vox_mesh),
+               "vox_job's layout");
+
 /* A Submit and the messages it points into (the caller's, on its stack). */
 typedef struct {
     Voxd__Implicit im;
@@ -95,6 +101,7 @@ static void implicit_request(const vox_job *job, const uint8_t *data, size_t len
     m->im.n_domain = 6;
     m->im.res = ij->res;
     m->im.schedule = (Voxd__Schedule)ij->schedule;
+    m->im.band = ij->band;
     m->sub.job_case = VOXD__SUBMIT__JOB_IMPLICIT;
     m->sub.implicit = &m->im;
 }
@@ -208,6 +215,7 @@ static void csg_request(const vox_job *job, int chunked, Voxd__CsgNode *nodes,
     cm->res = cj->res;
     cm->source_name = name_bytes(cj->source_name);
     cm->source_bytes = cj->source_bytes;
+    cm->band = cj->band;
     m->sub.job_case = VOXD__SUBMIT__JOB_CSG;
     m->sub.csg = cm;
 }

@@ -122,14 +122,15 @@ void vox_server(const vox_client *c, vox_server_info *out);
 /* ---------------------------------------------------------------- jobs */
 
 /* Enum values are the protocol's; 0 everywhere means the daemon's default. */
-/* DEFAULT: SURFACE for an implicit job, OCCUPANCY for a mesh job; DENSITY
- * and DISTANCE are for mesh jobs only. */
+/* DEFAULT: SURFACE for an implicit job, OCCUPANCY for a mesh job, DENSITY
+ * for a CSG job; DENSITY is for mesh and CSG jobs, DISTANCE for every kind
+ * (its band: vox_implicit.band, vox_mesh.supersample, vox_csg.band). */
 enum {
     VOX_CHANNEL_DEFAULT = 0,
     VOX_CHANNEL_OCCUPANCY = 1,
     VOX_CHANNEL_DENSITY = 2,
     VOX_CHANNEL_SURFACE = 3,
-    VOX_CHANNEL_DISTANCE = 4, /* mesh jobs: the f32 signed distance */
+    VOX_CHANNEL_DISTANCE = 4, /* the f32 signed distance in a narrow band */
 };
 enum { VOX_COMP_DEFAULT = 0, VOX_COMP_NONE = 1, VOX_COMP_ZLIB = 2, VOX_COMP_RUNL = 3 };
 enum { VOX_HASH_DEFAULT = 0, VOX_HASH_SFHS = 1, VOX_HASH_XX32 = 2 };
@@ -151,6 +152,9 @@ typedef struct {
     double domain[6];     /* x0, x1, y0, y1, z0, z1, each low < high */
     uint32_t res;         /* voxels along the longest axis */
     int schedule;         /* VOX_SCHEDULE_* */
+    uint32_t band;        /* VOX_CHANNEL_DISTANCE: the band's half width in
+                             voxels, 1..32; 0 = 3 (last: vox_job's union keeps
+                             its size, vox_mesh the largest) */
 } vox_implicit;
 
 /* A mesh job's file format, mode and repair (mesh/mesh_vox.h says what each
@@ -242,7 +246,7 @@ typedef struct {
 } vox_csg_node;
 
 /* A CSG tree on a grid: the job of `vox csg`, which gives the same file;
- * channel DENSITY (the default), OCCUPANCY or SURFACE.
+ * channel DENSITY (the default), OCCUPANCY, SURFACE or DISTANCE.
  * The tree travels whole in the job's Submit (a flat node list, the last
  * node the result), the mesh and VOD leaves' files in their nodes, or,
  * when large, after it as the job's input in InputChunks; the daemon checks it and compiles its expressions when
@@ -255,6 +259,8 @@ typedef struct {
     uint64_t source_bytes;  /* the .csg text's size, for the same */
     double domain[6];       /* x0, x1, y0, y1, z0, z1, each low < high */
     uint32_t res;           /* voxels along the longest axis */
+    uint32_t band;          /* VOX_CHANNEL_DISTANCE: the band's half width in
+                               voxels, 1..32; 0 = 3 */
 } vox_csg;
 
 /* A job of any kind: `kind` says which member of the union holds it; the

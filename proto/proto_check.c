@@ -223,6 +223,17 @@ static int check_output(const Voxd__Submit *s, proto_error *e)
 
 /* ---------------------------------------------------------------- jobs */
 
+/* The distance channel's band (Implicit, Mesh and Csg.band alike). */
+static int check_band(uint32_t band, const Voxd__Submit *s, proto_error *e)
+{
+    if (band > VOXEL_BAND_MAX)
+        return proto_bad(e, INVALID, "band %u is not from 1 to %u voxels (or 0: %u)", band,
+                         VOXEL_BAND_MAX, VOXEL_BAND_DEFAULT);
+    if (band && s->channel != VOXD__CHANNEL__CHANNEL_DISTANCE)
+        return proto_bad(e, INVALID, "band %u is for channel distance", band);
+    return 0;
+}
+
 /* An expression that comes as the job's input: the Submit carries its size
  * only (its bytes are checked as they arrive). */
 static int check_source_input(const ProtobufCBinaryData *inline_src, uint64_t n,
@@ -249,12 +260,10 @@ static int check_implicit(const Voxd__Implicit *im, const Voxd__Submit *s,
     if ((rc = check_res(im->res, lim, e))) return rc;
     if ((unsigned)im->schedule > VOXD__SCHEDULE__SCHEDULE_PAPER)
         return proto_bad(e, INVALID, "unknown schedule %d", (int)im->schedule);
-    if (s->channel == VOXD__CHANNEL__CHANNEL_DENSITY ||
-        s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE)
-        return proto_bad(e, INVALID,
-                         "channel %s is not available for implicit jobs (use surface or occupancy)",
-                         channel_names[s->channel]);
-    return 0;
+    if (s->channel == VOXD__CHANNEL__CHANNEL_DENSITY)
+        return proto_bad(e, INVALID, "channel %s is not available for implicit jobs (use "
+                         "surface, occupancy or distance)", channel_names[s->channel]);
+    return check_band(im->band, s, e);
 }
 
 /* A mesh file: inline (1..max_mesh_bytes bytes, any bytes: binary formats
@@ -294,14 +303,12 @@ static int check_mesh_options(const Voxd__Mesh *m, proto_error *e)
     return 0;
 }
 
-/* The distance channel's band, and its sign's mode (the solid). */
+/* The mesh's band, and its distance's sign's mode (the solid). */
 static int check_mesh_band(const Voxd__Mesh *m, const Voxd__Submit *s, proto_error *e)
 {
     int dist = s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE;
-    if (m->band > VOXEL_BAND_MAX)
-        return proto_bad(e, INVALID, "band %u is not from 1 to %u voxels (or 0: %u)", m->band,
-                         VOXEL_BAND_MAX, VOXEL_BAND_DEFAULT);
-    if (m->band && !dist) return proto_bad(e, INVALID, "band %u is for channel distance", m->band);
+    int rc = check_band(m->band, s, e);
+    if (rc) return rc;
     if (dist && m->mode > VOXD__MESH_MODE__MESH_MODE_SOLID)
         return proto_bad(e, INVALID,
                          "channel distance takes its sign from the solid: mode solid only");
@@ -595,9 +602,10 @@ static int check_csg(const Voxd__Csg *c, const Voxd__Submit *s, const proto_limi
     if ((rc = check_csg_shape(c, lim, e))) return rc;
     if ((rc = check_source_name(&c->source_name, e))) return rc;
     if ((rc = check_box(c->domain, c->n_domain, 1, "domain", e))) return rc;
-    /* the distance channel too (the default band: the message carries none); which trees
-     * have one the pipeline decides (csg_dist_check), naming the node */
-    return check_res(c->res, lim, e);
+    if ((rc = check_res(c->res, lim, e))) return rc;
+    /* the distance channel too; which trees have one the pipeline decides
+     * (csg_dist_check), naming the node */
+    return check_band(c->band, s, e);
 }
 
 static int check_submit(const Voxd__Submit *s, const proto_limits *lim, proto_error *e)

@@ -17,6 +17,10 @@ hangs on it.
                                            daemon's answer, then a ping on the same connection)
   daemon_client.py SOCK csg-bad KIND      (a CSG Submit with a bad tree of KIND, see CSG_BAD:
                                            the daemon's answer, then a ping on the same connection)
+  daemon_client.py SOCK band KIND BAND CHANNEL
+                                          (a Submit of KIND implicit, mesh or csg with that
+                                           band and channel number: the daemon's answer, then
+                                           a ping on the same connection)
   daemon_client.py SOCK status            (prints pid=..,cpu=.. per worker, queued, running)
   daemon_client.py SOCK ping
   daemon_client.py SOCK abuse KIND        (see ABUSE)
@@ -145,6 +149,37 @@ def cmd_csg_bad(path, kind):
     c = Conn(path)
     c.hello()
     c.send(csg_submit(CSG_BAD[kind]))
+    return submit_answer(c)
+
+
+TETRA = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+
+def band_submit(kind, band, channel):
+    """A Submit of a small job of kind with Implicit, Mesh or Csg.band."""
+    if kind == "implicit":
+        job = field_bytes(1, SPHERE) + field_packed_doubles(2, (-1, 1)) \
+            + field_varint(3, 16) + field_varint(6, band)
+    elif kind == "mesh":
+        job = field_bytes(2, TETRA) + field_varint(7, 1) + field_varint(8, 16) \
+            + field_varint(12, band)
+    else:
+        leaf = csg_node(2, source=SPHERE, name=b"ball")
+        job = field_bytes(1, leaf) + field_packed_doubles(2, (-1, 1)) + field_varint(3, 16) \
+            + field_varint(6, band)
+    n = {"implicit": 1, "mesh": 2, "csg": 3}[kind]
+    return frame(request(2, field_bytes(n, job) + field_varint(10, channel)))
+
+
+def cmd_band(path, kind, band, channel):
+    c = Conn(path)
+    c.hello()
+    c.send(band_submit(kind, band, channel))
+    return submit_answer(c)
+
+
+def submit_answer(c):
+    """The answer to a Submit: accepted (0), or its Error (3) and a ping."""
     r = c.recv_frame()
     if r is None:
         die(4, "CLOSED: the server closed the connection")
@@ -686,6 +721,8 @@ def main():
             return cmd_mesh_declare(path, int(args[0]))
         if cmd == "csg-bad":
             return cmd_csg_bad(path, args[0])
+        if cmd == "band":
+            return cmd_band(path, args[0], int(args[1]), int(args[2]))
         if cmd == "status":
             return cmd_status(path)
         if cmd == "ping":

@@ -54,9 +54,6 @@ for b in 0 33 x 3x -1 ''; do
 done
 refuse "--band without --channel distance" 2 "^vox: --band is for --channel distance$" \
     "$VOX" voxelize --mesh "$ICO" --band 4 -o "$TMP/x.vod"
-refuse "an expression's own band is not sent to voxd" 2 \
-    "^vox: voxelize: --band with an expression runs on the embedded engine only" \
-    "$VOX" voxelize -e 'x' --channel distance --band 4 --daemon -o "$TMP/x.vod"
 refuse "--channel distance with --mode surface" 2 \
     "^vox: --channel distance takes its sign from the solid: mode solid only$" \
     "$VOX" voxelize --mesh "$ICO" --channel distance --mode surface -o "$TMP/x.vod"

@@ -302,10 +302,30 @@ Test(proto, channel_not_available_for_implicit)
     job_init(&j);
     j.sub.channel = VOXD__CHANNEL__CHANNEL_DENSITY;
     refused(&j.req, INVALID, "channel density is not available for implicit jobs");
-    j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE;
-    refused(&j.req, INVALID, "channel distance is not available");
     j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
     accepted(&j.req);
+}
+
+/* Implicit.band: as Mesh.band, 1..32 (0 the default), for channel 4 only. */
+Test(proto, implicit_distance_band)
+{
+    job j;
+    job_init(&j);
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE;
+    accepted(&j.req); /* the default band */
+    j.im.band = 1;
+    accepted(&j.req);
+    j.im.band = 32;
+    accepted(&j.req);
+    j.im.band = 33;
+    refused(&j.req, INVALID, "band 33 is not from 1 to 32 voxels (or 0: 3)");
+    j.im.band = UINT32_MAX;
+    refused(&j.req, INVALID, "band 4294967295 is not from 1 to 32 voxels");
+    j.im.band = 4;
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_SURFACE;
+    refused(&j.req, INVALID, "band 4 is for channel distance");
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_UNSPECIFIED; /* the default, surface */
+    refused(&j.req, INVALID, "band 4 is for channel distance");
 }
 
 Test(proto, brick_power_of_two)

@@ -76,6 +76,15 @@ Test(proto, csg_a_valid_tree_passes)
     accepted(&j.req);
     j.sub.channel = VOXD__CHANNEL__CHANNEL_DISTANCE; /* the pipeline decides the tree */
     accepted(&j.req);
+    c.csg.band = 32; /* Csg.band: as Mesh.band */
+    accepted(&j.req);
+    c.csg.band = 33;
+    refused(&j.req, INVALID, "band 33 is not from 1 to 32 voxels (or 0: 3)");
+    c.csg.band = 2;
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_UNSPECIFIED; /* the default, density */
+    refused(&j.req, INVALID, "band 2 is for channel distance");
+    j.sub.channel = VOXD__CHANNEL__CHANNEL_OCCUPANCY;
+    refused(&j.req, INVALID, "band 2 is for channel distance");
     csg_init(&c, &j);
     j.sub.input_bytes = 10;
     refused(&j.req, INVALID, "the CSG leaves' data_bytes add up to 0, the job declares 10 "
