@@ -266,8 +266,9 @@ static int run(const mesh_opts *o)
         return CLI_EXIT_FAILED;
     }
     iso_params p;
-    int rc = iso_params_make(f, o->iso, (int)o->level, o->center, o->radii, o->nradii, &p,
-                             err, sizeof err);
+    iso_request rq = {.iso = o->iso, .level = (int)o->level, .center = o->center,
+                      .radii = o->radii, .nradii = o->nradii};
+    int rc = iso_params_make(f, &rq, &p, err, sizeof err);
     if (rc) {
         cli_error("%s: %s", o->in, err);
         vod_close(f);

@@ -78,11 +78,19 @@ typedef struct {
     double center[3], radii[ISO_MAX_RADII];
 } iso_params;
 
-/* iso_params for file f: level, or the spheres when nradii > 0.  0, or
- * -EINVAL with a message: a level past the tree, radii not increasing, a
- * channel that is not 1, 2 or 3. */
-int iso_params_make(const vod_file *f, uint32_t iso, int level, const double center[3],
-                    const double *radii, uint32_t nradii, iso_params *p,
+/* What a job asks for: the iso value and one level, or the adaptive levels'
+ * spheres round center when nradii > 0 (center may be NULL without them). */
+typedef struct {
+    uint32_t iso;            /* 0..254 */
+    int level;
+    const double *center;    /* [3] */
+    const double *radii;     /* [nradii], increasing */
+    uint32_t nradii;
+} iso_request;
+
+/* iso_params of request rq for file f.  0, or -EINVAL with a message: a
+ * level past the tree, radii not increasing, a channel that is not 1, 2 or 3. */
+int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p,
                     char *err, size_t errlen);
 
 /* The level the block at block coordinates b uses. */

@@ -24,9 +24,11 @@ static int check_channel(const vod_info *in, char *err, size_t len)
     return 0;
 }
 
-static int set_levels(iso_params *p, int level, const double center[3],
-                      const double *radii, uint32_t nradii, char *err, size_t len)
+static int set_levels(iso_params *p, const iso_request *rq, char *err, size_t len)
 {
+    const double *radii = rq->radii;
+    uint32_t nradii = rq->nradii;
+    int level = rq->level;
     if (nradii > ISO_MAX_RADII)
         return err_fmt(err, len, -EINVAL, "at most %u LOD radii", ISO_MAX_RADII);
     for (uint32_t i = 0; i < nradii; i++) {
@@ -41,20 +43,19 @@ static int set_levels(iso_params *p, int level, const double center[3],
     p->nradii = nradii;
     p->lod_top = nradii < p->height - 1 ? nradii : p->height - 1;
     p->block = p->brick > 1u << p->lod_top ? p->brick : 1u << p->lod_top;
-    for (int a = 0; a < 3 && center; a++) p->center[a] = center[a];
+    for (int a = 0; a < 3 && rq->center; a++) p->center[a] = rq->center[a];
     return 0;
 }
 
-int iso_params_make(const vod_file *f, uint32_t iso, int level, const double center[3],
-                    const double *radii, uint32_t nradii, iso_params *p,
+int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p,
                     char *err, size_t errlen)
 {
     const vod_info *in = vod_get_info(f);
     memset(p, 0, sizeof *p);
-    if (iso > 254) return err_fmt(err, errlen, -EINVAL, "iso %u: not in 0..254", iso);
+    if (rq->iso > 254) return err_fmt(err, errlen, -EINVAL, "iso %u: not in 0..254", rq->iso);
     int rc = check_channel(in, err, errlen);
     if (rc) return rc;
-    p->iso = iso;
+    p->iso = rq->iso;
     p->bits = in->voxel_bits;
     p->distance = in->channel == 4;
     p->normals = in->voxel_bits == 32 && !p->distance;
@@ -65,7 +66,7 @@ int iso_params_make(const vod_file *f, uint32_t iso, int level, const double cen
         p->origin[a] = in->origin[a];
         p->scale[a] = in->voxel_scale[a];
     }
-    return set_levels(p, level, center, radii, nradii, err, errlen);
+    return set_levels(p, rq, err, errlen);
 }
 
 /* The distance from the spheres' centre to the block's world box. */

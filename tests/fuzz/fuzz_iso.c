@@ -52,7 +52,7 @@ static void polygonize(const vod_file *f, int level)
 {
     iso_params p;
     char err[256];
-    if (iso_params_make(f, 127, level, NULL, NULL, 0, &p, err, sizeof err)) {
+    if (iso_params_make(f, &(iso_request){.iso = 127, .level = level}, &p, err, sizeof err)) {
         if (!err[0]) __builtin_trap(); /* refused without a message */
         return;
     }

@@ -81,7 +81,8 @@ static inline void polygonize(const vod_file *f, uint32_t iso, int level, const 
 {
     iso_params p;
     char err[256] = "";
-    cr_assert_eq(iso_params_make(f, iso, level, c, radii, nr, &p, err, sizeof err), 0,
+    iso_request rq = {.iso = iso, .level = level, .center = c, .radii = radii, .nradii = nr};
+    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), 0,
                  "%s", err);
     void *mem = NULL;
     iso_input in;

@@ -24,6 +24,9 @@
 
 #include "iso_fixture.h"
 
+/* level 0 of the file, iso 127 */
+static const iso_request level0 = {.iso = 127};
+
 /* ---- the engine ---- */
 
 static int same_mesh(const iso_mesh *a, const iso_mesh *b)
@@ -51,8 +54,8 @@ Test(iso, the_workers_give_the_serial_mesh_byte_for_byte)
         for (int k = 0; k < 2; k++)
             for (int level = 0; level < 2; level++) {
                 iso_params p;
-                cr_assert_eq(iso_params_make(files[k], 127, level, NULL, NULL, 0, &p, err,
-                                             sizeof err), 0, "%s", err);
+                iso_request rq = {.iso = 127, .level = level};
+                cr_assert_eq(iso_params_make(files[k], &rq, &p, err, sizeof err), 0, "%s", err);
                 iso_mesh ref, m;
                 polygonize(files[k], 127, level, NULL, NULL, 0, &ref);
                 engine_iso_job job = {.file = files[k], .p = &p};
@@ -81,12 +84,16 @@ Test(iso, bad_parameters_are_refused)
     iso_params p;
     char err[256];
     double c[3] = {0, 0, 0}, dec[2] = {1, 0.5}, nan_r[1] = {NAN};
-    cr_assert_eq(iso_params_make(f, 255, 0, NULL, NULL, 0, &p, err, sizeof err), -EINVAL);
-    cr_assert_eq(iso_params_make(f, 127, 2, NULL, NULL, 0, &p, err, sizeof err), -EINVAL);
+    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 255}, &p, err, sizeof err), -EINVAL);
+    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127, .level = 2}, &p, err, sizeof err),
+                 -EINVAL);
     cr_assert(strstr(err, "levels 0..1"), "%s", err);
-    cr_assert_eq(iso_params_make(f, 127, 0, c, dec, 2, &p, err, sizeof err), -EINVAL);
+    iso_request rq = {.iso = 127, .center = c, .radii = dec, .nradii = 2};
+    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), -EINVAL);
     cr_assert(strstr(err, "increasing"), "%s", err);
-    cr_assert_eq(iso_params_make(f, 127, 0, c, nan_r, 1, &p, err, sizeof err), -EINVAL);
+    rq.radii = nan_r;
+    rq.nradii = 1;
+    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), -EINVAL);
     vod_close(f);
 }
 
@@ -99,7 +106,7 @@ Test(iso, a_piece_that_refers_to_nobody_is_refused)
     iso_params p;
     char err[256] = "";
     err_info me = {0};
-    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
     void *mem = NULL;
     iso_input in;
     cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
@@ -151,7 +158,7 @@ Test(iso, a_stalled_worker_costs_nothing_but_time)
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
     iso_params p;
-    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
     iso_mesh ref, m;
     polygonize(f, 127, 0, NULL, NULL, 0, &ref);
     cr_assert_eq(kill(engine_worker_pid(e, 0), SIGSTOP), 0);
@@ -182,7 +189,7 @@ Test(iso, too_small_a_segment_is_a_limit)
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
     iso_params p;
-    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
     engine_iso_job job = {.file = f, .p = &p};
     engine_result res;
     iso_mesh m;
@@ -240,7 +247,7 @@ Test(iso, a_solid_interior_costs_no_task)
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_params p;
     char err[256] = "";
-    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0, "%s", err);
     void *mem = NULL;
     iso_input in;
     cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
@@ -397,7 +404,7 @@ Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
     vod_file *f = make_vod(&s, waves, NULL);
     iso_params p;
     char err[256] = "";
-    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
     void *mem1 = NULL, *mem3 = NULL;
     iso_input a, b;
     cr_assert_eq(iso_input_make_threads(f, &p, heap, &mem1, 1, &a), 0);
