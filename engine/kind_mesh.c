@@ -132,14 +132,14 @@ static int init_volume(engine *e, const mesh_vox_opts *o, const grid_spec *g,
 {
     uint64_t bytes = e->h->data_off + e->h->data_bytes - off;
     int rc = vod_volume_init(&e->volume, shm_at(e->seg.base, off), bytes, g->res,
-                             mesh_vox_bits(o), MESH_VOLUME_BRICK);
+                             mesh_vox_bits(o), mesh_vox_sbrick(o));
     if (rc) return engine_sched_no_room(e, "the volume's tables");
     e->volume_bytes = bytes;
     return 0;
 }
 
 /* The low mip levels the tiles build: those whose bricks lie in one tile's
- * column (a level-l brick spans MESH_VOLUME_BRICK << l voxels), of the
+ * column (a level-l brick spans sbrick << l voxels), of the
  * VOD's channel when the volume gives it (else none: the writer says
  * what is wrong with the channel). */
 static void plan_mips(engine *e, int channel, mesh_block *b)
@@ -406,7 +406,7 @@ static int run_serial_mesh(const engine_pipeline_job *job, const vod_params *v,
 {
     const mesh_vox_opts *o = &job->mesh.opts;
     r->stage = ENGINE_PIPELINE_VOXELIZE;
-    size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), MESH_VOLUME_BRICK,
+    size_t bytes = vod_volume_bytes(r->grid.res, mesh_vox_bits(o), mesh_vox_sbrick(o),
                                     UINT64_MAX);
     void *arena = bytes ? mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                                MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
@@ -416,7 +416,7 @@ static int run_serial_mesh(const engine_pipeline_job *job, const vod_params *v,
                              r->grid.res[0], r->grid.res[1], r->grid.res[2]);
     vod_volume *vol;
     int rc = vod_volume_init(&vol, arena, bytes, r->grid.res, mesh_vox_bits(o),
-                             MESH_VOLUME_BRICK);
+                             mesh_vox_sbrick(o));
     mesh_tile_stats st = {0};
     double t0 = clock_now();
     if (!rc) rc = mesh_voxelize(job->mesh.mesh, &r->grid, o, vol, &st);

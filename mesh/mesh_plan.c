@@ -41,6 +41,11 @@ int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
     return 0;
 }
 
+uint32_t mesh_vox_sbrick(const mesh_vox_opts *o)
+{
+    return o->channel == VOXEL_CH_DISTANCE ? MESH_DIST_BRICK : MESH_VOLUME_BRICK;
+}
+
 /* ---- what a tile needs, and where it lies in the scratch ---- */
 
 #define DENS_BUDGET (4u << 20) /* bytes of one fine block's bits */

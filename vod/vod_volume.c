@@ -88,6 +88,8 @@ static uint64_t plan(struct vod_volume *h, const uint32_t dims[3], uint32_t bits
         at = align64(at + 4 * g);
     }
     h->brick_bytes = (uint64_t)sbrick * sbrick * sbrick * h->bits / 8;
+    h->packed = h->f32;
+    h->unit = h->packed ? PACK_UNIT : h->brick_bytes;
     h->pool_off = at;
     return at;
 }
@@ -104,9 +106,12 @@ size_t vod_volume_bytes(const uint32_t dims[3], uint32_t bits, uint32_t sbrick,
     uint64_t pool = bricks;
     for (int l = 1; l <= h.depth; l++)
         pool += bricks < grid_bricks(&h, l) ? bricks : grid_bricks(&h, l);
-    if (pool > POOL_MAX) pool = POOL_MAX;
-    if (pool > (SIZE_MAX - head) / h.brick_bytes) return 0;
-    return (size_t)(head + pool * h.brick_bytes);
+    /* in units: a packed brick at its largest, every voxel stored, twice
+     * (a record that an edit or a larger put moves leaves its old units) */
+    uint64_t per = h.packed ? 2 * vod_pack_max_units(sbrick) : 1;
+    pool = pool > POOL_MAX / per ? POOL_MAX : pool * per;
+    if (pool > (SIZE_MAX - head) / h.unit) return 0;
+    return (size_t)(head + pool * h.unit);
 }
 
 int vod_volume_init(vod_volume **out, void *arena, size_t bytes,
@@ -116,7 +121,7 @@ int vod_volume_init(vod_volume **out, void *arena, size_t bytes,
     struct vod_volume h;
     uint64_t head = plan(&h, dims, bits, sbrick);
     if (head > bytes) return -ENOSPC;
-    uint64_t cap = (bytes - head) / h.brick_bytes;
+    uint64_t cap = (bytes - head) / h.unit;
     h.pool_cap = (uint32_t)(cap > POOL_MAX ? POOL_MAX : cap);
     memset((uint8_t *)arena + sizeof h, 0, head - sizeof h);
     memcpy(arena, &h, sizeof h);
@@ -140,7 +145,7 @@ void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
     out->pool_used = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     out->level0_bricks = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
     out->mip_channel = v->mip_channel;
-    out->bytes_used = v->pool_off + (uint64_t)out->pool_used * v->brick_bytes;
+    out->bytes_used = v->pool_off + (uint64_t)out->pool_used * v->unit;
 }
 
 /* ---- bricks and voxels ---- */
@@ -155,11 +160,12 @@ int vod_volume_check(const vod_volume *v, size_t bytes)
     if (head > bytes || h.slog2 != v->slog2 || h.depth != v->depth ||
         memcmp(h.grid, v->grid, sizeof h.grid) ||
         memcmp(h.table_off, v->table_off, sizeof h.table_off) ||
-        h.pool_off != v->pool_off || h.brick_bytes != v->brick_bytes)
+        h.pool_off != v->pool_off || h.brick_bytes != v->brick_bytes ||
+        h.packed != v->packed || h.unit != v->unit)
         return -EINVAL;
     uint32_t used = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
     uint32_t l0 = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
-    if (v->pool_cap > (bytes - head) / h.brick_bytes || used > v->pool_cap ||
+    if (v->pool_cap > (bytes - head) / h.unit || used > v->pool_cap ||
         l0 > used || v->mip_channel != 0 ||
         atomic_load_explicit(&v->wide_n, memory_order_relaxed) > WIDE_MAX)
         return -EINVAL;
@@ -167,7 +173,7 @@ int vod_volume_check(const vod_volume *v, size_t bytes)
     for (int l = 0; l <= v->depth; l++) {
         const uint32_t *t = table(v, l);
         for (uint64_t i = 0, n = grid_bricks(v, l); i < n; i++)
-            if ((is_alloc(t[i]) && t[i] > used) ||
+            if ((is_alloc(t[i]) && (t[i] > used || (v->packed && vod_pack_check(v, t[i], used)))) ||
                 (t[i] >= WIDE_BASE && t[i] < ENTRY_UNIFORM &&
                  t[i] - WIDE_BASE >= atomic_load_explicit(&v->wide_n, memory_order_relaxed)))
                 return -EINVAL;
@@ -185,18 +191,27 @@ static void brick_set_all(const vod_volume *v, uint8_t *d, uint32_t val)
     for (uint64_t i = 0; i < v->brick_bytes / 4; i++) w[i] = val;
 }
 
-/* A new pool brick holding val everywhere (fill), or anything (the caller
- * writes every voxel); its entry, or 0 when full. */
-uint32_t vod_vol_pool_take(vod_volume *v, uint32_t val, bool fill)
+uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units)
 {
-    uint32_t e = atomic_fetch_add_explicit(&v->pool_used, 1, memory_order_relaxed) + 1;
-    if (e > v->pool_cap) {
+    if (units > v->pool_cap) return 0;
+    uint32_t u = (uint32_t)units;
+    uint32_t e = atomic_fetch_add_explicit(&v->pool_used, u, memory_order_relaxed) + 1;
+    if (e - 1 > v->pool_cap - u) {
         /* full: give the count back (every other taker fails too until
          * the count is below the cap again) */
-        atomic_fetch_sub_explicit(&v->pool_used, 1, memory_order_relaxed);
+        atomic_fetch_sub_explicit(&v->pool_used, u, memory_order_relaxed);
         return 0;
     }
-    if (fill) brick_set_all(v, brick_data(v, e), val);
+    return e;
+}
+
+/* A new pool brick holding val everywhere (fill), or anything (the caller
+ * writes every voxel); its entry, or 0 when full.  Not for packed
+ * volumes, whose records vod_pack_store makes. */
+uint32_t vod_vol_pool_take(vod_volume *v, uint32_t val, bool fill)
+{
+    uint32_t e = vod_vol_pool_units(v, 1);
+    if (e && fill) brick_set_all(v, brick_data(v, e), val);
     return e;
 }
 
@@ -234,6 +249,34 @@ static int level0_data(vod_volume *v, const uint32_t b[3], bool whole, uint8_t *
     return 0;
 }
 
+/* A packed volume's level-0 brick b, edited through a copy: voxels of the
+ * brick-local box [lo, hi) := value, or (vox given) every voxel := vox.
+ * The record is made again, in its own units when they suffice. */
+static int packed_edit(vod_volume *v, const uint32_t b[3], const uint32_t lo[3],
+                       const uint32_t hi[3], uint32_t value, const uint32_t *vox)
+{
+    const uint32_t *g = v->grid[0];
+    uint32_t *e = &table(v, 0)[((uint64_t)b[2] * g[1] + b[1]) * g[0] + b[0]];
+    size_t N = (size_t)v->sbrick * v->sbrick * v->sbrick;
+    uint32_t *buf = NULL;
+    if (!vox) {
+        if (!(buf = malloc(N * sizeof *buf))) return -ENOMEM;
+        if (is_alloc(*e)) vod_pack_range(v, brick_data(v, *e), 0, N, buf);
+        else
+            for (size_t i = 0; i < N; i++) buf[i] = uval(v, *e);
+        for (uint32_t z = lo[2]; z < hi[2]; z++)
+            for (uint32_t y = lo[1]; y < hi[1]; y++)
+                for (uint32_t x = lo[0]; x < hi[0]; x++) buf[vox_index(v, x, y, z)] = value;
+        vox = buf;
+    }
+    uint32_t n = vod_pack_store(v, *e, vox, buf != NULL);
+    free(buf);
+    if (!n) return -ENOMEM;
+    if (!is_alloc(*e)) atomic_fetch_add_explicit(&v->pool_l0, 1, memory_order_relaxed);
+    *e = n;
+    return 0;
+}
+
 static int check_value(const vod_volume *v, uint32_t value)
 {
     return v->bits == 8 && value > 255 ? -EINVAL : 0;
@@ -258,6 +301,10 @@ int vod_volume_set(vod_volume *v, uint32_t x, uint32_t y, uint32_t z,
     if (e == 0 ? value == 0 : is_uniform(e) && uval(v, e) == value)
         return 0;
     if (value == 0) may_zero(v); /* into memory: e is allocated */
+    if (v->packed) {
+        uint32_t l[3] = {x & m, y & m, z & m}, h[3] = {l[0] + 1, l[1] + 1, l[2] + 1};
+        return packed_edit(v, b, l, h, value, NULL);
+    }
     uint8_t *d;
     int rc = level0_data(v, b, false, &d);
     if (rc == 0) vox_put(v, d, vox_index(v, x & m, y & m, z & m), value);
@@ -270,7 +317,7 @@ uint32_t vod_volume_get(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
     uint32_t s = v->slog2, m = v->sbrick - 1, b[3] = {x >> s, y >> s, z >> s};
     uint32_t e = entry_at(v, 0, b);
     if (!is_alloc(e)) return uval(v, e);
-    return vox_get(v, brick_data(v, e), vox_index(v, x & m, y & m, z & m));
+    return brick_voxel(v, e, vox_index(v, x & m, y & m, z & m));
 }
 
 int vod_volume_box_uniform(const vod_volume *v, const int64_t lo[3], uint32_t n,
@@ -311,6 +358,10 @@ static int fill_whole(vod_volume *v, const uint32_t b[3], uint32_t value)
         return 0;
     }
     if (value == 0) may_zero(v);
+    if (v->packed) {
+        uint32_t l[3] = {0, 0, 0}, h[3] = {v->sbrick, v->sbrick, v->sbrick};
+        return packed_edit(v, b, l, h, value, NULL);
+    }
     uint8_t *d;
     int rc = level0_data(v, b, false, &d);
     if (rc == 0) brick_set_all(v, d, value);
@@ -325,6 +376,7 @@ static int fill_part(vod_volume *v, const uint32_t b[3], const uint32_t lo[3],
     if (e == 0 ? value == 0 : is_uniform(e) && uval(v, e) == value)
         return 0;
     if (value == 0) may_zero(v);
+    if (v->packed) return packed_edit(v, b, lo, hi, value, NULL);
     uint8_t *d;
     int rc = level0_data(v, b, false, &d);
     for (uint32_t z = lo[2]; z < hi[2] && !rc; z++)
@@ -393,6 +445,7 @@ int vod_volume_put_brick(vod_volume *v, const uint32_t b[3], const void *voxels)
         return 0;
     }
     if (u == 0) may_zero(v); /* zeros into the memory the brick has */
+    if (v->packed) return packed_edit(v, b, NULL, NULL, 0, voxels);
     uint8_t *d;
     int rc = level0_data(v, b, true, &d);
     if (rc == 0) memcpy(d, voxels, v->brick_bytes);

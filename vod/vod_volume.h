@@ -6,6 +6,10 @@
  * memory), uniform (every voxel one value, no memory) or allocated (S^3
  * voxels from a pool).  vod_volume_fill() marks the bricks a box covers
  * whole as uniform, so a solid's inside costs a table entry per brick.
+ * A VOD_VOLUME_F32 volume stores an allocated brick packed: its voxels
+ * equal to +-bg (the brick's largest magnitude: a distance's band width)
+ * as a sign bit each, the others as they are, so a band brick costs its
+ * band voxels, not S^3 (vod_volume_pack.c); readers see the same bits.
  *
  * Everything — header, brick tables, pool — lives in one arena addressed by
  * offsets, so the arena may sit in shared memory mapped at another address
@@ -44,7 +48,9 @@ typedef struct vod_volume vod_volume;
 /* Bytes of arena for a volume of dims (each 1..VOD_VOLUME_MAX_SIDE) with
  * voxels of bits (8, 32 or VOD_VOLUME_F32) in storage bricks of side sbrick (a power of two
  * in VOD_VOLUME_MIN_BRICK..MAX_BRICK) that can allocate `bricks` level-0
- * bricks and, whatever their place, every mip brick above them.  0 for bad
+ * bricks and, whatever their place, every mip brick above them (packed
+ * ones at their largest, twice: a brick edited or put again larger moves).
+ * A bound for a sparse mapping: a packed volume uses far less.  0 for bad
  * arguments or a size past SIZE_MAX. */
 size_t vod_volume_bytes(const uint32_t dims[3], uint32_t bits, uint32_t sbrick,
                         uint64_t bricks);

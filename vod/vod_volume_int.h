@@ -29,10 +29,18 @@ struct vod_volume {
     uint32_t dims[3];
     uint32_t bits, sbrick, slog2;
     uint32_t f32; /* 1: IEEE binary32 voxels, channel 4 (VOD_VOLUME_F32) */
+    /* 1: the pool's bricks are packed records (vod_volume_pack.c), as a
+     * float volume's are: a distance's band bricks hold few voxels that
+     * are not +-w, the band's width */
+    uint32_t packed;
     int depth;
     uint32_t grid[VOL_LEVELS][3];
     uint64_t table_off[VOL_LEVELS]; /* from the start of the arena */
     uint64_t pool_off, brick_bytes;
+    /* Bytes of a pool unit: a brick (brick_bytes), or PACK_UNIT when
+     * packed (a record takes as many units as it needs).  pool_cap,
+     * pool_used and mip_base count units; an entry is its first unit + 1. */
+    uint64_t unit;
     uint32_t pool_cap;
     /* Bricks taken from the pool, and of those the level-0 ones.  Atomic
      * because vod_volume_put_brick() writers of different bricks run
@@ -92,7 +100,7 @@ static inline uint32_t entry_at(const vod_volume *v, int l, const uint32_t b[3])
 
 static inline uint8_t *brick_data(const vod_volume *v, uint32_t e)
 {
-    return (uint8_t *)v + v->pool_off + (uint64_t)(e - 1) * v->brick_bytes;
+    return (uint8_t *)v + v->pool_off + (uint64_t)(e - 1) * v->unit;
 }
 
 static inline size_t vox_index(const vod_volume *v, uint32_t x, uint32_t y, uint32_t z)
@@ -110,6 +118,48 @@ static inline void vox_put(const vod_volume *v, uint8_t *d, size_t i, uint32_t v
     if (v->bits == 8) d[i] = (uint8_t)val;
     else ((uint32_t *)(void *)d)[i] = val;
 }
+
+/* ---- packed bricks (vod_volume_pack.c) ----
+ * A packed record: a head (pack_head), then two bit masks of S^3 bits
+ * (64-bit words, voxel i in bit i % 64 of word i / 64): `lit`, the voxels
+ * stored as they are, and `neg`, the sign of the others, then the n
+ * literal values in voxel order.  A voxel that is not literal holds
+ * bg | neg << 31: bg is the largest |value| of the brick (the band's
+ * width w in a distance brick, where every voxel beyond the band is +-w). */
+#define PACK_UNIT 16u
+typedef struct {
+    uint32_t n;   /* literal voxels */
+    uint32_t cap; /* units the record owns (>= its size: reused when rebuilt) */
+    uint32_t bg;  /* the non-literal voxels' magnitude (sign bit clear) */
+    uint32_t pad;
+} pack_head;
+
+/* Units of the largest record (every voxel literal). */
+uint64_t vod_pack_max_units(uint32_t sbrick);
+/* The S^3 voxels vox (the volume's u32s) as a record: in old's units when
+ * old is allocated and they suffice, else in new ones (old's are then lost
+ * until the volume is made again: a brick put twice, a column built twice).
+ * edit: a brick written voxel by voxel (set, fill) gets the units of the
+ * largest record at once, so that its edits never move it.  Its entry, or
+ * 0 when the pool is full.  Concurrent for different bricks. */
+uint32_t vod_pack_store(vod_volume *v, uint32_t old, const uint32_t *vox, bool edit);
+/* Voxels i0 .. i0 + n - 1 of record d (voxel order) into out. */
+void vod_pack_range(const vod_volume *v, const uint8_t *d, size_t i0, size_t n, uint32_t *out);
+/* Voxel i of record d. */
+uint32_t vod_pack_voxel(const vod_volume *v, const uint8_t *d, size_t i);
+/* Some voxel of record d is non-zero. */
+bool vod_pack_any(const vod_volume *v, const uint8_t *d);
+/* 0 when entry e's record lies in the first `used` units and agrees
+ * with itself (its count and its mask), else -EINVAL. */
+int vod_pack_check(const vod_volume *v, uint32_t e, uint32_t used);
+/* Voxel i of allocated entry e, packed or not. */
+static inline uint32_t brick_voxel(const vod_volume *v, uint32_t e, size_t i)
+{
+    return v->packed ? vod_pack_voxel(v, brick_data(v, e), i) : vox_get(v, brick_data(v, e), i);
+}
+
+/* `units` consecutive pool units; the entry of the first, or 0 when full. */
+uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units);
 
 /* The entry of value u without memory (0 for 0), or 0 when u cannot be
  * one (the top bit set in an integer volume, or no wide slot left). */

@@ -40,6 +40,7 @@ typedef struct {
     int l, ch;          /* building level l from level l-1 */
     uint32_t *out;      /* S^3 parent voxels */
     uint8_t *out8;      /* the same memory, as bytes: 8-bit volumes' */
+    uint32_t *child;    /* S^3: a packed child's voxels (then out is too) */
     bool nonempty;      /* the parent's footprint holds a voxel */
 } mip_ctx;
 
@@ -156,6 +157,10 @@ static void mip_octant(mip_ctx *m, uint32_t e, uint32_t ox, uint32_t oy,
         return;
     }
     const uint8_t *d = brick_data(v, e);
+    if (v->packed) {
+        vod_pack_range(v, d, 0, (size_t)S * S * S, m->child);
+        d = (const uint8_t *)m->child;
+    }
     /* 8-bit voxels give channels 1 and 2 only (channels_of) */
     uint32_t any = v->bits == 8 ? mip_octant8(m, d, ox, oy, oz)
                                 : mip_octant_any(m, d, ox, oy, oz);
@@ -214,6 +219,11 @@ static int mip_brick(mip_ctx *m, const uint32_t p[3], uint32_t *entry)
         *entry = ue;
         return 0;
     }
+    if (v->packed) {
+        uint32_t pe = vod_pack_store(v, old, m->out, false);
+        *entry = pe;
+        return pe ? 0 : -ENOMEM;
+    }
     uint32_t e = is_alloc(old) ? old : vod_vol_pool_take(v, 0, false); /* written whole below */
     if (!e) return -ENOMEM;
     uint8_t *d = brick_data(v, e);
@@ -258,6 +268,22 @@ static int build_columns(mip_ctx *m, int levels, const uint32_t lo[2],
     return rc;
 }
 
+/* The scratch of a mip build: a parent brick, and a packed child's voxels. */
+static int mip_ctx_init(mip_ctx *m, vod_volume *v, int channel)
+{
+    size_t n = (size_t)v->sbrick * v->sbrick * v->sbrick;
+    *m = (mip_ctx){.v = v, .ch = channel, .out = malloc(n * sizeof *m->out)};
+    m->out8 = (uint8_t *)m->out;
+    if (v->packed) m->child = malloc(n * sizeof *m->child);
+    return m->out && (m->child || !v->packed) ? 0 : -ENOMEM;
+}
+
+static void mip_ctx_free(mip_ctx *m)
+{
+    free(m->out);
+    free(m->child);
+}
+
 static bool mip_args_ok(const vod_volume *v, int channel, int levels)
 {
     return channel >= 0 && channel <= 31 && (channels_of(v) >> channel & 1u) &&
@@ -272,12 +298,10 @@ int vod_volume_mip_columns(vod_volume *v, int channel, int levels,
         if (lo[a] >= hi[a] || lo[a] >= v->grid[levels][a]) return -EINVAL;
     assert(v->mip_channel == 0 && v->low_levels == 0 &&
            "mip_columns runs before prepare() and vod_volume_mips_low()");
-    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
-    mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
-    if (!m.out) return -ENOMEM;
-    m.out8 = (uint8_t *)m.out;
+    mip_ctx m;
+    if (mip_ctx_init(&m, v, channel)) return -ENOMEM;
     int rc = build_columns(&m, levels, lo, hi);
-    free(m.out);
+    mip_ctx_free(&m);
     return rc;
 }
 
@@ -301,15 +325,13 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
     int first = v->low_levels && v->low_channel == channel ? v->low_levels + 1 : 1;
     if (first == 1) v->low_levels = 0; /* another channel's: built over */
     v->mip_base = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
-    uint64_t n = (uint64_t)v->sbrick * v->sbrick * v->sbrick;
-    mip_ctx m = {.v = v, .ch = channel, .out = malloc(n * sizeof *m.out)};
-    m.out8 = (uint8_t *)m.out;
-    int rc = m.out ? 0 : -ENOMEM;
+    mip_ctx m;
+    int rc = mip_ctx_init(&m, v, channel);
     for (m.l = first; m.l <= v->depth && !rc; m.l++) {
         memset(table(v, m.l), 0, 4 * grid_bricks(v, m.l));
         rc = build_level(&m);
     }
-    free(m.out);
+    mip_ctx_free(&m);
     v->mip_channel = channel;
     if (rc) vod_vol_drop_mips(v); /* the levels built so far go back too */
     return rc;
@@ -333,10 +355,11 @@ static bool any_nonzero(const vod_volume *v, uint32_t e, const uint32_t lo[3],
         !atomic_load_explicit(&v->zero_bricks, memory_order_relaxed))
         return true; /* no zero was ever written into a brick's memory */
     const uint8_t *d = brick_data(v, e);
+    if (v->packed && side == v->sbrick) return vod_pack_any(v, d);
     for (uint32_t z = lo[2]; z < lo[2] + side; z++)
         for (uint32_t y = lo[1]; y < lo[1] + side; y++)
             for (uint32_t x = lo[0]; x < lo[0] + side; x++)
-                if (vox_get(v, d, vox_index(v, x, y, z))) return true;
+                if (brick_voxel(v, e, vox_index(v, x, y, z))) return true;
     return false;
 }
 
@@ -509,20 +532,26 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
         copy_bytes_bits8(v, B, d, o, lo, a0, a1, raw);
         return;
     }
+    uint32_t row[VOD_VOLUME_MAX_BRICK]; /* a packed brick's row */
     for (uint32_t z = a0[2]; z < a1[2]; z++)
         for (uint32_t y = a0[1]; y < a1[1]; y++) {
             size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0]);
             size_t s = vox_index(v, a0[0] - o[0], y - o[1], z - o[2]);
             uint32_t n = a1[0] - a0[0];
+            const uint8_t *src = d ? d + s * (v->bits / 8) : NULL; /* the row's voxels */
+            if (d && v->packed) {
+                vod_pack_range(v, d, s, n, row);
+                src = (const uint8_t *)row;
+            }
             if (L->voxel_bits == 1 && v->bits == 8)
-                copy_row_bits8(raw, r, d ? d + s : NULL, u, n);
+                copy_row_bits8(raw, r, src, u, n);
             else if (L->voxel_bits == 8 && v->bits == 8) /* a row at a time */
-                d ? memcpy(raw + r, d + s, n) : memset(raw + r, (int)u, n);
+                src ? memcpy(raw + r, src, n) : memset(raw + r, (int)u, n);
             else if (L->voxel_bits == 32 && v->bits == 32)
-                copy_row32(raw + 4 * r, d ? d + 4 * s : NULL, u, n);
+                copy_row32(raw + 4 * r, src, u, n);
             else
                 for (uint32_t x = 0; x < n; x++)
-                    raw_put(raw, L->voxel_bits, r + x, d ? vox_get(v, d, s + x) : u);
+                    raw_put(raw, L->voxel_bits, r + x, src ? vox_get(v, src, x) : u);
         }
 }
 
@@ -563,7 +592,7 @@ static bool brick_outside(const vod_volume *v, const uint32_t b[3], uint32_t e,
                 uint32_t p[3] = {(b[0] << m) + x, (b[1] << m) + y, (b[2] << m) + z};
                 if (p[0] < volume[0] && p[1] < volume[1] && p[2] < volume[2])
                     continue;
-                if (is_alloc(e) && !vox_get(v, brick_data(v, e), vox_index(v, x, y, z)))
+                if (is_alloc(e) && !brick_voxel(v, e, vox_index(v, x, y, z)))
                     continue;
                 memcpy(at, p, sizeof p);
                 return true;

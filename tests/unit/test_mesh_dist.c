@@ -43,10 +43,10 @@ static size_t vidx(const grid_spec *g, uint32_t x, uint32_t y, uint32_t z)
 static uint32_t *voxelize(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
                           vod_volume_info *in)
 {
-    size_t bytes = vod_volume_bytes(g->res, mesh_vox_bits(o), MESH_VOLUME_BRICK, UINT32_MAX);
+    size_t bytes = vod_volume_bytes(g->res, mesh_vox_bits(o), mesh_vox_sbrick(o), UINT32_MAX);
     void *arena = malloc(bytes);
     vod_volume *v;
-    cr_assert_eq(vod_volume_init(&v, arena, bytes, g->res, mesh_vox_bits(o), MESH_VOLUME_BRICK), 0);
+    cr_assert_eq(vod_volume_init(&v, arena, bytes, g->res, mesh_vox_bits(o), mesh_vox_sbrick(o)), 0);
     mesh_tile_stats st = {0};
     cr_assert_eq(mesh_voxelize(m, g, o, v, &st), 0);
     uint32_t *d = malloc(nvox(g) * sizeof *d);
@@ -178,7 +178,7 @@ static void check_distance(const mesh *m, uint32_t res, uint32_t K, mesh_repair 
     cr_assert_gt(beyond, band, "space beyond the band: %zu voxels", beyond);
     cr_assert_gt(inside, 1000);
     /* memory for the band's bricks alone: the rest are uniform entries */
-    uint64_t bricks = (uint64_t)((res + 15) / 16) * ((res + 15) / 16) * ((res + 15) / 16);
+    uint64_t side = (res + in.sbrick - 1) / in.sbrick, bricks = side * side * side;
     cr_assert_lt(in.level0_bricks, bricks, "%u bricks with memory of %llu", in.level0_bricks,
                  (unsigned long long)bricks);
     cr_log_info("res %u band %u: %zu band voxels, worst %.3g voxel, %u of %llu bricks stored",
