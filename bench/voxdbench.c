@@ -325,7 +325,7 @@ static int daemon_job(vox_client *c, const vox_implicit_job *j, job_out *o, vox_
     size_t len;
     vox_summary s;
     int rc = vox_submit(c, j, &id, NULL, err);
-    if (rc == 0) rc = vox_receive_buffer(c, id, &buf, &len, NULL, NULL, &s, err);
+    if (rc == 0) rc = vox_receive_to_buffer(c, id, &buf, &len, &(vox_receive_opts){.sum = &s}, err);
     if (rc) return rc;
     free(buf);
     *o = (job_out){s.voxels, len, s.crc32, s.seconds_voxelize, s.seconds_write};

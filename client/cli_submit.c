@@ -134,7 +134,8 @@ static int submit_and_receive(vox_client *c, const vox_job *job,
     progress_init(&pr, o->progress);
     if (cli_interrupted()) vox_cancel(c, id, &err); /* its outcome shows below */
     vox_summary sum;
-    rc = vox_receive_file(c, id, o->out, on_job_progress, &pr, &sum, &err);
+    vox_receive_opts ro = {.progress = on_job_progress, .ud = &pr, .sum = &sum};
+    rc = vox_receive_to_file(c, id, o->out, &ro, &err);
     progress_done(&pr);
 
     if (rc) {

@@ -365,12 +365,6 @@ void engine_tidy(engine *e);
  * ENGINE_BAD_JOB (no octree, bad parameters), ENGINE_FAULT. */
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, engine_error *err);
-/* The same, watched: progress (fraction = the bricks handed out so far)
- * and a cancel flag (ENGINE_CANCELLED), as in engine_job; both optional. */
-int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
-                             vod_stats *st, engine_error *err,
-                             void (*progress)(void *ud, const engine_progress *p),
-                             void *ud, const atomic_int *cancel);
 /* The bricks engine_write_vod would write, without the file: the last
  * job's non-empty brick nodes in preorder, each node's record and encoded
  * bytes (a duplicate's data points at its first's), handed to deliver

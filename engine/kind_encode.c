@@ -428,20 +428,17 @@ const engine_kind engine_kind_encode = {
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, engine_error *err)
 {
-    return engine_write_vod_watched(e, p, sink, st, err, NULL, NULL, NULL);
+    return engine_write_vod_watched(e, p, sink, st, err, NULL);
 }
 
 static int encode_run(engine *e, encode_job *ej, const engine_sched_watch *w);
 
 /* A job of the encode kind; the checks that need no workers first. */
 int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
-                             vod_stats *st, engine_error *err,
-                             void (*progress)(void *ud, const engine_progress *p),
-                             void *ud, const atomic_int *cancel)
+                             vod_stats *st, engine_error *err, const engine_sched_watch *w)
 {
     encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
-    engine_sched_watch w = {.progress = progress, .ud = ud, .cancel = cancel};
-    return encode_run(e, &ej, &w);
+    return encode_run(e, &ej, w ? w : &(engine_sched_watch){0});
 }
 
 int engine_encode_bricks(engine *e, const vod_params *p, engine_deliver deliver,

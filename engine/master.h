@@ -60,6 +60,11 @@ typedef struct {
     const atomic_int *cancel;
 } engine_sched_watch;
 
+/* engine_write_vod, watched by w: progress (fraction = the bricks handed
+ * out so far) and a cancel flag (ENGINE_CANCELLED); w may be NULL. */
+int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
+                             vod_stats *st, engine_error *err, const engine_sched_watch *w);
+
 struct engine {
     shm_seg seg;
     shm_header *h;

@@ -21,10 +21,10 @@ static const engine_kind *kind_of(const engine_pipeline_job *job)
 /* The job's VOD parameters: its geometry and metadata (the kind's source
  * and pairs) on the caller's choice of channel, brick, compression and
  * hash. */
-static void vod_setup(vod_params *v, const engine_pipeline_job *job, const engine_kind *k,
-                      const double lo[3], const double hi[3], const grid_spec *g,
-                      char meta[JOB_META_MAX])
+static void vod_setup(vod_params *v, const engine_pipeline_job *job, const double lo[3],
+                      const double hi[3], const grid_spec *g, char meta[JOB_META_MAX])
 {
+    const engine_kind *k = kind_of(job);
     job_meta m = {
         .res = job->res,
         .grid = {g->res[0], g->res[1], g->res[2]},
@@ -101,7 +101,7 @@ static int run_engine(engine *e, const engine_kind *k, engine_pipeline_job *run,
     sp.stage = ENGINE_PIPELINE_WRITE;
     sp.voxels = er.voxels;
     double t0 = clock_now();
-    rc = engine_write_vod_watched(e, v, sink, &r->st, &r->err, w.progress, &sp, run->cancel);
+    rc = engine_write_vod_watched(e, v, sink, &r->st, &r->err, &w);
     r->t_write = clock_now() - t0;
     if (!rc && run->progress) {
         engine_progress done = {.fraction = 1.0, .voxels = er.voxels,
@@ -126,7 +126,7 @@ int engine_pipeline_plan(const engine_pipeline_job *job, engine_pipeline_report 
     char err[sizeof r->err.message];
     rc = grid_make(lo, hi, job->res, &r->grid, err, sizeof err);
     if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "%s", err);
-    vod_setup(v, job, k, lo, hi, &r->grid, meta); /* the job as asked for */
+    vod_setup(v, job, lo, hi, &r->grid, meta); /* the job as asked for */
     return 0;
 }
 

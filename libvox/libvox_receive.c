@@ -101,9 +101,17 @@ static vjob *receivable(vox_client *c, uint64_t job_id, vox_error *err)
     return j;
 }
 
-int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
-                     void *ud, vox_summary *sum, vox_error *err)
+/* A receive call's options, none when o is NULL. */
+static const vox_receive_opts *opts_or_none(const vox_receive_opts *o)
 {
+    static const vox_receive_opts none;
+    return o ? o : &none;
+}
+
+int vox_receive_to_file(vox_client *c, uint64_t job_id, const char *path,
+                        const vox_receive_opts *o, vox_error *err)
+{
+    o = opts_or_none(o);
     vox_error tmp_err;
     if (!err) err = &tmp_err;
     vjob *j = receivable(c, job_id, err);
@@ -116,23 +124,24 @@ int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progr
         return rc;
     }
     libvox_unspool(j, SINK_FD, f.fd);
-    rc = wait_job(c, j, cb, ud);
+    rc = wait_job(c, j, o->progress, o->ud);
     if (rc) outfile_abort(&f);
     else rc = outfile_commit(&f, path);
     if (rc) {
         /* the file's own failure (a full disk) names the file */
         if (j->result.code && !j->local_err) libvox_copy_error(err, &j->result);
         else libvox_set_error(err, rc, job_id, "cannot write %s: %s", path, strerror(-rc));
-    } else if (sum) {
-        *sum = j->sum;
+    } else if (o->sum) {
+        *o->sum = j->sum;
     }
     libvox_drop_job(c, j);
     return rc;
 }
 
-int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
-                       vox_progress_cb cb, void *ud, vox_summary *sum, vox_error *err)
+int vox_receive_to_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
+                          const vox_receive_opts *o, vox_error *err)
 {
+    o = opts_or_none(o);
     vox_error tmp_err;
     if (!err) err = &tmp_err;
     *buf = NULL;
@@ -140,15 +149,29 @@ int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *le
     vjob *j = receivable(c, job_id, err);
     if (!j) return -EINVAL;
     libvox_unspool(j, SINK_BUF, -1);
-    int rc = wait_job(c, j, cb, ud);
+    int rc = wait_job(c, j, o->progress, o->ud);
     if (rc) {
         libvox_copy_error(err, &j->result);
     } else {
         *buf = j->buf;
         *len = (size_t)j->received;
         j->buf = NULL;
-        if (sum) *sum = j->sum;
+        if (o->sum) *o->sum = j->sum;
     }
     libvox_drop_job(c, j);
     return rc;
+}
+
+int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
+                     void *ud, vox_summary *sum, vox_error *err)
+{
+    vox_receive_opts o = {.progress = cb, .ud = ud, .sum = sum};
+    return vox_receive_to_file(c, job_id, path, &o, err);
+}
+
+int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
+                       vox_progress_cb cb, void *ud, vox_summary *sum, vox_error *err)
+{
+    vox_receive_opts o = {.progress = cb, .ud = ud, .sum = sum};
+    return vox_receive_to_buffer(c, job_id, buf, len, &o, err);
 }

@@ -348,19 +348,35 @@ typedef struct {
     uint32_t mpi_ranks;
 } vox_summary;
 
+/* How a receive call watches its job and what it hands back besides the
+ * file; every field optional (a zeroed struct, or NULL: none).  A field
+ * added here is an interface change (libvox's soname, docs/libvox.md). */
+typedef struct {
+    vox_progress_cb progress; /* sees the job's progress; may cancel it */
+    void *ud;                 /* progress's first argument */
+    vox_summary *sum;         /* gets the summary when the job succeeded */
+} vox_receive_opts;
+
 /* Wait for a job's end and write its VOD to path.  The file is written under
  * a temporary name beside path and renamed into place only when the job
  * succeeded and the result checks: as many bytes as the summary says, their
  * CRC-32 (zlib's, over every byte but the last 4) equal to the summary's and
  * to the file's own last 4 bytes (little-endian).  Otherwise nothing is left
- * at path or beside it.  cb (may be NULL) sees the job's progress; sum (may
- * be NULL) gets the summary.  The job is forgotten on return, whatever the
- * outcome.  Results of other jobs of this client that arrive meanwhile are
- * kept (in an unlinked temporary file) until they are received. */
-int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
-                     void *ud, vox_summary *sum, vox_error *err);
+ * at path or beside it.  o (may be NULL): see vox_receive_opts.  The job is
+ * forgotten on return, whatever the outcome.  Results of other jobs of this
+ * client that arrive meanwhile are kept (in an unlinked temporary file)
+ * until they are received. */
+int vox_receive_to_file(vox_client *c, uint64_t job_id, const char *path,
+                        const vox_receive_opts *o, vox_error *err);
 /* The same into a malloc'ed buffer (*buf, *len; free() it), checked the
  * same way; nothing is returned on failure. */
+int vox_receive_to_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
+                          const vox_receive_opts *o, vox_error *err);
+/* The calls above as libvox 0.1 first had them, kept (thin wrappers) so that
+ * programs built against them run and build unchanged: cb, ud and sum are
+ * vox_receive_opts' progress, ud and sum. */
+int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
+                     void *ud, vox_summary *sum, vox_error *err);
 int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,
                        vox_progress_cb cb, void *ud, vox_summary *sum, vox_error *err);
 

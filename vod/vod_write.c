@@ -416,14 +416,24 @@ static const seen_brick *same_uniform(const vod_encoder *e, const vod_node *n)
 /* What vod_encoder_put_batch found for one brick of the batch. */
 enum { BATCH_NEW = -1, BATCH_SEEN = -2 }; /* else: the index of its first */
 
+/* A batch of vod_encoder_put_batch: each brick's finding and raw bytes'
+ * key, and the caller's records and tags of the bricks they equal. */
+typedef struct {
+    int kind[VOD_ENCODE_BATCH];
+    uint64_t key[VOD_ENCODE_BATCH];
+    vod_encoded *rec;
+    uint64_t *same;
+} batch;
+
 /* Brick i of a batch into kind[i]: a duplicate of a brick this encoder
  * kept before (BATCH_SEEN, its record and tag set), of an earlier new
  * brick of the batch (that one's index), or new (BATCH_NEW).  Its raw
  * bytes are filled into e->raw's slot i, their key into key[i]. */
 static int batch_find(vod_encoder *e, const vod_source *s, const vod_node *n,
-                      size_t i, int *kind, uint64_t *key, vod_encoded *rec,
-                      uint64_t *same)
+                      size_t i, batch *bt)
 {
+    int *kind = bt->kind;
+    uint64_t *key = bt->key;
     size_t rb = e->L.raw_bytes;
     uint8_t *raw = e->raw + i * rb;
     const seen_brick *b = same_uniform(e, &n[i]);
@@ -439,8 +449,8 @@ static int batch_find(vod_encoder *e, const vod_source *s, const vod_node *n,
     }
     kind[i] = BATCH_NEW;
     if (b) {
-        rec[i] = b->rec;
-        same[i] = b->tag;
+        bt->rec[i] = b->rec;
+        bt->same[i] = b->tag;
         kind[i] = BATCH_SEEN;
     }
     for (size_t j = 0; j < i && kind[i] == BATCH_NEW; j++)
@@ -474,8 +484,8 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
                           const uint64_t *tag, size_t count, uint8_t *const *out,
                           size_t cap, vod_encoded *rec, uint64_t *same)
 {
-    int kind[VOD_ENCODE_BATCH];
-    uint64_t key[VOD_ENCODE_BATCH] = {0};
+    batch bt = {.rec = rec, .same = same};
+    const int *kind = bt.kind;
     size_t rb = e->L.raw_bytes;
     if (count > VOD_ENCODE_BATCH) return -EINVAL;
     if (count > e->batch) { /* large bricks: one at a time */
@@ -487,7 +497,7 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
         return 0;
     }
     for (size_t i = 0; i < count; i++) {
-        int rc = batch_find(e, s, n, i, kind, key, rec, same);
+        int rc = batch_find(e, s, n, i, &bt);
         if (rc) return rc;
     }
     double t0 = clock_now();
@@ -505,7 +515,7 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
         e->t.compress += clock_now() - t0;
         if (rc) return rc;
         same[i] = tag[i];
-        remember(e, key[i], e->raw + i * rb, &n[i], &rec[i], tag[i]);
+        remember(e, bt.key[i], e->raw + i * rb, &n[i], &rec[i], tag[i]);
     }
     return 0;
 }
@@ -590,35 +600,35 @@ static int encode_some(const encode_job *j, size_t i, size_t count)
     return rc;
 }
 
-/* Phase 2 for every node, serially, into one buffer (offsets in off; a
- * duplicate the encoder found shares its first's); its times into t. */
-static int encode_all(const vod_source *s, const vod_layout *L,
-                      const vod_params *p, size_t n, const vod_node *nodes,
-                      vod_encoded *recs, size_t *off, vod_membuf *b, vod_times *t)
+/* Phase 2 for the n nodes of j (its source, nodes, records, offsets and
+ * buffer set; its encoder and room made here), serially, into one buffer
+ * (offsets in off; a duplicate the encoder found shares its first's); its
+ * times into t. */
+static int encode_all(encode_job *j, const vod_layout *L, const vod_params *p, size_t n,
+                      vod_times *t)
 {
-    size_t bound = vod_encode_bound(L, p);
-    vod_encoder *e;
-    int rc = vod_encoder_new(L, p, &e);
+    j->bound = vod_encode_bound(L, p);
+    int rc = vod_encoder_new(L, p, &j->e);
     if (rc) return rc;
-    uint8_t *tmp = malloc(VOD_ENCODE_BATCH * bound);
-    rc = tmp ? 0 : -ENOMEM;
-    encode_job j = {e, s, nodes, tmp, bound, recs, off, b};
+    j->tmp = malloc(VOD_ENCODE_BATCH * j->bound);
+    rc = j->tmp ? 0 : -ENOMEM;
     for (size_t i = 0; i < n && !rc; i += VOD_ENCODE_BATCH) {
         size_t count = n - i < VOD_ENCODE_BATCH ? n - i : VOD_ENCODE_BATCH;
-        rc = encode_some(&j, i, count);
+        rc = encode_some(j, i, count);
     }
     vod_times et;
-    vod_encoder_times(e, &et);
+    vod_encoder_times(j->e, &et);
     vod_times_add(t, &et);
-    vod_encoder_free(e);
-    free(tmp);
+    vod_encoder_free(j->e);
+    free(j->tmp);
     return rc;
 }
 
-static int write_planned(const vod_source *s, const vod_layout *L,
-                         const vod_params *p, vod_sink *sink, vod_stats *st,
-                         double t_prepare, char *err, size_t errlen)
+/* Phases 2 and 3 of a (its layout, parameters, sink, figures and message
+ * set; the bricks filled in here); t_prepare the seconds phase 1 took. */
+static int write_planned(const vod_source *s, vod_assembly *a, double t_prepare)
 {
+    const vod_layout *L = a->L;
     double t0 = clock_now();
     size_t n = vod_collect(s, L, NULL, 0);
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);
@@ -631,16 +641,18 @@ static int write_planned(const vod_source *s, const vod_layout *L,
     if (!rc) {
         vod_collect(s, L, nodes, n);
         t.fill = clock_now() - t0 + t_prepare;
-        rc = encode_all(s, L, p, n, nodes, recs, off, &b, &t);
+        encode_job j = {.s = s, .nodes = nodes, .recs = recs, .off = off, .b = &b};
+        rc = encode_all(&j, L, a->p, n, &t);
     }
     if (!rc) {
         for (size_t i = 0; i < n; i++) data[i] = b.p + off[i];
-        vod_assembly a = {.L = L, .p = p, .n = n, .nodes = nodes, .recs = recs,
-                          .data = data, .sink = sink, .st = st, .err = err,
-                          .errlen = errlen};
-        rc = vod_assemble(&a);
+        a->n = n;
+        a->nodes = nodes;
+        a->recs = recs;
+        a->data = data;
+        rc = vod_assemble(a);
     }
-    if (!rc && st) vod_times_add(&st->t, &t);
+    if (!rc && a->st) vod_times_add(&a->st->t, &t);
     free(nodes);
     free(recs);
     free(off);
@@ -649,15 +661,16 @@ static int write_planned(const vod_source *s, const vod_layout *L,
     return rc;
 }
 
-/* Phases 1 (after the checks) to 3. */
-static int write_checked(vod_source *s, const vod_layout *L, const vod_params *p,
-                         vod_sink *sink, vod_stats *st, char *err, size_t errlen)
+/* Phases 1 (after the checks) to 3 of a, as write_planned. */
+static int write_checked(vod_source *s, vod_assembly *a)
 {
+    char *err = a->err;
+    size_t errlen = a->errlen;
     double t0 = clock_now();
-    int rc = vod_prepare(s, L, p->channel, err, errlen);
+    int rc = vod_prepare(s, a->L, a->p->channel, err, errlen);
     if (rc) return rc;
     if (errlen) err[0] = '\0';
-    rc = write_planned(s, L, p, sink, st, clock_now() - t0, err, errlen);
+    rc = write_planned(s, a, clock_now() - t0);
     /* vod_assemble's own failures are said; the sink's and the encoder's
      * are not yet */
     if (rc && (!errlen || !err[0]))
@@ -671,7 +684,8 @@ int vod_write(vod_source *s, const vod_params *p, vod_sink *sink,
     vod_layout L;
     int rc = vod_layout_make(p, s->depth, &L, err, errlen);
     if (!rc) rc = vod_check_source(s, p, err, errlen);
-    return rc ? rc : write_checked(s, &L, p, sink, st, err, errlen);
+    vod_assembly a = {.L = &L, .p = p, .sink = sink, .st = st, .err = err, .errlen = errlen};
+    return rc ? rc : write_checked(s, &a);
 }
 
 int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
@@ -688,7 +702,8 @@ int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
         if (!own)
             return err_fmt(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
     }
-    rc = write_checked(&s, &L, p, sink, st, err, errlen);
+    vod_assembly a = {.L = &L, .p = p, .sink = sink, .st = st, .err = err, .errlen = errlen};
+    rc = write_checked(&s, &a);
     if (own) {
         free(own);
         t->agg = NULL;

@@ -450,7 +450,7 @@ static inline void expect_fail(vox_client *c, uint64_t id, int want, const char 
 {
     vox_error e;
     vox_summary sum;
-    int rc = vox_receive_file(c, id, out_path("out.vod"), NULL, NULL, &sum, &e);
+    int rc = vox_receive_to_file(c, id, out_path("out.vod"), &(vox_receive_opts){.sum = &sum}, &e);
     cr_expect_eq(rc, want, "receive: %d (%s), want %d", rc, e.message, want);
     cr_expect_eq(e.code, rc);
     if (msg_part)

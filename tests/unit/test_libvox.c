@@ -144,6 +144,7 @@ Test(libvox, happy_path_to_file)
     cr_expect_eq(q, 2);
     prog_log pl = {0};
     vox_summary sum;
+    /* libvox 0.1's call (a wrapper of vox_receive_to_file) */
     int rc = vox_receive_file(c, id, out_path("out.vod"), on_prog, &pl, &sum, &e);
     cr_assert_eq(rc, 0, "%s", e.message);
     uint32_t crc;
@@ -182,7 +183,7 @@ Test(libvox, happy_path_to_file)
     free(got);
     free(want);
     /* The job is forgotten: receiving it again is an error, not a hang. */
-    cr_expect_eq(vox_receive_file(c, id, out_path("again.vod"), NULL, NULL, NULL, &e), -EINVAL);
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("again.vod"), NULL, &e), -EINVAL);
     vox_close(c);
     srv_finish(s);
 }
@@ -223,8 +224,8 @@ Test(libvox, progress_callbacks_in_order)
         usleep(1000);
     cr_assert_geq(__atomic_load_n(&pl.sent, __ATOMIC_ACQUIRE), 1, "no progress sent");
     vox_error e;
-    cr_assert_eq(vox_receive_file(c, id, out_path("p.vod"), on_prog, &pl, NULL, &e), 0, "%s",
-                 e.message);
+    vox_receive_opts ro = {.progress = on_prog, .ud = &pl};
+    cr_assert_eq(vox_receive_to_file(c, id, out_path("p.vod"), &ro, &e), 0, "%s", e.message);
     cr_expect_eq(pl.calls, 5);
     for (int i = 0; i < 5; i++) {
         cr_expect_float_eq(pl.fraction[i], (i + 1) / 10.0, 1e-12);
@@ -244,6 +245,7 @@ Test(libvox, happy_path_to_buffer)
     size_t len;
     vox_summary sum;
     vox_error e;
+    /* libvox 0.1's call (a wrapper of vox_receive_to_buffer) */
     cr_assert_eq(vox_receive_buffer(c, id, &buf, &len, NULL, NULL, &sum, &e), 0, "%s",
                  e.message);
     uint8_t *want = make_result(RESULT_BYTES, 1, NULL);
@@ -290,14 +292,14 @@ Test(libvox, interleaved_jobs)
     vox_error e;
     uint8_t *buf;
     size_t len;
-    cr_assert_eq(vox_receive_buffer(c, b, &buf, &len, NULL, NULL, NULL, &e), 0, "%s", e.message);
+    cr_assert_eq(vox_receive_to_buffer(c, b, &buf, &len, NULL, &e), 0, "%s", e.message);
     uint8_t *wb = make_result(30001, 11, NULL), *wa = make_result(50000, 10, NULL);
     cr_expect_eq(len, 30001);
     cr_expect(memcmp(buf, wb, len) == 0);
     free(buf);
     vox_summary sum;
-    cr_assert_eq(vox_receive_file(c, a, out_path("a.vod"), NULL, NULL, &sum, &e), 0, "%s",
-                 e.message);
+    vox_receive_opts ro = {.sum = &sum};
+    cr_assert_eq(vox_receive_to_file(c, a, out_path("a.vod"), &ro, &e), 0, "%s", e.message);
     size_t n;
     uint8_t *got = slurp(out_path("a.vod"), &n);
     cr_expect_eq(n, 50000);
@@ -377,7 +379,7 @@ Test(libvox, typed_error_to_buffer_returns_nothing)
     uint8_t *buf = (uint8_t *)1;
     size_t len = 7;
     vox_error e;
-    cr_expect_eq(vox_receive_buffer(c, id, &buf, &len, NULL, NULL, NULL, &e), VOX_EWORKER_CRASHED);
+    cr_expect_eq(vox_receive_to_buffer(c, id, &buf, &len, NULL, &e), VOX_EWORKER_CRASHED);
     cr_expect_null(buf);
     cr_expect_eq(len, 0);
     cr_expect_str_eq(e.message, "worker 0 died");
@@ -477,7 +479,7 @@ Test(libvox, crc_mismatch_to_buffer_returns_nothing)
     uint64_t id = submit(c, 9);
     uint8_t *buf;
     size_t len;
-    cr_expect_eq(vox_receive_buffer(c, id, &buf, &len, NULL, NULL, NULL, NULL), -EBADMSG);
+    cr_expect_eq(vox_receive_to_buffer(c, id, &buf, &len, NULL, NULL), -EBADMSG);
     cr_expect_null(buf);
     vox_close(c);
     srv_finish(s);

@@ -212,7 +212,7 @@ Test(libvox, input_over_a_frame_goes_in_chunks)
     cr_expect_eq(id, 9);
     uint8_t *buf;
     size_t n;
-    cr_expect_eq(vox_receive_buffer(c, id, &buf, &n, NULL, NULL, NULL, &e), 0, "%s", e.message);
+    cr_expect_eq(vox_receive_to_buffer(c, id, &buf, &n, NULL, &e), 0, "%s", e.message);
     cr_expect_eq(n, 5000);
     free(buf);
     vox_close(c);
@@ -232,7 +232,7 @@ Test(libvox, inline_max_option)
     uint64_t id = 0;
     vox_error e;
     cr_assert_eq(vox_submit(c, &sphere, &id, NULL, &e), 0, "%s", e.message);
-    cr_expect_eq(vox_receive_file(c, id, out_path("out.vod"), NULL, NULL, NULL, &e), 0, "%s",
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("out.vod"), NULL, &e), 0, "%s",
                  e.message);
     vox_close(c);
     srv_finish(s);
@@ -261,7 +261,7 @@ Test(libvox, job_ended_during_its_upload)
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "a stray error answered the ping: %s", e.message);
     uint8_t *buf = NULL;
     size_t n;
-    cr_expect_eq(vox_receive_buffer(c, id, &buf, &n, NULL, NULL, NULL, &e), VOX_EINVALID_INPUT);
+    cr_expect_eq(vox_receive_to_buffer(c, id, &buf, &n, NULL, &e), VOX_EINVALID_INPUT);
     cr_expect(strstr(e.message, "NUL byte in chunk 2"), "%s", e.message);
     cr_expect_null(buf);
     vox_close(c);
@@ -334,7 +334,7 @@ Test(libvox, mesh_job_inline_with_its_options)
         uint64_t id = 0;
         cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
         cr_expect_eq(id, want);
-        cr_expect_eq(vox_receive_file(c, id, out_path("m.vod"), NULL, NULL, NULL, &e), 0, "%s",
+        cr_expect_eq(vox_receive_to_file(c, id, out_path("m.vod"), NULL, &e), 0, "%s",
                      e.message);
         j.mesh.fit = 0; /* the second: its domain, its pad not sent */
     }
@@ -357,7 +357,7 @@ Test(libvox, mesh_over_a_frame_goes_in_chunks)
     vox_error e;
     cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
     cr_expect_eq(id, 9);
-    cr_expect_eq(vox_receive_file(c, id, out_path("m.vod"), NULL, NULL, NULL, &e), 0, "%s",
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("m.vod"), NULL, &e), 0, "%s",
                  e.message);
     vox_close(c);
     srv_finish(s);
@@ -405,13 +405,13 @@ Test(libvox, unwritable_output_fails_at_once)
     vox_client *c = start(s, 5000);
     uint64_t id = submit(c, 7);
     vox_error e;
-    cr_expect_eq(vox_receive_file(c, id, "/nonexistent/dir/x.vod", NULL, NULL, NULL, &e), -ENOENT);
+    cr_expect_eq(vox_receive_to_file(c, id, "/nonexistent/dir/x.vod", NULL, &e), -ENOENT);
     cr_expect(strstr(e.message, "cannot create /nonexistent/dir/x.vod"), "%s", e.message);
     /* The job was cancelled; what still comes of it is dropped, and the
      * connection goes on. */
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
-    cr_expect_eq(vox_receive_file(c, id, out_path("x.vod"), NULL, NULL, NULL, &e), -EINVAL);
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("x.vod"), NULL, &e), -EINVAL);
     vox_close(c);
     srv_finish(s);
     cr_expect(s_happy_saw_cancel, "the job was not cancelled");
@@ -448,10 +448,10 @@ Test(libvox, dropped_job_is_drained)
     vox_client *c = start(s, 5000);
     uint64_t a = submit(c, 30), b = submit(c, 31);
     vox_error e;
-    cr_expect_eq(vox_receive_file(c, a, "/nonexistent/dir/x.vod", NULL, NULL, NULL, &e), -ENOENT);
+    cr_expect_eq(vox_receive_to_file(c, a, "/nonexistent/dir/x.vod", NULL, &e), -ENOENT);
     uint8_t *buf;
     size_t len;
-    cr_assert_eq(vox_receive_buffer(c, b, &buf, &len, NULL, NULL, NULL, &e), 0, "%s", e.message);
+    cr_assert_eq(vox_receive_to_buffer(c, b, &buf, &len, NULL, &e), 0, "%s", e.message);
     cr_expect_eq(len, 5000);
     free(buf);
     cr_expect_eq(vox_ping(c, NULL, &e), 0, "%s", e.message);
@@ -502,7 +502,7 @@ Test(libvox, over_a_unix_socket_path)
     vox_error e;
     cr_assert_eq(vox_connect(out_path("voxd.sock"), NULL, &c, &e), 0, "%s", e.message);
     uint64_t id = submit(c, 7);
-    cr_expect_eq(vox_receive_file(c, id, out_path("out.vod"), NULL, NULL, NULL, &e), 0, "%s",
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("out.vod"), NULL, &e), 0, "%s",
                  e.message);
     vox_close(c);
     srv_finish(s);
@@ -595,8 +595,8 @@ Test(libvox, server_info_and_grid_from_a_real_daemon, .timeout = 120)
     vox_error e;
     cr_assert_eq(vox_submit_job(c, &j, &id, NULL, &e), 0, "%s", e.message);
     vox_summary sum;
-    cr_assert_eq(vox_receive_file(c, id, out_path("g.vod"), NULL, NULL, &sum, &e), 0, "%s",
-                 e.message);
+    vox_receive_opts ro = {.sum = &sum};
+    cr_assert_eq(vox_receive_to_file(c, id, out_path("g.vod"), &ro, &e), 0, "%s", e.message);
     double lo[3] = {-1, -0.3, -0.1}, hi[3] = {1, 0.3, 0.15};
     grid_spec g;
     char why[256];

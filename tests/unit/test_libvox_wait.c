@@ -255,7 +255,7 @@ Test(libvox, keepalive_tells_busy_from_hung)
     vox_client *c = start(s, 1000);
     uint64_t id = submit(c, 6);
     vox_error e;
-    cr_expect_eq(vox_receive_file(c, id, out_path("slow.vod"), NULL, NULL, NULL, &e), 0, "%s",
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("slow.vod"), NULL, &e), 0, "%s",
                  e.message);
     cr_expect(s->pings_seen >= 3, "%d pings", s->pings_seen);
     vox_close(c);
@@ -286,8 +286,8 @@ Test(libvox, progress_callback_cancels)
     uint64_t id = submit(c, 12);
     prog_log pl = {.cancel_at = 1};
     vox_error e;
-    cr_expect_eq(vox_receive_file(c, id, out_path("c.vod"), on_prog, &pl, NULL, &e),
-                 VOX_ECANCELLED);
+    vox_receive_opts ro = {.progress = on_prog, .ud = &pl};
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("c.vod"), &ro, &e), VOX_ECANCELLED);
     cr_expect_str_eq(e.message, "cancelled by the client");
     cr_expect_eq(dir_entries(), 0);
     vox_close(c);
@@ -315,7 +315,7 @@ Test(libvox, cancel_own_job)
     uint64_t id = submit(c, 20);
     vox_error e;
     cr_expect_eq(vox_cancel(c, id, &e), 0, "%s", e.message);
-    cr_expect_eq(vox_receive_file(c, id, out_path("c.vod"), NULL, NULL, NULL, &e),
+    cr_expect_eq(vox_receive_to_file(c, id, out_path("c.vod"), NULL, &e),
                  VOX_ECANCELLED);
     cr_expect_eq(dir_entries(), 0);
     vox_close(c);
