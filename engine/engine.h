@@ -25,9 +25,9 @@
  * tests its 8 children and sends back the kept ones (or, at the last level,
  * the voxels with their normals), one per queue entry.  ENGINE_SCHED_SUBTREE
  * (the default) does the same down to a split level, then hands out whole
- * subtrees whose voxels come back in batches of up to 1024 in preorder, so
- * the master's work is mostly octree_store and it sleeps the rest of the
- * time.  Both give the serial algorithm's voxels bit for bit (subdiv.h says
+ * subtrees, which the workers build in the shared octree arena themselves:
+ * a subtree comes back as its root cell, which the master links into the
+ * tree, so it sleeps most of the time.  Both give the serial algorithm's voxels bit for bit (subdiv.h says
  * why), whatever the number of workers.
  *
  * Robustness.  Whatever a worker wrote is checked before use (entries inside

@@ -1,8 +1,12 @@
 /* The implicit kind's master side: an expression's surface voxelized by
  * Figure 3's subdivision.  The job's block holds the grid and the tape;
- * the octree grows in the data area behind it.  Tasks are octants: whole
- * subtrees below the split level (or never, with the paper's schedule),
- * else one octant whose kept children come back onto the work stack. */
+ * the octree grows in the data area behind it, an arena whose blocks the
+ * master and the workers take from one counter (implicit_block).  Tasks
+ * are octants: whole subtrees below the split level (or never, with the
+ * paper's schedule), which the worker builds in the arena and the master
+ * links into the tree, else one octant whose kept children come back onto
+ * the work stack (the paper's level-1 octants: their voxels, which the
+ * master stores). */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -23,6 +27,8 @@ typedef struct {
     uint32_t pending[GRID_MAX_DEPTH + 1]; /* octants pushed, unfinished */
     uint32_t kept[ENGINE_MAX_WORKERS];    /* octants the task sent back */
     uint64_t stored;       /* voxels taken from the queues */
+    uint64_t cells;        /* cells of the subtrees linked */
+    uint32_t end;          /* and the end of the cells they lie in */
 } implicit_job;
 
 #define NEED_DOUBT 4.0 /* see implicit_progress */
@@ -34,6 +40,31 @@ static uint64_t tree_bytes(engine *e, uint64_t cells)
 {
     uint64_t off = (uint64_t)((uint8_t *)e->tree.cells - e->seg.base);
     return off - e->h->data_off + cells * sizeof(octree_cell);
+}
+
+/* Cells of the arena handed out so far (to the master and the workers):
+ * every index in the tree is below it. */
+static uint32_t arena_used(engine *e)
+{
+    implicit_block *b = engine_sched_block(e);
+    /* relaxed: see implicit_block.next_block */
+    unsigned n = atomic_load_explicit(&b->next_block, memory_order_relaxed);
+    return n >= b->blocks ? b->tree_cells : 1 + n * OCTREE_BLOCK_CELLS;
+}
+
+static int no_cells(engine *e)
+{
+    return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+                             "the octree needs more than %u cells; raise the "
+                             "shared memory size (now %zu MiB)",
+                             e->tree.capacity, e->seg.bytes >> 20);
+}
+
+/* The master's blocks (octree_share). */
+static int master_grab(void *ud, uint32_t *first, uint32_t *end)
+{
+    engine *e = ud;
+    return implicit_claim(e->seg.base, engine_sched_block(e), IMPLICIT_MASTER, first, end);
 }
 
 static int push_octant(engine *e, implicit_job *ij, grid_octant o)
@@ -78,31 +109,66 @@ static int take_octants(engine *e, int i, const shm_entry *en)
     return push_octant(e, ij, o);
 }
 
+/* The paper schedule's level-1 octants: one voxel per entry, stored here. */
 static int take_voxels(engine *e, int i, const shm_entry *en)
 {
     implicit_job *ij = e->job;
     const shm_task *t = &e->ms[i].task;
     grid_octant task = implicit_octant(t);
     uint32_t n = en->count; /* read once: the worker's memory */
-    if (n == 0 || n > IMPLICIT_BATCH ||
-        (t->op == IMPLICIT_CHILDREN && (n != 1 || task.level != 1)))
+    if (n != 1 || t->op != IMPLICIT_CHILDREN || task.level != 1)
         return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                           "worker %d sent a batch of %u voxels", i, n);
-    const grid_voxel *vox = (const grid_voxel *)en->payload;
-    for (uint32_t j = 0; j < n; j++) {
-        grid_voxel v = vox[j];
-        if (!inside(task, v.x, v.y, v.z) || outside_res(e, v.x, v.y, v.z) ||
-            v.value == 0)
-            return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
-                              "worker %d sent voxel (%u,%u,%u) outside its "
-                              "task", i, v.x, v.y, v.z);
-        ij->stored++;
-        if (octree_store(&e->tree, v.x, v.y, v.z, v.value))
-            return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
-                              "the octree needs more than %u cells; raise the "
-                              "shared memory size (now %zu MiB)",
-                              e->tree.capacity, e->seg.bytes >> 20);
-    }
+    grid_voxel v = ((const grid_voxel *)en->payload)[0];
+    if (!inside(task, v.x, v.y, v.z) || outside_res(e, v.x, v.y, v.z) || v.value == 0)
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
+                          "worker %d sent voxel (%u,%u,%u) outside its "
+                          "task", i, v.x, v.y, v.z);
+    ij->stored++;
+    return octree_store(&e->tree, v.x, v.y, v.z, v.value) ? no_cells(e) : 0;
+}
+
+/* Is cell c in a block worker i claimed? */
+static int claimed_by(engine *e, int i, uint32_t c)
+{
+    implicit_block *b = engine_sched_block(e);
+    uint32_t k = (c - 1) / OCTREE_BLOCK_CELLS;
+    if (c == 0 || c >= arena_used(e) || k >= b->blocks) return 0;
+    /* relaxed: see implicit_claim */
+    return atomic_load_explicit(&implicit_owners(e->seg.base, b)[k], memory_order_relaxed) ==
+           (uint16_t)(i + 1);
+}
+
+/* A subtree a worker built: checked as far as it cheaply can be (its
+ * octant the task's, its root in a block the worker claimed, its counts
+ * possible), its root linked into the tree.  The cells below the root are
+ * the worker's; the tree's readers bound every index (octree_child). */
+static int take_subtree(engine *e, int i, const shm_entry *en)
+{
+    implicit_job *ij = e->job;
+    const shm_task *t = &e->ms[i].task;
+    grid_octant o = implicit_octant(t);
+    implicit_subtree s;
+    uint32_t n = en->count; /* read once: the worker's memory */
+    memcpy(&s, en->payload, sizeof s);
+    if (n != 1 || t->op != IMPLICIT_SUBTREE || memcmp(&s.o, &o, sizeof o) ||
+        s.voxels == 0 || s.voxels > volume(o.level) || s.cells < o.level ||
+        s.cells > e->tree.capacity || !claimed_by(e, i, s.root) || s.end <= s.root ||
+        s.end > arena_used(e))
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
+                          "worker %d sent a subtree (root %u, %u cells, %llu voxels) "
+                          "that is not its octant's (%u,%u,%u) level %u", i, s.root,
+                          s.cells, (unsigned long long)s.voxels, o.x, o.y, o.z, o.level);
+    int rc = octree_link(&e->tree, o.x, o.y, o.z, o.level - 1, s.root, s.voxels);
+    if (rc == -ENOMEM) return no_cells(e);
+    if (rc)
+        return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
+                          "worker %d sent a second subtree for octant (%u,%u,%u) level %u",
+                          i, o.x, o.y, o.z, o.level);
+    /* the whole tree's subtree: its root's entries were copied to cell 1 */
+    ij->cells += s.cells - (o.level == e->tree.depth);
+    ij->stored += s.voxels;
+    if (s.end > ij->end) ij->end = s.end;
     return 0;
 }
 
@@ -111,6 +177,7 @@ static int implicit_take(engine *e, int i, const shm_entry *en)
     uint32_t type = en->type; /* read once: the worker's memory */
     if (type == IMPLICIT_OCTANTS) return take_octants(e, i, en);
     if (type == IMPLICIT_VOXELS) return take_voxels(e, i, en);
+    if (type == IMPLICIT_BUILT) return take_subtree(e, i, en);
     return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                       "worker %d sent an entry of type %u", i, type);
 }
@@ -118,7 +185,12 @@ static int implicit_take(engine *e, int i, const shm_entry *en)
 static void implicit_done(engine *e, int i, const shm_task *t, int error)
 {
     implicit_job *ij = e->job;
-    if (error)
+    implicit_block *b = engine_sched_block(e);
+    /* relaxed: see implicit_block.next_block */
+    if (error == -ENOMEM && t->op == IMPLICIT_SUBTREE &&
+        atomic_load_explicit(&b->next_block, memory_order_relaxed) >= b->blocks)
+        no_cells(e); /* the arena ran out under the worker */
+    else if (error)
         engine_sched_fail(e, ENGINE_FAULT, error, "worker %d failed: %s", i,
                    strerror(-error));
     int l = implicit_octant(t).level;
@@ -157,7 +229,7 @@ static void implicit_progress(engine *e, engine_progress *p)
     p->fraction = f > 1.0 ? 1.0 : f;
     p->level = top_pending(ij);
     p->voxels = e->tree.voxels;
-    p->shm_used = tree_bytes(e, e->tree.used);
+    p->shm_used = tree_bytes(e, arena_used(e)); /* every writer's blocks */
     /* The octree's need, extrapolated from the volume done (culled space
      * included): used / fraction.  What is done may be denser than what
      * is left (up to 3 times on a shape built to fool it, under 1.8 on the
@@ -166,6 +238,49 @@ static void implicit_progress(engine *e, engine_progress *p)
      * stopped, and one that does not (x*0 at 4096^3) is stopped at once. */
     if (f > 0 && p->shm_used >= e->h->data_bytes / 64)
         p->shm_need = (uint64_t)((double)p->shm_used / f / NEED_DOUBT);
+}
+
+/* The data area: the job's block, its tape, the arena's block owners and
+ * cells; the master's tree in the arena, its blocks shared (the counter
+ * at 1: block 0, the root's, is the master's).  0, or engine_sched_fail's
+ * return. */
+static int implicit_layout(engine *e, const engine_job *j)
+{
+    shm_header *h = e->h;
+    size_t tb = expr_tape_bytes(j->tape);
+    uint64_t end = h->data_off + h->data_bytes;
+    uint64_t tape_off = engine_sched_align64(h->data_off + sizeof(implicit_block));
+    uint64_t owners_off = engine_sched_align64(tape_off + tb);
+    /* an owner per block the space left could hold (the cells get the rest) */
+    uint64_t left = end > owners_off ? end - owners_off : 0;
+    uint64_t most = left / octree_arena_bytes(OCTREE_BLOCK_CELLS) + 1;
+    uint64_t tree_off = engine_sched_align64(owners_off + most * sizeof(uint16_t));
+    if (tree_off + 2 * sizeof(octree_cell) > end)
+        return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
+                          "the expression (%zu bytes compiled) leaves no room "
+                          "for the octree; raise the shared memory size", tb);
+    uint64_t cap = (end - tree_off) / sizeof(octree_cell);
+    if (cap > UINT32_MAX) cap = UINT32_MAX;
+    implicit_block *b = shm_at(e->seg.base, h->data_off);
+    b->grid = j->grid;
+    b->tape_off = tape_off;
+    b->tape_bytes = tb;
+    b->owners_off = owners_off;
+    b->tree_off = tree_off;
+    b->tree_cells = (uint32_t)cap;
+    b->blocks = (uint32_t)((cap - 2 + OCTREE_BLOCK_CELLS) / OCTREE_BLOCK_CELLS);
+    memcpy(shm_at(e->seg.base, tape_off), j->tape, tb);
+    /* relaxed: no worker runs a task of the job yet; the task_seq release
+     * of its first publishes these */
+    _Atomic uint16_t *owners = implicit_owners(e->seg.base, b);
+    for (uint32_t k = 0; k < b->blocks; k++)
+        atomic_store_explicit(&owners[k], k ? 0 : IMPLICIT_MASTER, memory_order_relaxed);
+    atomic_store_explicit(&b->next_block, 1, memory_order_relaxed);
+    h->job_off = h->data_off;
+    h->job_bytes = tree_off - h->data_off;
+    octree_init(&e->tree, shm_at(e->seg.base, tree_off), (uint32_t)cap, j->grid.depth);
+    octree_share(&e->tree, master_grab, e);
+    return 0;
 }
 
 static int implicit_setup(engine *e, void *job)
@@ -177,26 +292,9 @@ static int implicit_setup(engine *e, void *job)
     if (!j->tape) return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
     if (grid_check(&j->grid))
         return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job's grid is invalid");
-    shm_header *h = e->h;
-    size_t tb = expr_tape_bytes(j->tape);
-    uint64_t end = h->data_off + h->data_bytes;
-    uint64_t tape_off = (h->data_off + sizeof(implicit_block) + 63) / 64 * 64;
-    uint64_t tree_off = (tape_off + tb + 63) / 64 * 64;
-    if (tree_off + 2 * sizeof(octree_cell) > end)
-        return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
-                          "the expression (%zu bytes compiled) leaves no room "
-                          "for the octree; raise the shared memory size", tb);
-    uint64_t cap = (end - tree_off) / sizeof(octree_cell);
-    implicit_block *b = shm_at(e->seg.base, h->data_off);
-    b->grid = j->grid;
-    b->tape_off = tape_off;
-    b->tape_bytes = tb;
-    memcpy(shm_at(e->seg.base, tape_off), j->tape, tb);
-    h->job_off = h->data_off;
-    h->job_bytes = tree_off - h->data_off;
+    int rc = implicit_layout(e, j);
+    if (rc) return rc;
     int depth = j->grid.depth;
-    octree_init(&e->tree, shm_at(e->seg.base, tree_off),
-                cap > UINT32_MAX ? UINT32_MAX : (uint32_t)cap, depth);
     grid_octant root = j->root ? *j->root : grid_root(&j->grid);
     if (root.level < 1 || root.level > depth || !inside(grid_root(&j->grid), root.x, root.y, root.z) ||
         (root.x | root.y | root.z) & ((1u << root.level) - 1))
@@ -217,11 +315,13 @@ static int implicit_finish(engine *e, void *job, int rc)
     r->seconds = clock_now() - e->t0;
     if (rc) return engine_sched_job_failed(e, r, rc);
     e->result = RESULT_OCTREE;
-    /* the octree stays for the encode kind (octree_store clears whole
-     * blocks ahead: up to block_end) */
-    engine_sched_hold(e, tree_bytes(e, e->tree.block_end));
+    /* the octree stays for the encode kind: the cells up to the last one
+     * in the tree (the master's, the subtrees'), whose end bounds the
+     * tree's indices; the blocks' unused tails past it go back */
+    e->tree.used = ij->end > e->tree.next ? ij->end : e->tree.next;
+    engine_sched_hold(e, tree_bytes(e, e->tree.used));
     r->voxels = e->tree.voxels;
-    r->cells = e->tree.used;
+    r->cells = 1 + e->tree.taken + (uint32_t)ij->cells; /* cell 0 too */
     r->duplicates = ij->stored - e->tree.voxels;
     return 0;
 }

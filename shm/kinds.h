@@ -20,6 +20,7 @@
 #ifndef VOXD_KINDS_H
 #define VOXD_KINDS_H
 
+#include <errno.h>
 #include <stdatomic.h>
 #include <stdint.h>
 #include <string.h>
@@ -44,19 +45,67 @@ enum shm_kind {
 
 enum implicit_op {
     IMPLICIT_CHILDREN = 1, /* test the octant's children, return the kept */
-    IMPLICIT_SUBTREE = 2,  /* every voxel of the octant's subtree */
+    IMPLICIT_SUBTREE = 2,  /* build the octant's subtree in the arena */
 };
 enum implicit_record {
     IMPLICIT_OCTANTS = 1,  /* grid_octant: kept child octants */
-    IMPLICIT_VOXELS = 2,   /* grid_voxel: voxels, in preorder */
+    IMPLICIT_VOXELS = 2,   /* grid_voxel: a voxel (the paper schedule) */
+    IMPLICIT_BUILT = 3,    /* implicit_subtree: a subtree built, one per task */
 };
-/* voxels per queue entry */
-#define IMPLICIT_BATCH (SHM_PAYLOAD_BYTES / sizeof(grid_voxel))
+
+/* What IMPLICIT_SUBTREE returns once the octant's subtree is built (and
+ * nothing when it holds no voxel): the root cell of its `cells` cells, a
+ * cell of height o.level-1 in the arena, and its voxels.  Its cells all
+ * lie below `end` (the worker's next cell: a worker's blocks come in the
+ * arena's order).  The master links the root into the tree (octree_link);
+ * it never reads the cells below. */
+typedef struct {
+    grid_octant o;         /* the task's octant */
+    uint32_t root, cells, end;
+    uint64_t voxels;
+} implicit_subtree;
+
+/* The octree's arena is shared: the master and every worker building a
+ * subtree take blocks of OCTREE_BLOCK_CELLS cells from one counter.  Block
+ * b is cells [1 + b*B, 1 + (b+1)*B) of the arena (cut at tree_cells);
+ * block 0 is the master's from the start (the root, cell 1), the counter
+ * starts at 1.  owners (u16 per block at owners_off) says who claimed a
+ * block: 1 + a worker's index, or IMPLICIT_MASTER. */
+#define IMPLICIT_MASTER 0xffffu
 
 typedef struct {
     grid_spec grid;
     uint64_t tape_off, tape_bytes;   /* the compiled expression */
+    uint64_t tree_off, owners_off;   /* the arena's cells, the blocks' owners */
+    uint32_t tree_cells, blocks;     /* the arena's cells, blocks in it */
+    /* The next block to hand out: fetch_add by whoever needs one (relaxed:
+     * only the blocks' uniqueness matters; the cells written in a block
+     * reach the master with the worker's queue entry, release/acquire, and
+     * the final count is read after every worker's done_seq acquire). */
+    _Alignas(64) atomic_uint next_block;
 } implicit_block;
+
+static inline _Atomic uint16_t *implicit_owners(uint8_t *base, const implicit_block *b)
+{
+    return (_Atomic uint16_t *)(base + b->owners_off);
+}
+
+/* Claim the next block of the arena for `who`: its cells [*first, *end).
+ * 0, or -ENOMEM once every block is handed out. */
+static inline int implicit_claim(uint8_t *base, implicit_block *b, uint16_t who,
+                                 uint32_t *first, uint32_t *end)
+{
+    unsigned n = atomic_fetch_add_explicit(&b->next_block, 1, memory_order_relaxed);
+    if (n >= b->blocks) return -ENOMEM;
+    /* relaxed: the claimer's own mark, published to the master with the
+     * subtree's entry (the queue's release/acquire); a read of another's
+     * block sees 0 or that claimer's number, never the reader's. */
+    atomic_store_explicit(&implicit_owners(base, b)[n], who, memory_order_relaxed);
+    *first = 1 + n * OCTREE_BLOCK_CELLS;
+    *end = b->tree_cells - *first > OCTREE_BLOCK_CELLS ? *first + OCTREE_BLOCK_CELLS
+                                                       : b->tree_cells;
+    return 0;
+}
 
 /* The task argument of both operations: the octant. */
 static inline grid_octant implicit_octant(const shm_task *t)

@@ -19,7 +19,8 @@ static void first_voxel(const octree *t, uint32_t c, int h, uint32_t o[3])
         while (i < 7 && !t->cells[c].child[i]) i++;
         for (int a = 0; a < 3; a++) o[a] += ((i >> a) & 1u) << h;
         if (h == 0) return;
-        c = t->cells[c].child[i];
+        c = octree_child(t, c, i);
+        if (!c) return; /* a broken writer's index: no voxel below */
         h--;
     }
 }
@@ -33,7 +34,7 @@ static int check_cell(const octree *t, const uint32_t *vol, uint32_t c, int h,
     if (o[0] + side <= vol[0] && o[1] + side <= vol[1] && o[2] + side <= vol[2])
         return 0;
     for (unsigned i = 0; i < 8; i++) {
-        uint32_t e = t->cells[c].child[i], co[3];
+        uint32_t e = h > 0 ? octree_child(t, c, i) : t->cells[c].child[i], co[3];
         if (!e) continue;
         for (int a = 0; a < 3; a++) co[a] = o[a] + (((i >> a) & 1u) << h);
         bool out = co[0] >= vol[0] || co[1] >= vol[1] || co[2] >= vol[2];
@@ -62,7 +63,7 @@ static void agg_cell(octree *t, uint32_t c, int h, int channel)
 {
     uint32_t v[8];
     for (int i = 0; i < 8; i++) {
-        uint32_t e = t->cells[c].child[i];
+        uint32_t e = h > 0 ? octree_child(t, c, i) : t->cells[c].child[i];
         if (h > 0 && e) agg_cell(t, e, h - 1, channel);
         v[i] = h == 0 ? e : e ? t->agg[e] : 0;
     }
@@ -91,8 +92,10 @@ static void roots_below(const octree *t, uint32_t c, int hc, int h, uint32_t *ou
         ++*n;
         return;
     }
-    for (int i = 0; i < 8; i++)
-        if (t->cells[c].child[i]) roots_below(t, t->cells[c].child[i], hc - 1, h, out, cap, n);
+    for (unsigned i = 0; i < 8; i++) {
+        uint32_t e = octree_child(t, c, i);
+        if (e) roots_below(t, e, hc - 1, h, out, cap, n);
+    }
 }
 
 size_t vod_aggregate_roots(const octree *t, int h, uint32_t *out, size_t cap)
@@ -109,7 +112,7 @@ static void agg_top(octree *t, uint32_t c, int hc, int h, int channel)
     if (hc == h) return;
     uint32_t v[8];
     for (int i = 0; i < 8; i++) {
-        uint32_t e = t->cells[c].child[i];
+        uint32_t e = octree_child(t, c, i);
         if (e) agg_top(t, e, hc - 1, h, channel);
         v[i] = e ? t->agg[e] : 0;
     }
@@ -180,7 +183,7 @@ static int octree_region(const vod_source *s, const vod_layout *L, vod_node *n)
     uint32_t c;
     if (n->ref && n->ref < t->used) {
         unsigned i = (n->bx & 1u) | (n->by & 1u) << 1 | (n->bz & 1u) << 2;
-        c = t->cells[n->ref].child[i];
+        c = octree_child(t, n->ref, i);
     } else {
         uint32_t b[3] = {n->bx, n->by, n->bz};
         int h;
@@ -216,10 +219,18 @@ static inline void put_voxel(const fill_ctx *f, uint32_t x, uint32_t y,
 static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
                  uint32_t z)
 {
-    const uint32_t *e = f->t->cells[c].child;
+    const octree *t = f->t;
+    if (h == 0 && f->level == 0) { /* voxel values */
+        const uint32_t *v = t->cells[c].child;
+        for (unsigned i = 0; i < 8; i++)
+            if (v[i]) put_voxel(f, x + (i & 1u), y + ((i >> 1) & 1u), z + ((i >> 2) & 1u), v[i]);
+        return;
+    }
+    uint32_t e[8]; /* cell indices, bounded (octree_child) */
+    for (unsigned i = 0; i < 8; i++) e[i] = octree_child(t, c, i);
     if (h == (int)f->level) {
         for (unsigned i = 0; i < 8; i++) {
-            uint32_t v = f->level == 0 ? e[i] : e[i] ? f->t->agg[e[i]] : 0;
+            uint32_t v = e[i] ? t->agg[e[i]] : 0;
             if (v) put_voxel(f, x + (i & 1u), y + ((i >> 1) & 1u),
                              z + ((i >> 2) & 1u), v);
         }
@@ -229,7 +240,7 @@ static void fill(const fill_ctx *f, uint32_t c, int h, uint32_t x, uint32_t y,
     /* the children's cells are scattered in the segment: ask for them all
      * before walking the first */
     for (unsigned i = 0; i < 8; i++)
-        if (e[i]) __builtin_prefetch(&f->t->cells[e[i]]);
+        if (e[i]) __builtin_prefetch(&t->cells[e[i]]);
     for (unsigned i = 0; i < 8; i++)
         if (e[i])
             fill(f, e[i], h - 1, x + (i & 1u) * half, y + ((i >> 1) & 1u) * half,

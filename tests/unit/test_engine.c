@@ -55,7 +55,8 @@ static void identity(const char *src, uint32_t res, int max_workers)
             cr_assert_eq(r.voxels, ref.t.voxels, "%s", what);
             cr_assert_eq(r.octants, ref.tested, "%s: tested %llu vs %llu", what,
                          (unsigned long long)r.octants, (unsigned long long)ref.tested);
-            cr_assert_eq(r.cells, engine_octree(e)->used);
+            cr_assert_eq(r.cells, ref.t.used, "%s: %u cells vs %u", what, r.cells, ref.t.used);
+            cr_assert_geq(engine_octree(e)->used, r.cells);
             cr_assert_eq(r.restarts, 0);
             cr_assert_eq(r.duplicates, 0);
             cr_assert(r.worker_cpu > 0 && r.master_cpu > 0 && r.seconds > 0);
@@ -559,9 +560,12 @@ Test(engine, vod_zlib_bricks_encoded_by_the_master)
     reference(tape, &g, &ref);
     char name[64];
     snprintf(name, sizeof name, "/voxd-zlib.%d.", (int)getpid());
-    /* room for the tables and about half of the compressed bricks */
+    /* room for the tables and about half of the compressed bricks, the
+     * arena's unused block tails too (the master's and each worker's last:
+     * their cells and aggregates) */
+    size_t tails = (size_t)3 * OCTREE_BLOCK_CELLS * 36;
     engine_opts o = {.workers = 2, .shm_name = name,
-                     .shm_bytes = shm_min_bytes(2) + (size_t)ref.t.used * 36 - (768u << 10)};
+                     .shm_bytes = shm_min_bytes(2) + (size_t)ref.t.used * 36 + tails - (768u << 10)};
     engine *e;
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);

@@ -109,9 +109,10 @@ Test(engine, check_workers_between_jobs)
     expr_tape_free(tape);
 }
 
-/* One worker, the whole grid as one subtree: stop the worker once its
- * queue is full, let the master take those entries, then kill it.  The new
- * worker redoes the subtree and must skip exactly what was taken. */
+/* One worker, the whole grid as one subtree: stop the worker half way
+ * through building it in the arena, then kill it.  Its blocks are wasted;
+ * the new worker builds the subtree again in blocks of its own, and the
+ * master links that one only. */
 typedef struct {
     engine *e;
     int calls;
@@ -123,7 +124,7 @@ static void stop_then_kill(void *ud, const engine_progress *p)
     (void)p;
     pid_t pid = engine_worker_pid(s->e, 0);
     if (s->calls == 0) {
-        usleep(50000); /* the worker fills its 8 entries and waits */
+        usleep(50000); /* the worker is building the subtree */
         cr_assert_eq(kill(pid, SIGSTOP), 0);
     } else if (s->calls == 1) {
         cr_assert_eq(kill(pid, SIGKILL), 0);
@@ -146,6 +147,7 @@ Test(engine, a_worker_killed_mid_subtree_resumes_without_duplicates)
     cr_assert_geq(st.calls, 2);
     cr_assert_eq(r.restarts, 1);
     cr_assert_eq(r.duplicates, 0);
+    cr_assert_eq(r.cells, ref.t.used, "the dead worker's cells are not the tree's");
     assert_same(&ref.t, engine_octree(e), "after a death mid-subtree");
     engine_destroy(e);
     free(ref.arena);

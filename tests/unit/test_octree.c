@@ -4,6 +4,7 @@
 #include <errno.h>
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "octree.h"
 #include "voxel.h"
@@ -115,6 +116,160 @@ Test(octree, depth_one_tree)
     cr_assert_eq(octree_store(&t, 1, 0, 1, 9), 0);
     cr_assert_eq(octree_get(&t, 1, 0, 1), 9);
     cr_assert_eq(t.used, 2);
+}
+
+/* ---- subtrees built by several writers in one arena, then linked ---- */
+
+#define SHARED_CELLS (3 * OCTREE_BLOCK_CELLS + 1)
+
+/* A shared counter of blocks, block b being cells [1 + b*B, 1 + (b+1)*B);
+ * block 0 is the linking tree's own (octree_init's first block). */
+typedef struct {
+    uint32_t next;
+    uint32_t grabs;
+} blocks;
+
+static int grab_block(void *ud, uint32_t *first, uint32_t *end)
+{
+    blocks *b = ud;
+    uint32_t f = 1 + b->next * OCTREE_BLOCK_CELLS;
+    if (f >= SHARED_CELLS) return -ENOMEM;
+    b->next++;
+    b->grabs++;
+    *first = f;
+    *end = f + OCTREE_BLOCK_CELLS < SHARED_CELLS ? f + OCTREE_BLOCK_CELLS : SHARED_CELLS;
+    return 0;
+}
+
+/* The voxels of one octant of the dense array, into subtree t (its own
+ * coordinates), in preorder. */
+static void build_octant(octree *t, const octree *whole, uint32_t ox, uint32_t oy,
+                         uint32_t oz, int level)
+{
+    octree_subtree(t, level);
+    octree_iter it;
+    octree_iter_init(&it, whole);
+    uint32_t x, y, z, v, n = 1u << level;
+    while (octree_iter_next(&it, &x, &y, &z, &v))
+        if (x - ox < n && y - oy < n && z - oz < n)
+            cr_assert_eq(octree_store(t, x - ox, y - oy, z - oz, v), 0);
+}
+
+static void assert_same_voxels(const octree *a, const octree *b)
+{
+    octree_iter ia, ib;
+    octree_iter_init(&ia, a);
+    octree_iter_init(&ib, b);
+    uint32_t p[4], q[4];
+    uint64_t n = 0;
+    while (octree_iter_next(&ia, &p[0], &p[1], &p[2], &p[3])) {
+        cr_assert(octree_iter_next(&ib, &q[0], &q[1], &q[2], &q[3]), "b ends at %llu",
+                  (unsigned long long)n);
+        cr_assert_arr_eq(p, q, sizeof p, "voxel %llu", (unsigned long long)n);
+        n++;
+    }
+    cr_assert_not(octree_iter_next(&ib, &q[0], &q[1], &q[2], &q[3]), "b has more");
+    cr_assert_eq(a->voxels, n);
+    cr_assert_eq(b->voxels, n);
+}
+
+/* Two writers build the level-3 octants alternately, their blocks
+ * interleaved in the arena; the linking tree gets the same voxels and the
+ * same number of cells as the tree built by stores. */
+Test(octree, subtrees_from_two_writers_linked_make_the_stored_tree)
+{
+    static octree_cell ref_arena[20000], arena[SHARED_CELLS];
+    static uint32_t dense[N * N * N];
+    octree ref, t, w[2];
+    octree_init(&ref, ref_arena, 20000, DEPTH);
+    fill_random(&ref, dense, 5, 2500);
+    memset(arena, 0xa5, sizeof arena); /* blocks are cleared as handed out */
+    blocks b = {.next = 1};
+    octree_init(&t, arena, SHARED_CELLS, DEPTH);
+    octree_share(&t, grab_block, &b);
+    for (int k = 0; k < 2; k++) octree_writer(&w[k], arena, SHARED_CELLS, grab_block, &b);
+    uint32_t cells = t.taken, n = 0;
+    for (uint32_t i = 0; i < 64; i++) {
+        uint32_t ox = (i & 3) << 3, oy = (i >> 2 & 3) << 3, oz = (i >> 4) << 3;
+        octree *s = &w[i & 1];
+        build_octant(s, &ref, ox, oy, oz, 3);
+        if (!s->root) {
+            cr_assert_eq(s->taken, 0, "an empty subtree takes no cell");
+            continue;
+        }
+        cr_assert_eq(octree_get(s, 0, 0, 0), dense[key(ox, oy, oz)]);
+        cr_assert_eq(octree_link(&t, ox + 1, oy + 2, oz + 3, 2, s->root, s->voxels), 0);
+        cr_assert_eq(octree_link(&t, ox, oy, oz, 2, s->root, s->voxels), -EEXIST);
+        cells += s->taken;
+        n++;
+    }
+    cr_assert_gt(n, 32);
+    cr_assert_eq(b.grabs, 2, "each writer took one block of its own");
+    cells += t.taken - 1; /* the linking tree's cells above the subtrees */
+    t.used = SHARED_CELLS; /* the owner's view: every writer's blocks */
+    assert_same_voxels(&ref, &t);
+    cr_assert_eq(cells + 1, ref.used, "as many cells as stores make");
+    for (uint32_t i = 0; i < N * N * N; i += 7)
+        cr_assert_eq(octree_get(&t, i % N, i / N % N, i / N / N), dense[i]);
+}
+
+/* A subtree of the whole tree's size: its root's entries become the
+ * root's. */
+Test(octree, a_whole_tree_subtree_is_copied_into_the_root)
+{
+    static octree_cell ref_arena[20000], arena[SHARED_CELLS];
+    static uint32_t dense[N * N * N];
+    octree ref, t, w;
+    octree_init(&ref, ref_arena, 20000, DEPTH);
+    fill_random(&ref, dense, 9, 500);
+    blocks b = {.next = 1};
+    octree_init(&t, arena, SHARED_CELLS, DEPTH);
+    octree_share(&t, grab_block, &b);
+    octree_writer(&w, arena, SHARED_CELLS, grab_block, &b);
+    build_octant(&w, &ref, 0, 0, 0, DEPTH);
+    cr_assert_eq(w.voxels, ref.voxels);
+    cr_assert_eq(octree_link(&t, 0, 0, 0, DEPTH - 1, w.root, w.voxels), 0);
+    cr_assert_eq(octree_link(&t, 0, 0, 0, DEPTH - 1, w.root, w.voxels), -EEXIST);
+    t.used = SHARED_CELLS;
+    assert_same_voxels(&ref, &t);
+}
+
+/* The shared arena runs out: the store that needs a cell fails with
+ * -ENOMEM and leaves the subtree as it was. */
+Test(octree, a_writer_without_blocks_gets_enomem)
+{
+    static octree_cell arena[SHARED_CELLS];
+    blocks b = {.next = 3}; /* the last block, which is 1 cell */
+    octree w;
+    octree_writer(&w, arena, SHARED_CELLS, grab_block, &b);
+    octree_subtree(&w, 4);
+    cr_assert_eq(octree_store(&w, 1, 2, 3, 7), -ENOMEM);
+    cr_assert_eq(w.root, 0);
+    b.next = 2; /* a whole block: */
+    cr_assert_eq(octree_store(&w, 1, 2, 3, 7), 0);
+    cr_assert_eq(octree_get(&w, 1, 2, 3), 7);
+    cr_assert_eq(w.taken, 4);
+    cr_assert_eq(w.used, 1 + 3 * OCTREE_BLOCK_CELLS);
+}
+
+/* A garbage cell index (a broken writer's) reads as empty: iteration,
+ * lookups and links stay inside the arena. */
+Test(octree, an_index_past_used_reads_as_empty)
+{
+    static octree_cell arena[64];
+    octree t;
+    octree_init(&t, arena, 64, 3);
+    cr_assert_eq(octree_store(&t, 0, 0, 0, 5), 0);
+    cr_assert_eq(octree_store(&t, 7, 7, 7, 6), 0);
+    arena[1].child[7] = 1u << 30; /* the (7,7,7) octant now points outside */
+    cr_assert_eq(octree_get(&t, 7, 7, 7), 0);
+    cr_assert_eq(octree_find(&t, 1, 7, 7, 7), 0);
+    octree_iter it;
+    octree_iter_init(&it, &t);
+    uint32_t x, y, z, v, n = 0;
+    while (octree_iter_next(&it, &x, &y, &z, &v)) n++;
+    cr_assert_eq(n, 1);
+    cr_assert_eq(octree_link(&t, 7, 7, 7, 0, 2, 1), -EEXIST);
 }
 
 Test(voxel, octahedral_normals_round_trip_within_a_milliradian)
