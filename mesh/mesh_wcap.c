@@ -285,7 +285,8 @@ void mesh_wtree_free(mesh_wtree *t)
 #define TOL_MAG 0.02    /* a node's share of a bound of |w_C| over a cell */
 #define NEAR 1e-3    /* voxels: nearer a cap triangle, mesh_vox_wind_block decides */
 #define MARGIN 1e-6  /* past the bound, nearer 1/2: mesh_vox_wind_block decides */
-#define DEPTH 8         /* down_cell's depths (32 samples a side: 6) */
+#define TOL_FINE 1e-6    /* ... a sample's second query */
+#define DEPTH 8         /* down_cell's depths (32 samples a side: 6), and fresh()'s */
 #define LIST_CAP 4096u  /* nodes, and triangles, handed down at most */
 
 typedef struct {
@@ -447,12 +448,27 @@ static bool half(const uint32_t lo[3], const uint32_t hi[3], int q, uint32_t clo
     return some;
 }
 
+/* Sample lo by a query of the caps' tree from its root, every node taken
+ * within tol. */
+static void fresh(cblock *c, const uint32_t lo[3], double tol)
+{
+    uint32_t hi[3] = {lo[0] + 1, lo[1] + 1, lo[2] + 1}, root = 0, work = 0;
+    double b[3];
+    for (int a = 0; a < 3; a++) b[a] = (double)(c->b->s0[a] + (int64_t)lo[a]) + 0.5;
+    mesh_vox_wlist top = {.n_node = 1, .node = &root}, *out = &c->lists[DEPTH - 1];
+    bool ok = mesh_vox_wind_down(c->caps, &top, b, 0, tol, 0.5, out, &work);
+    mesh_vox_beat(c->f->pulse, work);
+    if (ok)
+        cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, out->w4 / (4 * M_PI),
+                     out->e4 / (4 * M_PI) + 1e-9);
+}
+
 /* Cell [lo, hi) from its parent's far field in (the caps' tree's root
  * for a top cell): the nodes and triangles far enough taken, the rest
  * handed to its halves; decided whole when nothing is left near and w_C
  * keeps off every half integer, else sample by sample when few triangles
- * are left near; a single sample still to do (or a list too long) goes
- * to cell(), a fresh query from the root. */
+ * are left near; a single sample still to do goes to fresh queries, then
+ * to mesh_vox_wind_block (a list too long: the cell to cell()). */
 static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const mesh_vox_wlist *in,
                       int depth)
 {
@@ -466,7 +482,7 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
     mesh_vox_wlist *out = &c->lists[depth];
-    bool ok = depth < DEPTH && mesh_vox_wind_down(c->caps, in, b, sqrt(r2) * (1 + 1e-9),
+    bool ok = depth < DEPTH - 1 && mesh_vox_wind_down(c->caps, in, b, sqrt(r2) * (1 + 1e-9),
                                                   one ? TOL_SAMPLE : TOL_CELL, 0.5, out, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (!ok) {
@@ -477,8 +493,10 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
     if (!out->n_node && !out->n_tri && try_count(c, lo, hi, v, e)) return;
     if (!out->n_node && (one || n < CELL_MIN || out->n_tri * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
         cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, v, e);
+    for (int k = 0; one && k < 2; k++) /* a fresh query, then a finer one */
+        if (mesh_vox_cell_count(c->b, c->todo, lo, hi)) fresh(c, lo, k ? TOL_FINE : TOL_SAMPLE);
     if (one) {
-        cell(c, lo, hi);
+        cell_spare(c, lo, hi);
         return;
     }
     for (int q = 0; q < 8; q++) {

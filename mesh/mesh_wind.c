@@ -46,6 +46,9 @@ struct mesh_vox_wtree {
     uint32_t n_nodes;
     float (*tri)[9]; /* the triangles' vertices in leaf order, voxel units
                         relative to their leaf's centre */
+    double (*tdip)[8]; /* for a tree of given triangles (the caps), each one's
+                          centroid (from its leaf's centre), radius about it
+                          (rounding inside), area vector and area: down_tri's */
 };
 
 /* ---- building ---- */
@@ -105,6 +108,27 @@ static void select_kth(const builder *b, uint32_t lo, uint32_t hi, uint32_t k, i
     }
 }
 
+/* Triangle v's (9 floats, as stored) centroid, radius about it, area
+ * vector and area, in double: down_tri's dipole and bounds. */
+static void tri_dipole(const float *v, double x[8])
+{
+    double e1[3], e2[3], r2 = 0;
+    for (int i = 0; i < 3; i++) {
+        x[i] = ((double)v[i] + v[3 + i] + v[6 + i]) / 3;
+        e1[i] = (double)v[3 + i] - v[i], e2[i] = (double)v[6 + i] - v[i];
+    }
+    for (int j = 0; j < 3; j++) {
+        double s = 0;
+        for (int i = 0; i < 3; i++) s += (v[3 * j + i] - x[i]) * (v[3 * j + i] - x[i]);
+        r2 = s > r2 ? s : r2;
+    }
+    x[3] = sqrt(r2) * (1 + 1e-6);
+    x[4] = 0.5 * (e1[1] * e2[2] - e1[2] * e2[1]);
+    x[5] = 0.5 * (e1[2] * e2[0] - e1[0] * e2[2]);
+    x[6] = 0.5 * (e1[0] * e2[1] - e1[1] * e2[0]);
+    x[7] = sqrt(x[4] * x[4] + x[5] * x[5] + x[6] * x[6]);
+}
+
 /* Leaf n over ids[first, first + count): its moments from the triangles
  * in double, then the triangles into tri[], relative to its centre (small
  * numbers: a float keeps them to 6e-8 of the leaf's radius). */
@@ -147,6 +171,7 @@ static void make_leaf(const builder *b, wnode *n)
             for (int j = 0; j < 3; j++) P[3 * i + j] += an[k][i] * (xc[k][j] - cx[j]);
     }
     for (int i = 0; i < 9; i++) n->P[i] = (float)P[i];
+    for (uint32_t k = 0; b->t->tdip && k < n->count; k++) tri_dipole(b->t->tri[n->first + k], b->t->tdip[n->first + k]);
     n->area = (float)area;
     n->r = (float)(sqrt(r2) * (1 + 1e-6)); /* the floats' rounding inside */
 }
@@ -221,8 +246,9 @@ int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3
     if (t) {
         t->nodes = malloc(2 * (size_t)n * sizeof *t->nodes);
         t->tri = malloc((size_t)n * sizeof *t->tri);
+        t->tdip = m ? NULL : malloc((size_t)n * sizeof *t->tdip);
     }
-    if (!t || !b.cen || !b.ids || !t->nodes || !t->tri) {
+    if (!t || !b.cen || !b.ids || !t->nodes || !t->tri || (!m && !t->tdip)) {
         free(b.cen), free(b.ids);
         mesh_vox_wtree_free(t);
         return -ENOMEM;
@@ -245,6 +271,7 @@ void mesh_vox_wtree_free(mesh_vox_wtree *t)
     if (!t) return;
     free(t->nodes);
     free(t->tri);
+    free(t->tdip);
     free(t);
 }
 
@@ -473,36 +500,38 @@ bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, 
 
 /* ---- the far field handed down a cell's halves ---- */
 
-/* Triangle k of leaf l at the cell (b, rho): its exact angle at b into
- * *w4 and bound (2) into *e4 (true), or false: it comes within
- * NEAR_REACH (rho + 1) of the cell, or its bound passes tol4 (the cell's
- * halves take it). */
+/* Triangle k of leaf l at the cell (b, rho): its dipole (where the
+ * triangle is far: a node of one triangle, P = 0 about its centroid) or
+ * its exact angle at b into *w4 and the bound over the cell into *e4
+ * (true), or false: its bound passes tol4 (the cell's halves take it), or
+ * (rho = 0) b lies within CLOSE_BALL of its ball (mesh_vox_wind_tris
+ * decides whether b is too close). */
+#define CLOSE_BALL 2e-3 /* voxels: more than mesh_wcap.c's NEAR */
 static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const double bw[3], double rho,
                      double tol4, double *w4, double *e4)
 {
     const wnode *n = &t->nodes[l];
-    const float *v = t->tri[k];
-    double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]}, c[3], r2 = 0, e1[3], e2[3];
-    for (int i = 0; i < 3; i++) {
-        c[i] = ((double)v[i] + v[3 + i] + v[6 + i]) / 3;
-        e1[i] = (double)v[3 + i] - v[i], e2[i] = (double)v[6 + i] - v[i];
+    const double *x = t->tdip[k]; /* centroid, radius, area vector, area */
+    double d[3] = {x[0] - (bw[0] - n->c[0]), x[1] - (bw[1] - n->c[1]), x[2] - (bw[2] - n->c[2])};
+    double R = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), r = x[3], a = x[7];
+    double dmin = R - r - rho;
+    if (rho == 0 && dmin <= CLOSE_BALL) return false;
+    if (R > 2 * (r + rho)) {
+        double s = R - r;
+        double e = a * (3 * r * r / (s * s * s * s) + 2 * rho / (dmin * dmin * dmin));
+        if (e <= tol4) {
+            *w4 += (x[4] * d[0] + x[5] * d[1] + x[6] * d[2]) / (R * R * R);
+            *e4 += e;
+            return true;
+        }
     }
-    for (int j = 0; j < 3; j++) {
-        double s = 0;
-        for (int i = 0; i < 3; i++) s += (v[3 * j + i] - c[i]) * (v[3 * j + i] - c[i]);
-        r2 = s > r2 ? s : r2;
-    }
-    double R = sqrt((c[0] - b[0]) * (c[0] - b[0]) + (c[1] - b[1]) * (c[1] - b[1]) +
-                    (c[2] - b[2]) * (c[2] - b[2]));
-    double dmin = R - sqrt(r2) * (1 + 1e-6) - rho, reach = NEAR_REACH * (rho + 1);
-    if (dmin <= reach) dmin = tri_dist(v, b) * (1 - 1e-9) - 1e-9 - rho;
-    if (dmin <= reach) return false;
-    double x = e1[1] * e2[2] - e1[2] * e2[1], y = e1[2] * e2[0] - e1[0] * e2[2],
-           z = e1[0] * e2[1] - e1[1] * e2[0];
-    double g = sqrt(x * x + y * y + z * z) / (dmin * dmin * dmin); /* 2 a / d^3: leaf_cell's */
+    double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]};
+    if (dmin <= 0) dmin = tri_dist(t->tri[k], b) * (1 - 1e-9) - 1e-9 - rho;
+    if (dmin <= 0) return false;
+    double g = 2 * a / (dmin * dmin * dmin); /* leaf_cell's bound */
     double e = rho * (g < 4 * M_PI / dmin ? g : 4 * M_PI / dmin);
     if (e > tol4) return false;
-    *w4 += 2 * tri_half_angle(v, b);
+    *w4 += 2 * tri_half_angle(t->tri[k], b);
     *e4 += e;
     return true;
 }
