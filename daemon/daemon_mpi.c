@@ -46,8 +46,7 @@ extern char **environ;
 
 int daemon_mpi_wants(const daemon_mpi *m, const daemon_job *j)
 {
-    /* the distance channel does not run through vox_mpi yet */
-    return m->hostfile[0] && j->res >= m->min_res && j->channel != VOXEL_CH_DISTANCE;
+    return m->hostfile[0] && j->res >= m->min_res;
 }
 
 /* ---------------------------------------------------------------- the command */
@@ -73,6 +72,16 @@ static int add_all(cmdline *c, const char *const *a, size_t n)
 {
     int rc = 0;
     for (size_t i = 0; i < n && !rc; i++) rc = a[i] ? add(c, a[i]) : 0;
+    return rc;
+}
+
+/* a in order, a NULL option dropping the value after it too */
+static int add_pairs(cmdline *c, const char *const *a, size_t n)
+{
+    int rc = 0;
+    for (size_t i = 0; i < n && !rc; i++)
+        if (a[i]) rc = add(c, a[i]);
+        else i++;
     return rc;
 }
 
@@ -118,28 +127,25 @@ static int kind_args(cmdline *c, const daemon_job *j)
     const mesh_vox_opts *o = &j->mesh_opts;
     snprintf(c->num[4], sizeof c->num[4], "%u", j->pad);
     snprintf(c->num[5], sizeof c->num[5], "%u", o->supersample);
-    snprintf(c->num[6], sizeof c->num[6], "%u", o->band);
+    snprintf(c->num[6], sizeof c->num[6], "%u", j->band); /* every kind's */
     snprintf(c->num[7], sizeof c->num[7], "%.17g", j->weld_eps);
     snprintf(c->num[8], sizeof c->num[8], "%llu", (unsigned long long)j->csg_source_bytes);
     int is_mesh = j->kind == ENGINE_PIPELINE_MESH, dist = j->channel == VOXEL_CH_DISTANCE;
     const char *implicit[] = {"voxelize", "-f", c->file, "--schedule",
-                              j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree"};
+                              j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree",
+                              j->band && dist ? "--band" : NULL, c->num[6]};
     const char *msh[] = {
         "voxelize", "--mesh", c->file, "--mode", modes[o->mode % 5], "--repair",
         repairs[o->repair % 3], "--pad", c->num[4],
         o->supersample && !dist ? "--supersample" : NULL, c->num[5],
-        o->band && dist ? "--band" : NULL, c->num[6],
+        j->band && dist ? "--band" : NULL, c->num[6],
         j->weld ? "--weld" : NULL, c->num[7],
         j->mesh_format ? "--mesh-format" : NULL, mesh_format_name(j->mesh_format)};
-    const char *csg[] = {"csg", c->file, "--packed", "--source-bytes", c->num[8]};
-    /* a NULL option drops the value after it too */
-    if (j->kind == ENGINE_PIPELINE_CSG) return add_all(c, csg, sizeof csg / sizeof *csg);
-    if (!is_mesh) return add_all(c, implicit, sizeof implicit / sizeof *implicit);
-    int rc = 0;
-    for (size_t i = 0; i < sizeof msh / sizeof *msh && !rc; i++)
-        if (msh[i]) rc = add(c, msh[i]);
-        else i++;
-    return rc;
+    const char *csg[] = {"csg", c->file, "--packed", "--source-bytes", c->num[8],
+                         j->band && dist ? "--band" : NULL, c->num[6]};
+    if (j->kind == ENGINE_PIPELINE_CSG) return add_pairs(c, csg, sizeof csg / sizeof *csg);
+    if (!is_mesh) return add_pairs(c, implicit, sizeof implicit / sizeof *implicit);
+    return add_pairs(c, msh, sizeof msh / sizeof *msh);
 }
 
 /* mpirun ARGS -np R --hostfile H vox_mpi KIND... -o DIR/out.vod ... */

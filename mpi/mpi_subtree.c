@@ -259,10 +259,11 @@ static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
     *arena = MAP_FAILED;
     memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
     if (!csg_has_file_leaves(j->tree)) return 0;
-    size_t one = vod_volume_bytes(j->grid.res, 8, CSG_VOLUME_BRICK, UINT64_MAX), n = 0;
+    *bytes = 0; /* a mesh leaf of a distance is f32 (csg_leaf_bits) */
     for (uint32_t i = 0; i < j->tree->n; i++)
-        n += j->tree->node[i].kind == CSG_MESH || j->tree->node[i].kind == CSG_VOD;
-    *bytes = one * n;
+        if (j->tree->node[i].kind == CSG_MESH || j->tree->node[i].kind == CSG_VOD)
+            *bytes += vod_volume_bytes(j->grid.res, csg_leaf_bits(&j->tree->node[i]),
+                                       CSG_VOLUME_BRICK, UINT64_MAX);
     if ((*arena = sparse_map(*bytes)) == MAP_FAILED) {
         return err_fmt(err, errlen, -ENOMEM, "cannot map the leaves' volumes");
     }
@@ -329,7 +330,11 @@ int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver
 {
     sub_ctx c = {.j = j, .deliver = deliver, .ud = ud};
     err[0] = '\0';
-    if (j->e) return on_engine(j, o, &c, err, errlen);
+    /* a distance's column without a triangle: the band's width alone, its
+     * uniform bricks made here (the engine's mesh kind takes no empty
+     * mesh), the same bytes */
+    int empty = j->kind == MPI_KIND_MESH && j->mesh->n_triangles == 0;
+    if (j->e && !empty) return on_engine(j, o, &c, err, errlen);
     return j->kind == MPI_KIND_MESH || j->kind == MPI_KIND_CSG
                ? volume_serial(j, o, &c, err, errlen)
                : octree_serial(j, o, &c, err, errlen);

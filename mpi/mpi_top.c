@@ -122,8 +122,9 @@ static int encode_nodes(mpi_top *t, octree *tree, const vod_params *p, top_put p
                         void *ud)
 {
     vod_source src = vod_octree_source(tree);
-    /* a mesh or CSG job's densities: the aggregates are theirs (build) */
-    src.channels |= 1u << VOXEL_CH_DENSITY;
+    /* a mesh or CSG job's densities and distances: the aggregates are
+     * theirs (build) */
+    src.channels |= 1u << VOXEL_CH_DENSITY | 1u << VOXEL_CH_DISTANCE;
     size_t n = vod_collect(&src, &t->L, NULL, 0);
     vod_node *nodes = malloc((n ? n : 1) * sizeof *nodes);
     uint8_t **own = calloc(n ? n : 1, sizeof *own);

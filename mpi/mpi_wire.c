@@ -72,15 +72,17 @@ int mpi_mesh_view(const uint8_t *buf, size_t len, mesh *out)
     mesh_head h;
     if (len < sizeof h || ((uintptr_t)buf & 3)) return -EPROTO;
     memcpy(&h, buf, sizeof h);
+    /* no triangle: a distance's column far from the surface (its band's
+     * width alone); never vertices without triangles */
     if (len != sizeof h + (uint64_t)h.n_vertices * 12 + (uint64_t)h.n_triangles * 12 ||
-        !h.n_triangles || !h.n_vertices)
+        !h.n_triangles != !h.n_vertices)
         return -EPROTO;
     memset(out, 0, sizeof *out);
     out->n_vertices = h.n_vertices;
     out->n_triangles = h.n_triangles;
     out->vertices = (float (*)[3])(buf + sizeof h);
     out->triangles = (uint32_t (*)[3])(buf + sizeof h + (size_t)h.n_vertices * 12);
-    for (int a = 0; a < 3; a++) out->lo[a] = out->hi[a] = out->vertices[0][a];
+    for (int a = 0; a < 3 && h.n_vertices; a++) out->lo[a] = out->hi[a] = out->vertices[0][a];
     for (uint32_t t = 0; t < h.n_triangles; t++)
         for (int c = 0; c < 3; c++)
             if (out->triangles[t][c] >= h.n_vertices) return -EPROTO;

@@ -26,8 +26,9 @@ static void usage(FILE *f)
 "Only rank 0 reads files: the other hosts need the vox_mpi binary alone.\n"
 "\n"
 "voxelize takes vox voxelize's options (vox voxelize --help), --mesh's too\n"
-"(--mode, --repair, --supersample, --pad, --bbox, --weld, --channel); csg takes vox\n"
-"csg's (vox csg --help: -o, -r, -c, -d, -w, -Z, -q), its FILE a file.\n"
+"(--mode, --repair, --supersample, --pad, --bbox, --weld, --channel, --band);\n"
+"csg takes vox csg's (vox csg --help: -o, -r, -c, -d, -w, -Z, --band, -q), its\n"
+"FILE a file.\n"
 "\n"
 "  -e, --expr EXPR       the implicit function F(x,y,z)\n"
 "  -f, --file FILE       ... from a .vx file (its #@ directives apply)\n"
@@ -137,16 +138,63 @@ static const char *source_name(const prep *p, const char *file)
     return !p->source_name ? file : p->source_name[0] ? p->source_name : NULL;
 }
 
+/* The tree the ranks run: packed for the broadcast (one of at most 2
+ * GiB); its distance leaves' k the band (csg_tree_set_band, as the
+ * pipeline's csg kind sets it). */
+static int pack_tree(prep *p, const char *name)
+{
+    if (p->o.vod.channel == VOXEL_CH_DISTANCE)
+        csg_tree_set_band(p->tree, p->o.mesh_opts.band ? p->o.mesh_opts.band : VOXEL_BAND_DEFAULT);
+    p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */
+    int rc = csg_tree_pack(p->tree, &p->input, &p->input_bytes);
+    if (rc) {
+        mpi_msg("%s: %s", name, strerror(-rc));
+        return CLI_EXIT_FAILED;
+    }
+    if (p->input_bytes > INT32_MAX) { /* one broadcast */
+        mpi_msg("%s: the tree and its files' bytes pass 2 GiB; vox_mpi broadcasts them at once",
+                name);
+        return CLI_EXIT_USAGE;
+    }
+    return -1;
+}
+
+/* An expression's distance runs as vox voxelize runs it: a CSG tree of one
+ * implicit leaf, the expression's text (kind_implicit's distance_tree), cut
+ * and run as a CSG job's; rank 0's plan stays the implicit job's (its
+ * metadata). */
+static int implicit_distance_tree(prep *p)
+{
+    csg_tree *t = calloc(1, sizeof *t);
+    if (!t || !(t->text = malloc(p->src.len + 1))) {
+        free(t);
+        mpi_msg("out of memory");
+        return CLI_EXIT_FAILED;
+    }
+    memcpy(t->text, p->src.text, p->src.len);
+    t->text[p->src.len] = '\0';
+    t->text_len = p->src.len;
+    t->n = 1;
+    csg_node *n = &t->node[0];
+    n->kind = CSG_IMPLICIT;
+    n->a = n->b = -1;
+    n->expr_len = (uint32_t)p->src.len;
+    snprintf(n->name, sizeof n->name, "implicit");
+    p->tree = t;
+    return pack_tree(p, p->src.name);
+}
+
 static int prepare_implicit(prep *p, engine_pipeline_job *pj)
 {
     int rc = cli_job_source(&p->o, &p->src, &p->tape);
     if (rc) return rc;
-    p->kind = MPI_KIND_IMPLICIT;
     pj->kind = ENGINE_PIPELINE_IMPLICIT;
     pj->implicit.tape = p->tape;
     pj->implicit.source = p->src.text;
     pj->implicit.source_len = p->src.len;
     pj->implicit.source_name = source_name(p, p->src.path);
+    if (p->o.vod.channel == VOXEL_CH_DISTANCE) return implicit_distance_tree(p);
+    p->kind = MPI_KIND_IMPLICIT;
     p->input = (uint8_t *)p->tape;
     p->input_bytes = expr_tape_bytes(p->tape);
     return -1;
@@ -204,25 +252,12 @@ static int prepare_csg(prep *p, int argc, char **argv, engine_pipeline_job *pj)
         mpi_msg("vox_mpi csg reads its tree from a file, not standard input");
         return CLI_EXIT_USAGE;
     }
-    /* a tree's distance needs its band in the leaves (csg_tree_set_band) and f32 mesh
-     * leaves (csg_leaf_bits), which the ranks do not make yet */
-    if (co.channel == VOXEL_CH_DISTANCE) {
-        mpi_msg("--channel distance is not available through vox_mpi yet: use vox csg");
-        return CLI_EXIT_USAGE;
-    }
     uint64_t text_bytes = p->source_bytes;
     if ((rc = p->packed ? load_packed(co.in, &p->tree) : cli_csg_load(co.in, &p->tree, &text_bytes)))
         return rc;
-    p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */
-    if ((rc = csg_tree_pack(p->tree, &p->input, &p->input_bytes))) {
-        mpi_msg("%s: %s", co.in, strerror(-rc));
-        return CLI_EXIT_FAILED;
-    }
-    if (p->input_bytes > INT32_MAX) { /* one broadcast */
-        mpi_msg("%s: the tree and its files' bytes pass 2 GiB; vox_mpi broadcasts them at once",
-            co.in);
-        return CLI_EXIT_USAGE;
-    }
+    p->o.vod.channel = co.channel;
+    p->o.mesh_opts.band = co.band;
+    if ((rc = pack_tree(p, co.in)) >= 0) return rc;
     p->o.out = co.out;
     p->o.quiet = co.quiet;
     p->o.res = co.res;
@@ -261,12 +296,6 @@ static int prepare_kind(prep *p, int argc, char **argv, engine_pipeline_job *pj)
     }
     if (p->o.res > GRID_MAX_RES) {
         mpi_msg("bad --res '%s': want a whole number from 1 to %u", p->o.res_arg, GRID_MAX_RES);
-        return CLI_EXIT_USAGE;
-    }
-    /* its columns without triangles hold +w, and the ranks take no empty
-     * mesh yet */
-    if (p->o.vod.channel == VOXEL_CH_DISTANCE) {
-        mpi_msg("--channel distance is not available through vox_mpi yet: use vox voxelize");
         return CLI_EXIT_USAGE;
     }
     return p->o.mesh ? prepare_mesh(p, pj) : prepare_implicit(p, pj);
@@ -315,7 +344,8 @@ static int make_cut(prep *p)
         return mpi_cut_grid(&p->plan.grid, &p->L, target, 4 /* CSG_VOLUME_BRICK */, 0,
                             &p->cut);
     int rc = mpi_cut_grid(&p->plan.grid, &p->L, target, 6 /* MESH_TILE */, 1, &p->cut);
-    if (!rc && p->bins.start) drop_empty_columns(p);
+    /* a distance's columns without triangles still hold the band's width */
+    if (!rc && p->bins.start && p->o.vod.channel != VOXEL_CH_DISTANCE) drop_empty_columns(p);
     return rc;
 }
 
@@ -332,6 +362,7 @@ int mpi_prepare(prep *p, int argc, char **argv)
     memcpy(pj.hi, p->o.hi, sizeof pj.hi);
     pj.res = p->o.res;
     pj.schedule = p->o.schedule;
+    pj.band = p->o.mesh_opts.band;
     pj.vod = p->o.vod;
     char err[256];
     if (engine_pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||

@@ -193,8 +193,9 @@ void vod_aggregate(octree *t, int channel);
  * result is vod_aggregate's. */
 size_t vod_aggregate_roots(const octree *t, int h, uint32_t *out, size_t cap);
 void vod_aggregate_subtree(octree *t, uint32_t c, int h, int channel);
-/* (vod_aggregate_top also takes channel 2, densities: vox_mpi's levels
- * above a mesh or CSG job's subtrees, whose cells carry 8-bit values.) */
+/* (vod_aggregate_top also takes channel 2, densities, and channel 4, the
+ * floats' bits (their mean, vod_down_float): vox_mpi's levels above a mesh
+ * or CSG job's subtrees, whose cells carry those values.) */
 void vod_aggregate_top(octree *t, int h, int channel);
 /* Phase 1.  Write the non-empty brick nodes in preorder to out (up to cap);
  * returns how many there are (call with out = NULL to count).  Asks the

@@ -125,6 +125,7 @@ void vod_aggregate_top(octree *t, int h, int channel)
     t->agg[0] = 0;
     if (channel == VOXEL_CH_SURFACE) agg_top(t, 1, t->depth - 1, h, VOXEL_CH_SURFACE);
     else if (channel == VOXEL_CH_DENSITY) agg_top(t, 1, t->depth - 1, h, VOXEL_CH_DENSITY);
+    else if (channel == VOXEL_CH_DISTANCE) agg_top(t, 1, t->depth - 1, h, VOXEL_CH_DISTANCE);
     else agg_top(t, 1, t->depth - 1, h, VOXEL_CH_OCCUPANCY);
 }
 

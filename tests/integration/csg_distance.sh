@@ -60,9 +60,6 @@ refuse "a primitive has no distance: the node named" 2 \
 printf 'a = implicit "x"\nb = implicit "y"\nc = add(a, b)\nresult c\n' >"$TMP/add.csg"
 refuse "add does not combine distances" 2 "node 'c' \\(add\\): this operator does not combine" \
     "$VOX" csg "$TMP/add.csg" -r 32 --channel distance -o "$TMP/x.vod"
-refuse "vox_mpi refuses a tree's distance, for now, in one line" 2 \
-    "^vox_mpi: --channel distance is not available through vox_mpi yet: use vox csg$" \
-    "$VOXMPI" csg "$TMP/balls.csg" -r 32 --channel distance -o "$TMP/x.vod"
 [ ! -e "$TMP/x.vod" ] && pass "no file after a refusal" || fail "no file after a refusal"
 
 # ---------------------------------------------------------------- voxd

@@ -145,6 +145,16 @@ mpi_job "examples/part.csg at 96" csg examples/part.csg -r 96 -- --csg examples/
 mpi_job "a CSG tree with a mesh leaf, occupancy, RUNL, a flat domain" csg "$TMP/leaf.csg" \
     -r 90 -c occupancy -Z runl -d -1.2,1.2,-1.2,1.2,-0.6,0.6 -- --csg "$TMP/leaf.csg" -r 90 \
     --channel occupancy --compress runl -d -1.2,1.2,-1.2,1.2,-0.6,0.6
+# the distance channel, every kind, through MPI with its band
+mpi_job "torus mesh's distance, band 4, a box with empty columns" voxelize --embedded \
+    --mesh "$TMP/torus.obj" -r 128 --bbox -2,2,-2,2,-0.5,0.5 --channel distance --band 4 -- \
+    --mesh "$TMP/torus.obj" -r 128 --bbox -2,2,-2,2,-0.5,0.5 --channel distance --band 4
+mpi_job "a sphere's distance, band 5" voxelize --embedded -e 'sqrt(x^2+y^2+z^2) - 0.6' -r 72 \
+    --channel distance --band 5 -- -e 'sqrt(x^2+y^2+z^2) - 0.6' -r 72 --channel distance --band 5
+printf '%s\n' 'ring = mesh "torus.obj" fit 0,0,0.1 scale 1.5' \
+    'ball = implicit "x^2 + y^2 + z^2 - 0.3"' 'all  = union(ring, ball)' 'result all' >"$TMP/dist.csg"
+mpi_job "a CSG tree with a mesh leaf, distance, band 2" csg "$TMP/dist.csg" -r 80 -c distance \
+    --band 2 -- --csg "$TMP/dist.csg" -r 80 --channel distance --band 2
 submit --mesh "$TMP/torus.obj" -r 48 -o "$TMP/m48.vod" >"$TMP/m48.out" 2>&1 && ! grep -q MPI "$TMP/m48.out" \
     && pass "daemon_mpi: a mesh at 48, below mpi_min_res, on the workers" \
     || fail "daemon_mpi: a mesh at 48, below mpi_min_res, on the workers" "$(cat "$TMP/m48.out")"

@@ -59,9 +59,6 @@ refuse "--channel distance with --mode surface" 2 \
     "$VOX" voxelize --mesh "$ICO" --channel distance --mode surface -o "$TMP/x.vod"
 refuse "vox submit refuses a bad band too" 2 "^vox: bad --band '40': want 1\.\.32 voxels$" \
     "$VOX" submit --mesh "$ICO" --channel distance --band 40 -o "$TMP/x.vod"
-refuse "vox_mpi refuses the distance, for now, in one line" 2 \
-    "^vox_mpi: --channel distance is not available through vox_mpi yet: use vox voxelize$" \
-    "$VOXMPI" voxelize --mesh "$ICO" --channel distance -o "$TMP/x.vod"
 [ ! -e "$TMP/x.vod" ] && pass "no file after a refusal" || fail "no file after a refusal"
 
 # ---------------------------------------------------------------- voxd

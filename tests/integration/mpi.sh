@@ -107,6 +107,36 @@ same_as csg "part, occupancy, RUNL, a flat domain" 2 2 examples/part.csg -r 110 
     -d -1,1,-0.6,0.6,-0.5,0.5
 same_as csg "part at 8^3" 3 0 examples/part.csg -r 8
 
+# The distance channel (channel 4): the levels above the subtrees the float
+# mean, no empty node; a mesh's columns without triangles (the box larger
+# than the torus) handed out and made of the band's width; an expression's
+# distance as a tree of one leaf; a tree's band in its leaves.
+cat >"$TMP/balls.csg" <<'EOF'
+a = implicit "sqrt((x+0.25)^2 + y^2 + z^2) - 0.5"
+b = implicit "sqrt((x-0.22)^2 + (y-0.05)^2 + (z+0.03)^2) - 0.43"
+r = union(a, b)
+result r
+EOF
+for r in 1 3; do
+    for w in 0 2; do
+        same "torus mesh, distance, a box with empty columns" $r $w --mesh "$TMP/torus.obj" \
+            -r 160 --bbox -2,2,-2,2,-0.5,0.5 --channel distance
+        same "sphere, distance, band 5" $r $w -e 'sqrt(x^2+y^2+z^2) - 0.6' -r 80 \
+            --channel distance --band 5
+        same_as csg "two balls, distance, band 4" $r $w "$TMP/balls.csg" -r 72 --channel distance \
+            --band 4
+    done
+done
+same "open torus, distance, --repair vote, band 2" 4 1 --mesh "$TMP/open.obj" -r 160 \
+    --bbox -2,2,-2,2,-0.5,0.5 --channel distance --repair vote --band 2
+same "torus file, distance, a flat domain" 2 1 -f examples/torus.vx -r 90 --channel distance \
+    -d -1,1,-1,1,-0.4,0.4
+printf '%s\n' 'ring = mesh "torus.obj" fit 0,0,0.1 scale 1.5' \
+    'ball = implicit "x^2 + y^2 + z^2 - 0.3"' 'all  = difference(ring, ball)' 'result all' \
+    >"$TMP/dist.csg"
+same_as csg "tree with a mesh leaf, distance" 2 1 "$TMP/dist.csg" -r 80 -c distance --band 3
+same_as csg "tree with a mesh leaf, distance, serial ranks" 3 0 "$TMP/dist.csg" -r 80 -c distance
+
 # Under AddressSanitizer and UBSan (the runner's $VOX_ASAN build): no error
 # in any rank, the same bytes.  Leaks are not looked for here: Open MPI's
 # plugins keep allocations past MPI_Finalize and are unloaded before
@@ -137,6 +167,9 @@ for w in 0 2; do
     asan_same "Scene 1" $w "$TMP/ref-scene1-$w.vod" voxelize -f examples/scene1.vx -r 128
 done
 asan_same "the torus mesh" 1 "$TMP/ref-torus mesh-1.vod" voxelize --mesh "$TMP/torus.obj" -r 150
+asan_same "the torus mesh's distance, empty columns" 2 \
+    "$TMP/ref-torus mesh, distance, a box with empty columns-2.vod" voxelize --mesh "$TMP/torus.obj" \
+    -r 160 --bbox -2,2,-2,2,-0.5,0.5 --channel distance
 asan_same "the CSG tree with a mesh leaf" 0 "$TMP/ref-tree with a mesh leaf-0.vod" \
     csg "$TMP/leaf.csg" -r 80
 

@@ -362,7 +362,7 @@ static void torus_free(mesh *m)
 /* Task o of a mesh job: its triangles as rank 0 sends them, viewed as a
  * rank does; NULL when the column has none (rank 0 drops it). */
 static uint8_t *column_mesh(const mesh *m, const mesh_bins *bins, const grid_spec *g,
-                            grid_octant o, mesh *part)
+                            grid_octant o, int keep_empty, mesh *part)
 {
     uint32_t t[4];
     mpi_column_tiles(g, o, t);
@@ -371,17 +371,22 @@ static uint8_t *column_mesh(const mesh *m, const mesh_bins *bins, const grid_spe
     cr_assert_eq(mpi_mesh_part(m, bins, bins->start ? t : NULL, &buf, &n), 0);
     uint32_t head[2];
     memcpy(head, buf, sizeof head);
-    if (!head[1]) {
+    /* a column without a triangle: none of its voxels is set, but for the
+     * distance, whose every voxel is (the band's width beyond it) */
+    if (!head[1] && !keep_empty) {
         free(buf);
         return NULL;
     }
     cr_assert_eq(mpi_mesh_view(buf, n, part), 0);
+    cr_assert_eq(part->n_triangles, head[1]);
     return buf;
 }
 
 /* job (a mesh or CSG one) run task by task, as vox_mpi's ranks run it
- * (j: the rank's part, its kind and input), against engine_pipeline_run's file. */
-static void same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t target, int workers)
+ * (j: the rank's part, its kind and input), against engine_pipeline_run's file;
+ * the columns without a triangle that ran (a distance's). */
+static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t target,
+                       int workers)
 {
     char meta[JOB_META_MAX], err[256];
     vod_params v;
@@ -407,14 +412,17 @@ static void same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t t
     }
     j.grid = r.grid, j.vod = v, j.vod.metadata = NULL, j.node_level = c.node_level, j.e = e;
     mesh_bins bins = {0};
+    size_t empties = 0;
     if (columns && j.mesh_opts.repair != MESH_REPAIR_WINDING)
         cr_assert_eq(mesh_bin(job->mesh.mesh, &r.grid, &j.mesh_opts, NULL, 1, &bins), 0);
     for (size_t i = 0; i < c.n; i++) {
         s.o = c.oct[i];
         mesh part;
-        uint8_t *buf = columns ? column_mesh(job->mesh.mesh, &bins, &r.grid, c.oct[i], &part)
+        int dist = v.channel == VOXEL_CH_DISTANCE;
+        uint8_t *buf = columns ? column_mesh(job->mesh.mesh, &bins, &r.grid, c.oct[i], dist, &part)
                                : NULL;
         if (columns && !buf) continue;
+        empties += columns && !part.n_triangles;
         j.mesh = &part;
         cr_assert_eq(mpi_subtree_run(&j, c.oct[i], deliver, &s, err, sizeof err), 0, "%s", err);
         free(buf);
@@ -423,6 +431,7 @@ static void same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t t
     assemble_same(&s, &L, &v, &ref, rr.st.bricks, columns ? "a mesh" : "a tree", &c);
     mesh_bins_free(&bins);
     mpi_cut_free(&c);
+    return empties;
 }
 
 static void same_mesh(uint32_t res, mesh_vox_opts o, uint32_t drop, size_t target, int workers)
@@ -449,6 +458,28 @@ Test(mpi_scheme, mesh_columns_give_the_whole_grid_file)
               37, 8, 1);
     same_mesh(100, (mesh_vox_opts){.repair = MESH_REPAIR_WINDING, .channel = VOXEL_CH_OCCUPANCY},
               37, 4, 0);
+}
+
+/* The distance: every column handed out, those without a triangle too
+ * (in a box larger than the torus), the levels above the float mean. */
+static void same_distance(uint32_t res, uint32_t band, size_t target, int workers)
+{
+    mesh m = torus(24, 12, 0);
+    mesh_vox_opts o = {.channel = VOXEL_CH_DISTANCE, .band = band};
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_MESH, .mesh = {.mesh = &m, .opts = o},
+                               .res = res, .lo = {-2, -2, -0.5}, .hi = {2, 2, 0.5}};
+    vod_params_default(&job.vod);
+    job.vod.channel = VOXEL_CH_DISTANCE;
+    size_t empties = same_job(&job, (mpi_subtree_job){.kind = MPI_KIND_MESH, .mesh_opts = o},
+                              target, workers);
+    cr_assert(empties > 0, "the box has columns without a triangle");
+    torus_free(&m);
+}
+
+Test(mpi_scheme, distance_columns_give_the_whole_grid_file)
+{
+    same_distance(160, 0, 8, 0);
+    same_distance(130, 5, 8, 2);
 }
 
 /* The torus as an OBJ file's bytes. */
@@ -499,6 +530,39 @@ static void same_csg(uint32_t res, int channel, size_t target, int workers)
     same_job(&job, (mpi_subtree_job){.kind = MPI_KIND_CSG, .tree = u}, target, workers);
     csg_tree_free(t);
     csg_tree_free(u);
+}
+
+/* A tree's distance: its band in the leaves (as vox_mpi sets it before
+ * the broadcast), the mesh leaf f32, the levels above the float mean. */
+static void same_csg_distance(uint32_t res, uint32_t band, size_t target, int workers)
+{
+    static const char text[] = "ring = mesh \"ring.obj\" fit 0,0,0.1 scale 1.5\n"
+                               "ball = implicit \"x^2 + y^2 + z^2 - 0.3\"\n"
+                               "all = difference(ring, ball)\nresult all\n";
+    csg_tree *t;
+    csg_error ce;
+    cr_assert_eq(csg_parse(text, strlen(text), &t, &ce), 0, "%s", ce.msg);
+    t->data[0] = torus_obj(&t->data_len[0]);
+    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG, .csg = {.tree = t}, .res = res,
+                               .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .band = band};
+    vod_params_default(&job.vod);
+    job.vod.channel = VOXEL_CH_DISTANCE;
+    uint8_t *buf;
+    size_t n;
+    csg_tree *u;
+    cr_assert_eq(csg_tree_pack(t, &buf, &n), 0);
+    cr_assert_eq(csg_tree_unpack(buf, n, &u), 0);
+    free(buf);
+    csg_tree_set_band(u, band ? band : VOXEL_BAND_DEFAULT);
+    same_job(&job, (mpi_subtree_job){.kind = MPI_KIND_CSG, .tree = u}, target, workers);
+    csg_tree_free(t);
+    csg_tree_free(u);
+}
+
+Test(mpi_scheme, csg_distance_subtrees_give_the_whole_grid_file)
+{
+    same_csg_distance(72, 0, 16, 0);
+    same_csg_distance(64, 4, 8, 2);
 }
 
 Test(mpi_scheme, csg_subtrees_give_the_whole_grid_file)
