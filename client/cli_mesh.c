@@ -3,6 +3,8 @@
  * (or in this process with -w 0), written as PLY, OBJ or STL. */
 #include <errno.h>
 #include <fcntl.h>
+#include <pthread.h>
+#include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -157,19 +159,66 @@ static void *heap_alloc(void *ud, size_t bytes)
     return *keep = malloc(bytes);
 }
 
-/* The mesh, by the engine's workers (*e: the mesh lives in its shared
- * memory until it is destroyed) or (-w 0) in this process. */
+/* The output file, opened before the job: with workers the mesh is
+ * written while they weld it (streamed: engine_iso_job.laid_out), each
+ * part as soon as it is final, by a thread of its own; else after it. */
+typedef struct {
+    const mesh_opts *o;
+    outfile f;
+    char comment[200];
+    iso_mesh m;            /* the mesh's layout, as the engine gave it */
+    engine_iso_weld weld;  /* its progress */
+    pthread_t thread;
+    int streaming, rc;     /* the thread runs; its iso_write's result */
+} mesh_out;
+
+static int ready_wait(void *ud, int tris, uint64_t hi)
+{
+    return engine_iso_wait(ud, tris, hi);
+}
+
+/* Formatted by as many threads as the job has workers: they wait while
+ * the workers weld, and run once the weld's end leaves the CPUs to them. */
+static void *write_run(void *ud)
+{
+    mesh_out *w = ud;
+    iso_ready ready = {ready_wait, &w->weld};
+    w->rc = iso_write_ready(w->f.fd, &w->m, w->o->fmt, w->comment,
+                            w->o->workers ? w->o->workers : 1, &ready);
+    return NULL;
+}
+
+/* On the engine's thread before the weld: the writer started, every
+ * signal blocked in it (they stay this thread's).  Without a thread the
+ * mesh is written after the job (the engine's thread must not wait). */
+static void laid_out(void *ud, const iso_mesh *m)
+{
+    mesh_out *w = ud;
+    sigset_t all, old;
+    w->m = *m;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &old);
+    w->streaming = !pthread_create(&w->thread, NULL, write_run, w);
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+}
+
+/* The mesh, by the engine's workers (e: the mesh lives in its shared
+ * memory until it is abandoned) or (e NULL: -w 0) in this process. */
 static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p,
-                      iso_mesh *m, engine_result *r, engine **e)
+                      iso_mesh *m, engine_result *r, engine *e, mesh_out *w)
 {
     char err[256] = "";
     int rc;
     memset(r, 0, sizeof *r);
-    if (o->workers) {
-        if ((rc = cli_start_engine(o->workers, o->cpus, o->shm_mib, e))) return rc;
-        engine_lazy_release(*e); /* nothing to give back before we exit */
-        engine_iso_job job = {.file = f, .p = p, .cancel = &cli_interrupt};
-        rc = engine_iso(*e, &job, m, r);
+    if (e) {
+        engine_lazy_release(e); /* nothing to give back before we exit */
+        engine_iso_job job = {.file = f, .p = p, .cancel = &cli_interrupt, .ud = w,
+                              .weld = &w->weld, .laid_out = laid_out};
+        rc = engine_iso(e, &job, m, r);
+        if (w->streaming) { /* the writer's waits end: all welded, or stop */
+            if (rc) atomic_store_explicit(&w->weld.stop, 1, memory_order_relaxed);
+            pthread_join(w->thread, NULL);
+        }
         if (rc) snprintf(err, sizeof err, "%s", r->error);
     } else {
         double c0 = clock_thread_cpu();
@@ -193,8 +242,8 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
 }
 
 /* The regular file the mesh replaces, held open (-1: none): the rename
- * then only unlinks it, and its blocks and pages are freed when *old is
- * closed, on a thread beside the engine's end instead of in the rename. */
+ * then only unlinks it, and its blocks and pages are freed when the last
+ * descriptor of it is closed (free_after_exit), not in the rename. */
 static int replaced_file(const char *path)
 {
     int fd = open(path, O_RDONLY | O_NONBLOCK | O_NOFOLLOW | O_CLOEXEC);
@@ -206,28 +255,53 @@ static int replaced_file(const char *path)
     return fd;
 }
 
-static void *close_fd(void *ud)
+/* The replaced file's blocks and pages (tens of MB: 0.03-0.1 s of one
+ * thread) freed after this process has exited, by a child that holds the
+ * last descriptor of it: the child lets go of stdin, stdout and stderr
+ * (a reader of our output sees its end when we exit), waits until our
+ * end of a pipe closes (our exit), then closes the file and exits; the
+ * init process (or a subreaper) reaps it, as it does the workers.  Our
+ * own descriptor goes with our exit, not the last one then.  Here, on
+ * this thread, when no child can be made. */
+static void free_after_exit(int fd)
 {
-    close((int)(intptr_t)ud);
-    return NULL;
+    int p[2] = {-1, -1};
+    pid_t pid = pipe2(p, O_CLOEXEC) ? -1 : fork();
+    if (pid == 0) { /* async-signal-safe calls only: the parent has threads */
+        char c;
+        close(0), close(1), close(2), close(p[1]);
+        while (read(p[0], &c, 1) < 0 && errno == EINTR) {
+        }
+        close(fd);
+        _exit(0);
+    }
+    if (p[0] >= 0) close(p[0]);
+    if (pid < 0 && p[1] >= 0) close(p[1]);
+    close(fd); /* the last descriptor only when no child has it */
 }
 
-static int write_mesh(const mesh_opts *o, const iso_mesh *m, int *old)
+static int open_out(const mesh_opts *o, mesh_out *w)
 {
-    char comment[200];
-    snprintf(comment, sizeof comment, "vox mesh, iso %u", o->iso);
-    outfile f;
-    int rc = outfile_open(&f, o->out);
-    if (!rc) {
-        /* formatted by as many threads as the job had workers (idle now) */
-        rc = iso_write(f.fd, m, o->fmt, comment, o->workers ? o->workers : 1);
-        if (!rc && !cli_interrupted()) {
-            *old = replaced_file(o->out);
-            rc = outfile_commit(&f, o->out);
-        } else {
-            outfile_abort(&f);
-            if (cli_interrupted()) cli_end_interrupted(o->out);
-        }
+    *w = (mesh_out){.o = o};
+    snprintf(w->comment, sizeof w->comment, "vox mesh, iso %u", o->iso);
+    int rc = outfile_open(&w->f, o->out);
+    if (rc) cli_error("cannot write %s: %s", o->out, strerror(-rc));
+    return rc;
+}
+
+/* The mesh written (unless it was streamed) and the file put in place;
+ * *old: the file it replaced, held open. */
+static int write_mesh(const mesh_opts *o, const iso_mesh *m, mesh_out *w, int *old)
+{
+    /* formatted by as many threads as the job had workers (idle now) */
+    int rc = w->streaming ? w->rc : iso_write(w->f.fd, m, o->fmt, w->comment,
+                                              o->workers ? o->workers : 1);
+    if (!rc && !cli_interrupted()) {
+        *old = replaced_file(o->out);
+        rc = outfile_commit(&w->f, o->out);
+    } else {
+        outfile_abort(&w->f);
+        if (cli_interrupted()) cli_end_interrupted(o->out);
     }
     if (rc) cli_error("cannot write %s: %s", o->out, strerror(-rc));
     return rc;
@@ -255,51 +329,92 @@ static void *close_run(void *ud)
     return NULL;
 }
 
+/* The input read and checked on a thread of its own while the caller's
+ * starts the engine (the segment mapped, the workers forked: they must be
+ * the forks of a thread that lives until the end). */
+typedef struct {
+    const mesh_opts *o;
+    vod_file *f;
+    int rc;
+    char err[512];
+} opening;
+
+static void *open_run(void *ud)
+{
+    opening *op = ud;
+    /* the bricks inflated and hashed by as many threads as the job's workers */
+    unsigned threads = op->o->workers ? op->o->workers : 1;
+    op->rc = vod_open_threads(op->o->in, (int)threads, &op->f, op->err, sizeof op->err);
+    return NULL;
+}
+
+/* The input and (with workers) the engine; an exit code on failure, the
+ * input's error told first as when it was opened alone. */
+static int open_both(const mesh_opts *o, vod_file **f, engine **e)
+{
+    opening op = {.o = o};
+    par_task t;
+    par_start(&t, open_run, &op);
+    int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, e) : 0;
+    par_join(&t);
+    if (op.rc) cli_error("%s: %s", o->in, op.err);
+    if (!op.rc && !rc) {
+        *f = op.f;
+        return 0;
+    }
+    engine_abandon(*e);
+    *e = NULL;
+    vod_close(op.f);
+    return CLI_EXIT_FAILED;
+}
+
 static int run(const mesh_opts *o)
 {
     char err[512] = "";
     vod_file *f;
+    engine *e = NULL;
     double tr = clock_now();
-    /* the bricks inflated and hashed by as many threads as the job's workers */
-    if (vod_open_threads(o->in, o->workers ? (int)o->workers : 1, &f, err, sizeof err)) {
-        cli_error("%s: %s", o->in, err);
-        return CLI_EXIT_FAILED;
-    }
+    if (open_both(o, &f, &e)) return CLI_EXIT_FAILED;
     iso_params p;
     iso_request rq = {.iso = o->iso, .level = (int)o->level, .center = o->center,
                       .radii = o->radii, .nradii = o->nradii};
     int rc = iso_params_make(f, &rq, &p, err, sizeof err);
     if (rc) {
         cli_error("%s: %s", o->in, err);
+        engine_abandon(e);
         vod_close(f);
         return CLI_EXIT_USAGE;
     }
     iso_mesh m = {0};
     engine_result r;
     double t[4] = {tr, clock_now()};
-    engine *e = NULL;
+    mesh_out w;
+    if (open_out(o, &w)) {
+        engine_abandon(e);
+        vod_close(f);
+        return CLI_EXIT_FAILED;
+    }
     cli_catch_interrupts();
-    rc = polygonize(o, f, &p, &m, &r, &e);
+    rc = polygonize(o, f, &p, &m, &r, e, &w);
     t[2] = clock_now();
     par_task end;
     par_start(&end, close_run, f);
+    if (rc || cli_interrupted()) outfile_abort(&w.f);
     if (cli_interrupted()) {
         par_join(&end);
         cli_end_interrupted(o->out);
     }
     int old = -1;
-    if (!rc) rc = write_mesh(o, &m, &old);
+    if (!rc) rc = write_mesh(o, &m, &w, &old);
     t[3] = clock_now();
     par_join(&end);
     if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);
     iso_mesh_free(&m);
-    if (old >= 0) par_start(&end, close_fd, (void *)(intptr_t)old);
+    if (old >= 0) free_after_exit(old);
     /* The mesh was read from the segment until the write's end; now the
      * workers free it after we exit, and nothing of the engine's end is
-     * waited for (engine_abandon, as vox voxelize ends): its unmapping
-     * runs beside the replaced file's freeing. */
+     * waited for (engine_abandon, as vox voxelize ends). */
     engine_abandon(e);
-    if (old >= 0) par_join(&end);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 

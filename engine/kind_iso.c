@@ -9,7 +9,9 @@
  * piece is not there (its worker died, failed, or the arena was full),
  * checks every piece and gives each its place in the mesh (iso_weld_bases),
  * lays the mesh's arrays out in the arena, and one ISO_WELD task per worker
- * starts phase 2: the workers weld pieces into those arrays.  At the end
+ * starts phase 2: the workers weld pieces into those arrays (a caller that
+ * asked is told the layout then, and may write the mesh while it is welded:
+ * engine_iso_wait says which pieces are in).  At the end
  * the master welds what no worker did and checks every index: the mesh is
  * the serial run's, byte for byte, whoever ran which task, and stays in
  * the segment (a view) until the next job. */
@@ -17,6 +19,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "clock.h"
 #include "master.h"
@@ -228,13 +231,36 @@ static int prepare_weld(engine *e, iso_job *ij)
     return 0;
 }
 
+/* The mesh's layout told to the caller that asked (engine_iso_job's
+ * laid_out), before the weld. */
+static void announce(engine *e, const iso_job *ij)
+{
+    const engine_iso_job *j = ij->job;
+    if (!j->laid_out || !j->weld) return;
+    iso_block *b = engine_sched_block(e);
+    uint64_t n = b->n_tasks, *vb = shm_at(e->seg.base, b->vbase_off);
+    uint64_t *tb = shm_at(e->seg.base, b->tbase_off);
+    engine_iso_weld *w = j->weld;
+    w->results = shm_at(e->seg.base, b->results_off);
+    w->vbase = vb, w->tbase = tb, w->n = n;
+    atomic_init(&w->known, 0);
+    atomic_init(&w->stop, 0);
+    iso_mesh m = {.n_vertices = vb[n], .n_triangles = tb[n],
+                  .pos = shm_at(e->seg.base, b->pos_off),
+                  .nrm = b->nrm_off ? shm_at(e->seg.base, b->nrm_off) : NULL,
+                  .tri = shm_at(e->seg.base, b->tri_off), .borrowed = 1};
+    j->laid_out(j->ud, &m);
+}
+
 /* The last ISO_BRICKS task done starts the weld. */
 static void iso_done(engine *e, int i, const shm_task *t, int error)
 {
     iso_job *ij = e->job;
     (void)i, (void)error;
     if (t->op != ISO_BRICKS || --ij->bricks_left > 0 || e->err.failure) return;
-    if (!prepare_weld(e, ij)) push_all(e, ISO_WELD);
+    if (prepare_weld(e, ij)) return;
+    push_all(e, ISO_WELD);
+    announce(e, ij);
 }
 
 /* Every index the workers wrote checked against the vertex count, in
@@ -284,6 +310,9 @@ static int weld_rest(engine *e, iso_job *ij)
         int rc = iso_weld_piece(&wd, i, &why);
         if (rc)
             return engine_sched_fail(e, ENGINE_FAULT, rc, "%s", why.msg[0] ? why.msg : strerror(-rc));
+        /* release: pairs with engine_iso_wait's acquire (a writer streaming
+         * the mesh) */
+        atomic_store_explicit(&res[i].welded, 1, memory_order_release);
     }
     if (!indices_ok(wd.tri, 3 * tb[n], vb[n]))
         return engine_sched_fail(e, ENGINE_FAULT, -EPROTO, "the workers left the mesh inconsistent");
@@ -303,7 +332,8 @@ static int iso_finish(engine *e, void *job, int rc)
     r->octants = 0;
     const iso_block *b = engine_sched_block(e);
     r->fig.iso.tasks = (uint32_t)b->n_tasks;
-    if (!rc && !ij->weld_ready) rc = prepare_weld(e, ij); /* no worker took a task */
+    if (!rc && !ij->weld_ready && !(rc = prepare_weld(e, ij))) /* no worker took a task */
+        announce(e, ij);
     if (!rc) rc = weld_rest(e, ij);
     r->seconds = clock_now() - e->t0;
     if (!rc) {
@@ -334,4 +364,25 @@ int engine_iso(engine *e, const engine_iso_job *job, iso_mesh *out, engine_resul
     iso_job ij = {.job = job, .out = out, .r = r};
     engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
     return engine_sched_run_job(e, &engine_kind_iso, &ij, &w, r);
+}
+
+int engine_iso_wait(engine_iso_weld *w, int tris, uint64_t hi)
+{
+    const uint64_t *base = tris ? w->tbase : w->vbase;
+    const iso_result *res = w->results;
+    /* acquire: pairs with the release below, so that the pieces another
+     * wait saw welded are seen whole here too */
+    uint64_t i = atomic_load_explicit(&w->known, memory_order_acquire), known = i;
+    for (; i < w->n && base[i] < hi; i++)
+        /* acquire: pairs with the welder's release store of welded */
+        while (!atomic_load_explicit(&res[i].welded, memory_order_acquire)) {
+            /* relaxed: a flag; the caller sets it once the job failed */
+            if (atomic_load_explicit(&w->stop, memory_order_relaxed)) return -ECANCELED;
+            nanosleep(&(struct timespec){.tv_nsec = 500000}, NULL);
+        }
+    /* release: pairs with the acquire above */
+    while (i > known && !atomic_compare_exchange_weak_explicit(
+                            &w->known, &known, i, memory_order_release, memory_order_acquire)) {
+    }
+    return 0;
 }

@@ -252,6 +252,19 @@ iso_format iso_format_of_path(const char *path);
  * negative errno. */
 int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
               unsigned threads);
+/* A mesh still being made while it is written: before formatting records
+ * below `hi` of its vertices (tris 0) or its triangles (tris 1), the
+ * writer calls wait(ud, tris, hi), which returns 0 once they are final,
+ * or a negative errno that ends the write with it (the mesh will not be
+ * whole).  m's counts and arrays' places must be final from the start. */
+typedef struct {
+    int (*wait)(void *ud, int tris, uint64_t hi);
+    void *ud;
+} iso_ready;
+/* iso_write of a mesh that ready says is final part by part (NULL: all of
+ * it now), streamed: each part written as soon as it is. */
+int iso_write_ready(int fd, const iso_mesh *m, iso_format f, const char *comment,
+                    unsigned threads, const iso_ready *ready);
 
 /* ---- the case table (iso_table.c) ---- */
 

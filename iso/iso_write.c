@@ -10,7 +10,8 @@
  * there with pwrite: the formatting, the most of the cost, runs on every
  * thread, and only the handing on of offsets is in order.  One thread (or
  * an fd that cannot seek, or appends) writes the chunks in order with
- * write. */
+ * write.  A mesh still being welded (iso_write_ready) is written the same
+ * way, each chunk once the records it reads are final. */
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -38,6 +39,7 @@ typedef struct {
 
 typedef struct {
     const iso_mesh *m;
+    const iso_ready *ready;  /* NULL: the mesh is final */
     section sec[3];
     int nsec;
     uint64_t first[4];       /* the first chunk of each section, then the total */
@@ -188,6 +190,27 @@ static void fail(writer *w, int rc)
     pthread_mutex_unlock(&w->mu);
 }
 
+/* Until the records chunk c reads are final; 0 or the wait's error. */
+static int wait_ready(const writer *w, uint64_t c)
+{
+    if (!w->ready) return 0;
+    int s = 0;
+    while (c >= w->first[s + 1]) s++;
+    uint64_t hi = (c - w->first[s] + 1) * CHUNK;
+    if (hi > w->sec[s].n) hi = w->sec[s].n;
+    void *ud = w->ready->ud;
+    switch (w->sec[s].kind) {
+    case R_PLY_F: case R_PLY_FA: case R_OBJ_F:
+        return w->ready->wait(ud, 1, hi);
+    case R_STL: { /* a facet reads any of the vertices */
+        int rc = w->ready->wait(ud, 1, hi);
+        return rc ? rc : w->ready->wait(ud, 0, w->m->n_vertices);
+    }
+    default:
+        return w->ready->wait(ud, 0, hi);
+    }
+}
+
 /* One thread's part: chunks claimed until none is left.  Without seek
  * the chunks are written in order as they are placed (one thread). */
 static void write_part(void *ud, unsigned k, unsigned n)
@@ -203,10 +226,15 @@ static void write_part(void *ud, unsigned k, unsigned n)
         /* relaxed: the counter only hands out chunk numbers */
         uint64_t c = atomic_fetch_add_explicit(&w->next, 1, memory_order_relaxed);
         if (c >= w->first[w->nsec]) break;
+        int rc = wait_ready(w, c);
+        if (rc) {
+            fail(w, rc);
+            break;
+        }
         size_t bytes = format_chunk(w, c, buf);
         int64_t at = place(w, c, bytes);
         if (at < 0) break;
-        int rc = put_all(w, buf, bytes, (uint64_t)at);
+        rc = put_all(w, buf, bytes, (uint64_t)at);
         if (rc) {
             fail(w, rc);
             break;
@@ -263,6 +291,12 @@ static void sections(writer *w, iso_format f)
 int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
               unsigned threads)
 {
+    return iso_write_ready(fd, m, f, comment, threads, NULL);
+}
+
+int iso_write_ready(int fd, const iso_mesh *m, iso_format f, const char *comment,
+                    unsigned threads, const iso_ready *ready)
+{
     if (f < ISO_FMT_PLY || f > ISO_FMT_STL) return -EINVAL;
     if (f == ISO_FMT_STL && m->n_triangles > UINT32_MAX) return -EFBIG;
     writer *w = calloc(1, sizeof *w);
@@ -270,6 +304,7 @@ int iso_write(int fd, const iso_mesh *m, iso_format f, const char *comment,
     int rc = w && h ? 0 : -ENOMEM;
     if (!rc) {
         w->m = m;
+        w->ready = ready;
         w->fd = fd;
         /* pwrite needs an fd that seeks, and not in append mode (where
          * Linux appends whatever the offset) */

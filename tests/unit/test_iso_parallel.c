@@ -3,12 +3,15 @@
  * stalled worker costs nothing but time; too small a segment is a limit; the
  * brick walk; a solid interior costs no task; the writers on several threads, on
  * an appending fd and on a pipe, and the input and its checks on several
- * threads, against one thread. */
+ * threads, against one thread; a mesh streamed while it is made (and while
+ * the engine's workers weld it) against the finished mesh written whole. */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
+#include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -455,5 +458,165 @@ Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
     free(own), free(pc), free(vb1), free(tb1), free(vb3), free(tb3), free(t);
     iso_work_free(w);
     free(mem1), free(mem3);
+    vod_close(f);
+}
+
+/* ---- streaming: the mesh written while it is made ---- */
+
+/* A mesh made part by part: a thread copies src into dst's arrays in
+ * pieces of `step` records, vertices first, then triangles, publishing
+ * how far it got; a wait returns once its records are there. */
+typedef struct {
+    const iso_mesh *src;
+    iso_mesh dst;
+    uint64_t step;
+    atomic_uint_fast64_t nv, nt;  /* records copied (release by the maker) */
+    int cancel;                   /* the waits give up at once */
+    uint64_t asked_v, asked_t;    /* the most a wait asked for */
+    pthread_mutex_t mu;
+} maker;
+
+static void *make_run(void *ud)
+{
+    maker *k = ud;
+    const iso_mesh *s = k->src;
+    for (uint64_t i = 0; i < s->n_vertices; i += k->step) {
+        uint64_t n = s->n_vertices - i < k->step ? s->n_vertices - i : k->step;
+        memcpy(k->dst.pos + 3 * i, s->pos + 3 * i, 12 * n);
+        if (s->nrm) memcpy(k->dst.nrm + 3 * i, s->nrm + 3 * i, 12 * n);
+        atomic_store_explicit(&k->nv, i + n, memory_order_release);
+        usleep(200);
+    }
+    for (uint64_t i = 0; i < s->n_triangles; i += k->step) {
+        uint64_t n = s->n_triangles - i < k->step ? s->n_triangles - i : k->step;
+        memcpy(k->dst.tri + 3 * i, s->tri + 3 * i, 12 * n);
+        atomic_store_explicit(&k->nt, i + n, memory_order_release);
+        usleep(200);
+    }
+    return NULL;
+}
+
+static int maker_wait(void *ud, int tris, uint64_t hi)
+{
+    maker *k = ud;
+    if (k->cancel) return -ECANCELED;
+    pthread_mutex_lock(&k->mu);
+    uint64_t *asked = tris ? &k->asked_t : &k->asked_v;
+    if (hi > *asked) *asked = hi;
+    pthread_mutex_unlock(&k->mu);
+    while (atomic_load_explicit(tris ? &k->nt : &k->nv, memory_order_acquire) < hi) usleep(50);
+    return 0;
+}
+
+/* Every format, streamed by several threads while the mesh is made, is the
+ * bytes of the finished mesh written whole: no record was read before it
+ * was final (it would be zeros). */
+Test(iso, a_mesh_streamed_while_it_is_made_is_the_finished_ones_bytes)
+{
+    static const iso_format fmt[] = {ISO_FMT_PLY, ISO_FMT_PLY_ASCII, ISO_FMT_OBJ, ISO_FMT_STL};
+    iso_mesh m = random_mesh(40009, 50021, 1, 11);
+    for (size_t f = 0; f < sizeof fmt / sizeof *fmt; f++) {
+        size_t n1;
+        uint8_t *want = written(&m, fmt[f], 3, 0, &n1);
+        maker k = {.src = &m, .step = 1500, .mu = PTHREAD_MUTEX_INITIALIZER};
+        k.dst = (iso_mesh){.n_vertices = m.n_vertices, .n_triangles = m.n_triangles,
+                           .pos = calloc(3 * m.n_vertices, 4), .nrm = calloc(3 * m.n_vertices, 4),
+                           .tri = calloc(3 * m.n_triangles, 4)};
+        atomic_init(&k.nv, 0);
+        atomic_init(&k.nt, 0);
+        pthread_t t;
+        cr_assert_eq(pthread_create(&t, NULL, make_run, &k), 0);
+        char path[] = "/tmp/test_iso_streamXXXXXX";
+        int fd = mkstemp(path);
+        cr_assert_geq(fd, 0);
+        unlink(path);
+        iso_ready ready = {maker_wait, &k};
+        cr_assert_eq(iso_write_ready(fd, &k.dst, fmt[f], "a comment", 3, &ready), 0);
+        pthread_join(t, NULL);
+        uint8_t *got = malloc(n1 + 1);
+        cr_assert_eq(pread(fd, got, n1 + 1, 0), (ssize_t)n1, "format %d: its size", (int)fmt[f]);
+        cr_assert(!memcmp(want, got, n1), "format %d: other bytes", (int)fmt[f]);
+        cr_assert_eq(k.asked_v, m.n_vertices, "format %d: the vertices waited for", (int)fmt[f]);
+        cr_assert_eq(k.asked_t, m.n_triangles, "format %d: the triangles", (int)fmt[f]);
+        /* a wait that fails ends the write with its error */
+        k.cancel = 1;
+        cr_assert_eq(iso_write_ready(fd, &k.dst, fmt[f], "a comment", 3, &ready), -ECANCELED);
+        close(fd);
+        free(got), free(want);
+        iso_mesh_free(&k.dst);
+    }
+    iso_mesh_free(&m);
+}
+
+typedef struct {
+    engine_iso_weld weld;
+    iso_mesh m;
+    int fd, rc, calls;
+    pthread_t t;
+} streamer;
+
+static int weld_wait(void *ud, int tris, uint64_t hi)
+{
+    return engine_iso_wait(ud, tris, hi);
+}
+
+static void *stream_run(void *ud)
+{
+    streamer *s = ud;
+    iso_ready ready = {weld_wait, &s->weld};
+    s->rc = iso_write_ready(s->fd, &s->m, ISO_FMT_PLY, "a comment", 2, &ready);
+    return NULL;
+}
+
+static void stream_start(void *ud, const iso_mesh *m)
+{
+    streamer *s = ud;
+    s->m = *m;
+    s->calls++;
+    cr_assert_eq(pthread_create(&s->t, NULL, stream_run, s), 0);
+}
+
+/* The engine's layout told before the weld (laid_out): a PLY streamed
+ * from it while the workers weld is the finished mesh's file; a stop
+ * ends the waits. */
+Test(iso, the_engines_mesh_streamed_during_the_weld_is_the_finished_file)
+{
+    double rr[2] = {0.6, 0.25};
+    vol_spec s = cube_spec(96, 8, -1, 1);
+    ramp r = {torus_dist, rr, s.h};
+    vod_file *f = make_vod(&s, ramp_value, &r);
+    engine_opts o = {.workers = 2, .shm_bytes = (size_t)256 << 20};
+    engine *e;
+    char err[256] = "";
+    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    iso_params p;
+    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0, "%s", err);
+    char path[] = "/tmp/test_iso_weldXXXXXX";
+    streamer st = {.fd = mkstemp(path)};
+    cr_assert_geq(st.fd, 0);
+    unlink(path);
+    engine_iso_job job = {.file = f, .p = &p, .ud = &st, .weld = &st.weld,
+                          .laid_out = stream_start};
+    engine_result res;
+    iso_mesh m;
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert_eq(st.calls, 1);
+    pthread_join(st.t, NULL);
+    cr_assert_eq(st.rc, 0);
+    cr_assert_gt(m.n_triangles, 1000);
+    size_t n1;
+    uint8_t *want = written(&m, ISO_FMT_PLY, 1, 0, &n1);
+    uint8_t *got = malloc(n1 + 1);
+    cr_assert_eq(pread(st.fd, got, n1 + 1, 0), (ssize_t)n1);
+    cr_assert(!memcmp(want, got, n1), "the streamed file differs");
+    /* every piece welded: waits past the end return at once; a stop
+     * only matters to a wait that would block */
+    cr_assert_eq(engine_iso_wait(&st.weld, 1, m.n_triangles), 0);
+    atomic_store(&st.weld.stop, 1);
+    cr_assert_eq(engine_iso_wait(&st.weld, 0, m.n_vertices), 0);
+    close(st.fd);
+    free(got), free(want);
+    iso_mesh_free(&m);
+    engine_destroy(e);
     vod_close(f);
 }
