@@ -178,24 +178,61 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
     return 0;
 }
 
-/* Task i's piece as the workers will see it; run here when not done. */
-static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
+/* Task i's piece as the workers will see it: 0, or -1 when it is not
+ * there (not done, or its record does not hold). */
+static int view_of(engine *e, uint64_t i, iso_piece *pc)
 {
     iso_block *b = engine_sched_block(e);
     iso_result *r = (iso_result *)shm_at(e->seg.base, b->results_off) + i;
     uint64_t key = iso_task_key(&b->p, (const iso_task *)shm_at(e->seg.base, b->tasks_off) + i);
-    for (int tries = 0; tries < 2; tries++) {
-        /* acquire: pairs with the worker's release store of done */
-        int done = atomic_load_explicit(&r->done, memory_order_acquire);
-        *pc = (iso_piece){.key = key, .nv = r->nv, .nc = r->nc, .nt = r->nt, .ne = r->ne};
-        if (done && r->off < b->arena_cap &&
-            !iso_piece_view(&b->p, shm_at(e->seg.base, b->arena_off + r->off),
-                            b->arena_cap - r->off, pc))
-            return 0;
-        int rc = tries ? -EPROTO : run_here(e, ij, i);
-        if (rc) return rc;
-    }
+    /* acquire: pairs with the worker's release store of done */
+    int done = atomic_load_explicit(&r->done, memory_order_acquire);
+    *pc = (iso_piece){.key = key, .nv = r->nv, .nc = r->nc, .nt = r->nt, .ne = r->ne};
+    return done && r->off < b->arena_cap &&
+                   !iso_piece_view(&b->p, shm_at(e->seg.base, b->arena_off + r->off),
+                                   b->arena_cap - r->off, pc)
+               ? 0
+               : -1;
+}
+
+/* Task i's piece, run here first when it is not there. */
+static int piece_of(engine *e, iso_job *ij, uint64_t i, iso_piece *pc)
+{
+    int rc = run_here(e, ij, i);
+    if (rc) return rc;
+    if (!view_of(e, i, pc)) return 0;
     return engine_sched_fail(e, ENGINE_FAULT, -EPROTO, "a piece of the mesh went missing");
+}
+
+/* Every piece's view, in parts on every CPU the master may run on (the
+ * first read of the workers' pieces here, page by page): miss[i] set for
+ * those not there. */
+typedef struct {
+    engine *e;
+    iso_piece *pc;
+    uint8_t *miss;
+    uint64_t n;
+} view_ctx;
+
+static void view_part(void *ud, unsigned k, unsigned parts)
+{
+    view_ctx *c = ud;
+    for (uint64_t i = c->n * k / parts; i < c->n * (k + 1) / parts; i++)
+        c->miss[i] = view_of(c->e, i, &c->pc[i]) != 0;
+}
+
+static int views(engine *e, iso_job *ij, uint64_t n)
+{
+    view_ctx c = {e, ij->pc, calloc(n + 1, 1), n};
+    if (!c.miss) return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
+    unsigned parts = par_cpus();
+    if (parts > n / 256 + 1) parts = (unsigned)(n / 256 + 1);
+    par_run(parts, view_part, &c);
+    int rc = 0;
+    for (uint64_t i = 0; i < n && !rc; i++) /* in task order, as before */
+        if (c.miss[i]) rc = piece_of(e, ij, i, &ij->pc[i]);
+    free(c.miss);
+    return rc;
 }
 
 /* Between the phases: every piece there and checked, the bases and the
@@ -208,8 +245,7 @@ static int prepare_weld(engine *e, iso_job *ij)
     ij->weld_ready = 1;
     if (!(ij->pc = calloc(n + 1, sizeof *ij->pc)))
         return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
-    int rc = 0;
-    for (uint64_t i = 0; i < n && !rc; i++) rc = piece_of(e, ij, i, &ij->pc[i]);
+    int rc = views(e, ij, n);
     uint64_t *vb = rc ? NULL : arena_alloc(e, 8 * (n + 1));
     uint64_t *tb = vb ? arena_alloc(e, 8 * (n + 1)) : NULL;
     if (rc) return rc;

@@ -183,13 +183,28 @@ static int levels_used(const iso_params *p, uint32_t *lo, uint32_t *hi)
 }
 
 /* The unique bricks' copies and states, split among threads: a part
- * takes the runs of one raw brick that start in its range of c->v. */
+ * takes an equal share of the unique bricks (the runs of c->v with one
+ * raw brick, whose offsets are those of their unique copies), not of c->v:
+ * the bricks the file shares (uniform ones) gather in a few runs, and an
+ * even split of c->v left one part most of the copying. */
 typedef struct {
     const iso_params *p;
     brick_ref *v;
-    size_t n, raw_bytes;
+    size_t n, raw_bytes, uniq;
     uint8_t *raw;
 } copy_ctx;
+
+/* The first of c->v whose copy is at or past unique brick u. */
+static size_t first_from(const copy_ctx *c, size_t u)
+{
+    size_t lo = 0, hi = c->n, at = u * c->raw_bytes;
+    while (lo < hi) {
+        size_t mid = lo + (hi - lo) / 2;
+        if (c->v[mid].off < at) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo;
+}
 
 /* The pages of raw[from, to) faulted in by one call, not one fault each
  * (a kernel without MADV_POPULATE_WRITE faults them as the copy goes). */
@@ -206,7 +221,7 @@ static void prefault(uint8_t *raw, size_t from, size_t to)
 static void copy_part(void *ud, unsigned k, unsigned parts)
 {
     copy_ctx *c = ud;
-    size_t lo = c->n * k / parts, hi = c->n * (k + 1) / parts;
+    size_t lo = first_from(c, c->uniq * k / parts), hi = first_from(c, c->uniq * (k + 1) / parts);
     if (lo < hi) prefault(c->raw, c->v[lo].off, c->v[hi - 1].off + c->raw_bytes);
     for (size_t i = lo; i < hi; i++)
         if (i == 0 || c->v[i].raw != c->v[i - 1].raw) {
@@ -253,7 +268,7 @@ int iso_input_make_threads(const vod_file *f, const iso_params *p,
     uint8_t *state = mem + c.n * 16, *raw = state + st_bytes;
     /* the copy is the first touch of raw's pages: on every thread, with
      * the states (a part copies 1 MiB at least) */
-    copy_ctx cc = {p, c.v, c.n, raw_bytes, raw};
+    copy_ctx cc = {p, c.v, c.n, raw_bytes, uniq, raw};
     size_t most = uniq * raw_bytes / (1u << 20) + 1;
     par_run(threads < most ? threads : (unsigned)most, copy_part, &cc);
     for (size_t i = 1; i < c.n; i++) /* a shared brick: its first's state */
