@@ -242,7 +242,7 @@ static bool new_feat(dcpt *d, const mesh_vox_tile *t, const double lo[3], const 
 {
     dfeat *f = &d->f[d->nf];
     if (!box_of(t, lo, hi, f)) return false;
-    f->h0 = d->nhs, f->nh = 0, f->t0 = d->ntl, f->nt = n, f->quad = quad;
+    f->h0 = d->nhs, f->nh = 0, f->t0 = d->ntl, f->nt = n, f->quad = quad, f->ax = 0;
     for (uint32_t i = 0; i < n; i++) d->tl[d->ntl++] = list[i] >> 2;
     for (int a = 0; a < 3; a++) f->c[a] = c ? c[a] : 0, f->u[a] = u ? u[a] : 0;
     d->nf++;
@@ -257,7 +257,7 @@ static void face_feat(dcpt *d, const mesh_vox_tile *t, uint32_t i, double R)
     double lo[3], hi[3];
     if (r->deg) {
         for (int a = 0; a < 3; a++) lo[a] = r->lo[a] - R, hi[a] = r->hi[a] + R;
-        new_feat(d, t, lo, hi, &item, 1, 0, NULL, NULL);
+        new_feat(d, t, lo, hi, &item, 1, 0, r->a, NULL);
         return;
     }
     double v[3][3], s[2][3];
@@ -266,8 +266,9 @@ static void face_feat(dcpt *d, const mesh_vox_tile *t, uint32_t i, double R)
         s[0][a] = R * r->n[a], s[1][a] = -R * r->n[a];
     }
     box_pts((const double (*)[3])v, 3, (const double (*)[3])s, 2, lo, hi);
-    if (!new_feat(d, t, lo, hi, &item, 1, 0, NULL, NULL)) return;
+    if (!new_feat(d, t, lo, hi, &item, 1, 0, r->a, NULL)) return;
     dfeat *f = &d->f[d->nf - 1];
+    f->ax = axis_of(r->n, true); /* across the prism's slab */
     for (int k = 0; k < 3; k++) add_hs(d, r->m[k], dot3(r->m[k], r->a) + r->c[k] + DIST_SLOP);
     double nn[3] = {-r->n[0], -r->n[1], -r->n[2]}, h = dot3(r->n, r->a);
     add_hs(d, r->n, h + R);
@@ -275,16 +276,15 @@ static void face_feat(dcpt *d, const mesh_vox_tile *t, uint32_t i, double R)
     f->nh = 5;
 }
 
-/* At most this many half spaces a region (more only shrink it). */
-#define FEAT_MAXH 16
-
 /* The box of edge PQ's wedge, radius R, from its two triangles' normals
  * when it opens less than a right angle (the sector lies in the
  * quadrilateral of its apex, its two rays and the tangents' meeting
- * point), else PQ's box grown by R. */
-static void edge_box(const dcpt *d, const uint32_t *L, uint32_t n, const double P[3],
-                     const double Q[3], double R, double lo[3], double hi[3])
+ * point), else PQ's box grown by R; returns the axis to scan it along:
+ * the sector's bisector's, else the one most across the edge (u). */
+static int edge_box(const dcpt *d, const uint32_t *L, uint32_t n, const double P[3],
+                    const double Q[3], const double u[3], double R, double lo[3], double hi[3])
 {
+    int ax = axis_of(u, false);
     const double base[2][3] = {{P[0], P[1], P[2]}, {Q[0], Q[1], Q[2]}};
     double s[4][3] = {{-R, -R, -R}, {R, R, R}};
     int ns = 2;
@@ -300,9 +300,11 @@ static void edge_box(const dcpt *d, const uint32_t *L, uint32_t n, const double 
                 s[3][a] = R * (g1[a] + g2[a]) / (1 + c);
             }
             ns = 4;
+            ax = axis_of(s[3], true);
         }
     }
     box_pts(base, 2, (const double (*)[3])s, ns, lo, hi);
+    return ax;
 }
 
 /* Edge e's wedge: the slab between P and Q, outside the edge in each of
@@ -318,14 +320,15 @@ static void edge_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t e
     double len = sqrt(dot3(u, u));
     if (!(len > 0)) return; /* a point: its vertex's region */
     for (int c = 0; c < 3; c++) u[c] /= len;
-    edge_box(d, L, n, P, Q, R, lo, hi);
+    int ax = edge_box(d, L, n, P, Q, u, R, lo, hi);
     if (!new_feat(d, t, lo, hi, L, n, 2, P, u)) return;
     dfeat *f = &d->f[d->nf - 1];
+    f->ax = ax;
     double nu[3] = {-u[0], -u[1], -u[2]};
     add_hs(d, nu, -dot3(u, P) + DIST_SLOP);
     add_hs(d, u, dot3(u, Q) + DIST_SLOP);
     f->nh = 2;
-    for (uint32_t j = 0; j < n && f->nh < FEAT_MAXH; j++) {
+    for (uint32_t j = 0; j < n && f->nh < DIST_MAXH; j++) {
         const dtri *r = &d->tri[L[j] >> 2];
         const double *m = r->m[L[j] & 3];
         if (r->deg) continue;
@@ -340,8 +343,8 @@ static void edge_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t e
 static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v, double R)
 {
     const uint32_t *L = a->vl + a->vs[v];
-    uint32_t n = a->vs[v + 1] - a->vs[v], seen[FEAT_MAXH];
-    double V[3], lo[3], hi[3];
+    uint32_t n = a->vs[v + 1] - a->vs[v], seen[DIST_MAXH];
+    double V[3], lo[3], hi[3], axis[3] = {0, 0, 0};
     vpos(t, a->vid[v], V);
     for (int c = 0; c < 3; c++) lo[c] = V[c] - R, hi[c] = V[c] + R;
     if (!new_feat(d, t, lo, hi, L, n, 1, V, NULL)) return;
@@ -350,7 +353,7 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
         for (uint32_t s = 1; s < 3; s++) {
             uint32_t w = a->cv[3 * (L[j] >> 2) + ((L[j] & 3) + s) % 3], dup = w == v;
             for (uint32_t q = 0; q < f->nh && !dup; q++) dup = seen[q] == w;
-            if (dup || f->nh == FEAT_MAXH) continue;
+            if (dup || f->nh == DIST_MAXH) continue;
             double W[3], u[3];
             vpos(t, a->vid[w], W);
             for (int c = 0; c < 3; c++) u[c] = W[c] - V[c];
@@ -359,7 +362,9 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
             for (int c = 0; c < 3; c++) u[c] /= len;
             add_hs(d, u, dot3(u, V) + DIST_SLOP);
             seen[f->nh++] = w;
+            for (int c = 0; c < 3; c++) axis[c] -= u[c];
         }
+    f->ax = axis_of(axis, true); /* the cone's, about the opposite of its edges */
 }
 
 /* Each region into the bricks its box meets, in the regions' order (a
@@ -417,7 +422,7 @@ int dcpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
     free(tid);
     size_t nt = (size_t)d->ntri + 1;
     d->f = malloc((nt + a.ne + a.nv) * sizeof *d->f);
-    d->hs = malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)FEAT_MAXH * a.nv) * sizeof *d->hs);
+    d->hs = malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)DIST_MAXH * a.nv) * sizeof *d->hs);
     d->tl = malloc(7 * nt * sizeof *d->tl);
     if (!rc && (!d->f || !d->hs || !d->tl)) rc = -ENOMEM;
     double R = K + DIST_SLOP;

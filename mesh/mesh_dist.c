@@ -92,75 +92,138 @@ static uint32_t fbits(float f)
 #define MAXD(a, b) ((a) > (b) ? (a) : (b))
 #define MIND(a, b) ((a) < (b) ? (a) : (b))
 
-/* The x (voxel centres, absolute) of row (py, pz) inside region f:
- * [*x0, *x1] narrowed by its half spaces and its ball or cylinder; false
- * when nothing is left. */
-static bool row_span(const dcpt *d, const dfeat *f, double py, double pz, double R2, double *x0,
-                     double *x1)
+/* The span along f->ax (voxel centres, absolute) of the row at pu, pv on
+ * the two other axes u, v inside region f: [*s0, *s1] narrowed by its
+ * half spaces and its ball or cylinder; false when nothing is left. */
+static bool row_span(const dcpt *d, const dfeat *f, int u, int v, double pu, double pv,
+                     double R2, double *s0, double *s1)
 {
-    double lo = *x0, hi = *x1;
+    int ax = f->ax;
+    double lo = *s0, hi = *s1;
     for (uint32_t j = 0; j < f->nh; j++) {
         const double *h = d->hs[f->h0 + j];
-        double s = h[3] - h[1] * py - h[2] * pz;
-        if (h[0] > 0) {
-            double q = s / h[0];
+        double s = h[3] - h[u] * pu - h[v] * pv;
+        if (h[ax] > 0) {
+            double q = s / h[ax];
             hi = q < hi ? q : hi;
-        } else if (h[0] < 0) {
-            double q = s / h[0];
+        } else if (h[ax] < 0) {
+            double q = s / h[ax];
             lo = q > lo ? q : lo;
         } else if (s < 0) {
             return false;
         }
         if (!(lo <= hi)) return false;
     }
-    double qy = py - f->c[1], qz = pz - f->c[2], r;
+    double qu = pu - f->c[u], qv = pv - f->c[v], r;
     if (f->quad == 1) { /* within R of c: a ball */
-        double s = R2 - qy * qy - qz * qz;
+        double s = R2 - qu * qu - qv * qv;
         if (s < 0) return false;
         r = sqrt(s);
-        lo = MAXD(lo, f->c[0] - r), hi = MIND(hi, f->c[0] + r);
+        lo = MAXD(lo, f->c[ax] - r), hi = MIND(hi, f->c[ax] + r);
     } else if (f->quad == 2) { /* within R of the line c + s u: A q^2 + B q + C < 0 */
-        double w = qy * f->u[1] + qz * f->u[2], A = 1 - f->u[0] * f->u[0];
-        double B = -2 * f->u[0] * w, C = qy * qy + qz * qz - w * w - R2;
-        if (A > 1e-6) { /* else the line runs along x: its slab bounds the row */
+        double w = qu * f->u[u] + qv * f->u[v], A = 1 - f->u[ax] * f->u[ax];
+        double B = -2 * f->u[ax] * w, C = qu * qu + qv * qv - w * w - R2;
+        if (A > 1e-6) { /* else the line runs along the row: its slab bounds it */
             double disc = B * B - 4 * A * C;
             if (disc < 0) return false;
             r = sqrt(disc);
-            lo = MAXD(lo, f->c[0] + (-B - r) / (2 * A));
-            hi = MIND(hi, f->c[0] + (-B + r) / (2 * A));
+            lo = MAXD(lo, f->c[ax] + (-B - r) / (2 * A));
+            hi = MIND(hi, f->c[ax] + (-B + r) / (2 * A));
         } else if (C > 0) {
             return false;
         }
     }
-    *x0 = lo, *x1 = hi;
+    *s0 = lo, *s1 = hi;
     return lo <= hi;
 }
 
+/* The rows of region f in the slice at pv (axis v) whose span along ax can
+ * be non-empty: [*u0, *u1] on axis u narrowed to the projection of the
+ * slice's polygon, its half spaces a_u q_u + a_s q_s <= c (q = p - f->c,
+ * the span [s0, s1] two more) with q_s eliminated (Fourier-Motzkin: each
+ * upper bound of q_s against each lower one), and the ball's disc; false
+ * when the slice holds none.  Most vertices' cones are empty, and their
+ * slices say so without a row visited (for the edges' wedges it pays
+ * less, for the faces' prisms not at all: most of their rows are). */
+static bool slice_span(const dcpt *d, const dfeat *f, int u, int v, double pv, double s0,
+                       double s1, double R2, double *u0, double *u1)
+{
+    int ax = f->ax;
+    uint32_t n = f->nh;
+    double au[DIST_MAXH + 2], as[DIST_MAXH + 2], c[DIST_MAXH + 2];
+    double qv = pv - f->c[v], lo = *u0 - f->c[u], hi = *u1 - f->c[u];
+    for (uint32_t j = 0; j < n; j++) {
+        const double *h = d->hs[f->h0 + j];
+        au[j] = h[u], as[j] = h[ax];
+        c[j] = h[3] - dot3(h, f->c) - h[v] * qv;
+    }
+    au[n] = 0, as[n] = 1, c[n] = s1 - f->c[ax];
+    au[n + 1] = 0, as[n + 1] = -1, c[n + 1] = f->c[ax] - s0;
+    for (uint32_t j = 0; j < n + 2; j++) {
+        double al = au[j], be = c[j]; /* al q_u <= be */
+        if (as[j] != 0) {
+            if (as[j] < 0) continue;
+            for (uint32_t k = 0; k < n + 2; k++) {
+                if (!(as[k] < 0)) continue;
+                al = au[j] * -as[k] + au[k] * as[j], be = c[j] * -as[k] + c[k] * as[j];
+                if (al > 0) hi = MIND(hi, be / al);
+                else if (al < 0) lo = MAXD(lo, be / al);
+                else if (be < 0) return false;
+            }
+            if (!(lo <= hi)) return false;
+            continue;
+        }
+        if (al > 0) hi = MIND(hi, be / al);
+        else if (al < 0) lo = MAXD(lo, be / al);
+        else if (be < 0) return false;
+    }
+    if (f->quad == 1) {
+        double r2 = R2 - qv * qv;
+        if (r2 < 0) return false;
+        double r = sqrt(r2);
+        lo = MAXD(lo, -r), hi = MIND(hi, r);
+    }
+    /* a margin far above the rounding of these sums, far below the slop */
+    *u0 = lo + f->c[u] - 1e-7, *u1 = hi + f->c[u] + 1e-7;
+    return *u0 <= *u1;
+}
+
 /* Region f's voxels in brick o (its first tile voxel) lowered to the
- * distance of f's triangles: d2 the brick's squared distances. */
+ * distance of f's triangles: d2 the brick's squared distances (x fastest),
+ * the region scanned in rows along f->ax. */
 static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, const int32_t o[3],
                     double R2, double *d2)
 {
     uint32_t S = t->S;
+    int ax = f->ax, u = (ax + 1) % 3, v = (ax + 2) % 3;
     int32_t lo[3], hi[3];
     for (int a = 0; a < 3; a++) {
         lo[a] = f->i0[a] > o[a] ? f->i0[a] : o[a];
         hi[a] = f->i1[a] < o[a] + (int32_t)S - 1 ? f->i1[a] : o[a] + (int32_t)S - 1;
     }
-    double ox = (double)t->x0 + 0.5; /* centre of tile voxel x: ox + x */
+    /* the centre of tile voxel i along axis a: org[a] + i (exact: halves) */
+    double org[3] = {(double)t->x0 + 0.5, (double)t->y0 + 0.5, 0.5};
+    size_t step[3] = {1, S, (size_t)S * S};
     const uint32_t *tl = d->tl + f->t0;
-    for (int32_t z = lo[2]; z <= hi[2]; z++) {
-        double pz = z + 0.5;
-        for (int32_t y = lo[1]; y <= hi[1]; y++) {
-            double py = (double)(t->y0 + (uint32_t)y) + 0.5, x0 = ox + lo[0], x1 = ox + hi[0];
-            if (!row_span(d, f, py, pz, R2, &x0, &x1)) continue;
-            int32_t a = iceil(x0 - ox, lo[0], hi[0]), b = ifloor(x1 - ox, lo[0], hi[0]);
-            double *row = d2 + ((size_t)(z - o[2]) * S + (size_t)(y - o[1])) * S - o[0];
-            for (int32_t x = a; x <= b; x++) {
-                double p[3] = {ox + x, py, pz};
-                for (uint32_t j = 0; j < f->nt; j++) {
-                    double e = tri_d2(&d->tri[tl[j]], p);
-                    row[x] = e < row[x] ? e : row[x];
+    for (int32_t j = lo[v]; j <= hi[v]; j++) {
+        double u0 = org[u] + lo[u], u1 = org[u] + hi[u];
+        /* a face's rows all meet its prism: no slice test for them */
+        if (f->quad && !slice_span(d, f, u, v, org[v] + j, org[ax] + lo[ax], org[ax] + hi[ax],
+                                   R2, &u0, &u1))
+            continue;
+        int32_t i0 = iceil(u0 - org[u], lo[u], hi[u]), i1 = ifloor(u1 - org[u], lo[u], hi[u]);
+        for (int32_t i = i0; i <= i1; i++) {
+            double p[3], s0 = org[ax] + lo[ax], s1 = org[ax] + hi[ax];
+            p[u] = org[u] + i, p[v] = org[v] + j;
+            if (!row_span(d, f, u, v, p[u], p[v], R2, &s0, &s1)) continue;
+            int32_t a = iceil(s0 - org[ax], lo[ax], hi[ax]), b = ifloor(s1 - org[ax], lo[ax], hi[ax]);
+            double *row = d2 + (size_t)(i - o[u]) * step[u] + (size_t)(j - o[v]) * step[v];
+            for (int32_t k = a; k <= b; k++) {
+                double *e = row + (size_t)(k - o[ax]) * step[ax];
+                p[ax] = org[ax] + k;
+                for (uint32_t q = 0; q < f->nt; q++) {
+                    double x = tri_d2(&d->tri[tl[q]], p);
+                    *e = x < *e ? x : *e;
                 }
             }
         }

@@ -11,6 +11,8 @@
 /* Every region is grown by this much (voxels) in each of its half spaces
  * and its radius: the margin of the rounding (see mesh_cpt.c). */
 #define DIST_SLOP 1e-4
+/* At most this many half spaces a region (more would only shrink it). */
+#define DIST_MAXH 16
 
 /* A triangle in voxel units: vertex a, edges ab and ac, its unit normal
  * (0 when degenerate), and the voxel centres its box grown by the band
@@ -26,12 +28,15 @@ typedef struct {
 
 /* A region of the closest-point transform: the voxels of box [i0, i1]
  * (tile voxels) inside the half spaces a . p <= b of hs[h0 .. h0 + nh)
- * and, quad 1, within r of point c, quad 2, within r of the line c + s u;
- * each such voxel takes the distance of the triangles tl[t0 .. t0 + nt). */
+ * and, quad 1, within r of point c, quad 2, within r of the line c + s u
+ * (quad 0: c a point of the region, the origin of its slices' arithmetic);
+ * each such voxel takes the distance of the triangles tl[t0 .. t0 + nt).
+ * It is scanned in rows along axis ax: the one its region is longest
+ * along, so that the rows are few. */
 typedef struct {
     int32_t i0[3], i1[3];
     uint32_t h0, nh, t0, nt;
-    int quad;
+    int quad, ax;
     double c[3], u[3];
 } dfeat;
 
@@ -57,6 +62,14 @@ typedef struct {
  * any case). */
 int dcpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d);
 void dcpt_free(dcpt *d);
+
+/* The axis of v's largest (ax 1) or smallest (ax 0) component. */
+static inline int axis_of(const double v[3], bool largest)
+{
+    double a = v[0] < 0 ? -v[0] : v[0], b = v[1] < 0 ? -v[1] : v[1], c = v[2] < 0 ? -v[2] : v[2];
+    if (largest) return a >= b && a >= c ? 0 : b >= c ? 1 : 2;
+    return a <= b && a <= c ? 0 : b <= c ? 1 : 2;
+}
 
 static inline double dot3(const double *u, const double *v)
 {
