@@ -170,7 +170,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         engine_lazy_release(*e); /* nothing to give back before we exit */
         engine_iso_job job = {.file = f, .p = p, .cancel = &cli_interrupt};
         rc = engine_iso(*e, &job, m, r);
-        if (rc) snprintf(err, sizeof err, "%s", r->error);
+        if (rc) snprintf(err, sizeof err, "%s", r->err.msg);
     } else {
         double c0 = clock_thread_cpu();
         void *mem = NULL;
