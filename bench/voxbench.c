@@ -188,7 +188,7 @@ static engine_pipeline_report time_pipeline(engine *e, const shape *s, const exp
         uint64_t bytes = 0;
         vod_sink sink = {null_write, &bytes};
         double t0 = now();
-        if (engine_pipeline_run(e, &job, &sink, &runs[i])) die("job", runs[i].err.message);
+        if (engine_pipeline_run(e, &job, &sink, &runs[i])) die("job", runs[i].err.msg);
         secs[i] = now() - t0;
     }
     *whole = median(secs, REPEATS);
@@ -410,7 +410,7 @@ static void bench_vod(uint32_t res, int max_workers)
             vod_stats st;
             engine_error err;
             double t0 = now();
-            if (engine_write_vod(e, &p, &sink, &st, &err)) die("write", err.message);
+            if (engine_write_vod(e, &p, &sink, &st, &err)) die("write", err.msg);
             double wt = now() - t0;
             close(fd);
             uint64_t vox, raw_bytes;

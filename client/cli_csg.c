@@ -216,13 +216,13 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     if (e) engine_lazy_release(e); /* nothing to give back before we exit */
     rc = engine_pipeline_run(e, &job, &sink, &r);
     engine_abandon(e); /* its end is not waited for: the file is */
-    const char *why = rc ? r.err.message : NULL;
+    const char *why = rc ? r.err.msg : NULL;
     if (rc || cli_interrupted()) outfile_abort(&f);
     else if ((rc = outfile_commit(&f, o->out))) why = strerror(-rc);
     if (cli_interrupted()) cli_end_interrupted(o->out);
     if (rc) {
         cli_error("%s: %s", o->out, why);
-        return r.err.failure == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
+        return r.err.kind == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
     }
     if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the tree meets its box (see --domain)", o->out);
     if (o->quiet) return CLI_EXIT_OK;

@@ -219,7 +219,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
             if (rc) atomic_store_explicit(&w->weld.stop, 1, memory_order_relaxed);
             pthread_join(w->thread, NULL);
         }
-        if (rc) snprintf(err, sizeof err, "%s", r->error);
+        if (rc) snprintf(err, sizeof err, "%s", r->err.msg);
     } else {
         double c0 = clock_thread_cpu();
         void *mem = NULL;

@@ -73,9 +73,9 @@ static int run_job(const voxelize_opts *o, const engine_pipeline_job *job, outfi
     engine_abandon(e); /* its end is not waited for: the file is */
     if (rc == 0 || cli_interrupted()) return rc;
     if (r->stage == ENGINE_PIPELINE_WRITE)
-        cli_error("cannot write %s: %s", o->out, r->err.message);
+        cli_error("cannot write %s: %s", o->out, r->err.msg);
     else
-        cli_error("voxelization failed: %s", r->err.message);
+        cli_error("voxelization failed: %s", r->err.msg);
     return rc;
 }
 

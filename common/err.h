@@ -9,10 +9,10 @@
  * "...", ...);`.  A formatter that keeps state of its own (a position, the
  * first failure only) calls err_vfmt.
  *
- * engine/ (engine_error, engine_result's own message) adopts it after the
- * kind table's merge; the structures that carry a position (mesh_error,
- * expr_error, csg_error) keep their own buffer sizes, their messages being
- * part of what users see. */
+ * engine_error is one (its kind an engine_failure), and so is the error of
+ * engine_result and engine_pipeline_report; the structures that carry a
+ * position (mesh_error, expr_error, csg_error) keep their own buffer sizes,
+ * their messages being part of what users see. */
 #ifndef VOXD_ERR_H
 #define VOXD_ERR_H
 

@@ -329,14 +329,14 @@ static int failure_code(const daemon_job *j, const result_sink *rs, engine_failu
 static int job_failed(daemon_job *j, const result_sink *rs, const engine_pipeline_report *r)
 {
     const engine_error *err = &r->err;
-    int code = failure_code(j, rs, err->failure);
+    int code = failure_code(j, rs, err->kind);
     /* a cancel shows as the engine's, or as the sink's refusal */
-    if (err->failure == ENGINE_CANCELLED || (err->failure == ENGINE_SINK && j->cancel_code))
+    if (err->kind == ENGINE_CANCELLED || (err->kind == ENGINE_SINK && j->cancel_code))
         return daemon_job_stopped(j), -1;
-    if (r->stage == ENGINE_PIPELINE_GRID) return job_error(j, code, "%s", err->message);
-    if (err->failure == ENGINE_CRASHED)
+    if (r->stage == ENGINE_PIPELINE_GRID) return job_error(j, code, "%s", err->msg);
+    if (err->kind == ENGINE_CRASHED)
         return job_error(j, code, "this job kills its workers: %s; the daemon goes on",
-                         err->message);
+                         err->msg);
     if (rs->over)
         return job_error(j, code,
                          "the result is over this server's max_result_bytes (%llu bytes); "
@@ -354,8 +354,8 @@ static int job_failed(daemon_job *j, const result_sink *rs, const engine_pipelin
                          "try again later",
                          (unsigned long long)(rs->room >> 20));
     if (r->stage == ENGINE_PIPELINE_VOXELIZE)
-        return job_error(j, code, "voxelization failed: %s", err->message);
-    return job_error(j, code, "cannot write the VOD: %s", err->message);
+        return job_error(j, code, "voxelization failed: %s", err->msg);
+    return job_error(j, code, "cannot write the VOD: %s", err->msg);
 }
 
 /* The job through the pipeline into its memfd, its outcome in j. */
@@ -436,8 +436,8 @@ static void copy_result(daemon_job *j, int in, uint64_t room)
         return;
     }
     engine_pipeline_report r = {.stage = ENGINE_PIPELINE_WRITE};
-    r.err.failure = ENGINE_SINK;
-    snprintf(r.err.message, sizeof r.err.message, "%s", strerror(-rc));
+    r.err.kind = ENGINE_SINK;
+    snprintf(r.err.msg, sizeof r.err.msg, "%s", strerror(-rc));
     job_failed(j, &rs, &r);
 }
 
@@ -478,7 +478,7 @@ static void run_mpi(daemon_ctx *d, const daemon_mpi *m, daemon_job *j, engine_pi
     vod_params v;
     char meta[JOB_META_MAX];
     if (engine_pipeline_plan(job, &r, &v, meta)) {
-        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", r.err.message);
+        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", r.err.msg);
         return;
     }
     j->grid = r.grid;

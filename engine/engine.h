@@ -68,6 +68,7 @@
 #include <stdint.h>
 
 #include "csg.h"
+#include "err.h"
 #include "expr.h"
 #include "grid.h"
 #include "iso.h"
@@ -157,11 +158,10 @@ typedef enum {
                            broke the protocol or failed */
 } engine_failure;
 
-typedef struct {
-    engine_failure failure;
-    int code;           /* the negative errno returned with it, 0 if none */
-    char message[256];  /* what happened and what to change; "" if none */
-} engine_error;
+/* The engine's error is the project's (common/err.h): code the negative
+ * errno returned with it (0 if none), kind its engine_failure (ENGINE_OK
+ * if none), msg what happened and what to change ("" if none). */
+typedef err_info engine_error;
 
 /* "cancelled", "bad job", ...: for logs. */
 const char *engine_failure_name(engine_failure f);
@@ -206,8 +206,8 @@ typedef struct {
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
     engine_figures fig;      /* the job's kind's own figures */
-    engine_failure failure;  /* why engine_voxelize failed (ENGINE_OK if not) */
-    char error[256];         /* ... in words ("" if it did not fail) */
+    engine_error err;        /* why engine_voxelize failed (kind ENGINE_OK,
+                                msg "" if it did not) */
 } engine_result;
 
 /* Must be called from a thread that outlives the engine: the workers get
@@ -268,7 +268,7 @@ int engine_worker_info_get(const engine *e, int i, engine_worker_info *out);
 int engine_check_workers(engine *e);
 
 /* Voxelize job; the octree stays in shared memory until the next job.
- * Returns 0, or a negative errno with r->failure and r->error saying why:
+ * Returns 0, or a negative errno with r->err saying why (its kind):
  * ENGINE_CANCELLED, ENGINE_BAD_JOB, ENGINE_LIMIT (octree or work stack
  * full: the message says what to raise), ENGINE_CRASHED (an octant killed
  * its worker twice: the message names it), ENGINE_FAULT; the engine is then

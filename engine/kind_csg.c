@@ -243,7 +243,7 @@ static int start_mesh_leaf(engine *e, csg_job *cj, uint32_t i)
 {
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     const engine_csg_job *j = cj->job;
-    char msg[sizeof e->err.message];
+    char msg[sizeof e->err.msg];
     mesh m;
     mesh_vox_opts o;
     int rc = csg_leaf_mesh(j->tree, i, &m, &o, msg, sizeof msg);
@@ -288,7 +288,7 @@ static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     const engine_csg_job *j = cj->job;
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    char msg[sizeof e->err.message];
+    char msg[sizeof e->err.msg];
     vod_volume *lv;
     if (cj->off >= end || vod_volume_init(&lv, shm_at(e->seg.base, cj->off), end - cj->off,
                                           j->grid.res, 8, CSG_VOLUME_BRICK))
@@ -372,15 +372,15 @@ static void csg_done(engine *e, int i, const shm_task *t, int error)
     if (t->op == CSG_BRICKS) cj->done++;
     /* the mesh leaf's last tile in: the next leaf, or the bricks */
     if (t->op == CSG_LEAF_TILES && ++cj->leaf_done == cj->leaf_tasks && !error &&
-        !e->err.failure && !end_mesh_leaf(e, cj))
+        !e->err.kind && !end_mesh_leaf(e, cj))
         next_phase(e, cj); /* a failure fails the job there */
     /* the last brick in: the workers build the low mip levels */
-    if (!error && !e->err.failure && cj->done == cj->ntasks && !cj->mips_pushed &&
+    if (!error && !e->err.kind && cj->done == cj->ntasks && !cj->mips_pushed &&
         b->mip_levels) {
         cj->mips_pushed = 1;
         push_mips(e, b); /* a full stack fails the job there */
     }
-    if (!error || e->err.failure) return;
+    if (!error || e->err.kind) return;
     char what[64];
     csg_describe(t, what, sizeof what);
     if (error == -ENOMEM)
@@ -468,7 +468,7 @@ static int csg_domain(const engine_pipeline_job *job, double lo[3], double hi[3]
     if (engine_pipeline_band(job) > VOXEL_BAND_MAX)
         return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
                              engine_pipeline_band(job), VOXEL_BAND_MAX);
-    char why[sizeof r->err.message - 32];
+    char why[sizeof r->err.msg - 32];
     int rc = csg_dist_check(job->csg.tree, why, sizeof why);
     if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "the distance channel: %s", why);
     return 0;
@@ -525,7 +525,7 @@ static int serial_leaves(const engine_pipeline_job *job, engine_pipeline_report 
                  : MAP_FAILED;
     if (*arena == MAP_FAILED)
         return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
-    char msg[sizeof r->err.message];
+    char msg[sizeof r->err.msg];
     size_t used;
     int rc = csg_leaves_build(t, &r->grid, *arena, *abytes, leaves, &used, msg, sizeof msg);
     if (rc)

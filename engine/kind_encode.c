@@ -230,7 +230,7 @@ static int setup_octree(engine *e, encode_job *ej)
 static int setup_volume(engine *e, encode_job *ej)
 {
     vod_source src = vod_volume_source(e->volume);
-    char msg[sizeof e->err.message];
+    char msg[sizeof e->err.msg];
     double t0 = clock_now();
     int rc = vod_prepare(&src, &ej->L, ej->p->channel, msg, sizeof msg);
     ej->t.fill += clock_now() - t0;
@@ -275,7 +275,7 @@ static void encode_done(engine *e, int i, const shm_task *t, int error)
 {
     encode_job *ej = e->job;
     (void)i, (void)error;
-    if (t->op != ENCODE_AGGREGATE || --ej->agg_left > 0 || e->err.failure) return;
+    if (t->op != ENCODE_AGGREGATE || --ej->agg_left > 0 || e->err.kind) return;
     aggregate_rest(e, ej);
 }
 
@@ -367,7 +367,7 @@ static void add_times(encode_block *b, encode_job *ej)
 static int assemble(engine *e, encode_job *ej, const uint8_t **data)
 {
     encode_block *b = engine_sched_block(e);
-    char msg[sizeof ej->err->message] = "";
+    char msg[sizeof ej->err->msg] = "";
     vod_assembly a = {.L = &b->L, .p = ej->p, .n = b->n,
                       .nodes = shm_at(e->seg.base, b->nodes_off),
                       .recs = shm_at(e->seg.base, b->recs_off), .data = data,
@@ -457,13 +457,13 @@ static int encode_run(engine *e, encode_job *ej, const engine_sched_watch *w)
     vod_source src = result_source(e);
     int rc = -EINVAL;
     if (e->result == RESULT_NONE)
-        snprintf(err->message, sizeof err->message,
+        snprintf(err->msg, sizeof err->msg,
                  "nothing to write: the last job failed or there was none");
-    else if (!(rc = vod_layout_make(p, src.depth, &ej->L, err->message,
-                                    sizeof err->message)))
-        rc = vod_check_source(&src, p, err->message, sizeof err->message);
+    else if (!(rc = vod_layout_make(p, src.depth, &ej->L, err->msg,
+                                    sizeof err->msg)))
+        rc = vod_check_source(&src, p, err->msg, sizeof err->msg);
     if (rc) {
-        err->failure = ENGINE_BAD_JOB;
+        err->kind = ENGINE_BAD_JOB;
         err->code = rc;
         return rc;
     }

@@ -108,7 +108,7 @@ static int iso_setup(engine *e, void *job)
     atomic_store_explicit(&b->bump, 0, memory_order_relaxed);
     ij->t_setup = clock_now();
     ij->bricks_left = push_all(e, ISO_BRICKS);
-    return e->err.failure ? e->err.code : 0;
+    return e->err.kind ? e->err.code : 0;
 }
 
 static int iso_take(engine *e, int i, const shm_entry *en)
@@ -293,7 +293,7 @@ static void iso_done(engine *e, int i, const shm_task *t, int error)
 {
     iso_job *ij = e->job;
     (void)i, (void)error;
-    if (t->op != ISO_BRICKS || --ij->bricks_left > 0 || e->err.failure) return;
+    if (t->op != ISO_BRICKS || --ij->bricks_left > 0 || e->err.kind) return;
     if (prepare_weld(e, ij)) return;
     push_all(e, ISO_WELD);
     announce(e, ij);

@@ -160,7 +160,7 @@ static int mesh_setup(engine *e, void *job)
 {
     mesh_job *mj = job;
     const engine_mesh_job *j = mj->job;
-    char msg[sizeof e->err.message];
+    char msg[sizeof e->err.msg];
     e->result = RESULT_NONE;
     engine_sched_hold(e, 0); /* the last job's result: overwritten now */
     if (!j->mesh || !j->mesh->n_triangles || grid_check(&j->grid))
@@ -220,7 +220,7 @@ static void mesh_done(engine *e, int i, const shm_task *t, int error)
 {
     mesh_job *mj = e->job;
     mj->done++;
-    if (!error || e->err.failure) return;
+    if (!error || e->err.kind) return;
     char what[64];
     mesh_describe(t, what, sizeof what);
     if (error == -ENOMEM)
@@ -322,7 +322,7 @@ static int mesh_domain(const engine_pipeline_job *job, double lo[3], double hi[3
 {
     if (!job->mesh.mesh || !job->mesh.mesh->n_triangles)
         return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
-    char err[sizeof r->err.message];
+    char err[sizeof r->err.msg];
     if (mesh_vox_check(&job->mesh.opts, err, sizeof err))
         return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err);
     r->fig.mesh.triangles = job->mesh.mesh->n_triangles;

@@ -95,8 +95,8 @@ static int run_engine(engine *e, const engine_kind *k, engine_pipeline_job *run,
     r->workers = engine_workers(e);
     int rc = k->voxelize(e, run, &w, &er, r);
     engine_figures_common(r, &er);
-    if (rc && r->err.failure) return rc; /* the kind said why */
-    if (rc) return engine_pipeline_fail(r, er.failure, rc, "%s", er.error);
+    if (rc && r->err.kind) return rc; /* the kind said why */
+    if (rc) return engine_pipeline_fail(r, er.err.kind, rc, "%s", er.err.msg);
     r->stage = ENGINE_PIPELINE_WRITE;
     sp.stage = ENGINE_PIPELINE_WRITE;
     sp.voxels = er.voxels;
@@ -123,7 +123,7 @@ int engine_pipeline_plan(const engine_pipeline_job *job, engine_pipeline_report 
     memcpy(hi, job->hi, sizeof hi);
     int rc = k->domain(job, lo, hi, r); /* its checks, and its domain if its own */
     if (rc) return rc;
-    char err[sizeof r->err.message];
+    char err[sizeof r->err.msg];
     rc = grid_make(lo, hi, job->res, &r->grid, err, sizeof err);
     if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "%s", err);
     vod_setup(v, job, lo, hi, &r->grid, meta); /* the job as asked for */

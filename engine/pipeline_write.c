@@ -11,11 +11,10 @@
 
 int engine_pipeline_fail(engine_pipeline_report *r, engine_failure f, int rc, const char *fmt, ...)
 {
-    r->err.failure = f;
-    r->err.code = rc;
+    r->err.kind = f;
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(r->err.message, sizeof r->err.message, fmt, ap);
+    r->err.code = err_vfmt(r->err.msg, sizeof r->err.msg, rc, fmt, ap);
     va_end(ap);
     return rc;
 }
@@ -41,7 +40,7 @@ int engine_pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, 
     r->stage = ENGINE_PIPELINE_WRITE;
     watched_sink w = {sink, 0};
     vod_sink ws = {watched_write, &w};
-    char err[sizeof r->err.message] = "";
+    char err[sizeof r->err.msg] = "";
     double t0 = clock_now();
     int rc = t ? vod_write_octree(t, v, &ws, &r->st, err, sizeof err)
                : vod_write(s, v, &ws, &r->st, err, sizeof err);

@@ -43,18 +43,17 @@ const char *engine_failure_name(engine_failure f)
 
 int engine_sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
 {
-    if (e->err.failure) return e->err.code; /* the first is the one told */
-    e->err.failure = f;
-    e->err.code = rc;
+    if (e->err.kind) return e->err.code; /* the first is the one told */
+    e->err.kind = f;
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(e->err.message, sizeof e->err.message, fmt, ap);
+    e->err.code = err_vfmt(e->err.msg, sizeof e->err.msg, rc, fmt, ap);
     va_end(ap);
     /* every limit of the segment says "shared memory": name the way to
      * raise it, the caller's (--shm-size, voxd.conf's shm_size) */
-    size_t n = strlen(e->err.message);
-    if (f == ENGINE_LIMIT && e->shm_option && strstr(e->err.message, "shared memory"))
-        snprintf(e->err.message + n, sizeof e->err.message - n, " (%s)", e->shm_option);
+    size_t n = strlen(e->err.msg);
+    if (f == ENGINE_LIMIT && e->shm_option && strstr(e->err.msg, "shared memory"))
+        snprintf(e->err.msg + n, sizeof e->err.msg - n, " (%s)", e->shm_option);
     return rc;
 }
 
@@ -147,8 +146,7 @@ void engine_sched_job_totals(engine *e, engine_result *r)
 
 int engine_sched_job_failed(engine *e, engine_result *r, int rc)
 {
-    r->failure = e->err.failure;
-    snprintf(r->error, sizeof r->error, "%s", e->err.message);
+    r->err = e->err;
     return rc;
 }
 
@@ -212,7 +210,7 @@ static int drain(engine *e, int i, int discard)
                    "worker %d: its queue claims %u entries", i, n);
         discard = 1;
     }
-    for (unsigned k = 0; k < n && !discard && !e->err.failure; k++)
+    for (unsigned k = 0; k < n && !discard && !e->err.kind; k++)
         take(e, i, &s->ent[(tail + k) % QUEUE_ENTRIES]);
     if (n) {
         queue_consumed(&s->q, n);
@@ -376,7 +374,7 @@ int engine_check_workers(engine *e)
     uint32_t restarts = e->restarts;
     memset(&e->err, 0, sizeof e->err);
     check_workers(e, 1);
-    int rc = e->err.failure ? e->err.code : (int)(e->restarts - restarts);
+    int rc = e->err.kind ? e->err.code : (int)(e->restarts - restarts);
     /* Between jobs nothing else reads these: the next job starts afresh. */
     memset(&e->err, 0, sizeof e->err);
     e->restarts = restarts;
@@ -423,8 +421,8 @@ static int run_loop(engine *e)
         int did = 0;
         for (int i = 0; i < e->n; i++)
             if (e->ms[i].busy) did += drain(e, i, 0);
-        if (!e->err.failure) did += assign(e);
-        if (e->err.failure) return e->err.code;
+        if (!e->err.kind) did += assign(e);
+        if (e->err.kind) return e->err.code;
         if (e->nbusy == 0 && e->sp == 0) return 0;
         if (cancelled(e))
             return engine_sched_fail(e, ENGINE_CANCELLED, -ECANCELED,
@@ -504,7 +502,7 @@ int engine_run(engine *e, const engine_kind *k, void *job,
     engine_tidy(e); /* the last job's pages, where the caller left them */
     job_reset(e, k, job, watch);
     check_workers(e, 1); /* any that died since the last job */
-    int rc = e->err.failure ? e->err.code : k->setup(e, job);
+    int rc = e->err.kind ? e->err.code : k->setup(e, job);
     if (!rc) rc = run_loop(e);
     if (e->nbusy) abort_job(e);
     if (!rc) progress(e, 1);

@@ -145,14 +145,14 @@ static int on_engine(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *
     c->voxels = er.voxels;
     if (rc) {
         err_fmt(err, errlen, rc, "voxelizing %s (%u,%u,%u) level %u: %s", task_noun(j), o.x,
-                 o.y, o.z, o.level, er.error);
+                 o.y, o.z, o.level, er.err.msg);
         engine_release(j->e);
         return rc;
     }
     engine_error ee;
     rc = engine_encode_bricks(j->e, &j->vod, hand_over, c, NULL, &ee);
     if (rc) err_fmt(err, errlen, rc, "encoding the bricks of %s (%u,%u,%u) level %u: %s",
-                     task_noun(j), o.x, o.y, o.z, o.level, ee.message);
+                     task_noun(j), o.x, o.y, o.z, o.level, ee.msg);
     engine_release(j->e);
     return rc;
 }

@@ -367,7 +367,7 @@ int mpi_prepare(prep *p, int argc, char **argv)
     char err[256];
     if (engine_pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||
         vod_layout_make(&p->v, p->plan.grid.depth, &p->L, err, sizeof err)) {
-        mpi_msg("%s", p->plan.err.message[0] ? p->plan.err.message : err);
+        mpi_msg("%s", p->plan.err.msg[0] ? p->plan.err.msg : err);
         return CLI_EXIT_USAGE;
     }
     if (p->kind == MPI_KIND_MESH && prepare_bins(p)) return CLI_EXIT_FAILED;

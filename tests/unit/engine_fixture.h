@@ -127,7 +127,7 @@ static inline void run(engine *e, const expr_tape *tape, const grid_spec *g,
 {
     engine_job job = {.tape = tape, .grid = *g, .schedule = s, .split_level = split};
     int rc = engine_voxelize(e, &job, r);
-    cr_assert_eq(rc, 0, "engine_voxelize: %d %s", rc, r->error);
+    cr_assert_eq(rc, 0, "engine_voxelize: %d %s", rc, r->err.msg);
 }
 
 /* ---- progress and cancel ---- */

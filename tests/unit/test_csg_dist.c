@@ -215,7 +215,7 @@ static vod_membuf run(engine *e, const engine_pipeline_job *job)
     engine_pipeline_report r;
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    cr_assert_eq(engine_pipeline_run(e, job, &sink, &r), 0, "%s", r.err.message);
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, &r), 0, "%s", r.err.msg);
     return m;
 }
 

@@ -58,7 +58,7 @@ static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
     cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "csg job on %s: %s",
-                 e ? "an engine" : "no engine", r->err.message);
+                 e ? "an engine" : "no engine", r->err.msg);
     return m;
 }
 
@@ -232,8 +232,8 @@ Test(csg_engine, a_cancelled_job_fails_typed_and_the_engine_goes_on)
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
     engine_pipeline_report r;
-    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), -ECANCELED, "%s", r.err.message);
-    cr_assert_eq(r.err.failure, ENGINE_CANCELLED);
+    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), -ECANCELED, "%s", r.err.msg);
+    cr_assert_eq(r.err.kind, ENGINE_CANCELLED);
     job.cancel = NULL;
     engine_pipeline_report r0;
     vod_membuf ref = run(NULL, &job, &r0), mb = run(e, &job, &r);
@@ -253,16 +253,16 @@ Test(csg_engine, bad_csg_jobs_fail_typed)
     engine_pipeline_report r;
     engine_pipeline_job job = csg_job(t, 32, 5);
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.err.message, "density, occupancy, surface or distance"), "%s",
-              r.err.message);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
+    cr_assert(strstr(r.err.msg, "density, occupancy, surface or distance"), "%s",
+              r.err.msg);
     job = csg_job(t, 32, VOXEL_CH_DISTANCE); /* primitives have no distance (yet) */
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -ENOTSUP);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.err.message, "the distance channel: node '"), "%s", r.err.message);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
+    cr_assert(strstr(r.err.msg, "the distance channel: node '"), "%s", r.err.msg);
     job = csg_job(NULL, 32, VOXEL_CH_DENSITY);
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_GRID);
     free(out.p);
     csg_tree_free(t);
@@ -281,7 +281,7 @@ Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
     vod_sink sink = {vod_mem_write, &out};
     engine_pipeline_report r;
     cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
-    cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
+    cr_assert_eq(r.err.kind, ENGINE_LIMIT, "%s", r.err.msg);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     free(out.p);
     engine_destroy(e);

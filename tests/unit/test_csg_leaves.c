@@ -67,7 +67,7 @@ static vod_membuf run(engine *e, const engine_pipeline_job *job)
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
     engine_pipeline_report r;
-    cr_assert_eq(engine_pipeline_run(e, job, &sink, &r), 0, "%s", r.err.message);
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, &r), 0, "%s", r.err.msg);
     return m;
 }
 
@@ -276,19 +276,19 @@ Test(csg_leaves, bad_leaf_files_fail_typed)
     vod_sink sink = {vod_mem_write, &out};
     engine_pipeline_report r;
     cr_assert_lt(engine_pipeline_run(NULL, &job, &sink, &r), 0);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.err.message, "node 'v': vod:"), "%s", r.err.message);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
+    cr_assert(strstr(r.err.msg, "node 'v': vod:"), "%s", r.err.msg);
     engine_opts eo = {.workers = 1, .shm_bytes = (size_t)64 << 20};
     engine *e;
     char err[256];
     cr_assert_eq(engine_create(&eo, &e, err, sizeof err), 0, "%s", err);
     cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB, "%s", r.err.message);
-    cr_assert(strstr(r.err.message, "node 'v': vod:"), "%s", r.err.message);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB, "%s", r.err.msg);
+    cr_assert(strstr(r.err.msg, "node 'v': vod:"), "%s", r.err.msg);
     free(t->data[node_of(t, "m")]);
     t->data[node_of(t, "m")] = NULL; /* no data: refused too */
     cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
-    cr_assert(strstr(r.err.message, "node 'm': no file data"), "%s", r.err.message);
+    cr_assert(strstr(r.err.msg, "node 'm': no file data"), "%s", r.err.msg);
     engine_destroy(e);
     free(out.p);
     csg_tree_free(t);

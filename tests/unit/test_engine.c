@@ -213,8 +213,8 @@ Test(engine, cancel_then_next_job_is_correct)
                           .progress = on_progress, .ud = &w, .cancel = &cancel};
         engine_result r;
         cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED);
-        cr_assert_eq(r.failure, ENGINE_CANCELLED);
-        cr_assert(strstr(r.error, "cancel"), "%s", r.error);
+        cr_assert_eq(r.err.kind, ENGINE_CANCELLED);
+        cr_assert(strstr(r.err.msg, "cancel"), "%s", r.err.msg);
         cr_assert_null(engine_octree(e));
         /* cancelled before it starts */
         cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED);
@@ -242,9 +242,9 @@ Test(engine, small_segments_give_clear_errors)
     engine_job job = {.tape = tape, .grid = g};
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM);
-    cr_assert_eq(r.failure, ENGINE_LIMIT);
-    cr_assert(strstr(r.error, "octree needs more than") &&
-              strstr(r.error, "raise the shared memory size"), "%s", r.error);
+    cr_assert_eq(r.err.kind, ENGINE_LIMIT);
+    cr_assert(strstr(r.err.msg, "octree needs more than") &&
+              strstr(r.err.msg, "raise the shared memory size"), "%s", r.err.msg);
     cr_assert_null(engine_octree(e));
     /* and a small job still runs on it */
     g = grid(32);
@@ -277,15 +277,15 @@ Test(engine, bad_arguments)
     engine_job job = {.tape = tape, .grid = g};
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -EINVAL);
-    cr_assert_eq(r.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(r.error, "grid"), "%s", r.error);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
+    cr_assert(strstr(r.err.msg, "grid"), "%s", r.err.msg);
     vod_params p;
     vod_params_default(&p);
     vod_sink sink = {NULL, NULL};
     engine_error ee;
     cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, &ee), -EINVAL);
-    cr_assert_eq(ee.failure, ENGINE_BAD_JOB);
-    cr_assert(strstr(ee.message, "nothing to write"), "%s", ee.message);
+    cr_assert_eq(ee.kind, ENGINE_BAD_JOB);
+    cr_assert(strstr(ee.msg, "nothing to write"), "%s", ee.msg);
     engine_destroy(e);
     expr_tape_free(tape);
 }
@@ -460,10 +460,10 @@ Test(engine, a_job_too_big_stops_early_and_gives_its_pages_back, .timeout = 60)
     grid_spec g = grid(2048), gs = grid(64);
     engine_job job = {.tape = all, .grid = g};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM, "%s", r.error);
-    cr_assert_eq(r.failure, ENGINE_LIMIT);
-    cr_assert(strstr(r.error, "would need at least") && strstr(r.error, "256 MiB there are"),
-              "%s", r.error);
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM, "%s", r.err.msg);
+    cr_assert_eq(r.err.kind, ENGINE_LIMIT);
+    cr_assert(strstr(r.err.msg, "would need at least") && strstr(r.err.msg, "256 MiB there are"),
+              "%s", r.err.msg);
     long long fixed = (long long)((shm_min_bytes(2) - SHM_MIN_DATA + 4096 + 4095) / 512);
     cr_assert_leq(shm_blocks(path), fixed, "%lld blocks", shm_blocks(path));
     ref_tree ref;
@@ -520,7 +520,7 @@ static void vod_same(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
     char err[256] = "";
     cr_assert_eq(vod_write_octree(ref, &p, &sa, &st_a, err, sizeof err), 0, "%s", err);
     engine_error ee;
-    cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, &ee), 0, "%s", ee.message);
+    cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, &ee), 0, "%s", ee.msg);
     cr_assert_eq(a.n, b.n, "sizes %zu vs %zu", a.n, b.n);
     cr_assert_eq(memcmp(a.p, b.p, a.n), 0, "VOD bytes differ");
     cr_assert_eq(st_a.crc32, st_b.crc32);
@@ -613,9 +613,9 @@ Test(engine, vod_sink_errors_are_the_sinks)
     engine_error ee;
     cr_assert_eq(engine_write_vod(e, &p, &sink, NULL, &ee), -EFBIG);
     cr_assert_eq(calls, 1);
-    cr_assert_eq(ee.failure, ENGINE_SINK);
+    cr_assert_eq(ee.kind, ENGINE_SINK);
     cr_assert_eq(ee.code, -EFBIG);
-    cr_assert_str_eq(ee.message, strerror(EFBIG));
+    cr_assert_str_eq(ee.msg, strerror(EFBIG));
     engine_destroy(e);
     expr_tape_free(tape);
 }

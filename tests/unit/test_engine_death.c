@@ -55,7 +55,7 @@ Test(engine, a_dead_worker_is_replaced_and_its_octant_redone)
         watch w = {.monotonic = 1, .kill_in = e};
         engine_job job = {.tape = tape, .grid = g, .schedule = (engine_schedule)s,
                           .progress = on_progress, .ud = &w};
-        cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+        cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.err.msg);
         cr_assert(w.killed);
         cr_assert_geq(r.restarts, 1);
         assert_same(&ref.t, engine_octree(e), "after a death in a job");
@@ -100,7 +100,7 @@ Test(engine, check_workers_between_jobs)
     cr_assert_eq(engine_check_workers(e), 0);
     engine_result r;
     engine_job job = {.tape = tape, .grid = g, .progress = check_inside_a_job, .ud = e};
-    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.err.msg);
     cr_assert_eq(r.restarts, 0, "nothing left to restart when the job started");
     assert_same(&ref.t, engine_octree(e), "after a worker forked again between jobs");
     cr_assert_eq(engine_worker_pid(e, 1), fresh);
@@ -143,7 +143,7 @@ Test(engine, a_worker_killed_mid_subtree_resumes_without_duplicates)
     engine_job job = {.tape = tape, .grid = g, .split_level = g.depth,
                       .progress = stop_then_kill, .ud = &st};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.err.msg);
     cr_assert_geq(st.calls, 2);
     cr_assert_eq(r.restarts, 1);
     cr_assert_eq(r.duplicates, 0);
@@ -207,12 +207,12 @@ Test(engine, an_octant_that_kills_its_worker_twice_fails_the_job)
     engine_job job = {.tape = slow, .grid = gs, .split_level = gs.depth,
                       .progress = kill_worker0, .ud = &k};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.error);
-    cr_assert_eq(r.failure, ENGINE_CRASHED);
+    cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.err.msg);
+    cr_assert_eq(r.err.kind, ENGINE_CRASHED);
     cr_assert_eq(k.n, 2);
     cr_assert_eq(r.restarts, 2);
-    cr_assert(strstr(r.error, "octant (0,0,0) level 7 killed its worker twice"), "%s",
-              r.error);
+    cr_assert(strstr(r.err.msg, "octant (0,0,0) level 7 killed its worker twice"), "%s",
+              r.err.msg);
     cr_assert_null(engine_octree(e));
     run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
     cr_assert_eq(r.restarts, 0);
@@ -239,7 +239,7 @@ Test(engine, deaths_on_different_octants_do_not_fail_the_job)
     engine_job job = {.tape = slow, .grid = g, .schedule = ENGINE_SCHED_PAPER,
                       .progress = kill_worker0, .ud = &k, .cancel = &cancel};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED, "%s", r.error);
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED, "%s", r.err.msg);
     cr_assert_eq(k.n, 4);
     cr_assert_eq(r.restarts, 4);
     engine_destroy(e);
@@ -312,7 +312,7 @@ Test(engine, a_stopped_worker_is_replaced_and_the_job_completes, .timeout = 120)
                           .progress = stop_worker0, .ud = &k};
         engine_result r;
         double t0 = now_s();
-        cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.error);
+        cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.err.msg);
         cr_assert_eq(k.n, 1);
         cr_assert_eq(r.stalls, 1);
         cr_assert_geq(r.restarts, 1);
@@ -346,11 +346,11 @@ Test(engine, a_task_that_stalls_its_worker_twice_fails_the_job, .timeout = 120)
     engine_job job = {.tape = slow, .grid = g, .split_level = g.depth,
                       .progress = stop_worker0, .ud = &k};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.error);
-    cr_assert_eq(r.failure, ENGINE_CRASHED);
+    cr_assert_eq(engine_voxelize(e, &job, &r), -EIO, "%s", r.err.msg);
+    cr_assert_eq(r.err.kind, ENGINE_CRASHED);
     cr_assert_eq(r.stalls, 2);
-    cr_assert(strstr(r.error, "octant (0,0,0) level 7 stalled or killed its worker twice"),
-              "%s", r.error);
+    cr_assert(strstr(r.err.msg, "octant (0,0,0) level 7 stalled or killed its worker twice"),
+              "%s", r.err.msg);
     engine_destroy(e);
     expr_tape_free(slow);
 }
@@ -394,7 +394,7 @@ Test(engine, a_cancel_never_waits_on_a_stopped_worker, .timeout = 60)
     engine_job job = {.tape = slow, .grid = gs, .progress = stop_worker0, .ud = &k,
                       .cancel = &cancel};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED, "%s", r.error);
+    cr_assert_eq(engine_voxelize(e, &job, &r), -ECANCELED, "%s", r.err.msg);
     double waited = now_s() - k.t_cancel;
     cr_assert(k.t_cancel > 0);
     cr_assert_lt(waited, 5.0, "the cancel waited %.2f s", waited);

@@ -64,7 +64,7 @@ static void job(engine *e, const expr_tape *tape, const grid_spec *g, vod_membuf
 {
     engine_job j = {.tape = tape, .grid = *g};
     engine_result r;
-    cr_assert_eq(engine_voxelize(e, &j, &r), 0, "%s", r.error);
+    cr_assert_eq(engine_voxelize(e, &j, &r), 0, "%s", r.err.msg);
     vod_params p;
     vod_params_default(&p);
     for (int a = 0; a < 3; a++) {
@@ -77,7 +77,7 @@ static void job(engine *e, const expr_tape *tape, const grid_spec *g, vod_membuf
     vod_sink s = {vod_mem_write, out};
     vod_stats st;
     engine_error ee;
-    cr_assert_eq(engine_write_vod(e, &p, &s, &st, &ee), 0, "%s", ee.message);
+    cr_assert_eq(engine_write_vod(e, &p, &s, &st, &ee), 0, "%s", ee.msg);
 }
 
 static void same(const vod_membuf *a, const vod_membuf *b, const char *what)

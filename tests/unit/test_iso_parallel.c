@@ -63,7 +63,7 @@ Test(iso, the_workers_give_the_serial_mesh_byte_for_byte)
                 polygonize(files[k], 127, level, NULL, NULL, 0, &ref);
                 engine_iso_job job = {.file = files[k], .p = &p};
                 engine_result res;
-                cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+                cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.err.msg);
                 cr_assert(same_mesh(&ref, &m), "file %d level %d, %d workers: another mesh",
                           k, level, w);
                 cr_assert_eq(!m.nrm, k == 0, "normals only from channel 3");
@@ -167,12 +167,12 @@ Test(iso, a_stalled_worker_costs_nothing_but_time)
     cr_assert_eq(kill(engine_worker_pid(e, 0), SIGSTOP), 0);
     engine_iso_job job = {.file = f, .p = &p};
     engine_result res;
-    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.err.msg);
     cr_assert_geq(res.stalls, 1, "the stopped worker was not replaced");
     cr_assert(same_mesh(&ref, &m), "another mesh after a stall");
     iso_mesh_free(&m);
     /* and the engine goes on: the next job on the replaced worker */
-    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.err.msg);
     cr_assert(same_mesh(&ref, &m));
     iso_mesh_free(&m);
     iso_mesh_free(&ref);
@@ -197,8 +197,8 @@ Test(iso, too_small_a_segment_is_a_limit)
     engine_result res;
     iso_mesh m;
     cr_assert_lt(engine_iso(e, &job, &m, &res), 0);
-    cr_assert_eq(res.failure, ENGINE_LIMIT, "%s", res.error);
-    cr_assert(strstr(res.error, "does not fit in shared memory"), "%s", res.error);
+    cr_assert_eq(res.err.kind, ENGINE_LIMIT, "%s", res.err.msg);
+    cr_assert(strstr(res.err.msg, "does not fit in shared memory"), "%s", res.err.msg);
     engine_destroy(e);
     vod_close(f);
 }

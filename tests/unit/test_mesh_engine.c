@@ -55,7 +55,7 @@ static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline
     vod_sink sink = {vod_mem_write, &m};
     cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "%s job on %s: %s",
                  job->kind == ENGINE_PIPELINE_MESH ? "mesh" : "implicit",
-                 e ? "an engine" : "no engine", r->err.message);
+                 e ? "an engine" : "no engine", r->err.msg);
     return m;
 }
 
@@ -157,21 +157,21 @@ Test(mesh_engine, bad_mesh_jobs_fail_typed)
     engine_pipeline_report r;
     job.mesh.pad = 4;
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_GRID);
-    cr_assert(strstr(r.err.message, "padding"), "%s", r.err.message);
+    cr_assert(strstr(r.err.msg, "padding"), "%s", r.err.msg);
     job.mesh.pad = 1;
     uint32_t n = m.n_triangles;
     m.n_triangles = 0;
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
     m.n_triangles = n;
     float flat[3] = {1, 1, 1};
     shape sh_pt;
     mesh pt = box_mesh(&sh_pt, flat, flat);
     job.mesh.mesh = &pt;
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
-    cr_assert(strstr(r.err.message, "bounding box"), "%s", r.err.message);
+    cr_assert(strstr(r.err.msg, "bounding box"), "%s", r.err.msg);
     shape_free(&sh_pt);
     free(out.p);
     shape_free(&sh_m);
@@ -192,7 +192,7 @@ Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
     vod_sink sink = {vod_mem_write, &out};
     engine_pipeline_report r;
     cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
-    cr_assert_eq(r.err.failure, ENGINE_LIMIT, "%s", r.err.message);
+    cr_assert_eq(r.err.kind, ENGINE_LIMIT, "%s", r.err.msg);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     free(out.p);
     engine_destroy(e);
@@ -456,7 +456,7 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
     int rc = engine_pipeline_run(e, &job, &sink, &r);
     engine_worker_info in;
     cr_assert_eq(engine_worker_info_get(e, 0, &in), 0);
-    cr_assert_eq(rc, 0, "%s (quiet %.3f s, state %c)", r.err.message, in.stalled_quiet,
+    cr_assert_eq(rc, 0, "%s (quiet %.3f s, state %c)", r.err.msg, in.stalled_quiet,
                  in.stalled_state);
     cr_log_info("the tile: %.3f s, serially %.3f s", r.t_voxelize, r0.t_voxelize);
     cr_assert_geq(r.t_voxelize, 3 * stall, "the tile took %.3f s: not a long one", r.t_voxelize);

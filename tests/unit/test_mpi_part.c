@@ -393,8 +393,8 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
     engine_pipeline_report r, rr;
     vod_membuf ref = {0};
     vod_sink rs = {vod_mem_write, &ref};
-    cr_assert_eq(engine_pipeline_plan(job, &r, &v, meta), 0, "%s", r.err.message);
-    cr_assert_eq(engine_pipeline_run(NULL, job, &rs, &rr), 0, "%s", rr.err.message);
+    cr_assert_eq(engine_pipeline_plan(job, &r, &v, meta), 0, "%s", r.err.msg);
+    cr_assert_eq(engine_pipeline_run(NULL, job, &rs, &rr), 0, "%s", rr.err.msg);
     vod_layout L;
     cr_assert_eq(vod_layout_make(&v, r.grid.depth, &L, err, sizeof err), 0, "%s", err);
     int columns = j.kind == MPI_KIND_MESH;

@@ -45,8 +45,8 @@ static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline
 {
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "%s", r->err.message);
-    cr_assert_eq(r->err.failure, ENGINE_OK);
+    cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "%s", r->err.msg);
+    cr_assert_eq(r->err.kind, ENGINE_OK);
     cr_assert_eq(r->stage, ENGINE_PIPELINE_WRITE);
     return m;
 }
@@ -106,9 +106,9 @@ Test(pipeline, a_bad_domain_fails_before_any_work)
     vod_sink sink = {vod_mem_write, &m};
     engine_pipeline_report r;
     cr_assert_eq(engine_pipeline_run(NULL, &job, &sink, &r), -EINVAL);
-    cr_assert_eq(r.err.failure, ENGINE_BAD_JOB);
+    cr_assert_eq(r.err.kind, ENGINE_BAD_JOB);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_GRID);
-    cr_assert(strstr(r.err.message, "empty on y"), "%s", r.err.message);
+    cr_assert(strstr(r.err.msg, "empty on y"), "%s", r.err.msg);
     cr_assert_eq(m.n, 0);
     expr_tape_free(t);
 }
@@ -130,7 +130,7 @@ Test(pipeline, a_sink_failure_is_typed_and_staged)
     for (int k = 0; k < 2; k++) {
         engine_pipeline_report r;
         cr_assert_eq(engine_pipeline_run(on[k], &job, &sink, &r), -ENOSPC);
-        cr_assert_eq(r.err.failure, ENGINE_SINK, "%s", engine_failure_name(r.err.failure));
+        cr_assert_eq(r.err.kind, ENGINE_SINK, "%s", engine_failure_name(r.err.kind));
         cr_assert_eq(r.stage, ENGINE_PIPELINE_WRITE);
         cr_assert_gt(r.voxels, 0, "voxelized before writing");
     }
@@ -150,7 +150,7 @@ Test(pipeline, a_cancelled_job_says_so)
     engine *e = make_engine(1);
     engine_pipeline_report r;
     cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), -ECANCELED);
-    cr_assert_eq(r.err.failure, ENGINE_CANCELLED);
+    cr_assert_eq(r.err.kind, ENGINE_CANCELLED);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     cr_assert_eq(m.n, 0);
     engine_destroy(e);
@@ -192,7 +192,7 @@ Test(pipeline, progress_says_done_only_when_the_file_is_written)
     job.ud = &g;
     vod_sink sink = {vod_mem_write, &m};
     engine_pipeline_report r;
-    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), 0, "%s", r.err.message);
+    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), 0, "%s", r.err.msg);
     cr_assert_geq(g.calls, 3);
     cr_assert(g.monotonic);
     cr_assert_eq(g.ones, 1);
