@@ -12,7 +12,8 @@
  * task fields and the queue's consumer index; a worker writes only its own
  * slot's worker fields, its queue entries and producer index, and what its
  * kind's block says it may (the encode kind: the records and bricks it
- * claimed through the block's shared counters).  The master treats what a worker wrote as untrusted.
+ * claimed through the block's shared counters; the implicit kind: the
+ * octree cells of the blocks it claimed).  The master treats what a worker wrote as untrusted.
  *
  * Sleeping: every futex word here is 32 bits and used without
  * FUTEX_PRIVATE_FLAG (the segment is shared between processes).  A side
