@@ -277,7 +277,7 @@ static int dist_brick(mesh_vox_tile *t, const dcpt *d, const mesh_vox_bufs *b, u
     brick_d2(t, d, k, bx, by, bz, K, b->d2);
     if (t->pulse.stop) return -ECANCELED;
     float *out = (float *)(void *)b->brick;
-    double vs = t->g->vs;
+    double vs = t->g->vs, KK = (double)K * K;
     for (uint32_t z = 0; z < S; z++)
         for (uint32_t y = 0; y < S; y++)
             for (uint32_t x = 0; x < S; x++) {
@@ -287,8 +287,13 @@ static int dist_brick(mesh_vox_tile *t, const dcpt *d, const mesh_vox_bufs *b, u
                     out[i] = 0.0f; /* past the grid: 0, as the volume wants */
                     continue;
                 }
-                double e = b->d2[i], dist = sqrt(e);
-                t->st->voxels += e < (double)K * K;
+                double e = b->d2[i];
+                if (!(e < KK)) { /* beyond the band: +-w, the same bits as sqrt(K^2) * vs */
+                    out[i] = inside(t, X, Y, Z) ? -w : w;
+                    continue;
+                }
+                double dist = sqrt(e);
+                t->st->voxels++;
                 out[i] = (float)((inside(t, X, Y, Z) ? -dist : dist) * vs);
             }
     return vod_volume_put_brick(t->vol, at, out);
