@@ -590,7 +590,7 @@ Test(iso, the_engines_mesh_streamed_during_the_weld_is_the_finished_file)
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
     iso_params p;
-    cr_assert_eq(iso_params_make(f, 127, 0, NULL, NULL, 0, &p, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127}, &p, err, sizeof err), 0, "%s", err);
     char path[] = "/tmp/test_iso_weldXXXXXX";
     streamer st = {.fd = mkstemp(path)};
     cr_assert_geq(st.fd, 0);
@@ -599,7 +599,7 @@ Test(iso, the_engines_mesh_streamed_during_the_weld_is_the_finished_file)
                           .laid_out = stream_start};
     engine_result res;
     iso_mesh m;
-    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.error);
+    cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.err.msg);
     cr_assert_eq(st.calls, 1);
     pthread_join(st.t, NULL);
     cr_assert_eq(st.rc, 0);
