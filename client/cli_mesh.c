@@ -207,7 +207,7 @@ static void laid_out(void *ud, const iso_mesh *m)
 static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p,
                       iso_mesh *m, engine_result *r, engine *e, mesh_out *w)
 {
-    char err[256] = "";
+    err_info err = {0};
     int rc;
     memset(r, 0, sizeof *r);
     if (e) {
@@ -219,7 +219,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
             if (rc) atomic_store_explicit(&w->weld.stop, 1, memory_order_relaxed);
             pthread_join(w->thread, NULL);
         }
-        if (rc) snprintf(err, sizeof err, "%s", r->err.msg);
+        if (rc) err = r->err;
     } else {
         double c0 = clock_thread_cpu();
         void *mem = NULL;
@@ -227,8 +227,8 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         double t0 = clock_now();
         rc = iso_input_make(f, p, heap_alloc, &mem, &in);
         double t_in = clock_now() - t0;
-        if (rc) snprintf(err, sizeof err, "out of memory for the file's bricks");
-        else rc = iso_run_serial(p, &in, m, err, sizeof err);
+        if (rc) err_set(&err, rc, "out of memory for the file's bricks");
+        else rc = iso_run_serial(p, &in, m, &err);
         m->t_setup += t_in;
         iso_task *t;
         uint64_t n;
@@ -237,7 +237,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         r->master_cpu = clock_thread_cpu() - c0;
     }
     if (rc && !cli_interrupted())
-        cli_error("%s: marching cubes failed: %s", o->in, err[0] ? err : strerror(-rc));
+        cli_error("%s: marching cubes failed: %s", o->in, err.msg[0] ? err.msg : strerror(-rc));
     return rc;
 }
 
@@ -370,7 +370,6 @@ static int open_both(const mesh_opts *o, vod_file **f, engine **e)
 
 static int run(const mesh_opts *o)
 {
-    char err[512] = "";
     vod_file *f;
     engine *e = NULL;
     double tr = clock_now();
@@ -378,9 +377,10 @@ static int run(const mesh_opts *o)
     iso_params p;
     iso_request rq = {.iso = o->iso, .level = (int)o->level, .center = o->center,
                       .radii = o->radii, .nradii = o->nradii};
-    int rc = iso_params_make(f, &rq, &p, err, sizeof err);
+    err_info pe = {0};
+    int rc = iso_params_make(f, &rq, &p, &pe);
     if (rc) {
-        cli_error("%s: %s", o->in, err);
+        cli_error("%s: %s", o->in, pe.msg);
         engine_abandon(e);
         vod_close(f);
         return CLI_EXIT_USAGE;

@@ -88,10 +88,10 @@ typedef struct {
     uint32_t nradii;
 } iso_request;
 
-/* iso_params of request rq for file f.  0, or -EINVAL with a message: a
- * level past the tree, radii not increasing, a channel that is not 1, 2 or 3. */
-int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p,
-                    char *err, size_t errlen);
+/* iso_params of request rq for file f.  0, or -EINVAL with its message in
+ * e (may be NULL): a level past the tree, radii not increasing, a channel
+ * that is not 1, 2 or 3. */
+int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p, err_info *e);
 
 /* The level the block at block coordinates b uses. */
 uint32_t iso_block_level(const iso_params *p, const uint32_t b[3]);
@@ -222,9 +222,9 @@ int iso_merge(const iso_params *p, const iso_piece *pieces, uint64_t n, iso_mesh
 void iso_mesh_free(iso_mesh *m);
 
 /* Everything in this thread: the tasks, each polygonized, merged.  The
- * reference for the engine's parallel run. */
-int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *err,
-                   size_t errlen);
+ * reference for the engine's parallel run.  0, or a negative errno with its
+ * message in e (may be NULL). */
+int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, err_info *e);
 
 /* ---- the input from an open file ---- */
 

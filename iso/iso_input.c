@@ -13,31 +13,31 @@
 #include "iso.h"
 #include "par.h"
 
-static int check_channel(const vod_info *in, char *err, size_t len)
+static int check_channel(const vod_info *in, err_info *e)
 {
     if (in->voxel_bits == 16 || (in->flags & VOD_FLAG_FLOAT && in->channel != 4))
-        return err_fmt(err, len, -EINVAL, "channel %u (%u-bit voxels) has no marching cubes "
+        return err_set(e, -EINVAL, "channel %u (%u-bit voxels) has no marching cubes "
                        "here: channels 1 to 4 do", in->channel, in->voxel_bits);
     if (in->height > ISO_MAX_LEVELS)
-        return err_fmt(err, len, -EINVAL, "treeHeight %u: more levels than %u", in->height,
+        return err_set(e, -EINVAL, "treeHeight %u: more levels than %u", in->height,
                        ISO_MAX_LEVELS);
     return 0;
 }
 
-static int set_levels(iso_params *p, const iso_request *rq, char *err, size_t len)
+static int set_levels(iso_params *p, const iso_request *rq, err_info *e)
 {
     const double *radii = rq->radii;
     uint32_t nradii = rq->nradii;
     int level = rq->level;
     if (nradii > ISO_MAX_RADII)
-        return err_fmt(err, len, -EINVAL, "at most %u LOD radii", ISO_MAX_RADII);
+        return err_set(e, -EINVAL, "at most %u LOD radii", ISO_MAX_RADII);
     for (uint32_t i = 0; i < nradii; i++) {
         if (!isfinite(radii[i]) || radii[i] < 0 || (i && !(radii[i] > radii[i - 1])))
-            return err_fmt(err, len, -EINVAL, "LOD radii must be finite, >= 0 and increasing");
+            return err_set(e, -EINVAL, "LOD radii must be finite, >= 0 and increasing");
         p->radii[i] = radii[i];
     }
     if (level < 0 || (uint32_t)level >= p->height)
-        return err_fmt(err, len, -EINVAL, "level %d: the file has levels 0..%u", level,
+        return err_set(e, -EINVAL, "level %d: the file has levels 0..%u", level,
                        p->height - 1);
     p->level = (uint32_t)level;
     p->nradii = nradii;
@@ -47,13 +47,12 @@ static int set_levels(iso_params *p, const iso_request *rq, char *err, size_t le
     return 0;
 }
 
-int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p,
-                    char *err, size_t errlen)
+int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p, err_info *e)
 {
     const vod_info *in = vod_get_info(f);
     memset(p, 0, sizeof *p);
-    if (rq->iso > 254) return err_fmt(err, errlen, -EINVAL, "iso %u: not in 0..254", rq->iso);
-    int rc = check_channel(in, err, errlen);
+    if (rq->iso > 254) return err_set(e, -EINVAL, "iso %u: not in 0..254", rq->iso);
+    int rc = check_channel(in, e);
     if (rc) return rc;
     p->iso = rq->iso;
     p->bits = in->voxel_bits;
@@ -66,7 +65,7 @@ int iso_params_make(const vod_file *f, const iso_request *rq, iso_params *p,
         p->origin[a] = in->origin[a];
         p->scale[a] = in->voxel_scale[a];
     }
-    return set_levels(p, rq, err, errlen);
+    return set_levels(p, rq, e);
 }
 
 /* The distance from the spheres' centre to the block's world box. */

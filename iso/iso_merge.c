@@ -296,8 +296,7 @@ static int run_tasks(const iso_params *p, const iso_input *in, const iso_task *t
     return rc;
 }
 
-int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *err,
-                   size_t errlen)
+int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, err_info *e)
 {
     iso_task *t;
     uint64_t n;
@@ -305,17 +304,13 @@ int iso_run_serial(const iso_params *p, const iso_input *in, iso_mesh *m, char *
     double t0 = clock_now();
     int rc = iso_tasks(p, in, &t, &n);
     double t1 = clock_now();
-    if (rc) {
-        snprintf(err, errlen, "out of memory for the tasks");
-        return rc;
-    }
+    if (rc) return err_set(e, rc, "out of memory for the tasks");
     iso_piece *pc = calloc(n + 1, sizeof *pc);
     uint8_t **own = calloc(n + 1, sizeof *own);
     rc = pc && own ? run_tasks(p, in, t, n, pc, own) : -ENOMEM;
     double t2 = clock_now();
-    err_info e = {0};
-    if (rc) snprintf(err, errlen, "%s", rc == -ENOMEM ? "out of memory" : "bad task");
-    else if ((rc = iso_merge(p, pc, n, m, &e))) err_fmt(err, errlen, rc, "%s", e.msg);
+    if (rc) err_set(e, rc, "%s", rc == -ENOMEM ? "out of memory" : "bad task");
+    else rc = iso_merge(p, pc, n, m, e);
     m->t_setup = t1 - t0;
     m->t_tasks = t2 - t1;
     m->t_weld = clock_now() - t2;

@@ -51,15 +51,15 @@ static void *heap(void *ud, size_t n)
 static void polygonize(const vod_file *f, int level)
 {
     iso_params p;
-    char err[256];
-    if (iso_params_make(f, &(iso_request){.iso = 127, .level = level}, &p, err, sizeof err)) {
-        if (!err[0]) __builtin_trap(); /* refused without a message */
+    err_info err = {0};
+    if (iso_params_make(f, &(iso_request){.iso = 127, .level = level}, &p, &err)) {
+        if (!err.msg[0]) __builtin_trap(); /* refused without a message */
         return;
     }
     void *mem = NULL;
     iso_input in;
     iso_mesh m;
-    if (!iso_input_make(f, &p, heap, &mem, &in) && !iso_run_serial(&p, &in, &m, err, sizeof err)) {
+    if (!iso_input_make(f, &p, heap, &mem, &in) && !iso_run_serial(&p, &in, &m, &err)) {
         check_closed(&m);
         iso_mesh_free(&m);
     }

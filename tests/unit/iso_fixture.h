@@ -80,14 +80,13 @@ static inline void polygonize(const vod_file *f, uint32_t iso, int level, const 
                               const double *radii, uint32_t nr, iso_mesh *m)
 {
     iso_params p;
-    char err[256] = "";
+    err_info err = {0};
     iso_request rq = {.iso = iso, .level = level, .center = c, .radii = radii, .nradii = nr};
-    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), 0,
-                 "%s", err);
+    cr_assert_eq(iso_params_make(f, &rq, &p, &err), 0, "%s", err.msg);
     void *mem = NULL;
     iso_input in;
     cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
-    cr_assert_eq(iso_run_serial(&p, &in, m, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_run_serial(&p, &in, m, &err), 0, "%s", err.msg);
     free(mem);
 }
 

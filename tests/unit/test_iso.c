@@ -357,9 +357,9 @@ Test(iso, coarse_and_adaptive_levels_stay_near_the_surface)
     }
     double c[3] = {0.8, 0, 0}, radii[2] = {0.3, 0.6};
     iso_params p;
-    char err[256];
+    err_info err = {0};
     iso_request rq = {.iso = 127, .center = c, .radii = radii, .nradii = 2};
-    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_params_make(f, &rq, &p, &err), 0, "%s", err.msg);
     iso_mesh m;
     polygonize(f, 127, 0, c, radii, 2, &m);
     double fine = worst_dist(&m, &r, c, radii[0] - 2 * s.h, 0);

@@ -54,11 +54,12 @@ Test(iso, the_workers_give_the_serial_mesh_byte_for_byte)
         engine *e;
         char err[256] = "";
         cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+        err_info ie = {0};
         for (int k = 0; k < 2; k++)
             for (int level = 0; level < 2; level++) {
                 iso_params p;
                 iso_request rq = {.iso = 127, .level = level};
-                cr_assert_eq(iso_params_make(files[k], &rq, &p, err, sizeof err), 0, "%s", err);
+                cr_assert_eq(iso_params_make(files[k], &rq, &p, &ie), 0, "%s", ie.msg);
                 iso_mesh ref, m;
                 polygonize(files[k], 127, level, NULL, NULL, 0, &ref);
                 engine_iso_job job = {.file = files[k], .p = &p};
@@ -85,18 +86,18 @@ Test(iso, bad_parameters_are_refused)
     ramp r = {sphere_dist, &R, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_params p;
-    char err[256];
+    err_info ie = {0};
     double c[3] = {0, 0, 0}, dec[2] = {1, 0.5}, nan_r[1] = {NAN};
-    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 255}, &p, err, sizeof err), -EINVAL);
-    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127, .level = 2}, &p, err, sizeof err),
-                 -EINVAL);
-    cr_assert(strstr(err, "levels 0..1"), "%s", err);
+    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 255}, &p, &ie), -EINVAL);
+    cr_assert(strstr(ie.msg, "not in 0..254"), "%s", ie.msg);
+    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127, .level = 2}, &p, &ie), -EINVAL);
+    cr_assert(strstr(ie.msg, "levels 0..1"), "%s", ie.msg);
     iso_request rq = {.iso = 127, .center = c, .radii = dec, .nradii = 2};
-    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "increasing"), "%s", err);
+    cr_assert_eq(iso_params_make(f, &rq, &p, &ie), -EINVAL);
+    cr_assert(strstr(ie.msg, "increasing"), "%s", ie.msg);
     rq.radii = nan_r;
     rq.nradii = 1;
-    cr_assert_eq(iso_params_make(f, &rq, &p, err, sizeof err), -EINVAL);
+    cr_assert_eq(iso_params_make(f, &rq, &p, &ie), -EINVAL);
     vod_close(f);
 }
 
@@ -107,9 +108,9 @@ Test(iso, a_piece_that_refers_to_nobody_is_refused)
     ramp r = {sphere_dist, &R, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_params p;
-    char err[256] = "";
+    err_info ie = {0};
     err_info me = {0};
-    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
     void *mem = NULL;
     iso_input in;
     cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
@@ -160,8 +161,9 @@ Test(iso, a_stalled_worker_costs_nothing_but_time)
     engine *e;
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info ie = {0};
     iso_params p;
-    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
     iso_mesh ref, m;
     polygonize(f, 127, 0, NULL, NULL, 0, &ref);
     cr_assert_eq(kill(engine_worker_pid(e, 0), SIGSTOP), 0);
@@ -191,8 +193,9 @@ Test(iso, too_small_a_segment_is_a_limit)
     engine *e;
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info ie = {0};
     iso_params p;
-    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
+    cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
     engine_iso_job job = {.file = f, .p = &p};
     engine_result res;
     iso_mesh m;
@@ -249,8 +252,8 @@ Test(iso, a_solid_interior_costs_no_task)
     ramp r = {sphere_dist, &R, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_params p;
-    char err[256] = "";
-    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0, "%s", err);
+    err_info ie = {0};
+    cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
     void *mem = NULL;
     iso_input in;
     cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
@@ -265,8 +268,8 @@ Test(iso, a_solid_interior_costs_no_task)
     cr_assert_lt(n_state, n_blind, "%llu tasks with the states, %llu without",
                  (unsigned long long)n_state, (unsigned long long)n_blind);
     iso_mesh a, b;
-    cr_assert_eq(iso_run_serial(&p, &in, &a, err, sizeof err), 0, "%s", err);
-    cr_assert_eq(iso_run_serial(&p, &blind, &b, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(iso_run_serial(&p, &in, &a, &ie), 0, "%s", ie.msg);
+    cr_assert_eq(iso_run_serial(&p, &blind, &b, &ie), 0, "%s", ie.msg);
     cr_assert(same_mesh(&a, &b), "the states changed the mesh");
     assert_closed(&a, "sphere, interior skipped");
     iso_mesh_free(&a);
@@ -406,8 +409,8 @@ Test(iso, the_input_and_the_checks_on_several_threads_are_one_threads)
     vol_spec s = cube_spec(128, 8, -1, 1);
     vod_file *f = make_vod(&s, waves, NULL);
     iso_params p;
-    char err[256] = "";
-    cr_assert_eq(iso_params_make(f, &level0, &p, err, sizeof err), 0);
+    err_info ie = {0};
+    cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
     void *mem1 = NULL, *mem3 = NULL;
     iso_input a, b;
     cr_assert_eq(iso_input_make_threads(f, &p, heap, &mem1, 1, &a), 0);
