@@ -593,7 +593,8 @@ Test(iso, the_engines_mesh_streamed_during_the_weld_is_the_finished_file)
     char err[256] = "";
     cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
     iso_params p;
-    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127}, &p, err, sizeof err), 0, "%s", err);
+    err_info ie = {0};
+    cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127}, &p, &ie), 0, "%s", ie.msg);
     char path[] = "/tmp/test_iso_weldXXXXXX";
     streamer st = {.fd = mkstemp(path)};
     cr_assert_geq(st.fd, 0);
