@@ -117,14 +117,45 @@ static int build(mpi_top *t, octree *tree, int channel)
 typedef int (*top_put)(void *ud, const vod_node *n, const vod_encoded *rec,
                        const uint8_t *data);
 
+/* The tree as a source whose walk stops at the subtrees' top nodes: the
+ * cells below them are placeholders (one per top-brick voxel, down to
+ * level 0) and their nodes are the ranks', so vod_collect need not list
+ * them (most of the top's time when it did).  The nodes above keep their
+ * preorder numbers (vod_collect counts them from the layout) and their
+ * bricks (fill reads the cells, not the walk). */
+typedef struct {
+    vod_source tree;
+    uint32_t node_level;
+} top_source;
+
+static int top_region(const vod_source *s, const vod_layout *L, vod_node *n)
+{
+    const top_source *t = s->ctx;
+    if (n->level <= t->node_level) return VOD_REGION_EMPTY;
+    return t->tree.ops->region(&t->tree, L, n);
+}
+
+static int top_fill(const vod_source *s, const vod_layout *L, const vod_node *n,
+                    uint8_t *raw)
+{
+    const top_source *t = s->ctx;
+    return t->tree.ops->fill(&t->tree, L, n, raw);
+}
+
+static const vod_source_ops top_ops = {.name = "the top of the tree", .region = top_region,
+                                       .fill = top_fill};
+
 /* Every node above node_level, encoded, to put in preorder. */
 static int encode_nodes(mpi_top *t, octree *tree, const vod_params *p, top_put put,
                         void *ud)
 {
-    vod_source src = vod_octree_source(tree);
+    top_source ts = {.tree = vod_octree_source(tree), .node_level = t->node_level};
     /* a mesh or CSG job's densities and distances: the aggregates are
      * theirs (build) */
-    src.channels |= 1u << VOXEL_CH_DENSITY | 1u << VOXEL_CH_DISTANCE;
+    ts.tree.channels |= 1u << VOXEL_CH_DENSITY | 1u << VOXEL_CH_DISTANCE;
+    vod_source src = ts.tree;
+    src.ops = &top_ops;
+    src.ctx = &ts;
     size_t n = vod_collect(&src, &t->L, NULL, 0);
     vod_node *nodes = malloc((n ? n : 1) * sizeof *nodes);
     uint8_t **own = calloc(n ? n : 1, sizeof *own);

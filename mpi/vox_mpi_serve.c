@@ -4,6 +4,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <libgen.h>
+#include <pthread.h>
 #include <signal.h>
 #include <stdlib.h>
 #include <string.h>
@@ -242,17 +243,60 @@ void mpi_serve(master *m)
     }
 }
 
-static int put_top(void *ud, const vod_node *n, const vod_encoded *rec, const uint8_t *data)
+/* The nodes above the subtrees, made on a thread of their own while the
+ * main thread orders the subtrees' records (mpi_finish_file): their
+ * bytes stay in memory (a few hundred nodes at most), never booked or
+ * spilled, so the two threads share nothing; vod_assemble finds their
+ * duplicates by their bytes as it finds any. */
+typedef struct {
+    mpi_top *top;
+    const vod_params *v;
+    vod_node *nodes;
+    vod_encoded *recs;
+    uint8_t **data;
+    size_t n, cap;
+    double secs;
+    int rc;
+} top_part;
+
+static int keep_top(void *ud, const vod_node *n, const vod_encoded *rec, const uint8_t *data)
 {
-    master *m = ud;
-    mpi_rec r = {.preorder = n->preorder, .level = n->level, .hash = rec->hash,
-                 .size = rec->size};
-    mpi_key(data, rec->size, r.key);
-    int fresh, rc = 0;
-    mpi_book_entry *e = mpi_book_get(&m->book, &r, &fresh);
-    if (!e) return -ENOMEM;
-    if (fresh) rc = spill(m, e, data);
-    return rc ? rc : push_node(m, &r);
+    top_part *t = ud;
+    if (t->n == t->cap) {
+        size_t cap = t->cap ? 2 * t->cap : 64;
+        vod_node *nv = realloc(t->nodes, cap * sizeof *nv);
+        if (nv) t->nodes = nv;
+        vod_encoded *rv = realloc(t->recs, cap * sizeof *rv);
+        if (rv) t->recs = rv;
+        uint8_t **dv = realloc(t->data, cap * sizeof *dv);
+        if (dv) t->data = dv;
+        if (!nv || !rv || !dv) return -ENOMEM;
+        t->cap = cap;
+    }
+    uint8_t *b = malloc(rec->size ? rec->size : 1);
+    if (!b) return -ENOMEM;
+    if (rec->size) memcpy(b, data, rec->size);
+    t->nodes[t->n] = *n;
+    t->recs[t->n] = *rec;
+    t->data[t->n++] = b;
+    return 0;
+}
+
+static void *top_thread(void *ud)
+{
+    top_part *t = ud;
+    double t0 = clock_now();
+    t->rc = mpi_top_encode(t->top, t->v, keep_top, t);
+    t->secs = clock_now() - t0;
+    return NULL;
+}
+
+static void top_part_free(top_part *t)
+{
+    for (size_t i = 0; i < t->n; i++) free(t->data[i]);
+    free(t->nodes);
+    free(t->recs);
+    free(t->data);
 }
 
 static int by_preorder(const void *a, const void *b)
@@ -261,39 +305,59 @@ static int by_preorder(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
-/* Every node in preorder, its bytes from the spill: the file. */
-static int assemble(master *m, const vod_layout *L, const vod_params *v, int fd,
-                    vod_stats *st, char *err, size_t errlen)
+/* The subtrees' records in preorder, each one's bytes in the spill's map
+ * (*map, m->spill_bytes long): sub[i] for m->nodes[i]. */
+static int order_subtrees(master *m, const uint8_t **map, const uint8_t ***sub)
 {
     qsort(m->nodes, m->n, sizeof *m->nodes, by_preorder);
-    size_t n = m->n;
+    *map = NULL;
+    *sub = calloc(m->n ? m->n : 1, sizeof **sub);
+    if (!*sub) return -ENOMEM;
+    if (m->spill_bytes) {
+        void *p = mmap(NULL, m->spill_bytes, PROT_READ, MAP_SHARED, m->spill, 0);
+        if (p == MAP_FAILED) return -errno;
+        *map = p;
+    }
+    for (size_t i = 0; i < m->n; i++) {
+        int fresh;
+        mpi_book_entry *e = mpi_book_get(&m->book, &m->nodes[i], &fresh);
+        if (!e || e->state != 2) return -EPROTO;
+        (*sub)[i] = *map + e->off;
+    }
+    return 0;
+}
+
+/* Every node in preorder: the subtrees' (sub[i] their bytes) merged with
+ * the top's, into the file (the writer's own vod_assemble). */
+static int assemble(master *m, const uint8_t *const *sub, const top_part *t,
+                    const vod_layout *L, const vod_params *v, outfile *out, vod_stats *st,
+                    char *err, size_t errlen)
+{
+    size_t n = m->n + t->n;
     vod_node *nodes = calloc(n ? n : 1, sizeof *nodes);
     vod_encoded *recs = calloc(n ? n : 1, sizeof *recs);
     const uint8_t **data = calloc(n ? n : 1, sizeof *data);
-    const uint8_t *map = NULL;
     int rc = nodes && recs && data ? 0 : -ENOMEM;
-    if (!rc && m->spill_bytes) {
-        void *p = mmap(NULL, m->spill_bytes, PROT_READ, MAP_SHARED, m->spill, 0);
-        if (p == MAP_FAILED) rc = -errno;
-        else map = p;
-    }
-    for (size_t i = 0; !rc && i < n; i++) {
-        int fresh;
-        mpi_book_entry *e = mpi_book_get(&m->book, &m->nodes[i], &fresh);
-        if (!e || e->state != 2) rc = -EPROTO;
-        else {
-            nodes[i] = (vod_node){.preorder = m->nodes[i].preorder, .level = m->nodes[i].level};
-            recs[i] = (vod_encoded){.hash = m->nodes[i].hash, .size = m->nodes[i].size};
-            data[i] = map + e->off;
+    for (size_t i = 0, a = 0, b = 0; !rc && i < n; i++) {
+        if (b == t->n || (a < m->n && m->nodes[a].preorder < t->nodes[b].preorder)) {
+            const mpi_rec *r = &m->nodes[a];
+            nodes[i] = (vod_node){.preorder = r->preorder, .level = r->level};
+            recs[i] = (vod_encoded){.hash = r->hash, .size = r->size};
+            data[i] = sub[a++];
+        } else {
+            nodes[i] = t->nodes[b];
+            recs[i] = t->recs[b];
+            data[i] = t->data[b++];
         }
     }
     if (rc) err_fmt(err, errlen, rc, "%s", strerror(-rc));
-    vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
+    /* outfile_write, as vox's writer: the kernel starts writing the file
+     * back as it goes, so the commit's fsync has less left to do */
+    vod_sink sink = {outfile_write, out};
     vod_assembly a = {.L = L, .p = v, .n = n, .nodes = nodes, .recs = recs, .data = data,
                       .sink = &sink, .st = st, .err = err, .errlen = errlen};
     if (!rc) rc = vod_assemble(&a);
     if (rc && !err[0]) snprintf(err, errlen, "%s", strerror(-rc));
-    if (map) munmap((void *)map, m->spill_bytes);
     free(nodes);
     free(recs);
     free(data);
@@ -317,8 +381,16 @@ int mpi_spill_open(const char *path)
     return fd;
 }
 
+/* Rank 0's end by stage (--stats), in seconds: the top levels (on a
+ * thread of their own) beside the subtrees' order, the assembly (of which
+ * the sink's writes), the commit (fsync, link). */
+typedef struct {
+    double top, order, assemble, commit;
+} tail_times;
+
 static void print_stats(const prep *p, const master *m, const rank_stats *all,
-                        const engine_pipeline_report *r, double t_job, double t_write)
+                        const engine_pipeline_report *r, const tail_times *tt, double t_job,
+                        double t_write)
 {
     const grid_spec *g = &r->grid;
     const int nranks = m->ctx->nranks;
@@ -358,6 +430,9 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
     printf("); rank 0 sent %llu bytes of tasks and requests\n",
            (unsigned long long)m->sent_bytes);
     if (!p->stats) return;
+    printf("  rank 0's end: top levels %.3f s beside the records' order %.3f s, assembly "
+           "%.3f s (writes %.3f s), commit %.3f s\n", tt->top, tt->order, tt->assemble,
+           r->st.t.write, tt->commit);
     printf("  rank  host              subtrees   nodes  bricks sent  brick bytes   bytes sent  busy s  workers\n");
     for (int i = 0; i < nranks; i++)
         printf("  %4d  %-16.16s  %8llu  %6llu  %11llu  %11llu  %11llu  %6.3f  %7u\n", i,
@@ -367,21 +442,48 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
                all[i].busy, all[i].workers);
 }
 
+/* Rank 0's end, after the last subtree: the top levels (a thread) beside
+ * the subtrees' order, then the assembly and the commit. */
+static int write_file(prep *p, master *m, engine_pipeline_report *r, tail_times *tt,
+                      char *err, size_t errlen)
+{
+    double t0 = clock_now();
+    top_part t = {.top = m->top, .v = &p->v};
+    pthread_t th;
+    int threaded = pthread_create(&th, NULL, top_thread, &t) == 0;
+    if (!threaded) top_thread(&t);
+    const uint8_t *map, **sub;
+    int rc = order_subtrees(m, &map, &sub);
+    tt->order = clock_now() - t0;
+    if (threaded) pthread_join(th, NULL);
+    tt->top = t.secs;
+    if (!rc) rc = t.rc;
+    if (rc) err_fmt(err, errlen, rc, "the levels above the subtrees: %s", strerror(-rc));
+    double t1 = clock_now();
+    if (!rc) rc = assemble(m, sub, &t, &p->L, &p->v, &m->ctx->out_file, &r->st, err, errlen);
+    tt->assemble = clock_now() - t1;
+    if (map) munmap((void *)map, m->spill_bytes);
+    free(sub);
+    top_part_free(&t);
+    double t2 = clock_now();
+    if (!rc) rc = outfile_commit(&m->ctx->out_file, p->o.out);
+    tt->commit = clock_now() - t2;
+    return rc;
+}
+
 void mpi_finish_file(prep *p, master *m, rank_stats *all, double t0)
 {
     double t_job = clock_now() - t0;
     char err[256] = "";
-    int rc = mpi_top_encode(m->top, &p->v, put_top, m);
-    if (rc) mpi_fail_master(m, "the levels above the subtrees", rc);
     engine_pipeline_report r = p->plan;
+    tail_times tt = {0};
     double t1 = clock_now();
-    rc = assemble(m, &p->L, &p->v, p->fd, &r.st, err, sizeof err);
-    if (!rc) rc = outfile_commit(&m->ctx->out_file, p->o.out);
+    int rc = write_file(p, m, &r, &tt, err, sizeof err);
     if (rc) {
         progress_done(&m->pr);
         mpi_msg("cannot write %s: %s", p->o.out, err[0] ? err : strerror(-rc));
         abort_job(m->ctx);
     }
     progress_done(&m->pr);
-    if (!p->o.quiet) print_stats(p, m, all, &r, t_job, clock_now() - t1);
+    if (!p->o.quiet) print_stats(p, m, all, &r, &tt, t_job, clock_now() - t1);
 }
