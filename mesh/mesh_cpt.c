@@ -399,13 +399,13 @@ static int dcpt_bin(const mesh_vox_tile *t, dcpt *d)
     return 0;
 }
 
-void dcpt_free(dcpt *d)
+void mesh_cpt_free(dcpt *d)
 {
     free(d->tri), free(d->f), free(d->hs), free(d->tl), free(d->start), free(d->list);
     memset(d, 0, sizeof *d);
 }
 
-int dcpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
+int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
 {
     memset(d, 0, sizeof *d);
     size_t n = t->n + 1;

@@ -302,12 +302,12 @@ static int dist_brick(mesh_vox_tile *t, const dcpt *d, const mesh_vox_bufs *b, u
 int mesh_vox_dist_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b)
 {
     dcpt d;
-    int rc = dcpt_make(t, p->band, &d);
+    int rc = mesh_cpt_make(t, p->band, &d);
     float w = mesh_dist_width(t->o, t->g->vs);
     for (uint32_t bz = 0; bz < d.nb[2] && !rc; bz++)
         for (uint32_t by = 0; by < d.nb[1] && !rc; by++)
             for (uint32_t bx = 0; bx < d.nb[0] && !rc; bx++)
                 rc = dist_brick(t, &d, b, p->band, w, bx, by, bz);
-    dcpt_free(&d);
+    mesh_cpt_free(&d);
     return rc;
 }

@@ -58,10 +58,10 @@ typedef struct {
 } dcpt;
 
 /* The regions of the tile's triangles t->ids (dtri already made, in
- * d->tri), binned to its bricks.  0 or -ENOMEM (d freed by dcpt_free in
+ * d->tri), binned to its bricks.  0 or -ENOMEM (d freed by mesh_cpt_free in
  * any case). */
-int dcpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d);
-void dcpt_free(dcpt *d);
+int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d);
+void mesh_cpt_free(dcpt *d);
 
 /* The axis of v's largest (ax 1) or smallest (ax 0) component. */
 static inline int axis_of(const double v[3], bool largest)

@@ -191,20 +191,6 @@ static void brick_set_all(const vod_volume *v, uint8_t *d, uint32_t val)
     for (uint64_t i = 0; i < v->brick_bytes / 4; i++) w[i] = val;
 }
 
-uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units)
-{
-    if (units > v->pool_cap) return 0;
-    uint32_t u = (uint32_t)units;
-    uint32_t e = atomic_fetch_add_explicit(&v->pool_used, u, memory_order_relaxed) + 1;
-    if (e - 1 > v->pool_cap - u) {
-        /* full: give the count back (every other taker fails too until
-         * the count is below the cap again) */
-        atomic_fetch_sub_explicit(&v->pool_used, u, memory_order_relaxed);
-        return 0;
-    }
-    return e;
-}
-
 /* A new pool brick holding val everywhere (fill), or anything (the caller
  * writes every voxel); its entry, or 0 when full.  Not for packed
  * volumes, whose records vod_pack_store makes. */
