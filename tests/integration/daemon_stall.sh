@@ -36,10 +36,13 @@ worker_line() { vc status | grep "^worker pid=$1 "; }
 # (5 s: a worker starved of CPU on a loaded 2-core machine under ASan is not
 # taken for a stopped one; the bound on the stalled job is the embedded
 # job's own time, twice, plus 30 s)
+# SLOW: a job whose time is the workers' interval work, so that the stop
+# lands while the engine hands out subtrees (MEDIUM's engine phase, once
+# the workers stored their own voxels, could end before the stop).
 t0=$(now)
-check "embedded reference" "$VOX" voxelize -e "$MEDIUM" -r 512 -w 2 -q -o "$TMP/ref.vod"
+check "embedded reference" "$VOX" voxelize -e "$SLOW" -r 256 -w 2 -q -o "$TMP/ref.vod"
 ref=$(since "$t0")
-bgsubmit "$TMP/a.out" "$MEDIUM" 512 -1,1 "$TMP/a.vod"
+bgsubmit "$TMP/a.out" "$SLOW" 256 -1,1 "$TMP/a.vod"
 A=$BG_PID
 until_true 20 running && pass "a job runs" || fail "a job runs"
 victim=$(worker_pids | head -1)
