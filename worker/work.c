@@ -46,24 +46,13 @@ shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type)
 
 /* A re-run after a death skips the entries the master already has: the
  * kernel's output is deterministic. */
-static int entry_end(worker_ctx *w, int batched)
+int worker_entry_end(worker_ctx *w)
 {
     if (w->skip) {
         w->skip--;
     } else {
         queue_publish(&w->s->q);
-        if (!batched || QUEUE_ENTRIES - queue_space(&w->s->q) >= QUEUE_ENTRIES / 2)
-            worker_ring_master(w);
+        worker_ring_master(w);
     }
     return worker_aborted(w) ? -ECANCELED : 0;
-}
-
-int worker_entry_end(worker_ctx *w)
-{
-    return entry_end(w, 0);
-}
-
-int worker_entry_end_batched(worker_ctx *w)
-{
-    return entry_end(w, 1);
 }

@@ -76,11 +76,5 @@ shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type);
 /* Publish the entry being filled; -ECANCELED when the job was abandoned
  * meanwhile, else 0. */
 int worker_entry_end(worker_ctx *w);
-/* worker_entry_end for output the master only stores (no other worker waits
- * on it): the master is rung once half the queue is ready, not at every
- * entry, so that a wake (a system call on each side and the master's
- * context switch) drains several.  The rest wait for the task's end, or
- * for the full queue worker_entry_begin rings before it sleeps. */
-int worker_entry_end_batched(worker_ctx *w);
 
 #endif
