@@ -56,7 +56,7 @@ static inline uint32_t field_count(const uint64_t *w, uint32_t off, uint32_t K)
     uint32_t i = off / 64, sh = off & 63;
     uint64_t v = w[i] >> sh;
     if (sh + K > 64) v |= w[i + 1] << (64 - sh);
-    return (uint32_t)mesh_vox_popcount(v & ((1ull << K) - 1));
+    return (uint32_t)bits_popcount64(v & ((1ull << K) - 1));
 }
 
 /* Counts of voxel row (yy, zz) of fine block fb (region-relative). */
@@ -257,6 +257,6 @@ int mesh_vox_density_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vo
     }
     if (p->rep && !p->solid1)
         for (size_t i = 0; i < (size_t)t->ny * t->nz; i++)
-            t->st->disagreements += (uint64_t)mesh_vox_popcount(t->dis[i]);
+            t->st->disagreements += (uint64_t)bits_popcount64(t->dis[i]);
     return 0;
 }

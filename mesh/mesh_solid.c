@@ -104,7 +104,7 @@ uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, co
         if (tree) buf->bx[w] = d; /* bx[w] read: the disagreements in its place */
         if (!d) continue;
         if (mesh_vox_beat(in->f->pulse, 1)) return ndis;
-        ndis += (uint64_t)mesh_vox_popcount(d);
+        ndis += (uint64_t)bits_popcount64(d);
         if (in->repair == MESH_REPAIR_VOTE)
             buf->bits[w] = (a & x) | (a & y) | (x & y);
         else if (!tree)

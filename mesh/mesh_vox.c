@@ -94,7 +94,7 @@ static int emit_occupancy(mesh_vox_tile *t, const uint64_t *bits, uint8_t *brick
                         uint64_t f = field(bits[(size_t)(bz * S + z) * t->ny + by * S + y],
                                            bx * S, S) & in;
                         uint8_t *row = brick + ((size_t)z * S + y) * S;
-                        t->st->voxels += mesh_vox_popcount(f);
+                        t->st->voxels += bits_popcount64(f);
                         for (uint32_t i = 0; i < S; i += 8) {
                             uint64_t v = byte_lut[f >> i & 0xff];
                             if (S - i >= 8) memcpy(row + i, &v, 8); /* one store */
@@ -125,7 +125,7 @@ static uint64_t count_disagree_bricks(const mesh_vox_tile *t, const uint64_t *di
 static uint64_t popcount_words(const uint64_t *w, size_t n)
 {
     uint64_t c = 0;
-    for (size_t i = 0; i < n; i++) c += (uint64_t)mesh_vox_popcount(w[i]);
+    for (size_t i = 0; i < n; i++) c += (uint64_t)bits_popcount64(w[i]);
     return c;
 }
 

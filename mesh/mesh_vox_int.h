@@ -28,6 +28,7 @@
 #include <string.h>
 
 #include "mesh_vox.h"
+#include "bits.h"
 
 #if defined(__FAST_MATH__) || defined(__ASSOCIATIVE_MATH__)
 #error "the mesh voxelizer's rounding (mesh_vox_snap) needs IEEE arithmetic: no -ffast-math"
@@ -114,16 +115,6 @@ static inline void mesh_vox_triangle(const mesh_vox_frame *f, uint32_t t, int64_
         for (int a = 0; a < 3; a++) P[i][a] = mesh_vox_vertex(f, tri[i], a);
 }
 
-/* Bits set in w (SWAR: __builtin_popcountll is a library call without
- * -mpopcnt). */
-static inline unsigned mesh_vox_popcount(uint64_t w)
-{
-    w -= (w >> 1) & 0x5555555555555555ull;
-    w = (w & 0x3333333333333333ull) + ((w >> 2) & 0x3333333333333333ull);
-    w = (w + (w >> 4)) & 0x0f0f0f0f0f0f0f0full;
-    return (unsigned)((w * 0x0101010101010101ull) >> 56);
-}
-
 /* The vertices of triangle t are about to be read (snapped already, or
  * not): fetch them now (their indices make the reads random, and most of
  * a small triangle's cost is waiting for them). */
@@ -183,7 +174,7 @@ static inline uint64_t mesh_vox_cell_count(const mesh_vox_block *b, const uint64
     uint64_t mask = mesh_vox_xmask(lo, hi), n = 0;
     for (uint32_t z = lo[2]; z < hi[2]; z++)
         for (uint32_t y = lo[1]; y < hi[1]; y++)
-            n += mesh_vox_popcount(bits[mesh_vox_word(b, lo[0], y, z)] & mask);
+            n += bits_popcount64(bits[mesh_vox_word(b, lo[0], y, z)] & mask);
     return n;
 }
 

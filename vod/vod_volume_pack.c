@@ -9,6 +9,7 @@
  * voxels cost a bit instead of 32), so every reader sees the voxels the
  * writer gave, bit for bit.
  */
+#include "bits.h"
 #include "vod_volume_int.h"
 
 #include <errno.h>
@@ -98,21 +99,12 @@ uint32_t vod_pack_store(vod_volume *v, uint32_t old, const uint32_t *vox, bool e
     return e;
 }
 
-/* Bits set in w (SWAR: without -mpopcnt the builtin is a library call). */
-static inline size_t pop64(uint64_t w)
-{
-    w -= (w >> 1) & 0x5555555555555555ull;
-    w = (w & 0x3333333333333333ull) + ((w >> 2) & 0x3333333333333333ull);
-    w = (w + (w >> 4)) & 0x0f0f0f0f0f0f0f0full;
-    return (size_t)((w * 0x0101010101010101ull) >> 56);
-}
-
 /* Literals before voxel i. */
 static size_t rank(const uint64_t *lit, size_t i)
 {
     size_t r = 0;
-    for (size_t w = 0; w < i >> 6; w++) r += pop64(lit[w]);
-    if (i & 63) r += pop64(lit[i >> 6] & ((1ull << (i & 63)) - 1));
+    for (size_t w = 0; w < i >> 6; w++) r += bits_popcount64(lit[w]);
+    if (i & 63) r += bits_popcount64(lit[i >> 6] & ((1ull << (i & 63)) - 1));
     return r;
 }
 
@@ -159,7 +151,7 @@ int vod_pack_check(const vod_volume *v, uint32_t e, uint32_t used)
         units_of(record_bytes(v->sbrick, h->n)) > h->cap || (h->bg & SIGN))
         return -EINVAL;
     const uint64_t *lit = lit_of(d);
-    for (size_t w = 0; w < W; w++) pop += pop64(lit[w]);
+    for (size_t w = 0; w < W; w++) pop += bits_popcount64(lit[w]);
     /* no mask bits past the S^3 voxels (S^3 >= 8: a whole word, or 8 bits) */
     if (N % 64 && (lit[W - 1] >> (N % 64) || neg_of(v, d)[W - 1] >> (N % 64))) return -EINVAL;
     return pop == h->n ? 0 : -EINVAL;

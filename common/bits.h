@@ -1,0 +1,17 @@
+/* bits — small bit operations shared by the modules. */
+#ifndef VOXD_BITS_H
+#define VOXD_BITS_H
+
+#include <stdint.h>
+
+/* Bits set in w.  SWAR, not __builtin_popcountll: without -mpopcnt the
+ * builtin is a library call, and this runs in the voxel loops. */
+static inline unsigned bits_popcount64(uint64_t w)
+{
+    w -= (w >> 1) & 0x5555555555555555ull;
+    w = (w & 0x3333333333333333ull) + ((w >> 2) & 0x3333333333333333ull);
+    w = (w + (w >> 4)) & 0x0f0f0f0f0f0f0f0full;
+    return (unsigned)((w * 0x0101010101010101ull) >> 56);
+}
+
+#endif
