@@ -34,7 +34,7 @@ static uint32_t alloc_cell(octree *t)
         assert(t->next < t->block_end);
         memset(&t->cells[t->next], 0, sizeof t->cells[0]);
     } else if (t->next == t->block_end) {
-        assert(!t->grab && t->next < t->capacity);
+        assert(t->next < t->capacity);
         uint32_t end = t->next + OCTREE_BLOCK_CELLS;
         if (end > t->capacity || end < t->next) end = t->capacity;
         memset(&t->cells[t->next], 0, octree_arena_bytes(end - t->next));
