@@ -9,6 +9,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "afterexit.h"
 #include "cli.h"
 #include "engine.h"
 #include "mesh.h"
@@ -117,8 +118,10 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
         if (cli_interrupted()) cli_end_interrupted(o->out);
         return CLI_EXIT_FAILED;
     }
+    int old = afterexit_hold(o->out); /* freed after our exit, not in the rename */
     if ((rc = outfile_commit(&f, o->out))) {
         cli_error("cannot write %s: %s", o->out, strerror(-rc));
+        afterexit_leave(old);
         return CLI_EXIT_FAILED;
     }
     if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the job meets its box (see --domain)", o->out);
@@ -128,6 +131,7 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
         engine_pipeline_describe(job, &r, kind, sizeof kind);
         fputs(kind, stdout);
     }
+    afterexit_leave(old); /* the process exits next */
     return CLI_EXIT_OK;
 }
 
