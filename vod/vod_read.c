@@ -546,6 +546,29 @@ static int read_all(int fd, uint8_t *p, size_t n)
     return 0;
 }
 
+/* The file's pages mapped and filled (NULL: read it instead, as for an
+ * empty file or where the mapping fails).  A copy by read() costs a page
+ * fault a page of fresh memory (5 MB: 0.03-0.09 s of one thread on the
+ * 2-core machine, that nothing beside it could use); the page cache's own
+ * pages mapped, about 0.005 s.  The bricks are copied out by the parse,
+ * so the mapping ends with vod_open.  Like mesh_load's mapping, a file cut
+ * short by another process while it is parsed ends the command (SIGBUS):
+ * only the command-line tools open VOD files by path. */
+static uint8_t *map_file(int fd, size_t len)
+{
+    if (len == 0) return NULL;
+#ifdef MADV_POPULATE_READ
+    void *p = mmap(NULL, len, PROT_READ, MAP_PRIVATE, fd, 0);
+    if (p != MAP_FAILED && madvise(p, len, MADV_POPULATE_READ)) { /* a short file, EIO */
+        munmap(p, len);
+        return NULL;
+    }
+#else
+    void *p = mmap(NULL, len, PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
+#endif
+    return p == MAP_FAILED ? NULL : p;
+}
+
 int vod_open_threads(const char *path, int threads, vod_file **out, char *err,
                      size_t errlen)
 {
@@ -559,12 +582,14 @@ int vod_open_threads(const char *path, int threads, vod_file **out, char *err,
     else if (!rc && (uint64_t)sb.st_size > UINT32_MAX + 65536ull)
         rc = err_fmt(ps.err, ps.errlen, -EFBIG, "%lld bytes: larger than any VOD file",
                   (long long)sb.st_size);
-    uint8_t *buf = rc ? NULL : malloc((size_t)sb.st_size + 1);
-    if (!rc && !buf) rc = err_fmt(ps.err, ps.errlen, -ENOMEM, "out of memory");
-    if (!rc && (rc = read_all(fd, buf, (size_t)sb.st_size)))
+    uint8_t *map = rc ? NULL : map_file(fd, (size_t)sb.st_size);
+    uint8_t *buf = rc || map ? NULL : malloc((size_t)sb.st_size + 1);
+    if (!rc && !map && !buf) rc = err_fmt(ps.err, ps.errlen, -ENOMEM, "out of memory");
+    if (!rc && !map && (rc = read_all(fd, buf, (size_t)sb.st_size)))
         err_fmt(ps.err, ps.errlen, rc, "cannot read: %s", strerror(-rc));
     close(fd);
-    if (!rc) rc = vod_read_threads(buf, (size_t)sb.st_size, threads, out, err, errlen);
+    if (!rc) rc = vod_read_threads(map ? map : buf, (size_t)sb.st_size, threads, out, err, errlen);
+    if (map) munmap(map, (size_t)sb.st_size);
     free(buf);
     return rc;
 }

@@ -668,6 +668,66 @@ Test(vod_write, fd_sink_and_vod_open)
     fx_free(&f);
 }
 
+/* vod_open maps the file (vod_read's copy of it is not made): the same
+ * file as vod_read of its bytes; an empty file and one cut short are
+ * refused with vod_read's own errors, not read past their end. */
+Test(vod_write, vod_open_of_a_mapped_file_is_vod_read_of_its_bytes)
+{
+    fixture f;
+    fx_init(&f, 4, 16, 16, 16);
+    fx_random(&f, 100);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 4);
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    vod_stats st;
+    char err[256] = "", err2[256] = "";
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
+    char path[] = "/tmp/test_vod_map_XXXXXX";
+    int fd = mkstemp(path);
+    cr_assert(fd >= 0);
+    cr_assert_eq(write(fd, m.p, m.n), (ssize_t)m.n);
+    vod_file *a, *b;
+    cr_assert_eq(vod_open_threads(path, 2, &a, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_read(m.p, m.n, &b, err, sizeof err), 0, "%s", err);
+    const vod_info *ia = vod_get_info(a), *ib = vod_get_info(b);
+    cr_assert_eq(ia->file_bytes, m.n);
+    cr_assert_eq(ia->bricks, ib->bricks);
+    cr_assert_eq(ia->nodes, ib->nodes);
+    cr_assert_eq(ia->crc32, ib->crc32);
+    cr_assert_str_eq(ia->metadata, ib->metadata);
+    size_t raw = (size_t)ia->brick * ia->brick * ia->brick * ia->voxel_bits / 8;
+    uint32_t side = vod_level_size(a, 0) / ia->brick, c[3], n = 0;
+    for (c[2] = 0; c[2] < side; c[2]++)
+        for (c[1] = 0; c[1] < side; c[1]++)
+            for (c[0] = 0; c[0] < side; c[0]++) {
+                const uint8_t *x = vod_brick(a, 0, c), *y = vod_brick(b, 0, c);
+                cr_assert_eq(!x, !y);
+                if (x) {
+                    cr_assert_eq(memcmp(x, y, raw), 0);
+                    n++;
+                }
+            }
+    cr_assert_gt(n, 0, "no brick compared");
+    check_level0(&f, a, 0);
+    vod_close(a);
+    vod_close(b);
+    /* cut short: the mapping ends at the file's end, as the bytes do */
+    cr_assert_eq(ftruncate(fd, (off_t)(m.n - 7)), 0);
+    cr_assert_neq(vod_open(path, &a, err, sizeof err), 0);
+    cr_assert_neq(vod_read(m.p, m.n - 7, &b, err2, sizeof err2), 0);
+    cr_assert_str_eq(err, err2);
+    cr_assert_null(a);
+    cr_assert_eq(ftruncate(fd, 0), 0); /* nothing to map */
+    cr_assert_neq(vod_open(path, &a, err, sizeof err), 0);
+    cr_assert_neq(vod_read(m.p, 0, &b, err2, sizeof err2), 0);
+    cr_assert_str_eq(err, err2);
+    close(fd);
+    unlink(path);
+    free(m.p);
+    fx_free(&f);
+}
+
 /* The library's memory sink keeps every byte in order across its growth. */
 Test(vod, mem_sink_grows_and_keeps_order)
 {
