@@ -300,7 +300,9 @@ static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
 {
     int is_mesh = j->kind == MPI_KIND_MESH;
     uint32_t bits = is_mesh ? mesh_vox_bits(&j->mesh_opts) : csg_channel_bits(j->vod.channel);
-    uint32_t sbrick = is_mesh ? MESH_VOLUME_BRICK : CSG_VOLUME_BRICK;
+    /* a distance's volume in 8^3 bricks (MESH_DIST_BRICK), as on one machine:
+     * the same file, less memory beyond the band */
+    uint32_t sbrick = is_mesh ? mesh_vox_sbrick(&j->mesh_opts) : CSG_VOLUME_BRICK;
     size_t bytes = vod_volume_bytes(j->grid.res, bits, sbrick, UINT64_MAX);
     void *arena = sparse_map(bytes);
     if (arena == MAP_FAILED) {
