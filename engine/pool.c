@@ -16,6 +16,7 @@
 #include "clock.h"
 #include "err.h"
 #include "master.h"
+#include "par.h"
 #include "worker.h"
 
 #define EXIT_WAIT_S 2.0 /* engine_destroy's patience with a worker that
@@ -229,16 +230,35 @@ typedef struct {
     size_t bytes;
 } unmapping;
 
+/* Part k of n of the mapping's page tables dropped (the pages stay the
+ * segment's): madvise takes the mapping's lock to read, so the parts run
+ * at once, where munmap (and the exit's teardown) would drop them all on
+ * one thread, under the lock held to write. */
+static void unmap_part(void *ud, unsigned k, unsigned n)
+{
+    const unmapping *u = ud;
+    const size_t step = (size_t)2 << 20; /* a multiple of every page size here */
+    size_t steps = (u->bytes + step - 1) / step;
+    size_t from = steps * k / n * step, to = steps * (k + 1) / n * step;
+    if (to > u->bytes) to = u->bytes;
+    if (to > from) madvise((char *)u->base + from, to - from, MADV_DONTNEED);
+}
+
 static void *unmap_run(void *arg)
 {
     unmapping *u = arg;
+    unsigned cpus = par_cpus();
+    if (cpus > 1) par_run(cpus, unmap_part, u);
     munmap(u->base, u->bytes);
     free(u);
     return NULL;
 }
 
 /* The caller's mapping unmapped on a detached thread (here when none can
- * be made): only its page tables go, the workers still map the pages. */
+ * be made), its page tables dropped in parts by every CPU (the master
+ * touched hundreds of MB of it: 0.03-0.06 s of one thread in the exit of
+ * vox mesh otherwise): only its page tables go, the workers still map the
+ * pages. */
 static void unmap_beside(shm_seg *s)
 {
     unmapping *u = malloc(sizeof *u);
