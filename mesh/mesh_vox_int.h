@@ -178,6 +178,54 @@ static inline uint64_t mesh_vox_cell_count(const mesh_vox_block *b, const uint64
     return n;
 }
 
+/* The samples of a cell to decide at once (mesh_vox_cell_decide). */
+typedef struct {
+    const mesh_vox_block *b;
+    const uint64_t *sel;   /* the samples to decide */
+    uint64_t *bits;        /* their answers */
+    uint64_t *done;        /* NULL, or the samples to do: the decided ones cleared */
+    const uint16_t *count; /* NULL: every sample inside when k != 0; else
+                              inside where its count is not k */
+} mesh_vox_decide;
+
+/* Every sample of cell [lo, hi) set in d->sel into d->bits (mesh_wind.c's
+ * whole cells and mesh_wcap.c's cells by their counts). */
+static inline void mesh_vox_cell_decide(const mesh_vox_decide *d, const uint32_t lo[3],
+                                        const uint32_t hi[3], uint16_t k)
+{
+    uint64_t mask = mesh_vox_xmask(lo, hi);
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            size_t i = mesh_vox_word(d->b, lo[0], y, z);
+            uint64_t s = d->sel[i] & mask, in = k ? s : 0;
+            if (d->count) {
+                const uint16_t *n = d->count + i * 64;
+                in = 0;
+                for (uint64_t r = s; r; r &= r - 1) {
+                    unsigned x = (unsigned)__builtin_ctzll(r);
+                    in |= (uint64_t)(n[x] != k) << x;
+                }
+            }
+            d->bits[i] = (d->bits[i] & ~s) | in;
+            if (d->done) d->done[i] &= ~s;
+        }
+}
+
+/* Half q (bit a: the upper half along axis a) of cell [lo, hi) into
+ * [clo, chi); false when it is empty (an axis one sample long). */
+static inline bool mesh_vox_half(const uint32_t lo[3], const uint32_t hi[3], int q, uint32_t clo[3],
+                                 uint32_t chi[3])
+{
+    bool some = true;
+    for (int a = 0; a < 3; a++) {
+        uint32_t ext = hi[a] - lo[a], mid = lo[a] + (ext + 1) / 2, up = q >> a & 1;
+        clo[a] = up ? mid : lo[a];
+        chi[a] = up ? hi[a] : mid;
+        some &= clo[a] < chi[a];
+    }
+    return some;
+}
+
 /* Where the crossings of one ray direction go (mesh_vox_raster).
  *  z: flip the bit of the first sample past the crossing in `bits`; a
  *     crossing below the block flips its first slice when first_z (the

@@ -303,19 +303,8 @@ typedef struct {
 /* Every sample of the cell to decide: inside when its count is not k. */
 static void cell_by_count(cblock *c, const uint32_t lo[3], const uint32_t hi[3], uint16_t k)
 {
-    uint64_t mask = mesh_vox_xmask(lo, hi);
-    for (uint32_t z = lo[2]; z < hi[2]; z++)
-        for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mesh_vox_word(c->b, lo[0], y, z);
-            uint64_t d = c->todo[i] & mask, in = 0;
-            const uint16_t *n = c->count + i * 64;
-            for (uint64_t r = d; r; r &= r - 1) {
-                unsigned x = (unsigned)__builtin_ctzll(r);
-                in |= (uint64_t)(n[x] != k) << x;
-            }
-            c->bits[i] = (c->bits[i] & ~d) | in;
-            c->todo[i] &= ~d;
-        }
+    mesh_vox_decide d = {c->b, c->todo, c->bits, c->todo, c->count};
+    mesh_vox_cell_decide(&d, lo, hi, k);
 }
 
 /* Sample bit x of word i (at p) where w_C lies within e of v: decided
@@ -374,14 +363,7 @@ static void split(cblock *c, const uint32_t lo[3], const uint32_t hi[3],
 {
     for (int q = 0; q < 8; q++) {
         uint32_t clo[3], chi[3];
-        bool skip = false;
-        for (int a = 0; a < 3; a++) {
-            uint32_t ext = hi[a] - lo[a], mid = lo[a] + (ext + 1) / 2, up = q >> a & 1;
-            clo[a] = up ? mid : lo[a];
-            chi[a] = up ? hi[a] : mid;
-            skip |= clo[a] >= chi[a];
-        }
-        if (!skip) fn(c, clo, chi);
+        if (mesh_vox_half(lo, hi, q, clo, chi)) fn(c, clo, chi);
     }
 }
 
@@ -433,19 +415,6 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
         return;
     }
     split(c, lo, hi, cell);
-}
-
-/* Half q of cell [lo, hi) into [clo, chi); false when it is empty. */
-static bool half(const uint32_t lo[3], const uint32_t hi[3], int q, uint32_t clo[3], uint32_t chi[3])
-{
-    bool some = true;
-    for (int a = 0; a < 3; a++) {
-        uint32_t ext = hi[a] - lo[a], mid = lo[a] + (ext + 1) / 2, up = q >> a & 1;
-        clo[a] = up ? mid : lo[a];
-        chi[a] = up ? hi[a] : mid;
-        some &= clo[a] < chi[a];
-    }
-    return some;
 }
 
 /* Sample lo by a query of the caps' tree from its root, every node taken
@@ -501,7 +470,7 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
     }
     for (int q = 0; q < 8; q++) {
         uint32_t clo[3], chi[3];
-        if (half(lo, hi, q, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
+        if (mesh_vox_half(lo, hi, q, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
     }
 }
 

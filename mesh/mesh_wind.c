@@ -656,13 +656,8 @@ typedef struct {
 
 static void cell_fill(wblock *w, const uint32_t lo[3], const uint32_t hi[3], bool inside)
 {
-    uint64_t mask = mesh_vox_xmask(lo, hi);
-    for (uint32_t z = lo[2]; z < hi[2]; z++)
-        for (uint32_t y = lo[1]; y < hi[1]; y++) {
-            size_t i = mesh_vox_word(w->b, lo[0], y, z);
-            uint64_t d = w->dis[i] & mask;
-            w->bits[i] = inside ? w->bits[i] | d : w->bits[i] & ~d;
-        }
+    mesh_vox_decide d = {w->b, w->dis, w->bits, NULL, NULL};
+    mesh_vox_cell_decide(&d, lo, hi, inside);
 }
 
 static void set_bit(wblock *w, size_t at, bool inside)
@@ -733,14 +728,7 @@ static void cell(wblock *w, const mesh_vox_wtree *t, const uint32_t lo[3], const
     }
     for (int k = 0; k < 8; k++) {
         uint32_t clo[3], chi[3];
-        bool skip = false;
-        for (int a = 0; a < 3; a++) {
-            uint32_t mid = lo[a] + (ext[a] + 1) / 2, up = k >> a & 1;
-            clo[a] = up ? mid : lo[a];
-            chi[a] = up ? hi[a] : mid;
-            skip |= clo[a] >= chi[a];
-        }
-        if (!skip) cell(w, t, clo, chi);
+        if (mesh_vox_half(lo, hi, k, clo, chi)) cell(w, t, clo, chi);
     }
 }
 
