@@ -44,7 +44,9 @@
 //                      each of two groups (signs equal, signs opposite): index,
 //                      vox's value, OpenVDB's and the exact unsigned distance
 //                      (double, every triangle: brute force), in voxels, and
-//                      the generalized winding number there (brute force)
+//                      the generalized winding number there (brute force);
+//                      then N of the voxels whose signs differ, evenly
+//                      spaced, and whose sign the winding number there takes
 // Exit status 1 with a message on any error.
 #include <algorithm>
 #include <chrono>
@@ -197,17 +199,40 @@ void print_worst(const char *group, std::vector<worst> w, const distance_file &d
     }
 }
 
+// n of the voxels whose signs differ, evenly spaced in the grid's order,
+// and which of the two the winding number agrees with: one line each, then
+//   winding agrees with vox V openvdb O of n
+void sign_sample(const std::vector<worst> &all, size_t n, const distance_file &d,
+                 const world_mesh &m)
+{
+    size_t votes[2] = {0, 0}, k = 0;
+    for (size_t i = 0; i < n && i < all.size(); i++, k++) {
+        const worst &x = all[i * all.size() / std::min(n, all.size())];
+        v3 p(d.origin[0] + (x.c.x() + 0.5) * d.vs, d.origin[1] + (x.c.y() + 0.5) * d.vs,
+             d.origin[2] + (x.c.z() + 0.5) * d.vs);
+        double wn = brute_winding(m, p);
+        bool inside = std::fabs(wn) >= 0.5;
+        votes[inside == std::signbit(x.theirs)]++;
+        std::fprintf(stderr, "sample %d %d %d vox %+.5f openvdb %+.5f winding %+.4f\n", x.c.x(),
+                     x.c.y(), x.c.z(), x.ours / d.vs, x.theirs / d.vs, wn);
+    }
+    std::fprintf(stderr, "winding agrees with vox %zu openvdb %zu of %zu\n", votes[0], votes[1], k);
+}
+
 // The file against OpenVDB's grid (the same voxels: see the transform).
 void compare(const distance_file &d, const openvdb::FloatGrid &grid, const world_mesh &m)
 {
-    float w = (float)(d.band * d.vs);
+    /* vox writes the band's width as (float)(K vs) from the grid's double
+     * voxel size, the file holds vs as a float: a hair less than K vs (1e-5
+     * of it) keeps the voxels beyond the band out whichever rounds up */
+    float w = (float)(d.band * d.vs * (1 - 1e-5));
     uint64_t ours = 0, compared = 0, signs = 0, over = 0, flipped = 0;
     for (uint32_t z = 0; z < d.dims[2]; z++)
         for (uint32_t y = 0; y < d.dims[1]; y++)
             for (uint32_t x = 0; x < d.dims[0]; x++) ours += std::fabs(voxel_f32(d.f, x, y, z)) < w;
     const char *nw = std::getenv("VDB_MESH_WORST");
     size_t nworst = nw ? (size_t)std::strtoul(nw, nullptr, 10) : 0;
-    std::vector<worst> same, opposite;
+    std::vector<worst> same, opposite, all_opposite;
     double maxdiff = 0, maxabs = 0, maxsame = 0, byband[3] = {0, 0, 0};
     for (auto it = grid.cbeginValueOn(); it; ++it) {
         openvdb::Coord c = it.getCoord();
@@ -227,14 +252,16 @@ void compare(const distance_file &d, const openvdb::FloatGrid &grid, const world
         int k = std::min(2, (int)(std::fabs(o) / d.vs)); // vox's |d| in whole voxels
         if (!differ) byband[k] = std::max(byband[k], diff);
         keep_worst(differ ? opposite : same, nworst, worst{diff, c, o, t});
+        if (differ && nworst) all_opposite.push_back(worst{diff, c, o, t});
     }
     std::printf(" ours %llu maxdiff %.4f maxabs %.4f signs %llu compared %llu"
-                " samesign %.4f over05 %llu flipped %llu near %.4f %.4f %.4f",
+                " samesign %.4f over05 %llu flipped %llu near %.6f %.6f %.6f",
                 (unsigned long long)ours, maxdiff, maxabs, (unsigned long long)signs,
                 (unsigned long long)compared, maxsame, (unsigned long long)over,
                 (unsigned long long)flipped, byband[0], byband[1], byband[2]);
     print_worst("same", same, d, m);
     print_worst("opposite", opposite, d, m);
+    if (nworst) sign_sample(all_opposite, nworst, d, m);
 }
 
 // meshToLevelSet with meshToVolume's flags: the points taken to index

@@ -7,6 +7,10 @@
 # repeats vertices, 4,468 edges open by their indices alone); then the
 # dragon at 4096^3, band 3: its time and
 # memory (voxwhole's peak of the process tree, shared memory included).
+# Where the values differ: OpenVDB again without its renormalization and
+# its removal of self-intersecting voxels (flags 6), the differences by
+# distance from the surface, and the winding number at 20 of the voxels
+# whose signs differ (bench/vdb_mesh.cc's VDB_MESH_FLAGS, VDB_MESH_WORST).
 #
 #   scripts/bench-distance.sh [BUILD]   (make bench runs it)
 #
@@ -46,8 +50,15 @@ one() {
 }
 for i in $(seq "$repeats"); do one 1024 2048 || exit 1; done | medians >"$tmp/v1024"
 get() { awk -v k="$1" '$1 == k { print $2 }' "$2"; }
-if ! o=$("$build/vdb_mesh" "$tmp/dragon.ply" 1024 1 "$tmp/d1024.vod" 0 2>&1); then
-    echo "OpenVDB: failed: $o"; exit 1
+if ! o=$(VDB_MESH_WORST=20 "$build/vdb_mesh" "$tmp/dragon.ply" 1024 1 "$tmp/d1024.vod" 0 \
+    2>"$tmp/worst"); then
+    echo "OpenVDB: failed: $o $(cat "$tmp/worst")"; exit 1
+fi
+# OpenVDB's distances without its renormalization and its removal of the
+# voxels it takes for self-intersections (flags 6): what is left is its
+# band's expansion and its sign (docs/meshes.md)
+if ! o6=$(VDB_MESH_FLAGS=6 "$build/vdb_mesh" "$tmp/dragon.ply" 1024 1 "$tmp/d1024.vod" 0 2>&1); then
+    echo "OpenVDB (flags 6): failed: $o6"; exit 1
 fi
 echo "The dragon welded (\`--weld 0\`, both tools the same mesh). vox: median of $repeats runs of the"
 echo "whole command (2 workers); OpenVDB 10 (Debian's libopenvdb),"
@@ -60,6 +71,22 @@ echo '|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|'
 awk -v w="$(get wall_s "$tmp/v1024")" -v j="$(get job "$tmp/v1024")" -v c="$(get workers_cpu "$tmp/v1024")" '{
     printf "| 1024^3 | %.3f | %.3f | %.3f | %.3f | %.1fx | %d | %d | %+.2f%% | %.4f | %.4f | %d of %d |\n",
         w, j, c, $4, $4 / w, $10, $6, 100 * ($10 - $6) / $6, $12, $14, $16, $18 }' <<<"$o"
+echo
+echo "Where they differ (docs/meshes.md#signed-distance): the largest difference over the voxels"
+echo "whose signs agree, by vox's |d| (vox's values are the exact distance: test_mesh_dist's oracle),"
+echo "the signs differing and of them those within half a voxel of the surface by both; OpenVDB as"
+echo "above (flags 0), and without its renormalization and its removal of the voxels it takes for"
+echo "self-intersections (flags 6)."
+echo
+echo '| OpenVDB | \|d\| < 1 | 1 to 2 | 2 to 3 | same sign, diff > 0.05 | signs differing | of them within 0.5 |'
+echo '|---|---:|---:|---:|---:|---:|---:|'
+for f in 0 6; do
+    [ $f = 0 ] && line=$o || line=$o6
+    awk -v f=$f '{ printf "| flags %d | %.4f | %.4f | %.4f | %d | %d | %d |\n", f, $26, $27, $28, $22, $16, $24 }' <<<"$line"
+done
+echo
+echo "The generalized winding number (brute force over every triangle) at 20 of the voxels whose"
+echo "signs differ (flags 0), evenly spaced: $(sed -n 's/^winding agrees with vox \([0-9]*\) openvdb \([0-9]*\) of \([0-9]*\)/vox'"'"'s sign at \1, OpenVDB'"'"'s at \2 of \3/p' "$tmp/worst")."
 echo
 if [ "$big" = 1 ]; then
     # the volume's tables and band bricks live in the engine's segment: give it room
