@@ -224,6 +224,11 @@ $(BUILD)/voxserial: bench/voxserial.c bench/bench_util.h
 $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) $(INC) -Itests/unit $< $(LIB) -o $@ $(LDFLAGS) $(LDLIBS) -lcriterion
+# test_engine_forge's workers forge entries: every one they publish passes
+# through the test's __wrap_worker_entry_end (no hook in the library).
+$(BUILD)/tests/test_engine_forge: LDFLAGS += -Wl,--wrap=worker_entry_end
+# test_pipeline_alloc fails an allocation of the library's on purpose.
+$(BUILD)/tests/test_pipeline_alloc: LDFLAGS += -Wl,--wrap=calloc,--wrap=malloc
 
 deps:
 	@scripts/deps.sh

@@ -182,6 +182,33 @@ if grep -Eq '^  sent to rank 0: [0-9]+ bytes \(rank 0 [0-9]+, rank 1 [1-9][0-9]*
 else
     fail "mpi: the summary and --stats give the bytes each rank sent" "$(cat "$TMP/s.log")"
 fi
+# --stats' rank 0's end by stage: the top levels run beside the records'
+# order, then the assembly (the sink's writes inside it) and the commit,
+# all within "VOD written in T s" (each figure rounded to a millisecond).
+end_ok=$(/usr/bin/python3 - "$TMP/s.log" 2>&1 <<'PY'
+import re, sys
+log = open(sys.argv[1]).read()
+n = r"(\d+\.\d{3})"
+whole = re.search(r"VOD written in " + n + " s$", log, re.M)
+end = re.search(r"^  rank 0's end: top levels " + n + r" s beside the records' order " + n +
+                r" s, assembly " + n + r" s \(writes " + n + r" s\), commit " + n + " s$", log, re.M)
+if not whole or not end:
+    sys.exit("no 'VOD written in' or no 'rank 0\'s end' line of its format")
+top, order, asm, writes, commit = map(float, end.groups())
+t = float(whole.group(1))
+if writes > asm + 0.001:
+    sys.exit(f"writes {writes} s over the assembly's {asm} s")
+if max(top, order) + asm + commit > t + 0.002:
+    sys.exit(f"max({top}, {order}) + {asm} + {commit} s over the {t} s the VOD took")
+print("ok")
+PY
+)
+if [ "$end_ok" = ok ]; then
+    pass "mpi: --stats gives rank 0's end by stage, within the time the file took"
+else
+    fail "mpi: --stats gives rank 0's end by stage, within the time the file took" \
+        "$end_ok $(grep -E "VOD written|rank 0's end" "$TMP/s.log")"
+fi
 
 # ranks_exit R CODE ARGS...: vox_mpi's every rank exits with CODE
 ranks_exit() {

@@ -364,6 +364,22 @@ static double tri_w(const double v[3][3], const double p[3])
     return atan2(det, den) / (2 * M_PI);
 }
 
+/* The bound tests' shape: a wavy fan of FAN triangles about (0.3, -0.2,
+ * 0.1), a cap as mesh_wcap.c makes. */
+enum { FAN = 48 };
+
+static void wavy_fan(double tri[FAN][3][3])
+{
+    for (int k = 0; k < FAN; k++) {
+        double a0 = 2 * M_PI * k / FAN, a1 = 2 * M_PI * (k + 1) / FAN;
+        double r0 = 6 + sin(3 * a0), r1 = 6 + sin(3 * a1);
+        double p0[3] = {r0 * cos(a0), r0 * sin(a0), 0.7 * sin(2 * a0)};
+        double p1[3] = {r1 * cos(a1), r1 * sin(a1), 0.7 * sin(2 * a1)};
+        for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
+        tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
+    }
+}
+
 /* mesh_vox_wind_cell's value at a cell's centre and its bound hold at every
  * point tried within the cell's ball (the expansion's remainder and the
  * variation over the ball: without the latter they would not), with and
@@ -371,16 +387,9 @@ static double tri_w(const double v[3][3], const double p[3])
  * test shape is a wavy fan of 48 triangles, a cap as mesh_wcap.c makes. */
 Test(mesh_wind, the_cell_bound_holds_within_the_ball)
 {
-    enum { N = 48 };
+    enum { N = FAN };
     double tri[N][3][3];
-    for (int k = 0; k < N; k++) {
-        double a0 = 2 * M_PI * k / N, a1 = 2 * M_PI * (k + 1) / N;
-        double r0 = 6 + sin(3 * a0), r1 = 6 + sin(3 * a1);
-        double p0[3] = {r0 * cos(a0), r0 * sin(a0), 0.7 * sin(2 * a0)};
-        double p1[3] = {r1 * cos(a1), r1 * sin(a1), 0.7 * sin(2 * a1)};
-        for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
-        tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
-    }
+    wavy_fan(tri);
     mesh_vox_wtree *t;
     cr_assert_eq(mesh_vox_wtree_make(NULL, NULL, (const double (*)[3][3])tri, N, NULL, &t), 0);
     size_t checked = 0, with_near = 0;
@@ -427,16 +436,9 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
  * or a wrong gradient would fail here). */
 Test(mesh_wind, the_caps_expansion_holds_within_the_ball)
 {
-    enum { N = 48 };
+    enum { N = FAN };
     double tri[N][3][3];
-    for (int k = 0; k < N; k++) {
-        double a0 = 2 * M_PI * k / N, a1 = 2 * M_PI * (k + 1) / N;
-        double r0 = 6 + sin(3 * a0), r1 = 6 + sin(3 * a1);
-        double p0[3] = {r0 * cos(a0), r0 * sin(a0), 0.7 * sin(2 * a0)};
-        double p1[3] = {r1 * cos(a1), r1 * sin(a1), 0.7 * sin(2 * a1)};
-        for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
-        tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
-    }
+    wavy_fan(tri);
     size_t checked = 0, cells = 0, refused = 0, needs_grad = 0;
     for (double rho = 0.8; rho < 7; rho *= 2)
         for (int z = -12; z <= 12; z += 2)
@@ -475,16 +477,9 @@ Test(mesh_wind, the_caps_expansion_holds_within_the_ball)
  * triangles down, and take others whole. */
 Test(mesh_wind, the_far_field_handed_down_holds_within_the_ball)
 {
-    enum { N = 48, CAP = 256 };
+    enum { N = FAN, CAP = 256 };
     double tri[N][3][3];
-    for (int k = 0; k < N; k++) {
-        double a0 = 2 * M_PI * k / N, a1 = 2 * M_PI * (k + 1) / N;
-        double r0 = 6 + sin(3 * a0), r1 = 6 + sin(3 * a1);
-        double p0[3] = {r0 * cos(a0), r0 * sin(a0), 0.7 * sin(2 * a0)};
-        double p1[3] = {r1 * cos(a1), r1 * sin(a1), 0.7 * sin(2 * a1)};
-        for (int i = 0; i < 3; i++) tri[k][0][i] = p1[i], tri[k][1][i] = p0[i];
-        tri[k][2][0] = 0.3, tri[k][2][1] = -0.2, tri[k][2][2] = 0.1;
-    }
+    wavy_fan(tri);
     mesh_vox_wtree *t;
     cr_assert_eq(mesh_vox_wtree_make(NULL, NULL, (const double (*)[3][3])tri, N, NULL, &t), 0);
     static uint32_t room[2][3][CAP];
