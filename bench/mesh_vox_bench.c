@@ -89,9 +89,9 @@ static int bench_res(const mesh *m, const mesh_vox_opts *o, uint32_t res, uint32
 {
     double lo[3] = {-1.02, -1.02, -1.02}, hi[3] = {1.02, 1.02, 1.02};
     grid_spec g;
-    char err[128];
-    if (grid_make(lo, hi, res, &g, err, sizeof err)) {
-        fprintf(stderr, "%s\n", err);
+    err_info err = {0};
+    if (grid_make(lo, hi, res, &g, &err)) {
+        fprintf(stderr, "%s\n", err.msg);
         return 1;
     }
     /* room for the bricks a sphere's surface crosses, with margin */

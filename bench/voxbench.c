@@ -81,8 +81,8 @@ static grid_spec shape_grid(const shape *s, uint32_t res)
 {
     double lo[3] = {s->lo, s->lo, s->lo}, hi[3] = {s->hi, s->hi, s->hi};
     grid_spec g;
-    char err[200];
-    if (grid_make(lo, hi, res, &g, err, sizeof err)) die("grid", err);
+    err_info err = {0};
+    if (grid_make(lo, hi, res, &g, &err)) die("grid", err.msg);
     return g;
 }
 

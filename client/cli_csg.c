@@ -242,9 +242,9 @@ int cli_csg(int argc, char **argv)
     int rc = cli_csg_parse(argc, argv, &o);
     if (rc) return rc < 0 ? CLI_EXIT_OK : rc;
     grid_spec g;
-    char err[200];
-    if (grid_make(o.lo, o.hi, o.res, &g, err, sizeof err)) {
-        cli_error("%s", err);
+    err_info err = {0};
+    if (grid_make(o.lo, o.hi, o.res, &g, &err)) {
+        cli_error("%s", err.msg);
         return CLI_EXIT_USAGE;
     }
     csg_tree *t;

@@ -90,10 +90,10 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
     job->schedule = o->schedule;
     job->vod = o->vod;
     grid_spec g;
-    char err[256];
+    err_info err = {0};
     if (job->kind == ENGINE_PIPELINE_IMPLICIT &&
-        grid_make(o->lo, o->hi, o->res, &g, err, sizeof err)) {
-        cli_error("%s", err);
+        grid_make(o->lo, o->hi, o->res, &g, &err)) {
+        cli_error("%s", err.msg);
         engine_abandon(e);
         return CLI_EXIT_USAGE;
     }

@@ -3,7 +3,6 @@
 
 #include <errno.h>
 #include <math.h>
-#include <stdio.h>
 
 static const char axis_name[3] = {'x', 'y', 'z'};
 
@@ -14,23 +13,19 @@ static int depth_for(uint32_t res)
     return d;
 }
 
-static int check_domain(const double lo[3], const double hi[3], char *err,
-                        size_t errlen)
+static int check_domain(const double lo[3], const double hi[3], err_info *err)
 {
     for (int a = 0; a < 3; a++) {
         if (!isfinite(lo[a]) || !isfinite(hi[a])) {
-            snprintf(err, errlen, "domain bound on %c is not finite",
+            return err_set(err, -EINVAL, "domain bound on %c is not finite",
                      axis_name[a]);
-            return -EINVAL;
         }
         if (!(hi[a] > lo[a])) {
-            snprintf(err, errlen, "domain is empty on %c: low %g >= high %g",
+            return err_set(err, -EINVAL, "domain is empty on %c: low %g >= high %g",
                      axis_name[a], lo[a], hi[a]);
-            return -EINVAL;
         }
         if (!isfinite(hi[a] - lo[a])) {
-            snprintf(err, errlen, "domain is too large on %c", axis_name[a]);
-            return -EINVAL;
+            return err_set(err, -EINVAL, "domain is too large on %c", axis_name[a]);
         }
     }
     return 0;
@@ -49,14 +44,13 @@ static uint32_t axis_voxels(const grid_spec *g, const double hi[3], int a,
 }
 
 int grid_make(const double lo[3], const double hi[3], uint32_t res,
-                     grid_spec *g, char *err, size_t errlen)
+                     grid_spec *g, err_info *err)
 {
     if (res < 1 || res > GRID_MAX_RES) {
-        snprintf(err, errlen, "resolution %u is outside 1..%u", res,
+        return err_set(err, -EINVAL, "resolution %u is outside 1..%u", res,
                  GRID_MAX_RES);
-        return -EINVAL;
     }
-    int rc = check_domain(lo, hi, err, errlen);
+    int rc = check_domain(lo, hi, err);
     if (rc) return rc;
     int longest = 0;
     for (int a = 1; a < 3; a++)
@@ -68,11 +62,10 @@ int grid_make(const double lo[3], const double hi[3], uint32_t res,
         g->vs = nextafter(g->vs, INFINITY);
     for (int a = 0; a < 3; a++) {
         if (!(g->vs > 0.0) || grid_coord(g, a, 1) == lo[a]) {
-            snprintf(err, errlen,
+            return err_set(err, -EINVAL,
                      "domain is too small for its position on %c: a voxel "
                      "would be narrower than the floating-point spacing",
                      axis_name[a]);
-            return -EINVAL;
         }
         g->res[a] = a == longest ? res : axis_voxels(g, hi, a, res);
     }

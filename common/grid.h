@@ -17,6 +17,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
+
 #define GRID_MAX_RES 4096u
 #define GRID_MAX_DEPTH 12 /* 2^12 = GRID_MAX_RES */
 
@@ -42,7 +44,7 @@ typedef struct {
  * the domain: lo + res[a]*vs >= hi[a].  -EINVAL with a message for an empty
  * or non-finite box or res outside 1..4096. */
 int grid_make(const double lo[3], const double hi[3], uint32_t res,
-                     grid_spec *g, char *err, size_t errlen);
+                     grid_spec *g, err_info *err);
 /* 0 when g is a grid grid_make could have made (res, depth, finite
  * lo and vs > 0), else -EINVAL: for grids that come from elsewhere. */
 int grid_check(const grid_spec *g);

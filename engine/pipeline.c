@@ -123,9 +123,9 @@ int engine_pipeline_plan(const engine_pipeline_job *job, engine_pipeline_report 
     memcpy(hi, job->hi, sizeof hi);
     int rc = k->domain(job, lo, hi, r); /* its checks, and its domain if its own */
     if (rc) return rc;
-    char err[sizeof r->err.msg];
-    rc = grid_make(lo, hi, job->res, &r->grid, err, sizeof err);
-    if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "%s", err);
+    err_info err = {0};
+    rc = grid_make(lo, hi, job->res, &r->grid, &err);
+    if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "%s", err.msg);
     vod_setup(v, job, lo, hi, &r->grid, meta); /* the job as asked for */
     return 0;
 }

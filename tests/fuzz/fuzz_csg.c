@@ -28,9 +28,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         if (t->node[i].a >= (int32_t)i || t->node[i].b >= (int32_t)i) abort();
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     grid_spec g;
-    char gerr[100];
+    err_info gerr = {0};
     csg_eval *e;
-    if (!grid_make(lo, hi, 16, &g, gerr, sizeof gerr) && !csg_eval_new(t, &g, 8, NULL, &e)) {
+    if (!grid_make(lo, hi, 16, &g, &gerr) && !csg_eval_new(t, &g, 8, NULL, &e)) {
         uint8_t buf[512], v;
         uint32_t b[3] = {0, 1, 0};
         int uni;

@@ -52,8 +52,8 @@ static inline grid_spec grid(uint32_t res)
 {
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     grid_spec g;
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, res, &g, &err), 0, "%s", err.msg);
     return g;
 }
 

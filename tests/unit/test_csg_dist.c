@@ -47,9 +47,9 @@ static double off_sphere(const double p[3])
 static grid_spec grid64(uint32_t res)
 {
     grid_spec g;
-    char err[128];
+    err_info err = {0};
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(grid_make(lo, hi, res, &g, &err), 0, "%s", err.msg);
     return g;
 }
 

@@ -109,8 +109,8 @@ Test(engine, jobs_in_a_row_reuse_the_workers)
         expr_tape *tape = compile(src[k]);
         double lo[3] = {-1, -1, -0.4}, hi[3] = {1, 0.9, 0.4};
         grid_spec g;
-        char err[200];
-        cr_assert_eq(grid_make(lo, hi, res[k], &g, err, sizeof err), 0);
+        err_info err = {0};
+        cr_assert_eq(grid_make(lo, hi, res[k], &g, &err), 0);
         ref_tree ref;
         reference(tape, &g, &ref);
         engine_result r;
@@ -534,8 +534,8 @@ Test(engine, vod_bytes_identical_to_serial_writer)
     expr_tape *tape = compile(SPHERES);
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 0.6};
     grid_spec g;
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, 120, &g, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, 120, &g, &err), 0);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(3, 0);

@@ -117,8 +117,8 @@ static void check_envelope(const char *name, const char *src, shape_fn f, uint32
     if (f == scene2 || f == scene3)
         for (int a = 0; a < 3; a++) lo[a] = -1.05, hi[a] = 1.05;
     grid_spec g;
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, res, &g, &err), 0, "%s", err.msg);
     expr_tape *tape;
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &tape, &ee), 0, "%s: %s", name, ee.msg);

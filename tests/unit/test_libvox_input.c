@@ -599,8 +599,8 @@ Test(libvox, server_info_and_grid_from_a_real_daemon, .timeout = 120)
     cr_assert_eq(vox_receive_to_file(c, id, out_path("g.vod"), &ro, &e), 0, "%s", e.message);
     double lo[3] = {-1, -0.3, -0.1}, hi[3] = {1, 0.3, 0.15};
     grid_spec g;
-    char why[256];
-    cr_assert_eq(grid_make(lo, hi, 37, &g, why, sizeof why), 0, "%s", why);
+    err_info why = {0};
+    cr_assert_eq(grid_make(lo, hi, 37, &g, &why), 0, "%s", why.msg);
     for (int a = 0; a < 3; a++) {
         cr_expect_eq(sum.grid[a], g.res[a], "axis %d: %u, want %u", a, sum.grid[a], g.res[a]);
         cr_expect(sum.origin[a] == g.lo[a], "axis %d origin %g, want %g", a, sum.origin[a],

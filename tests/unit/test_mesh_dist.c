@@ -23,8 +23,8 @@ static grid_spec cube_grid(uint32_t res)
 {
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
     grid_spec g;
-    char err[128];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, res, &g, &err), 0, "%s", err.msg);
     return g;
 }
 
@@ -236,8 +236,8 @@ Test(mesh_dist, a_grid_of_partial_bricks)
     const mesh *m = shape_finish(&s);
     double lo[3] = {-0.8, -0.7, -0.6}, hi[3] = {1.0, 0.7, 0.6};
     grid_spec g;
-    char err[128];
-    cr_assert_eq(grid_make(lo, hi, 72, &g, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, 72, &g, &err), 0, "%s", err.msg);
     mesh_vox_opts od = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0, 0};
     mesh_vox_opts oo = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0};
     uint32_t *dist = voxelize(m, &g, &od, NULL), *occ = voxelize(m, &g, &oo, NULL);

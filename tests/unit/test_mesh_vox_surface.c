@@ -141,8 +141,8 @@ static grid_spec odd_grid(void)
 {
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 0.6, -0.5};
     grid_spec g;
-    char err[128];
-    cr_assert_eq(grid_make(lo, hi, 160, &g, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, 160, &g, &err), 0, "%s", err.msg);
     cr_assert(g.res[0] == 160 && g.res[1] == 128 && g.res[2] == 40);
     return g;
 }

@@ -30,8 +30,8 @@ static grid_spec cube_grid(double h, uint32_t res)
 {
     double lo[3] = {-h, -h, -h}, hi[3] = {h, h, h};
     grid_spec g;
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, res, &g, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, res, &g, &err), 0, "%s", err.msg);
     return g;
 }
 
@@ -59,17 +59,17 @@ Test(subdiv, grid_non_power_of_two_and_box_domains)
     cr_assert(g.res[0] == 100 && g.res[1] == 100 && g.res[2] == 100);
     cr_assert_float_eq(g.vs, 0.02, 1e-15);
     double lo[3] = {0, 0, 0}, hi[3] = {2, 1, 0.5};
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, 64, &g, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, 64, &g, &err), 0);
     cr_assert(g.res[0] == 64 && g.res[1] == 32 && g.res[2] == 16,
               "%u %u %u", g.res[0], g.res[1], g.res[2]);
     /* 0.3 / 0.1 is 2.9999999999999996 in doubles: still 3 voxels */
     double lo2[3] = {0, 0, 0}, hi2[3] = {1, 0.3, 1};
-    cr_assert_eq(grid_make(lo2, hi2, 10, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo2, hi2, 10, &g, &err), 0);
     cr_assert(g.res[0] == 10 && g.res[1] == 3 && g.res[2] == 10);
     /* a thin slab still gets one voxel; the longest axis may be y or z */
     double lo3[3] = {5, -3, 10}, hi3[3] = {5.001, 3, 11};
-    cr_assert_eq(grid_make(lo3, hi3, 300, &g, err, sizeof err), 0);
+    cr_assert_eq(grid_make(lo3, hi3, 300, &g, &err), 0);
     cr_assert(g.res[0] == 1 && g.res[1] == 300 && g.res[2] == 50,
               "%u %u %u", g.res[0], g.res[1], g.res[2]);
     cr_assert_eq(g.depth, 9);
@@ -81,27 +81,27 @@ Test(subdiv, grid_non_power_of_two_and_box_domains)
 Test(subdiv, grid_errors_have_messages)
 {
     grid_spec g;
-    char err[200];
+    err_info err = {0};
     double lo[3] = {-1, -1, -1}, hi[3] = {1, 1, 1};
-    err[0] = 0;
-    cr_assert_eq(grid_make(lo, hi, 0, &g, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "resolution"), "%s", err);
-    cr_assert_eq(grid_make(lo, hi, 4097, &g, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "4096"), "%s", err);
+    err.msg[0] = 0;
+    cr_assert_eq(grid_make(lo, hi, 0, &g, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "resolution"), "%s", err.msg);
+    cr_assert_eq(grid_make(lo, hi, 4097, &g, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "4096"), "%s", err.msg);
     double hi_flat[3] = {1, -1, 1};
-    cr_assert_eq(grid_make(lo, hi_flat, 64, &g, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "empty on y"), "%s", err);
+    cr_assert_eq(grid_make(lo, hi_flat, 64, &g, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "empty on y"), "%s", err.msg);
     double hi_inv[3] = {1, 1, -2};
-    cr_assert_eq(grid_make(lo, hi_inv, 64, &g, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "on z"), "%s", err);
+    cr_assert_eq(grid_make(lo, hi_inv, 64, &g, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "on z"), "%s", err.msg);
     double hi_nan[3] = {NAN, 1, 1};
-    cr_assert_eq(grid_make(lo, hi_nan, 64, &g, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "not finite"), "%s", err);
+    cr_assert_eq(grid_make(lo, hi_nan, 64, &g, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "not finite"), "%s", err.msg);
     double lo_inf[3] = {-INFINITY, -1, -1};
-    cr_assert_eq(grid_make(lo_inf, hi, 64, &g, err, sizeof err), -EINVAL);
+    cr_assert_eq(grid_make(lo_inf, hi, 64, &g, &err), -EINVAL);
     double lo_far[3] = {1e17, 0, 0}, hi_far[3] = {1e17 + 64, 100, 1};
-    cr_assert_eq(grid_make(lo_far, hi_far, 64, &g, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "too small"), "%s", err);
+    cr_assert_eq(grid_make(lo_far, hi_far, 64, &g, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "too small"), "%s", err.msg);
     g = cube_grid(1, 64);
     g.depth = 7; /* not the smallest depth */
     cr_assert_eq(grid_check(&g), -EINVAL);
@@ -113,8 +113,8 @@ Test(subdiv, neighbours_share_bounds_bit_for_bit)
 {
     double lo[3] = {-0.37, 0.1, -3.3}, hi[3] = {0.91, 0.7, -2.0};
     grid_spec g;
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, 333, &g, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, 333, &g, &err), 0);
     srand(5);
     for (int k = 0; k < 20000; k++) {
         uint16_t l = (uint16_t)(rand() % g.depth), n = (uint16_t)(1u << l);
@@ -265,8 +265,8 @@ Test(subdiv, padding_is_never_emitted)
     /* 100 voxels in a 128 tree, and a domain that cuts the sphere */
     double lo[3] = {-1, -1, -0.5}, hi[3] = {1, 1, 0.5};
     grid_spec g;
-    char err[200];
-    cr_assert_eq(grid_make(lo, hi, 100, &g, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(grid_make(lo, hi, 100, &g, &err), 0);
     cr_assert(g.res[2] == 50 && g.depth == 7);
     tree t;
     serial("sqrt(x^2 + y^2 + z^2) - 1.2", &g, &t);
