@@ -290,12 +290,17 @@ static int open_out(const mesh_opts *o, mesh_out *w)
 }
 
 /* The mesh written (unless it was streamed) and the file put in place;
- * *old: the file it replaced, held open. */
-static int write_mesh(const mesh_opts *o, const iso_mesh *m, mesh_out *w, int *old)
+ * *old: the file it replaced, held open.  The engine (*e) is abandoned
+ * once nothing reads the mesh in its segment: its mapping's page tables
+ * are dropped while the commit's fsync waits, not at the exit. */
+static int write_mesh(const mesh_opts *o, const iso_mesh *m, mesh_out *w, engine **e,
+                      int *old)
 {
     /* formatted by as many threads as the job had workers (idle now) */
     int rc = w->streaming ? w->rc : iso_write(w->f.fd, m, o->fmt, w->comment,
                                               o->workers ? o->workers : 1);
+    engine_abandon(*e);
+    *e = NULL;
     if (!rc && !cli_interrupted()) {
         *old = replaced_file(o->out);
         rc = outfile_commit(&w->f, o->out);
@@ -405,15 +410,16 @@ static int run(const mesh_opts *o)
         cli_end_interrupted(o->out);
     }
     int old = -1;
-    if (!rc) rc = write_mesh(o, &m, &w, &old);
+    if (!rc) rc = write_mesh(o, &m, &w, &e, &old);
     t[3] = clock_now();
     par_join(&end);
     if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);
     iso_mesh_free(&m);
     if (old >= 0) free_after_exit(old);
-    /* The mesh was read from the segment until the write's end; now the
-     * workers free it after we exit, and nothing of the engine's end is
-     * waited for (engine_abandon, as vox voxelize ends). */
+    /* The mesh was read from the segment until the write's end (where
+     * write_mesh abandons the engine, e NULL since); the workers free it
+     * after we exit, and nothing of the engine's end is waited for
+     * (engine_abandon, as vox voxelize ends). */
     engine_abandon(e);
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }

@@ -3,6 +3,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <sched.h>
 #include <signal.h>
 #include <stdio.h>
@@ -228,20 +229,27 @@ void engine_destroy(engine *e)
 typedef struct {
     void *base;
     size_t bytes;
+    atomic_size_t next; /* the next piece to drop */
 } unmapping;
 
-/* Part k of n of the mapping's page tables dropped (the pages stay the
- * segment's): madvise takes the mapping's lock to read, so the parts run
- * at once, where munmap (and the exit's teardown) would drop them all on
- * one thread, under the lock held to write. */
+#define UNMAP_PIECE ((size_t)32 << 20) /* a multiple of every page size here */
+
+/* The mapping's page tables dropped piece by piece (the pages stay the
+ * segment's), each thread taking the next: madvise takes the mapping's
+ * lock to read, so the threads run at once, where munmap (or the exit's
+ * teardown) would drop them all on one, under the lock held to write.
+ * Pieces, not halves: what the master touched lies anywhere in it. */
 static void unmap_part(void *ud, unsigned k, unsigned n)
 {
-    const unmapping *u = ud;
-    const size_t step = (size_t)2 << 20; /* a multiple of every page size here */
-    size_t steps = (u->bytes + step - 1) / step;
-    size_t from = steps * k / n * step, to = steps * (k + 1) / n * step;
-    if (to > u->bytes) to = u->bytes;
-    if (to > from) madvise((char *)u->base + from, to - from, MADV_DONTNEED);
+    (void)k, (void)n;
+    unmapping *u = ud;
+    for (;;) {
+        /* relaxed: a counter; the pieces are disjoint */
+        size_t from = atomic_fetch_add_explicit(&u->next, UNMAP_PIECE, memory_order_relaxed);
+        if (from >= u->bytes) return;
+        size_t len = u->bytes - from < UNMAP_PIECE ? u->bytes - from : UNMAP_PIECE;
+        madvise((char *)u->base + from, len, MADV_DONTNEED);
+    }
 }
 
 static void *unmap_run(void *arg)
@@ -266,7 +274,8 @@ static void unmap_beside(shm_seg *s)
     pthread_attr_t a;
     int started = 0;
     if (u && !pthread_attr_init(&a)) {
-        *u = (unmapping){s->base, s->bytes};
+        u->base = s->base, u->bytes = s->bytes;
+        atomic_init(&u->next, 0);
         pthread_attr_setdetachstate(&a, PTHREAD_CREATE_DETACHED);
         started = !pthread_create(&t, &a, unmap_run, u);
         pthread_attr_destroy(&a);
