@@ -223,9 +223,9 @@ void sign_sample(const std::vector<worst> &all, size_t n, const distance_file &d
 void compare(const distance_file &d, const openvdb::FloatGrid &grid, const world_mesh &m)
 {
     /* vox writes the band's width as (float)(K vs) from the grid's double
-     * voxel size, the file holds vs as a float: a hair less than K vs (1e-5
+     * voxel size, the file holds vs as a float: a hair less than K vs (1e-6
      * of it) keeps the voxels beyond the band out whichever rounds up */
-    float w = (float)(d.band * d.vs * (1 - 1e-5));
+    float w = (float)(d.band * d.vs * (1 - 1e-6));
     uint64_t ours = 0, compared = 0, signs = 0, over = 0, flipped = 0;
     for (uint32_t z = 0; z < d.dims[2]; z++)
         for (uint32_t y = 0; y < d.dims[1]; y++)

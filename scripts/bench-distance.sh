@@ -82,7 +82,7 @@ echo '| OpenVDB | \|d\| < 1 | 1 to 2 | 2 to 3 | same sign, diff > 0.05 | signs d
 echo '|---|---:|---:|---:|---:|---:|---:|'
 for f in 0 6; do
     [ $f = 0 ] && line=$o || line=$o6
-    awk -v f=$f '{ printf "| flags %d | %.4f | %.4f | %.4f | %d | %d | %d |\n", f, $26, $27, $28, $22, $16, $24 }' <<<"$line"
+    awk -v f=$f '{ printf "| flags %d | %.6f | %.4f | %.4f | %d | %d | %d |\n", f, $26, $27, $28, $22, $16, $24 }' <<<"$line"
 done
 echo
 echo "The generalized winding number (brute force over every triangle) at 20 of the voxels whose"
