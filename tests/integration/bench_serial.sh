@@ -84,3 +84,11 @@ bad=$(awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ {
         if (!ok) print }' "$TMP/table")
 if [ "$((rows - 1))" -eq "$want" ] && [ -z "$bad" ]; then pass "bench-serial: $want rows, every column filled"
 else fail "bench-serial: $want rows, every column filled" "rows $((rows - 1)); $bad"; fi
+
+# BENCH_SERIAL_JOBS: the named jobs only, in the table's order
+BENCH_QUICK=1 BENCH_SERIAL_JOBS="iso csg" scripts/bench-serial.sh "$REL" >"$TMP/some" 2>"$TMP/some.err"
+rc=$?
+labels=$(awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ { print $2 }' "$TMP/some" | sed 's/^ *//; s/ *$//' | paste -sd';')
+if [ "$rc" -eq 0 ] && [ "$labels" = "10-node CSG tree, 64^3;vox mesh of Scene 1, 32^3" ]; then
+    pass "bench-serial: BENCH_SERIAL_JOBS runs the named jobs only ($labels)"
+else fail "bench-serial: BENCH_SERIAL_JOBS runs the named jobs only" "exit $rc: $labels"; fi
