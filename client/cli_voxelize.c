@@ -71,7 +71,9 @@ static int run_job(const voxelize_opts *o, const engine_pipeline_job *job, outfi
     if (e) engine_lazy_release(e); /* nothing to give back before we exit */
     vod_sink sink = {write_or_stop, f};
     rc = engine_pipeline_run(e, job, &sink, r);
-    engine_abandon(e); /* its end is not waited for: the file is */
+    /* its end is not waited for, the file is; its mapping goes with our
+     * memory, after the exit (afterexit_leave in voxelize) */
+    engine_leave(e);
     if (rc == 0 || cli_interrupted()) return rc;
     if (r->stage == ENGINE_PIPELINE_WRITE)
         cli_error("cannot write %s: %s", o->out, r->err.msg);

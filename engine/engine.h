@@ -226,6 +226,12 @@ void engine_destroy(engine *e);
  * engine_destroy's cost at the end of a large job (its pages freed, the
  * workers reaped) is then nobody's wait. */
 void engine_abandon(engine *e);
+/* engine_abandon, the caller's mapping left as it is: for a process that
+ * hands its memory to afterexit_leave (common/afterexit.h), whose helper
+ * tears it down after the exit; unmapping it here would only make the
+ * exit wait for the unmapping thread (and the caller's page faults for
+ * its lock). */
+void engine_leave(engine *e);
 int engine_workers(const engine *e);
 /* Worker i's pid and the CPU it is pinned to (tests, status pages). */
 int engine_worker_pid(const engine *e, int i);

@@ -287,16 +287,28 @@ static void unmap_beside(shm_seg *s)
     s->base = NULL;
 }
 
-void engine_abandon(engine *e)
+/* The workers told to leave, the segment's name removed; unmap: the
+ * caller's mapping unmapped beside what it does next. */
+static void leave(engine *e, int unmap)
 {
     if (!e) return;
     if (e->seg.base) {
         order(e, SHM_OP_LEAVE);
         if (e->seg.named) shm_unlink(e->seg.name);
         e->seg.named = 0;
-        unmap_beside(&e->seg);
+        if (unmap) unmap_beside(&e->seg);
     }
     free(e);
+}
+
+void engine_abandon(engine *e)
+{
+    leave(e, 1);
+}
+
+void engine_leave(engine *e)
+{
+    leave(e, 0);
 }
 
 int engine_create(const engine_opts *o, engine **out, char *err,
