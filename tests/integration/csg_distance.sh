@@ -11,19 +11,12 @@ VOXMPI=$(dirname "${VOX:-build/release/vox}")/vox_mpi
 . "$(dirname "$0")/daemon_lib.bash"
 ICO=$PWD/tests/golden/ico.obj
 
-cat >"$TMP/balls.csg" <<'EOT'
-a = implicit "sqrt((x+0.25)^2 + y^2 + z^2) - 0.5"
-b = implicit "sqrt((x-0.22)^2 + (y-0.05)^2 + (z+0.03)^2) - 0.43"
-c = implicit "sqrt(x^2 + y^2 + (z-0.3)^2) - 0.2"
-r = difference(union(a, b), intersection(c, inverse(a)))
-result r
-EOT
-cat >"$TMP/mesh.csg" <<EOT
-ico = mesh "$ICO" fit 0.1,0,0 scale 1.2
-hole = implicit "sqrt(x^2 + y^2) - 0.2"
-r = difference(ico, hole)
-result r
-EOT
+{
+    balls_leaves
+    printf '%s\n' 'c = implicit "sqrt(x^2 + y^2 + (z-0.3)^2) - 0.2"' \
+        'r = difference(union(a, b), intersection(c, inverse(a)))' 'result r'
+} >"$TMP/balls.csg"
+ico_csg "$ICO" >"$TMP/mesh.csg"
 
 for t in balls mesh; do
     for w in 0 1 2; do

@@ -13,18 +13,8 @@ cat >"$TMP/ball.vx" <<EOT
 #@ domain -1 1
 $BALL
 EOT
-cat >"$TMP/balls.csg" <<'EOT'
-a = implicit "sqrt((x+0.25)^2 + y^2 + z^2) - 0.5"
-b = implicit "sqrt((x-0.22)^2 + (y-0.05)^2 + (z+0.03)^2) - 0.43"
-r = union(a, b)
-result r
-EOT
-cat >"$TMP/mesh.csg" <<EOT
-ico = mesh "$ICO" fit 0.1,0,0 scale 1.2
-hole = implicit "sqrt(x^2 + y^2) - 0.2"
-r = difference(ico, hole)
-result r
-EOT
+two_balls_csg >"$TMP/balls.csg"
+ico_csg "$ICO" >"$TMP/mesh.csg"
 
 # ---------------------------------------------------------------- embedded
 check "expression, band 5: vox voxelize --embedded" \

@@ -67,6 +67,21 @@ torus_obj() {
         } }'
 }
 
+# The distance tests' CSG trees (daemon_band.sh, csg_distance.sh, mpi.sh), on
+# stdout.  balls_leaves: two overlapping balls, leaves a and b; two_balls_csg:
+# their union.
+balls_leaves() {
+    printf '%s\n' 'a = implicit "sqrt((x+0.25)^2 + y^2 + z^2) - 0.5"' \
+        'b = implicit "sqrt((x-0.22)^2 + (y-0.05)^2 + (z+0.03)^2) - 0.43"'
+}
+two_balls_csg() { balls_leaves; printf '%s\n' 'r = union(a, b)' 'result r'; }
+# ico_csg OBJ: the icosphere OBJ (tests/golden/ico.obj) moved and scaled, less a
+# cylinder along z: a mesh and an implicit leaf.
+ico_csg() {
+    printf '%s\n' "ico = mesh \"$1\" fit 0.1,0,0 scale 1.2" 'hole = implicit "sqrt(x^2 + y^2) - 0.2"' \
+        'r = difference(ico, hole)' 'result r'
+}
+
 pass() { echo "PASS: $1"; }
 fail() { echo "FAIL: $1"; [ -n "${2:-}" ] && printf '  %s\n' "$2"; }
 # check NAME COMMAND...: passes when the command succeeds with no sanitizer report

@@ -111,12 +111,7 @@ same_as csg "part at 8^3" 3 0 examples/part.csg -r 8
 # mean, no empty node; a mesh's columns without triangles (the box larger
 # than the torus) handed out and made of the band's width; an expression's
 # distance as a tree of one leaf; a tree's band in its leaves.
-cat >"$TMP/balls.csg" <<'EOF'
-a = implicit "sqrt((x+0.25)^2 + y^2 + z^2) - 0.5"
-b = implicit "sqrt((x-0.22)^2 + (y-0.05)^2 + (z+0.03)^2) - 0.43"
-r = union(a, b)
-result r
-EOF
+two_balls_csg >"$TMP/balls.csg"
 for r in 1 3; do
     for w in 0 2; do
         same "torus mesh, distance, a box with empty columns" $r $w --mesh "$TMP/torus.obj" \
