@@ -90,8 +90,8 @@ static engine *make_engine(int workers)
 {
     engine_opts o = {.workers = workers};
     engine *e;
-    char err[256] = "";
-    if (engine_create(&o, &e, err, sizeof err)) die("engine", err);
+    err_info err = {0};
+    if (engine_create(&o, &e, &err)) die("engine", err.msg);
     return e;
 }
 

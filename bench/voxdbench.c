@@ -423,9 +423,9 @@ static engine *make_engine(int workers)
 {
     engine_opts o = {.workers = workers};
     engine *e;
-    char err[256] = "";
-    int rc = engine_create(&o, &e, err, sizeof err);
-    if (rc) die("cannot start the embedded engine: %s", err[0] ? err : strerror(-rc));
+    err_info err = {0};
+    int rc = engine_create(&o, &e, &err);
+    if (rc) die("cannot start the embedded engine: %s", err.msg[0] ? err.msg : strerror(-rc));
     return e;
 }
 

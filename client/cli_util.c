@@ -114,10 +114,10 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
     engine_opts eo = {.workers = (int)workers, .cpus = ncpus ? cpu : NULL,
                       .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20,
                       .shm_option = "--shm-size"};
-    char err[256] = "";
-    int rc = engine_create(&eo, e, err, sizeof err);
-    if (rc == -ENOSPC) cli_error("cannot start the engine: %s (--shm-size MIB sets it)", err);
-    else if (rc) cli_error("cannot start the engine: %s", err[0] ? err : strerror(-rc));
+    err_info err = {0};
+    int rc = engine_create(&eo, e, &err);
+    if (rc == -ENOSPC) cli_error("cannot start the engine: %s (--shm-size MIB sets it)", err.msg);
+    else if (rc) cli_error("cannot start the engine: %s", err.msg[0] ? err.msg : strerror(-rc));
     return rc;
 }
 

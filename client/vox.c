@@ -46,11 +46,11 @@ static const char *default_socket(voxd_config *cfg)
     const char *path = getenv("VOXD_CONFIG");
     int explicit_path = path && *path;
     if (!explicit_path) path = CONFIG_DEFAULT_PATH;
-    char err[512];
-    int rc = config_load(path, cfg, err, sizeof err);
+    err_info err = {0};
+    int rc = config_load(path, cfg, &err);
     if (rc == 0) return cfg->socket;
     if (explicit_path || (rc != -ENOENT && rc != -EACCES))
-        cli_error("%s; using the socket " VOX_DEFAULT_SOCKET, err);
+        cli_error("%s; using the socket " VOX_DEFAULT_SOCKET, err.msg);
     return VOX_DEFAULT_SOCKET;
 }
 

@@ -3,11 +3,15 @@
  *
  * A module's error structure is an err_info (a typed kind beside the
  * errno where the module has one, e.g. the protocol's error code), and its
- * messages are written by err_set; a call that reports into a caller's
- * buffer (char *err, size_t errlen) writes it with err_fmt.  Both return
- * the code, so that a failure reads `return err_fmt(err, errlen, -EINVAL,
- * "...", ...);`.  A formatter that keeps state of its own (a position, the
- * first failure only) calls err_vfmt.
+ * messages are written by err_set, which returns the code, so that a
+ * failure reads `return err_set(err, -EINVAL, "...", ...);`.  A call that
+ * can fail takes an `err_info *err` (NULL: no message wanted) and returns
+ * the negative errno: grid_make, config_load, shm_create, engine_create,
+ * mesh_vox_check and the rest.  Not converted yet (they still take
+ * `char *err, size_t errlen` and write it with err_fmt): vod/'s reader and
+ * writer (vod.h), client/export.h and the vdb_out plugin's table,
+ * mpi_part.h's mpi_subtree_run.  A formatter that keeps state of its own
+ * (a position, the first failure only) calls err_vfmt.
  *
  * engine_error is one (its kind an engine_failure), and so is the error of
  * engine_result and engine_pipeline_report; the structures that carry a

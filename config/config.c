@@ -401,8 +401,7 @@ typedef struct {
     const char *name;
     int line;
     int set[N_OPTIONS]; /* line where each option was set, 0 = not */
-    char *err;
-    size_t errlen;
+    err_info *err;
 } parser;
 
 __attribute__((format(printf, 3, 4)))
@@ -413,8 +412,8 @@ static int fail_at(parser *p, int line, const char *fmt, ...)
     va_start(ap, fmt);
     err_vfmt(why, sizeof why, -EINVAL, fmt, ap);
     va_end(ap);
-    if (line > 0) return err_fmt(p->err, p->errlen, -EINVAL, "%s:%d: %s", p->name, line, why);
-    return err_fmt(p->err, p->errlen, -EINVAL, "%s: %s", p->name, why);
+    if (line > 0) return err_set(p->err, -EINVAL, "%s:%d: %s", p->name, line, why);
+    return err_set(p->err, -EINVAL, "%s: %s", p->name, why);
 }
 
 static const option *find_option(const char *key, size_t len)
@@ -500,10 +499,9 @@ static int check_together(parser *p, const voxd_config *c)
     return 0;
 }
 
-int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
-                       size_t errlen)
+int config_load_stream(FILE *f, const char *name, voxd_config *c, err_info *err)
 {
-    parser p = {.name = name, .err = err, .errlen = errlen};
+    parser p = {.name = name, .err = err};
     voxd_config *tmp = malloc(sizeof *tmp);
     char line[CONFIG_MAX_LINE + 2];
     int rc = 0;
@@ -519,7 +517,7 @@ int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
     }
     if (rc == 0 && ferror(f)) {
         rc = errno ? -errno : -EIO;
-        err_fmt(err, errlen, rc, "%s: %s", name, strerror(-rc));
+        err_set(err, rc, "%s: %s", name, strerror(-rc));
     }
     if (rc == 0) rc = check_together(&p, tmp);
     if (rc == 0) *c = *tmp;
@@ -527,15 +525,15 @@ int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
     return rc;
 }
 
-int config_load(const char *path, voxd_config *c, char *err, size_t errlen)
+int config_load(const char *path, voxd_config *c, err_info *err)
 {
     FILE *f = fopen(path, "re");
     if (!f) {
         int rc = -errno;
-        return err_fmt(err, errlen, rc, "%s: %s", path, strerror(-rc));
+        return err_set(err, rc, "%s: %s", path, strerror(-rc));
     }
     errno = 0;
-    int rc = config_load_stream(f, path, c, err, errlen);
+    int rc = config_load_stream(f, path, c, err);
     fclose(f);
     return rc;
 }

@@ -21,6 +21,7 @@
 #include <stdio.h>
 #include <sys/types.h>
 
+#include "err.h"
 #include "proto_check.h"
 #include "vox_limits.h"
 
@@ -88,10 +89,9 @@ typedef struct {
 void config_defaults(voxd_config *c);
 /* Defaults, then the file.  0, or -EINVAL with "FILE:LINE: reason" in err,
  * or -errno with "FILE: <strerror>" when the file cannot be read. */
-int config_load(const char *path, voxd_config *c, char *err, size_t errlen);
+int config_load(const char *path, voxd_config *c, err_info *err);
 /* The same from an open stream; name is what messages call it. */
-int config_load_stream(FILE *f, const char *name, voxd_config *c, char *err,
-                       size_t errlen);
+int config_load_stream(FILE *f, const char *name, voxd_config *c, err_info *err);
 /* Every option, as a loadable file. */
 void config_print(FILE *out, const voxd_config *c);
 

@@ -15,12 +15,12 @@
 #include "log.h"
 #include "proto_check.h"
 
-int daemon_load_config(const daemon_options *o, voxd_config *c, char *err, size_t errlen)
+int daemon_load_config(const daemon_options *o, voxd_config *c, err_info *err)
 {
     const char *path = o->config_path;
     if (!path && access(CONFIG_DEFAULT_PATH, F_OK) == 0) path = CONFIG_DEFAULT_PATH;
     int rc = 0;
-    if (path) rc = config_load(path, c, err, errlen);
+    if (path) rc = config_load(path, c, err);
     else config_defaults(c);
     if (rc) return rc;
     if (o->socket) snprintf(c->socket, sizeof c->socket, "%s", o->socket);
@@ -194,9 +194,9 @@ static void stop_graceful(daemon_ctx *d)
 static void reload(daemon_ctx *d)
 {
     voxd_config nc;
-    char err[512];
-    if (daemon_load_config(&d->opt, &nc, err, sizeof err)) {
-        log_error("reload: %s; keeping the running configuration", err);
+    err_info err = {0};
+    if (daemon_load_config(&d->opt, &nc, &err)) {
+        log_error("reload: %s; keeping the running configuration", err.msg);
         return;
     }
     if (strcmp(nc.socket, d->cfg.socket)) {

@@ -252,7 +252,7 @@ int daemon_run(const voxd_config *cfg, const daemon_options *opt, const char *sh
  * file was named and /etc/voxd/voxd.conf does not exist), then the
  * command line's overrides (--socket, --workers, --client-timeout).
  * 0 or -errno with a message in err. */
-int daemon_load_config(const daemon_options *o, voxd_config *c, char *err, size_t errlen);
+int daemon_load_config(const daemon_options *o, voxd_config *c, err_info *err);
 void daemon_engine_opts(daemon_ctx *d, const voxd_config *c); /* under mu */
 
 /* daemon_engine.c */

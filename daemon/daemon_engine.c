@@ -128,14 +128,14 @@ static void wake_loop(daemon_ctx *d)
 static engine *engine_make(daemon_ctx *d)
 {
     engine *e = NULL;
-    char err[256] = "";
+    err_info err = {0};
     engine_opts o = d->eopts;
     pthread_mutex_unlock(&d->mu);
-    int rc = engine_create(&o, &e, err, sizeof err);
+    int rc = engine_create(&o, &e, &err);
     pthread_mutex_lock(&d->mu);
     if (rc) {
         snprintf(d->engine_err, sizeof d->engine_err, "%s",
-                 err[0] ? err : strerror(-rc));
+                 err.msg[0] ? err.msg : strerror(-rc));
         d->engine_state = rc;
         return NULL;
     }

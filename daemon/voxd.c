@@ -183,9 +183,9 @@ static int parse_args(int argc, char **argv, voxd_args *a)
 static int check_config(const char *path)
 {
     voxd_config c;
-    char err[512];
-    if (config_load(path, &c, err, sizeof err)) {
-        fprintf(stderr, "voxd: %s\n", err);
+    err_info err = {0};
+    if (config_load(path, &c, &err)) {
+        fprintf(stderr, "voxd: %s\n", err.msg);
         return CLI_EXIT_FAILED;
     }
     config_print(stdout, &c);
@@ -318,9 +318,9 @@ int main(int argc, char **argv)
     if (rc) return rc;
     if (a.check) return check_config(a.check);
     voxd_config cfg;
-    char err[512];
-    if (daemon_load_config(&a.o, &cfg, err, sizeof err)) {
-        fprintf(stderr, "voxd: %s\n", err);
+    err_info err = {0};
+    if (daemon_load_config(&a.o, &cfg, &err)) {
+        fprintf(stderr, "voxd: %s\n", err.msg);
         return CLI_EXIT_FAILED;
     }
     /* A client that goes away mid-write is an EPIPE, not a signal. */

@@ -212,7 +212,7 @@ typedef struct {
 
 /* Must be called from a thread that outlives the engine: the workers get
  * SIGKILL when the thread that forked them exits (PR_SET_PDEATHSIG). */
-int engine_create(const engine_opts *o, engine **out, char *err, size_t errlen);
+int engine_create(const engine_opts *o, engine **out, err_info *err);
 /* Tells the workers to exit, unmaps and removes the segment while they
  * go, and reaps them (SIGKILL after 2 s). */
 void engine_destroy(engine *e);

@@ -160,13 +160,13 @@ static int mesh_setup(engine *e, void *job)
 {
     mesh_job *mj = job;
     const engine_mesh_job *j = mj->job;
-    char msg[sizeof e->err.msg];
+    err_info msg = {0};
     e->result = RESULT_NONE;
     engine_sched_hold(e, 0); /* the last job's result: overwritten now */
     if (!j->mesh || !j->mesh->n_triangles || grid_check(&j->grid))
         return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the mesh job is invalid");
-    if (mesh_vox_check(&j->opts, msg, sizeof msg))
-        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "%s", msg);
+    if (mesh_vox_check(&j->opts, &msg))
+        return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "%s", msg.msg);
     mesh_block *b = shm_at(e->seg.base, e->h->data_off);
     memset(b, 0, sizeof *b);
     if (place_mesh(e, j->mesh, b) > e->h->data_off + e->h->data_bytes)
@@ -322,9 +322,9 @@ static int mesh_domain(const engine_pipeline_job *job, double lo[3], double hi[3
 {
     if (!job->mesh.mesh || !job->mesh.mesh->n_triangles)
         return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
-    char err[sizeof r->err.msg];
-    if (mesh_vox_check(&job->mesh.opts, err, sizeof err))
-        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err);
+    err_info err = {0};
+    if (mesh_vox_check(&job->mesh.opts, &err))
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "%s", err.msg);
     r->fig.mesh.triangles = job->mesh.mesh->n_triangles;
     return job->mesh.fit ? mesh_fit(job, lo, hi, r) : 0;
 }

@@ -169,7 +169,7 @@ int engine_pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, 
 /* ---- pool.c: the workers' lives ---- */
 
 /* Fork worker i on its CPU; 0 or -errno with a message in err. */
-int engine_pool_spawn(engine *e, int i, char *err, size_t errlen);
+int engine_pool_spawn(engine *e, int i, err_info *err);
 /* Write task t into worker i's slot and wake it (the slot's mechanics;
  * the scheduler's books are the caller's). */
 void engine_pool_give(engine *e, int i, const shm_task *t, uint32_t skip);

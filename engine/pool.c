@@ -27,14 +27,13 @@
 #define QUIET_SHOWN_S 1.0 /* a busy worker this long without a heartbeat is
                              shown as stalled */
 
-static int pick_cpus(engine *e, const engine_opts *o, char *err,
-                     size_t errlen)
+static int pick_cpus(engine *e, const engine_opts *o, err_info *err)
 {
     if (o->cpus && o->ncpus > 0) {
         for (int i = 0; i < e->n; i++) {
             int c = o->cpus[i % o->ncpus];
             if (c < 0 || c >= CPU_SETSIZE)
-                return err_fmt(err, errlen, -EINVAL, "CPU %d is out of range 0..%d", c,
+                return err_set(err, -EINVAL, "CPU %d is out of range 0..%d", c,
                                CPU_SETSIZE - 1);
             e->ms[i].cpu = c;
         }
@@ -62,12 +61,12 @@ static int spare_cpu(const engine *e)
     return CPU_COUNT(&set) > 0;
 }
 
-int engine_pool_spawn(engine *e, int i, char *err, size_t errlen)
+int engine_pool_spawn(engine *e, int i, err_info *err)
 {
     pid_t pid = fork();
     if (pid < 0) {
         int rc = -errno;
-        return err_fmt(err, errlen, rc, "cannot fork worker %d: %s", i, strerror(-rc));
+        return err_set(err, rc, "cannot fork worker %d: %s", i, strerror(-rc));
     }
     if (pid == 0) worker_main(e->seg.base, (uint32_t)i);
     e->ms[i].pid = pid;
@@ -81,7 +80,7 @@ int engine_pool_spawn(engine *e, int i, char *err, size_t errlen)
         kill(pid, SIGKILL);
         waitpid(pid, NULL, 0);
         e->ms[i].pid = 0;
-        return err_fmt(err, errlen, rc, "cannot pin worker %d to CPU %d: %s", i, e->ms[i].cpu,
+        return err_set(err, rc, "cannot pin worker %d to CPU %d: %s", i, e->ms[i].cpu,
                        strerror(-rc));
     }
     return 0;
@@ -311,12 +310,11 @@ void engine_leave(engine *e)
     leave(e, 0);
 }
 
-int engine_create(const engine_opts *o, engine **out, char *err,
-                  size_t errlen)
+int engine_create(const engine_opts *o, engine **out, err_info *err)
 {
     *out = NULL;
     if (!o || o->workers < 1 || o->workers > ENGINE_MAX_WORKERS)
-        return err_fmt(err, errlen, -EINVAL, "the number of workers must be 1..%d (got %d)",
+        return err_set(err, -EINVAL, "the number of workers must be 1..%d (got %d)",
                        ENGINE_MAX_WORKERS, o ? o->workers : 0);
     engine *e = calloc(1, sizeof *e);
     if (!e) return -ENOMEM;
@@ -324,11 +322,11 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     e->keep = o->keep_bytes ? o->keep_bytes : ENGINE_KEEP_BYTES;
     e->stall_s = o->stall_timeout == 0 ? ENGINE_STALL_TIMEOUT : o->stall_timeout;
     e->shm_option = o->shm_option;
-    int rc = pick_cpus(e, o, err, errlen);
+    int rc = pick_cpus(e, o, err);
     e->spare_cpu = !rc && spare_cpu(e);
     if (!rc)
         rc = shm_create(&e->seg, o->shm_name, o->shm_bytes, (uint32_t)e->n,
-                        err, errlen);
+                        err);
     if (rc) {
         free(e);
         return rc;
@@ -336,7 +334,7 @@ int engine_create(const engine_opts *o, engine **out, char *err,
     e->h = shm_hdr(e->seg.base);
     e->stack = shm_at(e->seg.base, e->h->stack_off);
     e->cap = (uint32_t)e->h->stack_cap;
-    for (int i = 0; i < e->n && !rc; i++) rc = engine_pool_spawn(e, i, err, errlen);
+    for (int i = 0; i < e->n && !rc; i++) rc = engine_pool_spawn(e, i, err);
     if (rc) {
         engine_destroy(e);
         return rc;

@@ -300,10 +300,10 @@ static void handle_death(engine *e, int i)
     s->error = 0;
     s->task_skip = m->consumed;
     if (!rerun) atomic_store_explicit(&s->done_seq, m->seq, memory_order_relaxed);
-    char err[200];
-    int rc = engine_pool_spawn(e, i, err, sizeof err);
+    err_info err = {0};
+    int rc = engine_pool_spawn(e, i, &err);
     if (rc) {
-        engine_sched_fail(e, ENGINE_FAULT, rc, "%s", err);
+        engine_sched_fail(e, ENGINE_FAULT, rc, "%s", err.msg);
         if (m->busy) finish(e, i);
     } else if (rerun) {
         /* The task's new worker is quiet from its fork, not from its

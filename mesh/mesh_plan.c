@@ -18,7 +18,7 @@ uint32_t mesh_vox_band(const mesh_vox_opts *o)
     return o->band ? o->band : VOXEL_BAND_DEFAULT;
 }
 
-int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
+int mesh_vox_check(const mesh_vox_opts *o, err_info *err)
 {
     const char *why = NULL;
     if ((unsigned)o->mode > MESH_INTERIOR) why = "unknown mesh mode";
@@ -34,10 +34,7 @@ int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen)
         why = "the distance channel's sign is the solid's: mode solid only";
     else if (o->band > VOXEL_BAND_MAX || (o->band && o->channel != VOXEL_CH_DISTANCE))
         why = "the band is 1..32 voxels, for the distance channel";
-    if (why) {
-        snprintf(err, errlen, "%s", why);
-        return -EINVAL;
-    }
+    if (why) return err_set(err, -EINVAL, "%s", why);
     return 0;
 }
 

@@ -23,6 +23,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
 #include "grid.h"
 #include "mesh.h"
 #include "vod_volume.h"
@@ -87,7 +88,7 @@ uint32_t mesh_vox_bits(const mesh_vox_opts *o);
 uint32_t mesh_vox_sbrick(const mesh_vox_opts *o);
 
 /* 0 when o is a valid combination, else -EINVAL with a message. */
-int mesh_vox_check(const mesh_vox_opts *o, char *err, size_t errlen);
+int mesh_vox_check(const mesh_vox_opts *o, err_info *err);
 /* The band of o in voxels (o->band, or VOXEL_BAND_DEFAULT for 0). */
 uint32_t mesh_vox_band(const mesh_vox_opts *o);
 /* The distance beyond the band, in world units, for a grid of voxel size

@@ -153,11 +153,12 @@ int mpi_slave_run(slave *s, const wire_job *j)
                           .ncpus = ncpus > 0 ? ncpus : 0,
                           .shm_bytes = (size_t)j->shm_mib << 20,
                           .shm_option = "--shm-size"};
-        char err[256] = "", m[400];
-        int rc = engine_create(&eo, &e, err, sizeof err);
+        char m[400];
+        err_info err = {0};
+        int rc = engine_create(&eo, &e, &err);
         if (rc) {
             int k = snprintf(m, sizeof m, "cannot start the engine: %s",
-                             err[0] ? err : strerror(-rc));
+                             err.msg[0] ? err.msg : strerror(-rc));
             mpi_send_up(s, m, (size_t)(k < (int)sizeof m ? k : (int)sizeof m - 1) + 1, TAG_FAIL);
             return rc;
         }

@@ -74,13 +74,12 @@ size_t shm_default_bytes(uint32_t workers)
     return bytes;
 }
 
-static int choose_size(size_t *bytes, uint32_t workers, char *err,
-                       size_t errlen)
+static int choose_size(size_t *bytes, uint32_t workers, err_info *err)
 {
     size_t min = shm_min_bytes(workers), avail = shm_free_bytes();
     if (*bytes == 0) *bytes = shm_default_bytes(workers);
     if (*bytes < min) {
-        snprintf(err, errlen,
+        err_set(err, -ENOSPC,
                  "shared memory of %zu KiB is too small: %u worker(s) need at "
                  "least %zu KiB (/dev/shm has %zu MiB free)",
                  *bytes >> 10, workers, (min + 1023) >> 10,
@@ -88,7 +87,7 @@ static int choose_size(size_t *bytes, uint32_t workers, char *err,
         return -ENOSPC;
     }
     if (avail != SIZE_MAX && *bytes > avail) {
-        snprintf(err, errlen,
+        err_set(err, -ENOSPC,
                  "shared memory of %zu MiB asked for, but /dev/shm has only "
                  "%zu MiB free",
                  *bytes / MIB, avail / MIB);
@@ -98,14 +97,13 @@ static int choose_size(size_t *bytes, uint32_t workers, char *err,
 }
 
 /* shm_open(O_EXCL) under the given name, or a fresh private one. */
-static int open_segment(shm_seg *s, const char *name, char *err,
-                        size_t errlen)
+static int open_segment(shm_seg *s, const char *name, err_info *err)
 {
     static atomic_uint counter; /* relaxed: only uniqueness matters */
     if (name) {
         if (name[0] != '/' || strchr(name + 1, '/') ||
             strlen(name) >= sizeof s->name || strlen(name) < 2) {
-            snprintf(err, errlen,
+            err_set(err, -EINVAL,
                      "bad shared memory name '%s': want \"/name\" (no other "
                      "slash, under %zu bytes)",
                      name, sizeof s->name);
@@ -127,7 +125,7 @@ static int open_segment(shm_seg *s, const char *name, char *err,
     }
     if (s->fd < 0) {
         int e = errno;
-        snprintf(err, errlen, "cannot create shared memory %s: %s%s", s->name,
+        err_set(err, -e, "cannot create shared memory %s: %s%s", s->name,
                  strerror(e),
                  e == EEXIST ? " (another voxd runs, or a stale one left it: "
                                "remove it from /dev/shm)"
@@ -138,23 +136,23 @@ static int open_segment(shm_seg *s, const char *name, char *err,
 }
 
 int shm_create(shm_seg *s, const char *name, size_t bytes, uint32_t workers,
-               char *err, size_t errlen)
+               err_info *err)
 {
     memset(s, 0, sizeof *s);
     s->fd = -1;
-    int rc = choose_size(&bytes, workers, err, errlen);
+    int rc = choose_size(&bytes, workers, err);
     if (rc) return rc;
-    if ((rc = open_segment(s, name, err, errlen))) return rc;
+    if ((rc = open_segment(s, name, err))) return rc;
     if (ftruncate(s->fd, (off_t)bytes) != 0) {
         rc = -errno;
-        snprintf(err, errlen, "cannot size shared memory to %zu MiB: %s",
+        err_set(err, rc, "cannot size shared memory to %zu MiB: %s",
                  bytes / MIB, strerror(-rc));
         goto fail;
     }
     void *p = mmap(NULL, bytes, PROT_READ | PROT_WRITE, MAP_SHARED, s->fd, 0);
     if (p == MAP_FAILED) {
         rc = -errno;
-        snprintf(err, errlen, "cannot map %zu MiB of shared memory: %s",
+        err_set(err, rc, "cannot map %zu MiB of shared memory: %s",
                  bytes / MIB, strerror(-rc));
         goto fail;
     }

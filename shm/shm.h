@@ -32,6 +32,7 @@
 #include <stdint.h>
 #include <sys/types.h>
 
+#include "err.h"
 #include "queue.h"
 
 #define SHM_MAGIC 0x44584f56u /* "VOXD" */
@@ -152,7 +153,7 @@ size_t shm_default_bytes(uint32_t workers);
  * bytes 0: shm_default_bytes.  Returns
  * 0 or a negative errno with a message in err. */
 int shm_create(shm_seg *s, const char *name, size_t bytes, uint32_t workers,
-               char *err, size_t errlen);
+               err_info *err);
 void shm_destroy(shm_seg *s);
 
 static inline shm_header *shm_hdr(uint8_t *base)

@@ -117,8 +117,8 @@ static inline engine *make_engine(int workers, size_t shm_bytes)
 {
     engine_opts o = {.workers = workers, .shm_bytes = shm_bytes};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     return e;
 }
 

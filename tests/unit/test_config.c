@@ -13,20 +13,20 @@
 #include "expr.h"
 #include "log.h"
 
-static int load_text(const char *text, voxd_config *c, char *err, size_t errlen)
+static int load_text(const char *text, voxd_config *c, err_info *err)
 {
     FILE *f = fmemopen((void *)text, strlen(text), "r");
     cr_assert_not_null(f);
-    int rc = config_load_stream(f, "t.conf", c, err, errlen);
+    int rc = config_load_stream(f, "t.conf", c, err);
     fclose(f);
     return rc;
 }
 
 static void load_ok(const char *text, voxd_config *c)
 {
-    char err[512] = "";
-    int rc = load_text(text, c, err, sizeof err);
-    cr_assert_eq(rc, 0, "refused: %s", err);
+    err_info err = {0};
+    int rc = load_text(text, c, &err);
+    cr_assert_eq(rc, 0, "refused: %s", err.msg);
 }
 
 static void load_fails(const char *text, const char *want)
@@ -34,10 +34,10 @@ static void load_fails(const char *text, const char *want)
     voxd_config c;
     config_defaults(&c);
     c.max_res = 12345; /* must survive a failed load */
-    char err[512] = "";
-    int rc = load_text(text, &c, err, sizeof err);
+    err_info err = {0};
+    int rc = load_text(text, &c, &err);
     cr_assert_eq(rc, -EINVAL, "accepted:\n%s", text);
-    cr_assert_str_eq(err, want);
+    cr_assert_str_eq(err.msg, want);
     cr_assert_eq(c.max_res, 12345, "a failed load changed the config");
 }
 
@@ -212,7 +212,8 @@ Test(config, every_limit_of_the_table_is_an_option)
     for (size_t i = 0; i < proto_n_limits; i++) {
         const proto_limit_info *row = &proto_limit_table[i];
         cr_expect_eq(proto_limit_get(&def, i), row->def, "%s default", row->name);
-        char text[128], err[512] = "";
+        char text[128];
+        err_info err = {0};
         voxd_config c;
         /* The range's edges load (alone, they may not fit with the
          * defaults of others: max_frame's lowest needs a smaller chunk). */
@@ -228,15 +229,15 @@ Test(config, every_limit_of_the_table_is_an_option)
         if (!strcmp(row->name, "max_expr_bytes")) /* so does a long expression */
             snprintf(text, sizeof text, "max_frame 64M\nmax_expr_bytes %llu\n",
                      (unsigned long long)row->max);
-        cr_expect_eq(load_text(text, &c, err, sizeof err), 0, "%s: %s", text, err);
+        cr_expect_eq(load_text(text, &c, &err), 0, "%s: %s", text, err.msg);
         /* One past either edge is refused with the range. */
         snprintf(text, sizeof text, "%s %llu\n", row->name, (unsigned long long)row->max + 1);
-        cr_expect_eq(load_text(text, &c, err, sizeof err), -EINVAL, "%s", text);
-        cr_expect(strstr(err, "is out of range"), "%s: %s", row->name, err);
+        cr_expect_eq(load_text(text, &c, &err), -EINVAL, "%s", text);
+        cr_expect(strstr(err.msg, "is out of range"), "%s: %s", row->name, err.msg);
         if (row->min == 0) continue;
         snprintf(text, sizeof text, "%s %llu\n", row->name, (unsigned long long)row->min - 1);
-        cr_expect_eq(load_text(text, &c, err, sizeof err), -EINVAL, "%s", text);
-        cr_expect(strstr(err, "is out of range"), "%s: %s", row->name, err);
+        cr_expect_eq(load_text(text, &c, &err), -EINVAL, "%s", text);
+        cr_expect(strstr(err.msg, "is out of range"), "%s: %s", row->name, err.msg);
     }
 }
 
@@ -583,23 +584,24 @@ Test(config, long_values_are_cut_in_messages)
     static const char *const keys[] = {"max_res", "workers", "shm_size", "socket_mode",
                                        "log_level", "cpus", "allow_uids", "socket",
                                        "max_clients_per_uid", "job_timeout", "socket_group"};
-    char text[3000], err[512];
+    char text[3000];
+    err_info err = {0};
     for (size_t k = 0; k < sizeof keys / sizeof *keys; k++) {
         for (int digits = 0; digits < 2; digits++) {
             int n = snprintf(text, sizeof text, "%s ", keys[k]);
             memset(text + n, digits ? '9' : 'x', 2000);
             strcpy(text + n + 2000, "\n");
             voxd_config c;
-            cr_assert_eq(load_text(text, &c, err, sizeof err), -EINVAL, "%s", keys[k]);
-            cr_expect_leq(strlen(err), 160, "%s: %s", keys[k], err);
-            cr_expect(strstr(err, "...") || strstr(err, "too long"), "%s", err);
+            cr_assert_eq(load_text(text, &c, &err), -EINVAL, "%s", keys[k]);
+            cr_expect_leq(strlen(err.msg), 160, "%s: %s", keys[k], err.msg);
+            cr_expect(strstr(err.msg, "...") || strstr(err.msg, "too long"), "%s", err.msg);
         }
     }
     memset(text, 'k', 2000);
     strcpy(text + 2000, " 1\n");
     voxd_config c;
-    cr_assert_eq(load_text(text, &c, err, sizeof err), -EINVAL);
-    cr_expect_str_eq(err, "t.conf:1: unknown key 'kkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkk...'");
+    cr_assert_eq(load_text(text, &c, &err), -EINVAL);
+    cr_expect_str_eq(err.msg, "t.conf:1: unknown key 'kkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkkk...'");
 }
 
 Test(config, line_too_long)
@@ -621,11 +623,11 @@ Test(config, line_too_long)
 Test(config, file_errors)
 {
     voxd_config c;
-    char err[512];
-    cr_assert_eq(config_load("/nonexistent/voxd.conf", &c, err, sizeof err), -ENOENT);
-    cr_assert_str_eq(err, "/nonexistent/voxd.conf: No such file or directory");
-    cr_assert_eq(config_load("/", &c, err, sizeof err), -EISDIR);
-    cr_assert_str_eq(err, "/: Is a directory");
+    err_info err = {0};
+    cr_assert_eq(config_load("/nonexistent/voxd.conf", &c, &err), -ENOENT);
+    cr_assert_str_eq(err.msg, "/nonexistent/voxd.conf: No such file or directory");
+    cr_assert_eq(config_load("/", &c, &err), -EISDIR);
+    cr_assert_str_eq(err.msg, "/: Is a directory");
 
     char path[] = "/tmp/voxd-config-XXXXXX";
     int fd = mkstemp(path);
@@ -633,10 +635,10 @@ Test(config, file_errors)
     const char text[] = "max_res 8\nbogus 1\n";
     cr_assert_eq(write(fd, text, sizeof text - 1), (ssize_t)sizeof text - 1);
     close(fd);
-    cr_assert_eq(config_load(path, &c, err, sizeof err), -EINVAL);
+    cr_assert_eq(config_load(path, &c, &err), -EINVAL);
     char want[600];
     snprintf(want, sizeof want, "%s:2: unknown key 'bogus'", path);
-    cr_assert_str_eq(err, want);
+    cr_assert_str_eq(err.msg, want);
     unlink(path);
 }
 
@@ -644,11 +646,12 @@ Test(config, file_errors)
 
 Test(config, shipped_file_loads_to_the_defaults)
 {
-    char path[4096], err[512];
+    char path[4096];
+    err_info err = {0};
     voxd_config c, d;
     config_defaults(&d);
-    int rc = config_load(root_path("config/voxd.conf", path, sizeof path), &c, err, sizeof err);
-    cr_assert_eq(rc, 0, "%s", err);
+    int rc = config_load(root_path("config/voxd.conf", path, sizeof path), &c, &err);
+    cr_assert_eq(rc, 0, "%s", err.msg);
     assert_same(&c, &d);
 }
 

@@ -48,8 +48,8 @@ static engine *make_engine(int workers)
 {
     engine_opts o = {.workers = workers, .shm_bytes = (size_t)256 << 20};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     return e;
 }
 
@@ -274,8 +274,8 @@ Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
     csg_tree *t = parse("n = implicit \"sin(40*x)*sin(40*y)*sin(40*z)\"\nresult n\n");
     engine_opts o = {.workers = 1, .shm_bytes = (size_t)4 << 20};
     engine *e;
-    char err[256];
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     engine_pipeline_job job = csg_job(t, 256, VOXEL_CH_DENSITY);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};

@@ -188,7 +188,8 @@ Test(csg_leaves, implicit_mesh_and_vod_leaves_against_a_dense_evaluator, .timeou
     vod_membuf serial = run(NULL, &job);
     engine_opts eo = {.workers = 2, .shm_bytes = (size_t)256 << 20};
     engine *e;
-    cr_assert_eq(engine_create(&eo, &e, err, sizeof err), 0, "%s", err);
+    err_info ee = {0};
+    cr_assert_eq(engine_create(&eo, &e, &ee), 0, "%s", ee.msg);
     vod_membuf two = run(e, &job);
     engine_destroy(e);
     cr_assert(two.n == serial.n && !memcmp(two.p, serial.p, two.n), "2 workers: other bytes");
@@ -280,8 +281,8 @@ Test(csg_leaves, bad_leaf_files_fail_typed)
     cr_assert(strstr(r.err.msg, "node 'v': vod:"), "%s", r.err.msg);
     engine_opts eo = {.workers = 1, .shm_bytes = (size_t)64 << 20};
     engine *e;
-    char err[256];
-    cr_assert_eq(engine_create(&eo, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&eo, &e, &err), 0, "%s", err.msg);
     cr_assert_lt(engine_pipeline_run(e, &job, &sink, &r), 0);
     cr_assert_eq(r.err.kind, ENGINE_BAD_JOB, "%s", r.err.msg);
     cr_assert(strstr(r.err.msg, "node 'v': vod:"), "%s", r.err.msg);

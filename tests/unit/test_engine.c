@@ -232,9 +232,9 @@ Test(engine, small_segments_give_clear_errors)
 {
     engine_opts o = {.workers = 2, .shm_bytes = 1 << 20};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), -ENOSPC);
-    cr_assert(strstr(err, "too small"), "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), -ENOSPC);
+    cr_assert(strstr(err.msg, "too small"), "%s", err.msg);
     /* big enough to start, too small for a 256^3 sphere's octree */
     e = make_engine(2, shm_min_bytes(2));
     expr_tape *tape = compile(SPHERE);
@@ -261,15 +261,15 @@ Test(engine, bad_arguments)
 {
     engine_opts o = {.workers = 0};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "workers"), "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "workers"), "%s", err.msg);
     int cpus[1] = {-3};
     engine_opts o2 = {.workers = 1, .cpus = cpus, .ncpus = 1};
-    cr_assert_eq(engine_create(&o2, &e, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "CPU -3"), "%s", err);
+    cr_assert_eq(engine_create(&o2, &e, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "CPU -3"), "%s", err.msg);
     engine_opts o3 = {.workers = 1, .shm_name = "no-slash"};
-    cr_assert_eq(engine_create(&o3, &e, err, sizeof err), -EINVAL);
+    cr_assert_eq(engine_create(&o3, &e, &err), -EINVAL);
     e = make_engine(1, 0);
     expr_tape *tape = compile(SPHERE);
     grid_spec g = grid(32);
@@ -333,11 +333,11 @@ Test(engine, create_destroy_leaves_nothing)
     snprintf(path, sizeof path, "/dev/shm%s", name);
     engine_opts o = {.workers = 1, .shm_name = name, .shm_bytes = 16 << 20};
     engine *e, *e2;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     cr_assert_eq(access(path, F_OK), 0);
-    cr_assert_eq(engine_create(&o, &e2, err, sizeof err), -EEXIST);
-    cr_assert(strstr(err, "exists") || strstr(err, "File exists"), "%s", err);
+    cr_assert_eq(engine_create(&o, &e2, &err), -EEXIST);
+    cr_assert(strstr(err.msg, "exists") || strstr(err.msg, "File exists"), "%s", err.msg);
     engine_destroy(e);
     cr_assert_neq(access(path, F_OK), 0);
 }
@@ -414,8 +414,8 @@ Test(engine, pages_beyond_keep_are_given_back)
     snprintf(path, sizeof path, "/dev/shm%s", name);
     engine_opts o = {.workers = 1, .shm_name = name, .keep_bytes = 4096};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     expr_tape *big = compile(SPHERES), *small = compile(SPHERE);
     grid_spec gb = grid(192), gs = grid(16);
     engine_result r;
@@ -454,8 +454,8 @@ Test(engine, a_job_too_big_stops_early_and_gives_its_pages_back, .timeout = 60)
     engine_opts o = {.workers = 2, .shm_name = name, .shm_bytes = bytes,
                      .keep_bytes = 4096};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     expr_tape *all = compile("x*0"), *tape = compile(SPHERE);
     grid_spec g = grid(2048), gs = grid(64);
     engine_job job = {.tape = all, .grid = g};
@@ -491,8 +491,8 @@ Test(engine, workers_are_pinned)
     engine_destroy(e);
     int cpus[1] = {allowed[k - 1]};
     engine_opts o = {.workers = 2, .cpus = cpus, .ncpus = 1, .shm_bytes = 16 << 20};
-    char err[256];
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     for (int i = 0; i < 2; i++)
         cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[k - 1]);
     engine_destroy(e);
@@ -570,8 +570,8 @@ Test(engine, vod_zlib_bricks_encoded_by_the_master)
     engine_opts o = {.workers = 2, .shm_name = name,
                      .shm_bytes = shm_min_bytes(2) + (size_t)ref.t.used * 36 + tails - (896u << 10)};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     engine_result r;
     run(e, tape, &g, ENGINE_SCHED_SUBTREE, 0, &r);
     for (int k = 0; k < 2; k++) vod_same(e, &ref.t, &g, 16, VOD_COMP_ZLIB, VOXEL_CH_SURFACE);

@@ -252,8 +252,8 @@ static engine *make_engine_stall(int workers, double stall)
 {
     engine_opts o = {.workers = workers, .stall_timeout = stall};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     return e;
 }
 

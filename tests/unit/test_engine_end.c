@@ -47,8 +47,8 @@ static engine *named_engine(const char *name, int workers)
 {
     engine_opts o = {.workers = workers, .shm_name = name, .keep_bytes = 4096};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     return e;
 }
 

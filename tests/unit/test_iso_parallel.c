@@ -52,8 +52,8 @@ Test(iso, the_workers_give_the_serial_mesh_byte_for_byte)
     for (int w = 1; w <= 2; w++) {
         engine_opts o = {.workers = w, .shm_bytes = (size_t)256 << 20};
         engine *e;
-        char err[256] = "";
-        cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+        err_info err = {0};
+        cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
         err_info ie = {0};
         for (int k = 0; k < 2; k++)
             for (int level = 0; level < 2; level++) {
@@ -159,8 +159,8 @@ Test(iso, a_stalled_worker_costs_nothing_but_time)
     vod_file *f = make_vod(&s, ramp_value, &r);
     engine_opts o = {.workers = 2, .shm_bytes = (size_t)256 << 20, .stall_timeout = 0.2};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     err_info ie = {0};
     iso_params p;
     cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
@@ -191,8 +191,8 @@ Test(iso, too_small_a_segment_is_a_limit)
     vod_file *f = make_vod(&s, ramp_value, &r);
     engine_opts o = {.workers = 1, .shm_bytes = (size_t)3 << 20};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     err_info ie = {0};
     iso_params p;
     cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
@@ -590,8 +590,8 @@ Test(iso, the_engines_mesh_streamed_during_the_weld_is_the_finished_file)
     vod_file *f = make_vod(&s, ramp_value, &r);
     engine_opts o = {.workers = 2, .shm_bytes = (size_t)256 << 20};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     iso_params p;
     err_info ie = {0};
     cr_assert_eq(iso_params_make(f, &(iso_request){.iso = 127}, &p, &ie), 0, "%s", ie.msg);

@@ -147,8 +147,8 @@ static void check_distance(const mesh *m, uint32_t res, uint32_t K, mesh_repair 
     grid_spec g = cube_grid(res);
     mesh_vox_opts od = {MESH_SOLID, rep, VOXEL_CH_DISTANCE, 0, K};
     mesh_vox_opts oo = {MESH_SOLID, rep, VOXEL_CH_OCCUPANCY, 0, 0};
-    char err[128];
-    cr_assert_eq(mesh_vox_check(&od, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(mesh_vox_check(&od, &err), 0, "%s", err.msg);
     vod_volume_info in;
     uint32_t *dist = voxelize(m, &g, &od, &in), *occ = voxelize(m, &g, &oo, NULL);
     double *want = oracle(m, &g, K);
@@ -256,21 +256,21 @@ Test(mesh_dist, a_grid_of_partial_bricks)
 
 Test(mesh_dist, options_are_checked)
 {
-    char err[128];
+    err_info err = {0};
     mesh_vox_opts ok = {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0, 0};
-    cr_assert_eq(mesh_vox_check(&ok, err, sizeof err), 0);
+    cr_assert_eq(mesh_vox_check(&ok, &err), 0);
     cr_assert_eq(mesh_vox_bits(&ok), VOD_VOLUME_F32);
     cr_assert_eq(mesh_vox_band(&ok), VOXEL_BAND_DEFAULT);
     ok.band = VOXEL_BAND_MAX;
-    cr_assert_eq(mesh_vox_check(&ok, err, sizeof err), 0);
+    cr_assert_eq(mesh_vox_check(&ok, &err), 0);
     mesh_vox_opts bad[] = {
         {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0, 0},
         {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0, VOXEL_BAND_MAX + 1},
         {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 3},
     };
     for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
-        err[0] = 0;
-        cr_expect_eq(mesh_vox_check(&bad[i], err, sizeof err), -EINVAL, "case %zu", i);
-        cr_expect_neq(err[0], 0);
+        err.msg[0] = 0;
+        cr_expect_eq(mesh_vox_check(&bad[i], &err), -EINVAL, "case %zu", i);
+        cr_expect_neq(err.msg[0], 0);
     }
 }

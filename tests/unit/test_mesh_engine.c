@@ -44,8 +44,8 @@ static engine *make_engine(int workers)
 {
     engine_opts o = {.workers = workers, .shm_bytes = (size_t)256 << 20};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     return e;
 }
 
@@ -185,8 +185,8 @@ Test(mesh_engine, a_volume_past_shared_memory_is_a_limit)
     mesh m = box_mesh(&sh_m, lo, hi);
     engine_opts o = {.workers = 1, .shm_bytes = (size_t)4 << 20};
     engine *e;
-    char err[256];
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     engine_pipeline_job job = mesh_job(&m, 1024, VOXEL_CH_SURFACE);
     vod_membuf out = {0};
     vod_sink sink = {vod_mem_write, &out};
@@ -448,8 +448,8 @@ Test(mesh_engine, a_long_winding_tile_ticks_and_is_not_killed, .timeout = 600)
     mesh_wind_exact = 1; /* the exact sum, seconds of work (the workers fork below) */
     engine_opts o = {.workers = 1, .shm_bytes = (size_t)256 << 20, .stall_timeout = stall};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     engine_pipeline_report r0, r;
     vod_membuf ref = run(NULL, &job, &r0), got = {0};
     vod_sink sink = {vod_mem_write, &got};

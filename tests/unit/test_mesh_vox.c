@@ -494,9 +494,9 @@ Test(mesh_vox, sphere_normals_point_outwards)
 
 Test(mesh_vox, options_are_checked)
 {
-    char err[128];
+    err_info err = {0};
     mesh_vox_opts ok = {MESH_SURFACE, MESH_REPAIR_VOTE, VOXEL_CH_SURFACE, 0, 0};
-    cr_expect_eq(mesh_vox_check(&ok, err, sizeof err), 0);
+    cr_expect_eq(mesh_vox_check(&ok, &err), 0);
     cr_expect_eq(mesh_vox_bits(&ok), 32);
     ok.channel = VOXEL_CH_OCCUPANCY;
     cr_expect_eq(mesh_vox_bits(&ok), 8);
@@ -508,9 +508,9 @@ Test(mesh_vox, options_are_checked)
         {MESH_SURFACE, MESH_REPAIR_NONE, VOXEL_CH_DENSITY, 2, 0},
     };
     for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
-        err[0] = 0;
-        cr_expect_eq(mesh_vox_check(&bad[i], err, sizeof err), -EINVAL, "case %zu", i);
-        cr_expect_neq(err[0], 0);
+        err.msg[0] = 0;
+        cr_expect_eq(mesh_vox_check(&bad[i], &err), -EINVAL, "case %zu", i);
+        cr_expect_neq(err.msg[0], 0);
     }
 }
 

@@ -240,7 +240,8 @@ static void same_file(const char *src, uint32_t res, int channel, uint32_t brick
     engine *e = NULL;
     if (workers) {
         engine_opts eo = {.workers = workers, .shm_bytes = (size_t)256 << 20};
-        cr_assert_eq(engine_create(&eo, &e, err, sizeof err), 0, "%s", err);
+        err_info ee = {0};
+        cr_assert_eq(engine_create(&eo, &e, &ee), 0, "%s", ee.msg);
     }
     mpi_subtree_job j = {.kind = MPI_KIND_IMPLICIT, .tape = t, .grid = g, .vod = p, .node_level = c.node_level, .e = e};
     j.vod.metadata = NULL;
@@ -408,7 +409,8 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
     engine *e = NULL;
     if (workers) {
         engine_opts eo = {.workers = workers, .shm_bytes = (size_t)256 << 20};
-        cr_assert_eq(engine_create(&eo, &e, err, sizeof err), 0, "%s", err);
+        err_info ee = {0};
+        cr_assert_eq(engine_create(&eo, &e, &ee), 0, "%s", ee.msg);
     }
     j.grid = r.grid, j.vod = v, j.vod.metadata = NULL, j.node_level = c.node_level, j.e = e;
     mesh_bins bins = {0};

@@ -35,8 +35,8 @@ static engine *make_engine(int workers)
 {
     engine_opts o = {.workers = workers, .shm_bytes = (size_t)256 << 20};
     engine *e;
-    char err[256] = "";
-    cr_assert_eq(engine_create(&o, &e, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(engine_create(&o, &e, &err), 0, "%s", err.msg);
     return e;
 }
 
