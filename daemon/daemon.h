@@ -332,6 +332,19 @@ void daemon_client_unlink_job(daemon_client *c, daemon_job *j);
 /* End every job of c still uploading its input with code (a stop). */
 void daemon_client_fail_uploads(daemon_client *c, int code, const char *msg);
 
+/* daemon_submit.c: a Submit made into a job (the one place in the daemon
+ * that tells the kinds apart) */
+/* What is built and checked before s's job is queued (a CSG tree into
+ * *out): 0 (nothing for the other kinds), or -E2BIG, -EINVAL or another
+ * -errno with msg set. */
+int daemon_submit_build(const voxd_config *cfg, const Voxd__Submit *s, csg_tree **out, char *msg,
+                        size_t len);
+/* A new job of c's from s (not queued), or NULL when out of memory. */
+daemon_job *daemon_submit_job(daemon_client *c, const Voxd__Submit *s);
+/* What the job's input is, for messages. */
+const char *daemon_submit_input_name(const daemon_job *j);
+int daemon_submit_is_text(const daemon_job *j); /* its input is text: no NUL byte in it */
+
 /* daemon_reply.c */
 int daemon_send_hello_ok(daemon_client *c);
 int daemon_send_accepted(daemon_client *c, uint64_t id, uint32_t pos);
