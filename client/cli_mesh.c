@@ -2,16 +2,15 @@
  * mip level or adaptive levels round a point, run by the engine's workers
  * (or in this process with -w 0), written as PLY, OBJ or STL. */
 #include <errno.h>
-#include <fcntl.h>
 #include <pthread.h>
 #include <signal.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
 #include <unistd.h>
 
+#include "afterexit.h"
 #include "cli.h"
 #include "clock.h"
 #include "iso.h"
@@ -241,45 +240,6 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
     return rc;
 }
 
-/* The regular file the mesh replaces, held open (-1: none): the rename
- * then only unlinks it, and its blocks and pages are freed when the last
- * descriptor of it is closed (free_after_exit), not in the rename. */
-static int replaced_file(const char *path)
-{
-    int fd = open(path, O_RDONLY | O_NONBLOCK | O_NOFOLLOW | O_CLOEXEC);
-    struct stat st;
-    if (fd >= 0 && (fstat(fd, &st) || !S_ISREG(st.st_mode) || st.st_nlink != 1)) {
-        close(fd);
-        fd = -1;
-    }
-    return fd;
-}
-
-/* The replaced file's blocks and pages (tens of MB: 0.03-0.1 s of one
- * thread) freed after this process has exited, by a child that holds the
- * last descriptor of it: the child lets go of stdin, stdout and stderr
- * (a reader of our output sees its end when we exit), waits until our
- * end of a pipe closes (our exit), then closes the file and exits; the
- * init process (or a subreaper) reaps it, as it does the workers.  Our
- * own descriptor goes with our exit, not the last one then.  Here, on
- * this thread, when no child can be made. */
-static void free_after_exit(int fd)
-{
-    int p[2] = {-1, -1};
-    pid_t pid = pipe2(p, O_CLOEXEC) ? -1 : fork();
-    if (pid == 0) { /* async-signal-safe calls only: the parent has threads */
-        char c;
-        close(0), close(1), close(2), close(p[1]);
-        while (read(p[0], &c, 1) < 0 && errno == EINTR) {
-        }
-        close(fd);
-        _exit(0);
-    }
-    if (p[0] >= 0) close(p[0]);
-    if (pid < 0 && p[1] >= 0) close(p[1]);
-    close(fd); /* the last descriptor only when no child has it */
-}
-
 static int open_out(const mesh_opts *o, mesh_out *w)
 {
     *w = (mesh_out){.o = o};
@@ -302,7 +262,7 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m, mesh_out *w, engine
     engine_abandon(*e);
     *e = NULL;
     if (!rc && !cli_interrupted()) {
-        *old = replaced_file(o->out);
+        *old = afterexit_hold(o->out); /* freed after our exit, not in the rename */
         rc = outfile_commit(&w->f, o->out);
     } else {
         outfile_abort(&w->f);
@@ -415,12 +375,13 @@ static int run(const mesh_opts *o)
     par_join(&end);
     if (!rc && !o->quiet) print_summary(o, &p, &m, &r, t);
     iso_mesh_free(&m);
-    if (old >= 0) free_after_exit(old);
     /* The mesh was read from the segment until the write's end (where
      * write_mesh abandons the engine, e NULL since); the workers free it
      * after we exit, and nothing of the engine's end is waited for
-     * (engine_abandon, as vox voxelize ends). */
+     * (engine_abandon), nor the replaced file's blocks or our memory's
+     * teardown (afterexit_leave, as vox voxelize ends). */
     engine_abandon(e);
+    afterexit_leave(old); /* the process exits next */
     return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 
