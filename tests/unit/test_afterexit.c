@@ -21,27 +21,14 @@
 #include <unistd.h>
 
 #include "afterexit.h"
-
-static char dir[64];
+#include "tmpdir_fixture.h"
 
 static void make_dir(void)
 {
-    snprintf(dir, sizeof dir, "/tmp/test_afterexit.XXXXXX");
-    cr_assert_not_null(mkdtemp(dir));
+    tmpdir_make("afterexit");
 }
 
-static void remove_dir(void)
-{
-    DIR *d = opendir(dir);
-    struct dirent *e;
-    char p[sizeof dir + 256 + 2];
-    while (d && (e = readdir(d)))
-        if (e->d_name[0] != '.') snprintf(p, sizeof p, "%s/%s", dir, e->d_name), unlink(p);
-    if (d) closedir(d);
-    rmdir(dir);
-}
-
-TestSuite(afterexit, .init = make_dir, .fini = remove_dir);
+TestSuite(afterexit, .init = make_dir, .fini = tmpdir_remove);
 
 static void put(const char *path, const char *text)
 {

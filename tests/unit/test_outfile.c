@@ -13,28 +13,15 @@
 #include <unistd.h>
 
 #include "outfile.h"
-
-static char dir[64];
+#include "tmpdir_fixture.h"
 
 static void make_dir(void)
 {
-    snprintf(dir, sizeof dir, "/tmp/test_outfile.XXXXXX");
-    cr_assert_not_null(mkdtemp(dir));
+    tmpdir_make("outfile");
     unsetenv("VOXD_OUTFILE_NAMED");
 }
 
-static void remove_dir(void)
-{
-    DIR *d = opendir(dir);
-    struct dirent *e;
-    char p[sizeof dir + 256 + 2];
-    while (d && (e = readdir(d)))
-        if (e->d_name[0] != '.') snprintf(p, sizeof p, "%s/%s", dir, e->d_name), unlink(p);
-    if (d) closedir(d);
-    rmdir(dir);
-}
-
-TestSuite(outfile, .init = make_dir, .fini = remove_dir);
+TestSuite(outfile, .init = make_dir, .fini = tmpdir_remove);
 
 /* The directory's entries, sorted by nothing: "a b " */
 static void entries(char *out, size_t cap)
