@@ -14,6 +14,7 @@
 #include "grid.h"
 #include "outfile.h"
 #include "pipeline.h"
+#include "thread_name.h"
 #include "vod.h"
 #include "vod_volume.h"
 #include "voxel.h"
@@ -218,7 +219,10 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     engine_abandon(e); /* its end is not waited for: the file is */
     const char *why = rc ? r.err.msg : NULL;
     if (rc || cli_interrupted()) outfile_abort(&f);
-    else if ((rc = outfile_commit(&f, o->out))) why = strerror(-rc);
+    else {
+        thread_name("commit");
+        if ((rc = outfile_commit(&f, o->out))) why = strerror(-rc);
+    }
     if (cli_interrupted()) cli_end_interrupted(o->out);
     if (rc) {
         cli_error("%s: %s", o->out, why);

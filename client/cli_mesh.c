@@ -16,6 +16,7 @@
 #include "iso.h"
 #include "outfile.h"
 #include "par.h"
+#include "thread_name.h"
 #include "vod.h"
 
 typedef struct {
@@ -181,6 +182,7 @@ static int ready_wait(void *ud, int tris, uint64_t hi)
 static void *write_run(void *ud)
 {
     mesh_out *w = ud;
+    thread_name("write");
     iso_ready ready = {ready_wait, &w->weld};
     w->rc = iso_write_ready(w->f.fd, &w->m, w->o->fmt, w->comment,
                             w->o->workers ? w->o->workers : 1, &ready);
@@ -213,6 +215,7 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         engine_lazy_release(e); /* nothing to give back before we exit */
         engine_iso_job job = {.file = f, .p = p, .cancel = &cli_interrupt, .ud = w,
                               .weld = &w->weld, .laid_out = laid_out};
+        thread_name("engine");
         rc = engine_iso(e, &job, m, r);
         if (w->streaming) { /* the writer's waits end: all welded, or stop */
             if (rc) atomic_store_explicit(&w->weld.stop, 1, memory_order_relaxed);
@@ -262,6 +265,7 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m, mesh_out *w, engine
     engine_abandon(*e);
     *e = NULL;
     if (!rc && !cli_interrupted()) {
+        thread_name("commit");
         *old = afterexit_hold(o->out); /* freed after our exit, not in the rename */
         rc = outfile_commit(&w->f, o->out);
     } else {
@@ -290,6 +294,7 @@ static void print_summary(const mesh_opts *o, const iso_params *p, const iso_mes
 /* The file's bricks freed beside the mesh's write, not after it. */
 static void *close_run(void *ud)
 {
+    thread_name("close");
     vod_close(ud);
     return NULL;
 }
@@ -307,6 +312,7 @@ typedef struct {
 static void *open_run(void *ud)
 {
     opening *op = ud;
+    thread_name("read");
     /* the bricks inflated and hashed by as many threads as the job's workers */
     unsigned threads = op->o->workers ? op->o->workers : 1;
     op->rc = vod_open_threads(op->o->in, (int)threads, &op->f, op->err, sizeof op->err);

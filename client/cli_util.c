@@ -10,6 +10,8 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "thread_name.h"
+
 int cli_parse_domain(const char *s, double lo[3], double hi[3])
 {
     double v[6];
@@ -115,6 +117,7 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
                       .ncpus = ncpus, .shm_bytes = (size_t)shm_mib << 20,
                       .shm_option = "--shm-size"};
     err_info err = {0};
+    thread_name("start");
     int rc = engine_create(&eo, e, &err);
     if (rc == -ENOSPC) cli_error("cannot start the engine: %s (--shm-size MIB sets it)", err.msg);
     else if (rc) cli_error("cannot start the engine: %s", err.msg[0] ? err.msg : strerror(-rc));

@@ -18,6 +18,7 @@
 #include "pipeline.h"
 #include "progress.h"
 #include "source.h"
+#include "thread_name.h"
 #include "vod.h"
 #include "voxel.h"
 
@@ -120,6 +121,7 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
         if (cli_interrupted()) cli_end_interrupted(o->out);
         return CLI_EXIT_FAILED;
     }
+    thread_name("commit");
     int old = afterexit_hold(o->out); /* freed after our exit, not in the rename */
     if ((rc = outfile_commit(&f, o->out))) {
         cli_error("cannot write %s: %s", o->out, strerror(-rc));
@@ -160,6 +162,7 @@ typedef struct {
 static void *load_run(void *ud)
 {
     mesh_loading *l = ud;
+    thread_name("load");
     l->rc = cli_mesh_load(l->o->mesh, MESH_FORMAT_AUTO, l->o->weld, &l->m, NULL);
     return NULL;
 }

@@ -6,6 +6,7 @@
 
 #include "cli.h"
 #include "config.h"
+#include "thread_name.h"
 
 static const char usage[] =
     "usage: vox [--socket PATH] COMMAND [options]\n"
@@ -91,7 +92,7 @@ static int own_options(int argc, char **argv, const char **sock)
     return i;
 }
 
-int main(int argc, char **argv)
+static int vox_main(int argc, char **argv)
 {
     static voxd_config cfg;
     const char *sock = NULL;
@@ -119,4 +120,13 @@ int main(int argc, char **argv)
     if (!strcmp(cmd, "export")) return cli_export(n, v);
     if (!strcmp(cmd, "mesh")) return cli_mesh(n, v);
     return cli_unknown_command(cmd, commands);
+}
+
+int main(int argc, char **argv)
+{
+    thread_name_enable(); /* its stages named, for bench/voxserial -w */
+    thread_name("main");
+    int rc = vox_main(argc, argv);
+    thread_name("exit"); /* the exit's handlers and teardown */
+    return rc;
 }

@@ -11,6 +11,7 @@
 #include "clock.h"
 #include "job_meta.h"
 #include "master.h"
+#include "thread_name.h"
 
 /* The master side of the job's kind, NULL when it is none. */
 static const engine_kind *kind_of(const engine_pipeline_job *job)
@@ -93,6 +94,7 @@ static int run_engine(engine *e, const engine_kind *k, engine_pipeline_job *run,
     memset(&er, 0, sizeof er);
     r->stage = ENGINE_PIPELINE_VOXELIZE;
     r->workers = engine_workers(e);
+    thread_name("engine");
     int rc = k->voxelize(e, run, &w, &er, r);
     engine_figures_common(r, &er);
     if (rc && r->err.kind) return rc; /* the kind said why */
@@ -100,6 +102,7 @@ static int run_engine(engine *e, const engine_kind *k, engine_pipeline_job *run,
     r->stage = ENGINE_PIPELINE_WRITE;
     sp.stage = ENGINE_PIPELINE_WRITE;
     sp.voxels = er.voxels;
+    thread_name("write");
     double t0 = clock_now();
     rc = engine_write_vod_watched(e, v, sink, &r->st, &r->err, &w);
     r->t_write = clock_now() - t0;

@@ -18,6 +18,7 @@
 #include "err.h"
 #include "master.h"
 #include "par.h"
+#include "thread_name.h"
 #include "worker.h"
 
 #define EXIT_WAIT_S 2.0 /* engine_destroy's patience with a worker that
@@ -68,7 +69,10 @@ int engine_pool_spawn(engine *e, int i, err_info *err)
         int rc = -errno;
         return err_set(err, rc, "cannot fork worker %d: %s", i, strerror(-rc));
     }
-    if (pid == 0) worker_main(e->seg.base, (uint32_t)i);
+    if (pid == 0) {
+        thread_name("worker");
+        worker_main(e->seg.base, (uint32_t)i);
+    }
     e->ms[i].pid = pid;
     engine_pool_slot(e, i)->pid = pid;
     engine_pool_slot(e, i)->cpu = e->ms[i].cpu;

@@ -20,7 +20,10 @@
 # by the threads that ran at least half of a window instead (what a quiet
 # machine shows; a loaded one inflates it).  Beside them the serial spans of
 # 50 ms or more (seconds from the start) and the command's own stage times
-# from its summary, so that a regression says where.
+# from its summary, so that a regression says where; after the table, where
+# each run's serial time went (voxserial -w: the thread charged with each
+# serial window, by its name, which vox sets to its stage, its process and
+# its state; the charges of 5 ms or more).
 #
 #   BENCH_SERIAL_RES      the resolution (default 1024; 64 in quick mode)
 #   BENCH_SERIAL_WORKERS  the workers (default 2)
@@ -89,12 +92,15 @@ run() {
     local cmd=${2//OUT/$tmp/out} load m
     load=$(cut -d' ' -f1 /proc/loadavg)
     # shellcheck disable=SC2086 # the command is split into its words on purpose
-    if ! "$serial" -n "$w" -l 50 -o "$tmp/m" -- "$vox" $cmd -w "$w" >"$tmp/stdout" 2>"$tmp/stderr"; then
+    if ! "$serial" -n "$w" -l 50 -w -o "$tmp/m" -- "$vox" $cmd -w "$w" >"$tmp/stdout" 2>"$tmp/stderr"; then
         echo "| $3 | $load | failed: $(head -1 "$tmp/stderr" | sed 's/|/\//g') | | | | | | | | | |"
         failed=1
         return 0
     fi
     m=$(head -1 "$tmp/m")
+    # the charges, without the ids: "0.042 s vox commit (command) D fsync"
+    sed -n 's/^serial_by=//p' "$tmp/m" | sed -E 's| [0-9]+/[0-9]+ \(| (|; s/\(child of [0-9]+\)/(child)/' |
+        awk '$1 >= 0.005' | paste -sd';' | sed "s/;/; /g; s/^/| $3 | /; s/\$/ |/" >>"$tmp/where"
     awk -v m="$m" -v job="$3" -v load="$load" -v spans="$(sed -n 's/^serial_spans=//p' "$tmp/m" | sed 's/,/, /g')" \
         -v st="$(stages "$tmp/stdout")" 'BEGIN {
         n = split(m, kv, " ")
@@ -124,4 +130,13 @@ for _ in $(seq "$repeats"); do
 done >"$tmp/rows"
 # the rows grouped by job, in the jobs' order
 while IFS='|' read -r name label cmd; do grep -F "| $label |" "$tmp/rows" || true; done < <(jobs)
+echo
+echo "Where each run's serial time went (voxserial -w), charges of 5 ms or more: the thread"
+echo "runnable in each serial window (in an idle one: the thread that ran, else one in I/O,"
+echo "else the last that ran), by its name (vox names its stages and workers), its process"
+echo "(the command, or a child) and its state (R runnable; S, D asleep, in the call named)."
+echo
+echo "| job | serial seconds by thread |"
+echo "|---|---|"
+while IFS='|' read -r name label cmd; do grep -F "| $label |" "$tmp/where" || true; done < <(jobs)
 exit "$failed"

@@ -64,6 +64,41 @@ if awk -v s="$spans" 'BEGIN { n = split(s, a, ","); split(a[1], b, "-")
     pass "voxserial: the serial span of a serial-then-parallel command ($spans)"
 else fail "voxserial: the serial span of a serial-then-parallel command" "$(cat "$TMP/spans")"; fi
 
+# -w: where the serial time went.  A busy child for 0.6 s, two for 0.6 s,
+# then a sleeping one for 0.4 s: two spans, the first charged to the busy
+# child (still named voxserial: -S does not exec), runnable (R), the last
+# to the sleeper in its system call; the charges add up to the serial
+# seconds.
+refuse "voxserial: -w without -l" 125 "usage" "$S" -w -- true
+measure where -l 100 -w -- sh -c "'$S' -S 1:0.6; '$S' -S 2:0.6; sleep 0.4"
+sh_pid=$(sed -n 's/^serial_by=.* [a-z]* \([0-9]*\)\/[0-9]* (command) .*/\1/p' "$TMP/where" | head -1)
+first=$(grep -m1 '^serial_span=0\.0' "$TMP/where")
+last=$(grep '^serial_span=' "$TMP/where" | tail -1)
+if [[ $first =~ ^serial_span=0\.0[0-9]+-0\.[5-7][0-9]+\ [0-9]+\ ms:\ ([0-9]+)\ ms\ voxserial\ ([0-9]+)/([0-9]+)\ \(child\ of\ ([0-9]+)\)\ R ]] &&
+    [ "${BASH_REMATCH[1]}" -ge 450 ] && [ "${BASH_REMATCH[2]}" = "${BASH_REMATCH[3]}" ] &&
+    { [ -z "$sh_pid" ] || [ "${BASH_REMATCH[4]}" = "$sh_pid" ]; }; then
+    pass "voxserial -w: the busy child's span charged to it (${first%%;*})"
+else fail "voxserial -w: the busy child's span charged to it" "$(cat "$TMP/where")"; fi
+if [[ $last =~ ^serial_span=1\.[0-9]+-1\.[5-9][0-9]+\ [0-9]+\ ms:\ ([0-9]+)\ ms\ sleep\ [0-9]+/[0-9]+\ \(child\ of\ [0-9]+\)\ S\ clock_nanosleep ]] &&
+    [ "${BASH_REMATCH[1]}" -ge 300 ]; then
+    pass "voxserial -w: the sleeper's span charged to its system call (${last%%;*})"
+else fail "voxserial -w: the sleeper's span charged to its system call" "$(cat "$TMP/where")"; fi
+if awk -v s="$(val where serial_s)" '/^serial_by=/ { sub(/^serial_by=/, ""); t += $1 }
+        END { exit !(t > 0.99 * s && t < 1.01 * s + 0.001) }' "$TMP/where"; then
+    pass "voxserial -w: the charges add up to the serial seconds"
+else fail "voxserial -w: the charges add up to the serial seconds" "$(cat "$TMP/where")"; fi
+
+# vox names its stages and workers (thread_name): a small job's serial
+# time is charged to "vox STAGE" names only, its workers seen as children.
+check "vox builds" mk V=release "$REL/vox"
+measure vox -l 1 -w -- "$ROOT/$REL/vox" voxelize -f "$ROOT/examples/sphere.vx" -r 256 \
+    --embedded -q -w 2 -o "$TMP/where.vod"
+names=$(sed -n 's/^serial_by=[0-9.]* s \(vox [a-z]*\|[^ ]*\) .*/\1/p' "$TMP/vox" | sort -u | paste -sd,)
+if [ -n "$names" ] && [[ ,$names, =~ ^(,vox\ (main|start|engine|write|commit|exit|worker)|,vox|,voxserial)+,$ ]] &&
+    [ "$(val vox procs)" -ge 3 ]; then
+    pass "voxserial -w: vox's serial time charged to its stages ($names)"
+else fail "voxserial -w: vox's serial time charged to its stages" "$names: $(cat "$TMP/vox")"; fi
+
 # ---------------------------------------------------------------- the table
 check "bench-serial builds" mk V=release "$REL/vox"
 BENCH_QUICK=1 scripts/bench-serial.sh "$REL" >"$TMP/table" 2>"$TMP/table.err"
