@@ -14,6 +14,7 @@
 #include "grid.h"
 #include "outfile.h"
 #include "pipeline.h"
+#include "syncbehind.h"
 #include "thread_name.h"
 #include "vod.h"
 #include "vod_volume.h"
@@ -215,7 +216,10 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     vod_sink sink = {outfile_write, &f};
     engine_pipeline_report r;
     if (e) engine_lazy_release(e); /* nothing to give back before we exit */
+    syncbehind sync;
+    syncbehind_start(&sync, f.fd); /* flushed as written, not all at the commit */
     rc = engine_pipeline_run(e, &job, &sink, &r);
+    syncbehind_stop(&sync);
     engine_abandon(e); /* its end is not waited for: the file is */
     const char *why = rc ? r.err.msg : NULL;
     if (rc || cli_interrupted()) outfile_abort(&f);

@@ -16,6 +16,7 @@
 #include "iso.h"
 #include "outfile.h"
 #include "par.h"
+#include "syncbehind.h"
 #include "thread_name.h"
 #include "vod.h"
 
@@ -170,6 +171,7 @@ typedef struct {
     engine_iso_weld weld;  /* its progress */
     pthread_t thread;
     int streaming, rc;     /* the thread runs; its iso_write's result */
+    syncbehind sync;       /* the file's flushes while it is written */
 } mesh_out;
 
 static int ready_wait(void *ud, int tris, uint64_t hi)
@@ -249,6 +251,7 @@ static int open_out(const mesh_opts *o, mesh_out *w)
     snprintf(w->comment, sizeof w->comment, "vox mesh, iso %u", o->iso);
     int rc = outfile_open(&w->f, o->out);
     if (rc) cli_error("cannot write %s: %s", o->out, strerror(-rc));
+    else syncbehind_start(&w->sync, w->f.fd);
     return rc;
 }
 
@@ -264,6 +267,7 @@ static int write_mesh(const mesh_opts *o, const iso_mesh *m, mesh_out *w, engine
                                               o->workers ? o->workers : 1);
     engine_abandon(*e);
     *e = NULL;
+    syncbehind_stop(&w->sync); /* the last bytes are the commit's fsync's */
     if (!rc && !cli_interrupted()) {
         thread_name("commit");
         *old = afterexit_hold(o->out); /* freed after our exit, not in the rename */
@@ -370,7 +374,10 @@ static int run(const mesh_opts *o)
     t[2] = clock_now();
     par_task end;
     par_start(&end, close_run, f);
-    if (rc || cli_interrupted()) outfile_abort(&w.f);
+    if (rc || cli_interrupted()) {
+        syncbehind_stop(&w.sync);
+        outfile_abort(&w.f);
+    }
     if (cli_interrupted()) {
         par_join(&end);
         cli_end_interrupted(o->out);

@@ -18,6 +18,7 @@
 #include "pipeline.h"
 #include "progress.h"
 #include "source.h"
+#include "syncbehind.h"
 #include "thread_name.h"
 #include "vod.h"
 #include "voxel.h"
@@ -114,7 +115,10 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
     job->progress = on_progress;
     job->ud = &pr;
     engine_pipeline_report r;
+    syncbehind sync;
+    syncbehind_start(&sync, f.fd); /* flushed as written, not all at the commit */
     rc = run_job(o, job, &f, &r, e);
+    syncbehind_stop(&sync);
     progress_done(&pr);
     if (rc || cli_interrupted()) {
         outfile_abort(&f);
