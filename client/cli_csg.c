@@ -202,7 +202,6 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     vod_params_default(&job.vod);
     job.vod.channel = o->channel;
     job.vod.comp = o->comp;
-    job.sink_pwrite = outfile_pwrite; /* the file written by every thread */
     engine *e = NULL;
     if (o->workers && cli_start_engine(o->workers, NULL, 0, &e)) return CLI_EXIT_FAILED;
     outfile f;

@@ -32,12 +32,6 @@ typedef cli_job_opts voxelize_opts;
 
 /* The sink's writes, stopped by an interrupt: the VOD writer fails with
  * -ECANCELED and the file is dropped. */
-static int pwrite_or_stop(void *ud, const void *p, size_t n, uint64_t at)
-{
-    if (cli_interrupted()) return -ECANCELED;
-    return outfile_pwrite(ud, p, n, at);
-}
-
 static int write_or_stop(void *ud, const void *p, size_t n)
 {
     if (cli_interrupted()) return -ECANCELED;
@@ -99,7 +93,6 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
     job->res = o->res;
     job->schedule = o->schedule;
     job->vod = o->vod;
-    job->sink_pwrite = pwrite_or_stop; /* the file written by every thread */
     grid_spec g;
     err_info err = {0};
     if (job->kind == ENGINE_PIPELINE_IMPLICIT &&

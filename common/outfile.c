@@ -91,19 +91,6 @@ int outfile_write(void *ud, const void *buf, size_t n)
     return 0;
 }
 
-int outfile_pwrite(void *ud, const void *buf, size_t n, uint64_t at)
-{
-    const outfile *f = ud;
-    const uint8_t *p = buf;
-    while (n) {
-        ssize_t k = pwrite(f->fd, p, n, (off_t)at);
-        if (k < 0 && errno == EINTR) continue;
-        if (k <= 0) return k < 0 ? -errno : -EIO;
-        p += k, n -= (size_t)k, at += (uint64_t)k;
-    }
-    return 0;
-}
-
 /* The unnamed file under a fresh name beside path (linkat cannot replace
  * a file, rename can): by its /proc link, or AT_EMPTY_PATH without /proc. */
 static int link_unnamed(outfile *f, const char *path)

@@ -44,10 +44,6 @@ const char *outfile_name(const outfile *f);
  * last few MiB only, not for the whole file after the last byte. */
 #define OUTFILE_KICK ((uint64_t)8 << 20)
 int outfile_write(void *f, const void *buf, size_t n);
-/* n bytes at offset at of the file (a vod_sink's pwrite, f as its ud:
- * 0 or a negative errno), from any thread; the writes of outfile_write
- * and these are not to be mixed in one file. */
-int outfile_pwrite(void *f, const void *buf, size_t n, uint64_t at);
 /* fsync, close, then link the file into place as PATH (replacing any
  * file there): 0, or a negative errno after which nothing is left. */
 int outfile_commit(outfile *f, const char *path);

@@ -25,7 +25,6 @@ typedef struct {
     const vod_params *p;
     vod_layout L;
     vod_sink *sink;
-    vod_pwrite_fn pwrite; /* NULL: the sink written in order */
     vod_stats *st;
     engine_error *err;
     vod_times t;   /* the master's fill, hash and compress */
@@ -372,8 +371,7 @@ static int assemble(engine *e, encode_job *ej, const uint8_t **data)
     vod_assembly a = {.L = &b->L, .p = ej->p, .n = b->n,
                       .nodes = shm_at(e->seg.base, b->nodes_off),
                       .recs = shm_at(e->seg.base, b->recs_off), .data = data,
-                      .sink = ej->sink, .pwrite = ej->pwrite, .st = ej->st, .err = msg,
-                      .errlen = sizeof msg};
+                      .sink = ej->sink, .st = ej->st, .err = msg, .errlen = sizeof msg};
     int rc = vod_assemble(&a);
     if (!rc) return 0;
     return engine_sched_fail(e, engine_vod_failure(rc, msg[0]), rc, "%s",
@@ -430,17 +428,16 @@ const engine_kind engine_kind_encode = {
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, engine_error *err)
 {
-    return engine_write_vod_watched(e, p, sink, NULL, st, err, NULL);
+    return engine_write_vod_watched(e, p, sink, st, err, NULL);
 }
 
 static int encode_run(engine *e, encode_job *ej, const engine_sched_watch *w);
 
 /* A job of the encode kind; the checks that need no workers first. */
 int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
-                             vod_pwrite_fn pwrite, vod_stats *st, engine_error *err,
-                             const engine_sched_watch *w)
+                             vod_stats *st, engine_error *err, const engine_sched_watch *w)
 {
-    encode_job ej = {.p = p, .sink = sink, .pwrite = pwrite, .st = st, .err = err};
+    encode_job ej = {.p = p, .sink = sink, .st = st, .err = err};
     return encode_run(e, &ej, w ? w : &(engine_sched_watch){0});
 }
 

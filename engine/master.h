@@ -61,12 +61,9 @@ typedef struct {
 } engine_sched_watch;
 
 /* engine_write_vod, watched by w: progress (fraction = the bricks handed
- * out so far) and a cancel flag (ENGINE_CANCELLED); w may be NULL.
- * pwrite (NULL: none): the sink's ud written at offsets, by every thread
- * (vod_assembly.pwrite). */
+ * out so far) and a cancel flag (ENGINE_CANCELLED); w may be NULL. */
 int engine_write_vod_watched(engine *e, const vod_params *p, vod_sink *sink,
-                             vod_pwrite_fn pwrite, vod_stats *st, engine_error *err,
-                             const engine_sched_watch *w);
+                             vod_stats *st, engine_error *err, const engine_sched_watch *w);
 
 struct engine {
     shm_seg seg;

@@ -104,7 +104,7 @@ static int run_engine(engine *e, const engine_kind *k, engine_pipeline_job *run,
     sp.voxels = er.voxels;
     thread_name("write");
     double t0 = clock_now();
-    rc = engine_write_vod_watched(e, v, sink, run->sink_pwrite, &r->st, &r->err, &w);
+    rc = engine_write_vod_watched(e, v, sink, &r->st, &r->err, &w);
     r->t_write = clock_now() - t0;
     if (!rc && run->progress) {
         engine_progress done = {.fraction = 1.0, .voxels = er.voxels,

@@ -76,9 +76,6 @@ typedef struct {
     /* Channel, brick, compression, hash; the geometry and the metadata
      * are the job's and filled in here. */
     vod_params vod;
-    /* Optional (NULL: none), with an engine: the sink's ud written at
-     * offsets by every thread (a file's: vod_assembly.pwrite). */
-    vod_pwrite_fn sink_pwrite;
     /* Watching it (all optional; progress only with an engine): one
      * fraction over the voxelization and the VOD, 1 only once the VOD is
      * written. */

@@ -279,10 +279,6 @@ typedef struct {
     int (*write)(void *ud, const void *buf, size_t n);
     void *ud;
 } vod_sink;
-/* A file sink's other way in: n bytes of the sink's ud at offset at from
- * its first byte, from several threads at once on disjoint ranges; 0 or a
- * negative errno. */
-typedef int (*vod_pwrite_fn)(void *ud, const void *buf, size_t n, uint64_t at);
 
 typedef struct {
     uint64_t file_bytes;
@@ -310,10 +306,6 @@ typedef struct {
     const vod_encoded *recs;
     const uint8_t *const *data;
     vod_sink *sink;
-    /* Optional (NULL: none): sink->ud written at offsets instead (a file's,
-     * nothing written to it before): every thread writes its own chunks,
-     * no thread writes them all in order. */
-    vod_pwrite_fn pwrite;
     vod_stats *st;              /* NULL: no figures */
     char *err;                  /* the message, errlen bytes */
     size_t errlen;

@@ -11,10 +11,7 @@
  * the next one is not ready.  The trailer's CRC-32 is the chunks' CRCs
  * combined (crc32_combine) and the trailer's own bytes after them.  The
  * sink sees the same writes in the same order whatever the thread count,
- * so the bytes are those of one thread.  A sink that writes at offsets (a
- * file's: vod_assembly.pwrite) is written by every thread instead, each chunk
- * at its offset as soon as it is rendered: the one writer in order was
- * the assembly's serial tail (the copies into the page cache). */
+ * so the bytes are those of one thread. */
 #include "vod.h"
 
 #include <errno.h>
@@ -249,68 +246,6 @@ static void stream_part(void *ud, unsigned k, unsigned n)
     else renderer(ud);
 }
 
-/* The chunks at their offsets (vod_sink.pwrite): each thread claims the
- * next, renders it into a buffer of its own and writes it; the CRCs are
- * combined in order after the join. */
-typedef struct {
-    const file_plan *f;
-    vod_pwrite_fn pwrite;
-    void *ud;
-    uint64_t body, nchunks;
-    uint32_t *crc;          /* each chunk's */
-    atomic_uint_fast64_t next; /* relaxed: hands out chunk numbers */
-    atomic_int err;         /* relaxed: read after par_run's join */
-    _Atomic uint64_t ns_write; /* relaxed: summed, read after the join */
-} placed;
-
-static void place_part(void *ud, unsigned k, unsigned n)
-{
-    placed *s = ud;
-    (void)k, (void)n;
-    uint8_t *buf = malloc(CHUNK_BYTES);
-    if (!buf) atomic_store_explicit(&s->err, -ENOMEM, memory_order_relaxed);
-    while (buf && !atomic_load_explicit(&s->err, memory_order_relaxed)) {
-        uint64_t c = atomic_fetch_add_explicit(&s->next, 1, memory_order_relaxed);
-        if (c >= s->nchunks) break;
-        uint64_t a = c * CHUNK_BYTES;
-        uint64_t len = s->body - a < CHUNK_BYTES ? s->body - a : CHUNK_BYTES;
-        render_range(s->f, a, a + len, buf);
-        s->crc[c] = (uint32_t)crc32(0, buf, (uInt)len);
-        double t0 = clock_now();
-        int rc = s->pwrite(s->ud, buf, (size_t)len, a);
-        atomic_fetch_add_explicit(&s->ns_write, (uint64_t)(1e9 * (clock_now() - t0)),
-                                  memory_order_relaxed);
-        if (rc < 0) atomic_store_explicit(&s->err, rc, memory_order_relaxed);
-    }
-    free(buf);
-}
-
-static int place_body(const file_plan *f, uint64_t body, vod_pwrite_fn pwrite,
-                      void *ud, uint32_t *crc, double *t_write)
-{
-    placed s = {.f = f, .pwrite = pwrite, .ud = ud, .body = body,
-                .nchunks = (body + CHUNK_BYTES - 1) / CHUNK_BYTES};
-    unsigned threads = par_cpus();
-    if (threads > ASSEMBLE_THREADS) threads = ASSEMBLE_THREADS;
-    if (threads > s.nchunks) threads = s.nchunks ? (unsigned)s.nchunks : 1;
-    s.crc = malloc((s.nchunks ? s.nchunks : 1) * sizeof *s.crc);
-    atomic_init(&s.next, 0);
-    atomic_init(&s.err, s.crc ? 0 : -ENOMEM);
-    atomic_init(&s.ns_write, 0);
-    if (s.crc) par_run(threads, place_part, &s);
-    int rc = atomic_load_explicit(&s.err, memory_order_relaxed);
-    uint32_t all = 0;
-    for (uint64_t c = 0; !rc && c < s.nchunks; c++) {
-        uint64_t a = c * CHUNK_BYTES;
-        uint64_t len = body - a < CHUNK_BYTES ? body - a : CHUNK_BYTES;
-        all = (uint32_t)crc32_combine(all, s.crc[c], (z_off_t)len);
-    }
-    free(s.crc);
-    *crc = all;
-    *t_write = 1e-9 * (double)atomic_load_explicit(&s.ns_write, memory_order_relaxed);
-    return rc;
-}
-
 /* The body (everything before the trailer) to the sink; its CRC in *crc. */
 static int stream_body(const file_plan *f, uint64_t body, vod_sink *sink,
                        uint32_t *crc, double *t_write)
@@ -344,7 +279,7 @@ static int stream_body(const file_plan *f, uint64_t body, vod_sink *sink,
 /* Section 7, at offset at; the CRC covers every byte before its own field
  * (crc: the body's).  Written in one piece. */
 static int write_trailer(const vod_params *p, uint64_t at, size_t meta, vod_sink *sink,
-                         vod_pwrite_fn pwrite, uint32_t *crc, double *t_write)
+                         uint32_t *crc, double *t_write)
 {
     size_t len = TRAILER_FIXED + meta;
     uint8_t *t = malloc(len);
@@ -360,7 +295,7 @@ static int write_trailer(const vod_params *p, uint64_t at, size_t meta, vod_sink
     *crc = (uint32_t)crc32(*crc, t, (uInt)(len - 4));
     vod_put32(t + 36 + meta, *crc);
     double t0 = clock_now();
-    int rc = pwrite ? pwrite(sink->ud, t, len, at) : sink->write(sink->ud, t, len);
+    int rc = sink->write(sink->ud, t, len);
     *t_write += clock_now() - t0;
     free(t);
     return rc < 0 ? rc : 0;
@@ -515,16 +450,15 @@ static int too_big(char *err, size_t errlen, const vod_layout *L, const vod_para
 
 /* The file from its plan: the body streamed, then the trailer. */
 static int write_file(const vod_layout *L, const vod_params *p, file_plan *f,
-                      vod_sink *sink, vod_pwrite_fn pwrite, vod_stats *st, double t0)
+                      vod_sink *sink, vod_stats *st, double t0)
 {
     size_t meta = p->metadata ? strlen(p->metadata) : 0;
     uint64_t body = f->boff[f->u];
     uint32_t crc;
     double t_write = 0;
     make_header(f->header, L, p);
-    int rc = pwrite ? place_body(f, body, pwrite, sink->ud, &crc, &t_write)
-                    : stream_body(f, body, sink, &crc, &t_write);
-    if (!rc) rc = write_trailer(p, body, meta, sink, pwrite, &crc, &t_write);
+    int rc = stream_body(f, body, sink, &crc, &t_write);
+    if (!rc) rc = write_trailer(p, body, meta, sink, &crc, &t_write);
     if (!rc && st) {
         fill_stats(st, L, f, body + TRAILER_FIXED + meta, crc);
         st->t.write = t_write;
@@ -559,7 +493,7 @@ int vod_assemble(const vod_assembly *a)
         if (f.boff[f.u] + TRAILER_FIXED + meta > UINT32_MAX)
             rc = too_big(err, errlen, L, p, f.u);
         else
-            rc = write_file(L, p, &f, a->sink, a->pwrite, a->st, t0);
+            rc = write_file(L, p, &f, a->sink, a->st, t0);
     }
     free(f.boff);
     free(ids);

@@ -4,15 +4,12 @@
  * docs/vod-format.md (the writer's code before the chunks): the same bytes
  * for files of one chunk and of many (bricks, the octree table and the
  * brick table straddling the chunks' boundaries), on every CPU and on one;
- * a sink's failure stops the writes; the same bytes written at offsets
- * from several threads (a file's sink, vod_assembly.pwrite), and its
- * failure the file's.  vod_collect, whose subtrees are
+ * a sink's failure stops the writes.  vod_collect, whose subtrees are
  * walked by several threads: the nodes of the one-thread walk, in order,
  * whatever the room given. */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <sched.h>
-#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 #include <zlib.h>
@@ -233,92 +230,6 @@ Test(vod_assemble, a_sink_failure_stops_the_writes)
         cr_assert_eq(rc, -EIO);
         cr_assert_eq(m.calls, at, "no write after the failing one");
         free(m.p);
-    }
-    forged_free(&f);
-}
-
-/* A file's sink written at offsets (vod_assembly.pwrite), from several
- * threads at once: into a buffer of cap bytes, the end the furthest byte
- * written; fail_at: the pwrite call that fails (-EIO), 0 none. */
-typedef struct {
-    uint8_t *p;
-    size_t cap;
-    atomic_size_t end, calls, past; /* past: bytes asked for beyond cap */
-    size_t fail_at;
-} placed_buf;
-
-static int placed_write(void *ud, const void *buf, size_t n, uint64_t at)
-{
-    placed_buf *b = ud;
-    size_t call = atomic_fetch_add(&b->calls, 1) + 1;
-    if (b->fail_at && call == b->fail_at) return -EIO;
-    if (at > b->cap || n > b->cap - at) {
-        atomic_fetch_add(&b->past, 1);
-        return -ENOSPC;
-    }
-    memcpy(b->p + at, buf, n);
-    size_t e = atomic_load(&b->end);
-    while (at + n > e && !atomic_compare_exchange_weak(&b->end, &e, at + n)) {
-    }
-    return 0;
-}
-
-static int no_write(void *ud, const void *buf, size_t n)
-{
-    (void)ud, (void)buf, (void)n;
-    return -EPIPE; /* the writes in order are not to be used */
-}
-
-static int assemble_placed(const forged *f, placed_buf *b, vod_stats *st)
-{
-    vod_sink sink = {no_write, b};
-    char err[256];
-    vod_assembly a = {.L = &f->L, .p = &f->p, .n = f->n, .nodes = f->nodes,
-                      .recs = f->recs, .data = f->data, .sink = &sink,
-                      .pwrite = placed_write, .st = st, .err = err, .errlen = sizeof err};
-    return vod_assemble(&a);
-}
-
-static void placed_same_as_reference(uint32_t side, size_t n, uint32_t max_size)
-{
-    forged f;
-    forge(&f, side, n, max_size);
-    membuf ref = ref_assemble(&f.L, &f.p, f.n, f.nodes, f.recs, f.data);
-    placed_buf b = {.cap = ref.n + 4096};
-    b.p = calloc(1, b.cap);
-    cr_assert(b.p);
-    vod_stats st;
-    cr_assert_eq(assemble_placed(&f, &b, &st), 0);
-    cr_assert_eq(atomic_load(&b.past), 0);
-    cr_assert_eq(atomic_load(&b.end), ref.n, "%zu bytes, want %zu", atomic_load(&b.end), ref.n);
-    cr_assert_eq(memcmp(b.p, ref.p, ref.n), 0, "the bytes differ");
-    cr_assert_eq(st.file_bytes, ref.n);
-    cr_assert_eq(st.crc32, vod_get32(ref.p + ref.n - 4));
-    /* the body in 1 MiB chunks, then the trailer */
-    cr_assert_geq(atomic_load(&b.calls), 1 + (ref.n + (1u << 20) - 1) / (1u << 20) - 1);
-    free(b.p), free(ref.p);
-    forged_free(&f);
-}
-
-Test(vod_assemble, written_at_offsets_same_as_the_sequential_writer)
-{
-    placed_same_as_reference(64, 40, 300);       /* one chunk */
-    placed_same_as_reference(256, 1200, 16384);  /* about 10 chunks */
-    one_cpu(1);
-    placed_same_as_reference(256, 600, 16384);   /* one thread */
-    one_cpu(0);
-}
-
-Test(vod_assemble, a_failed_write_at_an_offset_fails_the_file)
-{
-    forged f;
-    forge(&f, 256, 800, 16384);
-    for (size_t at = 1; at <= 3; at++) {
-        placed_buf b = {.cap = 64u << 20, .fail_at = at};
-        b.p = malloc(b.cap);
-        cr_assert(b.p);
-        cr_assert_eq(assemble_placed(&f, &b, NULL), -EIO, "call %zu failing", at);
-        free(b.p);
     }
     forged_free(&f);
 }
