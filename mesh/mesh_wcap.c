@@ -608,21 +608,30 @@ static void count_caps(const mesh_vox_frame *f, const mesh_wtree *t, const mesh_
     }
 }
 
+/* The samples of word w set in bits r as points (voxel units, K = 1)
+ * into q, their bits into idx: how many. */
+static unsigned word_points(const mesh_vox_block *b, size_t w, uint64_t r, double q[64][3], unsigned idx[64])
+{
+    size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
+    unsigned n = 0;
+    for (; r; r &= r - 1) {
+        unsigned i = (unsigned)__builtin_ctzll(r);
+        q[n][0] = (double)(b->s0[0] + (int64_t)((w % b->nw) * 64 + i)) + 0.5;
+        q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
+        q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
+        idx[n++] = i;
+    }
+    return n;
+}
+
 /* The samples set in dis by the exact sum, a word at a time (when a
- * tree cannot be had: no memory for it). */
+ * tree cannot be had: no memory for it; and the few samples the caps'
+ * exact sum leaves). */
 static void exact_words(const mesh_vox_frame *f, const mesh_vox_block *b, const uint64_t *dis, uint64_t *bits)
 {
     for (size_t w = 0; w < mesh_vox_block_words(b); w++) {
-        size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
         double q[64][3], wn[64];
-        unsigned idx[64], n = 0;
-        for (uint64_t r = dis[w]; r; r &= r - 1) {
-            unsigned i = (unsigned)__builtin_ctzll(r);
-            q[n][0] = (double)(b->s0[0] + (int64_t)((w % b->nw) * 64 + i)) + 0.5;
-            q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
-            q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
-            idx[n++] = i;
-        }
+        unsigned idx[64], n = dis[w] ? word_points(b, w, dis[w], q, idx) : 0;
         if (!n) continue;
         mesh_vox_winding_many(f, (const double (*)[3])q, n, wn);
         for (unsigned k = 0; k < n; k++)
@@ -635,6 +644,70 @@ static void by_tree(const mesh_vox_frame *f, const mesh_vox_block *b, const uint
 {
     if (need_tris(f->wt, f->pulse)) exact_words(f, b, dis, bits);
     else mesh_vox_wind_block(f, f->wt->tris, b, dis, bits);
+}
+
+/* Half cap triangle P's solid angle at q (voxel units) from its lattice
+ * vertices, the raster's own (their differences from q are exact), so
+ * that the angle's sign is the raster's side of the cap; *on set where q
+ * lies on the triangle or its edges within the rounding of the triple
+ * product (the side undecided there, and the raster's tie rule decides). */
+static double cap_half_angle(const int64_t P[3][3], const double q[3], bool *on)
+{
+    double r[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++) r[i][a] = (double)P[i][a] / (double)MESH_VOX_L - q[a];
+    double h = mesh_vox_half_solid_angle(r[0], r[1], r[2]);
+    if (fabs(h) < 0.5 * M_PI - 1e-3) return h; /* q sees the triangle in front: off its inside */
+    double l = 1, det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
+                        r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
+                        r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    for (int i = 0; i < 3; i++) l *= sqrt(r[i][0] * r[i][0] + r[i][1] * r[i][1] + r[i][2] * r[i][2]);
+    if (fabs(det) <= 1e-12 * l) *on = true;
+    return h;
+}
+
+#define EXACT_MARGIN 1e-9 /* |N - w_C| nearer 1/2 after the caps' exact sum: the mesh's */
+#define EXACT_WORK 4u     /* a block's spare samples times its caps at most this many
+                             times the mesh's triangles: the caps' exact sum, else the tree */
+
+/* The spare samples of word w by the caps' exact winding number,
+ * |N - w_C| against 1/2 (w_S = N - w_C exactly where the raster and the
+ * angles see the same caps); those on a cap or within EXACT_MARGIN of 1/2
+ * stay in spare. */
+static void caps_exact(const cblock *c, size_t w)
+{
+    const mesh_wtree *t = c->f->wt;
+    double q[64][3], h[64] = {0};
+    unsigned idx[64], n = word_points(c->b, w, c->spare[w], q, idx);
+    bool on[64] = {false};
+    for (uint32_t i = 0; i < t->n_caps; i++) {
+        if (mesh_vox_beat(c->f->pulse, n)) return; /* the tile is abandoned */
+        for (unsigned k = 0; k < n; k++) h[k] += cap_half_angle(t->cap_lat[i], q[k], &on[k]);
+    }
+    for (unsigned k = 0; k < n; k++) {
+        double a = fabs((double)(int16_t)c->count[w * 64 + idx[k]] - h[k] / (2 * M_PI));
+        if (on[k] || fabs(a - 0.5) <= EXACT_MARGIN) continue;
+        uint64_t bit = 1ull << idx[k];
+        c->bits[w] = a > 0.5 ? c->bits[w] | bit : c->bits[w] & ~bit;
+        c->spare[w] &= ~bit;
+    }
+}
+
+/* The samples the caps' walk left (in spare): by the caps' exact sum
+ * where they are few, the rest by the mesh's exact sum (no tree to
+ * build); many: the mesh's tree. */
+static void spare_block(const cblock *c)
+{
+    size_t nw = mesh_vox_block_words(c->b);
+    uint64_t n = 0;
+    for (size_t w = 0; w < nw; w++) n += (uint64_t)__builtin_popcountll(c->spare[w]);
+    if (n * c->f->wt->n_caps > (uint64_t)EXACT_WORK * c->f->m->n_triangles) {
+        by_tree(c->f, c->b, c->spare, c->bits);
+        return;
+    }
+    for (size_t w = 0; w < nw; w++)
+        if (c->spare[w]) caps_exact(c, w);
+    exact_words(c->f, c->b, c->spare, c->bits);
 }
 
 void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *dis, uint64_t *bits,
@@ -672,5 +745,5 @@ void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint6
                 else cell(&c, lo, hi);
             }
     free(room);
-    if (c.any_spare) by_tree(f, b, spare, bits);
+    if (c.any_spare) spare_block(&c);
 }
