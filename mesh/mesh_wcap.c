@@ -602,7 +602,8 @@ static void count_caps(const mesh_vox_frame *f, const mesh_wtree *t, const mesh_
     }
     size_t slice = (size_t)b->n[1] * b->nw * 64;
     for (int32_t z = 1; z < b->n[2]; z++) {
-        uint16_t *s = count + (size_t)z * slice, *p = s - slice;
+        uint16_t *restrict s = count + (size_t)z * slice; /* apart from p: vectorized */
+        const uint16_t *restrict p = s - slice;
         for (size_t i = 0; i < slice; i++) s[i] = (uint16_t)(s[i] + p[i]);
         mesh_vox_beat(f->pulse, (uint32_t)(slice / 256));
     }

@@ -289,21 +289,13 @@ static double expand(const wnode *n, const double d[3], double R2)
     return (md + tr) * iR3 - 3 * dPd * iR3 * iR * iR;
 }
 
-/* The solid angle of triangle v (9 floats) seen from p, over 2 (Van
- * Oosterom and Strackee: atan2 of the triple product over the rest). */
+/* The solid angle of triangle v (9 floats) seen from p, over 2
+ * (mesh_vox_half_solid_angle: Van Oosterom and Strackee's formula). */
 static double tri_half_angle(const float *v, const double p[3])
 {
     double a[3], b[3], c[3];
     for (int i = 0; i < 3; i++) a[i] = v[i] - p[i], b[i] = v[3 + i] - p[i], c[i] = v[6 + i] - p[i];
-    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
-    double lc = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-    double det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
-                 a[2] * (b[0] * c[1] - b[1] * c[0]);
-    double den = la * lb * lc + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * lc +
-                 (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) * la +
-                 (c[0] * a[0] + c[1] * a[1] + c[2] * a[2]) * lb;
-    return atan2(det, den);
+    return mesh_vox_half_solid_angle(a, b, c);
 }
 
 double mesh_vox_wind_point(const mesh_vox_wtree *t, const double p[3], double beta, uint32_t *work)
