@@ -320,8 +320,8 @@ static void decide(cblock *c, size_t i, unsigned x, double v, double e)
 
 /* The samples of the cell one by one from a cell query: w_C = v (within
  * e) plus the near triangles' exact angles. */
-static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const uint32_t *tri,
-                         const uint32_t *leaf, uint32_t nt, double v, double e)
+static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const mesh_vox_tris *s,
+                         double v, double e)
 {
     uint64_t mask = mesh_vox_xmask(lo, hi);
     uint32_t work = 0;
@@ -334,9 +334,9 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], 
                                (double)(c->b->s0[1] + (int64_t)y) + 0.5,
                                (double)(c->b->s0[2] + (int64_t)z) + 0.5};
                 bool close = false;
-                double u = v + mesh_vox_wind_tris(c->caps, tri, leaf, nt, p, NEAR, &close);
+                double u = v + mesh_vox_wind_tris(c->caps, s, p, NEAR, &close);
                 if (!close) decide(c, i, x, u, e);
-                work += nt;
+                work += s->n;
             }
         }
     mesh_vox_beat(c->f->pulse, work);
@@ -398,18 +398,19 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
     double mag;
-    if (!one && mesh_vox_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
+    mesh_vox_wball q = {{b[0], b[1], b[2]}, sqrt(r2) * (1 + 1e-9), TOL_MAG, 0.45};
+    if (!one && mesh_vox_wind_mag(c->caps, &q, &mag, &work)) {
         mesh_vox_beat(c->f->pulse, work);
         cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
         return;
     }
     mesh_vox_near nr;
-    bool ok = mesh_vox_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
-                           &nr, &v, &e, &work);
+    q.tol = one ? TOL_SAMPLE : TOL_CELL, q.emax = 0.5;
+    bool ok = mesh_vox_wind_cell(c->caps, &q, &nr, &v, &e, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (ok && !nr.n && try_count(c, lo, hi, v, e)) return;
     if (ok && (n < CELL_MIN || nr.n * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
-        cell_by_near(c, lo, hi, nr.tri, nr.leaf, nr.n, v, e);
+        cell_by_near(c, lo, hi, &(mesh_vox_tris){nr.tri, nr.leaf, nr.n}, v, e);
     if (one) {
         cell_spare(c, lo, hi);
         return;
@@ -422,13 +423,13 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 static void fresh(cblock *c, const uint32_t lo[3], double tol)
 {
     uint32_t hi[3] = {lo[0] + 1, lo[1] + 1, lo[2] + 1}, root = 0, work = 0;
-    double b[3];
-    for (int a = 0; a < 3; a++) b[a] = (double)(c->b->s0[a] + (int64_t)lo[a]) + 0.5;
+    mesh_vox_wball q = {.rho = 0, .tol = tol, .emax = 0.5};
+    for (int a = 0; a < 3; a++) q.b[a] = (double)(c->b->s0[a] + (int64_t)lo[a]) + 0.5;
     mesh_vox_wlist top = {.n_node = 1, .node = &root}, *out = &c->lists[DEPTH - 1];
-    bool ok = mesh_vox_wind_down(c->caps, &top, b, 0, tol, 0.5, out, &work);
+    bool ok = mesh_vox_wind_down(c->caps, &top, &q, out, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (ok)
-        cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, out->w4 / (4 * M_PI),
+        cell_by_near(c, lo, hi, &(mesh_vox_tris){out->tri, out->leaf, out->n_tri}, out->w4 / (4 * M_PI),
                      out->e4 / (4 * M_PI) + 1e-9);
 }
 
@@ -445,14 +446,15 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
     if (!n || (c->f->pulse && c->f->pulse->stop)) return;
     uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]}, work = (uint32_t)(n / 8);
     bool one = ext[0] == 1 && ext[1] == 1 && ext[2] == 1;
-    double b[3], r2 = 0;
+    mesh_vox_wball q = {.tol = one ? TOL_SAMPLE : TOL_CELL, .emax = 0.5};
+    double r2 = 0;
     for (int a = 0; a < 3; a++) {
-        b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
+        q.b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
+    q.rho = sqrt(r2) * (1 + 1e-9);
     mesh_vox_wlist *out = &c->lists[depth];
-    bool ok = depth < DEPTH - 1 && mesh_vox_wind_down(c->caps, in, b, sqrt(r2) * (1 + 1e-9),
-                                                  one ? TOL_SAMPLE : TOL_CELL, 0.5, out, &work);
+    bool ok = depth < DEPTH - 1 && mesh_vox_wind_down(c->caps, in, &q, out, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (!ok) {
         cell(c, lo, hi);
@@ -461,16 +463,16 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
     double v = out->w4 / (4 * M_PI), e = out->e4 / (4 * M_PI) + 1e-9; /* and the sums' rounding */
     if (!out->n_node && !out->n_tri && try_count(c, lo, hi, v, e)) return;
     if (!out->n_node && (one || n < CELL_MIN || out->n_tri * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
-        cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, v, e);
+        cell_by_near(c, lo, hi, &(mesh_vox_tris){out->tri, out->leaf, out->n_tri}, v, e);
     for (int k = 0; one && k < 2; k++) /* a fresh query, then a finer one */
         if (mesh_vox_cell_count(c->b, c->todo, lo, hi)) fresh(c, lo, k ? TOL_FINE : TOL_SAMPLE);
     if (one) {
         cell_spare(c, lo, hi);
         return;
     }
-    for (int q = 0; q < 8; q++) {
+    for (int h = 0; h < 8; h++) {
         uint32_t clo[3], chi[3];
-        if (mesh_vox_half(lo, hi, q, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
+        if (mesh_vox_half(lo, hi, h, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
     }
 }
 
@@ -734,17 +736,12 @@ void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint6
                                     .tri = room + (3 * d + 1) * LIST_CAP,
                                     .leaf = room + (3 * d + 2) * LIST_CAP};
     c.lists = room ? lists : NULL;
-    uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
-    for (uint32_t z = 0; z < n[2]; z += TOP)
-        for (uint32_t y = 0; y < n[1]; y += TOP)
-            for (uint32_t x = 0; x < n[0]; x += TOP) {
-                uint32_t lo[3] = {x, y, z};
-                uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
-                                  z + TOP < n[2] ? z + TOP : n[2]};
-                if (direct) direct_cell(&c, lo, hi);
-                else if (c.lists) down_cell(&c, lo, hi, &top, 0);
-                else cell(&c, lo, hi);
-            }
+    uint32_t lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    while (mesh_vox_top_next(b, TOP, lo, hi)) {
+        if (direct) direct_cell(&c, lo, hi);
+        else if (c.lists) down_cell(&c, lo, hi, &top, 0);
+        else cell(&c, lo, hi);
+    }
     free(room);
     if (c.any_spare) spare_block(&c);
 }
