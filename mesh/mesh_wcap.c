@@ -75,50 +75,77 @@ typedef struct {
     int32_t s;    /* +1: the triangle runs lo -> hi, -1: hi -> lo */
 } dedge;
 
-/* e[0, n) sorted by key (LSD radix, 8 bits a pass, passes whose digit is
- * the same everywhere skipped); tmp: n more. */
-static void sort_edges(dedge *e, dedge *tmp, size_t n)
+static int u64_cmp(const void *x, const void *y)
 {
-    for (int shift = 0; shift < 64; shift += 8) {
-        size_t cnt[257] = {0};
-        for (size_t i = 0; i < n; i++) cnt[(e[i].key >> shift & 255) + 1]++;
-        if (cnt[(e[0].key >> shift & 255) + 1] == n) continue;
-        for (int d = 0; d < 256; d++) cnt[d + 1] += cnt[d];
-        for (size_t i = 0; i < n; i++) tmp[cnt[e[i].key >> shift & 255]++] = e[i];
-        memcpy(e, tmp, n * sizeof *e);
+    uint64_t a = *(const uint64_t *)x, b = *(const uint64_t *)y;
+    return (a > b) - (a < b);
+}
+
+/* h[0, n) ascending (insertion: a vertex has a few edges; qsort past 32). */
+static void sort_bucket(uint64_t *h, size_t n)
+{
+    if (n > 32) {
+        qsort(h, n, sizeof *h, u64_cmp);
+        return;
+    }
+    for (size_t i = 1; i < n; i++) {
+        uint64_t x = h[i];
+        size_t j = i;
+        for (; j > 0 && h[j - 1] > x; j--) h[j] = h[j - 1];
+        h[j] = x;
     }
 }
 
-/* The chain's edges with their multiplicities, a -> b for c > 0, into
- * e[0, *nb) (e reused: key, s = c); -ENOMEM. */
-static int boundary(const mesh *m, dedge **out, size_t *nb)
+/* Bucket lo's edges h[0, n) (hi << 1, 1: the triangle runs hi -> lo),
+ * sorted, summed per edge into e (room grown as needed).  -ENOMEM. */
+static int bucket_edges(uint32_t lo, uint64_t *h, size_t n, dedge **e, size_t *ne, size_t *cap)
 {
-    size_t n = 3 * (size_t)m->n_triangles, k = 0;
-    dedge *e = malloc(n * sizeof *e), *tmp = malloc(n * sizeof *tmp);
-    if (!e || !tmp) {
-        free(e), free(tmp);
-        return -ENOMEM;
-    }
-    for (uint32_t t = 0; t < m->n_triangles; t++)
-        for (int i = 0; i < 3; i++) {
-            uint32_t a = m->triangles[t][i], b = m->triangles[t][(i + 1) % 3];
-            if (a == b) continue;
-            uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
-            e[k++] = (dedge){(uint64_t)lo << 32 | hi, a < b ? 1 : -1};
-        }
-    if (k) sort_edges(e, tmp, k);
-    free(tmp);
-    size_t out_n = 0;
-    for (size_t i = 0; i < k;) {
-        size_t j = i;
+    sort_bucket(h, n);
+    for (size_t i = 0; i < n;) {
         int64_t c = 0;
-        while (j < k && e[j].key == e[i].key) c += e[j++].s;
-        if (c) e[out_n++] = (dedge){e[i].key, (int32_t)c};
+        size_t j = i;
+        for (; j < n && h[j] >> 1 == h[i] >> 1; j++) c += h[j] & 1 ? -1 : 1;
+        if (c && *ne == *cap) {
+            size_t grown = *cap ? 2 * *cap : 1024;
+            dedge *g = realloc(*e, grown * sizeof *g);
+            if (!g) return -ENOMEM;
+            *e = g, *cap = grown;
+        }
+        if (c) (*e)[(*ne)++] = (dedge){(uint64_t)lo << 32 | (h[i] >> 1), (int32_t)c};
         i = j;
     }
-    *out = e;
-    *nb = out_n;
     return 0;
+}
+
+/* The chain's edges with their multiplicities, a -> b for c > 0, into
+ * (*out)[0, *nb) sorted by key: the triangles' edges counted into one
+ * bucket a lower vertex (8 bytes an edge, where a sort of whole edges
+ * took 32), each bucket then sorted and summed; -ENOMEM. */
+static int boundary(const mesh *m, dedge **out, size_t *nb)
+{
+    size_t n = 3 * (size_t)m->n_triangles, cap = 0;
+    size_t *at = calloc((size_t)m->n_vertices + 1, sizeof *at);
+    uint64_t *h = malloc(n * sizeof *h);
+    int rc = at && h ? 0 : -ENOMEM;
+    *out = NULL, *nb = 0;
+    for (int pass = 0; !rc && pass < 2; pass++) {
+        for (uint32_t t = 0; t < m->n_triangles; t++)
+            for (int i = 0; i < 3; i++) {
+                uint32_t a = m->triangles[t][i], b = m->triangles[t][(i + 1) % 3];
+                if (a == b) continue;
+                uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
+                if (pass) h[at[lo]++] = (uint64_t)hi << 1 | (a > b);
+                else at[lo + 1]++;
+            }
+        for (uint32_t v = 0; !pass && v < m->n_vertices; v++) at[v + 1] += at[v];
+    }
+    for (uint32_t v = 0; !rc && v < m->n_vertices; v++) { /* at[v]: now bucket v's end */
+        size_t first = v ? at[v - 1] : 0;
+        rc = bucket_edges(v, h + first, at[v] - first, out, nb, &cap);
+    }
+    free(at), free(h);
+    if (rc) free(*out), *out = NULL, *nb = 0;
+    return rc;
 }
 
 static uint32_t find(uint32_t *up, uint32_t v)
