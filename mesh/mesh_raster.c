@@ -208,8 +208,8 @@ static void scan128(proj *T, int64_t iu0, int64_t iu1, int64_t iv0, int64_t iv1)
  * rho (0 <= rho < L) and k = k0 + j, X(k) > 0 reads
  *     j L W > Q = B - tie - (L/2 - rho) W,  so  j = floor(Q / (L W)) + 1. */
 __attribute__((always_inline)) static inline void
-raster_tiny(const int64_t P[3][3], int axis, const mesh_vox_target *t, int64_t iu0, int64_t iu1,
-            int64_t iv0, int64_t iv1)
+raster_tiny(const int64_t P[3][3], int axis, const mesh_vox_target *t, const int64_t iu[2],
+            const int64_t iv[2])
 {
     int ua = AX_U[axis], va = AX_V[axis], o1 = 1, o2 = 2;
     int64_t W = (P[1][ua] - P[0][ua]) * (P[2][va] - P[0][va]) -
@@ -230,17 +230,17 @@ raster_tiny(const int64_t P[3][3], int axis, const mesh_vox_target *t, int64_t i
     int64_t k0 = mesh_vox_floor_l(r0), rho = r0 - k0 * MESH_VOX_L, LW = W * MESH_VOX_L;
     int64_t base = tie_past(P, axis) + (MESH_VOX_H - rho) * W;
     double inv = 1.0 / (double)LW;
-    for (int64_t iv = iv0; iv <= iv1; iv++) {
-        int64_t pv = iv * MESH_VOX_L + MESH_VOX_H;
-        for (int64_t iu = iu0; iu <= iu1; iu++) {
-            int64_t pu = iu * MESH_VOX_L + MESH_VOX_H, E[3];
+    for (int64_t sv = iv[0]; sv <= iv[1]; sv++) {
+        int64_t pv = sv * MESH_VOX_L + MESH_VOX_H;
+        for (int64_t su = iu[0]; su <= iu[1]; su++) {
+            int64_t pu = su * MESH_VOX_L + MESH_VOX_H, E[3];
             for (int j = 0; j < 3; j++) E[j] = du[j] * (pv - v[j]) - dv[j] * (pu - u[j]);
             if (((E[0] - thr[0]) | (E[1] - thr[1]) | (E[2] - thr[2])) < 0) continue;
             /* floor(Q / LW): a guess in double (|Q| < 2^61), made exact */
             int64_t Q = dr1 * E[2] + dr2 * E[0] - base, j = (int64_t)((double)Q * inv);
             int64_t rem = Q - j * LW;
             j += (rem >= LW) - (rem < 0);
-            emit(t, axis, iu, iv, k0 + j + 1, sign);
+            emit(t, axis, su, sv, k0 + j + 1, sign);
         }
     }
 }
@@ -258,16 +258,16 @@ raster_axis(const int64_t P[3][3], int axis, const mesh_vox_target *t)
     int64_t vmin = v0 < v1 ? v0 : v1, vmax = v0 < v1 ? v1 : v0;
     umin = u2 < umin ? u2 : umin, umax = u2 > umax ? u2 : umax;
     vmin = v2 < vmin ? v2 : vmin, vmax = v2 > vmax ? v2 : vmax;
-    int64_t iu0, iu1, iv0, iv1;
-    if (sample_range(t->b, ua, umin, umax, &iu0, &iu1) ||
-        sample_range(t->b, va, vmin, vmax, &iv0, &iv1))
+    int64_t iu[2], iv[2]; /* the samples' ranges, inclusive */
+    if (sample_range(t->b, ua, umin, umax, &iu[0], &iu[1]) ||
+        sample_range(t->b, va, vmin, vmax, &iv[0], &iv[1]))
         return;
     const int64_t tiny = (int64_t)1 << 19;
     int64_t r0 = P[0][axis], r1 = P[1][axis], r2 = P[2][axis];
     int64_t rmin = r0 < r1 ? r0 : r1, rmax = r0 < r1 ? r1 : r0;
     rmin = r2 < rmin ? r2 : rmin, rmax = r2 > rmax ? r2 : rmax;
     if (umax - umin < tiny && vmax - vmin < tiny && rmax - rmin < tiny) {
-        raster_tiny(P, axis, t, iu0, iu1, iv0, iv1);
+        raster_tiny(P, axis, t, iu, iv);
         return;
     }
     proj T;
@@ -300,9 +300,9 @@ raster_axis(const int64_t P[3][3], int axis, const mesh_vox_target *t)
     T.LW = T.W * MESH_VOX_L;
     T.guess = false;
     if (umax - umin <= (int64_t)1 << 30 && vmax - vmin <= (int64_t)1 << 30)
-        scan64(&T, iu0, iu1, iv0, iv1);
+        scan64(&T, iu[0], iu[1], iv[0], iv[1]);
     else
-        scan128(&T, iu0, iu1, iv0, iv1);
+        scan128(&T, iu[0], iu[1], iv[0], iv[1]);
 }
 
 void mesh_vox_raster(const int64_t P[3][3], int axis, const mesh_vox_target *t)

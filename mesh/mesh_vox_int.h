@@ -211,6 +211,22 @@ static inline void mesh_vox_cell_decide(const mesh_vox_decide *d, const uint32_t
         }
 }
 
+/* Block b cut in cells top samples a side, x fastest: [lo, hi) becomes
+ * the cell after it (the first where hi is all 0); false past the last. */
+static inline bool mesh_vox_top_next(const mesh_vox_block *b, uint32_t top, uint32_t lo[3], uint32_t hi[3])
+{
+    int a = 0;
+    if (!hi[0] && !hi[1] && !hi[2]) {
+        lo[0] = lo[1] = lo[2] = 0;
+    } else {
+        for (; a < 3 && hi[a] >= (uint32_t)b->n[a]; a++) lo[a] = 0;
+        if (a == 3) return false;
+        lo[a] += top;
+    }
+    for (a = 0; a < 3; a++) hi[a] = lo[a] + top < (uint32_t)b->n[a] ? lo[a] + top : (uint32_t)b->n[a];
+    return hi[0] > lo[0] && hi[1] > lo[1] && hi[2] > lo[2];
+}
+
 /* Half q (bit a: the upper half along axis a) of cell [lo, hi) into
  * [clo, chi); false when it is empty (an axis one sample long). */
 static inline bool mesh_vox_half(const uint32_t lo[3], const uint32_t hi[3], int q, uint32_t clo[3],
@@ -305,6 +321,17 @@ double mesh_vox_tri_dist(const double v[3][3], const double p[3]);
  * lies within close of one's plane and ball (where the sign of its angle
  * may differ from the raster's side of it). */
 typedef struct mesh_vox_wtree mesh_vox_wtree;
+/* A cell query's ball (centre b, radius rho of its samples, 0: a point)
+ * and limits: a node taken whole where its bound is at most tol, false
+ * where the summed bound passes emax. */
+typedef struct {
+    double b[3], rho, tol, emax;
+} mesh_vox_wball;
+/* Triangles of a tree: tri[k] (leaf order) of leaf leaf[k], k < n. */
+typedef struct {
+    const uint32_t *tri, *leaf;
+    uint32_t n;
+} mesh_vox_tris;
 int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
                   mesh_vox_pulse *pulse, mesh_vox_wtree **out);
 void mesh_vox_wtree_free(mesh_vox_wtree *t);
@@ -313,19 +340,18 @@ double mesh_vox_wind_point(const mesh_vox_wtree *t, const double p[3], double be
 typedef struct {
     uint32_t n, tri[MESH_VOX_NEAR_MAX], leaf[MESH_VOX_NEAR_MAX];
 } mesh_vox_near;
-bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
-                  mesh_vox_near *near, double *w, double *err, uint32_t *work);
+bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const mesh_vox_wball *q, mesh_vox_near *near, double *w,
+                        double *err, uint32_t *work);
 double mesh_vox_wind_near(const mesh_vox_wtree *t, const mesh_vox_near *near, const double p[3], double close,
                     bool *is_close);
-/* mesh_vox_wind_tris: mesh_vox_wind_near's sum over nt triangles tri[k]
- * (leaf order) of leaves leaf[k]. */
-double mesh_vox_wind_tris(const mesh_vox_wtree *t, const uint32_t *tri, const uint32_t *leaf, uint32_t nt,
-                          const double p[3], double close, bool *is_close);
+/* mesh_vox_wind_tris: mesh_vox_wind_near's sum over the triangles s. */
+double mesh_vox_wind_tris(const mesh_vox_wtree *t, const mesh_vox_tris *s, const double p[3], double close,
+                          bool *is_close);
 /* The far field handed down from a cell to its halves (a dual-tree
  * descent): nodes node[0, n_node) and triangles tri[k] of leaves leaf[k],
  * k < n_tri, still to take, and 4 pi times the value w4 of those taken
  * and the bound e4 of its error over the cell's ball.  mesh_vox_wind_down:
- * in's part at the cell (b, rho) into out (room for cap of each): a node
+ * in's part at the cell q (its b, rho) into out (room for cap of each): a node
  * by its expansion (beta 2) or its magnitude (area / f^2) where that bound
  * is at most tol, a triangle by its exact angle and gradient bound where
  * it keeps NEAR_REACH (rho + 1) voxels off the ball; else a node no larger
@@ -337,14 +363,13 @@ typedef struct {
     uint32_t *node, *tri, *leaf;
     double w4, e4;
 } mesh_vox_wlist;
-bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const double b[3], double rho,
-                        double tol, double emax, mesh_vox_wlist *out, uint32_t *work);
+bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const mesh_vox_wball *q,
+                        mesh_vox_wlist *out, uint32_t *work);
 /* A bound of |w(p)| for every p within rho of b (a node of area a whose
  * ball keeps f away subtends at most a / f^2, taken where that is at most
  * tol); false when a leaf's ball meets the cell's or the bound passes
  * emax.  Cheap where the triangles are small (the caps of small holes). */
-bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
-                 double *bound, uint32_t *work);
+bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const mesh_vox_wball *q, double *bound, uint32_t *work);
 /* The samples of block b set in dis decided by the winding number of tree
  * t (inside: |w| >= 1/2) into bits, cells of samples at once where the
  * bound decides them, else sample by sample: the tree, then, near 1/2, the

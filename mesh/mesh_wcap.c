@@ -75,50 +75,77 @@ typedef struct {
     int32_t s;    /* +1: the triangle runs lo -> hi, -1: hi -> lo */
 } dedge;
 
-/* e[0, n) sorted by key (LSD radix, 8 bits a pass, passes whose digit is
- * the same everywhere skipped); tmp: n more. */
-static void sort_edges(dedge *e, dedge *tmp, size_t n)
+static int u64_cmp(const void *x, const void *y)
 {
-    for (int shift = 0; shift < 64; shift += 8) {
-        size_t cnt[257] = {0};
-        for (size_t i = 0; i < n; i++) cnt[(e[i].key >> shift & 255) + 1]++;
-        if (cnt[(e[0].key >> shift & 255) + 1] == n) continue;
-        for (int d = 0; d < 256; d++) cnt[d + 1] += cnt[d];
-        for (size_t i = 0; i < n; i++) tmp[cnt[e[i].key >> shift & 255]++] = e[i];
-        memcpy(e, tmp, n * sizeof *e);
+    uint64_t a = *(const uint64_t *)x, b = *(const uint64_t *)y;
+    return (a > b) - (a < b);
+}
+
+/* h[0, n) ascending (insertion: a vertex has a few edges; qsort past 32). */
+static void sort_bucket(uint64_t *h, size_t n)
+{
+    if (n > 32) {
+        qsort(h, n, sizeof *h, u64_cmp);
+        return;
+    }
+    for (size_t i = 1; i < n; i++) {
+        uint64_t x = h[i];
+        size_t j = i;
+        for (; j > 0 && h[j - 1] > x; j--) h[j] = h[j - 1];
+        h[j] = x;
     }
 }
 
-/* The chain's edges with their multiplicities, a -> b for c > 0, into
- * e[0, *nb) (e reused: key, s = c); -ENOMEM. */
-static int boundary(const mesh *m, dedge **out, size_t *nb)
+/* Bucket lo's edges h[0, n) (hi << 1, 1: the triangle runs hi -> lo),
+ * sorted, summed per edge into e (room grown as needed).  -ENOMEM. */
+static int bucket_edges(uint32_t lo, uint64_t *h, size_t n, dedge **e, size_t *ne, size_t *cap)
 {
-    size_t n = 3 * (size_t)m->n_triangles, k = 0;
-    dedge *e = malloc(n * sizeof *e), *tmp = malloc(n * sizeof *tmp);
-    if (!e || !tmp) {
-        free(e), free(tmp);
-        return -ENOMEM;
-    }
-    for (uint32_t t = 0; t < m->n_triangles; t++)
-        for (int i = 0; i < 3; i++) {
-            uint32_t a = m->triangles[t][i], b = m->triangles[t][(i + 1) % 3];
-            if (a == b) continue;
-            uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
-            e[k++] = (dedge){(uint64_t)lo << 32 | hi, a < b ? 1 : -1};
-        }
-    if (k) sort_edges(e, tmp, k);
-    free(tmp);
-    size_t out_n = 0;
-    for (size_t i = 0; i < k;) {
-        size_t j = i;
+    sort_bucket(h, n);
+    for (size_t i = 0; i < n;) {
         int64_t c = 0;
-        while (j < k && e[j].key == e[i].key) c += e[j++].s;
-        if (c) e[out_n++] = (dedge){e[i].key, (int32_t)c};
+        size_t j = i;
+        for (; j < n && h[j] >> 1 == h[i] >> 1; j++) c += h[j] & 1 ? -1 : 1;
+        if (c && *ne == *cap) {
+            size_t grown = *cap ? 2 * *cap : 1024;
+            dedge *g = realloc(*e, grown * sizeof *g);
+            if (!g) return -ENOMEM;
+            *e = g, *cap = grown;
+        }
+        if (c) (*e)[(*ne)++] = (dedge){(uint64_t)lo << 32 | (h[i] >> 1), (int32_t)c};
         i = j;
     }
-    *out = e;
-    *nb = out_n;
     return 0;
+}
+
+/* The chain's edges with their multiplicities, a -> b for c > 0, into
+ * (*out)[0, *nb) sorted by key: the triangles' edges counted into one
+ * bucket a lower vertex (8 bytes an edge, where a sort of whole edges
+ * took 32), each bucket then sorted and summed; -ENOMEM. */
+static int boundary(const mesh *m, dedge **out, size_t *nb)
+{
+    size_t n = 3 * (size_t)m->n_triangles, cap = 0;
+    size_t *at = calloc((size_t)m->n_vertices + 1, sizeof *at);
+    uint64_t *h = malloc(n * sizeof *h);
+    int rc = at && h ? 0 : -ENOMEM;
+    *out = NULL, *nb = 0;
+    for (int pass = 0; !rc && pass < 2; pass++) {
+        for (uint32_t t = 0; t < m->n_triangles; t++)
+            for (int i = 0; i < 3; i++) {
+                uint32_t a = m->triangles[t][i], b = m->triangles[t][(i + 1) % 3];
+                if (a == b) continue;
+                uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
+                if (pass) h[at[lo]++] = (uint64_t)hi << 1 | (a > b);
+                else at[lo + 1]++;
+            }
+        for (uint32_t v = 0; !pass && v < m->n_vertices; v++) at[v + 1] += at[v];
+    }
+    for (uint32_t v = 0; !rc && v < m->n_vertices; v++) { /* at[v]: now bucket v's end */
+        size_t first = v ? at[v - 1] : 0;
+        rc = bucket_edges(v, h + first, at[v] - first, out, nb, &cap);
+    }
+    free(at), free(h);
+    if (rc) free(*out), *out = NULL, *nb = 0;
+    return rc;
 }
 
 static uint32_t find(uint32_t *up, uint32_t v)
@@ -320,8 +347,8 @@ static void decide(cblock *c, size_t i, unsigned x, double v, double e)
 
 /* The samples of the cell one by one from a cell query: w_C = v (within
  * e) plus the near triangles' exact angles. */
-static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const uint32_t *tri,
-                         const uint32_t *leaf, uint32_t nt, double v, double e)
+static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], const mesh_vox_tris *s,
+                         double v, double e)
 {
     uint64_t mask = mesh_vox_xmask(lo, hi);
     uint32_t work = 0;
@@ -334,9 +361,9 @@ static void cell_by_near(cblock *c, const uint32_t lo[3], const uint32_t hi[3], 
                                (double)(c->b->s0[1] + (int64_t)y) + 0.5,
                                (double)(c->b->s0[2] + (int64_t)z) + 0.5};
                 bool close = false;
-                double u = v + mesh_vox_wind_tris(c->caps, tri, leaf, nt, p, NEAR, &close);
+                double u = v + mesh_vox_wind_tris(c->caps, s, p, NEAR, &close);
                 if (!close) decide(c, i, x, u, e);
-                work += nt;
+                work += s->n;
             }
         }
     mesh_vox_beat(c->f->pulse, work);
@@ -398,18 +425,19 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
     double mag;
-    if (!one && mesh_vox_wind_mag(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.45, TOL_MAG, &mag, &work)) {
+    mesh_vox_wball q = {{b[0], b[1], b[2]}, sqrt(r2) * (1 + 1e-9), TOL_MAG, 0.45};
+    if (!one && mesh_vox_wind_mag(c->caps, &q, &mag, &work)) {
         mesh_vox_beat(c->f->pulse, work);
         cell_by_count(c, lo, hi, 0); /* |w_C| < 1/2 all over */
         return;
     }
     mesh_vox_near nr;
-    bool ok = mesh_vox_wind_cell(c->caps, b, sqrt(r2) * (1 + 1e-9), 0.5, one ? TOL_SAMPLE : TOL_CELL,
-                           &nr, &v, &e, &work);
+    q.tol = one ? TOL_SAMPLE : TOL_CELL, q.emax = 0.5;
+    bool ok = mesh_vox_wind_cell(c->caps, &q, &nr, &v, &e, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (ok && !nr.n && try_count(c, lo, hi, v, e)) return;
     if (ok && (n < CELL_MIN || nr.n * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
-        cell_by_near(c, lo, hi, nr.tri, nr.leaf, nr.n, v, e);
+        cell_by_near(c, lo, hi, &(mesh_vox_tris){nr.tri, nr.leaf, nr.n}, v, e);
     if (one) {
         cell_spare(c, lo, hi);
         return;
@@ -422,13 +450,13 @@ static void cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
 static void fresh(cblock *c, const uint32_t lo[3], double tol)
 {
     uint32_t hi[3] = {lo[0] + 1, lo[1] + 1, lo[2] + 1}, root = 0, work = 0;
-    double b[3];
-    for (int a = 0; a < 3; a++) b[a] = (double)(c->b->s0[a] + (int64_t)lo[a]) + 0.5;
+    mesh_vox_wball q = {.rho = 0, .tol = tol, .emax = 0.5};
+    for (int a = 0; a < 3; a++) q.b[a] = (double)(c->b->s0[a] + (int64_t)lo[a]) + 0.5;
     mesh_vox_wlist top = {.n_node = 1, .node = &root}, *out = &c->lists[DEPTH - 1];
-    bool ok = mesh_vox_wind_down(c->caps, &top, b, 0, tol, 0.5, out, &work);
+    bool ok = mesh_vox_wind_down(c->caps, &top, &q, out, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (ok)
-        cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, out->w4 / (4 * M_PI),
+        cell_by_near(c, lo, hi, &(mesh_vox_tris){out->tri, out->leaf, out->n_tri}, out->w4 / (4 * M_PI),
                      out->e4 / (4 * M_PI) + 1e-9);
 }
 
@@ -445,14 +473,15 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
     if (!n || (c->f->pulse && c->f->pulse->stop)) return;
     uint32_t ext[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]}, work = (uint32_t)(n / 8);
     bool one = ext[0] == 1 && ext[1] == 1 && ext[2] == 1;
-    double b[3], r2 = 0;
+    mesh_vox_wball q = {.tol = one ? TOL_SAMPLE : TOL_CELL, .emax = 0.5};
+    double r2 = 0;
     for (int a = 0; a < 3; a++) {
-        b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
+        q.b[a] = (double)c->b->s0[a] + 0.5 * ((double)lo[a] + hi[a]);
         r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
     }
+    q.rho = sqrt(r2) * (1 + 1e-9);
     mesh_vox_wlist *out = &c->lists[depth];
-    bool ok = depth < DEPTH - 1 && mesh_vox_wind_down(c->caps, in, b, sqrt(r2) * (1 + 1e-9),
-                                                  one ? TOL_SAMPLE : TOL_CELL, 0.5, out, &work);
+    bool ok = depth < DEPTH - 1 && mesh_vox_wind_down(c->caps, in, &q, out, &work);
     mesh_vox_beat(c->f->pulse, work);
     if (!ok) {
         cell(c, lo, hi);
@@ -461,16 +490,16 @@ static void down_cell(cblock *c, const uint32_t *lo, const uint32_t *hi, const m
     double v = out->w4 / (4 * M_PI), e = out->e4 / (4 * M_PI) + 1e-9; /* and the sums' rounding */
     if (!out->n_node && !out->n_tri && try_count(c, lo, hi, v, e)) return;
     if (!out->n_node && (one || n < CELL_MIN || out->n_tri * ext[0] * ext[1] * ext[2] <= 4 * NEAR_WORK))
-        cell_by_near(c, lo, hi, out->tri, out->leaf, out->n_tri, v, e);
+        cell_by_near(c, lo, hi, &(mesh_vox_tris){out->tri, out->leaf, out->n_tri}, v, e);
     for (int k = 0; one && k < 2; k++) /* a fresh query, then a finer one */
         if (mesh_vox_cell_count(c->b, c->todo, lo, hi)) fresh(c, lo, k ? TOL_FINE : TOL_SAMPLE);
     if (one) {
         cell_spare(c, lo, hi);
         return;
     }
-    for (int q = 0; q < 8; q++) {
+    for (int h = 0; h < 8; h++) {
         uint32_t clo[3], chi[3];
-        if (mesh_vox_half(lo, hi, q, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
+        if (mesh_vox_half(lo, hi, h, clo, chi)) down_cell(c, clo, chi, out, depth + 1);
     }
 }
 
@@ -582,6 +611,8 @@ static void direct_cell(cblock *c, const uint32_t *lo, const uint32_t *hi)
     else split(c, lo, hi, direct_cell);
 }
 
+typedef uint16_t u16x8 __attribute__((vector_size(16))); /* eight counts an add */
+
 /* The caps into the counters (those whose x, y box meets the block's),
  * then the prefix sum along z: count = N. */
 static void count_caps(const mesh_vox_frame *f, const mesh_wtree *t, const mesh_vox_block *b,
@@ -603,26 +634,41 @@ static void count_caps(const mesh_vox_frame *f, const mesh_wtree *t, const mesh_
     size_t slice = (size_t)b->n[1] * b->nw * 64;
     for (int32_t z = 1; z < b->n[2]; z++) {
         uint16_t *s = count + (size_t)z * slice, *p = s - slice;
-        for (size_t i = 0; i < slice; i++) s[i] = (uint16_t)(s[i] + p[i]);
+        for (size_t i = 0; i < slice; i += 8) { /* slice: a multiple of 64 */
+            u16x8 a, c;
+            memcpy(&a, s + i, sizeof a);
+            memcpy(&c, p + i, sizeof c);
+            a += c; /* modulo 2^16, as the counts are */
+            memcpy(s + i, &a, sizeof a);
+        }
         mesh_vox_beat(f->pulse, (uint32_t)(slice / 256));
     }
 }
 
+/* The samples of word w set in bits r as points (voxel units, K = 1)
+ * into q, their bits into idx: how many. */
+static unsigned word_points(const mesh_vox_block *b, size_t w, uint64_t r, double q[64][3], unsigned idx[64])
+{
+    size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
+    unsigned n = 0;
+    for (; r; r &= r - 1) {
+        unsigned i = (unsigned)__builtin_ctzll(r);
+        q[n][0] = (double)(b->s0[0] + (int64_t)((w % b->nw) * 64 + i)) + 0.5;
+        q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
+        q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
+        idx[n++] = i;
+    }
+    return n;
+}
+
 /* The samples set in dis by the exact sum, a word at a time (when a
- * tree cannot be had: no memory for it). */
+ * tree cannot be had: no memory for it; and the few samples the caps'
+ * exact sum leaves). */
 static void exact_words(const mesh_vox_frame *f, const mesh_vox_block *b, const uint64_t *dis, uint64_t *bits)
 {
     for (size_t w = 0; w < mesh_vox_block_words(b); w++) {
-        size_t row = w / b->nw, z = row / (size_t)b->n[1], y = row % (size_t)b->n[1];
         double q[64][3], wn[64];
-        unsigned idx[64], n = 0;
-        for (uint64_t r = dis[w]; r; r &= r - 1) {
-            unsigned i = (unsigned)__builtin_ctzll(r);
-            q[n][0] = (double)(b->s0[0] + (int64_t)((w % b->nw) * 64 + i)) + 0.5;
-            q[n][1] = (double)(b->s0[1] + (int64_t)y) + 0.5;
-            q[n][2] = (double)(b->s0[2] + (int64_t)z) + 0.5;
-            idx[n++] = i;
-        }
+        unsigned idx[64], n = dis[w] ? word_points(b, w, dis[w], q, idx) : 0;
         if (!n) continue;
         mesh_vox_winding_many(f, (const double (*)[3])q, n, wn);
         for (unsigned k = 0; k < n; k++)
@@ -635,6 +681,70 @@ static void by_tree(const mesh_vox_frame *f, const mesh_vox_block *b, const uint
 {
     if (need_tris(f->wt, f->pulse)) exact_words(f, b, dis, bits);
     else mesh_vox_wind_block(f, f->wt->tris, b, dis, bits);
+}
+
+/* Half cap triangle P's solid angle at q (voxel units) from its lattice
+ * vertices, the raster's own (their differences from q are exact), so
+ * that the angle's sign is the raster's side of the cap; *on set where q
+ * lies on the triangle or its edges within the rounding of the triple
+ * product (the side undecided there, and the raster's tie rule decides). */
+static double cap_half_angle(const int64_t P[3][3], const double q[3], bool *on)
+{
+    double r[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int a = 0; a < 3; a++) r[i][a] = (double)P[i][a] / (double)MESH_VOX_L - q[a];
+    double h = mesh_vox_half_solid_angle(r[0], r[1], r[2]);
+    if (fabs(h) < 0.5 * M_PI - 1e-3) return h; /* q sees the triangle in front: off its inside */
+    double l = 1, det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
+                        r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
+                        r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    for (int i = 0; i < 3; i++) l *= sqrt(r[i][0] * r[i][0] + r[i][1] * r[i][1] + r[i][2] * r[i][2]);
+    if (fabs(det) <= 1e-12 * l) *on = true;
+    return h;
+}
+
+#define EXACT_MARGIN 1e-9 /* |N - w_C| nearer 1/2 after the caps' exact sum: the mesh's */
+#define EXACT_WORK 4u     /* a block's spare samples times its caps at most this many
+                             times the mesh's triangles: the caps' exact sum, else the tree */
+
+/* The spare samples of word w by the caps' exact winding number,
+ * |N - w_C| against 1/2 (w_S = N - w_C exactly where the raster and the
+ * angles see the same caps); those on a cap or within EXACT_MARGIN of 1/2
+ * stay in spare. */
+static void caps_exact(const cblock *c, size_t w)
+{
+    const mesh_wtree *t = c->f->wt;
+    double q[64][3], h[64] = {0};
+    unsigned idx[64], n = word_points(c->b, w, c->spare[w], q, idx);
+    bool on[64] = {false};
+    for (uint32_t i = 0; i < t->n_caps; i++) {
+        if (mesh_vox_beat(c->f->pulse, n)) return; /* the tile is abandoned */
+        for (unsigned k = 0; k < n; k++) h[k] += cap_half_angle(t->cap_lat[i], q[k], &on[k]);
+    }
+    for (unsigned k = 0; k < n; k++) {
+        double a = fabs((double)(int16_t)c->count[w * 64 + idx[k]] - h[k] / (2 * M_PI));
+        if (on[k] || fabs(a - 0.5) <= EXACT_MARGIN) continue;
+        uint64_t bit = 1ull << idx[k];
+        c->bits[w] = a > 0.5 ? c->bits[w] | bit : c->bits[w] & ~bit;
+        c->spare[w] &= ~bit;
+    }
+}
+
+/* The samples the caps' walk left (in spare): by the caps' exact sum
+ * where they are few, the rest by the mesh's exact sum (no tree to
+ * build); many: the mesh's tree. */
+static void spare_block(const cblock *c)
+{
+    size_t nw = mesh_vox_block_words(c->b);
+    uint64_t n = 0;
+    for (size_t w = 0; w < nw; w++) n += (uint64_t)__builtin_popcountll(c->spare[w]);
+    if (n * c->f->wt->n_caps > (uint64_t)EXACT_WORK * c->f->m->n_triangles) {
+        by_tree(c->f, c->b, c->spare, c->bits);
+        return;
+    }
+    for (size_t w = 0; w < nw; w++)
+        if (c->spare[w]) caps_exact(c, w);
+    exact_words(c->f, c->b, c->spare, c->bits);
 }
 
 void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *dis, uint64_t *bits,
@@ -660,17 +770,12 @@ void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint6
                                     .tri = room + (3 * d + 1) * LIST_CAP,
                                     .leaf = room + (3 * d + 2) * LIST_CAP};
     c.lists = room ? lists : NULL;
-    uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
-    for (uint32_t z = 0; z < n[2]; z += TOP)
-        for (uint32_t y = 0; y < n[1]; y += TOP)
-            for (uint32_t x = 0; x < n[0]; x += TOP) {
-                uint32_t lo[3] = {x, y, z};
-                uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
-                                  z + TOP < n[2] ? z + TOP : n[2]};
-                if (direct) direct_cell(&c, lo, hi);
-                else if (c.lists) down_cell(&c, lo, hi, &top, 0);
-                else cell(&c, lo, hi);
-            }
+    uint32_t lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    while (mesh_vox_top_next(b, TOP, lo, hi)) {
+        if (direct) direct_cell(&c, lo, hi);
+        else if (c.lists) down_cell(&c, lo, hi, &top, 0);
+        else cell(&c, lo, hi);
+    }
     free(room);
-    if (c.any_spare) by_tree(f, b, spare, bits);
+    if (c.any_spare) spare_block(&c);
 }

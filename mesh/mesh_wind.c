@@ -289,21 +289,13 @@ static double expand(const wnode *n, const double d[3], double R2)
     return (md + tr) * iR3 - 3 * dPd * iR3 * iR * iR;
 }
 
-/* The solid angle of triangle v (9 floats) seen from p, over 2 (Van
- * Oosterom and Strackee: atan2 of the triple product over the rest). */
+/* The solid angle of triangle v (9 floats) seen from p, over 2
+ * (mesh_vox_half_solid_angle: Van Oosterom and Strackee's formula). */
 static double tri_half_angle(const float *v, const double p[3])
 {
     double a[3], b[3], c[3];
     for (int i = 0; i < 3; i++) a[i] = v[i] - p[i], b[i] = v[3 + i] - p[i], c[i] = v[6 + i] - p[i];
-    double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
-    double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
-    double lc = sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
-    double det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) +
-                 a[2] * (b[0] * c[1] - b[1] * c[0]);
-    double den = la * lb * lc + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * lc +
-                 (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) * la +
-                 (c[0] * a[0] + c[1] * a[1] + c[2] * a[2]) * lb;
-    return atan2(det, den);
+    return mesh_vox_half_solid_angle(a, b, c);
 }
 
 double mesh_vox_wind_point(const mesh_vox_wtree *t, const double p[3], double beta, uint32_t *work)
@@ -397,13 +389,20 @@ static double tri_dist(const float *v, const double p[3])
     return mesh_vox_tri_dist((const double (*)[3])d, p);
 }
 
-/* Leaf n's triangles at the centre b of a cell of half-diagonal rho:
- * their exact angles into *w4 (4 pi w), bound (2) into *e4; a triangle
+/* A query's sums: 4 pi times the value w4 of the nodes taken and the
+ * bound e4 of its error over the ball, their limits tol4 and e4max. */
+typedef struct {
+    double w4, e4, tol4, e4max;
+} wsum;
+
+/* Leaf n's triangles at the centre b of a cell of half-diagonal rho (q):
+ * their exact angles into sum->w4, bound (2) into sum->e4; a triangle
  * that comes within 2 rho of b goes to the near list instead when there
  * is one (false when it is full), else within rho: false (no bound). */
-static bool leaf_cell(const mesh_vox_wtree *t, const wnode *n, const double bw[3], double rho,
-                      mesh_vox_near *near, double *w4, double *e4)
+static bool leaf_cell(const mesh_vox_wtree *t, const wnode *n, const mesh_vox_wball *q, mesh_vox_near *near,
+                      wsum *sum)
 {
+    const double *bw = q->b, rho = q->rho;
     double b[3] = {bw[0] - n->c[0], bw[1] - n->c[1], bw[2] - n->c[2]}; /* from its centre */
     for (uint32_t k = 0; k < n->count; k++) {
         const float *v = t->tri[n->first + k];
@@ -432,12 +431,12 @@ static bool leaf_cell(const mesh_vox_wtree *t, const wnode *n, const double bw[3
             continue;
         }
         if (dmin <= 0) return false;
-        *w4 += 2 * tri_half_angle(v, b);
+        sum->w4 += 2 * tri_half_angle(v, b);
         /* the kernel's gradient is at most 2 / d^3, which over the
          * triangle sums to at most 2 a / d^3 and over its whole plane to
          * 4 pi / d */
         double g = 2 * a / (dmin * dmin * dmin);
-        *e4 += rho * (g < 4 * M_PI / dmin ? g : 4 * M_PI / dmin);
+        sum->e4 += rho * (g < 4 * M_PI / dmin ? g : 4 * M_PI / dmin);
     }
     return true;
 }
@@ -445,16 +444,17 @@ static bool leaf_cell(const mesh_vox_wtree *t, const wnode *n, const double bw[3
 double mesh_vox_wind_near(const mesh_vox_wtree *t, const mesh_vox_near *near, const double p[3], double close,
                     bool *is_close)
 {
-    return mesh_vox_wind_tris(t, near->tri, near->leaf, near->n, p, close, is_close);
+    mesh_vox_tris s = {near->tri, near->leaf, near->n};
+    return mesh_vox_wind_tris(t, &s, p, close, is_close);
 }
 
-double mesh_vox_wind_tris(const mesh_vox_wtree *t, const uint32_t *tri, const uint32_t *leaf, uint32_t nt,
-                          const double p[3], double close, bool *is_close)
+double mesh_vox_wind_tris(const mesh_vox_wtree *t, const mesh_vox_tris *s, const double p[3], double close,
+                          bool *is_close)
 {
     double w4 = 0;
-    for (uint32_t k = 0; k < nt; k++) {
-        const wnode *n = &t->nodes[leaf[k]];
-        const float *v = t->tri[tri[k]];
+    for (uint32_t k = 0; k < s->n; k++) {
+        const wnode *n = &t->nodes[s->leaf[k]];
+        const float *v = t->tri[s->tri[k]];
         double q[3] = {p[0] - n->c[0], p[1] - n->c[1], p[2] - n->c[2]};
         *is_close |= near_tri(v, q, close);
         w4 += 2 * tri_half_angle(v, q);
@@ -462,55 +462,104 @@ double mesh_vox_wind_tris(const mesh_vox_wtree *t, const uint32_t *tri, const ui
     return w4 / (4 * M_PI);
 }
 
-bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
-                  mesh_vox_near *near, double *w, double *err, uint32_t *work)
+/* What a walk from the root does at node n: 0 took it (into s), 1 opens
+ * it, -1 stops (no bound). */
+typedef int (*wvisit)(const mesh_vox_wtree *t, const wnode *n, const mesh_vox_wball *q, mesh_vox_near *near,
+                      wsum *s);
+
+/* The walk of mesh_vox_wind_cell and mesh_vox_wind_mag (inlined with
+ * each visit): false when a visit stops it or s->e4 passes s->e4max. */
+static inline bool walk(const mesh_vox_wtree *t, const mesh_vox_wball *q, mesh_vox_near *near, wsum *s,
+                        wvisit visit, uint32_t *work)
 {
-    if (near) near->n = 0;
     uint32_t stack[128], sp = 0, visits = 0;
-    double w4 = 0, e4 = 0, e4max = emax * 4 * M_PI, beta = 2, tol4 = tol * 4 * M_PI;
     bool ok = true;
     stack[sp++] = 0;
     while (sp && ok) {
         const wnode *n = &t->nodes[stack[--sp]];
-        double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
-        double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], rr = n->r + rho;
         visits++;
-        bool far = R2 > beta * beta * rr * rr; /* tol infinite: the old rule, beta alone */
-        double e = 0;
-        if (far) {
-            double R = sqrt(R2), s = R - n->r, f = R - rr;
-            e = n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
-        }
-        if (far && e <= tol4) {
-            w4 += expand(n, d, R2);
-            e4 += e;
-        } else if (n->count) {
-            ok = leaf_cell(t, n, b, rho, near, &w4, &e4);
-        } else {
+        int r = visit(t, n, q, near, s);
+        if (r < 0) {
+            ok = false;
+        } else if (r == 1) {
             stack[sp++] = n->first + 1;
             stack[sp++] = n->first;
         }
-        if (e4 > e4max) ok = false;
+        if (s->e4 > s->e4max) ok = false;
     }
     if (work) *work += visits;
-    *w = w4 / (4 * M_PI);
-    *err = e4 / (4 * M_PI) + 1e-9; /* and the rounding of the sums */
+    return ok;
+}
+
+static int cell_visit(const mesh_vox_wtree *t, const wnode *n, const mesh_vox_wball *q, mesh_vox_near *near,
+                      wsum *s)
+{
+    double d[3] = {n->c[0] - q->b[0], n->c[1] - q->b[1], n->c[2] - q->b[2]};
+    double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], rr = n->r + q->rho;
+    bool far = R2 > 4 * rr * rr; /* beta 2; tol infinite: the old rule, beta alone */
+    double e = 0;
+    if (far) {
+        double R = sqrt(R2), sr = R - n->r, f = R - rr;
+        e = n->area * (3.0 * n->r * n->r / (sr * sr * sr * sr) + 2 * q->rho / (f * f * f));
+    }
+    if (far && e <= s->tol4) {
+        s->w4 += expand(n, d, R2);
+        s->e4 += e;
+        return 0;
+    }
+    if (n->count) return leaf_cell(t, n, q, near, s) ? 0 : -1;
+    return 1;
+}
+
+bool mesh_vox_wind_cell(const mesh_vox_wtree *t, const mesh_vox_wball *q, mesh_vox_near *near, double *w,
+                        double *err, uint32_t *work)
+{
+    if (near) near->n = 0;
+    wsum s = {0, 0, q->tol * 4 * M_PI, q->emax * 4 * M_PI};
+    bool ok = walk(t, q, near, &s, cell_visit, work);
+    *w = s.w4 / (4 * M_PI);
+    *err = s.e4 / (4 * M_PI) + 1e-9; /* and the rounding of the sums */
+    return ok;
+}
+
+static int mag_visit(const mesh_vox_wtree *t, const wnode *n, const mesh_vox_wball *q, mesh_vox_near *near,
+                     wsum *s)
+{
+    (void)t, (void)near;
+    double d[3] = {n->c[0] - q->b[0], n->c[1] - q->b[1], n->c[2] - q->b[2]};
+    double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r - q->rho;
+    /* a triangle of area a at distance f subtends at most a / f^2 */
+    double e = f > 0 ? n->area / (f * f) : INFINITY;
+    if (e <= s->tol4) {
+        s->e4 += e;
+        return 0;
+    }
+    if (n->count) return f > 0 && (s->e4 += e) <= s->e4max ? 0 : -1;
+    return 1;
+}
+
+bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const mesh_vox_wball *q, double *bound, uint32_t *work)
+{
+    wsum s = {0, 0, q->tol * 4 * M_PI, q->emax * 4 * M_PI};
+    bool ok = walk(t, q, NULL, &s, mag_visit, work);
+    *bound = s.e4 / (4 * M_PI) + 1e-9;
     return ok;
 }
 
 /* ---- the far field handed down a cell's halves ---- */
 
-/* Triangle k of leaf l at the cell (b, rho): its dipole (where the
+/* Triangle k of leaf l at the cell q (b, rho): its dipole (where the
  * triangle is far: a node of one triangle, P = 0 about its centroid) or
- * its exact angle at b into *w4 and the bound over the cell into *e4
+ * its exact angle at b into o->w4 and the bound over the cell into o->e4
  * (true), or false: its bound passes tol4 (the cell's halves take it), or
  * (rho = 0) b lies within CLOSE_BALL of its ball (mesh_vox_wind_tris
  * decides whether b is too close). */
 #define CLOSE_BALL 2e-3 /* voxels: more than mesh_wcap.c's NEAR */
-static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const double bw[3], double rho,
-                     double tol4, double *w4, double *e4)
+static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const mesh_vox_wball *q,
+                     mesh_vox_wlist *o)
 {
     const wnode *n = &t->nodes[l];
+    const double *bw = q->b, rho = q->rho, tol4 = q->tol * 4 * M_PI;
     const double *x = t->tdip[k]; /* centroid, radius, area vector, area */
     double d[3] = {x[0] - (bw[0] - n->c[0]), x[1] - (bw[1] - n->c[1]), x[2] - (bw[2] - n->c[2])};
     double R = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]), r = x[3], a = x[7];
@@ -520,8 +569,8 @@ static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const doub
         double s = R - r;
         double e = a * (3 * r * r / (s * s * s * s) + 2 * rho / (dmin * dmin * dmin));
         if (e <= tol4) {
-            *w4 += (x[4] * d[0] + x[5] * d[1] + x[6] * d[2]) / (R * R * R);
-            *e4 += e;
+            o->w4 += (x[4] * d[0] + x[5] * d[1] + x[6] * d[2]) / (R * R * R);
+            o->e4 += e;
             return true;
         }
     }
@@ -531,28 +580,30 @@ static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const doub
     double g = 2 * a / (dmin * dmin * dmin); /* leaf_cell's bound */
     double e = rho * (g < 4 * M_PI / dmin ? g : 4 * M_PI / dmin);
     if (e > tol4) return false;
-    *w4 += 2 * tri_half_angle(t->tri[k], b);
-    *e4 += e;
+    o->w4 += 2 * tri_half_angle(t->tri[k], b);
+    o->e4 += e;
     return true;
 }
 
-/* Node ni at the cell (b, rho): taken whole (by its expansion, or by its
- * magnitude: area / f^2 with value 0), else 1: open it, 2: hand it down. */
-static int down_node(const wnode *n, const double b[3], double rho, double tol4, double *w4, double *e4)
+/* Node ni at the cell q (b, rho): taken whole into o (by its expansion,
+ * or by its magnitude: area / f^2 with value 0), else 1: open it, 2: hand
+ * it down. */
+static int down_node(const wnode *n, const mesh_vox_wball *q, mesh_vox_wlist *o)
 {
+    const double *b = q->b, rho = q->rho, tol4 = q->tol * 4 * M_PI;
     double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
     double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2], rr = n->r + rho;
     if (R2 > 4 * rr * rr) { /* beta 2, as mesh_vox_wind_cell */
         double R = sqrt(R2), s = R - n->r, f = R - rr;
         double e = n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
         if (e <= tol4) {
-            *w4 += expand(n, d, R2);
-            *e4 += e;
+            o->w4 += expand(n, d, R2);
+            o->e4 += e;
             return 0;
         }
         double m = n->area / (f * f); /* a surface of area a beyond f subtends at most a / f^2 */
         if (m <= tol4) {
-            *e4 += m;
+            o->e4 += m;
             return 0;
         }
     }
@@ -572,16 +623,16 @@ static bool down_push(mesh_vox_wlist *o, uint32_t node, uint32_t tri)
     return true;
 }
 
-bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const double b[3], double rho,
-                        double tol, double emax, mesh_vox_wlist *out, uint32_t *work)
+bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const mesh_vox_wball *q,
+                        mesh_vox_wlist *out, uint32_t *work)
 {
     uint32_t stack[128], sp = 0, visits = 0;
-    double tol4 = tol * 4 * M_PI, e4max = emax * 4 * M_PI;
+    double e4max = q->emax * 4 * M_PI;
     out->n_node = out->n_tri = 0;
     out->w4 = in->w4, out->e4 = in->e4;
     bool ok = true;
     for (uint32_t k = 0; k < in->n_tri && ok; k++)
-        if (!down_tri(t, in->leaf[k], in->tri[k], b, rho, tol4, &out->w4, &out->e4))
+        if (!down_tri(t, in->leaf[k], in->tri[k], q, out))
             ok = down_push(out, in->leaf[k], in->tri[k]);
     for (uint32_t i = 0; i < in->n_node && ok; i++) {
         stack[sp++] = in->node[i];
@@ -589,12 +640,12 @@ bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const
             uint32_t ni = stack[--sp];
             const wnode *n = &t->nodes[ni];
             visits++;
-            int r = down_node(n, b, rho, tol4, &out->w4, &out->e4);
+            int r = down_node(n, q, out);
             if (r == 2) {
                 ok = down_push(out, ni, UINT32_MAX);
             } else if (r == 1 && n->count) {
                 for (uint32_t k = n->first; k < n->first + n->count && ok; k++)
-                    if (!down_tri(t, ni, k, b, rho, tol4, &out->w4, &out->e4)) ok = down_push(out, ni, k);
+                    if (!down_tri(t, ni, k, q, out)) ok = down_push(out, ni, k);
             } else if (r == 1) {
                 stack[sp++] = n->first + 1;
                 stack[sp++] = n->first;
@@ -604,35 +655,6 @@ bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const
     }
     if (work) *work += visits + in->n_tri;
     return ok && out->e4 <= e4max;
-}
-
-bool mesh_vox_wind_mag(const mesh_vox_wtree *t, const double b[3], double rho, double emax, double tol,
-                 double *bound, uint32_t *work)
-{
-    uint32_t stack[128], sp = 0, visits = 0;
-    double e4 = 0, e4max = emax * 4 * M_PI, tol4 = tol * 4 * M_PI;
-    bool ok = true;
-    stack[sp++] = 0;
-    while (sp && ok) {
-        const wnode *n = &t->nodes[stack[--sp]];
-        double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
-        double f = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) - n->r - rho;
-        visits++;
-        /* a triangle of area a at distance f subtends at most a / f^2 */
-        double e = f > 0 ? n->area / (f * f) : INFINITY;
-        if (e <= tol4) {
-            e4 += e;
-        } else if (n->count) {
-            ok = f > 0 && (e4 += e) <= e4max;
-        } else {
-            stack[sp++] = n->first + 1;
-            stack[sp++] = n->first;
-        }
-        if (e4 > e4max) ok = false;
-    }
-    if (work) *work += visits;
-    *bound = e4 / (4 * M_PI) + 1e-9;
-    return ok;
 }
 
 /* ---- a block's samples ---- */
@@ -717,8 +739,8 @@ static void cell(wblock *w, const mesh_vox_wtree *t, const uint32_t lo[3], const
             b[a] = ((double)w->b->s0[a] + 0.5 * ((double)lo[a] + hi[a])) / K;
             r2 += 0.25 * (double)(ext[a] - 1) * (ext[a] - 1);
         }
-        bool ok = mesh_vox_wind_cell(t, b, sqrt(r2) / K * (1 + 1e-9), 0.5, INFINITY, NULL, &v, &e,
-                               &work);
+        mesh_vox_wball qb = {{b[0], b[1], b[2]}, sqrt(r2) / K * (1 + 1e-9), INFINITY, 0.5};
+        bool ok = mesh_vox_wind_cell(t, &qb, NULL, &v, &e, &work);
         mesh_vox_beat(w->f->pulse, work);
         v = fabs(v);
         if (ok && (v - e > 0.5 || v + e < 0.5)) {
@@ -736,15 +758,8 @@ void mesh_vox_wind_block(const mesh_vox_frame *f, const mesh_vox_wtree *t, const
                    uint64_t *bits)
 {
     wblock w = {.f = f, .b = b, .dis = dis, .bits = bits};
-    uint32_t n[3] = {(uint32_t)b->n[0], (uint32_t)b->n[1], (uint32_t)b->n[2]};
-    for (uint32_t z = 0; z < n[2]; z += TOP)
-        for (uint32_t y = 0; y < n[1]; y += TOP)
-            for (uint32_t x = 0; x < n[0]; x += TOP) {
-                uint32_t lo[3] = {x, y, z};
-                uint32_t hi[3] = {x + TOP < n[0] ? x + TOP : n[0], y + TOP < n[1] ? y + TOP : n[1],
-                                  z + TOP < n[2] ? z + TOP : n[2]};
-                cell(&w, t, lo, hi);
-            }
+    uint32_t lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    while (mesh_vox_top_next(b, TOP, lo, hi)) cell(&w, t, lo, hi);
     flush_exact(&w);
 }
 

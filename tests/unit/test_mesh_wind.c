@@ -399,10 +399,11 @@ Test(mesh_wind, the_cell_bound_holds_within_the_ball)
             for (int y = -12; y <= 12; y += 3)
                 for (int x = -12; x <= 12; x += 3)
                     for (int use_near = 0; use_near < 2; use_near++) {
-                        double b[3] = {x + 0.25, y - 0.35, z + 0.45}, v, e;
+                        mesh_vox_wball q = {{x + 0.25, y - 0.35, z + 0.45}, rho, 2e-3, 10};
+                        const double *b = q.b;
+                        double v, e;
                         mesh_vox_near nr;
-                        if (!mesh_vox_wind_cell(t, b, rho, 10, 2e-3, use_near ? &nr : NULL, &v, &e, NULL))
-                            continue;
+                        if (!mesh_vox_wind_cell(t, &q, use_near ? &nr : NULL, &v, &e, NULL)) continue;
                         with_near += use_near && nr.n;
                         for (int d = 0; d < 27; d++) {
                             double p[3] = {b[0] + rho * (d % 3 - 1) / sqrt(3),
@@ -493,20 +494,22 @@ Test(mesh_wind, the_far_field_handed_down_holds_within_the_ball)
         for (int z = -12; z <= 12; z += 3)
             for (int y = -12; y <= 12; y += 3)
                 for (int x = -12; x <= 12; x += 3) {
-                    double b[3] = {x + 0.25, y - 0.35, z + 0.45};
-                    if (!mesh_vox_wind_down(t, &top, b, rho, 2e-3, 10, &l[0], NULL)) continue;
+                    mesh_vox_wball q = {{x + 0.25, y - 0.35, z + 0.45}, rho, 2e-3, 10};
+                    const double *b = q.b;
+                    if (!mesh_vox_wind_down(t, &top, &q, &l[0], NULL)) continue;
                     handed += l[0].n_node + l[0].n_tri > 0;
                     taken += l[0].e4 > 0;
                     for (int d = 0; d < 27; d++) {
                         double p[3] = {b[0] + rho * (d % 3 - 1) / sqrt(3),
                                        b[1] + rho * (d / 3 % 3 - 1) / sqrt(3),
                                        b[2] + rho * (d / 9 - 1) / sqrt(3)};
-                        cr_assert(mesh_vox_wind_down(t, &l[0], p, 0, 1e-4, 10, &l[1], NULL));
+                        mesh_vox_wball qp = {{p[0], p[1], p[2]}, 0, 1e-4, 10};
+                        cr_assert(mesh_vox_wind_down(t, &l[0], &qp, &l[1], NULL));
                         cr_assert_eq(l[1].n_node, 0);
                         bool close = false;
                         double w = 0, u = l[1].w4 / (4 * M_PI) +
-                                          mesh_vox_wind_tris(t, l[1].tri, l[1].leaf, l[1].n_tri, p,
-                                                             1e-3, &close);
+                                          mesh_vox_wind_tris(t, &(mesh_vox_tris){l[1].tri, l[1].leaf, l[1].n_tri},
+                                                             p, 1e-3, &close);
                         /* and the tree's vertices kept as floats (from
                          * their leaf's centre): within 1e-6 here, but
                          * at points close to a triangle (mesh_wcap.c
