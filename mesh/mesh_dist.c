@@ -74,12 +74,6 @@ static double tri_d2(const dtri *t, const double p[3])
     return h * h;
 }
 
-/* The solid's bit of tile voxel (x, y, z). */
-static bool inside(const mesh_vox_tile *t, uint32_t x, uint32_t y, uint32_t z)
-{
-    return t->occ[(size_t)z * t->ny + y] >> x & 1u;
-}
-
 static uint32_t fbits(float f)
 {
     uint32_t u;
@@ -302,6 +296,33 @@ typedef struct {
     float w;
 } dtile;
 
+/* Row (Y, Z) of a brick, its S voxels from tile voxel X0 on (xyz), into
+ * out: 0 past the grid, as the volume wants; the signed distance within
+ * the band; beyond it +-w, the same bits as sqrt(K^2) * vs (all of them
+ * when no region reached the brick: its d2 was not set). */
+static void brick_row(const dtile *dt, const dslab *sl, bool reached, const uint32_t xyz[3],
+                      float *out)
+{
+    mesh_vox_tile *t = dt->t;
+    uint32_t S = t->S, X0 = xyz[0], Y = xyz[1], Z = xyz[2], n = 0, band = 0;
+    if (Y < t->ny && Z < t->nz) n = t->nx - X0 < S ? t->nx - X0 : S;
+    uint64_t occ = n ? t->occ[(size_t)Z * t->ny + Y] >> X0 : 0;
+    const double *e = n ? sl->d2 + (Z - (uint32_t)sl->z0) * SLAB_PLANE + Y * SLAB_ROW + X0 : NULL;
+    double vs = t->g->vs, KK = (double)dt->K * dt->K;
+    for (uint32_t x = 0; x < n; x++) {
+        bool in = occ >> x & 1u;
+        if (reached && e[x] < KK) {
+            double dist = sqrt(e[x]);
+            band++;
+            out[x] = (float)((in ? -dist : dist) * vs);
+        } else {
+            out[x] = in ? -dt->w : dt->w;
+        }
+    }
+    for (uint32_t x = n; x < S; x++) out[x] = 0.0f;
+    t->st->voxels += band;
+}
+
 /* Brick bk (tile bricks; its squared distances in slab sl): a uniform +w
  * or -w when no region reaches it and the solid agrees over it (inside the
  * grid whole), else every voxel. */
@@ -310,33 +331,17 @@ static int dist_brick(const dtile *dt, const dslab *sl, const uint32_t bk[3])
     mesh_vox_tile *t = dt->t;
     uint32_t S = t->S, zb = bk[2] - (uint32_t)sl->z0 / S;
     bool whole = (bk[0] + 1) * S <= t->nx && (bk[1] + 1) * S <= t->ny && (bk[2] + 1) * S <= t->nz;
+    bool reached = sl->reach[((size_t)zb * sl->nb[1] + bk[1]) * sl->nb[0] + bk[0]];
     uint32_t at[3] = {t->x0 / S + bk[0], t->y0 / S + bk[1], bk[2]};
-    if (!sl->reach[((size_t)zb * sl->nb[1] + bk[1]) * sl->nb[0] + bk[0]] && whole) {
+    if (!reached && whole) {
         int sg = brick_sign(t, bk);
         if (sg != 1) return vod_volume_put_uniform(t->vol, at, fbits(sg ? -dt->w : dt->w));
     }
     float *out = (float *)(void *)dt->b->brick;
-    double vs = t->g->vs, KK = (double)dt->K * dt->K;
     for (uint32_t z = 0; z < S; z++)
         for (uint32_t y = 0; y < S; y++)
-            for (uint32_t x = 0; x < S; x++) {
-                size_t i = ((size_t)z * S + y) * S + x;
-                uint32_t X = bk[0] * S + x, Y = bk[1] * S + y, Z = bk[2] * S + z;
-                if (X >= t->nx || Y >= t->ny || Z >= t->nz) {
-                    out[i] = 0.0f; /* past the grid: 0, as the volume wants */
-                    continue;
-                }
-                /* a brick no region reaches (at the grid's end) holds no band voxel */
-                double e = sl->d2[(Z - sl->z0) * SLAB_PLANE + Y * SLAB_ROW + X];
-                if (!sl->reach[((size_t)zb * sl->nb[1] + bk[1]) * sl->nb[0] + bk[0]] || !(e < KK)) {
-                    /* beyond the band: +-w, the same bits as sqrt(K^2) * vs */
-                    out[i] = inside(t, X, Y, Z) ? -dt->w : dt->w;
-                    continue;
-                }
-                double dist = sqrt(e);
-                t->st->voxels++;
-                out[i] = (float)((inside(t, X, Y, Z) ? -dist : dist) * vs);
-            }
+            brick_row(dt, sl, reached, (const uint32_t[3]){bk[0] * S, bk[1] * S + y, bk[2] * S + z},
+                      out + ((size_t)z * S + y) * S);
     return vod_volume_put_brick(t->vol, at, out);
 }
 
