@@ -234,17 +234,26 @@ static void box_pts(const double (*base)[3], int nb, const double (*s)[3], int n
             }
 }
 
-/* A new region of the triangles of list (items 4 * triangle + k, n of
- * them); false (nothing added) when its box holds no tile voxel. */
-static bool new_feat(dcpt *d, const mesh_vox_tile *t, const double lo[3], const double hi[3],
-                     const uint32_t *list, uint32_t n, int quad, const double c[3],
-                     const double u[3])
+/* A region to be: its box (voxel units), its triangles (items 4 *
+ * triangle + k, n of them), its quad and its c and u (NULL: 0; dfeat). */
+typedef struct {
+    double lo[3], hi[3];
+    const uint32_t *list;
+    uint32_t n;
+    int quad;
+    const double *c, *u;
+} dnew;
+
+/* A new region of nw; false (nothing added) when its box holds no tile
+ * voxel. */
+static bool new_feat(dcpt *d, const mesh_vox_tile *t, const dnew *nw)
 {
     dfeat *f = &d->f[d->nf];
-    if (!box_of(t, lo, hi, f)) return false;
-    f->h0 = d->nhs, f->nh = 0, f->t0 = d->ntl, f->nt = n, f->quad = quad, f->ax = 0;
-    for (uint32_t i = 0; i < n; i++) d->tl[d->ntl++] = list[i] >> 2;
-    for (int a = 0; a < 3; a++) f->c[a] = c ? c[a] : 0, f->u[a] = u ? u[a] : 0;
+    if (!box_of(t, nw->lo, nw->hi, f)) return false;
+    f->h0 = d->nhs, f->nh = 0, f->t0 = d->ntl, f->nt = nw->n, f->quad = nw->quad, f->ax = 0;
+    for (uint32_t i = 0; i < nw->n; i++) d->tl[d->ntl++] = nw->list[i] >> 2;
+    for (int a = 0; a < 3; a++)
+        f->c[a] = nw->c ? nw->c[a] : 0, f->u[a] = nw->u ? nw->u[a] : 0;
     d->nf++;
     return true;
 }
@@ -254,10 +263,10 @@ static void face_feat(dcpt *d, const mesh_vox_tile *t, uint32_t i, double R)
 {
     const dtri *r = &d->tri[i];
     uint32_t item = i << 2;
-    double lo[3], hi[3];
+    dnew nw = {.list = &item, .n = 1, .quad = 0, .c = r->a};
     if (r->deg) {
-        for (int a = 0; a < 3; a++) lo[a] = r->lo[a] - R, hi[a] = r->hi[a] + R;
-        new_feat(d, t, lo, hi, &item, 1, 0, r->a, NULL);
+        for (int a = 0; a < 3; a++) nw.lo[a] = r->lo[a] - R, nw.hi[a] = r->hi[a] + R;
+        new_feat(d, t, &nw);
         return;
     }
     double v[3][3], s[2][3];
@@ -265,8 +274,8 @@ static void face_feat(dcpt *d, const mesh_vox_tile *t, uint32_t i, double R)
         v[0][a] = r->a[a], v[1][a] = r->a[a] + r->ab[a], v[2][a] = r->a[a] + r->ac[a];
         s[0][a] = R * r->n[a], s[1][a] = -R * r->n[a];
     }
-    box_pts((const double (*)[3])v, 3, (const double (*)[3])s, 2, lo, hi);
-    if (!new_feat(d, t, lo, hi, &item, 1, 0, r->a, NULL)) return;
+    box_pts((const double (*)[3])v, 3, (const double (*)[3])s, 2, nw.lo, nw.hi);
+    if (!new_feat(d, t, &nw)) return;
     dfeat *f = &d->f[d->nf - 1];
     f->ax = axis_of(r->n, true); /* across the prism's slab */
     for (int k = 0; k < 3; k++) add_hs(d, r->m[k], dot3(r->m[k], r->a) + r->c[k] + DIST_SLOP);
@@ -279,12 +288,14 @@ static void face_feat(dcpt *d, const mesh_vox_tile *t, uint32_t i, double R)
 /* The box of edge PQ's wedge, radius R, from its two triangles' normals
  * when it opens less than a right angle (the sector lies in the
  * quadrilateral of its apex, its two rays and the tangents' meeting
- * point), else PQ's box grown by R; returns the axis to scan it along:
- * the sector's bisector's, else the one most across the edge (u). */
-static int edge_box(const dcpt *d, const uint32_t *L, uint32_t n, const double P[3],
-                    const double Q[3], const double u[3], double R, double lo[3], double hi[3])
+ * point), else PQ's box grown by R, into e (whose list, n and u, the
+ * edge's unit vector, it reads); returns the axis to scan it along: the
+ * sector's bisector's, else the one most across the edge (u). */
+static int edge_box(const dcpt *d, const double P[3], const double Q[3], double R, dnew *e)
 {
-    int ax = axis_of(u, false);
+    const uint32_t *L = e->list;
+    uint32_t n = e->n;
+    int ax = axis_of(e->u, false);
     const double base[2][3] = {{P[0], P[1], P[2]}, {Q[0], Q[1], Q[2]}};
     double s[4][3] = {{-R, -R, -R}, {R, R, R}};
     int ns = 2;
@@ -303,7 +314,7 @@ static int edge_box(const dcpt *d, const uint32_t *L, uint32_t n, const double P
             ax = axis_of(s[3], true);
         }
     }
-    box_pts(base, 2, (const double (*)[3])s, ns, lo, hi);
+    box_pts(base, 2, (const double (*)[3])s, ns, e->lo, e->hi);
     return ax;
 }
 
@@ -313,15 +324,16 @@ static void edge_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t e
 {
     const uint32_t *L = a->el + a->es[e];
     uint32_t n = a->es[e + 1] - a->es[e], i = L[0] >> 2, k = L[0] & 3;
-    double P[3], Q[3], u[3], lo[3], hi[3];
+    double P[3], Q[3], u[3];
     vpos(t, a->vid[a->cv[3 * i + k]], P);
     vpos(t, a->vid[a->cv[3 * i + (k + 1) % 3]], Q);
     for (int c = 0; c < 3; c++) u[c] = Q[c] - P[c];
     double len = sqrt(dot3(u, u));
     if (!(len > 0)) return; /* a point: its vertex's region */
     for (int c = 0; c < 3; c++) u[c] /= len;
-    int ax = edge_box(d, L, n, P, Q, u, R, lo, hi);
-    if (!new_feat(d, t, lo, hi, L, n, 2, P, u)) return;
+    dnew nw = {.list = L, .n = n, .quad = 2, .c = P, .u = u};
+    int ax = edge_box(d, P, Q, R, &nw);
+    if (!new_feat(d, t, &nw)) return;
     dfeat *f = &d->f[d->nf - 1];
     f->ax = ax;
     double nu[3] = {-u[0], -u[1], -u[2]};
@@ -344,10 +356,11 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
 {
     const uint32_t *L = a->vl + a->vs[v];
     uint32_t n = a->vs[v + 1] - a->vs[v], seen[DIST_MAXH];
-    double V[3], lo[3], hi[3], axis[3] = {0, 0, 0};
+    double V[3], axis[3] = {0, 0, 0};
     vpos(t, a->vid[v], V);
-    for (int c = 0; c < 3; c++) lo[c] = V[c] - R, hi[c] = V[c] + R;
-    if (!new_feat(d, t, lo, hi, L, n, 1, V, NULL)) return;
+    dnew nw = {.list = L, .n = n, .quad = 1, .c = V};
+    for (int c = 0; c < 3; c++) nw.lo[c] = V[c] - R, nw.hi[c] = V[c] + R;
+    if (!new_feat(d, t, &nw)) return;
     dfeat *f = &d->f[d->nf - 1];
     for (uint32_t j = 0; j < n; j++)
         for (uint32_t s = 1; s < 3; s++) {
@@ -367,34 +380,26 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
     f->ax = axis_of(axis, true); /* the cone's, about the opposite of its edges */
 }
 
-/* Each region into the bricks its box meets, in the regions' order (a
+/* Each region into the slabs its box meets, in the regions' order (a
  * counting sort: counted, then filed). */
 static int dcpt_bin(const mesh_vox_tile *t, dcpt *d)
 {
-    uint32_t S = t->S;
-    d->nb[0] = (t->nx + S - 1) / S, d->nb[1] = (t->ny + S - 1) / S;
-    d->nb[2] = (t->nz + S - 1) / S;
-    uint64_t nbr = (uint64_t)d->nb[0] * d->nb[1] * d->nb[2];
-    if (!(d->start = calloc(nbr + 1, sizeof *d->start))) return -ENOMEM;
+    uint32_t ns = d->nslab = (t->nz + DIST_SLAB - 1) / DIST_SLAB;
+    if (!(d->start = calloc((size_t)ns + 1, sizeof *d->start))) return -ENOMEM;
     for (int pass = 0; pass < 2; pass++) {
         for (uint32_t i = 0; i < d->nf; i++) {
             const dfeat *r = &d->f[i];
-            for (uint32_t bz = (uint32_t)r->i0[2] / S; bz <= (uint32_t)r->i1[2] / S; bz++)
-                for (uint32_t by = (uint32_t)r->i0[1] / S; by <= (uint32_t)r->i1[1] / S; by++)
-                    for (uint32_t bx = (uint32_t)r->i0[0] / S; bx <= (uint32_t)r->i1[0] / S;
-                         bx++) {
-                        uint64_t k = ((uint64_t)bz * d->nb[1] + by) * d->nb[0] + bx;
-                        if (pass) d->list[d->start[k]++] = i;
-                        else d->start[k + 1]++;
-                    }
+            for (uint32_t s = (uint32_t)r->i0[2] / DIST_SLAB; s <= (uint32_t)r->i1[2] / DIST_SLAB; s++)
+                if (pass) d->list[d->start[s]++] = i;
+                else d->start[s + 1]++;
         }
         if (pass) break;
-        for (uint64_t k = 0; k < nbr; k++) d->start[k + 1] += d->start[k];
-        if (!(d->list = malloc((d->start[nbr] ? d->start[nbr] : 1) * sizeof *d->list)))
+        for (uint32_t s = 0; s < ns; s++) d->start[s + 1] += d->start[s];
+        if (!(d->list = malloc((d->start[ns] ? d->start[ns] : 1) * sizeof *d->list)))
             return -ENOMEM;
     }
-    /* filing left start[k] at the end of brick k, the start of k + 1 */
-    for (uint64_t k = nbr; k > 0; k--) d->start[k] = d->start[k - 1];
+    /* filing left start[s] at the end of slab s, the start of s + 1 */
+    for (uint32_t s = ns; s > 0; s--) d->start[s] = d->start[s - 1];
     d->start[0] = 0;
     return 0;
 }

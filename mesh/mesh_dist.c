@@ -6,18 +6,17 @@
  * The unsigned distance is exact (to the rounding of double arithmetic):
  * the smallest distance from the centre to the closest point of any
  * triangle (Ericson's closest point on a triangle, by Voronoi regions of
- * its vertices and edges, the plane's distance inside its face).  The
- * tile's triangles (mesh_bin gives every triangle within the band of its
- * columns) are binned to the tile's storage bricks by their boxes grown by
- * the band; a brick's triangles each lower the squared distances of the
- * voxels of their grown box (a scatter, as OpenVDB's meshToVolume does), so
- * the work is the band's, not the volume's.  Along each row of the box a
- * cheap lower bound (the height above the triangle's plane and the
- * distance to its edges' lines, row_d2) skips the voxels the triangle
- * cannot bring nearer than their best so far: Ericson's test runs on about
- * one voxel in four of the box, with the same minimum to the bit.
- * A brick that no triangle reaches lies beyond the band whole: a uniform
- * brick of +w or -w from the solid's bits, no voxel visited.
+ * its vertices and edges, the plane's distance inside its face), found by
+ * a closest-point transform (mesh_cpt.c): each face's, edge's and vertex's
+ * region is scanned row by row and its voxels take the distance of the
+ * triangles that hold the feature.  The tile is done in slabs of DIST_SLAB
+ * voxels in z: the squared distances of a slab's bricks that some region's
+ * box meets start at K^2, every region of the slab is scanned once (not
+ * once per brick its box crosses: a region of the dragon at 1024^3 crosses
+ * several 8^3 bricks, and its slices' and rows' spans are the scan's cost),
+ * then the slab's bricks are made in order.  A brick that no region's box
+ * meets lies beyond the band whole: a uniform brick of +w or -w from the
+ * solid's bits, no voxel visited.
  *
  * The sign is the solid's (t->occ: the parity at the voxel centres, or its
  * repair), so the distance's sign and the occupancy agree voxel for voxel.
@@ -75,12 +74,6 @@ static double tri_d2(const dtri *t, const double p[3])
     return h * h;
 }
 
-/* The solid's bit of tile voxel (x, y, z). */
-static bool inside(const mesh_vox_tile *t, uint32_t x, uint32_t y, uint32_t z)
-{
-    return t->occ[(size_t)z * t->ny + y] >> x & 1u;
-}
-
 static uint32_t fbits(float f)
 {
     uint32_t u;
@@ -92,37 +85,46 @@ static uint32_t fbits(float f)
 #define MAXD(a, b) ((a) > (b) ? (a) : (b))
 #define MIND(a, b) ((a) < (b) ? (a) : (b))
 
+/* What a region's rows and slices are scanned with: its regions, the
+ * region, the two axes across its rows (u, v) and its radius squared. */
+typedef struct {
+    const dcpt *d;
+    const dfeat *f;
+    int u, v;
+    double R2;
+} dscan;
+
 /* The span along f->ax (voxel centres, absolute) of the row at pu, pv on
- * the two other axes u, v inside region f: [*s0, *s1] narrowed by its
+ * the two other axes u, v inside region f: s[0 .. 1] narrowed by its
  * half spaces and its ball or cylinder; false when nothing is left. */
-static bool row_span(const dcpt *d, const dfeat *f, int u, int v, double pu, double pv,
-                     double R2, double *s0, double *s1)
+static bool row_span(const dscan *sc, double pu, double pv, double s[2])
 {
-    int ax = f->ax;
-    double lo = *s0, hi = *s1;
+    const dfeat *f = sc->f;
+    int ax = f->ax, u = sc->u, v = sc->v;
+    double lo = s[0], hi = s[1];
     for (uint32_t j = 0; j < f->nh; j++) {
-        const double *h = d->hs[f->h0 + j];
-        double s = h[3] - h[u] * pu - h[v] * pv;
+        const double *h = sc->d->hs[f->h0 + j];
+        double c = h[3] - h[u] * pu - h[v] * pv;
         if (h[ax] > 0) {
-            double q = s / h[ax];
+            double q = c / h[ax];
             hi = q < hi ? q : hi;
         } else if (h[ax] < 0) {
-            double q = s / h[ax];
+            double q = c / h[ax];
             lo = q > lo ? q : lo;
-        } else if (s < 0) {
+        } else if (c < 0) {
             return false;
         }
         if (!(lo <= hi)) return false;
     }
     double qu = pu - f->c[u], qv = pv - f->c[v], r;
     if (f->quad == 1) { /* within R of c: a ball */
-        double s = R2 - qu * qu - qv * qv;
-        if (s < 0) return false;
-        r = sqrt(s);
+        double e = sc->R2 - qu * qu - qv * qv;
+        if (e < 0) return false;
+        r = sqrt(e);
         lo = MAXD(lo, f->c[ax] - r), hi = MIND(hi, f->c[ax] + r);
     } else if (f->quad == 2) { /* within R of the line c + s u: A q^2 + B q + C < 0 */
         double w = qu * f->u[u] + qv * f->u[v], A = 1 - f->u[ax] * f->u[ax];
-        double B = -2 * f->u[ax] * w, C = qu * qu + qv * qv - w * w - R2;
+        double B = -2 * f->u[ax] * w, C = qu * qu + qv * qv - w * w - sc->R2;
         if (A > 1e-6) { /* else the line runs along the row: its slab bounds it */
             double disc = B * B - 4 * A * C;
             if (disc < 0) return false;
@@ -133,27 +135,28 @@ static bool row_span(const dcpt *d, const dfeat *f, int u, int v, double pu, dou
             return false;
         }
     }
-    *s0 = lo, *s1 = hi;
+    s[0] = lo, s[1] = hi;
     return lo <= hi;
 }
 
-/* The rows of region f in the slice at pv (axis v) whose span along ax can
- * be non-empty: [*u0, *u1] on axis u narrowed to the projection of the
- * slice's polygon, its half spaces a_u q_u + a_s q_s <= c (q = p - f->c,
- * the span [s0, s1] two more) with q_s eliminated (Fourier-Motzkin: each
- * upper bound of q_s against each lower one), and the ball's disc; false
- * when the slice holds none.  Most vertices' cones are empty, and their
- * slices say so without a row visited (for the edges' wedges it pays
- * less, for the faces' prisms not at all: most of their rows are). */
-static bool slice_span(const dcpt *d, const dfeat *f, int u, int v, double pv, double s0,
-                       double s1, double R2, double *u0, double *u1)
+/* The rows of region f in the slice at pv (axis v) whose span along ax
+ * (within s0, s1) can be non-empty: uu[0 .. 1] on axis u narrowed to the
+ * projection of the slice's polygon, its half spaces a_u q_u + a_s q_s <= c
+ * (q = p - f->c, the span [s0, s1] two more) with q_s eliminated
+ * (Fourier-Motzkin: each upper bound of q_s against each lower one), and
+ * the ball's disc; false when the slice holds none.  Most vertices' cones
+ * are empty, and their slices say so without a row visited (for the edges'
+ * wedges it pays less, for the faces' prisms not at all: most of their
+ * rows are). */
+static bool slice_span(const dscan *sc, double pv, double s0, double s1, double uu[2])
 {
-    int ax = f->ax;
+    const dfeat *f = sc->f;
+    int ax = f->ax, u = sc->u, v = sc->v;
     uint32_t n = f->nh;
     double au[DIST_MAXH + 2], as[DIST_MAXH + 2], c[DIST_MAXH + 2];
-    double qv = pv - f->c[v], lo = *u0 - f->c[u], hi = *u1 - f->c[u];
+    double qv = pv - f->c[v], lo = uu[0] - f->c[u], hi = uu[1] - f->c[u];
     for (uint32_t j = 0; j < n; j++) {
-        const double *h = d->hs[f->h0 + j];
+        const double *h = sc->d->hs[f->h0 + j];
         au[j] = h[u], as[j] = h[ax];
         c[j] = h[3] - dot3(h, f->c) - h[v] * qv;
     }
@@ -178,48 +181,59 @@ static bool slice_span(const dcpt *d, const dfeat *f, int u, int v, double pv, d
         else if (be < 0) return false;
     }
     if (f->quad == 1) {
-        double r2 = R2 - qv * qv;
+        double r2 = sc->R2 - qv * qv;
         if (r2 < 0) return false;
         double r = sqrt(r2);
         lo = MAXD(lo, -r), hi = MIND(hi, r);
     }
     /* a margin far above the rounding of these sums, far below the slop */
-    *u0 = lo + f->c[u] - 1e-7, *u1 = hi + f->c[u] + 1e-7;
-    return *u0 <= *u1;
+    uu[0] = lo + f->c[u] - 1e-7, uu[1] = hi + f->c[u] + 1e-7;
+    return uu[0] <= uu[1];
 }
 
-/* Region f's voxels in brick o (its first tile voxel) lowered to the
- * distance of f's triangles: d2 the brick's squared distances (x fastest),
- * the region scanned in rows along f->ax. */
-static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, const int32_t o[3],
-                    double R2, double *d2)
+/* A slab of the tile: DIST_SLAB voxels in z from z0 (h of them), whose
+ * squared distances (voxel units) d2 holds, x fastest, rows of MESH_TILE,
+ * planes of MESH_TILE^2; reach[k]: some region's box meets the slab's
+ * brick k (bx fastest, nb[0] x nb[1] x nb[2] of them). */
+typedef struct {
+    int32_t z0, h;
+    uint32_t nb[3];
+    double *d2;
+    uint8_t *reach;
+} dslab;
+
+#define SLAB_ROW ((size_t)MESH_TILE)
+#define SLAB_PLANE ((size_t)MESH_TILE * MESH_TILE)
+
+/* The voxels of region f in slab sl's rows along f->ax lowered to the
+ * distance of f's triangles: each voxel of the region is visited once,
+ * whatever bricks its box crosses. */
+static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, double R2,
+                    const dslab *sl)
 {
-    uint32_t S = t->S;
-    int ax = f->ax, u = (ax + 1) % 3, v = (ax + 2) % 3;
-    int32_t lo[3], hi[3];
-    for (int a = 0; a < 3; a++) {
-        lo[a] = f->i0[a] > o[a] ? f->i0[a] : o[a];
-        hi[a] = f->i1[a] < o[a] + (int32_t)S - 1 ? f->i1[a] : o[a] + (int32_t)S - 1;
-    }
+    dscan sc = {.d = d, .f = f, .u = (f->ax + 1) % 3, .v = (f->ax + 2) % 3, .R2 = R2};
+    int ax = f->ax, u = sc.u, v = sc.v;
+    int32_t lo[3] = {f->i0[0], f->i0[1], MAXD(f->i0[2], sl->z0)};
+    int32_t hi[3] = {f->i1[0], f->i1[1], MIND(f->i1[2], sl->z0 + sl->h - 1)};
     /* the centre of tile voxel i along axis a: org[a] + i (exact: halves) */
     double org[3] = {(double)t->x0 + 0.5, (double)t->y0 + 0.5, 0.5};
-    size_t step[3] = {1, S, (size_t)S * S};
+    size_t step[3] = {1, SLAB_ROW, SLAB_PLANE};
+    double *base = sl->d2 - (size_t)sl->z0 * SLAB_PLANE;
     const uint32_t *tl = d->tl + f->t0;
     for (int32_t j = lo[v]; j <= hi[v]; j++) {
-        double u0 = org[u] + lo[u], u1 = org[u] + hi[u];
+        double uu[2] = {org[u] + lo[u], org[u] + hi[u]};
         /* a face's rows all meet its prism: no slice test for them */
-        if (f->quad && !slice_span(d, f, u, v, org[v] + j, org[ax] + lo[ax], org[ax] + hi[ax],
-                                   R2, &u0, &u1))
+        if (f->quad && !slice_span(&sc, org[v] + j, org[ax] + lo[ax], org[ax] + hi[ax], uu))
             continue;
-        int32_t i0 = iceil(u0 - org[u], lo[u], hi[u]), i1 = ifloor(u1 - org[u], lo[u], hi[u]);
+        int32_t i0 = iceil(uu[0] - org[u], lo[u], hi[u]), i1 = ifloor(uu[1] - org[u], lo[u], hi[u]);
         for (int32_t i = i0; i <= i1; i++) {
-            double p[3], s0 = org[ax] + lo[ax], s1 = org[ax] + hi[ax];
+            double p[3], s[2] = {org[ax] + lo[ax], org[ax] + hi[ax]};
             p[u] = org[u] + i, p[v] = org[v] + j;
-            if (!row_span(d, f, u, v, p[u], p[v], R2, &s0, &s1)) continue;
-            int32_t a = iceil(s0 - org[ax], lo[ax], hi[ax]), b = ifloor(s1 - org[ax], lo[ax], hi[ax]);
-            double *row = d2 + (size_t)(i - o[u]) * step[u] + (size_t)(j - o[v]) * step[v];
+            if (!row_span(&sc, p[u], p[v], s)) continue;
+            int32_t a = iceil(s[0] - org[ax], lo[ax], hi[ax]), b = ifloor(s[1] - org[ax], lo[ax], hi[ax]);
+            double *row = base + (size_t)i * step[u] + (size_t)j * step[v];
             for (int32_t k = a; k <= b; k++) {
-                double *e = row + (size_t)(k - o[ax]) * step[ax];
+                double *e = row + (size_t)k * step[ax];
                 p[ax] = org[ax] + k;
                 for (uint32_t q = 0; q < f->nt; q++) {
                     double x = tri_d2(&d->tri[tl[q]], p);
@@ -230,30 +244,41 @@ static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, const
     }
 }
 
-/* The voxels' squared distances (voxel units) in brick (bx, by, bz), from
- * the regions that reach it, starting from K^2 (nothing nearer). */
-static void brick_d2(mesh_vox_tile *t, const dcpt *d, uint64_t k, uint32_t bx, uint32_t by,
-                     uint32_t bz, uint32_t K, double *d2)
+/* Slab sl's bricks that the boxes of its regions (list[l0 .. l1)) meet,
+ * their voxels set to K^2 (nothing nearer); the others untouched. */
+static void slab_reach(const mesh_vox_tile *t, const dcpt *d, uint64_t l0, uint64_t l1,
+                       uint32_t K, dslab *sl)
 {
     uint32_t S = t->S;
-    size_t n = (size_t)S * S * S;
-    for (size_t i = 0; i < n; i++) d2[i] = (double)K * K;
-    int32_t o[3] = {(int32_t)(bx * S), (int32_t)(by * S), (int32_t)(bz * S)};
-    double R = K + DIST_SLOP;
-    for (uint64_t j = d->start[k]; j < d->start[k + 1]; j++) {
+    memset(sl->reach, 0, (size_t)sl->nb[0] * sl->nb[1] * sl->nb[2]);
+    for (uint64_t j = l0; j < l1; j++) {
         const dfeat *f = &d->f[d->list[j]];
-        feat_d2(t, d, f, o, R * R, d2);
-        if (mesh_vox_beat(&t->pulse, 8 * f->nt + 8)) return;
+        uint32_t z0 = (uint32_t)MAXD(f->i0[2], sl->z0), z1 = (uint32_t)MIND(f->i1[2], sl->z0 + sl->h - 1);
+        for (uint32_t bz = (z0 - sl->z0) / S; bz <= (z1 - sl->z0) / S; bz++)
+            for (uint32_t by = (uint32_t)f->i0[1] / S; by <= (uint32_t)f->i1[1] / S; by++)
+                for (uint32_t bx = (uint32_t)f->i0[0] / S; bx <= (uint32_t)f->i1[0] / S; bx++)
+                    sl->reach[((size_t)bz * sl->nb[1] + by) * sl->nb[0] + bx] = 1;
     }
+    double KK = (double)K * K;
+    for (uint32_t bz = 0; bz < sl->nb[2]; bz++)
+        for (uint32_t by = 0; by < sl->nb[1]; by++)
+            for (uint32_t bx = 0; bx < sl->nb[0]; bx++) {
+                if (!sl->reach[((size_t)bz * sl->nb[1] + by) * sl->nb[0] + bx]) continue;
+                for (uint32_t z = bz * S; z < (bz + 1) * S; z++)
+                    for (uint32_t y = by * S; y < (by + 1) * S; y++) {
+                        double *r = sl->d2 + z * SLAB_PLANE + y * SLAB_ROW + bx * S;
+                        for (uint32_t x = 0; x < S; x++) r[x] = KK;
+                    }
+            }
 }
 
 /* 0 none, 2 every voxel, 1 some of brick (bx, by, bz)'s voxels inside. */
-static int brick_sign(const mesh_vox_tile *t, uint32_t bx, uint32_t by, uint32_t bz)
+static int brick_sign(const mesh_vox_tile *t, const uint32_t bk[3])
 {
     uint32_t S = t->S;
-    uint64_t full = S == 64 ? ~0ull : ((1ull << S) - 1) << (bx * S), any = 0, all = full;
-    for (uint32_t z = bz * S; z < (bz + 1) * S && z < t->nz; z++)
-        for (uint32_t y = by * S; y < (by + 1) * S && y < t->ny; y++) {
+    uint64_t full = S == 64 ? ~0ull : ((1ull << S) - 1) << (bk[0] * S), any = 0, all = full;
+    for (uint32_t z = bk[2] * S; z < (bk[2] + 1) * S && z < t->nz; z++)
+        for (uint32_t y = bk[1] * S; y < (bk[1] + 1) * S && y < t->ny; y++) {
             uint64_t w = t->occ[(size_t)z * t->ny + y] & full;
             any |= w;
             all &= w;
@@ -261,53 +286,102 @@ static int brick_sign(const mesh_vox_tile *t, uint32_t bx, uint32_t by, uint32_t
     return !any ? 0 : all == full ? 2 : 1;
 }
 
-/* Brick (bx, by, bz): a uniform +w or -w when no triangle reaches it and
- * the solid agrees over it (inside the grid whole), else every voxel. */
-static int dist_brick(mesh_vox_tile *t, const dcpt *d, const mesh_vox_bufs *b, uint32_t K, float w,
-                      uint32_t bx, uint32_t by, uint32_t bz)
+/* What a tile's bricks are made with: the tile, its regions, its buffers,
+ * the band K and its width w in world units. */
+typedef struct {
+    mesh_vox_tile *t;
+    const dcpt *d;
+    const mesh_vox_bufs *b;
+    uint32_t K;
+    float w;
+} dtile;
+
+/* Row (Y, Z) of a brick, its S voxels from tile voxel X0 on (xyz), into
+ * out: 0 past the grid, as the volume wants; the signed distance within
+ * the band; beyond it +-w, the same bits as sqrt(K^2) * vs (all of them
+ * when no region reached the brick: its d2 was not set). */
+static void brick_row(const dtile *dt, const dslab *sl, bool reached, const uint32_t xyz[3],
+                      float *out)
 {
-    uint32_t S = t->S;
-    uint64_t k = ((uint64_t)bz * d->nb[1] + by) * d->nb[0] + bx;
-    bool whole = (bx + 1) * S <= t->nx && (by + 1) * S <= t->ny && (bz + 1) * S <= t->nz;
-    uint32_t at[3] = {t->x0 / S + bx, t->y0 / S + by, bz};
-    if (d->start[k] == d->start[k + 1] && whole) {
-        int sg = brick_sign(t, bx, by, bz);
-        if (sg != 1) return vod_volume_put_uniform(t->vol, at, fbits(sg ? -w : w));
+    mesh_vox_tile *t = dt->t;
+    uint32_t S = t->S, X0 = xyz[0], Y = xyz[1], Z = xyz[2], n = 0, band = 0;
+    if (Y < t->ny && Z < t->nz) n = t->nx - X0 < S ? t->nx - X0 : S;
+    uint64_t occ = n ? t->occ[(size_t)Z * t->ny + Y] >> X0 : 0;
+    const double *e = n ? sl->d2 + (Z - (uint32_t)sl->z0) * SLAB_PLANE + Y * SLAB_ROW + X0 : NULL;
+    double vs = t->g->vs, KK = (double)dt->K * dt->K;
+    for (uint32_t x = 0; x < n; x++) {
+        bool in = occ >> x & 1u;
+        if (reached && e[x] < KK) {
+            double dist = sqrt(e[x]);
+            band++;
+            out[x] = (float)((in ? -dist : dist) * vs);
+        } else {
+            out[x] = in ? -dt->w : dt->w;
+        }
     }
-    brick_d2(t, d, k, bx, by, bz, K, b->d2);
-    if (t->pulse.stop) return -ECANCELED;
-    float *out = (float *)(void *)b->brick;
-    double vs = t->g->vs, KK = (double)K * K;
+    for (uint32_t x = n; x < S; x++) out[x] = 0.0f;
+    t->st->voxels += band;
+}
+
+/* Brick bk (tile bricks; its squared distances in slab sl): a uniform +w
+ * or -w when no region reaches it and the solid agrees over it (inside the
+ * grid whole), else every voxel. */
+static int dist_brick(const dtile *dt, const dslab *sl, const uint32_t bk[3])
+{
+    mesh_vox_tile *t = dt->t;
+    uint32_t S = t->S, zb = bk[2] - (uint32_t)sl->z0 / S;
+    bool whole = (bk[0] + 1) * S <= t->nx && (bk[1] + 1) * S <= t->ny && (bk[2] + 1) * S <= t->nz;
+    bool reached = sl->reach[((size_t)zb * sl->nb[1] + bk[1]) * sl->nb[0] + bk[0]];
+    uint32_t at[3] = {t->x0 / S + bk[0], t->y0 / S + bk[1], bk[2]};
+    if (!reached && whole) {
+        int sg = brick_sign(t, bk);
+        if (sg != 1) return vod_volume_put_uniform(t->vol, at, fbits(sg ? -dt->w : dt->w));
+    }
+    float *out = (float *)(void *)dt->b->brick;
     for (uint32_t z = 0; z < S; z++)
         for (uint32_t y = 0; y < S; y++)
-            for (uint32_t x = 0; x < S; x++) {
-                size_t i = ((size_t)z * S + y) * S + x;
-                uint32_t X = bx * S + x, Y = by * S + y, Z = bz * S + z;
-                if (X >= t->nx || Y >= t->ny || Z >= t->nz) {
-                    out[i] = 0.0f; /* past the grid: 0, as the volume wants */
-                    continue;
-                }
-                double e = b->d2[i];
-                if (!(e < KK)) { /* beyond the band: +-w, the same bits as sqrt(K^2) * vs */
-                    out[i] = inside(t, X, Y, Z) ? -w : w;
-                    continue;
-                }
-                double dist = sqrt(e);
-                t->st->voxels++;
-                out[i] = (float)((inside(t, X, Y, Z) ? -dist : dist) * vs);
-            }
+            brick_row(dt, sl, reached, (const uint32_t[3]){bk[0] * S, bk[1] * S + y, bk[2] * S + z},
+                      out + ((size_t)z * S + y) * S);
     return vod_volume_put_brick(t->vol, at, out);
+}
+
+/* Slab s of the tile: its bricks reached, its regions scanned once each,
+ * then its bricks in order (bx fastest). */
+static int dist_slab(const dtile *dt, uint32_t s, dslab *sl)
+{
+    mesh_vox_tile *t = dt->t;
+    const dcpt *d = dt->d;
+    uint32_t S = t->S;
+    sl->z0 = (int32_t)(s * DIST_SLAB);
+    sl->h = (int32_t)(t->nz - s * DIST_SLAB < DIST_SLAB ? t->nz - s * DIST_SLAB : DIST_SLAB);
+    sl->nb[0] = (t->nx + S - 1) / S, sl->nb[1] = (t->ny + S - 1) / S;
+    sl->nb[2] = ((uint32_t)sl->h + S - 1) / S;
+    slab_reach(t, d, d->start[s], d->start[s + 1], dt->K, sl);
+    double R = dt->K + DIST_SLOP;
+    for (uint64_t j = d->start[s]; j < d->start[s + 1]; j++) {
+        const dfeat *f = &d->f[d->list[j]];
+        feat_d2(t, d, f, R * R, sl);
+        if (mesh_vox_beat(&t->pulse, 8 * f->nt + 8)) return -ECANCELED;
+    }
+    int rc = 0;
+    uint32_t bz0 = (uint32_t)sl->z0 / S;
+    for (uint32_t bz = bz0; bz < bz0 + sl->nb[2] && !rc; bz++)
+        for (uint32_t by = 0; by < sl->nb[1] && !rc; by++)
+            for (uint32_t bx = 0; bx < sl->nb[0] && !rc; bx++)
+                rc = dist_brick(dt, sl, (const uint32_t[3]){bx, by, bz});
+    return rc;
 }
 
 int mesh_vox_dist_run(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_vox_bufs *b)
 {
     dcpt d;
     int rc = mesh_cpt_make(t, p->band, &d);
-    float w = mesh_dist_width(t->o, t->g->vs);
-    for (uint32_t bz = 0; bz < d.nb[2] && !rc; bz++)
-        for (uint32_t by = 0; by < d.nb[1] && !rc; by++)
-            for (uint32_t bx = 0; bx < d.nb[0] && !rc; bx++)
-                rc = dist_brick(t, &d, b, p->band, w, bx, by, bz);
+    dtile dt = {.t = t, .d = &d, .b = b, .K = p->band, .w = mesh_dist_width(t->o, t->g->vs)};
+    size_t nb = (size_t)(MESH_TILE / t->S) * (MESH_TILE / t->S) * (DIST_SLAB / t->S);
+    dslab sl = {.d2 = b->d2, .reach = rc ? NULL : malloc(nb)};
+    if (!rc && !sl.reach) rc = -ENOMEM;
+    for (uint32_t s = 0; s < d.nslab && !rc; s++) rc = dist_slab(&dt, s, &sl);
+    free(sl.reach);
     mesh_cpt_free(&d);
     return rc;
 }

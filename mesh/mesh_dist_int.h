@@ -13,6 +13,11 @@
 #define DIST_SLOP 1e-4
 /* At most this many half spaces a region (more would only shrink it). */
 #define DIST_MAXH 16
+/* A tile's distance is made in slabs of this many voxels in z (a multiple
+ * of any storage brick; the slab's squared distances are MESH_TILE^2 x
+ * DIST_SLAB doubles, mesh_vox_bufs.d2): each region is scanned once per
+ * slab it meets, whatever bricks it crosses. */
+#define DIST_SLAB MESH_TILE
 
 /* A triangle in voxel units: vertex a, edges ab and ac, its unit normal
  * (0 when degenerate), and the voxel centres its box grown by the band
@@ -40,9 +45,9 @@ typedef struct {
     double c[3], u[3];
 } dfeat;
 
-/* A tile's triangles and regions, and per storage brick of the tile (bx
- * fastest, then by, then bz) the regions whose box meets it:
- * list[start[k] .. start[k + 1]). */
+/* A tile's triangles and regions, and per slab of the tile (DIST_SLAB
+ * voxels in z) the regions whose box meets it: list[start[s] ..
+ * start[s + 1]). */
 typedef struct {
     dtri *tri;
     uint32_t ntri;
@@ -52,13 +57,13 @@ typedef struct {
     uint32_t nhs;
     uint32_t *tl;
     uint32_t ntl;
-    uint32_t nb[3];
+    uint32_t nslab;
     uint64_t *start;
     uint32_t *list;
 } dcpt;
 
 /* The regions of the tile's triangles t->ids (dtri already made, in
- * d->tri), binned to its bricks.  0 or -ENOMEM (d freed by mesh_cpt_free in
+ * d->tri), binned to its slabs.  0 or -ENOMEM (d freed by mesh_cpt_free in
  * any case). */
 int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d);
 void mesh_cpt_free(dcpt *d);

@@ -427,7 +427,7 @@ typedef struct {
     uint8_t *brick;                               /* one storage brick */
     uint64_t *fa, *fzc, *fbx, *fby, *fcx, *fcy, *fdis; /* fine blocks */
     uint16_t *ring;                               /* coverage counts */
-    double *d2;                                   /* a brick's squared distances */
+    double *d2;                                   /* a slab's squared distances (mesh_dist.c) */
 } mesh_vox_bufs;
 
 void mesh_vox_plan_make(const grid_spec *g, const mesh_vox_opts *o, mesh_vox_plan *p);
