@@ -25,17 +25,9 @@ struct render_ctx {
 
 void render_opts_default(render_opts *o)
 {
-    memset(o, 0, sizeof(*o));
-    o->width = 1024;
-    o->height = 1024;
-    o->azimuth = 30.0;
-    o->elevation = 20.0;
-    o->perspective = 0;
-    o->fov = 35.0;
-    o->ambient = 0.2;
-    o->background = 0x000000;
-    o->color = 0xffffff;
-    o->fit_volume = 0;
+    /* the defaults render.h gives; the fields left out are 0 */
+    *o = (render_opts){.width = 1024, .height = 1024, .azimuth = 30.0, .elevation = 20.0,
+                       .fov = 35.0, .ambient = 0.2, .color = 0xffffff};
 }
 
 int render_opts_check(const render_opts *o)

@@ -40,19 +40,8 @@ uint32_t voxel_pack_normal(const double n[3])
 
 void voxel_unpack_normal(uint32_t packed, double n[3])
 {
-    double u = ((packed >> 8) & 0xfffu) / OCT_MAX * 2.0 - 1.0;
-    double v = ((packed >> 20) & 0xfffu) / OCT_MAX * 2.0 - 1.0;
-    double z = 1.0 - fabs(u) - fabs(v);
-    if (z < 0.0) {
-        double fu = (1.0 - fabs(v)) * sign_not_zero(u);
-        double fv = (1.0 - fabs(u)) * sign_not_zero(v);
-        u = fu;
-        v = fv;
-    }
-    double len = sqrt(u * u + v * v + z * z);
-    n[0] = u / len;
-    n[1] = v / len;
-    n[2] = z / len;
+    voxel_oct_normal(((packed >> 8) & 0xfffu) / OCT_MAX * 2.0 - 1.0,
+                     ((packed >> 20) & 0xfffu) / OCT_MAX * 2.0 - 1.0, n);
 }
 
 #ifdef __SSE2__

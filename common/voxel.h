@@ -8,6 +8,7 @@
 #ifndef VOXD_VOXEL_H
 #define VOXD_VOXEL_H
 
+#include <math.h>
 #include <stdint.h>
 
 enum voxel_channel {
@@ -20,9 +21,10 @@ enum voxel_channel {
 
 #define VOXEL_FULL 255u
 
-/* Channel 4's narrow band: the distance is exact within VOXEL_BAND voxels
- * of the surface on each side (--band K), the band's width K * voxel size
- * with the voxel's sign beyond it. */
+/* Channel 4's narrow band: the distance is exact within K voxels of the
+ * surface on each side (--band K: 1..VOXEL_BAND_MAX, default
+ * VOXEL_BAND_DEFAULT), the band's width K * voxel size with the voxel's
+ * sign beyond it. */
 #define VOXEL_BAND_DEFAULT 3u
 #define VOXEL_BAND_MAX 32u
 
@@ -30,6 +32,23 @@ enum voxel_channel {
  * channel-3 voxel; returned already shifted).  A zero vector encodes +z. */
 uint32_t voxel_pack_normal(const double n[3]);
 void voxel_unpack_normal(uint32_t v, double n[3]);
+/* The unit vector n of octahedral coordinates (u, v), each in [-1, 1] (a
+ * packed coordinate c is c / 4095 * 2 - 1): voxel_unpack_normal's end, and
+ * vod_unpack_normal's (vod/vod_downsample.h), which must agree bit for bit. */
+static inline void voxel_oct_normal(double u, double v, double n[3])
+{
+    double z = 1.0 - fabs(u) - fabs(v);
+    if (z < 0.0) { /* the lower half, folded over the diagonals */
+        double fu = (1.0 - fabs(v)) * (u < 0.0 ? -1.0 : 1.0);
+        double fv = (1.0 - fabs(u)) * (v < 0.0 ? -1.0 : 1.0);
+        u = fu;
+        v = fv;
+    }
+    double len = sqrt(u * u + v * v + z * z);
+    n[0] = u / len;
+    n[1] = v / len;
+    n[2] = z / len;
+}
 /* voxel_surface() of the vectors (nx[i], ny[i], nz[i]) for i < n (n <= 8),
  * bit for bit, two at a time where SSE2 is there. */
 void voxel_surfaces(const double *nx, const double *ny, const double *nz,

@@ -48,6 +48,7 @@ const char *vox_strerror(int code)
 __attribute__((format(printf, 4, 5)))
 void libvox_set_error(vox_error *e, int code, uint64_t job, const char *fmt, ...)
 {
+    if (!e) return; /* the caller passed no vox_error: it wants no message */
     e->code = code;
     e->job_id = job;
     va_list ap;

@@ -90,7 +90,7 @@ struct vox_client {
     uint8_t *rbuf;
 };
 
-/* libvox_error.c */
+/* libvox_error.c; e may be NULL for both (a caller that wants no message) */
 __attribute__((format(printf, 4, 5)))
 void libvox_set_error(vox_error *e, int code, uint64_t job, const char *fmt, ...);
 void libvox_copy_error(vox_error *dst, const vox_error *src);

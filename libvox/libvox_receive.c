@@ -112,8 +112,6 @@ int vox_receive_to_file(vox_client *c, uint64_t job_id, const char *path,
                         const vox_receive_opts *o, vox_error *err)
 {
     o = opts_or_none(o);
-    vox_error tmp_err;
-    if (!err) err = &tmp_err;
     vjob *j = receivable(c, job_id, err);
     if (!j) return -EINVAL;
     outfile f;
@@ -142,8 +140,6 @@ int vox_receive_to_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t 
                           const vox_receive_opts *o, vox_error *err)
 {
     o = opts_or_none(o);
-    vox_error tmp_err;
-    if (!err) err = &tmp_err;
     *buf = NULL;
     *len = 0;
     vjob *j = receivable(c, job_id, err);

@@ -237,10 +237,9 @@ int mesh_build_finish(mbuild *b, mesh_format f, mesh *out)
     memcpy(out->warning, b->warning, sizeof out->warning);
     memcpy(out->lo, lo, sizeof lo);
     memcpy(out->hi, hi, sizeof hi);
-    b->v = NULL;
+    b->v = NULL; /* *out owns the arrays now */
     b->t = NULL;
-    b->nv = b->nt = 0;
-    b->cap_v = b->cap_t = 0;
+    mesh_build_free(b);
     return 0;
 }
 

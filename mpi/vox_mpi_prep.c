@@ -146,7 +146,7 @@ static int pack_tree(prep *p, const char *name)
 {
     if (p->o.vod.channel == VOXEL_CH_DISTANCE)
         csg_tree_set_band(p->tree, p->o.mesh_opts.band ? p->o.mesh_opts.band : VOXEL_BAND_DEFAULT);
-    p->kind = MPI_KIND_CSG; /* prep_free frees the packed tree */
+    p->kind = MPI_KIND_CSG; /* mpi_prep_free frees the packed tree */
     int rc = csg_tree_pack(p->tree, &p->input, &p->input_bytes);
     if (rc) {
         mpi_msg("%s: %s", name, strerror(-rc));

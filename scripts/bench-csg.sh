@@ -30,20 +30,13 @@
 #                      quarter of their size, no targets marked
 #   BENCH_REPEATS      timed runs per job (default 3; quick 1)
 set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=${1:-build/release}
-case $build in /*) ;; *) build=$root/$build ;; esac
-cd "$root"
-. scripts/bench-lib.sh
+. "$(dirname "$0")/bench-lib.sh" # bench_root, bench_start, medians
+bench_root "${1:-}"
 quick=${BENCH_QUICK:-0}
 if [ "$quick" = 1 ]; then drep=1 div=4 sizes="64 128"; else drep=3 div=1 sizes="512 1024"; fi
 repeats=${BENCH_REPEATS:-$drep}
 vox=$build/vox whole=$build/voxwhole
-for b in "$vox" "$whole"; do
-    [ -x "$b" ] || { echo "bench-csg: $b is missing (make $b)" >&2; exit 2; }
-done
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+bench_start bench-csg "$vox" "$whole"
 failed=0
 load() { cut -d' ' -f1 /proc/loadavg; }
 

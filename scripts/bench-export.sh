@@ -18,20 +18,13 @@
 # machine is shared, and a busy one shows in the figures.  Exits 1 when a
 # command failed (its row says why).
 set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=${1:-build/release}
-case $build in /*) ;; *) build=$root/$build ;; esac
-cd "$root"
-. scripts/bench-lib.sh
+. "$(dirname "$0")/bench-lib.sh" # bench_root, bench_start, medians
+bench_root "${1:-}"
 if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=96 drep=1; else dres=1024 drep=3; fi
 res=${BENCH_EXPORT_RES:-$dres}
 repeats=${BENCH_REPEATS:-$drep}
 vox=$build/vox whole=$build/voxwhole
-for b in "$vox" "$whole" "$build/vox-vdb.so"; do
-    [ -e "$b" ] || { echo "bench-export: $b is missing (make $b)" >&2; exit 2; }
-done
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+bench_start bench-export "$vox" "$whole" "$build/vox-vdb.so"
 failed=0
 
 printf 's = ellipsoid radius 0.8\nresult s\n' >"$tmp/solid.csg"

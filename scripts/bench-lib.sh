@@ -1,6 +1,16 @@
 #!/bin/bash
 # bench-lib.sh: what the whole-command benchmarks (bench-whole.sh,
-# bench-mesh-whole.sh, bench-scale.sh) share; sourced, not run.
+# bench-mesh-whole.sh, bench-scale.sh, bench-csg.sh, bench-export.sh, ...)
+# share; sourced, not run.
+
+# bench_root [BUILD]: the tree's root in $root, made the working folder; the
+# build folder in $build (BUILD, default build/release), made absolute.
+bench_root() {
+    root=$(cd "$(dirname "$0")/.." && pwd)
+    build=${1:-build/release}
+    case $build in /*) ;; *) build=$root/$build ;; esac
+    cd "$root"
+}
 
 # bench_start NAME TOOL...: exits 2 when a tool is missing (naming its make
 # target); else makes the scratch folder $tmp, removed on exit, and points

@@ -37,10 +37,8 @@
 #
 # Exits 1 when a job failed (its row says why).
 set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=${1:-build/release}
-case $build in /*) ;; *) build=$root/$build ;; esac
-cd "$root"
+. "$(dirname "$0")/bench-lib.sh" # bench_root, bench_start, medians
+bench_root "${1:-}"
 quick=${BENCH_QUICK:-0}
 if [ "$quick" = 1 ]; then
     drep=1 dus=1000 dbig=0 scale=8 table_res="64 128 256"
@@ -53,7 +51,6 @@ sample_us=${BENCH_SAMPLE_US:-$dus}
 models=${VOXD_MESH_MODELS:-build/npm/node_modules}
 shm_mib=2048 # what vox voxelize asks /dev/shm for (its --shm-size default)
 vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh
-. "$root/scripts/bench-lib.sh" # bench_start, medians
 bench_start bench-mesh-whole "$vox" "$whole" "$bm" "$build/voxbench" "$build/vdb_mesh"
 load_start=$(cut -d' ' -f1-3 /proc/loadavg) load_start1=$(cut -d' ' -f1 /proc/loadavg)
 failed=0

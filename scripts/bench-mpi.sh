@@ -24,10 +24,8 @@
 #                        voxelize -w WORKERS, named voxWORKERS; the first is the
 #                        file every vox_mpi file is compared with)
 set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=${1:-build/release}
-case $build in /*) ;; *) build=$root/$build ;; esac
-cd "$root"
+. "$(dirname "$0")/bench-lib.sh" # bench_root, medians
+bench_root "${1:-}"
 if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=96 drep=1; else dres="512 2048" drep=""; fi
 resolutions=${BENCH_MPI_RES:-$dres}
 vox=$build/vox mpi=$build/vox_mpi whole=$build/voxwhole
@@ -39,7 +37,6 @@ command -v mpirun >/dev/null || { echo "bench-mpi: no mpirun (make deps)" >&2; e
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 export VOXD_SOCKET=$tmp/no-voxd.sock # no daemon answers there
-. "$root/scripts/bench-lib.sh" # medians
 failed=0
 # the commands of a job: NAME R W (R 0: vox voxelize -w W, named voxW);
 # BENCH_MPI_CONFIGS gives others, e.g. on 16 cores

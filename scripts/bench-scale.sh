@@ -29,10 +29,8 @@
 #                        (default build/npm/node_modules, see bench-mesh.sh)
 # Exits 1 when a job failed (its row says why).
 set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=${1:-build/release}
-case $build in /*) ;; *) build=$root/$build ;; esac
-cd "$root"
+. "$(dirname "$0")/bench-lib.sh" # bench_root, bench_start, medians
+bench_root "${1:-}"
 cores=$(nproc)
 if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=64 drep=1 dworkers="1 2"; else
     dres=1024 drep=3 dworkers=$(w=1; while [ "$w" -lt "$cores" ]; do printf '%d ' "$w"; w=$((w * 2)); done; echo "$cores")
@@ -42,7 +40,6 @@ repeats=${BENCH_REPEATS:-$drep}
 workers=${BENCH_SCALE_WORKERS:-$dworkers}
 models=${VOXD_MESH_MODELS:-build/npm/node_modules}
 vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh
-. "$root/scripts/bench-lib.sh" # bench_start, medians
 bench_start bench-scale "$vox" "$whole" "$bm"
 failed=0
 

@@ -25,10 +25,8 @@
 # sampling /proc costs CPU that the 2 workers would feel.  Exits 1 when a
 # job failed (its row says why).
 set -euo pipefail
-root=$(cd "$(dirname "$0")/.." && pwd)
-build=${1:-build/release}
-case $build in /*) ;; *) build=$root/$build ;; esac
-cd "$root"
+. "$(dirname "$0")/bench-lib.sh" # bench_root, bench_start, medians
+bench_root "${1:-}"
 if [ "${BENCH_QUICK:-0}" = 1 ]; then dres=64 drep=1 dus=1000; else dres=512 drep=3 dus=5000; fi
 res=${BENCH_RES:-$dres}
 repeats=${BENCH_REPEATS:-$drep}
@@ -37,7 +35,6 @@ big=${BENCH_BIG:-$dbig}
 sample_us=${BENCH_SAMPLE_US:-$dus}
 shm_mib=2048 # what vox voxelize asks /dev/shm for (its --shm-size default)
 vox=$build/vox whole=$build/voxwhole
-. "$root/scripts/bench-lib.sh" # bench_start, medians
 bench_start bench-whole "$vox" "$whole"
 shapes="sphere union64 blend2 scene1 scene2 scene3"
 failed=0

@@ -10,8 +10,8 @@
 # kind of job from 1 to N workers (scripts/bench-scale.sh) BENCH_SCALE_WORKERS
 # and BENCH_SCALE_RES; the serial shares (scripts/bench-serial.sh)
 # BENCH_SERIAL_RES, BENCH_SERIAL_WORKERS and BENCH_REPEATS.
-# Exits 1 when a whole-command, mesh, vox_mpi or CSG job or an export failed
-# (its row says why), after saving the tables.
+# Exits with the status of the first table that failed (1 when a job failed:
+# its row says why), after saving the tables.
 set -euo pipefail
 build=${1:-build/release}
 res=${BENCH_RES:-512}
@@ -30,25 +30,12 @@ out=bench/results/bench-$(date +%Y%m%d-%H%M%S).md
     "$build/voxbench" memory -r "$res"
     "$build/voxbench" deflate -r "$res"
     "$build/voxdbench" all -r "$res" -n "$workers"
-    echo
-    "$(dirname "$0")/bench-mesh.sh" "$build" || mesh_rc=$? # the tables after it still run
-    echo
-    "$(dirname "$0")/bench-distance.sh" "$build" || mesh_rc=$?
-    echo
-    "$(dirname "$0")/bench-iso.sh" "$build" || mesh_rc=$?
-    echo
-    "$(dirname "$0")/bench-whole.sh" "$build" || whole_rc=$?
-    echo
-    "$(dirname "$0")/bench-mpi.sh" "$build" || mpi_rc=$?
-    echo
-    "$(dirname "$0")/bench-csg.sh" "$build" || csg_rc=$?
-    echo
-    "$(dirname "$0")/bench-export.sh" "$build" || export_rc=$?
-    echo
-    "$(dirname "$0")/bench-scale.sh" "$build" || scale_rc=$?
-    echo
-    "$(dirname "$0")/bench-serial.sh" "$build" || serial_rc=$?
-    exit "${mesh_rc:-${whole_rc:-${mpi_rc:-${csg_rc:-${export_rc:-${scale_rc:-${serial_rc:-0}}}}}}}"
+    # every table runs, a failed one's too; the first failure's status is the exit status
+    for part in mesh distance iso whole mpi csg export scale serial; do
+        echo
+        "$(dirname "$0")/bench-$part.sh" "$build" || first_rc=${first_rc:-$?}
+    done
+    exit "${first_rc:-0}"
 } | tee "$out" || rc=$?
 echo "bench: tables saved in $out"
 exit "${rc:-0}"

@@ -108,13 +108,7 @@ static inline int implicit_claim(uint8_t *base, implicit_block *b, uint16_t who,
 }
 
 /* The task argument of both operations: the octant. */
-static inline grid_octant implicit_octant(const shm_task *t)
-{
-    grid_octant o;
-    _Static_assert(sizeof o <= sizeof t->arg, "an octant fits a task");
-    memcpy(&o, t->arg, sizeof o);
-    return o;
-}
+SHM_TASK_ARG(implicit_octant, grid_octant)
 
 /* ---- encode: the VOD bricks of the last job's octree or volume ---- */
 
@@ -189,13 +183,7 @@ typedef struct {
     uint32_t mip_levels;
 } mesh_block;
 
-static inline mesh_task_arg mesh_task_tiles(const shm_task *t)
-{
-    mesh_task_arg a;
-    _Static_assert(sizeof a <= sizeof t->arg, "a tile run fits a task");
-    memcpy(&a, t->arg, sizeof a);
-    return a;
-}
+SHM_TASK_ARG(mesh_task_tiles, mesh_task_arg)
 
 /* ---- csg: a volume CSG tree (csg.h) evaluated brick by brick ---- */
 
@@ -251,13 +239,7 @@ typedef struct {
     uint64_t leaf_mesh_off;
 } csg_block;
 
-static inline csg_task_arg csg_task_bricks(const shm_task *t)
-{
-    csg_task_arg a;
-    _Static_assert(sizeof a <= sizeof t->arg, "a brick run fits a task");
-    memcpy(&a, t->arg, sizeof a);
-    return a;
-}
+SHM_TASK_ARG(csg_task_bricks, csg_task_arg)
 
 /* ---- iso: marching cubes, brick by brick (iso.h) ---- */
 

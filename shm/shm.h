@@ -30,6 +30,7 @@
 #include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 #include <sys/types.h>
 
 #include "err.h"
@@ -50,6 +51,18 @@ typedef struct {
     uint32_t op;          /* the kind's operation */
     uint8_t arg[16];      /* the kind's argument (implicit: an octant) */
 } shm_task;
+
+/* SHM_TASK_ARG(name, T) defines `static inline T name(const shm_task *t)`,
+ * task t's argument read as a T (each kind's argument type, shm/kinds.h),
+ * and checks at compile time that a T fits in arg. */
+#define SHM_TASK_ARG(name, T)                                                  \
+    _Static_assert(sizeof(T) <= sizeof ((shm_task *)0)->arg, #T " fits a task"); \
+    static inline T name(const shm_task *t)                                    \
+    {                                                                          \
+        T a;                                                                   \
+        memcpy(&a, t->arg, sizeof a);                                          \
+        return a;                                                              \
+    }
 
 #define SHM_OP_EXIT 1u    /* SHM_KIND_CORE: leave the loop */
 #define SHM_OP_LEAVE 2u   /* SHM_KIND_CORE: let go of stdio, keep the segment

@@ -340,7 +340,7 @@ static void build_code_all(uint32_t *freq, int n, unsigned max_bits, uint8_t *bi
 
 /* ---- bits out ---- */
 
-/* The stream's size is known before a bit is written (stream_bytes), so
+/* The stream's size is known before a bit is written (choose_codes), so
  * the writer needs no bound: it stores four whole bytes at a time. */
 typedef struct {
     uint8_t *p;

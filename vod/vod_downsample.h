@@ -13,24 +13,13 @@
 
 extern const double vod_oct_unit[4096];
 
-/* voxel_unpack_normal, operation for operation on the same doubles, so bit
- * for bit (test_vod compares them), but for its first two divisions: the
- * 4096 values of a 12-bit coordinate are a table (vod_downsample.c). */
+/* voxel_unpack_normal bit for bit (test_vod compares them), but for its
+ * first two divisions: the 4096 values of a 12-bit coordinate are a table
+ * (vod_downsample.c); the rest is the same voxel_oct_normal. */
 static inline void vod_unpack_normal(uint32_t packed, double n[3])
 {
-    double u = vod_oct_unit[(packed >> 8) & 0xfffu];
-    double v = vod_oct_unit[(packed >> 20) & 0xfffu];
-    double z = 1.0 - fabs(u) - fabs(v);
-    if (z < 0.0) {
-        double fu = (1.0 - fabs(v)) * (u < 0.0 ? -1.0 : 1.0);
-        double fv = (1.0 - fabs(u)) * (v < 0.0 ? -1.0 : 1.0);
-        u = fu;
-        v = fv;
-    }
-    double len = sqrt(u * u + v * v + z * z);
-    n[0] = u / len;
-    n[1] = v / len;
-    n[2] = z / len;
+    voxel_oct_normal(vod_oct_unit[(packed >> 8) & 0xfffu], vod_oct_unit[(packed >> 20) & 0xfffu],
+                     n);
 }
 
 /* Channel 3: occupancy is the mean rounded half up, the normal the

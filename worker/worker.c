@@ -75,7 +75,7 @@ static _Noreturn void worker_leave(worker_ctx *w)
     _exit(0);
 }
 
-/* The per-job counters the master sums (job_stats): reset on a job's
+/* The per-job counters the master sums (engine_sched_job_totals): reset on a job's
  * first task, whatever its kind. */
 static void job_counters(worker_ctx *w)
 {
