@@ -107,7 +107,10 @@ if [ "$rc" -eq 0 ]; then pass "bench-serial: quick mode runs"
 else fail "bench-serial: quick mode runs" "exit $rc: $(tail -3 "$TMP/table.err")"; fi
 grep -q "^### .*([0-9]* cores: " "$TMP/table" && pass "bench-serial: the core count in the header" ||
     fail "bench-serial: the core count in the header" "$(head -1 "$TMP/table")"
-rows=$(grep -c '^| [A-Za-z1-9]' "$TMP/table" | head -1)
+# the measures' table, then (after "Where each run's") the charges' table
+sed '/^Where each run/,$d' "$TMP/table" >"$TMP/measures"
+sed -n '/^Where each run/,$p' "$TMP/table" >"$TMP/charges"
+rows=$(grep -c '^| [A-Za-z1-9]' "$TMP/measures" | head -1)
 want=6
 grep -q 'The dragon is skipped' "$TMP/table" && want=5
 # every row: a number in each of the nine measure columns, shares <= 100%,
@@ -116,14 +119,22 @@ bad=$(awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ {
         ok = $12 != ""
         for (i = 3; i <= 11; i++) if ($i !~ /^ *[0-9.]+%? *$/) ok = 0
         if ($7 + 0 > 100 || $10 + 0 > 100 || $13 !~ /[0-9] s/) ok = 0
-        if (!ok) print }' "$TMP/table")
+        if (!ok) print }' "$TMP/measures")
 if [ "$((rows - 1))" -eq "$want" ] && [ -z "$bad" ]; then pass "bench-serial: $want rows, every column filled"
 else fail "bench-serial: $want rows, every column filled" "rows $((rows - 1)); $bad"; fi
+# the charges: a row for each run of each job, its label, the seconds
+# charged to vox's threads (a quick run's serial windows are 5 ms or more)
+crows=$(grep -c '^| [A-Za-z1-9]' "$TMP/charges" | head -1)
+cbad=$(awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ && $3 !~ /^ [0-9.]+ s vox/' "$TMP/charges")
+if [ "$((crows - 1))" -eq "$want" ] && [ -z "$cbad" ]; then
+    pass "bench-serial: where each run's serial time went, $want rows"
+else fail "bench-serial: where each run's serial time went, $want rows" "rows $((crows - 1)); $cbad"; fi
 
 # BENCH_SERIAL_JOBS: the named jobs only, in the table's order
 BENCH_QUICK=1 BENCH_SERIAL_JOBS="iso csg" scripts/bench-serial.sh "$REL" >"$TMP/some" 2>"$TMP/some.err"
 rc=$?
-labels=$(awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ { print $2 }' "$TMP/some" | sed 's/^ *//; s/ *$//' | paste -sd';')
+labels=$(sed '/^Where each run/,$d' "$TMP/some" | awk -F'|' '/^\| [A-Za-z1-9]/ && !/^\| job/ { print $2 }' |
+    sed 's/^ *//; s/ *$//' | paste -sd';')
 if [ "$rc" -eq 0 ] && [ "$labels" = "10-node CSG tree, 64^3;vox mesh of Scene 1, 32^3" ]; then
     pass "bench-serial: BENCH_SERIAL_JOBS runs the named jobs only ($labels)"
 else fail "bench-serial: BENCH_SERIAL_JOBS runs the named jobs only" "exit $rc: $labels"; fi

@@ -3,15 +3,15 @@
 # is the embedded engine's, byte for byte; vox voxelize picks the daemon when
 # it answers and the embedded engine when it does not; status, ping, cancel
 # (from another process and by an interrupt), typed errors, exit codes.
-# Every command runs under `timeout`; the trap kills what the test started.
+# Every command runs under `timeout`; the trap stops what the test started
+# (lib.sh's stop_all) and checks that no daemon left its shared memory.
 . "$(dirname "$0")/lib.sh"
 VOXD=${VOXD:-$(dirname "$VOX")/voxd}
 SOCK=$TMP/voxd.sock
 PIDS=()
 cleanup() {
-    local p
-    for p in "${PIDS[@]}"; do kill -9 "$p" 2>/dev/null; done
-    for p in "${PIDS[@]}"; do wait "$p" 2>/dev/null; done
+    stop_all "${PIDS[@]}"
+    shm_left
     san_scan
     rm -rf "$TMP"
 }

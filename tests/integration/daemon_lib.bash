@@ -1,16 +1,15 @@
 # Helpers for the daemon's integration tests (sourced by daemon*.sh): a voxd
 # on a socket in $TMP, the python protocol client, bounded waits, and a
-# trap that kills whatever the test started.
+# trap that stops whatever the test started and checks that no daemon left
+# its shared memory behind.
 . "$(dirname "${BASH_SOURCE[0]}")/lib.sh"
 VOXD=${VOXD:-$(dirname "$VOX")/voxd}
 CLIENT=(python3 "$ROOT/tests/integration/daemon_client.py")
 S=$TMP/voxd.sock
 PIDS=()
 cleanup() {
-    local p
-    # a background subshell's `timeout` passes the TERM on to its client
-    for p in "${PIDS[@]}"; do pkill -TERM -P "$p" 2>/dev/null; kill -9 "$p" 2>/dev/null; done
-    for p in "${PIDS[@]}"; do wait "$p" 2>/dev/null; done
+    stop_all "${PIDS[@]}"
+    shm_left
     san_scan
     rm -rf "$TMP"
 }

@@ -84,6 +84,45 @@ ico_csg() {
 
 pass() { echo "PASS: $1"; }
 fail() { echo "FAIL: $1"; [ -n "${2:-}" ] && printf '  %s\n' "$2"; }
+
+# any_alive PID...: 0 while one of them runs (bash reaps its children, so
+# an ended one is gone)
+any_alive() {
+    local p
+    for p; do kill -0 "$p" 2>/dev/null && return 0; done
+    return 1
+}
+# stop_all PID...: TERM (and CONT, for a stopped one) to each and to its
+# children (a background subshell's `timeout` passes the TERM on to its
+# client), 30 s for them all to end, then KILL.  A voxd stops on TERM and
+# removes its shared-memory segment; KILL would leave it behind (a file
+# of 2 GiB, sparse, in /dev/shm).
+stop_all() {
+    local p i
+    for p; do
+        pkill -TERM -P "$p" 2>/dev/null
+        kill -TERM "$p" 2>/dev/null && kill -CONT "$p" 2>/dev/null
+    done
+    for i in $(seq 300); do any_alive "$@" || break; sleep 0.1; done
+    for p; do kill -9 "$p" 2>/dev/null; done
+    for p; do wait "$p" 2>/dev/null; done
+}
+# shm_left: once the daemons are stopped, the shared-memory segments they
+# named in their logs (any file under $TMP): a FAIL naming those still in
+# /dev/shm (then removed), a PASS when none is; nothing when no daemon ran
+shm_left() {
+    local names n left=
+    names=$(grep -rahos 'shared memory /voxd-[0-9a-f]*' "$TMP" | sed 's/.* \///' | sort -u)
+    [ -n "$names" ] || return 0
+    for n in $names; do
+        [ -e "/dev/shm/$n" ] && left="$left $n" && rm -f "/dev/shm/$n"
+    done
+    if [ -n "$left" ]; then
+        fail "the daemons removed their shared memory" "left in /dev/shm:$left"
+    else
+        pass "the daemons removed their shared memory ($(echo $names | wc -w) segment(s))"
+    fi
+}
 # check NAME COMMAND...: passes when the command succeeds with no sanitizer report
 check() {
     local n=$1 s0; shift
