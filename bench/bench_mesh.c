@@ -304,13 +304,13 @@ static uint32_t ico_vertex(const ico *c, int fi, int i, int j)
     return base + row0 + (uint32_t)(j - 1);
 }
 
-/* "v x y z" of the weights wa, wb, wc of corners a, b, c, pushed out onto
- * the unit sphere. */
-static void ico_put(FILE *f, int a, double wa, int b, double wb, int c, double wc)
+/* "v x y z" of the weights w[i] of corners c[i] (barycentric), pushed out
+ * onto the unit sphere. */
+static void ico_put(FILE *f, const unsigned char c[3], const double w[3])
 {
     double p[3], l = 0;
     for (int k = 0; k < 3; k++) {
-        p[k] = wa * ico_v[a][k] + wb * ico_v[b][k] + wc * ico_v[c][k];
+        p[k] = w[0] * ico_v[c[0]][k] + w[1] * ico_v[c[1]][k] + w[2] * ico_v[c[2]][k];
         l += p[k] * p[k];
     }
     l = sqrt(l);
@@ -341,13 +341,17 @@ static int icosphere(int n, const char *path)
         return 1;
     }
     fprintf(f, "# geodesic icosphere, frequency %d: %d triangles\n", n, 20 * n * n);
-    for (int k = 0; k < 12; k++) ico_put(f, k, 1, k, 0, k, 0);
-    for (int e = 0; e < ne; e++)
-        for (int t = 1; t < n; t++) ico_put(f, ends[e][0], n - t, ends[e][1], t, 0, 0);
+    for (int k = 0; k < 12; k++)
+        ico_put(f, (unsigned char[3]){(unsigned char)k, (unsigned char)k, (unsigned char)k},
+                (double[3]){1, 0, 0});
+    for (int e = 0; e < ne; e++) {
+        unsigned char ends_e[3] = {(unsigned char)ends[e][0], (unsigned char)ends[e][1], 0};
+        for (int t = 1; t < n; t++) ico_put(f, ends_e, (double[3]){n - t, t, 0});
+    }
     for (int fi = 0; fi < 20; fi++)
         for (int i = 1; i <= n - 2; i++)
             for (int j = 1; i + j <= n - 1; j++)
-                ico_put(f, ico_f[fi][0], n - i - j, ico_f[fi][1], i, ico_f[fi][2], j);
+                ico_put(f, ico_f[fi], (double[3]){n - i - j, i, j});
     for (int fi = 0; fi < 20; fi++)
         for (int i = 0; i < n; i++)
             for (int j = 0; i + j < n; j++) {

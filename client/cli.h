@@ -170,11 +170,19 @@ int cli_unknown_command(const char *cmd, const char *const names[]);
  * cli_usage_error (getopt's own messages off): '?' after a message. */
 int cli_getopt(const char *cmd, int argc, char **argv, const char *shorts,
                const struct option *longs);
-/* A parse error of a text (an expression, a .csg tree) compiler-style:
+/* A place in a named text (an expression, a .csg tree): text[0, len),
+ * called name in messages; line and col 1-based (line 0: none). */
+typedef struct {
+    const char *name;
+    const char *text;
+    size_t len;
+    int line, col;
+} cli_text_at;
+
+/* A parse error at a place in a text, compiler-style:
  * "name:line:col: message", then the line and a caret under the column
  * (line 0: "name: message" alone). */
-void cli_error_at(const char *name, int line, int col, const char *text, size_t len,
-                  const char *fmt, ...) __attribute__((format(printf, 6, 7)));
+void cli_error_at(const cli_text_at *at, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* "s" unless n is 1: "%u worker%s". */
 const char *cli_plural(uint64_t n);
 /* "PROG VERSION (commit HASH)" on stdout, from the build's -D flags. */

@@ -177,8 +177,9 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
     rc = csg_parse(text, len, t, &err);
     if (rc) {
         const char *name = strcmp(path, "-") ? path : "<stdin>";
-        cli_error_at(name, err.line, err.col, text, len, "%s%s%s%s",
-                     err.node[0] ? "node '" : "", err.node, err.node[0] ? "': " : "", err.msg);
+        cli_text_at at = {name, text, len, err.line, err.col};
+        cli_error_at(&at, "%s%s%s%s", err.node[0] ? "node '" : "", err.node,
+                     err.node[0] ? "': " : "", err.msg);
     }
     free(text);
     if (!rc && (rc = read_leaves(path, *t))) {

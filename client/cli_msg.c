@@ -185,9 +185,11 @@ int cli_getopt(const char *cmd, int argc, char **argv, const char *shorts,
     return c;
 }
 
-void cli_error_at(const char *name, int line, int col, const char *text, size_t len,
-                  const char *fmt, ...)
+void cli_error_at(const cli_text_at *at, const char *fmt, ...)
 {
+    const char *name = at->name, *text = at->text;
+    size_t len = at->len;
+    int line = at->line, col = at->col;
     char msg[512];
     va_list ap;
     va_start(ap, fmt);

@@ -64,6 +64,7 @@ int source_compile(const source *s, const expr_limits *lim, expr_tape **out)
     expr_error err;
     int rc = expr_compile(s->text, s->len, lim, out, &err);
     if (rc == 0) return 0;
-    cli_error_at(s->name, err.line, err.col, s->text, s->len, "%s", err.msg);
+    cli_text_at at = {s->name, s->text, s->len, err.line, err.col};
+    cli_error_at(&at, "%s", err.msg);
     return rc;
 }

@@ -454,12 +454,14 @@ static int morph(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v
     return rc;
 }
 
-/* The operands of binary node i over the box: a into a, b into buf.
- * 1 and *va the result when it is uniform; else 2 (both filled), 3 (b
- * uniform, *vb), 4 (a uniform, *va); or a negative errno. */
+/* The operands of binary node i over the box: a into a, b into buf, and
+ * their uniform values into uv[0] (a's) and uv[1] (b's).  1 and uv[0] the
+ * result when it is uniform; else 2 (both filled), 3 (b uniform, uv[1]), 4
+ * (a uniform, uv[0]); or a negative errno. */
 static int binary_in(csg_eval *e, uint32_t i, const box *b, uint8_t *a, uint8_t *buf,
-                     uint8_t *va, uint8_t *vb)
+                     uint8_t uv[2])
 {
+    uint8_t *va = &uv[0], *vb = &uv[1];
     const csg_node *n = &e->t->node[i];
     int ua = eval(e, (uint32_t)n->a, b, a, va);
     if (ua < 0) return ua;
@@ -480,9 +482,10 @@ static int binary_in(csg_eval *e, uint32_t i, const box *b, uint8_t *a, uint8_t 
 static int binary_op(csg_eval *e, uint32_t i, const box *b, uint8_t *buf, uint8_t *v)
 {
     size_t count = (size_t)b->n * b->n * b->n;
-    uint8_t *a = scratch_take(e, count), va, vb;
+    uint8_t *a = scratch_take(e, count), uv[2];
     if (!a) return -ENOMEM;
-    int rc = binary_in(e, i, b, a, buf, &va, &vb);
+    int rc = binary_in(e, i, b, a, buf, uv);
+    uint8_t va = uv[0], vb = uv[1];
     if (rc == 2) { /* both operands there: the table */
         const uint8_t *lut = e->lut[i];
         for (size_t k = 0; k < count; k++) buf[k] = lut[a[k] * 256 + buf[k]];
@@ -662,9 +665,11 @@ static void finish(csg_eval *e, const uint32_t b[3], uint8_t *buf, int occupancy
     e->st.solid_voxels += solid;
 }
 
-static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, int uniform,
-               uint8_t v, int occupancy)
+/* Brick b into vol: buf's voxels, or (uv >= 0) uv in every voxel. */
+static int put(csg_eval *e, vod_volume *vol, const uint32_t b[3], uint8_t *buf, int uv, int occupancy)
 {
+    int uniform = uv >= 0;
+    uint8_t v = uniform ? (uint8_t)uv : 0;
     uint32_t s = e->side;
     int inside = 1;
     for (int a = 0; a < 3; a++) inside &= (b[a] + 1) * s <= e->g.res[a];
@@ -731,7 +736,7 @@ int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], void *buf,
     int uniform;
     uint8_t v;
     int rc = csg_eval_brick(e, b, buf, &uniform, &v);
-    return rc ? rc : put(e, vol, b, buf, uniform, v, channel == VOXEL_CH_OCCUPANCY);
+    return rc ? rc : put(e, vol, b, buf, uniform ? v : -1, channel == VOXEL_CH_OCCUPANCY);
 }
 
 int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,

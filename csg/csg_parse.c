@@ -41,15 +41,24 @@ typedef struct {
     size_t text_len;
 } parser;
 
-static int fail_at(parser *p, int rc, int line, int col, const char *node, const char *fmt, ...)
+/* A place in the text: a line and column (1-based; 0 when none) and the
+ * definition's name (NULL when none). */
+typedef struct {
+    int line, col;
+    const char *node;
+} src_pos;
+
+#define NOWHERE ((src_pos){0, 0, NULL})
+
+static int fail_at(parser *p, int rc, src_pos at, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
     err_vfmt(p->err->msg, sizeof p->err->msg, rc, fmt, ap);
     va_end(ap);
-    p->err->line = line;
-    p->err->col = col;
-    snprintf(p->err->node, sizeof p->err->node, "%s", node ? node : "");
+    p->err->line = at.line;
+    p->err->col = at.col;
+    snprintf(p->err->node, sizeof p->err->node, "%s", at.node ? at.node : "");
     return rc;
 }
 
@@ -61,8 +70,8 @@ static int fail(parser *p, int rc, const char *fmt, ...)
     char msg[sizeof p->err->msg];
     err_vfmt(msg, sizeof msg, rc, fmt, ap);
     va_end(ap);
-    return fail_at(p, rc, p->cur->line, p->cur->col + (int)(p->pos - p->cur->start),
-                   p->cur->name, "%s", msg);
+    src_pos at = {p->cur->line, p->cur->col + (int)(p->pos - p->cur->start), p->cur->name};
+    return fail_at(p, rc, at, "%s", msg);
 }
 
 static void skip_space(parser *p)
@@ -496,9 +505,10 @@ static int check_shape(parser *p)
         depth[i] = d + 1;
         margin[i] = m + n->k;
         if (depth[i] > CSG_MAX_DEPTH)
-            return fail_at(p, -E2BIG, 0, 0, n->name, "the tree is deeper than %u", CSG_MAX_DEPTH);
+            return fail_at(p, -E2BIG, (src_pos){0, 0, n->name}, "the tree is deeper than %u",
+                           CSG_MAX_DEPTH);
         if (margin[i] > CSG_MAX_MARGIN)
-            return fail_at(p, -E2BIG, 0, 0, n->name,
+            return fail_at(p, -E2BIG, (src_pos){0, 0, n->name},
                            "erosions and dilations along one path pass %u voxels", CSG_MAX_MARGIN);
     }
     return 0;
@@ -507,16 +517,16 @@ static int check_shape(parser *p)
 static int parse_all(parser *p)
 {
     if (p->len > CSG_MAX_SOURCE)
-        return fail_at(p, -E2BIG, 0, 0, NULL, "the text is over %u bytes", CSG_MAX_SOURCE);
+        return fail_at(p, -E2BIG, NOWHERE, "the text is over %u bytes", CSG_MAX_SOURCE);
     if (memchr(p->src, 0, p->len))
-        return fail_at(p, -EINVAL, 0, 0, NULL, "the text holds a NUL byte");
+        return fail_at(p, -EINVAL, NOWHERE, "the text holds a NUL byte");
     int result = -1, ln = 1;
     for (size_t s = 0, next; s < p->len; s = next, ln++) {
         size_t e = line_end(p->src, s, p->len, &next);
         int rc = scan_line(p, s, e, ln, &result);
         if (rc) return rc;
     }
-    if (result < 0) return fail_at(p, -EINVAL, 0, 0, NULL, "no 'result NAME' line");
+    if (result < 0) return fail_at(p, -EINVAL, NOWHERE, "no 'result NAME' line");
     int rc = parse_def(p, &p->defs[result]);
     if (rc) return rc;
     uint32_t used = p->t->n;
@@ -543,7 +553,7 @@ int csg_parse(const char *src, size_t len, csg_tree **out, csg_error *err)
     int rc = parse_all(p);
     if (!rc) {
         t->text = malloc(p->text_len + 1);
-        if (!t->text) rc = fail_at(p, -ENOMEM, 0, 0, NULL, "out of memory");
+        if (!t->text) rc = fail_at(p, -ENOMEM, NOWHERE, "out of memory");
         else memcpy(t->text, p->text, p->text_len), t->text_len = p->text_len;
     }
     free(p);

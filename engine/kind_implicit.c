@@ -159,7 +159,7 @@ static int take_subtree(engine *e, int i, const shm_entry *en)
                           "worker %d sent a subtree (root %u, %u cells, %llu voxels) "
                           "that is not its octant's (%u,%u,%u) level %u", i, s.root,
                           s.cells, (unsigned long long)s.voxels, o.x, o.y, o.z, o.level);
-    int rc = octree_link(&e->tree, o.x, o.y, o.z, o.level - 1, s.root, s.voxels);
+    int rc = octree_link(&e->tree, (uint32_t[3]){o.x, o.y, o.z}, o.level - 1, s.root, s.voxels);
     if (rc == -ENOMEM) return no_cells(e);
     if (rc)
         return engine_sched_fail(e, ENGINE_FAULT, -EPROTO,

@@ -127,18 +127,6 @@ static span centre_tiles(span r)
                     add((uint64_t)ty * (nt)[0] + (uint64_t)tx);                \
     } while (0)
 
-/* Vertex v's span (and its lattice point, when lattice is not NULL). */
-static span vertex_span(const mesh *m, const grid_spec *g, const mesh_vox_frame *f, uint32_t v,
-                        bool exact, double margin, const uint32_t nt[2],
-                        mesh_lattice *lattice)
-{
-    int64_t p[3];
-    if (lattice || exact)
-        for (int a = 0; a < (lattice ? 3 : 2); a++) p[a] = mesh_vox_vertex(f, v, a);
-    if (lattice) memcpy(lattice[v], p, sizeof p);
-    return exact ? vertex_centres(p, g->res) : vertex_tiles(m, g, v, margin, nt);
-}
-
 /* The binning, split into parts that run at once (par_run): the vertices'
  * spans, then each part counts its triangles per tile, then (once the
  * counts are summed into every part's cursors) each part files its
@@ -197,14 +185,24 @@ static uint32_t code_of(const binner *b, uint32_t t)
     return none ? CODE_NONE(b) : one ? tile : CODE_MANY(b);
 }
 
+/* Vertex v's span (and its lattice point, when b->lattice is not NULL). */
+static span vertex_span(const binner *b, uint32_t v)
+{
+    int64_t p[3];
+    mesh_lattice *lattice = b->lattice;
+    if (lattice || b->exact)
+        for (int a = 0; a < (lattice ? 3 : 2); a++) p[a] = mesh_vox_vertex(&b->f, v, a);
+    if (lattice) memcpy(lattice[v], p, sizeof p);
+    return b->exact ? vertex_centres(p, b->g->res) : vertex_tiles(b->m, b->g, v, b->margin, b->nt);
+}
+
 static void vertices_part(void *ud, unsigned k, unsigned n)
 {
     binner *b = ud;
     uint64_t lo, hi;
     part_range(b->m->n_vertices, k, n, &lo, &hi);
     for (uint64_t v = lo; v < hi; v++)
-        b->vr[v] = vertex_span(b->m, b->g, &b->f, (uint32_t)v, b->exact, b->margin,
-                               b->nt, b->lattice);
+        b->vr[v] = vertex_span(b, (uint32_t)v);
 }
 
 static void prefetch_ahead(const binner *b, uint64_t t, uint64_t hi)

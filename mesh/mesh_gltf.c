@@ -35,11 +35,11 @@ static uint32_t le32(const uint8_t *p)
 
 /* ---------------------------------------------------------------- JSON */
 
-int mesh_gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64_t max,
-              const char *what, uint64_t *out)
+int mesh_gltf_uint(gltf *g, gltf_obj o, const char *key, int64_t def, uint64_t max, uint64_t *out)
 {
+    const char *what = o.what;
     json_object *v;
-    if (!json_object_object_get_ex(o, key, &v)) {
+    if (!json_object_object_get_ex(o.o, key, &v)) {
         if (def < 0) return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s has no %s", what, key);
         *out = (uint64_t)def;
         return 0;
@@ -54,12 +54,12 @@ int mesh_gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64
     return 0;
 }
 
-int mesh_gltf_array(gltf *g, json_object *o, const char *key, int required, const char *what,
-               json_object **out)
+int mesh_gltf_array(gltf *g, gltf_obj o, const char *key, int required, json_object **out)
 {
+    const char *what = o.what;
     *out = NULL;
     json_object *v;
-    if (!json_object_object_get_ex(o, key, &v))
+    if (!json_object_object_get_ex(o.o, key, &v))
         return required ? mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s has no %s", what, key) : 0;
     if (!json_object_is_type(v, json_type_array))
         return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %s is not an array", what, key);
@@ -67,11 +67,11 @@ int mesh_gltf_array(gltf *g, json_object *o, const char *key, int required, cons
     return 0;
 }
 
-int mesh_gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const char *what,
-                 double *out, int *given)
+int mesh_gltf_numbers(gltf *g, gltf_obj o, const char *key, size_t n, double *out, int *given)
 {
+    const char *what = o.what;
     json_object *a;
-    int rc = mesh_gltf_array(g, o, key, 0, what, &a);
+    int rc = mesh_gltf_array(g, o, key, 0, &a);
     *given = a != NULL;
     if (rc || !a) return rc;
     if (json_object_array_length(a) != n)
@@ -90,7 +90,7 @@ int mesh_gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const 
 int mesh_gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out)
 {
     json_object *a;
-    int rc = mesh_gltf_array(g, g->root, kind, 0, "the glTF", &a);
+    int rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, kind, 0, &a);
     if (rc) return rc;
     size_t n = a ? json_object_array_length(a) : 0;
     if (i >= n)
@@ -285,7 +285,7 @@ static int resolve(gltf *g, uint64_t i, mesh_gltf_buffer *bf)
     char what[48];
     snprintf(what, sizeof what, "buffer %llu", (unsigned long long)i);
     int rc = mesh_gltf_item(g, "buffers", i, &o);
-    if (!rc) rc = mesh_gltf_uint(g, o, "byteLength", -1, UINT64_MAX >> 1, what, &bf->len);
+    if (!rc) rc = mesh_gltf_uint(g, (gltf_obj){o, what}, "byteLength", -1, UINT64_MAX >> 1, &bf->len);
     if (rc) return rc;
     uint64_t have = 0;
     if (!json_object_object_get_ex(o, "uri", &u)) {
@@ -361,7 +361,7 @@ static int check_asset(gltf *g)
     const char *s = json_object_get_string(v);
     if (strncmp(s, "2.", 2))
         return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "glTF version %.16s (2.x is read)", s);
-    int rc = mesh_gltf_array(g, g->root, "extensionsRequired", 0, "the glTF", &req);
+    int rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "extensionsRequired", 0, &req);
     for (size_t i = 0; !rc && req && i < json_object_array_length(req); i++) {
         const char *e = json_object_get_string(json_object_array_get_idx(req, i));
         /* geometry as the core reads it, or only looks (materials, textures, lights) */
@@ -391,7 +391,7 @@ int mesh_gltf_open(gltf *g, const char *buf, size_t len)
     int rc = len >= 4 && le32(p) == GLB_MAGIC ? parse_glb(g, p, len) : parse_json(g, buf, len, 0);
     if (!rc) rc = check_asset(g);
     json_object *bufs = NULL;
-    if (!rc) rc = mesh_gltf_array(g, g->root, "buffers", 0, "the glTF", &bufs);
+    if (!rc) rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "buffers", 0, &bufs);
     if (!rc && bufs && (g->n_buf = json_object_array_length(bufs)) &&
         !(g->buf = calloc(g->n_buf, sizeof *g->buf)))
         rc = mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu buffers", g->n_buf);
@@ -453,7 +453,7 @@ int mesh_gltf_embed(const char *buf, size_t len, const char *dir, char **out, si
     if (i == len || buf[i] != '{') return 0; /* not a JSON glTF: nothing to embed */
     int rc = parse_json(&g, buf, len, 0), changed = 0;
     json_object *bufs = NULL;
-    if (!rc) rc = mesh_gltf_array(&g, g.root, "buffers", 0, "the glTF", &bufs);
+    if (!rc) rc = mesh_gltf_array(&g, (gltf_obj){g.root, "the glTF"}, "buffers", 0, &bufs);
     if (!rc && bufs && (g.n_buf = json_object_array_length(bufs)) &&
         !(g.buf = calloc(g.n_buf, sizeof *g.buf)))
         rc = mesh_build_fail(&b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory");

@@ -33,17 +33,20 @@ typedef struct {
 
 /* ---- mesh_gltf.c ---- */
 
+/* A JSON object of the glTF and what a message calls it ("accessor 3"). */
+typedef struct {
+    json_object *o;
+    const char *what;
+} gltf_obj;
+
 /* o[key] as a whole number in [0, max], def when absent (def < 0: required).
- * what names o in a message.  0 or -EINVAL after mesh_build_fail. */
-int mesh_gltf_uint(gltf *g, json_object *o, const char *key, int64_t def, uint64_t max,
-              const char *what, uint64_t *out);
+ * 0 or -EINVAL after mesh_build_fail. */
+int mesh_gltf_uint(gltf *g, gltf_obj o, const char *key, int64_t def, uint64_t max, uint64_t *out);
 /* o[key] as an array (required: -EINVAL when absent); NULL *out when absent
  * and optional. */
-int mesh_gltf_array(gltf *g, json_object *o, const char *key, int required, const char *what,
-               json_object **out);
+int mesh_gltf_array(gltf *g, gltf_obj o, const char *key, int required, json_object **out);
 /* n numbers of the array o[key] into out; absent: out unchanged, *given 0. */
-int mesh_gltf_numbers(gltf *g, json_object *o, const char *key, size_t n, const char *what,
-                 double *out, int *given);
+int mesh_gltf_numbers(gltf *g, gltf_obj o, const char *key, size_t n, double *out, int *given);
 /* root[kind][i] as an object, i checked against the array's length. */
 int mesh_gltf_item(gltf *g, const char *kind, uint64_t i, json_object **out);
 /* Buffer i's bytes (resolved on first use). */

@@ -48,10 +48,11 @@ static int bind_view(gltf *g, uint64_t bv, uint64_t off, view *v, int vertex, co
     uint64_t buffer, boff, blen, stride;
     const mesh_gltf_buffer *bf;
     int rc = mesh_gltf_item(g, "bufferViews", bv, &o);
-    if (!rc) rc = mesh_gltf_uint(g, o, "buffer", -1, UINT32_MAX, what, &buffer);
-    if (!rc) rc = mesh_gltf_uint(g, o, "byteOffset", 0, UINT64_MAX >> 2, what, &boff);
-    if (!rc) rc = mesh_gltf_uint(g, o, "byteLength", -1, UINT64_MAX >> 2, what, &blen);
-    if (!rc) rc = mesh_gltf_uint(g, o, "byteStride", 0, 252, what, &stride);
+    gltf_obj at = {o, what};
+    if (!rc) rc = mesh_gltf_uint(g, at, "buffer", -1, UINT32_MAX, &buffer);
+    if (!rc) rc = mesh_gltf_uint(g, at, "byteOffset", 0, UINT64_MAX >> 2, &boff);
+    if (!rc) rc = mesh_gltf_uint(g, at, "byteLength", -1, UINT64_MAX >> 2, &blen);
+    if (!rc) rc = mesh_gltf_uint(g, at, "byteStride", 0, 252, &stride);
     if (!rc) rc = mesh_gltf_buffer_get(g, buffer, &bf);
     if (rc) return rc;
     uint64_t elem = (uint64_t)v->size * v->n;
@@ -89,9 +90,10 @@ static int accessor(gltf *g, uint64_t a, int vertex, view *v)
     json_object *o, *t, *x;
     uint64_t comp, off, bv;
     int rc = mesh_gltf_item(g, "accessors", a, &o);
-    if (!rc) rc = mesh_gltf_uint(g, o, "componentType", -1, UINT32_MAX, what, &comp);
-    if (!rc) rc = mesh_gltf_uint(g, o, "count", -1, UINT32_MAX, what, &v->count);
-    if (!rc) rc = mesh_gltf_uint(g, o, "byteOffset", 0, UINT64_MAX >> 2, what, &off);
+    gltf_obj at = {o, what};
+    if (!rc) rc = mesh_gltf_uint(g, at, "componentType", -1, UINT32_MAX, &comp);
+    if (!rc) rc = mesh_gltf_uint(g, at, "count", -1, UINT32_MAX, &v->count);
+    if (!rc) rc = mesh_gltf_uint(g, at, "byteOffset", 0, UINT64_MAX >> 2, &off);
     if (rc) return rc;
     const char *type = json_object_object_get_ex(o, "type", &t) ? json_object_get_string(t) : "";
     if (strcmp(type ? type : "", vertex ? "VEC3" : "SCALAR"))
@@ -110,7 +112,7 @@ static int accessor(gltf *g, uint64_t a, int vertex, view *v)
     if (!v->count) return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: count 0", what);
     v->p = NULL;
     if (!json_object_object_get_ex(o, "bufferView", &x)) return 0; /* all zeros */
-    if ((rc = mesh_gltf_uint(g, o, "bufferView", -1, UINT32_MAX, what, &bv))) return rc;
+    if ((rc = mesh_gltf_uint(g, at, "bufferView", -1, UINT32_MAX, &bv))) return rc;
     return bind_view(g, bv, off, v, vertex, what);
 }
 
@@ -152,10 +154,29 @@ static uint64_t corner(const view *ix, int indexed, uint64_t j)
     return indexed ? (uint64_t)component(ix, j, 0) : j;
 }
 
-/* The triangles of a primitive of mode 4, 5 or 6 over n corners. */
-static int add_triangles(gltf *g, const view *ix, int indexed, uint64_t n, uint64_t mode,
-                         uint32_t base, uint64_t nv, int flip, const char *what)
+/* A triangle primitive as read: its indices (ix, when indexed), its mode
+ * (4, 5 or 6), its positions (nv of them, the first at vertex base of the
+ * mesh), whether the node's transform mirrors it (flip: each triangle's
+ * winding reversed) and its name in a message. */
+typedef struct {
+    const view *ix;
+    int indexed;
+    uint64_t mode;
+    uint32_t base;
+    uint64_t nv;
+    int flip;
+    const char *what;
+} prim;
+
+/* The triangles of primitive p over its corners (its indices, or its
+ * positions in order). */
+static int add_triangles(gltf *g, const prim *p)
 {
+    const view *ix = p->ix;
+    int indexed = p->indexed, flip = p->flip;
+    uint64_t mode = p->mode, nv = p->nv, n = indexed ? ix->count : nv;
+    uint32_t base = p->base;
+    const char *what = p->what;
     if (mode == 4 && n % 3)
         return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s: %llu corners, not a multiple of 3", what,
                        (unsigned long long)n);
@@ -184,7 +205,7 @@ static int primitive(gltf *g, json_object *p, const double m[16], int flip, cons
 {
     json_object *attr, *pos;
     uint64_t mode, a;
-    int rc = mesh_gltf_uint(g, p, "mode", 4, 6, what, &mode);
+    int rc = mesh_gltf_uint(g, (gltf_obj){p, what}, "mode", 4, 6, &mode);
     if (rc) return rc;
     if (mode < 4 || !json_object_object_get_ex(p, "attributes", &attr) ||
         !json_object_object_get_ex(attr, "POSITION", &pos)) {
@@ -192,17 +213,17 @@ static int primitive(gltf *g, json_object *p, const double m[16], int flip, cons
         return 0;
     }
     view v, ix = {0};
-    if ((rc = mesh_gltf_uint(g, attr, "POSITION", -1, UINT32_MAX, what, &a)) ||
+    if ((rc = mesh_gltf_uint(g, (gltf_obj){attr, what}, "POSITION", -1, UINT32_MAX, &a)) ||
         (rc = accessor(g, a, 1, &v)))
         return rc;
     int indexed = json_object_object_get_ex(p, "indices", &pos);
-    if (indexed && ((rc = mesh_gltf_uint(g, p, "indices", -1, UINT32_MAX, what, &a)) ||
+    if (indexed && ((rc = mesh_gltf_uint(g, (gltf_obj){p, what}, "indices", -1, UINT32_MAX, &a)) ||
                     (rc = accessor(g, a, 0, &ix))))
         return rc;
     uint32_t base = g->b->nv;
     if ((rc = add_positions(g, &v, m))) return rc;
-    return add_triangles(g, &ix, indexed, indexed ? ix.count : v.count, mode, base, v.count,
-                         flip, what);
+    prim pr = {&ix, indexed, mode, base, v.count, flip, what};
+    return add_triangles(g, &pr);
 }
 
 static int mesh_of(gltf *g, uint64_t mi, const double m[16])
@@ -210,7 +231,7 @@ static int mesh_of(gltf *g, uint64_t mi, const double m[16])
     json_object *o, *prims;
     char what[64];
     int rc = mesh_gltf_item(g, "meshes", mi, &o);
-    if (!rc) rc = mesh_gltf_array(g, o, "primitives", 1, "a mesh", &prims);
+    if (!rc) rc = mesh_gltf_array(g, (gltf_obj){o, "a mesh"}, "primitives", 1, &prims);
     double det = m[0] * (m[5] * m[10] - m[9] * m[6]) - m[4] * (m[1] * m[10] - m[9] * m[2]) +
                  m[8] * (m[1] * m[6] - m[5] * m[2]);
     for (size_t i = 0; !rc && i < json_object_array_length(prims); i++) {
@@ -240,10 +261,11 @@ static int local(gltf *g, json_object *o, const char *what, double m[16])
 {
     double t[3] = {0, 0, 0}, q[4] = {0, 0, 0, 1}, s[3] = {1, 1, 1};
     int has_m, has_t, has_r, has_s;
-    int rc = mesh_gltf_numbers(g, o, "matrix", 16, what, m, &has_m);
-    if (!rc) rc = mesh_gltf_numbers(g, o, "translation", 3, what, t, &has_t);
-    if (!rc) rc = mesh_gltf_numbers(g, o, "rotation", 4, what, q, &has_r);
-    if (!rc) rc = mesh_gltf_numbers(g, o, "scale", 3, what, s, &has_s);
+    gltf_obj at = {o, what};
+    int rc = mesh_gltf_numbers(g, at, "matrix", 16, m, &has_m);
+    if (!rc) rc = mesh_gltf_numbers(g, at, "translation", 3, t, &has_t);
+    if (!rc) rc = mesh_gltf_numbers(g, at, "rotation", 4, q, &has_r);
+    if (!rc) rc = mesh_gltf_numbers(g, at, "scale", 3, s, &has_s);
     if (rc || has_m) {
         if (!rc && (has_t || has_r || has_s))
             return mesh_build_fail(g->b, -EINVAL, MESH_BUILD_NOWHERE, "%s has both a matrix and TRS", what);
@@ -270,9 +292,22 @@ typedef struct {
     double m[16];
 } frame;
 
-static int visit(gltf *g, uint64_t node, const double parent[16], frame *stack, size_t *top,
-                 uint8_t *seen, size_t n_nodes)
+/* The walk: the stack (stack[0, top), room for n_nodes frames) and the
+ * nodes seen (n_nodes flags). */
+typedef struct {
+    frame *stack;
+    size_t top;
+    uint8_t *seen;
+    size_t n_nodes;
+} walk;
+
+/* Node `node` under its parent's transform: its mesh read, its children
+ * pushed on w's stack. */
+static int visit(gltf *g, walk *w, uint64_t node, const double parent[16])
 {
+    frame *stack = w->stack;
+    size_t *top = &w->top, n_nodes = w->n_nodes;
+    uint8_t *seen = w->seen;
     json_object *o, *kids, *x;
     char what[48];
     snprintf(what, sizeof what, "node %llu", (unsigned long long)node);
@@ -286,9 +321,9 @@ static int visit(gltf *g, uint64_t node, const double parent[16], frame *stack, 
     mat_mul(parent, l, m);
     uint64_t mi;
     if (json_object_object_get_ex(o, "mesh", &x) &&
-        ((rc = mesh_gltf_uint(g, o, "mesh", -1, UINT32_MAX, what, &mi)) || (rc = mesh_of(g, mi, m))))
+        ((rc = mesh_gltf_uint(g, (gltf_obj){o, what}, "mesh", -1, UINT32_MAX, &mi)) || (rc = mesh_of(g, mi, m))))
         return rc;
-    if ((rc = mesh_gltf_array(g, o, "children", 0, what, &kids)) || !kids) return rc;
+    if ((rc = mesh_gltf_array(g, (gltf_obj){o, what}, "children", 0, &kids)) || !kids) return rc;
     /* pushed last first: popped, and so read, in the file's order */
     for (size_t i = json_object_array_length(kids); i-- > 0;) {
         json_object *k = json_object_array_get_idx(kids, i);
@@ -309,11 +344,11 @@ static int roots_of(gltf *g, size_t n_nodes, uint64_t *roots, size_t *n)
 {
     json_object *scenes, *sc, *list;
     uint64_t which;
-    int rc = mesh_gltf_array(g, g->root, "scenes", 0, "the glTF", &scenes);
+    int rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "scenes", 0, &scenes);
     if (!rc && scenes && json_object_array_length(scenes)) {
-        if ((rc = mesh_gltf_uint(g, g->root, "scene", 0, UINT32_MAX, "the glTF", &which)) ||
+        if ((rc = mesh_gltf_uint(g, (gltf_obj){g->root, "the glTF"}, "scene", 0, UINT32_MAX, &which)) ||
             (rc = mesh_gltf_item(g, "scenes", which, &sc)) ||
-            (rc = mesh_gltf_array(g, sc, "nodes", 0, "the scene", &list)))
+            (rc = mesh_gltf_array(g, (gltf_obj){sc, "the scene"}, "nodes", 0, &list)))
             return rc;
         *n = 0;
         for (size_t i = 0; list && i < json_object_array_length(list); i++) {
@@ -330,7 +365,8 @@ static int roots_of(gltf *g, size_t n_nodes, uint64_t *roots, size_t *n)
     if (!child) return mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu nodes", n_nodes);
     for (size_t i = 0; !rc && i < n_nodes; i++) {
         json_object *o = json_object_array_get_idx(json_object_object_get(g->root, "nodes"), i), *kids;
-        if (!json_object_is_type(o, json_type_object) || mesh_gltf_array(g, o, "children", 0, "a node", &kids) || !kids)
+        if (!json_object_is_type(o, json_type_object) || mesh_gltf_array(g, (gltf_obj){o, "a node"}, "children", 0, &kids) ||
+            !kids)
             continue;
         for (size_t j = 0; j < json_object_array_length(kids); j++) {
             int64_t c = json_object_get_int64(json_object_array_get_idx(kids, j));
@@ -347,7 +383,7 @@ static int roots_of(gltf *g, size_t n_nodes, uint64_t *roots, size_t *n)
 int mesh_gltf_read_scene(gltf *g)
 {
     json_object *nodes;
-    int rc = mesh_gltf_array(g, g->root, "nodes", 0, "the glTF", &nodes);
+    int rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "nodes", 0, &nodes);
     size_t n = nodes ? json_object_array_length(nodes) : 0, n_roots = 0;
     frame *stack = malloc((n + 1) * sizeof *stack);
     uint64_t *roots = malloc((n + 1) * sizeof *roots);
@@ -356,12 +392,13 @@ int mesh_gltf_read_scene(gltf *g)
         rc = mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu nodes", n);
     if (!rc) rc = roots_of(g, n, roots, &n_roots);
     static const double id[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    walk w = {stack, 0, seen, n};
     for (size_t r = 0; !rc && r < n_roots; r++) {
-        size_t top = 0;
-        rc = visit(g, roots[r], id, stack, &top, seen, n);
-        while (!rc && top) {
-            frame f = stack[--top];
-            rc = visit(g, f.node, f.m, stack, &top, seen, n);
+        w.top = 0;
+        rc = visit(g, &w, roots[r], id);
+        while (!rc && w.top) {
+            frame f = stack[--w.top];
+            rc = visit(g, &w, f.node, f.m);
         }
     }
     free(stack);

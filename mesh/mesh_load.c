@@ -61,10 +61,21 @@ static mesh_format detect(const char *buf, size_t len)
 
 /* ---------------------------------------------------------------- interface */
 
-/* mesh_parse, a .gltf's external buffers read from dir (NULL: refused). */
-static int parse_in(const void *buf, size_t len, mesh_format format, const mesh_limits *lim,
-                    const char *dir, mesh *out, mesh_error *err)
+/* A mesh file's bytes and the folder it was read from, where a .gltf's
+ * external buffers are read (NULL: from bytes, refused). */
+typedef struct {
+    const void *buf;
+    size_t len;
+    const char *dir;
+} mesh_src;
+
+/* mesh_parse of src's bytes. */
+static int parse_in(const mesh_src *src, mesh_format format, const mesh_limits *lim, mesh *out,
+                    mesh_error *err)
 {
+    const void *buf = src->buf;
+    size_t len = src->len;
+    const char *dir = src->dir;
     mesh_error scratch;
     if (!err) err = &scratch;
     memset(err, 0, sizeof *err);
@@ -93,7 +104,7 @@ static int parse_in(const void *buf, size_t len, mesh_format format, const mesh_
 int mesh_parse(const void *buf, size_t len, mesh_format format, const mesh_limits *lim,
                mesh *out, mesh_error *err)
 {
-    return parse_in(buf, len, format, lim, NULL, out, err);
+    return parse_in(&(mesh_src){buf, len, NULL}, format, lim, out, err);
 }
 
 /* The folder of path, into dir. */
@@ -192,7 +203,7 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
         snprintf(err->msg, sizeof err->msg, "cannot map: %s", strerror(e));
         return e == ENOMEM ? -ENOMEM : -e;
     }
-    rc = parse_in(p, (size_t)st.st_size, format, lim, dir, out, err);
+    rc = parse_in(&(mesh_src){p, (size_t)st.st_size, dir}, format, lim, out, err);
     unmap_file(p, (size_t)st.st_size);
     return rc;
 }

@@ -124,15 +124,21 @@ int mesh_build_zero_area(const float *a, const float *b, const float *c)
     return u1 * v2 - u2 * v1 == 0.0 && u2 * v0 - u0 * v2 == 0.0 && u0 * v1 - u1 * v0 == 0.0;
 }
 
+/* A box of positions: lo[a] <= x[a] <= hi[a]. */
+typedef struct {
+    float lo[3], hi[3];
+} part_box;
+
 /* Triangles [from, to) of b: the box of those kept (not degenerate) grown
- * in lo and hi and the number kept returned; each kept one copied to
+ * in *box and the number kept returned; each kept one copied to
  * out[0, kept) when out is not NULL (out may be b->t + from: each goes to
  * or below its own place), and keep[i - from] set to whether triangle i
  * is kept when keep is not NULL.  The box takes the first of equal values
  * (-0 and +0): folding parts in order gives what one pass gives. */
-static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, float lo[3],
-                            float hi[3], uint32_t (*out)[3], uint8_t *keep)
+static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, part_box *box,
+                            uint32_t (*out)[3], uint8_t *keep)
 {
+    float *lo = box->lo, *hi = box->hi;
     /* the box in scalars, so that they stay in registers */
     float lx = lo[0], ly = lo[1], lz = lo[2], hx = hi[0], hy = hi[1], hz = hi[2];
     uint32_t kept = 0;
@@ -165,7 +171,7 @@ typedef struct {
     const mbuild *b;
     uint8_t *keep;      /* a triangle's flag: kept */
     atomic_uint next;   /* the next part to take */
-    float lo[FINISH_PARTS][3], hi[FINISH_PARTS][3];
+    part_box box[FINISH_PARTS];
     uint32_t kept[FINISH_PARTS];
 } finish_par;
 
@@ -178,15 +184,17 @@ static void finish_parts(void *ud, unsigned k, unsigned n)
     for (uint32_t i; (i = atomic_fetch_add_explicit(&fp->next, 1, memory_order_relaxed)) <
                      FINISH_PARTS;) {
         uint32_t from = (uint32_t)(nt * i / FINISH_PARTS), to = (uint32_t)(nt * (i + 1) / FINISH_PARTS);
-        fp->lo[i][0] = fp->lo[i][1] = fp->lo[i][2] = FLT_MAX;
-        fp->hi[i][0] = fp->hi[i][1] = fp->hi[i][2] = -FLT_MAX;
-        fp->kept[i] = finish_part(fp->b, from, to, fp->lo[i], fp->hi[i], NULL, fp->keep + from);
+        part_box *box = &fp->box[i];
+        box->lo[0] = box->lo[1] = box->lo[2] = FLT_MAX;
+        box->hi[0] = box->hi[1] = box->hi[2] = -FLT_MAX;
+        fp->kept[i] = finish_part(fp->b, from, to, box, NULL, fp->keep + from);
     }
 }
 
 /* The kept triangles' count and box, b->t compacted. */
-static void finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
+static void finish_all(mbuild *b, part_box *box, uint32_t *kept)
 {
+    float *lo = box->lo, *hi = box->hi;
     unsigned cpus = par_cpus();
     finish_par *fp = b->nt >= FINISH_PAR_MIN && cpus > 1 ? calloc(1, sizeof *fp) : NULL;
     if (fp && !(fp->keep = malloc(b->nt))) {
@@ -194,7 +202,7 @@ static void finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
         fp = NULL;
     }
     if (!fp) { /* one thread */
-        *kept = finish_part(b, 0, b->nt, lo, hi, b->t, NULL);
+        *kept = finish_part(b, 0, b->nt, box, b->t, NULL);
         return;
     }
     fp->b = b;
@@ -203,8 +211,9 @@ static void finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
     uint32_t sum = 0;
     for (int i = 0; i < FINISH_PARTS; i++) { /* in order: the first of equal values */
         for (int a = 0; a < 3; a++) {
-            lo[a] = fp->lo[i][a] < lo[a] ? fp->lo[i][a] : lo[a];
-            hi[a] = fp->hi[i][a] > hi[a] ? fp->hi[i][a] : hi[a];
+            const part_box *p = &fp->box[i];
+            lo[a] = p->lo[a] < lo[a] ? p->lo[a] : lo[a];
+            hi[a] = p->hi[a] > hi[a] ? p->hi[a] : hi[a];
         }
         sum += fp->kept[i];
     }
@@ -221,9 +230,9 @@ static void finish_all(mbuild *b, float lo[3], float hi[3], uint32_t *kept)
 
 int mesh_build_finish(mbuild *b, mesh_format f, mesh *out)
 {
-    float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
+    part_box box = {{FLT_MAX, FLT_MAX, FLT_MAX}, {-FLT_MAX, -FLT_MAX, -FLT_MAX}};
     uint32_t kept;
-    finish_all(b, lo, hi, &kept);
+    finish_all(b, &box, &kept);
     uint32_t dropped = b->nt - kept;
     if (!kept)
         return b->nt ? mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "no triangles: all %u are degenerate", b->nt)
@@ -235,8 +244,8 @@ int mesh_build_finish(mbuild *b, mesh_format f, mesh *out)
     *out = (mesh){.n_vertices = b->nv, .n_triangles = kept, .vertices = b->v,
                   .triangles = b->t, .n_degenerate = dropped, .format = f};
     memcpy(out->warning, b->warning, sizeof out->warning);
-    memcpy(out->lo, lo, sizeof lo);
-    memcpy(out->hi, hi, sizeof hi);
+    memcpy(out->lo, box.lo, sizeof box.lo);
+    memcpy(out->hi, box.hi, sizeof box.hi);
     b->v = NULL; /* *out owns the arrays now */
     b->t = NULL;
     mesh_build_free(b);

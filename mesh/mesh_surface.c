@@ -39,12 +39,17 @@ typedef struct {
  * 128-bit signs, several times faster. */
 #define NARROW ((int64_t)1 << 19)
 
-/* Projection (a, c) (dropping axis w) of triangle P; ns: the sign of the
- * normal's component w (>= 0: 1).  A narrow triangle's tests in 64 bits
+/* A projection: onto axes (a, c), dropping axis w; ns: the sign of the
+ * normal's component w (>= 0: 1). */
+typedef struct {
+    int ns, a, c;
+} proj_axes;
+
+/* Projection ax of triangle P.  A narrow triangle's tests in 64 bits
  * (de64), any other's in 128 (de). */
-static void proj_setup(const int64_t P[3][3], int ns, int a, int c, bool six,
-                       bool narrow, proj_test *pt)
+static void proj_setup(const int64_t P[3][3], proj_axes ax, bool six, bool narrow, proj_test *pt)
 {
+    int ns = ax.ns, a = ax.a, c = ax.c;
     for (int i = 0; i < 3; i++) {
         const int64_t *p = P[i], *q = P[i == 2 ? 0 : i + 1];
         int64_t na = -ns * (q[c] - p[c]), nc = ns * (q[a] - p[a]);
@@ -97,15 +102,25 @@ static inline int64_t ifloor(double q)
     return i - (q < (double)i);
 }
 
-/* The voxels [z0, z1] of the column at (px, py) that the plane can reach,
+/* The triangle's plane as z over (x, y), in double: z at p0 plus the
+ * gradient (gx, gy); spread: how far z moves within half a voxel of a
+ * column's centre.  slanted: the plane is not vertical (n_z != 0). */
+typedef struct {
+    const int64_t *p0;
+    double gx, gy, spread;
+    bool slanted;
+} z_plane;
+
+/* The voxels [z0, z1] of the column at (px, py) that plane zp can reach,
  * from its z over the column in double (one voxel of margin covers the
  * rounding; the exact tests decide). */
-static inline void z_range(const int64_t P[3][3], double gx, double gy, double spread,
-                           bool slanted, int64_t px, int64_t py, int64_t *z0, int64_t *z1)
+static inline void z_range(const z_plane *zp, int64_t px, int64_t py, int64_t *z0, int64_t *z1)
 {
-    if (!slanted) return;
-    double zc = (double)P[0][2] + gx * (double)(px + MESH_VOX_H - P[0][0]) +
-                gy * (double)(py + MESH_VOX_H - P[0][1]);
+    if (!zp->slanted) return;
+    const int64_t *p0 = zp->p0;
+    double gx = zp->gx, gy = zp->gy, spread = zp->spread;
+    double zc = (double)p0[2] + gx * (double)(px + MESH_VOX_H - p0[0]) +
+                gy * (double)(py + MESH_VOX_H - p0[1]);
     /* clamped to [z0 - 2, z1 + 2] first (the same voxels: past either end
      * the range is as empty or as whole), so the conversion is exact */
     double lo = (double)*z0 - 2, hi = (double)*z1 + 2;
@@ -164,19 +179,20 @@ void mesh_vox_surface(const int64_t P[3][3], bool six, const mesh_vox_block *b, 
                     (mesh_vox_i128)e1[2] * e2[0] - (mesh_vox_i128)e1[0] * e2[2],
                     (mesh_vox_i128)e1[0] * e2[1] - (mesh_vox_i128)e1[1] * e2[0]};
     proj_test xy, yz, zx;
-    proj_setup(P, n[2] >= 0 ? 1 : -1, 0, 1, six, narrow, &xy);
-    proj_setup(P, n[0] >= 0 ? 1 : -1, 1, 2, six, narrow, &yz);
-    proj_setup(P, n[1] >= 0 ? 1 : -1, 2, 0, six, narrow, &zx);
+    proj_setup(P, (proj_axes){n[2] >= 0 ? 1 : -1, 0, 1}, six, narrow, &xy);
+    proj_setup(P, (proj_axes){n[0] >= 0 ? 1 : -1, 1, 2}, six, narrow, &yz);
+    proj_setup(P, (proj_axes){n[1] >= 0 ? 1 : -1, 2, 0}, six, narrow, &zx);
     /* plane: n . (p - P0) + lo_c <= 0 <= n . (p - P0) + hi_c over the box
      * (26), or |n . (centre - P0)| <= L/2 max |n_a| (6) */
     mesh_vox_i128 lo_c, hi_c, half, dom;
     plane_bounds(n, &lo_c, &hi_c, &half, &dom);
     /* the plane's z over a column, in double, narrows the z loop; the exact
      * tests decide (one voxel of margin covers the rounding) */
-    double nzd = (double)n[2], gx = 0, gy = 0, spread = 0;
-    if (n[2] != 0) {
-        gx = -(double)n[0] / nzd, gy = -(double)n[1] / nzd;
-        spread = (fabs(gx) + fabs(gy)) * MESH_VOX_H;
+    z_plane zp = {.p0 = P[0], .slanted = n[2] != 0};
+    if (zp.slanted) {
+        double nzd = (double)n[2];
+        zp.gx = -(double)n[0] / nzd, zp.gy = -(double)n[1] / nzd;
+        zp.spread = (fabs(zp.gx) + fabs(zp.gy)) * MESH_VOX_H;
     }
     size_t n1 = (size_t)b->n[1], nw = b->nw;
     if (narrow) {
@@ -188,7 +204,7 @@ void mesh_vox_surface(const int64_t P[3][3], bool six, const mesh_vox_block *b, 
                 int64_t px = X * MESH_VOX_L, py = Y * MESH_VOX_L;
                 if (!proj_pass64(&xy, px, py)) continue;
                 int64_t z0 = i0[2], z1 = i1[2];
-                z_range(P, gx, gy, spread, n[2] != 0, px, py, &z0, &z1);
+                z_range(&zp, px, py, &z0, &z1);
                 int64_t sxy = n64[0] * (px - P[0][0]) + n64[1] * (py - P[0][1]);
                 size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
                 for (int64_t Z = z0; Z <= z1; Z++) {
@@ -208,7 +224,7 @@ void mesh_vox_surface(const int64_t P[3][3], bool six, const mesh_vox_block *b, 
             int64_t px = X * MESH_VOX_L, py = Y * MESH_VOX_L;
             if (!proj_pass(&xy, px, py)) continue;
             int64_t z0 = i0[2], z1 = i1[2];
-            z_range(P, gx, gy, spread, n[2] != 0, px, py, &z0, &z1);
+            z_range(&zp, px, py, &z0, &z1);
             mesh_vox_i128 sxy = n[0] * (px - P[0][0]) + n[1] * (py - P[0][1]);
             size_t x = (size_t)(X - b->s0[0]), y = (size_t)(Y - b->s0[1]);
             for (int64_t Z = z0; Z <= z1; Z++) {

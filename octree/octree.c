@@ -182,9 +182,9 @@ uint32_t octree_find(const octree *t, int h, uint32_t x, uint32_t y,
     return cell;
 }
 
-int octree_link(octree *t, uint32_t x, uint32_t y, uint32_t z, int h,
-                uint32_t cell, uint64_t voxels)
+int octree_link(octree *t, const uint32_t at[3], int h, uint32_t cell, uint64_t voxels)
 {
+    uint32_t x = at[0], y = at[1], z = at[2];
     assert(cell && h >= 0 && h < t->depth && (x | y | z) >> t->depth == 0);
     octree_cell *root = &t->cells[t->root];
     if (h == t->depth - 1) { /* the whole tree */

@@ -91,12 +91,11 @@ void octree_writer(octree *t, octree_cell *arena, uint32_t capacity,
 void octree_subtree(octree *t, int depth);
 /* Make `cell`, the root of a subtree of height h holding `voxels` voxels
  * (built by another writer of the arena), the cell of height h that covers
- * voxel (x, y, z), creating the cells above it that are missing; h ==
+ * voxel at = (x, y, z), creating the cells above it that are missing; h ==
  * depth-1 (the whole tree) copies its entries into the root.  Returns 0,
  * -EEXIST when that region holds something already, or -ENOMEM (the tree
  * unchanged). */
-int octree_link(octree *t, uint32_t x, uint32_t y, uint32_t z, int h,
-                uint32_t cell, uint64_t voxels);
+int octree_link(octree *t, const uint32_t at[3], int h, uint32_t cell, uint64_t voxels);
 
 /* Entry i of cell c of height > 0 (a cell index), for readers: an index at
  * or past t->used, which only a broken writer of a shared arena can leave,

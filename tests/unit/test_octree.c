@@ -198,8 +198,9 @@ Test(octree, subtrees_from_two_writers_linked_make_the_stored_tree)
             continue;
         }
         cr_assert_eq(octree_get(s, 0, 0, 0), dense[key(ox, oy, oz)]);
-        cr_assert_eq(octree_link(&t, ox + 1, oy + 2, oz + 3, 2, s->root, s->voxels), 0);
-        cr_assert_eq(octree_link(&t, ox, oy, oz, 2, s->root, s->voxels), -EEXIST);
+        uint32_t at[3] = {ox + 1, oy + 2, oz + 3}, again[3] = {ox, oy, oz};
+        cr_assert_eq(octree_link(&t, at, 2, s->root, s->voxels), 0);
+        cr_assert_eq(octree_link(&t, again, 2, s->root, s->voxels), -EEXIST);
         cells += s->taken;
         n++;
     }
@@ -228,8 +229,9 @@ Test(octree, a_whole_tree_subtree_is_copied_into_the_root)
     octree_writer(&w, arena, SHARED_CELLS, grab_block, &b);
     build_octant(&w, &ref, 0, 0, 0, DEPTH);
     cr_assert_eq(w.voxels, ref.voxels);
-    cr_assert_eq(octree_link(&t, 0, 0, 0, DEPTH - 1, w.root, w.voxels), 0);
-    cr_assert_eq(octree_link(&t, 0, 0, 0, DEPTH - 1, w.root, w.voxels), -EEXIST);
+    const uint32_t origin[3] = {0, 0, 0};
+    cr_assert_eq(octree_link(&t, origin, DEPTH - 1, w.root, w.voxels), 0);
+    cr_assert_eq(octree_link(&t, origin, DEPTH - 1, w.root, w.voxels), -EEXIST);
     t.used = SHARED_CELLS;
     assert_same_voxels(&ref, &t);
 }
@@ -269,7 +271,8 @@ Test(octree, an_index_past_used_reads_as_empty)
     uint32_t x, y, z, v, n = 0;
     while (octree_iter_next(&it, &x, &y, &z, &v)) n++;
     cr_assert_eq(n, 1);
-    cr_assert_eq(octree_link(&t, 7, 7, 7, 0, 2, 1), -EEXIST);
+    const uint32_t corner[3] = {7, 7, 7};
+    cr_assert_eq(octree_link(&t, corner, 0, 2, 1), -EEXIST);
 }
 
 Test(voxel, octahedral_normals_round_trip_within_a_milliradian)
