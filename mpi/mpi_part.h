@@ -26,6 +26,7 @@
 #include "csg.h"
 #include "csg_pack.h"
 #include "engine.h"
+#include "err.h"
 #include "expr.h"
 #include "grid.h"
 #include "mesh.h"
@@ -131,7 +132,7 @@ void mpi_column_tiles(const grid_spec *g, grid_octant o, uint32_t tiles[4]);
  * column (o.x, o.y at o.level: its tiles alone, through the grid in z).
  * 0, or a negative errno with the reason in err. */
 int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver,
-                    void *ud, char *err, size_t errlen);
+                    void *ud, err_info *err);
 
 /* ---- what mesh jobs send (mpi_wire.c; a CSG tree goes as csg_pack.h packs it) ---- */
 

@@ -132,26 +132,32 @@ static int engine_task(const mpi_subtree_job *j, grid_octant o, engine_result *e
     return engine_voxelize(j->e, &ej, er);
 }
 
+/* rc into e's code: a call that still writes only e->msg. */
+static int coded(err_info *e, int rc)
+{
+    if (rc) e->code = rc;
+    return rc;
+}
+
 static const char *task_noun(const mpi_subtree_job *j)
 {
     return j->kind == MPI_KIND_MESH ? "column" : "octant";
 }
 
-static int on_engine(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
-                     size_t errlen)
+static int on_engine(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, err_info *err)
 {
     engine_result er;
     int rc = engine_task(j, o, &er);
     c->voxels = er.voxels;
     if (rc) {
-        err_fmt(err, errlen, rc, "voxelizing %s (%u,%u,%u) level %u: %s", task_noun(j), o.x,
+        err_set(err, rc, "voxelizing %s (%u,%u,%u) level %u: %s", task_noun(j), o.x,
                  o.y, o.z, o.level, er.err.msg);
         engine_release(j->e);
         return rc;
     }
     engine_error ee;
     rc = engine_encode_bricks(j->e, &j->vod, hand_over, c, NULL, &ee);
-    if (rc) err_fmt(err, errlen, rc, "encoding the bricks of %s (%u,%u,%u) level %u: %s",
+    if (rc) err_set(err, rc, "encoding the bricks of %s (%u,%u,%u) level %u: %s",
                      task_noun(j), o.x, o.y, o.z, o.level, ee.msg);
     engine_release(j->e);
     return rc;
@@ -165,7 +171,7 @@ static int store_voxel(void *ud, const grid_voxel *v)
 /* The task's nodes encoded here from src (prepared), each distinct brick
  * once (its duplicates point at it). */
 static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_layout *L,
-                         sub_ctx *c, char *err, size_t errlen)
+                         sub_ctx *c, err_info *err)
 {
     size_t n = vod_collect(src, L, NULL, 0);
     vod_node *nodes = malloc((n ? n : 1) * sizeof *nodes);
@@ -187,7 +193,7 @@ static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_la
         }
         if (!rc) data[i] = same == i ? own[i] : data[same];
     }
-    if (rc) err_fmt(err, errlen, rc, "encoding a subtree's bricks: %s", strerror(-rc));
+    if (rc) err_set(err, rc, "encoding a subtree's bricks: %s", strerror(-rc));
     /* the nodes above the subtree: no bytes, and hand_over skips them */
     for (size_t i = 0; !rc && i < n; i++)
         if (!data[i]) data[i] = (const uint8_t *)"";
@@ -202,23 +208,21 @@ static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_la
 }
 
 /* The layout, the source prepared (its mip levels), then encode_serial. */
-static int prepare_encode(const mpi_subtree_job *j, vod_source *src, sub_ctx *c, char *err,
-                          size_t errlen)
+static int prepare_encode(const mpi_subtree_job *j, vod_source *src, sub_ctx *c, err_info *err)
 {
     vod_layout L;
-    int rc = vod_layout_make(&j->vod, j->grid.depth, &L, err, errlen);
-    if (!rc) rc = vod_prepare(src, &L, j->vod.channel, err, errlen);
-    return rc ? rc : encode_serial(j, src, &L, c, err, errlen);
+    int rc = coded(err, vod_layout_make(&j->vod, j->grid.depth, &L, err->msg, sizeof err->msg));
+    if (!rc) rc = coded(err, vod_prepare(src, &L, j->vod.channel, err->msg, sizeof err->msg));
+    return rc ? rc : encode_serial(j, src, &L, c, err);
 }
 
-static int octree_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
-                         size_t errlen)
+static int octree_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, err_info *err)
 {
     size_t bytes = octree_arena_bytes(SERIAL_CELLS);
     void *arena = mmap(NULL, bytes, PROT_READ | PROT_WRITE,
                        MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
     if (arena == MAP_FAILED) {
-        return err_fmt(err, errlen, -ENOMEM, "cannot map the octree: %s", strerror(errno));
+        return err_set(err, -ENOMEM, "cannot map the octree: %s", strerror(errno));
     }
     octree t;
     octree_init(&t, arena, SERIAL_CELLS, j->grid.depth);
@@ -231,13 +235,13 @@ static int octree_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
         rc = subdiv_subtree(&k, o, &sink);
         expr_vm_free(vm);
     }
-    if (rc) err_fmt(err, errlen, rc, "voxelizing octant (%u,%u,%u) level %u: %s", o.x, o.y,
+    if (rc) err_set(err, rc, "voxelizing octant (%u,%u,%u) level %u: %s", o.x, o.y,
                      o.z, o.level, rc == -ENOMEM ? "the octree outgrew its arena"
                                                  : strerror(-rc));
     c->voxels = t.voxels;
     vod_source src = vod_octree_source(&t);
     if (!rc && !(t.agg = malloc((size_t)t.used * sizeof *t.agg))) rc = -ENOMEM;
-    if (!rc) rc = prepare_encode(j, &src, c, err, errlen);
+    if (!rc) rc = prepare_encode(j, &src, c, err);
     free(t.agg);
     munmap(arena, bytes);
     return rc;
@@ -254,7 +258,7 @@ static void *sparse_map(size_t bytes)
 /* A csg job's file leaves built in *arena (MAP_FAILED: none), as the
  * serial pipeline builds them. */
 static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
-                      vod_volume *leaves[CSG_MAX_NODES], char *err, size_t errlen)
+                      vod_volume *leaves[CSG_MAX_NODES], err_info *err)
 {
     *arena = MAP_FAILED;
     memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
@@ -265,27 +269,28 @@ static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
             *bytes += vod_volume_bytes(j->grid.res, csg_leaf_bits(&j->tree->node[i]),
                                        CSG_VOLUME_BRICK, UINT64_MAX);
     if ((*arena = sparse_map(*bytes)) == MAP_FAILED) {
-        return err_fmt(err, errlen, -ENOMEM, "cannot map the leaves' volumes");
+        return err_set(err, -ENOMEM, "cannot map the leaves' volumes");
     }
     size_t used;
-    return csg_leaves_build(j->tree, &j->grid, *arena, *bytes, leaves, &used, err, errlen);
+    return coded(err, csg_leaves_build(j->tree, &j->grid, *arena, *bytes, leaves, &used, err->msg,
+                                       sizeof err->msg));
 }
 
 /* A csg task's bricks into vol, in this thread. */
 static int csg_serial(const mpi_subtree_job *j, grid_octant o, vod_volume *vol, sub_ctx *c,
-                      char *err, size_t errlen)
+                      err_info *err)
 {
     void *larena;
     size_t lbytes = 0;
     vod_volume *leaves[CSG_MAX_NODES];
-    int rc = csg_leaves(j, &larena, &lbytes, leaves, err, errlen);
+    int rc = csg_leaves(j, &larena, &lbytes, leaves, err);
     uint32_t lo[3], hi[3];
     octant_bricks(o, lo, hi);
     csg_stats st = {0};
     if (!rc) {
         rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)leaves, vol,
                              j->vod.channel, lo, hi, &st);
-        if (rc) err_fmt(err, errlen, rc, "evaluating the tree: %s", strerror(-rc));
+        if (rc) err_set(err, rc, "evaluating the tree: %s", strerror(-rc));
     }
     c->voxels = st.solid_voxels;
     if (larena != MAP_FAILED) munmap(larena, lbytes);
@@ -295,8 +300,7 @@ static int csg_serial(const mpi_subtree_job *j, grid_octant o, vod_volume *vol, 
 /* A mesh or csg task in this thread: its voxels into a volume of the
  * whole grid (a sparse mapping: only the task's bricks are touched), then
  * its nodes encoded. */
-static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, char *err,
-                         size_t errlen)
+static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, err_info *err)
 {
     int is_mesh = j->kind == MPI_KIND_MESH;
     uint32_t bits = is_mesh ? mesh_vox_bits(&j->mesh_opts) : csg_channel_bits(j->vod.channel);
@@ -306,7 +310,7 @@ static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
     size_t bytes = vod_volume_bytes(j->grid.res, bits, sbrick, UINT64_MAX);
     void *arena = sparse_map(bytes);
     if (arena == MAP_FAILED) {
-        return err_fmt(err, errlen, -ENOMEM, "cannot map a volume of %ux%ux%u", j->grid.res[0],
+        return err_set(err, -ENOMEM, "cannot map a volume of %ux%ux%u", j->grid.res[0],
                        j->grid.res[1], j->grid.res[2]);
     }
     vod_volume *vol;
@@ -317,27 +321,29 @@ static int volume_serial(const mpi_subtree_job *j, grid_octant o, sub_ctx *c, ch
         mesh_tile_stats st = {0};
         rc = mesh_voxelize_tiles(j->mesh, &j->grid, &j->mesh_opts, tiles, vol, &st);
         c->voxels = st.voxels;
-        if (rc) err_fmt(err, errlen, rc, "voxelizing the mesh: %s", strerror(-rc));
+        if (rc) err_set(err, rc, "voxelizing the mesh: %s", strerror(-rc));
     } else if (!rc) {
-        rc = csg_serial(j, o, vol, c, err, errlen);
+        rc = csg_serial(j, o, vol, c, err);
     }
     vod_source src = vod_volume_source(vol);
-    if (!rc) rc = prepare_encode(j, &src, c, err, errlen);
+    if (!rc) rc = prepare_encode(j, &src, c, err);
     munmap(arena, bytes);
     return rc;
 }
 
 int mpi_subtree_run(const mpi_subtree_job *j, grid_octant o, mpi_deliver deliver,
-                    void *ud, char *err, size_t errlen)
+                    void *ud, err_info *err)
 {
     sub_ctx c = {.j = j, .deliver = deliver, .ud = ud};
-    err[0] = '\0';
+    err_info scratch;
+    if (!err) err = &scratch;
+    *err = (err_info){0};
     /* a distance's column without a triangle: the band's width alone, its
      * uniform bricks made here (the engine's mesh kind takes no empty
      * mesh), the same bytes */
     int empty = j->kind == MPI_KIND_MESH && j->mesh->n_triangles == 0;
-    if (j->e && !empty) return on_engine(j, o, &c, err, errlen);
+    if (j->e && !empty) return on_engine(j, o, &c, err);
     return j->kind == MPI_KIND_MESH || j->kind == MPI_KIND_CSG
-               ? volume_serial(j, o, &c, err, errlen)
-               : octree_serial(j, o, &c, err, errlen);
+               ? volume_serial(j, o, &c, err)
+               : octree_serial(j, o, &c, err);
 }

@@ -331,7 +331,7 @@ static int order_subtrees(master *m, const uint8_t **map, const uint8_t ***sub)
  * the top's, into the file (the writer's own vod_assemble). */
 static int assemble(master *m, const uint8_t *const *sub, const top_part *t,
                     const vod_layout *L, const vod_params *v, outfile *out, vod_stats *st,
-                    char *err, size_t errlen)
+                    err_info *err)
 {
     size_t n = m->n + t->n;
     vod_node *nodes = calloc(n ? n : 1, sizeof *nodes);
@@ -350,14 +350,15 @@ static int assemble(master *m, const uint8_t *const *sub, const top_part *t,
             data[i] = t->data[b++];
         }
     }
-    if (rc) err_fmt(err, errlen, rc, "%s", strerror(-rc));
+    if (rc) err_set(err, rc, "%s", strerror(-rc));
     /* outfile_write, as vox's writer: the kernel starts writing the file
      * back as it goes, so the commit's fsync has less left to do */
     vod_sink sink = {outfile_write, out};
     vod_assembly a = {.L = L, .p = v, .n = n, .nodes = nodes, .recs = recs, .data = data,
-                      .sink = &sink, .st = st, .err = err, .errlen = errlen};
+                      .sink = &sink, .st = st, .err = err->msg, .errlen = sizeof err->msg};
     if (!rc) rc = vod_assemble(&a);
-    if (rc && !err[0]) snprintf(err, errlen, "%s", strerror(-rc));
+    if (rc && !err->msg[0]) err_set(err, rc, "%s", strerror(-rc));
+    else if (rc) err->code = rc;
     free(nodes);
     free(recs);
     free(data);
@@ -445,7 +446,7 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
 /* Rank 0's end, after the last subtree: the top levels (a thread) beside
  * the subtrees' order, then the assembly and the commit. */
 static int write_file(prep *p, master *m, engine_pipeline_report *r, tail_times *tt,
-                      char *err, size_t errlen)
+                      err_info *err)
 {
     double t0 = clock_now();
     top_part t = {.top = m->top, .v = &p->v};
@@ -458,9 +459,9 @@ static int write_file(prep *p, master *m, engine_pipeline_report *r, tail_times 
     if (threaded) pthread_join(th, NULL);
     tt->top = t.secs;
     if (!rc) rc = t.rc;
-    if (rc) err_fmt(err, errlen, rc, "the levels above the subtrees: %s", strerror(-rc));
+    if (rc) err_set(err, rc, "the levels above the subtrees: %s", strerror(-rc));
     double t1 = clock_now();
-    if (!rc) rc = assemble(m, sub, &t, &p->L, &p->v, &m->ctx->out_file, &r->st, err, errlen);
+    if (!rc) rc = assemble(m, sub, &t, &p->L, &p->v, &m->ctx->out_file, &r->st, err);
     tt->assemble = clock_now() - t1;
     if (map) munmap((void *)map, m->spill_bytes);
     free(sub);
@@ -474,14 +475,14 @@ static int write_file(prep *p, master *m, engine_pipeline_report *r, tail_times 
 void mpi_finish_file(prep *p, master *m, rank_stats *all, double t0)
 {
     double t_job = clock_now() - t0;
-    char err[256] = "";
+    err_info err = {0};
     engine_pipeline_report r = p->plan;
     tail_times tt = {0};
     double t1 = clock_now();
-    int rc = write_file(p, m, &r, &tt, err, sizeof err);
+    int rc = write_file(p, m, &r, &tt, &err);
     if (rc) {
         progress_done(&m->pr);
-        mpi_msg("cannot write %s: %s", p->o.out, err[0] ? err : strerror(-rc));
+        mpi_msg("cannot write %s: %s", p->o.out, err.msg[0] ? err.msg : strerror(-rc));
         abort_job(m->ctx);
     }
     progress_done(&m->pr);

@@ -89,20 +89,21 @@ static int slave_loop(slave *s)
         wire_task t;
         uint8_t *buf;
         mesh part;
-        char err[400], m[600];
+        err_info err = {0};
+        char m[600];
         int rc = next_task(s, &t, &buf, &part);
         if (rc == 1) {
             free(buf);
             return 0;
         }
         double t0 = clock_now();
-        if (rc) snprintf(err, sizeof err, "a task came damaged");
-        else rc = mpi_subtree_run(&s->sj, t.o, on_bricks, s, err, sizeof err);
+        if (rc) err_set(&err, rc, "a task came damaged");
+        else rc = mpi_subtree_run(&s->sj, t.o, on_bricks, s, &err);
         s->st.busy += clock_now() - t0;
         s->sj.mesh = NULL;
         free(buf);
         if (rc) {
-            int k = snprintf(m, sizeof m, "%s", err[0] ? err : strerror(-rc));
+            int k = snprintf(m, sizeof m, "%s", err.msg[0] ? err.msg : strerror(-rc));
             mpi_send_up(s, m, (size_t)(k < (int)sizeof m ? k : (int)sizeof m - 1) + 1, TAG_FAIL);
             return rc;
         }

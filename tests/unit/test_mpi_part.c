@@ -222,6 +222,7 @@ static void same_file(const char *src, uint32_t res, int channel, uint32_t brick
     vod_params p = params(&g, channel, brick);
     vod_layout L;
     char err[256];
+    err_info se = {0};
     cr_assert_eq(vod_layout_make(&p, g.depth, &L, err, sizeof err), 0, "%s", err);
     /* the reference: the whole grid in one process */
     octree tree;
@@ -247,7 +248,7 @@ static void same_file(const char *src, uint32_t res, int channel, uint32_t brick
     j.vod.metadata = NULL;
     for (size_t i = 0; i < c.n; i++) {
         s.o = c.oct[i];
-        cr_assert_eq(mpi_subtree_run(&j, c.oct[i], deliver, &s, err, sizeof err), 0, "%s", err);
+        cr_assert_eq(mpi_subtree_run(&j, c.oct[i], deliver, &s, &se), 0, "%s", se.msg);
     }
     engine_destroy(e);
     assemble_same(&s, &L, &p, &ref, st.bricks, src, &c);
@@ -390,6 +391,7 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
                        int workers)
 {
     char meta[JOB_META_MAX], err[256];
+    err_info se = {0};
     vod_params v;
     engine_pipeline_report r, rr;
     vod_membuf ref = {0};
@@ -426,7 +428,7 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
         if (columns && !buf) continue;
         empties += columns && !part.n_triangles;
         j.mesh = &part;
-        cr_assert_eq(mpi_subtree_run(&j, c.oct[i], deliver, &s, err, sizeof err), 0, "%s", err);
+        cr_assert_eq(mpi_subtree_run(&j, c.oct[i], deliver, &s, &se), 0, "%s", se.msg);
         free(buf);
     }
     engine_destroy(e);
