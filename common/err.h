@@ -9,8 +9,9 @@
  * the negative errno: grid_make, config_load, shm_create, engine_create,
  * mesh_vox_check and the rest.  Not converted yet (they still take
  * `char *err, size_t errlen` and write it with err_fmt): vod/'s reader and
- * writer (vod.h), client/export.h and the vdb_out plugin's table,
- * mpi_part.h's mpi_subtree_run.  A formatter that keeps state of its own
+ * writer (vod.h), client/export.h and the vdb_out plugin's table, and
+ * csg_leaves_build (mpi_subtree.c passes them its err_info's message and
+ * keeps their code).  A formatter that keeps state of its own
  * (a position, the first failure only) calls err_vfmt.
  *
  * engine_error is one (its kind an engine_failure), and so is the error of
