@@ -16,7 +16,6 @@
 #define VOXD_SYNCBEHIND_H
 
 #include <pthread.h>
-#include <stdatomic.h>
 
 #define SYNCBEHIND_PERIOD_MS 5
 #define SYNCBEHIND_BYTES ((long long)2 << 20)
