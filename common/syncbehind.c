@@ -36,6 +36,7 @@ static void *sync_run(void *ud)
         /* a hint only: its error, if any, is the commit's fsync's to tell */
         if (fdatasync(s->fd)) break;
         synced = st.st_size; /* at least these bytes are on the disk */
+        atomic_fetch_add_explicit(&s->flushes, 1, memory_order_relaxed);
     }
     return NULL;
 }
@@ -45,6 +46,7 @@ void syncbehind_start(syncbehind *s, int fd)
     s->fd = fd;
     s->stop = 0;
     s->started = 0;
+    atomic_init(&s->flushes, 0);
     pthread_condattr_t ca;
     pthread_condattr_init(&ca);
     pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);

@@ -16,6 +16,7 @@
 #define VOXD_SYNCBEHIND_H
 
 #include <pthread.h>
+#include <stdatomic.h>
 
 #define SYNCBEHIND_PERIOD_MS 5
 #define SYNCBEHIND_BYTES ((long long)2 << 20)
@@ -25,6 +26,10 @@ typedef struct {
     pthread_mutex_t mu;
     pthread_cond_t cv;
     int fd, started, stop; /* stop: under mu */
+    /* fdatasyncs done; written by the thread alone, read by anyone (a
+     * count: relaxed, pairs with nothing; after syncbehind_stop the join
+     * orders it) */
+    atomic_uint flushes;
 } syncbehind;
 
 /* The thread started on fd (which must stay open until syncbehind_stop);
