@@ -202,6 +202,12 @@ typedef struct {
     uint8_t *reach;
 } dslab;
 
+/* Slab brick (bx, by, bz)'s flag in reach (bz from the slab's first). */
+static uint8_t *reach_at(const dslab *sl, uint32_t bx, uint32_t by, uint32_t bz)
+{
+    return &sl->reach[((size_t)bz * sl->nb[1] + by) * sl->nb[0] + bx];
+}
+
 #define SLAB_ROW ((size_t)MESH_TILE)
 #define SLAB_PLANE ((size_t)MESH_TILE * MESH_TILE)
 
@@ -257,13 +263,13 @@ static void slab_reach(const mesh_vox_tile *t, const dcpt *d, uint64_t l0, uint6
         for (uint32_t bz = (z0 - sl->z0) / S; bz <= (z1 - sl->z0) / S; bz++)
             for (uint32_t by = (uint32_t)f->i0[1] / S; by <= (uint32_t)f->i1[1] / S; by++)
                 for (uint32_t bx = (uint32_t)f->i0[0] / S; bx <= (uint32_t)f->i1[0] / S; bx++)
-                    sl->reach[((size_t)bz * sl->nb[1] + by) * sl->nb[0] + bx] = 1;
+                    *reach_at(sl, bx, by, bz) = 1;
     }
     double KK = (double)K * K;
     for (uint32_t bz = 0; bz < sl->nb[2]; bz++)
         for (uint32_t by = 0; by < sl->nb[1]; by++)
             for (uint32_t bx = 0; bx < sl->nb[0]; bx++) {
-                if (!sl->reach[((size_t)bz * sl->nb[1] + by) * sl->nb[0] + bx]) continue;
+                if (!*reach_at(sl, bx, by, bz)) continue;
                 for (uint32_t z = bz * S; z < (bz + 1) * S; z++)
                     for (uint32_t y = by * S; y < (by + 1) * S; y++) {
                         double *r = sl->d2 + z * SLAB_PLANE + y * SLAB_ROW + bx * S;
@@ -331,7 +337,7 @@ static int dist_brick(const dtile *dt, const dslab *sl, const uint32_t bk[3])
     mesh_vox_tile *t = dt->t;
     uint32_t S = t->S, zb = bk[2] - (uint32_t)sl->z0 / S;
     bool whole = (bk[0] + 1) * S <= t->nx && (bk[1] + 1) * S <= t->ny && (bk[2] + 1) * S <= t->nz;
-    bool reached = sl->reach[((size_t)zb * sl->nb[1] + bk[1]) * sl->nb[0] + bk[0]];
+    bool reached = *reach_at(sl, bk[0], bk[1], zb);
     uint32_t at[3] = {t->x0 / S + bk[0], t->y0 / S + bk[1], bk[2]};
     if (!reached && whole) {
         int sg = brick_sign(t, bk);
