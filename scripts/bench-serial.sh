@@ -87,6 +87,19 @@ stages() {
         -e 's/^CPU: //' "$1" | grep -v '^$' | paste -sd ';' | sed 's/;/; /g; s/|/\//g'
 }
 
+# charges FILE: voxserial's charges of 5 ms or more, largest first, without the
+# ids: "0.042 s vox commit (command) D fsync". A short run's serial time may be
+# spread thinner: then its largest charge alone, marked; if there is no serial
+# window at all, that.
+charges() {
+    local all
+    all=$(sed -n 's/^serial_by=//p' "$1" |
+        sed -E 's| [0-9]+/[0-9]+ \(| (|; s/\(child of [0-9]+\)/(child)/' | sort -rn)
+    if [ -z "$all" ]; then echo "no serial window"
+    elif awk '$1 >= 0.005 { found = 1 } END { exit !found }' <<<"$all"; then awk '$1 >= 0.005' <<<"$all"
+    else echo "largest: $(head -1 <<<"$all")"; fi
+}
+
 # run NAME COMMAND: one row of the table.
 run() {
     local cmd=${2//OUT/$tmp/out} load m
@@ -98,9 +111,7 @@ run() {
         return 0
     fi
     m=$(head -1 "$tmp/m")
-    # the charges, without the ids: "0.042 s vox commit (command) D fsync"
-    sed -n 's/^serial_by=//p' "$tmp/m" | sed -E 's| [0-9]+/[0-9]+ \(| (|; s/\(child of [0-9]+\)/(child)/' |
-        awk '$1 >= 0.005' | paste -sd';' | sed "s/;/; /g; s/^/| $3 | /; s/\$/ |/" >>"$tmp/where"
+    charges "$tmp/m" | paste -sd';' | sed "s/;/; /g; s/^/| $3 | /; s/\$/ |/" >>"$tmp/where"
     awk -v m="$m" -v job="$3" -v load="$load" -v spans="$(sed -n 's/^serial_spans=//p' "$tmp/m" | sed 's/,/, /g')" \
         -v st="$(stages "$tmp/stdout")" 'BEGIN {
         n = split(m, kv, " ")
@@ -131,7 +142,8 @@ done >"$tmp/rows"
 # the rows grouped by job, in the jobs' order
 while IFS='|' read -r name label cmd; do grep -F "| $label |" "$tmp/rows" || true; done < <(jobs)
 echo
-echo "Where each run's serial time went (voxserial -w), charges of 5 ms or more: the thread"
+echo "Where each run's serial time went (voxserial -w), charges of 5 ms or more (where none is,"
+echo "the largest, marked so): the thread"
 echo "runnable in each serial window (in an idle one: the thread that ran, else one in I/O,"
 echo "else the last that ran), by its name (vox names its stages and workers), its process"
 echo "(the command, or a child) and its state (R runnable; S, D asleep, in the call named)."
