@@ -243,7 +243,11 @@ Test(engine, small_segments_give_clear_errors)
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), -ENOMEM);
     cr_assert_eq(r.err.kind, ENGINE_LIMIT);
-    cr_assert(strstr(r.err.msg, "octree needs more than") &&
+    /* which stops it first depends on the timing: the octree running out
+     * of cells, or the progress check's estimate passing the segment (a
+     * loaded machine lets the estimate run first) */
+    cr_assert((strstr(r.err.msg, "octree needs more than") ||
+               strstr(r.err.msg, "the job would need at least")) &&
               strstr(r.err.msg, "raise the shared memory size"), "%s", r.err.msg);
     cr_assert_null(engine_octree(e));
     /* and a small job still runs on it */
