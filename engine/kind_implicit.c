@@ -202,6 +202,21 @@ static void implicit_done(engine *e, int i, const shm_task *t, int error)
     ij->kept[i] = 0;
 }
 
+/* The job's end (engine_kind.tail): a subtree above TAIL_LEVEL handed out
+ * as its children instead, which come back as subtrees one level finer,
+ * so that the last tasks are small and the workers end together (issue
+ * 24: the last level-6 subtrees left one worker alone for 20-50 ms of a
+ * loaded 2-core machine).  The same voxels: a task of children and a
+ * subtree test every octant with the same pruned tapes (subdiv.c). */
+#define TAIL_LEVEL 4
+
+static void implicit_tail(engine *e, shm_task *t)
+{
+    (void)e;
+    if (t->op == IMPLICIT_SUBTREE && implicit_octant(t).level > TAIL_LEVEL)
+        t->op = IMPLICIT_CHILDREN;
+}
+
 /* The kernel is deterministic: a re-run gives the same entries. */
 static int implicit_rerun(engine *e, int i, const shm_task *t)
 {
@@ -288,6 +303,7 @@ static int implicit_setup(engine *e, void *job)
     implicit_job *ij = job;
     const engine_job *j = ij->job;
     e->result = RESULT_NONE;
+    e->tree_top = -1;
     engine_sched_hold(e, 0); /* the last job's result: overwritten now */
     if (!j->tape) return engine_sched_fail(e, ENGINE_BAD_JOB, -EINVAL, "the job has no tape");
     if (grid_check(&j->grid))
@@ -315,6 +331,11 @@ static int implicit_finish(engine *e, void *job, int rc)
     r->seconds = clock_now() - e->t0;
     if (rc) return engine_sched_job_failed(e, r, rc);
     e->result = RESULT_OCTREE;
+    /* the subtrees' roots are at the split level or below it (the tail's),
+     * the cells above them the master's; the paper schedule's are all its */
+    e->tree_top = ij->job->schedule == ENGINE_SCHED_PAPER ? 0
+                  : ij->split < e->tree.depth           ? ij->split
+                                                        : -1;
     /* the octree stays for the encode kind: the cells up to the last one
      * in the tree (the master's, the subtrees'), whose end bounds the
      * tree's indices; the blocks' unused tails past it go back */
@@ -437,6 +458,7 @@ const engine_kind engine_kind_implicit = {
     .take = implicit_take,
     .done = implicit_done,
     .rerun = implicit_rerun,
+    .tail = implicit_tail,
     .describe = implicit_describe,
     .progress = implicit_progress,
     .finish = implicit_finish,

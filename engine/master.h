@@ -96,6 +96,9 @@ struct engine {
      * implicit kind's octree or the mesh kind's volume */
     enum { RESULT_NONE, RESULT_OCTREE, RESULT_VOLUME } result;
     octree tree;
+    int tree_top;       /* every cell of tree at this height or above lies
+                           in the master's blocks (the workers' subtrees
+                           are below it); -1 unknown */
     vod_volume *volume;
     uint64_t volume_bytes;  /* its arena */
 };
@@ -114,6 +117,12 @@ struct engine_kind {
     void (*done)(engine *e, int i, const shm_task *t, int error);
     /* Worker i died holding task t: 1 to hand t out again, 0 to drop it. */
     int (*rerun)(engine *e, int i, const shm_task *t);
+    /* Optional (NULL: none).  Task t, just taken from the stack, is about
+     * to be handed out while fewer tasks than workers are left there (the
+     * job's end): the kind may make it a finer one whose parts come back
+     * as tasks, so that the workers end together instead of one of them
+     * finishing a large last task alone. */
+    void (*tail)(engine *e, shm_task *t);
     /* Name task t for a message ("octant (1,2,3) level 4"). */
     void (*describe)(const shm_task *t, char *buf, size_t len);
     /* Fill the progress report (NULL: the kind reports none), with

@@ -226,7 +226,9 @@ static int assign(engine *e)
     int did = 0;
     for (int i = 0; i < e->n && e->sp; i++) {
         if (e->ms[i].busy || e->ms[i].pid <= 0) continue;
-        give(e, i, &e->stack[--e->sp], 0);
+        shm_task t = e->stack[--e->sp];
+        if (e->sp < (uint32_t)e->n && e->kind->tail) e->kind->tail(e, &t);
+        give(e, i, &t, 0);
         did++;
     }
     return did;

@@ -13,6 +13,7 @@
 #include <emmintrin.h>
 #endif
 
+#include "par.h"
 #include "vod_downsample.h"
 #include "voxel.h"
 
@@ -249,13 +250,14 @@ static int build_level(mip_ctx *m)
     return 0;
 }
 
-/* Levels 1..levels of the level-`levels` brick columns [lo, hi), every z. */
-static int build_columns(mip_ctx *m, int levels, const uint32_t lo[2],
+/* Levels first..levels of the level-`levels` brick columns [lo, hi),
+ * every z. */
+static int build_columns(mip_ctx *m, int first, int levels, const uint32_t lo[2],
                          const uint32_t hi[2])
 {
     vod_volume *v = m->v;
     int rc = 0;
-    for (m->l = 1; m->l <= levels && !rc; m->l++) {
+    for (m->l = first; m->l <= levels && !rc; m->l++) {
         const uint32_t *g = v->grid[m->l];
         uint32_t *t = table(v, m->l), p[3], k = (uint32_t)(levels - m->l);
         uint32_t x1 = hi[0] << k < g[0] ? hi[0] << k : g[0];
@@ -300,7 +302,7 @@ int vod_volume_mip_columns(vod_volume *v, int channel, int levels,
            "mip_columns runs before prepare() and vod_volume_mips_low()");
     mip_ctx m;
     if (mip_ctx_init(&m, v, channel)) return -ENOMEM;
-    int rc = build_columns(&m, levels, lo, hi);
+    int rc = build_columns(&m, 1, levels, lo, hi);
     mip_ctx_free(&m);
     return rc;
 }
@@ -311,6 +313,64 @@ int vod_volume_mips_low(vod_volume *v, int channel, int levels)
     v->low_channel = channel;
     v->low_levels = levels;
     return 0;
+}
+
+/* The levels prepare() builds by columns, on every CPU: its columns of
+ * level `top` handed out one at a time (relaxed: a counter of disjoint
+ * columns, read after par_run's join like rc). */
+typedef struct {
+    vod_volume *v;
+    int channel, first, top;
+    atomic_uint next;
+    atomic_int rc;
+} prep_par;
+
+static void prep_part(void *ud, unsigned k, unsigned n)
+{
+    prep_par *p = ud;
+    const uint32_t *g = p->v->grid[p->top];
+    mip_ctx m;
+    (void)k, (void)n;
+    int rc = mip_ctx_init(&m, p->v, p->channel);
+    for (unsigned c; !rc && (c = atomic_fetch_add_explicit(&p->next, 1, memory_order_relaxed)) <
+                            g[0] * g[1];) {
+        uint32_t lo[2] = {c % g[0], c / g[0]}, hi[2] = {lo[0] + 1, lo[1] + 1};
+        rc = build_columns(&m, p->first, p->top, lo, hi);
+    }
+    mip_ctx_free(&m);
+    if (rc) atomic_store_explicit(&p->rc, rc, memory_order_relaxed);
+}
+
+/* Levels first.. of the channel: those whose columns give each of the
+ * process's CPUs PREP_COLUMNS or more by columns on all of them at once
+ * (issue 24: the mesh job's levels above its tiles were 11-13 ms of one
+ * thread, every worker waiting), the few above one by one.  Every brick
+ * is built from its children alone, so the order changes no voxel. */
+#define PREP_COLUMNS 4
+
+static int build_levels(vod_volume *v, int channel, int first)
+{
+    unsigned cpus = par_cpus();
+    int top = first - 1;
+    /* a distance volume's wide uniform values are found or added by one
+     * writer at a time (vod_vol_uentry): its levels stay on one thread */
+    while (cpus > 1 && !v->f32 && top < v->depth &&
+           (uint64_t)v->grid[top + 1][0] * v->grid[top + 1][1] >= PREP_COLUMNS * cpus)
+        top++;
+    for (int l = first; l <= v->depth; l++)
+        memset(table(v, l), 0, 4 * grid_bricks(v, l));
+    prep_par p = {.v = v, .channel = channel, .first = first, .top = top};
+    atomic_init(&p.next, 0);
+    atomic_init(&p.rc, 0);
+    if (top >= first) par_run(cpus, prep_part, &p);
+    int rc = atomic_load_explicit(&p.rc, memory_order_relaxed);
+    mip_ctx m;
+    if (!rc) rc = mip_ctx_init(&m, v, channel);
+    else m = (mip_ctx){0};
+    for (m.l = top + 1 > first ? top + 1 : first; m.l <= v->depth && !rc; m.l++)
+        rc = build_level(&m);
+    mip_ctx_free(&m);
+    return rc;
 }
 
 static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
@@ -325,13 +385,7 @@ static int vol_prepare(vod_source *s, const vod_layout *L, int channel)
     int first = v->low_levels && v->low_channel == channel ? v->low_levels + 1 : 1;
     if (first == 1) v->low_levels = 0; /* another channel's: built over */
     v->mip_base = atomic_load_explicit(&v->pool_used, memory_order_relaxed);
-    mip_ctx m;
-    int rc = mip_ctx_init(&m, v, channel);
-    for (m.l = first; m.l <= v->depth && !rc; m.l++) {
-        memset(table(v, m.l), 0, 4 * grid_bricks(v, m.l));
-        rc = build_level(&m);
-    }
-    mip_ctx_free(&m);
+    int rc = build_levels(v, channel, first);
     v->mip_channel = channel;
     if (rc) vod_vol_drop_mips(v); /* the levels built so far go back too */
     return rc;
