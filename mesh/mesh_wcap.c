@@ -43,11 +43,13 @@
 
 #include <errno.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
 int mesh_wind_exact;
 int mesh_wcap_tree_only;
+_Atomic uint64_t mesh_wcap_to_exact;
 
 /* Built lazily, by the first tile that needs each part, so that the build
  * ticks that tile's heartbeat (a worker builds its own at its first tile
@@ -683,23 +685,33 @@ static void by_tree(const mesh_vox_frame *f, const mesh_vox_block *b, const uint
     else mesh_vox_wind_block(f, f->wt->tris, b, dis, bits);
 }
 
+static double dot3(const double a[3], const double b[3])
+{
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
 /* Half cap triangle P's solid angle at q (voxel units) from its lattice
  * vertices, the raster's own (their differences from q are exact), so
  * that the angle's sign is the raster's side of the cap; *on set where q
- * lies on the triangle or its edges within the rounding of the triple
- * product (the side undecided there, and the raster's tie rule decides). */
+ * lies on the closed triangle: in its plane within the rounding of the
+ * triple product, and inside it or on an edge or a vertex (there Van
+ * Oosterom and Strackee's denominator is negative, or zero: on an edge
+ * or a vertex atan2 meets 0 / 0 and rounding, and the angle is not even
+ * near +-pi), where the raster's tie rule decides the side. */
 static double cap_half_angle(const int64_t P[3][3], const double q[3], bool *on)
 {
     double r[3][3];
     for (int i = 0; i < 3; i++)
         for (int a = 0; a < 3; a++) r[i][a] = (double)P[i][a] / (double)MESH_VOX_L - q[a];
     double h = mesh_vox_half_solid_angle(r[0], r[1], r[2]);
-    if (fabs(h) < 0.5 * M_PI - 1e-3) return h; /* q sees the triangle in front: off its inside */
-    double l = 1, det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
-                        r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
-                        r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
-    for (int i = 0; i < 3; i++) l *= sqrt(r[i][0] * r[i][0] + r[i][1] * r[i][1] + r[i][2] * r[i][2]);
-    if (fabs(det) <= 1e-12 * l) *on = true;
+    double det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
+                 r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
+                 r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    double l2 = dot3(r[0], r[0]) * dot3(r[1], r[1]) * dot3(r[2], r[2]);
+    if (det * det > 1e-24 * l2) return h; /* off the plane: the sign is the side */
+    double la = sqrt(dot3(r[0], r[0])), lb = sqrt(dot3(r[1], r[1])), lc = sqrt(dot3(r[2], r[2]));
+    double den = la * lb * lc + dot3(r[0], r[1]) * lc + dot3(r[1], r[2]) * la + dot3(r[2], r[0]) * lb;
+    if (den <= 1e-9 * la * lb * lc) *on = true; /* in the plane, not outside the triangle */
     return h;
 }
 
@@ -723,7 +735,10 @@ static void caps_exact(const cblock *c, size_t w)
     }
     for (unsigned k = 0; k < n; k++) {
         double a = fabs((double)(int16_t)c->count[w * 64 + idx[k]] - h[k] / (2 * M_PI));
-        if (on[k] || fabs(a - 0.5) <= EXACT_MARGIN) continue;
+        if (on[k] || fabs(a - 0.5) <= EXACT_MARGIN) {
+            atomic_fetch_add_explicit(&mesh_wcap_to_exact, 1, memory_order_relaxed);
+            continue; /* left in spare: exact_words decides it */
+        }
         uint64_t bit = 1ull << idx[k];
         c->bits[w] = a > 0.5 ? c->bits[w] | bit : c->bits[w] & ~bit;
         c->spare[w] &= ~bit;
