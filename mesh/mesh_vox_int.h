@@ -397,7 +397,7 @@ bool mesh_vox_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], ui
  * for the direct path (every cap triangle at every cell). */
 extern int mesh_wcap_tree_only;
 /* For the tests: the samples mesh_wcap.c's caps' exact sum left to the
- * mesh's exact sum (on a cap triangle, or |N - w_C| within 1e-9 of 1/2),
+ * mesh's exact sum (on a cap triangle, or |N - w_C| within 1e-6 of 1/2),
  * counted since the process began (relaxed: read after the job returns). */
 extern _Atomic uint64_t mesh_wcap_to_exact;
 

@@ -715,7 +715,10 @@ static double cap_half_angle(const int64_t P[3][3], const double q[3], bool *on)
     return h;
 }
 
-#define EXACT_MARGIN 1e-9 /* |N - w_C| nearer 1/2 after the caps' exact sum: the mesh's */
+#define EXACT_MARGIN 1e-6 /* |N - w_C| nearer 1/2 after the caps' exact sum: the mesh's
+                             (the angles' lattice vertices move w by 1e-7 and more from
+                             the mesh's own: MARGIN's reason; 1e-9 let a sample of
+                             |w| = 1/2 - 2e-8 in as 1/2 + 8e-8) */
 #define EXACT_WORK 4u     /* a block's spare samples times its caps at most this many
                              times the mesh's triangles: the caps' exact sum, else the tree */
 

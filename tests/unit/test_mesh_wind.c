@@ -592,6 +592,20 @@ static double tri_dist(const double t[3][3], const double p[3])
     return best;
 }
 
+/* The winding number of every triangle of m at p (voxel units of
+ * cube_grid(32)), summed here: the oracle. */
+static double brute_w(const mesh *m, const double p[3])
+{
+    double w = 0;
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        double v[3][3];
+        for (int i = 0; i < 3; i++)
+            for (int a = 0; a < 3; a++) v[i][a] = ((double)m->vertices[m->triangles[t][i]][a] + 1) * 16;
+        w += tri_w(v, p);
+    }
+    return w;
+}
+
 /* The cap's triangle of edge a -> b: (b, a, o), as mesh_wcap.c makes it. */
 static bool on_tent_cap(const double p[3])
 {
@@ -629,15 +643,9 @@ Test(mesh_wind, samples_on_a_cap_go_to_the_mesh_exact_sum, .timeout = 600)
         for (uint32_t z = 0; z < 32; z++)
             for (uint32_t y = 0; y < 32; y++)
                 for (uint32_t x = 0; x < 32; x++) {
-                    double p[3] = {x + 0.5, y + 0.5, z + 0.5}, w = 0;
+                    double p[3] = {x + 0.5, y + 0.5, z + 0.5};
                     if (!on_tent_cap(p)) continue;
-                    for (uint32_t t = 0; t < m->n_triangles; t++) {
-                        double v[3][3];
-                        for (int i = 0; i < 3; i++)
-                            for (int a = 0; a < 3; a++)
-                                v[i][a] = ((double)m->vertices[m->triangles[t][i]][a] + 1) * 16;
-                        w += tri_w(v, p);
-                    }
+                    double w = brute_w(m, p);
                     cr_assert_gt(fabs(fabs(w) - 0.5), 1e-6, "(%u %u %u): |w| %.12f", x, y, z, w);
                     bool want = fabs(w) >= 0.5, got = d[((size_t)z * 32 + y) * 32 + x] != 0;
                     if (got != want)
@@ -655,4 +663,82 @@ Test(mesh_wind, samples_on_a_cap_go_to_the_mesh_exact_sum, .timeout = 600)
         free(d);
     }
     shape_free(&s);
+}
+
+/* Three faces of a box about the voxel centre p = (16.5, 16.5, 16.5),
+ * x = lo, x = hi and y = hi (an extra vertex on the x = lo face's edge
+ * takes the caps' fan point off p): by symmetry each face subtends a
+ * sixth of the sphere from p, so |w(p)| = 1/2 on the voxelizer's lattice.
+ * Then corners move by less than the lattice's step: UP and DOWN, corner
+ * (hi, hi, hi) by a quarter step along z (the raster and the caps see the
+ * same mesh both times, |w| = 1/2 exactly there; the mesh as given |w| =
+ * 1/2 +- 2e-8); APART, three corners so that the lattice's mesh has |w| =
+ * 1/2 + 8.5e-8 and the given one 1/2 - 2e-8 (the caps' angles, from
+ * the lattice's vertices as the raster's sides want, err by more than
+ * 1e-9).  The small icosphere makes the triangles many (mesh_wcap.c's
+ * EXACT_WORK). */
+enum { UP, DOWN, APART }; /* three_faces' moves */
+
+static const mesh *three_faces(shape *s, int move)
+{
+    shape_init(s);
+    uint32_t v[8];
+    for (int i = 0; i < 8; i++)
+        v[i] = shape_vertex(s, vw(i & 1 ? 24.75 : 8.25), vw(i & 2 ? 24.75 : 8.25), vw(i & 4 ? 24.75 : 8.25));
+    uint32_t e = shape_vertex(s, vw(8.25), vw(8.25), vw(12.75)); /* on edge v0 v4 */
+    shape_tri(s, v[6], v[2], v[0]); /* x = lo: the polygon v0 e v4 v6 v2, fanned from v6 */
+    shape_tri(s, v[6], v[0], e);
+    shape_tri(s, v[6], e, v[4]);
+    shape_quad(s, v[1], v[3], v[7], v[5]); /* x = hi */
+    shape_quad(s, v[2], v[6], v[7], v[3]); /* y = hi */
+    const double step = 1.0 / 1048576; /* the lattice's, world units (2^-16 voxel) */
+    if (move == APART) { /* the lattice's mesh has |w| > 1/2, the given one < 1/2 */
+        s->m.vertices[v[7]][2] = (float)(vw(24.75) + 0.625 * step); /* snapped: + 1 step */
+        s->m.vertices[v[3]][2] = (float)(vw(8.25) + 0.4375 * step); /* snapped: no move */
+        s->m.vertices[v[5]][0] = (float)(vw(24.75) + 0.4375 * step);
+    } else {
+        s->m.vertices[v[7]][2] = (float)(vw(24.75) + (move == UP ? 0.25 : -0.25) * step);
+    }
+    double c[3] = {vw(4.2), vw(4.1), vw(27.9)};
+    shape_icosphere(s, c, 3.0 / 16, 3, false);
+    return shape_finish(s);
+}
+
+/* A sample whose |N - w_C| by the caps' exact sum lies near 1/2 goes to
+ * the mesh's exact sum: at p of three_faces, each move, the voxel is what
+ * the oracle says, and the answers of UP and DOWN differ (the caps, on
+ * the lattice, see |w| = 1/2 both times: a decision from them would be
+ * wrong once; APART's from them would be wrong); in the caps' tree and
+ * their direct path (which decides p from the given vertices). */
+Test(mesh_wind, a_sample_near_one_half_goes_to_the_mesh_exact_sum, .timeout = 600)
+{
+    static const char *name[] = {"up", "down", "apart"};
+    grid_spec g = cube_grid(32);
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0};
+    const double p[3] = {16.5, 16.5, 16.5};
+    bool want[3];
+    for (int k = UP; k <= APART; k++) {
+        shape s;
+        const mesh *m = three_faces(&s, k);
+        double w = brute_w(m, p);
+        cr_log_info("%s: |w(p)| - 1/2 = %.3g", name[k], fabs(w) - 0.5);
+        cr_assert_gt(fabs(fabs(w) - 0.5), 1e-12, "%s: the oracle undecided: |w| %.17g", name[k], w);
+        cr_assert_lt(fabs(fabs(w) - 0.5), 1e-7, "%s: |w| %.17g: not near 1/2", name[k], w);
+        want[k] = fabs(w) >= 0.5;
+        for (int tree = 0; tree < 2; tree++) {
+            mesh_tile_stats st;
+            mesh_wcap_tree_only = tree;
+            uint64_t before = atomic_load(&mesh_wcap_to_exact);
+            uint8_t *d = dense(m, &g, &o, &st);
+            uint64_t spared = atomic_load(&mesh_wcap_to_exact) - before;
+            mesh_wcap_tree_only = 0;
+            bool got = d[(16 * 32 + 16) * 32 + 16] != 0;
+            cr_expect_eq(got, want[k], "%s, tree %d: voxel %d, |w| %.17g", name[k], tree, got, w);
+            cr_expect(!tree || spared >= 1, "%s: nothing to the exact sum", name[k]);
+            free(d);
+        }
+        shape_free(&s);
+    }
+    cr_expect_neq(want[UP], want[DOWN], "the oracle's answers: the move does not matter");
+    cr_expect(!want[APART], "apart: the oracle inside");
 }
