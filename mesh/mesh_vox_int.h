@@ -305,6 +305,10 @@ void mesh_vox_winding_many(const mesh_vox_frame *f, const double (*q)[3], unsign
 /* The solid angle of triangle (a, b, c) seen from the origin, over 2
  * (Van Oosterom and Strackee); the distance from p to triangle v. */
 double mesh_vox_half_solid_angle(const double a[3], const double b[3], const double c[3]);
+/* The same, and its parts: the triple product a.(b x c), the denominator
+ * (|a||b||c| + (a.b)|c| + (b.c)|a| + (c.a)|b|) and |a||b||c|. */
+double mesh_vox_half_solid_angle_parts(const double a[3], const double b[3], const double c[3],
+                                       double *det, double *den, double *l);
 double mesh_vox_tri_dist(const double v[3][3], const double p[3]);
 
 /* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
