@@ -305,6 +305,10 @@ void mesh_vox_winding_many(const mesh_vox_frame *f, const double (*q)[3], unsign
 /* The solid angle of triangle (a, b, c) seen from the origin, over 2
  * (Van Oosterom and Strackee); the distance from p to triangle v. */
 double mesh_vox_half_solid_angle(const double a[3], const double b[3], const double c[3]);
+/* The same, and its parts: the triple product a.(b x c), the denominator
+ * (|a||b||c| + (a.b)|c| + (b.c)|a| + (c.a)|b|) and |a||b||c|. */
+double mesh_vox_half_solid_angle_parts(const double a[3], const double b[3], const double c[3],
+                                       double *det, double *den, double *l);
 double mesh_vox_tri_dist(const double v[3][3], const double p[3]);
 
 /* The fast winding number (mesh_wind.c), in voxel units ((v - lo) / vs).
@@ -396,6 +400,10 @@ bool mesh_vox_wcap_expand(const double (*tri)[3][3], const double (*ball)[4], ui
 /* For the tests: nonzero, the caps' tree even where they are few enough
  * for the direct path (every cap triangle at every cell). */
 extern int mesh_wcap_tree_only;
+/* For the tests: the samples mesh_wcap.c's caps' exact sum left to the
+ * mesh's exact sum (on a cap triangle, or |N - w_C| within 1e-6 of 1/2),
+ * counted since the process began (relaxed: read after the job returns). */
+extern _Atomic uint64_t mesh_wcap_to_exact;
 
 /* Surface bits (K = 1 blocks): every voxel of block b whose closed box
  * triangle P touches (six = false), or its 6-separating subset. */

@@ -43,11 +43,13 @@
 
 #include <errno.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
 int mesh_wind_exact;
 int mesh_wcap_tree_only;
+_Atomic uint64_t mesh_wcap_to_exact;
 
 /* Built lazily, by the first tile that needs each part, so that the build
  * ticks that tile's heartbeat (a worker builds its own at its first tile
@@ -75,21 +77,21 @@ typedef struct {
     int32_t s;    /* +1: the triangle runs lo -> hi, -1: hi -> lo */
 } dedge;
 
-static int u64_cmp(const void *x, const void *y)
+static int u32_cmp(const void *x, const void *y)
 {
-    uint64_t a = *(const uint64_t *)x, b = *(const uint64_t *)y;
+    uint32_t a = *(const uint32_t *)x, b = *(const uint32_t *)y;
     return (a > b) - (a < b);
 }
 
 /* h[0, n) ascending (insertion: a vertex has a few edges; qsort past 32). */
-static void sort_bucket(uint64_t *h, size_t n)
+static void sort_bucket(uint32_t *h, size_t n)
 {
     if (n > 32) {
-        qsort(h, n, sizeof *h, u64_cmp);
+        qsort(h, n, sizeof *h, u32_cmp);
         return;
     }
     for (size_t i = 1; i < n; i++) {
-        uint64_t x = h[i];
+        uint32_t x = h[i];
         size_t j = i;
         for (; j > 0 && h[j - 1] > x; j--) h[j] = h[j - 1];
         h[j] = x;
@@ -98,7 +100,7 @@ static void sort_bucket(uint64_t *h, size_t n)
 
 /* Bucket lo's edges h[0, n) (hi << 1, 1: the triangle runs hi -> lo),
  * sorted, summed per edge into e (room grown as needed).  -ENOMEM. */
-static int bucket_edges(uint32_t lo, uint64_t *h, size_t n, dedge **e, size_t *ne, size_t *cap)
+static int bucket_edges(uint32_t lo, uint32_t *h, size_t n, dedge **e, size_t *ne, size_t *cap)
 {
     sort_bucket(h, n);
     for (size_t i = 0; i < n;) {
@@ -119,22 +121,25 @@ static int bucket_edges(uint32_t lo, uint64_t *h, size_t n, dedge **e, size_t *n
 
 /* The chain's edges with their multiplicities, a -> b for c > 0, into
  * (*out)[0, *nb) sorted by key: the triangles' edges counted into one
- * bucket a lower vertex (8 bytes an edge, where a sort of whole edges
- * took 32), each bucket then sorted and summed; -ENOMEM. */
+ * bucket a lower vertex (4 bytes an edge, where a sort of whole edges
+ * took 32: the scatter's misses are most of the time), each bucket then
+ * sorted and summed; -ENOMEM, -E2BIG past 2^31 vertices (hi << 1 | 1
+ * must fit 32 bits; the repair then takes the mesh's tree). */
 static int boundary(const mesh *m, dedge **out, size_t *nb)
 {
     size_t n = 3 * (size_t)m->n_triangles, cap = 0;
-    size_t *at = calloc((size_t)m->n_vertices + 1, sizeof *at);
-    uint64_t *h = malloc(n * sizeof *h);
-    int rc = at && h ? 0 : -ENOMEM;
     *out = NULL, *nb = 0;
+    if (m->n_vertices > UINT32_MAX / 2) return -E2BIG;
+    size_t *at = calloc((size_t)m->n_vertices + 1, sizeof *at);
+    uint32_t *h = malloc(n * sizeof *h);
+    int rc = at && h ? 0 : -ENOMEM;
     for (int pass = 0; !rc && pass < 2; pass++) {
         for (uint32_t t = 0; t < m->n_triangles; t++)
             for (int i = 0; i < 3; i++) {
                 uint32_t a = m->triangles[t][i], b = m->triangles[t][(i + 1) % 3];
                 if (a == b) continue;
                 uint32_t lo = a < b ? a : b, hi = a < b ? b : a;
-                if (pass) h[at[lo]++] = (uint64_t)hi << 1 | (a > b);
+                if (pass) h[at[lo]++] = hi << 1 | (a > b);
                 else at[lo + 1]++;
             }
         for (uint32_t v = 0; !pass && v < m->n_vertices; v++) at[v + 1] += at[v];
@@ -160,37 +165,64 @@ static void vox_of(const mesh *m, const grid_spec *g, uint32_t v, double p[3])
 }
 
 /* The fan points: per piece of the chain (union-find over its vertices)
- * the mean of its edges' ends, snapped to the lattice; o[root] for each
- * root, in lattice units. */
-static int fan_points(const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
-                      uint32_t **up_out, int64_t (**o_out)[3])
+ * the mean of its edges' ends, snapped to the lattice.  The chain's
+ * vertices are numbered densely in the order its edges first name them,
+ * so that the arrays hold them alone (arrays over every vertex of the mesh
+ * made most of the caps' build: their pages); the pieces, and each one's
+ * sum in its order, are those of the vertices themselves. */
+typedef struct {
+    uint32_t *num;   /* a vertex's number + 1; 0: not on the chain */
+    uint32_t *up;    /* the union-find over the numbers */
+    int64_t (*o)[3]; /* o[root]: the fan point of the root's piece, lattice units */
+} fans;
+
+static uint32_t edge_end(const dedge *e, int h)
 {
-    uint32_t *up = malloc((size_t)m->n_vertices * sizeof *up);
-    double(*sum)[4] = calloc(m->n_vertices, sizeof *sum);
-    int64_t(*o)[3] = malloc((size_t)m->n_vertices * sizeof *o);
-    if (!up || !sum || !o) {
-        free(up), free(sum), free(o);
+    return h ? (uint32_t)e->key : (uint32_t)(e->key >> 32);
+}
+
+static uint32_t fan_root(const fans *f, uint32_t v)
+{
+    return find(f->up, f->num[v] - 1);
+}
+
+static void fans_free(fans *f)
+{
+    free(f->num), free(f->up), free(f->o);
+}
+
+static int fan_points(const mesh *m, const grid_spec *g, const dedge *e, size_t nb, fans *f)
+{
+    size_t nv = 0;
+    f->num = calloc(m->n_vertices, sizeof *f->num);
+    f->up = malloc(2 * nb * sizeof *f->up);
+    f->o = malloc(2 * nb * sizeof *f->o);
+    double(*sum)[4] = calloc(2 * nb, sizeof *sum);
+    if (!f->num || !f->up || !f->o || !sum) {
+        fans_free(f), free(sum);
         return -ENOMEM;
-    }
-    for (uint32_t v = 0; v < m->n_vertices; v++) up[v] = v;
-    for (size_t i = 0; i < nb; i++) {
-        uint32_t a = find(up, (uint32_t)(e[i].key >> 32)), b = find(up, (uint32_t)e[i].key);
-        if (a != b) up[a > b ? a : b] = a < b ? a : b; /* the smaller id is the root */
     }
     for (size_t i = 0; i < nb; i++)
         for (int h = 0; h < 2; h++) {
-            uint32_t v = h ? (uint32_t)e[i].key : (uint32_t)(e[i].key >> 32), r = find(up, v);
+            uint32_t v = edge_end(&e[i], h);
+            if (!f->num[v]) f->up[nv] = (uint32_t)nv, f->num[v] = (uint32_t)++nv;
+        }
+    for (size_t i = 0; i < nb; i++) {
+        uint32_t a = fan_root(f, edge_end(&e[i], 0)), b = fan_root(f, edge_end(&e[i], 1));
+        if (a != b) f->up[a > b ? a : b] = a < b ? a : b; /* the smaller number is the root */
+    }
+    for (size_t i = 0; i < nb; i++)
+        for (int h = 0; h < 2; h++) {
+            uint32_t v = edge_end(&e[i], h), r = fan_root(f, v);
             double p[3];
             vox_of(m, g, v, p);
             for (int a = 0; a < 3; a++) sum[r][a] += p[a];
             sum[r][3] += 1;
         }
-    for (uint32_t v = 0; v < m->n_vertices; v++)
-        if (sum[v][3] > 0)
-            for (int a = 0; a < 3; a++) o[v][a] = mesh_vox_snap(sum[v][a] / sum[v][3] * (double)MESH_VOX_L);
+    for (size_t k = 0; k < nv; k++)
+        if (sum[k][3] > 0)
+            for (int a = 0; a < 3; a++) f->o[k][a] = mesh_vox_snap(sum[k][a] / sum[k][3] * (double)MESH_VOX_L);
     free(sum);
-    *up_out = up;
-    *o_out = o;
     return 0;
 }
 
@@ -218,13 +250,12 @@ static int keep_caps(mesh_wtree *t, double (*vt)[3][3], size_t n)
 static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const dedge *e, size_t nb,
                      mesh_vox_pulse *pulse)
 {
-    uint32_t *up;
-    int64_t(*o)[3];
+    fans f = {NULL, NULL, NULL};
     size_t n = 0;
     for (size_t i = 0; i < nb; i++) n += (size_t)abs(e[i].s);
     if (!n) return 0;
     if (n > UINT32_MAX) return -ENOMEM;
-    int rc = fan_points(m, g, e, nb, &up, &o);
+    int rc = fan_points(m, g, e, nb, &f);
     if (rc) return rc;
     double(*vt)[3][3] = malloc(n * sizeof *vt);
     t->cap_lat = malloc(n * sizeof *t->cap_lat);
@@ -232,7 +263,7 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
     for (size_t i = 0, k = 0; vt && t->cap_lat && i < nb; i++) {
         uint32_t lo = (uint32_t)(e[i].key >> 32), hi = (uint32_t)e[i].key;
         uint32_t v[2] = {e[i].s > 0 ? hi : lo, e[i].s > 0 ? lo : hi}; /* (b, a) of a -> b */
-        const int64_t *c = o[find(up, lo)];
+        const int64_t *c = f.o[fan_root(&f, lo)];
         for (int r = 0; r < abs(e[i].s); r++, k++) {
             for (int j = 0; j < 2; j++) {
                 vox_of(m, g, v[j], vt[k][j]);
@@ -251,7 +282,7 @@ static int make_caps(mesh_wtree *t, const mesh *m, const grid_spec *g, const ded
              : -ENOMEM;
     t->n_caps = rc ? 0 : (uint32_t)n;
     if (!rc && n <= DIRECT_MAX) rc = keep_caps(t, vt, n), vt = NULL;
-    free(vt), free(up), free(o);
+    free(vt), fans_free(&f);
     return rc;
 }
 
@@ -686,24 +717,25 @@ static void by_tree(const mesh_vox_frame *f, const mesh_vox_block *b, const uint
 /* Half cap triangle P's solid angle at q (voxel units) from its lattice
  * vertices, the raster's own (their differences from q are exact), so
  * that the angle's sign is the raster's side of the cap; *on set where q
- * lies on the triangle or its edges within the rounding of the triple
- * product (the side undecided there, and the raster's tie rule decides). */
+ * lies on the closed triangle: in its plane within the rounding of the
+ * triple product, and inside it or on an edge or a vertex (there Van
+ * Oosterom and Strackee's denominator is negative, or zero: on an edge
+ * or a vertex atan2 meets 0 / 0 and rounding, and the angle is not even
+ * near +-pi), where the raster's tie rule decides the side. */
 static double cap_half_angle(const int64_t P[3][3], const double q[3], bool *on)
 {
-    double r[3][3];
+    double r[3][3], det, den, l;
     for (int i = 0; i < 3; i++)
         for (int a = 0; a < 3; a++) r[i][a] = (double)P[i][a] / (double)MESH_VOX_L - q[a];
-    double h = mesh_vox_half_solid_angle(r[0], r[1], r[2]);
-    if (fabs(h) < 0.5 * M_PI - 1e-3) return h; /* q sees the triangle in front: off its inside */
-    double l = 1, det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) -
-                        r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) +
-                        r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
-    for (int i = 0; i < 3; i++) l *= sqrt(r[i][0] * r[i][0] + r[i][1] * r[i][1] + r[i][2] * r[i][2]);
-    if (fabs(det) <= 1e-12 * l) *on = true;
+    double h = mesh_vox_half_solid_angle_parts(r[0], r[1], r[2], &det, &den, &l);
+    if (fabs(det) <= 1e-12 * l && den <= 1e-9 * l) *on = true; /* in the plane, not outside */
     return h;
 }
 
-#define EXACT_MARGIN 1e-9 /* |N - w_C| nearer 1/2 after the caps' exact sum: the mesh's */
+#define EXACT_MARGIN 1e-6 /* |N - w_C| nearer 1/2 after the caps' exact sum: the mesh's
+                             (the angles' lattice vertices move w by 1e-7 and more from
+                             the mesh's own: MARGIN's reason; 1e-9 let a sample of
+                             |w| = 1/2 - 2e-8 in as 1/2 + 8e-8) */
 #define EXACT_WORK 4u     /* a block's spare samples times its caps at most this many
                              times the mesh's triangles: the caps' exact sum, else the tree */
 
@@ -723,7 +755,10 @@ static void caps_exact(const cblock *c, size_t w)
     }
     for (unsigned k = 0; k < n; k++) {
         double a = fabs((double)(int16_t)c->count[w * 64 + idx[k]] - h[k] / (2 * M_PI));
-        if (on[k] || fabs(a - 0.5) <= EXACT_MARGIN) continue;
+        if (on[k] || fabs(a - 0.5) <= EXACT_MARGIN) {
+            atomic_fetch_add_explicit(&mesh_wcap_to_exact, 1, memory_order_relaxed);
+            continue; /* left in spare: exact_words decides it */
+        }
         uint64_t bit = 1ull << idx[k];
         c->bits[w] = a > 0.5 ? c->bits[w] | bit : c->bits[w] & ~bit;
         c->spare[w] &= ~bit;

@@ -769,7 +769,9 @@ void mesh_vox_wind_block(const mesh_vox_frame *f, const mesh_vox_wtree *t, const
  * atan2 of Van Oosterom and Strackee's formula; for the small angles of
  * the many far triangles, the series of atan (to t^7: below 1e-17 when
  * |t| < 1/64) instead of atan2. */
-double mesh_vox_half_solid_angle(const double a[3], const double b[3], const double c[3])
+/* Van Oosterom and Strackee's half solid angle, and its parts. */
+static inline double half_angle(const double a[3], const double b[3], const double c[3],
+                                double *det_out, double *den_out, double *l_out)
 {
     double la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
     double lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2]);
@@ -781,11 +783,24 @@ double mesh_vox_half_solid_angle(const double a[3], const double b[3], const dou
     double bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2];
     double ca = c[0] * a[0] + c[1] * a[1] + c[2] * a[2];
     double den = la * lb * lc + ab * lc + bc * la + ca * lb;
+    *det_out = det, *den_out = den, *l_out = la * lb * lc;
     if (den > 0 && fabs(det) < den * (1.0 / 64)) {
         double t = det / den, t2 = t * t;
         return t * (1 - t2 * (1.0 / 3 - t2 * (1.0 / 5 - t2 * (1.0 / 7))));
     }
     return atan2(det, den);
+}
+
+double mesh_vox_half_solid_angle(const double a[3], const double b[3], const double c[3])
+{
+    double det, den, l;
+    return half_angle(a, b, c, &det, &den, &l);
+}
+
+double mesh_vox_half_solid_angle_parts(const double a[3], const double b[3], const double c[3],
+                                       double *det, double *den, double *l)
+{
+    return half_angle(a, b, c, det, den, l);
 }
 
 void mesh_vox_winding_many(const mesh_vox_frame *f, const double (*q)[3], unsigned n, double *w)

@@ -20,6 +20,7 @@
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -529,4 +530,215 @@ Test(mesh_wind, the_far_field_handed_down_holds_within_the_ball)
     cr_assert_gt(handed, 100);
     cr_assert_gt(taken, 100);
     mesh_vox_wtree_free(t);
+}
+
+/* ---- samples on a cap: the mesh's exact sum decides ---- */
+
+/* Voxel units (cube_grid(32): 1/16 a voxel, low corner -1) to world. */
+static double vw(double u)
+{
+    return -1 + u / 16;
+}
+
+/* The tent: four triangles from an apex below to a skew quadrilateral
+ * hole v0 v1 v2 v3 (voxel units) whose vertices average to o = (16, 16,
+ * 16.5), so that mesh_wcap.c's cap, the fan (b, a, o) of each boundary
+ * edge a -> b, holds the triangle v1 v0 o in the plane z = 16.5 of
+ * voxel centres, and its spokes o v0 (x = y) and o v1 (x + y = 32) run
+ * through voxel centres; no centre lies on the tent itself (its planes
+ * miss every centre).  Then a small closed icosphere far from it, so
+ * that the triangles are many and the caps' exact sum is tried before
+ * the mesh's tree (mesh_wcap.c's EXACT_WORK). */
+static const double TENT[5][3] = {{8, 8, 16.5}, {24, 8, 16.5}, {24, 24, 20.5}, {8, 24, 12.5},
+                                  {16, 16, 6.5}};
+
+static const mesh *tent_and_ball(shape *s)
+{
+    shape_init(s);
+    uint32_t v[5];
+    for (int i = 0; i < 5; i++) v[i] = shape_vertex(s, vw(TENT[i][0]), vw(TENT[i][1]), vw(TENT[i][2]));
+    for (int i = 0; i < 4; i++) shape_tri(s, v[i], v[(i + 1) % 4], v[4]);
+    double c[3] = {vw(4.2), vw(4.1), vw(27.9)};
+    shape_icosphere(s, c, 3.0 / 16, 3, false);
+    return shape_finish(s);
+}
+
+/* The distance from p to triangle t (all voxel units): brute force over
+ * the plane's foot and the three edges. */
+static double tri_dist(const double t[3][3], const double p[3])
+{
+    double e1[3], e2[3], n[3], d[3], best = INFINITY;
+    for (int a = 0; a < 3; a++) e1[a] = t[1][a] - t[0][a], e2[a] = t[2][a] - t[0][a], d[a] = p[a] - t[0][a];
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1], n[1] = e1[2] * e2[0] - e1[0] * e2[2],
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double nn = n[0] * n[0] + n[1] * n[1] + n[2] * n[2], h = (d[0] * n[0] + d[1] * n[1] + d[2] * n[2]) / nn;
+    double f[3] = {p[0] - h * n[0], p[1] - h * n[1], p[2] - h * n[2]}; /* the foot */
+    bool in = true;
+    for (int i = 0; i < 3; i++) { /* the foot on the inner side of every edge */
+        const double *a = t[i], *b = t[(i + 1) % 3];
+        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, w[3] = {f[0] - a[0], f[1] - a[1], f[2] - a[2]};
+        double x[3] = {u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]};
+        in = in && x[0] * n[0] + x[1] * n[1] + x[2] * n[2] >= 0;
+    }
+    if (in) return fabs(h) * sqrt(nn);
+    for (int i = 0; i < 3; i++) {
+        const double *a = t[i], *b = t[(i + 1) % 3];
+        double u[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, uu = 0, s = 0, q = 0;
+        for (int k = 0; k < 3; k++) uu += u[k] * u[k], s += (p[k] - a[k]) * u[k];
+        s = s < 0 ? 0 : s > uu ? 1 : s / uu;
+        for (int k = 0; k < 3; k++) q += (p[k] - a[k] - s * u[k]) * (p[k] - a[k] - s * u[k]);
+        best = sqrt(q) < best ? sqrt(q) : best;
+    }
+    return best;
+}
+
+/* The winding number of every triangle of m at p (voxel units of
+ * cube_grid(32)), summed here: the oracle. */
+static double brute_w(const mesh *m, const double p[3])
+{
+    double w = 0;
+    for (uint32_t t = 0; t < m->n_triangles; t++) {
+        double v[3][3];
+        for (int i = 0; i < 3; i++)
+            for (int a = 0; a < 3; a++) v[i][a] = ((double)m->vertices[m->triangles[t][i]][a] + 1) * 16;
+        w += tri_w(v, p);
+    }
+    return w;
+}
+
+/* The cap's triangle of edge a -> b: (b, a, o), as mesh_wcap.c makes it. */
+static bool on_tent_cap(const double p[3])
+{
+    const double o[3] = {16, 16, 16.5};
+    for (int i = 0; i < 4; i++) {
+        double t[3][3];
+        memcpy(t[0], TENT[(i + 1) % 4], sizeof t[0]);
+        memcpy(t[1], TENT[i], sizeof t[1]);
+        memcpy(t[2], o, sizeof t[2]);
+        if (tri_dist(t, p) <= 1e-12) return true;
+    }
+    return false;
+}
+
+/* Samples lying on a cap triangle (inside it and on its spokes) leave
+ * the caps' exact sum, whose angle there has no sign, for the mesh's
+ * exact sum: each such voxel is inside exactly when the generalized
+ * winding number summed here over every triangle (tri_w, the oracle) has
+ * |w| >= 1/2; the direct path and the caps' tree alike, and the fallback
+ * counted (mesh_wcap_to_exact) at least once a sample. */
+Test(mesh_wind, samples_on_a_cap_go_to_the_mesh_exact_sum, .timeout = 600)
+{
+    shape s;
+    const mesh *m = tent_and_ball(&s);
+    grid_spec g = cube_grid(32);
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0};
+    for (int tree = 0; tree < 2; tree++) {
+        mesh_tile_stats st;
+        mesh_wcap_tree_only = tree;
+        uint64_t before = atomic_load(&mesh_wcap_to_exact);
+        uint8_t *d = dense(m, &g, &o, &st);
+        uint64_t spared = atomic_load(&mesh_wcap_to_exact) - before;
+        mesh_wcap_tree_only = 0;
+        size_t on = 0, wrong = 0, inside = 0;
+        for (uint32_t z = 0; z < 32; z++)
+            for (uint32_t y = 0; y < 32; y++)
+                for (uint32_t x = 0; x < 32; x++) {
+                    double p[3] = {x + 0.5, y + 0.5, z + 0.5};
+                    if (!on_tent_cap(p)) continue;
+                    double w = brute_w(m, p);
+                    cr_assert_gt(fabs(fabs(w) - 0.5), 1e-6, "(%u %u %u): |w| %.12f", x, y, z, w);
+                    bool want = fabs(w) >= 0.5, got = d[((size_t)z * 32 + y) * 32 + x] != 0;
+                    if (got != want)
+                        cr_log_error("tree %d: (%u %u %u) w %.6f, voxel %d", tree, x, y, z, w, got);
+                    on++, wrong += got != want, inside += want;
+                }
+        cr_log_info("tree %d: %zu samples on the cap (%zu inside), %zu wrong; %llu to the exact sum",
+                    tree, on, inside, wrong, (unsigned long long)spared);
+        cr_expect_eq(wrong, 0, "tree %d: %zu of %zu samples on the cap wrong", tree, wrong, on);
+        cr_expect_geq(on, 60, "tree %d: only %zu samples on the cap", tree, on);
+        cr_expect_gt(inside, 0, "tree %d: none inside", tree);
+        cr_expect_lt(inside, on, "tree %d: all inside", tree);
+        cr_expect_geq(spared, on, "tree %d: %llu samples to the exact sum for %zu on the cap", tree,
+                      (unsigned long long)spared, on);
+        free(d);
+    }
+    shape_free(&s);
+}
+
+/* Three faces of a box about the voxel centre p = (16.5, 16.5, 16.5),
+ * x = lo, x = hi and y = hi (an extra vertex on the x = lo face's edge
+ * takes the caps' fan point off p): by symmetry each face subtends a
+ * sixth of the sphere from p, so |w(p)| = 1/2 on the voxelizer's lattice.
+ * Then corners move by less than the lattice's step: UP and DOWN, corner
+ * (hi, hi, hi) by a quarter step along z (the raster and the caps see the
+ * same mesh both times, |w| = 1/2 exactly there; the mesh as given |w| =
+ * 1/2 +- 2e-8); APART, three corners so that the lattice's mesh has |w| =
+ * 1/2 + 8.5e-8 and the given one 1/2 - 2e-8 (the caps' angles, from
+ * the lattice's vertices as the raster's sides want, err by more than
+ * 1e-9).  The small icosphere makes the triangles many (mesh_wcap.c's
+ * EXACT_WORK). */
+enum { UP, DOWN, APART }; /* three_faces' moves */
+
+static const mesh *three_faces(shape *s, int move)
+{
+    shape_init(s);
+    uint32_t v[8];
+    for (int i = 0; i < 8; i++)
+        v[i] = shape_vertex(s, vw(i & 1 ? 24.75 : 8.25), vw(i & 2 ? 24.75 : 8.25), vw(i & 4 ? 24.75 : 8.25));
+    uint32_t e = shape_vertex(s, vw(8.25), vw(8.25), vw(12.75)); /* on edge v0 v4 */
+    shape_tri(s, v[6], v[2], v[0]); /* x = lo: the polygon v0 e v4 v6 v2, fanned from v6 */
+    shape_tri(s, v[6], v[0], e);
+    shape_tri(s, v[6], e, v[4]);
+    shape_quad(s, v[1], v[3], v[7], v[5]); /* x = hi */
+    shape_quad(s, v[2], v[6], v[7], v[3]); /* y = hi */
+    const double step = 1.0 / 1048576; /* the lattice's, world units (2^-16 voxel) */
+    if (move == APART) { /* the lattice's mesh has |w| > 1/2, the given one < 1/2 */
+        s->m.vertices[v[7]][2] = (float)(vw(24.75) + 0.625 * step); /* snapped: + 1 step */
+        s->m.vertices[v[3]][2] = (float)(vw(8.25) + 0.4375 * step); /* snapped: no move */
+        s->m.vertices[v[5]][0] = (float)(vw(24.75) + 0.4375 * step);
+    } else {
+        s->m.vertices[v[7]][2] = (float)(vw(24.75) + (move == UP ? 0.25 : -0.25) * step);
+    }
+    double c[3] = {vw(4.2), vw(4.1), vw(27.9)};
+    shape_icosphere(s, c, 3.0 / 16, 3, false);
+    return shape_finish(s);
+}
+
+/* A sample whose |N - w_C| by the caps' exact sum lies near 1/2 goes to
+ * the mesh's exact sum: at p of three_faces, each move, the voxel is what
+ * the oracle says, and the answers of UP and DOWN differ (the caps, on
+ * the lattice, see |w| = 1/2 both times: a decision from them would be
+ * wrong once; APART's from them would be wrong); in the caps' tree and
+ * their direct path (which decides p from the given vertices). */
+Test(mesh_wind, a_sample_near_one_half_goes_to_the_mesh_exact_sum, .timeout = 600)
+{
+    static const char *name[] = {"up", "down", "apart"};
+    grid_spec g = cube_grid(32);
+    mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0};
+    const double p[3] = {16.5, 16.5, 16.5};
+    bool want[3];
+    for (int k = UP; k <= APART; k++) {
+        shape s;
+        const mesh *m = three_faces(&s, k);
+        double w = brute_w(m, p);
+        cr_log_info("%s: |w(p)| - 1/2 = %.3g", name[k], fabs(w) - 0.5);
+        cr_assert_gt(fabs(fabs(w) - 0.5), 1e-12, "%s: the oracle undecided: |w| %.17g", name[k], w);
+        cr_assert_lt(fabs(fabs(w) - 0.5), 1e-7, "%s: |w| %.17g: not near 1/2", name[k], w);
+        want[k] = fabs(w) >= 0.5;
+        for (int tree = 0; tree < 2; tree++) {
+            mesh_tile_stats st;
+            mesh_wcap_tree_only = tree;
+            uint64_t before = atomic_load(&mesh_wcap_to_exact);
+            uint8_t *d = dense(m, &g, &o, &st);
+            uint64_t spared = atomic_load(&mesh_wcap_to_exact) - before;
+            mesh_wcap_tree_only = 0;
+            bool got = d[(16 * 32 + 16) * 32 + 16] != 0;
+            cr_expect_eq(got, want[k], "%s, tree %d: voxel %d, |w| %.17g", name[k], tree, got, w);
+            cr_expect(!tree || spared >= 1, "%s: nothing to the exact sum", name[k]);
+            free(d);
+        }
+        shape_free(&s);
+    }
+    cr_expect_neq(want[UP], want[DOWN], "the oracle's answers: the move does not matter");
+    cr_expect(!want[APART], "apart: the oracle inside");
 }
