@@ -230,23 +230,23 @@ static int implicit_bound(csg_eval *e, uint32_t i, const box *b)
     const csg_node *n = &e->t->node[i];
     if (implicit_all_l(e, n, b)) return CSG_L;
     if (!e->igrad[i]) return -1;
-    ival x[3], f, gr[3];
+    ival x[3];
     for (int a = 0; a < 3; a++)
         x[a] = ival_make(centre(e, a, b->lo[a]), centre(e, a, b->lo[a] + (int32_t)b->n - 1));
-    int total;
-    if (expr_vm_ival_grad(e->vm[i], x[0], x[1], x[2], &f, gr, &total)) {
+    expr_igrad ig;
+    if (expr_vm_ival_grad(e->vm[i], x[0], x[1], x[2], &ig)) {
         e->igrad[i] = 0; /* an op without an interval gradient: never decided */
         return -1;
     }
     double g2 = 0;
     for (int j = 0; j < 3; j++) {
-        double m = fmax(fabs(gr[j].lo), fabs(gr[j].hi));
+        double m = fmax(fabs(ig.grad[j].lo), fabs(ig.grad[j].hi));
         g2 += m * m;
     }
     /* the density is L at t <= -S ramp / (H - S), H at t >= ramp */
     double step = sqrt(g2) * e->g.vs * (1 + CSG_IVAL_SLACK) * CSG_IMPLICIT_RAMP;
-    if (f.lo > 0 && f.lo > step * CSG_S / (CSG_H - CSG_S)) return CSG_L;
-    if (total && f.hi < 0 && -f.hi > step && box_in_domain(e, n, b)) return CSG_H;
+    if (ig.f.lo > 0 && ig.f.lo > step * CSG_S / (CSG_H - CSG_S)) return CSG_L;
+    if (ig.total && ig.f.hi < 0 && -ig.f.hi > step && box_in_domain(e, n, b)) return CSG_H;
     return -1;
 }
 
