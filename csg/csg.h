@@ -131,12 +131,18 @@ int csg_leaf_build(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume
  * (mesh_tile_run), the same volume.  0, or a negative errno with msg. */
 int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, char *msg,
                   size_t len);
-/* Every file leaf of t built in turn (csg_leaf_build) into arena (bytes
- * long, 8-byte aligned), one volume after the other: leaves[i] for each
- * (NULL for the other nodes), *used the arena's bytes they take.  0, or
- * the first leaf's error (-ENOSPC, -ENOMEM: the arena is too small). */
-int csg_leaves_build(const csg_tree *t, const grid_spec *g, void *arena, size_t bytes,
-                     vod_volume *leaves[CSG_MAX_NODES], size_t *used, char *msg, size_t len);
+/* The memory the file leaves' volumes are built in, one after the other. */
+typedef struct {
+    void *base;   /* 8-byte aligned */
+    size_t bytes; /* its length */
+    size_t used;  /* set by csg_leaves_build: the bytes the volumes take */
+} csg_arena;
+/* Every file leaf of t built in turn (csg_leaf_build) into arena a:
+ * leaves[i] for each (NULL for the other nodes), a->used the bytes they
+ * take.  0, or the first leaf's error (-ENOSPC, -ENOMEM: the arena is too
+ * small). */
+int csg_leaves_build(const csg_tree *t, const grid_spec *g, csg_arena *a,
+                     vod_volume *leaves[CSG_MAX_NODES], char *msg, size_t len);
 /* 1 when t has a mesh or vod leaf. */
 int csg_has_file_leaves(const csg_tree *t);
 
@@ -180,12 +186,18 @@ uint32_t csg_channel_bits(int channel);
  * csg_eval_store.  0 or a negative errno. */
 int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
                     vod_volume *vol, int channel, csg_stats *st);
-/* The bricks b with lo[a] <= b[a] < hi[a] alone (storage brick
- * coordinates; NULL: from 0, to the volume's end), as csg_eval_volume
- * stores them: vox_mpi's subtrees. */
+/* Some bricks of a volume, for a channel: those b with lo[a] <= b[a] <
+ * hi[a] (storage brick coordinates; a hi past the volume's end stops at
+ * its end). */
+typedef struct {
+    vod_volume *vol;
+    int channel;
+    uint32_t lo[3], hi[3];
+} csg_bricks;
+/* The bricks of part p alone, as csg_eval_volume stores them: vox_mpi's
+ * subtrees. */
 int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
-                    vod_volume *vol, int channel, const uint32_t lo[3], const uint32_t hi[3],
-                    csg_stats *st);
+                    const csg_bricks *p, csg_stats *st);
 
 /* ---- a tree's signed distance, channel 4 (csg_deval.c) ---- */
 

@@ -230,23 +230,23 @@ static int implicit_bound(csg_eval *e, uint32_t i, const box *b)
     const csg_node *n = &e->t->node[i];
     if (implicit_all_l(e, n, b)) return CSG_L;
     if (!e->igrad[i]) return -1;
-    ival x[3], f, gr[3];
+    ival x[3];
     for (int a = 0; a < 3; a++)
         x[a] = ival_make(centre(e, a, b->lo[a]), centre(e, a, b->lo[a] + (int32_t)b->n - 1));
-    int total;
-    if (expr_vm_ival_grad(e->vm[i], x[0], x[1], x[2], &f, gr, &total)) {
+    expr_igrad ig;
+    if (expr_vm_ival_grad(e->vm[i], x[0], x[1], x[2], &ig)) {
         e->igrad[i] = 0; /* an op without an interval gradient: never decided */
         return -1;
     }
     double g2 = 0;
     for (int j = 0; j < 3; j++) {
-        double m = fmax(fabs(gr[j].lo), fabs(gr[j].hi));
+        double m = fmax(fabs(ig.grad[j].lo), fabs(ig.grad[j].hi));
         g2 += m * m;
     }
     /* the density is L at t <= -S ramp / (H - S), H at t >= ramp */
     double step = sqrt(g2) * e->g.vs * (1 + CSG_IVAL_SLACK) * CSG_IMPLICIT_RAMP;
-    if (f.lo > 0 && f.lo > step * CSG_S / (CSG_H - CSG_S)) return CSG_L;
-    if (total && f.hi < 0 && -f.hi > step && box_in_domain(e, n, b)) return CSG_H;
+    if (ig.f.lo > 0 && ig.f.lo > step * CSG_S / (CSG_H - CSG_S)) return CSG_L;
+    if (ig.total && ig.f.hi < 0 && -ig.f.hi > step && box_in_domain(e, n, b)) return CSG_H;
     return -1;
 }
 
@@ -740,12 +740,12 @@ int csg_eval_store(csg_eval *e, vod_volume *vol, const uint32_t b[3], void *buf,
 }
 
 int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
-                    vod_volume *vol, int channel, const uint32_t lo[3], const uint32_t hi[3],
-                    csg_stats *st)
+                    const csg_bricks *p, csg_stats *st)
 {
+    vod_volume *vol = p->vol;
     vod_volume_info in;
     vod_volume_get_info(vol, &in);
-    if (in.bits != csg_channel_bits(channel)) return -EINVAL;
+    if (in.bits != csg_channel_bits(p->channel)) return -EINVAL;
     for (int a = 0; a < 3; a++)
         if (in.dims[a] != g->res[a]) return -EINVAL;
     csg_eval *e;
@@ -756,13 +756,13 @@ int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *con
     uint32_t nb[3];
     for (int a = 0; a < 3; a++) {
         nb[a] = (g->res[a] + in.sbrick - 1) / in.sbrick;
-        if (hi && hi[a] < nb[a]) nb[a] = hi[a];
+        if (p->hi[a] < nb[a]) nb[a] = p->hi[a];
     }
     uint32_t b[3];
-    for (b[2] = lo ? lo[2] : 0; b[2] < nb[2] && !rc; b[2]++)
-        for (b[1] = lo ? lo[1] : 0; b[1] < nb[1] && !rc; b[1]++)
-            for (b[0] = lo ? lo[0] : 0; b[0] < nb[0] && !rc; b[0]++)
-                rc = csg_eval_store(e, vol, b, buf, channel);
+    for (b[2] = p->lo[2]; b[2] < nb[2] && !rc; b[2]++)
+        for (b[1] = p->lo[1]; b[1] < nb[1] && !rc; b[1]++)
+            for (b[0] = p->lo[0]; b[0] < nb[0] && !rc; b[0]++)
+                rc = csg_eval_store(e, vol, b, buf, p->channel);
     if (st) *st = e->st;
     free(buf);
     csg_eval_free(e);
@@ -772,7 +772,9 @@ int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *con
 int csg_eval_volume(const csg_tree *t, const grid_spec *g, const vod_volume *const *leaves,
                     vod_volume *vol, int channel, csg_stats *st)
 {
-    return csg_eval_bricks(t, g, leaves, vol, channel, NULL, NULL, st);
+    csg_bricks all = {.vol = vol, .channel = channel,
+                      .hi = {UINT32_MAX, UINT32_MAX, UINT32_MAX}};
+    return csg_eval_bricks(t, g, leaves, &all, st);
 }
 
 uint32_t csg_channel_bits(int channel)

@@ -190,8 +190,8 @@ int csg_has_file_leaves(const csg_tree *t)
     return 0;
 }
 
-int csg_leaves_build(const csg_tree *t, const grid_spec *g, void *arena, size_t bytes,
-                     vod_volume *leaves[CSG_MAX_NODES], size_t *used, char *msg, size_t len)
+int csg_leaves_build(const csg_tree *t, const grid_spec *g, csg_arena *a,
+                     vod_volume *leaves[CSG_MAX_NODES], char *msg, size_t len)
 {
     size_t off = 0;
     msg[0] = 0;
@@ -199,9 +199,10 @@ int csg_leaves_build(const csg_tree *t, const grid_spec *g, void *arena, size_t 
     for (uint32_t i = 0; i < t->n; i++) {
         const csg_node *n = &t->node[i];
         if (n->kind != CSG_MESH && n->kind != CSG_VOD) continue;
-        int rc = off < bytes ? vod_volume_init(&leaves[i], (uint8_t *)arena + off, bytes - off,
-                                               g->res, csg_leaf_bits(n), CSG_VOLUME_BRICK)
-                             : -ENOSPC;
+        int rc = off < a->bytes ? vod_volume_init(&leaves[i], (uint8_t *)a->base + off,
+                                                  a->bytes - off, g->res, csg_leaf_bits(n),
+                                                  CSG_VOLUME_BRICK)
+                                : -ENOSPC;
         if (!rc) rc = csg_leaf_build(t, i, g, leaves[i], msg, len);
         if (rc) {
             if (!msg[0])
@@ -214,6 +215,6 @@ int csg_leaves_build(const csg_tree *t, const grid_spec *g, void *arena, size_t 
         vod_volume_get_info(leaves[i], &in);
         off += (in.bytes_used + 63) / 64 * 64;
     }
-    *used = off;
+    a->used = off;
     return 0;
 }

@@ -526,8 +526,8 @@ static int serial_leaves(const engine_pipeline_job *job, engine_pipeline_report 
     if (*arena == MAP_FAILED)
         return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
     char msg[sizeof r->err.msg];
-    size_t used;
-    int rc = csg_leaves_build(t, &r->grid, *arena, *abytes, leaves, &used, msg, sizeof msg);
+    csg_arena a = {.base = *arena, .bytes = *abytes};
+    int rc = csg_leaves_build(t, &r->grid, &a, leaves, msg, sizeof msg);
     if (rc)
         return engine_pipeline_fail(r, rc == -ENOMEM || rc == -ENOSPC ? ENGINE_LIMIT : ENGINE_BAD_JOB,
                              rc, "%s", msg);

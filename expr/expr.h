@@ -144,7 +144,8 @@ void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
                    expr_grad8 *out);
 /* The same for lanes 0 .. n-1 only (1 <= n <= 8; x, y, z are read and out
  * written up to lane n rounded up to even): a partial batch costs about
- * n/8 of a full one.  Lane for lane the same results. */
+ * n/8 of a full one.  Lane for lane the same results.  (Seven arguments:
+ * expr_vm_grad8's and n; x, y, z apart as every evaluator here has them.) */
 void expr_vm_grad8n(expr_vm *vm, int d, int n, const double x[EXPR_LANES],
                     const double y[EXPR_LANES], const double z[EXPR_LANES],
                     expr_grad8 *out);
@@ -164,14 +165,19 @@ int expr_vm_prune8_writes(const expr_vm *vm, int d, int lane);
 /* Whether tapes d1 and d2 are the same code (shared, not just equal). */
 int expr_vm_same_tape(const expr_vm *vm, int d1, int d2);
 
+/* What expr_vm_ival_grad finds on a box: f and grad[j] enclose what
+ * expr_vm_grad gives at every point of the box where that is not NaN. */
+typedef struct {
+    ival f;       /* F */
+    ival grad[3]; /* dF/dx, dF/dy, dF/dz */
+    int total;    /* 1: moreover F and its gradient are defined (not NaN)
+                     and finite at every point of the box */
+} expr_igrad;
 /* Intervals of F and of its gradient on the box (x, y, z), with the full
- * tape: *f and grad[j] enclose what expr_vm_grad gives at every point of
- * the box where that is not NaN.  *total = 1 when moreover F and its
- * gradient are defined (not NaN) and finite at every point of the box.
- * 0, or -ENOTSUP when the tape has an op this evaluator does not know
- * (tan, asin, acos, atan, log, atan2, pow, blend, theta, phi, x^n with
- * n < 1): the caller then decides nothing from it. */
-int expr_vm_ival_grad(expr_vm *vm, ival x, ival y, ival z, ival *f, ival grad[3], int *total);
+ * tape, into *out.  0, or -ENOTSUP when the tape has an op this evaluator
+ * does not know (tan, asin, acos, atan, log, atan2, pow, blend, theta,
+ * phi, x^n with n < 1): the caller then decides nothing from it. */
+int expr_vm_ival_grad(expr_vm *vm, ival x, ival y, ival z, expr_igrad *out);
 
 /* Build the tape of depth d+1 from the choices of the last expr_vm_ival at
  * depth d.  Call it right after that evaluation.  Cheap when nothing prunes

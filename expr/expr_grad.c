@@ -351,7 +351,10 @@ static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
 #endif
 
 /* Lanes 0 .. nl-1 (nl even); registers 0..2 keep their unit derivatives
- * from expr_vm_new (no instruction writes them), only their values are set. */
+ * from expr_vm_new (no instruction writes them), only their values are set.
+ * Seven arguments, as expr_vm_grad8n's: x, y and z stay apart as every
+ * evaluator of expr.h takes them (a struct of the three would only move
+ * them, in the batched gradient's hot loop). */
 static void grad_lanes(expr_vm *vm, int d, const double x[EXPR_LANES],
                        const double y[EXPR_LANES], const double z[EXPR_LANES],
                        expr_grad8 *out, int nl)

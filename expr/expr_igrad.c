@@ -128,7 +128,7 @@ static int step(const expr_insn in, IG *R, int *partial)
     return 0;
 }
 
-int expr_vm_ival_grad(expr_vm *vm, ival x, ival y, ival z, ival *f, ival grad[3], int *total)
+int expr_vm_ival_grad(expr_vm *vm, ival x, ival y, ival z, expr_igrad *out)
 {
     const expr_vm_depth *dp = &vm->dep[0];
     IG *R = vm->igr;
@@ -142,8 +142,8 @@ int expr_vm_ival_grad(expr_vm *vm, ival x, ival y, ival z, ival *f, ival grad[3]
         if (rc) return rc;
     }
     const IG *res = &R[dp->result];
-    *f = res->v;
-    for (int j = 0; j < 3; j++) grad[j] = res->d[j];
-    *total = !partial;
+    out->f = res->v;
+    for (int j = 0; j < 3; j++) out->grad[j] = res->d[j];
+    out->total = !partial;
     return 0;
 }

@@ -102,7 +102,7 @@ void mpi_column_tiles(const grid_spec *g, grid_octant o, uint32_t tiles[4])
     }
 }
 
-/* The storage bricks of octant o (csg_eval_bricks' lo, hi). */
+/* The storage bricks of octant o (csg_bricks' lo, hi). */
 static void octant_bricks(grid_octant o, uint32_t lo[3], uint32_t hi[3])
 {
     uint32_t side = 1u << o.level, at[3] = {o.x, o.y, o.z};
@@ -271,9 +271,8 @@ static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
     if ((*arena = sparse_map(*bytes)) == MAP_FAILED) {
         return err_set(err, -ENOMEM, "cannot map the leaves' volumes");
     }
-    size_t used;
-    return coded(err, csg_leaves_build(j->tree, &j->grid, *arena, *bytes, leaves, &used, err->msg,
-                                       sizeof err->msg));
+    csg_arena a = {.base = *arena, .bytes = *bytes};
+    return coded(err, csg_leaves_build(j->tree, &j->grid, &a, leaves, err->msg, sizeof err->msg));
 }
 
 /* A csg task's bricks into vol, in this thread. */
@@ -284,12 +283,11 @@ static int csg_serial(const mpi_subtree_job *j, grid_octant o, vod_volume *vol, 
     size_t lbytes = 0;
     vod_volume *leaves[CSG_MAX_NODES];
     int rc = csg_leaves(j, &larena, &lbytes, leaves, err);
-    uint32_t lo[3], hi[3];
-    octant_bricks(o, lo, hi);
+    csg_bricks part = {.vol = vol, .channel = j->vod.channel};
+    octant_bricks(o, part.lo, part.hi);
     csg_stats st = {0};
     if (!rc) {
-        rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)leaves, vol,
-                             j->vod.channel, lo, hi, &st);
+        rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)leaves, &part, &st);
         if (rc) err_set(err, rc, "evaluating the tree: %s", strerror(-rc));
     }
     c->voxels = st.solid_voxels;

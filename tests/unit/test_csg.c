@@ -8,6 +8,7 @@
 
 #include "csg.h"
 #include "csg_fixture.h"
+#include "voxel.h"
 
 /* ICVG section 3.3 and its appendix, L = 0, S = 127, H = 255. */
 static int ref_op(csg_kind op, int a, int b, double p)
@@ -130,6 +131,45 @@ Test(csg, bricks_equal_dense_evaluation)
     cr_assert_gt(csg_eval_stats(e)->uniform_bricks, 0);
     cr_assert_gt(csg_eval_stats(e)->skipped, 0);
     csg_eval_free(e);
+    csg_tree_free(t);
+}
+
+static vod_volume *density_volume(const grid_spec *g, void **arena)
+{
+    size_t bytes = vod_volume_bytes(g->res, 8, CSG_VOLUME_BRICK, UINT64_MAX);
+    vod_volume *v;
+    cr_assert(bytes && (*arena = malloc(bytes)));
+    cr_assert_eq(vod_volume_init(&v, *arena, bytes, g->res, 8, CSG_VOLUME_BRICK), 0);
+    return v;
+}
+
+/* csg_eval_bricks stores its part's bricks as csg_eval_volume does and
+ * leaves the others alone (a hi past the volume's end stops there). */
+Test(csg, some_bricks_as_the_whole_volume_has_them)
+{
+    csg_tree *t = parse(tree_src);
+    grid_spec g = grid(40); /* 3 storage bricks of 16 per axis, the last short */
+    void *wa, *pa;
+    vod_volume *whole = density_volume(&g, &wa), *part = density_volume(&g, &pa);
+    cr_assert_eq(csg_eval_volume(t, &g, NULL, whole, VOXEL_CH_DENSITY, NULL), 0);
+    csg_bricks p = {.vol = part, .channel = VOXEL_CH_DENSITY, .lo = {1, 0, 1},
+                    .hi = {3, 1, UINT32_MAX}};
+    csg_stats st;
+    cr_assert_eq(csg_eval_bricks(t, &g, NULL, &p, &st), 0);
+    cr_assert_eq(st.bricks, 2 * 1 * 2, "%llu bricks", (unsigned long long)st.bricks);
+    uint64_t in = 0, out = 0;
+    for (uint32_t z = 0; z < 40; z++)
+        for (uint32_t y = 0; y < 40; y++)
+            for (uint32_t x = 0; x < 40; x++) {
+                uint32_t w = vod_volume_get(whole, x, y, z), got = vod_volume_get(part, x, y, z);
+                int inside = x >= 16 && y < 16 && z >= 16;
+                cr_assert_eq(got, inside ? w : 0, "(%u,%u,%u): %u, the whole volume's %u", x, y,
+                             z, got, w);
+                in += inside && w, out += !inside && w;
+            }
+    cr_assert(in > 0 && out > 0, "%llu, %llu", (unsigned long long)in, (unsigned long long)out);
+    free(wa);
+    free(pa);
     csg_tree_free(t);
 }
 

@@ -226,12 +226,13 @@ static void check_mesh(op_kind op, const char *opname)
     grid_spec g = grid(res);
     csg_tree_set_band(t, band);
     cr_assert_eq(csg_leaf_bits(&t->node[0]), VOD_VOLUME_F32);
-    size_t lbytes = vod_volume_bytes(g.res, VOD_VOLUME_F32, CSG_VOLUME_BRICK, UINT64_MAX), used;
+    size_t lbytes = vod_volume_bytes(g.res, VOD_VOLUME_F32, CSG_VOLUME_BRICK, UINT64_MAX);
     void *larena = malloc(lbytes), *arena;
+    csg_arena la = {.base = larena, .bytes = lbytes};
     vod_volume *leaves[CSG_MAX_NODES];
     char msg[256];
-    cr_assert_eq(csg_leaves_build(t, &g, larena, lbytes, leaves, &used, msg, sizeof msg), 0, "%s",
-                 msg);
+    cr_assert_eq(csg_leaves_build(t, &g, &la, leaves, msg, sizeof msg), 0, "%s", msg);
+    cr_assert(la.used > 0 && la.used <= lbytes, "%zu of %zu bytes", la.used, lbytes);
     vod_volume *vol = eval_tree(t, &g, band, leaves, &arena);
     double vs = g.vs, w = (float)(band * vs), tol = (CSG_DIST_EPS + 1e-4) * vs + 1e-6;
     uint64_t outside = 0;

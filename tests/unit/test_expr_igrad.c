@@ -39,10 +39,11 @@ static void enclose(const char *src)
             hi[a] = lo[a] + w * (b % 3 == a ? 0.5 : 1);
         }
         if (b % 17 == 0) lo[0] = -w / 2, hi[0] = w / 2; /* across 0 */
-        ival f, g[3];
-        int total;
+        expr_igrad ig;
         cr_assert_eq(expr_vm_ival_grad(vm, ival_make(lo[0], hi[0]), ival_make(lo[1], hi[1]),
-                                       ival_make(lo[2], hi[2]), &f, g, &total), 0, "%s", src);
+                                       ival_make(lo[2], hi[2]), &ig), 0, "%s", src);
+        const ival f = ig.f, *g = ig.grad;
+        const int total = ig.total;
         for (int k = 0; k < 40; k++) {
             double p[3], d[3];
             for (int a = 0; a < 3; a++) p[a] = pick(lo[a], hi[a], k < 8 ? (k >> a) & 1 : 3);
@@ -85,10 +86,9 @@ Test(expr_igrad, refuses_ops_it_has_no_interval_gradient_for)
     for (size_t k = 0; k < sizeof srcs / sizeof *srcs; k++) {
         expr_tape *t;
         expr_vm *vm = vm_of(srcs[k], &t);
-        ival f, g[3];
-        int total;
+        expr_igrad ig;
         ival b = ival_make(0.1, 0.2);
-        cr_assert_eq(expr_vm_ival_grad(vm, b, b, b, &f, g, &total), -ENOTSUP, "%s", srcs[k]);
+        cr_assert_eq(expr_vm_ival_grad(vm, b, b, b, &ig), -ENOTSUP, "%s", srcs[k]);
         expr_vm_free(vm);
         expr_tape_free(t);
     }
@@ -98,19 +98,20 @@ Test(expr_igrad, total_only_where_defined_everywhere)
 {
     expr_tape *t;
     expr_vm *vm = vm_of("sqrt(x) + 1 / y", &t);
-    ival f, g[3];
-    int total;
-    cr_assert_eq(expr_vm_ival_grad(vm, ival_make(0.5, 1), ival_make(1, 2), ival_make(0, 1), &f, g,
-                                   &total), 0);
-    cr_assert_eq(total, 1);
-    cr_assert(f.lo > 1.1 && f.hi < 2.1 && g[0].lo > 0.4 && g[0].hi < 0.8 && g[2].lo > -1e-300 &&
-              g[2].hi < 1e-300, "[%g, %g] [%g, %g]", f.lo, f.hi, g[0].lo, g[0].hi);
-    cr_assert_eq(expr_vm_ival_grad(vm, ival_make(-0.5, 1), ival_make(1, 2), ival_make(0, 1), &f,
-                                   g, &total), 0);
-    cr_assert_eq(total, 0); /* sqrt of a negative */
-    cr_assert_eq(expr_vm_ival_grad(vm, ival_make(0.5, 1), ival_make(-1, 2), ival_make(0, 1), &f,
-                                   g, &total), 0);
-    cr_assert_eq(total, 0); /* 1 / 0 */
+    expr_igrad ig;
+    const ival *g = ig.grad;
+    cr_assert_eq(expr_vm_ival_grad(vm, ival_make(0.5, 1), ival_make(1, 2), ival_make(0, 1), &ig),
+                 0);
+    cr_assert_eq(ig.total, 1);
+    cr_assert(ig.f.lo > 1.1 && ig.f.hi < 2.1 && g[0].lo > 0.4 && g[0].hi < 0.8 &&
+                  g[2].lo > -1e-300 && g[2].hi < 1e-300,
+              "[%g, %g] [%g, %g]", ig.f.lo, ig.f.hi, g[0].lo, g[0].hi);
+    cr_assert_eq(expr_vm_ival_grad(vm, ival_make(-0.5, 1), ival_make(1, 2), ival_make(0, 1), &ig),
+                 0);
+    cr_assert_eq(ig.total, 0); /* sqrt of a negative */
+    cr_assert_eq(expr_vm_ival_grad(vm, ival_make(0.5, 1), ival_make(-1, 2), ival_make(0, 1), &ig),
+                 0);
+    cr_assert_eq(ig.total, 0); /* 1 / 0 */
     expr_vm_free(vm);
     expr_tape_free(t);
 }
