@@ -346,8 +346,8 @@ static double time_vod_read(const char *path, uint64_t *voxels)
 {
     double t0 = now();
     vod_file *f;
-    char err[256];
-    if (vod_open(path, &f, err, sizeof err)) die(path, err);
+    err_info err;
+    if (vod_open(path, &f, &err)) die(path, err.msg);
     *voxels = 0;
     vod_foreach(f, 0, count_voxel, voxels);
     vod_close(f);
@@ -597,8 +597,8 @@ static int cmp_ptr(const void *a, const void *b)
 static void file_bricks_read(const char *path, brick_set *b)
 {
     vod_file *vf;
-    char err[256];
-    if (vod_open(path, &vf, err, sizeof err)) die(path, err);
+    err_info err;
+    if (vod_open(path, &vf, &err)) die(path, err.msg);
     const vod_info *in = vod_get_info(vf);
     *b = (brick_set){.brick = in->brick, .voxel_bits = in->voxel_bits,
                      .brick_bytes = (size_t)in->brick * in->brick * in->brick *

@@ -493,9 +493,9 @@ int cli_export(int argc, char **argv)
         o.json = json;
     }
     vod_file *f;
-    char err[512] = "";
-    if (vod_open_threads(o.in, (int)cli_cores(), &f, err, sizeof err)) {
-        cli_error("%s: %s", o.in, err);
+    err_info err = {0};
+    if (vod_open_threads(o.in, (int)cli_cores(), &f, &err)) {
+        cli_error("%s: %s", o.in, err.msg);
         return CLI_EXIT_FAILED;
     }
     export_box b;

@@ -118,9 +118,9 @@ int cli_info(int argc, char **argv)
     int bad = 0;
     for (int i = 1; i < argc; i++) {
         vod_file *f;
-        char err[512] = "";
-        if (vod_open_threads(argv[i], (int)cli_cores(), &f, err, sizeof err)) {
-            cli_error("%s: %s", argv[i], err);
+        err_info err = {0};
+        if (vod_open_threads(argv[i], (int)cli_cores(), &f, &err)) {
+            cli_error("%s: %s", argv[i], err.msg);
             bad = 1;
             continue;
         }

@@ -310,7 +310,7 @@ typedef struct {
     const mesh_opts *o;
     vod_file *f;
     int rc;
-    char err[512];
+    err_info err;
 } opening;
 
 static void *open_run(void *ud)
@@ -319,7 +319,7 @@ static void *open_run(void *ud)
     thread_name("read");
     /* the bricks inflated and hashed by as many threads as the job's workers */
     unsigned threads = op->o->workers ? op->o->workers : 1;
-    op->rc = vod_open_threads(op->o->in, (int)threads, &op->f, op->err, sizeof op->err);
+    op->rc = vod_open_threads(op->o->in, (int)threads, &op->f, &op->err);
     return NULL;
 }
 
@@ -332,7 +332,7 @@ static int open_both(const mesh_opts *o, vod_file **f, engine **e)
     par_start(&t, open_run, &op);
     int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, e) : 0;
     par_join(&t);
-    if (op.rc) cli_error("%s: %s", o->in, op.err);
+    if (op.rc) cli_error("%s: %s", o->in, op.err.msg);
     if (!op.rc && !rc) {
         *f = op.f;
         return 0;

@@ -105,9 +105,9 @@ static int render_vod_file(const char *path, const render_opts *o, int level,
                            render_image *img)
 {
     vod_file *f;
-    char err[512] = "";
-    if (vod_open_threads(path, (int)cli_cores(), &f, err, sizeof err)) {
-        cli_error("%s: %s", path, err);
+    err_info err = {0};
+    if (vod_open_threads(path, (int)cli_cores(), &f, &err)) {
+        cli_error("%s: %s", path, err.msg);
         return CLI_EXIT_FAILED;
     }
     const vod_info *in = vod_get_info(f);

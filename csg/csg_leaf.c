@@ -114,10 +114,10 @@ static int vod_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volum
 {
     const csg_node *n = &t->node[i];
     vod_file *f;
-    char why[200];
-    int rc = vod_read(t->data[i], t->data_len[i], &f, why, sizeof why);
+    err_info why;
+    int rc = vod_read(t->data[i], t->data_len[i], &f, &why);
     if (rc) {
-        snprintf(msg, len, "node '%s': vod: %s", n->name, why);
+        snprintf(msg, len, "node '%s': vod: %s", n->name, why.msg);
         return rc;
     }
     const vod_info *in = vod_get_info(f);

@@ -352,18 +352,17 @@ typedef struct {
 } vod_info;
 
 /* Parse and fully validate a file image (copied).  Returns 0, or -EINVAL /
- * -EBADMSG with a message in err naming what is wrong, or -ENOMEM. */
-int vod_read(const void *buf, size_t len, vod_file **out, char *err,
-             size_t errlen);
-int vod_open(const char *path, vod_file **out, char *err, size_t errlen);
+ * -EBADMSG with a message in err naming what is wrong, or -ENOMEM (err may
+ * be NULL: no message; its code and msg are cleared first). */
+int vod_read(const void *buf, size_t len, vod_file **out, err_info *err);
+int vod_open(const char *path, vod_file **out, err_info *err);
 /* vod_read and vod_open with up to `threads` threads (this one included)
  * inflating and hashing the bricks, for callers that have the cores: the
  * same checks, result and, for a damaged file, the same error and message
  * (the first bad brick record in file order) as with one. */
 int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
-                     char *err, size_t errlen);
-int vod_open_threads(const char *path, int threads, vod_file **out, char *err,
-                     size_t errlen);
+                     err_info *err);
+int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err);
 void vod_close(vod_file *f);
 const vod_info *vod_get_info(const vod_file *f);
 

@@ -40,8 +40,7 @@ typedef struct {
     size_t end;        /* end of the brick records: len, or trailerOffset */
     uint64_t bricks_at; /* numberOfBricks field */
     uint64_t records_at; /* first byte after the brick table */
-    char *err;
-    size_t errlen;
+    err_info *err;     /* NULL: no message */
 } parse;
 
 
@@ -61,17 +60,17 @@ static int read_trailer_body(parse *ps, vod_file *f, uint32_t at)
     const uint8_t *t = ps->b + at;
     uint32_t size = vod_get32(t + 4), meta = vod_get32(t + 24);
     if (size != ps->len - at)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "trailerSize %u at offset %u does not reach the "
+        return err_set(ps->err, -EBADMSG, "trailerSize %u at offset %u does not reach the "
                     "end of the file (%zu bytes)", size, at + 4, ps->len);
     if (meta != size - TRAILER_FIXED)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "trailer metadataSize %u does not match "
+        return err_set(ps->err, -EBADMSG, "trailer metadataSize %u does not match "
                     "trailerSize %u", meta, size);
     for (int a = 0; a < 3; a++) f->info.origin[a] = f32_at(t + 8 + 4 * a);
     f->info.channel = vod_get32(t + 20);
     if (f->info.channel > 4)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "trailer channel %u unknown (0..4)", f->info.channel);
+        return err_set(ps->err, -EBADMSG, "trailer channel %u unknown (0..4)", f->info.channel);
     f->metadata = malloc((size_t)meta + 1);
-    if (!f->metadata) return err_fmt(ps->err, ps->errlen, -ENOMEM, "out of memory");
+    if (!f->metadata) return err_set(ps->err, -ENOMEM, "out of memory");
     memcpy(f->metadata, t + 28, meta);
     f->metadata[meta] = '\0';
     ps->end = at;
@@ -85,20 +84,20 @@ static int read_trailer(parse *ps, vod_file *f)
     const uint8_t *b = ps->b;
     size_t len = ps->len;
     if (len < VOD_HEADER_BYTES + 4 + TRAILER_FIXED)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "file is truncated: flags bit 16 promises a "
+        return err_set(ps->err, -EBADMSG, "file is truncated: flags bit 16 promises a "
                     "trailer, but the file has only %zu bytes", len);
     if (memcmp(b + len - 8, "XDOV", 4) != 0)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "file is truncated or corrupted: flags bit 16 "
+        return err_set(ps->err, -EBADMSG, "file is truncated or corrupted: flags bit 16 "
                     "promises a trailer, but 'XDOV' is not at offset %zu", len - 8);
     uint32_t stored = vod_get32(b + len - 4);
     uint32_t crc = (uint32_t)crc32_z(0, b, len - 4);
     if (crc != stored)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "trailer CRC mismatch (file corrupted): stored "
+        return err_set(ps->err, -EBADMSG, "trailer CRC mismatch (file corrupted): stored "
                     "%08x, computed %08x", stored, crc);
     uint32_t at = vod_get32(b + len - 12);
     if (at < VOD_HEADER_BYTES + 4 || at > len - TRAILER_FIXED ||
         memcmp(b + at, "VODX", 4) != 0)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "trailerOffset %u does not point at 'VODX'", at);
+        return err_set(ps->err, -EBADMSG, "trailerOffset %u does not point at 'VODX'", at);
     f->info.crc32 = stored;
     f->info.has_trailer = 1;
     return read_trailer_body(ps, f, at);
@@ -116,16 +115,16 @@ static int check_brick_and_volume(parse *ps, vod_info *in)
         in->voxel_scale[a] = f32_at(h + 32 + 4 * a);
     }
     if (!in->volume[0] || !in->volume[1] || !in->volume[2])
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "volumeSize %ux%ux%u: each side must be at least 1",
+        return err_set(ps->err, -EINVAL, "volumeSize %ux%ux%u: each side must be at least 1",
                     in->volume[0], in->volume[1], in->volume[2]);
     if (bs[0] != bs[1] || bs[1] != bs[2])
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "brickSize %ux%ux%u is not cubic", bs[0], bs[1], bs[2]);
+        return err_set(ps->err, -EINVAL, "brickSize %ux%ux%u is not cubic", bs[0], bs[1], bs[2]);
     if (bs[0] < 2 || bs[0] > 256 || (bs[0] & (bs[0] - 1)))
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "brickSize %u is not a power of two in 2..256", bs[0]);
+        return err_set(ps->err, -EINVAL, "brickSize %u is not a power of two in 2..256", bs[0]);
     in->brick = bs[0];
     for (int a = 0; a < 3; a++)
         if (!isfinite(in->voxel_scale[a]) || !(in->voxel_scale[a] > 0.0f))
-            return err_fmt(ps->err, ps->errlen, -EINVAL, "voxelScale %g on axis %d is not finite and > 0",
+            return err_set(ps->err, -EINVAL, "voxelScale %g on axis %d is not finite and > 0",
                         (double)in->voxel_scale[a], a);
     return 0;
 }
@@ -141,11 +140,11 @@ static int check_height(parse *ps, vod_file *f)
     uint32_t m = 0;
     while ((1ull << m) < per_axis) m++;
     if (in->height != m + 1)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "treeHeight %u does not fit volumeSize %ux%ux%u "
+        return err_set(ps->err, -EINVAL, "treeHeight %u does not fit volumeSize %ux%ux%u "
                     "and brickSize %u (the spec's formula gives %u)", in->height,
                     in->volume[0], in->volume[1], in->volume[2], in->brick, m + 1);
     if (in->height > MAX_HEIGHT)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "file is truncated: treeHeight %u needs an "
+        return err_set(ps->err, -EBADMSG, "file is truncated: treeHeight %u needs an "
                     "octree table larger than any file", in->height);
     while (1u << f->k < in->brick) f->k++;
     f->padded = in->height - 1 + f->k < 32 ? in->brick << (in->height - 1) : 0;
@@ -164,13 +163,13 @@ static int check_encoding(parse *ps, vod_info *in)
     in->comp = vod_get32(h + 56);
     uint32_t vb = in->voxel_bits;
     if (vb != 1 && vb != 8 && vb != 16 && vb != 32)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "voxelSize %u is not 1, 8, 16 or 32 bits", vb);
+        return err_set(ps->err, -EINVAL, "voxelSize %u is not 1, 8, 16 or 32 bits", vb);
     if (in->hash != VOD_HASH_SFHS && in->hash != VOD_HASH_XX32)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "unsupported hashAlgorithm '%s'",
+        return err_set(ps->err, -EINVAL, "unsupported hashAlgorithm '%s'",
                     vod_fourcc_str(in->hash, s));
     if (in->comp != VOD_COMP_NONE && in->comp != VOD_COMP_ZLIB &&
         in->comp != VOD_COMP_RUNL)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "unsupported compAlgorithm '%s'",
+        return err_set(ps->err, -EINVAL, "unsupported compAlgorithm '%s'",
                     vod_fourcc_str(in->comp, s));
     return 0;
 }
@@ -182,16 +181,16 @@ static int check_flags(parse *ps, const vod_file *f)
     bool comp = in->comp != VOD_COMP_NONE, pad = false;
     for (int a = 0; a < 3; a++) pad |= f->padded > in->volume[a];
     if (fl & ~(VOD_FLAG_COMPRESSED | VOD_FLAG_PADDED | VOD_FLAG_FLOAT | VOD_FLAG_TRAILER))
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "flags %08x: reserved or unknown bits are set", fl);
+        return err_set(ps->err, -EINVAL, "flags %08x: reserved or unknown bits are set", fl);
     if (!(fl & VOD_FLAG_COMPRESSED) != !comp)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "flags bit 0 (compression) is %s but compAlgorithm "
+        return err_set(ps->err, -EINVAL, "flags bit 0 (compression) is %s but compAlgorithm "
                     "is %s", comp ? "clear" : "set", comp ? "not NONE" : "NONE");
     if (!(fl & VOD_FLAG_PADDED) != !pad)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "flags bit 1 (padding) is %s but the padded side %u "
+        return err_set(ps->err, -EINVAL, "flags bit 1 (padding) is %s but the padded side %u "
                     "%s volumeSize", pad ? "clear" : "set", f->padded,
                     pad ? "exceeds" : "equals");
     if ((fl & VOD_FLAG_FLOAT) && in->voxel_bits != 32)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "flags bit 2 (float) needs voxelSize 32, not %u",
+        return err_set(ps->err, -EINVAL, "flags bit 2 (float) needs voxelSize 32, not %u",
                     in->voxel_bits);
     return 0;
 }
@@ -201,7 +200,7 @@ static int check_channel(parse *ps, const vod_info *in)
 {
     static const uint32_t bits[5] = {0, 1, 8, 32, 32};
     if (in->channel == 0 || bits[in->channel] == in->voxel_bits) return 0;
-    return err_fmt(ps->err, ps->errlen, -EINVAL, "trailer channel %u needs voxelSize %u, the header "
+    return err_set(ps->err, -EINVAL, "trailer channel %u needs voxelSize %u, the header "
                 "says %u", in->channel, bits[in->channel], in->voxel_bits);
 }
 
@@ -216,18 +215,18 @@ static int read_header(parse *ps, vod_file *f)
         for (size_t i = 0; i < sig; i++) /* "xx" or " xx": 3 bytes a step at most */
             snprintf(got + strlen(got), sizeof got - strlen(got), "%s%02x", i ? " " : "",
                      ps->b[i]);
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "not a VOD file (bad signature %s; want 2e 56 4f 44, "
+        return err_set(ps->err, -EINVAL, "not a VOD file (bad signature %s; want 2e 56 4f 44, "
                     "\".VOD\")", got);
     }
     if (ps->len < VOD_HEADER_BYTES)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "file is truncated: the header needs %u bytes, "
+        return err_set(ps->err, -EBADMSG, "file is truncated: the header needs %u bytes, "
                     "file has %zu", VOD_HEADER_BYTES, ps->len);
     in->flags = vod_get32(ps->b + 60);
     int rc = (in->flags & VOD_FLAG_TRAILER) ? read_trailer(ps, f) : 0;
     if (rc) return rc;
     in->version = vod_get32(ps->b + 4);
     if (in->version != 1)
-        return err_fmt(ps->err, ps->errlen, -EINVAL, "unsupported fileVersion %u", in->version);
+        return err_set(ps->err, -EINVAL, "unsupported fileVersion %u", in->version);
     if ((rc = check_brick_and_volume(ps, in)) || (rc = check_height(ps, f)) ||
         (rc = check_encoding(ps, in)) || (rc = check_flags(ps, f)) ||
         (rc = check_channel(ps, in)))
@@ -242,12 +241,12 @@ static int read_tree(parse *ps, vod_file *f)
 {
     uint64_t need = f->info.nodes * 4;
     if (need + 4 > ps->end - VOD_HEADER_BYTES)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "file is truncated: octree table and numberOfBricks "
+        return err_set(ps->err, -EBADMSG, "file is truncated: octree table and numberOfBricks "
                     "need %llu bytes at offset %u, file has %zu%s",
                     (unsigned long long)need + 4, VOD_HEADER_BYTES, ps->end,
                     ps->end < ps->len ? " before its trailer" : "");
     f->tree = malloc((size_t)need);
-    if (!f->tree) return err_fmt(ps->err, ps->errlen, -ENOMEM, "out of memory for %llu nodes",
+    if (!f->tree) return err_set(ps->err, -ENOMEM, "out of memory for %llu nodes",
                               (unsigned long long)f->info.nodes);
     const uint8_t *p = ps->b + VOD_HEADER_BYTES;
     for (uint64_t i = 0; i < f->info.nodes; i++) f->tree[i] = vod_get32(p + 4 * i);
@@ -261,13 +260,13 @@ static int check_subtree(parse *ps, const vod_file *f, uint64_t p, uint32_t l)
     if (f->tree[p] == 0) {
         for (uint64_t q = p + 1; q < p + f->sub[l]; q++)
             if (f->tree[q])
-                return err_fmt(ps->err, ps->errlen, -EBADMSG, "node %llu has brickID 0 (empty region) but "
+                return err_set(ps->err, -EBADMSG, "node %llu has brickID 0 (empty region) but "
                             "its descendant node %llu has brickID %u",
                             (unsigned long long)p, (unsigned long long)q, f->tree[q]);
         return 0;
     }
     if (f->tree[p] > f->info.bricks)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "brickID %u at node %llu is not in the brick table "
+        return err_set(ps->err, -EBADMSG, "brickID %u at node %llu is not in the brick table "
                     "(numberOfBricks %u)", f->tree[p], (unsigned long long)p,
                     f->info.bricks);
     for (uint64_t i = 0; l > 0 && i < 8; i++) {
@@ -288,7 +287,7 @@ static int read_count(parse *ps, vod_file *f)
     uint32_t n = vod_get32(ps->b + ps->bricks_at);
     uint64_t room = ps->end - ps->bricks_at - 4;
     if ((uint64_t)n * 16 > room) /* a 12-byte entry and a 4-byte dataSize each */
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "numberOfBricks %u at offset %llu cannot fit: "
+        return err_set(ps->err, -EBADMSG, "numberOfBricks %u at offset %llu cannot fit: "
                     "the file has %llu bytes after it", n,
                     (unsigned long long)ps->bricks_at, (unsigned long long)room);
     f->info.bricks = n;
@@ -300,16 +299,16 @@ static int read_table(parse *ps, const vod_file *f, brick_ent *e)
 {
     uint32_t n = f->info.bricks;
     uint8_t *seen = calloc((size_t)n + 1, 1);
-    if (!seen) return err_fmt(ps->err, ps->errlen, -ENOMEM, "out of memory");
+    if (!seen) return err_set(ps->err, -ENOMEM, "out of memory");
     const uint8_t *p = ps->b + ps->bricks_at + 4;
     int rc = 0;
     for (uint32_t i = 0; i < n && !rc; i++, p += 12) {
         e[i] = (brick_ent){vod_get32(p), vod_get32(p + 4), vod_get32(p + 8), 0};
         if (e[i].id == 0 || e[i].id > n)
-            rc = err_fmt(ps->err, ps->errlen, -EBADMSG, "brick table entry %u has brickID %u, outside "
+            rc = err_set(ps->err, -EBADMSG, "brick table entry %u has brickID %u, outside "
                       "1..%u", i, e[i].id, n);
         else if (seen[e[i].id]++)
-            rc = err_fmt(ps->err, ps->errlen, -EBADMSG, "duplicate brick ID %u in table", e[i].id);
+            rc = err_set(ps->err, -EBADMSG, "duplicate brick ID %u in table", e[i].id);
     }
     free(seen);
     return rc;
@@ -318,12 +317,12 @@ static int read_table(parse *ps, const vod_file *f, brick_ent *e)
 static int check_record(parse *ps, brick_ent *e)
 {
     if (e->off < ps->records_at || e->off > ps->end || ps->end - e->off < 4)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "brick %u: offset %u outside the file (brick "
+        return err_set(ps->err, -EBADMSG, "brick %u: offset %u outside the file (brick "
                     "records lie in %llu..%zu)", e->id, e->off,
                     (unsigned long long)ps->records_at, ps->end);
     e->size = vod_get32(ps->b + e->off);
     if (e->size > ps->end - e->off - 4)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "brick %u: dataSize %u at offset %u passes the "
+        return err_set(ps->err, -EBADMSG, "brick %u: dataSize %u at offset %u passes the "
                     "end of the brick data (offset %zu)", e->id, e->size, e->off, ps->end);
     return 0;
 }
@@ -343,12 +342,12 @@ static int check_extents(parse *ps, brick_ent *e, uint32_t n)
     uint64_t at = ps->records_at;
     for (uint32_t i = 0; i < n; i++) {
         if (e[i].off < at)
-            return err_fmt(ps->err, ps->errlen, -EBADMSG, "brick %u: record at offset %u overlaps brick "
+            return err_set(ps->err, -EBADMSG, "brick %u: record at offset %u overlaps brick "
                         "%u's record", e[i].id, e[i].off, e[i - 1].id);
         at = (uint64_t)e[i].off + 4 + e[i].size;
     }
     if (at != ps->end)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "%llu unexpected bytes after the last brick record "
+        return err_set(ps->err, -EBADMSG, "%llu unexpected bytes after the last brick record "
                     "(offset %llu)%s", (unsigned long long)(ps->end - at),
                     (unsigned long long)at,
                     ps->end == ps->len ? "; flags bit 16 (trailer) is clear" : "");
@@ -375,11 +374,11 @@ static int decode_brick(parse *ps, vod_file *f, const brick_ent *e, uint8_t *raw
         else if (in != e->size) why = "bytes left after the zlib stream";
     }
     if (why)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "brick %u does not decompress to %zu bytes (%s)",
+        return err_set(ps->err, -EBADMSG, "brick %u does not decompress to %zu bytes (%s)",
                     e->id, n, why);
     uint32_t h = vod_hash(f->info.hash, raw, n);
     if (h != e->hash)
-        return err_fmt(ps->err, ps->errlen, -EBADMSG, "brick %u: hash mismatch (table %08x, data %08x)",
+        return err_set(ps->err, -EBADMSG, "brick %u: hash mismatch (table %08x, data %08x)",
                     e->id, e->hash, h);
     return 0;
 }
@@ -467,11 +466,10 @@ static int decode_all(parse *ps, vod_file *f, const brick_ent *e, uint32_t n, in
 {
     decode_job j = {.ps = *ps, .f = f, .e = e, .n = n};
     j.ps.err = NULL;
-    j.ps.errlen = 0;
     j.per = f->raw_bytes >= SLAB_BYTES ? 1 : (uint32_t)(SLAB_BYTES / f->raw_bytes);
     f->chunks = n / j.per + (n % j.per != 0);
     f->slab = calloc((size_t)f->chunks + 1, sizeof *f->slab);
-    if (!f->slab) return err_fmt(ps->err, ps->errlen, -ENOMEM, "out of memory");
+    if (!f->slab) return err_set(ps->err, -ENOMEM, "out of memory");
     atomic_init(&j.next, 0);
     atomic_init(&j.bad, n);
     if ((uint32_t)threads > f->chunks) threads = (int)f->chunks;
@@ -479,9 +477,9 @@ static int decode_all(parse *ps, vod_file *f, const brick_ent *e, uint32_t n, in
     uint32_t bad = atomic_load_explicit(&j.bad, memory_order_relaxed);
     if (bad == n) return 0;
     uint8_t *slab = f->slab[bad / j.per];
-    if (!slab) return err_fmt(ps->err, ps->errlen, -ENOMEM, "out of memory for brick %u", e[bad].id);
+    if (!slab) return err_set(ps->err, -ENOMEM, "out of memory for brick %u", e[bad].id);
     int rc = decode_brick(ps, f, &e[bad], slab + (size_t)(bad % j.per) * f->raw_bytes);
-    return rc ? rc : err_fmt(ps->err, ps->errlen, -EIO, "brick %u: decoded differently twice", e[bad].id);
+    return rc ? rc : err_set(ps->err, -EIO, "brick %u: decoded differently twice", e[bad].id);
 }
 
 static int read_bricks(parse *ps, vod_file *f, int threads)
@@ -489,7 +487,7 @@ static int read_bricks(parse *ps, vod_file *f, int threads)
     uint32_t n = f->info.bricks;
     brick_ent *e = malloc(((size_t)n + 1) * sizeof *e);
     f->brick = calloc((size_t)n + 1, sizeof *f->brick);
-    int rc = e && f->brick ? read_table(ps, f, e) : err_fmt(ps->err, ps->errlen, -ENOMEM, "out of memory");
+    int rc = e && f->brick ? read_table(ps, f, e) : err_set(ps->err, -ENOMEM, "out of memory");
     for (uint32_t i = 0; i < n && !rc; i++) rc = check_record(ps, &e[i]);
     if (!rc) rc = check_extents(ps, e, n);
     for (uint32_t i = 0; i < n && !rc; i++) f->info.brick_data_bytes += e[i].size;
@@ -510,14 +508,17 @@ static int parse_all(parse *ps, vod_file *f, int threads)
     return rc;
 }
 
-int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out, char *err,
-                     size_t errlen)
+int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
+                     err_info *err)
 {
     *out = NULL;
-    if (err && errlen) err[0] = '\0';
+    if (err) { /* err as after no error (its kind the caller's) */
+        err->code = 0;
+        err->msg[0] = '\0';
+    }
     vod_file *f = calloc(1, sizeof *f);
-    parse ps = {.b = buf, .len = len, .end = len, .err = err, .errlen = errlen};
-    if (!f) return err_fmt(ps.err, ps.errlen, -ENOMEM, "out of memory");
+    parse ps = {.b = buf, .len = len, .end = len, .err = err};
+    if (!f) return err_set(ps.err, -ENOMEM, "out of memory");
     int rc = parse_all(&ps, f, threads < 1 ? 1 : threads);
     if (rc) {
         vod_close(f);
@@ -529,9 +530,9 @@ int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out, c
     return 0;
 }
 
-int vod_read(const void *buf, size_t len, vod_file **out, char *err, size_t errlen)
+int vod_read(const void *buf, size_t len, vod_file **out, err_info *err)
 {
-    return vod_read_threads(buf, len, 1, out, err, errlen);
+    return vod_read_threads(buf, len, 1, out, err);
 }
 
 static int read_all(int fd, uint8_t *p, size_t n)
@@ -569,34 +570,33 @@ static uint8_t *map_file(int fd, size_t len)
     return p == MAP_FAILED ? NULL : p;
 }
 
-int vod_open_threads(const char *path, int threads, vod_file **out, char *err,
-                     size_t errlen)
+int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err)
 {
     *out = NULL;
-    parse ps = {.err = err, .errlen = errlen};
+    parse ps = {.err = err};
     int fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0) return err_fmt(ps.err, ps.errlen, -errno, "cannot open: %s", strerror(errno));
+    if (fd < 0) return err_set(ps.err, -errno, "cannot open: %s", strerror(errno));
     struct stat sb;
-    int rc = fstat(fd, &sb) ? err_fmt(ps.err, ps.errlen, -errno, "cannot stat: %s", strerror(errno)) : 0;
-    if (!rc && !S_ISREG(sb.st_mode)) rc = err_fmt(ps.err, ps.errlen, -EINVAL, "not a regular file");
+    int rc = fstat(fd, &sb) ? err_set(ps.err, -errno, "cannot stat: %s", strerror(errno)) : 0;
+    if (!rc && !S_ISREG(sb.st_mode)) rc = err_set(ps.err, -EINVAL, "not a regular file");
     else if (!rc && (uint64_t)sb.st_size > UINT32_MAX + 65536ull)
-        rc = err_fmt(ps.err, ps.errlen, -EFBIG, "%lld bytes: larger than any VOD file",
+        rc = err_set(ps.err, -EFBIG, "%lld bytes: larger than any VOD file",
                   (long long)sb.st_size);
     uint8_t *map = rc ? NULL : map_file(fd, (size_t)sb.st_size);
     uint8_t *buf = rc || map ? NULL : malloc((size_t)sb.st_size + 1);
-    if (!rc && !map && !buf) rc = err_fmt(ps.err, ps.errlen, -ENOMEM, "out of memory");
+    if (!rc && !map && !buf) rc = err_set(ps.err, -ENOMEM, "out of memory");
     if (!rc && !map && (rc = read_all(fd, buf, (size_t)sb.st_size)))
-        err_fmt(ps.err, ps.errlen, rc, "cannot read: %s", strerror(-rc));
+        err_set(ps.err, rc, "cannot read: %s", strerror(-rc));
     close(fd);
-    if (!rc) rc = vod_read_threads(map ? map : buf, (size_t)sb.st_size, threads, out, err, errlen);
+    if (!rc) rc = vod_read_threads(map ? map : buf, (size_t)sb.st_size, threads, out, err);
     if (map) munmap(map, (size_t)sb.st_size);
     free(buf);
     return rc;
 }
 
-int vod_open(const char *path, vod_file **out, char *err, size_t errlen)
+int vod_open(const char *path, vod_file **out, err_info *err)
 {
-    return vod_open_threads(path, 1, out, err, errlen);
+    return vod_open_threads(path, 1, out, err);
 }
 
 void vod_close(vod_file *f)

@@ -71,8 +71,7 @@ static void polygonize(const vod_file *f, int level)
 static void read_and_mesh(const uint8_t *data, size_t size)
 {
     vod_file *f;
-    char err[256];
-    if (vod_read(data, size, &f, err, sizeof err)) return;
+    if (vod_read(data, size, &f, NULL)) return;
     const vod_info *in = vod_get_info(f);
     if (in->volume[0] <= 128 && in->volume[1] <= 128 && in->volume[2] <= 128)
         for (int l = 0; l < (int)in->height; l++) polygonize(f, l);

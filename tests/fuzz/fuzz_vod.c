@@ -22,20 +22,21 @@ static int visit(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 static void read_threaded(const uint8_t *data, size_t size, int rc, const char *err)
 {
     vod_file *f;
-    char e3[256];
-    int r3 = vod_read_threads(data, size, 3, &f, e3, sizeof e3);
-    if (r3 != rc || (rc && strcmp(e3, err))) __builtin_trap();
+    err_info e3;
+    int r3 = vod_read_threads(data, size, 3, &f, &e3);
+    if (r3 != rc || (rc && strcmp(e3.msg, err))) __builtin_trap();
     if (!r3) vod_close(f);
 }
 
 static int read_and_walk(const uint8_t *data, size_t size)
 {
     vod_file *f;
-    char err[256];
-    int rc = vod_read(data, size, &f, err, sizeof err);
-    read_threaded(data, size, rc, err);
+    err_info err;
+    int rc = vod_read(data, size, &f, &err);
+    read_threaded(data, size, rc, err.msg);
     if (rc != 0) {
-        if (!err[0] || f) __builtin_trap(); /* refused, but without a message */
+        /* refused, but without a message or with another code than returned */
+        if (!err.msg[0] || err.code != rc || f) __builtin_trap();
         return 0;
     }
     const vod_info *in = vod_get_info(f);

@@ -65,7 +65,8 @@ static inline vod_file *make_vod(const vol_spec *s, voxel_fn fn, void *ud)
     char err[256] = "";
     cr_assert_eq(vod_write(&src, &p, &sink, NULL, err, sizeof err), 0, "%s", err);
     vod_file *f;
-    cr_assert_eq(vod_read(mb.p, mb.n, &f, err, sizeof err), 0, "%s", err);
+    err_info rerr = {0};
+    cr_assert_eq(vod_read(mb.p, mb.n, &f, &rerr), 0, "%s", rerr.msg);
     free(mb.p);
     free(arena);
     return f;

@@ -241,8 +241,8 @@ Test(csg_dist, pipeline_same_bytes_and_values)
         engine_destroy(e);
     }
     vod_file *f;
-    char err[256];
-    cr_assert_eq(vod_read(m0.p, m0.n, &f, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(m0.p, m0.n, &f, &err), 0, "%s", err.msg);
     const vod_info *in = vod_get_info(f);
     cr_assert_eq(in->channel, VOXEL_CH_DISTANCE);
     cr_assert(in->flags & VOD_FLAG_FLOAT);

@@ -71,8 +71,8 @@ static uint64_t assert_voxels(const vod_membuf *m, const csg_tree *t, const grid
                               int channel)
 {
     vod_file *f;
-    char err[256];
-    cr_assert_eq(vod_read(m->p, m->n, &f, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(m->p, m->n, &f, &err), 0, "%s", err.msg);
     csg_eval *ev;
     cr_assert_eq(csg_eval_new(t, g, 8, NULL, &ev), 0);
     uint32_t X = g->res[0], Y = g->res[1], Z = g->res[2];
@@ -300,8 +300,8 @@ static uint8_t *densities(const char *text, uint32_t res, vod_membuf *keep)
     *keep = run(NULL, &job, &r);
     csg_tree_free(t);
     vod_file *f;
-    char err[256];
-    cr_assert_eq(vod_read(keep->p, keep->n, &f, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(keep->p, keep->n, &f, &err), 0, "%s", err.msg);
     uint8_t *d = malloc((size_t)res * res * res);
     for (uint32_t z = 0; z < res; z++)
         for (uint32_t y = 0; y < res; y++)

@@ -169,8 +169,8 @@ Test(csg_leaves, implicit_mesh_and_vod_leaves_against_a_dense_evaluator, .timeou
     free(obj);
 
     vod_file *pf;
-    char err[256];
-    cr_assert_eq(vod_read(prev.p, prev.n, &pf, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(prev.p, prev.n, &pf, &err), 0, "%s", err.msg);
     double vs = 2.0 / N;
     uint8_t *plane = malloc((size_t)M * M * M), *box = malloc((size_t)M * M * M),
             *pv = malloc((size_t)M * M * M), *ip = malloc((size_t)M * M * M);
@@ -195,7 +195,7 @@ Test(csg_leaves, implicit_mesh_and_vod_leaves_against_a_dense_evaluator, .timeou
     cr_assert(two.n == serial.n && !memcmp(two.p, serial.p, two.n), "2 workers: other bytes");
 
     vod_file *f;
-    cr_assert_eq(vod_read(serial.p, serial.n, &f, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_read(serial.p, serial.n, &f, &err), 0, "%s", err.msg);
     uint64_t in_box = 0, cut_by_prev = 0, from_dilation = 0;
     for (int z = 0; z < N; z++)
         for (int y = 0; y < N; y++)
@@ -240,8 +240,8 @@ Test(csg_leaves, a_fitted_mesh_lands_where_it_is_told)
     engine_pipeline_job job = csg_job(t, -1, 1, 40);
     vod_membuf m = run(NULL, &job);
     vod_file *f;
-    char err[256];
-    cr_assert_eq(vod_read(m.p, m.n, &f, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &f, &err), 0, "%s", err.msg);
     /* the box is 1 x 1 x 1 in the file: fitted, 0.5 on each side */
     double vs = 2.0 / 40, c[3] = {0.2, -0.1, 0.05};
     for (uint32_t z = 0; z < 40; z++)

@@ -85,8 +85,8 @@ Test(mesh_engine, a_box_serial_and_on_the_engine)
         }
         if (channels[c] == VOXEL_CH_OCCUPANCY) {
             vod_file *f;
-            char err[256];
-            cr_assert_eq(vod_read(ref.p, ref.n, &f, err, sizeof err), 0, "%s", err);
+            err_info err = {0};
+            cr_assert_eq(vod_read(ref.p, ref.n, &f, &err), 0, "%s", err.msg);
             const grid_spec *g = &r0.grid;
             uint64_t want = 0, got = 0;
             for (uint32_t z = 0; z < g->res[2]; z++)
@@ -357,8 +357,8 @@ static void check_grid(const engine_pipeline_job *job, const want_grid *w, const
                      r.grid.res[a], w->dims[a]);
     }
     vod_file *f;
-    char err[256];
-    cr_assert_eq(vod_read(mb.p, mb.n, &f, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(mb.p, mb.n, &f, &err), 0, "%s", err.msg);
     const vod_info *in = vod_get_info(f);
     uint32_t dims[3];
     cr_assert_eq(vod_level_dims(f, 0, dims), 0);

@@ -86,8 +86,8 @@ Test(pipeline, the_file_names_the_job)
     engine_pipeline_report r;
     vod_membuf m = run(NULL, &job, &r);
     vod_file *f;
-    char err[256];
-    cr_assert_eq(vod_read(m.p, m.n, &f, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &f, &err), 0, "%s", err.msg);
     const vod_info *in = vod_get_info(f);
     cr_assert(strstr(in->metadata, "source=" TORUS), "%s", in->metadata);
     cr_assert(strstr(in->metadata, "grid=32x32x16"), "%s", in->metadata);

@@ -530,7 +530,8 @@ static vod_file *to_vod_placed(octree *t, int channel, const float *scale,
     char err[256];
     cr_assert_eq(vod_write_octree(t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
     vod_file *f;
-    cr_assert_eq(vod_read(m.p, m.n, &f, err, sizeof err), 0, "%s", err);
+    err_info rerr = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &f, &rerr), 0, "%s", rerr.msg);
     free(m.p);
     return f;
 }

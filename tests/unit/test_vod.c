@@ -657,13 +657,15 @@ Test(vod_write, fd_sink_and_vod_open)
     cr_assert_eq(vod_write_octree(&f.t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
     close(fd);
     vod_file *v;
-    cr_assert_eq(vod_open(path, &v, err, sizeof err), 0, "%s", err);
+    err_info rerr = {0};
+    cr_assert_eq(vod_open(path, &v, &rerr), 0, "%s", rerr.msg);
     cr_assert_eq(vod_get_info(v)->file_bytes, st.file_bytes);
     check_level0(&f, v, 0);
     vod_close(v);
     unlink(path);
-    cr_assert_neq(vod_open(path, &v, err, sizeof err), 0);
-    cr_assert(strstr(err, "cannot open"), "%s", err);
+    cr_assert_eq(vod_open(path, &v, &rerr), -ENOENT);
+    cr_assert(strstr(rerr.msg, "cannot open"), "%s", rerr.msg);
+    cr_assert_eq(rerr.code, -ENOENT);
     cr_assert_null(v);
     fx_free(&f);
 }
@@ -679,14 +681,14 @@ Test(vod_write, vod_open_of_a_mapped_file_is_vod_read_of_its_bytes)
     vod_params p;
     params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 4);
     membuf m = write_file(&f, &p, NULL);
-    char err[256] = "", err2[256] = "";
+    err_info err = {0}, err2 = {0};
     char path[] = "/tmp/test_vod_map_XXXXXX";
     int fd = mkstemp(path);
     cr_assert(fd >= 0);
     cr_assert_eq(write(fd, m.p, m.n), (ssize_t)m.n);
     vod_file *a, *b;
-    cr_assert_eq(vod_open_threads(path, 2, &a, err, sizeof err), 0, "%s", err);
-    cr_assert_eq(vod_read(m.p, m.n, &b, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_open_threads(path, 2, &a, &err), 0, "%s", err.msg);
+    cr_assert_eq(vod_read(m.p, m.n, &b, &err), 0, "%s", err.msg);
     const vod_info *ia = vod_get_info(a), *ib = vod_get_info(b);
     cr_assert_eq(ia->file_bytes, m.n);
     cr_assert_eq(ia->bricks, ib->bricks);
@@ -711,14 +713,16 @@ Test(vod_write, vod_open_of_a_mapped_file_is_vod_read_of_its_bytes)
     vod_close(b);
     /* cut short: the mapping ends at the file's end, as the bytes do */
     cr_assert_eq(ftruncate(fd, (off_t)(m.n - 7)), 0);
-    cr_assert_neq(vod_open(path, &a, err, sizeof err), 0);
-    cr_assert_neq(vod_read(m.p, m.n - 7, &b, err2, sizeof err2), 0);
-    cr_assert_str_eq(err, err2);
+    cr_assert_neq(vod_open(path, &a, &err), 0);
+    cr_assert_neq(vod_read(m.p, m.n - 7, &b, &err2), 0);
+    cr_assert_str_eq(err.msg, err2.msg);
+    cr_assert_eq(err.code, err2.code);
     cr_assert_null(a);
     cr_assert_eq(ftruncate(fd, 0), 0); /* nothing to map */
-    cr_assert_neq(vod_open(path, &a, err, sizeof err), 0);
-    cr_assert_neq(vod_read(m.p, 0, &b, err2, sizeof err2), 0);
-    cr_assert_str_eq(err, err2);
+    cr_assert_neq(vod_open(path, &a, &err), 0);
+    cr_assert_neq(vod_read(m.p, 0, &b, &err2), 0);
+    cr_assert_str_eq(err.msg, err2.msg);
+    cr_assert_eq(err.code, err2.code);
     close(fd);
     unlink(path);
     free(m.p);

@@ -42,16 +42,19 @@ static membuf small_file(void)
     return m;
 }
 
-static int try_read(const uint8_t *b, size_t n, char *err, size_t errlen)
+static int try_read(const uint8_t *b, size_t n, err_info *err)
 {
     vod_file *v = (vod_file *)1;
-    err[0] = '\0';
-    int rc = vod_read(b, n, &v, err, errlen);
+    *err = (err_info){.code = 1, .msg = "stale"};
+    int rc = vod_read(b, n, &v, err);
     if (rc == 0) {
         vod_close(v);
+        cr_assert_str_eq(err->msg, "", "success with a message left");
+        cr_assert_eq(err->code, 0, "success with a code left");
     } else {
         cr_assert_null(v);
-        cr_assert(err[0], "failure without a message");
+        cr_assert(err->msg[0], "failure without a message");
+        cr_assert_eq(err->code, rc, "returned %d, err says %d", rc, err->code);
     }
     return rc;
 }
@@ -59,27 +62,27 @@ static int try_read(const uint8_t *b, size_t n, char *err, size_t errlen)
 Test(vod_corrupt, every_truncation_fails_with_a_message)
 {
     membuf m = small_file();
-    char err[256];
+    err_info err = {0};
     for (size_t n = 0; n < m.n; n++) {
         uint8_t *cut = malloc(n + 1); /* exact size, so ASan sees any overread */
         memcpy(cut, m.p, n);
-        cr_assert_neq(try_read(cut, n, err, sizeof err), 0, "truncated to %zu read fine", n);
-        if (n >= 64) cr_assert(strstr(err, "truncated") || strstr(err, "CRC"), "%zu: %s", n, err);
+        cr_assert_neq(try_read(cut, n, &err), 0, "truncated to %zu read fine", n);
+        if (n >= 64) cr_assert(strstr(err.msg, "truncated") || strstr(err.msg, "CRC"), "%zu: %s", n, err.msg);
         free(cut);
     }
-    cr_assert_eq(try_read(m.p, m.n, err, sizeof err), 0);
+    cr_assert_eq(try_read(m.p, m.n, &err), 0);
     free(m.p);
 }
 
 Test(vod_corrupt, every_bit_flip_fails)
 {
     membuf m = small_file();
-    char err[256];
+    err_info err = {0};
     size_t crc_reports = 0, bits = m.n * 8;
     for (size_t bit = 0; bit < bits; bit++) {
         m.p[bit / 8] ^= (uint8_t)(1u << (bit % 8));
-        cr_assert_neq(try_read(m.p, m.n, err, sizeof err), 0, "bit %zu flipped read fine", bit);
-        crc_reports += strstr(err, "CRC") != NULL;
+        cr_assert_neq(try_read(m.p, m.n, &err), 0, "bit %zu flipped read fine", bit);
+        crc_reports += strstr(err.msg, "CRC") != NULL;
         m.p[bit / 8] ^= (uint8_t)(1u << (bit % 8));
     }
     cr_assert(crc_reports > bits * 9 / 10, "%zu of %zu flips reported as CRC", crc_reports, bits);
@@ -99,7 +102,7 @@ Test(vod_corrupt, file_without_trailer_reads_and_refuses_truncation)
 {
     membuf m = small_file(), full = small_file();
     strip_trailer(&m);
-    char err[256];
+    err_info err = {0};
     vod_file *v = read_ok(&m), *w = read_ok(&full);
     cr_assert_eq(vod_get_info(v)->has_trailer, 0);
     cr_assert_str_eq(vod_get_info(v)->metadata, "");
@@ -111,21 +114,21 @@ Test(vod_corrupt, file_without_trailer_reads_and_refuses_truncation)
     for (size_t n = 0; n < m.n; n++) {
         uint8_t *cut = malloc(n + 1);
         memcpy(cut, m.p, n);
-        cr_assert_neq(try_read(cut, n, err, sizeof err), 0, "truncated to %zu read fine", n);
+        cr_assert_neq(try_read(cut, n, &err), 0, "truncated to %zu read fine", n);
         free(cut);
     }
     /* bit flips without a CRC: some are harmless (a voxelScale bit), none may crash */
     for (size_t bit = 0; bit < m.n * 8; bit += 3) {
         m.p[bit / 8] ^= (uint8_t)(1u << (bit % 8));
-        try_read(m.p, m.n, err, sizeof err);
+        try_read(m.p, m.n, &err);
         m.p[bit / 8] ^= (uint8_t)(1u << (bit % 8));
     }
     /* trailing garbage is refused when bit 16 says there is no trailer */
     uint8_t *more = malloc(m.n + 3);
     memcpy(more, m.p, m.n);
     memset(more + m.n, 0, 3);
-    cr_assert_neq(try_read(more, m.n + 3, err, sizeof err), 0);
-    cr_assert(strstr(err, "3 unexpected bytes after the last brick record"), "%s", err);
+    cr_assert_neq(try_read(more, m.n + 3, &err), 0);
+    cr_assert(strstr(err.msg, "3 unexpected bytes after the last brick record"), "%s", err.msg);
     free(more);
     free(m.p);
     free(full.p);
@@ -155,9 +158,9 @@ static void expect_refusal(patch_fn patch, int keep_crc, const char *want)
     where w = locate(m.p);
     patch(m.p, &m.n, &w);
     if (!keep_crc) fix_crc(m.p, m.n);
-    char err[512];
-    cr_assert_neq(try_read(m.p, m.n, err, sizeof err), 0, "patched file for '%s' read fine", want);
-    cr_assert(strstr(err, want), "message '%s' lacks '%s'", err, want);
+    err_info err = {0};
+    cr_assert_neq(try_read(m.p, m.n, &err), 0, "patched file for '%s' read fine", want);
+    cr_assert(strstr(err.msg, want), "message '%s' lacks '%s'", err.msg, want);
     free(m.p);
 }
 
@@ -347,17 +350,17 @@ static const int thread_counts[] = {2, 3, 4, 16};
 /* m read by 1 thread and by each of thread_counts: the same return code and
  * message, and when it opens, the same bricks at every level.  Returns the
  * return code; err holds the message. */
-static int read_threads_agree(const membuf *m, char *err, size_t errlen)
+static int read_threads_agree(const membuf *m, err_info *err)
 {
     vod_file *one = (vod_file *)1;
-    int rc = vod_read_threads(m->p, m->n, 1, &one, err, errlen);
+    int rc = vod_read_threads(m->p, m->n, 1, &one, err);
     for (size_t k = 0; k < sizeof thread_counts / sizeof *thread_counts; k++) {
         vod_file *v = (vod_file *)1;
-        char e2[512] = "";
-        int r2 = vod_read_threads(m->p, m->n, thread_counts[k], &v, e2, sizeof e2);
+        err_info e2 = {0};
+        int r2 = vod_read_threads(m->p, m->n, thread_counts[k], &v, &e2);
         cr_assert_eq(r2, rc, "%d threads: %d (%s), 1 thread: %d (%s)", thread_counts[k], r2,
-                     e2, rc, err);
-        cr_assert_str_eq(e2, rc ? err : "", "%d threads", thread_counts[k]);
+                     e2.msg, rc, err->msg);
+        cr_assert_str_eq(e2.msg, rc ? err->msg : "", "%d threads", thread_counts[k]);
         if (rc) {
             cr_assert_null(v);
             continue;
@@ -384,11 +387,11 @@ static int read_threads_agree(const membuf *m, char *err, size_t errlen)
 Test(vod_threads, several_threads_read_what_one_reads)
 {
     membuf m = chunked_file();
-    char err[512] = "";
+    err_info err = {0};
     uint32_t n;
     free(records(&m, &n));
     cr_assert_geq(n, 12, "only %u bricks", n);
-    cr_assert_eq(read_threads_agree(&m, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(read_threads_agree(&m, &err), 0, "%s", err.msg);
     /* and through a file */
     char path[] = "/tmp/test_vod_threads_XXXXXX";
     int fd = mkstemp(path);
@@ -396,7 +399,7 @@ Test(vod_threads, several_threads_read_what_one_reads)
     cr_assert_eq(write(fd, m.p, m.n), (ssize_t)m.n);
     close(fd);
     vod_file *v;
-    cr_assert_eq(vod_open_threads(path, 4, &v, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_open_threads(path, 4, &v, &err), 0, "%s", err.msg);
     cr_assert_eq(vod_get_info(v)->bricks, n);
     vod_close(v);
     unlink(path);
@@ -420,11 +423,12 @@ Test(vod_threads, the_first_bad_record_is_reported_whatever_the_threads)
         p[0][0] ^= 0x5a;
         p[1][0] ^= 0x21;
         fix_crc(m.p, m.n);
-        char err[512] = "", want[32];
-        cr_assert_neq(read_threads_agree(&m, err, sizeof err), 0);
+        err_info err = {0};
+        char want[32];
+        cr_assert_neq(read_threads_agree(&m, &err), 0);
         uint32_t first = at[t][0] < at[t][1] ? at[t][0] : at[t][1];
         snprintf(want, sizeof want, "brick %u", r[first].id);
-        cr_assert(strstr(err, want), "case %zu: '%s' does not name %s", t, err, want);
+        cr_assert(strstr(err.msg, want), "case %zu: '%s' does not name %s", t, err.msg, want);
         p[1][0] ^= 0x21;
         p[0][0] ^= 0x5a;
     }
@@ -434,21 +438,22 @@ Test(vod_threads, the_first_bad_record_is_reported_whatever_the_threads)
         if (vod_get32(m.p + w.table_at + 12 * i) == r[n - 1].id)
             vod_put32(m.p + w.table_at + 12 * i + 8, vod_get32(m.p + w.table_at + 12 * i + 8) ^ 1);
     fix_crc(m.p, m.n);
-    char err[512] = "", want[48];
-    cr_assert_neq(read_threads_agree(&m, err, sizeof err), 0);
+    err_info err = {0};
+    char want[48];
+    cr_assert_neq(read_threads_agree(&m, &err), 0);
     snprintf(want, sizeof want, "brick %u: hash mismatch", r[n - 1].id);
-    cr_assert(strstr(err, want), "'%s' lacks '%s'", err, want);
+    cr_assert(strstr(err.msg, want), "'%s' lacks '%s'", err.msg, want);
     free(r);
     free(m.p);
 }
 
 Test(vod_corrupt, tiny_and_empty_inputs)
 {
-    char err[256];
-    cr_assert_neq(try_read(NULL, 0, err, sizeof err), 0);
-    cr_assert(strstr(err, "file is truncated: the header needs 64 bytes, file has 0"), "%s", err);
+    err_info err = {0};
+    cr_assert_neq(try_read(NULL, 0, &err), 0);
+    cr_assert(strstr(err.msg, "file is truncated: the header needs 64 bytes, file has 0"), "%s", err.msg);
     uint8_t hdr[64] = {0x2E, 0x56, 0x4F, 0x44};
     vod_put32(hdr + 60, VOD_FLAG_TRAILER);
-    cr_assert_neq(try_read(hdr, sizeof hdr, err, sizeof err), 0);
-    cr_assert(strstr(err, "truncated"), "%s", err);
+    cr_assert_neq(try_read(hdr, sizeof hdr, &err), 0);
+    cr_assert(strstr(err.msg, "truncated"), "%s", err.msg);
 }

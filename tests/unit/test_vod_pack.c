@@ -193,7 +193,8 @@ static void file_case(uint32_t S, uint32_t brick)
     char err[256] = "";
     cr_assert_eq(vod_write(&src, &p, &sink, NULL, err, sizeof err), 0, "%s", err);
     vod_file *file;
-    cr_assert_eq(vod_read(m.p, m.n, &file, err, sizeof err), 0, "%s", err);
+    err_info rerr = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &file, &rerr), 0, "%s", rerr.msg);
     for (uint32_t z = 0; z < f.dims[2]; z++)
         for (uint32_t y = 0; y < f.dims[1]; y++)
             for (uint32_t x = 0; x < f.dims[0]; x++)

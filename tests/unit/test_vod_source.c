@@ -224,7 +224,8 @@ Test(vod_source, channel_4_from_a_float_volume_reads_back)
     membuf m = write_source(&vs, &p, &vst);
     vod_file *f;
     char err[256] = "";
-    cr_assert_eq(vod_read(m.p, m.n, &f, err, sizeof err), 0, "%s", err);
+    err_info rerr = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &f, &rerr), 0, "%s", rerr.msg);
     const vod_info *fi = vod_get_info(f);
     cr_assert_eq(fi->channel, 4);
     cr_assert_eq(fi->voxel_bits, 32);

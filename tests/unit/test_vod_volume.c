@@ -421,8 +421,8 @@ static void check_against_oracle(const vfx *f, int channel, uint32_t brick, uint
     params(&p, f->dims, channel, brick, comp);
     vod_membuf m = write_ok(f->v, &p);
     vod_file *r;
-    char err[256];
-    cr_assert_eq(vod_read(m.p, m.n, &r, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &r, &err), 0, "%s", err.msg);
     const vod_info *in = vod_get_info(r);
     cr_assert_eq(in->voxel_bits, channel == 1 ? 1u : 8u);
     cr_assert_eq(in->channel, (uint32_t)channel);
@@ -616,8 +616,8 @@ Test(vod_volume_write, later_voxels_reach_the_next_file)
     vfx_set(&f, 14, 14, 14, 240);
     vod_membuf b = write_ok(f.v, &p);
     vod_file *r;
-    char err[256];
-    cr_assert_eq(vod_read(b.p, b.n, &r, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_read(b.p, b.n, &r, &err), 0, "%s", err.msg);
     cr_assert_eq(vod_voxel(r, 0, 14, 14, 14), 240);
     cr_assert_eq(vod_voxel(r, 1, 7, 7, 7), 30, "240 / 8");
     cr_assert_eq(vod_voxel(r, 2, 3, 3, 3), 4, "(30 + 4) / 8");
@@ -625,7 +625,7 @@ Test(vod_volume_write, later_voxels_reach_the_next_file)
     vod_close(r);
     params(&p, f.dims, VOXEL_CH_OCCUPANCY, 4, VOD_COMP_NONE);
     vod_membuf c = write_ok(f.v, &p);
-    cr_assert_eq(vod_read(c.p, c.n, &r, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_read(c.p, c.n, &r, &err), 0, "%s", err.msg);
     cr_assert_eq(vod_voxel(r, 2, 3, 3, 3), 1);
     cr_assert_eq(vod_voxel(r, 2, 0, 0, 0), 1);
     cr_assert_eq(vod_voxel(r, 2, 1, 1, 1), 0);

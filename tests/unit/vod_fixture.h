@@ -140,9 +140,9 @@ static inline membuf write_file(fixture *f, const vod_params *p, vod_stats *st)
 static inline vod_file *read_ok(const membuf *m)
 {
     vod_file *v;
-    char err[256] = "";
-    int rc = vod_read(m->p, m->n, &v, err, sizeof err);
-    cr_assert_eq(rc, 0, "read: %s", err);
+    err_info err = {0};
+    int rc = vod_read(m->p, m->n, &v, &err);
+    cr_assert_eq(rc, 0, "read: %s", err.msg);
     return v;
 }
 
