@@ -205,16 +205,22 @@ static void implicit_done(engine *e, int i, const shm_task *t, int error)
 /* The job's end (engine_kind.tail): a subtree above TAIL_LEVEL handed out
  * as its children instead, which come back as subtrees one level finer,
  * so that the last tasks are small and the workers end together (issue
- * 24: the last level-6 subtrees left one worker alone for 20-50 ms of a
- * loaded 2-core machine).  The same voxels: a task of children and a
+ * 24: the last level-6 subtrees took up to a few ms of one worker while
+ * the other had none).  Only once no octant above the split is still out:
+ * at the job's start the stack is short too, but more is coming.  The same voxels: a task of children and a
  * subtree test every octant with the same pruned tapes (subdiv.c). */
 #define TAIL_LEVEL 4
 
 static void implicit_tail(engine *e, shm_task *t)
 {
-    (void)e;
-    if (t->op == IMPLICIT_SUBTREE && implicit_octant(t).level > TAIL_LEVEL)
-        t->op = IMPLICIT_CHILDREN;
+    const implicit_job *ij = e->job;
+    if (t->op != IMPLICIT_SUBTREE || implicit_octant(t).level <= TAIL_LEVEL ||
+        ij->job->split_level > 0) /* the caller's tasks, as it asked */
+        return;
+    /* octants above the split still out (the job's start): more to come */
+    for (int l = ij->split + 1; l <= GRID_MAX_DEPTH; l++)
+        if (ij->pending[l]) return;
+    t->op = IMPLICIT_CHILDREN;
 }
 
 /* The kernel is deterministic: a re-run gives the same entries. */

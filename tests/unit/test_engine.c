@@ -22,7 +22,6 @@
 #include "engine.h"
 #include "expr.h"
 #include "kinds.h"
-#include "master.h"
 #include "octree.h"
 #include "shm.h"
 #include "subdiv.h"
@@ -81,24 +80,6 @@ Test(engine, scene2_identical_to_serial) { identity(SCENE2, 64, 3); }
 Test(engine, torus_256_with_a_split_tail_identical_to_serial, .timeout = 120)
 {
     identity(TORUS, 256, 2);
-}
-
-Test(engine, the_last_subtrees_are_handed_out_as_their_children)
-{
-    shm_task t = {.kind = SHM_KIND_IMPLICIT, .op = IMPLICIT_SUBTREE};
-    grid_octant o = {.x = 32, .y = 0, .z = 64, .level = 6};
-    memcpy(t.arg, &o, sizeof o);
-    cr_assert_not_null(engine_kind_implicit.tail);
-    engine_kind_implicit.tail(NULL, &t);
-    cr_assert_eq(t.op, IMPLICIT_CHILDREN, "a level-6 subtree at the end: its children");
-    cr_assert_eq(memcmp(t.arg, &o, sizeof o), 0, "the same octant");
-    engine_kind_implicit.tail(NULL, &t);
-    cr_assert_eq(t.op, IMPLICIT_CHILDREN, "a task of children stays one");
-    o.level = 4; /* 16^3: small enough */
-    t = (shm_task){.kind = SHM_KIND_IMPLICIT, .op = IMPLICIT_SUBTREE};
-    memcpy(t.arg, &o, sizeof o);
-    engine_kind_implicit.tail(NULL, &t);
-    cr_assert_eq(t.op, IMPLICIT_SUBTREE, "a level-4 subtree is not split");
 }
 
 Test(engine, scene2_128_and_split_levels)
