@@ -66,15 +66,13 @@ extern "C" {
 #include "vod.h"
 }
 
-namespace {
-
-double now()
+static double now()
 {
     using namespace std::chrono;
     return duration<double>(steady_clock::now().time_since_epoch()).count();
 }
 
-int fail(const char *what, const char *why)
+static int fail(const char *what, const char *why)
 {
     std::fprintf(stderr, "vdb_mesh: %s: %s\n", what, why);
     return 1;
@@ -87,7 +85,7 @@ struct distance_file {
     int band = 3;
 };
 
-int open_distance(const char *path, distance_file *d)
+static int open_distance(const char *path, distance_file *d)
 {
     char err[256];
     if (vod_open(path, &d->f, err, sizeof err)) return fail(path, err);
@@ -101,7 +99,7 @@ int open_distance(const char *path, distance_file *d)
     return 0;
 }
 
-float voxel_f32(const vod_file *f, uint32_t x, uint32_t y, uint32_t z)
+static float voxel_f32(const vod_file *f, uint32_t x, uint32_t y, uint32_t z)
 {
     uint32_t u = vod_voxel(f, 0, x, y, z);
     float v;
@@ -125,7 +123,7 @@ typedef openvdb::Vec3d v3;
 
 // The closest point on triangle abc to p (Ericson, Real-Time Collision
 // Detection, 5.1.5), in double.
-v3 closest_on_triangle(const v3 &p, const v3 &a, const v3 &b, const v3 &c)
+static v3 closest_on_triangle(const v3 &p, const v3 &a, const v3 &b, const v3 &c)
 {
     v3 ab = b - a, ac = c - a, ap = p - a;
     double d1 = ab.dot(ap), d2 = ac.dot(ap);
@@ -148,7 +146,7 @@ v3 closest_on_triangle(const v3 &p, const v3 &a, const v3 &b, const v3 &c)
 }
 
 // The exact distance from p to the mesh: every triangle.
-double brute_distance(const world_mesh &m, const v3 &p)
+static double brute_distance(const world_mesh &m, const v3 &p)
 {
     double best = HUGE_VAL;
     for (const openvdb::Vec3I &t : *m.tris) {
@@ -161,7 +159,7 @@ double brute_distance(const world_mesh &m, const v3 &p)
 // The generalized winding number of the mesh at p (the solid angles of
 // every triangle, Van Oosterom and Strackee, over 4 pi): 1 inside a closed
 // mesh, 0 outside, 2 where two parts of it overlap.
-double brute_winding(const world_mesh &m, const v3 &p)
+static double brute_winding(const world_mesh &m, const v3 &p)
 {
     double sum = 0;
     for (const openvdb::Vec3I &t : *m.tris) {
@@ -174,7 +172,7 @@ double brute_winding(const world_mesh &m, const v3 &p)
     return sum / (4 * M_PI);
 }
 
-void keep_worst(std::vector<worst> &w, size_t n, const worst &x)
+static void keep_worst(std::vector<worst> &w, size_t n, const worst &x)
 {
     if (!n) return;
     auto less = [](const worst &a, const worst &b) { return a.diff > b.diff; };
@@ -186,8 +184,8 @@ void keep_worst(std::vector<worst> &w, size_t n, const worst &x)
     }
 }
 
-void print_worst(const char *group, std::vector<worst> w, const distance_file &d,
-                 const world_mesh &m)
+static void print_worst(const char *group, std::vector<worst> w, const distance_file &d,
+                        const world_mesh &m)
 {
     std::sort(w.begin(), w.end(), [](const worst &a, const worst &b) { return a.diff > b.diff; });
     for (const worst &x : w) {
@@ -202,8 +200,8 @@ void print_worst(const char *group, std::vector<worst> w, const distance_file &d
 // n of the voxels whose signs differ, evenly spaced in the grid's order,
 // and which of the two the winding number agrees with: one line each, then
 //   winding agrees with vox V openvdb O of n
-void sign_sample(const std::vector<worst> &all, size_t n, const distance_file &d,
-                 const world_mesh &m)
+static void sign_sample(const std::vector<worst> &all, size_t n, const distance_file &d,
+                        const world_mesh &m)
 {
     size_t votes[2] = {0, 0}, k = 0;
     for (size_t i = 0; i < n && i < all.size(); i++, k++) {
@@ -220,7 +218,7 @@ void sign_sample(const std::vector<worst> &all, size_t n, const distance_file &d
 }
 
 // The file against OpenVDB's grid (the same voxels: see the transform).
-void compare(const distance_file &d, const openvdb::FloatGrid &grid, const world_mesh &m)
+static void compare(const distance_file &d, const openvdb::FloatGrid &grid, const world_mesh &m)
 {
     /* vox writes the band's width as (float)(K vs) from the grid's double
      * voxel size, the file holds vs as a float: a hair less than K vs (1e-6
@@ -266,17 +264,16 @@ void compare(const distance_file &d, const openvdb::FloatGrid &grid, const world
 
 // meshToLevelSet with meshToVolume's flags: the points taken to index
 // space first, as meshToLevelSet does (doMeshConversion).
-openvdb::FloatGrid::Ptr convert(const openvdb::math::Transform &xform,
-                                const std::vector<openvdb::Vec3s> &points,
-                                const std::vector<openvdb::Vec3I> &tris, float band, int flags)
+static openvdb::FloatGrid::Ptr convert(const openvdb::math::Transform &xform,
+                                       const std::vector<openvdb::Vec3s> &points,
+                                       const std::vector<openvdb::Vec3I> &tris, float band,
+                                       int flags)
 {
     std::vector<openvdb::Vec3s> ip(points.size());
     for (size_t i = 0; i < points.size(); i++) ip[i] = xform.worldToIndex(points[i]);
     openvdb::tools::QuadAndTriangleDataAdapter<openvdb::Vec3s, openvdb::Vec3I> mesh(ip, tris);
     return openvdb::tools::meshToVolume<openvdb::FloatGrid>(mesh, xform, band, band, flags);
 }
-
-} // namespace
 
 int main(int argc, char **argv)
 {

@@ -206,9 +206,10 @@ static void laid_out(void *ud, const iso_mesh *m)
 }
 
 /* The mesh, by the engine's workers (e: the mesh lives in its shared
- * memory until it is abandoned) or (e NULL: -w 0) in this process. */
-static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p,
-                      iso_mesh *m, engine_result *r, engine *e, mesh_out *w)
+ * memory until it is abandoned) or (e NULL: -w 0) in this process; the
+ * options are w's. */
+static int polygonize(const vod_file *f, const iso_params *p, iso_mesh *m, engine_result *r,
+                      engine *e, mesh_out *w)
 {
     err_info err = {0};
     int rc;
@@ -241,7 +242,8 @@ static int polygonize(const mesh_opts *o, const vod_file *f, const iso_params *p
         r->master_cpu = clock_thread_cpu() - c0;
     }
     if (rc && !cli_interrupted())
-        cli_error("%s: marching cubes failed: %s", o->in, err.msg[0] ? err.msg : strerror(-rc));
+        cli_error("%s: marching cubes failed: %s", w->o->in,
+                  err.msg[0] ? err.msg : strerror(-rc));
     return rc;
 }
 
@@ -370,7 +372,7 @@ static int run(const mesh_opts *o)
         return CLI_EXIT_FAILED;
     }
     cli_catch_interrupts();
-    rc = polygonize(o, f, &p, &m, &r, e, &w);
+    rc = polygonize(f, &p, &m, &r, e, &w);
     t[2] = clock_now();
     par_task end;
     par_start(&end, close_run, f);

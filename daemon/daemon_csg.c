@@ -49,11 +49,13 @@ static int kind_of(const Voxd__CsgNode *n, csg_kind *k)
     }
 }
 
-/* Node i's expression compiled under the daemon's limits, then kept in
- * the tree's text pool.  0, or the compiler's errno with msg filled. */
-static int implicit_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_t i,
-                         const expr_limits *lim, size_t *used, char *msg, size_t len)
+/* Node i's expression (its message m) compiled under the daemon's limits,
+ * then appended to the tree's text pool (t->text_len its bytes so far).
+ * 0, or the compiler's errno with msg filled. */
+static int implicit_leaf(csg_tree *t, const Voxd__CsgNode *m, size_t i, const expr_limits *lim,
+                         char *msg, size_t len)
 {
+    csg_node *n = &t->node[i];
     expr_tape *tape = NULL;
     expr_error xe = {0};
     int rc = expr_compile((const char *)m->source.data, m->source.len, lim, &tape, &xe);
@@ -63,11 +65,11 @@ static int implicit_leaf(csg_tree *t, csg_node *n, const Voxd__CsgNode *m, size_
                  xe.col, xe.msg[0] ? xe.msg : strerror(-rc));
         return rc;
     }
-    n->expr_off = (uint32_t)*used;
+    n->expr_off = (uint32_t)t->text_len;
     n->expr_len = (uint32_t)m->source.len;
-    memcpy(t->text + *used, m->source.data, m->source.len);
-    t->text[*used + m->source.len] = 0;
-    *used += m->source.len + 1;
+    memcpy(t->text + t->text_len, m->source.data, m->source.len);
+    t->text[t->text_len + m->source.len] = 0;
+    t->text_len += m->source.len + 1;
     if (m->n_domain == 2) n->has_domain = 1, n->dom_lo = m->domain[0], n->dom_hi = m->domain[1];
     return 0;
 }
@@ -138,7 +140,6 @@ int daemon_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_ex
     expr_limits_default(&lim);
     lim.max_source_bytes = max_expr_bytes;
     lim.max_depth = max_expr_depth;
-    size_t used = 0;
     int rc = 0;
     for (size_t i = 0; i < c->n_nodes && !rc; i++) {
         const Voxd__CsgNode *m = c->nodes[i];
@@ -152,12 +153,11 @@ int daemon_csg_tree(const Voxd__Csg *c, uint32_t max_expr_bytes, uint32_t max_ex
         snprintf(n->name, sizeof n->name, "%.*s", (int)m->name.len, (const char *)m->name.data);
         node_fields(n, m);
         if (n->kind == CSG_IMPLICIT)
-            rc = implicit_leaf(t, n, m, i, &lim, &used, msg, len);
+            rc = implicit_leaf(t, m, i, &lim, msg, len);
         if (n->kind == CSG_MESH || n->kind == CSG_VOD)
             rc = file_leaf(t, n, m, i, msg, len);
     }
     t->n = (uint32_t)c->n_nodes;
-    t->text_len = used;
     if (rc) {
         csg_tree_free(t);
         return rc;

@@ -158,6 +158,9 @@ int vox_receive_to_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t 
     return rc;
 }
 
+/* libvox 0.1's receive calls, kept for its ABI (vox.h, docs/libvox.md):
+ * their seven and eight arguments are that version's; new code passes
+ * them in a vox_receive_opts. */
 int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
                      void *ud, vox_summary *sum, vox_error *err)
 {

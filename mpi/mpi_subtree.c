@@ -55,7 +55,8 @@ static grid_octant top_octant(const vod_layout *L, int depth, const vod_node *n,
 
 /* The task's nodes (level <= node_level: the others are the paths above
  * its subtrees, rank 0's), keyed, with each subtree's top brick and its
- * voxels, to the caller. */
+ * voxels, to the caller.  An engine_deliver (engine.h): its seven
+ * arguments are that callback's. */
 static int hand_over(void *ud, const vod_layout *L, const vod_source *src, size_t n,
                      const vod_node *nodes, const vod_encoded *recs,
                      const uint8_t *const *data)

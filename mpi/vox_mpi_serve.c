@@ -382,16 +382,17 @@ int mpi_spill_open(const char *path)
     return fd;
 }
 
-/* Rank 0's end by stage (--stats), in seconds: the top levels (on a
+/* Rank 0's times, in seconds: the job's (its start to the last subtree)
+ * and the file's write, which is, by stage (--stats): the top levels (on a
  * thread of their own) beside the subtrees' order, the assembly (of which
  * the sink's writes), the commit (fsync, link). */
 typedef struct {
+    double job, write;
     double top, order, assemble, commit;
 } tail_times;
 
 static void print_stats(const prep *p, const master *m, const rank_stats *all,
-                        const engine_pipeline_report *r, const tail_times *tt, double t_job,
-                        double t_write)
+                        const engine_pipeline_report *r, const tail_times *tt)
 {
     const grid_spec *g = &r->grid;
     const int nranks = m->ctx->nranks;
@@ -419,7 +420,7 @@ static void print_stats(const prep *p, const master *m, const rank_stats *all,
     printf("%s: %llu voxels%s on a %ux%ux%u grid in %.3f s on %s (%s), VOD written in "
            "%.3f s\n", p->o.out, (unsigned long long)m->voxels,
            p->kind == MPI_KIND_CSG ? " at or above S" : "", g->res[0], g->res[1], g->res[2],
-           t_job, how, tasks, t_write);
+           tt->job, how, tasks, tt->write);
     printf("  %llu bytes, %llu bricks (%llu non-empty nodes), CRC %08x\n",
            (unsigned long long)r->st.file_bytes, (unsigned long long)r->st.bricks,
            (unsigned long long)r->st.nonempty_nodes, r->st.crc32);
@@ -474,10 +475,9 @@ static int write_file(prep *p, master *m, engine_pipeline_report *r, tail_times 
 
 void mpi_finish_file(prep *p, master *m, rank_stats *all, double t0)
 {
-    double t_job = clock_now() - t0;
+    tail_times tt = {.job = clock_now() - t0};
     err_info err = {0};
     engine_pipeline_report r = p->plan;
-    tail_times tt = {0};
     double t1 = clock_now();
     int rc = write_file(p, m, &r, &tt, &err);
     if (rc) {
@@ -486,5 +486,6 @@ void mpi_finish_file(prep *p, master *m, rank_stats *all, double t0)
         abort_job(m->ctx);
     }
     progress_done(&m->pr);
-    if (!p->o.quiet) print_stats(p, m, all, &r, &tt, t_job, clock_now() - t1);
+    tt.write = clock_now() - t1;
+    if (!p->o.quiet) print_stats(p, m, all, &r, &tt);
 }

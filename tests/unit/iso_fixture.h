@@ -77,18 +77,24 @@ static inline void *heap(void *ud, size_t n)
     return *(void **)ud = malloc(n);
 }
 
-static inline void polygonize(const vod_file *f, uint32_t iso, int level, const double *c,
-                              const double *radii, uint32_t nr, iso_mesh *m)
+/* The mesh of request rq, in this thread. */
+static inline void polygonize_rq(const vod_file *f, const iso_request *rq, iso_mesh *m)
 {
     iso_params p;
     err_info err = {0};
-    iso_request rq = {.iso = iso, .level = level, .center = c, .radii = radii, .nradii = nr};
-    cr_assert_eq(iso_params_make(f, &rq, &p, &err), 0, "%s", err.msg);
+    cr_assert_eq(iso_params_make(f, rq, &p, &err), 0, "%s", err.msg);
     void *mem = NULL;
     iso_input in;
     cr_assert_eq(iso_input_make(f, &p, heap, &mem, &in), 0);
     cr_assert_eq(iso_run_serial(&p, &in, m, &err), 0, "%s", err.msg);
     free(mem);
+}
+
+/* The mesh of one level at iso. */
+static inline void polygonize(const vod_file *f, uint32_t iso, int level, iso_mesh *m)
+{
+    iso_request rq = {.iso = iso, .level = level};
+    polygonize_rq(f, &rq, m);
 }
 
 /* ---- the checker ---- */

@@ -42,7 +42,7 @@ Test(iso, sphere_density_closed_near_and_its_volume)
     ramp r = {sphere_dist, &R, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_mesh m;
-    polygonize(f, 127, 0, NULL, NULL, 0, &m);
+    polygonize(f, 127, 0, &m);
     assert_closed(&m, "sphere");
     assert_near(&m, &r, 0.5 * s.h, "sphere");
     /* every vertex within h/2 of the sphere: the volume within the shell */
@@ -60,7 +60,7 @@ Test(iso, torus_density_closed_near_and_its_volume)
     ramp r = {torus_dist, rr, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_mesh m;
-    polygonize(f, 127, 0, NULL, NULL, 0, &m);
+    polygonize(f, 127, 0, &m);
     assert_closed(&m, "torus");
     assert_near(&m, &r, 0.5 * s.h, "torus");
     double v = check(&m).volume, exact = 2 * M_PI * M_PI * rr[0] * rr[1] * rr[1];
@@ -109,7 +109,7 @@ Test(iso, scene1_density_closed_and_near)
     ramp r = {scene_dist, &sc, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_mesh m;
-    polygonize(f, 127, 0, NULL, NULL, 0, &m);
+    polygonize(f, 127, 0, &m);
     assert_closed(&m, "scene 1");
     /* F / |grad F| is a distance only to first order: where it says more
      * than h/2, F must change sign within h/2 along the gradient */
@@ -148,7 +148,7 @@ Test(iso, random_volumes_are_closed_whatever_the_cases)
             vod_file *f = make_vod(&s, noise, &mode);
             for (int level = 0; level < 2; level++) {
                 iso_mesh m;
-                polygonize(f, kinds[k].iso, level, NULL, NULL, 0, &m);
+                polygonize(f, kinds[k].iso, level, &m);
                 char what[64];
                 snprintf(what, sizeof what, "noise %zu.%d level %d", k, rep, level);
                 assert_closed(&m, what);
@@ -245,7 +245,7 @@ Test(iso, normals_point_along_the_radius)
     static const double bound[2] = {5, 16};
     for (int level = 0; level < 2; level++) {
         iso_mesh m;
-        polygonize(f, 127, level, NULL, NULL, 0, &m);
+        polygonize(f, 127, level, &m);
         cr_assert(m.nrm, "level %d: no normals from channel 3", level);
         cr_assert_gt(m.n_vertices, 100);
         double w = worst_angle(m.pos, m.nrm, m.n_vertices), wf = worst_angle_in_obj(&m);
@@ -269,7 +269,7 @@ Test(iso, every_mip_level_is_closed_and_coarser)
     uint64_t last = UINT64_MAX;
     for (int l = 0; l < 3; l++) {
         iso_mesh m;
-        polygonize(f, 127, l, NULL, NULL, 0, &m);
+        polygonize(f, 127, l, &m);
         char what[32];
         snprintf(what, sizeof what, "level %d", l);
         assert_closed(&m, what);
@@ -287,7 +287,7 @@ Test(iso, adaptive_levels_have_no_boundary_at_any_radii)
     ramp r = {sphere_dist, &R, s.h};
     vod_file *f = make_vod(&s, ramp_value, &r);
     iso_mesh full;
-    polygonize(f, 127, 0, NULL, NULL, 0, &full);
+    polygonize(f, 127, 0, &full);
     static const double c[][3] = {{0, 0, 0}, {0.8, 0, 0}, {-0.5, 0.5, 0.6}, {2, 2, 2}};
     static const double radii[][3] = {{0.3, 0.6, 0.9}, {0.1, 0.2, 0.3}, {0.5, 1, 2},
                                       {0, 0.01, 0.02}};
@@ -295,7 +295,8 @@ Test(iso, adaptive_levels_have_no_boundary_at_any_radii)
         for (size_t j = 0; j < sizeof radii / sizeof *radii; j++)
             for (uint32_t n = 1; n <= 3; n++) {
                 iso_mesh m;
-                polygonize(f, 127, 0, c[i], radii[j], n, &m);
+                iso_request rq = {.iso = 127, .center = c[i], .radii = radii[j], .nradii = n};
+                polygonize_rq(f, &rq, &m);
                 char what[64];
                 snprintf(what, sizeof what, "centre %zu, radii %zu x %u", i, j, n);
                 assert_closed(&m, what);
@@ -304,7 +305,8 @@ Test(iso, adaptive_levels_have_no_boundary_at_any_radii)
     /* far away, everything at the coarsest level: fewer triangles */
     iso_mesh m;
     double far[3] = {9, 9, 9}, rad[2] = {0.1, 0.2};
-    polygonize(f, 127, 0, far, rad, 2, &m);
+    iso_request rq = {.iso = 127, .center = far, .radii = rad, .nradii = 2};
+    polygonize_rq(f, &rq, &m);
     cr_assert_lt(m.n_triangles, full.n_triangles / 4);
     iso_mesh_free(&m);
     iso_mesh_free(&full);
@@ -345,7 +347,7 @@ Test(iso, coarse_and_adaptive_levels_stay_near_the_surface)
     double exact = 4.0 / 3.0 * M_PI * R * R * R;
     for (int l = 0; l < 3; l++) {
         iso_mesh m;
-        polygonize(f, 127, l, NULL, NULL, 0, &m);
+        polygonize(f, 127, l, &m);
         double tol = l ? 0.25 * ldexp(s.h, l) : 0.5 * s.h, w = worst_dist(&m, &r, NULL, 0, 0);
         double v = check(&m).volume, shell = 4.0 * M_PI * R * R * tol;
         fprintf(stderr, "NOTE: iso level %d: worst vertex %.3f h from the sphere (bound %.2f h), "
@@ -361,7 +363,7 @@ Test(iso, coarse_and_adaptive_levels_stay_near_the_surface)
     iso_request rq = {.iso = 127, .center = c, .radii = radii, .nradii = 2};
     cr_assert_eq(iso_params_make(f, &rq, &p, &err), 0, "%s", err.msg);
     iso_mesh m;
-    polygonize(f, 127, 0, c, radii, 2, &m);
+    polygonize_rq(f, &rq, &m);
     double fine = worst_dist(&m, &r, c, radii[0] - 2 * s.h, 0);
     double out = worst_dist(&m, &r, NULL, 0, 1), top = 0.25 * ldexp(s.h, (int)p.lod_top);
     double v = check(&m).volume, shell = 4.0 * M_PI * R * R * top;

@@ -61,7 +61,7 @@ Test(iso, the_workers_give_the_serial_mesh_byte_for_byte)
                 iso_request rq = {.iso = 127, .level = level};
                 cr_assert_eq(iso_params_make(files[k], &rq, &p, &ie), 0, "%s", ie.msg);
                 iso_mesh ref, m;
-                polygonize(files[k], 127, level, NULL, NULL, 0, &ref);
+                polygonize(files[k], 127, level, &ref);
                 engine_iso_job job = {.file = files[k], .p = &p};
                 engine_result res;
                 cr_assert_eq(engine_iso(e, &job, &m, &res), 0, "%s", res.err.msg);
@@ -165,7 +165,7 @@ Test(iso, a_stalled_worker_costs_nothing_but_time)
     iso_params p;
     cr_assert_eq(iso_params_make(f, &level0, &p, &ie), 0, "%s", ie.msg);
     iso_mesh ref, m;
-    polygonize(f, 127, 0, NULL, NULL, 0, &ref);
+    polygonize(f, 127, 0, &ref);
     cr_assert_eq(kill(engine_worker_pid(e, 0), SIGSTOP), 0);
     engine_iso_job job = {.file = f, .p = &p};
     engine_result res;
