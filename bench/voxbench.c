@@ -31,6 +31,8 @@
 #include "bench_util.h"
 #include "engine.h"
 #include "expr.h"
+#include "kind_encode.h"
+#include "kind_implicit.h"
 #include "octree.h"
 #include "pipeline.h"
 #include "subdiv.h"
@@ -177,7 +179,7 @@ static engine_pipeline_report time_pipeline(engine *e, const shape *s, const exp
                                      uint32_t res, double *whole)
 {
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_IMPLICIT,
+        .kind = &engine_kind_implicit,
         .implicit = {.tape = t, .source = "", .source_name = s->file},
         .lo = {s->lo, s->lo, s->lo}, .hi = {s->hi, s->hi, s->hi}, .res = res,
     };

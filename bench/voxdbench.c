@@ -399,7 +399,7 @@ static void embedded_job(engine *e, job_out *o)
     if (expr_compile(SMALL_EXPR, strlen(SMALL_EXPR), NULL, &t, &xe))
         die("%s: %s", SMALL_EXPR, xe.msg);
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_IMPLICIT,
+        .kind = &engine_kind_implicit,
         .implicit = {.tape = t, .source = SMALL_EXPR, .source_len = strlen(SMALL_EXPR)},
         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = SMALL_RES,
         .schedule = ENGINE_SCHED_SUBTREE,

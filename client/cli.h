@@ -7,6 +7,7 @@
 #include <stdint.h>
 #include <stdio.h>
 
+#include "csg.h"
 #include "engine.h"
 #include "exit_status.h"
 #include "mesh_vox.h"

@@ -194,7 +194,7 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
 static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes,
                const csg_tree *t)
 {
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG,
+    engine_pipeline_job job = {.kind = &engine_kind_csg,
                         .csg = {.tree = t, .source_name = text_name,
                                 .source_bytes = text_bytes},
                         .res = o->res, .band = o->band};

@@ -14,6 +14,7 @@
 #include "cli.h"
 #include "clock.h"
 #include "iso.h"
+#include "kind_iso.h"
 #include "outfile.h"
 #include "par.h"
 #include "syncbehind.h"
@@ -237,7 +238,7 @@ static int polygonize(const vod_file *f, const iso_params *p, iso_mesh *m, engin
         m->t_setup += t_in;
         iso_task *t;
         uint64_t n;
-        if (!rc && !iso_tasks(p, &in, &t, &n)) free(t), r->fig.iso.tasks = (uint32_t)n;
+        if (!rc && !iso_tasks(p, &in, &t, &n)) free(t), r->tasks = (uint32_t)n;
         free(mem);
         r->master_cpu = clock_thread_cpu() - c0;
     }
@@ -289,7 +290,7 @@ static void print_summary(const mesh_opts *o, const iso_params *p, const iso_mes
     printf("%s: %llu triangles, %llu vertices from %s in %.3f s (%u brick task%s, "
            "%u worker%s), written in %.3f s\n", o->out, (unsigned long long)m->n_triangles,
            (unsigned long long)m->n_vertices, p->nradii ? "adaptive levels" : "one level",
-           t[2] - t[1], r->fig.iso.tasks, cli_plural(r->fig.iso.tasks), o->workers,
+           t[2] - t[1], r->tasks, cli_plural(r->tasks), o->workers,
            cli_plural(o->workers), t[3] - t[2]);
     printf("  file read and checked in %.3f s; bricks and tasks %.3f s, marching cubes "
            "%.3f s, weld %.3f s\n", t[1] - t[0], m->t_setup, m->t_tasks, m->t_weld);

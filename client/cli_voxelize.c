@@ -95,7 +95,7 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
     job->vod = o->vod;
     grid_spec g;
     err_info err = {0};
-    if (job->kind == ENGINE_PIPELINE_IMPLICIT &&
+    if (job->kind == &engine_kind_implicit &&
         grid_make(o->lo, o->hi, o->res, &g, &err)) {
         cli_error("%s", err.msg);
         engine_abandon(e);
@@ -146,7 +146,7 @@ static int voxelize(voxelize_opts *o, engine_pipeline_job *job, engine *e)
 static int voxelize_expr(voxelize_opts *o, const source *src, const expr_tape *tape)
 {
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_IMPLICIT,
+        .kind = &engine_kind_implicit,
         .implicit = {.tape = tape, .source = src->text, .source_len = src->len,
                      .source_name = src->path},
         .band = o->mesh_opts.band,
@@ -190,7 +190,7 @@ static int voxelize_mesh(voxelize_opts *o)
     mesh m = l.m;
     struct stat sb;
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_MESH,
+        .kind = &engine_kind_mesh,
         .mesh = {.mesh = &m, .opts = o->mesh_opts, .pad = o->pad,
                  .fit = !o->has_domain, .source_name = o->mesh,
                  .source_bytes = stat(o->mesh, &sb) == 0 ? (uint64_t)sb.st_size : 0},

@@ -75,7 +75,7 @@ struct daemon_job {
     enum daemon_job_state state;   /* under mu */
 
     /* the request, copied and checked */
-    engine_pipeline_kind kind;        /* ENGINE_PIPELINE_IMPLICIT, _MESH or _CSG */
+    const engine_kind *kind;   /* one of daemon_submit.c's table's */
     /* The job's input: the expression, or the mesh file's bytes (freed
      * once parsed); NUL-terminated; inline, or the input as it arrives. */
     char *source;
@@ -333,7 +333,11 @@ void daemon_client_unlink_job(daemon_client *c, daemon_job *j);
 void daemon_client_fail_uploads(daemon_client *c, int code, const char *msg);
 
 /* daemon_submit.c: a Submit made into a job (the one place in the daemon
- * that tells the kinds apart) */
+ * that tells the kinds apart, but for daemon_mpi.c) */
+/* Set j's terminal error (code a Voxd__ErrorCode, the message formatted);
+ * returns -1. */
+int daemon_job_error(daemon_job *j, int code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
 /* What is built and checked before s's job is queued (a CSG tree into
  * *out): 0 (nothing for the other kinds), or -E2BIG, -EINVAL or another
  * -errno with msg set. */
@@ -344,6 +348,19 @@ daemon_job *daemon_submit_job(daemon_client *c, const Voxd__Submit *s);
 /* What the job's input is, for messages. */
 const char *daemon_submit_input_name(const daemon_job *j);
 int daemon_submit_is_text(const daemon_job *j); /* its input is text: no NUL byte in it */
+/* The kind's part of the pipeline job, as vox voxelize fills it (so the
+ * bytes are the same): the expression compiled, the mesh parsed, the CSG
+ * tree's leaves cut in, a bad input refused here with its typed error even
+ * when the job then runs through MPI (mpi: the mesh's bytes kept for
+ * vox_mpi).  What it made is in *owned, for daemon_submit_release.  0, or
+ * -1 with the job's error (and nothing to release). */
+int daemon_submit_input(daemon_job *j, engine_pipeline_job *job, void **owned, int mpi);
+void daemon_submit_release(const daemon_job *j, void *owned);
+/* The job's kind in a StatusReply. */
+Voxd__JobKind daemon_submit_status_kind(const daemon_job *j);
+/* The kind's figures into m (when it has any and the job got that far);
+ * on the loop thread, which sends m before it calls this again. */
+void daemon_submit_summary(const daemon_job *j, Voxd__Summary *m);
 
 /* daemon_reply.c */
 int daemon_send_hello_ok(daemon_client *c);

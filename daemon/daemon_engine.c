@@ -14,9 +14,7 @@
 #include "clock.h"
 #include "daemon.h"
 #include "err.h"
-#include "expr.h"
 #include "log.h"
-#include "mesh.h"
 #include "pipeline.h"
 #include "vod.h"
 
@@ -221,93 +219,20 @@ static int sink_write(void *ud, const void *buf, size_t n)
     return 0;
 }
 
-__attribute__((format(printf, 3, 4))) static int job_error(daemon_job *j, int code,
-                                                           const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    err_vfmt(j->message, sizeof j->message, 0, fmt, ap);
-    va_end(ap);
-    j->code = code;
-    return -1;
-}
-
 void daemon_job_stopped(daemon_job *j)
 {
     switch (j->cancel_code) {
     case VOXD__ERROR_CODE__TIMEOUT:
-        job_error(j, j->cancel_code,
-                  "the job ran past this server's job_timeout of %u s; ask for a lower "
-                  "res or a simpler %s",
-                  j->job_timeout,
-                  j->kind == ENGINE_PIPELINE_MESH ? "mesh" : j->kind == ENGINE_PIPELINE_CSG ? "CSG tree"
-                                                                              : "expression");
+        daemon_job_error(j, j->cancel_code,
+                         "the job ran past this server's job_timeout of %u s; ask for a lower "
+                         "res or a simpler %s",
+                         j->job_timeout, daemon_submit_input_name(j));
         break;
     case VOXD__ERROR_CODE__SHUTTING_DOWN:
-        job_error(j, j->cancel_code, "the daemon is stopping");
+        daemon_job_error(j, j->cancel_code, "the daemon is stopping");
         break;
-    default: job_error(j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client"); break;
+    default: daemon_job_error(j, VOXD__ERROR_CODE__CANCELLED, "cancelled by a client"); break;
     }
-}
-
-static int compile(daemon_job *j, expr_tape **tape)
-{
-    expr_limits lim;
-    expr_limits_default(&lim);
-    lim.max_source_bytes = j->max_expr_bytes;
-    lim.max_depth = j->max_expr_depth;
-    expr_error xe = {0};
-    int rc = expr_compile(j->source, j->source_len, &lim, tape, &xe);
-    if (rc == 0) return 0;
-    int code = rc == -E2BIG ? VOXD__ERROR_CODE__LIMIT_EXCEEDED
-               : rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
-                               : VOXD__ERROR_CODE__INTERNAL;
-    if (xe.line > 0)
-        return job_error(j, code, "expression:%d:%d: %s", xe.line, xe.col, xe.msg);
-    return job_error(j, code, "expression: %s", xe.msg[0] ? xe.msg : strerror(-rc));
-}
-
-/* The mesh from the job's bytes, parsed here whatever a client did (its
- * messages with the file's line or byte); then the bytes are freed, the
- * mesh holding what the job needs, unless keep (an MPI run hands them to
- * vox_mpi).  0, or -1 with the job's error set. */
-static int parse_mesh(daemon_job *j, mesh *m, int keep)
-{
-    mesh_limits lim = {.max_triangles = j->max_triangles};
-    mesh_error me = {0};
-    int rc = mesh_parse(j->source, j->source_len, j->mesh_format, &lim, m, &me);
-    if (rc == 0 && j->weld && (rc = mesh_weld(m, j->weld_eps, NULL))) {
-        mesh_free(m);
-        return job_error(j, rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
-                                          : VOXD__ERROR_CODE__INTERNAL,
-                         rc == -EINVAL ? "mesh: no triangle is left once welded at %g"
-                                       : "mesh: welding at %g: out of memory", j->weld_eps);
-    }
-    if (rc == 0 && m->n_triangles == 0) {
-        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT,
-                  "mesh: no triangles (%llu degenerate ones dropped)",
-                  (unsigned long long)m->n_degenerate);
-        mesh_free(m);
-        return -1;
-    }
-    if (rc == 0) {
-        if (!keep) {
-            free(j->source);
-            j->source = NULL;
-        }
-        return 0;
-    }
-    char at[48] = "";
-    if (me.line) snprintf(at, sizeof at, "line %llu: ", (unsigned long long)me.line);
-    else if (me.offset) snprintf(at, sizeof at, "byte %llu: ", (unsigned long long)me.offset);
-    const char *why = me.msg[0] ? me.msg : strerror(-rc);
-    if (rc == -E2BIG)
-        return job_error(j, VOXD__ERROR_CODE__LIMIT_EXCEEDED,
-                         "mesh: %s%s (this server's max_triangles is %u)", at, why,
-                         j->max_triangles);
-    return job_error(j, rc == -EINVAL ? VOXD__ERROR_CODE__INVALID_INPUT
-                                      : VOXD__ERROR_CODE__INTERNAL,
-                     "mesh: %s%s", at, why);
 }
 
 /* The daemon's error code for the engine's reason. */
@@ -333,29 +258,30 @@ static int job_failed(daemon_job *j, const result_sink *rs, const engine_pipelin
     /* a cancel shows as the engine's, or as the sink's refusal */
     if (err->kind == ENGINE_CANCELLED || (err->kind == ENGINE_SINK && j->cancel_code))
         return daemon_job_stopped(j), -1;
-    if (r->stage == ENGINE_PIPELINE_GRID) return job_error(j, code, "%s", err->msg);
+    if (r->stage == ENGINE_PIPELINE_GRID) return daemon_job_error(j, code, "%s", err->msg);
     if (err->kind == ENGINE_CRASHED)
-        return job_error(j, code, "this job kills its workers: %s; the daemon goes on",
-                         err->msg);
+        return daemon_job_error(j, code, "this job kills its workers: %s; the daemon goes on",
+                                err->msg);
     if (rs->over)
-        return job_error(j, code,
-                         "the result is over this server's max_result_bytes (%llu bytes); "
-                         "ask for a lower res or a coarser output",
-                         (unsigned long long)j->max_result_bytes);
+        return daemon_job_error(j, code,
+                                "the result is over this server's max_result_bytes (%llu bytes); "
+                                "ask for a lower res or a coarser output",
+                                (unsigned long long)j->max_result_bytes);
     if (rs->budget == 1)
-        return job_error(j, code,
-                         "the result does not fit in this server's memory budget (max_memory "
-                         "less shm_size: %llu MiB); ask for a lower res or a coarser output",
-                         (unsigned long long)(rs->room >> 20));
+        return daemon_job_error(j, code,
+                                "the result does not fit in this server's memory budget "
+                                "(max_memory less shm_size: %llu MiB); ask for a lower res or "
+                                "a coarser output",
+                                (unsigned long long)(rs->room >> 20));
     if (rs->budget)
-        return job_error(j, code,
-                         "the result does not fit in this server's memory budget beside the "
-                         "results waiting for their clients (%llu MiB for results in all); "
-                         "try again later",
-                         (unsigned long long)(rs->room >> 20));
+        return daemon_job_error(j, code,
+                                "the result does not fit in this server's memory budget beside the "
+                                "results waiting for their clients (%llu MiB for results in all); "
+                                "try again later",
+                                (unsigned long long)(rs->room >> 20));
     if (r->stage == ENGINE_PIPELINE_VOXELIZE)
-        return job_error(j, code, "voxelization failed: %s", err->msg);
-    return job_error(j, code, "cannot write the VOD: %s", err->msg);
+        return daemon_job_error(j, code, "voxelization failed: %s", err->msg);
+    return daemon_job_error(j, code, "cannot write the VOD: %s", err->msg);
 }
 
 /* The job through the pipeline into its memfd, its outcome in j. */
@@ -378,46 +304,6 @@ static void run_pipeline(engine *e, daemon_job *j, engine_pipeline_job *job, uin
     j->has_figures = r.stage != ENGINE_PIPELINE_GRID;
     j->fig = r.fig;
     j->st = r.st;
-}
-
-/* The kind's part of the pipeline job, as vox voxelize fills it (so the
- * bytes are the same): the expression compiled or the mesh parsed, into
- * *tape or *m (the caller frees them), a bad input refused here with its
- * typed error even when the job then runs through MPI (mpi: the mesh's
- * bytes kept for vox_mpi).  0, or -1 with the job's error. */
-static int job_input(daemon_job *j, engine_pipeline_job *job, expr_tape **tape, mesh *m, int mpi)
-{
-    if (j->kind == ENGINE_PIPELINE_MESH) {
-        if (parse_mesh(j, m, mpi)) return -1;
-        job->kind = ENGINE_PIPELINE_MESH;
-        job->mesh.mesh = m;
-        job->mesh.opts = j->mesh_opts;
-        job->mesh.pad = j->pad;
-        job->mesh.fit = j->fit;
-        job->mesh.source_name = j->source_name;
-        job->mesh.source_bytes = j->source_len;
-        return 0;
-    }
-    if (j->kind == ENGINE_PIPELINE_CSG) {
-        int rc = j->input_total ? daemon_csg_input(j->csg, j->source, j->source_len) : 0;
-        if (rc)
-            return job_error(j, rc == -ENOMEM ? VOXD__ERROR_CODE__INTERNAL
-                                              : VOXD__ERROR_CODE__INVALID_INPUT,
-                             "%s", rc == -ENOMEM ? "out of memory for the CSG leaves"
-                                                 : "the CSG leaves' input does not add up");
-        job->kind = ENGINE_PIPELINE_CSG;
-        job->csg.tree = j->csg;
-        job->csg.source_name = j->source_name;
-        job->csg.source_bytes = j->csg_source_bytes;
-        return 0;
-    }
-    if (compile(j, tape)) return -1;
-    job->kind = ENGINE_PIPELINE_IMPLICIT;
-    job->implicit.tape = *tape;
-    job->implicit.source = j->source;
-    job->implicit.source_len = j->source_len;
-    job->implicit.source_name = j->source_name;
-    return 0;
 }
 
 /* The MPI run's file into the job's memfd, through the sink's limits. */
@@ -478,7 +364,7 @@ static void run_mpi(daemon_ctx *d, const daemon_mpi *m, daemon_job *j, engine_pi
     vod_params v;
     char meta[JOB_META_MAX];
     if (engine_pipeline_plan(job, &r, &v, meta)) {
-        job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", r.err.msg);
+        daemon_job_error(j, VOXD__ERROR_CODE__INVALID_INPUT, "%s", r.err.msg);
         return;
     }
     j->grid = r.grid;
@@ -511,21 +397,19 @@ static void run_job(daemon_ctx *d, engine *e, daemon_job *j, const daemon_mpi *m
         .res = j->res, .schedule = (engine_schedule)j->schedule, .band = j->band,
         .progress = on_progress, .ud = &px, .cancel = &j->cancel,
     };
-    expr_tape *tape = NULL;
-    mesh m = {0};
+    void *owned = NULL;
     int via_mpi = daemon_mpi_wants(mpi, j);
-    if (job_input(j, &job, &tape, &m, via_mpi)) return;
+    if (daemon_submit_input(j, &job, &owned, via_mpi)) return;
     j->fd = memfd_create("voxd-result", MFD_CLOEXEC);
     if (j->fd < 0) {
-        job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
-                  strerror(errno));
+        daemon_job_error(j, VOXD__ERROR_CODE__INTERNAL, "cannot hold the result: %s",
+                         strerror(errno));
     } else if (via_mpi) {
         run_mpi(d, mpi, j, &job, room);
     } else {
         run_pipeline(e, j, &job, room);
     }
-    expr_tape_free(tape);
-    mesh_free(&m);
+    daemon_submit_release(j, owned);
 }
 
 /* ---------------------------------------------------------------- the thread */
@@ -573,7 +457,7 @@ static void run_next(daemon_ctx *d, engine *e)
     /* relaxed: a flag, see engine_job.cancel */
     if (atomic_load_explicit(&j->cancel, memory_order_relaxed)) daemon_job_stopped(j);
     else if (full) j->code = full;
-    else if (!m) job_error(j, VOXD__ERROR_CODE__INTERNAL, "out of memory");
+    else if (!m) daemon_job_error(j, VOXD__ERROR_CODE__INTERNAL, "out of memory");
     else run_job(d, e, j, m, room);
     free(m);
     pthread_mutex_lock(&d->mu);
@@ -602,8 +486,8 @@ static void run_without_engine(daemon_ctx *d)
     d->queue = j->next;
     if (!d->queue) d->queue_tail = NULL;
     d->nqueued--;
-    job_error(j, VOXD__ERROR_CODE__INTERNAL, "the daemon has no workers: %s",
-              d->engine_err);
+    daemon_job_error(j, VOXD__ERROR_CODE__INTERNAL, "the daemon has no workers: %s",
+                     d->engine_err);
     j->state = DAEMON_DONE;
     j->next = NULL;
     if (d->done_tail) d->done_tail->next = j;

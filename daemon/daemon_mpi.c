@@ -113,7 +113,7 @@ static const char *channel_name(int ch)
 static void input_name(cmdline *c, const daemon_job *j, const char *dir)
 {
     snprintf(c->file, sizeof c->file, "%s/%s", dir,
-             j->kind == ENGINE_PIPELINE_MESH ? "job.mesh" : j->kind == ENGINE_PIPELINE_CSG ? "job.csgp"
+             j->kind == &engine_kind_mesh ? "job.mesh" : j->kind == &engine_kind_csg ? "job.csgp"
                                                                            : "job.vx");
 }
 
@@ -130,7 +130,7 @@ static int kind_args(cmdline *c, const daemon_job *j)
     snprintf(c->num[6], sizeof c->num[6], "%u", j->band); /* every kind's */
     snprintf(c->num[7], sizeof c->num[7], "%.17g", j->weld_eps);
     snprintf(c->num[8], sizeof c->num[8], "%llu", (unsigned long long)j->csg_source_bytes);
-    int is_mesh = j->kind == ENGINE_PIPELINE_MESH, dist = j->channel == VOXEL_CH_DISTANCE;
+    int is_mesh = j->kind == &engine_kind_mesh, dist = j->channel == VOXEL_CH_DISTANCE;
     const char *implicit[] = {"voxelize", "-f", c->file, "--schedule",
                               j->schedule == ENGINE_SCHED_PAPER ? "paper" : "subtree",
                               j->band && dist ? "--band" : NULL, c->num[6]};
@@ -143,7 +143,7 @@ static int kind_args(cmdline *c, const daemon_job *j)
         j->mesh_format ? "--mesh-format" : NULL, mesh_format_name(j->mesh_format)};
     const char *csg[] = {"csg", c->file, "--packed", "--source-bytes", c->num[8],
                          j->band && dist ? "--band" : NULL, c->num[6]};
-    if (j->kind == ENGINE_PIPELINE_CSG) return add_pairs(c, csg, sizeof csg / sizeof *csg);
+    if (j->kind == &engine_kind_csg) return add_pairs(c, csg, sizeof csg / sizeof *csg);
     if (!is_mesh) return add_pairs(c, implicit, sizeof implicit / sizeof *implicit);
     return add_pairs(c, msh, sizeof msh / sizeof *msh);
 }
@@ -169,7 +169,7 @@ static int build_cmd(cmdline *c, const daemon_mpi *m, const daemon_job *j, const
     snprintf(c->out, sizeof c->out, "%s/out.vod", dir);
     const char *head[] = {"-np", c->num[0], "--hostfile", m->hostfile, c->exe};
     /* a mesh fitted to its bounding box has no domain */
-    int domain = j->kind != ENGINE_PIPELINE_MESH || !j->fit;
+    int domain = j->kind != &engine_kind_mesh || !j->fit;
     const char *rest[] = {
         "--source-name", j->source_name ? j->source_name : "",
         "-o", c->out, "-r", c->num[2], "-w", c->num[1],
@@ -418,7 +418,7 @@ static int write_input(const cmdline *c, const daemon_job *j)
 {
     uint8_t *packed = NULL;
     size_t len = j->source_len;
-    int rc = j->kind == ENGINE_PIPELINE_CSG ? csg_tree_pack(j->csg, &packed, &len) : 0;
+    int rc = j->kind == &engine_kind_csg ? csg_tree_pack(j->csg, &packed, &len) : 0;
     int fd = rc ? -1 : open(c->file, O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
     if (!rc && fd < 0) rc = -errno;
     if (!rc) rc = write_all(fd, packed ? (const char *)packed : j->source, len);

@@ -95,33 +95,6 @@ static double nonneg(double s)
     return s > 0 ? s : 0;
 }
 
-/* A kind's part of a Summary: its own message (voxd.proto), filled from
- * its figures.  One row per kind that has one. */
-typedef struct {
-    Voxd__MeshReport mesh;
-} kind_reports;
-
-static void mesh_summary(const engine_pipeline_figures *f, Voxd__Summary *m, kind_reports *k)
-{
-    const engine_pipeline_mesh_figures *mf = &f->mesh;
-    Voxd__MeshReport *mr = &k->mesh;
-    voxd__mesh_report__init(mr);
-    mr->triangles = mf->triangles;
-    mr->open_edges = mf->topo.open;
-    mr->nonmanifold_edges = mf->topo.nonmanifold;
-    mr->watertight = mf->topo.watertight;
-    mr->tiles = mf->vox.tiles;
-    mr->repair_skipped = mf->repair_skipped;
-    mr->disagreements = mf->vox.disagreements;
-    mr->disagree_bricks = mf->vox.disagree_bricks;
-    m->mesh = mr;
-}
-
-static void (*const kind_summary[ENGINE_PIPELINE_KINDS])(const engine_pipeline_figures *f, Voxd__Summary *m,
-                                                  kind_reports *k) = {
-    [ENGINE_PIPELINE_MESH] = mesh_summary,
-};
-
 int daemon_send_summary(daemon_client *c, const daemon_job *j)
 {
     const grid_spec *g = &j->grid;
@@ -145,9 +118,7 @@ int daemon_send_summary(daemon_client *c, const daemon_job *j)
     m.seconds_voxelize = nonneg(j->t_voxelize);
     m.seconds_write = nonneg(j->t_write);
     m.mpi_ranks = j->mpi_ranks;
-    kind_reports kr;
-    if (j->has_figures && (unsigned)j->kind < ENGINE_PIPELINE_KINDS && kind_summary[j->kind])
-        kind_summary[j->kind](&j->fig, &m, &kr);
+    daemon_submit_summary(j, &m);
     Voxd__Reply r = VOXD__REPLY__INIT;
     r.msg_case = VOXD__REPLY__MSG_SUMMARY;
     r.summary = &m;
@@ -191,9 +162,7 @@ static void fill_job(const daemon_job *j, int state, double now, Voxd__JobStatus
     voxd__job_status__init(js);
     js->job_id = j->id;
     js->uid = (uint32_t)j->uid;
-    js->kind = j->kind == ENGINE_PIPELINE_MESH  ? VOXD__JOB_KIND__JOB_KIND_MESH
-               : j->kind == ENGINE_PIPELINE_CSG ? VOXD__JOB_KIND__JOB_KIND_CSG
-                                         : VOXD__JOB_KIND__JOB_KIND_IMPLICIT;
+    js->kind = daemon_submit_status_kind(j);
     js->res = j->res;
     js->state = state;
     double f = state == VOXD__JOB_STATE__JOB_STATE_RUNNING ? j->progress.fraction : 0;

@@ -67,13 +67,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#include "csg.h"
 #include "err.h"
-#include "expr.h"
 #include "grid.h"
-#include "iso.h"
-#include "mesh_vox.h"
-#include "octree.h"
 #include "vod.h"
 
 #define ENGINE_MAX_WORKERS 256
@@ -122,27 +117,6 @@ typedef struct {
     uint64_t shm_used, shm_need;
 } engine_progress;
 
-typedef struct {
-    const expr_tape *tape;
-    grid_spec grid;
-    engine_schedule schedule;
-    /* Called by the master now and then (at most ~10 times a second). */
-    void (*progress)(void *ud, const engine_progress *p);
-    void *ud;
-    /* Set to non-zero by anyone to stop the job: engine_voxelize returns
-     * -ECANCELED.  Read with relaxed loads; nothing pairs with it. */
-    const atomic_int *cancel;
-    /* Subtree schedule: octants of this level and below go out whole (a
-     * subtree of 2^split_level voxels per axis); 0 = automatic (depth-3,
-     * within 1..6: many more tasks than workers). */
-    int split_level;
-    /* NULL: the whole grid.  Else only this octant's subtree, the octant
-     * taken as kept by its parent's test (vox_mpi hands a rank the octants
-     * its rank 0 kept); the voxels are those the whole grid's job gives
-     * inside it, and the automatic split level is taken from its level. */
-    const grid_octant *root;
-} engine_job;
-
 /* Why a job failed: the engine's reason, for a caller to act on (the
  * daemon maps it to its error code) without decoding errno values. */
 typedef enum {
@@ -166,32 +140,13 @@ typedef err_info engine_error;
 /* "cancelled", "bad job", ...: for logs. */
 const char *engine_failure_name(engine_failure f);
 
-/* A kind's own figures: its member of engine_result.fig (the other
- * kinds' members share the bytes; the implicit kind has none of its own). */
-typedef struct {
-    uint32_t tiles;          /* tiles with triangles, each one task */
-    double t_bin;            /* seconds binning the triangles to tiles */
-    uint64_t disagreements;  /* repair modes: mesh_tile_stats, summed */
-    uint64_t disagree_bricks;
-} engine_mesh_figures;
+/* A kind of job: its master side's descriptor (master.h), one file each,
+ * engine/kind_<name>.c, whose header declares its job, its call and its
+ * figures.  The core below runs every kind alike. */
+typedef struct engine_kind engine_kind;
 
-/* Storage bricks evaluated, of which uniform (a table entry, no voxels
- * stored), operand subtrees decided from a uniform operand without
- * evaluating them, voxels the leaves sampled. */
-typedef struct {
-    uint64_t bricks, uniform, skipped, voxel_evals;
-} engine_csg_figures;
-
-typedef struct {
-    uint32_t tasks;          /* brick tasks (iso_tasks) */
-} engine_iso_figures;
-
-typedef union {
-    engine_mesh_figures mesh;
-    engine_csg_figures csg;
-    engine_iso_figures iso;
-} engine_figures;
-
+/* What every job of the engine reports; a kind's own figures are its
+ * own (an out-pointer in its job). */
 typedef struct {
     uint64_t voxels;         /* (csg jobs: voxels with density >= S) */
     uint64_t octants;        /* boxes tested (the same for every schedule and
@@ -205,7 +160,9 @@ typedef struct {
                                 progress (no heartbeat for the stall timeout) */
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
-    engine_figures fig;      /* the job's kind's own figures */
+    uint32_t tasks;          /* tasks the job ran, where its kind counts
+                                them (mesh: its tiles, iso: its brick
+                                tasks), else 0 */
     engine_error err;        /* why engine_voxelize failed (kind ENGINE_OK,
                                 msg "" if it did not) */
 } engine_result;
@@ -273,108 +230,6 @@ int engine_worker_info_get(const engine *e, int i, engine_worker_info *out);
  * that a dead worker is replaced before the next job comes. */
 int engine_check_workers(engine *e);
 
-/* Voxelize job; the octree stays in shared memory until the next job.
- * Returns 0, or a negative errno with r->err saying why (its kind):
- * ENGINE_CANCELLED, ENGINE_BAD_JOB, ENGINE_LIMIT (octree or work stack
- * full: the message says what to raise), ENGINE_CRASHED (an octant killed
- * its worker twice: the message names it), ENGINE_FAULT; the engine is then
- * ready for the next job.  A worker that dies during a job is forked again
- * and its octant handed out again (its output is deterministic, so the
- * entries already taken are skipped); see Robustness above. */
-int engine_voxelize(engine *e, const engine_job *job, engine_result *r);
-/* A triangle mesh voxelized tile by tile (mesh_vox.h) into a brick-sparse
- * volume in shared memory: the triangles and their bins are copied into
- * the segment, each worker runs whole tiles (the heaviest first) and
- * writes their bricks, and a worker that dies has its tile run again (the
- * tiles are deterministic: the same bricks are written again).  The
- * result stays in shared memory until the next job, for engine_write_vod.
- * Errors as engine_voxelize's (ENGINE_LIMIT: the volume or the mesh
- * outgrew shared memory). */
-typedef struct {
-    const mesh *mesh;
-    grid_spec grid;
-    mesh_vox_opts opts;
-    /* The channel the VOD will be written in (0: not known): each tile
-     * then builds the volume's low mip levels of that channel under its
-     * own column (vod_volume_mip_columns), which the write's prepare()
-     * would otherwise build in the master alone. */
-    int mip_channel;
-    void (*progress)(void *ud, const engine_progress *p);
-    void *ud;
-    const atomic_int *cancel;   /* as engine_job.cancel */
-    /* NULL: every tile.  Else only the tiles tx in [tiles[0], tiles[2]),
-     * ty in [tiles[1], tiles[3]) (vox_mpi's column groups): the volume
-     * holds those columns alone, each as the whole grid's job makes it. */
-    const uint32_t *tiles;
-} engine_mesh_job;
-int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r);
-/* A volume CSG tree (csg.h) evaluated brick by brick into a brick-sparse
- * volume in shared memory (densities, occupancy or surface voxels): the
- * tree is copied into the segment, each worker evaluates runs of storage
- * bricks (csg_eval_store), and a worker that dies has its run evaluated
- * again (a brick is a pure function of the tree: the same bytes).  The
- * result stays for engine_write_vod, as a mesh job's.  Errors as
- * engine_mesh's. */
-typedef struct {
-    const csg_tree *tree;       /* parsed (and so checked) by the caller */
-    grid_spec grid;
-    int channel;                /* VOXEL_CH_DENSITY, _OCCUPANCY or _SURFACE (csg_eval_store) */
-    void (*progress)(void *ud, const engine_progress *p);
-    void *ud;
-    const atomic_int *cancel;   /* as engine_job.cancel */
-    /* NULL: every storage brick.  Else only the bricks inside this
-     * octant's cube (vox_mpi's subtrees; its side a multiple of
-     * CSG_VOLUME_BRICK), each as the whole grid's job makes it. */
-    const grid_octant *root;
-} engine_csg_job;
-int engine_csg(engine *e, const engine_csg_job *job, engine_result *r);
-
-/* Marching cubes over an open VOD file (iso.h) by the workers: the raw
- * bricks of the levels p reads are copied into the segment, each worker
- * claims brick tasks until none is left and packs each task's piece into
- * shared memory; a task a worker did not finish (it died, or the pieces
- * outgrew the segment) is run by the caller's thread, and the pieces are
- * welded here in task order, so *out is iso_run_serial's mesh, byte for
- * byte.  Free it with iso_mesh_free.  Errors as engine_voxelize's
- * (ENGINE_LIMIT: the bricks did not fit, or more than 2^32 vertices). */
-typedef struct engine_iso_weld engine_iso_weld;
-typedef struct {
-    const vod_file *file;
-    const iso_params *p;        /* iso_params_make's, for file */
-    void (*progress)(void *ud, const engine_progress *p);
-    void *ud;
-    const atomic_int *cancel;   /* as engine_job.cancel */
-    /* Optional: once the mesh's size and place in shared memory are
-     * known, before it is welded, *weld is filled in and laid_out(ud, m)
-     * called on the caller's thread: m (its counts, its arrays, still
-     * being written) is final part by part as engine_iso_wait says, so a
-     * writer may stream it while it is welded (vox mesh).  On success all
-     * of it is final when engine_iso returns; on failure the caller sets
-     * weld->stop before it lets go of the engine. */
-    engine_iso_weld *weld;
-    void (*laid_out)(void *ud, const iso_mesh *m);
-} engine_iso_job;
-int engine_iso(engine *e, const engine_iso_job *job, iso_mesh *out, engine_result *r);
-
-/* The weld's progress, the caller's (engine_iso_job.weld); views of the
- * segment, valid until the engine's next job. */
-struct engine_iso_weld {
-    const void *results;        /* the pieces' results (their welded flags) */
-    const uint64_t *vbase, *tbase; /* piece i's first vertex and triangle */
-    uint64_t n;                 /* pieces */
-    /* Pieces below it are known welded: raised by the waits.  Relaxed:
-     * each wait reads the flags themselves with acquire. */
-    atomic_uint_fast64_t known;
-    atomic_int stop;            /* set by the caller: the waits give up */
-};
-/* Until the vertices (tris 0) or triangles (tris 1) below hi are welded:
- * 0, or -ECANCELED once w->stop is set. */
-int engine_iso_wait(engine_iso_weld *w, int tris, uint64_t hi);
-
-/* The last job's octree (a view into shared memory), NULL when the last
- * job failed, was not an implicit one, or there was none, or after
- * engine_release. */
-octree *engine_octree(engine *e);
 /* The caller is done with the last job's result: its pages (beyond
  * keep_bytes) go back to tmpfs now.  engine_pipeline_run calls it at the end of
  * every job. */
@@ -386,27 +241,5 @@ void engine_release(engine *e);
 void engine_lazy_release(engine *e);
 /* The pages a lazy engine's last job left to give back, given back now. */
 void engine_tidy(engine *e);
-/* Write the last job's octree or volume as VOD, bricks encoded by the workers into
- * shared memory (what does not fit, or what a dying worker left undone, is
- * encoded by the caller's thread, which frees its encoder before
- * returning); the bytes are vod_write_octree()'s.  Returns 0, or a
- * negative errno with err saying why: ENGINE_LIMIT when the file would
- * pass the format's 4 GiB or shared memory is too small (the message names
- * what to change), ENGINE_SINK with the sink's own error as the code,
- * ENGINE_BAD_JOB (no octree, bad parameters), ENGINE_FAULT. */
-int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
-                     vod_stats *st, engine_error *err);
-/* The bricks engine_write_vod would write, without the file: the last
- * job's non-empty brick nodes in preorder, each node's record and encoded
- * bytes (a duplicate's data points at its first's), handed to deliver
- * with the source they came from (its mip levels made: fill() works at
- * every level) while they are still in shared memory.  vox_mpi's ranks
- * send their subtrees' bricks this way.  deliver returns 0 or a negative
- * errno (then ENGINE_SINK).  Errors as engine_write_vod's. */
-typedef int (*engine_deliver)(void *ud, const vod_layout *L, const vod_source *src,
-                              size_t n, const vod_node *nodes,
-                              const vod_encoded *recs, const uint8_t *const *data);
-int engine_encode_bricks(engine *e, const vod_params *p, engine_deliver deliver,
-                         void *ud, vod_stats *st, engine_error *err);
 
 #endif

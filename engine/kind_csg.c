@@ -23,6 +23,7 @@
 
 #include "clock.h"
 #include "csg.h"
+#include "kind_csg.h"
 #include "master.h"
 #include "par.h"
 #include "voxel.h"
@@ -36,6 +37,7 @@ _Static_assert(CSG_BLOCK_NODES == CSG_MAX_NODES, "a leaf offset per node");
 typedef struct {
     const engine_csg_job *job;
     engine_result *r;
+    engine_csg_figures fig; /* the job's own, for job->figures */
     uint32_t ntasks;       /* runs of bricks */
     uint32_t done;         /* runs finished */
     int mips_pushed;       /* the CSG_MIPS tasks are out */
@@ -416,10 +418,10 @@ static int collect(engine *e, csg_job *cj)
     engine_result *r = cj->r;
     const csg_task_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint32_t t = 0; t < b->ntasks; t++) {
-        r->fig.csg.bricks += st[t].bricks;
-        r->fig.csg.uniform += st[t].uniform_bricks;
-        r->fig.csg.skipped += st[t].skipped;
-        r->fig.csg.voxel_evals += st[t].voxel_evals;
+        cj->fig.bricks += st[t].bricks;
+        cj->fig.uniform += st[t].uniform_bricks;
+        cj->fig.skipped += st[t].skipped;
+        cj->fig.voxel_evals += st[t].voxel_evals;
         r->voxels += st[t].solid_voxels;
     }
     vod_volume_info in;
@@ -602,9 +604,9 @@ static int csg_voxelize(engine *e, engine_pipeline_job *job, const engine_sched_
     int rc = band_tree(job, &copy, r);
     if (rc) return rc;
     engine_csg_job cj = {.tree = job->csg.tree, .grid = r->grid, .channel = job->vod.channel,
-                         .progress = w->progress, .ud = w->ud, .cancel = w->cancel};
+                         .progress = w->progress, .ud = w->ud, .cancel = w->cancel,
+                         .figures = &r->fig.csg};
     rc = engine_csg(e, &cj, er);
-    r->fig.csg = er->fig.csg;
     job->csg.tree = own;
     free(copy);
     return rc;
@@ -642,5 +644,7 @@ int engine_csg(engine *e, const engine_csg_job *job, engine_result *r)
 {
     csg_job cj = {.job = job, .r = r};
     engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    return engine_sched_run_job(e, &engine_kind_csg, &cj, &w, r);
+    int rc = engine_sched_run_job(e, &engine_kind_csg, &cj, &w, r);
+    if (job->figures) *job->figures = cj.fig;
+    return rc;
 }

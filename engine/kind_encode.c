@@ -18,6 +18,7 @@
 #include <time.h>
 
 #include "clock.h"
+#include "kind_encode.h"
 #include "master.h"
 #include "par.h"
 
@@ -423,7 +424,7 @@ out:
     return rc;
 }
 
-const engine_kind engine_kind_encode = {
+static const engine_kind engine_kind_encode = {
     .name = "encode",
     .id = SHM_KIND_ENCODE,
     .setup = encode_setup,

@@ -15,6 +15,8 @@
 #include <time.h>
 
 #include "clock.h"
+#include "kind_csg.h"
+#include "kind_implicit.h"
 #include "master.h"
 #include "subdiv.h"
 #include "voxel.h"
@@ -414,8 +416,8 @@ static int implicit_rewrite(engine_pipeline_job *run, csg_tree **owned)
     if (run->vod.channel != VOXEL_CH_DISTANCE) return 0;
     int rc = distance_tree(run, owned);
     if (rc) return rc;
-    run->kind = ENGINE_PIPELINE_CSG;
-    run->csg.tree = *owned;
+    run->kind = &engine_kind_csg; /* its input replaces the expression's */
+    run->csg = (engine_csg_input){.tree = *owned};
     return 0;
 }
 

@@ -22,6 +22,7 @@
 #include <time.h>
 
 #include "clock.h"
+#include "kind_iso.h"
 #include "master.h"
 #include "par.h"
 
@@ -367,7 +368,7 @@ static int iso_finish(engine *e, void *job, int rc)
     engine_sched_job_totals(e, r);
     r->octants = 0;
     const iso_block *b = engine_sched_block(e);
-    r->fig.iso.tasks = (uint32_t)b->n_tasks;
+    r->tasks = (uint32_t)b->n_tasks;
     if (!rc && !ij->weld_ready && !(rc = prepare_weld(e, ij))) /* no worker took a task */
         announce(e, ij);
     if (!rc) rc = weld_rest(e, ij);
@@ -382,7 +383,7 @@ static int iso_finish(engine *e, void *job, int rc)
     return rc ? engine_sched_job_failed(e, r, rc) : 0;
 }
 
-const engine_kind engine_kind_iso = {
+static const engine_kind engine_kind_iso = {
     .name = "iso",
     .id = SHM_KIND_ISO,
     .setup = iso_setup,

@@ -16,6 +16,7 @@
 #include <unistd.h>
 
 #include "clock.h"
+#include "kind_mesh.h"
 #include "master.h"
 #include "par.h"
 #include "voxel.h"
@@ -24,6 +25,7 @@
 typedef struct {
     const engine_mesh_job *job;
     engine_result *r;
+    engine_mesh_figures fig; /* the job's own, for job->figures */
     uint32_t ntiles;       /* tiles with triangles: tasks */
     uint32_t done;         /* tasks finished */
 } mesh_job;
@@ -178,7 +180,7 @@ static int mesh_setup(engine *e, void *job)
     double t0 = clock_now();
     mesh_bins bins;
     int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, par_cpus(), &bins);
-    mj->r->fig.mesh.t_bin = clock_now() - t0;
+    mj->fig.t_bin = clock_now() - t0;
     par_join(&copying);
     if (rc) return engine_sched_fail(e, rc == -E2BIG ? ENGINE_LIMIT : ENGINE_FAULT, rc,
                               "binning the triangles to tiles: %s", strerror(-rc));
@@ -257,8 +259,8 @@ static int collect(engine *e, mesh_job *mj)
     const mesh_tile_stats *st = shm_at(e->seg.base, b->stats_off);
     for (uint64_t t = 0; t < (uint64_t)b->tiles[0] * b->tiles[1]; t++) {
         r->voxels += st[t].voxels;
-        r->fig.mesh.disagreements += st[t].disagreements;
-        r->fig.mesh.disagree_bricks += st[t].disagree_bricks;
+        mj->fig.disagreements += st[t].disagreements;
+        mj->fig.disagree_bricks += st[t].disagree_bricks;
     }
     vod_volume_info in;
     int bad = vod_volume_check(e->volume, e->volume_bytes);
@@ -283,7 +285,7 @@ static int mesh_finish(engine *e, void *job, int rc)
     engine_result *r = mj->r;
     engine_sched_job_totals(e, r);
     r->octants = 0;
-    r->fig.mesh.tiles = mj->ntiles;
+    r->tasks = mj->fig.tiles = mj->ntiles;
     if (!rc) rc = collect(e, mj);
     r->seconds = clock_now() - e->t0;
     if (rc) return engine_sched_job_failed(e, r, rc);
@@ -456,10 +458,9 @@ static int mesh_voxelize_stage(engine *e, engine_pipeline_job *run, const engine
     }
     engine_mesh_job mj = {.mesh = run->mesh.mesh, .grid = r->grid, .opts = run->mesh.opts,
                           .mip_channel = run->vod.channel, .progress = w->progress,
-                          .ud = w->ud, .cancel = w->cancel};
+                          .ud = w->ud, .cancel = w->cancel, .figures = &r->fig.mesh.vox};
     int rc = engine_mesh(e, &mj, er);
     int trc = overlap ? topo_join(&topo, r) : 0;
-    r->fig.mesh.vox = er->fig.mesh;
     return trc ? trc : rc;
 }
 
@@ -467,7 +468,7 @@ static int mesh_voxelize_stage(engine *e, engine_pipeline_job *run, const engine
 static void mesh_summary(const engine_pipeline_job *job, const engine_pipeline_report *r,
                                  char *buf, size_t len)
 {
-    const engine_pipeline_mesh_figures *f = &r->fig.mesh;
+    const engine_mesh_report *f = &r->fig.mesh;
     FILE *out = fmemopen(buf, len, "w");
     if (!out) return;
     fprintf(out, "  mesh: %u triangles, %llu open and %llu non-manifold edges: %s (%.3f s)",
@@ -508,5 +509,7 @@ int engine_mesh(engine *e, const engine_mesh_job *job, engine_result *r)
 {
     mesh_job mj = {.job = job, .r = r};
     engine_sched_watch w = {.progress = job->progress, .ud = job->ud, .cancel = job->cancel};
-    return engine_sched_run_job(e, &engine_kind_mesh, &mj, &w, r);
+    int rc = engine_sched_run_job(e, &engine_kind_mesh, &mj, &w, r);
+    if (job->figures) *job->figures = mj.fig;
+    return rc;
 }

@@ -24,6 +24,7 @@
 
 #include "engine.h"
 #include "kinds.h"
+#include "octree.h"
 #include "pipeline.h"
 #include "shm.h"
 #include "vod_volume.h"
@@ -48,8 +49,6 @@ typedef struct {
     double stalled_quiet; /* how long it had been quiet, */
     char stalled_state; /* its process state then (/proc: 'T' stopped) */
 } mslot;
-
-typedef struct engine_kind engine_kind;
 
 /* What the caller of a job watches it with (all optional). */
 typedef struct {
@@ -159,11 +158,6 @@ struct engine_kind {
     void (*summary)(const engine_pipeline_job *job, const engine_pipeline_report *r, char *buf,
                      size_t len);
 };
-
-extern const engine_kind engine_kind_implicit, engine_kind_encode, engine_kind_mesh, engine_kind_csg, engine_kind_iso;
-
-/* kinds.c: the kind of each engine_pipeline_kind, NULL for none. */
-extern const engine_kind *const engine_pipeline_kinds[ENGINE_PIPELINE_KINDS];
 
 /* ---- pipeline.c: for the kinds' pipeline side ---- */
 

@@ -13,19 +13,13 @@
 #include "master.h"
 #include "thread_name.h"
 
-/* The master side of the job's kind, NULL when it is none. */
-static const engine_kind *kind_of(const engine_pipeline_job *job)
-{
-    return (unsigned)job->kind < ENGINE_PIPELINE_KINDS ? engine_pipeline_kinds[job->kind] : NULL;
-}
-
 /* The job's VOD parameters: its geometry and metadata (the kind's source
  * and pairs) on the caller's choice of channel, brick, compression and
  * hash. */
 static void vod_setup(vod_params *v, const engine_pipeline_job *job, const double lo[3],
                       const double hi[3], const grid_spec *g, char meta[JOB_META_MAX])
 {
-    const engine_kind *k = kind_of(job);
+    const engine_kind *k = job->kind;
     job_meta m = {
         .res = job->res,
         .grid = {g->res[0], g->res[1], g->res[2]},
@@ -119,7 +113,7 @@ int engine_pipeline_plan(const engine_pipeline_job *job, engine_pipeline_report 
 {
     memset(r, 0, sizeof *r);
     r->stage = ENGINE_PIPELINE_GRID;
-    const engine_kind *k = kind_of(job);
+    const engine_kind *k = job->kind;
     if (!k) return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "the job has no expression or mesh");
     double lo[3], hi[3];
     memcpy(lo, job->lo, sizeof lo);
@@ -141,12 +135,12 @@ static int engine_pipeline_stages(engine *e, const engine_pipeline_job *job, vod
     vod_params v;
     int rc = engine_pipeline_plan(job, r, &v, meta);
     if (rc) return rc;
-    const engine_kind *k = kind_of(job);
+    const engine_kind *k = job->kind;
     engine_pipeline_job run = *job; /* the kind may change it (a mesh's repair not needed) */
     csg_tree *owned = NULL; /* a kind's job run as another's (rewrite) */
     if (k->rewrite && (rc = k->rewrite(&run, &owned)))
         return engine_pipeline_fail(r, ENGINE_FAULT, rc, "%s", strerror(-rc));
-    k = kind_of(&run);
+    k = run.kind;
     if (!e) {
         rc = k->serial(&run, &v, sink, r);
     } else {
@@ -170,7 +164,7 @@ int engine_pipeline_run(engine *e, const engine_pipeline_job *job, vod_sink *sin
 void engine_pipeline_describe(const engine_pipeline_job *job, const engine_pipeline_report *r, char *buf,
                        size_t len)
 {
-    const engine_kind *k = kind_of(job);
+    const engine_kind *k = job->kind;
     if (len) buf[0] = 0;
     if (k && k->summary) k->summary(job, r, buf, len);
 }

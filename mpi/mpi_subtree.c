@@ -8,6 +8,10 @@
 #include <sys/mman.h>
 
 #include "err.h"
+#include "kind_csg.h"
+#include "kind_encode.h"
+#include "kind_implicit.h"
+#include "kind_mesh.h"
 #include "mpi_part.h"
 #include "subdiv.h"
 

@@ -189,7 +189,7 @@ static int prepare_implicit(prep *p, engine_pipeline_job *pj)
 {
     int rc = cli_job_source(&p->o, &p->src, &p->tape);
     if (rc) return rc;
-    pj->kind = ENGINE_PIPELINE_IMPLICIT;
+    pj->kind = &engine_kind_implicit;
     pj->implicit.tape = p->tape;
     pj->implicit.source = p->src.text;
     pj->implicit.source_len = p->src.len;
@@ -218,7 +218,7 @@ static int prepare_mesh(prep *p, engine_pipeline_job *pj)
     p->mesh_loaded = 1;
     p->kind = MPI_KIND_MESH;
     struct stat sb;
-    pj->kind = ENGINE_PIPELINE_MESH;
+    pj->kind = &engine_kind_mesh;
     pj->mesh.mesh = &p->mesh;
     pj->mesh.opts = p->o.mesh_opts;
     pj->mesh.pad = p->o.pad;
@@ -272,7 +272,7 @@ static int prepare_csg(prep *p, int argc, char **argv, engine_pipeline_job *pj)
     p->o.progress = p->csg_progress;
     memcpy(p->o.lo, co.lo, sizeof co.lo);
     memcpy(p->o.hi, co.hi, sizeof co.hi);
-    pj->kind = ENGINE_PIPELINE_CSG;
+    pj->kind = &engine_kind_csg;
     pj->csg.tree = p->tree;
     pj->csg.source_name = source_name(p, co.in);
     pj->csg.source_bytes = text_bytes;

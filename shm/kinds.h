@@ -12,10 +12,10 @@
  * task_seq release) and the workers read.
  *
  * Adding a kind: a number and a block here, one master file
- * (engine/kind_<name>.c), one worker file (worker/work_<name>.c), one
- * entry in each side's table (engine/kinds.c for a pipeline job's kind,
- * worker/worker.c); docs/design.md, "Adding a kind of job", lists every
- * file.
+ * (engine/kind_<name>.c and its header), one worker file
+ * (worker/work_<name>.c), one row in each side's table
+ * (engine/pipeline_kinds.h for a pipeline job's kind, worker/worker.c);
+ * docs/design.md, "Adding a kind of job", lists every file.
  */
 #ifndef VOXD_KINDS_H
 #define VOXD_KINDS_H

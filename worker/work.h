@@ -53,8 +53,6 @@ typedef struct {
     void (*free)(void *state);
 } worker_kind;
 
-extern const worker_kind worker_implicit, worker_encode, worker_mesh, worker_csg, worker_iso;
-
 /* The heartbeat: "still working".  A store and an add, cheap enough for
  * every few hundred microseconds of work; too seldom (seconds apart) and
  * the master takes the worker for stalled. */

@@ -12,7 +12,9 @@
 
 #include "work.h"
 
-/* The worker side of every kind: the task's kind is an index here. */
+/* The worker side of every kind (worker/work_<name>.c, one row each
+ * here): the task's kind is an index in the table. */
+extern const worker_kind worker_implicit, worker_encode, worker_mesh, worker_csg, worker_iso;
 static const worker_kind *const kinds[SHM_KINDS] = {
     [SHM_KIND_IMPLICIT] = &worker_implicit,
     [SHM_KIND_ENCODE] = &worker_encode,

@@ -23,6 +23,7 @@
 
 #include "engine.h"
 #include "expr.h"
+#include "kind_implicit.h"
 #include "kinds.h"
 #include "octree.h"
 #include "shm.h"

@@ -225,7 +225,7 @@ Test(csg_dist, pipeline_same_bytes_and_values)
     expr_tape *t;
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &t, &ee), 0, "%s", ee.msg);
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_IMPLICIT,
+    engine_pipeline_job job = {.kind = &engine_kind_implicit,
                         .implicit = {.tape = t, .source = src, .source_len = strlen(src),
                                      .source_name = "torus.vx"},
                         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 48, .band = 2};

@@ -35,7 +35,7 @@ static csg_tree *parse(const char *text)
 
 static engine_pipeline_job csg_job(const csg_tree *t, uint32_t res, int channel)
 {
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG,
+    engine_pipeline_job job = {.kind = &engine_kind_csg,
                         .csg = {.tree = t, .source_name = "part.csg",
                                 .source_bytes = sizeof tree_text - 1},
                         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = res};
@@ -161,7 +161,7 @@ Test(csg_engine, csg_and_implicit_jobs_share_an_engine)
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &tape, &ee), 0);
     engine_pipeline_job cj = csg_job(t, 40, VOXEL_CH_DENSITY);
-    engine_pipeline_job ij = {.kind = ENGINE_PIPELINE_IMPLICIT,
+    engine_pipeline_job ij = {.kind = &engine_kind_implicit,
                        .implicit = {.tape = tape, .source = src, .source_len = strlen(src)},
                        .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 40};
     vod_params_default(&ij.vod);

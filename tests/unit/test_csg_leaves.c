@@ -46,7 +46,7 @@ static char *box_obj(size_t *len)
 
 static engine_pipeline_job csg_job(const csg_tree *t, double lo, double hi, uint32_t res)
 {
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG, .csg = {.tree = t, .source_bytes = 1},
+    engine_pipeline_job job = {.kind = &engine_kind_csg, .csg = {.tree = t, .source_bytes = 1},
                         .lo = {lo, lo, lo}, .hi = {hi, hi, hi}, .res = res};
     vod_params_default(&job.vod);
     job.vod.channel = VOXEL_CH_DENSITY;

@@ -21,6 +21,8 @@
 
 #include "engine.h"
 #include "expr.h"
+#include "kind_encode.h"
+#include "kind_implicit.h"
 #include "kinds.h"
 #include "octree.h"
 #include "shm.h"

@@ -18,6 +18,8 @@
 
 #include "engine.h"
 #include "expr.h"
+#include "kind_encode.h"
+#include "kind_implicit.h"
 #include "shm.h"
 #include "vod.h"
 

@@ -20,6 +20,7 @@
 
 #include "engine.h"
 #include "engine_fixture.h"
+#include "kind_implicit.h"
 #include "kinds.h"
 #include "pipeline.h"
 #include "work.h"
@@ -135,7 +136,7 @@ Test(engine_forge, a_forged_subtree_fails_the_pipeline_job, .timeout = 120)
 {
     expr_tape *tape = compile(SPHERES);
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_IMPLICIT,
+        .kind = &engine_kind_implicit,
         .implicit = {.tape = tape, .source = SPHERES, .source_len = strlen(SPHERES)},
         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 64,
     };

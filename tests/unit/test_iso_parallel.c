@@ -20,6 +20,7 @@
 #include "engine.h"
 #include "expr.h"
 #include "iso.h"
+#include "kind_iso.h"
 #include "mesh.h"
 #include "vod.h"
 #include "vod_volume.h"

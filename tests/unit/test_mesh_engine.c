@@ -30,7 +30,7 @@ static mesh box_mesh(shape *s, const float lo[3], const float hi[3])
 static engine_pipeline_job mesh_job(const mesh *m, uint32_t res, int channel)
 {
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_MESH,
+        .kind = &engine_kind_mesh,
         .mesh = {.mesh = m, .opts = {.mode = MESH_SOLID, .channel = channel},
                  .pad = 1, .fit = 1, .source_name = "box.obj", .source_bytes = 999},
         .res = res,
@@ -54,7 +54,7 @@ static vod_membuf run(engine *e, const engine_pipeline_job *job, engine_pipeline
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
     cr_assert_eq(engine_pipeline_run(e, job, &sink, r), 0, "%s job on %s: %s",
-                 job->kind == ENGINE_PIPELINE_MESH ? "mesh" : "implicit",
+                 job->kind == &engine_kind_mesh ? "mesh" : "implicit",
                  e ? "an engine" : "no engine", r->err.msg);
     return m;
 }
@@ -124,7 +124,7 @@ Test(mesh_engine, mesh_and_implicit_jobs_share_an_engine)
     expr_error ee;
     cr_assert_eq(expr_compile(src, strlen(src), NULL, &t, &ee), 0);
     engine_pipeline_job mj = mesh_job(&m, 40, VOXEL_CH_OCCUPANCY);
-    engine_pipeline_job ij = {.kind = ENGINE_PIPELINE_IMPLICIT,
+    engine_pipeline_job ij = {.kind = &engine_kind_implicit,
                        .implicit = {.tape = t, .source = src, .source_len = strlen(src)},
                        .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 40};
     vod_params_default(&ij.vod);

@@ -441,7 +441,7 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
 static void same_mesh(uint32_t res, mesh_vox_opts o, uint32_t drop, size_t target, int workers)
 {
     mesh m = torus(24, 12, drop);
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_MESH, .mesh = {.mesh = &m, .opts = o, .fit = 1},
+    engine_pipeline_job job = {.kind = &engine_kind_mesh, .mesh = {.mesh = &m, .opts = o, .fit = 1},
                         .res = res};
     vod_params_default(&job.vod);
     job.vod.channel = o.channel;
@@ -470,7 +470,7 @@ static void same_distance(uint32_t res, uint32_t band, size_t target, int worker
 {
     mesh m = torus(24, 12, 0);
     mesh_vox_opts o = {.channel = VOXEL_CH_DISTANCE, .band = band};
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_MESH, .mesh = {.mesh = &m, .opts = o},
+    engine_pipeline_job job = {.kind = &engine_kind_mesh, .mesh = {.mesh = &m, .opts = o},
                                .res = res, .lo = {-2, -2, -0.5}, .hi = {2, 2, 0.5}};
     vod_params_default(&job.vod);
     job.vod.channel = VOXEL_CH_DISTANCE;
@@ -527,7 +527,7 @@ static void same_csg(uint32_t res, int channel, size_t target, int workers)
 {
     csg_tree *t, *u;
     tree_pair(&t, &u);
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG, .csg = {.tree = t}, .res = res,
+    engine_pipeline_job job = {.kind = &engine_kind_csg, .csg = {.tree = t}, .res = res,
                         .lo = {-1, -1, -1}, .hi = {1, 1, 1}};
     vod_params_default(&job.vod);
     job.vod.channel = channel;
@@ -547,7 +547,7 @@ static void same_csg_distance(uint32_t res, uint32_t band, size_t target, int wo
     csg_error ce;
     cr_assert_eq(csg_parse(text, strlen(text), &t, &ce), 0, "%s", ce.msg);
     t->data[0] = torus_obj(&t->data_len[0]);
-    engine_pipeline_job job = {.kind = ENGINE_PIPELINE_CSG, .csg = {.tree = t}, .res = res,
+    engine_pipeline_job job = {.kind = &engine_kind_csg, .csg = {.tree = t}, .res = res,
                                .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .band = band};
     vod_params_default(&job.vod);
     job.vod.channel = VOXEL_CH_DISTANCE;

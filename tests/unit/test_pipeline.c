@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "engine.h"
+#include "kind_implicit.h"
 #include "pipeline.h"
 #include "vod.h"
 #include "voxel.h"
@@ -23,7 +24,7 @@ static expr_tape *compile(const char *src)
 static engine_pipeline_job torus_job(const expr_tape *t, uint32_t res)
 {
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_IMPLICIT,
+        .kind = &engine_kind_implicit,
         .implicit = {.tape = t, .source = TORUS, .source_len = strlen(TORUS)},
         .lo = {-1, -1, -0.5}, .hi = {1, 1, 0.5}, .res = res,
     };

@@ -61,7 +61,7 @@ static expr_tape *compile(const char *src)
 static engine_pipeline_job distance_job(const expr_tape *t)
 {
     engine_pipeline_job job = {
-        .kind = ENGINE_PIPELINE_IMPLICIT,
+        .kind = &engine_kind_implicit,
         .implicit = {.tape = t, .source = BALL, .source_len = strlen(BALL)},
         .lo = {-1, -1, -1}, .hi = {1, 1, 1}, .res = 32,
     };
