@@ -225,18 +225,25 @@ static bool box_of(const mesh_vox_tile *t, const double lo[3], const double hi[3
     return true;
 }
 
-/* The box of the points p + s[j] (j < ns) for each p of base (nb). */
+/* The box of the points p + s[j] (j < ns) for each p of base (nb): per
+ * axis the least base plus the least s (and the greatest): a rounded sum
+ * is monotonic in each term, so that is the least of the rounded sums to
+ * the bit, in nb + ns steps, not nb * ns. */
 static void box_pts(const double (*base)[3], int nb, const double (*s)[3], int ns,
                     double lo[3], double hi[3])
 {
-    for (int a = 0; a < 3; a++) lo[a] = INFINITY, hi[a] = -INFINITY;
-    for (int i = 0; i < nb; i++)
-        for (int j = 0; j < ns; j++)
-            for (int a = 0; a < 3; a++) {
-                double v = base[i][a] + s[j][a];
-                lo[a] = v < lo[a] ? v : lo[a];
-                hi[a] = v > hi[a] ? v : hi[a];
-            }
+    for (int a = 0; a < 3; a++) {
+        double bl = base[0][a], bh = bl, sl = s[0][a], sh = sl;
+        for (int i = 1; i < nb; i++) {
+            bl = base[i][a] < bl ? base[i][a] : bl;
+            bh = base[i][a] > bh ? base[i][a] : bh;
+        }
+        for (int j = 1; j < ns; j++) {
+            sl = s[j][a] < sl ? s[j][a] : sl;
+            sh = s[j][a] > sh ? s[j][a] : sh;
+        }
+        lo[a] = bl + sl, hi[a] = bh + sh;
+    }
 }
 
 /* A region to be: its box (voxel units), its triangles (items 4 *
