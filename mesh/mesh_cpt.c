@@ -72,10 +72,11 @@ static void vpos(const mesh_vox_tile *t, uint32_t v, double p[3])
         p[a] = ((double)t->m->vertices[v][a] - t->g->lo[a]) / t->g->vs;
 }
 
-/* Triangle id of the mesh in voxel units (its vertices into v), with the
- * tile's voxels its box grown by K reaches; false when it reaches none. */
-static bool make_dtri(const mesh_vox_tile *t, uint32_t id, double K, dtri *d, double v[3][3])
+/* Triangle id of the mesh in voxel units, with the tile's voxels its box
+ * grown by K reaches; false when it reaches none. */
+static bool make_dtri(const mesh_vox_tile *t, uint32_t id, double K, dtri *d)
 {
+    double v[3][3];
     for (int i = 0; i < 3; i++) vpos(t, t->m->triangles[id][i], v[i]);
     int32_t org[3] = {(int32_t)t->x0, (int32_t)t->y0, 0};
     int32_t n[3] = {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz};
@@ -140,18 +141,15 @@ static uint32_t dhash_get(dhash *h, uint64_t key)
 /* The tile's vertices and edges: the vertex of corner k of triangle i is
  * cv[3i + k], its edge from corner k to k + 1 ce[3i + k]; the triangles of
  * vertex v are vl[vs[v] .. vs[v + 1]) and of edge e el[es[e] .. es[e + 1]),
- * as 4 * triangle + corner (or edge), in the tile's order.  Vertex v is
- * vp[v] in voxel units (vpos's, kept from its first triangle: the regions
- * read a vertex some ten times, each a division and a random read). */
+ * as 4 * triangle + corner (or edge), in the tile's order. */
 typedef struct {
     uint32_t nv, ne;
-    uint32_t *cv, *ce, *vs, *vl, *es, *el;
-    double (*vp)[3];
+    uint32_t *cv, *ce, *vid, *vs, *vl, *es, *el;
 } dadj;
 
 static void dadj_free(dadj *a)
 {
-    free(a->cv), free(a->ce), free(a->vp), free(a->vs), free(a->vl), free(a->es), free(a->el);
+    free(a->cv), free(a->ce), free(a->vid), free(a->vs), free(a->vl), free(a->es), free(a->el);
 }
 
 /* The list of items (4 * triangle + k) by owner own[3i + k] (counted,
@@ -166,10 +164,7 @@ static void file_by(const uint32_t *own, uint32_t ntri, uint32_t n, uint32_t *st
     st[0] = 0;
 }
 
-/* The adjacency of the tile's triangles tid (ntri, their vertices pos[3i +
- * k] in voxel units). */
-static int dadj_make(const mesh_vox_tile *t, const uint32_t *tid, const double (*pos)[3],
-                     uint32_t ntri, dadj *a)
+static int dadj_make(const mesh_vox_tile *t, const uint32_t *tid, uint32_t ntri, dadj *a)
 {
     memset(a, 0, sizeof *a);
     size_t n3 = (size_t)3 * ntri + 1;
@@ -177,13 +172,13 @@ static int dadj_make(const mesh_vox_tile *t, const uint32_t *tid, const double (
     int rc = dhash_init(&hv, n3);
     if (!rc) rc = dhash_init(&he, n3);
     else he.key = NULL, he.id = NULL;
-    a->cv = malloc(n3 * 4), a->ce = malloc(n3 * 4), a->vp = malloc(n3 * sizeof *a->vp);
+    a->cv = malloc(n3 * 4), a->ce = malloc(n3 * 4), a->vid = malloc(n3 * 4);
     a->vl = malloc(n3 * 4), a->el = malloc(n3 * 4);
-    if (rc || !a->cv || !a->ce || !a->vp || !a->vl || !a->el) rc = -ENOMEM;
+    if (rc || !a->cv || !a->ce || !a->vid || !a->vl || !a->el) rc = -ENOMEM;
     for (uint32_t i = 0; !rc && i < ntri; i++)
         for (int k = 0; k < 3; k++) {
             uint32_t g = t->m->triangles[tid[i]][k], v = dhash_get(&hv, (uint64_t)g + 1);
-            if (v == hv.n - 1) memcpy(a->vp[v], pos[3 * (size_t)i + k], sizeof a->vp[v]);
+            if (v == hv.n - 1) a->vid[v] = g;
             a->cv[3 * i + k] = v;
         }
     for (uint32_t i = 0; !rc && i < ntri; i++)
@@ -225,18 +220,25 @@ static bool box_of(const mesh_vox_tile *t, const double lo[3], const double hi[3
     return true;
 }
 
-/* The box of the points p + s[j] (j < ns) for each p of base (nb). */
+/* The box of the points p + s[j] (j < ns) for each p of base (nb): per
+ * axis the least base plus the least s (and the greatest): a rounded sum
+ * is monotonic in each term, so that is the least of the rounded sums to
+ * the bit, in nb + ns steps, not nb * ns. */
 static void box_pts(const double (*base)[3], int nb, const double (*s)[3], int ns,
                     double lo[3], double hi[3])
 {
-    for (int a = 0; a < 3; a++) lo[a] = INFINITY, hi[a] = -INFINITY;
-    for (int i = 0; i < nb; i++)
-        for (int j = 0; j < ns; j++)
-            for (int a = 0; a < 3; a++) {
-                double v = base[i][a] + s[j][a];
-                lo[a] = v < lo[a] ? v : lo[a];
-                hi[a] = v > hi[a] ? v : hi[a];
-            }
+    for (int a = 0; a < 3; a++) {
+        double bl = base[0][a], bh = bl, sl = s[0][a], sh = sl;
+        for (int i = 1; i < nb; i++) {
+            bl = base[i][a] < bl ? base[i][a] : bl;
+            bh = base[i][a] > bh ? base[i][a] : bh;
+        }
+        for (int j = 1; j < ns; j++) {
+            sl = s[j][a] < sl ? s[j][a] : sl;
+            sh = s[j][a] > sh ? s[j][a] : sh;
+        }
+        lo[a] = bl + sl, hi[a] = bh + sh;
+    }
 }
 
 /* A region to be: its box (voxel units), its triangles (items 4 *
@@ -330,8 +332,8 @@ static void edge_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t e
     const uint32_t *L = a->el + a->es[e];
     uint32_t n = a->es[e + 1] - a->es[e], i = L[0] >> 2, k = L[0] & 3;
     double P[3], Q[3], u[3];
-    memcpy(P, a->vp[a->cv[3 * i + k]], sizeof P);
-    memcpy(Q, a->vp[a->cv[3 * i + (k + 1) % 3]], sizeof Q);
+    vpos(t, a->vid[a->cv[3 * i + k]], P);
+    vpos(t, a->vid[a->cv[3 * i + (k + 1) % 3]], Q);
     for (int c = 0; c < 3; c++) u[c] = Q[c] - P[c];
     double len = sqrt(dot3(u, u));
     if (!(len > 0)) return; /* a point: its vertex's region */
@@ -362,7 +364,7 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
     const uint32_t *L = a->vl + a->vs[v];
     uint32_t n = a->vs[v + 1] - a->vs[v], seen[DIST_MAXH];
     double V[3], axis[3] = {0, 0, 0};
-    memcpy(V, a->vp[v], sizeof V);
+    vpos(t, a->vid[v], V);
     dnew nw = {.list = L, .n = n, .quad = 1, .c = V};
     for (int c = 0; c < 3; c++) nw.lo[c] = V[c] - R, nw.hi[c] = V[c] + R;
     if (!new_feat(d, t, &nw)) return;
@@ -372,8 +374,9 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
             uint32_t w = a->cv[3 * (L[j] >> 2) + ((L[j] & 3) + s) % 3], dup = w == v;
             for (uint32_t q = 0; q < f->nh && !dup; q++) dup = seen[q] == w;
             if (dup || f->nh == DIST_MAXH) continue;
-            double u[3];
-            for (int c = 0; c < 3; c++) u[c] = a->vp[w][c] - V[c];
+            double W[3], u[3];
+            vpos(t, a->vid[w], W);
+            for (int c = 0; c < 3; c++) u[c] = W[c] - V[c];
             double len = sqrt(dot3(u, u));
             if (!(len > 0)) continue;
             for (int c = 0; c < 3; c++) u[c] /= len;
@@ -419,18 +422,16 @@ int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
     memset(d, 0, sizeof *d);
     size_t n = t->n + 1;
     uint32_t *tid = malloc(n * sizeof *tid);
-    double (*pos)[3] = malloc(3 * n * sizeof *pos);
     d->tri = malloc(n * sizeof *d->tri);
-    if (!tid || !pos || !d->tri) {
-        free(tid), free(pos);
+    if (!tid || !d->tri) {
+        free(tid);
         return -ENOMEM;
     }
     for (size_t i = 0; i < t->n; i++)
-        if (make_dtri(t, t->ids[i], K, &d->tri[d->ntri], (double (*)[3])pos[3 * d->ntri]))
-            tid[d->ntri++] = t->ids[i];
+        if (make_dtri(t, t->ids[i], K, &d->tri[d->ntri])) tid[d->ntri++] = t->ids[i];
     dadj a;
-    int rc = dadj_make(t, tid, (const double (*)[3])pos, d->ntri, &a);
-    free(tid), free(pos);
+    int rc = dadj_make(t, tid, d->ntri, &a);
+    free(tid);
     size_t nt = (size_t)d->ntri + 1;
     d->f = malloc((nt + a.ne + a.nv) * sizeof *d->f);
     d->hs = malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)DIST_MAXH * a.nv) * sizeof *d->hs);

@@ -191,59 +191,6 @@ static bool slice_span(const dscan *sc, double pv, double s0, double s1, double 
     return uu[0] <= uu[1];
 }
 
-/* A face's prism seen along its rows (axis ax): the lines al q_u + av q_v
- * <= be (q = p - f->c) that bound the rows holding some of it, its half
- * spaces with q_ax eliminated (Fourier-Motzkin, each upper bound of q_ax
- * against each lower one; a hexagon: the triangle's projection swept along
- * its normal's).  Only lines with |al| >= DIST_FACE_AL bound (the others,
- * left out, only widen): a bound be / al is then off by at most the sums'
- * rounding (~1e-13) / 1e-3, far below the margin DIST_FACE_EPS that the
- * rows' bounds take, and every row whose row_span holds a voxel is kept. */
-#define DIST_FACE_AL 1e-3
-#define DIST_FACE_EPS 1e-6
-typedef struct {
-    double al[9], av[9], be[9];
-    int n;
-} dface;
-
-static void face_poly(const dscan *sc, dface *fp)
-{
-    const dfeat *f = sc->f;
-    int ax = f->ax, u = sc->u, v = sc->v;
-    double au[5], av[5], as[5], c[5];
-    for (uint32_t j = 0; j < 5; j++) {
-        const double *h = sc->d->hs[f->h0 + j];
-        au[j] = h[u], av[j] = h[v], as[j] = h[ax], c[j] = h[3] - dot3(h, f->c);
-    }
-    fp->n = 0;
-    for (int j = 0; j < 5; j++) {
-        if (!(as[j] > 0)) continue;
-        for (int k = 0; k < 5; k++) {
-            if (!(as[k] < 0)) continue;
-            double al = au[j] * -as[k] + au[k] * as[j];
-            if (!(fabs(al) >= DIST_FACE_AL) || fp->n == 9) continue;
-            fp->al[fp->n] = al, fp->av[fp->n] = av[j] * -as[k] + av[k] * as[j];
-            fp->be[fp->n++] = c[j] * -as[k] + c[k] * as[j];
-        }
-    }
-}
-
-/* The rows of face fp in the slice at pv (axis v), within uu[0 .. 1] on
- * axis u: uu narrowed; false when none is left. */
-static bool face_rows(const dscan *sc, const dface *fp, double pv, double uu[2])
-{
-    const dfeat *f = sc->f;
-    double qv = pv - f->c[sc->v], lo = -INFINITY, hi = INFINITY;
-    for (int j = 0; j < fp->n; j++) {
-        double q = (fp->be[j] - fp->av[j] * qv) / fp->al[j];
-        if (fp->al[j] > 0) hi = MIND(hi, q);
-        else lo = MAXD(lo, q);
-    }
-    lo += f->c[sc->u] - DIST_FACE_EPS, hi += f->c[sc->u] + DIST_FACE_EPS;
-    uu[0] = MAXD(uu[0], lo), uu[1] = MIND(uu[1], hi);
-    return uu[0] <= uu[1];
-}
-
 /* A slab of the tile: DIST_SLAB voxels in z from z0 (h of them), whose
  * squared distances (voxel units) d2 holds, x fastest, rows of MESH_TILE,
  * planes of MESH_TILE^2; reach[k]: some region's box meets the slab's
@@ -279,13 +226,10 @@ static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, doubl
     size_t step[3] = {1, SLAB_ROW, SLAB_PLANE};
     double *base = sl->d2 - (size_t)sl->z0 * SLAB_PLANE;
     const uint32_t *tl = d->tl + f->t0;
-    dface fp = {.n = 0};
-    if (!f->quad && f->nh == 5) face_poly(&sc, &fp);
     for (int32_t j = lo[v]; j <= hi[v]; j++) {
         double uu[2] = {org[u] + lo[u], org[u] + hi[u]};
-        /* a face's slice: its prism's hexagon (a degenerate one: its box) */
-        if (f->quad ? !slice_span(&sc, org[v] + j, org[ax] + lo[ax], org[ax] + hi[ax], uu)
-                    : !face_rows(&sc, &fp, org[v] + j, uu))
+        /* a face's rows all meet its prism: no slice test for them */
+        if (f->quad && !slice_span(&sc, org[v] + j, org[ax] + lo[ax], org[ax] + hi[ax], uu))
             continue;
         int32_t i0 = iceil(uu[0] - org[u], lo[u], hi[u]), i1 = ifloor(uu[1] - org[u], lo[u], hi[u]);
         for (int32_t i = i0; i <= i1; i++) {
