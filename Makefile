@@ -236,7 +236,7 @@ deps:
 # The test build: sanitizers on; the runner prints the one summary line.
 test: deps
 	@$(MAKE) --no-print-directory V=asan test-build
-	@$(MAKE) --no-print-directory V=release all
+	@$(MAKE) --no-print-directory V=release all bench-build
 	@scripts/run-tests.sh build/asan
 
 test-build: all $(UNIT_BIN) $(BUILD)/tests/vdb_dump fuzz-build-corpus
@@ -269,7 +269,11 @@ fuzz: $(FUZZ_SRC:tests/fuzz/%.c=build/fuzz/%)
 demo: deps all
 	@scripts/demo.sh $(BUILD)
 
-bench: deps all $(BUILD)/voxbench $(BUILD)/voxdbench $(BUILD)/bench_expr $(BUILD)/voxwhole $(BUILD)/bench_mesh $(BUILD)/vdb_mesh $(BUILD)/voxserial
+# Every benchmark program; make test builds them too, so none rots unbuilt.
+BENCH_BIN := $(addprefix $(BUILD)/,voxbench voxdbench bench_expr voxwhole bench_mesh vdb_mesh voxserial mesh_vox_bench)
+bench-build: $(BENCH_BIN)
+
+bench: deps all $(BENCH_BIN)
 	@scripts/bench.sh $(BUILD)
 
 # vox_mpi against vox voxelize, the whole command (docs/mpi.md).

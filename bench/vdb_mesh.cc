@@ -87,8 +87,8 @@ struct distance_file {
 
 static int open_distance(const char *path, distance_file *d)
 {
-    char err[256];
-    if (vod_open(path, &d->f, err, sizeof err)) return fail(path, err);
+    err_info err = {};
+    if (vod_open(path, &d->f, &err)) return fail(path, err.msg);
     const vod_info *in = vod_get_info(d->f);
     if (in->channel != 4) return fail(path, "not a distance file (channel 4)");
     d->vs = in->voxel_scale[0];

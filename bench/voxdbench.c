@@ -411,7 +411,7 @@ static void embedded_job(engine *e, job_out *o)
     engine_pipeline_report r;
     int rc = engine_pipeline_run(e, &job, &sink, &r);
     free(m.p);
-    if (rc) die("embedded job failed: %s", r.err.message);
+    if (rc) die("embedded job failed: %s", r.err.msg);
     o->voxels = r.voxels;
     o->t_voxelize = r.t_voxelize;
     o->bytes = r.st.file_bytes;
