@@ -126,7 +126,7 @@ FUZZ_SRC := $(wildcard tests/fuzz/fuzz_*.c)
 # Keep generated protobuf-c sources: make would delete them as intermediates.
 .SECONDARY:
 
-.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg bench-scale bench-serial fuzz clean
+.PHONY: all deps test test-build demo bench bench-compare bench-mesh bench-mpi bench-csg bench-scale bench-serial bench-build fuzz clean
 all: $(BINS)
 
 $(BUILD)/%.o: %.c | $(PROTO_C)
