@@ -510,11 +510,11 @@ static void collect_bricks(const shape *s, uint32_t res, brick_set *b)
     vod_params_default(&p);
     for (int a = 0; a < 3; a++) p.volume[a] = g.res[a];
     vod_layout L;
-    char err[256];
-    if (vod_layout_make(&p, g.depth, &L, err, sizeof err)) die("layout", err);
+    err_info err = {0};
+    if (vod_layout_make(&p, g.depth, &L, &err)) die("layout", err.msg);
     st.t.agg = malloc((size_t)st.t.used * sizeof *st.t.agg);
     vod_source src = vod_octree_source(&st.t);
-    if (!st.t.agg || vod_prepare(&src, &L, p.channel, err, sizeof err)) die("prepare", err);
+    if (!st.t.agg || vod_prepare(&src, &L, p.channel, &err)) die("prepare", err.msg);
     size_t n = vod_collect(&src, &L, NULL, 0), cap = 16;
     while (cap < 2 * n) cap *= 2;
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);

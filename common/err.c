@@ -28,3 +28,10 @@ int err_set(err_info *e, int code, const char *fmt, ...)
     va_end(ap);
     return code;
 }
+
+void err_clear(err_info *e)
+{
+    if (!e) return;
+    e->code = 0;
+    e->msg[0] = '\0';
+}

@@ -7,12 +7,13 @@
  * failure reads `return err_set(err, -EINVAL, "...", ...);`.  A call that
  * can fail takes an `err_info *err` (NULL: no message wanted) and returns
  * the negative errno: grid_make, config_load, shm_create, engine_create,
- * mesh_vox_check and the rest.  Not converted yet (they still take
- * `char *err, size_t errlen` and write it with err_fmt): vod/'s reader and
- * writer (vod.h), client/export.h and the vdb_out plugin's table, and
- * csg_leaves_build (mpi_subtree.c passes them its err_info's message and
- * keeps their code).  A formatter that keeps state of its own
- * (a position, the first failure only) calls err_vfmt.
+ * mesh_vox_check, vod/'s reader and writer (vod.h) and the rest.  Not
+ * converted yet (they still take `char *err, size_t errlen` and write it
+ * with err_fmt): export_vdb and the vdb_out plugin's table, csg/'s leaf
+ * builders (mpi_subtree.c passes csg_leaves_build its err_info's message
+ * and keeps its code), csg_dist_check and daemon_csg_tree.  A formatter
+ * that keeps state of its own (a position, the first failure only) calls
+ * err_vfmt.
  *
  * engine_error is one (its kind an engine_failure), and so is the error of
  * engine_result and engine_pipeline_report; the structures that carry a
@@ -40,5 +41,8 @@ int err_fmt(char *buf, size_t len, int code, const char *fmt, ...);
 /* e's code and message (its kind as it was); code returned.  e may be NULL. */
 __attribute__((format(printf, 3, 4)))
 int err_set(err_info *e, int code, const char *fmt, ...);
+/* e as after no error: code 0, message "" (its kind as it was); e may be
+ * NULL.  For a call that says "no message" by an empty one (vod_read). */
+void err_clear(err_info *e);
 
 #endif

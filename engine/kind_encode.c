@@ -241,13 +241,13 @@ static int setup_octree(engine *e, encode_job *ej)
 static int setup_volume(engine *e, encode_job *ej)
 {
     vod_source src = vod_volume_source(e->volume);
-    char msg[sizeof e->err.msg];
+    err_info ve = {0};
     double t0 = clock_now();
-    int rc = vod_prepare(&src, &ej->L, ej->p->channel, msg, sizeof msg);
+    int rc = vod_prepare(&src, &ej->L, ej->p->channel, &ve);
     ej->t.fill += clock_now() - t0;
     if (rc)
         return engine_sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_FAULT, rc,
-                          "%s", msg);
+                          "%s", ve.msg);
     vod_volume_info in;
     vod_volume_get_info(e->volume, &in);
     uint64_t voff = (uint64_t)((uint8_t *)e->volume - e->seg.base);
@@ -378,15 +378,15 @@ static void add_times(encode_block *b, encode_job *ej)
 static int assemble(engine *e, encode_job *ej, const uint8_t **data)
 {
     encode_block *b = engine_sched_block(e);
-    char msg[sizeof ej->err->msg] = "";
+    err_info ve = {0};
     vod_assembly a = {.L = &b->L, .p = ej->p, .n = b->n,
                       .nodes = shm_at(e->seg.base, b->nodes_off),
                       .recs = shm_at(e->seg.base, b->recs_off), .data = data,
-                      .sink = ej->sink, .st = ej->st, .err = msg, .errlen = sizeof msg};
+                      .sink = ej->sink, .st = ej->st, .err = &ve};
     int rc = vod_assemble(&a);
     if (!rc) return 0;
-    return engine_sched_fail(e, engine_vod_failure(rc, msg[0]), rc, "%s",
-                      msg[0] ? msg : strerror(-rc));
+    return engine_sched_fail(e, engine_vod_failure(rc, ve.msg[0]), rc, "%s",
+                      ve.msg[0] ? ve.msg : strerror(-rc));
 }
 
 /* The bricks to the caller instead of a file (engine_encode_bricks). */
@@ -470,9 +470,8 @@ static int encode_run(engine *e, encode_job *ej, const engine_sched_watch *w)
     if (e->result == RESULT_NONE)
         snprintf(err->msg, sizeof err->msg,
                  "nothing to write: the last job failed or there was none");
-    else if (!(rc = vod_layout_make(p, src.depth, &ej->L, err->msg,
-                                    sizeof err->msg)))
-        rc = vod_check_source(&src, p, err->msg, sizeof err->msg);
+    else if (!(rc = vod_layout_make(p, src.depth, &ej->L, err)))
+        rc = vod_check_source(&src, p, err);
     if (rc) {
         err->kind = ENGINE_BAD_JOB;
         err->code = rc;

@@ -40,13 +40,13 @@ int engine_pipeline_write_serial(octree *t, vod_source *s, const vod_params *v, 
     r->stage = ENGINE_PIPELINE_WRITE;
     watched_sink w = {sink, 0};
     vod_sink ws = {watched_write, &w};
-    char err[sizeof r->err.msg] = "";
+    err_info err = {0};
     double t0 = clock_now();
-    int rc = t ? vod_write_octree(t, v, &ws, &r->st, err, sizeof err)
-               : vod_write(s, v, &ws, &r->st, err, sizeof err);
+    int rc = t ? vod_write_octree(t, v, &ws, &r->st, &err)
+               : vod_write(s, v, &ws, &r->st, &err);
     r->t_write = clock_now() - t0;
     if (rc && w.rc == rc) return engine_pipeline_fail(r, ENGINE_SINK, rc, "%s", strerror(-rc));
-    if (rc) return engine_pipeline_fail(r, engine_vod_failure(rc, 1), rc, "%s", err);
+    if (rc) return engine_pipeline_fail(r, engine_vod_failure(rc, 1), rc, "%s", err.msg);
     return 0;
 }
 

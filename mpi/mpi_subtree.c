@@ -216,8 +216,8 @@ static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_la
 static int prepare_encode(const mpi_subtree_job *j, vod_source *src, sub_ctx *c, err_info *err)
 {
     vod_layout L;
-    int rc = coded(err, vod_layout_make(&j->vod, j->grid.depth, &L, err->msg, sizeof err->msg));
-    if (!rc) rc = coded(err, vod_prepare(src, &L, j->vod.channel, err->msg, sizeof err->msg));
+    int rc = vod_layout_make(&j->vod, j->grid.depth, &L, err);
+    if (!rc) rc = vod_prepare(src, &L, j->vod.channel, err);
     return rc ? rc : encode_serial(j, src, &L, c, err);
 }
 

@@ -365,10 +365,10 @@ int mpi_prepare(prep *p, int argc, char **argv)
     pj.schedule = p->o.schedule;
     pj.band = p->o.mesh_opts.band;
     pj.vod = p->o.vod;
-    char err[256];
+    err_info err = {0};
     if (engine_pipeline_plan(&pj, &p->plan, &p->v, p->meta) ||
-        vod_layout_make(&p->v, p->plan.grid.depth, &p->L, err, sizeof err)) {
-        mpi_msg("%s", p->plan.err.msg[0] ? p->plan.err.msg : err);
+        vod_layout_make(&p->v, p->plan.grid.depth, &p->L, &err)) {
+        mpi_msg("%s", p->plan.err.msg[0] ? p->plan.err.msg : err.msg);
         return CLI_EXIT_USAGE;
     }
     if (p->kind == MPI_KIND_MESH && prepare_bins(p)) return CLI_EXIT_FAILED;

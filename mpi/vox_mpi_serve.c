@@ -355,10 +355,10 @@ static int assemble(master *m, const uint8_t *const *sub, const top_part *t,
      * back as it goes, so the commit's fsync has less left to do */
     vod_sink sink = {outfile_write, out};
     vod_assembly a = {.L = L, .p = v, .n = n, .nodes = nodes, .recs = recs, .data = data,
-                      .sink = &sink, .st = st, .err = err->msg, .errlen = sizeof err->msg};
+                      .sink = &sink, .st = st, .err = err};
     if (!rc) rc = vod_assemble(&a);
+    /* the sink's error has no message of vod_assemble's */
     if (rc && !err->msg[0]) err_set(err, rc, "%s", strerror(-rc));
-    else if (rc) err->code = rc;
     free(nodes);
     free(recs);
     free(data);

@@ -83,7 +83,7 @@ typedef struct {
  * covers [0, N)^3), or the brick itself when the brick is larger than the
  * whole octree (treeHeight 1). */
 int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
-                    char *err, size_t errlen);
+                    err_info *err);
 
 /* One non-empty brick node of the complete tree. */
 typedef struct {
@@ -173,12 +173,10 @@ vod_source vod_octree_source(octree *t);
 /* Phase 1 precondition: p->channel is one the source gives, and the spec
  * wants 0 outside volumeSize, so the source must hold no voxel there.  0,
  * or -EINVAL with what is wrong (the first such voxel) in err. */
-int vod_check_source(const vod_source *s, const vod_params *p, char *err,
-                     size_t errlen);
+int vod_check_source(const vod_source *s, const vod_params *p, err_info *err);
 
 /* Phase 1: s->ops->prepare for p's channel; 0, or its error with a message. */
-int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
-                size_t errlen);
+int vod_prepare(vod_source *s, const vod_layout *L, int channel, err_info *err);
 
 /* Phase 1 for an octree (what its prepare() runs).  Fill t->agg (capacity
  * t->used) with each cell's downsampled value (spec section 3) so any
@@ -211,9 +209,6 @@ typedef struct {
 } vod_encoded;
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
-/* err_fmt (common/err.h) under its old name, for engine/'s callers until
- * they call err_fmt; vod/ itself calls err_fmt. */
-#define vod_fail err_fmt
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
  * it and compress it into out, without looking for duplicates (the
  * encoder below does).  It uses an encoder kept per thread (see
@@ -297,7 +292,8 @@ typedef struct {
  * are stored once, IDs 1..n in order of first use.  -EINVAL for nodes not
  * strictly increasing in preorder or a size above vod_encode_bound, -EFBIG
  * when the file would pass 4 GiB, -ENOMEM, each with its message in err;
- * or the sink's error, with err left empty (the sink's owner knows why). */
+ * or the sink's error, with err left clear (code 0, message "": the sink's
+ * owner knows why). */
 typedef struct {
     const vod_layout *L;
     const vod_params *p;
@@ -307,19 +303,19 @@ typedef struct {
     const uint8_t *const *data;
     vod_sink *sink;
     vod_stats *st;              /* NULL: no figures */
-    char *err;                  /* the message, errlen bytes */
-    size_t errlen;
+    err_info *err;              /* NULL: no message */
 } vod_assembly;
 int vod_assemble(const vod_assembly *a);
 
 /* All three phases in this process: the byte-for-byte reference for a
- * parallel writer.  0, or a negative errno with its message in err. */
+ * parallel writer.  0, or a negative errno with its message in err (err
+ * NULL: none). */
 int vod_write(vod_source *s, const vod_params *p, vod_sink *sink,
-              vod_stats *st, char *err, size_t errlen);
+              vod_stats *st, err_info *err);
 /* vod_write of an octree.  Uses t->agg if set (capacity t->used), else
  * allocates and frees one (t->agg is NULL again on return). */
 int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
-                     vod_stats *st, char *err, size_t errlen);
+                     vod_stats *st, err_info *err);
 /* A sink writing to a file descriptor. */
 int vod_fd_write(void *fd_as_ptr, const void *buf, size_t n);
 /* A sink into memory: ud is a vod_membuf, zeroed at first, that grows as

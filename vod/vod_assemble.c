@@ -436,10 +436,10 @@ static void fill_stats(vod_stats *st, const vod_layout *L, const file_plan *f,
 }
 
 /* The 4 GiB limit, with what to ask for instead. */
-static int too_big(char *err, size_t errlen, const vod_layout *L, const vod_params *p,
+static int too_big(err_info *err, const vod_layout *L, const vod_params *p,
                    uint32_t unique)
 {
-    return err_fmt(err, errlen, -EFBIG,
+    return err_set(err, -EFBIG,
                 "the VOD file would pass 4 GiB, the limit of the format's 32-bit "
                 "offsets (%u unique bricks of %u^3 voxels); ask for %s",
                 unique, L->brick,
@@ -472,13 +472,12 @@ int vod_assemble(const vod_assembly *a)
     const vod_layout *L = a->L;
     const vod_params *p = a->p;
     size_t n = a->n;
-    char *err = a->err;
-    size_t errlen = a->errlen;
-    if (errlen) err[0] = '\0';
+    err_info *err = a->err;
+    err_clear(err);
     double t0 = clock_now();
     int rc = check_inputs(L, p, n, a->nodes, a->recs, a->data);
     if (rc)
-        return err_fmt(err, errlen, rc, "bricks out of preorder or over their bound");
+        return err_set(err, rc, "bricks out of preorder or over their bound");
     uint32_t *ids = malloc((n + 1) * sizeof *ids);
     uint32_t *first = malloc((n + 1) * sizeof *first);
     file_plan f = {.nodes = a->nodes, .recs = a->recs, .data = a->data, .ids = ids,
@@ -486,12 +485,12 @@ int vod_assemble(const vod_assembly *a)
     rc = ids && first ? dedup(n, a->recs, a->data, ids, first, &f.u) : -ENOMEM;
     if (!rc && !(f.boff = malloc(((size_t)f.u + 1) * sizeof *f.boff))) rc = -ENOMEM;
     if (rc) {
-        err_fmt(err, errlen, rc, "out of memory for %zu bricks", n);
+        err_set(err, rc, "out of memory for %zu bricks", n);
     } else {
         plan_layout(&f, L);
         size_t meta = p->metadata ? strlen(p->metadata) : 0;
         if (f.boff[f.u] + TRAILER_FIXED + meta > UINT32_MAX)
-            rc = too_big(err, errlen, L, p, f.u);
+            rc = too_big(err, L, p, f.u);
         else
             rc = write_file(L, p, &f, a->sink, a->st, t0);
     }

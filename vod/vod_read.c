@@ -512,10 +512,7 @@ int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
                      err_info *err)
 {
     *out = NULL;
-    if (err) { /* err as after no error (its kind the caller's) */
-        err->code = 0;
-        err->msg[0] = '\0';
-    }
+    err_clear(err);
     vod_file *f = calloc(1, sizeof *f);
     parse ps = {.b = buf, .len = len, .end = len, .err = err};
     if (!f) return err_set(ps.err, -ENOMEM, "out of memory");

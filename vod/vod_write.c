@@ -31,69 +31,69 @@ void vod_params_default(vod_params *p)
     for (int a = 0; a < 3; a++) p->voxel_scale[a] = 1.0f;
 }
 
-static int check_geometry(const vod_params *p, char *err, size_t errlen)
+static int check_geometry(const vod_params *p, err_info *err)
 {
     const uint32_t *v = p->volume;
     if (!v[0] || !v[1] || !v[2])
-        return err_fmt(err, errlen, -EINVAL,
+        return err_set(err, -EINVAL,
                     "volumeSize %ux%ux%u: each side must be at least 1", v[0],
                     v[1], v[2]);
     if (p->brick < 2 || p->brick > 256 || (p->brick & (p->brick - 1)))
-        return err_fmt(err, errlen, -EINVAL,
+        return err_set(err, -EINVAL,
                     "brickSize %u is not a power of two in 2..256", p->brick);
     for (int a = 0; a < 3; a++) {
         if (!isfinite(p->voxel_scale[a]) || !(p->voxel_scale[a] > 0.0f))
-            return err_fmt(err, errlen, -EINVAL,
+            return err_set(err, -EINVAL,
                         "voxelScale %g on axis %d must be finite and > 0",
                         (double)p->voxel_scale[a], a);
         if (!isfinite(p->origin[a]))
-            return err_fmt(err, errlen, -EINVAL, "origin on axis %d is not finite", a);
+            return err_set(err, -EINVAL, "origin on axis %d is not finite", a);
     }
     return 0;
 }
 
-static int check_encoding(const vod_params *p, char *err, size_t errlen)
+static int check_encoding(const vod_params *p, err_info *err)
 {
     char b[5];
     if (p->channel != VOXEL_CH_SURFACE && p->channel != VOXEL_CH_OCCUPANCY &&
         p->channel != VOXEL_CH_DENSITY && p->channel != VOXEL_CH_DISTANCE)
-        return err_fmt(err, errlen, -EINVAL,
+        return err_set(err, -EINVAL,
                     "channel %d cannot be written (1 occupancy, 2 density, 3 "
                     "surface or 4 distance)",
                     p->channel);
     if (p->comp != VOD_COMP_NONE && p->comp != VOD_COMP_ZLIB &&
         p->comp != VOD_COMP_RUNL)
-        return err_fmt(err, errlen, -EINVAL,
+        return err_set(err, -EINVAL,
                     "compression '%s' unknown (NONE, ZLIB or RUNL)",
                     vod_fourcc_str(p->comp, b));
     if (p->comp == VOD_COMP_ZLIB &&
         (p->zlib_level < 1 || p->zlib_level > VOD_ZLIB_LEVEL_MAX))
-        return err_fmt(err, errlen, -EINVAL, "zlib level %d outside 1..%d",
+        return err_set(err, -EINVAL, "zlib level %d outside 1..%d",
                     p->zlib_level, VOD_ZLIB_LEVEL_MAX);
     if (p->hash != VOD_HASH_SFHS && p->hash != VOD_HASH_XX32)
-        return err_fmt(err, errlen, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
+        return err_set(err, -EINVAL, "hash '%s' unknown (SFHS or XX32)",
                     vod_fourcc_str(p->hash, b));
     size_t m = p->metadata ? strlen(p->metadata) : 0;
     if (m > VOD_MAX_METADATA)
-        return err_fmt(err, errlen, -EINVAL, "metadata of %zu bytes, more than %u",
+        return err_set(err, -EINVAL, "metadata of %zu bytes, more than %u",
                     m, VOD_MAX_METADATA);
     return 0;
 }
 
 int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
-                    char *err, size_t errlen)
+                    err_info *err)
 {
-    int rc = check_geometry(p, err, errlen);
-    if (rc == 0) rc = check_encoding(p, err, errlen);
+    int rc = check_geometry(p, err);
+    if (rc == 0) rc = check_encoding(p, err);
     if (rc) return rc;
     if (octree_depth < 1 || octree_depth > OCTREE_MAX_DEPTH)
-        return err_fmt(err, errlen, -EINVAL, "octree depth %d outside 1..%d",
+        return err_set(err, -EINVAL, "octree depth %d outside 1..%d",
                     octree_depth, OCTREE_MAX_DEPTH);
     uint32_t maxv = p->volume[0];
     if (p->volume[1] > maxv) maxv = p->volume[1];
     if (p->volume[2] > maxv) maxv = p->volume[2];
     if (maxv > 1u << octree_depth)
-        return err_fmt(err, errlen, -EINVAL,
+        return err_set(err, -EINVAL,
                     "volume side %u exceeds the octree's %u voxels per axis",
                     maxv, 1u << octree_depth);
     memset(L, 0, sizeof *L);
@@ -112,7 +112,7 @@ int vod_layout_make(const vod_params *p, int octree_depth, vod_layout *L,
     L->nodes = ((1ull << (3 * L->height)) - 1) / 7;
     L->octree_depth = octree_depth;
     if (VOD_HEADER_BYTES + L->nodes * 4 + 4 > UINT32_MAX)
-        return err_fmt(err, errlen, -EFBIG,
+        return err_set(err, -EFBIG,
                     "octree table of %llu nodes (treeHeight %u) passes the 4 GiB "
                     "limit of VOD's u32 offsets; use a larger brick",
                     (unsigned long long)L->nodes, L->height);
@@ -139,31 +139,29 @@ static const char *channel_list(uint32_t mask, char *buf, size_t n)
     return buf;
 }
 
-int vod_check_source(const vod_source *s, const vod_params *p, char *err,
-                     size_t errlen)
+int vod_check_source(const vod_source *s, const vod_params *p, err_info *err)
 {
     const uint32_t *v = p->volume;
     uint32_t bad[3];
     char list[64];
     if (p->channel < 0 || p->channel > 31 || !(s->channels >> p->channel & 1u))
-        return err_fmt(err, errlen, -EINVAL,
+        return err_set(err, -EINVAL,
                     "channel %d cannot be written from the %s (it gives channel%s %s)",
                     p->channel, s->ops->name,
                     (s->channels & (s->channels - 1)) ? "s" : "",
                     channel_list(s->channels, list, sizeof list));
     if (!s->ops->outside(s, v, bad)) return 0;
-    return err_fmt(err, errlen, -EINVAL,
+    return err_set(err, -EINVAL,
                 "the %s holds a voxel at %u,%u,%u, outside volumeSize "
                 "%ux%ux%u (VOD padding must be 0)",
                 s->ops->name, bad[0], bad[1], bad[2], v[0], v[1], v[2]);
 }
 
-int vod_prepare(vod_source *s, const vod_layout *L, int channel, char *err,
-                size_t errlen)
+int vod_prepare(vod_source *s, const vod_layout *L, int channel, err_info *err)
 {
     int rc = s->ops->prepare(s, L, channel);
     if (rc)
-        return err_fmt(err, errlen, rc, "cannot prepare the mip levels of the %s: %s",
+        return err_set(err, rc, "cannot prepare the mip levels of the %s: %s",
                     s->ops->name, strerror(-rc));
     return 0;
 }
@@ -664,45 +662,44 @@ static int write_planned(const vod_source *s, vod_assembly *a, double t_prepare)
 /* Phases 1 (after the checks) to 3 of a, as write_planned. */
 static int write_checked(vod_source *s, vod_assembly *a)
 {
-    char *err = a->err;
-    size_t errlen = a->errlen;
+    err_info *err = a->err;
     double t0 = clock_now();
-    int rc = vod_prepare(s, a->L, a->p->channel, err, errlen);
+    int rc = vod_prepare(s, a->L, a->p->channel, err);
     if (rc) return rc;
-    if (errlen) err[0] = '\0';
+    err_clear(err);
     rc = write_planned(s, a, clock_now() - t0);
     /* vod_assemble's own failures are said; the sink's and the encoder's
      * are not yet */
-    if (rc && (!errlen || !err[0]))
-        return err_fmt(err, errlen, rc, "cannot write the VOD file: %s", strerror(-rc));
+    if (rc && (!err || !err->msg[0]))
+        return err_set(err, rc, "cannot write the VOD file: %s", strerror(-rc));
     return rc;
 }
 
 int vod_write(vod_source *s, const vod_params *p, vod_sink *sink,
-              vod_stats *st, char *err, size_t errlen)
+              vod_stats *st, err_info *err)
 {
     vod_layout L;
-    int rc = vod_layout_make(p, s->depth, &L, err, errlen);
-    if (!rc) rc = vod_check_source(s, p, err, errlen);
-    vod_assembly a = {.L = &L, .p = p, .sink = sink, .st = st, .err = err, .errlen = errlen};
+    int rc = vod_layout_make(p, s->depth, &L, err);
+    if (!rc) rc = vod_check_source(s, p, err);
+    vod_assembly a = {.L = &L, .p = p, .sink = sink, .st = st, .err = err};
     return rc ? rc : write_checked(s, &a);
 }
 
 int vod_write_octree(octree *t, const vod_params *p, vod_sink *sink,
-                     vod_stats *st, char *err, size_t errlen)
+                     vod_stats *st, err_info *err)
 {
     vod_source s = vod_octree_source(t);
     vod_layout L;
-    int rc = vod_layout_make(p, t->depth, &L, err, errlen);
-    if (!rc) rc = vod_check_source(&s, p, err, errlen);
+    int rc = vod_layout_make(p, t->depth, &L, err);
+    if (!rc) rc = vod_check_source(&s, p, err);
     if (rc) return rc;
     uint32_t *own = NULL;
     if (!t->agg) {
         own = t->agg = malloc((size_t)t->used * sizeof *t->agg);
         if (!own)
-            return err_fmt(err, errlen, -ENOMEM, "out of memory for %u cells", t->used);
+            return err_set(err, -ENOMEM, "out of memory for %u cells", t->used);
     }
-    vod_assembly a = {.L = &L, .p = p, .sink = sink, .st = st, .err = err, .errlen = errlen};
+    vod_assembly a = {.L = &L, .p = p, .sink = sink, .st = st, .err = err};
     rc = write_checked(&s, &a);
     if (own) {
         free(own);

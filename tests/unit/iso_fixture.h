@@ -62,11 +62,10 @@ static inline vod_file *make_vod(const vol_spec *s, voxel_fn fn, void *ud)
     vod_source src = vod_volume_source(v);
     vod_membuf mb = {0};
     vod_sink sink = {vod_mem_write, &mb};
-    char err[256] = "";
-    cr_assert_eq(vod_write(&src, &p, &sink, NULL, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write(&src, &p, &sink, NULL, &err), 0, "%s", err.msg);
     vod_file *f;
-    err_info rerr = {0};
-    cr_assert_eq(vod_read(mb.p, mb.n, &f, &rerr), 0, "%s", rerr.msg);
+    cr_assert_eq(vod_read(mb.p, mb.n, &f, &err), 0, "%s", err.msg);
     free(mb.p);
     free(arena);
     return f;

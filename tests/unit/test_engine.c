@@ -530,8 +530,8 @@ static void vod_same(engine *e, octree *ref, const grid_spec *g, uint32_t brick,
     vod_membuf a = {0}, b = {0};
     vod_sink sa = {vod_mem_write, &a}, sb = {vod_mem_write, &b};
     vod_stats st_a, st_b;
-    char err[256] = "";
-    cr_assert_eq(vod_write_octree(ref, &p, &sa, &st_a, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write_octree(ref, &p, &sa, &st_a, &err), 0, "%s", err.msg);
     engine_error ee;
     cr_assert_eq(engine_write_vod(e, &p, &sb, &st_b, &ee), 0, "%s", ee.msg);
     cr_assert_eq(a.n, b.n, "sizes %zu vs %zu", a.n, b.n);

@@ -84,8 +84,8 @@ Test(mpi_cut, covers_every_voxel_above_a_brick)
         grid_spec g = grid(200);
         vod_params p = params(&g, VOXEL_CH_SURFACE, 16);
         vod_layout L;
-        char err[128];
-        cr_assert_eq(vod_layout_make(&p, g.depth, &L, err, sizeof err), 0);
+        err_info err = {0};
+        cr_assert_eq(vod_layout_make(&p, g.depth, &L, &err), 0);
         mpi_cut c;
         cr_assert_eq(mpi_cut_make(t, &g, &L, 24, &c), 0);
         cr_assert(c.level > (int)L.brick_log2, "cut at level %d", c.level);
@@ -221,16 +221,16 @@ static void same_file(const char *src, uint32_t res, int channel, uint32_t brick
     grid_spec g = grid(res);
     vod_params p = params(&g, channel, brick);
     vod_layout L;
-    char err[256];
+    err_info err = {0};
     err_info se = {0};
-    cr_assert_eq(vod_layout_make(&p, g.depth, &L, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_layout_make(&p, g.depth, &L, &err), 0, "%s", err.msg);
     /* the reference: the whole grid in one process */
     octree tree;
     void *arena = whole(t, &g, &tree);
     vod_membuf ref = {0};
     vod_sink rs = {vod_mem_write, &ref};
     vod_stats st;
-    cr_assert_eq(vod_write_octree(&tree, &p, &rs, &st, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_write_octree(&tree, &p, &rs, &st, &err), 0, "%s", err.msg);
     munmap(arena, octree_arena_bytes(1u << 24));
 
     mpi_cut c;
@@ -267,7 +267,7 @@ static void assemble_same(scheme *sp, const vod_layout *Lp, const vod_params *pp
     vod_membuf ref = *refp;
     mpi_cut c = *cp;
     uint32_t res = p.volume[0];
-    char err[256];
+    err_info err = {0};
     cr_assert_eq(mpi_top_encode(s.top, &p, put_top, &s), 0);
     qsort(s.nodes, s.n, sizeof *s.nodes, by_preorder);
     vod_node *nodes = calloc(s.n + 1, sizeof *nodes);
@@ -285,9 +285,9 @@ static void assemble_same(scheme *sp, const vod_layout *Lp, const vod_params *pp
     vod_membuf got = {0};
     vod_sink gs = {vod_mem_write, &got};
     vod_assembly a = {.L = &L, .p = &p, .n = s.n, .nodes = nodes, .recs = recs,
-                      .data = data, .sink = &gs, .err = err, .errlen = sizeof err};
+                      .data = data, .sink = &gs, .err = &err};
     cr_assert_eq(vod_assemble(&a), 0,
-                 "%s", err);
+                 "%s", err.msg);
     cr_assert_eq(got.n, ref.n, "%zu bytes, want %zu (%s, %u^3, %zu subtrees of level %d)",
                  got.n, ref.n, src, res, c.n, c.level);
     cr_assert(!memcmp(got.p, ref.p, ref.n), "%s at %u^3: other bytes", src, res);
@@ -390,7 +390,8 @@ static uint8_t *column_mesh(const mesh *m, const mesh_bins *bins, const grid_spe
 static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t target,
                        int workers)
 {
-    char meta[JOB_META_MAX], err[256];
+    char meta[JOB_META_MAX];
+    err_info err = {0};
     err_info se = {0};
     vod_params v;
     engine_pipeline_report r, rr;
@@ -399,7 +400,7 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
     cr_assert_eq(engine_pipeline_plan(job, &r, &v, meta), 0, "%s", r.err.msg);
     cr_assert_eq(engine_pipeline_run(NULL, job, &rs, &rr), 0, "%s", rr.err.msg);
     vod_layout L;
-    cr_assert_eq(vod_layout_make(&v, r.grid.depth, &L, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_layout_make(&v, r.grid.depth, &L, &err), 0, "%s", err.msg);
     int columns = j.kind == MPI_KIND_MESH;
     mpi_cut c;
     cr_assert_eq(mpi_cut_grid(&r.grid, &L, target, columns ? 6 : 4, columns, &c), 0);
@@ -618,8 +619,8 @@ Test(mpi_cut, grid_cut_covers_the_grid_once)
     grid_spec g = grid(200);
     vod_params p = params(&g, VOXEL_CH_DENSITY, 16);
     vod_layout L;
-    char err[128];
-    cr_assert_eq(vod_layout_make(&p, g.depth, &L, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(&p, g.depth, &L, &err), 0);
     for (int columns = 0; columns < 2; columns++) {
         mpi_cut c;
         cr_assert_eq(mpi_cut_grid(&g, &L, 24, columns ? 6 : 4, columns, &c), 0);

@@ -527,11 +527,10 @@ static vod_file *to_vod_placed(octree *t, int channel, const float *scale,
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
     vod_stats st;
-    char err[256];
-    cr_assert_eq(vod_write_octree(t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write_octree(t, &p, &sink, &st, &err), 0, "%s", err.msg);
     vod_file *f;
-    err_info rerr = {0};
-    cr_assert_eq(vod_read(m.p, m.n, &f, &rerr), 0, "%s", rerr.msg);
+    cr_assert_eq(vod_read(m.p, m.n, &f, &err), 0, "%s", err.msg);
     free(m.p);
     return f;
 }

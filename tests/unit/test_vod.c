@@ -132,9 +132,9 @@ Test(vod_runl, decoder_refuses_bad_runs)
 static int layout_rc(vod_params *p, int depth, const char *want)
 {
     vod_layout L;
-    char err[256] = "";
-    int rc = vod_layout_make(p, depth, &L, err, sizeof err);
-    if (want) cr_assert(strstr(err, want), "message '%s' lacks '%s'", err, want);
+    err_info err = {0};
+    int rc = vod_layout_make(p, depth, &L, &err);
+    if (want) cr_assert(strstr(err.msg, want), "message '%s' lacks '%s'", err.msg, want);
     return rc;
 }
 
@@ -144,20 +144,20 @@ Test(vod_layout, validates_params_per_spec)
     vod_params_default(&p);
     p.volume[0] = p.volume[1] = p.volume[2] = 100;
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(&p, 7, &L, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(&p, 7, &L, &err), 0, "%s", err.msg);
     cr_assert_eq(L.height, 4); /* ceil(100/16) = 7 -> 1 + 3 */
     cr_assert_eq(L.padded, 128);
     cr_assert_eq(L.raw_bytes, 16 * 16 * 16 * 4);
     cr_assert_eq(L.nodes, 585);
-    cr_assert_eq(vod_layout_make(&p, 9, &L, err, sizeof err), 0, "deeper octree");
+    cr_assert_eq(vod_layout_make(&p, 9, &L, &err), 0, "deeper octree");
     cr_assert_eq(L.padded, 128, "N < 2^depth: %u", L.padded);
     p.volume[0] = p.volume[1] = p.volume[2] = 5;
-    cr_assert_eq(vod_layout_make(&p, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(vod_layout_make(&p, 3, &L, &err), 0);
     cr_assert_eq(L.height, 1);
     cr_assert_eq(L.padded, 16, "one root brick bigger than the octree");
     p.channel = VOXEL_CH_OCCUPANCY;
-    cr_assert_eq(vod_layout_make(&p, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(vod_layout_make(&p, 3, &L, &err), 0);
     cr_assert_eq(L.raw_bytes, 512);
 
     vod_params q = p;
@@ -171,12 +171,12 @@ Test(vod_layout, validates_params_per_spec)
     cr_assert_eq(layout_rc(&q, 3, "at least 1"), -EINVAL);
     q = p, q.channel = VOXEL_CH_DENSITY;
     cr_assert_eq(layout_rc(&q, 3, NULL), 0, "channel 2: 8-bit voxels");
-    cr_assert_eq(vod_layout_make(&q, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(vod_layout_make(&q, 3, &L, &err), 0);
     cr_assert_eq(L.voxel_bits, 8);
     cr_assert_eq(L.raw_bytes, 16 * 16 * 16);
     q = p, q.channel = VOXEL_CH_DISTANCE;
     cr_assert_eq(layout_rc(&q, 3, NULL), 0, "channel 4: f32 voxels");
-    cr_assert_eq(vod_layout_make(&q, 3, &L, err, sizeof err), 0);
+    cr_assert_eq(vod_layout_make(&q, 3, &L, &err), 0);
     cr_assert_eq(L.voxel_bits, 32);
     q = p, q.channel = 5;
     cr_assert_eq(layout_rc(&q, 3, "channel 5 cannot be written"), -EINVAL);
@@ -550,8 +550,8 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     membuf ref = write_file(&f, &p, NULL);
 
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(&p, f.t.depth, &L, &err), 0);
     f.t.agg = malloc(f.t.used * sizeof *f.t.agg);
     vod_aggregate(&f.t, p.channel); /* as the engine does, into its own agg */
     vod_source src = vod_octree_source(&f.t);
@@ -576,7 +576,7 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = n, .nodes = nodes,
                                               .recs = recs, .data = (const uint8_t *const *)data,
                                               .sink = &sink, .st = &st,
-                                              .err = err, .errlen = sizeof err}), 0);
+                                              .err = &err}), 0);
     cr_assert_eq(m.n, ref.n);
     cr_assert_arr_eq(m.p, ref.p, m.n);
     cr_assert_eq(st.nonempty_nodes, n);
@@ -601,9 +601,10 @@ Test(vod_write, voxel_outside_the_volume_is_refused)
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;
-    char err[256] = "";
-    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, &st, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "4,25,6") && strstr(err, "outside volumeSize"), "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, &st, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "4,25,6") && strstr(err.msg, "outside volumeSize"), "%s", err.msg);
+    cr_assert_eq(err.code, -EINVAL);
     cr_assert_eq(m.calls, 0);
     fx_free(&f);
 }
@@ -616,8 +617,8 @@ Test(vod_write, file_past_4_gib_is_refused_before_writing)
     p.brick = 256;
     p.comp = VOD_COMP_NONE;
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(&p, 10, &L, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(&p, 10, &L, &err), 0);
     cr_assert_eq(L.nodes, 73);
     enum { N = 65 }; /* 65 distinct 64 MiB bricks: 4.06 GiB */
     uint8_t *raw = calloc(1, L.raw_bytes);
@@ -635,9 +636,10 @@ Test(vod_write, file_past_4_gib_is_refused_before_writing)
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = N, .nodes = nodes,
                                               .recs = recs, .data = data,
                                               .sink = &sink, .st = &st,
-                                              .err = err, .errlen = sizeof err}), -EFBIG);
+                                              .err = &err}), -EFBIG);
     cr_assert_eq(m.calls, 0);
-    cr_assert(strstr(err, "would pass 4 GiB") && strstr(err, "65 unique bricks"), "%s", err);
+    cr_assert(strstr(err.msg, "would pass 4 GiB") && strstr(err.msg, "65 unique bricks"), "%s", err.msg);
+    cr_assert_eq(err.code, -EFBIG);
     free(raw);
 }
 
@@ -653,19 +655,18 @@ Test(vod_write, fd_sink_and_vod_open)
     cr_assert(fd >= 0);
     vod_sink sink = {vod_fd_write, (void *)(intptr_t)fd};
     vod_stats st;
-    char err[256] = "";
-    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, &st, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, &st, &err), 0, "%s", err.msg);
     close(fd);
     vod_file *v;
-    err_info rerr = {0};
-    cr_assert_eq(vod_open(path, &v, &rerr), 0, "%s", rerr.msg);
+    cr_assert_eq(vod_open(path, &v, &err), 0, "%s", err.msg);
     cr_assert_eq(vod_get_info(v)->file_bytes, st.file_bytes);
     check_level0(&f, v, 0);
     vod_close(v);
     unlink(path);
-    cr_assert_eq(vod_open(path, &v, &rerr), -ENOENT);
-    cr_assert(strstr(rerr.msg, "cannot open"), "%s", rerr.msg);
-    cr_assert_eq(rerr.code, -ENOENT);
+    cr_assert_eq(vod_open(path, &v, &err), -ENOENT);
+    cr_assert(strstr(err.msg, "cannot open"), "%s", err.msg);
+    cr_assert_eq(err.code, -ENOENT);
     cr_assert_null(v);
     fx_free(&f);
 }
@@ -767,8 +768,9 @@ Test(vod, sink_errors_are_not_the_4_GiB_limit)
     vod_params_default(&p);
     for (int a = 0; a < 3; a++) p.volume[a] = 16;
     vod_sink sink = {efbig_write, NULL};
-    char err[256];
-    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EFBIG);
-    cr_assert_str_eq(err, "cannot write the VOD file: File too large");
+    err_info err = {0};
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, &err), -EFBIG);
+    cr_assert_str_eq(err.msg, "cannot write the VOD file: File too large");
+    cr_assert_eq(err.code, -EFBIG);
     fx_free(&f);
 }

@@ -164,8 +164,8 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     p.comp = VOD_COMP_NONE;
     p.brick = 4;
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(&p, 3, &L, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(&p, 3, &L, &err), 0);
     static uint8_t d1[256], d2[256], d3[256];
     memset(d1, 1, sizeof d1);
     memset(d2, 2, sizeof d2);
@@ -182,7 +182,7 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = 4, .nodes = nodes,
                                               .recs = recs, .data = data,
                                               .sink = &sink, .st = &st,
-                                              .err = err, .errlen = sizeof err}), 0);
+                                              .err = &err}), 0);
     cr_assert_eq(st.bricks, 3, "d1 == d3 merged, d2 (same hash) and d1 (other hash) not");
     cr_assert_eq(vod_get32(m.p + 64), 1);
     cr_assert_eq(vod_get32(m.p + 68), 2);
@@ -195,12 +195,12 @@ Test(vod_dedup, assemble_merges_only_equal_bytes)
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = 2, .nodes = bad,
                                               .recs = recs, .data = data,
                                               .sink = &sink, .st = &st,
-                                              .err = err, .errlen = sizeof err}), -EINVAL);
+                                              .err = &err}), -EINVAL);
     vod_encoded big[1] = {{7, 257}};
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = 1, .nodes = nodes + 1,
                                               .recs = big, .data = data,
                                               .sink = &sink, .st = &st,
-                                              .err = err, .errlen = sizeof err}), -EINVAL);
+                                              .err = &err}), -EINVAL);
     cr_assert_eq(m.calls, 0);
 }
 
@@ -217,8 +217,8 @@ Test(vod_dedup, many_bricks_get_the_ids_of_their_first_use)
     p.comp = VOD_COMP_NONE;
     p.brick = 4;
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(&p, 7, &L, err, sizeof err), 0);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(&p, 7, &L, &err), 0);
     enum { N = 30000, CLASSES = 1500, BYTES = 256 };
     cr_assert_geq(L.nodes, N);
     static uint8_t pool[2][CLASSES][BYTES];
@@ -241,8 +241,7 @@ Test(vod_dedup, many_bricks_get_the_ids_of_their_first_use)
     vod_stats st;
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = N, .nodes = nodes,
                                               .recs = recs, .data = data,
-                                              .sink = &sink, .st = &st, .err = err,
-                                              .errlen = sizeof err}), 0, "%s", err);
+                                              .sink = &sink, .st = &st, .err = &err}), 0, "%s", err.msg);
     cr_assert_eq(st.bricks, u);
     for (uint32_t i = 0; i < N; i++)
         cr_assert_eq(vod_get32(m.p + VOD_HEADER_BYTES + 4 * i), want[i], "node %u", i);
@@ -406,8 +405,8 @@ Test(vod_encoder, bound_holds_any_zlib_stream)
             p.brick = brick;
             p.channel = ch ? VOXEL_CH_OCCUPANCY : VOXEL_CH_SURFACE;
             vod_layout L;
-            char err[256];
-            cr_assert_eq(vod_layout_make(&p, 6, &L, err, sizeof err), 0, "%s", err);
+            err_info err = {0};
+            cr_assert_eq(vod_layout_make(&p, 6, &L, &err), 0, "%s", err.msg);
             cr_assert_geq(vod_encode_bound(&L, &p), libdeflate_zlib_compress_bound(c, L.raw_bytes));
         }
     libdeflate_free_compressor(c);
@@ -440,12 +439,12 @@ static void fx_copies(fixture *f)
 static vod_node *copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
                               vod_stats *st, vod_layout *L, vod_source *src, size_t *n)
 {
-    char err[256];
+    err_info err = {0};
     fx_init(f, 8, 128, 128, 256);
     fx_copies(f);
     params(p, f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, brick);
     if (ref) *ref = write_file(f, p, st);
-    cr_assert_eq(vod_layout_make(p, f->t.depth, L, err, sizeof err), 0);
+    cr_assert_eq(vod_layout_make(p, f->t.depth, L, &err), 0);
     f->t.agg = malloc(f->t.used * sizeof *f->t.agg);
     vod_aggregate(&f->t, p->channel);
     *src = vod_octree_source(&f->t);
@@ -464,7 +463,7 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     vod_layout L;
     vod_source src;
     size_t n;
-    char err[256];
+    err_info err = {0};
     vod_node *nodes = copies_nodes(&f, &p, 32, &ref, &st, &L, &src, &n);
     size_t bound = vod_encode_bound(&L, &p);
     /* every brick compressed on its own, no duplicate looked for */
@@ -510,7 +509,7 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     cr_assert_eq(vod_assemble(&(vod_assembly){.L = &L, .p = &p, .n = n, .nodes = nodes,
                                               .recs = recs, .data = (const uint8_t *const *)data,
                                               .sink = &sink,
-                                              .err = err, .errlen = sizeof err}), 0);
+                                              .err = &err}), 0);
     cr_assert_eq(m.n, ref.n);
     cr_assert_arr_eq(m.p, ref.p, m.n);
     for (size_t i = 0; i < n; i++) free(data[i]);

@@ -190,11 +190,10 @@ static void file_case(uint32_t S, uint32_t brick)
     p.brick = brick;
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
-    char err[256] = "";
-    cr_assert_eq(vod_write(&src, &p, &sink, NULL, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write(&src, &p, &sink, NULL, &err), 0, "%s", err.msg);
     vod_file *file;
-    err_info rerr = {0};
-    cr_assert_eq(vod_read(m.p, m.n, &file, &rerr), 0, "%s", rerr.msg);
+    cr_assert_eq(vod_read(m.p, m.n, &file, &err), 0, "%s", err.msg);
     for (uint32_t z = 0; z < f.dims[2]; z++)
         for (uint32_t y = 0; y < f.dims[1]; y++)
             for (uint32_t x = 0; x < f.dims[0]; x++)

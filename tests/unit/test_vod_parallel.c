@@ -113,10 +113,10 @@ static void forge(forged *f, uint32_t side, size_t n, uint32_t max_size)
     for (int a = 0; a < 3; a++) f->p.volume[a] = side - 3;
     f->p.comp = VOD_COMP_NONE;
     f->p.metadata = "k=v\nsource=forged\n";
-    char err[256];
+    err_info err = {0};
     int depth = 0; /* the octree's: 2^depth voxels a side */
     while ((1u << depth) < side) depth++;
-    cr_assert_eq(vod_layout_make(&f->p, depth, &f->L, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_layout_make(&f->p, depth, &f->L, &err), 0, "%s", err.msg);
     cr_assert_leq(max_size, vod_encode_bound(&f->L, &f->p));
     cr_assert_leq(n, f->L.nodes);
     f->n = n;
@@ -152,10 +152,10 @@ static membuf assemble(const forged *f, vod_stats *st, int fail_at, int *rc)
 {
     membuf m = {.fail_at = fail_at};
     vod_sink sink = {mem_write, &m};
-    char err[256];
+    err_info err = {0};
     vod_assembly a = {.L = &f->L, .p = &f->p, .n = f->n, .nodes = f->nodes,
                       .recs = f->recs, .data = f->data, .sink = &sink, .st = st,
-                      .err = err, .errlen = sizeof err};
+                      .err = &err};
     *rc = vod_assemble(&a);
     return m;
 }
@@ -259,10 +259,10 @@ static vod_volume *random_volume(uint32_t side, uint32_t sb, void **arena,
     for (int a = 0; a < 3; a++) p.volume[a] = side;
     p.brick = sb;
     p.channel = VOXEL_CH_DENSITY;
-    char err[256];
+    err_info err = {0};
     vod_source src = vod_volume_source(v);
-    cr_assert_eq(vod_layout_make(&p, src.depth, L, err, sizeof err), 0, "%s", err);
-    cr_assert_eq(vod_prepare(&src, L, p.channel, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_layout_make(&p, src.depth, L, &err), 0, "%s", err.msg);
+    cr_assert_eq(vod_prepare(&src, L, p.channel, &err), 0, "%s", err.msg);
     return v;
 }
 

@@ -66,8 +66,8 @@ static membuf write_source(vod_source *s, const vod_params *p, vod_stats *st)
 {
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
-    char err[256] = "";
-    cr_assert_eq(vod_write(s, p, &sink, st, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write(s, p, &sink, st, &err), 0, "%s", err.msg);
     return m;
 }
 
@@ -75,8 +75,8 @@ static membuf write_source(vod_source *s, const vod_params *p, vod_stats *st)
 static size_t uniform_nodes(vod_source *s, const vod_params *p)
 {
     vod_layout L;
-    char err[256];
-    cr_assert_eq(vod_layout_make(p, s->depth, &L, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_layout_make(p, s->depth, &L, &err), 0, "%s", err.msg);
     size_t n = vod_collect(s, &L, NULL, 0), u = 0;
     vod_node *nodes = malloc((n + 1) * sizeof *nodes);
     cr_assert_eq(vod_collect(s, &L, nodes, n), n);
@@ -223,9 +223,8 @@ Test(vod_source, channel_4_from_a_float_volume_reads_back)
     vod_stats vst;
     membuf m = write_source(&vs, &p, &vst);
     vod_file *f;
-    char err[256] = "";
-    err_info rerr = {0};
-    cr_assert_eq(vod_read(m.p, m.n, &f, &rerr), 0, "%s", rerr.msg);
+    err_info err = {0};
+    cr_assert_eq(vod_read(m.p, m.n, &f, &err), 0, "%s", err.msg);
     const vod_info *fi = vod_get_info(f);
     cr_assert_eq(fi->channel, 4);
     cr_assert_eq(fi->voxel_bits, 32);
@@ -263,8 +262,8 @@ Test(vod_source, channel_4_from_a_float_volume_reads_back)
     params(&p, &fx, VOXEL_CH_DISTANCE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
     membuf m2 = {0};
     vod_sink sink = {mem_write, &m2};
-    cr_assert_eq(vod_write_octree(&fx.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "channel 4 cannot be written from the octree"), "%s", err);
+    cr_assert_eq(vod_write_octree(&fx.t, &p, &sink, NULL, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "channel 4 cannot be written from the octree"), "%s", err.msg);
     cr_assert_eq(m2.calls, 0, "nothing written");
     fx_free(&fx);
 }
@@ -276,17 +275,17 @@ Test(vod_source, a_channel_the_source_lacks_is_refused)
     fx_random(&f, 20);
     vod_params p;
     params(&p, &f, VOXEL_CH_DENSITY, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
-    char err[256] = "";
+    err_info err = {0};
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
-    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, err, sizeof err), -EINVAL);
-    cr_assert_str_eq(err, "channel 2 cannot be written from the octree (it gives "
+    cr_assert_eq(vod_write_octree(&f.t, &p, &sink, NULL, &err), -EINVAL);
+    cr_assert_str_eq(err.msg, "channel 2 cannot be written from the octree (it gives "
                           "channels 1 and 3)");
     cr_assert_null(f.t.agg);
     /* and the octree's fill refuses a layout it cannot give even if asked */
     vod_source s = vod_octree_source(&f.t);
     vod_layout L;
-    cr_assert_eq(vod_layout_make(&p, 4, &L, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(vod_layout_make(&p, 4, &L, &err), 0, "%s", err.msg);
     cr_assert_eq(L.voxel_bits, 8);
     vod_node n = {.level = 0};
     uint8_t *scratch = malloc(L.raw_bytes), *out = malloc(vod_encode_bound(&L, &p));
@@ -323,9 +322,9 @@ Test(vod_source, assemble_refusals_reach_the_caller)
     params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
-    char err[256] = "";
-    cr_assert_eq(vod_write(&s, &p, &sink, NULL, err, sizeof err), -EINVAL);
-    cr_assert_str_eq(err, "bricks out of preorder or over their bound");
+    err_info err = {0};
+    cr_assert_eq(vod_write(&s, &p, &sink, NULL, &err), -EINVAL);
+    cr_assert_str_eq(err.msg, "bricks out of preorder or over their bound");
     cr_assert_eq(m.calls, 0);
     free(f.t.agg);
     fx_free(&f);

@@ -99,18 +99,18 @@ static vod_membuf write_ok(vod_volume *v, const vod_params *p)
     vod_source s = vod_volume_source(v);
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    char err[256] = "";
-    cr_assert_eq(vod_write(&s, p, &sink, NULL, err, sizeof err), 0, "%s", err);
+    err_info err = {0};
+    cr_assert_eq(vod_write(&s, p, &sink, NULL, &err), 0, "%s", err.msg);
     return m;
 }
 
-static int write_rc(vod_volume *v, const vod_params *p, char *err, size_t errlen)
+static int write_rc(vod_volume *v, const vod_params *p, err_info *err)
 {
     vod_source s = vod_volume_source(v);
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
-    err[0] = '\0';
-    int rc = vod_write(&s, p, &sink, NULL, err, errlen);
+    *err = (err_info){0};
+    int rc = vod_write(&s, p, &sink, NULL, err);
     free(m.p);
     return rc;
 }
@@ -520,19 +520,19 @@ Test(vod_volume_write, channels_the_volume_lacks_are_refused)
     vfx_init(&f, 8, 8, 8, 8, 4);
     vfx_set(&f, 1, 1, 1, 1);
     vod_params p;
-    char err[256];
+    err_info err = {0};
     params(&p, f.dims, VOXEL_CH_SURFACE, 4, VOD_COMP_ZLIB);
-    cr_assert_eq(write_rc(f.v, &p, err, sizeof err), -EINVAL);
-    cr_assert_str_eq(err, "channel 3 cannot be written from the volume (it gives "
+    cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
+    cr_assert_str_eq(err.msg, "channel 3 cannot be written from the volume (it gives "
                           "channels 1 and 2)");
     params(&p, f.dims, VOXEL_CH_DISTANCE, 4, VOD_COMP_ZLIB);
-    cr_assert_eq(write_rc(f.v, &p, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "channel 4"), "%s", err);
+    cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "channel 4"), "%s", err.msg);
     vfx_free(&f);
     vfx_init(&f, 8, 8, 8, 32, 4);
     params(&p, f.dims, VOXEL_CH_DENSITY, 4, VOD_COMP_ZLIB);
-    cr_assert_eq(write_rc(f.v, &p, err, sizeof err), -EINVAL);
-    cr_assert_str_eq(err, "channel 2 cannot be written from the volume (it gives "
+    cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
+    cr_assert_str_eq(err.msg, "channel 2 cannot be written from the volume (it gives "
                           "channels 1 and 3)"); /* channel 4: a VOD_VOLUME_F32 volume's */
     vfx_free(&f);
 }
@@ -544,18 +544,18 @@ Test(vod_volume_write, voxel_outside_the_file_volume_is_refused)
     vfx_set(&f, 3, 3, 3, 1);
     vfx_set(&f, 17, 5, 6, 1);
     vod_params p;
-    char err[256];
+    err_info err = {0};
     params(&p, f.dims, VOXEL_CH_DENSITY, 8, VOD_COMP_ZLIB);
     p.volume[0] = 16;
-    cr_assert_eq(write_rc(f.v, &p, err, sizeof err), -EINVAL);
-    cr_assert_str_eq(err, "the volume holds a voxel at 17,5,6, outside volumeSize "
+    cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
+    cr_assert_str_eq(err.msg, "the volume holds a voxel at 17,5,6, outside volumeSize "
                           "16x20x20 (VOD padding must be 0)");
     vfx_set(&f, 17, 5, 6, 0);
-    cr_assert_eq(write_rc(f.v, &p, err, sizeof err), 0, "%s", err);
+    cr_assert_eq(write_rc(f.v, &p, &err), 0, "%s", err.msg);
     vfx_fill(&f, 0, 16, 8, 4, 20, 12, 9); /* a uniform brick past y = 16 */
     p.volume[0] = 20, p.volume[1] = 16;
-    cr_assert_eq(write_rc(f.v, &p, err, sizeof err), -EINVAL);
-    cr_assert(strstr(err, "at 0,16,8,"), "%s", err);
+    cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
+    cr_assert(strstr(err.msg, "at 0,16,8,"), "%s", err.msg);
     vfx_free(&f);
 }
 
@@ -579,22 +579,22 @@ Test(vod_volume_write, mip_levels_need_pool_room)
                     cr_assert_eq(vod_volume_set(v, x + 1, y + 2, z + 3, 200), 0);
         vod_params p;
         params(&p, dims, VOXEL_CH_DENSITY, 4, VOD_COMP_ZLIB);
-        char err[256];
+        err_info err = {0};
         vod_source s = vod_volume_source(v);
         vod_membuf m = {0};
         vod_sink sink = {vod_mem_write, &m};
-        int rc = vod_write(&s, &p, &sink, NULL, err, sizeof err);
+        int rc = vod_write(&s, &p, &sink, NULL, &err);
         vod_volume_info in;
         vod_volume_get_info(v, &in);
         if (pass == 0) {
             cr_assert_eq(rc, -ENOMEM);
-            cr_assert_str_eq(err, "cannot prepare the mip levels of the volume: Cannot "
+            cr_assert_str_eq(err.msg, "cannot prepare the mip levels of the volume: Cannot "
                                   "allocate memory");
             cr_assert_eq(m.n, 0);
             cr_assert_eq(in.mip_channel, 0);
             cr_assert_eq(in.pool_used, in.level0_bricks, "the partial mips are given back");
         } else {
-            cr_assert_eq(rc, 0, "%s", err);
+            cr_assert_eq(rc, 0, "%s", err.msg);
             cr_assert_leq(in.pool_used, in.pool_cap);
             cr_assert_gt(in.pool_used, count, "mip bricks in the pool");
         }

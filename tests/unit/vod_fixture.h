@@ -129,10 +129,10 @@ static inline membuf write_file(fixture *f, const vod_params *p, vod_stats *st)
 {
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
-    char err[256] = "";
+    err_info err = {0};
     vod_stats local;
-    int rc = vod_write_octree(&f->t, p, &sink, st ? st : &local, err, sizeof err);
-    cr_assert_eq(rc, 0, "write: %s", err);
+    int rc = vod_write_octree(&f->t, p, &sink, st ? st : &local, &err);
+    cr_assert_eq(rc, 0, "write: %s", err.msg);
     cr_assert_null(f->t.agg, "agg allocated by the writer is freed again");
     return m;
 }
