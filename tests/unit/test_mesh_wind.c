@@ -606,6 +606,20 @@ static double brute_w(const mesh *m, const double p[3])
     return w;
 }
 
+/* dense() through the caps' tree (tree 1) or the direct path (0), with
+ * *spared the samples sent on to the mesh's exact sum meanwhile. */
+static uint8_t *dense_counted(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
+                              int tree, uint64_t *spared)
+{
+    mesh_tile_stats st;
+    mesh_wcap_tree_only = tree;
+    uint64_t before = atomic_load(&mesh_wcap_to_exact);
+    uint8_t *d = dense(m, g, o, &st);
+    *spared = atomic_load(&mesh_wcap_to_exact) - before;
+    mesh_wcap_tree_only = 0;
+    return d;
+}
+
 /* The cap's triangle of edge a -> b: (b, a, o), as mesh_wcap.c makes it. */
 static bool on_tent_cap(const double p[3])
 {
@@ -633,12 +647,8 @@ Test(mesh_wind, samples_on_a_cap_go_to_the_mesh_exact_sum, .timeout = 600)
     grid_spec g = cube_grid(32);
     mesh_vox_opts o = {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0};
     for (int tree = 0; tree < 2; tree++) {
-        mesh_tile_stats st;
-        mesh_wcap_tree_only = tree;
-        uint64_t before = atomic_load(&mesh_wcap_to_exact);
-        uint8_t *d = dense(m, &g, &o, &st);
-        uint64_t spared = atomic_load(&mesh_wcap_to_exact) - before;
-        mesh_wcap_tree_only = 0;
+        uint64_t spared;
+        uint8_t *d = dense_counted(m, &g, &o, tree, &spared);
         size_t on = 0, wrong = 0, inside = 0;
         for (uint32_t z = 0; z < 32; z++)
             for (uint32_t y = 0; y < 32; y++)
@@ -726,12 +736,8 @@ Test(mesh_wind, a_sample_near_one_half_goes_to_the_mesh_exact_sum, .timeout = 60
         cr_assert_lt(fabs(fabs(w) - 0.5), 1e-7, "%s: |w| %.17g: not near 1/2", name[k], w);
         want[k] = fabs(w) >= 0.5;
         for (int tree = 0; tree < 2; tree++) {
-            mesh_tile_stats st;
-            mesh_wcap_tree_only = tree;
-            uint64_t before = atomic_load(&mesh_wcap_to_exact);
-            uint8_t *d = dense(m, &g, &o, &st);
-            uint64_t spared = atomic_load(&mesh_wcap_to_exact) - before;
-            mesh_wcap_tree_only = 0;
+            uint64_t spared;
+            uint8_t *d = dense_counted(m, &g, &o, tree, &spared);
             bool got = d[(16 * 32 + 16) * 32 + 16] != 0;
             cr_expect_eq(got, want[k], "%s, tree %d: voxel %d, |w| %.17g", name[k], tree, got, w);
             cr_expect(!tree || spared >= 1, "%s: nothing to the exact sum", name[k]);
