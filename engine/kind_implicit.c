@@ -209,8 +209,9 @@ static void implicit_done(engine *e, int i, const shm_task *t, int error)
  * so that the last tasks are small and the workers end together (issue
  * 24: the last level-6 subtrees took up to a few ms of one worker while
  * the other had none).  Only once no octant above the split is still out:
- * at the job's start the stack is short too, but more is coming.  The same voxels: a task of children and a
- * subtree test every octant with the same pruned tapes (subdiv.c). */
+ * at the job's start the stack is short too, but more is coming.  The
+ * same voxels: a task of children and a subtree test every octant with
+ * the same pruned tapes (subdiv.c). */
 #define TAIL_LEVEL 4
 
 static void implicit_tail(engine *e, shm_task *t)

@@ -364,10 +364,10 @@ static int build_levels(vod_volume *v, int channel, int first)
     atomic_init(&p.rc, 0);
     if (top >= first) par_run(cpus, prep_part, &p);
     int rc = atomic_load_explicit(&p.rc, memory_order_relaxed);
+    if (rc) return rc;
     mip_ctx m;
-    if (!rc) rc = mip_ctx_init(&m, v, channel);
-    else m = (mip_ctx){0};
-    for (m.l = top + 1 > first ? top + 1 : first; m.l <= v->depth && !rc; m.l++)
+    rc = mip_ctx_init(&m, v, channel);
+    for (m.l = top + 1; m.l <= v->depth && !rc; m.l++) /* top >= first - 1 */
         rc = build_level(&m);
     mip_ctx_free(&m);
     return rc;
