@@ -305,6 +305,22 @@ Test(engine, bad_arguments)
 
 /* ---- processes, segments, pinning ---- */
 
+/* A test's named segment, "/voxd-WHAT.PID.".  A failed assertion leaves the
+ * test before engine_destroy: its .fini unlinks the segment whatever became
+ * of the test (ENOENT, the engine's own unlink, ignored). */
+static char segment[64];
+
+static const char *named_segment(const char *what)
+{
+    snprintf(segment, sizeof segment, "/voxd-%s.%d.", what, (int)getpid());
+    return segment;
+}
+
+static void unlink_named_segment(void)
+{
+    if (segment[0]) shm_unlink(segment);
+}
+
 static int shm_entries_of(pid_t pid, const char *prefix)
 {
     char want[64];
@@ -319,7 +335,7 @@ static int shm_entries_of(pid_t pid, const char *prefix)
     return n;
 }
 
-Test(engine, create_destroy_leaves_nothing)
+Test(engine, create_destroy_leaves_nothing, .fini = unlink_named_segment)
 {
     pid_t pids[3 * 25];
     int np = 0;
@@ -341,8 +357,8 @@ Test(engine, create_destroy_leaves_nothing)
         cr_assert_eq(errno, ECHILD);
     }
     /* a named segment exists while the engine lives, and is removed */
-    char name[64], path[80];
-    snprintf(name, sizeof name, "/voxd-test.%d.", (int)getpid());
+    const char *name = named_segment("test");
+    char path[80];
     snprintf(path, sizeof path, "/dev/shm%s", name);
     engine_opts o = {.workers = 1, .shm_name = name, .shm_bytes = 16 << 20};
     engine *e, *e2;
@@ -420,10 +436,10 @@ static long long shm_blocks(const char *path)
 
 /* Pages a job touched go back to tmpfs when it ends, but for the octree
  * it leaves for its VOD; engine_release gives that back too. */
-Test(engine, pages_beyond_keep_are_given_back)
+Test(engine, pages_beyond_keep_are_given_back, .fini = unlink_named_segment)
 {
-    char name[64], path[80];
-    snprintf(name, sizeof name, "/voxd-keep.%d.", (int)getpid());
+    const char *name = named_segment("keep");
+    char path[80];
     snprintf(path, sizeof path, "/dev/shm%s", name);
     engine_opts o = {.workers = 1, .shm_name = name, .keep_bytes = 4096};
     engine *e;
@@ -458,10 +474,11 @@ Test(engine, pages_beyond_keep_are_given_back)
 /* A job that cannot fit stops as soon as its estimated need passes the
  * segment (x*0: every voxel is on the surface), long before it fills it,
  * and what it touched goes back; the next job runs. */
-Test(engine, a_job_too_big_stops_early_and_gives_its_pages_back, .timeout = 60)
+Test(engine, a_job_too_big_stops_early_and_gives_its_pages_back, .timeout = 60,
+     .fini = unlink_named_segment)
 {
-    char name[64], path[80];
-    snprintf(name, sizeof name, "/voxd-big.%d.", (int)getpid());
+    const char *name = named_segment("big");
+    char path[80];
     snprintf(path, sizeof path, "/dev/shm%s", name);
     size_t bytes = (size_t)256 << 20;
     engine_opts o = {.workers = 2, .shm_name = name, .shm_bytes = bytes,
@@ -565,14 +582,13 @@ Test(engine, vod_bytes_identical_to_serial_writer)
 /* The brick area overflows with zlib bricks: the master encodes what did
  * not fit with its own deflate stream, freed at the end of each write (and
  * made again for the next one), and the bytes are the serial writer's. */
-Test(engine, vod_zlib_bricks_encoded_by_the_master)
+Test(engine, vod_zlib_bricks_encoded_by_the_master, .fini = unlink_named_segment)
 {
     expr_tape *tape = compile(SCENE2);
     grid_spec g = grid(128);
     ref_tree ref;
     reference(tape, &g, &ref);
-    char name[64];
-    snprintf(name, sizeof name, "/voxd-zlib.%d.", (int)getpid());
+    const char *name = named_segment("zlib");
     /* room for the tables and part of the compressed bricks (about 0.5 MB
      * here), the arena's unused block tails too (the master's and each
      * worker's last: their cells and aggregates).  The workers' tails
