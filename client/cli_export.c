@@ -475,7 +475,7 @@ int cli_export(int argc, char **argv)
     for (int i = 1; i < argc; i++)
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
             fputs(usage_text, stdout);
-            return 0;
+            return CLI_EXIT_OK;
         }
     export_opts o;
     int rc = parse_opts(argc, argv, &o);
