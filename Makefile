@@ -177,7 +177,7 @@ VDB_LIBS := -lopenvdb -ltbb -lImath
 CXXFLAGS += -std=c++17 -Wall -Wextra -Werror $(OPT) -fPIC -MMD -MP
 $(BUILD)/client/vdb_out.o: client/vdb_out.cc
 	@mkdir -p $(dir $@)
-	$(CXX) $(CXXFLAGS) -Iclient -c $< -o $@
+	$(CXX) $(CXXFLAGS) -Iclient -Icommon -c $< -o $@
 $(VDB_MOD): $(BUILD)/client/vdb_out.o
 	$(CXX) -shared $(filter -fsanitize=%,$(OPT)) $^ -o $@ $(VDB_LIBS)
 # The export tests' own reader of .vdb files (libopenvdb's reader, not

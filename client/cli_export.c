@@ -418,10 +418,10 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
  * (outfile_name) is handed over. */
 static int write_vdb(const export_box *b, const export_opts *o, const outfile *f)
 {
-    char err[512] = "";
-    int rc = export_vdb(b, o->in, outfile_name(f), err, sizeof err);
+    err_info err = {0};
+    int rc = export_vdb(b, o->in, outfile_name(f), &err);
     if (rc) {
-        cli_error("%s", err);
+        cli_error("%s", err.msg);
         return -EINVAL; /* told */
     }
     return 0;
@@ -475,7 +475,7 @@ int cli_export(int argc, char **argv)
     for (int i = 1; i < argc; i++)
         if (!strcmp(argv[i], "--help") || !strcmp(argv[i], "-h")) {
             fputs(usage_text, stdout);
-            return 0;
+            return CLI_EXIT_OK;
         }
     export_opts o;
     int rc = parse_opts(argc, argv, &o);

@@ -7,6 +7,7 @@
 #include <stdint.h>
 #include <stdio.h>
 
+#include "err.h"
 #include "vod.h"
 
 /* What is exported: the box [lo, hi) of level `level`'s voxels. */
@@ -49,8 +50,7 @@ int export_gzip(const export_box *b, FILE *fp, int comps);
  * "density" of the voxel byte / 255 (channel 3: its occupancy byte), and
  * with b->normals a Vec3SGrid "normal".  Voxel indices are the level's, so a box keeps its
  * place.  src names the input in the metadata.  0, or a negative errno
- * with a message in err. */
-int export_vdb(const export_box *b, const char *src, const char *path, char *err,
-               size_t errlen);
+ * with err set. */
+int export_vdb(const export_box *b, const char *src, const char *path, err_info *err);
 
 #endif

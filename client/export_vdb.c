@@ -138,7 +138,7 @@ static int describe(const vdb_job *j, const char *src)
 /* The module beside the running vox (the build tree), else in ../lib/voxd
  * from it (make install).  It stays loaded until exit: libopenvdb's
  * registries and thread pool are not made to be unloaded. */
-static const vdb_out_api *load_api(char *err, size_t errlen)
+static const vdb_out_api *load_api(err_info *err)
 {
     char exe[PATH_MAX], path[PATH_MAX + 32];
     ssize_t n = readlink("/proc/self/exe", exe, sizeof exe - 1);
@@ -157,16 +157,15 @@ static const vdb_out_api *load_api(char *err, size_t errlen)
         }
         const vdb_out_api *api = dlsym(h, VDB_OUT_SYMBOL);
         if (api) return api;
-        snprintf(err, errlen, "%s: no %s (a module of another version)", path, VDB_OUT_SYMBOL);
+        err_set(err, -ENOENT, "%s: no %s (a module of another version)", path, VDB_OUT_SYMBOL);
         return NULL;
     }
-    snprintf(err, errlen, ".vdb needs the OpenVDB module %s beside vox or in its "
-             "../lib/voxd: %s", VDB_OUT_MODULE, why);
+    err_set(err, -ENOENT, ".vdb needs the OpenVDB module %s beside vox or in its "
+            "../lib/voxd: %s", VDB_OUT_MODULE, why);
     return NULL;
 }
 
-int export_vdb(const export_box *b, const char *src, const char *path, char *err,
-               size_t errlen)
+int export_vdb(const export_box *b, const char *src, const char *path, err_info *err)
 {
     vdb_out_grid g = {.kind = b->in->voxel_bits == 1 ? VDB_OUT_BOOL : VDB_OUT_FLOAT,
                       .name = b->in->voxel_bits == 1 ? "occupancy" : "density",
@@ -184,13 +183,13 @@ int export_vdb(const export_box *b, const char *src, const char *path, char *err
     static vdb_job j; /* its leaf buffers are 8 KiB: not on the stack */
     memset(&j, 0, sizeof j);
     j.b = b;
-    if (!(j.api = load_api(err, errlen))) return -ENOENT;
-    int rc = j.api->open(&j.w, &g, err, errlen);
+    if (!(j.api = load_api(err))) return -ENOENT;
+    int rc = j.api->open(&j.w, &g, err);
     if (rc) return rc;
     rc = describe(&j, src);
     if (!rc) rc = walk(&j);
-    if (rc) snprintf(err, errlen, "%s", strerror(-rc));
-    else rc = j.api->write(j.w, path, err, errlen);
+    if (rc) err_set(err, rc, "%s", strerror(-rc));
+    else rc = j.api->write(j.w, path, err);
     j.api->free(j.w);
     return rc;
 }

@@ -20,9 +20,14 @@ namespace {
 using openvdb::Coord;
 using openvdb::CoordBBox;
 
-void say(char *err, size_t errlen, const char *what, const char *why)
+// err_set's work (common/err.h), done here: the module does not link
+// libvoxd.  code returned.
+int say(err_info *err, int code, const char *what, const char *why)
 {
-    if (errlen) std::snprintf(err, errlen, "%s: %s", what, why);
+    if (!err) return code;
+    err->code = code;
+    std::snprintf(err->msg, sizeof err->msg, "%s: %s", what, why);
+    return code;
 }
 
 } // namespace
@@ -79,12 +84,11 @@ typename GridT::Ptr make_grid(const vdb_out_grid *g, openvdb::math::Transform::P
 
 } // namespace
 
-static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, char *err, size_t errlen)
+static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, err_info *err)
 {
     *out = nullptr;
     if (g->kind != VDB_OUT_BOOL && g->kind != VDB_OUT_FLOAT && g->kind != VDB_OUT_LEVEL_SET) {
-        say(err, errlen, "vdb", "unknown grid kind");
-        return -EINVAL;
+        return say(err, -EINVAL, "vdb", "unknown grid kind");
     }
     try {
         openvdb::initialize(); // registers the grid types; idempotent
@@ -100,8 +104,7 @@ static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, char *err, size_t 
         else if (g->kind == VDB_OUT_LEVEL_SET) {
             if (!(g->background > 0)) {
                 delete w;
-                say(err, errlen, "vdb", "a level set needs a background > 0");
-                return -EINVAL;
+                return say(err, -EINVAL, "vdb", "a level set needs a background > 0");
             }
             w->bg = float(g->background);
             w->dens = openvdb::FloatGrid::create(w->bg);
@@ -119,8 +122,7 @@ static int vdb_out_open(vdb_out **out, const vdb_out_grid *g, char *err, size_t 
         *out = w;
         return 0;
     } catch (const std::exception &e) {
-        say(err, errlen, "openvdb", e.what());
-        return -ENOMEM;
+        return say(err, -ENOMEM, "openvdb", e.what());
     }
 }
 
@@ -214,7 +216,7 @@ static int vdb_out_fill_f(vdb_out *w, const int32_t lo[3], const uint32_t n[3], 
     }
 }
 
-static int vdb_out_write(vdb_out *w, const char *path, char *err, size_t errlen)
+static int vdb_out_write(vdb_out *w, const char *path, err_info *err)
 {
     try {
         openvdb::GridPtrVec grids;
@@ -233,11 +235,9 @@ static int vdb_out_write(vdb_out *w, const char *path, char *err, size_t errlen)
         f.close();
         return 0;
     } catch (const std::bad_alloc &) {
-        say(err, errlen, path, "out of memory");
-        return -ENOMEM;
+        return say(err, -ENOMEM, path, "out of memory");
     } catch (const std::exception &e) {
-        say(err, errlen, path, e.what());
-        return -EIO;
+        return say(err, -EIO, path, e.what());
     }
 }
 
@@ -251,7 +251,7 @@ static void vdb_out_free(vdb_out *w)
     delete w;
 }
 
-extern "C" __attribute__((visibility("default"))) const vdb_out_api vdb_out_api_v2 = {
+extern "C" __attribute__((visibility("default"))) const vdb_out_api vdb_out_api_v3 = {
     vdb_out_open,    vdb_out_meta_int, vdb_out_meta_str, vdb_out_block,   vdb_out_fill,
     vdb_out_block_f, vdb_out_fill_f,   vdb_out_write,    vdb_out_active, vdb_out_free,
 };

@@ -18,6 +18,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -45,8 +47,9 @@ typedef struct {
  * libopenvdb, its C++ runtime and their static constructors (tens of
  * milliseconds) load for that command only, not for every vox run. */
 typedef struct {
-    /* 0, or -ENOMEM / -EINVAL with a message in err. */
-    int (*open)(vdb_out **w, const vdb_out_grid *g, char *err, size_t errlen);
+    /* 0, or -ENOMEM / -EINVAL with err set (common/err.h; the module
+     * fills it itself, not linking libvoxd's err_set). */
+    int (*open)(vdb_out **w, const vdb_out_grid *g, err_info *err);
     /* Metadata on every grid: an integer or a string (0 or -ENOMEM). */
     int (*meta_int)(vdb_out *w, const char *key, int64_t v);
     int (*meta_str)(vdb_out *w, const char *key, const char *v);
@@ -65,8 +68,8 @@ typedef struct {
     int (*block_f)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], const float *d);
     int (*fill_f)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], float v);
     /* Prune the trees (equal leaves become tiles) and write the file at
-     * path.  0, or a negative errno with a message in err. */
-    int (*write)(vdb_out *w, const char *path, char *err, size_t errlen);
+     * path.  0, or a negative errno with err set. */
+    int (*write)(vdb_out *w, const char *path, err_info *err);
     /* Active voxels of the scalar grid. */
     uint64_t (*active)(const vdb_out *w);
     void (*free)(vdb_out *w);
@@ -75,7 +78,7 @@ typedef struct {
 /* The module's one exported symbol, a const vdb_out_api; its name carries
  * a version, so a stale module is refused rather than misread. */
 #define VDB_OUT_MODULE "vox-vdb.so"
-#define VDB_OUT_SYMBOL "vdb_out_api_v2"
+#define VDB_OUT_SYMBOL "vdb_out_api_v3"
 
 #ifdef __cplusplus
 }

@@ -18,13 +18,18 @@ int err_fmt(char *buf, size_t len, int code, const char *fmt, ...)
     return code;
 }
 
-int err_set(err_info *e, int code, const char *fmt, ...)
+int err_vset(err_info *e, int code, const char *fmt, va_list ap)
 {
     if (!e) return code;
     e->code = code;
+    return err_vfmt(e->msg, sizeof e->msg, code, fmt, ap);
+}
+
+int err_set(err_info *e, int code, const char *fmt, ...)
+{
     va_list ap;
     va_start(ap, fmt);
-    err_vfmt(e->msg, sizeof e->msg, code, fmt, ap);
+    err_vset(e, code, fmt, ap);
     va_end(ap);
     return code;
 }

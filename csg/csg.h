@@ -18,6 +18,7 @@
 #include <stdint.h>
 
 #include "csg_limits.h"
+#include "err.h"
 #include "expr.h"
 #include "grid.h"
 #include "mesh_vox.h"
@@ -90,10 +91,12 @@ typedef struct {
     size_t data_len[CSG_MAX_NODES];
 } csg_tree;
 
+/* The project's error (common/err.h: code the errno returned, msg what
+ * is wrong) and where: the place in the text and the definition's name. */
 typedef struct {
+    ERR_INFO_EMBED(info);
     int line, col;         /* 1-based; 0 when none */
     char node[CSG_NAME_MAX];
-    char msg[200];
 } csg_error;
 
 /* Parse a .csg text (docs/csg.md).  0 and *out (free with csg_tree_free),
@@ -121,16 +124,15 @@ void csg_node_rotation(csg_node *n);
  * level 0 at each voxel centre of g (nearest: the file voxel whose box holds
  * the centre; L outside the file), occupancy 1 as H, density as it is,
  * surface voxels as H where occupied.  Done once per job, before any brick.
- * 0, or a negative errno with msg saying why (-EINVAL a file that does not
- * load, -ENOMEM the volume's pool is full). */
+ * 0, or a negative errno with err (not NULL) saying why (-EINVAL a file
+ * that does not load, -ENOMEM the volume's pool is full). */
 int csg_leaf_build(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
-                   char *msg, size_t len);
+                   err_info *err);
 /* Mesh leaf i's mesh parsed from its bytes and placed (fit, scale) into
  * *m (mesh_free it), and the options csg_leaf_build voxelizes it with into
  * *o: what the engine's workers build the leaf's volume from, tile by tile
- * (mesh_tile_run), the same volume.  0, or a negative errno with msg. */
-int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, char *msg,
-                  size_t len);
+ * (mesh_tile_run), the same volume.  0, or a negative errno with err. */
+int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, err_info *err);
 /* The memory the file leaves' volumes are built in, one after the other. */
 typedef struct {
     void *base;   /* 8-byte aligned */
@@ -139,10 +141,10 @@ typedef struct {
 } csg_arena;
 /* Every file leaf of t built in turn (csg_leaf_build) into arena a:
  * leaves[i] for each (NULL for the other nodes), a->used the bytes they
- * take.  0, or the first leaf's error (-ENOSPC, -ENOMEM: the arena is too
- * small). */
+ * take.  0, or the first leaf's error in err (-ENOSPC, -ENOMEM: the arena
+ * is too small). */
 int csg_leaves_build(const csg_tree *t, const grid_spec *g, csg_arena *a,
-                     vod_volume *leaves[CSG_MAX_NODES], char *msg, size_t len);
+                     vod_volume *leaves[CSG_MAX_NODES], err_info *err);
 /* 1 when t has a mesh or vod leaf. */
 int csg_has_file_leaves(const csg_tree *t);
 
@@ -204,8 +206,8 @@ int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *con
 /* 0 when the tree's result (the nodes it reaches) has a signed distance:
  * implicit leaves without a domain and mesh leaves, combined by union
  * (min), intersection (max), difference (max(a, -b)) and inverse (-a);
- * else -ENOTSUP with msg naming the first node that has none. */
-int csg_dist_check(const csg_tree *t, char *msg, size_t len);
+ * else -ENOTSUP with err naming the first node that has none. */
+int csg_dist_check(const csg_tree *t, err_info *err);
 /* Every implicit and mesh leaf's k := band (voxels each side, 0: the
  * default): what the distance channel's evaluation and csg_leaf_build
  * read (a mesh leaf with k > 0 is built as its distance, f32). */

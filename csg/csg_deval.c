@@ -51,7 +51,7 @@ static const char *no_distance(const csg_node *n)
     }
 }
 
-int csg_dist_check(const csg_tree *t, char *msg, size_t len)
+int csg_dist_check(const csg_tree *t, err_info *err)
 {
     if (!t->n) return -EINVAL;
     uint8_t used[CSG_MAX_NODES] = {0};
@@ -60,10 +60,9 @@ int csg_dist_check(const csg_tree *t, char *msg, size_t len)
         if (!used[i]) continue;
         const csg_node *n = &t->node[i];
         const char *why = no_distance(n);
-        if (why) {
-            snprintf(msg, len, "node '%s' (%s): %s", n->name, csg_kind_name(n->kind), why);
-            return -ENOTSUP;
-        }
+        if (why)
+            return err_set(err, -ENOTSUP, "node '%s' (%s): %s", n->name,
+                           csg_kind_name(n->kind), why);
         if (n->a >= 0) used[n->a] = 1;
         if (n->b >= 0) used[n->b] = 1;
     }

@@ -17,7 +17,7 @@
 
 /* The leaf's placement: fit moves the bounding box's centre to fit[] and
  * makes its longest side `scale`; else every coordinate times scale. */
-static int place_mesh(const csg_node *n, mesh *m, char *msg, size_t len)
+static int place_mesh(const csg_node *n, mesh *m, err_info *err)
 {
     double c[3], ext = 0, k = n->scale > 0 ? n->scale : 1, to[3] = {0, 0, 0};
     for (int a = 0; a < 3; a++) {
@@ -27,9 +27,8 @@ static int place_mesh(const csg_node *n, mesh *m, char *msg, size_t len)
     }
     if (n->has_fit) {
         if (!(ext > 0)) {
-            snprintf(msg, len, "node '%s': mesh: an empty bounding box cannot be fitted",
-                     n->name);
-            return -EINVAL;
+            return err_set(err, -EINVAL,
+                           "node '%s': mesh: an empty bounding box cannot be fitted", n->name);
         }
         k /= ext;
     }
@@ -43,29 +42,27 @@ static int place_mesh(const csg_node *n, mesh *m, char *msg, size_t len)
     return 0;
 }
 
-int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, char *msg,
-                  size_t len)
+int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, err_info *err)
 {
     const csg_node *n = &t->node[i];
     mesh_error me = {0};
-    msg[0] = 0;
+    err_clear(err);
     if (n->kind != CSG_MESH || !t->data[i] || !t->data_len[i]) {
-        snprintf(msg, len, "node '%s': no file data for a %s leaf", n->name,
-                 csg_kind_name(n->kind));
-        return -EINVAL;
+        return err_set(err, -EINVAL, "node '%s': no file data for a %s leaf", n->name,
+                       csg_kind_name(n->kind));
     }
     int rc = mesh_parse(t->data[i], t->data_len[i], MESH_FORMAT_AUTO, NULL, m, &me);
     if (rc) {
         char why[256];
-        snprintf(msg, len, "node '%s': mesh: %s", n->name, mesh_error_str(&me, why, sizeof why));
-        return rc;
+        return err_set(err, rc, "node '%s': mesh: %s", n->name,
+                       mesh_error_str(&me, why, sizeof why));
     }
     if (!m->n_triangles) {
-        snprintf(msg, len, "node '%s': mesh: no triangles", n->name);
+        err_set(err, -EINVAL, "node '%s': mesh: no triangles", n->name);
         mesh_free(m);
         return -EINVAL;
     }
-    if ((rc = place_mesh(n, m, msg, len))) {
+    if ((rc = place_mesh(n, m, err))) {
         mesh_free(m);
         return rc;
     }
@@ -78,17 +75,17 @@ int csg_leaf_mesh(const csg_tree *t, uint32_t i, mesh *m, mesh_vox_opts *o, char
 }
 
 static int mesh_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
-                     char *msg, size_t len)
+                     err_info *err)
 {
     mesh m;
     mesh_vox_opts o;
-    int rc = csg_leaf_mesh(t, i, &m, &o, msg, len);
+    int rc = csg_leaf_mesh(t, i, &m, &o, err);
     if (rc) return rc;
     mesh_tile_stats st = {0};
     rc = mesh_voxelize(&m, g, &o, vol, &st);
-    if (rc && !msg[0])
-        snprintf(msg, len, "node '%s': voxelizing the mesh: %s", t->node[i].name,
-                 strerror(-rc));
+    if (rc && !err->msg[0])
+        err_set(err, rc, "node '%s': voxelizing the mesh: %s", t->node[i].name,
+                strerror(-rc));
     mesh_free(&m);
     return rc;
 }
@@ -110,28 +107,27 @@ static int64_t file_index(const grid_spec *g, const vod_info *in, int a, uint32_
 }
 
 static int vod_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
-                    char *msg, size_t len)
+                    err_info *err)
 {
     const csg_node *n = &t->node[i];
     vod_file *f;
     err_info why;
     int rc = vod_read(t->data[i], t->data_len[i], &f, &why);
     if (rc) {
-        snprintf(msg, len, "node '%s': vod: %s", n->name, why.msg);
-        return rc;
+        return err_set(err, rc, "node '%s': vod: %s", n->name, why.msg);
     }
     const vod_info *in = vod_get_info(f);
     if (in->channel != VOXEL_CH_OCCUPANCY && in->channel != VOXEL_CH_DENSITY &&
         in->channel != VOXEL_CH_SURFACE) {
-        snprintf(msg, len, "node '%s': vod: channel %u cannot be a density (occupancy, "
-                 "density or surface)", n->name, in->channel);
+        err_set(err, -EINVAL, "node '%s': vod: channel %u cannot be a density (occupancy, "
+                "density or surface)", n->name, in->channel);
         vod_close(f);
         return -EINVAL;
     }
     for (int a = 0; a < 3; a++)
         if (!(in->voxel_scale[a] > 0)) {
-            snprintf(msg, len, "node '%s': vod: voxel size %g along axis %d", n->name,
-                     in->voxel_scale[a], a);
+            err_set(err, -EINVAL, "node '%s': vod: voxel size %g along axis %d", n->name,
+                    in->voxel_scale[a], a);
             vod_close(f);
             return -EINVAL;
         }
@@ -162,7 +158,7 @@ static int vod_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volum
                 }
                 if (any) rc = vod_volume_put_brick(vol, b, buf);
             }
-    if (rc) snprintf(msg, len, "node '%s': resampling the VOD: %s", n->name, strerror(-rc));
+    if (rc) err_set(err, rc, "node '%s': resampling the VOD: %s", n->name, strerror(-rc));
     free(buf);
     for (int a = 0; a < 3; a++) free(ix[a]);
     vod_close(f);
@@ -170,17 +166,15 @@ static int vod_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volum
 }
 
 int csg_leaf_build(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
-                   char *msg, size_t len)
+                   err_info *err)
 {
-    msg[0] = 0;
+    err_clear(err);
     const csg_node *n = &t->node[i];
     if ((n->kind != CSG_MESH && n->kind != CSG_VOD) || !t->data[i] || !t->data_len[i]) {
-        snprintf(msg, len, "node '%s': no file data for a %s leaf", n->name,
-                 csg_kind_name(n->kind));
-        return -EINVAL;
+        return err_set(err, -EINVAL, "node '%s': no file data for a %s leaf", n->name,
+                       csg_kind_name(n->kind));
     }
-    return n->kind == CSG_MESH ? mesh_leaf(t, i, g, vol, msg, len)
-                               : vod_leaf(t, i, g, vol, msg, len);
+    return n->kind == CSG_MESH ? mesh_leaf(t, i, g, vol, err) : vod_leaf(t, i, g, vol, err);
 }
 
 int csg_has_file_leaves(const csg_tree *t)
@@ -191,10 +185,10 @@ int csg_has_file_leaves(const csg_tree *t)
 }
 
 int csg_leaves_build(const csg_tree *t, const grid_spec *g, csg_arena *a,
-                     vod_volume *leaves[CSG_MAX_NODES], char *msg, size_t len)
+                     vod_volume *leaves[CSG_MAX_NODES], err_info *err)
 {
     size_t off = 0;
-    msg[0] = 0;
+    err_clear(err);
     memset(leaves, 0, CSG_MAX_NODES * sizeof *leaves);
     for (uint32_t i = 0; i < t->n; i++) {
         const csg_node *n = &t->node[i];
@@ -203,11 +197,11 @@ int csg_leaves_build(const csg_tree *t, const grid_spec *g, csg_arena *a,
                                                   a->bytes - off, g->res, csg_leaf_bits(n),
                                                   CSG_VOLUME_BRICK)
                                 : -ENOSPC;
-        if (!rc) rc = csg_leaf_build(t, i, g, leaves[i], msg, len);
+        if (!rc) rc = csg_leaf_build(t, i, g, leaves[i], err);
         if (rc) {
-            if (!msg[0])
-                snprintf(msg, len, "node '%s': its volume does not fit (%s)", n->name,
-                         strerror(-rc));
+            if (!err->msg[0])
+                err_set(err, rc, "node '%s': its volume does not fit (%s)", n->name,
+                        strerror(-rc));
             return rc;
         }
         /* read only from now on: the next leaf's arena starts past its pool's use */

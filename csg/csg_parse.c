@@ -54,7 +54,7 @@ static int fail_at(parser *p, int rc, src_pos at, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    err_vfmt(p->err->msg, sizeof p->err->msg, rc, fmt, ap);
+    err_vset(&p->err->info, rc, fmt, ap);
     va_end(ap);
     p->err->line = at.line;
     p->err->col = at.col;
@@ -546,8 +546,7 @@ int csg_parse(const char *src, size_t len, csg_tree **out, csg_error *err)
     if (!p || !t) {
         free(p);
         free(t);
-        snprintf(err->msg, sizeof err->msg, "out of memory");
-        return -ENOMEM;
+        return err_set(&err->info, -ENOMEM, "out of memory");
     }
     p->src = src, p->len = len, p->t = t, p->err = err;
     int rc = parse_all(p);

@@ -359,7 +359,7 @@ int daemon_run(const voxd_config *cfg, const daemon_options *opt, const char *sh
     if (!d || uv_loop_init(&loop)) {
         free(d);
         log_error("out of memory");
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     d->loop = &loop;
     d->cfg = *cfg;

@@ -189,7 +189,7 @@ static int check_config(const char *path)
         return CLI_EXIT_FAILED;
     }
     config_print(stdout, &c);
-    return 0;
+    return CLI_EXIT_OK;
 }
 
 /* ---------------------------------------------------------------- the lock */

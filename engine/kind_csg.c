@@ -245,11 +245,11 @@ static int start_mesh_leaf(engine *e, csg_job *cj, uint32_t i)
 {
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     const engine_csg_job *j = cj->job;
-    char msg[sizeof e->err.msg];
+    err_info le = {0};
     mesh m;
     mesh_vox_opts o;
-    int rc = csg_leaf_mesh(j->tree, i, &m, &o, msg, sizeof msg);
-    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+    int rc = csg_leaf_mesh(j->tree, i, &m, &o, &le);
+    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", le.msg);
     mesh_bins bins;
     rc = mesh_bin(&m, &j->grid, &o, NULL, par_cpus(), &bins);
     if (rc) {
@@ -290,15 +290,16 @@ static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
     csg_block *b = shm_at(e->seg.base, e->h->data_off);
     const engine_csg_job *j = cj->job;
     uint64_t end = e->h->data_off + e->h->data_bytes;
-    char msg[sizeof e->err.msg];
+    err_info le = {0};
     vod_volume *lv;
     if (cj->off >= end || vod_volume_init(&lv, shm_at(e->seg.base, cj->off), end - cj->off,
                                           j->grid.res, 8, CSG_VOLUME_BRICK))
         return engine_sched_no_room(e, "the leaves' volumes");
-    int rc = csg_leaf_build(j->tree, i, &j->grid, lv, msg, sizeof msg);
+    int rc = csg_leaf_build(j->tree, i, &j->grid, lv, &le);
     if (rc == -ENOMEM)
-        return engine_sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size", msg);
-    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", msg);
+        return engine_sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size",
+                                 le.msg);
+    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", le.msg);
     vod_volume_info in;
     vod_volume_get_info(lv, &in);
     b->leaf_off[i] = cj->off;
@@ -470,9 +471,10 @@ static int csg_domain(const engine_pipeline_job *job, double lo[3], double hi[3]
     if (engine_pipeline_band(job) > VOXEL_BAND_MAX)
         return engine_pipeline_fail(r, ENGINE_BAD_JOB, -EINVAL, "a band of %u voxels: at most %u",
                              engine_pipeline_band(job), VOXEL_BAND_MAX);
-    char why[sizeof r->err.msg - 32];
-    int rc = csg_dist_check(job->csg.tree, why, sizeof why);
-    if (rc) return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "the distance channel: %s", why);
+    err_info why = {0};
+    int rc = csg_dist_check(job->csg.tree, &why);
+    if (rc)
+        return engine_pipeline_fail(r, ENGINE_BAD_JOB, rc, "the distance channel: %s", why.msg);
     return 0;
 }
 
@@ -527,12 +529,12 @@ static int serial_leaves(const engine_pipeline_job *job, engine_pipeline_report 
                  : MAP_FAILED;
     if (*arena == MAP_FAILED)
         return engine_pipeline_fail(r, ENGINE_LIMIT, -ENOMEM, "cannot map the leaves' volumes");
-    char msg[sizeof r->err.msg];
+    err_info le = {0};
     csg_arena a = {.base = *arena, .bytes = *abytes};
-    int rc = csg_leaves_build(t, &r->grid, &a, leaves, msg, sizeof msg);
+    int rc = csg_leaves_build(t, &r->grid, &a, leaves, &le);
     if (rc)
         return engine_pipeline_fail(r, rc == -ENOMEM || rc == -ENOSPC ? ENGINE_LIMIT : ENGINE_BAD_JOB,
-                             rc, "%s", msg);
+                             rc, "%s", le.msg);
     return 0;
 }
 

@@ -14,7 +14,7 @@ int engine_pipeline_fail(engine_pipeline_report *r, engine_failure f, int rc, co
     r->err.kind = f;
     va_list ap;
     va_start(ap, fmt);
-    r->err.code = err_vfmt(r->err.msg, sizeof r->err.msg, rc, fmt, ap);
+    err_vset(&r->err, rc, fmt, ap);
     va_end(ap);
     return rc;
 }

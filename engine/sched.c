@@ -47,7 +47,7 @@ int engine_sched_fail(engine *e, engine_failure f, int rc, const char *fmt, ...)
     e->err.kind = f;
     va_list ap;
     va_start(ap, fmt);
-    e->err.code = err_vfmt(e->err.msg, sizeof e->err.msg, rc, fmt, ap);
+    err_vset(&e->err, rc, fmt, ap);
     va_end(ap);
     /* every limit of the segment says "shared memory": name the way to
      * raise it, the caller's (--shm-size, voxd.conf's shm_size) */

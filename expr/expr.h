@@ -38,6 +38,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
 #include "ival.h"
 
 typedef struct expr_tape expr_tape;
@@ -61,9 +62,11 @@ typedef struct {
 #define EXPR_DEFAULT_MAX_NODES 100000u
 #define EXPR_MAX_DEPTH_CAP 1024u /* larger max_depth values are lowered to it */
 
+/* The project's error (common/err.h: code the errno returned, msg e.g.
+ * "unknown function 'sinn'") and where it is. */
 typedef struct {
+    ERR_INFO_EMBED(info);
     int line, col;  /* 1-based position of the problem in the source (0 if none) */
-    char msg[200];  /* e.g. "unknown function 'sinn'" */
 } expr_error;
 
 void expr_limits_default(expr_limits *lim);

@@ -207,9 +207,8 @@ static int emit_blend(builder *b, const expr_ast *n, uint32_t d, uint32_t R, uin
     const expr_const *c = cval(b, R);
     if (!c || !(c->v > 0) || !isfinite(c->v) || !(c->lo > 0) || !isfinite(c->hi)) {
         const expr_ast *at = n->args[1];
-        expr_set_error(b->err, at->line, at->col,
-                       "the radius of blend must be a positive finite constant");
-        return -EINVAL;
+        return expr_set_error(b->err, -EINVAL, at->line, at->col,
+                              "the radius of blend must be a positive finite constant");
     }
     return mk_op(b, EXPR_OP_BLEND, 0, d, R, out);
 }
@@ -385,9 +384,9 @@ int expr_compile(const char *src, size_t len, const expr_limits *lim,
     uint32_t result;
     rc = emit_program(&b, &prog, &result);
     if (!rc) rc = finish(&b, result, out);
-    if (rc == -ENOMEM && !err->msg[0]) expr_set_error(err, 0, 0, "out of memory");
+    if (rc == -ENOMEM && !err->msg[0]) expr_set_error(err, rc, 0, 0, "out of memory");
     if (rc == -E2BIG && !err->msg[0])
-        expr_set_error(err, 0, 0, "expression needs too many registers (limit %u)",
+        expr_set_error(err, rc, 0, 0, "expression needs too many registers (limit %u)",
                        EXPR_MAX_REGS);
     expr_program_free(&prog);
     free(b.consts);

@@ -198,8 +198,9 @@ typedef struct {
 int expr_parse(const char *src, size_t len, const expr_limits *lim,
                expr_program *prog, expr_error *err);
 void expr_program_free(expr_program *prog);
-void expr_set_error(expr_error *err, int line, int col, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
+/* err's message, code rc and position line:col; rc returned. */
+int expr_set_error(expr_error *err, int rc, int line, int col, const char *fmt, ...)
+    __attribute__((format(printf, 5, 6)));
 
 /* ---- register allocation ---- */
 

@@ -62,15 +62,16 @@ void expr_program_free(expr_program *prog)
     memset(prog, 0, sizeof *prog);
 }
 
-void expr_set_error(expr_error *err, int line, int col, const char *fmt, ...)
+int expr_set_error(expr_error *err, int rc, int line, int col, const char *fmt, ...)
 {
-    if (!err) return;
+    if (!err) return rc;
     va_list ap;
     err->line = line;
     err->col = col;
     va_start(ap, fmt);
-    err_vfmt(err->msg, sizeof err->msg, -EINVAL, fmt, ap);
+    err_vset(&err->info, rc, fmt, ap);
     va_end(ap);
+    return rc;
 }
 
 /* ---- lexer ---- */
@@ -361,7 +362,7 @@ static const char *tok_desc(const token *t, char *buf, size_t n)
     do {                                                                     \
         if (!(p)->rc) {                                                      \
             (p)->rc = (rc_);                                                 \
-            expr_set_error((p)->err, (line_), (col_), __VA_ARGS__);          \
+            expr_set_error((p)->err, (rc_), (line_), (col_), __VA_ARGS__);   \
         }                                                                    \
     } while (0)
 
@@ -724,16 +725,14 @@ int expr_parse(const char *src, size_t len, const expr_limits *lim,
     memset(prog, 0, sizeof *prog);
     if (err) memset(err, 0, sizeof *err);
     if (len > l.max_source_bytes) {
-        expr_set_error(err, 0, 0, "expression is too long (%zu bytes, limit %u)", len,
-                       l.max_source_bytes);
-        return -E2BIG;
+        return expr_set_error(err, -E2BIG, 0, 0, "expression is too long (%zu bytes, limit %u)",
+                              len, l.max_source_bytes);
     }
     const char *nul = len ? memchr(src, 0, len) : NULL;
     if (nul) {
         int line, col;
         nul_position(src, (size_t)(nul - src), &line, &col);
-        expr_set_error(err, line, col, "NUL byte in expression");
-        return -EINVAL;
+        return expr_set_error(err, -EINVAL, line, col, "NUL byte in expression");
     }
     name_table names = {0};
     parser p = {.lx = {.src = src, .len = len, .line = 1}, .prog = prog, .err = err,

@@ -16,6 +16,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "err.h"
+
 typedef enum {
     MESH_FORMAT_AUTO = 0, /* from the contents */
     MESH_FORMAT_OBJ,
@@ -46,10 +48,11 @@ typedef struct {
 #define MESH_MAX_TRIANGLES (64u << 20)
 #define MESH_MAX_VERTICES  (64u << 20)
 
-/* A loader's error: what went wrong and where (line for text formats,
- * byte offset for binary ones; 0 when it is not about one place). */
+/* A loader's error: the project's (common/err.h: code the errno returned,
+ * msg what went wrong) and where (line for text formats, byte offset for
+ * binary ones; 0 when it is not about one place). */
 typedef struct {
-    char msg[200];
+    ERR_INFO_EMBED(info);
     uint64_t line, offset;
 } mesh_error;
 

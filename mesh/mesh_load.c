@@ -177,16 +177,14 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
     int fd = open(path, O_RDONLY | O_CLOEXEC);
     if (fd < 0) {
         int e = errno;
-        snprintf(err->msg, sizeof err->msg, "cannot open: %s", strerror(e));
-        return -e;
+        return err_set(&err->info, -e, "cannot open: %s", strerror(e));
     }
     struct stat st;
     int rc = 0;
     if (fstat(fd, &st)) rc = -errno;
     else if (!S_ISREG(st.st_mode)) rc = -EINVAL;
     if (rc) {
-        snprintf(err->msg, sizeof err->msg, "%s",
-                 rc == -EINVAL ? "not a regular file" : strerror(-rc));
+        err_set(&err->info, rc, "%s", rc == -EINVAL ? "not a regular file" : strerror(-rc));
         close(fd);
         return rc;
     }
@@ -200,8 +198,7 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
     int e = errno;
     close(fd);
     if (p == MAP_FAILED) {
-        snprintf(err->msg, sizeof err->msg, "cannot map: %s", strerror(e));
-        return e == ENOMEM ? -ENOMEM : -e;
+        return err_set(&err->info, e == ENOMEM ? -ENOMEM : -e, "cannot map: %s", strerror(e));
     }
     rc = parse_in(&(mesh_src){p, (size_t)st.st_size, dir}, format, lim, out, err);
     unmap_file(p, (size_t)st.st_size);

@@ -30,7 +30,7 @@ int mesh_build_fail(mbuild *b, int rc, uint64_t at, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    err_vfmt(b->err->msg, sizeof b->err->msg, rc, fmt, ap);
+    err_vset(&b->err->info, rc, fmt, ap);
     va_end(ap);
     b->err->line = b->err->offset = 0;
     if (at == MESH_BUILD_NOWHERE) return rc;

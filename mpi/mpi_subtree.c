@@ -137,13 +137,6 @@ static int engine_task(const mpi_subtree_job *j, grid_octant o, engine_result *e
     return engine_voxelize(j->e, &ej, er);
 }
 
-/* rc into e's code: a call that still writes only e->msg. */
-static int coded(err_info *e, int rc)
-{
-    if (rc) e->code = rc;
-    return rc;
-}
-
 static const char *task_noun(const mpi_subtree_job *j)
 {
     return j->kind == MPI_KIND_MESH ? "column" : "octant";
@@ -277,7 +270,7 @@ static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
         return err_set(err, -ENOMEM, "cannot map the leaves' volumes");
     }
     csg_arena a = {.base = *arena, .bytes = *bytes};
-    return coded(err, csg_leaves_build(j->tree, &j->grid, &a, leaves, err->msg, sizeof err->msg));
+    return csg_leaves_build(j->tree, &j->grid, &a, leaves, err);
 }
 
 /* A csg task's bricks into vol, in this thread. */

@@ -39,7 +39,7 @@ static int run_master(mpi_ctx *ctx, int argc, char **argv)
     prep *p = calloc(1, sizeof *p);
     if (!p) {
         mpi_msg("rank 0 on %s: out of memory", ctx->host);
-        MPI_Abort(MPI_COMM_WORLD, 1);
+        MPI_Abort(MPI_COMM_WORLD, CLI_EXIT_FAILED);
     }
     p->ctx = ctx;
     double t0 = clock_now();
@@ -85,7 +85,7 @@ static int run_master(mpi_ctx *ctx, int argc, char **argv)
     free(own);
     mpi_prep_free(p);
     free(p);
-    return 0;
+    return CLI_EXIT_OK;
 }
 
 /* ---------------------------------------------------------------- others */
@@ -110,7 +110,7 @@ static int run_rank(const mpi_ctx *ctx)
     void *input = aligned_alloc(64, (j.input_bytes + 64) / 64 * 64);
     if (!input) {
         mpi_msg("rank %d on %s: out of memory", ctx->me, ctx->host);
-        MPI_Abort(MPI_COMM_WORLD, 1);
+        MPI_Abort(MPI_COMM_WORLD, CLI_EXIT_FAILED);
     }
     if (j.input_bytes) MPI_Bcast(input, (int)j.input_bytes, MPI_BYTE, 0, MPI_COMM_WORLD);
     csg_tree *tree = NULL;
@@ -119,14 +119,14 @@ static int run_rank(const mpi_ctx *ctx)
     if (bad) {
         mpi_send_up(&s, bad, strlen(bad) + 1, TAG_FAIL);
         free(input);
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     int rc = mpi_slave_run(&s, &j);
     csg_tree_free(tree);
     free(input);
-    if (rc) return 1;
+    if (rc) return CLI_EXIT_FAILED;
     MPI_Gather(&s.st, sizeof(rank_stats), MPI_BYTE, NULL, 0, MPI_BYTE, 0, MPI_COMM_WORLD);
-    return 0;
+    return CLI_EXIT_OK;
 }
 
 /* The communicators, this rank's place and host: the context of every
@@ -143,7 +143,7 @@ static void ctx_init(mpi_ctx *ctx)
     name[HOST_MAX - 1] = '\0'; /* a host name is shorter; cut, not refused */
     memcpy(ctx->host, name, HOST_MAX);
     if (ctx->me == 0 && !(ctx->all_hosts = calloc((size_t)ctx->nranks, HOST_MAX)))
-        MPI_Abort(MPI_COMM_WORLD, 1);
+        MPI_Abort(MPI_COMM_WORLD, CLI_EXIT_FAILED);
     MPI_Gather(ctx->host, HOST_MAX, MPI_CHAR, ctx->all_hosts, HOST_MAX, MPI_CHAR, 0,
                MPI_COMM_WORLD);
     MPI_Comm host;
@@ -158,7 +158,7 @@ int main(int argc, char **argv)
     int provided;
     if (MPI_Init_thread(&argc, &argv, MPI_THREAD_MULTIPLE, &provided) != MPI_SUCCESS) {
         mpi_msg("MPI_Init_thread failed");
-        return 1;
+        return CLI_EXIT_FAILED;
     }
     mpi_ctx ctx = {0};
     ctx_init(&ctx);
@@ -166,7 +166,7 @@ int main(int argc, char **argv)
         /* rank 0's own slave thread talks MPI beside its master */
         mpi_msg("this MPI library gives thread level %d, vox_mpi needs MPI_THREAD_MULTIPLE",
                 provided);
-        MPI_Abort(MPI_COMM_WORLD, 1);
+        MPI_Abort(MPI_COMM_WORLD, CLI_EXIT_FAILED);
     }
     int rc = ctx.me == 0 ? run_master(&ctx, argc, argv) : run_rank(&ctx);
     free(ctx.all_hosts);

@@ -41,7 +41,7 @@ void *mpi_recv_msg(const mpi_ctx *ctx, MPI_Comm c, MPI_Status *st, int *n)
     void *buf = malloc(*n ? (size_t)*n : 1);
     if (!buf) {
         mpi_msg("rank %d on %s: out of memory for a message of %d bytes", ctx->me, ctx->host, *n);
-        MPI_Abort(MPI_COMM_WORLD, 1);
+        MPI_Abort(MPI_COMM_WORLD, CLI_EXIT_FAILED);
     }
     MPI_Recv(buf, *n, MPI_BYTE, st->MPI_SOURCE, st->MPI_TAG, c, MPI_STATUS_IGNORE);
     return buf;

@@ -20,8 +20,8 @@
 static void abort_job(mpi_ctx *ctx)
 {
     outfile_abort(&ctx->out_file);
-    MPI_Abort(MPI_COMM_WORLD, 1);
-    _exit(1);
+    MPI_Abort(MPI_COMM_WORLD, CLI_EXIT_FAILED);
+    _exit(CLI_EXIT_FAILED);
 }
 
 /* The one static: the signal handler's way to rank 0's unfinished file. */

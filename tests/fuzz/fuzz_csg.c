@@ -21,7 +21,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     int rc = csg_parse(src, size, &t, &err);
     free(src);
     if (rc) {
-        if (!err.msg[0]) abort();
+        if (!err.msg[0] || err.code != rc) abort();
         return 0;
     }
     for (uint32_t i = 0; i < t->n; i++)

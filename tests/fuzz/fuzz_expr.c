@@ -107,6 +107,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     if (rc) {
         CHECK(rc == -EINVAL || rc == -E2BIG || rc == -ENOMEM);
         CHECK(t == NULL && err.msg[0] && memchr(err.msg, 0, sizeof err.msg));
+        CHECK(err.code == rc);
         CHECK(err.line >= 0 && err.col >= 0 && (size_t)err.line <= size + 1);
         return 0;
     }

@@ -46,6 +46,7 @@ static void one(const uint8_t *data, size_t size, mesh_format f, const mesh_limi
     if (rc != -EINVAL && rc != -E2BIG && rc != -ENOMEM) __builtin_trap();
     if (!err.msg[0] || m.vertices || m.triangles) __builtin_trap(); /* refused without a message */
     if (!memchr(err.msg, '\0', sizeof err.msg)) __builtin_trap();
+    if (err.code != rc) __builtin_trap(); /* the code returned, in the error too */
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)

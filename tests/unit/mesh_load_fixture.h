@@ -295,6 +295,7 @@ static inline void refuse(const char *text, mesh_format f, int rc, const char *w
     mesh_error e;
     int got = parse_text(text, f, &m, &e);
     cr_assert_eq(got, rc, "got %d (%s) for:\n%s", got, e.msg, text);
+    cr_assert_eq(e.code, rc, "code %d, returned %d: %s", e.code, rc, e.msg);
     cr_assert(strstr(e.msg, want), "message '%s' lacks '%s'", e.msg, want);
     if (line) cr_assert_eq(e.line, line, "line %llu, want %llu: %s", (unsigned long long)e.line,
                            (unsigned long long)line, e.msg);

@@ -261,7 +261,9 @@ static void bad(const char *src, int line, const char *msg)
 {
     csg_tree *t;
     csg_error err;
-    cr_assert_neq(csg_parse(src, strlen(src), &t, &err), 0, "%s", src);
+    int rc = csg_parse(src, strlen(src), &t, &err);
+    cr_assert_neq(rc, 0, "%s", src);
+    cr_assert_eq(err.code, rc, "%s: code %d, returned %d", src, err.code, rc);
     cr_assert_eq(err.line, line, "%s: line %d (%s)", src, err.line, err.msg);
     cr_assert(strstr(err.msg, msg), "%s: '%s' lacks '%s'", src, err.msg, msg);
 }

@@ -230,8 +230,8 @@ static void check_mesh(op_kind op, const char *opname)
     void *larena = malloc(lbytes), *arena;
     csg_arena la = {.base = larena, .bytes = lbytes};
     vod_volume *leaves[CSG_MAX_NODES];
-    char msg[256];
-    cr_assert_eq(csg_leaves_build(t, &g, &la, leaves, msg, sizeof msg), 0, "%s", msg);
+    err_info err = {0};
+    cr_assert_eq(csg_leaves_build(t, &g, &la, leaves, &err), 0, "%s", err.msg);
     cr_assert(la.used > 0 && la.used <= lbytes, "%zu of %zu bytes", la.used, lbytes);
     vod_volume *vol = eval_tree(t, &g, band, leaves, &arena);
     double vs = g.vs, w = (float)(band * vs), tol = (CSG_DIST_EPS + 1e-4) * vs + 1e-6;
@@ -273,16 +273,17 @@ Test(csg_distance, check_refuses)
         {"a = implicit \"x\"\ne = ellipsoid radius 0.5\nc = union(a, e)\nresult c\n",
          "'e' (ellipsoid)"},
     };
-    char msg[256];
+    err_info err = {0};
     for (size_t i = 0; i < sizeof no / sizeof no[0]; i++) {
         csg_tree *t = parse(no[i].src);
-        cr_assert_eq(csg_dist_check(t, msg, sizeof msg), -ENOTSUP, "%s", no[i].src);
-        cr_assert(strstr(msg, no[i].node), "%s: %s", no[i].node, msg);
+        cr_assert_eq(csg_dist_check(t, &err), -ENOTSUP, "%s", no[i].src);
+        cr_assert_eq(err.code, -ENOTSUP, "%s", no[i].src);
+        cr_assert(strstr(err.msg, no[i].node), "%s: %s", no[i].node, err.msg);
         csg_tree_free(t);
     }
     /* an unreferenced primitive is not evaluated: no refusal */
     csg_tree *t = parse("e = cuboid size 1,1,1\na = implicit \"x\"\nb = implicit \"y\"\n"
                         "c = inverse(difference(a, b))\nresult c\n");
-    cr_assert_eq(csg_dist_check(t, msg, sizeof msg), 0, "%s", msg);
+    cr_assert_eq(csg_dist_check(t, &err), 0, "%s", err.msg);
     csg_tree_free(t);
 }

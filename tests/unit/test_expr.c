@@ -199,6 +199,7 @@ static void check_bad(const bad_case *b, const expr_limits *lim)
     size_t len = b->len ? b->len : strlen(b->src);
     int rc = expr_compile(b->src, len, lim, &t, &e);
     cr_expect_eq(rc, b->rc, "\"%s\": rc %d, want %d (%s)", b->src, rc, b->rc, e.msg);
+    cr_expect_eq(e.code, rc, "\"%s\": code %d, returned %d", b->src, e.code, rc);
     cr_expect_null(t, "\"%s\": *out not cleared", b->src);
     cr_expect(e.line == b->line && e.col == b->col, "\"%s\": at %d:%d, want %d:%d (%s)",
               b->src, e.line, e.col, b->line, b->col, e.msg);
