@@ -564,12 +564,14 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     uint8_t *scratch = malloc(L.raw_bytes);
     for (size_t i = n; i-- > 0;) { /* any order, separate buffers, as workers would */
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+        vod_brick_out o = {data[i], bound, &recs[i]};
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, &o), 0);
     }
-    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], 4, &recs[0]), -ENOBUFS);
-    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], bound, &recs[0]), 0);
+    vod_brick_out small = {data[0], 4, &recs[0]}, first = {data[0], bound, &recs[0]};
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, &small), -ENOBUFS);
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, &first), 0);
     vod_node outside = {.level = L.height};
-    cr_assert_eq(vod_encode(&src, &L, &p, &outside, scratch, data[0], bound, &recs[0]), -EINVAL);
+    cr_assert_eq(vod_encode(&src, &L, &p, &outside, scratch, &first), -EINVAL);
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;

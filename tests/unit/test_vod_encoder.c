@@ -471,7 +471,8 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     uint8_t **data = malloc(n * sizeof *data), *scratch = malloc(L.raw_bytes);
     for (size_t i = 0; i < n; i++) {
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+        vod_brick_out o = {data[i], bound, &recs[i]};
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, &o), 0);
     }
     vod_encode_cleanup();
     /* the encoder: a duplicate's first has the same bytes, and the firsts
@@ -483,7 +484,8 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     for (size_t i = 0; i < n; i++) {
         vod_encoded rec;
         uint64_t same;
-        cr_assert_eq(vod_encoder_put(e, &src, &nodes[i], i, out, bound, &rec, &same), 0);
+        cr_assert_eq(vod_encoder_put(e, &src, &nodes[i], i, &(vod_brick_out){out, bound, &rec},
+                                     &same), 0);
         cr_assert_eq(rec.hash, recs[i].hash);
         cr_assert_eq(rec.size, recs[i].size);
         if (same == i) {
@@ -538,7 +540,8 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     uint8_t *data[DISTINCT], *scratch = malloc(L.raw_bytes);
     for (size_t i = 0; i < DISTINCT; i++) {
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &ref[i]), 0);
+        vod_brick_out o = {data[i], bound, &ref[i]};
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, &o), 0);
     }
     vod_encode_cleanup();
     size_t pick[PICKS], firsts = 0;
@@ -558,8 +561,8 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
         uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
         vod_encoded rec[VOD_ENCODE_BATCH];
         for (size_t t = 0; t < k; t++) out[t] = outs + t * bound, tag[t] = j + t;
-        cr_assert_eq(vod_encoder_put_batch(e, &src, &picked[j], tag, k, out, bound, rec,
-                                           same), 0);
+        vod_brick_batch b = {&picked[j], tag, k, out, bound, rec, same};
+        cr_assert_eq(vod_encoder_put_batch(e, &src, &b), 0);
         for (size_t t = 0; t < k; t++) {
             const vod_encoded *r = &ref[pick[j + t]];
             cr_assert_eq(rec[t].hash, r->hash, "pick %zu", j + t);
@@ -586,8 +589,8 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     uint64_t tag[VOD_ENCODE_BATCH + 1] = {0}, same[VOD_ENCODE_BATCH + 1];
     uint8_t *out[VOD_ENCODE_BATCH + 1] = {0};
     vod_encoded rec[VOD_ENCODE_BATCH + 1];
-    cr_assert_eq(vod_encoder_put_batch(e, &src, nodes, tag, VOD_ENCODE_BATCH + 1, out,
-                                       bound, rec, same), -EINVAL);
+    vod_brick_batch too_many = {nodes, tag, VOD_ENCODE_BATCH + 1, out, bound, rec, same};
+    cr_assert_eq(vod_encoder_put_batch(e, &src, &too_many), -EINVAL);
     vod_encoder_free(e);
     for (size_t i = 0; i < DISTINCT; i++) free(data[i]);
     free(outs), free(scratch), free(nodes), free(f.t.agg);
