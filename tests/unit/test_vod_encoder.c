@@ -432,26 +432,36 @@ static void fx_copies(fixture *f)
             }
 }
 
+/* fx_copies' fixture ready for the encoder: the layout, the source and its
+ * n non-empty nodes (malloc'ed). */
+typedef struct {
+    vod_layout L;
+    vod_source src;
+    size_t n;
+    vod_node *nodes;
+} copies_tree;
+
 /* fx_copies' fixture as surface bricks of the given size (zlib, SFHS):
  * the file the writer makes of it into *ref when ref is not NULL (before
- * the aggregates: the writer makes its own), then the layout, the
- * aggregates, the source and its n non-empty nodes (malloc'ed). */
-static vod_node *copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
-                              vod_stats *st, vod_layout *L, vod_source *src, size_t *n)
+ * the aggregates: the writer makes its own), then the aggregates and the
+ * tree to encode. */
+static copies_tree copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
+                                vod_stats *st)
 {
     err_info err = {0};
+    copies_tree c;
     fx_init(f, 8, 128, 128, 256);
     fx_copies(f);
     params(p, f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, brick);
     if (ref) *ref = write_file(f, p, st);
-    cr_assert_eq(vod_layout_make(p, f->t.depth, L, &err), 0);
+    cr_assert_eq(vod_layout_make(p, f->t.depth, &c.L, &err), 0);
     f->t.agg = malloc(f->t.used * sizeof *f->t.agg);
     vod_aggregate(&f->t, p->channel);
-    *src = vod_octree_source(&f->t);
-    *n = vod_collect(src, L, NULL, 0);
-    vod_node *nodes = malloc(*n * sizeof *nodes);
-    vod_collect(src, L, nodes, *n);
-    return nodes;
+    c.src = vod_octree_source(&f->t);
+    c.n = vod_collect(&c.src, &c.L, NULL, 0);
+    c.nodes = malloc(c.n * sizeof *c.nodes);
+    vod_collect(&c.src, &c.L, c.nodes, c.n);
+    return c;
 }
 
 Test(vod_encoder, duplicates_found_before_compression_change_nothing)
@@ -460,11 +470,12 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     vod_params p;
     vod_stats st;
     membuf ref;
-    vod_layout L;
-    vod_source src;
-    size_t n;
     err_info err = {0};
-    vod_node *nodes = copies_nodes(&f, &p, 32, &ref, &st, &L, &src, &n);
+    copies_tree c = copies_nodes(&f, &p, 32, &ref, &st);
+    vod_layout L = c.L;
+    vod_source src = c.src;
+    size_t n = c.n;
+    vod_node *nodes = c.nodes;
     size_t bound = vod_encode_bound(&L, &p);
     /* every brick compressed on its own, no duplicate looked for */
     vod_encoded *recs = malloc(n * sizeof *recs);
@@ -529,10 +540,11 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
 {
     fixture f;
     vod_params p;
-    vod_layout L;
-    vod_source src;
-    size_t n;
-    vod_node *nodes = copies_nodes(&f, &p, 16, NULL, NULL, &L, &src, &n);
+    copies_tree c = copies_nodes(&f, &p, 16, NULL, NULL);
+    vod_layout L = c.L;
+    vod_source src = c.src;
+    size_t n = c.n;
+    vod_node *nodes = c.nodes;
     size_t bound = vod_encode_bound(&L, &p);
     cr_assert_gt(n, 24);
     enum { DISTINCT = 24, PICKS = 400 };
