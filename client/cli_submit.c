@@ -428,13 +428,22 @@ static int no_options(const char *cmd, int argc, char **argv, const char *usage)
 
 /* A command without options or arguments (status, ping): its usage
  * errors, else connected.  0 with *c, or the exit status. */
+/* A command of no arguments: connected to sock, ask prints what the daemon
+ * says, or returns a VOX_E* code with err set (then said as cmd's failure). */
+typedef int (*plain_ask)(vox_client *c, const char *sock, vox_error *err);
 static int plain_command(const char *cmd, int argc, char **argv, const char *usage,
-                         const char *sock, vox_client **c)
+                         const char *sock, plain_ask ask)
 {
     int rc = no_options(cmd, argc, argv, usage);
     if (rc >= 0) return rc;
     if (optind < argc) return cli_usage_error(cmd, "unexpected argument '%.40s'", argv[optind]);
-    return connect_or_say(sock, c);
+    vox_client *c;
+    if ((rc = connect_or_say(sock, &c))) return rc;
+    vox_error err;
+    rc = ask(c, sock, &err);
+    if (rc) print_failure(cmd, rc, &err);
+    vox_close(c);
+    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
 }
 
 static void format_duration(double s, char *buf, size_t cap)
@@ -484,19 +493,11 @@ static const char usage_status[] =
     "making no progress: STALLS).\n"
     "Exit status: 0, 1 the request failed, 3 no voxd answering on the socket.\n";
 
-int cli_status(int argc, char **argv, const char *sock)
+static int show_status(vox_client *c, const char *sock, vox_error *err)
 {
-    vox_client *c;
-    int rc = plain_command("status", argc, argv, usage_status, sock, &c);
-    if (rc) return rc;
     vox_status_info st;
-    vox_error err;
-    rc = vox_status(c, &st, &err);
-    if (rc) {
-        print_failure("status", rc, &err);
-        vox_close(c);
-        return CLI_EXIT_FAILED;
-    }
+    int rc = vox_status(c, &st, err);
+    if (rc) return rc;
     vox_server_info info;
     vox_server(c, &info);
     char up[64];
@@ -528,8 +529,12 @@ int cli_status(int argc, char **argv, const char *sock)
                (unsigned long long)w->jobs, w->voxels_per_second, w->replaced, w->stalls);
     }
     vox_status_free(&st);
-    vox_close(c);
-    return CLI_EXIT_OK;
+    return 0;
+}
+
+int cli_status(int argc, char **argv, const char *sock)
+{
+    return plain_command("status", argc, argv, usage_status, sock, show_status);
 }
 
 static const char usage_cancel[] =
@@ -574,22 +579,19 @@ static const char usage_ping[] =
     "version and workers.  Exit status: 0 it answered, 1 it failed to, 3 no voxd\n"
     "answering on the socket.\n";
 
+static int show_ping(vox_client *c, const char *sock, vox_error *err)
+{
+    double rtt;
+    int rc = vox_ping(c, &rtt, err);
+    if (rc) return rc;
+    vox_server_info info;
+    vox_server(c, &info);
+    printf("%s on %s: protocol %u, %u worker%s, round trip %.3f ms\n", info.name, sock,
+           info.version, info.workers, info.workers == 1 ? "" : "s", rtt * 1e3);
+    return 0;
+}
+
 int cli_ping(int argc, char **argv, const char *sock)
 {
-    vox_client *c;
-    int rc = plain_command("ping", argc, argv, usage_ping, sock, &c);
-    if (rc) return rc;
-    vox_error err;
-    double rtt;
-    rc = vox_ping(c, &rtt, &err);
-    if (rc == 0) {
-        vox_server_info info;
-        vox_server(c, &info);
-        printf("%s on %s: protocol %u, %u worker%s, round trip %.3f ms\n", info.name, sock,
-               info.version, info.workers, info.workers == 1 ? "" : "s", rtt * 1e3);
-    } else {
-        print_failure("ping", rc, &err);
-    }
-    vox_close(c);
-    return rc ? CLI_EXIT_FAILED : CLI_EXIT_OK;
+    return plain_command("ping", argc, argv, usage_ping, sock, show_ping);
 }

@@ -270,7 +270,7 @@ static int in_domain(const csg_node *n, const double p[3])
 static void sample_implicit(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
 {
     const csg_node *n = &e->t->node[i];
-    _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
+    expr_pts8 p8;
     expr_grad8 out;
     size_t k = 0;
     for (uint32_t z = 0; z < b->n; z++)
@@ -279,13 +279,13 @@ static void sample_implicit(csg_eval *e, uint32_t i, const box *b, uint8_t *buf)
                 uint32_t cnt = b->n - x0 < EXPR_LANES ? b->n - x0 : EXPR_LANES;
                 for (uint32_t l = 0; l < EXPR_LANES; l++) {
                     uint32_t x = x0 + (l < cnt ? l : 0); /* unused lanes: a copy */
-                    px[l] = centre(e, 0, b->lo[0] + (int32_t)x);
-                    py[l] = centre(e, 1, b->lo[1] + (int32_t)y);
-                    pz[l] = centre(e, 2, b->lo[2] + (int32_t)z);
+                    p8.x[l] = centre(e, 0, b->lo[0] + (int32_t)x);
+                    p8.y[l] = centre(e, 1, b->lo[1] + (int32_t)y);
+                    p8.z[l] = centre(e, 2, b->lo[2] + (int32_t)z);
                 }
-                expr_vm_grad8n(e->vm[i], 0, (int)cnt, px, py, pz, &out);
+                expr_vm_grad8n(e->vm[i], 0, (int)cnt, &p8, &out);
                 for (uint32_t l = 0; l < cnt; l++) {
-                    double p[3] = {px[l], py[l], pz[l]},
+                    double p[3] = {p8.x[l], p8.y[l], p8.z[l]},
                            gr[3] = {out.d[0][l], out.d[1][l], out.d[2][l]};
                     buf[k++] = in_domain(n, p) ? implicit_value(e, out.v[l], gr) : CSG_L;
                 }

@@ -341,9 +341,10 @@ static int encode_gather(engine *e, encode_job *ej, const uint8_t **data,
         }
         if (!enc) rc = vod_encoder_new(&b->L, p, &enc);
         if (!rc && !(own[i] = malloc(bound))) rc = -ENOMEM;
-        if (!rc)
-            rc = vod_encoder_put(enc, &src, &nodes[i], i, own[i], bound, &recs[i],
-                                 &same);
+        if (!rc) {
+            vod_brick_out o = {own[i], bound, &recs[i]};
+            rc = vod_encoder_put(enc, &src, &nodes[i], i, &o, &same);
+        }
         if (!rc && same != i) {
             free(own[i]);
             own[i] = NULL;
@@ -394,9 +395,10 @@ static int hand_out(engine *e, encode_job *ej, const uint8_t **data)
 {
     encode_block *b = engine_sched_block(e);
     vod_source src = result_source(e);
-    int rc = ej->deliver(ej->deliver_ud, &b->L, &src, b->n,
-                         shm_at(e->seg.base, b->nodes_off),
-                         shm_at(e->seg.base, b->recs_off), data);
+    engine_bricks out = {.L = &b->L, .src = &src, .n = b->n,
+                         .nodes = shm_at(e->seg.base, b->nodes_off),
+                         .recs = shm_at(e->seg.base, b->recs_off), .data = data};
+    int rc = ej->deliver(ej->deliver_ud, &out);
     return rc ? engine_sched_fail(e, ENGINE_SINK, rc, "%s", strerror(-rc)) : 0;
 }
 

@@ -21,15 +21,23 @@
 int engine_write_vod(engine *e, const vod_params *p, vod_sink *sink,
                      vod_stats *st, engine_error *err);
 /* The bricks engine_write_vod would write, without the file: the last
- * job's non-empty brick nodes in preorder, each node's record and encoded
- * bytes (a duplicate's data points at its first's), handed to deliver
- * with the source they came from (its mip levels made: fill() works at
- * every level) while they are still in shared memory.  vox_mpi's ranks
- * send their subtrees' bricks this way.  deliver returns 0 or a negative
- * errno (then ENGINE_SINK).  Errors as engine_write_vod's. */
-typedef int (*engine_deliver)(void *ud, const vod_layout *L, const vod_source *src,
-                              size_t n, const vod_node *nodes,
-                              const vod_encoded *recs, const uint8_t *const *data);
+ * job's n non-empty brick nodes in preorder, each node's record and encoded
+ * bytes (a duplicate's data points at its first's), with the layout and
+ * the source they came from (its mip levels made: fill() works at every
+ * level). */
+typedef struct {
+    const vod_layout *L;
+    const vod_source *src;
+    size_t n;
+    const vod_node *nodes;
+    const vod_encoded *recs;
+    const uint8_t *const *data;
+} engine_bricks;
+/* engine_encode_bricks hands them to deliver while they are still in
+ * shared memory.  vox_mpi's ranks send their subtrees' bricks this way.
+ * deliver returns 0 or a negative errno (then ENGINE_SINK).  Errors as
+ * engine_write_vod's. */
+typedef int (*engine_deliver)(void *ud, const engine_bricks *b);
 int engine_encode_bricks(engine *e, const vod_params *p, engine_deliver deliver,
                          void *ud, vod_stats *st, engine_error *err);
 

@@ -141,17 +141,18 @@ void expr_vm_ival8(expr_vm *vm, int d, const ival8 *x, const ival8 *y,
  * it, the evaluation may not keep them). */
 ival8 *expr_vm_ival8_args(expr_vm *vm);
 const ival8 *expr_vm_ival8_in(expr_vm *vm, int d);
-/* Value and gradient at eight points, with the tape of depth d. */
-void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
-                   const double y[EXPR_LANES], const double z[EXPR_LANES],
-                   expr_grad8 *out);
-/* The same for lanes 0 .. n-1 only (1 <= n <= 8; x, y, z are read and out
+/* Eight points: lane l of x, y and z is point l. */
+typedef struct {
+    _Alignas(64) double x[EXPR_LANES];
+    _Alignas(64) double y[EXPR_LANES];
+    _Alignas(64) double z[EXPR_LANES];
+} expr_pts8;
+/* Value and gradient at the eight points p, with the tape of depth d. */
+void expr_vm_grad8(expr_vm *vm, int d, const expr_pts8 *p, expr_grad8 *out);
+/* The same for lanes 0 .. n-1 only (1 <= n <= 8; p is read and out
  * written up to lane n rounded up to even): a partial batch costs about
- * n/8 of a full one.  Lane for lane the same results.  (Seven arguments:
- * expr_vm_grad8's and n; x, y, z apart as every evaluator here has them.) */
-void expr_vm_grad8n(expr_vm *vm, int d, int n, const double x[EXPR_LANES],
-                    const double y[EXPR_LANES], const double z[EXPR_LANES],
-                    expr_grad8 *out);
+ * n/8 of a full one.  Lane for lane the same results. */
+void expr_vm_grad8n(expr_vm *vm, int d, int n, const expr_pts8 *p, expr_grad8 *out);
 /* expr_vm_prune for the box of lane `lane` of the last expr_vm_ival8 at
  * depth d: tape d+1 becomes exactly what expr_vm_ival on that box followed
  * by expr_vm_prune(d) would build.  The lane choices of depth d stay valid

@@ -350,15 +350,12 @@ static inline void arith8(int op, G8 *o, const G8 *a, const G8 *b, int nl)
 }
 #endif
 
-/* Lanes 0 .. nl-1 (nl even); registers 0..2 keep their unit derivatives
- * from expr_vm_new (no instruction writes them), only their values are set.
- * Seven arguments, as expr_vm_grad8n's: x, y and z stay apart as every
- * evaluator of expr.h takes them (a struct of the three would only move
- * them, in the batched gradient's hot loop). */
-static void grad_lanes(expr_vm *vm, int d, const double x[EXPR_LANES],
-                       const double y[EXPR_LANES], const double z[EXPR_LANES],
-                       expr_grad8 *out, int nl)
+/* Lanes 0 .. nl-1 (nl even) of the points p; registers 0..2 keep their
+ * unit derivatives from expr_vm_new (no instruction writes them), only
+ * their values are set. */
+static void grad_lanes(expr_vm *vm, int d, const expr_pts8 *p, expr_grad8 *out, int nl)
 {
+    const double *x = p->x, *y = p->y, *z = p->z;
     const expr_vm_depth *dp = &vm->dep[expr_vm_clamp(vm, d)];
     const expr_insn *c = dp->code;
     G8 *R = vm->gr8;
@@ -419,17 +416,13 @@ static void grad_lanes(expr_vm *vm, int d, const double x[EXPR_LANES],
     }
 }
 
-void expr_vm_grad8(expr_vm *vm, int d, const double x[EXPR_LANES],
-                   const double y[EXPR_LANES], const double z[EXPR_LANES],
-                   expr_grad8 *out)
+void expr_vm_grad8(expr_vm *vm, int d, const expr_pts8 *p, expr_grad8 *out)
 {
-    grad_lanes(vm, d, x, y, z, out, EXPR_LANES);
+    grad_lanes(vm, d, p, out, EXPR_LANES);
 }
 
-void expr_vm_grad8n(expr_vm *vm, int d, int n, const double x[EXPR_LANES],
-                    const double y[EXPR_LANES], const double z[EXPR_LANES],
-                    expr_grad8 *out)
+void expr_vm_grad8n(expr_vm *vm, int d, int n, const expr_pts8 *p, expr_grad8 *out)
 {
     n = n < 1 ? 1 : n > EXPR_LANES ? EXPR_LANES : n;
-    grad_lanes(vm, d, x, y, z, out, (n + 1) & ~1);
+    grad_lanes(vm, d, p, out, (n + 1) & ~1);
 }

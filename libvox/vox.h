@@ -374,7 +374,8 @@ int vox_receive_to_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t 
                           const vox_receive_opts *o, vox_error *err);
 /* The calls above as libvox 0.1 first had them, kept (thin wrappers) so that
  * programs built against them run and build unchanged: cb, ud and sum are
- * vox_receive_opts' progress, ud and sum. */
+ * vox_receive_opts' progress, ud and sum.  Their seven and eight arguments
+ * are that public ABI's (libvox.map), not to be folded into a struct. */
 int vox_receive_file(vox_client *c, uint64_t job_id, const char *path, vox_progress_cb cb,
                      void *ud, vox_summary *sum, vox_error *err);
 int vox_receive_buffer(vox_client *c, uint64_t job_id, uint8_t **buf, size_t *len,

@@ -59,13 +59,15 @@ static grid_octant top_octant(const vod_layout *L, int depth, const vod_node *n,
 
 /* The task's nodes (level <= node_level: the others are the paths above
  * its subtrees, rank 0's), keyed, with each subtree's top brick and its
- * voxels, to the caller.  An engine_deliver (engine.h): its seven
- * arguments are that callback's. */
-static int hand_over(void *ud, const vod_layout *L, const vod_source *src, size_t n,
-                     const vod_node *nodes, const vod_encoded *recs,
-                     const uint8_t *const *data)
+ * voxels, to the caller.  An engine_deliver (kind_encode.h). */
+static int hand_over(void *ud, const engine_bricks *eb)
 {
     sub_ctx *c = ud;
+    const vod_layout *L = eb->L;
+    const vod_node *nodes = eb->nodes;
+    const vod_encoded *recs = eb->recs;
+    const uint8_t *const *data = eb->data;
+    size_t n = eb->n;
     uint32_t top = c->j->node_level;
     mpi_rec *r = malloc((n ? n : 1) * sizeof *r);
     const uint8_t **d = malloc((n ? n : 1) * sizeof *d);
@@ -77,7 +79,7 @@ static int hand_over(void *ud, const vod_layout *L, const vod_source *src, size_
         if (nodes[i].level > top) continue;
         if (nodes[i].level == top) {
             size_t before = np;
-            if (top < L->height - 1) rc = top_pairs(L, src, &nodes[i], &pairs, &np);
+            if (top < L->height - 1) rc = top_pairs(L, eb->src, &nodes[i], &pairs, &np);
             tops[nt++] = (mpi_topref){top_octant(L, c->j->grid.depth, &nodes[i], top),
                                       (uint32_t)(np - before)};
         }
@@ -184,7 +186,8 @@ static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_la
         if (nodes[i].level > j->node_level) continue; /* rank 0's */
         uint64_t same;
         if (!(own[i] = malloc(bound))) rc = -ENOMEM;
-        if (!rc) rc = vod_encoder_put(enc, src, &nodes[i], i, own[i], bound, &recs[i], &same);
+        vod_brick_out o = {own[i], bound, &recs[i]};
+        if (!rc) rc = vod_encoder_put(enc, src, &nodes[i], i, &o, &same);
         if (!rc && same != i) {
             free(own[i]);
             own[i] = NULL;
@@ -195,7 +198,9 @@ static int encode_serial(const mpi_subtree_job *j, vod_source *src, const vod_la
     /* the nodes above the subtree: no bytes, and hand_over skips them */
     for (size_t i = 0; !rc && i < n; i++)
         if (!data[i]) data[i] = (const uint8_t *)"";
-    if (!rc) rc = hand_over(c, L, src, n, nodes, recs, data);
+    engine_bricks eb = {.L = L, .src = src, .n = n, .nodes = nodes, .recs = recs,
+                        .data = data};
+    if (!rc) rc = hand_over(c, &eb);
     vod_encoder_free(enc);
     for (size_t i = 0; own && i < n; i++) free(own[i]);
     free(own);

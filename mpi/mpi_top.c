@@ -168,7 +168,8 @@ static int encode_nodes(mpi_top *t, octree *tree, const vod_params *p, top_put p
         vod_encoded rec;
         uint64_t same;
         if (!(own[i] = malloc(bound))) rc = -ENOMEM;
-        if (!rc) rc = vod_encoder_put(enc, &src, &nodes[i], i, own[i], bound, &rec, &same);
+        vod_brick_out o = {own[i], bound, &rec};
+        if (!rc) rc = vod_encoder_put(enc, &src, &nodes[i], i, &o, &same);
         if (!rc) rc = put(ud, &nodes[i], &rec, own[same]);
     }
     vod_encoder_free(enc);

@@ -328,10 +328,10 @@ static int order_subtrees(master *m, const uint8_t **map, const uint8_t ***sub)
 }
 
 /* Every node in preorder: the subtrees' (sub[i] their bytes) merged with
- * the top's, into the file (the writer's own vod_assemble). */
-static int assemble(master *m, const uint8_t *const *sub, const top_part *t,
-                    const vod_layout *L, const vod_params *v, outfile *out, vod_stats *st,
-                    err_info *err)
+ * the top's, into the file (the writer's own vod_assemble, p's layout and
+ * parameters, m's output file). */
+static int assemble(const prep *p, master *m, const uint8_t *const *sub, const top_part *t,
+                    vod_stats *st, err_info *err)
 {
     size_t n = m->n + t->n;
     vod_node *nodes = calloc(n ? n : 1, sizeof *nodes);
@@ -353,8 +353,8 @@ static int assemble(master *m, const uint8_t *const *sub, const top_part *t,
     if (rc) err_set(err, rc, "%s", strerror(-rc));
     /* outfile_write, as vox's writer: the kernel starts writing the file
      * back as it goes, so the commit's fsync has less left to do */
-    vod_sink sink = {outfile_write, out};
-    vod_assembly a = {.L = L, .p = v, .n = n, .nodes = nodes, .recs = recs, .data = data,
+    vod_sink sink = {outfile_write, &m->ctx->out_file};
+    vod_assembly a = {.L = &p->L, .p = &p->v, .n = n, .nodes = nodes, .recs = recs, .data = data,
                       .sink = &sink, .st = st, .err = err};
     if (!rc) rc = vod_assemble(&a);
     /* the sink's error has no message of vod_assemble's */
@@ -462,7 +462,7 @@ static int write_file(prep *p, master *m, engine_pipeline_report *r, tail_times 
     if (!rc) rc = t.rc;
     if (rc) err_set(err, rc, "the levels above the subtrees: %s", strerror(-rc));
     double t1 = clock_now();
-    if (!rc) rc = assemble(m, sub, &t, &p->L, &p->v, &m->ctx->out_file, &r->st, err);
+    if (!rc) rc = assemble(p, m, sub, &t, &r->st, err);
     tt->assemble = clock_now() - t1;
     if (map) munmap((void *)map, m->spill_bytes);
     free(sub);

@@ -197,15 +197,15 @@ static int emit_voxels(subdiv_kernel *k, int t, const grid_octant *c,
                        unsigned n, const subdiv_sink *s)
 {
     const grid_spec *g = k->g;
-    _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
+    expr_pts8 p;
     for (unsigned l = 0; l < EXPR_LANES; l++) {
         const grid_octant *v = &c[l < n ? l : 0]; /* spare lanes: copies */
-        px[l] = grid_coord(g, 0, v->x + 0.5);
-        py[l] = grid_coord(g, 1, v->y + 0.5);
-        pz[l] = grid_coord(g, 2, v->z + 0.5);
+        p.x[l] = grid_coord(g, 0, v->x + 0.5);
+        p.y[l] = grid_coord(g, 1, v->y + 0.5);
+        p.z[l] = grid_coord(g, 2, v->z + 0.5);
     }
     expr_grad8 gr8;
-    expr_vm_grad8n(k->vm, t, (int)n, px, py, pz, &gr8);
+    expr_vm_grad8n(k->vm, t, (int)n, &p, &gr8);
     for (unsigned l = 0; l < n; l++) {
         double gr[3] = {gr8.d[0][l], gr8.d[1][l], gr8.d[2][l]};
         double m = fabs(gr[0]);

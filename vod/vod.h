@@ -209,17 +209,23 @@ typedef struct {
 } vod_encoded;
 /* Largest encoded size of one brick (bytes out must hold). */
 size_t vod_encode_bound(const vod_layout *L, const vod_params *p);
+/* Where one brick's encoding goes: its bytes into out (cap bytes), its
+ * record into *rec. */
+typedef struct {
+    uint8_t *out;
+    size_t cap;
+    vod_encoded *rec;
+} vod_brick_out;
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
- * it and compress it into out, without looking for duplicates (the
+ * it and compress it into o->out (its record in *o->rec), without looking for duplicates (the
  * encoder below does).  It uses an encoder kept per thread (see
  * vod_encode_cleanup); the bytes depend only on the raw brick and p, and
  * are what vod_encoder_put gives.  A uniform node's brick is made here.
- * Returns 0, -ENOBUFS when cap is too small, -EINVAL for a node outside
+ * Returns 0, -ENOBUFS when o->cap is too small, -EINVAL for a node outside
  * the layout, -ENOMEM, or the source's error (an octree without t->agg
  * cannot fill levels >= 1). */
 int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
-               const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
-               vod_encoded *rec);
+               const vod_node *n, uint8_t *scratch, const vod_brick_out *o);
 
 /* Frees the calling thread's vod_encode encoder (a thread that used
  * vod_encode should call it before it exits; a process need not). */
@@ -247,25 +253,33 @@ void vod_encoder_free(vod_encoder *e);
 /* Node n's brick: filled, hashed, and if this encoder compressed an equal
  * brick before (the same hash, then the same raw bytes: the earlier node is
  * filled again and compared), *same is the tag given with that brick and
- * *rec its record, and nothing is written to out; else the brick is
- * compressed into out (cap bytes) and *same = tag.  The caller stores the
- * bytes of the first and points its duplicates at them, so the file is the
- * same as if each had been compressed.  Returns vod_encode's errors. */
+ * *o->rec its record, and nothing is written to o->out; else the brick is
+ * compressed into o->out (o->cap bytes) and *same = tag.  The caller stores
+ * the bytes of the first and points its duplicates at them, so the file is
+ * the same as if each had been compressed.  Returns vod_encode's errors. */
 int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
-                    uint64_t tag, uint8_t *out, size_t cap, vod_encoded *rec,
-                    uint64_t *same);
-/* vod_encoder_put for nodes n[0..count-1], count at most VOD_ENCODE_BATCH,
- * with tags tag[i], brick i compressed into out[i] (cap bytes each): the
- * records of count calls of vod_encoder_put in order (a brick equal to an
- * earlier one of the batch is its duplicate), but the new bricks' file
- * hashes computed together (SFHS is a serial chain: vod_hash_sfhs4 runs
- * four at the cost of about one).  -EINVAL for a larger count, else
- * vod_encoder_put's errors (the records before the failing brick may be
- * unset). */
+                    uint64_t tag, const vod_brick_out *o, uint64_t *same);
+/* A batch for vod_encoder_put_batch: nodes n[0..count-1], count at most
+ * VOD_ENCODE_BATCH, with tags tag[i]; brick i compressed into out[i] (cap
+ * bytes each), its record into rec[i], the tag of the brick it equals
+ * into same[i]. */
 #define VOD_ENCODE_BATCH 4
-int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n,
-                          const uint64_t *tag, size_t count, uint8_t *const *out,
-                          size_t cap, vod_encoded *rec, uint64_t *same);
+typedef struct {
+    const vod_node *n;
+    const uint64_t *tag;
+    size_t count;
+    uint8_t *const *out;
+    size_t cap;
+    vod_encoded *rec;
+    uint64_t *same;
+} vod_brick_batch;
+/* vod_encoder_put for each node of b: the records of b->count calls of
+ * vod_encoder_put in order (a brick equal to an earlier one of the batch
+ * is its duplicate), but the new bricks' file hashes computed together
+ * (SFHS is a serial chain: vod_hash_sfhs4 runs four at the cost of about
+ * one).  -EINVAL for a larger count, else vod_encoder_put's errors (the
+ * records before the failing brick may be unset). */
+int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_brick_batch *b);
 /* Its fill, hash and compress seconds so far (the others 0). */
 void vod_encoder_times(const vod_encoder *e, vod_times *t);
 

@@ -286,14 +286,24 @@ static void sort_symbols(const uint32_t *freq, const uint16_t *used, int k,
     insertion_sort(sym + big, w + big, k - big);
 }
 
+/* An alphabet of n symbols to code: their frequencies freq[0..n-1] and
+ * the k used ones (used: in symbol order, at least two). */
+typedef struct {
+    const uint32_t *freq;
+    int n;
+    const uint16_t *used;
+    int k;
+} alphabet;
+
 /* Code lengths (at most max_bits) and bit-reversed canonical codes for
- * the k used symbols of freq[0..n-1] (used: in symbol order, at least
- * two); the other symbols get length 0. */
-static void build_code(const uint32_t *freq, int n, const uint16_t *used, int k,
-                       unsigned max_bits, uint8_t *bits, uint16_t *code)
+ * the used symbols of a; the other symbols get length 0. */
+static void build_code(const alphabet *a, unsigned max_bits, uint8_t *bits,
+                       uint16_t *code)
 {
+    const uint16_t *used = a->used;
+    int k = a->k;
     uint32_t sym[LITLEN_SYMS], w[LITLEN_SYMS];
-    sort_symbols(freq, used, k, sym, w);
+    sort_symbols(a->freq, used, k, sym, w);
     min_redundancy(w, k);
     /* miniz's limit: fold longer codes into max_bits, then lengthen the
      * shortest codes below it until the Kraft sum is exact again */
@@ -312,7 +322,7 @@ static void build_code(const uint32_t *freq, int n, const uint16_t *used, int k,
             }
         total--;
     }
-    memset(bits, 0, (size_t)n);
+    memset(bits, 0, (size_t)a->n);
     int j = k; /* the most frequent symbols get the shortest codes */
     for (unsigned l = 1; l <= max_bits; l++)
         for (unsigned c = count[l]; c > 0; c--) bits[sym[--j]] = (uint8_t)l;
@@ -335,7 +345,7 @@ static void build_code_all(uint32_t *freq, int n, unsigned max_bits, uint8_t *bi
 {
     uint16_t used[LITLEN_SYMS];
     int k = two_symbols(freq, n, used, used_symbols(freq, n, used));
-    build_code(freq, n, used, k, max_bits, bits, code);
+    build_code(&(alphabet){freq, n, used, k}, max_bits, bits, code);
 }
 
 /* ---- bits out ---- */
@@ -731,8 +741,10 @@ static uint64_t choose_codes(vod_sparse *z, header *h, codes *c, bool *dynamic)
     uint64_t fixed = 3 + data_bits(z, z->fbits_l, z->fbits_d);
     z->nused_l = two_symbols(z->freq_l, 286, z->used_l, z->nused_l);
     z->nused_d = two_symbols(z->freq_d, DIST_SYMS, z->used_d, z->nused_d);
-    build_code(z->freq_l, 286, z->used_l, z->nused_l, MAX_BITS, z->bits_l, z->code_l);
-    build_code(z->freq_d, DIST_SYMS, z->used_d, z->nused_d, MAX_BITS, z->bits_d, z->code_d);
+    build_code(&(alphabet){z->freq_l, 286, z->used_l, z->nused_l}, MAX_BITS, z->bits_l,
+               z->code_l);
+    build_code(&(alphabet){z->freq_d, DIST_SYMS, z->used_d, z->nused_d}, MAX_BITS, z->bits_d,
+               z->code_d);
     uint64_t bits = make_header(z, h) + data_bits(z, z->bits_l, z->bits_d);
     *dynamic = bits < fixed;
     *c = *dynamic ? (codes){z->bits_l, z->bits_d, z->code_l, z->code_d}

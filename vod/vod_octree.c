@@ -84,26 +84,35 @@ void vod_aggregate_subtree(octree *t, uint32_t c, int h, int channel)
     else agg_cell(t, c, h, VOXEL_CH_OCCUPANCY);
 }
 
-static void roots_below(const octree *t, uint32_t c, int hc, int h, uint32_t *out,
-                        size_t cap, size_t *n)
+/* vod_aggregate_roots' walk: the cells of height h of tree t, n of them
+ * so far, the first cap into out. */
+typedef struct {
+    const octree *t;
+    int h;
+    uint32_t *out;
+    size_t cap, n;
+} roots_walk;
+
+/* The cells of height r->h below cell c (of height hc), in order. */
+static void roots_below(roots_walk *r, uint32_t c, int hc)
 {
-    if (hc == h) {
-        if (*n < cap) out[*n] = c;
-        ++*n;
+    if (hc == r->h) {
+        if (r->n < r->cap) r->out[r->n] = c;
+        r->n++;
         return;
     }
     for (unsigned i = 0; i < 8; i++) {
-        uint32_t e = octree_child(t, c, i);
-        if (e) roots_below(t, e, hc - 1, h, out, cap, n);
+        uint32_t e = octree_child(r->t, c, i);
+        if (e) roots_below(r, e, hc - 1);
     }
 }
 
 size_t vod_aggregate_roots(const octree *t, int h, uint32_t *out, size_t cap)
 {
-    size_t n = 0;
     if (t->used < 2 || h < 0 || h > t->depth - 1) return 0;
-    roots_below(t, 1, t->depth - 1, h, out, out ? cap : 0, &n);
-    return n;
+    roots_walk r = {.t = t, .h = h, .out = out, .cap = out ? cap : 0};
+    roots_below(&r, 1, t->depth - 1);
+    return r.n;
 }
 
 /* Cells above height h, from their children's aggregates. */

@@ -513,14 +513,22 @@ static void copy_row_bits8(uint8_t *raw, size_t r, const uint8_t *src, uint32_t 
         if (src ? src[x] : u) raw[(r + x) >> 3] |= (uint8_t)(1u << ((r + x) & 7));
 }
 
-/* The box [a0, a1) of 8-bit voxels (storage brick data d, low corner o;
- * NULL: all u, not 0) as channel-1 bits of the raw brick of side B whose
- * low corner is lo, when every row starts and ends on a byte of it (the
- * usual case: bricks of 8 voxels or more): whole bytes, no bit offsets. */
-static void copy_bytes_bits8(const vod_volume *v, uint32_t B, const uint8_t *d,
-                             const uint32_t o[3], const uint32_t lo[3],
-                             const uint32_t a0[3], const uint32_t a1[3], uint8_t *raw)
+/* The part of a storage brick that lies in a raw brick: the storage
+ * brick's data d (NULL: all u) and low corner o, the raw brick's side B
+ * and low corner lo, and the box [a0, a1) the two share. */
+typedef struct {
+    const uint8_t *d;
+    uint32_t u, B;
+    uint32_t o[3], lo[3], a0[3], a1[3];
+} brick_part;
+
+/* Part p (8-bit voxels; d NULL: all u, not 0) as channel-1 bits of its raw
+ * brick, when every row starts and ends on a byte of it (the usual case:
+ * bricks of 8 voxels or more): whole bytes, no bit offsets. */
+static void copy_bytes_bits8(const vod_volume *v, const brick_part *p, uint8_t *raw)
 {
+    const uint8_t *d = p->d;
+    const uint32_t B = p->B, *o = p->o, *lo = p->lo, *a0 = p->a0, *a1 = p->a1;
     uint32_t n8 = (a1[0] - a0[0]) / 8;
     size_t S = v->sbrick, row = B / 8; /* bytes from a row to the next, in raw */
     uint8_t *out0 = raw + (((size_t)(a0[2] - lo[2]) * B + (a0[1] - lo[1])) * B + (a0[0] - lo[0])) / 8;
@@ -574,16 +582,20 @@ static void copy_row32(uint8_t *raw, const uint8_t *src, uint32_t u, uint32_t n)
 static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
                       const uint32_t o[3], const uint32_t lo[3], uint8_t *raw)
 {
-    uint32_t B = L->brick, S = v->sbrick, a0[3], a1[3];
+    brick_part p = {.d = is_alloc(e) ? brick_data(v, e) : NULL, .u = uval(v, e),
+                    .B = L->brick};
+    uint32_t B = L->brick, S = v->sbrick, *a0 = p.a0, *a1 = p.a1;
     for (int a = 0; a < 3; a++) {
+        p.o[a] = o[a];
+        p.lo[a] = lo[a];
         a0[a] = o[a] > lo[a] ? o[a] : lo[a];
         a1[a] = o[a] + S < lo[a] + B ? o[a] + S : lo[a] + B;
     }
-    const uint8_t *d = is_alloc(e) ? brick_data(v, e) : NULL;
-    uint32_t u = uval(v, e);
+    const uint8_t *d = p.d;
+    uint32_t u = p.u;
     if (L->voxel_bits == 1 && v->bits == 8 && B % 8 == 0 && (a0[0] - lo[0]) % 8 == 0 &&
         (a1[0] - a0[0]) % 8 == 0) {
-        copy_bytes_bits8(v, B, d, o, lo, a0, a1, raw);
+        copy_bytes_bits8(v, &p, raw);
         return;
     }
     uint32_t row[VOD_VOLUME_MAX_BRICK]; /* a packed brick's row */

@@ -478,18 +478,29 @@ static void batch_hash(vod_encoder *e, const int *kind, size_t count,
     for (size_t k = 0; k < m; k++) rec[idx[k]].hash = h[k];
 }
 
-int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n,
-                          const uint64_t *tag, size_t count, uint8_t *const *out,
-                          size_t cap, vod_encoded *rec, uint64_t *same)
+/* Brick i of b as a batch of its own. */
+static vod_brick_batch batch_one(const vod_brick_batch *b, size_t i)
 {
+    return (vod_brick_batch){.n = b->n + i, .tag = b->tag + i, .count = 1,
+                             .out = b->out + i, .cap = b->cap, .rec = b->rec + i,
+                             .same = b->same + i};
+}
+
+int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_brick_batch *b)
+{
+    const vod_node *n = b->n;
+    const uint64_t *tag = b->tag;
+    size_t count = b->count;
+    vod_encoded *rec = b->rec;
+    uint64_t *same = b->same;
     batch bt = {.rec = rec, .same = same};
     const int *kind = bt.kind;
     size_t rb = e->L.raw_bytes;
     if (count > VOD_ENCODE_BATCH) return -EINVAL;
     if (count > e->batch) { /* large bricks: one at a time */
         for (size_t i = 0; i < count; i++) {
-            int rc = vod_encoder_put_batch(e, s, n + i, tag + i, 1, out + i, cap,
-                                           rec + i, same + i);
+            vod_brick_batch one = batch_one(b, i);
+            int rc = vod_encoder_put_batch(e, s, &one);
             if (rc) return rc;
         }
         return 0;
@@ -509,7 +520,7 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
             continue;
         }
         t0 = clock_now();
-        int rc = compress_brick(e, e->raw + i * rb, out[i], cap, &rec[i].size);
+        int rc = compress_brick(e, e->raw + i * rb, b->out[i], b->cap, &rec[i].size);
         e->t.compress += clock_now() - t0;
         if (rc) return rc;
         same[i] = tag[i];
@@ -519,10 +530,11 @@ int vod_encoder_put_batch(vod_encoder *e, const vod_source *s, const vod_node *n
 }
 
 int vod_encoder_put(vod_encoder *e, const vod_source *s, const vod_node *n,
-                    uint64_t tag, uint8_t *out, size_t cap, vod_encoded *rec,
-                    uint64_t *same)
+                    uint64_t tag, const vod_brick_out *o, uint64_t *same)
 {
-    return vod_encoder_put_batch(e, s, n, &tag, 1, &out, cap, rec, same);
+    vod_brick_batch b = {.n = n, .tag = &tag, .count = 1, .out = &o->out, .cap = o->cap,
+                         .rec = o->rec, .same = same};
+    return vod_encoder_put_batch(e, s, &b);
 }
 
 /* vod_encode's encoder, one per thread, made again when the layout or the
@@ -545,8 +557,7 @@ static bool encoder_fits(const vod_encoder *e, const vod_layout *L,
 }
 
 int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
-               const vod_node *n, uint8_t *scratch, uint8_t *out, size_t cap,
-               vod_encoded *rec)
+               const vod_node *n, uint8_t *scratch, const vod_brick_out *o)
 {
     if (!encoder_fits(tl_enc, L, p)) {
         vod_encode_cleanup();
@@ -555,8 +566,8 @@ int vod_encode(const vod_source *s, const vod_layout *L, const vod_params *p,
     }
     int rc = fill_node(tl_enc, s, n, scratch);
     if (rc) return rc;
-    rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
-    return compress_brick(tl_enc, scratch, out, cap, &rec->size);
+    o->rec->hash = vod_hash(p->hash, scratch, L->raw_bytes);
+    return compress_brick(tl_enc, scratch, o->out, o->cap, &o->rec->size);
 }
 
 /* ---- all three phases ---- */
@@ -585,8 +596,9 @@ static int encode_some(const encode_job *j, size_t i, size_t count)
         out[k] = j->tmp + k * j->bound;
         tag[k] = i + k;
     }
-    int rc = vod_encoder_put_batch(j->e, j->s, &j->nodes[i], tag, count, out, j->bound,
-                                   &j->recs[i], same);
+    vod_brick_batch bb = {.n = &j->nodes[i], .tag = tag, .count = count, .out = out,
+                          .cap = j->bound, .rec = &j->recs[i], .same = same};
+    int rc = vod_encoder_put_batch(j->e, j->s, &bb);
     for (size_t k = 0; k < count && !rc; k++) {
         if (same[k] != i + k) {
             j->off[i + k] = j->off[same[k]];

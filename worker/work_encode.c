@@ -78,29 +78,40 @@ static void store_one(worker_ctx *w, encode_block *b, uint64_t i,
     offs[i] = off;
 }
 
+/* What a worker encodes the block's bricks with: its room, the block,
+ * the source and its encoder. */
+typedef struct {
+    worker_ctx *w;
+    encode_state *st;
+    encode_block *b;
+    const vod_source *src;
+    vod_encoder *enc;
+} encoder_run;
+
 /* Nodes i0..i0+count-1 (count <= VOD_ENCODE_BATCH), encoded together. */
-static int encode_batch(worker_ctx *w, encode_state *st, encode_block *b,
-                        const vod_source *t, vod_encoder *enc, uint64_t i0,
-                        size_t count)
+static int encode_batch(const encoder_run *r, uint64_t i0, size_t count)
 {
-    const vod_node *nodes = shm_at(w->base, b->nodes_off);
+    const vod_node *nodes = shm_at(r->w->base, r->b->nodes_off);
     uint8_t *out[VOD_ENCODE_BATCH];
     uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
     vod_encoded rec[VOD_ENCODE_BATCH];
     for (size_t k = 0; k < count; k++) {
-        out[k] = st->out + k * st->bound;
+        out[k] = r->st->out + k * r->st->bound;
         tag[k] = i0 + k;
     }
-    int rc = vod_encoder_put_batch(enc, t, &nodes[i0], tag, count, out, st->bound,
-                                   rec, same);
+    vod_brick_batch bb = {.n = &nodes[i0], .tag = tag, .count = count, .out = out,
+                          .cap = r->st->bound, .rec = rec, .same = same};
+    int rc = vod_encoder_put_batch(r->enc, r->src, &bb);
     if (rc) return rc;
-    for (size_t k = 0; k < count; k++) store_one(w, b, i0 + k, out[k], &rec[k], same[k]);
+    for (size_t k = 0; k < count; k++)
+        store_one(r->w, r->b, i0 + k, out[k], &rec[k], same[k]);
     return 0;
 }
 
-static int encode_nodes(worker_ctx *w, encode_state *st, encode_block *b,
-                        const vod_source *src, vod_encoder *enc)
+static int encode_nodes(const encoder_run *r)
 {
+    worker_ctx *w = r->w;
+    encode_block *b = r->b;
     for (;;) {
         /* relaxed: a counter that hands out disjoint chunks */
         if (worker_aborted(w)) return -ECANCELED; /* the job was cancelled */
@@ -113,7 +124,7 @@ static int encode_nodes(worker_ctx *w, encode_state *st, encode_block *b,
             if (atomic_load_explicit(&b->error, memory_order_relaxed)) return 0;
             worker_tick(w);
             size_t count = end - i < VOD_ENCODE_BATCH ? end - i : VOD_ENCODE_BATCH;
-            int rc = encode_batch(w, st, b, src, enc, i, count);
+            int rc = encode_batch(r, i, count);
             if (rc) return rc;
         }
     }
@@ -177,7 +188,7 @@ static int encode_run(worker_ctx *w, void *state, const shm_task *t)
     vod_encoder *enc;
     rc = vod_encoder_new(&b->L, &b->p, &enc);
     if (!rc) {
-        rc = encode_nodes(w, state, b, &src, enc);
+        rc = encode_nodes(&(encoder_run){w, state, b, &src, enc});
         vod_times tm;
         vod_encoder_times(enc, &tm);
         add_ns(&b->ns_fill, tm.fill);

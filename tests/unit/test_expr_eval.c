@@ -659,7 +659,8 @@ static void check_batch(const char *src, int nbatches)
             cr_assert(same_tape(v8, v1, 1), "%s: lane %d prunes differently", src, l);
         }
         /* gradients at a point of each box */
-        _Alignas(64) double px[EXPR_LANES], py[EXPR_LANES], pz[EXPR_LANES];
+        expr_pts8 p8;
+        double *px = p8.x, *py = p8.y, *pz = p8.z;
         for (int l = 0; l < EXPR_LANES; l++) {
             double p[3];
             sample(box[l], 8 + irand(2) * 8, p);
@@ -668,7 +669,7 @@ static void check_batch(const char *src, int nbatches)
         }
         int d = irand(2);
         expr_grad8 g8;
-        expr_vm_grad8(v8, d, px, py, pz, &g8);
+        expr_vm_grad8(v8, d, &p8, &g8);
         for (int l = 0; l < EXPR_LANES; l++) {
             double g[3], v = expr_vm_grad(v8, d, px[l], py[l], pz[l], g);
             cr_assert(same_double(v, g8.v[l]) && same_double(g[0], g8.d[0][l]) &&
@@ -679,7 +680,7 @@ static void check_batch(const char *src, int nbatches)
         /* a partial batch: the same lanes */
         int n = 1 + irand(EXPR_LANES);
         expr_grad8 gn;
-        expr_vm_grad8n(v8, d, n, px, py, pz, &gn);
+        expr_vm_grad8n(v8, d, n, &p8, &gn);
         for (int l = 0; l < n; l++)
             cr_assert(same_double(gn.v[l], g8.v[l]) && same_double(gn.d[0][l], g8.d[0][l]) &&
                           same_double(gn.d[1][l], g8.d[1][l]) &&

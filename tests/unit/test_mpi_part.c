@@ -211,8 +211,16 @@ static int by_preorder(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
+/* The file assemble_same must give: its bytes (freed there), its distinct
+ * bricks, and the job's name for the messages. */
+typedef struct {
+    vod_membuf file;
+    uint64_t bricks;
+    const char *src;
+} want_file;
+
 static void assemble_same(scheme *sp, const vod_layout *Lp, const vod_params *pp,
-                          vod_membuf *refp, uint64_t bricks, const char *src, const mpi_cut *cp);
+                          const want_file *want, const mpi_cut *cp);
 
 static void same_file(const char *src, uint32_t res, int channel, uint32_t brick,
                       size_t target, int workers)
@@ -251,20 +259,22 @@ static void same_file(const char *src, uint32_t res, int channel, uint32_t brick
         cr_assert_eq(mpi_subtree_run(&j, c.oct[i], deliver, &s, &se), 0, "%s", se.msg);
     }
     engine_destroy(e);
-    assemble_same(&s, &L, &p, &ref, st.bricks, src, &c);
+    assemble_same(&s, &L, &p, &(want_file){ref, st.bricks, src}, &c);
     mpi_cut_free(&c);
     expr_tape_free(t);
 }
 
-/* The levels above, then every node in preorder assembled: ref's bytes,
- * each of the file's `bricks` distinct bricks asked for once. */
+/* The levels above, then every node in preorder assembled: want's bytes,
+ * each of its distinct bricks asked for once. */
 static void assemble_same(scheme *sp, const vod_layout *Lp, const vod_params *pp,
-                          vod_membuf *refp, uint64_t bricks, const char *src, const mpi_cut *cp)
+                          const want_file *want, const mpi_cut *cp)
 {
     scheme s = *sp;
     vod_layout L = *Lp;
     vod_params p = *pp;
-    vod_membuf ref = *refp;
+    vod_membuf ref = want->file;
+    uint64_t bricks = want->bricks;
+    const char *src = want->src;
     mpi_cut c = *cp;
     uint32_t res = p.volume[0];
     err_info err = {0};
@@ -433,7 +443,8 @@ static size_t same_job(const engine_pipeline_job *job, mpi_subtree_job j, size_t
         free(buf);
     }
     engine_destroy(e);
-    assemble_same(&s, &L, &v, &ref, rr.st.bricks, columns ? "a mesh" : "a tree", &c);
+    assemble_same(&s, &L, &v, &(want_file){ref, rr.st.bricks, columns ? "a mesh" : "a tree"},
+                  &c);
     mesh_bins_free(&bins);
     mpi_cut_free(&c);
     return empties;

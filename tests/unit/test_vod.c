@@ -291,11 +291,18 @@ Test(vod_roundtrip, empty_tree)
 
 /* ------------------------------------------------------- downsampling */
 
+/* A voxel of a level, for the messages. */
+typedef struct {
+    int l;
+    uint32_t x, y, z;
+} voxel_at;
+
 /* Spec section 3, written out here: channel 3 occupancy is the mean rounded
  * half up; the normal the normalized sum over occupied children. */
-static void check_parent(uint32_t got, const uint32_t c[8], int occupancy,
-                         int l, uint32_t x, uint32_t y, uint32_t z)
+static void check_parent(uint32_t got, const uint32_t c[8], int occupancy, voxel_at at)
 {
+    int l = at.l;
+    uint32_t x = at.x, y = at.y, z = at.z;
     if (occupancy) {
         uint32_t any = 0;
         for (int i = 0; i < 8; i++) any |= c[i] != 0;
@@ -338,7 +345,8 @@ static void check_levels(const vod_file *v, int occupancy)
                     for (unsigned i = 0; i < 8; i++)
                         c[i] = vod_voxel(v, l - 1, 2 * x + (i & 1), 2 * y + (i >> 1 & 1),
                                          2 * z + (i >> 2 & 1));
-                    check_parent(vod_voxel(v, l, x, y, z), c, occupancy, l, x, y, z);
+                    check_parent(vod_voxel(v, l, x, y, z), c, occupancy,
+                                 (voxel_at){l, x, y, z});
                 }
     }
 }
@@ -564,12 +572,14 @@ Test(vod_write, phases_by_hand_give_the_same_bytes)
     uint8_t *scratch = malloc(L.raw_bytes);
     for (size_t i = n; i-- > 0;) { /* any order, separate buffers, as workers would */
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+        vod_brick_out o = {data[i], bound, &recs[i]};
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, &o), 0);
     }
-    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], 4, &recs[0]), -ENOBUFS);
-    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, data[0], bound, &recs[0]), 0);
+    vod_brick_out small = {data[0], 4, &recs[0]}, first = {data[0], bound, &recs[0]};
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, &small), -ENOBUFS);
+    cr_assert_eq(vod_encode(&src, &L, &p, &nodes[0], scratch, &first), 0);
     vod_node outside = {.level = L.height};
-    cr_assert_eq(vod_encode(&src, &L, &p, &outside, scratch, data[0], bound, &recs[0]), -EINVAL);
+    cr_assert_eq(vod_encode(&src, &L, &p, &outside, scratch, &first), -EINVAL);
     membuf m = {0};
     vod_sink sink = {mem_write, &m};
     vod_stats st;

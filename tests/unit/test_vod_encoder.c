@@ -432,26 +432,36 @@ static void fx_copies(fixture *f)
             }
 }
 
+/* fx_copies' fixture ready for the encoder: the layout, the source and its
+ * n non-empty nodes (malloc'ed). */
+typedef struct {
+    vod_layout L;
+    vod_source src;
+    size_t n;
+    vod_node *nodes;
+} copies_tree;
+
 /* fx_copies' fixture as surface bricks of the given size (zlib, SFHS):
  * the file the writer makes of it into *ref when ref is not NULL (before
- * the aggregates: the writer makes its own), then the layout, the
- * aggregates, the source and its n non-empty nodes (malloc'ed). */
-static vod_node *copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
-                              vod_stats *st, vod_layout *L, vod_source *src, size_t *n)
+ * the aggregates: the writer makes its own), then the aggregates and the
+ * tree to encode. */
+static copies_tree copies_nodes(fixture *f, vod_params *p, uint32_t brick, membuf *ref,
+                                vod_stats *st)
 {
     err_info err = {0};
+    copies_tree c;
     fx_init(f, 8, 128, 128, 256);
     fx_copies(f);
     params(p, f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, brick);
     if (ref) *ref = write_file(f, p, st);
-    cr_assert_eq(vod_layout_make(p, f->t.depth, L, &err), 0);
+    cr_assert_eq(vod_layout_make(p, f->t.depth, &c.L, &err), 0);
     f->t.agg = malloc(f->t.used * sizeof *f->t.agg);
     vod_aggregate(&f->t, p->channel);
-    *src = vod_octree_source(&f->t);
-    *n = vod_collect(src, L, NULL, 0);
-    vod_node *nodes = malloc(*n * sizeof *nodes);
-    vod_collect(src, L, nodes, *n);
-    return nodes;
+    c.src = vod_octree_source(&f->t);
+    c.n = vod_collect(&c.src, &c.L, NULL, 0);
+    c.nodes = malloc(c.n * sizeof *c.nodes);
+    vod_collect(&c.src, &c.L, c.nodes, c.n);
+    return c;
 }
 
 Test(vod_encoder, duplicates_found_before_compression_change_nothing)
@@ -460,18 +470,20 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     vod_params p;
     vod_stats st;
     membuf ref;
-    vod_layout L;
-    vod_source src;
-    size_t n;
     err_info err = {0};
-    vod_node *nodes = copies_nodes(&f, &p, 32, &ref, &st, &L, &src, &n);
+    copies_tree c = copies_nodes(&f, &p, 32, &ref, &st);
+    vod_layout L = c.L;
+    vod_source src = c.src;
+    size_t n = c.n;
+    vod_node *nodes = c.nodes;
     size_t bound = vod_encode_bound(&L, &p);
     /* every brick compressed on its own, no duplicate looked for */
     vod_encoded *recs = malloc(n * sizeof *recs);
     uint8_t **data = malloc(n * sizeof *data), *scratch = malloc(L.raw_bytes);
     for (size_t i = 0; i < n; i++) {
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &recs[i]), 0);
+        vod_brick_out o = {data[i], bound, &recs[i]};
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, &o), 0);
     }
     vod_encode_cleanup();
     /* the encoder: a duplicate's first has the same bytes, and the firsts
@@ -483,7 +495,8 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     for (size_t i = 0; i < n; i++) {
         vod_encoded rec;
         uint64_t same;
-        cr_assert_eq(vod_encoder_put(e, &src, &nodes[i], i, out, bound, &rec, &same), 0);
+        cr_assert_eq(vod_encoder_put(e, &src, &nodes[i], i, &(vod_brick_out){out, bound, &rec},
+                                     &same), 0);
         cr_assert_eq(rec.hash, recs[i].hash);
         cr_assert_eq(rec.size, recs[i].size);
         if (same == i) {
@@ -527,10 +540,11 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
 {
     fixture f;
     vod_params p;
-    vod_layout L;
-    vod_source src;
-    size_t n;
-    vod_node *nodes = copies_nodes(&f, &p, 16, NULL, NULL, &L, &src, &n);
+    copies_tree c = copies_nodes(&f, &p, 16, NULL, NULL);
+    vod_layout L = c.L;
+    vod_source src = c.src;
+    size_t n = c.n;
+    vod_node *nodes = c.nodes;
     size_t bound = vod_encode_bound(&L, &p);
     cr_assert_gt(n, 24);
     enum { DISTINCT = 24, PICKS = 400 };
@@ -538,7 +552,8 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     uint8_t *data[DISTINCT], *scratch = malloc(L.raw_bytes);
     for (size_t i = 0; i < DISTINCT; i++) {
         data[i] = malloc(bound);
-        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, data[i], bound, &ref[i]), 0);
+        vod_brick_out o = {data[i], bound, &ref[i]};
+        cr_assert_eq(vod_encode(&src, &L, &p, &nodes[i], scratch, &o), 0);
     }
     vod_encode_cleanup();
     size_t pick[PICKS], firsts = 0;
@@ -558,8 +573,8 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
         uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
         vod_encoded rec[VOD_ENCODE_BATCH];
         for (size_t t = 0; t < k; t++) out[t] = outs + t * bound, tag[t] = j + t;
-        cr_assert_eq(vod_encoder_put_batch(e, &src, &picked[j], tag, k, out, bound, rec,
-                                           same), 0);
+        vod_brick_batch b = {&picked[j], tag, k, out, bound, rec, same};
+        cr_assert_eq(vod_encoder_put_batch(e, &src, &b), 0);
         for (size_t t = 0; t < k; t++) {
             const vod_encoded *r = &ref[pick[j + t]];
             cr_assert_eq(rec[t].hash, r->hash, "pick %zu", j + t);
@@ -586,8 +601,8 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     uint64_t tag[VOD_ENCODE_BATCH + 1] = {0}, same[VOD_ENCODE_BATCH + 1];
     uint8_t *out[VOD_ENCODE_BATCH + 1] = {0};
     vod_encoded rec[VOD_ENCODE_BATCH + 1];
-    cr_assert_eq(vod_encoder_put_batch(e, &src, nodes, tag, VOD_ENCODE_BATCH + 1, out,
-                                       bound, rec, same), -EINVAL);
+    vod_brick_batch too_many = {nodes, tag, VOD_ENCODE_BATCH + 1, out, bound, rec, same};
+    cr_assert_eq(vod_encoder_put_batch(e, &src, &too_many), -EINVAL);
     vod_encoder_free(e);
     for (size_t i = 0; i < DISTINCT; i++) free(data[i]);
     free(outs), free(scratch), free(nodes), free(f.t.agg);

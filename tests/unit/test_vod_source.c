@@ -290,8 +290,8 @@ Test(vod_source, a_channel_the_source_lacks_is_refused)
     vod_node n = {.level = 0};
     uint8_t *scratch = malloc(L.raw_bytes), *out = malloc(vod_encode_bound(&L, &p));
     vod_encoded rec;
-    cr_assert_eq(vod_encode(&s, &L, &p, &n, scratch, out, vod_encode_bound(&L, &p), &rec),
-                 -EINVAL);
+    vod_brick_out o = {out, vod_encode_bound(&L, &p), &rec};
+    cr_assert_eq(vod_encode(&s, &L, &p, &n, scratch, &o), -EINVAL);
     cr_assert_eq(m.calls, 0);
     free(scratch), free(out);
     fx_free(&f);

@@ -65,14 +65,17 @@ static void vfx_set(vfx *f, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
     *vfx_at(f, x, y, z) = v;
 }
 
-static void vfx_fill(vfx *f, uint32_t x0, uint32_t y0, uint32_t z0, uint32_t x1,
-                     uint32_t y1, uint32_t z1, uint32_t v)
+/* The voxels [lo, hi) (x, y, z) := v, in the volume and the oracle. */
+typedef struct {
+    uint32_t lo[3], hi[3];
+} vbox;
+
+static void vfx_fill(vfx *f, vbox b, uint32_t v)
 {
-    uint32_t lo[3] = {x0, y0, z0}, hi[3] = {x1, y1, z1};
-    cr_assert_eq(vod_volume_fill(f->v, lo, hi, v), 0);
-    for (uint32_t z = z0; z < z1; z++)
-        for (uint32_t y = y0; y < y1; y++)
-            for (uint32_t x = x0; x < x1; x++) *vfx_at(f, x, y, z) = v;
+    cr_assert_eq(vod_volume_fill(f->v, b.lo, b.hi, v), 0);
+    for (uint32_t z = b.lo[2]; z < b.hi[2]; z++)
+        for (uint32_t y = b.lo[1]; y < b.hi[1]; y++)
+            for (uint32_t x = b.lo[0]; x < b.hi[0]; x++) *vfx_at(f, x, y, z) = v;
 }
 
 static void vfx_check(const vfx *f)
@@ -153,7 +156,7 @@ Test(vod_volume, voxels_against_a_dense_copy)
 {
     vfx f;
     vfx_init(&f, 23, 17, 30, 32, 8);
-    vfx_fill(&f, 0, 0, 0, 16, 16, 16, 0x777); /* 8 whole bricks: uniform */
+    vfx_fill(&f, (vbox){{0, 0, 0}, {16, 16, 16}}, 0x777); /* 8 whole bricks: uniform */
     vod_volume_info in;
     vod_volume_get_info(f.v, &in);
     cr_assert_eq(in.level0_bricks, 0, "whole bricks take no memory");
@@ -161,10 +164,10 @@ Test(vod_volume, voxels_against_a_dense_copy)
         uint32_t x = rnd() % 23, y = rnd() % 17, z = rnd() % 30;
         vfx_set(&f, x, y, z, rnd() % 4 == 0 ? 0 : rnd());
     }
-    vfx_fill(&f, 3, 5, 7, 21, 9, 29, 0xabcdef);   /* parts of bricks */
-    vfx_fill(&f, 8, 8, 8, 16, 16, 24, 0);         /* a whole brick emptied */
-    vfx_fill(&f, 0, 0, 16, 8, 8, 24, 0x80000001); /* too wide for a uniform entry */
-    vfx_fill(&f, 16, 0, 0, 23, 8, 8, 5);          /* past dims on x: not uniform */
+    vfx_fill(&f, (vbox){{3, 5, 7}, {21, 9, 29}}, 0xabcdef);   /* parts of bricks */
+    vfx_fill(&f, (vbox){{8, 8, 8}, {16, 16, 24}}, 0);         /* a whole brick emptied */
+    vfx_fill(&f, (vbox){{0, 0, 16}, {8, 8, 24}}, 0x80000001); /* too wide for a uniform entry */
+    vfx_fill(&f, (vbox){{16, 0, 0}, {23, 8, 8}}, 5);          /* past dims on x: not uniform */
     vfx_check(&f);
     cr_assert_eq(vod_volume_get(f.v, 23, 0, 0), 0, "outside dims");
     cr_assert_eq(vod_volume_set(f.v, 23, 0, 0, 1), -EINVAL);
@@ -318,7 +321,7 @@ Test(vod_volume, a_view_at_another_address_gives_the_same_bytes)
 {
     vfx f;
     vfx_init(&f, 30, 20, 25, 32, 4);
-    vfx_fill(&f, 4, 4, 4, 20, 16, 20, 0x5000ff);
+    vfx_fill(&f, (vbox){{4, 4, 4}, {20, 16, 20}}, 0x5000ff);
     for (int i = 0; i < 500; i++) vfx_set(&f, rnd() % 30, rnd() % 20, rnd() % 25, rnd() | 1);
     vod_params p;
     params(&p, f.dims, VOXEL_CH_SURFACE, 8, VOD_COMP_ZLIB);
@@ -396,22 +399,30 @@ static bool footprint_has_voxel(const vfx *f, const uint32_t lo[3], uint32_t sid
     return false;
 }
 
+/* check_nodes' walk over the file of volume f (bricks of side brick):
+ * the nodes seen so far, and those with a brick. */
+typedef struct {
+    const vfx *f;
+    const uint8_t *file;
+    uint32_t brick;
+    uint64_t pre, bricks;
+} node_walk;
+
 /* Every node of the complete tree in preorder: its brickID is non-zero
  * exactly when its full-resolution footprint holds a voxel. */
-static void check_nodes(const vfx *f, const uint8_t *file, uint32_t brick, uint32_t level,
-                        const uint32_t b[3], uint64_t *pre, uint64_t *bricks)
+static void check_nodes(node_walk *w, uint32_t level, const uint32_t b[3])
 {
-    uint32_t side = brick << level, lo[3] = {b[0] * side, b[1] * side, b[2] * side};
-    uint32_t id = vod_get32(file + 64 + 4 * *pre);
-    bool want = footprint_has_voxel(f, lo, side);
+    uint32_t side = w->brick << level, lo[3] = {b[0] * side, b[1] * side, b[2] * side};
+    uint32_t id = vod_get32(w->file + 64 + 4 * w->pre);
+    bool want = footprint_has_voxel(w->f, lo, side);
     cr_assert_eq(id != 0, want, "node %llu (level %u, brick %u %u %u): id %u",
-                 (unsigned long long)*pre, level, b[0], b[1], b[2], id);
-    *bricks += id != 0;
-    ++*pre;
+                 (unsigned long long)w->pre, level, b[0], b[1], b[2], id);
+    w->bricks += id != 0;
+    w->pre++;
     if (level == 0) return;
     for (uint32_t i = 0; i < 8; i++) {
         uint32_t c[3] = {2 * b[0] + (i & 1), 2 * b[1] + (i >> 1 & 1), 2 * b[2] + (i >> 2)};
-        check_nodes(f, file, brick, level - 1, c, pre, bricks);
+        check_nodes(w, level - 1, c);
     }
 }
 
@@ -438,11 +449,11 @@ static void check_against_oracle(const vfx *f, int channel, uint32_t brick, uint
                                  "channel %d brick %u level %u voxel %u %u %u", channel,
                                  brick, l, x, y, z);
     }
-    uint64_t pre = 0, bricks = 0;
+    node_walk w = {.f = f, .file = m.p, .brick = brick};
     uint32_t root[3] = {0, 0, 0};
-    check_nodes(f, m.p, brick, in->height - 1, root, &pre, &bricks);
-    cr_assert_eq(pre, in->nodes);
-    cr_assert_geq(bricks, in->bricks, "duplicates share a brick");
+    check_nodes(&w, in->height - 1, root);
+    cr_assert_eq(w.pre, in->nodes);
+    cr_assert_geq(w.bricks, in->bricks, "duplicates share a brick");
     oracle_free(&o);
     vod_close(r);
     free(m.p);
@@ -455,9 +466,9 @@ static void check_against_oracle(const vfx *f, int channel, uint32_t brick, uint
 static void density_fixture(vfx *f, uint32_t sb)
 {
     vfx_init(f, 37, 21, 30, 8, sb);
-    vfx_fill(f, 0, 0, 0, 17, 9, 13, 255);
-    vfx_fill(f, 20, 12, 16, 37, 21, 30, 128);
-    vfx_fill(f, 2, 2, 2, 5, 5, 5, 0);
+    vfx_fill(f, (vbox){{0, 0, 0}, {17, 9, 13}}, 255);
+    vfx_fill(f, (vbox){{20, 12, 16}, {37, 21, 30}}, 128);
+    vfx_fill(f, (vbox){{2, 2, 2}, {5, 5, 5}}, 0);
     for (int i = 0; i < 600; i++)
         vfx_set(f, rnd() % 37, rnd() % 21, rnd() % 30, 1 + rnd() % 255);
     for (int i = 0; i < 60; i++) vfx_set(f, rnd() % 37, rnd() % 21, rnd() % 30, 1 + rnd() % 3);
@@ -552,7 +563,7 @@ Test(vod_volume_write, voxel_outside_the_file_volume_is_refused)
                           "16x20x20 (VOD padding must be 0)");
     vfx_set(&f, 17, 5, 6, 0);
     cr_assert_eq(write_rc(f.v, &p, &err), 0, "%s", err.msg);
-    vfx_fill(&f, 0, 16, 8, 4, 20, 12, 9); /* a uniform brick past y = 16 */
+    vfx_fill(&f, (vbox){{0, 16, 8}, {4, 20, 12}}, 9); /* a uniform brick past y = 16 */
     p.volume[0] = 20, p.volume[1] = 16;
     cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
     cr_assert(strstr(err.msg, "at 0,16,8,"), "%s", err.msg);
