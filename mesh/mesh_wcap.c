@@ -339,7 +339,7 @@ void mesh_wtree_free(mesh_wtree *t)
 #define CELL_MIN 4u  /* samples to decide that make a cell worth a query */
 #define NEAR_WORK 64u /* near triangles times the cell's samples, at most, for
                          a cell to be tried sample by sample (512: 1.7 times the
-                         near angles for 5% fewer nodes and triangles walked) */
+                         near angles for 4% fewer nodes and triangles walked) */
 #define TOL_SAMPLE 1e-4 /* a node's error at most, a sample's query */
 #define TOL_CELL 4e-3   /* ... a cell's (2e-3: 6% more of the descent's work on
                            the holed dragon at 1024^3, 8e-3 as much, 1.6e-2 more) */
@@ -494,8 +494,8 @@ static void fresh(cblock *c, const uint32_t lo[3], double tol)
                      out->e4 / (4 * M_PI) + 1e-9);
 }
 
-/* Cell [lo, hi) from its parent's far field in (the caps' tree's root
- * for a top cell): the nodes and triangles far enough taken, the rest
+/* Cell [cl, ch), shrunk to the box of its samples to do, from its
+ * parent's far field in (the caps' tree's root for a top cell): the nodes and triangles far enough taken, the rest
  * handed to its halves; decided whole when nothing is left near and w_C
  * keeps off every half integer, else sample by sample when few triangles
  * are left near; a single sample still to do goes to fresh queries, then
