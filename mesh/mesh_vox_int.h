@@ -178,6 +178,30 @@ static inline uint64_t mesh_vox_cell_count(const mesh_vox_block *b, const uint64
     return n;
 }
 
+/* The bits set in cell [lo, hi) of bits, as mesh_vox_cell_count, and the
+ * cell shrunk to their bounding box in [blo, bhi) (unset when none). */
+static inline uint64_t mesh_vox_cell_box(const mesh_vox_block *b, const uint64_t *bits,
+                                         const uint32_t lo[3], const uint32_t hi[3],
+                                         uint32_t blo[3], uint32_t bhi[3])
+{
+    uint64_t mask = mesh_vox_xmask(lo, hi), n = 0, any = 0;
+    uint32_t ylo = hi[1], yhi = 0, zlo = hi[2], zhi = 0;
+    for (uint32_t z = lo[2]; z < hi[2]; z++)
+        for (uint32_t y = lo[1]; y < hi[1]; y++) {
+            uint64_t w = bits[mesh_vox_word(b, lo[0], y, z)] & mask;
+            if (!w) continue;
+            n += bits_popcount64(w);
+            any |= w;
+            ylo = y < ylo ? y : ylo, yhi = y + 1 > yhi ? y + 1 : yhi;
+            zlo = z < zlo ? z : zlo, zhi = z + 1;
+        }
+    if (!n) return 0;
+    uint32_t base = lo[0] / 64 * 64;
+    blo[0] = base + (uint32_t)__builtin_ctzll(any), bhi[0] = base + 64 - (uint32_t)__builtin_clzll(any);
+    blo[1] = ylo, bhi[1] = yhi, blo[2] = zlo, bhi[2] = zhi;
+    return n;
+}
+
 /* The samples of a cell to decide at once (mesh_vox_cell_decide). */
 typedef struct {
     const mesh_vox_block *b;

@@ -381,6 +381,60 @@ static void wavy_fan(double tri[FAN][3][3])
     }
 }
 
+/* mesh_vox_cell_box counts a cell's bits as mesh_vox_cell_count does and
+ * shrinks the cell to their bounding box, against a sample-by-sample scan:
+ * sparse random bits (a few a cell, on rows and slices in any order, so a
+ * box taken from the last row seen would be wrong) and cells of every
+ * shape within a word's row, empty ones included. */
+Test(mesh_wind, a_cell_shrinks_to_the_box_of_its_samples)
+{
+    mesh_vox_block b = {{-70, 5, 1000}, {128, 40, 36}, 2};
+    size_t nw = mesh_vox_block_words(&b);
+    uint64_t *bits = calloc(nw, sizeof *bits);
+    cr_assert(bits);
+    uint64_t seed = 12345;
+    for (int k = 0; k < 600; k++) {
+        seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+        uint32_t x = (uint32_t)(seed >> 33) % 128, y = (uint32_t)(seed >> 20) % 40,
+                 z = (uint32_t)(seed >> 45) % 36;
+        bits[mesh_vox_word(&b, x, y, z)] |= 1ull << (x & 63);
+    }
+    int boxes = 0, empty = 0;
+    for (int k = 0; k < 4000; k++) {
+        uint32_t lo[3], hi[3], blo[3] = {0}, bhi[3] = {0};
+        seed = seed * 6364136223846793005ull + 1442695040888963407ull;
+        uint32_t w = (uint32_t)(seed >> 60) & 1, x0 = (uint32_t)(seed >> 8) % 64;
+        lo[0] = 64 * w + x0, hi[0] = lo[0] + 1 + (uint32_t)(seed >> 16) % (64 - x0);
+        lo[1] = (uint32_t)(seed >> 24) % 40, hi[1] = lo[1] + 1 + (uint32_t)(seed >> 32) % (40 - lo[1]);
+        lo[2] = (uint32_t)(seed >> 40) % 36, hi[2] = lo[2] + 1 + (uint32_t)(seed >> 48) % (36 - lo[2]);
+        uint64_t n = 0;
+        uint32_t elo[3] = {UINT32_MAX, UINT32_MAX, UINT32_MAX}, ehi[3] = {0, 0, 0};
+        for (uint32_t z = lo[2]; z < hi[2]; z++)
+            for (uint32_t y = lo[1]; y < hi[1]; y++)
+                for (uint32_t x = lo[0]; x < hi[0]; x++) {
+                    if (!(bits[mesh_vox_word(&b, x, y, z)] >> (x & 63) & 1)) continue;
+                    uint32_t p[3] = {x, y, z};
+                    n++;
+                    for (int a = 0; a < 3; a++) {
+                        elo[a] = p[a] < elo[a] ? p[a] : elo[a];
+                        ehi[a] = p[a] + 1 > ehi[a] ? p[a] + 1 : ehi[a];
+                    }
+                }
+        cr_assert_eq(mesh_vox_cell_box(&b, bits, lo, hi, blo, bhi), n);
+        cr_assert_eq(mesh_vox_cell_count(&b, bits, lo, hi), n);
+        if (!n) {
+            empty++;
+            continue;
+        }
+        boxes++;
+        for (int a = 0; a < 3; a++)
+            cr_assert(blo[a] == elo[a] && bhi[a] == ehi[a], "cell %d axis %d: [%u, %u) not [%u, %u)",
+                      k, a, blo[a], bhi[a], elo[a], ehi[a]);
+    }
+    cr_assert(boxes > 500 && empty > 100, "%d boxes, %d empty cells", boxes, empty);
+    free(bits);
+}
+
 /* mesh_vox_wind_cell's value at a cell's centre and its bound hold at every
  * point tried within the cell's ball (the expansion's remainder and the
  * variation over the ball: without the latter they would not), with and
