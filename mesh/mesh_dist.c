@@ -162,12 +162,15 @@ static bool slice_span(const dscan *sc, double pv, double s0, double s1, double 
     }
     au[n] = 0, as[n] = 1, c[n] = s1 - f->c[ax];
     au[n + 1] = 0, as[n + 1] = -1, c[n + 1] = f->c[ax] - s0;
+    uint32_t neg[DIST_MAXH + 2], nn = 0; /* the lower bounds of q_s, in order */
+    for (uint32_t k = 0; k < n + 2; k++)
+        if (as[k] < 0) neg[nn++] = k;
     for (uint32_t j = 0; j < n + 2; j++) {
         double al = au[j], be = c[j]; /* al q_u <= be */
         if (as[j] != 0) {
             if (as[j] < 0) continue;
-            for (uint32_t k = 0; k < n + 2; k++) {
-                if (!(as[k] < 0)) continue;
+            for (uint32_t i = 0; i < nn; i++) {
+                uint32_t k = neg[i];
                 al = au[j] * -as[k] + au[k] * as[j], be = c[j] * -as[k] + c[k] * as[j];
                 if (al > 0) hi = MIND(hi, be / al);
                 else if (al < 0) lo = MAXD(lo, be / al);
@@ -255,15 +258,20 @@ static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, doubl
 static void slab_reach(const mesh_vox_tile *t, const dcpt *d, uint64_t l0, uint64_t l1,
                        uint32_t K, dslab *sl)
 {
-    uint32_t S = t->S;
-    memset(sl->reach, 0, (size_t)sl->nb[0] * sl->nb[1] * sl->nb[2]);
+    uint32_t S = t->S, sh = (uint32_t)__builtin_ctz(S); /* S a power of 2 */
+    int32_t zlo = sl->z0, zhi = sl->z0 + sl->h - 1;
+    size_t nx = sl->nb[0], nxy = nx * sl->nb[1];
+    uint8_t *reach = sl->reach;
+    memset(reach, 0, nxy * sl->nb[2]);
+    /* the bounds in locals: the flags' stores (bytes) may alias anything */
     for (uint64_t j = l0; j < l1; j++) {
         const dfeat *f = &d->f[d->list[j]];
-        uint32_t z0 = (uint32_t)MAXD(f->i0[2], sl->z0), z1 = (uint32_t)MIND(f->i1[2], sl->z0 + sl->h - 1);
-        for (uint32_t bz = (z0 - sl->z0) / S; bz <= (z1 - sl->z0) / S; bz++)
-            for (uint32_t by = (uint32_t)f->i0[1] / S; by <= (uint32_t)f->i1[1] / S; by++)
-                for (uint32_t bx = (uint32_t)f->i0[0] / S; bx <= (uint32_t)f->i1[0] / S; bx++)
-                    *reach_at(sl, bx, by, bz) = 1;
+        uint32_t z0 = (uint32_t)(MAXD(f->i0[2], zlo) - zlo) >> sh, z1 = (uint32_t)(MIND(f->i1[2], zhi) - zlo) >> sh;
+        uint32_t y0 = (uint32_t)f->i0[1] >> sh, y1 = (uint32_t)f->i1[1] >> sh;
+        uint32_t x0 = (uint32_t)f->i0[0] >> sh, x1 = (uint32_t)f->i1[0] >> sh;
+        for (uint32_t bz = z0; bz <= z1; bz++)
+            for (uint32_t by = y0; by <= y1; by++)
+                for (uint32_t bx = x0; bx <= x1; bx++) reach[bz * nxy + by * nx + bx] = 1;
     }
     double KK = (double)K * K;
     for (uint32_t bz = 0; bz < sl->nb[2]; bz++)

@@ -114,9 +114,15 @@ void vod_pack_range(const vod_volume *v, const uint8_t *d, size_t i0, size_t n, 
     const uint32_t *vals = vals_of(v, d);
     uint32_t bg = head_of(d)->bg;
     size_t k = rank(lit, i0);
-    for (size_t i = i0; i < i0 + n; i++) {
-        uint64_t bit = 1ull << (i & 63);
-        out[i - i0] = lit[i >> 6] & bit ? vals[k++] : neg[i >> 6] & bit ? bg | SIGN : bg;
+    /* a word's part at a time: every voxel bg with its sign, then the
+     * literals over them (no branch on a voxel) */
+    for (size_t i = i0, m; i < i0 + n; i += m, out += m) {
+        size_t b = i & 63;
+        m = 64 - b < i0 + n - i ? 64 - b : i0 + n - i;
+        uint64_t l = lit[i >> 6] >> b, s = neg[i >> 6] >> b;
+        if (m < 64) l &= (1ull << m) - 1;
+        for (size_t j = 0; j < m; j++) out[j] = bg | (uint32_t)(s >> j & 1) << 31;
+        for (; l; l &= l - 1) out[__builtin_ctzll(l)] = vals[k++];
     }
 }
 
