@@ -266,7 +266,8 @@ static void slab_reach(const mesh_vox_tile *t, const dcpt *d, uint64_t l0, uint6
     /* the bounds in locals: the flags' stores (bytes) may alias anything */
     for (uint64_t j = l0; j < l1; j++) {
         const dfeat *f = &d->f[d->list[j]];
-        uint32_t z0 = (uint32_t)(MAXD(f->i0[2], zlo) - zlo) >> sh, z1 = (uint32_t)(MIND(f->i1[2], zhi) - zlo) >> sh;
+        uint32_t z0 = (uint32_t)(MAXD(f->i0[2], zlo) - zlo) >> sh,
+                 z1 = (uint32_t)(MIND(f->i1[2], zhi) - zlo) >> sh;
         uint32_t y0 = (uint32_t)f->i0[1] >> sh, y1 = (uint32_t)f->i1[1] >> sh;
         uint32_t x0 = (uint32_t)f->i0[0] >> sh, x1 = (uint32_t)f->i1[0] >> sh;
         for (uint32_t bz = z0; bz <= z1; bz++)

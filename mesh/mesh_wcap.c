@@ -495,11 +495,12 @@ static void fresh(cblock *c, const uint32_t lo[3], double tol)
 }
 
 /* Cell [cl, ch), shrunk to the box of its samples to do, from its
- * parent's far field in (the caps' tree's root for a top cell): the nodes and triangles far enough taken, the rest
- * handed to its halves; decided whole when nothing is left near and w_C
- * keeps off every half integer, else sample by sample when few triangles
- * are left near; a single sample still to do goes to fresh queries, then
- * to mesh_vox_wind_block (a list too long: the cell to cell()). */
+ * parent's far field in (the caps' tree's root for a top cell): the nodes
+ * and triangles far enough taken, the rest handed to its halves; decided
+ * whole when nothing is left near and w_C keeps off every half integer,
+ * else sample by sample when few triangles are left near; a single sample
+ * still to do goes to fresh queries, then to mesh_vox_wind_block (a list
+ * too long: the cell to cell()). */
 static void down_cell(cblock *c, const uint32_t *cl, const uint32_t *ch, const mesh_vox_wlist *in,
                       int depth)
 {

@@ -217,8 +217,8 @@ typedef struct {
     vod_encoded *rec;
 } vod_brick_out;
 /* Fill node n's raw brick from the source (scratch holds L->raw_bytes), hash
- * it and compress it into o->out (its record in *o->rec), without looking for duplicates (the
- * encoder below does).  It uses an encoder kept per thread (see
+ * it and compress it into o->out (its record in *o->rec), without looking
+ * for duplicates (the encoder below does).  It uses an encoder kept per thread (see
  * vod_encode_cleanup); the bytes depend only on the raw brick and p, and
  * are what vod_encoder_put gives.  A uniform node's brick is made here.
  * Returns 0, -ENOBUFS when o->cap is too small, -EINVAL for a node outside

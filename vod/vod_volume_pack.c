@@ -121,7 +121,7 @@ void vod_pack_range(const vod_volume *v, const uint8_t *d, size_t i0, size_t n, 
         m = 64 - b < i0 + n - i ? 64 - b : i0 + n - i;
         uint64_t l = lit[i >> 6] >> b, s = neg[i >> 6] >> b;
         if (m < 64) l &= (1ull << m) - 1;
-        for (size_t j = 0; j < m; j++) out[j] = bg | (uint32_t)(s >> j & 1) << 31;
+        for (size_t j = 0; j < m; j++) out[j] = bg | (uint32_t)(s >> j & 1) * SIGN;
         for (; l; l &= l - 1) out[__builtin_ctzll(l)] = vals[k++];
     }
 }
