@@ -206,7 +206,8 @@ int csg_eval_bricks(const csg_tree *t, const grid_spec *g, const vod_volume *con
 /* 0 when the tree's result (the nodes it reaches) has a signed distance:
  * implicit leaves without a domain and mesh leaves, combined by union
  * (min), intersection (max), difference (max(a, -b)) and inverse (-a);
- * else -ENOTSUP with err naming the first node that has none. */
+ * else -ENOTSUP with err naming the first node that has none.  The tree
+ * has a node (checked where it came in). */
 int csg_dist_check(const csg_tree *t, err_info *err);
 /* Every implicit and mesh leaf's k := band (voxels each side, 0: the
  * default): what the distance channel's evaluation and csg_leaf_build

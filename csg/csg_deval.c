@@ -24,6 +24,7 @@
  * operand) decides the brick without evaluating the other one.  A brick is
  * a pure function of (tree, grid, band, brick): any worker, the same
  * bytes. */
+#include <assert.h>
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -53,7 +54,7 @@ static const char *no_distance(const csg_node *n)
 
 int csg_dist_check(const csg_tree *t, err_info *err)
 {
-    if (!t->n) return -EINVAL;
+    assert(t->n > 0); /* the parser and proto_check refuse a tree without a node */
     uint8_t used[CSG_MAX_NODES] = {0};
     used[t->n - 1] = 1;
     for (uint32_t i = t->n; i-- > 0;) { /* children come before their parents */
