@@ -28,6 +28,7 @@
 
 #include "vod_downsample.h"
 #include "voxel.h"
+#include "zero.h"
 
 /* The entry of value u without memory (0 for 0), or 0 when u cannot be
  * one (the top bit set in an integer volume, or no wide slot left). */
@@ -123,7 +124,9 @@ int vod_volume_init(vod_volume **out, void *arena, size_t bytes,
     if (head > bytes) return -ENOSPC;
     uint64_t cap = (bytes - head) / h.unit;
     h.pool_cap = (uint32_t)(cap > POOL_MAX ? POOL_MAX : cap);
-    memset((uint8_t *)arena + sizeof h, 0, head - sizeof h);
+    /* the tables: in the engine's segment, their pages are touched first
+     * by the workers that store bricks, not here (zero.h) */
+    zero_range((uint8_t *)arena + sizeof h, head - sizeof h);
     memcpy(arena, &h, sizeof h);
     *out = arena;
     return 0;
