@@ -8,6 +8,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "afterexit.h"
 #include "cli.h"
 #include "csg.h"
 #include "engine.h"
@@ -189,6 +190,27 @@ int cli_csg_load(const char *path, csg_tree **t, uint64_t *text_bytes)
     return rc ? CLI_EXIT_USAGE : 0;
 }
 
+/* The job's end as the user reads it: its error (rc, why) or its summary;
+ * the exit status. */
+static int report(const cli_csg_opts *o, const engine_pipeline_job *job,
+                  const engine_pipeline_report *r, int rc, const char *why)
+{
+    if (rc) {
+        cli_error("%s: %s", o->out, why);
+        return r->err.kind == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
+    }
+    if (r->voxels == 0) cli_warn("%s has no voxel: nothing of the tree meets its box (see --domain)", o->out);
+    if (o->quiet) return CLI_EXIT_OK;
+    char bricks[160];
+    engine_pipeline_describe(job, r, bricks, sizeof bricks);
+    printf("%s: %llu voxels %s on a %ux%ux%u grid, %s, %llu bytes; evaluated in "
+           "%.3f s, written in %.3f s\n", o->out, (unsigned long long)r->voxels,
+           o->channel == VOXEL_CH_DISTANCE ? "inside (negative)" : "at or above S",
+           r->grid.res[0], r->grid.res[1], r->grid.res[2], bricks,
+           (unsigned long long)r->st.file_bytes, r->t_voxelize, r->t_write);
+    return CLI_EXIT_OK;
+}
+
 /* The job through the pipeline (its workers, or this thread with -w 0),
  * into OUT under a temporary name renamed into place once complete. */
 static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes,
@@ -223,26 +245,17 @@ static int run(const cli_csg_opts *o, const char *text_name, uint64_t text_bytes
     syncbehind_stop(&sync);
     engine_abandon(e); /* its end is not waited for: the file is */
     const char *why = rc ? r.err.msg : NULL;
+    int old = -1;
     if (rc || cli_interrupted()) outfile_abort(&f);
     else {
         thread_name("commit");
+        old = afterexit_hold(o->out); /* freed after our exit, not in the rename */
         if ((rc = outfile_commit(&f, o->out))) why = strerror(-rc);
     }
     if (cli_interrupted()) cli_end_interrupted(o->out);
-    if (rc) {
-        cli_error("%s: %s", o->out, why);
-        return r.err.kind == ENGINE_BAD_JOB ? CLI_EXIT_USAGE : CLI_EXIT_FAILED;
-    }
-    if (r.voxels == 0) cli_warn("%s has no voxel: nothing of the tree meets its box (see --domain)", o->out);
-    if (o->quiet) return CLI_EXIT_OK;
-    char bricks[160];
-    engine_pipeline_describe(&job, &r, bricks, sizeof bricks);
-    printf("%s: %llu voxels %s on a %ux%ux%u grid, %s, %llu bytes; evaluated in "
-           "%.3f s, written in %.3f s\n", o->out, (unsigned long long)r.voxels,
-           o->channel == VOXEL_CH_DISTANCE ? "inside (negative)" : "at or above S",
-           r.grid.res[0], r.grid.res[1], r.grid.res[2], bricks,
-           (unsigned long long)r.st.file_bytes, r.t_voxelize, r.t_write);
-    return CLI_EXIT_OK;
+    rc = report(o, &job, &r, rc, why);
+    afterexit_leave(old); /* the process exits next */
+    return rc;
 }
 
 int cli_csg(int argc, char **argv)
