@@ -21,6 +21,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "huge.h"
 #include "par.h"
 
 /* A footprint [x0, x1] x [y0, y1] in tiles, or in voxel centres for the
@@ -312,9 +313,9 @@ static int binner_init(binner *b, const mesh *m, const grid_spec *g,
     b->exact = p.solid1 && !p.surf && !p.rep && !p.dens && !p.dist; /* z rays only */
     mesh_vox_frame_init(&b->f, m, g, 1);
     size_t nt = (size_t)m->n_triangles + 1;
-    b->vr = malloc(((size_t)m->n_vertices + 1) * sizeof *b->vr);
-    if (b->exact) b->code = malloc(nt * sizeof *b->code);
-    else b->r = malloc(nt * sizeof *b->r);
+    b->vr = huge_malloc(((size_t)m->n_vertices + 1) * sizeof *b->vr);
+    if (b->exact) b->code = huge_malloc(nt * sizeof *b->code);
+    else b->r = huge_malloc(nt * sizeof *b->r);
     b->cur = calloc((size_t)parts * (b->ntiles + 2), sizeof *b->cur);
     b->start = malloc(((size_t)b->ntiles + 1) * sizeof *b->start);
     return b->vr && (b->code || b->r) && b->cur && b->start ? 0 : -ENOMEM;
@@ -336,7 +337,7 @@ int mesh_bin(const mesh *m, const grid_spec *g, const mesh_vox_opts *o,
         par_run(parts, count_part, &b);
         rc = sum_counts(&b, parts);
     }
-    if (!rc && !(b.ids = malloc((b.start[b.ntiles] + 1) * sizeof *b.ids))) rc = -ENOMEM;
+    if (!rc && !(b.ids = huge_malloc((b.start[b.ntiles] + 1) * sizeof *b.ids))) rc = -ENOMEM;
     if (!rc) par_run(parts, fill_part, &b);
     if (rc) {
         binner_free(&b);

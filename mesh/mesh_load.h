@@ -35,6 +35,8 @@ typedef struct {
     size_t cap_t;
     char warning[200];          /* mesh_build_warn's first line, into mesh.warning */
     const char *dir;            /* the file's folder (glTF's external buffers); NULL: none */
+    unsigned stl_threads;       /* a large binary STL's parse and weld: its threads, 0 one a
+                                 * CPU; MESH_STL_SERIAL: parse_binary, mesh_build_weld */
 } mbuild;
 
 /* Fill the error and return rc.  at: the byte offset of the trouble, told
@@ -93,6 +95,14 @@ void mesh_build_free(mbuild *b);
  * the merged vertices are still past the cap. */
 int mesh_build_weld(mbuild *b);
 
+/* The hash of a position's welding key (its bits, -0 taken as +0). */
+static inline uint64_t mesh_build_key_hash(const uint32_t bits[3])
+{
+    uint64_t h = ((uint64_t)bits[0] << 32 | bits[1]) * 0x9e3779b97f4a7c15ull;
+    h ^= (h >> 29) ^ bits[2] * 0xc2b2ae3d27d4eb4full;
+    return h * 0x94d049bb133111ebull;
+}
+
 /* ---- the loaders: buf[0, len), format already told ---- */
 
 int mesh_parse_obj(const char *buf, size_t len, mbuild *b);
@@ -103,6 +113,15 @@ int mesh_parse_gltf(const char *buf, size_t len, mbuild *b);
 /* ASCII PLY files parsed on every CPU so far (mesh_ply.c's fast path; the
  * others are parsed by one thread): the tests check which path ran. */
 extern _Atomic uint64_t mesh_ply_par_runs;
+/* A binary STL of n triangles (u: the whole file) parsed and welded on
+ * b->stl_threads threads (mesh_stl_par.c) into the mesh that mesh_stl.c's
+ * serial path (parse_binary, then mesh_build_weld) makes: 1 when done, 0
+ * when that path must do it (fewer than 16384 triangles, MESH_STL_SERIAL,
+ * a coordinate not finite, a limit passed, no memory: b left empty).  The
+ * runs so far are counted for the tests. */
+#define MESH_STL_SERIAL UINT32_MAX
+int mesh_stl_binary_par(const unsigned char *u, uint32_t n, mbuild *b);
+extern _Atomic uint64_t mesh_stl_par_runs;
 /* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
 int mesh_off_keyword(const char *p, size_t n);
 

@@ -271,13 +271,6 @@ static void position_bits(const float p[3], uint32_t bits[3])
     }
 }
 
-static uint64_t position_hash(const uint32_t bits[3])
-{
-    uint64_t h = ((uint64_t)bits[0] << 32 | bits[1]) * 0x9e3779b97f4a7c15ull;
-    h ^= (h >> 29) ^ bits[2] * 0xc2b2ae3d27d4eb4full;
-    return h * 0x94d049bb133111ebull;
-}
-
 /* The welding table: open addressing, linear probing; a slot holds a
  * unique vertex's index and 32 bits of its hash, so that most probes that
  * miss do not read the vertex. */
@@ -323,7 +316,7 @@ static int weld_grow(weld_table *w, float (*v)[3], uint32_t u)
     for (uint32_t i = 0; i < u; i++) {
         uint32_t key[3];
         position_bits(v[i], key);
-        uint64_t h = position_hash(key);
+        uint64_t h = mesh_build_key_hash(key);
         *weld_find(&bigger, v, key, h) = (weld_slot){i, (uint32_t)h};
     }
     free(w->slot);
@@ -350,7 +343,7 @@ int mesh_build_weld(mbuild *b)
     for (uint32_t i = 0; i < n; i++) {
         uint32_t key[3];
         position_bits(b->v[i], key);
-        uint64_t h = position_hash(key);
+        uint64_t h = mesh_build_key_hash(key);
         weld_slot *s = weld_find(&w, b->v, key, h);
         if (s->idx != UINT32_MAX) {
             map[i] = s->idx;

@@ -9,7 +9,9 @@
  * orientation is the vertices' order.
  *
  * STL repeats each position once per triangle; the positions are welded
- * into shared vertices (mesh_build_weld) so that the mesh's edges are real. */
+ * into shared vertices (mesh_build_weld) so that the mesh's edges are real.
+ * A large binary file is parsed and welded on every CPU instead
+ * (mesh_stl_par.c), into the same mesh. */
 #include <errno.h>
 #include <stdint.h>
 #include <string.h>
@@ -133,6 +135,11 @@ int mesh_parse_stl(const char *buf, size_t len, mbuild *b)
         mtext t = {buf, buf + len, buf};
         mesh_text_skip_space(&t);
         binary = !mesh_text_word(&t, "solid", 1);
+    }
+    if (binary && len >= 84 && 84 + 50 * (uint64_t)le32(u + 80) == len &&
+        mesh_stl_binary_par(u, le32(u + 80), b)) { /* parsed and welded on every CPU */
+        b->binary = 1;
+        return 0;
     }
     uint32_t cap = b->max_vert;
     b->max_vert = UINT32_MAX;

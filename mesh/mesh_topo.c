@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "huge.h"
 #include "mesh.h"
 
 /* One use of edge (lo, hi), filed under lo: the triangle, and whether it
@@ -141,8 +142,8 @@ int mesh_edges(const mesh *m, mesh_topo *out)
     }
     memset(out, 0, sizeof *out);
     uint32_t *start = calloc((size_t)nv + 1, sizeof *start);
-    uint32_t *use = malloc((size_t)3 * nt * sizeof *use + 1);
-    uint64_t *slot = malloc((size_t)nv * sizeof *slot + 1);
+    uint32_t *use = huge_malloc((size_t)3 * nt * sizeof *use + 1);
+    uint64_t *slot = huge_malloc((size_t)nv * sizeof *slot + 1);
     if (!start || !use || !slot) {
         free(start);
         free(use);

@@ -270,6 +270,18 @@ static inline void shape_remove(shape *s, bool (*keep)(uint32_t i, void *ctx), v
     s->m.n_triangles = n;
 }
 
+/* Triangle t of positions v is degenerate by its definition in mesh.h: two
+ * equal indices, or the edges' cross product (in double) exactly zero. */
+static inline int shape_degenerate(float (*v)[3], const uint32_t t[3])
+{
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) return 1;
+    const float *a = v[t[0]], *b = v[t[1]], *c = v[t[2]];
+    double u[3], w[3];
+    for (int k = 0; k < 3; k++) u[k] = (double)b[k] - a[k], w[k] = (double)c[k] - a[k];
+    return u[1] * w[2] - u[2] * w[1] == 0 && u[2] * w[0] - u[0] * w[2] == 0 &&
+           u[0] * w[1] - u[1] * w[0] == 0;
+}
+
 /* The signed volume the triangles enclose (divergence theorem). */
 static inline double shape_volume(const mesh *m)
 {

@@ -41,16 +41,6 @@ static void brute_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
     free(kept);
 }
 
-static int degenerate(float (*v)[3], const uint32_t t[3])
-{
-    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) return 1;
-    const float *a = v[t[0]], *b = v[t[1]], *c = v[t[2]];
-    double u[3], w[3];
-    for (int k = 0; k < 3; k++) u[k] = (double)b[k] - a[k], w[k] = (double)c[k] - a[k];
-    return u[1] * w[2] - u[2] * w[1] == 0 && u[2] * w[0] - u[0] * w[2] == 0 &&
-           u[0] * w[1] - u[1] * w[0] == 0;
-}
-
 /* A copy of m (mesh_weld replaces its arrays). */
 static mesh copy_of(const mesh *m)
 {
@@ -84,7 +74,7 @@ static uint32_t check_weld(const mesh *m, double eps, const char *what)
     for (uint32_t i = 0; i < m->n_triangles; i++) {
         uint32_t t[3];
         for (int k = 0; k < 3; k++) t[k] = map[m->triangles[i][k]];
-        if (degenerate(m->vertices, t)) continue;
+        if (shape_degenerate(m->vertices, t)) continue;
         cr_assert_lt(kept, w.n_triangles, "%s", what);
         for (int k = 0; k < 3; k++)
             cr_assert_eq(w.triangles[kept][k], renum[t[k]], "%s: triangle %u", what, i);
