@@ -269,6 +269,7 @@ static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, doubl
             p[u] = org[u] + i, p[v] = org[v] + j;
             if (!row_span(&sc, p[u], p[v], s)) continue;
             int32_t a = iceil(s[0] - org[ax], lo[ax], hi[ax]), b = ifloor(s[1] - org[ax], lo[ax], hi[ax]);
+            if (a > b) continue; /* (row would point past the slab) */
             double *row = base + (size_t)i * step[u] + (size_t)j * step[v] + (size_t)a * step[ax];
             drow r = {.d = d, .tl = tl, .nt = f->nt, .o = org[ax], .a = a, .b = b};
             if (ax == 0) row_d2(&r, p, 0, row, step[0]);
