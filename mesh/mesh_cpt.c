@@ -141,15 +141,19 @@ static uint32_t dhash_get(dhash *h, uint64_t key)
 /* The tile's vertices and edges: the vertex of corner k of triangle i is
  * cv[3i + k], its edge from corner k to k + 1 ce[3i + k]; the triangles of
  * vertex v are vl[vs[v] .. vs[v + 1]) and of edge e el[es[e] .. es[e + 1]),
- * as 4 * triangle + corner (or edge), in the tile's order. */
+ * as 4 * triangle + corner (or edge), in the tile's order; vertex v is the
+ * mesh's vid[v], at pos[v] in voxel units (vpos once per vertex: the edges
+ * and cones read each vertex many times). */
 typedef struct {
     uint32_t nv, ne;
     uint32_t *cv, *ce, *vid, *vs, *vl, *es, *el;
+    double (*pos)[3];
 } dadj;
 
 static void dadj_free(dadj *a)
 {
     free(a->cv), free(a->ce), free(a->vid), free(a->vs), free(a->vl), free(a->es), free(a->el);
+    free(a->pos);
 }
 
 /* The list of items (4 * triangle + k) by owner own[3i + k] (counted,
@@ -190,9 +194,11 @@ static int dadj_make(const mesh_vox_tile *t, const uint32_t *tid, uint32_t ntri,
     dhash_free(&hv), dhash_free(&he);
     if (!rc) {
         a->vs = malloc(((size_t)a->nv + 1) * 4), a->es = malloc(((size_t)a->ne + 1) * 4);
-        if (!a->vs || !a->es) rc = -ENOMEM;
+        a->pos = malloc(((size_t)a->nv + 1) * sizeof *a->pos);
+        if (!a->vs || !a->es || !a->pos) rc = -ENOMEM;
     }
     if (!rc) {
+        for (uint32_t v = 0; v < a->nv; v++) vpos(t, a->vid[v], a->pos[v]);
         file_by(a->cv, ntri, a->nv, a->vs, a->vl);
         file_by(a->ce, ntri, a->ne, a->es, a->el);
     }
@@ -331,9 +337,8 @@ static void edge_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t e
 {
     const uint32_t *L = a->el + a->es[e];
     uint32_t n = a->es[e + 1] - a->es[e], i = L[0] >> 2, k = L[0] & 3;
-    double P[3], Q[3], u[3];
-    vpos(t, a->vid[a->cv[3 * i + k]], P);
-    vpos(t, a->vid[a->cv[3 * i + (k + 1) % 3]], Q);
+    const double *P = a->pos[a->cv[3 * i + k]], *Q = a->pos[a->cv[3 * i + (k + 1) % 3]];
+    double u[3];
     for (int c = 0; c < 3; c++) u[c] = Q[c] - P[c];
     double len = sqrt(dot3(u, u));
     if (!(len > 0)) return; /* a point: its vertex's region */
@@ -363,8 +368,8 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
 {
     const uint32_t *L = a->vl + a->vs[v];
     uint32_t n = a->vs[v + 1] - a->vs[v], seen[DIST_MAXH];
-    double V[3], axis[3] = {0, 0, 0};
-    vpos(t, a->vid[v], V);
+    const double *V = a->pos[v];
+    double axis[3] = {0, 0, 0};
     dnew nw = {.list = L, .n = n, .quad = 1, .c = V};
     for (int c = 0; c < 3; c++) nw.lo[c] = V[c] - R, nw.hi[c] = V[c] + R;
     if (!new_feat(d, t, &nw)) return;
@@ -374,8 +379,8 @@ static void vert_feat(dcpt *d, const mesh_vox_tile *t, const dadj *a, uint32_t v
             uint32_t w = a->cv[3 * (L[j] >> 2) + ((L[j] & 3) + s) % 3], dup = w == v;
             for (uint32_t q = 0; q < f->nh && !dup; q++) dup = seen[q] == w;
             if (dup || f->nh == DIST_MAXH) continue;
-            double W[3], u[3];
-            vpos(t, a->vid[w], W);
+            const double *W = a->pos[w];
+            double u[3];
             for (int c = 0; c < 3; c++) u[c] = W[c] - V[c];
             double len = sqrt(dot3(u, u));
             if (!(len > 0)) continue;

@@ -50,7 +50,7 @@ static double seg_d2(const double ap[3], const double d[3])
 /* The squared distance from p to triangle t (Ericson, Real-Time Collision
  * Detection 5.1.5: the Voronoi regions of the vertices, then the edges,
  * then the face). */
-static double tri_d2(const dtri *t, const double p[3])
+static inline __attribute__((always_inline)) double tri_d2(const dtri *t, const double p[3])
 {
     double ap[3] = {p[0] - t->a[0], p[1] - t->a[1], p[2] - t->a[2]};
     double d1 = dot3(t->ab, ap), d2 = dot3(t->ac, ap);
@@ -214,6 +214,35 @@ static uint8_t *reach_at(const dslab *sl, uint32_t bx, uint32_t by, uint32_t bz)
 #define SLAB_ROW ((size_t)MESH_TILE)
 #define SLAB_PLANE ((size_t)MESH_TILE * MESH_TILE)
 
+/* A row of a region: its triangles tl[0 .. nt), the centre of its voxel 0
+ * along the row's axis o and its voxels a .. b. */
+typedef struct {
+    const dcpt *d;
+    const uint32_t *tl;
+    uint32_t nt;
+    double o;
+    int32_t a, b;
+} drow;
+
+/* Row r's voxels along axis ax (p the centre's other two coordinates), e
+ * voxel a's squared distance and st the step to the next, lowered to the
+ * distance of r's triangles.  Inlined with ax a constant, p stays in
+ * registers (an indexed store into p and its reload as a vector stalled
+ * the store's forwarding); the same arithmetic to the bit. */
+static inline __attribute__((always_inline)) void row_d2(const drow *r, const double pin[3],
+                                                         int ax, double *e, size_t st)
+{
+    for (int32_t k = r->a; k <= r->b; k++, e += st) {
+        double p[3] = {pin[0], pin[1], pin[2]}, m = *e;
+        p[ax] = r->o + k;
+        for (uint32_t q = 0; q < r->nt; q++) {
+            double x = tri_d2(&r->d->tri[r->tl[q]], p);
+            m = x < m ? x : m;
+        }
+        *e = m;
+    }
+}
+
 /* The voxels of region f in slab sl's rows along f->ax lowered to the
  * distance of f's triangles: each voxel of the region is visited once,
  * whatever bricks its box crosses. */
@@ -240,15 +269,12 @@ static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, doubl
             p[u] = org[u] + i, p[v] = org[v] + j;
             if (!row_span(&sc, p[u], p[v], s)) continue;
             int32_t a = iceil(s[0] - org[ax], lo[ax], hi[ax]), b = ifloor(s[1] - org[ax], lo[ax], hi[ax]);
-            double *row = base + (size_t)i * step[u] + (size_t)j * step[v];
-            for (int32_t k = a; k <= b; k++) {
-                double *e = row + (size_t)k * step[ax];
-                p[ax] = org[ax] + k;
-                for (uint32_t q = 0; q < f->nt; q++) {
-                    double x = tri_d2(&d->tri[tl[q]], p);
-                    *e = x < *e ? x : *e;
-                }
-            }
+            if (a > b) continue; /* (row would point past the slab) */
+            double *row = base + (size_t)i * step[u] + (size_t)j * step[v] + (size_t)a * step[ax];
+            drow r = {.d = d, .tl = tl, .nt = f->nt, .o = org[ax], .a = a, .b = b};
+            if (ax == 0) row_d2(&r, p, 0, row, step[0]);
+            else if (ax == 1) row_d2(&r, p, 1, row, step[1]);
+            else row_d2(&r, p, 2, row, step[2]);
         }
     }
 }
