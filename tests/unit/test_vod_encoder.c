@@ -532,6 +532,27 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     fx_free(&f);
 }
 
+/* One batch of 1 to VOD_ENCODE_BATCH nodes (at random, at most picks - j)
+ * from picked[j] on, tagged j, j + 1, ..., encoded into r (outs: room for
+ * a batch, bound bytes a brick); how many. */
+typedef struct {
+    uint8_t *out[VOD_ENCODE_BATCH];
+    uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
+    vod_encoded rec[VOD_ENCODE_BATCH];
+} batch_out;
+
+static size_t put_random_batch(vod_encoder *e, const vod_source *src, const vod_node *picked,
+                               size_t j, size_t picks, uint8_t *outs, size_t bound,
+                               batch_out *r)
+{
+    size_t k = 1 + rnd() % VOD_ENCODE_BATCH;
+    if (k > picks - j) k = picks - j;
+    for (size_t t = 0; t < k; t++) r->out[t] = outs + t * bound, r->tag[t] = j + t;
+    vod_brick_batch b = {&picked[j], r->tag, k, r->out, bound, r->rec, r->same};
+    cr_assert_eq(vod_encoder_put_batch(e, src, &b), 0);
+    return k;
+}
+
 /* Node picks of the fixture's first few bricks, encoded in batches of 1
  * to 4, so that a brick repeats inside a batch and across batches: each
  * record is vod_encode's, a duplicate names an earlier equal brick, and
@@ -567,14 +588,11 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     cr_assert_eq(vod_encoder_new(&L, &p, &e), 0);
     uint8_t *outs = malloc(VOD_ENCODE_BATCH * bound);
     for (size_t j = 0; j < PICKS;) {
-        size_t k = 1 + rnd() % VOD_ENCODE_BATCH;
-        if (k > PICKS - j) k = PICKS - j;
-        uint8_t *out[VOD_ENCODE_BATCH];
-        uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
-        vod_encoded rec[VOD_ENCODE_BATCH];
-        for (size_t t = 0; t < k; t++) out[t] = outs + t * bound, tag[t] = j + t;
-        vod_brick_batch b = {&picked[j], tag, k, out, bound, rec, same};
-        cr_assert_eq(vod_encoder_put_batch(e, &src, &b), 0);
+        batch_out got;
+        size_t k = put_random_batch(e, &src, picked, j, PICKS, outs, bound, &got);
+        uint8_t **out = got.out;
+        const uint64_t *same = got.same;
+        const vod_encoded *rec = got.rec;
         for (size_t t = 0; t < k; t++) {
             const vod_encoded *r = &ref[pick[j + t]];
             cr_assert_eq(rec[t].hash, r->hash, "pick %zu", j + t);
@@ -650,14 +668,11 @@ Test(vod_encoder, uniform_nodes_of_many_values_name_their_first)
     cr_assert_eq(vod_encoder_new(&L, &p, &e), 0);
     uint8_t *outs = malloc(VOD_ENCODE_BATCH * bound);
     for (size_t j = 0; j < PICKS;) {
-        size_t k = 1 + rnd() % VOD_ENCODE_BATCH;
-        if (k > PICKS - j) k = PICKS - j;
-        uint8_t *out[VOD_ENCODE_BATCH];
-        uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
-        vod_encoded rec[VOD_ENCODE_BATCH];
-        for (size_t t = 0; t < k; t++) out[t] = outs + t * bound, tag[t] = j + t;
-        vod_brick_batch b = {&picked[j], tag, k, out, bound, rec, same};
-        cr_assert_eq(vod_encoder_put_batch(e, &c.src, &b), 0);
+        batch_out got;
+        size_t k = put_random_batch(e, &c.src, picked, j, PICKS, outs, bound, &got);
+        uint8_t **out = got.out;
+        const uint64_t *same = got.same;
+        const vod_encoded *rec = got.rec;
         for (size_t t = 0; t < k; t++) {
             size_t v = pick[j + t];
             cr_assert_eq(rec[t].hash, ref[v].hash, "pick %zu", j + t);
