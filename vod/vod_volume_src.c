@@ -598,16 +598,24 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
         copy_bytes_bits8(v, &p, raw);
         return;
     }
-    uint32_t row[VOD_VOLUME_MAX_BRICK]; /* a packed brick's row */
-    for (uint32_t z = a0[2]; z < a1[2]; z++)
+    /* a packed brick's rows: a slice's at once when they are whole (one
+     * vod_pack_range instead of one a row: the distance's every brick) */
+    uint32_t rows[VOD_VOLUME_MAX_BRICK * VOD_VOLUME_MAX_BRICK];
+    bool whole = d && v->packed && a1[0] - a0[0] == S;
+    for (uint32_t z = a0[2]; z < a1[2]; z++) {
+        if (whole)
+            vod_pack_range(v, d, vox_index(v, 0, a0[1] - o[1], z - o[2]),
+                           (size_t)(a1[1] - a0[1]) * S, rows);
         for (uint32_t y = a0[1]; y < a1[1]; y++) {
             size_t r = ((size_t)(z - lo[2]) * B + (y - lo[1])) * B + (a0[0] - lo[0]);
             size_t s = vox_index(v, a0[0] - o[0], y - o[1], z - o[2]);
             uint32_t n = a1[0] - a0[0];
             const uint8_t *src = d ? d + s * (v->bits / 8) : NULL; /* the row's voxels */
-            if (d && v->packed) {
-                vod_pack_range(v, d, s, n, row);
-                src = (const uint8_t *)row;
+            if (whole) {
+                src = (const uint8_t *)(rows + (size_t)(y - a0[1]) * S);
+            } else if (d && v->packed) {
+                vod_pack_range(v, d, s, n, rows);
+                src = (const uint8_t *)rows;
             }
             if (L->voxel_bits == 1 && v->bits == 8)
                 copy_row_bits8(raw, r, src, u, n);
@@ -619,6 +627,7 @@ static void copy_part(const vod_volume *v, const vod_layout *L, uint32_t e,
                 for (uint32_t x = 0; x < n; x++)
                     raw_put(raw, L->voxel_bits, r + x, src ? vox_get(v, src, x) : u);
         }
+    }
 }
 
 static int vol_fill(const vod_source *s, const vod_layout *L, const vod_node *n,

@@ -177,6 +177,10 @@ int vod_prepare(vod_source *s, const vod_layout *L, int channel, err_info *err)
  * (scratch for each); larger ones one at a time. */
 #define BATCH_RAW_BYTES (256u << 10)
 
+/* Uniform values whose brick an encoder keeps at hand: a distance field's
+ * +w and -w, an occupancy's 1, a density's few. */
+#define UNIFORM_KEPT 4
+
 /* A brick the encoder has compressed: enough to compare a new brick of
  * the same key with it (its raw bytes, kept or filled again) and to
  * answer for its duplicates. */
@@ -202,7 +206,11 @@ struct vod_encoder {
     size_t slot_cap;       /* a power of two, at least 2 * nseen */
     uint8_t *cache;        /* raw bricks of seen, up to RAW_CACHE_BYTES */
     size_t cache_used;
-    long last_uniform;     /* seen index of the last uniform node, or -1 */
+    /* The bricks of uniform nodes met so far: value uvalue[k] is seen
+     * brick useen[k] (nuniform of them; past UNIFORM_KEPT the oldest is
+     * replaced), so that such a node is neither filled nor hashed again. */
+    uint32_t uvalue[UNIFORM_KEPT], useen[UNIFORM_KEPT];
+    unsigned nuniform;
     vod_times t;
 };
 
@@ -241,7 +249,6 @@ int vod_encoder_new(const vod_layout *L, const vod_params *p, vod_encoder **out)
     e->L = *L;
     e->p = *p;
     e->p.metadata = NULL;
-    e->last_uniform = -1;
     e->bound = vod_encode_bound(L, p);
     e->batch = L->raw_bytes <= BATCH_RAW_BYTES ? VOD_ENCODE_BATCH : 1;
     e->raw = malloc(e->batch * L->raw_bytes);
@@ -380,6 +387,16 @@ static int grow_slots(vod_encoder *e)
     return 0;
 }
 
+/* Uniform nodes of value u are seen brick i from now on. */
+static void keep_uniform(vod_encoder *e, uint32_t u, size_t i)
+{
+    unsigned n = e->nuniform < UNIFORM_KEPT ? e->nuniform : UNIFORM_KEPT, k = 0;
+    while (k < n && e->uvalue[k] != u) k++;
+    if (k == n) k = e->nuniform++ % UNIFORM_KEPT; /* a free entry, or the oldest */
+    e->uvalue[k] = u;
+    e->useen[k] = (uint32_t)i;
+}
+
 /* Keep brick (n, rec, tag), not in the table yet.  A table that cannot
  * grow only loses the shortcut: a later duplicate is then compressed
  * again, and vod_assemble still stores it once. */
@@ -399,16 +416,19 @@ static void remember(vod_encoder *e, uint64_t key, const uint8_t *raw,
     while (e->slot[j]) j = (j + 1) & (e->slot_cap - 1);
     e->seen[e->nseen] = (seen_brick){key, *n, *rec, tag, cache_raw(e, raw)};
     e->slot[j] = (uint32_t)++e->nseen;
-    if (n->uniform) e->last_uniform = (long)e->nseen - 1;
+    if (n->uniform) keep_uniform(e, n->value, e->nseen - 1);
 }
 
-/* A uniform node like the last uniform one: its brick is that one's,
- * without filling or hashing it again. */
+/* A uniform node of a value met before: its brick is that one's, without
+ * filling or hashing it again (find_seen would give the same one: a
+ * brick's bytes are in the table once). */
 static const seen_brick *same_uniform(const vod_encoder *e, const vod_node *n)
 {
-    if (!n->uniform || e->last_uniform < 0) return NULL;
-    const seen_brick *b = &e->seen[e->last_uniform];
-    return b->node.value == n->value ? b : NULL;
+    if (!n->uniform) return NULL;
+    unsigned n_kept = e->nuniform < UNIFORM_KEPT ? e->nuniform : UNIFORM_KEPT;
+    for (unsigned k = 0; k < n_kept; k++)
+        if (e->uvalue[k] == n->value) return &e->seen[e->useen[k]];
+    return NULL;
 }
 
 /* What vod_encoder_put_batch found for one brick of the batch. */
@@ -444,6 +464,7 @@ static int batch_find(vod_encoder *e, const vod_source *s, const vod_node *n,
         key[i] = XXH3_64bits(raw, rb);
         b = find_seen(e, s, key[i], raw, &rc);
         if (rc) return rc;
+        if (b && n[i].uniform) keep_uniform(e, n[i].value, (size_t)(b - e->seen));
     }
     kind[i] = BATCH_NEW;
     if (b) {

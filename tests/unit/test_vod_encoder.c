@@ -532,6 +532,27 @@ Test(vod_encoder, duplicates_found_before_compression_change_nothing)
     fx_free(&f);
 }
 
+/* One batch of 1 to VOD_ENCODE_BATCH nodes (at random, at most picks - j)
+ * from picked[j] on, tagged j, j + 1, ..., encoded into r (outs: room for
+ * a batch, bound bytes a brick); how many. */
+typedef struct {
+    uint8_t *out[VOD_ENCODE_BATCH];
+    uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
+    vod_encoded rec[VOD_ENCODE_BATCH];
+} batch_out;
+
+static size_t put_random_batch(vod_encoder *e, const vod_source *src, const vod_node *picked,
+                               size_t j, size_t picks, uint8_t *outs, size_t bound,
+                               batch_out *r)
+{
+    size_t k = 1 + rnd() % VOD_ENCODE_BATCH;
+    if (k > picks - j) k = picks - j;
+    for (size_t t = 0; t < k; t++) r->out[t] = outs + t * bound, r->tag[t] = j + t;
+    vod_brick_batch b = {&picked[j], r->tag, k, r->out, bound, r->rec, r->same};
+    cr_assert_eq(vod_encoder_put_batch(e, src, &b), 0);
+    return k;
+}
+
 /* Node picks of the fixture's first few bricks, encoded in batches of 1
  * to 4, so that a brick repeats inside a batch and across batches: each
  * record is vod_encode's, a duplicate names an earlier equal brick, and
@@ -567,14 +588,11 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     cr_assert_eq(vod_encoder_new(&L, &p, &e), 0);
     uint8_t *outs = malloc(VOD_ENCODE_BATCH * bound);
     for (size_t j = 0; j < PICKS;) {
-        size_t k = 1 + rnd() % VOD_ENCODE_BATCH;
-        if (k > PICKS - j) k = PICKS - j;
-        uint8_t *out[VOD_ENCODE_BATCH];
-        uint64_t tag[VOD_ENCODE_BATCH], same[VOD_ENCODE_BATCH];
-        vod_encoded rec[VOD_ENCODE_BATCH];
-        for (size_t t = 0; t < k; t++) out[t] = outs + t * bound, tag[t] = j + t;
-        vod_brick_batch b = {&picked[j], tag, k, out, bound, rec, same};
-        cr_assert_eq(vod_encoder_put_batch(e, &src, &b), 0);
+        batch_out got;
+        size_t k = put_random_batch(e, &src, picked, j, PICKS, outs, bound, &got);
+        uint8_t **out = got.out;
+        const uint64_t *same = got.same;
+        const vod_encoded *rec = got.rec;
         for (size_t t = 0; t < k; t++) {
             const vod_encoded *r = &ref[pick[j + t]];
             cr_assert_eq(rec[t].hash, r->hash, "pick %zu", j + t);
@@ -606,6 +624,68 @@ Test(vod_encoder, batches_find_duplicates_inside_and_across)
     vod_encoder_free(e);
     for (size_t i = 0; i < DISTINCT; i++) free(data[i]);
     free(outs), free(scratch), free(nodes), free(f.t.agg);
+    f.t.agg = NULL;
+    fx_free(&f);
+}
+
+/* Uniform nodes of more values than the encoder keeps at hand (two a
+ * distance field has, +w and -w), alternating, in batches, with a mixed
+ * node whose brick is one of them: each record is vod_encode's, and a
+ * repeat names the first node of its bytes, whichever way the encoder
+ * found it (kept at hand, the table, or the batch). */
+Test(vod_encoder, uniform_nodes_of_many_values_name_their_first)
+{
+    fixture f;
+    vod_params p;
+    copies_tree c = copies_nodes(&f, &p, 16, NULL, NULL);
+    vod_layout L = c.L;
+    size_t bound = vod_encode_bound(&L, &p);
+    enum { VALUES = 7, PICKS = 600 };
+    vod_node u[VALUES];
+    vod_encoded ref[VALUES];
+    uint8_t *data[VALUES], *scratch = malloc(L.raw_bytes);
+    for (size_t v = 0; v < VALUES; v++) {
+        u[v] = (vod_node){.level = 0, .bx = 8 + (uint32_t)v, .uniform = 1, /* past x 128 */
+                          .value = v == VALUES - 1 ? 0 : 0x3f800000u + (uint32_t)v};
+        data[v] = malloc(bound);
+        vod_brick_out o = {data[v], bound, &ref[v]};
+        cr_assert_eq(vod_encode(&c.src, &L, &p, &u[v], scratch, &o), 0);
+    }
+    vod_encode_cleanup();
+    /* first a mixed node whose voxels are all 0 (past the volume): value 0's brick */
+    vod_node zero = u[VALUES - 1];
+    zero.uniform = 0;
+    size_t pick[PICKS], first[VALUES];
+    vod_node picked[PICKS];
+    for (size_t v = 0; v < VALUES; v++) first[v] = SIZE_MAX;
+    for (size_t j = 0; j < PICKS; j++) {
+        pick[j] = j % 2 ? rnd() % VALUES : rnd() % 2; /* mostly two values */
+        picked[j] = j == 0 ? zero : u[pick[j]];
+        if (j == 0) pick[j] = VALUES - 1;
+        if (first[pick[j]] == SIZE_MAX) first[pick[j]] = j;
+    }
+    vod_encoder *e;
+    cr_assert_eq(vod_encoder_new(&L, &p, &e), 0);
+    uint8_t *outs = malloc(VOD_ENCODE_BATCH * bound);
+    for (size_t j = 0; j < PICKS;) {
+        batch_out got;
+        size_t k = put_random_batch(e, &c.src, picked, j, PICKS, outs, bound, &got);
+        uint8_t **out = got.out;
+        const uint64_t *same = got.same;
+        const vod_encoded *rec = got.rec;
+        for (size_t t = 0; t < k; t++) {
+            size_t v = pick[j + t];
+            cr_assert_eq(rec[t].hash, ref[v].hash, "pick %zu", j + t);
+            cr_assert_eq(rec[t].size, ref[v].size, "pick %zu", j + t);
+            cr_assert_eq(same[t], first[v], "pick %zu (value %zu) names %llu, not %zu", j + t,
+                         v, (unsigned long long)same[t], first[v]);
+            if (same[t] == j + t) cr_assert_arr_eq(out[t], data[v], ref[v].size);
+        }
+        j += k;
+    }
+    vod_encoder_free(e);
+    for (size_t v = 0; v < VALUES; v++) free(data[v]);
+    free(outs), free(scratch), free(c.nodes), free(f.t.agg);
     f.t.agg = NULL;
     fx_free(&f);
 }
