@@ -160,6 +160,9 @@ typedef struct {
                                 progress (no heartbeat for the stall timeout) */
     uint64_t duplicates;     /* voxels delivered more than once (0: a re-run
                                 after a death skips what was delivered) */
+    uint32_t offered;        /* tasks offered to a worker while it ran the
+                                one before, not taken back (a kind with
+                                engine_kind.prefetch) */
     uint32_t tasks;          /* tasks the job ran, where its kind counts
                                 them (mesh: its tiles, iso: its brick
                                 tasks), else 0 */
@@ -211,6 +214,7 @@ typedef struct {
     uint32_t stalls;         /* ... of which for making no progress */
     uint32_t unanswered;     /* ... of which for not letting go of a cancelled
                                 or failed job (stopped, or silent) */
+    uint32_t ended;          /* tasks its process ended and the master took */
     /* The last one killed for making no progress: its pid, how long it had
      * been quiet and its process state then ('T' stopped, 'R' running...). */
     int stalled_pid;

@@ -54,6 +54,18 @@ static uint32_t arena_used(engine *e)
     return n >= b->blocks ? b->tree_cells : 1 + n * OCTREE_BLOCK_CELLS;
 }
 
+/* Bytes of the data area up to the blocks surely full: those handed out
+ * but one open block a writer (the master and each worker). */
+static uint64_t full_bytes(engine *e)
+{
+    implicit_block *b = engine_sched_block(e);
+    /* relaxed: see implicit_block.next_block */
+    unsigned n = atomic_load_explicit(&b->next_block, memory_order_relaxed);
+    unsigned open = (unsigned)e->n + 1;
+    if (n >= b->blocks) return tree_bytes(e, b->tree_cells);
+    return n > open ? tree_bytes(e, 1 + (uint64_t)(n - open) * OCTREE_BLOCK_CELLS) : 0;
+}
+
 static int no_cells(engine *e)
 {
     return engine_sched_fail(e, ENGINE_LIMIT, -ENOMEM,
@@ -259,9 +271,15 @@ static void implicit_progress(engine *e, engine_progress *p)
      * is left (up to 3 times on a shape built to fool it, under 1.8 on the
      * examples), so the need told is a NEED_DOUBT-th of that, and only once
      * the octree holds a 64th of the data area: a job that fits is not
-     * stopped, and one that does not (x*0 at 4096^3) is stopped at once. */
-    if (f > 0 && p->shm_used >= e->h->data_bytes / 64)
-        p->shm_need = (uint64_t)((double)p->shm_used / f / NEED_DOUBT);
+     * stopped, and one that does not (x*0 at 4096^3) is stopped at once.
+     * Used counts the full blocks only (full_bytes): each writer's open
+     * block is mostly empty at first, and the master counts a task's
+     * volume as done only once it has taken its end, so early in a job
+     * with a small segment the open blocks over the volume done said
+     * "too big" of a job that fits. */
+    uint64_t full = full_bytes(e);
+    if (f > 0 && full >= e->h->data_bytes / 64)
+        p->shm_need = (uint64_t)((double)full / f / NEED_DOUBT);
 }
 
 /* The data area: the job's block, its tape, the arena's block owners and
@@ -468,6 +486,7 @@ const engine_kind engine_kind_implicit = {
     .done = implicit_done,
     .rerun = implicit_rerun,
     .tail = implicit_tail,
+    .prefetch = 1,
     .describe = implicit_describe,
     .progress = implicit_progress,
     .finish = implicit_finish,

@@ -32,10 +32,15 @@
 typedef struct {
     pid_t pid;          /* 0: no worker */
     int cpu;
-    unsigned seq;       /* the last task_seq given */
+    unsigned seq;       /* the last task's sequence number, given or offered */
+    unsigned cur;       /* the current task's (seq, or seq - 1 when one is
+                           offered) */
     int busy;           /* a task given and not finished and drained */
     shm_task task;      /* the current task */
+    int offered;        /* the next task offered (seq), not taken back */
+    shm_task next;      /* ... that one */
     uint32_t consumed;  /* entries of the current task taken */
+    uint32_t ended;     /* tasks the worker's process ended (drained) */
     int deaths;         /* workers that died (or stalled) on the current task */
     int task_stalls;    /* ... of which stalled */
     /* liveness */
@@ -79,7 +84,7 @@ struct engine {
     int aborting;
     int nbusy;
     engine_error err;   /* the job's first failure */
-    uint32_t restarts, stalls;
+    uint32_t restarts, stalls, offered;
     double t0, last_progress, last_check;
     double stall_s;     /* the stall timeout; <= 0: never */
     const char *shm_option; /* engine_opts.shm_option */
@@ -122,6 +127,12 @@ struct engine_kind {
      * as tasks, so that the workers end together instead of one of them
      * finishing a large last task alone. */
     void (*tail)(engine *e, shm_task *t);
+    /* Non-zero: while the stack holds more tasks than there are workers,
+     * a busy worker is offered its next task (engine_pool_offer), which it
+     * starts as soon as its current one ends, without waiting for the
+     * master; an idle worker takes one back when the stack is empty.  The
+     * kind's done() then sees a worker's tasks in turn, as always. */
+    int prefetch;
     /* Name task t for a message ("octant (1,2,3) level 4"). */
     void (*describe)(const shm_task *t, char *buf, size_t len);
     /* Fill the progress report (NULL: the kind reports none), with
@@ -176,6 +187,12 @@ int engine_pool_spawn(engine *e, int i, err_info *err);
 /* Write task t into worker i's slot and wake it (the slot's mechanics;
  * the scheduler's books are the caller's). */
 void engine_pool_give(engine *e, int i, const shm_task *t, uint32_t skip);
+/* Offer busy worker i task t as its next (the slot's `next`), numbered
+ * after its current one; it takes it when the current one ends. */
+void engine_pool_offer(engine *e, int i, const shm_task *t);
+/* Take worker i's offered task back: 1 when it is ours again (in
+ * ms[i].next), 0 when the worker has taken it (or none was offered). */
+int engine_pool_take_back(engine *e, int i);
 /* SIGKILL worker i (a stall, or no answer to an abort); the scheduler
  * reaps and replaces it as after a crash. */
 void engine_pool_kill(engine *e, int i);

@@ -74,6 +74,7 @@ int engine_pool_spawn(engine *e, int i, err_info *err)
         worker_main(e->seg.base, (uint32_t)i);
     }
     e->ms[i].pid = pid;
+    e->ms[i].ended = 0;
     engine_pool_slot(e, i)->pid = pid;
     engine_pool_slot(e, i)->cpu = e->ms[i].cpu;
     cpu_set_t set;
@@ -97,11 +98,40 @@ void engine_pool_give(engine *e, int i, const shm_task *t, uint32_t skip)
     s->task = *t;
     s->task_gen = e->h->gen;
     s->task_skip = skip;
-    m->seq++;
+    m->cur = ++m->seq;
     /* release: publishes the task fields and the job's block to the
      * worker's acquire load of task_seq. */
     atomic_store_explicit(&s->task_seq, m->seq, memory_order_release);
     shm_wake_if_sleeping(&s->wake, &s->sleeping);
+}
+
+void engine_pool_offer(engine *e, int i, const shm_task *t)
+{
+    shm_slot *s = engine_pool_slot(e, i);
+    mslot *m = &e->ms[i];
+    m->next = *t;
+    m->offered = 1;
+    m->seq = m->cur + 1;
+    s->next_task = *t;
+    s->next_gen = e->h->gen;
+    /* release: publishes next_task and next_gen (and the job's block) to
+     * the worker's exchange (acq_rel) in take_task. */
+    atomic_store_explicit(&s->next, 1, memory_order_release);
+    shm_wake_if_sleeping(&s->wake, &s->sleeping);
+}
+
+int engine_pool_take_back(engine *e, int i)
+{
+    mslot *m = &e->ms[i];
+    if (!m->offered) return 0;
+    /* acq_rel: the exchange decides who owns the task, against the
+     * worker's own exchange in take_task (the modification order of
+     * `next` has one of the two read the 1). */
+    if (!atomic_exchange_explicit(&engine_pool_slot(e, i)->next, 0, memory_order_acq_rel))
+        return 0;
+    m->offered = 0;
+    m->seq = m->cur;
+    return 1;
 }
 
 void engine_pool_kill(engine *e, int i)
@@ -371,6 +401,7 @@ int engine_worker_info_get(const engine *e, int i, engine_worker_info *out)
     *out = (engine_worker_info){
         .pid = m->pid, .cpu = m->cpu, .state = ENGINE_WORKER_IDLE,
         .replaced = m->replaced, .stalls = m->stalls, .unanswered = m->unanswered,
+        .ended = m->ended,
         .stalled_pid = m->stalled_pid, .stalled_quiet = m->stalled_quiet,
         .stalled_state = m->stalled_state ? m->stalled_state : '?',
     };

@@ -142,6 +142,7 @@ void engine_sched_job_totals(engine *e, engine_result *r)
     r->worker_cpu = (double)cpu * 1e-9;
     r->restarts = e->restarts;
     r->stalls = e->stalls;
+    r->offered = e->offered;
 }
 
 int engine_sched_job_failed(engine *e, engine_result *r, int rc)
@@ -175,13 +176,31 @@ static void give(engine *e, int i, const shm_task *t, uint32_t skip)
     engine_pool_give(e, i, t, skip);
 }
 
-/* Worker i's task is over: finished and drained, or dropped. */
+/* Worker i's offered task is its current one now (the one before is
+ * finished and drained): the worker has taken it, or will. */
+static void promote(engine *e, int i)
+{
+    mslot *m = &e->ms[i];
+    m->busy = 1;
+    m->task = m->next;
+    m->cur = m->seq;
+    m->offered = 0;
+    m->consumed = 0;
+    m->deaths = 0;
+    m->task_stalls = 0;
+    e->nbusy++;
+    e->offered++;
+}
+
+/* Worker i's task is over: finished and drained, or dropped.  Its lane
+ * is free from here: the next task given or offered writes in it. */
 static void finish(engine *e, int i)
 {
     mslot *m = &e->ms[i];
     m->busy = 0;
     e->nbusy--;
-    e->kind->done(e, i, &m->task, engine_pool_slot(e, i)->error);
+    e->kind->done(e, i, &m->task, engine_pool_slot(e, i)->error[m->cur & 1]);
+    if (m->offered) promote(e, i);
 }
 
 static int take(engine *e, int i, const shm_entry *en)
@@ -194,44 +213,90 @@ static int take(engine *e, int i, const shm_entry *en)
     return e->kind->take(e, i, en);
 }
 
-/* Take every entry worker i published (or throw them away); returns how
- * much happened. */
+/* Take every entry worker i's current task published (or throw them
+ * away); returns how much happened.  Its lane holds its entries only:
+ * the worker may run on into the next task, which writes the other. */
 static int drain(engine *e, int i, int discard)
 {
     shm_slot *s = engine_pool_slot(e, i);
     mslot *m = &e->ms[i];
+    shm_lane *l = &s->lane[m->cur & 1];
     /* acquire: pairs with the worker's release of done_seq, so the prod
-     * read next covers every entry of the finished task. */
-    int done = atomic_load_explicit(&s->done_seq, memory_order_acquire) ==
-               m->seq;
-    unsigned n = queue_ready(&s->q), tail = queue_tail(&s->q);
+     * read next covers every entry of the finished task.  done_seq may
+     * be past cur: the worker ended the offered task too. */
+    unsigned d = atomic_load_explicit(&s->done_seq, memory_order_acquire);
+    int done = (int)(d - m->cur) >= 0;
+    unsigned n = queue_ready(&l->q), tail = queue_tail(&l->q);
     if (n > QUEUE_ENTRIES) {
         engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
                    "worker %d: its queue claims %u entries", i, n);
         discard = 1;
     }
     for (unsigned k = 0; k < n && !discard && !e->err.kind; k++)
-        take(e, i, &s->ent[(tail + k) % QUEUE_ENTRIES]);
+        take(e, i, &l->ent[(tail + k) % QUEUE_ENTRIES]);
     if (n) {
-        queue_consumed(&s->q, n);
+        queue_consumed(&l->q, n);
         m->consumed += n;
         shm_wake_if_sleeping(&s->wake, &s->sleeping);
     }
-    if (done) finish(e, i);
+    if (done) {
+        m->ended++;
+        finish(e, i);
+    }
     return (int)n + done;
+}
+
+/* A task for an idle worker when the stack is empty: one offered to a
+ * busy worker, taken back before it started it. */
+static int take_back(engine *e, shm_task *t)
+{
+    for (int j = 0; j < e->n; j++) {
+        if (!engine_pool_take_back(e, j)) continue;
+        *t = e->ms[j].next;
+        return 1;
+    }
+    return 0;
+}
+
+/* Whether busy worker i can be offered its next task: the kind's
+ * prefetch, the stack holding more than one task a worker, none offered
+ * yet, and the worker has copied its current task (run_seq): the offered
+ * one is then the one after it, and the worker is done reading the offer
+ * place.  The offered task's lane is the task before's, finished and
+ * drained (else the current one would not be current). */
+static int can_offer(engine *e, int i)
+{
+    mslot *m = &e->ms[i];
+    if (!e->kind->prefetch || e->aborting || e->sp <= (uint32_t)e->n) return 0;
+    if (!m->busy || m->offered || m->pid <= 0 || m->killed) return 0;
+    /* acquire: pairs with the worker's release once it copied its task */
+    return atomic_load_explicit(&engine_pool_slot(e, i)->run_seq, memory_order_acquire) == m->cur;
+}
+
+static int offer(engine *e)
+{
+    int did = 0;
+    for (int i = 0; i < e->n; i++) {
+        if (!can_offer(e, i)) continue;
+        engine_pool_offer(e, i, &e->stack[--e->sp]);
+        did++;
+    }
+    return did;
 }
 
 static int assign(engine *e)
 {
     int did = 0;
-    for (int i = 0; i < e->n && e->sp; i++) {
+    for (int i = 0; i < e->n; i++) {
         if (e->ms[i].busy || e->ms[i].pid <= 0) continue;
-        shm_task t = e->stack[--e->sp];
+        shm_task t;
+        if (e->sp) t = e->stack[--e->sp];
+        else if (!take_back(e, &t)) break;
         if (e->sp < (uint32_t)e->n && e->kind->tail) e->kind->tail(e, &t);
         give(e, i, &t, 0);
         did++;
     }
-    return did;
+    return did + offer(e);
 }
 
 static int anything_ready(engine *e)
@@ -240,9 +305,9 @@ static int anything_ready(engine *e)
         if (!e->ms[i].busy) continue;
         shm_slot *s = engine_pool_slot(e, i);
         /* acquire: as in drain() */
-        if (queue_ready(&s->q) ||
-            atomic_load_explicit(&s->done_seq, memory_order_acquire) ==
-                e->ms[i].seq)
+        if (queue_ready(&s->lane[e->ms[i].cur & 1].q) ||
+            (int)(atomic_load_explicit(&s->done_seq, memory_order_acquire) - e->ms[i].cur) >= 0 ||
+            can_offer(e, i))
             return 1;
     }
     return 0;
@@ -281,7 +346,12 @@ static void handle_death(engine *e, int i)
     m->killed = 0;
     m->replaced++;
     e->restarts++;
-    if (m->busy) drain(e, i, e->aborting);
+    /* Its task, and the offered one when it had ended the first and begun
+     * it (finish() made it current): the dead write nothing more. */
+    while (m->busy && drain(e, i, e->aborting)) {}
+    /* Offered still: the task before never ended, so this one never began
+     * (the worker takes it only after its done_seq): back to the stack. */
+    if (engine_pool_take_back(e, i)) engine_sched_push(e, &m->next);
     int rerun = m->busy && !e->aborting && e->kind->rerun(e, i, &m->task);
     /* The first death may be anybody's doing (a kill, the OOM killer, a
      * SIGSTOP that made it stall): the task is handed out again.  A second
@@ -297,11 +367,21 @@ static void handle_death(engine *e, int i)
     if (m->busy && !rerun) finish(e, i);
     /* No worker owns the slot now: its fields are the master's to reset,
      * and the fork orders these plain stores before the child's loads. */
-    queue_reset(&s->q, atomic_load_explicit(&s->q.cons, memory_order_relaxed));
+    for (int k = 0; k < 2; k++) {
+        queue_idx *q = &s->lane[k].q;
+        queue_reset(q, atomic_load_explicit(&q->cons, memory_order_relaxed));
+    }
     atomic_store_explicit(&s->sleeping, 0, memory_order_relaxed);
-    s->error = 0;
+    atomic_store_explicit(&s->next, 0, memory_order_relaxed); /* one made current */
+    memset(s->error, 0, sizeof s->error);
+    /* the current task again as given (it may have been offered) */
+    s->task = m->task;
+    s->task_gen = e->h->gen;
     s->task_skip = m->consumed;
-    if (!rerun) atomic_store_explicit(&s->done_seq, m->seq, memory_order_relaxed);
+    atomic_store_explicit(&s->task_seq, m->cur, memory_order_relaxed);
+    atomic_store_explicit(&s->done_seq, rerun ? m->cur - 1 : m->cur, memory_order_relaxed);
+    /* not the current task's: no offer until the new worker copied it */
+    atomic_store_explicit(&s->run_seq, m->cur - 1, memory_order_relaxed);
     err_info err = {0};
     int rc = engine_pool_spawn(e, i, &err);
     if (rc) {
@@ -324,7 +404,8 @@ static void watch_beat(engine *e, int i, double now, int reset)
     shm_slot *s = engine_pool_slot(e, i);
     /* relaxed: see shm_slot.beat */
     unsigned b = atomic_load_explicit(&s->beat, memory_order_relaxed);
-    if (reset || b != m->beat || queue_ready(&s->q) >= QUEUE_ENTRIES) {
+    if (reset || b != m->beat || queue_ready(&s->lane[m->cur & 1].q) >= QUEUE_ENTRIES ||
+        queue_ready(&s->lane[(m->cur + 1) & 1].q) >= QUEUE_ENTRIES) {
         m->beat = b;
         m->beat_t = now;
     }
@@ -464,10 +545,12 @@ static void abort_job(engine *e)
     /* relaxed: workers poll it; the fence in shm_wake_if_sleeping() pairs
      * with the one of a worker going to sleep. */
     atomic_store_explicit(&e->h->abort_gen, e->h->gen, memory_order_relaxed);
-    for (int i = 0; i < e->n; i++)
+    for (int i = 0; i < e->n; i++) {
+        engine_pool_take_back(e, i); /* not started: dropped */
         if (e->ms[i].busy)
             shm_wake_if_sleeping(&engine_pool_slot(e, i)->wake,
                                  &engine_pool_slot(e, i)->sleeping);
+    }
     while (e->nbusy) {
         int did = 0;
         for (int i = 0; i < e->n; i++)
@@ -489,6 +572,7 @@ static void job_reset(engine *e, const engine_kind *k, void *job,
     memset(&e->err, 0, sizeof e->err);
     e->restarts = 0;
     e->stalls = 0;
+    e->offered = 0;
     e->sp = 0;
     e->t0 = clock_now();
     e->last_progress = e->t0 - 1.0; /* the first call comes at once */

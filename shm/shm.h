@@ -4,7 +4,7 @@
  *
  * Offsets from the segment's base, never pointers (a process may map the
  * segment anywhere).  This file is the core's contract, the same for every
- * kind of job: slots with their task and 8-entry queue, the work stack of
+ * kind of job: slots with their task and two 8-entry queues, the work stack of
  * tasks, the job's generation.  The data area belongs to the job's kind:
  * shm/kinds.h says what each kind keeps there.
  *
@@ -37,7 +37,7 @@
 #include "queue.h"
 
 #define SHM_MAGIC 0x44584f56u /* "VOXD" */
-#define SHM_VERSION 3u
+#define SHM_VERSION 4u
 #define SHM_DEFAULT_BYTES ((size_t)2 << 30)   /* 2 GiB, sparse */
 #define SHM_MIN_DATA ((size_t)1 << 20)        /* data area at least 1 MiB */
 
@@ -82,10 +82,19 @@ typedef struct {
 /* Derived state of a slot (shm_slot_state()). */
 enum shm_slot_state { SHM_IDLE = 0, SHM_BUSY = 1, SHM_DONE = 2 };
 
+/* One task's queue: the 8-entry queue of Figure 3 and its entries. */
+typedef struct {
+    queue_idx q;          /* prod: worker; cons: master */
+    shm_entry ent[QUEUE_ENTRIES];
+} shm_lane;
+
 typedef struct {
     /* ---- written by the master ---- */
     /* Bumped (release) after the task fields below are written; the worker
-     * loads it with acquire.  A worker is busy while task_seq != done_seq. */
+     * loads it with acquire.  A worker is busy while done_seq is behind
+     * the last task it was given or offered: every task, given or
+     * offered, has the sequence number after the one before it on this
+     * slot, and the worker runs and ends them in that order. */
     _Alignas(64) atomic_uint task_seq;
     /* The futex word the worker sleeps on (idle, or queue full).  Bumped by
      * the master when it sees `sleeping` set (Dekker, see above). */
@@ -97,6 +106,17 @@ typedef struct {
                              worker dies */
     int32_t pid;          /* the worker's pid */
     int32_t cpu;          /* the CPU it is pinned to */
+    /* A second task offered while the worker runs its current one (a kind
+     * with engine_kind.prefetch), so that the worker starts it without
+     * waiting for the master.  Offered only once the worker has copied
+     * its current task (run_seq), so the offered one is always that
+     * task's sequence number + 1: next_task and next_gen written, then
+     * `next` stored to 1 (release).  Whoever exchanges `next` for 0 and
+     * reads 1 owns the task (acq_rel on both sides): the worker when its
+     * task ends, or the master taking it back for an idle worker. */
+    shm_task next_task;
+    uint32_t next_gen;
+    _Alignas(64) atomic_uint next;
 
     /* ---- written by the worker ---- */
     /* Stored (release) when the task is finished, after its last entry is
@@ -107,7 +127,13 @@ typedef struct {
      * Dekker pair with the master's fence after it changes task_seq, the
      * queue's cons or the header's abort_gen). */
     atomic_int sleeping;
-    int32_t error;        /* negative errno of the last task, 0 if none */
+    /* The sequence number of the task the worker runs, stored (release)
+     * once it has copied the task (given or offered); the master's acquire
+     * load pairs with it before it offers the next one. */
+    atomic_uint run_seq;
+    /* Negative errno of task seq at error[seq & 1], 0 if none (published
+     * by the done_seq release). */
+    int32_t error[2];
     uint32_t job_gen;     /* job the counters below are for */
     uint64_t job_tested;  /* boxes tested in this job */
     uint64_t job_cpu_ns;  /* CPU time spent on this job's tasks */
@@ -118,8 +144,11 @@ typedef struct {
      * with it. */
     atomic_uint beat;
 
-    queue_idx q;          /* prod: worker; cons: master */
-    shm_entry ent[QUEUE_ENTRIES];
+    /* Task seq writes its entries in lane[seq & 1] only; the master drains
+     * that lane for it, and gives or offers task seq + 2 only after it has
+     * drained and ended task seq: a lane is never shared by two live tasks
+     * (docs/design.md, "The next task offered"). */
+    shm_lane lane[2];
 } shm_slot;
 
 typedef struct {
@@ -187,11 +216,15 @@ static inline void *shm_at(uint8_t *base, uint64_t off)
  * finished, queue not drained yet).  A snapshot, not a synchronization. */
 static inline int shm_slot_state(shm_slot *s)
 {
-    /* acquire: pairs with the releases of task_seq and done_seq */
+    /* acquire: pairs with the releases of task_seq and done_seq; run_seq
+     * is ahead of task_seq when the worker runs an offered task */
     unsigned t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
+    unsigned r = atomic_load_explicit(&s->run_seq, memory_order_acquire);
     unsigned d = atomic_load_explicit(&s->done_seq, memory_order_acquire);
-    if (t != d) return SHM_BUSY;
-    return queue_ready(&s->q) ? SHM_DONE : SHM_IDLE;
+    if ((int)(r - t) > 0) t = r;
+    /* relaxed: a snapshot; an offered task (next) is work to come */
+    if ((int)(t - d) > 0 || atomic_load_explicit(&s->next, memory_order_relaxed)) return SHM_BUSY;
+    return queue_ready(&s->lane[0].q) || queue_ready(&s->lane[1].q) ? SHM_DONE : SHM_IDLE;
 }
 
 /* Futex wrappers (non-private: shared between processes).  wait returns

@@ -26,19 +26,20 @@ int worker_aborted(const worker_ctx *w)
 shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type)
 {
     shm_slot *s = w->s;
+    queue_idx *q = &w->lane->q;
     worker_tick(w);
-    while (queue_space(&s->q) == 0) {
+    while (queue_space(q) == 0) {
         if (worker_aborted(w)) return NULL;
         worker_ring_master(w); /* entries published without a ring */
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
-        if (queue_space(&s->q) == 0 && !worker_aborted(w))
+        if (queue_space(q) == 0 && !worker_aborted(w))
             shm_futex_wait(&s->wake, v, WORKER_WAIT_NS);
         shm_sleep_end(&s->sleeping);
         worker_check_parent(w);
         worker_tick(w); /* waiting on the master is not a stall */
     }
-    shm_entry *en = &s->ent[queue_head(&s->q)];
-    en->kind = (uint16_t)s->task.kind;
+    shm_entry *en = &w->lane->ent[queue_head(q)];
+    en->kind = (uint16_t)w->task_kind;
     en->type = type;
     en->count = 0;
     return en;
@@ -51,7 +52,7 @@ int worker_entry_end(worker_ctx *w)
     if (w->skip) {
         w->skip--;
     } else {
-        queue_publish(&w->s->q);
+        queue_publish(&w->lane->q);
         worker_ring_master(w);
     }
     return worker_aborted(w) ? -ECANCELED : 0;

@@ -33,6 +33,10 @@ typedef struct worker_ctx {
     shm_header *h;
     shm_slot *s;             /* this worker's slot */
     uint32_t task_gen;       /* the running task's job generation */
+    unsigned given;          /* the last task_seq seen (a task given) */
+    unsigned seq;            /* the running (or last) task's sequence number */
+    shm_lane *lane;          /* its queue: s->lane[seq & 1] */
+    uint32_t task_kind;      /* the running task's kind */
     uint32_t skip;           /* entries of the task still to skip */
     uint32_t gen;            /* job generation the counters are for */
     uint64_t cpu0;           /* CPU time at the job's first task */

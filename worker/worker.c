@@ -30,21 +30,60 @@ static uint64_t cpu_ns(void)
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
-/* Wait for the next task (task_seq != last); returns its sequence number. */
-static unsigned wait_task(worker_ctx *w, unsigned last)
+/* The task to run next: one the master gave (task_seq moved past
+ * w->given, the last given one seen) or one it offered (`next`, taken by
+ * the exchange: the master may take it back until then).  1 with the task
+ * copied into *t and w->seq, w->lane, w->task_gen and w->skip set; 0 when
+ * there is none. */
+static int take_task(worker_ctx *w, shm_task *t)
 {
     shm_slot *s = w->s;
-    for (;;) {
-        /* acquire: pairs with the master's release after it wrote the task
-         * fields and the job input. */
-        unsigned t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
-        if (t != last) return t;
+    /* acquire: pairs with the master's release after it wrote the task
+     * fields and the job input. */
+    unsigned g = atomic_load_explicit(&s->task_seq, memory_order_acquire);
+    if (g != w->given) {
+        w->given = w->seq = g;
+        *t = s->task;
+        w->task_gen = s->task_gen;
+        w->skip = s->task_skip;
+    } else {
+        /* acq_rel: acquires the master's release of next (next_task and
+         * next_gen written before it); the exchange against the master's
+         * own (engine_pool_take_back) decides who owns the task.  It is
+         * offered only after run_seq said we copied our task: it is the
+         * one after it. */
+        if (!atomic_exchange_explicit(&s->next, 0, memory_order_acq_rel)) return 0;
+        w->seq++;
+        *t = s->next_task;
+        w->task_gen = s->next_gen;
+        w->skip = 0;
+    }
+    w->lane = &s->lane[w->seq & 1];
+    /* release: the task is copied; pairs with the master's acquire in
+     * offer() before it writes the next offer where this one was. */
+    atomic_store_explicit(&s->run_seq, w->seq, memory_order_release);
+    return 1;
+}
+
+/* The next task, into *t (its number in w->seq).  The master is rung
+ * once: the task before ended (done_seq) and, when the next one was
+ * there already, this one started (run_seq: the master may offer the one
+ * after it). */
+static void wait_task(worker_ctx *w, shm_task *t)
+{
+    shm_slot *s = w->s;
+    int got = take_task(w, t);
+    worker_ring_master(w);
+    while (!got) {
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
-        /* acquire: as above; after the fence, the Dekker re-check */
-        t = atomic_load_explicit(&s->task_seq, memory_order_acquire);
-        if (t == last) shm_futex_wait(&s->wake, v, WORKER_WAIT_NS);
+        /* acquire: as in take_task; after the fence, the Dekker re-check
+         * (relaxed for next: take_task's exchange acquires it) */
+        if (atomic_load_explicit(&s->task_seq, memory_order_acquire) == w->given &&
+            !atomic_load_explicit(&s->next, memory_order_relaxed))
+            shm_futex_wait(&s->wake, v, WORKER_WAIT_NS);
         shm_sleep_end(&s->sleeping);
         worker_check_parent(w);
+        got = take_task(w, t);
     }
 }
 
@@ -102,25 +141,23 @@ static int run_kind(worker_ctx *w, const shm_task *t)
     return k->run(w, w->state[t->kind], t);
 }
 
-static void run_task(worker_ctx *w, unsigned seq)
+static void run_task(worker_ctx *w, const shm_task *tp)
 {
     shm_slot *s = w->s;
-    shm_task t = s->task;
+    shm_task t = *tp;
     if (t.kind == SHM_KIND_CORE && t.op == SHM_OP_EXIT) worker_exit(w);
     if (t.kind == SHM_KIND_CORE && t.op == SHM_OP_LEAVE) worker_leave(w);
-    w->task_gen = s->task_gen;
-    w->skip = s->task_skip;
+    w->task_kind = t.kind;
     job_counters(w);
     worker_tick(w);
     int rc = run_kind(w, &t);
     worker_tick(w);
     s->job_cpu_ns = cpu_ns() - w->cpu0;
-    s->error = rc == -ECANCELED ? 0 : rc;
+    s->error[w->seq & 1] = rc == -ECANCELED ? 0 : rc;
     /* release: publishes the task's last entries, counters and error
      * (and whatever its kind's block lets it write) to the master's
      * acquire load of done_seq. */
-    atomic_store_explicit(&s->done_seq, seq, memory_order_release);
-    worker_ring_master(w);
+    atomic_store_explicit(&s->done_seq, w->seq, memory_order_release);
 }
 
 /* The master's handlers (an event loop's, say) mean nothing here; crash
@@ -171,11 +208,11 @@ _Noreturn void worker_main(uint8_t *base, uint32_t index)
     close_inherited();
     /* relaxed: a fresh worker starts from the slot as its predecessor (or
      * the master, at creation) left it; the fork orders everything. */
-    unsigned last = atomic_load_explicit(&w.s->done_seq, memory_order_relaxed);
+    w.given = w.seq = atomic_load_explicit(&w.s->done_seq, memory_order_relaxed);
     w.beats = atomic_load_explicit(&w.s->beat, memory_order_relaxed);
     for (;;) {
-        unsigned seq = wait_task(&w, last);
-        run_task(&w, seq);
-        last = seq;
+        shm_task t;
+        wait_task(&w, &t);
+        run_task(&w, &t);
     }
 }

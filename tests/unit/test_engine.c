@@ -106,6 +106,32 @@ Test(engine, scene2_128_and_split_levels)
     expr_tape_free(tape);
 }
 
+/* The implicit kind offers a busy worker its next task (engine_kind.prefetch),
+ * which the worker takes from its slot's second place and writes in its second
+ * queue: with many small tasks (subtrees of level 3) some go that way, one
+ * worker or two, and the tree is still the serial one. */
+Test(engine, tasks_offered_ahead_give_the_same_tree)
+{
+    expr_tape *tape = compile(SCENE2);
+    grid_spec g = grid(128);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    for (int w = 1; w <= 2; w++) {
+        engine *e = make_engine(w, 0);
+        for (int k = 0; k < 3; k++) {
+            engine_result r;
+            run(e, tape, &g, ENGINE_SCHED_SUBTREE, 3, &r);
+            assert_same(&ref.t, engine_octree(e), "offered ahead");
+            cr_assert_eq(r.octants, ref.tested);
+            cr_assert_eq(r.duplicates, 0);
+            cr_assert_gt(r.offered, 0, "%d workers: no task was offered ahead", w);
+        }
+        engine_destroy(e);
+    }
+    free(ref.arena);
+    expr_tape_free(tape);
+}
+
 /* Different grids and shapes one after the other on one engine, including a
  * non-power-of-two box domain. */
 Test(engine, jobs_in_a_row_reuse_the_workers)

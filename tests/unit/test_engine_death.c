@@ -3,7 +3,7 @@
  * without duplicates, an octant that kills its worker twice fails the job and
  * deaths on different octants do not, a stopped worker is replaced, a task that
  * stalls its worker twice fails the job, and a cancel never waits on a stopped
- * worker. */
+ * worker; a worker killed with its next task offered loses none. */
 #include <criterion/criterion.h>
 #include <dirent.h>
 #include <errno.h>
@@ -168,13 +168,23 @@ static expr_tape *compile_slow(void)
 }
 
 /* Kill worker 0 at some progress calls: `every` calls apart, each time a
- * worker forked since the last kill, until `kills`; then cancel, if asked. */
+ * worker forked since the last kill (`fresh`: once it has also ended a task,
+ * so that no task is killed twice however slowly a loaded machine runs the
+ * new worker's first one), until `kills`; then cancel, if asked. */
 typedef struct {
     engine *e;
-    int every, kills, calls, n;
+    int every, kills, calls, n, fresh;
     pid_t last;
     atomic_int *cancel;
 } killer;
+
+/* Worker 0 has ended a task since it was forked. */
+static int ended_one(engine *e)
+{
+    engine_worker_info in;
+    cr_assert_eq(engine_worker_info_get(e, 0, &in), 0);
+    return in.ended > 0;
+}
 
 static void kill_worker0(void *ud, const engine_progress *p)
 {
@@ -183,7 +193,8 @@ static void kill_worker0(void *ud, const engine_progress *p)
     pid_t pid = engine_worker_pid(k->e, 0);
     if (k->n == k->kills) {
         if (k->cancel && pid > 0 && pid != k->last) atomic_store(k->cancel, 1);
-    } else if (k->calls % k->every == 0 && pid > 0 && pid != k->last) {
+    } else if (k->calls % k->every == 0 && pid > 0 && pid != k->last &&
+               (!k->fresh || ended_one(k->e))) {
         usleep(50000); /* well inside its task (the queue may fill: it waits) */
         cr_assert_eq(kill(pid, SIGKILL), 0);
         k->last = pid;
@@ -236,7 +247,7 @@ Test(engine, deaths_on_different_octants_do_not_fail_the_job)
     grid_spec g = grid(256);
     engine *e = make_engine(1, 0);
     atomic_int cancel = 0;
-    killer k = {.e = e, .every = 2, .kills = 4, .cancel = &cancel};
+    killer k = {.e = e, .every = 2, .kills = 4, .fresh = 1, .cancel = &cancel};
     engine_job job = {.tape = slow, .grid = g, .schedule = ENGINE_SCHED_PAPER,
                       .progress = kill_worker0, .ud = &k, .cancel = &cancel};
     engine_result r;
@@ -245,6 +256,34 @@ Test(engine, deaths_on_different_octants_do_not_fail_the_job)
     cr_assert_eq(r.restarts, 4);
     engine_destroy(e);
     expr_tape_free(slow);
+}
+
+/* The implicit kind offers a busy worker its next task (engine_kind.prefetch):
+ * one worker, so that while the stack holds two tasks or more it nearly
+ * always has one offered.  A worker killed with its next task offered (not
+ * started: back onto the stack) or taken (started: run again, its entries
+ * skipped) loses no subtree and doubles none. */
+Test(engine, a_worker_killed_with_its_next_task_offered_loses_none)
+{
+    expr_tape *tape = compile(SPHERES);
+    grid_spec g = grid(256);
+    ref_tree ref;
+    reference(tape, &g, &ref);
+    engine *e = make_engine(1, 0);
+    killer k = {.e = e, .every = 1, .kills = 3, .fresh = 1};
+    engine_job job = {.tape = tape, .grid = g, .split_level = 2,
+                      .progress = kill_worker0, .ud = &k};
+    engine_result r;
+    cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.err.msg);
+    cr_assert_geq(k.n, 1, "no worker was killed inside the job");
+    cr_assert_eq(r.restarts, (uint32_t)k.n);
+    cr_assert_eq(r.duplicates, 0);
+    cr_assert_eq(r.voxels, ref.t.voxels);
+    cr_assert_gt(r.offered, 0, "no task was offered ahead");
+    assert_same(&ref.t, engine_octree(e), "after deaths with tasks offered");
+    engine_destroy(e);
+    free(ref.arena);
+    expr_tape_free(tape);
 }
 
 /* ---- liveness: stalled workers, cancels that never wait ---- */

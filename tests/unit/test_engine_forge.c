@@ -63,7 +63,7 @@ static void forge(implicit_subtree *s, shm_entry *en)
 
 int __wrap_worker_entry_end(worker_ctx *w)
 {
-    shm_entry *en = &w->s->ent[queue_head(&w->s->q)];
+    shm_entry *en = &w->lane->ent[queue_head(&w->lane->q)];
     if (forgery == FORGE_NONE || forged || en->kind != SHM_KIND_IMPLICIT ||
         en->type != IMPLICIT_BUILT)
         return __real_worker_entry_end(w);
