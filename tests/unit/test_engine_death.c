@@ -276,7 +276,10 @@ Test(engine, a_worker_killed_with_its_next_task_offered_loses_none)
     engine_result r;
     cr_assert_eq(engine_voxelize(e, &job, &r), 0, "%s", r.err.msg);
     cr_assert_geq(k.n, 1, "no worker was killed inside the job");
-    cr_assert_eq(r.restarts, (uint32_t)k.n);
+    /* every death the job saw was handled; a kill that lands after the
+     * last task ended (the killer sleeps 50 ms first) is the next job's */
+    cr_assert_geq(r.restarts, 1, "no death was seen inside the job");
+    cr_assert_leq(r.restarts, (uint32_t)k.n);
     cr_assert_eq(r.duplicates, 0);
     cr_assert_eq(r.voxels, ref.t.voxels);
     cr_assert_gt(r.offered, 0, "no task was offered ahead");
