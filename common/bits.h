@@ -14,4 +14,10 @@ static inline unsigned bits_popcount64(uint64_t w)
     return (unsigned)((w * 0x0101010101010101ull) >> 56);
 }
 
+/* The 32-bit little-endian number at p (a file's bytes, any alignment). */
+static inline uint32_t bits_le32(const unsigned char *p)
+{
+    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
 #endif

@@ -44,26 +44,37 @@ static uint64_t tree_bytes(engine *e, uint64_t cells)
     return off - e->h->data_off + cells * sizeof(octree_cell);
 }
 
-/* Cells of the arena handed out so far (to the master and the workers):
- * every index in the tree is below it. */
-static uint32_t arena_used(engine *e)
+/* The arena's blocks handed out so far (to the master and the workers). */
+static unsigned blocks_out(engine *e)
 {
     implicit_block *b = engine_sched_block(e);
     /* relaxed: see implicit_block.next_block */
-    unsigned n = atomic_load_explicit(&b->next_block, memory_order_relaxed);
+    return atomic_load_explicit(&b->next_block, memory_order_relaxed);
+}
+
+/* Cells up to the end of the arena's first n blocks (the root's cell
+ * first; all of them once every block is out). */
+static uint32_t cells_below(engine *e, unsigned n)
+{
+    implicit_block *b = engine_sched_block(e);
     return n >= b->blocks ? b->tree_cells : 1 + n * OCTREE_BLOCK_CELLS;
+}
+
+/* Cells of the arena handed out so far: every index in the tree is below
+ * it. */
+static uint32_t arena_used(engine *e)
+{
+    return cells_below(e, blocks_out(e));
 }
 
 /* Bytes of the data area up to the blocks surely full: those handed out
  * but one open block a writer (the master and each worker). */
 static uint64_t full_bytes(engine *e)
 {
+    unsigned n = blocks_out(e), open = (unsigned)e->n + 1;
     implicit_block *b = engine_sched_block(e);
-    /* relaxed: see implicit_block.next_block */
-    unsigned n = atomic_load_explicit(&b->next_block, memory_order_relaxed);
-    unsigned open = (unsigned)e->n + 1;
-    if (n >= b->blocks) return tree_bytes(e, b->tree_cells);
-    return n > open ? tree_bytes(e, 1 + (uint64_t)(n - open) * OCTREE_BLOCK_CELLS) : 0;
+    if (n >= b->blocks) return tree_bytes(e, cells_below(e, n));
+    return n > open ? tree_bytes(e, cells_below(e, n - open)) : 0;
 }
 
 static int no_cells(engine *e)

@@ -213,6 +213,16 @@ static int take(engine *e, int i, const shm_entry *en)
     return e->kind->take(e, i, en);
 }
 
+/* Whether worker i has ended its current task: done_seq at cur, or past
+ * it when the worker ended the offered task too. */
+static int task_ended(engine *e, int i)
+{
+    /* acquire: pairs with the worker's release of done_seq, so the prod
+     * read after it covers every entry of the ended task. */
+    unsigned d = atomic_load_explicit(&engine_pool_slot(e, i)->done_seq, memory_order_acquire);
+    return (int)(d - e->ms[i].cur) >= 0;
+}
+
 /* Take every entry worker i's current task published (or throw them
  * away); returns how much happened.  Its lane holds its entries only:
  * the worker may run on into the next task, which writes the other. */
@@ -221,11 +231,7 @@ static int drain(engine *e, int i, int discard)
     shm_slot *s = engine_pool_slot(e, i);
     mslot *m = &e->ms[i];
     shm_lane *l = &s->lane[m->cur & 1];
-    /* acquire: pairs with the worker's release of done_seq, so the prod
-     * read next covers every entry of the finished task.  done_seq may
-     * be past cur: the worker ended the offered task too. */
-    unsigned d = atomic_load_explicit(&s->done_seq, memory_order_acquire);
-    int done = (int)(d - m->cur) >= 0;
+    int done = task_ended(e, i); /* before the prod read next */
     unsigned n = queue_ready(&l->q), tail = queue_tail(&l->q);
     if (n > QUEUE_ENTRIES) {
         engine_sched_fail(e, ENGINE_FAULT, -EPROTO,
@@ -304,10 +310,7 @@ static int anything_ready(engine *e)
     for (int i = 0; i < e->n; i++) {
         if (!e->ms[i].busy) continue;
         shm_slot *s = engine_pool_slot(e, i);
-        /* acquire: as in drain() */
-        if (queue_ready(&s->lane[e->ms[i].cur & 1].q) ||
-            (int)(atomic_load_explicit(&s->done_seq, memory_order_acquire) - e->ms[i].cur) >= 0 ||
-            can_offer(e, i))
+        if (queue_ready(&s->lane[e->ms[i].cur & 1].q) || task_ended(e, i) || can_offer(e, i))
             return 1;
     }
     return 0;

@@ -21,17 +21,13 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "bits.h"
 #include "mesh_gltf.h"
 
 #define JSON_DEPTH 64
 #define GLB_MAGIC 0x46546C67u /* "glTF" */
 #define CHUNK_JSON 0x4E4F534Au
 #define CHUNK_BIN 0x004E4942u
-
-static uint32_t le32(const uint8_t *p)
-{
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
 
 /* ---------------------------------------------------------------- JSON */
 
@@ -331,15 +327,15 @@ static int parse_glb(gltf *g, const uint8_t *p, size_t len)
 {
     mbuild *b = g->b;
     if (len < 20) return mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "a .glb of %zu bytes: too short", len);
-    if (le32(p + 4) != 2)
-        return mesh_build_fail(b, -EINVAL, 4, "GLB version %u (2 is read)", le32(p + 4));
-    if (le32(p + 8) != len)
+    if (bits_le32(p + 4) != 2)
+        return mesh_build_fail(b, -EINVAL, 4, "GLB version %u (2 is read)", bits_le32(p + 4));
+    if (bits_le32(p + 8) != len)
         return mesh_build_fail(b, -EINVAL, 8, "the GLB header says %u bytes, the file has %zu",
-                       le32(p + 8), len);
+                       bits_le32(p + 8), len);
     size_t at = 12, json_at = 0, json_len = 0;
     for (int k = 0; at < len; k++) {
         if (len - at < 8) return mesh_build_fail(b, -EINVAL, at, "a truncated chunk header");
-        uint32_t n = le32(p + at), type = le32(p + at + 4);
+        uint32_t n = bits_le32(p + at), type = bits_le32(p + at + 4);
         if (n > len - at - 8)
             return mesh_build_fail(b, -EINVAL, at, "chunk %d: %u bytes, %zu are left", k, n, len - at - 8);
         if (k == 0 && type != CHUNK_JSON)
@@ -388,7 +384,7 @@ void mesh_gltf_close(gltf *g)
 int mesh_gltf_open(gltf *g, const char *buf, size_t len)
 {
     const uint8_t *p = (const uint8_t *)buf;
-    int rc = len >= 4 && le32(p) == GLB_MAGIC ? parse_glb(g, p, len) : parse_json(g, buf, len, 0);
+    int rc = len >= 4 && bits_le32(p) == GLB_MAGIC ? parse_glb(g, p, len) : parse_json(g, buf, len, 0);
     if (!rc) rc = check_asset(g);
     json_object *bufs = NULL;
     if (!rc) rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "buffers", 0, &bufs);

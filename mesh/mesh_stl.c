@@ -16,16 +16,12 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "bits.h"
 #include "mesh_load.h"
-
-static uint32_t le32(const unsigned char *p)
-{
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
 
 static float lef32(const unsigned char *p)
 {
-    uint32_t u = le32(p);
+    uint32_t u = bits_le32(p);
     float f;
     memcpy(&f, &u, 4);
     return f;
@@ -38,7 +34,7 @@ static int parse_binary(const unsigned char *u, size_t len, mbuild *b)
         return mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE,
                        "neither ASCII STL (no 'solid') nor binary STL (%zu bytes, less than "
                        "the 84 of the header and count)", len);
-    uint64_t n = le32(u + 80);
+    uint64_t n = bits_le32(u + 80);
     if (84 + 50 * n != len)
         return mesh_build_fail(b, -EINVAL, 80,
                        "binary STL of %llu triangles must be %llu bytes, the file has %zu "
@@ -130,14 +126,14 @@ static int parse_ascii(const char *buf, size_t len, mbuild *b)
 int mesh_parse_stl(const char *buf, size_t len, mbuild *b)
 {
     const unsigned char *u = (const unsigned char *)buf;
-    int binary = len < 84 || 84 + 50 * (uint64_t)le32(u + 80) != len ? 0 : 1;
+    /* exactly the size of a binary file of its count */
+    int sized = len >= 84 && 84 + 50 * (uint64_t)bits_le32(u + 80) == len, binary = sized;
     if (!binary) {
         mtext t = {buf, buf + len, buf};
         mesh_text_skip_space(&t);
         binary = !mesh_text_word(&t, "solid", 1);
     }
-    if (binary && len >= 84 && 84 + 50 * (uint64_t)le32(u + 80) == len &&
-        mesh_stl_binary_par(u, le32(u + 80), b)) { /* parsed and welded on every CPU */
+    if (sized && mesh_stl_binary_par(u, bits_le32(u + 80), b)) { /* parsed and welded on every CPU */
         b->binary = 1;
         return 0;
     }
@@ -148,7 +144,7 @@ int mesh_parse_stl(const char *buf, size_t len, mbuild *b)
     /* A binary file whose header begins with "solid" and whose size is
      * wrong fails as ASCII: say what it more likely is. */
     if (rc == -EINVAL && !binary && len >= 84 && memchr(buf, 0, len < 4096 ? len : 4096)) {
-        uint64_t n = le32(u + 80);
+        uint64_t n = bits_le32(u + 80);
         b->binary = 1;
         rc = mesh_build_fail(b, -EINVAL, 80,
                      "binary STL of %llu triangles must be %llu bytes, the file has %zu "

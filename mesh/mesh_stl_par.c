@@ -29,6 +29,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "bits.h"
 #include "huge.h"
 #include "mesh_load.h"
 #include "par.h"
@@ -79,11 +80,6 @@ typedef struct {
     atomic_uint next;  /* the next range to write */
 } stl_par;
 
-static uint32_t le32(const unsigned char *p)
-{
-    return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
-}
-
 /* Triangle i's corner c: its position's bits into x, its welding key (the
  * bits, -0 as +0: mesh_build_weld's) into key; -1 when a coordinate is
  * not finite. */
@@ -92,7 +88,7 @@ static inline int corner(const stl_par *s, uint32_t i, int c, uint32_t x[3], uin
     const unsigned char *q = s->u + 84 + 50 * (size_t)i + 12 + 12 * c;
     int bad = 0;
     for (int a = 0; a < 3; a++) {
-        x[a] = le32(q + 4 * a);
+        x[a] = bits_le32(q + 4 * a);
         bad |= (x[a] & 0x7f800000u) == 0x7f800000u;
         key[a] = x[a] == 0x80000000u ? 0 : x[a];
     }
@@ -111,19 +107,10 @@ static uint32_t range_lo(const stl_par *s, unsigned r)
     return (uint32_t)((uint64_t)s->n * r / STL_RANGES);
 }
 
-/* x's ones (no popcount instruction without -mpopcnt, no libgcc call). */
-static unsigned ones(uint64_t x)
-{
-    x -= (x >> 1) & 0x5555555555555555ull;
-    x = (x & 0x3333333333333333ull) + ((x >> 2) & 0x3333333333333333ull);
-    x = (x + (x >> 4)) & 0x0f0f0f0f0f0f0f0full;
-    return (unsigned)((x * 0x0101010101010101ull) >> 56);
-}
-
 /* The first corners before corner c. */
 static uint32_t rank_of(const stl_par *s, uint32_t c)
 {
-    return s->rank[c >> 6] + ones(s->firsts[c >> 6] & ((1ull << (c & 63)) - 1));
+    return s->rank[c >> 6] + bits_popcount64(s->firsts[c >> 6] & ((1ull << (c & 63)) - 1));
 }
 
 /* arr (of *cap items of sz bytes, n used) with room for one more: itself,
@@ -322,7 +309,7 @@ static int64_t merge_firsts(stl_par *s)
     for (size_t w = 0; w < words; w++) {
         for (unsigned q = 1; q < s->parts; q++) f[w] |= s->part[q].firsts[w];
         s->rank[w] = (uint32_t)sum;
-        sum += ones(f[w]);
+        sum += bits_popcount64(f[w]);
     }
     s->firsts = f;
     return (int64_t)sum;

@@ -154,8 +154,9 @@ void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
 
 /* ---- bricks and voxels ---- */
 
-/* Records from which vod_volume_check reads them on every CPU. */
-#define CHECK_PAR_RECORDS 16384u
+/* The pool's units in use from which vod_volume_check reads the tables
+ * and records on every CPU. */
+#define CHECK_PAR_UNITS 16384u
 #define CHECK_CHUNK 4096u /* entries of a level a part takes at a time */
 
 /* The tables' entries checked by part k of n: chunk j of each level is
@@ -216,13 +217,13 @@ int vod_volume_check(const vod_volume *v, size_t bytes)
         return -EINVAL;
     if (v->low_levels) return -EINVAL;
     /* every level: the mip levels built by column are in the tables too;
-     * on every CPU when there are many records (a packed record's head is
+     * on every CPU when the pool is large (a packed record's head is
      * read here first in this process: the dragon's distance at 1024^3,
      * 100,000 records, 0.2 s of one thread, nearly all of it that first
      * load), on this thread when there are few (a thread costs more) */
     entry_check c = {.v = v, .used = used};
     atomic_init(&c.bad, 0);
-    unsigned cpus = used >= CHECK_PAR_RECORDS ? par_cpus() : 1;
+    unsigned cpus = used >= CHECK_PAR_UNITS ? par_cpus() : 1;
     if (cpus > 1) par_run(cpus, check_part, &c);
     else check_part(&c, 0, 1);
     /* relaxed: par_run's join orders the parts' stores before it */

@@ -387,10 +387,16 @@ static int grow_slots(vod_encoder *e)
     return 0;
 }
 
+/* The uniform values kept at hand: uvalue[0 .. uniform_kept(e)). */
+static unsigned uniform_kept(const vod_encoder *e)
+{
+    return e->nuniform < UNIFORM_KEPT ? e->nuniform : UNIFORM_KEPT;
+}
+
 /* Uniform nodes of value u are seen brick i from now on. */
 static void keep_uniform(vod_encoder *e, uint32_t u, size_t i)
 {
-    unsigned n = e->nuniform < UNIFORM_KEPT ? e->nuniform : UNIFORM_KEPT, k = 0;
+    unsigned n = uniform_kept(e), k = 0;
     while (k < n && e->uvalue[k] != u) k++;
     if (k == n) k = e->nuniform++ % UNIFORM_KEPT; /* a free entry, or the oldest */
     e->uvalue[k] = u;
@@ -425,8 +431,7 @@ static void remember(vod_encoder *e, uint64_t key, const uint8_t *raw,
 static const seen_brick *same_uniform(const vod_encoder *e, const vod_node *n)
 {
     if (!n->uniform) return NULL;
-    unsigned n_kept = e->nuniform < UNIFORM_KEPT ? e->nuniform : UNIFORM_KEPT;
-    for (unsigned k = 0; k < n_kept; k++)
+    for (unsigned k = 0; k < uniform_kept(e); k++)
         if (e->uvalue[k] == n->value) return &e->seen[e->useen[k]];
     return NULL;
 }

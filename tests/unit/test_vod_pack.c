@@ -174,6 +174,38 @@ Test(vod_pack, check_refuses_a_record_that_disagrees_with_itself)
     fx_free(&f);
 }
 
+/* The check on every CPU (a pool of 16,384 units or more): level 0's
+ * table of 8192 entries is read in chunks of 4096, alternately by the
+ * parts, so a bad record in either chunk (the bricks at z 0 and z 15)
+ * fails the check, and the volume checks again once it is mended. */
+Test(vod_pack, the_check_on_every_cpu_finds_a_bad_record_in_any_part)
+{
+    fx f;
+    fx_make(&f, 256, 128, 128, 8); /* 32 x 16 x 16 bricks */
+    uint32_t brick[512];
+    for (uint32_t z = 0; z < 16; z += 15)
+        for (uint32_t y = 0; y < 16; y++)
+            for (uint32_t x = 0; x < 32; x++) {
+                uint32_t b[3] = {x, y, z};
+                for (int i = 0; i < 512; i++) brick[i] = fb((float)(i + 7 * x + 13 * y + z));
+                cr_assert_eq(vod_volume_put_brick(f.v, b, brick), 0);
+            }
+    vod_volume_info in;
+    vod_volume_get_info(f.v, &in);
+    cr_assert_geq(in.pool_used, 16384, "the pool takes the parallel check");
+    cr_assert_eq(vod_volume_check(f.v, f.bytes), 0);
+    const uint64_t bad[] = {5 + 3 * 32, 31 + 15 * 32 + 15 * 512}; /* one in each chunk */
+    for (size_t k = 0; k < 2; k++) {
+        pack_head *h = (pack_head *)(void *)brick_data(f.v, table(f.v, 0)[bad[k]]);
+        h->n++;
+        cr_assert_eq(vod_volume_check(f.v, f.bytes), -EINVAL, "entry %llu",
+                     (unsigned long long)bad[k]);
+        h->n--;
+        cr_assert_eq(vod_volume_check(f.v, f.bytes), 0);
+    }
+    fx_free(&f);
+}
+
 /* Channel 4 of a packed volume, written and read back: level 0 the
  * oracle's bits, level 1 the mean of 8 (spec section 3, padding 0), for a
  * file brick smaller and larger than the storage brick. */
