@@ -125,7 +125,7 @@ static void stop_then_kill(void *ud, const engine_progress *p)
     (void)p;
     pid_t pid = engine_worker_pid(s->e, 0);
     if (s->calls == 0) {
-        usleep(50000); /* the worker is building the subtree */
+        usleep(20000); /* the worker is building the subtree */
         cr_assert_eq(kill(pid, SIGSTOP), 0);
     } else if (s->calls == 1) {
         cr_assert_eq(kill(pid, SIGKILL), 0);
@@ -136,7 +136,9 @@ static void stop_then_kill(void *ud, const engine_progress *p)
 Test(engine, a_worker_killed_mid_subtree_resumes_without_duplicates)
 {
     expr_tape *tape = compile(SPHERE);
-    grid_spec g = grid(256);
+    /* 512^3: the release build's worker builds it in some 0.15 s, so the
+     * stop 20 ms into it lands inside (at 256^3 the worker had ended first) */
+    grid_spec g = grid(512);
     ref_tree ref;
     reference(tape, &g, &ref);
     engine *e = make_engine(1, 0);
