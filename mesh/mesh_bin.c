@@ -309,8 +309,8 @@ static int binner_init(binner *b, const mesh *m, const grid_spec *g,
     /* the snapping moves < 2^-17 voxel; a distance tile needs the
      * triangles within its band of its columns */
     b->margin = p.apron + p.band + 1.0 / 64;
-    b->rep = o->repair != MESH_REPAIR_NONE;
-    b->exact = p.solid1 && !p.surf && !p.rep && !p.dens && !p.dist; /* z rays only */
+    b->rep = o->repair != MESH_REPAIR_NONE && !p.capped;
+    b->exact = p.solid1 && !p.surf && !b->rep && !p.dens && !p.dist; /* z rays only */
     mesh_vox_frame_init(&b->f, m, g, 1);
     size_t nt = (size_t)m->n_triangles + 1;
     b->vr = huge_malloc(((size_t)m->n_vertices + 1) * sizeof *b->vr);

@@ -120,7 +120,7 @@ static void fine_block(dens *d, int64_t z0, uint32_t nzs)
     bool first = z0 == -(int64_t)p->apron;
     mesh_vox_solid_in in = {&d->f, d->t->ids, d->t->n, d->t->o->repair, first,
                       g->lo[2] + (double)(fb.s0[2] - 1) * h,
-                      g->lo[2] + (double)(fb.s0[2] + fb.n[2] + 1) * h};
+                      g->lo[2] + (double)(fb.s0[2] + fb.n[2] + 1) * h, false};
     mesh_vox_solid_buf sb = {b->fa, b->fbx, b->fby, b->fcx, b->fcy, b->fzc, b->fdis, NULL};
     mesh_vox_solid(&in, &fb, &sb);
     /* the disagreements counted are those of the pass that decides the

@@ -58,6 +58,9 @@ void mesh_vox_plan_make(const grid_spec *g, const mesh_vox_opts *o, mesh_vox_pla
     p->dens = dens_ch || o->channel == VOXEL_CH_SURFACE;
     p->rep = o->repair != MESH_REPAIR_NONE && (p->solid1 || p->dens);
     p->count = p->solid1 && o->repair == MESH_REPAIR_WINDING;
+    /* the caps give every K = 1 block its parities along x and y; the
+     * coverage's fine blocks and the exact sum (a test's) rasterize rows */
+    p->capped = p->count && !p->dens && !mesh_wind_exact;
     p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
     p->K = o->supersample ? o->supersample : 2;
     p->nz = g->res[2];

@@ -4,6 +4,7 @@
  * several directions as the cross-check). */
 #include "mesh_vox_int.h"
 
+#include <assert.h>
 #include <math.h>
 #include <string.h>
 
@@ -16,6 +17,7 @@ void mesh_vox_frame_init(mesh_vox_frame *f, const mesh *m, const grid_spec *g, u
     f->scale = (double)K * (double)MESH_VOX_L / g->vs;
     f->pulse = NULL;
     f->wt = NULL;
+    f->caps = NULL;
 }
 
 /* Whether triangle id can cross a ray of the block: its world z range
@@ -65,17 +67,27 @@ uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, co
     bool cull = !isnan(in->zlo);
     size_t ncx = ((size_t)b->n[2] * (size_t)b->n[1] + 63) / 64,
            ncy = (size_t)b->n[2] * b->nw;
+    bool tree = in->repair == MESH_REPAIR_WINDING && in->f->wt;
+    /* the capped winding numbers count the crossings of whole columns */
+    uint16_t *count = tree && buf->count && first && !cull && in->f->K == 1 ? buf->count : NULL;
+    if (count) memset(count, 0, nwords * 64 * sizeof *count);
+    /* with the caps, S's parities along x and y follow from its own along
+     * z and the caps' (mesh_vox_wcap_parities): S is rasterized along z
+     * only, and the bins hold no rows of triangles for x and y */
+    bool capped = in->capped;
+    assert(!capped || (buf->dis && in->f->caps && in->f->pulse));
+    int rc = capped ? mesh_vox_wcap_ready(in->f) : 0;
+    if (rc) {
+        in->f->pulse->err = rc, in->f->pulse->stop = true;
+        return 0;
+    }
     memset(buf->bits, 0, nwords * 8);
-    if (rep) {
+    if (rep && !capped) {
         memset(buf->bx, 0, nwords * 8);
         memset(buf->by, 0, nwords * 8);
         memset(buf->cx, 0, ncx * 8);
         memset(buf->cy, 0, ncy * 8);
     }
-    bool tree = in->repair == MESH_REPAIR_WINDING && in->f->wt;
-    /* the capped winding numbers count the crossings of whole columns */
-    uint16_t *count = tree && buf->count && first && !cull && in->f->K == 1 ? buf->count : NULL;
-    if (count) memset(count, 0, nwords * 64 * sizeof *count);
     mesh_vox_target tz = {b, buf->bits, NULL, first, count};
     mesh_vox_target tx = {b, buf->bx, buf->cx, false, NULL}, ty = {b, buf->by, buf->cy, false, NULL};
     for (size_t i = 0; i < in->n; i++) {
@@ -87,18 +99,25 @@ uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, co
         int64_t P[3][3];
         mesh_vox_triangle(in->f, id, P);
         mesh_vox_raster(P, 2, &tz);
-        if (rep && !below) { /* below the block: no x or y ray of it */
+        if (rep && !below && !capped) { /* below the block: no x or y ray of it */
             mesh_vox_raster(P, 0, &tx);
             mesh_vox_raster(P, 1, &ty);
         }
     }
     mesh_vox_prefix_z(b, buf->bits, buf->zcarry, first);
     if (!rep) return 0;
-    mesh_vox_prefix_x(b, buf->bx, buf->cx);
-    mesh_vox_prefix_y(b, buf->by, buf->cy);
+    if (capped) {
+        mesh_vox_wcap_parities(in->f, b, buf->dis, buf->bx, buf->cx, buf->by, buf->cy);
+    } else {
+        mesh_vox_prefix_x(b, buf->bx, buf->cx);
+        mesh_vox_prefix_y(b, buf->by, buf->cy);
+    }
+    /* capped: z holds the caps' parity along z, x and y theirs along x
+     * and y, which disagree where S's do; else z is S's own */
+    const uint64_t *z = capped ? buf->dis : buf->bits;
     uint64_t ndis = 0;
     for (size_t w = 0; w < nwords; w++) {
-        uint64_t a = buf->bits[w], x = buf->bx[w], y = buf->by[w];
+        uint64_t a = z[w], x = buf->bx[w], y = buf->by[w];
         uint64_t d = (a ^ x) | (a ^ y);
         if (buf->dis) buf->dis[w] = d;
         if (tree) buf->bx[w] = d; /* bx[w] read: the disagreements in its place */

@@ -139,9 +139,10 @@ static void occupancy_bits(mesh_vox_tile *t, const mesh_vox_plan *p, const mesh_
     f.lat = t->lat;
     f.pulse = &t->pulse;
     f.wt = t->pulse.env ? t->pulse.env->wtree : NULL;
+    f.caps = t->caps;
     mesh_vox_block blk = {{t->x0, t->y0, 0}, {(int32_t)t->nx, (int32_t)t->ny, (int32_t)t->nz}, 1};
     if (p->solid1) {
-        mesh_vox_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN};
+        mesh_vox_solid_in in = {&f, t->ids, t->n, t->o->repair, true, NAN, NAN, p->capped};
         mesh_vox_solid_buf sb = {b->a, b->bx, b->by, b->cx, b->cy, NULL, b->dis, b->count};
         t->st->disagreements += mesh_vox_solid(&in, &blk, &sb);
     }
@@ -205,12 +206,18 @@ int mesh_tile_run(const mesh_tiles *j, const uint32_t *ids, size_t n, uint32_t t
     t.nx = g->res[0] - t.x0 < MESH_TILE ? g->res[0] - t.x0 : MESH_TILE;
     t.ny = g->res[1] - t.y0 < MESH_TILE ? g->res[1] - t.y0 : MESH_TILE;
     if (b.dis) memset(b.dis, 0, (size_t)t.ny * t.nz * 8);
+    /* a capped plan's bins have no rows: the caps give the parities along
+     * x and y, the lent tree's or, lent none (the exact sum), the tile's */
+    mesh_wtree *own = NULL;
+    t.caps = j->env ? j->env->wtree : NULL;
+    if (p.capped && !t.caps && (rc = mesh_wtree_build(j->m, g, &own))) return rc;
+    if (own) t.caps = own;
     if (o->channel == VOXEL_CH_DENSITY) {
         rc = mesh_vox_density_run(&t, &p, &b);
     } else {
         occupancy_bits(&t, &p, &b);
         if (t.pulse.stop) {
-            rc = -ECANCELED;
+            rc = t.pulse.err ? t.pulse.err : -ECANCELED;
         } else if (o->channel == VOXEL_CH_OCCUPANCY) {
             rc = emit_occupancy(&t, t.occ, b.brick);
         } else if (o->channel == VOXEL_CH_DISTANCE) {
@@ -221,6 +228,7 @@ int mesh_tile_run(const mesh_tiles *j, const uint32_t *ids, size_t n, uint32_t t
         }
     }
     if (b.dis) st->disagree_bricks += count_disagree_bricks(&t, b.dis);
+    mesh_wtree_free(own);
     return rc;
 }
 

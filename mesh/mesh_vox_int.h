@@ -51,6 +51,8 @@ typedef struct {
     const mesh_tile_env *env; /* NULL: no heartbeat */
     uint32_t work;            /* units since the last tick */
     bool stop;
+    int err;                  /* why a loop set stop, when not a tick: the
+                                 tile's error (0: -ECANCELED) */
 } mesh_vox_pulse;
 
 /* units of work done (p may be NULL): ticks when due; true once the tile
@@ -75,6 +77,8 @@ typedef struct {
     uint32_t K;     /* samples per voxel and axis */
     mesh_vox_pulse *pulse; /* the tile's heartbeat, or NULL */
     const mesh_wtree *wt; /* the winding numbers' tree, or NULL: the exact sum */
+    const mesh_wtree *caps; /* whose caps give a capped block's parities
+                               (wt, or the tile's own), or NULL */
 } mesh_vox_frame;
 
 void mesh_vox_frame_init(mesh_vox_frame *f, const mesh *m, const grid_spec *g, uint32_t K);
@@ -313,6 +317,9 @@ typedef struct {
     mesh_repair repair;
     bool first;        /* the block starts the column */
     double zlo, zhi;   /* world z range of the block (for culling), or NaN */
+    bool capped;       /* the plan's (a K = 1 block through the whole column,
+                          with dis and f->caps): the parities along x and y
+                          from the caps' */
 } mesh_vox_solid_in;
 typedef struct {
     uint64_t *bits, *bx, *by, *cx, *cy, *zcarry, *dis;
@@ -411,6 +418,18 @@ void mesh_vox_wind_block(const mesh_vox_frame *f, const mesh_vox_wtree *t, const
  * dis and spare: overwritten (spare: a block of words). */
 void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *dis, uint64_t *bits,
                    uint16_t *count, uint64_t *spare);
+/* The caps' parities (mesh_wcap.c), for a K = 1 block through the whole
+ * column: the mesh S with its caps C is closed, so on every sample its
+ * parities along x, y and z are those of S's along z and C's,
+ *     p_r(S) = p_z(S) ^ p_z(C) ^ p_r(C),
+ * and they disagree exactly where C's do.  mesh_vox_wcap_ready builds
+ * f->caps's caps (0, or the build's error); mesh_vox_wcap_parities
+ * rasterizes them along z into cz, along x into
+ * cx (carries kx) and along y into cy (carries ky), all zeroed first, and
+ * leaves each a parity (the prefix passes done). */
+int mesh_vox_wcap_ready(const mesh_vox_frame *f);
+void mesh_vox_wcap_parities(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *cz,
+                            uint64_t *cx, uint64_t *kx, uint64_t *cy, uint64_t *ky);
 /* The caps' expansion about b (mesh_wcap.c's direct path): for every p
  * within rho of b, |w(p) - v - g.(p - b)| <= e, w the winding number of
  * the n triangles tri (their edges 0 -> 1 their boundary, as a cap's fan:
@@ -442,6 +461,8 @@ typedef struct {
     bool dens;       /* the supersampled coverage (density or normals) */
     bool rep;        /* parities along x and y too */
     bool count;      /* the counters of the capped winding numbers */
+    bool capped;     /* the parities along x and y from the caps' (no rows
+                        of triangles in the bins: mesh_vox_wcap_parities) */
     uint32_t apron;  /* 1: the coverage of the voxels around the tile too */
     uint32_t K;      /* samples per voxel and axis of the coverage */
     uint32_t nz;     /* voxels along z */
@@ -480,6 +501,7 @@ typedef struct {
     uint64_t *dis;              /* voxels whose parities differ, or NULL */
     mesh_tile_stats *st;
     mesh_vox_pulse pulse;             /* the heartbeat of every pass of the tile */
+    const mesh_wtree *caps;     /* the caps of a capped plan (mesh_vox_frame's) */
 } mesh_vox_tile;
 
 /* The density channel's bricks, or the surface channel's (occupancy from

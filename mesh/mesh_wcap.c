@@ -321,6 +321,46 @@ static int need_caps(const mesh_wtree *ct, mesh_vox_pulse *pulse)
     return t->caps_rc = rc;
 }
 
+int mesh_vox_wcap_ready(const mesh_vox_frame *f)
+{
+    return need_caps(f->caps, f->pulse);
+}
+
+/* Whether cap P can cross a ray along axis r of block b: its box across r
+ * meets the block's rays, and it starts before the block's end along r
+ * (the rays run from -infinity; the raster drops what it does not cross). */
+static bool cap_meets(const int64_t P[3][3], int r, const mesh_vox_block *b)
+{
+    for (int a = 0; a < 3; a++) {
+        int64_t lo = (int64_t)b->s0[a] * MESH_VOX_L, hi = (int64_t)(b->s0[a] + b->n[a]) * MESH_VOX_L;
+        bool below = P[0][a] < lo && P[1][a] < lo && P[2][a] < lo;
+        bool above = P[0][a] > hi && P[1][a] > hi && P[2][a] > hi;
+        if (above || (a != r && below)) return false;
+    }
+    return true;
+}
+
+void mesh_vox_wcap_parities(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *cz,
+                            uint64_t *cx, uint64_t *kx, uint64_t *cy, uint64_t *ky)
+{
+    const mesh_wtree *t = f->caps;
+    size_t nwords = mesh_vox_block_words(b);
+    memset(cz, 0, nwords * 8), memset(cx, 0, nwords * 8), memset(cy, 0, nwords * 8);
+    memset(kx, 0, ((size_t)b->n[2] * (size_t)b->n[1] + 63) / 64 * 8);
+    memset(ky, 0, (size_t)b->n[2] * b->nw * 8);
+    mesh_vox_target tz = {b, cz, NULL, true, NULL}, tx = {b, cx, kx, false, NULL},
+                    ty = {b, cy, ky, false, NULL};
+    const mesh_vox_target *to[3] = {&tx, &ty, &tz};
+    for (uint32_t i = 0; i < t->n_caps; i++) {
+        if (mesh_vox_beat(f->pulse, 1)) return;
+        for (int r = 0; r < 3; r++)
+            if (cap_meets(t->cap_lat[i], r, b)) mesh_vox_raster(t->cap_lat[i], r, to[r]);
+    }
+    mesh_vox_prefix_z(b, cz, NULL, true);
+    mesh_vox_prefix_x(b, cx, kx);
+    mesh_vox_prefix_y(b, cy, ky);
+}
+
 void mesh_wtree_free(mesh_wtree *t)
 {
     if (!t) return;
