@@ -33,16 +33,28 @@
 
 #define LEAF 8 /* triangles at most in a leaf */
 
+/* A node as the descents read it, 32 bytes: two siblings (first, first +
+ * 1: an odd index and the next) share one cache line (mesh_vox_wtree_make
+ * aligns the odd ones); its moments, read only where it is expanded, apart. */
 typedef struct {
     float c[3], r;   /* centre, radius */
-    float m[3], area;
-    float P[9];      /* P[3 i + j] = sum a n_i (x - c)_j */
+    float area;
     uint32_t first;  /* leaf: its first triangle (leaf order); else its first child */
     uint32_t count;  /* leaf: its triangles; 0: an inner node (children first, first + 1) */
+    uint32_t pad;
 } wnode;
 
+typedef struct {
+    float m[3];      /* sum a n */
+    float P[9];      /* P[3 i + j] = sum a n_i (x - c)_j */
+} wmom;
+
+_Static_assert(sizeof(wnode) == 32, "two nodes a cache line");
+
 struct mesh_vox_wtree {
-    wnode *nodes;
+    wnode *nodes;    /* node i at nodes[i], inside block (nodes + 1 is 64-aligned) */
+    wmom *mom;       /* node i's moments */
+    void *block;
     uint32_t n_nodes;
     float (*tri)[9]; /* the triangles' vertices in leaf order, voxel units
                         relative to their leaf's centre */
@@ -132,7 +144,7 @@ static void tri_dipole(const float *v, double x[8])
 /* Leaf n over ids[first, first + count): its moments from the triangles
  * in double, then the triangles into tri[], relative to its centre (small
  * numbers: a float keeps them to 6e-8 of the leaf's radius). */
-static void make_leaf(const builder *b, wnode *n)
+static void make_leaf(const builder *b, wnode *n, wmom *mo)
 {
     double area = 0, cx[3] = {0, 0, 0}, M[3] = {0, 0, 0}, P[9] = {0};
     double v[LEAF][3][3], an[LEAF][3], xc[LEAF][3], ar[LEAF];
@@ -154,7 +166,7 @@ static void make_leaf(const builder *b, wnode *n)
     for (int a = 0; a < 3; a++) {
         n->c[a] = (float)(area > 0 ? cx[a] / area : xc[0][a]);
         cx[a] = n->c[a]; /* the centre as stored */
-        n->m[a] = (float)M[a];
+        mo->m[a] = (float)M[a];
     }
     double r2 = 0;
     for (uint32_t k = 0; k < n->count; k++) {
@@ -170,7 +182,7 @@ static void make_leaf(const builder *b, wnode *n)
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++) P[3 * i + j] += an[k][i] * (xc[k][j] - cx[j]);
     }
-    for (int i = 0; i < 9; i++) n->P[i] = (float)P[i];
+    for (int i = 0; i < 9; i++) mo->P[i] = (float)P[i];
     for (uint32_t k = 0; b->t->tdip && k < n->count; k++) tri_dipole(b->t->tri[n->first + k], b->t->tdip[n->first + k]);
     n->area = (float)area;
     n->r = (float)(sqrt(r2) * (1 + 1e-6)); /* the floats' rounding inside */
@@ -179,14 +191,14 @@ static void make_leaf(const builder *b, wnode *n)
 /* Inner node n from its children: P moved to the new centre
  * (P_child + m_child (c_child - c)^T), the radius bounded by the
  * children's balls. */
-static void inner_moments(wnode *n, const wnode *k)
+static void inner_moments(wnode *n, wmom *mo, const wnode *k, const wmom *km)
 {
     double area = (double)k[0].area + k[1].area, c[3];
     for (int a = 0; a < 3; a++) {
         c[a] = area > 0 ? ((double)k[0].area * k[0].c[a] + (double)k[1].area * k[1].c[a]) / area
                         : 0.5 * ((double)k[0].c[a] + k[1].c[a]);
         n->c[a] = (float)c[a];
-        n->m[a] = k[0].m[a] + k[1].m[a];
+        mo->m[a] = km[0].m[a] + km[1].m[a];
     }
     double r = 0;
     for (int h = 0; h < 2; h++) {
@@ -196,8 +208,8 @@ static void inner_moments(wnode *n, const wnode *k)
         r = rh > r ? rh : r;
         for (int i = 0; i < 3; i++)
             for (int j = 0; j < 3; j++)
-                n->P[3 * i + j] += (float)((double)k[h].P[3 * i + j] +
-                                           (double)k[h].m[i] * ((double)k[h].c[j] - n->c[j]));
+                mo->P[3 * i + j] += (float)((double)km[h].P[3 * i + j] +
+                                            (double)km[h].m[i] * ((double)k[h].c[j] - n->c[j]));
     }
     n->area = (float)area;
     n->r = (float)(r * (1 + 1e-6));
@@ -209,9 +221,10 @@ static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
     mesh_vox_beat(b->pulse, (hi - lo) / 4 + 1); /* the build is not abandoned: a tile needs it */
     wnode *n = &b->t->nodes[ni];
     memset(n, 0, sizeof *n);
+    memset(&b->t->mom[ni], 0, sizeof b->t->mom[ni]);
     if (hi - lo <= LEAF) {
         n->first = lo, n->count = hi - lo;
-        make_leaf(b, n);
+        make_leaf(b, n, &b->t->mom[ni]);
         return;
     }
     double blo[3] = {INFINITY, INFINITY, INFINITY}, bhi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -231,7 +244,7 @@ static void build_node(builder *b, uint32_t ni, uint32_t lo, uint32_t hi)
     build_node(b, kid, lo, mid);
     build_node(b, kid + 1, mid, hi);
     n = &b->t->nodes[ni];
-    inner_moments(n, &b->t->nodes[kid]);
+    inner_moments(n, &b->t->mom[ni], &b->t->nodes[kid], &b->t->mom[kid]);
 }
 
 int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3][3], uint32_t n,
@@ -244,11 +257,15 @@ int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3
     builder b = {m, g, tri, malloc((size_t)n * sizeof *b.cen), malloc((size_t)n * sizeof *b.ids),
                  t, pulse};
     if (t) {
-        t->nodes = malloc(2 * (size_t)n * sizeof *t->nodes);
+        /* 2n nodes and one before node 0, so that node 1 starts a line */
+        size_t bytes = (2 * (size_t)n + 2) * sizeof *t->nodes;
+        t->block = aligned_alloc(64, (bytes + 63) / 64 * 64);
+        t->nodes = t->block ? (wnode *)t->block + 1 : NULL;
+        t->mom = malloc(2 * (size_t)n * sizeof *t->mom);
         t->tri = malloc((size_t)n * sizeof *t->tri);
         t->tdip = m ? NULL : malloc((size_t)n * sizeof *t->tdip);
     }
-    if (!t || !b.cen || !b.ids || !t->nodes || !t->tri || (!m && !t->tdip)) {
+    if (!t || !b.cen || !b.ids || !t->nodes || !t->mom || !t->tri || (!m && !t->tdip)) {
         free(b.cen), free(b.ids);
         mesh_vox_wtree_free(t);
         return -ENOMEM;
@@ -269,7 +286,8 @@ int mesh_vox_wtree_make(const mesh *m, const grid_spec *g, const double (*tri)[3
 void mesh_vox_wtree_free(mesh_vox_wtree *t)
 {
     if (!t) return;
-    free(t->nodes);
+    free(t->block);
+    free(t->mom);
     free(t->tri);
     free(t->tdip);
     free(t);
@@ -277,8 +295,13 @@ void mesh_vox_wtree_free(mesh_vox_wtree *t)
 
 /* ---- queries ---- */
 
+static inline const wmom *mom_of(const mesh_vox_wtree *t, const wnode *n)
+{
+    return &t->mom[n - t->nodes];
+}
+
 /* The order-2 expansion of n at p: 4 pi w; R2 = |c - p|^2. */
-static double expand(const wnode *n, const double d[3], double R2)
+static double expand(const wmom *n, const double d[3], double R2)
 {
     double iR = 1 / sqrt(R2), iR3 = iR * iR * iR;
     double md = n->m[0] * d[0] + n->m[1] * d[1] + n->m[2] * d[2];
@@ -309,7 +332,7 @@ double mesh_vox_wind_point(const mesh_vox_wtree *t, const double p[3], double be
         double R2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
         visits++;
         if (R2 > b2 * n->r * n->r) {
-            w += expand(n, d, R2);
+            w += expand(mom_of(t, n), d, R2);
         } else if (n->count) {
             double q[3] = {-d[0], -d[1], -d[2]}; /* p from the leaf's centre */
             for (uint32_t k = 0; k < n->count; k++) w += 2 * tri_half_angle(t->tri[n->first + k], q);
@@ -503,7 +526,7 @@ static int cell_visit(const mesh_vox_wtree *t, const wnode *n, const mesh_vox_wb
         e = n->area * (3.0 * n->r * n->r / (sr * sr * sr * sr) + 2 * q->rho / (f * f * f));
     }
     if (far && e <= s->tol4) {
-        s->w4 += expand(n, d, R2);
+        s->w4 += expand(mom_of(t, n), d, R2);
         s->e4 += e;
         return 0;
     }
@@ -588,7 +611,8 @@ static bool down_tri(const mesh_vox_wtree *t, uint32_t l, uint32_t k, const mesh
 /* Node ni at the cell q (b, rho): taken whole into o (by its expansion,
  * or by its magnitude: area / f^2 with value 0), else 1: open it, 2: hand
  * it down. */
-static int down_node(const wnode *n, const mesh_vox_wball *q, mesh_vox_wlist *o)
+static int down_node(const mesh_vox_wtree *t, const wnode *n, const mesh_vox_wball *q,
+                     mesh_vox_wlist *o)
 {
     const double *b = q->b, rho = q->rho, tol4 = q->tol * 4 * M_PI;
     double d[3] = {n->c[0] - b[0], n->c[1] - b[1], n->c[2] - b[2]};
@@ -597,7 +621,7 @@ static int down_node(const wnode *n, const mesh_vox_wball *q, mesh_vox_wlist *o)
         double R = sqrt(R2), s = R - n->r, f = R - rr;
         double e = n->area * (3.0 * n->r * n->r / (s * s * s * s) + 2 * rho / (f * f * f));
         if (e <= tol4) {
-            o->w4 += expand(n, d, R2);
+            o->w4 += expand(mom_of(t, n), d, R2);
             o->e4 += e;
             return 0;
         }
@@ -640,7 +664,7 @@ bool mesh_vox_wind_down(const mesh_vox_wtree *t, const mesh_vox_wlist *in, const
             uint32_t ni = stack[--sp];
             const wnode *n = &t->nodes[ni];
             visits++;
-            int r = down_node(n, q, out);
+            int r = down_node(t, n, q, out);
             if (r == 2) {
                 ok = down_push(out, ni, UINT32_MAX);
             } else if (r == 1 && n->count) {
