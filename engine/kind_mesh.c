@@ -104,17 +104,17 @@ static int tile_wanted(const engine_mesh_job *j, const mesh_bins *bins, uint32_t
     return tx >= j->tiles[0] && tx < j->tiles[2] && ty >= j->tiles[1] && ty < j->tiles[3];
 }
 
-/* One task per tile with triangles (every tile for a distance), the
- * lightest pushed first. */
+/* One task per tile with triangles (every tile where mesh_vox_every_tile),
+ * the lightest pushed first. */
 static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
 {
     uint32_t n = bins->tiles[0] * bins->tiles[1], k = 0;
     /* a distance tile without triangles still writes its +w bricks */
-    bool dist = mj->job->opts.channel == VOXEL_CH_DISTANCE;
+    bool every = mesh_vox_every_tile(&mj->job->grid, &mj->job->opts);
     uint32_t *order = malloc((n ? n : 1) * sizeof *order);
     if (!order) return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");
     for (uint32_t t = 0; t < n; t++)
-        if ((bins->start[t + 1] > bins->start[t] || dist) && tile_wanted(mj->job, bins, t))
+        if ((bins->start[t + 1] > bins->start[t] || every) && tile_wanted(mj->job, bins, t))
             order[k++] = t;
     qsort_r(order, k, sizeof *order, by_triangles, bins->start);
     int rc = 0;

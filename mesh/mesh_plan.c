@@ -38,6 +38,18 @@ int mesh_vox_check(const mesh_vox_opts *o, err_info *err)
     return 0;
 }
 
+bool mesh_vox_lends_tree(const mesh_vox_opts *o)
+{
+    return o->repair == MESH_REPAIR_WINDING && !mesh_wind_exact;
+}
+
+bool mesh_vox_every_tile(const grid_spec *g, const mesh_vox_opts *o)
+{
+    mesh_vox_plan p;
+    mesh_vox_plan_make(g, o, &p);
+    return p.every_tile;
+}
+
 uint32_t mesh_vox_sbrick(const mesh_vox_opts *o)
 {
     return o->channel == VOXEL_CH_DISTANCE ? MESH_DIST_BRICK : MESH_VOLUME_BRICK;
@@ -60,7 +72,8 @@ void mesh_vox_plan_make(const grid_spec *g, const mesh_vox_opts *o, mesh_vox_pla
     p->count = p->solid1 && o->repair == MESH_REPAIR_WINDING;
     /* the caps give every K = 1 block its parities along x and y; the
      * coverage's fine blocks and the exact sum (a test's) rasterize rows */
-    p->capped = p->count && !p->dens && !mesh_wind_exact;
+    p->capped = p->solid1 && !p->dens && mesh_vox_lends_tree(o);
+    p->every_tile = p->capped || p->dist;
     p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
     p->K = o->supersample ? o->supersample : 2;
     p->nz = g->res[2];

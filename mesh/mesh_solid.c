@@ -112,12 +112,13 @@ uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, co
         mesh_vox_prefix_x(b, buf->bx, buf->cx);
         mesh_vox_prefix_y(b, buf->by, buf->cy);
     }
-    /* capped: z holds the caps' parity along z, x and y theirs along x
-     * and y, which disagree where S's do; else z is S's own */
-    const uint64_t *z = capped ? buf->dis : buf->bits;
     uint64_t ndis = 0;
     for (size_t w = 0; w < nwords; w++) {
-        uint64_t a = z[w], x = buf->bx[w], y = buf->by[w];
+        uint64_t a = buf->bits[w], x = buf->bx[w], y = buf->by[w];
+        if (capped) { /* x, y: the caps'; dis: theirs along z */
+            uint64_t flip = a ^ buf->dis[w];
+            x ^= flip, y ^= flip;
+        }
         uint64_t d = (a ^ x) | (a ^ y);
         if (buf->dis) buf->dis[w] = d;
         if (tree) buf->bx[w] = d; /* bx[w] read: the disagreements in its place */

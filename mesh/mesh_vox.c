@@ -256,8 +256,7 @@ int mesh_voxelize_tiles(const mesh *m, const grid_spec *g, const mesh_vox_opts *
     mesh_lattice *lat = malloc(((size_t)m->n_vertices + 1) * sizeof *lat);
     void *scratch = malloc(mesh_tile_scratch_bytes(g, o));
     int rc = lat && scratch ? 0 : -ENOMEM;
-    if (!rc && o->repair == MESH_REPAIR_WINDING && !mesh_wind_exact)
-        rc = mesh_wtree_build(m, g, (mesh_wtree **)&env.wtree);
+    if (!rc && mesh_vox_lends_tree(o)) rc = mesh_wtree_build(m, g, (mesh_wtree **)&env.wtree);
     if (!rc) rc = mesh_bin(m, g, o, lat, 1, &bins);
     if (!rc) {
         uint32_t all[4] = {0, 0, bins.tiles[0], bins.tiles[1]};

@@ -123,15 +123,24 @@ typedef struct mesh_wtree mesh_wtree;
  * nothing in vox or voxd sets it. */
 extern int mesh_wind_exact;
 int mesh_wtree_build(const mesh *m, const grid_spec *g, mesh_wtree **out);
+/* Whether a job of options o lends its tiles a tree (mesh_tile_env.wtree):
+ * the winding repair's, unless mesh_wind_exact asks for the exact sum. */
+bool mesh_vox_lends_tree(const mesh_vox_opts *o);
+/* Whether every tile of a job runs, with triangles in its bins or none: a
+ * distance's (its +w bricks), and the winding repair's whose parities
+ * along x and y come from the caps (a sample may be inside with no
+ * triangle in its column, as in the middle of an open tube). */
+bool mesh_vox_every_tile(const grid_spec *g, const mesh_vox_opts *o);
 void mesh_wtree_free(mesh_wtree *t);
 
 /* What a tile's caller lends it besides the data.  tick is called every
  * few milliseconds of work, whatever the tile does (rasterizing, the
  * winding numbers, the supersampled density): a worker's heartbeat; when
  * it returns non-zero the tile stops where it is and mesh_tile_run returns
- * -ECANCELED.  wtree: the mesh's tree for g (mesh_wtree_build), or NULL:
- * the winding numbers by the exact sum over every triangle, the oracle the
- * tree is held against. */
+ * -ECANCELED.  wtree: the mesh's tree for g (mesh_wtree_build) where
+ * mesh_vox_lends_tree(o), or NULL: the winding numbers by the exact sum
+ * over every triangle, the oracle the tree is held against (a tile then
+ * builds the caps it needs for itself). */
 typedef struct {
     const mesh_wtree *wtree;
     int (*tick)(void *arg);

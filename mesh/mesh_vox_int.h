@@ -463,6 +463,7 @@ typedef struct {
     bool count;      /* the counters of the capped winding numbers */
     bool capped;     /* the parities along x and y from the caps' (no rows
                         of triangles in the bins: mesh_vox_wcap_parities) */
+    bool every_tile; /* mesh_vox_every_tile */
     uint32_t apron;  /* 1: the coverage of the voxels around the tile too */
     uint32_t K;      /* samples per voxel and axis of the coverage */
     uint32_t nz;     /* voxels along z */

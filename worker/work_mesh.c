@@ -50,7 +50,7 @@ static int mesh_begin(worker_ctx *w, void **state)
     const mesh_block *b = shm_at(w->base, w->h->job_off);
     mesh_wtree_free(st->wt);
     st->wt = NULL;
-    if (b->opts.repair == MESH_REPAIR_WINDING && !mesh_wind_exact) {
+    if (mesh_vox_lends_tree(&b->opts)) {
         mesh m = block_mesh(w, b);
         int rc = mesh_wtree_build(&m, &b->grid, &st->wt);
         worker_tick(w);
