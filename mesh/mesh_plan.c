@@ -73,12 +73,12 @@ void mesh_vox_plan_make(const grid_spec *g, const mesh_vox_opts *o, mesh_vox_pla
     /* the caps give every K = 1 block its parities along x and y; the
      * coverage's fine blocks and the exact sum (a test's) rasterize rows */
     p->capped = p->solid1 && !p->dens && mesh_vox_lends_tree(o);
-    p->every_tile = p->capped || p->dist;
     p->apron = o->channel == VOXEL_CH_SURFACE ? 1 : 0;
     p->K = o->supersample ? o->supersample : 2;
     p->nz = g->res[2];
     p->dist = o->channel == VOXEL_CH_DISTANCE;
     p->band = p->dist ? mesh_vox_band(o) : 0;
+    p->every_tile = p->capped || p->dist;
     if (!p->dens) return;
     uint32_t dn = MESH_TILE + 2 * p->apron, rows = dn * p->K;
     p->fnw = (rows + 63) / 64;
