@@ -109,7 +109,8 @@ static int tile_wanted(const engine_mesh_job *j, const mesh_bins *bins, uint32_t
 static int push_tiles(engine *e, mesh_job *mj, const mesh_bins *bins)
 {
     uint32_t n = bins->tiles[0] * bins->tiles[1], k = 0;
-    /* a distance tile without triangles still writes its +w bricks */
+    /* a distance tile without triangles still writes its +w bricks, and a
+     * capped winding tile may hold inside samples */
     bool every = mesh_vox_every_tile(&mj->job->grid, &mj->job->opts);
     uint32_t *order = malloc((n ? n : 1) * sizeof *order);
     if (!order) return engine_sched_fail(e, ENGINE_FAULT, -ENOMEM, "out of memory");

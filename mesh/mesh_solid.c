@@ -82,7 +82,7 @@ uint64_t mesh_vox_solid(const mesh_vox_solid_in *in, const mesh_vox_block *b, co
         return 0;
     }
     memset(buf->bits, 0, nwords * 8);
-    if (rep && !capped) {
+    if (rep) {
         memset(buf->bx, 0, nwords * 8);
         memset(buf->by, 0, nwords * 8);
         memset(buf->cx, 0, ncx * 8);

@@ -424,9 +424,9 @@ void mesh_vox_wcap_block(const mesh_vox_frame *f, const mesh_vox_block *b, uint6
  *     p_r(S) = p_z(S) ^ p_z(C) ^ p_r(C),
  * and they disagree exactly where C's do.  mesh_vox_wcap_ready builds
  * f->caps's caps (0, or the build's error); mesh_vox_wcap_parities
- * rasterizes them along z into cz, along x into
- * cx (carries kx) and along y into cy (carries ky), all zeroed first, and
- * leaves each a parity (the prefix passes done). */
+ * rasterizes them along z into cz (zeroed first), along x into cx
+ * (carries kx) and along y into cy (carries ky), which the caller zeroed
+ * as for S's own rasters, and leaves each a parity (the prefix passes done). */
 int mesh_vox_wcap_ready(const mesh_vox_frame *f);
 void mesh_vox_wcap_parities(const mesh_vox_frame *f, const mesh_vox_block *b, uint64_t *cz,
                             uint64_t *cx, uint64_t *kx, uint64_t *cy, uint64_t *ky);

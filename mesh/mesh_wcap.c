@@ -344,10 +344,7 @@ void mesh_vox_wcap_parities(const mesh_vox_frame *f, const mesh_vox_block *b, ui
                             uint64_t *cx, uint64_t *kx, uint64_t *cy, uint64_t *ky)
 {
     const mesh_wtree *t = f->caps;
-    size_t nwords = mesh_vox_block_words(b);
-    memset(cz, 0, nwords * 8), memset(cx, 0, nwords * 8), memset(cy, 0, nwords * 8);
-    memset(kx, 0, ((size_t)b->n[2] * (size_t)b->n[1] + 63) / 64 * 8);
-    memset(ky, 0, (size_t)b->n[2] * b->nw * 8);
+    memset(cz, 0, mesh_vox_block_words(b) * 8);
     mesh_vox_target tz = {b, cz, NULL, true, NULL}, tx = {b, cx, kx, false, NULL},
                     ty = {b, cy, ky, false, NULL};
     const mesh_vox_target *to[3] = {&tx, &ty, &tz};
@@ -695,17 +692,9 @@ static void count_caps(const mesh_vox_frame *f, const mesh_wtree *t, const mesh_
                        uint16_t *count)
 {
     mesh_vox_target tc = {b, NULL, NULL, true, count};
-    int64_t xlo = b->s0[0] * MESH_VOX_L, xhi = (b->s0[0] + b->n[0]) * MESH_VOX_L;
-    int64_t ylo = b->s0[1] * MESH_VOX_L, yhi = (b->s0[1] + b->n[1]) * MESH_VOX_L;
     for (uint32_t i = 0; i < t->n_caps; i++) {
-        const int64_t(*P)[3] = t->cap_lat[i];
         if (mesh_vox_beat(f->pulse, 1)) return;
-        if ((P[0][0] < xlo && P[1][0] < xlo && P[2][0] < xlo) ||
-            (P[0][0] > xhi && P[1][0] > xhi && P[2][0] > xhi) ||
-            (P[0][1] < ylo && P[1][1] < ylo && P[2][1] < ylo) ||
-            (P[0][1] > yhi && P[1][1] > yhi && P[2][1] > yhi))
-            continue;
-        mesh_vox_raster(P, 2, &tc);
+        if (cap_meets(t->cap_lat[i], 2, b)) mesh_vox_raster(t->cap_lat[i], 2, &tc);
     }
     size_t slice = (size_t)b->n[1] * b->nw * 64;
     for (int32_t z = 1; z < b->n[2]; z++) {
