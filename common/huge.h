@@ -12,5 +12,8 @@
 /* malloc(n) (free() frees it), advised to be backed by huge pages; NULL
  * when there is no memory. */
 void *huge_malloc(size_t n);
+/* The same advice for a block already allocated, [p, p + n) (after a
+ * realloc, say). */
+void huge_advise(void *p, size_t n);
 
 #endif

@@ -19,6 +19,7 @@
 #include "kind_mesh.h"
 #include "master.h"
 #include "par.h"
+#include "prefault.h"
 #include "voxel.h"
 
 
@@ -51,14 +52,10 @@ typedef struct {
 } mesh_copy;
 
 /* n bytes from src to fresh pages of the segment at to, the pages faulted
- * in by one call first (MADV_POPULATE_WRITE) rather than one fault each
- * as the copy goes; where the kernel has no such call, by the copy. */
+ * in by one call first rather than one fault each as the copy goes. */
 static void copy_fresh(void *to, const void *src, size_t n)
 {
-#ifdef MADV_POPULATE_WRITE
-    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE), a = (uintptr_t)to / page * page;
-    if (n) madvise((void *)a, (uintptr_t)to + n - a, MADV_POPULATE_WRITE);
-#endif
+    prefault_write(to, n);
     if (n) memcpy(to, src, n);
 }
 

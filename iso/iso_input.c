@@ -6,12 +6,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
-#include <unistd.h>
 
 #include "err.h"
 #include "iso.h"
 #include "par.h"
+#include "prefault.h"
 
 static int check_channel(const vod_info *in, err_info *e)
 {
@@ -205,23 +204,12 @@ static size_t first_from(const copy_ctx *c, size_t u)
     return lo;
 }
 
-/* The pages of raw[from, to) faulted in by one call, not one fault each
- * (a kernel without MADV_POPULATE_WRITE faults them as the copy goes). */
-static void prefault(uint8_t *raw, size_t from, size_t to)
-{
-#ifdef MADV_POPULATE_WRITE
-    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE), a = (uintptr_t)(raw + from) / page * page;
-    if (to > from) madvise((void *)a, (uintptr_t)(raw + to) - a, MADV_POPULATE_WRITE);
-#else
-    (void)raw, (void)from, (void)to;
-#endif
-}
-
 static void copy_part(void *ud, unsigned k, unsigned parts)
 {
     copy_ctx *c = ud;
     size_t lo = first_from(c, c->uniq * k / parts), hi = first_from(c, c->uniq * (k + 1) / parts);
-    if (lo < hi) prefault(c->raw, c->v[lo].off, c->v[hi - 1].off + c->raw_bytes);
+    /* the pages faulted in by one call, not one fault each */
+    if (lo < hi) prefault_write(c->raw + c->v[lo].off, c->v[hi - 1].off + c->raw_bytes - c->v[lo].off);
     for (size_t i = lo; i < hi; i++)
         if (i == 0 || c->v[i].raw != c->v[i - 1].raw) {
             memcpy(c->raw + c->v[i].off, c->v[i].raw, c->raw_bytes);

@@ -41,6 +41,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "huge.h"
+
 /* The lower bound's planes of d: for each edge P -> Q (ab, bc, ca,
  * counter-clockwise about n) the unit normal m = (Q - P) x n / |Q - P|, in
  * the plane and pointing away from the third vertex, and its offset c =
@@ -117,9 +119,10 @@ static int dhash_init(dhash *h, size_t want)
 {
     size_t cap = 16;
     while (cap < 2 * want) cap *= 2;
-    h->key = calloc(cap, sizeof *h->key);
-    h->id = malloc(cap * sizeof *h->id);
+    h->key = huge_malloc(cap * sizeof *h->key);
+    h->id = huge_malloc(cap * sizeof *h->id);
     h->mask = (uint32_t)(cap - 1), h->n = 0;
+    if (h->key) memset(h->key, 0, cap * sizeof *h->key);
     return h->key && h->id ? 0 : -ENOMEM;
 }
 
@@ -427,7 +430,7 @@ int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
     memset(d, 0, sizeof *d);
     size_t n = t->n + 1;
     uint32_t *tid = malloc(n * sizeof *tid);
-    d->tri = malloc(n * sizeof *d->tri);
+    d->tri = huge_malloc(n * sizeof *d->tri);
     if (!tid || !d->tri) {
         free(tid);
         return -ENOMEM;
@@ -438,9 +441,9 @@ int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
     int rc = dadj_make(t, tid, d->ntri, &a);
     free(tid);
     size_t nt = (size_t)d->ntri + 1;
-    d->f = malloc((nt + a.ne + a.nv) * sizeof *d->f);
-    d->hs = malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)DIST_MAXH * a.nv) * sizeof *d->hs);
-    d->tl = malloc(7 * nt * sizeof *d->tl);
+    d->f = huge_malloc((nt + a.ne + a.nv) * sizeof *d->f);
+    d->hs = huge_malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)DIST_MAXH * a.nv) * sizeof *d->hs);
+    d->tl = huge_malloc(7 * nt * sizeof *d->tl);
     if (!rc && (!d->f || !d->hs || !d->tl)) rc = -ENOMEM;
     double R = K + DIST_SLOP;
     for (uint32_t i = 0; !rc && i < d->ntri; i++) face_feat(d, t, i, R);

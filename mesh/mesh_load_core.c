@@ -12,6 +12,7 @@
 #include <string.h>
 
 #include "err.h"
+#include "huge.h"
 #include "mesh_load.h"
 #include "par.h"
 
@@ -66,6 +67,7 @@ static int grow(void **arr, size_t *cap, uint64_t need, uint64_t max, size_t sz,
     }
     void *p = realloc(*arr, (size_t)n * sz);
     if (!p) return -ENOMEM;
+    huge_advise(p, (size_t)n * sz); /* written soon, once (huge.h) */
     *arr = p;
     *cap = (size_t)n;
     return 0;

@@ -26,6 +26,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "huge.h"
 #include "mesh_load.h"
 
 /* A cell of the grid: its key, and its kept vertices as a list through
@@ -42,9 +43,8 @@ typedef struct {
 } slot;
 
 typedef struct {
-    cell *cells;
+    cell *cells; /* room for one per vertex */
     uint32_t n_cells;
-    size_t cap_cells;
     slot *slot;
     uint64_t mask;
     uint32_t *next; /* per kept vertex (its old index): the next in its cell */
@@ -87,8 +87,9 @@ static slot *find_slot(const grid *g, const double k[3], uint64_t h)
 static int grow_slots(grid *g)
 {
     uint64_t size = (g->mask + 1) * 2;
-    slot *sl = calloc((size_t)size, sizeof *sl);
+    slot *sl = huge_malloc((size_t)size * sizeof *sl);
     if (!sl) return -ENOMEM;
+    memset(sl, 0, (size_t)size * sizeof *sl);
     free(g->slot);
     g->slot = sl;
     g->mask = size - 1;
@@ -109,13 +110,6 @@ static int add_kept(grid *g, const double k[3], uint64_t h, uint32_t v)
         g->next[c->last] = v;
         c->last = v;
         return 0;
-    }
-    if (g->n_cells == g->cap_cells) {
-        size_t cap = g->cap_cells ? g->cap_cells * 2 : 1024;
-        cell *p = realloc(g->cells, cap * sizeof *p);
-        if (!p) return -ENOMEM;
-        g->cells = p;
-        g->cap_cells = cap;
     }
     cell *c = &g->cells[g->n_cells++];
     memcpy(c->key, k, sizeof c->key);
@@ -152,9 +146,13 @@ static int merge_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
     int bits = 10;
     while (bits < 40 && ((uint64_t)1 << bits) < 2 * (uint64_t)n) bits++;
     g.mask = ((uint64_t)1 << bits) - 1;
-    g.slot = calloc((size_t)g.mask + 1, sizeof *g.slot);
-    g.next = malloc((size_t)(n ? n : 1) * sizeof *g.next);
-    int rc = g.slot && g.next ? 0 : -ENOMEM;
+    /* a cell for each vertex at most; huge pages: the arrays are written
+     * once, their faults would cost as much as the writes (huge.h) */
+    g.slot = huge_malloc(((size_t)g.mask + 1) * sizeof *g.slot);
+    g.next = huge_malloc((size_t)(n ? n : 1) * sizeof *g.next);
+    g.cells = huge_malloc((size_t)(n ? n : 1) * sizeof *g.cells);
+    int rc = g.slot && g.next && g.cells ? 0 : -ENOMEM;
+    if (g.slot) memset(g.slot, 0, ((size_t)g.mask + 1) * sizeof *g.slot);
     double h = 2 * eps * (1 + 0x1p-10), eps2 = eps * eps;
     for (uint32_t i = 0; !rc && i < n; i++) {
         double k[3], side[3] = {0, 0, 0};
@@ -230,7 +228,7 @@ static void apply(mesh *m, uint32_t *map)
 int mesh_weld(mesh *m, double eps, uint32_t *merged)
 {
     if (!(eps == 0 || (eps >= MESH_WELD_MIN && eps <= MESH_WELD_MAX))) return -EINVAL;
-    uint32_t *map = malloc((size_t)m->n_vertices * sizeof *map + 1);
+    uint32_t *map = huge_malloc((size_t)m->n_vertices * sizeof *map + 1);
     if (!map) return -ENOMEM;
     int rc = merge_map(m->vertices, m->n_vertices, eps, map);
     if (!rc && !any_left(m, map)) rc = -EINVAL; /* the mesh stays as it was */

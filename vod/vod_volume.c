@@ -26,6 +26,7 @@
 #include <emmintrin.h>
 #endif
 
+#include "clock.h"
 #include "par.h"
 #include "vod_downsample.h"
 #include "voxel.h"
@@ -125,6 +126,9 @@ int vod_volume_init(vod_volume **out, void *arena, size_t bytes,
     if (head > bytes) return -ENOSPC;
     uint64_t cap = (bytes - head) / h.unit;
     h.pool_cap = (uint32_t)(cap > POOL_MAX ? POOL_MAX : cap);
+    /* another than any volume made before at this address (the writers'
+     * chunks, vod_volume_pool.c): the clock's nanoseconds */
+    h.pool_epoch = (uint64_t)(clock_now() * 1e9);
     /* the tables: in the engine's segment, their pages are touched first
      * by the workers that store bricks, not here (zero.h) */
     zero_range((uint8_t *)arena + sizeof h, head - sizeof h);
@@ -257,8 +261,10 @@ void vod_vol_drop_mips(vod_volume *v)
      * back to where it stood before them.  (Not to pool_l0: concurrent
      * writers, or one killed between taking a brick and counting it, may
      * leave level-0 bricks above that count.) */
-    if (v->mip_channel)
+    if (v->mip_channel) {
         atomic_store_explicit(&v->pool_used, v->mip_base, memory_order_relaxed);
+        v->pool_epoch++; /* the chunks above mip_base are no one's now */
+    }
     v->mip_channel = 0;
 }
 

@@ -48,6 +48,10 @@ struct vod_volume {
      * to the readers by whatever ends the writers' phase, in the engine the
      * worker's done_seq release, which the master's acquire pairs with). */
     atomic_uint pool_used, pool_l0;
+    /* Which pool the writers' chunks are of (vod_volume_pool.c): set when
+     * the volume is made, moved when pool_used goes back (the mip levels
+     * dropped), between the writers' phases. */
+    uint64_t pool_epoch;
     /* 1 once a level-0 brick with memory may hold only zeros (a zero
      * written into one); while 0, such a brick is known to hold a voxel
      * without a scan.  Set by concurrent put_brick writers too (relaxed:
@@ -158,23 +162,9 @@ static inline uint32_t brick_voxel(const vod_volume *v, uint32_t e, size_t i)
     return v->packed ? vod_pack_voxel(v, brick_data(v, e), i) : vox_get(v, brick_data(v, e), i);
 }
 
-/* `units` consecutive pool units; the entry of the first, or 0 when full.
- * Inline: both vod_volume.c and vod_volume_pack.c take units, and neither
- * file calls the other's functions back.  pool_used relaxed: see its
- * declaration (the bytes are published by the end of the writers' phase). */
-static inline uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units)
-{
-    if (units > v->pool_cap) return 0;
-    uint32_t u = (uint32_t)units;
-    uint32_t e = atomic_fetch_add_explicit(&v->pool_used, u, memory_order_relaxed) + 1;
-    if (e - 1 > v->pool_cap - u) {
-        /* full: give the count back (every other taker fails too until
-         * the count is below the cap again) */
-        atomic_fetch_sub_explicit(&v->pool_used, u, memory_order_relaxed);
-        return 0;
-    }
-    return e;
-}
+/* `units` consecutive pool units; the entry of the first, or 0 when full
+ * (vod_volume_pool.c: a thread takes them from its chunk).  Concurrent. */
+uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units);
 
 /* The entry of value u without memory (0 for 0), or 0 when u cannot be
  * one (the top bit set in an integer volume, or no wide slot left). */

@@ -41,6 +41,7 @@ typedef struct worker_ctx {
     uint32_t gen;            /* job generation the counters are for */
     uint64_t cpu0;           /* CPU time at the job's first task */
     unsigned beats;          /* the heartbeat's value (worker_tick) */
+    bool heap_kept;          /* freed memory kept since the last trim (worker_main) */
     uint32_t begun[SHM_KINDS]; /* job generation each kind was begun for */
     void *state[SHM_KINDS];    /* each kind's state, across jobs */
 } worker_ctx;

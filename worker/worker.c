@@ -3,6 +3,7 @@
 #include "worker.h"
 
 #include <errno.h>
+#include <malloc.h>
 #include <signal.h>
 #include <stdlib.h>
 #include <string.h>
@@ -10,6 +11,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "clock.h"
 #include "work.h"
 
 /* The worker side of every kind (worker/work_<name>.c, one row each
@@ -28,6 +30,36 @@ static uint64_t cpu_ns(void)
     struct timespec ts;
     clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
+}
+
+/* A worker's heap is kept while it works: glibc would hand a large block
+ * back to the kernel at its free (mmap'd, or the heap's top trimmed), and
+ * the next tile's allocation of the same size takes a page fault for each
+ * of its pages again: a third of a mesh distance job's faults, and a fault
+ * costs microseconds on a virtual machine.  So the thresholds are raised
+ * (heap_keep, at the worker's start), and what the heap holds is given
+ * back once the worker has waited WORKER_IDLE_S for a task (idle: between
+ * jobs, not between a job's tasks), so that an idle daemon's workers hold
+ * no more than they need. */
+#define HEAP_MMAP_BYTES (32 << 20) /* glibc's largest mmap threshold */
+#define HEAP_TRIM_BYTES (1L << 30)
+#define WORKER_IDLE_S 0.5
+
+static void heap_keep(void)
+{
+#ifdef M_TRIM_THRESHOLD
+    mallopt(M_MMAP_THRESHOLD, HEAP_MMAP_BYTES);
+    mallopt(M_TRIM_THRESHOLD, HEAP_TRIM_BYTES);
+#endif
+}
+
+static void heap_give_back(worker_ctx *w)
+{
+    if (!w->heap_kept) return;
+    w->heap_kept = false;
+#ifdef M_TRIM_THRESHOLD
+    malloc_trim(0);
+#endif
 }
 
 /* The task to run next: one the master gave (task_seq moved past
@@ -74,6 +106,7 @@ static void wait_task(worker_ctx *w, shm_task *t)
     shm_slot *s = w->s;
     int got = take_task(w, t);
     worker_ring_master(w);
+    double idle0 = got ? 0 : clock_now();
     while (!got) {
         unsigned v = shm_sleep_begin(&s->wake, &s->sleeping);
         /* acquire: as in take_task; after the fence, the Dekker re-check
@@ -84,6 +117,7 @@ static void wait_task(worker_ctx *w, shm_task *t)
         shm_sleep_end(&s->sleeping);
         worker_check_parent(w);
         got = take_task(w, t);
+        if (!got && clock_now() - idle0 >= WORKER_IDLE_S) heap_give_back(w);
     }
 }
 
@@ -151,6 +185,7 @@ static void run_task(worker_ctx *w, const shm_task *tp)
     job_counters(w);
     worker_tick(w);
     int rc = run_kind(w, &t);
+    w->heap_kept = true;
     worker_tick(w);
     s->job_cpu_ns = cpu_ns() - w->cpu0;
     s->error[w->seq & 1] = rc == -ECANCELED ? 0 : rc;
@@ -206,6 +241,7 @@ _Noreturn void worker_main(uint8_t *base, uint32_t index)
     worker_check_parent(&w);
     reset_signals();
     close_inherited();
+    heap_keep();
     /* relaxed: a fresh worker starts from the slot as its predecessor (or
      * the master, at creation) left it; the fork orders everything. */
     w.given = w.seq = atomic_load_explicit(&w.s->done_seq, memory_order_relaxed);

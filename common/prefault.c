@@ -1,0 +1,19 @@
+#include "prefault.h"
+
+#include <stdint.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#ifndef MADV_POPULATE_WRITE
+#define MADV_POPULATE_WRITE 23 /* Linux 5.14; older headers lack it */
+#endif
+
+void prefault_write(void *p, size_t n)
+{
+    long page = sysconf(_SC_PAGESIZE);
+    if (page <= 0) return;
+    /* every page the range touches: the call maps pages, it writes
+     * nothing, so a page shared with other data is left as it was */
+    uintptr_t a = (uintptr_t)p & ~((uintptr_t)page - 1);
+    if (n) (void)madvise((void *)a, (uintptr_t)p + n - a, MADV_POPULATE_WRITE);
+}
