@@ -18,6 +18,7 @@
 
 #include "clock.h"
 #include "err.h"
+#include "huge.h"
 #include "voxel.h"
 
 void vod_params_default(vod_params *p)
@@ -364,7 +365,8 @@ static size_t cache_raw(vod_encoder *e, const uint8_t *raw)
 {
     size_t n = e->L.raw_bytes;
     if (n > RAW_CACHE_BYTES - e->cache_used) return SIZE_MAX;
-    if (!e->cache && !(e->cache = malloc(RAW_CACHE_BYTES))) return SIZE_MAX;
+    /* huge pages: filled once, front to back (huge.h) */
+    if (!e->cache && !(e->cache = huge_malloc(RAW_CACHE_BYTES))) return SIZE_MAX;
     memcpy(e->cache + e->cache_used, raw, n);
     e->cache_used += n;
     return e->cache_used - n;

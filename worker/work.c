@@ -5,6 +5,8 @@
 #include <errno.h>
 #include <unistd.h>
 
+#include "prefault.h"
+
 void worker_check_parent(const worker_ctx *w)
 {
     if (getppid() != w->h->master_pid) _exit(1);
@@ -21,6 +23,36 @@ int worker_aborted(const worker_ctx *w)
      * wake (shm_wake_if_sleeping) reach a worker that sleeps. */
     return atomic_load_explicit(&w->h->abort_gen, memory_order_relaxed) ==
            w->task_gen;
+}
+
+/* size bytes from the shared counter; UINT64_MAX when they do not fit */
+static uint64_t take_shared(atomic_ullong *bump, uint64_t cap, uint64_t size)
+{
+    /* relaxed: only the uniqueness of the ranges matters; the bytes are
+     * published to the master by the done_seq release. */
+    uint64_t off = atomic_fetch_add_explicit(bump, size, memory_order_relaxed);
+    return off > cap || size > cap - off ? UINT64_MAX : off;
+}
+
+uint64_t worker_chunk_take(worker_ctx *w, worker_chunk *c, atomic_ullong *bump,
+                           uint64_t area_off, uint64_t cap, uint64_t size)
+{
+    if (c->end - c->next < size && size <= WORKER_CHUNK) {
+        /* relaxed: a hint; take_shared decides */
+        uint64_t used = atomic_load_explicit(bump, memory_order_relaxed);
+        uint64_t at = used <= cap && cap - used > (uint64_t)WORKER_CHUNK_SPARE * WORKER_CHUNK
+                          ? take_shared(bump, cap, WORKER_CHUNK)
+                          : UINT64_MAX;
+        if (at != UINT64_MAX) {
+            c->next = at, c->end = at + WORKER_CHUNK;
+            prefault_write((uint8_t *)shm_at(w->base, area_off) + at, WORKER_CHUNK);
+        }
+    }
+    if (c->end - c->next >= size) {
+        c->next += size;
+        return c->next - size;
+    }
+    return take_shared(bump, cap, size);
 }
 
 shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type)

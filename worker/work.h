@@ -73,6 +73,23 @@ void worker_check_parent(const worker_ctx *w);
 void worker_ring_master(worker_ctx *w);
 /* The job was abandoned (the master's abort_gen). */
 int worker_aborted(const worker_ctx *w);
+/* A worker's share of a bump allocator of the segment (the encoder's brick
+ * area, the iso kind's arena): the counter is taken WORKER_CHUNK bytes at
+ * a time while more than WORKER_CHUNK_SPARE chunks are left, the chunk's
+ * pages mapped by one call (prefault.h), so that two workers never write
+ * the same page and no page is faulted one store at a time; the rest of a
+ * worker's last chunk stays unused, and near the area's end sizes are
+ * taken one at a time.  Kept per job (zeroed when the job begins). */
+#define WORKER_CHUNK (1u << 20)
+#define WORKER_CHUNK_SPARE 64u
+typedef struct {
+    uint64_t next, end;
+} worker_chunk;
+/* size bytes of the area at area_off (cap bytes, counter *bump): their
+ * offset in it, or UINT64_MAX when they do not fit. */
+uint64_t worker_chunk_take(worker_ctx *w, worker_chunk *c, atomic_ullong *bump,
+                           uint64_t area_off, uint64_t cap, uint64_t size);
+
 /* The queue element to fill next, as an entry of `type` with count 0,
  * waiting while the queue is full; NULL when the job was abandoned. */
 shm_entry *worker_entry_begin(worker_ctx *w, uint16_t type);

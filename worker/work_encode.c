@@ -9,7 +9,6 @@
 #include <time.h>
 
 #include "clock.h"
-#include "prefault.h"
 #include "vod_volume.h"
 #include "work.h"
 
@@ -18,7 +17,7 @@
 typedef struct {
     uint8_t *out; /* VOD_ENCODE_BATCH bricks' encodings, bound bytes each */
     size_t bound;
-    uint64_t next, end; /* this worker's chunk of the brick area (take_area) */
+    worker_chunk area; /* this worker's chunk of the brick area */
 } encode_state;
 
 static void encode_free(void *state)
@@ -35,7 +34,7 @@ static int encode_begin(worker_ctx *w, void **state)
     encode_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
     const encode_block *b = shm_at(w->base, w->h->job_off);
-    st->next = st->end = 0; /* a new job's area */
+    st->area = (worker_chunk){0, 0}; /* a new job's area */
     size_t want = vod_encode_bound(&b->L, &b->p);
     if (st->bound >= want) return 0;
     uint8_t *n = realloc(st->out, VOD_ENCODE_BATCH * want);
@@ -54,43 +53,6 @@ static void encode_fail(encode_block *b, int rc)
                                             memory_order_relaxed);
 }
 
-/* The brick area is taken by every worker's encodings, from one counter
- * (b->bump).  Taken a brick at a time, two workers' bricks lie side by
- * side on the pages and each worker faults on every page it writes; so a
- * worker takes AREA_CHUNK bytes at a time while the area has more than
- * AREA_SPARE chunks left and maps their pages in one call (prefault_write),
- * its last chunk's rest unused.  The offset of `size` bytes, or
- * UINT64_MAX when they do not fit. */
-#define AREA_CHUNK (1u << 20)
-#define AREA_SPARE 64u
-
-static uint64_t take_shared(encode_block *b, uint64_t size)
-{
-    /* relaxed: only the uniqueness of the ranges matters; the bytes are
-     * published to the master by the done_seq release. */
-    uint64_t off = atomic_fetch_add_explicit(&b->bump, size, memory_order_relaxed);
-    return off > b->brick_cap || size > b->brick_cap - off ? UINT64_MAX : off;
-}
-
-static uint64_t take_area(worker_ctx *w, encode_state *st, encode_block *b, uint64_t size)
-{
-    if (st->end - st->next < size && size <= AREA_CHUNK) {
-        /* relaxed: a hint; take_shared decides */
-        uint64_t used = atomic_load_explicit(&b->bump, memory_order_relaxed);
-        uint64_t at = used <= b->brick_cap && b->brick_cap - used > (uint64_t)AREA_SPARE * AREA_CHUNK
-                          ? take_shared(b, AREA_CHUNK) : UINT64_MAX;
-        if (at != UINT64_MAX) {
-            st->next = at, st->end = at + AREA_CHUNK;
-            prefault_write((uint8_t *)shm_at(w->base, b->brick_off) + at, AREA_CHUNK);
-        }
-    }
-    if (st->end - st->next >= size) {
-        st->next += size;
-        return st->next - size;
-    }
-    return take_shared(b, size);
-}
-
 /* Node i, encoded into out (its record in rec, same: the tag of its
  * first), into the shared brick area.  A duplicate of a brick this worker
  * stored takes its offset; one whose first did not fit stays unrecorded
@@ -107,7 +69,7 @@ static void store_one(worker_ctx *w, encode_state *st, encode_block *b, uint64_t
         }
         return;
     }
-    uint64_t off = take_area(w, st, b, rec->size);
+    uint64_t off = worker_chunk_take(w, &st->area, &b->bump, b->brick_off, b->brick_cap, rec->size);
     /* Full: leave the node unrecorded, the master encodes it itself. */
     if (off == UINT64_MAX) return;
     memcpy((uint8_t *)shm_at(w->base, b->brick_off) + off, out, rec->size);

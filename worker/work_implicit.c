@@ -8,6 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "prefault.h"
 #include "subdiv.h"
 #include "work.h"
 
@@ -31,11 +32,15 @@ static void implicit_free(void *state)
     free(st);
 }
 
-/* A block of the arena for this worker (octree_grab). */
+/* A block of the arena for this worker (octree_grab), its pages mapped
+ * by one call rather than a fault each as its cells are taken (the
+ * sphere at 2048^3: 34,000 of its 81,000 faults; design.md, Page faults). */
 static int grab(void *ud, uint32_t *first, uint32_t *end)
 {
     implicit_state *st = ud;
-    return implicit_claim(st->w->base, st->b, st->who, first, end);
+    int rc = implicit_claim(st->w->base, st->b, st->who, first, end);
+    if (!rc) prefault_write(&st->t.cells[*first], (size_t)(*end - *first) * sizeof st->t.cells[0]);
+    return rc;
 }
 
 /* A vm over the job's tape (in the segment), a writer of its arena. */

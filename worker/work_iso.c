@@ -9,11 +9,13 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "prefault.h"
 #include "work.h"
 
 typedef struct {
     iso_work *w;
     uint32_t brick, normals; /* what w was made for */
+    worker_chunk arena;      /* this worker's chunk of the job's arena */
 } iso_state;
 
 static void iso_state_free(void *state)
@@ -31,6 +33,7 @@ static int iso_begin(worker_ctx *w, void **state)
     iso_state *st = *state;
     if (!st && !(st = *state = calloc(1, sizeof *st))) return -ENOMEM;
     const iso_block *b = shm_at(w->base, w->h->job_off);
+    st->arena = (worker_chunk){0, 0}; /* a new job's arena */
     if (st->w && st->brick == b->p.brick && st->normals == b->p.normals) return 0;
     iso_work_free(st->w);
     st->w = NULL;
@@ -52,13 +55,13 @@ static iso_input block_input(const worker_ctx *w, const iso_block *b)
 }
 
 /* Task i's piece into the arena, if it fits. */
-static void store(worker_ctx *w, iso_block *b, uint64_t i, const iso_piece *pc)
+static void store(worker_ctx *w, iso_state *st, iso_block *b, uint64_t i, const iso_piece *pc)
 {
     iso_result *r = (iso_result *)shm_at(w->base, b->results_off) + i;
     uint64_t bytes = iso_piece_bytes(&b->p, pc);
-    uint64_t off = atomic_fetch_add_explicit(&b->bump, (bytes + 7) & ~7ull,
-                                             memory_order_relaxed);
-    if (off > b->arena_cap || bytes > b->arena_cap - off) return;
+    uint64_t off = worker_chunk_take(w, &st->arena, &b->bump, b->arena_off, b->arena_cap,
+                                     (bytes + 7) & ~7ull);
+    if (off == UINT64_MAX) return;
     iso_piece_pack(&b->p, pc, shm_at(w->base, b->arena_off + off));
     r->off = off;
     r->nv = pc->nv;
@@ -89,6 +92,19 @@ static iso_piece *views(const worker_ctx *w, const iso_block *b)
     return pc;
 }
 
+/* The output arrays of pieces [i0, i1) mapped by one call each: their
+ * ranges are contiguous, and a worker welds a run of pieces at a time so
+ * that the pages it writes are its own. */
+static void prefault_pieces(const iso_weld *wd, uint64_t i0, uint64_t i1)
+{
+    uint64_t v0 = wd->vbase[i0], v1 = wd->vbase[i1], t0 = wd->tbase[i0], t1 = wd->tbase[i1];
+    prefault_write(wd->pos + 3 * v0, 12 * (v1 - v0));
+    if (wd->nrm) prefault_write(wd->nrm + 3 * v0, 12 * (v1 - v0));
+    prefault_write(wd->tri + 3 * t0, 12 * (t1 - t0));
+}
+
+#define WELD_RUN 64u /* pieces claimed at a time */
+
 static int weld_run(worker_ctx *w, iso_block *b)
 {
     iso_piece *pc = views(w, b);
@@ -100,14 +116,19 @@ static int weld_run(worker_ctx *w, iso_block *b)
                    shm_at(w->base, b->tri_off)};
     int rc = 0;
     while (!rc) {
-        if (worker_aborted(w)) rc = -ECANCELED;
-        /* relaxed: a counter that hands out disjoint pieces */
-        uint64_t i = atomic_fetch_add_explicit(&b->weld_next, 1, memory_order_relaxed);
-        if (rc || i >= b->n_tasks) break;
-        worker_tick(w);
-        /* release: pairs with the master's acquire load of welded */
-        if (!iso_weld_piece(&wd, i, NULL)) /* the master says what failed */
-            atomic_store_explicit(&res[i].welded, 1, memory_order_release);
+        /* relaxed: a counter that hands out disjoint runs of pieces */
+        uint64_t i0 = atomic_fetch_add_explicit(&b->weld_next, WELD_RUN, memory_order_relaxed);
+        if (i0 >= b->n_tasks) break;
+        uint64_t i1 = b->n_tasks - i0 < WELD_RUN ? b->n_tasks : i0 + WELD_RUN;
+        prefault_pieces(&wd, i0, i1);
+        for (uint64_t i = i0; i < i1 && !rc; i++) {
+            if (worker_aborted(w)) rc = -ECANCELED;
+            if (rc) break;
+            worker_tick(w);
+            /* release: pairs with the master's acquire load of welded */
+            if (!iso_weld_piece(&wd, i, NULL)) /* the master says what failed */
+                atomic_store_explicit(&res[i].welded, 1, memory_order_release);
+        }
     }
     free(pc);
     return rc;
@@ -128,7 +149,7 @@ static int iso_run(worker_ctx *w, void *state, const shm_task *t)
         if (i >= b->n_tasks) return 0;
         worker_tick(w);
         iso_piece pc;
-        if (iso_task_run(st->w, &b->p, &in, &tasks[i], &pc) == 0) store(w, b, i, &pc);
+        if (iso_task_run(st->w, &b->p, &in, &tasks[i], &pc) == 0) store(w, st, b, i, &pc);
     }
 }
 
