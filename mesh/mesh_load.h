@@ -122,6 +122,9 @@ extern _Atomic uint64_t mesh_ply_par_runs;
 #define MESH_STL_SERIAL UINT32_MAX
 int mesh_stl_binary_par(const unsigned char *u, uint32_t n, mbuild *b);
 extern _Atomic uint64_t mesh_stl_par_runs;
+/* Welds with eps = 0 run on every CPU so far (mesh_weld.c; smaller meshes
+ * and other eps are merged by one thread): the tests check which ran. */
+extern _Atomic uint64_t mesh_weld_par_runs;
 /* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
 int mesh_off_keyword(const char *p, size_t n);
 

@@ -23,11 +23,13 @@
 #include <errno.h>
 #include <float.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "huge.h"
 #include "mesh_load.h"
+#include "par.h"
 
 /* A cell of the grid: its key, and its kept vertices as a list through
  * next[] (first and last, in index order). */
@@ -176,6 +178,85 @@ static int merge_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
     return rc;
 }
 
+/* ---- eps = 0 on every CPU ----
+ * Exactly equal positions, split by their key's hash into one part a
+ * thread: each thread reads every vertex in order, files those of its part
+ * in a table of its own (a slot: the first vertex of a position + 1, and
+ * its hash's high half) and sets map[i] for them alone.  A position's
+ * vertices are all in one part, met in index order, so its first is the
+ * lowest index: the map is the one-thread merge's, whatever the number of
+ * parts. */
+#define WELD_PAR_MIN 65536u /* vertices: fewer are merged on one thread */
+#define WELD_PAR_MAX 8u     /* threads at most: each reads every vertex */
+
+_Atomic uint64_t mesh_weld_par_runs;
+
+typedef struct {
+    float (*v)[3];
+    uint32_t n;
+    uint32_t *map;
+    atomic_int failed; /* a part's table could not be had */
+} exact_par;
+
+static void exact_key(const float p[3], double k[3])
+{
+    for (int a = 0; a < 3; a++) k[a] = p[a] + 0.0; /* -0 as 0 */
+}
+
+static void exact_part(void *ud, unsigned part, unsigned parts)
+{
+    exact_par *x = ud;
+    uint64_t size = 16;
+    while (size < 2 * ((uint64_t)x->n / parts + 1)) size *= 2;
+    slot *sl = huge_malloc((size_t)size * sizeof *sl);
+    if (!sl) {
+        /* relaxed: read after par_run's join */
+        atomic_store_explicit(&x->failed, 1, memory_order_relaxed);
+        return;
+    }
+    memset(sl, 0, (size_t)size * sizeof *sl);
+    uint64_t mask = size - 1;
+    for (uint32_t i = 0; i < x->n; i++) {
+        double k[3];
+        exact_key(x->v[i], k);
+        uint64_t h = key_hash(k);
+        /* the part from the hash's high half, the slot from its low bits */
+        if ((((h >> 32) * parts) >> 32) != part) continue;
+        uint32_t tag = (uint32_t)(h >> 32), j = i;
+        for (uint64_t q = h & mask;; q = (q + 1) & mask) {
+            slot *s = &sl[q];
+            if (!s->cell) {
+                *s = (slot){i + 1, tag};
+                break;
+            }
+            double c[3];
+            exact_key(x->v[s->cell - 1], c);
+            if (s->tag == tag && c[0] == k[0] && c[1] == k[1] && c[2] == k[2]) {
+                j = s->cell - 1;
+                break;
+            }
+        }
+        x->map[i] = j;
+    }
+    free(sl);
+}
+
+/* merge_map for eps = 0 on several threads; 1 when it could not run
+ * (the caller merges on one). */
+static int merge_exact_par(float (*v)[3], uint32_t n, uint32_t *map)
+{
+    unsigned cpus = par_cpus();
+    if (n < WELD_PAR_MIN || cpus < 2) return 1;
+    exact_par x = {.v = v, .n = n, .map = map};
+    atomic_init(&x.failed, 0);
+    par_run(cpus < WELD_PAR_MAX ? cpus : WELD_PAR_MAX, exact_part, &x);
+    /* relaxed: par_run's join orders the parts' stores before it */
+    if (atomic_load_explicit(&x.failed, memory_order_relaxed)) return 1;
+    /* relaxed: a counter for the tests */
+    atomic_fetch_add_explicit(&mesh_weld_par_runs, 1, memory_order_relaxed);
+    return 0;
+}
+
 static int degenerate(float (*v)[3], uint32_t a, uint32_t b, uint32_t c)
 {
     return a == b || b == c || a == c || mesh_build_zero_area(v[a], v[b], v[c]);
@@ -230,7 +311,9 @@ int mesh_weld(mesh *m, double eps, uint32_t *merged)
     if (!(eps == 0 || (eps >= MESH_WELD_MIN && eps <= MESH_WELD_MAX))) return -EINVAL;
     uint32_t *map = huge_malloc((size_t)m->n_vertices * sizeof *map + 1);
     if (!map) return -ENOMEM;
-    int rc = merge_map(m->vertices, m->n_vertices, eps, map);
+    int rc = eps == 0 && !merge_exact_par(m->vertices, m->n_vertices, map)
+                 ? 0
+                 : merge_map(m->vertices, m->n_vertices, eps, map);
     if (!rc && !any_left(m, map)) rc = -EINVAL; /* the mesh stays as it was */
     if (rc) {
         free(map);

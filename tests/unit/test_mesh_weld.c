@@ -13,11 +13,13 @@
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "mesh.h"
+#include "mesh_load.h"
 #include "mesh_shapes.h"
 #include "proto_check.h"
 
@@ -52,11 +54,11 @@ static mesh copy_of(const mesh *m)
     return c;
 }
 
-/* mesh_weld(m, eps) gives the brute force's mesh; returns the vertices kept. */
-static uint32_t check_weld(const mesh *m, double eps, const char *what)
+/* mesh_weld(m, eps) gives the mesh of the oracle's map (map[i]: the kept
+ * vertex i goes to); returns the vertices kept. */
+static uint32_t check_map(const mesh *m, double eps, const uint32_t *map, const char *what)
 {
-    uint32_t n = m->n_vertices, *map = malloc(n * sizeof *map + 1);
-    brute_map(m->vertices, n, eps, map);
+    uint32_t n = m->n_vertices;
     uint32_t *renum = malloc(n * sizeof *renum + 1), nk = 0;
     for (uint32_t i = 0; i < n; i++)
         if (map[i] == i) renum[i] = nk++;
@@ -84,8 +86,17 @@ static uint32_t check_weld(const mesh *m, double eps, const char *what)
                  kept);
     cr_assert_eq(w.n_degenerate, m->n_degenerate + (m->n_triangles - kept), "%s", what);
     mesh_free(&w);
-    free(map);
     free(renum);
+    return nk;
+}
+
+/* mesh_weld(m, eps) gives the brute force's mesh; returns the vertices kept. */
+static uint32_t check_weld(const mesh *m, double eps, const char *what)
+{
+    uint32_t *map = malloc(m->n_vertices * sizeof *map + 1);
+    brute_map(m->vertices, m->n_vertices, eps, map);
+    uint32_t nk = check_map(m, eps, map, what);
+    free(map);
     return nk;
 }
 
@@ -236,5 +247,70 @@ Test(mesh_weld, bad_eps_and_a_weld_that_leaves_nothing)
     cr_assert_eq(memcmp(w.triangles, s.m.triangles, w.n_triangles * sizeof *w.triangles), 0);
     for (int a = 0; a < 3; a++) cr_assert(w.lo[a] == s.m.lo[a] && w.hi[a] == s.m.hi[a]);
     mesh_free(&w);
+    shape_free(&s);
+}
+
+/* ---------------------------------------------- eps = 0 on every CPU */
+
+/* The exact weld's oracle for many vertices: the vertices sorted by their
+ * position (-0 as 0), then by index; each goes to the first of its run. */
+static const float (*sort_v)[3];
+
+static int by_position(const void *a, const void *b)
+{
+    uint32_t i = *(const uint32_t *)a, j = *(const uint32_t *)b;
+    for (int k = 0; k < 3; k++) {
+        double x = sort_v[i][k] + 0.0, y = sort_v[j][k] + 0.0;
+        if (x != y) return x < y ? -1 : 1;
+    }
+    return (i > j) - (i < j);
+}
+
+static void sorted_map(float (*v)[3], uint32_t n, uint32_t *map)
+{
+    uint32_t *ord = malloc(n * sizeof *ord + 1);
+    for (uint32_t i = 0; i < n; i++) ord[i] = i;
+    sort_v = (const float (*)[3])v;
+    qsort(ord, n, sizeof *ord, by_position);
+    for (uint32_t r = 0; r < n; r++) {
+        bool same = r > 0;
+        for (int k = 0; k < 3 && same; k++) same = v[ord[r]][k] + 0.0 == v[ord[r - 1]][k] + 0.0;
+        map[ord[r]] = same ? map[ord[r - 1]] : ord[r];
+    }
+    free(ord);
+}
+
+/* 200,000 vertices drawn from 40,000 positions (a zero coordinate written
+ * -0 in some copies), above the size the weld runs on every CPU from:
+ * the map is the sorted oracle's, and the parallel path ran. */
+Test(mesh_weld, an_exact_weld_on_every_cpu_is_the_oracles)
+{
+    enum { N = 200000, DISTINCT = 40000, TRIS = 150000 };
+    float (*pos)[3] = malloc(DISTINCT * sizeof *pos);
+    uint64_t seed = 5;
+    for (uint32_t i = 0; i < DISTINCT; i++)
+        for (int a = 0; a < 3; a++)
+            pos[i][a] = urand(&seed) < 0.1 ? 0.0f : (float)(urand(&seed) * 8 - 4);
+    shape s;
+    shape_init(&s);
+    for (uint32_t i = 0; i < N; i++) {
+        uint32_t v = shape_vertex(&s, 0, 0, 0), from = (uint32_t)(urand(&seed) * DISTINCT);
+        for (int a = 0; a < 3; a++) {
+            float x = pos[from][a];
+            s.m.vertices[v][a] = x == 0 && urand(&seed) < 0.5 ? -0.0f : x;
+        }
+    }
+    for (uint32_t i = 0; i < TRIS; i++)
+        shape_tri(&s, (uint32_t)(urand(&seed) * N), (uint32_t)(urand(&seed) * N),
+                  (uint32_t)(urand(&seed) * N));
+    shape_finish(&s);
+    uint32_t *map = malloc(N * sizeof *map);
+    sorted_map(s.m.vertices, N, map);
+    uint64_t runs = atomic_load(&mesh_weld_par_runs);
+    uint32_t nk = check_map(&s.m, 0, map, "exact, many");
+    cr_assert(nk > DISTINCT / 2 && nk <= DISTINCT, "%u kept", nk);
+    cr_assert_eq(atomic_load(&mesh_weld_par_runs), runs + 1, "not welded on every CPU");
+    free(map);
+    free(pos);
     shape_free(&s);
 }
