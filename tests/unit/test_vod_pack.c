@@ -261,3 +261,37 @@ Test(vod_pack, the_file_is_the_oracles)
     file_case(4, 16);
     file_case(16, 8);
 }
+
+/* The writer refuses a voxel outside the file's volume (VOD padding must
+ * be 0) in a packed record as in any other brick: a band value, and -0.0
+ * (non-zero bits); the record is read whole for it (vol_outside). */
+Test(vod_pack, a_voxel_outside_the_file_volume_is_refused)
+{
+    fx f;
+    fx_make(&f, 20, 20, 20, 8);
+    cr_assert_eq(vod_volume_set(f.v, 3, 3, 3, fb(0.5f)), 0);
+    vod_source src = vod_volume_source(f.v);
+    vod_params p;
+    vod_params_default(&p);
+    memcpy(p.volume, f.dims, sizeof f.dims);
+    p.volume[0] = 16;
+    p.channel = VOXEL_CH_DISTANCE;
+    const uint32_t bad[] = {fb(0.25f), 0x80000000u};
+    for (int k = 0; k < 2; k++) {
+        cr_assert_eq(vod_volume_set(f.v, 17, 5, 6, bad[k]), 0);
+        membuf m = {0};
+        vod_sink sink = {mem_write, &m};
+        err_info err = {0};
+        cr_assert_eq(vod_write(&src, &p, &sink, NULL, &err), -EINVAL, "value %08x", bad[k]);
+        cr_assert_str_eq(err.msg, "the volume holds a voxel at 17,5,6, outside volumeSize "
+                                  "16x20x20 (VOD padding must be 0)");
+        free(m.p);
+    }
+    cr_assert_eq(vod_volume_set(f.v, 17, 5, 6, 0), 0);
+    membuf m = {0};
+    vod_sink sink = {mem_write, &m};
+    err_info err = {0};
+    cr_assert_eq(vod_write(&src, &p, &sink, NULL, &err), 0, "%s", err.msg);
+    free(m.p);
+    fx_free(&f);
+}
