@@ -7,6 +7,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "huge.h"
 #include "mesh_vox.h"
 #include "vod_volume.h"
 #include "work.h"
@@ -60,7 +61,8 @@ static int mesh_begin(worker_ctx *w, void **state)
     if (st->scratch_bytes >= want) return 0;
     free(st->scratch);
     st->scratch_bytes = 0;
-    if (!(st->scratch = malloc(want ? want : 1))) return -ENOMEM;
+    /* huge pages: the columns' and the distance's slab are written whole (huge.h) */
+    if (!(st->scratch = huge_malloc(want ? want : 1))) return -ENOMEM;
     st->scratch_bytes = want;
     return 0;
 }
