@@ -14,8 +14,13 @@
  * record at a time, so a pool that held its records before still does
  * (vod_volume_bytes sizes it).  A chunk is of one volume: the thread keeps
  * its volume and the pool's epoch beside it, and a new volume made at the
- * same address, or the pool given back (vod_vol_drop_mips), has another. */
+ * same address, or the pool given back (vod_vol_drop_mips), has another.
+ * A process forked from a thread with a chunk (the engine's master forks
+ * a worker's replacement mid-job) would inherit it and give out its units
+ * a second time: the child forgets it (pthread_atfork). */
 #include "vod_volume_int.h"
+
+#include <pthread.h>
 
 #include "prefault.h"
 
@@ -28,6 +33,17 @@ static _Thread_local struct {
     uint64_t epoch;
     uint32_t next, end;
 } mine;
+
+/* In a forked child: the forking thread's chunk is its parent's. */
+static void forget_chunk(void)
+{
+    mine.v = NULL;
+}
+
+static void watch_forks(void)
+{
+    (void)pthread_atfork(NULL, NULL, forget_chunk);
+}
 
 /* `units` units from the shared counter; the first's index (entry - 1),
  * or UINT32_MAX when they do not fit. */
@@ -65,7 +81,11 @@ uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units)
 {
     if (mine.v != v || mine.epoch != v->pool_epoch) mine.v = NULL;
     if (mine.v && mine.end - mine.next < units) mine.v = NULL; /* its rest unused */
-    if (!mine.v) take_chunk(v);
+    if (!mine.v) {
+        static pthread_once_t once = PTHREAD_ONCE_INIT;
+        pthread_once(&once, watch_forks);
+        take_chunk(v);
+    }
     if (mine.v && mine.end - mine.next >= units) {
         uint32_t at = mine.next;
         mine.next += (uint32_t)units;

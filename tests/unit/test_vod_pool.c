@@ -4,11 +4,14 @@
  * the volume's check passes), a small pool is taken a record at a time as
  * before, and a chunk is never given out of a volume it was not taken
  * from: a new volume made at the same address, or the pool given back
- * below it (the mip levels dropped). */
+ * below it (the mip levels dropped), nor by a forked child. */
 #include <criterion/criterion.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <sys/wait.h>
+#include <unistd.h>
 
 #include "vod_volume.h"
 #include "vod_volume_int.h"
@@ -162,4 +165,35 @@ Test(vod_pool, the_pool_given_back_is_not_given_out_from_an_old_chunk)
     cr_assert_eq(vod_volume_check(f.v, f.bytes), 0);
     read_back(&f, (const uint32_t[3]){3, 0, 0});
     free(f.arena);
+}
+
+/* A process forked from a thread that holds a chunk (a worker's
+ * replacement, forked by the master mid-job) takes a chunk of its own: its
+ * records and its parent's, in one shared volume, never share a unit. */
+Test(vod_pool, a_forked_child_does_not_give_out_its_parents_chunk)
+{
+    pool_fx f;
+    f.dims[0] = 512, f.dims[1] = 256, f.dims[2] = 128;
+    f.bytes = vod_volume_bytes(f.dims, VOD_VOLUME_F32, 8, UINT32_MAX);
+    f.arena = mmap(NULL, f.bytes, PROT_READ | PROT_WRITE, MAP_SHARED | MAP_ANONYMOUS, -1, 0);
+    cr_assert_neq(f.arena, MAP_FAILED);
+    cr_assert_eq(vod_volume_init(&f.v, f.arena, f.bytes, f.dims, VOD_VOLUME_F32, 8), 0);
+    put(&f, (const uint32_t[3]){0, 0, 0}); /* this thread's chunk */
+    pid_t pid = fork();
+    cr_assert_geq(pid, 0);
+    if (pid == 0) {
+        uint32_t vox[512];
+        for (uint32_t i = 0; i < 512; i++) vox[i] = voxel_of((const uint32_t[3]){1, 0, 0}, i);
+        _exit(vod_volume_put_brick(f.v, (const uint32_t[3]){1, 0, 0}, vox) ? 1 : 0);
+    }
+    int status;
+    cr_assert_eq(waitpid(pid, &status, 0), pid);
+    cr_assert(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+    put(&f, (const uint32_t[3]){2, 0, 0});
+    uint32_t child = table(f.v, 0)[1], parent = table(f.v, 0)[2];
+    cr_assert_geq(child, CHUNK_UNITS + 1, "the child's record in a chunk of its own");
+    cr_assert_lt(parent, CHUNK_UNITS + 1, "the parent's in its chunk");
+    cr_assert_eq(vod_volume_check(f.v, f.bytes), 0);
+    for (uint32_t x = 0; x < 3; x++) read_back(&f, (const uint32_t[3]){x, 0, 0});
+    munmap(f.arena, f.bytes);
 }
