@@ -3,6 +3,7 @@
 
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 #include <sys/mman.h>
 
 #define HUGE_PAGE ((uintptr_t)2 << 20)
@@ -24,5 +25,13 @@ void *huge_malloc(size_t n)
 {
     void *p = malloc(n);
     if (p) huge_advise(p, n);
+    return p;
+}
+
+void *huge_calloc(size_t n, size_t size)
+{
+    if (size && n > SIZE_MAX / size) return NULL;
+    void *p = huge_malloc(n * size);
+    if (p) memset(p, 0, n * size);
     return p;
 }

@@ -12,6 +12,9 @@
 /* malloc(n) (free() frees it), advised to be backed by huge pages; NULL
  * when there is no memory. */
 void *huge_malloc(size_t n);
+/* huge_malloc of n items of size bytes, zeroed; NULL when there is no
+ * memory or n * size overflows. */
+void *huge_calloc(size_t n, size_t size);
 /* The same advice for a block already allocated, [p, p + n) (after a
  * realloc, say). */
 void huge_advise(void *p, size_t n);

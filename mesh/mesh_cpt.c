@@ -119,10 +119,9 @@ static int dhash_init(dhash *h, size_t want)
 {
     size_t cap = 16;
     while (cap < 2 * want) cap *= 2;
-    h->key = huge_malloc(cap * sizeof *h->key);
+    h->key = huge_calloc(cap, sizeof *h->key);
     h->id = huge_malloc(cap * sizeof *h->id);
     h->mask = (uint32_t)(cap - 1), h->n = 0;
-    if (h->key) memset(h->key, 0, cap * sizeof *h->key);
     return h->key && h->id ? 0 : -ENOMEM;
 }
 

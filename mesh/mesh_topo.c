@@ -141,7 +141,7 @@ int mesh_edges(const mesh *m, mesh_topo *out)
         return rc;
     }
     memset(out, 0, sizeof *out);
-    uint32_t *start = huge_malloc(((size_t)nv + 1) * sizeof *start);
+    uint32_t *start = huge_calloc((size_t)nv + 1, sizeof *start);
     uint32_t *use = huge_malloc((size_t)3 * nt * sizeof *use + 1);
     uint64_t *slot = huge_malloc((size_t)nv * sizeof *slot + 1);
     if (!start || !use || !slot) {
@@ -150,7 +150,6 @@ int mesh_edges(const mesh *m, mesh_topo *out)
         free(slot);
         return -ENOMEM;
     }
-    memset(start, 0, ((size_t)nv + 1) * sizeof *start);
     /* stamped with no vertex: lo < 2^31 - 1 */
     memset(slot, 0xff, (size_t)nv * sizeof *slot);
     for (uint32_t i = 0; i < nt; i++) {
@@ -188,7 +187,7 @@ int mesh_topology(const mesh *m, mesh_topo *out)
     memset(out, 0, sizeof *out);
     uint32_t nv = m->n_vertices, nt = m->n_triangles;
     if (nt > INT32_MAX) return -E2BIG;
-    uint64_t *start = huge_malloc(((size_t)nv + 1) * sizeof *start);
+    uint64_t *start = huge_calloc((size_t)nv + 1, sizeof *start);
     edge_use *use = huge_malloc((size_t)3 * nt * sizeof *use + 1);
     uint32_t *parent = huge_malloc((size_t)nt * sizeof *parent + 1);
     if (!start || !use || !parent) {
@@ -197,7 +196,6 @@ int mesh_topology(const mesh *m, mesh_topo *out)
         free(parent);
         return -ENOMEM;
     }
-    memset(start, 0, ((size_t)nv + 1) * sizeof *start);
     for (uint32_t i = 0; i < nt; i++) {
         const uint32_t *t = m->triangles[i];
         for (int k = 0; k < 3; k++) {

@@ -89,9 +89,8 @@ static slot *find_slot(const grid *g, const double k[3], uint64_t h)
 static int grow_slots(grid *g)
 {
     uint64_t size = (g->mask + 1) * 2;
-    slot *sl = huge_malloc((size_t)size * sizeof *sl);
+    slot *sl = huge_calloc((size_t)size, sizeof *sl);
     if (!sl) return -ENOMEM;
-    memset(sl, 0, (size_t)size * sizeof *sl);
     free(g->slot);
     g->slot = sl;
     g->mask = size - 1;
@@ -150,11 +149,10 @@ static int merge_map(float (*v)[3], uint32_t n, double eps, uint32_t *map)
     g.mask = ((uint64_t)1 << bits) - 1;
     /* a cell for each vertex at most; huge pages: the arrays are written
      * once, their faults would cost as much as the writes (huge.h) */
-    g.slot = huge_malloc(((size_t)g.mask + 1) * sizeof *g.slot);
+    g.slot = huge_calloc((size_t)g.mask + 1, sizeof *g.slot);
     g.next = huge_malloc((size_t)(n ? n : 1) * sizeof *g.next);
     g.cells = huge_malloc((size_t)(n ? n : 1) * sizeof *g.cells);
     int rc = g.slot && g.next && g.cells ? 0 : -ENOMEM;
-    if (g.slot) memset(g.slot, 0, ((size_t)g.mask + 1) * sizeof *g.slot);
     double h = 2 * eps * (1 + 0x1p-10), eps2 = eps * eps;
     for (uint32_t i = 0; !rc && i < n; i++) {
         double k[3], side[3] = {0, 0, 0};
@@ -208,13 +206,12 @@ static void exact_part(void *ud, unsigned part, unsigned parts)
     exact_par *x = ud;
     uint64_t size = 16;
     while (size < 2 * ((uint64_t)x->n / parts + 1)) size *= 2;
-    slot *sl = huge_malloc((size_t)size * sizeof *sl);
+    slot *sl = huge_calloc((size_t)size, sizeof *sl);
     if (!sl) {
         /* relaxed: read after par_run's join */
         atomic_store_explicit(&x->failed, 1, memory_order_relaxed);
         return;
     }
-    memset(sl, 0, (size_t)size * sizeof *sl);
     uint64_t mask = size - 1;
     for (uint32_t i = 0; i < x->n; i++) {
         double k[3];
