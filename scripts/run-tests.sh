@@ -53,11 +53,12 @@ run() {
     local name=$1 lim
     shift
     lim=$(limit "$name")
+    T0=$SECONDS
     export VOX_SAN_DIR="$log/san.$name"
     mkdir -p "$VOX_SAN_DIR"
     export ASAN_OPTIONS="$ASAN_BASE:log_path=$VOX_SAN_DIR/asan"
     timeout -k 20 "$lim" "$@" >"$log/$name" 2>&1 </dev/null
-    RC=$? WHY=
+    RC=$? WHY= SECS=$((SECONDS - T0))
     case $RC in
         0) ;;
         124 | 137) WHY="timed out after $lim s (hung? TEST_TIMEOUT_$name=SECONDS to change)" ;;
@@ -72,14 +73,15 @@ run() {
 }
 why() { WHY="${WHY:+$WHY$'\n'}$1"; }
 
-# report KIND NAME P F: add up, print the suite's line, and on a failure its
-# reasons and the tail of its output
+# report KIND NAME P F: add up, print the suite's line (with its seconds, so
+# that the suites that make CI long are seen), and on a failure its reasons and
+# the tail of its output
 report() {
     local kind=$1 name=$2 p=$3 f=$4 n
     n=$(grep -c . <<<"$WHY")
     f=$((f + n))
     passed=$((passed + p)); failed=$((failed + f))
-    printf '%-5s %-28s %4d passed, %d failed\n' "$kind" "$name" "$p" "$f"
+    printf '%-5s %-28s %4d passed, %d failed %6d s\n' "$kind" "$name" "$p" "$f" "$SECS"
     [ -n "$WHY" ] && sed "s/^/FAIL: $name: /" <<<"$WHY"
     [ "$f" -gt 0 ] && grep -a -v '^PASS:' "$log/$name" | tail -40
     grep -a '^NOTE:' "$log/$name" | sort

@@ -92,7 +92,7 @@ runner() {
     RC=$?
 }
 # counts KIND NAME: "P F" from the suite's line
-counts() { sed -n "s/^$1 *$2  *\([0-9]*\) passed, \([0-9]*\) failed$/\1 \2/p" "$T/out"; }
+counts() { sed -n "s/^$1 *$2  *\([0-9]*\) passed, \([0-9]*\) failed  *[0-9]* s$/\1 \2/p" "$T/out"; }
 said() { sed 's/Sanitizer/S.nitizer/; s/runtime error/runtime e.ror/' "$T/out" | grep -v '^PASS:' | head -40; }
 
 runner "$T/good" "$T/good/integ"
