@@ -139,58 +139,83 @@ static bool row_span(const dscan *sc, double pu, double pv, double s[2])
     return lo <= hi;
 }
 
-/* The rows of region f in the slice at pv (axis v) whose span along ax
- * (within s0, s1) can be non-empty: uu[0 .. 1] on axis u narrowed to the
- * projection of the slice's polygon, its half spaces a_u q_u + a_s q_s <= c
- * (q = p - f->c, the span [s0, s1] two more) with q_s eliminated
- * (Fourier-Motzkin: each upper bound of q_s against each lower one), and
- * the ball's disc; false when the slice holds none.  Most vertices' cones
- * are empty, and their slices say so without a row visited (for the edges'
- * wedges it pays less, for the faces' prisms not at all: most of their
- * rows are). */
-static bool slice_span(const dscan *sc, double pv, double s0, double s1, double uu[2])
+/* The slices of a region (scanned across axis v), each the polygon of the
+ * rows (axis u) whose span along ax can be non-empty: the half spaces
+ * a_u q_u + a_s q_s <= c - a_v q_v of the region (q = p - f->c) and the
+ * span [s0, s1] two more, with q_s eliminated (Fourier-Motzkin: each upper
+ * bound of q_s against each lower one), made once a region and slab; what
+ * is left, al q_u <= b0 - bv q_v, in three runs: the upper bounds of q_u
+ * (al > 0), the lower ones, and those without q_u (al = 0), inv = 1 / al.
+ * Most vertices' cones are empty, and their slices say so without a row
+ * visited (for the edges' wedges it pays less, for the faces' prisms not
+ * at all: most of their rows are). */
+#define DIST_MAXP ((DIST_MAXH + 2) * (DIST_MAXH + 2) / 4 + DIST_MAXH + 2)
+typedef struct {
+    uint32_t nhi, nlo, nzero; /* uppers at [0, nhi), lowers at [DIST_MAXP - nlo, DIST_MAXP) */
+    double inv[DIST_MAXP], b0[DIST_MAXP], bv[DIST_MAXP];
+    double zb0[DIST_MAXP], zbv[DIST_MAXP];
+} dslices;
+
+/* A margin far above the rounding of the slices' sums (~1e-14 voxel), far
+ * below the slop: the slices only narrow the rows that row_span decides,
+ * so they may take more, never less. */
+#define SLICE_MARGIN 1e-7
+
+/* Half space al q_u <= b0 - bv q_v into its run of ds. */
+static void slices_add(dslices *ds, double al, double b0, double bv)
+{
+    if (al == 0) {
+        ds->zb0[ds->nzero] = b0, ds->zbv[ds->nzero++] = bv;
+        return;
+    }
+    uint32_t i = al > 0 ? ds->nhi++ : DIST_MAXP - ++ds->nlo;
+    ds->inv[i] = 1 / al, ds->b0[i] = b0, ds->bv[i] = bv;
+}
+
+static void slices_make(const dscan *sc, double s0, double s1, dslices *ds)
 {
     const dfeat *f = sc->f;
     int ax = f->ax, u = sc->u, v = sc->v;
     uint32_t n = f->nh;
-    double au[DIST_MAXH + 2], as[DIST_MAXH + 2], c[DIST_MAXH + 2];
-    double qv = pv - f->c[v], lo = uu[0] - f->c[u], hi = uu[1] - f->c[u];
+    double au[DIST_MAXH + 2], as[DIST_MAXH + 2], c[DIST_MAXH + 2], cv[DIST_MAXH + 2];
     for (uint32_t j = 0; j < n; j++) {
         const double *h = sc->d->hs[f->h0 + j];
-        au[j] = h[u], as[j] = h[ax];
-        c[j] = h[3] - dot3(h, f->c) - h[v] * qv;
+        au[j] = h[u], as[j] = h[ax], cv[j] = h[v];
+        c[j] = h[3] - dot3(h, f->c);
     }
-    au[n] = 0, as[n] = 1, c[n] = s1 - f->c[ax];
-    au[n + 1] = 0, as[n + 1] = -1, c[n + 1] = f->c[ax] - s0;
-    uint32_t neg[DIST_MAXH + 2], nn = 0; /* the lower bounds of q_s, in order */
-    for (uint32_t k = 0; k < n + 2; k++)
-        if (as[k] < 0) neg[nn++] = k;
+    au[n] = 0, as[n] = 1, c[n] = s1 - f->c[ax], cv[n] = 0;
+    au[n + 1] = 0, as[n + 1] = -1, c[n + 1] = f->c[ax] - s0, cv[n + 1] = 0;
+    ds->nhi = ds->nlo = ds->nzero = 0;
     for (uint32_t j = 0; j < n + 2; j++) {
-        double al = au[j], be = c[j]; /* al q_u <= be */
-        if (as[j] != 0) {
-            if (as[j] < 0) continue;
-            for (uint32_t i = 0; i < nn; i++) {
-                uint32_t k = neg[i];
-                al = au[j] * -as[k] + au[k] * as[j], be = c[j] * -as[k] + c[k] * as[j];
-                if (al > 0) hi = MIND(hi, be / al);
-                else if (al < 0) lo = MAXD(lo, be / al);
-                else if (be < 0) return false;
-            }
-            if (!(lo <= hi)) return false;
-            continue;
-        }
-        if (al > 0) hi = MIND(hi, be / al);
-        else if (al < 0) lo = MAXD(lo, be / al);
-        else if (be < 0) return false;
+        if (as[j] == 0) slices_add(ds, au[j], c[j], cv[j]);
+        if (!(as[j] > 0)) continue;
+        for (uint32_t k = 0; k < n + 2; k++)
+            if (as[k] < 0)
+                slices_add(ds, au[j] * -as[k] + au[k] * as[j], c[j] * -as[k] + c[k] * as[j],
+                           cv[j] * -as[k] + cv[k] * as[j]);
     }
+}
+
+/* The rows of the slice at pv (axis v) that can hold voxels of the region:
+ * uu[0 .. 1] on axis u narrowed to its polygon in ds and, for a vertex,
+ * the ball's disc; false when the slice holds none. */
+static bool slice_span(const dscan *sc, const dslices *ds, double pv, double uu[2])
+{
+    const dfeat *f = sc->f;
+    int u = sc->u, v = sc->v;
+    double qv = pv - f->c[v], lo = uu[0] - f->c[u], hi = uu[1] - f->c[u];
+    for (uint32_t i = 0; i < ds->nzero; i++)
+        if (ds->zb0[i] - ds->zbv[i] * qv < -SLICE_MARGIN) return false;
+    for (uint32_t i = 0; i < ds->nhi; i++) hi = MIND(hi, (ds->b0[i] - ds->bv[i] * qv) * ds->inv[i]);
+    for (uint32_t i = DIST_MAXP - ds->nlo; i < DIST_MAXP; i++)
+        lo = MAXD(lo, (ds->b0[i] - ds->bv[i] * qv) * ds->inv[i]);
     if (f->quad == 1) {
         double r2 = sc->R2 - qv * qv;
         if (r2 < 0) return false;
         double r = sqrt(r2);
         lo = MAXD(lo, -r), hi = MIND(hi, r);
     }
-    /* a margin far above the rounding of these sums, far below the slop */
-    uu[0] = lo + f->c[u] - 1e-7, uu[1] = hi + f->c[u] + 1e-7;
+    uu[0] = lo + f->c[u] - SLICE_MARGIN, uu[1] = hi + f->c[u] + SLICE_MARGIN;
     return uu[0] <= uu[1];
 }
 
@@ -258,11 +283,12 @@ static void feat_d2(const mesh_vox_tile *t, const dcpt *d, const dfeat *f, doubl
     size_t step[3] = {1, SLAB_ROW, SLAB_PLANE};
     double *base = sl->d2 - (size_t)sl->z0 * SLAB_PLANE;
     const uint32_t *tl = d->tl + f->t0;
+    dslices ds;
+    /* a face's rows all meet its prism: no slice test for them */
+    if (f->quad) slices_make(&sc, org[ax] + lo[ax], org[ax] + hi[ax], &ds);
     for (int32_t j = lo[v]; j <= hi[v]; j++) {
         double uu[2] = {org[u] + lo[u], org[u] + hi[u]};
-        /* a face's rows all meet its prism: no slice test for them */
-        if (f->quad && !slice_span(&sc, org[v] + j, org[ax] + lo[ax], org[ax] + hi[ax], uu))
-            continue;
+        if (f->quad && !slice_span(&sc, &ds, org[v] + j, uu)) continue;
         int32_t i0 = iceil(uu[0] - org[u], lo[u], hi[u]), i1 = ifloor(uu[1] - org[u], lo[u], hi[u]);
         for (int32_t i = i0; i <= i1; i++) {
             double p[3], s[2] = {org[ax] + lo[ax], org[ax] + hi[ax]};
