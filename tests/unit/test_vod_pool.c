@@ -4,8 +4,11 @@
  * the volume's check passes), a small pool is taken a record at a time as
  * before, and a chunk is never given out of a volume it was not taken
  * from: a new volume made at the same address, or the pool given back
- * below it (the mip levels dropped), nor by a forked child. */
+ * below it (the mip levels dropped), nor by a forked child; near its
+ * end the pool is taken a record at a time, so a pool filled to its last
+ * record loses no more than a record's units per chunk. */
 #include <criterion/criterion.h>
+#include <errno.h>
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
@@ -196,4 +199,87 @@ Test(vod_pool, a_forked_child_does_not_give_out_its_parents_chunk)
     cr_assert_eq(vod_volume_check(f.v, f.bytes), 0);
     for (uint32_t x = 0; x < 3; x++) read_back(&f, (const uint32_t[3]){x, 0, 0});
     munmap(f.arena, f.bytes);
+}
+
+/* A pool of exactly as many units as BIG's bricks take as full records
+ * (every voxel a literal), filled by this thread, and when 2 MiB are left
+ * a record put by a thread that has no chunk: near its end the pool is
+ * taken a record at a time, so that record takes its own units, not a
+ * chunk that no one would fill (taken a chunk at a time to the end, the
+ * last puts would fail with 1 MiB free).  A put fails only when less than
+ * a record's units are left, and the failure leaves the volume sound. */
+typedef struct {
+    pool_fx *f;
+    uint32_t k;
+    int rc;
+} late_put;
+
+static void brick_of(uint32_t k, uint32_t b[3])
+{
+    b[0] = k % 64, b[1] = k / 64 % 32, b[2] = k / 2048;
+}
+
+/* Full record k: none of its voxels alike. */
+static uint32_t full_voxel(uint32_t k, uint32_t i)
+{
+    return 0x3c000000u + k * 512 + i;
+}
+
+static int put_full(pool_fx *f, uint32_t k)
+{
+    uint32_t vox[512], b[3];
+    brick_of(k, b);
+    for (uint32_t i = 0; i < 512; i++) vox[i] = full_voxel(k, i);
+    return vod_volume_put_brick(f->v, b, vox);
+}
+
+static void *put_late(void *ud)
+{
+    late_put *l = ud;
+    l->rc = put_full(l->f, l->k);
+    return NULL;
+}
+
+Test(vod_pool, a_pool_is_taken_to_its_last_record)
+{
+    pool_fx f;
+    f.dims[0] = 512, f.dims[1] = 256, f.dims[2] = 128;
+    uint32_t max_u = (uint32_t)vod_pack_max_units(8), bricks = 64 * 32 * 16;
+    size_t head = vod_volume_bytes(f.dims, VOD_VOLUME_F32, 8, 0);
+    cr_assert_gt(head, 0);
+    f.bytes = head + (size_t)bricks * max_u * PACK_UNIT - 1; /* a unit short of them all */
+    f.arena = malloc(f.bytes);
+    cr_assert_not_null(f.arena);
+    cr_assert_eq(vod_volume_init(&f.v, f.arena, f.bytes, f.dims, VOD_VOLUME_F32, 8), 0);
+    uint32_t cap = f.v->pool_cap, k = 0;
+    cr_assert_gt((uint64_t)cap * PACK_UNIT, (64u + 2u) << 20, "chunks first, then records");
+    late_put late = {&f, UINT32_MAX, 0};
+    int rc = 0;
+    for (; k < bricks && !rc; k++) {
+        if (late.k == UINT32_MAX && (uint64_t)(cap - used(&f)) * PACK_UNIT < (2u << 20)) {
+            pthread_t t;
+            late.k = k;
+            cr_assert_eq(pthread_create(&t, NULL, put_late, &late), 0);
+            pthread_join(t, NULL);
+            cr_assert_eq(late.rc, 0);
+            continue;
+        }
+        rc = put_full(&f, k);
+    }
+    cr_assert_neq(late.k, UINT32_MAX, "the late thread put its record");
+    cr_assert_eq(rc, -ENOMEM, "the pool ran out");
+    cr_assert_lt(cap - used(&f), max_u, "with less than a record left: %u units", cap - used(&f));
+    /* units taken but holding no record: a record's at most at the end of
+     * each of the few chunks (the pool's first 8 MiB), none elsewhere */
+    uint32_t rec_u = table(f.v, 0)[1] - table(f.v, 0)[0], stored = k - 1;
+    cr_assert_lt(used(&f) - stored * rec_u, 16 * rec_u, "%u units wasted",
+                 used(&f) - stored * rec_u);
+    cr_assert_eq(vod_volume_check(f.v, f.bytes), 0);
+    for (uint32_t j = 0; j < stored; j += 97) {
+        uint32_t b[3], i = 5 + j % 500;
+        brick_of(j, b);
+        cr_assert_eq(vod_volume_get(f.v, b[0] * 8 + i % 8, b[1] * 8 + i / 8 % 8, b[2] * 8 + i / 64),
+                     full_voxel(j, i), "record %u", j);
+    }
+    free(f.arena);
 }
