@@ -227,8 +227,10 @@ $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 # test_engine_forge's workers forge entries: every one they publish passes
 # through the test's __wrap_worker_entry_end (no hook in the library).
 $(BUILD)/tests/test_engine_forge: LDFLAGS += -Wl,--wrap=worker_entry_end
-# test_pipeline_alloc fails an allocation of the library's on purpose.
+# test_pipeline_alloc and test_mesh_weld fail an allocation of the
+# library's on purpose.
 $(BUILD)/tests/test_pipeline_alloc: LDFLAGS += -Wl,--wrap=calloc,--wrap=malloc
+$(BUILD)/tests/test_mesh_weld: LDFLAGS += -Wl,--wrap=malloc
 
 deps:
 	@scripts/deps.sh

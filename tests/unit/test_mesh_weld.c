@@ -9,7 +9,9 @@
  * whose neighbours lie exactly eps apart; coordinates far past 2^40 cells
  * and near zero; eps = 0 with -0 and 0.  Every case must give the brute
  * force's vertices, bit for bit, and its triangles (less the degenerate
- * ones, by their definition in mesh.h). */
+ * ones, by their definition in mesh.h).  The exact weld of many vertices,
+ * on every CPU, against a sorted oracle, also with a part's table refused
+ * (malloc wrapped for this binary: it falls back to one thread). */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
@@ -21,6 +23,7 @@
 #include "mesh.h"
 #include "mesh_load.h"
 #include "mesh_shapes.h"
+#include "par.h"
 #include "proto_check.h"
 
 /* ---------------------------------------------------------- the oracle */
@@ -280,10 +283,29 @@ static void sorted_map(float (*v)[3], uint32_t n, uint32_t *map)
     free(ord);
 }
 
+/* malloc through this wrapper (this binary alone is linked with
+ * -Wl,--wrap=malloc: the Makefile says so): the first allocation of
+ * fail_size bytes, when armed, fails; every other passes on. */
+void *__real_malloc(size_t size);
+void *__wrap_malloc(size_t size);
+static _Atomic size_t fail_size;
+static _Atomic int failures;
+
+void *__wrap_malloc(size_t size)
+{
+    size_t want = size;
+    if (size && atomic_compare_exchange_strong(&fail_size, &want, 0)) {
+        failures++;
+        return NULL;
+    }
+    return __real_malloc(size);
+}
+
 /* 200,000 vertices drawn from 40,000 positions (a zero coordinate written
  * -0 in some copies), above the size the weld runs on every CPU from:
- * the map is the sorted oracle's, and the parallel path ran. */
-Test(mesh_weld, an_exact_weld_on_every_cpu_is_the_oracles)
+ * the map is the sorted oracle's, and the parallel path ran; or, with a
+ * part's table refused (fail_part), the weld on one thread gives it. */
+static void exact_weld_many(bool fail_part)
 {
     enum { N = 200000, DISTINCT = 40000, TRIS = 150000 };
     float (*pos)[3] = malloc(DISTINCT * sizeof *pos);
@@ -307,10 +329,35 @@ Test(mesh_weld, an_exact_weld_on_every_cpu_is_the_oracles)
     uint32_t *map = malloc(N * sizeof *map);
     sorted_map(s.m.vertices, N, map);
     uint64_t runs = atomic_load(&mesh_weld_par_runs);
-    uint32_t nk = check_map(&s.m, 0, map, "exact, many");
+    if (fail_part) {
+        /* a part's table as mesh_weld.c sizes it: a power of two of 8-byte
+         * slots, at least twice the part's share of the vertices */
+        unsigned parts = par_cpus() < 8 ? par_cpus() : 8;
+        size_t slots = 16;
+        while (slots < 2 * ((size_t)N / parts + 1)) slots *= 2;
+        failures = 0;
+        fail_size = slots * 8;
+    }
+    uint32_t nk = check_map(&s.m, 0, map, fail_part ? "exact, a part refused" : "exact, many");
     cr_assert(nk > DISTINCT / 2 && nk <= DISTINCT, "%u kept", nk);
-    cr_assert_eq(atomic_load(&mesh_weld_par_runs), runs + 1, "not welded on every CPU");
+    if (fail_part) {
+        cr_assert_eq(failures, 1, "the part's table refused once");
+        cr_assert_eq(atomic_load(&mesh_weld_par_runs), runs, "not counted as welded on every CPU");
+    } else {
+        cr_assert_eq(atomic_load(&mesh_weld_par_runs), runs + 1, "not welded on every CPU");
+    }
     free(map);
     free(pos);
     shape_free(&s);
+}
+
+Test(mesh_weld, an_exact_weld_on_every_cpu_is_the_oracles)
+{
+    exact_weld_many(false);
+}
+
+Test(mesh_weld, a_part_without_its_table_leaves_the_weld_to_one_thread)
+{
+    cr_assert_geq(par_cpus(), 2, "the weld runs on every CPU only where there are two");
+    exact_weld_many(true);
 }
