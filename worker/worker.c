@@ -53,12 +53,26 @@ static void heap_keep(void)
 #endif
 }
 
+/* malloc_trim gives back the free blocks inside every arena, but the free
+ * top only of the main arena's heap.  A worker forked from a thread of the
+ * master other than its first (voxd's engine thread) allocates in that
+ * thread's arena, whose top glibc trims only at a free of 64 KiB or more
+ * with the top above the threshold: so the threshold is lowered for one
+ * such free (through a volatile pointer: the compiler drops a free of a
+ * malloc it can see).  Without it an idle voxd's worker kept 57 MiB after
+ * the dragon's distance at 512^3. */
+#define HEAP_TRIM_FREE (128 << 10)
+
 static void heap_give_back(worker_ctx *w)
 {
     if (!w->heap_kept) return;
     w->heap_kept = false;
 #ifdef M_TRIM_THRESHOLD
     malloc_trim(0);
+    mallopt(M_TRIM_THRESHOLD, 0);
+    void *volatile probe = malloc(HEAP_TRIM_FREE);
+    free(probe);
+    mallopt(M_TRIM_THRESHOLD, HEAP_TRIM_BYTES);
 #endif
 }
 

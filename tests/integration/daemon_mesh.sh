@@ -204,6 +204,37 @@ quit_voxd() {
 }
 quit_voxd voxd.log
 
+# An idle daemon's worker gives its heap back: a mesh distance job grows
+# it (the regions' arrays, freed between tiles but kept while the worker
+# works), and about a second after its last task the worker hands the
+# freed memory to the kernel.  voxd forks its workers from its engine
+# thread, so a worker allocates in that thread's malloc arena, whose free
+# top malloc_trim alone leaves in place (it kept 11 MiB here).  glibc's
+# malloc is the release build's (make test builds it beside asan; ASan's
+# allocator keeps what is freed).
+printf 'workers 1\n' >"$TMP/voxd3.conf"
+torus_obj 600 200 >"$TMP/torus.obj"
+rss_anon() { awk '/^RssAnon:/ { print $2 }' "/proc/$1/status"; }
+if VOXD=$ROOT/build/release/voxd start_voxd "$TMP/voxd3.log" --config "$TMP/voxd3.conf"; then
+    W=$(pgrep -P "$VOXD_PID" | head -1)
+    if "$ROOT/build/release/vox" --socket "$S" submit --mesh "$TMP/torus.obj" -r 512 --channel distance \
+        -o "$TMP/t.vod" >"$TMP/t.out" 2>&1; then
+        busy=$(rss_anon "$W")
+        sleep 2.5
+        idle=$(rss_anon "$W")
+        echo "NOTE: a worker's anonymous memory after the torus's distance: $busy kB, idle 2.5 s: $idle kB"
+        [ "$busy" -gt 10240 ] && pass "a distance job grows the worker's heap (${busy} kB)" ||
+            fail "a distance job grows the worker's heap" "$busy kB"
+        [ "$idle" -lt 6144 ] && pass "an idle worker gives its heap back (${idle} kB)" ||
+            fail "an idle worker gives its heap back" "$busy kB busy, $idle kB idle"
+    else
+        fail "the torus's distance through voxd" "$(tail -3 "$TMP/t.out")"
+    fi
+    quit_voxd voxd3.log
+else
+    fail "a third voxd starts" "$(tail -5 "$TMP/voxd3.log")"
+fi
+
 # A daemon whose max_mesh_bytes (4K, the least) is below its frame (1M): a
 # mesh inline over it is refused at the Submit, and the connection goes on.
 printf 'workers 1\nmax_mesh_bytes 4K\n' >"$TMP/voxd2.conf"
