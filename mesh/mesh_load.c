@@ -197,9 +197,7 @@ int mesh_load(const char *path, mesh_format format, const mesh_limits *lim, mesh
     void *p = map_file(fd, (size_t)st.st_size);
     int e = errno;
     close(fd);
-    if (p == MAP_FAILED) {
-        return err_set(&err->info, e == ENOMEM ? -ENOMEM : -e, "cannot map: %s", strerror(e));
-    }
+    if (p == MAP_FAILED) return err_set(&err->info, -e, "cannot map: %s", strerror(e));
     rc = parse_in(&(mesh_src){p, (size_t)st.st_size, dir}, format, lim, out, err);
     unmap_file(p, (size_t)st.st_size);
     return rc;
