@@ -14,6 +14,7 @@
 #include "clock.h"
 #include "daemon.h"
 #include "err.h"
+#include "heap.h"
 #include "log.h"
 #include "pipeline.h"
 #include "vod.h"
@@ -512,6 +513,18 @@ static void tidy(daemon_ctx *d, engine *e)
     pthread_mutex_lock(&d->mu);
 }
 
+/* The heap a job left (kept while jobs run, voxd's main calls heap_keep:
+ * the next job's arrays do not fault in again) given back once no job came
+ * for a while. */
+static void give_back(daemon_ctx *d, int *heap_kept)
+{
+    if (!*heap_kept) return;
+    *heap_kept = 0;
+    pthread_mutex_unlock(&d->mu);
+    heap_give_back();
+    pthread_mutex_lock(&d->mu);
+}
+
 static void *engine_main(void *arg)
 {
     daemon_ctx *d = arg;
@@ -520,18 +533,22 @@ static void *engine_main(void *arg)
     pthread_cond_broadcast(&d->started_cv);
     /* A failure at start ends the thread (daemon_engine_start reports it); a
      * failed reload later leaves e NULL and the next job tries again. */
-    int started = e != NULL;
+    int started = e != NULL, heap_kept = 0;
     while (started && !d->quit) {
         if (d->reload) {
             e = reload(d, e);
         } else if (!d->queue) {
             wait_work(d);
-            if (e && !d->queue && !d->quit && !d->reload) reap_idle(d, e);
+            if (e && !d->queue && !d->quit && !d->reload) {
+                reap_idle(d, e);
+                give_back(d, &heap_kept);
+            }
             continue;
         } else {
             if (!e) e = engine_make(d); /* a reload failed: try again */
             if (e) run_next(d, e);
             else run_without_engine(d);
+            heap_kept = 1;
         }
         wake_loop(d);
         if (e) tidy(d, e);

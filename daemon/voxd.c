@@ -17,6 +17,7 @@
 
 #include "config.h"
 #include "daemon.h"
+#include "heap.h"
 #include "log.h"
 #include "suggest.h"
 
@@ -313,6 +314,7 @@ out:
 
 int main(int argc, char **argv)
 {
+    heap_keep(); /* before any thread: the engine thread gives it back when idle */
     voxd_args a = {.o = {.ready_fd = -1, .stall_timeout = -1}};
     int rc = parse_args(argc, argv, &a);
     if (rc) return rc;

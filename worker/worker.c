@@ -3,7 +3,6 @@
 #include "worker.h"
 
 #include <errno.h>
-#include <malloc.h>
 #include <signal.h>
 #include <stdlib.h>
 #include <string.h>
@@ -12,6 +11,7 @@
 #include <unistd.h>
 
 #include "clock.h"
+#include "heap.h"
 #include "work.h"
 
 /* The worker side of every kind (worker/work_<name>.c, one row each
@@ -32,48 +32,17 @@ static uint64_t cpu_ns(void)
     return (uint64_t)ts.tv_sec * 1000000000u + (uint64_t)ts.tv_nsec;
 }
 
-/* A worker's heap is kept while it works: glibc would hand a large block
- * back to the kernel at its free (mmap'd, or the heap's top trimmed), and
- * the next tile's allocation of the same size takes a page fault for each
- * of its pages again: a third of a mesh distance job's faults, and a fault
- * costs microseconds on a virtual machine.  So the thresholds are raised
- * (heap_keep, at the worker's start), and what the heap holds is given
- * back once the worker has waited WORKER_IDLE_S for a task (idle: between
- * jobs, not between a job's tasks), so that an idle daemon's workers hold
- * no more than they need. */
-#define HEAP_MMAP_BYTES (32 << 20) /* glibc's largest mmap threshold */
-#define HEAP_TRIM_BYTES (1L << 30)
+/* A worker's heap is kept while it works (heap.h: the next tile's arrays
+ * would fault in again) and given back once the worker has waited
+ * WORKER_IDLE_S for a task (idle: between jobs, not between a job's
+ * tasks). */
 #define WORKER_IDLE_S 0.5
 
-static void heap_keep(void)
-{
-#ifdef M_TRIM_THRESHOLD
-    mallopt(M_MMAP_THRESHOLD, HEAP_MMAP_BYTES);
-    mallopt(M_TRIM_THRESHOLD, HEAP_TRIM_BYTES);
-#endif
-}
-
-/* malloc_trim gives back the free blocks inside every arena, but the free
- * top only of the main arena's heap.  A worker forked from a thread of the
- * master other than its first (voxd's engine thread) allocates in that
- * thread's arena, whose top glibc trims only at a free of 64 KiB or more
- * with the top above the threshold: so the threshold is lowered for one
- * such free (through a volatile pointer: the compiler drops a free of a
- * malloc it can see).  Without it an idle voxd's worker kept 57 MiB after
- * the dragon's distance at 512^3. */
-#define HEAP_TRIM_FREE (128 << 10)
-
-static void heap_give_back(worker_ctx *w)
+static void give_back(worker_ctx *w)
 {
     if (!w->heap_kept) return;
     w->heap_kept = false;
-#ifdef M_TRIM_THRESHOLD
-    malloc_trim(0);
-    mallopt(M_TRIM_THRESHOLD, 0);
-    void *volatile probe = malloc(HEAP_TRIM_FREE);
-    free(probe);
-    mallopt(M_TRIM_THRESHOLD, HEAP_TRIM_BYTES);
-#endif
+    heap_give_back();
 }
 
 /* The task to run next: one the master gave (task_seq moved past
@@ -131,7 +100,7 @@ static void wait_task(worker_ctx *w, shm_task *t)
         shm_sleep_end(&s->sleeping);
         worker_check_parent(w);
         got = take_task(w, t);
-        if (!got && clock_now() - idle0 >= WORKER_IDLE_S) heap_give_back(w);
+        if (!got && clock_now() - idle0 >= WORKER_IDLE_S) give_back(w);
     }
 }
 
