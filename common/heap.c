@@ -2,12 +2,9 @@
 #include "heap.h"
 
 #include <malloc.h>
-#include <stdlib.h>
 
 #define HEAP_MMAP_BYTES (32 << 20) /* glibc's largest mmap threshold */
 #define HEAP_TRIM_BYTES (1L << 30)
-/* A free this large makes glibc try to trim its arena's top. */
-#define HEAP_TRIM_FREE (128 << 10)
 
 void heap_keep(void)
 {
@@ -18,22 +15,14 @@ void heap_keep(void)
 #endif
 }
 
-/* malloc_trim gives back the free blocks inside every arena, but the free
- * top only of the main arena's heap.  A thread other than the process's
- * first may allocate in an arena of its own (and so does a process forked
- * from such a thread: voxd's workers, forked by its engine thread, kept
- * 57 MiB after the dragon's distance at 512^3 before heap_keep gave voxd
- * one arena), whose top glibc trims only at a free of 64 KiB or more with
- * the top above the trim threshold: so the threshold is 0 for one such
- * free (through a volatile pointer: the compiler drops a free of a malloc
- * it can see). */
+/* malloc_trim gives back the free blocks of every arena, but the free top
+ * of the main arena's heap alone: what a thread with an arena of its own
+ * freed at its top stays (voxd forked its workers from its engine thread,
+ * and they kept 57 MiB after the dragon's distance at 512^3).  heap_keep's
+ * one arena puts every thread's top there. */
 void heap_give_back(void)
 {
 #ifdef M_TRIM_THRESHOLD
     malloc_trim(0);
-    mallopt(M_TRIM_THRESHOLD, 0);
-    void *volatile probe = malloc(HEAP_TRIM_FREE);
-    free(probe);
-    mallopt(M_TRIM_THRESHOLD, HEAP_TRIM_BYTES);
 #endif
 }

@@ -18,8 +18,7 @@
  * at its start, before a second thread. */
 void heap_keep(void);
 /* What the heap holds free given back to the kernel: every arena's free
- * blocks, and the free top of the main arena and of the calling thread's
- * (the one its allocations come from). */
+ * blocks and the main arena's free top (all of it, after heap_keep). */
 void heap_give_back(void);
 
 #endif
