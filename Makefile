@@ -228,9 +228,10 @@ $(BUILD)/tests/%: tests/unit/%.c $(LIB)
 # through the test's __wrap_worker_entry_end (no hook in the library).
 $(BUILD)/tests/test_engine_forge: LDFLAGS += -Wl,--wrap=worker_entry_end
 # test_pipeline_alloc and test_mesh_weld fail an allocation of the
-# library's on purpose.
+# library's on purpose, test_mesh_load a file's mapping.
 $(BUILD)/tests/test_pipeline_alloc: LDFLAGS += -Wl,--wrap=calloc,--wrap=malloc
 $(BUILD)/tests/test_mesh_weld: LDFLAGS += -Wl,--wrap=malloc
+$(BUILD)/tests/test_mesh_load: LDFLAGS += -Wl,--wrap=mmap
 
 deps:
 	@scripts/deps.sh

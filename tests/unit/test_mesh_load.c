@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <unistd.h>
 
 #include "mesh.h"
@@ -107,6 +108,48 @@ Test(mesh_load, mesh_load_maps_a_file)
     cr_assert(strstr(e.msg, "cannot open"), "%s", e.msg);
     cr_assert_eq(mesh_load("/tmp", MESH_FORMAT_AUTO, NULL, &m, &e), -EINVAL);
     cr_assert_null(m.vertices);
+    free(s.buf);
+}
+
+/* This binary is linked with -Wl,--wrap=mmap (Makefile): the library's
+ * calls come here, and when armed the next file mapping fails as on a file
+ * system without mmap (ENODEV), once. */
+void *__real_mmap(void *addr, size_t len, int prot, int flags, int fd, off_t off);
+void *__wrap_mmap(void *addr, size_t len, int prot, int flags, int fd, off_t off);
+static int refuse_next_map;
+
+void *__wrap_mmap(void *addr, size_t len, int prot, int flags, int fd, off_t off)
+{
+    if (refuse_next_map && fd >= 0) {
+        refuse_next_map = 0;
+        errno = ENODEV;
+        return MAP_FAILED;
+    }
+    return __real_mmap(addr, len, prot, flags, fd, off);
+}
+
+Test(mesh_load, a_file_that_cannot_be_mapped_is_refused_with_the_reason)
+{
+    char path[] = "/tmp/test_mesh_load_XXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    sink s;
+    write_variant(&s, &hexprism, OBJ_PLAIN);
+    cr_assert_eq(write(fd, s.buf, s.len), (ssize_t)s.len);
+    close(fd);
+    mesh m;
+    mesh_error e;
+    refuse_next_map = 1;
+    int rc = mesh_load(path, MESH_FORMAT_AUTO, NULL, &m, &e);
+    cr_assert_eq(refuse_next_map, 0, "mesh_load maps the file (the wrap was not reached)");
+    cr_assert_eq(rc, -ENODEV, "rc %d: %s", rc, e.msg);
+    cr_assert(strstr(e.msg, "cannot map") && strstr(e.msg, strerror(ENODEV)), "%s", e.msg);
+    cr_assert_null(m.vertices);
+    /* and the next load maps it */
+    cr_assert_eq(mesh_load(path, MESH_FORMAT_AUTO, NULL, &m, &e), 0, "%s", e.msg);
+    check_model(&m, &hexprism, "mesh_load after a refused map", 0);
+    mesh_free(&m);
+    unlink(path);
     free(s.buf);
 }
 
