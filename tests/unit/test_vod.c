@@ -289,6 +289,33 @@ Test(vod_roundtrip, empty_tree)
     fx_free(&f);
 }
 
+/* The plan reads only the root's cell to tell an empty node (every other
+ * cell exists because a voxel lies below it): a childless cell below the
+ * root, which only a broken writer leaves, is a node of zeros, written and
+ * read back like any brick. */
+Test(vod_roundtrip, a_childless_cell_below_the_root_is_a_brick_of_zeros)
+{
+    fixture f;
+    fx_init(&f, 5, 32, 32, 32);
+    fx_store(&f, 1, 1, 1, random_surface() | 1u);
+    fx_store(&f, 17, 1, 1, random_surface() | 1u);
+    uint32_t c = octree_find(&f.t, 3, 16, 0, 0); /* brick (1, 0, 0)'s cell */
+    cr_assert_neq(c, 0);
+    memset(f.t.cells[c].child, 0, sizeof f.t.cells[c].child);
+    f.dense[(1 * f.side + 1) * f.side + 17] = 0, f.count--;
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 16);
+    vod_stats st;
+    membuf m = write_file(&f, &p, &st);
+    cr_assert_eq(st.nonempty_nodes, 3, "the root and two level-0 nodes: %llu",
+                 (unsigned long long)st.nonempty_nodes);
+    vod_file *v = read_ok(&m);
+    check_level0(&f, v, 0);
+    vod_close(v);
+    free(m.p);
+    fx_free(&f);
+}
+
 /* ------------------------------------------------------- downsampling */
 
 /* A voxel of a level, for the messages. */
