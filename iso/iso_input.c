@@ -273,21 +273,39 @@ int iso_input_make_threads(const vod_file *f, const iso_params *p,
 
 /* ---- tasks ---- */
 
-static int by_u64(const void *a, const void *b)
+/* keys[0 .. n) in increasing order, a byte at a time from the lowest
+ * (LSD radix; tmp holds n), the bytes all keys share skipped: the task
+ * keys of a large file are hundreds of thousands, and qsort's calls were
+ * the largest serial piece of vox mesh's set-up (3 ms of Scene 1's 25,000
+ * keys at 512^3). */
+static void sort_u64(uint64_t *keys, uint64_t *tmp, size_t n)
 {
-    uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
-    return (x > y) - (x < y);
+    size_t count[256];
+    for (unsigned shift = 0; shift < 64; shift += 8) {
+        memset(count, 0, sizeof count);
+        for (size_t i = 0; i < n; i++) count[keys[i] >> shift & 0xff]++;
+        if (count[keys[0] >> shift & 0xff] == n) continue; /* one value: in order */
+        for (size_t d = 0, at = 0; d < 256; d++) {
+            size_t c = count[d];
+            count[d] = at;
+            at += c;
+        }
+        for (size_t i = 0; i < n; i++) tmp[count[keys[i] >> shift & 0xff]++] = keys[i];
+        memcpy(keys, tmp, n * sizeof *keys);
+    }
 }
 
-/* The task bricks that read file brick `key`: it and the next on each axis. */
-static size_t tasks_of(const iso_params *p, uint64_t key, uint64_t *out)
+/* The task bricks that read file brick `key`: it and the next on each
+ * axis (grid: iso_task_grid of each level). */
+static size_t tasks_of(const iso_params *p, const uint32_t (*grid)[3], uint64_t key,
+                       uint64_t *out)
 {
-    uint32_t l = (uint32_t)(key >> 58), n[3], b[3];
-    uint64_t side = 1ull << (p->height - 1 - l), lin = key & ((1ull << 58) - 1);
-    b[0] = (uint32_t)(lin % side);
-    b[1] = (uint32_t)(lin / side % side);
-    b[2] = (uint32_t)(lin / side / side);
-    iso_task_grid(p, l, n);
+    uint32_t l = (uint32_t)(key >> 58), b[3], s = p->height - 1 - l;
+    uint64_t side = 1ull << s, lin = key & ((1ull << 58) - 1);
+    const uint32_t *n = grid[l];
+    b[0] = (uint32_t)(lin & (side - 1));
+    b[1] = (uint32_t)(lin >> s & (side - 1));
+    b[2] = (uint32_t)(lin >> s >> s);
     size_t k = 0;
     for (uint32_t c = 0; c < 8; c++) {
         uint32_t t[3];
@@ -344,11 +362,13 @@ static int task_needed(const iso_params *p, const iso_input *in, const iso_task 
 
 int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t *n)
 {
-    uint64_t *keys = malloc((in->n ? in->n : 1) * 8 * sizeof *keys);
+    uint64_t *keys = malloc((in->n ? in->n : 1) * 16 * sizeof *keys);
     if (!keys) return -ENOMEM;
+    uint32_t grid[ISO_MAX_LEVELS][3];
+    for (uint32_t l = 0; l < ISO_MAX_LEVELS && l < p->height; l++) iso_task_grid(p, l, grid[l]);
     size_t k = 0;
-    for (uint64_t i = 0; i < in->n; i++) k += tasks_of(p, in->keys[i], keys + k);
-    if (k) qsort(keys, k, sizeof *keys, by_u64);
+    for (uint64_t i = 0; i < in->n; i++) k += tasks_of(p, (const uint32_t (*)[3])grid, in->keys[i], keys + k);
+    if (k) sort_u64(keys, keys + 8 * in->n, k);
     size_t u = 0;
     for (size_t i = 0; i < k; i++)
         if (!u || keys[i] != keys[u - 1]) keys[u++] = keys[i];
