@@ -297,8 +297,7 @@ static void sort_u64(uint64_t *keys, uint64_t *tmp, size_t n)
 
 /* The task bricks that read file brick `key`: it and the next on each
  * axis (grid: iso_task_grid of each level). */
-static size_t tasks_of(const iso_params *p, const uint32_t (*grid)[3], uint64_t key,
-                       uint64_t *out)
+static size_t tasks_of(const iso_params *p, uint32_t grid[][3], uint64_t key, uint64_t *out)
 {
     uint32_t l = (uint32_t)(key >> 58), b[3], s = p->height - 1 - l;
     uint64_t side = 1ull << s, lin = key & ((1ull << 58) - 1);
@@ -367,7 +366,7 @@ int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t
     uint32_t grid[ISO_MAX_LEVELS][3];
     for (uint32_t l = 0; l < ISO_MAX_LEVELS && l < p->height; l++) iso_task_grid(p, l, grid[l]);
     size_t k = 0;
-    for (uint64_t i = 0; i < in->n; i++) k += tasks_of(p, (const uint32_t (*)[3])grid, in->keys[i], keys + k);
+    for (uint64_t i = 0; i < in->n; i++) k += tasks_of(p, grid, in->keys[i], keys + k);
     if (k) sort_u64(keys, keys + 8 * in->n, k);
     size_t u = 0;
     for (size_t i = 0; i < k; i++)

@@ -140,10 +140,10 @@ static int check_piece(const iso_params *p, const iso_piece *pcs, uint64_t i, er
 
 /* The pieces checked in parts of about equal work (a piece's vertices
  * and triangle corners, which is what the check reads: parts of equal
- * counts of pieces left one thread alone for 10 ms of Scene 1's 60 at
- * 512^3), in piece order: part k is pieces start[k] .. start[k + 1].  Each
- * part stops at its first bad piece; the first of those in piece order is
- * the error, as one thread finds. */
+ * counts of pieces ended 3.5-6 ms apart in Scene 1's 60 at 512^3), in
+ * piece order: part k is pieces start[k] .. start[k + 1].  Each part stops
+ * at its first bad piece; the first of those in piece order is the error,
+ * as one thread finds. */
 typedef struct {
     const iso_params *p;
     const iso_piece *pc;

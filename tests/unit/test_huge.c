@@ -101,6 +101,7 @@ Test(huge, advise_covers_exactly_the_whole_huge_pages_inside)
     /* a block holding no whole huge page: no advice, nothing split */
     huge_advise((void *)(base + 6 * MIB + 4096), 2 * MIB);
     vma still = vma_of(base + 8 * MIB);
-    cr_assert(!still.hg && (kernel_has_thp() ? still.lo == base + 6 * MIB : still.lo <= (uintptr_t)m));
+    cr_assert(!still.hg &&
+              (kernel_has_thp() ? still.lo == base + 6 * MIB : still.lo <= (uintptr_t)m));
     munmap(m, len);
 }
