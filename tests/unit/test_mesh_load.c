@@ -85,15 +85,23 @@ Test(mesh_load, every_model_in_every_variant_gives_the_same_triangles)
         }
 }
 
-Test(mesh_load, mesh_load_maps_a_file)
+/* hexprism written as variant v into a new temporary file, named in path
+ * (a "/tmp/test_mesh_load_XXXXXX" to fill). */
+static void hexprism_file(char *path, variant v)
 {
-    char path[] = "/tmp/test_mesh_load_XXXXXX";
     int fd = mkstemp(path);
     cr_assert_geq(fd, 0);
     sink s;
-    write_variant(&s, &hexprism, PLY_BE);
+    write_variant(&s, &hexprism, v);
     cr_assert_eq(write(fd, s.buf, s.len), (ssize_t)s.len);
     close(fd);
+    free(s.buf);
+}
+
+Test(mesh_load, mesh_load_maps_a_file)
+{
+    char path[] = "/tmp/test_mesh_load_XXXXXX";
+    hexprism_file(path, PLY_BE);
     mesh m;
     mesh_error e;
     cr_assert_eq(mesh_load(path, MESH_FORMAT_AUTO, NULL, &m, &e), 0, "%s", e.msg);
@@ -108,7 +116,6 @@ Test(mesh_load, mesh_load_maps_a_file)
     cr_assert(strstr(e.msg, "cannot open"), "%s", e.msg);
     cr_assert_eq(mesh_load("/tmp", MESH_FORMAT_AUTO, NULL, &m, &e), -EINVAL);
     cr_assert_null(m.vertices);
-    free(s.buf);
 }
 
 /* This binary is linked with -Wl,--wrap=mmap (Makefile): the library's
@@ -131,12 +138,7 @@ void *__wrap_mmap(void *addr, size_t len, int prot, int flags, int fd, off_t off
 Test(mesh_load, a_file_that_cannot_be_mapped_is_refused_with_the_reason)
 {
     char path[] = "/tmp/test_mesh_load_XXXXXX";
-    int fd = mkstemp(path);
-    cr_assert_geq(fd, 0);
-    sink s;
-    write_variant(&s, &hexprism, OBJ_PLAIN);
-    cr_assert_eq(write(fd, s.buf, s.len), (ssize_t)s.len);
-    close(fd);
+    hexprism_file(path, OBJ_PLAIN);
     mesh m;
     mesh_error e;
     refuse_next_map = 1;
@@ -150,7 +152,6 @@ Test(mesh_load, a_file_that_cannot_be_mapped_is_refused_with_the_reason)
     check_model(&m, &hexprism, "mesh_load after a refused map", 0);
     mesh_free(&m);
     unlink(path);
-    free(s.buf);
 }
 
 Test(mesh_load, limits_give_e2big)
