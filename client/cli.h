@@ -11,6 +11,7 @@
 #include "engine.h"
 #include "exit_status.h"
 #include "mesh_vox.h"
+#include "par.h"
 #include "source.h"
 #include "vod.h"
 #include "vox.h"
@@ -134,6 +135,16 @@ uint32_t cli_cores(void);
  * (NULL: the engine's own placement) and a segment of shm_mib MiB (0: the
  * engine's default); errors said on stderr.  0 or a negative errno. */
 int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engine **e);
+/* fn(ud) on thread t (par_join it) and, with workers, the engine started
+ * beside it as cli_start_engine does: the thread first, so that the
+ * workers' fork overlaps its work, except under AddressSanitizer, whose
+ * allocator (GCC 12's libasan) does not take its locks around a fork as
+ * glibc's malloc does: a worker forked while the thread was inside malloc
+ * waited on the lock forever, until the stall timeout killed it (10 s of
+ * vox mesh in the asan build, one run in three).  0 or cli_start_engine's
+ * error (the thread runs in any case). */
+int cli_start_engine_beside(par_task *t, void *(*fn)(void *ud), void *ud, uint32_t workers,
+                            const char *cpus, uint32_t shm_mib, engine **e);
 /* ---- interrupts ---- */
 
 /* SIGINT and SIGTERM only set cli_interrupt to the signal's number (a

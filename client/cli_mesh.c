@@ -332,8 +332,7 @@ static int open_both(const mesh_opts *o, vod_file **f, engine **e)
 {
     opening op = {.o = o};
     par_task t;
-    par_start(&t, open_run, &op);
-    int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, e) : 0;
+    int rc = cli_start_engine_beside(&t, open_run, &op, o->workers, o->cpus, o->shm_mib, e);
     par_join(&t);
     if (op.rc) cli_error("%s: %s", o->in, op.err.msg);
     if (!op.rc && !rc) {

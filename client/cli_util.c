@@ -124,6 +124,20 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
     return rc;
 }
 
+int cli_start_engine_beside(par_task *t, void *(*fn)(void *ud), void *ud, uint32_t workers,
+                            const char *cpus, uint32_t shm_mib, engine **e)
+{
+    int rc = 0;
+#ifdef __SANITIZE_ADDRESS__
+    if (workers) rc = cli_start_engine(workers, cpus, shm_mib, e);
+    par_start(t, fn, ud);
+#else
+    par_start(t, fn, ud);
+    if (workers) rc = cli_start_engine(workers, cpus, shm_mib, e);
+#endif
+    return rc;
+}
+
 /* ---------------------------------------------------------------- interrupts */
 
 atomic_int cli_interrupt;

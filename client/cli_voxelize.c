@@ -178,9 +178,8 @@ static int voxelize_mesh(voxelize_opts *o)
 {
     mesh_loading l = {.o = o};
     par_task loading;
-    par_start(&loading, load_run, &l);
     engine *e = NULL;
-    int rc = o->workers ? cli_start_engine(o->workers, o->cpus, o->shm_mib, &e) : 0;
+    int rc = cli_start_engine_beside(&loading, load_run, &l, o->workers, o->cpus, o->shm_mib, &e);
     par_join(&loading);
     if (l.rc || rc) { /* the load's error first, as when it ran alone */
         engine_abandon(e);
