@@ -1,6 +1,7 @@
 /* What a marching-cubes job reads: its parameters from the file and the
  * options, the raw bricks of the levels it uses (copied once into memory
  * every process reaches), and its tasks. */
+#include <assert.h>
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -280,6 +281,7 @@ int iso_input_make_threads(const vod_file *f, const iso_params *p,
  * keys at 512^3). */
 static void sort_u64(uint64_t *keys, uint64_t *tmp, size_t n)
 {
+    if (n < 2) return;
     size_t count[256];
     for (unsigned shift = 0; shift < 64; shift += 8) {
         memset(count, 0, sizeof count);
@@ -361,13 +363,16 @@ static int task_needed(const iso_params *p, const iso_input *in, const iso_task 
 
 int iso_tasks(const iso_params *p, const iso_input *in, iso_task **out, uint64_t *n)
 {
-    uint64_t *keys = malloc((in->n ? in->n : 1) * 16 * sizeof *keys);
+    /* up to 8 task keys a file brick, then as many for the sort's copy */
+    size_t most = (in->n ? in->n : 1) * 8;
+    uint64_t *keys = malloc(2 * most * sizeof *keys);
     if (!keys) return -ENOMEM;
     uint32_t grid[ISO_MAX_LEVELS][3];
-    for (uint32_t l = 0; l < ISO_MAX_LEVELS && l < p->height; l++) iso_task_grid(p, l, grid[l]);
+    assert(p->height <= ISO_MAX_LEVELS); /* iso_params_make refuses more */
+    for (uint32_t l = 0; l < p->height; l++) iso_task_grid(p, l, grid[l]);
     size_t k = 0;
     for (uint64_t i = 0; i < in->n; i++) k += tasks_of(p, grid, in->keys[i], keys + k);
-    if (k) sort_u64(keys, keys + 8 * in->n, k);
+    sort_u64(keys, keys + most, k);
     size_t u = 0;
     for (size_t i = 0; i < k; i++)
         if (!u || keys[i] != keys[u - 1]) keys[u++] = keys[i];

@@ -165,9 +165,9 @@ static void check_cut(check_ctx *c, unsigned parts)
     for (uint64_t j = 0; j < c->n; j++) total += check_work(&c->pc[j]);
     for (unsigned k = 0; k < parts; k++) {
         c->start[k] = i;
-        /* part k ends where the work before it reaches (k + 1) / parts */
-        uint64_t end = (uint64_t)((double)total * (k + 1) / parts);
-        while (i < c->n && (k + 1 == parts || cum < end)) cum += check_work(&c->pc[i++]);
+        /* part k ends where the work before it reaches (k + 1) / parts
+         * (the last one at the end: every piece's work is at least 1) */
+        while (i < c->n && cum < total * (k + 1) / parts) cum += check_work(&c->pc[i++]);
     }
     c->start[parts] = c->n;
 }
