@@ -682,28 +682,93 @@ static bool brick_outside(const vod_volume *v, const uint32_t b[3], uint32_t e,
     return false;
 }
 
-/* Only level-0 bricks that reach past volume are scanned, voxel by voxel;
- * a row of bricks inside on y and z starts at the first that reaches x. */
+/* vol_outside's scan: the rows of level-0 bricks (one (y, z) each, row r
+ * = z * grid[1] + y) on several threads when there are many bricks to
+ * look at, dealt round robin (the edge bricks lie in the last rows, the
+ * grid's far face in z, and in every grid[1]-th: contiguous parts would
+ * give most of them to one thread).  Each part stops at its first find;
+ * the answer is the lowest row's, the voxel the one-thread scan finds. */
+typedef struct {
+    const vod_volume *v;
+    const uint32_t *volume;
+    uint64_t rows;
+    _Atomic uint64_t first; /* the lowest row with a find so far */
+    uint64_t row[PAR_MAX];  /* each part's find, UINT64_MAX: none */
+    uint32_t at[PAR_MAX][3];
+} outside_scan;
+
+/* A (y, z) row whose bricks all lie inside volume on y and z is scanned
+ * from the first brick that reaches past it on x. */
+static bool row_outside(const vod_volume *v, const uint32_t volume[3], uint64_t r,
+                        uint32_t *buf, uint32_t at[3])
+{
+    const uint32_t *g = v->grid[0];
+    uint32_t m = v->slog2, b[3] = {0, (uint32_t)(r % g[1]), (uint32_t)(r / g[1])};
+    bool in_yz = ((uint64_t)b[2] + 1) << m <= volume[2] && ((uint64_t)b[1] + 1) << m <= volume[1];
+    for (b[0] = in_yz ? volume[0] >> m : 0; b[0] < g[0]; b[0]++) {
+        uint32_t e = entry_at(v, 0, b);
+        bool inside = in_yz && ((uint64_t)b[0] + 1) << m <= volume[0];
+        if (e && !inside && brick_outside(v, b, e, volume, buf, at)) return true;
+    }
+    return false;
+}
+
+static void outside_part(void *ud, unsigned k, unsigned n)
+{
+    outside_scan *sc = ud;
+    const vod_volume *v = sc->v;
+    size_t S = v->sbrick;
+    /* no buffer: each voxel read from its record (slower, never wrong) */
+    uint32_t *buf = v->packed ? malloc(S * S * S * sizeof *buf) : NULL;
+    sc->row[k] = UINT64_MAX;
+    for (uint64_t r = k; r < sc->rows; r += n) {
+        /* relaxed: a hint that lets a part stop early; the join orders
+         * the parts' finds before they are read */
+        if (r > atomic_load_explicit(&sc->first, memory_order_relaxed)) break;
+        if (!row_outside(v, sc->volume, r, buf, sc->at[k])) continue;
+        sc->row[k] = r;
+        uint64_t f = atomic_load_explicit(&sc->first, memory_order_relaxed);
+        while (r < f && !atomic_compare_exchange_weak_explicit(&sc->first, &f, r,
+                                                               memory_order_relaxed,
+                                                               memory_order_relaxed)) {
+        }
+        break;
+    }
+    free(buf);
+}
+
+/* Bricks to look at below which one thread scans the rows (a thread
+ * costs more than a few thousand table entries). */
+#define OUTSIDE_PAR_BRICKS 16384u
+
+/* The level-0 bricks the scan looks at: every brick of the rows that reach
+ * past volume on y or z, the rest of the rows from volume's x edge on. */
+static uint64_t outside_bricks(const vod_volume *v, const uint32_t volume[3])
+{
+    const uint32_t *g = v->grid[0];
+    uint32_t m = v->slog2, in[3];
+    for (int a = 0; a < 3; a++) in[a] = volume[a] >> m < g[a] ? volume[a] >> m : g[a];
+    uint64_t rows = (uint64_t)g[1] * g[2], inner = (uint64_t)in[1] * in[2];
+    return (rows - inner) * g[0] + inner * (g[0] - in[0]);
+}
+
+/* Only level-0 bricks that reach past volume are scanned, voxel by voxel. */
 static int vol_outside(const vod_source *s, const uint32_t volume[3],
                        uint32_t at[3])
 {
     const vod_volume *v = s->ctx;
     const uint32_t *g = v->grid[0];
-    uint32_t b[3], m = v->slog2, S = v->sbrick;
-    uint32_t *buf = v->packed ? malloc((size_t)S * S * S * sizeof *buf) : NULL;
-    int found = 0;
-    for (b[2] = 0; b[2] < g[2] && !found; b[2]++)
-        for (b[1] = 0; b[1] < g[1] && !found; b[1]++) {
-            bool in_yz = ((uint64_t)b[2] + 1) << m <= volume[2] &&
-                         ((uint64_t)b[1] + 1) << m <= volume[1];
-            for (b[0] = in_yz ? volume[0] >> m : 0; b[0] < g[0] && !found; b[0]++) {
-                uint32_t e = entry_at(v, 0, b);
-                bool inside = in_yz && ((uint64_t)b[0] + 1) << m <= volume[0];
-                found = e && !inside && brick_outside(v, b, e, volume, buf, at);
-            }
-        }
-    free(buf);
-    return found;
+    outside_scan sc = {.v = v, .volume = volume, .rows = (uint64_t)g[1] * g[2]};
+    atomic_init(&sc.first, UINT64_MAX);
+    unsigned n = outside_bricks(v, volume) >= OUTSIDE_PAR_BRICKS ? par_cpus() : 1;
+    if (n > 1) par_run(n, outside_part, &sc);
+    else outside_part(&sc, 0, 1);
+    unsigned best = 0;
+    for (unsigned k = 1; k < n; k++)
+        if (sc.row[k] < sc.row[best]) best = k;
+    if (sc.row[best] == UINT64_MAX) return 0;
+    memcpy(at, sc.at[best], sizeof sc.at[best]);
+    return 1;
 }
 
 static const vod_source_ops volume_ops = {

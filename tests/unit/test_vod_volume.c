@@ -9,6 +9,7 @@
 #include <pthread.h>
 #include <errno.h>
 #include <stdbool.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -567,6 +568,42 @@ Test(vod_volume_write, voxel_outside_the_file_volume_is_refused)
     p.volume[0] = 20, p.volume[1] = 16;
     cr_assert_eq(write_rc(f.v, &p, &err), -EINVAL);
     cr_assert(strstr(err.msg, "at 0,16,8,"), "%s", err.msg);
+    vfx_free(&f);
+}
+
+/* A volume with many bricks past the file's volume is scanned on several
+ * threads, rows of bricks dealt round robin: the voxel named is still the
+ * first in the one-thread scan's order (z, then y, then x), whichever
+ * part finds it and whatever later voxels the other parts find first. */
+static void expect_outside_at(vfx *f, const vod_params *p, const char *at)
+{
+    err_info err = {0};
+    cr_assert_eq(write_rc(f->v, p, &err), -EINVAL);
+    char want[96];
+    snprintf(want, sizeof want, "the volume holds a voxel at %s, outside volumeSize 250x250x60", at);
+    cr_assert(strstr(err.msg, want), "%s", err.msg);
+}
+
+Test(vod_volume_write, the_first_voxel_outside_is_named_when_many_threads_look)
+{
+    vfx f;
+    vfx_init(&f, 256, 256, 64, 8, 2); /* 128 x 128 x 32 bricks: enough for threads */
+    vod_params p;
+    params(&p, f.dims, VOXEL_CH_DENSITY, 8, VOD_COMP_ZLIB);
+    p.volume[0] = 250, p.volume[1] = 250, p.volume[2] = 60;
+    vfx_set(&f, 100, 100, 63, 1); /* the last row of bricks (z 62-63, y 100-101) */
+    expect_outside_at(&f, &p, "100,100,63");
+    vfx_set(&f, 9, 8, 40, 2); /* inside the file's volume: no matter */
+    vfx_set(&f, 252, 8, 40, 3); /* row z 40-41, y 8-9: even (20 * 128 + 4) */
+    expect_outside_at(&f, &p, "252,8,40");
+    vfx_set(&f, 3, 251, 10, 4); /* row z 10-11, y 250-251: odd (5 * 128 + 125), earlier */
+    expect_outside_at(&f, &p, "3,251,10");
+    vfx_set(&f, 255, 0, 10, 5); /* row z 10-11, y 0-1: even (5 * 128), earlier still */
+    expect_outside_at(&f, &p, "255,0,10");
+    vfx_set(&f, 254, 1, 11, 6); /* the same brick, later in it (z 11) */
+    expect_outside_at(&f, &p, "255,0,10");
+    vfx_set(&f, 250, 1, 11, 7); /* the same row, an earlier brick (x 250-251) */
+    expect_outside_at(&f, &p, "250,1,11");
     vfx_free(&f);
 }
 
