@@ -632,6 +632,7 @@ const engine_kind engine_kind_csg = {
     .take = csg_take,
     .done = csg_done,
     .rerun = csg_rerun,
+    .prefetch = 1, /* a run below the object takes less than a wake-up */
     .describe = csg_describe,
     .progress = csg_progress,
     .finish = csg_finish,

@@ -72,6 +72,7 @@ static void engine_figures_common(engine_pipeline_report *r, const engine_result
     r->octants = er->octants;
     r->restarts = er->restarts;
     r->stalls = er->stalls;
+    r->offered = er->offered;
     r->t_voxelize = er->seconds;
     r->master_cpu = er->master_cpu;
     r->worker_cpu = er->worker_cpu;

@@ -56,6 +56,7 @@ typedef struct {
     uint64_t octants;             /* boxes tested (engine only) */
     uint32_t restarts;            /* workers forked again (engine only) */
     uint32_t stalls;              /* ... of which had stalled (engine only) */
+    uint32_t offered;             /* tasks offered to a busy worker ahead (engine only) */
     double t_voxelize, t_write;   /* wall seconds of the two stages */
     double t_job;                 /* wall seconds of engine_pipeline_run but the
                                      engine's release at its end (a mesh's

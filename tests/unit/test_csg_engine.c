@@ -143,6 +143,9 @@ Test(csg_engine, serial_and_one_and_two_workers_give_the_same_bytes)
             cr_assert_eq(r.fig.csg.skipped, r0.fig.csg.skipped);
             cr_assert_eq(r.fig.csg.voxel_evals, r0.fig.csg.voxel_evals);
             cr_assert_eq(r.voxels, r0.voxels, "voxels at or above S");
+            /* a run of bricks is short: a worker waiting for the master
+             * between two would wait longer than it works */
+            cr_assert_gt(r.offered, 0, "%d workers: no run of bricks offered ahead", w + 1);
             free(mb.p);
         }
         free(ref.p);
