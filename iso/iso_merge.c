@@ -5,6 +5,7 @@
  * search in the owner's keys.  Pieces may come from other processes: each
  * is checked before it is used. */
 #include <errno.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -138,19 +139,26 @@ static int check_piece(const iso_params *p, const iso_piece *pcs, uint64_t i, er
     return 0;
 }
 
-/* The pieces checked in parts of about equal work (a piece's vertices
- * and triangle corners, which is what the check reads: parts of equal
- * counts of pieces ended 3.5-6 ms apart in Scene 1's 60 at 512^3), in
- * piece order: part k is pieces start[k] .. start[k + 1].  Each part stops
- * at its first bad piece; the first of those in piece order is the error,
- * as one thread finds. */
+/* The pieces checked in chunks of about equal work (a piece's vertices
+ * and triangle corners, which is what the check reads), in piece order:
+ * chunk k is pieces start[k] .. start[k + 1], taken by the threads in
+ * turn from a counter.  Not one part a thread: what a part costs is
+ * mostly its first touches of the workers' pages, which no count of
+ * vertices foretells (two parts of equal work on Scene 1 at 512^3 ended
+ * 20-27 ms apart, the second thread alone meanwhile); with many chunks
+ * the threads end within a chunk of each other.  Each chunk stops at its
+ * first bad piece; the first of those in piece order is the error, as
+ * one thread finds. */
+#define CHECK_CHUNKS 256u
 typedef struct {
     const iso_params *p;
     const iso_piece *pc;
     uint64_t n;
-    uint64_t start[PAR_MAX + 1];
-    uint64_t bad[PAR_MAX];   /* each part's first bad piece, or n */
-    err_info err[PAR_MAX];   /* and what is wrong with it */
+    unsigned chunks;
+    atomic_uint next;        /* the next chunk to take */
+    uint64_t start[CHECK_CHUNKS + 1];
+    uint64_t bad[CHECK_CHUNKS];   /* each chunk's first bad piece, or n */
+    err_info err[CHECK_CHUNKS];   /* and what is wrong with it */
 } check_ctx;
 
 static uint64_t check_work(const iso_piece *pc)
@@ -158,35 +166,39 @@ static uint64_t check_work(const iso_piece *pc)
     return 1 + (uint64_t)pc->nv + 3 * (uint64_t)pc->nt;
 }
 
-/* c->start for parts parts of about equal work. */
-static void check_cut(check_ctx *c, unsigned parts)
+/* c->start for c->chunks chunks of about equal work. */
+static void check_cut(check_ctx *c)
 {
     uint64_t total = 0, cum = 0, i = 0;
     for (uint64_t j = 0; j < c->n; j++) total += check_work(&c->pc[j]);
-    for (unsigned k = 0; k < parts; k++) {
+    for (unsigned k = 0; k < c->chunks; k++) {
         c->start[k] = i;
-        /* part k ends where the work before it reaches (k + 1) / parts
+        /* chunk k ends where the work before it reaches (k + 1) / chunks
          * (the last one at the end: every piece's work is at least 1) */
-        while (i < c->n && cum < total * (k + 1) / parts) cum += check_work(&c->pc[i++]);
+        while (i < c->n && cum < total * (k + 1) / c->chunks) cum += check_work(&c->pc[i++]);
     }
-    c->start[parts] = c->n;
+    c->start[c->chunks] = c->n;
 }
 
 static void check_part(void *ud, unsigned k, unsigned parts)
 {
     check_ctx *c = ud;
-    uint64_t lo = c->start[k], hi = c->start[k + 1];
-    (void)parts;
-    c->bad[k] = c->n;
-    for (uint64_t i = lo; i < hi; i++)
-        if (check_piece(c->p, c->pc, i, &c->err[k])) {
-            c->bad[k] = i;
-            return;
-        }
+    (void)k, (void)parts;
+    /* relaxed: a counter that hands out disjoint chunks; par_run's join
+     * orders every chunk's results before they are read */
+    for (unsigned j; (j = atomic_fetch_add_explicit(&c->next, 1, memory_order_relaxed)) <
+                     c->chunks;) {
+        c->bad[j] = c->n;
+        for (uint64_t i = c->start[j]; i < c->start[j + 1]; i++)
+            if (check_piece(c->p, c->pc, i, &c->err[j])) {
+                c->bad[j] = i;
+                break;
+            }
+    }
 }
 
-/* Pieces per part at least: a part is worth a thread. */
-#define CHECK_PART_MIN 256u
+/* Pieces per chunk at least: a chunk is worth taking. */
+#define CHECK_CHUNK_MIN 64u
 
 int iso_weld_bases(const iso_weld *w, unsigned threads, err_info *e)
 {
@@ -195,14 +207,16 @@ int iso_weld_bases(const iso_weld *w, unsigned threads, err_info *e)
     check_ctx *c = malloc(sizeof *c);
     if (!c) return -ENOMEM;
     c->p = w->p, c->pc = pc, c->n = n;
-    uint64_t most = n / CHECK_PART_MIN + 1;
+    uint64_t most = n / CHECK_CHUNK_MIN + 1;
+    c->chunks = most < CHECK_CHUNKS ? (unsigned)most : CHECK_CHUNKS;
+    atomic_init(&c->next, 0);
+    check_cut(c);
     unsigned parts = threads < 1 ? 1 : threads > PAR_MAX ? PAR_MAX : threads;
-    if (parts > most) parts = (unsigned)most;
-    check_cut(c, parts);
+    if (parts > c->chunks) parts = c->chunks;
     par_run(parts, check_part, c);
     int rc = 0;
-    for (unsigned k = 0; k < parts && !rc; k++)
-        if (c->bad[k] < n) /* the parts are in piece order */
+    for (unsigned k = 0; k < c->chunks && !rc; k++)
+        if (c->bad[k] < n) /* the chunks are in piece order */
             rc = err_set(e, c->err[k].code, "%s", c->err[k].msg);
     free(c);
     if (rc) return rc;
