@@ -88,6 +88,13 @@ int mesh_build_zero_area(const float *a, const float *b, const float *c);
 /* Drop the degenerate triangles, take the bounding box, and move the
  * arrays into *out (b is empty after).  -EINVAL when no triangle is left. */
 int mesh_build_finish(mbuild *b, mesh_format f, mesh *out);
+/* The triangles t[0 .. nt) of the positions v with the degenerate ones
+ * (two equal indices, or zero area) dropped in place, the others in their
+ * order; how many are kept, and their box grown into lo, hi (the first of
+ * equal values kept).  On every CPU for a large mesh (mesh_build_finish's
+ * step, and the weld's after it renumbers the triangles). */
+uint32_t mesh_build_keep(float (*v)[3], uint32_t (*t)[3], uint32_t nt, float lo[3],
+                         float hi[3]);
 void mesh_build_free(mbuild *b);
 
 /* STL's vertices are per triangle: merge bit-equal positions (-0 as 0)

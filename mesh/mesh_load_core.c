@@ -230,6 +230,20 @@ static void finish_all(mbuild *b, part_box *box, uint32_t *kept)
     *kept = sum;
 }
 
+uint32_t mesh_build_keep(float (*v)[3], uint32_t (*t)[3], uint32_t nt, float lo[3],
+                         float hi[3])
+{
+    mbuild b = {.v = v, .t = t, .nt = nt}; /* what finish_all reads */
+    part_box box;
+    memcpy(box.lo, lo, sizeof box.lo);
+    memcpy(box.hi, hi, sizeof box.hi);
+    uint32_t kept;
+    finish_all(&b, &box, &kept);
+    memcpy(lo, box.lo, sizeof box.lo);
+    memcpy(hi, box.hi, sizeof box.hi);
+    return kept;
+}
+
 int mesh_build_finish(mbuild *b, mesh_format f, mesh *out)
 {
     part_box box = {{FLT_MAX, FLT_MAX, FLT_MAX}, {-FLT_MAX, -FLT_MAX, -FLT_MAX}};

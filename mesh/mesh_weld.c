@@ -270,8 +270,10 @@ static int any_left(const mesh *m, const uint32_t *map)
 }
 
 /* In place: the kept vertices moved down in order (map[i] becomes vertex
- * i's new index), the triangles renumbered and the degenerate ones
- * dropped, the box taken again. */
+ * i's new index), the triangles renumbered, then the degenerate ones
+ * dropped and the box taken again on every CPU (mesh_build_keep: the
+ * dragon's 871,000 triangles took 10-15 ms of one thread here, the largest
+ * serial window of its distance job's start). */
 static void apply(mesh *m, uint32_t *map)
 {
     uint32_t u = 0;
@@ -283,19 +285,10 @@ static void apply(mesh *m, uint32_t *map)
         memmove(m->vertices[u], m->vertices[i], sizeof *m->vertices);
         map[i] = u++;
     }
+    for (uint32_t i = 0; i < m->n_triangles; i++)
+        for (int k = 0; k < 3; k++) m->triangles[i][k] = map[m->triangles[i][k]];
     float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
-    uint32_t kept = 0;
-    for (uint32_t i = 0; i < m->n_triangles; i++) {
-        uint32_t t[3] = {map[m->triangles[i][0]], map[m->triangles[i][1]], map[m->triangles[i][2]]};
-        if (degenerate(m->vertices, t[0], t[1], t[2])) continue;
-        for (int k = 0; k < 3; k++)
-            for (int a = 0; a < 3; a++) {
-                float x = m->vertices[t[k]][a];
-                lo[a] = x < lo[a] ? x : lo[a];
-                hi[a] = x > hi[a] ? x : hi[a];
-            }
-        memcpy(m->triangles[kept++], t, sizeof t);
-    }
+    uint32_t kept = mesh_build_keep(m->vertices, m->triangles, m->n_triangles, lo, hi);
     m->n_degenerate += m->n_triangles - kept;
     m->n_vertices = u;
     m->n_triangles = kept;

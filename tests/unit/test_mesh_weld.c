@@ -14,6 +14,7 @@
  * (malloc wrapped for this binary: it falls back to one thread). */
 #include <criterion/criterion.h>
 #include <errno.h>
+#include <float.h>
 #include <math.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -76,15 +77,24 @@ static uint32_t check_map(const mesh *m, double eps, const uint32_t *map, const 
             cr_assert_eq(memcmp(w.vertices[renum[i]], m->vertices[i], sizeof *w.vertices), 0,
                          "%s: vertex %u", what, i);
     uint32_t kept = 0;
+    float lo[3] = {FLT_MAX, FLT_MAX, FLT_MAX}, hi[3] = {-FLT_MAX, -FLT_MAX, -FLT_MAX};
     for (uint32_t i = 0; i < m->n_triangles; i++) {
         uint32_t t[3];
         for (int k = 0; k < 3; k++) t[k] = map[m->triangles[i][k]];
         if (shape_degenerate(m->vertices, t)) continue;
         cr_assert_lt(kept, w.n_triangles, "%s", what);
-        for (int k = 0; k < 3; k++)
+        for (int k = 0; k < 3; k++) {
             cr_assert_eq(w.triangles[kept][k], renum[t[k]], "%s: triangle %u", what, i);
+            for (int a = 0; a < 3; a++) { /* the first of equal values (-0, +0) */
+                float x = m->vertices[t[k]][a];
+                lo[a] = x < lo[a] ? x : lo[a];
+                hi[a] = x > hi[a] ? x : hi[a];
+            }
+        }
         kept++;
     }
+    /* the box of the triangles left, to the bit */
+    cr_assert(!memcmp(w.lo, lo, sizeof lo) && !memcmp(w.hi, hi, sizeof hi), "%s: box", what);
     cr_assert_eq(kept, w.n_triangles, "%s: %u triangles, brute force %u", what, w.n_triangles,
                  kept);
     cr_assert_eq(w.n_degenerate, m->n_degenerate + (m->n_triangles - kept), "%s", what);
