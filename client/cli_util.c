@@ -124,11 +124,22 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
     return rc;
 }
 
+/* AddressSanitizer's allocator takes no lock around a fork (GCC 12's, and
+ * clang's before 17): GCC says so by __SANITIZE_ADDRESS__, clang by
+ * __has_feature (which GCC 12 lacks, so the test is nested). */
+#if defined(__SANITIZE_ADDRESS__)
+#define CLI_FORK_UNSAFE_MALLOC 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer)
+#define CLI_FORK_UNSAFE_MALLOC 1
+#endif
+#endif
+
 int cli_start_engine_beside(par_task *t, void *(*fn)(void *ud), void *ud, uint32_t workers,
                             const char *cpus, uint32_t shm_mib, engine **e)
 {
     int rc = 0;
-#ifdef __SANITIZE_ADDRESS__
+#ifdef CLI_FORK_UNSAFE_MALLOC
     if (workers) rc = cli_start_engine(workers, cpus, shm_mib, e);
     par_start(t, fn, ud);
 #else
