@@ -419,7 +419,7 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
 static int write_vdb(const export_box *b, const export_opts *o, const outfile *f)
 {
     err_info err = {0};
-    int rc = export_vdb(b, o->in, outfile_name(f), &err);
+    int rc = export_vdb(b, o->in, outfile_name(f), o->out, &err);
     if (rc) {
         cli_error("%s", err.msg);
         return -EINVAL; /* told */

@@ -49,8 +49,10 @@ int export_gzip(const export_box *b, FILE *fp, int comps);
  * class level set (background W, active in the band), else a FloatGrid
  * "density" of the voxel byte / 255 (channel 3: its occupancy byte), and
  * with b->normals a Vec3SGrid "normal".  Voxel indices are the level's, so a box keeps its
- * place.  src names the input in the metadata.  0, or a negative errno
- * with err set. */
-int export_vdb(const export_box *b, const char *src, const char *path, err_info *err);
+ * place.  src names the input in the metadata, name the output in messages
+ * (path may be a /proc/self/fd link to it).  0, or a negative errno with
+ * err set. */
+int export_vdb(const export_box *b, const char *src, const char *path, const char *name,
+               err_info *err);
 
 #endif

@@ -165,7 +165,18 @@ static const vdb_out_api *load_api(err_info *err)
     return NULL;
 }
 
-int export_vdb(const export_box *b, const char *src, const char *path, err_info *err)
+/* The module names what it wrote to (path): the user's name instead. */
+static void rename_failure(err_info *err, const char *path, const char *name)
+{
+    size_t n = strlen(path);
+    if (strncmp(err->msg, path, n) || strncmp(err->msg + n, ": ", 2)) return;
+    char why[sizeof err->msg];
+    snprintf(why, sizeof why, "%s", err->msg + n + 2);
+    err_set(err, err->code, "%s: %s", name, why);
+}
+
+int export_vdb(const export_box *b, const char *src, const char *path, const char *name,
+               err_info *err)
 {
     vdb_out_grid g = {.kind = b->in->voxel_bits == 1 ? VDB_OUT_BOOL : VDB_OUT_FLOAT,
                       .name = b->in->voxel_bits == 1 ? "occupancy" : "density",
@@ -189,7 +200,7 @@ int export_vdb(const export_box *b, const char *src, const char *path, err_info 
     rc = describe(&j, src);
     if (!rc) rc = walk(&j);
     if (rc) err_set(err, rc, "%s", strerror(-rc));
-    else rc = j.api->write(j.w, path, err);
+    else if ((rc = j.api->write(j.w, path, err))) rename_failure(err, path, name);
     j.api->free(j.w);
     return rc;
 }

@@ -7,10 +7,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <new>
 #include <string>
 
-#include <openvdb/io/File.h>
+#include <openvdb/io/Archive.h>
 #include <openvdb/math/Maps.h>
 #include <openvdb/openvdb.h>
 #include <openvdb/tools/Prune.h>
@@ -28,6 +29,34 @@ int say(err_info *err, int code, const char *what, const char *why)
     err->code = code;
     std::snprintf(err->msg, sizeof err->msg, "%s: %s", what, why);
     return code;
+}
+
+// io::File's write on a stream of our own, whose failures we see:
+// File::writeGrids (OpenVDB 10) never looks at its stream after writing,
+// so a full disk or a file size limit left a truncated .vdb reported as
+// written.  The same bytes: Archive::write, seekable, as File's.
+struct checked_archive : openvdb::io::Archive {
+    void write_to(std::ostream &os, const openvdb::GridPtrVec &grids,
+                  const openvdb::MetaMap &meta) const
+    {
+        Archive::write(os, grids, /*seekable=*/true, meta);
+    }
+};
+
+// grids and meta into path: 0, or a negative errno said in err.
+int write_checked(const char *path, const openvdb::GridPtrVec &grids,
+                  const openvdb::MetaMap &meta, err_info *err)
+{
+    std::ofstream os(path, std::ios_base::out | std::ios_base::binary | std::ios_base::trunc);
+    if (os.fail()) return say(err, errno ? -errno : -EIO, path, std::strerror(errno ? errno : EIO));
+    errno = 0;
+    checked_archive().write_to(os, grids, meta);
+    os.flush();
+    int e = os.fail() ? errno : 0; // the failed write's, before close may change it
+    os.close();
+    if (!e && os.fail()) e = errno ? errno : EIO;
+    if (e) return say(err, -e, path, std::strerror(e));
+    return 0;
 }
 
 } // namespace
@@ -230,10 +259,7 @@ static int vdb_out_write(vdb_out *w, const char *path, err_info *err)
         }
         openvdb::MetaMap file_meta;
         file_meta.insertMeta("creator", openvdb::StringMetadata("vox export"));
-        openvdb::io::File f(path);
-        f.write(grids, file_meta);
-        f.close();
-        return 0;
+        return write_checked(path, grids, file_meta, err);
     } catch (const std::bad_alloc &) {
         return say(err, -ENOMEM, path, "out of memory");
     } catch (const std::exception &e) {

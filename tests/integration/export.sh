@@ -115,6 +115,16 @@ if [ ! -e "$TMP/x.vdb" ]; then pass "export: no .vdb left on refusal"
 else fail "export: no .vdb left on refusal"; fi
 head -c 300 "$f" >"$TMP/cut.vod"
 refuse "export: a truncated file" 1 "truncated" "$VOX" export "$TMP/cut.vod" -o "$TMP/x.nrrd"
+# A write that fails as on a full disk (a file size limit of a few KiB,
+# SIGXFSZ ignored so that the write returns EFBIG): every format says so,
+# naming the user's file, and leaves nothing.  OpenVDB's own File::write
+# never looks at its stream: a truncated .vdb was reported written before.
+for ext in vdb nrrd vti raw binvox; do
+    refuse "export: .$ext past a file size limit is refused" 1 "x-lim\.$ext: File too large" \
+        sh -c 'trap "" XFSZ; ulimit -f 2; exec "$@"' sh "$VOX" export "$f" -o "$TMP/x-lim.$ext"
+    if [ ! -e "$TMP/x-lim.$ext" ]; then pass "export: no .$ext left past the limit"
+    else fail "export: no .$ext left past the limit"; fi
+done
 
 # ---------------------------------------------------------------- pip install
 if "$PY" -m pip --version >/dev/null 2>&1; then

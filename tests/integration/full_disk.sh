@@ -42,7 +42,7 @@ full() {
     else fail "$n: nothing left on the full disk" "$(cat "$TMP/full.ls")"; fi
 }
 
-for f in nrrd raw vti; do
+for f in nrrd raw vti vdb; do
     full "vox export .$f" "$F/x.$f" "$VOX" export "$TMP/big.vod" -o "$F/x.$f"
 done
 full "vox export gzip NRRD" "$F/g.nrrd" "$VOX" export "$TMP/big.vod" -o "$F/g.nrrd" --gzip
