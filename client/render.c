@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "outfile.h"
 #include "voxel.h"
 
 #define DEG (M_PI / 180.0)
@@ -685,15 +686,19 @@ int render_write_png(const render_image *img, const char *path)
     pi.width = (png_uint_32)img->width;
     pi.height = (png_uint_32)img->height;
     pi.format = PNG_FORMAT_RGB;
-    FILE *fp = fopen(path, "wb");
-    if (!fp) return -errno;
-    int ok = png_image_write_to_stdio(&pi, fp, 0, img->rgb,
-                                      3 * img->width, NULL);
+    png_int_32 stride = 3 * img->width;
+    /* made in memory, then written as every vox output is (outfile): the
+     * write's errors are the file system's own, the file whole or absent */
+    png_alloc_size_t size = 0;
+    uint8_t *png = NULL;
+    int ok = png_image_write_get_memory_size(pi, size, 0, img->rgb, stride, NULL) &&
+             (png = malloc(size)) &&
+             png_image_write_to_memory(&pi, png, &size, 0, img->rgb, stride, NULL);
     png_image_free(&pi);
-    if (fclose(fp) != 0) ok = 0;
-    if (!ok) {
-        remove(path);
-        return -EIO;
-    }
-    return 0;
+    outfile f;
+    int rc = ok ? outfile_open(&f, path) : -ENOMEM;
+    if (!rc && (rc = outfile_write(&f, png, size))) outfile_abort(&f);
+    else if (!rc) rc = outfile_commit(&f, path);
+    free(png);
+    return rc;
 }

@@ -136,7 +136,10 @@ int render_mesh(const mesh *m, const render_opts *o, int smooth, render_image *o
 
 /* ---- output ---- */
 
-/* Write img as an 8-bit RGB PNG (libpng).  0 or a negative errno. */
+/* Write img as an 8-bit RGB PNG (libpng) at path, which appears whole or
+ * not at all (outfile.h: an existing file is replaced only by the whole
+ * new one).  0 or a negative errno (-ENOMEM when libpng could not make it,
+ * else the file system's: -ENOSPC on a full disk). */
 int render_write_png(const render_image *img, const char *path);
 void render_image_free(render_image *img);
 

@@ -89,6 +89,13 @@ check "render" "$VOX" render "$TMP/s1.vod" -o "$TMP/s.png" --size 128
 [ "$(head -c 8 "$TMP/s.png" | od -An -tx1 | tr -d ' ')" = "89504e470d0a1a0a" ] && pass "render writes a PNG" || fail "render writes a PNG"
 check "render level 1, perspective" "$VOX" render "$TMP/s1.vod" -o "$TMP/s1.png" --size 64 --level 1 -p
 refuse "render bad level" 2 "levels 0" "$VOX" render "$TMP/s1.vod" -o "$TMP/x.png" --level 9
+# the PNG as every output: a write that fails (a file size limit, as a full
+# disk) is named, and the file there before is left as it was
+echo old >"$TMP/kept.png"
+refuse "render past a file size limit is refused" 1 "cannot write .*kept\.png: File too large" \
+    sh -c 'trap "" XFSZ; ulimit -f 1; exec "$@"' sh "$VOX" render "$TMP/s1.vod" -o "$TMP/kept.png" --size 128
+[ "$(cat "$TMP/kept.png")" = old ] && pass "render: a failed write leaves the old file" ||
+    fail "render: a failed write leaves the old file"
 check "render occupancy" "$VOX" render "$TMP/occ.vod" -o "$TMP/occ.png" --size 64
 # meshes (by their extension): flat and smooth, and the options of the other kind refused
 cat >"$TMP/tet.obj" <<'OBJ'
