@@ -314,10 +314,8 @@ static int write_vti(const export_box *b, sink *s)
 }
 
 /* The sidecar of the raw format: what it takes to read the array back. */
-static int write_json(const export_box *b, const export_opts *o)
+static void print_json(FILE *fp, const export_box *b)
 {
-    FILE *fp = fopen(o->json, "w");
-    if (!fp) return -errno;
     if (b->distance)
         fprintf(fp, "{\n  \"shape\": [%u, %u, %u],\n  \"dtype\": \"float32\",\n"
                 "  \"byte_order\": \"little\",\n  \"units\": \"world\",\n"
@@ -339,7 +337,30 @@ static int write_json(const export_box *b, const export_opts *o)
     print_vec(fp, ", ", b->spacing);
     fprintf(fp, "],\n  \"channel\": %u,\n  \"level\": %d,\n  \"offset\": [%u, %u, %u]\n}\n",
             b->in->channel, b->level, b->lo[0], b->lo[1], b->lo[2]);
-    return fclose(fp) ? -errno : 0;
+}
+
+/* The sidecar written whole or not at all, as the raw file is (outfile),
+ * before the raw file is committed; a failure is said here, naming it: 0,
+ * or -EINVAL (told). */
+static int write_json(const export_box *b, const export_opts *o)
+{
+    char *text = NULL;
+    size_t len = 0;
+    FILE *fp = open_memstream(&text, &len);
+    int rc = fp ? 0 : -errno;
+    if (fp) {
+        print_json(fp, b);
+        if (fclose(fp)) rc = -errno;
+    }
+    outfile f;
+    if (!rc && !(rc = outfile_open(&f, o->json))) {
+        if ((rc = outfile_write(&f, text, len))) outfile_abort(&f);
+        else rc = outfile_commit(&f, o->json);
+    }
+    free(text);
+    if (!rc) return 0;
+    cli_error("%s: %s", o->json, strerror(-rc));
+    return -EINVAL; /* told */
 }
 
 /* binvox: a cube of side d = the largest side (zeros past the box), x

@@ -125,6 +125,13 @@ for ext in vdb nrrd vti raw binvox; do
     if [ ! -e "$TMP/x-lim.$ext" ]; then pass "export: no .$ext left past the limit"
     else fail "export: no .$ext left past the limit"; fi
 done
+# the raw format's header, a file of its own, is named when it cannot be
+# written (a directory in its place), and the raw file is not left alone
+mkdir -p "$TMP/xj.json"
+refuse "export: a raw header that cannot be written names the header" 1 "xj\.json: Is a directory" \
+    "$VOX" export "$f" -o "$TMP/xj.raw"
+if [ ! -e "$TMP/xj.raw" ]; then pass "export: no raw file without its header"
+else fail "export: no raw file without its header"; fi
 
 # ---------------------------------------------------------------- pip install
 if "$PY" -m pip --version >/dev/null 2>&1; then
