@@ -138,7 +138,7 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
 /* fn(ud) on thread t (par_join it) and, with workers, the engine started
  * beside it as cli_start_engine does: the thread first, so that the
  * workers' fork overlaps its work, except under AddressSanitizer, whose
- * allocator (GCC 12's libasan) does not take its locks around a fork as
+ * allocator (GCC 12's libasan, clang's before 17) does not take its locks around a fork as
  * glibc's malloc does: a worker forked while the thread was inside malloc
  * waited on the lock forever, until the stall timeout killed it (10 s of
  * vox mesh in the asan build, one run in three).  0 or cli_start_engine's

@@ -352,11 +352,7 @@ static int write_json(const export_box *b, const export_opts *o)
         print_json(fp, b);
         if (fclose(fp)) rc = -errno;
     }
-    outfile f;
-    if (!rc && !(rc = outfile_open(&f, o->json))) {
-        if ((rc = outfile_write(&f, text, len))) outfile_abort(&f);
-        else rc = outfile_commit(&f, o->json);
-    }
+    if (!rc) rc = outfile_put(o->json, text, len);
     free(text);
     if (!rc) return 0;
     cli_error("%s: %s", o->json, strerror(-rc));

@@ -124,9 +124,9 @@ int cli_start_engine(uint32_t workers, const char *cpus, uint32_t shm_mib, engin
     return rc;
 }
 
-/* AddressSanitizer's allocator takes no lock around a fork (GCC 12's, and
- * clang's before 17): GCC says so by __SANITIZE_ADDRESS__, clang by
- * __has_feature (which GCC 12 lacks, so the test is nested). */
+/* AddressSanitizer (cli.h says why it matters here): GCC says so by
+ * __SANITIZE_ADDRESS__, clang by __has_feature (which GCC 12 lacks, so
+ * the test is nested). */
 #if defined(__SANITIZE_ADDRESS__)
 #define CLI_FORK_UNSAFE_MALLOC 1
 #elif defined(__has_feature)

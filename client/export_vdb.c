@@ -165,16 +165,6 @@ static const vdb_out_api *load_api(err_info *err)
     return NULL;
 }
 
-/* The module names what it wrote to (path): the user's name instead. */
-static void rename_failure(err_info *err, const char *path, const char *name)
-{
-    size_t n = strlen(path);
-    if (strncmp(err->msg, path, n) || strncmp(err->msg + n, ": ", 2)) return;
-    char why[sizeof err->msg];
-    snprintf(why, sizeof why, "%s", err->msg + n + 2);
-    err_set(err, err->code, "%s: %s", name, why);
-}
-
 int export_vdb(const export_box *b, const char *src, const char *path, const char *name,
                err_info *err)
 {
@@ -200,7 +190,11 @@ int export_vdb(const export_box *b, const char *src, const char *path, const cha
     rc = describe(&j, src);
     if (!rc) rc = walk(&j);
     if (rc) err_set(err, rc, "%s", strerror(-rc));
-    else if ((rc = j.api->write(j.w, path, err))) rename_failure(err, path, name);
+    else if ((rc = j.api->write(j.w, path, err))) { /* the module says why, we name it */
+        char why[sizeof err->msg];
+        snprintf(why, sizeof why, "%s", err->msg);
+        err_set(err, rc, "%s: %s", name, why);
+    }
     j.api->free(j.w);
     return rc;
 }

@@ -695,10 +695,7 @@ int render_write_png(const render_image *img, const char *path)
              (png = malloc(size)) &&
              png_image_write_to_memory(&pi, png, &size, 0, img->rgb, stride, NULL);
     png_image_free(&pi);
-    outfile f;
-    int rc = ok ? outfile_open(&f, path) : -ENOMEM;
-    if (!rc && (rc = outfile_write(&f, png, size))) outfile_abort(&f);
-    else if (!rc) rc = outfile_commit(&f, path);
+    int rc = ok ? outfile_put(path, png, size) : -ENOMEM;
     free(png);
     return rc;
 }

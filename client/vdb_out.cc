@@ -22,12 +22,13 @@ using openvdb::Coord;
 using openvdb::CoordBBox;
 
 // err_set's work (common/err.h), done here: the module does not link
-// libvoxd.  code returned.
+// libvoxd.  "what: why", or why alone without what.  code returned.
 int say(err_info *err, int code, const char *what, const char *why)
 {
     if (!err) return code;
     err->code = code;
-    std::snprintf(err->msg, sizeof err->msg, "%s: %s", what, why);
+    if (what) std::snprintf(err->msg, sizeof err->msg, "%s: %s", what, why);
+    else std::snprintf(err->msg, sizeof err->msg, "%s", why);
     return code;
 }
 
@@ -43,19 +44,23 @@ struct checked_archive : openvdb::io::Archive {
     }
 };
 
-// grids and meta into path: 0, or a negative errno said in err.
+// grids and meta into path: 0, or a negative errno said in err (why alone:
+// the caller names the file).
 int write_checked(const char *path, const openvdb::GridPtrVec &grids,
                   const openvdb::MetaMap &meta, err_info *err)
 {
     std::ofstream os(path, std::ios_base::out | std::ios_base::binary | std::ios_base::trunc);
-    if (os.fail()) return say(err, errno ? -errno : -EIO, path, std::strerror(errno ? errno : EIO));
+    if (os.fail()) {
+        int e = errno ? errno : EIO;
+        return say(err, -e, nullptr, std::strerror(e));
+    }
     errno = 0;
     checked_archive().write_to(os, grids, meta);
     os.flush();
     int e = os.fail() ? errno : 0; // the failed write's, before close may change it
     os.close();
     if (!e && os.fail()) e = errno ? errno : EIO;
-    if (e) return say(err, -e, path, std::strerror(e));
+    if (e) return say(err, -e, nullptr, std::strerror(e));
     return 0;
 }
 
@@ -261,9 +266,9 @@ static int vdb_out_write(vdb_out *w, const char *path, err_info *err)
         file_meta.insertMeta("creator", openvdb::StringMetadata("vox export"));
         return write_checked(path, grids, file_meta, err);
     } catch (const std::bad_alloc &) {
-        return say(err, -ENOMEM, path, "out of memory");
+        return say(err, -ENOMEM, nullptr, "out of memory");
     } catch (const std::exception &e) {
-        return say(err, -EIO, path, e.what());
+        return say(err, -EIO, nullptr, e.what());
     }
 }
 

@@ -68,7 +68,8 @@ typedef struct {
     int (*block_f)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], const float *d);
     int (*fill_f)(vdb_out *w, const int32_t lo[3], const uint32_t n[3], float v);
     /* Prune the trees (equal leaves become tiles) and write the file at
-     * path.  0, or a negative errno with err set. */
+     * path.  0, or a negative errno with err set to why alone (the caller
+     * names the file: path may be a /proc/self/fd link to it). */
     int (*write)(vdb_out *w, const char *path, err_info *err);
     /* Active voxels of the scalar grid. */
     uint64_t (*active)(const vdb_out *w);

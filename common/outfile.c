@@ -130,3 +130,15 @@ void outfile_abort(outfile *f)
     if (f->named) unlink(f->tmp);
     f->named = 0;
 }
+
+int outfile_put(const char *path, const void *buf, size_t n)
+{
+    outfile f;
+    int rc = outfile_open(&f, path);
+    if (rc) return rc;
+    if ((rc = outfile_write(&f, buf, n))) {
+        outfile_abort(&f);
+        return rc;
+    }
+    return outfile_commit(&f, path);
+}

@@ -49,5 +49,8 @@ int outfile_write(void *f, const void *buf, size_t n);
 int outfile_commit(outfile *f, const char *path);
 /* Close and remove it: nothing is left.  Async-signal-safe. */
 void outfile_abort(outfile *f);
+/* A whole file of n bytes made in memory, written as PATH the same way
+ * (open, write, commit): 0, or a negative errno with nothing left. */
+int outfile_put(const char *path, const void *buf, size_t n);
 
 #endif

@@ -131,22 +131,29 @@ typedef struct {
     float lo[3], hi[3];
 } part_box;
 
-/* Triangles [from, to) of b: the box of those kept (not degenerate) grown
- * in *box and the number kept returned; each kept one copied to
- * out[0, kept) when out is not NULL (out may be b->t + from: each goes to
+/* The triangles a keep pass reads and compacts: t[0 .. nt) over the
+ * positions v. */
+typedef struct {
+    float (*v)[3];
+    uint32_t (*t)[3];
+    uint32_t nt;
+} tri_set;
+
+/* Triangles [from, to) of s: the box of those kept (not degenerate) grown
+ * in lo, hi and the number kept returned; each kept one copied to
+ * out[0, kept) when out is not NULL (out may be s->t + from: each goes to
  * or below its own place), and keep[i - from] set to whether triangle i
  * is kept when keep is not NULL.  The box takes the first of equal values
  * (-0 and +0): folding parts in order gives what one pass gives. */
-static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, part_box *box,
-                            uint32_t (*out)[3], uint8_t *keep)
+static uint32_t finish_part(const tri_set *s, uint32_t from, uint32_t to, float lo[3],
+                            float hi[3], uint32_t (*out)[3], uint8_t *keep)
 {
-    float *lo = box->lo, *hi = box->hi;
     /* the box in scalars, so that they stay in registers */
     float lx = lo[0], ly = lo[1], lz = lo[2], hx = hi[0], hy = hi[1], hz = hi[2];
     uint32_t kept = 0;
     for (uint32_t i = from; i < to; i++) {
-        uint32_t t0 = b->t[i][0], t1 = b->t[i][1], t2 = b->t[i][2];
-        const float *p[3] = {b->v[t0], b->v[t1], b->v[t2]};
+        uint32_t t0 = s->t[i][0], t1 = s->t[i][1], t2 = s->t[i][2];
+        const float *p[3] = {s->v[t0], s->v[t1], s->v[t2]};
         int k = t0 != t1 && t1 != t2 && t0 != t2 && !mesh_build_zero_area(p[0], p[1], p[2]);
         if (keep) keep[i - from] = (uint8_t)k;
         if (!k) continue;
@@ -162,7 +169,7 @@ static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, part_bo
     return kept;
 }
 
-/* mesh_build_finish on every CPU for a large mesh: each part's box, count and
+/* mesh_build_keep on every CPU for a large mesh: each part's box, count and
  * kept flags; then, when some triangles are degenerate, one pass moves the
  * kept ones down in place by the flags (a copy into a new array by every
  * CPU cost more than it saved: its fresh pages' faults). */
@@ -170,7 +177,7 @@ static uint32_t finish_part(const mbuild *b, uint32_t from, uint32_t to, part_bo
 #define FINISH_PARTS 64
 
 typedef struct {
-    const mbuild *b;
+    const tri_set *s;
     uint8_t *keep;      /* a triangle's flag: kept */
     atomic_uint next;   /* the next part to take */
     part_box box[FINISH_PARTS];
@@ -181,7 +188,7 @@ static void finish_parts(void *ud, unsigned k, unsigned n)
 {
     (void)k, (void)n;
     finish_par *fp = ud;
-    uint64_t nt = fp->b->nt;
+    uint64_t nt = fp->s->nt;
     /* relaxed: a counter; the parts are disjoint, par_run's join orders the results */
     for (uint32_t i; (i = atomic_fetch_add_explicit(&fp->next, 1, memory_order_relaxed)) <
                      FINISH_PARTS;) {
@@ -189,25 +196,22 @@ static void finish_parts(void *ud, unsigned k, unsigned n)
         part_box *box = &fp->box[i];
         box->lo[0] = box->lo[1] = box->lo[2] = FLT_MAX;
         box->hi[0] = box->hi[1] = box->hi[2] = -FLT_MAX;
-        fp->kept[i] = finish_part(fp->b, from, to, box, NULL, fp->keep + from);
+        fp->kept[i] = finish_part(fp->s, from, to, box->lo, box->hi, NULL, fp->keep + from);
     }
 }
 
-/* The kept triangles' count and box, b->t compacted. */
-static void finish_all(mbuild *b, part_box *box, uint32_t *kept)
+uint32_t mesh_build_keep(float (*v)[3], uint32_t (*t)[3], uint32_t nt, float lo[3],
+                         float hi[3])
 {
-    float *lo = box->lo, *hi = box->hi;
+    tri_set s = {v, t, nt};
     unsigned cpus = par_cpus();
-    finish_par *fp = b->nt >= FINISH_PAR_MIN && cpus > 1 ? calloc(1, sizeof *fp) : NULL;
-    if (fp && !(fp->keep = malloc(b->nt))) {
+    finish_par *fp = nt >= FINISH_PAR_MIN && cpus > 1 ? calloc(1, sizeof *fp) : NULL;
+    if (fp && !(fp->keep = malloc(nt))) {
         free(fp);
         fp = NULL;
     }
-    if (!fp) { /* one thread */
-        *kept = finish_part(b, 0, b->nt, box, b->t, NULL);
-        return;
-    }
-    fp->b = b;
+    if (!fp) return finish_part(&s, 0, nt, lo, hi, t, NULL); /* one thread */
+    fp->s = &s;
     atomic_init(&fp->next, 0);
     par_run(cpus, finish_parts, fp);
     uint32_t sum = 0;
@@ -219,36 +223,21 @@ static void finish_all(mbuild *b, part_box *box, uint32_t *kept)
         }
         sum += fp->kept[i];
     }
-    if (sum < b->nt) { /* each kept one goes to or below its own place */
-        const uint8_t *first = memchr(fp->keep, 0, b->nt);
+    if (sum < nt) { /* each kept one goes to or below its own place */
+        const uint8_t *first = memchr(fp->keep, 0, nt);
         uint32_t k = (uint32_t)(first - fp->keep);
-        for (uint32_t t = k; t < b->nt; t++)
-            if (fp->keep[t]) memcpy(b->t[k++], b->t[t], sizeof *b->t);
+        for (uint32_t i = k; i < nt; i++)
+            if (fp->keep[i]) memcpy(t[k++], t[i], sizeof *t);
     }
     free(fp->keep);
     free(fp);
-    *kept = sum;
-}
-
-uint32_t mesh_build_keep(float (*v)[3], uint32_t (*t)[3], uint32_t nt, float lo[3],
-                         float hi[3])
-{
-    mbuild b = {.v = v, .t = t, .nt = nt}; /* what finish_all reads */
-    part_box box;
-    memcpy(box.lo, lo, sizeof box.lo);
-    memcpy(box.hi, hi, sizeof box.hi);
-    uint32_t kept;
-    finish_all(&b, &box, &kept);
-    memcpy(lo, box.lo, sizeof box.lo);
-    memcpy(hi, box.hi, sizeof box.hi);
-    return kept;
+    return sum;
 }
 
 int mesh_build_finish(mbuild *b, mesh_format f, mesh *out)
 {
     part_box box = {{FLT_MAX, FLT_MAX, FLT_MAX}, {-FLT_MAX, -FLT_MAX, -FLT_MAX}};
-    uint32_t kept;
-    finish_all(b, &box, &kept);
+    uint32_t kept = mesh_build_keep(b->v, b->t, b->nt, box.lo, box.hi);
     uint32_t dropped = b->nt - kept;
     if (!kept)
         return b->nt ? mesh_build_fail(b, -EINVAL, MESH_BUILD_NOWHERE, "no triangles: all %u are degenerate", b->nt)
