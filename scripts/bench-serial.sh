@@ -23,7 +23,10 @@
 # from its summary, so that a regression says where; after the table, where
 # each run's serial time went (voxserial -w: the thread charged with each
 # serial window, by its name, which vox sets to its stage, its process and
-# its state; the charges of 5 ms or more).
+# its state; the charges of 5 ms or more); last, what a process pays here
+# for what every run does: the serial seconds of one that only starts and
+# exits (vox --version) and of one that only writes the run's output
+# durably (dd conv=fsync), as shares of the run's work.
 #
 #   BENCH_SERIAL_RES      the resolution (default 1024; 64 in quick mode)
 #   BENCH_SERIAL_WORKERS  the workers (default 2)
@@ -100,6 +103,31 @@ charges() {
     else echo "largest: $(head -1 <<<"$all")"; fi
 }
 
+# value KEY MEASURES: KEY's value in voxserial's key=value line.
+value() {
+    tr ' ' '\n' <<<"$2" | sed -n "s/^$1=//p"
+}
+
+# reference_row LABEL MEASURES OUTPUT: a row of the references' table,
+# measured half a second after the job: the serial seconds of a process
+# that only starts and exits (vox --version) and of one that only writes
+# the job's output durably (dd conv=fsync, into the same file system),
+# each against the job's work (serial + W x parallel), beside the job's
+# own share.
+reference_row() {
+    local v d
+    sleep 0.5 # the run's leftovers (its helper's teardown, write-back) out of the way
+    "$serial" -n "$w" -o "$tmp/f1" -- "$vox" --version >/dev/null 2>&1 || { failed=1; return 0; }
+    "$serial" -n "$w" -o "$tmp/f2" -- dd if="$3" of="$tmp/ref.out" bs=1M conv=fsync status=none ||
+        { failed=1; return 0; }
+    v=$(value serial_s "$(head -1 "$tmp/f1")") d=$(value serial_s "$(head -1 "$tmp/f2")")
+    awk -v job="$1" -v s="$(value serial_s "$2")" -v p="$(value parallel_s "$2")" -v v="$v" -v d="$d" \
+        -v w="$w" -v bytes="$(stat -c %s "$3")" 'BEGIN {
+        work = s + w * p
+        printf "| %s | %.4f | %.1f | %.4f | %.2f%% | %.4f | %.2f%% | %.2f%% |\n", job, work,
+            bytes / 1048576, v, 100 * v / work, d, 100 * d / work, 100 * s / work }' >>"$tmp/refs"
+}
+
 # run NAME COMMAND: one row of the table.
 run() {
     local cmd=${2//OUT/$tmp/out} load m
@@ -112,6 +140,7 @@ run() {
     fi
     m=$(head -1 "$tmp/m")
     charges "$tmp/m" | paste -sd';' | sed "s/;/; /g; s/^/| $3 | /; s/\$/ |/" >>"$tmp/where"
+    reference_row "$3" "$m" "$(sed -n 's/.* -o \([^ ]*\).*/\1/p' <<<"$cmd")"
     awk -v m="$m" -v job="$3" -v load="$load" -v spans="$(sed -n 's/^serial_spans=//p' "$tmp/m" | sed 's/,/, /g')" \
         -v st="$(stages "$tmp/stdout")" 'BEGIN {
         n = split(m, kv, " ")
@@ -151,4 +180,18 @@ echo
 echo "| job | serial seconds by thread |"
 echo "|---|---|"
 while IFS='|' read -r name label cmd; do grep -F "| $label |" "$tmp/where" || true; done < <(jobs)
+echo
+echo "What a process pays here for what every run does, measured right after each run with the"
+echo "same sampling: *start and exit*, the serial seconds of \`vox --version\` (the exec, the"
+echo "dynamic loader, the exit); *the output written durably*, those of \`dd bs=1M conv=fsync\` of"
+echo "the run's output into the same file system (a process that only copies those bytes and makes"
+echo "them durable, its own start and exit included). Each as a share of the run's work (serial +"
+echo "$w x parallel), beside the run's own share. In a run these can share a 5 ms window with other"
+echo "threads' work (a short run's start overlaps its workers' start; the sphere's writer and vox"
+echo "mesh write while they compute): references, not a sum to subtract. The exec before the"
+echo "first thread and the commit's fsync after the last have nothing to overlap."
+echo
+echo "| job | work (s) | output (MiB) | start and exit (s) | its share | output written durably (s) | its share | the run's share |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|"
+while IFS='|' read -r name label cmd; do grep -F "| $label |" "$tmp/refs" || true; done < <(jobs)
 exit "$failed"

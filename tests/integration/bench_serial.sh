@@ -111,7 +111,8 @@ grep -q "^### .*([0-9]* cores: " "$TMP/table" && pass "bench-serial: the core co
     fail "bench-serial: the core count in the header" "$(head -1 "$TMP/table")"
 # the measures' table, then (after "Where each run's") the charges' table
 sed '/^Where each run/,$d' "$TMP/table" >"$TMP/measures"
-sed -n '/^Where each run/,$p' "$TMP/table" >"$TMP/charges"
+sed -n '/^Where each run/,/^What a process pays/p' "$TMP/table" >"$TMP/charges"
+sed -n '/^What a process pays/,$p' "$TMP/table" >"$TMP/refs"
 rows=$(grep -c '^| [A-Za-z1-9]' "$TMP/measures" | head -1)
 want=6
 grep -q 'The dragon is skipped' "$TMP/table" && want=5
@@ -135,6 +136,22 @@ cbad=$(awk -F'|' 'FNR == NR { if ($5 ~ /^ 0\.000 $/) zero[$2] = 1; next }
 if [ "$((crows - 1))" -eq "$want" ] && [ -z "$cbad" ]; then
     pass "bench-serial: where each run's serial time went, $want rows"
 else fail "bench-serial: where each run's serial time went, $want rows" "rows $((crows - 1)); $cbad"; fi
+
+# the references: a row for each run, the run's work, its output's size, the
+# two references' seconds and shares (a share is its seconds over the work)
+# and the run's own share as the measures' row has it
+rrows=$(grep -c '^| [A-Za-z1-9]' "$TMP/refs" | head -1)
+rbad=$(awk -F'|' 'FNR == NR { if (/^\| [A-Za-z1-9]/ && !/^\| job/) share[$2] = $8 + 0; next }
+        /^\| [A-Za-z1-9]/ && !/^\| job/ {
+        ok = $3 + 0 > 0 && ($2 in share)
+        for (i = 3; i <= 9; i++) if ($i !~ /^ *[0-9.]+%? *$/) ok = 0
+        if ($5 + 0 <= 0 || $7 + 0 <= 0) ok = 0
+        if ((100 * $5 / $3 - $6) ^ 2 > 0.01 + 1e-4 * $6 ^ 2 || (100 * $7 / $3 - $8) ^ 2 > 0.01 + 1e-4 * $8 ^ 2) ok = 0
+        if (($9 - share[$2]) ^ 2 > 0.000225) ok = 0
+        if (!ok) print }' "$TMP/measures" "$TMP/refs")
+if [ "$((rrows - 1))" -eq "$want" ] && [ -z "$rbad" ]; then
+    pass "bench-serial: the references (start and exit, the output written durably), $want rows"
+else fail "bench-serial: the references, $want rows" "rows $((rrows - 1)); $rbad"; fi
 
 # BENCH_SERIAL_JOBS: the named jobs only, in the table's order
 BENCH_QUICK=1 BENCH_SERIAL_JOBS="iso csg" scripts/bench-serial.sh "$REL" >"$TMP/some" 2>"$TMP/some.err"
