@@ -1,7 +1,7 @@
 /* VOD files that do not check: every truncation and every bit flip of a small
  * file, a file without its trailer, a hand-made bad file for each case of spec
  * section 8 with its message, tiny and empty inputs; and the reader on several
- * threads gives one thread's answer and message. */
+ * threads gives one thread's answer and message (its CRC in parts too). */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <math.h>
@@ -444,6 +444,33 @@ Test(vod_threads, the_first_bad_record_is_reported_whatever_the_threads)
     snprintf(want, sizeof want, "brick %u: hash mismatch", r[n - 1].id);
     cr_assert(strstr(err.msg, want), "'%s' lacks '%s'", err.msg, want);
     free(r);
+    free(m.p);
+}
+
+/* The file's CRC checked in parts, one a thread (1 MiB or more each): an
+ * uncompressed file of 1 MiB bricks, a byte changed in the first part, in
+ * a middle one, in the last and in the trailer's offset: every thread
+ * count reports the mismatch with one thread's computed CRC, and the whole
+ * file checks (the parts' CRCs joined are the file's). */
+Test(vod_threads, the_crc_in_parts_is_the_crc_of_the_whole)
+{
+    fixture f;
+    fx_init(&f, 8, 192, 128, 128);
+    fx_sphere(&f, 96, 64, 64, 60);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_NONE, VOD_HASH_SFHS, 64);
+    membuf m = write_file(&f, &p, NULL);
+    fx_free(&f);
+    cr_assert_gt(m.n, (size_t)8 << 20, "%zu bytes: 2 to 4 threads would not each take a part", m.n);
+    err_info err = {0};
+    cr_assert_eq(read_threads_agree(&m, &err), 0, "%s", err.msg);
+    const size_t at[] = {100, m.n / 3, m.n / 2 + 12345, m.n - 200, m.n - 9};
+    for (size_t k = 0; k < sizeof at / sizeof *at; k++) {
+        m.p[at[k]] ^= 0x40;
+        cr_assert_neq(read_threads_agree(&m, &err), 0, "byte %zu changed", at[k]);
+        cr_assert(strstr(err.msg, "trailer CRC mismatch"), "byte %zu: %s", at[k], err.msg);
+        m.p[at[k]] ^= 0x40;
+    }
     free(m.p);
 }
 
