@@ -307,18 +307,24 @@ Test(vod_corrupt, each_section8_case_has_its_message)
 /* ------------------------------------------- reading with several threads */
 
 /* A file of 1 MiB bricks (64^3, 32 bits): two to a chunk of the reader's
- * (2 MiB of raw bricks), so that threads share its bricks (a dozen or more). */
-static membuf chunked_file(void)
+ * (2 MiB of raw bricks), so that threads share its bricks (a dozen or more);
+ * comp: their compression. */
+static membuf chunked_file_as(uint32_t comp)
 {
     fixture f;
     fx_init(&f, 8, 192, 128, 128);
     fx_sphere(&f, 96, 64, 64, 60);
     fx_sphere(&f, 30, 30, 30, 20);
     vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 64);
+    params(&p, &f, VOXEL_CH_SURFACE, comp, VOD_HASH_SFHS, 64);
     membuf m = write_file(&f, &p, NULL);
     fx_free(&f);
     return m;
+}
+
+static membuf chunked_file(void)
+{
+    return chunked_file_as(VOD_COMP_ZLIB);
 }
 
 /* The brick records' (offset, ID) in file order. */
@@ -454,13 +460,7 @@ Test(vod_threads, the_first_bad_record_is_reported_whatever_the_threads)
  * file checks (the parts' CRCs joined are the file's). */
 Test(vod_threads, the_crc_in_parts_is_the_crc_of_the_whole)
 {
-    fixture f;
-    fx_init(&f, 8, 192, 128, 128);
-    fx_sphere(&f, 96, 64, 64, 60);
-    vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_NONE, VOD_HASH_SFHS, 64);
-    membuf m = write_file(&f, &p, NULL);
-    fx_free(&f);
+    membuf m = chunked_file_as(VOD_COMP_NONE);
     cr_assert_gt(m.n, (size_t)8 << 20, "%zu bytes: 2 to 4 threads would not each take a part", m.n);
     err_info err = {0};
     cr_assert_eq(read_threads_agree(&m, &err), 0, "%s", err.msg);
