@@ -5,6 +5,7 @@
 #include <zlib.h>
 
 #include "cli.h"
+#include "par.h"
 #include "vod.h"
 #include "voxel.h"
 
@@ -79,26 +80,42 @@ static void print_info(const char *path, const vod_info *in)
 /* What the file holds, whatever its compression or hash: the non-empty
  * voxels of full resolution, and the sum of the CRC-32s of (level, x, y, z,
  * value) over every non-empty voxel of every level (a sum: the order the
- * reader visits them in does not matter). */
+ * reader visits them in does not matter, nor which thread adds them).  The
+ * file is scanned (vod_scan), not kept: a thread's sums in its own slot. */
 typedef struct {
-    uint32_t level, crc;
+    uint32_t crc;
     uint64_t n;
 } voxel_sum;
 
+typedef struct {
+    uint32_t level;
+    voxel_sum *sum;
+} voxel_at;
+
 static int add_voxel(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 {
-    voxel_sum *s = ud;
-    uint32_t rec[5] = {s->level, x, y, z, v};
-    s->crc += (uint32_t)crc32(0, (const Bytef *)rec, sizeof rec);
-    s->n += s->level == 0;
+    voxel_at *at = ud;
+    uint32_t rec[5] = {at->level, x, y, z, v};
+    at->sum->crc += (uint32_t)crc32(0, (const Bytef *)rec, sizeof rec);
+    at->sum->n += at->level == 0;
     return 0;
 }
 
-static void print_voxels(const vod_file *f)
+static void add_brick(void *ud, unsigned thread, const vod_info *in, int level,
+                      const uint32_t b[3], const uint8_t *raw)
 {
-    voxel_sum s = {0, 0, 0};
-    for (s.level = 0; s.level < vod_get_info(f)->height; s.level++)
-        vod_foreach(f, (int)s.level, add_voxel, &s);
+    voxel_sum *sums = ud;
+    voxel_at at = {(uint32_t)level, &sums[thread]};
+    vod_brick_foreach(in, level, b, raw, add_voxel, &at);
+}
+
+static void print_voxels(const voxel_sum *sums, unsigned threads)
+{
+    voxel_sum s = {0, 0};
+    for (unsigned k = 0; k < threads; k++) {
+        s.crc += sums[k].crc;
+        s.n += sums[k].n;
+    }
     printf("  voxels      %llu non-empty at full resolution; content checksum %08x\n",
            (unsigned long long)s.n, s.crc);
 }
@@ -119,13 +136,16 @@ int cli_info(int argc, char **argv)
     for (int i = 1; i < argc; i++) {
         vod_file *f;
         err_info err = {0};
-        if (vod_open_threads(argv[i], (int)cli_cores(), &f, &err)) {
+        unsigned threads = cli_cores();
+        voxel_sum sums[PAR_MAX] = {{0, 0}};
+        threads = threads > PAR_MAX ? PAR_MAX : threads;
+        if (vod_scan(argv[i], (int)threads, add_brick, sums, &f, &err)) {
             cli_error("%s: %s", argv[i], err.msg);
             bad = 1;
             continue;
         }
         print_info(argv[i], vod_get_info(f));
-        print_voxels(f);
+        print_voxels(sums, threads);
         vod_close(f);
     }
     return bad ? CLI_EXIT_FAILED : CLI_EXIT_OK;

@@ -373,6 +373,20 @@ int vod_open(const char *path, vod_file **out, err_info *err);
 int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
                      err_info *err);
 int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err);
+/* vod_open_threads without keeping the bricks: the same checks, result and
+ * messages; each brick, once inflated and checked, is handed to fn for
+ * every node that holds it (its level and brick coordinates, the file's
+ * info but its metadata), on the thread that inflated it (thread 0 ..
+ * threads - 1), then dropped, so the memory is the file's mapping and
+ * tables and one brick a thread, not its raw volume (vox info).  fn runs
+ * on several threads at once, in no set order, and may have run for a
+ * file that is then refused: keep what it finds per thread, and use it
+ * only when this returns 0.  *out has the file's info; its voxels are not
+ * there (vod_voxel reads 0, vod_brick NULL, the walks return -EINVAL). */
+typedef void (*vod_scan_fn)(void *ud, unsigned thread, const vod_info *in, int level,
+                            const uint32_t b[3], const uint8_t *raw);
+int vod_scan(const char *path, int threads, vod_scan_fn fn, void *ud, vod_file **out,
+             err_info *err);
 void vod_close(vod_file *f);
 const vod_info *vod_get_info(const vod_file *f);
 
@@ -398,6 +412,14 @@ int vod_foreach(const vod_file *f, int level,
                 int (*fn)(void *ud, uint32_t x, uint32_t y, uint32_t z,
                           uint32_t v),
                 void *ud);
+
+/* The non-zero voxels of one raw brick, at level l and brick coordinates b
+ * of a file of info in, inside vod_level_dims, to fn as vod_foreach gives
+ * them; stops early with fn's non-zero value; -EINVAL for a level out of
+ * range.  For vod_scan's fn. */
+int vod_brick_foreach(const vod_info *in, int level, const uint32_t b[3], const uint8_t *raw,
+                      int (*fn)(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v),
+                      void *ud);
 
 /* Call fn for every non-empty brick of level l, in preorder, with its
  * brick coordinates within the level and its raw bytes (section 5's

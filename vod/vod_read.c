@@ -43,6 +43,7 @@ typedef struct {
     uint64_t records_at; /* first byte after the brick table */
     err_info *err;     /* NULL: no message */
     int threads;       /* the CRC's and the records' (1 or more) */
+    struct scan_job *scan; /* vod_scan's: the bricks handed out, not kept */
 } parse;
 
 static float f32_at(const uint8_t *p)
@@ -432,12 +433,29 @@ static int decode_brick(parse *ps, vod_file *f, const brick_ent *e, uint8_t *raw
  * bricks; a chunk's bricks live in one allocation (its slab: few mallocs, and
  * huge pages where the kernel gives them, so fewer page faults).  A thread
  * claims the next chunk, allocates its slab, and inflates and hashes its
- * bricks in order.  The first bad record in file order is the one reported,
- * whatever the number of threads: a thread skips only records after the
- * lowest bad one found so far, so every record before the final lowest one
- * was checked, and that one is decoded again, alone, for its message. */
+ * bricks in order (a scan, vod_scan, has no slabs: each brick is inflated
+ * into the thread's one brick of room and handed on).  The first bad record
+ * in file order is the one reported, whatever the number of threads: a
+ * thread skips only records after the lowest bad one found so far, so
+ * every record before the final lowest one was checked, and that one is
+ * decoded again, alone, for its message. */
 
 #define SLAB_BYTES ((size_t)2 << 20) /* a huge page on x86-64 */
+
+/* vod_scan's bricks: fn called for every node of a brick ID, the nodes of
+ * ID i at refs[at[i] .. at[i + 1]) (made from the octree table before the
+ * bricks are inflated). */
+typedef struct {
+    int level;
+    uint32_t b[3];
+} node_ref;
+
+typedef struct scan_job {
+    vod_scan_fn fn;
+    void *ud;
+    node_ref *refs;
+    uint64_t *at;
+} scan_job;
 
 typedef struct {
     parse ps;          /* the image; err NULL: no thread writes a message */
@@ -472,6 +490,29 @@ static void mark_bad(decode_job *j, uint32_t i)
     }
 }
 
+/* Brick record e, inflated and checked into raw, to the scan's fn for
+ * every node that holds it. */
+static void scan_brick(const decode_job *j, unsigned thread, const brick_ent *e,
+                       const uint8_t *raw)
+{
+    const scan_job *s = j->ps.scan;
+    for (uint64_t r = s->at[e->id]; r < s->at[e->id + 1]; r++)
+        s->fn(s->ud, thread, &j->f->info, s->refs[r].level, s->refs[r].b, raw);
+}
+
+/* Chunk c's records inflated and checked one at a time into raw (a brick's
+ * room), each handed to the scan, none kept. */
+static void scan_chunk(decode_job *j, uint32_t c, unsigned thread, uint8_t *raw,
+                       struct libdeflate_decompressor *dz)
+{
+    uint32_t lo = c * j->per, hi = j->n - lo < j->per ? j->n : lo + j->per;
+    for (uint32_t i = lo; i < hi; i++) {
+        if (i > atomic_load_explicit(&j->bad, memory_order_relaxed)) return;
+        if (decode_brick(&j->ps, j->f, &j->e[i], raw, dz)) mark_bad(j, i);
+        else scan_brick(j, thread, &j->e[i], raw);
+    }
+}
+
 static void decode_chunk(decode_job *j, uint32_t c, struct libdeflate_decompressor *dz)
 {
     vod_file *f = j->f;
@@ -494,18 +535,41 @@ static void decode_chunk(decode_job *j, uint32_t c, struct libdeflate_decompress
  * thread could). */
 static void decode_part(void *arg, unsigned k, unsigned n)
 {
-    (void)k, (void)n; /* the parts share one counter of chunks */
+    (void)n; /* the parts share one counter of chunks */
     decode_job *j = arg;
     uint32_t chunks = j->f->chunks;
     struct libdeflate_decompressor *dz = libdeflate_alloc_decompressor();
+    uint8_t *raw = j->ps.scan && dz ? malloc(j->f->raw_bytes) : NULL; /* a scan's room */
+    if (j->ps.scan && !raw) {
+        libdeflate_free_decompressor(dz);
+        dz = NULL;
+    }
     for (unsigned c; dz;) {
         c = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed);
         if (c >= chunks) break;
         if ((uint64_t)c * j->per > atomic_load_explicit(&j->bad, memory_order_relaxed))
             break; /* this chunk and the later ones are past a bad record */
-        decode_chunk(j, c, dz);
+        if (raw) scan_chunk(j, c, k, raw, dz);
+        else decode_chunk(j, c, dz);
     }
+    free(raw);
     libdeflate_free_decompressor(dz);
+}
+
+/* Record e, the bad one found at index i (per to a chunk), decoded again
+ * alone for its message: into its slab, or for a scan into a room of its
+ * own. */
+static int decode_again(parse *ps, vod_file *f, const brick_ent *e, uint32_t i, uint32_t per)
+{
+    uint8_t *room = NULL, *raw;
+    if (ps->scan) raw = room = malloc(f->raw_bytes);
+    else raw = f->slab[i / per] ? f->slab[i / per] + (size_t)(i % per) * f->raw_bytes : NULL;
+    struct libdeflate_decompressor *dz = raw ? libdeflate_alloc_decompressor() : NULL;
+    int rc = dz ? decode_brick(ps, f, e, raw, dz)
+                : err_set(ps->err, -ENOMEM, "out of memory for brick %u", e->id);
+    libdeflate_free_decompressor(dz);
+    free(room);
+    return rc ? rc : err_set(ps->err, -EIO, "brick %u: decoded differently twice", e->id);
 }
 
 /* Every record of e (n, in file order) inflated and hashed by `threads`
@@ -516,8 +580,8 @@ static int decode_all(parse *ps, vod_file *f, const brick_ent *e, uint32_t n, in
     j.ps.err = NULL;
     j.per = f->raw_bytes >= SLAB_BYTES ? 1 : (uint32_t)(SLAB_BYTES / f->raw_bytes);
     f->chunks = n / j.per + (n % j.per != 0);
-    f->slab = calloc((size_t)f->chunks + 1, sizeof *f->slab);
-    if (!f->slab) return err_set(ps->err, -ENOMEM, "out of memory");
+    if (!ps->scan && !(f->slab = calloc((size_t)f->chunks + 1, sizeof *f->slab)))
+        return err_set(ps->err, -ENOMEM, "out of memory");
     atomic_init(&j.next, 0);
     atomic_init(&j.bad, n);
     if ((uint32_t)threads > f->chunks) threads = (int)f->chunks;
@@ -525,13 +589,44 @@ static int decode_all(parse *ps, vod_file *f, const brick_ent *e, uint32_t n, in
     uint32_t bad = atomic_load_explicit(&j.bad, memory_order_relaxed);
     if (bad == n && atomic_load_explicit(&j.next, memory_order_relaxed) < f->chunks)
         return err_set(ps->err, -ENOMEM, "out of memory"); /* no thread had a decompressor */
-    if (bad == n) return 0;
-    uint8_t *slab = f->slab[bad / j.per];
-    struct libdeflate_decompressor *dz = slab ? libdeflate_alloc_decompressor() : NULL;
-    if (!dz) return err_set(ps->err, -ENOMEM, "out of memory for brick %u", e[bad].id);
-    int rc = decode_brick(ps, f, &e[bad], slab + (size_t)(bad % j.per) * f->raw_bytes, dz);
-    libdeflate_free_decompressor(dz);
-    return rc ? rc : err_set(ps->err, -EIO, "brick %u: decoded differently twice", e[bad].id);
+    return bad == n ? 0 : decode_again(ps, f, &e[bad], bad, j.per);
+}
+
+/* The scan's refs: every node with a brick ID in the table, by ID (a
+ * count, its prefix sums, then the nodes in place: cur NULL counts).  IDs
+ * outside the table are left to check_subtree, which refuses them. */
+static void refs_walk(const vod_file *f, scan_job *s, uint64_t p, int l, const uint32_t b[3],
+                      uint64_t *cur)
+{
+    uint32_t id = f->tree[p];
+    if (!id) return;
+    if (id <= f->info.bricks && cur) s->refs[cur[id]++] = (node_ref){l, {b[0], b[1], b[2]}};
+    else if (id <= f->info.bricks) s->at[id + 1]++;
+    for (unsigned i = 0; l > 0 && i < 8; i++) {
+        uint32_t cb[3];
+        for (int a = 0; a < 3; a++) cb[a] = b[a] << 1 | ((i >> a) & 1u);
+        refs_walk(f, s, p + 1 + i * f->sub[l - 1], l - 1, cb, cur);
+    }
+}
+
+static int make_refs(parse *ps, const vod_file *f)
+{
+    scan_job *s = ps->scan;
+    uint32_t n = f->info.bricks;
+    const uint32_t root[3] = {0, 0, 0};
+    uint64_t *cur = malloc(((size_t)n + 2) * sizeof *cur);
+    s->at = calloc((size_t)n + 2, sizeof *s->at);
+    if (!cur || !s->at) {
+        free(cur);
+        return err_set(ps->err, -ENOMEM, "out of memory");
+    }
+    refs_walk(f, s, 0, (int)f->info.height - 1, root, NULL);
+    for (uint32_t i = 1; i <= n + 1; i++) s->at[i] += s->at[i - 1];
+    s->refs = malloc((s->at[n + 1] ? s->at[n + 1] : 1) * sizeof *s->refs);
+    memcpy(cur, s->at, ((size_t)n + 2) * sizeof *cur);
+    if (s->refs) refs_walk(f, s, 0, (int)f->info.height - 1, root, cur);
+    free(cur);
+    return s->refs ? 0 : err_set(ps->err, -ENOMEM, "out of memory");
 }
 
 static int read_bricks(parse *ps, vod_file *f, int threads)
@@ -543,6 +638,7 @@ static int read_bricks(parse *ps, vod_file *f, int threads)
     for (uint32_t i = 0; i < n && !rc; i++) rc = check_record(ps, &e[i]);
     if (!rc) rc = check_extents(ps, e, n);
     for (uint32_t i = 0; i < n && !rc; i++) f->info.brick_data_bytes += e[i].size;
+    if (!rc && n && ps->scan) rc = make_refs(ps, f);
     if (!rc && n) rc = decode_all(ps, f, e, n, threads);
     free(e);
     return rc;
@@ -560,23 +656,36 @@ static int parse_all(parse *ps, vod_file *f, int threads)
     return rc;
 }
 
-int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
-                     err_info *err)
+/* The image read and checked, its bricks kept, or handed to scan's fn
+ * (scan non-NULL: f->brick dropped, so that the accessors find none). */
+static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
+                      vod_file **out, err_info *err)
 {
     *out = NULL;
     err_clear(err);
     vod_file *f = calloc(1, sizeof *f);
-    parse ps = {.b = buf, .len = len, .end = len, .err = err, .threads = threads < 1 ? 1 : threads};
+    parse ps = {.b = buf, .len = len, .end = len, .err = err,
+                .threads = threads < 1 ? 1 : threads, .scan = scan};
     if (!f) return err_set(ps.err, -ENOMEM, "out of memory");
     int rc = parse_all(&ps, f, ps.threads);
     if (rc) {
         vod_close(f);
         return rc;
     }
+    if (scan) {
+        free(f->brick);
+        f->brick = NULL;
+    }
     f->info.metadata = f->metadata ? f->metadata : "";
     f->info.file_bytes = len;
     *out = f;
     return 0;
+}
+
+int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
+                     err_info *err)
+{
+    return read_image(buf, len, threads, NULL, out, err);
 }
 
 int vod_read(const void *buf, size_t len, vod_file **out, err_info *err)
@@ -619,7 +728,9 @@ static uint8_t *map_file(int fd, size_t len)
     return p == MAP_FAILED ? NULL : p;
 }
 
-int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err)
+/* The file at path mapped (or read) and read_image'd. */
+static int open_image(const char *path, int threads, scan_job *scan, vod_file **out,
+                      err_info *err)
 {
     *out = NULL;
     parse ps = {.err = err};
@@ -637,9 +748,24 @@ int vod_open_threads(const char *path, int threads, vod_file **out, err_info *er
     if (!rc && !map && (rc = read_all(fd, buf, (size_t)sb.st_size)))
         err_set(ps.err, rc, "cannot read: %s", strerror(-rc));
     close(fd);
-    if (!rc) rc = vod_read_threads(map ? map : buf, (size_t)sb.st_size, threads, out, err);
+    if (!rc) rc = read_image(map ? map : buf, (size_t)sb.st_size, threads, scan, out, err);
     if (map) munmap(map, (size_t)sb.st_size);
     free(buf);
+    return rc;
+}
+
+int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err)
+{
+    return open_image(path, threads, NULL, out, err);
+}
+
+int vod_scan(const char *path, int threads, vod_scan_fn fn, void *ud, vod_file **out,
+             err_info *err)
+{
+    scan_job s = {.fn = fn, .ud = ud};
+    int rc = open_image(path, threads, &s, out, err);
+    free(s.refs);
+    free(s.at);
     return rc;
 }
 
@@ -670,12 +796,17 @@ uint32_t vod_level_size(const vod_file *f, int level)
     return f->padded >> level;
 }
 
+static int level_dims(const vod_info *in, int level, uint32_t dims[3])
+{
+    if (level < 0 || (uint32_t)level >= in->height) return -EINVAL;
+    for (int a = 0; a < 3; a++)
+        dims[a] = (uint32_t)(((uint64_t)in->volume[a] + (1ull << level) - 1) >> level);
+    return 0;
+}
+
 int vod_level_dims(const vod_file *f, int level, uint32_t dims[3])
 {
-    if (level < 0 || (uint32_t)level >= f->info.height) return -EINVAL;
-    for (int a = 0; a < 3; a++)
-        dims[a] = (uint32_t)(((uint64_t)f->info.volume[a] + (1ull << level) - 1) >> level);
-    return 0;
+    return level_dims(&f->info, level, dims);
 }
 
 static inline uint32_t raw_voxel(const uint8_t *raw, uint32_t bits, size_t i)
@@ -694,7 +825,7 @@ static inline uint32_t raw_voxel(const uint8_t *raw, uint32_t bits, size_t i)
 uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_t z)
 {
     uint32_t side = vod_level_size(f, level);
-    if (x >= side || y >= side || z >= side) return 0;
+    if (x >= side || y >= side || z >= side || !f->brick) return 0;
     uint64_t p = 0;
     for (int l = (int)f->info.height - 1; l > level; l--) {
         if (!f->tree[p]) return 0;
@@ -710,7 +841,7 @@ uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_
 
 const uint8_t *vod_brick(const vod_file *f, int level, const uint32_t b[3])
 {
-    if (level < 0 || (uint32_t)level >= f->info.height) return NULL;
+    if (level < 0 || (uint32_t)level >= f->info.height || !f->brick) return NULL;
     uint32_t side = 1u << (f->info.height - 1 - (uint32_t)level);
     if (b[0] >= side || b[1] >= side || b[2] >= side) return NULL;
     uint64_t p = 0;
@@ -731,24 +862,42 @@ typedef struct {
     void *ud;
 } walk_ctx;
 
-static int visit_brick(const walk_ctx *w, const uint8_t *raw, const uint32_t b[3])
+/* The non-zero voxels of brick raw at brick coordinates b of a level of
+ * dims voxels, to fn. */
+static int visit_raw(const vod_info *in, const uint32_t dims[3], const uint32_t b[3],
+                     const uint8_t *raw,
+                     int (*fn)(void *, uint32_t, uint32_t, uint32_t, uint32_t), void *ud)
 {
-    uint32_t B = w->f->info.brick, o[3], lim[3];
+    uint32_t B = in->brick, o[3], lim[3];
     for (int a = 0; a < 3; a++) {
         o[a] = b[a] * B;
-        if (o[a] >= w->dims[a]) return 0;
-        lim[a] = w->dims[a] - o[a] < B ? w->dims[a] - o[a] : B;
+        if (o[a] >= dims[a]) return 0;
+        lim[a] = dims[a] - o[a] < B ? dims[a] - o[a] : B;
     }
     for (uint32_t z = 0; z < lim[2]; z++)
         for (uint32_t y = 0; y < lim[1]; y++) {
             size_t row = ((size_t)z * B + y) * B;
             for (uint32_t x = 0; x < lim[0]; x++) {
-                uint32_t v = raw_voxel(raw, w->f->info.voxel_bits, row + x);
-                int rc = v ? w->fn(w->ud, o[0] + x, o[1] + y, o[2] + z, v) : 0;
+                uint32_t v = raw_voxel(raw, in->voxel_bits, row + x);
+                int rc = v ? fn(ud, o[0] + x, o[1] + y, o[2] + z, v) : 0;
                 if (rc) return rc;
             }
         }
     return 0;
+}
+
+static int visit_brick(const walk_ctx *w, const uint8_t *raw, const uint32_t b[3])
+{
+    return visit_raw(&w->f->info, w->dims, b, raw, w->fn, w->ud);
+}
+
+int vod_brick_foreach(const vod_info *in, int level, const uint32_t b[3], const uint8_t *raw,
+                      int (*fn)(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v),
+                      void *ud)
+{
+    uint32_t dims[3];
+    if (level_dims(in, level, dims)) return -EINVAL;
+    return visit_raw(in, dims, b, raw, fn, ud);
 }
 
 static int walk(const walk_ctx *w, uint64_t p, int l, const uint32_t b[3])
@@ -770,7 +919,7 @@ int vod_foreach(const vod_file *f, int level,
                 void *ud)
 {
     walk_ctx w = {f, level, {0, 0, 0}, fn, ud};
-    if (vod_level_dims(f, level, w.dims)) return -EINVAL;
+    if (vod_level_dims(f, level, w.dims) || !f->brick) return -EINVAL;
     uint32_t b[3] = {0, 0, 0};
     return walk(&w, 0, (int)f->info.height - 1, b);
 }
@@ -800,7 +949,7 @@ int vod_foreach_brick(const vod_file *f, int level,
                       int (*fn)(void *ud, const uint32_t b[3], const uint8_t *raw),
                       void *ud)
 {
-    if (level < 0 || (uint32_t)level >= f->info.height) return -EINVAL;
+    if (level < 0 || (uint32_t)level >= f->info.height || !f->brick) return -EINVAL;
     brick_walk w = {f, level, fn, ud};
     uint32_t b[3] = {0, 0, 0};
     return walk_bricks(&w, 0, (int)f->info.height - 1, b);

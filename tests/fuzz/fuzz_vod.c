@@ -1,10 +1,13 @@
 /* libFuzzer harness for the VOD reader: any input must be refused with a
  * message or open into a file whose every level can be walked, and read by
- * three threads the same way as by one. */
+ * three threads, and scanned (vod_scan) by two, the same way as by one. */
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include "vod.h"
@@ -28,12 +31,42 @@ static void read_threaded(const uint8_t *data, size_t size, int rc, const char *
     if (!r3) vod_close(f);
 }
 
+static void count_node(void *ud, unsigned thread, const vod_info *in, int level,
+                       const uint32_t b[3], const uint8_t *raw)
+{
+    uint64_t *per_thread = ud;
+    per_thread[thread & 63] += 1 + (raw[0] ^ b[0] ^ (uint32_t)level ^ in->brick);
+}
+
+/* The scan (vod_scan, through a memfd's /proc path) must answer as
+ * vod_read does: the same code and message. */
+static void scan_agrees(const uint8_t *data, size_t size, int rc, const char *err)
+{
+    int fd = memfd_create("fuzz_vod", MFD_CLOEXEC);
+    if (fd < 0) __builtin_trap();
+    for (size_t at = 0; at < size;) {
+        ssize_t w = write(fd, data + at, size - at);
+        if (w <= 0) __builtin_trap();
+        at += (size_t)w;
+    }
+    char path[64];
+    snprintf(path, sizeof path, "/proc/self/fd/%d", fd);
+    uint64_t per_thread[64] = {0};
+    vod_file *f;
+    err_info e;
+    int r = vod_scan(path, 2, count_node, per_thread, &f, &e);
+    if (r != rc || (rc && strcmp(e.msg, err))) __builtin_trap();
+    if (!r) vod_close(f);
+    close(fd);
+}
+
 static int read_and_walk(const uint8_t *data, size_t size)
 {
     vod_file *f;
     err_info err;
     int rc = vod_read(data, size, &f, &err);
     read_threaded(data, size, rc, err.msg);
+    scan_agrees(data, size, rc, err.msg);
     if (rc != 0) {
         /* refused, but without a message or with another code than returned */
         if (!err.msg[0] || err.code != rc || f) __builtin_trap();

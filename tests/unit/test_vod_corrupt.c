@@ -353,13 +353,97 @@ static brick_rec *records(const membuf *m, uint32_t *n)
 
 static const int thread_counts[] = {2, 3, 4, 16};
 
+/* ---- vod_scan against the bricks vod_read keeps ---- */
+
+/* A sum over (level, b, raw bytes) of every node's brick (order-free): a
+ * thread's own in vod_scan's fn. */
+typedef struct {
+    uint32_t sum;
+    uint64_t n;
+} brick_sum;
+
+static void sum_brick(brick_sum *s, const vod_info *in, int level, const uint32_t b[3],
+                      const uint8_t *raw)
+{
+    uint32_t key[4] = {(uint32_t)level, b[0], b[1], b[2]};
+    size_t raw_bytes = (size_t)in->brick * in->brick * in->brick * in->voxel_bits / 8;
+    uLong c = crc32(0, (const Bytef *)key, sizeof key);
+    s->sum += (uint32_t)crc32(c, raw, (uInt)raw_bytes);
+    s->n++;
+}
+
+static void scan_add(void *ud, unsigned thread, const vod_info *in, int level,
+                     const uint32_t b[3], const uint8_t *raw)
+{
+    brick_sum *per_thread = ud;
+    cr_assert_lt(thread, 64u, "thread %u", thread);
+    sum_brick(&per_thread[thread], in, level, b, raw);
+}
+
+typedef struct {
+    const vod_info *in;
+    int level;
+    brick_sum s;
+} kept_sum;
+
+static int kept_add(void *ud, const uint32_t b[3], const uint8_t *raw)
+{
+    kept_sum *k = ud;
+    sum_brick(&k->s, k->in, k->level, b, raw);
+    return 0;
+}
+
+/* m scanned by each thread count: the same code and message as one
+ * thread's vod_read (rc, err), and for a file that opens (one), every
+ * node's brick handed once, as one keeps them; the scanned file's info is
+ * one's and its voxels are not there. */
+static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_file *one)
+{
+    char path[] = "/tmp/test_vod_scan_XXXXXX";
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0);
+    cr_assert_eq(write(fd, m->p, m->n), (ssize_t)m->n);
+    close(fd);
+    kept_sum k = {one ? vod_get_info(one) : NULL, 0, {0, 0}};
+    for (k.level = 0; one && k.level < (int)k.in->height; k.level++)
+        cr_assert_eq(vod_foreach_brick(one, k.level, kept_add, &k), 0);
+    for (size_t t = 0; t <= sizeof thread_counts / sizeof *thread_counts; t++) {
+        int threads = t ? thread_counts[t - 1] : 1;
+        brick_sum per[64] = {{0, 0}}, all = {0, 0};
+        vod_file *v = (vod_file *)1;
+        err_info e2 = {0};
+        int r2 = vod_scan(path, threads, scan_add, per, &v, &e2);
+        cr_assert_eq(r2, rc, "scan, %d threads: %d (%s), read: %d (%s)", threads, r2, e2.msg,
+                     rc, err->msg);
+        cr_assert_str_eq(e2.msg, rc ? err->msg : "", "scan, %d threads", threads);
+        if (rc) {
+            cr_assert_null(v);
+            continue;
+        }
+        for (int i = 0; i < 64; i++) all.sum += per[i].sum, all.n += per[i].n;
+        cr_assert(all.n == k.s.n && all.sum == k.s.sum, "scan, %d threads: %llu bricks %08x, "
+                  "kept %llu %08x", threads, (unsigned long long)all.n, all.sum,
+                  (unsigned long long)k.s.n, k.s.sum);
+        const vod_info *a = vod_get_info(v), *b = k.in;
+        cr_assert(a->bricks == b->bricks && a->nodes == b->nodes && a->crc32 == b->crc32 &&
+                  a->brick_data_bytes == b->brick_data_bytes && !strcmp(a->metadata, b->metadata));
+        uint32_t origin[3] = {0, 0, 0};
+        cr_assert_eq(vod_voxel(v, 0, 0, 0, 0), 0);
+        cr_assert_null(vod_brick(v, (int)a->height - 1, origin));
+        cr_assert_eq(vod_foreach_brick(v, 0, kept_add, &k), -EINVAL);
+        vod_close(v);
+    }
+    unlink(path);
+}
+
 /* m read by 1 thread and by each of thread_counts: the same return code and
- * message, and when it opens, the same bricks at every level.  Returns the
- * return code; err holds the message. */
+ * message, and when it opens, the same bricks at every level; and scanned
+ * alike (scan_agrees).  Returns the return code; err holds the message. */
 static int read_threads_agree(const membuf *m, err_info *err)
 {
     vod_file *one = (vod_file *)1;
     int rc = vod_read_threads(m->p, m->n, 1, &one, err);
+    scan_agrees(m, rc, err, rc ? NULL : one);
     for (size_t k = 0; k < sizeof thread_counts / sizeof *thread_counts; k++) {
         vod_file *v = (vod_file *)1;
         err_info e2 = {0};
@@ -450,6 +534,41 @@ Test(vod_threads, the_first_bad_record_is_reported_whatever_the_threads)
     snprintf(want, sizeof want, "brick %u: hash mismatch", r[n - 1].id);
     cr_assert(strstr(err.msg, want), "'%s' lacks '%s'", err.msg, want);
     free(r);
+    free(m.p);
+}
+
+static int count_brick(void *ud, const uint32_t b[3], const uint8_t *raw)
+{
+    (void)b, (void)raw;
+    ++*(uint64_t *)ud;
+    return 0;
+}
+
+/* A block of one value, so that many nodes share its bricks (the file
+ * stores one): vod_scan hands a shared brick to every node that holds it,
+ * as vod_read's walks see it. */
+Test(vod_threads, a_shared_brick_is_scanned_for_every_node)
+{
+    fixture f;
+    fx_init(&f, 6, 64, 48, 40);
+    uint32_t v = voxel_surface((const double[3]){0, 0, 1});
+    for (uint32_t z = 0; z < 32; z++)
+        for (uint32_t y = 0; y < 32; y++)
+            for (uint32_t x = 0; x < 40; x++) fx_store(&f, x, y, z, v);
+    fx_sphere(&f, 40, 30, 20, 15);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    membuf m = write_file(&f, &p, NULL);
+    fx_free(&f);
+    vod_file *one = read_ok(&m);
+    uint64_t nodes = 0;
+    for (int l = 0; l < (int)vod_get_info(one)->height; l++)
+        vod_foreach_brick(one, l, count_brick, &nodes);
+    cr_assert_gt(nodes, (uint64_t)vod_get_info(one)->bricks + 40, "%llu nodes, %u bricks: "
+                 "too few shared", (unsigned long long)nodes, vod_get_info(one)->bricks);
+    vod_close(one);
+    err_info err = {0};
+    cr_assert_eq(read_threads_agree(&m, &err), 0, "%s", err.msg);
     free(m.p);
 }
 
