@@ -87,17 +87,60 @@ typedef struct {
     uint64_t n;
 } voxel_sum;
 
+/* The CRC-32 of a record (level, x, y, z, value), 20 bytes as the array
+ * of five uint32_t lies in memory, from tables instead of a crc32() call a
+ * voxel (a distance field has a non-zero value in every voxel: hundreds of
+ * millions of them).  For messages of one length CRC-32 is affine over
+ * GF(2): crc(a ^ b) = crc(a) ^ crc(b) ^ crc(0).  A record is the xor of
+ * twenty one-byte records (byte i its own, the rest 0), so its CRC is
+ * crc(0) ^ the xor of rec_crc[i][byte i], rec_crc[i][c] = crc(the record of
+ * byte i = c alone) ^ crc(0).  A row's level, y and z are xor-ed once
+ * (row_crc), then x and the value a voxel. */
+#define REC_BYTES 20
+static uint32_t rec_crc[REC_BYTES][256], rec_zero;
+
+/* A fresh record for each entry: one record with byte i set and reset
+ * after each call was miscompiled by GCC 12.2 at -O1 and above (the reset
+ * after the last c dropped as a dead store; -fno-tree-dse keeps it), and
+ * every later table went wrong. */
+static void rec_crc_init(void)
+{
+    const uint8_t zero[REC_BYTES] = {0};
+    rec_zero = (uint32_t)crc32(0, zero, REC_BYTES);
+    for (int i = 0; i < REC_BYTES; i++)
+        for (int c = 0; c < 256; c++) {
+            uint8_t rec[REC_BYTES] = {0};
+            rec[i] = (uint8_t)c;
+            rec_crc[i][c] = (uint32_t)crc32(0, rec, REC_BYTES) ^ rec_zero;
+        }
+}
+
+/* The xor of rec_crc over the bytes of field f (0 level .. 4 value) = w. */
+static uint32_t field_crc(int f, uint32_t w)
+{
+    uint8_t b[4];
+    memcpy(b, &w, 4); /* the bytes as the record holds them */
+    return rec_crc[4 * f][b[0]] ^ rec_crc[4 * f + 1][b[1]] ^ rec_crc[4 * f + 2][b[2]] ^
+           rec_crc[4 * f + 3][b[3]];
+}
+
+/* A brick's sums, on the stack of the thread that adds them (the threads'
+ * slots share cache lines: a store to one per voxel would bounce them),
+ * and the CRC part of its current row. */
 typedef struct {
-    uint32_t level;
-    voxel_sum *sum;
+    uint32_t level, y, z, row_crc;
+    voxel_sum sum;
 } voxel_at;
 
 static int add_voxel(void *ud, uint32_t x, uint32_t y, uint32_t z, uint32_t v)
 {
     voxel_at *at = ud;
-    uint32_t rec[5] = {at->level, x, y, z, v};
-    at->sum->crc += (uint32_t)crc32(0, (const Bytef *)rec, sizeof rec);
-    at->sum->n += at->level == 0;
+    if (y != at->y || z != at->z) {
+        at->y = y, at->z = z;
+        at->row_crc = rec_zero ^ field_crc(0, at->level) ^ field_crc(2, y) ^ field_crc(3, z);
+    }
+    at->sum.crc += at->row_crc ^ field_crc(1, x) ^ field_crc(4, v);
+    at->sum.n += at->level == 0;
     return 0;
 }
 
@@ -105,8 +148,10 @@ static void add_brick(void *ud, unsigned thread, const vod_info *in, int level,
                       const uint32_t b[3], const uint8_t *raw)
 {
     voxel_sum *sums = ud;
-    voxel_at at = {(uint32_t)level, &sums[thread]};
+    voxel_at at = {(uint32_t)level, UINT32_MAX, UINT32_MAX, 0, {0, 0}};
     vod_brick_foreach(in, level, b, raw, add_voxel, &at);
+    sums[thread].crc += at.sum.crc;
+    sums[thread].n += at.sum.n;
 }
 
 static void print_voxels(const voxel_sum *sums, unsigned threads)
@@ -133,6 +178,7 @@ int cli_info(int argc, char **argv)
         return CLI_EXIT_OK;
     }
     int bad = 0;
+    rec_crc_init();
     for (int i = 1; i < argc; i++) {
         vod_file *f;
         err_info err = {0};

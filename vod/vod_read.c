@@ -450,11 +450,25 @@ typedef struct {
     uint32_t b[3];
 } node_ref;
 
+/* A brick that many nodes share (a distance field's uniform +w and -w, a
+ * solid's full brick) would leave all its nodes to the one thread that
+ * inflated it: such a brick is kept (a copy, SCAN_KEPT_BYTES in all at
+ * most) and its nodes dealt to every thread once the file has checked
+ * (scan_kept). */
+#define SCAN_SHARED_REFS 16u
+#define SCAN_KEPT_BYTES ((uint64_t)64 << 20)
+
 typedef struct scan_job {
     vod_scan_fn fn;
     void *ud;
     node_ref *refs;
     uint64_t *at;
+    uint8_t **kept;  /* by ID (1 .. ids): the copy of a shared brick, or NULL */
+    uint32_t ids;
+    /* the bytes kept so far (relaxed: a budget the threads draw from,
+     * ordering nothing; kept[] is read after par_run's join) */
+    _Atomic uint64_t kept_bytes;
+    int threads;
 } scan_job;
 
 typedef struct {
@@ -490,13 +504,24 @@ static void mark_bad(decode_job *j, uint32_t i)
     }
 }
 
+/* A copy of shared brick raw (n bytes) for ID id, within the budget. */
+static bool keep_shared(scan_job *s, uint32_t id, const uint8_t *raw, size_t n)
+{
+    uint64_t was = atomic_fetch_add_explicit(&s->kept_bytes, n, memory_order_relaxed);
+    if (was + n > SCAN_KEPT_BYTES || !(s->kept[id] = malloc(n))) return false;
+    memcpy(s->kept[id], raw, n);
+    return true;
+}
+
 /* Brick record e, inflated and checked into raw, to the scan's fn for
- * every node that holds it. */
+ * every node that holds it, or kept for scan_kept when many do. */
 static void scan_brick(const decode_job *j, unsigned thread, const brick_ent *e,
                        const uint8_t *raw)
 {
-    const scan_job *s = j->ps.scan;
-    for (uint64_t r = s->at[e->id]; r < s->at[e->id + 1]; r++)
+    scan_job *s = j->ps.scan;
+    uint64_t r0 = s->at[e->id], r1 = s->at[e->id + 1];
+    if (r1 - r0 > SCAN_SHARED_REFS && keep_shared(s, e->id, raw, j->f->raw_bytes)) return;
+    for (uint64_t r = r0; r < r1; r++)
         s->fn(s->ud, thread, &j->f->info, s->refs[r].level, s->refs[r].b, raw);
 }
 
@@ -616,7 +641,9 @@ static int make_refs(parse *ps, const vod_file *f)
     const uint32_t root[3] = {0, 0, 0};
     uint64_t *cur = malloc(((size_t)n + 2) * sizeof *cur);
     s->at = calloc((size_t)n + 2, sizeof *s->at);
-    if (!cur || !s->at) {
+    s->kept = calloc((size_t)n + 1, sizeof *s->kept);
+    s->ids = n;
+    if (!cur || !s->at || !s->kept) {
         free(cur);
         return err_set(ps->err, -ENOMEM, "out of memory");
     }
@@ -759,11 +786,46 @@ int vod_open_threads(const char *path, int threads, vod_file **out, err_info *er
     return open_image(path, threads, NULL, out, err);
 }
 
+/* The kept bricks' nodes, all in a row (the kept IDs' ref ranges in ID
+ * order), dealt to the threads in equal parts. */
+typedef struct {
+    const scan_job *s;
+    const vod_info *in;
+    uint32_t n;      /* IDs */
+    uint64_t total;  /* the kept IDs' nodes */
+} kept_deal;
+
+static void kept_part(void *ud, unsigned k, unsigned parts)
+{
+    const kept_deal *d = ud;
+    const scan_job *s = d->s;
+    uint64_t lo = d->total * k / parts, hi = d->total * (k + 1) / parts, seen = 0;
+    for (uint32_t id = 1; id <= d->n && seen < hi; id++) {
+        if (!s->kept[id]) continue;
+        uint64_t r0 = s->at[id], r1 = s->at[id + 1], cnt = r1 - r0;
+        for (uint64_t r = r0 + (lo > seen ? lo - seen : 0); r < r1 && seen + (r - r0) < hi; r++)
+            s->fn(s->ud, k, d->in, s->refs[r].level, s->refs[r].b, s->kept[id]);
+        seen += cnt;
+    }
+}
+
+static void scan_kept(const scan_job *s, const vod_info *in)
+{
+    kept_deal d = {s, in, s->ids, 0};
+    for (uint32_t id = 1; id <= d.n; id++)
+        if (s->kept[id]) d.total += s->at[id + 1] - s->at[id];
+    if (d.total) par_run((unsigned)s->threads, kept_part, &d);
+}
+
 int vod_scan(const char *path, int threads, vod_scan_fn fn, void *ud, vod_file **out,
              err_info *err)
 {
-    scan_job s = {.fn = fn, .ud = ud};
+    scan_job s = {.fn = fn, .ud = ud, .threads = threads < 1 ? 1 : threads};
+    atomic_init(&s.kept_bytes, 0);
     int rc = open_image(path, threads, &s, out, err);
+    if (!rc && s.kept) scan_kept(&s, vod_get_info(*out));
+    for (uint32_t id = 1; s.kept && id <= s.ids; id++) free(s.kept[id]);
+    free(s.kept);
     free(s.refs);
     free(s.at);
     return rc;
