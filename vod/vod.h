@@ -376,13 +376,15 @@ int vod_open_threads(const char *path, int threads, vod_file **out, err_info *er
 /* vod_open_threads without keeping the bricks: the same checks, result and
  * messages; each brick, once inflated and checked, is handed to fn for
  * every node that holds it (its level and brick coordinates, the file's
- * info but its metadata), on the thread that inflated it (thread 0 ..
+ * info but its metadata) on one of the scan's threads (thread 0 ..
  * threads - 1), then dropped, so the memory is the file's mapping and
- * tables and one brick a thread, not its raw volume (vox info).  fn runs
- * on several threads at once, in no set order, and may have run for a
- * file that is then refused: keep what it finds per thread, and use it
- * only when this returns 0.  *out has the file's info; its voxels are not
- * there (vod_voxel reads 0, vod_brick NULL, the walks return -EINVAL). */
+ * tables and one brick a thread, not its raw volume (vox info); a brick
+ * that many nodes share is kept (64 MiB of them at most) until the file
+ * has checked, and its nodes dealt to every thread.  fn runs on several
+ * threads at once, in no set order, and may have run for a file that is
+ * then refused: keep what it finds per thread, and use it only when this
+ * returns 0.  *out has the file's info; its voxels are not there
+ * (vod_voxel reads 0, vod_brick NULL, the walks return -EINVAL). */
 typedef void (*vod_scan_fn)(void *ud, unsigned thread, const vod_info *in, int level,
                             const uint32_t b[3], const uint8_t *raw);
 int vod_scan(const char *path, int threads, vod_scan_fn fn, void *ud, vod_file **out,
