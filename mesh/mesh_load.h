@@ -82,9 +82,10 @@ static inline int mesh_build_triangle(mbuild *b, uint32_t a, uint32_t c, uint32_
     return mesh_build_triangle_slow(b, a, c, d, at);
 }
 
-/* A triangle of zero area: the cross product of two edges, the edges
- * taken in double, is exactly zero (three collinear positions, two equal). */
-int mesh_build_zero_area(const float *a, const float *b, const float *c);
+/* Triangle (a, b, c) of the positions v is degenerate: two equal indices,
+ * or zero area (the cross product of two edges, the edges taken in double,
+ * is exactly zero: three collinear positions, two equal). */
+int mesh_build_degenerate(float (*v)[3], uint32_t a, uint32_t b, uint32_t c);
 /* Drop the degenerate triangles, take the bounding box, and move the
  * arrays into *out (b is empty after).  -EINVAL when no triangle is left. */
 int mesh_build_finish(mbuild *b, mesh_format f, mesh *out);

@@ -119,11 +119,16 @@ int mesh_build_triangle_slow(mbuild *b, uint32_t a, uint32_t c, uint32_t d, uint
  * differences of floats taken in double (exact unless the exponents are
  * far apart), the products and sums rounded once more: a triangle whose
  * three positions are collinear (or two equal) gives exactly zero. */
-int mesh_build_zero_area(const float *a, const float *b, const float *c)
+static int zero_area(const float *a, const float *b, const float *c)
 {
     double u0 = (double)b[0] - a[0], u1 = (double)b[1] - a[1], u2 = (double)b[2] - a[2];
     double v0 = (double)c[0] - a[0], v1 = (double)c[1] - a[1], v2 = (double)c[2] - a[2];
     return u1 * v2 - u2 * v1 == 0.0 && u2 * v0 - u0 * v2 == 0.0 && u0 * v1 - u1 * v0 == 0.0;
+}
+
+int mesh_build_degenerate(float (*v)[3], uint32_t a, uint32_t b, uint32_t c)
+{
+    return a == b || b == c || a == c || zero_area(v[a], v[b], v[c]);
 }
 
 /* A box of positions: lo[a] <= x[a] <= hi[a]. */
@@ -154,7 +159,7 @@ static uint32_t finish_part(const tri_set *s, uint32_t from, uint32_t to, float 
     for (uint32_t i = from; i < to; i++) {
         uint32_t t0 = s->t[i][0], t1 = s->t[i][1], t2 = s->t[i][2];
         const float *p[3] = {s->v[t0], s->v[t1], s->v[t2]};
-        int k = t0 != t1 && t1 != t2 && t0 != t2 && !mesh_build_zero_area(p[0], p[1], p[2]);
+        int k = !mesh_build_degenerate(s->v, t0, t1, t2);
         if (keep) keep[i - from] = (uint8_t)k;
         if (!k) continue;
         for (int c = 0; c < 3; c++) {

@@ -254,17 +254,12 @@ static int merge_exact_par(float (*v)[3], uint32_t n, uint32_t *map)
     return 0;
 }
 
-static int degenerate(float (*v)[3], uint32_t a, uint32_t b, uint32_t c)
-{
-    return a == b || b == c || a == c || mesh_build_zero_area(v[a], v[b], v[c]);
-}
-
 /* Whether a triangle is left once merged (map: old indices). */
 static int any_left(const mesh *m, const uint32_t *map)
 {
     for (uint32_t i = 0; i < m->n_triangles; i++) {
         const uint32_t *t = m->triangles[i];
-        if (!degenerate(m->vertices, map[t[0]], map[t[1]], map[t[2]])) return 1;
+        if (!mesh_build_degenerate(m->vertices, map[t[0]], map[t[1]], map[t[2]])) return 1;
     }
     return 0;
 }
