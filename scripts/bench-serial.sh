@@ -181,7 +181,7 @@ echo "| job | serial seconds by thread |"
 echo "|---|---|"
 while IFS='|' read -r name label cmd; do grep -F "| $label |" "$tmp/where" || true; done < <(jobs)
 echo
-echo "What a process pays here for what every run does, measured right after each run with the"
+echo "What a process pays here for what every run does, measured half a second after each run, with the"
 echo "same sampling: *start and exit*, the serial seconds of \`vox --version\` (the exec, the"
 echo "dynamic loader, the exit); *the output written durably*, those of \`dd bs=1M conv=fsync\` of"
 echo "the run's output into the same file system (a process that only copies those bytes and makes"

@@ -109,7 +109,8 @@ if [ "$rc" -eq 0 ]; then pass "bench-serial: quick mode runs"
 else fail "bench-serial: quick mode runs" "exit $rc: $(tail -3 "$TMP/table.err")"; fi
 grep -q "^### .*([0-9]* cores: " "$TMP/table" && pass "bench-serial: the core count in the header" ||
     fail "bench-serial: the core count in the header" "$(head -1 "$TMP/table")"
-# the measures' table, then (after "Where each run's") the charges' table
+# the measures' table, then (after "Where each run's") the charges' table, then
+# (after "What a process pays") the references' table
 sed '/^Where each run/,$d' "$TMP/table" >"$TMP/measures"
 sed -n '/^Where each run/,/^What a process pays/p' "$TMP/table" >"$TMP/charges"
 sed -n '/^What a process pays/,$p' "$TMP/table" >"$TMP/refs"
