@@ -185,7 +185,8 @@ int cli_info(int argc, char **argv)
         unsigned threads = cli_cores();
         voxel_sum sums[PAR_MAX] = {{0, 0}};
         threads = threads > PAR_MAX ? PAR_MAX : threads;
-        if (vod_scan(argv[i], (int)threads, add_brick, sums, &f, &err)) {
+        vod_scan_opts so = {(int)threads, VOD_SCAN_KEEP, add_brick, sums};
+        if (vod_scan(argv[i], &so, &f, &err)) {
             cli_error("%s: %s", argv[i], err.msg);
             bad = 1;
             continue;

@@ -379,16 +379,22 @@ int vod_open_threads(const char *path, int threads, vod_file **out, err_info *er
  * info but its metadata) on one of the scan's threads (thread 0 ..
  * threads - 1), then dropped, so the memory is the file's mapping and
  * tables and one brick a thread, not its raw volume (vox info); a brick
- * that many nodes share is kept (64 MiB of them at most) until the file
- * has checked, and its nodes dealt to every thread.  fn runs on several
+ * that many nodes share is kept (keep_bytes of them at most) until the
+ * file has checked, and its nodes dealt to every thread.  fn runs on several
  * threads at once, in no set order, and may have run for a file that is
  * then refused: keep what it finds per thread, and use it only when this
  * returns 0.  *out has the file's info; its voxels are not there
  * (vod_voxel reads 0, vod_brick NULL, the walks return -EINVAL). */
 typedef void (*vod_scan_fn)(void *ud, unsigned thread, const vod_info *in, int level,
                             const uint32_t b[3], const uint8_t *raw);
-int vod_scan(const char *path, int threads, vod_scan_fn fn, void *ud, vod_file **out,
-             err_info *err);
+#define VOD_SCAN_KEEP ((uint64_t)64 << 20) /* vod_scan_opts.keep_bytes, by default */
+typedef struct {
+    int threads;         /* 1 or more */
+    uint64_t keep_bytes; /* the shared bricks kept, at most (0: none) */
+    vod_scan_fn fn;
+    void *ud;
+} vod_scan_opts;
+int vod_scan(const char *path, const vod_scan_opts *o, vod_file **out, err_info *err);
 void vod_close(vod_file *f);
 const vod_info *vod_get_info(const vod_file *f);
 

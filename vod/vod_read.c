@@ -452,11 +452,10 @@ typedef struct {
 
 /* A brick that many nodes share (a distance field's uniform +w and -w, a
  * solid's full brick) would leave all its nodes to the one thread that
- * inflated it: such a brick is kept (a copy, SCAN_KEPT_BYTES in all at
- * most) and its nodes dealt to every thread once the file has checked
- * (scan_kept). */
+ * inflated it: such a brick is kept (a copy, the scan's keep_bytes in all
+ * at most; past them, visited where it was inflated) and its nodes dealt
+ * to every thread once the file has checked (scan_kept). */
 #define SCAN_SHARED_REFS 16u
-#define SCAN_KEPT_BYTES ((uint64_t)64 << 20)
 
 typedef struct scan_job {
     vod_scan_fn fn;
@@ -468,6 +467,7 @@ typedef struct scan_job {
     /* the bytes kept so far (relaxed: a budget the threads draw from,
      * ordering nothing; kept[] is read after par_run's join) */
     _Atomic uint64_t kept_bytes;
+    uint64_t keep_bytes; /* the budget */
     int threads;
 } scan_job;
 
@@ -508,7 +508,7 @@ static void mark_bad(decode_job *j, uint32_t i)
 static bool keep_shared(scan_job *s, uint32_t id, const uint8_t *raw, size_t n)
 {
     uint64_t was = atomic_fetch_add_explicit(&s->kept_bytes, n, memory_order_relaxed);
-    if (was + n > SCAN_KEPT_BYTES || !(s->kept[id] = malloc(n))) return false;
+    if (was + n > s->keep_bytes || !(s->kept[id] = malloc(n))) return false;
     memcpy(s->kept[id], raw, n);
     return true;
 }
@@ -817,12 +817,12 @@ static void scan_kept(const scan_job *s, const vod_info *in)
     if (d.total) par_run((unsigned)s->threads, kept_part, &d);
 }
 
-int vod_scan(const char *path, int threads, vod_scan_fn fn, void *ud, vod_file **out,
-             err_info *err)
+int vod_scan(const char *path, const vod_scan_opts *o, vod_file **out, err_info *err)
 {
-    scan_job s = {.fn = fn, .ud = ud, .threads = threads < 1 ? 1 : threads};
+    scan_job s = {.fn = o->fn, .ud = o->ud, .keep_bytes = o->keep_bytes,
+                  .threads = o->threads < 1 ? 1 : o->threads};
     atomic_init(&s.kept_bytes, 0);
-    int rc = open_image(path, threads, &s, out, err);
+    int rc = open_image(path, s.threads, &s, out, err);
     if (!rc && s.kept) scan_kept(&s, vod_get_info(*out));
     for (uint32_t id = 1; s.kept && id <= s.ids; id++) free(s.kept[id]);
     free(s.kept);

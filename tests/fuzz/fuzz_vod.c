@@ -54,7 +54,8 @@ static void scan_agrees(const uint8_t *data, size_t size, int rc, const char *er
     uint64_t per_thread[64] = {0};
     vod_file *f;
     err_info e;
-    int r = vod_scan(path, 2, count_node, per_thread, &f, &e);
+    vod_scan_opts o = {2, VOD_SCAN_KEEP, count_node, per_thread};
+    int r = vod_scan(path, &o, &f, &e);
     if (r != rc || (rc && strcmp(e.msg, err))) __builtin_trap();
     if (!r) vod_close(f);
     close(fd);

@@ -393,10 +393,11 @@ static int kept_add(void *ud, const uint32_t b[3], const uint8_t *raw)
     return 0;
 }
 
-/* m scanned by each thread count: the same code and message as one
- * thread's vod_read (rc, err), and for a file that opens (one), every
- * node's brick handed once, as one keeps them; the scanned file's info is
- * one's and its voxels are not there. */
+/* m scanned by each thread count, keeping the shared bricks (the default
+ * budget) and keeping none: the same code and message as one thread's
+ * vod_read (rc, err), and for a file that opens (one), every node's brick
+ * handed once, as one keeps them; the scanned file's info is one's and its
+ * voxels are not there. */
 static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_file *one)
 {
     char path[] = "/tmp/test_vod_scan_XXXXXX";
@@ -407,23 +408,25 @@ static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_
     kept_sum k = {one ? vod_get_info(one) : NULL, 0, {0, 0}};
     for (k.level = 0; one && k.level < (int)k.in->height; k.level++)
         cr_assert_eq(vod_foreach_brick(one, k.level, kept_add, &k), 0);
-    for (size_t t = 0; t <= sizeof thread_counts / sizeof *thread_counts; t++) {
-        int threads = t ? thread_counts[t - 1] : 1;
+    size_t runs = 2 * (1 + sizeof thread_counts / sizeof *thread_counts);
+    for (size_t t = 0; t < runs; t++) {
+        int threads = t / 2 ? thread_counts[t / 2 - 1] : 1;
         brick_sum per[64] = {{0, 0}}, all = {0, 0};
         vod_file *v = (vod_file *)1;
         err_info e2 = {0};
-        int r2 = vod_scan(path, threads, scan_add, per, &v, &e2);
-        cr_assert_eq(r2, rc, "scan, %d threads: %d (%s), read: %d (%s)", threads, r2, e2.msg,
-                     rc, err->msg);
+        vod_scan_opts o = {threads, t % 2 ? 0 : VOD_SCAN_KEEP, scan_add, per};
+        int r2 = vod_scan(path, &o, &v, &e2);
+        cr_assert_eq(r2, rc, "scan, %d threads (keep %llu): %d (%s), read: %d (%s)", threads,
+                     (unsigned long long)o.keep_bytes, r2, e2.msg, rc, err->msg);
         cr_assert_str_eq(e2.msg, rc ? err->msg : "", "scan, %d threads", threads);
         if (rc) {
             cr_assert_null(v);
             continue;
         }
         for (int i = 0; i < 64; i++) all.sum += per[i].sum, all.n += per[i].n;
-        cr_assert(all.n == k.s.n && all.sum == k.s.sum, "scan, %d threads: %llu bricks %08x, "
-                  "kept %llu %08x", threads, (unsigned long long)all.n, all.sum,
-                  (unsigned long long)k.s.n, k.s.sum);
+        cr_assert(all.n == k.s.n && all.sum == k.s.sum, "scan, %d threads (keep %llu): %llu "
+                  "bricks %08x, kept %llu %08x", threads, (unsigned long long)o.keep_bytes,
+                  (unsigned long long)all.n, all.sum, (unsigned long long)k.s.n, k.s.sum);
         const vod_info *a = vod_get_info(v), *b = k.in;
         cr_assert(a->bricks == b->bricks && a->nodes == b->nodes && a->crc32 == b->crc32 &&
                   a->brick_data_bytes == b->brick_data_bytes && !strcmp(a->metadata, b->metadata));
