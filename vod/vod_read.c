@@ -468,7 +468,6 @@ typedef struct scan_job {
      * ordering nothing; kept[] is read after par_run's join) */
     _Atomic uint64_t kept_bytes;
     uint64_t keep_bytes; /* the budget */
-    int threads;
 } scan_job;
 
 typedef struct {
@@ -660,8 +659,10 @@ static int read_bricks(parse *ps, vod_file *f, int threads)
 {
     uint32_t n = f->info.bricks;
     brick_ent *e = malloc(((size_t)n + 1) * sizeof *e);
-    f->brick = calloc((size_t)n + 1, sizeof *f->brick);
-    int rc = e && f->brick ? read_table(ps, f, e) : err_set(ps->err, -ENOMEM, "out of memory");
+    /* a scan keeps no brick: no table of them, so that the accessors find none */
+    f->brick = ps->scan ? NULL : calloc((size_t)n + 1, sizeof *f->brick);
+    int rc = e && (ps->scan || f->brick) ? read_table(ps, f, e)
+                                         : err_set(ps->err, -ENOMEM, "out of memory");
     for (uint32_t i = 0; i < n && !rc; i++) rc = check_record(ps, &e[i]);
     if (!rc) rc = check_extents(ps, e, n);
     for (uint32_t i = 0; i < n && !rc; i++) f->info.brick_data_bytes += e[i].size;
@@ -684,7 +685,7 @@ static int parse_all(parse *ps, vod_file *f, int threads)
 }
 
 /* The image read and checked, its bricks kept, or handed to scan's fn
- * (scan non-NULL: f->brick dropped, so that the accessors find none). */
+ * (scan non-NULL: f->brick stays NULL, so that the accessors find none). */
 static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
                       vod_file **out, err_info *err)
 {
@@ -698,10 +699,6 @@ static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
     if (rc) {
         vod_close(f);
         return rc;
-    }
-    if (scan) {
-        free(f->brick);
-        f->brick = NULL;
     }
     f->info.metadata = f->metadata ? f->metadata : "";
     f->info.file_bytes = len;
@@ -791,8 +788,7 @@ int vod_open_threads(const char *path, int threads, vod_file **out, err_info *er
 typedef struct {
     const scan_job *s;
     const vod_info *in;
-    uint32_t n;      /* IDs */
-    uint64_t total;  /* the kept IDs' nodes */
+    uint64_t total; /* the kept IDs' nodes */
 } kept_deal;
 
 static void kept_part(void *ud, unsigned k, unsigned parts)
@@ -800,7 +796,7 @@ static void kept_part(void *ud, unsigned k, unsigned parts)
     const kept_deal *d = ud;
     const scan_job *s = d->s;
     uint64_t lo = d->total * k / parts, hi = d->total * (k + 1) / parts, seen = 0;
-    for (uint32_t id = 1; id <= d->n && seen < hi; id++) {
+    for (uint32_t id = 1; id <= s->ids && seen < hi; id++) {
         if (!s->kept[id]) continue;
         uint64_t r0 = s->at[id], r1 = s->at[id + 1], cnt = r1 - r0;
         for (uint64_t r = r0 + (lo > seen ? lo - seen : 0); r < r1 && seen + (r - r0) < hi; r++)
@@ -809,21 +805,21 @@ static void kept_part(void *ud, unsigned k, unsigned parts)
     }
 }
 
-static void scan_kept(const scan_job *s, const vod_info *in)
+static void scan_kept(const scan_job *s, const vod_info *in, int threads)
 {
-    kept_deal d = {s, in, s->ids, 0};
-    for (uint32_t id = 1; id <= d.n; id++)
+    kept_deal d = {s, in, 0};
+    for (uint32_t id = 1; id <= s->ids; id++)
         if (s->kept[id]) d.total += s->at[id + 1] - s->at[id];
-    if (d.total) par_run((unsigned)s->threads, kept_part, &d);
+    if (d.total) par_run((unsigned)threads, kept_part, &d);
 }
 
 int vod_scan(const char *path, const vod_scan_opts *o, vod_file **out, err_info *err)
 {
-    scan_job s = {.fn = o->fn, .ud = o->ud, .keep_bytes = o->keep_bytes,
-                  .threads = o->threads < 1 ? 1 : o->threads};
+    scan_job s = {.fn = o->fn, .ud = o->ud, .keep_bytes = o->keep_bytes};
+    int threads = o->threads < 1 ? 1 : o->threads;
     atomic_init(&s.kept_bytes, 0);
-    int rc = open_image(path, s.threads, &s, out, err);
-    if (!rc && s.kept) scan_kept(&s, vod_get_info(*out));
+    int rc = open_image(path, threads, &s, out, err);
+    if (!rc && s.kept) scan_kept(&s, vod_get_info(*out), threads);
     for (uint32_t id = 1; s.kept && id <= s.ids; id++) free(s.kept[id]);
     free(s.kept);
     free(s.refs);

@@ -13,6 +13,7 @@
 #include <libdeflate.h>
 
 #include "octree.h"
+#include "par.h"
 #include "vod.h"
 #include "vod_downsample.h"
 #include "vod_volume.h"
@@ -376,7 +377,7 @@ static void scan_add(void *ud, unsigned thread, const vod_info *in, int level,
                      const uint32_t b[3], const uint8_t *raw)
 {
     brick_sum *per_thread = ud;
-    cr_assert_lt(thread, 64u, "thread %u", thread);
+    cr_assert_lt(thread, (unsigned)PAR_MAX, "thread %u", thread);
     sum_brick(&per_thread[thread], in, level, b, raw);
 }
 
@@ -411,7 +412,7 @@ static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_
     size_t runs = 2 * (1 + sizeof thread_counts / sizeof *thread_counts);
     for (size_t t = 0; t < runs; t++) {
         int threads = t / 2 ? thread_counts[t / 2 - 1] : 1;
-        brick_sum per[64] = {{0, 0}}, all = {0, 0};
+        brick_sum per[PAR_MAX] = {{0, 0}}, all = {0, 0};
         vod_file *v = (vod_file *)1;
         err_info e2 = {0};
         vod_scan_opts o = {threads, t % 2 ? 0 : VOD_SCAN_KEEP, scan_add, per};
@@ -423,7 +424,7 @@ static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_
             cr_assert_null(v);
             continue;
         }
-        for (int i = 0; i < 64; i++) all.sum += per[i].sum, all.n += per[i].n;
+        for (int i = 0; i < PAR_MAX; i++) all.sum += per[i].sum, all.n += per[i].n;
         cr_assert(all.n == k.s.n && all.sum == k.s.sum, "scan, %d threads (keep %llu): %llu "
                   "bricks %08x, kept %llu %08x", threads, (unsigned long long)o.keep_bytes,
                   (unsigned long long)all.n, all.sum, (unsigned long long)k.s.n, k.s.sum);
