@@ -242,6 +242,8 @@ $(BUILD)/tests/test_engine_forge: LDFLAGS += -Wl,--wrap=worker_entry_end
 $(BUILD)/tests/test_pipeline_alloc: LDFLAGS += -Wl,--wrap=calloc,--wrap=malloc
 $(BUILD)/tests/test_mesh_weld: LDFLAGS += -Wl,--wrap=malloc
 $(BUILD)/tests/test_mesh_load: LDFLAGS += -Wl,--wrap=mmap
+# test_vod_alloc fails each of the reader's allocations in turn.
+$(BUILD)/tests/test_vod_alloc: LDFLAGS += -Wl,--wrap=malloc,--wrap=calloc,--wrap=aligned_alloc,--wrap=free
 
 deps:
 	@scripts/deps.sh
