@@ -235,10 +235,13 @@ static int call(parser *p, csg_kind k, int32_t *idx)
     size_t at = p->pos;
     int32_t a = -1, b = -1;
     double param = 0;
-    if (expect(p, '(') || operand(p, &a)) return -EINVAL;
+    /* an operand's code as it is: a leaf below may be past a limit or
+     * out of memory (-E2BIG, -ENOMEM), not only malformed */
+    int rc = expect(p, '(');
+    if (rc || (rc = operand(p, &a))) return rc;
     int nodes = 1, nums = 0;
     if (is_binary(k)) {
-        if (expect(p, ',') || operand(p, &b)) return -EINVAL;
+        if ((rc = expect(p, ',')) || (rc = operand(p, &b))) return rc;
         nodes = 2;
     }
     if (k == CSG_DIVIDE || k == CSG_SCALAR_ADD || k == CSG_SCALAR_MUL || k == CSG_ERODE ||
@@ -298,9 +301,10 @@ static int implicit(parser *p, csg_node *n)
     size_t len = p->pos++ - s;
     expr_tape *tape;
     expr_error ee;
-    if (expr_compile(p->src + s, len, NULL, &tape, &ee) < 0) {
+    int rc = expr_compile(p->src + s, len, NULL, &tape, &ee);
+    if (rc < 0) { /* the compiler's code: -EINVAL, -E2BIG past a limit, -ENOMEM */
         p->pos = s + (size_t)(ee.col > 0 ? ee.col - 1 : 0);
-        return fail(p, -EINVAL, "in the expression: %s", ee.msg);
+        return fail(p, rc, "in the expression: %s", ee.msg);
     }
     expr_tape_free(tape);
     n->expr_off = (uint32_t)p->text_len;
@@ -394,9 +398,10 @@ static int leaf(parser *p, csg_kind k, int32_t *idx)
 {
     csg_node *n;
     if (new_node(p, k, &n)) return -E2BIG;
-    int sized = 0;
-    if (k == CSG_IMPLICIT && implicit(p, n)) return -EINVAL;
-    if ((k == CSG_MESH || k == CSG_VOD) && file_name(p, n)) return -EINVAL;
+    int sized = 0, rc = 0;
+    if (k == CSG_IMPLICIT) rc = implicit(p, n); /* -EINVAL, -E2BIG, -ENOMEM */
+    if (k == CSG_MESH || k == CSG_VOD) rc = file_name(p, n);
+    if (rc) return rc;
     for (;;) {
         skip_space(p);
         if (p->pos >= p->end) break;

@@ -2,6 +2,8 @@
  * again, not taken from the code), identities, the primitives' volumes,
  * brick-by-brick evaluation against a slow dense one, and parse errors. */
 #include <criterion/criterion.h>
+#include <errno.h>
+#include <stdio.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -266,6 +268,35 @@ static void bad(const char *src, int line, const char *msg)
     cr_assert_eq(err.code, rc, "%s: code %d, returned %d", src, err.code, rc);
     cr_assert_eq(err.line, line, "%s: line %d (%s)", src, err.line, err.msg);
     cr_assert(strstr(err.msg, msg), "%s: '%s' lacks '%s'", src, err.msg, msg);
+}
+
+/* A limit's error is -E2BIG through every level of the tree: an
+ * expression nested past its depth in an implicit leaf, operators nested
+ * past CSG_MAX_DEPTH (each operand's code passed up, not made -EINVAL). */
+Test(csg, parse_errors_keep_their_codes)
+{
+    char src[4096];
+    int n = snprintf(src, sizeof src, "a = implicit \"");
+    for (int i = 0; i < 300; i++) src[n++] = '(';
+    src[n++] = 'x';
+    for (int i = 0; i < 300; i++) src[n++] = ')';
+    snprintf(src + n, sizeof src - (size_t)n, "\"\nresult a\n");
+    csg_tree *t;
+    csg_error err;
+    cr_assert_eq(csg_parse(src, strlen(src), &t, &err), -E2BIG, "%s", err.msg);
+    cr_assert(strstr(err.msg, "in the expression"), "%s", err.msg);
+    n = snprintf(src, sizeof src, "b = sphere radius 1\na = ");
+    for (unsigned i = 0; i < CSG_MAX_DEPTH + 2; i++)
+        n += snprintf(src + n, sizeof src - (size_t)n, "inverse(");
+    n += snprintf(src + n, sizeof src - (size_t)n, "b");
+    for (unsigned i = 0; i < CSG_MAX_DEPTH + 2; i++) src[n++] = ')';
+    snprintf(src + n, sizeof src - (size_t)n, "\nresult a\n");
+    cr_assert_eq(csg_parse(src, strlen(src), &t, &err), -E2BIG, "%s", err.msg);
+    cr_assert_eq(err.code, -E2BIG);
+    cr_assert(strstr(err.msg, "nested deeper"), "%s", err.msg);
+    bad("a = implicit \"x +* y\"\nresult a\n", 1, "expression");
+    const char *malformed = "a = implicit \"x +* y\"\nresult a\n";
+    cr_assert_eq(csg_parse(malformed, strlen(malformed), &t, &err), -EINVAL);
 }
 
 Test(csg, parse_errors)

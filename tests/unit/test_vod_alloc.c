@@ -1,120 +1,14 @@
 /* The reader when memory runs out: every allocation that vod_read and
- * vod_scan make fails in turn, the first, then the second, and so on until
- * a read makes no more, with one thread and with three.  Each read either
- * gives what it gives with its memory (a scan whose thread lacks its brick
- * of room has another thread do its chunks; a shared brick that cannot be
- * kept is visited where it was inflated) or fails with -ENOMEM, says "out
- * of memory", and hands back no file; nothing leaks (counted
- * here: every block allocated during a read is freed by its end).
- *
- * The failure: this binary alone is linked with
- * -Wl,--wrap=malloc,--wrap=calloc,--wrap=aligned_alloc,--wrap=free (the
- * Makefile says so), so the library's allocations pass through the
- * wrappers below, which count them while armed, fail the one whose turn it
- * is and keep the others in a table until they are freed.  The table, not
- * LeakSanitizer: LSan scans the stacks conservatively, and a pointer left
- * in a dead frame that a later deeper call did not overwrite keeps its
- * block "reachable" (a leak on make_refs' error path went unreported).
- * The library's own threads allocate too: the count is atomic, and which
- * allocation is the n-th may differ between runs with three threads; each
- * run's answer is checked whichever it was. */
+ * vod_scan make fails in turn (alloc_fail.h), with one thread and with
+ * three.  Each read either gives the whole answer (a scan whose thread
+ * lacks its brick of room has another thread do its chunks; a shared
+ * brick that cannot be kept is visited where it was inflated) or fails
+ * with -ENOMEM, says "out of memory", and hands back no file; every block
+ * of the read is freed by its end. */
 #include "vod_fixture.h"
 
-#include <pthread.h>
-#include <stdatomic.h>
-
+#include "alloc_fail.h"
 #include "par.h"
-
-void *__real_malloc(size_t size);
-void *__real_calloc(size_t n, size_t size);
-void *__real_aligned_alloc(size_t align, size_t size);
-void __real_free(void *p);
-void *__wrap_malloc(size_t size);
-void *__wrap_calloc(size_t n, size_t size);
-void *__wrap_aligned_alloc(size_t align, size_t size);
-void __wrap_free(void *p);
-
-/* Armed: allocations counted, and the one numbered fail_at (1-based)
- * fails.  Relaxed: the count only numbers the allocations; the test reads
- * it after the read has joined its threads. */
-static atomic_bool armed;
-static atomic_ulong made, fail_at;
-
-/* The blocks allocated while armed and not freed yet (a read's few dozen;
- * LIVE_MAX bounds them, the test fails past it). */
-#define LIVE_MAX 4096
-static pthread_mutex_t live_lock = PTHREAD_MUTEX_INITIALIZER;
-static void *live[LIVE_MAX];
-static size_t nlive;
-static bool live_overflow;
-
-static int fail_now(void)
-{
-    if (!atomic_load_explicit(&armed, memory_order_relaxed)) return 0;
-    unsigned long n = atomic_fetch_add_explicit(&made, 1, memory_order_relaxed) + 1;
-    return n == atomic_load_explicit(&fail_at, memory_order_relaxed);
-}
-
-static void *track(void *p)
-{
-    if (!p || !atomic_load_explicit(&armed, memory_order_relaxed)) return p;
-    pthread_mutex_lock(&live_lock);
-    if (nlive < LIVE_MAX) live[nlive++] = p;
-    else live_overflow = true;
-    pthread_mutex_unlock(&live_lock);
-    return p;
-}
-
-void *__wrap_malloc(size_t size)
-{
-    return fail_now() ? NULL : track(__real_malloc(size));
-}
-
-void *__wrap_calloc(size_t n, size_t size)
-{
-    return fail_now() ? NULL : track(__real_calloc(n, size));
-}
-
-void *__wrap_aligned_alloc(size_t align, size_t size)
-{
-    return fail_now() ? NULL : track(__real_aligned_alloc(align, size));
-}
-
-void __wrap_free(void *p)
-{
-    pthread_mutex_lock(&live_lock);
-    for (size_t i = 0; p && i < nlive; i++)
-        if (live[i] == p) {
-            live[i] = live[--nlive];
-            break;
-        }
-    pthread_mutex_unlock(&live_lock);
-    __real_free(p);
-}
-
-static void arm(unsigned long at)
-{
-    atomic_store(&made, 0);
-    atomic_store(&fail_at, at);
-    atomic_store(&armed, true);
-}
-
-/* Disarms; whether the armed allocation was made (and failed).  Every
- * block allocated while armed must be free by then. */
-static bool disarm(void)
-{
-    atomic_store(&armed, false);
-    pthread_mutex_lock(&live_lock);
-    size_t left = nlive;
-    bool overflow = live_overflow;
-    nlive = 0;
-    live_overflow = false;
-    pthread_mutex_unlock(&live_lock);
-    cr_assert(!overflow, "more than %d blocks allocated at once", LIVE_MAX);
-    cr_assert_eq(left, 0, "%zu blocks allocated while armed (allocation %lu failing) were "
-                 "never freed", left, atomic_load(&fail_at));
-    return atomic_load(&made) >= atomic_load(&fail_at);
-}
 
 /* ---- what a read gives: every node's brick summed, order-free ---- */
 
@@ -169,57 +63,38 @@ typedef struct {
     const char *path; /* the same bytes in a file, for vod_scan */
     int threads;
     bool scan;
+    brick_sum want; /* the whole file's */
 } read_case;
 
-/* One read of c: its return code, its sum when it opened, its message. */
-static int read_once(const read_case *c, brick_sum *got, err_info *err)
+/* One read of c (an alloc_fail_run): its return code; when it opened, the
+ * sum of its bricks is the whole file's. */
+static int read_once(void *ctx, char *msg)
 {
+    const read_case *c = ctx;
     vod_file *v = (vod_file *)1;
+    err_info err = {0};
+    brick_sum got = {0, 0};
     int rc;
-    *got = (brick_sum){0, 0};
     if (c->scan) {
         brick_sum per[PAR_MAX] = {{0, 0}};
         vod_scan_opts o = {c->threads, VOD_SCAN_KEEP, scan_add, per};
-        rc = vod_scan(c->path, &o, &v, err);
-        for (int i = 0; !rc && i < PAR_MAX; i++) got->sum += per[i].sum, got->n += per[i].n;
+        rc = vod_scan(c->path, &o, &v, &err);
+        for (int i = 0; !rc && i < PAR_MAX; i++) got.sum += per[i].sum, got.n += per[i].n;
     } else {
-        rc = vod_read_threads(c->m->p, c->m->n, c->threads, &v, err);
-        if (!rc) *got = sum_file(v);
+        rc = vod_read_threads(c->m->p, c->m->n, c->threads, &v, &err);
+        if (!rc) got = sum_file(v);
     }
-    if (rc) cr_assert_null(v, "a failed read handed back a file");
-    else vod_close(v);
-    return rc;
-}
-
-/* Every allocation of c failing in turn: each read gives the whole answer
- * (want) or fails with -ENOMEM and says so.  Returns the allocations a
- * read made (the last run's, which failed none). */
-static unsigned long each_allocation_fails(const read_case *c, const brick_sum *want)
-{
-    for (unsigned long at = 1;; at++) {
-        brick_sum got;
-        err_info err = {0};
-        arm(at);
-        int rc = read_once(c, &got, &err);
-        bool failed_one = disarm();
-        const char *what = c->scan ? "scan" : "read";
-        if (!failed_one) {
-            cr_assert_eq(rc, 0, "%s, %d threads, nothing failed: %s", what, c->threads, err.msg);
-            cr_assert(got.n == want->n && got.sum == want->sum);
-            return at - 1;
-        }
-        if (rc == 0) {
-            cr_assert(got.n == want->n && got.sum == want->sum,
-                      "%s, %d threads, allocation %lu failed: %llu bricks %08x, want %llu %08x",
-                      what, c->threads, at, (unsigned long long)got.n, got.sum,
-                      (unsigned long long)want->n, want->sum);
-            continue;
-        }
-        cr_assert_eq(rc, -ENOMEM, "%s, %d threads, allocation %lu failed: %d (%s)", what,
-                     c->threads, at, rc, err.msg);
-        cr_assert(strstr(err.msg, "out of memory"), "%s, %d threads, allocation %lu: \"%s\"",
-                  what, c->threads, at, err.msg);
+    memcpy(msg, err.msg, sizeof err.msg);
+    if (rc) {
+        cr_assert_null(v, "a failed read handed back a file");
+        return rc;
     }
+    vod_close(v);
+    cr_assert(got.n == c->want.n && got.sum == c->want.sum,
+              "%s, %d threads: %llu bricks %08x, want %llu %08x", c->scan ? "scan" : "read",
+              c->threads, (unsigned long long)got.n, got.sum, (unsigned long long)c->want.n,
+              c->want.sum);
+    return 0;
 }
 
 /* m read and scanned by one thread and by three, each allocation failing
@@ -237,10 +112,11 @@ static void reads_survive(const membuf *m, unsigned long min_allocs)
     vod_close(v);
     for (int scan = 0; scan < 2; scan++)
         for (int threads = 1; threads <= 3; threads += 2) {
-            read_case c = {m, path, threads, scan};
-            unsigned long n = each_allocation_fails(&c, &want);
-            cr_assert_geq(n, min_allocs, "%s, %d threads: only %lu allocations",
-                          scan ? "scan" : "read", threads, n);
+            read_case c = {m, path, threads, scan, want};
+            char what[32];
+            snprintf(what, sizeof what, "%s, %d threads", scan ? "scan" : "read", threads);
+            unsigned long n = alloc_fail_each(read_once, &c, what);
+            cr_assert_geq(n, min_allocs, "%s: only %lu allocations", what, n);
         }
     unlink(path);
 }
