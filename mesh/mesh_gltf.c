@@ -381,17 +381,25 @@ void mesh_gltf_close(gltf *g)
     json_object_put(g->root);
 }
 
+/* g's table of buffers, an entry for each of its "buffers" (none when it
+ * has none); n_buf counts the entries made, which mesh_gltf_close walks. */
+static int buffers_alloc(gltf *g)
+{
+    json_object *bufs = NULL;
+    int rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "buffers", 0, &bufs);
+    size_t n = !rc && bufs ? json_object_array_length(bufs) : 0;
+    if (n && !(g->buf = calloc(n, sizeof *g->buf)))
+        return mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu buffers", n);
+    g->n_buf = n;
+    return rc;
+}
+
 int mesh_gltf_open(gltf *g, const char *buf, size_t len)
 {
     const uint8_t *p = (const uint8_t *)buf;
     int rc = len >= 4 && bits_le32(p) == GLB_MAGIC ? parse_glb(g, p, len) : parse_json(g, buf, len, 0);
     if (!rc) rc = check_asset(g);
-    json_object *bufs = NULL;
-    if (!rc) rc = mesh_gltf_array(g, (gltf_obj){g->root, "the glTF"}, "buffers", 0, &bufs);
-    if (!rc && bufs && (g->n_buf = json_object_array_length(bufs)) &&
-        !(g->buf = calloc(g->n_buf, sizeof *g->buf)))
-        rc = mesh_build_fail(g->b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory for %zu buffers", g->n_buf);
-    return rc;
+    return rc ? rc : buffers_alloc(g);
 }
 
 /* ------------------------------------------------------- for vox submit */
@@ -448,11 +456,7 @@ int mesh_gltf_embed(const char *buf, size_t len, const char *dir, char **out, si
     while (i < len && (buf[i] == ' ' || buf[i] == '\t' || buf[i] == '\n' || buf[i] == '\r')) i++;
     if (i == len || buf[i] != '{') return 0; /* not a JSON glTF: nothing to embed */
     int rc = parse_json(&g, buf, len, 0), changed = 0;
-    json_object *bufs = NULL;
-    if (!rc) rc = mesh_gltf_array(&g, (gltf_obj){g.root, "the glTF"}, "buffers", 0, &bufs);
-    if (!rc && bufs && (g.n_buf = json_object_array_length(bufs)) &&
-        !(g.buf = calloc(g.n_buf, sizeof *g.buf)))
-        rc = mesh_build_fail(&b, -ENOMEM, MESH_BUILD_NOWHERE, "out of memory");
+    if (!rc) rc = buffers_alloc(&g);
     if (!rc) rc = embed_buffers(&g, &changed);
     if (!rc && changed) {
         size_t n;

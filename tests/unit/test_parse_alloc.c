@@ -1,6 +1,6 @@
 /* The parsers of what a client sends when memory runs out: every
- * allocation of expr_compile, csg_parse and mesh_parse (each text format,
- * and the binary ones on one thread and on several) fails in turn
+ * allocation of expr_compile, csg_parse and mesh_parse (every format, on
+ * one thread and on several) fails in turn
  * (alloc_fail.h).  Each run gives the whole answer or -ENOMEM with "out of
  * memory" in its message and nothing handed back, and frees every block
  * it allocated. */
@@ -9,6 +9,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "alloc_fail.h"
 #include "csg.h"
@@ -108,7 +109,7 @@ static void add(text *t, const void *p, size_t n)
 static void addf(text *t, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 static void addf(text *t, const char *fmt, ...)
 {
-    char line[256];
+    char line[1024];
     va_list ap;
     va_start(ap, fmt);
     int n = vsnprintf(line, sizeof line, fmt, ap);
@@ -117,9 +118,9 @@ static void addf(text *t, const char *fmt, ...)
     add(t, line, (size_t)n);
 }
 
-typedef enum { OBJ, OFF, PLY_ASCII, PLY_BINARY, STL_ASCII, STL_BINARY } form;
-static const char *const form_name[] = {"OBJ", "OFF", "PLY ascii", "PLY binary", "STL ascii",
-                                        "STL binary"};
+typedef enum { OBJ, OFF, PLY_ASCII, PLY_BINARY, STL_ASCII, STL_BINARY, GLTF, GLB } form;
+static const char *const form_name[] = {"OBJ",       "OFF",        "PLY ascii", "PLY binary",
+                                        "STL ascii", "STL binary", "glTF",      "GLB"};
 
 static void put_f32le(text *t, float x)
 {
@@ -174,10 +175,81 @@ static void write_ply(text *t, const mesh *m, bool binary)
     }
 }
 
+/* The mesh's buffer: positions (f32 VEC3), then indices (u32). */
+static text gltf_buffer(const mesh *m)
+{
+    text b = {0};
+    for (uint32_t i = 0; i < m->n_vertices; i++)
+        for (int a = 0; a < 3; a++) put_f32le(&b, m->vertices[i][a]);
+    for (uint32_t i = 0; i < m->n_triangles; i++)
+        for (int k = 0; k < 3; k++) put_u32le(&b, m->triangles[i][k]);
+    return b;
+}
+
+static void add_base64(text *t, const text *b)
+{
+    static const char a[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    const unsigned char *d = (const unsigned char *)b->p;
+    for (size_t i = 0; i < b->n; i += 3) {
+        unsigned v = (unsigned)d[i] << 16 | (i + 1 < b->n ? (unsigned)d[i + 1] << 8 : 0) |
+                     (i + 2 < b->n ? d[i + 2] : 0);
+        char q[4] = {a[v >> 18], a[v >> 12 & 63], i + 1 < b->n ? a[v >> 6 & 63] : '=',
+                     i + 2 < b->n ? a[v & 63] : '='};
+        add(t, q, 4);
+    }
+}
+
+/* A .gltf with the buffer embedded (a data: URI; bin NULL), or naming a
+ * file (bin: the name, the file written into folder dir), or a .glb
+ * holding it (glb). */
+static void write_gltf_as(text *t, const mesh *m, bool glb, const char *dir, const char *bin)
+{
+    text b = gltf_buffer(m), json = {0};
+    size_t pos = (size_t)m->n_vertices * 12;
+    addf(&json, "{\"asset\": {\"version\": \"2.0\"}, \"scene\": 0, \"scenes\": [{\"nodes\": "
+         "[0]}], \"nodes\": [{\"mesh\": 0}], \"meshes\": [{\"primitives\": [{\"attributes\": "
+         "{\"POSITION\": 0}, \"indices\": 1}]}], \"buffers\": [{\"byteLength\": %zu", b.n);
+    if (bin) {
+        char path[512];
+        snprintf(path, sizeof path, "%s/%s", dir, bin);
+        FILE *f = fopen(path, "wb");
+        cr_assert(f && fwrite(b.p, 1, b.n, f) == b.n && !fclose(f), "%s", path);
+        addf(&json, ", \"uri\": \"%s\"", bin);
+    } else if (!glb) {
+        addf(&json, ", \"uri\": \"data:application/octet-stream;base64,");
+        add_base64(&json, &b);
+        add(&json, "\"", 1);
+    }
+    addf(&json, "}], \"bufferViews\": [{\"buffer\": 0, \"byteLength\": %zu}, {\"buffer\": 0, "
+         "\"byteOffset\": %zu, \"byteLength\": %zu}], ", pos, pos, b.n - pos);
+    addf(&json, "\"accessors\": [{\"bufferView\": 0, \"componentType\": 5126, \"count\": %u, "
+         "\"type\": \"VEC3\"}, {\"bufferView\": 1, \"componentType\": 5125, \"count\": %u, "
+         "\"type\": \"SCALAR\"}]}", m->n_vertices, 3 * m->n_triangles);
+    if (!glb) add(t, json.p, json.n);
+    else {
+        while (json.n % 4) add(&json, " ", 1);
+        uint32_t head[5] = {0x46546C67u, 2, (uint32_t)(28 + json.n + b.n), (uint32_t)json.n,
+                            0x4E4F534Au}; /* "glTF", version 2, length; "JSON" */
+        add(t, head, sizeof head);
+        add(t, json.p, json.n);
+        uint32_t chunk[2] = {(uint32_t)b.n, 0x004E4942u}; /* "BIN" */
+        add(t, chunk, sizeof chunk);
+        add(t, b.p, b.n);
+    }
+    free(json.p);
+    free(b.p);
+}
+
+static void write_gltf(text *t, const mesh *m, bool glb)
+{
+    write_gltf_as(t, m, glb, NULL, NULL);
+}
+
 static text write_mesh(const mesh *m, form f)
 {
     text t = {0};
-    if (f == STL_ASCII || f == STL_BINARY) write_stl(&t, m, f == STL_BINARY);
+    if (f == GLTF || f == GLB) write_gltf(&t, m, f == GLB);
+    else if (f == STL_ASCII || f == STL_BINARY) write_stl(&t, m, f == STL_BINARY);
     else if (f == PLY_ASCII || f == PLY_BINARY) write_ply(&t, m, f == PLY_BINARY);
     else {
         if (f == OFF) addf(&t, "OFF\n%u %u 0\n", m->n_vertices, m->n_triangles);
@@ -226,7 +298,7 @@ static void meshes_parse_or_fail_cleanly(int level)
     shape_init(&s);
     shape_icosphere(&s, (const double[3]){0.1, -0.2, 0.3}, 0.8, level, false);
     const mesh *ico = shape_finish(&s);
-    for (form f = OBJ; f <= STL_BINARY; f++) {
+    for (form f = OBJ; f <= GLB; f++) {
         mesh_case c = {write_mesh(ico, f), form_name[f], {0}};
         mesh_error err = {0};
         cr_assert_eq(mesh_parse(c.in.p, c.in.n, MESH_FORMAT_AUTO, NULL, &c.want, &err), 0,
@@ -250,4 +322,77 @@ Test(parse_alloc, a_small_mesh_parses_or_fails_cleanly_in_every_format)
 Test(parse_alloc, a_larger_mesh_parses_or_fails_cleanly_in_every_format, .timeout = 600)
 {
     meshes_parse_or_fail_cleanly(6);
+}
+
+/* ---- a .gltf naming its buffer's file: read by mesh_load, embedded by
+ * mesh_gltf_embed (vox submit sends it so) ---- */
+
+typedef struct {
+    const char *path, *dir;
+    const text *in;
+    const mesh *want;
+    const text *embedded; /* mesh_gltf_embed's answer */
+} gltf_file_case;
+
+static int load_once(void *ctx, char *msg)
+{
+    const gltf_file_case *c = ctx;
+    mesh m;
+    mesh_error err = {0};
+    int rc = mesh_load(c->path, MESH_FORMAT_AUTO, NULL, &m, &err);
+    memcpy(msg, err.msg, sizeof err.msg);
+    if (rc) return rc;
+    cr_assert(m.n_triangles == c->want->n_triangles && m.n_vertices == c->want->n_vertices);
+    cr_assert_eq(memcmp(m.vertices, c->want->vertices, m.n_vertices * sizeof *m.vertices), 0);
+    mesh_free(&m);
+    return 0;
+}
+
+static int embed_once(void *ctx, char *msg)
+{
+    const gltf_file_case *c = ctx;
+    char *out = (char *)1;
+    size_t n = 1;
+    mesh_error err = {0};
+    int rc = mesh_gltf_embed(c->in->p, c->in->n, c->dir, &out, &n, &err);
+    memcpy(msg, err.msg, sizeof err.msg);
+    if (rc) {
+        cr_assert(!out && !n, "a failed embedding handed back text");
+        return rc;
+    }
+    cr_assert(n == c->embedded->n && !memcmp(out, c->embedded->p, n), "another embedding");
+    free(out);
+    return 0;
+}
+
+Test(parse_alloc, a_gltf_naming_its_buffer_loads_and_embeds_or_fails_cleanly)
+{
+    char dir[] = "/tmp/test_parse_alloc_XXXXXX", path[512];
+    cr_assert(mkdtemp(dir));
+    shape s;
+    shape_init(&s);
+    shape_icosphere(&s, (const double[3]){0, 0, 0}, 1, 3, false);
+    text in = {0};
+    write_gltf_as(&in, shape_finish(&s), false, dir, "ico.bin");
+    snprintf(path, sizeof path, "%s/ico.gltf", dir);
+    FILE *f = fopen(path, "wb");
+    cr_assert(f && fwrite(in.p, 1, in.n, f) == in.n && !fclose(f));
+    mesh want;
+    mesh_error err = {0};
+    cr_assert_eq(mesh_load(path, MESH_FORMAT_AUTO, NULL, &want, &err), 0, "%s", err.msg);
+    text embedded = {0};
+    cr_assert_eq(mesh_gltf_embed(in.p, in.n, dir, &embedded.p, &embedded.n, &err), 0, "%s",
+                 err.msg);
+    cr_assert(embedded.p && strstr(embedded.p, "base64"), "nothing embedded");
+    gltf_file_case c = {path, dir, &in, &want, &embedded};
+    cr_assert_geq(alloc_fail_each(load_once, &c, "mesh_load of a .gltf"), 2);
+    cr_assert_geq(alloc_fail_each(embed_once, &c, "mesh_gltf_embed"), 2);
+    mesh_free(&want);
+    free(embedded.p);
+    free(in.p);
+    shape_free(&s);
+    unlink(path);
+    snprintf(path, sizeof path, "%s/ico.bin", dir);
+    unlink(path);
+    rmdir(dir);
 }
