@@ -8,53 +8,6 @@
 #include "vod_fixture.h"
 
 #include "alloc_fail.h"
-#include "par.h"
-
-/* ---- what a read gives: every node's brick summed, order-free ---- */
-
-typedef struct {
-    uint32_t sum;
-    uint64_t n;
-} brick_sum;
-
-static void sum_add(brick_sum *s, const vod_info *in, int level, const uint32_t b[3],
-                    const uint8_t *raw)
-{
-    uint32_t key[4] = {(uint32_t)level, b[0], b[1], b[2]};
-    size_t raw_bytes = (size_t)in->brick * in->brick * in->brick * in->voxel_bits / 8;
-    uLong c = crc32(0, (const Bytef *)key, sizeof key);
-    s->sum += (uint32_t)crc32(c, raw, (uInt)raw_bytes);
-    s->n++;
-}
-
-static void scan_add(void *ud, unsigned thread, const vod_info *in, int level,
-                     const uint32_t b[3], const uint8_t *raw)
-{
-    brick_sum *per_thread = ud;
-    cr_assert_lt(thread, (unsigned)PAR_MAX, "thread %u", thread);
-    sum_add(&per_thread[thread], in, level, b, raw);
-}
-
-typedef struct {
-    const vod_info *in;
-    int level;
-    brick_sum s;
-} walk_sum;
-
-static int walk_add(void *ud, const uint32_t b[3], const uint8_t *raw)
-{
-    walk_sum *w = ud;
-    sum_add(&w->s, w->in, w->level, b, raw);
-    return 0;
-}
-
-static brick_sum sum_file(const vod_file *v)
-{
-    walk_sum w = {vod_get_info(v), 0, {0, 0}};
-    for (w.level = 0; w.level < (int)w.in->height; w.level++)
-        cr_assert_eq(vod_foreach_brick(v, w.level, walk_add, &w), 0);
-    return w.s;
-}
 
 /* ---- the reads ---- */
 
@@ -103,10 +56,7 @@ static int read_once(void *ctx, char *msg)
 static void reads_survive(const membuf *m, unsigned long min_allocs)
 {
     char path[] = "/tmp/test_vod_alloc_XXXXXX";
-    int fd = mkstemp(path);
-    cr_assert_geq(fd, 0);
-    cr_assert_eq(write(fd, m->p, m->n), (ssize_t)m->n);
-    close(fd);
+    fx_temp_file(m, path);
     vod_file *v = read_ok(m);
     brick_sum want = sum_file(v);
     vod_close(v);
@@ -125,33 +75,16 @@ static void reads_survive(const membuf *m, unsigned long min_allocs)
  * value): the scan keeps those, one allocation each. */
 Test(vod_alloc, a_file_of_shared_bricks_reads_or_fails_cleanly)
 {
-    fixture f;
-    fx_init(&f, 6, 64, 48, 40);
-    uint32_t v = voxel_surface((const double[3]){0, 0, 1});
-    for (uint32_t z = 0; z < 32; z++)
-        for (uint32_t y = 0; y < 32; y++)
-            for (uint32_t x = 0; x < 40; x++) fx_store(&f, x, y, z, v);
-    fx_sphere(&f, 40, 30, 20, 15);
-    vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
-    membuf m = write_file(&f, &p, NULL);
-    fx_free(&f);
+    membuf m = fx_file_shared_bricks();
     reads_survive(&m, 6);
     free(m.p);
 }
 
-/* Bricks of 1 MiB (64^3, 32 bits), two to a reader's chunk: its slabs are
- * aligned_alloc'd huge-page-sized blocks. */
+/* Bricks of 1 MiB, two to a reader's chunk: its slabs are aligned_alloc'd
+ * huge-page-sized blocks. */
 Test(vod_alloc, a_file_of_large_bricks_reads_or_fails_cleanly)
 {
-    fixture f;
-    fx_init(&f, 8, 192, 128, 128);
-    fx_sphere(&f, 96, 64, 64, 60);
-    fx_sphere(&f, 30, 30, 30, 20);
-    vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 64);
-    membuf m = write_file(&f, &p, NULL);
-    fx_free(&f);
+    membuf m = fx_file_large_bricks(VOD_COMP_ZLIB);
     reads_survive(&m, 6);
     free(m.p);
 }

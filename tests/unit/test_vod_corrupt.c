@@ -307,25 +307,14 @@ Test(vod_corrupt, each_section8_case_has_its_message)
 
 /* ------------------------------------------- reading with several threads */
 
-/* A file of 1 MiB bricks (64^3, 32 bits): two to a chunk of the reader's
- * (2 MiB of raw bricks), so that threads share its bricks (a dozen or more);
- * comp: their compression. */
 static membuf chunked_file_as(uint32_t comp)
 {
-    fixture f;
-    fx_init(&f, 8, 192, 128, 128);
-    fx_sphere(&f, 96, 64, 64, 60);
-    fx_sphere(&f, 30, 30, 30, 20);
-    vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, comp, VOD_HASH_SFHS, 64);
-    membuf m = write_file(&f, &p, NULL);
-    fx_free(&f);
-    return m;
+    return fx_file_large_bricks(comp);
 }
 
 static membuf chunked_file(void)
 {
-    return chunked_file_as(VOD_COMP_ZLIB);
+    return fx_file_large_bricks(VOD_COMP_ZLIB);
 }
 
 /* The brick records' (offset, ID) in file order. */
@@ -356,44 +345,6 @@ static const int thread_counts[] = {2, 3, 4, 16};
 
 /* ---- vod_scan against the bricks vod_read keeps ---- */
 
-/* A sum over (level, b, raw bytes) of every node's brick (order-free): a
- * thread's own in vod_scan's fn. */
-typedef struct {
-    uint32_t sum;
-    uint64_t n;
-} brick_sum;
-
-static void sum_brick(brick_sum *s, const vod_info *in, int level, const uint32_t b[3],
-                      const uint8_t *raw)
-{
-    uint32_t key[4] = {(uint32_t)level, b[0], b[1], b[2]};
-    size_t raw_bytes = (size_t)in->brick * in->brick * in->brick * in->voxel_bits / 8;
-    uLong c = crc32(0, (const Bytef *)key, sizeof key);
-    s->sum += (uint32_t)crc32(c, raw, (uInt)raw_bytes);
-    s->n++;
-}
-
-static void scan_add(void *ud, unsigned thread, const vod_info *in, int level,
-                     const uint32_t b[3], const uint8_t *raw)
-{
-    brick_sum *per_thread = ud;
-    cr_assert_lt(thread, (unsigned)PAR_MAX, "thread %u", thread);
-    sum_brick(&per_thread[thread], in, level, b, raw);
-}
-
-typedef struct {
-    const vod_info *in;
-    int level;
-    brick_sum s;
-} kept_sum;
-
-static int kept_add(void *ud, const uint32_t b[3], const uint8_t *raw)
-{
-    kept_sum *k = ud;
-    sum_brick(&k->s, k->in, k->level, b, raw);
-    return 0;
-}
-
 /* m scanned by each thread count, keeping the shared bricks (the default
  * budget) and keeping none: the same code and message as one thread's
  * vod_read (rc, err), and for a file that opens (one), every node's brick
@@ -402,13 +353,8 @@ static int kept_add(void *ud, const uint32_t b[3], const uint8_t *raw)
 static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_file *one)
 {
     char path[] = "/tmp/test_vod_scan_XXXXXX";
-    int fd = mkstemp(path);
-    cr_assert_geq(fd, 0);
-    cr_assert_eq(write(fd, m->p, m->n), (ssize_t)m->n);
-    close(fd);
-    kept_sum k = {one ? vod_get_info(one) : NULL, 0, {0, 0}};
-    for (k.level = 0; one && k.level < (int)k.in->height; k.level++)
-        cr_assert_eq(vod_foreach_brick(one, k.level, kept_add, &k), 0);
+    fx_temp_file(m, path);
+    kept_sum k = {one ? vod_get_info(one) : NULL, 0, one ? sum_file(one) : (brick_sum){0, 0}};
     size_t runs = 2 * (1 + sizeof thread_counts / sizeof *thread_counts);
     for (size_t t = 0; t < runs; t++) {
         int threads = t / 2 ? thread_counts[t / 2 - 1] : 1;
@@ -488,10 +434,7 @@ Test(vod_threads, several_threads_read_what_one_reads)
     cr_assert_eq(read_threads_agree(&m, &err), 0, "%s", err.msg);
     /* and through a file */
     char path[] = "/tmp/test_vod_threads_XXXXXX";
-    int fd = mkstemp(path);
-    cr_assert_geq(fd, 0);
-    cr_assert_eq(write(fd, m.p, m.n), (ssize_t)m.n);
-    close(fd);
+    fx_temp_file(&m, path);
     vod_file *v;
     cr_assert_eq(vod_open_threads(path, 4, &v, &err), 0, "%s", err.msg);
     cr_assert_eq(vod_get_info(v)->bricks, n);
@@ -553,17 +496,7 @@ static int count_brick(void *ud, const uint32_t b[3], const uint8_t *raw)
  * as vod_read's walks see it. */
 Test(vod_threads, a_shared_brick_is_scanned_for_every_node)
 {
-    fixture f;
-    fx_init(&f, 6, 64, 48, 40);
-    uint32_t v = voxel_surface((const double[3]){0, 0, 1});
-    for (uint32_t z = 0; z < 32; z++)
-        for (uint32_t y = 0; y < 32; y++)
-            for (uint32_t x = 0; x < 40; x++) fx_store(&f, x, y, z, v);
-    fx_sphere(&f, 40, 30, 20, 15);
-    vod_params p;
-    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
-    membuf m = write_file(&f, &p, NULL);
-    fx_free(&f);
+    membuf m = fx_file_shared_bricks();
     vod_file *one = read_ok(&m);
     uint64_t nodes = 0;
     for (int l = 0; l < (int)vod_get_info(one)->height; l++)

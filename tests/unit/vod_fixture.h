@@ -15,6 +15,7 @@
 #include <libdeflate.h>
 
 #include "octree.h"
+#include "par.h"
 #include "vod.h"
 #include "vod_downsample.h"
 #include "vod_volume.h"
@@ -233,6 +234,101 @@ static inline void check_level0(const fixture *f, const vod_file *v, int occupan
         cr_assert_eq(vod_voxel(v, 0, x, y, z), want, "voxel %u %u %u", x, y, z);
     }
     cr_assert_eq(vod_voxel(v, 0, n, 0, 0), 0, "outside the padded cube");
+}
+
+/* ------------------------------------- files and sums the readers' suites share */
+
+/* A file of 1 MiB bricks (64^3, 32 bits): two to a chunk of the reader's
+ * (2 MiB of raw bricks, a slab allocated aligned to a huge page), so that
+ * threads share its bricks (a dozen or more); comp: their compression. */
+static inline membuf fx_file_large_bricks(uint32_t comp)
+{
+    fixture f;
+    fx_init(&f, 8, 192, 128, 128);
+    fx_sphere(&f, 96, 64, 64, 60);
+    fx_sphere(&f, 30, 30, 30, 20);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, comp, VOD_HASH_SFHS, 64);
+    membuf m = write_file(&f, &p, NULL);
+    fx_free(&f);
+    return m;
+}
+
+/* A block of one value beside a sphere, in 8^3 bricks: many nodes (more
+ * than vod_scan's 16) share the block's bricks, which the file stores
+ * once. */
+static inline membuf fx_file_shared_bricks(void)
+{
+    fixture f;
+    fx_init(&f, 6, 64, 48, 40);
+    uint32_t v = voxel_surface((const double[3]){0, 0, 1});
+    for (uint32_t z = 0; z < 32; z++)
+        for (uint32_t y = 0; y < 32; y++)
+            for (uint32_t x = 0; x < 40; x++) fx_store(&f, x, y, z, v);
+    fx_sphere(&f, 40, 30, 20, 15);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    membuf m = write_file(&f, &p, NULL);
+    fx_free(&f);
+    return m;
+}
+
+/* m's bytes into a new file named from template path (its XXXXXX
+ * replaced); the caller unlinks it. */
+static inline void fx_temp_file(const membuf *m, char *path)
+{
+    int fd = mkstemp(path);
+    cr_assert_geq(fd, 0, "%s", path);
+    cr_assert_eq(write(fd, m->p, m->n), (ssize_t)m->n);
+    cr_assert_eq(close(fd), 0);
+}
+
+/* A sum over (level, b, raw bytes) of every node's brick, order-free: a
+ * read's bricks as vod_scan hands them (a thread's own sum each, scan_add
+ * its fn, ud an array of PAR_MAX) or as vod_read keeps them (sum_file). */
+typedef struct {
+    uint32_t sum;
+    uint64_t n;
+} brick_sum;
+
+static inline void sum_brick(brick_sum *s, const vod_info *in, int level, const uint32_t b[3],
+                             const uint8_t *raw)
+{
+    uint32_t key[4] = {(uint32_t)level, b[0], b[1], b[2]};
+    size_t raw_bytes = (size_t)in->brick * in->brick * in->brick * in->voxel_bits / 8;
+    uLong c = crc32(0, (const Bytef *)key, sizeof key);
+    s->sum += (uint32_t)crc32(c, raw, (uInt)raw_bytes);
+    s->n++;
+}
+
+static inline void scan_add(void *ud, unsigned thread, const vod_info *in, int level,
+                            const uint32_t b[3], const uint8_t *raw)
+{
+    brick_sum *per_thread = ud;
+    cr_assert_lt(thread, (unsigned)PAR_MAX, "thread %u", thread);
+    sum_brick(&per_thread[thread], in, level, b, raw);
+}
+
+typedef struct {
+    const vod_info *in;
+    int level;
+    brick_sum s;
+} kept_sum;
+
+static inline int kept_add(void *ud, const uint32_t b[3], const uint8_t *raw)
+{
+    kept_sum *k = ud;
+    sum_brick(&k->s, k->in, k->level, b, raw);
+    return 0;
+}
+
+/* Every level's bricks of v, kept by vod_read, summed. */
+static inline brick_sum sum_file(const vod_file *v)
+{
+    kept_sum k = {vod_get_info(v), 0, {0, 0}};
+    for (k.level = 0; k.level < (int)k.in->height; k.level++)
+        cr_assert_eq(vod_foreach_brick(v, k.level, kept_add, &k), 0);
+    return k.s;
 }
 
 #endif
