@@ -174,10 +174,9 @@ static int dadj_make(const mesh_vox_tile *t, const uint32_t *tid, uint32_t ntri,
 {
     memset(a, 0, sizeof *a);
     size_t n3 = (size_t)3 * ntri + 1;
-    dhash hv, he;
+    dhash hv = {0}, he = {0}; /* counts 0 where an init fails or is not made */
     int rc = dhash_init(&hv, n3);
     if (!rc) rc = dhash_init(&he, n3);
-    else he.key = NULL, he.id = NULL;
     a->cv = malloc(n3 * 4), a->ce = malloc(n3 * 4), a->vid = malloc(n3 * 4);
     a->vl = malloc(n3 * 4), a->el = malloc(n3 * 4);
     if (rc || !a->cv || !a->ce || !a->vid || !a->vl || !a->el) rc = -ENOMEM;
@@ -440,10 +439,13 @@ int mesh_cpt_make(const mesh_vox_tile *t, uint32_t K, dcpt *d)
     int rc = dadj_make(t, tid, d->ntri, &a);
     free(tid);
     size_t nt = (size_t)d->ntri + 1;
-    d->f = huge_malloc((nt + a.ne + a.nv) * sizeof *d->f);
-    d->hs = huge_malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)DIST_MAXH * a.nv) * sizeof *d->hs);
-    d->tl = huge_malloc(7 * nt * sizeof *d->tl);
-    if (!rc && (!d->f || !d->hs || !d->tl)) rc = -ENOMEM;
+    if (!rc) { /* sized by the edges and vertices dadj_make counted */
+        d->f = huge_malloc((nt + a.ne + a.nv) * sizeof *d->f);
+        d->hs = huge_malloc((5 * nt + 2 * (size_t)a.ne + 3 * nt + (size_t)DIST_MAXH * a.nv) *
+                            sizeof *d->hs);
+        d->tl = huge_malloc(7 * nt * sizeof *d->tl);
+        if (!d->f || !d->hs || !d->tl) rc = -ENOMEM;
+    }
     double R = K + DIST_SLOP;
     for (uint32_t i = 0; !rc && i < d->ntri; i++) face_feat(d, t, i, R);
     for (uint32_t e = 0; !rc && e < a.ne; e++) edge_feat(d, t, &a, e, R);
