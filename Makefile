@@ -242,13 +242,15 @@ $(BUILD)/tests/test_engine_forge: LDFLAGS += -Wl,--wrap=worker_entry_end
 $(BUILD)/tests/test_pipeline_alloc: LDFLAGS += -Wl,--wrap=calloc,--wrap=malloc
 $(BUILD)/tests/test_mesh_weld: LDFLAGS += -Wl,--wrap=malloc
 $(BUILD)/tests/test_mesh_load: LDFLAGS += -Wl,--wrap=mmap
-# test_vod_alloc, test_parse_alloc, test_mesh_alloc and
-# test_pipeline_each_alloc fail each allocation of a call in turn (tests/unit/alloc_fail.h).
+# test_vod_alloc, test_parse_alloc, test_mesh_alloc,
+# test_pipeline_each_alloc and test_client_alloc fail each allocation of a
+# call in turn (tests/unit/alloc_fail.h).
 ALLOC_FAIL_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=aligned_alloc,--wrap=free
 $(BUILD)/tests/test_vod_alloc: LDFLAGS += $(ALLOC_FAIL_WRAP)
 $(BUILD)/tests/test_parse_alloc: LDFLAGS += $(ALLOC_FAIL_WRAP)
 $(BUILD)/tests/test_mesh_alloc: LDFLAGS += $(ALLOC_FAIL_WRAP)
 $(BUILD)/tests/test_pipeline_each_alloc: LDFLAGS += $(ALLOC_FAIL_WRAP)
+$(BUILD)/tests/test_client_alloc: LDFLAGS += $(ALLOC_FAIL_WRAP)
 
 deps:
 	@scripts/deps.sh
@@ -329,6 +331,8 @@ clean:
 	rm -rf build
 
 -include $(LIB_OBJ:.o=.d) $(LIBVOX_PIC:.o=.d) $(BUILD)/client/vox.d $(BUILD)/daemon/voxd.d $(MPI_OBJ:.o=.d) $(BUILD)/client/vdb_out.d
+# the unit tests' headers too (tests/unit/*.h): a fixture changed rebuilds its suites
+-include $(UNIT_BIN:=.d)
 
 # ---------------------------------------------------------------- install
 # make install [PREFIX=/usr/local] [DESTDIR=]: vox and vox_mpi in PREFIX/bin; voxd, a

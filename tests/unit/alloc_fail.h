@@ -18,7 +18,8 @@
  * are not wrapped: not counted, not failed.  The library's threads
  * allocate too: the count is atomic, the table under a lock, and with
  * several threads which allocation is the n-th may differ between runs;
- * each run's answer is checked whichever it was.
+ * each run's answer is checked whichever it was.  ALLOC_FAIL_VERBOSE in
+ * the environment prints each call's count of allocations.
  *
  * Include it in one file of a binary (it defines the wrappers). */
 #ifndef VOXD_TEST_ALLOC_FAIL_H
@@ -29,6 +30,7 @@
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdbool.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -172,6 +174,8 @@ static inline unsigned long alloc_fail_runs(alloc_fail_run run, void *ctx, const
         bool failed_one = af_disarm(what);
         if (!failed_one) {
             cr_assert_eq(rc, 0, "%s, nothing failed: %d (%s)", what, rc, msg);
+            if (getenv("ALLOC_FAIL_VERBOSE")) /* how far the runs reached */
+                fprintf(stderr, "%s: %lu allocations\n", what, at - 1);
             return at - 1;
         }
         if (rc == 0) continue; /* it did without (run checked the answer) */
