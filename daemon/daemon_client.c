@@ -438,6 +438,14 @@ static void dispatch(daemon_client *c, const Voxd__Request *r)
 static void on_frame(daemon_client *c, const uint8_t *data, size_t len)
 {
     Voxd__Request *r = proto_frame_unpack_request(data, len);
+    if (!r && errno == ENOMEM) { /* the server's failure, not the client's */
+        log_msg(LOG_LEVEL_ERROR, "client pid %d: out of memory unpacking a request of %zu "
+                "bytes; closing", (int)c->pid, len);
+        daemon_client_error(c, 0, VOXD__ERROR_CODE__INTERNAL,
+                            "the server ran out of memory reading a request of %zu bytes", len);
+        daemon_client_close_after_flush(c);
+        return;
+    }
     if (!r) {
         log_limited(&c->d->loglim[DAEMON_LOG_BAD_FRAME], LOG_LEVEL_INFO,
                     "client pid %d: garbage frame of %zu bytes; closing", (int)c->pid, len);

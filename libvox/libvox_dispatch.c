@@ -176,6 +176,8 @@ static int on_pong(vox_client *c, const Voxd__Pong *m)
 int libvox_dispatch(vox_client *c, const uint8_t *data, size_t len)
 {
     Voxd__Reply *r = proto_frame_unpack_reply(data, len);
+    if (!r && errno == ENOMEM)
+        return libvox_fail(c, -ENOMEM, "out of memory unpacking a reply of %zu bytes", len);
     if (!r) return libvox_fail(c, -EPROTO, "voxd sent a reply that does not unpack (%zu bytes)", len);
     proto_error pe;
     int rc = proto_check_reply(r, &c->lim, &pe);

@@ -185,9 +185,12 @@ int proto_frame_encode_reply(const Voxd__Reply *m, uint8_t **buf, size_t *len)
 
 /* An allocator that refuses once a budget is spent.  It allocates with
  * malloc() and frees with free(), exactly as protobuf-c's default allocator,
- * so the message it built is later freed with the default (NULL) one. */
+ * so the message it built is later freed with the default (NULL) one.
+ * oom: malloc itself failed (not the budget), which the caller tells apart
+ * from garbage by errno. */
 typedef struct {
     size_t left;
+    int oom;
 } unpack_budget;
 
 static void *budget_alloc(void *ud, size_t size)
@@ -199,7 +202,9 @@ static void *budget_alloc(void *ud, size_t size)
     if (cost < 32) cost = 32;
     if (cost < size || cost > b->left) return NULL;
     b->left -= cost;
-    return malloc(size ? size : 1);
+    void *p = malloc(size ? size : 1);
+    if (!p) b->oom = 1;
+    return p;
 }
 
 static void budget_free(void *ud, void *p)
@@ -211,9 +216,11 @@ static void budget_free(void *ud, void *p)
 static ProtobufCMessage *unpack(const ProtobufCMessageDescriptor *desc,
                                 const uint8_t *data, size_t len)
 {
-    unpack_budget b = {PROTO_FRAME_UNPACK_BUDGET(len)};
+    unpack_budget b = {PROTO_FRAME_UNPACK_BUDGET(len), 0};
     ProtobufCAllocator a = {budget_alloc, budget_free, &b};
-    return protobuf_c_message_unpack(desc, &a, len, data);
+    ProtobufCMessage *m = protobuf_c_message_unpack(desc, &a, len, data);
+    if (!m) errno = b.oom ? ENOMEM : EBADMSG;
+    return m;
 }
 
 Voxd__Request *proto_frame_unpack_request(const uint8_t *data, size_t len)

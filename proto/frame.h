@@ -104,7 +104,8 @@ int proto_frame_encode_request(const Voxd__Request *m, uint8_t **buf, size_t *le
 int proto_frame_encode_reply(const Voxd__Reply *m, uint8_t **buf, size_t *len);
 
 /* Unpack one message (NULL for bytes that are not a valid message, or that
- * would need more than PROTO_FRAME_UNPACK_BUDGET(len) bytes of heap).  Free with
+ * would need more than PROTO_FRAME_UNPACK_BUDGET(len) bytes of heap: errno
+ * EBADMSG; or when malloc failed on the way: errno ENOMEM).  Free with
  * voxd__request__free_unpacked(r, NULL) / voxd__reply__free_unpacked(r, NULL).
  * The result is untrusted until proto_check_request/_reply accepts it. */
 Voxd__Request *proto_frame_unpack_request(const uint8_t *data, size_t len);

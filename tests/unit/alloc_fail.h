@@ -15,7 +15,9 @@
  * call overwrote keeps its block "reachable" (a leak put on vod_read's
  * make_refs error path on purpose went unreported; the table caught it).
  * Allocations inside other libraries (libc's strdup, libdeflate, json-c)
- * are not wrapped: not counted, not failed.  The library's threads
+ * are not wrapped: not counted, not failed; nor are their frees, so a block
+ * the library's code allocated must be freed through this binary's free
+ * (protobuf-c's free_unpacked given an allocator that calls it).  The library's threads
  * allocate too: the count is atomic, the table under a lock, and with
  * several threads which allocation is the n-th may differ between runs;
  * each run's answer is checked whichever it was.  ALLOC_FAIL_VERBOSE in

@@ -13,9 +13,12 @@
 
 #include "alloc_fail.h"
 #include "csg.h"
+#include "daemon.h"
 #include "expr.h"
+#include "frame.h"
 #include "mesh.h"
 #include "mesh_shapes.h"
+#include "proto_check.h"
 
 /* ---- expressions ---- */
 
@@ -395,4 +398,97 @@ Test(parse_alloc, a_gltf_naming_its_buffer_loads_and_embeds_or_fails_cleanly)
     snprintf(path, sizeof path, "%s/ico.bin", dir);
     unlink(path);
     rmdir(dir);
+}
+
+/* ---- the daemon's intake of a CSG job: the frame unpacked (the budgeted
+ * allocator: errno tells a failed malloc from garbage), checked, and the
+ * tree built with its expressions compiled and its mesh leaf's bytes ---- */
+
+typedef struct {
+    const uint8_t *wire;
+    size_t n;
+    uint32_t nodes;
+    size_t text_len;
+} intake_case;
+
+/* The request freed through this binary's free (the wrapped one, which the
+ * table sees), not protobuf-c's default allocator's call of libc's. */
+static void *no_alloc(void *ud, size_t n)
+{
+    (void)ud, (void)n;
+    cr_assert_fail("freeing does not allocate");
+    return NULL;
+}
+
+static void wrapped_free(void *ud, void *p)
+{
+    (void)ud;
+    free(p);
+}
+
+static ProtobufCAllocator freeing = {no_alloc, wrapped_free, NULL};
+
+static int intake_once(void *ctx, char *msg)
+{
+    const intake_case *c = ctx;
+    Voxd__Request *r = proto_frame_unpack_request(c->wire, c->n);
+    if (!r) {
+        cr_assert_eq(errno, ENOMEM, "a failed allocation taken for garbage (errno %d)", errno);
+        snprintf(msg, ERR_MSG_MAX, "out of memory (errno)");
+        return -ENOMEM;
+    }
+    proto_limits lim;
+    proto_limits_default(&lim);
+    proto_error pe;
+    cr_assert_eq(proto_check_request(r, &lim, &pe), 0, "%s", pe.msg);
+    csg_tree *t = (csg_tree *)1;
+    int rc = daemon_csg_tree(r->submit->csg, lim.max_expr_bytes, EXPR_DEFAULT_MAX_DEPTH, &t, msg,
+                             ERR_MSG_MAX);
+    voxd__request__free_unpacked(r, &freeing);
+    if (rc) {
+        cr_assert_null(t);
+        return rc;
+    }
+    cr_assert(t->n == c->nodes && t->text_len == c->text_len);
+    csg_tree_free(t);
+    return 0;
+}
+
+Test(parse_alloc, the_daemons_intake_of_a_csg_job_takes_it_or_fails_cleanly)
+{
+    static const char obj[] = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                              "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    static const char src[2][40] = {"x^2 + y^2 + z^2 - 0.5", "sin(3*x) + cos(2*y) - z"};
+    Voxd__CsgNode node[5], *ptr[5];
+    uint32_t kids[3][2] = {{0, 1}, {2, 3}, {0, 0}};
+    for (int i = 0; i < 5; i++) node[i] = (Voxd__CsgNode)VOXD__CSG_NODE__INIT, ptr[i] = &node[i];
+    for (int i = 0; i < 2; i++) {
+        node[i].op = VOXD__CSG_OP__CSG_IMPLICIT;
+        node[i].source.data = (uint8_t *)src[i], node[i].source.len = strlen(src[i]);
+    }
+    node[2].op = VOXD__CSG_OP__CSG_UNION;
+    node[2].children = kids[0], node[2].n_children = 2;
+    node[3].op = VOXD__CSG_OP__CSG_MESH;
+    node[3].data.data = (uint8_t *)obj, node[3].data.len = sizeof obj - 1;
+    node[4].op = VOXD__CSG_OP__CSG_DIFFERENCE;
+    node[4].children = kids[1], node[4].n_children = 2;
+    Voxd__Csg csg = VOXD__CSG__INIT;
+    double dom[2] = {-1, 1};
+    csg.nodes = ptr, csg.n_nodes = 5, csg.domain = dom, csg.n_domain = 2, csg.res = 64;
+    Voxd__Submit sub = VOXD__SUBMIT__INIT;
+    sub.job_case = VOXD__SUBMIT__JOB_CSG, sub.csg = &csg;
+    Voxd__Request req = VOXD__REQUEST__INIT;
+    req.msg_case = VOXD__REQUEST__MSG_SUBMIT, req.submit = &sub;
+    uint8_t *buf;
+    size_t len;
+    cr_assert_eq(proto_frame_encode_request(&req, &buf, &len), 0);
+    intake_case c = {buf + PROTO_FRAME_HEADER_BYTES, len - PROTO_FRAME_HEADER_BYTES, 5,
+                     strlen(src[0]) + strlen(src[1]) + 2};
+    cr_assert_geq(alloc_fail_each(intake_once, &c, "the daemon's intake"), 5);
+    /* and bytes that are not a request: errno says so */
+    static const uint8_t garbage[] = {0xff, 0xff, 0xff, 0xff, 0x0f};
+    errno = 0;
+    cr_assert_null(proto_frame_unpack_request(garbage, sizeof garbage));
+    cr_assert_eq(errno, EBADMSG);
+    free(buf);
 }
