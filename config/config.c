@@ -505,7 +505,7 @@ int config_load_stream(FILE *f, const char *name, voxd_config *c, err_info *err)
     voxd_config *tmp = malloc(sizeof *tmp);
     char line[CONFIG_MAX_LINE + 2];
     int rc = 0;
-    if (!tmp) return -ENOMEM;
+    if (!tmp) return err_set(err, -ENOMEM, "%s: out of memory", name);
     config_defaults(tmp);
     while (rc == 0 && fgets(line, sizeof line, f)) {
         p.line++;

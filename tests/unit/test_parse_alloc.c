@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "alloc_fail.h"
+#include "config.h"
 #include "csg.h"
 #include "daemon.h"
 #include "expr.h"
@@ -491,4 +492,29 @@ Test(parse_alloc, the_daemons_intake_of_a_csg_job_takes_it_or_fails_cleanly)
     cr_assert_null(proto_frame_unpack_request(garbage, sizeof garbage));
     cr_assert_eq(errno, EBADMSG);
     free(buf);
+}
+
+/* ---- the daemon's configuration file ---- */
+
+static const char conf[] = "# a configuration\nworkers 2\nmax_res 2048\n"
+                           "max_queued_jobs 7\nshm_size 256M\n";
+
+static int config_once(void *ctx, char *msg)
+{
+    (void)ctx;
+    FILE *f = fmemopen((void *)conf, sizeof conf - 1, "r");
+    cr_assert(f);
+    voxd_config c;
+    config_defaults(&c);
+    err_info err = {0};
+    int rc = config_load_stream(f, "voxd.conf", &c, &err);
+    fclose(f);
+    memcpy(msg, err.msg, sizeof err.msg);
+    if (!rc) cr_assert_eq(c.max_queued_jobs, 7);
+    return rc;
+}
+
+Test(parse_alloc, a_configuration_loads_or_fails_cleanly)
+{
+    cr_assert_geq(alloc_fail_each(config_once, NULL, "config_load_stream"), 1);
 }
