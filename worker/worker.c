@@ -116,6 +116,8 @@ static _Noreturn void worker_exit(worker_ctx *w)
     _exit(0);
 }
 
+#define WORKER_LEAVE_BOUND_S 10 /* seconds: a sanitized worker's exit at most */
+
 /* engine_abandon: the master's process exits next.  Whoever unmaps the
  * segment last frees its pages, and the user waits for the master, not for
  * us: so we keep it mapped until the master is gone (seen as a new parent
@@ -130,6 +132,14 @@ static _Noreturn void worker_leave(worker_ctx *w)
     prctl(PR_SET_PDEATHSIG, 0);
     struct timespec tick = {0, 100000000};
     while (getppid() == w->h->master_pid) nanosleep(&tick, NULL);
+#ifdef __SANITIZE_ADDRESS__
+    /* A bound on the exit itself: under AddressSanitizer _exit runs
+     * LeakSanitizer's check, which can wait forever on a lock that another
+     * thread of the master held when it forked us (an orphaned worker was
+     * once found asleep in libasan after a test had killed its master).
+     * SIGALRM's default action (reset_signals) ends us then. */
+    alarm(WORKER_LEAVE_BOUND_S);
+#endif
     _exit(0);
 }
 
