@@ -270,6 +270,23 @@ static inline void shape_remove(shape *s, bool (*keep)(uint32_t i, void *ctx), v
     s->m.n_triangles = n;
 }
 
+/* An icosphere (level 3, radius 0.7, a little off the origin) with every
+ * seventh triangle taken away: open, so that a repair has work (caps to
+ * build, parities that disagree). */
+static inline bool shape_not_every_seventh(uint32_t i, void *ctx)
+{
+    (void)ctx;
+    return i % 7 != 3;
+}
+
+static inline const mesh *shape_holed_sphere(shape *s)
+{
+    shape_init(s);
+    shape_icosphere(s, (const double[3]){0.05, -0.1, 0.02}, 0.7, 3, false);
+    shape_remove(s, shape_not_every_seventh, NULL);
+    return shape_finish(s);
+}
+
 /* Triangle t of positions v is degenerate by its definition in mesh.h: two
  * equal indices, or the edges' cross product (in double) exactly zero. */
 static inline int shape_degenerate(float (*v)[3], const uint32_t t[3])

@@ -10,22 +10,6 @@
 #include "alloc_fail.h"
 #include "mesh.h"
 
-/* An icosphere with every seventh triangle taken away: open, so that the
- * winding repair has caps to build and disagreements to settle. */
-static bool not_every_seventh(uint32_t i, void *ctx)
-{
-    (void)ctx;
-    return i % 7 != 3;
-}
-
-static void holed_sphere(shape *s)
-{
-    shape_init(s);
-    shape_icosphere(s, (const double[3]){0.05, -0.1, 0.02}, 0.7, 3, false);
-    shape_remove(s, not_every_seventh, NULL);
-    shape_finish(s);
-}
-
 /* ---- the serial voxelizer ---- */
 
 typedef struct {
@@ -68,7 +52,7 @@ static void voxelizes_or_fails_cleanly(const mesh *m, mesh_vox_opts o, const cha
 Test(mesh_alloc, every_kind_of_voxelization_fails_cleanly)
 {
     shape s;
-    holed_sphere(&s);
+    shape_holed_sphere(&s);
     const mesh_vox_opts kinds[] = {
         {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_OCCUPANCY, 0, 0},
         {MESH_SOLID, MESH_REPAIR_VOTE, VOXEL_CH_OCCUPANCY, 0, 0},

@@ -15,6 +15,7 @@
 
 #include "alloc_fail.h"
 #include "csg.h"
+#include "csg_fixture.h"
 #include "engine.h"
 #include "expr.h"
 #include "mesh.h"
@@ -78,21 +79,10 @@ Test(pipeline_each_alloc, an_expression_writes_or_fails_cleanly)
     expr_tape_free(t);
 }
 
-/* An icosphere with every seventh triangle taken away (open: the
- * winding repair has work). */
-static bool not_every_seventh(uint32_t i, void *ctx)
-{
-    (void)ctx;
-    return i % 7 != 3;
-}
-
 Test(pipeline_each_alloc, a_mesh_writes_or_fails_cleanly)
 {
     shape s;
-    shape_init(&s);
-    shape_icosphere(&s, (const double[3]){0.05, -0.1, 0.02}, 0.7, 3, false);
-    shape_remove(&s, not_every_seventh, NULL);
-    const mesh *m = shape_finish(&s);
+    const mesh *m = shape_holed_sphere(&s);
     const mesh_vox_opts opts[] = {
         {MESH_SOLID, MESH_REPAIR_WINDING, VOXEL_CH_OCCUPANCY, 0, 0},
         {MESH_SOLID, MESH_REPAIR_NONE, VOXEL_CH_DISTANCE, 0, 3},
@@ -141,19 +131,10 @@ static void attach(csg_tree *t, const char *name, const void *data, size_t len)
     cr_assert_fail("no node %s", name);
 }
 
-static csg_tree *parse_tree(const char *text)
-{
-    csg_tree *t;
-    csg_error err;
-    cr_assert_eq(csg_parse(text, strlen(text), &t, &err), 0, "%d:%d %s", err.line, err.col,
-                 err.msg);
-    return t;
-}
-
 Test(pipeline_each_alloc, a_csg_tree_writes_or_fails_cleanly)
 {
     /* the VOD leaf's file: an ellipsoid's densities */
-    csg_tree *pt = parse_tree("e = ellipsoid center 0.1,0,0.2 radii 0.45,0.35,0.4\nresult e\n");
+    csg_tree *pt = parse("e = ellipsoid center 0.1,0,0.2 radii 0.45,0.35,0.4\nresult e\n");
     engine_pipeline_job pj = job_of(&engine_kind_csg, VOXEL_CH_DENSITY, 16);
     pj.csg = (engine_csg_input){.tree = pt, .source_bytes = 1};
     vod_membuf prev = {0};
@@ -164,7 +145,7 @@ Test(pipeline_each_alloc, a_csg_tree_writes_or_fails_cleanly)
 
     size_t olen;
     char *obj = ico_obj(&olen);
-    csg_tree *t = parse_tree("plane = implicit \"z - 0.1\" domain -0.8,0.8\n"
+    csg_tree *t = parse("plane = implicit \"z - 0.1\" domain -0.8,0.8\n"
                              "ball = mesh \"ico.obj\"\n"
                              "prev = vod \"prev.vod\"\n"
                              "cut = intersection(ball, plane)\n"
@@ -178,7 +159,7 @@ Test(pipeline_each_alloc, a_csg_tree_writes_or_fails_cleanly)
     csg_tree_free(t);
 
     /* a distance: implicit and mesh leaves, min and max */
-    t = parse_tree("ball = mesh \"ico.obj\"\n"
+    t = parse("ball = mesh \"ico.obj\"\n"
                    "blob = implicit \"" BLOB "\"\n"
                    "out = difference(blob, ball)\n"
                    "result out\n");
