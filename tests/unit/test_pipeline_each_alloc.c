@@ -1,13 +1,16 @@
-/* The serial pipeline (engine_pipeline_run without an engine: what vox -w 0
- * runs, and the reference the engine's bytes are held to) when memory runs
- * out: every allocation of a whole job, from its grid to its last byte,
- * fails in turn (alloc_fail.h), for each kind of job: an expression as
- * occupancy, surface and distance, a mesh as a solid and as its distance,
- * and a CSG tree with implicit, mesh and VOD leaves, as densities and as
- * a distance.  Each run writes the job's whole file, the same bytes as
- * with all its memory, or fails with -ENOMEM and a message, and frees
- * every block it allocated (a file cut short is the caller's to drop, as
- * vox's temporary file is). */
+/* The pipeline when memory runs out: every allocation of a whole job, from
+ * its grid to its last byte, fails in turn (alloc_fail.h), for each kind
+ * of job (an expression as occupancy, surface and distance, a mesh as a
+ * solid and as its distance, and a CSG tree with implicit, mesh and VOD
+ * leaves, as densities and as a distance), run serially (without an
+ * engine: what vox -w 0 runs, and the reference the engine's bytes are
+ * held to) and on an engine of two workers (the master's allocations:
+ * the workers were forked before the test armed, so theirs never fail).
+ * Each run writes the job's whole file, the same bytes as with all its
+ * memory, or fails with -ENOMEM and a message, and frees every block it
+ * allocated (a file cut short is the caller's to drop, as vox's temporary
+ * file is); on the engine no failure is a worker's crash, and the next job
+ * is whole. */
 #include <criterion/criterion.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -25,6 +28,7 @@
 #include "voxel.h"
 
 typedef struct {
+    engine *e;       /* NULL: serially */
     const engine_pipeline_job *job;
     vod_membuf want; /* the file with all its memory */
 } job_case;
@@ -35,21 +39,49 @@ static int job_once(void *ctx, char *msg)
     vod_membuf m = {0};
     vod_sink sink = {vod_mem_write, &m};
     engine_pipeline_report r;
-    int rc = engine_pipeline_run(NULL, c->job, &sink, &r);
+    int rc = engine_pipeline_run(c->e, c->job, &sink, &r);
     memcpy(msg, r.err.msg, sizeof r.err.msg);
-    if (rc) cr_assert(r.err.msg[0], "a failure (%d) without a message", rc);
-    else cr_assert(m.n == c->want.n && !memcmp(m.p, c->want.p, m.n), "other bytes");
+    if (rc) {
+        cr_assert(r.err.msg[0], "a failure (%d) without a message", rc);
+        cr_assert_neq(r.err.kind, ENGINE_CRASHED, "%s", r.err.msg);
+    } else {
+        cr_assert(m.n == c->want.n && !memcmp(m.p, c->want.p, m.n), "other bytes");
+    }
     free(m.p);
     return rc;
 }
 
+/* The engine of two workers the jobs also run on (NULL before the first). */
+static engine *eng;
+
+static void engine_up(void)
+{
+    engine_opts eo = {.workers = 2, .shm_bytes = (size_t)64 << 20};
+    err_info err = {0};
+    cr_assert_eq(engine_create(&eo, &eng, &err), 0, "%s", err.msg);
+}
+
+static void engine_down(void)
+{
+    if (eng) engine_destroy(eng);
+    eng = NULL;
+}
+
+TestSuite(pipeline_each_alloc, .init = engine_up, .fini = engine_down);
+
+/* job serially, then on the engine, each allocation failing in turn; the
+ * engine's next job after all that is whole. */
 static void writes_or_fails_cleanly(const engine_pipeline_job *job, const char *what)
 {
-    job_case c = {job, {0}};
+    job_case c = {NULL, job, {0}};
     vod_sink sink = {vod_mem_write, &c.want};
     engine_pipeline_report r;
     cr_assert_eq(engine_pipeline_run(NULL, job, &sink, &r), 0, "%s: %s", what, r.err.msg);
     cr_assert_geq(alloc_fail_runs(job_once, &c, what, false), 20, "%s", what);
+    char on[64];
+    snprintf(on, sizeof on, "%s, on an engine", what);
+    c.e = eng;
+    cr_assert_geq(alloc_fail_runs(job_once, &c, on, false), 5, "%s", on);
     free(c.want.p);
 }
 
