@@ -124,11 +124,16 @@ void __wrap_free(void *p)
     __real_free(p);
 }
 
-/* The test's own memory while armed (a fresh input for each run), never
- * failed nor counted; free it with free. */
+/* The test's own memory while armed (a fresh input for each run, a sink's
+ * buffer), never failed nor counted; free it with free. */
 static inline void *af_test_malloc(size_t size)
 {
     return __real_malloc(size ? size : 1);
+}
+
+static inline void *af_test_realloc(void *p, size_t size)
+{
+    return __real_realloc(p, size ? size : 1);
 }
 
 static void af_arm(unsigned long at)

@@ -1,13 +1,17 @@
 /* What vox does with a file it has read, when memory runs out: every
  * allocation of vox render's drawing (a VOD file's occupancy and its
- * normals, a mesh flat and smooth) and of vox mesh's marching cubes (the
+ * normals, a mesh flat and smooth), of vox mesh's marching cubes (the
  * input's bricks, the tasks, the weld; one level and the adaptive levels)
- * fails in turn (alloc_fail.h).  Each run gives the same picture or mesh as
- * with all its memory, or -ENOMEM, and frees every block it allocated. */
+ * and of its writer (every format, one thread and three) fails in turn
+ * (alloc_fail.h).  Each run gives the same picture, mesh or file as with
+ * all its memory, or -ENOMEM, and frees every block it allocated. */
 #include <criterion/criterion.h>
+#include <fcntl.h>
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "alloc_fail.h"
 #include "iso.h"
@@ -140,5 +144,72 @@ Test(client_alloc, vox_mesh_polygonizes_or_fails_cleanly)
         cr_assert_geq(alloc_fail_runs(iso_once, &c, names[k], false), 3, "%s", names[k]);
         iso_mesh_free(&c.want);
     }
+    vod_close(f);
+}
+
+/* ---- vox mesh's writer ---- */
+
+typedef struct {
+    const iso_mesh *m;
+    iso_format f;
+    unsigned threads;
+    char path[64];
+    uint8_t *want;  /* the file with all its memory */
+    size_t n;
+} write_case;
+
+/* The file at path, whole (the test's own memory: never failed). */
+static uint8_t *slurp(const char *path, size_t *n)
+{
+    FILE *f = fopen(path, "rb");
+    cr_assert(f);
+    fseek(f, 0, SEEK_END);
+    *n = (size_t)ftell(f);
+    rewind(f);
+    uint8_t *p = af_test_malloc(*n);
+    cr_assert_eq(fread(p, 1, *n, f), *n);
+    fclose(f);
+    return p;
+}
+
+static int write_once(void *ctx, char *msg)
+{
+    (void)msg;
+    write_case *c = ctx;
+    int fd = open(c->path, O_WRONLY | O_CREAT | O_TRUNC, 0600);
+    cr_assert_geq(fd, 0);
+    int rc = iso_write(fd, c->m, c->f, "test_client_alloc", c->threads);
+    close(fd);
+    if (rc) return rc;
+    size_t n;
+    uint8_t *got = slurp(c->path, &n);
+    cr_assert(n == c->n && !memcmp(got, c->want, n), "another file");
+    free(got);
+    return 0;
+}
+
+Test(client_alloc, vox_meshs_writer_writes_or_fails_cleanly)
+{
+    vod_file *f = torus_file(1); /* with normals: every format writes them or not */
+    iso_mesh m;
+    polygonize(f, 127, 0, &m);
+    const iso_format fmts[] = {ISO_FMT_PLY, ISO_FMT_PLY_ASCII, ISO_FMT_OBJ, ISO_FMT_STL};
+    const char *const names[] = {"PLY", "PLY ascii", "OBJ", "STL"};
+    for (int k = 0; k < 4; k++)
+        for (unsigned threads = 1; threads <= 3; threads += 2) {
+            write_case c = {.m = &m, .f = fmts[k], .threads = threads};
+            snprintf(c.path, sizeof c.path, "/tmp/test_client_alloc_%d.out", (int)getpid());
+            int fd = open(c.path, O_WRONLY | O_CREAT | O_TRUNC, 0600);
+            cr_assert_geq(fd, 0);
+            cr_assert_eq(iso_write(fd, &m, fmts[k], "test_client_alloc", threads), 0);
+            close(fd);
+            c.want = slurp(c.path, &c.n);
+            char what[48];
+            snprintf(what, sizeof what, "iso_write, %s, %u threads", names[k], threads);
+            alloc_fail_runs(write_once, &c, what, false);
+            free(c.want);
+            unlink(c.path);
+        }
+    iso_mesh_free(&m);
     vod_close(f);
 }

@@ -1,6 +1,7 @@
-/* The reader when memory runs out: every allocation that vod_read and
- * vod_scan make fails in turn (alloc_fail.h), with one thread and with
- * three.  Each read either gives the whole answer (a scan whose thread
+/* The reader and the serial writer when memory runs out: every allocation
+ * that vod_read and vod_scan make fails in turn (alloc_fail.h), with one
+ * thread and with three, and every allocation of vod_write_octree with
+ * each compression and hash.  Each read either gives the whole answer (a scan whose thread
  * lacks its brick of room has another thread do its chunks; a shared
  * brick that cannot be kept is visited where it was inflated) or fails
  * with -ENOMEM, says "out of memory", and hands back no file; every block
@@ -87,4 +88,58 @@ Test(vod_alloc, a_file_of_large_bricks_reads_or_fails_cleanly)
     membuf m = fx_file_large_bricks(VOD_COMP_ZLIB);
     reads_survive(&m, 6);
     free(m.p);
+}
+
+/* ---- the serial writer (vod_write_octree), every compression and hash ---- */
+
+typedef struct {
+    fixture *f;
+    vod_params p;
+    membuf want;
+} write_case;
+
+/* mem_write into the test's own memory (the writer's sink is not the
+ * writer's allocation). */
+static int test_mem_write(void *ud, const void *buf, size_t n)
+{
+    membuf *m = ud;
+    uint8_t *p = af_test_realloc(m->p, m->n + n);
+    cr_assert(p);
+    memcpy(p + m->n, buf, n);
+    m->p = p, m->n += n;
+    return 0;
+}
+
+static int write_once(void *ctx, char *msg)
+{
+    write_case *c = ctx;
+    membuf m = {0};
+    vod_sink sink = {test_mem_write, &m};
+    vod_stats st;
+    err_info err = {0};
+    int rc = vod_write_octree(&c->f->t, &c->p, &sink, &st, &err);
+    memcpy(msg, err.msg, sizeof err.msg);
+    cr_assert_null(c->f->t.agg, "the writer's aggregates kept");
+    if (!rc) cr_assert(m.n == c->want.n && !memcmp(m.p, c->want.p, m.n), "other bytes");
+    free(m.p);
+    return rc;
+}
+
+Test(vod_alloc, the_serial_writer_writes_or_fails_cleanly)
+{
+    fixture f;
+    fx_init(&f, 6, 64, 48, 40);
+    fx_sphere(&f, 30, 24, 20, 15);
+    fx_random(&f, 300);
+    const uint32_t comps[] = {VOD_COMP_ZLIB, VOD_COMP_NONE, VOD_COMP_RUNL};
+    const uint32_t hashes[] = {VOD_HASH_SFHS, VOD_HASH_XX32, VOD_HASH_SFHS};
+    const char *const names[] = {"write, ZLIB SFHS", "write, NONE XX32", "write, RUNL SFHS"};
+    for (int k = 0; k < 3; k++) {
+        write_case c = {.f = &f};
+        params(&c.p, &f, VOXEL_CH_SURFACE, comps[k], hashes[k], 8);
+        c.want = write_file(&f, &c.p, NULL);
+        cr_assert_geq(alloc_fail_runs(write_once, &c, names[k], false), 3, "%s", names[k]);
+        free(c.want.p);
+    }
+    fx_free(&f);
 }
