@@ -198,6 +198,10 @@ $(BUILD)/vdb_mesh: bench/vdb_mesh.cc $(LIB)
 $(BUILD)/tests/vdb_dump: tests/integration/vdb_dump.cc
 	@mkdir -p $(dir $@)
 	$(CXX) -std=c++17 -Wall -Wextra -Werror -O1 $< -o $@ $(VDB_LIBS)
+# daemon_oom.sh preloads it into the release voxd: no sanitizers.
+$(BUILD)/tests/failmalloc.so: tests/integration/failmalloc.c
+	@mkdir -p $(dir $@)
+	$(CC) -std=c11 -Wall -Wextra -Werror -O2 -fPIC -shared $< -o $@ -ldl
 
 $(BUILD)/voxd: $(BUILD)/daemon/voxd.o $(LIB)
 	$(CC) $(LDFLAGS) $^ -o $@ $(LDLIBS)
@@ -264,7 +268,7 @@ test: deps
 	@$(MAKE) --no-print-directory -j$(JOBS) V=release all bench-build
 	@scripts/run-tests.sh build/asan
 
-test-build: all $(UNIT_BIN) $(BUILD)/tests/vdb_dump fuzz-build-corpus
+test-build: all $(UNIT_BIN) $(BUILD)/tests/vdb_dump $(BUILD)/tests/failmalloc.so fuzz-build-corpus
 
 # Fuzz harnesses: libFuzzer binaries (clang), and plain drivers that replay the
 # seed corpus under the sanitizers for `make test`.

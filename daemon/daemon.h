@@ -197,6 +197,12 @@ struct daemon_ctx {
 
     uv_pipe_t listener;
     int listening;
+    /* A connection accepted only to be closed, when no memory was left for
+     * its client: libuv reads no further connection until the pending one
+     * is accepted.  busy while it closes; waiting: another came meanwhile
+     * (daemon_client.c). */
+    uv_pipe_t reject;
+    int reject_busy, reject_waiting;
     uv_signal_t sig_term, sig_int, sig_quit, sig_hup, sig_usr1;
     uv_timer_t tick, stop_timer;
     uv_async_t wake;

@@ -600,6 +600,38 @@ static int admit(daemon_ctx *d, daemon_client *c)
     return 1;
 }
 
+static void reject_pending(daemon_ctx *d);
+
+static void on_reject_closed(uv_handle_t *h)
+{
+    daemon_ctx *d = h->data;
+    d->reject_busy = 0;
+    if (d->reject_waiting) { /* one came while this one closed */
+        d->reject_waiting = 0;
+        reject_pending(d);
+    }
+}
+
+/* The pending connection (if any) accepted into the spare pipe and closed:
+ * with no memory for a client, the connection is refused this way, for
+ * libuv stops reading the listener until its pending one is accepted (a
+ * daemon out of memory once would otherwise accept nobody ever after). */
+static void reject_pending(daemon_ctx *d)
+{
+    if (!d->listening) return;
+    if (d->reject_busy) {
+        d->reject_waiting = 1;
+        return;
+    }
+    if (uv_pipe_init(d->loop, &d->reject, 0)) return;
+    d->reject.data = d;
+    d->reject_busy = 1;
+    if (uv_accept((uv_stream_t *)&d->listener, (uv_stream_t *)&d->reject) == 0)
+        log_limited(&d->loglim[DAEMON_LOG_ACCEPT], LOG_LEVEL_WARN,
+                    "out of memory for a new client; its connection closed");
+    uv_close((uv_handle_t *)&d->reject, on_reject_closed);
+}
+
 void daemon_on_connection(uv_stream_t *server, int status)
 {
     daemon_ctx *d = server->data;
@@ -609,7 +641,10 @@ void daemon_on_connection(uv_stream_t *server, int status)
         return;
     }
     daemon_client *c = calloc(1, sizeof *c);
-    if (!c) return;
+    if (!c) {
+        reject_pending(d);
+        return;
+    }
     c->d = d;
     c->written = on_written;
     if (uv_pipe_init(d->loop, &c->pipe, 0) || uv_accept(server, (uv_stream_t *)&c->pipe)) {
