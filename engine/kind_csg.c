@@ -386,7 +386,7 @@ static void csg_done(engine *e, int i, const shm_task *t, int error)
     if (!error || e->err.kind) return;
     char what[64];
     csg_describe(t, what, sizeof what);
-    if (error == -ENOMEM)
+    if (error == -ENOMEM && engine_volume_full(e))
         engine_sched_no_room(e, "the volume");
     else
         engine_sched_fail(e, ENGINE_FAULT, error, "worker %d failed on %s: %s", i, what,

@@ -31,6 +31,7 @@ typedef struct {
     iso_mesh *out;
     engine_result *r;
     uint64_t at;           /* the data area's next free byte (setup) */
+    int no_room;           /* shm_alloc refused: the data area is full */
     int bricks_left;       /* ISO_BRICKS tasks not done yet */
     int weld_ready;        /* prepare_weld ran */
     iso_piece *pc;         /* every piece's view, for the weld */
@@ -44,7 +45,10 @@ static void *shm_alloc(void *ud, size_t bytes)
     engine *e = ud;
     iso_job *ij = e->job;
     uint64_t end = e->h->data_off + e->h->data_bytes, at = engine_sched_align64(ij->at);
-    if (at > end || bytes > end - at) return NULL;
+    if (at > end || bytes > end - at) {
+        ij->no_room = 1;
+        return NULL;
+    }
     ij->at = at + bytes;
     return shm_at(e->seg.base, at);
 }
@@ -94,7 +98,9 @@ static int iso_setup(engine *e, void *job)
     /* the copy, the first touch of these pages, on every CPU the master
      * may run on: the workers wait for it */
     int rc = iso_input_make_threads(ij->job->file, &b->p, shm_alloc, e, par_cpus(), &in);
-    if (rc) return engine_sched_no_room(e, "the file's bricks");
+    if (rc && ij->no_room) return engine_sched_no_room(e, "the file's bricks");
+    if (rc) return engine_sched_fail(e, ENGINE_FAULT, rc, "copying the file's bricks: %s",
+                                     strerror(-rc));
     b->n_bricks = in.n;
     b->keys_off = (uint64_t)((const uint8_t *)in.keys - e->seg.base);
     b->offs_off = (uint64_t)((const uint8_t *)in.offs - e->seg.base);
@@ -168,7 +174,9 @@ static int run_here(engine *e, iso_job *ij, uint64_t i)
     iso_piece v;
     int rc = ij->work ? 0 : iso_work_new(&b->p, &ij->work);
     if (!rc) rc = iso_task_run(ij->work, &b->p, &in, t, &v);
-    if (rc) return engine_sched_fail(e, ENGINE_FAULT, rc, "marching cubes: %s", strerror(-rc));
+    if (rc)
+        return engine_sched_fail(e, ENGINE_FAULT, rc, "task %llu: %s", (unsigned long long)i,
+                                 strerror(-rc));
     uint8_t *to = arena_alloc(e, iso_piece_bytes(&b->p, &v));
     if (!to) return engine_sched_no_room(e, "the mesh");
     iso_piece_pack(&b->p, &v, to);

@@ -19,6 +19,7 @@
 #define VOXD_MASTER_H
 
 #include <stdatomic.h>
+#include <stdbool.h>
 #include <sys/types.h>
 #include <time.h>
 
@@ -224,6 +225,10 @@ engine_failure engine_vod_failure(int rc, int said);
 /* engine_sched_fail's ENGINE_LIMIT for what ("the volume") that the data area
  * cannot hold. */
 int engine_sched_no_room(engine *e, const char *what);
+/* Whether a worker found the job's volume (e->volume) full: a task's
+ * -ENOMEM is then the data area's (engine_sched_no_room), else the
+ * worker's own heap's. */
+bool engine_volume_full(const engine *e);
 /* Push task t onto the work stack; 0 or engine_sched_fail (stack full). */
 int engine_sched_push(engine *e, const shm_task *t);
 /* The job leaves the data area's first `bytes` for the next job (the

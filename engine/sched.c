@@ -64,6 +64,14 @@ int engine_sched_no_room(engine *e, const char *what)
                       what, e->seg.bytes >> 20);
 }
 
+bool engine_volume_full(const engine *e)
+{
+    if (!e->volume) return false;
+    vod_volume_info in;
+    vod_volume_get_info(e->volume, &in);
+    return in.pool_full != 0;
+}
+
 int engine_sched_run_job(engine *e, const engine_kind *k, void *job, const engine_sched_watch *watch,
                   engine_result *r)
 {

@@ -154,6 +154,7 @@ void vod_volume_get_info(const vod_volume *v, vod_volume_info *out)
     out->level0_bricks = atomic_load_explicit(&v->pool_l0, memory_order_relaxed);
     out->mip_channel = v->mip_channel;
     out->bytes_used = v->pool_off + (uint64_t)out->pool_used * v->unit;
+    out->pool_full = (int)atomic_load_explicit(&v->pool_full, memory_order_relaxed);
 }
 
 /* ---- bricks and voxels ---- */

@@ -130,6 +130,8 @@ typedef struct {
     uint32_t level0_bricks;    /* allocated level-0 bricks */
     int mip_channel;           /* the channel the mip levels hold, 0: none */
     uint64_t bytes_used;       /* of the arena: past this nothing is used */
+    int pool_full;             /* a writer found the pool full: its -ENOMEM
+                                  was the volume's, not a heap's */
 } vod_volume_info;
 void vod_volume_get_info(const vod_volume *v, vod_volume_info *out);
 

@@ -57,6 +57,9 @@ struct vod_volume {
      * without a scan.  Set by concurrent put_brick writers too (relaxed:
      * published like pool_used, by the end of the writers' phase). */
     atomic_uint zero_bricks;
+    /* 1 once a writer found the pool full: its -ENOMEM is the volume's,
+     * not a heap's (relaxed: read after the writers' phase, like pool_used) */
+    atomic_uint pool_full;
     int mip_channel;
     uint32_t mip_base;  /* pool_used before the mip levels were built */
     /* Levels 1..low_levels of channel low_channel built by column

@@ -92,5 +92,6 @@ uint32_t vod_vol_pool_units(vod_volume *v, uint64_t units)
         return at + 1;
     }
     uint32_t at = take_shared(v, units);
+    if (at == UINT32_MAX) atomic_store_explicit(&v->pool_full, 1, memory_order_relaxed);
     return at == UINT32_MAX ? 0 : at + 1;
 }
