@@ -8,7 +8,8 @@
 # while it is armed: each gives the bytes the embedded engine gives, or
 # fails with a one-line error; the daemon never dies, no worker crashes
 # (the same worker pids after), and once disarmed it serves the same jobs
-# whole, and stops on QUIT with status 0.
+# whole, and stops on QUIT with status 0.  Then the client, vox submit
+# (libvox), with the shim against a daemon that has its memory.
 . "$(dirname "$0")/daemon_lib.bash"
 SHIM=$ROOT/${BUILD_DIR:-build/asan}/tests/failmalloc.so
 [ -e "$SHIM" ] || SHIM=$(dirname "$VOX_ASAN")/tests/failmalloc.so
@@ -91,3 +92,41 @@ for n in 3 17 61 127 251 509; do
     [ "$rc" = 0 ] && pass "every $n: voxd stops on QUIT with status 0" ||
         fail "every $n: voxd stops on QUIT with status 0" "status $rc; $(tail -3 "$TMP/voxd-$n.log")"
 done
+
+# vox submit (libvox) out of memory against a daemon that has its memory:
+# each run the embedded engine's bytes, or a status from 1 to 3 and a
+# message, never a signal, never a file left; the daemon serves on.
+if start_voxd "$TMP/voxd-client.log" --workers 2; then
+    touch "$TMP/arm"
+    for name in expression mesh csg; do
+        bad="" whole=0 refused=0
+        for n in $(seq 2 16) 29 61; do
+            out=$TMP/c-$n-$name.vod
+            rm -f "$out"
+            case $name in
+            expression) args=(submit -e "$SPHERE" -r 40) ;;
+            mesh) args=(submit --mesh "$TMP/torus.obj" -r 40) ;;
+            csg) args=(submit --csg "$TMP/tree.csg" -r 40) ;;
+            esac
+            FAILMALLOC_ARM=$TMP/arm FAILMALLOC_EVERY=$n LD_PRELOAD=$SHIM timeout 120 \
+                "$ROOT/build/release/vox" --socket "$S" "${args[@]}" -q -o "$out" 2>"$TMP/err"
+            rc=$?
+            if [ "$rc" = 0 ]; then
+                whole=$((whole + 1))
+                cmp -s "$out" "$TMP/ref-$name.vod" || bad="$bad every-$n(other bytes)"
+            elif [ "$rc" -ge 1 ] && [ "$rc" -le 3 ] && [ -s "$TMP/err" ] && [ ! -e "$out" ]; then
+                refused=$((refused + 1))
+            else
+                bad="$bad every-$n(status $rc: $(head -c 160 "$TMP/err" | tr '\n' ' '))"
+            fi
+        done
+        [ -z "$bad" ] && pass "vox submit of the $name out of memory: whole $whole times, refused $refused" ||
+            fail "vox submit of the $name out of memory: whole or refused with a message" "$bad"
+    done
+    rm -f "$TMP/arm"
+    refuse "the daemon serves on" 0 "pong" vc ping
+    kill -QUIT "$VOXD_PID"
+    wait "$VOXD_PID"
+else
+    fail "voxd starts (for the clients out of memory)" "$(tail -3 "$TMP/voxd-client.log")"
+fi
