@@ -5,8 +5,9 @@
  * source within the limit and without NUL (or none, its size declared
  * within the limits), a finite domain with low < high, res within the
  * limit, a mesh's file within max_mesh_bytes and its options in range,
- * CSG children earlier, an input chunk within the cap, a summary's grid
- * whole. */
+ * a CSG tree's nodes of known ops with their children earlier and its
+ * leaves within the limits, an input chunk within the cap, a summary's
+ * grid whole. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -14,6 +15,7 @@
 
 #include "frame.h"
 #include "proto_check.h"
+#include "voxel.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -33,16 +35,68 @@ static void trusted_domain(const double *d, size_t n)
 static void trusted_mesh(const Voxd__Submit *s, const proto_limits *lim)
 {
     const Voxd__Mesh *m = s->mesh;
-    must(m != NULL && s->channel != VOXD__CHANNEL__CHANNEL_DISTANCE);
+    must(m != NULL && m->band <= VOXEL_BAND_MAX);
+    must(!m->band || s->channel == VOXD__CHANNEL__CHANNEL_DISTANCE);
     uint64_t n = s->input_bytes ? s->input_bytes : m->data.len;
     must(n >= 1 && n <= lim->max_mesh_bytes && (!s->input_bytes || !m->data.len));
-    must((unsigned)m->format <= 4 && (unsigned)m->mode <= 5 && (unsigned)m->repair <= 3);
+    must((unsigned)m->format <= 5 && (unsigned)m->mode <= 5 && (unsigned)m->repair <= 3);
     must(m->supersample == 0 || (m->supersample >= 2 && m->supersample <= 8));
     if (m->n_domain) trusted_domain(m->domain, m->n_domain);
     must(m->res >= 1 && m->res <= lim->max_res && (uint64_t)m->pad * 2 < m->res);
     must(!m->n_domain || !m->pad);
     must(m->source_name.len <= 512 &&
          (!m->source_name.len || !memchr(m->source_name.data, '\n', m->source_name.len)));
+}
+
+/* Children an op takes (-1: not an op), written out again here. */
+static int csg_arity(Voxd__CsgOp op)
+{
+    switch (op) {
+    case VOXD__CSG_OP__CSG_PRIMITIVE: case VOXD__CSG_OP__CSG_IMPLICIT:
+    case VOXD__CSG_OP__CSG_MESH: case VOXD__CSG_OP__CSG_VOD: return 0;
+    case VOXD__CSG_OP__CSG_INVERSE: case VOXD__CSG_OP__CSG_SCALAR_ADD:
+    case VOXD__CSG_OP__CSG_SCALAR_MUL: case VOXD__CSG_OP__CSG_ERODE:
+    case VOXD__CSG_OP__CSG_DILATE: return 1;
+    case VOXD__CSG_OP__CSG_UNION: case VOXD__CSG_OP__CSG_INTERSECTION:
+    case VOXD__CSG_OP__CSG_DIFFERENCE: case VOXD__CSG_OP__CSG_TRIM: case VOXD__CSG_OP__CSG_CAP:
+    case VOXD__CSG_OP__CSG_ADD: case VOXD__CSG_OP__CSG_MODULATE: case VOXD__CSG_OP__CSG_DIVIDE:
+    case VOXD__CSG_OP__CSG_DIFFERENCE_A: case VOXD__CSG_OP__CSG_DIFFERENCE_B:
+    case VOXD__CSG_OP__CSG_DIVIDE_A: return 2;
+    default: return -1;
+    }
+}
+
+/* What the daemon takes from a CSG job without looking again
+ * (daemon_csg_tree): nodes of known ops within the limit, each with as
+ * many children as its op takes and all of them earlier, a name that fits,
+ * an implicit leaf's source within the limit and without NUL, a file
+ * leaf's bytes inline or as input and never both, the input's size the
+ * sum of the leaves', res within the limit. */
+static void trusted_csg(const Voxd__Submit *s, const proto_limits *lim)
+{
+    const Voxd__Csg *c = s->csg;
+    must(c && c->n_nodes >= 1 && c->n_nodes <= lim->max_csg_nodes &&
+         c->n_nodes <= PROTO_CSG_MAX_NODES);
+    uint64_t input = 0, bytes = 0;
+    for (size_t i = 0; i < c->n_nodes; i++) {
+        const Voxd__CsgNode *n = c->nodes[i];
+        must(n && n->name.len < PROTO_CSG_NAME_MAX);
+        int arity = csg_arity(n->op);
+        must(arity >= 0 && n->n_children == (size_t)arity);
+        for (size_t k = 0; k < n->n_children; k++) must(n->children[k] < i);
+        if (n->op == VOXD__CSG_OP__CSG_IMPLICIT) {
+            must(n->source.len >= 1 && n->source.len <= lim->max_expr_bytes);
+            must(!memchr(n->source.data, 0, n->source.len));
+            if (n->n_domain) trusted_domain(n->domain, n->n_domain);
+        }
+        if (n->op == VOXD__CSG_OP__CSG_MESH || n->op == VOXD__CSG_OP__CSG_VOD)
+            must(!n->data.len != !n->data_bytes);
+        input += n->data_bytes;
+        bytes += n->data.len + n->data_bytes;
+    }
+    must(input == s->input_bytes && bytes <= lim->max_csg_leaf_bytes);
+    if (c->n_domain) trusted_domain(c->domain, c->n_domain);
+    must(c->res >= 1 && c->res <= lim->max_res && c->band <= VOXEL_BAND_MAX);
 }
 
 static void trusted_submit(const Voxd__Submit *s, const proto_limits *lim)
@@ -54,9 +108,12 @@ static void trusted_submit(const Voxd__Submit *s, const proto_limits *lim)
         trusted_mesh(s, lim);
         return;
     }
-    /* CSG is refused for now. */
+    if (s->job_case == VOXD__SUBMIT__JOB_CSG) {
+        trusted_csg(s, lim);
+        return;
+    }
     must(s->job_case == VOXD__SUBMIT__JOB_IMPLICIT && s->implicit);
-    must(s->channel <= 3 && s->channel != VOXD__CHANNEL__CHANNEL_DENSITY);
+    must(s->channel != VOXD__CHANNEL__CHANNEL_DENSITY);
     const Voxd__Implicit *im = s->implicit;
     if (s->input_bytes) {
         must(im->source.len == 0 && s->input_bytes <= lim->max_expr_bytes &&
