@@ -9,8 +9,9 @@
 # at its output's path.
 . "$(dirname "$0")/lib.sh"
 SHIM=$(dirname "$VOX_ASAN")/tests/failmalloc.so
+VDB_DUMP=$(dirname "$VOX_ASAN")/tests/vdb_dump
 REL=$ROOT/build/release/vox
-for f in "$SHIM" "$REL"; do
+for f in "$SHIM" "$REL" "$VDB_DUMP"; do
     [ -e "$f" ] || { fail "vox_oom: $f built" "no $f (make test builds it)"; exit 1; }
 done
 
@@ -30,6 +31,9 @@ csg|vod|csg $TMP/tree.csg -r 40 -w 2 -q -o OUT
 mesh|ply|mesh $TMP/in.vod -w 2 -q -o OUT
 export, NRRD|nrrd|export $TMP/in.vod -o OUT
 export, VTK|vti|export $TMP/in.vod -o OUT
+export, NRRD gzip|nrrd|export $TMP/in.vod --gzip -o OUT
+export, binvox|binvox|export $TMP/in.vod -o OUT
+export, OpenVDB|vdb|export $TMP/in.vod -o OUT
 render|png|render $TMP/in.vod --size 64 -o OUT
 info|-|info $TMP/in.vod
 mesh-info|-|mesh-info $TMP/torus.obj
@@ -63,6 +67,10 @@ while IFS='|' read -r name ext args; do
             done=$((done + 1))
             if [ "$ext" = - ]; then
                 cmp -s "$TMP/got.stdout" "$TMP/ref.stdout" || bad="$bad every-$n(another report)"
+            elif [ "$ext" = vdb ]; then # a .vdb holds a fresh UUID: its grid's values
+                "$VDB_DUMP" "$got" density 0 40 0 40 0 40 "$TMP/got.f32" >/dev/null &&
+                    "$VDB_DUMP" "$out" density 0 40 0 40 0 40 "$TMP/ref.f32" >/dev/null &&
+                    cmp -s "$TMP/got.f32" "$TMP/ref.f32" || bad="$bad every-$n(another grid)"
             else
                 cmp -s "$got" "$out" || bad="$bad every-$n(another file)"
             fi
