@@ -1,6 +1,8 @@
 /* The parsers of what a client sends when memory runs out: every
- * allocation of expr_compile, csg_parse and mesh_parse (every format, on
- * one thread and on several) fails in turn
+ * allocation of expr_compile, csg_parse, mesh_parse (every format, on one
+ * thread and on several), mesh_load and mesh_gltf_embed of a .gltf naming
+ * its buffer's file, the daemon's intake of a CSG job (its frame unpacked,
+ * checked, the tree built) and config_load_stream fails in turn
  * (alloc_fail.h).  Each run gives the whole answer or -ENOMEM with "out of
  * memory" in its message and nothing handed back, and frees every block
  * it allocated. */
@@ -36,7 +38,10 @@ static int compile_once(void *ctx, char *msg)
     expr_error err = {0};
     int rc = expr_compile(blend, strlen(blend), NULL, &t, &err);
     memcpy(msg, err.msg, sizeof err.msg);
-    if (rc) return rc;
+    if (rc) {
+        cr_assert_null(t, "a failed compile handed back a tape");
+        return rc;
+    }
     cr_assert_eq(expr_tape_bytes(t), *want, "a tape of %zu bytes, want %zu",
                  expr_tape_bytes(t), *want);
     expr_tape_free(t);
