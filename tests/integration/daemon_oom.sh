@@ -11,8 +11,7 @@
 # whole, and stops on QUIT with status 0.  Then the client, vox submit
 # (libvox), with the shim against a daemon that has its memory.
 . "$(dirname "$0")/daemon_lib.bash"
-SHIM=$ROOT/${BUILD_DIR:-build/asan}/tests/failmalloc.so
-[ -e "$SHIM" ] || SHIM=$(dirname "$VOX_ASAN")/tests/failmalloc.so
+SHIM=$(dirname "$VOX")/tests/failmalloc.so
 if [ ! -e "$SHIM" ]; then
     fail "failmalloc.so built" "no $SHIM (make test-build builds it)"
     exit 1
@@ -34,13 +33,19 @@ VOXD_REL=$ROOT/build/release/voxd
 printf '#!/bin/sh\nexec env LD_PRELOAD="%s" "%s" "$@"\n' "$SHIM" "$VOXD_REL" >"$TMP/voxd-shim"
 chmod +x "$TMP/voxd-shim"
 
+# job_args NAME: J, vox submit's words for the job NAME.
+job_args() {
+    case $1 in
+    expression) J=(submit -e "$SPHERE" -r 40) ;;
+    mesh) J=(submit --mesh "$TMP/torus.obj" -r 40) ;;
+    csg) J=(submit --csg "$TMP/tree.csg" -r 40) ;;
+    esac
+}
+
 # submit NAME OUT: the job NAME through the daemon into OUT; its status.
 submit() {
-    case $1 in
-    expression) vox --socket "$S" submit -e "$SPHERE" -r 40 -q -o "$2" ;;
-    mesh) vox --socket "$S" submit --mesh "$TMP/torus.obj" -r 40 -q -o "$2" ;;
-    csg) vox --socket "$S" submit --csg "$TMP/tree.csg" -r 40 -q -o "$2" ;;
-    esac
+    job_args "$1"
+    vox --socket "$S" "${J[@]}" -q -o "$2"
 }
 
 for n in 3 17 61 127 251 509; do
@@ -103,13 +108,9 @@ if start_voxd "$TMP/voxd-client.log" --workers 2; then
         for n in $(seq 2 16) 29 61; do
             out=$TMP/c-$n-$name.vod
             rm -f "$out"
-            case $name in
-            expression) args=(submit -e "$SPHERE" -r 40) ;;
-            mesh) args=(submit --mesh "$TMP/torus.obj" -r 40) ;;
-            csg) args=(submit --csg "$TMP/tree.csg" -r 40) ;;
-            esac
+            job_args "$name"
             FAILMALLOC_ARM=$TMP/arm FAILMALLOC_EVERY=$n LD_PRELOAD=$SHIM timeout 120 \
-                "$ROOT/build/release/vox" --socket "$S" "${args[@]}" -q -o "$out" 2>"$TMP/err"
+                "$ROOT/build/release/vox" --socket "$S" "${J[@]}" -q -o "$out" 2>"$TMP/err"
             rc=$?
             if [ "$rc" = 0 ]; then
                 whole=$((whole + 1))

@@ -8,8 +8,8 @@
 # filling it); never by a signal, and never leaving a file, whole or not,
 # at its output's path.
 . "$(dirname "$0")/lib.sh"
-SHIM=$(dirname "$VOX_ASAN")/tests/failmalloc.so
-VDB_DUMP=$(dirname "$VOX_ASAN")/tests/vdb_dump
+SHIM=$(dirname "$VOX")/tests/failmalloc.so
+VDB_DUMP=$(dirname "$VOX")/tests/vdb_dump
 REL=$ROOT/build/release/vox
 for f in "$SHIM" "$REL" "$VDB_DUMP"; do
     [ -e "$f" ] || { fail "vox_oom: $f built" "no $f (make test builds it)"; exit 1; }
@@ -17,7 +17,7 @@ done
 
 torus_obj 24 12 >"$TMP/torus.obj"
 ico_csg "$TMP/torus.obj" >"$TMP/tree.csg"
-SPHERE="sqrt(x^2 + 1.2*y^2 + z^2) - 0.6"
+SPHERE="sqrt(x^2+1.2*y^2+z^2)-0.6" # one word: the commands below split on spaces
 check "the input file" "$REL" voxelize -e "$SPHERE" -r 40 -w 2 -q -o "$TMP/in.vod"
 touch "$TMP/arm"
 
@@ -40,15 +40,8 @@ mesh-info|-|mesh-info $TMP/torus.obj
 EOF
 }
 
-# run ARGS...: the command's words (the expression kept whole) after vox.
-words() {
-    local line=$1 out=$2
-    line=${line//OUT/$out}
-    # the expression is one word: swap it for a token, split, swap back
-    line=${line//$SPHERE/@SPHERE@}
-    read -r -a W <<<"$line"
-    for i in "${!W[@]}"; do [ "${W[$i]}" = @SPHERE@ ] && W[$i]=$SPHERE; done
-}
+# words ARGS OUT: W, the command's words after vox, OUT for the output.
+words() { read -r -a W <<<"${1//OUT/$2}"; }
 
 while IFS='|' read -r name ext args; do
     out=$TMP/ref.$ext
