@@ -503,13 +503,19 @@ static void mark_bad(decode_job *j, uint32_t i)
     }
 }
 
-/* A copy of shared brick raw (n bytes) for ID id, within the budget. */
+/* A copy of shared brick raw (n bytes) for ID id, within the budget.  The
+ * bytes are charged before the copy is made, so that the threads together
+ * never pass the budget, and given back when it is not (past the budget,
+ * or no memory): a refused copy leaves the budget to the next brick. */
 static bool keep_shared(scan_job *s, uint32_t id, const uint8_t *raw, size_t n)
 {
     uint64_t was = atomic_fetch_add_explicit(&s->kept_bytes, n, memory_order_relaxed);
-    if (was + n > s->keep_bytes || !(s->kept[id] = malloc(n))) return false;
-    memcpy(s->kept[id], raw, n);
-    return true;
+    if (was + n <= s->keep_bytes && (s->kept[id] = malloc(n))) {
+        memcpy(s->kept[id], raw, n);
+        return true;
+    }
+    atomic_fetch_sub_explicit(&s->kept_bytes, n, memory_order_relaxed);
+    return false;
 }
 
 /* Brick record e, inflated and checked into raw, to the scan's fn for

@@ -63,10 +63,19 @@ static void *af_live[AF_LIVE_MAX];
 static size_t af_nlive;
 static bool af_overflow;
 
-static int af_fail_now(void)
+/* The allocations of exactly af_watch bytes while armed: how many, and the
+ * number (as af_made counts) of the last.  Relaxed, as af_made. */
+static atomic_size_t af_watch;
+static atomic_ulong af_watched, af_watched_last;
+
+static int af_fail_now(size_t size)
 {
     if (!atomic_load_explicit(&af_armed, memory_order_relaxed)) return 0;
     unsigned long n = atomic_fetch_add_explicit(&af_made, 1, memory_order_relaxed) + 1;
+    if (size == atomic_load_explicit(&af_watch, memory_order_relaxed)) {
+        atomic_fetch_add_explicit(&af_watched, 1, memory_order_relaxed);
+        atomic_store_explicit(&af_watched_last, n, memory_order_relaxed);
+    }
     return n == atomic_load_explicit(&af_fail_at, memory_order_relaxed);
 }
 
@@ -96,24 +105,24 @@ static void *af_track(void *p, void *was)
 
 void *__wrap_malloc(size_t size)
 {
-    return af_fail_now() ? NULL : af_track(__real_malloc(size), NULL);
+    return af_fail_now(size) ? NULL : af_track(__real_malloc(size), NULL);
 }
 
 void *__wrap_calloc(size_t n, size_t size)
 {
-    return af_fail_now() ? NULL : af_track(__real_calloc(n, size), NULL);
+    return af_fail_now(n * size) ? NULL : af_track(__real_calloc(n, size), NULL);
 }
 
 void *__wrap_realloc(void *p, size_t size)
 {
-    if (af_fail_now()) return NULL; /* p stays p's */
+    if (af_fail_now(size)) return NULL; /* p stays p's */
     void *q = __real_realloc(p, size);
     return q ? af_track(q, p) : NULL;
 }
 
 void *__wrap_aligned_alloc(size_t align, size_t size)
 {
-    return af_fail_now() ? NULL : af_track(__real_aligned_alloc(align, size), NULL);
+    return af_fail_now(size) ? NULL : af_track(__real_aligned_alloc(align, size), NULL);
 }
 
 void __wrap_free(void *p)
@@ -139,6 +148,8 @@ static inline void *af_test_realloc(void *p, size_t size)
 static void af_arm(unsigned long at)
 {
     atomic_store(&af_made, 0);
+    atomic_store(&af_watched, 0);
+    atomic_store(&af_watched_last, 0);
     atomic_store(&af_fail_at, at);
     atomic_store(&af_armed, true);
 }

@@ -3,9 +3,10 @@
  * thread and with three, and every allocation of vod_write_octree with
  * each compression and hash.  Each read either gives the whole answer (a scan whose thread
  * lacks its brick of room has another thread do its chunks; a shared
- * brick that cannot be kept is visited where it was inflated) or fails
- * with -ENOMEM, says "out of memory", and hands back no file; every block
- * of the read is freed by its end. */
+ * brick that cannot be kept is visited where it was inflated, its bytes
+ * left to the budget of the next) or fails with -ENOMEM, says "out of
+ * memory", and hands back no file; every block of the read is freed by its
+ * end. */
 #include "vod_fixture.h"
 
 #include "alloc_fail.h"
@@ -78,6 +79,63 @@ Test(vod_alloc, a_file_of_shared_bricks_reads_or_fails_cleanly)
 {
     membuf m = fx_file_shared_bricks();
     reads_survive(&m, 6);
+    free(m.p);
+}
+
+/* A scan of the file at path by one thread, keeping at most keep bytes of
+ * shared bricks, armed to fail allocation at (0: none): the bricks' sum,
+ * and how many allocations of raw bytes it made. */
+static unsigned long scan_watching(const char *path, uint64_t keep, unsigned long at,
+                                   size_t raw, brick_sum *got)
+{
+    brick_sum per[PAR_MAX] = {{0, 0}};
+    vod_scan_opts o = {1, keep, scan_add, per};
+    vod_file *v = NULL;
+    err_info err = {0};
+    atomic_store(&af_watch, raw);
+    af_arm(at);
+    int rc = vod_scan(path, &o, &v, &err);
+    if (!rc) vod_close(v);
+    af_disarm("scan");
+    atomic_store(&af_watch, 0);
+    cr_assert_eq(rc, 0, "%s", err.msg);
+    *got = (brick_sum){0, 0};
+    for (int i = 0; i < PAR_MAX; i++) got->sum += per[i].sum, got->n += per[i].n;
+    return atomic_load(&af_watched);
+}
+
+/* Two blocks of one value each, each brick shared by 40 nodes: within a
+ * budget of one brick the scan keeps the first it meets.  When that copy
+ * cannot be made, its bytes go back to the budget and the other block's
+ * copy is made instead (one more allocation of a brick's bytes), the
+ * answer whole either way. */
+Test(vod_alloc, a_copy_that_fails_leaves_the_budget_to_the_next_shared_brick)
+{
+    fixture f;
+    fx_init(&f, 6, 64, 48, 40);
+    uint32_t up = voxel_surface((const double[3]){0, 0, 1});
+    uint32_t side = voxel_surface((const double[3]){1, 0, 0});
+    for (uint32_t z = 0; z < 32; z++)
+        for (uint32_t y = 0; y < 32; y++)
+            for (uint32_t x = 0; x < 40; x++) fx_store(&f, x, y, z, z < 16 ? up : side);
+    vod_params p;
+    params(&p, &f, VOXEL_CH_SURFACE, VOD_COMP_ZLIB, VOD_HASH_SFHS, 8);
+    membuf m = write_file(&f, &p, NULL);
+    fx_free(&f);
+    char path[] = "/tmp/test_vod_alloc_XXXXXX";
+    fx_temp_file(&m, path);
+    vod_file *v = read_ok(&m);
+    brick_sum want = sum_file(v), got;
+    vod_close(v);
+    size_t raw = (size_t)8 * 8 * 8 * 4;
+    unsigned long whole = scan_watching(path, raw, 0, raw, &got);
+    cr_assert(got.n == want.n && got.sum == want.sum);
+    unsigned long copy = atomic_load(&af_watched_last); /* the kept copy's malloc */
+    unsigned long after = scan_watching(path, raw, copy, raw, &got);
+    cr_assert(got.n == want.n && got.sum == want.sum);
+    cr_assert_eq(after, whole + 1, "a refused copy kept its bytes from the budget: "
+                 "%lu brick-sized allocations, %lu without the failure", after, whole);
+    unlink(path);
     free(m.p);
 }
 
