@@ -62,14 +62,14 @@ for n in 3 17 61 127 251 509; do
         for name in expression mesh csg; do
             out=$TMP/o-$n-$round-$name.vod
             rm -f "$out"
-            if submit "$name" "$out" 2>"$TMP/err"; then
+            submit "$name" "$out" 2>"$TMP/err"
+            rc=$?
+            v=$(oom_verdict "$rc" "$TMP/err" "$out")
+            if [ "$v" = whole ]; then
                 if cmp -s "$out" "$TMP/ref-$name.vod"; then whole=$((whole + 1))
                 else bad="$bad $name(other bytes)"; fi
-            else
-                failed=$((failed + 1))
-                [ "$(grep -c . "$TMP/err")" -ge 1 ] || bad="$bad $name(failed without a message)"
-                [ -e "$out" ] && bad="$bad $name(a file left)"
-            fi
+            elif [ "$v" = refused ]; then failed=$((failed + 1))
+            else bad="$bad $name($v)"; fi
             kill -0 "$VOXD_PID" 2>/dev/null || { bad="$bad voxd-died-at-$name"; break 2; }
         done
     done
@@ -112,14 +112,12 @@ if start_voxd "$TMP/voxd-client.log" --workers 2; then
             FAILMALLOC_ARM=$TMP/arm FAILMALLOC_EVERY=$n LD_PRELOAD=$SHIM timeout 120 \
                 "$ROOT/build/release/vox" --socket "$S" "${J[@]}" -q -o "$out" 2>"$TMP/err"
             rc=$?
-            if [ "$rc" = 0 ]; then
+            v=$(oom_verdict "$rc" "$TMP/err" "$out")
+            if [ "$v" = whole ]; then
                 whole=$((whole + 1))
                 cmp -s "$out" "$TMP/ref-$name.vod" || bad="$bad every-$n(other bytes)"
-            elif [ "$rc" -ge 1 ] && [ "$rc" -le 3 ] && [ -s "$TMP/err" ] && [ ! -e "$out" ]; then
-                refused=$((refused + 1))
-            else
-                bad="$bad every-$n(status $rc: $(head -c 160 "$TMP/err" | tr '\n' ' '))"
-            fi
+            elif [ "$v" = refused ]; then refused=$((refused + 1))
+            else bad="$bad every-$n($v)"; fi
         done
         [ -z "$bad" ] && pass "vox submit of the $name out of memory: whole $whole times, refused $refused" ||
             fail "vox submit of the $name out of memory: whole or refused with a message" "$bad"

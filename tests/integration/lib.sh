@@ -82,6 +82,18 @@ ico_csg() {
         'r = difference(ico, hole)' 'result r'
 }
 
+# oom_verdict RC ERR OUT: how a run that ran out of memory ended, on
+# stdout: "whole" (status 0: the caller compares what it made), "refused"
+# (status 1 to 3, a message in file ERR, no file OUT left; OUT - for a
+# command that writes none), else what is wrong with it.
+oom_verdict() {
+    if [ "$1" = 0 ]; then echo whole
+    elif [ "$1" -lt 1 ] || [ "$1" -gt 3 ]; then echo "status $1: $(head -c 200 "$2" | tr '\n' ' ')"
+    elif [ ! -s "$2" ]; then echo "status $1, no message"
+    elif [ "$3" != - ] && [ -e "$3" ]; then echo "a file left"
+    else echo refused; fi
+}
+
 pass() { echo "PASS: $1"; }
 fail() { echo "FAIL: $1"; [ -n "${2:-}" ] && printf '  %s\n' "$2"; }
 

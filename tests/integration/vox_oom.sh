@@ -56,7 +56,8 @@ while IFS='|' read -r name ext args; do
         FAILMALLOC_ARM=$TMP/arm FAILMALLOC_EVERY=$n LD_PRELOAD=$SHIM \
             timeout 120 "$REL" "${W[@]}" >"$TMP/got.stdout" 2>"$TMP/got.err"
         rc=$?
-        if [ "$rc" = 0 ]; then
+        v=$(oom_verdict "$rc" "$TMP/got.err" "$([ "$ext" = - ] && echo - || echo "$got")")
+        if [ "$v" = whole ]; then
             done=$((done + 1))
             if [ "$ext" = - ]; then
                 cmp -s "$TMP/got.stdout" "$TMP/ref.stdout" || bad="$bad every-$n(another report)"
@@ -67,15 +68,13 @@ while IFS='|' read -r name ext args; do
             else
                 cmp -s "$got" "$out" || bad="$bad every-$n(another file)"
             fi
-        elif [ "$rc" -ge 1 ] && [ "$rc" -le 3 ]; then
+        elif [ "$v" = refused ]; then
             refused=$((refused + 1))
-            [ -s "$TMP/got.err" ] || bad="$bad every-$n(status $rc, no message)"
             # these jobs are far from the 2 GiB segment: a heap that ran out
             # is not shared memory to raise
             ! grep -q "shared memory" "$TMP/got.err" || bad="$bad every-$n($(head -1 "$TMP/got.err"))"
-            [ "$ext" = - ] || [ ! -e "$got" ] || bad="$bad every-$n(a file left)"
         else
-            bad="$bad every-$n(status $rc: $(head -c 200 "$TMP/got.err" | tr '\n' ' '))"
+            bad="$bad every-$n($v)"
         fi
     done
     [ -z "$bad" ] && pass "$name: whole $done times, refused with a message $refused times" ||
