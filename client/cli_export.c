@@ -340,8 +340,9 @@ static void print_json(FILE *fp, const export_box *b)
 }
 
 /* The sidecar written whole or not at all, as the raw file is (outfile),
- * before the raw file is committed; a failure is said here, naming it: 0,
- * or -EINVAL (told). */
+ * once the raw file is committed (the caller removes it when this fails:
+ * a header never describes a raw file that is not there); a failure is
+ * said here, naming it: 0, or -EINVAL (told). */
 static int write_json(const export_box *b, const export_opts *o)
 {
     char *text = NULL;
@@ -423,10 +424,9 @@ static int write_format(const export_box *b, const export_opts *o, FILE *fp)
     case FMT_VTI: return write_vti(b, &s);
     case FMT_BINVOX: return write_binvox(b, &s);
     default: {
-        int rc = b->normals    ? stream_floats(b, &s, 4)
-                 : b->distance ? stream_floats(b, &s, 1)
-                               : stream_zyx(b, &s);
-        return rc ? rc : write_json(b, o);
+        return b->normals    ? stream_floats(b, &s, 4)
+               : b->distance ? stream_floats(b, &s, 1)
+                             : stream_zyx(b, &s);
     }
     }
 }
@@ -478,6 +478,7 @@ static int write_out(const export_box *b, const export_opts *o)
     if (!rc && cli_interrupted()) rc = -ECANCELED;
     if (!rc) rc = outfile_commit(&f, o->out);
     else outfile_abort(&f);
+    if (!rc && o->fmt == FMT_RAW && (rc = write_json(b, o))) unlink(o->out);
     if (cli_interrupted()) cli_end_interrupted(o->out);
     if (rc) {
         if (rc != -EINVAL) cli_error("%s: %s", o->out, strerror(-rc));

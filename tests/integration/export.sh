@@ -132,6 +132,13 @@ refuse "export: a raw header that cannot be written names the header" 1 "xj\.jso
     "$VOX" export "$f" -o "$TMP/xj.raw"
 if [ ! -e "$TMP/xj.raw" ]; then pass "export: no raw file without its header"
 else fail "export: no raw file without its header"; fi
+# and the other way: a raw file that cannot be committed (a directory in its
+# place) leaves no header describing it
+mkdir -p "$TMP/xr.raw"
+refuse "export: a raw file that cannot be committed is named" 1 "xr\.raw: Is a directory" \
+    "$VOX" export "$f" -o "$TMP/xr.raw"
+if [ ! -e "$TMP/xr.json" ]; then pass "export: no header without its raw file"
+else fail "export: no header without its raw file"; fi
 
 # ---------------------------------------------------------------- pip install
 if "$PY" -m pip --version >/dev/null 2>&1; then
