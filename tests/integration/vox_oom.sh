@@ -30,6 +30,7 @@ voxelize, a mesh's distance|vod|voxelize --mesh $TMP/torus.obj -r 40 -w 2 --chan
 csg|vod|csg $TMP/tree.csg -r 40 -w 2 -q -o OUT
 mesh|ply|mesh $TMP/in.vod -w 2 -q -o OUT
 export, NRRD|nrrd|export $TMP/in.vod -o OUT
+export, raw and its sidecar|raw|export $TMP/in.vod -o OUT
 export, VTK|vti|export $TMP/in.vod -o OUT
 export, NRRD gzip|nrrd|export $TMP/in.vod --gzip -o OUT
 export, binvox|binvox|export $TMP/in.vod -o OUT
@@ -51,7 +52,7 @@ while IFS='|' read -r name ext args; do
     bad="" done=0 refused=0
     for n in $(seq 2 24) 37 61 101 307; do
         got=$TMP/got.$ext
-        rm -f "$got"
+        rm -f "$got" "${got%.raw}.json"
         words "$args" "$got"
         FAILMALLOC_ARM=$TMP/arm FAILMALLOC_EVERY=$n LD_PRELOAD=$SHIM \
             timeout 120 "$REL" "${W[@]}" >"$TMP/got.stdout" 2>"$TMP/got.err"
@@ -68,11 +69,14 @@ while IFS='|' read -r name ext args; do
             else
                 cmp -s "$got" "$out" || bad="$bad every-$n(another file)"
             fi
+            [ "$ext" != raw ] || cmp -s "${got%.raw}.json" "${out%.raw}.json" ||
+                bad="$bad every-$n(another sidecar)"
         elif [ "$v" = refused ]; then
             refused=$((refused + 1))
             # these jobs are far from the 2 GiB segment: a heap that ran out
             # is not shared memory to raise
             ! grep -q "shared memory" "$TMP/got.err" || bad="$bad every-$n($(head -1 "$TMP/got.err"))"
+            [ "$ext" != raw ] || [ ! -e "${got%.raw}.json" ] || bad="$bad every-$n(a sidecar left)"
         else
             bad="$bad every-$n($v)"
         fi
