@@ -512,7 +512,7 @@ int cli_export(int argc, char **argv)
     }
     vod_file *f;
     err_info err = {0};
-    if (vod_open_threads(o.in, (int)cli_cores(), &f, &err)) {
+    if (vod_open_levels(o.in, (int)cli_cores(), 1u << o.level, &f, &err)) {
         cli_error("%s: %s", o.in, err.msg);
         return CLI_EXIT_FAILED;
     }

@@ -320,9 +320,13 @@ static void *open_run(void *ud)
 {
     opening *op = ud;
     thread_name("read");
-    /* the bricks inflated and hashed by as many threads as the job's workers */
+    /* the bricks inflated and hashed by as many threads as the job's
+     * workers; those of the levels it polygonizes alone (adaptive: 0 to
+     * the count of radii, iso_params_make's lod_top or more) */
     unsigned threads = op->o->workers ? op->o->workers : 1;
-    op->rc = vod_open_threads(op->o->in, (int)threads, &op->f, &op->err);
+    const mesh_opts *o = op->o;
+    uint32_t levels = o->nradii ? (2u << o->nradii) - 1 : 1u << o->level;
+    op->rc = vod_open_levels(o->in, (int)threads, levels, &op->f, &op->err);
     return NULL;
 }
 

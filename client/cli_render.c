@@ -106,7 +106,7 @@ static int render_vod_file(const char *path, const render_opts *o, int level,
 {
     vod_file *f;
     err_info err = {0};
-    if (vod_open_threads(path, (int)cli_cores(), &f, &err)) {
+    if (vod_open_levels(path, (int)cli_cores(), 1u << level, &f, &err)) {
         cli_error("%s: %s", path, err.msg);
         return CLI_EXIT_FAILED;
     }

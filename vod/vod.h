@@ -373,6 +373,18 @@ int vod_open(const char *path, vod_file **out, err_info *err);
 int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
                      err_info *err);
 int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err);
+/* vod_open_threads keeping the bricks of some levels only (bit l of levels:
+ * level l; bits past the file's levels ignored), for the readers of one
+ * level (vox mesh, export, render): the header, the octree, the brick
+ * table, every record's extents and the trailer's CRC are checked as
+ * vod_open checks them, but only the bricks that nodes of those levels
+ * hold are inflated and hashed (the mip levels above level 0 are about a
+ * seventh more), so a damaged brick that only other levels hold is not
+ * found (vod_open and vod_scan find it).  Other levels read as if absent:
+ * vod_voxel 0, vod_brick NULL, the walks -EINVAL. */
+#define VOD_LEVELS_ALL UINT32_MAX
+int vod_open_levels(const char *path, int threads, uint32_t levels, vod_file **out,
+                    err_info *err);
 /* vod_open_threads without keeping the bricks: the same checks, result and
  * messages; each brick, once inflated and checked, is handed to fn for
  * every node that holds it (its level and brick coordinates, the file's

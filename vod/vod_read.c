@@ -32,6 +32,7 @@ struct vod_file {
     uint64_t sub[MAX_HEIGHT + 1]; /* nodes in a subtree rooted at level l */
     uint32_t k, padded;
     size_t raw_bytes;
+    uint32_t levels;  /* the levels whose bricks are kept (bit l: level l) */
 };
 
 /* Parsing state: the image and where its parts are. */
@@ -44,6 +45,7 @@ typedef struct {
     err_info *err;     /* NULL: no message */
     int threads;       /* the CRC's and the records' (1 or more) */
     struct scan_job *scan; /* vod_scan's: the bricks handed out, not kept */
+    uint32_t levels;   /* the levels whose bricks are inflated (vod_open_levels) */
 } parse;
 
 static float f32_at(const uint8_t *p)
@@ -661,6 +663,32 @@ static int make_refs(parse *ps, const vod_file *f)
     return s->refs ? 0 : err_set(ps->err, -ENOMEM, "out of memory");
 }
 
+/* need[id] set for the bricks that nodes of the levels in mask hold, from
+ * the node at p (level l) down (IDs outside the table are left to
+ * check_subtree, which refuses them). */
+static void need_walk(const vod_file *f, uint32_t mask, uint64_t p, int l, uint8_t *need)
+{
+    uint32_t id = f->tree[p];
+    if (!id) return;
+    if ((mask >> l & 1u) && id <= f->info.bricks) need[id] = 1;
+    if (!(mask & ((1u << l) - 1))) return; /* no level below is wanted */
+    for (unsigned i = 0; i < 8; i++) need_walk(f, mask, p + 1 + i * f->sub[l - 1], l - 1, need);
+}
+
+/* The records of e (n, file order) that the levels in ps->levels need, kept
+ * in place and in order: how many, or -ENOMEM. */
+static int64_t keep_needed(parse *ps, const vod_file *f, brick_ent *e, uint32_t n)
+{
+    uint8_t *need = calloc((size_t)f->info.bricks + 1, 1);
+    if (!need) return err_set(ps->err, -ENOMEM, "out of memory");
+    need_walk(f, ps->levels, 0, (int)f->info.height - 1, need);
+    uint32_t k = 0;
+    for (uint32_t i = 0; i < n; i++)
+        if (need[e[i].id]) e[k++] = e[i];
+    free(need);
+    return k;
+}
+
 static int read_bricks(parse *ps, vod_file *f, int threads)
 {
     uint32_t n = f->info.bricks;
@@ -673,6 +701,12 @@ static int read_bricks(parse *ps, vod_file *f, int threads)
     if (!rc) rc = check_extents(ps, e, n);
     for (uint32_t i = 0; i < n && !rc; i++) f->info.brick_data_bytes += e[i].size;
     if (!rc && n && ps->scan) rc = make_refs(ps, f);
+    uint32_t all = (1u << f->info.height) - 1; /* height <= MAX_HEIGHT */
+    if (!rc && n && !ps->scan && (ps->levels & all) != all) {
+        int64_t k = keep_needed(ps, f, e, n);
+        if (k < 0) rc = (int)k;
+        else n = (uint32_t)k;
+    }
     if (!rc && n) rc = decode_all(ps, f, e, n, threads);
     free(e);
     return rc;
@@ -690,16 +724,17 @@ static int parse_all(parse *ps, vod_file *f, int threads)
     return rc;
 }
 
-/* The image read and checked, its bricks kept, or handed to scan's fn
- * (scan non-NULL: f->brick stays NULL, so that the accessors find none). */
+/* The image read and checked, the bricks of the levels in mask `levels`
+ * kept, or all handed to scan's fn (scan non-NULL: f->brick stays NULL,
+ * so that the accessors find none). */
 static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
-                      vod_file **out, err_info *err)
+                      uint32_t levels, vod_file **out, err_info *err)
 {
     *out = NULL;
     err_clear(err);
     vod_file *f = calloc(1, sizeof *f);
     parse ps = {.b = buf, .len = len, .end = len, .err = err,
-                .threads = threads < 1 ? 1 : threads, .scan = scan};
+                .threads = threads < 1 ? 1 : threads, .scan = scan, .levels = levels};
     if (!f) return err_set(ps.err, -ENOMEM, "out of memory");
     int rc = parse_all(&ps, f, ps.threads);
     if (rc) {
@@ -708,6 +743,7 @@ static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
     }
     f->info.metadata = f->metadata ? f->metadata : "";
     f->info.file_bytes = len;
+    f->levels = scan ? 0 : levels;
     *out = f;
     return 0;
 }
@@ -715,7 +751,7 @@ static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
 int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
                      err_info *err)
 {
-    return read_image(buf, len, threads, NULL, out, err);
+    return read_image(buf, len, threads, NULL, VOD_LEVELS_ALL, out, err);
 }
 
 int vod_read(const void *buf, size_t len, vod_file **out, err_info *err)
@@ -759,8 +795,8 @@ static uint8_t *map_file(int fd, size_t len)
 }
 
 /* The file at path mapped (or read) and read_image'd. */
-static int open_image(const char *path, int threads, scan_job *scan, vod_file **out,
-                      err_info *err)
+static int open_image(const char *path, int threads, scan_job *scan, uint32_t levels,
+                      vod_file **out, err_info *err)
 {
     *out = NULL;
     parse ps = {.err = err};
@@ -778,7 +814,7 @@ static int open_image(const char *path, int threads, scan_job *scan, vod_file **
     if (!rc && !map && (rc = read_all(fd, buf, (size_t)sb.st_size)))
         err_set(ps.err, rc, "cannot read: %s", strerror(-rc));
     close(fd);
-    if (!rc) rc = read_image(map ? map : buf, (size_t)sb.st_size, threads, scan, out, err);
+    if (!rc) rc = read_image(map ? map : buf, (size_t)sb.st_size, threads, scan, levels, out, err);
     if (map) munmap(map, (size_t)sb.st_size);
     free(buf);
     return rc;
@@ -786,7 +822,13 @@ static int open_image(const char *path, int threads, scan_job *scan, vod_file **
 
 int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err)
 {
-    return open_image(path, threads, NULL, out, err);
+    return open_image(path, threads, NULL, VOD_LEVELS_ALL, out, err);
+}
+
+int vod_open_levels(const char *path, int threads, uint32_t levels, vod_file **out,
+                    err_info *err)
+{
+    return open_image(path, threads, NULL, levels, out, err);
 }
 
 /* The kept bricks' nodes, all in a row (the kept IDs' ref ranges in ID
@@ -824,7 +866,7 @@ int vod_scan(const char *path, const vod_scan_opts *o, vod_file **out, err_info 
     scan_job s = {.fn = o->fn, .ud = o->ud, .keep_bytes = o->keep_bytes};
     int threads = o->threads < 1 ? 1 : o->threads;
     atomic_init(&s.kept_bytes, 0);
-    int rc = open_image(path, threads, &s, out, err);
+    int rc = open_image(path, threads, &s, VOD_LEVELS_ALL, out, err);
     if (!rc && s.kept) scan_kept(&s, vod_get_info(*out), threads);
     for (uint32_t id = 1; s.kept && id <= s.ids; id++) free(s.kept[id]);
     free(s.kept);
@@ -853,6 +895,13 @@ void vod_close(vod_file *f)
 const vod_info *vod_get_info(const vod_file *f) { return &f->info; }
 
 /* ---- voxel access ---- */
+
+/* Whether the bricks of level (0 .. height - 1) are here: not for a scan
+ * (no brick kept), nor for a level vod_open_levels was not asked for. */
+static bool has_level(const vod_file *f, int level)
+{
+    return f->brick && (f->levels >> level & 1u);
+}
 
 uint32_t vod_level_size(const vod_file *f, int level)
 {
@@ -889,7 +938,7 @@ static inline uint32_t raw_voxel(const uint8_t *raw, uint32_t bits, size_t i)
 uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_t z)
 {
     uint32_t side = vod_level_size(f, level);
-    if (x >= side || y >= side || z >= side || !f->brick) return 0;
+    if (x >= side || y >= side || z >= side || !has_level(f, level)) return 0;
     uint64_t p = 0;
     for (int l = (int)f->info.height - 1; l > level; l--) {
         if (!f->tree[p]) return 0;
@@ -905,7 +954,7 @@ uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_
 
 const uint8_t *vod_brick(const vod_file *f, int level, const uint32_t b[3])
 {
-    if (level < 0 || (uint32_t)level >= f->info.height || !f->brick) return NULL;
+    if (level < 0 || (uint32_t)level >= f->info.height || !has_level(f, level)) return NULL;
     uint32_t side = 1u << (f->info.height - 1 - (uint32_t)level);
     if (b[0] >= side || b[1] >= side || b[2] >= side) return NULL;
     uint64_t p = 0;
@@ -983,7 +1032,7 @@ int vod_foreach(const vod_file *f, int level,
                 void *ud)
 {
     walk_ctx w = {f, level, {0, 0, 0}, fn, ud};
-    if (vod_level_dims(f, level, w.dims) || !f->brick) return -EINVAL;
+    if (vod_level_dims(f, level, w.dims) || !has_level(f, level)) return -EINVAL;
     uint32_t b[3] = {0, 0, 0};
     return walk(&w, 0, (int)f->info.height - 1, b);
 }
@@ -1013,7 +1062,7 @@ int vod_foreach_brick(const vod_file *f, int level,
                       int (*fn)(void *ud, const uint32_t b[3], const uint8_t *raw),
                       void *ud)
 {
-    if (level < 0 || (uint32_t)level >= f->info.height || !f->brick) return -EINVAL;
+    if (level < 0 || (uint32_t)level >= f->info.height || !has_level(f, level)) return -EINVAL;
     brick_walk w = {f, level, fn, ud};
     uint32_t b[3] = {0, 0, 0};
     return walk_bricks(&w, 0, (int)f->info.height - 1, b);

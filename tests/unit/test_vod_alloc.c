@@ -1,7 +1,7 @@
 /* The reader and the serial writer when memory runs out: every allocation
  * that vod_read and vod_scan make fails in turn (alloc_fail.h), with one
- * thread and with three, and every allocation of vod_write_octree with
- * each compression and hash.  Each read either gives the whole answer (a scan whose thread
+ * thread and with three (and vod_open_levels of level 0 alone), and every
+ * allocation of vod_write_octree with each compression and hash.  Each read either gives the whole answer (a scan whose thread
  * lacks its brick of room has another thread do its chunks; a shared
  * brick that cannot be kept is visited where it was inflated, its bytes
  * left to the budget of the next) or fails with -ENOMEM, says "out of
@@ -13,13 +13,18 @@
 
 /* ---- the reads ---- */
 
+/* How a case reads: vod_read_threads, vod_scan, vod_open_levels of level 0. */
+typedef enum { BY_READ, BY_SCAN, BY_LEVEL0 } read_by;
+
 typedef struct {
     const membuf *m;
-    const char *path; /* the same bytes in a file, for vod_scan */
+    const char *path; /* the same bytes in a file, for vod_scan and vod_open_levels */
     int threads;
-    bool scan;
-    brick_sum want; /* the whole file's */
+    read_by by;
+    brick_sum want; /* the bricks it reads: the whole file's, or level 0's */
 } read_case;
+
+static const char *const read_names[] = {"read", "scan", "level 0"};
 
 /* One read of c (an alloc_fail_run): its return code; when it opened, the
  * sum of its bricks is the whole file's. */
@@ -30,11 +35,14 @@ static int read_once(void *ctx, char *msg)
     err_info err = {0};
     brick_sum got = {0, 0};
     int rc;
-    if (c->scan) {
+    if (c->by == BY_SCAN) {
         brick_sum per[PAR_MAX] = {{0, 0}};
         vod_scan_opts o = {c->threads, VOD_SCAN_KEEP, scan_add, per};
         rc = vod_scan(c->path, &o, &v, &err);
         for (int i = 0; !rc && i < PAR_MAX; i++) got.sum += per[i].sum, got.n += per[i].n;
+    } else if (c->by == BY_LEVEL0) {
+        rc = vod_open_levels(c->path, c->threads, 1, &v, &err);
+        if (!rc) got = sum_levels(v, 1);
     } else {
         rc = vod_read_threads(c->m->p, c->m->n, c->threads, &v, &err);
         if (!rc) got = sum_file(v);
@@ -46,27 +54,27 @@ static int read_once(void *ctx, char *msg)
     }
     vod_close(v);
     cr_assert(got.n == c->want.n && got.sum == c->want.sum,
-              "%s, %d threads: %llu bricks %08x, want %llu %08x", c->scan ? "scan" : "read",
+              "%s, %d threads: %llu bricks %08x, want %llu %08x", read_names[c->by],
               c->threads, (unsigned long long)got.n, got.sum, (unsigned long long)c->want.n,
               c->want.sum);
     return 0;
 }
 
-/* m read and scanned by one thread and by three, each allocation failing
- * in turn; at least min_allocs allocations in a read (so that the test
- * reaches the paths it means to). */
+/* m read, scanned and opened for level 0 by one thread and by three, each
+ * allocation failing in turn; at least min_allocs allocations in a read
+ * (so that the test reaches the paths it means to). */
 static void reads_survive(const membuf *m, unsigned long min_allocs)
 {
     char path[] = "/tmp/test_vod_alloc_XXXXXX";
     fx_temp_file(m, path);
     vod_file *v = read_ok(m);
-    brick_sum want = sum_file(v);
+    brick_sum whole = sum_file(v), level0 = sum_levels(v, 1);
     vod_close(v);
-    for (int scan = 0; scan < 2; scan++)
+    for (read_by by = BY_READ; by <= BY_LEVEL0; by++)
         for (int threads = 1; threads <= 3; threads += 2) {
-            read_case c = {m, path, threads, scan, want};
+            read_case c = {m, path, threads, by, by == BY_LEVEL0 ? level0 : whole};
             char what[32];
-            snprintf(what, sizeof what, "%s, %d threads", scan ? "scan" : "read", threads);
+            snprintf(what, sizeof what, "%s, %d threads", read_names[by], threads);
             unsigned long n = alloc_fail_each(read_once, &c, what);
             cr_assert_geq(n, min_allocs, "%s: only %lu allocations", what, n);
         }

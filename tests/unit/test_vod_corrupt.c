@@ -386,6 +386,132 @@ static void scan_agrees(const membuf *m, int rc, const err_info *err, const vod_
     unlink(path);
 }
 
+/* ---------------------------------------------------- some levels only */
+
+/* The levels whose nodes hold each brick ID (bit l of held[id]), walked
+ * here in the file's octree table (preorder; a level-l node's children
+ * are subtrees of (8^l - 1) / 7 nodes each). */
+static void held_walk(const uint8_t *tree, uint64_t p, int l, uint32_t count, uint32_t *held)
+{
+    uint32_t id = vod_get32(tree + 4 * p);
+    if (!id) return;
+    if (id <= count) held[id] |= 1u << l;
+    uint64_t sub = ((1ull << (3 * l)) - 1) / 7;
+    for (unsigned i = 0; l > 0 && i < 8; i++) held_walk(tree, p + 1 + i * sub, l - 1, count, held);
+}
+
+static void rewrite(const char *path, const membuf *m)
+{
+    FILE *fp = fopen(path, "wb");
+    cr_assert(fp && fwrite(m->p, 1, m->n, fp) == m->n && !fclose(fp), "%s", path);
+}
+
+/* v opened with the levels in mask `levels`: those levels' bricks are the
+ * whole read's, every other level reads as absent. */
+static void levels_agree(const vod_file *v, const vod_file *whole, uint32_t levels)
+{
+    const vod_info *in = vod_get_info(whole);
+    for (int l = 0; l < (int)in->height; l++) {
+        brick_sum a = sum_levels(whole, 1u << l);
+        uint32_t origin[3] = {0, 0, 0};
+        if (levels >> l & 1u) {
+            brick_sum b = sum_levels(v, 1u << l);
+            cr_assert(a.n == b.n && a.sum == b.sum, "level %d: other bricks", l);
+            continue;
+        }
+        kept_sum k = {in, l, {0, 0}};
+        cr_assert_eq(vod_foreach_brick(v, l, kept_add, &k), -EINVAL, "level %d walked", l);
+        cr_assert_null(vod_brick(v, l, origin), "level %d has a brick", l);
+        cr_assert_eq(vod_foreach(v, l, NULL, NULL), -EINVAL, "level %d walked", l);
+    }
+}
+
+/* Each level alone, two of them, none and every one: the levels asked for
+ * read as the whole read's, the others as absent. */
+Test(vod_levels, the_levels_asked_for_are_read_and_only_they)
+{
+    membuf m = small_file();
+    char path[] = "/tmp/test_vod_levels_XXXXXX";
+    fx_temp_file(&m, path);
+    vod_file *whole = read_ok(&m);
+    int height = (int)vod_get_info(whole)->height;
+    cr_assert_geq(height, 3);
+    const uint32_t masks[] = {1, 2, 4, 5, 0, 1u << height, VOD_LEVELS_ALL};
+    for (size_t i = 0; i < sizeof masks / sizeof *masks; i++) {
+        vod_file *v;
+        err_info err = {0};
+        cr_assert_eq(vod_open_levels(path, 2, masks[i], &v, &err), 0, "%s", err.msg);
+        levels_agree(v, whole, masks[i]);
+        vod_close(v);
+    }
+    /* a voxel of level 0 reads 0 when level 0 was not asked for */
+    vod_file *v;
+    err_info err = {0};
+    cr_assert_eq(vod_open_levels(path, 1, 2, &v, &err), 0, "%s", err.msg);
+    unsigned differ = 0, n = vod_level_size(whole, 0);
+    for (uint32_t z = 0; z < n; z++)
+        for (uint32_t y = 0; y < n; y++)
+            for (uint32_t x = 0; x < n; x++) {
+                cr_assert_eq(vod_voxel(v, 0, x, y, z), 0);
+                differ += vod_voxel(whole, 0, x, y, z) != 0;
+            }
+    cr_assert_gt(differ, 0, "a file without a voxel at level 0");
+    vod_close(v);
+    vod_close(whole);
+    unlink(path);
+    free(m.p);
+}
+
+/* Each brick's hash damaged in turn (the CRC made right again): opened
+ * with one level, the file is refused, naming that brick, exactly when a
+ * node of that level holds it (the table walked here), and read whole
+ * otherwise; vod_open refuses it always. */
+Test(vod_levels, a_damaged_brick_is_found_by_the_levels_that_hold_it)
+{
+    membuf m = small_file();
+    where w = locate(m.p);
+    int height = (int)vod_get32(m.p + 44);
+    uint32_t *held = calloc(w.count + 1, sizeof *held);
+    cr_assert(held);
+    held_walk(m.p + 64, 0, height - 1, w.count, held);
+    char path[] = "/tmp/test_vod_levels_XXXXXX";
+    fx_temp_file(&m, path);
+    vod_file *whole = read_ok(&m);
+    unsigned found = 0, passed = 0;
+    for (uint32_t i = 0; i < w.count; i++) {
+        uint32_t id = vod_get32(m.p + w.table_at + 12 * i);
+        char want[48];
+        snprintf(want, sizeof want, "brick %u: hash mismatch", id);
+        m.p[w.table_at + 12 * i + 8] ^= 1;
+        fix_crc(m.p, m.n);
+        rewrite(path, &m);
+        vod_file *v = (vod_file *)1;
+        err_info err = {0};
+        cr_assert_eq(vod_open_threads(path, 2, &v, &err), -EBADMSG, "brick %u", id);
+        for (int l = 0; l < height; l++) {
+            v = (vod_file *)1;
+            int rc = vod_open_levels(path, 2, 1u << l, &v, &err);
+            if (held[id] >> l & 1u) {
+                cr_assert_eq(rc, -EBADMSG, "brick %u, level %d: %d", id, l, rc);
+                cr_assert(strstr(err.msg, want), "'%s' lacks '%s'", err.msg, want);
+                cr_assert_null(v);
+                found++;
+            } else {
+                cr_assert_eq(rc, 0, "brick %u, level %d: %s", id, l, err.msg);
+                levels_agree(v, whole, 1u << l);
+                vod_close(v);
+                passed++;
+            }
+        }
+        m.p[w.table_at + 12 * i + 8] ^= 1;
+    }
+    cr_assert(found > 0 && passed > 0, "found %u, passed %u", found, passed);
+    vod_close(whole);
+    unlink(path);
+    free(held);
+    free(m.p);
+}
+
 /* m read by 1 thread and by each of thread_counts: the same return code and
  * message, and when it opens, the same bricks at every level; and scanned
  * alike (scan_agrees).  Returns the return code; err holds the message. */
