@@ -33,6 +33,11 @@ typedef struct {
     vod_membuf want; /* the file with all its memory */
 } job_case;
 
+/* One run of c's job.  Its sink is the library's vod_mem_write, which
+ * allocates as it grows, as voxd's memory file does: the sink's growth is
+ * among the allocations that fail in turn (a sink's -ENOMEM must end the
+ * job as cleanly as the job's own), unlike test_vod_alloc's writer runs,
+ * whose sink is the test's memory so that only the writer's fail. */
 static int job_once(void *ctx, char *msg)
 {
     const job_case *c = ctx;
