@@ -123,11 +123,13 @@ void csg_node_rotation(csg_node *n);
  * with a band (k > 0: channel 4) its signed distance (f32, mesh_dist); a VOD file's
  * level 0 at each voxel centre of g (nearest: the file voxel whose box holds
  * the centre; L outside the file), occupancy 1 as H, density as it is,
- * surface voxels as H where occupied.  Done once per job, before any brick.
+ * surface voxels as H where occupied (by up to `threads` threads of the
+ * caller: the engine's master gives its workers' count, the serial
+ * pipeline 1).  Done once per job, before any brick.
  * 0, or a negative errno with err (not NULL) saying why (-EINVAL a file
  * that does not load, -ENOMEM the volume's pool is full). */
 int csg_leaf_build(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volume *vol,
-                   err_info *err);
+                   unsigned threads, err_info *err);
 /* Mesh leaf i's mesh parsed from its bytes and placed (fit, scale) into
  * *m (mesh_free it), and the options csg_leaf_build voxelizes it with into
  * *o: what the engine's workers build the leaf's volume from, tile by tile
@@ -139,7 +141,7 @@ typedef struct {
     size_t bytes; /* its length */
     size_t used;  /* set by csg_leaves_build: the bytes the volumes take */
 } csg_arena;
-/* Every file leaf of t built in turn (csg_leaf_build) into arena a:
+/* Every file leaf of t built in turn (csg_leaf_build, one thread) into arena a:
  * leaves[i] for each (NULL for the other nodes), a->used the bytes they
  * take.  0, or the first leaf's error in err (-ENOSPC, -ENOMEM: the arena
  * is too small). */

@@ -5,7 +5,7 @@
  * tile (its mesh parsed, placed and binned here, copied into the segment
  * as a mesh job's block, CSG_LEAF_TILES tasks building its volume with
  * mesh_tile_run, the same volume csg_leaf_build makes), a VOD leaf's here
- * (csg_leaf_build).  Once the last is in, the rest of the data area goes
+ * (csg_leaf_build, on as many of this process's threads as it has workers).  Once the last is in, the rest of the data area goes
  * to the result's volume, and the volume's storage bricks are pushed as runs of
  * consecutive bricks (x fastest), at most CSG_TASKS of them.  Workers send
  * no entries: a brick goes straight into the volume (uniform ones as a
@@ -295,7 +295,7 @@ static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
     if (cj->off >= end || vod_volume_init(&lv, shm_at(e->seg.base, cj->off), end - cj->off,
                                           j->grid.res, 8, CSG_VOLUME_BRICK))
         return engine_sched_no_room(e, "the leaves' volumes");
-    int rc = csg_leaf_build(j->tree, i, &j->grid, lv, &le);
+    int rc = csg_leaf_build(j->tree, i, &j->grid, lv, (unsigned)e->n, &le); /* workers idle */
     if (rc == -ENOMEM)
         return engine_sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size",
                                  le.msg);

@@ -12,8 +12,10 @@
 #     z = h(x, y), h a sum of four octaves of sines standing in for the
 #     thesis's Perlin noise), and a CSG part (the issue's tree, 512^3);
 #  2. CSG at 512^3 and 1024^3 with 1 and 2 workers, for a 10-node tree of
-#     primitives and for the issue's part (with an implicit leaf and a
-#     dilation): the evaluation's seconds (vox's summary), the whole
+#     primitives, for the issue's part (with an implicit leaf and a
+#     dilation) and for a VOD leaf (Scene 1's surface voxels at 256^3,
+#     resampled onto the job's grid, unioned with an ellipsoid): the
+#     evaluation's seconds (vox's summary), the whole
 #     command's, the yield t1 / (2 t2) of the evaluation, the fraction of
 #     bricks decided uniform, and the peak memory of the command and its
 #     workers (shared memory included) against a dense 1 GiB grid; the
@@ -65,6 +67,9 @@ c = difference(b, hole2)
 d = difference(union(c, peg), slot)
 result d
 EOT
+# a VOD leaf: Scene 1's surface voxels at 256^3 (a quarter of that in quick)
+"$vox" voxelize -f examples/scene1.vx -r $((256 / div)) -q -o "$tmp/leaf.vod"
+printf 's = vod "leaf.vod"\nb = ellipsoid radius 0.5\nr = union(s, b)\nresult r\n' >"$tmp/vodleaf.csg"
 
 # run NAME ARGS...: one vox csg run under voxwhole; "key=value" words on
 # stdout: wall, eval (vox's evaluation), write, bricks, uniform, bytes.
@@ -122,7 +127,7 @@ echo "storing a voxel. memory: the peak of vox and its workers, shared memory in
 echo
 echo "| tree | res | load | eval 1 w (s) | eval 2 w (s) | whole 2 w (s) | yield | uniform bricks | memory (MiB) | dense 8-bit grid (MiB) |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
-for tree in ten part; do
+for tree in ten part vodleaf; do
     for r in $sizes; do
         l=$(load)
         : >"$tmp/one"; : >"$tmp/two"
@@ -136,7 +141,10 @@ for tree in ten part; do
         m1=$(medians <"$tmp/one") m2=$(medians <"$tmp/two")
         e1=$(get eval <<<"$m1") e2=$(get eval <<<"$m2") w2=$(get wall <<<"$m2")
         b=$(get bricks <<<"$m2") u=$(get uniform <<<"$m2")
-        name=$([ "$tree" = ten ] && echo "10 primitives" || echo "the issue's part")
+        case $tree in
+            ten) name="10 primitives" ;; part) name="the issue's part" ;;
+            *) name="a VOD leaf ($((256 / div))^3) and an ellipsoid" ;;
+        esac
         awk -v t="$name" -v r="$r" -v l="$l" -v e1="$e1" -v e2="$e2" -v w2="$w2" -v b="$b" -v u="$u" \
             -v p="${peak:-0}" 'BEGIN {
             printf "| %s | %d^3 | %s | %.3f | %.3f | %.3f | %.0f%% | %.1f%% | %.0f | %.0f |\n",

@@ -505,4 +505,17 @@ static inline void vod_put32(uint8_t *p, uint32_t v)
     p[3] = (uint8_t)(v >> 24);
 }
 
+/* Voxel i (x fastest) of a raw brick of bits-bit voxels (section 5's
+ * layout): what vod_voxel reads, for a reader that holds the brick
+ * (vod_brick). */
+static inline uint32_t vod_raw_voxel(const uint8_t *raw, uint32_t bits, size_t i)
+{
+    switch (bits) {
+    case 1: return raw[i >> 3] >> (i & 7) & 1u;
+    case 8: return raw[i];
+    case 16: return (uint32_t)raw[2 * i] | (uint32_t)raw[2 * i + 1] << 8;
+    default: return vod_get32(raw + 4 * i);
+    }
+}
+
 #endif

@@ -922,16 +922,6 @@ int vod_level_dims(const vod_file *f, int level, uint32_t dims[3])
     return level_dims(&f->info, level, dims);
 }
 
-static inline uint32_t raw_voxel(const uint8_t *raw, uint32_t bits, size_t i)
-{
-    switch (bits) {
-    case 1: return raw[i >> 3] >> (i & 7) & 1u;
-    case 8: return raw[i];
-    case 16: return (uint32_t)raw[2 * i] | (uint32_t)raw[2 * i + 1] << 8;
-    default: return vod_get32(raw + 4 * i);
-    }
-}
-
 /* Child c of the node at preorder index p (level l) is at
  * p + 1 + c * sub[l-1]; the child's bit of a level-`level` coordinate is
  * bit k + l - level - 1 (a level-l node spans 2^(k + l - level) of them). */
@@ -949,7 +939,7 @@ uint32_t vod_voxel(const vod_file *f, int level, uint32_t x, uint32_t y, uint32_
     uint32_t id = f->tree[p], m = f->info.brick - 1;
     if (!id) return 0;
     size_t i = ((size_t)(z & m) * f->info.brick + (y & m)) * f->info.brick + (x & m);
-    return raw_voxel(f->brick[id], f->info.voxel_bits, i);
+    return vod_raw_voxel(f->brick[id], f->info.voxel_bits, i);
 }
 
 const uint8_t *vod_brick(const vod_file *f, int level, const uint32_t b[3])
@@ -991,7 +981,7 @@ static int visit_raw(const vod_info *in, const uint32_t dims[3], const uint32_t 
         for (uint32_t y = 0; y < lim[1]; y++) {
             size_t row = ((size_t)z * B + y) * B;
             for (uint32_t x = 0; x < lim[0]; x++) {
-                uint32_t v = raw_voxel(raw, in->voxel_bits, row + x);
+                uint32_t v = vod_raw_voxel(raw, in->voxel_bits, row + x);
                 int rc = v ? fn(ud, o[0] + x, o[1] + y, o[2] + z, v) : 0;
                 if (rc) return rc;
             }

@@ -16,8 +16,10 @@
 
 #include "csg.h"
 #include "engine.h"
+#include "grid.h"
 #include "pipeline.h"
 #include "vod.h"
+#include "vod_volume.h"
 #include "voxel.h"
 
 #define N 48          /* the job's voxels per axis over [-1, 1] */
@@ -230,6 +232,77 @@ Test(csg_leaves, implicit_mesh_and_vod_leaves_against_a_dense_evaluator, .timeou
 /* fit and scale place the mesh: the box fitted at a point with its
  * longest side made 0.5 is the cuboid of the same place and size, up to
  * the ramp (so the voxels at or above S agree but for the faces). */
+/* The VOD leaf alone (csg_leaf_build): each job voxel the density of the
+ * file's level-0 voxel that holds its centre, by the test's own lookup
+ * (vod_voxel at the centre's floor'd index); occupancy and surface voxels
+ * H where set.  Files of each channel (1, 8 and 32 bits) on a coarse and a
+ * fine grid, job grids coarser and finer than them, over the domain and
+ * shifted half out of it, by 1, 2 and 3 threads (the threads take rows of
+ * bricks in turn, a brick under no file brick is skipped, a file voxel
+ * read again by a finer grid is not looked up again: none may change a
+ * voxel). */
+static void leaf_matches(const vod_membuf *file, const grid_spec *g, unsigned threads)
+{
+    csg_tree *t = parse("v = vod \"v.vod\"\nresult v\n");
+    attach(t, "v", file->p, file->n);
+    vod_file *f;
+    err_info err = {0};
+    cr_assert_eq(vod_read(file->p, file->n, &f, &err), 0, "%s", err.msg);
+    const vod_info *in = vod_get_info(f);
+    size_t bytes = vod_volume_bytes(g->res, 8, CSG_VOLUME_BRICK, UINT32_MAX);
+    void *arena = malloc(bytes);
+    vod_volume *vol;
+    cr_assert_eq(vod_volume_init(&vol, arena, bytes, g->res, 8, CSG_VOLUME_BRICK), 0);
+    cr_assert_eq(csg_leaf_build(t, 0, g, vol, threads, &err), 0, "%s", err.msg);
+    uint64_t set = 0;
+    for (uint32_t z = 0; z < g->res[2]; z++)
+        for (uint32_t y = 0; y < g->res[1]; y++)
+            for (uint32_t x = 0; x < g->res[0]; x++) {
+                uint32_t v[3] = {x, y, z}, i[3], want = 0;
+                int inside = 1;
+                for (int a = 0; a < 3; a++) {
+                    double k = floor((grid_coord(g, a, v[a] + 0.5) - in->origin[a]) /
+                                     in->voxel_scale[a]);
+                    inside &= k >= 0 && k < in->volume[a];
+                    i[a] = inside ? (uint32_t)k : 0;
+                }
+                uint32_t fv = inside ? vod_voxel(f, 0, i[0], i[1], i[2]) : 0;
+                want = in->channel == VOXEL_CH_DENSITY ? fv : fv ? 255 : 0;
+                set += want != 0;
+                cr_assert_eq(vod_volume_get(vol, x, y, z), want,
+                             "channel %u, res %u: voxel %u %u %u", in->channel, g->res[0], x,
+                             y, z);
+            }
+    cr_assert_gt(set, 0, "channel %u, res %u: an empty leaf", in->channel, g->res[0]);
+    free(arena);
+    vod_close(f);
+    csg_tree_free(t);
+}
+
+Test(csg_leaves, a_vod_leaf_is_each_job_voxel_s_file_voxel, .timeout = 120)
+{
+    csg_tree *pt = parse("e = ellipsoid center 0.1,0,0.2 radii 0.45,0.35,0.4\nresult e\n");
+    const uint32_t channels[] = {VOXEL_CH_OCCUPANCY, VOXEL_CH_DENSITY, VOXEL_CH_SURFACE};
+    const uint32_t file_res[] = {20, 70}, job_res[] = {13, 48, 96};
+    const double lo[][3] = {{-1, -1, -1}, {-0.2, -1.3, 0.1}};
+    for (size_t c = 0; c < 3; c++)
+        for (size_t fr = 0; fr < 2; fr++) {
+            engine_pipeline_job pj = csg_job(pt, -0.9, 0.9, file_res[fr]);
+            pj.vod.channel = (int)channels[c];
+            vod_membuf file = run(NULL, &pj);
+            for (size_t jr = 0; jr < 3; jr++)
+                for (size_t d = 0; d < 2; d++) {
+                    double hi[3] = {lo[d][0] + 2, lo[d][1] + 2, lo[d][2] + 2};
+                    grid_spec g;
+                    err_info err = {0};
+                    cr_assert_eq(grid_make(lo[d], hi, job_res[jr], &g, &err), 0);
+                    leaf_matches(&file, &g, 1 + (unsigned)(jr + d) % 3);
+                }
+            free(file.p);
+        }
+    csg_tree_free(pt);
+}
+
 Test(csg_leaves, a_fitted_mesh_lands_where_it_is_told)
 {
     csg_tree *t = parse("m = mesh \"box.obj\" fit 0.2,-0.1,0.05 scale 0.5\nresult m\n");
