@@ -278,7 +278,8 @@ static int vod_leaf(const csg_tree *t, uint32_t i, const grid_spec *g, vod_volum
     const csg_node *n = &t->node[i];
     vod_file *f;
     err_info why;
-    int rc = vod_read(t->data[i], t->data_len[i], &f, &why);
+    /* level 0 alone, its bricks inflated by the leaf's threads */
+    int rc = vod_read_levels(t->data[i], t->data_len[i], (int)threads, 1, &f, &why);
     if (rc) return err_set(err, rc, "node '%s': vod: %s", n->name, why.msg);
     const vod_info *in = vod_get_info(f);
     if ((rc = check_vod_leaf(n, in, err))) {

@@ -385,6 +385,9 @@ int vod_open_threads(const char *path, int threads, vod_file **out, err_info *er
 #define VOD_LEVELS_ALL UINT32_MAX
 int vod_open_levels(const char *path, int threads, uint32_t levels, vod_file **out,
                     err_info *err);
+/* vod_open_levels of a file image in memory (copied), as vod_read_threads. */
+int vod_read_levels(const void *buf, size_t len, int threads, uint32_t levels, vod_file **out,
+                    err_info *err);
 /* vod_open_threads without keeping the bricks: the same checks, result and
  * messages; each brick, once inflated and checked, is handed to fn for
  * every node that holds it (its level and brick coordinates, the file's

@@ -754,6 +754,12 @@ int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
     return read_image(buf, len, threads, NULL, VOD_LEVELS_ALL, out, err);
 }
 
+int vod_read_levels(const void *buf, size_t len, int threads, uint32_t levels, vod_file **out,
+                    err_info *err)
+{
+    return read_image(buf, len, threads, NULL, levels, out, err);
+}
+
 int vod_read(const void *buf, size_t len, vod_file **out, err_info *err)
 {
     return vod_read_threads(buf, len, 1, out, err);
