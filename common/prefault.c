@@ -1,6 +1,7 @@
 #include "prefault.h"
 
 #include <stdint.h>
+#include <string.h>
 #include <sys/mman.h>
 #include <unistd.h>
 
@@ -16,4 +17,10 @@ void prefault_write(void *p, size_t n)
      * nothing, so a page shared with other data is left as it was */
     uintptr_t a = (uintptr_t)p & ~((uintptr_t)page - 1);
     if (n) (void)madvise((void *)a, (uintptr_t)p + n - a, MADV_POPULATE_WRITE);
+}
+
+void prefault_copy(void *to, const void *src, size_t n)
+{
+    prefault_write(to, n);
+    if (n) memcpy(to, src, n);
 }

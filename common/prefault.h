@@ -15,4 +15,8 @@
  * stores fault as before. */
 void prefault_write(void *p, size_t n);
 
+/* n bytes from src to fresh memory at to, its pages made present first
+ * (prefault_write) rather than one fault each as the copy goes. */
+void prefault_copy(void *to, const void *src, size_t n);
+
 #endif

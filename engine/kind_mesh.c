@@ -51,19 +51,11 @@ typedef struct {
     void *vertices, *triangles;
 } mesh_copy;
 
-/* n bytes from src to fresh pages of the segment at to, the pages faulted
- * in by one call first rather than one fault each as the copy goes. */
-static void copy_fresh(void *to, const void *src, size_t n)
-{
-    prefault_write(to, n);
-    if (n) memcpy(to, src, n);
-}
-
 static void *copy_mesh(void *ud)
 {
     const mesh_copy *c = ud;
-    copy_fresh(c->vertices, c->m->vertices, (size_t)c->m->n_vertices * 12);
-    copy_fresh(c->triangles, c->m->triangles, (size_t)c->m->n_triangles * 12);
+    prefault_copy(c->vertices, c->m->vertices, (size_t)c->m->n_vertices * 12);
+    prefault_copy(c->triangles, c->m->triangles, (size_t)c->m->n_triangles * 12);
     return NULL;
 }
 
@@ -79,8 +71,8 @@ static int copy_bins(engine *e, const mesh *m, const mesh_bins *bins,
     b->stats_off = engine_sched_align64(b->ids_off + bins->start[n] * sizeof(uint32_t));
     *vol_off = engine_sched_align64(b->stats_off + n * sizeof(mesh_tile_stats));
     if (*vol_off >= end) return engine_sched_no_room(e, "the mesh");
-    copy_fresh(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
-    copy_fresh(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
+    prefault_copy(shm_at(e->seg.base, b->start_off), bins->start, (n + 1) * sizeof(uint64_t));
+    prefault_copy(shm_at(e->seg.base, b->ids_off), bins->ids, bins->start[n] * sizeof(uint32_t));
     memset(shm_at(e->seg.base, b->stats_off), 0, n * sizeof(mesh_tile_stats));
     return 0;
 }
