@@ -133,6 +133,15 @@ extern _Atomic uint64_t mesh_stl_par_runs;
 /* Welds with eps = 0 run on every CPU so far (mesh_weld.c; smaller meshes
  * and other eps are merged by one thread): the tests check which ran. */
 extern _Atomic uint64_t mesh_weld_par_runs;
+/* A large OBJ (1 MiB or more) parsed on every CPU (mesh_obj_par.c) into
+ * the mesh mesh_obj.c's one-thread parser makes: 1 when done, 0 when that
+ * parser must do it (b left empty).  The runs so far are counted for the
+ * tests. */
+int mesh_obj_par(const char *buf, size_t len, mbuild *b);
+extern _Atomic uint64_t mesh_obj_par_runs;
+/* The size from which an OBJ is parsed on every CPU (1 MiB); fuzz_mesh
+ * sets it to 0 and to SIZE_MAX, to hold one path's answer to the other's. */
+extern size_t mesh_obj_par_min_bytes;
 /* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
 int mesh_off_keyword(const char *p, size_t n);
 

@@ -109,6 +109,7 @@ static int parse_f(mtext *t, mbuild *b)
 
 int mesh_parse_obj(const char *buf, size_t len, mbuild *b)
 {
+    if (mesh_obj_par(buf, len, b)) return 0;
     mtext t = {buf, buf + len, buf};
     while (t.p < t.end) {
         skip_blank(&t);

@@ -2,7 +2,9 @@
  * (told from the contents, then each one forced) and under tight limits,
  * must be refused with a message and nothing held, or give a mesh that
  * keeps mesh.h's promises (indices in range and distinct, finite vertices,
- * the box around the triangles) and whose topology adds up. */
+ * the box around the triangles) and whose topology adds up.  Read as OBJ
+ * by the every-CPU parser (whatever its size) and by the one-thread one,
+ * it must give the same mesh or the same error at the same line. */
 #include <errno.h>
 #include <math.h>
 #include <stddef.h>
@@ -11,6 +13,7 @@
 
 #include "mesh.h"
 #include "mesh_check.h"
+#include "mesh_load.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -49,8 +52,35 @@ static void one(const uint8_t *data, size_t size, mesh_format f, const mesh_limi
     if (err.code != rc) __builtin_trap(); /* the code returned, in the error too */
 }
 
+/* The OBJ parser on every CPU (mesh_obj_par_min_bytes 0: any size) and
+ * on one thread (SIZE_MAX): the same answer. */
+static void obj_paths_agree(const uint8_t *data, size_t size)
+{
+    mesh m[2];
+    mesh_error err[2];
+    int rc[2];
+    for (int k = 0; k < 2; k++) {
+        mesh_obj_par_min_bytes = k ? SIZE_MAX : 0;
+        rc[k] = mesh_parse(data, size, MESH_FORMAT_OBJ, NULL, &m[k], &err[k]);
+    }
+    mesh_obj_par_min_bytes = (size_t)1 << 20;
+    if (rc[0] != rc[1]) __builtin_trap();
+    if (rc[0]) {
+        if (strcmp(err[0].msg, err[1].msg) || err[0].line != err[1].line) __builtin_trap();
+        return;
+    }
+    if (m[0].n_vertices != m[1].n_vertices || m[0].n_triangles != m[1].n_triangles ||
+        m[0].n_degenerate != m[1].n_degenerate ||
+        memcmp(m[0].vertices, m[1].vertices, 12 * (size_t)m[0].n_vertices) ||
+        memcmp(m[0].triangles, m[1].triangles, 12 * (size_t)m[0].n_triangles))
+        __builtin_trap();
+    mesh_free(&m[0]);
+    mesh_free(&m[1]);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
+    obj_paths_agree(data, size);
     static const mesh_limits tight = {5, 5};
     one(data, size, MESH_FORMAT_AUTO, NULL);
     one(data, size, MESH_FORMAT_AUTO, &tight);
