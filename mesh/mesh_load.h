@@ -142,6 +142,14 @@ extern _Atomic uint64_t mesh_obj_par_runs;
 /* The size from which an OBJ is parsed on every CPU (1 MiB); fuzz_mesh
  * sets it to 0 and to SIZE_MAX, to hold one path's answer to the other's. */
 extern size_t mesh_obj_par_min_bytes;
+/* An OFF's records [data, end) after its counts (nv, nf; b's arrays sized
+ * for them) parsed on every CPU (mesh_off_par.c) when their layout is the
+ * common one: 1 when done, 0 when mesh_off.c must parse them (b left
+ * empty).  Runs counted, and the size from which it runs (1 MiB), as for
+ * OBJ. */
+int mesh_off_par(const char *data, const char *end, uint64_t nv, uint64_t nf, mbuild *b);
+extern _Atomic uint64_t mesh_off_par_runs;
+extern size_t mesh_off_par_min_bytes;
 /* p[0, n) is an OFF keyword: [ST][C][N]OFF (3-D; 4OFF and nOFF are not). */
 int mesh_off_keyword(const char *p, size_t n);
 
@@ -176,6 +184,11 @@ static inline void mesh_text_skip_space(mtext *t)
 static inline int mesh_text_eol(const mtext *t) { return t->p == t->end || *t->p == '\n'; }
 /* Past the next newline. */
 void mesh_text_next_line(mtext *t);
+/* The '\n' bytes in [p, end) (the parallel parsers' first pass). */
+uint64_t mesh_text_count_newlines(const char *p, const char *end);
+/* Part k of [data, end) cut into `parts` at line starts: the start of the
+ * line at or after its share (so part k - 1 ends where it starts). */
+const char *mesh_text_part_start(const char *data, const char *end, uint32_t k, uint32_t parts);
 /* The length of the token at p (up to a blank, newline or the end). */
 size_t mesh_text_toklen(const mtext *t);
 /* The token at p is w (ASCII case ignored when nocase): consume it. */

@@ -16,6 +16,10 @@
 #include "mesh_load.h"
 #include "par.h"
 
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
 /* ------------------------------------------------------------------ builder */
 
 /* The line of byte offset at in a text file. */
@@ -459,4 +463,44 @@ int mesh_text_uint_token(mtext *t, uint64_t max, uint64_t *out)
     *out = v;
     t->p = s;
     return 0;
+}
+
+/* The '\n' bytes in [p, end).  SSE2 (every x86-64): 16 bytes compared at
+ * once, the matches (-1 bytes) subtracted into byte counters that are
+ * summed (psadbw) before they could wrap; elsewhere eight bytes at a time,
+ * each '\n' byte made 0 and every zero byte's top bit set (exactly: no
+ * carries), the top bits summed by a multiply. */
+uint64_t mesh_text_count_newlines(const char *p, const char *end)
+{
+    uint64_t n = 0;
+#ifdef __SSE2__
+    const __m128i nl = _mm_set1_epi8('\n'), zero = _mm_setzero_si128();
+    while (end - p >= 16) {
+        __m128i acc = zero;
+        for (int i = 0; i < 255 && end - p >= 16; i++, p += 16)
+            acc = _mm_sub_epi8(acc, _mm_cmpeq_epi8(_mm_loadu_si128((const __m128i *)p), nl));
+        __m128i s = _mm_sad_epu8(acc, zero);
+        n += (uint64_t)_mm_cvtsi128_si64(s) + (uint64_t)_mm_cvtsi128_si64(_mm_unpackhi_epi64(s, s));
+    }
+#else
+    const uint64_t lo7 = 0x7f7f7f7f7f7f7f7full, nl = 0x0a0a0a0a0a0a0a0aull;
+    for (; end - p >= 8; p += 8) {
+        uint64_t w;
+        memcpy(&w, p, 8);
+        w ^= nl;
+        uint64_t zero = ~(((w & lo7) + lo7) | w | lo7) >> 7; /* 1 in each '\n' byte */
+        n += zero * 0x0101010101010101ull >> 56;
+    }
+#endif
+    for (; p < end; p++) n += *p == '\n';
+    return n;
+}
+
+const char *mesh_text_part_start(const char *data, const char *end, uint32_t k, uint32_t parts)
+{
+    size_t len = (size_t)(end - data), at = (size_t)((uint64_t)len * k / parts);
+    if (at == 0) return data;
+    if (at >= len) return end;
+    const char *nl = memchr(data + at - 1, '\n', len - at + 1);
+    return nl ? nl + 1 : end;
 }

@@ -38,11 +38,7 @@ typedef struct {
 /* Part k's first byte: the start of the line at or after its share. */
 static const char *part_start(const par_obj *po, uint32_t k)
 {
-    size_t len = (size_t)(po->end - po->data), at = (size_t)((uint64_t)len * k / PAR_PARTS);
-    if (at == 0) return po->data;
-    if (at >= len) return po->end;
-    const char *nl = memchr(po->data + at - 1, '\n', len - at + 1);
-    return nl ? nl + 1 : po->end;
+    return mesh_text_part_start(po->data, po->end, k, PAR_PARTS);
 }
 
 /* The line at p (up to its '\n' or stop) as t; p moved past it.  False

@@ -127,6 +127,7 @@ int mesh_parse_off(const char *buf, size_t len, mbuild *b)
     uint64_t nv, nf;
     int rc = parse_counts(&t, b, &nv, &nf);
     mesh_text_next_line(&t);
+    if (!rc && mesh_off_par(t.p, t.end, nv, nf, b)) return 0;
     for (uint64_t i = 0; !rc && i < nv; i++) rc = parse_vertex(&t, b, i);
     for (uint64_t i = 0; !rc && i < nf; i++) rc = parse_face(&t, b, i, nv);
     if (rc) return rc;

@@ -3,8 +3,9 @@
  * must be refused with a message and nothing held, or give a mesh that
  * keeps mesh.h's promises (indices in range and distinct, finite vertices,
  * the box around the triangles) and whose topology adds up.  Read as OBJ
- * by the every-CPU parser (whatever its size) and by the one-thread one,
- * it must give the same mesh or the same error at the same line. */
+ * and as OFF by the every-CPU parser (whatever its size) and by the
+ * one-thread one, it must give the same mesh or the same error at the same
+ * line. */
 #include <errno.h>
 #include <math.h>
 #include <stddef.h>
@@ -52,18 +53,18 @@ static void one(const uint8_t *data, size_t size, mesh_format f, const mesh_limi
     if (err.code != rc) __builtin_trap(); /* the code returned, in the error too */
 }
 
-/* The OBJ parser on every CPU (mesh_obj_par_min_bytes 0: any size) and
- * on one thread (SIZE_MAX): the same answer. */
-static void obj_paths_agree(const uint8_t *data, size_t size)
+/* The OBJ and OFF parsers on every CPU (their min_bytes 0: any size)
+ * and on one thread (SIZE_MAX): the same answer. */
+static void paths_agree(const uint8_t *data, size_t size, mesh_format f, size_t *min_bytes)
 {
     mesh m[2];
     mesh_error err[2];
     int rc[2];
     for (int k = 0; k < 2; k++) {
-        mesh_obj_par_min_bytes = k ? SIZE_MAX : 0;
-        rc[k] = mesh_parse(data, size, MESH_FORMAT_OBJ, NULL, &m[k], &err[k]);
+        *min_bytes = k ? SIZE_MAX : 0;
+        rc[k] = mesh_parse(data, size, f, NULL, &m[k], &err[k]);
     }
-    mesh_obj_par_min_bytes = (size_t)1 << 20;
+    *min_bytes = (size_t)1 << 20;
     if (rc[0] != rc[1]) __builtin_trap();
     if (rc[0]) {
         if (strcmp(err[0].msg, err[1].msg) || err[0].line != err[1].line) __builtin_trap();
@@ -80,7 +81,8 @@ static void obj_paths_agree(const uint8_t *data, size_t size)
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    obj_paths_agree(data, size);
+    paths_agree(data, size, MESH_FORMAT_OBJ, &mesh_obj_par_min_bytes);
+    paths_agree(data, size, MESH_FORMAT_OFF, &mesh_off_par_min_bytes);
     static const mesh_limits tight = {5, 5};
     one(data, size, MESH_FORMAT_AUTO, NULL);
     one(data, size, MESH_FORMAT_AUTO, &tight);

@@ -1,5 +1,5 @@
 /* A large Wavefront OBJ parsed on every CPU (mesh_obj_par.c, mesh_obj.c's
- * fast path).
+ * fast path), and a large OFF (mesh_off_par.c, mesh_off.c's).
  *
  * A random mesh of 60,000 vertices and 120,000 triangles (about 4 MB of
  * text, past the 1 MiB below which one thread parses) is written as OBJ
@@ -12,7 +12,12 @@
  * (mesh_obj_par_runs).  A polygon is fanned as one thread fans it; a line
  * continued by a backslash makes the fast path give up, the one-thread
  * parser's mesh the same; an error late in the file is the one-thread
- * parser's message at its line. */
+ * parser's message at its line.  The same mesh as OFF (plain; CRLF with
+ * colours after the vertices and faces and the counts on the keyword's
+ * line) gives the binary file's mesh on every CPU; a comment line among
+ * the records and a quad are read by one thread, to the same mesh and
+ * the quad fanned; an index out of range in the last face is told at its
+ * line. */
 #include <criterion/criterion.h>
 #include <math.h>
 #include <stdarg.h>
@@ -228,4 +233,105 @@ Test(mesh_obj_par, an_error_late_in_the_file_is_told_at_its_line)
     snprintf(want, sizeof want, "vertex index %d out of range (%d vertices so far)", NV + 5, NV);
     cr_assert(strstr(e.msg, want), "'%s' lacks '%s'", e.msg, want);
     free(s.p);
+}
+
+/* ---- OFF ---- */
+
+static uint64_t off_runs(void) { return atomic_load(&mesh_off_par_runs); }
+
+static text off_file(int crlf)
+{
+    text s = {0};
+    const char *nl = crlf ? "\r\n" : "\n";
+    if (crlf) put(&s, "OFF %d %d 0\r\n", NV, NT);
+    else put(&s, "# a random mesh\nOFF\n%d %d 0\n", NV, NT);
+    for (int i = 0; i < NV; i++)
+        put(&s, crlf ? "%.9g %.9g %.9g 0.5 0.25 1%s" : "%.9g %.9g %.9g%s", (double)vert[i][0],
+            (double)vert[i][1], (double)vert[i][2], nl);
+    for (int t = 0; t < NT; t++)
+        put(&s, crlf ? "3 %u %u %u 255 0 0%s" : "3  %u %u\t%u%s", tri[t][0], tri[t][1], tri[t][2], nl);
+    return s;
+}
+
+static void parse_off(const text *s, mesh *m)
+{
+    mesh_error e;
+    int rc = mesh_parse(s->p, s->n, MESH_FORMAT_OFF, NULL, m, &e);
+    cr_assert_eq(rc, 0, "%s (line %llu)", e.msg, (unsigned long long)e.line);
+}
+
+Test(mesh_obj_par, an_off_file_gives_the_binary_files_mesh_on_every_cpu)
+{
+    text bin = binary_file();
+    mesh want, got;
+    mesh_error e;
+    cr_assert_eq(mesh_parse(bin.p, bin.n, MESH_FORMAT_AUTO, NULL, &want, &e), 0, "%s", e.msg);
+    for (int crlf = 0; crlf < 2; crlf++) {
+        text s = off_file(crlf);
+        cr_assert_gt(s.n, 1u << 20);
+        uint64_t runs = off_runs();
+        parse_off(&s, &got);
+        cr_assert_eq(off_runs(), runs + 1, "crlf %d: not parsed on every CPU", crlf);
+        same_mesh(&got, &want, "off");
+        mesh_free(&got);
+        free(s.p);
+    }
+    free(bin.p);
+    mesh_free(&want);
+}
+
+/* s with the n bytes at `at` replaced by with. */
+static text spliced(const text *s, size_t at, size_t n, const char *with)
+{
+    size_t w = strlen(with);
+    text r = {malloc(s->n - n + w), s->n - n + w, 0};
+    cr_assert_not_null(r.p);
+    memcpy(r.p, s->p, at);
+    memcpy(r.p + at, with, w);
+    memcpy(r.p + at + w, s->p + at + n, s->n - at - n);
+    return r;
+}
+
+Test(mesh_obj_par, an_off_layout_it_does_not_take_is_read_by_one_thread)
+{
+    text plain = off_file(0);
+    mesh want, got;
+    parse_off(&plain, &want);
+    /* a comment line before the 30,000th vertex's line */
+    char *mid = plain.p;
+    for (int i = 0; i < 30003; i++) mid = strchr(mid, '\n') + 1;
+    text c = spliced(&plain, (size_t)(mid - plain.p), 0, "# a comment\n");
+    uint64_t runs = off_runs();
+    parse_off(&c, &got);
+    cr_assert_eq(off_runs(), runs, "a comment line: the fast path ran");
+    same_mesh(&got, &want, "comment");
+    mesh_free(&got);
+    free(c.p);
+    /* the last face a quad with the last vertex: fanned */
+    char *last = plain.p + plain.n - 1;
+    while (last[-1] != '\n') last--;
+    char quad[96];
+    snprintf(quad, sizeof quad, "4 %u %u %u %d\n", tri[NT - 1][0], tri[NT - 1][1], tri[NT - 1][2],
+             NV - 1);
+    text q = spliced(&plain, (size_t)(last - plain.p), (size_t)(plain.p + plain.n - last), quad);
+    runs = off_runs();
+    parse_off(&q, &got);
+    cr_assert_eq(off_runs(), runs, "a quad: the fast path ran");
+    cr_assert_eq(got.n_triangles, want.n_triangles + 1);
+    cr_assert(!memcmp(got.triangles, want.triangles, 12 * (size_t)want.n_triangles));
+    cr_assert(got.triangles[NT][0] == tri[NT - 1][0] && got.triangles[NT][2] == NV - 1);
+    mesh_free(&got);
+    free(q.p);
+    /* the last face's index out of range: told at its line */
+    snprintf(quad, sizeof quad, "3 0 1 %d\n", NV + 7);
+    text bad = spliced(&plain, (size_t)(last - plain.p), (size_t)(plain.p + plain.n - last), quad);
+    mesh_error e;
+    cr_assert_eq(mesh_parse(bad.p, bad.n, MESH_FORMAT_OFF, NULL, &got, &e), -EINVAL);
+    cr_assert_eq(e.line, 3 + (uint64_t)NV + NT, "line %llu", (unsigned long long)e.line);
+    char want_msg[96];
+    snprintf(want_msg, sizeof want_msg, "vertex index %d out of range (%d vertices)", NV + 7, NV);
+    cr_assert(strstr(e.msg, want_msg), "'%s' lacks '%s'", e.msg, want_msg);
+    free(bad.p);
+    mesh_free(&want);
+    free(plain.p);
 }
