@@ -24,6 +24,7 @@
 
 #include "mesh.h"
 #include "mesh_load.h"
+#include "mesh_text_fixture.h"
 
 #define NV 60000
 #define NT 120000
@@ -54,30 +55,6 @@ static void make_mesh(void)
             for (int k = 0; k < 3; k++) tri[t][k] = 1 + rnd() % (NV - 1);
         } while (tri[t][0] == tri[t][1] || tri[t][1] == tri[t][2] || tri[t][0] == tri[t][2]);
     tri[100][1] = tri[100][0]; /* degenerate: dropped by both parsers */
-}
-
-typedef struct {
-    char *p;
-    size_t n, cap;
-} text;
-
-static void put(text *s, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void put(text *s, const char *fmt, ...)
-{
-    va_list ap;
-    for (;;) {
-        va_start(ap, fmt);
-        int n = vsnprintf(s->p + s->n, s->cap - s->n, fmt, ap);
-        va_end(ap);
-        cr_assert_geq(n, 0);
-        if (s->n + (size_t)n < s->cap) {
-            s->n += (size_t)n;
-            return;
-        }
-        s->cap = s->cap * 2 + (size_t)n + 4096;
-        s->p = realloc(s->p, s->cap);
-        cr_assert_not_null(s->p);
-    }
 }
 
 enum { PLAIN, EXP, CRLF_EXTRA, VERTS_LAST };
@@ -115,21 +92,7 @@ static text ascii_file(int style)
 /* The same mesh as binary little-endian PLY. */
 static text binary_file(void)
 {
-    text s = {0};
-    put(&s, "ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
-            "property float y\nproperty float z\nelement face %d\n"
-            "property list uchar int vertex_indices\nend_header\n", NV, NT);
-    size_t need = s.n + (size_t)NV * 12 + (size_t)NT * 13;
-    s.p = realloc(s.p, need);
-    cr_assert_not_null(s.p);
-    memcpy(s.p + s.n, vert, sizeof vert); /* little-endian hosts only (x86, arm64) */
-    s.n += sizeof vert;
-    for (int t = 0; t < NT; t++) {
-        s.p[s.n++] = 3;
-        memcpy(s.p + s.n, tri[t], 12);
-        s.n += 12;
-    }
-    return s;
+    return ply_binary(vert, NV, tri, NT);
 }
 
 static uint64_t par_runs(void) { return atomic_load(&mesh_ply_par_runs); }
@@ -141,16 +104,6 @@ static void parse(const text *s, mesh *m)
     cr_assert_eq(rc, 0, "%s (line %llu)", e.msg, (unsigned long long)e.line);
 }
 
-static void same_mesh(const mesh *a, const mesh *b, const char *what)
-{
-    cr_assert_eq(a->n_vertices, b->n_vertices, "%s: vertices", what);
-    cr_assert_eq(a->n_triangles, b->n_triangles, "%s: triangles", what);
-    cr_assert_eq(a->n_degenerate, b->n_degenerate, "%s: degenerate", what);
-    cr_assert(!memcmp(a->vertices, b->vertices, 12 * (size_t)a->n_vertices), "%s: positions", what);
-    cr_assert(!memcmp(a->triangles, b->triangles, 12 * (size_t)a->n_triangles), "%s: indices",
-              what);
-    cr_assert(!memcmp(a->lo, b->lo, 12) && !memcmp(a->hi, b->hi, 12), "%s: box", what);
-}
 
 TestSuite(mesh_ply_par, .init = make_mesh);
 
