@@ -23,10 +23,13 @@ vc() { timeout 300 "${CLIENT[@]}" "$S" "$@"; }
 bg() { "$@" & PIDS+=($!); }
 
 # bgsubmit OUT ARGS...: `vc submit ARGS` in the background (BG_PID), its
-# output and then "rc=N" in OUT
+# output and then "rc=N" in OUT (emptied here, before the background
+# starts: a wait on OUT must not find what an earlier client wrote there;
+# daemon_life.sh's TERM test once sent its signal on a stale line)
 bgsubmit() {
     local out=$1
     shift
+    : >"$out"
     # (10 min at most: a job of a minute alone takes several on a loaded machine)
     (timeout 600 "${CLIENT[@]}" "$S" submit "$@" >"$out" 2>&1; echo "rc=$?" >>"$out") &
     BG_PID=$!
@@ -38,6 +41,7 @@ bgsubmit() {
 bgclient() {
     local out=$1
     shift
+    : >"$out" # (as bgsubmit's)
     (exec timeout 600 "${CLIENT[@]}" "$S" "$@" >"$out" 2>&1) &
     BG_PID=$!
     PIDS+=($BG_PID)
