@@ -60,13 +60,13 @@ static int implicit_leaf(csg_tree *t, const Voxd__CsgNode *m, size_t i, const ex
     expr_error xe = {0};
     int rc = expr_compile((const char *)m->source.data, m->source.len, lim, &tape, &xe);
     expr_tape_free(tape);
-    if (rc && xe.line > 0) /* where in the expression; none for out of memory */
-        snprintf(msg, len, "CSG node %zu ('%s'): expression:%d:%d: %s", i, n->name, xe.line,
-                 xe.col, xe.msg[0] ? xe.msg : strerror(-rc));
-    else if (rc)
-        snprintf(msg, len, "CSG node %zu ('%s'): expression: %s", i, n->name,
+    if (rc) {
+        char at[32] = ""; /* where in the expression; none for out of memory */
+        if (xe.line > 0) snprintf(at, sizeof at, ":%d:%d", xe.line, xe.col);
+        snprintf(msg, len, "CSG node %zu ('%s'): expression%s: %s", i, n->name, at,
                  xe.msg[0] ? xe.msg : strerror(-rc));
-    if (rc) return rc;
+        return rc;
+    }
     n->expr_off = (uint32_t)t->text_len;
     n->expr_len = (uint32_t)m->source.len;
     memcpy(t->text + t->text_len, m->source.data, m->source.len);

@@ -5,7 +5,8 @@
  * tile (its mesh parsed, placed and binned here, copied into the segment
  * as a mesh job's block, CSG_LEAF_TILES tasks building its volume with
  * mesh_tile_run, the same volume csg_leaf_build makes), a VOD leaf's here
- * (csg_leaf_build, on as many of this process's threads as it has workers).  Once the last is in, the rest of the data area goes
+ * (csg_leaf_build, on as many of this process's threads as it has
+ * workers).  Once the last is in, the rest of the data area goes
  * to the result's volume, and the volume's storage bricks are pushed as runs of
  * consecutive bricks (x fastest), at most CSG_TASKS of them.  Workers send
  * no entries: a brick goes straight into the volume (uniform ones as a

@@ -189,6 +189,14 @@ uint64_t mesh_text_count_newlines(const char *p, const char *end);
 /* Part k of [data, end) cut into `parts` at line starts: the start of the
  * line at or after its share (so part k - 1 ends where it starts). */
 const char *mesh_text_part_start(const char *data, const char *end, uint32_t k, uint32_t parts);
+/* fn(ud, part) for parts 0 .. nparts - 1 on every CPU, the threads taking
+ * them in turn, no part taken once one has failed (fn non-zero): 0 when
+ * every part ran and none failed, else -1. */
+int mesh_text_each_part(uint32_t nparts, int (*fn)(void *ud, uint32_t part), void *ud);
+/* [data, end) cut into `parts` (mesh_text_part_start): first[k] the index
+ * of part k's first line, first[parts] the lines before the end (first
+ * holds parts + 1); the lines, a last one without its '\n' counted. */
+uint64_t mesh_text_first_lines(const char *data, const char *end, uint32_t parts, uint64_t *first);
 /* The length of the token at p (up to a blank, newline or the end). */
 size_t mesh_text_toklen(const mtext *t);
 /* The token at p is w (ASCII case ignored when nocase): consume it. */

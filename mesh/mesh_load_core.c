@@ -504,3 +504,60 @@ const char *mesh_text_part_start(const char *data, const char *end, uint32_t k, 
     const char *nl = memchr(data + at - 1, '\n', len - at + 1);
     return nl ? nl + 1 : end;
 }
+
+/* What mesh_text_each_part's threads share. */
+typedef struct {
+    uint32_t nparts;
+    int (*fn)(void *ud, uint32_t part);
+    void *ud;
+    /* The next part to take, and whether a part failed.  Relaxed: the
+     * counter only hands out parts, the flag only stops the others early;
+     * what the parts wrote, and the flag, are read after par_run's join. */
+    atomic_uint next;
+    atomic_int bad;
+} parts_job;
+
+static void parts_run(void *arg, unsigned k, unsigned n)
+{
+    (void)k, (void)n; /* the threads share one counter of parts */
+    parts_job *j = arg;
+    for (uint32_t i; !atomic_load_explicit(&j->bad, memory_order_relaxed) &&
+                     (i = atomic_fetch_add_explicit(&j->next, 1, memory_order_relaxed)) < j->nparts;)
+        if (j->fn(j->ud, i)) atomic_store_explicit(&j->bad, 1, memory_order_relaxed);
+}
+
+int mesh_text_each_part(uint32_t nparts, int (*fn)(void *ud, uint32_t part), void *ud)
+{
+    parts_job j = {.nparts = nparts, .fn = fn, .ud = ud};
+    atomic_init(&j.next, 0);
+    atomic_init(&j.bad, 0);
+    par_run(par_cpus(), parts_run, &j);
+    return atomic_load_explicit(&j.bad, memory_order_relaxed) ? -1 : 0;
+}
+
+typedef struct {
+    const char *data, *end;
+    uint32_t parts;
+    uint64_t *first;
+} lines_job;
+
+static int count_lines(void *ud, uint32_t i)
+{
+    lines_job *l = ud;
+    l->first[i] = mesh_text_count_newlines(mesh_text_part_start(l->data, l->end, i, l->parts),
+                                           mesh_text_part_start(l->data, l->end, i + 1, l->parts));
+    return 0;
+}
+
+uint64_t mesh_text_first_lines(const char *data, const char *end, uint32_t parts, uint64_t *first)
+{
+    lines_job l = {data, end, parts, first};
+    (void)mesh_text_each_part(parts, count_lines, &l); /* counting never fails */
+    uint64_t lines = 0;
+    for (uint32_t i = 0; i <= parts; i++) {
+        uint64_t c = i < parts ? first[i] : 0;
+        first[i] = lines;
+        lines += c;
+    }
+    return lines + (end > data && end[-1] != '\n'); /* a last line without its line end */
+}

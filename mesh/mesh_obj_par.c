@@ -31,8 +31,6 @@ typedef struct {
     mbuild *b;
     const char *data, *end;
     uint64_t nv[PAR_PARTS + 1], nt[PAR_PARTS + 1]; /* counts, then the parts' first */
-    atomic_uint next; /* the next part to take (relaxed: a counter) */
-    atomic_int bad;   /* a part gave up (relaxed: read after par_run's join) */
 } par_obj;
 
 /* Part k's first byte: the start of the line at or after its share. */
@@ -64,9 +62,11 @@ static uint32_t face_tokens(mtext *t)
     }
 }
 
-/* Part i's vertices and triangles counted into nv[i], nt[i]; -1: give up. */
-static int count_part(par_obj *po, uint32_t i)
+/* Part i's vertices and triangles counted into nv[i], nt[i]
+ * (mesh_text_each_part's fn); -1: give up. */
+static int count_part(void *ud, uint32_t i)
 {
+    par_obj *po = ud;
     const char *p = part_start(po, i), *stop = part_start(po, i + 1);
     uint64_t nv = 0, nt = 0;
     while (p < stop) {
@@ -130,9 +130,10 @@ static int take_face(mtext *t, mbuild *b, uint64_t so_far, uint64_t *tri)
 }
 
 /* Part i parsed into the builder's arrays from its first vertex and
- * triangle on; -1: give up. */
-static int parse_part(par_obj *po, uint32_t i)
+ * triangle on (mesh_text_each_part's fn); -1: give up. */
+static int parse_part(void *ud, uint32_t i)
 {
+    par_obj *po = ud;
     const char *p = part_start(po, i), *stop = part_start(po, i + 1);
     uint64_t v = po->nv[i], tri = po->nt[i];
     mbuild *b = po->b;
@@ -143,28 +144,11 @@ static int parse_part(par_obj *po, uint32_t i)
         int rc = 0;
         if (mesh_text_word(&t, "v", 0)) rc = take_vertex(&t, b->v[v++]);
         else if (mesh_text_word(&t, "f", 0)) rc = take_face(&t, b, v, &tri);
-        /* relaxed: only a hint to stop early; par_run's join orders the result */
-        if (rc || atomic_load_explicit(&po->bad, memory_order_relaxed)) return -1;
+        if (rc) return -1;
     }
     /* what count_part counted: the same lines, the same tokens */
     assert(v == po->nv[i + 1] && tri == po->nt[i + 1]);
     return 0;
-}
-
-static void count_parts(void *ud, unsigned k, unsigned n)
-{
-    (void)k, (void)n;
-    par_obj *po = ud;
-    for (uint32_t i; (i = atomic_fetch_add_explicit(&po->next, 1, memory_order_relaxed)) < PAR_PARTS;)
-        if (count_part(po, i)) atomic_store_explicit(&po->bad, 1, memory_order_relaxed);
-}
-
-static void parse_parts(void *ud, unsigned k, unsigned n)
-{
-    (void)k, (void)n;
-    par_obj *po = ud;
-    for (uint32_t i; (i = atomic_fetch_add_explicit(&po->next, 1, memory_order_relaxed)) < PAR_PARTS;)
-        if (parse_part(po, i)) atomic_store_explicit(&po->bad, 1, memory_order_relaxed);
 }
 
 /* The counts made the parts' first vertex and triangle (prefix sums);
@@ -186,20 +170,12 @@ static int lay_out(par_obj *po)
 
 int mesh_obj_par(const char *buf, size_t len, mbuild *b)
 {
-    unsigned cpus = par_cpus();
-    if (len < mesh_obj_par_min_bytes || cpus < 2 || b->nv || b->nt) return 0;
+    if (len < mesh_obj_par_min_bytes || par_cpus() < 2 || b->nv || b->nt) return 0;
     par_obj *po = calloc(1, sizeof *po); /* 4 KiB of counts: off the stack */
     if (!po) return 0;
     po->b = b, po->data = buf, po->end = buf + len;
-    atomic_init(&po->next, 0);
-    atomic_init(&po->bad, 0);
-    par_run(cpus, count_parts, po);
-    int ok = !atomic_load_explicit(&po->bad, memory_order_relaxed) && lay_out(po);
-    if (ok) {
-        atomic_store_explicit(&po->next, 0, memory_order_relaxed); /* before par_run's threads */
-        par_run(cpus, parse_parts, po);
-        ok = !atomic_load_explicit(&po->bad, memory_order_relaxed); /* after the join */
-    }
+    int ok = !mesh_text_each_part(PAR_PARTS, count_part, po) && lay_out(po) &&
+             !mesh_text_each_part(PAR_PARTS, parse_part, po);
     if (ok) {
         b->nv = (uint32_t)po->nv[PAR_PARTS], b->nt = (uint32_t)po->nt[PAR_PARTS];
         /* relaxed: a count for the tests, which read it after the parse */

@@ -25,22 +25,12 @@ typedef struct {
     mbuild *b;
     const char *data, *end;
     uint64_t nv, nf;
-    uint64_t first[PAR_PARTS + 1]; /* newlines in part k, then its first line's record */
-    atomic_uint next; /* the next part to take (relaxed: a counter) */
-    atomic_int bad;   /* a part gave up (relaxed: read after par_run's join) */
+    uint64_t first[PAR_PARTS + 1]; /* each part's first line's record */
 } par_off;
 
 static const char *part_start(const par_off *po, uint32_t k)
 {
     return mesh_text_part_start(po->data, po->end, k, PAR_PARTS);
-}
-
-static void count_parts(void *ud, unsigned k, unsigned n)
-{
-    (void)k, (void)n;
-    par_off *po = ud;
-    for (uint32_t i; (i = atomic_fetch_add_explicit(&po->next, 1, memory_order_relaxed)) < PAR_PARTS;)
-        po->first[i] = mesh_text_count_newlines(part_start(po, i), part_start(po, i + 1));
 }
 
 /* Record g, the line t: a vertex, a triangle, or (past the last face)
@@ -69,53 +59,30 @@ static int record(par_off *po, mtext *t, uint64_t g)
     return 0;
 }
 
-static int parse_part(par_off *po, uint32_t i)
+/* The lines of part i (mesh_text_each_part's fn); -1: give up. */
+static int parse_part(void *ud, uint32_t i)
 {
+    par_off *po = ud;
     const char *p = part_start(po, i), *stop = part_start(po, i + 1);
     for (uint64_t g = po->first[i]; p < stop; g++) {
         const char *nl = memchr(p, '\n', (size_t)(stop - p));
         mtext t = {p, nl ? nl : stop, po->data};
         p = nl ? nl + 1 : stop;
-        /* relaxed: only a hint to stop early; par_run's join orders the result */
-        if (record(po, &t, g) || (!(g & 4095) && atomic_load_explicit(&po->bad, memory_order_relaxed)))
-            return -1;
+        if (record(po, &t, g)) return -1;
     }
     return 0;
 }
 
-static void parse_parts(void *ud, unsigned k, unsigned n)
-{
-    (void)k, (void)n;
-    par_off *po = ud;
-    for (uint32_t i; (i = atomic_fetch_add_explicit(&po->next, 1, memory_order_relaxed)) < PAR_PARTS;)
-        if (parse_part(po, i)) atomic_store_explicit(&po->bad, 1, memory_order_relaxed);
-}
-
 int mesh_off_par(const char *data, const char *end, uint64_t nv, uint64_t nf, mbuild *b)
 {
-    unsigned cpus = par_cpus();
-    if ((size_t)(end - data) < mesh_off_par_min_bytes || cpus < 2 || b->nv || b->nt ||
+    if ((size_t)(end - data) < mesh_off_par_min_bytes || par_cpus() < 2 || b->nv || b->nt ||
         b->cap_v < nv || b->cap_t < nf || !nv || !nf || data == end)
         return 0;
     par_off *po = calloc(1, sizeof *po); /* 2 KiB of counts: off the stack */
     if (!po) return 0;
     po->b = b, po->data = data, po->end = end, po->nv = nv, po->nf = nf;
-    atomic_init(&po->next, 0);
-    atomic_init(&po->bad, 0);
-    par_run(cpus, count_parts, po);
-    uint64_t lines = 0;
-    for (uint32_t i = 0; i <= PAR_PARTS; i++) {
-        uint64_t c = i < PAR_PARTS ? po->first[i] : 0;
-        po->first[i] = lines;
-        lines += c;
-    }
-    lines += end[-1] != '\n'; /* a last line without its line end */
-    int ok = lines >= nv + nf;
-    if (ok) {
-        atomic_store_explicit(&po->next, 0, memory_order_relaxed); /* before par_run's threads */
-        par_run(cpus, parse_parts, po);
-        ok = !atomic_load_explicit(&po->bad, memory_order_relaxed); /* after the join */
-    }
+    uint64_t lines = mesh_text_first_lines(data, end, PAR_PARTS, po->first);
+    int ok = lines >= nv + nf && !mesh_text_each_part(PAR_PARTS, parse_part, po);
     free(po);
     if (!ok) return 0;
     b->nv = (uint32_t)nv, b->nt = (uint32_t)nf;

@@ -399,33 +399,15 @@ _Atomic uint64_t mesh_ply_par_runs;
 typedef struct {
     ply *y;
     const char *data, *end;
-    uint32_t nparts;
     uint64_t ebase[MAX_ELEMS + 1]; /* the index of each element's first line */
-    uint64_t first[PAR_PARTS + 1]; /* newlines in part k, then its first line's index */
-    atomic_uint next;              /* the next part to take */
-    atomic_int bad;                /* a part gave up: parse_ascii decides */
+    uint64_t first[PAR_PARTS + 1]; /* each part's first line's index */
 } par_ply;
 
 /* Part k's first byte: the start of the line at or after its share of the
  * data (so part k - 1's last byte is found the same way). */
 static const char *part_start(const par_ply *pp, uint32_t k)
 {
-    return mesh_text_part_start(pp->data, pp->end, k, pp->nparts);
-}
-
-/* The part that the calling thread takes next; nparts when none is left. */
-static uint32_t take_part(par_ply *pp)
-{
-    /* relaxed: a counter; the parts' bounds are computed, not published */
-    return atomic_fetch_add_explicit(&pp->next, 1, memory_order_relaxed);
-}
-
-static void count_parts(void *ud, unsigned k, unsigned n)
-{
-    (void)k, (void)n;
-    par_ply *pp = ud;
-    for (uint32_t i; (i = take_part(pp)) < pp->nparts;)
-        pp->first[i] = mesh_text_count_newlines(part_start(pp, i), part_start(pp, i + 1));
+    return mesh_text_part_start(pp->data, pp->end, k, PAR_PARTS);
 }
 
 /* One line [t->p, t->end) as item `item` of element e: 0, or -1 when the
@@ -466,13 +448,14 @@ static int line_item(ply *y, mtext *t, const ply_elem *e, uint64_t item)
     return 0;
 }
 
-/* The lines of part i, whose first is line g of the data. */
-static int parse_part(par_ply *pp, uint32_t i, uint64_t g)
+/* The lines of part i (mesh_text_each_part's fn); -1: give up. */
+static int parse_part(void *ud, uint32_t i)
 {
+    par_ply *pp = ud;
     ply *y = pp->y;
     const char *p = part_start(pp, i), *stop = part_start(pp, i + 1);
     uint32_t ei = 0;
-    for (; p < stop; g++) {
+    for (uint64_t g = pp->first[i]; p < stop; g++) {
         const char *nl = memchr(p, '\n', (size_t)(stop - p));
         mtext t = {p, nl ? nl : stop, y->b->buf};
         p = nl ? nl + 1 : stop;
@@ -483,22 +466,8 @@ static int parse_part(par_ply *pp, uint32_t i, uint64_t g)
         } else if (line_item(y, &t, &y->elems[ei], g - pp->ebase[ei])) {
             return -1;
         }
-        /* relaxed: only a hint to stop early; par_run's join orders the result */
-        if (!(g & 4095) && atomic_load_explicit(&pp->bad, memory_order_relaxed)) return -1;
     }
     return 0;
-}
-
-static void parse_parts(void *ud, unsigned k, unsigned n)
-{
-    (void)k, (void)n;
-    par_ply *pp = ud;
-    for (uint32_t i; (i = take_part(pp)) < pp->nparts;)
-        if (parse_part(pp, i, pp->first[i])) {
-            /* relaxed: read after par_run's join (and as a hint before) */
-            atomic_store_explicit(&pp->bad, 1, memory_order_relaxed);
-            return;
-        }
 }
 
 /* 1 when the data was parsed on every CPU into y's builder, 0 when
@@ -506,29 +475,14 @@ static void parse_parts(void *ud, unsigned k, unsigned n)
 static int parse_ascii_par(ply *y, const char *end)
 {
     size_t len = (size_t)(end - y->data);
-    unsigned cpus = par_cpus();
-    if (len < PAR_MIN_BYTES || cpus < 2) return 0;
+    if (len < PAR_MIN_BYTES || par_cpus() < 2) return 0;
     par_ply *pp = calloc(1, sizeof *pp); /* 2 KiB of part bounds: off the stack */
     if (!pp) return 0;
-    atomic_init(&pp->next, 0);
-    atomic_init(&pp->bad, 0);
-    pp->y = y, pp->data = y->data, pp->end = end, pp->nparts = PAR_PARTS;
+    pp->y = y, pp->data = y->data, pp->end = end;
     for (uint32_t i = 0; i < y->nelems; i++)
         pp->ebase[i + 1] = pp->ebase[i] + y->elems[i].count;
-    par_run(cpus, count_parts, pp);
-    uint64_t lines = 0, items = pp->ebase[y->nelems];
-    for (uint32_t i = 0; i <= pp->nparts; i++) {
-        uint64_t c = i < pp->nparts ? pp->first[i] : 0;
-        pp->first[i] = lines;
-        lines += c;
-    }
-    lines += end[-1] != '\n'; /* a last line without its line end */
-    int ok = lines >= items;
-    if (ok) {
-        atomic_store_explicit(&pp->next, 0, memory_order_relaxed); /* before par_run's threads */
-        par_run(cpus, parse_parts, pp);
-        ok = !atomic_load_explicit(&pp->bad, memory_order_relaxed); /* after the join */
-    }
+    uint64_t lines = mesh_text_first_lines(pp->data, end, PAR_PARTS, pp->first);
+    int ok = lines >= pp->ebase[y->nelems] && !mesh_text_each_part(PAR_PARTS, parse_part, pp);
     free(pp);
     if (!ok) return 0;
     /* relaxed: a count for the tests, which read it after the parse */

@@ -743,7 +743,7 @@ static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
     }
     f->info.metadata = f->metadata ? f->metadata : "";
     f->info.file_bytes = len;
-    f->levels = scan ? 0 : levels;
+    f->levels = levels; /* a scan's f->brick is NULL: it has no level */
     *out = f;
     return 0;
 }
@@ -751,7 +751,7 @@ static int read_image(const void *buf, size_t len, int threads, scan_job *scan,
 int vod_read_threads(const void *buf, size_t len, int threads, vod_file **out,
                      err_info *err)
 {
-    return read_image(buf, len, threads, NULL, VOD_LEVELS_ALL, out, err);
+    return vod_read_levels(buf, len, threads, VOD_LEVELS_ALL, out, err);
 }
 
 int vod_read_levels(const void *buf, size_t len, int threads, uint32_t levels, vod_file **out,
@@ -828,7 +828,7 @@ static int open_image(const char *path, int threads, scan_job *scan, uint32_t le
 
 int vod_open_threads(const char *path, int threads, vod_file **out, err_info *err)
 {
-    return open_image(path, threads, NULL, VOD_LEVELS_ALL, out, err);
+    return vod_open_levels(path, threads, VOD_LEVELS_ALL, out, err);
 }
 
 int vod_open_levels(const char *path, int threads, uint32_t levels, vod_file **out,
