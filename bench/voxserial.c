@@ -40,6 +40,15 @@
  *   threads    the threads seen over the run, procs the most processes in
  *              one sample
  *
+ * A second line tells the job's parallelism over the run, where a serial
+ * share alone does not (with many workers, a window with 2 of 16 runnable
+ * counts as parallel): the seconds of the windows by their number of
+ * runnable threads, K:SECONDS for each K seen (K = RUNNABLE_MAX: that many
+ * or more), so that N workers' unused CPU time is sum (N - K) x SECONDS
+ * over the K below N:
+ *
+ *   runnable_s=0:S0,1:S1,...
+ *
  * With -l MS a line "serial_spans=" follows: the runs of consecutive serial
  * windows (runnable threads) of at least MS milliseconds, as START-END in
  * seconds from the fork, to put beside the command's own stage times.
@@ -86,6 +95,7 @@
 #define MAX_SPANS 64
 #define MAX_WHO 512  /* distinct (thread, name, state, wait) charged */
 #define WHO_LEN 160
+#define RUNNABLE_MAX 256 /* runnable_s's last count: that many or more */
 
 /* Serial seconds charged to one description of a thread. */
 typedef struct {
@@ -132,6 +142,7 @@ typedef struct {
 typedef struct {
     double wall, cpu;
     split st, ran; /* by the runnable threads, by the threads that ran */
+    double by_runnable[RUNNABLE_MAX + 1]; /* seconds by runnable threads */
     int samples, procs;
     double span_start[MAX_SPANS], span_end[MAX_SPANS];
     char *span_where[MAX_SPANS]; /* -w: where the span's time went */
@@ -388,6 +399,7 @@ static int sample(sampler *s, int pid, double dt, result *r)
     r->samples++;
     r->cpu += 1e-9 * (double)s->cpu_ns;
     add_window(&r->ran, s->ran, dt);
+    r->by_runnable[s->runnable < RUNNABLE_MAX ? s->runnable : RUNNABLE_MAX] += dt;
     int serial = add_window(&r->st, s->runnable, dt);
     if (serial && W.on) charge_window(s, dt);
     return serial;
@@ -437,6 +449,13 @@ static void report(FILE *out, const result *r, int n, int nth, double min_span_s
             1 / (1 + 15 * share), 1 / (1 + 63 * share), r->ran.serial,
             r->ran.parallel, share_of(&r->ran, n), r->cpu, r->samples, nth,
             r->procs);
+    fprintf(out, "runnable_s=");
+    for (int k = 0, first = 1; k <= RUNNABLE_MAX; k++)
+        if (r->by_runnable[k] > 0) {
+            fprintf(out, "%s%d:%.6f", first ? "" : ",", k, r->by_runnable[k]);
+            first = 0;
+        }
+    fprintf(out, "\n");
     if (min_span_s <= 0) return;
     fprintf(out, "serial_spans=");
     for (int i = 0; i < r->nspans; i++)

@@ -39,6 +39,14 @@ measure two -- "$S" -S 2:1
 # (the start, exec and the second thread's creation, is serial: a few
 # windows, longer on a loaded machine)
 expect two 'v["share"] <= 0.1 && v["parallel_s"] >= 0.85 && v["threads"] == 2'
+# runnable_s: the seconds by runnable threads; three busy threads are three
+# runnable (on a CPU or waiting for one), whatever the cores.
+measure three -- "$S" -S 3:0.6
+runnable() { sed -n 's/^runnable_s=//p' "$TMP/$1" | tr ',' '\n' | awk -F: -v k="$2" '$1 == k { print $2 }'; }
+r3=$(runnable three 3) r1=$(runnable three 1)
+if awk -v a="${r3:-0}" -v b="${r1:-0}" 'BEGIN { exit !(a >= 0.5 && b <= 0.05) }'; then
+    pass "voxserial: three busy threads: 3 runnable ${r3}s, 1 runnable ${r1:-0}s"
+else fail "voxserial: three busy threads runnable" "$(sed -n 2p "$TMP/three")"; fi
 measure two-n4 -n 4 -- "$S" -S 2:1 # a parallel second is 4 workers' work
 expect two-n4 'v["share"] <= 0.05 && v["share"] * 4 >= 0.9 * (v["serial_s"] / (v["serial_s"] + 2 * v["parallel_s"]))'
 
