@@ -40,14 +40,22 @@ static int pick_cpus(engine *e, const engine_opts *o, err_info *err)
         }
         return 0;
     }
-    /* Automatic: worker i on the i-th CPU this process may run on. */
+    /* Automatic: the CPUs this process may run on, in order, from the one
+     * it runs on now: worker i on the (s + i)-th.  The kernel starts a
+     * process on an idle CPU, so jobs started side by side spread out:
+     * from the first CPU every time, 16 one-worker vox started at once on
+     * 16 cores pinned their 16 workers to CPU 0 and took 10 times longer
+     * (docs/benchmarks.md). */
     cpu_set_t set;
-    int list[CPU_SETSIZE], k = 0;
+    int list[CPU_SETSIZE], k = 0, s = 0, here = sched_getcpu();
     if (sched_getaffinity(0, sizeof set, &set) == 0)
         for (int c = 0; c < CPU_SETSIZE; c++)
-            if (CPU_ISSET(c, &set)) list[k++] = c;
+            if (CPU_ISSET(c, &set)) {
+                if (c == here) s = k;
+                list[k++] = c;
+            }
     if (k == 0) list[k++] = 0;
-    for (int i = 0; i < e->n; i++) e->ms[i].cpu = list[i % k];
+    for (int i = 0; i < e->n; i++) e->ms[i].cpu = list[(s + i) % k];
     return 0;
 }
 

@@ -539,11 +539,27 @@ Test(engine, workers_are_pinned)
     int allowed[CPU_SETSIZE], k = 0;
     for (int c = 0; c < CPU_SETSIZE; c++)
         if (CPU_ISSET(c, &mine)) allowed[k++] = c;
-    engine *e = make_engine(3, (size_t)16 << 20);
-    for (int i = 0; i < 3; i++) {
-        cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[i % k]);
-        cr_assert_eq(engine_worker_cpu(e, i), allowed[i % k]);
+    /* Automatic: the allowed CPUs in order, from one of them (the one the
+     * master ran on: where the kernel put it), each once before any twice. */
+    engine *e = make_engine(k + 1, (size_t)16 << 20);
+    int s = -1;
+    for (int j = 0; j < k; j++)
+        if (allowed[j] == engine_worker_cpu(e, 0)) s = j;
+    cr_assert(s >= 0, "worker 0 on CPU %d, not one the process may use", engine_worker_cpu(e, 0));
+    for (int i = 0; i < k + 1; i++) {
+        cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[(s + i) % k]);
+        cr_assert_eq(engine_worker_cpu(e, i), allowed[(s + i) % k]);
     }
+    engine_destroy(e);
+    /* From the CPU the master runs on: the process bound to the last one
+     * alone, every worker there. */
+    cpu_set_t last;
+    CPU_ZERO(&last);
+    CPU_SET(allowed[k - 1], &last);
+    cr_assert_eq(sched_setaffinity(0, sizeof last, &last), 0);
+    e = make_engine(2, (size_t)16 << 20);
+    cr_assert_eq(sched_setaffinity(0, sizeof mine, &mine), 0);
+    for (int i = 0; i < 2; i++) cr_assert_eq(pinned_cpu(engine_worker_pid(e, i)), allowed[k - 1]);
     engine_destroy(e);
     int cpus[1] = {allowed[k - 1]};
     engine_opts o = {.workers = 2, .cpus = cpus, .ncpus = 1, .shm_bytes = 16 << 20};
