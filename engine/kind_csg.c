@@ -320,12 +320,12 @@ static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
                                           j->grid.res, 8, CSG_VOLUME_BRICK))
         return engine_sched_no_room(e, "the leaves' volumes");
     int rc = csg_leaf_build(j->tree, i, &j->grid, lv, (unsigned)e->n, &le); /* workers idle */
-    if (rc == -ENOMEM)
-        return engine_sched_fail(e, ENGINE_LIMIT, rc, "%s; raise the shared memory's size",
-                                 le.msg);
-    if (rc) return engine_sched_fail(e, ENGINE_BAD_JOB, rc, "%s", le.msg);
     vod_volume_info in;
     vod_volume_get_info(lv, &in);
+    /* -ENOMEM is the segment's only when the volume's pool ran out; else
+     * the heap's (the file's read, a thread's brick buffer) */
+    if (rc == -ENOMEM && in.pool_full) return engine_sched_no_room(e, "the leaves' volumes");
+    if (rc) return engine_sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_BAD_JOB, rc, "%s", le.msg);
     b->leaf_off[i] = cj->off;
     cj->off = engine_sched_align64(cj->off + in.bytes_used);
     return 0;

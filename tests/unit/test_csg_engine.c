@@ -287,6 +287,25 @@ Test(csg_engine, a_volume_past_shared_memory_is_a_limit)
     cr_assert_eq(r.err.kind, ENGINE_LIMIT, "%s", r.err.msg);
     cr_assert_eq(r.stage, ENGINE_PIPELINE_VOXELIZE);
     free(out.p);
+    out = (vod_membuf){0};
+
+    /* A VOD leaf's volume past it: the same limit, naming the segment
+     * (its -ENOMEM is the pool's, where a heap's would not be). */
+    job = csg_job(t, 64, VOXEL_CH_DENSITY);
+    vod_membuf file = run(NULL, &job, &r);
+    csg_tree_free(t);
+    t = parse("v = vod \"v.vod\"\nresult v\n");
+    t->data[0] = malloc(file.n);
+    cr_assert(t->data[0]);
+    memcpy(t->data[0], file.p, file.n);
+    t->data_len[0] = file.n;
+    job = csg_job(t, 256, VOXEL_CH_DENSITY);
+    cr_assert_eq(engine_pipeline_run(e, &job, &sink, &r), -ENOMEM, "%s", r.err.msg);
+    cr_assert_eq(r.err.kind, ENGINE_LIMIT, "%s", r.err.msg);
+    cr_assert(strstr(r.err.msg, "the leaves' volumes does not fit in shared memory"), "%s",
+              r.err.msg);
+    free(out.p);
+    free(file.p);
     engine_destroy(e);
     csg_tree_free(t);
 }
