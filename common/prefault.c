@@ -1,5 +1,7 @@
 #include "prefault.h"
 
+#include "par.h"
+
 #include <stdint.h>
 #include <string.h>
 #include <sys/mman.h>
@@ -23,4 +25,25 @@ void prefault_copy(void *to, const void *src, size_t n)
 {
     prefault_write(to, n);
     if (n) memcpy(to, src, n);
+}
+
+typedef struct {
+    const prefault_span *spans;
+    int count;
+} span_set;
+
+static void copy_part(void *ud, unsigned k, unsigned parts)
+{
+    const span_set *set = ud;
+    for (int i = 0; i < set->count; i++) {
+        const prefault_span *s = &set->spans[i];
+        size_t lo = s->bytes * k / parts, hi = s->bytes * (k + 1) / parts;
+        prefault_copy((uint8_t *)s->to + lo, (const uint8_t *)s->from + lo, hi - lo);
+    }
+}
+
+void prefault_copy_par(const prefault_span *spans, int count, unsigned threads)
+{
+    span_set set = {spans, count};
+    par_run(threads, copy_part, &set);
 }

@@ -182,26 +182,6 @@ static int start_bricks(engine *e, csg_job *cj)
     return push_runs(e, b, cj->per);
 }
 
-/* Arrays into fresh pages of the segment, each cut into as many parts as
- * there are threads: the copy's time is the first touch of those pages
- * (the dragon's vertices, triangles and bins, 17 MB: 15 ms on one thread,
- * the CSG job's largest serial span at 1024^3). */
-#define LEAF_COPIES 4
-typedef struct {
-    void *to[LEAF_COPIES];
-    const void *from[LEAF_COPIES];
-    size_t bytes[LEAF_COPIES];
-} leaf_copies;
-
-static void copy_part(void *ud, unsigned k, unsigned parts)
-{
-    const leaf_copies *c = ud;
-    for (int i = 0; i < LEAF_COPIES; i++) {
-        size_t lo = c->bytes[i] * k / parts, hi = c->bytes[i] * (k + 1) / parts;
-        prefault_copy((uint8_t *)c->to[i] + lo, (const uint8_t *)c->from[i] + lo, hi - lo);
-    }
-}
-
 /* The mesh leaf's mesh, bins and tile stats into the segment at *off as
  * a mesh job's block (mesh_block), the leaf's volume in the rest; *off
  * moved to the volume. */
@@ -224,12 +204,12 @@ static int lay_out_mesh(engine *e, const mesh *m, const mesh_vox_opts *o, const 
                        .ids_off = ids, .stats_off = stats, .volume_off = vol};
     memcpy(mb->lo, m->lo, sizeof mb->lo);
     memcpy(mb->hi, m->hi, sizeof mb->hi);
-    leaf_copies c = {{shm_at(e->seg.base, v), shm_at(e->seg.base, t), shm_at(e->seg.base, st),
-                      shm_at(e->seg.base, ids)},
-                     {m->vertices, m->triangles, bins->start, bins->ids},
-                     {(size_t)m->n_vertices * 12, (size_t)m->n_triangles * 12,
-                      (n + 1) * sizeof(uint64_t), bins->start[n] * sizeof(uint32_t)}};
-    par_run(par_cpus(), copy_part, &c);
+    prefault_span c[] = {
+        {shm_at(e->seg.base, v), m->vertices, (size_t)m->n_vertices * 12},
+        {shm_at(e->seg.base, t), m->triangles, (size_t)m->n_triangles * 12},
+        {shm_at(e->seg.base, st), bins->start, (n + 1) * sizeof(uint64_t)},
+        {shm_at(e->seg.base, ids), bins->ids, bins->start[n] * sizeof(uint32_t)}};
+    prefault_copy_par(c, 4, par_cpus()); /* a serial span of 15 ms on one thread */
     vod_volume *lv;
     if (vod_volume_init(&lv, shm_at(e->seg.base, vol), end - vol, g->res, mesh_vox_bits(o),
                         CSG_VOLUME_BRICK))
