@@ -13,6 +13,12 @@
 #   iso       Scene 1's surface voxels at half BENCH_SCALE_RES polygonized
 #             (vox mesh)
 #
+# Last, what the machine itself gives independent work: Scene 1 at
+# BENCH_SCALE_RES / 2 with one worker, alone, then as many copies at once
+# as the largest worker count, each pinned to a CPU of its own (taskset;
+# where that is missing, vox's automatic pinning); its yield t1 / tN is
+# the ceiling no job's yield at that count can pass on this machine.
+#
 # Per job and worker count: the job's own seconds (vox's summary: for
 # vox voxelize the voxelization plus the VOD write, for a mesh its `job`
 # figure, for vox csg the evaluation plus the write, for vox mesh the
@@ -115,4 +121,44 @@ while IFS='|' read -r name label cmd; do
                 n, j, j1 / j, 100 * j1 * n1 / (n * j), w, w1 / w, 100 * w1 * n1 / (n * w) }'
     done
 done < <(jobs)
+
+# The CPUs this process may run on, one per line (Cpus_allowed_list's ranges).
+allowed_cpus() {
+    sed -n 's/^Cpus_allowed_list:[[:space:]]*//p' /proc/self/status | tr ',' '\n' |
+        awk -F- '{ for (c = $1; c <= ($2 == "" ? $1 : $2); c++) print c }'
+}
+# copies N: the wall seconds of N one-worker Scene 1 jobs started at once.
+copies() {
+    local cpus i t0 pin=()
+    mapfile -t cpus < <(allowed_cpus)
+    t0=$(date +%s.%N)
+    for ((i = 0; i < $1; i++)); do
+        command -v taskset >/dev/null && pin=(taskset -c "${cpus[i % ${#cpus[@]}]}")
+        "${pin[@]}" "$vox" voxelize -f examples/scene1.vx -r "$half" --embedded -q -w 1 \
+            -o "$tmp/copy$i.vod" &
+    done
+    wait || return 1
+    awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN { printf "%.3f\n", b - a }'
+    rm -f "$tmp"/copy*.vod
+}
+top=$(tr ' ' '\n' <<<"$workers" | sort -n | tail -1)
+echo "bench-scale: the machine's ceiling" >&2
+echo; echo "#### What this machine gives $top independent one-worker jobs"; echo
+echo "Scene 1 at ${half}^3 with 1 worker: alone, then $top copies at once, each on a CPU of its"
+echo "own; wall seconds, median of $repeats. *ceiling*: t1 / t$top, what no job's yield at $top"
+echo "workers can pass here."
+echo
+echo "| copies | wall (s) | ceiling |"
+echo "|---:|---:|---:|"
+: >"$tmp/ceil"
+copies 1 >/dev/null || true # the files' pages cached, as for the jobs' first runs
+for _ in $(seq "$repeats"); do
+    one=$(copies 1) && all=$(copies "$top") || { echo "| $top | failed | |"; failed=1; break; }
+    echo "one=$one all=$all" >>"$tmp/ceil"
+done
+if [ -s "$tmp/ceil" ]; then
+    r=$(medians <"$tmp/ceil" | awk '{ printf "%s=%s ", $1, $2 }')
+    awk -v n="$top" -v a="$(val one "$r")" -v b="$(val all "$r")" 'BEGIN {
+        printf "| 1 | %.3f | 100%% |\n| %d | %.3f | %.0f%% |\n", a, n, b, 100 * a / b }'
+fi
 exit "$failed"

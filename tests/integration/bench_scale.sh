@@ -27,3 +27,8 @@ done
 if [ "$(rows "the dragon" | wc -l)" -eq 2 ] || grep -q '^The dragon is skipped: ' "$TMP/b.md"; then
     pass "the dragon: its table, or why it is skipped"
 else fail "the dragon: its table, or why it is skipped" "$(grep -i dragon "$TMP/b.md")"; fi
+r=$(rows "independent one-worker jobs")
+if [ "$(wc -l <<<"$r")" -eq 2 ] && awk -F'|' 'NR == 1 && $2 + 0 == 1 && $4 ~ /100%/ { a = 1 }
+        NR == 2 && $2 + 0 == 2 && $3 + 0 > 0 && $4 ~ /[0-9]+%/ { b = 1 } END { exit !(a && b) }' <<<"$r"; then
+    pass "the machine's ceiling: one copy alone, then 2 at once, with their ratio"
+else fail "the machine's ceiling: one copy alone, then 2 at once, with their ratio" "$r"; fi
