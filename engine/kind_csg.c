@@ -305,7 +305,9 @@ static int vod_leaf(engine *e, csg_job *cj, uint32_t i)
     /* -ENOMEM is the segment's only when the volume's pool ran out; else
      * the heap's (the file's read, a thread's brick buffer) */
     if (rc == -ENOMEM && in.pool_full) return engine_sched_no_room(e, "the leaves' volumes");
-    if (rc) return engine_sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_BAD_JOB, rc, "%s", le.msg);
+    if (rc)
+        return engine_sched_fail(e, rc == -ENOMEM ? ENGINE_LIMIT : ENGINE_BAD_JOB, rc, "%s",
+                                 le.msg);
     b->leaf_off[i] = cj->off;
     cj->off = engine_sched_align64(cj->off + in.bytes_used);
     return 0;

@@ -46,14 +46,9 @@ static uint64_t place_mesh(engine *e, const mesh *m, mesh_block *b)
  * are binned, on as many threads as the binning's (the copy's time is the
  * first touch of the segment's pages): on one thread beside the binning,
  * the copy outlasted it on 16 cores and ran alone. */
-typedef struct {
-    prefault_span spans[2];
-} mesh_copy;
-
-static void *copy_mesh(void *ud)
+static void *copy_mesh(void *spans)
 {
-    const mesh_copy *c = ud;
-    prefault_copy_par(c->spans, 2, par_cpus());
+    prefault_copy_par(spans, 2, par_cpus());
     return NULL;
 }
 
@@ -163,12 +158,12 @@ static int mesh_setup(engine *e, void *job)
     memset(b, 0, sizeof *b);
     if (place_mesh(e, j->mesh, b) > e->h->data_off + e->h->data_bytes)
         return engine_sched_no_room(e, "the mesh");
-    mesh_copy copy = {{{shm_at(e->seg.base, b->vertices_off), j->mesh->vertices,
-                        (size_t)j->mesh->n_vertices * 12},
-                       {shm_at(e->seg.base, b->triangles_off), j->mesh->triangles,
-                        (size_t)j->mesh->n_triangles * 12}}};
+    prefault_span copy[] = {
+        {shm_at(e->seg.base, b->vertices_off), j->mesh->vertices, (size_t)j->mesh->n_vertices * 12},
+        {shm_at(e->seg.base, b->triangles_off), j->mesh->triangles,
+         (size_t)j->mesh->n_triangles * 12}};
     par_task copying;
-    par_start(&copying, copy_mesh, &copy);
+    par_start(&copying, copy_mesh, copy);
     double t0 = clock_now();
     mesh_bins bins;
     int rc = mesh_bin(j->mesh, &j->grid, &j->opts, NULL, par_cpus(), &bins);
