@@ -1,13 +1,14 @@
 /* The command line's file reader (cli_read_file): a file larger than one
  * part (4 MiB) read by several threads at their offsets, each byte where
  * it was, the size past the limit refused, a directory and a missing file
- * refused with their own errors. */
+ * refused with their own errors, a file shorter than its size refused. */
 #include <criterion/criterion.h>
 #include <errno.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "cli.h"
@@ -56,4 +57,19 @@ Test(cli_util, files_it_cannot_read_are_refused_typed)
     unlink(path);
     cr_assert_eq(cli_read_file(path, 100, &data, &len), -ENOENT);
     cr_assert_eq(cli_read_file("/tmp", SIZE_MAX, &data, &len), -EISDIR);
+}
+
+/* A file that ends before its size (as one cut short while it is read):
+ * sysfs gives every attribute a size of a page and a few bytes of text. */
+Test(cli_util, a_file_shorter_than_its_size_is_an_input_error)
+{
+    const char *path = "/sys/devices/system/cpu/online";
+    struct stat st;
+    cr_assert_eq(stat(path, &st), 0, "%s: %s (the test needs sysfs)", path, strerror(errno));
+    cr_assert_gt(st.st_size, 16, "%s: size %lld, no longer than its text", path,
+                 (long long)st.st_size);
+    char *data = NULL;
+    size_t len = 0;
+    cr_assert_eq(cli_read_file(path, SIZE_MAX, &data, &len), -EIO);
+    cr_assert_null(data);
 }
