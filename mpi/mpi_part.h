@@ -22,6 +22,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <sys/mman.h>
 
 #include "csg.h"
 #include "csg_pack.h"
@@ -110,6 +111,18 @@ typedef int (*mpi_deliver)(void *ud, const mpi_bricks *b);
 
 typedef enum { MPI_KIND_IMPLICIT = 1, MPI_KIND_MESH, MPI_KIND_CSG } mpi_kind;
 
+/* A CSG job's file leaves over the whole grid, for a rank that runs its
+ * tasks serially: built by its first task, kept for the others (each
+ * task built them whole again: a mesh leaf voxelized once per octant). */
+typedef struct {
+    int built;
+    void *arena; /* MAP_FAILED: none */
+    size_t bytes;
+    vod_volume *v[CSG_MAX_NODES];
+} mpi_leaves;
+#define MPI_LEAVES_INIT {.arena = MAP_FAILED}
+void mpi_leaves_free(mpi_leaves *l);
+
 typedef struct {
     mpi_kind kind;           /* 0: implicit */
     const expr_tape *tape;   /* implicit */
@@ -121,6 +134,7 @@ typedef struct {
     uint32_t node_level;
     engine *e;           /* NULL: the serial algorithm in this thread */
     engine_schedule schedule;
+    mpi_leaves *leaves;  /* csg without e: kept across tasks (NULL: built per task) */
 } mpi_subtree_job;
 
 /* The tiles of a mesh job's column o (mesh_vox.h's tx0, ty0, tx1, ty1). */

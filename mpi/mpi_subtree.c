@@ -278,23 +278,33 @@ static int csg_leaves(const mpi_subtree_job *j, void **arena, size_t *bytes,
     return csg_leaves_build(j->tree, &j->grid, &a, leaves, err);
 }
 
-/* A csg task's bricks into vol, in this thread. */
+void mpi_leaves_free(mpi_leaves *l)
+{
+    if (l->arena != MAP_FAILED) munmap(l->arena, l->bytes);
+    *l = (mpi_leaves)MPI_LEAVES_INIT;
+}
+
+/* A csg task's bricks into vol, in this thread, over the job's leaves
+ * (j->leaves: built by the first task; else for this task alone). */
 static int csg_serial(const mpi_subtree_job *j, grid_octant o, vod_volume *vol, sub_ctx *c,
                       err_info *err)
 {
-    void *larena;
-    size_t lbytes = 0;
-    vod_volume *leaves[CSG_MAX_NODES];
-    int rc = csg_leaves(j, &larena, &lbytes, leaves, err);
+    mpi_leaves own = MPI_LEAVES_INIT, *l = j->leaves ? j->leaves : &own;
+    int rc = 0;
+    if (!l->built) {
+        mpi_leaves_free(l); /* what a failed build left */
+        rc = csg_leaves(j, &l->arena, &l->bytes, l->v, err);
+        l->built = !rc;
+    }
     csg_bricks part = {.vol = vol, .channel = j->vod.channel};
     octant_bricks(o, part.lo, part.hi);
     csg_stats st = {0};
     if (!rc) {
-        rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)leaves, &part, &st);
+        rc = csg_eval_bricks(j->tree, &j->grid, (const vod_volume *const *)l->v, &part, &st);
         if (rc) err_set(err, rc, "evaluating the tree: %s", strerror(-rc));
     }
     c->voxels = st.solid_voxels;
-    if (larena != MAP_FAILED) munmap(larena, lbytes);
+    mpi_leaves_free(&own);
     return rc;
 }
 

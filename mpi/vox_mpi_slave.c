@@ -164,8 +164,12 @@ int mpi_slave_run(slave *s, const wire_job *j)
             return rc;
         }
     }
+    mpi_leaves leaves = MPI_LEAVES_INIT;
     s->sj.e = e;
+    s->sj.leaves = &leaves;
     int rc = slave_loop(s);
+    s->sj.leaves = NULL;
+    mpi_leaves_free(&leaves);
     engine_destroy(e);
     return rc;
 }
