@@ -319,7 +319,7 @@ bench-csg: all $(BUILD)/voxwhole
 	@scripts/bench-csg.sh $(BUILD)
 
 # Every kind of job from 1 to N workers (scripts/bench-scale.sh, also run by make bench).
-bench-scale: all $(BUILD)/voxwhole $(BUILD)/bench_mesh
+bench-scale: all $(BUILD)/voxwhole $(BUILD)/bench_mesh $(BUILD)/voxserial
 	@scripts/bench-scale.sh $(BUILD)
 
 # The serial share of six jobs, from outside (scripts/bench-serial.sh, also run by make bench).

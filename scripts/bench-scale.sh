@@ -13,6 +13,14 @@
 #   iso       Scene 1's surface voxels at half BENCH_SCALE_RES polygonized
 #             (vox mesh)
 #
+# Then where each job's yield at the largest worker count N goes, from
+# outside its processes (bench/voxserial, every thread of the tree sampled
+# every 2 ms): one run at 1 worker and one at N; *busy*: the tree's CPU
+# seconds over N x wall; *CPU*: its CPU seconds at N over those at 1 (more
+# work for the same job); *unused*: the CPU time the windows with fewer
+# than N runnable threads left, sum (N - k) x seconds, over N x wall;
+# *serial*: the share of the wall with at most one runnable thread.
+#
 # Last, what the machine itself gives independent work: Scene 1 at
 # BENCH_SCALE_RES / 2 with one worker, alone, then as many copies at once
 # as the largest worker count, each pinned to a CPU of its own (taskset;
@@ -45,8 +53,8 @@ res=${BENCH_SCALE_RES:-$dres}
 repeats=${BENCH_REPEATS:-$drep}
 workers=${BENCH_SCALE_WORKERS:-$dworkers}
 models=${VOXD_MESH_MODELS:-build/npm/node_modules}
-vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh
-bench_start bench-scale "$vox" "$whole" "$bm"
+vox=$build/vox whole=$build/voxwhole bm=$build/bench_mesh serial=$build/voxserial
+bench_start bench-scale "$vox" "$whole" "$bm" "$serial"
 failed=0
 
 sed -n '/^cat >"$tmp\/ten.csg"/,/^EOT$/p' scripts/bench-csg.sh | sed '1d;$d' >"$tmp/ten.csg"
@@ -122,6 +130,42 @@ while IFS='|' read -r name label cmd; do
     done
 done < <(jobs)
 
+top=$(tr ' ' '\n' <<<"$workers" | sort -n | tail -1)
+
+# sampled NAME COMMAND WORKERS: voxserial's two lines for one run, on one line.
+sampled() {
+    local cmd=${2//OUT/$tmp/out}
+    # shellcheck disable=SC2086 # the command is split into its words on purpose
+    "$serial" -p 2000 -n "$3" -o "$tmp/s" -- "$vox" $cmd -w "$3" >/dev/null 2>&1 || return 1
+    head -2 "$tmp/s" | paste -sd' '
+}
+echo "bench-scale: where the yield goes" >&2
+echo; echo "#### Where the yield at $top workers goes"; echo
+echo "One run at 1 worker and one at $top under bench/voxserial (every thread of the command's"
+echo "tree sampled every 2 ms). *busy*: CPU seconds / ($top x wall); *CPU*: CPU seconds at $top"
+echo "over those at 1; *unused*: the CPU time the windows with fewer than $top runnable threads"
+echo "left, over $top x wall; *serial*: the wall's share with at most one runnable thread."
+echo
+echo "| job | yield | busy | CPU | unused | serial |"
+echo "|---|---:|---:|---:|---:|---:|"
+while IFS='|' read -r name label cmd; do
+    if ! one=$(sampled "$name" "$cmd" 1) || ! all=$(sampled "$name" "$cmd" "$top"); then
+        echo "| $label | failed | | | | |"; failed=1; continue
+    fi
+    awk -v n="$top" -v label="$label" -v one="$one" -v all="$all" '
+    function get(line, key,   f, k, i) {
+        k = split(line, f, " ")
+        for (i = 1; i <= k; i++) if (index(f[i], key "=") == 1) return substr(f[i], length(key) + 2)
+        return ""
+    }
+    BEGIN {
+        w1 = get(one, "wall_s"); c1 = get(one, "cpu_s"); w = get(all, "wall_s"); c = get(all, "cpu_s")
+        k = split(get(all, "runnable_s"), h, ",")
+        for (i = 1; i <= k; i++) { split(h[i], p, ":"); if (p[1] < n) unused += (n - p[1]) * p[2] }
+        printf "| %s | %.0f%% | %.0f%% | %.2f | %.0f%% | %.1f%% |\n", label, 100 * w1 / (n * w),
+            100 * c / (n * w), c / c1, 100 * unused / (n * w), 100 * get(all, "serial_s") / w }'
+done < <(jobs)
+
 # The CPUs this process may run on, one per line (Cpus_allowed_list's ranges).
 allowed_cpus() {
     sed -n 's/^Cpus_allowed_list:[[:space:]]*//p' /proc/self/status | tr ',' '\n' |
@@ -141,7 +185,6 @@ copies() {
     awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN { printf "%.3f\n", b - a }'
     rm -f "$tmp"/copy*.vod
 }
-top=$(tr ' ' '\n' <<<"$workers" | sort -n | tail -1)
 echo "bench-scale: the machine's ceiling" >&2
 echo; echo "#### What this machine gives $top independent one-worker jobs"; echo
 echo "Scene 1 at ${half}^3 with 1 worker: alone, then $top copies at once, each on a CPU of its"

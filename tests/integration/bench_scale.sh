@@ -32,3 +32,9 @@ if [ "$(wc -l <<<"$r")" -eq 2 ] && awk -F'|' 'NR == 1 && $2 + 0 == 1 && $4 ~ /10
         NR == 2 && $2 + 0 == 2 && $3 + 0 > 0 && $4 ~ /[0-9]+%/ { b = 1 } END { exit !(a && b) }' <<<"$r"; then
     pass "the machine's ceiling: one copy alone, then 2 at once, with their ratio"
 else fail "the machine's ceiling: one copy alone, then 2 at once, with their ratio" "$r"; fi
+# Where the yield goes: a row for each job that ran, a number in every cell.
+r=$(awk '/^#### Where the yield at 2 workers goes/ { on = 1; next } /^#### / { on = 0 } on && /^\| / && !/^\| job / && !/^\|---/' "$TMP/b.md")
+n=$(grep -c . <<<"$r")
+bad=$(awk -F'|' '{ for (i = 3; i < NF; i++) { c = $i; gsub(/[ %]/, "", c); if (c !~ /^[0-9.]+$/) print } }' <<<"$r")
+if [ "$n" -ge 4 ] && [ -z "$bad" ]; then pass "where the yield goes: $n jobs, numbers in every cell"
+else fail "where the yield goes: a row for each job, numbers in every cell" "$r"; fi
