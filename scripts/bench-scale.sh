@@ -132,11 +132,11 @@ done < <(jobs)
 
 top=$(tr ' ' '\n' <<<"$workers" | sort -n | tail -1)
 
-# sampled NAME COMMAND WORKERS: voxserial's two lines for one run, on one line.
+# sampled COMMAND WORKERS: voxserial's two lines for one run, on one line.
 sampled() {
-    local cmd=${2//OUT/$tmp/out}
+    local cmd=${1//OUT/$tmp/out}
     # shellcheck disable=SC2086 # the command is split into its words on purpose
-    "$serial" -p 2000 -n "$3" -o "$tmp/s" -- "$vox" $cmd -w "$3" >/dev/null 2>&1 || return 1
+    "$serial" -p 2000 -n "$2" -o "$tmp/s" -- "$vox" $cmd -w "$2" >/dev/null 2>&1 || return 1
     head -2 "$tmp/s" | paste -sd' '
 }
 echo "bench-scale: where the yield goes" >&2
@@ -148,8 +148,8 @@ echo "left, over $top x wall; *serial*: the wall's share with at most one runnab
 echo
 echo "| job | yield | busy | CPU | unused | serial |"
 echo "|---|---:|---:|---:|---:|---:|"
-while IFS='|' read -r name label cmd; do
-    if ! one=$(sampled "$name" "$cmd" 1) || ! all=$(sampled "$name" "$cmd" "$top"); then
+while IFS='|' read -r _ label cmd; do
+    if ! one=$(sampled "$cmd" 1) || ! all=$(sampled "$cmd" "$top"); then
         echo "| $label | failed | | | | |"; failed=1; continue
     fi
     awk -v n="$top" -v label="$label" -v one="$one" -v all="$all" '
@@ -173,15 +173,17 @@ allowed_cpus() {
 }
 # copies N: the wall seconds of N one-worker Scene 1 jobs started at once.
 copies() {
-    local cpus i t0 pin=()
+    local cpus i t0 pid pids=() pin=() rc=0
     mapfile -t cpus < <(allowed_cpus)
     t0=$(date +%s.%N)
     for ((i = 0; i < $1; i++)); do
         command -v taskset >/dev/null && pin=(taskset -c "${cpus[i % ${#cpus[@]}]}")
         "${pin[@]}" "$vox" voxelize -f examples/scene1.vx -r "$half" --embedded -q -w 1 \
             -o "$tmp/copy$i.vod" &
+        pids+=($!)
     done
-    wait || return 1
+    for pid in "${pids[@]}"; do wait "$pid" || rc=1; done
+    [ "$rc" = 0 ] || return 1
     awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN { printf "%.3f\n", b - a }'
     rm -f "$tmp"/copy*.vod
 }
