@@ -184,6 +184,15 @@ static inline void mesh_text_skip_space(mtext *t)
 static inline int mesh_text_eol(const mtext *t) { return t->p == t->end || *t->p == '\n'; }
 /* Past the next newline. */
 void mesh_text_next_line(mtext *t);
+/* The parallel parsers' line: [*p, its '\n' or stop) as an mtext over
+ * base, *p moved past it. */
+static inline mtext mesh_text_line(const char **p, const char *stop, const char *base)
+{
+    const char *nl = memchr(*p, '\n', (size_t)(stop - *p));
+    mtext t = {*p, nl ? nl : stop, base};
+    *p = nl ? nl + 1 : stop;
+    return t;
+}
 /* The '\n' bytes in [p, end) (the parallel parsers' first pass). */
 uint64_t mesh_text_count_newlines(const char *p, const char *end);
 /* Part k of [data, end) cut into `parts` at line starts: the start of the
@@ -268,6 +277,18 @@ static inline int mesh_text_float(mtext *t, float *out)
 #else
     return mesh_text_float_slow(t, out);
 #endif
+}
+
+/* A vertex's three coordinates, each after blanks, all finite, into v:
+ * the parallel parsers' reading (0, or -1: the one-thread parser says
+ * what is wrong). */
+static inline int mesh_text_xyz(mtext *t, float v[3])
+{
+    for (int k = 0; k < 3; k++) {
+        mesh_text_skip_blank(t);
+        if (mesh_text_float(t, &v[k])) return -1;
+    }
+    return mesh_build_finite(v) ? 0 : -1;
 }
 
 /* A decimal integer with an optional sign, ending wherever its digits end

@@ -43,9 +43,8 @@ static const char *part_start(const par_obj *po, uint32_t k)
  * when the line is continued by a backslash (the fast path gives up). */
 static int next_line(const char **p, const char *stop, const char *base, mtext *t)
 {
-    const char *nl = memchr(*p, '\n', (size_t)(stop - *p)), *e = nl ? nl : stop;
-    *t = (mtext){*p, e, base};
-    *p = nl ? nl + 1 : stop;
+    *t = mesh_text_line(p, stop, base);
+    const char *e = t->end;
     while (e > t->p && e[-1] == '\r') e--;
     return !(e > t->p && e[-1] == '\\');
 }
@@ -83,16 +82,6 @@ static int count_part(void *ud, uint32_t i)
     }
     po->nv[i] = nv, po->nt[i] = nt;
     return 0;
-}
-
-/* A vertex's three coordinates into v; -1: give up. */
-static int take_vertex(mtext *t, float v[3])
-{
-    for (int k = 0; k < 3; k++) {
-        mesh_text_skip_blank(t);
-        if (mesh_text_float(t, &v[k])) return -1;
-    }
-    return mesh_build_finite(v) ? 0 : -1;
 }
 
 /* One face vertex "i[/[t][/n]]" of a file with `so_far` vertices before
@@ -142,7 +131,7 @@ static int parse_part(void *ud, uint32_t i)
         if (!next_line(&p, stop, po->data, &t)) return -1;
         mesh_text_skip_blank(&t);
         int rc = 0;
-        if (mesh_text_word(&t, "v", 0)) rc = take_vertex(&t, b->v[v++]);
+        if (mesh_text_word(&t, "v", 0)) rc = mesh_text_xyz(&t, b->v[v++]);
         else if (mesh_text_word(&t, "f", 0)) rc = take_face(&t, b, v, &tri);
         if (rc) return -1;
     }

@@ -40,14 +40,7 @@ static int record(par_off *po, mtext *t, uint64_t g)
     mesh_text_skip_blank(t);
     if (g >= po->nv + po->nf) return t->p == t->end ? 0 : -1;
     if (t->p == t->end || *t->p == '#') return -1; /* a blank or comment line */
-    if (g < po->nv) {
-        float *v = po->b->v[g];
-        for (int k = 0; k < 3; k++) {
-            mesh_text_skip_blank(t);
-            if (mesh_text_float(t, &v[k])) return -1;
-        }
-        return mesh_build_finite(v) ? 0 : -1;
-    }
+    if (g < po->nv) return mesh_text_xyz(t, po->b->v[g]);
     uint64_t k, idx[3];
     if (mesh_text_uint_token(t, UINT32_MAX, &k) || k != 3) return -1;
     for (int j = 0; j < 3; j++) {
@@ -65,9 +58,7 @@ static int parse_part(void *ud, uint32_t i)
     par_off *po = ud;
     const char *p = part_start(po, i), *stop = part_start(po, i + 1);
     for (uint64_t g = po->first[i]; p < stop; g++) {
-        const char *nl = memchr(p, '\n', (size_t)(stop - p));
-        mtext t = {p, nl ? nl : stop, po->data};
-        p = nl ? nl + 1 : stop;
+        mtext t = mesh_text_line(&p, stop, po->data);
         if (record(po, &t, g)) return -1;
     }
     return 0;

@@ -20,7 +20,6 @@
 #include "mesh_load.h"
 #include "par.h"
 
-
 enum { T_CHAR, T_UCHAR, T_SHORT, T_USHORT, T_INT, T_UINT, T_FLOAT, T_DOUBLE, T_NONE };
 
 static const struct {
@@ -456,9 +455,7 @@ static int parse_part(void *ud, uint32_t i)
     const char *p = part_start(pp, i), *stop = part_start(pp, i + 1);
     uint32_t ei = 0;
     for (uint64_t g = pp->first[i]; p < stop; g++) {
-        const char *nl = memchr(p, '\n', (size_t)(stop - p));
-        mtext t = {p, nl ? nl : stop, y->b->buf};
-        p = nl ? nl + 1 : stop;
+        mtext t = mesh_text_line(&p, stop, y->b->buf);
         while (ei < y->nelems && g >= pp->ebase[ei + 1]) ei++;
         if (ei == y->nelems) { /* past the last item: blanks only */
             mesh_text_skip_blank(&t);

@@ -60,11 +60,12 @@ static void paths_agree(const uint8_t *data, size_t size, mesh_format f, size_t 
     mesh m[2];
     mesh_error err[2];
     int rc[2];
+    size_t was = *min_bytes;
     for (int k = 0; k < 2; k++) {
         *min_bytes = k ? SIZE_MAX : 0;
         rc[k] = mesh_parse(data, size, f, NULL, &m[k], &err[k]);
     }
-    *min_bytes = (size_t)1 << 20;
+    *min_bytes = was;
     if (rc[0] != rc[1]) __builtin_trap();
     if (rc[0]) {
         if (strcmp(err[0].msg, err[1].msg) || err[0].line != err[1].line) __builtin_trap();

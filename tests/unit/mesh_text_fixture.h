@@ -58,6 +58,14 @@ static inline text ply_binary(const float (*v)[3], int nv, const uint32_t (*t)[3
     return s;
 }
 
+/* s parsed as format f into m; the test fails on an error, saying it. */
+static inline void parse_text(const text *s, mesh_format f, mesh *m)
+{
+    mesh_error e;
+    int rc = mesh_parse(s->p, s->n, f, NULL, m, &e);
+    cr_assert_eq(rc, 0, "%s (line %llu)", e.msg, (unsigned long long)e.line);
+}
+
 static inline void same_mesh(const mesh *a, const mesh *b, const char *what)
 {
     cr_assert_eq(a->n_vertices, b->n_vertices, "%s: vertices", what);

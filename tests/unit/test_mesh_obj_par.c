@@ -108,13 +108,7 @@ static text binary_file(void)
 
 static uint64_t par_runs(void) { return atomic_load(&mesh_obj_par_runs); }
 
-static void parse(const text *s, mesh *m)
-{
-    mesh_error e;
-    int rc = mesh_parse(s->p, s->n, MESH_FORMAT_OBJ, NULL, m, &e);
-    cr_assert_eq(rc, 0, "%s (line %llu)", e.msg, (unsigned long long)e.line);
-}
-
+static void parse(const text *s, mesh *m) { parse_text(s, MESH_FORMAT_OBJ, m); }
 
 TestSuite(mesh_obj_par, .init = make_mesh);
 
@@ -214,12 +208,7 @@ static text off_file(int crlf)
     return s;
 }
 
-static void parse_off(const text *s, mesh *m)
-{
-    mesh_error e;
-    int rc = mesh_parse(s->p, s->n, MESH_FORMAT_OFF, NULL, m, &e);
-    cr_assert_eq(rc, 0, "%s (line %llu)", e.msg, (unsigned long long)e.line);
-}
+static void parse_off(const text *s, mesh *m) { parse_text(s, MESH_FORMAT_OFF, m); }
 
 Test(mesh_obj_par, an_off_file_gives_the_binary_files_mesh_on_every_cpu)
 {

@@ -97,13 +97,7 @@ static text binary_file(void)
 
 static uint64_t par_runs(void) { return atomic_load(&mesh_ply_par_runs); }
 
-static void parse(const text *s, mesh *m)
-{
-    mesh_error e;
-    int rc = mesh_parse(s->p, s->n, MESH_FORMAT_AUTO, NULL, m, &e);
-    cr_assert_eq(rc, 0, "%s (line %llu)", e.msg, (unsigned long long)e.line);
-}
-
+static void parse(const text *s, mesh *m) { parse_text(s, MESH_FORMAT_AUTO, m); }
 
 TestSuite(mesh_ply_par, .init = make_mesh);
 
